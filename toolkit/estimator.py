@@ -72,6 +72,9 @@ __all__ = [
 DETECTION_LEVEL = 0.01
 _CHI2_2 = -2.0 * np.log(DETECTION_LEVEL)  # chi2 with 2 dof has survival exp(-x/2)
 
+# A vertex further out than this (normalised units, ~90 deg off axis) is at infinity.
+_MAX_VERTEX = 1e6
+
 # Below this cos(gamma) the closed-form start is treated as edge-on; the LM takes over.
 _MIN_COS = np.cos(np.radians(89.5))
 
@@ -281,7 +284,12 @@ def _closed_form(bx, by, ct, st, w, Q, oriented, twin=True):
     sw = np.sqrt(w)
     rows = np.stack([sb * ct, sb * st, -cb * ct, -cb * st], -1) * sw[..., None]
     M = np.matmul(np.swapaxes(rows, -1, -2), rows)
-    h = np.linalg.eigh(M)[1][..., :, 0]
+    evals, evecs = np.linalg.eigh(M)
+    # a unique pencil needs a one-dimensional null space; three or more lines that share
+    # one direction (or two directions only) leave two
+    if np.any(evals[..., 1] <= 1e-20 * evals[..., 3]):
+        raise EstimationError("the lines do not determine a pencil: fewer than three distinct directions")
+    h = evecs[..., :, 0]
     a, b, c, d = h[..., 0], h[..., 1], h[..., 2], h[..., 3]
     if oriented:
         # the spoke directions (vertex -> tip) must agree with the line directions
@@ -596,6 +604,8 @@ def fit_pencil(line_angles, spoke_angles, vertex, sigma=np.radians(0.1), vertex_
     used = m.sum(-1)
     if np.any(used < 3):
         raise EstimationError(f"a pencil needs at least three lines, got {int(used.min())}")
+    if np.any(np.abs(x) > _MAX_VERTEX):
+        raise EstimationError("the vertex is at infinity (the lines are parallel in the image)")
     ca, sa, ct, st = np.cos(a), np.sin(a), np.cos(th), np.sin(th)
     Q = _virtual_rotation(x)
     bx, by = _virtual_line_dirs(Q, ca, sa)

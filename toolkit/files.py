@@ -56,6 +56,10 @@ def atomic_path(path, force=False):
     check_writable(p, force)
     fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=p.suffix, dir=p.parent if str(p.parent) else ".")
     os.close(fd)
+    # mkstemp makes the file private (0600); outputs get the permissions of any new file
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
     try:
         yield Path(tmp)
         os.replace(tmp, p)

@@ -62,7 +62,8 @@ class Pencil:
         return int(self.angles.shape[0])
 
     def to_dict(self) -> dict:
-        d = {"angles_deg": [float(a) for a in np.degrees(self.angles)]}
+        # degrees are what people type; 12 decimals hide the radian round trip's last bit
+        d = {"angles_deg": [float(a) for a in np.round(np.degrees(self.angles), 12)]}
         if self.vertex is not None:
             d["vertex"] = [float(v) for v in self.vertex]
         if self.radius is not None:

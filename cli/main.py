@@ -1,0 +1,38 @@
+"""The `pencilcal` command group."""
+from __future__ import annotations
+
+from importlib.metadata import PackageNotFoundError, version
+
+import click
+
+from .orient import orient
+
+try:
+    __version__ = version("pencilcal")
+except PackageNotFoundError:  # running from a source tree without installing
+    __version__ = "0+unknown"
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(__version__, prog_name="pencilcal")
+def cli():
+    """pencilcal: orientation of a pencil of lines from its image angles.
+
+    A camera sees a pencil (straight lines through one point: a printed fan of spokes, an
+    instrument pivoting about its port). From the image angles alone pencilcal recovers the
+    plane's orientation, the vertex and its viewing ray, and how far to trust them.
+
+    Conventions: OpenCV camera frame (x right, y down, z forward); transforms named
+    a_from_b; angles in degrees in files and options.
+    """
+
+
+cli.add_command(orient)
+
+
+def main():
+    cli(prog_name="pencilcal")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,112 @@
+"""`pencilcal orient`: angular-variation orientation per frame."""
+from __future__ import annotations
+
+import numpy as np
+import click
+
+from pencilcal.toolkit.camera_io import read_camera
+from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.files import write_json
+from pencilcal.toolkit.lines_io import read_lines
+from pencilcal.toolkit.orient import MODELS, orient_segments, resolve_twins_by_continuity
+from pencilcal.toolkit.pencil import read_pencil
+
+from .common import check_output, force_option, output_option, progress, quiet_option, run, warn
+
+
+def _prior_rotations(path):
+    """R_cam_from_target per image name from a poses.json (pencilcal pnp) file."""
+    from pencilcal.toolkit.files import load_structured
+
+    data = load_structured(path, "poses file")
+    frames = data.get("frames") if isinstance(data, dict) else None
+    if not isinstance(frames, list):
+        raise InputError(f"{path}: a poses file is an object with a 'frames' list")
+    out = {}
+    for i, f in enumerate(frames):
+        if isinstance(f, dict) and f.get("ok", True) and f.get("R_cam_from_target") is not None:
+            R = np.asarray(f["R_cam_from_target"], float)
+            if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+                raise InputError(f"{path}: frame {i}: R_cam_from_target must be a finite 3x3 matrix")
+            out[str(f.get("image", i))] = R
+    return out
+
+
+@click.command()
+@click.option("--lines", "lines_path", required=True, type=click.Path(dir_okay=False),
+              help="Line segments per frame (lines.json, raw pixels).")
+@click.option("--camera", "camera_path", required=True, type=click.Path(),
+              help="Camera file: .json, .yaml/.yml/.xml (OpenCV), .cameramodel (mrcal), COLMAP cameras.txt/.bin or model folder.")
+@click.option("--camera-id", type=int, default=None, help="Camera id in a COLMAP file with several cameras.")
+@click.option("--pencil", "pencil_path", required=True, type=click.Path(dir_okay=False),
+              help="Pencil file (.yaml/.json): spoke angles, optional vertex and radius.")
+@output_option
+@click.option("--model", type=click.Choice(MODELS), default="exact", show_default=True,
+              help="exact: the exact estimator; general/aligned: the chapter's models, for comparison.")
+@click.option("--endpoint-sigma", type=float, default=0.5, show_default=True,
+              help="Noise of each segment end point [px], sets the angle and offset uncertainty.")
+@click.option("--angle-sigma", type=float, default=None,
+              help="Angle noise of every segment [deg], instead of deriving it from the end points.")
+@click.option("--prior", "prior_path", type=click.Path(dir_okay=False), default=None,
+              help="poses.json (pencilcal pnp): picks the twin closer to each frame's board pose.")
+@click.option("--continuity/--no-continuity", default=True, show_default=True,
+              help="Carry twin choices along the sequence to ambiguous frames.")
+@force_option
+@quiet_option
+@run
+def orient(lines_path, camera_path, camera_id, pencil_path, output, model, endpoint_sigma, angle_sigma,
+           prior_path, continuity, force, quiet):
+    """Orientation of the pencil in every frame, from its image angles alone.
+
+    Reads segments in raw pixels, undistorts them, finds the vertex, labels the segments
+    with spokes (missing spokes and spurious segments are tolerated) and fits the plane's
+    orientation with its uncertainty. Both twin solutions are written; the twin is chosen
+    where the spoke radii (pencil file), a prior pose or continuity tell them apart.
+
+    \b
+    Example:
+      pencilcal orient --lines lines.json --camera camera.yaml \\
+          --pencil pencil.yaml -o orientation.json
+    """
+    if endpoint_sigma <= 0:
+        raise click.BadParameter("must be positive", param_hint="--endpoint-sigma")
+    if angle_sigma is not None and angle_sigma <= 0:
+        raise click.BadParameter("must be positive", param_hint="--angle-sigma")
+    check_output(output, force)
+    camera = read_camera(camera_path, camera_id=camera_id)
+    pencil = read_pencil(pencil_path)
+    frames = read_lines(lines_path)
+    if not frames:
+        raise InputError(f"{lines_path}: no frames")
+    priors = _prior_rotations(prior_path) if prior_path else {}
+    records = []
+    with progress(frames, "orient", quiet) as bar:
+        for fr in bar:
+            if not fr["ok"]:
+                rec = orient_segments(camera, np.zeros((0, 4)), pencil, model=model, image=fr["image"])
+                rec["error"] = "no segments (frame marked not ok in the lines file)"
+            else:
+                sig = fr.get("angle_sigma_deg")
+                if sig is None and angle_sigma is not None:
+                    sig = angle_sigma
+                rec = orient_segments(
+                    camera, fr["segments"], pencil, model=model, endpoint_sigma_px=endpoint_sigma,
+                    angle_sigma=None if sig is None else np.radians(sig), prior=priors.get(fr["image"]),
+                    image=fr["image"],
+                )
+            if not rec["ok"]:
+                warn(f"{fr['image']}: {rec['error']}")
+            records.append(rec)
+    if continuity:
+        records = resolve_twins_by_continuity(records)
+    out = {
+        "model": model,
+        "camera": str(camera_path),
+        "pencil": str(pencil_path),
+        "lines": str(lines_path),
+        "frames": records,
+    }
+    write_json(output, out, force=force)
+    n_ok = sum(r["ok"] for r in records)
+    if not quiet:
+        click.echo(f"{n_ok}/{len(records)} frames oriented -> {output}", err=True)

@@ -1,0 +1,111 @@
+"""`pencilcal orient --lines`: the file contract, exit codes and messages."""
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pencilcal.cli.main import cli
+from pencilcal.toolkit.camera_io import write_camera
+from tests.conftest import REPO
+from tests.helpers import fan, frame, hd_camera
+
+KEYS = ["image", "ok", "error", "vertex_px", "vertex_cov_px2", "lines_used", "rms_residual_deg",
+        "tilt_deg", "tilt_sigma_deg", "detectable", "normal", "normal_sigma_deg", "normal_twin",
+        "R_cam_from_target", "R_cam_from_target_twin", "ambiguous", "model"]
+
+
+@pytest.fixture
+def scene(tmp_path, rng):
+    cam = hd_camera()
+    write_camera(tmp_path / "camera.yaml", cam)
+    pen = fan(radius=None)
+    (tmp_path / "pencil.yaml").write_text("start_deg: 0\nstep_deg: 20\ncount: 8\n")
+    frames, truth = [], []
+    for i in range(4):
+        seg, R, _ = frame(cam, pen, 20 + 10 * i, 200.0, rng)
+        frames.append({"image": f"{i:03d}.png", "ok": True, "segments": seg.tolist()})
+        truth.append(R)
+    frames.append({"image": "bad.png", "ok": True, "segments": [[0, 0, 100, 100]]})
+    (tmp_path / "lines.json").write_text(json.dumps({"frames": frames}))
+    return tmp_path, truth
+
+
+def invoke(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def test_orient_writes_contract(scene):
+    d, truth = scene
+    r = invoke("orient", "--lines", d / "lines.json", "--camera", d / "camera.yaml", "--pencil", d / "pencil.yaml",
+               "-o", d / "out.json", "--quiet")
+    assert r.exit_code == 0, r.output
+    out = json.loads((d / "out.json").read_text())
+    assert len(out["frames"]) == 5
+    for fr, R in zip(out["frames"], truth):
+        assert all(k in fr for k in KEYS)
+        assert fr["ok"] and fr["model"] == "exact"
+        err = min(np.degrees(np.arccos(np.clip((np.trace(np.asarray(Rx).T @ R) - 1) / 2, -1, 1)))
+                  for Rx in (fr["R_cam_from_target"], fr["R_cam_from_target_twin"]))
+        assert err < 1e-4
+    bad = out["frames"][-1]
+    assert bad["ok"] is False and bad["error"]
+    # the failing frame is reported on stderr as one warning line
+    assert "bad.png" in r.output
+
+
+def test_no_overwrite_without_force(scene):
+    d, _ = scene
+    (d / "out.json").write_text("keep me")
+    args = ["orient", "--lines", d / "lines.json", "--camera", d / "camera.yaml", "--pencil", d / "pencil.yaml", "-o", d / "out.json", "-q"]
+    r = invoke(*args)
+    assert r.exit_code == 1 and "already exists" in r.output and "--force" in r.output
+    assert (d / "out.json").read_text() == "keep me"
+    assert invoke(*args, "--force").exit_code == 0
+
+
+@pytest.mark.parametrize("what,content,message", [
+    ("pencil", "angles_deg: [0, 20]\n", "at least three spokes"),
+    ("pencil", "angles_deg: [0, 20, .nan]\n", "finite"),
+    ("lines", '{"frames": [{"segments": [[1, 2, 3]]}]}', "[x1, y1, x2, y2]"),
+    ("lines", "{not json", "not valid JSON"),
+    ("camera", "%YAML:1.0\ncamera_matrix: !!opencv-matrix\n  rows: 3\n  cols: 3\n  dt: d\n  data: [.nan, 0, 1, 0, 1, 1, 0, 0, 1]\n", ""),
+])
+def test_bad_input_is_one_line_exit_1(scene, what, content, message):
+    d, _ = scene
+    name = {"pencil": "pencil.yaml", "lines": "lines.json", "camera": "camera.yaml"}[what]
+    (d / name).write_text(content)
+    r = invoke("orient", "--lines", d / "lines.json", "--camera", d / "camera.yaml", "--pencil", d / "pencil.yaml", "-o", d / "o.json", "-q")
+    assert r.exit_code == 1, r.output
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("pencilcal: error:")
+    assert name in lines[0] and message in lines[0]
+    assert "Traceback" not in r.output
+    assert not (d / "o.json").exists()
+
+
+def test_usage_error_exit_2(scene):
+    d, _ = scene
+    r = invoke("orient", "--camera", d / "camera.yaml")
+    assert r.exit_code == 2
+
+
+def test_help_has_an_example():
+    r = invoke("orient", "--help")
+    assert r.exit_code == 0 and "Example" in r.output and "pencilcal orient --lines" in r.output
+
+
+CHECK = REPO.parent / "shared" / "checks" / "contract_orient.py"
+
+
+@pytest.mark.skipif(not CHECK.is_file(), reason=f"contract check not found at {CHECK}")
+@pytest.mark.skipif(shutil.which("pencilcal") is None, reason="pencilcal is not installed on PATH")
+def test_shared_contract_check():
+    r = subprocess.run([sys.executable, str(CHECK), shutil.which("pencilcal")], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr

@@ -1,0 +1,50 @@
+"""Synthetic pencils seen by real-looking cameras, with exact truth, for the tests."""
+from __future__ import annotations
+
+import numpy as np
+
+from pencilcal.toolkit.camera import Camera
+from pencilcal.toolkit.frames import rotation_about_axis, rotation_to_z
+from pencilcal.toolkit.pencil import Pencil, project_spokes
+
+Z = np.array([0.0, 0.0, 1.0])
+
+
+def hd_camera(model="opencv"):
+    """A 1920x1080 camera with strong distortion (as the contract check uses)."""
+    K = np.array([[1500.0, 0, 955.0], [0, 1498.0, 545.0], [0, 0, 1]])
+    if model == "opencv":
+        return Camera("opencv", 1920, 1080, K, np.array([-0.3, 0.12, 0.0005, 0.0002, -0.02]))
+    if model == "fisheye":
+        return Camera("fisheye", 1920, 1080, np.array([[700.0, 0, 955.0], [0, 700.0, 545.0], [0, 0, 1]]),
+                      np.array([0.05, -0.01, 0.003, -0.001]))
+    return Camera("pinhole", 1920, 1080, K)
+
+
+def fan(radius=(10.0, 50.0), vertex=(0.0, 0.0), count=8, step=20.0):
+    return Pencil(np.radians(np.arange(count) * step), np.asarray(vertex, float),
+                  None if radius is None else np.asarray(radius, float))
+
+
+def pose_facing(camera, pixel, tilt_deg, depth, rng):
+    """R, t with the vertex (target origin) imaged at `pixel`, tilted by `tilt_deg` from its ray."""
+    ray = camera.rays_from_pixels(np.asarray(pixel, float))
+    R = (rotation_to_z(ray).T @ rotation_about_axis(Z, rng.uniform(0, 2 * np.pi))
+         @ rotation_about_axis([1.0, 0, 0], np.radians(tilt_deg)) @ rotation_about_axis(Z, rng.uniform(0, 2 * np.pi)))
+    return R, ray * depth / ray[2]
+
+
+def frame(camera, pencil, tilt_deg, depth, rng, noise_px=0.0, margin=20, tries=200, radii=(10.0, 50.0)):
+    """Segments of a pencil fully inside the image. Returns (segments, R, t).
+
+    The spokes run over the pencil's radius, or over `radii` when it has none.
+    """
+    for _ in range(tries):
+        px = rng.uniform([400, 250], [camera.width - 400, camera.height - 250])
+        R, t = pose_facing(camera, px, tilt_deg, depth, rng)
+        seg = project_spokes(camera, R, t, pencil, None if pencil.radius is not None else radii)
+        inside = (seg[:, 0::2].min() > margin and seg[:, 0::2].max() < camera.width - margin
+                  and seg[:, 1::2].min() > margin and seg[:, 1::2].max() < camera.height - margin)
+        if inside:
+            return seg + noise_px * rng.normal(size=seg.shape), R, t
+    raise RuntimeError("no pose keeps the pencil inside the image")

@@ -1,0 +1,374 @@
+"""Orientation of a pencil from the raw segments of one frame: the whole pipeline.
+
+``orient_segments`` turns line segments in raw (distorted) pixels into one record of
+``orientation.json`` (INTERFACES.md):
+
+1. undistort the segment end points (lines, not images);
+2. find the vertex: robust weighted intersection (vertex.intersect_lines) in ideal pixels,
+   rejecting segments that do not pass through it;
+3. orient each segment from the vertex outwards (a segment that straddles the vertex is a
+   line with no direction);
+4. label the segments with spokes (assign.assign_spokes), tolerating missing spokes and
+   spurious segments, and fit the pencil (the exact estimator, or the chapter's general or
+   aligned model), with the vertex covariance carried into the orientation;
+5. choose between the twins where extra information allows: a prior rotation (a board
+   pose, the previous frame) or, when the pencil file gives the spoke radii, the metric
+   positions of the segment end points along the spokes;
+6. report in raw pixels and degrees.
+
+Noise model: each end point has isotropic noise `endpoint_sigma_px` per coordinate, so a
+segment of length L has angle sd sqrt(2) sigma / L and offset sd sigma / sqrt(2) at its
+centre; a per-segment `angle_sigma` (e.g. from a line fit to edge pixels) overrides the
+angle part.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .angles import wrap_angle
+from .assign import assign_spokes
+from .errors import EstimationError, InputError
+from .estimator import (
+    PencilFit,
+    detection_threshold,
+    fit_pencil,
+    pencil_covariance,
+    swap_twins,
+    choose_by_prior,
+)
+from .frames import normalize, twin_rotation, rotation_angle
+from .pencil import image_angles
+from .vertex import intersect_lines
+
+__all__ = ["orient_segments", "MODELS", "metric_depth", "resolve_twins_by_continuity"]
+
+MODELS = ("exact", "general", "aligned")
+
+# Segments shorter than this carry almost no angle information and are mostly noise.
+MIN_LENGTH_PX = 8.0
+
+
+def _empty_record(image, model, error):
+    keys = ["vertex_px", "vertex_cov_px2", "lines_used", "rms_residual_deg", "tilt_deg", "tilt_sigma_deg",
+            "detectable", "normal", "normal_sigma_deg", "normal_twin", "R_cam_from_target",
+            "R_cam_from_target_twin", "ambiguous"]
+    rec = {"image": image, "ok": False, "error": error}
+    rec.update({k: None for k in keys})
+    rec["model"] = model
+    return rec
+
+
+def metric_depth(R_cam_from_target, vertex, spoke_angles, inner, outer, radius):
+    """Depth of the vertex and the fit of known spoke radii, for one candidate rotation.
+
+    A point at distance r along spoke k images at signed distance
+    ``t = r |w_k| / (z + r d_kz)`` from the vertex along w_k (normalised coordinates, z the
+    vertex depth, d_k the spoke's camera-frame direction). With the inner and outer end of
+    each spoke seen, z follows by least squares, and the residual tells the twins apart:
+    they image the lines identically but foreshorten lengths differently.
+
+    R_cam_from_target: (3, 3); vertex: (2,) normalised; spoke_angles: (K,) [rad] of the
+    assigned segments; inner, outer: (K, 2) normalised image of their end points nearer to
+    and farther from the vertex; radius: (2,) [inner, outer] in length units.
+    Returns (depth, residuals (2K,) in normalised units); depth is NaN when the data do not
+    support a positive depth.
+    """
+    th = np.asarray(spoke_angles, float)
+    d = (np.asarray(R_cam_from_target, float)[:, :2] @ np.stack([np.cos(th), np.sin(th)])).T  # (K, 3)
+    x = np.asarray(vertex, float)
+    w = d[:, :2] - x * d[:, 2:3]
+    c = np.linalg.norm(w, axis=-1)
+    u = w / c[:, None]
+    t = np.concatenate([np.sum((inner - x) * u, -1), np.sum((outer - x) * u, -1)])
+    r = np.concatenate([np.full(len(th), radius[0]), np.full(len(th), radius[1])])
+    cc = np.concatenate([c, c])
+    dz = np.concatenate([d[:, 2], d[:, 2]])
+    ok = t > 0
+    if ok.sum() < 2:
+        return np.nan, np.full(t.shape, np.inf)
+    # per-point depth estimates, then Gauss-Newton on the image distances
+    z = float(np.median(r[ok] * (cc[ok] / t[ok] - dz[ok])))
+    for _ in range(8):
+        den = z + r * dz
+        pred = r * cc / den
+        J = -r * cc / den**2
+        z = z + float(np.sum(J * (t - pred)) / max(np.sum(J * J), 1e-300))
+    pred = r * cc / (z + r * dz)
+    if not np.isfinite(z) or z <= 0 or np.any(z + r * dz <= 0):
+        return np.nan, np.full(t.shape, np.inf)
+    return z, t - pred
+
+
+def _segment_geometry(camera, segments, endpoint_sigma_px):
+    """Ideal-pixel segments, their length, and the local scale raw -> ideal."""
+    seg = np.asarray(segments, float)
+    ideal = camera.undistort_pixels(seg.reshape(-1, 2)).reshape(-1, 4)
+    # the local linear scale of the undistortion at each segment centre: end point noise
+    # in raw pixels becomes noise in ideal pixels scaled by it
+    centre = 0.5 * (seg[:, :2] + seg[:, 2:])
+    xy = camera.normalized_from_pixels(centre)
+    Jpn = camera.jacobian_pixels_from_normalized(xy)  # d raw / d normalised
+    K2 = np.asarray(camera.K, float)[:2, :2]
+    J_ideal_from_raw = K2 @ np.linalg.inv(Jpn)
+    scale = np.sqrt(np.abs(np.linalg.det(J_ideal_from_raw)))
+    return ideal, scale
+
+
+def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_px=0.5, angle_sigma=None,
+                    prior=None, vertex_px=None, vertex_cov_px2=None, image=None):
+    """Orientation of a pencil seen in one frame, as an orientation.json record.
+
+    camera: a Camera; segments: (M, 4) raw pixels [x1, y1, x2, y2]; pencil: a Pencil.
+    model: "exact" (default), "general" or "aligned" (the chapter's models, for comparison).
+    endpoint_sigma_px: noise of each end point per coordinate [px].
+    angle_sigma: None, scalar or (M,) [rad] angle sd of each segment in raw pixels
+        (overrides the end point model for the angle).
+    prior: (3, 3) R_cam_from_target known roughly (board pose, previous frame): picks the twin.
+    vertex_px, vertex_cov_px2: a known vertex in raw pixels (e.g. a fulcrum) and its
+        covariance, instead of intersecting the segments.
+    image: name stored in the record.
+
+    Returns a dict with the keys of INTERFACES.md plus ``spokes`` (label per input segment,
+    -1 rejected), ``labels_ambiguous``, ``resolved_by``, ``ray``, ``tilt_threshold_deg`` and,
+    when the spoke radii resolve the twin, ``vertex_cam`` (and ``t_cam_from_target`` if the
+    pencil file gives the vertex). A frame with no estimate has ``ok: false`` and ``error``.
+    """
+    if model not in MODELS:
+        raise InputError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}")
+    seg = np.asarray(segments, float).reshape(-1, 4)
+    M = seg.shape[0]
+    labels_out = np.full(M, -1)
+    try:
+        finite = np.all(np.isfinite(seg), -1)
+        length = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
+        usable = finite & (length >= MIN_LENGTH_PX)
+        if usable.sum() < 3:
+            bad = int((~finite).sum())
+            why = f" ({bad} not finite)" if bad else ""
+            raise EstimationError(f"fewer than three usable segments{why}: {int(usable.sum())} of {M}")
+        idx = np.flatnonzero(usable)
+        ideal, scale = _segment_geometry(camera, seg[idx], endpoint_sigma_px)
+        ok = np.all(np.isfinite(ideal), -1)
+        idx, ideal, scale = idx[ok], ideal[ok], scale[ok]
+        if idx.size < 3:
+            raise EstimationError("fewer than three segments could be undistorted (outside the lens model's range)")
+        L = np.hypot(ideal[:, 2] - ideal[:, 0], ideal[:, 3] - ideal[:, 1])
+        sig_e = endpoint_sigma_px * scale  # end point noise in ideal pixels
+        if angle_sigma is None:
+            st = np.sqrt(2.0) * sig_e / L
+        else:
+            st = np.broadcast_to(np.asarray(angle_sigma, float), (M,))[idx]
+            if np.any(~np.isfinite(st) | (st <= 0)):
+                raise InputError("angle sigma must be positive and finite")
+        sc = sig_e / np.sqrt(2.0)
+
+        # --- vertex, in ideal pixels
+        K = np.asarray(camera.K, float)
+        Kinv = np.linalg.inv(K)
+        A = Kinv[:2, :2]
+        if vertex_px is not None:
+            v_ideal = camera.undistort_pixels(np.asarray(vertex_px, float))
+            J = np.linalg.inv(camera.jacobian_pixels_from_normalized(camera.normalized_from_pixels(vertex_px)))
+            C = np.zeros((2, 2)) if vertex_cov_px2 is None else np.asarray(vertex_cov_px2, float)
+            cov_ideal = (K[:2, :2] @ J) @ C @ (K[:2, :2] @ J).T
+            through = np.ones(idx.size, bool)
+        else:
+            vf = intersect_lines(ideal, angle_sigma=st, offset_sigma=sc, robust=True)
+            v_ideal, cov_ideal, through = vf.vertex, vf.cov, vf.inliers
+        idx, ideal, st = idx[through], ideal[through], st[through]
+        if idx.size < 3:
+            raise EstimationError(f"only {idx.size} segments pass through the vertex; three are needed")
+
+        # --- normalised coordinates
+        x = Kinv[:2, :2] @ v_ideal + Kinv[:2, 2]
+        cov_x = A @ cov_ideal @ A.T
+        p1 = ideal[:, :2] @ A.T + Kinv[:2, 2]
+        p2 = ideal[:, 2:] @ A.T + Kinv[:2, 2]
+        t = normalize(np.concatenate([p2 - p1, np.zeros((len(p1), 1))], -1))[:, :2]
+        # angle sd in normalised coordinates: a linear map A scales angles by det(A)/|A t|^2
+        t_ideal = normalize(np.concatenate([ideal[:, 2:] - ideal[:, :2], np.zeros((len(p1), 1))], -1))[:, :2]
+        gain = abs(np.linalg.det(A)) / np.sum((t_ideal @ A.T) ** 2, -1)
+        s_n = st * gain
+        # orient each segment away from the vertex; a segment over the vertex has no direction
+        s1, s2 = np.sum((p1 - x) * t, -1), np.sum((p2 - x) * t, -1)
+        away = np.where(np.abs(s2) >= np.abs(s1), 1.0, -1.0)
+        straddle = (s1 * s2) < 0
+        a = np.arctan2(t[:, 1] * away, t[:, 0] * away)
+        oriented = not np.any(straddle)
+
+        # --- labels and fit
+        asg = assign_spokes(a, pencil.angles, x, s_n, vertex_cov=cov_x, oriented=oriented)
+        lab = asg.spoke
+        used = lab >= 0
+        fit = asg.fit
+        th_used, a_used, s_used = pencil.angles[lab[used]], a[used], s_n[used]
+        if model != "exact":
+            fit = _chapter_fit(model, a_used, th_used, x, s_used, cov_x, fit)
+        if not oriented and np.any(~straddle[used]):
+            # lines fix R only up to R Rz(pi); the segments that do not straddle the vertex
+            # say which way the spokes point
+            R = fit.R_cam_from_target
+            pred = image_angles(R, x, th_used)
+            agree = np.cos(wrap_angle(a_used - pred))[~straddle[used]].sum()
+            if agree < 0:
+                Rz = np.diag([-1.0, -1.0, 1.0])
+                fit = _replace_rotation(fit, R @ Rz, fit.R_twin @ Rz)
+
+        # --- twins
+        resolved_by = None
+        if prior is not None:
+            which = choose_by_prior(fit.R_cam_from_target, fit.R_twin, np.asarray(prior, float))
+            fit = swap_twins(fit, which, th_used, x, s_used, cov_x, resolved_by="prior")
+            resolved_by = "prior"
+        metric = None
+        if pencil.radius is not None:
+            metric = _metric_choice(fit, x, th_used, p1[used], p2[used], pencil.radius,
+                                    np.sqrt(np.mean(sig_e[through][used] ** 2)) * np.sqrt(abs(np.linalg.det(A))))
+            if metric is not None and resolved_by is None and metric["decisive"]:
+                fit = swap_twins(fit, metric["twin_better"], th_used, x, s_used, cov_x, resolved_by="radius")
+                resolved_by = "radius"
+
+        labels_out[idx] = lab
+        # --- back to raw pixels
+        v_raw = camera.distort_pixels(v_ideal)
+        J_raw_from_ideal = camera.jacobian_pixels_from_normalized(x) @ A
+        cov_raw = J_raw_from_ideal @ cov_ideal @ J_raw_from_ideal.T
+        s_mean = float(np.sqrt(np.mean(s_used**2)))
+        rec = {
+            "image": image,
+            "ok": True,
+            "error": None,
+            "vertex_px": v_raw,
+            "vertex_cov_px2": cov_raw,
+            "lines_used": int(used.sum()),
+            "rms_residual_deg": float(np.degrees(fit.rms)),
+            "tilt_deg": float(np.degrees(fit.tilt)),
+            "tilt_sigma_deg": float(np.degrees(fit.tilt_sigma)),
+            "detectable": bool(fit.detectable),
+            "normal": fit.normal,
+            "normal_sigma_deg": float(np.degrees(fit.normal_sigma)),
+            "normal_twin": fit.normal_twin,
+            "R_cam_from_target": fit.R_cam_from_target,
+            "R_cam_from_target_twin": fit.R_twin,
+            "ambiguous": bool(fit.ambiguous),
+            "model": model,
+            "resolved_by": resolved_by,
+            "labels_ambiguous": bool(asg.labels_ambiguous),
+            "spokes": labels_out,
+            "ray": fit.ray,
+            "tilt_threshold_deg": float(np.degrees(detection_threshold(s_mean))),
+        }
+        if metric is not None and np.isfinite(metric["depth"]) and resolved_by in ("radius", "prior"):
+            depth = metric["depth_twin"] if (resolved_by == "prior" and metric["twin_better"]) else metric["depth"]
+            if resolved_by == "radius":
+                depth = metric["depth_twin"] if metric["twin_better"] else metric["depth"]
+            P0 = depth * np.r_[x, 1.0]
+            rec["vertex_cam"] = P0
+            if pencil.vertex is not None:
+                rec["t_cam_from_target"] = P0 - fit.R_cam_from_target @ np.r_[pencil.vertex, 0.0]
+        return rec
+    except EstimationError as e:
+        rec = _empty_record(image, model, str(e))
+        rec["spokes"] = labels_out
+        return rec
+
+
+def _replace_rotation(fit, R, Rt):
+    from dataclasses import replace
+
+    return replace(fit, R_cam_from_target=R, R_twin=Rt, normal=R[:, 2], normal_twin=Rt[:, 2])
+
+
+def _chapter_fit(model, a, th, x, s, cov_x, exact_fit):
+    """Fit with the chapter's general or aligned model, reported like the exact estimator."""
+    from dataclasses import replace
+
+    from .chapter import fit_aligned, fit_general
+
+    if model == "general":
+        res = fit_general(a, th, x, weights=1.0 / s**2)
+    else:
+        res = fit_aligned(a, th, weights=1.0 / s**2)
+    R, Rt = np.asarray(res["R_cam_from_target"], float), np.asarray(res["R_cam_from_target_twin"], float)
+    # keep the exact estimator's deterministic order (normal closer to the optical axis first)
+    if Rt[2, 2] > R[2, 2]:
+        R, Rt = Rt, R
+    # the aligned model assumes the vertex on the optical axis: its residuals are measured
+    # against exact projection so that the comparison with the exact estimator is fair
+    pred = image_angles(R, x, th)
+    res_exact = np.angle(np.exp(2j * (a - pred))) / 2
+    cov, s_tilt, s_norm = pencil_covariance(R, x, th, s, cov_x)
+    v = exact_fit.ray
+    tilt = float(np.arccos(np.clip(R[:, 2] @ v, -1, 1)))
+    w = 1.0 / s**2
+    return replace(
+        exact_fit, R_cam_from_target=R, R_twin=Rt, normal=R[:, 2], normal_twin=Rt[:, 2], tilt=np.asarray(tilt),
+        tilt_sigma=s_tilt, normal_sigma=s_norm, cov=cov, residuals=res_exact,
+        rms=np.sqrt(np.sum(w * res_exact**2) / np.sum(w)), chi2=np.sum(w * res_exact**2),
+    )
+
+
+def _metric_choice(fit, x, th, p1, p2, radius, sigma_n):
+    """Compare the twins by how well the spoke radii fit the segment end points.
+
+    sigma_n: end point noise in normalised units. Decisive when the better twin fits within
+    noise (chi2 per point < 9) and the other is worse by more than 25 in chi2.
+    """
+    d1 = np.linalg.norm(p1 - x, axis=-1)
+    d2 = np.linalg.norm(p2 - x, axis=-1)
+    inner = np.where((d1 <= d2)[:, None], p1, p2)
+    outer = np.where((d1 <= d2)[:, None], p2, p1)
+    z, r = metric_depth(fit.R_cam_from_target, x, th, inner, outer, radius)
+    zt, rt = metric_depth(fit.R_twin, x, th, inner, outer, radius)
+    c, ct = np.sum((r / sigma_n) ** 2), np.sum((rt / sigma_n) ** 2)
+    n = r.size
+    best = min(c, ct)
+    decisive = bool(np.isfinite(best) and best / n < 9.0 and abs(c - ct) > 25.0)
+    return {"depth": z, "depth_twin": zt, "twin_better": bool(ct < c), "decisive": decisive, "chi2": c, "chi2_twin": ct}
+
+
+def resolve_twins_by_continuity(records):
+    """Choose twins over a sequence so that the orientation changes least between frames.
+
+    records: orientation.json frame dicts (modified copies are returned). Ambiguous frames
+    get the twin on the cheapest path (Viterbi over the two states per frame, cost = rotation
+    angle between consecutive frames). Continuity alone cannot tell the two whole paths
+    apart (the twin of a smooth motion is smooth too); it carries the choice made in
+    resolved frames (``ambiguous`` false: a prior, the spoke radii) to the others, which
+    then get ``resolved_by: "continuity"``. With no resolved frame the twins are only made
+    consistent along the sequence and stay ``ambiguous``.
+    """
+    idx = [i for i, r in enumerate(records) if r.get("ok")]
+    if len(idx) < 2:
+        return [dict(r) for r in records]
+    Rs = [np.stack([np.asarray(records[i]["R_cam_from_target"], float),
+                    np.asarray(records[i]["R_cam_from_target_twin"], float)]) for i in idx]
+    fixed = [not records[i].get("ambiguous", True) for i in idx]
+    INF = 1e9
+    cost = np.array([0.0, INF if fixed[0] else 0.0])
+    back = []
+    for k in range(1, len(idx)):
+        trans = np.array([[rotation_angle(Rs[k - 1][a], Rs[k][b]) for b in range(2)] for a in range(2)])
+        tot = cost[:, None] + trans
+        arg = np.argmin(tot, 0)
+        cost = tot[arg, [0, 1]]
+        if fixed[k]:
+            cost[1] = INF
+        back.append(arg)
+    state = int(np.argmin(cost))
+    states = [state]
+    for arg in reversed(back):
+        state = int(arg[state])
+        states.append(state)
+    states.reverse()
+    out = [dict(r) for r in records]
+    anchored = any(fixed)
+    for i, s in zip(idx, states):
+        r = out[i]
+        if r.get("ambiguous") and s == 1:
+            r["R_cam_from_target"], r["R_cam_from_target_twin"] = r["R_cam_from_target_twin"], r["R_cam_from_target"]
+            r["normal"], r["normal_twin"] = r["normal_twin"], r["normal"]
+        if r.get("ambiguous") and anchored:
+            r["ambiguous"] = False
+            r["resolved_by"] = "continuity"
+    return out
