@@ -51,11 +51,14 @@ class Pencil:
     angles: (N,) spoke directions theta_k [rad] in the target frame, in the file's order.
     vertex: (2,) vertex in the target frame (length unit), or None if unknown.
     radius: (2,) inner and outer end of every spoke, measured from the vertex, or None.
+    width: printed width of each spoke (a dark bar, length unit), or None. The spoke is
+        the bar's centre line; `pencilcal lines` finds it from the bar's two edges.
     """
 
     angles: np.ndarray
     vertex: np.ndarray | None = None
     radius: np.ndarray | None = None
+    width: float | None = None
 
     @property
     def count(self) -> int:
@@ -68,6 +71,8 @@ class Pencil:
             d["vertex"] = [float(v) for v in self.vertex]
         if self.radius is not None:
             d["radius"] = [float(r) for r in self.radius]
+        if self.width is not None:
+            d["width"] = float(self.width)
         return d
 
 
@@ -84,12 +89,12 @@ def _floats(value, n, key, source):
 def pencil_from_dict(d, source="pencil"):
     """Build a Pencil from a parsed pencil file (INTERFACES.md), validating every field.
 
-    Accepts ``angles_deg: [...]`` or ``start_deg, step_deg, count``; optional ``vertex``
-    and ``radius``. `source` names the file in error messages.
+    Accepts ``angles_deg: [...]`` or ``start_deg, step_deg, count``; optional ``vertex``,
+    ``radius`` and ``width``. `source` names the file in error messages.
     """
     if not isinstance(d, dict):
         raise InputError(f"{source}: expected a mapping with 'angles_deg' or 'start_deg/step_deg/count'")
-    known = {"angles_deg", "start_deg", "step_deg", "count", "vertex", "radius", "name", "units"}
+    known = {"angles_deg", "start_deg", "step_deg", "count", "vertex", "radius", "width", "name", "units"}
     unknown = sorted(set(d) - known)
     if unknown:
         raise InputError(f"{source}: unknown key(s) {unknown}; expected {sorted(known)}")
@@ -122,7 +127,12 @@ def pencil_from_dict(d, source="pencil"):
         radius = _floats(d["radius"], 2, "radius", source)
         if not (0.0 <= radius[0] < radius[1]):
             raise InputError(f"{source}: 'radius' must be [inner, outer] with 0 <= inner < outer, got {d['radius']!r}")
-    return Pencil(np.radians(angles), vertex, radius)
+    width = None
+    if d.get("width") is not None:
+        width = _floats([d["width"]], 1, "width", source)[0]
+        if width <= 0:
+            raise InputError(f"{source}: 'width' must be positive, got {d['width']!r}")
+    return Pencil(np.radians(angles), vertex, radius, width)
 
 
 def read_pencil(path):
