@@ -40,7 +40,7 @@ from .frames import normalize, twin_rotation, rotation_angle
 from .pencil import image_angles
 from .vertex import intersect_lines
 
-__all__ = ["orient_segments", "MODELS", "metric_depth", "resolve_twins_by_continuity"]
+__all__ = ["orient_segments", "orientation_record", "MODELS", "metric_depth", "resolve_twins_by_continuity"]
 
 MODELS = ("exact", "general", "aligned")
 
@@ -229,48 +229,64 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
                 resolved_by = "radius"
 
         labels_out[idx] = lab
-        # --- back to raw pixels
-        v_raw = camera.distort_pixels(v_ideal)
-        J_raw_from_ideal = camera.jacobian_pixels_from_normalized(x) @ A
-        cov_raw = J_raw_from_ideal @ cov_ideal @ J_raw_from_ideal.T
         s_mean = float(np.sqrt(np.mean(s_used**2)))
-        rec = {
-            "image": image,
-            "ok": True,
-            "error": None,
-            "vertex_px": v_raw,
-            "vertex_cov_px2": cov_raw,
-            "lines_used": int(used.sum()),
-            "rms_residual_deg": float(np.degrees(fit.rms)),
-            "tilt_deg": float(np.degrees(fit.tilt)),
-            "tilt_sigma_deg": float(np.degrees(fit.tilt_sigma)),
-            "detectable": bool(fit.detectable),
-            "normal": fit.normal,
-            "normal_sigma_deg": float(np.degrees(fit.normal_sigma)),
-            "normal_twin": fit.normal_twin,
-            "R_cam_from_target": fit.R_cam_from_target,
-            "R_cam_from_target_twin": fit.R_twin,
-            "ambiguous": bool(fit.ambiguous),
-            "model": model,
-            "resolved_by": resolved_by,
-            "labels_ambiguous": bool(asg.labels_ambiguous),
-            "spokes": labels_out,
-            "ray": fit.ray,
-            "tilt_threshold_deg": float(np.degrees(detection_threshold(s_mean))),
-        }
-        if metric is not None and np.isfinite(metric["depth"]) and resolved_by in ("radius", "prior"):
-            depth = metric["depth_twin"] if (resolved_by == "prior" and metric["twin_better"]) else metric["depth"]
-            if resolved_by == "radius":
-                depth = metric["depth_twin"] if metric["twin_better"] else metric["depth"]
-            P0 = depth * np.r_[x, 1.0]
-            rec["vertex_cam"] = P0
-            if pencil.vertex is not None:
-                rec["t_cam_from_target"] = P0 - fit.R_cam_from_target @ np.r_[pencil.vertex, 0.0]
+        rec = orientation_record(camera, fit, x, v_ideal, cov_ideal, model=model, image=image, sigma_mean=s_mean,
+                                 resolved_by=resolved_by)
+        rec["labels_ambiguous"] = bool(asg.labels_ambiguous)
+        rec["spokes"] = labels_out
+        if metric is not None and resolved_by is not None:
+            # depth from the spoke radii, for the rotation finally chosen, if it fits them
+            chosen_twin = resolved_by == "radius" and metric["twin_better"]
+            depth = metric["depth_twin"] if chosen_twin else metric["depth"]
+            chi2 = metric["chi2_twin"] if chosen_twin else metric["chi2"]
+            if np.isfinite(depth) and chi2 / metric["points"] < 9.0:
+                P0 = depth * np.r_[x, 1.0]
+                rec["vertex_cam"] = P0
+                if pencil.vertex is not None:
+                    rec["t_cam_from_target"] = P0 - fit.R_cam_from_target @ np.r_[pencil.vertex, 0.0]
         return rec
     except EstimationError as e:
         rec = _empty_record(image, model, str(e))
         rec["spokes"] = labels_out
         return rec
+
+
+def orientation_record(camera, fit, vertex, vertex_ideal, cov_ideal, *, model="exact", image=None,
+                       sigma_mean=None, resolved_by=None):
+    """An orientation.json record (INTERFACES.md) from a PencilFit of batch shape ().
+
+    camera: the Camera; fit: PencilFit; vertex: (2,) normalised vertex; vertex_ideal,
+    cov_ideal: the vertex in ideal (undistorted) pixels and its covariance [px^2], reported
+    in raw pixels; sigma_mean: RMS line angle sd [rad] for the detection threshold.
+    """
+    A = np.linalg.inv(np.asarray(camera.K, float))[:2, :2]
+    v_raw = camera.distort_pixels(vertex_ideal)
+    J_raw_from_ideal = camera.jacobian_pixels_from_normalized(vertex) @ A
+    cov_raw = J_raw_from_ideal @ cov_ideal @ J_raw_from_ideal.T
+    rec = {
+        "image": image,
+        "ok": True,
+        "error": None,
+        "vertex_px": v_raw,
+        "vertex_cov_px2": cov_raw,
+        "lines_used": int(fit.lines_used),
+        "rms_residual_deg": float(np.degrees(fit.rms)),
+        "tilt_deg": float(np.degrees(fit.tilt)),
+        "tilt_sigma_deg": float(np.degrees(fit.tilt_sigma)),
+        "detectable": bool(fit.detectable),
+        "normal": fit.normal,
+        "normal_sigma_deg": float(np.degrees(fit.normal_sigma)),
+        "normal_twin": fit.normal_twin,
+        "R_cam_from_target": fit.R_cam_from_target,
+        "R_cam_from_target_twin": fit.R_twin,
+        "ambiguous": bool(fit.ambiguous),
+        "model": model,
+        "resolved_by": resolved_by,
+        "ray": fit.ray,
+    }
+    if sigma_mean is not None:
+        rec["tilt_threshold_deg"] = float(np.degrees(detection_threshold(sigma_mean)))
+    return rec
 
 
 def _replace_rotation(fit, R, Rt):
@@ -324,7 +340,8 @@ def _metric_choice(fit, x, th, p1, p2, radius, sigma_n):
     n = r.size
     best = min(c, ct)
     decisive = bool(np.isfinite(best) and best / n < 9.0 and abs(c - ct) > 25.0)
-    return {"depth": z, "depth_twin": zt, "twin_better": bool(ct < c), "decisive": decisive, "chi2": c, "chi2_twin": ct}
+    return {"depth": z, "depth_twin": zt, "twin_better": bool(ct < c), "decisive": decisive, "chi2": c,
+            "chi2_twin": ct, "points": n}
 
 
 def resolve_twins_by_continuity(records):

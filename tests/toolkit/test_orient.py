@@ -157,3 +157,22 @@ def test_continuity_smooth_motion(rng):
     # with no anchor the twins are only made consistent and stay ambiguous
     free = resolve_twins_by_continuity([dict(r, ambiguous=True, resolved_by=None) for r in recs])
     assert all(r["ambiguous"] for r in free)
+
+
+@pytest.mark.parametrize("model", ["general", "aligned"])
+def test_chapter_models_in_the_pipeline(rng, model):
+    """The general model is exact like the exact estimator; the aligned model (vertex
+    assumed on the optical axis) is wrong off axis although its residuals are tiny."""
+    cam = hd_camera("pinhole")
+    pen = fan(radius=None)
+    errs = []
+    for _ in range(5):
+        seg, R, t = frame(cam, pen, 35.0, 200.0, rng)
+        rec = orient_segments(cam, seg, pen, model=model)
+        assert rec["ok"] and rec["model"] == model
+        errs.append(np.degrees(min(angle_between(np.asarray(rec["normal"]), R[:, 2]),
+                                   angle_between(np.asarray(rec["normal_twin"]), R[:, 2]))))
+    if model == "general":
+        assert max(errs) < 1e-6
+    else:
+        assert max(errs) > 1.0
