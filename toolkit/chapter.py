@@ -326,6 +326,18 @@ def _lsq(fun, x0, sw):
     return res
 
 
+def _fit_summary(a, pred, resid, res):
+    """Keys shared by the fit results: predictions, residuals, solver status."""
+    return {
+        "predicted": wrap_angle(pred),
+        "residuals": resid,
+        "rms": float(np.sqrt(np.mean(resid**2))),
+        "oriented_consistent": bool(np.all(np.abs(wrap_angle(a - pred)) < np.pi / 2)),
+        "success": bool(res.success),
+        "nfev": int(res.nfev),
+    }
+
+
 def fit_aligned(line_angles, spoke_angles, weights=None):
     """Fit eq. 6 directly in the image: a_k = psi + aligned_angles(theta_k - theta_offset, gamma).
 
@@ -383,12 +395,7 @@ def fit_aligned(line_angles, spoke_angles, weights=None):
         "normal": R[:, 2],
         "normal_twin": Rt[:, 2],
         "choice": "arbitrary: line angles cannot tell the twins apart; primary has gamma >= 0 in Rz(psi) Rx(gamma) Rz(-theta_offset)",
-        "predicted": wrap_angle(pred),
-        "residuals": resid,
-        "rms": float(np.sqrt(np.mean(resid**2))),
-        "oriented_consistent": bool(np.all(np.abs(wrap_angle(a - pred)) < np.pi / 2)),
-        "success": bool(res.success),
-        "nfev": int(res.nfev),
+        **_fit_summary(a, pred, resid, res),
     }
 
 
@@ -456,12 +463,7 @@ def fit_general(line_angles, spoke_angles, vertex, weights=None):
         "parameters": p1,
         "parameters_twin": p2,
         "choice": "arbitrary: line angles cannot tell the twins apart; primary is the normal closer to the optical axis",
-        "predicted": wrap_angle(pred),
-        "residuals": resid,
-        "rms": float(np.sqrt(np.mean(resid**2))),
-        "oriented_consistent": bool(np.all(np.abs(wrap_angle(a - pred)) < np.pi / 2)),
-        "success": bool(res.success),
-        "nfev": int(res.nfev),
+        **_fit_summary(a, pred, resid, res),
     }
 
 
