@@ -5,6 +5,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 import click
 
+from .calibrate import calibrate
 from .fulcrum import fulcrum
 from .orient import orient
 
@@ -28,6 +29,7 @@ def cli():
     """
 
 
+cli.add_command(calibrate)
 cli.add_command(orient)
 cli.add_command(fulcrum)
 

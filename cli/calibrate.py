@@ -1,0 +1,252 @@
+"""`pencilcal calibrate`: intrinsic calibration from ChArUco or chessboard views."""
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from pathlib import Path
+
+import click
+import numpy as np
+
+from pencilcal.toolkit.boards import read_board
+from pencilcal.toolkit.calibration import MODELS, calibrate as calibrate_views
+from pencilcal.toolkit.camera import Camera
+from pencilcal.toolkit.camera_io import camera_format, camera_to_dict, write_camera
+from pencilcal.toolkit.corners_io import check_image_name, write_corners_vnl
+from pencilcal.toolkit.detect import detect_board
+from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.files import write_json
+from pencilcal.toolkit.images import open_images
+
+from .common import check_output, force_option, progress, quiet_option, run, warn
+
+_CAMERA_SUFFIXES = (".json", ".yaml", ".yml", ".xml", ".cameramodel", ".txt", ".bin")
+
+
+def _probe_camera_format(path, model, coefficients):
+    """Fail before any work if the camera file format cannot hold this model (e.g. a
+    fisheye as .cameramodel, 14 coefficients as COLMAP): write a dummy camera of the same
+    kind to a scratch file with the same name."""
+    p = Path(path)
+    if p.suffix.lower() not in _CAMERA_SUFFIXES:
+        raise InputError(f"{p}: unknown camera file type {p.suffix or '(none)'!r}; expected "
+                         f"{', '.join(_CAMERA_SUFFIXES)} (.txt/.bin: COLMAP cameras file)")
+    camera_format(p)
+    n = {"pinhole": 0, "fisheye": 4}.get(model, coefficients)
+    dummy = Camera(model, 640, 480, [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]], np.zeros(n))
+    with tempfile.TemporaryDirectory(prefix="pencilcal-probe-") as d:
+        try:
+            write_camera(Path(d) / p.name, dummy)
+        except InputError as e:
+            msg = str(e).split(": ", 1)[-1]
+            raise InputError(f"{p}: {msg}") from None
+
+
+def _commit(outputs, force):
+    """Write every output to a scratch file beside its target, then move them all into
+    place: a failure at any point leaves no output that looks complete.
+
+    outputs: list of (path, writer) with writer(tmp_path) writing the file.
+    """
+    staged = []
+    committed = []
+    try:
+        for path, writer in outputs:
+            p = Path(path)
+            parent = p.parent if str(p.parent) else Path(".")
+            fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=p.suffix, dir=parent)
+            os.close(fd)
+            staged.append((p, Path(tmp)))
+            writer(Path(tmp))
+        for p, tmp in staged:
+            existed = p.exists()
+            if existed and not force:
+                raise InputError(f"{p}: already exists; pass --force to overwrite it")
+            os.replace(tmp, p)
+            committed.append((p, existed))
+    except BaseException:
+        # an output that did not exist before this run must not survive a failed run
+        for p, existed in committed:
+            if not existed:
+                with contextlib.suppress(OSError):
+                    p.unlink()
+        raise
+    finally:
+        for _, tmp in staged:
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+
+
+def _vnl_name(path, name, corners_path, kind):
+    """The image name mrcal should find: its path relative to the folder of corners.vnl
+    (video frames keep their frame name)."""
+    if kind != "images" or not path:
+        return name
+    base = Path(corners_path).resolve().parent
+    return Path(os.path.relpath(Path(path).resolve(), base)).as_posix()
+
+
+@click.command()
+@click.argument("images")
+@click.option("--board", "board_path", required=True, type=click.Path(dir_okay=False),
+              help="Board file (.yaml/.json): charuco or chessboard, squares, square, marker, dictionary.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Camera file: .json, .yaml/.yml/.xml (OpenCV), .cameramodel (mrcal), "
+                   "COLMAP cameras.txt/.bin.")
+@click.option("--model", type=click.Choice(list(MODELS)), default="opencv", show_default=True,
+              help="Lens model: opencv (radial-tangential), fisheye (Kannala-Brandt), pinhole (no distortion).")
+@click.option("--coefficients", type=click.Choice(["4", "5", "8", "12", "14"]), default=None,
+              help="opencv only: distortion coefficients, k1 k2 p1 p2 [k3 [k4-k6 [s1-s4 [taux tauy]]]]. "
+                   "[default: 5]")
+@click.option("--fix-aspect", is_flag=True, help="Hold fx = fy (square pixels); not with --model fisheye.")
+@click.option("--min-corners", type=int, default=6, show_default=True,
+              help="Views with fewer corners are skipped.")
+@click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
+              help="JSON report: per-view errors and poses, std devs, outliers with reasons, skipped views.")
+@click.option("--corners", "corners_path", type=click.Path(dir_okay=False), default=None,
+              help="Also write the detections as mrcal's corner cache (corners.vnl, "
+                   "for mrcal-calibrate-cameras --corners-cache).")
+@force_option
+@quiet_option
+@run
+def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_corners, report_path, corners_path,
+              force, quiet):
+    """Calibrate a camera's intrinsics from views of a ChArUco board or a chessboard.
+
+    IMAGES is a folder of images, a glob (quoted) or a video. Views without a usable board
+    are skipped; outlier views and corners are rejected (with their reasons in --report);
+    the camera file gets the intrinsics with their standard deviations and the RMS
+    reprojection error.
+
+    \b
+    Example:
+      pencilcal calibrate 'calib/*.png' --board board.yaml -o camera.yaml \\
+          --report calib.json --corners calib/corners.vnl
+    """
+    if coefficients is not None and model != "opencv":
+        raise click.BadParameter(f"applies to --model opencv only (the {model} model has a fixed set)",
+                                 param_hint="--coefficients")
+    if fix_aspect and model == "fisheye":
+        raise click.BadParameter("is not available with --model fisheye", param_hint="--fix-aspect")
+    if min_corners < 4:
+        raise click.BadParameter("must be at least 4", param_hint="--min-corners")
+    n_coef = int(coefficients) if coefficients is not None else MODELS[model][0]
+
+    outputs = [("-o/--output", output)] + [(name, p) for name, p in (("--report", report_path),
+                                                                         ("--corners", corners_path)) if p]
+    resolved = {}
+    for name, p in outputs:
+        key = Path(p).resolve()
+        if key in resolved:
+            raise InputError(f"{p}: given for both {resolved[key]} and {name}")
+        resolved[key] = name
+        check_output(p, force)
+    _probe_camera_format(output, model, n_coef)
+    board = read_board(board_path)
+    source = open_images(images, gray=True)
+    if corners_path and source.kind == "images":
+        # a name vnlog cannot hold is found now, not after the work
+        for path in source.paths:
+            check_image_name(_vnl_name(str(path), path.name, corners_path, source.kind))
+
+    frames = []      # per frame: dict(image, decoded, error, size)
+    detections = []  # per decoded frame
+    decoded_index = []
+    first = None
+    with progress(source, "detect", quiet) as bar:
+        for frame in bar:
+            rec = {"image": frame.name, "path": frame.path, "decoded": frame.image is not None,
+                   "error": frame.error, "corners": 0}
+            if frame.image is None:
+                warn(f"{frame.path or frame.name}: {frame.error}; skipped")
+                frames.append((frame, rec, None))
+                continue
+            h, w = frame.image.shape[:2]
+            if first is None:
+                first = (frame.path or frame.name, (w, h))
+            elif (w, h) != first[1]:
+                raise InputError(f"{frame.path or frame.name}: image is {w}x{h} but {first[0]} is "
+                                 f"{first[1][0]}x{first[1][1]}; all images must have the same size")
+            det = detect_board(frame.image, board)
+            rec["corners"] = det.count
+            decoded_index.append(len(frames))
+            detections.append(det)
+            frames.append((frame, rec, det))
+    if not frames:
+        raise InputError(f"{images}: no frames")
+    if first is None:
+        raise InputError(f"{images}: none of the {len(frames)} image(s) could be decoded")
+    image_size = first[1]
+
+    result = calibrate_views(detections, board, image_size, model=model, coefficients=n_coef,
+                             fix_aspect=fix_aspect, min_corners=min_corners)
+    camera = result.camera
+
+    # --- report
+    views, rejected = [], []
+    for idx, (frame, rec, det) in enumerate(frames):
+        v = dict(rec)
+        if det is None:
+            v.update(used=False, rms_px=None, reason=f"unreadable: {rec['error']}")
+            rejected.append({"image": frame.name, "stage": "unreadable", "reason": rec["error"]})
+        else:
+            j = decoded_index.index(idx)
+            v.update(result.view_report(j))
+            v.pop("view", None)
+            if v.get("reason") is None and not v["used"]:
+                v["reason"] = "not used"
+            for r in result.rejected:
+                if r["view"] == j:
+                    rejected.append({"image": frame.name, **{k: val for k, val in r.items() if k != "view"}})
+        v["index"] = idx
+        views.append(v)
+    n_outlier_views = sum(1 for r in result.rejected if r["stage"] == "outlier" and "corner" not in r)
+    n_outlier_corners = sum(1 for r in result.rejected if "corner" in r)
+    counts = {
+        "images": len(frames),
+        "unreadable": sum(1 for _, rec, _ in frames if not rec["decoded"]),
+        "views_with_corners": sum(1 for d in detections if d.count > 0),
+        "views_skipped": sum(1 for r in result.rejected if r["stage"] == "skipped"),
+        "views_rejected": n_outlier_views,
+        "views_used": result.views_used,
+        "corners_detected": int(sum(d.count for d in detections)),
+        "corners_rejected": n_outlier_corners,
+        "corners_used": result.corners_used,
+    }
+    report = {
+        "command": "calibrate",
+        "images": str(images),
+        "board_file": str(board_path),
+        "board": board.to_dict(),
+        "image_size": list(image_size),
+        "model": model,
+        "coefficients": result.coefficients,
+        "fix_aspect": bool(fix_aspect),
+        "flags": result.flags,
+        "rms_px": result.rms_px,
+        "std_intrinsics": result.std_intrinsics,
+        "camera": camera_to_dict(camera),
+        "counts": counts,
+        "views": views,
+        "rejected": rejected,
+        "outputs": {"camera": str(output), "corners": str(corners_path) if corners_path else None},
+    }
+
+    # --- outputs, all or nothing
+    todo = []
+    if corners_path:
+        records = [(_vnl_name(frame.path, frame.name, corners_path, source.kind), det) for frame, _, det in frames]
+        todo.append((corners_path, lambda tmp: write_corners_vnl(tmp, records, board, force=True)))
+    if report_path:
+        todo.append((report_path, lambda tmp: write_json(tmp, report, force=True)))
+    todo.append((output, lambda tmp: write_camera(tmp, camera, force=True)))
+    _commit(todo, force)
+
+    if not quiet:
+        extra = ""
+        if n_outlier_views or n_outlier_corners:
+            extra = f" ({n_outlier_views} outlier view(s), {n_outlier_corners} outlier corner(s) rejected)"
+        click.echo(f"{result.views_used}/{len(frames)} views used{extra}, RMS {result.rms_px:.3f} px: "
+                   f"fx {camera.fx:.2f} fy {camera.fy:.2f} cx {camera.cx:.2f} cy {camera.cy:.2f} -> {output}",
+                   err=True)
