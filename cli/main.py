@@ -8,6 +8,9 @@ import click
 from .calibrate import calibrate
 from .fulcrum import fulcrum
 from .orient import orient
+from .pnp import pnp
+from .simulate import simulate
+from .target import target
 
 try:
     __version__ = version("pencilcal")
@@ -32,6 +35,9 @@ def cli():
 cli.add_command(calibrate)
 cli.add_command(orient)
 cli.add_command(fulcrum)
+cli.add_command(pnp)
+cli.add_command(simulate)
+cli.add_command(target)
 
 
 def main():

@@ -5,7 +5,7 @@ import numpy as np
 import click
 
 from pencilcal.toolkit.camera_io import read_camera
-from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.files import write_json
 from pencilcal.toolkit.lines_io import read_lines
 from pencilcal.toolkit.orient import MODELS, orient_segments, resolve_twins_by_continuity
@@ -97,6 +97,9 @@ def orient(lines_path, camera_path, camera_id, pencil_path, output, model, endpo
             if not rec["ok"]:
                 warn(f"{fr['image']}: {rec['error']}")
             records.append(rec)
+    if not any(r["ok"] for r in records):
+        # a run with no estimate at all failed: say so and leave nothing that looks like a result
+        raise EstimationError(f"{lines_path}: no frame gave an orientation")
     if continuity:
         records = resolve_twins_by_continuity(records)
     out = {

@@ -287,7 +287,8 @@ def _closed_form(bx, by, ct, st, w, Q, oriented, twin=True):
     evals, evecs = np.linalg.eigh(M)
     # a unique pencil needs a one-dimensional null space; three or more lines that share
     # one direction (or two directions only) leave two
-    if np.any(evals[..., 1] <= 1e-20 * evals[..., 3]):
+    # (relative 1e-12: rounding leaves ~1e-16 of the largest eigenvalue in a true null space)
+    if np.any(evals[..., 1] <= 1e-12 * evals[..., 3]):
         raise EstimationError("the lines do not determine a pencil: fewer than three distinct directions")
     h = evecs[..., :, 0]
     a, b, c, d = h[..., 0], h[..., 1], h[..., 2], h[..., 3]
@@ -386,7 +387,9 @@ def refine_pencil(R0, line_angles, spoke_angles, vertex, weights, max_iter=30, t
         small = (step * step).sum(-1) < tol * tol
         stalled = better & ((cost - cost_n) <= 1e-14 * cost)
         cost = np.minimum(cost, cost_n) * better + cost * ~better
-        lam = lam * (10.0 - 9.9 * better)
+        # only pencils still iterating change their damping: a stopped pencil must not be
+        # pushed past the divergence limit by its neighbours' iterations
+        lam = np.where(active, lam * (10.0 - 9.9 * better), lam)
         active &= ~(small | stalled | (lam > 1e10))
         if not active.any():
             break

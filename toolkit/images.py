@@ -109,6 +109,11 @@ class ImageSource:
         return self.count
 
     def __iter__(self):
+        import cv2
+
+        # OpenCV logs its own lines about broken files and streams on stderr; pencilcal
+        # reports each undecodable frame once, in one line, itself
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
         if self.kind == "video":
             yield from self._iter_video()
         else:

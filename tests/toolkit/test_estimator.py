@@ -110,6 +110,18 @@ class TestNoiseFree:
             np.testing.assert_allclose(one.R_cam_from_target, batch.R_cam_from_target[i], atol=1e-9)
             np.testing.assert_allclose(one.tilt_sigma, batch.tilt_sigma[i], rtol=1e-6)
 
+    def test_convergence_is_per_pencil(self, rng):
+        """Good pencils batched with slow ones still report converged (regression)."""
+        vertex = rng.uniform(-0.3, 0.3, (60, 2))
+        R = pose(vertex, np.radians(rng.uniform(10, 70, 60)), rng.uniform(0, 6.3, 60), rng.uniform(0, 6.3, 60))
+        th = np.radians(np.arange(8) * 20.0)
+        a = image_angles(R, vertex, th) + 0.002 * rng.normal(size=(60, 8))
+        a[:10] = rng.uniform(-np.pi, np.pi, (10, 8))  # garbage: slow, maybe not converging
+        fit = fit_pencil(a, th, vertex)
+        assert fit.converged[10:].all()
+        alone = fit_pencil(a[10:], th, vertex[10:])
+        np.testing.assert_allclose(fit.R_cam_from_target[10:], alone.R_cam_from_target, atol=1e-8)
+
     def test_missing_lines_by_weight(self, rng):
         vertex = np.array([0.1, 0.2])
         R = pose(vertex, np.radians(30), 0.3, 1.0)
@@ -263,10 +275,13 @@ class TestBadInput:
         with pytest.raises(InputError, match="finite"):
             fit_pencil([0.1, 0.5, 0.9], [0.0, 0.4, 0.8], [np.inf, 0.0])
 
-    def test_parallel_lines(self):
-        """All lines along one direction (or two) do not determine a pencil."""
+    @pytest.mark.parametrize("a", [[0.3, 0.3, 0.3 + np.pi], [0.3, 0.3 + 1e-15, 0.3 - 1e-15, 0.3 + np.pi]])
+    def test_parallel_lines(self, a):
+        """Lines that all share one image direction do not determine a pencil. (Two lines
+        along one direction and a third elsewhere do: an edge-on pencil with one spoke on
+        the viewing ray.)"""
         with pytest.raises(EstimationError, match="distinct directions"):
-            fit_pencil([0.3, 0.3, 0.3 + np.pi], [0.0, 0.4, 0.8], [0.0, 0.0])
+            fit_pencil(a, np.radians([0.0, 40, 80, 120])[: len(a)], [0.05, -0.02])
 
     def test_vertex_at_infinity(self):
         with pytest.raises(EstimationError, match="infinity"):

@@ -1,0 +1,133 @@
+"""`pencilcal pnp`: board pose per frame, refined in raw pixels, with covariance."""
+from __future__ import annotations
+
+import click
+
+from pencilcal.toolkit.boards import read_board
+from pencilcal.toolkit.camera_io import read_camera
+from pencilcal.toolkit.detect import detect_board
+from pencilcal.toolkit.errors import EstimationError
+from pencilcal.toolkit.images import check_image_size, open_images
+from pencilcal.validation.pnp import (
+    DEFAULT_MAX_RMS_PX,
+    DEFAULT_METHOD,
+    METHODS,
+    best_method,
+    empty_frame_record,
+    estimate_all,
+    estimate_pose,
+    frame_record,
+    write_poses,
+)
+
+from .common import check_output, force_option, output_option, progress, quiet_option, run, warn
+
+_MIN_CORNERS_FLOOR = 4
+
+
+@click.command()
+@click.argument("images")
+@click.option("--camera", "camera_path", required=True, type=click.Path(),
+              help="Camera file: .json, .yaml/.yml/.xml (OpenCV), .cameramodel (mrcal), COLMAP cameras.txt/.bin or model folder.")
+@click.option("--camera-id", type=int, default=None, help="Camera id in a COLMAP file with several cameras.")
+@click.option("--board", "board_path", required=True, type=click.Path(dir_okay=False),
+              help="Board file (.yaml/.json): charuco or chessboard, square size in the length unit of the output.")
+@output_option
+@click.option("--method", type=click.Choice(METHODS + ("all",)), default=DEFAULT_METHOD, show_default=True,
+              help="PnP initialiser, refined by LM in raw pixels; 'all' runs every method and keeps each under "
+                   "'methods' (the frame-level pose is sqpnp's unless another reached a lower RMS).")
+@click.option("--corner-sigma", type=float, default=None,
+              help="Corner noise [px] behind the covariance; default: from each frame's residuals.")
+@click.option("--min-corners", type=int, default=6, show_default=True,
+              help="Frames with fewer detected corners get no pose (at least 4).")
+@click.option("--max-rms", type=float, default=DEFAULT_MAX_RMS_PX, show_default=True,
+              help="Reject a pose whose reprojection RMS exceeds this [px] (a wrong local minimum or a wrong camera).")
+@click.option("--refine/--no-refine", default=True, show_default=True,
+              help="LM refinement of every method's pose on the raw-pixel reprojection error.")
+@force_option
+@quiet_option
+@run
+def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma, min_corners, max_rms, refine,
+        force, quiet):
+    """Pose of a calibration board in every frame (poses.json).
+
+    Detects the board's corners (ChArUco or chessboard), estimates R_cam_from_target and
+    t_cam_from_target (length unit of the board file) with the chosen method, refines it
+    on the reprojection error in raw pixels under the full lens model, and writes the
+    6x6 covariance (rotation first: rad about the camera axes, left perturbation; then
+    translation). Frames that cannot be decoded or show too little of the board are
+    written with ok: false and a warning.
+
+    \b
+    Example:
+      pencilcal pnp images/ --camera camera.yaml --board board.yaml -o poses.json
+      pencilcal pnp 'shots/*.png' --camera camera.json --board board.yaml \\
+          --method all --corner-sigma 0.2 -o poses.json
+    """
+    if corner_sigma is not None and not corner_sigma > 0:
+        raise click.BadParameter("must be a positive number of pixels", param_hint="--corner-sigma")
+    if min_corners < _MIN_CORNERS_FLOOR:
+        raise click.BadParameter(f"must be at least {_MIN_CORNERS_FLOOR}", param_hint="--min-corners")
+    if not max_rms > 0:
+        raise click.BadParameter("must be a positive number of pixels", param_hint="--max-rms")
+    check_output(output, force)
+    camera = read_camera(camera_path, camera_id=camera_id)
+    board = read_board(board_path)
+    source = open_images(images)
+    object_points = board.object_points()
+    label = "all" if method == "all" else method
+    records = []
+    with progress(source, "pnp", quiet) as bar:
+        for fr in bar:
+            if fr.image is None:
+                warn(f"{fr.name}: {fr.error}")
+                records.append(empty_frame_record(fr.name, fr.error, method=label))
+                continue
+            check_image_size(fr, camera)
+            det = detect_board(fr.image, board)
+            if det.count < min_corners:
+                err = "no board corners found" if det.count == 0 else \
+                    f"only {det.count} board corners found (--min-corners {min_corners})"
+                warn(f"{fr.name}: {err}")
+                records.append(empty_frame_record(fr.name, err, method=label, corners=det.count, ids=det.ids))
+                continue
+            X = object_points[det.ids]
+            if method == "all":
+                results = estimate_all(X, det.corners, camera, refine=refine, corner_sigma_px=corner_sigma,
+                                       max_rms_px=max_rms)
+                best = best_method(results)
+                rec = frame_record(fr.name, results[best or DEFAULT_METHOD], ids=det.ids, methods=results)
+                if best is None:
+                    rec["error"] = "no method gave a pose: " + "; ".join(r.error for r in results.values())
+                else:
+                    for m, r in results.items():
+                        if not r.ok:
+                            warn(f"{fr.name}: {r.error}")
+            else:
+                res = estimate_pose(X, det.corners, camera, method, refine=refine, corner_sigma_px=corner_sigma,
+                                    max_rms_px=max_rms)
+                rec = frame_record(fr.name, res, ids=det.ids)
+            if not rec["ok"]:
+                warn(f"{fr.name}: {rec['error']}")
+            records.append(rec)
+    meta = {
+        "method": label,
+        "methods": list(METHODS) if method == "all" else [method],
+        "refine": bool(refine),
+        "images": str(images),
+        "camera": str(camera_path),
+        "camera_model": camera.model,
+        "image_size": [camera.width, camera.height],
+        "board": str(board_path),
+        "board_spec": board.to_dict(),
+        "corner_sigma_px": corner_sigma,
+        "min_corners": min_corners,
+        "max_rms_px": max_rms,
+    }
+    n_ok = sum(r["ok"] for r in records)
+    if n_ok == 0:
+        # a run with no pose at all failed: say so and leave nothing that looks like a result
+        raise EstimationError(f"{images}: no frame gave a pose (is the board file right for these images?)")
+    write_poses(output, records, force=force, **meta)
+    if not quiet:
+        click.echo(f"{n_ok}/{len(records)} frames with a pose -> {output}", err=True)

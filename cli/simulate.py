@@ -1,0 +1,160 @@
+"""`pencilcal simulate`: synthetic sequences with exact ground truth."""
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import click
+
+from pencilcal.toolkit.errors import InputError
+
+from .common import progress, quiet_option, run
+
+MODELS = ("opencv", "fisheye", "pinhole")
+
+
+def _parse_size(text):
+    try:
+        w, h = (int(v) for v in text.lower().replace(",", "x").split("x"))
+    except ValueError:
+        raise click.BadParameter(f"expected WxH such as 1280x720, got {text!r}", param_hint="--size") from None
+    if not (16 <= w <= 16384 and 16 <= h <= 16384):
+        raise click.BadParameter(f"width and height must be 16..16384 pixels, got {w}x{h}", param_hint="--size")
+    return w, h
+
+
+def _looks_like_output(path):
+    """True for an empty folder or one an earlier `simulate` wrote (safe to replace)."""
+    entries = set(os.listdir(path))
+    return not entries or "truth.json" in entries
+
+
+def _check_out(out, force):
+    """Fail before any work if OUT cannot (or must not) be written."""
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError(f"{out}: folder {parent} does not exist")
+    if out.exists() or out.is_symlink():
+        if not out.is_dir() or out.is_symlink():
+            raise InputError(f"{out}: exists and is not a folder")
+        entries = os.listdir(out)
+        if entries and not force:
+            raise InputError(f"{out}: folder is not empty; pass --force to replace an earlier simulate output")
+        if entries and not _looks_like_output(out):
+            raise InputError(f"{out}: folder is not empty and holds no truth.json; not replacing it, even with --force")
+
+
+def _replace_dir(tmp, out):
+    """Move the finished folder `tmp` to `out`, replacing an earlier output."""
+    if out.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
+        os.rename(out, old / "x")
+        try:
+            os.rename(tmp, out)
+        except BaseException:
+            os.rename(old / "x", out)  # put the earlier output back
+            raise
+        finally:
+            shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.rename(tmp, out)
+
+
+@click.command()
+@click.argument("out", type=click.Path(file_okay=False))
+@click.option("--scenario", type=click.Choice(["orbit", "pivot", "tilt-sweep"]), required=True,
+              help="orbit: moving camera around the sheet on a textured table (for SfM); pivot: fixed camera, "
+                   "a shaft pivoting about a fulcrum (writes angles.csv); tilt-sweep: the sheet tilted 0-80 deg.")
+@click.option("--frames", type=click.IntRange(min=1, max=100000), default=30, show_default=True,
+              help="Number of frames.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the path, the scene and the noise.")
+@click.option("--size", default="1280x720", show_default=True,
+              help="Image size WxH [pixels] of the built-in camera (ignored with --camera).")
+@click.option("--model", type=click.Choice(MODELS), default="opencv", show_default=True,
+              help="Lens model of the built-in camera (ignored with --camera).")
+@click.option("--camera", "camera_path", type=click.Path(), default=None,
+              help="Use these intrinsics (any camera file pencilcal reads) instead of the built-in camera.")
+@click.option("--noise", type=click.FloatRange(min=0), default=2.0, show_default=True,
+              help="Sensor noise: standard deviation at mid grey [grey levels].")
+@click.option("--blur", type=click.FloatRange(min=0), default=0.6, show_default=True,
+              help="Gaussian blur of the optics, standard deviation [px].")
+@click.option("--lighting", type=click.FloatRange(min=0, max=1), default=0.25, show_default=True,
+              help="Strength of the uneven lighting (vignetting and a random gradient), 0 for none.")
+@click.option("--gamma", type=click.FloatRange(min=0.1, max=5), default=2.2, show_default=True,
+              help="Encoding gamma of the 8-bit images (1 = linear).")
+@click.option("--color", is_flag=True, help="Colour (BGR) images instead of grey.")
+@click.option("--background", type=click.Choice(["table", "plain"]), default="table", show_default=True,
+              help="table: textured table (and boxes for orbit) around the sheet; plain: uniform grey.")
+@click.option("--axis", type=float, default=0.0, show_default=True,
+              help="tilt-sweep: direction of the tilt axis in the sheet, from its x axis [deg].")
+@click.option("--max-tilt", type=click.FloatRange(min=0, max=89), default=80.0, show_default=True,
+              help="tilt-sweep: the last frame's tilt [deg].")
+@click.option("--force", is_flag=True, help="Replace OUT if it holds an earlier simulate output.")
+@quiet_option
+@run
+def simulate(out, scenario, frames, seed, size, model, camera_path, noise, blur, lighting, gamma, color,
+             background, axis, max_tilt, force, quiet):
+    """Write a synthetic image sequence with exact ground truth to the folder OUT.
+
+    OUT gets images/000.png..., camera.json and camera.yaml, board.yaml, pencil.yaml (what
+    the simulated sheet has printed on it, as `pencilcal target` prints it) and truth.json:
+    per frame R_cam_from_target, t_cam_from_target, normal, vertex_px, tilt_deg and more.
+    The pivot scenario also writes angles.csv (image,angle_deg). Frames are rendered with
+    exact area anti-aliasing for the camera's own lens model, then blurred, lit unevenly
+    and given sensor noise. OUT is written whole or not at all: a failed run leaves no
+    partial folder. OUT must be absent or empty; --force replaces an earlier output.
+
+    \b
+    Example:
+      pencilcal simulate runs/orbit --scenario orbit --frames 40 --seed 1
+      pencilcal simulate runs/pivot --scenario pivot --frames 12 --model fisheye
+    """
+    import cv2
+
+    from pencilcal.toolkit.boards import write_board
+    from pencilcal.toolkit.camera_io import read_camera, write_camera
+    from pencilcal.toolkit.files import atomic_write, write_json
+    from pencilcal.toolkit.pencil import write_pencil
+    from pencilcal.toolkit.scenes import make_scenario
+
+    w, h = _parse_size(size)
+    out_path = Path(out)
+    _check_out(out_path, force)
+    camera = read_camera(camera_path) if camera_path else None
+    options = {"axis_deg": axis, "max_tilt_deg": max_tilt} if scenario == "tilt-sweep" else {}
+    sc = make_scenario(scenario, frames, seed, camera=camera, size=(w, h), model=model, **options)
+    settings = {"noise": noise, "blur_px": blur, "lighting": lighting, "gamma": gamma}
+    bg = None if background == "table" else "plain"
+    parent = out_path.parent if str(out_path.parent) else Path(".")
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_path.name}.", suffix=".partial", dir=parent))
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; outputs get normal permissions
+        (tmp / "images").mkdir()
+        with progress(range(len(sc)), "simulate", quiet) as bar:
+            for i in bar:
+                img = sc.render(i, color=color, background=bg, **settings)
+                path = tmp / "images" / sc.frames[i]["image"]
+                if not cv2.imwrite(str(path), img):
+                    raise InputError(f"{path}: cannot write the image")
+        write_camera(tmp / "camera.json", sc.camera)
+        write_camera(tmp / "camera.yaml", sc.camera)
+        write_board(tmp / "board.yaml", sc.sheet.board)
+        write_pencil(tmp / "pencil.yaml", sc.sheet.pencil)
+        csv = sc.angles_csv()
+        if csv is not None:
+            atomic_write(tmp / "angles.csv", csv)
+        render = dict(settings, color=color, background=background,
+                      camera=str(camera_path) if camera_path else f"built-in {model}")
+        write_json(tmp / "truth.json", sc.truth(render=render))
+        _replace_dir(tmp, out_path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            shutil.rmtree(tmp)
+        raise
+    if not quiet:
+        click.echo(f"{len(sc)} {scenario} frames (seed {seed}, {w}x{h}, {sc.camera.model}) -> {out_path}", err=True)
