@@ -9,6 +9,7 @@ from .calibrate import calibrate
 from .fulcrum import fulcrum
 from .orient import orient
 from .pnp import pnp
+from .sensitivity import sensitivity
 from .simulate import simulate
 from .target import target
 
@@ -36,6 +37,7 @@ cli.add_command(calibrate)
 cli.add_command(orient)
 cli.add_command(fulcrum)
 cli.add_command(pnp)
+cli.add_command(sensitivity)
 cli.add_command(simulate)
 cli.add_command(target)
 

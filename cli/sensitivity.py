@@ -1,0 +1,124 @@
+"""`pencilcal sensitivity`: expected orientation error over tilt, position, fan and noise."""
+from __future__ import annotations
+
+import math
+
+import click
+import numpy as np
+
+from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.files import check_writable, write_json
+
+from .common import check_output, force_option, output_option, quiet_option, run
+
+MAP_CHOICES = ("tilt-offaxis", "spokes-spacing", "noise", "all")
+
+
+def _offaxis_deg(spec, focal):
+    """--offaxis in degrees, or in pixels from the principal point with a 'px' suffix."""
+    from pencilcal.validation.sensitivity import parse_range
+
+    s = spec.strip().lower()
+    if s.endswith("px"):
+        px = parse_range(s[:-2], "--offaxis")
+        if np.any(px < 0):
+            raise InputError(f"--offaxis: pixel distances must be >= 0, got {spec!r}")
+        return np.degrees(np.arctan(px / focal))
+    return parse_range(s.removesuffix("deg"), "--offaxis")
+
+
+@click.command()
+@output_option
+@click.option("--focal", type=float, default=800.0, show_default=True, metavar="PX",
+              help="Focal length [px]: converts off-axis angles to pixel distances (and --offaxis ...px to angles).")
+@click.option("--spokes", type=int, default=8, show_default=True, help="Number of spokes of the fan.")
+@click.option("--step-deg", type=float, default=20.0, show_default=True, help="Angle between neighbouring spokes [deg].")
+@click.option("--sigma-deg", type=float, default=0.1, show_default=True,
+              help="Line-angle noise, one standard deviation [deg] (the same in pixels and normalised coordinates).")
+@click.option("--tilts", default="0:80:2", show_default=True, metavar="RANGE",
+              help="Tilts against the vertex ray [deg]: start:stop:step, or a list a,b,c.")
+@click.option("--offaxis", default="0:40:10", show_default=True, metavar="RANGE",
+              help="Vertex positions: angle off the optical axis [deg], or pixels from the principal point "
+                   "with a px suffix (0:400:100px).")
+@click.option("--trials", type=int, default=1000, show_default=True,
+              help="Monte Carlo pencils per cell (0: Cramer-Rao bound only).")
+@click.option("--accuracy", type=float, default=1.0, show_default=True, metavar="DEG",
+              help="Requested accuracy of the normal [deg RMS]: the answer is the minimum tilt that reaches it.")
+@click.option("--map", "maps", type=click.Choice(MAP_CHOICES), multiple=True,
+              help="Maps to compute (repeatable): tilt-offaxis (always computed), spokes-spacing, noise or all.")
+@click.option("--spokes-grid", default="3,4,6,8,12,16", show_default=True, metavar="RANGE",
+              help="Spoke counts of the spokes-spacing map.")
+@click.option("--step-grid", default="5,10,15,20,30,45", show_default=True, metavar="RANGE",
+              help="Spacings [deg] of the spokes-spacing map.")
+@click.option("--sigma-grid", default="0.02,0.05,0.1,0.2,0.5,1", show_default=True, metavar="RANGE",
+              help="Line noise values [deg] of the noise map.")
+@click.option("--tilt-ref", type=float, default=30.0, show_default=True,
+              help="Tilt [deg] at which the spokes-spacing map reports the error.")
+@click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
+              help="Where the batched torch fits run (cuda needs torch with CUDA and a GPU).")
+@click.option("--dtype", type=click.Choice(["float64", "float32"]), default="float64", show_default=True,
+              help="Precision of the torch fits; float32 is enough for planning and faster on GPUs.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed (results are reproducible).")
+@click.option("--png", "png_prefix", default=None, metavar="PREFIX",
+              help="Also write heatmaps PREFIX_tilt-offaxis.png (and PREFIX_spokes-spacing.png, PREFIX_noise.png).")
+@force_option
+@quiet_option
+@run
+def sensitivity(output, focal, spokes, step_deg, sigma_deg, tilts, offaxis, trials, accuracy, maps, spokes_grid,
+                step_grid, sigma_grid, tilt_ref, device, dtype, seed, png_prefix, force, quiet):
+    """Plan a set-up: from which tilt on is the orientation good to --accuracy deg?
+
+    For your focal length, fan (--spokes, --step-deg), line noise (--sigma-deg) and the
+    places where the vertex sits in the image (--offaxis), computes the Cramer-Rao bound
+    and a Monte Carlo of the exact estimator over a grid of tilts: RMSE, median and 95th
+    percentile of the tilt and normal errors, the rate at which the tilt is detectable
+    (against the 2 sqrt(sigma) rule), and the minimum tilt for the requested accuracy.
+    --map adds a spokes x spacing map and a noise x tilt map. Runs batched in torch
+    when it is installed, otherwise with the (slower) numpy estimator.
+
+    \b
+    Example:
+      pencilcal sensitivity -o sensitivity.json --spokes 8 --step-deg 20 \\
+          --sigma-deg 0.1 --accuracy 0.5 --offaxis 0:400:100px --png plan
+    """
+    from pencilcal.toolkit import torch_estimator as te
+    from pencilcal.validation import sensitivity as sens
+
+    if not (math.isfinite(focal) and focal > 0):
+        raise click.BadParameter("must be positive", param_hint="--focal")
+    if trials < 0:
+        raise click.BadParameter("must be >= 0", param_hint="--trials")
+    if not (math.isfinite(accuracy) and accuracy > 0):
+        raise click.BadParameter("must be positive", param_hint="--accuracy")
+    wanted = set(MAP_CHOICES[:3]) if "all" in maps else set(maps)
+    wanted.add("tilt-offaxis")
+    check_output(output, force)
+    if png_prefix:
+        for p in sens.heatmap_paths(png_prefix, wanted):
+            check_writable(p, force)
+    setup = sens.Setup(focal_px=focal, spokes=spokes, step_deg=step_deg, sigma_deg=sigma_deg)
+    off = _offaxis_deg(offaxis, focal)
+    # the grids are checked before any work starts
+    sens.validate_grids(tilts, off, spokes_grid if "spokes-spacing" in wanted else None,
+                        step_grid if "spokes-spacing" in wanted else None, sigma_grid if "noise" in wanted else None)
+    if device != "cpu":
+        te.require_torch(device)  # one-line error, exit 1, when torch or CUDA is missing
+        backend = "torch"
+    elif te.torch_available():
+        backend = "torch"
+    else:
+        backend = "numpy"
+        if not quiet:
+            click.echo('pencilcal: note: torch is not installed, using the numpy estimator; '
+                       'pip install -e ".[torch]" makes this much faster', err=True)
+    log = None if quiet else (lambda msg: click.echo(f"pencilcal sensitivity: {msg}", err=True))
+    result = sens.plan(setup, tilts_deg=tilts, offaxis_deg=off, trials=trials, accuracy_deg=accuracy,
+                       maps=tuple(sorted(wanted)), spokes_grid=spokes_grid, steps_grid=step_grid,
+                       sigmas_grid=sigma_grid, tilt_ref_deg=tilt_ref, backend=backend, device=device, dtype=dtype,
+                       seed=seed, log=log)
+    if png_prefix:
+        result["png"] = sens.write_heatmaps(result, png_prefix, force=force)
+    write_json(output, result, force=force)
+    if not quiet:
+        click.echo(result["answer"]["text"], err=True)
+        click.echo(f"-> {output}", err=True)
