@@ -15,7 +15,8 @@ import click
 from pencilcal.toolkit.errors import PencilcalError
 from pencilcal.toolkit.files import check_writable
 
-__all__ = ["run", "progress", "warn", "output_option", "force_option", "quiet_option", "check_output"]
+__all__ = ["run", "progress", "warn", "output_option", "force_option", "quiet_option", "check_output",
+           "camera_options"]
 
 
 def run(fn):
@@ -64,3 +65,12 @@ def check_output(path, force):
 output_option = click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output file.")
 force_option = click.option("--force", is_flag=True, help="Overwrite the output if it exists.")
 quiet_option = click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+
+
+def camera_options(fn):
+    """--camera (any supported format) and --camera-id (COLMAP files with several cameras)."""
+    fn = click.option("--camera-id", type=int, default=None, help="Camera id in a COLMAP file with several cameras.")(fn)
+    return click.option(
+        "--camera", "camera_path", required=True, type=click.Path(),
+        help="Camera file: .json, .yaml/.yml/.xml (OpenCV), .cameramodel (mrcal), COLMAP cameras.txt/.bin or model folder.",
+    )(fn)

@@ -9,14 +9,13 @@ from pencilcal.toolkit.files import write_json
 from pencilcal.toolkit.fulcrum import fulcrum_from_frames, read_angles
 from pencilcal.toolkit.lines_io import read_lines
 
-from .common import check_output, force_option, output_option, quiet_option, run
+from .common import camera_options, check_output, force_option, output_option, quiet_option, run
 
 
 @click.command()
 @click.option("--lines", "lines_path", required=True, type=click.Path(dir_okay=False),
               help="Lines per frame (lines.json); shaft midlines are used when present.")
-@click.option("--camera", "camera_path", required=True, type=click.Path(), help="Camera file (any supported format).")
-@click.option("--camera-id", type=int, default=None, help="Camera id in a COLMAP file with several cameras.")
+@camera_options
 @click.option("--angles", "angles_path", type=click.Path(dir_okay=False), default=None,
               help="CSV of pivot angles (image,angle_deg, or one angle per frame): also fit the pivot plane.")
 @click.option("--endpoint-sigma", type=float, default=0.5, show_default=True,

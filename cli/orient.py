@@ -11,7 +11,7 @@ from pencilcal.toolkit.lines_io import read_lines
 from pencilcal.toolkit.orient import MODELS, orient_segments, resolve_twins_by_continuity
 from pencilcal.toolkit.pencil import read_pencil
 
-from .common import check_output, force_option, output_option, progress, quiet_option, run, warn
+from .common import camera_options, check_output, force_option, output_option, progress, quiet_option, run, warn
 
 
 def _prior_rotations(path):
@@ -35,9 +35,7 @@ def _prior_rotations(path):
 @click.command()
 @click.option("--lines", "lines_path", required=True, type=click.Path(dir_okay=False),
               help="Line segments per frame (lines.json, raw pixels).")
-@click.option("--camera", "camera_path", required=True, type=click.Path(),
-              help="Camera file: .json, .yaml/.yml/.xml (OpenCV), .cameramodel (mrcal), COLMAP cameras.txt/.bin or model folder.")
-@click.option("--camera-id", type=int, default=None, help="Camera id in a COLMAP file with several cameras.")
+@camera_options
 @click.option("--pencil", "pencil_path", required=True, type=click.Path(dir_okay=False),
               help="Pencil file (.yaml/.json): spoke angles, optional vertex and radius.")
 @output_option

@@ -20,16 +20,14 @@ from pencilcal.validation.pnp import (
     write_poses,
 )
 
-from .common import check_output, force_option, output_option, progress, quiet_option, run, warn
+from .common import camera_options, check_output, force_option, output_option, progress, quiet_option, run, warn
 
 _MIN_CORNERS_FLOOR = 4
 
 
 @click.command()
 @click.argument("images")
-@click.option("--camera", "camera_path", required=True, type=click.Path(),
-              help="Camera file: .json, .yaml/.yml/.xml (OpenCV), .cameramodel (mrcal), COLMAP cameras.txt/.bin or model folder.")
-@click.option("--camera-id", type=int, default=None, help="Camera id in a COLMAP file with several cameras.")
+@camera_options
 @click.option("--board", "board_path", required=True, type=click.Path(dir_okay=False),
               help="Board file (.yaml/.json): charuco or chessboard, square size in the length unit of the output.")
 @output_option
