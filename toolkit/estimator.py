@@ -144,12 +144,16 @@ def _cross(a, b):
     return out
 
 
-def _model(R, x, ct, st, with_jacobian=True):
-    """Core of `pencil_jacobian` with the spoke cosines and sines precomputed.
+def _spoke_matrix(ct, st):
+    """(B, 2, N) stack of spoke cosines and sines, the right factor of `_model`."""
+    return np.stack(np.broadcast_arrays(ct, st), -2)
 
-    R: (B, 3, 3); x: (B, 2); ct, st: (B, N) or (N,).
+
+def _model(R, x, C, with_jacobian=True):
+    """Core of `pencil_jacobian` with the spokes precomputed.
+
+    R: (B, 3, 3); x: (B, 2); C: (B, 2, N) or (2, N) spoke cosines and sines (`_spoke_matrix`).
     """
-    C = np.stack(np.broadcast_arrays(ct, st), -2)  # (..., 2, N)
     D = R[..., :, :2] @ C  # camera-frame spoke directions as columns, (B, 3, N)
     dx, dy, dz = D[:, 0], D[:, 1], D[:, 2]
     x0, x1 = x[:, 0, None], x[:, 1, None]
@@ -192,7 +196,7 @@ def pencil_jacobian(R_cam_from_target, vertex, spoke_angles, with_jacobian=True)
     R = np.broadcast_to(R, batch + (3, 3)).reshape(-1, 3, 3)
     x = np.broadcast_to(x, batch + (2,)).reshape(-1, 2)
     th = np.broadcast_to(th, batch + (N,)).reshape(-1, N)
-    alpha, J, Jx = _model(R, x, np.cos(th), np.sin(th), with_jacobian)
+    alpha, J, Jx = _model(R, x, _spoke_matrix(np.cos(th), np.sin(th)), with_jacobian)
     if not with_jacobian:
         return alpha.reshape(batch + (N,)), None, None
     return alpha.reshape(batch + (N,)), J.reshape(batch + (N, 3)), Jx.reshape(batch + (N, 2))
@@ -338,21 +342,21 @@ def closed_form_start(line_angles, spoke_angles, vertex, weights=None, oriented=
 # refinement
 
 
-def refine_pencil(R0, line_angles, spoke_angles, vertex, weights, max_iter=30, tol=1e-9):
+def refine_pencil(R0, line_angles, spoke_angles, vertex, weights, max_iter=30, tol=1e-9, _C=None):
     """Levenberg-Marquardt on wrapped, weighted line-angle residuals.
 
     R0: (B, 3, 3) start; line_angles, spoke_angles, weights: (B, N); vertex: (B, 2).
     Stops when the step is below `tol` [rad] or the cost no longer decreases.
-    Returns (R, cost, converged, iterations, (J_rot, J_vertex)) with cost = sum w r^2 per
-    pencil and the Jacobians of `pencil_jacobian` at R.
+    Returns (R, cost, converged, iterations, (J_rot, J_vertex, r)) with cost = sum w r^2
+    per pencil, the Jacobians of `pencil_jacobian` at R and the weighted residuals r.
     """
     R = np.array(R0, float)
     a = np.asarray(line_angles, float)
     th = np.asarray(spoke_angles, float)
     x = np.asarray(vertex, float)
     sw = np.sqrt(np.asarray(weights, float))
-    trig = (np.cos(th), np.sin(th))
-    alpha, J, Jx = _model(R, x, *trig)
+    C = _spoke_matrix(np.cos(th), np.sin(th)) if _C is None else _C
+    alpha, J, Jx = _model(R, x, C)
     r = sw * wrap_line(a - alpha)
     cost = (r * r).sum(-1)
     lam = np.full(cost.shape, 1e-4)
@@ -373,7 +377,7 @@ def refine_pencil(R0, line_angles, spoke_angles, vertex, weights, max_iter=30, t
         if not active.all():
             step[~active] = 0.0
         R_new = _rotvec_small(step) @ R
-        alpha_n, J_n, Jx_n = _model(R_new, x, *trig)
+        alpha_n, J_n, Jx_n = _model(R_new, x, C)
         r_n = sw * wrap_line(a - alpha_n)
         cost_n = (r_n * r_n).sum(-1)
         better = (cost_n <= cost) & active
@@ -393,7 +397,7 @@ def refine_pencil(R0, line_angles, spoke_angles, vertex, weights, max_iter=30, t
         active &= ~(small | stalled | (lam > 1e10))
         if not active.any():
             break
-    return R, cost, lam <= 1e10, it, (J, Jx)
+    return R, cost, lam <= 1e10, it, (J, Jx, r)
 
 
 # ----------------------------------------------------------------------------------------
@@ -477,7 +481,7 @@ def crlb(R_cam_from_target, vertex, spoke_angles, sigma, vertex_cov=None):
 # frontal model and detection
 
 
-def _frontal(a, ca, sa, th, ct, st, x, w, Q, bx, by):
+def _frontal(a, th, C, x, w, Q, bx, by):
     """Frontal fit on prepared arrays; see `frontal_fit`."""
     b = np.arctan2(by, bx)
     # d b / d a = det(L) / |L t|^2 with L = Q[:2, :2], det(L) = Q[2, 2]: the virtual image
@@ -500,13 +504,13 @@ def _frontal(a, ca, sa, th, ct, st, x, w, Q, bx, by):
         Rz[..., 2, 2] = 1.0
         return Qt @ Rz
 
-    alpha, J, _ = _model(rot(phi), x, ct, st)
+    alpha, J, _ = _model(rot(phi), x, C)
     r = sw * wrap_line(a - alpha)
     # rotating about the ray is the left perturbation delta = phi * v_hat: one GN step
     j = sw * (J @ vhat[..., None])[..., 0]
     phi = phi + (j * r).sum(-1) / np.maximum((j * j).sum(-1), 1e-300)
     R = rot(phi)
-    alpha, _, _ = _model(R, x, ct, st, with_jacobian=False)
+    alpha, _, _ = _model(R, x, C, with_jacobian=False)
     r = sw * wrap_line(a - alpha)
     return R, (r * r).sum(-1)
 
@@ -527,7 +531,7 @@ def frontal_fit(line_angles, spoke_angles, vertex, weights):
     Q = _virtual_rotation(x)
     ca, sa = np.cos(a), np.sin(a)
     bx, by = _virtual_line_dirs(Q, ca, sa)
-    return _frontal(a, ca, sa, th, np.cos(th), np.sin(th), x, w, Q, bx, by)
+    return _frontal(a, th, _spoke_matrix(np.cos(th), np.sin(th)), x, w, Q, bx, by)
 
 
 def max_angular_change(tilt):
@@ -563,6 +567,16 @@ def _as_batch(line_angles, spoke_angles, vertex, sigma, weights):
     a = np.asarray(line_angles, float)
     th = np.asarray(spoke_angles, float)
     x = np.asarray(vertex, float)
+    if weights is None and a.ndim == 1 and th.shape == a.shape and x.shape == (2,) and np.ndim(sigma) == 0:
+        # one pencil, all lines used: the common call, without the broadcasting machinery
+        s0 = float(sigma)
+        if not (np.isfinite(a).all() and np.isfinite(th).all() and np.isfinite(x).all() and np.isfinite(s0)):
+            raise InputError("line angles, spoke angles, sigma and vertex must be finite (NaN or inf given)")
+        if not s0 > 0:
+            raise InputError("sigma must be positive")
+        N = a.size
+        return (a[None], th[None], x[None], np.full((1, N), s0), np.full((1, N), 1.0 / (s0 * s0)),
+                np.ones((1, N), bool), ())
     if a.ndim == 0 or x.ndim == 0 or x.shape[-1] != 2:
         raise InputError("line angles must be (..., N) and the vertex (..., 2)")
     batch = np.broadcast_shapes(a.shape[:-1], th.shape[:-1], x.shape[:-1])
@@ -609,24 +623,25 @@ def fit_pencil(line_angles, spoke_angles, vertex, sigma=np.radians(0.1), vertex_
         raise EstimationError(f"a pencil needs at least three lines, got {int(used.min())}")
     if np.any(np.abs(x) > _MAX_VERTEX):
         raise EstimationError("the vertex is at infinity (the lines are parallel in the image)")
-    ca, sa, ct, st = np.cos(a), np.sin(a), np.cos(th), np.sin(th)
+    ct, st = np.cos(th), np.sin(th)
+    C = _spoke_matrix(ct, st)
     Q = _virtual_rotation(x)
-    bx, by = _virtual_line_dirs(Q, ca, sa)
+    bx, by = _virtual_line_dirs(Q, np.cos(a), np.sin(a))
     R0, _ = _closed_form(bx, by, ct, st, w, Q, oriented, twin=False)
-    R, cost, conv, iters, (J, Jx) = refine_pencil(R0, a, th, x, w, max_iter=max_iter)
+    R, cost, conv, iters, (J, Jx, r) = refine_pencil(R0, a, th, x, w, max_iter=max_iter, _C=C)
     v = Q[:, 2, :]  # unit ray: Q maps it to z, so it is Q's last row
     Rt = twin_rotation(R, v)
     # deterministic order: the normal closer to the optical axis first
     swap = Rt[:, 2, 2] > R[:, 2, 2]
     if swap.any():
         R, Rt = np.where(swap[:, None, None], Rt, R), np.where(swap[:, None, None], R, Rt)
-        _, J2, Jx2 = _model(R, x, ct, st)
+        _, J2, Jx2 = _model(R, x, C)
         J, Jx = np.where(swap[:, None, None], J2, J), np.where(swap[:, None, None], Jx2, Jx)
-    alpha, _, _ = _model(R, x, ct, st, with_jacobian=False)
-    res = np.where(m, wrap_line(a - alpha), 0.0)
+    # the twin images every line identically, so the residuals hold for either order
+    res = np.where(m, r / np.where(m, np.sqrt(w), 1.0), 0.0)
     Cx = None if vertex_cov is None else np.broadcast_to(np.asarray(vertex_cov, float), batch + (2, 2)).reshape(-1, 2, 2)
     cov, s_tilt, s_norm = _covariance(R, x, J, Jx, w, Cx)
-    _, chi2_0 = _frontal(a, ca, sa, th, ct, st, x, w, Q, bx, by)
+    _, chi2_0 = _frontal(a, th, C, x, w, Q, bx, by)
     dof = used - 3
     # if the lines scatter more than sigma says, test against the inflated noise
     inflate = np.where(dof > 0, np.maximum(1.0, cost / np.maximum(dof, 1)), 1.0)
