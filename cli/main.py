@@ -7,11 +7,13 @@ import click
 
 from .calibrate import calibrate
 from .fulcrum import fulcrum
+from .lines import lines
 from .orient import orient
 from .pnp import pnp
 from .sensitivity import sensitivity
 from .simulate import simulate
 from .target import target
+from .validate import validate
 
 try:
     __version__ = version("pencilcal")
@@ -36,10 +38,12 @@ def cli():
 cli.add_command(calibrate)
 cli.add_command(orient)
 cli.add_command(fulcrum)
+cli.add_command(lines)
 cli.add_command(pnp)
 cli.add_command(sensitivity)
 cli.add_command(simulate)
 cli.add_command(target)
+cli.add_command(validate)
 
 
 def main():

@@ -90,7 +90,7 @@ def orient(lines_path, camera_path, camera_id, pencil_path, output, model, endpo
                 rec = orient_segments(
                     camera, fr["segments"], pencil, model=model, endpoint_sigma_px=endpoint_sigma,
                     angle_sigma=None if sig is None else np.radians(sig), prior=priors.get(fr["image"]),
-                    image=fr["image"],
+                    image=fr["image"], offset_sigma=fr.get("offset_sigma_px"),
                 )
             if not rec["ok"]:
                 warn(f"{fr['image']}: {rec['error']}")

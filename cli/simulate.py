@@ -77,9 +77,11 @@ def _replace_dir(tmp, out):
               help="Lens model of the built-in camera (ignored with --camera).")
 @click.option("--camera", "camera_path", type=click.Path(), default=None,
               help="Use these intrinsics (any camera file pencilcal reads) instead of the built-in camera.")
-@click.option("--noise", type=click.FloatRange(min=0), default=2.0, show_default=True,
-              help="Sensor noise: standard deviation at mid grey [grey levels].")
-@click.option("--blur", type=click.FloatRange(min=0), default=0.6, show_default=True,
+@click.option("--noise", type=click.FloatRange(min=0), default=5.0, show_default=True,
+              help="Sensor noise: standard deviation at mid grey [grey levels]. The defaults of "
+                   "--noise and --blur resemble endoscope video (the spokes' lines come out with "
+                   "~0.03 deg of angle noise, a detection threshold of ~2.5 deg).")
+@click.option("--blur", type=click.FloatRange(min=0), default=1.5, show_default=True,
               help="Gaussian blur of the optics, standard deviation [px].")
 @click.option("--lighting", type=click.FloatRange(min=0, max=1), default=0.25, show_default=True,
               help="Strength of the uneven lighting (vignetting and a random gradient), 0 for none.")

@@ -31,6 +31,9 @@ __all__ = ["Assignment", "assign_spokes"]
 
 # distinct labellings refitted after the MSAC screen
 _TOP = 4
+# with this many assigned lines or fewer, every order-keeping labelling is fitted (batched)
+_EXHAUSTIVE_MAX_LINES = 5
+_EXHAUSTIVE_MAX_FITS = 5000
 
 
 @dataclass(frozen=True)
@@ -39,16 +42,21 @@ class Assignment:
 
     spoke: (M,) index into the pencil's spokes for each observed line, -1 if rejected.
     fit: the PencilFit on the assigned lines (batch shape ()).
-    labels_ambiguous: True when the labels shifted by one spoke fit as well (chi-square
-        difference below the detection quantile): the normal is still meaningful, the
-        in-plane rotation is not.
+    rivals: other labellings that explain as many lines about as well (chi-square within
+        the detection quantile), as (spoke (M,), PencilFit) pairs. A regular fan's labels
+        shifted by one spoke are a rival with the same normal (only the in-plane angle is
+        unknown); a rival found by coincidence can have another normal.
     hypotheses: number of hypotheses scored.
     """
 
     spoke: np.ndarray
     fit: PencilFit
-    labels_ambiguous: bool
+    rivals: list
     hypotheses: int
+
+    @property
+    def labels_ambiguous(self) -> bool:
+        return bool(self.rivals)
 
 
 def _triples(n, G):
@@ -78,6 +86,45 @@ def _homographies(a, th):
 
     h = np.stack([det3(c[1], c[2], c[3]), -det3(c[0], c[2], c[3]), det3(c[0], c[1], c[3]), -det3(c[0], c[1], c[2])], -1)
     return h.reshape(-1, 2, 2)
+
+
+def _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriented, period):
+    """All cyclic-order-preserving labellings of the used lines, fitted in one batch.
+
+    Returns (labels, fit, rivals) with the best labelling first and every other within the
+    chi-square detection quantile of it as a rival."""
+    from itertools import combinations
+
+    li = np.flatnonzero(used)
+    li = li[np.argsort(np.remainder(a[li], period))]
+    m = li.size
+    order = np.argsort(np.remainder(th, period))
+    combos = [c for c in combinations(order.tolist(), m)]
+    if len(combos) * m > _EXHAUSTIVE_MAX_FITS:
+        return labels, fit, rivals
+    lab = np.array([[c[(i + r) % m] for i in range(m)] for c in combos for r in range(m)])  # (B, m)
+    B = len(lab)
+    fits = fit_pencil(np.broadcast_to(a[li], (B, m)), th[lab], np.broadcast_to(vertex, (B, 2)),
+                      sigma=np.broadcast_to(s[li], (B, m)), vertex_cov=vertex_cov, oriented=oriented)
+    chi2 = np.asarray(fits.chi2)
+    best = int(np.argmin(chi2))
+    M = a.size
+
+    def full(b):
+        out = np.full(M, -1)
+        out[li] = lab[b]
+        return out
+
+    def one(b):
+        return PencilFit(**{k: (v[b] if isinstance(v, np.ndarray) and v.shape[:1] == (B,) else v)
+                            for k, v in fits.__dict__.items()})
+
+    if chi2[best] < float(fit.chi2) - 1e-9 * max(1.0, float(fit.chi2)):
+        labels, fit = full(best), one(best)
+    ref = float(fit.chi2)
+    rivals = [(full(b), one(b)) for b in np.flatnonzero(chi2 - ref < _CHI2_2)
+              if not np.array_equal(full(b), labels)]
+    return labels, fit, rivals
 
 
 def _score(a, period, sigma_tol, H, ct, st):
@@ -227,22 +274,28 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
         raise EstimationError("fewer than three spokes could be matched to the lines")
     candidates.sort(key=lambda c: (-c[0], c[1]))
     n_best, chi2_best, labels, fit = candidates[0]
-    ambiguous = any(
-        n == n_best and not np.array_equal(lab, labels) and chi2 - chi2_best < _CHI2_2
-        for n, chi2, lab, _ in candidates[1:]
-    )
+    rivals = [(lab, f) for n, chi2, lab, f in candidates[1:]
+              if n == n_best and not np.array_equal(lab, labels) and chi2 - chi2_best < _CHI2_2]
     used = labels >= 0
+    if _EXHAUSTIVE_MAX_LINES >= used.sum() >= 3:
+        # few lines: one redundancy or two, and many spoke subsets share a cross-ratio; fit
+        # every labelling that keeps the cyclic order (a few hundred, batched) so that no
+        # equally good labelling is missed
+        labels, fit, rivals = _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriented, period)
+        return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=int(len(H)))
     # is the labelling unique? try every label shifted by one spoke in the cyclic order
     rank = np.empty(N, int)
     order = np.argsort(np.remainder(th, period))
     rank[order] = np.arange(N)
     for shift in (-1, 1):
-        if ambiguous:
-            break
         lab = order[np.remainder(rank[labels[used]] + shift, N)]
         if np.unique(lab).size < 3:
             continue
+        full = np.full(M, -1)
+        full[used] = lab
+        if any(np.array_equal(full, r[0]) for r in rivals):
+            continue
         alt = fit_pencil(a[used], th[lab], vertex, sigma=s[used], vertex_cov=vertex_cov, oriented=oriented)
         if float(alt.chi2) - float(fit.chi2) < _CHI2_2:
-            ambiguous = True
-    return Assignment(spoke=labels, fit=fit, labels_ambiguous=ambiguous, hypotheses=int(len(H)))
+            rivals.append((full, alt))
+    return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=int(len(H)))

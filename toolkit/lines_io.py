@@ -5,6 +5,7 @@ Format (INTERFACES.md)::
     {"frames": [{"image": "000.png", "ok": true,
                  "segments": [[x1, y1, x2, y2], ...],
                  "angle_sigma_deg": [...],            # optional, one per segment
+                 "offset_sigma_px": [...],            # optional, one per segment
                  "shafts": [{"midline": [x1, y1, x2, y2], "width_px": 84.0,
                              "angle_sigma_deg": 0.2}]}]}
 
@@ -61,6 +62,15 @@ def frame_record(d, where):
         if s.size != rec["segments"].shape[0]:
             raise InputError(f"{where}: 'angle_sigma_deg' has {s.size} values for {rec['segments'].shape[0]} segments")
         rec["angle_sigma_deg"] = s
+    off = d.get("offset_sigma_px")
+    if off is not None:
+        try:
+            o = np.asarray(off, float).reshape(-1)
+        except (TypeError, ValueError):
+            raise InputError(f"{where}: 'offset_sigma_px' must be numbers") from None
+        if o.size != rec["segments"].shape[0]:
+            raise InputError(f"{where}: 'offset_sigma_px' has {o.size} values for {rec['segments'].shape[0]} segments")
+        rec["offset_sigma_px"] = o
     shafts = d.get("shafts")
     if shafts is not None:
         if not isinstance(shafts, list):

@@ -115,18 +115,25 @@ def _segment_geometry(camera, segments, endpoint_sigma_px):
 
 
 def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_px=0.5, angle_sigma=None,
-                    prior=None, vertex_px=None, vertex_cov_px2=None, image=None):
+                    prior=None, vertex_px=None, vertex_cov_px2=None, image=None, labels=None, keep_lines=False,
+                    offset_sigma=None):
     """Orientation of a pencil seen in one frame, as an orientation.json record.
 
     camera: a Camera; segments: (M, 4) raw pixels [x1, y1, x2, y2]; pencil: a Pencil.
     model: "exact" (default), "general" or "aligned" (the chapter's models, for comparison).
     endpoint_sigma_px: noise of each end point per coordinate [px].
-    angle_sigma: None, scalar or (M,) [rad] angle sd of each segment in raw pixels
-        (overrides the end point model for the angle).
+    angle_sigma: None, scalar or (M,) [rad] angle sd of each segment in pixels (e.g. from
+        a line fit to edge pixels; overrides the end point model for the angle).
+    offset_sigma: None, scalar or (M,) [px] sd of each segment's perpendicular position at
+        its midpoint (overrides the end point model for the offset).
     prior: (3, 3) R_cam_from_target known roughly (board pose, previous frame): picks the twin.
     vertex_px, vertex_cov_px2: a known vertex in raw pixels (e.g. a fulcrum) and its
         covariance, instead of intersecting the segments.
     image: name stored in the record.
+    labels: (M,) spoke index of every segment when it is known (e.g. board grid lines
+        through a corner), -1 to ignore one; skips the assignment.
+    keep_lines: also return ``lines``: the used lines in normalised coordinates
+        (``angle`` and ``sigma`` [rad], ``spoke`` index, ``segment`` index), for experiments.
 
     Returns a dict with the keys of INTERFACES.md plus ``spokes`` (label per input segment,
     -1 rejected), ``labels_ambiguous``, ``resolved_by``, ``ray``, ``tilt_threshold_deg`` and,
@@ -160,7 +167,12 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
             st = np.broadcast_to(np.asarray(angle_sigma, float), (M,))[idx]
             if np.any(~np.isfinite(st) | (st <= 0)):
                 raise InputError("angle sigma must be positive and finite")
-        sc = sig_e / np.sqrt(2.0)
+        if offset_sigma is None:
+            sc = sig_e / np.sqrt(2.0)
+        else:
+            sc = np.broadcast_to(np.asarray(offset_sigma, float), (M,))[idx] * scale
+            if np.any(~np.isfinite(sc) | (sc <= 0)):
+                raise InputError("offset sigma must be positive and finite")
 
         # --- vertex, in ideal pixels
         K = np.asarray(camera.K, float)
@@ -173,8 +185,7 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
             cov_ideal = (K[:2, :2] @ J) @ C @ (K[:2, :2] @ J).T
             through = np.ones(idx.size, bool)
         else:
-            vf = intersect_lines(ideal, angle_sigma=st, offset_sigma=sc, robust=True)
-            v_ideal, cov_ideal, through = vf.vertex, vf.cov, vf.inliers
+            v_ideal, cov_ideal, through = _find_vertex(ideal, st, sc, pencil.radius)
         idx, ideal, st = idx[through], ideal[through], st[through]
         if idx.size < 3:
             raise EstimationError(f"only {idx.size} segments pass through the vertex; three are needed")
@@ -197,10 +208,23 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         oriented = not np.any(straddle)
 
         # --- labels and fit
-        asg = assign_spokes(a, pencil.angles, x, s_n, vertex_cov=cov_x, oriented=oriented)
-        lab = asg.spoke
+        # end point noise in normalised units, for the metric use of the spoke radii
+        sigma_metric = np.sqrt(np.mean(sig_e[through] ** 2)) * np.sqrt(abs(np.linalg.det(A)))
+        rivals = []
+        if labels is None:
+            asg = assign_spokes(a, pencil.angles, x, s_n, vertex_cov=cov_x, oriented=oriented)
+            lab, fit, rivals = asg.spoke, asg.fit, list(asg.rivals)
+            if rivals and pencil.radius is not None:
+                lab, fit, rivals = _break_label_ties(lab, fit, rivals, x, pencil, p1, p2, sigma_metric)
+            labels_ambiguous = bool(rivals)
+        else:
+            lab = np.asarray(labels, int).reshape(-1)[idx]
+            used = lab >= 0
+            if np.unique(lab[used]).size < 3:
+                raise EstimationError(f"only {np.unique(lab[used]).size} labelled spokes through the vertex; three are needed")
+            fit = fit_pencil(a[used], pencil.angles[lab[used]], x, sigma=s_n[used], vertex_cov=cov_x, oriented=oriented)
+            labels_ambiguous = False
         used = lab >= 0
-        fit = asg.fit
         th_used, a_used, s_used = pencil.angles[lab[used]], a[used], s_n[used]
         if model != "exact":
             fit = _chapter_fit(model, a_used, th_used, x, s_used, cov_x, fit)
@@ -222,8 +246,7 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
             resolved_by = "prior"
         metric = None
         if pencil.radius is not None:
-            metric = _metric_choice(fit, x, th_used, p1[used], p2[used], pencil.radius,
-                                    np.sqrt(np.mean(sig_e[through][used] ** 2)) * np.sqrt(abs(np.linalg.det(A))))
+            metric = _metric_choice(fit, x, th_used, p1[used], p2[used], pencil.radius, sigma_metric)
             if metric is not None and resolved_by is None and metric["decisive"]:
                 fit = swap_twins(fit, metric["twin_better"], th_used, x, s_used, cov_x, resolved_by="radius")
                 resolved_by = "radius"
@@ -232,8 +255,16 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         s_mean = float(np.sqrt(np.mean(s_used**2)))
         rec = orientation_record(camera, fit, x, v_ideal, cov_ideal, model=model, image=image, sigma_mean=s_mean,
                                  resolved_by=resolved_by)
-        rec["labels_ambiguous"] = bool(asg.labels_ambiguous)
+        rec["labels_ambiguous"] = bool(labels_ambiguous)
+        # rival labellings that put the normal elsewhere make the normal itself ambiguous
+        alt = _rival_normals(fit, rivals)
+        rec["normal_ambiguous"] = bool(alt)
+        if alt:
+            rec["normal_alternatives"] = alt
         rec["spokes"] = labels_out
+        if keep_lines:
+            rec["lines"] = {"angle": a_used, "sigma": s_used, "spoke": lab[used], "segment": idx[used],
+                            "vertex": x, "vertex_cov": cov_x}
         if metric is not None and resolved_by is not None:
             # depth from the spoke radii, for the rotation finally chosen, if it fits them
             chosen_twin = resolved_by == "radius" and metric["twin_better"]
@@ -249,6 +280,67 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         rec = _empty_record(image, model, str(e))
         rec["spokes"] = labels_out
         return rec
+
+
+def _radius_consistent(ideal, radius):
+    """consistent(points) for vertex.intersect_lines: segments that can be spokes running
+    from radius[0] to radius[1] of a vertex at each point.
+
+    A spoke's near end lies at about r_in / (r_out - r_in) of its length from the vertex;
+    perspective changes that ratio by well under a factor 3 at any usable tilt, while a
+    stray line that only points at the vertex lies far from it.
+    """
+    L = np.hypot(*(ideal[:, 2:] - ideal[:, :2]).T)
+    limit = np.maximum(3.0 * radius[0] / (radius[1] - radius[0]), 0.5) * L
+
+    def consistent(points):
+        p = np.asarray(points, float)[:, None, :]
+        near = np.minimum(np.linalg.norm(ideal[None, :, :2] - p, axis=-1), np.linalg.norm(ideal[None, :, 2:] - p, axis=-1))
+        return near <= limit
+
+    return consistent
+
+
+def _find_vertex(ideal, st, sc, radius):
+    """Robust vertex of the segments (ideal px): (vertex, cov, inlier mask).
+
+    With spoke radii, only lines that can be spokes of a candidate vertex count for it:
+    spurious lines that happen to share a point (edges of a textured background meeting at
+    the horizon) would otherwise outvote the spokes.
+    """
+    cons = None if radius is None else _radius_consistent(ideal, radius)
+    vf = intersect_lines(ideal, angle_sigma=st, offset_sigma=sc, robust=True, consistent=cons)
+    return vf.vertex, vf.cov, vf.inliers
+
+
+def _break_label_ties(lab, fit, rivals, x, pencil, p1, p2, sigma_metric):
+    """Among labellings that explain the angles equally well, prefer the one whose spoke
+    radii fit the segment end points: (labels, fit, remaining rivals)."""
+    from .estimator import _CHI2_2
+
+    cands = [(lab, fit)] + list(rivals)
+    scores = []
+    for l, f in cands:
+        u = l >= 0
+        m = _metric_choice(f, x, pencil.angles[l[u]], p1[u], p2[u], pencil.radius, sigma_metric)
+        metric = min(m["chi2"], m["chi2_twin"])
+        scores.append(float(f.chi2) + (metric if np.isfinite(metric) else 1e12))
+    best = int(np.argmin(scores))
+    rest = [c for i, c in enumerate(cands) if i != best and scores[i] - scores[best] < _CHI2_2]
+    return cands[best][0], cands[best][1], rest
+
+
+def _rival_normals(fit, rivals):
+    """Normals of rival labellings that differ from the fit's (closer twin compared), beyond
+    three sigmas and 0.1 deg. [[x, y, z], ...] (empty when all rivals agree)."""
+    n, nt = fit.normal, fit.normal_twin
+    tol = max(3.0 * float(fit.normal_sigma), np.radians(0.1))
+    out = []
+    for _, f in rivals:
+        d = min(np.arccos(np.clip(f.normal @ m, -1, 1)) for m in (n, nt))
+        if d > tol:
+            out.append(np.asarray(f.normal, float))
+    return out
 
 
 def orientation_record(camera, fit, vertex, vertex_ideal, cov_ideal, *, model="exact", image=None,

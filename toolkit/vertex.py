@@ -312,6 +312,7 @@ def intersect_lines(
     max_condition=1e12,
     tol=1e-12,
     max_iter=50,
+    consistent=None,
 ):
     """Weighted least-squares intersection of image lines, optionally robust to outliers.
 
@@ -336,6 +337,10 @@ def intersect_lines(
     max_condition: EstimationError when the information matrix is worse conditioned
         (numerically parallel lines, which the previous test cannot see when angle_sigma is 0).
     tol, max_iter: convergence of the reweighting (relative step) and its iteration cap.
+    consistent: optional prior knowledge of which lines can belong to a vertex: a callable
+        ``consistent(points (P, 2)) -> (P, M) bool``; a line counts as an inlier of a point
+        only where it is true (e.g. spokes of known radii must reach close to their vertex,
+        which a stray line that merely points at it does not). Robust mode only.
 
     Returns a `VertexFit`. Raises InputError for bad shapes, NaN/inf or zero-length
     segments, bad sigmas; EstimationError for fewer than two lines, parallel lines and a
@@ -388,16 +393,24 @@ def intersect_lines(
         for i in range(0, hyp.shape[0], step):
             h = hyp[i : i + step]
             d = h @ lines.normal.T + lines.offset
-            cost[i : i + step] = np.minimum(d * d / _line_var(h, lines, dm, st2, sc2), t2).sum(1)
+            c = np.minimum(d * d / _line_var(h, lines, dm, st2, sc2), t2)
+            if consistent is not None:
+                c = np.where(consistent(h), c, t2)
+            cost[i : i + step] = c.sum(1)
         p = hyp[int(np.argmin(cost))]
+
+        def inliers(p, e):
+            ok = e * e < t2
+            return ok if consistent is None else ok & consistent(p[None])[0]
+
         e, _ = classify(p)
-        mask = e * e < t2
+        mask = inliers(p, e)
         for _ in range(10):  # re-classify until the inlier set is stable (2-3 rounds)
             if np.count_nonzero(mask) < 2:
                 raise EstimationError("vertex: fewer than two lines agree on a common point")
             p, it = fit(p, mask)
             e, _ = classify(p)
-            new = e * e < t2
+            new = inliers(p, e)
             if np.array_equal(new, mask):
                 break
             mask = new

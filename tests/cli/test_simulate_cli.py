@@ -52,7 +52,7 @@ def test_pivot_writes_the_contract(tmp_path):
         assert name == f["image"] and float(angle) == f["angle_deg"]
         # vertex_px is the fulcrum's image, exactly as the camera file projects it
         assert np.allclose(cam.project(np.asarray(f["fulcrum_cam"])), f["vertex_px"], atol=1e-9)
-    assert truth["render"]["noise"] == 2.0 and truth["render"]["blur_px"] == 0.6
+    assert truth["render"]["noise"] == 5.0 and truth["render"]["blur_px"] == 1.5
     # nothing else left behind in the parent folder
     assert sorted(os.listdir(tmp_path)) == ["seq"]
 

@@ -176,3 +176,17 @@ def test_chapter_models_in_the_pipeline(rng, model):
         assert max(errs) < 1e-6
     else:
         assert max(errs) > 1.0
+
+
+def test_known_labels(rng):
+    """Labelled segments (e.g. board grid lines) skip the assignment; -1 ignores one."""
+    cam = hd_camera()
+    pen = fan(radius=None)
+    seg, R, _ = frame(cam, pen, 30.0, 200.0, rng)
+    p = rng.permutation(8)
+    labels = np.arange(8)[p].copy()
+    labels[0] = -1
+    rec = orient_segments(cam, seg[p], pen, labels=labels)
+    assert rec["ok"] and rec["lines_used"] == 7 and not rec["labels_ambiguous"]
+    assert np.degrees(closer(rec, R)) < 1e-6
+    assert rec["spokes"].tolist() == labels.tolist()

@@ -1,0 +1,137 @@
+"""`pencilcal lines`: the lines.json contract, --bars, --shaft, exit codes and messages."""
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pencilcal.cli.lines import lines
+from pencilcal.toolkit.camera import Camera
+from pencilcal.toolkit.camera_io import write_camera
+from pencilcal.toolkit.lines_io import read_lines
+from pencilcal.toolkit.orient import orient_segments
+from tests.toolkit.test_lines import fan_scene, line_errors
+from tests.toolkit.test_shafts import render_shaft, shaft_from
+
+
+def invoke(*args):
+    return CliRunner().invoke(lines, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    """Two frames of a fan (640x480, mild distortion), a camera file, the truth."""
+    d = tmp_path_factory.mktemp("lines")
+    cam = Camera("opencv", 640, 480, [[800.0, 0, 319.5], [0, 800.0, 239.5], [0, 0, 1]], [-0.1, 0.02, 0, 0, 0])
+    write_camera(d / "camera.json", cam)
+    (d / "frames").mkdir()
+    rng = np.random.default_rng(7)
+    truth = {}
+    for i in range(2):
+        img, pen, R, t, ideal = fan_scene(cam, rng, tilt_deg=25 + 10 * i, depth=230.0, pixel=(320, 240))
+        cv2.imwrite(str(d / "frames" / f"{i:03d}.png"), img)
+        truth[f"{i:03d}.png"] = (R, ideal)
+    return d, cam, pen, truth
+
+
+def test_bars_happy_path(scene):
+    d, cam, pen, truth = scene
+    out = d / "bars.json"
+    r = invoke(d / "frames", "--camera", d / "camera.json", "--bars", "--detector", "fld", "-o", out, "--quiet")
+    assert r.exit_code == 0, r.output
+    frames = read_lines(out)
+    assert [f["image"] for f in frames] == ["000.png", "001.png"]
+    raw = json.loads(out.read_text())
+    assert raw["detector"] == "fld" and raw["mode"] == "bars"
+    for fr in frames:
+        assert fr["ok"] and fr["segments"].shape == (8, 4)
+        assert fr["angle_sigma_deg"].shape == (8,) and np.all(fr["angle_sigma_deg"] > 0)
+        R, ideal = truth[fr["image"]]
+        found = cam.undistort_pixels(fr["segments"].reshape(-1, 2)).reshape(-1, 4)
+        assert all(np.abs(e[1]).max() < 0.15 for e in line_errors(found, ideal))
+        # the file feeds orient directly, with the per-segment sigmas
+        rec = orient_segments(cam, fr["segments"], pen, angle_sigma=np.radians(fr["angle_sigma_deg"]))
+        assert rec["ok"] and rec["lines_used"] == 8
+        err = min(np.degrees(np.arccos(np.clip(np.asarray(n) @ R[:, 2], -1, 1)))
+                  for n in (rec["normal"], rec["normal_twin"]))
+        assert err < 0.3
+
+
+def test_edges_mode_gives_two_edges_per_bar(scene):
+    d, cam, pen, truth = scene
+    out = d / "edges.json"
+    r = invoke(d / "frames" / "000.png", "--camera", d / "camera.json", "-o", out, "-q", "--min-length", 40)
+    assert r.exit_code == 0, r.output
+    fr = read_lines(out)[0]
+    assert fr["segments"].shape[0] == 16  # two long edges per bar (the caps are short)
+    assert "shafts" not in fr
+
+
+def test_shaft_option(tmp_path):
+    cam = Camera("opencv", 640, 480, [[420.0, 0, 319.5], [0, 420.0, 239.5], [0, 0, 1]], [-0.25, 0.07, 0, 0, 0])
+    write_camera(tmp_path / "camera.yaml", cam)
+    rng = np.random.default_rng(1)
+    img = render_shaft(cam, [shaft_from([-30.0, 14.0, 22.0], [2.0, -4.0, 85.0])], rng)
+    (tmp_path / "v").mkdir()
+    cv2.imwrite(str(tmp_path / "v" / "a.png"), img)
+    r = invoke(tmp_path / "v", "--camera", tmp_path / "camera.yaml", "--shaft", "-o", tmp_path / "l.json", "-q")
+    assert r.exit_code == 0, r.output
+    fr = read_lines(tmp_path / "l.json")[0]
+    assert len(fr["shafts"]) == 1
+    sh = fr["shafts"][0]
+    assert sh["midline"].shape == (4,) and sh["width_px"] > 40 and 0 < sh["angle_sigma_deg"] < 0.1
+
+
+def test_undecodable_frame_is_a_warning(scene, tmp_path):
+    d, cam, pen, truth = scene
+    frames = tmp_path / "f"
+    frames.mkdir()
+    (frames / "000.png").write_bytes((d / "frames" / "000.png").read_bytes())
+    (frames / "001.png").write_bytes(b"\x89PNG broken")
+    r = invoke(frames, "--camera", d / "camera.json", "--bars", "-o", tmp_path / "o.json", "-q")
+    assert r.exit_code == 0, r.output
+    assert "001.png" in r.output and "warning" in r.output
+    fr = read_lines(tmp_path / "o.json")
+    assert fr[0]["ok"] and not fr[1]["ok"] and fr[1]["segments"].shape == (0, 4)
+
+
+def test_wrong_image_size_is_one_line_exit_1(scene, tmp_path):
+    d, cam, pen, truth = scene
+    (tmp_path / "small").mkdir()
+    cv2.imwrite(str(tmp_path / "small" / "x.png"), np.zeros((240, 320), np.uint8))
+    r = invoke(tmp_path / "small", "--camera", d / "camera.json", "-o", tmp_path / "o.json", "-q")
+    assert r.exit_code == 1
+    assert r.output.strip().count("\n") == 0 and "320x240" in r.output and "640x480" in r.output
+    assert not (tmp_path / "o.json").exists()
+
+
+def test_empty_folder_and_existing_output(scene, tmp_path):
+    d, cam, pen, truth = scene
+    (tmp_path / "empty").mkdir()
+    r = invoke(tmp_path / "empty", "--camera", d / "camera.json", "-o", tmp_path / "o.json")
+    assert r.exit_code == 1 and "no images" in r.output
+    (tmp_path / "o.json").write_text("keep")
+    r = invoke(d / "frames", "--camera", d / "camera.json", "-o", tmp_path / "o.json", "-q")
+    assert r.exit_code == 1 and "already exists" in r.output
+    assert (tmp_path / "o.json").read_text() == "keep"
+
+
+@pytest.mark.parametrize("args,hint", [
+    (["--detector", "hough"], "detector"),
+    (["--min-length", "0"], "--min-length"),
+    (["--bar-width", "5", "2", "--bars"], "--bar-width"),
+    (["--bar-width", "2", "5"], "--bar-width"),
+])
+def test_usage_errors_exit_2(scene, tmp_path, args, hint):
+    d, cam, pen, truth = scene
+    r = invoke(d / "frames", "--camera", d / "camera.json", "-o", tmp_path / "o.json", *args)
+    assert r.exit_code == 2 and hint in r.output
+
+
+def test_help_has_an_example():
+    r = invoke("--help")
+    assert r.exit_code == 0
+    assert "Example" in r.output and "--bars" in r.output and "--shaft" in r.output

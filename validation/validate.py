@@ -1,0 +1,341 @@
+"""Validation: the angular-variation estimate, every PnP method and a reconstruction, compared.
+
+`validate_sequence` runs, on the same frames, each frame decoded and detected once:
+
+- orient: lines of the pencil (the printed fan's bars, or the board's grid lines through one
+  corner, `grid_pencil`) -> the exact estimator and the chapter's general and aligned
+  models (`toolkit.orient.orient_segments`); the twin is chosen only by the pencil's own
+  information (spoke radii), never by the board pose it is compared with;
+- pnp: the board's corners -> every PnP method, each refined (`validation.pnp`);
+- sfm (optional): a pycolmap reconstruction with the intrinsics held fixed, aligned to the
+  board frame by robust rotation averaging against the PnP poses (`validation.align`).
+
+The reference is the exact truth when there is one (a `pencilcal simulate` folder), else
+the PnP pose of the best method. Per frame and per method: the normal's angular error (for
+the chosen solution and for the closer twin), the full rotation error, the tilt error, how
+the twin was handled, and the reported sigmas; summaries (median, RMSE, 95th percentile)
+and the coverage of the reported sigmas. Angles in the output are degrees.
+"""
+from __future__ import annotations
+
+import hashlib
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pencilcal.toolkit.detect import detect_board
+from pencilcal.toolkit.errors import EstimationError, InputError
+from pencilcal.toolkit.estimator import crlb
+from pencilcal.toolkit.frames import angle_between, normalize
+from pencilcal.toolkit.images import check_image_size
+from pencilcal.toolkit.orient import MODELS, orient_segments
+
+from .align import align_rotations
+from .metrics import coverage, normal_error_deg, rotation_error_deg, summary
+from .pnp import METHODS, best_method, estimate_all, frame_record
+
+__all__ = ["validate_sequence", "frame_errors", "summarise", "reproducibility", "FanLines"]
+
+
+class FanLines:
+    """Lines of a printed fan: the midlines of its dark bars (`toolkit.lines.detect_bars`),
+    or plain edge segments when the pencil file gives no bar width."""
+
+    def __init__(self, pencil, detector="lsd"):
+        self.pencil = pencil
+        self.detector = detector
+
+    def __call__(self, image, camera, detection):
+        from pencilcal.toolkit.lines import detect_bars, detect_segments
+
+        if self.pencil.width is not None:
+            found = detect_bars(image, self.detector, camera=camera)
+        else:
+            found = detect_segments(image, self.detector, camera=camera)
+        return {"segments": found.segments, "angle_sigma": found.angle_sigma, "offset_sigma": found.offset_sigma,
+                "labels": None, "vertex_px": None, "vertex_cov_px2": None, "pencil": self.pencil}
+
+
+class GridLines:
+    """Lines of the board's grid through one corner (`toolkit.grid_pencil.GridPencil`)."""
+
+    def __init__(self, grid, corner_sigma_px=0.2):
+        self.grid = grid
+        self.corner_sigma_px = corner_sigma_px
+
+    def __call__(self, image, camera, detection):
+        return self.grid.segments(detection, self.corner_sigma_px)
+
+
+def _tilt_deg(R, ray):
+    return float(np.degrees(angle_between(np.asarray(R, float)[:, 2], ray)))
+
+
+def _vertex_ray(R, t, pencil):
+    """Unit ray of the pencil's vertex for a pose (None when the pencil has no vertex)."""
+    if pencil is None or pencil.vertex is None or t is None:
+        return None
+    P0 = np.asarray(R, float) @ np.r_[pencil.vertex, 0.0] + np.asarray(t, float)
+    return normalize(P0)
+
+
+def frame_errors(R, R_twin, ambiguous, R_ref, ray, tilt_sigma_deg=None, normal_sigma_deg=None):
+    """Errors of one estimate against the reference rotation, in degrees.
+
+    R, R_twin: (3, 3) the chosen solution and its twin (None for methods without one);
+    ambiguous: whether the twin was left unresolved; R_ref: (3, 3); ray: (3,) unit vertex
+    ray. Returns normal and rotation errors for the chosen solution and the closer twin, the
+    signed tilt error, the reported sigmas and the twin outcome (right, wrong, ambiguous,
+    none).
+    """
+    R = np.asarray(R, float)
+    n_ref = R_ref[:, 2]
+    out = {
+        "normal_deg": float(normal_error_deg(R[:, 2], n_ref)),
+        "rotation_deg": float(rotation_error_deg(R, R_ref)),
+        "tilt_deg": None if ray is None else _tilt_deg(R, ray) - _tilt_deg(R_ref, ray),
+        "tilt_sigma_deg": tilt_sigma_deg,
+        "normal_sigma_deg": normal_sigma_deg,
+    }
+    if R_twin is None:
+        out.update(normal_closer_deg=out["normal_deg"], rotation_closer_deg=out["rotation_deg"], twin="none")
+        return out
+    Rt = np.asarray(R_twin, float)
+    nt = float(normal_error_deg(Rt[:, 2], n_ref))
+    rt = float(rotation_error_deg(Rt, R_ref))
+    out["normal_closer_deg"] = min(out["normal_deg"], nt)
+    out["rotation_closer_deg"] = min(out["rotation_deg"], rt)
+    if ambiguous:
+        out["twin"] = "ambiguous"
+    else:
+        out["twin"] = "right" if out["normal_deg"] <= nt else "wrong"
+    return out
+
+
+def summarise(frames, keys):
+    """Per method: summaries of the errors, sigma coverage and twin counts."""
+    out = {}
+    for key in keys:
+        errs = [f["errors"][key] for f in frames if f.get("errors", {}).get(key)]
+        if not errs:
+            out[key] = {"frames": 0}
+            continue
+        twins = [e.get("twin") for e in errs]
+        use_closer = key.startswith("orient")
+        s = {
+            "frames": len(errs),
+            "normal": summary([e["normal_deg"] for e in errs]),
+            "normal_closer": summary([e["normal_closer_deg"] for e in errs]),
+            "rotation": summary([e["rotation_deg"] for e in errs]),
+            "rotation_closer": summary([e["rotation_closer_deg"] for e in errs]),
+            "tilt": summary([e["tilt_deg"] for e in errs]),
+            "twin": {k: twins.count(k) for k in ("right", "wrong", "ambiguous", "none") if twins.count(k)},
+        }
+        tilt_pairs = [(e["tilt_deg"], e["tilt_sigma_deg"]) for e in errs
+                      if e.get("tilt_sigma_deg") is not None and e.get("tilt_deg") is not None]
+        if tilt_pairs:
+            s["tilt_coverage"] = coverage(*zip(*tilt_pairs), kind="tilt")
+        norm_pairs = [(e["normal_closer_deg"] if use_closer else e["normal_deg"], e["normal_sigma_deg"]) for e in errs
+                      if e.get("normal_sigma_deg") is not None]
+        if norm_pairs:
+            s["normal_coverage"] = coverage(*zip(*norm_pairs), kind="normal")
+        det = [f["orient"][key.split(":", 1)[1]].get("detectable") for f in frames
+               if key.startswith("orient:") and f.get("errors", {}).get(key)]
+        if det:
+            s["detectable"] = int(sum(bool(d) for d in det))
+        out[key] = s
+    return out
+
+
+def _sha256(path):
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def reproducibility(inputs, argv=None):
+    """Versions, the command line and SHA-256 of the input files (path -> hash)."""
+    import cv2
+    import scipy
+
+    versions = {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
+                "opencv": cv2.__version__, "platform": platform.platform()}
+    try:
+        from importlib.metadata import version
+
+        versions["pencilcal"] = version("pencilcal")
+    except Exception:  # a source tree without installing
+        versions["pencilcal"] = "unknown"
+    try:
+        import pycolmap
+
+        versions["pycolmap"] = pycolmap.__version__
+    except ImportError:
+        pass
+    hashes = {}
+    for p in inputs:
+        if p is not None and Path(p).is_file():
+            hashes[str(p)] = _sha256(p)
+    return {"versions": versions, "command": list(sys.argv if argv is None else argv),
+            "inputs_sha256": hashes, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+
+
+def _pose_of(truth_frame, pnp_best):
+    if truth_frame is not None:
+        return "truth", np.asarray(truth_frame["R_cam_from_target"], float), np.asarray(truth_frame["t_cam_from_target"], float)
+    if pnp_best is not None and pnp_best.ok:
+        return "pnp", pnp_best.R_cam_from_target, pnp_best.t_cam_from_target
+    return None, None, None
+
+
+def _process(frame, camera, board, lines_source, models, methods, truth, keep_pixels):
+    """Everything for one frame: detections, estimates, errors against the reference."""
+    rec = {"image": frame.name, "ok": False, "error": None, "path": frame.path}
+    if frame.image is None:
+        rec["error"] = frame.error
+        return rec, None
+    check_image_size(frame, camera)
+    det = detect_board(frame.image, board)
+    obj = board.object_points()
+    pnp = {}
+    best = None
+    if det.count >= 4:
+        res = estimate_all(obj[det.ids], det.corners, camera, methods=methods)
+        name = best_method(res)
+        best = res.get(name) if name else None
+        rec["pnp"] = {m: frame_record(frame.name, r) for m, r in res.items()}
+        rec["pnp_best"] = name
+        pnp = res
+    else:
+        rec["pnp"] = {}
+        rec["pnp_best"] = None
+    rec["board_corners"] = int(det.count)
+    src = lines_source(frame.image, camera, det)
+    rec["orient"] = {}
+    if src is None:
+        for m in models:
+            rec["orient"][m] = {"ok": False, "error": "no pencil lines in this frame"}
+    else:
+        for m in models:
+            rec["orient"][m] = orient_segments(
+                camera, src["segments"], src["pencil"], model=m, angle_sigma=src["angle_sigma"],
+                vertex_px=src["vertex_px"], vertex_cov_px2=src["vertex_cov_px2"], labels=src["labels"],
+                image=frame.name, keep_lines=(m == "exact"), offset_sigma=src.get("offset_sigma"))
+        if keep_pixels:
+            rec["segments"] = src["segments"]
+    pencil = None if src is None else src["pencil"]
+    truth_frame = None if truth is None else truth.get(frame.name)
+    source, R_ref, t_ref = _pose_of(truth_frame, best)
+    rec["reference"] = source
+    if R_ref is None:
+        rec["error"] = "no reference pose (no truth and no board pose)"
+        return rec, None
+    rec["R_ref"] = R_ref
+    rec["t_ref"] = t_ref
+    ray = _vertex_ray(R_ref, t_ref, pencil)
+    rec["reference_tilt_deg"] = None if ray is None else _tilt_deg(R_ref, ray)
+    errors = {}
+    for m, o in rec["orient"].items():
+        if o.get("ok"):
+            ray_m = ray if ray is not None else np.asarray(o["ray"], float)
+            errors[f"orient:{m}"] = frame_errors(o["R_cam_from_target"], o["R_cam_from_target_twin"], o["ambiguous"], R_ref,
+                                                 ray_m, o["tilt_sigma_deg"], o["normal_sigma_deg"])
+    exact = rec["orient"].get("exact", {})
+    if exact.get("ok") and "lines" in exact:
+        ln = exact["lines"]
+        x_ref = None
+        if ray is not None:
+            x_ref = ray[:2] / ray[2]
+        else:
+            x_ref = np.asarray(ln["vertex"], float)
+        _, b_tilt, b_norm = crlb(R_ref, x_ref, pencil.angles[ln["spoke"]], ln["sigma"], ln["vertex_cov"])
+        # at zero tilt the bound is infinite (the tilt is unobservable to first order)
+        finite = lambda v: float(np.degrees(v)) if np.degrees(v) < 90.0 else None  # noqa: E731
+        rec["crlb"] = {"tilt_deg": finite(b_tilt), "normal_deg": finite(b_norm)}
+    for m, r in pnp.items():
+        if r.ok:
+            ray_p = _vertex_ray(r.R_cam_from_target, r.t_cam_from_target, pencil)
+            ray_p = ray if ray_p is None else ray_p
+            errors[f"pnp:{m}"] = frame_errors(r.R_cam_from_target, None, False, R_ref, ray_p,
+                                              None, getattr(r, "normal_sigma_deg", None))
+    rec["errors"] = errors
+    rec["ok"] = bool(errors)
+    if not errors:
+        rec["error"] = "no estimate in this frame"
+    return rec, best
+
+
+def _sfm(source, camera, frames, workdir, warn, quiet, progress):
+    """Reconstruct, align to the board frame with the PnP poses, add the sfm errors."""
+    from .sfm import reconstruct
+
+    res = reconstruct(source, camera, workdir, quiet=quiet, progress=progress)
+    by_name = {f.name: f for f in res.frames}
+    pairs = [(by_name[f["image"]], f) for f in frames
+             if f["image"] in by_name and by_name[f["image"]].registered and f.get("pnp_best")]
+    if len(pairs) < 2:
+        raise EstimationError("the reconstruction and the board poses share fewer than two frames: cannot align them")
+    Rcw = np.array([p[0].R_cam_from_world for p in pairs])
+    Rct = np.array([np.asarray(p[1]["pnp"][p[1]["pnp_best"]]["R_cam_from_target"], float) for p in pairs])
+    R_wt, inliers = align_rotations(Rcw, Rct)
+    info = {"registered": int(sum(f.registered for f in res.frames)), "frames": len(res.frames),
+            "points3D": int(res.n_points3D), "alignment_inliers": int(inliers.sum()),
+            "alignment_frames": len(pairs), "R_world_from_target": R_wt,
+            "mean_reprojection_error_px": float(res.mean_reprojection_error_px)}
+    for f in frames:
+        s = by_name.get(f["image"])
+        if s is None or not s.registered:
+            f["sfm"] = {"registered": False}
+            continue
+        R = s.R_cam_from_world @ R_wt
+        f["sfm"] = {"registered": True, "R_cam_from_target": R}
+        if f.get("R_ref") is not None:
+            ray = None
+            ex = f["orient"].get("exact", {})
+            if ex.get("ok"):
+                ray = np.asarray(ex["ray"], float)
+            f.setdefault("errors", {})["sfm"] = frame_errors(R, None, False, np.asarray(f["R_ref"], float), ray)
+    return info
+
+
+def validate_sequence(source, camera, board, lines_source, *, truth=None, models=MODELS, methods=METHODS,
+                      sfm=False, sfm_workdir=None, progress=None, warn=None, quiet=True, keep_pixels=True):
+    """Run orient, every PnP method and optionally SfM on one sequence and compare them.
+
+    source: an ImageSource; camera: Camera; board: Board; lines_source: FanLines or GridLines
+    (a callable (image, camera, detection) -> dict of segments, labels, sigmas, pencil);
+    truth: dict image name -> truth frame (R_cam_from_target, t_cam_from_target) or None;
+    models: orient models; methods: PnP methods; sfm: also reconstruct with pycolmap
+    (sfm_workdir: where; a temporary folder if None); progress: callable(iterable, label)
+    -> iterable; warn: callable(str) for per-frame problems.
+
+    Returns the validation.json dict (numpy arrays inside; write with files.write_json).
+    """
+    frames = []
+    it = iter(source) if progress is None else progress(source, "validate")
+    for fr in it:
+        try:
+            rec, _ = _process(fr, camera, board, lines_source, models, methods, truth, keep_pixels)
+        except EstimationError as e:
+            rec = {"image": fr.name, "ok": False, "error": str(e)}
+        if not rec["ok"] and warn is not None:
+            warn(f"{fr.name}: {rec['error']}")
+        frames.append(rec)
+    if not any(f["ok"] for f in frames):
+        raise EstimationError("no frame could be validated (no pencil and no board pose in any frame)")
+    keys = [f"orient:{m}" for m in models] + [f"pnp:{m}" for m in methods]
+    out = {"reference": "truth" if truth is not None else "pnp", "models": list(models), "methods": list(methods)}
+    if sfm:
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as tmp:
+            out["sfm"] = _sfm(source, camera, frames, sfm_workdir or tmp, warn, quiet, None)
+        keys.append("sfm")
+    out["summary"] = summarise(frames, keys)
+    out["frames"] = frames
+    return out
