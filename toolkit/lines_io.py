@@ -45,6 +45,17 @@ def _segments(value, where):
     return arr
 
 
+def _per_segment(value, key, n, where):
+    """One number per segment for `key` (an optional per-segment list of the format)."""
+    try:
+        arr = np.asarray(value, float).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: '{key}' must be numbers") from None
+    if arr.size != n:
+        raise InputError(f"{where}: '{key}' has {arr.size} values for {n} segments")
+    return arr
+
+
 def frame_record(d, where):
     """Validate one frame of a lines file; returns a dict with numpy `segments` (M, 4)."""
     if not isinstance(d, dict):
@@ -53,24 +64,9 @@ def frame_record(d, where):
     rec["image"] = str(d.get("image", where))
     rec["ok"] = bool(d.get("ok", True))
     rec["segments"] = _segments(d.get("segments"), where)
-    sig = d.get("angle_sigma_deg")
-    if sig is not None:
-        try:
-            s = np.asarray(sig, float).reshape(-1)
-        except (TypeError, ValueError):
-            raise InputError(f"{where}: 'angle_sigma_deg' must be numbers") from None
-        if s.size != rec["segments"].shape[0]:
-            raise InputError(f"{where}: 'angle_sigma_deg' has {s.size} values for {rec['segments'].shape[0]} segments")
-        rec["angle_sigma_deg"] = s
-    off = d.get("offset_sigma_px")
-    if off is not None:
-        try:
-            o = np.asarray(off, float).reshape(-1)
-        except (TypeError, ValueError):
-            raise InputError(f"{where}: 'offset_sigma_px' must be numbers") from None
-        if o.size != rec["segments"].shape[0]:
-            raise InputError(f"{where}: 'offset_sigma_px' has {o.size} values for {rec['segments'].shape[0]} segments")
-        rec["offset_sigma_px"] = o
+    for key in ("angle_sigma_deg", "offset_sigma_px"):
+        if d.get(key) is not None:
+            rec[key] = _per_segment(d[key], key, rec["segments"].shape[0], where)
     shafts = d.get("shafts")
     if shafts is not None:
         if not isinstance(shafts, list):
