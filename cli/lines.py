@@ -6,33 +6,10 @@ import numpy as np
 
 from pencilcal.toolkit.camera_io import read_camera
 from pencilcal.toolkit.images import check_image_size, open_images
-from pencilcal.toolkit.lines import DETECTORS, detect_bars, detect_segments
+from pencilcal.toolkit.lines import DETECTORS, lines_record
 from pencilcal.toolkit.lines_io import write_lines
 
 from .common import check_output, force_option, output_option, progress, quiet_option, run, warn
-
-
-def _frame_record(name, image, camera, detector, bars, shaft, min_length, bar_width):
-    """One lines.json frame from one decoded image."""
-    if bars:
-        segs = detect_bars(image, detector, camera=camera, min_length=min_length, width_px_range=bar_width)
-    else:
-        segs = detect_segments(image, detector, camera=camera, min_length=min_length)
-    rec = {
-        "image": name,
-        "ok": True,
-        "error": None,
-        "segments": segs.segments,
-        "angle_sigma_deg": np.degrees(segs.angle_sigma),
-        "offset_sigma_px": segs.offset_sigma,
-    }
-    if bars:
-        rec["width_px"] = segs.width_px
-    if shaft:
-        from pencilcal.toolkit.shafts import detect_shafts
-
-        rec["shafts"] = [s.to_dict() for s in detect_shafts(image, camera)]
-    return rec
 
 
 @click.command()
@@ -92,7 +69,7 @@ def lines(images, camera_path, camera_id, output, detector, bars, bar_width, sha
                                 "angle_sigma_deg": []})
                 continue
             check_image_size(fr, camera)
-            records.append(_frame_record(fr.name, fr.image, camera, detector, bars, shaft, min_length, bar_width))
+            records.append(lines_record(fr.name, fr.image, camera, detector, bars, shaft, min_length, bar_width))
     meta = {"detector": detector, "mode": "bars" if bars else "edges", "camera": str(camera_path)}
     write_lines(output, records, force=force, meta=meta)
     if not quiet:

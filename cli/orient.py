@@ -14,6 +14,28 @@ from pencilcal.toolkit.pencil import read_pencil
 from .common import camera_options, check_output, force_option, output_option, progress, quiet_option, run, warn
 
 
+def _detected(images, camera, pencil, detector):
+    """Lines of every frame of IMAGES, detected as `pencilcal lines` would (a generator)."""
+    from pencilcal.toolkit.images import check_image_size, open_images
+    from pencilcal.toolkit.lines import lines_record
+
+    source = open_images(images)
+
+    class _Frames:
+        def __len__(self):
+            return len(source)
+
+        def __iter__(self):
+            for fr in source:
+                if fr.image is None:
+                    yield {"image": fr.name, "ok": False, "segments": np.zeros((0, 4)), "error": fr.error}
+                    continue
+                check_image_size(fr, camera)
+                yield lines_record(fr.name, fr.image, camera, detector, bars=pencil.width is not None)
+
+    return _Frames()
+
+
 def _prior_rotations(path):
     """R_cam_from_target per image name from a poses.json (pencilcal pnp) file."""
     from pencilcal.toolkit.files import load_structured
@@ -33,8 +55,9 @@ def _prior_rotations(path):
 
 
 @click.command()
-@click.option("--lines", "lines_path", required=True, type=click.Path(dir_okay=False),
-              help="Line segments per frame (lines.json, raw pixels).")
+@click.argument("images", required=False)
+@click.option("--lines", "lines_path", type=click.Path(dir_okay=False), default=None,
+              help="Line segments per frame (lines.json, raw pixels), instead of IMAGES.")
 @camera_options
 @click.option("--pencil", "pencil_path", required=True, type=click.Path(dir_okay=False),
               help="Pencil file (.yaml/.json): spoke angles, optional vertex and radius.")
@@ -49,20 +72,26 @@ def _prior_rotations(path):
               help="poses.json (pencilcal pnp): picks the twin closer to each frame's board pose.")
 @click.option("--continuity/--no-continuity", default=True, show_default=True,
               help="Carry twin choices along the sequence to ambiguous frames.")
+@click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
+              help="Line detector, with IMAGES.")
 @force_option
 @quiet_option
 @run
-def orient(lines_path, camera_path, camera_id, pencil_path, output, model, endpoint_sigma, angle_sigma,
-           prior_path, continuity, force, quiet):
+def orient(images, lines_path, camera_path, camera_id, pencil_path, output, model, endpoint_sigma, angle_sigma,
+           prior_path, continuity, detector, force, quiet):
     """Orientation of the pencil in every frame, from its image angles alone.
 
-    Reads segments in raw pixels, undistorts them, finds the vertex, labels the segments
-    with spokes (missing spokes and spurious segments are tolerated) and fits the plane's
-    orientation with its uncertainty. Both twin solutions are written; the twin is chosen
-    where the spoke radii (pencil file), a prior pose or continuity tell them apart.
+    From IMAGES (a folder, glob or video) the lines are detected first: the midlines of
+    the printed spokes when the pencil file gives their width, else edge segments (as
+    `pencilcal lines`); or they come from a lines file (--lines). Segments are undistorted,
+    the vertex found, the segments labelled with spokes (missing spokes and spurious
+    segments are tolerated) and the plane's orientation fitted with its uncertainty. Both
+    twin solutions are written; the twin is chosen where the spoke radii (pencil file), a
+    prior pose or continuity tell them apart.
 
     \b
-    Example:
+    Examples:
+      pencilcal orient frames/ --camera camera.yaml --pencil pencil.yaml -o orientation.json
       pencilcal orient --lines lines.json --camera camera.yaml \\
           --pencil pencil.yaml -o orientation.json
     """
@@ -70,19 +99,24 @@ def orient(lines_path, camera_path, camera_id, pencil_path, output, model, endpo
         raise click.BadParameter("must be positive", param_hint="--endpoint-sigma")
     if angle_sigma is not None and angle_sigma <= 0:
         raise click.BadParameter("must be positive", param_hint="--angle-sigma")
+    if (images is None) == (lines_path is None):
+        raise click.UsageError("give IMAGES or --lines (one of them)")
     check_output(output, force)
     camera = read_camera(camera_path, camera_id=camera_id)
     pencil = read_pencil(pencil_path)
-    frames = read_lines(lines_path)
-    if not frames:
-        raise InputError(f"{lines_path}: no frames")
+    if lines_path is not None:
+        frames = read_lines(lines_path)
+        if not frames:
+            raise InputError(f"{lines_path}: no frames")
+    else:
+        frames = _detected(images, camera, pencil, detector)
     priors = _prior_rotations(prior_path) if prior_path else {}
     records = []
     with progress(frames, "orient", quiet) as bar:
         for fr in bar:
             if not fr["ok"]:
                 rec = orient_segments(camera, np.zeros((0, 4)), pencil, model=model, image=fr["image"])
-                rec["error"] = "no segments (frame marked not ok in the lines file)"
+                rec["error"] = fr.get("error") or "no segments (frame marked not ok in the lines file)"
             else:
                 sig = fr.get("angle_sigma_deg")
                 if sig is None and angle_sigma is not None:
@@ -97,14 +131,15 @@ def orient(lines_path, camera_path, camera_id, pencil_path, output, model, endpo
             records.append(rec)
     if not any(r["ok"] for r in records):
         # a run with no estimate at all failed: say so and leave nothing that looks like a result
-        raise EstimationError(f"{lines_path}: no frame gave an orientation")
+        raise EstimationError(f"{lines_path or images}: no frame gave an orientation")
     if continuity:
         records = resolve_twins_by_continuity(records)
     out = {
         "model": model,
         "camera": str(camera_path),
         "pencil": str(pencil_path),
-        "lines": str(lines_path),
+        "lines": None if lines_path is None else str(lines_path),
+        "images": None if images is None else str(images),
         "frames": records,
     }
     write_json(output, out, force=force)

@@ -66,14 +66,16 @@ __all__ = [
     "choose_by_prior",
     "swap_twins",
     "DETECTION_LEVEL",
+    "check_vertex",
 ]
 
 # chi-square(2) quantile at 1 - DETECTION_LEVEL: tilt declared detectable above it
 DETECTION_LEVEL = 0.01
 _CHI2_2 = -2.0 * np.log(DETECTION_LEVEL)  # chi2 with 2 dof has survival exp(-x/2)
 
-# A vertex further out than this (normalised units, ~90 deg off axis) is at infinity.
-_MAX_VERTEX = 1e6
+# A vertex whose viewing ray is more than 89 deg off the optical axis (normalised radius
+# tan 89 deg ~ 57) is, for every lens here, a vertex at infinity: the lines are parallel.
+_MAX_VERTEX = np.tan(np.radians(89.0))
 
 # Below this cos(gamma) the closed-form start is treated as edge-on; the LM takes over.
 _MIN_COS = np.cos(np.radians(89.5))
@@ -563,6 +565,12 @@ def detection_threshold(sigma):
 # the whole fit
 
 
+def check_vertex(vertex):
+    """EstimationError when a normalised vertex (..., 2) is at infinity (> 89 deg off axis)."""
+    if np.any(np.hypot(np.asarray(vertex, float)[..., 0], np.asarray(vertex, float)[..., 1]) > _MAX_VERTEX):
+        raise EstimationError("the vertex is at infinity (the lines are parallel in the image)")
+
+
 def _as_batch(line_angles, spoke_angles, vertex, sigma, weights):
     a = np.asarray(line_angles, float)
     th = np.asarray(spoke_angles, float)
@@ -621,8 +629,7 @@ def fit_pencil(line_angles, spoke_angles, vertex, sigma=np.radians(0.1), vertex_
     used = m.sum(-1)
     if np.any(used < 3):
         raise EstimationError(f"a pencil needs at least three lines, got {int(used.min())}")
-    if np.any(np.abs(x) > _MAX_VERTEX):
-        raise EstimationError("the vertex is at infinity (the lines are parallel in the image)")
+    check_vertex(x)
     ct, st = np.cos(th), np.sin(th)
     C = _spoke_matrix(ct, st)
     Q = _virtual_rotation(x)

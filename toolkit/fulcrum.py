@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import EstimationError, InputError
-from .estimator import fit_pencil
+from .estimator import check_vertex, fit_pencil
 from .orient import orientation_record
 from .vertex import intersect_lines
 
@@ -127,6 +127,7 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=0.5):
     Kinv = np.linalg.inv(K)
     A = Kinv[:2, :2]
     x = A @ vf.vertex + Kinv[:2, 2]
+    check_vertex(x)
     cov_x = A @ vf.cov @ A.T
     ray = camera.rays_from_pixels(camera.distort_pixels(vf.vertex))
     # ray uncertainty: the unit ray moves by (I - r r^T)[:, :2] / |(x, 1)| per unit of x

@@ -71,6 +71,7 @@ from .errors import EstimationError, InputError
 
 __all__ = [
     "DETECTORS",
+    "lines_record",
     "Segments",
     "Bars",
     "detect_raw",
@@ -1533,6 +1534,36 @@ def _sel(fit, idx):
 
 
 # ============================================================================ pencil assembly
+
+
+def lines_record(name, image, camera=None, detector="lsd", bars=False, shaft=False, min_length=20.0, bar_width=None):
+    """One lines.json frame (lines_io) from one decoded image.
+
+    name: the frame's name; image: (H, W[, 3]); camera: Camera or None; detector: one of
+    DETECTORS; bars: midlines of dark bars (`detect_bars`, the printed spokes) instead of
+    edge segments (`detect_segments`); shaft: also ``shafts`` (`toolkit.shafts.detect_shafts`);
+    min_length [px]; bar_width: (2,) accepted bar widths [px] or None. The one place where
+    `lines`, `orient IMAGES` and `fulcrum IMAGES` turn a frame into lines.
+    """
+    if bars:
+        segs = detect_bars(image, detector, camera=camera, min_length=min_length, width_px_range=bar_width)
+    else:
+        segs = detect_segments(image, detector, camera=camera, min_length=min_length)
+    rec = {
+        "image": name,
+        "ok": True,
+        "error": None,
+        "segments": segs.segments,
+        "angle_sigma_deg": np.degrees(segs.angle_sigma),
+        "offset_sigma_px": segs.offset_sigma,
+    }
+    if bars:
+        rec["width_px"] = segs.width_px
+    if shaft:
+        from .shafts import detect_shafts
+
+        rec["shafts"] = [s.to_dict() for s in detect_shafts(image, camera)]
+    return rec
 
 
 def assemble_pencil(segments, angle_sigma=None, camera=None, *, offset_sigma=None, min_length=8.0, **intersect_kw):
