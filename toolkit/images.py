@@ -24,8 +24,10 @@ Example
 """
 from __future__ import annotations
 
+import contextlib
 import glob as _glob
 import os
+import sys
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,6 +52,26 @@ class Frame:
     image: np.ndarray | None
     error: str | None = None
     path: str | None = None
+
+
+@contextlib.contextmanager
+def _quiet_c_stderr():
+    """Silence what C libraries (libpng, libjpeg) print on stderr while decoding: pencilcal
+    reports an undecodable frame in one line of its own. Only file descriptor 2 of this
+    process, only around the decode call."""
+    try:
+        fd = sys.stderr.fileno()
+    except (AttributeError, ValueError, OSError):  # no real stderr (e.g. captured in tests)
+        yield
+        return
+    saved = os.dup(fd)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), fd)
+            yield
+    finally:
+        os.dup2(saved, fd)
+        os.close(saved)
 
 
 def _natural_key(s):
@@ -129,7 +151,8 @@ class ImageSource:
             return None, f"cannot read: {e.strerror}"
         if data.size == 0:
             return None, "empty file"
-        img = cv2.imdecode(data, flags)
+        with _quiet_c_stderr():
+            img = cv2.imdecode(data, flags)
         if img is None:
             return None, "cannot decode the image (corrupt or truncated)"
         if img.ndim == 3 and img.shape[2] == 4:
