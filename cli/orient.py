@@ -38,18 +38,15 @@ def _detected(images, camera, pencil, detector):
 
 def _prior_rotations(path):
     """R_cam_from_target per image name from a poses.json (pencilcal pnp) file."""
-    from pencilcal.toolkit.files import load_structured
+    from pencilcal.toolkit.files import load_frames
 
-    data = load_structured(path, "poses file")
-    frames = data.get("frames") if isinstance(data, dict) else None
-    if not isinstance(frames, list):
-        raise InputError(f"{path}: a poses file is an object with a 'frames' list")
+    _, frames = load_frames(path, "poses file")
     out = {}
-    for i, f in enumerate(frames):
-        if isinstance(f, dict) and f.get("ok", True) and f.get("R_cam_from_target") is not None:
+    for i, (f, where) in enumerate(frames):
+        if f.get("ok", True) and f.get("R_cam_from_target") is not None:
             R = np.asarray(f["R_cam_from_target"], float)
             if R.shape != (3, 3) or not np.all(np.isfinite(R)):
-                raise InputError(f"{path}: frame {i}: R_cam_from_target must be a finite 3x3 matrix")
+                raise InputError(f"{where}: R_cam_from_target must be a finite 3x3 matrix")
             out[str(f.get("image", i))] = R
     return out
 

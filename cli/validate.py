@@ -8,7 +8,7 @@ import click
 from pencilcal.toolkit.boards import read_board
 from pencilcal.toolkit.camera_io import camera_to_dict, read_camera
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.files import load_structured, write_json
+from pencilcal.toolkit.files import load_frames, load_structured, write_json
 from pencilcal.toolkit.grid_pencil import GridPencil
 from pencilcal.toolkit.images import open_images
 from pencilcal.toolkit.orient import MODELS
@@ -30,16 +30,8 @@ def _sequence_files(sequence):
 
 
 def _truth(path):
-    data = load_structured(path, "truth file")
-    frames = data.get("frames") if isinstance(data, dict) else None
-    if not isinstance(frames, list):
-        raise InputError(f"{path}: a truth file is an object with a 'frames' list")
-    out = {}
-    for i, f in enumerate(frames):
-        if not isinstance(f, dict) or "image" not in f or "R_cam_from_target" not in f or "t_cam_from_target" not in f:
-            raise InputError(f"{path}: frame {i} needs image, R_cam_from_target and t_cam_from_target")
-        out[str(f["image"])] = f
-    return out
+    _, frames = load_frames(path, "truth file", ("image", "R_cam_from_target", "t_cam_from_target"))
+    return {str(f["image"]): f for f, _ in frames}
 
 
 def _split(value, allowed, what):

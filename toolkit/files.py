@@ -33,6 +33,7 @@ __all__ = [
     "write_json",
     "load_structured",
     "to_jsonable",
+    "load_frames",
 ]
 
 
@@ -123,3 +124,23 @@ def load_structured(path, what="file"):
     except (json.JSONDecodeError, yaml.YAMLError) as e:
         msg = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise InputError(f"{p}: not valid {'JSON' if p.suffix.lower() == '.json' else 'YAML'}: {msg}") from None
+
+
+def load_frames(path, what, required=()):
+    """The 'frames' list of a pencilcal JSON/YAML file, each frame checked to be an object
+    with the `required` keys. Returns (whole document, [(frame dict, where)]) with `where`
+    naming the file and frame for error messages; InputError otherwise."""
+    data = load_structured(path, what)
+    frames = data.get("frames") if isinstance(data, dict) else None
+    if not isinstance(frames, list):
+        raise InputError(f"{path}: a {what} is an object with a 'frames' list")
+    out = []
+    for i, f in enumerate(frames):
+        where = f"{path}: frame {i}"
+        if not isinstance(f, dict):
+            raise InputError(f"{where}: must be an object")
+        missing = [k for k in required if k not in f]
+        if missing:
+            raise InputError(f"{where}: missing {', '.join(missing)}")
+        out.append((f, where))
+    return data, out

@@ -97,7 +97,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.files import load_structured, write_json
+from pencilcal.toolkit.files import load_frames, load_structured, write_json
 from pencilcal.toolkit.frames import rotation_angle, rotation_from_rotvec, rotvec_from_rotation, skew
 
 __all__ = [
@@ -880,18 +880,9 @@ def read_poses(path):
     >>> d["camera"], d["frames"][0]["ok"], d["frames"][0]["error"]
     ('cam.yaml', False, 'no board')
     """
-    data = load_structured(path, "poses file")
-    frames = data.get("frames") if isinstance(data, dict) else None
-    if not isinstance(frames, list):
-        raise InputError(f"{path}: a poses file is an object with a 'frames' list")
+    data, frames = load_frames(path, "poses file", POSE_KEYS)
     out = []
-    for i, f in enumerate(frames):
-        where = f"{path}: frame {i}"
-        if not isinstance(f, dict):
-            raise InputError(f"{where}: must be an object")
-        missing = [k for k in POSE_KEYS if k not in f]
-        if missing:
-            raise InputError(f"{where}: missing {', '.join(missing)}")
+    for f, where in frames:
         if not isinstance(f["ok"], bool):
             raise InputError(f"{where}: 'ok' must be true or false")
         g = _frame_arrays(f, where)
