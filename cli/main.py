@@ -5,6 +5,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 import click
 
+from .bench import bench
 from .calibrate import calibrate
 from .fulcrum import fulcrum
 from .lines import lines
@@ -35,6 +36,7 @@ def cli():
     """
 
 
+cli.add_command(bench)
 cli.add_command(calibrate)
 cli.add_command(orient)
 cli.add_command(fulcrum)

@@ -1,0 +1,251 @@
+"""Benchmarks: pencilcal side by side with the bare OpenCV and pycolmap calls, in one process.
+
+Every figure is a ratio measured here and now on the same inputs, never an absolute number
+from somewhere else, so it means the same on a laptop and on a 2-core CI machine:
+
+- ``orient_vs_fld_1080p``: image to orientation (decode, spoke detection with FLD, refit,
+  vertex, labels, fit) per 1920x1080 frame, over decoding and FLD detection alone on the
+  same frames. Lower is better; target <= 1.3.
+- ``pnp_vs_opencv``: `pencilcal pnp`'s work per frame (decode, ChArUco detection, SQPnP with
+  LM refinement and covariance) over decoding, CharucoDetector and cv2.solvePnP (SQPNP).
+  Target <= 1.1.
+- ``sfm_vs_pycolmap``: `pencilcal sfm`'s reconstruction over the bare pycolmap calls
+  (extract, match, map) on the same images. Target <= 1.05.
+- ``batch_speedup`` (higher is better): batched fits per second over a Python loop of
+  single numpy fits; ``fits_per_minute_batched``.
+- ``crlb_ratio_tilt20``: Monte Carlo RMSE of the tilt over its Cramer-Rao bound at 20 deg
+  of tilt, 8 lines 20 deg apart, 0.1 deg noise (GEOMETRY.md: 0.9-1.1).
+- ``single_fit_ms``: one pencil fit (numpy estimator), for latency.
+
+Frames are rendered once (toolkit.render, exact truth) and encoded to PNG in memory; both
+sides decode them. Each timing is the median over frames of the best of `repeats` runs.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+__all__ = ["run_bench", "TARGETS", "format_table"]
+
+TARGETS = {"orient_vs_fld_1080p": ("<=", 1.3), "pnp_vs_opencv": ("<=", 1.1), "sfm_vs_pycolmap": ("<=", 1.05),
+           "batch_speedup": (">=", 50.0), "fits_per_minute_batched": (">=", 1e6), "crlb_ratio_tilt20": ("in", (0.9, 1.15))}
+
+
+def _best(fn, repeats):
+    best = np.inf
+    out = None
+    for _ in range(repeats):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def _encode(images):
+    import cv2
+
+    return [cv2.imencode(".png", im)[1] for im in images]
+
+
+def _decode(buf):
+    import cv2
+
+    return cv2.imdecode(buf, cv2.IMREAD_COLOR)
+
+
+def _frames(scenario, n, size, seed):
+    from pencilcal.toolkit.scenes import make_scenario
+
+    sc = make_scenario(scenario, frames=n, seed=seed, size=size)
+    return sc, _encode([sc.render(i) for i in range(n)])
+
+
+def bench_orient(n=4, repeats=3, seed=0):
+    """orient_vs_fld_1080p and per-frame times [ms]."""
+    import cv2
+
+    from pencilcal.toolkit.lines import lines_record
+    from pencilcal.toolkit.orient import orient_segments
+
+    sc, bufs = _frames("tilt-sweep", n + 2, (1920, 1080), seed)
+    bufs = bufs[2:]  # skip the near-frontal start of the sweep: typical tilts
+    cam, pencil = sc.camera, sc.sheet.pencil
+    fld = cv2.ximgproc.createFastLineDetector()
+    t_pc, t_fld, ok = [], [], 0
+
+    def ours(buf):
+        img = _decode(buf)
+        rec = lines_record("f", img, cam, "fld", bars=pencil.width is not None)
+        return orient_segments(cam, rec["segments"], pencil, angle_sigma=np.radians(rec["angle_sigma_deg"]),
+                               offset_sigma=rec["offset_sigma_px"])
+
+    def bare(buf):
+        img = _decode(buf)
+        return fld.detect(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+
+    for buf in bufs:
+        t, rec = _best(lambda: ours(buf), repeats)
+        t_pc.append(t)
+        ok += bool(rec["ok"])
+        t_fld.append(_best(lambda: bare(buf), repeats)[0])
+    return {"orient_vs_fld_1080p": float(np.median(t_pc) / np.median(t_fld)),
+            "orient_ms_1080p": float(np.median(t_pc) * 1e3), "fld_ms_1080p": float(np.median(t_fld) * 1e3),
+            "orient_frames_ok": f"{ok}/{len(bufs)}"}
+
+
+def bench_pnp(n=6, repeats=3, seed=0):
+    """pnp_vs_opencv and per-frame times [ms]."""
+    import cv2
+
+    from pencilcal.toolkit.detect import detect_board
+    from pencilcal.validation.pnp import estimate_pose
+
+    sc, bufs = _frames("orbit", n, (1280, 720), seed)
+    cam, board = sc.camera, sc.sheet.board
+    obj = board.object_points()
+    det = cv2.aruco.CharucoDetector(board.cv2_board())
+    K, dist = np.asarray(cam.K), np.asarray(cam.dist)
+
+    def ours(buf):
+        d = detect_board(_decode(buf), board)
+        return estimate_pose(obj[d.ids], d.corners, cam, method="sqpnp")
+
+    def bare(buf):
+        cc, ci, _, _ = det.detectBoard(cv2.cvtColor(_decode(buf), cv2.COLOR_BGR2GRAY))
+        if ci is None or len(ci) < 4:
+            return None
+        return cv2.solvePnP(obj[ci.ravel()], cc, K, dist, flags=cv2.SOLVEPNP_SQPNP)
+
+    t_pc, t_cv = [], []
+    for buf in bufs:
+        t_pc.append(_best(lambda: ours(buf), repeats)[0])
+        t_cv.append(_best(lambda: bare(buf), repeats)[0])
+    return {"pnp_vs_opencv": float(np.median(t_pc) / np.median(t_cv)),
+            "pnp_ms": float(np.median(t_pc) * 1e3), "opencv_pnp_ms": float(np.median(t_cv) * 1e3)}
+
+
+def bench_estimator(trials=2000, seed=0):
+    """crlb_ratio_tilt20, single_fit_ms, and the batched throughput."""
+    from pencilcal.toolkit.estimator import crlb, fit_pencil
+    from pencilcal.toolkit.frames import rotation_about_axis
+    from pencilcal.toolkit.pencil import image_angles
+
+    rng = np.random.default_rng(seed)
+    th = np.radians(np.arange(8) * 20.0)
+    sigma = np.radians(0.1)
+    z = np.array([0.0, 0.0, 1.0])
+    R = (rotation_about_axis(np.tile(z, (trials, 1)), rng.uniform(0, 2 * np.pi, trials))
+         @ rotation_about_axis([1.0, 0, 0], np.radians(20.0))
+         @ rotation_about_axis(np.tile(z, (trials, 1)), rng.uniform(0, 2 * np.pi, trials)))
+    a = image_angles(R, np.zeros(2), th) + sigma * rng.normal(size=(trials, 8))
+    t0 = time.perf_counter()
+    fit = fit_pencil(a, th, np.zeros(2), sigma=sigma)
+    t_batch = time.perf_counter() - t0
+    _, b, _ = crlb(R, np.zeros(2), th, sigma)
+    ratio = np.sqrt(np.mean((fit.tilt - np.radians(20)) ** 2)) / np.sqrt(np.mean(b**2))
+    loop = 200
+    t0 = time.perf_counter()
+    for i in range(loop):
+        fit_pencil(a[i], th, np.zeros(2), sigma=sigma)
+    t_single = (time.perf_counter() - t0) / loop
+    out = {"crlb_ratio_tilt20": float(ratio), "single_fit_ms": float(t_single * 1e3),
+           "numpy_batched_fits_per_s": float(trials / t_batch)}
+    try:
+        from pencilcal.toolkit.torch_estimator import benchmark_batched, torch_available
+
+        if torch_available():
+            r = benchmark_batched(n=200_000, loop_n=200, numpy_batched_n=20_000)
+            out["batch_speedup"] = float(r["speedup_float64_vs_loop"])
+            out["fits_per_minute_batched"] = float(r["float64_pencils_per_minute"])
+            out["batched_backend"] = f"torch {r.get('torch_version', '')} {r.get('device', '')}".strip()
+            return out
+    except ImportError:
+        pass
+    out["batch_speedup"] = float(out["numpy_batched_fits_per_s"] * t_single)
+    out["fits_per_minute_batched"] = float(out["numpy_batched_fits_per_s"] * 60)
+    out["batched_backend"] = "numpy (torch not installed)"
+    return out
+
+
+def bench_sfm(n=12, seed=0, workdir=None):
+    """sfm_vs_pycolmap: `reconstruct` over the bare pycolmap calls on the same images."""
+    import tempfile
+    from pathlib import Path
+
+    import cv2
+
+    from pencilcal.validation.sfm import bare_pycolmap, reconstruct
+
+    sc, bufs = _frames("orbit", n, (960, 540), seed)
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        img_dir = Path(tmp) / "images"
+        img_dir.mkdir()
+        for i, b in enumerate(bufs):
+            (img_dir / f"{i:03d}.png").write_bytes(b.tobytes())
+        t0 = time.perf_counter()
+        res = reconstruct(str(img_dir), sc.camera, Path(tmp) / "ours", quiet=True)
+        t_ours = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        n_bare = bare_pycolmap(img_dir, sc.camera, Path(tmp) / "bare")
+        t_bare = time.perf_counter() - t0
+    return {"sfm_vs_pycolmap": float(t_ours / t_bare), "sfm_s": float(t_ours), "pycolmap_s": float(t_bare),
+            "sfm_registered": f"{res.n_registered}/{n}", "pycolmap_registered": f"{n_bare}/{n}"}
+
+
+def run_bench(quick=False, seed=0, sections=("orient", "pnp", "sfm", "estimator"), log=None):
+    """Run the benchmarks; returns a flat dict of figures (see the module docstring)."""
+    out = {}
+    n = 2 if quick else 6
+    steps = {
+        "orient": lambda: bench_orient(n=n, repeats=2 if quick else 3, seed=seed),
+        "pnp": lambda: bench_pnp(n=n, repeats=2 if quick else 3, seed=seed),
+        "sfm": lambda: bench_sfm(n=8 if quick else 12, seed=seed),
+        "estimator": lambda: bench_estimator(trials=500 if quick else 2000, seed=seed),
+    }
+    for name in sections:
+        if log:
+            log(f"bench: {name} ...")
+        t0 = time.perf_counter()
+        try:
+            out.update(steps[name]())
+        except ImportError as e:  # an optional dependency missing: say so, keep going
+            out[f"{name}_error"] = str(e).splitlines()[0]
+        if log:
+            log(f"bench: {name} done in {time.perf_counter() - t0:.1f} s")
+    out["machine"] = _machine()
+    return out
+
+
+def _machine():
+    import os
+    import platform
+
+    return {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()}
+
+
+def format_table(res):
+    """The figures as an aligned text table, with the targets and whether they hold."""
+    rows = []
+    for key, value in res.items():
+        if key == "machine" or isinstance(value, dict):
+            continue
+        target = TARGETS.get(key)
+        verdict, tgt = "", ""
+        if target and isinstance(value, (int, float)):
+            op, lim = target
+            if op == "<=":
+                ok, tgt = value <= lim, f"<= {lim:g}"
+            elif op == ">=":
+                ok, tgt = value >= lim, f">= {lim:g}"
+            else:
+                ok, tgt = lim[0] <= value <= lim[1], f"{lim[0]:g}-{lim[1]:g}"
+            verdict = "ok" if ok else "MISSED"
+        shown = f"{value:.4g}" if isinstance(value, float) else str(value)
+        rows.append((key, shown, tgt, verdict))
+    w = [max(len(r[i]) for r in rows + [("figure", "value", "target", "")]) for i in range(4)]
+    lines = [f"{'figure':<{w[0]}}  {'value':>{w[1]}}  {'target':<{w[2]}}  {''}"]
+    lines += [f"{a:<{w[0]}}  {b:>{w[1]}}  {c:<{w[2]}}  {d}" for a, b, c, d in rows]
+    m = res.get("machine", {})
+    lines.append(f"({m.get('cpus')} cpus, {m.get('platform')}, python {m.get('python')})")
+    return "\n".join(lines)
