@@ -7,6 +7,7 @@ import click
 
 from .bench import bench
 from .calibrate import calibrate
+from .experiment import experiment
 from .fulcrum import fulcrum
 from .lines import lines
 from .orient import orient
@@ -38,6 +39,7 @@ def cli():
 
 cli.add_command(bench)
 cli.add_command(calibrate)
+cli.add_command(experiment)
 cli.add_command(orient)
 cli.add_command(fulcrum)
 cli.add_command(lines)

@@ -88,6 +88,17 @@ def _homographies(a, th):
     return h.reshape(-1, 2, 2)
 
 
+def _one_per_spoke(labels, sigma):
+    """Keep one line per spoke, the most precise: two segments of one spoke (fragments of
+    the same bar) are not independent measurements and must not count twice. (M,) -> (M,)."""
+    out = labels.copy()
+    for k in np.unique(labels[labels >= 0]):
+        idx = np.flatnonzero(labels == k)
+        if idx.size > 1:
+            out[idx[idx != idx[np.argmin(sigma[idx])]]] = -1
+    return out
+
+
 def _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriented, period):
     """All cyclic-order-preserving labellings of the used lines, fitted in one batch.
 
@@ -245,7 +256,7 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
             res = wrap(a[:, None] - pred[None, :])
             k = np.argmin(np.abs(res), -1)
             tol_k = np.minimum(np.maximum(tolerance_sigmas * np.sqrt(s**2 + var_pred[k]), np.radians(0.01)), cap)
-            new = np.where(np.abs(res[np.arange(M), k]) < tol_k, k, -1)
+            new = _one_per_spoke(np.where(np.abs(res[np.arange(M), k]) < tol_k, k, -1), s)
             if np.array_equal(new, labels) or np.unique(new[new >= 0]).size < 3:
                 break
             labels = new
@@ -260,7 +271,7 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
     candidates = []
     seen_labels = set()
     for h in np.argsort(cost)[: 4 * _TOP]:
-        lab0 = np.where(np.abs(resid[h]) < tol, nearest[h], -1)
+        lab0 = _one_per_spoke(np.where(np.abs(resid[h]) < tol, nearest[h], -1), s)
         key = lab0.tobytes()
         if key in seen_labels:
             continue

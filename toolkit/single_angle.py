@@ -183,8 +183,17 @@ def _known(a1, a2, delta, sigma):
             return _result("inconsistent", (), (), f"the quadratic in cos(gamma) has no real root (discriminant {disc:.3g}): no tilt reproduces both angles", "known")
         q = -0.5 * (B + np.copysign(np.sqrt(max(disc, 0.0)), B if B != 0 else 1.0))
         roots = np.array([q / A, C / q]) if q != 0 else np.array([0.0, 0.0])
-    # c <= _EDGE_ON is the edge-on root c = 0 (a line on the axis gives it) up to rounding
-    adm = sorted({float(min(c, 1.0)) for c in roots if _EDGE_ON < c <= 1.0 + 1e-9})
+    def sd_c(c):
+        # sd of a root from the angle noise: dc = -(dF/da1 da1 + dF/da2 da2) / (dF/dc)
+        Fc = 2.0 * A * c + B
+        Fa1 = -sd_ * np.sin(a1) * np.cos(a2) * c * c + cd * np.cos(a1 - a2) * c + sd_ * np.cos(a1) * np.sin(a2)
+        Fa2 = -sd_ * np.cos(a1) * np.sin(a2) * c * c - cd * np.cos(a1 - a2) * c + sd_ * np.sin(a1) * np.cos(a2)
+        return sigma * np.hypot(Fa1, Fa2) / abs(Fc) if (np.isfinite(sigma) and Fc != 0.0) else 0.0
+
+    # c <= _EDGE_ON is the edge-on root c = 0 (a line on the axis gives it) up to rounding.
+    # Near zero tilt, noise can push the right root past c = 1: within three of its sds it
+    # is still the frontal solution (gamma = 0), not a reason to trust the other root alone.
+    adm = sorted({float(min(c, 1.0)) for c in roots if _EDGE_ON < c <= 1.0 + max(1e-9, 3.0 * sd_c(c))})
     if len(adm) == 2 and abs(adm[0] - adm[1]) < 1e-12:
         adm = adm[:1]
     if not adm:

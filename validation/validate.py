@@ -48,7 +48,7 @@ class FanLines:
         self.pencil = pencil
         self.detector = detector
 
-    def __call__(self, image, camera, detection):
+    def __call__(self, image, camera, detection, corner_sigma_px=None):
         from pencilcal.toolkit.lines import detect_bars, detect_segments
 
         if self.pencil.width is not None:
@@ -60,14 +60,19 @@ class FanLines:
 
 
 class GridLines:
-    """Lines of the board's grid through one corner (`toolkit.grid_pencil.GridPencil`)."""
+    """Lines of the board's grid through one corner (`toolkit.grid_pencil.GridPencil`).
+
+    The corner noise is the frame's own, estimated from the PnP residuals of the same
+    corners, or `corner_sigma_px` when there is no pose."""
 
     def __init__(self, grid, corner_sigma_px=0.2):
         self.grid = grid
         self.corner_sigma_px = corner_sigma_px
 
-    def __call__(self, image, camera, detection):
-        return self.grid.segments(detection, self.corner_sigma_px)
+    def __call__(self, image, camera, detection, corner_sigma_px=None):
+        # the frame's own corner noise (from the PnP residuals of these very corners) when
+        # known: on real endoscope frames it is ~0.4 px, twice the default
+        return self.grid.segments(detection, corner_sigma_px or self.corner_sigma_px)
 
 
 def _tilt_deg(R, ray):
@@ -215,7 +220,8 @@ def _process(frame, camera, board, lines_source, models, methods, truth, keep_pi
         rec["pnp"] = {}
         rec["pnp_best"] = None
     rec["board_corners"] = int(det.count)
-    src = lines_source(frame.image, camera, det)
+    sigma_px = getattr(best, "sigma_px", None) if best is not None and best.ok else None
+    src = lines_source(frame.image, camera, det, corner_sigma_px=sigma_px)
     rec["orient"] = {}
     if src is None:
         for m in models:

@@ -74,3 +74,16 @@ def test_unoriented_lines(rng):
 def test_too_few(rng):
     with pytest.raises(EstimationError):
         assign_spokes([0.1, 0.5], SPOKES, np.zeros(2), SIGMA)
+
+
+def test_two_fragments_of_one_spoke_count_once(rng):
+    """Two segments along one spoke (fragments of a bar) are one measurement: the more
+    precise one is used, the other rejected (regression: it was double-weighted)."""
+    x = np.array([0.05, -0.05])
+    R = random_pose(rng, x, 35)
+    a = image_angles(R, x, SPOKES)
+    sig = np.full(9, SIGMA)
+    sig[8] = 3 * SIGMA
+    res = assign_spokes(np.r_[a, a[3]], SPOKES, x, sig)
+    assert res.spoke.tolist() == [0, 1, 2, 3, 4, 5, 6, 7, -1]
+    assert int(res.fit.lines_used) == 8

@@ -216,3 +216,24 @@ def test_result_type_and_bad_axis():
         r.status = "unique"  # frozen
     with pytest.raises(InputError, match="axis must be"):
         single_angle_tilt(0.1, 0.2, "sideways")
+
+
+def test_known_axis_near_frontal_is_not_a_false_unique():
+    """Near zero tilt noise can push the right root of the known-axis quadratic past
+    cos(gamma) = 1; it must then still count (as gamma = 0), never leaving the far root as
+    a confident 'unique' answer (regression)."""
+    from pencilcal.toolkit.single_angle import single_angle_tilt
+
+    rng = np.random.default_rng(4)
+    sigma = np.radians(0.05)
+    bad = 0
+    for _ in range(400):
+        g = np.radians(rng.uniform(0.5, 4.0))
+        t1 = np.radians(rng.uniform(5, 40))
+        delta = np.radians(rng.uniform(20, 60))
+        a1 = np.arctan2(np.sin(t1) * np.cos(g), np.cos(t1)) + sigma * rng.normal()
+        a2 = np.arctan2(np.sin(t1 + delta) * np.cos(g), np.cos(t1 + delta)) + sigma * rng.normal()
+        res = single_angle_tilt((a1, a2), delta, axis="known", sigma=sigma)
+        if res.status == "unique" and abs(res.gamma[0] - g) > 10 * max(res.sigma[0], np.radians(0.5)):
+            bad += 1
+    assert bad == 0
