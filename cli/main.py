@@ -12,7 +12,9 @@ from .fulcrum import fulcrum
 from .lines import lines
 from .orient import orient
 from .pnp import pnp
+from .report import report
 from .sensitivity import sensitivity
+from .sfm import sfm
 from .simulate import simulate
 from .target import target
 from .validate import validate
@@ -44,7 +46,9 @@ cli.add_command(orient)
 cli.add_command(fulcrum)
 cli.add_command(lines)
 cli.add_command(pnp)
+cli.add_command(report)
 cli.add_command(sensitivity)
+cli.add_command(sfm)
 cli.add_command(simulate)
 cli.add_command(target)
 cli.add_command(validate)

@@ -419,9 +419,13 @@ def _covariance(R, x, J, Jx, w, vertex_cov):
     v = np.concatenate([x, np.ones(x.shape[:-1] + (1,))], -1) / nv[..., None]
     # tilt gamma = acos(n . v): d gamma / d delta = -(n x v) / sin(gamma)
     nxv = _cross(n, v)
-    sin_g = np.maximum(np.sqrt(np.sum(nxv * nxv, -1)), 1e-12)
+    sin_raw = np.sqrt(np.sum(nxv * nxv, -1))
+    sin_g = np.maximum(sin_raw, 1e-12)
     g_rot = -nxv / sin_g[..., None]
     var_tilt = np.einsum("...i,...ij,...j->...", g_rot, Hinv, g_rot)
+    # at exactly zero tilt the tilt's direction is undefined and, to first order, the
+    # angles do not see it at all: the bound is infinite, not the zero the gradient gives
+    var_tilt = np.where(sin_raw < 1e-9, np.inf, var_tilt)
     cov = Hinv
     if vertex_cov is not None:
         Cx = np.asarray(vertex_cov, float)

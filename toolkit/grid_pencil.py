@@ -80,19 +80,21 @@ class GridPencil:
             while 0 <= i0 + step * dx < cols and 0 <= j0 + step * dy < rows:
                 cid = (j0 + step * dy) * cols + (i0 + step * dx)
                 if cid in pos:
-                    far = pos[cid]
+                    far, far_step = pos[cid], step
                 step += 1
             if far is not None:
-                out.append((k, far))
+                out.append((k, far, far_step * np.hypot(dx, dy) * self.board.square))
         return out
 
     def segments(self, detection, corner_sigma_px=0.2):
         """Segments of one frame's detection.
 
         detection: a BoardDetection. Returns a dict with ``segments`` (K, 4) raw px, ``labels``
-        (K,), ``angle_sigma`` (K,) [rad], ``vertex_px`` (2,), ``vertex_cov_px2`` (2, 2) and
-        ``pencil`` (with this frame's vertex), or None when no usable vertex corner was
-        detected. K counts the directions along which some corner was detected.
+        (K,), ``angle_sigma`` (K,) [rad], ``vertex_px`` (2,), ``vertex_cov_px2`` (2, 2),
+        ``pencil`` (with this frame's vertex) and ``radii`` (K, 2): each segment's ends are
+        board corners at known distances from the vertex (0 and k |(dx, dy)| square), which
+        tell the twins apart. None when no usable vertex corner was detected. K counts the
+        directions along which some corner was detected.
         """
         cols, rows = self.board.inner_corners
         pos = {int(k): np.asarray(p, float) for k, p in zip(detection.ids, detection.corners)}
@@ -108,21 +110,23 @@ class GridPencil:
             spokes = self._spokes(pos, i0, j0)
             if len(spokes) < 3:
                 continue
-            total = sum(np.hypot(*(far - pos[cid])) for _, far in spokes)
+            total = sum(np.hypot(*(far - pos[cid])) for _, far, _ in spokes)
             if total > best_len:
                 best, best_len = (cid, spokes), total
         if best is None:
             return None
         cid, spokes = best
         v = pos[cid]
-        segs, labels = [], []
-        for k, far in spokes:
+        segs, labels, radii = [], [], []
+        for k, far, dist in spokes:
             segs.append(np.r_[v, far])
             labels.append(k)
+            radii.append((0.0, dist))
         seg = np.array(segs, float).reshape(-1, 4)
         L = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
         # the far corner's noise turns the line about the vertex; the vertex's own noise is
         # the vertex covariance (not counted twice)
         sig = corner_sigma_px / np.maximum(L, 1e-9)
         return {"segments": seg, "labels": np.array(labels, int), "angle_sigma": sig, "vertex_px": v,
-                "vertex_cov_px2": np.eye(2) * corner_sigma_px**2, "vertex_id": int(cid), "pencil": self.pencil(cid)}
+                "vertex_cov_px2": np.eye(2) * corner_sigma_px**2, "vertex_id": int(cid), "pencil": self.pencil(cid),
+                "radii": np.array(radii, float), "corner_sigma_px": corner_sigma_px}

@@ -69,7 +69,8 @@ def metric_depth(R_cam_from_target, vertex, spoke_angles, inner, outer, radius):
 
     R_cam_from_target: (3, 3); vertex: (2,) normalised; spoke_angles: (K,) [rad] of the
     assigned segments; inner, outer: (K, 2) normalised image of their end points nearer to
-    and farther from the vertex; radius: (2,) [inner, outer] in length units.
+    and farther from the vertex; radius: (2,) [inner, outer] in length units, the same for
+    every spoke, or (K, 2) per segment (e.g. board corners at known distances).
     Returns (depth, residuals (2K,) in normalised units); depth is NaN when the data do not
     support a positive depth.
     """
@@ -80,7 +81,8 @@ def metric_depth(R_cam_from_target, vertex, spoke_angles, inner, outer, radius):
     c = np.linalg.norm(w, axis=-1)
     u = w / c[:, None]
     t = np.concatenate([np.sum((inner - x) * u, -1), np.sum((outer - x) * u, -1)])
-    r = np.concatenate([np.full(len(th), radius[0]), np.full(len(th), radius[1])])
+    rad = np.broadcast_to(np.asarray(radius, float), (len(th), 2))
+    r = np.concatenate([rad[:, 0], rad[:, 1]])
     cc = np.concatenate([c, c])
     dz = np.concatenate([d[:, 2], d[:, 2]])
     ok = t > 0
@@ -116,7 +118,7 @@ def _segment_geometry(camera, segments, endpoint_sigma_px):
 
 def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_px=0.5, angle_sigma=None,
                     prior=None, vertex_px=None, vertex_cov_px2=None, image=None, labels=None, keep_lines=False,
-                    offset_sigma=None):
+                    offset_sigma=None, spoke_radii=None):
     """Orientation of a pencil seen in one frame, as an orientation.json record.
 
     camera: a Camera; segments: (M, 4) raw pixels [x1, y1, x2, y2]; pencil: a Pencil.
@@ -126,6 +128,8 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         a line fit to edge pixels; overrides the end point model for the angle).
     offset_sigma: None, scalar or (M,) [px] sd of each segment's perpendicular position at
         its midpoint (overrides the end point model for the offset).
+    spoke_radii: (M, 2) distances from the vertex [length unit] of each segment's inner and
+        outer end, when known per segment (board corners); else the pencil's radius.
     prior: (3, 3) R_cam_from_target known roughly (board pose, previous frame): picks the twin.
     vertex_px, vertex_cov_px2: a known vertex in raw pixels (e.g. a fulcrum) and its
         covariance, instead of intersecting the segments.
@@ -245,8 +249,9 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
             fit = swap_twins(fit, which, th_used, x, s_used, cov_x, resolved_by="prior")
             resolved_by = "prior"
         metric = None
-        if pencil.radius is not None:
-            metric = _metric_choice(fit, x, th_used, p1[used], p2[used], pencil.radius, sigma_metric)
+        radius = pencil.radius if spoke_radii is None else np.asarray(spoke_radii, float).reshape(-1, 2)[idx][used]
+        if radius is not None:
+            metric = _metric_choice(fit, x, th_used, p1[used], p2[used], radius, sigma_metric)
             if metric is not None and resolved_by is None and metric["decisive"]:
                 fit = swap_twins(fit, metric["twin_better"], th_used, x, s_used, cov_x, resolved_by="radius")
                 resolved_by = "radius"

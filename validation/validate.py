@@ -231,7 +231,8 @@ def _process(frame, camera, board, lines_source, models, methods, truth, keep_pi
             rec["orient"][m] = orient_segments(
                 camera, src["segments"], src["pencil"], model=m, angle_sigma=src["angle_sigma"],
                 vertex_px=src["vertex_px"], vertex_cov_px2=src["vertex_cov_px2"], labels=src["labels"],
-                image=frame.name, keep_lines=(m == "exact"), offset_sigma=src.get("offset_sigma"))
+                image=frame.name, keep_lines=(m == "exact"), offset_sigma=src.get("offset_sigma"),
+                spoke_radii=src.get("radii"), endpoint_sigma_px=src.get("corner_sigma_px") or 0.5)
         if keep_pixels:
             rec["segments"] = src["segments"]
     pencil = None if src is None else src["pencil"]
@@ -281,7 +282,7 @@ def _sfm(source, camera, frames, workdir, warn, quiet, progress):
     from .sfm import reconstruct
 
     res = reconstruct(source, camera, workdir, quiet=quiet, progress=progress)
-    by_name = {f.name: f for f in res.frames}
+    by_name = {f.image: f for f in res.frames}
     pairs = [(by_name[f["image"]], f) for f in frames
              if f["image"] in by_name and by_name[f["image"]].registered and f.get("pnp_best")]
     if len(pairs) < 2:

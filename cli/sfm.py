@@ -1,0 +1,186 @@
+"""`pencilcal sfm`: a pycolmap reconstruction with the calibrated intrinsics held fixed."""
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import sys
+import tempfile
+import threading
+from pathlib import Path
+
+import click
+
+from pencilcal.toolkit.camera_io import read_camera
+from pencilcal.toolkit.errors import InputError
+from pencilcal.validation.sfm import (
+    DEFAULT_MAX_FEATURES,
+    DEFAULT_MIN_REGISTERED,
+    EXHAUSTIVE_MAX_IMAGES,
+    MATCHING_MODES,
+    SEQUENTIAL_OVERLAP,
+    reconstruct,
+    write_poses,
+)
+
+from .common import camera_options, force_option, quiet_option, run, warn
+
+# what a folder must hold (one of) for --force to replace it: never a folder of other things
+_SFM_MARKERS = ("poses.json", "sparse", "database.db")
+_LABELS = {"prepare": "frames  ", "extract": "features", "match": "matching", "map": "mapping "}
+
+
+class _StageBars:
+    """One click progress bar per stage on stderr, fed by reconstruct's progress callback
+    (from a worker thread during extraction and matching, hence the lock)."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._bar = None
+        self._stage = None
+        self._done = 0
+
+    def __call__(self, stage, done, total):
+        with self._lock:
+            if stage not in _LABELS:
+                self._close()
+                return
+            if stage != self._stage:
+                self._close()
+                self._bar = click.progressbar(length=max(int(total), 1), label=_LABELS[stage], file=sys.stderr,
+                                              show_pos=True)
+                self._bar.__enter__()
+                self._stage, self._done = stage, 0
+            if total > self._bar.length:  # a video's frame count is the container's guess
+                self._bar.length = int(total)
+            if done > self._done:
+                self._bar.update(done - self._done)
+                self._done = done
+
+    def _close(self):
+        if self._bar is not None:
+            self._bar.__exit__(None, None, None)
+            self._bar = None
+            self._stage = None
+
+    def close(self):
+        with self._lock:
+            self._close()
+
+
+def _check_output_folder(out: Path, force: bool, images: str):
+    """Fail before any work: a file in the way, a non-empty folder without --force, a
+    folder that is not an earlier sfm output (never replaced), or the input inside it."""
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError(f"{out}: folder {parent} does not exist")
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: exists and is not a folder")
+    if not out.is_dir() or not any(out.iterdir()):
+        return
+    if not force:
+        raise InputError(f"{out}: already exists and is not empty; pass --force to replace it")
+    if not any((out / m).exists() for m in _SFM_MARKERS):
+        raise InputError(f"{out}: is not an sfm output folder (no poses.json, sparse/ or database.db); "
+                         "refusing to replace it")
+    real = out.resolve()
+    inp = Path(images.split("*")[0].split("?")[0] or ".").resolve()
+    cwd = Path.cwd().resolve()
+    if inp == real or real in inp.parents or cwd == real or real in cwd.parents:
+        raise InputError(f"{out}: holds the input images or the working folder; choose another output")
+
+
+def _replace_folder(tmp: Path, out: Path):
+    """Put the finished folder `tmp` at `out`; an old `out` is moved aside first and removed
+    only once the new one is in place."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp made it private
+    if out.is_dir() and any(out.iterdir()):
+        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=tmp.parent))
+        os.replace(out, old / out.name)
+        try:
+            os.replace(tmp, out)
+        except OSError:
+            os.replace(old / out.name, out)
+            raise
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        if out.is_dir():
+            out.rmdir()
+        os.replace(tmp, out)
+
+
+@click.command()
+@click.argument("images")
+@camera_options
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
+              help="Output folder (COLMAP layout): poses.json, sparse/0 (binary and text model), database.db, "
+                   "colmap.log.")
+@click.option("--matching", type=click.Choice(MATCHING_MODES), default="auto", show_default=True,
+              help=f"Image pairs to match: every pair (exhaustive), or each frame with its next "
+                   f"{SEQUENTIAL_OVERLAP} (sequential, for video); auto: exhaustive up to "
+                   f"{EXHAUSTIVE_MAX_IMAGES} images.")
+@click.option("--max-features", type=int, default=DEFAULT_MAX_FEATURES, show_default=True,
+              help="SIFT features per image.")
+@click.option("--min-registered", type=int, default=DEFAULT_MIN_REGISTERED, show_default=True,
+              help="Fail when fewer frames get a pose (at least 2).")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Seed of COLMAP's RANSAC and mapper, for repeatable runs (-1: random).")
+@click.option("--keep-frames", is_flag=True,
+              help="Keep the decoded frames (video input) or image links under OUTPUT/images.")
+@click.option("--verbose", is_flag=True, help="Show pycolmap's own log on stderr (always in OUTPUT/colmap.log).")
+@force_option
+@quiet_option
+@run
+def sfm(images, camera_path, camera_id, output, matching, max_features, min_registered, seed, keep_frames, verbose,
+        force, quiet):
+    """Structure from motion (pycolmap) with the intrinsics held fixed.
+
+    SIFT features on the CPU, exhaustive or sequential matching, then COLMAP's incremental
+    mapper with one shared camera whose focal length, principal point and distortion are
+    those of CAM and are never refined (checked bit for bit afterwards). Writes a COLMAP
+    project in OUTPUT (sparse/0: the largest model, binary and text; database.db) and
+    OUTPUT/poses.json: per frame image, registered, R_cam_from_world, t_cam_from_world and
+    camera_center, in the reconstruction's own world frame and scale. The output is built
+    beside OUTPUT and moved into place when complete.
+
+    \b
+    Example:
+      pencilcal sfm frames/ --camera camera.yaml -o sfm/
+      pencilcal sfm clip.mp4 --camera camera.json --matching sequential -o sfm/ --force
+    """
+    if max_features < 1:
+        raise click.BadParameter("must be a positive number of features", param_hint="--max-features")
+    if min_registered < 2:
+        raise click.BadParameter("must be at least 2 (a reconstruction starts from a pair)",
+                                 param_hint="--min-registered")
+    out = Path(output)
+    _check_output_folder(out, force, images)
+    camera = read_camera(camera_path, camera_id=camera_id)
+    parent = out.parent if str(out.parent) else Path(".")
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=parent))
+    bars = _StageBars() if not quiet and sys.stderr.isatty() else None
+    try:
+        try:
+            res = reconstruct(images, camera, tmp, matching=matching, max_features=max_features,
+                              min_registered=min_registered, seed=seed, keep_frames=keep_frames, quiet=quiet,
+                              verbose=verbose, progress=bars)
+        finally:
+            if bars is not None:
+                bars.close()
+        for f in res.frames:
+            if f.error and not f.error.startswith("not registered"):
+                warn(f"{f.image}: {f.error}")
+        for w in res.warnings:
+            warn(w)
+        write_poses(tmp / "poses.json", res, images=str(images), camera_file=str(camera_path),
+                    camera_id=camera_id, seed=seed, min_registered=min_registered)
+        _replace_folder(tmp, out)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            shutil.rmtree(tmp)
+    if not quiet:
+        click.echo(f"{res.n_registered}/{res.n_frames} frames registered, {res.n_points3D} points, "
+                   f"mean reprojection error {res.mean_reprojection_error_px:.3f} px ({res.matching} matching, "
+                   f"{res.timings['total']:.1f} s) -> {out}", err=True)
