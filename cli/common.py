@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import sys
+import threading
 
 import click
 
@@ -16,7 +17,7 @@ from pencilcal.toolkit.errors import PencilcalError
 from pencilcal.toolkit.files import check_writable
 
 __all__ = ["run", "progress", "warn", "output_option", "force_option", "quiet_option", "check_output",
-           "camera_options"]
+           "camera_options", "StageBars"]
 
 
 def run(fn):
@@ -74,3 +75,44 @@ def camera_options(fn):
         "--camera", "camera_path", required=True, type=click.Path(),
         help="Camera file: .json, .yaml/.yml/.xml (OpenCV), .cameramodel (mrcal), COLMAP cameras.txt/.bin or model folder.",
     )(fn)
+
+
+_SFM_LABELS = {"prepare": "frames  ", "extract": "features", "match": "matching", "map": "mapping "}
+
+
+class StageBars:
+    """One click progress bar per stage on stderr, fed by reconstruct's progress callback
+    (from a worker thread during extraction and matching, hence the lock)."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._bar = None
+        self._stage = None
+        self._done = 0
+
+    def __call__(self, stage, done, total):
+        with self._lock:
+            if stage not in _SFM_LABELS:
+                self._close()
+                return
+            if stage != self._stage:
+                self._close()
+                self._bar = click.progressbar(length=max(int(total), 1), label=_SFM_LABELS[stage], file=sys.stderr,
+                                              show_pos=True)
+                self._bar.__enter__()
+                self._stage, self._done = stage, 0
+            if total > self._bar.length:  # a video's frame count is the container's guess
+                self._bar.length = int(total)
+            if done > self._done:
+                self._bar.update(done - self._done)
+                self._done = done
+
+    def _close(self):
+        if self._bar is not None:
+            self._bar.__exit__(None, None, None)
+            self._bar = None
+            self._stage = None
+
+    def close(self):
+        with self._lock:
+            self._close()

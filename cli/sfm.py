@@ -6,7 +6,6 @@ import os
 import shutil
 import sys
 import tempfile
-import threading
 from pathlib import Path
 
 import click
@@ -23,51 +22,10 @@ from pencilcal.validation.sfm import (
     write_poses,
 )
 
-from .common import camera_options, force_option, quiet_option, run, warn
+from .common import StageBars, camera_options, force_option, quiet_option, run, warn
 
 # what a folder must hold (one of) for --force to replace it: never a folder of other things
 _SFM_MARKERS = ("poses.json", "sparse", "database.db")
-_LABELS = {"prepare": "frames  ", "extract": "features", "match": "matching", "map": "mapping "}
-
-
-class _StageBars:
-    """One click progress bar per stage on stderr, fed by reconstruct's progress callback
-    (from a worker thread during extraction and matching, hence the lock)."""
-
-    def __init__(self):
-        self._lock = threading.Lock()
-        self._bar = None
-        self._stage = None
-        self._done = 0
-
-    def __call__(self, stage, done, total):
-        with self._lock:
-            if stage not in _LABELS:
-                self._close()
-                return
-            if stage != self._stage:
-                self._close()
-                self._bar = click.progressbar(length=max(int(total), 1), label=_LABELS[stage], file=sys.stderr,
-                                              show_pos=True)
-                self._bar.__enter__()
-                self._stage, self._done = stage, 0
-            if total > self._bar.length:  # a video's frame count is the container's guess
-                self._bar.length = int(total)
-            if done > self._done:
-                self._bar.update(done - self._done)
-                self._done = done
-
-    def _close(self):
-        if self._bar is not None:
-            self._bar.__exit__(None, None, None)
-            self._bar = None
-            self._stage = None
-
-    def close(self):
-        with self._lock:
-            self._close()
-
-
 def _check_output_folder(out: Path, force: bool, images: str):
     """Fail before any work: a file in the way, a non-empty folder without --force, a
     folder that is not an earlier sfm output (never replaced), or the input inside it."""
@@ -160,7 +118,7 @@ def sfm(images, camera_path, camera_id, output, matching, max_features, min_regi
     camera = read_camera(camera_path, camera_id=camera_id)
     parent = out.parent if str(out.parent) else Path(".")
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=parent))
-    bars = _StageBars() if not quiet and sys.stderr.isatty() else None
+    bars = StageBars() if not quiet and sys.stderr.isatty() else None
     try:
         try:
             res = reconstruct(images, camera, tmp, matching=matching, max_features=max_features,

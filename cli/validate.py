@@ -1,6 +1,7 @@
 """`pencilcal validate`: orient, PnP (every method) and optionally SfM on the same frames, compared."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import click
@@ -16,7 +17,7 @@ from pencilcal.toolkit.pencil import read_pencil
 from pencilcal.validation.pnp import METHODS
 from pencilcal.validation.validate import FanLines, GridLines, reproducibility, validate_sequence
 
-from .common import check_output, force_option, output_option, progress, quiet_option, run, warn
+from .common import StageBars, check_output, force_option, output_option, progress, quiet_option, run, warn
 
 
 def _sequence_files(sequence):
@@ -122,10 +123,16 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
     truth = _truth(truth_path) if truth_path else None
     source = open_images(images)
     calib = load_structured(calib_path, "calibration report") if calib_path else None
-    result = validate_sequence(
-        source, camera, board, lines, truth=truth, models=models_t, methods=methods_t, sfm=sfm,
-        sfm_workdir=sfm_dir, progress=lambda it, label: _bar(it, label, quiet), warn=warn, quiet=quiet,
-    )
+    stage_bars = StageBars() if (sfm and not quiet and sys.stderr.isatty()) else None
+    try:
+        result = validate_sequence(
+            source, camera, board, lines, truth=truth, models=models_t, methods=methods_t, sfm=sfm,
+            sfm_workdir=sfm_dir, progress=lambda it, label: _bar(it, label, quiet), warn=warn, quiet=quiet,
+            sfm_progress=stage_bars,
+        )
+    finally:
+        if stage_bars is not None:
+            stage_bars.close()
     inputs = [camera_path, board_path, pencil_path, truth_path, calib_path] + [getattr(p, "path", None) for p in []]
     image_files = list(getattr(source, "paths", []))
     out = {

@@ -311,7 +311,8 @@ def _sfm(source, camera, frames, workdir, warn, quiet, progress):
 
 
 def validate_sequence(source, camera, board, lines_source, *, truth=None, models=MODELS, methods=METHODS,
-                      sfm=False, sfm_workdir=None, progress=None, warn=None, quiet=True, keep_pixels=True):
+                      sfm=False, sfm_workdir=None, progress=None, warn=None, quiet=True, keep_pixels=True,
+                      sfm_progress=None):
     """Run orient, every PnP method and optionally SfM on one sequence and compare them.
 
     source: an ImageSource; camera: Camera; board: Board; lines_source: FanLines or GridLines
@@ -319,7 +320,8 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
     truth: dict image name -> truth frame (R_cam_from_target, t_cam_from_target) or None;
     models: orient models; methods: PnP methods; sfm: also reconstruct with pycolmap
     (sfm_workdir: where; a temporary folder if None); progress: callable(iterable, label)
-    -> iterable; warn: callable(str) for per-frame problems.
+    -> iterable; warn: callable(str) for per-frame problems; sfm_progress: callable(stage,
+    done, total) for the reconstruction's stages (validation.sfm.reconstruct).
 
     Returns the validation.json dict (numpy arrays inside; write with files.write_json).
     """
@@ -341,7 +343,7 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
         import tempfile
 
         with tempfile.TemporaryDirectory() as tmp:
-            out["sfm"] = _sfm(source, camera, frames, sfm_workdir or tmp, warn, quiet, None)
+            out["sfm"] = _sfm(source, camera, frames, sfm_workdir or tmp, warn, quiet, sfm_progress)
         keys.append("sfm")
     out["summary"] = summarise(frames, keys)
     out["frames"] = frames
