@@ -98,11 +98,11 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
         raise click.UsageError("--camera is required (SEQUENCE is not a simulate folder)")
     if board_path is None:
         raise click.UsageError("--board is required (SEQUENCE is not a simulate folder)")
+    if grid_pencil is not None and pencil_path is not None:
+        raise click.UsageError("give either --pencil or --grid-pencil")
     camera = read_camera(camera_path, camera_id=camera_id)
     board = read_board(board_path)
     if grid_pencil is not None:
-        if pencil_path is not None:
-            raise click.UsageError("give either --pencil or --grid-pencil")
         if grid_pencil == "auto":
             vertex = None
         else:

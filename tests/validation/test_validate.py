@@ -1,0 +1,97 @@
+"""validate: orient, every PnP method and a reconstruction on the same frames, compared."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pencilcal.cli.main import cli
+from pencilcal.toolkit.frames import rotation_about_axis
+from pencilcal.validation.validate import frame_errors
+from tests.conftest import data_dir
+
+
+def test_frame_errors_twin_bookkeeping():
+    R = rotation_about_axis([1.0, 0.2, 0], np.radians(30))
+    twin = rotation_about_axis([0.0, 0, 1], np.pi) @ R  # any other rotation stands in for the twin
+    ray = np.array([0.0, 0.0, 1.0])
+    right = frame_errors(R, twin, False, R, ray)
+    assert right["twin"] == "right" and right["normal_deg"] == pytest.approx(0, abs=1e-9)
+    wrong = frame_errors(twin, R, False, R, ray)
+    assert wrong["twin"] == "wrong" and wrong["normal_closer_deg"] == pytest.approx(0, abs=1e-9)
+    assert frame_errors(twin, R, True, R, ray)["twin"] == "ambiguous"
+    assert frame_errors(R, None, False, R, ray)["twin"] == "none"
+
+
+@pytest.fixture(scope="module")
+def orbit(tmp_path_factory):
+    d = tmp_path_factory.mktemp("orbit")
+    r = CliRunner().invoke(cli, ["simulate", str(d / "seq"), "--scenario", "orbit", "--frames", "10", "--seed", "3",
+                                 "--size", "960x540", "-q"])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(cli, ["validate", str(d / "seq"), "--sfm", "-o", str(d / "v.json"), "-q"])
+    assert r.exit_code == 0, r.output
+    return json.loads((d / "v.json").read_text())
+
+
+def test_orbit_every_method_against_truth(orbit):
+    v = orbit
+    assert v["reference"] == "truth"
+    s = v["summary"]
+    assert set(s) >= {"orient:exact", "orient:general", "orient:aligned", "pnp:sqpnp", "pnp:ippe", "pnp:iterative",
+                      "pnp:epnp", "pnp:colmap", "sfm"}
+    assert s["orient:exact"]["frames"] >= 8
+    assert s["orient:exact"]["normal_closer"]["median"] < 0.3
+    # the chapter's general model is exact too; PnP on a rendered board is very good
+    assert s["orient:general"]["normal_closer"]["median"] < 0.3
+    assert s["pnp:sqpnp"]["rotation"]["max"] < 0.2
+    # the reconstruction, aligned to the board frame by rotation averaging over PnP poses
+    assert v["sfm"]["registered"] == 10
+    assert s["sfm"]["rotation"]["max"] < 0.2
+    assert len(v["reproducibility"]["inputs_sha256"]) >= 10
+
+
+def test_orbit_frames_carry_what_the_report_needs(orbit):
+    f = next(f for f in orbit["frames"] if f["ok"])
+    for key in ("image", "path", "pnp", "pnp_best", "orient", "segments", "R_ref", "t_ref", "reference_tilt_deg",
+                "crlb", "errors", "sfm"):
+        assert key in f, key
+    assert set(f["orient"]) == {"exact", "general", "aligned"}
+    assert "lines" in f["orient"]["exact"]
+
+
+def test_real_davinci_grid_pencil(tmp_path):
+    """The da Vinci left frames with the board's grid lines through a corner as the pencil:
+    it runs, and the twin is chosen by the corners' known distances."""
+    d = data_dir("sksurgery-davinci-charuco-stereo") / "left"
+    (tmp_path / "board.yaml").write_text("type: charuco\nsquares: [19, 26]\nsquare: 5.0\nmarker: 4.0\n"
+                                        "dictionary: DICT_4X4_250\nlegacy: true\n")
+    # the calibration published for these frames in SOURCE.txt's verification run
+    (tmp_path / "cam.json").write_text(json.dumps({
+        "model": "opencv", "width": 720, "height": 576,
+        "K": [[833.3, 0, 280.5], [0, 909.1, 276.3], [0, 0, 1]], "dist": [-0.313, 0.399, -0.0018, 0.0077, 0.832]}))
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for p in sorted(d.glob("*.jpg"))[:12]:
+        (frames / p.name).symlink_to(p)
+    r = CliRunner().invoke(cli, ["validate", str(frames), "--camera", str(tmp_path / "cam.json"), "--board",
+                                 str(tmp_path / "board.yaml"), "--grid-pencil", "auto", "--methods", "sqpnp",
+                                 "-o", str(tmp_path / "v.json"), "-q"])
+    assert r.exit_code == 0, r.output
+    v = json.loads((tmp_path / "v.json").read_text())
+    s = v["summary"]["orient:exact"]
+    assert v["reference"] == "pnp" and s["frames"] >= 10
+    assert s["normal_closer"]["median"] < 1.0
+    assert s["twin"].get("right", 0) >= 0.8 * s["frames"]
+
+
+def test_usage_errors(tmp_path):
+    r = CliRunner().invoke(cli, ["validate", str(tmp_path), "-o", str(tmp_path / "v.json")])
+    assert r.exit_code == 2 and "--camera" in r.output
+    r = CliRunner().invoke(cli, ["validate", str(tmp_path), "--camera", "c.json", "--board", "b.yaml",
+                                 "--pencil", "p.yaml", "--grid-pencil", "auto", "-o", str(tmp_path / "v.json")])
+    assert r.exit_code == 2 and "either --pencil or --grid-pencil" in r.output
+    r = CliRunner().invoke(cli, ["validate", str(tmp_path), "--models", "best", "-o", str(tmp_path / "v.json")])
+    assert r.exit_code == 2
