@@ -19,7 +19,7 @@ from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.files import write_json
 from pencilcal.toolkit.images import open_images
 
-from .common import check_output, force_option, progress, quiet_option, run, warn
+from .common import check_output, force_option, quiet_option, run, run_frames, warn, workers_option
 
 _CAMERA_SUFFIXES = (".json", ".yaml", ".yml", ".xml", ".cameramodel", ".txt", ".bin")
 
@@ -87,6 +87,18 @@ def _vnl_name(path, name, corners_path, kind):
     return Path(os.path.relpath(Path(path).resolve(), base)).as_posix()
 
 
+def _detect_task(frame, board):
+    """(frame without its image, (width, height) or None, detection) for one frame; module
+    level, so it runs in worker processes too, and images never travel back."""
+    from pencilcal.toolkit.images import Frame
+
+    light = Frame(frame.name, frame.index, None, frame.error, frame.path)
+    if frame.image is None:
+        return light, None, None
+    h, w = frame.image.shape[:2]
+    return light, (w, h), detect_board(frame.image, board)
+
+
 @click.command()
 @click.argument("images")
 @click.option("--board", "board_path", required=True, type=click.Path(dir_okay=False),
@@ -107,11 +119,12 @@ def _vnl_name(path, name, corners_path, kind):
 @click.option("--corners", "corners_path", type=click.Path(dir_okay=False), default=None,
               help="Also write the detections as mrcal's corner cache (corners.vnl, "
                    "for mrcal-calibrate-cameras --corners-cache).")
+@workers_option
 @force_option
 @quiet_option
 @run
 def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_corners, report_path, corners_path,
-              force, quiet):
+              workers, force, quiet):
     """Calibrate a camera's intrinsics from views of a ChArUco board or a chessboard.
 
     IMAGES is a folder of images, a glob (quoted) or a video. Views without a usable board
@@ -154,25 +167,21 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
     detections = []  # per decoded frame
     decoded_index = []
     first = None
-    with progress(source, "detect", quiet) as bar:
-        for frame in bar:
-            rec = {"image": frame.name, "path": frame.path, "decoded": frame.image is not None,
-                   "error": frame.error, "corners": 0}
-            if frame.image is None:
-                warn(f"{frame.path or frame.name}: {frame.error}; skipped")
-                frames.append((frame, rec, None))
-                continue
-            h, w = frame.image.shape[:2]
-            if first is None:
-                first = (frame.path or frame.name, (w, h))
-            elif (w, h) != first[1]:
-                raise InputError(f"{frame.path or frame.name}: image is {w}x{h} but {first[0]} is "
-                                 f"{first[1][0]}x{first[1][1]}; all images must have the same size")
-            det = detect_board(frame.image, board)
-            rec["corners"] = det.count
-            decoded_index.append(len(frames))
-            detections.append(det)
-            frames.append((frame, rec, det))
+    for frame, size, det in run_frames(source, _detect_task, board, workers, "detect", quiet):
+        rec = {"image": frame.name, "path": frame.path, "decoded": size is not None, "error": frame.error, "corners": 0}
+        if size is None:
+            warn(f"{frame.path or frame.name}: {frame.error}; skipped")
+            frames.append((frame, rec, None))
+            continue
+        if first is None:
+            first = (frame.path or frame.name, size)
+        elif size != first[1]:
+            raise InputError(f"{frame.path or frame.name}: image is {size[0]}x{size[1]} but {first[0]} is "
+                             f"{first[1][0]}x{first[1][1]}; all images must have the same size")
+        rec["corners"] = det.count
+        decoded_index.append(len(frames))
+        detections.append(det)
+        frames.append((frame, rec, det))
     if not frames:
         raise InputError(f"{images}: no frames")
     if first is None:

@@ -17,7 +17,7 @@ from pencilcal.toolkit.errors import PencilcalError
 from pencilcal.toolkit.files import check_writable
 
 __all__ = ["run", "progress", "warn", "output_option", "force_option", "quiet_option", "check_output",
-           "camera_options", "StageBars"]
+           "camera_options", "StageBars", "workers_option", "run_frames"]
 
 
 def run(fn):
@@ -66,6 +66,8 @@ def check_output(path, force):
 output_option = click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output file.")
 force_option = click.option("--force", is_flag=True, help="Overwrite the output if it exists.")
 quiet_option = click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+workers_option = click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
+                              help="Process frames in this many worker processes (same results, in order).")
 
 
 def camera_options(fn):
@@ -116,3 +118,25 @@ class StageBars:
     def close(self):
         with self._lock:
             self._close()
+
+
+class _Sized:
+    def __init__(self, it, n):
+        self.it, self.n = it, n
+
+    def __iter__(self):
+        return iter(self.it)
+
+    def __len__(self):
+        return self.n
+
+
+def run_frames(source, task, context, workers, label, quiet):
+    """Results of ``task(frame, context)`` for every frame of `source`, in order, behind a
+    progress bar; with workers > 1 in a process pool (toolkit.parallel.map_frames). `task`
+    must be a module-level function."""
+    from pencilcal.toolkit.parallel import map_frames
+
+    results = map_frames(task, source, context, workers)
+    with progress(_Sized(results, len(source)), label, quiet) as it:
+        yield from it

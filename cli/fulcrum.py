@@ -9,30 +9,33 @@ from pencilcal.toolkit.files import write_json
 from pencilcal.toolkit.fulcrum import fulcrum_from_frames, read_angles
 from pencilcal.toolkit.lines_io import read_lines
 
-from .common import camera_options, check_output, force_option, output_option, progress, quiet_option, run, warn
+from .common import camera_options, check_output, force_option, output_option, quiet_option, run, run_frames, warn, workers_option
 
 
-def _shafts(images, camera, detector, quiet):
-    """Instrument shafts of every frame of IMAGES, as lines.json frames."""
+def _shaft_task(frame, ctx):
+    """The shafts of one frame as a lines.json frame (module level: runs in workers too)."""
     import numpy as np
 
-    from pencilcal.toolkit.images import check_image_size, open_images
+    from pencilcal.toolkit.images import check_image_size
     from pencilcal.toolkit.shafts import detect_shafts
 
-    frames = []
-    source = open_images(images)
-    with progress(source, "shafts", quiet) as bar:
-        for fr in bar:
-            if fr.image is None:
-                warn(f"{fr.name}: {fr.error}")
-                frames.append({"image": fr.name, "ok": False, "segments": np.zeros((0, 4))})
-                continue
-            check_image_size(fr, camera)
-            shafts = detect_shafts(fr.image, camera, detector=detector)
-            if not shafts:
-                warn(f"{fr.name}: no instrument shaft found")
-            frames.append({"image": fr.name, "ok": True, "segments": np.zeros((0, 4)),
-                           "shafts": [s.to_dict() for s in shafts]})
+    camera, detector = ctx
+    if frame.image is None:
+        return {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}
+    check_image_size(frame, camera)
+    shafts = detect_shafts(frame.image, camera, detector=detector)
+    return {"image": frame.name, "ok": True, "segments": np.zeros((0, 4)), "shafts": [s.to_dict() for s in shafts],
+            "error": None if shafts else "no instrument shaft found"}
+
+
+def _shafts(images, camera, detector, quiet, workers):
+    """Instrument shafts of every frame of IMAGES, as lines.json frames."""
+    from pencilcal.toolkit.images import open_images
+
+    frames = list(run_frames(open_images(images), _shaft_task, (camera, detector), workers, "shafts", quiet))
+    for f in frames:
+        if f["error"]:
+            warn(f"{f['image']}: {f['error']}")
     return frames
 
 
@@ -47,11 +50,13 @@ def _shafts(images, camera, detector, quiet):
               help="End point noise [px] for segments without their own angle sigma.")
 @click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
               help="Line detector for the shaft proposals, with IMAGES.")
+@workers_option
 @output_option
 @force_option
 @quiet_option
 @run
-def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_sigma, detector, output, force, quiet):
+def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_sigma, detector, workers, output, force,
+            quiet):
     """The fulcrum of an instrument pivoting about its entry port.
 
     Every frame's instrument line passes through the fulcrum's image: their robust weighted
@@ -77,7 +82,7 @@ def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_si
         if not frames:
             raise InputError(f"{lines_path}: no frames")
     else:
-        frames = _shafts(images, camera, detector, quiet)
+        frames = _shafts(images, camera, detector, quiet, workers)
     angles = read_angles(angles_path, [f["image"] for f in frames]) if angles_path else None
     try:
         out = fulcrum_from_frames(camera, frames, angles=angles, endpoint_sigma_px=endpoint_sigma)

@@ -9,14 +9,21 @@ from pencilcal.toolkit.images import check_image_size, open_images
 from pencilcal.toolkit.lines import DETECTORS, lines_record
 from pencilcal.toolkit.lines_io import write_lines
 
-from .common import check_output, force_option, output_option, progress, quiet_option, run, warn
+from .common import camera_options, check_output, force_option, output_option, quiet_option, run, run_frames, warn, workers_option
+
+
+def _lines_task(frame, ctx):
+    """One frame's lines.json record (module level: runs in worker processes too)."""
+    camera, detector, bars, shaft, min_length, bar_width = ctx
+    if frame.image is None:
+        return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}
+    check_image_size(frame, camera)
+    return lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width)
 
 
 @click.command()
 @click.argument("images")
-@click.option("--camera", "camera_path", required=True, type=click.Path(),
-              help="Camera file: .json, .yaml/.yml/.xml (OpenCV), .cameramodel (mrcal), COLMAP cameras.txt/.bin or model folder.")
-@click.option("--camera-id", type=int, default=None, help="Camera id in a COLMAP file with several cameras.")
+@camera_options
 @output_option
 @click.option("--detector", type=click.Choice(DETECTORS), default="lsd", show_default=True,
               help="OpenCV detector proposing the segments: LSD, FLD (fast line detector) or EDLines.")
@@ -30,10 +37,11 @@ from .common import check_output, force_option, output_option, progress, quiet_o
               help="Also find instrument shafts (pairs of long converging edges) and write them "
                    "as 'shafts': midline (image of the axis), width_px, angle_sigma_deg.")
 @click.option("--min-length", type=float, default=20.0, show_default=True, help="Shortest segment written [px].")
+@workers_option
 @force_option
 @quiet_option
 @run
-def lines(images, camera_path, camera_id, output, detector, bars, bar_width, shaft, min_length, force, quiet):
+def lines(images, camera_path, camera_id, output, detector, bars, bar_width, shaft, min_length, workers, force, quiet):
     """Line segments in every frame, refined to subpixel precision, with angle uncertainty.
 
     IMAGES is a folder of images, a glob pattern or a video. The chosen OpenCV detector
@@ -61,15 +69,11 @@ def lines(images, camera_path, camera_id, output, detector, bars, bar_width, sha
     camera = read_camera(camera_path, camera_id=camera_id)
     source = open_images(images)
     records = []
-    with progress(source, "lines", quiet) as frames:
-        for fr in frames:
-            if fr.image is None:
-                warn(f"{fr.name}: {fr.error}")
-                records.append({"image": fr.name, "ok": False, "error": fr.error, "segments": [],
-                                "angle_sigma_deg": []})
-                continue
-            check_image_size(fr, camera)
-            records.append(lines_record(fr.name, fr.image, camera, detector, bars, shaft, min_length, bar_width))
+    ctx = (camera, detector, bars, shaft, min_length, bar_width)
+    for rec in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
+        if not rec["ok"]:
+            warn(f"{rec['image']}: {rec['error']}")
+        records.append(rec)
     meta = {"detector": detector, "mode": "bars" if bars else "edges", "camera": str(camera_path)}
     write_lines(output, records, force=force, meta=meta)
     if not quiet:

@@ -11,29 +11,38 @@ from pencilcal.toolkit.lines_io import read_lines
 from pencilcal.toolkit.orient import MODELS, orient_segments, resolve_twins_by_continuity
 from pencilcal.toolkit.pencil import read_pencil
 
-from .common import camera_options, check_output, force_option, output_option, progress, quiet_option, run, warn
+from .common import camera_options, check_output, force_option, output_option, progress, quiet_option, run, run_frames, warn, workers_option
 
 
-def _detected(images, camera, pencil, detector):
-    """Lines of every frame of IMAGES, detected as `pencilcal lines` would (a generator)."""
-    from pencilcal.toolkit.images import check_image_size, open_images
+def _orient_record(camera, pencil, fr, opts):
+    """The orientation record of one lines.json frame."""
+    if not fr["ok"]:
+        rec = orient_segments(camera, np.zeros((0, 4)), pencil, model=opts["model"], image=fr["image"])
+        rec["error"] = fr.get("error") or "no segments (frame marked not ok in the lines file)"
+        return rec
+    sig = fr.get("angle_sigma_deg")
+    if sig is None and opts["angle_sigma"] is not None:
+        sig = opts["angle_sigma"]
+    return orient_segments(
+        camera, fr["segments"], pencil, model=opts["model"], endpoint_sigma_px=opts["endpoint_sigma"],
+        angle_sigma=None if sig is None else np.radians(sig), prior=opts["priors"].get(fr["image"]),
+        image=fr["image"], offset_sigma=fr.get("offset_sigma_px"),
+    )
+
+
+def _orient_image_task(frame, ctx):
+    """Lines (as `pencilcal lines` finds them) and orientation of one decoded frame; module
+    level, so it runs in worker processes too."""
+    from pencilcal.toolkit.images import check_image_size
     from pencilcal.toolkit.lines import lines_record
 
-    source = open_images(images)
-
-    class _Frames:
-        def __len__(self):
-            return len(source)
-
-        def __iter__(self):
-            for fr in source:
-                if fr.image is None:
-                    yield {"image": fr.name, "ok": False, "segments": np.zeros((0, 4)), "error": fr.error}
-                    continue
-                check_image_size(fr, camera)
-                yield lines_record(fr.name, fr.image, camera, detector, bars=pencil.width is not None)
-
-    return _Frames()
+    camera, pencil, detector, opts = ctx
+    if frame.image is None:
+        fr = {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}
+    else:
+        check_image_size(frame, camera)
+        fr = lines_record(frame.name, frame.image, camera, detector, bars=pencil.width is not None)
+    return _orient_record(camera, pencil, fr, opts)
 
 
 def _prior_rotations(path):
@@ -71,11 +80,12 @@ def _prior_rotations(path):
               help="Carry twin choices along the sequence to ambiguous frames.")
 @click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
               help="Line detector, with IMAGES.")
+@workers_option
 @force_option
 @quiet_option
 @run
 def orient(images, lines_path, camera_path, camera_id, pencil_path, output, model, endpoint_sigma, angle_sigma,
-           prior_path, continuity, detector, force, quiet):
+           prior_path, continuity, detector, workers, force, quiet):
     """Orientation of the pencil in every frame, from its image angles alone.
 
     From IMAGES (a folder, glob or video) the lines are detected first: the midlines of
@@ -101,31 +111,22 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     check_output(output, force)
     camera = read_camera(camera_path, camera_id=camera_id)
     pencil = read_pencil(pencil_path)
+    priors = _prior_rotations(prior_path) if prior_path else {}
+    opts = dict(model=model, endpoint_sigma=endpoint_sigma, angle_sigma=angle_sigma, priors=priors)
     if lines_path is not None:
         frames = read_lines(lines_path)
         if not frames:
             raise InputError(f"{lines_path}: no frames")
+        with progress(frames, "orient", quiet) as bar:
+            records = [_orient_record(camera, pencil, fr, opts) for fr in bar]
     else:
-        frames = _detected(images, camera, pencil, detector)
-    priors = _prior_rotations(prior_path) if prior_path else {}
-    records = []
-    with progress(frames, "orient", quiet) as bar:
-        for fr in bar:
-            if not fr["ok"]:
-                rec = orient_segments(camera, np.zeros((0, 4)), pencil, model=model, image=fr["image"])
-                rec["error"] = fr.get("error") or "no segments (frame marked not ok in the lines file)"
-            else:
-                sig = fr.get("angle_sigma_deg")
-                if sig is None and angle_sigma is not None:
-                    sig = angle_sigma
-                rec = orient_segments(
-                    camera, fr["segments"], pencil, model=model, endpoint_sigma_px=endpoint_sigma,
-                    angle_sigma=None if sig is None else np.radians(sig), prior=priors.get(fr["image"]),
-                    image=fr["image"], offset_sigma=fr.get("offset_sigma_px"),
-                )
-            if not rec["ok"]:
-                warn(f"{fr['image']}: {rec['error']}")
-            records.append(rec)
+        from pencilcal.toolkit.images import open_images
+
+        ctx = (camera, pencil, detector, opts)
+        records = list(run_frames(open_images(images), _orient_image_task, ctx, workers, "orient", quiet))
+    for rec in records:
+        if not rec["ok"]:
+            warn(f"{rec['image']}: {rec['error']}")
     if not any(r["ok"] for r in records):
         # a run with no estimate at all failed: say so and leave nothing that looks like a result
         raise EstimationError(f"{lines_path or images}: no frame gave an orientation")

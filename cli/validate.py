@@ -2,37 +2,15 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import click
 
-from pencilcal.toolkit.boards import read_board
-from pencilcal.toolkit.camera_io import camera_to_dict, read_camera
-from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.files import load_frames, load_structured, write_json
-from pencilcal.toolkit.grid_pencil import GridPencil
-from pencilcal.toolkit.images import open_images
+from pencilcal.toolkit.files import write_json
 from pencilcal.toolkit.orient import MODELS
-from pencilcal.toolkit.pencil import read_pencil
 from pencilcal.validation.pnp import METHODS
-from pencilcal.validation.validate import FanLines, GridLines, reproducibility, validate_sequence
+from pencilcal.validation.validate import find_sequences, sequence_files, validate_many, validate_path
 
-from .common import StageBars, check_output, force_option, output_option, progress, quiet_option, run, warn
-
-
-def _sequence_files(sequence):
-    """A `pencilcal simulate` folder: its images/ and the files beside them."""
-    p = Path(sequence)
-    if p.is_dir() and (p / "images").is_dir():
-        found = {k: p / n for k, n in (("camera", "camera.json"), ("board", "board.yaml"), ("pencil", "pencil.yaml"),
-                                        ("truth", "truth.json")) if (p / n).is_file()}
-        return p / "images", found
-    return p, {}
-
-
-def _truth(path):
-    _, frames = load_frames(path, "truth file", ("image", "R_cam_from_target", "t_cam_from_target"))
-    return {str(f["image"]): f for f, _ in frames}
+from .common import StageBars, check_output, force_option, output_option, progress, quiet_option, run, warn, workers_option
 
 
 def _split(value, allowed, what):
@@ -41,6 +19,18 @@ def _split(value, allowed, what):
     if bad or not items:
         raise click.BadParameter(f"expected a comma-separated subset of {', '.join(allowed)}", param_hint=what)
     return tuple(items)
+
+
+def _grid(value):
+    if value is None or value == "auto":
+        return value
+    try:
+        ij = tuple(int(v) for v in value.split(","))
+    except ValueError:
+        ij = ()
+    if len(ij) != 2:
+        raise click.BadParameter("expected 'auto' or two integers I,J", param_hint="--grid-pencil")
+    return ij
 
 
 @click.command()
@@ -65,12 +55,15 @@ def _split(value, allowed, what):
               help="Line detector for the fan.")
 @click.option("--calibration", "calib_path", type=click.Path(dir_okay=False), default=None,
               help="calib.json of `pencilcal calibrate --report`, shown in the report.")
+@click.option("--dask", "dask_address", default=None, metavar="ADDRESS",
+              help="With a folder of sequences: send each sequence to this Dask scheduler (tcp://host:8786).")
+@workers_option
 @output_option
 @force_option
 @quiet_option
 @run
 def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pencil, truth_path, models, methods,
-             sfm, sfm_dir, detector, calib_path, output, force, quiet):
+             sfm, sfm_dir, detector, calib_path, dask_address, workers, output, force, quiet):
     """Compare the angular-variation estimate with PnP (and a reconstruction) on the same frames.
 
     SEQUENCE is a folder of images, a glob or a video, or a `pencilcal simulate` folder
@@ -81,77 +74,78 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
     to the board frame. Errors are measured against the truth when there is one, else
     against the PnP pose. `pencilcal report` turns the output into a page.
 
+    SEQUENCE may also be a folder of sequence folders: each is validated (one after the
+    other, or each as a task on a Dask cluster with --dask) and the output holds them all
+    with a summary pooled over every frame. --workers spreads one sequence's frames over
+    processes. The results are the same in every case.
+
     \b
     Examples:
       pencilcal simulate sim --scenario orbit --frames 30 --seed 1
       pencilcal validate sim --sfm -o validation.json
       pencilcal validate left/ --camera cam.yaml --board board.yaml --grid-pencil auto -o v.json
+      pencilcal validate runs/ --dask tcp://scheduler:8786 -o all.json
     """
     models_t = _split(models, MODELS, "--models")
     methods_t = _split(methods, METHODS, "--methods")
-    check_output(output, force)
-    images, found = _sequence_files(sequence)
-    camera_path = camera_path or found.get("camera")
-    board_path = board_path or found.get("board")
-    truth_path = truth_path or found.get("truth")
-    if camera_path is None:
-        raise click.UsageError("--camera is required (SEQUENCE is not a simulate folder)")
-    if board_path is None:
-        raise click.UsageError("--board is required (SEQUENCE is not a simulate folder)")
-    if grid_pencil is not None and pencil_path is not None:
+    grid = _grid(grid_pencil)
+    if grid is not None and pencil_path is not None:
         raise click.UsageError("give either --pencil or --grid-pencil")
-    camera = read_camera(camera_path, camera_id=camera_id)
-    board = read_board(board_path)
-    if grid_pencil is not None:
-        if grid_pencil == "auto":
-            vertex = None
-        else:
-            try:
-                vertex = tuple(int(v) for v in grid_pencil.split(","))
-                assert len(vertex) == 2
-            except (ValueError, AssertionError):
-                raise click.BadParameter("expected 'auto' or two integers I,J", param_hint="--grid-pencil") from None
-        lines = GridLines(GridPencil(board, vertex))
-        pencil_desc = {"grid": grid_pencil, "angles_deg": [float(a) for a in __import__("numpy").degrees(lines.grid.angles)]}
-    else:
-        pencil_path = pencil_path or found.get("pencil")
-        if pencil_path is None:
+    subs = find_sequences(sequence)
+    if subs is None:
+        if dask_address:
+            raise click.UsageError("--dask needs SEQUENCE to be a folder of sequence folders")
+        _, found = sequence_files(sequence)
+        if camera_path is None and "camera" not in found:
+            raise click.UsageError("--camera is required (SEQUENCE is not a simulate folder)")
+        if board_path is None and "board" not in found:
+            raise click.UsageError("--board is required (SEQUENCE is not a simulate folder)")
+        if pencil_path is None and grid is None and "pencil" not in found:
             raise click.UsageError("--pencil or --grid-pencil is required (SEQUENCE is not a simulate folder)")
-        pencil = read_pencil(pencil_path)
-        lines = FanLines(pencil, detector)
-        pencil_desc = pencil.to_dict()
-    truth = _truth(truth_path) if truth_path else None
-    source = open_images(images)
-    calib = load_structured(calib_path, "calibration report") if calib_path else None
-    stage_bars = StageBars() if (sfm and not quiet and sys.stderr.isatty()) else None
-    try:
-        result = validate_sequence(
-            source, camera, board, lines, truth=truth, models=models_t, methods=methods_t, sfm=sfm,
-            sfm_workdir=sfm_dir, progress=lambda it, label: _bar(it, label, quiet), warn=warn, quiet=quiet,
-            sfm_progress=stage_bars,
-        )
-    finally:
-        if stage_bars is not None:
-            stage_bars.close()
-    inputs = [camera_path, board_path, pencil_path, truth_path, calib_path] + [getattr(p, "path", None) for p in []]
-    image_files = list(getattr(source, "paths", []))
-    out = {
-        "sequence": str(sequence),
-        "images": str(images),
-        "camera_file": str(camera_path),
-        "camera": camera_to_dict(camera),
-        "board": board.to_dict(),
-        "pencil": pencil_desc,
-        "calibration": calib if calib is not None else (camera.meta or None),
-        **result,
-        "reproducibility": reproducibility([p for p in inputs if p] + [str(p) for p in image_files]),
-    }
+    check_output(output, force)
+    options = dict(camera=camera_path, camera_id=camera_id, board=board_path, pencil=pencil_path, grid_pencil=grid,
+                   truth=truth_path, models=models_t, methods=methods_t, sfm=sfm, detector=detector,
+                   calibration=calib_path, workers=workers)
+    if subs is not None:
+        if sfm_dir:
+            raise click.UsageError("--sfm-dir keeps one reconstruction: not with a folder of sequences")
+        out = _many(subs, options, dask_address, quiet)
+    else:
+        stage_bars = StageBars() if (sfm and not quiet and sys.stderr.isatty()) else None
+        try:
+            out = validate_path(sequence, **options, sfm_dir=sfm_dir, progress=lambda it, label: _bar(it, label, quiet),
+                                warn=warn, quiet=quiet, sfm_progress=stage_bars)
+        finally:
+            if stage_bars is not None:
+                stage_bars.close()
     write_json(output, out, force=force)
     if not quiet:
-        s = result["summary"].get("orient:exact", {})
+        s = out["summary"].get("orient:exact", {})
         n = s.get("normal_closer", {}).get("median")
-        click.echo(f"{sum(f['ok'] for f in result['frames'])}/{len(result['frames'])} frames validated"
-                   + (f"; orient (exact) normal error median {n:.3f} deg" if n is not None else "") + f" -> {output}", err=True)
+        what = (f"{sum(r['ok'] for r in out['sequences'])}/{len(out['sequences'])} sequences" if subs is not None
+                else f"{sum(f['ok'] for f in out['frames'])}/{len(out['frames'])} frames")
+        click.echo(f"{what} validated" + (f"; orient (exact) normal error median {n:.3f} deg" if n is not None else "")
+                   + f" -> {output}", err=True)
+
+
+def _many(subs, options, dask_address, quiet):
+    bar = None
+    if not quiet and sys.stderr.isatty():
+        bar = click.progressbar(length=len(subs), label="sequences", file=sys.stderr, show_pos=True)
+        bar.__enter__()
+    try:
+        def tick(done, total):
+            if bar is not None:
+                bar.update(done - bar.pos)
+
+        out = validate_many(subs, options, dask=dask_address, progress=tick)
+    finally:
+        if bar is not None:
+            bar.__exit__(None, None, None)
+    for r in out["sequences"]:
+        if not r["ok"]:
+            warn(f"{r['name']}: {r['error']}")
+    return out
 
 
 class _bar:
@@ -163,3 +157,6 @@ class _bar:
     def __iter__(self):
         with progress(self.it, self.label, self.quiet) as bar:
             yield from bar
+
+    def __len__(self):
+        return len(self.it)

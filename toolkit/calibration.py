@@ -456,6 +456,27 @@ def _std_intrinsics(model, n_coef, opts, K, cov_i):
 
 
 # ---------------------------------------------------------------------- the driver
+def _single_threaded(fn):
+    """Run OpenCV single-threaded inside `fn`: its multithreaded calibration reduces in a
+    varying order and differs between runs in the last digits; one thread is
+    bit-reproducible (and no slower here)."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        import cv2
+
+        n = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            cv2.setNumThreads(n)
+
+    return wrapper
+
+
+@_single_threaded
 def calibrate(detections, board, image_size, model="opencv", coefficients=None, *, fix_aspect=False,
               fix_principal_point=False, zero_tangent=False, min_corners=6, min_views=3,
               outlier_view_sigma=4.0, outlier_corner_sigma=5.0, max_rounds=20):

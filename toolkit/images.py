@@ -142,9 +142,22 @@ class ImageSource:
             yield from self._iter_files()
 
     def _read(self, path):
+        return self._read_path(path, self.gray)
+
+    def refs(self):
+        """The frames without decoding image files: Frame(name, index, image=None, path)
+        (video frames are decoded, a stream has no random access). For `parallel.map_frames`."""
+        if self.kind == "video":
+            yield from self
+            return
+        for i, p in enumerate(self.paths):
+            yield Frame(p.name, i, None, None, str(p))
+
+    @staticmethod
+    def _read_path(path, gray=False):
         import cv2
 
-        flags = cv2.IMREAD_GRAYSCALE if self.gray else cv2.IMREAD_UNCHANGED
+        flags = cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_UNCHANGED
         try:
             data = np.fromfile(str(path), dtype=np.uint8)
         except OSError as e:

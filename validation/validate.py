@@ -32,12 +32,14 @@ from pencilcal.toolkit.estimator import crlb
 from pencilcal.toolkit.frames import angle_between, normalize
 from pencilcal.toolkit.images import check_image_size
 from pencilcal.toolkit.orient import MODELS, orient_segments
+from pencilcal.toolkit.parallel import map_frames
 
 from .align import align_rotations
 from .metrics import coverage, normal_error_deg, rotation_error_deg, summary
 from .pnp import METHODS, best_method, estimate_all, frame_record
 
-__all__ = ["validate_sequence", "frame_errors", "summarise", "reproducibility", "FanLines"]
+__all__ = ["validate_sequence", "validate_path", "validate_many", "find_sequences", "sequence_files", "frame_errors",
+           "summarise", "reproducibility", "FanLines", "GridLines"]
 
 
 class FanLines:
@@ -310,9 +312,32 @@ def _sfm(source, camera, frames, workdir, warn, quiet, progress):
     return info
 
 
+class _Sized:
+    """An iterator with a length (for progress bars)."""
+
+    def __init__(self, it, n):
+        self.it, self.n = it, n
+
+    def __iter__(self):
+        return iter(self.it)
+
+    def __len__(self):
+        return self.n
+
+
+def _frame_task(frame, ctx):
+    """One frame's validation record (module level: runs in worker processes too)."""
+    camera, board, lines_source, models, methods, truth, keep_pixels = ctx
+    try:
+        rec, _ = _process(frame, camera, board, lines_source, models, methods, truth, keep_pixels)
+    except EstimationError as e:
+        rec = {"image": frame.name, "ok": False, "error": str(e)}
+    return rec
+
+
 def validate_sequence(source, camera, board, lines_source, *, truth=None, models=MODELS, methods=METHODS,
                       sfm=False, sfm_workdir=None, progress=None, warn=None, quiet=True, keep_pixels=True,
-                      sfm_progress=None):
+                      sfm_progress=None, workers=1):
     """Run orient, every PnP method and optionally SfM on one sequence and compare them.
 
     source: an ImageSource; camera: Camera; board: Board; lines_source: FanLines or GridLines
@@ -321,19 +346,18 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
     models: orient models; methods: PnP methods; sfm: also reconstruct with pycolmap
     (sfm_workdir: where; a temporary folder if None); progress: callable(iterable, label)
     -> iterable; warn: callable(str) for per-frame problems; sfm_progress: callable(stage,
-    done, total) for the reconstruction's stages (validation.sfm.reconstruct).
+    done, total) for the reconstruction's stages (validation.sfm.reconstruct); workers:
+    frames in this many processes (toolkit.parallel.map_frames; same results).
 
     Returns the validation.json dict (numpy arrays inside; write with files.write_json).
     """
     frames = []
-    it = iter(source) if progress is None else progress(source, "validate")
-    for fr in it:
-        try:
-            rec, _ = _process(fr, camera, board, lines_source, models, methods, truth, keep_pixels)
-        except EstimationError as e:
-            rec = {"image": fr.name, "ok": False, "error": str(e)}
+    ctx = (camera, board, lines_source, models, methods, truth, keep_pixels)
+    results = map_frames(_frame_task, source, ctx, workers)
+    it = results if progress is None else progress(_Sized(results, len(source)), "validate")
+    for rec in it:
         if not rec["ok"] and warn is not None:
-            warn(f"{fr.name}: {rec['error']}")
+            warn(f"{rec['image']}: {rec['error']}")
         frames.append(rec)
     if not any(f["ok"] for f in frames):
         raise EstimationError("no frame could be validated (no pencil and no board pose in any frame)")
@@ -348,3 +372,161 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
     out["summary"] = summarise(frames, keys)
     out["frames"] = frames
     return out
+
+
+# --------------------------------------------------------------------------------------
+# a sequence from its paths, and many sequences (locally or on a Dask cluster)
+
+
+def sequence_files(sequence):
+    """(images, files): a `pencilcal simulate` folder's images/ and the camera, board, pencil
+    and truth files beside it; for any other SEQUENCE (folder, glob, video) itself and {}."""
+    p = Path(sequence)
+    if p.is_dir() and (p / "images").is_dir():
+        found = {k: p / n for k, n in (("camera", "camera.json"), ("board", "board.yaml"), ("pencil", "pencil.yaml"),
+                                        ("truth", "truth.json")) if (p / n).is_file()}
+        return p / "images", found
+    return p, {}
+
+
+def read_truth(path):
+    """Truth frames by image name from a truth.json (`pencilcal simulate`)."""
+    from pencilcal.toolkit.files import load_frames
+
+    _, frames = load_frames(path, "truth file", ("image", "R_cam_from_target", "t_cam_from_target"))
+    return {str(f["image"]): f for f, _ in frames}
+
+
+def _has_images(p):
+    from pencilcal.toolkit.images import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS
+
+    return any(q.is_file() and q.suffix.lower() in IMAGE_EXTENSIONS | VIDEO_EXTENSIONS for q in p.iterdir())
+
+
+def find_sequences(path):
+    """The sequence folders inside `path` when it is a folder of sequences (no images of its
+    own; subfolders that are simulate folders or hold images), sorted; else None."""
+    p = Path(path)
+    if not p.is_dir() or (p / "images").is_dir() or _has_images(p):
+        return None
+    subs = sorted(q for q in p.iterdir() if q.is_dir() and ((q / "images").is_dir() or _has_images(q)))
+    return subs or None
+
+
+def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=None, grid_pencil=None, truth=None,
+                  models=MODELS, methods=METHODS, sfm=False, sfm_dir=None, detector="lsd", calibration=None,
+                  workers=1, progress=None, warn=None, quiet=True, sfm_progress=None, argv=None):
+    """Validate one sequence given by paths; returns the whole validation.json dict.
+
+    sequence: folder, glob, video, or a `pencilcal simulate` folder (whose camera, board,
+    pencil and truth files are used for the arguments left None). camera, board, pencil,
+    truth, calibration: file paths; grid_pencil: None, "auto" or (i, j) to use the board's
+    grid lines as the pencil. argv: the command line to record (default sys.argv; a Dask
+    worker's own is meaningless). The other arguments as `validate_sequence`. Module level
+    and paths only, so a Dask worker can run it.
+    """
+    from pencilcal.toolkit.boards import read_board
+    from pencilcal.toolkit.camera_io import camera_to_dict, read_camera
+    from pencilcal.toolkit.files import load_structured
+    from pencilcal.toolkit.grid_pencil import GridPencil
+    from pencilcal.toolkit.images import open_images
+    from pencilcal.toolkit.pencil import read_pencil
+
+    images, found = sequence_files(sequence)
+    camera = camera or found.get("camera")
+    board = board or found.get("board")
+    truth = truth or found.get("truth")
+    if camera is None:
+        raise InputError(f"{sequence}: no camera file (give --camera; SEQUENCE is not a simulate folder)")
+    if board is None:
+        raise InputError(f"{sequence}: no board file (give --board; SEQUENCE is not a simulate folder)")
+    cam = read_camera(camera, camera_id=camera_id)
+    brd = read_board(board)
+    if grid_pencil is not None:
+        grid = GridPencil(brd, None if grid_pencil == "auto" else tuple(grid_pencil))
+        lines = GridLines(grid)
+        pencil_desc = {"grid": "auto" if grid_pencil == "auto" else list(grid_pencil),
+                       "angles_deg": [float(a) for a in np.degrees(grid.angles)]}
+        pencil = None
+    else:
+        pencil = pencil or found.get("pencil")
+        if pencil is None:
+            raise InputError(f"{sequence}: no pencil (give --pencil or --grid-pencil; SEQUENCE is not a simulate folder)")
+        pen = read_pencil(pencil)
+        lines = FanLines(pen, detector)
+        pencil_desc = pen.to_dict()
+    truth_frames = read_truth(truth) if truth else None
+    source = open_images(images)
+    calib = load_structured(calibration, "calibration report") if calibration else None
+    result = validate_sequence(source, cam, brd, lines, truth=truth_frames, models=models, methods=methods, sfm=sfm,
+                               sfm_workdir=sfm_dir, progress=progress, warn=warn, quiet=quiet,
+                               sfm_progress=sfm_progress, workers=workers)
+    inputs = [p for p in (camera, board, pencil, truth, calibration) if p]
+    return {
+        "sequence": str(sequence),
+        "images": str(images),
+        "camera_file": str(camera),
+        "camera": camera_to_dict(cam),
+        "board": brd.to_dict(),
+        "pencil": pencil_desc,
+        "calibration": calib if calib is not None else (cam.meta or None),
+        **result,
+        "reproducibility": reproducibility([str(p) for p in inputs] + [str(p) for p in getattr(source, "paths", [])],
+                                           argv=argv),
+    }
+
+
+def _one(sequence, options):
+    """validate_path for one of many sequences: a failure is a record, not an exception."""
+    try:
+        return {"name": Path(sequence).name, "ok": True, **validate_path(str(sequence), **options)}
+    except (EstimationError, InputError) as e:
+        return {"name": Path(sequence).name, "ok": False, "error": str(e), "sequence": str(sequence)}
+
+
+def validate_many(sequences, options, dask=None, progress=None):
+    """Validate several sequences, locally one after the other or each on a Dask cluster.
+
+    sequences: paths; options: keyword arguments of `validate_path` (plain values); dask:
+    None, or the address of a dask.distributed scheduler ("tcp://host:8786") to which every
+    sequence is sent as one task. progress: callable(done, total). Results are identical
+    either way (the same functions run, in order of `sequences`). Returns the combined
+    validation.json dict: ``sequences`` (each with ``name``, ``ok`` and the validation or
+    ``error``) and ``summary`` pooled over the frames of all sequences.
+    """
+    sequences = [str(s) for s in sequences]
+    options = {"argv": list(sys.argv), **options}
+    if dask is None:
+        results = []
+        for i, s in enumerate(sequences):
+            results.append(_one(s, options))
+            if progress:
+                progress(i + 1, len(sequences))
+    else:
+        try:
+            from distributed import Client, as_completed
+        except ImportError:
+            raise InputError('--dask needs the dask extra: pip install -e ".[dask]"') from None
+        try:
+            client = Client(dask, timeout="15s")
+        except (OSError, TimeoutError) as e:
+            raise InputError(f"{dask}: cannot reach the Dask scheduler ({str(e).splitlines()[0]})") from None
+        with client:
+            futures = [client.submit(_one, s, options, pure=False) for s in sequences]
+            done = 0
+            for _ in as_completed(futures):
+                done += 1
+                if progress:
+                    progress(done, len(sequences))
+            results = client.gather(futures)
+    ok = [r for r in results if r["ok"]]
+    if not ok:
+        raise EstimationError("no sequence could be validated: " + "; ".join(f"{r['name']}: {r['error']}" for r in results))
+    keys = []
+    for r in ok:
+        for k in r["summary"]:
+            if k not in keys:
+                keys.append(k)
+    pooled = summarise([f for r in ok for f in r["frames"]], keys)
+    return {"sequences": results, "summary": pooled, "reference": sorted({r["reference"] for r in ok}),
+            "reproducibility": reproducibility([], argv=options["argv"])}
