@@ -120,23 +120,12 @@ class StageBars:
             self._close()
 
 
-class _Sized:
-    def __init__(self, it, n):
-        self.it, self.n = it, n
-
-    def __iter__(self):
-        return iter(self.it)
-
-    def __len__(self):
-        return self.n
-
-
 def run_frames(source, task, context, workers, label, quiet):
     """Results of ``task(frame, context)`` for every frame of `source`, in order, behind a
     progress bar; with workers > 1 in a process pool (toolkit.parallel.map_frames). `task`
     must be a module-level function."""
-    from pencilcal.toolkit.parallel import map_frames
+    from pencilcal.toolkit.parallel import Sized, map_frames
 
     results = map_frames(task, source, context, workers)
-    with progress(_Sized(results, len(source)), label, quiet) as it:
+    with progress(Sized(results, len(source)), label, quiet) as it:
         yield from it

@@ -26,7 +26,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 from .images import Frame
 
-__all__ = ["map_frames"]
+__all__ = ["map_frames", "Sized"]
 
 
 def _init_worker():
@@ -67,3 +67,16 @@ def map_frames(fn, source, context, workers=1):
                 yield pending.popleft().result()
         while pending:
             yield pending.popleft().result()
+
+
+class Sized:
+    """An iterable with a known length, for progress bars over `map_frames` results."""
+
+    def __init__(self, it, n):
+        self.it, self.n = it, n
+
+    def __iter__(self):
+        return iter(self.it)
+
+    def __len__(self):
+        return self.n

@@ -32,7 +32,7 @@ from pencilcal.toolkit.estimator import crlb
 from pencilcal.toolkit.frames import angle_between, normalize
 from pencilcal.toolkit.images import check_image_size
 from pencilcal.toolkit.orient import MODELS, orient_segments
-from pencilcal.toolkit.parallel import map_frames
+from pencilcal.toolkit.parallel import Sized, map_frames
 
 from .align import align_rotations
 from .metrics import coverage, normal_error_deg, rotation_error_deg, summary
@@ -312,19 +312,6 @@ def _sfm(source, camera, frames, workdir, warn, quiet, progress):
     return info
 
 
-class _Sized:
-    """An iterator with a length (for progress bars)."""
-
-    def __init__(self, it, n):
-        self.it, self.n = it, n
-
-    def __iter__(self):
-        return iter(self.it)
-
-    def __len__(self):
-        return self.n
-
-
 def _frame_task(frame, ctx):
     """One frame's validation record (module level: runs in worker processes too)."""
     camera, board, lines_source, models, methods, truth, keep_pixels = ctx
@@ -354,7 +341,7 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
     frames = []
     ctx = (camera, board, lines_source, models, methods, truth, keep_pixels)
     results = map_frames(_frame_task, source, ctx, workers)
-    it = results if progress is None else progress(_Sized(results, len(source)), "validate")
+    it = results if progress is None else progress(Sized(results, len(source)), "validate")
     for rec in it:
         if not rec["ok"] and warn is not None:
             warn(f"{rec['image']}: {rec['error']}")
