@@ -186,7 +186,8 @@ class ImageSource:
             misses = 0
             n = self._video_count
             while True:
-                ok, img = cap.read()
+                with _quiet_c_stderr():  # libavcodec reports corrupt frames itself
+                    ok, img = cap.read()
                 if not ok or img is None:
                     # a corrupt frame inside the stream: report it and try the next; stop
                     # at the end (or after many misses in a row)
