@@ -77,6 +77,9 @@ _CHI2_2 = -2.0 * np.log(DETECTION_LEVEL)  # chi2 with 2 dof has survival exp(-x/
 # tan 89 deg ~ 57) is, for every lens here, a vertex at infinity: the lines are parallel.
 _MAX_VERTEX = np.tan(np.radians(89.0))
 
+# Up to this many lines a single pencil is fitted on Python floats (toolkit/_single.py).
+_SINGLE_MAX_LINES = 64
+
 # Below this cos(gamma) the closed-form start is treated as edge-on; the LM takes over.
 _MIN_COS = np.cos(np.radians(89.5))
 
@@ -125,6 +128,14 @@ class PencilFit:
     iterations: int
     ambiguous: np.ndarray
     resolved_by: str | None = None
+
+    def _with_residuals(self, keep):
+        """The residuals spread back over all N input lines (0 where the weight was 0)."""
+        if keep.all():
+            return self
+        full = np.zeros(keep.shape)
+        full[keep] = self.residuals
+        return replace(self, residuals=full)
 
 
 # ----------------------------------------------------------------------------------------
@@ -634,6 +645,17 @@ def fit_pencil(line_angles, spoke_angles, vertex, sigma=np.radians(0.1), vertex_
     if np.any(used < 3):
         raise EstimationError(f"a pencil needs at least three lines, got {int(used.min())}")
     check_vertex(x)
+    if batch == () and a.shape[-1] <= _SINGLE_MAX_LINES:
+        # one pencil: the same arithmetic on Python floats is several times faster than
+        # hundreds of tiny numpy calls (toolkit/_single.py, held equal by the tests)
+        from ._single import fit_one
+
+        keep = m[0]
+        try:
+            return PencilFit(**fit_one(a[0][keep].tolist(), th[0][keep].tolist(), x[0], s[0][keep].tolist(), oriented,
+                                       max_iter, 1e-9, vertex_cov, _MIN_COS, _CHI2_2))._with_residuals(keep)
+        except ValueError:
+            raise EstimationError("the lines do not determine a pencil: fewer than three distinct directions") from None
     ct, st = np.cos(th), np.sin(th)
     C = _spoke_matrix(ct, st)
     Q = _virtual_rotation(x)

@@ -290,3 +290,36 @@ class TestBadInput:
     def test_bad_sigma(self):
         with pytest.raises(InputError, match="sigma"):
             fit_pencil([0.1, 0.5, 0.9], [0.0, 0.4, 0.8], [0.0, 0.0], sigma=0.0)
+
+
+class TestSinglePencilPath:
+    """One pencil is fitted on Python floats (toolkit/_single.py); it must agree with the
+    batched numpy path on every field."""
+
+    def test_agrees_with_batched(self, rng):
+        for trial in range(60):
+            N = int(rng.integers(3, 13))
+            vertex = rng.uniform(-0.5, 0.5, 2)
+            R = pose(vertex, np.radians(rng.uniform(0, 80)), rng.uniform(0, 6.3), rng.uniform(0, 6.3))
+            th = np.sort(rng.uniform(0, 2 * np.pi, N))
+            a = image_angles(R, vertex, th) + np.radians(0.1) * rng.normal(size=N)
+            s = np.radians(rng.uniform(0.05, 0.3, N))
+            cov = np.diag(rng.uniform(1e-7, 1e-5, 2)) if trial % 2 else None
+            one = fit_pencil(a, th, vertex, sigma=s, vertex_cov=cov)
+            two = fit_pencil(a[None], th, vertex[None], sigma=s[None], vertex_cov=None if cov is None else cov[None])
+            for field in ("R_cam_from_target", "R_twin", "tilt", "tilt_sigma", "normal_sigma", "cov", "residuals",
+                          "rms", "chi2", "chi2_frontal"):
+                np.testing.assert_allclose(getattr(one, field), getattr(two, field)[0], rtol=1e-6, atol=1e-9,
+                                           err_msg=field)
+            assert bool(one.detectable) == bool(two.detectable[0])
+
+    def test_missing_lines_and_degenerate(self):
+        th = np.radians([0.0, 30, 60, 90, 120])
+        a = np.radians([1.0, 31, 62, 88, 121])
+        w = np.array([1, 1, 0, 1, 1])
+        one = fit_pencil(a, th, [0.0, 0.0], weights=w)
+        two = fit_pencil(a[None], th, np.zeros((1, 2)), weights=w[None])
+        np.testing.assert_allclose(one.residuals, two.residuals[0], atol=1e-12)
+        assert one.residuals[2] == 0 and int(one.lines_used) == 4
+        with pytest.raises(EstimationError, match="distinct directions"):
+            fit_pencil([0.3, 0.3, 0.3], [0.0, 0.4, 0.8], [0.0, 0.0])
