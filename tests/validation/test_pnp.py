@@ -202,10 +202,13 @@ def test_covariance_agrees_with_colmap():
         assert np.abs(theirs - ours.cov).max() < 1e-3 * np.abs(ours.cov).max()
 
 
+TILTED = [-0.3, 0.12, 5e-4, 2e-4, -0.02, 0.01, 0.002, 0.001, 1e-3, -1e-3, 2e-3, 1e-4, 0.01, -0.02]
+
+
 @pytest.mark.parametrize("camera", [
-    hd_camera("opencv"), hd_camera("fisheye"),
-    Camera("opencv", 1920, 1080, [[1500.0, 0.4, 955.0], [0, 1498.0, 545.0], [0, 0, 1]],
-           [-0.3, 0.12, 5e-4, 2e-4, -0.02, 0.01, 0.002, 0.001, 1e-3, -1e-3, 2e-3, 1e-4, 0.01, -0.02]),
+    hd_camera("opencv"), hd_camera("fisheye"), hd_camera("pinhole"),
+    Camera("opencv", 1920, 1080, [[1500.0, 0.4, 955.0], [0, 1498.0, 545.0], [0, 0, 1]], TILTED),
+    Camera("opencv", 1920, 1080, [[1500.0, 0, 955.0], [0, 1498.0, 545.0], [0, 0, 1]], TILTED),
 ])
 def test_jacobian_matches_finite_differences(camera):
     X = planar_points()
@@ -224,6 +227,84 @@ def test_jacobian_matches_finite_differences(camera):
         Rm = rotation_about_axis(d[:3], np.linalg.norm(d[:3])) @ R if k < 3 else R
         rm, _, _ = pnp._residuals(camera, X, obs, Rm, t + d[3:], jacobian=False)
         np.testing.assert_allclose(J[:, k], ((rp - rm) / (2 * h)).ravel(), rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("camera", [
+    hd_camera("opencv"), hd_camera("pinhole"), hd_camera("fisheye"),
+    Camera("opencv", 1920, 1080, [[1500.0, 0, 955.0], [0, 1498.0, 545.0], [0, 0, 1]], TILTED),
+    Camera("opencv", 1920, 1080, [[1500.0, 0.4, 955.0], [0, 1498.0, 545.0], [0, 0, 1]], TILTED[:8]),
+])
+def test_residuals_are_the_camera_projection(camera):
+    """The residuals (cv2.projectPoints for opencv/pinhole without skew, Camera otherwise)
+    are Camera.project's; points behind the camera give NaN residuals and Jacobian rows."""
+    X = planar_points()
+    R = rotation_about_axis([1.0, 0.3, 0.2], 0.5)
+    t = np.array([-100.0, -60.0, 400.0])
+    obs = camera.project(X @ R.T + t) + 0.3
+    r, J, front = pnp._residuals(camera, X, obs, R, t)
+    assert front.all() and np.all(np.isfinite(J))
+    np.testing.assert_allclose(r, camera.project(X @ R.T + t) - obs, rtol=0, atol=1e-9)
+    t_behind = np.array([-100.0, -60.0, 0.0])  # some corners behind the camera
+    r, J, front = pnp._residuals(camera, X, obs, R, t_behind)
+    behind = (X @ R.T + t_behind)[:, 2] <= 0
+    assert behind.any() and not behind.all() and np.array_equal(front, ~behind)
+    assert np.all(np.isnan(r[behind])) and np.all(np.isnan(J.reshape(-1, 2, 6)[behind]))
+    assert np.all(np.isfinite(r[~behind]))
+
+
+@pytest.mark.parametrize("camera", [
+    hd_camera("opencv"), hd_camera("pinhole"), hd_camera("fisheye"),
+    Camera("opencv", 1280, 720, [[900.0, 0, 639.5], [0, 902.0, 359.5], [0, 0, 1]],
+           [-0.12, 0.06, 4e-4, -3e-4, -0.012, 0.01, 0.002, 0.001]),
+    # strong barrel distortion: OpenCV's iteration fails in the corners, Camera decides
+    Camera("opencv", 1280, 720, [[600.0, 0, 639.5], [0, 600.0, 359.5], [0, 0, 1]], [-0.6, 0.2, 0, 0, 0]),
+    # a model that folds inside the image: pixels beyond the fold cannot be undistorted
+    Camera("opencv", 1280, 720, [[500.0, 0, 639.5], [0, 500.0, 359.5], [0, 0, 1]], [-0.35, 0.0, 0, 0, 0]),
+])
+def test_undistortion_is_the_cameras(camera):
+    """The undistortion behind the initialisers (OpenCV's iteration, checked) gives
+    Camera.normalized_from_pixels' points, NaN where it has NaN."""
+    rng = np.random.default_rng(4)
+    for px in (rng.uniform([0, 0], camera.size, size=(24, 2)),
+               np.array([[0.0, 0.0], [camera.width - 1.0, camera.height - 1.0], [camera.cx, camera.cy]]),
+               rng.uniform([0, 0], camera.size, size=(400, 2))):
+        ours, ref = pnp._normalized(camera, px), camera.normalized_from_pixels(px)
+        assert np.array_equal(np.isnan(ours), np.isnan(ref))
+        np.testing.assert_allclose(ours, ref, rtol=0, atol=1e-12)
+
+
+def test_refinement_reaches_the_optimum():
+    """From a start 3 deg and 5 % off, the refinement stops at the least-squares optimum:
+    the gradient J^T r vanishes to round-off, and a second refinement does not move it."""
+    cam, X, R, t, u = simple_scene()
+    u = u + 0.3 * np.random.default_rng(8).normal(size=u.shape)
+    R0 = rotation_about_axis([0.3, 1.0, 0.2], np.radians(3.0)) @ R
+    R1, t1, its = pnp.refine_pose(cam, X, u, R0, 1.05 * t)
+    assert 1 <= its < 20 and np.allclose(R1 @ R1.T, np.eye(3), atol=1e-15)
+    r, J, _ = pnp._residuals(cam, X, u, R1, t1)
+    g = J.T @ r.ravel()
+    assert np.linalg.norm(g) < 1e-9 * np.linalg.norm(J) * np.linalg.norm(r)
+    R2, t2, _ = pnp.refine_pose(cam, X, u, R1, t1)
+    assert rotation_angle(R1, R2) < 1e-10 and np.linalg.norm(t2 - t1) < 1e-9 * np.linalg.norm(t1)
+
+
+def test_a_clearly_worse_twin_is_ruled_out_at_its_start():
+    """Where perspective resolves the twin (its start reprojects > 10 times worse than the
+    pose) it is not refined: its start's RMS and angle are recorded, an upper bound."""
+    cam, X, R, t, u = simple_scene()
+    u = u + 0.2 * np.random.default_rng(6).normal(size=u.shape)
+    res = estimate_pose(X, u, cam, "sqpnp")
+    twin_R, twin_t = pnp._planar_twin(X, res.R_cam_from_target, res.t_cam_from_target)
+    twin_rms = np.sqrt(np.mean(np.sum((cam.project(X @ twin_R.T + twin_t) - u) ** 2, 1)))
+    assert twin_rms > pnp._TWIN_RULED_OUT * res.reproj_rms_px
+    assert res.alternative_rms_px == pytest.approx(twin_rms, rel=1e-9)
+    assert res.alternative_angle_deg == pytest.approx(np.degrees(rotation_angle(twin_R, res.R_cam_from_target)),
+                                                      rel=1e-9)
+    # refining that twin would have lowered its RMS, never below the pose's
+    R2, t2, _ = pnp.refine_pose(cam, X, u, twin_R, twin_t)
+    refined = np.sqrt(np.mean(np.sum((cam.project(X @ R2.T + t2) - u) ** 2, 1)))
+    assert res.reproj_rms_px - 1e-9 <= refined <= res.alternative_rms_px
+    assert not res.flipped
 
 
 # ---------------------------------------------------------------------- method details
