@@ -20,9 +20,44 @@ from pencilcal.validation.pnp import (
     write_poses,
 )
 
-from .common import camera_options, check_output, force_option, output_option, progress, quiet_option, run, warn
+from .common import (camera_options, check_output, force_option, output_option, quiet_option, run, run_frames, warn,
+                     workers_option)
 
 _MIN_CORNERS_FLOOR = 4
+
+
+def _pnp_task(frame, ctx):
+    """(poses.json record, warnings) of one frame (module level: runs in worker processes
+    too; the warnings are printed by the parent, in frame order)."""
+    camera, board, method, refine, corner_sigma, max_rms, min_corners = ctx
+    label = "all" if method == "all" else method
+    if frame.image is None:
+        return empty_frame_record(frame.name, frame.error, method=label), [f"{frame.name}: {frame.error}"]
+    check_image_size(frame, camera)
+    det = detect_board(frame.image, board)
+    if det.count < min_corners:
+        err = "no board corners found" if det.count == 0 else \
+            f"only {det.count} board corners found (--min-corners {min_corners})"
+        return (empty_frame_record(frame.name, err, method=label, corners=det.count, ids=det.ids),
+                [f"{frame.name}: {err}"])
+    X = board.object_points()[det.ids]
+    warnings = []
+    if method == "all":
+        results = estimate_all(X, det.corners, camera, refine=refine, corner_sigma_px=corner_sigma,
+                               max_rms_px=max_rms)
+        best = best_method(results)
+        rec = frame_record(frame.name, results[best or DEFAULT_METHOD], ids=det.ids, methods=results)
+        if best is None:
+            rec["error"] = "no method gave a pose: " + "; ".join(r.error for r in results.values())
+        else:
+            warnings += [f"{frame.name}: {r.error}" for r in results.values() if not r.ok]
+    else:
+        res = estimate_pose(X, det.corners, camera, method, refine=refine, corner_sigma_px=corner_sigma,
+                            max_rms_px=max_rms)
+        rec = frame_record(frame.name, res, ids=det.ids)
+    if not rec["ok"]:
+        warnings.append(f"{frame.name}: {rec['error']}")
+    return rec, warnings
 
 
 @click.command()
@@ -42,11 +77,12 @@ _MIN_CORNERS_FLOOR = 4
               help="Reject a pose whose reprojection RMS exceeds this [px] (a wrong local minimum or a wrong camera).")
 @click.option("--refine/--no-refine", default=True, show_default=True,
               help="LM refinement of every method's pose on the raw-pixel reprojection error.")
+@workers_option
 @force_option
 @quiet_option
 @run
 def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma, min_corners, max_rms, refine,
-        force, quiet):
+        workers, force, quiet):
     """Pose of a calibration board in every frame (poses.json).
 
     Detects the board's corners (ChArUco or chessboard), estimates R_cam_from_target and
@@ -72,42 +108,13 @@ def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma
     camera = read_camera(camera_path, camera_id=camera_id)
     board = read_board(board_path)
     source = open_images(images)
-    object_points = board.object_points()
     label = "all" if method == "all" else method
     records = []
-    with progress(source, "pnp", quiet) as bar:
-        for fr in bar:
-            if fr.image is None:
-                warn(f"{fr.name}: {fr.error}")
-                records.append(empty_frame_record(fr.name, fr.error, method=label))
-                continue
-            check_image_size(fr, camera)
-            det = detect_board(fr.image, board)
-            if det.count < min_corners:
-                err = "no board corners found" if det.count == 0 else \
-                    f"only {det.count} board corners found (--min-corners {min_corners})"
-                warn(f"{fr.name}: {err}")
-                records.append(empty_frame_record(fr.name, err, method=label, corners=det.count, ids=det.ids))
-                continue
-            X = object_points[det.ids]
-            if method == "all":
-                results = estimate_all(X, det.corners, camera, refine=refine, corner_sigma_px=corner_sigma,
-                                       max_rms_px=max_rms)
-                best = best_method(results)
-                rec = frame_record(fr.name, results[best or DEFAULT_METHOD], ids=det.ids, methods=results)
-                if best is None:
-                    rec["error"] = "no method gave a pose: " + "; ".join(r.error for r in results.values())
-                else:
-                    for m, r in results.items():
-                        if not r.ok:
-                            warn(f"{fr.name}: {r.error}")
-            else:
-                res = estimate_pose(X, det.corners, camera, method, refine=refine, corner_sigma_px=corner_sigma,
-                                    max_rms_px=max_rms)
-                rec = frame_record(fr.name, res, ids=det.ids)
-            if not rec["ok"]:
-                warn(f"{fr.name}: {rec['error']}")
-            records.append(rec)
+    ctx = (camera, board, method, refine, corner_sigma, max_rms, min_corners)
+    for rec, warnings in run_frames(source, _pnp_task, ctx, workers, "pnp", quiet):
+        for w in warnings:
+            warn(w)
+        records.append(rec)
     meta = {
         "method": label,
         "methods": list(METHODS) if method == "all" else [method],

@@ -76,3 +76,26 @@ def test_unreachable_scheduler_is_one_line(runs, tmp_path):
     r = CliRunner().invoke(cli, ["validate", str(runs), "--dask", "tcp://127.0.0.1:1", "-o", str(tmp_path / "x.json"), "-q"])
     assert r.exit_code == 1 and "Dask scheduler" in r.output and "Traceback" not in r.output
     assert not (tmp_path / "x.json").exists()
+
+
+@pytest.mark.parametrize("command,extra", [
+    ("pnp", ["--board", "{d}/board.yaml"]),
+    ("lines", ["--bars", "--detector", "fld"]),
+    ("orient", ["--pencil", "{d}/pencil.yaml"]),
+])
+def test_per_frame_commands_give_the_same_output_with_workers(tmp_path_factory, tmp_path, command, extra):
+    """pnp, lines and orient over IMAGES: --workers 2 writes what --workers 1 writes."""
+    d = tmp_path_factory.getbasetemp() / "orbit540"
+    if not d.exists():
+        r = CliRunner().invoke(cli, ["simulate", str(d), "--scenario", "orbit", "--frames", "3", "--seed", "2",
+                                     "--size", "960x540", "-q"])
+        assert r.exit_code == 0, r.output
+    out = {}
+    for w in (1, 2):
+        o = tmp_path / f"{command}{w}.json"
+        args = [command, str(d / "images"), "--camera", str(d / "camera.json"), "-o", str(o), "-q",
+                "--workers", str(w)] + [a.format(d=d) for a in extra]
+        r = CliRunner().invoke(cli, args)
+        assert r.exit_code == 0, r.output
+        out[w] = _strip(json.loads(o.read_text()))
+    assert out[1] == out[2]
