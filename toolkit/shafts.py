@@ -36,10 +36,11 @@ with unsigned edges and judges whole bands:
    Kept: bands with few contradicting stations (`max_background`), whose cross-section
    holds no strip of background (the gap between two instruments), with both edges seen
    along at least half of `min_length` and, with `from_border`, reaching the image border
-   (the margins of a sheet and the rows of a board end inside the view). The score is the
-   length along which the band is seen as a shaft. A band inside a wider one that shares an
-   edge with it or runs along its axis (the strips beside a specular stripe) gives way to it
-   when the wider one is clean and has a highlight.
+   (the margins of a sheet and the rows of a board end inside the view; the gap is measured
+   in raw pixels), or, where no band does, clean ones. The score is the length along which
+   the band is seen as a shaft. A band inside a wider one that shares an edge with it or
+   runs along its axis (the strips beside a specular stripe) gives way to it when the wider
+   one is clean and has a highlight.
 4. *axis*: the edges of the kept bands are measured once more at paired stations across
    the band (at shaft stations only, each edge point optionally corrected for the grey-level
    slopes beside it), each edge is a robust line fit, and the midline is the line through
@@ -595,7 +596,8 @@ def _to_raw_smooth(camera, P, every=4):
 def _band_profiles(img, camera, pr, s, blur_px, n_in=_N_IN):
     """Cross-sections of bands at along positions s (K, S): (K, S, U) grey levels, _N_OUT
     bins beyond edge a (outer first), n_in inside, _N_OUT beyond edge b; valid (K, S) (all
-    bins inside the image, edges not crossed) and valid_in (K, S) (the inside bins are).
+    bins inside the image, edges not crossed), valid_in (K, S) (the inside bins are) and
+    in_img (K, S) (the inside bins are in the image, whether or not the edges have crossed).
 
     Inside, the bins keep max(0.1 w, 2 blur_px) (at most 0.4 w) away from the edges;
     outside they run from 2 blur_px + 1 to that plus max(0.3 w, 4) px beyond them, so that
@@ -623,11 +625,12 @@ def _band_profiles(img, camera, pr, s, blur_px, n_in=_N_IN):
     with np.errstate(invalid="ignore"):
         inside = (X >= 0) & (X <= W - 1) & (Y >= 0) & (Y <= H - 1)
     ok = w > 0
-    valid_in = np.all(inside[..., _N_OUT:_N_OUT + n_in], -1) & ok
+    in_img = np.all(inside[..., _N_OUT:_N_OUT + n_in], -1)
+    valid_in = in_img & ok
     valid = np.all(inside, -1) & ok
     X[~inside] = 0.0
     Y[~inside] = 0.0
-    return img.sample(X, Y), valid, valid_in
+    return img.sample(X, Y), valid, valid_in, in_img
 
 
 def _stations(prof, valid, sig_n, full=True):
@@ -743,7 +746,7 @@ def _assess_bands(img, camera, pr, s, valid_s, sig_n, blur_px, full=True):
     (a first, coarse look) the inside has 8 bins and the background and highlight measures
     are left out."""
     n_in = _N_IN if full else 8
-    prof, valid_e, valid = _band_profiles(img, camera, pr, s, blur_px, n_in)
+    prof, valid_e, valid, in_img = _band_profiles(img, camera, pr, s, blur_px, n_in)
     valid &= valid_s
     st = _stations(prof, valid_e & valid_s, sig_n, full)
     trend, tol = _level_trend(st["I"], s, st["edge"], st["C"], sig_n)
@@ -777,7 +780,7 @@ def _assess_bands(img, camera, pr, s, valid_s, sig_n, blur_px, full=True):
     dark = np.sum(run & shaft & st["dark"], -1) / f >= 0.5
     one_sided = np.sum(run & valid & st["one"], -1) / np.maximum(np.sum(run & valid, -1), 1)
     return dict(one_sided=one_sided, trend=trend, tol=tol, lvl_ok=lvl_ok, shape_ok=shape_ok, i=i, j=j, best=best, n_shaft=n_sh, contra=n_x / np.maximum(n_v, 1), bg=bg, glare=glare,
-                dark=dark, shaft=shaft, valid=valid, st=st)
+                dark=dark, shaft=shaft, valid=valid, in_img=in_img & valid_s, st=st)
 
 
 def _chord_assess(img, camera, pr, polygon, sig_n, blur_px, border_px, max_stations, min_step=0.0, full=True):
@@ -798,10 +801,17 @@ def _chord_assess(img, camera, pr, polygon, sig_n, blur_px, border_px, max_stati
     q = _assess_bands(img, camera, pr, s, jj[None, :] < cnt[:, None], sig_n, blur_px, full)
     rows = np.arange(pr.a.size)
     lo_run, hi_run = s[rows, q["i"]], s[rows, q["j"]]
-    vs = q["valid"]
+    vs = q["in_img"]  # the image border, not where the edges would cross
     first = np.argmax(vs, 1)
     last = S - 1 - np.argmax(vs[:, ::-1], 1)
-    touch = (lo_run - s[rows, first] <= border_px) | (s[rows, last] - hi_run <= border_px)
+    # the gaps between the run's ends and the last stations seen, in raw pixels: border_px
+    # is a distance in the image, and a lens that compresses its periphery (a fisheye)
+    # stretches it in undistorted pixels by half or more
+    along = np.stack([lo_run, s[rows, first], hi_run, s[rows, last]], -1)  # (K, 4)
+    pts = _to_raw_pts(camera, pr.O[:, None, :] + along[..., None] * pr.D[:, None, :])
+    gap = np.linalg.norm(pts[:, 0::2] - pts[:, 1::2], axis=-1)  # (K, 2)
+    gap = np.where(np.isfinite(gap), gap, np.abs(along[:, 0::2] - along[:, 1::2]))
+    touch = np.any(gap <= border_px, -1)
     return q, s, step, lo_run, hi_run, touch
 
 
@@ -1331,7 +1341,11 @@ def detect_shafts(image, camera=None, *, detector="lsd", min_length=None, width_
         _DEBUG.update(n_pre=pr.a.size, n_cand=cand.size)
     if cand.size == 0:
         return []
-    cand = cand[np.lexsort((-score[cand], ~touch[cand]))][:16]
+    # the best 16, those that enter from the border first, and always the best few that do
+    # not: where none of the former holds up, they are what the from_border fallback judges
+    # (an instrument whose back end is in view: a short one, a wide-angle lens)
+    cand = cand[np.lexsort((-score[cand], ~touch[cand]))]
+    cand = np.concatenate([cand[:16], cand[16:][~touch[cand[16:]]][:4]])
     pr = pr.take(cand)
     q, s, step, lo_run, hi_run, touch = _chord_assess(img, camera, pr, poly, sig_n, sigma_px, border_px, 300,
                                                       min_step=5.0)
@@ -1372,21 +1386,29 @@ def detect_shafts(image, camera=None, *, detector="lsd", min_length=None, width_
         if np.any(ok & touch):
             ok &= touch
         else:
-            # none enters from the border (the instrument's back end is in view, or its near
-            # part is hidden): only a clean band will do
-            ok &= (q["bg"] <= 0.1) & (q["contra"] <= 0.1) & (q["one_sided"] <= 0.5 * _MAX_ONE_SIDED)
+            # none enters from the border (the instrument's back end is in view: a short one, a
+            # wide-angle lens; or its near part is hidden): only a clean band will do, with
+            # little background or contradiction inside. Its one-sided stations count as for
+            # any band: they tell what lies beside a shaft (on a textured table up to 0.3 of
+            # them for shafts that do enter from the border), not where the shaft begins
+            ok &= (q["bg"] <= 0.1) & (q["contra"] <= 0.1) & (q["one_sided"] <= _MAX_ONE_SIDED)
     if not np.any(ok):
         return []
     # one band found from several pairs of pieces of its edges: the best one stays
+    # (the others stand by: where the axis of the best cannot be measured, its pieces of
+    # edges being too short to extrapolate, the next one is measured instead)
     order = np.argsort(-np.where(ok, score, -np.inf), kind="stable")
+    alts = {}
     for ii, k in enumerate(order):
         if not ok[k]:
             continue
+        alts[k] = [k]
         for k2 in order[ii + 1:]:
             if ok[k2] and abs(float(pr.N[k] @ cq[k2] + pr.C[k])) < 0.25 * pr.width[k] + 1.0 \
                     and abs(float(pr.D[k] @ pr.D[k2])) > np.cos(np.radians(2.0)) \
                     and abs(pr.width[k2] - pr.width[k]) < 0.25 * pr.width[k] + 2.0:
                 ok[k2] = False
+                alts[k].append(k2)
     if _DEBUG is not None:
         _DEBUG.update(ok=ok.copy(), nested=nested, score=score)
     # best first, each edge in one shaft
@@ -1403,7 +1425,8 @@ def detect_shafts(image, camera=None, *, detector="lsd", min_length=None, width_
     # 4. the axis of each
     reach = search_px + 3.0 * sigma_px + 2.5 + 3.0 * sigma_px
     out = []
-    for k in chosen:
+
+    def measure(k):
         sk, shk = s[k], q["shaft"][k]
 
         def shaft_at(sv, sk=sk, shk=shk):
@@ -1412,8 +1435,14 @@ def detect_shafts(image, camera=None, *, detector="lsd", min_length=None, width_
 
         wide = min(abs(float(_signed_width(pr.take(np.array([k])), np.array([lo_run[k]]))[0])),
                    abs(float(_signed_width(pr.take(np.array([k])), np.array([hi_run[k]]))[0]))) > 2 * reach
-        m = _measure_axis(img, camera, pr, k, lo_run[k], hi_run[k], shaft_at, search_px, sigma_px,
-                          slope_correction and wide)
+        return _measure_axis(img, camera, pr, k, lo_run[k], hi_run[k], shaft_at, search_px, sigma_px,
+                             slope_correction and wide)
+
+    for k0 in chosen:
+        for k in alts[k0]:
+            m = measure(k)
+            if m is not None:
+                break
         if m is None:
             continue
         one = m["pair"]

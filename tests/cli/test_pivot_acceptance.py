@@ -19,7 +19,7 @@ def _angle_deg(a, b):
     return float(np.degrees(np.arccos(np.clip(abs(np.dot(a, b)), 0.0, 1.0))))
 
 
-@pytest.mark.parametrize("model,seed,min_frames", [("opencv", 2, 11), ("pinhole", 1, 11), ("fisheye", 3, 6)])
+@pytest.mark.parametrize("model,seed,min_frames", [("opencv", 2, 12), ("pinhole", 1, 12), ("fisheye", 3, 12)])
 def test_fulcrum_from_pivot_images(tmp_path, model, seed, min_frames):
     out = tmp_path / "pivot"
     r = CliRunner().invoke(cli, ["simulate", str(out), "--scenario", "pivot", "--frames", "12", "--seed", str(seed),
