@@ -898,9 +898,8 @@ class _RefitState:
     search: float
     res: dict
 
-    def fit(self, idx=None):
-        keys = [f.name for f in fields(_Fit)]
-        return _Fit(**{k: (self.res[k] if idx is None else self.res[k][idx]) for k in keys})
+    def fit(self):
+        return _Fit(**{f.name: self.res[f.name] for f in fields(_Fit)})
 
 
 def _refit_start(img, lines, camera=None, *, search=2.0, extend=8.0, sigma_px=1.0, step_px=2.0, max_gap_px=30.0,
