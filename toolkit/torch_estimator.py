@@ -8,12 +8,11 @@ where numpy's LM stops on its relative-cost test; tests/toolkit/test_torch_estim
 
 1. Closed-form start in the virtual camera that looks along the vertex ray: a batched
    DLT of the 2x2 matrix A in ``(cos b_k, sin b_k) ~ A (cos theta_k, sin theta_k)``
-   (``torch.linalg.eigh`` of the 4x4 normal matrix), the analytic signed 2x2 SVD, and
-   cos(gamma) = s2 / s1 (GEOMETRY.md, "The exact estimator").
-2. Levenberg-Marquardt on wrapped, weighted line residuals (period pi, the rule of
-   `angles.wrap_line`), with left perturbations ``R <- expm([delta]x) R`` (rotation
-   vectors converted by kornia), per-pencil damping and masks; converged pencils leave
-   the working set, so stragglers do not make everybody iterate.
+   (null vector of the 4x4 normal matrix by inverse iteration), the analytic signed 2x2
+   SVD, and cos(gamma) = s2 / s1 (GEOMETRY.md, "The exact estimator").
+2. Levenberg-Marquardt on wrapped, weighted line residuals (period pi), with left
+   perturbations ``R <- expm([delta]x) R`` (Rodrigues), per-pencil damping and masks;
+   converged pencils leave the working set, so stragglers do not make everybody iterate.
 3. Covariance (J^T W J)^-1 with the vertex covariance carried in, tilt and normal sigma.
 4. Frontal likelihood-ratio test (chi-square, 2 dof, level `estimator.DETECTION_LEVEL`)
    for ``detectable``; the twin ``R' = Rot(v_d, pi) R Rot(z, pi)``, ordered as numpy
@@ -32,8 +31,17 @@ Three things differ from numpy on purpose:
 - ``strict=False`` fits what can be fitted and marks the rest (``ok`` False, NaN fields)
   instead of raising for the whole batch.
 - Lines that do not determine a pencil (fewer than three distinct directions) are
-  caught when the second-smallest eigenvalue of the DLT matrix is below 1e-12 of the
-  largest; numpy's 1e-20 lies below rounding and catches them only by luck of sign.
+  caught when the second-smallest eigenvalue of the DLT matrix is below 1e-12 of its
+  trace (numpy: of its largest eigenvalue; the two differ by at most 4x, far from any
+  pencil that is nearly degenerate without being so).
+- The last LM step, once below `tol`, is taken without evaluating the model after it
+  (numpy evaluates it and stops); the result moves by less than `tol`.
+
+Speed comes from the layout, not from cleverness in the algebra: per-line tensors are
+lines-major (N, B), per-pencil 3x3 and 4x4 algebra is written out on (B,) tensors, and
+nothing in the loop calls a batched small matmul, ``torch.linalg.eigh`` or a general
+rotation conversion (kornia's, tried first, cost as much per call as a whole model
+evaluation; measured in docs/performance.md). kornia does the lens undistortion.
 
 Angles are radians, image angles in normalised camera coordinates (z = 1 plane, after
 undistortion); `segment_angles_torch` turns raw pixel segments of OpenCV-model cameras into
@@ -175,84 +183,71 @@ def wrap_line_torch(angle):
 
 
 # ----------------------------------------------------------------------------------------
-# model, written out on (B, N) tensors (no small matmuls: they are slow in batches)
+# the fit of one chunk, lines-major
+#
+# Per-line tensors are (N, B) ("lines-major"): the per-pencil sums of the normal equations
+# run over the leading dimension, which torch does as contiguous vector adds (sums over a
+# short last dimension cost twice as much). Per-pencil quantities are (B,) tensors and
+# small matrices are written out entry by entry: batched 3x3 and 4x4 matmuls, torch.where
+# on (N, B) and torch.linalg.eigh on 4x4 cost 10-50x the arithmetic they do (measured,
+# torch 2.13 CPU). The LM keeps only the first two columns of R (the model needs no more);
+# the third is their cross product at the end.
 
 
-def _model(R, x0, x1, ct, st, jac=True):
-    """Image angles (B, N) and, with `jac`, d alpha/d delta (3 x (B, N)) and d alpha/d
-    vertex (2 x (B, N)) for R (B, 3, 3), vertex columns x0, x1 (B, 1), spokes ct, st."""
-    dx = R[:, 0, 0, None] * ct + R[:, 0, 1, None] * st
-    dy = R[:, 1, 0, None] * ct + R[:, 1, 1, None] * st
-    dz = R[:, 2, 0, None] * ct + R[:, 2, 1, None] * st
-    wx = dx - x0 * dz
-    wy = dy - x1 * dz
-    import torch
-
-    alpha = torch.atan2(wy, wx)
-    if not jac:
-        return alpha, None, None
-    inv = 1.0 / (wx * wx + wy * wy)
-    gx = -wy * inv
-    gy = wx * inv
-    u2 = -(gx * x0 + gy * x1)
-    J = (dy * u2 - dz * gy, dz * gx - dx * u2, dx * gy - dy * gx)
-    Jx = (-dz * gx, -dz * gy)
-    return alpha, J, Jx
+def _cross(a, b):
+    """a x b for 3-tuples of tensors."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
-def _virtual_rotation(torch, x0, x1):
-    """Q (B, 3, 3) with Q (x, y, 1) ~ (0, 0, 1): estimator._virtual_rotation in torch."""
+def _virtual_rows(torch, x0, x1):
+    """Rows of Q (3-tuples of (B,)) with Q (x, y, 1) ~ (0, 0, 1): estimator._virtual_rotation."""
     n = torch.sqrt(1.0 + x0 * x0 + x1 * x1)
     vx, vy, c = x0 / n, x1 / n, 1.0 / n
     kx, ky = vy, -vx
     f = 1.0 / (1.0 + c)
-    one = torch.ones_like(c)
-    rows = [
-        [one - f * ky * ky, f * kx * ky, ky],
-        [f * kx * ky, one - f * kx * kx, -kx],
-        [-ky, kx, c],
-    ]
-    return torch.stack([torch.stack(r, -1) for r in rows], -2)
+    fxy = f * kx * ky
+    return ((1.0 - f * ky * ky, fxy, ky), (fxy, 1.0 - f * kx * kx, -kx), (-ky, kx, c))
 
 
-def _zxz(torch, phi, cos_g, sin_g, theta):
-    """Rz(phi) Rx(gamma) Rz(theta) for (B,) tensors, written out."""
-    cp, sp, ct, st = torch.cos(phi), torch.sin(phi), torch.cos(theta), torch.sin(theta)
-    rows = [
-        [cp * ct - sp * cos_g * st, -cp * st - sp * cos_g * ct, sp * sin_g],
-        [sp * ct + cp * cos_g * st, -sp * st + cp * cos_g * ct, -cp * sin_g],
-        [sin_g * st, sin_g * ct, cos_g],
-    ]
-    return torch.stack([torch.stack(r, -1) for r in rows], -2)
+def _directions(torch, c0, c1, ct, st):
+    """Spoke directions R (cos t, sin t, 0) in the camera: 3-tuple of (N, B)."""
+    return tuple(torch.addcmul(ct * c0[i], st, c1[i]) for i in range(3))
 
 
-def _closed_form(torch, bx, by, ct, st, w, Q, oriented, low_precision):
-    """Batched DLT + analytic signed SVD; returns (R0 (B, 3, 3), bad (B,) bool)."""
-    nb = torch.sqrt(bx * bx + by * by)
-    cb, sb = bx / nb, by / nb
-    sw = torch.sqrt(w)
-    rows = torch.stack(torch.broadcast_tensors(sb * ct * sw, sb * st * sw, -cb * ct * sw, -cb * st * sw), -1)
-    M = rows.transpose(-1, -2) @ rows
-    evals, evecs = torch.linalg.eigh(M)
-    # a unique pencil needs a one-dimensional null space. Rounding leaves the second
-    # eigenvalue of a degenerate M at ~1e-16 (float32: ~1e-7) of the largest, of either
-    # sign: numpy's 1e-20 catches it only when the rounding happens to be negative
-    bad = evals[:, 1] <= (1e-6 if low_precision else 1e-12) * evals[:, 3]
-    h = evecs[:, :, 0]
-    a, b, c, d = h[:, 0], h[:, 1], h[:, 2], h[:, 3]
-    if oriented:
-        agree = (w * ((a[:, None] * ct + b[:, None] * st) * cb + (c[:, None] * ct + d[:, None] * st) * sb)).sum(-1)
-        sgn = torch.where(agree < 0, -1.0, 1.0).to(a.dtype)
-        a, b, c, d = a * sgn, b * sgn, c * sgn, d * sgn
-    E, F, G, H = (a + d) / 2, (a - d) / 2, (c + b) / 2, (c - b) / 2
-    q, r = torch.hypot(E, H), torch.hypot(F, G)
-    a1, a2 = torch.atan2(G, F), torch.atan2(H, E)
-    theta0, phi = (a2 - a1) / 2, (a2 + a1) / 2
-    tiny = torch.finfo(q.dtype).tiny
-    cos_g = torch.clamp((q - r) / torch.clamp(q + r, min=tiny), min=float(_MIN_COS), max=1.0)
-    sin_g = torch.sqrt(1.0 - cos_g * cos_g)
-    R = Q.transpose(-1, -2) @ _zxz(torch, phi, cos_g, sin_g, theta0)
-    return R, bad
+def _angles(torch, d, x0, x1):
+    """Image vectors (wx, wy) of the lines through the vertex, and their angles alpha."""
+    wx = torch.addcmul(d[0], d[2], x0, value=-1.0)
+    wy = torch.addcmul(d[1], d[2], x1, value=-1.0)
+    return wx, wy, torch.atan2(wy, wx)
+
+
+def _line_residual(torch, a, alpha):
+    """a - alpha wrapped to [-pi/2, pi/2] by rounding (the LM's own; ties at exactly pi/2 are
+    immaterial there, and torch.remainder costs 10x). Outputs use wrap_line_torch."""
+    d = a - alpha
+    return torch.sub(d, torch.round(d * (1.0 / math.pi)), alpha=math.pi)
+
+
+def _rot_jacobian(torch, d, wx, wy, x0, x1):
+    """d alpha / d delta for left perturbations R <- expm([delta]x) R, as p * (K0, K1, K2)
+    with p = 1 / |w|^2 (the factor is kept apart: the normal equations need p^2 only)."""
+    p = torch.reciprocal(torch.addcmul(wx * wx, wy, wy))
+    e = torch.addcmul(wy * x0, wx, x1, value=-1.0)
+    K0 = torch.addcmul(d[1] * e, d[2], wx, value=-1.0)
+    K1 = torch.addcmul(d[2] * wy, d[0], e).neg_()
+    K2 = torch.addcmul(d[0] * wx, d[1], wy)
+    return p, (K0, K1, K2)
+
+
+def _normal_equations(torch, p, K, w, res):
+    """H = sum w J J^T (6 entries h00 h01 h02 h11 h12 h22) and g = sum w J res, (B,) each."""
+    q = w * p * p
+    qK = [q * k for k in K]
+    H = ((qK[0] * K[0]).sum(0), (qK[0] * K[1]).sum(0), (qK[0] * K[2]).sum(0),
+         (qK[1] * K[1]).sum(0), (qK[1] * K[2]).sum(0), (qK[2] * K[2]).sum(0))
+    wpr = w * p * res
+    g = tuple((wpr * k).sum(0) for k in K)
+    return H, g
 
 
 def _sym3_solve(h00, h01, h02, h11, h12, h22, g0, g1, g2):
@@ -272,93 +267,210 @@ def _sym3_solve(h00, h01, h02, h11, h12, h22, g0, g1, g2):
     return z0, z1, z2
 
 
-def _refine(torch, kornia, R, a, ct, st, x0, x1, sw, max_iter, tol, low_precision):
-    """LM of estimator.refine_pencil on one chunk; returns (R, cost, converged, nit, it)."""
-    B = R.shape[0]
-    dev, dt = R.device, R.dtype
-    rot = kornia.geometry.conversions.axis_angle_to_rotation_matrix
+def _rotate(torch, s, c):
+    """expm([s]x) c for a rotation vector s and a vector c (3-tuples of (B,)), by Rodrigues
+    with sin(t)/t and (1 - cos t)/t^2 from torch.sinc (exact at t = 0)."""
+    t = torch.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2])
+    A = torch.sinc(t * (1.0 / math.pi))
+    h = torch.sinc(t * (0.5 / math.pi))
+    Bc = 0.5 * h * h
+    u = _cross(s, c)
+    v = _cross(s, u)
+    return tuple(c[i] + A * u[i] + Bc * v[i] for i in range(3))
+
+
+def _ldl_factor(A, n):
+    """LDL^T of symmetric n x n matrices given as A[i][j] ((B,) tensors, i >= j used):
+    returns (L, 1/D) with L[(i, j)] for i > j."""
+    L, Dinv, D = {}, [], []
+    for j in range(n):
+        dj = A[j][j] - sum(L[(j, k)] * L[(j, k)] * D[k] for k in range(j))
+        D.append(dj)
+        Dinv.append(1.0 / dj)
+        for i in range(j + 1, n):
+            L[(i, j)] = (A[i][j] - sum(L[(i, k)] * L[(j, k)] * D[k] for k in range(j))) * Dinv[j]
+    return L, Dinv
+
+
+def _ldl_solve(L, Dinv, b):
+    n = len(b)
+    y = []
+    for i in range(n):
+        y.append(b[i] - sum(L[(i, k)] * y[k] for k in range(i)))
+    x = [None] * n
+    for i in reversed(range(n)):
+        x[i] = y[i] * Dinv[i] - sum(L[(k, i)] * x[k] for k in range(i + 1, n))
+    return x
+
+
+def _normalised(torch, x):
+    return [xi * torch.rsqrt(sum(xj * xj for xj in x)) for xi in x]
+
+
+def _smallest_eigenpair4(torch, M, iterations=4):
+    """The eigenvector of the smallest eigenvalue of symmetric positive semi-definite 4x4
+    matrices, and a test for a two-dimensional null space, by inverse iteration, written out.
+
+    M: 4 x 4 nested lists of (B,) tensors. Returns (h: 4 (B,) tensors, unit; lam2_bound (B,),
+    an upper bound of the second-smallest eigenvalue that is tight when that eigenvalue
+    is small; scale (B,), the trace of M).
+
+    Inverse iteration on M + delta I (delta = 1000 eps trace keeps the factorisation finite on
+    singular M without moving eigenvectors) converges by (l1 + delta) / (l2 + delta) per
+    step: ~1e-6 for a noisy pencil, ~1e-12 for an exact one (float64); the LM after it does not need
+    more. Deflating h (M + trace h h^T) and iterating again gives l2 the same way. Batched
+    torch.linalg.eigh of 4x4 costs 20x this (torch 2.13, CPU).
+    """
+    trace = M[0][0] + M[1][1] + M[2][2] + M[3][3]
+    tiny = torch.finfo(trace.dtype).tiny
+    scale = trace.clamp(min=tiny)
+    delta = 1e3 * torch.finfo(trace.dtype).eps * scale
+    Ms = [[M[i][j] + delta if i == j else M[i][j] for j in range(4)] for i in range(4)]
+    L, Dinv = _ldl_factor(Ms, 4)
+    one = torch.ones_like(trace)
+    # start from a fixed generic direction (no exact zero component along any axis)
+    x = _normalised(torch, [one, 0.7 * one, -0.5 * one, 0.3 * one])
+    for _ in range(iterations):
+        x = _normalised(torch, _ldl_solve(L, Dinv, x))
+    h = x
+    Md = [[Ms[i][j] + scale * h[i] * h[j] for j in range(4)] for i in range(4)]
+    L, Dinv = _ldl_factor(Md, 4)
+    y = _normalised(torch, [0.3 * one, -0.5 * one, 0.7 * one, one])
+    for _ in range(2):
+        y = _normalised(torch, _ldl_solve(L, Dinv, y))
+    My = [sum(M[i][j] * y[j] for j in range(4)) for i in range(4)]
+    lam2 = sum(y[i] * My[i] for i in range(4))
+    return h, lam2, scale
+
+
+def _closed_form(torch, cb, sb, ct, st, w, Qr, oriented, low_precision):
+    """DLT of A in (cos b, sin b) ~ A (cos theta, sin theta), its signed SVD (as
+    estimator._closed_form); returns (columns 0, 1 of R0 as 3-tuples of (B,), bad (B,))."""
+    u, v, z = w * sb * sb, -(w * sb * cb), w * cb * cb
+    c2, cs, s2 = ct * ct, ct * st, st * st
+    m00, m01, m11 = (u * c2).sum(0), (u * cs).sum(0), (u * s2).sum(0)
+    m02, m03, m13 = (v * c2).sum(0), (v * cs).sum(0), (v * s2).sum(0)
+    m22, m23, m33 = (z * c2).sum(0), (z * cs).sum(0), (z * s2).sum(0)
+    M = [[m00, m01, m02, m03], [m01, m11, m03, m13], [m02, m03, m22, m23], [m03, m13, m23, m33]]
+    (a, b, c, d), lam2, trace = _smallest_eigenpair4(torch, M)
+    # a unique pencil needs a one-dimensional null space. Rounding leaves the second
+    # eigenvalue of a degenerate M at ~1e-16 (float32: ~1e-7) of the largest
+    bad = lam2 <= (1e-6 if low_precision else 1e-12) * trace
+    if oriented:
+        agree = (w * (torch.addcmul(a * ct, b, st) * cb + torch.addcmul(c * ct, d, st) * sb)).sum(0)
+        sgn = torch.where(agree < 0, -1.0, 1.0).to(a.dtype)
+        a, b, c, d = a * sgn, b * sgn, c * sgn, d * sgn
+    E, F, G, H = (a + d) / 2, (a - d) / 2, (c + b) / 2, (c - b) / 2
+    q, r = torch.hypot(E, H), torch.hypot(F, G)
+    a1, a2 = torch.atan2(G, F), torch.atan2(H, E)
+    theta0, phi = (a2 - a1) / 2, (a2 + a1) / 2
+    tiny = torch.finfo(q.dtype).tiny
+    cos_g = torch.clamp((q - r) / torch.clamp(q + r, min=tiny), min=float(_MIN_COS), max=1.0)
+    sin_g = torch.sqrt(1.0 - cos_g * cos_g)
+    # Rz(phi) Rx(gamma) Rz(theta0), columns 0 and 1, then R0 = Q^T of that
+    cp, sp, c0, s0 = torch.cos(phi), torch.sin(phi), torch.cos(theta0), torch.sin(theta0)
+    Z0 = (cp * c0 - sp * cos_g * s0, sp * c0 + cp * cos_g * s0, sin_g * s0)
+    Z1 = (-cp * s0 - sp * cos_g * c0, -sp * s0 + cp * cos_g * c0, sin_g * c0)
+
+    def qt(Z):
+        return tuple(Qr[0][i] * Z[0] + Qr[1][i] * Z[1] + Qr[2][i] * Z[2] for i in range(3))
+
+    return qt(Z0), qt(Z1), bad
+
+
+def _refine(torch, col0, col1, a, ct, st, x0, x1, w, max_iter, tol, low_precision):
+    """LM of estimator.refine_pencil on one chunk (lines-major).
+
+    Returns (col0, col1, cost, converged, nit, it). Two things save model evaluations
+    without moving the result by more than `tol`:
+
+    - a step below `tol` is the last one and is taken without evaluating the model there
+      (numpy evaluates it, keeps it unless rounding says the cost rose, and stops);
+    - the pencils that stop leave the working set as soon as a fifth of it has stopped,
+      so stragglers do not make everybody iterate.
+    """
+    B = x0.shape[0]
+    dev, dt = x0.device, x0.dtype
     rel = 1e-5 if low_precision else 1e-14
     tiny = torch.finfo(dt).tiny
-    # full-chunk state, written back when the working set shrinks
-    R_all = R.clone()
-    cost_all = torch.empty(B, dtype=dt, device=dev)
-    lam_all = torch.empty(B, dtype=dt, device=dev)
-    nit_all = torch.zeros(B, dtype=torch.int32, device=dev)
-    idx = None  # None: the working set is the whole chunk
-    per_pencil_spokes = ct.shape[0] == B and B > 1
+    per_pencil_spokes = ct.shape[1] == B and B > 1
 
-    alpha, J, _ = _model(R, x0, x1, ct, st)
-    r = sw * wrap_line_torch(a - alpha)
-    cost = (r * r).sum(-1)
+    def evaluate(c0, c1, a, ct, st, x0, x1, w):
+        d = _directions(torch, c0, c1, ct, st)
+        wx, wy, alpha = _angles(torch, d, x0, x1)
+        res = _line_residual(torch, a, alpha)
+        p, K = _rot_jacobian(torch, d, wx, wy, x0, x1)
+        H, g = _normal_equations(torch, p, K, w, res)
+        return (w * res * res).sum(0), H, g
+
+    cost, H, g = evaluate(col0, col1, a, ct, st, x0, x1, w)
     lam = torch.full((B,), 1e-4, dtype=dt, device=dev)
     active = torch.ones(B, dtype=torch.bool, device=dev)
     nit = torch.zeros(B, dtype=torch.int32, device=dev)
+    # full-chunk state, written back when the working set shrinks
+    out = {"c0": list(col0), "c1": list(col1), "cost": cost, "lam": lam, "nit": nit}
+    idx = None  # None: the working set is the whole chunk
     n_set = B
     it = 0
+
+    def write_back():
+        # in place into the tensors the chunk started with (nothing else holds them)
+        sel = slice(None) if idx is None else idx
+        for i in range(3):
+            out["c0"][i][sel] = col0[i]
+            out["c1"][i][sel] = col1[i]
+        out["cost"][sel], out["lam"][sel], out["nit"][sel] = cost, lam, nit
+
     for it in range(1, max_iter + 1):
         nit = nit + active.to(torch.int32)
-        Jw0, Jw1, Jw2 = J[0] * sw, J[1] * sw, J[2] * sw
-        h00 = (Jw0 * Jw0).sum(-1)
-        h01 = (Jw0 * Jw1).sum(-1)
-        h02 = (Jw0 * Jw2).sum(-1)
-        h11 = (Jw1 * Jw1).sum(-1)
-        h12 = (Jw1 * Jw2).sum(-1)
-        h22 = (Jw2 * Jw2).sum(-1)
-        g0, g1, g2 = (Jw0 * r).sum(-1), (Jw1 * r).sum(-1), (Jw2 * r).sum(-1)
+        h00, h01, h02, h11, h12, h22 = H
         floor = 1e-12 * (h00 + h11 + h22) + tiny
         lf = lam * floor
-        s0, s1, s2 = _sym3_solve(h00 * (1.0 + lam) + lf, h01, h02, h11 * (1.0 + lam) + lf, h12,
-                                 h22 * (1.0 + lam) + lf, g0, g1, g2)
-        step = torch.stack([s0, s1, s2], -1) * active[:, None]
-        R_new = rot(step) @ R
-        alpha_n, J_n, _ = _model(R_new, x0, x1, ct, st)
-        r_n = sw * wrap_line_torch(a - alpha_n)
-        cost_n = (r_n * r_n).sum(-1)
+        s = _sym3_solve(h00 * (1.0 + lam) + lf, h01, h02, h11 * (1.0 + lam) + lf, h12,
+                        h22 * (1.0 + lam) + lf, *g)
+        s = tuple(si * active for si in s)
+        n0, n1 = _rotate(torch, s, col0), _rotate(torch, s, col1)
+        last = active & ((s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) < tol * tol)
+        col0 = tuple(torch.where(last, ni, ci) for ni, ci in zip(n0, col0))
+        col1 = tuple(torch.where(last, ni, ci) for ni, ci in zip(n1, col1))
+        active = active & ~last
+        n_active = int(active.sum())
+        if n_active == 0:
+            break
+        if n_active <= 0.8 * n_set and n_set > 64:
+            write_back()
+            sel = torch.nonzero(active).squeeze(1)
+            idx = sel if idx is None else idx[sel]
+            col0, col1 = tuple(c[sel] for c in col0), tuple(c[sel] for c in col1)
+            n0, n1 = tuple(c[sel] for c in n0), tuple(c[sel] for c in n1)
+            H, g = tuple(h[sel] for h in H), tuple(gi[sel] for gi in g)
+            cost, lam, nit, active = cost[sel], lam[sel], nit[sel], active[sel]
+            a, w, x0, x1 = a[:, sel], w[:, sel], x0[sel], x1[sel]
+            if per_pencil_spokes:
+                ct, st = ct[:, sel], st[:, sel]
+            n_set = n_active
+        cost_n, H_n, g_n = evaluate(n0, n1, a, ct, st, x0, x1, w)
         better = (cost_n <= cost) & active
-        R = torch.where(better[:, None, None], R_new, R)
-        bm = better[:, None]
-        J = tuple(torch.where(bm, jn, j) for jn, j in zip(J_n, J))
-        r = torch.where(bm, r_n, r)
-        small = (step * step).sum(-1) < tol * tol
+        col0 = tuple(torch.where(better, ni, ci) for ni, ci in zip(n0, col0))
+        col1 = tuple(torch.where(better, ni, ci) for ni, ci in zip(n1, col1))
+        H = tuple(torch.where(better, hn, h) for hn, h in zip(H_n, H))
+        g = tuple(torch.where(better, gn, gi) for gn, gi in zip(g_n, g))
         stalled = better & ((cost - cost_n) <= rel * cost)
         if low_precision:
             # float32 rounding: a cost that neither falls nor rises has converged too
             stalled = stalled | (~better & ((cost_n - cost).abs() <= rel * cost))
         cost = torch.where(better, cost_n, cost)
         lam = torch.where(active, lam * torch.where(better, 0.1, 10.0).to(dt), lam)
-        active = active & ~(small | stalled | (lam > 1e10))
-        n_active = int(active.sum())
-        if n_active == 0:
-            break
-        if n_active < n_set // 2 and n_set > 64:
-            # shrink the working set to the pencils still iterating
-            sel = torch.nonzero(active).squeeze(1)
-            full_idx = torch.arange(B, device=dev) if idx is None else idx
-            R_all[full_idx] = R
-            cost_all[full_idx] = cost
-            lam_all[full_idx] = lam
-            nit_all[full_idx] = nit
-            idx = full_idx[sel]
-            R, cost, lam, nit, r = R[sel], cost[sel], lam[sel], nit[sel], r[sel]
-            J = tuple(j[sel] for j in J)
-            a, sw, x0, x1 = a[sel], sw[sel], x0[sel], x1[sel]
-            if per_pencil_spokes:
-                ct, st = ct[sel], st[sel]
-            active = active[sel]
-            n_set = n_active
-    full_idx = torch.arange(B, device=dev) if idx is None else idx
-    R_all[full_idx] = R
-    cost_all[full_idx] = cost
-    lam_all[full_idx] = lam
-    nit_all[full_idx] = nit
-    return R_all, cost_all, lam_all <= 1e10, nit_all, it
+        active = active & ~(stalled | (lam > 1e10))
+    write_back()
+    return tuple(out["c0"]), tuple(out["c1"]), out["cost"], out["lam"] <= 1e10, out["nit"], it
 
 
-def _covariance(torch, R, x0, x1, J, Jx, w, Cx):
-    """estimator._covariance in torch, the 3x3 algebra written out. x0, x1: (B, 1)."""
-    wJ = [w * j for j in J]
-    h00, h01, h02 = (wJ[0] * J[0]).sum(-1), (wJ[0] * J[1]).sum(-1), (wJ[0] * J[2]).sum(-1)
-    h11, h12, h22 = (wJ[1] * J[1]).sum(-1), (wJ[1] * J[2]).sum(-1), (wJ[2] * J[2]).sum(-1)
+def _covariance(torch, n, v, nv, p, K, Kx, w, Cx):
+    """estimator._covariance in torch, the 3x3 algebra written out. n: column 2 of R;
+    v: unit vertex ray, nv = |(x, y, 1)|; p, K: `_rot_jacobian`; Kx: d alpha / d x over p."""
+    H, _ = _normal_equations(torch, p, K, w, torch.zeros((), dtype=p.dtype, device=p.device))
+    h00, h01, h02, h11, h12, h22 = H
     ridge = 1e-14 * (h00 + h11 + h22)
     a, b, c, d, e, f = h00 + ridge, h01, h02, h11 + ridge, h12, h22 + ridge
     A00, A01, A02 = d * f - e * e, c * e - b * f, b * e - c * d
@@ -366,91 +478,125 @@ def _covariance(torch, R, x0, x1, J, Jx, w, Cx):
     det = a * A00 + b * A01 + c * A02
     Hinv = torch.stack([torch.stack([A00, A01, A02], -1), torch.stack([A01, A11, A12], -1),
                         torch.stack([A02, A12, A22], -1)], -2) / det[:, None, None]
-    n = R[:, :, 2]
-    x0, x1 = x0[:, 0], x1[:, 0]
-    nv = torch.sqrt(1.0 + x0 * x0 + x1 * x1)
-    v = torch.stack([x0, x1, torch.ones_like(x0)], -1) / nv[:, None]
-    nxv = torch.linalg.cross(n, v, dim=-1)
-    sin_g = torch.clamp(torch.sqrt((nxv * nxv).sum(-1)), min=1e-12)
-    g_rot = -nxv / sin_g[:, None]
+    nxv = _cross(n, v)
+    sin_raw = torch.sqrt(nxv[0] * nxv[0] + nxv[1] * nxv[1] + nxv[2] * nxv[2])
+    sin_g = torch.clamp(sin_raw, min=1e-12)
+    g_rot = -torch.stack(nxv, -1) / sin_g[:, None]
     var_tilt = (g_rot[:, :, None] * Hinv * g_rot[:, None, :]).sum((-1, -2))
+    # at exactly zero tilt the angles do not see the tilt to first order: the bound is
+    # infinite, not the zero the gradient gives (as numpy)
+    var_tilt = torch.where(sin_raw < 1e-9, torch.inf, var_tilt)
     cov = Hinv
+    nn = torch.stack(n, -1)
     if Cx is not None:
-        K = torch.stack([torch.stack([(wj * jx).sum(-1) for jx in Jx], -1) for wj in wJ], -2)  # (B, 3, 2)
-        G = -Hinv @ K
+        q = w * p * p
+        Kw = torch.stack([torch.stack([(q * k * kx).sum(0) for kx in Kx], -1) for k in K], -2)  # (B, 3, 2)
+        G = -Hinv @ Kw
         cov = cov + G @ Cx @ G.transpose(-1, -2)
-        eye = torch.eye(3, dtype=R.dtype, device=R.device)
-        P = (eye - v[:, :, None] * v[:, None, :])[:, :, :2] / nv[:, None, None]
-        g_x = (g_rot[:, None, :] @ G)[:, 0] - (n[:, None, :] @ P)[:, 0] / sin_g[:, None]
+        vv = torch.stack(v, -1)
+        eye = torch.eye(3, dtype=p.dtype, device=p.device)
+        P = (eye - vv[:, :, None] * vv[:, None, :])[:, :, :2] / nv[:, None, None]
+        g_x = (g_rot[:, None, :] @ G)[:, 0] - (nn[:, None, :] @ P)[:, 0] / sin_g[:, None]
         var_tilt = var_tilt + (g_x[:, None, :] @ Cx @ g_x[:, :, None])[:, 0, 0]
     # trace((I - n n^T) cov (I - n n^T)) = trace(cov) - n^T cov n
-    var_normal = torch.diagonal(cov, dim1=-2, dim2=-1).sum(-1) - (n[:, :, None] * cov * n[:, None, :]).sum((-1, -2))
+    var_normal = torch.diagonal(cov, dim1=-2, dim2=-1).sum(-1) - (nn[:, :, None] * cov * nn[:, None, :]).sum((-1, -2))
     return cov, torch.sqrt(torch.clamp(var_tilt, min=0.0)), torch.sqrt(torch.clamp(var_normal, min=0.0))
 
 
-def _frontal(torch, a, th, ct, st, x0, x1, w, Q, bx, by):
-    """estimator._frontal in torch: chi2 of the best frontal pencil (B,)."""
-    b = torch.atan2(by, bx)
-    gain2 = (Q[:, 2, 2, None] / (bx * bx + by * by)) ** 2
+def _frontal(torch, a, cb, sb, nb2, ct, st, x0, x1, w, Qr):
+    """estimator._frontal in torch: chi2 of the best frontal pencil (B,).
+
+    cos/sin of 2 (b - theta) come from the unit virtual line directions (cb, sb) by the
+    double-angle formulas instead of atan2/sin/cos (the same numbers to rounding).
+    """
+    gain2 = (Qr[2][2] / nb2) ** 2
     wv = w / gain2
-    e = 2.0 * (b - th)
-    phi = 0.5 * torch.atan2((wv * torch.sin(e)).sum(-1), (wv * torch.cos(e)).sum(-1))
-    q0, q1, vhat = Q[:, 0, :], Q[:, 1, :], Q[:, 2, :]  # columns of Qt
-    sw = torch.sqrt(w)
-    zeros = torch.zeros_like(q0)
+    cd = torch.addcmul(cb * ct, sb, st)   # cos(b - theta)
+    sd = torch.addcmul(sb * ct, cb, st, value=-1.0)   # sin(b - theta)
+    S = (wv * cd * sd).sum(0) * 2.0
+    C = (wv * torch.addcmul(cd * cd, sd, sd, value=-1.0)).sum(0)
+    phi = 0.5 * torch.atan2(S, C)
+    q0, q1, vhat = Qr[0], Qr[1], Qr[2]  # rows of Q: columns of Q^T
 
     def rot(phi):
-        c, s = torch.cos(phi)[:, None], torch.sin(phi)[:, None]
-        return torch.stack([c * q0 + s * q1, -s * q0 + c * q1, zeros], -1)  # only columns 0, 1 matter
+        c, s = torch.cos(phi), torch.sin(phi)
+        return (tuple(c * q0[i] + s * q1[i] for i in range(3)), tuple(-s * q0[i] + c * q1[i] for i in range(3)))
 
-    alpha, J, _ = _model(rot(phi), x0, x1, ct, st)
-    r = sw * wrap_line_torch(a - alpha)
-    j = sw * (J[0] * vhat[:, 0, None] + J[1] * vhat[:, 1, None] + J[2] * vhat[:, 2, None])
+    c0, c1 = rot(phi)
+    d = _directions(torch, c0, c1, ct, st)
+    wx, wy, alpha = _angles(torch, d, x0, x1)
+    res = _line_residual(torch, a, alpha)
+    p, K = _rot_jacobian(torch, d, wx, wy, x0, x1)
+    # rotating about the ray is the left perturbation delta = phi * v_hat: one GN step
+    j = p * (K[0] * vhat[0] + K[1] * vhat[1] + K[2] * vhat[2])
+    wj = w * j
     tiny = torch.finfo(a.dtype).tiny
-    phi = phi + (j * r).sum(-1) / torch.clamp((j * j).sum(-1), min=tiny)
-    alpha, _, _ = _model(rot(phi), x0, x1, ct, st, jac=False)
-    r = sw * wrap_line_torch(a - alpha)
-    return (r * r).sum(-1)
+    phi = phi + (wj * res).sum(0) / torch.clamp((wj * j).sum(0), min=tiny)
+    c0, c1 = rot(phi)
+    _, _, alpha = _angles(torch, _directions(torch, c0, c1, ct, st), x0, x1)
+    res = _line_residual(torch, a, alpha)
+    return (w * res * res).sum(0)
 
 
-def _twin(torch, R, v):
-    """Rot(v, pi) R Rot(z, pi) = 2 v (v^T R') - R' with R' = R with columns 0, 1 negated."""
-    sign = torch.tensor([-1.0, -1.0, 1.0], dtype=R.dtype, device=R.device)
-    Rp = R * sign
-    return 2.0 * v[:, :, None] * (v[:, :, None] * Rp).sum(-2, keepdim=True) - Rp
+def _fit_chunk(torch, a, th, ct, st, x, w, m, Cx, oriented, max_iter, tol, low_precision):
+    """Everything of estimator.fit_pencil for one chunk of valid-shaped pencils.
 
+    a, w, m: (B, N); th, ct, st: (1, N) or (B, N); x: (B, 2); Cx: (B, 2, 2) or None.
+    """
+    aT, wT = a.t().contiguous(), w.t().contiguous()
+    ctT, stT = ct.t().contiguous(), st.t().contiguous()
+    x0, x1 = x[:, 0].contiguous(), x[:, 1].contiguous()
+    Qr = _virtual_rows(torch, x0, x1)
+    ca, sa = torch.cos(aT), torch.sin(aT)
+    bx = torch.addcmul(Qr[0][0] * ca, Qr[0][1], sa)
+    by = torch.addcmul(Qr[1][0] * ca, Qr[1][1], sa)
+    nb2 = torch.addcmul(bx * bx, by, by)
+    inb = torch.rsqrt(nb2)
+    cb, sb = bx * inb, by * inb
+    col0, col1, bad = _closed_form(torch, cb, sb, ctT, stT, wT, Qr, oriented, low_precision)
+    col0, col1, cost, conv, nit, it = _refine(torch, col0, col1, aT, ctT, stT, x0, x1, wT, max_iter, tol, low_precision)
+    col2 = _cross(col0, col1)
+    v = Qr[2]
+    # the twin Rot(v, pi) R Rot(z, pi): columns 0, 1 -> c - 2 v (v.c), column 2 -> 2 v (v.c) - c
+    def reflect(c, sign):
+        k = 2.0 * (v[0] * c[0] + v[1] * c[1] + v[2] * c[2])
+        return tuple(sign * (k * v[i] - c[i]) for i in range(3))
 
-def _fit_chunk(torch, kornia, a, th, ct, st, x, w, m, Cx, oriented, max_iter, tol, low_precision):
-    """Everything of estimator.fit_pencil for one chunk of valid-shaped pencils."""
-    x0, x1 = x[:, 0:1], x[:, 1:2]
-    ca, sa = torch.cos(a), torch.sin(a)
-    Q = _virtual_rotation(torch, x[:, 0], x[:, 1])
-    bx = Q[:, 0, 0, None] * ca + Q[:, 0, 1, None] * sa
-    by = Q[:, 1, 0, None] * ca + Q[:, 1, 1, None] * sa
-    R0, bad = _closed_form(torch, bx, by, ct, st, w, Q, oriented, low_precision)
-    sw = torch.sqrt(w)
-    R, cost, conv, nit, it = _refine(torch, kornia, R0, a, ct, st, x0, x1, sw, max_iter, tol, low_precision)
-    v = Q[:, 2, :]
-    Rt = _twin(torch, R, v)
-    swap = Rt[:, 2, 2] > R[:, 2, 2]
-    R, Rt = torch.where(swap[:, None, None], Rt, R), torch.where(swap[:, None, None], R, Rt)
-    alpha, J, Jx = _model(R, x0, x1, ct, st)
-    res = torch.where(m, wrap_line_torch(a - alpha), torch.zeros((), dtype=a.dtype, device=a.device))
-    cov, s_tilt, s_norm = _covariance(torch, R, x0, x1, J, Jx, w, Cx)
-    chi2_0 = _frontal(torch, a, th, ct, st, x0, x1, w, Q, bx, by)
+    t0, t1, t2 = reflect(col0, -1.0), reflect(col1, -1.0), reflect(col2, 1.0)
+    swap = t2[2] > col2[2]
+
+    def pick(x, y):
+        return tuple(torch.where(swap, yi, xi) for xi, yi in zip(x, y))
+
+    R_cols = (pick(col0, t0), pick(col1, t1), pick(col2, t2))
+    T_cols = (pick(t0, col0), pick(t1, col1), pick(t2, col2))
+    d = _directions(torch, R_cols[0], R_cols[1], ctT, stT)
+    wx, wy, alpha = _angles(torch, d, x0, x1)
+    mT = m.t()
+    res = torch.where(mT, wrap_line_torch(aT - alpha), torch.zeros((), dtype=a.dtype, device=a.device))
+    p, K = _rot_jacobian(torch, d, wx, wy, x0, x1)
+    Kx = (d[2] * wy, -(d[2] * wx)) if Cx is not None else None
+    nv = torch.sqrt(1.0 + x0 * x0 + x1 * x1)
+    cov, s_tilt, s_norm = _covariance(torch, R_cols[2], v, nv, p, K, Kx, wT, Cx)
+    chi2_0 = _frontal(torch, aT, cb, sb, nb2, ctT, stT, x0, x1, wT, Qr)
     used = m.sum(-1)
     dof = (used - 3).to(a.dtype)
     inflate = torch.where(dof > 0, torch.clamp(cost / torch.clamp(dof, min=1.0), min=1.0), torch.ones_like(dof))
     detectable = (chi2_0 - cost) / inflate > _CHI2_2
-    tilt = torch.arccos(torch.clamp((R[:, :, 2] * v).sum(-1), -1.0, 1.0))
-    rms = torch.sqrt((w * res * res).sum(-1) / w.sum(-1))
-    return {
-        "R_cam_from_target": R, "R_twin": Rt, "normal": R[:, :, 2], "normal_twin": Rt[:, :, 2], "ray": v,
-        "tilt": tilt, "tilt_sigma": s_tilt, "normal_sigma": s_norm, "cov": cov, "residuals": res,
-        "rms": rms, "chi2": cost, "chi2_frontal": chi2_0, "detectable": detectable, "lines_used": used,
-        "converged": conv, "iterations_per_pencil": nit, "_bad": bad, "_it": it,
-    }
+    n = R_cols[2]
+    tilt = torch.arccos(torch.clamp(n[0] * v[0] + n[1] * v[1] + n[2] * v[2], -1.0, 1.0))
+    rms = torch.sqrt((wT * res * res).sum(0) / wT.sum(0))
 
+    def mat(cols):
+        return torch.stack([torch.stack(c, -1) for c in cols], -1)
+
+    R, Rt = mat(R_cols), mat(T_cols)
+    return {
+        "R_cam_from_target": R, "R_twin": Rt, "normal": R[:, :, 2], "normal_twin": Rt[:, :, 2],
+        "ray": torch.stack(v, -1), "tilt": tilt, "tilt_sigma": s_tilt, "normal_sigma": s_norm, "cov": cov,
+        "residuals": res.t(), "rms": rms, "chi2": cost, "chi2_frontal": chi2_0, "detectable": detectable,
+        "lines_used": used, "converged": conv, "iterations_per_pencil": nit, "_bad": bad, "_it": it,
+    }
 
 # ----------------------------------------------------------------------------------------
 # the whole fit
@@ -654,7 +800,7 @@ def _fit_all(torch, kornia, a, th, x, w, m, Cx, ok, oriented, max_iter, tol, low
         sel = slice(s, s + chunk) if all_ok else idx_ok[s:s + chunk]
         th_c = th if shared else th[sel]
         ct, st = torch.cos(th_c), torch.sin(th_c)
-        r = _fit_chunk(torch, kornia, a[sel], th_c, ct, st, x[sel], w[sel], m[sel],
+        r = _fit_chunk(torch, a[sel], th_c, ct, st, x[sel], w[sel], m[sel],
                        None if Cx is None else Cx[sel], oriented, max_iter, tol, low)
         for k, v in r.items():
             if k == "_it" or out.get(k) is None:

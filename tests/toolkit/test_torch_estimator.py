@@ -59,7 +59,10 @@ class TestAgreement:
         assert np.degrees(rotation_angle(ref.R_twin, got["R_twin"])).max() < 1e-6
         for k in ("tilt", "tilt_sigma", "normal_sigma", "chi2", "chi2_frontal", "rms"):
             np.testing.assert_allclose(got[k], getattr(ref, k), rtol=1e-6, atol=1e-12, err_msg=k)
-        np.testing.assert_allclose(got["cov"], ref.cov, rtol=1e-5, atol=1e-15)
+        # cov against the scale of each matrix: its small off-diagonal entries move with the
+        # ~1e-8 rad where numpy's LM stops, like every other entry
+        scale = np.abs(ref.cov).max(axis=(-1, -2), keepdims=True)
+        assert (np.abs(got["cov"] - ref.cov) / scale).max() < 1e-6
         np.testing.assert_allclose(got["residuals"], ref.residuals, atol=1e-8)  # rad; 1e-6 deg
         np.testing.assert_array_equal(got["detectable"], ref.detectable)
         np.testing.assert_array_equal(got["lines_used"], ref.lines_used)
