@@ -1265,25 +1265,68 @@ def _pair_geometry(lines, a, b):
     return pr
 
 
-def _antiparallel_candidates(lines, max_conv, max_dist):
-    """Index pairs (a, b), a != b, of oriented lines running in nearly opposite directions
-    whose centres are within max_dist + half their lengths (KD-tree on directions)."""
+def _antiparallel_candidates(lines, max_conv, max_width, min_aspect, min_overlap=0.0):
+    """Index pairs (a, b), a < b, of oriented lines that may be the two edges of one bar.
+
+    Necessary conditions only, each with slack, on (M, 4) lines running with their bright
+    side on the left (`orient_by_polarity`), for bars at most `max_width` wide whose
+    edges overlap by at least `min_aspect` times the width and by `min_overlap`:
+    directions opposite within `max_conv` [rad]; each line's centre on the other's dark
+    side (the test `_pair_geometry` calls side_a, side_b < 0) and within the widest bar
+    the shorter line allows (+ half the other's length times tan(max_conv) + 1 px) of the
+    other line; and the two overlap along a's direction by more than `min_overlap` - 2 px
+    - width * sin(max_conv).
+
+    The aspect bound makes this near-linear on busy frames: a bar is at most a quarter as
+    wide as its shorter edge is long, so the centres of a pair lie within ~1.4 lengths of
+    the longer line's centre, and each line queries a KD-tree of centres with that radius
+    (short texture fragments meet only their close neighbours).
+    """
     from scipy.spatial import cKDTree
 
     P = np.asarray(lines, float)
-    if P.shape[0] < 2:
+    M = P.shape[0]
+    if M < 2:
         return np.zeros(0, int), np.zeros(0, int)
-    d = P[:, 2:] - P[:, :2]
-    u = d / np.linalg.norm(d, axis=-1, keepdims=True)
-    r = 2.0 * np.sin(min(max_conv, 3.0) / 2.0)
-    pairs = cKDTree(u).sparse_distance_matrix(cKDTree(-u), r, output_type="ndarray")
-    a, b = pairs["i"], pairs["j"]
-    keep = a < b
+    p1, p2 = P[:, :2], P[:, 2:]
+    d = p2 - p1
+    L = np.hypot(d[:, 0], d[:, 1])
+    u = d / np.maximum(L, 1e-12)[:, None]
+    n = np.stack([-u[:, 1], u[:, 0]], -1)  # bright side
+    c = 0.5 * (p1 + p2)
+    off = -np.sum(n * p1, -1)
+    tan_c = np.tan(min(max_conv, 1.0))
+    wcap = np.minimum(max_width, (L + 2.0) / min_aspect)  # the widest bar each line allows
+    # every pair is found from its longer line (ties: the larger index)
+    R = L + wcap + 0.5 * L * tan_c + 3.0
+    nb = cKDTree(c).query_ball_point(c, R, return_sorted=False)
+    cnt = np.fromiter(map(len, nb), int, M)
+    if cnt.sum() == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    a = np.repeat(np.arange(M), cnt)
+    b = np.concatenate([np.asarray(x, int) for x in nb])
+    keep = (L[b] < L[a]) | ((L[b] == L[a]) & (b > a))
     a, b = a[keep], b[keep]
-    c = 0.5 * (P[:, :2] + P[:, 2:])
-    L = np.linalg.norm(d, axis=-1)
-    near = np.linalg.norm(c[a] - c[b], axis=-1) <= max_dist + 0.5 * (L[a] + L[b])
-    return a[near], b[near]
+    ok = np.sum(u[a] * u[b], -1) <= -np.cos(max_conv)
+    a, b = a[ok], b[ok]
+    # each centre on the other's dark side, within the widest bar (+ the tilt's reach)
+    sa = np.sum(n[a] * c[b], -1) + off[a]
+    sb = np.sum(n[b] * c[a], -1) + off[b]
+    w = np.minimum(wcap[a], wcap[b])
+    ok = (sa < 0) & (sb < 0)
+    ok &= (sa >= -(w + 0.5 * L[b] * tan_c + 1.0)) & (sb >= -(w + 0.5 * L[a] * tan_c + 1.0))
+    a, b, sa, sb = a[ok], b[ok], sa[ok], sb[ok]
+    # overlap along a: b's end points projected on a's direction against [0, L_a] (the
+    # bisector's direction differs by up to max_conv / 2: slack in proportion to the width)
+    ua, pa = u[a], p1[a]
+    t1 = np.sum((p1[b] - pa) * ua, -1)
+    t2 = np.sum((p2[b] - pa) * ua, -1)
+    ov = np.minimum(L[a], np.maximum(t1, t2)) - np.maximum(0.0, np.minimum(t1, t2))
+    ok = ov > min_overlap - 2.0 - np.maximum(-sa, -sb) * np.sin(min(max_conv, 1.0))
+    a, b = a[ok], b[ok]
+    swap = a > b
+    a[swap], b[swap] = b[swap], a[swap]
+    return a, b
 
 
 def _greedy(a, b, cost, M):
@@ -1443,7 +1486,7 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
     L = np.hypot(lines[:, 2] - lines[:, 0], lines[:, 3] - lines[:, 1])
     lines = lines[L >= max(0.5 * min_length, 4.0)]
     # candidate pairs on the unrefined lines, with slack
-    a, b = _antiparallel_candidates(lines, conv + np.radians(3.0), 1.5 * wmax + 3.0)
+    a, b = _antiparallel_candidates(lines, conv + np.radians(3.0), 1.4 * wmax + 1.0, 0.7 * min_aspect, 0.3 * min_length)
     if a.size:
         pr = _pair_geometry(lines, a, b)
         ok = ((pr.hi - pr.lo) >= 0.3 * min_length) & (pr.width >= 0.6 * wmin - 1.0) & (pr.width <= 1.4 * wmax + 1.0)
@@ -1470,17 +1513,17 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
     fit = st.fit()
     okf = np.flatnonzero(fit.ok)
     E = np.concatenate([fit.p1, fit.p2], -1)[okf]
-    a, b = _antiparallel_candidates(E, conv, wmax + 2.0)
+    a, b = _antiparallel_candidates(E, conv, wmax + 2.0, 0.7 * min_aspect)
     if a.size:
         pr = _pair_geometry(E, a, b)
         ok = (pr.conv <= conv) & (pr.side_a < 0) & (pr.side_b < 0) & (pr.width >= wmin) & (pr.width <= wmax)
-        ok &= pr.hi > pr.lo
+        ok &= (pr.hi - pr.lo) >= 0.7 * min_aspect * pr.width
         _refit_more(st, okf[np.unique(np.concatenate([a[ok], b[ok]]))], grow=True)
         fit = st.fit()
     okf = fit.ok
     E = np.concatenate([fit.p1, fit.p2], -1)[okf]
     sub = _Fit(**{f.name: getattr(fit, f.name)[okf] for f in fields(fit)})
-    a, b = _antiparallel_candidates(E, conv, wmax + 2.0)
+    a, b = _antiparallel_candidates(E, conv, wmax + 2.0, min_aspect)
     if a.size == 0:
         return Bars.empty()
     pr = _pair_geometry(E, a, b)
