@@ -36,7 +36,9 @@ def _lines_task(frame, ctx):
 @click.option("--shaft", is_flag=True,
               help="Also find instrument shafts (pairs of long converging edges) and write them "
                    "as 'shafts': midline (image of the axis), width_px, angle_sigma_deg.")
-@click.option("--min-length", type=float, default=20.0, show_default=True, help="Shortest segment written [px].")
+@click.option("--min-length", type=float, default=None,
+              help="Shortest segment written [px]. Default 20; with --bars, 20 or 1/30 of the image's "
+                   "smaller side, whichever is longer (36 px at 1080p).")
 @workers_option
 @force_option
 @quiet_option
@@ -59,7 +61,7 @@ def lines(images, camera_path, camera_id, output, detector, bars, bar_width, sha
       pencilcal lines frames/ --camera camera.yaml --bars -o lines.json
       pencilcal orient --lines lines.json --camera camera.yaml --pencil pencil.yaml -o orientation.json
     """
-    if min_length <= 0:
+    if min_length is not None and min_length <= 0:
         raise click.BadParameter("must be positive", param_hint="--min-length")
     if bar_width is not None and not (0 < bar_width[0] < bar_width[1]):
         raise click.BadParameter("needs 0 < MIN < MAX", param_hint="--bar-width")

@@ -72,6 +72,7 @@ from .errors import EstimationError, InputError
 __all__ = [
     "DETECTORS",
     "lines_record",
+    "default_min_length",
     "Segments",
     "Bars",
     "detect_raw",
@@ -93,6 +94,7 @@ DETECTORS = ("lsd", "fld", "edlines")
 _DT = 0.5
 _MAX_STATIONS = 400  # per line: long lines get sparser stations, the cost stays bounded
 _MIN_STATIONS = 6
+_DARK_GROW = 1
 _FLOOR_PX = 0.01  # smallest per-station scatter [px] the uncertainty may assume
 _CV_MAX_COLS = 2048  # cv2.remap wants map sides below SHRT_MAX: sample in rows of this width
 
@@ -247,6 +249,7 @@ class _Gray:
         self.src = _gray2d(image)
         self.shape = self.src.shape
         self._u8 = None
+        self._f32 = None  # the whole frame as float32, once crops get large
 
     @property
     def u8(self):
@@ -270,6 +273,12 @@ class _Gray:
             y0 = int(np.clip(np.floor(np.nanmin(y)) - 1, 0, H - 1)) if np.any(np.isfinite(y)) else 0
             y1 = int(np.clip(np.ceil(np.nanmax(y)) + 2, 1, H)) if np.any(np.isfinite(y)) else H
         x1, y1 = max(x1, x0 + 1), max(y1, y0 + 1)
+        if (x1 - x0) * (y1 - y0) > 0.25 * H * W:
+            # samples all over the frame (a refit pass over every candidate edge): convert
+            # the frame once instead of a crop of most of it at every call
+            if self._f32 is None:
+                self._f32 = self.src.astype(np.float32)
+            return _sample(self._f32, x, y)
         crop = self.src[y0:y1, x0:x1].astype(np.float32)
         return _sample(crop, x - np.float32(x0), y - np.float32(y0))
 
@@ -1062,26 +1071,36 @@ def refine_segments(image, segments, camera=None, *, search_px=2.0, sigma_px=1.0
     return _segments_from_fit(fit, camera, min_length)[0]
 
 
-def _detect_working(img, detector, camera, detector_params, min_fragment=4.0, scale=1.0):
+def _detect_working(img, detector, camera, detector_params, min_fragment=4.0, scale=1.0, dark_grow=0):
     """Raw detector fragments, oriented by polarity, in working (undistorted) pixels.
 
     With `scale` < 1 the detector runs on the image reduced by that factor (area
     averaging) and its fragments are mapped back to full-resolution pixels: proposals for
-    a refit on the full image, which alone sets the accuracy."""
+    a refit on the full image, which alone sets the accuracy. With `dark_grow` = k > 0 the
+    image is first eroded by a (2k+1)^2 square, which widens dark features by k px on each
+    side, and the fragments are moved back by k px towards their dark side."""
     if scale < 1.0:
         import cv2
 
         H, W = img.shape
-        small = cv2.resize(img.u8, (max(int(round(W * scale)), 8), max(int(round(H * scale)), 8)),
+        src = img.u8
+        if dark_grow > 0:
+            src = cv2.erode(src, np.ones((2 * dark_grow + 1, 2 * dark_grow + 1), np.uint8))
+        small = cv2.resize(src, (max(int(round(W * scale)), 8), max(int(round(H * scale)), 8)),
                            interpolation=cv2.INTER_AREA)
         sx, sy = W / small.shape[1], H / small.shape[0]
         # pixel centres: x_full + 0.5 = (x_small + 0.5) * s
         raw = (detect_raw(small, detector, detector_params) + 0.5) * np.array([sx, sy, sx, sy]) - 0.5
     else:
         raw = detect_raw(img.u8, detector, detector_params)
+        dark_grow = 0
     L = np.hypot(raw[:, 2] - raw[:, 0], raw[:, 3] - raw[:, 1])
     raw = raw[L >= min_fragment]
     raw, _ = orient_by_polarity(img, raw, 1.0 / min(scale, 1.0))
+    if dark_grow > 0 and raw.shape[0]:
+        d = raw[:, 2:] - raw[:, :2]
+        n = np.stack([-d[:, 1], d[:, 0]], -1) / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
+        raw = raw - dark_grow * np.concatenate([n, n], -1)  # n points to the bright side
     work = _to_working(camera, raw)
     good = np.all(np.isfinite(work), -1)
     return raw[good], work[good]
@@ -1329,6 +1348,120 @@ def _antiparallel_candidates(lines, max_conv, max_width, min_aspect, min_overlap
     return a, b
 
 
+def _complete_partners(img, camera, lines, idx, max_width, min_aspect, max_conv, min_length, stations=5):
+    """Second edges for lines `idx` of (M, 4) oriented working lines that have none.
+
+    A detector on a reduced image often reports one edge of a thin bar only (its two edges
+    blur into one outline), or a piece of it. Across each line at least `min_length` long,
+    into its dark side, the grey-level profile at `stations` places along it is searched for
+    the bar's far edge: the first place where the profile, having fallen below half-way
+    between the bright side's level and the darkest value, climbs back above it, within the
+    widest bar the line allows (max_width, and 1/min_aspect of its length). Where at least
+    4 stations agree on a straight edge within max_conv of antiparallel and 1 px, that edge
+    (reversed: its bright side outwards, spanning the line's extent) is a proposal like the
+    detector's own. Accuracy comes from the refit later; this only has to land within its
+    search window, so each profile is mapped to raw pixels by its two ends (the lens map
+    is smooth over a bar's width).
+
+    Returns (new lines (K, 4), origin index into `lines` of each (K,)).
+    """
+    idx = np.asarray(idx, int)
+    P = np.asarray(lines, float)[idx]
+    p1, p2 = P[:, :2], P[:, 2:]
+    d = p2 - p1
+    L = np.hypot(d[:, 0], d[:, 1])
+    long_enough = L >= min_length
+    idx, p1, p2, d, L = idx[long_enough], p1[long_enough], p2[long_enough], d[long_enough], L[long_enough]
+    K = idx.size
+    if K == 0:
+        return np.zeros((0, 4)), np.zeros(0, int)
+    u = d / L[:, None]
+    n = np.stack([-u[:, 1], u[:, 0]], -1)  # bright side
+    reach = np.minimum(max_width, (L + 2.0) / min_aspect) + 2.0
+    T = 32
+    step = np.maximum(0.5, reach / T)
+    f = (np.arange(stations) + 0.5) / stations
+    base = p1[:, None, :] + (f[None, :, None] * d[:, None, :])  # (K, S, 2)
+    t0, t1 = -3.0 * step, T * step  # 3 samples on the bright side, T into the dark side
+    ends = np.stack([base - t0[:, None, None] * n[:, None, :], base - t1[:, None, None] * n[:, None, :]])
+    r0, r1 = _to_raw_pts(camera, ends)  # (K, S, 2) each
+    g = (np.arange(-3, T + 1) + 3.0) / (T + 3.0)  # (T + 4,) from t0 to t1
+    pts = r0[:, :, None, :] + g[None, None, :, None] * (r1 - r0)[:, :, None, :]
+    prof = img.sample(pts[..., 0], pts[..., 1]).astype(float)  # (K, S, T + 4)
+    bright = prof[..., :2].mean(-1)
+    inner = prof[..., 4:]  # t = step, 2 step, ... into the dark side
+    tin = step[:, None] * np.arange(1, T + 1)[None, :]
+    dark = inner.min(-1)
+    half = 0.5 * (bright + dark)
+    below = inner < half[..., None]
+    # the bar's interior starts at the line (within 2 px) and the far edge is the first
+    # climb back above half-way after it
+    first_below = np.argmax(below, -1)
+    above_after = ~below & (np.cumsum(below, -1) > 0)
+    k = np.clip(np.argmax(above_after, -1), 1, T - 1)
+    found = above_after.any(-1) & ((first_below + 1) * step[:, None] <= 2.0 + step[:, None])
+    found &= (bright - dark) >= 8.0
+    q0 = np.take_along_axis(inner, (k - 1)[..., None], -1)[..., 0]
+    q1 = np.take_along_axis(inner, k[..., None], -1)[..., 0]
+    with np.errstate(all="ignore"):
+        fr = np.clip((half - q0) / (q1 - q0), 0.0, 1.0)
+    tk = (k + fr) * step[:, None]
+    ok = found.sum(-1) >= stations - 1
+    if not np.any(ok):
+        return np.zeros((0, 4)), np.zeros(0, int)
+    # a straight far edge: least squares of the crossing distance against the position along
+    s = f[None, :] * L[:, None]
+    w = found.astype(float)
+    W_ = np.maximum(w.sum(-1), 1.0)
+    sm = (w * s).sum(-1) / W_
+    tm = (w * tk).sum(-1) / W_
+    ds = s - sm[:, None]
+    slope = (w * ds * (tk - tm[:, None])).sum(-1) / np.maximum((w * ds * ds).sum(-1), 1e-12)
+    res = np.where(found, tk - tm[:, None] - slope[:, None] * ds, 0.0)
+    ok &= np.sqrt((res * res).sum(-1) / W_) <= 1.0
+    ok &= (np.abs(np.arctan(slope)) <= max_conv) & (tm >= 1.0)
+    o = np.flatnonzero(ok)
+    if o.size == 0:
+        return np.zeros((0, 4)), np.zeros(0, int)
+    # far edge across the line's whole extent, reversed
+    e1 = tm[o] - slope[o] * sm[o]
+    e2 = tm[o] + slope[o] * (L[o] - sm[o])
+    q1 = p1[o] - e1[:, None] * n[o]
+    q2 = p2[o] - e2[:, None] * n[o]
+    return np.concatenate([q2, q1], -1), idx[o]
+
+
+def _duplicates(seg, valid, score, tol_px=1.5):
+    """(K,) True for segments (K, 4) that repeat a valid one: both ends within `tol_px` of
+    its line and inside its extent (either way round), and it longer or, when the two
+    cover each other, better by `score`. Two copies of one edge that the merge left apart
+    (a detector's fragment and a completed edge a pixel off) refit to the same edge, and
+    their pairs to the same bar or a piece of it."""
+    K = seg.shape[0]
+    dup = np.zeros(K, bool)
+    idx = np.flatnonzero(valid)
+    if idx.size < 2:
+        return dup
+    S = seg[idx]
+    d = S[:, 2:] - S[:, :2]
+    L = np.hypot(d[:, 0], d[:, 1])
+    u = d / np.maximum(L, 1e-12)[:, None]
+    n = np.stack([-u[:, 1], u[:, 0]], -1)
+    e1 = S[None, :, :2] - S[:, None, :2]  # [i, j]: j's ends from i's first end
+    e2 = S[None, :, 2:] - S[:, None, :2]
+    perp = np.maximum(np.abs(np.sum(e1 * n[:, None], -1)), np.abs(np.sum(e2 * n[:, None], -1)))
+    a1, a2 = np.sum(e1 * u[:, None], -1), np.sum(e2 * u[:, None], -1)
+    inside = (np.minimum(a1, a2) >= -tol_px) & (np.maximum(a1, a2) <= L[:, None] + tol_px)
+    within = (perp <= tol_px) & inside  # [i, j]: j lies on i
+    np.fill_diagonal(within, False)
+    order = np.argsort(-score[idx], kind="stable")
+    rank = np.empty(idx.size, int)
+    rank[order] = np.arange(idx.size)
+    better = rank[:, None] < rank[None, :]  # [i, j]: i ranks above j
+    dup[idx] = np.any(within & (~within.T | better), 0)
+    return dup
+
+
 def _greedy(a, b, cost, M):
     """Pairs in order of increasing cost, each line used at most once. Returns indices."""
     used = np.zeros(M, bool)
@@ -1407,7 +1540,7 @@ def _refine_caps(img, camera, p1, p2, width, contrast):
 
 def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_length=30.0, min_aspect=4.0,
                 max_convergence_deg=3.0, min_overlap=0.5, refine_ends=True, search_px=None, sigma_px=1.0,
-                step_px=2.0, max_gap_px=30.0, min_gradient=2.0, detector_params=None, proposal_scale=1.0):
+                step_px=2.0, max_gap_px=30.0, min_gradient=2.0, detector_params=None, proposal_scale=None):
     """Midlines of thin dark bars (the printed spokes of a pencil) with angle uncertainty.
 
     Each bar has two long edges of opposite polarity (dark inside). Pairs of edges running
@@ -1444,14 +1577,17 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
         up with gaps between them, make no bar.
     sigma_px, step_px, min_gradient, detector_params
         As in `detect_segments`.
-    proposal_scale : float in [0.25, 1]
+    proposal_scale : float in [0.25, 1] or None
         The detector runs on the image reduced by this factor (area averaging); its lines
         are proposals that the refit then fits at full resolution, so the accuracy of what
-        is found does not depend on it, but what is found does: 0.5 on 1080p frames
-        quarters the detector's cost (orientation from a frame ~1.6 times faster), yet FLD
-        then misses a bar now and then that it finds at full resolution (the two edges of a
-        4 px bar become one closed contour). Default 1: every bar the detector can see.
-
+        is found does not depend on it. On the reduced image the detector often reports one
+        edge of a thin bar only (the two blur into one outline), or a piece of it: each line
+        that no partner covers along most of its length is given one by a search across its
+        dark side at full resolution (`_complete_partners`), and FLD (EDLines) is asked for
+        no fragment shorter than 0.9 `min_length` (full-resolution pixels): a bar's edges are
+        as long as the bar. Default None: 0.5 when the image's smaller side is 720 px or
+        more (1080p: orientation from a frame ~2x faster, the same bars on the test scenes),
+        else 1.
     Returns
     -------
     Bars
@@ -1479,23 +1615,56 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
     if search_px is None:
         search_px = float(np.clip(0.5 * wmin, 0.75, 2.0))
     conv = np.radians(max_convergence_deg)
+    if proposal_scale is None:
+        proposal_scale = 0.5 if min(H, W) >= 720 else 1.0
     if not 0.25 <= proposal_scale <= 1.0:
         raise InputError(f"proposal_scale must be in [0.25, 1], got {proposal_scale!r}")
-    _, work = _detect_working(img, detector, camera, detector_params, scale=proposal_scale)
+    params = dict(detector_params or {})
+    if proposal_scale < 1.0:
+        # fragments of a bar's edges on the reduced image are (nearly) as long as the bar
+        shortest = max(10, int(0.9 * proposal_scale * min_length))
+        if detector == "fld":
+            params.setdefault("length_threshold", shortest)
+        elif detector == "edlines":
+            params.setdefault("MinLineLength", shortest)
+    _, work = _detect_working(img, detector, camera, params, scale=proposal_scale, dark_grow=_DARK_GROW)
     lines = merge_collinear(work, 2.0, 1.5, max_gap_px)[0]
     L = np.hypot(lines[:, 2] - lines[:, 0], lines[:, 3] - lines[:, 1])
-    lines = lines[L >= max(0.5 * min_length, 4.0)]
-    # candidate pairs on the unrefined lines, with slack
-    a, b = _antiparallel_candidates(lines, conv + np.radians(3.0), 1.4 * wmax + 1.0, 0.7 * min_aspect, 0.3 * min_length)
-    if a.size:
+    keep = L >= max(0.5 * min_length, 4.0)
+    lines, L = lines[keep], L[keep]
+
+    def rough_pairs(a, b):
+        # candidate pairs on the unrefined lines, with slack
+        if a.size == 0:
+            return a, b, np.zeros(0)
         pr = _pair_geometry(lines, a, b)
         ok = ((pr.hi - pr.lo) >= 0.3 * min_length) & (pr.width >= 0.6 * wmin - 1.0) & (pr.width <= 1.4 * wmax + 1.0)
         ok &= (pr.side_a < 0) & (pr.side_b < 0) & ((pr.hi - pr.lo) >= 0.7 * min_aspect * pr.width)
+        ok &= pr.conv <= conv + np.radians(3.0)
         sel = np.flatnonzero(ok)
         # a dark strip all along (checked on the rough lines already: refitting the edges of
         # every square of a ChArUco board beside the fan would cost more than the detector)
         ok[sel] = _bar_darkness(img, camera, pr.take(sel)) >= 0.7
-        a, b = a[ok], b[ok]
+        return a[ok], b[ok], (pr.hi - pr.lo)[ok]
+
+    a, b, ov = rough_pairs(*_antiparallel_candidates(lines, conv + np.radians(3.0), 1.4 * wmax + 1.0, 0.7 * min_aspect,
+                                                 0.3 * min_length))
+    if proposal_scale < 1.0:
+        # on the reduced image the detector often sees one edge of a thin bar only, or a
+        # piece of it: look for the other across the dark side of every line that no
+        # partner covers along most of its length
+        cover = np.zeros(lines.shape[0])
+        for idx in (a, b):
+            np.maximum.at(cover, idx, ov / np.maximum(L[idx], 1e-9))
+        lone = np.flatnonzero(cover < 0.7)
+        new, org = _complete_partners(img, camera, lines, lone, 1.4 * wmax + 1.0, 0.7 * min_aspect,
+                                      conv + np.radians(3.0), min_length)
+        if new.shape[0]:
+            # a completed edge and a piece of it the detector did see become one line
+            lines = merge_collinear(np.concatenate([lines, new]), 2.0, 1.5, max_gap_px)[0]
+            L = np.hypot(lines[:, 2] - lines[:, 0], lines[:, 3] - lines[:, 1])
+            a, b, ov = rough_pairs(*_antiparallel_candidates(lines, conv + np.radians(3.0), 1.4 * wmax + 1.0,
+                                                             0.7 * min_aspect, 0.3 * min_length))
     if a.size == 0:
         return Bars.empty()
     edges_idx, inv = np.unique(np.concatenate([a, b]), return_inverse=True)
@@ -1554,6 +1723,7 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
     keep = (Lm >= min_length) & np.all(np.isfinite(ideal), -1)
     raw = _to_raw(camera, ideal)
     keep &= np.all(np.isfinite(raw), -1)
+    keep &= ~_duplicates(ideal, keep, (sub.count[a] + sub.count[b]).astype(float))
     edges = np.stack([_to_raw(camera, E[a]), _to_raw(camera, E[b])], 1)
     return Bars(
         segments=raw[keep],
@@ -1650,17 +1820,31 @@ def _sel(fit, idx):
 # ============================================================================ pencil assembly
 
 
-def lines_record(name, image, camera=None, detector="lsd", bars=False, shaft=False, min_length=20.0, bar_width=None,
-                 proposal_scale=1.0):
+def default_min_length(shape, bars):
+    """Shortest line [px] written by default for a frame of `shape` (H, W[, C]).
+
+    20 px for edge segments. For bars 20 px or 1/30 of the frame's smaller side, whichever
+    is longer (36 px at 1080p): relative to the frame as OpenCV's ArUco
+    ``minMarkerPerimeterRate``, since a spoke that short carries ~1/100 of the weight of
+    one across a sixth of the frame (angle variance ~ 1 / length^3) and, on a busy frame,
+    the shorter fragments are mostly texture.
+    """
+    return max(20.0, min(shape[0], shape[1]) / 30.0) if bars else 20.0
+
+
+def lines_record(name, image, camera=None, detector="lsd", bars=False, shaft=False, min_length=None, bar_width=None,
+                 proposal_scale=None):
     """One lines.json frame (lines_io) from one decoded image.
 
     name: the frame's name; image: (H, W[, 3]); camera: Camera or None; detector: one of
     DETECTORS; bars: midlines of dark bars (`detect_bars`, the printed spokes) instead of
     edge segments (`detect_segments`); shaft: also ``shafts`` (`toolkit.shafts.detect_shafts`);
-    min_length [px]; bar_width: (2,) accepted bar widths [px] or None; proposal_scale: see
-    `detect_bars`. The one place where
+    min_length [px] (None: `default_min_length`); bar_width: (2,) accepted bar widths [px]
+    or None; proposal_scale: see `detect_bars`. The one place where
     `lines`, `orient IMAGES` and `fulcrum IMAGES` turn a frame into lines.
     """
+    if min_length is None:
+        min_length = default_min_length(np.shape(image), bars)
     if bars:
         segs = detect_bars(image, detector, camera=camera, min_length=min_length, width_px_range=bar_width,
                            proposal_scale=proposal_scale)
