@@ -51,10 +51,12 @@ class FanLines:
         self.detector = detector
 
     def __call__(self, image, camera, detection, corner_sigma_px=None):
-        from pencilcal.toolkit.lines import detect_bars, detect_segments
+        from pencilcal.toolkit.lines import default_min_length, detect_bars, detect_segments
 
         if self.pencil.width is not None:
-            found = detect_bars(image, self.detector, camera=camera)
+            # the bars `orient IMAGES` would find (lines_record's default shortest bar)
+            found = detect_bars(image, self.detector, camera=camera,
+                                min_length=default_min_length(np.shape(image), bars=True))
         else:
             found = detect_segments(image, self.detector, camera=camera)
         return {"segments": found.segments, "angle_sigma": found.angle_sigma, "offset_sigma": found.offset_sigma,
