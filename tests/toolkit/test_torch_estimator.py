@@ -68,6 +68,23 @@ class TestAgreement:
         np.testing.assert_array_equal(got["lines_used"], ref.lines_used)
         assert got["converged"].all() and got["ok"].all() and got["ambiguous"].all()
 
+    def test_written_out_rotation_update_is_kornias(self, rng):
+        """The LM's rotation update (Rodrigues written out on (B,) tensors, exact at zero
+        through torch.sinc) against kornia's axis_angle_to_rotation_matrix: the same
+        rotation to rounding, from 1e-12 rad to pi."""
+        import kornia
+        import torch
+
+        s = rng.normal(size=(400, 3))
+        s *= (10.0 ** rng.uniform(-12, np.log10(np.pi), 400) / np.linalg.norm(s, axis=1))[:, None]
+        s[0] = 0.0
+        c = rng.normal(size=(400, 3))
+        st, ct = torch.as_tensor(s), torch.as_tensor(c)
+        got = torch.stack(te._rotate(torch, tuple(st.T), tuple(ct.T)), -1)
+        R = kornia.geometry.conversions.axis_angle_to_rotation_matrix(st)
+        want = (R @ ct[:, :, None])[:, :, 0]
+        assert torch.allclose(got, want, rtol=0, atol=1e-14 * 10)
+
     def test_noise_free_three_lines_exact(self, rng):
         T = 300
         a, _, vertex, R = random_pencils(rng, T, N=3, noise=0.0)
