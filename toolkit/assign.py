@@ -31,6 +31,9 @@ __all__ = ["Assignment", "assign_spokes"]
 
 # distinct labellings refitted after the MSAC screen
 _TOP = 4
+# 99% quantile of chi-square with 1 dof: what a rejected line is charged when labellings
+# that use different numbers of lines are compared
+_CHI2_1 = 6.634896601021213
 # with this many assigned lines or fewer, every order-keeping labelling is fitted (batched)
 _EXHAUSTIVE_MAX_LINES = 5
 _EXHAUSTIVE_MAX_FITS = 5000
@@ -43,7 +46,9 @@ class Assignment:
     spoke: (M,) index into the pencil's spokes for each observed line, -1 if rejected.
     fit: the PencilFit on the assigned lines (batch shape ()).
     rivals: other labellings that explain as many lines about as well (chi-square within
-        the detection quantile), as (spoke (M,), PencilFit) pairs. A regular fan's labels
+        the detection quantile), or one line fewer about as well once that line is charged
+        the 99% quantile of a squared residual and they label some line differently, as
+        (spoke (M,), PencilFit) pairs. A regular fan's labels
         shifted by one spoke are a rival with the same normal (only the in-plane angle is
         unknown); a rival found by coincidence can have another normal.
     hypotheses: number of hypotheses scored.
@@ -57,6 +62,12 @@ class Assignment:
     @property
     def labels_ambiguous(self) -> bool:
         return bool(self.rivals)
+
+
+def _conflict(lab, ref):
+    """True when some line has a spoke in both labellings and not the same one."""
+    both = (lab >= 0) & (ref >= 0)
+    return bool(np.any(lab[both] != ref[both]))
 
 
 def _triples(n, G):
@@ -287,13 +298,24 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
     n_best, chi2_best, labels, fit = candidates[0]
     rivals = [(lab, f) for n, chi2, lab, f in candidates[1:]
               if n == n_best and not np.array_equal(lab, labels) and chi2 - chi2_best < _CHI2_2]
+    # A labelling that explains one line fewer is a rival too when it gives a line another
+    # spoke and fits about as well once the rejected line is charged the 99% quantile of
+    # one squared residual: a spurious line that falls on a shifted labelling's prediction
+    # otherwise wins just by being used. Residuals are judged against the best fit's own
+    # scatter (real lines often scatter more than their stated sigmas).
+    scale = max(1.0, chi2_best / max(n_best - 3, 1))
+    fewer = [(lab, f) for n, chi2, lab, f in candidates[1:]
+             if n < n_best and _conflict(lab, labels)
+             and (chi2 - chi2_best) / scale + _CHI2_1 * (n_best - n) < _CHI2_2]
     used = labels >= 0
     if _EXHAUSTIVE_MAX_LINES >= used.sum() >= 3:
         # few lines: one redundancy or two, and many spoke subsets share a cross-ratio; fit
         # every labelling that keeps the cyclic order (a few hundred, batched) so that no
         # equally good labelling is missed
         labels, fit, rivals = _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriented, period)
+        rivals += [r for r in fewer if _conflict(r[0], labels)]
         return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=int(len(H)))
+    rivals += fewer
     # is the labelling unique? try every label shifted by one spoke in the cyclic order
     rank = np.empty(N, int)
     order = np.argsort(np.remainder(th, period))

@@ -87,3 +87,24 @@ def test_two_fragments_of_one_spoke_count_once(rng):
     res = assign_spokes(np.r_[a, a[3]], SPOKES, x, sig)
     assert res.spoke.tolist() == [0, 1, 2, 3, 4, 5, 6, 7, -1]
     assert int(res.fit.lines_used) == 8
+
+
+def test_spurious_line_that_completes_a_shifted_labelling():
+    """Five spokes (0, 1, 2, 4, 5) and one spurious line that falls where a labelling
+    shifted by two spokes predicts spoke 0: that labelling uses all six lines but fits
+    badly (chi2 24 for 3 dof) against 6.5 for the true one with the spurious line rejected.
+    Using one more line must not win by itself: the true labelling is chosen, or the two
+    are reported as rivals (regression: the shifted one won, unflagged)."""
+    x = np.array([-0.21892680481052346, 0.1315035193650157])
+    a = np.array([2.7617601252558543, 3.1348064771102457, -2.754100446183016, -2.0118268646446476,
+                  -1.685557809592333, 2.0721021213529243])
+    normal = np.array([-0.6494423185987466, 0.06546391028098066, 0.7575877185275695])
+    res = assign_spokes(a, SPOKES, x, SIGMA)
+    right = res.spoke[:5].tolist() == [0, 1, 2, 4, 5]
+    assert right or res.labels_ambiguous
+    # the true labelling is among the answers given, with its normal (or twin) near the truth
+    fits = [res.fit] + [r[1] for r in res.rivals]
+    labels = [res.spoke] + [r[0] for r in res.rivals]
+    true_fit = [f for f, lab in zip(fits, labels) if lab[:5].tolist() == [0, 1, 2, 4, 5]][0]
+    err = min(angle_between(true_fit.normal, normal), angle_between(true_fit.normal_twin, normal))
+    assert np.degrees(err) < 1.0
