@@ -190,8 +190,10 @@ def usable_frames(v):
             skipped.append({"image": name, "reason": "no orient.exact.lines (validate with --models including exact)"})
             continue
         if ex.get("labels_ambiguous"):
-            skipped.append({"image": name, "reason": "spoke labels ambiguous (no end spoke seen: the fan shifted by a "
-                                                      "spoke fits as well), so the lines' 3D angles are unknown"})
+            skipped.append({"image": name, "reason": "spoke labels ambiguous (another labelling fits as well: the fan "
+                                                      "shifted by a spoke when no end spoke is seen, or a spurious line "
+                                                      "on another labelling's prediction), so the lines' 3D angles are "
+                                                      "unknown"})
             continue
         if f.get("R_ref") is None:
             skipped.append({"image": name, "reason": f.get("error") or "no reference pose"})
