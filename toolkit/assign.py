@@ -25,7 +25,6 @@ import numpy as np
 from .angles import wrap_angle, wrap_line
 from .errors import EstimationError
 from .estimator import fit_pencil, pencil_jacobian, PencilFit, _CHI2_2
-from .pencil import image_angles
 
 __all__ = ["Assignment", "assign_spokes"]
 

@@ -1390,7 +1390,6 @@ def _complete_partners(img, camera, lines, idx, max_width, min_aspect, max_conv,
     prof = img.sample(pts[..., 0], pts[..., 1]).astype(float)  # (K, S, T + 4)
     bright = prof[..., :2].mean(-1)
     inner = prof[..., 4:]  # t = step, 2 step, ... into the dark side
-    tin = step[:, None] * np.arange(1, T + 1)[None, :]
     dark = inner.min(-1)
     half = 0.5 * (bright + dark)
     below = inner < half[..., None]
@@ -1588,6 +1587,7 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
         as long as the bar. Default None: 0.5 when the image's smaller side is 720 px or
         more (1080p: orientation from a frame ~2x faster, the same bars on the test scenes),
         else 1.
+
     Returns
     -------
     Bars
@@ -1633,22 +1633,22 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
     keep = L >= max(0.5 * min_length, 4.0)
     lines, L = lines[keep], L[keep]
 
-    def rough_pairs(a, b):
+    def rough_pairs():
         # candidate pairs on the unrefined lines, with slack
+        a, b = _antiparallel_candidates(lines, conv + np.radians(3.0), 1.4 * wmax + 1.0, 0.7 * min_aspect,
+                                        0.3 * min_length)
         if a.size == 0:
             return a, b, np.zeros(0)
         pr = _pair_geometry(lines, a, b)
         ok = ((pr.hi - pr.lo) >= 0.3 * min_length) & (pr.width >= 0.6 * wmin - 1.0) & (pr.width <= 1.4 * wmax + 1.0)
         ok &= (pr.side_a < 0) & (pr.side_b < 0) & ((pr.hi - pr.lo) >= 0.7 * min_aspect * pr.width)
-        ok &= pr.conv <= conv + np.radians(3.0)
         sel = np.flatnonzero(ok)
         # a dark strip all along (checked on the rough lines already: refitting the edges of
         # every square of a ChArUco board beside the fan would cost more than the detector)
         ok[sel] = _bar_darkness(img, camera, pr.take(sel)) >= 0.7
         return a[ok], b[ok], (pr.hi - pr.lo)[ok]
 
-    a, b, ov = rough_pairs(*_antiparallel_candidates(lines, conv + np.radians(3.0), 1.4 * wmax + 1.0, 0.7 * min_aspect,
-                                                 0.3 * min_length))
+    a, b, ov = rough_pairs()
     if proposal_scale < 1.0:
         # on the reduced image the detector often sees one edge of a thin bar only, or a
         # piece of it: look for the other across the dark side of every line that no
@@ -1663,8 +1663,7 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
             # a completed edge and a piece of it the detector did see become one line
             lines = merge_collinear(np.concatenate([lines, new]), 2.0, 1.5, max_gap_px)[0]
             L = np.hypot(lines[:, 2] - lines[:, 0], lines[:, 3] - lines[:, 1])
-            a, b, ov = rough_pairs(*_antiparallel_candidates(lines, conv + np.radians(3.0), 1.4 * wmax + 1.0,
-                                                             0.7 * min_aspect, 0.3 * min_length))
+            a, b, ov = rough_pairs()
     if a.size == 0:
         return Bars.empty()
     edges_idx, inv = np.unique(np.concatenate([a, b]), return_inverse=True)
