@@ -1469,7 +1469,8 @@ def _clear_of_neighbours(img, camera, E, sub, a, b, opts, reach, step=2.0):
     A fan's spokes crowd near the vertex: there a neighbouring bar's edge falls inside an
     edge's profile window (search + kernel, plus the blur), pulls the derivative's peak
     towards it, and turns the edge by up to ~0.05 deg, the same way on every spoke, which
-    reads as tilt (measured: +1 sd on a 13-spoke fan 10 deg apart). The refit then uses the
+    reads as tilt (measured: +1 sd on a 13-spoke fan 10 deg apart, +0.2 sd after). Only
+    pairs of edges whose segments come within `reach` are looked at. The refit then uses the
     clear run of stations only, if it is at least 40% of the edge and 15 px long and leaves
     out at least 2 reach (less is what the refit drops by an edge's ends anyway); the edge's
     ends stay where they were, moved onto the new line, so the bar keeps its extent.
@@ -1492,9 +1493,24 @@ def _clear_of_neighbours(img, camera, E, sub, a, b, opts, reach, step=2.0):
     np.fill_diagonal(close, False)
     close[np.arange(n2), partner] = False
     pi, pj = np.nonzero(close)
+    # the pairs that do come within reach: segment-to-segment distance (0 when they cross)
+    p2 = P[:, 2:]
+
+    def to_seg(x, j):  # distance of points x (K, 2) from segments j
+        t = np.clip(np.sum((x - p1[j]) * u[j], -1), 0.0, L[j])
+        return np.hypot(*(x - p1[j] - t[:, None] * u[j]).T)
+
+    def side(o, v, x):
+        return np.sign(v[:, 0] * (x[:, 1] - o[:, 1]) - v[:, 1] * (x[:, 0] - o[:, 0]))
+
+    cross = ((side(p1[pi], d[pi], p1[pj]) * side(p1[pi], d[pi], p2[pj]) < 0)
+             & (side(p1[pj], d[pj], p1[pi]) * side(p1[pj], d[pj], p2[pi]) < 0))
+    seg_d = np.minimum.reduce([to_seg(p1[pi], pj), to_seg(p2[pi], pj), to_seg(p1[pj], pi), to_seg(p2[pj], pi)])
+    within = cross | (seg_d < reach)
+    pi, pj = pi[within], pj[within]
     if pi.size == 0:
         return E, sub
-    S = int(np.ceil(L.max() / step)) + 1
+    S = int(np.ceil(L[np.unique(pi)].max() / step)) + 1
     s = np.minimum(np.arange(S)[None, :] * step, L[:, None])  # (n2, S) stations along each edge
     valid = np.arange(S)[None, :] * step <= L[:, None] + 1e-9
     pts = p1[:, None, :] + s[..., None] * u[:, None, :]
@@ -1792,8 +1808,9 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
     pr = pr.take(_greedy(pr.a, pr.b, pr.width, E.shape[0]))
     a, b = pr.a, pr.b
     # edges whose profiles reach a neighbouring bar (near a fan's vertex) are refitted on
-    # their clear part: reach = the profile window (search + kernel) + 3 px of the other's blur
-    E, sub = _clear_of_neighbours(img, camera, E, sub, a, b, opts, search_px + 3.0 * sigma_px + 3.5)
+    # their clear part; reach = the profile window, search + 3 sd of the kernel (a wider
+    # margin for the other bar's blur trimmed so much that the normal's error grew)
+    E, sub = _clear_of_neighbours(img, camera, E, sub, a, b, opts, search_px + 3.0 * sigma_px)
     pr = _pair_geometry(E, a, b)
     # ends: the mean of the two edges' ends, then the caps
     s1 = 0.5 * (pr.a_lo + pr.b_lo)
