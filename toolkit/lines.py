@@ -1467,7 +1467,7 @@ def _clear_of_neighbours(img, camera, E, sub, a, b, opts, reach, step=2.0):
     partner; returns (E, sub) with those edges replaced.
 
     A fan's spokes crowd near the vertex: there a neighbouring bar's edge falls inside an
-    edge's profile window (search + kernel, plus the blur), pulls the derivative's peak
+    edge's profile window (`reach`: search + 3 sd of the kernel), pulls the derivative's peak
     towards it, and turns the edge by up to ~0.05 deg, the same way on every spoke, which
     reads as tilt (measured: +1 sd on a 13-spoke fan 10 deg apart, +0.2 sd after). Only
     pairs of edges whose segments come within `reach` are looked at. The refit then uses the

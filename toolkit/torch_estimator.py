@@ -598,6 +598,7 @@ def _fit_chunk(torch, a, th, ct, st, x, w, m, Cx, oriented, max_iter, tol, low_p
         "lines_used": used, "converged": conv, "iterations_per_pencil": nit, "_bad": bad, "_it": it,
     }
 
+
 # ----------------------------------------------------------------------------------------
 # the whole fit
 
@@ -702,7 +703,7 @@ def fit_pencils_torch(line_angles, spoke_angles, vertex, sigma=math.radians(0.1)
     >>> fit["tilt"].round(6).tolist(), fit["detectable"].tolist()
     ([0.0, 0.0, 0.0], [False, False, False])
     """
-    torch, kornia = _import_torch()
+    torch, _ = _import_torch()  # kornia too: the [torch] extra is one install
     dev = resolve_device(device)
     dt = _dtype(torch, dtype)
     low = dt == torch.float32
@@ -724,7 +725,7 @@ def fit_pencils_torch(line_angles, spoke_angles, vertex, sigma=math.radians(0.1)
             if not bool((used >= 3).all()):
                 raise EstimationError(f"a pencil needs at least three lines, got {int(used.min())}")
             raise EstimationError("the vertex is at infinity (the lines are parallel in the image)")
-        out = _fit_all(torch, kornia, a, th, x, w, m, Cx, ok, oriented, max_iter, tol, low, dev, chunk, workers)
+        out = _fit_all(torch, a, th, x, w, m, Cx, ok, oriented, max_iter, tol, low, dev, chunk, workers)
         if strict and B and bool(out["_bad"].any()):
             raise EstimationError("the lines do not determine a pencil: fewer than three distinct directions")
         ok = ok & ~out.pop("_bad")
@@ -763,7 +764,7 @@ def _single_threaded(torch, dev):
         torch.set_num_threads(prev)
 
 
-def _fit_all(torch, kornia, a, th, x, w, m, Cx, ok, oriented, max_iter, tol, low, dev, chunk, workers):
+def _fit_all(torch, a, th, x, w, m, Cx, ok, oriented, max_iter, tol, low, dev, chunk, workers):
     """Run `_fit_chunk` over chunks of the valid pencils, on `workers` threads (CPU)."""
     B, N = a.shape
     shared = th.shape[0] == 1 and B != 1
