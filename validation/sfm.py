@@ -61,6 +61,11 @@ For the duration of `reconstruct` its log goes to ``workdir/colmap.log`` only (a
 stderr as well with ``verbose``); afterwards glog's file logging stays off and its other
 settings are restored.
 
+Progress: the ``progress(stage, done, total)`` callback hears extraction (images) and
+matching (image pairs) from COLMAP's own progress lines in that log, read by a thread
+while pycolmap works; never from ``database.db``, which COLMAP holds in WAL mode with a
+memory-mapped index that a second SQLite library in the process must not touch.
+
 Example
 -------
 A 12-frame orbit around the printed sheet at 640x360 (about 10 s on two cores):
@@ -82,7 +87,6 @@ import contextlib
 import os
 import re
 import shutil
-import sqlite3
 import threading
 import time
 from dataclasses import dataclass, field
@@ -326,9 +330,16 @@ def choose_matching(matching, n_images):
     return matching
 
 
-def _sequential_pair_count(n, overlap):
-    """Pairs COLMAP's sequential matcher visits without quadratic overlap or loops."""
-    return sum(min(overlap, n - 1 - i) for i in range(n))
+def _sequential_pair_count(n, overlap, of=None):
+    """Pairs COLMAP's sequential matcher visits without quadratic overlap or loops, for the
+    first `n` images of `of` (default `n`) images."""
+    of = n if of is None else of
+    return sum(min(overlap, of - 1 - i) for i in range(n))
+
+
+def _glog_base(log_path):
+    """glog names its file ``<base>YYYYmmdd-HHMMSS.pid``; `colmap_logging` renames it."""
+    return Path(log_path).with_name(Path(log_path).name + ".")
 
 
 @contextlib.contextmanager
@@ -351,7 +362,7 @@ def colmap_logging(log_path=None, verbose=False):
         for lv in levels:
             L.set_log_destination(lv, "")
         if log_path is not None:
-            base = str(Path(log_path).with_name(Path(log_path).name + "."))
+            base = str(_glog_base(log_path))
             L.set_log_destination(L.Level.INFO, base)
         L.logtostderr = False
         L.alsologtostderr = bool(verbose)
@@ -371,14 +382,32 @@ def colmap_logging(log_path=None, verbose=False):
                     os.replace(made[-1], log_path)
 
 
-class _DbPoller:
-    """Counts rows of a database table in a thread while pycolmap works (it releases the
-    GIL), for a progress bar on extraction and matching. Any error just stops reporting."""
+# COLMAP's own progress lines (glog, INFO): an image written to the database; the start of
+# a sequential matcher's image; the start of an exhaustive matcher's block of pairs.
+_EXTRACTED = re.compile(rb"Processed file \[(\d+)/(\d+)\]")
+_SEQUENTIAL = re.compile(rb"Processing image \[(\d+)/(\d+)\]")
+_BLOCK = re.compile(rb"Processing block \[(\d+)/(\d+), (\d+)/(\d+)\]")
 
-    def __init__(self, db_path, table, stage, total, progress):
-        self.db_path, self.table, self.stage, self.total, self.progress = db_path, table, stage, total, progress
+
+class _LogProgress:
+    """Follows a stage of COLMAP in its glog file while pycolmap works (it releases the
+    GIL), for a progress bar on extraction and matching. Any error just stops reporting.
+
+    `done_of(match)` turns the newest progress line of `pattern` into units done. The log,
+    not the database: COLMAP keeps ``database.db`` in WAL mode with a memory-mapped index,
+    and a second SQLite library in the process (Python's sqlite3) shares its POSIX locks,
+    so opening and closing the file beside it can truncate that index under COLMAP: a bus
+    error (https://www.sqlite.org/howtocorrupt.html, 2.2). glog writes each line through
+    at once because `pencilcal.toolkit` sets GLOG_logbuflevel=-1 before pycolmap loads;
+    where pycolmap was loaded first the lines arrive in 4 KiB blocks, the bar in steps.
+    """
+
+    def __init__(self, log_base, pattern, done_of, stage, total, progress):
+        self.log_base, self.pattern, self.done_of = Path(log_base), pattern, done_of
+        self.stage, self.total, self.progress = stage, total, progress
         self._stop = threading.Event()
         self._thread = None
+        self._file, self._offset, self._tail = None, 0, b""
 
     def __enter__(self):
         if self.progress is not None:
@@ -387,21 +416,33 @@ class _DbPoller:
             self._thread.start()
         return self
 
-    def _count(self):
-        con = sqlite3.connect(f"file:{self.db_path}?mode=ro", uri=True, timeout=0.05)
-        try:
-            return con.execute(f"SELECT count(*) FROM {self.table}").fetchone()[0]
-        finally:
-            con.close()
+    def _newest(self):
+        """The units done by the newest progress line written since the last call, or None."""
+        made = sorted(self.log_base.parent.glob(self.log_base.name + "*"))
+        if not made:
+            return None
+        if made[-1] != self._file:  # glog opened its file (or a new one): read it whole
+            self._file, self._offset, self._tail = made[-1], 0, b""
+        with open(self._file, "rb") as f:
+            f.seek(self._offset)
+            chunk = f.read()
+        self._offset += len(chunk)
+        lines = (self._tail + chunk).split(b"\n")
+        self._tail = lines.pop()  # a line still being written
+        found = [m for m in map(self.pattern.search, lines) if m]
+        return self.done_of(found[-1]) if found else None
 
     def _run(self):
-        last = -1
+        last = 0  # __enter__ reported 0
         while not self._stop.wait(_POLL_S):
             try:
-                n = min(int(self._count()), self.total)
-            except Exception:  # locked, not created yet: try again later
+                n = self._newest()
+            except Exception:  # the log not there yet, or unreadable: stop reporting
+                return
+            if n is None:
                 continue
-            if n != last:
+            n = max(0, min(int(n), self.total))
+            if n > last:
                 last = n
                 try:
                     self.progress(self.stage, n, self.total)
@@ -415,6 +456,32 @@ class _DbPoller:
             if exc[0] is None:
                 self.progress(self.stage, self.total, self.total)
         return False
+
+
+def _extract_progress(log_base, n_images, progress):
+    """Progress of feature extraction in images written to the database."""
+    return _LogProgress(log_base, _EXTRACTED, lambda m: int(m[1]), "extract", n_images, progress)
+
+
+def _match_progress(log_base, mode, n_images, progress):
+    """Progress of matching in image pairs matched and verified.
+
+    Sequential: COLMAP starts image k once the pairs of images 1..k-1 are done (exact).
+    Exhaustive: it works through nb x nb blocks of about equally many pairs each (COLMAP
+    spreads the pairs so), so the pairs done are estimated from the blocks done.
+    """
+    if mode == "exhaustive":
+        total = n_images * (n_images - 1) // 2
+
+        def done_of(m):
+            a, nb, b = int(m[1]), int(m[2]), int(m[3])
+            return total * ((a - 1) * nb + (b - 1)) // max(nb * nb, 1)
+
+        return _LogProgress(log_base, _BLOCK, done_of, "match", total, progress)
+    total = _sequential_pair_count(n_images, SEQUENTIAL_OVERLAP)
+    return _LogProgress(log_base, _SEQUENTIAL,
+                        lambda m: _sequential_pair_count(int(m[1]) - 1, SEQUENTIAL_OVERLAP, n_images),
+                        "match", total, progress)
 
 
 # --------------------------------------------------------------------------- frames
@@ -673,6 +740,7 @@ def reconstruct(images, camera, workdir, *, matching="auto", max_features=DEFAUL
     by_colmap = {x.colmap_name: x for x in items if x.colmap_name is not None}
     timings["prepare"] = time.perf_counter() - t0
 
+    log_base = _glog_base(workdir / "colmap.log")
     with colmap_logging(workdir / "colmap.log", verbose):
         if seed is not None and seed >= 0:
             pycolmap.set_random_seed(int(seed))
@@ -682,7 +750,7 @@ def reconstruct(images, camera, workdir, *, matching="auto", max_features=DEFAUL
             cam_id = _write_camera_db(db_path, colmap_cam)
             reader, extraction, matcher, verification, pairing, options = _options(cam_id, max_features,
                                                                                      num_threads, seed)
-            with _DbPoller(db_path, "keypoints", "extract", len(names), progress):
+            with _extract_progress(log_base, len(names), progress):
                 pycolmap.extract_features(str(db_path), image_path, image_names=names,
                                           camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
                                           extraction_options=extraction, device=pycolmap.Device.cpu)
@@ -711,15 +779,14 @@ def reconstruct(images, camera, workdir, *, matching="auto", max_features=DEFAUL
         t0 = time.perf_counter()
         n_img = len(ids)
         try:
-            if mode == "exhaustive":
-                with _DbPoller(db_path, "two_view_geometries", "match", n_img * (n_img - 1) // 2, progress):
+            with _match_progress(log_base, mode, n_img, progress):
+                if mode == "exhaustive":
                     pycolmap.match_exhaustive(str(db_path), matching_options=matcher,
                                               verification_options=verification, device=pycolmap.Device.cpu)
-            else:
-                with _DbPoller(db_path, "two_view_geometries", "match",
-                               _sequential_pair_count(n_img, SEQUENTIAL_OVERLAP), progress):
+                else:
                     pycolmap.match_sequential(str(db_path), matching_options=matcher, pairing_options=pairing,
-                                              verification_options=verification, device=pycolmap.Device.cpu)
+                                              verification_options=verification,
+                                              device=pycolmap.Device.cpu)
         except Exception as e:  # pycolmap raises several types for C++ check failures
             raise EstimationError(f"feature matching failed: {_one_line(e)}") from None
         timings["match"] = time.perf_counter() - t0

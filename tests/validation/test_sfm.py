@@ -19,10 +19,13 @@ from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.frames import rotation_angle
 from pencilcal.toolkit.scenes import make_scenario
 from pencilcal.validation.align import align_rotations, align_similarity
+from pencilcal.validation import sfm as sfm_module
 from pencilcal.validation.sfm import (
     EXHAUSTIVE_MAX_IMAGES,
     SfmResult,
     _prepare,
+    _extract_progress,
+    _match_progress,
     _sequential_pair_count,
     bare_pycolmap,
     choose_matching,
@@ -302,3 +305,59 @@ def test_matching_choice_and_pair_count():
         choose_matching("spatial", 3)
     assert _sequential_pair_count(5, 10) == 10
     assert _sequential_pair_count(30, 10) == sum(min(10, 29 - i) for i in range(30))
+    assert _sequential_pair_count(3, 10, 30) == 30
+    assert _sequential_pair_count(28, 10, 30) + 1 == _sequential_pair_count(30, 10)
+
+
+def _follow(tracker, log, lines, monkeypatch):
+    """Feed `lines` to a glog-like file one by one (each in two halves) while
+    `tracker` follows it; the progress values it reported."""
+    import threading
+    import time
+
+    monkeypatch.setattr(sfm_module, "_POLL_S", 0.005)
+    seen = []
+    done = threading.Event()
+
+    def progress(stage, n, total):
+        seen.append((stage, n, total))
+        done.set()
+
+    tracker.progress = progress
+    with tracker:
+        time.sleep(0.03)  # no file yet: nothing to report
+        with open(log, "wb", buffering=0) as f:
+            for line in lines:
+                done.clear()
+                f.write(line[: len(line) // 2])
+                time.sleep(0.02)  # a half-written line is not read
+                f.write(line[len(line) // 2:])
+                if b"] Process" in line:  # a progress line: wait until it is reported
+                    done.wait(5.0)
+    return seen
+
+
+def test_extraction_progress_follows_colmaps_log(tmp_path, monkeypatch):
+    """Progress comes from COLMAP's log, never from its database (a second SQLite in the
+    process breaks COLMAP's locks on its memory-mapped WAL index: a bus error, seen in CI)."""
+    base = tmp_path / "colmap.log."
+    lines = [b"I20261201 00:00:00.1 1 sift.cc:764] Creating SIFT CPU feature extractor\n"]
+    lines += [f"I20261201 00:00:00.2 1 feature_extraction.cc:270] Processed file [{k}/4]\n".encode() for k in (1, 2, 3)]
+    seen = _follow(_extract_progress(base, 4, None), tmp_path / "colmap.log.20261201-000000.1", lines, monkeypatch)
+    assert seen[0] == ("extract", 0, 4) and seen[-1] == ("extract", 4, 4)
+    assert [n for _, n, _ in seen[1:-1]] == [1, 2, 3]
+    assert "sqlite3" not in vars(sfm_module)
+
+
+def test_matching_progress_in_pairs(tmp_path, monkeypatch):
+    base = tmp_path / "colmap.log."
+    seq = [f"I 1 pairing.cc:562] Processing image [{k}/30]\n".encode() for k in range(1, 31)]
+    seen = _follow(_match_progress(base, "sequential", 30, None), tmp_path / "colmap.log.x", seq, monkeypatch)
+    total = _sequential_pair_count(30, 10)
+    assert [n for _, n, _ in seen] == [0] + [_sequential_pair_count(k, 10, 30) for k in range(1, 30)] + [total]
+    assert {t for _, _, t in seen} == {total}
+
+    blocks = [f"I 1 pairing.cc:214] Processing block [{a}/3, {b}/3]\n".encode() for a in (1, 2, 3) for b in (1, 2, 3)]
+    seen = _follow(_match_progress(base, "exhaustive", 120, None), tmp_path / "colmap.log.y", blocks, monkeypatch)
+    total = 120 * 119 // 2
+    assert [n for _, n, _ in seen] == [0] + [total * k // 9 for k in range(1, 9)] + [total]
