@@ -23,6 +23,8 @@ angle part.
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from .angles import wrap_angle
@@ -36,7 +38,7 @@ from .estimator import (
     swap_twins,
     choose_by_prior,
 )
-from .frames import normalize, twin_rotation, rotation_angle
+from .frames import normalize, rotation_angle, rotation_from_rotvec, twin_rotation
 from .pencil import image_angles
 from .vertex import intersect_lines
 
@@ -67,38 +69,44 @@ def metric_depth(R_cam_from_target, vertex, spoke_angles, inner, outer, radius):
     each spoke seen, z follows by least squares, and the residual tells the twins apart:
     they image the lines identically but foreshorten lengths differently.
 
-    R_cam_from_target: (3, 3); vertex: (2,) normalised; spoke_angles: (K,) [rad] of the
-    assigned segments; inner, outer: (K, 2) normalised image of their end points nearer to
-    and farther from the vertex; radius: (2,) [inner, outer] in length units, the same for
-    every spoke, or (K, 2) per segment (e.g. board corners at known distances).
-    Returns (depth, residuals (2K,) in normalised units); depth is NaN when the data do not
-    support a positive depth.
+    R_cam_from_target: (..., 3, 3); vertex: (2,) normalised; spoke_angles: (..., K) [rad]
+    of the assigned segments; inner, outer: (K, 2) normalised image of their end points
+    nearer to and farther from the vertex; radius: (2,) [inner, outer] in length units, the
+    same for every spoke, or (K, 2) per segment (e.g. board corners at known distances).
+    Returns (depth (...), residuals (..., 2K) in normalised units); depth is NaN and the
+    residuals inf where the data do not support a positive depth.
     """
+    R = np.asarray(R_cam_from_target, float)
     th = np.asarray(spoke_angles, float)
-    d = (np.asarray(R_cam_from_target, float)[:, :2] @ np.stack([np.cos(th), np.sin(th)])).T  # (K, 3)
+    d = np.einsum("...ij,...jk->...ki", R[..., :, :2], np.stack([np.cos(th), np.sin(th)], -2))  # (..., K, 3)
     x = np.asarray(vertex, float)
-    w = d[:, :2] - x * d[:, 2:3]
+    w = d[..., :2] - x * d[..., 2:3]
     c = np.linalg.norm(w, axis=-1)
-    u = w / c[:, None]
-    t = np.concatenate([np.sum((inner - x) * u, -1), np.sum((outer - x) * u, -1)])
-    rad = np.broadcast_to(np.asarray(radius, float), (len(th), 2))
+    u = w / c[..., None]
+    t = np.concatenate([np.sum((inner - x) * u, -1), np.sum((outer - x) * u, -1)], -1)
+    K = th.shape[-1]
+    rad = np.broadcast_to(np.asarray(radius, float), (K, 2))
     r = np.concatenate([rad[:, 0], rad[:, 1]])
-    cc = np.concatenate([c, c])
-    dz = np.concatenate([d[:, 2], d[:, 2]])
+    cc = np.concatenate([c, c], -1)
+    dz = np.concatenate([d[..., 2], d[..., 2]], -1)
     ok = t > 0
-    if ok.sum() < 2:
-        return np.nan, np.full(t.shape, np.inf)
-    # per-point depth estimates, then Gauss-Newton on the image distances
-    z = float(np.median(r[ok] * (cc[ok] / t[ok] - dz[ok])))
-    for _ in range(8):
-        den = z + r * dz
-        pred = r * cc / den
-        J = -r * cc / den**2
-        z = z + float(np.sum(J * (t - pred)) / max(np.sum(J * J), 1e-300))
-    pred = r * cc / (z + r * dz)
-    if not np.isfinite(z) or z <= 0 or np.any(z + r * dz <= 0):
-        return np.nan, np.full(t.shape, np.inf)
-    return z, t - pred
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # no positive distance: NaN, caught below
+        # per-point depth estimates, then Gauss-Newton on the image distances
+        z = np.nanmedian(np.where(ok, r * (cc / np.where(ok, t, 1.0) - dz), np.nan), -1)
+        for _ in range(8):
+            den = z[..., None] + r * dz
+            pred = r * cc / den
+            J = -r * cc / den**2
+            z = z + np.sum(J * (t - pred), -1) / np.maximum(np.sum(J * J, -1), 1e-300)
+        den = z[..., None] + r * dz
+        res = t - r * cc / den
+    bad = (ok.sum(-1) < 2) | ~np.isfinite(z) | (z <= 0) | np.any(den <= 0, -1)
+    z = np.where(bad, np.nan, z)
+    res = np.where(bad[..., None], np.inf, res)
+    if z.ndim == 0:
+        return float(z), res
+    return z, res
 
 
 def _segment_geometry(camera, segments, endpoint_sigma_px):
@@ -320,19 +328,80 @@ def _find_vertex(ideal, st, sc, radius):
 
 def _break_label_ties(lab, fit, rivals, x, pencil, p1, p2, sigma_metric):
     """Among labellings that explain the angles equally well, prefer the one whose spoke
-    radii fit the segment end points: (labels, fit, remaining rivals)."""
+    radii fit the segment end points: (labels, fit, remaining rivals).
+
+    The radii's chi2 carries each fit's rotation uncertainty (`_radii_chi2`). When even the
+    best labelling's radii misfit (chi2 per end point > 1), the others are judged against
+    that scatter, and a labelling stays a rival while the ratio of the two misfits is within
+    the F distribution's 99% quantile: three lines, one of them stray, fit every labelling's
+    angles exactly and several labellings' radii about equally badly.
+    """
+    from .assign import _CHI2_1
     from .estimator import _CHI2_2
 
     cands = [(lab, fit)] + list(rivals)
-    scores = []
-    for l, f in cands:
-        u = l >= 0
-        m = _metric_choice(f, x, pencil.angles[l[u]], p1[u], p2[u], pencil.radius, sigma_metric)
-        metric = min(m["chi2"], m["chi2_twin"])
-        scores.append(float(f.chi2) + (metric if np.isfinite(metric) else 1e12))
+    used = np.array([l >= 0 for l, _ in cands])
+    metric_chi2 = np.empty(len(cands))
+    # labellings of the same segments in one batch
+    for mask in np.unique(used, axis=0):
+        group = np.flatnonzero(np.all(used == mask, -1))
+        R = np.stack([np.stack([cands[i][1].R_cam_from_target, cands[i][1].R_twin]) for i in group])
+        cov = np.stack([cands[i][1].cov for i in group])
+        th = np.stack([pencil.angles[cands[i][0][mask]] for i in group])
+        metric_chi2[group] = _radii_chi2(R, cov, x, th, p1[mask], p2[mask], pencil.radius, sigma_metric)
+    lines = used.sum(-1)
+    points = 2 * lines
+    angle_chi2 = np.array([float(f.chi2) for _, f in cands])
+    per_point = metric_chi2 / np.maximum(points, 1)
+    # a labelling that leaves a line out is charged for it as assign_spokes charges it, and
+    # its radii are judged per end point (fewer points must not mean a smaller sum)
+    angles = angle_chi2 + _CHI2_1 * (lines.max() - lines)
+    # Radii that no labelling fits within the end point noise (grazing views, where bar
+    # ends blur; a spurious line among three, which every labelling fits exactly) cannot
+    # pick one: their differences count against the best-fitting labelling's own scatter.
+    scatter = max(1.0, float(np.min(per_point)))
+    scores = angles + np.where(np.isfinite(per_point), per_point * max(points) / scatter, 1e12)
     best = int(np.argmin(scores))
-    rest = [c for i, c in enumerate(cands) if i != best and scores[i] - scores[best] < _CHI2_2]
+    rival = scores - scores[best] < _CHI2_2
+    if scatter > 1.0:
+        # two scatters estimated from the data are told apart only by their ratio
+        from scipy.stats import f as f_dist
+
+        ratio = per_point / per_point[best]
+        rival |= (angles - angles[best] < _CHI2_2) & (ratio < f_dist.ppf(0.99, points, points[best]))
+    rest = [c for i, c in enumerate(cands) if i != best and rival[i]]
     return cands[best][0], cands[best][1], rest
+
+
+def _radii_chi2(R, cov, x, th, p1, p2, radius, sigma_n):
+    """How well the spoke radii fit the segment end points, for labellings of the same
+    segments: chi2 (B,), the better twin's.
+
+    R: (B, 2, 3, 3) each labelling's rotation and its twin; cov: (B, 3, 3) the rotation's
+    covariance (used for the twin too: the twins are equally certain); th: (B, K) the spokes
+    of the K segments p1, p2 (K, 2) (normalised); sigma_n: end point noise (normalised).
+    Unlike `_metric_choice` (which compares the twins of one fit, sharing its errors) the
+    residuals carry the fitted rotation's own uncertainty as well as the end point noise:
+    labellings are fitted on different lines, and a fit on three lines, exact whatever the
+    labels, can be far less certain than its end points.
+    """
+    d1, d2 = np.linalg.norm(p1 - x, axis=-1), np.linalg.norm(p2 - x, axis=-1)
+    inner = np.where((d1 <= d2)[:, None], p1, p2)
+    outer = np.where((d1 <= d2)[:, None], p2, p1)
+    th2 = np.repeat(th[:, None], 2, 1)  # (B, 2, K)
+    _, r = metric_depth(R, x, th2, inner, outer, radius)  # (B, 2, 2K)
+    # residuals' sensitivity to a small left rotation of R (the depth refitted each time)
+    h = 1e-6
+    with np.errstate(invalid="ignore"):  # inf - inf where no depth fits: caught below
+        J = np.stack([(metric_depth(rotation_from_rotvec(h * e) @ R, x, th2, inner, outer, radius)[1] - r) / h
+                      for e in np.eye(3)], -1)  # (B, 2, 2K, 3)
+    n = r.shape[-1]
+    C = sigma_n**2 * np.eye(n) + J @ cov[:, None] @ np.swapaxes(J, -1, -2)
+    good = np.all(np.isfinite(r), -1) & np.all(np.isfinite(J), (-1, -2))
+    safe = np.where(good[..., None], r, 0.0)
+    C = np.where(good[..., None, None], C, np.eye(n))
+    chi2 = np.einsum("...i,...i->...", safe, np.linalg.solve(C, safe[..., None])[..., 0])
+    return np.min(np.where(good, chi2, np.inf), -1)
 
 
 def _rival_normals(fit, rivals):
