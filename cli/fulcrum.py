@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import click
+import numpy as np
 
 from pencilcal.toolkit.camera_io import read_camera
 from pencilcal.toolkit.errors import EstimationError, InputError
@@ -91,6 +92,11 @@ def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_si
     out = {"camera": str(camera_path), "lines": None if lines_path is None else str(lines_path),
            "images": None if images is None else str(images), **out}
     write_json(output, out, force=force)
+    off_axis = float(np.degrees(np.arccos(np.clip(out["ray"][2], -1.0, 1.0))))
+    if out["vertex_px"] is None:
+        warn(f"the fulcrum lies {off_axis:.1f} deg off the optical axis, beyond the part of the field the lens "
+             "model maps to pixels: fulcrum.json gives its ray, vertex_px is null")
     if not quiet:
-        u, v = out["vertex_px"]
-        click.echo(f"fulcrum at ({u:.2f}, {v:.2f}) px from {out['lines_used']} lines -> {output}", err=True)
+        where = ("at ({:.2f}, {:.2f}) px".format(*out["vertex_px"]) if out["vertex_px"] is not None
+                 else f"on the ray {off_axis:.1f} deg off axis")
+        click.echo(f"fulcrum {where} from {out['lines_used']} lines -> {output}", err=True)

@@ -26,7 +26,7 @@ import numpy as np
 
 from .errors import EstimationError, InputError
 from .estimator import check_vertex, fit_pencil
-from .orient import orientation_record
+from .orient import orientation_record, raw_vertex
 from .vertex import intersect_lines
 
 __all__ = ["fulcrum_from_frames", "read_angles"]
@@ -129,18 +129,18 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=0.5):
     x = A @ vf.vertex + Kinv[:2, 2]
     check_vertex(x)
     cov_x = A @ vf.cov @ A.T
-    ray = camera.rays_from_pixels(camera.distort_pixels(vf.vertex))
+    # the ray from the ideal vertex itself: the lens model need not reach it (raw_vertex)
+    ray = np.r_[x, 1.0] / np.linalg.norm(np.r_[x, 1.0])
     # ray uncertainty: the unit ray moves by (I - r r^T)[:, :2] / |(x, 1)| per unit of x
     v = np.r_[x, 1.0]
     P = (np.eye(3) - np.outer(v, v) / (v @ v))[:, :2] / np.linalg.norm(v)
     ray_sigma = np.sqrt(max(np.trace(P @ cov_x @ P.T), 0.0))
-    v_raw = camera.distort_pixels(vf.vertex)
-    J = camera.jacobian_pixels_from_normalized(x) @ A
+    v_raw, cov_raw = raw_vertex(camera, x, vf.vertex, vf.cov)
     out = {
         "ok": True,
         "error": None,
         "vertex_px": v_raw,
-        "vertex_cov_px2": J @ vf.cov @ J.T,
+        "vertex_cov_px2": cov_raw,
         "ray": ray,
         "ray_sigma_deg": float(np.degrees(ray_sigma)),
         "lines_used": int(vf.lines_used),

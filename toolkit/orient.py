@@ -42,7 +42,7 @@ from .frames import normalize, rotation_angle, rotation_from_rotvec, twin_rotati
 from .pencil import image_angles
 from .vertex import intersect_lines
 
-__all__ = ["orient_segments", "orientation_record", "MODELS", "metric_depth", "resolve_twins_by_continuity"]
+__all__ = ["orient_segments", "orientation_record", "raw_vertex", "MODELS", "metric_depth", "resolve_twins_by_continuity"]
 
 MODELS = ("exact", "general", "aligned")
 
@@ -417,6 +417,27 @@ def _rival_normals(fit, rivals):
     return out
 
 
+def raw_vertex(camera, vertex, vertex_ideal, cov_ideal):
+    """The vertex and its covariance in raw pixels, or (None, None) where the lens model
+    does not reach it.
+
+    A vertex can lie far outside the image (an instrument's entry port usually does), where
+    a polynomial lens model folds back and its "raw pixel" is no place on the sensor (a
+    point 80 deg off axis came out at 4e6 px). There the vertex is given by its ray alone.
+    vertex: (2,) normalised; vertex_ideal: (2,) ideal pixels; cov_ideal: (2, 2) [px^2].
+    """
+    v_raw = camera.distort_pixels(vertex_ideal)
+    with np.errstate(all="ignore"):
+        back = camera.undistort_pixels(v_raw)
+        reached = bool(np.all(np.isfinite(back))
+                       and np.max(np.abs(back - vertex_ideal)) <= 1e-6 * (1.0 + np.max(np.abs(vertex_ideal))))
+    if not reached:
+        return None, None
+    A = np.linalg.inv(np.asarray(camera.K, float))[:2, :2]
+    J_raw_from_ideal = camera.jacobian_pixels_from_normalized(vertex) @ A
+    return v_raw, J_raw_from_ideal @ cov_ideal @ J_raw_from_ideal.T
+
+
 def orientation_record(camera, fit, vertex, vertex_ideal, cov_ideal, *, model="exact", image=None,
                        sigma_mean=None, resolved_by=None):
     """An orientation.json record (INTERFACES.md) from a PencilFit of batch shape ().
@@ -425,10 +446,7 @@ def orientation_record(camera, fit, vertex, vertex_ideal, cov_ideal, *, model="e
     cov_ideal: the vertex in ideal (undistorted) pixels and its covariance [px^2], reported
     in raw pixels; sigma_mean: RMS line angle sd [rad] for the detection threshold.
     """
-    A = np.linalg.inv(np.asarray(camera.K, float))[:2, :2]
-    v_raw = camera.distort_pixels(vertex_ideal)
-    J_raw_from_ideal = camera.jacobian_pixels_from_normalized(vertex) @ A
-    cov_raw = J_raw_from_ideal @ cov_ideal @ J_raw_from_ideal.T
+    v_raw, cov_raw = raw_vertex(camera, vertex, vertex_ideal, cov_ideal)
     rec = {
         "image": image,
         "ok": True,

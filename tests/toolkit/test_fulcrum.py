@@ -91,3 +91,23 @@ def test_read_angles(tmp_path):
     (tmp_path / "c.csv").write_text("angle_deg\nten\n")
     with pytest.raises(InputError, match="numbers"):
         read_angles(tmp_path / "c.csv", ["x"])
+
+
+def test_fulcrum_beyond_the_lens_model(rng):
+    """An entry port 74 deg off the axis of a strongly distorted lens: its ray is exact, and
+    its raw pixel, which the polynomial model cannot give there (it folds back before 74
+    deg), is null rather than a number millions of pixels away."""
+    cam = hd_camera()
+    P = np.array([250.0, 10.0, 70.0])
+    frames = []
+    for k, th in enumerate(np.radians(np.linspace(-12, 12, 9))):
+        d = rotation_about_axis([0.0, 1.0, 0.3], th) @ np.array([-0.93, 0.0, 0.37])
+        seg = cam.project(np.stack([P + 190 * d, P + 240 * d])).ravel()
+        assert np.all(np.isfinite(seg)) and np.all((seg >= 0) & (seg <= [1919, 1079] * 2))
+        frames.append({"image": f"{k:03d}.png", "ok": True, "segments": seg[None]})
+    out = fulcrum_from_frames(cam, frames)
+    assert np.degrees(angle_between(out["ray"], P)) < 1e-6
+    assert out["vertex_px"] is None and out["vertex_cov_px2"] is None
+    # within the lens model's reach the raw pixel is given, and it is where the lens images it
+    near = fulcrum_from_frames(cam, pivot_sequence(cam, rng)[0])
+    assert near["vertex_px"] is not None
