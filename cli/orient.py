@@ -127,6 +127,9 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     for rec in records:
         if not rec["ok"]:
             warn(f"{rec['image']}: {rec['error']}")
+        elif rec.get("normal_ambiguous"):
+            warn(f"{rec['image']}: the normal is ambiguous: other labellings of its {rec['lines_used']} lines fit "
+                 "about as well and put it elsewhere (normal_alternatives)")
     if not any(r["ok"] for r in records):
         # a run with no estimate at all failed: say so and leave nothing that looks like a result
         raise EstimationError(f"{lines_path or images}: no frame gave an orientation")
@@ -142,5 +145,7 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     }
     write_json(output, out, force=force)
     n_ok = sum(r["ok"] for r in records)
+    n_amb = sum(bool(r["ok"] and r.get("normal_ambiguous")) for r in records)
     if not quiet:
-        click.echo(f"{n_ok}/{len(records)} frames oriented -> {output}", err=True)
+        amb = f" ({n_amb} with an ambiguous normal)" if n_amb else ""
+        click.echo(f"{n_ok}/{len(records)} frames oriented{amb} -> {output}", err=True)

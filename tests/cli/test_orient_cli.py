@@ -109,3 +109,33 @@ CHECK = REPO.parent / "shared" / "checks" / "contract_orient.py"
 def test_shared_contract_check():
     r = subprocess.run([sys.executable, str(CHECK), shutil.which("pencilcal")], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_an_ambiguous_normal_is_said_on_stderr(tmp_path, rng):
+    """Two spokes and a stray edge through the vertex: three lines fit every labelling, the
+    spoke radii fit none; the frame comes out with normal_ambiguous, and the run says so in a
+    warning and in its summary line."""
+    cam = hd_camera()
+    write_camera(tmp_path / "camera.yaml", cam)
+    (tmp_path / "pencil.yaml").write_text("start_deg: 0\nstep_deg: 10\ncount: 13\nradius: [15, 80]\n")
+    pen = fan(radius=(15.0, 80.0), count=13, step=10.0)
+    frames = []
+    for i in range(12):
+        seg, R, t = frame(cam, pen, rng.uniform(70, 80), 300.0, rng, noise_px=0.3)
+        keep = rng.choice(13, 2, replace=False)
+        v = cam.project(t)
+        d = seg[keep[0], 2:] - v
+        ang = np.arctan2(d[1], d[0]) + np.radians(rng.choice([-1, 1]) * rng.uniform(25, 60))
+        u = np.array([np.cos(ang), np.sin(ang)])
+        stray = np.r_[v + rng.uniform(20, 60) * u, v + rng.uniform(120, 260) * u]
+        frames.append({"image": f"{i:03d}.png", "ok": True, "segments": np.r_[seg[keep], stray[None]].tolist()})
+    (tmp_path / "lines.json").write_text(json.dumps({"frames": frames}))
+    r = invoke("orient", "--lines", tmp_path / "lines.json", "--camera", tmp_path / "camera.yaml", "--pencil",
+               tmp_path / "pencil.yaml", "-o", tmp_path / "out.json", "--endpoint-sigma", 0.3)
+    assert r.exit_code == 0, r.output
+    out = json.loads((tmp_path / "out.json").read_text())
+    amb = [f["image"] for f in out["frames"] if f["ok"] and f["normal_ambiguous"]]
+    assert len(amb) >= 6
+    for name in amb:
+        assert f"{name}: the normal is ambiguous" in r.output
+    assert f"({len(amb)} with an ambiguous normal)" in r.output
