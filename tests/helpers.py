@@ -48,3 +48,17 @@ def frame(camera, pencil, tilt_deg, depth, rng, noise_px=0.0, margin=20, tries=2
         if inside:
             return seg + noise_px * rng.normal(size=seg.shape), R, t
     raise RuntimeError("no pose keeps the pencil inside the image")
+
+
+def two_spokes_and_a_stray(camera, pencil, rng, tilt_range=(70.0, 80.0), depth=300.0, noise_px=0.3):
+    """Two spokes of `pencil` at a grazing tilt and a stray edge through the vertex's image
+    (25-60 deg off a spoke, 60-240 px long): three lines that fit every labelling exactly.
+    Returns (segments (3, 4), R, t)."""
+    seg, R, t = frame(camera, pencil, rng.uniform(*tilt_range), depth, rng, noise_px=noise_px)
+    keep = rng.choice(len(pencil.angles), 2, replace=False)
+    v = camera.project(t)
+    d = seg[keep[0], 2:] - v
+    ang = np.arctan2(d[1], d[0]) + np.radians(rng.choice([-1, 1]) * rng.uniform(25, 60))
+    u = np.array([np.cos(ang), np.sin(ang)])
+    stray = np.r_[v + rng.uniform(20, 60) * u, v + rng.uniform(120, 260) * u]
+    return np.r_[seg[keep], stray[None]], R, t

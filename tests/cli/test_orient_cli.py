@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from pencilcal.cli.main import cli
 from pencilcal.toolkit.camera_io import write_camera
 from tests.conftest import REPO
-from tests.helpers import fan, frame, hd_camera
+from tests.helpers import fan, frame, hd_camera, two_spokes_and_a_stray
 
 KEYS = ["image", "ok", "error", "vertex_px", "vertex_cov_px2", "lines_used", "rms_residual_deg",
         "tilt_deg", "tilt_sigma_deg", "detectable", "normal", "normal_sigma_deg", "normal_twin",
@@ -121,14 +121,8 @@ def test_an_ambiguous_normal_is_said_on_stderr(tmp_path, rng):
     pen = fan(radius=(15.0, 80.0), count=13, step=10.0)
     frames = []
     for i in range(12):
-        seg, R, t = frame(cam, pen, rng.uniform(70, 80), 300.0, rng, noise_px=0.3)
-        keep = rng.choice(13, 2, replace=False)
-        v = cam.project(t)
-        d = seg[keep[0], 2:] - v
-        ang = np.arctan2(d[1], d[0]) + np.radians(rng.choice([-1, 1]) * rng.uniform(25, 60))
-        u = np.array([np.cos(ang), np.sin(ang)])
-        stray = np.r_[v + rng.uniform(20, 60) * u, v + rng.uniform(120, 260) * u]
-        frames.append({"image": f"{i:03d}.png", "ok": True, "segments": np.r_[seg[keep], stray[None]].tolist()})
+        seg, _, _ = two_spokes_and_a_stray(cam, pen, rng)
+        frames.append({"image": f"{i:03d}.png", "ok": True, "segments": seg.tolist()})
     (tmp_path / "lines.json").write_text(json.dumps({"frames": frames}))
     r = invoke("orient", "--lines", tmp_path / "lines.json", "--camera", tmp_path / "camera.yaml", "--pencil",
                tmp_path / "pencil.yaml", "-o", tmp_path / "out.json", "--endpoint-sigma", 0.3)

@@ -6,7 +6,7 @@ import pytest
 
 from pencilcal.toolkit.frames import angle_between, rotation_angle
 from pencilcal.toolkit.orient import orient_segments, resolve_twins_by_continuity
-from tests.helpers import fan, frame, hd_camera
+from tests.helpers import fan, frame, hd_camera, two_spokes_and_a_stray
 
 KEYS = ["image", "ok", "error", "vertex_px", "vertex_cov_px2", "lines_used", "rms_residual_deg",
         "tilt_deg", "tilt_sigma_deg", "detectable", "normal", "normal_sigma_deg", "normal_twin",
@@ -202,15 +202,8 @@ def test_three_lines_with_a_spurious_one_are_not_a_confident_answer(rng):
     pen = fan(radius=(15.0, 80.0), count=13, step=10.0)
     results = []
     for _ in range(20):
-        seg, R, t = frame(cam, pen, rng.uniform(70, 80), 300.0, rng, noise_px=0.3)
-        keep = rng.choice(13, 2, replace=False)
-        v = cam.project(t)
-        # a stray edge through the vertex's image, 25-60 deg off a spoke, 60-240 px long
-        d = seg[keep[0], 2:] - v
-        ang = np.arctan2(d[1], d[0]) + np.radians(rng.choice([-1, 1]) * rng.uniform(25, 60))
-        u = np.array([np.cos(ang), np.sin(ang)])
-        stray = np.r_[v + rng.uniform(20, 60) * u, v + rng.uniform(120, 260) * u]
-        rec = orient_segments(cam, np.r_[seg[keep], stray[None]], pen, endpoint_sigma_px=0.3)
+        seg, R, _ = two_spokes_and_a_stray(cam, pen, rng)
+        rec = orient_segments(cam, seg, pen, endpoint_sigma_px=0.3)
         if rec["ok"]:
             err = np.degrees(min(angle_between(np.asarray(rec["normal"]), R[:, 2]),
                                  angle_between(np.asarray(rec["normal_twin"]), R[:, 2])))
