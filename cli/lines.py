@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import click
-import numpy as np
 
 from pencilcal.toolkit.camera_io import read_camera
 from pencilcal.toolkit.images import check_image_size, open_images

@@ -132,7 +132,6 @@ def fit_one(a, th, x, sigma, oriented, max_iter, tol, vertex_cov, min_cos, chi2_
     res = [sw[k] * _wrap_line(a[k] - alpha[k]) for k in range(N)]
     cost = sum(v * v for v in res)
     lam = 1e-4
-    active = True
     it = 0
     for it in range(1, max_iter + 1):
         h00 = h01 = h02 = h11 = h12 = h22 = g0 = g1 = g2 = 0.0
@@ -158,7 +157,6 @@ def fit_one(a, th, x, sigma, oriented, max_iter, tol, vertex_cov, min_cos, chi2_
             cost = min(cost, cost_n)
         lam = lam * (10.0 - 9.9 * better)
         if small or stalled or lam > 1e10:
-            active = False
             break
     converged = lam <= 1e10
     # --- twin and order (estimator.fit_pencil)

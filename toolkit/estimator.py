@@ -48,9 +48,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .angles import wrap_line, wrap_angle
+from .angles import wrap_line
 from .errors import EstimationError, InputError
-from .frames import rotation_to_z, normalize, twin_rotation
+from .frames import twin_rotation
 
 __all__ = [
     "PencilFit",

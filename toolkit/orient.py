@@ -31,14 +31,13 @@ from .angles import wrap_angle
 from .assign import assign_spokes
 from .errors import EstimationError, InputError
 from .estimator import (
-    PencilFit,
     detection_threshold,
     fit_pencil,
     pencil_covariance,
     swap_twins,
     choose_by_prior,
 )
-from .frames import normalize, rotation_angle, rotation_from_rotvec, twin_rotation
+from .frames import normalize, rotation_angle, rotation_from_rotvec
 from .pencil import image_angles
 from .vertex import intersect_lines
 

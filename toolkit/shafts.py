@@ -1304,7 +1304,6 @@ def detect_shafts(image, camera=None, *, detector="lsd", min_length=None, width_
     E, support = _unsigned(joined[good]), support[good]
     keep = _dedupe(E, support)
     E = E[keep]
-    L = np.hypot(E[:, 2] - E[:, 0], E[:, 3] - E[:, 1])
     if E.shape[0] < 2:
         return []
     # 3. bands
@@ -1349,9 +1348,6 @@ def detect_shafts(image, camera=None, *, detector="lsd", min_length=None, width_
     pr = pr.take(cand)
     q, s, step, lo_run, hi_run, touch = _chord_assess(img, camera, pr, poly, sig_n, sigma_px, border_px, 300,
                                                       min_step=5.0)
-    K = pr.a.size
-    rows = np.arange(K)
-    S = s.shape[1]
     if _DEBUG is not None:
         _DEBUG.update(E=E, pr=pr, q=q, s=s, step=step)
     score = q["n_shaft"] * step

@@ -102,7 +102,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.files import load_frames, load_structured, write_json
+from pencilcal.toolkit.files import load_frames, write_json
 from pencilcal.toolkit.frames import rotvec_from_rotation
 
 __all__ = [

@@ -15,7 +15,7 @@ from pencilcal.toolkit.boards import write_board
 from pencilcal.toolkit.camera_io import write_camera
 from pencilcal.toolkit.pencil import write_pencil
 from pencilcal.toolkit.frames import rotation_about_axis
-from pencilcal.toolkit.render import layout_sheet, render_frame
+from pencilcal.toolkit.render import render_frame
 from pencilcal.toolkit.scenes import make_scenario
 
 HERE = Path(__file__).resolve().parent

@@ -123,7 +123,6 @@ def test_continuity_carries_an_anchor(rng):
     cam = hd_camera()
     pen = fan(radius=None)
     recs, truth = [], []
-    R0 = None
     for k in range(6):
         seg, R, t = frame(cam, pen, 30.0 + 3 * k, 200.0, rng)
         truth.append(R)

@@ -7,7 +7,6 @@ import pytest
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.frames import rotation_from_rotvec
 from pencilcal.toolkit.pencil import image_angles, pencil_from_dict, read_pencil, write_pencil
-from tests.helpers import hd_camera
 
 
 def test_regular_and_explicit_forms():
@@ -45,7 +44,6 @@ def test_round_trip(tmp_path, ext):
 
 def test_image_angles_equal_projection(rng):
     """The closed-form spoke direction equals the direction between projected points."""
-    cam = hd_camera("pinhole")
     for _ in range(20):
         R = rotation_from_rotvec(rng.normal(size=3) * 0.6)
         t = np.r_[rng.uniform(-30, 30, 2), 300.0]
