@@ -437,7 +437,7 @@ class _LogProgress:
         while not self._stop.wait(_POLL_S):
             try:
                 n = self._newest()
-            except Exception:  # the log not there yet, or unreadable: stop reporting
+            except Exception:  # an unreadable log: stop reporting, never the work
                 return
             if n is None:
                 continue
