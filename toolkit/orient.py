@@ -39,7 +39,7 @@ from .estimator import (
 )
 from .frames import normalize, rotation_angle, rotation_from_rotvec
 from .pencil import image_angles
-from .vertex import intersect_lines
+from .vertex import intersect_lines, lines_through
 
 __all__ = ["orient_segments", "orientation_record", "raw_vertex", "MODELS", "metric_depth", "resolve_twins_by_continuity"]
 
@@ -194,7 +194,11 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
             J = np.linalg.inv(camera.jacobian_pixels_from_normalized(camera.normalized_from_pixels(vertex_px)))
             C = np.zeros((2, 2)) if vertex_cov_px2 is None else np.asarray(vertex_cov_px2, float)
             cov_ideal = (K[:2, :2] @ J) @ C @ (K[:2, :2] @ J).T
-            through = np.ones(idx.size, bool)
+            # only the segments that pass through it (and, with spoke radii, reach close
+            # enough to it) are the pencil's: the others are other edges of the scene
+            _, through = lines_through(v_ideal, ideal, st, sc, cov_ideal)
+            if pencil.radius is not None:
+                through &= _radius_consistent(ideal, pencil.radius)(v_ideal[None])[0]
         else:
             v_ideal, cov_ideal, through = _find_vertex(ideal, st, sc, pencil.radius)
         idx, ideal, st = idx[through], ideal[through], st[through]

@@ -58,6 +58,7 @@ __all__ = [
     "segment_angle_sigma",
     "VertexFit",
     "intersect_lines",
+    "lines_through",
     "vertex_crlb",
     "propagate_cov",
 ]
@@ -460,6 +461,33 @@ def intersect_lines(
         condition=cond,
         iterations=it,
     )
+
+
+def lines_through(point, segments, angle_sigma, offset_sigma, point_cov=None, confidence=0.999):
+    """Which lines pass through a known point, within their noise and the point's.
+
+    point: (2,) [px]; segments: (M, 4) [px]; angle_sigma [rad], offset_sigma [px]: scalars or
+    (M,), the noise model of the module docstring; point_cov: (2, 2) [px^2] or None.
+    Returns (z (M,), through (M,) bool): each line's normalised distance from the point and
+    whether z^2 is below the chi-square(1) quantile at `confidence`, the test
+    `intersect_lines` uses for its inliers.
+
+    >>> z, ok = lines_through([5.0, 0.0], [[0, 0, 10, 0], [5, -5, 5, 5], [0, 3, 10, 3]], 1e-3, 0.2)
+    >>> ok.tolist()
+    [True, True, False]
+    """
+    s = _check_segments(segments)
+    m = s.shape[0]
+    lines = segment_lines(s)
+    sc = _check_sigma(offset_sigma, m, "offset_sigma", positive=True)
+    st = _check_sigma(angle_sigma, m, "angle_sigma", positive=False)
+    p = np.asarray(point, float).reshape(2)
+    dm = np.sum(lines.direction * lines.centre, -1)
+    var = _line_var(p, lines, dm, st * st, sc * sc)
+    if point_cov is not None:
+        var = var + np.einsum("mi,ij,mj->m", lines.normal, np.asarray(point_cov, float), lines.normal)
+    z = (lines.normal @ p + lines.offset) / np.sqrt(var)
+    return z, z * z < float(chdtri(1, 1.0 - confidence))
 
 
 def vertex_crlb(vertex, segments, angle_sigma, offset_sigma):

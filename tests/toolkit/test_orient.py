@@ -96,6 +96,26 @@ def test_known_vertex(rng):
     np.testing.assert_allclose(rec["vertex_cov_px2"], np.eye(2) * 0.04, rtol=0.05, atol=1e-12)
 
 
+def test_known_vertex_leaves_out_the_segments_that_miss_it(rng):
+    """Edges elsewhere in the frame (a board's squares beside a fan) do not pass through a
+    known vertex and must not be labelled as spokes: they once turned 10 deg of tilt into 72."""
+    cam = hd_camera()
+    for radius in (None, (10.0, 50.0)):
+        pen = fan(radius=radius)
+        seg, R, t = frame(cam, pen, 20.0, 200.0, rng, noise_px=0.1)
+        v = cam.project(t)
+        # the edges of a board's squares beside the fan: two families of parallel lines
+        g = np.arange(6)[:, None] * 40.0
+        x0, y0 = v[0] - 500.0, v[1] - 150.0
+        junk = np.r_[np.c_[x0 + g, np.full_like(g, y0), x0 + g + 6, np.full_like(g, y0 + 200)],
+                     np.c_[np.full_like(g, x0), y0 + g, np.full_like(g, x0 + 200), y0 + g + 8]]
+        rec = orient_segments(cam, np.r_[seg, junk], pen, vertex_px=v, vertex_cov_px2=np.eye(2) * 1e-6,
+                              endpoint_sigma_px=0.1)
+        assert rec["ok"] and rec["lines_used"] == 8
+        assert np.all(rec["spokes"][8:] == -1)
+        assert np.degrees(closer(rec, R)) < 0.5
+
+
 def test_frontal_is_not_detectable(rng):
     cam = hd_camera()
     pen = fan(radius=None)
