@@ -362,6 +362,8 @@ def _break_label_ties(lab, fit, rivals, x, pencil, p1, p2, sigma_metric):
     # Radii that no labelling fits within the end point noise (grazing views, where bar
     # ends blur; a spurious line among three, which every labelling fits exactly) cannot
     # pick one: their differences count against the best-fitting labelling's own scatter.
+    if not np.any(np.isfinite(per_point)):
+        return lab, fit, list(rivals)  # no labelling gives the radii a positive depth
     scatter = max(1.0, float(np.min(per_point)))
     scores = angles + np.where(np.isfinite(per_point), per_point * max(points) / scatter, 1e12)
     best = int(np.argmin(scores))
