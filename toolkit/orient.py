@@ -116,10 +116,11 @@ def _segment_geometry(camera, segments, endpoint_sigma_px):
     # in raw pixels becomes noise in ideal pixels scaled by it
     centre = 0.5 * (seg[:, :2] + seg[:, 2:])
     xy = camera.normalized_from_pixels(centre)
-    Jpn = camera.jacobian_pixels_from_normalized(xy)  # d raw / d normalised
     K2 = np.asarray(camera.K, float)[:2, :2]
-    J_ideal_from_raw = K2 @ np.linalg.inv(Jpn)
-    scale = np.sqrt(np.abs(np.linalg.det(J_ideal_from_raw)))
+    with np.errstate(invalid="ignore"):  # NaN beyond the lens model's reach: dropped by the caller
+        Jpn = camera.jacobian_pixels_from_normalized(xy)  # d raw / d normalised
+        J_ideal_from_raw = K2 @ np.linalg.inv(Jpn)
+        scale = np.sqrt(np.abs(np.linalg.det(J_ideal_from_raw)))
     return ideal, scale
 
 
@@ -401,7 +402,8 @@ def _radii_chi2(R, cov, x, th, p1, p2, radius, sigma_n):
         J = np.stack([(metric_depth(rotation_from_rotvec(h * e) @ R, x, th2, inner, outer, radius)[1] - r) / h
                       for e in np.eye(3)], -1)  # (B, 2, 2K, 3)
     n = r.shape[-1]
-    C = sigma_n**2 * np.eye(n) + J @ cov[:, None] @ np.swapaxes(J, -1, -2)
+    with np.errstate(invalid="ignore"):  # as above
+        C = sigma_n**2 * np.eye(n) + J @ cov[:, None] @ np.swapaxes(J, -1, -2)
     good = np.all(np.isfinite(r), -1) & np.all(np.isfinite(J), (-1, -2))
     safe = np.where(good[..., None], r, 0.0)
     C = np.where(good[..., None, None], C, np.eye(n))
