@@ -360,11 +360,11 @@ def _break_label_ties(lab, fit, rivals, x, pencil, p1, p2, sigma_metric):
     # a labelling that leaves a line out is charged for it as assign_spokes charges it, and
     # its radii are judged per end point (fewer points must not mean a smaller sum)
     angles = angle_chi2 + _CHI2_1 * (lines.max() - lines)
+    if not np.any(np.isfinite(per_point)):
+        return lab, fit, list(rivals)  # no labelling gives the radii a positive depth
     # Radii that no labelling fits within the end point noise (grazing views, where bar
     # ends blur; a spurious line among three, which every labelling fits exactly) cannot
     # pick one: their differences count against the best-fitting labelling's own scatter.
-    if not np.any(np.isfinite(per_point)):
-        return lab, fit, list(rivals)  # no labelling gives the radii a positive depth
     scatter = max(1.0, float(np.min(per_point)))
     scores = angles + np.where(np.isfinite(per_point), per_point * max(points) / scatter, 1e12)
     best = int(np.argmin(scores))
@@ -398,11 +398,10 @@ def _radii_chi2(R, cov, x, th, p1, p2, radius, sigma_n):
     _, r = metric_depth(R, x, th2, inner, outer, radius)  # (B, 2, 2K)
     # residuals' sensitivity to a small left rotation of R (the depth refitted each time)
     h = 1e-6
+    n = r.shape[-1]
     with np.errstate(invalid="ignore"):  # inf - inf where no depth fits: caught below
         J = np.stack([(metric_depth(rotation_from_rotvec(h * e) @ R, x, th2, inner, outer, radius)[1] - r) / h
                       for e in np.eye(3)], -1)  # (B, 2, 2K, 3)
-    n = r.shape[-1]
-    with np.errstate(invalid="ignore"):  # as above
         C = sigma_n**2 * np.eye(n) + J @ cov[:, None] @ np.swapaxes(J, -1, -2)
     good = np.all(np.isfinite(r), -1) & np.all(np.isfinite(J), (-1, -2))
     safe = np.where(good[..., None], r, 0.0)
