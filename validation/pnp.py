@@ -69,8 +69,8 @@ quarter of ours at sigma = 1 px; see `colmap_covariance_to_pencilcal`.) The cova
 is local: it does not cover the planar twin, whose distance in RMS (`alternative_rms_px`
 against `reproj_rms_px`) says how clearly the twin is ruled out.
 
-It assumes independent corner errors. On real frames they are not (blur, compression and
-interlaced fields correlate neighbouring corners), and what they share mostly moves the
+It assumes independent corner errors. On real frames they need not be (blur, compression and
+interlaced fields can correlate neighbouring corners), and what they share mostly moves the
 pose, which no per-frame residual can show: on the da Vinci stereo pair the relative
 rotation of the two cameras scatters by about as much as the covariances say, but only 31 %
 of the frames fall inside their 68 % region (docs/experiments.md). Read PnP sigmas on real
