@@ -588,10 +588,18 @@ def verdict(data):
         notes.append(f"{no_tilt} validated frame{'s have' if no_tilt != 1 else ' has'} no reference tilt (no pencil "
                      f"vertex in the reference pose).")
     if prim is not None:
-        lab = sum(1 for _, f, _ in _errors(data, prim) if _g(f, "orient", prim.split(":", 1)[1], "labels_ambiguous"))
+        model = prim.split(":", 1)[1]
+        flags = [(bool(_g(f, "orient", model, "labels_ambiguous")), bool(_g(f, "orient", model, "normal_ambiguous")))
+                 for _, f, _ in _errors(data, prim)]
+        lab = sum(1 for la, na in flags if la and not na)
+        nrm = sum(1 for _, na in flags if na)
         if lab:
             notes.append(f"{lab} frame{'s' if lab != 1 else ''} with spoke labels that could shift (in-plane angle "
                          f"unknown; the normal is unaffected).")
+        if nrm:
+            notes.append(f"{nrm} frame{'s' if nrm != 1 else ''} whose normal is ambiguous: another labelling of "
+                         f"{'their' if nrm != 1 else 'its'} lines fits about as well and puts the normal elsewhere "
+                         f"(normal_alternatives); the errors shown are those of the labelling reported.")
     missing = [t for t, ok in (("ground truth", ref == "truth"), ("a reconstruction", isinstance(sfm, dict)),
                                ("calibration statistics", isinstance(cal, dict) and bool(cal))) if not ok]
     if missing:
@@ -688,7 +696,8 @@ def _frame_tables(data):
                      _bound(_g(f, "crlb", "tilt_deg")), tilt,
                      Cell(yn(o.get("detectable")), "warn" if o.get("detectable") is False else None),
                      Cell(yn(o.get("ambiguous")), "warn" if o.get("ambiguous") else None),
-                     o.get("resolved_by") or "–", yn(o.get("labels_ambiguous")),
+                     o.get("resolved_by") or "–",
+                     Cell("yes, normal too", "warn") if o.get("normal_ambiguous") else yn(o.get("labels_ambiguous")),
                      "–" if o.get("lines_used") is None else str(o.get("lines_used")),
                      num(o.get("rms_residual_deg")),
                      "–" if f.get("board_corners") is None else str(f.get("board_corners")),

@@ -385,3 +385,20 @@ def test_real_validation_run_html_and_pdf(real_run):
     assert "pencilcal report v.json" in page
     rp.write_report(d / "r.pdf", data, samples=1, source=vjson)
     assert pdf_pages(d / "r.pdf") > 1
+
+
+def test_ambiguous_labels_and_normals_are_told_apart(tmp_path):
+    """A shifted labelling leaves the normal alone; a labelling that moves the normal does not:
+    the notes say which frames are which, and the per-frame table marks the second kind."""
+    data = synthetic(tmp_path)
+    _, notes = rp.verdict(data)
+    assert any(n.startswith("1 frame with spoke labels that could shift") for n in notes)
+    assert not any("whose normal is ambiguous" in n for n in notes)
+    f = data["frames"][4]["orient"]["exact"]
+    f["labels_ambiguous"] = f["normal_ambiguous"] = True
+    f["normal_alternatives"] = [[0.0, 0.6, 0.8]]
+    _, notes = rp.verdict(data)
+    assert any(n.startswith("1 frame with spoke labels that could shift") for n in notes)  # frame 1 only
+    assert any(n.startswith("1 frame whose normal is ambiguous") for n in notes)
+    page = rp.render_html(rp.build_report(data, samples=0))
+    assert page.count("yes, normal too") == 1
