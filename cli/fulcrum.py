@@ -61,7 +61,8 @@ def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_si
     """The fulcrum of an instrument pivoting about its entry port.
 
     Every frame's instrument line passes through the fulcrum's image: their robust weighted
-    intersection gives the fulcrum in pixels, its covariance and its viewing ray. From
+    intersection gives the fulcrum's viewing ray and, where the lens model reaches it (a
+    port far off axis may lie beyond), its raw pixel and covariance. From
     IMAGES (a folder, glob or video) the instrument shafts are detected in every frame
     (their midlines are the axis images); or the lines come from a lines file (--lines).
     With --angles (one pivot angle per frame) the lines form a pencil with known angles and

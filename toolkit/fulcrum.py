@@ -26,6 +26,7 @@ import numpy as np
 
 from .errors import EstimationError, InputError
 from .estimator import check_vertex, fit_pencil
+from .frames import normalize
 from .orient import orientation_record, raw_vertex
 from .vertex import intersect_lines
 
@@ -130,7 +131,7 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=0.5):
     check_vertex(x)
     cov_x = A @ vf.cov @ A.T
     # the ray from the ideal vertex itself: the lens model need not reach it (raw_vertex)
-    ray = np.r_[x, 1.0] / np.linalg.norm(np.r_[x, 1.0])
+    ray = normalize(np.r_[x, 1.0])
     # ray uncertainty: the unit ray moves by (I - r r^T)[:, :2] / |(x, 1)| per unit of x
     v = np.r_[x, 1.0]
     P = (np.eye(3) - np.outer(v, v) / (v @ v))[:, :2] / np.linalg.norm(v)

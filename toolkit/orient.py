@@ -379,6 +379,12 @@ def _break_label_ties(lab, fit, rivals, x, pencil, p1, p2, sigma_metric):
     return cands[best][0], cands[best][1], rest
 
 
+def _inner_outer(p1, p2, x):
+    """Segment end points (K, 2) nearer to and farther from the vertex x (2,)."""
+    near1 = (np.linalg.norm(p1 - x, axis=-1) <= np.linalg.norm(p2 - x, axis=-1))[:, None]
+    return np.where(near1, p1, p2), np.where(near1, p2, p1)
+
+
 def _radii_chi2(R, cov, x, th, p1, p2, radius, sigma_n):
     """How well the spoke radii fit the segment end points, for labellings of the same
     segments: chi2 (B,), the better twin's.
@@ -391,9 +397,7 @@ def _radii_chi2(R, cov, x, th, p1, p2, radius, sigma_n):
     labellings are fitted on different lines, and a fit on three lines, exact whatever the
     labels, can be far less certain than its end points.
     """
-    d1, d2 = np.linalg.norm(p1 - x, axis=-1), np.linalg.norm(p2 - x, axis=-1)
-    inner = np.where((d1 <= d2)[:, None], p1, p2)
-    outer = np.where((d1 <= d2)[:, None], p2, p1)
+    inner, outer = _inner_outer(p1, p2, x)
     th2 = np.repeat(th[:, None], 2, 1)  # (B, 2, K)
     _, r = metric_depth(R, x, th2, inner, outer, radius)  # (B, 2, 2K)
     # residuals' sensitivity to a small left rotation of R (the depth refitted each time)
@@ -520,10 +524,7 @@ def _metric_choice(fit, x, th, p1, p2, radius, sigma_n):
     sigma_n: end point noise in normalised units. Decisive when the better twin fits within
     noise (chi2 per point < 9) and the other is worse by more than 25 in chi2.
     """
-    d1 = np.linalg.norm(p1 - x, axis=-1)
-    d2 = np.linalg.norm(p2 - x, axis=-1)
-    inner = np.where((d1 <= d2)[:, None], p1, p2)
-    outer = np.where((d1 <= d2)[:, None], p2, p1)
+    inner, outer = _inner_outer(p1, p2, x)
     z, r = metric_depth(fit.R_cam_from_target, x, th, inner, outer, radius)
     zt, rt = metric_depth(fit.R_twin, x, th, inner, outer, radius)
     c, ct = np.sum((r / sigma_n) ** 2), np.sum((rt / sigma_n) ** 2)

@@ -215,6 +215,16 @@ def _line_var(p, lines, dm, st2, sc2):
     return sc2 + r * r * st2
 
 
+def _normalised_residuals(p, lines, dm, st2, sc2, extra_var=None):
+    """Distances (M,) of p (2,) from the lines over their sd, and those sds (M,);
+    `extra_var` (M,) adds to the variances (the point's own uncertainty along each normal)."""
+    var = _line_var(p, lines, dm, st2, sc2)
+    if extra_var is not None:
+        var = var + extra_var
+    sig = np.sqrt(var)
+    return (lines.normal @ p + lines.offset) / sig, sig
+
+
 def _chi2_infinity(phi, st2, enough):
     """Smallest chi2 of the lines about a common point at infinity (all lines parallel).
 
@@ -379,9 +389,7 @@ def intersect_lines(
         )
 
     def classify(p):
-        var = _line_var(p, lines, dm, st2, sc2)
-        e = (lines.normal @ p + lines.offset) / np.sqrt(var)
-        return e, np.sqrt(var)
+        return _normalised_residuals(p, lines, dm, st2, sc2)
 
     if robust and m > 2:
         hyp = _pair_hypotheses(lines, max_pairs, seed, min_sin=1e-9)
@@ -483,10 +491,9 @@ def lines_through(point, segments, angle_sigma, offset_sigma, point_cov=None, co
     st = _check_sigma(angle_sigma, m, "angle_sigma", positive=False)
     p = np.asarray(point, float).reshape(2)
     dm = np.sum(lines.direction * lines.centre, -1)
-    var = _line_var(p, lines, dm, st * st, sc * sc)
-    if point_cov is not None:
-        var = var + np.einsum("mi,ij,mj->m", lines.normal, np.asarray(point_cov, float), lines.normal)
-    z = (lines.normal @ p + lines.offset) / np.sqrt(var)
+    extra = None if point_cov is None else np.einsum("mi,ij,mj->m", lines.normal, np.asarray(point_cov, float),
+                                                      lines.normal)
+    z, _ = _normalised_residuals(p, lines, dm, st * st, sc * sc, extra)
     return z, z * z < float(chdtri(1, 1.0 - confidence))
 
 
