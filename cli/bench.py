@@ -5,7 +5,7 @@ import json
 
 import click
 
-from pencilcal.toolkit.files import to_jsonable, write_json
+from pencilcal.toolkit.io.files import to_jsonable, write_json
 from pencilcal.validation.bench import format_table, run_bench
 
 from .common import check_output, run

@@ -9,15 +9,15 @@ from pathlib import Path
 import click
 import numpy as np
 
-from pencilcal.toolkit.boards import read_board
-from pencilcal.toolkit.calibration import MODELS, calibrate as calibrate_views
-from pencilcal.toolkit.camera import Camera
-from pencilcal.toolkit.camera_io import camera_format, camera_to_dict, write_camera
-from pencilcal.toolkit.corners_io import check_image_name, write_corners_vnl
-from pencilcal.toolkit.detect import detect_board
+from pencilcal.toolkit.board.spec import read_board
+from pencilcal.toolkit.board.calibrate import MODELS, calibrate as calibrate_views
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.camera.formats import camera_format, camera_to_dict, write_camera
+from pencilcal.toolkit.board.corners_cache import check_image_name, write_corners_vnl
+from pencilcal.toolkit.board.detect import detect_board
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.files import write_json
-from pencilcal.toolkit.images import open_images
+from pencilcal.toolkit.io.files import write_json
+from pencilcal.toolkit.io.images import open_images
 
 from .common import check_output, force_option, quiet_option, run, run_frames, warn, workers_option
 
@@ -90,7 +90,7 @@ def _vnl_name(path, name, corners_path, kind):
 def _detect_task(frame, board):
     """(frame without its image, (width, height) or None, detection) for one frame; module
     level, so it runs in worker processes too, and images never travel back."""
-    from pencilcal.toolkit.images import Frame
+    from pencilcal.toolkit.io.images import Frame
 
     light = Frame(frame.name, frame.index, None, frame.error, frame.path)
     if frame.image is None:

@@ -14,7 +14,7 @@ import threading
 import click
 
 from pencilcal.toolkit.errors import PencilcalError
-from pencilcal.toolkit.files import check_writable
+from pencilcal.toolkit.io.files import check_writable
 
 __all__ = ["run", "progress", "warn", "output_option", "force_option", "quiet_option", "check_output",
            "camera_options", "StageBars", "workers_option", "run_frames"]
@@ -124,7 +124,7 @@ def run_frames(source, task, context, workers, label, quiet):
     """Results of ``task(frame, context)`` for every frame of `source`, in order, behind a
     progress bar; with workers > 1 in a process pool (toolkit.parallel.map_frames). `task`
     must be a module-level function."""
-    from pencilcal.toolkit.parallel import Sized, map_frames
+    from pencilcal.toolkit.io.parallel import Sized, map_frames
 
     results = map_frames(task, source, context, workers)
     with progress(Sized(results, len(source)), label, quiet) as it:

@@ -15,7 +15,7 @@ import functools
 
 import click
 
-from pencilcal.toolkit.files import check_writable, write_json
+from pencilcal.toolkit.io.files import check_writable, write_json
 
 from .common import check_output, force_option, output_option, run, warn
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 import click
 import numpy as np
 
-from pencilcal.toolkit.camera_io import read_camera
+from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.errors import EstimationError, InputError
-from pencilcal.toolkit.files import write_json
-from pencilcal.toolkit.fulcrum import fulcrum_from_frames, read_angles
-from pencilcal.toolkit.lines_io import read_lines
+from pencilcal.toolkit.io.files import write_json
+from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles
+from pencilcal.toolkit.io.lines_file import read_lines
 
 from .common import camera_options, check_output, force_option, output_option, quiet_option, run, run_frames, warn, workers_option
 
@@ -17,8 +17,8 @@ def _shaft_task(frame, ctx):
     """The shafts of one frame as a lines.json frame (module level: runs in workers too)."""
     import numpy as np
 
-    from pencilcal.toolkit.images import check_image_size
-    from pencilcal.toolkit.shafts import detect_shafts
+    from pencilcal.toolkit.io.images import check_image_size
+    from pencilcal.toolkit.detect.shafts import detect_shafts
 
     camera, detector = ctx
     if frame.image is None:
@@ -31,7 +31,7 @@ def _shaft_task(frame, ctx):
 
 def _shafts(images, camera, detector, quiet, workers):
     """Instrument shafts of every frame of IMAGES, as lines.json frames."""
-    from pencilcal.toolkit.images import open_images
+    from pencilcal.toolkit.io.images import open_images
 
     frames = list(run_frames(open_images(images), _shaft_task, (camera, detector), workers, "shafts", quiet))
     for f in frames:

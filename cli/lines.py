@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import click
 
-from pencilcal.toolkit.camera_io import read_camera
-from pencilcal.toolkit.images import check_image_size, open_images
-from pencilcal.toolkit.lines import DETECTORS, lines_record
-from pencilcal.toolkit.lines_io import write_lines
+from pencilcal.toolkit.camera.formats import read_camera
+from pencilcal.toolkit.io.images import check_image_size, open_images
+from pencilcal.toolkit.detect.lines import DETECTORS, lines_record
+from pencilcal.toolkit.io.lines_file import write_lines
 
 from .common import camera_options, check_output, force_option, output_option, quiet_option, run, run_frames, warn, workers_option
 

@@ -4,12 +4,12 @@ from __future__ import annotations
 import numpy as np
 import click
 
-from pencilcal.toolkit.camera_io import read_camera
+from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.errors import EstimationError, InputError
-from pencilcal.toolkit.files import write_json
-from pencilcal.toolkit.lines_io import read_lines
-from pencilcal.toolkit.orient import MODELS, orient_segments, resolve_twins_by_continuity
-from pencilcal.toolkit.pencil import read_pencil
+from pencilcal.toolkit.io.files import write_json
+from pencilcal.toolkit.io.lines_file import read_lines
+from pencilcal.toolkit.pencil.orient import MODELS, orient_segments, resolve_twins_by_continuity
+from pencilcal.toolkit.pencil.spec import read_pencil
 
 from .common import camera_options, check_output, force_option, output_option, progress, quiet_option, run, run_frames, warn, workers_option
 
@@ -33,8 +33,8 @@ def _orient_record(camera, pencil, fr, opts):
 def _orient_image_task(frame, ctx):
     """Lines (as `pencilcal lines` finds them) and orientation of one decoded frame; module
     level, so it runs in worker processes too."""
-    from pencilcal.toolkit.images import check_image_size
-    from pencilcal.toolkit.lines import lines_record
+    from pencilcal.toolkit.io.images import check_image_size
+    from pencilcal.toolkit.detect.lines import lines_record
 
     camera, pencil, detector, opts = ctx
     if frame.image is None:
@@ -47,7 +47,7 @@ def _orient_image_task(frame, ctx):
 
 def _prior_rotations(path):
     """R_cam_from_target per image name from a poses.json (pencilcal pnp) file."""
-    from pencilcal.toolkit.files import load_frames
+    from pencilcal.toolkit.io.files import load_frames
 
     _, frames = load_frames(path, "poses file")
     out = {}
@@ -120,7 +120,7 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         with progress(frames, "orient", quiet) as bar:
             records = [_orient_record(camera, pencil, fr, opts) for fr in bar]
     else:
-        from pencilcal.toolkit.images import open_images
+        from pencilcal.toolkit.io.images import open_images
 
         ctx = (camera, pencil, detector, opts)
         records = list(run_frames(open_images(images), _orient_image_task, ctx, workers, "orient", quiet))

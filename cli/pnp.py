@@ -3,11 +3,11 @@ from __future__ import annotations
 
 import click
 
-from pencilcal.toolkit.boards import read_board
-from pencilcal.toolkit.camera_io import read_camera
-from pencilcal.toolkit.detect import detect_board
+from pencilcal.toolkit.board.spec import read_board
+from pencilcal.toolkit.camera.formats import read_camera
+from pencilcal.toolkit.board.detect import detect_board
 from pencilcal.toolkit.errors import EstimationError
-from pencilcal.toolkit.images import check_image_size, open_images
+from pencilcal.toolkit.io.images import check_image_size, open_images
 from pencilcal.validation.pnp import (
     DEFAULT_MAX_RMS_PX,
     DEFAULT_METHOD,

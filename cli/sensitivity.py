@@ -7,7 +7,7 @@ import click
 import numpy as np
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.files import check_writable, write_json
+from pencilcal.toolkit.io.files import check_writable, write_json
 
 from .common import check_output, force_option, output_option, quiet_option, run
 
@@ -81,7 +81,7 @@ def sensitivity(output, focal, spokes, step_deg, sigma_deg, tilts, offaxis, tria
       pencilcal sensitivity -o sensitivity.json --spokes 8 --step-deg 20 \\
           --sigma-deg 0.1 --accuracy 0.5 --offaxis 0:400:100px --png plan
     """
-    from pencilcal.toolkit import torch_estimator as te
+    from pencilcal.toolkit.pencil import estimator_torch as te
     from pencilcal.validation import sensitivity as sens
 
     if not (math.isfinite(focal) and focal > 0):

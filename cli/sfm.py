@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from pencilcal.toolkit.camera_io import read_camera
+from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.errors import InputError
 from pencilcal.validation.sfm import (
     DEFAULT_MAX_FEATURES,

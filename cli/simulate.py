@@ -116,11 +116,11 @@ def simulate(out, scenario, frames, seed, size, model, camera_path, noise, blur,
     """
     import cv2
 
-    from pencilcal.toolkit.boards import write_board
-    from pencilcal.toolkit.camera_io import read_camera, write_camera
-    from pencilcal.toolkit.files import atomic_write, write_json
-    from pencilcal.toolkit.pencil import write_pencil
-    from pencilcal.toolkit.scenes import make_scenario
+    from pencilcal.toolkit.board.spec import write_board
+    from pencilcal.toolkit.camera.formats import read_camera, write_camera
+    from pencilcal.toolkit.io.files import atomic_write, write_json
+    from pencilcal.toolkit.pencil.spec import write_pencil
+    from pencilcal.toolkit.synth.scenarios import make_scenario
 
     w, h = _parse_size(size)
     out_path = Path(out)

@@ -60,9 +60,9 @@ def target(output, paper, orientation, dpi, board_squares, square, marker, dicti
       pencilcal target -o target.pdf
       pencilcal target -o target.png --dpi 600 --paper letter --spokes 10 --step-deg 15
     """
-    from pencilcal.toolkit.boards import board_from_dict, write_board
-    from pencilcal.toolkit.pencil import write_pencil
-    from pencilcal.toolkit.render import layout_sheet, write_sheet_pdf, write_sheet_png
+    from pencilcal.toolkit.board.spec import board_from_dict, write_board
+    from pencilcal.toolkit.pencil.spec import write_pencil
+    from pencilcal.toolkit.synth.render import layout_sheet, write_sheet_pdf, write_sheet_png
 
     out = Path(output)
     suffix = out.suffix.lower()

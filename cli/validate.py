@@ -5,8 +5,8 @@ import sys
 
 import click
 
-from pencilcal.toolkit.files import write_json
-from pencilcal.toolkit.orient import MODELS
+from pencilcal.toolkit.io.files import write_json
+from pencilcal.toolkit.pencil.orient import MODELS
 from pencilcal.validation.pnp import METHODS
 from pencilcal.validation.validate import find_sequences, sequence_files, validate_many, validate_path
 

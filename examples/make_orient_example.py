@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pencilcal.toolkit.camera import Camera
-from pencilcal.toolkit.camera_io import write_camera
-from pencilcal.toolkit.frames import rotation_about_axis, rotation_to_z
-from pencilcal.toolkit.pencil import Pencil, project_spokes, write_pencil
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.camera.formats import write_camera
+from pencilcal.toolkit.geometry.frames import rotation_about_axis, rotation_to_z
+from pencilcal.toolkit.pencil.spec import Pencil, project_spokes, write_pencil
 
 OUT = Path(__file__).resolve().parent / "orient"
 

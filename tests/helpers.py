@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pencilcal.toolkit.camera import Camera
-from pencilcal.toolkit.frames import rotation_about_axis, rotation_to_z
-from pencilcal.toolkit.pencil import Pencil, project_spokes
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.geometry.frames import rotation_about_axis, rotation_to_z
+from pencilcal.toolkit.pencil.spec import Pencil, project_spokes
 
 Z = np.array([0.0, 0.0, 1.0])
 

@@ -14,7 +14,7 @@ Camera centres then fix scale and translation: a similarity ``x_target = s R x_w
 Example
 -------
 >>> import numpy as np
->>> from pencilcal.toolkit.frames import rotation_from_rotvec, rotation_angle
+>>> from pencilcal.toolkit.geometry.frames import rotation_from_rotvec, rotation_angle
 >>> rng = np.random.default_rng(0)
 >>> R_wt = rotation_from_rotvec([0.3, -0.2, 1.0])
 >>> R_cw = rotation_from_rotvec(rng.normal(size=(20, 3)))
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pencilcal.toolkit.errors import EstimationError
-from pencilcal.toolkit.frames import project_to_rotation, rotation_from_rotvec, rotvec_from_rotation
+from pencilcal.toolkit.geometry.frames import project_to_rotation, rotation_from_rotvec, rotvec_from_rotation
 
 __all__ = ["l1_rotation_mean", "align_rotations", "Similarity", "umeyama", "align_similarity"]
 
@@ -64,7 +64,7 @@ def align_rotations(R_cam_from_world, R_cam_from_target, inlier_deg=2.0):
     (R_world_from_target (3, 3), inliers (N,) bool: frames whose vote is within
     `inlier_deg` of the L1 mean). The mean is recomputed on the inliers.
     """
-    from pencilcal.toolkit.frames import rotation_angle
+    from pencilcal.toolkit.geometry.frames import rotation_angle
 
     Rcw = np.asarray(R_cam_from_world, float)
     Rct = np.asarray(R_cam_from_target, float)

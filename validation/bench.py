@@ -58,7 +58,7 @@ def _decode(buf):
 
 
 def _frames(scenario, n, size, seed):
-    from pencilcal.toolkit.scenes import make_scenario
+    from pencilcal.toolkit.synth.scenarios import make_scenario
 
     sc = make_scenario(scenario, frames=n, seed=seed, size=size)
     return sc, _encode([sc.render(i) for i in range(n)])
@@ -72,9 +72,9 @@ def bench_orient(n=6, repeats=3, seed=0):
     end where every square of the board beside the fan looks like a bar."""
     import cv2
 
-    from pencilcal.toolkit.lines import lines_record
-    from pencilcal.toolkit.orient import orient_segments
-    from pencilcal.toolkit.scenes import make_scenario
+    from pencilcal.toolkit.detect.lines import lines_record
+    from pencilcal.toolkit.pencil.orient import orient_segments
+    from pencilcal.toolkit.synth.scenarios import make_scenario
 
     n = int(np.clip(n, 1, 6))
     sc = make_scenario("tilt-sweep", frames=8, seed=seed, size=(1920, 1080))
@@ -114,7 +114,7 @@ def bench_pnp(n=6, repeats=3, seed=0):
     """pnp_vs_opencv and per-frame times [ms]."""
     import cv2
 
-    from pencilcal.toolkit.detect import detect_board
+    from pencilcal.toolkit.board.detect import detect_board
     from pencilcal.validation.pnp import estimate_pose
 
     sc, bufs = _frames("orbit", n, (1280, 720), seed)
@@ -143,9 +143,9 @@ def bench_pnp(n=6, repeats=3, seed=0):
 
 def bench_estimator(trials=2000, seed=0):
     """crlb_ratio_tilt20, single_fit_ms, and the batched throughput."""
-    from pencilcal.toolkit.estimator import crlb, fit_pencil
-    from pencilcal.toolkit.frames import rotation_about_axis
-    from pencilcal.toolkit.pencil import image_angles
+    from pencilcal.toolkit.pencil.estimator import crlb, fit_pencil
+    from pencilcal.toolkit.geometry.frames import rotation_about_axis
+    from pencilcal.toolkit.pencil.spec import image_angles
 
     rng = np.random.default_rng(seed)
     th = np.radians(np.arange(8) * 20.0)
@@ -168,7 +168,7 @@ def bench_estimator(trials=2000, seed=0):
     out = {"crlb_ratio_tilt20": float(ratio), "single_fit_ms": float(t_single * 1e3),
            "numpy_batched_fits_per_s": float(trials / t_batch)}
     try:
-        from pencilcal.toolkit.torch_estimator import benchmark_batched, torch_available
+        from pencilcal.toolkit.pencil.estimator_torch import benchmark_batched, torch_available
 
         if torch_available():
             r = benchmark_batched(n=200_000, loop_n=200, numpy_batched_n=20_000)

@@ -55,10 +55,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pencilcal.toolkit.angles import circular_mean, wrap_line
-from pencilcal.toolkit.chapter import aligned_angles, general_parameters
+from pencilcal.toolkit.geometry.angles import circular_mean, wrap_line
+from pencilcal.toolkit.pencil.chapter import aligned_angles, general_parameters
 from pencilcal.toolkit.errors import EstimationError, InputError
-from pencilcal.toolkit.estimator import (
+from pencilcal.toolkit.pencil.estimator import (
     DETECTION_LEVEL,
     crlb,
     detection_threshold,
@@ -66,9 +66,9 @@ from pencilcal.toolkit.estimator import (
     frontal_fit,
     max_angular_change,
 )
-from pencilcal.toolkit.files import load_structured
-from pencilcal.toolkit.frames import angle_between
-from pencilcal.toolkit.pencil import image_angles
+from pencilcal.toolkit.io.files import load_structured
+from pencilcal.toolkit.geometry.frames import angle_between
+from pencilcal.toolkit.pencil.spec import image_angles
 
 __all__ = [
     "EXPERIMENTS",
@@ -376,7 +376,7 @@ def _adjacent_pairs(th_pencil):
 
 
 def _call_single(alpha, theta, case, sigma):
-    from pencilcal.toolkit.single_angle import single_angle_tilt
+    from pencilcal.toolkit.pencil.single_angle import single_angle_tilt
 
     try:
         return single_angle_tilt(alpha, theta, case, sigma=sigma)
@@ -1011,7 +1011,7 @@ def synthetic_validation(tilts_deg, *, spokes_deg=tuple(range(-70, 71, 20)), sig
     tests and for trying the experiments where images would take long (hundreds of frames
     near zero tilt). Returns the dict (numpy inside; `files.write_json` writes it).
     """
-    from pencilcal.toolkit.frames import rotation_about_axis, rotation_to_z
+    from pencilcal.toolkit.geometry.frames import rotation_about_axis, rotation_to_z
 
     rng = np.random.default_rng(seed)
     th = np.radians(np.asarray(spokes_deg, float))
@@ -1062,7 +1062,7 @@ def figure_paths(experiment, prefix):
 
 
 def _save(fig, path, force):
-    from pencilcal.toolkit.files import atomic_path
+    from pencilcal.toolkit.io.files import atomic_path
 
     with atomic_path(path, force) as tmp:
         fig.savefig(tmp, format="png", dpi=110)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pencilcal.toolkit.frames import angle_between, rotation_angle
+from pencilcal.toolkit.geometry.frames import angle_between, rotation_angle
 
 __all__ = ["rotation_error_deg", "normal_error_deg", "summary", "coverage", "EXPECTED_COVERAGE"]
 

@@ -85,8 +85,8 @@ reprojection RMS exceeds `max_rms_px` (a wrong local minimum) give ``ok=False`` 
 Example
 -------
 >>> import numpy as np
->>> from pencilcal.toolkit.camera import Camera
->>> from pencilcal.toolkit.frames import rotation_about_axis
+>>> from pencilcal.toolkit.camera.model import Camera
+>>> from pencilcal.toolkit.geometry.frames import rotation_about_axis
 >>> cam = Camera("opencv", 1280, 720, [[900.0, 0, 639.5], [0, 900.0, 359.5], [0, 0, 1]],
 ...              [-0.2, 0.05, 0.0, 0.0])
 >>> j, i = np.mgrid[1:5, 1:7]
@@ -109,8 +109,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.files import load_frames, write_json
-from pencilcal.toolkit.frames import rotvec_from_rotation
+from pencilcal.toolkit.io.files import load_frames, write_json
+from pencilcal.toolkit.geometry.frames import rotvec_from_rotation
 
 __all__ = [
     "METHODS",
@@ -543,7 +543,7 @@ def refine_pose(camera, object_points, image_points, R, t, max_iterations=100):
     Example
     -------
     >>> import numpy as np
-    >>> from pencilcal.toolkit.camera import Camera
+    >>> from pencilcal.toolkit.camera.model import Camera
     >>> cam = Camera("pinhole", 640, 480, [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
     >>> X = np.array([[0, 0, 0], [50, 0, 0], [0, 50, 0], [50, 50, 0], [25, 10, 0.0]])
     >>> u = cam.project(X + [0, 0, 300.0])
@@ -680,7 +680,7 @@ def _colmap_solution(X, obs, camera, seed=0):
     """Pose from pycolmap.estimate_and_refine_absolute_pose on raw pixels (+0.5 px)."""
     import pycolmap
 
-    from pencilcal.toolkit.camera_io import camera_to_colmap
+    from pencilcal.toolkit.camera.formats import camera_to_colmap
 
     cc = camera_to_colmap(camera, source="colmap method")  # InputError for models COLMAP lacks
     est = pycolmap.AbsolutePoseEstimationOptions()
@@ -829,7 +829,7 @@ def estimate_pose(object_points, image_points, camera, method=DEFAULT_METHOD, re
     Example
     -------
     >>> import numpy as np
-    >>> from pencilcal.toolkit.camera import Camera
+    >>> from pencilcal.toolkit.camera.model import Camera
     >>> cam = Camera("pinhole", 640, 480, [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
     >>> X = np.array([[0, 0, 0], [50, 0, 0], [0, 50, 0], [50, 50, 0], [25, 10, 0.0]])
     >>> res = estimate_pose(X, cam.project(X + [0, 0, 300.0]), cam, method="ippe")
@@ -972,7 +972,7 @@ def estimate_all(object_points, image_points, camera, methods=METHODS, refine=Tr
     Example
     -------
     >>> import numpy as np
-    >>> from pencilcal.toolkit.camera import Camera
+    >>> from pencilcal.toolkit.camera.model import Camera
     >>> cam = Camera("pinhole", 640, 480, [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
     >>> X = np.array([[0, 0, 0], [50, 0, 0], [0, 50, 0], [50, 50, 0], [25, 10, 0.0]])
     >>> res = estimate_all(X, cam.project(X + [0, 0, 300.0]), cam)

@@ -54,7 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from pencilcal.toolkit.errors import InputError, PencilcalError
-from pencilcal.toolkit.files import atomic_path, atomic_write, check_writable, load_structured
+from pencilcal.toolkit.io.files import atomic_path, atomic_write, check_writable, load_structured
 
 from .metrics import EXPECTED_COVERAGE
 
@@ -1018,7 +1018,7 @@ def fig_sigma_calibration(data):
 
 
 def _camera(data):
-    from pencilcal.toolkit.camera_io import camera_from_dict
+    from pencilcal.toolkit.camera.formats import camera_from_dict
 
     try:
         return camera_from_dict(data.get("camera"), source="validation camera"), None

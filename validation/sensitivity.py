@@ -22,7 +22,7 @@ grid points) and the *measured detection threshold* (where the detectable rate c
 and 90%), next to the ``2 sqrt(sigma)`` rule of GEOMETRY.md and its exact form
 `estimator.detection_threshold`.
 
-Simulation (as tests/toolkit/test_estimator.py): the vertex sits at off-axis angle phi
+Simulation (as tests/toolkit/pencil/test_estimator.py): the vertex sits at off-axis angle phi
 along the image x axis, normalised ``(tan phi, 0)`` (the azimuth does not matter: psi is
 uniform); R = Qt Rz(psi) Rx(tilt) Rz(theta0) with Q the virtual camera along the ray; image
 angles are exact (`pencil.image_angles`) plus Gaussian noise sigma on every line. Line
@@ -51,9 +51,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.estimator import crlb, detection_threshold, fit_pencil
-from pencilcal.toolkit.frames import angle_between, rotation_about_axis, rotation_to_z
-from pencilcal.toolkit.pencil import image_angles
+from pencilcal.toolkit.pencil.estimator import crlb, detection_threshold, fit_pencil
+from pencilcal.toolkit.geometry.frames import angle_between, rotation_about_axis, rotation_to_z
+from pencilcal.toolkit.pencil.spec import image_angles
 
 __all__ = [
     "Setup",
@@ -166,7 +166,7 @@ def parse_range(spec, name="range"):
 def resolve_backend(backend="auto", device="cpu"):
     """``"torch"`` or ``"numpy"``: auto picks torch when importable. A CUDA device needs
     torch (raises `toolkit.torch_estimator.TorchUnavailableError` otherwise)."""
-    from pencilcal.toolkit import torch_estimator as te
+    from pencilcal.toolkit.pencil import estimator_torch as te
 
     if backend not in ("auto", "torch", "numpy"):
         raise InputError(f"backend must be auto, torch or numpy, got {backend!r}")
@@ -216,7 +216,7 @@ def fit_batch(line_angles, spoke_angles, vertex, sigma, backend="auto", device="
     backend = resolve_backend(backend, device)
     keys = ("tilt", "normal", "normal_twin", "detectable")
     if backend == "torch":
-        from pencilcal.toolkit.torch_estimator import fit_pencils_torch
+        from pencilcal.toolkit.pencil.estimator_torch import fit_pencils_torch
 
         f = fit_pencils_torch(line_angles, spoke_angles, vertex, sigma, device=device, dtype=dtype,
                               output="numpy", strict=False)
@@ -766,7 +766,7 @@ def write_heatmaps(result, prefix, force=False):
     matplotlib.use("Agg", force=False)
     from matplotlib.figure import Figure
 
-    from pencilcal.toolkit.files import atomic_path
+    from pencilcal.toolkit.io.files import atomic_path
 
     maps = result["maps"]
     acc = result["setup"]["accuracy_deg"]

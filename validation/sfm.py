@@ -9,7 +9,7 @@ camera could absorb a calibration error into the lens and hide it.
 
 Pipeline
 --------
-1. Frames: a folder, glob or video (toolkit/images.py), or a list of frames, paths or
+1. Frames: a folder, glob or video (toolkit/io/images.py), or a list of frames, paths or
    arrays. Every frame is decoded once to check its size against the camera (InputError
    on a mismatch) and to skip undecodable ones (reported per frame). Files COLMAP reads
    itself (png, jpg, bmp, tif) are read in place; video frames and other formats are
@@ -71,7 +71,7 @@ Example
 A 12-frame orbit around the printed sheet at 640x360 (about 10 s on two cores):
 
 >>> import tempfile                                                     # doctest: +SKIP
->>> from pencilcal.toolkit.scenes import make_scenario                  # doctest: +SKIP
+>>> from pencilcal.toolkit.synth.scenarios import make_scenario                  # doctest: +SKIP
 >>> sc = make_scenario("orbit", frames=12, seed=1, size=(640, 360))     # doctest: +SKIP
 >>> frames = [sc.render(i) for i in range(len(sc))]                     # doctest: +SKIP
 >>> res = reconstruct(frames, sc.camera, tempfile.mkdtemp(), max_features=2048)  # doctest: +SKIP
@@ -94,11 +94,11 @@ from pathlib import Path
 
 import numpy as np
 
-from pencilcal.toolkit.camera import Camera
-from pencilcal.toolkit.camera_io import camera_to_colmap, camera_to_dict
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.camera.formats import camera_to_colmap, camera_to_dict
 from pencilcal.toolkit.errors import EstimationError, InputError
-from pencilcal.toolkit.files import load_frames, write_json
-from pencilcal.toolkit.images import IMAGE_EXTENSIONS, Frame, ImageSource, check_image_size, open_images
+from pencilcal.toolkit.io.files import load_frames, write_json
+from pencilcal.toolkit.io.images import IMAGE_EXTENSIONS, Frame, ImageSource, check_image_size, open_images
 
 __all__ = [
     "MATCHING_MODES",
@@ -661,7 +661,7 @@ def reconstruct(images, camera, workdir, *, matching="auto", max_features=DEFAUL
     Parameters
     ----------
     images : str, Path, ImageSource, or list of Frame / path / ndarray
-        A folder, glob or video (toolkit/images.py), or frames in order (arrays are named
+        A folder, glob or video (toolkit/io/images.py), or frames in order (arrays are named
         000000, 000001, ... in the results).
     camera : Camera
         The calibrated camera; any model COLMAP holds exactly (`camera_io.camera_to_colmap`:

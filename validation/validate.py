@@ -26,13 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
-from pencilcal.toolkit.detect import detect_board
+from pencilcal.toolkit.board.detect import detect_board
 from pencilcal.toolkit.errors import EstimationError, InputError
-from pencilcal.toolkit.estimator import crlb
-from pencilcal.toolkit.frames import angle_between, normalize
-from pencilcal.toolkit.images import check_image_size
-from pencilcal.toolkit.orient import MODELS, orient_segments
-from pencilcal.toolkit.parallel import Sized, map_frames
+from pencilcal.toolkit.pencil.estimator import crlb
+from pencilcal.toolkit.geometry.frames import angle_between, normalize
+from pencilcal.toolkit.io.images import check_image_size
+from pencilcal.toolkit.pencil.orient import MODELS, orient_segments
+from pencilcal.toolkit.io.parallel import Sized, map_frames
 
 from .align import align_rotations
 from .metrics import coverage, normal_error_deg, rotation_error_deg, summary
@@ -51,7 +51,7 @@ class FanLines:
         self.detector = detector
 
     def __call__(self, image, camera, detection, corner_sigma_px=None):
-        from pencilcal.toolkit.lines import default_min_length, detect_bars, detect_segments
+        from pencilcal.toolkit.detect.lines import default_min_length, detect_bars, detect_segments
 
         if self.pencil.width is not None:
             # the bars `orient IMAGES` would find (lines_record's default shortest bar)
@@ -380,14 +380,14 @@ def sequence_files(sequence):
 
 def read_truth(path):
     """Truth frames by image name from a truth.json (`pencilcal simulate`)."""
-    from pencilcal.toolkit.files import load_frames
+    from pencilcal.toolkit.io.files import load_frames
 
     _, frames = load_frames(path, "truth file", ("image", "R_cam_from_target", "t_cam_from_target"))
     return {str(f["image"]): f for f, _ in frames}
 
 
 def _has_images(p):
-    from pencilcal.toolkit.images import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS
+    from pencilcal.toolkit.io.images import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS
 
     return any(q.is_file() and q.suffix.lower() in IMAGE_EXTENSIONS | VIDEO_EXTENSIONS for q in p.iterdir())
 
@@ -414,12 +414,12 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
     worker's own is meaningless). The other arguments as `validate_sequence`. Module level
     and paths only, so a Dask worker can run it.
     """
-    from pencilcal.toolkit.boards import read_board
-    from pencilcal.toolkit.camera_io import camera_to_dict, read_camera
-    from pencilcal.toolkit.files import load_structured
-    from pencilcal.toolkit.grid_pencil import GridPencil
-    from pencilcal.toolkit.images import open_images
-    from pencilcal.toolkit.pencil import read_pencil
+    from pencilcal.toolkit.board.spec import read_board
+    from pencilcal.toolkit.camera.formats import camera_to_dict, read_camera
+    from pencilcal.toolkit.io.files import load_structured
+    from pencilcal.toolkit.pencil.grid import GridPencil
+    from pencilcal.toolkit.io.images import open_images
+    from pencilcal.toolkit.pencil.spec import read_pencil
 
     images, found = sequence_files(sequence)
     camera = camera or found.get("camera")

@@ -11,11 +11,11 @@ from click.testing import CliRunner
 
 import pencilcal.cli.calibrate as calibrate_cli
 from pencilcal.cli.calibrate import calibrate
-from pencilcal.toolkit.boards import board_from_dict
-from pencilcal.toolkit.calibration import synthetic_detections
-from pencilcal.toolkit.camera import Camera
-from pencilcal.toolkit.camera_io import read_camera
-from pencilcal.toolkit.corners_io import read_corners_vnl
+from pencilcal.toolkit.board.spec import board_from_dict
+from pencilcal.toolkit.board.calibrate import synthetic_detections
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.camera.formats import read_camera
+from pencilcal.toolkit.board.corners_cache import read_corners_vnl
 from pencilcal.toolkit.errors import InputError
 from tests.conftest import data_dir
 

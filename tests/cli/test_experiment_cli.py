@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 
 from pencilcal.cli.experiment import experiment
-from pencilcal.toolkit.files import write_json
+from pencilcal.toolkit.io.files import write_json
 from pencilcal.validation.experiments import synthetic_validation
 
 PNG = b"\x89PNG\r\n\x1a\n"

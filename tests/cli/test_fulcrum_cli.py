@@ -7,9 +7,9 @@ import numpy as np
 from click.testing import CliRunner
 
 from pencilcal.cli.main import cli
-from pencilcal.toolkit.camera_io import write_camera
+from pencilcal.toolkit.camera.formats import write_camera
 from tests.helpers import hd_camera
-from tests.toolkit.test_fulcrum import pivot_sequence
+from tests.toolkit.pencil.test_fulcrum import pivot_sequence
 
 
 def test_fulcrum_cli(tmp_path, rng):

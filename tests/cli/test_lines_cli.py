@@ -9,12 +9,12 @@ import pytest
 from click.testing import CliRunner
 
 from pencilcal.cli.lines import lines
-from pencilcal.toolkit.camera import Camera
-from pencilcal.toolkit.camera_io import write_camera
-from pencilcal.toolkit.lines_io import read_lines
-from pencilcal.toolkit.orient import orient_segments
-from tests.toolkit.test_lines import fan_scene, line_errors
-from tests.toolkit.test_shafts import render_shaft, shaft_from
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.camera.formats import write_camera
+from pencilcal.toolkit.io.lines_file import read_lines
+from pencilcal.toolkit.pencil.orient import orient_segments
+from tests.toolkit.detect.test_lines import fan_scene, line_errors
+from tests.toolkit.detect.test_shafts import render_shaft, shaft_from
 
 
 def invoke(*args):

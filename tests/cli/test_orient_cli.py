@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 from pencilcal.cli.main import cli
-from pencilcal.toolkit.camera_io import write_camera
+from pencilcal.toolkit.camera.formats import write_camera
 from tests.conftest import REPO
 from tests.helpers import fan, frame, hd_camera, two_spokes_and_a_stray
 

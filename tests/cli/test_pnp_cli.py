@@ -1,4 +1,4 @@
-"""`pencilcal pnp`: the poses.json contract, exit codes and messages (frames rendered by toolkit/render.py)."""
+"""`pencilcal pnp`: the poses.json contract, exit codes and messages (frames rendered by toolkit/synth/render.py)."""
 from __future__ import annotations
 
 import json
@@ -9,12 +9,12 @@ import pytest
 from click.testing import CliRunner
 
 from pencilcal.cli.pnp import pnp
-from pencilcal.toolkit.boards import board_from_dict
-from pencilcal.toolkit.camera import Camera
-from pencilcal.toolkit.camera_io import write_camera
-from pencilcal.toolkit.frames import rotation_about_axis, rotation_angle
+from pencilcal.toolkit.board.spec import board_from_dict
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.camera.formats import write_camera
+from pencilcal.toolkit.geometry.frames import rotation_about_axis, rotation_angle
 from pencilcal.validation.pnp import METHODS, POSE_KEYS
-from pencilcal.toolkit.render import layout_sheet, render_frame
+from pencilcal.toolkit.synth.render import layout_sheet, render_frame
 
 BOARD_YAML = "type: charuco\nsquares: [7, 5]\nsquare: 30.0\nmarker: 22.0\ndictionary: DICT_4X4_50\n"
 BOARD = board_from_dict({"type": "charuco", "squares": [7, 5], "square": 30.0, "marker": 22.0,

@@ -1,5 +1,5 @@
 """`pencilcal sfm`: the output folder contract, exit codes and messages (orbit frames
-rendered by toolkit/render.py, as a folder and as a lossless video)."""
+rendered by toolkit/synth/render.py, as a folder and as a lossless video)."""
 from __future__ import annotations
 
 import json
@@ -10,9 +10,9 @@ import pytest
 from click.testing import CliRunner
 
 from pencilcal.cli.sfm import sfm
-from pencilcal.toolkit.camera_io import camera_to_colmap, write_camera
-from pencilcal.toolkit.frames import rotation_angle
-from pencilcal.toolkit.scenes import make_scenario
+from pencilcal.toolkit.camera.formats import camera_to_colmap, write_camera
+from pencilcal.toolkit.geometry.frames import rotation_angle
+from pencilcal.toolkit.synth.scenarios import make_scenario
 from pencilcal.validation.align import align_rotations
 from pencilcal.validation.sfm import read_poses
 

@@ -10,11 +10,11 @@ import pytest
 from click.testing import CliRunner
 
 from pencilcal.cli.simulate import simulate
-from pencilcal.toolkit.boards import read_board
-from pencilcal.toolkit.camera import Camera
-from pencilcal.toolkit.camera_io import read_camera, write_camera
+from pencilcal.toolkit.board.spec import read_board
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.camera.formats import read_camera, write_camera
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.pencil import read_pencil
+from pencilcal.toolkit.pencil.spec import read_pencil
 
 SMALL = ["--size", "320x240"]
 
@@ -108,7 +108,7 @@ def test_refuses_a_non_empty_folder_and_force_replaces_an_earlier_output(tmp_pat
 
 
 def test_a_failed_run_leaves_nothing(tmp_path, monkeypatch):
-    from pencilcal.toolkit import scenes
+    from pencilcal.toolkit.synth import scenarios as scenes
 
     real = scenes.Scenario.render
 

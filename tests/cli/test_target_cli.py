@@ -9,9 +9,9 @@ from click.testing import CliRunner
 from PIL import Image
 
 from pencilcal.cli.target import target
-from pencilcal.toolkit.boards import read_board
-from pencilcal.toolkit.detect import detect_board
-from pencilcal.toolkit.pencil import read_pencil
+from pencilcal.toolkit.board.spec import read_board
+from pencilcal.toolkit.board.detect import detect_board
+from pencilcal.toolkit.pencil.spec import read_pencil
 
 
 def invoke(*args):

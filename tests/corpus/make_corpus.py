@@ -11,12 +11,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pencilcal.toolkit.boards import write_board
-from pencilcal.toolkit.camera_io import write_camera
-from pencilcal.toolkit.pencil import write_pencil
-from pencilcal.toolkit.frames import rotation_about_axis
-from pencilcal.toolkit.render import render_frame
-from pencilcal.toolkit.scenes import make_scenario
+from pencilcal.toolkit.board.spec import write_board
+from pencilcal.toolkit.camera.formats import write_camera
+from pencilcal.toolkit.pencil.spec import write_pencil
+from pencilcal.toolkit.geometry.frames import rotation_about_axis
+from pencilcal.toolkit.synth.render import render_frame
+from pencilcal.toolkit.synth.scenarios import make_scenario
 
 HERE = Path(__file__).resolve().parent
 

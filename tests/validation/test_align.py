@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pencilcal.toolkit.errors import EstimationError
-from pencilcal.toolkit.frames import rotation_angle, rotation_from_rotvec
+from pencilcal.toolkit.geometry.frames import rotation_angle, rotation_from_rotvec
 from pencilcal.validation.align import align_rotations, align_similarity, l1_rotation_mean, umeyama
 from pencilcal.validation.metrics import coverage, summary
 

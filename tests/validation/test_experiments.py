@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pencilcal.toolkit.chapter import aligned_angles
+from pencilcal.toolkit.pencil.chapter import aligned_angles
 from pencilcal.toolkit.errors import EstimationError, InputError
-from pencilcal.toolkit.files import write_json
-from pencilcal.toolkit.single_angle import single_angle_tilt
+from pencilcal.toolkit.io.files import write_json
+from pencilcal.toolkit.pencil.single_angle import single_angle_tilt
 from pencilcal.validation import experiments as ex
 
 

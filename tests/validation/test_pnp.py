@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from pencilcal.toolkit.boards import board_from_dict
-from pencilcal.toolkit.camera import Camera
+from pencilcal.toolkit.board.spec import board_from_dict
+from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.frames import rotation_about_axis, rotation_angle, rotation_to_z, rotvec_from_rotation
+from pencilcal.toolkit.geometry.frames import rotation_about_axis, rotation_angle, rotation_to_z, rotvec_from_rotation
 from pencilcal.validation import pnp
 from pencilcal.validation.pnp import (
     METHODS,
@@ -118,11 +118,11 @@ def test_noise_free_is_exact(method, model, refine):
 
 
 def test_rendered_board_accuracy():
-    """Corners detected in frames rendered by toolkit/render.py (exact area coverage, sensor
+    """Corners detected in frames rendered by toolkit/synth/render.py (exact area coverage, sensor
     noise) with pinhole, opencv and fisheye lenses: every method within 0.02 deg and
     0.05 % of the distance of the true pose."""
-    from pencilcal.toolkit.detect import detect_board
-    from pencilcal.toolkit.render import layout_sheet, render_frame
+    from pencilcal.toolkit.board.detect import detect_board
+    from pencilcal.toolkit.synth.render import layout_sheet, render_frame
 
     board = board_from_dict({"type": "charuco", "squares": [12, 9], "square": 20.0, "marker": 15.0,
                              "dictionary": "DICT_5X5_100"})
@@ -187,7 +187,7 @@ def test_covariance_agrees_with_colmap():
     """COLMAP's Ceres covariance (quaternion tangent, 1 px) converted to this convention."""
     import pycolmap
 
-    from pencilcal.toolkit.camera_io import camera_to_colmap
+    from pencilcal.toolkit.camera.formats import camera_to_colmap
 
     for model in ("opencv", "fisheye"):
         cam, X, R, t, u = simple_scene(hd_camera(model))
@@ -521,7 +521,7 @@ def test_realsense_charuco_methods_agree():
     every frame (three frames are at 1.0-1.1 px)."""
     import cv2
 
-    from pencilcal.toolkit.detect import detect_board
+    from pencilcal.toolkit.board.detect import detect_board
 
     d = data_dir("realsense-charuco-7x5-calibio")
     z = np.load(d / "camera_intrinsics.npz")
@@ -566,7 +566,7 @@ def test_stereo_pairs_agree_on_one_relative_rotation(tmp_path):
     from click.testing import CliRunner
 
     from pencilcal.cli.main import cli
-    from pencilcal.toolkit.frames import rotation_from_rotvec
+    from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
 
     d = data_dir("sksurgery-davinci-charuco-stereo")
     (tmp_path / "board.yaml").write_text("type: charuco\nsquares: [19, 26]\nsquare: 5.0\nmarker: 4.0\n"

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.files import to_jsonable
-from pencilcal.toolkit.frames import rotation_about_axis
+from pencilcal.toolkit.io.files import to_jsonable
+from pencilcal.toolkit.geometry.frames import rotation_about_axis
 from pencilcal.validation import report as rp
 from pencilcal.validation.validate import frame_errors, summarise
 

@@ -1,6 +1,6 @@
 """validation/sfm.py: pycolmap reconstruction with fixed intrinsics against exact truth.
 
-The orbit scenario (toolkit/scenes.py) renders a textured table with boxes around the
+The orbit scenario (toolkit/synth/scenarios.py) renders a textured table with boxes around the
 printed sheet, with the exact R_cam_from_target per frame. At 640x360, 14 frames and 2048
 SIFT features per image every frame registers and the rotations agree with the truth to
 0.03-0.07 deg (mean) / 0.05-0.11 deg (worst frame) over scenario seeds 0-7; the asserts
@@ -14,10 +14,10 @@ import cv2
 import numpy as np
 import pytest
 
-from pencilcal.toolkit.camera_io import camera_from_colmap, camera_to_colmap, write_camera
+from pencilcal.toolkit.camera.formats import camera_from_colmap, camera_to_colmap, write_camera
 from pencilcal.toolkit.errors import EstimationError, InputError
-from pencilcal.toolkit.frames import rotation_angle
-from pencilcal.toolkit.scenes import make_scenario
+from pencilcal.toolkit.geometry.frames import rotation_angle
+from pencilcal.toolkit.synth.scenarios import make_scenario
 from pencilcal.validation.align import align_rotations, align_similarity
 from pencilcal.validation import sfm as sfm_module
 from pencilcal.validation.sfm import (

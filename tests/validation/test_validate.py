@@ -8,7 +8,7 @@ import pytest
 from click.testing import CliRunner
 
 from pencilcal.cli.main import cli
-from pencilcal.toolkit.frames import rotation_about_axis
+from pencilcal.toolkit.geometry.frames import rotation_about_axis
 from pencilcal.validation.validate import frame_errors
 from tests.conftest import data_dir
 

@@ -1,0 +1,90 @@
+"""toolkit/board/detect.py: ChArUco detection with the marker refinement run only when it can help."""
+from __future__ import annotations
+
+import doctest
+
+import cv2
+import numpy as np
+import pytest
+
+from pencilcal.toolkit.board import detect as detect_module
+from pencilcal.toolkit.board.spec import board_from_dict
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.board.detect import detect_board
+from pencilcal.toolkit.geometry.frames import rotation_about_axis
+from pencilcal.toolkit.synth.render import layout_sheet, render_frame
+
+BOARD = board_from_dict({"type": "charuco", "squares": [7, 5], "square": 30.0, "marker": 22.0,
+                         "dictionary": "DICT_4X4_50"})
+
+
+def test_doctests():
+    assert doctest.testmod(detect_module).failed == 0
+
+
+@pytest.fixture(scope="module")
+def frame():
+    cam = Camera("pinhole", 960, 720, [[900.0, 0, 479.5], [0, 900.0, 359.5], [0, 0, 1]])
+    X = BOARD.object_points()
+    R = rotation_about_axis([1.0, 0.2, 0], np.radians(25))
+    t = np.array([0, 0, 520.0]) - R @ X.mean(0)
+    return render_frame(cam, R, t, layout_sheet(BOARD, paper="a3"), background="plain", noise=1.0,
+                        rng=np.random.default_rng(0))
+
+
+def _damaged(img, marker_id):
+    """The frame with a blot in one marker that makes the first detection pass miss it."""
+    aruco = detect_module._charuco_detectors(BOARD)[0]
+    mc, mi, _ = aruco.detectMarkers(img)
+    c = mc[list(mi.ravel()).index(marker_id)].reshape(4, 2)
+    p = (0.6 * c.mean(0) + 0.4 * c[0]).astype(int)
+    out = img.copy()
+    cv2.circle(out, (int(p[0]), int(p[1])), 4, 255 - int(img[p[1], p[0]]), -1)
+    return out
+
+
+def _reference(img, refine=True):
+    """CharucoDetector.detectBoard, markers refined inside it (tryRefineMarkers)."""
+    cp = cv2.aruco.CharucoParameters()
+    cp.tryRefineMarkers = refine
+    cc, ci, mc, mi = cv2.aruco.CharucoDetector(BOARD.cv2_board(), cp, cv2.aruco.DetectorParameters()).detectBoard(img)
+    order = np.argsort(ci.ravel())
+    return (ci.ravel()[order], cc.reshape(-1, 2)[order].astype(float), mi.ravel(),
+            np.asarray(mc, float).reshape(-1, 4, 2))
+
+
+def _same(det, ref):
+    ids, corners, m_ids, m_corners = ref
+    return (np.array_equal(det.ids, ids) and np.array_equal(det.corners, corners)
+            and np.array_equal(det.marker_ids, m_ids) and np.array_equal(det.marker_corners, m_corners))
+
+
+def test_all_markers_found_needs_no_refinement(frame):
+    """Every marker of the board found in the first pass: the refinement is skipped and the
+    result is CharucoDetector's with tryRefineMarkers, exactly."""
+    aruco = detect_module._charuco_detectors(BOARD)[0]
+    assert len(aruco.detectMarkers(frame)[1]) == 17
+    det = detect_board(frame, BOARD)
+    assert det.count == 24 and det.marker_ids.size == 17
+    assert _same(det, _reference(frame))
+    # BGR input: the same
+    assert _same(detect_board(cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR), BOARD), _reference(frame))
+
+
+def test_missed_marker_is_refound(frame):
+    """A blotted marker the first pass misses is re-found from the board layout, as
+    tryRefineMarkers does, and its four corners come back."""
+    img = _damaged(frame, 2)
+    aruco = detect_module._charuco_detectors(BOARD)[0]
+    assert 2 not in aruco.detectMarkers(img)[1].ravel()
+    without = _reference(img, refine=False)
+    assert without[0].size < 24  # corners lost without the re-found marker
+    det = detect_board(img, BOARD)
+    assert det.count == 24 and 2 in det.marker_ids
+    assert _same(det, _reference(img))
+
+
+def test_nothing_found():
+    det = detect_board(np.full((240, 320), 255, np.uint8), BOARD)
+    assert det.count == 0 and det.marker_ids.size == 0 and det.marker_corners.shape == (0, 4, 2)
+    assert det.image_size == (320, 240)

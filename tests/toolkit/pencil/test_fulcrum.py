@@ -1,0 +1,113 @@
+"""The fulcrum of a pivoting instrument and its pivot plane, from a sequence of lines."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pencilcal.toolkit.errors import EstimationError, InputError
+from pencilcal.toolkit.geometry.frames import angle_between, rotation_about_axis, rotation_angle
+from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles
+from tests.helpers import hd_camera
+
+
+def pivot_sequence(cam, rng, n=25, span_deg=60.0, noise_px=0.0, outliers=0):
+    """An instrument pivoting in a plane about a fulcrum 150 mm in front of the camera."""
+    fulcrum = np.array([-20.0, 10.0, 150.0])
+    R = rotation_about_axis([0.3, 1.0, 0.1], np.radians(40)) @ rotation_about_axis([0, 0, 1.0], 0.5)
+    angles = np.radians(np.linspace(-span_deg / 2, span_deg / 2, n)) + 1.0
+    frames = []
+    for k, th in enumerate(angles):
+        d = R @ np.array([np.cos(th), np.sin(th), 0.0])
+        seg = cam.project(np.stack([fulcrum + 20 * d, fulcrum + 70 * d])).ravel()
+        segs = [seg + noise_px * rng.normal(size=4)]
+        if k < outliers:
+            segs.append(rng.uniform([0, 0, 0, 0], [1900, 1000, 1900, 1000]))
+        frames.append({"image": f"{k:03d}.png", "ok": True, "segments": np.array(segs)})
+    return frames, angles, R, fulcrum
+
+
+def test_noise_free(rng):
+    cam = hd_camera()
+    frames, angles, R, P = pivot_sequence(cam, rng)
+    out = fulcrum_from_frames(cam, frames)
+    np.testing.assert_allclose(out["vertex_px"], cam.project(P), atol=1e-6)
+    np.testing.assert_allclose(out["ray"], P / np.linalg.norm(P), atol=1e-9)
+    assert out["lines_used"] == 25 and out["outliers"] == []
+
+
+def test_pivot_plane(rng):
+    cam = hd_camera()
+    frames, angles, R, P = pivot_sequence(cam, rng)
+    out = fulcrum_from_frames(cam, frames, angles=angles)
+    err = min(rotation_angle(np.asarray(out["R_cam_from_target"]), R),
+              rotation_angle(np.asarray(out["R_cam_from_target_twin"]), R))
+    assert np.degrees(err) < 1e-6
+    assert out["pivot_frames"] == 25 and out["ambiguous"] is True
+
+
+def test_noise_and_outliers(rng):
+    """Noisy lines and 20% outlier segments: the fulcrum within its uncertainty."""
+    cam = hd_camera()
+    frames, angles, R, P = pivot_sequence(cam, rng, n=30, noise_px=0.5, outliers=6)
+    out = fulcrum_from_frames(cam, frames, angles=angles)
+    e = np.asarray(out["vertex_px"]) - cam.project(P)
+    C = np.asarray(out["vertex_cov_px2"])
+    assert e @ np.linalg.solve(C, e) < 13.8  # chi2(2) at 99.9%
+    assert len(out["outliers"]) >= 5
+    n_err = min(angle_between(np.asarray(out["normal"]), R[:, 2]), angle_between(np.asarray(out["normal_twin"]), R[:, 2]))
+    assert np.degrees(n_err) < 4 * out["normal_sigma_deg"] + 0.1
+
+
+def test_shafts_preferred(rng):
+    cam = hd_camera()
+    frames, angles, R, P = pivot_sequence(cam, rng, n=10)
+    for f in frames:
+        f["shafts"] = [{"midline": f["segments"][0], "angle_sigma_deg": 0.05}]
+        f["segments"] = np.array([[0.0, 0, 500, 10], [0, 5, 800, 30]])  # unrelated edges
+    out = fulcrum_from_frames(cam, frames)
+    np.testing.assert_allclose(out["vertex_px"], cam.project(P), atol=1e-6)
+
+
+def test_no_fulcrum(rng):
+    cam = hd_camera()
+    frames = [{"image": "a", "ok": True, "segments": np.array([[0.0, 0, 100, 0]])}]
+    with pytest.raises(EstimationError, match="two"):
+        fulcrum_from_frames(cam, frames)
+    # parallel lines (with no lens distortion bending them) meet only at infinity
+    par = [{"image": str(i), "ok": True, "segments": np.array([[0.0, 100 * i, 500, 100 * i]])} for i in range(5)]
+    with pytest.raises(EstimationError, match="infinity|parallel"):
+        fulcrum_from_frames(hd_camera("pinhole"), par)
+
+
+def test_read_angles(tmp_path):
+    (tmp_path / "a.csv").write_text("image,angle_deg\nb.png,20\na.png,10\n")
+    np.testing.assert_allclose(read_angles(tmp_path / "a.csv", ["a.png", "b.png"]), np.radians([10, 20]))
+    (tmp_path / "b.csv").write_text("10\n20\n")
+    np.testing.assert_allclose(read_angles(tmp_path / "b.csv", ["x", "y"]), np.radians([10, 20]))
+    with pytest.raises(InputError, match="2 angles for 3 frames"):
+        read_angles(tmp_path / "b.csv", ["x", "y", "z"])
+    with pytest.raises(InputError, match="no angle for image"):
+        read_angles(tmp_path / "a.csv", ["a.png", "c.png"])
+    (tmp_path / "c.csv").write_text("angle_deg\nten\n")
+    with pytest.raises(InputError, match="numbers"):
+        read_angles(tmp_path / "c.csv", ["x"])
+
+
+def test_fulcrum_beyond_the_lens_model(rng):
+    """An entry port 74 deg off the axis of a strongly distorted lens: its ray is exact, and
+    its raw pixel, which the polynomial model cannot give there (it folds back before 74
+    deg), is null rather than a number millions of pixels away."""
+    cam = hd_camera()
+    P = np.array([250.0, 10.0, 70.0])
+    frames = []
+    for k, th in enumerate(np.radians(np.linspace(-12, 12, 9))):
+        d = rotation_about_axis([0.0, 1.0, 0.3], th) @ np.array([-0.93, 0.0, 0.37])
+        seg = cam.project(np.stack([P + 190 * d, P + 240 * d])).ravel()
+        assert np.all(np.isfinite(seg)) and np.all((seg >= 0) & (seg <= [1919, 1079] * 2))
+        frames.append({"image": f"{k:03d}.png", "ok": True, "segments": seg[None]})
+    out = fulcrum_from_frames(cam, frames)
+    assert np.degrees(angle_between(out["ray"], P)) < 1e-6
+    assert out["vertex_px"] is None and out["vertex_cov_px2"] is None
+    # within the lens model's reach the raw pixel is given, and it is where the lens images it
+    near = fulcrum_from_frames(cam, pivot_sequence(cam, rng)[0])
+    assert near["vertex_px"] is not None

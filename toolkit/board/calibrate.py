@@ -1,0 +1,790 @@
+"""Intrinsic calibration from board detections, with outlier rejection and uncertainties.
+
+`calibrate` turns the corners `detect.detect_board` found in several views of one board
+into a `Camera`, in three steps:
+
+1. *Screening*: views without a detection, with fewer than `min_corners` corners, with
+   all their corners on one line of the board, or whose corners admit no homography are
+   skipped, each with its reason. ChArUco views keep their own object points (partial
+   boards are fine).
+2. *Fitting*: the intrinsic matrix is initialised with ``cv2.initCameraMatrix2D`` from the
+   best-populated views, then refined with ``cv2.calibrateCameraExtended`` (models
+   ``"opencv"`` and ``"pinhole"``) or ``cv2.fisheye.calibrate`` (``"fisheye"``).
+3. *Outlier rejection*, repeated until nothing changes: views whose median corner
+   residual is far above the others' (robust threshold: median + k * 1.4826 * MAD over the
+   views, at least 1.5 x the median) are removed first; once the views are stable, single
+   corners whose residual exceeds k sigma (sigma estimated robustly from all residuals)
+   are removed. Gross outliers go first (only those within a factor 2 of the worst in a
+   round), so a corrupt view cannot drag good views over the threshold with it. Every
+   removal is recorded with its reason.
+
+Conventions
+-----------
+- Pixels: OpenCV's; pixel (0, 0) is the centre of the top-left pixel (camera.py).
+- Residual = observed - projected [px]. RMS is OpenCV's: sqrt(mean over corners of
+  |residual|^2), overall and per view (``cv2.calibrateCamera``'s return value and
+  ``perViewErrors`` use the same definition).
+- View poses are ``cam_from_target``: ``p_cam = R(rvec) p_board + tvec`` (cv2.Rodrigues),
+  tvec in the board's length unit (frames.py).
+- Standard deviations come from the Gauss-Newton covariance at the optimum,
+  ``sigma^2 (J^T J)^-1`` with ``sigma^2 = sum |r|^2 / (2 M - P)`` (M corners, P free
+  parameters: intrinsics and 6 per view), which is what OpenCV >= 4.8 reports
+  (calibrateCameraExtended; Hartley & Zisserman 5.1.3). It is computed here for every
+  model from the analytic Jacobians of ``cv2.projectPoints`` / ``cv2.fisheye.projectPoints``,
+  with the poses eliminated by a Schur complement, so the fisheye model (for which OpenCV
+  reports none) gets them too. They describe noise only: a lens model that does not fit
+  makes them optimistic (as mrcal warns for lean models).
+
+Example
+-------
+>>> import numpy as np
+>>> from pencilcal.toolkit.board.spec import board_from_dict
+>>> from pencilcal.toolkit.camera.model import Camera
+>>> board = board_from_dict({"type": "chessboard", "squares": [9, 6], "square": 25.0})
+>>> truth = Camera("opencv", 640, 480, [[530.0, 0, 320.0], [0, 530.0, 240.0], [0, 0, 1]],
+...                [-0.25, 0.08, 0.0, 0.0, 0.0])
+>>> dets = synthetic_detections(truth, board, views=12, noise_px=0.2, seed=1)
+>>> res = calibrate(dets, board, (640, 480))
+>>> bool(abs(res.camera.fx - 530.0) < 4 * res.std_intrinsics["fx"]), len(res.std_intrinsics)
+(True, 9)
+>>> round(res.rms_px, 1), sum(res.used)
+(0.3, 12)
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.board.detect import BoardDetection
+from pencilcal.toolkit.errors import EstimationError, InputError
+
+__all__ = ["CalibrationResult", "calibrate", "intrinsic_names", "synthetic_detections", "MODELS"]
+
+#: Lens models `calibrate` fits, and the coefficient counts each takes (default first).
+MODELS = {"opencv": (5, 4, 8, 12, 14), "pinhole": (0,), "fisheye": (4,)}
+
+_OPENCV_DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "taux", "tauy")
+# a view is never rejected as an outlier while its median residual is within this factor
+# of the median view's: real data sets have views that are legitimately noisier (blur, tilt)
+_VIEW_RATIO_FLOOR = 1.5
+# 1.4826 * MAD estimates a Gaussian sigma
+_MAD_SCALE = 1.4826
+# the median of |r|^2 / s^2 for a 2-D Gaussian with per-axis sigma s is 2 ln 2
+_CHI2_2_MEDIAN = 2.0 * math.log(2.0)
+
+
+def intrinsic_names(model, coefficients=None):
+    """Names of the intrinsic parameters, in the order of `Camera` (K entries, then dist).
+
+    >>> intrinsic_names("opencv", 5)
+    ['fx', 'fy', 'cx', 'cy', 'k1', 'k2', 'p1', 'p2', 'k3']
+    >>> intrinsic_names("fisheye")
+    ['fx', 'fy', 'cx', 'cy', 'k1', 'k2', 'k3', 'k4']
+    """
+    n = _coefficient_count(model, coefficients)
+    if model == "fisheye":
+        return ["fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"]
+    return ["fx", "fy", "cx", "cy"] + list(_OPENCV_DIST_NAMES[:n])
+
+
+def _coefficient_count(model, coefficients):
+    if model not in MODELS:
+        raise InputError(f"unknown calibration model {model!r}; expected one of {', '.join(MODELS)}")
+    if coefficients is None:
+        return MODELS[model][0]
+    if isinstance(coefficients, bool) or not isinstance(coefficients, (int, np.integer)) \
+            or int(coefficients) not in MODELS[model]:
+        allowed = ", ".join(str(c) for c in sorted(MODELS[model]))
+        raise InputError(f"the {model} model takes {allowed} distortion coefficients, got {coefficients!r}")
+    return int(coefficients)
+
+
+@dataclass
+class CalibrationResult:
+    """What `calibrate` found, view by view. Lists are aligned with the input detections.
+
+    Attributes
+    ----------
+    camera : Camera
+        The calibrated camera; ``camera.meta`` holds ``rms_px``, ``std_intrinsics``,
+        ``views_used``, ``views_total``, ``corners_used``, ``calibration`` (model, flags).
+    rms_px : float
+        sqrt(mean |residual|^2) over the corners used [px] (OpenCV's definition).
+    per_view_rms : list of float or None
+        The same per view; None for views not used.
+    std_intrinsics : dict
+        1-sigma of each intrinsic parameter, named as `intrinsic_names` (fx, fy, cx, cy
+        [px], then the distortion coefficients [unitless]).
+    std_extrinsics : list of dict or None
+        Per used view ``{"rvec": (3,) [rad], "tvec": (3,) [board unit]}``.
+    view_poses : list of (rvec, tvec) or None
+        Per used view, ``cam_from_target`` (p_cam = R(rvec) p_board + tvec).
+    used : list of bool
+        Whether each view contributed to the final fit.
+    rejected : list of dict
+        Every view or corner left out, in the order decided: ``{"view": i, "stage":
+        "skipped" | "outlier", "reason": str}``, with ``"corner": id`` and
+        ``"residual_px"`` for single corners, ``"rms_px"`` for rejected views.
+    residuals : list of (K, 2) ndarray or None
+        Per used view, observed - projected [px] for *every* detected corner of the view
+        (rejected corners included, with the final parameters); None for views not used.
+    corner_used : list of (K,) bool ndarray or None
+        Which of a used view's corners entered the final fit.
+    model, coefficients, flags : str, int, list of str
+        The lens model, its coefficient count and the OpenCV flags of the final fit.
+    rounds : int
+        Number of fits run (1 + the rounds that rejected something).
+    """
+
+    camera: Camera
+    rms_px: float
+    per_view_rms: list
+    std_intrinsics: dict
+    std_extrinsics: list
+    view_poses: list
+    used: list
+    rejected: list
+    residuals: list
+    corner_used: list
+    model: str
+    coefficients: int
+    flags: list = field(default_factory=list)
+    rounds: int = 1
+
+    @property
+    def views_used(self) -> int:
+        return int(sum(self.used))
+
+    @property
+    def corners_used(self) -> int:
+        return int(sum(int(m.sum()) for m in self.corner_used if m is not None))
+
+    def view_report(self, index, name=None):
+        """JSON-ready summary of one view: name, used, rms, pose and its std, rejections."""
+        rec = {"view": index}
+        if name is not None:
+            rec["image"] = name
+        rec["used"] = bool(self.used[index])
+        rec["rms_px"] = self.per_view_rms[index]
+        if self.used[index]:
+            rvec, tvec = self.view_poses[index]
+            rec["corners_used"] = int(self.corner_used[index].sum())
+            rec["rvec"] = rvec.tolist()
+            rec["tvec"] = tvec.tolist()
+            rec["std_rvec"] = self.std_extrinsics[index]["rvec"].tolist()
+            rec["std_tvec"] = self.std_extrinsics[index]["tvec"].tolist()
+            rec["max_residual_px"] = float(np.max(np.linalg.norm(self.residuals[index], axis=1)))
+        reasons = [r["reason"] for r in self.rejected if r["view"] == index and "corner" not in r]
+        if reasons:
+            rec["reason"] = reasons[-1]
+        corners = [{"corner": r["corner"], "residual_px": r["residual_px"], "reason": r["reason"]}
+                   for r in self.rejected if r["view"] == index and "corner" in r]
+        if corners:
+            rec["rejected_corners"] = corners
+        return rec
+
+
+# ------------------------------------------------------------------------ screening
+def _screen(det, obj_all, min_corners, image_size):
+    """(obj, img, None) for a usable view, or (None, None, reason)."""
+    import cv2
+
+    if det is None or det.count == 0:
+        return None, None, "no corners detected"
+    if det.image_size is not None and tuple(det.image_size) != tuple(image_size):
+        raise InputError(f"a detection is from a {det.image_size[0]}x{det.image_size[1]} image but the "
+                         f"calibration is for {image_size[0]}x{image_size[1]}")
+    ids = np.asarray(det.ids, int).ravel()
+    img = np.asarray(det.corners, float).reshape(-1, 2)
+    if ids.size != img.shape[0]:
+        raise InputError(f"a detection has {ids.size} ids but {img.shape[0]} corners")
+    if ids.size and (ids.min() < 0 or ids.max() >= obj_all.shape[0]):
+        raise InputError(f"a detection has corner ids outside 0..{obj_all.shape[0] - 1}; wrong board file?")
+    if np.unique(ids).size != ids.size:
+        raise InputError("a detection lists the same corner id twice")
+    if not np.all(np.isfinite(img)):
+        raise InputError("a detection has non-finite corner coordinates")
+    if ids.size < min_corners:
+        return None, None, f"only {ids.size} corners (need at least {min_corners})"
+    obj = obj_all[ids]
+    centred = obj[:, :2] - obj[:, :2].mean(0)
+    s = np.linalg.svd(centred, compute_uv=False)
+    if s[1] <= 1e-9 * s[0]:
+        return None, None, "corners are collinear (all on one line of the board)"
+    H, _ = cv2.findHomography(obj[:, :2], img, 0)
+    if H is None or not np.all(np.isfinite(H)):
+        return None, None, "degenerate corner layout (no homography from the board to the image)"
+    return obj, img, None
+
+
+# ------------------------------------------------------------------------ fitting
+def _opencv_flags(model, n_coef, fix_aspect, fix_principal_point, zero_tangent):
+    import cv2
+
+    flags = cv2.CALIB_USE_INTRINSIC_GUESS
+    names = ["CALIB_USE_INTRINSIC_GUESS"]
+
+    def add(name):
+        nonlocal flags
+        flags |= getattr(cv2, name)
+        names.append(name)
+
+    if model == "fisheye":
+        for name in ("CALIB_RECOMPUTE_EXTRINSIC", "CALIB_FIX_SKEW"):
+            add(name)
+        if fix_principal_point:
+            add("CALIB_FIX_PRINCIPAL_POINT")
+        return flags, names
+    if fix_aspect:
+        add("CALIB_FIX_ASPECT_RATIO")
+    if fix_principal_point:
+        add("CALIB_FIX_PRINCIPAL_POINT")
+    if model == "pinhole":
+        for name in ("CALIB_FIX_K1", "CALIB_FIX_K2", "CALIB_FIX_K3", "CALIB_ZERO_TANGENT_DIST"):
+            add(name)
+        return flags, names
+    if n_coef == 4:
+        add("CALIB_FIX_K3")
+    if n_coef >= 8:
+        add("CALIB_RATIONAL_MODEL")
+    if n_coef >= 12:
+        add("CALIB_THIN_PRISM_MODEL")
+    if n_coef >= 14:
+        add("CALIB_TILTED_MODEL")
+    if zero_tangent:
+        add("CALIB_ZERO_TANGENT_DIST")
+    return flags, names
+
+
+def _initial_K(objs, imgs, image_size, fix_aspect):
+    """K from cv2.initCameraMatrix2D over the best-populated views (homographies of views
+    with a handful of corners are poor and would spoil the linear solve)."""
+    import cv2
+
+    w, h = image_size
+    counts = np.array([o.shape[0] for o in objs])
+    order = np.argsort(-counts, kind="stable")
+    good = [i for i in order if counts[i] >= 0.5 * counts.max()]
+    if len(good) < 3:
+        good = list(order[: max(3, len(good))])
+    o = [objs[i].astype(np.float32).reshape(-1, 1, 3) for i in good]
+    p = [imgs[i].astype(np.float32).reshape(-1, 1, 2) for i in good]
+    try:
+        K = cv2.initCameraMatrix2D(o, p, (int(w), int(h)), 1.0 if fix_aspect else 0.0)
+    except cv2.error:
+        K = None
+    ok = K is not None and np.all(np.isfinite(K)) and 0.05 * max(w, h) < K[0, 0] < 100 * max(w, h) \
+        and 0.05 * max(w, h) < K[1, 1] < 100 * max(w, h)
+    if not ok:
+        # no usable homography: a ~53 degree field of view and the image centre
+        f = float(max(w, h))
+        K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+    K = np.array(K, float)
+    if fix_aspect:
+        K[0, 0] = K[1, 1] = 0.5 * (K[0, 0] + K[1, 1])
+    return K
+
+
+def _one_line(e):
+    """The informative part of an OpenCV error: "... error: (-215:...) message in function 'f'"."""
+    text = str(e).strip().splitlines()
+    line = next((t.strip() for t in text if t.strip()), type(e).__name__)
+    m = re.search(r"error: \(-?\d+:[^)]*\) (.*)", line)
+    return m.group(1) if m else line
+
+
+def _fit(model, n_coef, objs, imgs, image_size, K0, flags):
+    """One solve. Returns K, dist (model length), rvecs (V, 3), tvecs (V, 3)."""
+    import cv2
+
+    size = (int(image_size[0]), int(image_size[1]))
+    # OpenCV's default is 30 iterations; rich models (rational, tilted) need more to settle
+    criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, float(np.finfo(float).eps))
+    try:
+        if model == "fisheye":
+            # OpenCV 5's fisheye.calibrate wants each view as a (1, N, 3) / (1, N, 2) row;
+            # the (N, 1, 3) column other calib functions take fails in arithm_op
+            o = [x.reshape(1, -1, 3).astype(np.float64) for x in objs]
+            p = [x.reshape(1, -1, 2).astype(np.float64) for x in imgs]
+            try:
+                _, K, D, rv, tv = cv2.fisheye.calibrate(o, p, size, K0.copy(), np.zeros(4), flags=flags,
+                                                        criteria=criteria)
+            except cv2.error:
+                # OpenCV's own initialisation (f = max(w, h) / pi) suits very wide lenses
+                _, K, D, rv, tv = cv2.fisheye.calibrate(o, p, size, np.eye(3), np.zeros(4),
+                                                        flags=flags & ~cv2.CALIB_USE_INTRINSIC_GUESS,
+                                                        criteria=criteria)
+            dist = np.asarray(D, float).ravel()[:4]
+        else:
+            o = [x.reshape(-1, 1, 3).astype(np.float32) for x in objs]
+            p = [x.reshape(-1, 1, 2).astype(np.float32) for x in imgs]
+            n_pass = 5 if model == "pinhole" or n_coef == 4 else n_coef
+            out = cv2.calibrateCameraExtended(o, p, size, K0.copy(), np.zeros(n_pass), flags=flags,
+                                              criteria=criteria)
+            K, D, rv, tv = out[1], out[2], out[3], out[4]
+            dist = np.asarray(D, float).ravel()[: (0 if model == "pinhole" else n_coef)]
+    except cv2.error as e:
+        raise EstimationError(f"the calibration solve failed: {_one_line(e)}") from None
+    K = np.array(K, float)
+    K[0, 1] = 0.0
+    rvecs = np.array([np.asarray(r, float).ravel() for r in rv])
+    tvecs = np.array([np.asarray(t, float).ravel() for t in tv])
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(dist)) and K[0, 0] > 0 and K[1, 1] > 0):
+        raise EstimationError("the calibration solve diverged (non-finite or negative focal length)")
+    return K, dist, rvecs, tvecs
+
+
+def _project(model, K, dist, rvec, tvec, obj, jacobian=False):
+    """Pixels of board points (N, 3) and, optionally, the Jacobian (2N, P_cv) of OpenCV's
+    layout: opencv/pinhole [rvec, tvec, fx, fy, cx, cy, dist...]; fisheye [fx, fy, cx, cy,
+    k1..k4, rvec, tvec, alpha]."""
+    import cv2
+
+    o = obj.reshape(-1, 1, 3).astype(np.float64)
+    if model == "fisheye":
+        px, J = cv2.fisheye.projectPoints(o, np.asarray(rvec, float).reshape(3, 1),
+                                          np.asarray(tvec, float).reshape(3, 1), K, dist)
+    else:
+        d = dist if dist.size else None
+        px, J = cv2.projectPoints(o, rvec, tvec, K, d)
+    px = px.reshape(-1, 2)
+    return (px, J) if jacobian else px
+
+
+# ------------------------------------------------------------------- uncertainties
+def _jacobian_blocks(model, n_coef, fix_aspect, fix_principal_point, zero_tangent, K, dist, rvec, tvec, obj):
+    """Per view: (J_intrinsics (2N, Pi), J_pose (2N, 6)) for the *free* parameters, in the
+    order of `intrinsic_names` restricted to what was estimated."""
+    _, J = _project(model, K, dist, rvec, tvec, obj, jacobian=True)
+    J = np.asarray(J, float)
+    if model == "fisheye":
+        f, c, k, pose = J[:, 0:2], J[:, 2:4], J[:, 4:8], J[:, 8:14]
+    else:
+        pose, f, c, k = J[:, 0:6], J[:, 6:8], J[:, 8:10], J[:, 10:10 + dist.size]
+    cols = []
+    if fix_aspect:
+        # fx = a fy with a fixed: one free focal length
+        a = K[0, 0] / K[1, 1]
+        cols.append(a * f[:, :1] + f[:, 1:2])
+    else:
+        cols.append(f)
+    if not fix_principal_point:
+        cols.append(c)
+    if model == "opencv":
+        free = np.ones(dist.size, bool)
+        if zero_tangent:
+            free[2:4] = False
+        cols.append(k[:, free])
+    elif model == "fisheye":
+        cols.append(k)
+    return np.hstack(cols), pose
+
+
+def _covariance(model, n_coef, opts, K, dist, rvecs, tvecs, objs, imgs):
+    """sigma^2 (J^T J)^-1 for the free intrinsics (Pi, Pi) and each view's pose (V, 6, 6),
+    eliminating the poses with a Schur complement. Also returns sigma^2 and the free
+    intrinsic names."""
+    fix_aspect, fix_pp, zero_tan = opts
+    A = None
+    b_blocks, c_inv = [], []
+    sse, m = 0.0, 0
+    for rvec, tvec, obj, img in zip(rvecs, tvecs, objs, imgs):
+        Ji, Jp = _jacobian_blocks(model, n_coef, fix_aspect, fix_pp, zero_tan, K, dist, rvec, tvec, obj)
+        r = img - _project(model, K, dist, rvec, tvec, obj)
+        sse += float(np.sum(r * r))
+        m += obj.shape[0]
+        A = Ji.T @ Ji if A is None else A + Ji.T @ Ji
+        B = Ji.T @ Jp
+        C = Jp.T @ Jp
+        try:
+            Ci = np.linalg.inv(C)
+        except np.linalg.LinAlgError:
+            Ci = np.linalg.pinv(C)
+        b_blocks.append(B)
+        c_inv.append(Ci)
+    n_intr = A.shape[0]
+    dof = 2 * m - (n_intr + 6 * len(objs))
+    if dof <= 0:
+        raise EstimationError(f"{m} corners cannot determine {n_intr + 6 * len(objs)} parameters")
+    sigma2 = sse / dof
+    S = A - sum(B @ Ci @ B.T for B, Ci in zip(b_blocks, c_inv))
+    try:
+        S_inv = np.linalg.inv(S)
+        if not np.all(np.isfinite(S_inv)) or np.any(np.diag(S_inv) < 0):
+            raise np.linalg.LinAlgError
+    except np.linalg.LinAlgError:
+        S_inv = np.full_like(S, np.inf)
+    cov_i = sigma2 * S_inv
+    cov_p = []
+    for B, Ci in zip(b_blocks, c_inv):
+        G = Ci @ B.T
+        cov_p.append(sigma2 * (Ci + G @ S_inv @ G.T) if np.all(np.isfinite(S_inv)) else np.full((6, 6), np.inf))
+    return cov_i, np.array(cov_p), sigma2
+
+
+def _std_intrinsics(model, n_coef, opts, K, cov_i):
+    """Named 1-sigma of every intrinsic parameter; fixed ones get 0 (they were not
+    estimated), fx gets aspect * std(fy) when the aspect ratio is fixed."""
+    fix_aspect, fix_pp, zero_tan = opts
+    names = intrinsic_names(model, n_coef)
+    sd = np.sqrt(np.clip(np.diag(cov_i), 0, None))
+    out = {}
+    j = 0
+    if fix_aspect:
+        out["fy"] = float(sd[j])
+        out["fx"] = float(sd[j] * K[0, 0] / K[1, 1])
+        j += 1
+    else:
+        out["fx"], out["fy"] = float(sd[j]), float(sd[j + 1])
+        j += 2
+    if fix_pp:
+        out["cx"] = out["cy"] = 0.0
+    else:
+        out["cx"], out["cy"] = float(sd[j]), float(sd[j + 1])
+        j += 2
+    for i, name in enumerate(names[4:]):
+        if model == "opencv" and zero_tan and i in (2, 3):
+            out[name] = 0.0
+        else:
+            out[name] = float(sd[j])
+            j += 1
+    return {n: out[n] for n in names}
+
+
+# ---------------------------------------------------------------------- the driver
+def _single_threaded(fn):
+    """Run OpenCV single-threaded inside `fn`: its multithreaded calibration reduces in a
+    varying order and differs between runs in the last digits; one thread is
+    bit-reproducible (and no slower here)."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        import cv2
+
+        n = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            cv2.setNumThreads(n)
+
+    return wrapper
+
+
+@_single_threaded
+def calibrate(detections, board, image_size, model="opencv", coefficients=None, *, fix_aspect=False,
+              fix_principal_point=False, zero_tangent=False, min_corners=6, min_views=3,
+              outlier_view_sigma=4.0, outlier_corner_sigma=5.0, max_rounds=20):
+    """Calibrate one camera's intrinsics from board detections in several views.
+
+    Parameters
+    ----------
+    detections : sequence of BoardDetection or None
+        One per view (None: nothing detected). Corners in raw pixels, OpenCV convention.
+    board : Board
+        The board seen (boards.py); its object points are in its length unit.
+    image_size : (width, height)
+        [px]; every detection must come from an image of this size.
+    model : {"opencv", "pinhole", "fisheye"}
+        Lens model (camera.py). ``"pinhole"`` fits no distortion at all.
+    coefficients : int, optional
+        opencv: 4 (k1 k2 p1 p2), 5 (+ k3, the default), 8 (rational k4..k6), 12 (thin
+        prism s1..s4), 14 (tilted sensor); fisheye: 4; pinhole: 0.
+    fix_aspect : bool
+        Hold fx = fy (CALIB_FIX_ASPECT_RATIO with ratio 1). Not available for fisheye.
+    fix_principal_point : bool
+        Hold (cx, cy) at the initial estimate (the image centre from initCameraMatrix2D).
+    zero_tangent : bool
+        opencv: hold p1 = p2 = 0.
+    min_corners : int
+        Views with fewer corners are skipped (a ChArUco view may show part of the board).
+    min_views : int
+        Fewer usable views is an EstimationError; outlier rejection never goes below it.
+    outlier_view_sigma : float or None
+        Views whose median corner residual exceeds median + k * 1.4826 * MAD over the
+        views (and 1.5 x the median) are rejected. None or 0 turns view rejection off.
+    outlier_corner_sigma : float or None
+        Single corners with |residual| > k * sigma are rejected; sigma (per axis) is
+        estimated robustly, sqrt(median |r|^2 / (2 ln 2)). None or 0 turns it off.
+    max_rounds : int
+        At most this many fits (rejection stops at the last one).
+
+    Returns
+    -------
+    CalibrationResult
+
+    Raises
+    ------
+    InputError
+        Invalid options, or detections that do not belong to this board / image size.
+    EstimationError
+        Too few usable views or corners, or a solve that fails; the message says why.
+
+    Example
+    -------
+    >>> from pencilcal.toolkit.board.spec import board_from_dict
+    >>> board = board_from_dict({"type": "charuco", "squares": [7, 5], "square": 30.0,
+    ...                          "marker": 22.0, "dictionary": "DICT_4X4_50"})
+    >>> truth = Camera("fisheye", 1280, 720, [[600.0, 0, 640.0], [0, 600.0, 360.0], [0, 0, 1]],
+    ...                [0.05, -0.02, 0.01, -0.003])
+    >>> dets = synthetic_detections(truth, board, views=10, noise_px=0.1, seed=3)
+    >>> res = calibrate(dets, board, (1280, 720), model="fisheye")
+    >>> res.camera.model, bool(abs(res.camera.fx - 600.0) < 1.0), sorted(res.std_intrinsics)[:3]
+    ('fisheye', True, ['cx', 'cy', 'fx'])
+    """
+    n_coef = _coefficient_count(model, coefficients)
+    if model == "fisheye" and fix_aspect:
+        raise InputError("fix_aspect is not available for the fisheye model (cv2.fisheye.calibrate "
+                         "cannot tie fx to fy)")
+    if zero_tangent and model != "opencv":
+        raise InputError("zero_tangent applies to the opencv model only")
+    try:
+        w, h = (int(v) for v in image_size)
+    except (TypeError, ValueError):
+        raise InputError(f"image_size must be (width, height), got {image_size!r}") from None
+    if w <= 0 or h <= 0:
+        raise InputError(f"image_size must be positive, got {image_size!r}")
+    if int(min_corners) < 4:
+        raise InputError(f"min_corners must be at least 4 (a homography needs 4 points), got {min_corners}")
+    if int(min_views) < 1:
+        raise InputError(f"min_views must be at least 1, got {min_views}")
+    detections = list(detections)
+    for d in detections:
+        if d is not None and not isinstance(d, BoardDetection):
+            raise InputError(f"detections must be BoardDetection or None, got {type(d).__name__}")
+    image_size = (w, h)
+    obj_all = board.object_points()
+    n_views = len(detections)
+    rejected = []
+    objs, imgs = [None] * n_views, [None] * n_views
+    for i, det in enumerate(detections):
+        o, p, reason = _screen(det, obj_all, int(min_corners), image_size)
+        if reason is not None:
+            rejected.append({"view": i, "stage": "skipped", "reason": reason})
+        objs[i], imgs[i] = o, p
+    usable = [i for i in range(n_views) if objs[i] is not None]
+    if len(usable) < min_views:
+        raise EstimationError(_too_few_views(len(usable), min_views, n_views, rejected))
+    masks = {i: np.ones(objs[i].shape[0], bool) for i in usable}
+    flags, flag_names = _opencv_flags(model, n_coef, fix_aspect, fix_principal_point, zero_tangent)
+    K0 = _initial_K([objs[i] for i in usable], [imgs[i] for i in usable], image_size, fix_aspect)
+
+    used = list(usable)
+    rounds = 0
+    corner_sigma = None
+    while True:
+        rounds += 1
+        if len(used) < min_views:
+            raise EstimationError(f"only {len(used)} view(s) left after outlier rejection, need at least {min_views}")
+        o = [objs[i][masks[i]] for i in used]
+        p = [imgs[i][masks[i]] for i in used]
+        _check_counts(model, n_coef, fix_aspect, fix_principal_point, zero_tangent, o)
+        K, dist, rvecs, tvecs = _fit(model, n_coef, o, p, image_size, K0, flags)
+        if rounds >= max_rounds:
+            break
+        res = {i: imgs[i] - _project(model, K, dist, rvecs[j], tvecs[j], objs[i]) for j, i in enumerate(used)}
+        norms = {i: np.linalg.norm(res[i], axis=1) for i in used}
+        if _reject_views(used, masks, norms, outlier_view_sigma, min_views, rejected):
+            continue
+        if outlier_corner_sigma and corner_sigma is None:
+            # sigma is estimated once, when the views have settled: re-estimating it after
+            # every round would peel off the (heavy) tails of real residuals round by round
+            allr = np.concatenate([norms[i][masks[i]] for i in used])
+            corner_sigma = math.sqrt(float(np.median(allr ** 2)) / _CHI2_2_MEDIAN)
+        if _reject_corners(used, masks, norms, outlier_corner_sigma, corner_sigma, int(min_corners), rejected):
+            continue
+        break
+
+    # final statistics with the final parameters
+    o = [objs[i][masks[i]] for i in used]
+    p = [imgs[i][masks[i]] for i in used]
+    opts = (fix_aspect, fix_principal_point, zero_tangent)
+    cov_i, cov_p, _ = _covariance(model, n_coef, opts, K, dist, rvecs, tvecs, o, p)
+    std_intr = _std_intrinsics(model, n_coef, opts, K, cov_i)
+    per_view_rms = [None] * n_views
+    residuals = [None] * n_views
+    corner_used = [None] * n_views
+    std_ext = [None] * n_views
+    poses = [None] * n_views
+    sse, m = 0.0, 0
+    for j, i in enumerate(used):
+        r = imgs[i] - _project(model, K, dist, rvecs[j], tvecs[j], objs[i])
+        residuals[i] = r
+        corner_used[i] = masks[i].copy()
+        e2 = np.sum(r[masks[i]] ** 2)
+        per_view_rms[i] = float(np.sqrt(e2 / masks[i].sum()))
+        sse += float(e2)
+        m += int(masks[i].sum())
+        sd = np.sqrt(np.clip(np.diag(cov_p[j]), 0, None))
+        std_ext[i] = {"rvec": sd[:3], "tvec": sd[3:]}
+        poses[i] = (rvecs[j].copy(), tvecs[j].copy())
+    rms = float(np.sqrt(sse / m))
+    used_set = set(used)
+    used_flags = [i in used_set for i in range(n_views)]
+    meta = {
+        "rms_px": rms,
+        "std_intrinsics": std_intr,
+        "views_used": len(used),
+        "views_total": n_views,
+        "corners_used": m,
+        "calibration": {"model": model, "coefficients": n_coef, "fix_aspect": bool(fix_aspect),
+                        "flags": flag_names, "board": board.to_dict()},
+    }
+    camera = Camera(model, w, h, K, dist if model != "pinhole" else np.zeros(0), meta=meta)
+    return CalibrationResult(camera=camera, rms_px=rms, per_view_rms=per_view_rms, std_intrinsics=std_intr,
+                             std_extrinsics=std_ext, view_poses=poses, used=used_flags, rejected=rejected,
+                             residuals=residuals, corner_used=corner_used, model=model, coefficients=n_coef,
+                             flags=flag_names, rounds=rounds)
+
+
+def _too_few_views(n_usable, min_views, n_views, rejected):
+    """One line: how many views were usable and why the others were not."""
+    reasons = {}
+    for r in rejected:
+        key = r["reason"].split(" (")[0]
+        if key.startswith("only "):
+            key = "too few corners"
+        reasons[key] = reasons.get(key, 0) + 1
+    why = "; ".join(f"{k}: {n}" for k, n in sorted(reasons.items(), key=lambda kv: -kv[1]))
+    return (f"only {n_usable} usable view(s) of {n_views}, need at least {min_views}"
+            + (f" ({why})" if why else ""))
+
+
+def _check_counts(model, n_coef, fix_aspect, fix_pp, zero_tan, objs):
+    n_intr = (1 if fix_aspect else 2) + (0 if fix_pp else 2)
+    if model == "opencv":
+        n_intr += n_coef - (2 if zero_tan else 0)
+    elif model == "fisheye":
+        n_intr += 4
+    p = n_intr + 6 * len(objs)
+    m = sum(o.shape[0] for o in objs)
+    if 2 * m <= p:
+        raise EstimationError(f"{m} corners in {len(objs)} views cannot determine {p} parameters "
+                              f"({n_intr} intrinsics + 6 per view); add views or use fewer coefficients")
+
+
+def _reject_views(used, masks, norms, k, min_views, rejected):
+    """Reject views whose median residual is far above the others'. True if any were."""
+    if not k or len(used) <= min_views:
+        return False
+    stat = np.array([float(np.median(norms[i][masks[i]])) for i in used])
+    med = float(np.median(stat))
+    mad = float(np.median(np.abs(stat - med)))
+    thr = max(med + k * _MAD_SCALE * mad, _VIEW_RATIO_FLOOR * med)
+    worst = float(stat.max())
+    if worst <= thr:
+        return False
+    # gross outliers first: the rest are judged again after the refit
+    cut = max(thr, 0.5 * worst)
+    order = np.argsort(-stat)
+    bad = [j for j in order if stat[j] > cut][: len(used) - min_views]
+    if not bad:
+        return False
+    for j in bad:
+        i = used[j]
+        rms = float(np.sqrt(np.mean(norms[i][masks[i]] ** 2)))
+        rejected.append({"view": i, "stage": "outlier", "rms_px": rms,
+                         "reason": f"outlier view: median residual {stat[j]:.3g} px (RMS {rms:.3g} px) is far "
+                                   f"above the other views' (threshold {thr:.3g} px, median view {med:.3g} px)"})
+    for j in sorted(bad, reverse=True):
+        del used[j]
+    return True
+
+
+def _reject_corners(used, masks, norms, k, sigma, min_corners, rejected):
+    """Reject single corners with residual > k sigma (sigma per axis). True if any were."""
+    if not k or not sigma:
+        return False
+    allr = np.concatenate([norms[i][masks[i]] for i in used])
+    thr = k * sigma
+    worst = float(allr.max())
+    if worst <= thr:
+        return False
+    cut = max(thr, 0.5 * worst)
+    changed = False
+    for i in list(used):
+        bad = np.flatnonzero(masks[i] & (norms[i] > cut))
+        if bad.size == 0:
+            continue
+        changed = True
+        for c in bad:
+            rejected.append({"view": i, "stage": "outlier", "corner": int(c), "residual_px": float(norms[i][c]),
+                             "reason": f"outlier corner: residual {norms[i][c]:.3g} px > {k:g} sigma "
+                                       f"({thr:.3g} px, sigma {sigma:.3g} px per axis)"})
+        masks[i][bad] = False
+        left = int(masks[i].sum())
+        if left < min_corners:
+            used.remove(i)
+            rejected.append({"view": i, "stage": "outlier",
+                             "reason": f"only {left} corners left after outlier rejection "
+                                       f"(need at least {min_corners})"})
+    return changed
+
+
+# ---------------------------------------------------------------- synthetic views
+def synthetic_detections(camera, board, views=10, noise_px=0.2, seed=0, distance=None, tilt_deg=40.0,
+                         margin_px=10.0):
+    """Detections of `board` seen by `camera` from random poses, with Gaussian corner noise.
+
+    For tests and examples. Each view sees the whole board, tilted up to `tilt_deg` about a
+    random in-plane axis, at `distance` (default: the board fills about half the image
+    width), placed at random so that every corner lands at least `margin_px` inside the
+    image. ``ids`` are the board's corner ids; `corners` raw pixels + N(0, noise_px^2) per
+    axis. Also attaches the true poses as ``.truth`` = list of (rvec, tvec) on the
+    returned list.
+
+    Example
+    -------
+    >>> from pencilcal.toolkit.board.spec import board_from_dict
+    >>> b = board_from_dict({"type": "chessboard", "squares": [9, 6], "square": 25.0})
+    >>> cam = Camera("pinhole", 640, 480, [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
+    >>> dets = synthetic_detections(cam, b, views=3, noise_px=0.0, seed=0)
+    >>> len(dets), dets[0].count, dets[0].image_size
+    (3, 54, (640, 480))
+    """
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    obj = board.object_points()
+    centre = obj.mean(0)
+    span = float(np.ptp(obj[:, 0]) + 1e-9)
+    if distance is None:
+        distance = 2.0 * camera.fx * span / camera.width
+    out = _DetectionList()
+    out.truth = []
+    for _ in range(int(views)):
+        for _try in range(500):
+            axis = rng.normal(size=3)
+            axis[2] = 0.0
+            axis /= np.linalg.norm(axis)
+            tilt = np.radians(rng.uniform(0.3, 1.0) * tilt_deg)
+            spin = rng.uniform(-0.4, 0.4)
+            R = cv2.Rodrigues(axis * tilt)[0] @ cv2.Rodrigues(np.array([0.0, 0.0, spin]))[0]
+            depth = distance * rng.uniform(0.8, 1.3)
+            target = np.array([rng.uniform(-0.35, 0.35) * camera.width / camera.fx,
+                               rng.uniform(-0.3, 0.3) * camera.height / camera.fy, 1.0]) * depth
+            t = target - R @ centre
+            pc = obj @ R.T + t
+            if np.any(pc[:, 2] <= 0):
+                continue
+            px = camera.project(pc)
+            lo = margin_px
+            hi = np.array([camera.width, camera.height]) - 1 - margin_px
+            if np.all(np.isfinite(px)) and np.all(px.min(0) > lo) and np.all(px.max(0) < hi):
+                break
+        else:
+            raise RuntimeError("no pose keeps the board inside the image; lower the distortion or move it further")
+        px = px + noise_px * rng.normal(size=px.shape)
+        out.append(BoardDetection(np.arange(obj.shape[0]), px, (camera.width, camera.height),
+                                  np.zeros(0, int), np.zeros((0, 4, 2))))
+        out.truth.append((cv2.Rodrigues(R)[0].ravel(), t))
+    return out
+
+
+class _DetectionList(list):
+    """A list that can carry the true poses of synthetic views (``.truth``)."""

@@ -1,0 +1,1 @@
+"""Camera intrinsics: projection and undistortion, and the camera file formats of OpenCV, mrcal and COLMAP."""

@@ -1,0 +1,1 @@
+"""Line features in images: line segments, printed bars and instrument shafts, with subpixel edges and honest uncertainties."""

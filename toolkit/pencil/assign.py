@@ -1,0 +1,333 @@
+"""Assignment of unlabelled image lines to the spokes of a known pencil.
+
+The segments found in an image carry no labels. The map from spoke angles to image line
+directions is a 1-D homography, ``(cos a, sin a) ~ H (cos theta, sin theta)`` with H a 2x2
+matrix (in normalised coordinates H = [[1, 0, -x], [0, 1, -y]] R[:, :2]), so three lines
+with known spokes predict every other line. Hypotheses pair a triple of observed lines
+with a triple of spokes in the same cyclic order (a pencil seen from its front keeps the
+cyclic order of its spokes, i.e. det H > 0), allowing up to `max_gap` missing spokes or
+spurious lines between the chosen ones. Each is scored by MSAC over all lines; the best
+seeds an exact fit (estimator.fit_pencil), whose predictions then re-assign every line with
+a tolerance set by its own angle sigma, and the fit is repeated.
+
+Regular fans are partly self-similar: a frontal view of 8 spokes 20 deg apart with one
+spoke missing is explained equally well with every label shifted by one. The result says
+so (`labels_ambiguous`) rather than pretending to know the in-plane angle.
+
+All angles are radians in normalised image coordinates.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pencilcal.toolkit.geometry.angles import wrap_angle, wrap_line
+from pencilcal.toolkit.errors import EstimationError
+from pencilcal.toolkit.pencil.estimator import fit_pencil, pencil_jacobian, PencilFit, _CHI2_2
+
+__all__ = ["Assignment", "assign_spokes"]
+
+# distinct labellings refitted after the MSAC screen
+_TOP = 4
+# 99% quantile of chi-square with 1 dof: what a rejected line is charged when labellings
+# that use different numbers of lines are compared
+_CHI2_1 = 6.634896601021213
+# with this many assigned lines or fewer, every order-keeping labelling is fitted (batched)
+_EXHAUSTIVE_MAX_LINES = 5
+_EXHAUSTIVE_MAX_FITS = 5000
+
+
+@dataclass(frozen=True)
+class Assignment:
+    """Labels of the observed lines and the fit they give.
+
+    spoke: (M,) index into the pencil's spokes for each observed line, -1 if rejected.
+    fit: the PencilFit on the assigned lines (batch shape ()).
+    rivals: other labellings that explain as many lines about as well (chi-square within
+        the detection quantile), or one line fewer about as well once that line is charged
+        the 99% quantile of a squared residual and they label some line differently, as
+        (spoke (M,), PencilFit) pairs. A regular fan's labels
+        shifted by one spoke are a rival with the same normal (only the in-plane angle is
+        unknown); a rival found by coincidence can have another normal.
+    hypotheses: number of hypotheses scored.
+    """
+
+    spoke: np.ndarray
+    fit: PencilFit
+    rivals: list
+    hypotheses: int
+
+    @property
+    def labels_ambiguous(self) -> bool:
+        return bool(self.rivals)
+
+
+def _conflict(lab, ref):
+    """True when some line has a spoke in both labellings and not the same one."""
+    both = (lab >= 0) & (ref >= 0)
+    return bool(np.any(lab[both] != ref[both]))
+
+
+def _triples(n, G):
+    """Index triples (i, i+g1, i+g1+g2) mod n with 1 <= g <= G, all distinct. -> (T, 3)."""
+    out = []
+    for i in range(n):
+        for g1 in range(1, G + 1):
+            for g2 in range(1, G + 1):
+                if g1 + g2 < n:
+                    out.append((i, (i + g1) % n, (i + g1 + g2) % n))
+    return np.array(out, int).reshape(-1, 3)
+
+
+def _homographies(a, th):
+    """Null vectors of the 3x4 DLT systems: a, th (K, 3) -> H (K, 2, 2).
+
+    Row k: [sin a cos t, sin a sin t, -cos a cos t, -cos a sin t] . vec(H) = 0. The null
+    vector of a 3x4 matrix is its generalised cross product (signed 3x3 minors).
+    """
+    ca, sa, ct, st = np.cos(a), np.sin(a), np.cos(th), np.sin(th)
+    c = [sa * ct, sa * st, -ca * ct, -ca * st]  # the four columns, each (K, 3)
+
+    def det3(p, q, r):
+        return (p[:, 0] * (q[:, 1] * r[:, 2] - q[:, 2] * r[:, 1])
+                - p[:, 1] * (q[:, 0] * r[:, 2] - q[:, 2] * r[:, 0])
+                + p[:, 2] * (q[:, 0] * r[:, 1] - q[:, 1] * r[:, 0]))
+
+    h = np.stack([det3(c[1], c[2], c[3]), -det3(c[0], c[2], c[3]), det3(c[0], c[1], c[3]), -det3(c[0], c[1], c[2])], -1)
+    return h.reshape(-1, 2, 2)
+
+
+def _one_per_spoke(labels, sigma):
+    """Keep one line per spoke, the most precise: two segments of one spoke (fragments of
+    the same bar) are not independent measurements and must not count twice. (M,) -> (M,)."""
+    out = labels.copy()
+    for k in np.unique(labels[labels >= 0]):
+        idx = np.flatnonzero(labels == k)
+        if idx.size > 1:
+            out[idx[idx != idx[np.argmin(sigma[idx])]]] = -1
+    return out
+
+
+def _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriented, period):
+    """All cyclic-order-preserving labellings of the used lines, fitted in one batch.
+
+    Returns (labels, fit, rivals) with the best labelling first and every other within the
+    chi-square detection quantile of it as a rival."""
+    from itertools import combinations
+
+    li = np.flatnonzero(used)
+    li = li[np.argsort(np.remainder(a[li], period))]
+    m = li.size
+    order = np.argsort(np.remainder(th, period))
+    combos = [c for c in combinations(order.tolist(), m)]
+    if len(combos) * m > _EXHAUSTIVE_MAX_FITS:
+        return labels, fit, rivals
+    lab = np.array([[c[(i + r) % m] for i in range(m)] for c in combos for r in range(m)])  # (B, m)
+    B = len(lab)
+    fits = fit_pencil(np.broadcast_to(a[li], (B, m)), th[lab], np.broadcast_to(vertex, (B, 2)),
+                      sigma=np.broadcast_to(s[li], (B, m)), vertex_cov=vertex_cov, oriented=oriented)
+    chi2 = np.asarray(fits.chi2)
+    best = int(np.argmin(chi2))
+    M = a.size
+
+    def full(b):
+        out = np.full(M, -1)
+        out[li] = lab[b]
+        return out
+
+    def one(b):
+        return PencilFit(**{k: (v[b] if isinstance(v, np.ndarray) and v.shape[:1] == (B,) else v)
+                            for k, v in fits.__dict__.items()})
+
+    if chi2[best] < float(fit.chi2) - 1e-9 * max(1.0, float(fit.chi2)):
+        labels, fit = full(best), one(best)
+    ref = float(fit.chi2)
+    rivals = [(full(b), one(b)) for b in np.flatnonzero(chi2 - ref < _CHI2_2)
+              if not np.array_equal(full(b), labels)]
+    return labels, fit, rivals
+
+
+def _score(a, period, sigma_tol, H, ct, st):
+    """Nearest predicted spoke and MSAC cost for each hypothesis.
+
+    a: (M,) observed; H: (K, 2, 2); ct, st: (N,). Returns (cost (K,), nearest (K, M),
+    residual (K, M)).
+    """
+    px = H[:, 0, 0, None] * ct + H[:, 0, 1, None] * st  # (K, N)
+    py = H[:, 1, 0, None] * ct + H[:, 1, 1, None] * st
+    p = np.arctan2(py, px)
+    wrap = wrap_angle if period > np.pi else wrap_line
+    res = wrap(a[None, :, None] - p[:, None, :])  # (K, M, N)
+    k = np.argmin(np.abs(res), -1)
+    r = np.take_along_axis(res, k[..., None], -1)[..., 0]
+    cost = np.minimum((r / sigma_tol) ** 2, 1.0).sum(-1)
+    return cost, k, r
+
+
+def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, oriented=True,
+                  max_gap=2, tolerance_sigmas=4.0):
+    """Label observed lines with spokes and fit the pencil.
+
+    line_angles: (M,) [rad] observed image angles (normalised coordinates), oriented from
+        the vertex outwards when `oriented`, else lines (period pi).
+    spoke_angles: (N,) [rad] the pencil's spokes in the target frame.
+    vertex: (2,) normalised vertex; vertex_cov: (2, 2) or None.
+    sigma: scalar or (M,) [rad] angle standard deviation of each observed line.
+    max_gap: spokes missing, or spurious lines, tolerated between two hypothesis lines.
+    tolerance_sigmas: a line is assigned to the predicted spoke within this many sigmas of
+        the residual (its own angle noise and the prediction's uncertainty from the fitted
+        rotation and the vertex; never tighter than 0.01 deg).
+
+    Returns an `Assignment`. Raises EstimationError when fewer than three spokes can be
+    matched.
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
+    >>> from pencilcal.toolkit.pencil.spec import image_angles
+    >>> R = rotation_from_rotvec([0.4, 0.3, 0.2]); x = np.array([0.05, 0.1])
+    >>> spokes = np.radians(np.arange(8) * 20.0)
+    >>> seen = image_angles(R, x, spokes)[[6, 0, 2, 4, 5, 7]]     # shuffled, two missing
+    >>> res = assign_spokes(np.r_[seen, 0.3], spokes, x, np.radians(0.1))  # one spurious line
+    >>> res.spoke.tolist(), res.labels_ambiguous
+    ([6, 0, 2, 4, 5, 7, -1], False)
+    >>> # without both end spokes a regular fan is self-similar: the labels could all shift
+    >>> assign_spokes(image_angles(R, x, spokes)[1:7], spokes, x, np.radians(0.1)).labels_ambiguous
+    True
+    """
+    a = np.asarray(line_angles, float).reshape(-1)
+    th = np.asarray(spoke_angles, float).reshape(-1)
+    M, N = a.size, th.size
+    s = np.broadcast_to(np.asarray(sigma, float), (M,)).copy()
+    if M < 3:
+        raise EstimationError(f"fewer than three lines through the vertex ({M})")
+    if N < 3:
+        raise EstimationError(f"the pencil has fewer than three spokes ({N})")
+    period = 2 * np.pi if oriented else np.pi
+    # cyclic order of observed lines and of spokes (for lines, spokes modulo pi)
+    oa = np.argsort(np.remainder(a, period))
+    sp_mod = np.remainder(th, period)
+    ot = np.argsort(sp_mod)
+    if not oriented:
+        # spokes pi apart are the same line: keep one of them for hypotheses
+        keep = np.r_[True, np.diff(sp_mod[ot]) > 1e-9]
+        ot = ot[keep]
+    G = max_gap + 1
+    to = _triples(M, G)
+    ts = _triples(ot.size, G)
+    if to.size == 0 or ts.size == 0:
+        raise EstimationError("fewer than three distinct lines or spokes to match")
+    obs = oa[to]  # (To, 3) indices into a
+    spk = ot[ts]  # (Ts, 3) indices into th
+    io, js = np.meshgrid(np.arange(len(obs)), np.arange(len(spk)), indexing="ij")
+    io, js = io.ravel(), js.ravel()
+    A3, T3 = a[obs[io]], th[spk[js]]
+    H = _homographies(A3, T3)
+    ct, st = np.cos(th), np.sin(th)
+    # the three defining lines must be reproduced with their orientation (oriented) and the
+    # pencil must be seen from its front (det H > 0, cyclic order kept)
+    pxy = np.einsum("kij,kjl->kil", H, np.stack([np.cos(T3), np.sin(T3)], 1))  # (K, 2, 3)
+    dots = pxy[:, 0] * np.cos(A3) + pxy[:, 1] * np.sin(A3)
+    if oriented:
+        sgn = np.sign(dots.sum(-1))
+        H = H * sgn[:, None, None]
+        valid = np.all(dots * sgn[:, None] > 0, -1)
+    else:
+        valid = np.ones(len(H), bool)
+    valid &= np.linalg.det(H) > 0
+    valid &= np.all(np.isfinite(H.reshape(-1, 4)), -1) & (np.abs(H).reshape(-1, 4).max(-1) > 0)
+    if not valid.any():
+        raise EstimationError("no consistent assignment of lines to spokes (cyclic order never matches)")
+    H = H[valid]
+    # tolerance: a few sigmas, at least 0.25 deg (a 3-line prediction is noisier than one
+    # line) and below half the smallest spoke gap so neighbours are not confused
+    gaps = np.diff(np.r_[np.sort(np.remainder(th, period)), np.sort(np.remainder(th, period))[0] + period])
+    cap = 0.45 * max(np.min(gaps), 1e-6)
+    tol = np.clip(5.0 * s, np.radians(0.25), cap)
+    cost, nearest, resid = _score(a, period, tol, H, ct, st)
+    wrap = wrap_angle if oriented else wrap_line
+
+    def refine(labels):
+        """Fit on the labelled lines, re-label all lines by the fit's prediction, repeat."""
+        fit = None
+        for _ in range(3):
+            used = labels >= 0
+            if np.unique(labels[used]).size < 3:
+                return labels, fit
+            fit = fit_pencil(a[used], th[labels[used]], vertex, sigma=s[used], vertex_cov=vertex_cov, oriented=oriented)
+            pred, J, Jx = pencil_jacobian(fit.R_cam_from_target, vertex, th)
+            # a line is compared with a prediction that is uncertain itself (rotation and
+            # vertex): the tolerance covers both, else good short lines near the vertex drop
+            var_pred = np.einsum("ni,ij,nj->n", J, fit.cov, J)
+            if vertex_cov is not None:
+                var_pred = var_pred + np.einsum("ni,ij,nj->n", Jx, vertex_cov, Jx)
+            res = wrap(a[:, None] - pred[None, :])
+            k = np.argmin(np.abs(res), -1)
+            tol_k = np.minimum(np.maximum(tolerance_sigmas * np.sqrt(s**2 + var_pred[k]), np.radians(0.01)), cap)
+            new = _one_per_spoke(np.where(np.abs(res[np.arange(M), k]) < tol_k, k, -1), s)
+            if np.array_equal(new, labels) or np.unique(new[new >= 0]).size < 3:
+                break
+            labels = new
+        used = labels >= 0
+        if fit is None or np.unique(labels[used]).size < 3:
+            return labels, None
+        fit = fit_pencil(a[used], th[labels[used]], vertex, sigma=s[used], vertex_cov=vertex_cov, oriented=oriented)
+        return labels, fit
+
+    # Refit the few best distinct labellings: MSAC on 3-line predictions is only a
+    # screen, and two labellings may explain equally many lines (then say so).
+    candidates = []
+    seen_labels = set()
+    for h in np.argsort(cost)[: 4 * _TOP]:
+        lab0 = _one_per_spoke(np.where(np.abs(resid[h]) < tol, nearest[h], -1), s)
+        key = lab0.tobytes()
+        if key in seen_labels:
+            continue
+        seen_labels.add(key)
+        lab, f = refine(lab0)
+        if f is not None:
+            candidates.append(((lab >= 0).sum(), float(f.chi2), lab, f))
+        if len(seen_labels) >= _TOP:
+            break
+    if not candidates:
+        raise EstimationError("fewer than three spokes could be matched to the lines")
+    candidates.sort(key=lambda c: (-c[0], c[1]))
+    n_best, chi2_best, labels, fit = candidates[0]
+    rivals = [(lab, f) for n, chi2, lab, f in candidates[1:]
+              if n == n_best and not np.array_equal(lab, labels) and chi2 - chi2_best < _CHI2_2]
+    # A labelling that explains one line fewer is a rival too when it gives a line another
+    # spoke and fits about as well once the rejected line is charged the 99% quantile of
+    # one squared residual: a spurious line that falls on a shifted labelling's prediction
+    # otherwise wins just by being used. Residuals are judged against the best fit's own
+    # scatter (real lines often scatter more than their stated sigmas).
+    scale = max(1.0, chi2_best / max(n_best - 3, 1))
+    fewer = [(lab, f) for n, chi2, lab, f in candidates[1:]
+             if n < n_best and _conflict(lab, labels)
+             and (chi2 - chi2_best) / scale + _CHI2_1 * (n_best - n) < _CHI2_2]
+    used = labels >= 0
+    if _EXHAUSTIVE_MAX_LINES >= used.sum() >= 3:
+        # few lines: one redundancy or two, and many spoke subsets share a cross-ratio; fit
+        # every labelling that keeps the cyclic order (a few hundred, batched) so that no
+        # equally good labelling is missed
+        labels, fit, rivals = _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriented, period)
+        rivals += [r for r in fewer if _conflict(r[0], labels)]
+        return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=int(len(H)))
+    rivals += fewer
+    # is the labelling unique? try every label shifted by one spoke in the cyclic order
+    rank = np.empty(N, int)
+    order = np.argsort(np.remainder(th, period))
+    rank[order] = np.arange(N)
+    for shift in (-1, 1):
+        lab = order[np.remainder(rank[labels[used]] + shift, N)]
+        if np.unique(lab).size < 3:
+            continue
+        full = np.full(M, -1)
+        full[used] = lab
+        if any(np.array_equal(full, r[0]) for r in rivals):
+            continue
+        alt = fit_pencil(a[used], th[lab], vertex, sigma=s[used], vertex_cov=vertex_cov, oriented=oriented)
+        if float(alt.chi2) - float(fit.chi2) < _CHI2_2:
+            rivals.append((full, alt))
+    return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=int(len(H)))

@@ -1,0 +1,180 @@
+"""The fulcrum of a pivoting instrument, and its pivot plane, over a sequence.
+
+An instrument pivoting about its entry port (the fulcrum) images, in every frame, as a line
+through the fulcrum's image. Over the sequence those lines form a pencil:
+
+1. its vertex is the fulcrum's image: the robust weighted intersection of all the lines
+   (vertex.intersect_lines), rejecting lines that miss it (other edges, bad detections);
+2. with the pivot angle of every frame known (``angles``), the lines are a pencil with
+   labelled spokes, and the exact estimator gives the orientation of the pivot plane (the
+   plane the shaft sweeps) with its twin, exactly as for a printed fan.
+
+Per frame the instrument line is the shaft midline when the lines file has shafts
+(``pencilcal lines --shaft``), else the frame's segments, of which the fulcrum fit keeps
+those through the fulcrum; for the pivot plane each frame contributes its longest such
+line, oriented from the fulcrum towards the visible shaft.
+
+The pivot frame ("target" of the orientation): the shaft at pivot angle theta points along
+(cos theta, sin theta, 0); its normal is R_cam_from_target[:, 2].
+"""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from pencilcal.toolkit.errors import EstimationError, InputError
+from pencilcal.toolkit.pencil.estimator import check_vertex, fit_pencil
+from pencilcal.toolkit.geometry.frames import normalize
+from pencilcal.toolkit.pencil.orient import orientation_record, raw_vertex
+from pencilcal.toolkit.pencil.vertex import intersect_lines
+
+__all__ = ["fulcrum_from_frames", "read_angles"]
+
+
+def read_angles(path, images):
+    """Pivot angles [rad] for the frames `images` from a CSV file.
+
+    Accepted: a header with ``image`` and ``angle_deg`` columns (matched by image name), or
+    a header with ``angle_deg`` only / no header with one number per row (in frame order,
+    one row per frame). Returns (F,) radians; InputError naming the file otherwise.
+    """
+    p = Path(path)
+    try:
+        rows = [r for r in csv.reader(p.read_text(encoding="utf-8").splitlines()) if r and any(c.strip() for c in r)]
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"{p}: cannot read angles file: {e}") from None
+    if not rows:
+        raise InputError(f"{p}: no angles")
+    head = [c.strip().lower() for c in rows[0]]
+    by_name = None
+    try:
+        if "angle_deg" in head:
+            ia = head.index("angle_deg")
+            ii = head.index("image") if "image" in head else None
+            body = rows[1:]
+            vals = [float(r[ia]) for r in body]
+            if ii is not None:
+                by_name = {r[ii].strip(): v for r, v in zip(body, vals)}
+        else:
+            vals = [float(r[0]) for r in rows]
+    except (ValueError, IndexError):
+        raise InputError(f"{p}: angles must be numbers (columns image,angle_deg or one angle per row)") from None
+    if not np.all(np.isfinite(vals)):
+        raise InputError(f"{p}: angles must be finite")
+    if by_name is not None:
+        missing = [im for im in images if im not in by_name]
+        if missing:
+            raise InputError(f"{p}: no angle for image {missing[0]!r} ({len(missing)} missing)")
+        return np.radians([by_name[im] for im in images])
+    if len(vals) != len(images):
+        raise InputError(f"{p}: {len(vals)} angles for {len(images)} frames")
+    return np.radians(vals)
+
+
+def _frame_lines(fr, endpoint_sigma_px):
+    """Raw segments and their angle sigma [rad] (None: from the end points) for one frame."""
+    shafts = fr.get("shafts")
+    if shafts:
+        seg = np.array([np.asarray(s["midline"], float) for s in shafts]).reshape(-1, 4)
+        sig = np.array([np.radians(s["angle_sigma_deg"]) if s.get("angle_sigma_deg") is not None else np.nan for s in shafts])
+        return seg, sig
+    seg = np.asarray(fr.get("segments", np.zeros((0, 4))), float).reshape(-1, 4)
+    sig = fr.get("angle_sigma_deg")
+    sig = np.full(len(seg), np.nan) if sig is None else np.radians(np.asarray(sig, float))
+    return seg, sig
+
+
+def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=0.5):
+    """The fulcrum (and with `angles` the pivot plane) from the lines of a sequence.
+
+    camera: Camera; frames: lines.json frame dicts (lines_io.read_lines); angles: (F,) pivot
+    angles [rad] per frame or None; endpoint_sigma_px: end point noise [px] of segments
+    without their own angle sigma.
+
+    Returns a fulcrum.json dict: ``vertex_px``, ``vertex_cov_px2`` (raw pixels), ``ray``
+    (unit, camera frame), ``ray_sigma_deg``, ``lines_used``, ``outliers`` (list of
+    {image, segment}), ``frames_used``; with `angles` also the orientation keys of
+    orientation.json for the pivot plane. Raises EstimationError when there is no fulcrum.
+    """
+    segs, sigs, owner = [], [], []
+    for i, fr in enumerate(frames):
+        if not fr.get("ok", True):
+            continue
+        s, g = _frame_lines(fr, endpoint_sigma_px)
+        keep = np.all(np.isfinite(s), -1) & (np.hypot(s[:, 2] - s[:, 0], s[:, 3] - s[:, 1]) > 1.0)
+        for j in np.flatnonzero(keep):
+            segs.append(s[j])
+            sigs.append(g[j])
+            owner.append((i, int(j)))
+    if len(segs) < 2:
+        raise EstimationError(f"fewer than two instrument lines in the sequence ({len(segs)})")
+    seg = np.array(segs)
+    ideal = camera.undistort_pixels(seg.reshape(-1, 2)).reshape(-1, 4)
+    good = np.all(np.isfinite(ideal), -1)
+    if good.sum() < 2:
+        raise EstimationError("fewer than two lines could be undistorted")
+    L = np.hypot(ideal[:, 2] - ideal[:, 0], ideal[:, 3] - ideal[:, 1])
+    sig = np.asarray(sigs, float)
+    # end point noise model where the line has no sigma of its own
+    st = np.where(np.isfinite(sig), sig, np.sqrt(2.0) * endpoint_sigma_px / np.maximum(L, 1e-9))
+    sc = np.full(len(seg), endpoint_sigma_px / np.sqrt(2.0))
+    idx = np.flatnonzero(good)
+    vf = intersect_lines(ideal[idx], angle_sigma=st[idx], offset_sigma=sc[idx], robust=True)
+    inl = np.zeros(len(seg), bool)
+    inl[idx[vf.inliers]] = True
+    K = np.asarray(camera.K, float)
+    Kinv = np.linalg.inv(K)
+    A = Kinv[:2, :2]
+    x = A @ vf.vertex + Kinv[:2, 2]
+    check_vertex(x)
+    cov_x = A @ vf.cov @ A.T
+    # the ray from the ideal vertex itself: the lens model need not reach it (raw_vertex)
+    ray = normalize(np.r_[x, 1.0])
+    # ray uncertainty: the unit ray moves by (I - r r^T)[:, :2] / |(x, 1)| per unit of x
+    v = np.r_[x, 1.0]
+    P = (np.eye(3) - np.outer(v, v) / (v @ v))[:, :2] / np.linalg.norm(v)
+    ray_sigma = np.sqrt(max(np.trace(P @ cov_x @ P.T), 0.0))
+    v_raw, cov_raw = raw_vertex(camera, x, vf.vertex, vf.cov)
+    out = {
+        "ok": True,
+        "error": None,
+        "vertex_px": v_raw,
+        "vertex_cov_px2": cov_raw,
+        "ray": ray,
+        "ray_sigma_deg": float(np.degrees(ray_sigma)),
+        "lines_used": int(vf.lines_used),
+        "outliers": [{"image": frames[owner[k][0]].get("image"), "segment": owner[k][1]} for k in np.flatnonzero(~inl)],
+        "frames_used": int(len({owner[k][0] for k in np.flatnonzero(inl)})),
+        "rms": vf.rms,
+    }
+    if angles is None:
+        return out
+    # one oriented line per frame: its longest inlier, pointing from the fulcrum outwards
+    angles = np.asarray(angles, float)
+    best = {}
+    for k in np.flatnonzero(inl):
+        f = owner[k][0]
+        if f not in best or L[k] > L[best[f]]:
+            best[f] = k
+    if len(best) < 3:
+        raise EstimationError(f"the pivot plane needs lines in three frames, got {len(best)}")
+    ks = np.array([best[f] for f in sorted(best)])
+    fr_idx = np.array(sorted(best))
+    p1 = ideal[ks, :2] @ A.T + Kinv[:2, 2]
+    p2 = ideal[ks, 2:] @ A.T + Kinv[:2, 2]
+    far = np.where((np.linalg.norm(p2 - x, axis=1) >= np.linalg.norm(p1 - x, axis=1))[:, None], p2, p1)
+    near = np.where((np.linalg.norm(p2 - x, axis=1) >= np.linalg.norm(p1 - x, axis=1))[:, None], p1, p2)
+    d = far - near
+    a = np.arctan2(d[:, 1], d[:, 0])
+    # angle sd in normalised coordinates (a linear map A scales angles by det A / |A t|^2)
+    t = (ideal[ks, 2:] - ideal[ks, :2]) / L[ks, None]
+    s_n = st[ks] * abs(np.linalg.det(A)) / np.sum((t @ A.T) ** 2, -1)
+    fit = fit_pencil(a, angles[fr_idx], x, sigma=s_n, vertex_cov=cov_x)
+    rec = orientation_record(camera, fit, x, vf.vertex, vf.cov, model="exact", sigma_mean=float(np.sqrt(np.mean(s_n**2))))
+    rec.pop("image", None)
+    out.update({k: v for k, v in rec.items() if k not in out})
+    out["lines_used"] = int(vf.lines_used)
+    out["pivot_frames"] = int(len(ks))
+    return out

@@ -1,0 +1,582 @@
+"""Orientation of a pencil from the raw segments of one frame: the whole pipeline.
+
+``orient_segments`` turns line segments in raw (distorted) pixels into one record of
+``orientation.json`` (INTERFACES.md):
+
+1. undistort the segment end points (lines, not images);
+2. find the vertex: robust weighted intersection (vertex.intersect_lines) in ideal pixels,
+   rejecting segments that do not pass through it;
+3. orient each segment from the vertex outwards (a segment that straddles the vertex is a
+   line with no direction);
+4. label the segments with spokes (assign.assign_spokes), tolerating missing spokes and
+   spurious segments, and fit the pencil (the exact estimator, or the chapter's general or
+   aligned model), with the vertex covariance carried into the orientation;
+5. choose between the twins where extra information allows: a prior rotation (a board
+   pose, the previous frame) or, when the pencil file gives the spoke radii, the metric
+   positions of the segment end points along the spokes;
+6. report in raw pixels and degrees.
+
+Noise model: each end point has isotropic noise `endpoint_sigma_px` per coordinate, so a
+segment of length L has angle sd sqrt(2) sigma / L and offset sd sigma / sqrt(2) at its
+centre; a per-segment `angle_sigma` (e.g. from a line fit to edge pixels) overrides the
+angle part.
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from pencilcal.toolkit.geometry.angles import wrap_angle
+from pencilcal.toolkit.pencil.assign import assign_spokes
+from pencilcal.toolkit.errors import EstimationError, InputError
+from pencilcal.toolkit.pencil.estimator import (
+    detection_threshold,
+    fit_pencil,
+    pencil_covariance,
+    swap_twins,
+    choose_by_prior,
+)
+from pencilcal.toolkit.geometry.frames import normalize, rotation_angle, rotation_from_rotvec
+from pencilcal.toolkit.pencil.spec import image_angles
+from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
+
+__all__ = ["orient_segments", "orientation_record", "raw_vertex", "MODELS", "metric_depth", "resolve_twins_by_continuity"]
+
+MODELS = ("exact", "general", "aligned")
+
+# Segments shorter than this carry almost no angle information and are mostly noise.
+MIN_LENGTH_PX = 8.0
+
+
+def _empty_record(image, model, error):
+    keys = ["vertex_px", "vertex_cov_px2", "lines_used", "rms_residual_deg", "tilt_deg", "tilt_sigma_deg",
+            "detectable", "normal", "normal_sigma_deg", "normal_twin", "R_cam_from_target",
+            "R_cam_from_target_twin", "ambiguous"]
+    rec = {"image": image, "ok": False, "error": error}
+    rec.update({k: None for k in keys})
+    rec["model"] = model
+    return rec
+
+
+def metric_depth(R_cam_from_target, vertex, spoke_angles, inner, outer, radius):
+    """Depth of the vertex and the fit of known spoke radii, for one candidate rotation.
+
+    A point at distance r along spoke k images at signed distance
+    ``t = r |w_k| / (z + r d_kz)`` from the vertex along w_k (normalised coordinates, z the
+    vertex depth, d_k the spoke's camera-frame direction). With the inner and outer end of
+    each spoke seen, z follows by least squares, and the residual tells the twins apart:
+    they image the lines identically but foreshorten lengths differently.
+
+    R_cam_from_target: (..., 3, 3); vertex: (2,) normalised; spoke_angles: (..., K) [rad]
+    of the assigned segments; inner, outer: (K, 2) normalised image of their end points
+    nearer to and farther from the vertex; radius: (2,) [inner, outer] in length units, the
+    same for every spoke, or (K, 2) per segment (e.g. board corners at known distances).
+    Returns (depth (...), residuals (..., 2K) in normalised units); depth is NaN and the
+    residuals inf where the data do not support a positive depth.
+    """
+    R = np.asarray(R_cam_from_target, float)
+    th = np.asarray(spoke_angles, float)
+    d = np.einsum("...ij,...jk->...ki", R[..., :, :2], np.stack([np.cos(th), np.sin(th)], -2))  # (..., K, 3)
+    x = np.asarray(vertex, float)
+    w = d[..., :2] - x * d[..., 2:3]
+    c = np.linalg.norm(w, axis=-1)
+    u = w / c[..., None]
+    t = np.concatenate([np.sum((inner - x) * u, -1), np.sum((outer - x) * u, -1)], -1)
+    K = th.shape[-1]
+    rad = np.broadcast_to(np.asarray(radius, float), (K, 2))
+    r = np.concatenate([rad[:, 0], rad[:, 1]])
+    cc = np.concatenate([c, c], -1)
+    dz = np.concatenate([d[..., 2], d[..., 2]], -1)
+    ok = t > 0
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # no positive distance: NaN, caught below
+        # per-point depth estimates, then Gauss-Newton on the image distances
+        z = np.nanmedian(np.where(ok, r * (cc / np.where(ok, t, 1.0) - dz), np.nan), -1)
+        for _ in range(8):
+            den = z[..., None] + r * dz
+            pred = r * cc / den
+            J = -r * cc / den**2
+            z = z + np.sum(J * (t - pred), -1) / np.maximum(np.sum(J * J, -1), 1e-300)
+        den = z[..., None] + r * dz
+        res = t - r * cc / den
+    bad = (ok.sum(-1) < 2) | ~np.isfinite(z) | (z <= 0) | np.any(den <= 0, -1)
+    z = np.where(bad, np.nan, z)
+    res = np.where(bad[..., None], np.inf, res)
+    if z.ndim == 0:
+        return float(z), res
+    return z, res
+
+
+def _segment_geometry(camera, segments, endpoint_sigma_px):
+    """Ideal-pixel segments, their length, and the local scale raw -> ideal."""
+    seg = np.asarray(segments, float)
+    ideal = camera.undistort_pixels(seg.reshape(-1, 2)).reshape(-1, 4)
+    # the local linear scale of the undistortion at each segment centre: end point noise
+    # in raw pixels becomes noise in ideal pixels scaled by it
+    centre = 0.5 * (seg[:, :2] + seg[:, 2:])
+    xy = camera.normalized_from_pixels(centre)
+    K2 = np.asarray(camera.K, float)[:2, :2]
+    with np.errstate(invalid="ignore"):  # NaN beyond the lens model's reach: dropped by the caller
+        Jpn = camera.jacobian_pixels_from_normalized(xy)  # d raw / d normalised
+        J_ideal_from_raw = K2 @ np.linalg.inv(Jpn)
+        scale = np.sqrt(np.abs(np.linalg.det(J_ideal_from_raw)))
+    return ideal, scale
+
+
+def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_px=0.5, angle_sigma=None,
+                    prior=None, vertex_px=None, vertex_cov_px2=None, image=None, labels=None, keep_lines=False,
+                    offset_sigma=None, spoke_radii=None):
+    """Orientation of a pencil seen in one frame, as an orientation.json record.
+
+    camera: a Camera; segments: (M, 4) raw pixels [x1, y1, x2, y2]; pencil: a Pencil.
+    model: "exact" (default), "general" or "aligned" (the chapter's models, for comparison).
+    endpoint_sigma_px: noise of each end point per coordinate [px].
+    angle_sigma: None, scalar or (M,) [rad] angle sd of each segment in pixels (e.g. from
+        a line fit to edge pixels; overrides the end point model for the angle).
+    offset_sigma: None, scalar or (M,) [px] sd of each segment's perpendicular position at
+        its midpoint (overrides the end point model for the offset).
+    spoke_radii: (M, 2) distances from the vertex [length unit] of each segment's inner and
+        outer end, when known per segment (board corners); else the pencil's radius.
+    prior: (3, 3) R_cam_from_target known roughly (board pose, previous frame): picks the twin.
+    vertex_px, vertex_cov_px2: a known vertex in raw pixels (e.g. a fulcrum) and its
+        covariance, instead of intersecting the segments.
+    image: name stored in the record.
+    labels: (M,) spoke index of every segment when it is known (e.g. board grid lines
+        through a corner), -1 to ignore one; skips the assignment.
+    keep_lines: also return ``lines``: the used lines in normalised coordinates
+        (``angle`` and ``sigma`` [rad], ``spoke`` index, ``segment`` index), for experiments.
+
+    Returns a dict with the keys of INTERFACES.md plus ``spokes`` (label per input segment,
+    -1 rejected), ``labels_ambiguous``, ``resolved_by``, ``ray``, ``tilt_threshold_deg`` and,
+    when the spoke radii resolve the twin, ``vertex_cam`` (and ``t_cam_from_target`` if the
+    pencil file gives the vertex). A frame with no estimate has ``ok: false`` and ``error``.
+    """
+    if model not in MODELS:
+        raise InputError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}")
+    seg = np.asarray(segments, float).reshape(-1, 4)
+    M = seg.shape[0]
+    labels_out = np.full(M, -1)
+    try:
+        finite = np.all(np.isfinite(seg), -1)
+        length = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
+        usable = finite & (length >= MIN_LENGTH_PX)
+        if usable.sum() < 3:
+            bad = int((~finite).sum())
+            why = f" ({bad} not finite)" if bad else ""
+            raise EstimationError(f"fewer than three usable segments{why}: {int(usable.sum())} of {M}")
+        idx = np.flatnonzero(usable)
+        ideal, scale = _segment_geometry(camera, seg[idx], endpoint_sigma_px)
+        ok = np.all(np.isfinite(ideal), -1)
+        idx, ideal, scale = idx[ok], ideal[ok], scale[ok]
+        if idx.size < 3:
+            raise EstimationError("fewer than three segments could be undistorted (outside the lens model's range)")
+        L = np.hypot(ideal[:, 2] - ideal[:, 0], ideal[:, 3] - ideal[:, 1])
+        sig_e = endpoint_sigma_px * scale  # end point noise in ideal pixels
+        if angle_sigma is None:
+            st = np.sqrt(2.0) * sig_e / L
+        else:
+            st = np.broadcast_to(np.asarray(angle_sigma, float), (M,))[idx]
+            if np.any(~np.isfinite(st) | (st <= 0)):
+                raise InputError("angle sigma must be positive and finite")
+        if offset_sigma is None:
+            sc = sig_e / np.sqrt(2.0)
+        else:
+            sc = np.broadcast_to(np.asarray(offset_sigma, float), (M,))[idx] * scale
+            if np.any(~np.isfinite(sc) | (sc <= 0)):
+                raise InputError("offset sigma must be positive and finite")
+
+        # --- vertex, in ideal pixels
+        K = np.asarray(camera.K, float)
+        Kinv = np.linalg.inv(K)
+        A = Kinv[:2, :2]
+        if vertex_px is not None:
+            v_ideal = camera.undistort_pixels(np.asarray(vertex_px, float))
+            J = np.linalg.inv(camera.jacobian_pixels_from_normalized(camera.normalized_from_pixels(vertex_px)))
+            C = np.zeros((2, 2)) if vertex_cov_px2 is None else np.asarray(vertex_cov_px2, float)
+            cov_ideal = (K[:2, :2] @ J) @ C @ (K[:2, :2] @ J).T
+            # only the segments that pass through it (and, with spoke radii, reach close
+            # enough to it) are the pencil's: the others are other edges of the scene
+            _, through = lines_through(v_ideal, ideal, st, sc, cov_ideal)
+            if pencil.radius is not None:
+                through &= _radius_consistent(ideal, pencil.radius)(v_ideal[None])[0]
+        else:
+            v_ideal, cov_ideal, through = _find_vertex(ideal, st, sc, pencil.radius)
+        idx, ideal, st = idx[through], ideal[through], st[through]
+        if idx.size < 3:
+            raise EstimationError(f"only {idx.size} segments pass through the vertex; three are needed")
+
+        # --- normalised coordinates
+        x = Kinv[:2, :2] @ v_ideal + Kinv[:2, 2]
+        cov_x = A @ cov_ideal @ A.T
+        p1 = ideal[:, :2] @ A.T + Kinv[:2, 2]
+        p2 = ideal[:, 2:] @ A.T + Kinv[:2, 2]
+        t = normalize(np.concatenate([p2 - p1, np.zeros((len(p1), 1))], -1))[:, :2]
+        # angle sd in normalised coordinates: a linear map A scales angles by det(A)/|A t|^2
+        t_ideal = normalize(np.concatenate([ideal[:, 2:] - ideal[:, :2], np.zeros((len(p1), 1))], -1))[:, :2]
+        gain = abs(np.linalg.det(A)) / np.sum((t_ideal @ A.T) ** 2, -1)
+        s_n = st * gain
+        # orient each segment away from the vertex; a segment over the vertex has no direction
+        s1, s2 = np.sum((p1 - x) * t, -1), np.sum((p2 - x) * t, -1)
+        away = np.where(np.abs(s2) >= np.abs(s1), 1.0, -1.0)
+        straddle = (s1 * s2) < 0
+        a = np.arctan2(t[:, 1] * away, t[:, 0] * away)
+        oriented = not np.any(straddle)
+
+        # --- labels and fit
+        # end point noise in normalised units, for the metric use of the spoke radii
+        sigma_metric = np.sqrt(np.mean(sig_e[through] ** 2)) * np.sqrt(abs(np.linalg.det(A)))
+        rivals = []
+        if labels is None:
+            asg = assign_spokes(a, pencil.angles, x, s_n, vertex_cov=cov_x, oriented=oriented)
+            lab, fit, rivals = asg.spoke, asg.fit, list(asg.rivals)
+            if rivals and pencil.radius is not None:
+                lab, fit, rivals = _break_label_ties(lab, fit, rivals, x, pencil, p1, p2, sigma_metric)
+            labels_ambiguous = bool(rivals)
+        else:
+            lab = np.asarray(labels, int).reshape(-1)[idx]
+            used = lab >= 0
+            if np.unique(lab[used]).size < 3:
+                raise EstimationError(f"only {np.unique(lab[used]).size} labelled spokes through the vertex; three are needed")
+            fit = fit_pencil(a[used], pencil.angles[lab[used]], x, sigma=s_n[used], vertex_cov=cov_x, oriented=oriented)
+            labels_ambiguous = False
+        used = lab >= 0
+        th_used, a_used, s_used = pencil.angles[lab[used]], a[used], s_n[used]
+        if model != "exact":
+            fit = _chapter_fit(model, a_used, th_used, x, s_used, cov_x, fit)
+        if not oriented and np.any(~straddle[used]):
+            # lines fix R only up to R Rz(pi); the segments that do not straddle the vertex
+            # say which way the spokes point
+            R = fit.R_cam_from_target
+            pred = image_angles(R, x, th_used)
+            agree = np.cos(wrap_angle(a_used - pred))[~straddle[used]].sum()
+            if agree < 0:
+                Rz = np.diag([-1.0, -1.0, 1.0])
+                fit = _replace_rotation(fit, R @ Rz, fit.R_twin @ Rz)
+
+        # --- twins
+        resolved_by = None
+        if prior is not None:
+            which = choose_by_prior(fit.R_cam_from_target, fit.R_twin, np.asarray(prior, float))
+            fit = swap_twins(fit, which, th_used, x, s_used, cov_x, resolved_by="prior")
+            resolved_by = "prior"
+        metric = None
+        radius = pencil.radius if spoke_radii is None else np.asarray(spoke_radii, float).reshape(-1, 2)[idx][used]
+        if radius is not None:
+            metric = _metric_choice(fit, x, th_used, p1[used], p2[used], radius, sigma_metric)
+            if metric is not None and resolved_by is None and metric["decisive"]:
+                fit = swap_twins(fit, metric["twin_better"], th_used, x, s_used, cov_x, resolved_by="radius")
+                resolved_by = "radius"
+
+        labels_out[idx] = lab
+        s_mean = float(np.sqrt(np.mean(s_used**2)))
+        rec = orientation_record(camera, fit, x, v_ideal, cov_ideal, model=model, image=image, sigma_mean=s_mean,
+                                 resolved_by=resolved_by)
+        rec["labels_ambiguous"] = bool(labels_ambiguous)
+        # rival labellings that put the normal elsewhere make the normal itself ambiguous
+        alt = _rival_normals(fit, rivals)
+        rec["normal_ambiguous"] = bool(alt)
+        if alt:
+            rec["normal_alternatives"] = alt
+        rec["spokes"] = labels_out
+        if keep_lines:
+            rec["lines"] = {"angle": a_used, "sigma": s_used, "spoke": lab[used], "segment": idx[used],
+                            "vertex": x, "vertex_cov": cov_x}
+        if metric is not None and resolved_by is not None:
+            # depth from the spoke radii, for the rotation finally chosen, if it fits them
+            chosen_twin = resolved_by == "radius" and metric["twin_better"]
+            depth = metric["depth_twin"] if chosen_twin else metric["depth"]
+            chi2 = metric["chi2_twin"] if chosen_twin else metric["chi2"]
+            if np.isfinite(depth) and chi2 / metric["points"] < 9.0:
+                P0 = depth * np.r_[x, 1.0]
+                rec["vertex_cam"] = P0
+                if pencil.vertex is not None:
+                    rec["t_cam_from_target"] = P0 - fit.R_cam_from_target @ np.r_[pencil.vertex, 0.0]
+        return rec
+    except EstimationError as e:
+        rec = _empty_record(image, model, str(e))
+        rec["spokes"] = labels_out
+        return rec
+
+
+def _radius_consistent(ideal, radius):
+    """consistent(points) for vertex.intersect_lines: segments that can be spokes running
+    from radius[0] to radius[1] of a vertex at each point.
+
+    A spoke's near end lies at about r_in / (r_out - r_in) of its length from the vertex;
+    perspective changes that ratio by well under a factor 3 at any usable tilt, while a
+    stray line that only points at the vertex lies far from it.
+    """
+    L = np.hypot(*(ideal[:, 2:] - ideal[:, :2]).T)
+    limit = np.maximum(3.0 * radius[0] / (radius[1] - radius[0]), 0.5) * L
+
+    def consistent(points):
+        p = np.asarray(points, float)[:, None, :]
+        near = np.minimum(np.linalg.norm(ideal[None, :, :2] - p, axis=-1), np.linalg.norm(ideal[None, :, 2:] - p, axis=-1))
+        return near <= limit
+
+    return consistent
+
+
+def _find_vertex(ideal, st, sc, radius):
+    """Robust vertex of the segments (ideal px): (vertex, cov, inlier mask).
+
+    With spoke radii, only lines that can be spokes of a candidate vertex count for it:
+    spurious lines that happen to share a point (edges of a textured background meeting at
+    the horizon) would otherwise outvote the spokes.
+    """
+    cons = None if radius is None else _radius_consistent(ideal, radius)
+    vf = intersect_lines(ideal, angle_sigma=st, offset_sigma=sc, robust=True, consistent=cons)
+    return vf.vertex, vf.cov, vf.inliers
+
+
+def _break_label_ties(lab, fit, rivals, x, pencil, p1, p2, sigma_metric):
+    """Among labellings that explain the angles equally well, prefer the one whose spoke
+    radii fit the segment end points: (labels, fit, remaining rivals).
+
+    The radii's chi2 carries each fit's rotation uncertainty (`_radii_chi2`). When even the
+    best labelling's radii misfit (chi2 per end point > 1), the others are judged against
+    that scatter, and a labelling stays a rival while the ratio of the two misfits is within
+    the F distribution's 99% quantile: three lines, one of them stray, fit every labelling's
+    angles exactly and several labellings' radii about equally badly.
+    """
+    from pencilcal.toolkit.pencil.assign import _CHI2_1
+    from pencilcal.toolkit.pencil.estimator import _CHI2_2
+
+    cands = [(lab, fit)] + list(rivals)
+    used = np.array([l >= 0 for l, _ in cands])
+    metric_chi2 = np.empty(len(cands))
+    # labellings of the same segments in one batch
+    for mask in np.unique(used, axis=0):
+        group = np.flatnonzero(np.all(used == mask, -1))
+        R = np.stack([np.stack([cands[i][1].R_cam_from_target, cands[i][1].R_twin]) for i in group])
+        cov = np.stack([cands[i][1].cov for i in group])
+        th = np.stack([pencil.angles[cands[i][0][mask]] for i in group])
+        metric_chi2[group] = _radii_chi2(R, cov, x, th, p1[mask], p2[mask], pencil.radius, sigma_metric)
+    lines = used.sum(-1)
+    points = 2 * lines
+    angle_chi2 = np.array([float(f.chi2) for _, f in cands])
+    per_point = metric_chi2 / np.maximum(points, 1)
+    # a labelling that leaves a line out is charged for it as assign_spokes charges it, and
+    # its radii are judged per end point (fewer points must not mean a smaller sum)
+    angles = angle_chi2 + _CHI2_1 * (lines.max() - lines)
+    if not np.any(np.isfinite(per_point)):
+        return lab, fit, list(rivals)  # no labelling gives the radii a positive depth
+    # Radii that no labelling fits within the end point noise (grazing views, where bar
+    # ends blur; a spurious line among three, which every labelling fits exactly) cannot
+    # pick one: their differences count against the best-fitting labelling's own scatter.
+    scatter = max(1.0, float(np.min(per_point)))
+    scores = angles + np.where(np.isfinite(per_point), per_point * max(points) / scatter, 1e12)
+    best = int(np.argmin(scores))
+    rival = scores - scores[best] < _CHI2_2
+    if scatter > 1.0:
+        # two scatters estimated from the data are told apart only by their ratio
+        from scipy.stats import f as f_dist
+
+        ratio = per_point / per_point[best]
+        rival |= (angles - angles[best] < _CHI2_2) & (ratio < f_dist.ppf(0.99, points, points[best]))
+    rest = [c for i, c in enumerate(cands) if i != best and rival[i]]
+    return cands[best][0], cands[best][1], rest
+
+
+def _inner_outer(p1, p2, x):
+    """Segment end points (K, 2) nearer to and farther from the vertex x (2,)."""
+    near1 = (np.linalg.norm(p1 - x, axis=-1) <= np.linalg.norm(p2 - x, axis=-1))[:, None]
+    return np.where(near1, p1, p2), np.where(near1, p2, p1)
+
+
+def _radii_chi2(R, cov, x, th, p1, p2, radius, sigma_n):
+    """How well the spoke radii fit the segment end points, for labellings of the same
+    segments: chi2 (B,), the better twin's.
+
+    R: (B, 2, 3, 3) each labelling's rotation and its twin; cov: (B, 3, 3) the rotation's
+    covariance (used for the twin too: the twins are equally certain); th: (B, K) the spokes
+    of the K segments p1, p2 (K, 2) (normalised); sigma_n: end point noise (normalised).
+    Unlike `_metric_choice` (which compares the twins of one fit, sharing its errors) the
+    residuals carry the fitted rotation's own uncertainty as well as the end point noise:
+    labellings are fitted on different lines, and a fit on three lines, exact whatever the
+    labels, can be far less certain than its end points.
+    """
+    inner, outer = _inner_outer(p1, p2, x)
+    th2 = np.repeat(th[:, None], 2, 1)  # (B, 2, K)
+    _, r = metric_depth(R, x, th2, inner, outer, radius)  # (B, 2, 2K)
+    # residuals' sensitivity to a small left rotation of R (the depth refitted each time)
+    h = 1e-6
+    n = r.shape[-1]
+    with np.errstate(invalid="ignore"):  # inf - inf where no depth fits: caught below
+        J = np.stack([(metric_depth(rotation_from_rotvec(h * e) @ R, x, th2, inner, outer, radius)[1] - r) / h
+                      for e in np.eye(3)], -1)  # (B, 2, 2K, 3)
+        C = sigma_n**2 * np.eye(n) + J @ cov[:, None] @ np.swapaxes(J, -1, -2)
+    good = np.all(np.isfinite(r), -1) & np.all(np.isfinite(J), (-1, -2))
+    safe = np.where(good[..., None], r, 0.0)
+    C = np.where(good[..., None, None], C, np.eye(n))
+    chi2 = np.einsum("...i,...i->...", safe, np.linalg.solve(C, safe[..., None])[..., 0])
+    return np.min(np.where(good, chi2, np.inf), -1)
+
+
+def _rival_normals(fit, rivals):
+    """Normals of rival labellings that differ from the fit's (closer twin compared), beyond
+    three sigmas and 0.1 deg. [[x, y, z], ...] (empty when all rivals agree)."""
+    n, nt = fit.normal, fit.normal_twin
+    tol = max(3.0 * float(fit.normal_sigma), np.radians(0.1))
+    out = []
+    for _, f in rivals:
+        d = min(np.arccos(np.clip(f.normal @ m, -1, 1)) for m in (n, nt))
+        if d > tol:
+            out.append(np.asarray(f.normal, float))
+    return out
+
+
+def raw_vertex(camera, vertex, vertex_ideal, cov_ideal):
+    """The vertex and its covariance in raw pixels, or (None, None) where the lens model
+    does not reach it.
+
+    A vertex can lie far outside the image (an instrument's entry port usually does), where
+    a polynomial lens model folds back and its "raw pixel" is no place on the sensor (a
+    point 80 deg off axis came out at 4e6 px). There the vertex is given by its ray alone.
+    vertex: (2,) normalised; vertex_ideal: (2,) ideal pixels; cov_ideal: (2, 2) [px^2].
+    """
+    v_raw = camera.distort_pixels(vertex_ideal)
+    with np.errstate(all="ignore"):
+        back = camera.undistort_pixels(v_raw)
+        reached = bool(np.all(np.isfinite(back))
+                       and np.max(np.abs(back - vertex_ideal)) <= 1e-6 * (1.0 + np.max(np.abs(vertex_ideal))))
+    if not reached:
+        return None, None
+    A = np.linalg.inv(np.asarray(camera.K, float))[:2, :2]
+    J_raw_from_ideal = camera.jacobian_pixels_from_normalized(vertex) @ A
+    return v_raw, J_raw_from_ideal @ cov_ideal @ J_raw_from_ideal.T
+
+
+def orientation_record(camera, fit, vertex, vertex_ideal, cov_ideal, *, model="exact", image=None,
+                       sigma_mean=None, resolved_by=None):
+    """An orientation.json record (INTERFACES.md) from a PencilFit of batch shape ().
+
+    camera: the Camera; fit: PencilFit; vertex: (2,) normalised vertex; vertex_ideal,
+    cov_ideal: the vertex in ideal (undistorted) pixels and its covariance [px^2], reported
+    in raw pixels; sigma_mean: RMS line angle sd [rad] for the detection threshold.
+    """
+    v_raw, cov_raw = raw_vertex(camera, vertex, vertex_ideal, cov_ideal)
+    rec = {
+        "image": image,
+        "ok": True,
+        "error": None,
+        "vertex_px": v_raw,
+        "vertex_cov_px2": cov_raw,
+        "lines_used": int(fit.lines_used),
+        "rms_residual_deg": float(np.degrees(fit.rms)),
+        "tilt_deg": float(np.degrees(fit.tilt)),
+        "tilt_sigma_deg": float(np.degrees(fit.tilt_sigma)),
+        "detectable": bool(fit.detectable),
+        "normal": fit.normal,
+        "normal_sigma_deg": float(np.degrees(fit.normal_sigma)),
+        "normal_twin": fit.normal_twin,
+        "R_cam_from_target": fit.R_cam_from_target,
+        "R_cam_from_target_twin": fit.R_twin,
+        "ambiguous": bool(fit.ambiguous),
+        "model": model,
+        "resolved_by": resolved_by,
+        "ray": fit.ray,
+    }
+    if sigma_mean is not None:
+        rec["tilt_threshold_deg"] = float(np.degrees(detection_threshold(sigma_mean)))
+    return rec
+
+
+def _replace_rotation(fit, R, Rt):
+    from dataclasses import replace
+
+    return replace(fit, R_cam_from_target=R, R_twin=Rt, normal=R[:, 2], normal_twin=Rt[:, 2])
+
+
+def _chapter_fit(model, a, th, x, s, cov_x, exact_fit):
+    """Fit with the chapter's general or aligned model, reported like the exact estimator."""
+    from dataclasses import replace
+
+    from pencilcal.toolkit.pencil.chapter import fit_aligned, fit_general
+
+    if model == "general":
+        res = fit_general(a, th, x, weights=1.0 / s**2)
+    else:
+        res = fit_aligned(a, th, weights=1.0 / s**2)
+    R, Rt = np.asarray(res["R_cam_from_target"], float), np.asarray(res["R_cam_from_target_twin"], float)
+    # keep the exact estimator's deterministic order (normal closer to the optical axis first)
+    if Rt[2, 2] > R[2, 2]:
+        R, Rt = Rt, R
+    # the aligned model assumes the vertex on the optical axis: its residuals are measured
+    # against exact projection so that the comparison with the exact estimator is fair
+    pred = image_angles(R, x, th)
+    res_exact = np.angle(np.exp(2j * (a - pred))) / 2
+    cov, s_tilt, s_norm = pencil_covariance(R, x, th, s, cov_x)
+    v = exact_fit.ray
+    tilt = float(np.arccos(np.clip(R[:, 2] @ v, -1, 1)))
+    w = 1.0 / s**2
+    return replace(
+        exact_fit, R_cam_from_target=R, R_twin=Rt, normal=R[:, 2], normal_twin=Rt[:, 2], tilt=np.asarray(tilt),
+        tilt_sigma=s_tilt, normal_sigma=s_norm, cov=cov, residuals=res_exact,
+        rms=np.sqrt(np.sum(w * res_exact**2) / np.sum(w)), chi2=np.sum(w * res_exact**2),
+    )
+
+
+def _metric_choice(fit, x, th, p1, p2, radius, sigma_n):
+    """Compare the twins by how well the spoke radii fit the segment end points.
+
+    sigma_n: end point noise in normalised units. Decisive when the better twin fits within
+    noise (chi2 per point < 9) and the other is worse by more than 25 in chi2.
+    """
+    inner, outer = _inner_outer(p1, p2, x)
+    z, r = metric_depth(fit.R_cam_from_target, x, th, inner, outer, radius)
+    zt, rt = metric_depth(fit.R_twin, x, th, inner, outer, radius)
+    c, ct = np.sum((r / sigma_n) ** 2), np.sum((rt / sigma_n) ** 2)
+    n = r.size
+    best = min(c, ct)
+    decisive = bool(np.isfinite(best) and best / n < 9.0 and abs(c - ct) > 25.0)
+    return {"depth": z, "depth_twin": zt, "twin_better": bool(ct < c), "decisive": decisive, "chi2": c,
+            "chi2_twin": ct, "points": n}
+
+
+def resolve_twins_by_continuity(records):
+    """Choose twins over a sequence so that the orientation changes least between frames.
+
+    records: orientation.json frame dicts (modified copies are returned). Ambiguous frames
+    get the twin on the cheapest path (Viterbi over the two states per frame, cost = rotation
+    angle between consecutive frames). Continuity alone cannot tell the two whole paths
+    apart (the twin of a smooth motion is smooth too); it carries the choice made in
+    resolved frames (``ambiguous`` false: a prior, the spoke radii) to the others, which
+    then get ``resolved_by: "continuity"``. With no resolved frame the twins are only made
+    consistent along the sequence and stay ``ambiguous``.
+    """
+    idx = [i for i, r in enumerate(records) if r.get("ok")]
+    if len(idx) < 2:
+        return [dict(r) for r in records]
+    Rs = [np.stack([np.asarray(records[i]["R_cam_from_target"], float),
+                    np.asarray(records[i]["R_cam_from_target_twin"], float)]) for i in idx]
+    fixed = [not records[i].get("ambiguous", True) for i in idx]
+    INF = 1e9
+    cost = np.array([0.0, INF if fixed[0] else 0.0])
+    back = []
+    for k in range(1, len(idx)):
+        trans = np.array([[rotation_angle(Rs[k - 1][a], Rs[k][b]) for b in range(2)] for a in range(2)])
+        tot = cost[:, None] + trans
+        arg = np.argmin(tot, 0)
+        cost = tot[arg, [0, 1]]
+        if fixed[k]:
+            cost[1] = INF
+        back.append(arg)
+    state = int(np.argmin(cost))
+    states = [state]
+    for arg in reversed(back):
+        state = int(arg[state])
+        states.append(state)
+    states.reverse()
+    out = [dict(r) for r in records]
+    anchored = any(fixed)
+    for i, s in zip(idx, states):
+        r = out[i]
+        if r.get("ambiguous") and s == 1:
+            r["R_cam_from_target"], r["R_cam_from_target_twin"] = r["R_cam_from_target_twin"], r["R_cam_from_target"]
+            r["normal"], r["normal_twin"] = r["normal_twin"], r["normal"]
+        if r.get("ambiguous") and anchored:
+            r["ambiguous"] = False
+            r["resolved_by"] = "continuity"
+    return out

@@ -1,0 +1,213 @@
+"""Pencils: the pencil file, and exact projection of a pencil into the image.
+
+A *pencil* is a fan of coplanar spokes through one point, the vertex. Spoke k points along
+``(cos theta_k, sin theta_k, 0)`` in the target frame (frames.py); the vertex sits at
+``(vertex[0], vertex[1], 0)`` and the spokes run from ``radius[0]`` to ``radius[1]`` from it.
+
+The forward model works in *normalised* image coordinates (z = 1 plane, no distortion):
+a spoke with camera-frame direction d through the vertex P0 = depth * (x_d, y_d, 1) images
+as the line through x_d with oriented direction
+
+    w = d_xy - x_d * d_z          (up to a positive factor; derivative of x(P0 + s d) at s=0)
+
+and image angle ``atan2(w_y, w_x)``. It depends on the vertex only through its image x_d:
+depth drops out. This is the exact model every estimator and test in pencilcal is
+measured against.
+
+Example
+-------
+>>> import numpy as np
+>>> R = np.eye(3)                        # frontal target, vertex on the optical axis
+>>> np.degrees(image_angles(R, [0.0, 0.0], np.radians([0, 30, 90]))).round(9).tolist()
+[0.0, 30.0, 90.0]
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.io.files import load_structured, atomic_write
+
+__all__ = [
+    "Pencil",
+    "pencil_from_dict",
+    "read_pencil",
+    "write_pencil",
+    "spoke_directions",
+    "image_directions",
+    "image_angles",
+    "spoke_points_cam",
+    "project_spokes",
+]
+
+
+@dataclass(frozen=True, eq=False)
+class Pencil:
+    """A fan of spokes in the target plane.
+
+    angles: (N,) spoke directions theta_k [rad] in the target frame, in the file's order.
+    vertex: (2,) vertex in the target frame (length unit), or None if unknown.
+    radius: (2,) inner and outer end of every spoke, measured from the vertex, or None.
+    width: printed width of each spoke (a dark bar, length unit), or None. The spoke is
+        the bar's centre line; `pencilcal lines` finds it from the bar's two edges.
+    """
+
+    angles: np.ndarray
+    vertex: np.ndarray | None = None
+    radius: np.ndarray | None = None
+    width: float | None = None
+
+    @property
+    def count(self) -> int:
+        return int(self.angles.shape[0])
+
+    def to_dict(self) -> dict:
+        # degrees are what people type; 12 decimals hide the radian round trip's last bit
+        d = {"angles_deg": [float(a) for a in np.round(np.degrees(self.angles), 12)]}
+        if self.vertex is not None:
+            d["vertex"] = [float(v) for v in self.vertex]
+        if self.radius is not None:
+            d["radius"] = [float(r) for r in self.radius]
+        if self.width is not None:
+            d["width"] = float(self.width)
+        return d
+
+
+def _floats(value, n, key, source):
+    try:
+        arr = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError(f"{source}: '{key}' must be a list of {n} numbers") from None
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+        raise InputError(f"{source}: '{key}' must be {n} finite numbers, got {value!r}")
+    return arr
+
+
+def pencil_from_dict(d, source="pencil"):
+    """Build a Pencil from a parsed pencil file (INTERFACES.md), validating every field.
+
+    Accepts ``angles_deg: [...]`` or ``start_deg, step_deg, count``; optional ``vertex``,
+    ``radius`` and ``width``. `source` names the file in error messages.
+    """
+    if not isinstance(d, dict):
+        raise InputError(f"{source}: expected a mapping with 'angles_deg' or 'start_deg/step_deg/count'")
+    known = {"angles_deg", "start_deg", "step_deg", "count", "vertex", "radius", "width", "name", "units"}
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise InputError(f"{source}: unknown key(s) {unknown}; expected {sorted(known)}")
+    if "angles_deg" in d:
+        if any(k in d for k in ("start_deg", "step_deg", "count")):
+            raise InputError(f"{source}: give either 'angles_deg' or 'start_deg/step_deg/count', not both")
+        raw = d["angles_deg"]
+        if not isinstance(raw, (list, tuple)):
+            raise InputError(f"{source}: 'angles_deg' must be a list of numbers")
+        angles = _floats(raw, len(raw), "angles_deg", source)
+    elif all(k in d for k in ("start_deg", "step_deg", "count")):
+        count = d["count"]
+        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+            raise InputError(f"{source}: 'count' must be a positive integer, got {count!r}")
+        start = _floats([d["start_deg"]], 1, "start_deg", source)[0]
+        step = _floats([d["step_deg"]], 1, "step_deg", source)[0]
+        angles = start + step * np.arange(count)
+    else:
+        raise InputError(f"{source}: needs 'angles_deg' or all of 'start_deg', 'step_deg', 'count'")
+    if angles.size < 3:
+        raise InputError(f"{source}: a pencil needs at least three spokes, got {angles.size}")
+    # two spokes in the same direction cannot be told apart in the image
+    a = np.sort(np.remainder(angles, 360.0))
+    gaps = np.diff(np.concatenate([a, a[:1] + 360.0]))
+    if np.min(gaps) < 1e-6:
+        raise InputError(f"{source}: two spokes share the same direction")
+    vertex = _floats(d["vertex"], 2, "vertex", source) if d.get("vertex") is not None else None
+    radius = None
+    if d.get("radius") is not None:
+        radius = _floats(d["radius"], 2, "radius", source)
+        if not (0.0 <= radius[0] < radius[1]):
+            raise InputError(f"{source}: 'radius' must be [inner, outer] with 0 <= inner < outer, got {d['radius']!r}")
+    width = None
+    if d.get("width") is not None:
+        width = _floats([d["width"]], 1, "width", source)[0]
+        if width <= 0:
+            raise InputError(f"{source}: 'width' must be positive, got {d['width']!r}")
+    return Pencil(np.radians(angles), vertex, radius, width)
+
+
+def read_pencil(path):
+    """Read a pencil file (.yaml/.yml/.json). Raises InputError naming the file on any problem."""
+    return pencil_from_dict(load_structured(path, "pencil file"), source=str(path))
+
+
+def write_pencil(path, pencil, force=False):
+    """Write a pencil file; YAML or JSON by extension."""
+    import json
+    import yaml
+
+    p = Path(path)
+    if p.suffix.lower() == ".json":
+        text = json.dumps(pencil.to_dict(), indent=1) + "\n"
+    else:
+        text = yaml.safe_dump(pencil.to_dict(), default_flow_style=None, sort_keys=False)
+    atomic_write(p, text, force)
+
+
+def spoke_directions(R_cam_from_target, angles):
+    """Camera-frame unit directions of the spokes.
+
+    R_cam_from_target: (..., 3, 3); angles: (..., N) [rad]. Returns (..., N, 3).
+    """
+    R = np.asarray(R_cam_from_target, float)
+    a = np.asarray(angles, float)
+    c = np.stack([np.cos(a), np.sin(a)], -1)  # (..., N, 2)
+    return np.einsum("...ij,...nj->...ni", R[..., :, :2], c)
+
+
+def image_directions(R_cam_from_target, vertex, angles):
+    """Oriented image directions w = d_xy - x_d d_z of the spokes (normalised coordinates).
+
+    R_cam_from_target: (..., 3, 3); vertex: (..., 2) normalised image of the vertex;
+    angles: (..., N) [rad]. Returns (..., N, 2), not normalised (a positive multiple of
+    the true direction as long as the vertex is in front of the camera).
+    """
+    d = spoke_directions(R_cam_from_target, angles)
+    x = np.asarray(vertex, float)[..., None, :]
+    return d[..., :2] - x * d[..., 2:3]
+
+
+def image_angles(R_cam_from_target, vertex, angles):
+    """Exact image angles of the spokes, atan2(w_y, w_x), in normalised coordinates.
+
+    Shapes as `image_directions`; returns (..., N) [rad], oriented (period 2*pi).
+    """
+    w = image_directions(R_cam_from_target, vertex, angles)
+    return np.arctan2(w[..., 1], w[..., 0])
+
+
+def spoke_points_cam(R_cam_from_target, t_cam_from_target, pencil, radii=None):
+    """Camera-frame 3D points along every spoke.
+
+    radii: (M,) distances from the vertex (default: the pencil's radius, or [0.1, 1] units
+    if it has none). Returns (N, M, 3). The vertex defaults to the target origin.
+    """
+    if radii is None:
+        radii = pencil.radius if pencil.radius is not None else np.array([0.1, 1.0])
+    radii = np.asarray(radii, float)
+    v = np.zeros(3) if pencil.vertex is None else np.array([pencil.vertex[0], pencil.vertex[1], 0.0])
+    c = np.stack([np.cos(pencil.angles), np.sin(pencil.angles), np.zeros_like(pencil.angles)], -1)
+    pts_target = v + c[:, None, :] * radii[None, :, None]
+    return pts_target @ np.asarray(R_cam_from_target, float).T + np.asarray(t_cam_from_target, float)
+
+
+def project_spokes(camera, R_cam_from_target, t_cam_from_target, pencil, radii=None):
+    """Raw (distorted) pixel segments of the spokes, [x1, y1, x2, y2] from inner to outer end.
+
+    camera: a pencilcal Camera. Returns (N, 4). Only the two end points are projected: with
+    lens distortion the true image of a spoke is curved, but its end points are exact.
+    """
+    if radii is None:
+        radii = pencil.radius if pencil.radius is not None else np.array([0.1, 1.0])
+    pts = spoke_points_cam(R_cam_from_target, t_cam_from_target, pencil, np.asarray(radii, float)[[0, -1]])
+    px = camera.project(pts)  # (N, 2, 2)
+    return px.reshape(-1, 4)
