@@ -6,9 +6,9 @@ import click
 
 from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.errors import EstimationError, InputError
-from pencilcal.toolkit.io.files import write_json
 from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.orient import MODELS, orient_segments, resolve_twins_by_continuity
+from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.spec import read_pencil
 
 from .common import camera_options, check_output, force_option, output_option, progress, quiet_option, run, run_frames, warn, workers_option
@@ -18,8 +18,7 @@ def _orient_record(camera, pencil, fr, opts):
     """The orientation record of one lines.json frame."""
     if not fr["ok"]:
         rec = orient_segments(camera, np.zeros((0, 4)), pencil, model=opts["model"], image=fr["image"])
-        rec["error"] = fr.get("error") or "no segments (frame marked not ok in the lines file)"
-        return rec
+        return rec.replace(error=fr.get("error") or "no segments (frame marked not ok in the lines file)")
     sig = fr.get("angle_sigma_deg")
     if sig is None and opts["angle_sigma"] is not None:
         sig = opts["angle_sigma"]
@@ -125,27 +124,21 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         ctx = (camera, pencil, detector, opts)
         records = list(run_frames(open_images(images), _orient_image_task, ctx, workers, "orient", quiet))
     for rec in records:
-        if not rec["ok"]:
-            warn(f"{rec['image']}: {rec['error']}")
-        elif rec.get("normal_ambiguous"):
-            warn(f"{rec['image']}: the normal is ambiguous: other labellings of its {rec['lines_used']} lines fit "
+        if not rec.ok:
+            warn(f"{rec.image}: {rec.error}")
+        elif rec.normal_ambiguous:
+            warn(f"{rec.image}: the normal is ambiguous: other labellings of its {rec.lines_used} lines fit "
                  "about as well and put it elsewhere (normal_alternatives)")
-    if not any(r["ok"] for r in records):
+    if not any(r.ok for r in records):
         # a run with no estimate at all failed: say so and leave nothing that looks like a result
         raise EstimationError(f"{lines_path or images}: no frame gave an orientation")
     if continuity:
         records = resolve_twins_by_continuity(records)
-    out = {
-        "model": model,
-        "camera": str(camera_path),
-        "pencil": str(pencil_path),
-        "lines": None if lines_path is None else str(lines_path),
-        "images": None if images is None else str(images),
-        "frames": records,
-    }
-    write_json(output, out, force=force)
-    n_ok = sum(r["ok"] for r in records)
-    n_amb = sum(bool(r["ok"] and r.get("normal_ambiguous")) for r in records)
+    write_orientations(output, records, force=force, model=model, camera=str(camera_path), pencil=str(pencil_path),
+                       lines=None if lines_path is None else str(lines_path),
+                       images=None if images is None else str(images))
+    n_ok = sum(r.ok for r in records)
+    n_amb = sum(bool(r.ok and r.normal_ambiguous) for r in records)
     if not quiet:
         amb = f" ({n_amb} with an ambiguous normal)" if n_amb else ""
         click.echo(f"{n_ok}/{len(records)} frames oriented{amb} -> {output}", err=True)

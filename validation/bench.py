@@ -97,12 +97,12 @@ def bench_orient(n=6, repeats=3, seed=0):
     for buf in bufs:
         t, rec = _best(lambda: ours(buf), repeats)
         t_pc.append(t)
-        ok += bool(rec["ok"])
+        ok += bool(rec.ok)
         t_fld.append(_best(lambda: bare(buf), repeats)[0])
         # the same with the detector on the full-resolution frame (proposal_scale 1)
         t, rec = _best(lambda: ours(buf, 1.0), repeats)
         t_full.append(t)
-        ok_full += bool(rec["ok"])
+        ok_full += bool(rec.ok)
     return {"orient_vs_fld_1080p": float(np.median(t_pc) / np.median(t_fld)),
             "orient_ms_1080p": float(np.median(t_pc) * 1e3), "fld_ms_1080p": float(np.median(t_fld) * 1e3),
             "orient_full_proposals_vs_fld_1080p": float(np.median(t_full) / np.median(t_fld)),

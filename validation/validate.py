@@ -31,6 +31,7 @@ from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.estimator import crlb
 from pencilcal.toolkit.geometry.frames import angle_between, normalize
 from pencilcal.toolkit.io.images import check_image_size
+from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.orient import MODELS, orient_segments
 from pencilcal.toolkit.io.parallel import Sized, map_frames
 
@@ -226,17 +227,17 @@ def _process(frame, camera, board, lines_source, models, methods, truth, keep_pi
     rec["board_corners"] = int(det.count)
     sigma_px = getattr(best, "sigma_px", None) if best is not None and best.ok else None
     src = lines_source(frame.image, camera, det, corner_sigma_px=sigma_px)
-    rec["orient"] = {}
+    orients = {}
     if src is None:
-        for m in models:
-            rec["orient"][m] = {"ok": False, "error": "no pencil lines in this frame"}
+        rec["orient"] = {m: {"ok": False, "error": "no pencil lines in this frame"} for m in models}
     else:
         for m in models:
-            rec["orient"][m] = orient_segments(
+            orients[m] = orient_segments(
                 camera, src["segments"], src["pencil"], model=m, angle_sigma=src["angle_sigma"],
                 vertex_px=src["vertex_px"], vertex_cov_px2=src["vertex_cov_px2"], labels=src["labels"],
                 image=frame.name, keep_lines=(m == "exact"), offset_sigma=src.get("offset_sigma"),
-                spoke_radii=src.get("radii"), endpoint_sigma_px=src.get("corner_sigma_px") or 0.5)
+                spoke_radii=src.get("radii"), endpoint_sigma_px=src.get("corner_sigma_px") or ENDPOINT_SIGMA_PX)
+        rec["orient"] = {m: o.to_dict() for m, o in orients.items()}
         if keep_pixels:
             rec["segments"] = src["segments"]
     pencil = None if src is None else src["pencil"]
@@ -251,14 +252,14 @@ def _process(frame, camera, board, lines_source, models, methods, truth, keep_pi
     ray = _vertex_ray(R_ref, t_ref, pencil)
     rec["reference_tilt_deg"] = None if ray is None else _tilt_deg(R_ref, ray)
     errors = {}
-    for m, o in rec["orient"].items():
-        if o.get("ok"):
-            ray_m = ray if ray is not None else np.asarray(o["ray"], float)
-            errors[f"orient:{m}"] = frame_errors(o["R_cam_from_target"], o["R_cam_from_target_twin"], o["ambiguous"], R_ref,
-                                                 ray_m, o["tilt_sigma_deg"], o["normal_sigma_deg"])
-    exact = rec["orient"].get("exact", {})
-    if exact.get("ok") and "lines" in exact:
-        ln = exact["lines"]
+    for m, o in orients.items():
+        if o.ok:
+            ray_m = ray if ray is not None else np.asarray(o.ray, float)
+            errors[f"orient:{m}"] = frame_errors(o.R_cam_from_target, o.R_cam_from_target_twin, o.ambiguous, R_ref,
+                                                 ray_m, o.tilt_sigma_deg, o.normal_sigma_deg)
+    exact = orients.get("exact")
+    if exact is not None and exact.ok and exact.lines is not None:
+        ln = exact.lines
         x_ref = None
         if ray is not None:
             x_ref = ray[:2] / ray[2]

@@ -54,9 +54,9 @@ def test_bars_happy_path(scene):
         assert all(np.abs(e[1]).max() < 0.15 for e in line_errors(found, ideal))
         # the file feeds orient directly, with the per-segment sigmas
         rec = orient_segments(cam, fr["segments"], pen, angle_sigma=np.radians(fr["angle_sigma_deg"]))
-        assert rec["ok"] and rec["lines_used"] == 8
+        assert rec.ok and rec.lines_used == 8
         err = min(np.degrees(np.arccos(np.clip(np.asarray(n) @ R[:, 2], -1, 1)))
-                  for n in (rec["normal"], rec["normal_twin"]))
+                  for n in (rec.normal, rec.normal_twin))
         assert err < 0.3
 
 

@@ -172,7 +172,8 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=0.5):
     t = (ideal[ks, 2:] - ideal[ks, :2]) / L[ks, None]
     s_n = st[ks] * abs(np.linalg.det(A)) / np.sum((t @ A.T) ** 2, -1)
     fit = fit_pencil(a, angles[fr_idx], x, sigma=s_n, vertex_cov=cov_x)
-    rec = orientation_record(camera, fit, x, vf.vertex, vf.cov, model="exact", sigma_mean=float(np.sqrt(np.mean(s_n**2))))
+    rec = orientation_record(camera, fit, x, vf.vertex, vf.cov, model="exact",
+                             sigma_mean=float(np.sqrt(np.mean(s_n**2)))).to_dict()
     rec.pop("image", None)
     out.update({k: v for k, v in rec.items() if k not in out})
     out["lines_used"] = int(vf.lines_used)

@@ -1,7 +1,7 @@
 """Orientation of a pencil from the raw segments of one frame: the whole pipeline.
 
-``orient_segments`` turns line segments in raw (distorted) pixels into one record of
-``orientation.json`` (INTERFACES.md):
+``orient_segments`` turns line segments in raw (distorted) pixels into the `Orientation`
+of one frame (a record of ``orientation.json``, docs/formats.md):
 
 1. undistort the segment end points (lines, not images);
 2. find the vertex: robust weighted intersection (vertex.intersect_lines) in ideal pixels,
@@ -24,6 +24,7 @@ angle part.
 from __future__ import annotations
 
 import warnings
+from typing import NamedTuple
 
 import numpy as np
 
@@ -38,6 +39,8 @@ from pencilcal.toolkit.pencil.estimator import (
     choose_by_prior,
 )
 from pencilcal.toolkit.geometry.frames import normalize, rotation_angle, rotation_from_rotvec
+from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
+from pencilcal.toolkit.pencil.orientation import Orientation
 from pencilcal.toolkit.pencil.spec import image_angles
 from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
 
@@ -47,16 +50,6 @@ MODELS = ("exact", "general", "aligned")
 
 # Segments shorter than this carry almost no angle information and are mostly noise.
 MIN_LENGTH_PX = 8.0
-
-
-def _empty_record(image, model, error):
-    keys = ["vertex_px", "vertex_cov_px2", "lines_used", "rms_residual_deg", "tilt_deg", "tilt_sigma_deg",
-            "detectable", "normal", "normal_sigma_deg", "normal_twin", "R_cam_from_target",
-            "R_cam_from_target_twin", "ambiguous"]
-    rec = {"image": image, "ok": False, "error": error}
-    rec.update({k: None for k in keys})
-    rec["model"] = model
-    return rec
 
 
 def metric_depth(R_cam_from_target, vertex, spoke_angles, inner, outer, radius):
@@ -124,10 +117,10 @@ def _segment_geometry(camera, segments, endpoint_sigma_px):
     return ideal, scale
 
 
-def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_px=0.5, angle_sigma=None,
+def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_px=ENDPOINT_SIGMA_PX, angle_sigma=None,
                     prior=None, vertex_px=None, vertex_cov_px2=None, image=None, labels=None, keep_lines=False,
                     offset_sigma=None, spoke_radii=None):
-    """Orientation of a pencil seen in one frame, as an orientation.json record.
+    """Orientation of a pencil seen in one frame.
 
     camera: a Camera; segments: (M, 4) raw pixels [x1, y1, x2, y2]; pencil: a Pencil.
     model: "exact" (default), "general" or "aligned" (the chapter's models, for comparison).
@@ -147,156 +140,206 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
     keep_lines: also return ``lines``: the used lines in normalised coordinates
         (``angle`` and ``sigma`` [rad], ``spoke`` index, ``segment`` index), for experiments.
 
-    Returns a dict with the keys of INTERFACES.md plus ``spokes`` (label per input segment,
-    -1 rejected), ``labels_ambiguous``, ``resolved_by``, ``ray``, ``tilt_threshold_deg`` and,
-    when the spoke radii resolve the twin, ``vertex_cam`` (and ``t_cam_from_target`` if the
-    pencil file gives the vertex). A frame with no estimate has ``ok: false`` and ``error``.
+    Returns an `Orientation` (its ``to_dict()`` is the orientation.json record) with
+    ``spokes`` (label per input segment, -1 rejected), ``labels_ambiguous``,
+    ``resolved_by``, ``ray``, ``tilt_threshold_deg`` and, when the spoke radii resolve the
+    twin, ``vertex_cam`` (and ``t_cam_from_target`` if the pencil file gives the vertex).
+    A frame with no estimate has ``ok`` false and ``error``.
     """
     if model not in MODELS:
         raise InputError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}")
     seg = np.asarray(segments, float).reshape(-1, 4)
-    M = seg.shape[0]
-    labels_out = np.full(M, -1)
+    labels_out = np.full(seg.shape[0], -1)
     try:
-        finite = np.all(np.isfinite(seg), -1)
-        length = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
-        usable = finite & (length >= MIN_LENGTH_PX)
-        if usable.sum() < 3:
-            bad = int((~finite).sum())
-            why = f" ({bad} not finite)" if bad else ""
-            raise EstimationError(f"fewer than three usable segments{why}: {int(usable.sum())} of {M}")
-        idx = np.flatnonzero(usable)
-        ideal, scale = _segment_geometry(camera, seg[idx], endpoint_sigma_px)
-        ok = np.all(np.isfinite(ideal), -1)
-        idx, ideal, scale = idx[ok], ideal[ok], scale[ok]
-        if idx.size < 3:
-            raise EstimationError("fewer than three segments could be undistorted (outside the lens model's range)")
-        L = np.hypot(ideal[:, 2] - ideal[:, 0], ideal[:, 3] - ideal[:, 1])
-        sig_e = endpoint_sigma_px * scale  # end point noise in ideal pixels
-        if angle_sigma is None:
-            st = np.sqrt(2.0) * sig_e / L
-        else:
-            st = np.broadcast_to(np.asarray(angle_sigma, float), (M,))[idx]
-            if np.any(~np.isfinite(st) | (st <= 0)):
-                raise InputError("angle sigma must be positive and finite")
-        if offset_sigma is None:
-            sc = sig_e / np.sqrt(2.0)
-        else:
-            sc = np.broadcast_to(np.asarray(offset_sigma, float), (M,))[idx] * scale
-            if np.any(~np.isfinite(sc) | (sc <= 0)):
-                raise InputError("offset sigma must be positive and finite")
-
-        # --- vertex, in ideal pixels
-        K = np.asarray(camera.K, float)
-        Kinv = np.linalg.inv(K)
-        A = Kinv[:2, :2]
-        if vertex_px is not None:
-            v_ideal = camera.undistort_pixels(np.asarray(vertex_px, float))
-            J = np.linalg.inv(camera.jacobian_pixels_from_normalized(camera.normalized_from_pixels(vertex_px)))
-            C = np.zeros((2, 2)) if vertex_cov_px2 is None else np.asarray(vertex_cov_px2, float)
-            cov_ideal = (K[:2, :2] @ J) @ C @ (K[:2, :2] @ J).T
-            # only the segments that pass through it (and, with spoke radii, reach close
-            # enough to it) are the pencil's: the others are other edges of the scene
-            _, through = lines_through(v_ideal, ideal, st, sc, cov_ideal)
-            if pencil.radius is not None:
-                through &= _radius_consistent(ideal, pencil.radius)(v_ideal[None])[0]
-        else:
-            v_ideal, cov_ideal, through = _find_vertex(ideal, st, sc, pencil.radius)
+        idx, ideal, st, sc, sig_e = _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma)
+        v_ideal, cov_ideal, through = _vertex(camera, ideal, st, sc, pencil, vertex_px, vertex_cov_px2)
         idx, ideal, st = idx[through], ideal[through], st[through]
         if idx.size < 3:
             raise EstimationError(f"only {idx.size} segments pass through the vertex; three are needed")
-
-        # --- normalised coordinates
-        x = Kinv[:2, :2] @ v_ideal + Kinv[:2, 2]
-        cov_x = A @ cov_ideal @ A.T
-        p1 = ideal[:, :2] @ A.T + Kinv[:2, 2]
-        p2 = ideal[:, 2:] @ A.T + Kinv[:2, 2]
-        t = normalize(np.concatenate([p2 - p1, np.zeros((len(p1), 1))], -1))[:, :2]
-        # angle sd in normalised coordinates: a linear map A scales angles by det(A)/|A t|^2
-        t_ideal = normalize(np.concatenate([ideal[:, 2:] - ideal[:, :2], np.zeros((len(p1), 1))], -1))[:, :2]
-        gain = abs(np.linalg.det(A)) / np.sum((t_ideal @ A.T) ** 2, -1)
-        s_n = st * gain
-        # orient each segment away from the vertex; a segment over the vertex has no direction
-        s1, s2 = np.sum((p1 - x) * t, -1), np.sum((p2 - x) * t, -1)
-        away = np.where(np.abs(s2) >= np.abs(s1), 1.0, -1.0)
-        straddle = (s1 * s2) < 0
-        a = np.arctan2(t[:, 1] * away, t[:, 0] * away)
-        oriented = not np.any(straddle)
-
-        # --- labels and fit
+        ln = _normalised_lines(camera, ideal, st, v_ideal, cov_ideal)
         # end point noise in normalised units, for the metric use of the spoke radii
+        A = np.linalg.inv(np.asarray(camera.K, float))[:2, :2]
         sigma_metric = np.sqrt(np.mean(sig_e[through] ** 2)) * np.sqrt(abs(np.linalg.det(A)))
-        rivals = []
-        if labels is None:
-            asg = assign_spokes(a, pencil.angles, x, s_n, vertex_cov=cov_x, oriented=oriented)
-            lab, fit, rivals = asg.spoke, asg.fit, list(asg.rivals)
-            if rivals and pencil.radius is not None:
-                lab, fit, rivals = _break_label_ties(lab, fit, rivals, x, pencil, p1, p2, sigma_metric)
-            labels_ambiguous = bool(rivals)
-        else:
-            lab = np.asarray(labels, int).reshape(-1)[idx]
-            used = lab >= 0
-            if np.unique(lab[used]).size < 3:
-                raise EstimationError(f"only {np.unique(lab[used]).size} labelled spokes through the vertex; three are needed")
-            fit = fit_pencil(a[used], pencil.angles[lab[used]], x, sigma=s_n[used], vertex_cov=cov_x, oriented=oriented)
-            labels_ambiguous = False
+        lab, fit, rivals, labels_ambiguous = _label_and_fit(ln, pencil, labels, idx, sigma_metric)
         used = lab >= 0
-        th_used, a_used, s_used = pencil.angles[lab[used]], a[used], s_n[used]
+        th_used, a_used, s_used = pencil.angles[lab[used]], ln.angle[used], ln.sigma[used]
         if model != "exact":
-            fit = _chapter_fit(model, a_used, th_used, x, s_used, cov_x, fit)
-        if not oriented and np.any(~straddle[used]):
-            # lines fix R only up to R Rz(pi); the segments that do not straddle the vertex
-            # say which way the spokes point
-            R = fit.R_cam_from_target
-            pred = image_angles(R, x, th_used)
-            agree = np.cos(wrap_angle(a_used - pred))[~straddle[used]].sum()
-            if agree < 0:
-                Rz = np.diag([-1.0, -1.0, 1.0])
-                fit = _replace_rotation(fit, R @ Rz, fit.R_twin @ Rz)
-
-        # --- twins
-        resolved_by = None
-        if prior is not None:
-            which = choose_by_prior(fit.R_cam_from_target, fit.R_twin, np.asarray(prior, float))
-            fit = swap_twins(fit, which, th_used, x, s_used, cov_x, resolved_by="prior")
-            resolved_by = "prior"
-        metric = None
+            fit = _chapter_fit(model, a_used, th_used, ln.vertex, s_used, ln.vertex_cov, fit)
+        fit = _point_spokes_outwards(fit, ln, used, th_used, a_used)
         radius = pencil.radius if spoke_radii is None else np.asarray(spoke_radii, float).reshape(-1, 2)[idx][used]
-        if radius is not None:
-            metric = _metric_choice(fit, x, th_used, p1[used], p2[used], radius, sigma_metric)
-            if metric is not None and resolved_by is None and metric["decisive"]:
-                fit = swap_twins(fit, metric["twin_better"], th_used, x, s_used, cov_x, resolved_by="radius")
-                resolved_by = "radius"
-
+        fit, resolved_by, metric = _resolve_twins(fit, ln, used, th_used, s_used, prior, radius, sigma_metric)
         labels_out[idx] = lab
         s_mean = float(np.sqrt(np.mean(s_used**2)))
-        rec = orientation_record(camera, fit, x, v_ideal, cov_ideal, model=model, image=image, sigma_mean=s_mean,
-                                 resolved_by=resolved_by)
-        rec["labels_ambiguous"] = bool(labels_ambiguous)
+        rec = orientation_record(camera, fit, ln.vertex, v_ideal, cov_ideal, model=model, image=image,
+                                 sigma_mean=s_mean, resolved_by=resolved_by)
         # rival labellings that put the normal elsewhere make the normal itself ambiguous
         alt = _rival_normals(fit, rivals)
-        rec["normal_ambiguous"] = bool(alt)
-        if alt:
-            rec["normal_alternatives"] = alt
-        rec["spokes"] = labels_out
+        extra = dict(labels_ambiguous=bool(labels_ambiguous), normal_ambiguous=bool(alt),
+                     normal_alternatives=alt or None, spokes=labels_out)
         if keep_lines:
-            rec["lines"] = {"angle": a_used, "sigma": s_used, "spoke": lab[used], "segment": idx[used],
-                            "vertex": x, "vertex_cov": cov_x}
+            extra["lines"] = {"angle": a_used, "sigma": s_used, "spoke": lab[used], "segment": idx[used],
+                              "vertex": ln.vertex, "vertex_cov": ln.vertex_cov}
         if metric is not None and resolved_by is not None:
-            # depth from the spoke radii, for the rotation finally chosen, if it fits them
-            chosen_twin = resolved_by == "radius" and metric["twin_better"]
-            depth = metric["depth_twin"] if chosen_twin else metric["depth"]
-            chi2 = metric["chi2_twin"] if chosen_twin else metric["chi2"]
-            if np.isfinite(depth) and chi2 / metric["points"] < 9.0:
-                P0 = depth * np.r_[x, 1.0]
-                rec["vertex_cam"] = P0
-                if pencil.vertex is not None:
-                    rec["t_cam_from_target"] = P0 - fit.R_cam_from_target @ np.r_[pencil.vertex, 0.0]
-        return rec
+            extra.update(_metric_position(fit, metric, resolved_by, ln.vertex, pencil))
+        return rec.replace(**extra)
     except EstimationError as e:
-        rec = _empty_record(image, model, str(e))
-        rec["spokes"] = labels_out
-        return rec
+        return Orientation(image=image, ok=False, error=str(e), model=model, spokes=labels_out)
+
+
+def _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma):
+    """The segments worth fitting, undistorted, with their noise.
+
+    seg: (M, 4) raw px. Returns idx (K,) indices into seg, ideal (K, 4) ideal px, angle sd
+    st (K,) [rad] and offset sd sc (K,) [ideal px] of each, and sig_e (K,) the end point
+    noise in ideal px. EstimationError when fewer than three remain.
+    """
+    M = seg.shape[0]
+    finite = np.all(np.isfinite(seg), -1)
+    length = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
+    usable = finite & (length >= MIN_LENGTH_PX)
+    if usable.sum() < 3:
+        bad = int((~finite).sum())
+        why = f" ({bad} not finite)" if bad else ""
+        raise EstimationError(f"fewer than three usable segments{why}: {int(usable.sum())} of {M}")
+    idx = np.flatnonzero(usable)
+    ideal, scale = _segment_geometry(camera, seg[idx], endpoint_sigma_px)
+    ok = np.all(np.isfinite(ideal), -1)
+    idx, ideal, scale = idx[ok], ideal[ok], scale[ok]
+    if idx.size < 3:
+        raise EstimationError("fewer than three segments could be undistorted (outside the lens model's range)")
+    L = np.hypot(ideal[:, 2] - ideal[:, 0], ideal[:, 3] - ideal[:, 1])
+    sig_e = endpoint_sigma_px * scale  # end point noise in ideal pixels
+    if angle_sigma is None:
+        st = np.sqrt(2.0) * sig_e / L
+    else:
+        st = np.broadcast_to(np.asarray(angle_sigma, float), (M,))[idx]
+        if np.any(~np.isfinite(st) | (st <= 0)):
+            raise InputError("angle sigma must be positive and finite")
+    if offset_sigma is None:
+        sc = sig_e / np.sqrt(2.0)
+    else:
+        sc = np.broadcast_to(np.asarray(offset_sigma, float), (M,))[idx] * scale
+        if np.any(~np.isfinite(sc) | (sc <= 0)):
+            raise InputError("offset sigma must be positive and finite")
+    return idx, ideal, st, sc, sig_e
+
+
+def _vertex(camera, ideal, st, sc, pencil, vertex_px, vertex_cov_px2):
+    """The vertex in ideal px, its covariance, and which lines (K,) pass through it: the
+    given vertex (raw px) when there is one, else the lines' robust intersection."""
+    if vertex_px is None:
+        return _find_vertex(ideal, st, sc, pencil.radius)
+    K = np.asarray(camera.K, float)
+    v_ideal = camera.undistort_pixels(np.asarray(vertex_px, float))
+    J = np.linalg.inv(camera.jacobian_pixels_from_normalized(camera.normalized_from_pixels(vertex_px)))
+    C = np.zeros((2, 2)) if vertex_cov_px2 is None else np.asarray(vertex_cov_px2, float)
+    cov_ideal = (K[:2, :2] @ J) @ C @ (K[:2, :2] @ J).T
+    # only the segments that pass through it (and, with spoke radii, reach close
+    # enough to it) are the pencil's: the others are other edges of the scene
+    _, through = lines_through(v_ideal, ideal, st, sc, cov_ideal)
+    if pencil.radius is not None:
+        through &= _radius_consistent(ideal, pencil.radius)(v_ideal[None])[0]
+    return v_ideal, cov_ideal, through
+
+
+class _Lines(NamedTuple):
+    """The pencil's lines in normalised coordinates, oriented away from the vertex."""
+
+    vertex: np.ndarray      # (2,) the vertex
+    vertex_cov: np.ndarray  # (2, 2)
+    p1: np.ndarray          # (K, 2) end points
+    p2: np.ndarray          # (K, 2)
+    angle: np.ndarray       # (K,) [rad] direction away from the vertex
+    sigma: np.ndarray       # (K,) [rad] angle sd
+    straddle: np.ndarray    # (K,) bool: the segment runs over the vertex (no direction)
+
+
+def _normalised_lines(camera, ideal, st, v_ideal, cov_ideal):
+    """Ideal-pixel lines (K, 4) with angle sd st (K,) [rad] and the vertex (2,) with its
+    covariance (2, 2) [px^2] -> `_Lines` in normalised coordinates."""
+    Kinv = np.linalg.inv(np.asarray(camera.K, float))
+    A = Kinv[:2, :2]
+    x = Kinv[:2, :2] @ v_ideal + Kinv[:2, 2]
+    cov_x = A @ cov_ideal @ A.T
+    p1 = ideal[:, :2] @ A.T + Kinv[:2, 2]
+    p2 = ideal[:, 2:] @ A.T + Kinv[:2, 2]
+    t = normalize(np.concatenate([p2 - p1, np.zeros((len(p1), 1))], -1))[:, :2]
+    # angle sd in normalised coordinates: a linear map A scales angles by det(A)/|A t|^2
+    t_ideal = normalize(np.concatenate([ideal[:, 2:] - ideal[:, :2], np.zeros((len(p1), 1))], -1))[:, :2]
+    gain = abs(np.linalg.det(A)) / np.sum((t_ideal @ A.T) ** 2, -1)
+    s_n = st * gain
+    # orient each segment away from the vertex; a segment over the vertex has no direction
+    s1, s2 = np.sum((p1 - x) * t, -1), np.sum((p2 - x) * t, -1)
+    away = np.where(np.abs(s2) >= np.abs(s1), 1.0, -1.0)
+    straddle = (s1 * s2) < 0
+    a = np.arctan2(t[:, 1] * away, t[:, 0] * away)
+    return _Lines(x, cov_x, p1, p2, a, s_n, straddle)
+
+
+def _label_and_fit(ln, pencil, labels, idx, sigma_metric):
+    """Spoke labels (K,) of the lines (-1: not the pencil's), the fit, rival labellings
+    [(labels, fit)] and whether the labels are ambiguous: given `labels` (M,) or assigned."""
+    oriented = not np.any(ln.straddle)
+    if labels is None:
+        asg = assign_spokes(ln.angle, pencil.angles, ln.vertex, ln.sigma, vertex_cov=ln.vertex_cov, oriented=oriented)
+        lab, fit, rivals = asg.spoke, asg.fit, list(asg.rivals)
+        if rivals and pencil.radius is not None:
+            lab, fit, rivals = _break_label_ties(lab, fit, rivals, ln.vertex, pencil, ln.p1, ln.p2, sigma_metric)
+        return lab, fit, rivals, bool(rivals)
+    lab = np.asarray(labels, int).reshape(-1)[idx]
+    used = lab >= 0
+    if np.unique(lab[used]).size < 3:
+        raise EstimationError(f"only {np.unique(lab[used]).size} labelled spokes through the vertex; three are needed")
+    fit = fit_pencil(ln.angle[used], pencil.angles[lab[used]], ln.vertex, sigma=ln.sigma[used],
+                     vertex_cov=ln.vertex_cov, oriented=oriented)
+    return lab, fit, [], False
+
+
+def _point_spokes_outwards(fit, ln, used, th_used, a_used):
+    """Lines fix R only up to R Rz(pi); when some segments straddle the vertex the fit
+    was of lines, and the segments that do not straddle it say which way the spokes point."""
+    if not np.any(ln.straddle) or not np.any(~ln.straddle[used]):
+        return fit
+    R = fit.R_cam_from_target
+    pred = image_angles(R, ln.vertex, th_used)
+    agree = np.cos(wrap_angle(a_used - pred))[~ln.straddle[used]].sum()
+    if agree < 0:
+        Rz = np.diag([-1.0, -1.0, 1.0])
+        fit = _replace_rotation(fit, R @ Rz, fit.R_twin @ Rz)
+    return fit
+
+
+def _resolve_twins(fit, ln, used, th_used, s_used, prior, radius, sigma_metric):
+    """Choose the twin where a prior rotation or the spoke radii tell them apart:
+    (fit, resolved_by or None, the radii's comparison of the twins or None)."""
+    x, cov_x = ln.vertex, ln.vertex_cov
+    resolved_by = None
+    if prior is not None:
+        which = choose_by_prior(fit.R_cam_from_target, fit.R_twin, np.asarray(prior, float))
+        fit = swap_twins(fit, which, th_used, x, s_used, cov_x, resolved_by="prior")
+        resolved_by = "prior"
+    metric = None
+    if radius is not None:
+        metric = _metric_choice(fit, x, th_used, ln.p1[used], ln.p2[used], radius, sigma_metric)
+        if metric is not None and resolved_by is None and metric["decisive"]:
+            fit = swap_twins(fit, metric["twin_better"], th_used, x, s_used, cov_x, resolved_by="radius")
+            resolved_by = "radius"
+    return fit, resolved_by, metric
+
+
+def _metric_position(fit, metric, resolved_by, x, pencil):
+    """vertex_cam (and t_cam_from_target when the pencil file gives the vertex) from the
+    depth the spoke radii give the rotation finally chosen, if they fit it; else {}."""
+    chosen_twin = resolved_by == "radius" and metric["twin_better"]
+    depth = metric["depth_twin"] if chosen_twin else metric["depth"]
+    chi2 = metric["chi2_twin"] if chosen_twin else metric["chi2"]
+    if not (np.isfinite(depth) and chi2 / metric["points"] < 9.0):
+        return {}
+    P0 = depth * np.r_[x, 1.0]
+    out = {"vertex_cam": P0}
+    if pencil.vertex is not None:
+        out["t_cam_from_target"] = P0 - fit.R_cam_from_target @ np.r_[pencil.vertex, 0.0]
+    return out
 
 
 def _radius_consistent(ideal, radius):
@@ -450,37 +493,22 @@ def raw_vertex(camera, vertex, vertex_ideal, cov_ideal):
 
 def orientation_record(camera, fit, vertex, vertex_ideal, cov_ideal, *, model="exact", image=None,
                        sigma_mean=None, resolved_by=None):
-    """An orientation.json record (INTERFACES.md) from a PencilFit of batch shape ().
+    """The `Orientation` of a PencilFit of batch shape ().
 
     camera: the Camera; fit: PencilFit; vertex: (2,) normalised vertex; vertex_ideal,
     cov_ideal: the vertex in ideal (undistorted) pixels and its covariance [px^2], reported
     in raw pixels; sigma_mean: RMS line angle sd [rad] for the detection threshold.
     """
     v_raw, cov_raw = raw_vertex(camera, vertex, vertex_ideal, cov_ideal)
-    rec = {
-        "image": image,
-        "ok": True,
-        "error": None,
-        "vertex_px": v_raw,
-        "vertex_cov_px2": cov_raw,
-        "lines_used": int(fit.lines_used),
-        "rms_residual_deg": float(np.degrees(fit.rms)),
-        "tilt_deg": float(np.degrees(fit.tilt)),
-        "tilt_sigma_deg": float(np.degrees(fit.tilt_sigma)),
-        "detectable": bool(fit.detectable),
-        "normal": fit.normal,
-        "normal_sigma_deg": float(np.degrees(fit.normal_sigma)),
-        "normal_twin": fit.normal_twin,
-        "R_cam_from_target": fit.R_cam_from_target,
-        "R_cam_from_target_twin": fit.R_twin,
-        "ambiguous": bool(fit.ambiguous),
-        "model": model,
-        "resolved_by": resolved_by,
-        "ray": fit.ray,
-    }
-    if sigma_mean is not None:
-        rec["tilt_threshold_deg"] = float(np.degrees(detection_threshold(sigma_mean)))
-    return rec
+    return Orientation(
+        image=image, ok=True, error=None, vertex_px=v_raw, vertex_cov_px2=cov_raw,
+        lines_used=int(fit.lines_used), rms_residual_deg=float(np.degrees(fit.rms)),
+        tilt_deg=float(np.degrees(fit.tilt)), tilt_sigma_deg=float(np.degrees(fit.tilt_sigma)),
+        detectable=bool(fit.detectable), normal=fit.normal, normal_sigma_deg=float(np.degrees(fit.normal_sigma)),
+        normal_twin=fit.normal_twin, R_cam_from_target=fit.R_cam_from_target, R_cam_from_target_twin=fit.R_twin,
+        ambiguous=bool(fit.ambiguous), model=model, resolved_by=resolved_by, ray=fit.ray,
+        tilt_threshold_deg=None if sigma_mean is None else float(np.degrees(detection_threshold(sigma_mean))),
+    )
 
 
 def _replace_rotation(fit, R, Rt):
@@ -535,23 +563,24 @@ def _metric_choice(fit, x, th, p1, p2, radius, sigma_n):
             "chi2_twin": ct, "points": n}
 
 
-def resolve_twins_by_continuity(records):
+def resolve_twins_by_continuity(orientations):
     """Choose twins over a sequence so that the orientation changes least between frames.
 
-    records: orientation.json frame dicts (modified copies are returned). Ambiguous frames
-    get the twin on the cheapest path (Viterbi over the two states per frame, cost = rotation
-    angle between consecutive frames). Continuity alone cannot tell the two whole paths
-    apart (the twin of a smooth motion is smooth too); it carries the choice made in
+    orientations: [Orientation] of consecutive frames; returns new ones. Ambiguous frames
+    get the twin on the cheapest path (Viterbi over the two states per frame, cost =
+    rotation angle between consecutive frames). Continuity alone cannot tell the two whole
+    paths apart (the twin of a smooth motion is smooth too); it carries the choice made in
     resolved frames (``ambiguous`` false: a prior, the spoke radii) to the others, which
     then get ``resolved_by: "continuity"``. With no resolved frame the twins are only made
     consistent along the sequence and stay ``ambiguous``.
     """
-    idx = [i for i, r in enumerate(records) if r.get("ok")]
+    out = list(orientations)
+    idx = [i for i, o in enumerate(out) if o.ok]
     if len(idx) < 2:
-        return [dict(r) for r in records]
-    Rs = [np.stack([np.asarray(records[i]["R_cam_from_target"], float),
-                    np.asarray(records[i]["R_cam_from_target_twin"], float)]) for i in idx]
-    fixed = [not records[i].get("ambiguous", True) for i in idx]
+        return out
+    Rs = [np.stack([np.asarray(out[i].R_cam_from_target, float),
+                    np.asarray(out[i].R_cam_from_target_twin, float)]) for i in idx]
+    fixed = [not out[i].ambiguous for i in idx]
     INF = 1e9
     cost = np.array([0.0, INF if fixed[0] else 0.0])
     back = []
@@ -569,14 +598,12 @@ def resolve_twins_by_continuity(records):
         state = int(arg[state])
         states.append(state)
     states.reverse()
-    out = [dict(r) for r in records]
     anchored = any(fixed)
     for i, s in zip(idx, states):
-        r = out[i]
-        if r.get("ambiguous") and s == 1:
-            r["R_cam_from_target"], r["R_cam_from_target_twin"] = r["R_cam_from_target_twin"], r["R_cam_from_target"]
-            r["normal"], r["normal_twin"] = r["normal_twin"], r["normal"]
-        if r.get("ambiguous") and anchored:
-            r["ambiguous"] = False
-            r["resolved_by"] = "continuity"
+        o = out[i]
+        if o.ambiguous and s == 1:
+            o = o.swapped()
+        if o.ambiguous and anchored:
+            o = o.replace(ambiguous=False, resolved_by="continuity")
+        out[i] = o
     return out

@@ -388,13 +388,13 @@ def test_fan_end_to_end_orientation(hd):
     img, pen, R, t, truth = fan_scene(hd, rng, tilt_deg=30.0)
     bars = detect_bars(img, "fld", camera=hd)
     rec = orient_segments(hd, bars.segments, pen, angle_sigma=bars.angle_sigma, endpoint_sigma_px=0.05)
-    assert rec["ok"] and rec["lines_used"] == 8
+    assert rec.ok and rec.lines_used == 8
     n_true = R[:, 2]
     err = min(np.degrees(np.arccos(np.clip(np.asarray(n) @ n_true, -1, 1)))
-              for n in (rec["normal"], rec["normal_twin"]))
+              for n in (rec.normal, rec.normal_twin))
     assert err < 0.3
     # the spoke radii (pencil file) pick the right twin
-    assert np.degrees(np.arccos(np.clip(np.asarray(rec["normal"]) @ n_true, -1, 1))) < 0.3
+    assert np.degrees(np.arccos(np.clip(np.asarray(rec.normal) @ n_true, -1, 1))) < 0.3
 
 
 @pytest.mark.slow
@@ -516,8 +516,8 @@ def test_printed_sheet_from_the_renderer(hd):
     on_spoke = [k for k, e in enumerate(errs) if np.abs(e[1]).max() < 0.1]
     assert sorted(errs[k][0] for k in on_spoke) == list(range(8))
     rec = orient_segments(hd, bars.segments, pen, angle_sigma=bars.angle_sigma)
-    assert rec["ok"] and rec["lines_used"] == 8
-    assert np.degrees(np.arccos(np.clip(np.asarray(rec["normal"]) @ R[:, 2], -1, 1))) < 0.3
+    assert rec.ok and rec.lines_used == 8
+    assert np.degrees(np.arccos(np.clip(np.asarray(rec.normal) @ R[:, 2], -1, 1))) < 0.3
 
 
 def test_reduced_proposals_give_the_full_resolution_fit(hd):
@@ -603,7 +603,7 @@ def test_dense_fan_tilt_is_not_biased_by_neighbouring_bars():
         bars = detect_bars(img, "lsd", camera=sc.camera, min_length=24.0)
         o = orient_segments(sc.camera, bars.segments, sc.sheet.pencil, angle_sigma=bars.angle_sigma,
                             offset_sigma=bars.offset_sigma)
-        assert o["ok"]
-        z.append((o["tilt_deg"] - sc.frames[i]["tilt_deg"]) / o["tilt_sigma_deg"])
+        assert o.ok
+        z.append((o.tilt_deg - sc.frames[i]["tilt_deg"]) / o.tilt_sigma_deg)
     assert len(z) == 15
     assert abs(np.mean(z)) < 0.6 and 0.6 < np.std(z) < 1.4

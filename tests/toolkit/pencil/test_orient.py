@@ -14,8 +14,8 @@ KEYS = ["image", "ok", "error", "vertex_px", "vertex_cov_px2", "lines_used", "rm
 
 
 def closer(rec, R):
-    return min(rotation_angle(np.asarray(rec["R_cam_from_target"]), R),
-               rotation_angle(np.asarray(rec["R_cam_from_target_twin"]), R))
+    return min(rotation_angle(np.asarray(rec.R_cam_from_target), R),
+               rotation_angle(np.asarray(rec.R_cam_from_target_twin), R))
 
 
 @pytest.mark.parametrize("model", ["opencv", "fisheye", "pinhole"])
@@ -25,10 +25,10 @@ def test_noise_free_exact(rng, model):
     for _ in range(10):
         seg, R, t = frame(cam, pen, rng.uniform(15, 65), 200.0, rng)
         rec = orient_segments(cam, seg, pen, image="x.png")
-        assert all(k in rec for k in KEYS)
-        assert rec["ok"] and rec["lines_used"] == 8
+        assert all(k in rec.to_dict() for k in KEYS)
+        assert rec.ok and rec.lines_used == 8
         assert np.degrees(closer(rec, R)) < 1e-6
-        np.testing.assert_allclose(rec["vertex_px"], cam.project(t), atol=1e-6)
+        np.testing.assert_allclose(rec.vertex_px, cam.project(t), atol=1e-6)
 
 
 def test_noise_sigmas_cover_errors(rng):
@@ -39,10 +39,10 @@ def test_noise_sigmas_cover_errors(rng):
     for _ in range(150):
         seg, R, t = frame(cam, pen, 35.0, 250.0, rng, noise_px=0.5)
         rec = orient_segments(cam, seg, pen, endpoint_sigma_px=0.5)
-        assert rec["ok"]
+        assert rec.ok
         ray = cam.rays_from_pixels(cam.project(t))
         true_tilt = np.degrees(angle_between(R[:, 2], ray))
-        hits += abs(rec["tilt_deg"] - true_tilt) < rec["tilt_sigma_deg"]
+        hits += abs(rec.tilt_deg - true_tilt) < rec.tilt_sigma_deg
         n += 1
     assert 0.58 <= hits / n <= 0.78
 
@@ -53,8 +53,8 @@ def test_spurious_segments_rejected(rng):
     seg, R, _ = frame(cam, pen, 30.0, 200.0, rng)
     junk = np.array([[100.0, 100, 400, 180], [1500, 900, 1800, 700]])
     rec = orient_segments(cam, np.r_[seg, junk], pen)
-    assert rec["ok"] and rec["lines_used"] == 8
-    assert rec["spokes"][-2:].tolist() == [-1, -1]
+    assert rec.ok and rec.lines_used == 8
+    assert rec.spokes[-2:].tolist() == [-1, -1]
     assert np.degrees(closer(rec, R)) < 1e-6
 
 
@@ -66,14 +66,14 @@ def test_radius_resolves_twin(rng):
     for _ in range(60):
         seg, R, t = frame(cam, pen, rng.uniform(20, 60), 200.0, rng, noise_px=0.3)
         rec = orient_segments(cam, seg, pen, endpoint_sigma_px=0.3)
-        if rec["ambiguous"]:
+        if rec.ambiguous:
             continue
         resolved += 1
-        assert rec["resolved_by"] == "radius"
-        wrong += np.degrees(angle_between(np.asarray(rec["normal"]), R[:, 2])) > 3.0
+        assert rec.resolved_by == "radius"
+        wrong += np.degrees(angle_between(np.asarray(rec.normal), R[:, 2])) > 3.0
         # with the radii the vertex depth and the translation come out too
-        assert abs(rec["vertex_cam"][2] - t[2]) / t[2] < 0.05
-        np.testing.assert_allclose(rec["t_cam_from_target"], t, rtol=0.05, atol=2.0)
+        assert abs(rec.vertex_cam[2] - t[2]) / t[2] < 0.05
+        np.testing.assert_allclose(rec.t_cam_from_target, t, rtol=0.05, atol=2.0)
     assert wrong == 0
     assert resolved >= 50
 
@@ -83,8 +83,8 @@ def test_prior_resolves_twin(rng):
     pen = fan(radius=None)
     seg, R, _ = frame(cam, pen, 30.0, 200.0, rng)
     rec = orient_segments(cam, seg, pen, prior=R)
-    assert not rec["ambiguous"] and rec["resolved_by"] == "prior"
-    assert np.degrees(rotation_angle(np.asarray(rec["R_cam_from_target"]), R)) < 1e-6
+    assert not rec.ambiguous and rec.resolved_by == "prior"
+    assert np.degrees(rotation_angle(np.asarray(rec.R_cam_from_target), R)) < 1e-6
 
 
 def test_known_vertex(rng):
@@ -92,8 +92,8 @@ def test_known_vertex(rng):
     pen = fan(radius=None)
     seg, R, t = frame(cam, pen, 30.0, 200.0, rng)
     rec = orient_segments(cam, seg, pen, vertex_px=cam.project(t), vertex_cov_px2=np.eye(2) * 0.04)
-    assert rec["ok"] and np.degrees(closer(rec, R)) < 1e-6
-    np.testing.assert_allclose(rec["vertex_cov_px2"], np.eye(2) * 0.04, rtol=0.05, atol=1e-12)
+    assert rec.ok and np.degrees(closer(rec, R)) < 1e-6
+    np.testing.assert_allclose(rec.vertex_cov_px2, np.eye(2) * 0.04, rtol=0.05, atol=1e-12)
 
 
 def test_known_vertex_leaves_out_the_segments_that_miss_it(rng):
@@ -111,8 +111,8 @@ def test_known_vertex_leaves_out_the_segments_that_miss_it(rng):
                      np.c_[np.full_like(g, x0), y0 + g, np.full_like(g, x0 + 200), y0 + g + 8]]
         rec = orient_segments(cam, np.r_[seg, junk], pen, vertex_px=v, vertex_cov_px2=np.eye(2) * 1e-6,
                               endpoint_sigma_px=0.1)
-        assert rec["ok"] and rec["lines_used"] == 8
-        assert np.all(rec["spokes"][8:] == -1)
+        assert rec.ok and rec.lines_used == 8
+        assert np.all(rec.spokes[8:] == -1)
         assert np.degrees(closer(rec, R)) < 0.5
 
 
@@ -123,7 +123,7 @@ def test_frontal_is_not_detectable(rng):
     for _ in range(20):
         seg, R, _ = frame(cam, pen, 0.0, 200.0, rng, noise_px=0.5)
         rec = orient_segments(cam, seg, pen)
-        flagged += not rec["detectable"]
+        flagged += not rec.detectable
     assert flagged >= 18
 
 
@@ -131,12 +131,12 @@ def test_failure_is_a_record(rng):
     cam = hd_camera()
     pen = fan(radius=None)
     rec = orient_segments(cam, np.array([[0, 0, 100, 100.0], [0, 100, 100, 0]]), pen, image="a.png")
-    assert rec["ok"] is False and "three" in rec["error"]
-    assert all(k in rec for k in KEYS)
+    assert rec.ok is False and "three" in rec.error
+    assert all(k in rec.to_dict() for k in KEYS)
     seg, _, _ = frame(cam, pen, 30.0, 200.0, rng)
     seg[:6] = np.nan
     rec = orient_segments(cam, seg, pen)
-    assert rec["ok"] is False and "not finite" in rec["error"]
+    assert rec.ok is False and "not finite" in rec.error
 
 
 def test_continuity_carries_an_anchor(rng):
@@ -148,11 +148,11 @@ def test_continuity_carries_an_anchor(rng):
         truth.append(R)
         recs.append(orient_segments(cam, seg, pen, prior=R if k == 0 else None))
     out = resolve_twins_by_continuity(recs)
-    assert [r["ambiguous"] for r in out] == [False] * 6
+    assert [r.ambiguous for r in out] == [False] * 6
     # random poses per frame: continuity cannot be right unless motion is smooth; only check
     # that anchored frames keep their choice and the rest are marked as carried
-    assert out[0]["resolved_by"] == "prior"
-    assert all(r["resolved_by"] == "continuity" for r in out[1:])
+    assert out[0].resolved_by == "prior"
+    assert all(r.resolved_by == "continuity" for r in out[1:])
 
 
 def test_continuity_smooth_motion(rng):
@@ -171,11 +171,11 @@ def test_continuity_smooth_motion(rng):
         recs.append(orient_segments(cam, seg, pen, prior=R if k == 5 else None))
     out = resolve_twins_by_continuity(recs)
     for r, R in zip(out, truth):
-        assert not r["ambiguous"]
-        assert np.degrees(rotation_angle(np.asarray(r["R_cam_from_target"]), R)) < 1e-6
+        assert not r.ambiguous
+        assert np.degrees(rotation_angle(np.asarray(r.R_cam_from_target), R)) < 1e-6
     # with no anchor the twins are only made consistent and stay ambiguous
-    free = resolve_twins_by_continuity([dict(r, ambiguous=True, resolved_by=None) for r in recs])
-    assert all(r["ambiguous"] for r in free)
+    free = resolve_twins_by_continuity([r.replace(ambiguous=True, resolved_by=None) for r in recs])
+    assert all(r.ambiguous for r in free)
 
 
 @pytest.mark.parametrize("model", ["general", "aligned"])
@@ -188,9 +188,9 @@ def test_chapter_models_in_the_pipeline(rng, model):
     for _ in range(5):
         seg, R, t = frame(cam, pen, 35.0, 200.0, rng)
         rec = orient_segments(cam, seg, pen, model=model)
-        assert rec["ok"] and rec["model"] == model
-        errs.append(np.degrees(min(angle_between(np.asarray(rec["normal"]), R[:, 2]),
-                                   angle_between(np.asarray(rec["normal_twin"]), R[:, 2]))))
+        assert rec.ok and rec.model == model
+        errs.append(np.degrees(min(angle_between(np.asarray(rec.normal), R[:, 2]),
+                                   angle_between(np.asarray(rec.normal_twin), R[:, 2]))))
     if model == "general":
         assert max(errs) < 1e-6
     else:
@@ -206,9 +206,9 @@ def test_known_labels(rng):
     labels = np.arange(8)[p].copy()
     labels[0] = -1
     rec = orient_segments(cam, seg[p], pen, labels=labels)
-    assert rec["ok"] and rec["lines_used"] == 7 and not rec["labels_ambiguous"]
+    assert rec.ok and rec.lines_used == 7 and not rec.labels_ambiguous
     assert np.degrees(closer(rec, R)) < 1e-6
-    assert rec["spokes"].tolist() == labels.tolist()
+    assert rec.spokes.tolist() == labels.tolist()
 
 
 def test_three_lines_with_a_spurious_one_are_not_a_confident_answer(rng):
@@ -223,10 +223,10 @@ def test_three_lines_with_a_spurious_one_are_not_a_confident_answer(rng):
     for _ in range(20):
         seg, R, _ = two_spokes_and_a_stray(cam, pen, rng)
         rec = orient_segments(cam, seg, pen, endpoint_sigma_px=0.3)
-        if rec["ok"]:
-            err = np.degrees(min(angle_between(np.asarray(rec["normal"]), R[:, 2]),
-                                 angle_between(np.asarray(rec["normal_twin"]), R[:, 2])))
-            results.append((rec["labels_ambiguous"], rec["normal_ambiguous"], err, rec["normal_sigma_deg"]))
+        if rec.ok:
+            err = np.degrees(min(angle_between(np.asarray(rec.normal), R[:, 2]),
+                                 angle_between(np.asarray(rec.normal_twin), R[:, 2])))
+            results.append((rec.labels_ambiguous, rec.normal_ambiguous, err, rec.normal_sigma_deg))
     assert len(results) >= 15
     assert all(lab for lab, _, _, _ in results)
     assert all(amb or err < 5 * sd for _, amb, err, sd in results)
@@ -242,9 +242,9 @@ def test_three_genuine_spokes_keep_an_unambiguous_normal(rng):
         seg, R, t = frame(cam, pen, rng.uniform(35, 60), 300.0, rng, noise_px=0.3)
         keep = np.sort(rng.choice(13, 3, replace=False))
         rec = orient_segments(cam, seg[keep], pen, endpoint_sigma_px=0.3)
-        assert rec["ok"] and not rec["normal_ambiguous"]
-        err = np.degrees(min(angle_between(np.asarray(rec["normal"]), R[:, 2]),
-                             angle_between(np.asarray(rec["normal_twin"]), R[:, 2])))
-        assert err < max(5 * rec["normal_sigma_deg"], 0.5)
-        if not rec["labels_ambiguous"]:
-            assert rec["spokes"].tolist() == keep.tolist()
+        assert rec.ok and not rec.normal_ambiguous
+        err = np.degrees(min(angle_between(np.asarray(rec.normal), R[:, 2]),
+                             angle_between(np.asarray(rec.normal_twin), R[:, 2])))
+        assert err < max(5 * rec.normal_sigma_deg, 0.5)
+        if not rec.labels_ambiguous:
+            assert rec.spokes.tolist() == keep.tolist()
