@@ -1,7 +1,6 @@
 """`pencilcal calibrate`: intrinsic calibration from ChArUco or chessboard views."""
 from __future__ import annotations
 
-import contextlib
 import os
 import tempfile
 from pathlib import Path
@@ -16,7 +15,7 @@ from pencilcal.toolkit.camera.formats import camera_format, camera_to_dict, writ
 from pencilcal.toolkit.board.corners_cache import check_image_name, write_corners_vnl
 from pencilcal.toolkit.board.detect import detect_board
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.files import write_json
+from pencilcal.toolkit.io.files import atomic_paths, write_json
 from pencilcal.toolkit.io.images import open_images
 
 from .common import check_output, force_option, quiet_option, run, run_frames, warn, workers_option
@@ -41,41 +40,6 @@ def _probe_camera_format(path, model, coefficients):
         except InputError as e:
             msg = str(e).split(": ", 1)[-1]
             raise InputError(f"{p}: {msg}") from None
-
-
-def _commit(outputs, force):
-    """Write every output to a scratch file beside its target, then move them all into
-    place: a failure at any point leaves no output that looks complete.
-
-    outputs: list of (path, writer) with writer(tmp_path) writing the file.
-    """
-    staged = []
-    committed = []
-    try:
-        for path, writer in outputs:
-            p = Path(path)
-            parent = p.parent if str(p.parent) else Path(".")
-            fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=p.suffix, dir=parent)
-            os.close(fd)
-            staged.append((p, Path(tmp)))
-            writer(Path(tmp))
-        for p, tmp in staged:
-            existed = p.exists()
-            if existed and not force:
-                raise InputError(f"{p}: already exists; pass --force to overwrite it")
-            os.replace(tmp, p)
-            committed.append((p, existed))
-    except BaseException:
-        # an output that did not exist before this run must not survive a failed run
-        for p, existed in committed:
-            if not existed:
-                with contextlib.suppress(OSError):
-                    p.unlink()
-        raise
-    finally:
-        for _, tmp in staged:
-            with contextlib.suppress(FileNotFoundError):
-                tmp.unlink()
 
 
 def _vnl_name(path, name, corners_path, kind):
@@ -250,7 +214,9 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
     if report_path:
         todo.append((report_path, lambda tmp: write_json(tmp, report, force=True)))
     todo.append((output, lambda tmp: write_camera(tmp, camera, force=True)))
-    _commit(todo, force)
+    with atomic_paths([path for path, _ in todo], force) as tmps:
+        for (_, writer), tmp in zip(todo, tmps):
+            writer(tmp)
 
     if not quiet:
         extra = ""

@@ -2,16 +2,15 @@
 from __future__ import annotations
 
 import contextlib
-import os
 import shutil
 import sys
-import tempfile
 from pathlib import Path
 
 import click
 
 from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.io.files import replace_folder, staging_folder
 from pencilcal.validation.sfm import (
     DEFAULT_MAX_FEATURES,
     DEFAULT_MIN_REGISTERED,
@@ -46,27 +45,6 @@ def _check_output_folder(out: Path, force: bool, images: str):
     cwd = Path.cwd().resolve()
     if inp == real or real in inp.parents or cwd == real or real in cwd.parents:
         raise InputError(f"{out}: holds the input images or the working folder; choose another output")
-
-
-def _replace_folder(tmp: Path, out: Path):
-    """Put the finished folder `tmp` at `out`; an old `out` is moved aside first and removed
-    only once the new one is in place."""
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp made it private
-    if out.is_dir() and any(out.iterdir()):
-        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=tmp.parent))
-        os.replace(out, old / out.name)
-        try:
-            os.replace(tmp, out)
-        except OSError:
-            os.replace(old / out.name, out)
-            raise
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        if out.is_dir():
-            out.rmdir()
-        os.replace(tmp, out)
 
 
 @click.command()
@@ -116,8 +94,7 @@ def sfm(images, camera_path, camera_id, output, matching, max_features, min_regi
     out = Path(output)
     _check_output_folder(out, force, images)
     camera = read_camera(camera_path, camera_id=camera_id)
-    parent = out.parent if str(out.parent) else Path(".")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=parent))
+    tmp = staging_folder(out)
     bars = StageBars() if not quiet and sys.stderr.isatty() else None
     try:
         try:
@@ -134,7 +111,7 @@ def sfm(images, camera_path, camera_id, output, matching, max_features, min_regi
             warn(w)
         write_poses(tmp / "poses.json", res, images=str(images), camera_file=str(camera_path),
                     camera_id=camera_id, seed=seed, min_registered=min_registered)
-        _replace_folder(tmp, out)
+        replace_folder(tmp, out)
     finally:
         with contextlib.suppress(FileNotFoundError):
             shutil.rmtree(tmp)

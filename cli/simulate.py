@@ -1,10 +1,7 @@
 """`pencilcal simulate`: synthetic sequences with exact ground truth."""
 from __future__ import annotations
 
-import contextlib
 import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import click
@@ -45,22 +42,6 @@ def _check_out(out, force):
             raise InputError(f"{out}: folder is not empty; pass --force to replace an earlier simulate output")
         if entries and not _looks_like_output(out):
             raise InputError(f"{out}: folder is not empty and holds no truth.json; not replacing it, even with --force")
-
-
-def _replace_dir(tmp, out):
-    """Move the finished folder `tmp` to `out`, replacing an earlier output."""
-    if out.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
-        os.rename(out, old / "x")
-        try:
-            os.rename(tmp, out)
-        except BaseException:
-            os.rename(old / "x", out)  # put the earlier output back
-            raise
-        finally:
-            shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.rename(tmp, out)
 
 
 @click.command()
@@ -118,7 +99,7 @@ def simulate(out, scenario, frames, seed, size, model, camera_path, noise, blur,
 
     from pencilcal.toolkit.board.spec import write_board
     from pencilcal.toolkit.camera.formats import read_camera, write_camera
-    from pencilcal.toolkit.io.files import atomic_write, write_json
+    from pencilcal.toolkit.io.files import atomic_folder, atomic_write, write_json
     from pencilcal.toolkit.pencil.spec import write_pencil
     from pencilcal.toolkit.synth.scenarios import make_scenario
 
@@ -130,12 +111,7 @@ def simulate(out, scenario, frames, seed, size, model, camera_path, noise, blur,
     sc = make_scenario(scenario, frames, seed, camera=camera, size=(w, h), model=model, **options)
     settings = {"noise": noise, "blur_px": blur, "lighting": lighting, "gamma": gamma}
     bg = None if background == "table" else "plain"
-    parent = out_path.parent if str(out_path.parent) else Path(".")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_path.name}.", suffix=".partial", dir=parent))
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; outputs get normal permissions
+    with atomic_folder(out_path) as tmp:
         (tmp / "images").mkdir()
         with progress(range(len(sc)), "simulate", quiet) as bar:
             for i in bar:
@@ -153,10 +129,5 @@ def simulate(out, scenario, frames, seed, size, model, camera_path, noise, blur,
         render = dict(settings, color=color, background=background,
                       camera=str(camera_path) if camera_path else f"built-in {model}")
         write_json(tmp / "truth.json", sc.truth(render=render))
-        _replace_dir(tmp, out_path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            shutil.rmtree(tmp)
-        raise
     if not quiet:
         click.echo(f"{len(sc)} {scenario} frames (seed {seed}, {w}x{h}, {sc.camera.model}) -> {out_path}", err=True)

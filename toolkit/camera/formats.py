@@ -67,7 +67,7 @@ import numpy as np
 
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.files import atomic_path, load_structured, write_json
+from pencilcal.toolkit.io.files import atomic_path, load_structured, staging_folder, write_json
 
 __all__ = [
     "read_camera",
@@ -734,14 +734,10 @@ def _write_colmap(p, camera, force, fmt):
     if present and not force:
         raise InputError(f"{p}: already holds a COLMAP model ({', '.join(present)}); pass --force to overwrite it")
     binary = (p / "cameras.bin").is_file()
-    tmp = Path(tempfile.mkdtemp(prefix=f".{p.name}.", dir=parent))
+    tmp = staging_folder(p)
     try:
         (rec.write_binary if binary else rec.write_text)(str(tmp))
         if not p.exists():
-            # mkdtemp makes the folder private (0700); give it the usual permissions
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o777 & ~umask)
             os.replace(tmp, p)
         else:
             # cameras last: a reader never sees new cameras beside old images

@@ -1,9 +1,13 @@
 """Reading structured files and writing outputs atomically, without clobbering.
 
-Every writer in pencilcal goes through `atomic_write` (or `atomic_path` for libraries that
-insist on writing a path themselves, such as cv2.FileStorage): the data land in a temporary
-file beside the target and are renamed over it only when complete, so an interrupted run
-never leaves a file that looks finished. Existing files are kept unless ``force`` is true.
+Every writer in pencilcal goes through this module, the one home of atomic output:
+`atomic_write` (or `atomic_path` for libraries that insist on writing a path themselves,
+such as cv2.FileStorage; `atomic_paths` for several files that stand or fall together):
+the data land in a temporary file beside the target and are renamed over it only when
+complete, so an interrupted run never leaves a file that looks finished. Output folders
+(simulate, sfm, a COLMAP model) are built in a `staging_folder` and put in place by
+`replace_folder` (`atomic_folder` does both). Existing files are kept unless ``force``
+is true.
 
 Example
 -------
@@ -19,6 +23,7 @@ import contextlib
 import json
 import math
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -29,7 +34,11 @@ from pencilcal.toolkit.errors import InputError
 __all__ = [
     "check_writable",
     "atomic_path",
+    "atomic_paths",
     "atomic_write",
+    "atomic_folder",
+    "staging_folder",
+    "replace_folder",
     "write_json",
     "load_structured",
     "to_jsonable",
@@ -47,27 +56,127 @@ def check_writable(path, force=False):
         raise InputError(f"{p}: folder {parent} does not exist")
 
 
+def _normal_permissions(path, mode):
+    """mkstemp/mkdtemp make private files (0600) and folders (0700); outputs get the
+    permissions of any new file or folder (`mode` masked by the umask)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(path, mode & ~umask)
+
+
+@contextlib.contextmanager
+def atomic_paths(paths, force=False):
+    """Yield temporary paths beside each of `paths` (same suffixes); once the block has
+    written them all, rename each over its target.
+
+    Nothing is overwritten without `force` (checked before the block and again before
+    the renames). On an exception the temporary files are removed, and an output this
+    call created before the failure is removed too, so a failed run leaves no output
+    that looks complete; earlier outputs are left as they were.
+
+    Example
+    -------
+    >>> import tempfile, os
+    >>> d = tempfile.mkdtemp()
+    >>> with atomic_paths([os.path.join(d, "a.txt"), os.path.join(d, "b.txt")]) as (a, b):
+    ...     _ = a.write_text("1"), b.write_text("2")
+    >>> sorted(os.listdir(d))
+    ['a.txt', 'b.txt']
+    """
+    targets = [Path(p) for p in paths]
+    for p in targets:
+        check_writable(p, force)
+    staged, committed = [], []
+    try:
+        for p in targets:
+            fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=p.suffix, dir=p.parent if str(p.parent) else ".")
+            os.close(fd)
+            staged.append(Path(tmp))
+            _normal_permissions(tmp, 0o666)
+        yield staged
+        for p in targets:
+            if p.exists() and not force:
+                raise InputError(f"{p}: already exists; pass --force to overwrite it")
+        for p, tmp in zip(targets, staged):
+            existed = p.exists()
+            os.replace(tmp, p)
+            committed.append((p, existed))
+    except BaseException:
+        for p, existed in committed:
+            if not existed:
+                with contextlib.suppress(OSError):
+                    p.unlink()
+        raise
+    finally:
+        for tmp in staged:
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+
+
 @contextlib.contextmanager
 def atomic_path(path, force=False):
     """Yield a temporary path beside `path` (same suffix); rename it over `path` on success.
 
     On an exception the temporary file is removed and `path` is left as it was.
     """
+    with atomic_paths([path], force) as (tmp,):
+        yield tmp
+
+
+def staging_folder(path) -> Path:
+    """A new, empty folder beside `path` (``.NAME.XXXX.partial``, normal permissions), in
+    which an output folder is built before `replace_folder` puts it in place."""
     p = Path(path)
-    check_writable(p, force)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=p.suffix, dir=p.parent if str(p.parent) else ".")
-    os.close(fd)
-    # mkstemp makes the file private (0600); outputs get the permissions of any new file
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
+    parent = p.parent if str(p.parent) else Path(".")
+    tmp = Path(tempfile.mkdtemp(prefix=f".{p.name}.", suffix=".partial", dir=parent))
+    _normal_permissions(tmp, 0o777)
+    return tmp
+
+
+def replace_folder(tmp, out):
+    """Put the finished folder `tmp` at `out`. An earlier `out` is moved aside first and
+    removed only once the new one is in place (and put back if that fails)."""
+    tmp, out = Path(tmp), Path(out)
+    if out.is_dir() and not any(out.iterdir()):
+        out.rmdir()
+    if not out.exists():
+        os.replace(tmp, out)
+        return
+    old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=tmp.parent))
     try:
-        yield Path(tmp)
-        os.replace(tmp, p)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+        os.replace(out, old / out.name)
+        try:
+            os.replace(tmp, out)
+        except BaseException:
+            os.replace(old / out.name, out)  # put the earlier output back
+            raise
+    finally:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def atomic_folder(path):
+    """Yield a staging folder for the output folder `path`; on success it replaces `path`
+    (`replace_folder`), on an exception it is removed and `path` is left as it was.
+
+    The caller decides beforehand whether an existing `path` may be replaced (--force, and
+    whether it looks like an earlier output of the same command).
+
+    Example
+    -------
+    >>> import tempfile, os
+    >>> d = tempfile.mkdtemp()
+    >>> with atomic_folder(os.path.join(d, "out")) as tmp:
+    ...     _ = (tmp / "a.txt").write_text("1")
+    >>> os.listdir(os.path.join(d, "out")), [f for f in os.listdir(d) if f.startswith(".")]
+    (['a.txt'], [])
+    """
+    tmp = staging_folder(path)
+    try:
+        yield tmp
+        replace_folder(tmp, path)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def atomic_write(path, data, force=False):
