@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from pencilcal.validation.report import FORMATS, load_sensitivity, load_validation, write_report
+from pencilcal.validation.report import FORMATS, load_sensitivity, write_report
+from pencilcal.validation.validation_file import load_validation
 
 from .common import check_output, force_option, quiet_option, run
 

@@ -5,10 +5,10 @@ import sys
 
 import click
 
-from pencilcal.toolkit.io.files import write_json
 from pencilcal.toolkit.pencil.orient import MODELS
 from pencilcal.validation.pnp import METHODS
 from pencilcal.validation.validate import find_sequences, sequence_files, validate_many, validate_path
+from pencilcal.validation.validation_file import write_validation
 
 from .common import StageBars, check_output, force_option, output_option, progress, quiet_option, run, warn, workers_option
 
@@ -118,7 +118,7 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
         finally:
             if stage_bars is not None:
                 stage_bars.close()
-    write_json(output, out, force=force)
+    write_validation(output, out, force=force)
     if not quiet:
         s = out["summary"].get("orient:exact", {})
         n = s.get("normal_closer", {}).get("median")

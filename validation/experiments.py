@@ -66,9 +66,10 @@ from pencilcal.toolkit.pencil.estimator import (
     frontal_fit,
     max_angular_change,
 )
-from pencilcal.toolkit.io.files import load_structured
 from pencilcal.toolkit.geometry.frames import angle_between
 from pencilcal.toolkit.pencil.spec import image_angles
+
+from .validation_file import load_pencil_validation as load_validation
 
 __all__ = [
     "EXPERIMENTS",
@@ -107,25 +108,6 @@ _GROSS_Z = 5.0
 
 
 # ------------------------------------------------------------------------------ input
-def load_validation(path):
-    """Read a validation.json (`pencilcal validate`) and check what the experiments need.
-
-    Returns the dict. Raises InputError (one line) for a missing or unreadable file, or a
-    file that is not a validation file (no ``frames`` list, no pencil spoke angles).
-    """
-    data = load_structured(path, "validation file")
-    if not isinstance(data, dict) or not isinstance(data.get("frames"), list):
-        raise InputError(f"{path}: not a validation file (no 'frames' list; write one with `pencilcal validate`)")
-    pencil = data.get("pencil")
-    if not isinstance(pencil, dict) or not isinstance(pencil.get("angles_deg"), list) or len(pencil["angles_deg"]) < 3:
-        raise InputError(f"{path}: not a validation file (no pencil with at least three 'angles_deg')")
-    try:
-        np.asarray(pencil["angles_deg"], float)
-    except (TypeError, ValueError):
-        raise InputError(f"{path}: pencil 'angles_deg' must be numbers") from None
-    return data
-
-
 @dataclass
 class Frame:
     """One frame's measured lines and reference pose, as the experiments use them.

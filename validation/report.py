@@ -57,6 +57,7 @@ from pencilcal.toolkit.errors import InputError, PencilcalError
 from pencilcal.toolkit.io.files import atomic_path, atomic_write, check_writable, load_structured
 
 from .metrics import EXPECTED_COVERAGE
+from .validation_file import check_validation, load_validation
 
 __all__ = [
     "load_validation",
@@ -252,29 +253,6 @@ def _figure(**kw):
 
 # ----------------------------------------------------------------------------------------
 # input
-
-
-def check_validation(data, source="validation file"):
-    """Raise InputError (naming `source`) unless `data` looks like a validation.json."""
-    if not isinstance(data, dict) or not isinstance(data.get("frames"), list) \
-            or not isinstance(data.get("summary"), dict):
-        raise InputError(f"{source}: not a validation file (expected an object with a 'frames' list and a "
-                         f"'summary', as `pencilcal validate` writes)")
-    for i, fr in enumerate(data["frames"]):
-        if not isinstance(fr, dict):
-            raise InputError(f"{source}: frame {i} is not an object")
-    for k, s in data["summary"].items():
-        if not isinstance(s, dict):
-            raise InputError(f"{source}: summary[{k!r}] is not an object")
-    return data
-
-
-def load_validation(path):
-    """Read and check a validation.json; InputError naming the file on any problem."""
-    p = Path(path)
-    if p.is_dir():
-        raise InputError(f"{p}: is a folder, not a validation file")
-    return check_validation(load_structured(p, "validation file"), str(p))
 
 
 def load_sensitivity(path):
