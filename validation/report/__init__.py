@@ -56,8 +56,8 @@ import numpy as np
 from pencilcal.toolkit.errors import InputError, PencilcalError
 from pencilcal.toolkit.io.files import atomic_path, atomic_write, check_writable, load_structured
 
-from .metrics import EXPECTED_COVERAGE
-from .validation_file import check_validation, load_validation
+from ..metrics import EXPECTED_COVERAGE
+from ..validation_file import check_validation, load_validation
 
 __all__ = [
     "load_validation",
@@ -1445,7 +1445,7 @@ def _sensitivity_section(data, sens):
         sec.blocks.append(Para("Not given: `pencilcal report --sensitivity sensitivity.json` adds the plan of "
                                "`pencilcal sensitivity` next to what was measured.", "note"))
         return sec
-    from . import sensitivity as sv
+    from .. import sensitivity as sv
 
     st = sens.get("setup") or {}
     ans = sens.get("answer") or {}
