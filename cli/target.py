@@ -62,7 +62,7 @@ def target(output, paper, orientation, dpi, board_squares, square, marker, dicti
     """
     from pencilcal.toolkit.board.spec import board_from_dict, write_board
     from pencilcal.toolkit.pencil.spec import write_pencil
-    from pencilcal.toolkit.synth.render import layout_sheet, write_sheet_pdf, write_sheet_png
+    from pencilcal.toolkit.synth.sheet import layout_sheet, write_sheet_pdf, write_sheet_png
 
     out = Path(output)
     suffix = out.suffix.lower()

@@ -14,7 +14,8 @@ from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.camera.formats import write_camera
 from pencilcal.toolkit.geometry.frames import rotation_about_axis, rotation_angle
 from pencilcal.validation.pnp import METHODS, POSE_KEYS
-from pencilcal.toolkit.synth.render import layout_sheet, render_frame
+from pencilcal.toolkit.synth.render import render_frame
+from pencilcal.toolkit.synth.sheet import layout_sheet
 
 BOARD_YAML = "type: charuco\nsquares: [7, 5]\nsquare: 30.0\nmarker: 22.0\ndictionary: DICT_4X4_50\n"
 BOARD = board_from_dict({"type": "charuco", "squares": [7, 5], "square": 30.0, "marker": 22.0,

@@ -122,7 +122,8 @@ def test_rendered_board_accuracy():
     noise) with pinhole, opencv and fisheye lenses: every method within 0.02 deg and
     0.05 % of the distance of the true pose."""
     from pencilcal.toolkit.board.detect import detect_board
-    from pencilcal.toolkit.synth.render import layout_sheet, render_frame
+    from pencilcal.toolkit.synth.render import render_frame
+    from pencilcal.toolkit.synth.sheet import layout_sheet
 
     board = board_from_dict({"type": "charuco", "squares": [12, 9], "square": 20.0, "marker": 15.0,
                              "dictionary": "DICT_5X5_100"})

@@ -49,7 +49,9 @@ from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.frames import angle_between, rotation_about_axis, rotation_to_z
 from pencilcal.toolkit.pencil.spec import project_spokes
-from pencilcal.toolkit.synth.render import Backdrop, Instrument, Sheet, layout_sheet, render_frame
+from pencilcal.toolkit.synth.objects import Backdrop, Instrument
+from pencilcal.toolkit.synth.render import render_frame
+from pencilcal.toolkit.synth.sheet import Sheet, layout_sheet
 
 __all__ = ["SCENARIOS", "RENDER_DEFAULTS", "Scenario", "make_scenario", "default_camera", "look_at", "image_names"]
 

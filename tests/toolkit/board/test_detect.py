@@ -12,7 +12,8 @@ from pencilcal.toolkit.board.spec import board_from_dict
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.board.detect import detect_board
 from pencilcal.toolkit.geometry.frames import rotation_about_axis
-from pencilcal.toolkit.synth.render import layout_sheet, render_frame
+from pencilcal.toolkit.synth.render import render_frame
+from pencilcal.toolkit.synth.sheet import layout_sheet
 
 BOARD = board_from_dict({"type": "charuco", "squares": [7, 5], "square": 30.0, "marker": 22.0,
                          "dictionary": "DICT_4X4_50"})

@@ -503,7 +503,8 @@ def test_printed_sheet_from_the_renderer(hd):
     and the table add is rejected by the orientation, and the normal is within 0.3 deg
     (measured 0.003 deg)."""
     from pencilcal.toolkit.geometry.frames import rotation_about_axis
-    from pencilcal.toolkit.synth.render import layout_sheet, render_frame
+    from pencilcal.toolkit.synth.render import render_frame
+    from pencilcal.toolkit.synth.sheet import layout_sheet
 
     sheet = layout_sheet()
     pen = sheet.pencil
@@ -592,7 +593,7 @@ def test_dense_fan_tilt_is_not_biased_by_neighbouring_bars():
     same way and read as tilt, +1.07 sd on average over 10-66 deg. Edges are refitted on
     their part clear of the other bars: the tilt errors average under 0.6 sd (+0.21
     measured), their spread stays that of honest sigmas."""
-    from pencilcal.toolkit.synth.render import layout_sheet
+    from pencilcal.toolkit.synth.sheet import layout_sheet
     from pencilcal.toolkit.synth.scenarios import make_scenario
 
     sc = make_scenario("tilt-sweep", 41, seed=1, sheet=layout_sheet(spokes=13, step_deg=10))

@@ -236,7 +236,9 @@ def test_instrument_from_the_renderer():
     caller passes the width it expects; the shaft's midline is within 0.5 px of the axis
     image (measured ~0.1 px) and its angle within 2.5 sd."""
     from pencilcal.toolkit.geometry.frames import rotation_about_axis
-    from pencilcal.toolkit.synth.render import Instrument, layout_sheet, render_frame
+    from pencilcal.toolkit.synth.objects import Instrument
+    from pencilcal.toolkit.synth.render import render_frame
+    from pencilcal.toolkit.synth.sheet import layout_sheet
 
     cam = Camera("opencv", 640, 480, [[520.0, 0, 321.3], [0, 520.4, 238.2], [0, 0, 1]],
                  [-0.3, 0.12, 0.0005, -0.0003, -0.02])
