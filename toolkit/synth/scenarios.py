@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 import numpy as np
 
@@ -58,13 +59,15 @@ __all__ = ["SCENARIOS", "RENDER_DEFAULTS", "Scenario", "make_scenario", "default
 SCENARIOS = ("orbit", "pivot", "tilt-sweep")
 
 #: What a real camera adds, used by `Scenario.render` (and `pencilcal simulate`).
-RENDER_DEFAULTS = {"noise": 2.0, "blur_px": 0.6, "lighting": 0.25, "gamma": 2.2}
+RENDER_DEFAULTS = MappingProxyType({"noise": 2.0, "blur_px": 0.6, "lighting": 0.25, "gamma": 2.2})
 
-_OPTIONS = {
-    "orbit": {"distance", "azimuth_span_deg", "elevation_deg"},
-    "pivot": {"distance", "tilt_deg", "angle_range_deg", "shaft_radius", "fulcrum", "height", "tip", "back"},
-    "tilt-sweep": {"distance", "axis_deg", "max_tilt_deg", "vertex_px"},
-}
+# the options each scenario takes (make_scenario's **options)
+_OPTIONS = MappingProxyType({
+    "orbit": frozenset({"distance", "azimuth_span_deg", "elevation_deg"}),
+    "pivot": frozenset({"distance", "tilt_deg", "angle_range_deg", "shaft_radius", "fulcrum", "height", "tip",
+                        "back"}),
+    "tilt-sweep": frozenset({"distance", "axis_deg", "max_tilt_deg", "vertex_px"}),
+})
 
 
 def default_camera(model="opencv", size=(1280, 720)):
