@@ -58,8 +58,8 @@ import numpy as np
 from pencilcal.toolkit.geometry.angles import circular_mean, wrap_line
 from pencilcal.toolkit.pencil.chapter import aligned_angles, general_parameters
 from pencilcal.toolkit.errors import EstimationError, InputError
+from pencilcal.toolkit.pencil.defaults import DETECTION_LEVEL
 from pencilcal.toolkit.pencil.estimator import (
-    DETECTION_LEVEL,
     crlb,
     detection_threshold,
     fit_pencil,

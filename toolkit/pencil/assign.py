@@ -24,15 +24,13 @@ import numpy as np
 
 from pencilcal.toolkit.geometry.angles import wrap_angle, wrap_line
 from pencilcal.toolkit.errors import EstimationError
-from pencilcal.toolkit.pencil.estimator import fit_pencil, pencil_jacobian, PencilFit, _CHI2_2
+from pencilcal.toolkit.pencil.defaults import CHI2_1_99, CHI2_2_DETECTION
+from pencilcal.toolkit.pencil.estimator import fit_pencil, pencil_jacobian, PencilFit
 
 __all__ = ["Assignment", "assign_spokes"]
 
 # distinct labellings refitted after the MSAC screen
 _TOP = 4
-# 99% quantile of chi-square with 1 dof: what a rejected line is charged when labellings
-# that use different numbers of lines are compared
-_CHI2_1 = 6.634896601021213
 # with this many assigned lines or fewer, every order-keeping labelling is fitted (batched)
 _EXHAUSTIVE_MAX_LINES = 5
 _EXHAUSTIVE_MAX_FITS = 5000
@@ -143,7 +141,7 @@ def _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriente
     if chi2[best] < float(fit.chi2) - 1e-9 * max(1.0, float(fit.chi2)):
         labels, fit = full(best), one(best)
     ref = float(fit.chi2)
-    rivals = [(full(b), one(b)) for b in np.flatnonzero(chi2 - ref < _CHI2_2)
+    rivals = [(full(b), one(b)) for b in np.flatnonzero(chi2 - ref < CHI2_2_DETECTION)
               if not np.array_equal(full(b), labels)]
     return labels, fit, rivals
 
@@ -296,7 +294,7 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
     candidates.sort(key=lambda c: (-c[0], c[1]))
     n_best, chi2_best, labels, fit = candidates[0]
     rivals = [(lab, f) for n, chi2, lab, f in candidates[1:]
-              if n == n_best and not np.array_equal(lab, labels) and chi2 - chi2_best < _CHI2_2]
+              if n == n_best and not np.array_equal(lab, labels) and chi2 - chi2_best < CHI2_2_DETECTION]
     # A labelling that explains one line fewer is a rival too when it gives a line another
     # spoke and fits about as well once the rejected line is charged the 99% quantile of
     # one squared residual: a spurious line that falls on a shifted labelling's prediction
@@ -305,7 +303,7 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
     scale = max(1.0, chi2_best / max(n_best - 3, 1))
     fewer = [(lab, f) for n, chi2, lab, f in candidates[1:]
              if n < n_best and _conflict(lab, labels)
-             and (chi2 - chi2_best) / scale + _CHI2_1 * (n_best - n) < _CHI2_2]
+             and (chi2 - chi2_best) / scale + CHI2_1_99 * (n_best - n) < CHI2_2_DETECTION]
     used = labels >= 0
     if _EXHAUSTIVE_MAX_LINES >= used.sum() >= 3:
         # few lines: one redundancy or two, and many spoke subsets share a cross-ratio; fit
@@ -328,6 +326,6 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
         if any(np.array_equal(full, r[0]) for r in rivals):
             continue
         alt = fit_pencil(a[used], th[lab], vertex, sigma=s[used], vertex_cov=vertex_cov, oriented=oriented)
-        if float(alt.chi2) - float(fit.chi2) < _CHI2_2:
+        if float(alt.chi2) - float(fit.chi2) < CHI2_2_DETECTION:
             rivals.append((full, alt))
     return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=int(len(H)))

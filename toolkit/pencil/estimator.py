@@ -50,6 +50,7 @@ import numpy as np
 
 from pencilcal.toolkit.geometry.angles import wrap_line
 from pencilcal.toolkit.errors import EstimationError, InputError
+from pencilcal.toolkit.pencil.defaults import CHI2_2_DETECTION, MAX_VERTEX, MIN_COS
 from pencilcal.toolkit.geometry.frames import twin_rotation
 
 __all__ = [
@@ -65,23 +66,11 @@ __all__ = [
     "detection_threshold",
     "choose_by_prior",
     "swap_twins",
-    "DETECTION_LEVEL",
     "check_vertex",
 ]
 
-# chi-square(2) quantile at 1 - DETECTION_LEVEL: tilt declared detectable above it
-DETECTION_LEVEL = 0.01
-_CHI2_2 = -2.0 * np.log(DETECTION_LEVEL)  # chi2 with 2 dof has survival exp(-x/2)
-
-# A vertex whose viewing ray is more than 89 deg off the optical axis (normalised radius
-# tan 89 deg ~ 57) is, for every lens here, a vertex at infinity: the lines are parallel.
-_MAX_VERTEX = np.tan(np.radians(89.0))
-
 # Up to this many lines a single pencil is fitted on Python floats (toolkit/pencil/scalar.py).
 _SINGLE_MAX_LINES = 64
-
-# Below this cos(gamma) the closed-form start is treated as edge-on; the LM takes over.
-_MIN_COS = np.cos(np.radians(89.5))
 
 
 @dataclass(frozen=True)
@@ -101,7 +90,7 @@ class PencilFit:
     residuals: (..., N) [rad] wrapped line residuals a_k - alpha_k (0 where weight is 0).
     rms: (...) [rad] weighted RMS residual; chi2: (...) sum of (residual/sigma)^2.
     chi2_frontal: (...) chi2 of the best frontal pencil; detectable: (...) bool, the
-        likelihood-ratio test chi2_frontal - chi2 > chi2_2(1 - DETECTION_LEVEL), with sigma
+        likelihood-ratio test chi2_frontal - chi2 > chi2_2(1 - DETECTION_LEVEL) (defaults.py), with sigma
         inflated by the residual RMS when the lines scatter more than sigma says.
     lines_used: (...) int, lines with non-zero weight.
     converged: (...) bool; iterations: int.
@@ -320,7 +309,7 @@ def _closed_form(bx, by, ct, st, w, Q, oriented, twin=True):
     a1, a2 = np.arctan2(G, F), np.arctan2(H, E)
     theta0, phi = (a2 - a1) / 2, (a2 + a1) / 2
     # cos(gamma) = s2/s1; a negative s2 (mirror image) is noise near edge-on: clamp
-    cos_g = np.clip((q - r) / np.maximum(q + r, 1e-300), _MIN_COS, 1.0)
+    cos_g = np.clip((q - r) / np.maximum(q + r, 1e-300), MIN_COS, 1.0)
     sin_g = np.sqrt(1.0 - cos_g * cos_g)
     Qt = np.swapaxes(Q, -1, -2)
     R = Qt @ _zxz(phi, cos_g, sin_g, theta0)
@@ -582,7 +571,7 @@ def detection_threshold(sigma):
 
 def check_vertex(vertex):
     """EstimationError when a normalised vertex (..., 2) is at infinity (> 89 deg off axis)."""
-    if np.any(np.hypot(np.asarray(vertex, float)[..., 0], np.asarray(vertex, float)[..., 1]) > _MAX_VERTEX):
+    if np.any(np.hypot(np.asarray(vertex, float)[..., 0], np.asarray(vertex, float)[..., 1]) > MAX_VERTEX):
         raise EstimationError("the vertex is at infinity (the lines are parallel in the image)")
 
 
@@ -653,7 +642,7 @@ def fit_pencil(line_angles, spoke_angles, vertex, sigma=np.radians(0.1), vertex_
         keep = m[0]
         try:
             return PencilFit(**fit_one(a[0][keep].tolist(), th[0][keep].tolist(), x[0], s[0][keep].tolist(), oriented,
-                                       max_iter, 1e-9, vertex_cov, _MIN_COS, _CHI2_2))._with_residuals(keep)
+                                       max_iter, 1e-9, vertex_cov, MIN_COS, CHI2_2_DETECTION))._with_residuals(keep)
         except ValueError:
             raise EstimationError("the lines do not determine a pencil: fewer than three distinct directions") from None
     ct, st = np.cos(th), np.sin(th)
@@ -678,7 +667,7 @@ def fit_pencil(line_angles, spoke_angles, vertex, sigma=np.radians(0.1), vertex_
     dof = used - 3
     # if the lines scatter more than sigma says, test against the inflated noise
     inflate = np.where(dof > 0, np.maximum(1.0, cost / np.maximum(dof, 1)), 1.0)
-    detectable = (chi2_0 - cost) / inflate > _CHI2_2
+    detectable = (chi2_0 - cost) / inflate > CHI2_2_DETECTION
     tilt = np.arccos(np.clip(np.einsum("bi,bi->b", R[:, :, 2], v), -1.0, 1.0))
     rms = np.sqrt(np.sum(w * res * res, -1) / np.sum(w, -1))
 

@@ -14,7 +14,7 @@ where numpy's LM stops on its relative-cost test; tests/toolkit/pencil/test_torc
    perturbations ``R <- expm([delta]x) R`` (Rodrigues), per-pencil damping and masks;
    converged pencils leave the working set, so stragglers do not make everybody iterate.
 3. Covariance (J^T W J)^-1 with the vertex covariance carried in, tilt and normal sigma.
-4. Frontal likelihood-ratio test (chi-square, 2 dof, level `estimator.DETECTION_LEVEL`)
+4. Frontal likelihood-ratio test (chi-square, 2 dof, level `defaults.DETECTION_LEVEL`)
    for ``detectable``; the twin ``R' = Rot(v_d, pi) R Rot(z, pi)``, ordered as numpy
    does (the normal closer to the optical axis first).
 
@@ -71,7 +71,8 @@ import time
 import numpy as np
 
 from pencilcal.toolkit.errors import EstimationError, InputError
-from pencilcal.toolkit.pencil.estimator import PencilFit, _CHI2_2, _MAX_VERTEX, _MIN_COS
+from pencilcal.toolkit.pencil.defaults import CHI2_2_DETECTION, MAX_VERTEX, MIN_COS
+from pencilcal.toolkit.pencil.estimator import PencilFit
 
 __all__ = [
     "INSTALL_HINT",
@@ -365,7 +366,7 @@ def _closed_form(torch, cb, sb, ct, st, w, Qr, oriented, low_precision):
     a1, a2 = torch.atan2(G, F), torch.atan2(H, E)
     theta0, phi = (a2 - a1) / 2, (a2 + a1) / 2
     tiny = torch.finfo(q.dtype).tiny
-    cos_g = torch.clamp((q - r) / torch.clamp(q + r, min=tiny), min=float(_MIN_COS), max=1.0)
+    cos_g = torch.clamp((q - r) / torch.clamp(q + r, min=tiny), min=float(MIN_COS), max=1.0)
     sin_g = torch.sqrt(1.0 - cos_g * cos_g)
     # Rz(phi) Rx(gamma) Rz(theta0), columns 0 and 1, then R0 = Q^T of that
     cp, sp, c0, s0 = torch.cos(phi), torch.sin(phi), torch.cos(theta0), torch.sin(theta0)
@@ -582,7 +583,7 @@ def _fit_chunk(torch, a, th, ct, st, x, w, m, Cx, oriented, max_iter, tol, low_p
     used = m.sum(-1)
     dof = (used - 3).to(a.dtype)
     inflate = torch.where(dof > 0, torch.clamp(cost / torch.clamp(dof, min=1.0), min=1.0), torch.ones_like(dof))
-    detectable = (chi2_0 - cost) / inflate > _CHI2_2
+    detectable = (chi2_0 - cost) / inflate > CHI2_2_DETECTION
     n = R_cols[2]
     tilt = torch.arccos(torch.clamp(n[0] * v[0] + n[1] * v[1] + n[2] * v[2], -1.0, 1.0))
     rms = torch.sqrt((wT * res * res).sum(0) / wT.sum(0))
@@ -715,7 +716,7 @@ def fit_pencils_torch(line_angles, spoke_angles, vertex, sigma=math.radians(0.1)
     with torch.no_grad(), _single_threaded(torch, dev):
         a, th, x, w, m, Cx, batch, N, B, finite, pos, used = _prepare(
             torch, line_angles, spoke_angles, vertex, sigma, weights, vertex_cov, dev, dt)
-        far = (x.abs() > _MAX_VERTEX).any(-1)
+        far = (x.abs() > MAX_VERTEX).any(-1)
         ok = finite & pos & (used >= 3) & ~far
         if strict and B and not bool(ok.all()):
             if not bool(finite.all()):

@@ -383,8 +383,8 @@ def _break_label_ties(lab, fit, rivals, x, pencil, p1, p2, sigma_metric):
     the F distribution's 99% quantile: three lines, one of them stray, fit every labelling's
     angles exactly and several labellings' radii about equally badly.
     """
-    from pencilcal.toolkit.pencil.assign import _CHI2_1
-    from pencilcal.toolkit.pencil.estimator import _CHI2_2
+    from pencilcal.toolkit.pencil.defaults import CHI2_1_99 as _CHI2_1
+    from pencilcal.toolkit.pencil.defaults import CHI2_2_DETECTION as _CHI2_2
 
     cands = [(lab, fit)] + list(rivals)
     used = np.array([l >= 0 for l, _ in cands])
