@@ -5,6 +5,16 @@ makes hundreds of tiny calls; the same arithmetic on Python floats is several ti
 for the few lines of one pencil. Every step mirrors the batched functions of estimator.py
 (closed form, Levenberg-Marquardt with the same damping and stopping rules, twin order,
 covariance, frontal fit); tests/toolkit/pencil/test_estimator.py holds the two equal.
+`fit_one` runs the steps in order: `_virtual_rotation`, `_closed_form`, `_refine`,
+`_twins_in_order`, `_covariance`, `_frontal`.
+
+Example
+-------
+>>> from pencilcal.toolkit.pencil.defaults import CHI2_2_DETECTION, MIN_COS
+>>> th = [0.0, 0.5, 1.0, 1.5]                  # a frontal pencil on the optical axis
+>>> out = fit_one(th, th, (0.0, 0.0), [1e-3] * 4, True, 30, 1e-9, None, MIN_COS, CHI2_2_DETECTION)
+>>> bool(out["tilt"] < 1e-6), bool(out["detectable"]), int(out["lines_used"])
+(True, False, 4)
 """
 from __future__ import annotations
 
@@ -82,23 +92,62 @@ def _model(R, x0, x1, ct, st, jac=True):
 
 
 def fit_one(a, th, x, sigma, oriented, max_iter, tol, vertex_cov, min_cos, chi2_2):
-    """Fit one pencil: a, th, sigma lists of N floats, x (x0, x1). Returns a dict of the
-    PencilFit fields (numpy arrays of batch shape ()), or raises ValueError("degenerate")."""
+    """Fit one pencil (estimator.fit_pencil for batch shape ()).
+
+    a, th, sigma: lists of N floats, the line angles, spoke angles and angle sigmas [rad];
+    x: (2,) normalised vertex; oriented, max_iter, tol [rad]: as `estimator.refine_pencil`;
+    vertex_cov: (2, 2) or None; min_cos: `defaults.MIN_COS`; chi2_2: the detection
+    threshold (`defaults.CHI2_2_DETECTION`). Returns a dict of the PencilFit fields (numpy
+    arrays of batch shape ()), or raises ValueError("degenerate").
+    """
     N = len(a)
     x0, x1 = float(x[0]), float(x[1])
     w = [1.0 / (s * s) for s in sigma]
     sw = [1.0 / s for s in sigma]
     ct = [math.cos(t) for t in th]
     st = [math.sin(t) for t in th]
-    # --- virtual rotation Q (estimator._virtual_rotation)
+    nrm, v, Q = _virtual_rotation(x0, x1)
+    bx = [Q[0][0] * math.cos(ai) + Q[0][1] * math.sin(ai) for ai in a]
+    by = [Q[1][0] * math.cos(ai) + Q[1][1] * math.sin(ai) for ai in a]
+    R = _closed_form(bx, by, ct, st, w, sw, Q, oriented, min_cos)
+    R, J, Jx, res, cost, converged, it = _refine(R, a, x0, x1, ct, st, sw, max_iter, tol)
+    R, Rt, J, Jx = _twins_in_order(R, v, x0, x1, ct, st, J, Jx)
+    resid = [res[k] / sw[k] for k in range(N)]
+    cov, var_tilt, var_normal = _covariance(R, J, Jx, w, v, nrm, vertex_cov)
+    chi2_0 = _frontal(a, th, bx, by, Q, x0, x1, ct, st, w, sw)
+    dof = N - 3
+    inflate = max(1.0, cost / dof) if dof > 0 else 1.0
+    detectable = (chi2_0 - cost) / inflate > chi2_2
+    vx, vy, cq = v
+    tilt = math.acos(min(max(R[0][2] * vx + R[1][2] * vy + R[2][2] * cq, -1.0), 1.0))
+    sw_sum = sum(w)
+    rms = math.sqrt(sum(w[k] * resid[k] * resid[k] for k in range(N)) / sw_sum)
+    Ra, Rta = np.array(R), np.array(Rt)
+    return dict(
+        R_cam_from_target=Ra, R_twin=Rta, normal=Ra[:, 2].copy(), normal_twin=Rta[:, 2].copy(),
+        ray=np.array(v), tilt=np.asarray(tilt), tilt_sigma=np.asarray(math.sqrt(max(var_tilt, 0.0))),
+        normal_sigma=np.asarray(math.sqrt(max(var_normal, 0.0))), cov=np.asarray(cov),
+        residuals=np.array(resid), rms=np.asarray(rms), chi2=np.asarray(cost), chi2_frontal=np.asarray(chi2_0),
+        detectable=np.asarray(bool(detectable)), lines_used=np.asarray(N), converged=np.asarray(bool(converged)),
+        iterations=it, ambiguous=np.asarray(True),
+    )
+
+
+def _virtual_rotation(x0, x1):
+    """(|(x0, x1, 1)|, unit vertex ray v (3,), Q (3x3)) with Q v = (0, 0, 1)
+    (estimator._virtual_rotation)."""
     nrm = math.sqrt(1.0 + x0 * x0 + x1 * x1)
     vx, vy, cq = x0 / nrm, x1 / nrm, 1.0 / nrm
     kx, ky = vy, -vx
     f = 1.0 / (1.0 + cq)
     Q = ((1.0 - f * ky * ky, f * kx * ky, ky), (f * kx * ky, 1.0 - f * kx * kx, -kx), (-ky, kx, cq))
-    bx = [Q[0][0] * math.cos(ai) + Q[0][1] * math.sin(ai) for ai in a]
-    by = [Q[1][0] * math.cos(ai) + Q[1][1] * math.sin(ai) for ai in a]
-    # --- closed form (estimator._closed_form): DLT, signed SVD of the 2x2 block
+    return nrm, (vx, vy, cq), Q
+
+
+def _closed_form(bx, by, ct, st, w, sw, Q, oriented, min_cos):
+    """Start rotation R (3x3 tuples) from the DLT and the signed SVD of its 2x2 block
+    (estimator._closed_form); bx, by: the lines' directions in the virtual camera."""
+    N = len(bx)
     rows, cbs, sbs = [], [], []
     for k in range(N):
         nb = math.hypot(bx[k], by[k])
@@ -125,9 +174,16 @@ def fit_one(a, th, x, sigma, oriented, max_iter, tol, vertex_cov, min_cos, chi2_
     Rp = ((cp * c0 - sp * cos_g * s0, -cp * s0 - sp * cos_g * c0, sp * sin_g),
           (sp * c0 + cp * cos_g * s0, -sp * s0 + cp * cos_g * c0, -cp * sin_g),
           (sin_g * s0, sin_g * c0, cos_g))
-    Qt = _transpose(Q)
-    R = _matmul(Qt, Rp)
-    # --- Levenberg-Marquardt (estimator.refine_pencil)
+    return _matmul(_transpose(Q), Rp)
+
+
+def _refine(R, a, x0, x1, ct, st, sw, max_iter, tol):
+    """Levenberg-Marquardt from R (estimator.refine_pencil).
+
+    Returns (R, J, Jx, res, cost, converged, iterations): the model's Jacobians at R, the
+    weighted residuals res (N,) and their sum of squares.
+    """
+    N = len(a)
     alpha, J, Jx = _model(R, x0, x1, ct, st)
     res = [sw[k] * _wrap_line(a[k] - alpha[k]) for k in range(N)]
     cost = sum(v * v for v in res)
@@ -158,16 +214,29 @@ def fit_one(a, th, x, sigma, oriented, max_iter, tol, vertex_cov, min_cos, chi2_
         lam = lam * (10.0 - 9.9 * better)
         if small or stalled or lam > 1e10:
             break
-    converged = lam <= 1e10
-    # --- twin and order (estimator.fit_pencil)
-    v = (vx, vy, cq)
+    return R, J, Jx, res, cost, lam <= 1e10, it
+
+
+def _twins_in_order(R, v, x0, x1, ct, st, J, Jx):
+    """(R, R_twin, J, Jx): the twin Rot(v, pi) R Rot(z, pi), and the one whose normal is
+    closer to the optical axis first, with the Jacobians at it (estimator.fit_pencil)."""
     rot_ray = tuple(tuple(2.0 * v[i] * v[j] - (1.0 if i == j else 0.0) for j in range(3)) for i in range(3))
     Rt = _matmul(_matmul(rot_ray, R), ((-1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0)))
     if Rt[2][2] > R[2][2]:
         R, Rt = Rt, R
         _, J, Jx = _model(R, x0, x1, ct, st)
-    resid = [res[k] / sw[k] for k in range(N)]
-    # --- covariance (estimator._covariance), on floats: 3x3 and 3x2 only
+    return R, Rt, J, Jx
+
+
+def _quad(u, Mq, z):
+    """u^T Mq z for short lists u, z and a nested-list matrix Mq."""
+    return sum(u[i] * Mq[i][j] * z[j] for i in range(len(u)) for j in range(len(z)))
+
+
+def _covariance(R, J, Jx, w, v, nrm, vertex_cov):
+    """(cov 3x3 [rad^2], var_tilt, var_normal [rad^2]) of the fit R (estimator._covariance),
+    on floats: 3x3 and 3x2 only. v: unit vertex ray; nrm = |(x, 1)|."""
+    N = len(J)
     h00 = h01 = h02 = h11 = h12 = h22 = 0.0
     a0 = a1_ = b0 = b1 = c0_ = c1 = 0.0  # rows of sum w J Jx^T
     for k in range(N):
@@ -183,16 +252,11 @@ def fit_one(a, th, x, sigma, oriented, max_iter, tol, vertex_cov, min_cos, chi2_
     _, adj, det = _solve3(((h00 + ridge, h01, h02), (h01, h11 + ridge, h12), (h02, h12, h22 + ridge)), (0.0, 0.0, 0.0))
     Hi = [[adj[i][j] / det for j in range(3)] for i in range(3)]
     n = (R[0][2], R[1][2], R[2][2])
-    v = (vx, vy, cq)
     nxv = (n[1] * v[2] - n[2] * v[1], n[2] * v[0] - n[0] * v[2], n[0] * v[1] - n[1] * v[0])
     sin_raw = math.sqrt(nxv[0] ** 2 + nxv[1] ** 2 + nxv[2] ** 2)
     sin_gg = max(sin_raw, 1e-12)
     g_rot = (-nxv[0] / sin_gg, -nxv[1] / sin_gg, -nxv[2] / sin_gg)
-
-    def quad(u, Mq, z):
-        return sum(u[i] * Mq[i][j] * z[j] for i in range(len(u)) for j in range(len(z)))
-
-    var_tilt = quad(g_rot, Hi, g_rot)
+    var_tilt = _quad(g_rot, Hi, g_rot)
     cov = [row[:] for row in Hi]
     if vertex_cov is not None:
         Cx = np.asarray(vertex_cov, float).reshape(2, 2).tolist()
@@ -206,12 +270,19 @@ def fit_one(a, th, x, sigma, oriented, max_iter, tol, vertex_cov, min_cos, chi2_
         P = [[((1.0 if i == j else 0.0) - v[i] * v[j]) / nrm for j in range(2)] for i in range(3)]
         g_x = [sum(g_rot[k] * Gm[k][j] for k in range(3)) - sum(n[k] * P[k][j] for k in range(3)) / sin_gg
                for j in range(2)]
-        var_tilt += quad(g_x, Cx, g_x)
+        var_tilt += _quad(g_x, Cx, g_x)
     if sin_raw < 1e-9:
         var_tilt = math.inf
     # trace((I - n n^T) C (I - n n^T)) = trace(C) - n^T C n for a unit normal
-    var_normal = cov[0][0] + cov[1][1] + cov[2][2] - quad(n, cov, n)
-    # --- frontal fit (estimator._frontal)
+    var_normal = cov[0][0] + cov[1][1] + cov[2][2] - _quad(n, cov, n)
+    return cov, var_tilt, var_normal
+
+
+def _frontal(a, th, bx, by, Q, x0, x1, ct, st, w, sw):
+    """chi2 of the best frontal pencil (estimator._frontal): the in-plane angle in closed
+    form, one Gauss-Newton step about the vertex ray."""
+    N = len(a)
+    Qt = _transpose(Q)
     b = [math.atan2(by[k], bx[k]) for k in range(N)]
     sn = cs = 0.0
     for k in range(N):
@@ -232,19 +303,4 @@ def fit_one(a, th, x, sigma, oriented, max_iter, tol, vertex_cov, min_cos, chi2_
     jf = [sw[k] * (Jf[k][0] * vhat[0] + Jf[k][1] * vhat[1] + Jf[k][2] * vhat[2]) for k in range(N)]
     phi += sum(jf[k] * rf[k] for k in range(N)) / max(sum(j * j for j in jf), 1e-300)
     al, _, _ = _model(rot(phi), x0, x1, ct, st, jac=False)
-    chi2_0 = sum((sw[k] * _wrap_line(a[k] - al[k])) ** 2 for k in range(N))
-    dof = N - 3
-    inflate = max(1.0, cost / dof) if dof > 0 else 1.0
-    detectable = (chi2_0 - cost) / inflate > chi2_2
-    tilt = math.acos(min(max(R[0][2] * vx + R[1][2] * vy + R[2][2] * cq, -1.0), 1.0))
-    sw_sum = sum(w)
-    rms = math.sqrt(sum(w[k] * resid[k] * resid[k] for k in range(N)) / sw_sum)
-    Ra, Rta = np.array(R), np.array(Rt)
-    return dict(
-        R_cam_from_target=Ra, R_twin=Rta, normal=Ra[:, 2].copy(), normal_twin=Rta[:, 2].copy(),
-        ray=np.array(v), tilt=np.asarray(tilt), tilt_sigma=np.asarray(math.sqrt(max(var_tilt, 0.0))),
-        normal_sigma=np.asarray(math.sqrt(max(var_normal, 0.0))), cov=np.asarray(cov),
-        residuals=np.array(resid), rms=np.asarray(rms), chi2=np.asarray(cost), chi2_frontal=np.asarray(chi2_0),
-        detectable=np.asarray(bool(detectable)), lines_used=np.asarray(N), converged=np.asarray(bool(converged)),
-        iterations=it, ambiguous=np.asarray(True),
-    )
+    return sum((sw[k] * _wrap_line(a[k] - al[k])) ** 2 for k in range(N))
