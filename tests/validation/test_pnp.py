@@ -1,4 +1,4 @@
-"""validation/pnp.py: accuracy of every method, the covariance, degenerate input, poses.json."""
+"""validation/pnp/: accuracy of every method, the covariance, degenerate input, poses.json."""
 from __future__ import annotations
 
 import json
@@ -11,7 +11,6 @@ from pencilcal.toolkit.board.spec import board_from_dict
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.frames import rotation_about_axis, rotation_angle, rotation_to_z, rotvec_from_rotation
-from pencilcal.validation import pnp
 from pencilcal.validation.pnp import (
     METHODS,
     POSE_KEYS,
@@ -21,9 +20,12 @@ from pencilcal.validation.pnp import (
     estimate_all,
     estimate_pose,
     frame_record,
-    read_poses,
-    write_poses,
+    read_board_poses,
+    refine_pose,
+    write_board_poses,
 )
+from pencilcal.validation.pnp.estimate import _TWIN_RULED_OUT, _fail, _planar_twin
+from pencilcal.validation.pnp.refine import normalized_points, residuals
 from tests.conftest import data_dir
 from tests.helpers import hd_camera
 
@@ -217,16 +219,16 @@ def test_jacobian_matches_finite_differences(camera):
     R = rotation_about_axis([1.0, 0.3, 0.2], 0.5)
     t = np.array([-100.0, -60.0, 400.0])
     obs = camera.project(X @ R.T + t) + 1.0
-    r0, J, _ = pnp._residuals(camera, X, obs, R, t)
+    r0, J, _ = residuals(camera, X, obs, R, t)
     h = 1e-6
     for k in range(6):
         d = np.zeros(6)
         d[k] = h
         Rp = rotation_about_axis(d[:3], np.linalg.norm(d[:3])) @ R if k < 3 else R
-        rp, _, _ = pnp._residuals(camera, X, obs, Rp, t + d[3:], jacobian=False)
+        rp, _, _ = residuals(camera, X, obs, Rp, t + d[3:], jacobian=False)
         d[k] = -h
         Rm = rotation_about_axis(d[:3], np.linalg.norm(d[:3])) @ R if k < 3 else R
-        rm, _, _ = pnp._residuals(camera, X, obs, Rm, t + d[3:], jacobian=False)
+        rm, _, _ = residuals(camera, X, obs, Rm, t + d[3:], jacobian=False)
         np.testing.assert_allclose(J[:, k], ((rp - rm) / (2 * h)).ravel(), rtol=1e-5, atol=1e-5)
 
 
@@ -242,11 +244,11 @@ def test_residuals_are_the_camera_projection(camera):
     R = rotation_about_axis([1.0, 0.3, 0.2], 0.5)
     t = np.array([-100.0, -60.0, 400.0])
     obs = camera.project(X @ R.T + t) + 0.3
-    r, J, front = pnp._residuals(camera, X, obs, R, t)
+    r, J, front = residuals(camera, X, obs, R, t)
     assert front.all() and np.all(np.isfinite(J))
     np.testing.assert_allclose(r, camera.project(X @ R.T + t) - obs, rtol=0, atol=1e-9)
     t_behind = np.array([-100.0, -60.0, 0.0])  # some corners behind the camera
-    r, J, front = pnp._residuals(camera, X, obs, R, t_behind)
+    r, J, front = residuals(camera, X, obs, R, t_behind)
     behind = (X @ R.T + t_behind)[:, 2] <= 0
     assert behind.any() and not behind.all() and np.array_equal(front, ~behind)
     assert np.all(np.isnan(r[behind])) and np.all(np.isnan(J.reshape(-1, 2, 6)[behind]))
@@ -269,7 +271,7 @@ def test_undistortion_is_the_cameras(camera):
     for px in (rng.uniform([0, 0], camera.size, size=(24, 2)),
                np.array([[0.0, 0.0], [camera.width - 1.0, camera.height - 1.0], [camera.cx, camera.cy]]),
                rng.uniform([0, 0], camera.size, size=(400, 2))):
-        ours, ref = pnp._normalized(camera, px), camera.normalized_from_pixels(px)
+        ours, ref = normalized_points(camera, px), camera.normalized_from_pixels(px)
         assert np.array_equal(np.isnan(ours), np.isnan(ref))
         np.testing.assert_allclose(ours, ref, rtol=0, atol=1e-12)
 
@@ -280,12 +282,12 @@ def test_refinement_reaches_the_optimum():
     cam, X, R, t, u = simple_scene()
     u = u + 0.3 * np.random.default_rng(8).normal(size=u.shape)
     R0 = rotation_about_axis([0.3, 1.0, 0.2], np.radians(3.0)) @ R
-    R1, t1, its = pnp.refine_pose(cam, X, u, R0, 1.05 * t)
+    R1, t1, its = refine_pose(cam, X, u, R0, 1.05 * t)
     assert 1 <= its < 20 and np.allclose(R1 @ R1.T, np.eye(3), atol=1e-15)
-    r, J, _ = pnp._residuals(cam, X, u, R1, t1)
+    r, J, _ = residuals(cam, X, u, R1, t1)
     g = J.T @ r.ravel()
     assert np.linalg.norm(g) < 1e-9 * np.linalg.norm(J) * np.linalg.norm(r)
-    R2, t2, _ = pnp.refine_pose(cam, X, u, R1, t1)
+    R2, t2, _ = refine_pose(cam, X, u, R1, t1)
     assert rotation_angle(R1, R2) < 1e-10 and np.linalg.norm(t2 - t1) < 1e-9 * np.linalg.norm(t1)
 
 
@@ -295,14 +297,14 @@ def test_a_clearly_worse_twin_is_ruled_out_at_its_start():
     cam, X, R, t, u = simple_scene()
     u = u + 0.2 * np.random.default_rng(6).normal(size=u.shape)
     res = estimate_pose(X, u, cam, "sqpnp")
-    twin_R, twin_t = pnp._planar_twin(X, res.R_cam_from_target, res.t_cam_from_target)
+    twin_R, twin_t = _planar_twin(X, res.R_cam_from_target, res.t_cam_from_target)
     twin_rms = np.sqrt(np.mean(np.sum((cam.project(X @ twin_R.T + twin_t) - u) ** 2, 1)))
-    assert twin_rms > pnp._TWIN_RULED_OUT * res.reproj_rms_px
+    assert twin_rms > _TWIN_RULED_OUT * res.reproj_rms_px
     assert res.alternative_rms_px == pytest.approx(twin_rms, rel=1e-9)
     assert res.alternative_angle_deg == pytest.approx(np.degrees(rotation_angle(twin_R, res.R_cam_from_target)),
                                                       rel=1e-9)
     # refining that twin would have lowered its RMS, never below the pose's
-    R2, t2, _ = pnp.refine_pose(cam, X, u, twin_R, twin_t)
+    R2, t2, _ = refine_pose(cam, X, u, twin_R, twin_t)
     refined = np.sqrt(np.mean(np.sum((cam.project(X @ R2.T + t2) - u) ** 2, 1)))
     assert res.reproj_rms_px - 1e-9 <= refined <= res.alternative_rms_px
     assert not res.flipped
@@ -351,7 +353,7 @@ def test_planar_twin_check_corrects_a_wrong_twin():
             assert res.refine_change_deg > 5.0
     # the twin of a good pose is a different, worse pose
     res = estimate_pose(X, u, cam, "sqpnp")
-    twin_R, twin_t = pnp._planar_twin(X, res.R_cam_from_target, res.t_cam_from_target)
+    twin_R, twin_t = _planar_twin(X, res.R_cam_from_target, res.t_cam_from_target)
     assert np.degrees(rotation_angle(twin_R, res.R_cam_from_target)) > 5.0
     assert np.isclose(np.linalg.det(twin_R), 1.0) and np.allclose(twin_R @ twin_R.T, np.eye(3), atol=1e-12)
     assert not res.flipped
@@ -372,9 +374,9 @@ def test_best_method_prefers_sqpnp_unless_clearly_beaten():
     res = estimate_all(X, u + 0.2 * np.random.default_rng(3).normal(size=u.shape), cam)
     assert best_method(res) == "sqpnp"
     bad = dict(res)
-    bad["sqpnp"] = pnp._fail("sqpnp", "x")
+    bad["sqpnp"] = _fail("sqpnp", "x")
     assert best_method(bad) in METHODS and best_method(bad) != "sqpnp"
-    assert best_method({m: pnp._fail(m, "x") for m in METHODS}) is None
+    assert best_method({m: _fail(m, "x") for m in METHODS}) is None
 
 
 # --------------------------------------------------------------------- degenerate input
@@ -463,14 +465,14 @@ def test_poses_json_round_trip(tmp_path):
         frame_record("003.png", estimate_pose(X[:3], u[:3], cam)),
     ]
     p = tmp_path / "poses.json"
-    write_poses(p, frames, camera="cam.yaml", method="all")
+    write_board_poses(p, frames, camera="cam.yaml", method="all")
     raw = json.loads(p.read_text())
     assert raw["camera"] == "cam.yaml" and "left perturbation" in raw["cov_convention"]
     for f in raw["frames"]:
         assert all(k in f for k in POSE_KEYS)
     assert raw["frames"][2]["ok"] is False and raw["frames"][2]["R_cam_from_target"] is None
     assert raw["frames"][3]["error"] == "sqpnp needs at least 4 points, got 3"
-    d = read_poses(p)
+    d = read_board_poses(p)
     f0, f1 = d["frames"][0], d["frames"][1]
     np.testing.assert_array_equal(f0["R_cam_from_target"], one.R_cam_from_target)
     np.testing.assert_array_equal(f0["t_cam_from_target"], one.t_cam_from_target)
@@ -490,28 +492,28 @@ def test_poses_json_round_trip(tmp_path):
     np.testing.assert_array_equal(f0["normal"], f0["R_cam_from_target"][:, 2])
     # no overwrite without force
     with pytest.raises(InputError, match="already exists"):
-        write_poses(p, frames)
-    write_poses(p, frames[:1], force=True)
-    assert len(read_poses(p)["frames"]) == 1
+        write_board_poses(p, frames)
+    write_board_poses(p, frames[:1], force=True)
+    assert len(read_board_poses(p)["frames"]) == 1
 
 
 def test_read_poses_rejects_malformed(tmp_path):
     p = tmp_path / "bad.json"
     p.write_text(json.dumps({"frames": [{"image": "a.png", "ok": True}]}))
     with pytest.raises(InputError, match="missing"):
-        read_poses(p)
+        read_board_poses(p)
     rec = empty_frame_record("a.png", "x")
     rec.update(ok=True)
     p.write_text(json.dumps({"frames": [rec]}))
     with pytest.raises(InputError, match="finite 'R_cam_from_target'"):
-        read_poses(p)
+        read_board_poses(p)
     rec["R_cam_from_target"], rec["t_cam_from_target"] = [[1, 0], [0, 1]], [0, 0, 1]
     p.write_text(json.dumps({"frames": [rec]}))
     with pytest.raises(InputError, match=r"shape \(3, 3\)"):
-        read_poses(p)
+        read_board_poses(p)
     p.write_text("[]")
     with pytest.raises(InputError, match="'frames' list"):
-        read_poses(p)
+        read_board_poses(p)
 
 
 # ---------------------------------------------------------------------------- real data

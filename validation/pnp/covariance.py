@@ -1,0 +1,121 @@
+"""The covariance of a board pose from the reprojection Jacobian, and COLMAP's converted.
+
+``cov`` (6, 6) is the covariance of the error of the estimate in the refinement's own
+coordinates, rotation first: the true pose is ``R_true = expm(skew(d_rot)) @ R_hat`` and
+``t_true = t_hat + d_t`` with ``(d_rot, d_t) ~ N(0, cov)``; d_rot [rad] is a rotation
+vector about the *camera* axes, d_t is in the length unit of the object points. It is
+``sigma^2 (J^T J)^-1`` at the optimum, with ``sigma`` the corner noise [px], given or
+estimated from the residuals as ``sqrt(sum r^2 / (2 K - 6))`` (K corners). See
+`pencilcal.validation.pnp` for what it covers and what it does not.
+
+Example
+-------
+>>> import numpy as np
+>>> from pencilcal.toolkit.camera.model import Camera
+>>> cam = Camera("pinhole", 640, 480, [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
+>>> X = np.array([[0, 0, 0], [50, 0, 0], [0, 50, 0], [50, 50, 0], [25, 10, 0.0]])
+>>> cov, sigma, r = pose_covariance(cam, X, cam.project(X + [0, 0, 300.0]), np.eye(3), [0, 0, 300.0], 0.5)
+>>> cov.shape, sigma, bool(np.all(np.linalg.eigvalsh(cov) > 0))
+((6, 6), 0.5, True)
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pencilcal.toolkit.errors import EstimationError
+
+from .refine import residuals
+
+__all__ = ["covariance_from_jacobian", "pose_covariance", "colmap_covariance_to_pencilcal"]
+
+# smallest eigenvalue of the Jacobi-scaled normal matrix, relative to the largest, below
+# which the pose is numerically undetermined
+_SINGULAR_TOL = 1e-13
+
+
+def covariance_from_jacobian(J, r, corner_sigma_px=None):
+    """(cov (6, 6), sigma [px]) from the Jacobian J (2K, 6) and residuals r (K, 2) [px] at
+    the optimum; corner_sigma_px: the corner noise [px], default from the residuals (NaN
+    sigma with 3 corners or fewer). See `pose_covariance`.
+
+    Raises EstimationError (an ArithmeticError) when the pose is not determined.
+    """
+    if not np.all(np.isfinite(J)):
+        raise EstimationError("some corners are behind the camera in this pose")
+    import cv2
+
+    H = J.T @ J
+    d = np.sqrt(H.diagonal())
+    if not np.all(d > 0):
+        raise EstimationError("the pose is not determined by these points (a parameter has no effect)")
+    dd = np.outer(d, d)
+    # the Jacobi-scaled normal matrix: its eigenvalues (descending) say whether the pose is
+    # determined, and give its inverse
+    _, w, V = cv2.eigen(H / dd)
+    w = w.ravel()
+    if not w[-1] > _SINGULAR_TOL * w[0]:
+        raise EstimationError("the pose is not determined by these points (degenerate geometry: "
+                              f"normal matrix condition {w[0] / max(w[-1], 1e-300):.1e})")
+    Hinv = ((V.T / w) @ V) / dd
+    Hinv = 0.5 * (Hinv + Hinv.T)
+    if corner_sigma_px is None:
+        dof = 2 * r.shape[0] - 6
+        rr = r.ravel()
+        sigma = math.sqrt(float(rr @ rr) / dof) if dof > 0 else float("nan")
+    else:
+        sigma = float(corner_sigma_px)
+    return sigma * sigma * Hinv, sigma
+
+
+def pose_covariance(camera, object_points, image_points, R, t, corner_sigma_px=None):
+    """Covariance (6x6, rotation first) of a pose from the reprojection Jacobian.
+
+    Parameters
+    ----------
+    camera, object_points (K, 3), image_points (K, 2), R (3, 3), t (3,)
+        As `refine_pose`; the pose should be the least-squares optimum.
+    corner_sigma_px : float, optional
+        Corner noise [px]; default: from the residuals, sqrt(sum r^2 / (2K - 6)).
+
+    Returns
+    -------
+    cov : (6, 6) ndarray
+        Of (d_rot [rad], d_t [length]); see the module doc for the convention.
+    sigma : float
+        The corner noise used [px].
+    residuals : (K, 2) ndarray
+        projected - observed [px].
+
+    Raises
+    ------
+    ArithmeticError (EstimationError)
+        When the normal matrix is numerically singular (the pose is not determined).
+    """
+    X = np.asarray(object_points, float)
+    obs = np.asarray(image_points, float)
+    with np.errstate(all="ignore"):
+        r, J, front = residuals(camera, X, obs, R, t)
+    if not np.all(front):
+        raise EstimationError("some corners are behind the camera in this pose")
+    cov, sigma = covariance_from_jacobian(J, r, corner_sigma_px)
+    return cov, sigma, r
+
+
+def colmap_covariance_to_pencilcal(cov_colmap, sigma_px=1.0):
+    """Convert COLMAP's RefineAbsolutePose covariance to this module's convention.
+
+    COLMAP (estimators/pose.cc) reports ``ceres::Covariance`` in the tangent space of the
+    Eigen quaternion manifold and the translation, assuming 1 px residuals. Ceres'
+    quaternion tangent ``delta`` applies ``q(delta) * q`` with ``q(delta) = [cos|delta|,
+    sin|delta| delta/|delta|]``, a rotation by 2|delta|: the rotation vector is 2 delta,
+    a left perturbation in the camera frame as here. So the rotation block is scaled by 4,
+    the cross blocks by 2, and everything by sigma_px^2.
+
+    cov_colmap: (6, 6). Returns (6, 6).
+    """
+    S = np.diag([2.0, 2.0, 2.0, 1.0, 1.0, 1.0])
+    return float(sigma_px) ** 2 * S @ np.asarray(cov_colmap, float) @ S
+
+
