@@ -282,18 +282,21 @@ def _process(frame, camera, board, lines_source, models, methods, truth, keep_pi
     return rec, best
 
 
-def _sfm(source, camera, frames, workdir, warn, quiet, progress):
-    """Reconstruct, align to the board frame with the PnP poses, add the sfm errors."""
+def _sfm(source, camera, frames, best_poses, workdir, warn, quiet, progress):
+    """Reconstruct, align to the board frame with the PnP poses, add the sfm errors.
+
+    best_poses: per frame (in the order of `frames`) the PoseResult of its best PnP method,
+    or None."""
     from .sfm import reconstruct
 
     res = reconstruct(source, camera, workdir, quiet=quiet, progress=progress)
     by_name = {f.image: f for f in res.frames}
-    pairs = [(by_name[f["image"]], f) for f in frames
+    pairs = [(by_name[f["image"]], best) for f, best in zip(frames, best_poses)
              if f["image"] in by_name and by_name[f["image"]].registered and f.get("pnp_best")]
     if len(pairs) < 2:
         raise EstimationError("the reconstruction and the board poses share fewer than two frames: cannot align them")
     Rcw = np.array([p[0].R_cam_from_world for p in pairs])
-    Rct = np.array([np.asarray(p[1]["pnp"][p[1]["pnp_best"]]["R_cam_from_target"], float) for p in pairs])
+    Rct = np.array([p[1].R_cam_from_target for p in pairs])
     R_wt, inliers = align_rotations(Rcw, Rct)
     info = {"registered": int(sum(f.registered for f in res.frames)), "frames": len(res.frames),
             "points3D": int(res.n_points3D), "alignment_inliers": int(inliers.sum()),
@@ -316,13 +319,14 @@ def _sfm(source, camera, frames, workdir, warn, quiet, progress):
 
 
 def _frame_task(frame, ctx):
-    """One frame's validation record (module level: runs in worker processes too)."""
+    """One frame's validation record and the PoseResult of its best PnP method (or None)
+    (module level: runs in worker processes too)."""
     camera, board, lines_source, models, methods, truth, keep_pixels = ctx
     try:
-        rec, _ = _process(frame, camera, board, lines_source, models, methods, truth, keep_pixels)
+        rec, best = _process(frame, camera, board, lines_source, models, methods, truth, keep_pixels)
     except EstimationError as e:
-        rec = {"image": frame.name, "ok": False, "error": str(e)}
-    return rec
+        rec, best = {"image": frame.name, "ok": False, "error": str(e)}, None
+    return rec, best
 
 
 def validate_sequence(source, camera, board, lines_source, *, truth=None, models=MODELS, methods=METHODS,
@@ -341,14 +345,15 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
 
     Returns the validation.json dict (numpy arrays inside; write with files.write_json).
     """
-    frames = []
+    frames, best_poses = [], []
     ctx = (camera, board, lines_source, models, methods, truth, keep_pixels)
     results = map_frames(_frame_task, source, ctx, workers)
     it = results if progress is None else progress(Sized(results, len(source)), "validate")
-    for rec in it:
+    for rec, best in it:
         if not rec["ok"] and warn is not None:
             warn(f"{rec['image']}: {rec['error']}")
         frames.append(rec)
+        best_poses.append(best)
     if not any(f["ok"] for f in frames):
         raise EstimationError("no frame could be validated (no pencil and no board pose in any frame)")
     keys = [f"orient:{m}" for m in models] + [f"pnp:{m}" for m in methods]
@@ -357,7 +362,7 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
         import tempfile
 
         with tempfile.TemporaryDirectory() as tmp:
-            out["sfm"] = _sfm(source, camera, frames, sfm_workdir or tmp, warn, quiet, sfm_progress)
+            out["sfm"] = _sfm(source, camera, frames, best_poses, sfm_workdir or tmp, warn, quiet, sfm_progress)
         keys.append("sfm")
     out["summary"] = summarise(frames, keys)
     out["frames"] = frames
