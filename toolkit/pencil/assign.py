@@ -204,6 +204,35 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
     if N < 3:
         raise EstimationError(f"the pencil has fewer than three spokes ({N})")
     period = 2 * np.pi if oriented else np.pi
+    H = _hypotheses(a, th, oriented, period, max_gap)
+    # tolerance: a few sigmas, at least 0.25 deg (a 3-line prediction is noisier than one
+    # line) and below half the smallest spoke gap so neighbours are not confused
+    gaps = np.diff(np.r_[np.sort(np.remainder(th, period)), np.sort(np.remainder(th, period))[0] + period])
+    cap = 0.45 * max(np.min(gaps), 1e-6)
+    tol = np.clip(5.0 * s, np.radians(0.25), cap)
+    cost, nearest, resid = _score(a, period, tol, H, np.cos(th), np.sin(th))
+    fitter = _LabelFitter(a, th, s, vertex, vertex_cov, oriented, tolerance_sigmas, cap)
+    candidates = _candidates(cost, nearest, resid, tol, s, fitter)
+    labels, fit, rivals, fewer = _best_and_rivals(candidates)
+    used = labels >= 0
+    if _EXHAUSTIVE_MAX_LINES >= used.sum() >= 3:
+        # few lines: one redundancy or two, and many spoke subsets share a cross-ratio; fit
+        # every labelling that keeps the cyclic order (a few hundred, batched) so that no
+        # equally good labelling is missed
+        labels, fit, rivals = _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriented, period)
+        rivals += [r for r in fewer if _conflict(r[0], labels)]
+        return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=int(len(H)))
+    rivals += fewer
+    rivals += _shifted_rivals(fitter, labels, fit, rivals, period)
+    return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=int(len(H)))
+
+
+def _hypotheses(a, th, oriented, period, max_gap):
+    """Homographies H (K, 2, 2) of the hypotheses: every triple of observed lines a (M,)
+    with every triple of spokes th (N,) in the same cyclic order, up to `max_gap` missing
+    spokes or spurious lines between the chosen ones, kept when they reproduce their three
+    lines (with their orientation when `oriented`) and see the pencil from its front."""
+    M = a.size
     # cyclic order of observed lines and of spokes (for lines, spokes modulo pi)
     oa = np.argsort(np.remainder(a, period))
     sp_mod = np.remainder(th, period)
@@ -223,7 +252,6 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
     io, js = io.ravel(), js.ravel()
     A3, T3 = a[obs[io]], th[spk[js]]
     H = _homographies(A3, T3)
-    ct, st = np.cos(th), np.sin(th)
     # the three defining lines must be reproduced with their orientation (oriented) and the
     # pencil must be seen from its front (det H > 0, cyclic order kept)
     pxy = np.einsum("kij,kjl->kil", H, np.stack([np.cos(T3), np.sin(T3)], 1))  # (K, 2, 3)
@@ -238,32 +266,54 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
     valid &= np.all(np.isfinite(H.reshape(-1, 4)), -1) & (np.abs(H).reshape(-1, 4).max(-1) > 0)
     if not valid.any():
         raise EstimationError("no consistent assignment of lines to spokes (cyclic order never matches)")
-    H = H[valid]
-    # tolerance: a few sigmas, at least 0.25 deg (a 3-line prediction is noisier than one
-    # line) and below half the smallest spoke gap so neighbours are not confused
-    gaps = np.diff(np.r_[np.sort(np.remainder(th, period)), np.sort(np.remainder(th, period))[0] + period])
-    cap = 0.45 * max(np.min(gaps), 1e-6)
-    tol = np.clip(5.0 * s, np.radians(0.25), cap)
-    cost, nearest, resid = _score(a, period, tol, H, ct, st)
-    wrap = wrap_angle if oriented else wrap_line
+    return H[valid]
 
-    def refine(labels):
-        """Fit on the labelled lines, re-label all lines by the fit's prediction, repeat."""
+
+@dataclass(frozen=True, eq=False)
+class _LabelFitter:
+    """The observed lines and the pencil, to fit labellings of them.
+
+    a, s: (M,) [rad] line angles and their sigmas; th: (N,) [rad] spokes; vertex (2,),
+    vertex_cov (2, 2) or None; cap [rad]: the largest assignment tolerance.
+    """
+
+    a: np.ndarray
+    th: np.ndarray
+    s: np.ndarray
+    vertex: np.ndarray
+    vertex_cov: np.ndarray | None
+    oriented: bool
+    tolerance_sigmas: float
+    cap: float
+
+    def fit(self, lines, spokes):
+        """PencilFit of the lines selected by `lines` (mask or indices) labelled `spokes`."""
+        return fit_pencil(self.a[lines], self.th[spokes], self.vertex, sigma=self.s[lines],
+                          vertex_cov=self.vertex_cov, oriented=self.oriented)
+
+    def refine(self, labels):
+        """Fit on the labelled lines, re-label all lines by the fit's prediction, repeat.
+
+        labels: (M,) spoke per line, -1 unassigned. Returns (labels, fit or None).
+        """
+        a, th, s, M = self.a, self.th, self.s, self.a.size
+        wrap = wrap_angle if self.oriented else wrap_line
         fit = None
         for _ in range(3):
             used = labels >= 0
             if np.unique(labels[used]).size < 3:
                 return labels, fit
-            fit = fit_pencil(a[used], th[labels[used]], vertex, sigma=s[used], vertex_cov=vertex_cov, oriented=oriented)
-            pred, J, Jx = pencil_jacobian(fit.R_cam_from_target, vertex, th)
+            fit = self.fit(used, labels[used])
+            pred, J, Jx = pencil_jacobian(fit.R_cam_from_target, self.vertex, th)
             # a line is compared with a prediction that is uncertain itself (rotation and
             # vertex): the tolerance covers both, else good short lines near the vertex drop
             var_pred = np.einsum("ni,ij,nj->n", J, fit.cov, J)
-            if vertex_cov is not None:
-                var_pred = var_pred + np.einsum("ni,ij,nj->n", Jx, vertex_cov, Jx)
+            if self.vertex_cov is not None:
+                var_pred = var_pred + np.einsum("ni,ij,nj->n", Jx, self.vertex_cov, Jx)
             res = wrap(a[:, None] - pred[None, :])
             k = np.argmin(np.abs(res), -1)
-            tol_k = np.minimum(np.maximum(tolerance_sigmas * np.sqrt(s**2 + var_pred[k]), np.radians(0.01)), cap)
+            tol_k = np.minimum(np.maximum(self.tolerance_sigmas * np.sqrt(s**2 + var_pred[k]), np.radians(0.01)),
+                               self.cap)
             new = _one_per_spoke(np.where(np.abs(res[np.arange(M), k]) < tol_k, k, -1), s)
             if np.array_equal(new, labels) or np.unique(new[new >= 0]).size < 3:
                 break
@@ -271,11 +321,14 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
         used = labels >= 0
         if fit is None or np.unique(labels[used]).size < 3:
             return labels, None
-        fit = fit_pencil(a[used], th[labels[used]], vertex, sigma=s[used], vertex_cov=vertex_cov, oriented=oriented)
+        fit = self.fit(used, labels[used])
         return labels, fit
 
-    # Refit the few best distinct labellings: MSAC on 3-line predictions is only a
-    # screen, and two labellings may explain equally many lines (then say so).
+
+def _candidates(cost, nearest, resid, tol, s, fitter):
+    """Refit the few best distinct labellings of the MSAC screen: [(lines used, chi2,
+    labels (M,), PencilFit), ...]. MSAC on 3-line predictions is only a screen, and two
+    labellings may explain equally many lines (then the result says so)."""
     candidates = []
     seen_labels = set()
     for h in np.argsort(cost)[: 4 * _TOP]:
@@ -284,13 +337,21 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
         if key in seen_labels:
             continue
         seen_labels.add(key)
-        lab, f = refine(lab0)
+        lab, f = fitter.refine(lab0)
         if f is not None:
             candidates.append(((lab >= 0).sum(), float(f.chi2), lab, f))
         if len(seen_labels) >= _TOP:
             break
     if not candidates:
         raise EstimationError("fewer than three spokes could be matched to the lines")
+    return candidates
+
+
+def _best_and_rivals(candidates):
+    """(labels, fit, rivals, fewer) from the refitted candidates: the labelling that uses
+    the most lines and fits best, those that use as many and fit about as well (rivals),
+    and those that use fewer lines but rival it once the lines they leave out are charged
+    (fewer); both lists of (labels, PencilFit)."""
     candidates.sort(key=lambda c: (-c[0], c[1]))
     n_best, chi2_best, labels, fit = candidates[0]
     rivals = [(lab, f) for n, chi2, lab, f in candidates[1:]
@@ -304,28 +365,28 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
     fewer = [(lab, f) for n, chi2, lab, f in candidates[1:]
              if n < n_best and _conflict(lab, labels)
              and (chi2 - chi2_best) / scale + CHI2_1_99 * (n_best - n) < CHI2_2_DETECTION]
+    return labels, fit, rivals, fewer
+
+
+def _shifted_rivals(fitter, labels, fit, rivals, period):
+    """Is the labelling unique? Every label shifted by one spoke in the cyclic order, as a
+    list of (labels, PencilFit) rivals that fit about as well (and are not in `rivals`)."""
+    th = fitter.th
+    M, N = fitter.a.size, th.size
     used = labels >= 0
-    if _EXHAUSTIVE_MAX_LINES >= used.sum() >= 3:
-        # few lines: one redundancy or two, and many spoke subsets share a cross-ratio; fit
-        # every labelling that keeps the cyclic order (a few hundred, batched) so that no
-        # equally good labelling is missed
-        labels, fit, rivals = _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriented, period)
-        rivals += [r for r in fewer if _conflict(r[0], labels)]
-        return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=int(len(H)))
-    rivals += fewer
-    # is the labelling unique? try every label shifted by one spoke in the cyclic order
     rank = np.empty(N, int)
     order = np.argsort(np.remainder(th, period))
     rank[order] = np.arange(N)
+    out = []
     for shift in (-1, 1):
         lab = order[np.remainder(rank[labels[used]] + shift, N)]
         if np.unique(lab).size < 3:
             continue
         full = np.full(M, -1)
         full[used] = lab
-        if any(np.array_equal(full, r[0]) for r in rivals):
+        if any(np.array_equal(full, r[0]) for r in rivals + out):
             continue
-        alt = fit_pencil(a[used], th[lab], vertex, sigma=s[used], vertex_cov=vertex_cov, oriented=oriented)
+        alt = fitter.fit(used, lab)
         if float(alt.chi2) - float(fit.chi2) < CHI2_2_DETECTION:
-            rivals.append((full, alt))
-    return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=int(len(H)))
+            out.append((full, alt))
+    return out
