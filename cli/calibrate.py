@@ -18,7 +18,8 @@ from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import atomic_paths, write_json
 from pencilcal.toolkit.io.images import open_images
 
-from .common import check_output, force_option, quiet_option, run, run_frames, warn, workers_option
+from .common import (check_output, force_option, images_argument, max_pixels_option, quiet_option, run, run_frames,
+                     warn, workers_option)
 
 _CAMERA_SUFFIXES = (".json", ".yaml", ".yml", ".xml", ".cameramodel", ".txt", ".bin")
 
@@ -64,7 +65,7 @@ def _detect_task(frame, board):
 
 
 @click.command()
-@click.argument("images")
+@images_argument()
 @click.option("--board", "board_path", required=True, type=click.Path(dir_okay=False),
               help="Board file (.yaml/.json): charuco or chessboard, squares, square, marker, dictionary.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
@@ -83,22 +84,24 @@ def _detect_task(frame, board):
 @click.option("--corners", "corners_path", type=click.Path(dir_okay=False), default=None,
               help="Also write the detections as mrcal's corner cache (corners.vnl, "
                    "for mrcal-calibrate-cameras --corners-cache).")
+@max_pixels_option
 @workers_option
 @force_option
 @quiet_option
 @run
 def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_corners, report_path, corners_path,
-              workers, force, quiet):
+              max_pixels, workers, force, quiet):
     """Calibrate a camera's intrinsics from views of a ChArUco board or a chessboard.
 
-    IMAGES is a folder of images, a glob (quoted) or a video. Views without a usable board
-    are skipped; outlier views and corners are rejected (with their reasons in --report);
+    IMAGES is one or more image files, folders or glob patterns, in the order given (a
+    folder's images sorted naturally), or one video. Views without a usable board are
+    skipped; outlier views and corners are rejected (with their reasons in --report);
     the camera file gets the intrinsics with their standard deviations and the RMS
     reprojection error.
 
     \b
     Example:
-      pencilcal calibrate 'calib/*.png' --board board.yaml -o camera.yaml \\
+      pencilcal calibrate calib/*.png --board board.yaml -o camera.yaml \\
           --report calib.json --corners calib/corners.vnl
     """
     if coefficients is not None and model != "opencv":
@@ -121,7 +124,9 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
         check_output(p, force)
     _probe_camera_format(output, model, n_coef)
     board = read_board(board_path)
-    source = open_images(images, gray=True)
+    source = open_images(images, gray=True, max_pixels=max_pixels)
+    for _, p in outputs:
+        check_output(p, force, [*source.paths, board_path])
     if corners_path and source.kind == "images":
         # a name vnlog cannot hold is found now, not after the work
         for path in source.paths:
@@ -147,9 +152,9 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
         detections.append(det)
         frames.append((frame, rec, det))
     if not frames:
-        raise InputError(f"{images}: no frames")
+        raise InputError(f"{source.description}: no frames")
     if first is None:
-        raise InputError(f"{images}: none of the {len(frames)} image(s) could be decoded")
+        raise InputError(f"{source.description}: none of the {len(frames)} image(s) could be decoded")
     image_size = first[1]
 
     result = calibrate_views(detections, board, image_size, model=model, coefficients=n_coef,
@@ -189,7 +194,7 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
     }
     report = {
         "command": "calibrate",
-        "images": str(images),
+        "images": source.description,
         "board_file": str(board_path),
         "board": board.to_dict(),
         "image_size": list(image_size),

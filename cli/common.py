@@ -13,35 +13,95 @@ import threading
 
 import click
 
-from pencilcal.toolkit.errors import PencilcalError
+from pencilcal.toolkit.errors import InputError, PencilcalError
 from pencilcal.toolkit.io.files import check_writable
+from pencilcal.toolkit.io.images import DEFAULT_MAX_PIXELS
 
 __all__ = ["run", "progress", "warn", "output_option", "force_option", "quiet_option", "check_output",
-           "camera_options", "StageBars", "workers_option", "run_frames"]
+           "camera_options", "StageBars", "workers_option", "run_frames", "images_argument", "max_pixels_option",
+           "IMAGES_HELP"]
+
+
+class Terminated(BaseException):
+    """SIGTERM, raised in the main process so that clean-up runs as for Ctrl-C."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
+def install_signal_handlers():
+    """SIGTERM becomes `Terminated` (temp files and folders are removed on the way out,
+    worker pools stopped), as Ctrl-C becomes KeyboardInterrupt."""
+    import signal
+
+    signal.signal(signal.SIGTERM, _on_sigterm)
+
+
+def _inputs(ctx):
+    """What the command was working on, for an internal error's message."""
+    p = ctx.params if ctx is not None else {}
+    for key in ("images", "lines_path", "sequence", "validation_path", "camera", "path", "out"):
+        v = p.get(key)
+        if v:
+            return " ".join(map(str, v)) if isinstance(v, (tuple, list)) else str(v)
+    return None
+
+
+def _debug(ctx):
+    root = ctx.find_root() if ctx is not None else None
+    return bool(root is not None and root.params.get("debug"))
 
 
 def run(fn):
-    """Decorator: one-line message and exit 1 on a processing failure, never a traceback."""
+    """Decorator: the command's one error boundary.
+
+    Every exception ends in one line on stderr and exit status 1, never a traceback: the
+    errors pencilcal raises on purpose as they are; OS errors with the file they concern;
+    running out of memory with the input; Ctrl-C and SIGTERM as "interrupted" /
+    "terminated"; anything else as an internal error naming the command and its input
+    (``pencilcal --debug`` shows the traceback instead). Usage errors stay click's (exit 2).
+    """
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
+        ctx = click.get_current_context(silent=True)
         try:
             return fn(*args, **kwargs)
+        except (click.ClickException, click.exceptions.Exit, click.Abort):
+            raise
         except PencilcalError as e:
             raise SystemExit(_fail(str(e)))
-        except (OSError, MemoryError) as e:
-            name = getattr(e, "filename", None)
-            msg = f"{name}: {e.strerror}" if name and getattr(e, "strerror", None) else str(e)
-            raise SystemExit(_fail(msg))
         except KeyboardInterrupt:
             raise SystemExit(_fail("interrupted"))
+        except Terminated:
+            raise SystemExit(_fail("terminated", status=143))
+        except MemoryError:
+            where = _inputs(ctx)
+            raise SystemExit(_fail(f"{where + ': ' if where else ''}out of memory (the inputs need more memory "
+                                   "than this machine has; use fewer or smaller frames)"))
+        except OSError as e:
+            name = getattr(e, "filename", None)
+            reason = e.strerror or str(e)
+            raise SystemExit(_fail(f"{name}: {reason}" if name else reason))
+        except RecursionError:
+            where = _inputs(ctx)
+            raise SystemExit(_fail(f"{where + ': ' if where else ''}input nested too deeply to read"))
+        except Exception as e:  # noqa: BLE001 - the boundary: nothing escapes as a traceback
+            if _debug(ctx):
+                raise
+            cmd = ctx.command_path if ctx is not None else "pencilcal"
+            where = _inputs(ctx)
+            what = f"{type(e).__name__}: {str(e).strip().splitlines()[0] if str(e).strip() else ''}".rstrip(": ")
+            raise SystemExit(_fail(f"internal error in `{cmd}`{' on ' + where if where else ''}: {what} "
+                                   "(please report this; `pencilcal --debug ...` shows the traceback)"))
 
     return wrapper
 
 
-def _fail(msg):
+def _fail(msg, status=1):
     click.echo(f"pencilcal: error: {msg.splitlines()[0] if msg else 'failed'}", err=True)
-    return 1
+    return status
 
 
 def warn(msg):
@@ -58,14 +118,40 @@ def progress(items, label, quiet):
         yield bar
 
 
-def check_output(path, force):
-    """Fail before doing any work if the output exists (without --force) or has no folder."""
+def check_output(path, force, inputs=()):
+    """Fail before doing any work if the output exists (without --force), has no folder,
+    cannot be written, or is one of the `inputs` (paths read by the command: even with
+    --force an input is never overwritten by an output)."""
+    import os
+
     check_writable(path, force)
+    out = os.path.realpath(path)
+    for p in inputs:
+        if p is not None and os.path.realpath(str(p)) == out:
+            raise InputError(f"{path}: is one of the inputs; choose another output")
 
 
 output_option = click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output file.")
 force_option = click.option("--force", is_flag=True, help="Overwrite the output if it exists.")
 quiet_option = click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+max_pixels_option = click.option(
+    "--max-pixels", type=click.IntRange(min=1), default=DEFAULT_MAX_PIXELS, show_default=True,
+    help="Refuse an image whose header claims more pixels than this, before decoding it.")
+
+IMAGES_HELP = ("IMAGES is one or more image files, folders or glob patterns, taken in the order given (a "
+               "folder's images sorted naturally: 2 before 10), or one video file.")
+
+
+def images_argument(required=True):
+    """IMAGES: one or more paths (files, folders, quoted or shell-expanded globs) or one
+    video; the command receives them as a tuple (None when optional and absent)."""
+
+    def as_tuple(ctx, param, value):
+        return tuple(value) if value else None
+
+    return click.argument("images", nargs=-1, required=required, type=click.Path(), callback=as_tuple)
+
+
 workers_option = click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
                               help="Process frames in this many worker processes (same results, in order).")
 

@@ -8,9 +8,11 @@ from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.io.files import write_json
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles
+from pencilcal.toolkit.io.images import open_images
 from pencilcal.toolkit.io.lines_file import read_lines
 
-from .common import camera_options, check_output, force_option, output_option, quiet_option, run, run_frames, warn, workers_option
+from .common import (camera_options, check_output, force_option, images_argument, max_pixels_option, output_option,
+                     quiet_option, run, run_frames, warn, workers_option)
 
 
 def _shaft_task(frame, ctx):
@@ -29,11 +31,9 @@ def _shaft_task(frame, ctx):
             "error": None if shafts else "no instrument shaft found"}
 
 
-def _shafts(images, camera, detector, quiet, workers):
-    """Instrument shafts of every frame of IMAGES, as lines.json frames."""
-    from pencilcal.toolkit.io.images import open_images
-
-    frames = list(run_frames(open_images(images), _shaft_task, (camera, detector), workers, "shafts", quiet))
+def _shafts(source, camera, detector, quiet, workers):
+    """Instrument shafts of every frame of an image source, as lines.json frames."""
+    frames = list(run_frames(source, _shaft_task, (camera, detector), workers, "shafts", quiet))
     for f in frames:
         if f["error"]:
             warn(f"{f['image']}: {f['error']}")
@@ -41,7 +41,7 @@ def _shafts(images, camera, detector, quiet, workers):
 
 
 @click.command()
-@click.argument("images", required=False)
+@images_argument(required=False)
 @click.option("--lines", "lines_path", type=click.Path(dir_okay=False), default=None,
               help="Lines per frame (lines.json; shaft midlines are used when present), instead of IMAGES.")
 @camera_options
@@ -51,19 +51,21 @@ def _shafts(images, camera, detector, quiet, workers):
               help="End point noise [px] for segments without their own angle sigma.")
 @click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
               help="Line detector for the shaft proposals, with IMAGES.")
+@max_pixels_option
 @workers_option
 @output_option
 @force_option
 @quiet_option
 @run
-def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_sigma, detector, workers, output, force,
-            quiet):
+def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_sigma, detector, max_pixels, workers, output,
+            force, quiet):
     """The fulcrum of an instrument pivoting about its entry port.
 
     Every frame's instrument line passes through the fulcrum's image: their robust weighted
     intersection gives the fulcrum's viewing ray and, where the lens model reaches it (a
     port far off axis may lie beyond), its raw pixel and covariance. From
-    IMAGES (a folder, glob or video) the instrument shafts are detected in every frame
+    IMAGES (image files, folders or glob patterns in the order given, or one video) the
+    instrument shafts are detected in every frame
     (their midlines are the axis images); or the lines come from a lines file (--lines).
     With --angles (one pivot angle per frame) the lines form a pencil with known angles and
     the orientation of the pivot plane comes out too, with the keys of orientation.json.
@@ -77,21 +79,23 @@ def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_si
         raise click.BadParameter("must be positive", param_hint="--endpoint-sigma")
     if (images is None) == (lines_path is None):
         raise click.UsageError("give IMAGES or --lines (one of them)")
-    check_output(output, force)
+    check_output(output, force, [lines_path, camera_path, angles_path])
     camera = read_camera(camera_path, camera_id=camera_id)
     if lines_path is not None:
         frames = read_lines(lines_path)
         if not frames:
             raise InputError(f"{lines_path}: no frames")
     else:
-        frames = _shafts(images, camera, detector, quiet, workers)
+        source = open_images(images, max_pixels=max_pixels)
+        check_output(output, force, source.paths)
+        frames = _shafts(source, camera, detector, quiet, workers)
     angles = read_angles(angles_path, [f["image"] for f in frames]) if angles_path else None
     try:
         out = fulcrum_from_frames(camera, frames, angles=angles, endpoint_sigma_px=endpoint_sigma)
     except EstimationError as e:
-        raise EstimationError(f"{lines_path or images}: {e}") from None
+        raise EstimationError(f"{lines_path or source.description}: {e}") from None
     out = {"camera": str(camera_path), "lines": None if lines_path is None else str(lines_path),
-           "images": None if images is None else str(images), **out}
+           "images": None if images is None else source.description, **out}
     write_json(output, out, force=force)
     off_axis = float(np.degrees(np.arccos(np.clip(out["ray"][2], -1.0, 1.0))))
     if out["vertex_px"] is None:

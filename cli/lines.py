@@ -8,7 +8,8 @@ from pencilcal.toolkit.io.images import check_image_size, open_images
 from pencilcal.toolkit.detect.lines import DETECTORS, lines_record
 from pencilcal.toolkit.io.lines_file import write_lines
 
-from .common import camera_options, check_output, force_option, output_option, quiet_option, run, run_frames, warn, workers_option
+from .common import (camera_options, check_output, force_option, images_argument, max_pixels_option, output_option,
+                     quiet_option, run, run_frames, warn, workers_option)
 
 
 def _lines_task(frame, ctx):
@@ -21,7 +22,7 @@ def _lines_task(frame, ctx):
 
 
 @click.command()
-@click.argument("images")
+@images_argument()
 @camera_options
 @output_option
 @click.option("--detector", type=click.Choice(DETECTORS), default="lsd", show_default=True,
@@ -39,14 +40,17 @@ def _lines_task(frame, ctx):
               help="Shortest segment written [px]. Default 20; with --bars, 20 or 1/30 of the image's "
                    "smaller side, whichever is longer (36 px at 1080p).")
 @workers_option
+@max_pixels_option
 @force_option
 @quiet_option
 @run
-def lines(images, camera_path, camera_id, output, detector, bars, bar_width, shaft, min_length, workers, force, quiet):
+def lines(images, camera_path, camera_id, output, detector, bars, bar_width, shaft, min_length, max_pixels, workers, force,
+          quiet):
     """Line segments in every frame, refined to subpixel precision, with angle uncertainty.
 
-    IMAGES is a folder of images, a glob pattern or a video. The chosen OpenCV detector
-    proposes segments; collinear fragments are merged and every line is refitted to its
+    IMAGES is one or more image files, folders or glob patterns, in the order given (a
+    folder's images sorted naturally), or one video. The chosen OpenCV detector proposes
+    segments; collinear fragments are merged and every line is refitted to its
     edge pixels (straight in undistorted pixels, so lens distortion does not bend it).
     Each frame gets `segments` in raw (distorted) pixels [x1, y1, x2, y2] and, per segment,
     `angle_sigma_deg` (sd of its angle) and `offset_sigma_px` (sd of its position across,
@@ -59,6 +63,7 @@ def lines(images, camera_path, camera_id, output, detector, bars, bar_width, sha
     Example:
       pencilcal lines frames/ --camera camera.yaml --bars -o lines.json
       pencilcal orient --lines lines.json --camera camera.yaml --pencil pencil.yaml -o orientation.json
+      pencilcal lines left/*.png --camera camera.yaml -o lines.json
     """
     if min_length is not None and min_length <= 0:
         raise click.BadParameter("must be positive", param_hint="--min-length")
@@ -68,7 +73,8 @@ def lines(images, camera_path, camera_id, output, detector, bars, bar_width, sha
         raise click.BadParameter("only with --bars", param_hint="--bar-width")
     check_output(output, force)
     camera = read_camera(camera_path, camera_id=camera_id)
-    source = open_images(images)
+    source = open_images(images, max_pixels=max_pixels)
+    check_output(output, force, [*source.paths, camera_path])
     records = []
     ctx = (camera, detector, bars, shaft, min_length, bar_width)
     for rec in run_frames(source, _lines_task, ctx, workers, "lines", quiet):

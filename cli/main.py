@@ -7,6 +7,8 @@ import click
 
 from .bench import bench
 from .calibrate import calibrate
+from .convert import convert
+from .common import install_signal_handlers
 from .experiment import experiment
 from .fulcrum import fulcrum
 from .lines import lines
@@ -27,7 +29,8 @@ except PackageNotFoundError:  # running from a source tree without installing
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="pencilcal")
-def cli():
+@click.option("--debug", is_flag=True, help="Show the traceback of an internal error instead of one line.")
+def cli(debug):
     """pencilcal: orientation of a pencil of lines from its image angles.
 
     A camera sees a pencil (straight lines through one point: a printed fan of spokes, an
@@ -41,6 +44,7 @@ def cli():
 
 cli.add_command(bench)
 cli.add_command(calibrate)
+cli.add_command(convert)
 cli.add_command(experiment)
 cli.add_command(orient)
 cli.add_command(fulcrum)
@@ -55,6 +59,7 @@ cli.add_command(validate)
 
 
 def main():
+    install_signal_handlers()
     cli(prog_name="pencilcal")
 
 

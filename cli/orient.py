@@ -11,7 +11,8 @@ from pencilcal.toolkit.pencil.orient import MODELS, orient_segments, resolve_twi
 from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.spec import read_pencil
 
-from .common import camera_options, check_output, force_option, output_option, progress, quiet_option, run, run_frames, warn, workers_option
+from .common import (camera_options, check_output, force_option, images_argument, max_pixels_option, output_option,
+                     progress, quiet_option, run, run_frames, warn, workers_option)
 
 
 def _orient_record(camera, pencil, fr, opts):
@@ -60,7 +61,7 @@ def _prior_rotations(path):
 
 
 @click.command()
-@click.argument("images", required=False)
+@images_argument(required=False)
 @click.option("--lines", "lines_path", type=click.Path(dir_okay=False), default=None,
               help="Line segments per frame (lines.json, raw pixels), instead of IMAGES.")
 @camera_options
@@ -79,15 +80,17 @@ def _prior_rotations(path):
               help="Carry twin choices along the sequence to ambiguous frames.")
 @click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
               help="Line detector, with IMAGES.")
+@max_pixels_option
 @workers_option
 @force_option
 @quiet_option
 @run
 def orient(images, lines_path, camera_path, camera_id, pencil_path, output, model, endpoint_sigma, angle_sigma,
-           prior_path, continuity, detector, workers, force, quiet):
+           prior_path, continuity, detector, max_pixels, workers, force, quiet):
     """Orientation of the pencil in every frame, from its image angles alone.
 
-    From IMAGES (a folder, glob or video) the lines are detected first: the midlines of
+    From IMAGES (image files, folders or glob patterns in the order given, or one video)
+    the lines are detected first: the midlines of
     the printed spokes when the pencil file gives their width, else edge segments (as
     `pencilcal lines`); or they come from a lines file (--lines). Segments are undistorted,
     the vertex found, the segments labelled with spokes (missing spokes and spurious
@@ -107,7 +110,7 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         raise click.BadParameter("must be positive", param_hint="--angle-sigma")
     if (images is None) == (lines_path is None):
         raise click.UsageError("give IMAGES or --lines (one of them)")
-    check_output(output, force)
+    check_output(output, force, [lines_path, camera_path, pencil_path, prior_path])
     camera = read_camera(camera_path, camera_id=camera_id)
     pencil = read_pencil(pencil_path)
     priors = _prior_rotations(prior_path) if prior_path else {}
@@ -122,7 +125,9 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         from pencilcal.toolkit.io.images import open_images
 
         ctx = (camera, pencil, detector, opts)
-        records = list(run_frames(open_images(images), _orient_image_task, ctx, workers, "orient", quiet))
+        source = open_images(images, max_pixels=max_pixels)
+        check_output(output, force, source.paths)
+        records = list(run_frames(source, _orient_image_task, ctx, workers, "orient", quiet))
     for rec in records:
         if not rec.ok:
             warn(f"{rec.image}: {rec.error}")
@@ -131,12 +136,12 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
                  "about as well and put it elsewhere (normal_alternatives)")
     if not any(r.ok for r in records):
         # a run with no estimate at all failed: say so and leave nothing that looks like a result
-        raise EstimationError(f"{lines_path or images}: no frame gave an orientation")
+        raise EstimationError(f"{lines_path or source.description}: no frame gave an orientation")
     if continuity:
         records = resolve_twins_by_continuity(records)
     write_orientations(output, records, force=force, model=model, camera=str(camera_path), pencil=str(pencil_path),
                        lines=None if lines_path is None else str(lines_path),
-                       images=None if images is None else str(images))
+                       images=None if images is None else source.description)
     n_ok = sum(r.ok for r in records)
     n_amb = sum(bool(r.ok and r.normal_ambiguous) for r in records)
     if not quiet:

@@ -20,8 +20,8 @@ from pencilcal.validation.pnp import (
     write_poses,
 )
 
-from .common import (camera_options, check_output, force_option, output_option, quiet_option, run, run_frames, warn,
-                     workers_option)
+from .common import (camera_options, check_output, force_option, images_argument, max_pixels_option, output_option,
+                     quiet_option, run, run_frames, warn, workers_option)
 
 _MIN_CORNERS_FLOOR = 4
 
@@ -61,7 +61,7 @@ def _pnp_task(frame, ctx):
 
 
 @click.command()
-@click.argument("images")
+@images_argument()
 @camera_options
 @click.option("--board", "board_path", required=True, type=click.Path(dir_okay=False),
               help="Board file (.yaml/.json): charuco or chessboard, square size in the length unit of the output.")
@@ -77,15 +77,17 @@ def _pnp_task(frame, ctx):
               help="Reject a pose whose reprojection RMS exceeds this [px] (a wrong local minimum or a wrong camera).")
 @click.option("--refine/--no-refine", default=True, show_default=True,
               help="LM refinement of every method's pose on the raw-pixel reprojection error.")
+@max_pixels_option
 @workers_option
 @force_option
 @quiet_option
 @run
 def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma, min_corners, max_rms, refine,
-        workers, force, quiet):
+        max_pixels, workers, force, quiet):
     """Pose of a calibration board in every frame (poses.json).
 
-    Detects the board's corners (ChArUco or chessboard), estimates R_cam_from_target and
+    IMAGES is one or more image files, folders or glob patterns, in the order given, or
+    one video. Detects the board's corners (ChArUco or chessboard), estimates R_cam_from_target and
     t_cam_from_target (length unit of the board file) with the chosen method, refines it
     on the reprojection error in raw pixels under the full lens model, and writes the
     6x6 covariance (rotation first: rad about the camera axes, left perturbation; then
@@ -107,7 +109,8 @@ def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma
     check_output(output, force)
     camera = read_camera(camera_path, camera_id=camera_id)
     board = read_board(board_path)
-    source = open_images(images)
+    source = open_images(images, max_pixels=max_pixels)
+    check_output(output, force, [*source.paths, camera_path, board_path])
     label = "all" if method == "all" else method
     records = []
     ctx = (camera, board, method, refine, corner_sigma, max_rms, min_corners)
@@ -119,7 +122,7 @@ def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma
         "method": label,
         "methods": list(METHODS) if method == "all" else [method],
         "refine": bool(refine),
-        "images": str(images),
+        "images": source.description,
         "camera": str(camera_path),
         "camera_model": camera.model,
         "image_size": [camera.width, camera.height],
@@ -132,7 +135,7 @@ def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma
     n_ok = sum(r["ok"] for r in records)
     if n_ok == 0:
         # a run with no pose at all failed: say so and leave nothing that looks like a result
-        raise EstimationError(f"{images}: no frame gave a pose (is the board file right for these images?)")
+        raise EstimationError(f"{source.description}: no frame gave a pose (is the board file right for these images?)")
     write_poses(output, records, force=force, **meta)
     if not quiet:
         click.echo(f"{n_ok}/{len(records)} frames with a pose -> {output}", err=True)

@@ -67,7 +67,7 @@ import numpy as np
 
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.files import atomic_path, load_structured, staging_folder, write_json
+from pencilcal.toolkit.io.files import atomic_path, load_structured, read_input_text, staging_folder, write_json
 
 __all__ = [
     "read_camera",
@@ -179,6 +179,8 @@ def read_camera(path, camera_id=None) -> Camera:
     if fmt == "json":
         return camera_from_dict(load_structured(p, "camera file"), source=str(p))
     if fmt == "filestorage":
+        # OpenCV's parser crashes the process on deep nesting: checked before it sees the file
+        read_input_text(p, "camera file", kind="xml" if p.suffix.lower() == ".xml" else "yaml")
         return _read_filestorage(p)
     if fmt == "cameramodel":
         return _read_cameramodel(p)
@@ -501,10 +503,7 @@ def _parse_literal(text, source):
 
 def _read_cameramodel(p) -> Camera:
     source = str(p)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"{source}: cannot read camera file: {_one_line(e)}") from None
+    text = read_input_text(p, "camera file", kind="json")  # a Python literal nests like JSON
     d = _parse_literal(text, source)
     if not isinstance(d, dict):
         raise InputError(f"{source}: a .cameramodel must be a dict, got {type(d).__name__}")

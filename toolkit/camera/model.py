@@ -60,6 +60,10 @@ OPENCV_COEFFICIENT_COUNTS = MODELS["opencv"]
 
 # Newton on the distortion: iterations, and the residual (normalised units, relative to
 # 1 + |target|) a solution must reach to be returned rather than NaN.
+# Sanity limits on a camera's image size: OpenCV's own image limits (2^20 px a side, 2^30
+# pixels), far beyond any real sensor (a 100 MP sensor is 1e8 px).
+MAX_SIDE_PX = 1 << 20
+MAX_CAMERA_PIXELS = 1 << 30
 _NEWTON_ITERATIONS = 50
 _NEWTON_TOL = 1e-14
 _ACCEPT_TOL = 1e-11
@@ -155,9 +159,12 @@ class Camera:
             if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer, float, np.floating)) \
                     or not np.isfinite(v) or v != int(v):
                 raise InputError(f"image {name} must be a whole number of pixels, got {v!r}")
-            if not 0 < int(v) < 2**31:
-                raise InputError(f"image {name} must be positive (and below 2^31), got {v!r}")
+            if not 0 < int(v) <= MAX_SIDE_PX:
+                raise InputError(f"image {name} must be positive and at most {MAX_SIDE_PX} px, got {v!r}")
             object.__setattr__(self, name, int(v))
+        if self.width * self.height > MAX_CAMERA_PIXELS:
+            raise InputError(f"image size {self.width}x{self.height} is over the limit of {MAX_CAMERA_PIXELS:,} pixels "
+                             "(no real camera comes near it: is the file right?)")
         try:
             K = np.array(self.K, dtype=float)
         except (TypeError, ValueError):

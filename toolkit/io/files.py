@@ -23,6 +23,7 @@ import contextlib
 import json
 import math
 import os
+import re
 import shutil
 import tempfile
 from pathlib import Path
@@ -41,6 +42,10 @@ __all__ = [
     "replace_folder",
     "write_json",
     "load_structured",
+    "read_input_text",
+    "nesting_depth",
+    "MAX_INPUT_BYTES",
+    "MAX_NESTING",
     "to_jsonable",
     "load_frames",
 ]
@@ -51,9 +56,13 @@ def check_writable(path, force=False):
     p = Path(path)
     if p.exists() and not force:
         raise InputError(f"{p}: already exists; pass --force to overwrite it")
+    if p.is_dir():
+        raise InputError(f"{p}: is a folder; give a file name")
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
         raise InputError(f"{p}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{p}: cannot write in folder {parent} (permission denied)")
 
 
 def _normal_permissions(path, mode):
@@ -88,12 +97,19 @@ def atomic_paths(paths, force=False):
         check_writable(p, force)
     staged, committed = [], []
     try:
-        for p in targets:
-            fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=p.suffix, dir=p.parent if str(p.parent) else ".")
-            os.close(fd)
-            staged.append(Path(tmp))
-            _normal_permissions(tmp, 0o666)
-        yield staged
+        try:
+            for p in targets:
+                fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=p.suffix,
+                                           dir=p.parent if str(p.parent) else ".")
+                os.close(fd)
+                staged.append(Path(tmp))
+                _normal_permissions(tmp, 0o666)
+            yield staged
+        except OSError as e:
+            # the temporary file is ours, not the user's: name the output (a full disk
+            # says only "[Errno 28]" while writing)
+            names = ", ".join(str(p) for p in targets)
+            raise InputError(f"{names}: cannot write: {e.strerror or e}") from None
         for p in targets:
             if p.exists() and not force:
                 raise InputError(f"{p}: already exists; pass --force to overwrite it")
@@ -212,25 +228,95 @@ def write_json(path, obj, force=False, indent=1):
     atomic_write(path, json.dumps(to_jsonable(obj), indent=indent, allow_nan=False) + "\n", force)
 
 
-def load_structured(path, what="file"):
-    """Load a YAML or JSON file into Python objects, with a one-line error on any problem.
+# Limits on the structured files pencilcal reads (camera, pencil, board, lines, poses,
+# validation): no real one comes near them, and past them a parser can exhaust memory or
+# the stack (a 1 kB YAML of aliases expands to GBs; deep nesting crashes recursive parsers,
+# OpenCV's FileStorage with a segmentation fault).
+MAX_INPUT_BYTES = 512 * 1024 * 1024
+MAX_NESTING = 64
 
-    `what` names the kind of file in error messages ("camera file", "pencil file", ...).
+
+
+def nesting_depth(data: bytes, kind: str) -> int:
+    """The deepest nesting of a JSON/YAML/XML text, without parsing it (linear time).
+
+    kind: "json", "yaml" (flow brackets and block indentation) or "xml" (elements).
+    Brackets in double-quoted strings do not count. For YAML's block style every
+    indentation step is taken as one level, which can only overestimate.
     """
-    import yaml
+    if kind == "xml":
+        tags = re.findall(rb"<(/?)[A-Za-z_][^>]*?(/?)>", data)
+        steps = np.array([0] + [-1 if close else (0 if empty else 1) for close, empty in tags])
+        return int(np.max(np.cumsum(steps)))
+    text = re.sub(rb"\\.", b"", data) if b"\\" in data else data  # escaped characters out first
+    b = np.frombuffer(text, np.uint8)
+    inside = (np.cumsum(b == ord('"')) % 2).astype(bool)  # within a double-quoted string
+    step = np.zeros(b.shape, np.int32)
+    step[(b == ord("[")) | (b == ord("{"))] = 1
+    step[(b == ord("]")) | (b == ord("}"))] = -1
+    step[inside] = 0
+    depth = int(np.max(np.cumsum(step), initial=0))
+    if kind == "yaml":
+        indents = {len(m) for m in re.findall(rb"^( *)\S", text, re.M)}
+        depth += len(indents)
+    return depth
 
+
+def read_input_text(path, what="file", kind=None) -> str:
+    """The text of a structured input file, after the checks every reader needs: it
+    exists, is under MAX_INPUT_BYTES, is UTF-8, and nests at most MAX_NESTING deep.
+    InputError (one line, naming the file) otherwise. kind: "json", "yaml" or "xml"
+    (default: from the suffix)."""
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{p}: {what} not found")
     try:
-        text = p.read_text(encoding="utf-8")
+        size = p.stat().st_size
+        if size > MAX_INPUT_BYTES:
+            raise InputError(f"{p}: {what} of {size:,} bytes is over the limit of {MAX_INPUT_BYTES:,}")
+        data = p.read_bytes()
+        text = data.decode("utf-8")
     except (OSError, UnicodeDecodeError) as e:
         raise InputError(f"{p}: cannot read {what}: {e}") from None
+    kind = kind or {".json": "json", ".xml": "xml"}.get(p.suffix.lower(), "yaml")
+    depth = nesting_depth(data, kind)
+    if depth > MAX_NESTING:
+        raise InputError(f"{p}: {what} nests {depth} levels deep, over the limit of {MAX_NESTING}")
+    return text
+
+
+def _yaml_loader():
+    """PyYAML's safe loader without aliases: no pencilcal file needs one, and aliases of
+    aliases expand a few hundred bytes to gigabytes."""
+    import yaml
+
+    class NoAliasLoader(yaml.SafeLoader):
+        def compose_node(self, parent, index):
+            if self.check_event(yaml.AliasEvent):
+                event = self.peek_event()
+                raise yaml.composer.ComposerError(None, None, "YAML aliases (*name) are not accepted",
+                                                  event.start_mark)
+            return super().compose_node(parent, index)
+
+    return NoAliasLoader
+
+
+def load_structured(path, what="file"):
+    """Load a YAML or JSON file into Python objects, with a one-line error on any problem.
+
+    `what` names the kind of file in error messages ("camera file", "pencil file", ...).
+    The file is checked first (`read_input_text`: size, encoding, nesting); YAML aliases
+    are refused.
+    """
+    import yaml
+
+    p = Path(path)
+    text = read_input_text(p, what)
     try:
         if p.suffix.lower() == ".json":
             return json.loads(text)
-        return yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as e:
+        return yaml.load(text, Loader=_yaml_loader())  # noqa: S506 - a safe loader, aliases refused
+    except (json.JSONDecodeError, yaml.YAMLError, RecursionError) as e:
         msg = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise InputError(f"{p}: not valid {'JSON' if p.suffix.lower() == '.json' else 'YAML'}: {msg}") from None
 

@@ -1,7 +1,7 @@
-"""Image sources: a folder of images, a glob pattern, or a video file.
+"""Image sources: image files, folders and glob patterns, or a video file.
 
-Every command that reads images takes one IMAGES argument and goes through `open_images`,
-so they all accept the same inputs and fail the same way:
+Every command that reads images takes IMAGES (one or more paths, in order) and goes
+through `open_images`, so they all accept the same inputs and fail the same way:
 
 - an empty folder, a pattern that matches nothing, a missing path or an unreadable video
   is an InputError (one line, exit 1);
@@ -9,8 +9,8 @@ so they all accept the same inputs and fail the same way:
   is yielded with ``image=None`` and an error string, and commands record it as
   ``ok: false`` and warn.
 
-Frames are decoded once, in order. Images are read with OpenCV (BGR, 8 or 16 bit as
-stored); ``gray=True`` converts to single-channel 8 bit.
+Frames are decoded once, in order, by `decode_image` (OpenCV; BGR, 8 or 16 bit as stored,
+EXIF orientation applied); ``gray=True`` converts to single-channel 8 bit.
 
 Example
 -------
@@ -27,8 +27,9 @@ from __future__ import annotations
 import contextlib
 import glob as _glob
 import os
-import sys
 import re
+import sys
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,7 +37,8 @@ import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["Frame", "ImageSource", "open_images", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "check_image_size"]
+__all__ = ["Frame", "ImageSource", "open_images", "decode_image", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS",
+           "DEFAULT_MAX_PIXELS", "check_image_size"]
 
 IMAGE_EXTENSIONS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
 VIDEO_EXTENSIONS = {".mp4", ".avi", ".mov", ".mkv", ".m4v", ".mpg", ".mpeg", ".wmv", ".webm"}
@@ -78,24 +80,58 @@ def _natural_key(s):
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", s)]
 
 
-class ImageSource:
-    """An ordered, re-iterable sequence of frames from a folder, glob or video.
+# Frames larger than this are refused before they are decoded (a 1 kB PNG can claim
+# 100000 x 100000 pixels): 8K video is 33 MP. Raise it with `max_pixels`.
+DEFAULT_MAX_PIXELS = 100_000_000
 
-    Attributes: `description` (for messages), `count` (number of frames; for video the
-    container's count, which may be approximate), `kind` ("images" or "video").
+
+class ImageSource:
+    """An ordered, re-iterable sequence of frames from IMAGES: one or more image files,
+    folders and glob patterns, taken in the order given, or one video file.
+
+    A folder's images and a pattern's matches are sorted naturally (frame2 before
+    frame10). The same image given twice, or a video together with anything else, is an
+    InputError. Attributes: `description` (the IMAGES as given, for messages and
+    outputs), `count` (number of frames; for video the container's count, which may be
+    approximate), `kind` ("images" or "video"), `paths`.
     """
 
-    def __init__(self, spec, gray=False):
-        self.spec = str(spec)
+    def __init__(self, spec, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
+        specs = [str(spec)] if isinstance(spec, (str, os.PathLike)) else [str(s) for s in spec]
+        if not specs:
+            raise InputError("no images given (IMAGES: files, folders, glob patterns or one video)")
+        self.spec = specs[0] if len(specs) == 1 else " ".join(specs)
         self.gray = gray
-        p = Path(self.spec)
+        self.max_pixels = max_pixels
+        resolved = [self._resolve(s) for s in specs]
+        videos = [s for s, r in zip(specs, resolved) if r[0] == "video"]
+        if videos and len(specs) > 1:
+            raise InputError(f"{videos[0]}: a video must be the only IMAGES argument "
+                             f"(got {len(specs)}: {self.spec})")
+        if videos:
+            self.kind, self.paths, self._video_count = resolved[0]
+        else:
+            self.kind = "images"
+            self.paths = [q for _, files in resolved for q in files]
+            seen = {}
+            for q, s in ((q, s) for s, (_, files) in zip(specs, resolved) for q in files):
+                key = os.path.realpath(q)
+                if key in seen:
+                    also = "" if seen[key] == s else f" (by {seen[key]} and by {s})"
+                    raise InputError(f"{q}: given twice{also}; each image may appear once in IMAGES")
+                seen[key] = s
+        self.description = self.spec
+
+    @staticmethod
+    def _resolve(spec):
+        """("video", [path], frame count) or ("images", [paths]) for one IMAGES argument."""
+        p = Path(spec)
         if p.is_dir():
             files = [q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_EXTENSIONS]
             if not files:
                 raise InputError(f"{p}: no images in this folder (looked for {', '.join(sorted(IMAGE_EXTENSIONS))})")
-            self.kind = "images"
-            self.paths = sorted(files, key=lambda q: _natural_key(q.name))
-        elif p.is_file() and p.suffix.lower() in VIDEO_EXTENSIONS:
+            return "images", sorted(files, key=lambda q: _natural_key(q.name))
+        if p.is_file() and p.suffix.lower() in VIDEO_EXTENSIONS:
             import cv2
 
             cap = cv2.VideoCapture(str(p))
@@ -104,24 +140,18 @@ class ImageSource:
             cap.release()
             if not ok:
                 raise InputError(f"{p}: cannot open this video")
-            self.kind = "video"
-            self.paths = [p]
-            self._video_count = max(n, 0)
-        elif p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS:
-            self.kind = "images"
-            self.paths = [p]
-        elif any(c in self.spec for c in "*?["):
-            files = [Path(q) for q in _glob.glob(self.spec) if Path(q).is_file()]
+            return "video", [p], max(n, 0)
+        if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS:
+            return "images", [p]
+        if any(c in spec for c in "*?["):
+            files = [Path(q) for q in _glob.glob(spec) if Path(q).is_file()]
             files = [q for q in files if q.suffix.lower() in IMAGE_EXTENSIONS]
             if not files:
-                raise InputError(f"{self.spec}: the pattern matches no images")
-            self.kind = "images"
-            self.paths = sorted(files, key=lambda q: _natural_key(str(q)))
-        elif p.exists():
+                raise InputError(f"{spec}: the pattern matches no images")
+            return "images", sorted(files, key=lambda q: _natural_key(str(q)))
+        if p.exists():
             raise InputError(f"{p}: not a folder of images, an image or a video ({p.suffix or 'no extension'})")
-        else:
-            raise InputError(f"{p}: no such file or folder")
-        self.description = self.spec
+        raise InputError(f"{p}: no such file or folder")
 
     @property
     def count(self):
@@ -142,7 +172,7 @@ class ImageSource:
             yield from self._iter_files()
 
     def _read(self, path):
-        return self._read_path(path, self.gray)
+        return decode_image(path, gray=self.gray, max_pixels=self.max_pixels)
 
     def refs(self):
         """The frames without decoding image files: Frame(name, index, image=None, path)
@@ -152,25 +182,6 @@ class ImageSource:
             return
         for i, p in enumerate(self.paths):
             yield Frame(p.name, i, None, None, str(p))
-
-    @staticmethod
-    def _read_path(path, gray=False):
-        import cv2
-
-        flags = cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_UNCHANGED
-        try:
-            data = np.fromfile(str(path), dtype=np.uint8)
-        except OSError as e:
-            return None, f"cannot read: {e.strerror}"
-        if data.size == 0:
-            return None, "empty file"
-        with _quiet_c_stderr():
-            img = cv2.imdecode(data, flags)
-        if img is None:
-            return None, "cannot decode the image (corrupt or truncated)"
-        if img.ndim == 3 and img.shape[2] == 4:
-            img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
-        return img, None
 
     def _iter_files(self):
         for i, p in enumerate(self.paths):
@@ -206,9 +217,71 @@ class ImageSource:
             cap.release()
 
 
-def open_images(spec, gray=False):
-    """Open IMAGES (folder, glob pattern, single image, or video). See the module doc."""
-    return ImageSource(spec, gray=gray)
+def _header_size(data):
+    """(width, height) an image file's header claims, read without decoding the pixels;
+    None when the format is not one Pillow can identify (OpenCV may still decode it)."""
+    import io
+
+    try:
+        from PIL import Image
+    except ImportError:  # pragma: no cover - Pillow comes with matplotlib
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # judged below, by our limit
+            with Image.open(io.BytesIO(data)) as im:
+                return im.size
+    except Image.DecompressionBombError:
+        # Pillow refuses to open over twice its own limit; all that is known is "more"
+        n = 2 * int(Image.MAX_IMAGE_PIXELS or 0) + 1
+        return (n, 1)
+    except Exception:  # noqa: BLE001 - any reason Pillow cannot identify it: let OpenCV try
+        return None
+
+
+def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
+    """Decode one image file: (image, None) or (None, why).
+
+    The one image decoder of pencilcal: every command reads its images through it, so a
+    frame means the same to calibrate, pnp, lines and orient. Colour images come as BGR
+    (alpha dropped), grey ones as one channel, 8 or 16 bit as stored (``gray=True``: one
+    8-bit channel). The EXIF orientation of a JPEG is applied, as OpenCV's imread does by
+    default, so a camera calibrated from phone pictures fits the same pictures in every
+    command. A header that claims more than `max_pixels` pixels is refused before any
+    pixel is decoded.
+    """
+    import cv2
+
+    try:
+        data = np.fromfile(str(path), dtype=np.uint8)
+    except OSError as e:
+        return None, f"cannot read: {e.strerror}"
+    if data.size == 0:
+        return None, "empty file"
+    size = _header_size(data.tobytes()[:1 << 20] if data.size > (1 << 20) else data.tobytes())
+    if size is not None and size[0] * size[1] > max_pixels:
+        claim = f"{size[0]}x{size[1]}" if size[1] > 1 else f"over {size[0] - 1:,}"
+        return None, (f"the image claims {claim} pixels, over the limit of {max_pixels:,} "
+                      "(--max-pixels raises it)")
+    # ANYDEPTH | ANYCOLOR: as stored, like IMREAD_UNCHANGED, but with the EXIF orientation
+    # applied (IMREAD_UNCHANGED ignores it; IMREAD_GRAYSCALE applies it)
+    flags = cv2.IMREAD_GRAYSCALE if gray else (cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
+    try:
+        with _quiet_c_stderr():
+            img = cv2.imdecode(data, flags)
+    except cv2.error as e:
+        return None, f"cannot decode the image: {str(e).strip().splitlines()[-1]}"
+    if img is None:
+        return None, "cannot decode the image (corrupt or truncated)"
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    return img, None
+
+
+def open_images(spec, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
+    """Open IMAGES: one path or pattern, or a sequence of them (files, folders, glob
+    patterns, or one video). See `ImageSource`."""
+    return ImageSource(spec, gray=gray, max_pixels=max_pixels)
 
 
 def check_image_size(frame, camera, source=None):

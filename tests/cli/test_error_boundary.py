@@ -1,0 +1,98 @@
+"""The command line's one error boundary: one line for every failure, interrupts that stop
+workers at once and leave nothing half-written."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pencilcal.cli.main import cli
+from pencilcal.toolkit.camera.formats import write_camera
+from pencilcal.toolkit.camera.model import Camera
+
+
+@pytest.fixture()
+def frames(tmp_path):
+    cam = Camera("pinhole", 320, 240, [[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]], [])
+    write_camera(tmp_path / "camera.json", cam)
+    d = tmp_path / "frames"
+    d.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(60):
+        assert cv2.imwrite(str(d / f"{i:03d}.png"), rng.integers(0, 255, (240, 320), np.uint8))
+    return tmp_path
+
+
+def test_an_unexpected_exception_is_one_line_naming_command_and_input(frames, monkeypatch):
+    import pencilcal.cli.lines as lines_cli
+
+    def boom(*a, **k):
+        raise ValueError("boom\nsecond line")
+
+    monkeypatch.setattr(lines_cli, "read_camera", boom)
+    args = ["lines", str(frames / "frames"), "--camera", str(frames / "camera.json"), "-o", str(frames / "o.json")]
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 1
+    out = r.output.strip().splitlines()
+    assert len(out) == 1, r.output
+    assert "internal error in `cli lines`" in out[0] or "internal error in `pencilcal lines`" in out[0]
+    assert str(frames / "frames") in out[0] and "ValueError: boom" in out[0] and "please report" in out[0]
+    # --debug: the traceback instead
+    r = CliRunner().invoke(cli, ["--debug", *args])
+    assert isinstance(r.exception, ValueError)
+
+
+def _pencilcal(*args, **kw):
+    return subprocess.Popen([sys.executable, "-c", "from pencilcal.cli.main import main; main()", *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True, **kw)
+
+
+def _wait_for(cond, timeout):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(0.05)
+    return False
+
+
+@pytest.mark.slow
+def test_ctrl_c_with_workers_stops_within_two_seconds(frames):
+    out = frames / "o.json"
+    p = _pencilcal("lines", str(frames / "frames"), "--camera", str(frames / "camera.json"), "-o", str(out),
+                   "--workers", "2", "--detector", "lsd")
+    # the pool is up once a worker process exists
+    assert _wait_for(lambda: len(subprocess.run(["pgrep", "-g", str(p.pid)], capture_output=True).stdout.split()) > 2,
+                     60), "no worker started"
+    time.sleep(0.5)
+    t0 = time.monotonic()
+    os.killpg(p.pid, signal.SIGINT)  # as the terminal sends it: to the whole process group
+    try:
+        _, err = p.communicate(timeout=10)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    assert time.monotonic() - t0 < 2.0
+    assert p.returncode == 1 and "interrupted" in err and "Traceback" not in err
+    assert not out.exists() and not [f for f in os.listdir(frames) if f.startswith(".o.")]
+    assert _wait_for(lambda: subprocess.run(["pgrep", "-g", str(p.pid)], capture_output=True).stdout == b"", 5), \
+        "worker processes left behind"
+
+
+@pytest.mark.slow
+def test_sigterm_during_simulate_leaves_no_partial_folder(tmp_path):
+    out = tmp_path / "sim"
+    p = _pencilcal("simulate", str(out), "--scenario", "orbit", "--frames", "200", "--size", "640x360", "-q")
+    # the staging folder exists once rendering has begun
+    assert _wait_for(lambda: any(f.endswith(".partial") for f in os.listdir(tmp_path)), 60)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=20)
+    assert p.returncode == 143 and "terminated" in err and "Traceback" not in err
+    assert os.listdir(tmp_path) == []

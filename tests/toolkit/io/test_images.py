@@ -1,0 +1,93 @@
+"""IMAGES: several paths in order, natural sorting, duplicates, videos, the one decoder."""
+from __future__ import annotations
+
+import struct
+import zlib
+
+import cv2
+import numpy as np
+import pytest
+
+from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.io.images import decode_image, open_images
+
+
+def _png(path, value=0, size=(4, 6)):
+    assert cv2.imwrite(str(path), np.full(size, value, np.uint8))
+    return path
+
+
+def _claimed_png(path, w, h):
+    """A tiny PNG whose header claims w x h pixels."""
+    def chunk(t, b):
+        return struct.pack(">I", len(b)) + t + b + struct.pack(">I", zlib.crc32(t + b) & 0xFFFFFFFF)
+    data = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 0, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b""))
+    path.write_bytes(data)
+    return path
+
+
+def test_several_paths_keep_their_order_and_folders_sort_naturally(tmp_path):
+    d = tmp_path / "d"
+    d.mkdir()
+    for n in ("f10.png", "f2.png", "f1.png"):
+        _png(d / n)
+    a = _png(tmp_path / "z.png")
+    src = open_images([str(a), str(d)])
+    assert [f.name for f in src] == ["z.png", "f1.png", "f2.png", "f10.png"]
+    assert src.description == f"{a} {d}"
+    # one path behaves as before: its description is the path itself
+    assert open_images(str(d)).description == str(d)
+
+
+def test_the_same_image_twice_is_refused(tmp_path):
+    a = _png(tmp_path / "a.png")
+    with pytest.raises(InputError, match="given twice"):
+        open_images([str(a), str(tmp_path)])
+    with pytest.raises(InputError, match="given twice"):
+        open_images([str(a), str(a)])
+
+
+def test_a_video_must_come_alone(tmp_path):
+    v = tmp_path / "v.avi"
+    w = cv2.VideoWriter(str(v), cv2.VideoWriter_fourcc(*"MJPG"), 5, (32, 24))
+    for _ in range(3):
+        w.write(np.zeros((24, 32, 3), np.uint8))
+    w.release()
+    assert len(list(open_images([str(v)]))) == 3
+    with pytest.raises(InputError, match="only IMAGES argument"):
+        open_images([str(v), str(_png(tmp_path / "a.png"))])
+
+
+def test_no_images_at_all(tmp_path):
+    with pytest.raises(InputError, match="no images given"):
+        open_images([])
+
+
+def test_a_header_claiming_too_many_pixels_is_not_decoded(tmp_path):
+    p = _claimed_png(tmp_path / "bomb.png", 100000, 100000)
+    img, err = decode_image(p)
+    assert img is None and "claims" in err and "--max-pixels" in err
+    p = _claimed_png(tmp_path / "big.png", 12000, 10000)
+    img, err = decode_image(p)
+    assert img is None and "12000x10000" in err
+    # under a raised limit the same header reaches the decoder (and its data are corrupt)
+    img, err = decode_image(p, max_pixels=200_000_000)
+    assert img is None and "claims" not in err
+
+
+def test_exif_orientation_is_applied_in_colour_and_grey(tmp_path):
+    """A JPEG whose EXIF says "rotate 90": every command sees it upright, as imread does."""
+    from PIL import Image
+
+    rgb = np.zeros((20, 40, 3), np.uint8)
+    rgb[:, :10] = 255  # a bright band on the left of the stored pixels
+    path = tmp_path / "phone.jpg"
+    exif = Image.Exif()
+    exif[274] = 6  # rotate 90 deg clockwise to display
+    Image.fromarray(rgb).save(path, exif=exif, quality=95)
+    colour, _ = decode_image(path)
+    grey, _ = decode_image(path, gray=True)
+    assert colour.shape[:2] == grey.shape == (40, 20)
+    np.testing.assert_allclose(cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY), grey, atol=2)
+    assert np.array_equal(colour, cv2.imread(str(path)))
