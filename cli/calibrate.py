@@ -64,6 +64,100 @@ def _detect_task(frame, board):
     return light, (w, h), detect_board(frame.image, board)
 
 
+def _check_outputs(output, report_path, corners_path, force):
+    """The output paths, each given once and writable (before any work)."""
+    outputs = [("-o/--output", output)] + [(name, p) for name, p in (("--report", report_path),
+                                                                         ("--corners", corners_path)) if p]
+    resolved = {}
+    for name, p in outputs:
+        key = Path(p).resolve()
+        if key in resolved:
+            raise InputError(f"{p}: given for both {resolved[key]} and {name}")
+        resolved[key] = name
+        check_output(p, force)
+    return [p for _, p in outputs]
+
+
+def _detect_all(source, board, workers, quiet):
+    """Board detections of every frame: (frames [(frame, record, detection or None)],
+    detections of the decoded frames, their indices into frames, image size (w, h))."""
+    frames = []      # per frame: (frame, dict(image, decoded, error, corners), detection)
+    detections = []  # per decoded frame
+    decoded_index = []
+    first = None
+    for frame, size, det in run_frames(source, _detect_task, board, workers, "detect", quiet):
+        rec = {"image": frame.name, "path": frame.path, "decoded": size is not None, "error": frame.error, "corners": 0}
+        if size is None:
+            warn(f"{frame.path or frame.name}: {frame.error}; skipped")
+            frames.append((frame, rec, None))
+            continue
+        if first is None:
+            first = (frame.path or frame.name, size)
+        elif size != first[1]:
+            raise InputError(f"{frame.path or frame.name}: image is {size[0]}x{size[1]} but {first[0]} is "
+                             f"{first[1][0]}x{first[1][1]}; all images must have the same size")
+        rec["corners"] = det.count
+        decoded_index.append(len(frames))
+        detections.append(det)
+        frames.append((frame, rec, det))
+    if not frames:
+        raise InputError(f"{source.description}: no frames")
+    if first is None:
+        raise InputError(f"{source.description}: none of the {len(frames)} image(s) could be decoded")
+    return frames, detections, decoded_index, first[1]
+
+
+def _report(result, frames, detections, decoded_index, source, board, board_path, image_size, model, fix_aspect,
+            output, corners_path):
+    """The --report record: per-view errors, rejections with reasons, counts, the camera."""
+    views, rejected = [], []
+    for idx, (frame, rec, det) in enumerate(frames):
+        v = dict(rec)
+        if det is None:
+            v.update(used=False, rms_px=None, reason=f"unreadable: {rec['error']}")
+            rejected.append({"image": frame.name, "stage": "unreadable", "reason": rec["error"]})
+        else:
+            j = decoded_index.index(idx)
+            v.update(result.view_report(j))
+            v.pop("view", None)
+            if v.get("reason") is None and not v["used"]:
+                v["reason"] = "not used"
+            for r in result.rejected:
+                if r["view"] == j:
+                    rejected.append({"image": frame.name, **{k: val for k, val in r.items() if k != "view"}})
+        v["index"] = idx
+        views.append(v)
+    counts = {
+        "images": len(frames),
+        "unreadable": sum(1 for _, rec, _ in frames if not rec["decoded"]),
+        "views_with_corners": sum(1 for d in detections if d.count > 0),
+        "views_skipped": sum(1 for r in result.rejected if r["stage"] == "skipped"),
+        "views_rejected": sum(1 for r in result.rejected if r["stage"] == "outlier" and "corner" not in r),
+        "views_used": result.views_used,
+        "corners_detected": int(sum(d.count for d in detections)),
+        "corners_rejected": sum(1 for r in result.rejected if "corner" in r),
+        "corners_used": result.corners_used,
+    }
+    return {
+        "command": "calibrate",
+        "images": source.description,
+        "board_file": str(board_path),
+        "board": board.to_dict(),
+        "image_size": list(image_size),
+        "model": model,
+        "coefficients": result.coefficients,
+        "fix_aspect": bool(fix_aspect),
+        "flags": result.flags,
+        "rms_px": result.rms_px,
+        "std_intrinsics": result.std_intrinsics,
+        "camera": camera_to_dict(result.camera),
+        "counts": counts,
+        "views": views,
+        "rejected": rejected,
+        "outputs": {"camera": str(output), "corners": str(corners_path) if corners_path else None},
+    }
+
+
 @click.command()
 @images_argument()
 @click.option("--board", "board_path", required=True, type=click.Path(dir_okay=False),
@@ -113,103 +207,23 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
         raise click.BadParameter("must be at least 4", param_hint="--min-corners")
     n_coef = int(coefficients) if coefficients is not None else MODELS[model][0]
 
-    outputs = [("-o/--output", output)] + [(name, p) for name, p in (("--report", report_path),
-                                                                         ("--corners", corners_path)) if p]
-    resolved = {}
-    for name, p in outputs:
-        key = Path(p).resolve()
-        if key in resolved:
-            raise InputError(f"{p}: given for both {resolved[key]} and {name}")
-        resolved[key] = name
-        check_output(p, force)
+    outputs = _check_outputs(output, report_path, corners_path, force)
     _probe_camera_format(output, model, n_coef)
     board = read_board(board_path)
     source = open_images(images, gray=True, max_pixels=max_pixels)
-    for _, p in outputs:
+    for p in outputs:
         check_output(p, force, [*source.paths, board_path])
     if corners_path and source.kind == "images":
         # a name vnlog cannot hold is found now, not after the work
         for path in source.paths:
             check_image_name(_vnl_name(str(path), path.name, corners_path, source.kind))
 
-    frames = []      # per frame: dict(image, decoded, error, size)
-    detections = []  # per decoded frame
-    decoded_index = []
-    first = None
-    for frame, size, det in run_frames(source, _detect_task, board, workers, "detect", quiet):
-        rec = {"image": frame.name, "path": frame.path, "decoded": size is not None, "error": frame.error, "corners": 0}
-        if size is None:
-            warn(f"{frame.path or frame.name}: {frame.error}; skipped")
-            frames.append((frame, rec, None))
-            continue
-        if first is None:
-            first = (frame.path or frame.name, size)
-        elif size != first[1]:
-            raise InputError(f"{frame.path or frame.name}: image is {size[0]}x{size[1]} but {first[0]} is "
-                             f"{first[1][0]}x{first[1][1]}; all images must have the same size")
-        rec["corners"] = det.count
-        decoded_index.append(len(frames))
-        detections.append(det)
-        frames.append((frame, rec, det))
-    if not frames:
-        raise InputError(f"{source.description}: no frames")
-    if first is None:
-        raise InputError(f"{source.description}: none of the {len(frames)} image(s) could be decoded")
-    image_size = first[1]
-
+    frames, detections, decoded_index, image_size = _detect_all(source, board, workers, quiet)
     result = calibrate_views(detections, board, image_size, model=model, coefficients=n_coef,
                              fix_aspect=fix_aspect, min_corners=min_corners)
     camera = result.camera
-
-    # --- report
-    views, rejected = [], []
-    for idx, (frame, rec, det) in enumerate(frames):
-        v = dict(rec)
-        if det is None:
-            v.update(used=False, rms_px=None, reason=f"unreadable: {rec['error']}")
-            rejected.append({"image": frame.name, "stage": "unreadable", "reason": rec["error"]})
-        else:
-            j = decoded_index.index(idx)
-            v.update(result.view_report(j))
-            v.pop("view", None)
-            if v.get("reason") is None and not v["used"]:
-                v["reason"] = "not used"
-            for r in result.rejected:
-                if r["view"] == j:
-                    rejected.append({"image": frame.name, **{k: val for k, val in r.items() if k != "view"}})
-        v["index"] = idx
-        views.append(v)
-    n_outlier_views = sum(1 for r in result.rejected if r["stage"] == "outlier" and "corner" not in r)
-    n_outlier_corners = sum(1 for r in result.rejected if "corner" in r)
-    counts = {
-        "images": len(frames),
-        "unreadable": sum(1 for _, rec, _ in frames if not rec["decoded"]),
-        "views_with_corners": sum(1 for d in detections if d.count > 0),
-        "views_skipped": sum(1 for r in result.rejected if r["stage"] == "skipped"),
-        "views_rejected": n_outlier_views,
-        "views_used": result.views_used,
-        "corners_detected": int(sum(d.count for d in detections)),
-        "corners_rejected": n_outlier_corners,
-        "corners_used": result.corners_used,
-    }
-    report = {
-        "command": "calibrate",
-        "images": source.description,
-        "board_file": str(board_path),
-        "board": board.to_dict(),
-        "image_size": list(image_size),
-        "model": model,
-        "coefficients": result.coefficients,
-        "fix_aspect": bool(fix_aspect),
-        "flags": result.flags,
-        "rms_px": result.rms_px,
-        "std_intrinsics": result.std_intrinsics,
-        "camera": camera_to_dict(camera),
-        "counts": counts,
-        "views": views,
-        "rejected": rejected,
-        "outputs": {"camera": str(output), "corners": str(corners_path) if corners_path else None},
-    }
+    report = _report(result, frames, detections, decoded_index, source, board, board_path, image_size, model,
+                     fix_aspect, output, corners_path)
 
     # --- outputs, all or nothing
     todo = []
@@ -223,6 +237,7 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
         for (_, writer), tmp in zip(todo, tmps):
             writer(tmp)
 
+    n_outlier_views, n_outlier_corners = report["counts"]["views_rejected"], report["counts"]["corners_rejected"]
     if not quiet:
         extra = ""
         if n_outlier_views or n_outlier_corners:
