@@ -81,7 +81,7 @@ def sensitivity(output, focal, spokes, step_deg, sigma_deg, tilts, offaxis, tria
       pencilcal sensitivity -o sensitivity.json --spokes 8 --step-deg 20 \\
           --sigma-deg 0.1 --accuracy 0.5 --offaxis 0:400:100px --png plan
     """
-    from pencilcal.toolkit.pencil import estimator_torch as te
+    from pencilcal.toolkit.pencil import torch_backend as te
     from pencilcal.validation import sensitivity as sens
 
     if not (math.isfinite(focal) and focal > 0):

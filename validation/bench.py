@@ -20,7 +20,7 @@ from somewhere else, so it means the same on a laptop and on a 2-core CI machine
   of tilt, 8 lines 20 deg apart, 0.1 deg noise (GEOMETRY.md: 0.9-1.1).
 - ``single_fit_ms``: one pencil fit (numpy estimator), for latency.
 
-Frames are rendered once (toolkit.render, exact truth) and encoded to PNG in memory; both
+Frames are rendered once (toolkit.synth.render, exact truth) and encoded to PNG in memory; both
 sides decode them. Each timing is the median over frames of the best of `repeats` runs.
 """
 from __future__ import annotations
@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-__all__ = ["run_bench", "TARGETS", "format_table"]
+__all__ = ["run_bench", "TARGETS", "format_table", "benchmark_batched"]
 
 TARGETS = {"orient_vs_fld_1080p": ("<=", 1.3), "pnp_vs_opencv": ("<=", 1.1), "sfm_vs_pycolmap": ("<=", 1.05),
            "batch_speedup": (">=", 50.0), "fits_per_minute_batched": (">=", 1e6), "crlb_ratio_tilt20": ("in", (0.9, 1.15))}
@@ -168,7 +168,7 @@ def bench_estimator(trials=2000, seed=0):
     out = {"crlb_ratio_tilt20": float(ratio), "single_fit_ms": float(t_single * 1e3),
            "numpy_batched_fits_per_s": float(trials / t_batch)}
     try:
-        from pencilcal.toolkit.pencil.estimator_torch import benchmark_batched, torch_available
+        from pencilcal.toolkit.pencil.torch_backend import torch_available
 
         if torch_available():
             r = benchmark_batched(n=200_000, loop_n=200, numpy_batched_n=20_000)
@@ -181,6 +181,104 @@ def bench_estimator(trials=2000, seed=0):
     out["batch_speedup"] = float(out["numpy_batched_fits_per_s"] * t_single)
     out["fits_per_minute_batched"] = float(out["numpy_batched_fits_per_s"] * 60)
     out["batched_backend"] = "numpy (torch not installed)"
+    return out
+
+
+def _random_pencils(n, lines, seed):
+    """`n` random pencils of `lines` lines for `benchmark_batched`: (a (n, lines) [rad],
+    th (lines,) [rad], vertex (n, 2) normalised, sigma [rad])."""
+    from pencilcal.toolkit.geometry.frames import rotation_to_z, rotation_about_axis
+    from pencilcal.toolkit.pencil.estimator import pencil_jacobian
+
+    rng = np.random.default_rng(seed)
+    off = np.radians(rng.uniform(0, 30, n))
+    az = rng.uniform(0, 2 * np.pi, n)
+    vertex = np.tan(off)[:, None] * np.stack([np.cos(az), np.sin(az)], -1)
+    v = np.concatenate([vertex, np.ones((n, 1))], -1)
+    z = np.broadcast_to([0.0, 0.0, 1.0], (n, 3))
+    R = (np.swapaxes(rotation_to_z(v), -1, -2) @ rotation_about_axis(z, rng.uniform(0, 2 * np.pi, n))
+         @ rotation_about_axis(np.broadcast_to([1.0, 0, 0], (n, 3)), np.radians(rng.uniform(5, 80, n)))
+         @ rotation_about_axis(z, rng.uniform(0, 2 * np.pi, n)))
+    th = np.radians(np.arange(lines) * (160.0 / max(lines - 1, 1)))
+    sigma = np.radians(0.1)
+    a = pencil_jacobian(R, vertex, th, with_jacobian=False)[0] + sigma * rng.normal(size=(n, lines))
+    return a, th, vertex, sigma
+
+
+def benchmark_batched(n=200_000, lines=8, device="cpu", dtypes=("float64", "float32"), loop_n=300,
+                      numpy_batched_n=50_000, chunk=None, workers=None, seed=0, repeats=3):
+    """Fits per second: the torch batched path against the numpy estimator.
+
+    Fits `n` random pencils of `lines` lines (tilt 5-80 deg, vertex up to 30 deg off axis,
+    0.1 deg noise) with `fit_pencils_torch` for each dtype in `dtypes`, `loop_n` of them
+    one by one with `estimator.fit_pencil` (a Python loop over single pencils) and
+    `numpy_batched_n` with one batched `estimator.fit_pencil` call. Each time is the best
+    of `repeats` runs (a busy machine slows single runs by up to a third).
+
+    Returns a dict: ``torch_<dtype>_fits_per_s``, ``numpy_loop_fits_per_s``,
+    ``numpy_batched_fits_per_s``, ``speedup_<dtype>_vs_loop``, ``<dtype>_pencils_per_minute``,
+    ``max_rotation_diff_deg_float32`` (float32 against float64 on the same pencils), the
+    sizes, the device and the torch thread count. Nothing is asserted.
+
+    Example
+    -------
+    >>> r = benchmark_batched(n=2000, loop_n=20, numpy_batched_n=2000)   # doctest: +SKIP
+    >>> r["speedup_float64_vs_loop"] > 50                                 # doctest: +SKIP
+    True
+    """
+    from pencilcal.toolkit.geometry.frames import rotation_angle
+    from pencilcal.toolkit.pencil.estimator import fit_pencil
+    from pencilcal.toolkit.pencil.estimator_torch import fit_pencils_torch
+    from pencilcal.toolkit.pencil.torch_backend import import_torch, resolve_device
+
+    torch, _ = import_torch()
+
+    dev = resolve_device(device)
+    a, th, vertex, sigma = _random_pencils(n, lines, seed)
+    out = {"n": int(n), "lines": int(lines), "device": str(dev), "torch_threads": torch.get_num_threads(),
+           "torch_version": torch.__version__}
+
+    def sync():
+        if dev.type == "cuda":
+            torch.cuda.synchronize(dev)
+
+    fits = {}
+    for dts in dtypes:
+        # warm-up (allocator, kernels), then the timed run on tensors already on the device
+        at = torch.as_tensor(a, dtype=getattr(torch, dts), device=dev)
+        xt = torch.as_tensor(vertex, dtype=getattr(torch, dts), device=dev)
+        tht = torch.as_tensor(th, dtype=getattr(torch, dts), device=dev)
+        fit_pencils_torch(at[:4096], tht, xt[:4096], sigma, device=dev, dtype=dts, chunk=chunk, workers=workers)
+        sync()
+        dt_s = np.inf
+        for _ in range(max(1, int(repeats))):
+            t0 = time.perf_counter()
+            f = fit_pencils_torch(at, tht, xt, sigma, device=dev, dtype=dts, chunk=chunk, workers=workers)
+            sync()
+            dt_s = min(dt_s, time.perf_counter() - t0)
+        fits[dts] = f
+        out[f"torch_{dts}_fits_per_s"] = n / dt_s
+        out[f"{dts}_pencils_per_minute"] = 60.0 * n / dt_s
+        out[f"torch_{dts}_iterations"] = int(f["iterations"])
+    t_loop = np.inf
+    for _ in range(max(1, int(repeats))):
+        t0 = time.perf_counter()
+        for i in range(loop_n):
+            fit_pencil(a[i], th, vertex[i], sigma=sigma)
+        t_loop = min(t_loop, time.perf_counter() - t0)
+    out["numpy_loop_fits_per_s"] = loop_n / t_loop
+    nb = min(numpy_batched_n, n)
+    t_nb = np.inf
+    for _ in range(max(1, int(repeats))):
+        t0 = time.perf_counter()
+        ref = fit_pencil(a[:nb], th, vertex[:nb], sigma=sigma)
+        t_nb = min(t_nb, time.perf_counter() - t0)
+    out["numpy_batched_fits_per_s"] = nb / t_nb
+    for dts in dtypes:
+        out[f"speedup_{dts}_vs_loop"] = out[f"torch_{dts}_fits_per_s"] / out["numpy_loop_fits_per_s"]
+        out[f"speedup_{dts}_vs_numpy_batched"] = out[f"torch_{dts}_fits_per_s"] / out["numpy_batched_fits_per_s"]
+        R = fits[dts]["R_cam_from_target"][:nb].double().cpu().numpy()
+        out[f"max_rotation_diff_deg_{dts}_vs_numpy"] = float(np.degrees(rotation_angle(R, ref.R_cam_from_target)).max())
     return out
 
 

@@ -165,8 +165,8 @@ def parse_range(spec, name="range"):
 
 def resolve_backend(backend="auto", device="cpu"):
     """``"torch"`` or ``"numpy"``: auto picks torch when importable. A CUDA device needs
-    torch (raises `toolkit.torch_estimator.TorchUnavailableError` otherwise)."""
-    from pencilcal.toolkit.pencil import estimator_torch as te
+    torch (raises `toolkit.pencil.torch_backend.TorchUnavailableError` otherwise)."""
+    from pencilcal.toolkit.pencil import torch_backend as te
 
     if backend not in ("auto", "torch", "numpy"):
         raise InputError(f"backend must be auto, torch or numpy, got {backend!r}")

@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from pencilcal.cli.sensitivity import sensitivity
-from pencilcal.toolkit.pencil import estimator_torch as te
+from pencilcal.toolkit.pencil import torch_backend as te
 
 FAST = ["--tilts", "0:60:10", "--offaxis", "0,20", "--trials", "80"]
 NOTE = 'pip install -e ".[torch]" makes this much faster'

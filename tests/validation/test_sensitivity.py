@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pencilcal.toolkit.pencil import estimator_torch as te
+from pencilcal.toolkit.pencil import torch_backend as te
 from pencilcal.toolkit.errors import InputError
 from pencilcal.validation import sensitivity as sens
 

@@ -9,7 +9,7 @@ where numpy's LM stops on its relative-cost test; tests/toolkit/pencil/test_torc
 1. Closed-form start in the virtual camera that looks along the vertex ray: a batched
    DLT of the 2x2 matrix A in ``(cos b_k, sin b_k) ~ A (cos theta_k, sin theta_k)``
    (null vector of the 4x4 normal matrix by inverse iteration), the analytic signed 2x2
-   SVD, and cos(gamma) = s2 / s1 (GEOMETRY.md, "The exact estimator").
+   SVD, and cos(gamma) = s2 / s1 (docs/method.md, "The exact estimator").
 2. Levenberg-Marquardt on wrapped, weighted line residuals (period pi), with left
    perturbations ``R <- expm([delta]x) R`` (Rodrigues), per-pencil damping and masks;
    converged pencils leave the working set, so stragglers do not make everybody iterate.
@@ -20,8 +20,8 @@ where numpy's LM stops on its relative-cost test; tests/toolkit/pencil/test_torc
 
 torch and kornia are optional (``pip install torch==2.13.0 && pip install -e ".[torch]"``);
 they are imported only when a function here runs. Without them every entry point raises
-`TorchUnavailableError` (an `InputError` and an `ImportError`) whose one-line message says
-how to install them. `torch_available()` tells without raising.
+`torch_backend.TorchUnavailableError` (an `InputError` and an `ImportError`) whose one-line
+message says how to install them. `torch_backend.torch_available()` tells without raising.
 
 Three things differ from numpy on purpose:
 
@@ -44,8 +44,10 @@ rotation conversion (kornia's, tried first, cost as much per call as a whole mod
 evaluation; measured in docs/performance.md). kornia does the lens undistortion.
 
 Angles are radians, image angles in normalised camera coordinates (z = 1 plane, after
-undistortion); `segment_angles_torch` turns raw pixel segments of OpenCV-model cameras into
-such angles in batches (kornia's undistortion, polished by Newton steps).
+undistortion); `points_torch.segment_angles_torch` turns raw pixel segments of OpenCV-model
+cameras into such angles in batches (kornia's undistortion, polished by Newton steps). The
+speed against the numpy estimator is measured by `pencilcal bench` (validation/bench.py,
+`benchmark_batched`).
 
 Example
 -------
@@ -66,109 +68,20 @@ from __future__ import annotations
 
 import contextlib
 import math
-import time
 
 import numpy as np
 
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.defaults import CHI2_2_DETECTION, MAX_VERTEX, MIN_COS
 from pencilcal.toolkit.pencil.estimator import PencilFit
+from pencilcal.toolkit.pencil.torch_backend import as_tensor, import_torch, resolve_device, torch_dtype
 
-__all__ = [
-    "INSTALL_HINT",
-    "TorchUnavailableError",
-    "torch_available",
-    "require_torch",
-    "resolve_device",
-    "wrap_line_torch",
-    "fit_pencils_torch",
-    "to_pencil_fit",
-    "undistort_points_torch",
-    "segment_angles_torch",
-    "benchmark_batched",
-]
-
-INSTALL_HINT = 'pip install torch==2.13.0 && pip install -e ".[torch]"'
+__all__ = ["wrap_line_torch", "fit_pencils_torch", "to_pencil_fit"]
 
 # pencils per chunk: 16384 x 8 lines keeps the temporaries (1 MB each) near the cache,
 # and each chunk runs on one core (_single_threaded); chunks run on `workers` threads
 _CHUNK_CPU = 16384
 _CHUNK_CUDA = 1 << 18
-
-
-class TorchUnavailableError(InputError, ImportError):
-    """torch/kornia missing, or a CUDA device asked for where there is none.
-
-    An `InputError` (the command line prints its one-line message and exits 1) and an
-    `ImportError` (``except ImportError`` works as for any optional dependency).
-    """
-
-
-def torch_available() -> bool:
-    """True when torch and kornia can be imported (the ``[torch]`` extra is installed)."""
-    try:
-        _import_torch()
-        return True
-    except TorchUnavailableError:
-        return False
-
-
-def _import_torch():
-    try:
-        import torch  # noqa: F401
-        import kornia  # noqa: F401
-    except ImportError as e:
-        missing = getattr(e, "name", None) or "torch"
-        raise TorchUnavailableError(f"{missing} is not installed; the torch path needs it: {INSTALL_HINT}") from None
-    return torch, kornia
-
-
-def require_torch(device="cpu"):
-    """Import torch (and kornia) and check `device`; return the torch module.
-
-    Raises TorchUnavailableError with a one-line message naming the install command when
-    torch/kornia are missing or when ``device`` is a CUDA device that torch cannot use.
-    """
-    torch, _ = _import_torch()
-    resolve_device(device)
-    return torch
-
-
-def resolve_device(device="cpu"):
-    """``torch.device`` for "cpu", "cuda", "cuda:1" or a torch.device; raises
-    TorchUnavailableError when CUDA is asked for and is not available."""
-    torch, _ = _import_torch()
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, TypeError) as e:
-        raise InputError(f"unknown device {device!r}: {e}") from None
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        build = "a CPU-only build" if torch.version.cuda is None else f"CUDA {torch.version.cuda}, but no GPU is visible"
-        raise TorchUnavailableError(
-            f"device {device!r} asked for, but torch {torch.__version__} is {build}: "
-            f"use --device cpu, or install a CUDA build of torch on a machine with a GPU")
-    return dev
-
-
-def _tensor(torch, v, dt, dev):
-    """A tensor from array_like (copied: numpy views may be read-only, which torch warns about)."""
-    try:
-        arr = np.array(v, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError("expected an array of numbers") from None
-    return torch.as_tensor(arr, dtype=dt, device=dev)
-
-
-def _dtype(torch, dtype):
-    if dtype is None:
-        return torch.float64
-    if isinstance(dtype, str):
-        if dtype not in ("float64", "float32"):
-            raise InputError(f"dtype must be 'float64' or 'float32', got {dtype!r}")
-        return getattr(torch, dtype)
-    if dtype not in (torch.float64, torch.float32):
-        raise InputError(f"dtype must be torch.float64 or torch.float32, got {dtype!r}")
-    return dtype
 
 
 def wrap_line_torch(angle):
@@ -610,7 +523,7 @@ def _prepare(torch, line_angles, spoke_angles, vertex, sigma, weights, vertex_co
     def t(v):
         if isinstance(v, torch.Tensor):
             return v.to(device=dev, dtype=dt)
-        return _tensor(torch, v, dt, dev)
+        return as_tensor(torch, v, dt, dev)
 
     a, th, x = t(line_angles), t(spoke_angles), t(vertex)
     if a.ndim == 0 or x.ndim == 0 or x.shape[-1] != 2 or th.ndim == 0:
@@ -634,7 +547,7 @@ def _prepare(torch, line_angles, spoke_angles, vertex, sigma, weights, vertex_co
     if weights is None:
         m = torch.ones((B, N), dtype=torch.bool, device=dev)
     else:
-        wt = weights.to(dev) if isinstance(weights, torch.Tensor) else _tensor(torch, weights, torch.float64, dev)
+        wt = weights.to(dev) if isinstance(weights, torch.Tensor) else as_tensor(torch, weights, torch.float64, dev)
         m = (wt > 0).expand(batch + (N,)).reshape(B, N)
     Cx = None
     if vertex_cov is not None:
@@ -704,9 +617,9 @@ def fit_pencils_torch(line_angles, spoke_angles, vertex, sigma=math.radians(0.1)
     >>> fit["tilt"].round(6).tolist(), fit["detectable"].tolist()
     ([0.0, 0.0, 0.0], [False, False, False])
     """
-    torch, _ = _import_torch()  # kornia too: the [torch] extra is one install
+    torch, _ = import_torch()  # kornia too: the [torch] extra is one install
     dev = resolve_device(device)
-    dt = _dtype(torch, dtype)
+    dt = torch_dtype(torch, dtype)
     low = dt == torch.float32
     if output not in ("torch", "numpy"):
         raise InputError(f"output must be 'torch' or 'numpy', got {output!r}")
@@ -843,249 +756,3 @@ def to_pencil_fit(fit):
         lines_used=n(fit["lines_used"]), converged=n(fit["converged"]), iterations=int(fit["iterations"]),
         ambiguous=n(fit["ambiguous"]),
     )
-
-
-# ----------------------------------------------------------------------------------------
-# raw pixel segments -> normalised angles (OpenCV lens model, kornia)
-
-
-def _camera_arrays(camera_or_K, dist):
-    from pencilcal.toolkit.camera.model import Camera
-
-    if isinstance(camera_or_K, Camera):
-        if camera_or_K.model == "fisheye":
-            raise InputError("segment_angles_torch handles pinhole and opencv cameras; for fisheye lenses "
-                             "use Camera.normalized_from_pixels")
-        K = np.asarray(camera_or_K.K, float)
-        d = np.asarray(camera_or_K.dist, float)
-    else:
-        K = np.asarray(camera_or_K, float)
-        d = np.zeros(0) if dist is None else np.asarray(dist, float)
-    if K.shape[-2:] != (3, 3):
-        raise InputError(f"K must be (..., 3, 3), got {K.shape}")
-    if d.shape[-1] not in (0, 4, 5, 8, 12, 14):
-        raise InputError(f"OpenCV distortion takes 4, 5, 8, 12 or 14 coefficients, got {d.shape[-1]}")
-    return K, d
-
-
-def undistort_points_torch(px, camera_or_K, dist=None, *, device="cpu", dtype="float64", num_iters=20,
-                           newton=3):
-    """Raw pixels of an OpenCV-model camera to normalised coordinates, in batches.
-
-    Parameters
-    ----------
-    px : (..., M, 2) [px] raw pixels (OpenCV convention, pixel centres at integers).
-    camera_or_K : a pinhole/opencv `Camera`, or K (3, 3) / (..., 3, 3) [px].
-    dist : (n,) or (..., n) OpenCV coefficients (n = 4, 5, 8, 12, 14) when K is given.
-    num_iters : fixed-point iterations of ``kornia.geometry.calibration.undistort_points``.
-    newton : Newton steps polishing that start on ``kornia...distort_points`` (Jacobian
-        by autograd): kornia's fixed point alone stops at ~1e-4 px near the corners of
-        strongly distorted lenses and has no convergence test (kornia#4285).
-
-    Returns
-    -------
-    (..., M, 2) tensor of normalised coordinates; NaN where the distortion model is not
-    inverted to 1e-10 (float64; 1e-4 in float32) normalised units. Unlike
-    `Camera.normalized_from_pixels` no fold check is made: far outside the lens model's
-    invertible part the answer may be a root beyond the fold.
-
-    Example
-    -------
-    >>> from pencilcal.toolkit.camera.model import Camera
-    >>> cam = Camera("opencv", 1920, 1080, [[1500.0, 0, 959.5], [0, 1500.0, 539.5], [0, 0, 1]],
-    ...              [-0.3, 0.12, 0.001, -0.002, 0.0])
-    >>> xy = undistort_points_torch([[0.0, 0.0], [1919.0, 1079.0]], cam).numpy()
-    >>> bool(abs(xy - cam.normalized_from_pixels([[0.0, 0.0], [1919.0, 1079.0]])).max() < 1e-11)
-    True
-    """
-    torch, kornia = _import_torch()
-    dev = resolve_device(device)
-    dt = _dtype(torch, dtype)
-    K, d = _camera_arrays(camera_or_K, dist)
-    p = px.to(dev, dt) if isinstance(px, torch.Tensor) else _tensor(torch, px, dt, dev)
-    if p.shape[-1] != 2 or p.ndim < 2:
-        raise InputError(f"pixels must be (..., M, 2), got {tuple(p.shape)}")
-    Kt = torch.as_tensor(np.array(K, dtype=float), dtype=dt, device=dev)
-    # K^-1 including the skew (kornia ignores K[0, 1])
-    yd = (p[..., 1] - Kt[..., 1, 2, None]) / Kt[..., 1, 1, None]
-    xd = (p[..., 0] - Kt[..., 0, 2, None] - Kt[..., 0, 1, None] * yd) / Kt[..., 0, 0, None]
-    target = torch.stack([xd, yd], -1)
-    if d.shape[-1] == 0:
-        return target
-    D = torch.as_tensor(np.array(d, dtype=float), dtype=dt, device=dev)
-    eye = torch.eye(3, dtype=dt, device=dev)
-    calib = kornia.geometry.calibration
-    with torch.no_grad():
-        xy = calib.undistort_points(target, eye, D, eye, num_iters=num_iters)
-    for _ in range(newton):
-        with torch.enable_grad():
-            q = xy.detach().requires_grad_(True)
-            f = calib.distort_points(q, eye, D, eye)
-            gx = torch.autograd.grad(f[..., 0].sum(), q, retain_graph=True)[0]
-            gy = torch.autograd.grad(f[..., 1].sum(), q)[0]
-        with torch.no_grad():
-            e = f.detach() - target
-            det = gx[..., 0] * gy[..., 1] - gx[..., 1] * gy[..., 0]
-            dx = (gy[..., 1] * e[..., 0] - gx[..., 1] * e[..., 1]) / det
-            dy = (-gy[..., 0] * e[..., 0] + gx[..., 0] * e[..., 1]) / det
-            xy = xy - torch.stack([dx, dy], -1)
-    with torch.no_grad():
-        err = (calib.distort_points(xy, eye, D, eye) - target).norm(dim=-1)
-        tol = (1e-4 if dt == torch.float32 else 1e-10) * (1.0 + target.norm(dim=-1))
-        return torch.where((err <= tol)[..., None], xy, torch.nan)
-
-
-def segment_angles_torch(segments, camera_or_K, dist=None, vertex=None, *, device="cpu", dtype="float64",
-                         num_iters=20, newton=3):
-    """Normalised image angles of raw pixel segments, batched (OpenCV lens model).
-
-    Parameters
-    ----------
-    segments : (..., M, 4) [px] raw segments ``[x1, y1, x2, y2]``.
-    camera_or_K, dist : as `undistort_points_torch`.
-    vertex : (..., 2) normalised vertex or None. When given each segment is oriented away
-        from it (as `orient.orient_segments` does), so the angles are spoke directions;
-        otherwise the angle runs from the first to the second end point.
-
-    Returns
-    -------
-    dict of tensors: ``angles`` (..., M) [rad] in normalised coordinates, ready for
-    `fit_pencils_torch`; ``p1, p2`` (..., M, 2) the undistorted end points; ``ok``
-    (..., M) bool, False where an end point could not be undistorted.
-
-    Example
-    -------
-    >>> import numpy as np
-    >>> seg = np.array([[[100.0, 100.0, 200.0, 200.0]]])
-    >>> K = [[800.0, 0, 100.0], [0, 800.0, 100.0], [0, 0, 1]]
-    >>> out = segment_angles_torch(seg, K)          # pinhole: the pixel angle itself
-    >>> round(float(np.degrees(out["angles"][0, 0])), 9)
-    45.0
-    """
-    torch, _ = _import_torch()
-    dt = _dtype(torch, dtype)
-    s = segments if isinstance(segments, torch.Tensor) else _tensor(torch, segments, torch.float64, "cpu")
-    if s.shape[-1] != 4 or s.ndim < 2:
-        raise InputError(f"segments must be (..., M, 4) as [x1, y1, x2, y2], got {tuple(s.shape)}")
-    pts = s.reshape(s.shape[:-1] + (2, 2)).reshape(s.shape[:-2] + (-1, 2))
-    xy = undistort_points_torch(pts, camera_or_K, dist, device=device, dtype=dtype, num_iters=num_iters,
-                                newton=newton)
-    xy = xy.reshape(s.shape[:-1] + (2, 2))
-    p1, p2 = xy[..., 0, :], xy[..., 1, :]
-    t = p2 - p1
-    if vertex is not None:
-        v = vertex.to(xy.device, dt) if isinstance(vertex, torch.Tensor) else torch.as_tensor(
-            np.array(vertex, dtype=float), dtype=dt, device=xy.device)
-        v = v[..., None, :]
-        s1, s2 = ((p1 - v) * t).sum(-1), ((p2 - v) * t).sum(-1)
-        away = torch.where(s2.abs() >= s1.abs(), 1.0, -1.0).to(dt)
-        t = t * away[..., None]
-    ang = torch.atan2(t[..., 1], t[..., 0])
-    ok = torch.isfinite(ang)
-    return {"angles": ang, "p1": p1, "p2": p2, "ok": ok}
-
-
-# ----------------------------------------------------------------------------------------
-# speed
-
-
-def _random_pencils(n, lines, seed):
-    from pencilcal.toolkit.geometry.frames import rotation_to_z, rotation_about_axis
-    from pencilcal.toolkit.pencil.estimator import pencil_jacobian
-
-    rng = np.random.default_rng(seed)
-    off = np.radians(rng.uniform(0, 30, n))
-    az = rng.uniform(0, 2 * np.pi, n)
-    vertex = np.tan(off)[:, None] * np.stack([np.cos(az), np.sin(az)], -1)
-    v = np.concatenate([vertex, np.ones((n, 1))], -1)
-    z = np.broadcast_to([0.0, 0.0, 1.0], (n, 3))
-    R = (np.swapaxes(rotation_to_z(v), -1, -2) @ rotation_about_axis(z, rng.uniform(0, 2 * np.pi, n))
-         @ rotation_about_axis(np.broadcast_to([1.0, 0, 0], (n, 3)), np.radians(rng.uniform(5, 80, n)))
-         @ rotation_about_axis(z, rng.uniform(0, 2 * np.pi, n)))
-    th = np.radians(np.arange(lines) * (160.0 / max(lines - 1, 1)))
-    sigma = np.radians(0.1)
-    a = pencil_jacobian(R, vertex, th, with_jacobian=False)[0] + sigma * rng.normal(size=(n, lines))
-    return a, th, vertex, sigma
-
-
-def benchmark_batched(n=200_000, lines=8, device="cpu", dtypes=("float64", "float32"), loop_n=300,
-                      numpy_batched_n=50_000, chunk=None, workers=None, seed=0, repeats=3):
-    """Fits per second: the torch batched path against the numpy estimator.
-
-    Fits `n` random pencils of `lines` lines (tilt 5-80 deg, vertex up to 30 deg off axis,
-    0.1 deg noise) with `fit_pencils_torch` for each dtype in `dtypes`, `loop_n` of them
-    one by one with `estimator.fit_pencil` (a Python loop over single pencils) and
-    `numpy_batched_n` with one batched `estimator.fit_pencil` call. Each time is the best
-    of `repeats` runs (a busy machine slows single runs by up to a third).
-
-    Returns a dict: ``torch_<dtype>_fits_per_s``, ``numpy_loop_fits_per_s``,
-    ``numpy_batched_fits_per_s``, ``speedup_<dtype>_vs_loop``, ``<dtype>_pencils_per_minute``,
-    ``max_rotation_diff_deg_float32`` (float32 against float64 on the same pencils), the
-    sizes, the device and the torch thread count. Nothing is asserted.
-
-    Example
-    -------
-    >>> r = benchmark_batched(n=2000, loop_n=20, numpy_batched_n=2000)   # doctest: +SKIP
-    >>> r["speedup_float64_vs_loop"] > 50                                 # doctest: +SKIP
-    True
-    """
-    torch, _ = _import_torch()
-    from pencilcal.toolkit.pencil.estimator import fit_pencil
-    from pencilcal.toolkit.geometry.frames import rotation_angle
-
-    dev = resolve_device(device)
-    a, th, vertex, sigma = _random_pencils(n, lines, seed)
-    out = {"n": int(n), "lines": int(lines), "device": str(dev), "torch_threads": torch.get_num_threads(),
-           "torch_version": torch.__version__}
-
-    def sync():
-        if dev.type == "cuda":
-            torch.cuda.synchronize(dev)
-
-    fits = {}
-    for dts in dtypes:
-        # warm-up (allocator, kernels), then the timed run on tensors already on the device
-        at = torch.as_tensor(a, dtype=getattr(torch, dts), device=dev)
-        xt = torch.as_tensor(vertex, dtype=getattr(torch, dts), device=dev)
-        tht = torch.as_tensor(th, dtype=getattr(torch, dts), device=dev)
-        fit_pencils_torch(at[:4096], tht, xt[:4096], sigma, device=dev, dtype=dts, chunk=chunk, workers=workers)
-        sync()
-        dt_s = np.inf
-        for _ in range(max(1, int(repeats))):
-            t0 = time.perf_counter()
-            f = fit_pencils_torch(at, tht, xt, sigma, device=dev, dtype=dts, chunk=chunk, workers=workers)
-            sync()
-            dt_s = min(dt_s, time.perf_counter() - t0)
-        fits[dts] = f
-        out[f"torch_{dts}_fits_per_s"] = n / dt_s
-        out[f"{dts}_pencils_per_minute"] = 60.0 * n / dt_s
-        out[f"torch_{dts}_iterations"] = int(f["iterations"])
-    t_loop = np.inf
-    for _ in range(max(1, int(repeats))):
-        t0 = time.perf_counter()
-        for i in range(loop_n):
-            fit_pencil(a[i], th, vertex[i], sigma=sigma)
-        t_loop = min(t_loop, time.perf_counter() - t0)
-    out["numpy_loop_fits_per_s"] = loop_n / t_loop
-    nb = min(numpy_batched_n, n)
-    t_nb = np.inf
-    for _ in range(max(1, int(repeats))):
-        t0 = time.perf_counter()
-        ref = fit_pencil(a[:nb], th, vertex[:nb], sigma=sigma)
-        t_nb = min(t_nb, time.perf_counter() - t0)
-    out["numpy_batched_fits_per_s"] = nb / t_nb
-    for dts in dtypes:
-        out[f"speedup_{dts}_vs_loop"] = out[f"torch_{dts}_fits_per_s"] / out["numpy_loop_fits_per_s"]
-        out[f"speedup_{dts}_vs_numpy_batched"] = out[f"torch_{dts}_fits_per_s"] / out["numpy_batched_fits_per_s"]
-        R = fits[dts]["R_cam_from_target"][:nb].double().cpu().numpy()
-        out[f"max_rotation_diff_deg_{dts}_vs_numpy"] = float(np.degrees(rotation_angle(R, ref.R_cam_from_target)).max())
-    return out
-
-
-if __name__ == "__main__":  # python -m pencilcal.toolkit.pencil.estimator_torch [n] [cpu|cuda]
-    import json
-    import sys
-
-    args = sys.argv[1:]
-    res = benchmark_batched(n=int(float(args[0])) if args else 200_000, device=args[1] if len(args) > 1 else "cpu")
-    print(json.dumps(res, indent=1))

@@ -1,5 +1,4 @@
-"""The torch batched estimator against the numpy one, the kornia undistortion, and the
-message when torch is missing."""
+"""The torch batched estimator against the numpy one, and its message when torch is missing."""
 from __future__ import annotations
 
 import sys
@@ -8,14 +7,15 @@ import numpy as np
 import pytest
 
 from pencilcal.toolkit.pencil import estimator_torch as te
-from pencilcal.toolkit.geometry.angles import wrap_angle, wrap_line
+from pencilcal.toolkit.pencil import torch_backend as tb
+from pencilcal.toolkit.geometry.angles import wrap_line
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.estimator import PencilFit, fit_pencil
 from pencilcal.toolkit.geometry.frames import angle_between, rotation_angle
 from pencilcal.toolkit.pencil.spec import image_angles
 from tests.toolkit.pencil.test_estimator import pose
 
-HAVE_TORCH = te.torch_available()
+HAVE_TORCH = tb.torch_available()
 needs_torch = pytest.mark.skipif(not HAVE_TORCH, reason='torch/kornia not installed (pip install -e ".[torch]")')
 DEG = np.pi / 180
 
@@ -162,60 +162,10 @@ class TestAgreement:
         assert np.isfinite(fit["tilt"][0]) and np.isnan(fit["tilt"][1:]).all()
         assert not fit["detectable"][1:].any()
 
-    def test_cuda_missing_is_one_line(self):
-        import torch
-
-        if torch.cuda.is_available():
-            pytest.skip("a GPU is present")
-        with pytest.raises(te.TorchUnavailableError) as e:
-            te.resolve_device("cuda")
-        assert "\n" not in str(e.value) and "--device cpu" in str(e.value)
-
-    def test_benchmark_runs(self):
-        r = te.benchmark_batched(n=600, loop_n=3, numpy_batched_n=300, dtypes=("float64",))
-        assert r["torch_float64_fits_per_s"] > 0 and r["numpy_loop_fits_per_s"] > 0
-        assert r["max_rotation_diff_deg_float64_vs_numpy"] < 1e-6
-
-
-@needs_torch
-class TestUndistortion:
-    @pytest.mark.parametrize("dist", [
-        [-0.3, 0.12, 0.001, -0.002, 0.0],
-        [-0.3, 0.12, 0.0005, 0.0002, -0.02, 0.01, -0.003, 0.002, 0.001, -0.0005, 0.0003, 0.0001, 0.01, -0.02],
-    ])
-    def test_matches_camera(self, rng, dist):
-        from pencilcal.toolkit.camera.model import Camera
-
-        cam = Camera("opencv", 1920, 1080, [[1500.0, 2.0, 955.0], [0, 1498.0, 545.0], [0, 0, 1]], dist)
-        px = rng.uniform([0, 0], [1919, 1079], (2000, 2))
-        got = te.undistort_points_torch(px, cam).numpy()
-        np.testing.assert_allclose(got, cam.normalized_from_pixels(px), atol=1e-12)
-
-    def test_segment_angles_of_projected_spokes(self, rng):
-        from tests.helpers import fan, frame, hd_camera
-
-        cam = hd_camera()
-        pen = fan(radius=None)
-        seg, R, t = frame(cam, pen, 30.0, 200.0, rng)
-        x = t[:2] / t[2]
-        out = te.segment_angles_torch(seg[None], cam, vertex=x[None])
-        expect = image_angles(R, x, pen.angles)
-        assert out["ok"].all()
-        assert np.abs(wrap_angle(out["angles"][0].numpy() - expect)).max() < 1e-9
-        # and the fit on them recovers the pose
-        fit = te.fit_pencils_torch(out["angles"], pen.angles, x[None], output="numpy")
-        assert np.degrees(closer_error(fit, R[None])).max() < 1e-7
-
-    def test_fisheye_refused(self):
-        from tests.helpers import hd_camera
-
-        with pytest.raises(InputError, match="fisheye"):
-            te.undistort_points_torch([[0.0, 0.0]], hd_camera("fisheye"))
-
 
 def test_without_torch_the_message_says_how_to_install(monkeypatch):
     monkeypatch.setitem(sys.modules, "torch", None)  # import torch now raises ImportError
-    assert not te.torch_available()
+    assert not tb.torch_available()
     with pytest.raises(ImportError) as e:
         te.fit_pencils_torch([[0.1, 0.5, 0.9]], [0.0, 0.4, 0.8], [[0.0, 0.0]])
     assert isinstance(e.value, InputError)

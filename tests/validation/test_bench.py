@@ -1,0 +1,16 @@
+"""The benchmarks' helpers run (the figures themselves are `pencilcal bench`'s)."""
+from __future__ import annotations
+
+import pytest
+
+from pencilcal.toolkit.pencil.torch_backend import torch_available
+from pencilcal.validation.bench import benchmark_batched
+
+needs_torch = pytest.mark.skipif(not torch_available(), reason='torch/kornia not installed (pip install -e ".[torch]")')
+
+
+@needs_torch
+def test_benchmark_runs():
+    r = benchmark_batched(n=600, loop_n=3, numpy_batched_n=300, dtypes=("float64",))
+    assert r["torch_float64_fits_per_s"] > 0 and r["numpy_loop_fits_per_s"] > 0
+    assert r["max_rotation_diff_deg_float64_vs_numpy"] < 1e-6
