@@ -3,6 +3,7 @@ self-contained HTML, decodable images, a multi-page PDF, one-line errors on bad 
 from __future__ import annotations
 
 import base64
+import hashlib
 import io
 import json
 import re
@@ -14,6 +15,7 @@ from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import to_jsonable
 from pencilcal.toolkit.geometry.frames import rotation_about_axis
 from pencilcal.validation import report as rp
+from pencilcal.validation.report.sections import sensitivity_section
 from pencilcal.validation.validate import frame_errors, summarise
 
 Z = np.array([0.0, 0.0, 1.0])
@@ -185,7 +187,7 @@ def test_every_branch_renders_self_contained_with_every_method(tmp_path, kw):
     assert_self_contained(page)
     rows = summary_rows(page)
     expected = [k for k in data["summary"]]
-    assert [r.rstrip(" †") for r in rows] == [rp._label(k) for k in expected]
+    assert [r.rstrip(" †") for r in rows] == [rp.method_label(k) for k in expected]
     imgs = decoded_images(page)
     n_overlays = samples if kw.get("images", True) else 0
     assert len(imgs) == 2 + n_overlays + (1 if kw["calibration"] else 0)
@@ -344,7 +346,7 @@ def test_sensitivity_block(tmp_path):
     # a bound-only plan (no Monte Carlo) renders too
     sens0 = json.loads(json.dumps(to_jsonable(plan(Setup(), tilts_deg="0:60:15", offaxis_deg="0", trials=0,
                                                    backend="numpy"))))
-    sec = rp._sensitivity_section(data, sens0)
+    sec = sensitivity_section(data, sens0)
     assert sum(isinstance(b, rp.Plot) for b in sec.blocks) == 2
     assert "Cramer-Rao bound" in sec.blocks[0].text
     assert not [b for b in sec.blocks if isinstance(b, rp.Para) and "could not be drawn" in b.text]
@@ -376,12 +378,12 @@ def test_real_validation_run_html_and_pdf(real_run):
     rep = rp.write_report(d / "r.html", data, samples=2, source=vjson, report_command="pencilcal report v.json")
     page = (d / "r.html").read_text(encoding="utf-8")
     assert_self_contained(page)
-    assert [r.rstrip(" †") for r in summary_rows(page)] == [rp._label(k) for k in rp.method_keys(data)]
+    assert [r.rstrip(" †") for r in summary_rows(page)] == [rp.method_label(k) for k in rp.method_keys(data)]
     assert {"orient:exact", "orient:general", "orient:aligned", "pnp:sqpnp", "pnp:ippe", "pnp:iterative",
             "pnp:epnp", "pnp:colmap"} <= set(rp.method_keys(data))
     assert len(decoded_images(page)) == 2 + 2
     assert "ground-truth poses (truth.json)" in rep.sections[0].blocks[1].text
-    assert rp._sha256(vjson) in page  # the validation file's own hash
+    assert hashlib.sha256(vjson.read_bytes()).hexdigest() in page  # the validation file's own hash
     assert "pencilcal report v.json" in page
     rp.write_report(d / "r.pdf", data, samples=1, source=vjson)
     assert pdf_pages(d / "r.pdf") > 1
