@@ -1,15 +1,17 @@
 """The lines file (``lines.json``): line segments per frame, in raw (distorted) pixels.
 
-Format (INTERFACES.md)::
+Format (docs/formats.md)::
 
     {"frames": [{"image": "000.png", "ok": true,
                  "segments": [[x1, y1, x2, y2], ...],
                  "angle_sigma_deg": [...],            # optional, one per segment
                  "offset_sigma_px": [...],            # optional, one per segment
+                 "width_px": [...],                   # optional, bars: one per segment
                  "shafts": [{"midline": [x1, y1, x2, y2], "width_px": 84.0,
                              "angle_sigma_deg": 0.2}]}]}
 
-`segments` is all a reader needs. Pixel (0, 0) is the centre of the top-left pixel.
+`segments` is all a reader needs. Pixel (0, 0) is the centre of the top-left pixel. One
+frame is a `LineFrame`; its `to_dict` is the frame's record.
 
 Example
 -------
@@ -21,18 +23,20 @@ Example
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import load_structured, write_json
 
-__all__ = ["read_lines", "write_lines", "frame_record"]
+__all__ = ["LineFrame", "read_lines", "write_lines", "frame_record"]
 
 
 def _segments(value, where):
     if value is None:
         return np.zeros((0, 4))
-    if not isinstance(value, (list, tuple)):
+    if not isinstance(value, (list, tuple, np.ndarray)):
         raise InputError(f"{where}: 'segments' must be a list of [x1, y1, x2, y2]")
     try:
         arr = np.asarray(value, dtype=float)
@@ -79,6 +83,75 @@ def frame_record(d, where):
             out.append({**sh, "midline": mid})
         rec["shafts"] = out
     return rec
+
+
+_KNOWN = ("image", "ok", "error", "segments", "angle_sigma_deg", "offset_sigma_px", "width_px", "shafts")
+
+
+@dataclass(frozen=True, eq=False)
+class LineFrame:
+    """One frame of a lines file: M line segments with their uncertainties.
+
+    Attributes
+    ----------
+    image : str
+        The frame's name.
+    segments : (M, 4) [px]
+        ``[x1, y1, x2, y2]`` in raw (distorted) pixels.
+    ok : bool
+        False for a frame that could not be read or processed (`error` says why).
+    error : str or None
+    angle_sigma_deg : (M,) [deg] or None
+        sd of each segment's angle.
+    offset_sigma_px : (M,) [px] or None
+        sd of each segment's perpendicular position at its midpoint.
+    width_px : (M,) [px] or None
+        Width of each bar whose midline the segment is.
+    shafts : list of dict or None
+        Instrument shafts, each a record with at least ``midline`` (4,) [px].
+    extra : dict
+        Any other keys of the record, kept as they are.
+
+    Example
+    -------
+    >>> f = LineFrame("a.png", np.array([[0.0, 0.0, 10.0, 5.0]]), angle_sigma_deg=np.array([0.1]))
+    >>> d = f.to_dict(); list(d)
+    ['image', 'ok', 'error', 'segments', 'angle_sigma_deg']
+    >>> LineFrame.from_dict(d).angle_sigma_deg.tolist()
+    [0.1]
+    """
+
+    image: str
+    segments: np.ndarray
+    ok: bool = True
+    error: str | None = None
+    angle_sigma_deg: np.ndarray | None = None
+    offset_sigma_px: np.ndarray | None = None
+    width_px: np.ndarray | None = None
+    shafts: list | None = None
+    extra: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """The frame's record: image, ok, error, segments, then the optional keys that are
+        set (angle_sigma_deg, offset_sigma_px, width_px, shafts), then `extra`."""
+        rec = {"image": self.image, "ok": self.ok, "error": self.error, "segments": self.segments}
+        for key in ("angle_sigma_deg", "offset_sigma_px", "width_px", "shafts"):
+            if getattr(self, key) is not None:
+                rec[key] = getattr(self, key)
+        rec.update(self.extra)
+        return rec
+
+    @classmethod
+    def from_dict(cls, d, where="frame"):
+        """The frame of a record `d` (checked as `frame_record` checks it; InputError names
+        `where`)."""
+        rec = frame_record(d, where)
+        n = rec["segments"].shape[0]
+        width = None if rec.get("width_px") is None else _per_segment(rec["width_px"], "width_px", n, where)
+        return cls(image=rec["image"], segments=rec["segments"], ok=rec["ok"], error=rec.get("error"),
+                   angle_sigma_deg=rec.get("angle_sigma_deg"), offset_sigma_px=rec.get("offset_sigma_px"),
+                   width_px=width, shafts=rec.get("shafts"),
+                   extra={k: v for k, v in rec.items() if k not in _KNOWN})
 
 
 def read_lines(path):
