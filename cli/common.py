@@ -19,7 +19,7 @@ from pencilcal.toolkit.io.images import DEFAULT_MAX_PIXELS
 
 __all__ = ["run", "progress", "warn", "output_option", "force_option", "quiet_option", "check_output",
            "camera_options", "StageBars", "workers_option", "run_frames", "images_argument", "max_pixels_option",
-           "IMAGES_HELP"]
+           "IMAGES_HELP", "FiniteFloat"]
 
 
 class Terminated(BaseException):
@@ -140,6 +140,22 @@ max_pixels_option = click.option(
 
 IMAGES_HELP = ("IMAGES is one or more image files, folders or glob patterns, taken in the order given (a "
                "folder's images sorted naturally: 2 before 10), or one video file.")
+
+
+class FiniteFloat(click.FloatRange):
+    """A float option that must be finite (click's FloatRange lets nan and inf through:
+    ``--min-length nan`` was accepted, ``simulate --blur inf`` crashed in OpenCV), with
+    FloatRange's optional bounds."""
+
+    name = "float"
+
+    def convert(self, value, param, ctx):
+        import math
+
+        v = click.FLOAT.convert(value, param, ctx) if not isinstance(value, float) else value
+        if not math.isfinite(v):
+            self.fail(f"{value!r} is not a finite number.", param, ctx)
+        return super().convert(v, param, ctx)
 
 
 def images_argument(required=True):

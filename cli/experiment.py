@@ -17,7 +17,7 @@ import click
 
 from pencilcal.toolkit.io.files import check_writable, write_json
 
-from .common import check_output, force_option, output_option, run, warn
+from .common import (check_output, FiniteFloat, force_option, output_option, run, warn)
 
 __all__ = ["experiment"]
 
@@ -99,7 +99,7 @@ def _single_line(r):
 @_common
 @click.option("--pairs", type=click.Choice(["adjacent", "all"]), default="adjacent", show_default=True,
               help="Spoke pairs of the known-axis and unknown-axis cases: neighbouring spokes, or every pair.")
-@click.option("--on-axis-tol", type=click.FloatRange(min=0, max=10), default=0.05, show_default=True,
+@click.option("--on-axis-tol", type=FiniteFloat(min=0, max=10), default=0.05, show_default=True,
               metavar="DEG", help="A spoke within this angle of the reference tilt axis counts as on it (on_line case).")
 def single_angle_cmd(validation_path, output, png_prefix, force, quiet, pairs, on_axis_tol):
     """Chapter Figs. 8-9: the tilt from two spokes with a known 3D angle, error vs rotation.

@@ -11,8 +11,8 @@ from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles
 from pencilcal.toolkit.io.images import open_images
 from pencilcal.toolkit.io.lines_file import read_lines
 
-from .common import (camera_options, check_output, force_option, images_argument, max_pixels_option, output_option,
-                     quiet_option, run, run_frames, warn, workers_option)
+from .common import (camera_options, check_output, FiniteFloat, force_option, images_argument, max_pixels_option,
+                     output_option, quiet_option, run, run_frames, warn, workers_option)
 
 
 def _shaft_task(frame, ctx):
@@ -47,7 +47,7 @@ def _shafts(source, camera, detector, quiet, workers):
 @camera_options
 @click.option("--angles", "angles_path", type=click.Path(dir_okay=False), default=None,
               help="CSV of pivot angles (image,angle_deg, or one angle per frame): also fit the pivot plane.")
-@click.option("--endpoint-sigma", type=float, default=0.5, show_default=True,
+@click.option("--endpoint-sigma", type=FiniteFloat(), default=0.5, show_default=True,
               help="End point noise [px] for segments without their own angle sigma.")
 @click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
               help="Line detector for the shaft proposals, with IMAGES.")

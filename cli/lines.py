@@ -5,11 +5,12 @@ import click
 
 from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.io.images import check_image_size, open_images
-from pencilcal.toolkit.detect.lines import DETECTORS, lines_record
+from pencilcal.toolkit.detect.lines import lines_record
+from pencilcal.toolkit.detect.segments import DETECTORS
 from pencilcal.toolkit.io.lines_file import write_lines
 
-from .common import (camera_options, check_output, force_option, images_argument, max_pixels_option, output_option,
-                     quiet_option, run, run_frames, warn, workers_option)
+from .common import (camera_options, check_output, FiniteFloat, force_option, images_argument, max_pixels_option,
+                     output_option, quiet_option, run, run_frames, warn, workers_option)
 
 
 def _lines_task(frame, ctx):
@@ -31,16 +32,16 @@ def _lines_task(frame, ctx):
               help="Find the printed spokes: dark bars, each written as ONE segment, its midline "
                    "(bisector of the bar's two edges) between its end caps. Without it every "
                    "straight edge is a segment (a bar gives two).")
-@click.option("--bar-width", nargs=2, type=float, default=None, metavar="MIN MAX",
+@click.option("--bar-width", nargs=2, type=FiniteFloat(), default=None, metavar="MIN MAX",
               help="With --bars: accepted bar widths [px, undistorted]; default 2.5 px to 1/8 of the image.")
 @click.option("--shaft", is_flag=True,
               help="Also find instrument shafts (pairs of long converging edges) and write them "
                    "as 'shafts': midline (image of the axis), width_px, angle_sigma_deg.")
-@click.option("--min-length", type=float, default=None,
+@click.option("--min-length", type=FiniteFloat(), default=None,
               help="Shortest segment written [px]. Default 20; with --bars, 20 or 1/30 of the image's "
                    "smaller side, whichever is longer (36 px at 1080p).")
-@workers_option
 @max_pixels_option
+@workers_option
 @force_option
 @quiet_option
 @run
@@ -62,8 +63,8 @@ def lines(images, camera_path, camera_id, output, detector, bars, bar_width, sha
     \b
     Example:
       pencilcal lines frames/ --camera camera.yaml --bars -o lines.json
-      pencilcal orient --lines lines.json --camera camera.yaml --pencil pencil.yaml -o orientation.json
       pencilcal lines left/*.png --camera camera.yaml -o lines.json
+      pencilcal orient --lines lines.json --camera camera.yaml --pencil pencil.yaml -o orientation.json
     """
     if min_length is not None and min_length <= 0:
         raise click.BadParameter("must be positive", param_hint="--min-length")

@@ -11,8 +11,8 @@ from pencilcal.toolkit.pencil.orient import MODELS, orient_segments, resolve_twi
 from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.spec import read_pencil
 
-from .common import (camera_options, check_output, force_option, images_argument, max_pixels_option, output_option,
-                     progress, quiet_option, run, run_frames, warn, workers_option)
+from .common import (camera_options, check_output, FiniteFloat, force_option, images_argument, max_pixels_option,
+                     output_option, progress, quiet_option, run, run_frames, warn, workers_option)
 
 
 def _orient_record(camera, pencil, fr, opts):
@@ -70,9 +70,9 @@ def _prior_rotations(path):
 @output_option
 @click.option("--model", type=click.Choice(MODELS), default="exact", show_default=True,
               help="exact: the exact estimator; general/aligned: the chapter's models, for comparison.")
-@click.option("--endpoint-sigma", type=float, default=0.5, show_default=True,
+@click.option("--endpoint-sigma", type=FiniteFloat(), default=0.5, show_default=True,
               help="Noise of each segment end point [px], sets the angle and offset uncertainty.")
-@click.option("--angle-sigma", type=float, default=None,
+@click.option("--angle-sigma", type=FiniteFloat(), default=None,
               help="Angle noise of every segment [deg], instead of deriving it from the end points.")
 @click.option("--prior", "prior_path", type=click.Path(dir_okay=False), default=None,
               help="poses.json (pencilcal pnp): picks the twin closer to each frame's board pose.")

@@ -20,8 +20,8 @@ from pencilcal.validation.pnp import (
     write_poses,
 )
 
-from .common import (camera_options, check_output, force_option, images_argument, max_pixels_option, output_option,
-                     quiet_option, run, run_frames, warn, workers_option)
+from .common import (camera_options, check_output, FiniteFloat, force_option, images_argument, max_pixels_option,
+                     output_option, quiet_option, run, run_frames, warn, workers_option)
 
 _MIN_CORNERS_FLOOR = 4
 
@@ -69,11 +69,11 @@ def _pnp_task(frame, ctx):
 @click.option("--method", type=click.Choice(METHODS + ("all",)), default=DEFAULT_METHOD, show_default=True,
               help="PnP initialiser, refined by LM in raw pixels; 'all' runs every method and keeps each under "
                    "'methods' (the frame-level pose is sqpnp's unless another reached a lower RMS).")
-@click.option("--corner-sigma", type=float, default=None,
+@click.option("--corner-sigma", type=FiniteFloat(), default=None,
               help="Corner noise [px] behind the covariance; default: from each frame's residuals.")
 @click.option("--min-corners", type=int, default=6, show_default=True,
               help="Frames with fewer detected corners get no pose (at least 4).")
-@click.option("--max-rms", type=float, default=DEFAULT_MAX_RMS_PX, show_default=True,
+@click.option("--max-rms", type=FiniteFloat(), default=DEFAULT_MAX_RMS_PX, show_default=True,
               help="Reject a pose whose reprojection RMS exceeds this [px] (a wrong local minimum or a wrong camera).")
 @click.option("--refine/--no-refine", default=True, show_default=True,
               help="LM refinement of every method's pose on the raw-pixel reprojection error.")

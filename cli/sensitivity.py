@@ -9,7 +9,7 @@ import numpy as np
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import check_writable, write_json
 
-from .common import check_output, force_option, output_option, quiet_option, run
+from .common import (check_output, FiniteFloat, force_option, output_option, quiet_option, run)
 
 MAP_CHOICES = ("tilt-offaxis", "spokes-spacing", "noise", "all")
 
@@ -29,11 +29,11 @@ def _offaxis_deg(spec, focal):
 
 @click.command()
 @output_option
-@click.option("--focal", type=float, default=800.0, show_default=True, metavar="PX",
+@click.option("--focal", type=FiniteFloat(), default=800.0, show_default=True, metavar="PX",
               help="Focal length [px]: converts off-axis angles to pixel distances (and --offaxis ...px to angles).")
 @click.option("--spokes", type=int, default=8, show_default=True, help="Number of spokes of the fan.")
-@click.option("--step-deg", type=float, default=20.0, show_default=True, help="Angle between neighbouring spokes [deg].")
-@click.option("--sigma-deg", type=float, default=0.1, show_default=True,
+@click.option("--step-deg", type=FiniteFloat(), default=20.0, show_default=True, help="Angle between neighbouring spokes [deg].")
+@click.option("--sigma-deg", type=FiniteFloat(), default=0.1, show_default=True,
               help="Line-angle noise, one standard deviation [deg] (the same in pixels and normalised coordinates).")
 @click.option("--tilts", default="0:80:2", show_default=True, metavar="RANGE",
               help="Tilts against the vertex ray [deg]: start:stop:step, or a list a,b,c.")
@@ -42,7 +42,7 @@ def _offaxis_deg(spec, focal):
                    "with a px suffix (0:400:100px).")
 @click.option("--trials", type=int, default=1000, show_default=True,
               help="Monte Carlo pencils per cell (0: Cramer-Rao bound only).")
-@click.option("--accuracy", type=float, default=1.0, show_default=True, metavar="DEG",
+@click.option("--accuracy", type=FiniteFloat(), default=1.0, show_default=True, metavar="DEG",
               help="Requested accuracy of the normal [deg RMS]: the answer is the minimum tilt that reaches it.")
 @click.option("--map", "maps", type=click.Choice(MAP_CHOICES), multiple=True,
               help="Maps to compute (repeatable): tilt-offaxis (always computed), spokes-spacing, noise or all.")
@@ -52,7 +52,7 @@ def _offaxis_deg(spec, focal):
               help="Spacings [deg] of the spokes-spacing map.")
 @click.option("--sigma-grid", default="0.02,0.05,0.1,0.2,0.5,1", show_default=True, metavar="RANGE",
               help="Line noise values [deg] of the noise map.")
-@click.option("--tilt-ref", type=float, default=30.0, show_default=True,
+@click.option("--tilt-ref", type=FiniteFloat(), default=30.0, show_default=True,
               help="Tilt [deg] at which the spokes-spacing map reports the error.")
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
               help="Where the batched torch fits run (cuda needs torch with CUDA and a GPU).")

@@ -8,7 +8,7 @@ import click
 
 from pencilcal.toolkit.errors import InputError
 
-from .common import progress, quiet_option, run
+from .common import (FiniteFloat, progress, quiet_option, run)
 
 MODELS = ("opencv", "fisheye", "pinhole")
 
@@ -58,22 +58,22 @@ def _check_out(out, force):
               help="Lens model of the built-in camera (ignored with --camera).")
 @click.option("--camera", "camera_path", type=click.Path(), default=None,
               help="Use these intrinsics (any camera file pencilcal reads) instead of the built-in camera.")
-@click.option("--noise", type=click.FloatRange(min=0), default=5.0, show_default=True,
+@click.option("--noise", type=FiniteFloat(min=0, max=255), default=5.0, show_default=True,
               help="Sensor noise: standard deviation at mid grey [grey levels]. The defaults of "
                    "--noise and --blur resemble endoscope video (the spokes' lines come out with "
                    "~0.03 deg of angle noise, a detection threshold of ~2.5 deg).")
-@click.option("--blur", type=click.FloatRange(min=0), default=1.5, show_default=True,
+@click.option("--blur", type=FiniteFloat(min=0, max=50), default=1.5, show_default=True,
               help="Gaussian blur of the optics, standard deviation [px].")
-@click.option("--lighting", type=click.FloatRange(min=0, max=1), default=0.25, show_default=True,
+@click.option("--lighting", type=FiniteFloat(min=0, max=1), default=0.25, show_default=True,
               help="Strength of the uneven lighting (vignetting and a random gradient), 0 for none.")
-@click.option("--gamma", type=click.FloatRange(min=0.1, max=5), default=2.2, show_default=True,
+@click.option("--gamma", type=FiniteFloat(min=0.1, max=5), default=2.2, show_default=True,
               help="Encoding gamma of the 8-bit images (1 = linear).")
 @click.option("--color", is_flag=True, help="Colour (BGR) images instead of grey.")
 @click.option("--background", type=click.Choice(["table", "plain"]), default="table", show_default=True,
               help="table: textured table (and boxes for orbit) around the sheet; plain: uniform grey.")
-@click.option("--axis", type=float, default=0.0, show_default=True,
+@click.option("--axis", type=FiniteFloat(), default=0.0, show_default=True,
               help="tilt-sweep: direction of the tilt axis in the sheet, from its x axis [deg].")
-@click.option("--max-tilt", type=click.FloatRange(min=0, max=89), default=80.0, show_default=True,
+@click.option("--max-tilt", type=FiniteFloat(min=0, max=89), default=80.0, show_default=True,
               help="tilt-sweep: the last frame's tilt [deg].")
 @click.option("--force", is_flag=True, help="Replace OUT if it holds an earlier simulate output.")
 @quiet_option

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from .common import check_output, force_option, output_option, quiet_option, run
+from .common import (check_output, FiniteFloat, force_option, output_option, quiet_option, run)
 
 
 def _parse_squares(text):
@@ -20,26 +20,26 @@ def _parse_squares(text):
 @output_option
 @click.option("--paper", type=click.Choice(["a4", "a3", "letter"]), default="a4", show_default=True, help="Paper size.")
 @click.option("--orientation", type=click.Choice(["landscape", "portrait"]), default="landscape", show_default=True)
-@click.option("--dpi", type=click.FloatRange(min=10, max=2400), default=300.0, show_default=True,
+@click.option("--dpi", type=FiniteFloat(min=10, max=2400), default=300.0, show_default=True,
               help="PNG resolution [dots per inch] (a PDF is vector and ignores it).")
 @click.option("--board-squares", default="7x5", show_default=True, help="ChArUco squares along x and y, NxM.")
-@click.option("--square", type=click.FloatRange(min=0, min_open=True), default=25.0, show_default=True,
+@click.option("--square", type=FiniteFloat(min=0, min_open=True), default=25.0, show_default=True,
               help="Square side [mm].")
-@click.option("--marker", type=click.FloatRange(min=0, min_open=True), default=18.0, show_default=True,
+@click.option("--marker", type=FiniteFloat(min=0, min_open=True), default=18.0, show_default=True,
               help="Marker side [mm].")
 @click.option("--dictionary", default="DICT_5X5_100", show_default=True, help="cv2.aruco predefined dictionary.")
 @click.option("--legacy", is_flag=True, help="ChArUco layout of OpenCV < 4.6.")
 @click.option("--spokes", type=click.IntRange(min=3), default=8, show_default=True, help="Number of spokes.")
-@click.option("--step-deg", type=float, default=20.0, show_default=True, help="Angle between spokes [deg].")
-@click.option("--start-deg", type=float, default=None,
+@click.option("--step-deg", type=FiniteFloat(), default=20.0, show_default=True, help="Angle between spokes [deg].")
+@click.option("--start-deg", type=FiniteFloat(), default=None,
               help="Angle of the first spoke [deg]; default: the fan opens away from the board.")
-@click.option("--radius", type=(float, float), default=(15.0, 80.0), show_default=True,
+@click.option("--radius", type=(FiniteFloat(), FiniteFloat()), default=(15.0, 80.0), show_default=True,
               help="Inner and outer end of every spoke, from the vertex [mm].")
-@click.option("--width", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
+@click.option("--width", type=FiniteFloat(min=0, min_open=True), default=1.0, show_default=True,
               help="Width of the printed spokes (dark bars) [mm].")
 @click.option("--side", type=click.Choice(["right", "below"]), default="right", show_default=True,
               help="Where the fan goes relative to the board.")
-@click.option("--margin", type=click.FloatRange(min=0), default=10.0, show_default=True,
+@click.option("--margin", type=FiniteFloat(min=0), default=10.0, show_default=True,
               help="Blank border kept on the paper [mm] (printers cannot print to the edge).")
 @force_option
 @quiet_option

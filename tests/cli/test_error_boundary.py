@@ -96,3 +96,14 @@ def test_sigterm_during_simulate_leaves_no_partial_folder(tmp_path):
     _, err = p.communicate(timeout=20)
     assert p.returncode == 143 and "terminated" in err and "Traceback" not in err
     assert os.listdir(tmp_path) == []
+
+
+def test_nan_and_inf_options_are_usage_errors(frames, tmp_path):
+    cam = str(frames / "camera.json")
+    for args in (["lines", str(frames / "frames"), "--camera", cam, "--min-length", "nan"],
+                 ["orient", str(frames / "frames"), "--camera", cam, "--pencil", "p.yaml", "--endpoint-sigma", "inf"],
+                 ["simulate", str(tmp_path / "s"), "--scenario", "orbit", "--blur", "inf"],
+                 ["simulate", str(tmp_path / "s"), "--scenario", "orbit", "--noise", "nan"]):
+        r = CliRunner().invoke(cli, [*args, "-o", str(tmp_path / "o.json")] if args[0] != "simulate" else args)
+        assert r.exit_code == 2 and "finite" in r.output, (args, r.output)
+    assert not (tmp_path / "s").exists()
