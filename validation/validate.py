@@ -44,7 +44,7 @@ __all__ = ["validate_sequence", "validate_path", "validate_many", "find_sequence
 
 
 class FanLines:
-    """Lines of a printed fan: the midlines of its dark bars (`toolkit.lines.detect_bars`),
+    """Lines of a printed fan: the midlines of its dark bars (`toolkit.detect.bars.detect_bars`),
     or plain edge segments when the pencil file gives no bar width."""
 
     def __init__(self, pencil, detector="lsd"):
@@ -52,7 +52,9 @@ class FanLines:
         self.detector = detector
 
     def __call__(self, image, camera, detection, corner_sigma_px=None):
-        from pencilcal.toolkit.detect.lines import default_min_length, detect_bars, detect_segments
+        from pencilcal.toolkit.detect.bars import detect_bars
+        from pencilcal.toolkit.detect.lines import default_min_length
+        from pencilcal.toolkit.detect.segments import detect_segments
 
         if self.pencil.width is not None:
             # the bars `orient IMAGES` would find (lines_record's default shortest bar)

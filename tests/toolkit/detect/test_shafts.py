@@ -5,7 +5,7 @@ perspective convergence of the edges over 10 deg, lens distortion.
 Rendering (`render_shaft`): for every raw pixel the viewing ray is intersected with the
 cylinder exactly (radius, axis, near end outside the view, far end = the tip). The
 silhouette's anti-aliased coverage comes from the signed distance between the ray and the
-axis converted to pixels through its gradient (tests/toolkit/detect/test_lines.py), the shading from
+axis converted to pixels through its gradient (tests/toolkit/detect/scenes.py), the shading from
 the surface normal at the first hit (diffuse + a specular stripe where the surface turns
 towards the camera, the light sitting at the camera as on an endoscope). The frame is then
 blurred (Gaussian, 1.2 px) and noise added (sd 3). The truth is the image of the axis: the
@@ -20,8 +20,9 @@ from scipy.special import ndtr
 
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.detect.shafts import Shaft, detect_shafts, estimate_noise
-from tests.toolkit.detect.test_lines import _edge_px, normalized_grid
+from pencilcal.toolkit.detect.noise import estimate_noise
+from pencilcal.toolkit.detect.shafts import Shaft, detect_shafts
+from tests.toolkit.detect.scenes import edge_px, normalized_grid
 
 
 def tissue(H, W, rng, mean=150.0, contrast=1.0):
@@ -71,8 +72,8 @@ def render_shaft(camera, shafts, rng, *, blur=1.2, noise=3.0, background=None, o
         f = np.abs(c @ A) / np.linalg.norm(c, axis=-1) - rho  # ray-axis distance - radius
         rr, ra, rA, aA = np.sum(r * r, -1), r @ a, r @ A, a @ A
         s_ax = (ra * rA - rr * aA) / (rr - ra**2)  # axis parameter of the nearest point
-        alpha = np.clip(ndtr(-_edge_px(f) / sAA) + ndtr(_edge_px(sh["tip"] - s_ax) / sAA)
-                        + ndtr(_edge_px(s_ax - sh.get("start", -30.0)) / sAA) - 2.0, 0.0, 1.0)
+        alpha = np.clip(ndtr(-edge_px(f) / sAA) + ndtr(edge_px(sh["tip"] - s_ax) / sAA)
+                        + ndtr(edge_px(s_ax - sh.get("start", -30.0)) / sAA) - 2.0, 0.0, 1.0)
         # shading at the first hit
         rp, Ap = r - ra[..., None] * a, A - aA * a
         qa, qb, qc = np.sum(rp * rp, -1), -2 * np.sum(rp * Ap, -1), Ap @ Ap - rho**2
