@@ -42,6 +42,7 @@ from pencilcal.toolkit.detect.working import raw_frame
 __all__ = [
     "SAMPLE_STEP_PX",
     "MIN_STATIONS",
+    "REJECT_FLOOR_PX",
     "derivative_kernel",
     "station_counts",
     "stations",
@@ -62,7 +63,8 @@ __all__ = [
 # log-parabola peak is exact for a Gaussian derivative profile.
 SAMPLE_STEP_PX = 0.5
 MIN_STATIONS = 6  # fewest stations a line is sampled at, and fewest inliers a fit needs
-_FLOOR_PX = 0.01  # smallest per-station scatter [px] the uncertainty may assume
+REJECT_FLOOR_PX = 0.2  # smallest rejection threshold of the robust line fits by default [px]
+_SCATTER_FLOOR_PX = 0.01  # smallest per-station scatter [px] the uncertainty may assume
 _GOLDEN = 0.6180339887498949  # sample phase of station j: frac(j * golden ratio) of a step
 
 
@@ -401,7 +403,7 @@ def _seeded_start(s, t, w, base, labels, floor_px):
     return base & (np.abs(r) <= np.maximum(3.0 * pred, floor_px))[None, :]
 
 
-def robust_line_fit(s, t, w, base, max_gap=None, floor_px=0.2, robust_start=False, seed_labels=None):
+def robust_line_fit(s, t, w, base, max_gap=None, floor_px=REJECT_FLOOR_PX, robust_start=False, seed_labels=None):
     """Robust weighted line fits t = tm + b (s - sm), one per row of (M, S) arrays.
 
     Residuals beyond 3 robust sd (or floor_px [px]) are rejected, then (with max_gap [px])
@@ -478,7 +480,7 @@ def fit_variances(res, w, inl, Sss, Wt, long_blocks=0):
     n = inl.sum(-1)
     dof = np.maximum(n - 2, 1)
     wr = np.where(inl, w * res * res, 0.0)
-    s02 = np.maximum(wr.sum(-1) / dof, _FLOOR_PX**2)
+    s02 = np.maximum(wr.sum(-1) / dof, _SCATTER_FLOOR_PX**2)
     en = np.where(inl, res * np.sqrt(w), 0.0)
     order = np.argsort(~inl, axis=1, kind="stable")  # inliers packed to the left
     en = np.take_along_axis(en, order, 1)

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pencilcal.toolkit.detect.edges import (
+    REJECT_FLOOR_PX,
     derivative_kernel,
     edge_profiles,
     fit_variances,
@@ -48,7 +49,6 @@ __all__ = ["AxisFit", "measure_axis", "class_line_fit", "width_inliers", "stretc
            "plane_bisector"]
 
 _TAU0 = 0.03  # smallest sd of the midline's offset shared along a stretch, per px of sigma_px
-_FLOOR_PX = 0.2  # smallest rejection threshold of the edge and midline fits [px]
 _MAX_CLUTTER = 0.25  # largest gradient beside an edge point, relative to its own
 
 
@@ -71,7 +71,7 @@ class AxisFit:
     s_hi: float
 
 
-def class_line_fit(s, t, w, base, cls, floor_px=_FLOOR_PX, iters=6):
+def class_line_fit(s, t, w, base, cls, floor_px=REJECT_FLOOR_PX, iters=6):
     """Robust weighted fit t ~ b s + c_class (one slope, one offset per class: the gradient
     peak of a blurred, gamma-encoded edge leans towards its dark side, so an edge seen
     against black print sits apart from the same edge against white paper), one row of
@@ -239,7 +239,7 @@ def _fit_midline(es, shaft, tau0_px):
     wa, wb = np.where(both, w2[0], 0.0), np.where(both, w2[1], 0.0)
     wm = np.where(both, 1.0 / (1.0 / np.maximum(wa, 1e-12) + 1.0 / np.maximum(wb, 1e-12)), 0.0)
     wm = wm / np.maximum(np.median(wm[both]), 1e-300)
-    sm, tm, b, Sss, Wt, res, inl_m = robust_line_fit(ms[None], mt[None], wm[None], both[None], None, _FLOOR_PX,
+    sm, tm, b, Sss, Wt, res, inl_m = robust_line_fit(ms[None], mt[None], wm[None], both[None], None, REJECT_FLOOR_PX,
                                                      robust_start=True, seed_labels=stretches(ms, both, cls)[None])
     var_b, var_a = fit_variances(res, wm[None], inl_m, Sss, Wt, long_blocks=8)
     # stretches of one background bias the midline alike (module docstring)
