@@ -53,11 +53,27 @@ def _prior_rotations(path):
     out = {}
     for i, (f, where) in enumerate(frames):
         if f.get("ok", True) and f.get("R_cam_from_target") is not None:
-            R = np.asarray(f["R_cam_from_target"], float)
+            try:
+                R = np.asarray(f["R_cam_from_target"], float)
+            except (TypeError, ValueError):
+                raise InputError(f"{where}: R_cam_from_target must be a 3x3 matrix of numbers") from None
             if R.shape != (3, 3) or not np.all(np.isfinite(R)):
                 raise InputError(f"{where}: R_cam_from_target must be a finite 3x3 matrix")
+            # a prior that is no rotation would pick twins by a meaningless distance
+            if np.max(np.abs(R.T @ R - np.eye(3))) > 1e-6 or np.linalg.det(R) < 0:
+                raise InputError(f"{where}: R_cam_from_target is not a rotation (R^T R != I or det < 0)")
             out[str(f.get("image", i))] = R
+    if not out:
+        raise InputError(f"{path}: no frame with a pose to use as a prior")
     return out
+
+
+def _check_priors_match(priors, names, path):
+    """A prior is used by image name: one whose names match none of the frames would
+    silently do nothing."""
+    if priors and names is not None and not set(priors) & set(names):
+        some = ", ".join(sorted(priors)[:2])
+        raise InputError(f"{path}: none of its {len(priors)} image names ({some}, ...) is a frame of this run")
 
 
 @click.command()
@@ -119,6 +135,7 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         frames = read_lines(lines_path)
         if not frames:
             raise InputError(f"{lines_path}: no frames")
+        _check_priors_match(priors, [fr["image"] for fr in frames], prior_path)
         with progress(frames, "orient", quiet) as bar:
             records = [_orient_record(camera, pencil, fr, opts) for fr in bar]
     else:
@@ -127,6 +144,9 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         ctx = (camera, pencil, detector, opts)
         source = open_images(images, max_pixels=max_pixels)
         check_output(output, force, source.paths)
+        names = [p.name for p in source.paths] if source.kind == "images" else \
+            [f"frame_{i:06d}" for i in range(source.count)]
+        _check_priors_match(priors, names, prior_path)
         records = list(run_frames(source, _orient_image_task, ctx, workers, "orient", quiet))
     for rec in records:
         if not rec.ok:

@@ -137,9 +137,15 @@ class ImageSource:
             cap = cv2.VideoCapture(str(p))
             ok = cap.isOpened()
             n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if ok else 0
+            # the container's count can be missing or wrong: a video without one frame
+            # that decodes is no input (it used to end the command with exit 0 and nothing)
+            with _quiet_c_stderr():
+                first = ok and cap.read()[0]
             cap.release()
             if not ok:
                 raise InputError(f"{p}: cannot open this video")
+            if not first and n <= 0:
+                raise InputError(f"{p}: the video holds no frames")
             return "video", [p], max(n, 0)
         if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS:
             return "images", [p]

@@ -48,7 +48,7 @@ def read_angles(path, images):
     if not rows:
         raise InputError(f"{p}: no angles")
     head = [c.strip().lower() for c in rows[0]]
-    by_name = None
+    by_name = ii = None
     try:
         if "angle_deg" in head:
             ia = head.index("angle_deg")
@@ -56,13 +56,19 @@ def read_angles(path, images):
             body = rows[1:]
             vals = [float(r[ia]) for r in body]
             if ii is not None:
-                by_name = {r[ii].strip(): v for r, v in zip(body, vals)}
+                names = [r[ii].strip() for r in body]
         else:
             vals = [float(r[0]) for r in rows]
     except (ValueError, IndexError):
         raise InputError(f"{p}: angles must be numbers (columns image,angle_deg or one angle per row)") from None
     if not np.all(np.isfinite(vals)):
         raise InputError(f"{p}: angles must be finite")
+    if ii is not None:
+        by_name = {}
+        for k, (name, v) in enumerate(zip(names, vals)):
+            if name in by_name:
+                raise InputError(f"{p}: image {name!r} is listed twice (row {k + 2}); one angle per image")
+            by_name[name] = v
     if by_name is not None:
         missing = [im for im in images if im not in by_name]
         if missing:
