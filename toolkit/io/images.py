@@ -134,14 +134,17 @@ class ImageSource:
         if p.is_file() and p.suffix.lower() in VIDEO_EXTENSIONS:
             import cv2
 
-            cap = cv2.VideoCapture(str(p))
-            ok = cap.isOpened()
-            n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if ok else 0
-            # the container's count can be missing or wrong: a video without one frame
-            # that decodes is no input (it used to end the command with exit 0 and nothing)
+            # FFmpeg logs its own complaints about a broken file on stderr, before
+            # pencilcal's one line: silenced, as for decoding
+            cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
             with _quiet_c_stderr():
+                cap = cv2.VideoCapture(str(p))
+                ok = cap.isOpened()
+                n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if ok else 0
+                # the container's count can be missing or wrong: a video without one frame
+                # that decodes is no input (it used to end the command with exit 0 and nothing)
                 first = ok and cap.read()[0]
-            cap.release()
+                cap.release()
             if not ok:
                 raise InputError(f"{p}: cannot open this video")
             if not first and n <= 0:
@@ -197,7 +200,8 @@ class ImageSource:
     def _iter_video(self):
         import cv2
 
-        cap = cv2.VideoCapture(str(self.paths[0]))
+        with _quiet_c_stderr():
+            cap = cv2.VideoCapture(str(self.paths[0]))
         try:
             i = 0
             misses = 0
