@@ -58,6 +58,7 @@ class Assignment:
 
     @property
     def labels_ambiguous(self) -> bool:
+        """True when another labelling explains the lines about as well (`rivals`)."""
         return bool(self.rivals)
 
 

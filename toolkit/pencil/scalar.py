@@ -26,11 +26,12 @@ _HALF_PI = 0.5 * math.pi
 
 
 def _wrap_line(x):
-    # angles.wrap_line: pi/2 - ((pi/2 - x) mod pi), floored modulo like np.remainder
+    """angles.wrap_line on a float [rad]: pi/2 - ((pi/2 - x) mod pi), floored modulo like np.remainder."""
     return _HALF_PI - ((_HALF_PI - x) % math.pi)
 
 
 def _matmul(A, B):
+    """A B for 3x3 matrices as nested tuples."""
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A
     (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = B
     return ((a00 * b00 + a01 * b10 + a02 * b20, a00 * b01 + a01 * b11 + a02 * b21, a00 * b02 + a01 * b12 + a02 * b22),
@@ -39,10 +40,12 @@ def _matmul(A, B):
 
 
 def _transpose(A):
+    """A^T for a 3x3 matrix as nested tuples."""
     return tuple(tuple(A[j][i] for j in range(3)) for i in range(3))
 
 
 def _rotvec(r0, r1, r2):
+    """expm([r]x) (3x3 tuples) of the rotation vector (r0, r1, r2) [rad], by Rodrigues."""
     t = max(math.sqrt(r0 * r0 + r1 * r1 + r2 * r2), 1e-150)
     a = math.sin(t) / t
     h = math.sin(0.5 * t)

@@ -49,6 +49,7 @@ __all__ = ["render_frame", "REFLECTANCE"]
 
 
 def _readonly(values):
+    """A read-only float array of `values`."""
     a = np.array(values, float)
     a.setflags(write=False)
     return a

@@ -236,6 +236,7 @@ def _content_points(sheet):
 
 
 def _in_view(camera, R, t, pts, margin):
+    """True if target points pts (N, 3) [mm] project at least `margin` px inside the image."""
     px = camera.project(pts @ R.T + t)
     return bool(np.all(np.isfinite(px)) and np.all(px[:, 0] >= margin) and np.all(px[:, 1] >= margin)
                 and np.all(px[:, 0] <= camera.width - 1 - margin) and np.all(px[:, 1] <= camera.height - 1 - margin))
@@ -266,6 +267,7 @@ def _frame_truth(camera, sheet, R, t, name):
 
 
 def _option(options, key, default):
+    """options[key], or `default` where it is missing or None."""
     v = options.get(key)
     return default if v is None else v
 
@@ -332,6 +334,7 @@ def make_scenario(name, frames, seed=0, camera=None, sheet=None, size=(1280, 720
 
 
 def _orbit(camera, sheet, backdrop, n, seed, options):
+    """The orbit scenario of `n` frames (make_scenario's options for "orbit")."""
     rng = np.random.default_rng([seed, 2])
     scale = _distance_scale(camera)
     D = float(_option(options, "distance", 400.0 * scale))
@@ -376,10 +379,12 @@ def _orbit(camera, sheet, backdrop, n, seed, options):
 
 
 def _names(n):
+    """`image_names(n)`."""
     return image_names(n)
 
 
 def _pivot(camera, sheet, backdrop, n, seed, options):
+    """The pivot scenario of `n` frames (make_scenario's options for "pivot")."""
     rng = np.random.default_rng([seed, 3])
     scale = _distance_scale(camera)
     D = float(_option(options, "distance", 380.0 * scale))
@@ -446,6 +451,7 @@ def _edge_lines(m):
 
 
 def _tilt_sweep(camera, sheet, backdrop, n, seed, options):
+    """The tilt-sweep scenario of `n` frames (make_scenario's options for "tilt-sweep")."""
     scale = _distance_scale(camera)
     D = float(_option(options, "distance", 400.0 * scale))
     axis_deg = float(_option(options, "axis_deg", 0.0))
