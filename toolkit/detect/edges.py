@@ -411,14 +411,14 @@ def robust_line_fit(s, t, w, base, max_gap=None, floor_px=REJECT_FLOOR_PX, robus
     robust_start the first inliers are those near the `theil_sen` line (a stretch of
     stations pulled off the edge by something beside it, up to nearly half of them, cannot
     tilt the start); with seed_labels (1, S) (one row: the stretches of its stations) those
-    near the line through its best-weighted stretch, where that leaves at least 6.
+    near the line through its best-weighted stretch, where that leaves at least MIN_STATIONS.
 
     Returns sm, tm, b, Sss, Wt (M,) (`weighted_line` of the inliers), res (M, S) the
     residuals and inl (M, S) the inliers.
     """
     inl = base
     start = _seeded_start(s, t, w, base, seed_labels, floor_px) if seed_labels is not None else None
-    if start is not None and start.sum() >= 6:
+    if start is not None and start.sum() >= MIN_STATIONS:
         inl = start
     elif robust_start:
         b0, a0 = theil_sen(s, t, base)
@@ -426,7 +426,7 @@ def robust_line_fit(s, t, w, base, max_gap=None, floor_px=REJECT_FLOOR_PX, robus
         sc = 1.4826 * masked_median(np.abs(r0), base)
         thr = np.maximum(3.0 * np.nan_to_num(sc, nan=np.inf), floor_px)
         start = base & (np.abs(r0) <= thr[:, None])
-        inl = np.where((start.sum(-1) >= 6)[:, None], start, base)
+        inl = np.where((start.sum(-1) >= MIN_STATIONS)[:, None], start, base)
     inl = reject_outliers(s, t, w, base, inl, floor_px, max_gap, iters=5)
     sm, tm, b, Sss, Wt = weighted_line(s, t, w, inl)
     res = t - tm[:, None] - b[:, None] * (s - sm[:, None])

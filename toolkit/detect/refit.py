@@ -129,9 +129,9 @@ class EdgeFit:
 
 @dataclass(frozen=True, eq=False)
 class _PassFit(EdgeFit):
-    """One pass's result (its arrays updated in place by further passes): an `EdgeFit` and what decides on a further pass, per line: touch
-    (the edge runs on past the stations looked at), dev [px] (how far the fit strayed from
-    the line sampled)."""
+    """One pass's result (its arrays updated in place by further passes): an `EdgeFit` and
+    what decides on a further pass, per line: touch (the edge runs on past the stations
+    looked at), dev [px] (how far the fit strayed from the line sampled)."""
 
     touch: np.ndarray
     dev: np.ndarray

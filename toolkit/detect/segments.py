@@ -545,7 +545,8 @@ def _plain_segments(lines, camera, min_length):
     lines = lines[L >= min_length]
     L = L[L >= min_length]
     z = np.zeros(len(lines))
-    return Segments(segments=to_raw(camera, lines), ideal=lines, angle_sigma=segment_angle_sigma(lines, ENDPOINT_SIGMA_PX),
+    return Segments(segments=to_raw(camera, lines), ideal=lines,
+                    angle_sigma=segment_angle_sigma(lines, ENDPOINT_SIGMA_PX),
                     offset_sigma=np.full(len(lines), ENDPOINT_SIGMA_PX / np.sqrt(2.0)), length=L, contrast=z,
                     residual_px=z, stations=np.zeros(len(lines), int))
 

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pencilcal.toolkit.detect.edges import (
+    MIN_STATIONS,
     REJECT_FLOOR_PX,
     derivative_kernel,
     edge_profiles,
@@ -104,7 +105,7 @@ def class_line_fit(s, t, w, base, cls, floor_px=REJECT_FLOOR_PX, iters=6):
             r[sel] = t[sel] - b * s[sel] - off[c]
         sc = 1.4826 * np.median(np.abs(r[ok & np.isfinite(r)]))
         new = ok & (np.abs(r) <= max(3.0 * sc, floor_px))
-        if new.sum() < 6:
+        if new.sum() < MIN_STATIONS:
             return None
         inl = new
         # weighted least squares: one slope, class offsets
@@ -196,7 +197,7 @@ def _measure_edges(img, camera, one, pts, shaft, search, kernel, sigma_px, slope
         ends.append(np.r_[q1, q2])
         inl.append(inl_e)
     both = inl[0] & inl[1] & shaft
-    if both.sum() < 6:
+    if both.sum() < MIN_STATIONS:
         return None
     edges = np.stack(ends)
     pair = pair_geometry(*antiparallel_pairs(edges, np.array([0]), np.array([1])))
@@ -206,13 +207,13 @@ def _measure_edges(img, camera, one, pts, shaft, search, kernel, sigma_px, slope
 def _left_out_shift(es, ms, mt, shaft, sm, tm, b):
     """(db, da): how far the line through the stations the robust fits left out (unless far
     off: within 2 px of the midline) lies from the midline t = tm + b (s - sm), in slope and
-    in offset at sm; None with fewer than 6 such stations. Where they tell another line (a
+    in offset at sm; None with fewer than MIN_STATIONS such stations. Where they tell another line (a
     stretch pulled off by something along an edge can outnumber the rest), the difference
     counts as uncertainty."""
     loose = es.base[0] & es.base[1] & shaft
     r_all = mt - tm - b * (ms - sm)
     lo_ = loose & (np.abs(r_all) <= 2.0)
-    if lo_.sum() < 6:
+    if lo_.sum() < MIN_STATIONS:
         return None
     wl = np.where(lo_, np.maximum(np.minimum(es.w2[0], es.w2[1]), 1e-12), 0.0)
     sm2, tm2, b2, _, _ = weighted_line(ms[None], mt[None], wl[None], lo_[None])
@@ -234,7 +235,7 @@ def _fit_midline(es, shaft, tau0_px):
     mt = mid @ N + one.C[0]
     cls = 2 * (g[0] > 0) + (g[1] > 0)
     both = es.both & width_inliers(ms, np.abs((pb_ - pa_) @ N), es.both, cls)
-    if both.sum() < 6:
+    if both.sum() < MIN_STATIONS:
         return None
     wa, wb = np.where(both, w2[0], 0.0), np.where(both, w2[1], 0.0)
     wm = np.where(both, 1.0 / (1.0 / np.maximum(wa, 1e-12) + 1.0 / np.maximum(wb, 1e-12)), 0.0)
@@ -273,11 +274,11 @@ def measure_axis(img, camera, pr, k, lo, hi, shaft_at, search, sigma_px, slope_c
     L = hi - lo
     step = max(2.5, L / 300.0)
     S = int(np.floor(L / step)) + 1
-    if S < 6:
+    if S < MIN_STATIONS:
         return None
     sv = lo + step * np.arange(S)
     shaft = shaft_at(sv)
-    if shaft.sum() < 6:
+    if shaft.sum() < MIN_STATIONS:
         return None
     one = pr.take(np.array([k]))
     pts = one.O[0] + sv[:, None] * one.D[0]  # station points on the bisector
@@ -292,7 +293,7 @@ def measure_axis(img, camera, pr, k, lo, hi, shaft_at, search, sigma_px, slope_c
 
 def width_inliers(s, w, use, cls, floor=0.25, iters=4):
     """Stations whose width w (N,) [px] is not above the band's lower envelope
-    w ~ c_class + k s (one offset per class with 6 stations or more, one slope) by more than
+    w ~ c_class + k s (one offset per class with MIN_STATIONS stations or more, one slope) by more than
     3 robust sd (at least `floor` px).
 
     Something dark lying along a dark shaft's silhouette (a printed bar under or beside it),
@@ -302,7 +303,7 @@ def width_inliers(s, w, use, cls, floor=0.25, iters=4):
     Returns (N,) bool.
     """
     ok = use.copy()
-    classes = [c for c in np.unique(cls[use]) if np.sum(use & (cls == c)) >= 6]
+    classes = [c for c in np.unique(cls[use]) if np.sum(use & (cls == c)) >= MIN_STATIONS]
     if not classes:
         return ok
     ok &= np.isin(cls, classes)
