@@ -184,9 +184,9 @@ def reproducibility(inputs, argv=None):
     except Exception:  # a source tree without installing
         versions["pencilcal"] = "unknown"
     try:
-        import pycolmap
+        from .sfm.glog import import_pycolmap
 
-        versions["pycolmap"] = pycolmap.__version__
+        versions["pycolmap"] = import_pycolmap().__version__
     except ImportError:
         pass
     hashes = {}

@@ -1,4 +1,4 @@
-"""validation/sfm.py: pycolmap reconstruction with fixed intrinsics against exact truth.
+"""validation/sfm/: pycolmap reconstruction with fixed intrinsics against exact truth.
 
 The orbit scenario (toolkit/synth/scenarios.py) renders a textured table with boxes around the
 printed sheet, with the exact R_cam_from_target per frame. At 640x360, 14 frames and 2048
@@ -19,23 +19,26 @@ from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.geometry.frames import rotation_angle
 from pencilcal.toolkit.synth.scenarios import make_scenario
 from pencilcal.validation.align import align_rotations, align_similarity
-from pencilcal.validation import sfm as sfm_module
 from pencilcal.validation.sfm import (
     EXHAUSTIVE_MAX_IMAGES,
     SfmResult,
-    _prepare,
-    _extract_progress,
-    _match_progress,
-    _sequential_pair_count,
     bare_pycolmap,
     choose_matching,
     colmap_logging,
-    read_poses,
+    import_pycolmap,
+    read_sfm_poses,
     reconstruct,
-    write_poses,
+    write_sfm_poses,
 )
+from pencilcal.validation.sfm import progress as progress_module
+from pencilcal.validation.sfm import pipeline as pipeline_module
+from pencilcal.validation.sfm.prepare import prepare_frames
+from pencilcal.validation.sfm.progress import extract_progress, match_progress, sequential_pair_count
 
-pycolmap = pytest.importorskip("pycolmap")
+try:  # as the library loads it: glog writes each log line through
+    pycolmap = import_pycolmap()
+except ImportError:
+    pytest.skip("pycolmap is not installed", allow_module_level=True)
 
 N_FRAMES = 14
 SIZE = (640, 360)
@@ -159,23 +162,23 @@ def test_progress_reports_every_stage(recon):
 def test_poses_json_round_trip(recon, tmp_path):
     res, _ = recon
     p = tmp_path / "poses.json"
-    write_poses(p, res, images="images/")
+    write_sfm_poses(p, res, images="images/")
     raw = json.loads(p.read_text())
     assert raw["registered_count"] == N_FRAMES and raw["matching"] == "exhaustive"
     assert raw["images"] == "images/" and raw["pycolmap_version"] == pycolmap.__version__
     assert raw["camera_unchanged"] is True
-    back = read_poses(p)
+    back = read_sfm_poses(p)
     for a, b in zip(res.frames, back["frames"]):
         assert (a.image, a.registered, a.colmap_name) == (b.image, b.registered, b.colmap_name)
         for k in ("R_cam_from_world", "t_cam_from_world", "camera_center"):
             assert np.array_equal(getattr(a, k), getattr(b, k))  # repr floats: exact
     with pytest.raises(InputError):
-        write_poses(p, res)  # exists
+        write_sfm_poses(p, res)  # exists
     bad = dict(raw)
     bad["frames"] = [{k: v for k, v in raw["frames"][0].items() if k != "R_cam_from_world"}]
     (tmp_path / "bad.json").write_text(json.dumps(bad))
     with pytest.raises(InputError, match="R_cam_from_world"):
-        read_poses(tmp_path / "bad.json")
+        read_sfm_poses(tmp_path / "bad.json")
 
 
 def test_no_log_on_stderr_and_logging_restored(capfd, tmp_path):
@@ -267,34 +270,34 @@ def test_prepare_names_follow_frame_order_for_sequential(orbit, tmp_path):
     d, sc = orbit
     imgs = [cv2.imread(str(d / "images" / f"{i:03d}.png"), cv2.IMREAD_GRAYSCALE) for i in range(3)]
     src = _write(tmp_path / "odd", imgs, ["img1.png", "img2.png", "img10.png"])
-    items, image_path, names, mode, staged = _prepare(src, sc.camera, tmp_path / "w", "sequential", 2, None)
+    items, image_path, names, mode, staged = prepare_frames(src, sc.camera, tmp_path / "w", "sequential", 2, None)
     assert mode == "sequential" and staged
     assert [x.name for x in items] == ["img1.png", "img2.png", "img10.png"]
     assert names == sorted(names) == ["000000_img1.png", "000001_img2.png", "000002_img10.png"]
     assert image_path == str(tmp_path / "w" / "images")
     assert all((tmp_path / "w" / "images" / n).resolve() == (src / x.name).resolve() for n, x in zip(names, items))
     # exhaustive matching does not care about order: read in place
-    items, image_path, names, _, staged = _prepare(src, sc.camera, tmp_path / "w2", "exhaustive", 2, None)
+    items, image_path, names, _, staged = prepare_frames(src, sc.camera, tmp_path / "w2", "exhaustive", 2, None)
     assert image_path == str(src.resolve()) and names == ["img1.png", "img2.png", "img10.png"] and not staged
 
 
 def test_prepare_arrays_and_broken_frames(orbit, tmp_path):
     d, sc = orbit
     img = cv2.imread(str(d / "images" / "000.png"), cv2.IMREAD_GRAYSCALE)
-    items, image_path, names, mode, staged = _prepare([img, img, img], sc.camera, tmp_path / "w", "auto", 3, None)
+    items, image_path, names, mode, staged = prepare_frames([img, img, img], sc.camera, tmp_path / "w", "auto", 3, None)
     assert names == ["000000.png", "000001.png", "000002.png"] and mode == "exhaustive" and staged
     assert all(cv2.imread(str(tmp_path / "w" / "images" / n), cv2.IMREAD_GRAYSCALE).tobytes() == img.tobytes()
                for n in names)
     src = _write(tmp_path / "broken", [img, img, img])
     (src / "003.png").write_bytes(b"\x89PNG\r\n\x1a\n broken")
-    items, _, names, _, staged = _prepare(src, sc.camera, tmp_path / "w3", "auto", 3, None)
+    items, _, names, _, staged = prepare_frames(src, sc.camera, tmp_path / "w3", "auto", 3, None)
     assert not staged
     assert [x.error is None for x in items] == [True, True, True, False]
     assert names == ["000.png", "001.png", "002.png"]
     # never stage into a folder that exists already (it could hold the input)
     (tmp_path / "w4" / "images").mkdir(parents=True)
     with pytest.raises(InputError, match="exists"):
-        _prepare([img, img, img], sc.camera, tmp_path / "w4", "auto", 3, None)
+        prepare_frames([img, img, img], sc.camera, tmp_path / "w4", "auto", 3, None)
 
 
 def test_matching_choice_and_pair_count():
@@ -303,19 +306,19 @@ def test_matching_choice_and_pair_count():
     assert choose_matching("sequential", 3) == "sequential"
     with pytest.raises(InputError):
         choose_matching("spatial", 3)
-    assert _sequential_pair_count(5, 10) == 10
-    assert _sequential_pair_count(30, 10) == sum(min(10, 29 - i) for i in range(30))
-    assert _sequential_pair_count(3, 10, 30) == 30
-    assert _sequential_pair_count(28, 10, 30) + 1 == _sequential_pair_count(30, 10)
+    assert sequential_pair_count(5, 10) == 10
+    assert sequential_pair_count(30, 10) == sum(min(10, 29 - i) for i in range(30))
+    assert sequential_pair_count(3, 10, 30) == 30
+    assert sequential_pair_count(28, 10, 30) + 1 == sequential_pair_count(30, 10)
 
 
-def _follow(tracker, log, lines, monkeypatch):
+def _follow(tracker, log, lines):
     """Feed `lines` to a glog-like file one by one (each in two halves) while
     `tracker` follows it; the progress values it reported."""
     import threading
     import time
 
-    monkeypatch.setattr(sfm_module, "_POLL_S", 0.005)
+    tracker.poll_s = 0.005
     seen = []
     done = threading.Event()
 
@@ -337,27 +340,27 @@ def _follow(tracker, log, lines, monkeypatch):
     return seen
 
 
-def test_extraction_progress_follows_colmaps_log(tmp_path, monkeypatch):
+def test_extraction_progress_follows_colmaps_log(tmp_path):
     """Progress comes from COLMAP's log, never from its database (a second SQLite in the
     process breaks COLMAP's locks on its memory-mapped WAL index: a bus error, seen in CI)."""
     base = tmp_path / "colmap.log."
     lines = [b"I20261201 00:00:00.1 1 sift.cc:764] Creating SIFT CPU feature extractor\n"]
     lines += [f"I20261201 00:00:00.2 1 feature_extraction.cc:270] Processed file [{k}/4]\n".encode() for k in (1, 2, 3)]
-    seen = _follow(_extract_progress(base, 4, None), tmp_path / "colmap.log.20261201-000000.1", lines, monkeypatch)
+    seen = _follow(extract_progress(base, 4, None), tmp_path / "colmap.log.20261201-000000.1", lines)
     assert seen[0] == ("extract", 0, 4) and seen[-1] == ("extract", 4, 4)
     assert [n for _, n, _ in seen[1:-1]] == [1, 2, 3]
-    assert "sqlite3" not in vars(sfm_module)
+    assert "sqlite3" not in vars(progress_module) and "sqlite3" not in vars(pipeline_module)
 
 
-def test_matching_progress_in_pairs(tmp_path, monkeypatch):
+def test_matching_progress_in_pairs(tmp_path):
     base = tmp_path / "colmap.log."
     seq = [f"I 1 pairing.cc:562] Processing image [{k}/30]\n".encode() for k in range(1, 31)]
-    seen = _follow(_match_progress(base, "sequential", 30, None), tmp_path / "colmap.log.x", seq, monkeypatch)
-    total = _sequential_pair_count(30, 10)
-    assert [n for _, n, _ in seen] == [0] + [_sequential_pair_count(k, 10, 30) for k in range(1, 30)] + [total]
+    seen = _follow(match_progress(base, "sequential", 30, None), tmp_path / "colmap.log.x", seq)
+    total = sequential_pair_count(30, 10)
+    assert [n for _, n, _ in seen] == [0] + [sequential_pair_count(k, 10, 30) for k in range(1, 30)] + [total]
     assert {t for _, _, t in seen} == {total}
 
     blocks = [f"I 1 pairing.cc:214] Processing block [{a}/3, {b}/3]\n".encode() for a in (1, 2, 3) for b in (1, 2, 3)]
-    seen = _follow(_match_progress(base, "exhaustive", 120, None), tmp_path / "colmap.log.y", blocks, monkeypatch)
+    seen = _follow(match_progress(base, "exhaustive", 120, None), tmp_path / "colmap.log.y", blocks)
     total = 120 * 119 // 2
     assert [n for _, n, _ in seen] == [0] + [total * k // 9 for k in range(1, 9)] + [total]

@@ -88,9 +88,10 @@ def _opencv_solutions(method, X, xy, camera):
 
 def _colmap_solution(X, obs, camera, seed=0):
     """Pose from pycolmap.estimate_and_refine_absolute_pose on raw pixels (+0.5 px)."""
-    import pycolmap
-
     from pencilcal.toolkit.camera.formats import camera_to_colmap
+    from pencilcal.validation.sfm.glog import import_pycolmap
+
+    pycolmap = import_pycolmap()
 
     cc = camera_to_colmap(camera, source="colmap method")  # InputError for models COLMAP lacks
     est = pycolmap.AbsolutePoseEstimationOptions()
