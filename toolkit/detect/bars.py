@@ -32,7 +32,13 @@ from pencilcal.toolkit.detect.edges import best_run
 from pencilcal.toolkit.detect.image import GrayImage
 from pencilcal.toolkit.detect.pairs import pair_geometry
 from pencilcal.toolkit.detect.refit import EdgeFit, EdgeRefit, RefitOptions
-from pencilcal.toolkit.detect.segments import Segments, detect_fragments, merge_collinear
+from pencilcal.toolkit.detect.segments import (
+    MERGE_ANGLE_TOL_DEG,
+    MERGE_DIST_TOL_PX,
+    Segments,
+    detect_fragments,
+    merge_collinear,
+)
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw, to_raw_points, to_working
 from pencilcal.toolkit.errors import InputError
 
@@ -102,7 +108,7 @@ class BarOptions:
 
     def refit_options(self):
         """The refit of the edges: continuous edges (gaps of at most 2.5 station steps)."""
-        return RefitOptions(search=self.search_px, extend=8.0, sigma_px=self.sigma_px, step_px=self.step_px,
+        return RefitOptions(search=self.search_px, sigma_px=self.sigma_px, step_px=self.step_px,
                             max_gap_px=2.5 * self.step_px, min_gradient=self.min_gradient)
 
 
@@ -308,7 +314,7 @@ def _proposed_pairs(img, detector, camera, o, detector_params):
         elif detector == "edlines":
             params.setdefault("MinLineLength", shortest)
     _, work = detect_fragments(img, detector, camera, params, scale=o.proposal_scale, dark_grow=_DARK_GROW)
-    lines = merge_collinear(work, 2.0, 1.5, o.max_gap_px)[0]
+    lines = merge_collinear(work, MERGE_ANGLE_TOL_DEG, MERGE_DIST_TOL_PX, o.max_gap_px)[0]
     L = np.hypot(lines[:, 2] - lines[:, 0], lines[:, 3] - lines[:, 1])
     keep = L >= max(0.5 * o.min_length, 4.0)
     lines, L = lines[keep], L[keep]
@@ -322,7 +328,8 @@ def _proposed_pairs(img, detector, camera, o, detector_params):
                                     o.conv + np.radians(3.0), o.min_length)
         if new.shape[0]:
             # a completed edge and a piece of it the detector did see become one line
-            lines = merge_collinear(np.concatenate([lines, new]), 2.0, 1.5, o.max_gap_px)[0]
+            lines = merge_collinear(np.concatenate([lines, new]), MERGE_ANGLE_TOL_DEG, MERGE_DIST_TOL_PX,
+                                    o.max_gap_px)[0]
             a, b, _ = _rough_pairs(img, camera, lines, o)
     return lines, a, b
 
@@ -620,8 +627,9 @@ def _bars_from_pairs(img, camera, E, sub, a, b, o):
 
 
 def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_length=30.0, min_aspect=4.0,
-                max_convergence_deg=3.0, min_overlap=0.5, refine_ends=True, search_px=None, sigma_px=1.0,
-                step_px=2.0, max_gap_px=30.0, min_gradient=2.0, detector_params=None, proposal_scale=None):
+                max_convergence_deg=3.0, min_overlap=0.5, refine_ends=True, search_px=None,
+                sigma_px=RefitOptions.sigma_px, step_px=RefitOptions.step_px, max_gap_px=RefitOptions.max_gap_px,
+                min_gradient=RefitOptions.min_gradient, detector_params=None, proposal_scale=None):
     """Midlines of thin dark bars (the printed spokes of a pencil) with angle uncertainty.
 
     Each bar has two long edges of opposite polarity (dark inside). Pairs of edges running

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from pencilcal.toolkit.detect.bars import detect_bars
-from pencilcal.toolkit.detect.segments import detect_segments
+from pencilcal.toolkit.detect.segments import MIN_LENGTH_PX, detect_segments
 from pencilcal.toolkit.detect.shafts import detect_shafts
 from pencilcal.toolkit.io.lines_file import LineFrame
 
@@ -39,7 +39,7 @@ def default_min_length(shape, bars):
     >>> default_min_length((1080, 1920), bars=True), default_min_length((1080, 1920), bars=False)
     (36.0, 20.0)
     """
-    return max(20.0, min(shape[0], shape[1]) / 30.0) if bars else 20.0
+    return max(MIN_LENGTH_PX, min(shape[0], shape[1]) / 30.0) if bars else MIN_LENGTH_PX
 
 
 def detect_frame_lines(name, image, camera=None, detector="lsd", bars=False, shaft=False, min_length=None,

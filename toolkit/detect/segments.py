@@ -62,6 +62,9 @@ from pencilcal.toolkit.pencil.vertex import segment_angle_sigma
 
 __all__ = [
     "DETECTORS",
+    "MERGE_ANGLE_TOL_DEG",
+    "MERGE_DIST_TOL_PX",
+    "MIN_LENGTH_PX",
     "Segments",
     "detect_raw",
     "orient_by_polarity",
@@ -72,6 +75,9 @@ __all__ = [
 ]
 
 DETECTORS = ("lsd", "fld", "edlines")
+MERGE_ANGLE_TOL_DEG = 2.0  # fragments of one line differ in direction by less [deg] (merge_collinear)
+MERGE_DIST_TOL_PX = 1.5  # ... and lie within this distance of each other's line [px]
+MIN_LENGTH_PX = 20.0  # shortest segment detect_segments returns by default [px]
 
 
 # ============================================================================ results
@@ -359,7 +365,8 @@ def _group_extents(s, m, dirs, inv):
     return np.concatenate([m + tmin[:, None] * dirs, m + tmax[:, None] * dirs], -1)
 
 
-def merge_collinear(segments, angle_tol_deg=2.0, dist_tol_px=1.5, max_gap_px=30.0, min_length_px=0.0):
+def merge_collinear(segments, angle_tol_deg=MERGE_ANGLE_TOL_DEG, dist_tol_px=MERGE_DIST_TOL_PX,
+                    max_gap_px=RefitOptions.max_gap_px, min_length_px=0.0):
     """Merge oriented fragments that lie on one line, gaps allowed.
 
     Two fragments join when their oriented directions differ by less than `angle_tol_deg`
@@ -471,8 +478,9 @@ def detect_fragments(img, detector, camera, detector_params, min_fragment=4.0, s
     return raw[good], work[good]
 
 
-def refine_segments(image, segments, camera=None, *, search_px=2.0, sigma_px=1.0, step_px=2.0,
-                    max_gap_px=30.0, extend_px=8.0, min_gradient=2.0, min_length=0.0):
+def refine_segments(image, segments, camera=None, *, search_px=RefitOptions.search, sigma_px=RefitOptions.sigma_px,
+                    step_px=RefitOptions.step_px, max_gap_px=RefitOptions.max_gap_px, extend_px=RefitOptions.extend,
+                    min_gradient=RefitOptions.min_gradient, min_length=0.0):
     """Refit given segments (raw pixels) to the image's edges with subpixel precision.
 
     Parameters
@@ -551,9 +559,11 @@ def _plain_segments(lines, camera, min_length):
                     residual_px=z, stations=np.zeros(len(lines), int))
 
 
-def detect_segments(image, detector="lsd", *, camera=None, min_length=20.0, merge=True, refine=True,
-                    angle_tol_deg=2.0, dist_tol_px=1.5, max_gap_px=30.0, search_px=2.0, sigma_px=1.0,
-                    step_px=2.0, min_gradient=2.0, detector_params=None):
+def detect_segments(image, detector="lsd", *, camera=None, min_length=MIN_LENGTH_PX, merge=True, refine=True,
+                    angle_tol_deg=MERGE_ANGLE_TOL_DEG, dist_tol_px=MERGE_DIST_TOL_PX,
+                    max_gap_px=RefitOptions.max_gap_px, search_px=RefitOptions.search,
+                    sigma_px=RefitOptions.sigma_px, step_px=RefitOptions.step_px,
+                    min_gradient=RefitOptions.min_gradient, detector_params=None):
     """Line segments of an image: OpenCV detector, merging, subpixel refit with uncertainty.
 
     Parameters
@@ -596,7 +606,7 @@ def detect_segments(image, detector="lsd", *, camera=None, min_length=20.0, merg
     img = GrayImage(image)
     check_camera_image(camera, img)
     _, work = detect_fragments(img, detector, camera, detector_params)
-    opts = RefitOptions(search=search_px, extend=8.0, sigma_px=sigma_px, step_px=step_px, max_gap_px=max_gap_px,
+    opts = RefitOptions(search=search_px, sigma_px=sigma_px, step_px=step_px, max_gap_px=max_gap_px,
                         min_gradient=min_gradient)
     lines = merge_collinear(work, angle_tol_deg, dist_tol_px, max_gap_px)[0] if merge else work
     L = np.hypot(lines[:, 2] - lines[:, 0], lines[:, 3] - lines[:, 1])
