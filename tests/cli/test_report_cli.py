@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from pencilcal.cli.report import report
-from tests.validation.test_report import assert_self_contained, decoded_images, pdf_pages, summary_rows, synthetic
+from tests.validation.report.helpers import assert_self_contained, decoded_images, pdf_pages, summary_rows, synthetic
 
 CHROMIUM = Path("/usr/bin/chromium")
 

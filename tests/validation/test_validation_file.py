@@ -57,5 +57,20 @@ def test_pencil_reader_needs_spoke_angles_not_a_summary(tmp_path):
     p.write_text(json.dumps({"frames": [], "pencil": {"angles_deg": [0, "a", 40]}}))
     with pytest.raises(InputError, match="must be numbers"):
         load_pencil_validation(p)
+
+
+def test_load_validation_errors_name_the_file(tmp_path):
+    bad = tmp_path / "v.json"
+    bad.write_text("{not json")
+    with pytest.raises(InputError, match=r"v\.json: not valid JSON"):
+        load_validation(bad)
+    bad.write_text(json.dumps({"frames": []}))
+    with pytest.raises(InputError, match=r"v\.json: not a validation file"):
+        load_validation(bad)
+    bad.write_text("[1, 2]")
+    with pytest.raises(InputError, match="not a validation file"):
+        load_validation(bad)
+    with pytest.raises(InputError, match="not found"):
+        load_validation(tmp_path / "missing.json")
     with pytest.raises(InputError, match="is a folder"):
         load_validation(tmp_path)
