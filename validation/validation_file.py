@@ -13,10 +13,10 @@ Example
 >>> write_validation(path, {"frames": [], "summary": {}, "pencil": {"angles_deg": [0, 20, 40]}})
 >>> sorted(load_validation(path)), len(load_pencil_validation(path)["pencil"]["angles_deg"])
 (['frames', 'pencil', 'summary'], 3)
->>> check_validation({"frames": []}, "v.json")
+>>> check_validation({"frames": []}, "v.json")  # doctest: +ELLIPSIS
 Traceback (most recent call last):
 ...
-pencilcal.toolkit.errors.InputError: v.json: not a validation file (expected an object with a 'frames' list and a 'summary', as `pencilcal validate` writes)
+pencilcal.toolkit.errors.InputError: v.json: not a validation file (expected an object with a 'frames' list ...)
 """
 from __future__ import annotations
 

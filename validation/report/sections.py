@@ -199,7 +199,8 @@ def sfm_section(data):
     s = lookup(data, "summary", "sfm")
     if isinstance(s, dict) and s.get("frames"):
         sec.blocks.append(Para(f"SfM normal error against the {reference_phrase(data)}: median "
-                               f"{num(lookup(s, 'normal', 'median'))} deg, RMSE {num(lookup(s, 'normal', 'rmse'))} deg, "
+                               f"{num(lookup(s, 'normal', 'median'))} deg, "
+                               f"RMSE {num(lookup(s, 'normal', 'rmse'))} deg, "
                                f"95th percentile {num(lookup(s, 'normal', 'p95'))} deg over {s['frames']} frames."))
     return sec
 
@@ -337,7 +338,8 @@ def _fig_planned_vs_measured(data, m, prim):
         if pts:
             p = np.array(pts)
             sc = ax.scatter(p[:, 0], p[:, 1], c=np.where(np.isfinite(p[:, 2]), p[:, 2], np.nanmin(off)), cmap=cmap,
-                            norm=norm, edgecolors="k", s=28, zorder=3, label=f"measured, {method_label(prim)} (closer twin)")
+                            norm=norm, edgecolors="k", s=28, zorder=3,
+                            label=f"measured, {method_label(prim)} (closer twin)")
             fig.colorbar(sc, ax=ax, label="vertex off axis [deg]")
         b = [(finite(f.get("reference_tilt_deg")), finite(lookup(f, "crlb", "normal_deg"))) for f in data["frames"]]
         b = sorted((x, y) for x, y in b if x is not None and y is not None and y > 0)
@@ -350,10 +352,10 @@ def _fig_planned_vs_measured(data, m, prim):
     ax.set_title("Planned against measured")
     ax.grid(True, which="both", alpha=0.25)
     ax.legend(fontsize=7, framealpha=0.7)
-    return Plot(png_bytes(fig), "The plan's RMS normal error over tilt (one curve per off-axis angle of the plan) with "
-                                "the errors measured here (one point per frame, coloured by how far off axis its vertex "
-                                "was) and this sequence's own per-frame bound. Single frames scatter about an RMS curve; "
-                                "the summary table has the RMS.", "planned vs measured")
+    caption = ("The plan's RMS normal error over tilt (one curve per off-axis angle of the plan) with the errors "
+               "measured here (one point per frame, coloured by how far off axis its vertex was) and this sequence's "
+               "own per-frame bound. Single frames scatter about an RMS curve; the summary table has the RMS.")
+    return Plot(png_bytes(fig), caption, "planned vs measured")
 
 
 # ----------------------------------------------------------------------------------------

@@ -305,8 +305,8 @@ def _ambiguity_notes(data, prim):
     if prim is None:
         return []
     model = prim.split(":", 1)[1]
-    flags = [(bool(lookup(f, "orient", model, "labels_ambiguous")), bool(lookup(f, "orient", model, "normal_ambiguous")))
-             for _, f, _ in method_errors(data, prim)]
+    flags = [(bool(lookup(f, "orient", model, "labels_ambiguous")),
+              bool(lookup(f, "orient", model, "normal_ambiguous"))) for _, f, _ in method_errors(data, prim)]
     lab = sum(1 for la, na in flags if la and not na)
     nrm = sum(1 for _, na in flags if na)
     notes = []
