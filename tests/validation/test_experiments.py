@@ -1,4 +1,4 @@
-"""The chapter's experiments (validation/experiments.py).
+"""The chapter's experiments (validation/experiments/).
 
 Image-free checks first: with noise-free lines every experiment recovers the reference
 exactly (vertex 20 deg off axis, so the move into the plane orthogonal to the vertex ray is
@@ -20,6 +20,7 @@ from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.io.files import write_json
 from pencilcal.toolkit.pencil.single_angle import single_angle_tilt
 from pencilcal.validation import experiments as ex
+from pencilcal.validation.experiments.detection import _crossing
 
 
 # ------------------------------------------------------------------ image-free checks
@@ -147,11 +148,11 @@ def test_load_validation_refuses_other_files(tmp_path):
 
 
 def test_crossing_of_separated_and_noisy_indicators():
-    c, br = ex._crossing([0, 1, 2, 3, 4, 5], [0, 0, 0, 1, 1, 1])
+    c, br = _crossing([0, 1, 2, 3, 4, 5], [0, 0, 0, 1, 1, 1])
     assert c == pytest.approx(2.5) and br == (2.0, 3.0)
-    c, br = ex._crossing([0, 1, 2, 3, 4, 5], [0, 1, 0, 1, 1, 1])  # pooled: 0, .5, .5, 1
+    c, br = _crossing([0, 1, 2, 3, 4, 5], [0, 1, 0, 1, 1, 1])  # pooled: 0, .5, .5, 1
     assert 0.0 < c <= 2.0
-    assert ex._crossing([1, 2, 3], [1, 1, 1]) == (None, None)
+    assert _crossing([1, 2, 3], [1, 1, 1]) == (None, None)
 
 
 # ---------------------------------------------------------- a rendered tilt sweep
