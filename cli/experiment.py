@@ -1,6 +1,6 @@
 """`pencilcal experiment`: the book chapter's experiments on a validation.json.
 
-One subcommand per experiment (validation/experiments.py): ``single-angle`` (Figs. 8-9),
+One subcommand per experiment (validation/experiments/): ``single-angle`` (Figs. 8-9),
 ``distribution`` (Figs. 10-11) and ``threshold``. Each reads what `pencilcal validate`
 wrote, synthetic (exact truth) or real (the board's PnP pose as the reference), writes a
 JSON result and, with --png, figures. Where the data cannot support part of an experiment
