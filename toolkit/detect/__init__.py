@@ -1,1 +1,20 @@
-"""Line features in images: line segments, printed bars and instrument shafts, with subpixel edges and honest uncertainties."""
+"""Line features in images, with subpixel edges and honest uncertainties.
+
+- `image`, `working`, `edges`, `refit`, `pairs`, `noise`: the one edge-profile engine
+  (grey images, raw <-> working pixels, Gaussian-derivative profiles across a line and
+  their peaks, robust line refits, pairs of edges, the image noise);
+- `segments`: line segments (LSD, FLD, EDLines proposals, merged and refitted);
+- `bars`: printed bars (the spokes of a fan) as their midlines;
+- `shafts` (with `shaft_bands`, `shaft_axis`): instrument shafts and their axis images;
+- `lines`, `assemble`: one frame's lines as a lines.json record, and the pencil's lines.
+"""
+
+from __future__ import annotations
+
+from pencilcal.toolkit.detect.segments import Segments, detect_segments, DETECTORS
+from pencilcal.toolkit.detect.bars import Bars, detect_bars
+from pencilcal.toolkit.detect.shafts import Shaft, detect_shafts
+from pencilcal.toolkit.detect.lines import lines_record
+
+__all__ = ["Segments", "detect_segments", "DETECTORS", "Bars", "detect_bars", "Shaft", "detect_shafts",
+           "lines_record"]
