@@ -1,13 +1,11 @@
 """calibrate(): synthetic recovery, uncertainties, outlier rejection, models, and the real image sets."""
 from __future__ import annotations
 
-import doctest
 import glob
 
 import numpy as np
 import pytest
 
-import pencilcal.toolkit.board.calibrate as calibration_module
 from pencilcal.toolkit.board.spec import board_from_dict
 from pencilcal.toolkit.board.calibrate import calibrate, intrinsic_names, synthetic_detections
 from pencilcal.toolkit.camera.model import Camera
@@ -39,10 +37,6 @@ def with_noise(dets, sigma, rng):
 
 def truth_vector(cam):
     return np.r_[cam.fx, cam.fy, cam.cx, cam.cy, cam.dist]
-
-
-def test_doctests():
-    assert doctest.testmod(calibration_module).failed == 0
 
 
 # ------------------------------------------------------------------- synthetic recovery

@@ -1,12 +1,10 @@
 """mrcal corner cache (corners.vnl): format details, round trip, errors."""
 from __future__ import annotations
 
-import doctest
 
 import numpy as np
 import pytest
 
-import pencilcal.toolkit.board.corners_cache as corners_io_module
 from pencilcal.toolkit.board.spec import board_from_dict
 from pencilcal.toolkit.board.corners_cache import LEGEND, corners_vnl_text, read_corners_vnl, write_corners_vnl
 from pencilcal.toolkit.board.detect import BoardDetection
@@ -24,10 +22,6 @@ def det(ids, xy, size=(640, 480)):
 
 def data_rows(text):
     return [ln.split() for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
-
-
-def test_doctests():
-    assert doctest.testmod(corners_io_module).failed == 0
 
 
 def test_format_matches_mrcal_conventions():

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import ast
-import doctest
 import itertools
 import json
 import os
@@ -13,7 +12,6 @@ import numpy as np
 import pycolmap
 import pytest
 
-from pencilcal.toolkit.camera import formats as camera_io
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.camera.formats import (camera_from_colmap, camera_from_dict, camera_to_colmap,
                                          camera_to_dict, read_camera, write_camera)
@@ -409,7 +407,3 @@ def test_paths_that_are_not_cameras(tmp_path):
     (tmp_path / "f").write_text("x")
     with pytest.raises(InputError, match="not a folder"):
         write_camera(tmp_path / "f", CAMERAS["pinhole"], force=True)
-
-
-def test_module_examples():
-    assert doctest.testmod(camera_io).failed == 0
