@@ -91,11 +91,13 @@ def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_si
         frames = _shafts(source, camera, detector, quiet, workers)
     angles = read_angles(angles_path, [f["image"] for f in frames]) if angles_path else None
     try:
-        out = fulcrum_from_frames(camera, frames, angles=angles, endpoint_sigma_px=endpoint_sigma)
+        res = fulcrum_from_frames(camera, frames, angles=angles, endpoint_sigma_px=endpoint_sigma)
     except EstimationError as e:
         raise EstimationError(f"{lines_path or source.description}: {e}") from None
+    for w in res.warnings:
+        warn(w)
     out = {"camera": str(camera_path), "lines": None if lines_path is None else str(lines_path),
-           "images": None if images is None else source.description, **out}
+           "images": None if images is None else source.description, **res.to_dict()}
     write_json(output, out, force=force)
     off_axis = float(np.degrees(np.arccos(np.clip(out["ray"][2], -1.0, 1.0))))
     if out["vertex_px"] is None:

@@ -10,8 +10,8 @@ through the fulcrum's image. Over the sequence those lines form a pencil:
    plane the shaft sweeps) with its twin, exactly as for a printed fan.
 
 Per frame the instrument line is the shaft midline when the lines file has shafts
-(``pencilcal lines --shaft``), else the frame's segments, of which the fulcrum fit keeps
-those through the fulcrum; for the pivot plane each frame contributes its longest such
+(``pencilcal lines --shaft``) in any frame, else the frame's segments, of which the fulcrum
+fit keeps those through the fulcrum; for the pivot plane each frame contributes its longest such
 line, oriented from the fulcrum towards the visible shaft.
 
 The pivot frame ("target" of the orientation): the shaft at pivot angle theta points along
@@ -20,6 +20,8 @@ The pivot frame ("target" of the orientation): the shaft at pivot angle theta po
 from __future__ import annotations
 
 import csv
+import dataclasses
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,10 +29,12 @@ import numpy as np
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.estimator import check_vertex, fit_pencil
 from pencilcal.toolkit.geometry.frames import normalize
+from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.orient import orientation_record, raw_vertex
+from pencilcal.toolkit.pencil.orientation import Orientation
 from pencilcal.toolkit.pencil.vertex import intersect_lines
 
-__all__ = ["fulcrum_from_frames", "read_angles"]
+__all__ = ["Fulcrum", "fulcrum_from_frames", "read_angles"]
 
 
 def read_angles(path, images):
@@ -79,12 +83,55 @@ def read_angles(path, images):
     return np.radians(vals)
 
 
-def _frame_lines(fr, endpoint_sigma_px):
-    """Raw segments and their angle sigma [rad] (None: from the end points) for one frame."""
-    shafts = fr.get("shafts")
-    if shafts:
+@dataclass(frozen=True, eq=False)
+class Fulcrum:
+    """The fulcrum of a pivoting instrument over a sequence (the record of fulcrum.json).
+
+    vertex_px (2,) and vertex_cov_px2 (2, 2): the fulcrum's image in raw pixels (None where
+    the lens model does not reach it); ray (3,): its unit viewing ray (camera frame) and
+    ray_sigma_deg; lines_used, frames_used; outliers: [{"image", "segment"}] of the lines
+    that miss it; rms: the weighted RMS of the lines' residuals; lines_from: "shafts" or
+    "segments" (which lines of the frames were used); warnings: what the caller should
+    tell the user. With pivot angles, `pivot` is the pivot plane's `Orientation` (its keys
+    join the record) from `pivot_frames` frames.
+    """
+
+    vertex_px: np.ndarray | None
+    vertex_cov_px2: np.ndarray | None
+    ray: np.ndarray
+    ray_sigma_deg: float
+    lines_used: int
+    outliers: list
+    frames_used: int
+    rms: float
+    lines_from: str = "segments"
+    warnings: tuple = ()
+    pivot: Orientation | None = None
+    pivot_frames: int | None = None
+
+    def to_dict(self) -> dict:
+        """The fulcrum.json record: the fulcrum's keys, then with a pivot plane the keys
+        of orientation.json (but the image and those the fulcrum has) and pivot_frames."""
+        out = {"ok": True, "error": None, "vertex_px": self.vertex_px, "vertex_cov_px2": self.vertex_cov_px2,
+               "ray": self.ray, "ray_sigma_deg": self.ray_sigma_deg, "lines_used": self.lines_used,
+               "outliers": self.outliers, "frames_used": self.frames_used, "rms": self.rms}
+        if self.pivot is not None:
+            rec = self.pivot.to_dict()
+            rec.pop("image", None)
+            out.update({k: v for k, v in rec.items() if k not in out})
+            out["pivot_frames"] = self.pivot_frames
+        out["lines_from"] = self.lines_from
+        return out
+
+
+def _frame_lines(fr, endpoint_sigma_px, shafts_only):
+    """Raw lines (K, 4) and their angle sigma (K,) [rad] (NaN: from the end points) for one
+    frame: its shaft midlines when `shafts_only`, else its segments."""
+    if shafts_only:
+        shafts = fr.get("shafts") or []
         seg = np.array([np.asarray(s["midline"], float) for s in shafts]).reshape(-1, 4)
-        sig = np.array([np.radians(s["angle_sigma_deg"]) if s.get("angle_sigma_deg") is not None else np.nan for s in shafts])
+        sig = np.array([np.radians(float(s["angle_sigma_deg"])) if s.get("angle_sigma_deg") is not None else np.nan
+                        for s in shafts])
         return seg, sig
     seg = np.asarray(fr.get("segments", np.zeros((0, 4))), float).reshape(-1, 4)
     sig = fr.get("angle_sigma_deg")
@@ -92,37 +139,57 @@ def _frame_lines(fr, endpoint_sigma_px):
     return seg, sig
 
 
-def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=0.5):
-    """The fulcrum (and with `angles` the pivot plane) from the lines of a sequence.
+def _sequence_lines(frames, endpoint_sigma_px):
+    """Every usable line of the sequence: (segments (N, 4), sigmas (N,), owner [(frame,
+    index)], lines_from, warnings).
 
-    camera: Camera; frames: lines.json frame dicts (lines_io.read_lines); angles: (F,) pivot
-    angles [rad] per frame or None; endpoint_sigma_px: end point noise [px] of segments
-    without their own angle sigma.
-
-    Returns a fulcrum.json dict: ``vertex_px``, ``vertex_cov_px2`` (raw pixels), ``ray``
-    (unit, camera frame), ``ray_sigma_deg``, ``lines_used``, ``outliers`` (list of
-    {image, segment}), ``frames_used``; with `angles` also the orientation keys of
-    orientation.json for the pivot plane. Raises EstimationError when there is no fulcrum.
+    When any frame has shaft midlines only midlines are used: a frame without a shaft
+    has only its edge segments (hundreds, mostly not the instrument's), which would
+    outvote the other frames' midlines.
     """
-    segs, sigs, owner = [], [], []
-    for i, fr in enumerate(frames):
-        if not fr.get("ok", True):
-            continue
-        s, g = _frame_lines(fr, endpoint_sigma_px)
-        keep = np.all(np.isfinite(s), -1) & (np.hypot(s[:, 2] - s[:, 0], s[:, 3] - s[:, 1]) > 1.0)
+    ok_frames = [(i, fr) for i, fr in enumerate(frames) if fr.get("ok", True)]
+    shafts_only = any(fr.get("shafts") for _, fr in ok_frames)
+    warnings = []
+    segs, sigs, owner, bad = [], [], [], 0
+    for i, fr in ok_frames:
+        s, g = _frame_lines(fr, endpoint_sigma_px, shafts_only)
+        finite = np.all(np.isfinite(s), -1)
+        bad += int((~finite).sum())
+        keep = finite & (np.hypot(s[:, 2] - s[:, 0], s[:, 3] - s[:, 1]) > 1.0)
         for j in np.flatnonzero(keep):
             segs.append(s[j])
             sigs.append(g[j])
             owner.append((i, int(j)))
-    if len(segs) < 2:
-        raise EstimationError(f"fewer than two instrument lines in the sequence ({len(segs)})")
-    seg = np.array(segs)
+    if shafts_only:
+        without = sum(1 for _, fr in ok_frames if not fr.get("shafts"))
+        if without:
+            warnings.append(f"{without} frame(s) without a shaft midline contribute no line (their edge segments "
+                            "are not used when other frames have shafts)")
+    if bad:
+        warnings.append(f"{bad} {'shaft midline' if shafts_only else 'segment'}(s) with non-finite coordinates dropped")
+    return np.array(segs).reshape(-1, 4), np.asarray(sigs, float), owner, ("shafts" if shafts_only else "segments"), \
+        warnings
+
+
+def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_SIGMA_PX):
+    """The fulcrum (and with `angles` the pivot plane) from the lines of a sequence.
+
+    camera: Camera; frames: lines.json frame dicts (io.lines_file.read_lines); angles: (F,)
+    pivot angles [rad] per frame or None; endpoint_sigma_px: end point noise [px] of
+    segments without their own angle sigma. Per frame the lines are the shaft midlines
+    when any frame of the sequence has them, else the segments.
+
+    Returns a `Fulcrum` (its ``to_dict()`` is the fulcrum.json record). Raises
+    EstimationError when there is no fulcrum.
+    """
+    seg, sig, owner, lines_from, warnings = _sequence_lines(frames, endpoint_sigma_px)
+    if len(seg) < 2:
+        raise EstimationError(f"fewer than two instrument lines in the sequence ({len(seg)})")
     ideal = camera.undistort_pixels(seg.reshape(-1, 2)).reshape(-1, 4)
     good = np.all(np.isfinite(ideal), -1)
     if good.sum() < 2:
         raise EstimationError("fewer than two lines could be undistorted")
     L = np.hypot(ideal[:, 2] - ideal[:, 0], ideal[:, 3] - ideal[:, 1])
-    sig = np.asarray(sigs, float)
     # end point noise model where the line has no sigma of its own
     st = np.where(np.isfinite(sig), sig, np.sqrt(2.0) * endpoint_sigma_px / np.maximum(L, 1e-9))
     sc = np.full(len(seg), endpoint_sigma_px / np.sqrt(2.0))
@@ -143,18 +210,12 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=0.5):
     P = (np.eye(3) - np.outer(v, v) / (v @ v))[:, :2] / np.linalg.norm(v)
     ray_sigma = np.sqrt(max(np.trace(P @ cov_x @ P.T), 0.0))
     v_raw, cov_raw = raw_vertex(camera, x, vf.vertex, vf.cov)
-    out = {
-        "ok": True,
-        "error": None,
-        "vertex_px": v_raw,
-        "vertex_cov_px2": cov_raw,
-        "ray": ray,
-        "ray_sigma_deg": float(np.degrees(ray_sigma)),
-        "lines_used": int(vf.lines_used),
-        "outliers": [{"image": frames[owner[k][0]].get("image"), "segment": owner[k][1]} for k in np.flatnonzero(~inl)],
-        "frames_used": int(len({owner[k][0] for k in np.flatnonzero(inl)})),
-        "rms": vf.rms,
-    }
+    out = Fulcrum(
+        vertex_px=v_raw, vertex_cov_px2=cov_raw, ray=ray, ray_sigma_deg=float(np.degrees(ray_sigma)),
+        lines_used=int(vf.lines_used),
+        outliers=[{"image": frames[owner[k][0]].get("image"), "segment": owner[k][1]} for k in np.flatnonzero(~inl)],
+        frames_used=int(len({owner[k][0] for k in np.flatnonzero(inl)})), rms=vf.rms, lines_from=lines_from,
+        warnings=tuple(warnings))
     if angles is None:
         return out
     # one oriented line per frame: its longest inlier, pointing from the fulcrum outwards
@@ -178,10 +239,6 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=0.5):
     t = (ideal[ks, 2:] - ideal[ks, :2]) / L[ks, None]
     s_n = st[ks] * abs(np.linalg.det(A)) / np.sum((t @ A.T) ** 2, -1)
     fit = fit_pencil(a, angles[fr_idx], x, sigma=s_n, vertex_cov=cov_x)
-    rec = orientation_record(camera, fit, x, vf.vertex, vf.cov, model="exact",
-                             sigma_mean=float(np.sqrt(np.mean(s_n**2)))).to_dict()
-    rec.pop("image", None)
-    out.update({k: v for k, v in rec.items() if k not in out})
-    out["lines_used"] = int(vf.lines_used)
-    out["pivot_frames"] = int(len(ks))
-    return out
+    pivot = orientation_record(camera, fit, x, vf.vertex, vf.cov, model="exact",
+                               sigma_mean=float(np.sqrt(np.mean(s_n**2))))
+    return dataclasses.replace(out, pivot=pivot, pivot_frames=int(len(ks)))

@@ -30,19 +30,19 @@ def test_noise_free(rng):
     cam = hd_camera()
     frames, angles, R, P = pivot_sequence(cam, rng)
     out = fulcrum_from_frames(cam, frames)
-    np.testing.assert_allclose(out["vertex_px"], cam.project(P), atol=1e-6)
-    np.testing.assert_allclose(out["ray"], P / np.linalg.norm(P), atol=1e-9)
-    assert out["lines_used"] == 25 and out["outliers"] == []
+    np.testing.assert_allclose(out.vertex_px, cam.project(P), atol=1e-6)
+    np.testing.assert_allclose(out.ray, P / np.linalg.norm(P), atol=1e-9)
+    assert out.lines_used == 25 and out.outliers == []
 
 
 def test_pivot_plane(rng):
     cam = hd_camera()
     frames, angles, R, P = pivot_sequence(cam, rng)
     out = fulcrum_from_frames(cam, frames, angles=angles)
-    err = min(rotation_angle(np.asarray(out["R_cam_from_target"]), R),
-              rotation_angle(np.asarray(out["R_cam_from_target_twin"]), R))
+    err = min(rotation_angle(np.asarray(out.pivot.R_cam_from_target), R),
+              rotation_angle(np.asarray(out.pivot.R_cam_from_target_twin), R))
     assert np.degrees(err) < 1e-6
-    assert out["pivot_frames"] == 25 and out["ambiguous"] is True
+    assert out.pivot_frames == 25 and out.pivot.ambiguous is True
 
 
 def test_noise_and_outliers(rng):
@@ -50,12 +50,12 @@ def test_noise_and_outliers(rng):
     cam = hd_camera()
     frames, angles, R, P = pivot_sequence(cam, rng, n=30, noise_px=0.5, outliers=6)
     out = fulcrum_from_frames(cam, frames, angles=angles)
-    e = np.asarray(out["vertex_px"]) - cam.project(P)
-    C = np.asarray(out["vertex_cov_px2"])
+    e = np.asarray(out.vertex_px) - cam.project(P)
+    C = np.asarray(out.vertex_cov_px2)
     assert e @ np.linalg.solve(C, e) < 13.8  # chi2(2) at 99.9%
-    assert len(out["outliers"]) >= 5
-    n_err = min(angle_between(np.asarray(out["normal"]), R[:, 2]), angle_between(np.asarray(out["normal_twin"]), R[:, 2]))
-    assert np.degrees(n_err) < 4 * out["normal_sigma_deg"] + 0.1
+    assert len(out.outliers) >= 5
+    n_err = min(angle_between(np.asarray(out.pivot.normal), R[:, 2]), angle_between(np.asarray(out.pivot.normal_twin), R[:, 2]))
+    assert np.degrees(n_err) < 4 * out.pivot.normal_sigma_deg + 0.1
 
 
 def test_shafts_preferred(rng):
@@ -65,7 +65,7 @@ def test_shafts_preferred(rng):
         f["shafts"] = [{"midline": f["segments"][0], "angle_sigma_deg": 0.05}]
         f["segments"] = np.array([[0.0, 0, 500, 10], [0, 5, 800, 30]])  # unrelated edges
     out = fulcrum_from_frames(cam, frames)
-    np.testing.assert_allclose(out["vertex_px"], cam.project(P), atol=1e-6)
+    np.testing.assert_allclose(out.vertex_px, cam.project(P), atol=1e-6)
 
 
 def test_no_fulcrum(rng):
@@ -106,8 +106,31 @@ def test_fulcrum_beyond_the_lens_model(rng):
         assert np.all(np.isfinite(seg)) and np.all((seg >= 0) & (seg <= [1919, 1079] * 2))
         frames.append({"image": f"{k:03d}.png", "ok": True, "segments": seg[None]})
     out = fulcrum_from_frames(cam, frames)
-    assert np.degrees(angle_between(out["ray"], P)) < 1e-6
-    assert out["vertex_px"] is None and out["vertex_cov_px2"] is None
+    assert np.degrees(angle_between(out.ray, P)) < 1e-6
+    assert out.vertex_px is None and out.vertex_cov_px2 is None
     # within the lens model's reach the raw pixel is given, and it is where the lens images it
     near = fulcrum_from_frames(cam, pivot_sequence(cam, rng)[0])
-    assert near["vertex_px"] is not None
+    assert near.vertex_px is not None
+
+
+def test_a_frame_without_a_shaft_does_not_hand_its_edges_to_the_fulcrum(rng):
+    """The documented two-step route (lines --shaft, then fulcrum --lines): one frame with
+    no shaft but hundreds of edge segments must not outvote the others' midlines."""
+    cam = hd_camera()
+    frames, _, _, P = pivot_sequence(cam, rng, n=12, noise_px=0.3)
+    for f in frames[1:]:
+        f["shafts"] = [{"midline": f["segments"][0], "angle_sigma_deg": 0.05}]
+    # frame 0: no shaft found, 450 edges of the scene meeting somewhere else
+    other = np.array([300.0, 200.0])
+    ang = rng.uniform(0, np.pi, 450)
+    r0 = rng.uniform(20, 300, 450)
+    d = np.stack([np.cos(ang), np.sin(ang)], -1)
+    frames[0]["segments"] = np.concatenate([other + r0[:, None] * d, other + (r0 + 80)[:, None] * d], -1)
+    frames[0]["shafts"] = []
+    frames[1]["shafts"].append({"midline": np.array([np.nan, 0, 1, 1]), "angle_sigma_deg": 0.05})
+    out = fulcrum_from_frames(cam, frames)
+    assert out.lines_from == "shafts" and out.lines_used == 11
+    assert np.linalg.norm(np.asarray(out.vertex_px) - cam.project(P)) < 5
+    assert any("without a shaft" in w for w in out.warnings)
+    assert any("non-finite" in w for w in out.warnings)
+    assert out.to_dict()["lines_from"] == "shafts"
