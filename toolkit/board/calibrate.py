@@ -62,7 +62,7 @@ from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.board.detect import BoardDetection
 from pencilcal.toolkit.errors import EstimationError, InputError
 
-__all__ = ["CalibrationResult", "calibrate", "intrinsic_names", "synthetic_detections", "MODELS"]
+__all__ = ["CalibrationResult", "calibrate", "calibrate_images", "intrinsic_names", "synthetic_detections", "MODELS"]
 
 #: Lens models `calibrate` fits, and the coefficient counts each takes (default first).
 MODELS = {"opencv": (5, 4, 8, 12, 14), "pinhole": (0,), "fisheye": (4,)}
@@ -788,3 +788,34 @@ def synthetic_detections(camera, board, views=10, noise_px=0.2, seed=0, distance
 
 class _DetectionList(list):
     """A list that can carry the true poses of synthetic views (``.truth``)."""
+
+
+def calibrate_images(images, board, model="opencv", coefficients=None, **options):
+    """Calibrate from images: detect the board in each, then `calibrate`.
+
+    images : IMAGES (a path, folder, glob or video, or a list of them) or a sequence of
+        (H, W[, 3]) arrays, all the same size.
+    board : Board, or the path of a board file.
+    model, coefficients, options : as `calibrate`.
+
+    Returns the `CalibrationResult`; its ``camera`` is the calibrated Camera. Views that
+    cannot be decoded are skipped like views without the board.
+    """
+    from pencilcal.toolkit.board.detect import detect_board
+    from pencilcal.toolkit.board.spec import Board, read_board
+    from pencilcal.toolkit.io.images import open_images
+
+    board = board if isinstance(board, Board) else read_board(board)
+    if isinstance(images, (list, tuple)) and images and isinstance(images[0], np.ndarray):
+        frames = list(images)
+    else:
+        frames = [f.image for f in open_images(images, gray=True)]
+    decoded = [im for im in frames if im is not None]
+    if not decoded:
+        raise InputError("none of the images could be decoded")
+    sizes = {(im.shape[1], im.shape[0]) for im in decoded}
+    if len(sizes) > 1:
+        raise InputError(f"the images differ in size ({sorted(sizes)}); calibrate one camera at one size")
+    detections = [None if im is None else detect_board(im, board) for im in frames]
+    return calibrate(detections, board, sizes.pop(), model=model, coefficients=coefficients, **options)
+

@@ -111,7 +111,7 @@ True
 from __future__ import annotations
 
 from .covariance import colmap_covariance_to_pencilcal, pose_covariance
-from .estimate import DEFAULT_MAX_RMS_PX, MIN_POINTS, best_method, estimate_all, estimate_pose
+from .estimate import DEFAULT_MAX_RMS_PX, MIN_POINTS, best_method, board_pose, estimate_all, estimate_pose
 from .poses_file import (
     COV_CONVENTION,
     POSE_KEYS,
@@ -134,6 +134,7 @@ __all__ = [
     "MIN_POINTS",
     "PoseResult",
     "estimate_pose",
+    "board_pose",
     "estimate_all",
     "best_method",
     "refine_pose",

@@ -32,7 +32,7 @@ from .refine import levenberg_marquardt, normalized_points, orthonormal, project
     rotation_from_rotvec
 from .result import DEFAULT_METHOD, METHODS, PoseResult
 
-__all__ = ["DEFAULT_MAX_RMS_PX", "MIN_POINTS", "estimate_pose", "estimate_all", "best_method"]
+__all__ = ["DEFAULT_MAX_RMS_PX", "MIN_POINTS", "estimate_pose", "estimate_all", "best_method", "board_pose"]
 
 #: Reprojection RMS [px] above which a pose is rejected as a wrong local minimum.
 DEFAULT_MAX_RMS_PX = 5.0
@@ -290,6 +290,20 @@ def estimate_pose(object_points, image_points, camera, method=DEFAULT_METHOD, re
         flipped=bool(chosen.flipped), alternative_rms_px=alt_rms, alternative_angle_deg=alt_angle, extra=extra,
         time_s=time.perf_counter() - t0,
     )
+
+
+def board_pose(image, camera, board, method=DEFAULT_METHOD, **options):
+    """The pose of a calibration board in one image: detect its corners, then `estimate_pose`.
+
+    image : (H, W[, 3]) array (raw, as the camera took it); camera : Camera;
+    board : Board (toolkit.board.spec); method and options : as `estimate_pose`.
+    Returns a PoseResult (R_cam_from_target, t_cam_from_target in the board's length unit,
+    cov 6x6); ``ok`` is false with `error` when too few corners are found.
+    """
+    from pencilcal.toolkit.board.detect import detect_board
+
+    det = detect_board(image, board)
+    return estimate_pose(board.object_points()[det.ids], det.corners, camera, method=method, **options)
 
 
 # ------------------------------------------------------------------ estimate_pose's steps

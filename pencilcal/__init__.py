@@ -1,0 +1,96 @@
+"""pencilcal: orientation of a pencil of lines from its image angles, with the calibration
+and validation a lab needs to trust it.
+
+The public Python API; every function returns a typed result whose ``to_dict()`` (where
+it has one) is the record pencilcal's files hold (docs/api.md has a runnable example of
+each):
+
+==================  ==============================================================
+`read_camera`,      camera files of pencilcal (.json), OpenCV (.yaml/.xml), mrcal
+`write_camera`,     (.cameramodel), COLMAP (cameras.txt/.bin, model folder); `Camera`
+`Camera`            projects, undistorts, and holds the intrinsics
+`fit_pencil`        the exact estimator: image angles of lines through one point ->
+                    `PencilFit` (rotation, twin, tilt and normal with sigmas)
+`orient_segments`   one frame's raw segments -> `Orientation` (the orientation.json
+                    record)
+`detect_lines`      one image -> `LineFrame` (segments or printed bars' midlines, with
+                    their sigmas; the lines.json record)
+`detect_shafts`     one image -> [`Shaft`]: instrument shafts, their axis images
+`fulcrum`           the lines of a pivot sequence -> `Fulcrum` (the fulcrum.json record)
+`calibrate`         views of a board -> `CalibrationResult` (``.camera``)
+`board_pose`        one image of a board -> `PoseResult` (R_cam_from_target, t, cov)
+==================  ==============================================================
+
+Conventions: OpenCV camera frame (x right, y down, z forward), pixel (0, 0) the centre of
+the top-left pixel, transforms named ``R_a_from_b``, radians in code (degrees in files).
+
+Example
+-------
+>>> import numpy as np, pencilcal
+>>> R = pencilcal.rotation_about_axis([1.0, 0.2, 0.0], np.radians(30))  # R_cam_from_target
+>>> theta = np.radians(np.arange(8) * 20.0)                              # spoke angles
+>>> vertex = np.array([0.1, -0.05])                                      # normalised image
+>>> fit = pencilcal.fit_pencil(pencilcal.image_angles(R, vertex, theta), theta, vertex)
+>>> round(float(np.degrees(fit.tilt)), 6) == round(float(np.degrees(
+...     np.arccos(R[:, 2] @ fit.ray))), 6)
+True
+"""
+from __future__ import annotations
+
+from importlib.metadata import PackageNotFoundError, version
+
+from pencilcal.toolkit.board.calibrate import CalibrationResult
+from pencilcal.toolkit.board.calibrate import calibrate_images as calibrate
+from pencilcal.toolkit.board.spec import Board, read_board
+from pencilcal.toolkit.camera.formats import read_camera, write_camera
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.detect.lines import detect_frame_lines
+from pencilcal.toolkit.detect.shafts import Shaft, detect_shafts
+from pencilcal.toolkit.errors import EstimationError, InputError, PencilcalError
+from pencilcal.toolkit.geometry.frames import rotation_about_axis
+from pencilcal.toolkit.io.lines_file import LineFrame, read_lines
+from pencilcal.toolkit.pencil.estimator import PencilFit, fit_pencil
+from pencilcal.toolkit.pencil.fulcrum import Fulcrum, fulcrum_from_frames
+from pencilcal.toolkit.pencil.orient import orient_segments
+from pencilcal.toolkit.pencil.orientation import Orientation
+from pencilcal.toolkit.pencil.spec import Pencil, image_angles, read_pencil
+from pencilcal.validation.pnp import PoseResult, board_pose
+
+try:
+    __version__ = version("pencilcal")
+except PackageNotFoundError:  # running from a source tree without installing
+    __version__ = "0+unknown"
+
+__all__ = [
+    "__version__", "read_camera", "write_camera", "Camera", "fit_pencil", "orient_segments", "detect_lines",
+    "detect_shafts", "fulcrum", "calibrate", "board_pose",
+    # the results and inputs they take and give
+    "PencilFit", "Orientation", "LineFrame", "Shaft", "Fulcrum", "CalibrationResult", "PoseResult",
+    "Pencil", "read_pencil", "Board", "read_board", "read_lines", "image_angles", "rotation_about_axis",
+    "PencilcalError", "InputError", "EstimationError",
+]
+
+
+def detect_lines(image, camera=None, *, bars=False, detector="lsd", name="image", **options):
+    """The lines of one image as a `LineFrame`: edge segments, or with ``bars=True`` the
+    midlines of printed bars (the spokes of a fan), each with its angle and offset sigma.
+
+    image : (H, W) or (H, W, 3) array; camera : Camera (lines are straight in undistorted
+    pixels, so give it for a distorting lens); detector : "lsd", "fld" or "edlines";
+    options : ``min_length``, ``bar_width``, ``shaft`` (as `pencilcal lines`).
+    """
+    return detect_frame_lines(name, image, camera, detector=detector, bars=bars, **options)
+
+
+def fulcrum(lines, camera, angles=None, **options):
+    """The fulcrum of a pivoting instrument from the lines of its frames, as a `Fulcrum`.
+
+    lines : the path of a lines.json, or its frames ([`LineFrame`] or records); camera :
+    Camera; angles : (F,) pivot angles [rad] per frame, for the pivot plane too;
+    options : ``endpoint_sigma_px`` (as `pencilcal fulcrum`).
+    """
+    if isinstance(lines, (str, bytes)) or hasattr(lines, "__fspath__"):
+        frames = read_lines(lines)
+    else:
+        frames = [f.to_dict() if isinstance(f, LineFrame) else f for f in lines]
+    return fulcrum_from_frames(camera, frames, angles=angles, **options)
