@@ -19,7 +19,7 @@ from pencilcal.toolkit.io.images import DEFAULT_MAX_PIXELS
 
 __all__ = ["run", "progress", "warn", "output_option", "force_option", "quiet_option", "check_output",
            "camera_options", "StageBars", "workers_option", "run_frames", "images_argument", "max_pixels_option",
-           "IMAGES_HELP", "FiniteFloat"]
+           "IMAGES_HELP", "FiniteFloat", "LabelledProgress"]
 
 
 class Terminated(BaseException):
@@ -116,6 +116,21 @@ def progress(items, label, quiet):
         return
     with click.progressbar(items, label=label, file=sys.stderr, show_pos=True) as bar:
         yield bar
+
+
+class LabelledProgress:
+    """`progress` as a plain iterable with a length: the ``progress(items, label)``
+    callback the library's sequence functions take (validate_path and the like)."""
+
+    def __init__(self, it, label, quiet):
+        self.it, self.label, self.quiet = it, label, quiet
+
+    def __iter__(self):
+        with progress(self.it, self.label, self.quiet) as bar:
+            yield from bar
+
+    def __len__(self):
+        return len(self.it)
 
 
 def check_output(path, force, inputs=()):

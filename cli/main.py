@@ -9,6 +9,7 @@ from .bench import bench
 from .calibrate import calibrate
 from .convert import convert
 from .common import install_signal_handlers
+from .demo import demo
 from .experiment import experiment
 from .fulcrum import fulcrum
 from .lines import lines
@@ -44,6 +45,7 @@ def cli(debug):
 
 cli.add_command(bench)
 cli.add_command(calibrate)
+cli.add_command(demo)
 cli.add_command(convert)
 cli.add_command(experiment)
 cli.add_command(orient)

@@ -1,14 +1,11 @@
 """`pencilcal simulate`: synthetic sequences with exact ground truth."""
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import click
 
-from pencilcal.toolkit.errors import InputError
-
-from .common import (FiniteFloat, progress, quiet_option, run)
+from .common import FiniteFloat, progress, quiet_option, run
 
 MODELS = ("opencv", "fisheye", "pinhole")
 
@@ -21,27 +18,6 @@ def _parse_size(text):
     if not (16 <= w <= 16384 and 16 <= h <= 16384):
         raise click.BadParameter(f"width and height must be 16..16384 pixels, got {w}x{h}", param_hint="--size")
     return w, h
-
-
-def _looks_like_output(path):
-    """True for an empty folder or one an earlier `simulate` wrote (safe to replace)."""
-    entries = set(os.listdir(path))
-    return not entries or "truth.json" in entries
-
-
-def _check_out(out, force):
-    """Fail before any work if OUT cannot (or must not) be written."""
-    parent = out.parent if str(out.parent) else Path(".")
-    if not parent.is_dir():
-        raise InputError(f"{out}: folder {parent} does not exist")
-    if out.exists() or out.is_symlink():
-        if not out.is_dir() or out.is_symlink():
-            raise InputError(f"{out}: exists and is not a folder")
-        entries = os.listdir(out)
-        if entries and not force:
-            raise InputError(f"{out}: folder is not empty; pass --force to replace an earlier simulate output")
-        if entries and not _looks_like_output(out):
-            raise InputError(f"{out}: folder is not empty and holds no truth.json; not replacing it, even with --force")
 
 
 @click.command()
@@ -95,39 +71,23 @@ def simulate(out, scenario, frames, seed, size, model, camera_path, noise, blur,
       pencilcal simulate runs/orbit --scenario orbit --frames 40 --seed 1
       pencilcal simulate runs/pivot --scenario pivot --frames 12 --model fisheye
     """
-    import cv2
-
-    from pencilcal.toolkit.board.spec import write_board
-    from pencilcal.toolkit.camera.formats import read_camera, write_camera
-    from pencilcal.toolkit.io.files import atomic_folder, atomic_write, write_json
-    from pencilcal.toolkit.pencil.spec import write_pencil
+    from pencilcal.toolkit.camera.formats import read_camera
+    from pencilcal.toolkit.synth.folder import check_sequence_output, write_sequence
     from pencilcal.toolkit.synth.scenarios import make_scenario
 
     w, h = _parse_size(size)
     out_path = Path(out)
-    _check_out(out_path, force)
+    check_sequence_output(out_path, force)
     camera = read_camera(camera_path) if camera_path else None
     options = {"axis_deg": axis, "max_tilt_deg": max_tilt} if scenario == "tilt-sweep" else {}
     sc = make_scenario(scenario, frames, seed, camera=camera, size=(w, h), model=model, **options)
-    settings = {"noise": noise, "blur_px": blur, "lighting": lighting, "gamma": gamma}
-    bg = None if background == "table" else "plain"
-    with atomic_folder(out_path) as tmp:
-        (tmp / "images").mkdir()
-        with progress(range(len(sc)), "simulate", quiet) as bar:
-            for i in bar:
-                img = sc.render(i, color=color, background=bg, **settings)
-                path = tmp / "images" / sc.frames[i]["image"]
-                if not cv2.imwrite(str(path), img):
-                    raise InputError(f"{path}: cannot write the image")
-        write_camera(tmp / "camera.json", sc.camera)
-        write_camera(tmp / "camera.yaml", sc.camera)
-        write_board(tmp / "board.yaml", sc.sheet.board)
-        write_pencil(tmp / "pencil.yaml", sc.sheet.pencil)
-        csv = sc.angles_csv()
-        if csv is not None:
-            atomic_write(tmp / "angles.csv", csv)
-        render = dict(settings, color=color, background=background,
-                      camera=str(camera_path) if camera_path else f"built-in {model}")
-        write_json(tmp / "truth.json", sc.truth(render=render))
+
+    def bar(frames):
+        with progress(frames, "simulate", quiet) as it:
+            yield from it
+
+    write_sequence(out_path, sc, noise=noise, blur_px=blur, lighting=lighting, gamma=gamma, color=color,
+                   background=background, camera_source=str(camera_path) if camera_path else f"built-in {model}",
+                   progress=bar)
     if not quiet:
         click.echo(f"{len(sc)} {scenario} frames (seed {seed}, {w}x{h}, {sc.camera.model}) -> {out_path}", err=True)

@@ -10,7 +10,8 @@ from pencilcal.validation.pnp import METHODS
 from pencilcal.validation.validate import find_sequences, sequence_files, validate_many, validate_path
 from pencilcal.validation.validation_file import write_validation
 
-from .common import StageBars, check_output, force_option, output_option, progress, quiet_option, run, warn, workers_option
+from .common import (LabelledProgress, StageBars, check_output, force_option, output_option, quiet_option,
+                     run, warn, workers_option)
 
 
 def _split(value, allowed, what):
@@ -113,7 +114,7 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
     else:
         stage_bars = StageBars() if (sfm and not quiet and sys.stderr.isatty()) else None
         try:
-            out = validate_path(sequence, **options, sfm_dir=sfm_dir, progress=lambda it, label: _bar(it, label, quiet),
+            out = validate_path(sequence, **options, sfm_dir=sfm_dir, progress=lambda it, label: LabelledProgress(it, label, quiet),
                                 warn=warn, quiet=quiet, sfm_progress=stage_bars)
         finally:
             if stage_bars is not None:
@@ -146,17 +147,3 @@ def _many(subs, options, dask_address, quiet):
         if not r["ok"]:
             warn(f"{r['name']}: {r['error']}")
     return out
-
-
-class _bar:
-    """progress() as a plain iterable wrapper (the context manager closes with the loop)."""
-
-    def __init__(self, it, label, quiet):
-        self.it, self.label, self.quiet = it, label, quiet
-
-    def __iter__(self):
-        with progress(self.it, self.label, self.quiet) as bar:
-            yield from bar
-
-    def __len__(self):
-        return len(self.it)

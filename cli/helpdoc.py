@@ -1,0 +1,42 @@
+"""docs/cli.md from the commands' own --help: the reference of the command line.
+
+``python -m pencilcal.cli.helpdoc > docs/cli.md`` writes it; a test keeps the file equal to
+what this prints, so the page never drifts from the code.
+"""
+from __future__ import annotations
+
+import click
+
+__all__ = ["cli_reference"]
+
+_HEAD = """# Command line reference
+
+Every command's `--help`, as `pencilcal COMMAND --help` prints it. Generated from the code
+(`python -m pencilcal.cli.helpdoc > docs/cli.md`); a test keeps this page current.
+"""
+
+
+def _help(cmd, name, parent=None):
+    ctx = click.Context(cmd, info_name=name, parent=parent, max_content_width=100, terminal_width=100)
+    return cmd.get_help(ctx)
+
+
+def cli_reference() -> str:
+    """The Markdown of docs/cli.md."""
+    from .main import cli
+
+    root = click.Context(cli, info_name="pencilcal", max_content_width=100, terminal_width=100)
+    parts = [_HEAD, "## pencilcal\n", "```text\n" + cli.get_help(root) + "\n```\n"]
+    for name in sorted(cli.commands):
+        cmd = cli.commands[name]
+        parts.append(f"## pencilcal {name}\n")
+        parts.append("```text\n" + _help(cmd, name, root) + "\n```\n")
+        for sub in sorted(getattr(cmd, "commands", {}) or {}):
+            sub_ctx = click.Context(cmd, info_name=name, parent=root)
+            parts.append(f"### pencilcal {name} {sub}\n")
+            parts.append("```text\n" + _help(cmd.commands[sub], sub, sub_ctx) + "\n```\n")
+    return "\n".join(parts)
+
+
+if __name__ == "__main__":  # pragma: no cover - the generator's entry point
+    print(cli_reference(), end="")

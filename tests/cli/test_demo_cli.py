@@ -1,0 +1,30 @@
+"""`pencilcal demo`: one command from nothing to a validation report."""
+from __future__ import annotations
+
+import json
+
+import pytest
+from click.testing import CliRunner
+
+from pencilcal.cli.main import cli
+
+
+@pytest.mark.slow
+def test_demo_writes_a_report_and_every_file_it_used(tmp_path):
+    out = tmp_path / "demo"
+    r = CliRunner().invoke(cli, ["demo", "-o", str(out), "--frames", "8", "--no-sfm", "-q"])
+    assert r.exit_code == 0, r.output
+    assert r.output.strip().endswith("report.html")
+    assert (out / "report.html").read_text().startswith("<!DOCTYPE html>")
+    data = json.loads((out / "validation.json").read_text())
+    assert len(data["frames"]) == 8 and sum(f["ok"] for f in data["frames"]) >= 6
+    for f in ("truth.json", "camera.json", "board.yaml", "pencil.yaml"):
+        assert (out / "sequence" / f).is_file()
+    # an earlier demo is replaced only with --force; a folder of other files never
+    r = CliRunner().invoke(cli, ["demo", "-o", str(out), "--frames", "6", "--no-sfm", "-q"])
+    assert r.exit_code == 1 and "--force" in r.output
+    other = tmp_path / "mine"
+    other.mkdir()
+    (other / "thesis.tex").write_text("keep")
+    r = CliRunner().invoke(cli, ["demo", "-o", str(other), "--force", "-q"])
+    assert r.exit_code == 1 and "not replacing" in r.output and (other / "thesis.tex").read_text() == "keep"
