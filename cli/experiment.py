@@ -190,7 +190,7 @@ def _thr_line(r):
         out.append(f"error noise-level below {n['tilt50_deg']:.3g} deg")
     f = r.get("frontal", {})
     if f.get("status") == "ok":
-        out.append(f"frontal-ish median tilt {f['measured_median_deg']:.3g} deg (n={f['count']}; GEOMETRY scaled "
+        out.append(f"frontal-ish median tilt {f['measured_median_deg']:.3g} deg (n={f['count']}; noise floor scaled "
                    f"{f['geometry']['median_deg']:.3g}, Monte Carlo {f['monte_carlo']['median_deg']:.3g})")
     return "; ".join(out)
 
@@ -211,7 +211,7 @@ def threshold_cmd(validation_path, output, png_prefix, force, quiet, n_boot, tri
     which the tilt error reaches half the tilt, and the estimated tilt of frontal-ish
     frames. Compared with 2 sqrt(sigma), estimator.detection_threshold(sigma) and the
     likelihood-ratio test's predicted 50% point for the measured line sigma, and with
-    GEOMETRY.md's noise floor (median 3.75 deg at sigma = 0.1 deg, scaled by sqrt(sigma))
+    the noise floor of a frontal pencil (median 3.75 deg at sigma = 0.1 deg, scaled by sqrt(sigma))
     and a Monte Carlo of the same lines. Needs frames near zero tilt: a sweep from 0 deg
     (--max-tilt 8 samples the transition finely).
 

@@ -17,7 +17,7 @@ from somewhere else, so it means the same on a laptop and on a 2-core CI machine
 - ``batch_speedup`` (higher is better): batched fits per second over a Python loop of
   single numpy fits; ``fits_per_minute_batched``.
 - ``crlb_ratio_tilt20``: Monte Carlo RMSE of the tilt over its Cramer-Rao bound at 20 deg
-  of tilt, 8 lines 20 deg apart, 0.1 deg noise (GEOMETRY.md: 0.9-1.1).
+  of tilt, 8 lines 20 deg apart, 0.1 deg noise (target 0.9-1.1: the estimator is efficient).
 - ``single_fit_ms``: one pencil fit (numpy estimator), for latency.
 
 Frames are rendered once (toolkit.synth.render, exact truth) and encoded to PNG in memory; both

@@ -12,14 +12,14 @@ pencil at all? This module answers with two kinds of maps over the same grids:
 - **Monte Carlo**: `trials` noisy pencils per cell fitted by the exact estimator (batched
   in torch by `toolkit.torch_estimator.fit_pencils_torch`, or by the numpy estimator when
   torch is not installed). RMSE, median and 95th percentile of the tilt error and of the
-  normal error (angle to the closer twin: the data never separate the twins, GEOMETRY.md),
+  normal error (angle to the closer twin: the data never separate the twins, docs/conventions.md),
   the bias of the tilt, and the rate at which the fit is flagged ``detectable``.
 
 Grids: tilt x vertex position (off-axis angle of the vertex ray), spokes x spacing and noise
 x tilt. From each tilt curve: the *minimum tilt for an accuracy* X (the smallest tilt from
 which the metric stays at or below X on the rest of the grid, interpolated linearly between
 grid points) and the *measured detection threshold* (where the detectable rate crosses 50%
-and 90%), next to the ``2 sqrt(sigma)`` rule of GEOMETRY.md and its exact form
+and 90%), next to the ``2 sqrt(sigma)`` rule of docs/method.md and its exact form
 `estimator.detection_threshold`.
 
 Simulation (as tests/toolkit/pencil/test_estimator.py): the vertex sits at off-axis angle phi
@@ -190,7 +190,7 @@ def pose_about_ray(vertex, tilt, psi, theta0):
 
     R = Qt Rz(psi) Rx(tilt) Rz(theta0), Q the virtual camera looking along the ray of
     `vertex` (normalised, (..., 2)); psi turns the tilt axis, theta0 the fan in its plane
-    (GEOMETRY.md's parametrisation). Broadcasts; returns (..., 3, 3).
+    (the exact estimator's parametrisation, docs/method.md). Broadcasts; returns (..., 3, 3).
     """
     vertex = np.asarray(vertex, float)
     v = np.concatenate([vertex, np.ones(vertex.shape[:-1] + (1,))], -1)

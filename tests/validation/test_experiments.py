@@ -3,7 +3,7 @@
 Image-free checks first: with noise-free lines every experiment recovers the reference
 exactly (vertex 20 deg off axis, so the move into the plane orthogonal to the vertex ray is
 exercised), the single-angle sd is the chapter's formula, and on hundreds of frames near
-zero tilt the threshold experiment reproduces GEOMETRY.md's figures. Then a small rendered
+zero tilt the threshold experiment reproduces docs/method.md's figures. Then a small rendered
 tilt sweep (`pencilcal simulate` + `pencilcal validate`, ~11 s) through all three.
 """
 from __future__ import annotations
@@ -25,7 +25,7 @@ from pencilcal.validation.experiments.detection import _crossing
 
 # ------------------------------------------------------------------ image-free checks
 def test_sd_on_line_is_the_chapter_formula_with_geometry_numbers():
-    # GEOMETRY.md: 2.3 deg at 5 deg, 0.55 at 20, 0.14 at 60 (theta 45 deg, sigma 0.1 deg)
+    # docs/method.md: 2.3 deg at 5 deg, 0.55 at 20, 0.14 at 60 (theta 45 deg, sigma 0.1 deg)
     sd = np.degrees(ex.sd_on_line(np.radians([5.0, 20.0, 60.0]), math.radians(45), math.radians(0.1)))
     assert np.allclose(sd, [2.3, 0.55, 0.14], rtol=0.04)
     for g, th in ((10.0, 20.0), (35.0, 60.0), (70.0, 80.0)):
@@ -77,7 +77,7 @@ def test_noise_free_distribution_is_exact_off_axis(exact_offaxis):
 
 @pytest.fixture(scope="module")
 def near_zero():
-    """300 frames from 0 to 8 deg of tilt, 8 spokes, sigma 0.1 deg (GEOMETRY.md's set-up)."""
+    """300 frames from 0 to 8 deg of tilt, 8 spokes, sigma 0.1 deg (docs/method.md's set-up)."""
     v = ex.synthetic_validation(np.repeat(np.arange(0.0, 8.01, 0.25), 9)[:300], sigma_deg=0.1, seed=4)
     return ex.threshold(v, n_boot=300, trials=300, seed=1)
 

@@ -30,7 +30,7 @@ from tests.conftest import data_dir
 from tests.helpers import hd_camera
 
 Z = np.array([0.0, 0.0, 1.0])
-# the INTERFACES.md example board: 18 x 25 = 450 inner corners, 5 mm squares
+# the docs/formats.md example board: 18 x 25 = 450 inner corners, 5 mm squares
 BIG_BOARD = board_from_dict({"type": "charuco", "squares": [19, 26], "square": 5.0, "marker": 4.0,
                              "dictionary": "DICT_4X4_250"})
 SMALL_BOARD = board_from_dict({"type": "charuco", "squares": [7, 5], "square": 30.0, "marker": 22.0,

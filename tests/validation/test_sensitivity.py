@@ -1,4 +1,4 @@
-"""Planning maps: they reproduce GEOMETRY.md's table, read the curves sensibly and are
+"""Planning maps: they reproduce docs/method.md's table, read the curves sensibly and are
 reproducible; the numpy fallback gives the same numbers as the torch path."""
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ class TestRanges:
 
 class TestGeometryTable:
     def test_monte_carlo_reaches_the_bound_at_20_deg(self):
-        """GEOMETRY.md: sigma 0.1 deg, 8 lines 20 deg apart: at 20 deg of tilt the bound is
+        """docs/method.md: sigma 0.1 deg, 8 lines 20 deg apart: at 20 deg of tilt the bound is
         0.28 deg (tilt) and 0.40 deg (normal) and the estimator reaches it, on axis and
         20 deg off axis."""
         m = sens.tilt_offaxis_map(sens.Setup(), tilts_deg=[20.0], offaxis_deg=[0.0, 20.0], trials=1500, seed=3)

@@ -1,6 +1,6 @@
 """Calibration boards: the board file, OpenCV board objects and corner coordinates.
 
-Board file (``board.yaml`` or ``.json``, INTERFACES.md)::
+Board file (``board.yaml`` or ``.json``, docs/formats.md)::
 
     type: charuco            # charuco | chessboard
     squares: [19, 26]        # charuco: squares along x and y; chessboard: inner corners [cols, rows]

@@ -1,6 +1,6 @@
 """Camera files: read and write `Camera` intrinsics in the formats labs already use.
 
-The format follows the path (INTERFACES.md, "Camera, read and written by extension"):
+The format follows the path (docs/formats.md, "Camera files"):
 
 =====================  ==============================================================
 ``.json``              ``{"model", "width", "height", "K": 3x3, "dist": [...]}``; any other

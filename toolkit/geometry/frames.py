@@ -155,7 +155,7 @@ def twin_rotation(R_cam_from_target, ray):
 
     Rotating the whole pencil by 180 deg about the vertex's viewing ray leaves every image
     line unchanged; composing with Rot(z, pi) in the target frame turns the in-plane offset
-    by 180 deg so that even oriented spoke directions are reproduced (GEOMETRY.md).
+    by 180 deg so that even oriented spoke directions are reproduced (docs/conventions.md, "The twin").
 
     R_cam_from_target: (..., 3, 3); ray: (..., 3) viewing ray of the vertex (any length).
     """

@@ -1,7 +1,7 @@
 """The book chapter's forward models (eqs. 6-9) in atan2 form, their fits, and ellipse facts.
 
-GEOMETRY.md restates the chapter; this module fixes the conventions it leaves unsaid so
-that its general model *equals* exact projection (pencil.image_angles) to ~1e-12 deg.
+docs/method.md ("The chapter's models") restates the chapter; this module fixes the
+conventions it leaves unsaid so that its general model *equals* exact projection (pencil.image_angles) to ~1e-12 deg.
 
 Geometry (camera frame: x right, y down, z forward; image angle = atan2(dv, du) in
 normalised coordinates; spoke k along (cos theta_k, sin theta_k, 0) in the target frame;

@@ -4,8 +4,8 @@ Given the image of the vertex and the image angles of N >= 3 spokes whose in-pla
 theta_k are known in the target frame, recover R_cam_from_target (3 degrees of freedom:
 the plane normal and the in-plane rotation), its twin, and their uncertainty.
 
-Method (GEOMETRY.md, "The exact estimator")
---------------------------------------------
+Method (docs/method.md, "The exact estimator")
+----------------------------------------------
 1. Closed-form start. Rotate virtually so the vertex ray v_d becomes the optical axis
    (frames.rotation_to_z). There the spoke directions image as
    ``(cos b_k, sin b_k) ~ A (cos theta_k, sin theta_k)`` with A the top-left 2x2 block of
@@ -317,7 +317,7 @@ def _closed_form(bx, by, ct, st, w, Q, oriented, twin=True):
 
 
 def closed_form_start(line_angles, spoke_angles, vertex, weights=None, oriented=True):
-    """Closed-form rotation from >= 3 lines by a DLT in the virtual camera (GEOMETRY.md).
+    """Closed-form rotation from >= 3 lines by a DLT in the virtual camera (module doc, step 1).
 
     line_angles, spoke_angles: (..., N) [rad]; vertex: (..., 2) normalised; weights:
     (..., N) or None. In the virtual camera looking along the vertex ray,
@@ -553,7 +553,7 @@ def detection_threshold(sigma):
     """Tilt [rad] at which the largest angular change equals the angle noise: ~2 sqrt(sigma).
 
     sigma: (...) [rad]. Solves max_angular_change(g) = sigma exactly (the 2 sqrt(sigma)
-    rule of GEOMETRY.md is its small-angle form: 4.8 deg for sigma = 0.1 deg).
+    rule of docs/method.md is its small-angle form: 4.8 deg for sigma = 0.1 deg).
     """
     s = np.asarray(sigma, float)
     g = 2.0 * np.sqrt(s)

@@ -8,7 +8,7 @@ a into the plane orthogonal to the vertex ray, ``psi_i + chapter.aligned_angles(
 gamma_i)`` (chapter.general_parameters gives psi_i and gamma_i), and gamma below is then
 the tilt against the ray.
 
-Three situations (GEOMETRY.md, "Two lines with a known angle"):
+Three situations (docs/method.md, "Two lines with a known angle"):
 
 - ``axis="on_line"``: the image of the tilt axis is known and one line lies on it. alpha
   is the image angle of the other line from it, theta its 3D angle from the axis.

@@ -87,7 +87,7 @@ def _floats(value, n, key, source):
 
 
 def pencil_from_dict(d, source="pencil"):
-    """Build a Pencil from a parsed pencil file (INTERFACES.md), validating every field.
+    """Build a Pencil from a parsed pencil file (docs/formats.md), validating every field.
 
     Accepts ``angles_deg: [...]`` or ``start_deg, step_deg, count``; optional ``vertex``,
     ``radius`` and ``width``. `source` names the file in error messages.

@@ -243,7 +243,7 @@ def _frontal_section(frames, x, dt, sig_deg, frontal_fraction, trials, rng):
     scale = math.sqrt(sig_fr / _GEOMETRY_SIGMA_DEG)
     geo = {"median_deg": GEOMETRY_FRONTAL_MEDIAN_DEG * scale, "p95_deg": GEOMETRY_FRONTAL_P95_DEG * scale,
            "sigma_deg": sig_fr,
-           "note": ("GEOMETRY.md: median 3.75 deg (p95 5.3) at sigma 0.1 deg for 8 lines, scaled by "
+           "note": ("noise floor of a frontal pencil: median 3.75 deg (p95 5.3) at sigma 0.1 deg for 8 lines, scaled by "
                     "sqrt(sigma / 0.1 deg) with the median line sigma of the frontal-ish frames")}
     if not fr:
         return insufficient_section(

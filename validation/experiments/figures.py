@@ -266,7 +266,7 @@ def _fig_threshold(fig, r):
     geo = fr.get("geometry")
     if geo:
         ax2.axhline(geo["median_deg"], color="tab:red", ls=":", lw=1,
-                    label=f"GEOMETRY frontal median, scaled: {geo['median_deg']:.2f} deg")
+                    label=f"frontal noise floor (median), scaled: {geo['median_deg']:.2f} deg")
     ax2.axvline(th["two_sqrt_sigma_deg"], color="tab:red", ls="--", lw=1)
     ax2.set_xlabel("reference tilt [deg] (0 drawn at 0.05)")
     ax2.set_ylabel("[deg]")

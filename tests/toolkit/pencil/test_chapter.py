@@ -83,7 +83,7 @@ def test_general_model_composition_and_parameters(pose, th):
     p = C.general_parameters(R, x)
     v = p["ray"]
     n = R[:, 2]
-    # the conventions of GEOMETRY.md
+    # the conventions of docs/method.md
     assert np.isclose(np.cos(p["gamma_i"]), v[2], atol=1e-14)
     assert np.isclose(np.cos(p["gamma_r"]), n @ v, atol=1e-14)
     u_i, u_r = p["axis_image"], p["axis_pencil"]
@@ -104,7 +104,7 @@ def test_general_model_composition_and_parameters(pose, th):
 
 
 def test_chapter_tan_form_equals_atan2_form():
-    """GEOMETRY.md's eq.: tan(theta_i) = (tan(theta_r) cos(gamma_r) - tan(delta)) /
+    """docs/method.md's eq.: tan(theta_i) = (tan(theta_r) cos(gamma_r) - tan(delta)) /
     (cos(gamma_i) (1 + tan(theta_r) cos(gamma_r) tan(delta))), away from its singularities."""
     rng = np.random.default_rng(1)
     tr, gr, d, gi = rng.uniform([-1.5, 0.0, -1.5, 0.0], [1.5, 1.4, 1.5, 0.7], (4000, 4)).T
@@ -250,7 +250,7 @@ def _aligned_image_plane_worst(tilt, off=20 * DEG, axis_step=2.0, spoke_step=0.0
 def test_aligned_model_with_image_plane_tilt_errs_3p6_to_20_deg():
     """Eq. 6 applied with the tilt measured from the image plane, vertex 20 deg off axis.
 
-    Setup that reproduces GEOMETRY.md's "3.6-20 deg": the pencil tilted by gamma_r from
+    Setup that reproduces docs/method.md's "3.6-20 deg": the pencil tilted by gamma_r from
     the vertex ray (the tilt the estimators report), gamma_r from 0 to 40 deg; for each
     tilt the error is the worst over every tilt-axis direction in the plane orthogonal to
     the ray and over all spoke directions (0.05 deg steps).

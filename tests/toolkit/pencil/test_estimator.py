@@ -29,7 +29,7 @@ Z = np.array([0.0, 0.0, 1.0])
 
 
 def pose(vertex, tilt, psi, theta0):
-    """R_cam_from_target with the given tilt against the vertex ray (GEOMETRY.md's
+    """R_cam_from_target with the given tilt against the vertex ray (docs/method.md's
     parametrisation: virtual camera along the ray, then Rz(psi) Rx(tilt) Rz(theta0))."""
     v = normalize(np.concatenate([np.asarray(vertex, float), np.ones(np.shape(vertex)[:-1] + (1,))], -1))
     Qt = np.swapaxes(rotation_to_z(v), -1, -2)
@@ -136,7 +136,7 @@ class TestNoiseFree:
 
 
 class TestStatistics:
-    """Seeded Monte Carlo, 1000+ trials per point, against GEOMETRY.md's reference table."""
+    """Seeded Monte Carlo, 1000+ trials per point, against docs/method.md's reference table."""
 
     SIGMA = 0.1 * DEG
     TH = np.radians(np.arange(8) * 20.0)
@@ -166,7 +166,7 @@ class TestStatistics:
         assert fit.detectable.mean() > 0.99
 
     def test_reference_bounds(self):
-        """The bound itself matches GEOMETRY.md's table (averaged over in-plane angles)."""
+        """The bound itself matches docs/method.md's table (averaged over in-plane angles)."""
         table = {5: 1.16, 10: 0.58, 20: 0.28, 40: 0.123, 60: 0.063}
         psi, th0 = np.meshgrid(np.linspace(0, np.pi, 60, endpoint=False), np.linspace(0, 2 * np.pi, 60, endpoint=False))
         for g, ref in table.items():
@@ -240,7 +240,7 @@ class TestJacobian:
 
 class TestThresholds:
     def test_max_angular_change(self):
-        """GEOMETRY.md: 0.018 deg at 2 deg, 0.11 at 5, 0.44 at 10, 1.78 at 20."""
+        """docs/method.md: 0.018 deg at 2 deg, 0.11 at 5, 0.44 at 10, 1.78 at 20."""
         got = np.degrees(max_angular_change(np.radians([2.0, 5, 10, 20])))
         np.testing.assert_allclose(got, [0.018, 0.11, 0.44, 1.78], rtol=0.05)
 

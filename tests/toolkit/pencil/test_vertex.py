@@ -1,6 +1,6 @@
 """The vertex (fulcrum) of a pencil of image lines: exactness, efficiency, robustness, errors.
 
-Simulation used for GEOMETRY.md's reference figures ("The vertex (fulcrum)"): 8 lines with
+Simulation used for docs/method.md's reference figures ("The vertex (fulcrum)"): 8 lines with
 directions evenly spread over the span, first to last inclusive (np.linspace(0, span, 8));
 each segment's centre lies at a distance drawn uniformly from [80, 400] px from the vertex,
 independently per line and trial; noise = the line turned about its segment centre by
@@ -181,7 +181,7 @@ def test_monte_carlo_reaches_bound(span_deg, reference):
     v = np.array([640.3, 360.7])
     crlb = vertex_crlb(v, true, SIGMA_THETA, SIGMA_C)  # (trials, 2, 2)
     bound = np.sqrt(np.mean(np.trace(crlb, axis1=1, axis2=2)))
-    assert bound == pytest.approx(reference, rel=0.05)  # GEOMETRY.md's figure
+    assert bound == pytest.approx(reference, rel=0.05)  # docs/method.md's figure
 
     err = np.empty((trials, 2))
     reported = np.empty(trials)
