@@ -17,6 +17,7 @@ from pencilcal.toolkit.board.detect import detect_board
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import atomic_paths, write_json
 from pencilcal.toolkit.io.images import open_images
+from pencilcal.validation.calibration_report import coverage_grid, write_calibration_report
 
 from .common import (check_output, force_option, images_argument, max_pixels_option, quiet_option, run, run_frames,
                      warn, workers_option)
@@ -138,6 +139,11 @@ def _report(result, frames, detections, decoded_index, source, board, board_path
         "corners_rejected": sum(1 for r in result.rejected if "corner" in r),
         "corners_used": result.corners_used,
     }
+    used_corners = []
+    for j, det in enumerate(detections):
+        mask = result.corner_used[j] if result.used[j] else None
+        if mask is not None and len(mask) == len(det.corners):
+            used_corners.append(np.asarray(det.corners)[np.asarray(mask, bool)])
     return {
         "command": "calibrate",
         "images": source.description,
@@ -154,6 +160,7 @@ def _report(result, frames, detections, decoded_index, source, board, board_path
         "counts": counts,
         "views": views,
         "rejected": rejected,
+        "coverage": coverage_grid(used_corners, image_size),
         "outputs": {"camera": str(output), "corners": str(corners_path) if corners_path else None},
     }
 
@@ -174,7 +181,8 @@ def _report(result, frames, detections, decoded_index, source, board, board_path
 @click.option("--min-corners", type=int, default=6, show_default=True,
               help="Views with fewer corners are skipped.")
 @click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
-              help="JSON report: per-view errors and poses, std devs, outliers with reasons, skipped views.")
+              help="Report: .json (per-view errors and poses, std devs, outliers with reasons, skipped views, "
+                   "corner coverage) or .html (a page: per-view residuals, coverage heatmap, sigmas, advice).")
 @click.option("--corners", "corners_path", type=click.Path(dir_okay=False), default=None,
               help="Also write the detections as mrcal's corner cache (corners.vnl, "
                    "for mrcal-calibrate-cameras --corners-cache).")
@@ -230,7 +238,9 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
     if corners_path:
         records = [(_vnl_name(frame.path, frame.name, corners_path, source.kind), det) for frame, _, det in frames]
         todo.append((corners_path, lambda tmp: write_corners_vnl(tmp, records, board, force=True)))
-    if report_path:
+    if report_path and Path(report_path).suffix.lower() in (".html", ".htm"):
+        todo.append((report_path, lambda tmp: write_calibration_report(tmp, report, force=True)))
+    elif report_path:
         todo.append((report_path, lambda tmp: write_json(tmp, report, force=True)))
     todo.append((output, lambda tmp: write_camera(tmp, camera, force=True)))
     with atomic_paths([path for path, _ in todo], force) as tmps:
