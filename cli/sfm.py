@@ -11,6 +11,7 @@ import click
 from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import replace_folder, staging_folder
+from pencilcal.toolkit.io.images import open_images
 from pencilcal.validation.sfm import (
     DEFAULT_MAX_FEATURES,
     DEFAULT_MIN_REGISTERED,
@@ -21,11 +22,14 @@ from pencilcal.validation.sfm import (
     write_poses,
 )
 
-from .common import StageBars, camera_options, force_option, quiet_option, run, warn
+from .common import (StageBars, camera_options, force_option, images_argument, max_pixels_option, quiet_option, run,
+                     warn)
 
 # what a folder must hold (one of) for --force to replace it: never a folder of other things
 _SFM_MARKERS = ("poses.json", "sparse", "database.db")
-def _check_output_folder(out: Path, force: bool, images: str):
+
+
+def _check_output_folder(out: Path, force: bool, source):
     """Fail before any work: a file in the way, a non-empty folder without --force, a
     folder that is not an earlier sfm output (never replaced), or the input inside it."""
     parent = out.parent if str(out.parent) else Path(".")
@@ -41,14 +45,14 @@ def _check_output_folder(out: Path, force: bool, images: str):
         raise InputError(f"{out}: is not an sfm output folder (no poses.json, sparse/ or database.db); "
                          "refusing to replace it")
     real = out.resolve()
-    inp = Path(images.split("*")[0].split("?")[0] or ".").resolve()
     cwd = Path.cwd().resolve()
-    if inp == real or real in inp.parents or cwd == real or real in cwd.parents:
+    inside = [p for p in source.paths if real in Path(p).resolve().parents]
+    if inside or cwd == real or real in cwd.parents:
         raise InputError(f"{out}: holds the input images or the working folder; choose another output")
 
 
 @click.command()
-@click.argument("images")
+@images_argument()
 @camera_options
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
               help="Output folder (COLMAP layout): poses.json, sparse/0 (binary and text model), database.db, "
@@ -66,14 +70,16 @@ def _check_output_folder(out: Path, force: bool, images: str):
 @click.option("--keep-frames", is_flag=True,
               help="Keep the decoded frames (video input) or image links under OUTPUT/images.")
 @click.option("--verbose", is_flag=True, help="Show pycolmap's own log on stderr (always in OUTPUT/colmap.log).")
+@max_pixels_option
 @force_option
 @quiet_option
 @run
 def sfm(images, camera_path, camera_id, output, matching, max_features, min_registered, seed, keep_frames, verbose,
-        force, quiet):
+        max_pixels, force, quiet):
     """Structure from motion (pycolmap) with the intrinsics held fixed.
 
-    SIFT features on the CPU, exhaustive or sequential matching, then COLMAP's incremental
+    IMAGES is one or more image files, folders or glob patterns, in the order given, or one
+    video. SIFT features on the CPU, exhaustive or sequential matching, then COLMAP's incremental
     mapper with one shared camera whose focal length, principal point and distortion are
     those of CAM and are never refined (checked bit for bit afterwards). Writes a COLMAP
     project in OUTPUT (sparse/0: the largest model, binary and text; database.db) and
@@ -92,13 +98,14 @@ def sfm(images, camera_path, camera_id, output, matching, max_features, min_regi
         raise click.BadParameter("must be at least 2 (a reconstruction starts from a pair)",
                                  param_hint="--min-registered")
     out = Path(output)
-    _check_output_folder(out, force, images)
+    source = open_images(images, max_pixels=max_pixels)
+    _check_output_folder(out, force, source)
     camera = read_camera(camera_path, camera_id=camera_id)
     tmp = staging_folder(out)
     bars = StageBars() if not quiet and sys.stderr.isatty() else None
     try:
         try:
-            res = reconstruct(images, camera, tmp, matching=matching, max_features=max_features,
+            res = reconstruct(source, camera, tmp, matching=matching, max_features=max_features,
                               min_registered=min_registered, seed=seed, keep_frames=keep_frames, quiet=quiet,
                               verbose=verbose, progress=bars)
         finally:
@@ -109,7 +116,7 @@ def sfm(images, camera_path, camera_id, output, matching, max_features, min_regi
                 warn(f"{f.image}: {f.error}")
         for w in res.warnings:
             warn(w)
-        write_poses(tmp / "poses.json", res, images=str(images), camera_file=str(camera_path),
+        write_poses(tmp / "poses.json", res, images=source.description, camera_file=str(camera_path),
                     camera_id=camera_id, seed=seed, min_registered=min_registered)
         replace_folder(tmp, out)
     finally:
