@@ -35,7 +35,7 @@ def _grid(value):
 
 
 @click.command()
-@click.argument("sequence")
+@click.argument("sequence", nargs=-1, required=True, type=click.Path())
 @click.option("--camera", "camera_path", type=click.Path(), default=None,
               help="Camera file (any supported format); default: camera.json of a simulate folder.")
 @click.option("--camera-id", type=int, default=None, help="Camera id in a COLMAP file with several cameras.")
@@ -67,8 +67,9 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
              sfm, sfm_dir, detector, calib_path, dask_address, workers, output, force, quiet):
     """Compare the angular-variation estimate with PnP (and a reconstruction) on the same frames.
 
-    SEQUENCE is a folder of images, a glob or a video, or a `pencilcal simulate` folder
-    (then its images, camera, board, pencil and truth are used unless given). Every frame
+    SEQUENCE is one or more image files, folders or glob patterns (in the order given), a
+    video, or a `pencilcal simulate` folder (then its images, camera, board, pencil and
+    truth are used unless given). Every frame
     is decoded and detected once: the pencil's lines give the orientation (exact estimator
     and the chapter's general and aligned models), the board's corners give the pose by
     every PnP method, and with --sfm a pycolmap reconstruction (intrinsics fixed) is aligned

@@ -377,7 +377,12 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
 
 def sequence_files(sequence):
     """(images, files): a `pencilcal simulate` folder's images/ and the camera, board, pencil
-    and truth files beside it; for any other SEQUENCE (folder, glob, video) itself and {}."""
+    and truth files beside it; for any other SEQUENCE (folder, glob, video, or several image
+    paths: a tuple) itself and {}."""
+    if isinstance(sequence, (tuple, list)):
+        if len(sequence) != 1:
+            return tuple(sequence), {}
+        sequence = sequence[0]
     p = Path(sequence)
     if p.is_dir() and (p / "images").is_dir():
         found = {k: p / n for k, n in (("camera", "camera.json"), ("board", "board.yaml"), ("pencil", "pencil.yaml"),
@@ -403,6 +408,10 @@ def _has_images(p):
 def find_sequences(path):
     """The sequence folders inside `path` when it is a folder of sequences (no images of its
     own; subfolders that are simulate folders or hold images), sorted; else None."""
+    if isinstance(path, (tuple, list)):
+        if len(path) != 1:
+            return None  # several image paths: one sequence
+        path = path[0]
     p = Path(path)
     if not p.is_dir() or (p / "images").is_dir() or _has_images(p):
         return None
@@ -430,6 +439,8 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
     from pencilcal.toolkit.pencil.spec import read_pencil
 
     images, found = sequence_files(sequence)
+    if isinstance(sequence, (tuple, list)):
+        sequence = " ".join(map(str, sequence))
     camera = camera or found.get("camera")
     board = board or found.get("board")
     truth = truth or found.get("truth")
