@@ -37,29 +37,34 @@ True
 """
 from __future__ import annotations
 
+import importlib
 from importlib.metadata import PackageNotFoundError, version
-
-from pencilcal.toolkit.board.calibrate import CalibrationResult
-from pencilcal.toolkit.board.calibrate import calibrate_images as calibrate
-from pencilcal.toolkit.board.spec import Board, read_board
-from pencilcal.toolkit.camera.formats import read_camera, write_camera
-from pencilcal.toolkit.camera.model import Camera
-from pencilcal.toolkit.detect.lines import detect_frame_lines
-from pencilcal.toolkit.detect.shafts import Shaft, detect_shafts
-from pencilcal.toolkit.errors import EstimationError, InputError, PencilcalError
-from pencilcal.toolkit.geometry.frames import rotation_about_axis
-from pencilcal.toolkit.io.lines_file import LineFrame, read_lines
-from pencilcal.toolkit.pencil.estimator import PencilFit, fit_pencil
-from pencilcal.toolkit.pencil.fulcrum import Fulcrum, fulcrum_from_frames
-from pencilcal.toolkit.pencil.orient import orient_segments
-from pencilcal.toolkit.pencil.orientation import Orientation
-from pencilcal.toolkit.pencil.spec import Pencil, image_angles, read_pencil
-from pencilcal.validation.pnp import PoseResult, board_pose
 
 try:
     __version__ = version("pencilcal")
 except PackageNotFoundError:  # running from a source tree without installing
     __version__ = "0+unknown"
+
+# Where each public name lives. They are imported on first use (PEP 562), so that
+# `import pencilcal.toolkit.geometry` (which imports this package first) stays light and
+# worker processes load only what they run.
+_NAMES = {
+    "read_camera": "pencilcal.toolkit.camera.formats", "write_camera": "pencilcal.toolkit.camera.formats",
+    "Camera": "pencilcal.toolkit.camera.model",
+    "fit_pencil": "pencilcal.toolkit.pencil.estimator", "PencilFit": "pencilcal.toolkit.pencil.estimator",
+    "orient_segments": "pencilcal.toolkit.pencil.orient", "Orientation": "pencilcal.toolkit.pencil.orientation",
+    "Shaft": "pencilcal.toolkit.detect.shafts", "detect_shafts": "pencilcal.toolkit.detect.shafts",
+    "LineFrame": "pencilcal.toolkit.io.lines_file", "read_lines": "pencilcal.toolkit.io.lines_file",
+    "Fulcrum": "pencilcal.toolkit.pencil.fulcrum",
+    "CalibrationResult": "pencilcal.toolkit.board.calibrate",
+    "Board": "pencilcal.toolkit.board.spec", "read_board": "pencilcal.toolkit.board.spec",
+    "Pencil": "pencilcal.toolkit.pencil.spec", "read_pencil": "pencilcal.toolkit.pencil.spec",
+    "image_angles": "pencilcal.toolkit.pencil.spec",
+    "rotation_about_axis": "pencilcal.toolkit.geometry.frames",
+    "PoseResult": "pencilcal.validation.pnp", "board_pose": "pencilcal.validation.pnp",
+    "PencilcalError": "pencilcal.toolkit.errors", "InputError": "pencilcal.toolkit.errors",
+    "EstimationError": "pencilcal.toolkit.errors",
+}
 
 __all__ = [
     "__version__", "read_camera", "write_camera", "Camera", "fit_pencil", "orient_segments", "detect_lines",
@@ -71,6 +76,27 @@ __all__ = [
 ]
 
 
+def __getattr__(name):
+    if name in _NAMES:
+        value = getattr(importlib.import_module(_NAMES[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'pencilcal' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
+
+
+def calibrate(images, board, model="opencv", coefficients=None, **options):
+    """Calibrate a camera from views of a board: a `CalibrationResult` (``.camera`` is the
+    Camera). images: IMAGES (paths, folders, globs or a video) or a list of arrays; board:
+    a Board or a board file; options as `pencilcal.toolkit.board.calibrate.calibrate`."""
+    from pencilcal.toolkit.board.calibrate import calibrate_images
+
+    return calibrate_images(images, board, model=model, coefficients=coefficients, **options)
+
+
 def detect_lines(image, camera=None, *, bars=False, detector="lsd", name="image", **options):
     """The lines of one image as a `LineFrame`: edge segments, or with ``bars=True`` the
     midlines of printed bars (the spokes of a fan), each with its angle and offset sigma.
@@ -79,6 +105,8 @@ def detect_lines(image, camera=None, *, bars=False, detector="lsd", name="image"
     pixels, so give it for a distorting lens); detector : "lsd", "fld" or "edlines";
     options : ``min_length``, ``bar_width``, ``shaft`` (as `pencilcal lines`).
     """
+    from pencilcal.toolkit.detect.lines import detect_frame_lines
+
     return detect_frame_lines(name, image, camera, detector=detector, bars=bars, **options)
 
 
@@ -89,6 +117,9 @@ def fulcrum(lines, camera, angles=None, **options):
     Camera; angles : (F,) pivot angles [rad] per frame, for the pivot plane too;
     options : ``endpoint_sigma_px`` (as `pencilcal fulcrum`).
     """
+    from pencilcal.toolkit.io.lines_file import LineFrame, read_lines
+    from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames
+
     if isinstance(lines, (str, bytes)) or hasattr(lines, "__fspath__"):
         frames = read_lines(lines)
     else:

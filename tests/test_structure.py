@@ -30,6 +30,7 @@ LAYERS = {
     "toolkit.pencil": {"toolkit.errors", "toolkit.geometry", "toolkit.io", "toolkit.camera"},
     "toolkit.detect": {"toolkit.errors", "toolkit.geometry", "toolkit.io", "toolkit.camera",
                        "toolkit.pencil"},
+    "toolkit.draw": {"toolkit.errors", "toolkit.geometry", "toolkit.io", "toolkit.camera", "toolkit.pencil"},
     "toolkit.synth": {"toolkit.errors", "toolkit.geometry", "toolkit.io", "toolkit.camera",
                       "toolkit.board", "toolkit.pencil"},
 }

@@ -1,0 +1,218 @@
+"""Estimates drawn on a frame with OpenCV: what `--overlay` shows, at the camera's rate.
+
+Everything is drawn in raw pixels ((0, 0) the centre of the top-left pixel) on a BGR copy
+of the frame, anti-aliased with 4 bits of sub-pixel precision, so a line lands where the
+estimate puts it to 1/16 px:
+
+- `draw_orientation`: the pencil's segments coloured by spoke (rejected ones thin red),
+  the vertex with its 3-sigma ellipse (an arrow at the border when it lies outside), the
+  normal's image (from the vertex towards the normal's vanishing point), and a text box
+  with tilt +- sigma, detectable, twin;
+- `draw_shafts`: each shaft's two edges and its midline (the image of the axis);
+- `draw_fulcrum`: the fulcrum's image and ellipse, or an arrow towards it;
+- `draw_frame`: any of these on one frame, as one call.
+
+Example
+-------
+>>> import numpy as np
+>>> img = np.zeros((120, 160), np.uint8)
+>>> out = draw_frame(img, shafts=[{"midline": [10, 60, 150, 60], "edges": [[10, 50, 150, 50], [10, 70, 150, 70]]}])
+>>> out.shape, out.dtype, int(out[60, 80].max()) > 0
+((120, 160, 3), dtype('uint8'), True)
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["draw_frame", "draw_orientation", "draw_shafts", "draw_fulcrum", "spoke_colour", "SHIFT"]
+
+# sub-pixel bits of cv2's drawing calls: coordinates are multiplied by 2**SHIFT
+SHIFT = 4
+_SCALE = 1 << SHIFT
+# a palette that stays apart on grey and on tissue (BGR)
+_PALETTE = [(255, 128, 0), (0, 200, 255), (80, 220, 80), (255, 0, 255), (0, 140, 255), (255, 255, 0),
+            (180, 105, 255), (128, 255, 128), (255, 160, 160), (60, 180, 240)]
+_RED, _WHITE, _YELLOW, _CYAN = (40, 40, 230), (255, 255, 255), (0, 230, 255), (255, 230, 0)
+
+
+def spoke_colour(label):
+    """BGR colour of spoke `label` (-1: rejected, red)."""
+    return _RED if label < 0 else _PALETTE[int(label) % len(_PALETTE)]
+
+
+def _bgr(image):
+    import cv2
+
+    img = np.asarray(image)
+    if img.dtype != np.uint8:
+        scale = 255.0 / max(float(np.max(img)), 1.0) if img.dtype.kind in "ui" and img.max() > 255 else 1.0
+        img = np.clip(img * scale, 0, 255).astype(np.uint8)
+    return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img.copy()
+
+
+def _pt(p):
+    return (int(round(float(p[0]) * _SCALE)), int(round(float(p[1]) * _SCALE)))
+
+
+def _line(img, p, q, colour, thickness=1):
+    import cv2
+
+    if np.all(np.isfinite(p)) and np.all(np.isfinite(q)):
+        cv2.line(img, _pt(p), _pt(q), colour, thickness, cv2.LINE_AA, SHIFT)
+
+
+def _thickness(img):
+    return max(1, int(round(min(img.shape[:2]) / 540)))
+
+
+def _ellipse(img, centre, cov, colour, n_sigma=3.0):
+    """The n-sigma ellipse of a 2x2 covariance [px^2] about `centre`."""
+    import cv2
+
+    cov = np.asarray(cov, float)
+    if cov.shape != (2, 2) or not np.all(np.isfinite(cov)):
+        return
+    w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+    axes = n_sigma * np.sqrt(np.clip(w, 0, None))
+    angle = math.degrees(math.atan2(v[1, 1], v[0, 1]))
+    size = (max(1, int(round(axes[1] * _SCALE))), max(1, int(round(axes[0] * _SCALE))))
+    cv2.ellipse(img, _pt(centre), size, angle, 0, 360, colour, _thickness(img), cv2.LINE_AA, SHIFT)
+
+
+def _border_arrow(img, target, colour, label):
+    """An arrow from inside the border towards a point outside the frame, with a label."""
+    import cv2
+
+    h, w = img.shape[:2]
+    c = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    d = np.asarray(target, float) - c
+    if not np.all(np.isfinite(d)) or not np.any(d):
+        return
+    s = min(abs(((w - 1) * (d[0] > 0) - c[0]) / d[0]) if d[0] else np.inf,
+            abs(((h - 1) * (d[1] > 0) - c[1]) / d[1]) if d[1] else np.inf) * 0.95
+    tip = c + s * d
+    tail = tip - 60.0 * d / np.linalg.norm(d)
+    cv2.arrowedLine(img, _pt(tail), _pt(tip), colour, _thickness(img), cv2.LINE_AA, SHIFT, 0.3)
+    cv2.putText(img, label, (int(tail[0]) - 40, int(tail[1]) - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1,
+                cv2.LINE_AA)
+
+
+def _point(img, p, cov, colour, label):
+    import cv2
+
+    h, w = img.shape[:2]
+    if p is None or not np.all(np.isfinite(p)):
+        return
+    if -0.5 <= p[0] <= w - 0.5 and -0.5 <= p[1] <= h - 0.5:
+        r = 6 * _thickness(img)
+        _line(img, (p[0] - r, p[1]), (p[0] + r, p[1]), colour, _thickness(img))
+        _line(img, (p[0], p[1] - r), (p[0], p[1] + r), colour, _thickness(img))
+        if cov is not None:
+            _ellipse(img, p, cov, colour)
+    else:
+        _border_arrow(img, p, colour, label)
+
+
+def _text_box(img, lines, origin=(8, 8)):
+    """Lines of text on a dark translucent box at the top left."""
+    import cv2
+
+    if not lines:
+        return
+    scale = max(0.45, min(img.shape[:2]) / 1200)
+    th = max(1, int(round(scale * 2)))
+    sizes = [cv2.getTextSize(t, cv2.FONT_HERSHEY_SIMPLEX, scale, th)[0] for t in lines]
+    lh = max(s[1] for s in sizes) + 8
+    x0, y0 = origin
+    x1, y1 = x0 + max(s[0] for s in sizes) + 12, y0 + lh * len(lines) + 6
+    roi = img[y0:y1, x0:x1]
+    roi[:] = (roi * 0.35).astype(np.uint8)
+    for k, t in enumerate(lines):
+        cv2.putText(img, t, (x0 + 6, y0 + (k + 1) * lh), cv2.FONT_HERSHEY_SIMPLEX, scale, _WHITE, th, cv2.LINE_AA)
+
+
+def _normal_line(img, orientation, camera, length_px):
+    """From the vertex towards the vanishing point of the normal: the normal's image."""
+    n = np.asarray(orientation.normal, float)
+    v = orientation.vertex_px
+    if camera is None or v is None or not np.all(np.isfinite(n)):
+        return
+    K = np.asarray(camera.K, float)
+    ideal_v = camera.undistort_pixels(np.asarray(v, float))
+    if abs(n[2]) > 1e-9:
+        vp = (K @ (n / n[2]))[:2]
+        d = (vp - ideal_v) * (1 if n[2] > 0 else -1)
+    else:
+        d = (K[:2, :2] @ n[:2])
+    if not np.any(d):
+        return
+    tip_ideal = ideal_v + length_px * d / np.linalg.norm(d)
+    tip = camera.distort_pixels(tip_ideal)
+    _line(img, v, tip, _YELLOW, 2 * _thickness(img))
+
+
+def draw_orientation(image, orientation, segments=None, camera=None):
+    """One frame's `Orientation` drawn on `image` (a BGR copy is returned).
+
+    segments: (M, 4) raw px, the segments given to orient (coloured by
+    ``orientation.spokes``); camera: for the normal's image (omitted without it).
+    """
+    img = _bgr(image)
+    if segments is not None:
+        seg = np.asarray(segments, float).reshape(-1, 4)
+        lab = np.asarray(orientation.spokes if orientation.spokes is not None else np.full(len(seg), -1)).ravel()
+        for s, k in zip(seg, lab):
+            _line(img, s[:2], s[2:], spoke_colour(int(k)), (2 if k >= 0 else 1) * _thickness(img))
+    if orientation.ok:
+        _point(img, orientation.vertex_px, orientation.vertex_cov_px2, _CYAN, "vertex")
+        _normal_line(img, orientation, camera, 0.12 * min(img.shape[:2]))
+        twin = "resolved by " + str(orientation.resolved_by) if not orientation.ambiguous else "twin: ambiguous"
+        _text_box(img, [f"{orientation.image or ''}",
+                        f"tilt {orientation.tilt_deg:.2f} +- {orientation.tilt_sigma_deg:.2f} deg"
+                        + ("" if orientation.detectable else " (not detectable)"),
+                        f"{orientation.lines_used} lines, {twin}"])
+    else:
+        _text_box(img, [f"{orientation.image or ''}", f"no estimate: {orientation.error}"[:80]])
+    return img
+
+
+def draw_shafts(image, shafts):
+    """Shafts (records with ``midline`` and optionally ``edges``, raw px) drawn on `image`."""
+    img = _bgr(image)
+    for sh in shafts:
+        for e in sh.get("edges") or []:
+            e = np.asarray(e, float).ravel()
+            _line(img, e[:2], e[2:], _CYAN, _thickness(img))
+        m = np.asarray(sh["midline"], float).ravel()
+        _line(img, m[:2], m[2:], _YELLOW, 2 * _thickness(img))
+    return img
+
+
+def draw_fulcrum(image, vertex_px, cov_px2=None, label="fulcrum"):
+    """The fulcrum's image with its 3-sigma ellipse, or an arrow towards it."""
+    img = _bgr(image)
+    _point(img, None if vertex_px is None else np.asarray(vertex_px, float), cov_px2, _RED, label)
+    return img
+
+
+def draw_frame(image, orientation=None, segments=None, shafts=None, fulcrum=None, camera=None, text=None):
+    """Everything known about one frame on one BGR copy of it: the orientation with its
+    segments, the shafts, the fulcrum (a dict with ``vertex_px``, ``vertex_cov_px2``, or a
+    Fulcrum), extra text lines."""
+    img = _bgr(image)
+    if shafts:
+        img = draw_shafts(img, shafts)
+    if orientation is not None:
+        img = draw_orientation(img, orientation, segments, camera)
+    elif segments is not None:
+        for s in np.asarray(segments, float).reshape(-1, 4):
+            _line(img, s[:2], s[2:], _PALETTE[0], _thickness(img))
+    if fulcrum is not None:
+        v = fulcrum.get("vertex_px") if isinstance(fulcrum, dict) else fulcrum.vertex_px
+        c = fulcrum.get("vertex_cov_px2") if isinstance(fulcrum, dict) else fulcrum.vertex_cov_px2
+        img = draw_fulcrum(img, v, c)
+    if text:
+        _text_box(img, list(text), origin=(8, img.shape[0] - 30 * len(text) - 8))
+    return img
