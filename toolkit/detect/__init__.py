@@ -6,7 +6,9 @@
 - `segments`: line segments (LSD, FLD, EDLines proposals, merged and refitted);
 - `bars`: printed bars (the spokes of a fan) as their midlines;
 - `shafts` (with `shaft_bands`, `shaft_axis`): instrument shafts and their axis images;
-- `lines`, `assemble`: one frame's lines as a lines.json record, and the pencil's lines.
+- `lines`, `assemble`: one frame's lines as a lines.json record, and the pencil's lines;
+- `region` (with `region_detect`, `region_circle`): the valid region of a sequence's images
+  (a field stop, letterbox bars, overlays), within which the detectors look.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Thin dark bars (the printed spokes of a pencil): midlines of antiparallel edge pairs.
+"""Thin bars (the printed spokes of a pencil): midlines of antiparallel edge pairs.
 
 `detect_bars` pairs the two opposite edges of thin dark bars and returns their midlines
 (`Bars`, a `segments.Segments` whose rows are midlines). Each bar has two long edges of
@@ -9,7 +9,9 @@ refitted (`refit`), the pairs tested again on the refitted edges (angle, sides, 
 overlap, a dark strip between them), each edge given to one bar at most, and the midline
 (bisector of the two edges, `pairs.EdgePairs`) run between the bar's two end caps.
 `bar_midlines_on_plane` moves the midlines onto the exact images of the bars' centre lines
-once the plane they are printed on is known.
+once the plane they are printed on is known. Light bars on a dark ground are the dark bars
+of the image with its levels turned over (``polarity="light"``); ``polarity="either"``
+takes whichever the frame shows.
 
 Conventions as in `segments`: ``[x1, y1, x2, y2]`` [px], raw pixels out, widths and
 uncertainties in undistorted pixels.
@@ -37,12 +39,17 @@ from pencilcal.toolkit.detect.segments import (
     MERGE_DIST_TOL_PX,
     Segments,
     detect_fragments,
+    in_valid_region,
     merge_collinear,
 )
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw, to_raw_points, to_working
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["Bars", "BarOptions", "detect_bars", "bar_midlines_on_plane"]
+__all__ = ["Bars", "BarOptions", "BAR_POLARITIES", "detect_bars", "bar_midlines_on_plane"]
+
+#: What `detect_bars` looks for: dark bars on a light ground, light ones on a dark ground,
+#: or whichever of the two the frame shows.
+BAR_POLARITIES = ("dark", "light", "either")
 
 _DARK_GROW = 1  # [px] dark features widened on the reduced image for the proposals
 
@@ -629,8 +636,9 @@ def _bars_from_pairs(img, camera, E, sub, a, b, o):
 def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_length=30.0, min_aspect=4.0,
                 max_convergence_deg=3.0, min_overlap=0.5, refine_ends=True, search_px=None,
                 sigma_px=RefitOptions.sigma_px, step_px=RefitOptions.step_px, max_gap_px=RefitOptions.max_gap_px,
-                min_gradient=RefitOptions.min_gradient, detector_params=None, proposal_scale=None):
-    """Midlines of thin dark bars (the printed spokes of a pencil) with angle uncertainty.
+                min_gradient=RefitOptions.min_gradient, detector_params=None, proposal_scale=None,
+                valid_region=None, polarity="dark"):
+    """Midlines of thin bars (the printed spokes of a pencil) with angle uncertainty.
 
     Each bar has two long edges of opposite polarity (dark inside). Pairs of edges running
     in opposite directions (`orient_by_polarity`), within `max_convergence_deg`, whose dark
@@ -679,6 +687,15 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
         as long as the bar. Default None: 0.5 when the image's smaller side is 720 px or
         more (1080p: orientation from a frame ~2x faster, the same bars on the test scenes),
         else 1.
+    valid_region : region.ValidRegion, optional
+        Where the scene is (a field stop, letterbox bars): edges are measured only on
+        profiles inside it and bars not in it (`segments.in_valid_region`) are dropped.
+        None: the image.
+    polarity : {"dark", "light", "either"}
+        Dark bars on a light ground (the description above), light bars on a dark ground
+        (the same on the image with its levels turned over, `GrayImage.inverted`), or
+        whichever of the two gives the longer bars in all on this frame (both are looked
+        for: a fan printed either way is found without being told).
 
     Returns
     -------
@@ -695,12 +712,27 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
     -------
     See the module docstring.
     """
-    img = GrayImage(image)
+    if polarity not in BAR_POLARITIES:
+        raise InputError(f"unknown bar polarity {polarity!r}; expected one of {', '.join(BAR_POLARITIES)}")
+    img = GrayImage(image, valid_region)
     check_camera_image(camera, img)
     o = BarOptions.resolve(img.shape, width_px_range=width_px_range, max_convergence_deg=max_convergence_deg,
                            search_px=search_px, proposal_scale=proposal_scale, min_length=min_length,
                            min_aspect=min_aspect, min_overlap=min_overlap, refine_ends=refine_ends,
                            sigma_px=sigma_px, step_px=step_px, max_gap_px=max_gap_px, min_gradient=min_gradient)
+    if polarity == "dark":
+        return _dark_bars(img, detector, camera, o, detector_params)
+    light = _dark_bars(img.inverted(), detector, camera, o, detector_params)
+    if polarity == "light":
+        return light
+    dark = _dark_bars(img, detector, camera, o, detector_params)
+    # the frame's own polarity: the one whose bars are longer in all (a fan's spokes; the
+    # other polarity finds at most stray strips: the gaps between spokes are wedges)
+    return light if float(np.sum(light.length)) > float(np.sum(dark.length)) else dark
+
+
+def _dark_bars(img, detector, camera, o, detector_params):
+    """`detect_bars` of dark bars in the `GrayImage` img with the options o (`BarOptions`)."""
     lines, a, b = _proposed_pairs(img, detector, camera, o, detector_params)
     if a.size == 0:
         return Bars.empty()
@@ -716,7 +748,8 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
     # their clear part; reach = the profile window, search + 3 sd of the kernel (a wider
     # margin for the other bar's blur trimmed so much that the normal's error grew)
     E, sub = _clear_of_neighbours(img, camera, E, sub, pr.a, pr.b, opts, o.search_px + 3.0 * o.sigma_px)
-    return _bars_from_pairs(img, camera, E, sub, pr.a, pr.b, o)
+    bars = _bars_from_pairs(img, camera, E, sub, pr.a, pr.b, o)
+    return bars if img.region is None else bars.select(in_valid_region(img, bars.segments))
 
 
 def bar_midlines_on_plane(bars, camera, normal):

@@ -132,12 +132,16 @@ class EdgeProfiles:
 
 
 def _profile_inside(img, rx, ry, jx, jy, lo_r, hi_r):
-    """(M, S) bool: the profile from -lo_r to +hi_r [px along the normal] lies in the image."""
+    """(M, S) bool: the profile from -lo_r to +hi_r [px along the normal] lies in the image
+    and, with a valid region (`image.GrayImage.region`), both its ends in the region's
+    interior (a field stop's edge is no edge of the scene)."""
     H, W = img.shape
     xa, xb = rx - lo_r * jx, rx + hi_r * jx
     ya, yb = ry - lo_r * jy, ry + hi_r * jy
     inside = ((np.minimum(xa, xb) >= 0) & (np.maximum(xa, xb) <= W - 1)
               & (np.minimum(ya, yb) >= 0) & (np.maximum(ya, yb) <= H - 1))
+    if getattr(img, "region", None) is not None:
+        inside &= img.in_region(xa, ya) & img.in_region(xb, yb)
     return inside & np.isfinite(rx) & np.isfinite(ry)
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pencilcal.toolkit.detect.region import DETECTION_MARGIN_PX
 from pencilcal.toolkit.errors import InputError
 
 __all__ = ["GrayImage", "gray_image", "to_u8"]
@@ -102,6 +103,10 @@ class GrayImage:
     ----------
     image : (H, W) or (H, W, 3) array
         Grey or BGR, 8/16 bit or float (bool: 0/255).
+    valid_region : region.ValidRegion, optional
+        Where the scene is (a field stop, letterbox bars): the detectors judge edges only by
+        samples in it (`in_region`). None, or a region that covers the whole image: the
+        image itself.
 
     Attributes
     ----------
@@ -110,13 +115,18 @@ class GrayImage:
     shape : (H, W)
     u8 : (H, W) uint8
         The 8-bit version for the detectors (`to_u8`), made once when first asked for.
+    region : region.ValidRegion or None
+        The valid region, None where it covers the whole image.
     """
 
-    def __init__(self, image):
+    def __init__(self, image, valid_region=None):
         self.src = _gray2d(image)
         self.shape = self.src.shape
         self._u8 = None
         self._f32 = None  # the whole frame as float32, once crops get large
+        covers = valid_region is None or valid_region.covers_image(self.shape)
+        self.region = None if covers else valid_region
+        self._usable = None  # the region's interior, made once when first asked for
 
     @property
     def u8(self):
@@ -148,6 +158,49 @@ class GrayImage:
             return _sample(self._f32, x, y)
         crop = self.src[y0:y1, x0:x1].astype(np.float32)
         return _sample(crop, x - np.float32(x0), y - np.float32(y0))
+
+    def inverted(self):
+        """The same image with its grey levels turned over (light bars become dark ones):
+        8/16-bit images as max - level, float ones as (min + max) - level (0..255 ones as
+        255 - level), with the same valid region.
+
+        >>> GrayImage(np.array([[0, 200]], np.uint8)).inverted().src.tolist()
+        [[255, 55]]
+        """
+        g = self.src
+        if np.issubdtype(g.dtype, np.integer):
+            inv = (np.iinfo(g.dtype).max - g).astype(g.dtype)
+        else:
+            lo, hi = float(np.min(g)), float(np.max(g))
+            top = 255.0 if lo >= 0 and hi <= 255 else lo + hi
+            inv = (top - g).astype(g.dtype)
+        out = GrayImage(inv)
+        out.region, out._usable = self.region, self._usable
+        return out
+
+    def in_region(self, x, y):
+        """(bool, the shape of x) points x, y [px] whose nearest pixel lies in the valid region,
+        at least `region.DETECTION_MARGIN_PX` inside its boundary (the image border is no
+        boundary); points beyond the image or not finite are not. Without a region: the
+        points within the image.
+
+        >>> from pencilcal.toolkit.detect.region import ValidRegion
+        >>> img = GrayImage(np.zeros((20, 20), np.uint8), ValidRegion.from_circle(10, 10, 8, 20, 20))
+        >>> img.in_region(np.array([10.0, 15.0, 16.5, 19.0]), np.full(4, 10.0)).tolist()
+        [True, True, False, False]
+        """
+        H, W = self.shape
+        x = np.asarray(x, float)
+        y = np.asarray(y, float)
+        with np.errstate(invalid="ignore"):
+            ok = (x >= 0) & (x <= W - 1) & (y >= 0) & (y <= H - 1)
+        if self.region is None:
+            return ok
+        if self._usable is None:
+            self._usable = self.region.interior(DETECTION_MARGIN_PX, self.shape)
+        xi = np.clip(np.rint(np.where(ok, x, 0)), 0, W - 1).astype(np.intp)
+        yi = np.clip(np.rint(np.where(ok, y, 0)), 0, H - 1).astype(np.intp)
+        return ok & self._usable[yi, xi]
 
     def nearest(self, x, y):
         """Grey level (float64, the shape of x) of the pixel nearest each point [px], clamped

@@ -43,7 +43,7 @@ def default_min_length(shape, bars):
 
 
 def detect_frame_lines(name, image, camera=None, detector="lsd", bars=False, shaft=False, min_length=None,
-                       bar_width=None, proposal_scale=None):
+                       bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark"):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -64,27 +64,40 @@ def detect_frame_lines(name, image, camera=None, detector="lsd", bars=False, sha
         Accepted bar widths.
     proposal_scale : float, optional
         See `detect_bars`.
+    valid_region : region.ValidRegion, optional
+        Where the scene is: nothing is found on its boundary (a field stop's edge); see
+        `detect_segments`. None: the whole image.
+    bar_polarity : {"dark", "light", "either"}
+        With `bars`: dark bars on a light ground, light bars on a dark ground, or whichever
+        of the two this frame shows (`detect_bars`).
     """
     if min_length is None:
         min_length = default_min_length(np.shape(image), bars)
     if bars:
         segs = detect_bars(image, detector, camera=camera, min_length=min_length, width_px_range=bar_width,
-                           proposal_scale=proposal_scale)
+                           proposal_scale=proposal_scale, valid_region=valid_region, polarity=bar_polarity)
     else:
-        segs = detect_segments(image, detector, camera=camera, min_length=min_length)
+        segs = detect_segments(image, detector, camera=camera, min_length=min_length, valid_region=valid_region)
     return LineFrame(
         image=name,
         segments=segs.segments,
         angle_sigma_deg=np.degrees(segs.angle_sigma),
         offset_sigma_px=segs.offset_sigma,
         width_px=segs.width_px if bars else None,
-        shafts=[s.to_dict() for s in detect_shafts(image, camera)] if shaft else None,
+        shafts=[s.to_dict() for s in _shafts(image, camera, valid_region)] if shaft else None,
     )
 
 
+def _shafts(image, camera, valid_region):
+    """`detect_shafts` of the frame, within the valid region when there is one."""
+    if valid_region is None:
+        return detect_shafts(image, camera)
+    return detect_shafts(image, camera, valid_region=valid_region)
+
+
 def lines_record(name, image, camera=None, detector="lsd", bars=False, shaft=False, min_length=None, bar_width=None,
-                 proposal_scale=None):
+                 proposal_scale=None, valid_region=None, bar_polarity="dark"):
     """One lines.json frame record from one decoded image: ``detect_frame_lines(...).to_dict()``
     (the same arguments)."""
     return detect_frame_lines(name, image, camera, detector, bars, shaft, min_length, bar_width,
-                              proposal_scale).to_dict()
+                              proposal_scale, valid_region, bar_polarity).to_dict()

@@ -264,13 +264,13 @@ def _ransac_hypotheses(xs, ys, ux, uy, pw, rng, n_hyp):
     a, b = j[:, 0], j[:, 1]
     det = ux[a] * (-uy[b]) - uy[a] * (-ux[b])
     ok2 = np.abs(det) >= math.sin(math.radians(20))
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(all="ignore"):  # parallel normals (det 0) are dropped by ok2
         dx, dy = xs[b] - xs[a], ys[b] - ys[a]
         ta = (dx * (-uy[b]) - dy * (-ux[b])) / det
         tb = (ux[a] * dy - uy[a] * dx) / det
-    ok2 &= (ta > 0) & (tb > 0) & (np.abs(ta - tb) <= 0.05 * np.maximum(ta, tb))
-    return (np.concatenate([cx, (xs[a] + ta * ux[a])[ok2]]), np.concatenate([cy, (ys[a] + ta * uy[a])[ok2]]),
-            np.concatenate([r, (0.5 * (ta + tb))[ok2]]))
+        ok2 &= (ta > 0) & (tb > 0) & (np.abs(ta - tb) <= 0.05 * np.maximum(ta, tb))
+        px, py, pr = (xs[a] + ta * ux[a])[ok2], (ys[a] + ta * uy[a])[ok2], (0.5 * (ta + tb))[ok2]
+    return np.concatenate([cx, px]), np.concatenate([cy, py]), np.concatenate([r, pr])
 
 
 def _ransac_candidates(pts, box, R, rmin, rmax, rng, n_hyp=1500, max_pts=2000, n_keep=8):

@@ -72,6 +72,7 @@ __all__ = [
     "detect_fragments",
     "refine_segments",
     "detect_segments",
+    "in_valid_region",
 ]
 
 DETECTORS = ("lsd", "fld", "edlines")
@@ -438,6 +439,26 @@ def merge_collinear(segments, angle_tol_deg=MERGE_ANGLE_TOL_DEG, dist_tol_px=MER
 # ============================================================================ pipeline
 
 
+def in_valid_region(img, raw):
+    """(M,) bool: the segments raw (M, 4) [raw px] that lie in the valid region of the
+    `GrayImage` img: both ends inside it and the midpoint in its interior (at least
+    `region.DETECTION_MARGIN_PX` from the boundary), so that nothing running along a field
+    stop's edge is kept. All True without a region.
+
+    >>> from pencilcal.toolkit.detect.region import ValidRegion
+    >>> img = GrayImage(np.zeros((100, 100), np.uint8), ValidRegion.from_circle(50, 50, 40, 100, 100))
+    >>> in_valid_region(img, [[20, 50, 80, 50], [50, 5, 50, 95], [10, 51, 11, 60]]).tolist()
+    [True, False, False]
+    """
+    raw = np.asarray(raw, float).reshape(-1, 4)
+    if img.region is None or raw.shape[0] == 0:
+        return np.ones(raw.shape[0], bool)
+    ends = img.region.contains(raw[:, :2]) & img.region.contains(raw[:, 2:])
+    mid = 0.5 * (raw[:, :2] + raw[:, 2:])
+    return ends & img.in_region(mid[:, 0], mid[:, 1])
+
+
+
 def detect_fragments(img, detector, camera, detector_params, min_fragment=4.0, scale=1.0, dark_grow=0):
     """The detector's fragments of a `GrayImage`, oriented by polarity, at least
     `min_fragment` [px] long, whose working pixels are finite.
@@ -563,7 +584,7 @@ def detect_segments(image, detector="lsd", *, camera=None, min_length=MIN_LENGTH
                     angle_tol_deg=MERGE_ANGLE_TOL_DEG, dist_tol_px=MERGE_DIST_TOL_PX,
                     max_gap_px=RefitOptions.max_gap_px, search_px=RefitOptions.search,
                     sigma_px=RefitOptions.sigma_px, step_px=RefitOptions.step_px,
-                    min_gradient=RefitOptions.min_gradient, detector_params=None):
+                    min_gradient=RefitOptions.min_gradient, detector_params=None, valid_region=None):
     """Line segments of an image: OpenCV detector, merging, subpixel refit with uncertainty.
 
     Parameters
@@ -589,6 +610,10 @@ def detect_segments(image, detector="lsd", *, camera=None, min_length=MIN_LENGTH
         Refit settings, see `refine_segments`.
     detector_params : dict, optional
         Passed to the OpenCV detector (`detect_raw`).
+    valid_region : region.ValidRegion, optional
+        Where the scene is (a field stop, letterbox bars): edges are measured only on
+        profiles inside it (`edges.edge_profiles`), and segments not in it
+        (`in_valid_region`) are dropped, so a field stop's edge gives none. None: the image.
 
     Returns
     -------
@@ -603,7 +628,7 @@ def detect_segments(image, detector="lsd", *, camera=None, min_length=MIN_LENGTH
     >>> len(segs), np.round(np.sort(segs.length)).tolist()
     (4, [80.0, 80.0, 200.0, 200.0])
     """
-    img = GrayImage(image)
+    img = GrayImage(image, valid_region)
     check_camera_image(camera, img)
     _, work = detect_fragments(img, detector, camera, detector_params)
     opts = RefitOptions(search=search_px, sigma_px=sigma_px, step_px=step_px, max_gap_px=max_gap_px,
@@ -613,8 +638,10 @@ def detect_segments(image, detector="lsd", *, camera=None, min_length=MIN_LENGTH
     # the refit can grow a line by 8 px or more at each end: keep the ones that might make it
     lines = lines[L >= max(0.5 * min_length, min_length - 16.0, 4.0)]
     if not refine:
-        return _plain_segments(lines, camera, min_length)
-    fit = refit_lines(img, lines, camera, opts)
-    if merge:
-        fit = _merge_refitted(img, camera, fit, opts, min(angle_tol_deg, 1.0), min(dist_tol_px, 1.0), max_gap_px)
-    return Segments.from_fit(fit, camera, min_length)
+        out = _plain_segments(lines, camera, min_length)
+    else:
+        fit = refit_lines(img, lines, camera, opts)
+        if merge:
+            fit = _merge_refitted(img, camera, fit, opts, min(angle_tol_deg, 1.0), min(dist_tol_px, 1.0), max_gap_px)
+        out = Segments.from_fit(fit, camera, min_length)
+    return out if img.region is None else out.select(in_valid_region(img, out.segments))

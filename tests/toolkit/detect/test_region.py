@@ -381,3 +381,74 @@ def test_real_box_trainer_circle():
     assert reg.kind == "circle"
     cx, cy, r = reg.info["circle_50"]
     assert abs(cx - 490) < 4 and abs(cy - 494) < 4 and abs(r - 490) < 5
+
+
+# ----------------------------------------------------------------------------
+# the detectors within a region
+# ----------------------------------------------------------------------------
+FIELD = (320.0, 240.0, 220.0)  # the field stop of field_with_shaft: centre, radius [px]
+
+
+def field_with_shaft(seed=0):
+    """A 640x480 circular field (radius 220, dark surround) over smooth shading, and a dark
+    50 px shaft entering it from the upper right to its centre."""
+    h, w = 480, 640
+    cx, cy, r = FIELD
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:h, 0:w]
+    base = 150 + 30 * np.sin(xx / 37.0) * np.cos(yy / 53.0)
+    inside = np.clip(r - np.hypot(xx - cx, yy - cy) + 0.5, 0, 1).astype(np.float32)
+    img = 10 + inside * (base - 10)
+    sh = np.zeros((h, w), np.float32)
+    cv2.line(sh, (700, -60), (330, 250), 1.0, 50, cv2.LINE_AA)
+    img = img * (1 - sh) + 35 * sh * inside + 10 * sh * (1 - inside)
+    img = cv2.GaussianBlur(img.astype(np.float32), (0, 0), 1.2) + rng.normal(0, 1.5, img.shape)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def _near_field_edge(seg, tol=4.0):
+    """(M,) bool: segments (M, 4) whose midpoint lies within tol of the field's circle."""
+    cx, cy, r = FIELD
+    mid = 0.5 * (seg[:, :2] + seg[:, 2:])
+    return np.abs(np.hypot(mid[:, 0] - cx, mid[:, 1] - cy) - r) < tol
+
+
+def test_no_segment_on_the_field_edge():
+    from pencilcal.toolkit.detect.segments import detect_segments
+
+    img = field_with_shaft()
+    reg = detect_valid_region([img])
+    assert reg.kind == "circle"
+    plain = detect_segments(img)
+    assert _near_field_edge(plain.segments).sum() >= 10  # the field stop's edge, without a region
+    segs = detect_segments(img, valid_region=reg)
+    assert not _near_field_edge(segs.segments).any()
+    # the shaft's two edges are still there, along its direction
+    d = segs.segments[:, 2:] - segs.segments[:, :2]
+    ang = np.degrees(np.arctan2(d[:, 1], d[:, 0])) % 180
+    along = np.abs(ang - (np.degrees(np.arctan2(310, -370)) % 180)) < 2
+    assert (along & (np.hypot(d[:, 0], d[:, 1]) > 100)).sum() >= 2
+    assert np.all(reg.contains(segs.segments[:, :2]) & reg.contains(segs.segments[:, 2:]))
+
+
+def test_no_region_or_a_full_one_changes_nothing():
+    from pencilcal.toolkit.detect.segments import detect_segments
+
+    img = field_with_shaft()
+    a = detect_segments(img)
+    b = detect_segments(img, valid_region=ValidRegion.full(640, 480))
+    assert np.array_equal(a.segments, b.segments) and np.array_equal(a.angle_sigma, b.angle_sigma)
+
+
+def test_bars_inside_a_letterbox():
+    from pencilcal.toolkit.detect.bars import detect_bars
+
+    img = np.full((240, 320), 210, np.uint8)
+    img[:40] = 3
+    img[-40:] = 3
+    img[120:127, 20:300] = 30  # a bar between the bars
+    img = cv2.GaussianBlur(img, (0, 0), 1.0)
+    reg = detect_valid_region([img])
+    assert reg.kind == "letterbox"
+    bars = detect_bars(img, valid_region=reg)
+    assert len(bars) == 1 and abs(float(bars.width_px[0]) - 7.0) < 0.3
