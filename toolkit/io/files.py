@@ -48,6 +48,7 @@ __all__ = [
     "MAX_NESTING",
     "to_jsonable",
     "load_frames",
+    "is_number",
 ]
 
 
@@ -226,6 +227,16 @@ def to_jsonable(obj):
 def write_json(path, obj, force=False, indent=1):
     """Write `obj` as JSON atomically; floats keep full precision (repr round-trips)."""
     atomic_write(path, json.dumps(to_jsonable(obj), indent=indent, allow_nan=False) + "\n", force)
+
+
+def is_number(value) -> bool:
+    """True for a number of a parsed file: an int or a float (numpy's too), never a bool
+    (True is 1 to Python) nor a string (np.asarray("12", float) would quietly convert it).
+
+    >>> [is_number(v) for v in (1, 2.5, float("nan"), "2", True, None)]
+    [True, True, True, False, False, False]
+    """
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
 
 
 # Limits on the structured files pencilcal reads (camera, pencil, board, lines, poses,

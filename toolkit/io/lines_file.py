@@ -2,7 +2,8 @@
 
 Format (docs/formats.md)::
 
-    {"frames": [{"image": "000.png", "ok": true,
+    {"valid_region": {"circle": [cx, cy, r]},        # or {"polygon": [[x, y], ...]}
+     "frames": [{"image": "000.png", "ok": true,
                  "segments": [[x1, y1, x2, y2], ...],
                  "angle_sigma_deg": [...],            # optional, one per segment
                  "offset_sigma_px": [...],            # optional, one per segment
@@ -11,7 +12,9 @@ Format (docs/formats.md)::
                              "angle_sigma_deg": 0.2}]}]}
 
 `segments` is all a reader needs. Pixel (0, 0) is the centre of the top-left pixel. One
-frame is a `LineFrame`; its `to_dict` is the frame's record.
+frame is a `LineFrame`; its `to_dict` is the frame's record. `valid_region` (written once,
+for the whole sequence) is the region the lines were looked for in
+(`toolkit.detect.region.ValidRegion.to_dict`); `pencilcal ... --mask lines.json` reads it.
 
 Example
 -------
@@ -28,60 +31,120 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.files import load_structured, write_json
+from pencilcal.toolkit.io.files import is_number, load_structured, write_json
 
 __all__ = ["LineFrame", "read_lines", "write_lines", "frame_record"]
 
 
-def _segments(value, where):
+def _all_numbers(value):
+    """True when `value` (a number or nested lists of them) holds only numbers; linear time."""
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "iuf"
+    if isinstance(value, (list, tuple)):
+        return all(_all_numbers(v) if isinstance(v, (list, tuple, np.ndarray)) else is_number(v) for v in value)
+    return is_number(value)
+
+
+def _segments(value, where, key="segments", finite=False):
+    """(M, 4) [px] from a list of [x1, y1, x2, y2]; numbers only (a string "12" is refused,
+    not converted). Non-finite coordinates are kept unless `finite`."""
     if value is None:
         return np.zeros((0, 4))
     if not isinstance(value, (list, tuple, np.ndarray)):
-        raise InputError(f"{where}: 'segments' must be a list of [x1, y1, x2, y2]")
+        raise InputError(f"{where}: '{key}' must be a list of [x1, y1, x2, y2]")
+    if not _all_numbers(value):
+        raise InputError(f"{where}: '{key}' must contain only numbers")
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise InputError(f"{where}: 'segments' must contain only numbers") from None
+        raise InputError(f"{where}: '{key}' must be a list of [x1, y1, x2, y2] of numbers") from None
     if arr.size == 0:
         return np.zeros((0, 4))
     if arr.ndim != 2 or arr.shape[1] != 4:
-        raise InputError(f"{where}: each segment must be [x1, y1, x2, y2], got shape {arr.shape}")
+        raise InputError(f"{where}: each of '{key}' must be [x1, y1, x2, y2], got shape {arr.shape}")
+    if finite and not np.all(np.isfinite(arr)):
+        raise InputError(f"{where}: '{key}' must be finite numbers (no NaN or inf)")
     return arr
 
 
 def _per_segment(value, key, n, where):
-    """One number per segment for `key` (an optional per-segment list of the format)."""
-    try:
-        arr = np.asarray(value, float).reshape(-1)
-    except (TypeError, ValueError):
-        raise InputError(f"{where}: '{key}' must be numbers") from None
+    """One finite positive number per segment for `key` (an optional per-segment list of the
+    format: a sd or a width), (n,)."""
+    if not isinstance(value, (list, tuple, np.ndarray)) or not _all_numbers(value):
+        raise InputError(f"{where}: '{key}' must be a list of numbers, one per segment")
+    arr = np.asarray(value, float).reshape(-1)
     if arr.size != n:
         raise InputError(f"{where}: '{key}' has {arr.size} values for {n} segments")
+    bad = ~(np.isfinite(arr) & (arr > 0))
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        raise InputError(f"{where}: '{key}' must be finite and > 0, got {arr[i]!r} for segment {i}")
     return arr
 
 
+def _positive(value, key, where):
+    """One finite number > 0 for `key` (a shaft's sd or width)."""
+    if not is_number(value) or not (np.isfinite(value) and value > 0):
+        raise InputError(f"{where}: '{key}' must be a finite number > 0, got {value!r}")
+    return float(value)
+
+
+# a shaft's numeric keys (detect.shafts.Shaft.to_dict): those > 0, and the other numbers
+_SHAFT_POSITIVE = ("width_px", "angle_sigma_deg", "offset_sigma_px")
+_SHAFT_NUMBERS = ("convergence_deg", "score")
+
+
+def _shaft_record(sh, where):
+    """Validate one shaft of a frame: midline (4,) [px] finite, its sds and width > 0, its
+    edges (K, 4) [px] and other numbers finite. Returns the record with `midline` an array."""
+    if not isinstance(sh, dict) or "midline" not in sh:
+        raise InputError(f"{where}: needs a 'midline' [x1, y1, x2, y2]")
+    mid = sh["midline"]
+    if not isinstance(mid, (list, tuple, np.ndarray)):
+        raise InputError(f"{where}: 'midline' must be [x1, y1, x2, y2]")
+    out = {**sh, "midline": _segments([mid], where, "midline", finite=True)[0]}
+    for key in _SHAFT_POSITIVE:
+        if sh.get(key) is not None:
+            out[key] = _positive(sh[key], key, where)
+    for key in _SHAFT_NUMBERS:
+        v = sh.get(key)
+        if v is not None and not (is_number(v) and np.isfinite(v)):
+            raise InputError(f"{where}: '{key}' must be a finite number, got {v!r}")
+    if sh.get("edges") is not None:
+        _segments(sh["edges"], where, "edges", finite=True)
+    return out
+
+
 def frame_record(d, where):
-    """Validate one frame of a lines file; returns a dict with numpy `segments` (M, 4)."""
+    """Validate one frame of a lines file; returns a dict with numpy `segments` (M, 4).
+
+    `where` names the file and frame in the InputError raised for a wrong field: `segments`
+    must be numbers ([x1, y1, x2, y2] each; NaN/inf kept: the estimators drop such
+    segments and say so), `angle_sigma_deg`, `offset_sigma_px`, `width_px` one finite
+    number > 0 per segment, `ok` a boolean; each shaft as `_shaft_record` checks it.
+
+    >>> frame_record({"segments": [[0, 0, 10, 0]], "angle_sigma_deg": ["0.1"]}, "l.json: frame 0")
+    Traceback (most recent call last):
+    ...
+    pencilcal.toolkit.errors.InputError: l.json: frame 0: 'angle_sigma_deg' must be a list of numbers, one per segment
+    """
     if not isinstance(d, dict):
         raise InputError(f"{where}: each frame must be an object with 'segments'")
     rec = dict(d)
     rec["image"] = str(d.get("image", where))
-    rec["ok"] = bool(d.get("ok", True))
+    ok = d.get("ok", True)
+    if not isinstance(ok, (bool, np.bool_)):
+        raise InputError(f"{where}: 'ok' must be true or false, got {ok!r}")
+    rec["ok"] = bool(ok)
     rec["segments"] = _segments(d.get("segments"), where)
-    for key in ("angle_sigma_deg", "offset_sigma_px"):
+    for key in ("angle_sigma_deg", "offset_sigma_px", "width_px"):
         if d.get(key) is not None:
             rec[key] = _per_segment(d[key], key, rec["segments"].shape[0], where)
     shafts = d.get("shafts")
     if shafts is not None:
         if not isinstance(shafts, list):
             raise InputError(f"{where}: 'shafts' must be a list")
-        out = []
-        for j, sh in enumerate(shafts):
-            if not isinstance(sh, dict) or "midline" not in sh:
-                raise InputError(f"{where}: shaft {j} needs a 'midline' [x1, y1, x2, y2]")
-            mid = _segments([sh["midline"]], f"{where} shaft {j}")[0]
-            out.append({**sh, "midline": mid})
-        rec["shafts"] = out
+        rec["shafts"] = [_shaft_record(sh, f"{where} shaft {j}") for j, sh in enumerate(shafts)]
     return rec
 
 
@@ -146,8 +209,7 @@ class LineFrame:
         """The frame of a record `d` (checked as `frame_record` checks it; InputError names
         `where`)."""
         rec = frame_record(d, where)
-        n = rec["segments"].shape[0]
-        width = None if rec.get("width_px") is None else _per_segment(rec["width_px"], "width_px", n, where)
+        width = rec.get("width_px")
         return cls(image=rec["image"], segments=rec["segments"], ok=rec["ok"], error=rec.get("error"),
                    angle_sigma_deg=rec.get("angle_sigma_deg"), offset_sigma_px=rec.get("offset_sigma_px"),
                    width_px=width, shafts=rec.get("shafts"),
@@ -170,9 +232,14 @@ def read_lines(path):
     return [frame_record(f, f"{path}: frame {i}") for i, f in enumerate(frames)]
 
 
-def write_lines(path, frames, force=False, meta=None):
-    """Write a lines file atomically. frames: dicts with image, ok, segments (M, 4), ..."""
+def write_lines(path, frames, force=False, meta=None, valid_region=None):
+    """Write a lines file atomically. frames: dicts with image, ok, segments (M, 4), ...;
+    meta: top-level keys written before them; valid_region: the sequence's region record
+    (``{"circle": [cx, cy, r]}`` or ``{"polygon": [[x, y], ...]}`` [px]), written as
+    ``valid_region`` when given."""
     out = {"frames": list(frames)}
+    if valid_region is not None:
+        out = {"valid_region": valid_region, **out}
     if meta:
         out = {**meta, **out}
     write_json(path, out, force=force)

@@ -29,9 +29,10 @@ from pathlib import Path
 import numpy as np
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.files import load_structured, atomic_write
+from pencilcal.toolkit.io.files import atomic_write, is_number, load_structured
 
 __all__ = [
+    "MAX_SPOKES",
     "Pencil",
     "pencil_from_dict",
     "read_pencil",
@@ -76,13 +77,25 @@ class Pencil:
         return d
 
 
+#: Most spokes a pencil file may give. A printed fan has a few dozen; past a few hundred the
+#: spokes are under a degree apart, no image tells them apart, and the spoke assignment's
+#: work (hypotheses pair triples of lines with triples of spokes) grows with their number.
+MAX_SPOKES = 360
+
+
 def _floats(value, n, key, source):
-    try:
-        arr = np.asarray(value, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise InputError(f"{source}: '{key}' must be a list of {n} numbers") from None
-    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
-        raise InputError(f"{source}: '{key}' must be {n} finite numbers, got {value!r}")
+    """`value` as n finite numbers (n,); InputError naming `source` and `key` otherwise.
+
+    Only numbers are numbers: the string "12" or true is refused, not converted.
+    """
+    items = value if isinstance(value, (list, tuple)) else [value]
+    bad = next((v for v in items if not is_number(v)), None)
+    if bad is not None or len(items) != n:
+        what = f"got {bad!r}" if bad is not None else f"got {len(items)} value(s)"
+        raise InputError(f"{source}: '{key}' must be {'a number' if n == 1 else f'a list of {n} numbers'}, {what}")
+    arr = np.asarray(items, dtype=float).reshape(-1)
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{source}: '{key}' must be {n} finite numbers (no NaN or inf), got {value!r}")
     return arr
 
 
@@ -90,7 +103,16 @@ def pencil_from_dict(d, source="pencil"):
     """Build a Pencil from a parsed pencil file (docs/formats.md), validating every field.
 
     Accepts ``angles_deg: [...]`` or ``start_deg, step_deg, count``; optional ``vertex``,
-    ``radius`` and ``width``. `source` names the file in error messages.
+    ``radius`` and ``width``. `source` names the file in error messages. At most
+    `MAX_SPOKES` spokes, no two in the same direction; every number a finite number (a
+    string such as "12" is refused, not converted).
+
+    >>> pencil_from_dict({"start_deg": 0, "step_deg": 20, "count": 8}).count
+    8
+    >>> pencil_from_dict({"start_deg": 0, "step_deg": 0.3, "count": 1000}, "p.yaml")
+    Traceback (most recent call last):
+    ...
+    pencilcal.toolkit.errors.InputError: p.yaml: 'count' is 1000 spokes, over the limit of 360
     """
     if not isinstance(d, dict):
         raise InputError(f"{source}: expected a mapping with 'angles_deg' or 'start_deg/step_deg/count'")
@@ -104,11 +126,15 @@ def pencil_from_dict(d, source="pencil"):
         raw = d["angles_deg"]
         if not isinstance(raw, (list, tuple)):
             raise InputError(f"{source}: 'angles_deg' must be a list of numbers")
+        if len(raw) > MAX_SPOKES:
+            raise InputError(f"{source}: 'angles_deg' gives {len(raw)} spokes, over the limit of {MAX_SPOKES}")
         angles = _floats(raw, len(raw), "angles_deg", source)
     elif all(k in d for k in ("start_deg", "step_deg", "count")):
         count = d["count"]
         if isinstance(count, bool) or not isinstance(count, int) or count < 1:
             raise InputError(f"{source}: 'count' must be a positive integer, got {count!r}")
+        if count > MAX_SPOKES:
+            raise InputError(f"{source}: 'count' is {count} spokes, over the limit of {MAX_SPOKES}")
         start = _floats([d["start_deg"]], 1, "start_deg", source)[0]
         step = _floats([d["step_deg"]], 1, "step_deg", source)[0]
         angles = start + step * np.arange(count)
@@ -120,7 +146,11 @@ def pencil_from_dict(d, source="pencil"):
     a = np.sort(np.remainder(angles, 360.0))
     gaps = np.diff(np.concatenate([a, a[:1] + 360.0]))
     if np.min(gaps) < 1e-6:
-        raise InputError(f"{source}: two spokes share the same direction")
+        k = int(np.argmin(gaps))
+        raise InputError(f"{source}: two spokes share the same direction ({a[k]:g} deg, modulo 360)")
+    for key in ("name", "units"):
+        if d.get(key) is not None and not isinstance(d[key], str):
+            raise InputError(f"{source}: '{key}' must be a string, got {d[key]!r}")
     vertex = _floats(d["vertex"], 2, "vertex", source) if d.get("vertex") is not None else None
     radius = None
     if d.get("radius") is not None:

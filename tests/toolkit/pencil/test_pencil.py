@@ -25,10 +25,32 @@ def test_regular_and_explicit_forms():
     ({"angles_deg": [0, 20, 40], "vertex": [1.0]}, "vertex"),
     ({"angles_deg": [0, 20, 40], "width": -1}, "width"),
     ({"angles_deg": [0, 20, 40], "spokes": 3}, "unknown key"),
+    # hostile or careless files: absurd counts, duplicates, strings where numbers belong
+    ({"angles_deg": [float(a) for a in range(0, 1000)]}, "1000 spokes, over the limit of 360"),
+    ({"start_deg": 0, "step_deg": 0.36, "count": 1000}, "'count' is 1000 spokes, over the limit of 360"),
+    ({"start_deg": 0, "step_deg": 1, "count": 10**12}, "over the limit"),  # never allocated
+    ({"angles_deg": [0, 20, 380]}, "same direction .20 deg"),
+    ({"angles_deg": [0, 20, "40"]}, "'angles_deg' must be a list of 3 numbers, got '40'"),
+    ({"angles_deg": [0, 20, True]}, "got True"),
+    ({"start_deg": "0", "step_deg": 20, "count": 8}, "'start_deg' must be a number"),
+    ({"start_deg": 0, "step_deg": float("nan"), "count": 8}, "'step_deg' must be 1 finite"),
+    ({"angles_deg": [0, 20, float("inf")]}, "finite"),
+    ({"angles_deg": [0, 20, 40], "vertex": ["1", 2]}, "'vertex' must be a list of 2 numbers"),
+    ({"angles_deg": [0, 20, 40], "vertex": [1, float("nan")]}, "'vertex' must be 2 finite"),
+    ({"angles_deg": [0, 20, 40], "radius": [10, "50"]}, "'radius' must be a list of 2 numbers"),
+    ({"angles_deg": [0, 20, 40], "radius": [10, float("inf")]}, "'radius' must be 2 finite"),
+    ({"angles_deg": [0, 20, 40], "width": "1.0"}, "'width' must be a number"),
+    ({"angles_deg": [0, 20, 40], "width": float("nan")}, "'width' must be 1 finite"),
+    ({"angles_deg": [0, 20, 40], "name": 7}, "'name' must be a string"),
 ])
 def test_bad_pencils(d, msg):
-    with pytest.raises(InputError, match=msg):
+    with pytest.raises(InputError, match=msg) as e:
         pencil_from_dict(d, "p.yaml")
+    assert str(e.value).startswith("p.yaml: ") and "\n" not in str(e.value)
+
+
+def test_the_spoke_limit_itself_is_allowed():
+    assert pencil_from_dict({"start_deg": 0, "step_deg": 0.5, "count": 360}).count == 360
 
 
 @pytest.mark.parametrize("ext", [".yaml", ".json"])
