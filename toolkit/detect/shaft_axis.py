@@ -1,31 +1,39 @@
-"""The axis of a shaft from its two edges: the fourth step of `shafts`.
+"""The image of a shaft's axis from its two silhouette edges, with its uncertainty.
 
-The edges of a kept band are measured once more at paired stations across the band (at
-shaft stations only, each edge point optionally corrected for the grey-level slopes
-beside it), each edge is a robust line fit with one offset per polarity
-(`class_line_fit`), and the midline is the line through the midpoints of the paired edge
-points (`measure_axis`). Its angle and offset uncertainties come from the scatter of those
-midpoints about it, with the corrections for correlated errors of `edges.fit_variances`
-(short-range AR(1), batch means, and blocks spanning the whole line) and a shared offset
-per stretch of one background (`stretch_variances`), so they include what biases the two
-edges differently (texture, print crossing the shaft at slightly different places on each
-side), while what moves both edges alike (the shift of a gamma-encoded blurred edge
-towards its dark side, which flips with the polarity) cancels in the midline.
+A shaft is a cylinder. Its two silhouette edges back-project to the two planes through the
+camera centre that touch it; every point of its axis lies at the radius from both, so the
+axis lies in the plane that bisects them, and its image is that plane's image
+(`plane_bisector`): with the planes' unit normals n1, n2 (``n = K^T l / |K^T l|``, oriented so
+that a ray between the edges is on the positive side of both) the axis plane is n1 - n2 and
+its image ``l = K^-T (n1 - n2)``. This is exact for any pose, where the 2-D bisector of the
+two edges is not (a shaft seen obliquely is wider at its near end on one side than on the
+other). Without a camera a nominal pinhole stands in for K (`shaft_work.axis_matrix`).
 
-With a camera the midline is moved onto the plane through the camera centre that bisects
-the two planes back-projected from the edges (`plane_bisector`): it contains the
-cylinder's axis exactly (the cylinder is symmetric about any plane through its axis, so
-its two tangent planes from the camera are mirror images in the plane through the axis).
+`midline_from_edges` builds the midline from two `shaft_edges.EdgeLine` fits (ideal pixels):
+over the stretch where both edges were seen, from the wide (near) end to the narrow one.
+Its angle and offset (at the midline's centre) have the covariance propagated linearly from
+the two edge fits (their offset and slope variances, a-posteriori: the scatter of the
+stations about each line, inflated for correlated station errors, `edges.fit_variances`),
+plus a measured floor added in quadrature (`FLOOR_ANGLE_DEG`, `FLOOR_OFFSET_PX`): what the
+edge fits cannot see (a silhouette's shading or shadow biasing a whole edge, a hand-drawn
+reference's own error). How the floor was measured is said at the constants.
 
-Positions are working pixels [px]; s along and t across a line.
+`measure_edge_pair` measures the edges of a band of the edge cue (`shafts`, frames without
+colour contrast) at paired stations across it (each edge where it is seen cleanly, its
+gradient peak optionally corrected for the grey-level slopes beside it), each a robust line
+fit with one offset per polarity (`class_line_fit`: the gradient peak of a blurred,
+gamma-encoded edge leans towards its dark side, so an edge seen against black print sits
+apart from the same edge against white paper), the line being its best-seen class.
+
+Positions are working (ideal) pixels [px]; s along and t across a line.
 
 Example
 -------
 >>> import numpy as np
->>> s = np.arange(12.0); t = 0.1 * s + np.where(s < 6, 0.0, 2.0)      # two offsets, one slope
->>> b, off, inl = class_line_fit(s, t, np.ones(12), np.ones(12, bool), (s >= 6).astype(int))
->>> round(float(b), 6), {int(k): round(float(v), 6) for k, v in off.items()}, int(inl.sum())
-(0.1, {0: 0.0, 1: 2.0}, 12)
+>>> K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+>>> l1, l2 = np.array([0.0, 1.0, -200.0]), np.array([0.0, 1.0, -260.0])   # y = 200, y = 260
+>>> np.round(plane_bisector(K, l1, l2, [320.0, 230.0]), 3).tolist()        # not y = 230
+[0.0, 1.0, -230.036]
 """
 from __future__ import annotations
 
@@ -40,36 +48,144 @@ from pencilcal.toolkit.detect.edges import (
     edge_profiles,
     fit_variances,
     masked_median,
-    robust_line_fit,
     theil_sen,
-    weighted_line,
 )
-from pencilcal.toolkit.detect.pairs import EdgePairs, antiparallel_pairs, pair_geometry
+from pencilcal.toolkit.detect.shaft_edges import EdgeLine
 
-__all__ = ["AxisFit", "measure_axis", "class_line_fit", "width_inliers", "stretches", "stretch_variances",
-           "plane_bisector"]
+__all__ = ["FLOOR_ANGLE_DEG", "FLOOR_OFFSET_PX", "plane_bisector", "Midline", "midline_from_edges",
+           "class_line_fit", "measure_edge_pair"]
 
-_TAU0 = 0.03  # smallest sd of the midline's offset shared along a stretch, per px of sigma_px
+#: The error floor of a midline's angle [deg] and offset [px], added in quadrature to the
+#: sigmas propagated from the edge fits. Measured on the real sets (docs/method.md, shaft
+#: section; tests/toolkit/detect/test_shafts_real.py): see the module docstring.
+FLOOR_ANGLE_DEG = 0.064
+FLOOR_OFFSET_PX = 2.8
 _MAX_CLUTTER = 0.25  # largest gradient beside an edge point, relative to its own
+_MIN_OVERLAP_PX = 10.0  # the two edges must be seen together along at least this [px]
+
+
+def plane_bisector(K, l1, l2, inside):
+    """The image (3,) of the plane bisecting the planes back-projected from the edge lines
+    l1, l2 (3,) [ideal px, homogeneous], normalised (a^2 + b^2 = 1); inside (2,) [px]: a
+    point between the edges (it orients the planes). See the module docstring."""
+    K = np.asarray(K, float)
+    r = np.linalg.solve(K, np.r_[np.asarray(inside, float), 1.0])
+    ns = []
+    for ln in (l1, l2):
+        n = K.T @ np.asarray(ln, float)
+        n = n / np.linalg.norm(n)
+        ns.append(n if n @ r >= 0 else -n)
+    la = np.linalg.solve(K.T, ns[0] - ns[1])
+    return la / np.hypot(la[0], la[1])
 
 
 @dataclass(frozen=True, eq=False)
-class AxisFit:
-    """The midline of one band (`measure_axis`): t = tm + b (s - sm) in the frame of the
-    bisector of the refitted edges (`pair`, one pair), with the variances of b and of the
-    offset at sm [px^2]; `edges` (2, 4) [working px] the refitted edges; n the inlier
-    midpoints, over [s_lo, s_hi] [px along]."""
+class Midline:
+    """A shaft's axis image over its visible stretch (`midline_from_edges`), ideal pixels.
 
-    pair: EdgePairs
+    Attributes
+    ----------
+    ends : (2, 2) [px]
+        From the wide (near) end to the narrow (far) end.
+    line : (3,)
+        The axis line ``a x + b y + c = 0``, a^2 + b^2 = 1.
+    centre : (2,) [px]
+        The midline's centre, where `offset_sigma` holds.
+    width_px : float [px]
+        The distance between the edges across the axis at the centre.
+    angle_sigma : float [rad]
+        sd of the midline's angle (floor included).
+    offset_sigma : float [px]
+        sd of its perpendicular position at the centre (floor included).
+    cov : (2, 2)
+        Covariance of (angle [rad], offset [px]) (floor included); cov_stat without it.
+    convergence_deg : float [deg]
+        The angle between the two edges.
+    edges : (2, 4) [px]
+        The two edge lines over their seen stretches ``[x1, y1, x2, y2]``.
+    """
+
+    ends: np.ndarray
+    line: np.ndarray
+    centre: np.ndarray
+    width_px: float
+    angle_sigma: float
+    offset_sigma: float
+    cov: np.ndarray
+    cov_stat: np.ndarray
+    convergence_deg: float
     edges: np.ndarray
-    sm: float
-    tm: float
-    b: float
-    var_b: float
-    var_a: float
-    n: int
-    s_lo: float
-    s_hi: float
+
+
+def _angle_offset(line, ref):
+    """The direction angle [rad] of a line (3,) and the signed distance of ref (2,) from it."""
+    return float(np.arctan2(-line[0], line[1])), float(line[0] * ref[0] + line[1] * ref[1] + line[2])
+
+
+def _axis_covariance(K, e1, e2, inside, la, ref):
+    """Covariance (2, 2) of (angle, offset at ref) of the plane bisector of edges e1, e2,
+    propagated linearly (central differences) from their (tm, b) variances."""
+    def axis(p):
+        l = plane_bisector(K, e1.line(e1.tm + p[0], e1.b + p[1]), e2.line(e2.tm + p[2], e2.b + p[3]), inside)
+        return _angle_offset(l if l[:2] @ la[:2] >= 0 else -l, ref)
+
+    sd = np.sqrt(np.maximum([e1.var_t, e1.var_b, e2.var_t, e2.var_b], 1e-18))
+    J = np.zeros((2, 4))
+    for k in range(4):
+        dp = np.zeros(4)
+        dp[k] = sd[k]
+        (a1, o1), (a0, o0) = axis(dp), axis(-dp)
+        J[:, k] = [np.angle(np.exp(1j * (a1 - a0))) / (2 * sd[k]), (o1 - o0) / (2 * sd[k])]
+    return (J * sd**2) @ J.T
+
+
+def midline_from_edges(K, e1, e2, floor=(np.radians(FLOOR_ANGLE_DEG), FLOOR_OFFSET_PX)):
+    """The midline (`Midline`) of the shaft between the edge fits e1, e2 (`EdgeLine`,
+    ideal px), or None when they are not seen together along `_MIN_OVERLAP_PX` or meet
+    within the stretch (they are no silhouettes of one cylinder).
+
+    K: (3, 3) the camera matrix (`shaft_work.axis_matrix`); floor: the (angle [rad],
+    offset [px]) sds added in quadrature.
+
+    >>> import numpy as np
+    >>> mk = lambda y, n: EdgeLine(np.array([0.0, y]), np.array([1.0, 0.0]), np.array([0.0, n]), 50.0, 0.0,
+    ...                            0.0, 0.01, 1e-6, 0.0, 100.0, 50, 1.0, 0.1)
+    >>> m = midline_from_edges(np.array([[500.0, 0, 50], [0, 500.0, 40], [0, 0, 1]]), mk(20.0, -1.0), mk(60.0, 1.0),
+    ...                        floor=(0.0, 0.0))
+    >>> round(m.width_px, 2), np.round(m.centre, 2).tolist(), round(float(m.offset_sigma), 3)
+    (40.0, [50.0, 40.0], 0.071)
+    """
+    ends = [e.ends() for e in (e1, e2)]
+    mid = 0.25 * (ends[0][0] + ends[0][1] + ends[1][0] + ends[1][1])
+    l1, l2 = e1.line(), e2.line()
+    la = plane_bisector(K, l1, l2, mid)
+    ua, na = np.array([la[1], -la[0]]), la[:2]
+    e_a = np.sort((ends[0] - mid) @ ua)
+    e_b = np.sort((ends[1] - mid) @ ua)
+    lo, hi = max(e_a[0], e_b[0]), min(e_a[1], e_b[1])
+    if hi - lo < _MIN_OVERLAP_PX:
+        return None
+    vp = np.cross(l1, l2)
+    if abs(vp[2]) > 1e-12:
+        s_vp = float((vp[:2] / vp[2] - mid) @ ua)
+        if lo <= s_vp <= hi:
+            return None
+    foot = mid - (la[:2] @ mid + la[2]) * la[:2]
+    A, B = foot + lo * ua, foot + hi * ua
+    ref = foot + 0.5 * (lo + hi) * ua
+
+    def width(P):
+        return abs(float(-(l1[:2] @ P + l1[2]) / (l1[:2] @ na) + (l2[:2] @ P + l2[2]) / (l2[:2] @ na)))
+
+    if width(B) > width(A):
+        A, B = B, A
+    cov_stat = _axis_covariance(K, e1, e2, mid, la, ref)
+    cov = cov_stat + np.diag([floor[0] ** 2, floor[1] ** 2])
+    d1, d2 = l1[:2], l2[:2]
+    conv = float(np.degrees(np.arccos(np.clip(abs(d1 @ d2), 0.0, 1.0))))
+    return Midline(ends=np.stack([A, B]), line=la, centre=ref, width_px=width(ref),
+                   angle_sigma=float(np.sqrt(cov[0, 0])), offset_sigma=float(np.sqrt(cov[1, 1])), cov=cov,
+                   cov_stat=cov_stat, convergence_deg=conv, edges=np.stack([ends[0].reshape(-1), ends[1].reshape(-1)]))
 
 
 def class_line_fit(s, t, w, base, cls, floor_px=REJECT_FLOOR_PX, iters=6):
@@ -128,27 +244,6 @@ def class_line_fit(s, t, w, base, cls, floor_px=REJECT_FLOOR_PX, iters=6):
     return b, off, inl
 
 
-@dataclass(frozen=True, eq=False)
-class _EdgeStations:
-    """Both edges of one band measured at paired stations (`_measure_edges`): P0 (2, 2) a
-    point, U (2, 2) the direction and n_ab (2, 2) the normal (into the band) of each edge's
-    frame; s2, t, g, base, w2 (2, S) the stations along each, the edge across, its signed
-    gradient, the usable stations and their weights; both (S,) the stations where both
-    edges fit; edges (2, 4) the refitted edges and pair their `EdgePairs`."""
-
-    P0: np.ndarray
-    U: np.ndarray
-    n_ab: np.ndarray
-    s2: np.ndarray
-    t: np.ndarray
-    g: np.ndarray
-    base: np.ndarray
-    w2: np.ndarray
-    both: np.ndarray
-    edges: np.ndarray
-    pair: EdgePairs
-
-
 def _edge_frames(one, pts):
     """Frames of the two edges of the band `one` at the station points pts (S, 2) on its
     bisector: (A, B) (S, 2) the edge points, w (S,) the signed width, P0, U (each edge's
@@ -168,106 +263,74 @@ def _edge_frames(one, pts):
     return w, P0, U, s2
 
 
+def _class_edge(P0, U, n_ab, s, t, w, base, g):
+    """One edge of a band from its stations (S,) (`class_line_fit`, one offset per
+    polarity): an `EdgeLine` on its best-seen class, n pointing out of the band, with the
+    variances of that class' offset and of the common slope (`edges.fit_variances`), and
+    its inlier stations (S,); or None."""
+    cls = (g > 0).astype(int)
+    fit = class_line_fit(s, t, w, base, cls)
+    if fit is None:
+        return None
+    b, off, inl = fit
+    c0 = max(off, key=lambda c: np.sum(w[inl & (cls == c)]))
+    res = np.where(inl, t - b * s - np.array([off.get(int(c), 0.0) for c in cls]), 0.0)
+    sel = inl & (cls == c0)
+    wc = np.where(sel, w, 0.0)
+    Wt = max(float(wc.sum()), 1e-300)
+    sm = float(np.sum(wc * s) / Wt)
+    Sss = 0.0
+    for c in off:
+        m = inl & (cls == c)
+        if m.any():
+            sc = np.sum(w[m] * s[m]) / np.sum(w[m])
+            Sss += float(np.sum(w[m] * (s[m] - sc) ** 2))
+    var_b, var_t = fit_variances(res[None], w[None], inl[None], np.array([max(Sss, 1e-300)]), np.array([Wt]))
+    sv = s[inl]
+    # the frame of EdgeLine: the outward normal is -n_ab (t and the slope change sign)
+    return EdgeLine(p0=P0, u=U, n=-n_ab, sm=sm, tm=-float(off[c0] + b * sm), b=-float(b), var_t=float(var_t[0]),
+                    var_b=float(var_b[0]), s_lo=float(sv.min()), s_hi=float(sv.max()), count=int(inl.sum()),
+                    frac=float(inl.sum()) / max(int(base.sum()), 1), rms=float(np.sqrt(np.mean(res[inl] ** 2)))), inl
+
+
 def _measure_edges(img, camera, one, pts, shaft, search, kernel, sigma_px, slope_correction, guard_px):
-    """Both edges of the band `one` measured at the stations pts (S, 2) on its bisector
-    where each is seen cleanly (no other edge beside it), each fitted on its own, robustly,
-    with one offset per polarity (`class_line_fit`). Returns `_EdgeStations` or None."""
+    """Both edges of the band `one` (`pairs.EdgePairs`, one pair) measured at the stations
+    pts (S, 2) on its bisector where each is seen cleanly (no other edge beside it), each
+    fitted on its own (`_class_edge`); both must fit at `MIN_STATIONS` shaft stations at
+    least. Returns the two `EdgeLine` and their `EdgePairs`, or None."""
+    from pencilcal.toolkit.detect.pairs import antiparallel_pairs, pair_geometry
+
     w, P0, U, s2 = _edge_frames(one, pts)
     n_ab = np.stack([-U[:, 1], U[:, 0]], -1)
     p = edge_profiles(img, camera, P0, U, s2, search, kernel, sigma_px, unsigned=True,
                       slope_correction=slope_correction, guard_px=guard_px)
-    t, g = p.t, p.g
-    a = np.abs(g)
+    a = np.abs(p.g)
     base = p.inside & p.found & (a > 0) & (p.clutter <= _MAX_CLUTTER) & (w[0] * np.sign(np.median(w[0])) > 0)[None, :]
     med = masked_median(a, base & shaft[None, :])
     base &= a >= 0.35 * np.nan_to_num(med, nan=np.inf)[:, None]
     w2 = np.where(base, a * a, 0.0)
     w2 = w2 / np.maximum(np.nan_to_num(masked_median(w2, base), nan=1.0), 1e-300)[:, None]
-    ends, inl = [], []
+    edges, both = [], shaft.copy()
     for e in range(2):
-        fit = class_line_fit(s2[e], t[e], w2[e], base[e], (g[e] > 0).astype(int))
+        fit = _class_edge(P0[e], U[e], n_ab[e], s2[e], p.t[e], w2[e], base[e], p.g[e])
         if fit is None:
             return None
-        b_e, off_e, inl_e = fit
-        # the edge line: the offset of its best-seen class
-        c0 = max(off_e, key=lambda c: np.sum(w2[e][inl_e & ((g[e] > 0) == c)]))
-        s_e = s2[e][inl_e]
-        q1 = P0[e] + s_e.min() * U[e] + (off_e[c0] + b_e * s_e.min()) * n_ab[e]
-        q2 = P0[e] + s_e.max() * U[e] + (off_e[c0] + b_e * s_e.max()) * n_ab[e]
-        ends.append(np.r_[q1, q2])
-        inl.append(inl_e)
-    both = inl[0] & inl[1] & shaft
+        edges.append(fit[0])
+        both &= fit[1]
     if both.sum() < MIN_STATIONS:
         return None
-    edges = np.stack(ends)
-    pair = pair_geometry(*antiparallel_pairs(edges, np.array([0]), np.array([1])))
-    return _EdgeStations(P0=P0, U=U, n_ab=n_ab, s2=s2, t=t, g=g, base=base, w2=w2, both=both, edges=edges, pair=pair)
+    seg = np.stack([edges[0].ends().reshape(-1), edges[1].ends().reshape(-1)])
+    pair = pair_geometry(*antiparallel_pairs(seg, np.array([0]), np.array([1])))
+    return edges, pair
 
 
-def _left_out_shift(es, ms, mt, shaft, sm, tm, b):
-    """(db, da): how far the line through the stations the robust fits left out (unless far
-    off: within 2 px of the midline) lies from the midline t = tm + b (s - sm), in slope and
-    in offset at sm; None with fewer than MIN_STATIONS such stations. Where they tell another line (a
-    stretch pulled off by something along an edge can outnumber the rest), the difference
-    counts as uncertainty."""
-    loose = es.base[0] & es.base[1] & shaft
-    r_all = mt - tm - b * (ms - sm)
-    lo_ = loose & (np.abs(r_all) <= 2.0)
-    if lo_.sum() < MIN_STATIONS:
-        return None
-    wl = np.where(lo_, np.maximum(np.minimum(es.w2[0], es.w2[1]), 1e-12), 0.0)
-    sm2, tm2, b2, _, _ = weighted_line(ms[None], mt[None], wl[None], lo_[None])
-    return float(b2[0] - b), float(tm2[0] + b2[0] * (sm - sm2[0]) - tm)
-
-
-def _fit_midline(es, shaft, tau0_px):
-    """The midline through the midpoints of the paired edge points of `es` where both edges
-    fit, the band was seen as a shaft and the width is not pulled outwards
-    (`width_inliers`), with its variances. Returns an `AxisFit` or None."""
-    P0, U, n_ab, s2, t, g, w2 = es.P0, es.U, es.n_ab, es.s2, es.t, es.g, es.w2
-    one = es.pair
-    # midpoints of the paired edge points, in the frame of the final bisector
-    pa_ = P0[0] + s2[0][:, None] * U[0] + t[0][:, None] * n_ab[0]
-    pb_ = P0[1] + s2[1][:, None] * U[1] + t[1][:, None] * n_ab[1]
-    mid = 0.5 * (pa_ + pb_)
-    N, D, O = one.N[0], one.D[0], one.O[0]
-    ms = (mid - O) @ D
-    mt = mid @ N + one.C[0]
-    cls = 2 * (g[0] > 0) + (g[1] > 0)
-    both = es.both & width_inliers(ms, np.abs((pb_ - pa_) @ N), es.both, cls)
-    if both.sum() < MIN_STATIONS:
-        return None
-    wa, wb = np.where(both, w2[0], 0.0), np.where(both, w2[1], 0.0)
-    wm = np.where(both, 1.0 / (1.0 / np.maximum(wa, 1e-12) + 1.0 / np.maximum(wb, 1e-12)), 0.0)
-    wm = wm / np.maximum(np.median(wm[both]), 1e-300)
-    sm, tm, b, Sss, Wt, res, inl_m = robust_line_fit(ms[None], mt[None], wm[None], both[None], None, REJECT_FLOOR_PX,
-                                                     robust_start=True, seed_labels=stretches(ms, both, cls)[None])
-    var_b, var_a = fit_variances(res, wm[None], inl_m, Sss, Wt, long_blocks=8)
-    # stretches of one background bias the midline alike (module docstring)
-    lab = stretches(ms, inl_m[0], cls)
-    s02 = float(np.sum(wm * res[0] ** 2 * inl_m[0]) / max(int(inl_m.sum()) - 2, 1))
-    va_re, vb_re, _ = stretch_variances(ms, res[0], wm, lab, float(sm[0]), max(s02, 1e-6), tau0_px)
-    var_b = np.maximum(var_b, vb_re)
-    var_a = np.maximum(var_a, va_re)
-    shift = _left_out_shift(es, ms, mt, shaft, sm[0], tm[0], b[0])
-    if shift is not None:
-        db, da = shift
-        var_b = var_b + db * db
-        var_a = var_a + da * da
-    return AxisFit(pair=one, edges=es.edges, sm=float(sm[0]), tm=float(tm[0]), b=float(b[0]),
-                   var_b=float(var_b[0]), var_a=float(var_a[0]), n=int(inl_m.sum()),
-                   s_lo=float(ms[inl_m[0]].min()), s_hi=float(ms[inl_m[0]].max()))
-
-
-def measure_axis(img, camera, pr, k, lo, hi, shaft_at, search, sigma_px, slope_correction):
-    """Edges and midline of band k of `pr` from paired stations over its run [lo, hi] [px]
-    along its bisector (module docstring).
-
-    Each edge is measured at every station of the run where it is seen cleanly, twice (the
-    second time with the search narrowed to 1.5 px around the first fit); the midline is
-    the robust line through the midpoints of the stations where both edges fit and the
-    band was seen as a shaft (shaft_at(s) -> bool). search, sigma_px [px]: the edge search
-    half-width and the Gaussian-derivative sd. Returns an `AxisFit` or None.
+def measure_edge_pair(img, camera, pr, k, lo, hi, shaft_at, search, sigma_px, slope_correction):
+    """The two edges of band k of `pr` (`pairs.EdgePairs`) measured at paired stations over
+    its run [lo, hi] [px] along its bisector (module docstring): each edge at every station
+    of the run where it is seen cleanly and the band was seen as a shaft (shaft_at(s) ->
+    bool), twice (the second time with the search narrowed to 1.5 px around the first fit).
+    search, sigma_px [px]: the edge search half-width and the Gaussian-derivative sd.
+    Returns the two `shaft_edges.EdgeLine` (working px) or None.
     """
     kernel = derivative_kernel(sigma_px)
     guard_px = 3.0 * sigma_px + 1.0
@@ -282,142 +345,11 @@ def measure_axis(img, camera, pr, k, lo, hi, shaft_at, search, sigma_px, slope_c
         return None
     one = pr.take(np.array([k]))
     pts = one.O[0] + sv[:, None] * one.D[0]  # station points on the bisector
+    edges = None
     for it in range(2):
-        es = _measure_edges(img, camera, one, pts, shaft, search if it == 0 else min(search, 1.5), kernel,
-                            sigma_px, slope_correction, guard_px)
-        if es is None:
+        got = _measure_edges(img, camera, one, pts, shaft, search if it == 0 else min(search, 1.5), kernel,
+                             sigma_px, slope_correction, guard_px)
+        if got is None:
             return None
-        one = es.pair
-    return _fit_midline(es, shaft, _TAU0 * sigma_px)
-
-
-def width_inliers(s, w, use, cls, floor=0.25, iters=4):
-    """Stations whose width w (N,) [px] is not above the band's lower envelope
-    w ~ c_class + k s (one offset per class with MIN_STATIONS stations or more, one slope) by more than
-    3 robust sd (at least `floor` px).
-
-    Something dark lying along a dark shaft's silhouette (a printed bar under or beside it),
-    or bright along a bright one, merges with it and pulls that edge outwards: the band
-    looks wider there, never narrower. The envelope is fitted to the narrower half of the
-    stations (twice refitted), so that such a stretch cannot carry it, however long it is.
-    Returns (N,) bool.
-    """
-    ok = use.copy()
-    classes = [c for c in np.unique(cls[use]) if np.sum(use & (cls == c)) >= MIN_STATIONS]
-    if not classes:
-        return ok
-    ok &= np.isin(cls, classes)
-    sel = ok.copy()
-    k = 0.0
-    off = {c: np.median(w[ok & (cls == c)]) for c in classes}
-    for _ in range(iters):
-        # slope within classes, offsets per class, from the selected stations
-        num = den = 0.0
-        for c in classes:
-            m = sel & (cls == c)
-            if m.sum() >= 2:
-                ds = s[m] - s[m].mean()
-                num += np.sum(ds * (w[m] - w[m].mean()))
-                den += np.sum(ds * ds)
-        k = num / den if den > 0 else 0.0
-        r = np.full(w.shape, np.nan)
-        for c in classes:
-            m = ok & (cls == c)
-            m_sel = sel & (cls == c)
-            off[c] = np.median(w[m_sel] - k * s[m_sel]) if m_sel.any() else np.median(w[m] - k * s[m])
-            r[m] = w[m] - k * s[m] - off[c]
-        # the narrower half of each class
-        sel = ok.copy()
-        for c in classes:
-            m = ok & (cls == c)
-            sel[m] = r[m] <= np.median(r[m])
-    lower = r[sel]
-    sc = 1.4826 * 2.0 * np.median(np.abs(lower - np.median(lower))) if lower.size else 0.0
-    keep = ok & (r <= max(3.0 * sc, floor))
-    # a stretch widened by a fraction of a pixel shows in the running median of 9 stations
-    idx = np.flatnonzero(ok)
-    idx = idx[np.argsort(s[idx], kind="stable")]
-    if idx.size >= 9:
-        from scipy.ndimage import median_filter
-
-        rm = median_filter(r[idx], size=9, mode="nearest")
-        keep[idx[rm > max(3.0 * sc / 3.0, 0.5 * floor)]] = False
-    return keep
-
-
-def stretches(s, use, cls, gap_steps=3.0):
-    """Labels (N,) of the stretches of stations `use` (sorted by s): runs of one class
-    (`cls`: which way each edge turns, i.e. what lies behind the shaft on either side)
-    without gaps over gap_steps station spacings; -1 outside `use`.
-
-    >>> stretches(np.arange(6.0), np.ones(6, bool), np.array([0, 0, 1, 1, 1, 0])).tolist()
-    [0, 0, 1, 1, 1, 2]
-    """
-    lab = np.full(s.shape, -1)
-    idx = np.flatnonzero(use)
-    if idx.size == 0:
-        return lab
-    idx = idx[np.argsort(s[idx], kind="stable")]
-    ds = np.diff(s[idx])
-    step = float(np.median(ds)) if ds.size else 1.0
-    new = np.r_[True, (cls[idx][1:] != cls[idx][:-1]) | (ds > gap_steps * step)]
-    lab[idx] = np.cumsum(new) - 1
-    return lab
-
-
-def stretch_variances(s, res, w, lab, s0, s02, tau0):
-    """Variances of the slope and of the value at s0 of a weighted line fit (weights w,
-    residuals res) when each stretch (`lab` >= 0) shares an unknown offset of sd tau (what
-    lies behind the shaft biases the two edges' gradient peaks differently, by the same
-    amount all along a stretch; a bias that looks like a tilt of the line to the residuals
-    when the stretches are few) and the stations have independent errors of variance
-    s02 / w.
-
-    tau^2 comes from the scatter of the stretches' mean residuals (method of moments, G - 2
-    degrees of freedom), never below tau0^2. Sandwich covariance of the weighted fit:
-    A^-1 + tau^2 A^-1 (sum_c u_c u_c^T) A^-1, A the fit's normal matrix, u_c its rows summed
-    over stretch c. Returns var_a, var_b, tau.
-    """
-    sel = lab >= 0
-    if not np.any(sel):
-        return 0.0, 0.0, 0.0
-    G = int(lab.max()) + 1
-    lab, x, r, p = lab[sel], s[sel] - s0, res[sel], w[sel] / s02
-    P0, P1, Pr = (np.bincount(lab, v, G) for v in (p, p * x, p * r))
-    A = np.array([[P0.sum(), P1.sum()], [P1.sum(), np.sum(p * x * x)]])
-    Ai = np.linalg.pinv(A)
-    tau2 = tau0**2
-    if G > 2:
-        rbar = Pr / np.maximum(P0, 1e-300)
-        tau2 = max(tau2, float((np.sum(rbar**2) - np.sum(1.0 / np.maximum(P0, 1e-300))) / (G - 2)))
-    U = np.stack([P0, P1], -1)
-    cov = Ai + tau2 * Ai @ (U.T @ U) @ Ai
-    return float(cov[0, 0]), float(cov[1, 1]), float(np.sqrt(tau2))
-
-
-def plane_bisector(camera, pr):
-    """Bisecting line (N, C) (K, 2), (K,) in undistorted pixels of the two planes through the
-    camera centre that the edges of the pairs `pr` back-project to (see the module
-    docstring), oriented as the image bisector."""
-    K = np.asarray(camera.K, float)
-    K2, k = K[:2, :2], K[:2, 2]
-    K2inv = np.linalg.inv(K2)
-    na, ca, nb, cb = pr.edge_lines
-    # interior point: the image bisector at the overlap centre
-    q = pr.point(0.5 * (pr.lo + pr.hi))
-    xq = np.concatenate([(q - k) @ K2inv.T, np.ones((q.shape[0], 1))], -1)
-
-    def plane(n, c):
-        m = np.concatenate([n @ K2, (np.sum(n * k, -1) + c)[:, None]], -1)  # m . (x, 1) = 0
-        m /= np.linalg.norm(m, axis=-1, keepdims=True)
-        return m * np.where(np.sum(m * xq, -1) < 0, -1.0, 1.0)[:, None]
-
-    m = plane(na, ca) - plane(nb, cb)
-    # back to pixels: m[:2] . K2^-1 (p - k) + m[2] = 0
-    Np = m[:, :2] @ K2inv
-    Cp = m[:, 2] - np.sum(Np * k, -1)
-    nrm = np.linalg.norm(Np, axis=-1)
-    Np, Cp = Np / nrm[:, None], Cp / nrm
-    # same orientation as the image bisector
-    flip = np.sum(Np * pr.N, -1) < 0
-    return np.where(flip[:, None], -Np, Np), np.where(flip, -Cp, Cp)
+        edges, one = got
+    return edges

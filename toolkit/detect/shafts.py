@@ -1,54 +1,36 @@
 """Instrument shafts: the two long edges of a cylinder, their axis and apparent width.
 
 A rigid instrument's shaft is a cylinder. Its image is a band bounded by two long, straight
-edges (in undistorted pixels) that converge slightly under perspective towards the far end
-(by more than 10 degrees on close-range endoscope frames); the image of its axis lies between
-them. What tells a shaft from the other bands of a scene is not its grey level against its
-surroundings (a grey metal shaft is darker than white paper and brighter than black print,
-so its edges flip polarity along their length) but the band itself: a cylinder looks the
-same all along its length (its shading depends only on the angle around its axis), whatever
-lies behind it, it is seen from the image border (an instrument enters the view from
-outside) to its tip, and both its edges end where it ends. `detect_shafts` therefore works
-with unsigned edges and judges whole bands:
+edges (in undistorted pixels) that converge slightly under perspective towards the far end;
+the image of its axis lies between them. Two cues tell a shaft from the other bands of a
+scene, and `detect_shafts` takes each where the frame carries it:
 
-1. *proposals*: a line detector (LSD by default) on a reduced copy of the image (fine texture
-   averages out, the shaft's edges do not), fragments undistorted and grouped along lines
-   *whatever their polarity* (`segments.merge_collinear` on unsigned directions), gaps
-   allowed; the groups with enough fragment support are the line hypotheses;
-2. *edges*: the hypotheses that have a partner at a shaft's width are refitted at full
-   resolution to the peak of the gradient *magnitude* across them (`edges.edge_profiles`
-   at stations along the line, a robust weighted line fit, the best run of stations with
-   gaps up to `max_gap_px`), so an edge whose polarity flips is one line;
-3. *bands*: pairs of edges, converging by at most `max_convergence_deg`, at a width in
-   `width_px_range`, overlapping. The cross-section of each candidate band is sampled at
-   stations along its whole chord through the image, from border to border, and each
-   station is a shaft, neutral or contradicting one (`shaft_bands`). The band is the run of
-   stations with the largest score: it runs from the shaft's tip to where the shaft leaves
-   the image, across polarity flips, and stops where a planar structure stops looking like
-   a band. Kept: bands with few contradicting stations (`max_background`), whose
-   cross-section holds no strip of background (the gap between two instruments), with both
-   edges seen along at least half of `min_length` and, with `from_border`, reaching the
-   image border (the margins of a sheet and the rows of a board end inside the view; the
-   gap is measured in raw pixels), or, where no band does, clean ones. The score is the
-   length along which the band is seen as a shaft. A band inside a wider one that shares an
-   edge with it or runs along its axis (the strips beside a specular stripe) gives way to it
-   when the wider one is clean and has a highlight.
-4. *axis*: the edges of the kept bands are measured once more at paired stations across
-   the band and the midline is the line through the midpoints of the paired edge points,
-   with uncertainties from their scatter (`shaft_axis`). With a camera the midline is moved
-   onto the plane through the camera centre that bisects the two planes back-projected from
-   the edges: it contains the cylinder's axis exactly. Without a camera the image bisector
-   is used (exact for a shaft viewed symmetrically; 0.03-0.16 px off in the geometries of
-   tests/toolkit/detect/test_shafts.py).
+- *material*: on a real endoscope frame the instrument is grey, black, white or metal
+  against coloured tissue. Where the frame's colour tells the materials apart (grey is an
+  outlier of the dominant colour's distribution: `shaft_regions.material_map`), shafts are
+  found as long bands of instrument-like region, with straight boundaries, differing in
+  material from both sides and entering the view from its border (`shaft_material_cue`);
+  their edges are then refitted at full resolution in a corridor around the region's
+  boundaries (`shaft_edges`). Folds, rims and shadows of tissue keep the tissue's colour;
+  white tissue and highlights are not straight-edged;
+- *edges*: a grey frame (a calibration render of a metal shaft over paper or a table) has
+  no material cue. There a shaft is a band between two long edges that looks the same all
+  along its length, whatever lies behind it, seen from the border to its tip
+  (`shaft_edge_cue`): unsigned edges (a grey shaft is darker than white paper and brighter
+  than black print), bands judged station by station along their chord (`shaft_bands`).
 
-Limits: a shaft seen only over a background of its own grey level, or only in part of its
-length without reaching the border (pass ``from_border=False``), is found from what remains;
-a band of paper that reaches the image border with a clean cross-section (a sheet running
-out of the view) is a shaft candidate too, scored by the length along which both its edges
-are seen, so give the width you expect (`width_px_range`) where that can happen.
+Both end in two silhouette edges, fitted as straight lines in undistorted pixels with
+a-posteriori variances, and the midline is the image of the plane bisecting the two planes
+the edges back-project to (`shaft_axis`): exact for any pose, unlike the 2-D bisector. Its
+angle and offset sigmas are propagated from the edge fits, plus a measured error floor
+(`shaft_axis.FLOOR_ANGLE_DEG`, `FLOOR_OFFSET_PX`). Without a camera a nominal pinhole (focal
+length the image width) stands in for the camera matrix.
 
-Conventions as in `segments`: pixels with (0, 0) the centre of the top-left pixel; midlines
-and edges in raw pixels, widths and uncertainties in undistorted pixels.
+Nothing is detected on the valid region's boundary (`valid_region`: an endoscope's field
+stop, letterbox bars): samples keep inside it, and a band stops where it leaves it.
+
+Conventions: pixels with (0, 0) the centre of the top-left pixel; midlines and edges in raw
+pixels, widths and uncertainties in undistorted pixels.
 
 Example
 -------
@@ -57,37 +39,38 @@ Example
 >>> pts = np.array([[0, 80], [0, 160], [300, 135], [300, 105]], np.int32)   # converging
 >>> import cv2; _ = cv2.fillConvexPoly(img, pts, 40)
 >>> sh = detect_shafts(cv2.GaussianBlur(img, (0, 0), 1.0), min_length=100)
->>> len(sh), round(float(sh[0].width_px))                  # 55 px at x = 150, plus the fill's rims
-(1, 56)
+>>> len(sh), round(float(sh[0].width_px)), sh[0].cue                 # 55 px at x = 150, plus the fill's rims
+(1, 56, 'edges')
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 
-from pencilcal.toolkit.detect.edges import (
-    MIN_STATIONS,
-    derivative_kernel,
-    edge_profiles,
-    masked_median,
-    relative_weights,
-    robust_line_fit,
-    station_counts,
-    stations,
-)
 from pencilcal.toolkit.detect.image import GrayImage
 from pencilcal.toolkit.detect.noise import noise_of
-from pencilcal.toolkit.detect.pairs import antiparallel_pairs, pair_geometry
-from pencilcal.toolkit.detect.segments import detect_fragments, merge_collinear
-from pencilcal.toolkit.detect.shaft_axis import measure_axis, plane_bisector
-from pencilcal.toolkit.detect.shaft_bands import assess_bands, assess_chords, border_polygon, nested_bands
+from pencilcal.toolkit.detect.shaft_axis import midline_from_edges
+from pencilcal.toolkit.detect.shaft_edge_cue import edge_cue
+from pencilcal.toolkit.detect.shaft_material_cue import material_cue, robust_noise, select
+from pencilcal.toolkit.detect.shaft_regions import material_map
+from pencilcal.toolkit.detect.shaft_work import Validity, WorkFrame, axis_matrix
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["Shaft", "ShaftOptions", "detect_shafts"]
+__all__ = ["Shaft", "ShaftOptions", "detect_shafts", "CUES"]
 
-_MAX_ONE_SIDED = 0.3  # largest fraction of a band's stations with exactly one of its edges
+#: The cues a shaft can be found by (`Shaft.cue`).
+CUES = ("material", "edges")
+#: The material cue's widths when none are given, as fractions of the image's longer side
+#: (1.5 % gave many 30 px tissue bands on the in-vivo frames; the closest shafts of the real
+#: sets are a quarter of the side wide).
+MATERIAL_WIDTHS = (0.02, 0.30)
+#: The material cue's largest convergence of a shaft's edges [deg]: the shafts of the real
+#: sets converge by under 5 deg; tissue bands between unrelated boundaries converge more.
+MATERIAL_MAX_CONVERGENCE_DEG = 15.0
+_WORK_PX = 480.0  # the work frame's longer side [px]
 
 
 @dataclass(frozen=True, eq=False)
@@ -97,26 +80,30 @@ class Shaft:
     Attributes
     ----------
     midline : (4,) [px]
-        Image of the axis ``[x1, y1, x2, y2]`` in raw pixels, over the visible shaft, from
+        Image of the axis ``[x1, y1, x2, y2]`` in raw pixels (the image of the plane
+        bisecting the silhouette planes), over the stretch where both edges are seen, from
         the wide (near) end to the narrow (far) end.
     width_px : float
         Apparent width across the midline at its centre [undistorted px].
     angle_sigma : float
-        sd of the midline's angle [rad] (undistorted), from the scatter of the midpoints of
-        the paired edge points about it (module docstring, step 4).
+        sd of the midline's angle [rad] (undistorted): propagated from the two edge fits,
+        plus the floor (module docstring).
     offset_sigma : float
-        sd of its perpendicular position at its centre [px].
+        sd of its perpendicular position at its centre [undistorted px], likewise.
     edges : (2, 4) [px]
-        The two edges in raw pixels.
+        The two silhouette edges in raw pixels.
     score : float
-        Evidence [px]: the length along which the band is seen as a shaft (both edges, the
-        shaft's own cross-section).
+        Evidence [px]: the length along which the band is seen as a shaft.
     ideal_midline : (4,) [px]
         The midline in undistorted pixels.
     convergence_deg : float
         Angle between the two edges [deg].
     polarity : str
         "dark" (shaft darker than its surroundings along most of its length) or "bright".
+    cue : str
+        What found it: "material" or "edges" (`CUES`).
+    cov : (2, 2)
+        Covariance of the midline's (angle [rad], offset [px] at its centre).
     """
 
     midline: np.ndarray
@@ -128,10 +115,12 @@ class Shaft:
     ideal_midline: np.ndarray
     convergence_deg: float
     polarity: str
+    cue: str = "edges"
+    cov: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         """The shaft's record in a lines.json frame (docs/formats.md): midline, width_px,
-        angle_sigma_deg, and offset_sigma_px, edges, convergence_deg, polarity, score."""
+        angle_sigma_deg, offset_sigma_px, edges, convergence_deg, polarity, score, cue."""
         return {
             "midline": [float(v) for v in self.midline],
             "width_px": float(self.width_px),
@@ -141,6 +130,7 @@ class Shaft:
             "convergence_deg": float(self.convergence_deg),
             "polarity": self.polarity,
             "score": float(self.score),
+            "cue": self.cue,
         }
 
 
@@ -148,13 +138,19 @@ class Shaft:
 class ShaftOptions:
     """The settings of one `detect_shafts` call, defaults resolved for the image: the
     keywords of `detect_shafts` (lengths [px]), with wmin, wmax [px] the accepted widths and
-    conv_max [rad] the largest convergence."""
+    conv_max [rad] the largest convergence of the edge cue, and region_wmin, region_wmax,
+    region_min_length [px], region_conv_max [rad] those of the material cue."""
 
     detector: str
+    detector_params: dict | None
     min_length: float
     wmin: float
     wmax: float
     conv_max: float
+    region_wmin: float
+    region_wmax: float
+    region_min_length: float
+    region_conv_max: float
     max_shafts: int
     scale: float
     max_gap_px: float
@@ -166,6 +162,7 @@ class ShaftOptions:
     from_border: bool
     border_px: float
     min_score_ratio: float
+    corridor_px: float
 
     @classmethod
     def resolve(cls, shape, *, min_length, width_px_range, max_convergence_deg, scale, max_gap_px, border_px, **kw):
@@ -173,446 +170,129 @@ class ShaftOptions:
         in and checked (InputError)."""
         H, W = shape
         diag = float(np.hypot(H, W))
-        if min_length is None:
-            min_length = diag / 8.0
-        if border_px is None:
-            border_px = 0.03 * diag + 8.0
-        if max_gap_px is None:
-            max_gap_px = diag / 10.0
-        wmin, wmax = (6.0, 0.7 * min(H, W)) if width_px_range is None else map(float, width_px_range)
+        if width_px_range is None:
+            wmin, wmax = 6.0, 0.7 * min(H, W)
+            rw = (MATERIAL_WIDTHS[0] * max(H, W), MATERIAL_WIDTHS[1] * max(H, W))
+        else:
+            wmin, wmax = map(float, width_px_range)
+            rw = (wmin, wmax)
         if not (0 < wmin < wmax):
             raise InputError(f"width_px_range must be (min, max) with 0 < min < max, got {width_px_range!r}")
         if scale is None:
             scale = min(1.0, 640.0 / max(H, W))
         if not (0 < scale <= 1):
             raise InputError(f"scale must be in (0, 1], got {scale!r}")
-        return cls(min_length=min_length, wmin=wmin, wmax=wmax, conv_max=np.radians(max_convergence_deg), scale=scale,
-                   max_gap_px=max_gap_px, border_px=border_px, **kw)
+        conv = np.radians(max_convergence_deg)
+        return cls(min_length=diag / 8.0 if min_length is None else float(min_length), wmin=wmin, wmax=wmax,
+                   conv_max=conv, region_wmin=rw[0], region_wmax=rw[1],
+                   region_min_length=3.0 * rw[0] if min_length is None else float(min_length),
+                   region_conv_max=min(conv, np.radians(MATERIAL_MAX_CONVERGENCE_DEG)), scale=scale,
+                   max_gap_px=diag / 10.0 if max_gap_px is None else max_gap_px,
+                   border_px=0.03 * diag + 8.0 if border_px is None else border_px, **kw)
 
 
-# ----------------------------------------------------------------------------- proposals
-
-
-def _unsigned(lines):
-    """Lines (M, 4) oriented with d_x > 0 (d_y > 0 when vertical): one direction per line,
-    whatever the polarity of its edge."""
-    out = np.array(lines, float).reshape(-1, 4)
-    d = out[:, 2:] - out[:, :2]
-    flip = (d[:, 0] < 0) | ((d[:, 0] == 0) & (d[:, 1] < 0))
-    out[flip] = out[flip][:, [2, 3, 0, 1]]
-    return out
-
-
-def _both_ways(lines):
-    """Unsigned lines (`_unsigned`) plus, for those within 6 deg of vertical (where that
-    orientation turns over), a reversed copy: collinear lines always meet in one direction."""
-    work = _unsigned(lines)
-    d = work[:, 2:] - work[:, :2]
-    near_v = np.abs(d[:, 0]) < np.sin(np.radians(6.0)) * np.hypot(d[:, 0], d[:, 1])
-    return np.concatenate([work, work[near_v][:, [2, 3, 0, 1]]])
-
-
-def _drop_repeated(lines, support, tol_px=2.0, tol_deg=1.0):
-    """Indices of the lines (M, 4) to keep: a line that repeats a better-supported one (both
-    ends within tol_px of its line, directions within tol_deg either way, overlapping it by
-    half the shorter) is dropped; the near-vertical groups come twice (`_both_ways`)."""
-    M = lines.shape[0]
-    if M < 2:
-        return np.arange(M)
-    p1, p2 = lines[:, :2], lines[:, 2:]
-    d = p2 - p1
-    L = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
-    u = d / L[:, None]
-    n = np.stack([-u[:, 1], u[:, 0]], -1)
-    c = np.sum(n * p1, -1)
-    par = np.abs(u @ u.T) > np.cos(np.radians(tol_deg))
-    d1 = np.abs(p1 @ n.T - c[None, :])  # [j, i]: line j's first end from line i
-    d2 = np.abs(p2 @ n.T - c[None, :])
-    # ... and mostly within line i's extent
-    a1 = p1 @ u.T - np.sum(u * p1, -1)[None, :]  # [j, i] along line i
-    a2 = p2 @ u.T - np.sum(u * p1, -1)[None, :]
-    lo, hi = np.minimum(a1, a2), np.maximum(a1, a2)
-    ov = np.minimum(hi, L[None, :]) - np.maximum(lo, 0.0)
-    on = (d1 < tol_px) & (d2 < tol_px) & par & (ov >= 0.5 * np.minimum(L[:, None], L[None, :]))
-    order = np.argsort(-support, kind="stable")
-    keep = np.ones(M, bool)
-    for i in order:
-        if keep[i]:
-            dup = on[:, i] & keep
-            dup[i] = False
-            keep[dup] = False
-    return np.flatnonzero(keep)
-
-
-def _parallel_candidates(E, max_conv, max_dist):
-    """Index pairs (a, b), a < b, of unsigned lines within max_conv of parallel whose
-    centres are within max_dist + half their lengths (KD-tree on doubled angles)."""
-    from scipy.spatial import cKDTree
-
-    M = E.shape[0]
-    if M < 2:
-        return np.zeros(0, int), np.zeros(0, int)
-    d = E[:, 2:] - E[:, :2]
-    th2 = 2.0 * np.arctan2(d[:, 1], d[:, 0])
-    v = np.stack([np.cos(th2), np.sin(th2)], -1)
-    r = 2.0 * np.sin(min(max_conv, 1.5))
-    pp = cKDTree(v).query_pairs(r, output_type="ndarray")
-    if pp.size == 0:
-        return np.zeros(0, int), np.zeros(0, int)
-    a, b = pp[:, 0], pp[:, 1]
-    c = 0.5 * (E[:, :2] + E[:, 2:])
-    L = np.hypot(d[:, 0], d[:, 1])
-    near = np.linalg.norm(c[a] - c[b], axis=-1) <= max_dist + 0.5 * (L[a] + L[b])
-    return a[near], b[near]
-
-
-def _partnered(E, conv_max, wmin, wmax, min_overlap):
-    """Which lines (M, 4) (unsigned) have a possible partner: a nearly parallel line at a
-    distance in [wmin, wmax] overlapping it by min_overlap."""
-    a, b = _parallel_candidates(E, conv_max, wmax)
-    if a.size == 0:
-        return np.zeros(E.shape[0], bool)
-    pr = pair_geometry(*antiparallel_pairs(E, a, b))
-    ok = (pr.width >= 0.7 * wmin) & (pr.width <= 1.2 * wmax + 3.0) & (pr.hi - pr.lo >= min_overlap)
-    out = np.zeros(E.shape[0], bool)
-    out[a[ok]] = True
-    out[b[ok]] = True
-    return out
-
-
-# --------------------------------------------------------------------- edges (unsigned)
-
-
-def _refit_unsigned(img, camera, lines, *, search, sigma_px, step_px, extend_px, max_gap_px, min_gradient,
-                    rel_gradient=0.35, passes=2, max_stations=48, grow=False):
-    """Refit lines (M, 4) (working px) to the unsigned edges beside them, growing them
-    along the edge while it goes on (each pass looks max(extend_px, L / 4) beyond the ends
-    of the run found so far, bridging gaps up to max_gap_px). Returns the refitted lines
-    (M, 4) (the run of inlier stations), ok (M,) and the number of inlier stations (M,)."""
-    kernel = derivative_kernel(sigma_px)
-    P1, P2 = lines[:, :2].copy(), lines[:, 2:].copy()
-    M = P1.shape[0]
-    ok = np.zeros(M, bool)
-    count = np.zeros(M, int)
-    todo = np.arange(M)
-    for it in range(passes):
-        if todo.size == 0:
-            break
-        p1, p2 = P1[todo], P2[todo]
-        d = p2 - p1
-        L = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
-        u = d / L[:, None]
-        e = np.maximum(extend_px, 0.25 * L) if (it > 0 and grow) else np.full(L.shape, float(extend_px))
-        lo, hi = -e, L + e
-        cnt = station_counts(lo, hi, step_px, max_stations)
-        s, st_valid = stations(lo, hi, cnt)
-        p = edge_profiles(img, camera, p1, u, s, search, kernel, sigma_px, unsigned=True)
-        a = np.abs(p.g)
-        base = p.inside & p.found & st_valid & (a >= min_gradient)
-        med = masked_median(a, base)
-        base &= a >= rel_gradient * np.nan_to_num(med, nan=np.inf)[:, None]
-        w = relative_weights(a, base)
-        sm, tm, b, Sss, Wt, res, inl = robust_line_fit(s, p.t, w, base, max_gap_px)
-        n_in = inl.sum(-1)
-        good_fit = n_in >= MIN_STATIONS
-        rows = np.arange(todo.size)
-        k1 = np.argmax(inl, 1)
-        k2 = s.shape[1] - 1 - np.argmax(inl[:, ::-1], 1)
-        s1, s2 = s[rows, k1], s[rows, k2]
-        n = np.stack([-u[:, 1], u[:, 0]], -1)
-        q1 = p1 + s1[:, None] * u + (tm + b * (s1 - sm))[:, None] * n
-        q2 = p1 + s2[:, None] * u + (tm + b * (s2 - sm))[:, None] * n
-        # a pass that loses the line keeps the previous one
-        upd = good_fit | (it == 0)
-        P1[todo[upd]], P2[todo[upd]] = q1[upd], q2[upd]
-        ok[todo[upd]] = good_fit[upd]
-        count[todo[upd]] = n_in[upd]
-        # look again where the window was off-centre, or where the edge runs on past the
-        # stations looked at
-        dev = np.maximum(np.abs(tm + b * (s1 - sm)), np.abs(tm + b * (s2 - sm)))
-        touch = ((k1 <= 1) | (k2 >= cnt - 2)) & grow
-        todo = todo[good_fit & ((dev > 0.5 * search) | touch)]
-    return np.concatenate([P1, P2], -1), ok, count
-
-
-def _edge_hypotheses(frag, o):
-    """Step 1: line hypotheses (M, 4) (unsigned, working px) from the detector's fragments
-    (N, 4): groups of collinear fragments, whatever their polarity, with enough support, that
-    have a possible partner at a shaft's width; None when fewer than two."""
-    merged, lab = merge_collinear(frag, 3.0, 1.5 / o.scale, o.max_gap_px)
-    Lf = np.hypot(frag[:, 2] - frag[:, 0], frag[:, 3] - frag[:, 1])
-    support = np.bincount(lab[lab >= 0], Lf[lab >= 0], merged.shape[0])
-    hyp = _unsigned(merged[support >= 0.2 * o.min_length])
-    if hyp.shape[0] < 2:
-        return None
-    hyp = hyp[_partnered(hyp, o.conv_max + np.radians(2.0), o.wmin, o.wmax, 0.1 * o.min_length)]
-    return hyp if hyp.shape[0] >= 2 else None
-
-
-def _shaft_edges(img, camera, hyp, o, sig_n):
-    """Step 2: the unsigned edge lines (E, 4) [working px] of the hypotheses (M, 4), or None
-    when fewer than two: each refitted to the unsigned edge, then joined whatever their
-    polarity (accurate pieces, tight tolerances: the two edges of a thin shaft are not
-    chained together through the clutter between them). sig_n: the image noise sd."""
-    P, ok, _ = _refit_unsigned(img, camera, hyp, search=o.search_px, sigma_px=o.sigma_px, step_px=3.0, extend_px=5.0,
-                               max_gap_px=o.max_gap_px, min_gradient=max(2.0, 1.5 * sig_n))
-    Lp = np.hypot(P[:, 2] - P[:, 0], P[:, 3] - P[:, 1])
-    P = P[ok & (Lp >= 0.1 * o.min_length)]
-    if P.shape[0] < 2:
-        return None
-    P2 = _both_ways(P)
-    joined, lab = merge_collinear(P2, 1.0, 1.5, o.max_gap_px)
-    Lj = np.hypot(P2[:, 2] - P2[:, 0], P2[:, 3] - P2[:, 1])
-    support = np.bincount(lab[lab >= 0], Lj[lab >= 0], joined.shape[0])
-    good = support >= 0.25 * o.min_length
-    E, support = _unsigned(joined[good]), support[good]
-    E = E[_drop_repeated(E, support)]
-    return E if E.shape[0] >= 2 else None
-
-
-# ------------------------------------------------------------------------------- bands
-
-
-def _candidate_bands(img, camera, E, o, sig_n):
-    """The pairs of edges E (M, 4) that may bound a shaft (`EdgePairs`, pieces of edges
-    allowed: the band is traced along its whole chord later), those whose cross-section
-    holds at 12 stations along the overlap; None when there are none (most strips of the
-    scene's patterns, rows of a board several squares wide, contradict themselves there
-    already)."""
-    a, b = _parallel_candidates(E, o.conv_max, o.wmax)
-    if a.size == 0:
-        return None
-    pr = pair_geometry(*antiparallel_pairs(E, a, b))
-    ov = pr.hi - pr.lo
-    ok = (pr.conv <= o.conv_max) & (pr.width >= o.wmin) & (pr.width <= o.wmax)
-    ok &= ov >= 0.25 * o.min_length
-    w0 = pr.signed_width_at(0.5 * (pr.lo + pr.hi))
-    ok &= (pr.signed_width_at(pr.span_lo) * w0 > 0.25 * w0**2) & (pr.signed_width_at(pr.span_hi) * w0 > 0.25 * w0**2)
-    pr = pr.take(np.flatnonzero(ok))
-    if pr.a.size == 0:
-        return None
-    s0 = pr.lo[:, None] + np.linspace(0.04, 0.96, 12)[None, :] * (pr.hi - pr.lo)[:, None]
-    q0 = assess_bands(img, camera, pr, s0, np.ones(s0.shape, bool), sig_n, o.sigma_px, full=False)
-    pr = pr.take(np.flatnonzero(q0.n_shaft >= 5))
-    return pr if pr.a.size else None
-
-
-def _chords(img, camera, pr, o, sig_n):
-    """A coarse look along each band's whole chord through the image (48 stations), then a
-    fine one (every 5 px) at the most promising: the best 16, those that enter from the
-    border first, and always the best few that do not (where none of the former holds up,
-    they are what the from_border fallback judges: an instrument whose back end is in view,
-    a short one, a wide-angle lens). Returns (pairs, `BandChords`) or None."""
-    H, W = img.shape
-    poly = border_polygon(camera, W, H)
-    ch = assess_chords(img, camera, pr, poly, sig_n, o.sigma_px, o.border_px, 48, full=False)
-    q = ch.q
-    score = q.n_shaft * ch.step
-    ok = (q.best > 0) & (score >= 0.3 * o.min_length) & (q.one_sided <= 0.4) & (q.contra <= 0.35)
-    cand = np.flatnonzero(ok)
-    if cand.size == 0:
-        return None
-    touch = ch.touch
-    cand = cand[np.lexsort((-score[cand], ~touch[cand]))]
-    cand = np.concatenate([cand[:16], cand[16:][~touch[cand[16:]]][:4]])
-    pr = pr.take(cand)
-    return pr, assess_chords(img, camera, pr, poly, sig_n, o.sigma_px, o.border_px, 300, min_step=5.0)
-
-
-def _kept_bands(pr, ch, M, o):
-    """(K,) bool: the bands that are shafts (module docstring, step 3); M the number of
-    edges (the pairs index edges reversed beyond it)."""
-    q = ch.q
-    score = q.n_shaft * ch.step
-    ok = (score >= 0.5 * o.min_length) & (q.contra <= o.max_background) & (q.bg <= o.max_background)
-    ok &= q.best > 0
-    ok &= q.n_shaft >= o.min_support * (q.j - q.i + 1)
-    # a cylinder's two silhouettes see alike backgrounds: where one edge is lost, mostly so
-    # is the other; a strip of a planar pattern loses one side at a time (a sheet's margin
-    # beside the white squares of a board)
-    ok &= q.one_sided <= _MAX_ONE_SIDED
-    if not np.any(ok):
-        return ok
-    # nested bands give way to the band around them when they are parts of a shaft with a
-    # specular stripe (module docstring, step 3); the band around them enters from the
-    # border if they do (the stripe may be seen where an edge is hidden)
-    inside = nested_bands(pr, ch.lo_run, ch.hi_run)
-    Ea, Eb = pr.a % M, pr.b % M
-    shares = ((Ea[:, None] == Ea[None, :]) | (Ea[:, None] == Eb[None, :])
-              | (Eb[:, None] == Ea[None, :]) | (Eb[:, None] == Eb[None, :]))
-    cq = pr.point(0.5 * (ch.lo_run + ch.hi_run))
-    off_axis = np.abs(np.einsum("id,jd->ij", pr.N, cq) + pr.C[:, None])
-    parallel = np.abs(np.einsum("id,jd->ij", pr.D, pr.D)) > np.cos(np.radians(3.0) + pr.conv[:, None])
-    along_axis = parallel & (off_axis < 0.25 * pr.width[:, None])
-    wider = pr.width[:, None] > pr.width[None, :] + 2.0
-    outer_ok = ok & (q.bg <= 0.1) & (q.glare >= 0.3)
-    gives = inside & wider & (shares | along_axis) & outer_ok[:, None] & ok[None, :] \
-        & (score[:, None] >= 0.5 * score[None, :])  # [i, j]: j gives way to i
-    nested = np.any(gives, 0)
-    touch = ch.touch | np.any(gives & ch.touch[None, :], 1)
-    ok &= ~nested
-    if o.from_border:
-        if np.any(ok & touch):
-            ok &= touch
-        else:
-            # none enters from the border (the instrument's back end is in view: a short one, a
-            # wide-angle lens; or its near part is hidden): only a clean band will do, with
-            # little background or contradiction inside. Its one-sided stations count as for
-            # any band: they tell what lies beside a shaft (on a textured table up to 0.3 of
-            # them for shafts that do enter from the border), not where the shaft begins
-            ok &= (q.bg <= 0.1) & (q.contra <= 0.1) & (q.one_sided <= _MAX_ONE_SIDED)
-    return ok
-
-
-def _alternatives(pr, ch, ok, score):
-    """One band found from several pairs of pieces of its edges: the best one stays, the
-    others stand by (where the axis of the best cannot be measured, its pieces of edges
-    being too short to extrapolate, the next one is measured instead). Returns {band:
-    [itself, its stand-ins]} and clears the stand-ins in ok (in place)."""
-    cq = pr.point(0.5 * (ch.lo_run + ch.hi_run))
-    order = np.argsort(-np.where(ok, score, -np.inf), kind="stable")
-    alts = {}
-    for ii, k in enumerate(order):
-        if not ok[k]:
-            continue
-        alts[k] = [k]
-        for k2 in order[ii + 1:]:
-            if ok[k2] and abs(float(pr.N[k] @ cq[k2] + pr.C[k])) < 0.25 * pr.width[k] + 1.0 \
-                    and abs(float(pr.D[k] @ pr.D[k2])) > np.cos(np.radians(2.0)) \
-                    and abs(pr.width[k2] - pr.width[k]) < 0.25 * pr.width[k] + 2.0:
-                ok[k2] = False
-                alts[k].append(k2)
-    return alts
-
-
-def _chosen(pr, ok, score, M, o):
-    """The bands to measure, best first, each edge in one shaft, at most max_shafts, none
-    below min_score_ratio of the best's score."""
-    Ea, Eb = pr.a % M, pr.b % M
-    used = np.zeros(M, bool)
-    chosen = []
-    for k in np.argsort(-np.where(ok, score, -np.inf), kind="stable"):
-        if not ok[k] or used[Ea[k]] or used[Eb[k]]:
-            continue
-        used[Ea[k]] = used[Eb[k]] = True
-        chosen.append(k)
-        if len(chosen) >= o.max_shafts:
-            break
-    return [k for k in chosen if score[k] >= o.min_score_ratio * score[chosen[0]]]
-
-
-# -------------------------------------------------------------------------------- axis
-
-
-def _measure(img, camera, pr, ch, k, o):
-    """`shaft_axis.measure_axis` of band k over its run; the slope correction only for a
-    band wider than twice the profile's reach (on a thinner one the slopes would be read
-    off the other edge)."""
-    sk, shk = ch.s[k], ch.q.shaft[k]
-    lo, hi = ch.lo_run[k], ch.hi_run[k]
-
-    def shaft_at(sv):
-        idx = np.clip(np.rint((sv - sk[0]) / (sk[1] - sk[0])).astype(int), 0, sk.size - 1)
-        return shk[idx]
-
-    reach = o.search_px + 3.0 * o.sigma_px + 2.5 + 3.0 * o.sigma_px
-    one = pr.take(np.array([k]))
-    wide = min(abs(float(one.signed_width_at(np.array([lo]))[0])),
-               abs(float(one.signed_width_at(np.array([hi]))[0]))) > 2 * reach
-    return measure_axis(img, camera, pr, k, lo, hi, shaft_at, o.search_px, o.sigma_px, o.slope_correction and wide)
-
-
-def _shaft(camera, pr, ch, k, m, score):
-    """The `Shaft` of band k from its `AxisFit` m, or None where its midline leaves the lens
-    model's reach: the midline t = tm + b (s - sm) in the bisector's frame over the band's
-    run, with a camera moved onto the plane bisector (module docstring, step 4), running
-    from the wide end to the narrow one."""
-    one = m.pair
-    N0, D0, O0 = one.N[0], one.D[0], one.O[0]
-    run_pts = pr.O[k] + np.array([ch.lo_run[k], ch.hi_run[k]])[:, None] * pr.D[k]
-    ends_s = (run_pts - O0) @ D0  # along positions in the new frame
-    P = O0 + ends_s[:, None] * D0 + (m.tm + m.b * (ends_s - m.sm))[:, None] * N0
-    if camera is not None:
-        # onto the plane bisector: move by its offset from the image bisector at the ends
-        Np, Cp = plane_bisector(camera, one)
-        img_off = P @ N0 + one.C[0]  # the midline's offset from the image bisector
-        base_pts = P - img_off[:, None] * N0
-        lam = -(base_pts @ Np[0] + Cp[0]) / (N0 @ Np[0])
-        P = P + lam[:, None] * N0
-    na, ca, nb, cb = (v[0] for v in one.edge_lines)
-
-    def width(pt):
-        return abs((-(nb @ pt + cb) / (nb @ N0)) - (-(na @ pt + ca) / (na @ N0)))
-
-    if width(P[0]) < width(P[1]):
-        P = P[::-1]
-    mid_pt = 0.5 * (P[0] + P[1])
-    ang_sig = np.sqrt(m.var_b) / (1.0 + m.b**2)
-    r_c = float((mid_pt - O0) @ D0 - m.sm)
-    off_sig = float(np.sqrt(m.var_a + (r_c * ang_sig) ** 2))
-    ideal = P.reshape(-1)
+def _shaft(camera, m, score, polarity, cue):
+    """The `Shaft` of a `shaft_axis.Midline` (ideal px), or None where it leaves the lens
+    model's reach."""
+    ideal = m.ends.reshape(-1)
     raw = to_raw(camera, ideal)[0]
-    if not np.all(np.isfinite(raw)):
+    edges = to_raw(camera, m.edges)
+    if not (np.all(np.isfinite(raw)) and np.all(np.isfinite(edges))):
         return None
-    return Shaft(midline=raw, width_px=float(width(mid_pt)), angle_sigma=float(ang_sig), offset_sigma=off_sig,
-                 edges=to_raw(camera, m.edges), score=float(score[k]), ideal_midline=ideal,
-                 convergence_deg=float(np.degrees(one.conv[0])), polarity="dark" if ch.q.dark[k] else "bright")
+    return Shaft(midline=raw, width_px=float(m.width_px), angle_sigma=float(m.angle_sigma),
+                 offset_sigma=float(m.offset_sigma), edges=edges, score=float(score), ideal_midline=ideal,
+                 convergence_deg=float(m.convergence_deg), polarity=polarity, cue=cue, cov=m.cov)
 
 
-def detect_shafts(image, camera=None, *, detector="lsd", min_length=None, width_px_range=None,
+def _by_material(image, camera, validity, o, K):
+    """The shafts of the material cue, or None when the frame's colour tells no material
+    apart (module docstring)."""
+    if np.asarray(image).ndim != 3:
+        return None
+    work = WorkFrame(image, camera, validity, _WORK_PX)
+    mm = material_map(work)
+    if not mm.informative:
+        return None
+    img = np.asarray(image)
+    noise = max(robust_noise(img[..., 1]), 0.5)
+    found = select(material_cue(img, camera, validity, work, mm, o, K, noise), o.max_shafts)
+    return [_shaft(camera, f.midline, f.score, f.polarity, "material") for f in found]
+
+
+def _by_edges(image, camera, valid_region, o, K):
+    """The shafts of the edge cue (module docstring)."""
+    img = GrayImage(image, valid_region)
+    out = []
+    for edges, score, polarity in edge_cue(img, camera, o, noise_of(img)):
+        m = midline_from_edges(K, edges[0], edges[1])
+        # both edges seen together along half the least length, as the band was
+        if m is not None and np.hypot(*(m.ends[1] - m.ends[0])) >= 0.5 * o.min_length:
+            out.append(_shaft(camera, m, score, polarity, "edges"))
+    return out
+
+
+def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_length=None, width_px_range=None,
                   max_convergence_deg=30.0, max_shafts=4, scale=None, max_gap_px=None, search_px=3.0,
                   sigma_px=1.5, min_support=0.3, max_background=0.1, slope_correction=True, from_border=True,
-                  border_px=None, min_score_ratio=0.25, detector_params=None):
+                  border_px=None, min_score_ratio=0.25, corridor_px=4.0, detector_params=None):
     """Instrument shafts in one image: midline (the axis image), width, angle uncertainty.
 
     Parameters
     ----------
     image : (H, W) or (H, W, 3) array
-        Grey or BGR frame.
+        Grey or BGR frame. Only a colour frame can have the material cue.
     camera : Camera, optional
         Lens model. Edges are fitted straight in undistorted pixels and the midline is the
-        exact image of the axis (module docstring); its image size must match.
+        exact image of the axis; its image size must match. Without it a nominal pinhole
+        (focal length the image width) gives the midline's plane.
+    valid_region : object, optional
+        Where the scene is (`region.ValidRegion`, or anything with
+        ``distance_to_boundary(points (..., 2)) -> (...)`` [px], positive inside, and for
+        the edge cue ``outline(shape)`` and ``covers_image(shape)``): nothing is detected on
+        its boundary. Default: the whole image.
     detector : {"lsd", "fld", "edlines"}
-        Proposal detector (run on the reduced image).
+        The edge cue's proposal detector (run on the reduced image).
     min_length : float, optional
-        Shortest edge [px]; default 1/8 of the image diagonal. The band must be seen as a
-        shaft (both edges) along at least half of it.
+        Shortest shaft [px]: the edge cue's least edge (default 1/8 of the image diagonal;
+        the band must be seen as a shaft along at least half of it) and the material cue's
+        least run (default three least widths).
     width_px_range : (2,) [px], optional
-        Accepted apparent widths (at the overlap centre); default 6 px to 0.7 of the
-        image's smaller side.
+        Accepted apparent widths. Default: the edge cue 6 px to 0.7 of the image's smaller
+        side, the material cue `MATERIAL_WIDTHS` of its longer side.
     max_convergence_deg : float
-        Largest angle between the two edges.
+        Largest angle between the two edges (the material cue's at most
+        `MATERIAL_MAX_CONVERGENCE_DEG`).
     max_shafts : int
         At most this many shafts, best score first.
     min_score_ratio : float
-        Drop shafts whose score is below this fraction of the best one's.
+        The edge cue drops shafts whose score is below this fraction of the best one's.
     scale : float, optional
-        Reduction of the image for the proposals; default so that its larger side is ~640 px.
+        The edge cue's reduction of the image for the proposals; default so that its larger
+        side is ~640 px.
     max_gap_px : float, optional
-        Longest stretch without edge evidence inside one edge; default 1/10 of the diagonal.
+        The edge cue's longest stretch without edge evidence inside one edge; default 1/10
+        of the diagonal.
     search_px, sigma_px : float
-        Edge search half-width and Gaussian-derivative sd of the full-resolution fits [px].
+        The edge cue's edge search half-width and Gaussian-derivative sd [px].
     min_support : float
-        The two edges must overlap along at least this fraction of the shorter one
-        (occlusion allowed), and along at least half of `min_length`.
+        The edge cue's two edges must overlap along at least this fraction of the shorter
+        one (occlusion allowed), and along at least half of `min_length`.
     max_background : float
-        Largest fraction of the band's stations whose inside contradicts the band's level,
-        and largest fraction of its cross-section that may look like the background.
+        The edge cue's largest fraction of a band's stations whose inside contradicts the
+        band's level, and of its cross-section that may look like the background.
     from_border : bool
-        Keep only bands that run to the image border (within `border_px`, default 3 % of the
-        diagonal + 8 px): an instrument enters the view from outside, whereas the long strips
-        of a scene (a sheet's margin, a row of a board, a table's edge) end inside it. False
-        also finds a shaft whose near part is hidden.
+        The edge cue keeps only bands that run to the border of the view (within
+        `border_px`, default 3 % of the diagonal + 8 px): an instrument enters the view from
+        outside, whereas the long strips of a scene end inside it. False also finds a shaft
+        whose near part is hidden.
     slope_correction : bool
-        Correct each edge point for the grey-level slopes beside it (the shading of the
-        metal, tissue texture): between ramps of slopes bL and bR a blurred step of height a
-        has its gradient peak sigma^2 (bR - bL) / a off the edge. Without it, edges on
-        textured tissue carry biases that are smooth along the edge, invisible in the
-        residuals, and turn the midline by a few sd. Only for shafts wider than twice the
-        profile's reach (~2 (search + 6 sigma + 2.5) px, 24 px by default): on a thinner one
-        the slopes would be read off the other edge.
+        The edge cue corrects each edge point for the grey-level slopes beside it (textured
+        tissue), for shafts wider than twice the profile's reach (`shaft_edge_cue`).
+    corridor_px : float
+        Half-width of the material cue's full-resolution edge search around a region's
+        boundary [px] (at least 1.5 work px, that boundary's own resolution).
     detector_params : dict, optional
-        Passed to the detector.
+        Passed to the edge cue's detector.
 
     Returns
     -------
@@ -623,46 +303,22 @@ def detect_shafts(image, camera=None, *, detector="lsd", min_length=None, width_
     -------
     See the module docstring.
     """
-    img = GrayImage(image)
-    check_camera_image(camera, img)
-    o = ShaftOptions.resolve(img.shape, detector=detector, min_length=min_length, width_px_range=width_px_range,
-                             max_convergence_deg=max_convergence_deg, max_shafts=max_shafts, scale=scale,
-                             max_gap_px=max_gap_px, search_px=search_px, sigma_px=sigma_px, min_support=min_support,
-                             max_background=max_background, slope_correction=slope_correction,
-                             from_border=from_border, border_px=border_px, min_score_ratio=min_score_ratio)
-    # 1. proposals: pieces of edges of one polarity
-    frag = detect_fragments(img, o.detector, camera, detector_params, min_fragment=8.0, scale=o.scale)[1]
-    if frag.shape[0] < 2:
-        return []
-    hyp = _edge_hypotheses(frag, o)
-    if hyp is None:
-        return []
-    # 2. edges, whatever their polarity
-    sig_n = noise_of(img)
-    E = _shaft_edges(img, camera, hyp, o, sig_n)
-    if E is None:
-        return []
-    # 3. bands
-    pr = _candidate_bands(img, camera, E, o, sig_n)
-    found = None if pr is None else _chords(img, camera, pr, o, sig_n)
+    arr = np.asarray(image)
+    if arr.ndim not in (2, 3) or arr.size == 0 or (arr.ndim == 3 and arr.shape[2] not in (1, 3, 4)):
+        raise InputError(f"image: expected (H, W) or (H, W, 3), got shape {arr.shape}")
+    if arr.ndim == 3 and arr.shape[2] != 3:
+        image = arr = arr[..., 0] if arr.shape[2] == 1 else arr[..., :3]
+    shape = arr.shape[:2]
+    check_camera_image(camera, SimpleNamespace(shape=shape))
+    o = ShaftOptions.resolve(shape, detector=detector, detector_params=detector_params, min_length=min_length,
+                             width_px_range=width_px_range, max_convergence_deg=max_convergence_deg,
+                             max_shafts=max_shafts, scale=scale, max_gap_px=max_gap_px, search_px=search_px,
+                             sigma_px=sigma_px, min_support=min_support, max_background=max_background,
+                             slope_correction=slope_correction, from_border=from_border, border_px=border_px,
+                             min_score_ratio=min_score_ratio, corridor_px=corridor_px)
+    validity = Validity(valid_region, shape)
+    K, _ = axis_matrix(camera, shape)
+    found = _by_material(image, camera, validity, o, K)
     if found is None:
-        return []
-    pr, ch = found
-    ok = _kept_bands(pr, ch, E.shape[0], o)
-    if not np.any(ok):
-        return []
-    score = ch.q.n_shaft * ch.step
-    alts = _alternatives(pr, ch, ok, score)
-    # 4. the axis of each
-    out = []
-    for k0 in _chosen(pr, ok, score, E.shape[0], o):
-        for k in alts[k0]:
-            m = _measure(img, camera, pr, ch, k, o)
-            if m is not None:
-                break
-        if m is None:
-            continue
-        shaft = _shaft(camera, pr, ch, k, m, score)
-        if shaft is not None:
-            out.append(shaft)
-    return out
+        found = _by_edges(image, camera, valid_region, o, K)
+    return [s for s in found if s is not None]

@@ -1,0 +1,289 @@
+"""A shaft's silhouette edges at full resolution, in a corridor around a proposed line: the
+edge fit of the shaft detector's material cue (`shafts`).
+
+Each edge is proposed by a line in ideal pixels (`shaft_work`: the boundary of a region
+found in the reduced work frame, good to about 1.5 work px) with its normal pointing out of
+the shaft. At stations along it (at most `MAX_STATIONS`, at least 2 px apart) the colour
+profile across it is sampled in the raw image along the image of that normal (`working.
+raw_frame`: the lens map's local Jacobian; `edges.SAMPLE_STEP_PX` steps of the ideal
+normal), over +-corridor px plus the kernel's reach plus `_STRIP_PX` beyond. It is projected
+on the edge's own colour difference ``e = median(colour just outside - just inside)`` and
+differentiated with `edges.derivative_kernel` (sd `SIGMA_PX`): a matched response to the
+material transition, with its polarity. A sheen edge inside a black shaft is a brightness
+step along grey, which projects weakly, and it lies outside the corridor anyway.
+
+Per station the edge is the largest positive local maximum of the response above `Z_999`
+noise sd (one-sided 0.999), refined by a parabola. A station is observable when its whole
+profile lies in the image and at least `region.DETECTION_MARGIN_PX` inside the valid
+region. The line is the robust weighted fit of the stations' edges (`edges.
+robust_line_fit`, weights: the squared response), cut where its ends bend away (a wrist, a
+tip: the running median of 9 residuals leaves 3 sd of its own noise for 5 stations), and its
+variances are the a-posteriori ones of `edges.fit_variances`: the scatter of the stations
+about the line, inflated for correlated station errors (AR(1), batch means).
+
+Ideal pixels throughout (s along the proposed line, t along its outward normal).
+
+Example
+-------
+>>> import numpy as np
+>>> from pencilcal.toolkit.detect.shaft_work import Validity
+>>> img = np.zeros((200, 300, 3), np.uint8); img[:] = (90, 110, 200); img[80:120] = 50
+>>> import cv2; img = cv2.GaussianBlur(img, (0, 0), 1.0)
+>>> e = fit_edges(img, None, Validity(None, img.shape[:2]), 1.0,
+...               [(np.array([10.0, 80.0]), np.array([1.0, 0.0]), np.array([0.0, -1.0]), 0.0, 280.0)], 4.0)[0]
+>>> round(float(e.point_at(100.0)[1]), 2), e.count > 100                     # the edge at y = 79.5
+(79.5, True)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pencilcal.toolkit.detect.edges import (
+    MIN_STATIONS,
+    SAMPLE_STEP_PX,
+    derivative_kernel,
+    fit_variances,
+    robust_line_fit,
+    stations,
+)
+from pencilcal.toolkit.detect.shaft_regions import Z_999
+from pencilcal.toolkit.detect.working import raw_frame
+
+__all__ = ["SIGMA_PX", "MAX_STATIONS", "EdgeLine", "fit_edges"]
+
+SIGMA_PX = 1.5  # sd of the Gaussian-derivative kernel [px]
+MAX_STATIONS = 160  # stations per edge
+_STATION_PX = 2.0  # least spacing of the stations [px]
+_STRIP_PX = 3.0  # colour strips this far beyond the corridor give the edge's colour difference [px]
+_MARGIN_PX = 2.0  # the profile keeps this far inside the valid region (region.DETECTION_MARGIN_PX)
+_BEND_WIN = 9  # stations of the running median of the residuals (bend cut)
+
+
+@dataclass(frozen=True, eq=False)
+class EdgeLine:
+    """One silhouette edge, fitted in ideal pixels: t = tm + b (s - sm), s along u from p0,
+    t along n (out of the shaft).
+
+    Attributes
+    ----------
+    p0, u, n : (2,)
+        The frame: a point [px], the unit direction and the unit outward normal.
+    sm, tm, b : float
+        The weighted centroid of the stations along u [px], the line's offset there [px]
+        and its slope.
+    var_t, var_b : float
+        Variances of tm [px^2] and of b (uncorrelated at sm).
+    s_lo, s_hi : float [px]
+        The extent of the inlier stations along u.
+    count : int
+        Inlier stations.
+    frac : float
+        Inliers over observable stations.
+    rms : float [px]
+        RMS residual of the inliers.
+    """
+
+    p0: np.ndarray
+    u: np.ndarray
+    n: np.ndarray
+    sm: float
+    tm: float
+    b: float
+    var_t: float
+    var_b: float
+    s_lo: float
+    s_hi: float
+    count: int
+    frac: float
+    rms: float
+
+    def point_at(self, s):
+        """The edge's point (2,) [ideal px] at s [px] along u."""
+        return self.p0 + s * self.u + (self.tm + self.b * (s - self.sm)) * self.n
+
+    def line(self, tm=None, b=None):
+        """The homogeneous line (3,) ``a x + b y + c = 0``, a^2 + b^2 = 1 (optionally with
+        another offset tm and slope b)."""
+        tm = self.tm if tm is None else tm
+        b = self.b if b is None else b
+        q = self.p0 + self.sm * self.u + tm * self.n
+        d = self.u + b * self.n
+        nrm = np.array([-d[1], d[0]]) / np.hypot(d[0], d[1])
+        return np.array([nrm[0], nrm[1], -float(nrm @ q)])
+
+    def ends(self):
+        """(2, 2) [ideal px] the line's points at s_lo and s_hi."""
+        return np.stack([self.point_at(self.s_lo), self.point_at(self.s_hi)])
+
+
+def _samples(image, camera, cx, cy, nx, ny, t):
+    """Colour profiles (M, S, T, C) float32 of the raw image at stations (M, S) [ideal px]
+    along their ideal normals (M, 1) at offsets t (T,) [px]; and the raw profile ends (M,
+    S, 2, 2)."""
+    import cv2
+
+    rx, ry, jx, jy = raw_frame(camera, cx, cy, nx, ny)
+    X = (rx[..., None] + jx[..., None] * t).astype(np.float32)
+    Y = (ry[..., None] + jy[..., None] * t).astype(np.float32)
+    ends = np.stack([np.stack([X[..., 0], Y[..., 0]], -1), np.stack([X[..., -1], Y[..., -1]], -1)], -2)
+    H, W = image.shape[:2]
+    fin = np.isfinite(X) & np.isfinite(Y)
+    x0 = int(np.clip(np.floor(np.min(np.where(fin, X, np.inf))) - 1, 0, W - 1)) if fin.any() else 0
+    x1 = int(np.clip(np.ceil(np.max(np.where(fin, X, -np.inf))) + 2, x0 + 1, W)) if fin.any() else W
+    y0 = int(np.clip(np.floor(np.min(np.where(fin, Y, np.inf))) - 1, 0, H - 1)) if fin.any() else 0
+    y1 = int(np.clip(np.ceil(np.max(np.where(fin, Y, -np.inf))) + 2, y0 + 1, H)) if fin.any() else H
+    crop = np.ascontiguousarray(image[y0:y1, x0:x1], dtype=np.float32)
+    M, S, T = X.shape
+    mx = np.where(fin, X - x0, -1e4).reshape(M * S, T)
+    my = np.where(fin, Y - y0, -1e4).reshape(M * S, T)
+    prof = cv2.remap(crop, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return prof.reshape(M, S, T, -1), ends
+
+
+def _peaks(g, thr, inside):
+    """Per station of the responses g (M, S, nwin): the largest positive local maximum above
+    thr, refined by a parabola. Returns t_idx (M, S) [samples, fractional] and strength (M,
+    S), found (M, S) bool."""
+    pk = np.zeros(g.shape, bool)
+    pk[..., 1:-1] = (g[..., 1:-1] >= g[..., :-2]) & (g[..., 1:-1] > g[..., 2:]) & (g[..., 1:-1] > thr)
+    gm = np.where(pk, g, -np.inf)
+    jm = np.argmax(gm, -1)
+    a0 = np.take_along_axis(gm, jm[..., None], -1)[..., 0]
+    found = np.isfinite(a0) & inside
+    jm = np.clip(jm, 1, g.shape[-1] - 2)
+    am = np.take_along_axis(g, (jm - 1)[..., None], -1)[..., 0]
+    ac = np.take_along_axis(g, jm[..., None], -1)[..., 0]
+    ap = np.take_along_axis(g, (jm + 1)[..., None], -1)[..., 0]
+    den = am - 2 * ac + ap
+    with np.errstate(all="ignore"):
+        off = np.where(den < 0, 0.5 * (am - ap) / np.where(den < 0, den, -1.0), 0.0)
+    return jm + np.clip(off, -0.5, 0.5), np.where(found, ac, 0.0), found
+
+
+def _bend_cut(s, res, inl):
+    """Inliers (S,) of one edge without the ends that bend away from its line: where the
+    running median of `_BEND_WIN` residuals leaves 3 sd of its own noise for at least half
+    the window, the edge is cut, keeping the straight stretch around its middle; None when
+    less than `MIN_STATIONS` stations stay."""
+    from scipy.ndimage import median_filter
+
+    idx = np.flatnonzero(inl)
+    if idx.size < 3 * _BEND_WIN:
+        return inl
+    r = res[idx]
+    rc = r - r.mean()
+    rho = float(np.clip(np.sum(rc[1:] * rc[:-1]) / max(np.sum(rc * rc), 1e-12), 0.0, 0.9))
+    sd_t = 1.2533 * np.sqrt(np.mean(r * r) * (1 + rho) / (1 - rho) / _BEND_WIN)
+    bad = np.abs(median_filter(r, size=_BEND_WIN, mode="nearest")) > 3.0 * sd_t
+    if not bad.any():
+        return inl
+    run = np.convolve(bad.astype(float), np.ones(_BEND_WIN // 2 + 1), "same") >= _BEND_WIN // 2 + 1
+    c = idx.size // 2
+    lo, hi = c, c
+    while lo > 0 and not run[lo - 1]:
+        lo -= 1
+    while hi < idx.size - 1 and not run[hi + 1]:
+        hi += 1
+    if hi - lo + 1 < MIN_STATIONS:
+        return None
+    out = np.zeros_like(inl)
+    out[idx[lo:hi + 1]] = True
+    return out
+
+
+def _line_fits(s, t, w, base, count_obs, specs):
+    """Robust line fits of the stations (M, S) with the bend cut, and their variances: one
+    `EdgeLine` (or None) per spec."""
+    sm, tm, b, Sss, Wt, res, inl = robust_line_fit(s, t, w, base)
+    cut = inl.copy()
+    ok = inl.sum(-1) >= MIN_STATIONS
+    for m in np.flatnonzero(ok):
+        c = _bend_cut(s[m], res[m], inl[m])
+        if c is None:
+            ok[m] = False
+        else:
+            cut[m] = c
+    changed = ok & np.any(cut != inl, -1)
+    if np.any(changed):
+        got = robust_line_fit(s[changed], t[changed], w[changed], cut[changed])
+        for arr, new in zip((sm, tm, b, Sss, Wt, res, inl), got):
+            arr[changed] = new
+    var_b, var_t = fit_variances(res, w, inl, Sss, Wt)
+    out = []
+    for m, (p0, u, n, _, _) in enumerate(specs):
+        k = int(inl[m].sum())
+        if not ok[m] or k < MIN_STATIONS:
+            out.append(None)
+            continue
+        sv = s[m][inl[m]]
+        out.append(EdgeLine(p0=np.asarray(p0, float), u=np.asarray(u, float), n=np.asarray(n, float),
+                            sm=float(sm[m]), tm=float(tm[m]), b=float(b[m]), var_t=float(var_t[m]),
+                            var_b=float(var_b[m]), s_lo=float(sv.min()), s_hi=float(sv.max()), count=k,
+                            frac=k / max(int(count_obs[m]), 1),
+                            rms=float(np.sqrt(np.mean(res[m][inl[m]] ** 2)))))
+    return out
+
+
+def fit_edges(image, camera, validity, noise, specs, corridor):
+    """Silhouette edges at full resolution in corridors around proposed lines (module
+    docstring).
+
+    Parameters
+    ----------
+    image : (H, W, 3) or (H, W) array
+        The raw frame.
+    camera : Camera or None
+    validity : shaft_work.Validity
+        Where the image may be sampled.
+    noise : float [grey levels]
+        The image noise sd (per channel).
+    specs : list of (p0 (2,), u (2,), n (2,), s0, s1)
+        Each proposed edge: a point [ideal px], its unit direction and unit outward normal,
+        and the range [s0, s1] [px] along u to measure.
+    corridor : float [px]
+        Half-width of the search across each proposed line.
+
+    Returns
+    -------
+    list of EdgeLine or None
+        One per spec (None: too few stations with an edge).
+    """
+    if not specs:
+        return []
+    kern, r = derivative_kernel(SIGMA_PX)
+    DT = SAMPLE_STEP_PX
+    nw, mc = int(np.ceil(corridor / DT)), int(np.ceil(_STRIP_PX / DT))
+    half = nw + r + mc
+    t = np.arange(-half, half + 1) * DT
+    lo = np.array([sp[3] for sp in specs], float)
+    hi = np.array([sp[4] for sp in specs], float)
+    cnt = np.clip(np.round((hi - lo) / _STATION_PX).astype(int) + 1, MIN_STATIONS + 2, MAX_STATIONS)
+    s, st_valid = stations(lo, hi, cnt)
+    P0 = np.array([sp[0] for sp in specs], float)
+    U = np.array([sp[1] for sp in specs], float)
+    Nn = np.array([sp[2] for sp in specs], float)
+    # stations on the proposed line; the profiles along the outward normal
+    cx = P0[:, 0, None] + s * U[:, 0, None]
+    cy = P0[:, 1, None] + s * U[:, 1, None]
+    prof, ends = _samples(image, camera, cx, cy, Nn[:, 0, None], Nn[:, 1, None], t)
+    inside = st_valid & np.all(validity.ok(ends, _MARGIN_PX), -1)
+    # the edge's colour difference: outside minus inside, the median over its stations
+    c_in = np.median(prof[:, :, :mc], axis=2)
+    c_out = np.median(prof[:, :, -mc:], axis=2)
+    e = np.stack([np.median((c_out - c_in)[m][inside[m]], 0) if inside[m].any() else np.zeros(prof.shape[-1])
+                  for m in range(len(specs))])
+    e /= np.maximum(np.linalg.norm(e, axis=-1, keepdims=True), 1e-9)
+    pe = np.einsum("mstc,mc->mst", prof, e.astype(np.float32))
+    nwin = 2 * nw + 1
+    g = kern[0] * pe[..., mc:mc + nwin]
+    for q in range(1, kern.size):
+        g += kern[q] * pe[..., mc + q:mc + q + nwin]
+    thr = Z_999 * noise * float(np.sqrt(np.sum(kern.astype(float) ** 2)))
+    j, strength, found = _peaks(g, thr, inside)
+    tt = (j - nw) * DT
+    w = np.where(found, strength * strength, 0.0)
+    med = np.array([np.median(w[m][found[m]]) if found[m].any() else 1.0 for m in range(len(specs))])
+    w = w / np.maximum(med, 1e-300)[:, None]
+    return _line_fits(s, tt, w, found, inside.sum(-1), specs)

@@ -1,0 +1,236 @@
+"""The material cue of the shaft detector: shafts as bands of instrument-like material, for
+frames whose colour tells the materials apart (`shafts`).
+
+1. *regions* (`shaft_regions`): the frame's instrument-likeness (grey, black, white, metal
+   against the dominant tissue colour), its levels, the straight boundaries of each level's
+   regions and the pairs of them with region between;
+2. *bands* (`shaft_region_bands`): each pair judged along its chord through the work frame;
+   kept when it is a long band of region differing in material from both sides and reaching
+   the border of the view (or very long), the better of overlapping ones;
+3. *edges* (`shaft_edges`): each kept band's two boundaries refitted at full resolution in a
+   corridor (`corridor_px`, at least 1.5 work px: the region boundary's own resolution)
+   around them, and its midline the plane bisector of the two (`shaft_axis`);
+4. *selection* (`select`): the edges must be seen together along the least length and a
+   third of the band's run, converge by at most the largest convergence, and meet outside
+   the stretch (by half a width); the score is the length seen as a shaft [raw px] times the
+   least fraction of stations where an edge was found. A shaft whose band overlaps a better
+   one's, or that runs along a better one's axis (within `_COAXIAL_DEG`, its centre within
+   half that one's width: a wrist, the far part of a shaft split by a highlight), is another
+   reading of the same instrument; a short band (its run under two widths, accepted through
+   its extension) whose extension runs into another shaft's band is a wrist or jaw part
+   continuing into that instrument's shaft. Both are dropped.
+
+Work pixels in the region steps, ideal pixels from the edges on.
+
+Example
+-------
+>>> import numpy as np
+>>> round(robust_noise(np.random.default_rng(0).normal(100, 2.0, (300, 400)).astype(np.float32)), 1)
+2.0
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pencilcal.toolkit.detect.shaft_axis import midline_from_edges
+from pencilcal.toolkit.detect.shaft_edges import fit_edges
+from pencilcal.toolkit.detect.shaft_region_bands import (
+    accepted,
+    band_polygon,
+    evaluate_bands,
+    suppress_overlaps,
+)
+from pencilcal.toolkit.detect.shaft_regions import boundary_lines, region_levels, region_pairs, scene_angle
+
+__all__ = ["MaterialShaft", "material_cue", "select", "robust_noise"]
+
+_MAX_PAIRS = 40  # candidate pairs per region map, the longest overlaps first
+_MAX_REFINE = 6  # bands refitted at full resolution
+_COAXIAL_DEG = 3.0  # two readings of one instrument: axes this close ...
+_LONG_FRACTION = 0.25  # a run this fraction of the work frame's diagonal need not reach the border
+# E[|z| : |z| below its 90th percentile q] / E[|z|] for z normal: (1 - exp(-q^2 / 2)) / 0.9
+_TRUNCATED_MEAN = (1.0 - np.exp(-0.5 * 1.6448536269514722**2)) / 0.9
+_LAPLACE_DIFF = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+
+
+def robust_noise(channel):
+    """The sd of white noise [grey levels] in one full-resolution channel (H, W):
+    Immerkaer's mean-absolute estimator, sqrt(pi / 2) / 6 x mean |L|, on six bands of rows,
+    over the responses below their 90th percentile (edges and texture count little; the mean
+    of a half-normal's lower 90 % is `_TRUNCATED_MEAN` of its mean), and at least the
+    quantisation noise 1 / sqrt(12) (the median estimator of `noise` gives 0 on dark,
+    quantised frames)."""
+    import cv2
+
+    ch = np.asarray(channel, np.float32)
+    H = ch.shape[0]
+    rows = max(8, H // 40)
+    starts = np.unique(np.linspace(0, max(H - rows, 0), 6).astype(int))
+    r = np.concatenate([np.abs(cv2.filter2D(ch[s0:s0 + rows], cv2.CV_32F, _LAPLACE_DIFF)[1:-1, 1:-1]).ravel()
+                        for s0 in starts])
+    if r.size == 0:
+        return 1.0 / np.sqrt(12.0)
+    k = int(0.9 * (r.size - 1))
+    r = r[r <= np.partition(r, k)[k]]
+    return max(float(np.sqrt(np.pi / 2) * r.mean() / 6.0 / _TRUNCATED_MEAN), 1.0 / np.sqrt(12.0))
+
+
+@dataclass(eq=False)
+class MaterialShaft:
+    """A shaft of the material cue (`material_cue`): its `shaft_axis.Midline`, score [raw
+    px], polarity, the band that proposed it (`shaft_region_bands.RegionBand`) and its
+    outline over the run and over the extension (work px), for the selection."""
+
+    midline: object
+    score: float
+    polarity: str
+    band: object
+    poly_run: np.ndarray
+    poly_ext: np.ndarray
+
+
+def _bands(work, mm, o, wmin, wmax, min_len):
+    """The accepted bands of every region level (module docstring, steps 1-2), best first."""
+    bands = []
+    Ball = None
+    for lev, kind, Bm in region_levels(mm, work):
+        if kind == "all":
+            Ball = Bm
+        lines = boundary_lines(Bm, work.dist, 0.5 * min_len)
+        pairs = region_pairs(lines, wmin, wmax, np.degrees(o.region_conv_max), 0.5 * min_len, _MAX_PAIRS)
+        bands += evaluate_bands(lines, pairs, work, Bm, Ball, min_len, lev, kind)
+    if not bands:
+        return []
+    vin = work.valid & (work.dist > 1.0)
+    ang_thr = 2.0 * scene_angle(work.bgr, vin, 0.5 * wmin)
+    long_len = _LONG_FRACTION * float(np.hypot(*work.shape))
+    acc = [e for e in bands if accepted(e, min_len, long_len, ang_thr)]
+    acc.sort(key=lambda e: -e.shaft_len)
+    return suppress_overlaps(acc)
+
+
+def _edge_specs(band, work):
+    """The two proposed edges of a band in ideal px: (p0, u, n_out, s0, s1) each, over the
+    band's run."""
+    i0, i1 = band.run
+    specs = []
+    for (p, u, n, _, _), off in zip(band.lines, (band.oi, band.oj)):
+        pi = work.to_ideal(p)
+        ui = np.asarray(u) / work.scale
+        ui = ui / np.linalg.norm(ui)
+        n_out = -np.array([-ui[1], ui[0]]) * np.sign(np.dot(n, [-u[1], u[0]]))
+        pa = work.to_ideal(band.C[i0] + off[i0] * band.na)
+        pb = work.to_ideal(band.C[i1 - 1] + off[i1 - 1] * band.na)
+        s0, s1 = sorted([float((pa - pi) @ ui), float((pb - pi) @ ui)])
+        specs.append((pi, ui, n_out, s0, s1))
+    return specs
+
+
+def material_cue(image, camera, validity, work, mm, o, K, noise):
+    """Shafts by the material cue (module docstring, steps 1-3): `MaterialShaft` per band
+    that held up, before the selection.
+
+    image: (H, W, 3) the raw frame; validity: `shaft_work.Validity`; work:
+    `shaft_work.WorkFrame`; mm: its `shaft_regions.MaterialMap`; o: the options of
+    `shafts.detect_shafts` (`shafts.ShaftOptions`); K: (3, 3) the axis camera
+    (`shaft_work.axis_matrix`); noise: the image noise sd [grey levels].
+    """
+    s = work.mean_scale
+    wmin, wmax = o.region_wmin * s, o.region_wmax * s
+    min_len = o.region_min_length * s
+    acc = _bands(work, mm, o, wmin, wmax, min_len)
+    corridor = max(o.corridor_px, 1.5 / s)
+    out = []
+    for e in acc[:_MAX_REFINE]:
+        fits = fit_edges(image, camera, validity, noise, _edge_specs(e, work), corridor)
+        if any(f is None for f in fits):
+            continue
+        m = midline_from_edges(K, fits[0], fits[1])
+        if m is None or m.convergence_deg > np.degrees(o.region_conv_max):
+            continue
+        seen = float(np.hypot(*(m.ends[1] - m.ends[0])))
+        if seen < min_len / s or seen < 0.3 * e.run_len / s or not _meet_outside(m):
+            continue
+        score = e.shaft_len / s * min(f.frac for f in fits)
+        out.append(MaterialShaft(midline=m, score=float(score), polarity="dark" if e.y_in < e.y_side else "bright",
+                                 band=e, poly_run=band_polygon(e), poly_ext=band_polygon(e, e.ext)))
+    return out
+
+
+def _meet_outside(m):
+    """The edges of a midline meet outside its stretch by half a width at least."""
+    e = m.edges.reshape(2, 2, 2)
+    l1 = np.cross(np.r_[e[0, 0], 1.0], np.r_[e[0, 1], 1.0])
+    l2 = np.cross(np.r_[e[1, 0], 1.0], np.r_[e[1, 1], 1.0])
+    vp = np.cross(l1, l2)
+    if abs(vp[2]) < 1e-12:
+        return True
+    ua = (m.ends[1] - m.ends[0]) / max(np.linalg.norm(m.ends[1] - m.ends[0]), 1e-12)
+    sv = float((vp[:2] / vp[2] - m.ends[0]) @ ua)
+    L = float(np.linalg.norm(m.ends[1] - m.ends[0]))
+    return not (-0.5 * m.width_px <= sv <= L + 0.5 * m.width_px)
+
+
+def _edge_band(m):
+    """The quadrilateral (4, 2) float32 [ideal px] between a midline's edges over its ends."""
+    na = m.line[:2]
+    pts = []
+    for P in m.ends:
+        for e in m.edges.reshape(2, 2, 2):
+            l = np.cross(np.r_[e[0], 1.0], np.r_[e[1], 1.0])
+            l = l / np.hypot(l[0], l[1])
+            pts.append(P - ((l[:2] @ P + l[2]) / (l[:2] @ na)) * na)
+    return np.array([pts[0], pts[2], pts[3], pts[1]], np.float32)
+
+
+def _overlapping(shafts):
+    """Best score first, without those whose edge band overlaps a better one's by more than
+    30 % of its own area."""
+    import cv2
+
+    out, polys = [], []
+    for sh in sorted(shafts, key=lambda x: -x.score):
+        P = _edge_band(sh.midline)
+        area = abs(cv2.contourArea(P))
+        if area <= 0 or any(cv2.intersectConvexConvex(P, Q)[0] > 0.3 * area for Q in polys):
+            continue
+        out.append(sh)
+        polys.append(P)
+    return out
+
+
+def _coaxial(shafts):
+    """Without those along a better one's axis (module docstring, step 4)."""
+    out = []
+    for sh in shafts:
+        m = sh.midline
+        if not any(np.degrees(np.arccos(np.clip(abs(m.line[:2] @ t.midline.line[:2]), -1, 1))) <= _COAXIAL_DEG
+                   and abs(t.midline.line[:2] @ m.centre + t.midline.line[2]) <= 0.5 * t.midline.width_px
+                   for t in out):
+            out.append(sh)
+    return out
+
+
+def _short_extensions(shafts):
+    """Without the short bands whose extension runs into another's band (module docstring,
+    step 4)."""
+    import cv2
+
+    out = []
+    for sh in shafts:
+        e = sh.band
+        if e.run_len < 2.0 * e.width_run:
+            P = cv2.convexHull(sh.poly_ext)[:, 0, :]
+            if any(cv2.intersectConvexConvex(P, Q)[0] > 0.1 * abs(cv2.contourArea(Q))
+                   for Q in (cv2.convexHull(t.poly_run)[:, 0, :] for t in shafts if t is not sh)):
+                continue
+        out.append(sh)
+    return out
+
+
+def select(shafts, max_shafts):
+    """The shafts that are not other readings of a better one (module docstring, step 4),
+    best score first, at most max_shafts."""
+    return _short_extensions(_coaxial(_overlapping(shafts)))[:max_shafts]

@@ -1,0 +1,333 @@
+"""Bands of instrument-like region, judged along their whole chord: the material cue's band
+test (`shafts`).
+
+A candidate band lies between two straight region boundaries (`shaft_regions.region_pairs`).
+Its cross-section is sampled at `STATIONS` stations along the chord of its mean axis through
+the work frame, at `_NU` positions across from -2 to +2 half-widths (the boundaries at -1
+and +1), for all candidates in one remap. Per station:
+
+- fin, the fraction of the inside (|nu| <= `_NU_IN`) that is region; fL, fR the same for
+  each side strip (`_NU_SIDE` <= |nu| <= 2);
+- obs: the cross-section lies in the valid region; sup: both boundary lines are backed by
+  boundary points there (a run may not extrapolate a short boundary line along a long one).
+
+A station is *shaft* (+1) when fin >= `FILL_IN`, both sides <= `FILL_SIDE` and supported;
+-0.5 when the inside is region but a side too or unsupported; -1.5 when the inside is not
+region (a wrist or jaws are narrower); -3 not observable. The run is the stretch of largest
+sum (`shaft_bands.best_segment`); it extends while the inside stays region (fin >= 0.5),
+and the band *reaches the border* when that extension ends within 2 stations of the first
+unobservable one. For the runs long enough, the material difference of the inside from each
+side: the side is not instrument-like at this level (fraction of the "all" map <=
+`FILL_SIDE`), or the spectral angle between the mean colours exceeds twice the scene's
+colour variability (`shaft_regions.scene_angle`: a shade or a fold of one surface keeps its
+colour direction, a grey shaft against a grey-blue drape not). `accepted` keeps the bands
+that are shafts (`accepted`), `suppress_overlaps` the better of overlapping ones.
+
+Work pixels throughout; stations and strips in units of the band's local half-width.
+
+Example
+-------
+>>> import numpy as np
+>>> lab = np.array([[-3, 1, 1, -1.5, 1, 1, 1, -3]])
+>>> best_run(lab)
+(1, 7)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pencilcal.toolkit.detect.shaft_bands import best_segment
+
+__all__ = ["STATIONS", "FILL_IN", "FILL_SIDE", "RegionBand", "evaluate_bands", "best_run", "accepted",
+           "suppress_overlaps", "band_polygon"]
+
+STATIONS = 96  # stations along a band's chord
+FILL_IN = 0.8  # "mostly region": a thread or a highlight may cross the band
+FILL_SIDE = 0.35  # "mostly not region"
+_NU = np.linspace(-2.0, 2.0, 33)
+_NU_IN, _NU_SIDE = 0.75, 1.3
+_IN = np.abs(_NU) <= _NU_IN
+_SL = (_NU >= -2.0) & (_NU <= -_NU_SIDE)
+_SR = (_NU >= _NU_SIDE) & (_NU <= 2.0)
+_REACH_STATIONS = 2  # a run "reaches the border" when it ends this close to the first unobservable station
+_NMS_OVERLAP = 0.3  # bands overlapping by more than this fraction of the smaller one are one
+
+
+@dataclass(eq=False)
+class RegionBand:
+    """One candidate band along its chord (`evaluate_bands`), work pixels.
+
+    Attributes
+    ----------
+    lines : tuple of two (p (2,), u (2,), n (2,), lo, hi)
+        The two boundary lines (`shaft_regions.BoundaryLines` rows, n into the region).
+    C : (S, 2)
+        Station points on the mean axis; ua, na (2,) its direction and normal.
+    oi, oj : (S,)
+        Offsets of the two boundary lines from the stations along na.
+    run, ext : (int, int)
+        Stations [i0, i1) of the run, and of its extension.
+    reach : (bool, bool)
+        The extension reaches the border before / after the run; reach_run: the run itself
+        does, at either end.
+    step : float [px]
+        Station spacing.
+    run_len, shaft_len : float [px]
+        The run's length and the length of its shaft stations.
+    fall, ang : (2,)
+        Fraction of instrument-like pixels ("all" map) beside each side; spectral angle
+        between the inside's and that side's mean colour [deg] (NaN: too few pixels).
+    y_in, y_side : float [grey levels]
+        Mean luma inside and beside the run.
+    level, kind : int, str
+        The region level and map ("all" or "dark") it came from.
+    """
+
+    lines: tuple
+    C: np.ndarray
+    ua: np.ndarray
+    na: np.ndarray
+    oi: np.ndarray
+    oj: np.ndarray
+    run: tuple
+    ext: tuple
+    reach: tuple
+    reach_run: bool
+    step: float
+    run_len: float
+    shaft_len: float
+    fall: tuple
+    ang: tuple
+    y_in: float
+    y_side: float
+    level: int = 0
+    kind: str = "all"
+
+    @property
+    def width_run(self):
+        """Mean width over the run [px]."""
+        i0, i1 = self.run
+        return float(np.mean(np.abs(self.oj[i0:i1] - self.oi[i0:i1])))
+
+
+def best_run(labels):
+    """Stations [i0, i1) of the stretch of largest sum of one row of labels (1, S).
+
+    See the module docstring's example.
+    """
+    i, j, _ = best_segment(np.asarray(labels, float).reshape(1, -1))
+    return int(i[0]), int(j[0]) + 1
+
+
+def _chords(c0, ua, shape):
+    """Along-axis range (t0, t1) (K,) of each line c0 + t ua (K, 2) inside a frame (h, w)."""
+    h, w = shape
+    with np.errstate(all="ignore"):
+        tx = np.sort(np.c_[(0 - c0[:, 0]) / ua[:, 0], (w - 1 - c0[:, 0]) / ua[:, 0]], 1)
+        ty = np.sort(np.c_[(0 - c0[:, 1]) / ua[:, 1], (h - 1 - c0[:, 1]) / ua[:, 1]], 1)
+    tx = np.where(np.isfinite(tx), tx, np.array([-1e9, 1e9]))
+    ty = np.where(np.isfinite(ty), ty, np.array([-1e9, 1e9]))
+    return np.maximum(tx[:, 0], ty[:, 0]), np.minimum(tx[:, 1], ty[:, 1])
+
+
+def _line_offsets(P, U, C, na):
+    """Where the lines P + a U (K, 2) meet the cross-sections C + o na (K, S, 2): (o, a)
+    (K, S) each."""
+    u, p = U[:, None, :], P[:, None, :]
+    det = -u[..., 0] * na[:, None, 1] + na[:, None, 0] * u[..., 1]
+    d = C - p
+    o = (u[..., 0] * d[..., 1] - u[..., 1] * d[..., 0]) / det
+    a = (-d[..., 0] * na[:, None, 1] + na[:, None, 0] * d[..., 1]) / det
+    return o, a
+
+
+@dataclass(frozen=True, eq=False)
+class _Geometry:
+    """The cross-sections of K bands at S stations: C (K, S, 2), ua, na (K, 2), oi, oj, ai,
+    aj (K, S) (each line's offset across and position along itself), step (K,), good (K,)
+    (a chord of some length), P (K, S, U, 2) the sample points."""
+
+    C: np.ndarray
+    ua: np.ndarray
+    na: np.ndarray
+    oi: np.ndarray
+    oj: np.ndarray
+    ai: np.ndarray
+    aj: np.ndarray
+    step: np.ndarray
+    good: np.ndarray
+    P: np.ndarray
+
+
+def _geometry(lines, pairs, shape):
+    """`_Geometry` of the candidate bands `pairs` between `lines` in a frame (h, w)."""
+    I, J = pairs.i, pairs.j
+    ua = lines.u[I] - lines.u[J]
+    ua /= np.maximum(np.linalg.norm(ua, axis=1, keepdims=True), 1e-12)
+    na = np.c_[-ua[:, 1], ua[:, 0]]
+    c0 = 0.5 * (lines.p[I] + lines.p[J])
+    t0, t1 = _chords(c0, ua, shape)
+    good = t1 - t0 > 4
+    T = t0[:, None] + np.linspace(0, 1, STATIONS)[None, :] * (t1 - t0)[:, None]
+    C = c0[:, None, :] + T[..., None] * ua[:, None, :]
+    oi, ai = _line_offsets(lines.p[I], lines.u[I], C, na)
+    oj, aj = _line_offsets(lines.p[J], lines.u[J], C, na)
+    offs = 0.5 * (oi + oj)[..., None] + _NU[None, None, :] * (0.5 * (oj - oi))[..., None]
+    P = C[:, :, None, :] + offs[..., None] * na[:, None, None, :]
+    return _Geometry(C=C, ua=ua, na=na, oi=oi, oj=oj, ai=ai, aj=aj, step=(t1 - t0) / (STATIONS - 1), good=good, P=P)
+
+
+def _sampler(P):
+    """A function sampling a work-frame image (h, w) or (h, w, 3) at the points P (K, S, U,
+    2) (bilinear, 0 outside): (K, S, U) or (K, S, U, 3)."""
+    import cv2
+
+    K, S, U = P.shape[:3]
+    X = P[..., 0].reshape(K * S, U).astype(np.float32)
+    Y = P[..., 1].reshape(K * S, U).astype(np.float32)
+
+    def sample(im):
+        out = cv2.remap(np.ascontiguousarray(im), X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                        borderValue=0)
+        return out.reshape((K, S, U) + out.shape[2:])
+
+    return sample
+
+
+def _labels(g, lines, pairs, sB, sV):
+    """Per-station labels (K, S) (module docstring), obs and fin (K, S), okL, okR (K, S):
+    the side strips observable, shaft (K, S)."""
+    I, J = pairs.i, pairs.j
+    obs = np.all(sV[:, :, np.abs(_NU) <= 1.0] > 1.0, 2)
+    okL = (sV[:, :, _SL] > 1.0).mean(2) >= 0.5
+    okR = (sV[:, :, _SR] > 1.0).mean(2) >= 0.5
+    fin = sB[:, :, _IN].mean(2)
+    fL = np.where(okL, sB[:, :, _SL].mean(2), 0.0)
+    fR = np.where(okR, sB[:, :, _SR].mean(2), 0.0)
+    mg = 2.0 * g.step[:, None]
+    sup = ((g.ai >= lines.lo[I][:, None] - mg) & (g.ai <= lines.hi[I][:, None] + mg)
+           & (g.aj >= lines.lo[J][:, None] - mg) & (g.aj <= lines.hi[J][:, None] + mg))
+    shaft = (fin >= FILL_IN) & (fL <= FILL_SIDE) & (fR <= FILL_SIDE) & sup
+    lab = np.where(~obs, -3.0, np.where(fin < FILL_IN, -1.5, np.where(shaft, 1.0, -0.5)))
+    lab[~g.good] = -3.0
+    return lab, obs, fin, okL, okR, shaft
+
+
+def _extension(obs_m, fin_m, i0, i1):
+    """The extension [j0, j1) of the run [i0, i1) while the inside stays region, whether it
+    reaches the border before / after it, and whether the run itself does."""
+    n = obs_m.size
+    j0, j1 = i0, i1
+    while j0 > 0 and obs_m[j0 - 1] and fin_m[j0 - 1] >= 0.5:
+        j0 -= 1
+    while j1 < n and obs_m[j1] and fin_m[j1] >= 0.5:
+        j1 += 1
+    nob = np.flatnonzero(~obs_m)
+    before = (nob[nob < j0].max() + 1) if np.any(nob < j0) else 0
+    after = nob[nob >= j1].min() if np.any(nob >= j1) else n
+    reach = (bool(j0 - before <= _REACH_STATIONS), bool(after - j1 <= _REACH_STATIONS))
+    return (j0, j1), reach, bool(i0 - before <= _REACH_STATIONS or after - i1 <= _REACH_STATIONS)
+
+
+def _side_colours(cc, oL, oR, ba):
+    """(fall, ang) of one band's run: the instrument-like fraction beside each side (ba:
+    the "all" map's samples (S', U)) and the spectral angle [deg] between the inside's mean
+    colour and each side's (cc: (S', U, 3) colours; oL, oR (S',) the sides observable)."""
+    aL = float(np.mean(ba[:, _SL][oL])) if np.any(oL) else 1.0
+    aR = float(np.mean(ba[:, _SR][oR])) if np.any(oR) else 1.0
+    cin = cc[:, _IN].reshape(-1, cc.shape[-1]).mean(0)
+    angs = []
+    for okS, msk in ((oL, _SL), (oR, _SR)):
+        qq = cc[:, msk][okS].reshape(-1, cc.shape[-1])
+        if qq.shape[0] < 5:
+            angs.append(np.nan)
+            continue
+        qq = qq.mean(0)
+        c = cin @ qq / (np.linalg.norm(cin) * np.linalg.norm(qq) + 1e-9)
+        angs.append(float(np.degrees(np.arccos(np.clip(c, -1, 1)))))
+    return (aL, aR), tuple(angs)
+
+
+def evaluate_bands(lines, pairs, work, Bm, Ball, min_run, level=0, kind="all"):
+    """The candidate bands `pairs` between `lines` judged along their chords (module
+    docstring): a `RegionBand` for each whose run is at least min_run [work px] long.
+
+    Bm: (h, w) the map the boundaries came from; Ball: (h, w) the level's "all" map (for
+    the material difference); work: `shaft_work.WorkFrame`.
+    """
+    if len(pairs.i) == 0:
+        return []
+    g = _geometry(lines, pairs, work.shape)
+    sample = _sampler(g.P)
+    sB = sample(Bm.astype(np.float32))
+    sV = sample(work.dist)
+    lab, obs, fin, okL, okR, shaft = _labels(g, lines, pairs, sB, sV)
+    sel = [m for m in range(len(pairs.i)) if g.good[m]]
+    runs = {m: best_run(lab[m]) for m in sel}
+    sel = [m for m in sel if (runs[m][1] - runs[m][0]) * g.step[m] >= min_run]
+    if not sel:
+        return []
+    sub = _sampler(g.P[sel])
+    sA, sY = sub(Ball.astype(np.float32)), sub(work.luma)
+    sC = sub(work.bgr.astype(np.float32)) if work.bgr.ndim == 3 else sY[..., None]
+    out = []
+    for q, m in enumerate(sel):
+        i0, i1 = runs[m]
+        ext, reach, reach_run = _extension(obs[m], fin[m], i0, i1)
+        run = slice(i0, i1)
+        fall, ang = _side_colours(sC[q, run], okL[m, run], okR[m, run], sA[q, run])
+        yy = sY[q, run]
+        li, lj = pairs.i[m], pairs.j[m]
+        out.append(RegionBand(
+            lines=tuple((lines.p[k], lines.u[k], lines.n[k], float(lines.lo[k]), float(lines.hi[k])) for k in (li, lj)),
+            C=g.C[m], ua=g.ua[m], na=g.na[m], oi=g.oi[m], oj=g.oj[m], run=(i0, i1), ext=ext, reach=reach,
+            reach_run=reach_run, step=float(g.step[m]), run_len=float((i1 - i0) * g.step[m]),
+            shaft_len=float(np.count_nonzero(shaft[m, run]) * g.step[m]), fall=fall, ang=ang,
+            y_in=float(np.mean(yy[:, _IN])), y_side=float(0.5 * (np.mean(yy[:, _SL]) + np.mean(yy[:, _SR]))),
+            level=int(level), kind=kind))
+    return out
+
+
+def accepted(band, min_len, long_len, ang_thr):
+    """Whether a band is a shaft by its region evidence (all [work px]): a material
+    difference from both sides (not instrument-like there, or a colour direction more than
+    ang_thr [deg] away); a run at least max(min_len, 1.5 widths) long, or min_len when it
+    reaches the border; extended, at least 2.5 widths (a jaw, a blob between two short
+    straight boundaries is not elongated); shaft stations along min_len / 2; and reaching the
+    border, or a run of at least long_len."""
+    side_ok = all((f <= FILL_SIDE) or (np.isfinite(a) and a > ang_thr) for f, a in zip(band.fall, band.ang))
+    w = band.width_run
+    ext_len = (band.ext[1] - band.ext[0]) * band.step
+    long_enough = band.run_len >= max(min_len, 1.5 * w) or (band.run_len >= min_len and band.reach_run)
+    return bool(long_enough and ext_len >= 2.5 * w and band.shaft_len >= 0.5 * min_len and side_ok
+                and (any(band.reach) or band.run_len >= long_len))
+
+
+def band_polygon(band, ends=None):
+    """The band's outline (2 S', 2) [work px] over its run (or stations ends [i0, i1))."""
+    i0, i1 = band.run if ends is None else ends
+    C = band.C[i0:i1]
+    a = C + band.oi[i0:i1, None] * band.na
+    b = C + band.oj[i0:i1, None] * band.na
+    return np.concatenate([a, b[::-1]]).astype(np.float32)
+
+
+def suppress_overlaps(bands):
+    """The bands (best first) that do not overlap a better one by more than `_NMS_OVERLAP`
+    of the smaller one's area (convex hulls)."""
+    import cv2
+
+    kept, polys = [], []
+    for e in bands:
+        hull = cv2.convexHull(band_polygon(e))[:, 0, :]
+        area = abs(cv2.contourArea(hull))
+        if area <= 0:
+            continue
+        if any(cv2.intersectConvexConvex(hull, Q)[0] > _NMS_OVERLAP * min(area, abs(cv2.contourArea(Q)))
+               for Q in polys):
+            continue
+        kept.append(e)
+        polys.append(hull)
+    return kept

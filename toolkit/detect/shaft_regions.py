@@ -1,0 +1,427 @@
+"""Instrument-like regions of a colour frame and the bands between their straight
+boundaries: the proposals of the shaft detector's material cue (`shafts`).
+
+1. *material map* (`material_map`, work frame, `shaft_work`): how instrument-like each pixel
+   is, from the frame's own colour statistics. The colour direction is the opponent
+   chromaticity ``x = (R - G) / S, y = (R + G - 2 B) / (sqrt(3) S)``, ``S = R + G + B + 3
+   eps``; grey (black, white, metal) sits at (0, 0). eps = `DARK_DAMPING` x the median
+   brightness: a pixel ten times darker than the scene keeps half of its colour, so black
+   (whose colour is only noise) reads as grey. The dominant (tissue) colour is the mode of
+   the 2-D chromaticity histogram, refined by the mean within `_MODE_RADIUS`; u is its
+   direction and p = c . u each pixel's projection on it. The likeness is ``(p_med - p) /
+   p_med`` (0: typical tissue, 1: grey, > 1: a colour opposite to tissue such as a
+   grey-blue drape) plus the darkness ``clip(1 - Y / Y_med, 0, 1)`` on the same 0..1 scale
+   (a black shaft whose sheen reflects the tissue's colour is still dark). Hue changes at
+   the tissue's saturation (fat, blood) and shadows, which keep their colour direction,
+   stay near 0. The map is *informative* when the frame has a colour: p_med exceeds `Z_999`
+   noise sd of one pixel's projection (from the image noise and brightness). A grey frame,
+   or a colour frame of a grey scene, has no material cue, and the shaft detector judges its
+   bands by their edges alone (`shafts`).
+2. *levels* (`region_levels`): recursive two-class Otsu splits of the likeness over the
+   valid region. The instruments are its upper tail and may cover only a few percent of the
+   view, so each split isolates a more extreme part. At each level the region ("all") and
+   its darker part (an Otsu split of its luma: a black shaft against a grey drape is
+   instrument-like on both sides of its edge but differs in lightness).
+3. *boundaries* (`boundary_lines`): every contour of a level's map (after a 3 x 3 close and
+   open) is approximated by a polygon (Douglas-Peucker, `_DP_EPS_PX`); its sides at least
+   half the least length long whose middle is off the valid region's boundary are refitted
+   by total least squares to their contour points and oriented with the region on their left
+   (n = (-u_y, u_x) points into it). Collinear sides with the region on the same side are
+   grouped (`_GROUP_TOL_PX`, `_GROUP_TOL_DEG`): a boundary interrupted by a thread or a fold
+   is one line.
+4. *pairs* (`region_pairs`): two lines with the region between them (antiparallel, each
+   facing the other), at a width in range, overlapping, whose meeting point (the axis'
+   vanishing point) lies outside the overlap. Every pair of straight boundaries is one
+   hypothesis, whatever component it belongs to, which also splits touching instruments.
+
+Coordinates are work pixels; widths and lengths too.
+
+Example
+-------
+>>> import numpy as np
+>>> from pencilcal.toolkit.detect.shaft_work import Validity, WorkFrame
+>>> img = np.zeros((240, 320, 3), np.uint8); img[:] = (90, 110, 200)        # pink tissue
+>>> img[100:140, :] = (60, 60, 60)                                           # a grey band
+>>> wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=320)
+>>> mm = material_map(wf)
+>>> mm.informative, round(float(mm.likeness[20, 160]), 2), round(float(mm.likeness[120, 160]), 1)
+(True, 0.0, 1.6)
+>>> lines = boundary_lines(mm.likeness > 0.7, wf.dist, 40.0)
+>>> len(lines.p), [round(float(v)) for v in np.sort(np.abs(lines.n[:, 1]))]
+(2, [1, 1])
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pencilcal.toolkit.detect.noise import estimate_noise
+
+__all__ = ["DARK_DAMPING", "Z_999", "MaterialMap", "material_map", "otsu_threshold", "region_levels",
+           "BoundaryLines", "boundary_lines", "RegionPairs", "region_pairs", "scene_angle"]
+
+#: eps of the chromaticity, as a fraction of the median brightness: a pixel this much darker
+#: than the scene keeps half of its colour (0.01-0.1 give the same maps on the real sets).
+DARK_DAMPING = 0.1
+#: The one-sided 0.999 normal quantile, the detector's significance level.
+Z_999 = 3.090232306167813
+_MODE_RADIUS = 0.03  # the dominant colour: mean of the chromaticities this close to the mode
+_HIST_BINS = 200  # chromaticity histogram bins over [-1, 1] per axis
+_SAMPLES = 20000  # pixels the colour statistics are taken from
+_DP_EPS_PX = 1.5  # Douglas-Peucker tolerance of the region boundaries [work px]
+_OFF_BOUNDARY_PX = 3.0  # a boundary side's middle at least this far from the valid region's edge [work px]
+_GROUP_TOL_PX, _GROUP_TOL_DEG = 2.0, 3.0  # collinear boundary sides: offset [work px], angle [deg]
+
+
+@dataclass(frozen=True, eq=False)
+class MaterialMap:
+    """The instrument-likeness of a work frame (`material_map`).
+
+    Attributes
+    ----------
+    likeness : (h, w) float32
+        0 = typical tissue, 1 = grey or black (Gaussian-smoothed, sd 1 work px).
+    tissue : (2,)
+        The dominant chromaticity (x, y).
+    p_med : float
+        The median projection of the chromaticities on the tissue's direction.
+    noise : float
+        The noise sd of one pixel's projection (from the image noise and brightness).
+    y_med : float [grey levels]
+        The median brightness of the valid region.
+    informative : bool
+        The frame has a colour: p_med > `Z_999` noise.
+    """
+
+    likeness: np.ndarray
+    tissue: np.ndarray
+    p_med: float
+    noise: float
+    y_med: float
+    informative: bool
+
+
+def _dominant(xv, yv):
+    """The mode (2,) of the chromaticities xv, yv (N,): the peak of their smoothed 2-D
+    histogram, refined by the mean of those within `_MODE_RADIUS`."""
+    import cv2
+
+    nb = _HIST_BINS
+    qx = np.clip(((xv + 1) * nb / 2).astype(int), 0, nb - 1)
+    qy = np.clip(((yv + 1) * nb / 2).astype(int), 0, nb - 1)
+    h = np.bincount(qx * nb + qy, minlength=nb * nb).reshape(nb, nb).astype(np.float32)
+    h = cv2.GaussianBlur(h, (0, 0), 1.5)
+    i, j = np.unravel_index(int(np.argmax(h)), h.shape)
+    mu = np.array([(i + 0.5) * 2 / nb - 1, (j + 0.5) * 2 / nb - 1])
+    for _ in range(3):
+        near = np.hypot(xv - mu[0], yv - mu[1]) < _MODE_RADIUS
+        if np.count_nonzero(near) < 10:
+            break
+        mu = np.array([xv[near].mean(), yv[near].mean()])
+    return mu
+
+
+def material_map(work):
+    """The instrument-likeness of each work pixel (module docstring, step 1).
+
+    work: `shaft_work.WorkFrame` (a BGR copy; a grey one gives an uninformative map of
+    darkness alone). Returns a `MaterialMap`.
+    """
+    import cv2
+
+    valid = work.valid & (work.dist > 1.0)
+    if np.count_nonzero(valid) < 100:
+        valid = np.ones(work.shape, bool)
+    F = work.bgr.astype(np.float32)
+    if F.ndim == 2:
+        F = np.repeat(F[..., None], 3, -1)
+    B, G, R = F[..., 0], F[..., 1], F[..., 2]
+    iv = np.flatnonzero(valid.ravel())
+    iv = iv[::max(1, iv.size // _SAMPLES)]
+    bright = (B + G + R) * (1.0 / 3.0)
+    y_med = max(float(np.median(bright.ravel()[iv])), 1.0)
+    S = R + G + B + 3.0 * max(DARK_DAMPING * y_med, 1.0)
+    x = (R - G) / S
+    y = (R + G - 2.0 * B) / (np.sqrt(3.0) * S)
+    mu = _dominant(x.ravel()[iv], y.ravel()[iv])
+    nm = float(np.hypot(*mu))
+    u = mu / nm if nm > 1e-6 else np.array([1.0, 0.0])
+    p = x * u[0] + y * u[1]
+    pv = p.ravel()[iv]
+    pm = float(np.median(pv))
+    # the frame has a colour when the dominant one stands out of the noise of a projection
+    # (a grey frame, or a colour frame of a grey scene, has none)
+    noise = np.sqrt(2.0) * estimate_noise(work.luma) / (3.0 * (1.0 + DARK_DAMPING) * y_med)
+    informative = bool(work.bgr.ndim == 3 and pm > Z_999 * max(noise, 1e-6))
+    # a scene that is almost grey itself: the scale stays >= 3 x the robust spread of p, so
+    # the likeness does not blow up
+    mad = 1.4826 * float(np.median(np.abs(pv - pm)))
+    scale = max(pm, 3.0 * mad, 1e-3)
+    dark = np.clip(1.0 - bright * (1.0 / y_med), 0.0, 1.0)
+    s = cv2.GaussianBlur(((pm - p) * (1.0 / scale) + dark).astype(np.float32), (0, 0), 1.0)
+    return MaterialMap(likeness=s, tissue=mu, p_med=pm, noise=noise, y_med=y_med, informative=informative)
+
+
+def otsu_threshold(v, bins=128):
+    """Otsu's two-class threshold of the samples v (N,) (histogram of `bins` over their
+    range).
+
+    >>> t = otsu_threshold(np.r_[np.zeros(50), np.ones(50)]); 0.0 < t < 1.0
+    True
+    """
+    lo, hi = float(np.min(v)), float(np.max(v))
+    if hi - lo < 1e-6:
+        return hi
+    h, e = np.histogram(v, bins, (lo, hi))
+    p = h / max(h.sum(), 1)
+    x = 0.5 * (e[:-1] + e[1:])
+    w = np.cumsum(p)
+    m = np.cumsum(p * x)
+    with np.errstate(all="ignore"):
+        sb = (m[-1] * w - m) ** 2 / (w * (1 - w))
+    sb[~np.isfinite(sb)] = -1
+    return float(e[int(np.argmax(sb)) + 1])
+
+
+def region_levels(mm, work, n_levels=2):
+    """The binary maps of the levels (module docstring, step 2): a list of (level index,
+    kind "all" or "dark", (h, w) uint8 map after a 3 x 3 close and open), "all" first at
+    each level."""
+    import cv2
+
+    vin = work.valid & (work.dist > 1.0)
+    v = np.clip(mm.likeness[vin], -0.5, 2.0)
+    k3 = np.ones((3, 3), np.uint8)
+    out = []
+    for lev in range(n_levels):
+        if v.size < 50:
+            break
+        t = otsu_threshold(v)
+        v = v[v > t]
+        B0 = (mm.likeness > t) & vin
+        maps = [("all", B0)]
+        yv = work.luma[B0]
+        if yv.size > 50:
+            maps.append(("dark", B0 & (work.luma < otsu_threshold(yv))))
+        for kind, B in maps:
+            Bm = cv2.morphologyEx(cv2.morphologyEx(B.astype(np.uint8), cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
+            out.append((lev, kind, Bm))
+    return out
+
+
+def _tls(M):
+    """Centres (K, 2) and unit directions (K, 2) of the total-least-squares lines of point
+    moments M (K, 6) = (n, sx, sy, sxx, syy, sxy)."""
+    n = M[..., 0]
+    cx, cy = M[..., 1] / n, M[..., 2] / n
+    vxx = M[..., 3] / n - cx * cx
+    vyy = M[..., 4] / n - cy * cy
+    vxy = M[..., 5] / n - cx * cy
+    th = 0.5 * np.arctan2(2 * vxy, vxx - vyy)
+    return np.stack([cx, cy], -1), np.stack([np.cos(th), np.sin(th)], -1)
+
+
+def _contour_sides(c, seg_min):
+    """Index ranges (a, b) (K,) of the Douglas-Peucker sides of one closed contour c (N, 1,
+    2) at least seg_min points long (b may run past N: the contour wraps)."""
+    import cv2
+
+    N = len(c)
+    P = c[:, 0, :]
+    poly = cv2.approxPolyDP(c, _DP_EPS_PX, True)[:, 0, :]
+    if len(poly) < 2:
+        return None
+    key = P[:, 0].astype(np.int64) * 100003 + P[:, 1]
+    kv = poly[:, 0].astype(np.int64) * 100003 + poly[:, 1]
+    order = np.argsort(key, kind="stable")
+    pos = np.searchsorted(key[order], kv)
+    idx = np.sort(order[np.clip(pos, 0, N - 1)])
+    a, b = idx, np.r_[idx[1:], idx[0] + N]
+    keep = (b - a) >= seg_min
+    return (a[keep], b[keep]) if np.any(keep) else None
+
+
+def _sides_of(c, Bm, dist, seg_min):
+    """The straight sides (K, 4) of one contour c (N, 1, 2), oriented with the region on
+    their left, and their point moments (K, 6); None when it has none."""
+    h, w = Bm.shape
+    ab = _contour_sides(c, seg_min)
+    if ab is None:
+        return None
+    a, b = ab
+    Pf = c[:, 0, :].astype(np.float64)
+    P2 = np.r_[Pf, Pf]
+    x, y = P2[:, 0], P2[:, 1]
+    cum = np.r_[np.zeros((1, 6)), np.cumsum(np.c_[np.ones_like(x), x, y, x * x, y * y, x * y], 0)]
+    M = cum[b + 1] - cum[a]
+    cen, u = _tls(M)
+    u[np.sum(u * (P2[b] - P2[a]), 1) < 0] *= -1
+    ta = np.sum((P2[a] - cen) * u, 1)
+    tb = np.sum((P2[b] - cen) * u, 1)
+    A, B = cen + ta[:, None] * u, cen + tb[:, None] * u
+    mi = np.clip(np.round(0.5 * (A + B)).astype(int), 0, [w - 1, h - 1])
+    ok = (tb - ta >= seg_min) & (dist[mi[:, 1], mi[:, 0]] >= _OFF_BOUNDARY_PX)
+    if not np.any(ok):
+        return None
+    A, B, u, M = A[ok], B[ok], u[ok], M[ok]
+    n = np.c_[-u[:, 1], u[:, 0]]
+    Q = A[:, None, :] + np.linspace(0.2, 0.8, 5)[None, :, None] * (B - A)[:, None, :]
+    pl = np.clip(np.round(Q + 2 * n[:, None, :]).astype(int), 0, [w - 1, h - 1])
+    pr = np.clip(np.round(Q - 2 * n[:, None, :]).astype(int), 0, [w - 1, h - 1])
+    left = Bm[pl[..., 1], pl[..., 0]].mean(1) - Bm[pr[..., 1], pr[..., 0]].mean(1)
+    ok = np.abs(left) >= 0.5
+    sw = (left < 0)[:, None]
+    return np.c_[np.where(sw, B, A), np.where(sw, A, B)][ok], M[ok]
+
+
+@dataclass(frozen=True, eq=False)
+class BoundaryLines:
+    """Straight region boundaries (`boundary_lines`), G of them, work pixels.
+
+    p (G, 2) a point, u (G, 2) the unit direction, n (G, 2) = (-u_y, u_x) the normal into
+    the region, lo, hi (G,) the extent along u from p [px], support (G,) the total length of
+    the sides grouped into each [px].
+    """
+
+    p: np.ndarray
+    u: np.ndarray
+    n: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    support: np.ndarray
+
+
+def _group(seg, mom):
+    """Greedy collinear grouping of oriented sides seg (K, 4) with point moments mom (K, 6):
+    each group's line by total least squares through the pooled points. Returns
+    `BoundaryLines`."""
+    d = seg[:, 2:] - seg[:, :2]
+    L = np.hypot(d[:, 0], d[:, 1])
+    u = d / L[:, None]
+    used = np.zeros(len(seg), bool)
+    cos_tol = np.cos(np.maximum(np.radians(_GROUP_TOL_DEG), np.arctan2(2 * _GROUP_TOL_PX, L)))
+    out = []
+    for i in np.argsort(-L):
+        if used[i]:
+            continue
+        p, ui = 0.5 * (seg[i, :2] + seg[i, 2:]), u[i]
+        for _ in range(2):
+            n = np.array([-ui[1], ui[0]])
+            ok = (~used) & (u @ ui > cos_tol) & (np.abs((seg[:, :2] - p) @ n) < _GROUP_TOL_PX) \
+                & (np.abs((seg[:, 2:] - p) @ n) < _GROUP_TOL_PX)
+            ok[i] = True
+            mem = np.flatnonzero(ok)
+            cen, nu = _tls(mom[mem].sum(0)[None])
+            p, nu = cen[0], nu[0]
+            ui = nu if nu @ ui >= 0 else -nu
+        used[mem] = True
+        a = (np.r_[seg[mem, :2], seg[mem, 2:]] - p) @ ui
+        out.append((p, ui, float(a.min()), float(a.max()), float(L[mem].sum())))
+    P = np.array([o[0] for o in out]).reshape(-1, 2)
+    U = np.array([o[1] for o in out]).reshape(-1, 2)
+    return BoundaryLines(p=P, u=U, n=np.c_[-U[:, 1], U[:, 0]], lo=np.array([o[2] for o in out]),
+                         hi=np.array([o[3] for o in out]), support=np.array([o[4] for o in out]))
+
+
+def boundary_lines(Bm, dist, seg_min):
+    """The straight boundaries of a binary region map (module docstring, step 3).
+
+    Bm: (h, w) bool or uint8 region; dist: (h, w) [work px] distance to the valid region's
+    boundary (`WorkFrame.dist`); seg_min: the least side length [work px]. Returns
+    `BoundaryLines`.
+    """
+    import cv2
+
+    Bm = np.asarray(Bm).astype(np.uint8)
+    cs, _ = cv2.findContours(Bm, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    segs, moms = [], []
+    for c in cs:
+        if len(c) < 4 * seg_min:
+            continue
+        got = _sides_of(c, Bm, dist, seg_min)
+        if got is not None:
+            segs.append(got[0])
+            moms.append(got[1])
+    if not segs:
+        z = np.zeros((0, 2))
+        return BoundaryLines(p=z, u=z, n=z, lo=np.zeros(0), hi=np.zeros(0), support=np.zeros(0))
+    return _group(np.concatenate(segs), np.concatenate(moms))
+
+
+@dataclass(frozen=True, eq=False)
+class RegionPairs:
+    """Candidate bands between two region boundaries (`region_pairs`), K of them: i, j (K,)
+    the boundary lines (`BoundaryLines` indices), width (K,) and overlap (K,) [work px]."""
+
+    i: np.ndarray
+    j: np.ndarray
+    width: np.ndarray
+    overlap: np.ndarray
+
+
+def region_pairs(lines, wmin, wmax, max_conv_deg, min_overlap, max_pairs):
+    """Pairs of boundary lines that may bound a band of region (module docstring, step 4):
+    antiparallel within max_conv_deg [deg], facing each other, width in [wmin, wmax] [work
+    px] at the middle of their overlap (>= min_overlap [px]), width of one sign and at least
+    wmin / 2 at the overlap's ends. The max_pairs longest overlaps first. Returns
+    `RegionPairs`."""
+    G = len(lines.p)
+    I, J = np.triu_indices(G, 1)
+    P, U, N, LO, HI = lines.p, lines.u, lines.n, lines.lo, lines.hi
+    ok = np.sum(U[I] * U[J], 1) < -np.cos(np.radians(max_conv_deg))
+    I, J = I[ok], J[ok]
+    ua = U[I] - U[J]
+    ua /= np.maximum(np.linalg.norm(ua, axis=1, keepdims=True), 1e-12)
+    na = np.c_[-ua[:, 1], ua[:, 0]]
+
+    def dot(a, b):
+        return np.sum(a * b, 1)
+
+    def ext(K):
+        a, b = dot(P[K] + LO[K, None] * U[K], ua), dot(P[K] + HI[K, None] * U[K], ua)
+        return np.minimum(a, b), np.maximum(a, b)
+
+    def at(K, a):
+        return P[K] + ((a - dot(P[K], ua)) / dot(U[K], ua))[:, None] * U[K]
+
+    (ai0, ai1), (aj0, aj1) = ext(I), ext(J)
+    lo, hi = np.maximum(ai0, aj0), np.minimum(ai1, aj1)
+    dm = at(J, 0.5 * (lo + hi)) - at(I, 0.5 * (lo + hi))
+    sep = dot(dm, na)
+    s_lo, s_hi = dot(at(J, lo) - at(I, lo), na), dot(at(J, hi) - at(I, hi), na)
+    w = np.abs(sep)
+    ok = (dot(N[I], dm) > 0) & (dot(N[J], -dm) > 0) & (hi - lo >= min_overlap) & (w >= wmin) & (w <= wmax)
+    ok &= (np.sign(s_lo) == np.sign(sep)) & (np.sign(s_hi) == np.sign(sep))
+    ok &= np.minimum(np.abs(s_lo), np.abs(s_hi)) >= 0.5 * wmin
+    k = np.flatnonzero(ok)
+    k = k[np.argsort(-(hi - lo)[k], kind="stable")][:max_pairs]
+    return RegionPairs(i=I[k], j=J[k], width=w[k], overlap=(hi - lo)[k])
+
+
+def scene_angle(bgr, valid, patch):
+    """The colour variability of the scene at the scale of a band [deg]: the spectral
+    angles between the mean colours of neighbouring patches `patch` work px apart inside the
+    valid region (h, w), their median + 3 x 1.4826 MAD (a pair of patches straddling an
+    instrument's edge is an outlier of that distribution: instruments cover a minor part of
+    the view). 5 deg when there are too few patches."""
+    import cv2
+
+    p = max(int(round(patch)), 2)
+    h, w = valid.shape
+    hh, ww = h // p, w // p
+    if hh < 3 or ww < 3 or bgr.ndim != 3:
+        return 5.0
+    f = cv2.resize(bgr[:hh * p, :ww * p].astype(np.float32), (ww, hh), interpolation=cv2.INTER_AREA)
+    v = cv2.resize(valid[:hh * p, :ww * p].astype(np.float32), (ww, hh), interpolation=cv2.INTER_AREA) > 0.99
+    nf = f / (np.linalg.norm(f, axis=2, keepdims=True) + 1e-6)
+    angs = []
+    for a, b, va, vb in ((nf[:, :-1], nf[:, 1:], v[:, :-1], v[:, 1:]), (nf[:-1], nf[1:], v[:-1], v[1:])):
+        c = np.clip(np.sum(a * b, 2)[va & vb], -1, 1)
+        angs.append(np.degrees(np.arccos(c)))
+    A = np.concatenate(angs)
+    if A.size < 10:
+        return 5.0
+    med = float(np.median(A))
+    return med + 3 * 1.4826 * float(np.median(np.abs(A - med)))
+

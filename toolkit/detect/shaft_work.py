@@ -1,0 +1,210 @@
+"""Where the shaft detector looks: the valid part of the image and a reduced, undistorted
+colour copy of it (the *work frame*).
+
+Three pixel frames: *raw* (the input image), *ideal* (undistorted pixels ``K (x, y, 1)``
+of the camera, the raw ones themselves without a camera) and *work*: a reduced copy of the
+ideal frame, an affine map of it (``ideal = (work + 0.5) / scale + origin``), so that
+straight edges stay straight there and a region's boundaries can be fitted by lines.
+Pixel (0, 0) is the centre of the top-left pixel in every frame.
+
+`Validity` answers where samples may be taken: inside the image and inside the caller's
+valid region (an object with ``distance_to_boundary(points)``, e.g. `region.ValidRegion`),
+as a signed distance [raw px] interpolated from a coarse grid of the region's own distance
+(exact for a straight boundary, within 0.1 px for a field stop's circle). Without a region
+only the image border bounds it. `WorkFrame` is the reduced copy with its valid mask and the
+distance to the boundary in work pixels.
+
+Without a camera the axis of a shaft is still the image of a plane through the camera
+centre (`shaft_axis`); `axis_matrix` then gives a nominal pinhole (focal length the image
+width, principal point the image centre), `nominal` says so.
+
+Example
+-------
+>>> import numpy as np
+>>> img = np.zeros((300, 400, 3), np.uint8)
+>>> wf = WorkFrame(img, None, Validity(None, (300, 400)), target_px=200)
+>>> wf.shape, wf.mean_scale, np.round(wf.to_ideal([[0.0, 0.0]]), 2).tolist()
+((150, 200), 0.5, [[0.5, 0.5]])
+>>> round(float(Validity(None, (300, 400)).distance(np.array([[10.0, 150.0]]))[0]), 1)
+10.0
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["Validity", "WorkFrame", "axis_matrix"]
+
+_GRID_PX = 16.0  # spacing of the coarse grid the region's distance is interpolated from [raw px]
+_MAX_STRETCH = 0.8  # the work frame covers at most this fraction of the raw size either side of the centre
+
+
+def axis_matrix(camera, shape):
+    """K (3, 3) for the back-projection of edges: the camera's, or without a camera a
+    nominal pinhole (f = image width [px], principal point at the image centre); and
+    whether it is nominal.
+
+    >>> K, nominal = axis_matrix(None, (480, 640)); float(K[0, 0]), K[:2, 2].tolist(), nominal
+    (640.0, [319.5, 239.5], True)
+    """
+    if camera is not None:
+        return np.asarray(camera.K, float), False
+    H, W = shape
+    return np.array([[float(W), 0.0, (W - 1) / 2.0], [0.0, float(W), (H - 1) / 2.0], [0.0, 0.0, 1.0]]), True
+
+
+class Validity:
+    """Where the shaft detector may sample: the image and the caller's valid region.
+
+    Parameters
+    ----------
+    region : object or None
+        Has ``distance_to_boundary(points (..., 2) [px]) -> (...)`` signed [px], positive
+        inside, and ``covers_image(shape)`` (`region.ValidRegion`); None: the whole image.
+    shape : (H, W)
+        The image size [px].
+
+    The region's distance is evaluated on a grid `_GRID_PX` apart and interpolated
+    bilinearly; the image border always bounds it (distance to the nearest border pixel
+    centre).
+    """
+
+    def __init__(self, region, shape):
+        self.shape = (int(shape[0]), int(shape[1]))
+        H, W = self.shape
+        self.region = None if region is None or region.covers_image(self.shape) else region
+        self._grid = None
+        if self.region is not None:
+            gx = np.arange(0.0, W - 1 + _GRID_PX, _GRID_PX)
+            gy = np.arange(0.0, H - 1 + _GRID_PX, _GRID_PX)
+            X, Y = np.meshgrid(gx, gy)
+            d = np.asarray(region.distance_to_boundary(np.stack([X, Y], -1)), np.float32)
+            self._grid = np.ascontiguousarray(d)
+
+    def distance(self, pts):
+        """Signed distance (...) [raw px] of raw points (..., 2) to the nearest of the image
+        border and the region's boundary, positive inside."""
+        import cv2
+
+        p = np.asarray(pts, float)
+        H, W = self.shape
+        x, y = p[..., 0], p[..., 1]
+        with np.errstate(invalid="ignore"):
+            d = np.minimum(np.minimum(x, W - 1.0 - x), np.minimum(y, H - 1.0 - y))
+        d = np.where(np.isfinite(d), d, -np.inf)
+        if self._grid is None:
+            return d
+        flat = p.reshape(-1, 2)
+        n = flat.shape[0]
+        if n == 0:
+            return d
+        cols = min(n, 2048)
+        rows = -(-n // cols)
+        mx = np.full(rows * cols, -1.0, np.float32)
+        my = np.full(rows * cols, -1.0, np.float32)
+        mx[:n] = np.nan_to_num(flat[:, 0] / _GRID_PX, nan=-1e4)
+        my[:n] = np.nan_to_num(flat[:, 1] / _GRID_PX, nan=-1e4)
+        g = cv2.remap(self._grid, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR,
+                      borderMode=cv2.BORDER_REPLICATE).reshape(-1)[:n]
+        return np.minimum(d, g.reshape(d.shape))
+
+    def ok(self, pts, margin_px=0.0):
+        """(...) bool: raw points (..., 2) at least margin_px [px] inside."""
+        return self.distance(pts) >= margin_px
+
+
+def _ideal_box(camera, W, H):
+    """The ideal-frame box (x0, y0, x1, y1) [px] the work frame covers: the raw image's
+    border undistorted, at most `_MAX_STRETCH` of the raw size either side of the principal
+    point (a strong barrel model blows up at the corners)."""
+    if camera is None:
+        return -0.5, -0.5, W - 0.5, H - 0.5
+    t = np.linspace(0.0, 1.0, 64)
+    b = np.concatenate([np.c_[t * (W - 1), 0 * t], np.c_[t * (W - 1), 0 * t + H - 1],
+                        np.c_[0 * t, t * (H - 1)], np.c_[0 * t + W - 1, t * (H - 1)]])
+    u = camera.undistort_pixels(b)
+    u = u[np.all(np.isfinite(u), -1)]
+    cx, cy = float(camera.K[0, 2]), float(camera.K[1, 2])
+    x0, y0 = u.min(0) - 0.5
+    x1, y1 = u.max(0) + 0.5
+    return (max(x0, cx - _MAX_STRETCH * W), max(y0, cy - _MAX_STRETCH * H),
+            min(x1, cx + _MAX_STRETCH * W), min(y1, cy + _MAX_STRETCH * H))
+
+
+class WorkFrame:
+    """The reduced, undistorted copy of an image the shaft proposals are found in.
+
+    Parameters
+    ----------
+    image : (H, W, 3) or (H, W) array
+        BGR or grey, uint8 (other dtypes are used as float32).
+    camera : Camera or None
+        Lens model (None: raw = ideal pixels).
+    validity : Validity
+        Where the raw image may be sampled.
+    target_px : float
+        The work frame's longer side [px] (never enlarged).
+
+    Attributes
+    ----------
+    scale : (2,)
+        Work px per ideal px along x and y.
+    origin : (2,) [ideal px]
+        Where the work frame's corner (-0.5, -0.5) lies: ``ideal = (work + 0.5) / scale +
+        origin``.
+    shape : (h, w)
+    bgr : (h, w, 3) or (h, w)
+        The reduced copy (area-averaged, then remapped through the lens model).
+    luma : (h, w) float32 [grey levels]
+    valid : (h, w) bool
+        Work pixels inside the image and the valid region.
+    dist : (h, w) float32 [work px]
+        Their distance to the boundary (raw distance x scale: a lower bound where the lens
+        stretches the periphery).
+    """
+
+    def __init__(self, image, camera, validity, target_px=480.0):
+        import cv2
+
+        img = np.asarray(image)
+        if img.dtype != np.uint8:
+            img = img.astype(np.float32)
+        H, W = img.shape[:2]
+        x0, y0, x1, y1 = _ideal_box(camera, W, H)
+        s = min(1.0, float(target_px) / max(x1 - x0, y1 - y0))
+        w, h = max(int(round((x1 - x0) * s)), 8), max(int(round((y1 - y0) * s)), 8)
+        self.shape = (h, w)
+        self.scale = np.array([w / (x1 - x0), h / (y1 - y0)])
+        self.origin = np.array([x0, y0], float)
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+        ideal = self.to_ideal(np.stack([xx, yy], -1))
+        if camera is None:
+            self.bgr = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA) if (w, h) != (W, H) else img
+            raw = ideal
+        else:
+            raw = camera.distort_pixels(ideal)
+            sr = min(1.0, 1.25 * s)  # reduce first (no aliasing), then remap
+            rw, rh = max(int(round(W * sr)), 8), max(int(round(H * sr)), 8)
+            small = cv2.resize(img, (rw, rh), interpolation=cv2.INTER_AREA) if sr < 1 else img
+            mx = np.nan_to_num((raw[..., 0] + 0.5) * (rw / W) - 0.5, nan=-1e4).astype(np.float32)
+            my = np.nan_to_num((raw[..., 1] + 0.5) * (rh / H) - 0.5, nan=-1e4).astype(np.float32)
+            self.bgr = cv2.remap(small, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if self.bgr.ndim == 3:
+            self.luma = cv2.cvtColor(self.bgr, cv2.COLOR_BGR2GRAY).astype(np.float32)
+        else:
+            self.luma = self.bgr.astype(np.float32)
+        d = validity.distance(raw) * float(np.mean(self.scale))
+        self.dist = np.where(np.isfinite(d), d, -1.0).astype(np.float32)
+        self.valid = self.dist >= 0
+
+    @property
+    def mean_scale(self):
+        """Work px per ideal px (the mean of the two axes' scales, which differ by < 1 %)."""
+        return float(np.mean(self.scale))
+
+    def to_ideal(self, p):
+        """Ideal pixels (..., 2) of work pixels p (..., 2)."""
+        return (np.asarray(p, float) + 0.5) / self.scale + self.origin
+
+    def to_work(self, q):
+        """Work pixels (..., 2) of ideal pixels q (..., 2)."""
+        return (np.asarray(q, float) - self.origin) * self.scale - 0.5
