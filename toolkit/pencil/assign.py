@@ -34,6 +34,13 @@ _TOP = 4
 # with this many assigned lines or fewer, every order-keeping labelling is fitted (batched)
 _EXHAUSTIVE_MAX_LINES = 5
 _EXHAUSTIVE_MAX_FITS = 5000
+# The MSAC screen compares each of K hypotheses' N predicted spokes with each of the M lines:
+# K M N residuals, K = (M G^2)(N G^2) with G = max_gap + 1, so O(M^2 N^2) in all. It runs in
+# blocks of at most _SCORE_BLOCK residuals (16 MB per temporary; the memory no longer grows
+# with the inputs), and scores at most _MAX_SCORE_WORK residuals in all (a second or two):
+# beyond that, a seeded sample of the hypotheses (as vertex.intersect_lines samples pairs).
+_SCORE_BLOCK = 1 << 21
+_MAX_SCORE_WORK = 1 << 26
 
 
 @dataclass(frozen=True)
@@ -114,14 +121,15 @@ def _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriente
     Returns (labels, fit, rivals) with the best labelling first and every other within the
     chi-square detection quantile of it as a rival."""
     from itertools import combinations
+    from math import comb
 
     li = np.flatnonzero(used)
     li = li[np.argsort(np.remainder(a[li], period))]
     m = li.size
     order = np.argsort(np.remainder(th, period))
-    combos = [c for c in combinations(order.tolist(), m)]
-    if len(combos) * m > _EXHAUSTIVE_MAX_FITS:
+    if comb(order.size, m) * m > _EXHAUSTIVE_MAX_FITS:  # counted before any is made
         return labels, fit, rivals
+    combos = list(combinations(order.tolist(), m))
     lab = np.array([[c[(i + r) % m] for i in range(m)] for c in combos for r in range(m)])  # (B, m)
     B = len(lab)
     fits = fit_pencil(np.broadcast_to(a[li], (B, m)), th[lab], np.broadcast_to(vertex, (B, 2)),
@@ -205,15 +213,14 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
     if N < 3:
         raise EstimationError(f"the pencil has fewer than three spokes ({N})")
     period = 2 * np.pi if oriented else np.pi
-    H = _hypotheses(a, th, oriented, period, max_gap)
     # tolerance: a few sigmas, at least 0.25 deg (a 3-line prediction is noisier than one
     # line) and below half the smallest spoke gap so neighbours are not confused
     gaps = np.diff(np.r_[np.sort(np.remainder(th, period)), np.sort(np.remainder(th, period))[0] + period])
     cap = 0.45 * max(np.min(gaps), 1e-6)
     tol = np.clip(5.0 * s, np.radians(0.25), cap)
-    cost, nearest, resid = _score(a, period, tol, H, np.cos(th), np.sin(th))
+    nearest, resid, scored = _screen(a, th, oriented, period, max_gap, tol, 4 * _TOP)
     fitter = _LabelFitter(a, th, s, vertex, vertex_cov, oriented, tolerance_sigmas, cap)
-    candidates = _candidates(cost, nearest, resid, tol, s, fitter)
+    candidates = _candidates(nearest, resid, tol, s, fitter)
     labels, fit, rivals, fewer = _best_and_rivals(candidates)
     used = labels >= 0
     if _EXHAUSTIVE_MAX_LINES >= used.sum() >= 3:
@@ -222,17 +229,17 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
         # equally good labelling is missed
         labels, fit, rivals = _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriented, period)
         rivals += [r for r in fewer if _conflict(r[0], labels)]
-        return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=int(len(H)))
+        return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=scored)
     rivals += fewer
     rivals += _shifted_rivals(fitter, labels, fit, rivals, period)
-    return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=int(len(H)))
+    return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=scored)
 
 
-def _hypotheses(a, th, oriented, period, max_gap):
-    """Homographies H (K, 2, 2) of the hypotheses: every triple of observed lines a (M,)
-    with every triple of spokes th (N,) in the same cyclic order, up to `max_gap` missing
-    spokes or spurious lines between the chosen ones, kept when they reproduce their three
-    lines (with their orientation when `oriented`) and see the pencil from its front."""
+def _ordered_triples(a, th, oriented, period, max_gap):
+    """The triples a hypothesis pairs: of observed lines a (M,) and of spokes th (N,), each
+    in cyclic order with up to `max_gap` missing spokes or spurious lines between the chosen
+    ones. Returns (obs (To, 3) indices into a, spk (Ts, 3) indices into th); To = M G^2 and
+    Ts = N G^2 at most, G = max_gap + 1."""
     M = a.size
     # cyclic order of observed lines and of spokes (for lines, spokes modulo pi)
     oa = np.argsort(np.remainder(a, period))
@@ -247,14 +254,15 @@ def _hypotheses(a, th, oriented, period, max_gap):
     ts = _triples(ot.size, G)
     if to.size == 0 or ts.size == 0:
         raise EstimationError("fewer than three distinct lines or spokes to match")
-    obs = oa[to]  # (To, 3) indices into a
-    spk = ot[ts]  # (Ts, 3) indices into th
-    io, js = np.meshgrid(np.arange(len(obs)), np.arange(len(spk)), indexing="ij")
-    io, js = io.ravel(), js.ravel()
-    A3, T3 = a[obs[io]], th[spk[js]]
+    return oa[to], ot[ts]
+
+
+def _valid_homographies(A3, T3, oriented):
+    """Homographies H (K', 2, 2) of the hypotheses pairing line angles A3 (K, 3) with spoke
+    angles T3 (K, 3) [rad], kept when they reproduce their three lines (with their
+    orientation when `oriented`) and see the pencil from its front (det H > 0, cyclic
+    order kept)."""
     H = _homographies(A3, T3)
-    # the three defining lines must be reproduced with their orientation (oriented) and the
-    # pencil must be seen from its front (det H > 0, cyclic order kept)
     pxy = np.einsum("kij,kjl->kil", H, np.stack([np.cos(T3), np.sin(T3)], 1))  # (K, 2, 3)
     dots = pxy[:, 0] * np.cos(A3) + pxy[:, 1] * np.sin(A3)
     if oriented:
@@ -265,9 +273,45 @@ def _hypotheses(a, th, oriented, period, max_gap):
         valid = np.ones(len(H), bool)
     valid &= np.linalg.det(H) > 0
     valid &= np.all(np.isfinite(H.reshape(-1, 4)), -1) & (np.abs(H).reshape(-1, 4).max(-1) > 0)
-    if not valid.any():
-        raise EstimationError("no consistent assignment of lines to spokes (cyclic order never matches)")
     return H[valid]
+
+
+def _screen(a, th, oriented, period, max_gap, tol, keep, seed=0):
+    """MSAC screen of every hypothesis (`_ordered_triples` x `_valid_homographies`), in
+    blocks, keeping the `keep` best.
+
+    a: (M,) [rad] observed; th: (N,) [rad] spokes; tol: (M,) [rad] each line's tolerance.
+    Memory stays under a few blocks of `_SCORE_BLOCK` residuals whatever M and N; when all
+    hypotheses would need more than `_MAX_SCORE_WORK` residuals, a sample drawn with `seed`
+    is scored. Returns (nearest (k, M) spoke of each line, resid (k, M) [rad] its residual,
+    for the k <= keep best hypotheses in order of cost; the number of hypotheses scored).
+    EstimationError when none is valid.
+    """
+    obs, spk = _ordered_triples(a, th, oriented, period, max_gap)
+    per_hyp = a.size * th.size  # residuals of one hypothesis
+    total = len(obs) * len(spk)
+    flat = None  # flat index io * Ts + js of each hypothesis, or all in order
+    if total * per_hyp > _MAX_SCORE_WORK:
+        n = max(1, _MAX_SCORE_WORK // per_hyp)
+        flat = np.unique(np.random.default_rng(seed).integers(0, total, n))
+    count = total if flat is None else flat.size
+    block = max(1, _SCORE_BLOCK // per_hyp)
+    ct, st = np.cos(th), np.sin(th)
+    costs, nearest, resid, scored = [], [], [], 0
+    for start in range(0, count, block):
+        f = np.arange(start, min(start + block, count)) if flat is None else flat[start:start + block]
+        io, js = np.divmod(f, len(spk))
+        H = _valid_homographies(a[obs[io]], th[spk[js]], oriented)
+        if len(H) == 0:
+            continue
+        cost, k, r = _score(a, period, tol, H, ct, st)
+        best = np.argsort(cost)[:keep]
+        costs.append(cost[best]), nearest.append(k[best]), resid.append(r[best])
+        scored += len(H)
+    if not scored:
+        raise EstimationError("no consistent assignment of lines to spokes (cyclic order never matches)")
+    order = np.argsort(np.concatenate(costs), kind="stable")[:keep]  # blocks' bests, in order
+    return np.concatenate(nearest)[order], np.concatenate(resid)[order], scored
 
 
 @dataclass(frozen=True, eq=False)
@@ -326,13 +370,14 @@ class _LabelFitter:
         return labels, fit
 
 
-def _candidates(cost, nearest, resid, tol, s, fitter):
-    """Refit the few best distinct labellings of the MSAC screen: [(lines used, chi2,
-    labels (M,), PencilFit), ...]. MSAC on 3-line predictions is only a screen, and two
-    labellings may explain equally many lines (then the result says so)."""
+def _candidates(nearest, resid, tol, s, fitter):
+    """Refit the few best distinct labellings of the MSAC screen (nearest, resid (k, M) of
+    its best hypotheses, best first): [(lines used, chi2, labels (M,), PencilFit), ...].
+    MSAC on 3-line predictions is only a screen, and two labellings may explain equally many
+    lines (then the result says so)."""
     candidates = []
     seen_labels = set()
-    for h in np.argsort(cost)[: 4 * _TOP]:
+    for h in range(len(nearest)):
         lab0 = _one_per_spoke(np.where(np.abs(resid[h]) < tol, nearest[h], -1), s)
         key = lab0.tobytes()
         if key in seen_labels:

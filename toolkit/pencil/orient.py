@@ -44,12 +44,18 @@ from pencilcal.toolkit.pencil.orientation import Orientation
 from pencilcal.toolkit.pencil.spec import image_angles
 from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
 
-__all__ = ["orient_segments", "orientation_record", "raw_vertex", "MODELS", "metric_depth", "resolve_twins_by_continuity"]
+__all__ = ["orient_segments", "orientation_record", "raw_vertex", "MODELS", "MAX_SEGMENTS", "metric_depth",
+           "resolve_twins_by_continuity"]
 
 MODELS = ("exact", "general", "aligned")
 
 # Segments shorter than this carry almost no angle information and are mostly noise.
 MIN_LENGTH_PX = 8.0
+#: Most segments of one frame that are used, the longest (`orient_segments`' max_segments,
+#: `pencilcal orient --max-segments`). A pencil has tens of lines; a detector gives a few
+#: thousand on a busy image; past this the frame is mostly other edges, the shortest of
+#: which say least about any vertex, and the work (vertex hypotheses x segments) grows.
+MAX_SEGMENTS = 20000
 
 
 def metric_depth(R_cam_from_target, vertex, spoke_angles, inner, outer, radius):
@@ -119,7 +125,7 @@ def _segment_geometry(camera, segments, endpoint_sigma_px):
 
 def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_px=ENDPOINT_SIGMA_PX, angle_sigma=None,
                     prior=None, vertex_px=None, vertex_cov_px2=None, image=None, labels=None, keep_lines=False,
-                    offset_sigma=None, spoke_radii=None):
+                    offset_sigma=None, spoke_radii=None, max_segments=MAX_SEGMENTS):
     """Orientation of a pencil seen in one frame.
 
     camera: a Camera; segments: (M, 4) raw pixels [x1, y1, x2, y2]; pencil: a Pencil.
@@ -139,6 +145,8 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         through a corner), -1 to ignore one; skips the assignment.
     keep_lines: also return ``lines``: the used lines in normalised coordinates
         (``angle`` and ``sigma`` [rad], ``spoke`` index, ``segment`` index), for experiments.
+    max_segments: use at most this many segments, the longest (the others get spoke -1):
+        memory and time then stay bounded whatever the frame holds.
 
     Returns an `Orientation` (its ``to_dict()`` is the orientation.json record) with
     ``spokes`` (label per input segment, -1 rejected), ``labels_ambiguous``,
@@ -148,10 +156,13 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
     """
     if model not in MODELS:
         raise InputError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}")
+    if isinstance(max_segments, bool) or not isinstance(max_segments, (int, np.integer)) or max_segments < 3:
+        raise InputError(f"max_segments must be an integer >= 3 (three lines are needed), got {max_segments!r}")
     seg = np.asarray(segments, float).reshape(-1, 4)
     labels_out = np.full(seg.shape[0], -1)
     try:
-        idx, ideal, st, sc, sig_e = _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma)
+        idx, ideal, st, sc, sig_e = _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma,
+                                                  max_segments)
         v_ideal, cov_ideal, through = _vertex(camera, ideal, st, sc, pencil, vertex_px, vertex_cov_px2)
         idx, ideal, st = idx[through], ideal[through], st[through]
         if idx.size < 3:
@@ -186,22 +197,27 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         return Orientation(image=image, ok=False, error=str(e), model=model, spokes=labels_out)
 
 
-def _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma):
+def _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma, max_segments=MAX_SEGMENTS):
     """The segments worth fitting, undistorted, with their noise.
 
     seg: (M, 4) raw px. Returns idx (K,) indices into seg, ideal (K, 4) ideal px, angle sd
     st (K,) [rad] and offset sd sc (K,) [ideal px] of each, and sig_e (K,) the end point
-    noise in ideal px. EstimationError when fewer than three remain.
+    noise in ideal px; K <= max_segments, the longest. EstimationError when fewer than
+    three remain.
     """
     M = seg.shape[0]
     finite = np.all(np.isfinite(seg), -1)
-    length = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
+    with np.errstate(invalid="ignore"):
+        length = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
     usable = finite & (length >= MIN_LENGTH_PX)
     if usable.sum() < 3:
         bad = int((~finite).sum())
         why = f" ({bad} not finite)" if bad else ""
         raise EstimationError(f"fewer than three usable segments{why}: {int(usable.sum())} of {M}")
     idx = np.flatnonzero(usable)
+    if idx.size > max_segments:
+        # the longest, in their input order (a stable sort keeps ties in order)
+        idx = np.sort(idx[np.argsort(-length[idx], kind="stable")[:max_segments]])
     ideal, scale = _segment_geometry(camera, seg[idx], endpoint_sigma_px)
     ok = np.all(np.isfinite(ideal), -1)
     idx, ideal, scale = idx[ok], ideal[ok], scale[ok]

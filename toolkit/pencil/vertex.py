@@ -248,7 +248,10 @@ def _chi2_infinity(phi, st2, enough):
     def f(u):
         return np.sum(w * np.tan(wrap_line(u - phi)) ** 2, -1)
 
-    best = phi[int(np.argmin(f(phi[:, None])))]
+    # the sum at every line's own direction, (K, K) in rows of ~1M entries (8 MB)
+    rows = max(1, (1 << 20) // phi.size)
+    at_lines = np.concatenate([f(phi[i : i + rows, None]) for i in range(0, phi.size, rows)])
+    best = phi[int(np.argmin(at_lines))]
     up = np.remainder(phi + np.pi / 2 - best, np.pi)  # distance to each pole going up
     up = up[up > 1e-12]
     if up.size == 0:  # every line along `best`: exactly parallel
