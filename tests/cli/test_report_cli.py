@@ -44,7 +44,7 @@ def test_html_report(page, vjson):
     assert "<title>Bench 3 &lt;check&gt;</title>" in html
     data = json.loads(vjson.read_text())
     assert [r.rstrip(" †") for r in summary_rows(html)] == list(data["summary"])
-    assert len(decoded_images(html)) == 2 + 2 + 1  # plots, overlays, calibration
+    assert len(decoded_images(html)) == 3 + 2 + 1  # plots (error, sigmas, NEES), overlays, calibration
     assert f"pencilcal report {vjson} -o {page} --samples 2 --title" in html
 
 

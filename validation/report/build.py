@@ -13,6 +13,7 @@ from pencilcal.toolkit.io.files import atomic_path, atomic_write, check_writable
 from ..validation_file import check_validation
 from .document import Bullets, Details, Para, Report, Section, Table
 from .facts import pencil_phrase, reference_counts, reference_phrase
+from .gates import failed_gates_sentence, fig_nees, gates, gates_table
 from .figures import fig_error_vs_tilt, fig_sigma_calibration
 from .format import lookup, num
 from .html import render_html
@@ -60,8 +61,13 @@ def _header(data, title):
 def _verdict_section(data, title):
     """Section 1: the header table, the verdict and the reviewer's notes."""
     text, notes = verdict(data)
+    gs = gates(data)
+    failed = failed_gates_sentence(gs)
     s1 = Section("verdict", "1. What was validated, and the verdict",
-                 [Table(["", ""], _header(data, title), None, None, numeric_from=9), Para(text, "lead")])
+                 [Table(["", ""], _header(data, title), None, None, numeric_from=9)])
+    if gs:
+        s1.blocks.append(gates_table(gs))
+    s1.blocks.append(Para(f"{failed} {text}" if failed else text, "lead"))
     if notes:
         s1.blocks.append(Para("For the reviewer:", "text"))
         s1.blocks.append(Bullets(notes))
@@ -71,7 +77,7 @@ def _verdict_section(data, title):
 def _plots_section(data):
     """Section 3: error against tilt and the calibration of the sigmas (or a note)."""
     s3 = Section("plots", "3. Error against tilt, and the calibration of the sigmas")
-    for p in (fig_error_vs_tilt(data), fig_sigma_calibration(data)):
+    for p in (fig_error_vs_tilt(data), fig_sigma_calibration(data), fig_nees(data)):
         if p is not None:
             s3.blocks.append(p)
     if not s3.blocks:

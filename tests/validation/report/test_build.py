@@ -36,7 +36,7 @@ def test_every_branch_renders_self_contained_with_every_method(tmp_path, kw):
     assert [r.rstrip(" †") for r in rows] == [rp.method_label(k) for k in expected]
     imgs = decoded_images(page)
     n_overlays = samples if kw.get("images", True) else 0
-    assert len(imgs) == 2 + n_overlays + (1 if kw["calibration"] else 0)
+    assert len(imgs) == 3 + n_overlays + (1 if kw["calibration"] else 0)  # plots: error, sigmas, NEES
     for sec in ("verdict", "summary", "plots", "frames", "overlays", "calibration", "sfm", "sensitivity",
                 "reproducibility"):
         assert f'id="{sec}"' in page
@@ -135,8 +135,9 @@ def test_real_validation_run_html_and_pdf(real_run):
     assert [r.rstrip(" †") for r in summary_rows(page)] == [rp.method_label(k) for k in rp.method_keys(data)]
     assert {"orient:exact", "orient:general", "orient:aligned", "pnp:sqpnp", "pnp:ippe", "pnp:iterative",
             "pnp:epnp", "pnp:colmap"} <= set(rp.method_keys(data))
-    assert len(decoded_images(page)) == 2 + 2
-    assert "ground-truth poses (truth.json)" in rep.sections[0].blocks[1].text
+    assert len(decoded_images(page)) == 3 + 2
+    lead = next(b for b in rep.sections[0].blocks if getattr(b, "kind", None) == "lead")
+    assert "ground-truth poses (truth.json)" in lead.text
     assert hashlib.sha256(vjson.read_bytes()).hexdigest() in page  # the validation file's own hash
     assert "pencilcal report v.json" in page
     rp.write_report(d / "r.pdf", data, samples=1, source=vjson)

@@ -67,3 +67,15 @@ def test_ambiguous_labels_and_normals_are_told_apart(tmp_path):
     assert any(n.startswith("1 frame whose normal is ambiguous") for n in notes)
     page = rp.render_html(rp.build_report(data, samples=0))
     assert page.count("yes, normal too") == 1
+
+
+def test_gates_pass_honest_sigmas_and_fail_small_ones():
+    from pencilcal.validation.report.gates import failed_gates_sentence, gate
+
+    honest = gate("orient:exact", "tilt", 0.70, 0.6827, 60)
+    small = gate("pnp:sqpnp", "normal", 0.31, 0.632, 59)  # the da Vinci stereo figure before the fix
+    few = gate("orient:exact", "normal", 0.2, 0.632, 5)
+    assert (honest.status, small.status, few.status) == ("PASS", "FAIL", "too few frames")
+    text = failed_gates_sentence([honest, small, few])
+    assert "pnp:sqpnp normal" in text and "orient:exact" not in text and "too small" in text
+    assert failed_gates_sentence([honest]) == ""
