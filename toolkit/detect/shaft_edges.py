@@ -13,11 +13,13 @@ material transition, with its polarity. A sheen edge inside a black shaft is a b
 step along grey, which projects weakly, and it lies outside the corridor anyway.
 
 Per station the edge is the largest positive local maximum of the response above `Z_999`
-noise sd (one-sided 0.999), refined by a parabola. A station is observable when its whole
+noise sd (one-sided 0.999) and `_REL_STRENGTH` of the edge's median (an edge goes on where
+its contrast does), refined by a parabola. A station is observable when its whole
 profile lies in the image and at least `region.DETECTION_MARGIN_PX` inside the valid
 region. The line is the robust weighted fit of the stations' edges (`edges.
 robust_line_fit`, weights: the squared response), cut where its ends bend away (a wrist, a
-tip: the running median of 9 residuals leaves 3 sd of its own noise for 5 stations), and its
+tip: the running median of 9 residuals leaves 3 sd of its own noise for 5 stations; with
+a largest gap, the best run of stations), and its
 variances are the a-posteriori ones of `edges.fit_variances`: the scatter of the stations
 about the line, inflated for correlated station errors (AR(1), batch means).
 
@@ -58,6 +60,7 @@ MAX_STATIONS = 160  # stations per edge
 _STATION_PX = 2.0  # least spacing of the stations [px]
 _STRIP_PX = 3.0  # colour strips this far beyond the corridor give the edge's colour difference [px]
 _MARGIN_PX = 2.0  # the profile keeps this far inside the valid region (region.DETECTION_MARGIN_PX)
+_REL_STRENGTH = 0.35  # a station's edge at least this fraction of the edge's median strength
 _BEND_WIN = 9  # stations of the running median of the residuals (bend cut)
 
 
@@ -193,10 +196,10 @@ def _bend_cut(s, res, inl):
     return out
 
 
-def _line_fits(s, t, w, base, count_obs, specs):
-    """Robust line fits of the stations (M, S) with the bend cut, and their variances: one
-    `EdgeLine` (or None) per spec."""
-    sm, tm, b, Sss, Wt, res, inl = robust_line_fit(s, t, w, base)
+def _line_fits(s, t, w, base, count_obs, specs, max_gap):
+    """Robust line fits of the stations (M, S) (the best run with gaps up to max_gap [px])
+    with the bend cut, and their variances: one `EdgeLine` (or None) per spec."""
+    sm, tm, b, Sss, Wt, res, inl = robust_line_fit(s, t, w, base, max_gap)
     cut = inl.copy()
     ok = inl.sum(-1) >= MIN_STATIONS
     for m in np.flatnonzero(ok):
@@ -207,7 +210,7 @@ def _line_fits(s, t, w, base, count_obs, specs):
             cut[m] = c
     changed = ok & np.any(cut != inl, -1)
     if np.any(changed):
-        got = robust_line_fit(s[changed], t[changed], w[changed], cut[changed])
+        got = robust_line_fit(s[changed], t[changed], w[changed], cut[changed], max_gap)
         for arr, new in zip((sm, tm, b, Sss, Wt, res, inl), got):
             arr[changed] = new
     var_b, var_t = fit_variances(res, w, inl, Sss, Wt)
@@ -226,7 +229,24 @@ def _line_fits(s, t, w, base, count_obs, specs):
     return out
 
 
-def fit_edges(image, camera, validity, noise, specs, corridor):
+def _colour_difference(prof, inside, mc):
+    """The unit colour difference (M, S, C) of each station's edge: outside minus inside
+    (medians of the `_STRIP_PX` strips beyond the corridor), the running median over
+    `_BEND_WIN` stations (what lies beside a shaft changes along it: tissue, then a drape),
+    the edge's median where a station has none."""
+    from scipy.ndimage import median_filter
+
+    d = np.median(prof[:, :, -mc:], axis=2) - np.median(prof[:, :, :mc], axis=2)  # (M, S, C)
+    out = np.empty_like(d)
+    for m in range(d.shape[0]):
+        dm = d[m]
+        glob = np.median(dm[inside[m]], 0) if inside[m].any() else np.zeros(d.shape[-1])
+        dm = np.where(inside[m][:, None], dm, glob)
+        out[m] = median_filter(dm, size=(_BEND_WIN, 1), mode="nearest")
+    return out / np.maximum(np.linalg.norm(out, axis=-1, keepdims=True), 1e-9)
+
+
+def fit_edges(image, camera, validity, noise, specs, corridor, max_gap=None):
     """Silhouette edges at full resolution in corridors around proposed lines (module
     docstring).
 
@@ -244,6 +264,8 @@ def fit_edges(image, camera, validity, noise, specs, corridor):
         and the range [s0, s1] [px] along u to measure.
     corridor : float [px]
         Half-width of the search across each proposed line.
+    max_gap : float [px], optional
+        Each edge is the best run of stations with gaps up to this (None: all stations).
 
     Returns
     -------
@@ -269,21 +291,18 @@ def fit_edges(image, camera, validity, noise, specs, corridor):
     cy = P0[:, 1, None] + s * U[:, 1, None]
     prof, ends = _samples(image, camera, cx, cy, Nn[:, 0, None], Nn[:, 1, None], t)
     inside = st_valid & np.all(validity.ok(ends, _MARGIN_PX), -1)
-    # the edge's colour difference: outside minus inside, the median over its stations
-    c_in = np.median(prof[:, :, :mc], axis=2)
-    c_out = np.median(prof[:, :, -mc:], axis=2)
-    e = np.stack([np.median((c_out - c_in)[m][inside[m]], 0) if inside[m].any() else np.zeros(prof.shape[-1])
-                  for m in range(len(specs))])
-    e /= np.maximum(np.linalg.norm(e, axis=-1, keepdims=True), 1e-9)
-    pe = np.einsum("mstc,mc->mst", prof, e.astype(np.float32))
+    e = _colour_difference(prof, inside, mc)
+    pe = np.einsum("mstc,msc->mst", prof, e.astype(np.float32))
     nwin = 2 * nw + 1
     g = kern[0] * pe[..., mc:mc + nwin]
     for q in range(1, kern.size):
         g += kern[q] * pe[..., mc + q:mc + q + nwin]
     thr = Z_999 * noise * float(np.sqrt(np.sum(kern.astype(float) ** 2)))
     j, strength, found = _peaks(g, thr, inside)
+    # an edge goes on where its contrast does: a station's peak at least _REL_STRENGTH of the
+    # edge's median (texture beside a shaft's end gives weaker peaks)
+    med = np.array([np.median(strength[m][found[m]]) if found[m].any() else 0.0 for m in range(len(specs))])
+    found &= strength >= _REL_STRENGTH * med[:, None]
     tt = (j - nw) * DT
-    w = np.where(found, strength * strength, 0.0)
-    med = np.array([np.median(w[m][found[m]]) if found[m].any() else 1.0 for m in range(len(specs))])
-    w = w / np.maximum(med, 1e-300)[:, None]
-    return _line_fits(s, tt, w, found, inside.sum(-1), specs)
+    w = np.where(found, (strength / np.maximum(med, 1e-300)[:, None]) ** 2, 0.0)
+    return _line_fits(s, tt, w, found, inside.sum(-1), specs, max_gap)

@@ -5,15 +5,27 @@ frames whose colour tells the materials apart (`shafts`).
    against the dominant tissue colour), its levels, the straight boundaries of each level's
    regions and the pairs of them with region between;
 2. *bands* (`shaft_region_bands`): each pair judged along its chord through the work frame;
-   kept when it is a long band of region differing in material from both sides and reaching
-   the border of the view (or very long), the better of overlapping ones;
-3. *edges* (`shaft_edges`): each kept band's two boundaries refitted at full resolution in a
-   corridor (`corridor_px`, at least 1.5 work px: the region boundary's own resolution)
-   around them, and its midline the plane bisector of the two (`shaft_axis`);
-4. *selection* (`select`): the edges must be seen together along the least length and a
-   third of the band's run, converge by at most the largest convergence, and meet outside
-   the stretch (by half a width); the score is the length seen as a shaft [raw px] times the
-   least fraction of stations where an edge was found. A shaft whose band overlaps a better
+   proposed when its run of region is at least the least length and differs in material
+   from both sides, the better of overlapping ones;
+3. *edges* (`shaft_edges`): each proposed band's two boundaries refitted at full resolution
+   in a corridor (`corridor_px`, at least 1.5 work px: the region boundary's own resolution)
+   around them over its run, then grown along their own lines over the band's extension
+   (where its inside stays region: a shaft running into a drape of its own material, or a
+   white shaft merging with white tissue, is a short band of region whose edges go on),
+   each edge the best run of stations with gaps up to a width (a thread, a highlight); its
+   midline the plane bisector of the two
+   (`shaft_axis`). It is a shaft when both edges are seen together along at least the
+   least length and a third of the region's run, they or its band along 2.5 widths (a jaw
+   is not elongated), when
+   they converge by at most the largest convergence and meet outside the stretch (by half a
+   width), and when the band's extension reaches the border of the view or the stretch ends
+   within a width of it (an instrument enters from outside; its edges may fade before the
+   border into a dark, vignetted surround) or is very long (`_LONG_FRACTION` of the diagonal). The
+   score is the length of the band's run of region seen as a shaft [raw px] (of two
+   readings of one instrument, the band of instrument-like material is the shaft, the band
+   that takes in its shadow too is not) times the least fraction of stations where an edge
+   was found;
+4. *selection* (`select`): A shaft whose band overlaps a better
    one's, or that runs along a better one's axis (within `_COAXIAL_DEG`, its centre within
    half that one's width: a wrist, the far part of a shaft split by a highlight), is another
    reading of the same instrument; a short band (its run under two widths, accepted through
@@ -37,9 +49,10 @@ import numpy as np
 from pencilcal.toolkit.detect.shaft_axis import midline_from_edges
 from pencilcal.toolkit.detect.shaft_edges import fit_edges
 from pencilcal.toolkit.detect.shaft_region_bands import (
-    accepted,
     band_polygon,
+    band_stretch,
     evaluate_bands,
+    proposed,
     suppress_overlaps,
 )
 from pencilcal.toolkit.detect.shaft_regions import boundary_lines, region_levels, region_pairs, scene_angle
@@ -48,6 +61,8 @@ __all__ = ["MaterialShaft", "material_cue", "select", "robust_noise"]
 
 _MAX_PAIRS = 40  # candidate pairs per region map, the longest overlaps first
 _MAX_REFINE = 6  # bands refitted at full resolution
+_GROW_PASSES = 3  # passes growing a band's edges along its chord
+_MIN_CORRIDOR_PX = 1.5  # the narrowest corridor of a growing edge [px]
 _COAXIAL_DEG = 3.0  # two readings of one instrument: axes this close ...
 _LONG_FRACTION = 0.25  # a run this fraction of the work frame's diagonal need not reach the border
 # E[|z| : |z| below its 90th percentile q] / E[|z|] for z normal: (1 - exp(-q^2 / 2)) / 0.9
@@ -92,7 +107,8 @@ class MaterialShaft:
 
 
 def _bands(work, mm, o, wmin, wmax, min_len):
-    """The accepted bands of every region level (module docstring, steps 1-2), best first."""
+    """The proposed bands of every region level (module docstring, steps 1-2), the most
+    region evidence first, the better of overlapping ones."""
     bands = []
     Ball = None
     for lev, kind, Bm in region_levels(mm, work):
@@ -105,27 +121,75 @@ def _bands(work, mm, o, wmin, wmax, min_len):
         return []
     vin = work.valid & (work.dist > 1.0)
     ang_thr = 2.0 * scene_angle(work.bgr, vin, 0.5 * wmin)
-    long_len = _LONG_FRACTION * float(np.hypot(*work.shape))
-    acc = [e for e in bands if accepted(e, min_len, long_len, ang_thr)]
+    acc = [e for e in bands if proposed(e, min_len, ang_thr)]
     acc.sort(key=lambda e: -e.shaft_len)
     return suppress_overlaps(acc)
 
 
-def _edge_specs(band, work):
-    """The two proposed edges of a band in ideal px: (p0, u, n_out, s0, s1) each, over the
-    band's run."""
-    i0, i1 = band.run
+def _edge_specs(band, work, ends):
+    """The two proposed edges of a band in ideal px: (p0, u, n_out, s0, s1) each, over its
+    stations ends [i0, i1)."""
+    j0, j1 = ends
     specs = []
     for (p, u, n, _, _), off in zip(band.lines, (band.oi, band.oj)):
         pi = work.to_ideal(p)
         ui = np.asarray(u) / work.scale
         ui = ui / np.linalg.norm(ui)
         n_out = -np.array([-ui[1], ui[0]]) * np.sign(np.dot(n, [-u[1], u[0]]))
-        pa = work.to_ideal(band.C[i0] + off[i0] * band.na)
-        pb = work.to_ideal(band.C[i1 - 1] + off[i1 - 1] * band.na)
+        pa = work.to_ideal(band.C[j0] + off[j0] * band.na)
+        pb = work.to_ideal(band.C[j1 - 1] + off[j1 - 1] * band.na)
         s0, s1 = sorted([float((pa - pi) @ ui), float((pb - pi) @ ui)])
         specs.append((pi, ui, n_out, s0, s1))
     return specs
+
+
+def _grown(fit, spec):
+    """The spec of a fitted edge's next pass: its own line, over the range of spec (the
+    band's chord, projected on it), at most doubled either side; and the corridor that
+    holds 3 sd of the line's prediction there (plus a pixel)."""
+    d = fit.u + fit.b * fit.n
+    u = d / np.linalg.norm(d)
+    n = np.array([-u[1], u[0]])
+    n = n if n @ fit.n >= 0 else -n
+    p0 = fit.point_at(fit.s_lo)
+    p, v, _, s0, s1 = spec
+    lo, hi = sorted([float((p + s0 * v - p0) @ u), float((p + s1 * v - p0) @ u)])
+    L = fit.s_hi - fit.s_lo
+    lo, hi = max(lo, -L), min(hi, 2.0 * L)
+    lever = max(abs(lo - (fit.sm - fit.s_lo)), abs(hi - (fit.sm - fit.s_lo)))
+    return (p0, u, n, lo, hi), 3.0 * float(np.sqrt(fit.var_t + lever**2 * fit.var_b)) + 1.0
+
+
+def _band_edges(image, camera, validity, noise, band, work, corridor, stretch):
+    """The two edges of a band (`shaft_edges.EdgeLine`), or None: fitted over its region
+    run, then grown along their own lines over the stretch of chord where its
+    cross-section goes on looking like the run's (stretch [b0, b1), `shaft_region_bands.
+    band_stretch`)
+    (`_GROW_PASSES` passes, each at most doubling them: a line extrapolated from a short
+    region boundary would leave the corridor), each the best run of stations with gaps up to
+    the band's width, cut where it bends away: the edges tell how far the shaft goes."""
+    w = band.width_run / work.mean_scale
+    fits = fit_edges(image, camera, validity, noise, _edge_specs(band, work, band.run), corridor, max_gap=w)
+    target = _edge_specs(band, work, stretch)
+    for _ in range(_GROW_PASSES):
+        if any(f is None for f in fits):
+            return None
+        grown = [_grown(f, t) for f, t in zip(fits, target)]
+        specs = [g[0] for g in grown]
+        if all(sp[3] >= -1.0 and sp[4] <= f.s_hi - f.s_lo + 1.0 for sp, f in zip(specs, fits)):
+            break  # nothing left to grow into
+        narrow = min(corridor, max(_MIN_CORRIDOR_PX, max(g[1] for g in grown)))
+        fits = fit_edges(image, camera, validity, noise, specs, narrow, max_gap=w)
+    return None if any(f is None for f in fits) else fits
+
+
+def _reaches_border(m, camera, validity, corridor):
+    """Whether a midline (ideal px) ends within a width and a corridor of the border of the
+    view (an instrument enters from outside)."""
+    from pencilcal.toolkit.detect.working import to_raw_points
+
+    d = validity.distance(to_raw_points(camera, m.ends))
+    return bool(np.min(d) <= m.width_px + corridor)
 
 
 def material_cue(image, camera, validity, work, mm, o, K, noise):
@@ -140,21 +204,28 @@ def material_cue(image, camera, validity, work, mm, o, K, noise):
     s = work.mean_scale
     wmin, wmax = o.region_wmin * s, o.region_wmax * s
     min_len = o.region_min_length * s
-    acc = _bands(work, mm, o, wmin, wmax, min_len)
+    long_len = _LONG_FRACTION * float(np.hypot(*work.shape)) / s
     corridor = max(o.corridor_px, 1.5 / s)
     out = []
-    for e in acc[:_MAX_REFINE]:
-        fits = fit_edges(image, camera, validity, noise, _edge_specs(e, work), corridor)
-        if any(f is None for f in fits):
+    for e in _bands(work, mm, o, wmin, wmax, min_len)[:_MAX_REFINE]:
+        stretch = band_stretch(e, mm.luma_noise)
+        fits = _band_edges(image, camera, validity, noise, e, work, corridor, stretch)
+        if fits is None:
             continue
         m = midline_from_edges(K, fits[0], fits[1])
-        if m is None or m.convergence_deg > np.degrees(o.region_conv_max):
+        if m is None or m.convergence_deg > np.degrees(o.region_conv_max) or not _meet_outside(m):
             continue
         seen = float(np.hypot(*(m.ends[1] - m.ends[0])))
-        if seen < min_len / s or seen < 0.3 * e.run_len / s or not _meet_outside(m):
+        band_len = (stretch[1] - stretch[0]) * e.step / s
+        # elongated (a jaw, a blob between two short straight boundaries is not: its edges,
+        # or its band, along 2.5 widths), along a good part of the region's run, entering
+        # from the border of the view or very long
+        if seen < min_len / s or max(seen, band_len) < 2.5 * m.width_px or seen < 0.3 * e.run_len / s:
             continue
-        score = e.shaft_len / s * min(f.frac for f in fits)
-        out.append(MaterialShaft(midline=m, score=float(score), polarity="dark" if e.y_in < e.y_side else "bright",
+        if seen < long_len and not (any(e.reach) or _reaches_border(m, camera, validity, corridor)):
+            continue
+        out.append(MaterialShaft(midline=m, score=e.shaft_len / s * min(f.frac for f in fits),
+                                 polarity="dark" if e.y_in < e.y_side else "bright",
                                  band=e, poly_run=band_polygon(e), poly_ext=band_polygon(e, e.ext)))
     return out
 

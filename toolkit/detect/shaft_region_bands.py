@@ -20,8 +20,8 @@ unobservable one. For the runs long enough, the material difference of the insid
 side: the side is not instrument-like at this level (fraction of the "all" map <=
 `FILL_SIDE`), or the spectral angle between the mean colours exceeds twice the scene's
 colour variability (`shaft_regions.scene_angle`: a shade or a fold of one surface keeps its
-colour direction, a grey shaft against a grey-blue drape not). `accepted` keeps the bands
-that are shafts (`accepted`), `suppress_overlaps` the better of overlapping ones.
+colour direction, a grey shaft against a grey-blue drape not). `proposed` keeps the bands
+that may be shafts, `suppress_overlaps` the better of overlapping ones.
 
 Work pixels throughout; stations and strips in units of the band's local half-width.
 
@@ -40,7 +40,7 @@ import numpy as np
 
 from pencilcal.toolkit.detect.shaft_bands import best_segment
 
-__all__ = ["STATIONS", "FILL_IN", "FILL_SIDE", "RegionBand", "evaluate_bands", "best_run", "accepted",
+__all__ = ["STATIONS", "FILL_IN", "FILL_SIDE", "RegionBand", "evaluate_bands", "best_run", "band_stretch", "proposed",
            "suppress_overlaps", "band_polygon"]
 
 STATIONS = 96  # stations along a band's chord
@@ -52,6 +52,9 @@ _IN = np.abs(_NU) <= _NU_IN
 _SL = (_NU >= -2.0) & (_NU <= -_NU_SIDE)
 _SR = (_NU >= _NU_SIDE) & (_NU <= 2.0)
 _REACH_STATIONS = 2  # a run "reaches the border" when it ends this close to the first unobservable station
+_RECENT = 8  # the extension's band test compares with the last this many stations of the band
+_BAND_GAP = 2  # ... bridging gaps of up to this many stations
+_MIN_CONTRAST_SD = 4.0  # ... where the inside differs from both sides by this many noise sd at least
 _NMS_OVERLAP = 0.3  # bands overlapping by more than this fraction of the smaller one are one
 
 
@@ -72,6 +75,13 @@ class RegionBand:
     reach : (bool, bool)
         The extension reaches the border before / after the run; reach_run: the run itself
         does, at either end.
+    view : (int, int)
+        Stations [v0, v1) of the observable stretch of the chord around the run.
+    obs : (S,) bool
+        The stations whose cross-section lies in the valid region.
+    inside_colour, contrast : (S, C), (S,) [grey levels]
+        Each station's mean colour inside, and its distance from the nearer side's
+        (`band_stretch`).
     step : float [px]
         Station spacing.
     run_len, shaft_len : float [px]
@@ -95,6 +105,10 @@ class RegionBand:
     ext: tuple
     reach: tuple
     reach_run: bool
+    view: tuple
+    obs: np.ndarray
+    inside_colour: np.ndarray
+    contrast: np.ndarray
     step: float
     run_len: float
     shaft_len: float
@@ -217,7 +231,8 @@ def _labels(g, lines, pairs, sB, sV):
 
 def _extension(obs_m, fin_m, i0, i1):
     """The extension [j0, j1) of the run [i0, i1) while the inside stays region, whether it
-    reaches the border before / after it, and whether the run itself does."""
+    reaches the border before / after it, whether the run itself does, and the observable
+    stretch [v0, v1) around it."""
     n = obs_m.size
     j0, j1 = i0, i1
     while j0 > 0 and obs_m[j0 - 1] and fin_m[j0 - 1] >= 0.5:
@@ -228,7 +243,7 @@ def _extension(obs_m, fin_m, i0, i1):
     before = (nob[nob < j0].max() + 1) if np.any(nob < j0) else 0
     after = nob[nob >= j1].min() if np.any(nob >= j1) else n
     reach = (bool(j0 - before <= _REACH_STATIONS), bool(after - j1 <= _REACH_STATIONS))
-    return (j0, j1), reach, bool(i0 - before <= _REACH_STATIONS or after - i1 <= _REACH_STATIONS)
+    return (j0, j1), reach, bool(i0 - before <= _REACH_STATIONS or after - i1 <= _REACH_STATIONS), (before, after)
 
 
 def _side_colours(cc, oL, oR, ba):
@@ -248,6 +263,38 @@ def _side_colours(cc, oL, oR, ba):
         c = cin @ qq / (np.linalg.norm(cin) * np.linalg.norm(qq) + 1e-9)
         angs.append(float(np.degrees(np.arccos(np.clip(c, -1, 1)))))
     return (aL, aR), tuple(angs)
+
+
+def band_stretch(band, noise):
+    """Stations [b0, b1) around a band's run along which its cross-section goes on looking
+    like the run's (the band test of the extension): walking outwards, a station is the
+    band's while its inside differs from both sides by at least half the recent contrast
+    (and `_MIN_CONTRAST_SD` noise sd [grey levels]) and keeps the recent inside colour within
+    half that contrast (a cylinder looks the same along its length; the recent stations,
+    the mean of the last `_RECENT` accepted, follow slow shading). Gaps up to `_BAND_GAP`
+    stations (a thread, a highlight) are bridged; it stops where the chord leaves the view."""
+    i0, i1 = band.run
+    cin, con, obs = band.inside_colour, band.contrast, band.obs
+    floor = _MIN_CONTRAST_SD * noise
+    ends = []
+    for step, start, stop in ((-1, i0 - 1, -1), (1, i1, obs.size)):
+        ref = list(range(i0, i1))
+        ref = ref[-_RECENT:] if step > 0 else ref[:_RECENT]
+        r_con = float(np.mean(con[ref]))
+        r_cin = cin[ref].mean(0)
+        last, k, gap = (i0 if step < 0 else i1 - 1), start, 0
+        while k != stop and obs[k]:
+            if con[k] >= max(0.5 * r_con, floor) and float(np.linalg.norm(cin[k] - r_cin)) <= 0.5 * r_con:
+                last, gap = k, 0
+                r_con += (con[k] - r_con) / _RECENT
+                r_cin = r_cin + (cin[k] - r_cin) / _RECENT
+            else:
+                gap += 1
+                if gap > _BAND_GAP:
+                    break
+            k += step
+        ends.append(last)
+    return ends[0], ends[1] + 1
 
 
 def evaluate_bands(lines, pairs, work, Bm, Ball, min_run, level=0, kind="all"):
@@ -275,7 +322,10 @@ def evaluate_bands(lines, pairs, work, Bm, Ball, min_run, level=0, kind="all"):
     out = []
     for q, m in enumerate(sel):
         i0, i1 = runs[m]
-        ext, reach, reach_run = _extension(obs[m], fin[m], i0, i1)
+        ext, reach, reach_run, view = _extension(obs[m], fin[m], i0, i1)
+        cin = sC[q][:, _IN].mean(1)
+        con = np.minimum(np.linalg.norm(cin - sC[q][:, _SL].mean(1), axis=-1),
+                         np.linalg.norm(cin - sC[q][:, _SR].mean(1), axis=-1))
         run = slice(i0, i1)
         fall, ang = _side_colours(sC[q, run], okL[m, run], okR[m, run], sA[q, run])
         yy = sY[q, run]
@@ -283,26 +333,22 @@ def evaluate_bands(lines, pairs, work, Bm, Ball, min_run, level=0, kind="all"):
         out.append(RegionBand(
             lines=tuple((lines.p[k], lines.u[k], lines.n[k], float(lines.lo[k]), float(lines.hi[k])) for k in (li, lj)),
             C=g.C[m], ua=g.ua[m], na=g.na[m], oi=g.oi[m], oj=g.oj[m], run=(i0, i1), ext=ext, reach=reach,
-            reach_run=reach_run, step=float(g.step[m]), run_len=float((i1 - i0) * g.step[m]),
+            reach_run=reach_run, view=view, obs=obs[m], inside_colour=cin, contrast=con, step=float(g.step[m]), run_len=float((i1 - i0) * g.step[m]),
             shaft_len=float(np.count_nonzero(shaft[m, run]) * g.step[m]), fall=fall, ang=ang,
             y_in=float(np.mean(yy[:, _IN])), y_side=float(0.5 * (np.mean(yy[:, _SL]) + np.mean(yy[:, _SR]))),
             level=int(level), kind=kind))
     return out
 
 
-def accepted(band, min_len, long_len, ang_thr):
-    """Whether a band is a shaft by its region evidence (all [work px]): a material
-    difference from both sides (not instrument-like there, or a colour direction more than
-    ang_thr [deg] away); a run at least max(min_len, 1.5 widths) long, or min_len when it
-    reaches the border; extended, at least 2.5 widths (a jaw, a blob between two short
-    straight boundaries is not elongated); shaft stations along min_len / 2; and reaching the
-    border, or a run of at least long_len."""
+def proposed(band, min_len, ang_thr):
+    """Whether a band is a shaft candidate by its region evidence (all [work px]): a
+    material difference from both sides (not instrument-like there, or a colour direction
+    more than ang_thr [deg] away), a run of at least min_len, shaft stations along min_len /
+    2. Whether it is long and reaches the border is judged on its edges
+    (`shaft_material_cue`): a shaft running into a drape of its own material is a short
+    region band whose edges go on."""
     side_ok = all((f <= FILL_SIDE) or (np.isfinite(a) and a > ang_thr) for f, a in zip(band.fall, band.ang))
-    w = band.width_run
-    ext_len = (band.ext[1] - band.ext[0]) * band.step
-    long_enough = band.run_len >= max(min_len, 1.5 * w) or (band.run_len >= min_len and band.reach_run)
-    return bool(long_enough and ext_len >= 2.5 * w and band.shaft_len >= 0.5 * min_len and side_ok
-                and (any(band.reach) or band.run_len >= long_len))
+    return bool(side_ok and band.run_len >= min_len and band.shaft_len >= 0.5 * min_len)
 
 
 def band_polygon(band, ends=None):

@@ -52,13 +52,14 @@ Example
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from pencilcal.toolkit.detect.noise import estimate_noise
 
-__all__ = ["DARK_DAMPING", "Z_999", "MaterialMap", "material_map", "otsu_threshold", "region_levels",
+__all__ = ["DARK_DAMPING", "Z_999", "LEVELS", "MaterialMap", "material_map", "otsu_threshold", "region_levels",
            "BoundaryLines", "boundary_lines", "RegionPairs", "region_pairs", "scene_angle"]
 
 #: eps of the chromaticity, as a fraction of the median brightness: a pixel this much darker
@@ -66,6 +67,9 @@ __all__ = ["DARK_DAMPING", "Z_999", "MaterialMap", "material_map", "otsu_thresho
 DARK_DAMPING = 0.1
 #: The one-sided 0.999 normal quantile, the detector's significance level.
 Z_999 = 3.090232306167813
+#: Recursive Otsu levels of the likeness: tissue / instrument-like, then the darker part of
+#: that (black shafts), then the darkest (a black shaft against a grey-blue drape).
+LEVELS = 3
 _MODE_RADIUS = 0.03  # the dominant colour: mean of the chromaticities this close to the mode
 _HIST_BINS = 200  # chromaticity histogram bins over [-1, 1] per axis
 _SAMPLES = 20000  # pixels the colour statistics are taken from
@@ -88,6 +92,8 @@ class MaterialMap:
         The median projection of the chromaticities on the tissue's direction.
     noise : float
         The noise sd of one pixel's projection (from the image noise and brightness).
+    luma_noise : float [grey levels]
+        The noise sd of the work frame's luma.
     y_med : float [grey levels]
         The median brightness of the valid region.
     informative : bool
@@ -98,6 +104,7 @@ class MaterialMap:
     tissue: np.ndarray
     p_med: float
     noise: float
+    luma_noise: float
     y_med: float
     informative: bool
 
@@ -152,7 +159,8 @@ def material_map(work):
     pm = float(np.median(pv))
     # the frame has a colour when the dominant one stands out of the noise of a projection
     # (a grey frame, or a colour frame of a grey scene, has none)
-    noise = np.sqrt(2.0) * estimate_noise(work.luma) / (3.0 * (1.0 + DARK_DAMPING) * y_med)
+    luma_noise = estimate_noise(work.luma)
+    noise = np.sqrt(2.0) * luma_noise / (3.0 * (1.0 + DARK_DAMPING) * y_med)
     informative = bool(work.bgr.ndim == 3 and pm > Z_999 * max(noise, 1e-6))
     # a scene that is almost grey itself: the scale stays >= 3 x the robust spread of p, so
     # the likeness does not blow up
@@ -160,7 +168,8 @@ def material_map(work):
     scale = max(pm, 3.0 * mad, 1e-3)
     dark = np.clip(1.0 - bright * (1.0 / y_med), 0.0, 1.0)
     s = cv2.GaussianBlur(((pm - p) * (1.0 / scale) + dark).astype(np.float32), (0, 0), 1.0)
-    return MaterialMap(likeness=s, tissue=mu, p_med=pm, noise=noise, y_med=y_med, informative=informative)
+    return MaterialMap(likeness=s, tissue=mu, p_med=pm, noise=noise, luma_noise=float(luma_noise), y_med=y_med,
+                       informative=informative)
 
 
 def otsu_threshold(v, bins=128):
@@ -184,7 +193,7 @@ def otsu_threshold(v, bins=128):
     return float(e[int(np.argmax(sb)) + 1])
 
 
-def region_levels(mm, work, n_levels=2):
+def region_levels(mm, work, n_levels=LEVELS):
     """The binary maps of the levels (module docstring, step 2): a list of (level index,
     kind "all" or "dark", (h, w) uint8 map after a 3 x 3 close and open), "all" first at
     each level."""
@@ -242,18 +251,29 @@ def _contour_sides(c, seg_min):
     return (a[keep], b[keep]) if np.any(keep) else None
 
 
-def _sides_of(c, Bm, dist, seg_min):
-    """The straight sides (K, 4) of one contour c (N, 1, 2), oriented with the region on
-    their left, and their point moments (K, 6); None when it has none."""
+def _sides(contours, Bm, dist, seg_min):
+    """The straight sides (K, 4) of all contours (each (N, 1, 2)), oriented with the region
+    on their left, and their point moments (K, 6); None when there are none. Each contour is
+    laid out twice in a row, so that a side may wrap, and the moments of every side come
+    from one cumulative sum."""
     h, w = Bm.shape
-    ab = _contour_sides(c, seg_min)
-    if ab is None:
+    Ps, As, Bs, off = [], [], [], 0
+    for c in contours:
+        if len(c) < 4 * seg_min:
+            continue
+        ab = _contour_sides(c, seg_min)
+        if ab is None:
+            continue
+        Ps += [c[:, 0, :], c[:, 0, :]]
+        As.append(ab[0] + off)
+        Bs.append(ab[1] + off)
+        off += 2 * len(c)
+    if not Ps:
         return None
-    a, b = ab
-    Pf = c[:, 0, :].astype(np.float64)
-    P2 = np.r_[Pf, Pf]
+    P2 = np.concatenate(Ps).astype(np.float64)
+    a, b = np.concatenate(As), np.concatenate(Bs)
     x, y = P2[:, 0], P2[:, 1]
-    cum = np.r_[np.zeros((1, 6)), np.cumsum(np.c_[np.ones_like(x), x, y, x * x, y * y, x * y], 0)]
+    cum = np.concatenate([np.zeros((1, 6)), np.cumsum(np.stack([np.ones_like(x), x, y, x * x, y * y, x * y], -1), 0)])
     M = cum[b + 1] - cum[a]
     cen, u = _tls(M)
     u[np.sum(u * (P2[b] - P2[a]), 1) < 0] *= -1
@@ -265,14 +285,14 @@ def _sides_of(c, Bm, dist, seg_min):
     if not np.any(ok):
         return None
     A, B, u, M = A[ok], B[ok], u[ok], M[ok]
-    n = np.c_[-u[:, 1], u[:, 0]]
+    n = np.stack([-u[:, 1], u[:, 0]], -1)
     Q = A[:, None, :] + np.linspace(0.2, 0.8, 5)[None, :, None] * (B - A)[:, None, :]
     pl = np.clip(np.round(Q + 2 * n[:, None, :]).astype(int), 0, [w - 1, h - 1])
     pr = np.clip(np.round(Q - 2 * n[:, None, :]).astype(int), 0, [w - 1, h - 1])
     left = Bm[pl[..., 1], pl[..., 0]].mean(1) - Bm[pr[..., 1], pr[..., 0]].mean(1)
     ok = np.abs(left) >= 0.5
     sw = (left < 0)[:, None]
-    return np.c_[np.where(sw, B, A), np.where(sw, A, B)][ok], M[ok]
+    return np.concatenate([np.where(sw, B, A), np.where(sw, A, B)], -1)[ok], M[ok]
 
 
 @dataclass(frozen=True, eq=False)
@@ -292,35 +312,59 @@ class BoundaryLines:
     support: np.ndarray
 
 
+def _tls_one(m):
+    """Centre (2,) and unit direction (2,) of the total-least-squares line of one moment
+    vector m (6,) (`_tls` for one row, in plain floats)."""
+    n = m[0]
+    cx, cy = m[1] / n, m[2] / n
+    th = 0.5 * math.atan2(2 * (m[5] / n - cx * cy), (m[3] / n - cx * cx) - (m[4] / n - cy * cy))
+    return np.array([cx, cy]), np.array([math.cos(th), math.sin(th)])
+
+
 def _group(seg, mom):
-    """Greedy collinear grouping of oriented sides seg (K, 4) with point moments mom (K, 6):
-    each group's line by total least squares through the pooled points. Returns
-    `BoundaryLines`."""
+    """Greedy collinear grouping of oriented sides seg (K, 4) with point moments mom (K, 6),
+    the longest first: a side joins when its direction and both its ends agree with the
+    seed's line, then with the line through the pooled points (total least squares).
+    Returns `BoundaryLines`."""
     d = seg[:, 2:] - seg[:, :2]
     L = np.hypot(d[:, 0], d[:, 1])
     u = d / L[:, None]
-    used = np.zeros(len(seg), bool)
+    A, B = seg[:, :2], seg[:, 2:]
+    n = np.stack([-u[:, 1], u[:, 0]], -1)
     cos_tol = np.cos(np.maximum(np.radians(_GROUP_TOL_DEG), np.arctan2(2 * _GROUP_TOL_PX, L)))
+    c = np.sum(n * 0.5 * (A + B), -1)
+    # [i, j]: side j lies on side i's line
+    near = (u @ u.T > cos_tol[None, :]) & (np.abs(A @ n.T - c[None, :]).T < _GROUP_TOL_PX) \
+        & (np.abs(B @ n.T - c[None, :]).T < _GROUP_TOL_PX)
+    alone = (near.sum(0) + near.sum(1)) == 2  # on no other side's line, no other on its own
+    used = alone.copy()
     out = []
+    if np.any(alone):  # their own lines, as they are
+        cen, dirs = _tls(mom[alone])
+        dirs *= np.where(np.sum(dirs * u[alone], -1) < 0, -1.0, 1.0)[:, None]
+        ta, tb = np.sum((A[alone] - cen) * dirs, -1), np.sum((B[alone] - cen) * dirs, -1)
+        out += [(cen[k], dirs[k], float(min(ta[k], tb[k])), float(max(ta[k], tb[k])), float(Lk))
+                for k, Lk in enumerate(L[alone])]
     for i in np.argsort(-L):
         if used[i]:
             continue
-        p, ui = 0.5 * (seg[i, :2] + seg[i, 2:]), u[i]
-        for _ in range(2):
-            n = np.array([-ui[1], ui[0]])
-            ok = (~used) & (u @ ui > cos_tol) & (np.abs((seg[:, :2] - p) @ n) < _GROUP_TOL_PX) \
-                & (np.abs((seg[:, 2:] - p) @ n) < _GROUP_TOL_PX)
-            ok[i] = True
-            mem = np.flatnonzero(ok)
-            cen, nu = _tls(mom[mem].sum(0)[None])
-            p, nu = cen[0], nu[0]
+        mem = np.flatnonzero(near[i] & ~used)
+        mem = mem if i in mem else np.append(mem, i)
+        p, nu = _tls_one(mom[mem].sum(0))
+        ui = nu if nu @ u[i] >= 0 else -nu
+        cand = np.flatnonzero(~used & (u @ ui > cos_tol))
+        nv = np.array([-ui[1], ui[0]])
+        ok = (np.abs((A[cand] - p) @ nv) < _GROUP_TOL_PX) & (np.abs((B[cand] - p) @ nv) < _GROUP_TOL_PX)
+        if np.any(ok):
+            mem = np.union1d(cand[ok], [i])
+            p, nu = _tls_one(mom[mem].sum(0))
             ui = nu if nu @ ui >= 0 else -nu
         used[mem] = True
-        a = (np.r_[seg[mem, :2], seg[mem, 2:]] - p) @ ui
+        a = np.concatenate([(A[mem] - p) @ ui, (B[mem] - p) @ ui])
         out.append((p, ui, float(a.min()), float(a.max()), float(L[mem].sum())))
     P = np.array([o[0] for o in out]).reshape(-1, 2)
     U = np.array([o[1] for o in out]).reshape(-1, 2)
-    return BoundaryLines(p=P, u=U, n=np.c_[-U[:, 1], U[:, 0]], lo=np.array([o[2] for o in out]),
+    return BoundaryLines(p=P, u=U, n=np.stack([-U[:, 1], U[:, 0]], -1), lo=np.array([o[2] for o in out]),
                          hi=np.array([o[3] for o in out]), support=np.array([o[4] for o in out]))
 
 
@@ -335,18 +379,11 @@ def boundary_lines(Bm, dist, seg_min):
 
     Bm = np.asarray(Bm).astype(np.uint8)
     cs, _ = cv2.findContours(Bm, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
-    segs, moms = [], []
-    for c in cs:
-        if len(c) < 4 * seg_min:
-            continue
-        got = _sides_of(c, Bm, dist, seg_min)
-        if got is not None:
-            segs.append(got[0])
-            moms.append(got[1])
-    if not segs:
+    got = _sides(cs, Bm, dist, seg_min)
+    if got is None:
         z = np.zeros((0, 2))
         return BoundaryLines(p=z, u=z, n=z, lo=np.zeros(0), hi=np.zeros(0), support=np.zeros(0))
-    return _group(np.concatenate(segs), np.concatenate(moms))
+    return _group(*got)
 
 
 @dataclass(frozen=True, eq=False)

@@ -35,6 +35,7 @@ import numpy as np
 __all__ = ["Validity", "WorkFrame", "axis_matrix"]
 
 _GRID_PX = 16.0  # spacing of the coarse grid the region's distance is interpolated from [raw px]
+_MAP_STEP = 8.0  # the lens map is evaluated every this many work px and interpolated [px]
 _MAX_STRETCH = 0.8  # the work frame covers at most this fraction of the raw size either side of the centre
 
 
@@ -175,13 +176,12 @@ class WorkFrame:
         self.shape = (h, w)
         self.scale = np.array([w / (x1 - x0), h / (y1 - y0)])
         self.origin = np.array([x0, y0], float)
-        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-        ideal = self.to_ideal(np.stack([xx, yy], -1))
         if camera is None:
             self.bgr = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA) if (w, h) != (W, H) else img
-            raw = ideal
+            yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+            raw = self.to_ideal(np.stack([xx, yy], -1))
         else:
-            raw = camera.distort_pixels(ideal)
+            raw = self._raw_of_grid(camera, h, w)
             sr = min(1.0, 1.25 * s)  # reduce first (no aliasing), then remap
             rw, rh = max(int(round(W * sr)), 8), max(int(round(H * sr)), 8)
             small = cv2.resize(img, (rw, rh), interpolation=cv2.INTER_AREA) if sr < 1 else img
@@ -200,6 +200,29 @@ class WorkFrame:
     def mean_scale(self):
         """Work px per ideal px (the mean of the two axes' scales, which differ by < 1 %)."""
         return float(np.mean(self.scale))
+
+    def _raw_of_grid(self, camera, h, w):
+        """Raw pixels (h, w, 2) of every work pixel: the lens map evaluated every
+        `_MAP_STEP` work px and interpolated bilinearly in between (it bends by far less
+        than a work pixel over that span); NaN where a node is beyond the lens model's
+        reach."""
+        import cv2
+
+        gx = np.arange(0.0, w - 1 + _MAP_STEP, _MAP_STEP)
+        gy = np.arange(0.0, h - 1 + _MAP_STEP, _MAP_STEP)
+        X, Y = np.meshgrid(gx, gy)
+        nodes = camera.distort_pixels(self.to_ideal(np.stack([X, Y], -1)))
+        bad = ~np.all(np.isfinite(nodes), -1)
+        nodes = np.where(bad[..., None], 0.0, nodes).astype(np.float32)
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+        mx, my = xx / np.float32(_MAP_STEP), yy / np.float32(_MAP_STEP)
+        out = np.stack([cv2.remap(np.ascontiguousarray(nodes[..., k]), mx, my, cv2.INTER_LINEAR,
+                                  borderMode=cv2.BORDER_REPLICATE) for k in range(2)], -1).astype(np.float64)
+        if np.any(bad):
+            near = cv2.dilate(bad.astype(np.uint8), np.ones((2, 2), np.uint8), anchor=(1, 1))
+            lost = cv2.remap(near, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE) > 0
+            out[lost] = np.nan
+        return out
 
     def to_ideal(self, p):
         """Ideal pixels (..., 2) of work pixels p (..., 2)."""
