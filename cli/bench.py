@@ -10,7 +10,7 @@ from pencilcal.validation.bench import format_table, run_bench
 
 from .common import check_output, run
 
-SECTIONS = ("orient", "pnp", "sfm", "estimator")
+SECTIONS = ("orient", "shafts", "pnp", "sfm", "estimator")
 
 
 @click.command()
@@ -28,7 +28,9 @@ def bench(as_json, quick, sections, seed, output, force, quiet):
 
     Renders frames with exact truth once, then times pencilcal and the bare library calls
     on the same inputs: image -> orientation over FLD detection on 1920x1080 frames
-    (orient_vs_fld_1080p), pnp over CharucoDetector + solvePnP (pnp_vs_opencv), the
+    (orient_vs_fld_1080p), decoding and instrument-shaft detection over decoding and FLD on
+    1920x1080 frames (shafts_vs_fld_1080p: the shared real laparoscopy frames when present,
+    else rendered ones; shafts_frames says which), pnp over CharucoDetector + solvePnP (pnp_vs_opencv), the
     reconstruction over bare pycolmap (sfm_vs_pycolmap), batched over looped fits
     (batch_speedup, fits_per_minute_batched) and the Monte Carlo RMSE over the Cramer-Rao
     bound at 20 deg of tilt (crlb_ratio_tilt20). Ratios mean the same on any machine.

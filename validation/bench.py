@@ -9,6 +9,12 @@ from somewhere else, so it means the same on a laptop and on a 2-core CI machine
   on the half-resolution frame, `detect_bars`' proposal_scale). Lower is better; target
   <= 1.3. ``orient_full_proposals_vs_fld_1080p``: the same with the detector on the
   full-resolution frame (proposal_scale 1), for comparison.
+- ``shafts_vs_fld_1080p``: decoding plus instrument-shaft detection (`detect_shafts` with
+  the frame set's valid region, detected once beforehand as `pencilcal fulcrum IMAGES`
+  does) over decoding plus FLD, per 1920x1080 frame: the 1080p frames of the shared
+  laparoscopy set (``../shared/data/real-instruments/laparoscopy-hysterectomy-frames``, or
+  under $PENCILCAL_DATA) when present, else rendered 1080p pivot frames (grey, so the edge
+  cue); ``shafts_frames`` says which. Target <= 2.0.
 - ``pnp_vs_opencv``: `pencilcal pnp`'s work per frame (decode, ChArUco detection, SQPnP with
   LM refinement and covariance) over decoding, CharucoDetector and cv2.solvePnP (SQPNP).
   Target <= 1.1.
@@ -31,7 +37,7 @@ import numpy as np
 
 __all__ = ["run_bench", "TARGETS", "format_table", "benchmark_batched"]
 
-TARGETS = {"orient_vs_fld_1080p": ("<=", 1.3), "pnp_vs_opencv": ("<=", 1.1), "sfm_vs_pycolmap": ("<=", 1.05),
+TARGETS = {"orient_vs_fld_1080p": ("<=", 1.3), "shafts_vs_fld_1080p": ("<=", 2.0), "pnp_vs_opencv": ("<=", 1.1), "sfm_vs_pycolmap": ("<=", 1.05),
            "batch_speedup": (">=", 50.0), "fits_per_minute_batched": (">=", 1e6), "crlb_ratio_tilt20": ("in", (0.9, 1.15))}
 
 
@@ -108,6 +114,66 @@ def bench_orient(n=6, repeats=3, seed=0):
             "orient_full_proposals_vs_fld_1080p": float(np.median(t_full) / np.median(t_fld)),
             "orient_full_proposals_frames_ok": f"{ok_full}/{len(bufs)}",
             "orient_frames_ok": f"{ok}/{len(bufs)}"}
+
+
+def _laparoscopy_1080p(n):
+    """Up to n encoded 1920x1080 frames of the shared laparoscopy set, or None when it is
+    absent (../shared/data beside the checkout, or $PENCILCAL_DATA)."""
+    import os
+    from pathlib import Path
+
+    root = Path(os.environ.get("PENCILCAL_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
+    folder = root / "real-instruments" / "laparoscopy-hysterectomy-frames"
+    if not folder.is_dir():
+        return None
+    import cv2
+
+    bufs = []
+    for path in sorted(folder.glob("*.jpg")):
+        buf = np.fromfile(str(path), np.uint8)
+        img = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+        if img is not None and img.shape[:2] == (1080, 1920):
+            bufs.append(buf)
+        if len(bufs) >= n:
+            break
+    return bufs or None
+
+
+def bench_shafts(n=16, repeats=3, seed=0):
+    """shafts_vs_fld_1080p, per-frame times [ms] and which frames (module docstring)."""
+    import cv2
+
+    from pencilcal.toolkit.detect.region_detect import detect_valid_region
+    from pencilcal.toolkit.detect.shafts import detect_shafts
+
+    bufs = _laparoscopy_1080p(n)
+    if bufs is not None:
+        what, camera = f"laparoscopy-hysterectomy-frames ({len(bufs)} real 1920x1080 frames)", None
+    else:
+        from pencilcal.toolkit.synth.scenarios import make_scenario
+
+        k = int(np.clip(n, 1, 12))
+        sc = make_scenario("pivot", frames=k, seed=seed, size=(1920, 1080))
+        bufs, camera = _encode([sc.render(i) for i in range(k)]), sc.camera
+        what = f"rendered pivot ({k} grey 1920x1080 frames)"
+    region = detect_valid_region([_decode(b) for b in bufs])
+    fld = cv2.ximgproc.createFastLineDetector()
+    t_pc, t_fld, found = [], [], 0
+
+    def ours(buf):
+        return detect_shafts(_decode(buf), camera, valid_region=region)
+
+    def bare(buf):
+        return fld.detect(cv2.cvtColor(_decode(buf), cv2.COLOR_BGR2GRAY))
+
+    for buf in bufs:
+        t, shafts = _best(lambda: ours(buf), repeats)
+        t_pc.append(t)
+        found += bool(shafts)
+        t_fld.append(_best(lambda: bare(buf), repeats)[0])
+    return {"shafts_vs_fld_1080p": float(np.median(t_pc) / np.median(t_fld)),
+            "shafts_ms_1080p": float(np.median(t_pc) * 1e3), "shafts_fld_ms_1080p": float(np.median(t_fld) * 1e3),
+            "shafts_frames": what, "shafts_frames_with_a_shaft": f"{found}/{len(bufs)}"}
 
 
 def bench_pnp(n=6, repeats=3, seed=0):
@@ -323,12 +389,13 @@ def bench_sfm(n=12, seed=0, workdir=None, repeats=2):
             "sfm_registered": f"{n_ours}/{n}", "pycolmap_registered": f"{n_bare}/{n}"}
 
 
-def run_bench(quick=False, seed=0, sections=("orient", "pnp", "sfm", "estimator"), log=None):
+def run_bench(quick=False, seed=0, sections=("orient", "shafts", "pnp", "sfm", "estimator"), log=None):
     """Run the benchmarks; returns a flat dict of figures (see the module docstring)."""
     out = {}
     n = 2 if quick else 6
     steps = {
         "orient": lambda: bench_orient(n=n, repeats=2 if quick else 3, seed=seed),
+        "shafts": lambda: bench_shafts(n=4 if quick else 16, repeats=2 if quick else 3, seed=seed),
         "pnp": lambda: bench_pnp(n=n, repeats=2 if quick else 3, seed=seed),
         "sfm": lambda: bench_sfm(n=8 if quick else 12, seed=seed, repeats=1 if quick else 2),
         "estimator": lambda: bench_estimator(trials=500 if quick else 2000, seed=seed),

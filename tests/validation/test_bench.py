@@ -14,3 +14,11 @@ def test_benchmark_runs():
     r = benchmark_batched(n=600, loop_n=3, numpy_batched_n=300, dtypes=("float64",))
     assert r["torch_float64_fits_per_s"] > 0 and r["numpy_loop_fits_per_s"] > 0
     assert r["max_rotation_diff_deg_float64_vs_numpy"] < 1e-6
+
+
+def test_shafts_bench_runs():
+    """One frame: the shared real frames when present, else a rendered one; it says which."""
+    from pencilcal.validation.bench import bench_shafts
+
+    r = bench_shafts(n=1, repeats=1)
+    assert r["shafts_vs_fld_1080p"] > 0 and r["shafts_frames"].split()[0] in ("laparoscopy-hysterectomy-frames", "rendered")

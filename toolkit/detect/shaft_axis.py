@@ -14,9 +14,12 @@ over the stretch where both edges were seen, from the wide (near) end to the nar
 Its angle and offset (at the midline's centre) have the covariance propagated linearly from
 the two edge fits (their offset and slope variances, a-posteriori: the scatter of the
 stations about each line, inflated for correlated station errors, `edges.fit_variances`),
-plus a measured floor added in quadrature (`FLOOR_ANGLE_DEG`, `FLOOR_OFFSET_PX`): what the
-edge fits cannot see (a silhouette's shading or shadow biasing a whole edge, a hand-drawn
-reference's own error). How the floor was measured is said at the constants.
+plus a measured floor (`EDGE_FLOOR_PX`): what the edge fits cannot see, a bias of each edge's
+position that their stations share (shading, a shadow or a sheen beside the silhouette,
+what lies behind the shaft), modelled as an error of sd `EDGE_FLOOR_PX` at either end of
+each edge, independent (so the edge's offset gains EDGE_FLOOR_PX^2 / 2 and its slope
+2 EDGE_FLOOR_PX^2 / L^2, L its seen length): a short shaft's midline is less sure of its
+angle than a long one's. How the floor was measured is said at the constant.
 
 `measure_edge_pair` measures the edges of a band of the edge cue (`shafts`, frames without
 colour contrast) at paired stations across it (each edge where it is seen cleanly, its
@@ -52,14 +55,12 @@ from pencilcal.toolkit.detect.edges import (
 )
 from pencilcal.toolkit.detect.shaft_edges import EdgeLine
 
-__all__ = ["FLOOR_ANGLE_DEG", "FLOOR_OFFSET_PX", "plane_bisector", "Midline", "midline_from_edges",
+__all__ = ["EDGE_FLOOR_PX", "plane_bisector", "Midline", "floor_variances", "midline_from_edges",
            "class_line_fit", "measure_edge_pair"]
 
-#: The error floor of a midline's angle [deg] and offset [px], added in quadrature to the
-#: sigmas propagated from the edge fits. Measured on the real sets (docs/method.md, shaft
-#: section; tests/toolkit/detect/test_shafts_real.py): see the module docstring.
-FLOOR_ANGLE_DEG = 0.064
-FLOOR_OFFSET_PX = 2.8
+#: The error floor of an edge's position at either end [px] (module docstring). Measured
+#: on the real sets (docs/method.md, shaft section; tests/toolkit/detect/test_shafts_real.py).
+EDGE_FLOOR_PX = 2.8
 _MAX_CLUTTER = 0.25  # largest gradient beside an edge point, relative to its own
 _MIN_OVERLAP_PX = 10.0  # the two edges must be seen together along at least this [px]
 
@@ -98,7 +99,8 @@ class Midline:
     offset_sigma : float [px]
         sd of its perpendicular position at the centre (floor included).
     cov : (2, 2)
-        Covariance of (angle [rad], offset [px]) (floor included); cov_stat without it.
+        Covariance of (angle [rad], offset [px]) (floor included); cov_stat without it, and
+        cov_floor the floor's part per px^2 of floor (cov = cov_stat + floor_px^2 cov_floor).
     convergence_deg : float [deg]
         The angle between the two edges.
     edges : (2, 4) [px]
@@ -113,6 +115,7 @@ class Midline:
     offset_sigma: float
     cov: np.ndarray
     cov_stat: np.ndarray
+    cov_floor: np.ndarray
     convergence_deg: float
     edges: np.ndarray
 
@@ -122,36 +125,43 @@ def _angle_offset(line, ref):
     return float(np.arctan2(-line[0], line[1])), float(line[0] * ref[0] + line[1] * ref[1] + line[2])
 
 
-def _axis_covariance(K, e1, e2, inside, la, ref):
-    """Covariance (2, 2) of (angle, offset at ref) of the plane bisector of edges e1, e2,
-    propagated linearly (central differences) from their (tm, b) variances."""
+def _axis_jacobian(K, e1, e2, inside, la, ref):
+    """Jacobian (2, 4) of (angle [rad], offset at ref [px]) of the plane bisector of edges
+    e1, e2 with respect to their (tm, b), by central differences at their sds."""
     def axis(p):
         l = plane_bisector(K, e1.line(e1.tm + p[0], e1.b + p[1]), e2.line(e2.tm + p[2], e2.b + p[3]), inside)
         return _angle_offset(l if l[:2] @ la[:2] >= 0 else -l, ref)
 
-    sd = np.sqrt(np.maximum([e1.var_t, e1.var_b, e2.var_t, e2.var_b], 1e-18))
+    sd = np.sqrt(np.maximum([e1.var_t, e1.var_b, e2.var_t, e2.var_b], 1e-12))
     J = np.zeros((2, 4))
     for k in range(4):
         dp = np.zeros(4)
         dp[k] = sd[k]
         (a1, o1), (a0, o0) = axis(dp), axis(-dp)
         J[:, k] = [np.angle(np.exp(1j * (a1 - a0))) / (2 * sd[k]), (o1 - o0) / (2 * sd[k])]
-    return (J * sd**2) @ J.T
+    return J
 
 
-def midline_from_edges(K, e1, e2, floor=(np.radians(FLOOR_ANGLE_DEG), FLOOR_OFFSET_PX)):
+def floor_variances(e, floor_px):
+    """The (tm, b) variances (2,) an edge `EdgeLine` gains from an error of sd floor_px [px]
+    at either end of its seen stretch, independent (module docstring)."""
+    L = max(e.s_hi - e.s_lo, 1.0)
+    return np.array([0.5 * floor_px**2, 2.0 * floor_px**2 / L**2])
+
+
+def midline_from_edges(K, e1, e2, floor_px=EDGE_FLOOR_PX):
     """The midline (`Midline`) of the shaft between the edge fits e1, e2 (`EdgeLine`,
     ideal px), or None when they are not seen together along `_MIN_OVERLAP_PX` or meet
     within the stretch (they are no silhouettes of one cylinder).
 
-    K: (3, 3) the camera matrix (`shaft_work.axis_matrix`); floor: the (angle [rad],
-    offset [px]) sds added in quadrature.
+    K: (3, 3) the camera matrix (`shaft_work.axis_matrix`); floor_px: the edges' error
+    floor [px] (`floor_variances`).
 
     >>> import numpy as np
     >>> mk = lambda y, n: EdgeLine(np.array([0.0, y]), np.array([1.0, 0.0]), np.array([0.0, n]), 50.0, 0.0,
     ...                            0.0, 0.01, 1e-6, 0.0, 100.0, 50, 1.0, 0.1)
     >>> m = midline_from_edges(np.array([[500.0, 0, 50], [0, 500.0, 40], [0, 0, 1]]), mk(20.0, -1.0), mk(60.0, 1.0),
-    ...                        floor=(0.0, 0.0))
+    ...                        floor_px=0.0)
     >>> round(m.width_px, 2), np.round(m.centre, 2).tolist(), round(float(m.offset_sigma), 3)
     (40.0, [50.0, 40.0], 0.071)
     """
@@ -179,13 +189,15 @@ def midline_from_edges(K, e1, e2, floor=(np.radians(FLOOR_ANGLE_DEG), FLOOR_OFFS
 
     if width(B) > width(A):
         A, B = B, A
-    cov_stat = _axis_covariance(K, e1, e2, mid, la, ref)
-    cov = cov_stat + np.diag([floor[0] ** 2, floor[1] ** 2])
+    J = _axis_jacobian(K, e1, e2, mid, la, ref)
+    cov_stat = (J * np.array([e1.var_t, e1.var_b, e2.var_t, e2.var_b])) @ J.T
+    cov = cov_stat + (J * np.r_[floor_variances(e1, floor_px), floor_variances(e2, floor_px)]) @ J.T
     d1, d2 = l1[:2], l2[:2]
     conv = float(np.degrees(np.arccos(np.clip(abs(d1 @ d2), 0.0, 1.0))))
     return Midline(ends=np.stack([A, B]), line=la, centre=ref, width_px=width(ref),
                    angle_sigma=float(np.sqrt(cov[0, 0])), offset_sigma=float(np.sqrt(cov[1, 1])), cov=cov,
-                   cov_stat=cov_stat, convergence_deg=conv, edges=np.stack([ends[0].reshape(-1), ends[1].reshape(-1)]))
+                   cov_stat=cov_stat, cov_floor=(J * np.r_[floor_variances(e1, 1.0), floor_variances(e2, 1.0)]) @ J.T,
+                   convergence_deg=conv, edges=np.stack([ends[0].reshape(-1), ends[1].reshape(-1)]))
 
 
 def class_line_fit(s, t, w, base, cls, floor_px=REJECT_FLOOR_PX, iters=6):

@@ -15,8 +15,9 @@ frames whose colour tells the materials apart (`shafts`).
    each edge the best run of stations with gaps up to a width (a thread, a highlight); its
    midline the plane bisector of the two
    (`shaft_axis`). It is a shaft when both edges are seen together along at least the
-   least length and a third of the region's run, they or its band along 2.5 widths (a jaw
-   is not elongated), when
+   least length and a third of the region's run, they, its band or its region's extension
+   (the instrument's material, its wrist included) along 2.5 widths (a jaw is not
+   elongated), when
    they converge by at most the largest convergence and meet outside the stretch (by half a
    width), and when the band's extension reaches the border of the view or the stretch ends
    within a width of it (an instrument enters from outside; its edges may fade before the
@@ -216,11 +217,11 @@ def material_cue(image, camera, validity, work, mm, o, K, noise):
         if m is None or m.convergence_deg > np.degrees(o.region_conv_max) or not _meet_outside(m):
             continue
         seen = float(np.hypot(*(m.ends[1] - m.ends[0])))
-        band_len = (stretch[1] - stretch[0]) * e.step / s
+        along = max(stretch[1] - stretch[0], e.ext[1] - e.ext[0]) * e.step / s
         # elongated (a jaw, a blob between two short straight boundaries is not: its edges,
-        # or its band, along 2.5 widths), along a good part of the region's run, entering
-        # from the border of the view or very long
-        if seen < min_len / s or max(seen, band_len) < 2.5 * m.width_px or seen < 0.3 * e.run_len / s:
+        # its band or its instrument-like material along 2.5 widths), along a good part of
+        # the region's run, entering from the border of the view or very long
+        if seen < min_len / s or max(seen, along) < 2.5 * m.width_px or seen < 0.3 * e.run_len / s:
             continue
         if seen < long_len and not (any(e.reach) or _reaches_border(m, camera, validity, corridor)):
             continue

@@ -23,7 +23,7 @@ Both end in two silhouette edges, fitted as straight lines in undistorted pixels
 a-posteriori variances, and the midline is the image of the plane bisecting the two planes
 the edges back-project to (`shaft_axis`): exact for any pose, unlike the 2-D bisector. Its
 angle and offset sigmas are propagated from the edge fits, plus a measured error floor
-(`shaft_axis.FLOOR_ANGLE_DEG`, `FLOOR_OFFSET_PX`). Without a camera a nominal pinhole (focal
+(`shaft_axis.EDGE_FLOOR_PX`). Without a camera a nominal pinhole (focal
 length the image width) stands in for the camera matrix.
 
 Nothing is detected on the valid region's boundary (`valid_region`: an endoscope's field
@@ -103,7 +103,11 @@ class Shaft:
     cue : str
         What found it: "material" or "edges" (`CUES`).
     cov : (2, 2)
-        Covariance of the midline's (angle [rad], offset [px] at its centre).
+        Covariance of the midline's (angle [rad], offset [px] at its centre), floor
+        included: ``cov_stat + EDGE_FLOOR_PX**2 * cov_floor`` (`shaft_axis.Midline`).
+    cov_stat, cov_floor : (2, 2)
+        Its part from the edge fits, and the floor's part per px^2 of
+        `shaft_axis.EDGE_FLOOR_PX` (what measuring the floor needs).
     """
 
     midline: np.ndarray
@@ -117,6 +121,8 @@ class Shaft:
     polarity: str
     cue: str = "edges"
     cov: np.ndarray | None = None
+    cov_stat: np.ndarray | None = None
+    cov_floor: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         """The shaft's record in a lines.json frame (docs/formats.md): midline, width_px,
@@ -201,7 +207,8 @@ def _shaft(camera, m, score, polarity, cue):
         return None
     return Shaft(midline=raw, width_px=float(m.width_px), angle_sigma=float(m.angle_sigma),
                  offset_sigma=float(m.offset_sigma), edges=edges, score=float(score), ideal_midline=ideal,
-                 convergence_deg=float(m.convergence_deg), polarity=polarity, cue=cue, cov=m.cov)
+                 convergence_deg=float(m.convergence_deg), polarity=polarity, cue=cue, cov=m.cov,
+                 cov_stat=m.cov_stat, cov_floor=m.cov_floor)
 
 
 def _by_material(image, camera, validity, o, K):
