@@ -19,7 +19,7 @@ from pencilcal.toolkit.io.images import DEFAULT_MAX_PIXELS
 
 __all__ = ["run", "progress", "warn", "output_option", "force_option", "quiet_option", "check_output",
            "camera_options", "StageBars", "workers_option", "run_frames", "images_argument", "max_pixels_option",
-           "IMAGES_HELP", "FiniteFloat", "LabelledProgress"]
+           "IMAGES_HELP", "FiniteFloat", "LabelledProgress", "mask_option"]
 
 
 class Terminated(BaseException):
@@ -182,6 +182,13 @@ def images_argument(required=True):
 
     return click.argument("images", nargs=-1, required=required, type=click.Path(), callback=as_tuple)
 
+
+mask_option = click.option(
+    "--mask", "mask_path", type=click.Path(dir_okay=False), default=None,
+    help="Where the scene is in the frames: a PNG (nonzero = valid) or a .json/.yaml with "
+         "{circle: [cx, cy, r]} or {polygon: [[x, y], ...]} [px] (a lines.json's valid_region too). "
+         "Default: detected once per sequence from up to 16 frames (a circular field stop, letterbox "
+         "bars); nothing is detected on its boundary.")
 
 workers_option = click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
                               help="Process frames in this many worker processes (same results, in order).")

@@ -11,8 +11,8 @@ from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles
 from pencilcal.toolkit.io.images import open_images
 from pencilcal.toolkit.io.lines_file import read_lines
 
-from .common import (camera_options, check_output, FiniteFloat, force_option, images_argument, max_pixels_option,
-                     output_option, quiet_option, run, run_frames, warn, workers_option)
+from .common import (camera_options, check_output, FiniteFloat, force_option, images_argument, mask_option,
+                     max_pixels_option, output_option, quiet_option, run, run_frames, warn, workers_option)
 
 
 def _shaft_task(frame, ctx):
@@ -22,18 +22,22 @@ def _shaft_task(frame, ctx):
     from pencilcal.toolkit.io.images import check_image_size
     from pencilcal.toolkit.detect.shafts import detect_shafts
 
-    camera, detector = ctx
+    camera, detector, region = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}
     check_image_size(frame, camera)
-    shafts = detect_shafts(frame.image, camera, detector=detector)
+    shafts = detect_shafts(frame.image, camera, detector=detector, valid_region=region)
     return {"image": frame.name, "ok": True, "segments": np.zeros((0, 4)), "shafts": [s.to_dict() for s in shafts],
             "error": None if shafts else "no instrument shaft found"}
 
 
-def _shafts(source, camera, detector, quiet, workers):
-    """Instrument shafts of every frame of an image source, as lines.json frames."""
-    frames = list(run_frames(source, _shaft_task, (camera, detector), workers, "shafts", quiet))
+def _shafts(source, camera, detector, quiet, workers, mask_path=None):
+    """Instrument shafts of every frame of an image source, as lines.json frames, within the
+    sequence's valid region (the mask file's, or detected: `region_detect.sequence_region`)."""
+    from pencilcal.toolkit.detect.region_detect import sequence_region
+
+    region = sequence_region(source, mask_path, shape=(camera.height, camera.width))
+    frames = list(run_frames(source, _shaft_task, (camera, detector, region), workers, "shafts", quiet))
     for f in frames:
         if f["error"]:
             warn(f"{f['image']}: {f['error']}")
@@ -51,14 +55,15 @@ def _shafts(source, camera, detector, quiet, workers):
               help="End point noise [px] for segments without their own angle sigma.")
 @click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
               help="Line detector for the shaft proposals, with IMAGES.")
+@mask_option
 @max_pixels_option
 @workers_option
 @output_option
 @force_option
 @quiet_option
 @run
-def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_sigma, detector, max_pixels, workers, output,
-            force, quiet):
+def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_sigma, detector, mask_path, max_pixels,
+            workers, output, force, quiet):
     """The fulcrum of an instrument pivoting about its entry port.
 
     Every frame's instrument line passes through the fulcrum's image: their robust weighted
@@ -66,7 +71,9 @@ def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_si
     port far off axis may lie beyond), its raw pixel and covariance. From
     IMAGES (image files, folders or glob patterns in the order given, or one video) the
     instrument shafts are detected in every frame
-    (their midlines are the axis images); or the lines come from a lines file (--lines).
+    (their midlines are the axis images), never on the boundary of the frames' valid region
+    (--mask, or detected once from up to 16 frames); or the lines come from a lines file
+    (--lines).
     With --angles (one pivot angle per frame) the lines form a pencil with known angles and
     the orientation of the pivot plane comes out too, with the keys of orientation.json.
 
@@ -79,7 +86,9 @@ def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_si
         raise click.BadParameter("must be positive", param_hint="--endpoint-sigma")
     if (images is None) == (lines_path is None):
         raise click.UsageError("give IMAGES or --lines (one of them)")
-    check_output(output, force, [lines_path, camera_path, angles_path])
+    if lines_path is not None and mask_path is not None:
+        raise click.UsageError("--mask is for IMAGES (a lines file's lines are already found)")
+    check_output(output, force, [lines_path, camera_path, angles_path, mask_path])
     camera = read_camera(camera_path, camera_id=camera_id)
     if lines_path is not None:
         frames = read_lines(lines_path)
@@ -88,7 +97,7 @@ def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_si
     else:
         source = open_images(images, max_pixels=max_pixels)
         check_output(output, force, source.paths)
-        frames = _shafts(source, camera, detector, quiet, workers)
+        frames = _shafts(source, camera, detector, quiet, workers, mask_path)
     angles = read_angles(angles_path, [f["image"] for f in frames]) if angles_path else None
     try:
         res = fulcrum_from_frames(camera, frames, angles=angles, endpoint_sigma_px=endpoint_sigma)

@@ -6,20 +6,22 @@ import click
 from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.io.images import check_image_size, open_images
 from pencilcal.toolkit.detect.lines import lines_record
+from pencilcal.toolkit.detect.region_detect import sequence_region
 from pencilcal.toolkit.detect.segments import DETECTORS
 from pencilcal.toolkit.io.lines_file import write_lines
 
-from .common import (camera_options, check_output, FiniteFloat, force_option, images_argument, max_pixels_option,
-                     output_option, quiet_option, run, run_frames, warn, workers_option)
+from .common import (camera_options, check_output, FiniteFloat, force_option, images_argument, mask_option,
+                     max_pixels_option, output_option, quiet_option, run, run_frames, warn, workers_option)
 
 
 def _lines_task(frame, ctx):
     """One frame's lines.json record (module level: runs in worker processes too)."""
-    camera, detector, bars, shaft, min_length, bar_width = ctx
+    camera, detector, bars, shaft, min_length, bar_width, region = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}
     check_image_size(frame, camera)
-    return lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width)
+    return lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
+                        valid_region=region)
 
 
 @click.command()
@@ -40,13 +42,14 @@ def _lines_task(frame, ctx):
 @click.option("--min-length", type=FiniteFloat(), default=None,
               help="Shortest segment written [px]. Default 20; with --bars, 20 or 1/30 of the image's "
                    "smaller side, whichever is longer (36 px at 1080p).")
+@mask_option
 @max_pixels_option
 @workers_option
 @force_option
 @quiet_option
 @run
-def lines(images, camera_path, camera_id, output, detector, bars, bar_width, shaft, min_length, max_pixels, workers, force,
-          quiet):
+def lines(images, camera_path, camera_id, output, detector, bars, bar_width, shaft, min_length, mask_path, max_pixels,
+          workers, force, quiet):
     """Line segments in every frame, refined to subpixel precision, with angle uncertainty.
 
     IMAGES is one or more image files, folders or glob patterns, in the order given (a
@@ -56,7 +59,10 @@ def lines(images, camera_path, camera_id, output, detector, bars, bar_width, sha
     Each frame gets `segments` in raw (distorted) pixels [x1, y1, x2, y2] and, per segment,
     `angle_sigma_deg` (sd of its angle) and `offset_sigma_px` (sd of its position across,
     at its midpoint), which `pencilcal orient` uses to weight the lines. Segments are
-    oriented with the darker side on the left on screen.
+    oriented with the darker side on the left on screen. Nothing is found on the boundary
+    of the frames' valid region (--mask, or detected once from up to 16 frames: an
+    endoscope's circular field stop, letterbox bars), which lines.json records once, as
+    `valid_region`.
 
     A frame that cannot be decoded is reported and written with ok: false.
 
@@ -75,15 +81,16 @@ def lines(images, camera_path, camera_id, output, detector, bars, bar_width, sha
     check_output(output, force)
     camera = read_camera(camera_path, camera_id=camera_id)
     source = open_images(images, max_pixels=max_pixels)
-    check_output(output, force, [*source.paths, camera_path])
+    check_output(output, force, [*source.paths, camera_path, mask_path])
+    region = sequence_region(source, mask_path, shape=(camera.height, camera.width))
     records = []
-    ctx = (camera, detector, bars, shaft, min_length, bar_width)
+    ctx = (camera, detector, bars, shaft, min_length, bar_width, region)
     for rec in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
         if not rec["ok"]:
             warn(f"{rec['image']}: {rec['error']}")
         records.append(rec)
     meta = {"detector": detector, "mode": "bars" if bars else "edges", "camera": str(camera_path)}
-    write_lines(output, records, force=force, meta=meta)
+    write_lines(output, records, force=force, meta=meta, valid_region=None if region is None else region.to_dict())
     if not quiet:
         n_ok = sum(r["ok"] for r in records)
         n_seg = sum(len(r["segments"]) for r in records)

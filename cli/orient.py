@@ -11,8 +11,9 @@ from pencilcal.toolkit.pencil.orient import MODELS, orient_segments, resolve_twi
 from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.spec import read_pencil
 
-from .common import (camera_options, check_output, FiniteFloat, force_option, images_argument, max_pixels_option,
-                     output_option, progress, quiet_option, run, run_frames, warn, workers_option)
+from .common import (camera_options, check_output, FiniteFloat, force_option, images_argument, mask_option,
+                     max_pixels_option, output_option, progress, quiet_option, run, run_frames, warn,
+                     workers_option)
 
 
 def _orient_record(camera, pencil, fr, opts):
@@ -34,14 +35,16 @@ def _orient_image_task(frame, ctx):
     """Lines (as `pencilcal lines` finds them) and orientation of one decoded frame; module
     level, so it runs in worker processes too."""
     from pencilcal.toolkit.io.images import check_image_size
-    from pencilcal.toolkit.detect.lines import lines_record
+    from pencilcal.toolkit.detect.lines import fan_line_options, lines_record
 
-    camera, pencil, detector, opts = ctx
+    camera, pencil, detector, opts, edges, region = ctx
     if frame.image is None:
         fr = {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}
     else:
         check_image_size(frame, camera)
-        fr = lines_record(frame.name, frame.image, camera, detector, bars=pencil.width is not None)
+        bars, polarity = fan_line_options(pencil.width, edges)
+        fr = lines_record(frame.name, frame.image, camera, detector, bars=bars, valid_region=region,
+                          bar_polarity=polarity)
     return _orient_record(camera, pencil, fr, opts)
 
 
@@ -96,19 +99,24 @@ def _check_priors_match(priors, names, path):
               help="Carry twin choices along the sequence to ambiguous frames.")
 @click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
               help="Line detector, with IMAGES.")
+@click.option("--edges", is_flag=True,
+              help="With IMAGES: plain edge segments (as `pencilcal lines`) instead of the spokes' midlines.")
+@mask_option
 @max_pixels_option
 @workers_option
 @force_option
 @quiet_option
 @run
 def orient(images, lines_path, camera_path, camera_id, pencil_path, output, model, endpoint_sigma, angle_sigma,
-           prior_path, continuity, detector, max_pixels, workers, force, quiet):
+           prior_path, continuity, detector, edges, mask_path, max_pixels, workers, force, quiet):
     """Orientation of the pencil in every frame, from its image angles alone.
 
     From IMAGES (image files, folders or glob patterns in the order given, or one video)
-    the lines are detected first: the midlines of
-    the printed spokes when the pencil file gives their width, else edge segments (as
-    `pencilcal lines`); or they come from a lines file (--lines). Segments are undistorted,
+    the lines are detected first: the midlines of the printed spokes, at whatever width
+    they are seen (dark bars when the pencil file gives their width; else dark or light,
+    whichever the frame shows), or with --edges plain edge segments (as `pencilcal lines`),
+    never on the boundary of the frames' valid region (--mask, or detected once from up to
+    16 frames); or they come from a lines file (--lines). Segments are undistorted,
     the vertex found, the segments labelled with spokes (missing spokes and spurious
     segments are tolerated) and the plane's orientation fitted with its uncertainty. Both
     twin solutions are written; the twin is chosen where the spoke radii (pencil file), a
@@ -126,7 +134,9 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         raise click.BadParameter("must be positive", param_hint="--angle-sigma")
     if (images is None) == (lines_path is None):
         raise click.UsageError("give IMAGES or --lines (one of them)")
-    check_output(output, force, [lines_path, camera_path, pencil_path, prior_path])
+    if lines_path is not None and (edges or mask_path is not None):
+        raise click.UsageError("--edges and --mask are for IMAGES (a lines file's lines are already found)")
+    check_output(output, force, [lines_path, camera_path, pencil_path, prior_path, mask_path])
     camera = read_camera(camera_path, camera_id=camera_id)
     pencil = read_pencil(pencil_path)
     priors = _prior_rotations(prior_path) if prior_path else {}
@@ -141,9 +151,12 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     else:
         from pencilcal.toolkit.io.images import open_images
 
-        ctx = (camera, pencil, detector, opts)
+        from pencilcal.toolkit.detect.region_detect import sequence_region
+
         source = open_images(images, max_pixels=max_pixels)
-        check_output(output, force, source.paths)
+        check_output(output, force, [*source.paths, mask_path])
+        region = sequence_region(source, mask_path, shape=(camera.height, camera.width))
+        ctx = (camera, pencil, detector, opts, edges, region)
         names = [p.name for p in source.paths] if source.kind == "images" else \
             [f"frame_{i:06d}" for i in range(source.count)]
         _check_priors_match(priors, names, prior_path)

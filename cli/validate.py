@@ -10,8 +10,8 @@ from pencilcal.validation.pnp import METHODS
 from pencilcal.validation.validate import find_sequences, sequence_files, validate_many, validate_path
 from pencilcal.validation.validation_file import write_validation
 
-from .common import (LabelledProgress, StageBars, check_output, force_option, output_option, quiet_option,
-                     run, warn, workers_option)
+from .common import (LabelledProgress, StageBars, check_output, force_option, mask_option, output_option,
+                     quiet_option, run, warn, workers_option)
 
 
 def _split(value, allowed, what):
@@ -54,6 +54,8 @@ def _grid(value):
 @click.option("--sfm-dir", type=click.Path(file_okay=False), default=None, help="Keep the reconstruction here.")
 @click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
               help="Line detector for the fan.")
+@click.option("--edges", is_flag=True, help="The fan's plain edge segments instead of its spokes' midlines.")
+@mask_option
 @click.option("--calibration", "calib_path", type=click.Path(dir_okay=False), default=None,
               help="calib.json of `pencilcal calibrate --report`, shown in the report.")
 @click.option("--dask", "dask_address", default=None, metavar="ADDRESS",
@@ -64,7 +66,7 @@ def _grid(value):
 @quiet_option
 @run
 def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pencil, truth_path, models, methods,
-             sfm, sfm_dir, detector, calib_path, dask_address, workers, output, force, quiet):
+             sfm, sfm_dir, detector, edges, mask_path, calib_path, dask_address, workers, output, force, quiet):
     """Compare the angular-variation estimate with PnP (and a reconstruction) on the same frames.
 
     SEQUENCE is one or more image files, folders or glob patterns (in the order given), a
@@ -107,7 +109,7 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
     check_output(output, force)
     options = dict(camera=camera_path, camera_id=camera_id, board=board_path, pencil=pencil_path, grid_pencil=grid,
                    truth=truth_path, models=models_t, methods=methods_t, sfm=sfm, detector=detector,
-                   calibration=calib_path, workers=workers)
+                   calibration=calib_path, workers=workers, edges=edges, mask=mask_path)
     if subs is not None:
         if sfm_dir:
             raise click.UsageError("--sfm-dir keeps one reconstruction: not with a folder of sequences")

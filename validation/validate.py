@@ -44,24 +44,28 @@ __all__ = ["validate_sequence", "validate_path", "validate_many", "find_sequence
 
 
 class FanLines:
-    """Lines of a printed fan: the midlines of its dark bars (`toolkit.detect.bars.detect_bars`),
-    or plain edge segments when the pencil file gives no bar width."""
+    """Lines of a printed fan as `orient IMAGES` finds them (`toolkit.detect.lines.fan_line_options`):
+    the midlines of its bars (`toolkit.detect.bars.detect_bars`), or plain edge segments with
+    `edges`; within `valid_region` (a `toolkit.detect.region.ValidRegion`) when one is set."""
 
-    def __init__(self, pencil, detector="lsd"):
+    def __init__(self, pencil, detector="lsd", edges=False, valid_region=None):
         self.pencil = pencil
         self.detector = detector
+        self.edges = edges
+        self.valid_region = valid_region
 
     def __call__(self, image, camera, detection, corner_sigma_px=None):
         from pencilcal.toolkit.detect.bars import detect_bars
-        from pencilcal.toolkit.detect.lines import default_min_length
+        from pencilcal.toolkit.detect.lines import default_min_length, fan_line_options
         from pencilcal.toolkit.detect.segments import detect_segments
 
-        if self.pencil.width is not None:
+        bars, polarity = fan_line_options(self.pencil.width, self.edges)
+        if bars:
             # the bars `orient IMAGES` would find (lines_record's default shortest bar)
-            found = detect_bars(image, self.detector, camera=camera,
+            found = detect_bars(image, self.detector, camera=camera, polarity=polarity, valid_region=self.valid_region,
                                 min_length=default_min_length(np.shape(image), bars=True))
         else:
-            found = detect_segments(image, self.detector, camera=camera)
+            found = detect_segments(image, self.detector, camera=camera, valid_region=self.valid_region)
         return {"segments": found.segments, "angle_sigma": found.angle_sigma, "offset_sigma": found.offset_sigma,
                 "labels": None, "vertex_px": None, "vertex_cov_px2": None, "pencil": self.pencil}
 
@@ -421,15 +425,18 @@ def find_sequences(path):
 
 def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=None, grid_pencil=None, truth=None,
                   models=MODELS, methods=METHODS, sfm=False, sfm_dir=None, detector="lsd", calibration=None,
-                  workers=1, progress=None, warn=None, quiet=True, sfm_progress=None, argv=None):
+                  workers=1, progress=None, warn=None, quiet=True, sfm_progress=None, argv=None, edges=False,
+                  mask=None):
     """Validate one sequence given by paths; returns the whole validation.json dict.
 
     sequence: folder, glob, video, or a `pencilcal simulate` folder (whose camera, board,
     pencil and truth files are used for the arguments left None). camera, board, pencil,
     truth, calibration: file paths; grid_pencil: None, "auto" or (i, j) to use the board's
     grid lines as the pencil. argv: the command line to record (default sys.argv; a Dask
-    worker's own is meaningless). The other arguments as `validate_sequence`. Module level
-    and paths only, so a Dask worker can run it.
+    worker's own is meaningless). edges: the fan's plain edge segments instead of its
+    spokes' midlines (`FanLines`); mask: the frames' valid region file (default: detected,
+    `toolkit.detect.region_detect.sequence_region`). The other arguments as
+    `validate_sequence`. Module level and paths only, so a Dask worker can run it.
     """
     from pencilcal.toolkit.board.spec import read_board
     from pencilcal.toolkit.camera.formats import camera_to_dict, read_camera
@@ -461,15 +468,19 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
         if pencil is None:
             raise InputError(f"{sequence}: no pencil (give --pencil or --grid-pencil; SEQUENCE is not a simulate folder)")
         pen = read_pencil(pencil)
-        lines = FanLines(pen, detector)
+        lines = FanLines(pen, detector, edges)
         pencil_desc = pen.to_dict()
     truth_frames = read_truth(truth) if truth else None
     source = open_images(images)
+    if isinstance(lines, FanLines):
+        from pencilcal.toolkit.detect.region_detect import sequence_region
+
+        lines.valid_region = sequence_region(source, mask, shape=(cam.height, cam.width))
     calib = load_structured(calibration, "calibration report") if calibration else None
     result = validate_sequence(source, cam, brd, lines, truth=truth_frames, models=models, methods=methods, sfm=sfm,
                                sfm_workdir=sfm_dir, progress=progress, warn=warn, quiet=quiet,
                                sfm_progress=sfm_progress, workers=workers)
-    inputs = [p for p in (camera, board, pencil, truth, calibration) if p]
+    inputs = [p for p in (camera, board, pencil, truth, calibration, mask) if p]
     return {
         "sequence": str(sequence),
         "images": str(images),

@@ -47,6 +47,10 @@ from pencilcal.toolkit.errors import InputError
 
 __all__ = ["Bars", "BarOptions", "BAR_POLARITIES", "detect_bars", "bar_midlines_on_plane"]
 
+_PENCIL_BIN_DEG = 3.0  # directions closer than this count as one (`_pencil_support`)
+_PENCIL_TOL_PX, _PENCIL_TOL_REL = 2.0, 0.005  # a line passes through a point within 2 px + 0.5 % of its distance
+_PENCIL_MAX_LINES = 64  # at most this many lines are looked at (the longest)
+
 #: What `detect_bars` looks for: dark bars on a light ground, light ones on a dark ground,
 #: or whichever of the two the frame shows.
 BAR_POLARITIES = ("dark", "light", "either")
@@ -694,8 +698,9 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
     polarity : {"dark", "light", "either"}
         Dark bars on a light ground (the description above), light bars on a dark ground
         (the same on the image with its levels turned over, `GrayImage.inverted`), or
-        whichever of the two gives the longer bars in all on this frame (both are looked
-        for: a fan printed either way is found without being told).
+        whichever of the two looks more like a pencil on this frame (`_pencil_support`: the
+        most directions through one point; both are looked for, so a fan printed either
+        way is found without being told).
 
     Returns
     -------
@@ -726,9 +731,56 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
     if polarity == "light":
         return light
     dark = _dark_bars(img, detector, camera, o, detector_params)
-    # the frame's own polarity: the one whose bars are longer in all (a fan's spokes; the
-    # other polarity finds at most stray strips: the gaps between spokes are wedges)
-    return light if float(np.sum(light.length)) > float(np.sum(dark.length)) else dark
+    # the frame's own polarity: the one whose bars look more like a pencil (the gaps between
+    # a fan's spokes are wedges, no bars; the other polarity finds strips of other print)
+    return light if _pencil_support(light.ideal, light.length) > _pencil_support(dark.ideal, dark.length) else dark
+
+
+def _pencil_support(lines, length):
+    """How much lines (M, 4) [working px] of lengths (M,) look like a pencil: over the
+    points where two of them cross at more than `_PENCIL_BIN_DEG`, the most directions
+    (`_PENCIL_BIN_DEG` bins) among the lines through one point (within `_PENCIL_TOL_PX` +
+    `_PENCIL_TOL_REL` of its distance), then their total length; a tuple, larger is better.
+
+    A fan's spokes meet at its vertex from directions spread over up to 180 deg; strips of
+    other print (the white margins of a board's markers, rows of text) are parallel in
+    families, meeting only at vanishing points from a few directions.
+
+    >>> fan = np.array([[10 * np.cos(a), 10 * np.sin(a), 90 * np.cos(a), 90 * np.sin(a)] for a in (0, 0.5, 1, 1.5)])
+    >>> rows = np.array([[0.0, y, 80.0, y + 0.01 * y] for y in (0, 10, 20, 30, 40, 50)])
+    >>> _pencil_support(fan, np.full(4, 80.0))[0], _pencil_support(rows, np.full(6, 80.0))[0]
+    (4, 1)
+    """
+    if lines.shape[0] > _PENCIL_MAX_LINES:  # the longest ones: a fan's spokes are among them
+        keep = np.argsort(-length, kind="stable")[:_PENCIL_MAX_LINES]
+        lines, length = lines[keep], length[keep]
+    M = lines.shape[0]
+    if M < 2:
+        return (M, float(np.sum(length)))
+    p, d = lines[:, :2], lines[:, 2:] - lines[:, :2]
+    u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
+    n = np.stack([-u[:, 1], u[:, 0]], -1)
+    c = -np.sum(n * p, -1)
+    theta = np.degrees(np.arctan2(u[:, 1], u[:, 0])) % 180.0
+    i, j = np.triu_indices(M, 1)
+    cross = u[i, 0] * u[j, 1] - u[i, 1] * u[j, 0]
+    keep = np.abs(cross) > np.sin(np.radians(_PENCIL_BIN_DEG))
+    i, j, cross = i[keep], j[keep], cross[keep]
+    if i.size == 0:
+        return (1, float(np.max(length)))
+    # the crossing of lines i and j: n_i . v + c_i = 0 = n_j . v + c_j
+    v = np.stack([(n[i, 1] * c[j] - n[j, 1] * c[i]), (n[j, 0] * c[i] - n[i, 0] * c[j])], -1) / cross[:, None]
+    mid = 0.5 * (lines[:, :2] + lines[:, 2:])
+    dist = np.abs(v @ n.T + c[None, :])  # (P, M) of each crossing from each line
+    reach = np.linalg.norm(v[:, None, :] - mid[None, :, :], axis=-1)
+    through = dist <= _PENCIL_TOL_PX + _PENCIL_TOL_REL * reach
+    bins = np.floor(theta / _PENCIL_BIN_DEG).astype(int)
+    onehot = np.zeros((M, int(180 / _PENCIL_BIN_DEG) + 1), bool)
+    onehot[np.arange(M), bins] = True
+    ndir = (through.astype(np.int32) @ onehot.astype(np.int32) > 0).sum(-1)
+    total = through @ length
+    best = np.lexsort((total, ndir))[-1]
+    return (int(ndir[best]), float(total[best]))
 
 
 def _dark_bars(img, detector, camera, o, detector_params):

@@ -24,7 +24,7 @@ from pencilcal.toolkit.detect.segments import MIN_LENGTH_PX, detect_segments
 from pencilcal.toolkit.detect.shafts import detect_shafts
 from pencilcal.toolkit.io.lines_file import LineFrame
 
-__all__ = ["default_min_length", "detect_frame_lines", "lines_record"]
+__all__ = ["default_min_length", "detect_frame_lines", "lines_record", "fan_line_options"]
 
 
 def default_min_length(shape, bars):
@@ -40,6 +40,24 @@ def default_min_length(shape, bars):
     (36.0, 20.0)
     """
     return max(MIN_LENGTH_PX, min(shape[0], shape[1]) / 30.0) if bars else MIN_LENGTH_PX
+
+
+def fan_line_options(pencil_width, edges=False):
+    """How the lines of a printed fan are found (`orient IMAGES`, `validate`): (bars,
+    bar_polarity) for `detect_frame_lines`.
+
+    The spokes' midlines (`bars.detect_bars`, at any width within its limits: 2.5 px to 1/8
+    of the image) by default: dark bars when the pencil file gives the spokes' width (the
+    pencil file's spokes are dark bars), else whichever polarity the frame shows (thin
+    printed lines or thick bars, dark on light or light on dark). Plain edge segments only
+    with `edges`.
+
+    >>> fan_line_options(1.0), fan_line_options(None), fan_line_options(None, edges=True)
+    ((True, 'dark'), (True, 'either'), (False, 'dark'))
+    """
+    if edges:
+        return False, "dark"
+    return True, ("dark" if pencil_width is not None else "either")
 
 
 def detect_frame_lines(name, image, camera=None, detector="lsd", bars=False, shaft=False, min_length=None,
@@ -84,15 +102,8 @@ def detect_frame_lines(name, image, camera=None, detector="lsd", bars=False, sha
         angle_sigma_deg=np.degrees(segs.angle_sigma),
         offset_sigma_px=segs.offset_sigma,
         width_px=segs.width_px if bars else None,
-        shafts=[s.to_dict() for s in _shafts(image, camera, valid_region)] if shaft else None,
+        shafts=[s.to_dict() for s in detect_shafts(image, camera, valid_region=valid_region)] if shaft else None,
     )
-
-
-def _shafts(image, camera, valid_region):
-    """`detect_shafts` of the frame, within the valid region when there is one."""
-    if valid_region is None:
-        return detect_shafts(image, camera)
-    return detect_shafts(image, camera, valid_region=valid_region)
 
 
 def lines_record(name, image, camera=None, detector="lsd", bars=False, shaft=False, min_length=None, bar_width=None,

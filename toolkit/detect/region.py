@@ -669,7 +669,7 @@ def _region_file(path, h, w):
     from pencilcal.toolkit.io.files import load_structured
 
     data = load_structured(path, "mask file")
-    if isinstance(data, Mapping) and "valid_region" in data and len(data) == 1:
+    if isinstance(data, Mapping) and "valid_region" in data:  # also a lines.json's
         data = data["valid_region"]
     try:
         reg = ValidRegion.from_dict(data, shape=(h, w))
@@ -689,7 +689,7 @@ def read_mask_file(path, shape):
         An image (``.png``, ``.bmp``, ``.tif``, ...) whose nonzero pixels are valid, of the
         frames' size; or ``.json`` / ``.yaml`` / ``.yml`` holding ``{"circle": [cx, cy, r]}``
         or ``{"polygon": [[x, y], ...]}`` [px] (optional ``holes``), also under a top-level
-        ``valid_region`` key (a lines.json's own record does not qualify: it has frames).
+        ``valid_region`` key (a lines.json written by `pencilcal lines` has one).
     shape : (H, W)
         The frames' size.
 

@@ -452,3 +452,15 @@ def test_bars_inside_a_letterbox():
     assert reg.kind == "letterbox"
     bars = detect_bars(img, valid_region=reg)
     assert len(bars) == 1 and abs(float(bars.width_px[0]) - 7.0) < 0.3
+
+
+def test_shaft_entering_the_field_reaches_its_border():
+    from pencilcal.toolkit.detect.shafts import detect_shafts
+
+    img = field_with_shaft()
+    reg = detect_valid_region([img])
+    shafts = detect_shafts(img, valid_region=reg)
+    assert len(shafts) == 1
+    near_end = shafts[0].midline[:2]  # the wide (near) end: where the shaft enters the view
+    assert abs(float(reg.distance_to_boundary(near_end))) < 15.0
+    assert 45 < shafts[0].width_px < 56
