@@ -58,7 +58,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pencilcal.toolkit.camera.intrinsics import META_KEY as COV_META_KEY, IntrinsicsCovariance, \
+    model_intrinsic_names
 from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.board.corner_noise import CornerView, fit_corner_noise
 from pencilcal.toolkit.board.detect import BoardDetection
 from pencilcal.toolkit.errors import EstimationError, InputError
 
@@ -67,7 +70,6 @@ __all__ = ["CalibrationResult", "calibrate", "calibrate_images", "intrinsic_name
 #: Lens models `calibrate` fits, and the coefficient counts each takes (default first).
 MODELS = {"opencv": (5, 4, 8, 12, 14), "pinhole": (0,), "fisheye": (4,)}
 
-_OPENCV_DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "taux", "tauy")
 # a view is never rejected as an outlier while its median residual is within this factor
 # of the median view's: real data sets have views that are legitimately noisier (blur, tilt)
 _VIEW_RATIO_FLOOR = 1.5
@@ -85,10 +87,7 @@ def intrinsic_names(model, coefficients=None):
     >>> intrinsic_names("fisheye")
     ['fx', 'fy', 'cx', 'cy', 'k1', 'k2', 'k3', 'k4']
     """
-    n = _coefficient_count(model, coefficients)
-    if model == "fisheye":
-        return ["fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"]
-    return ["fx", "fy", "cx", "cy"] + list(_OPENCV_DIST_NAMES[:n])
+    return model_intrinsic_names(model, _coefficient_count(model, coefficients))
 
 
 def _coefficient_count(model, coefficients):
@@ -119,6 +118,13 @@ class CalibrationResult:
     std_intrinsics : dict
         1-sigma of each intrinsic parameter, named as `intrinsic_names` (fx, fy, cx, cy
         [px], then the distortion coefficients [unitless]).
+    cov_intrinsics : IntrinsicsCovariance or None
+        Their full covariance (P, P) in the same order (rows of held parameters zero; with
+        the aspect ratio held, fx's row is the ratio times fy's); also in ``camera.meta``
+        as ``cov_intrinsics`` (``{"names", "cov"}``).
+    corner_noise : CornerNoise or None
+        The correlated corner-error model fitted to the final residuals
+        (`toolkit.board.corner_noise`), with ``corner_noise=True``; also in ``camera.meta``.
     std_extrinsics : list of dict or None
         Per used view ``{"rvec": (3,) [rad], "tvec": (3,) [board unit]}``.
     view_poses : list of (rvec, tvec) or None
@@ -154,6 +160,8 @@ class CalibrationResult:
     coefficients: int
     flags: list = field(default_factory=list)
     rounds: int = 1
+    cov_intrinsics: IntrinsicsCovariance | None = None
+    corner_noise: object = None
 
     @property
     def views_used(self) -> int:
@@ -455,6 +463,43 @@ def _std_intrinsics(model, n_coef, opts, K, cov_i):
     return {n: out[n] for n in names}
 
 
+def _full_covariance(model, n_coef, opts, K, cov_i):
+    """The (P, P) covariance over every intrinsic of `intrinsic_names` from that of the free
+    ones (`_covariance`): held parameters get zero rows, fx = a fy a row a times fy's."""
+    fix_aspect, fix_pp, zero_tan = opts
+    names = intrinsic_names(model, n_coef)
+    T = np.zeros((len(names), cov_i.shape[0]))
+    j = 0
+    if fix_aspect:
+        T[1, j] = 1.0
+        T[0, j] = K[0, 0] / K[1, 1]
+        j += 1
+    else:
+        T[0, j], T[1, j + 1] = 1.0, 1.0
+        j += 2
+    if not fix_pp:
+        T[2, j], T[3, j + 1] = 1.0, 1.0
+        j += 2
+    for i in range(len(names) - 4):
+        if not (model == "opencv" and zero_tan and i in (2, 3)):
+            T[4 + i, j] = 1.0
+            j += 1
+    C = T @ cov_i @ T.T
+    return 0.5 * (C + C.T)
+
+
+def _corner_views(model, K, dist, rvecs, tvecs, objs, imgs):
+    """Each used view's corners, residuals (projected - observed) and pose Jacobian, for
+    `fit_corner_noise`."""
+    views = []
+    for rvec, tvec, obj, img in zip(rvecs, tvecs, objs, imgs):
+        px, J = _project(model, K, dist, rvec, tvec, obj, jacobian=True)
+        J = np.asarray(J, float)
+        pose = J[:, 8:14] if model == "fisheye" else J[:, 0:6]
+        views.append(CornerView(img, px - img, pose))
+    return views
+
+
 # ---------------------------------------------------------------------- the driver
 def _single_threaded(fn):
     """Run OpenCV single-threaded inside `fn`: its multithreaded calibration reduces in a
@@ -479,7 +524,7 @@ def _single_threaded(fn):
 @_single_threaded
 def calibrate(detections, board, image_size, model="opencv", coefficients=None, *, fix_aspect=False,
               fix_principal_point=False, zero_tangent=False, min_corners=6, min_views=3,
-              outlier_view_sigma=4.0, outlier_corner_sigma=5.0, max_rounds=20):
+              outlier_view_sigma=4.0, outlier_corner_sigma=5.0, max_rounds=20, corner_noise=False):
     """Calibrate one camera's intrinsics from board detections in several views.
 
     Parameters
@@ -513,6 +558,9 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
         estimated robustly, sqrt(median |r|^2 / (2 ln 2)). None or 0 turns it off.
     max_rounds : int
         At most this many fits (rejection stops at the last one).
+    corner_noise : bool
+        Also fit the correlated corner-error model to the final residuals
+        (`toolkit.board.corner_noise.fit_corner_noise`; seconds on a few thousand corners).
 
     Returns
     -------
@@ -606,6 +654,11 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
     opts = (fix_aspect, fix_principal_point, zero_tangent)
     cov_i, cov_p, _ = _covariance(model, n_coef, opts, K, dist, rvecs, tvecs, o, p)
     std_intr = _std_intrinsics(model, n_coef, opts, K, cov_i)
+    cov_full = None
+    if np.all(np.isfinite(cov_i)):
+        cov_full = IntrinsicsCovariance(tuple(intrinsic_names(model, n_coef)), _full_covariance(model, n_coef, opts,
+                                                                                                K, cov_i))
+    noise = fit_corner_noise(_corner_views(model, K, dist, rvecs, tvecs, o, p), image_size) if corner_noise else None
     per_view_rms = [None] * n_views
     residuals = [None] * n_views
     corner_used = [None] * n_views
@@ -635,11 +688,15 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
         "calibration": {"model": model, "coefficients": n_coef, "fix_aspect": bool(fix_aspect),
                         "flags": flag_names, "board": board.to_dict()},
     }
+    if cov_full is not None:
+        meta[COV_META_KEY] = cov_full.to_dict()
+    if noise is not None:
+        meta["corner_noise"] = noise.to_dict()
     camera = Camera(model, w, h, K, dist if model != "pinhole" else np.zeros(0), meta=meta)
     return CalibrationResult(camera=camera, rms_px=rms, per_view_rms=per_view_rms, std_intrinsics=std_intr,
                              std_extrinsics=std_ext, view_poses=poses, used=used_flags, rejected=rejected,
                              residuals=residuals, corner_used=corner_used, model=model, coefficients=n_coef,
-                             flags=flag_names, rounds=rounds)
+                             flags=flag_names, rounds=rounds, cov_intrinsics=cov_full, corner_noise=noise)
 
 
 def _too_few_views(n_usable, min_views, n_views, rejected):

@@ -24,11 +24,14 @@ import math
 
 import numpy as np
 
+from pencilcal.toolkit.board.corner_noise import correlated_covariance
+from pencilcal.toolkit.camera.intrinsics import jacobian_pixels_wrt_intrinsics, propagate
 from pencilcal.toolkit.errors import EstimationError
 
 from .refine import residuals
 
-__all__ = ["covariance_from_jacobian", "pose_covariance", "colmap_covariance_to_pencilcal"]
+__all__ = ["covariance_from_jacobian", "pose_covariance", "colmap_covariance_to_pencilcal",
+           "pose_intrinsics_sensitivity", "total_covariance"]
 
 # smallest eigenvalue of the Jacobi-scaled normal matrix, relative to the largest, below
 # which the pose is numerically undetermined
@@ -119,3 +122,54 @@ def colmap_covariance_to_pencilcal(cov_colmap, sigma_px=1.0):
     return float(sigma_px) ** 2 * S @ np.asarray(cov_colmap, float) @ S
 
 
+
+
+def pose_intrinsics_sensitivity(camera, object_points, R, t, J):
+    """G (6, P) = d(pose) / d(intrinsics) at a least-squares optimum (implicit function theorem).
+
+    At the optimum J^T r = 0; moving the intrinsics by d_theta moves the residuals by
+    J_theta d_theta, and the pose by ``G d_theta`` with ``G = -(J^T J)^-1 J^T J_theta``
+    (Gauss-Newton: the residuals' own curvature is left out, as in the covariance).
+
+    camera; object_points (K, 3) [length]; R (3, 3), t (3,): the pose; J (2K, 6): the
+    residuals' pose Jacobian there (`refine.residuals`). Columns in the order of
+    `toolkit.camera.intrinsics.intrinsic_names`; rows (d_rot [rad], d_t [length]).
+    """
+    p = np.asarray(object_points, float) @ np.asarray(R, float).T + np.asarray(t, float)
+    Jt = jacobian_pixels_wrt_intrinsics(camera, p[:, :2] / p[:, 2:3]).reshape(2 * p.shape[0], -1)
+    return -np.linalg.solve(J.T @ J, J.T @ Jt)
+
+
+def total_covariance(camera, object_points, image_points, R, t, J, r, corner_noise=None, intrinsics_cov=None):
+    """The pose's covariance with every term this package models, and what it holds.
+
+    Parameters
+    ----------
+    camera, object_points (K, 3), image_points (K, 2), R (3, 3), t (3,)
+        As `pose_covariance`, at the optimum.
+    J : (2K, 6) ndarray
+        The residuals' pose Jacobian there; r : (K, 2) the residuals [px].
+    corner_noise : CornerNoise, optional
+        Correlated corner errors (`toolkit.board.corner_noise`): the corner term becomes the
+        sandwich covariance of that model with the view's own white level; None (or a
+        ratio of 0): white errors, ``sigma^2 (J^T J)^-1`` with sigma from the residuals.
+    intrinsics_cov : (P, P) array_like, optional
+        Covariance of the camera's intrinsics (`intrinsic_names` order): adds
+        ``G C G^T`` (`pose_intrinsics_sensitivity`).
+
+    Returns
+    -------
+    cov : (6, 6) ndarray
+        Same convention as the corner-noise covariance (rotation first, rad and length).
+    correlated, intrinsics : bool
+        Which of the two terms it holds.
+    """
+    correlated = corner_noise is not None and corner_noise.ratio > 0
+    if correlated:
+        cov, _ = correlated_covariance(J, r, image_points, corner_noise)
+    else:
+        cov, _ = covariance_from_jacobian(J, r)
+    used = intrinsics_cov is not None
+    if used:
+        cov = cov + propagate(pose_intrinsics_sensitivity(camera, object_points, R, t, J), intrinsics_cov)
+    return cov, correlated, used

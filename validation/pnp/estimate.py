@@ -27,7 +27,7 @@ import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 
-from .covariance import covariance_from_jacobian
+from .covariance import covariance_from_jacobian, total_covariance
 from .refine import levenberg_marquardt, normalized_points, orthonormal, projector, rotation_angle_rad, \
     rotation_from_rotvec
 from .result import DEFAULT_METHOD, METHODS, PoseResult
@@ -195,7 +195,8 @@ def _geometry_problem(X, method, s=None):
 
 
 def estimate_pose(object_points, image_points, camera, method=DEFAULT_METHOD, refine=True,
-                  corner_sigma_px=None, max_rms_px=DEFAULT_MAX_RMS_PX, seed=0):
+                  corner_sigma_px=None, max_rms_px=DEFAULT_MAX_RMS_PX, seed=0, *, corner_noise=None,
+                  intrinsics_cov=None):
     """Pose of a target from K point correspondences, refined in raw pixels, with covariance.
 
     Parameters
@@ -223,6 +224,14 @@ def estimate_pose(object_points, image_points, camera, method=DEFAULT_METHOD, re
         mislabelled). None: no limit.
     seed : int
         RANSAC seed of the colmap method (results are reproducible).
+    corner_noise : CornerNoise, optional
+        Correlated corner errors (`toolkit.board.corner_noise`, e.g. from the calibration)
+        for ``cov_total``.
+    intrinsics_cov : (P, P) array_like, optional
+        Covariance of the camera's intrinsics (`toolkit.camera.intrinsics`, e.g. from the
+        calibration) for ``cov_total``. With either, ``cov_total`` (6, 6) holds the corner
+        term of that model and the intrinsics' (`covariance.total_covariance`); ``cov``
+        stays the white corner-noise covariance.
 
     Returns
     -------
@@ -278,6 +287,7 @@ def estimate_pose(object_points, image_points, camera, method=DEFAULT_METHOD, re
                      n, t0)
     try:
         cov, sigma, r = _covariance_at(project, chosen, R, t, corner_sigma_px)
+        total = _total_at(project, chosen, R, t, camera, X, u, cov, corner_noise, intrinsics_cov)
     except ArithmeticError as e:
         return _fail(method, str(e), n, t0)
     return PoseResult(
@@ -288,7 +298,7 @@ def estimate_pose(object_points, image_points, camera, method=DEFAULT_METHOD, re
         refine_change_deg=math.degrees(rotation_angle_rad(chosen.raw[0], R)) if refine else None,
         refine_change=float(np.linalg.norm(t - chosen.raw[1])) if refine else None,
         flipped=bool(chosen.flipped), alternative_rms_px=alt_rms, alternative_angle_deg=alt_angle, extra=extra,
-        time_s=time.perf_counter() - t0,
+        time_s=time.perf_counter() - t0, **total,
     )
 
 
@@ -445,9 +455,24 @@ def _covariance_at(project, chosen, R, t, corner_sigma_px):
     return cov, sigma, r
 
 
+def _total_at(project, chosen, R, t, camera, X, u, cov, corner_noise, intrinsics_cov):
+    """The `PoseResult` keywords of the total covariance (`covariance.total_covariance`):
+    none without a corner-noise model or intrinsics' covariance, or without `cov`."""
+    if cov is None or (corner_noise is None and intrinsics_cov is None):
+        return {}
+    r, J = chosen.r, chosen.J
+    if J is None:
+        with np.errstate(all="ignore"):
+            r, J, _ = project(R, t)
+    total, correlated, used = total_covariance(camera, X, u, R, t, J, r, corner_noise, intrinsics_cov)
+    return {"cov_total": total, "correlated_corners_used": correlated, "intrinsics_used": used}
+
+
 def estimate_all(object_points, image_points, camera, methods=METHODS, refine=True, corner_sigma_px=None,
-                 max_rms_px=DEFAULT_MAX_RMS_PX, seed=0):
+                 max_rms_px=DEFAULT_MAX_RMS_PX, seed=0, **total):
     """Run `estimate_pose` with every method in `methods`.
+
+    total: `corner_noise` and `intrinsics_cov`, as `estimate_pose`.
 
     Returns
     -------
@@ -467,7 +492,8 @@ def estimate_all(object_points, image_points, camera, methods=METHODS, refine=Tr
     for m in methods:
         if m not in METHODS:
             raise InputError(f"unknown PnP method {m!r}; expected one of {', '.join(METHODS)}")
-    return {m: estimate_pose(object_points, image_points, camera, m, refine, corner_sigma_px, max_rms_px, seed)
+    return {m: estimate_pose(object_points, image_points, camera, m, refine, corner_sigma_px, max_rms_px, seed,
+                             **total)
             for m in methods}
 
 

@@ -107,7 +107,8 @@ def write_board_poses(path, frames, force=False, **meta):
 # the shape of every array a frame record holds (besides residuals_px (K, 2) and ids (K,))
 _ARRAY_SHAPES = MappingProxyType({
     "R_cam_from_target": (3, 3), "t_cam_from_target": (3,), "rvec": (3,), "tvec": (3,), "normal": (3,),
-    "cov": (6, 6), "rotation_sigma_deg": (3,), "translation_sigma": (3,)})
+    "cov": (6, 6), "rotation_sigma_deg": (3,), "translation_sigma": (3,), "cov_total": (6, 6),
+    "rotation_sigma_total_deg": (3,)})
 
 
 def _frame_arrays(f, where):

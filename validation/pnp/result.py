@@ -74,6 +74,11 @@ class PoseResult:
         Method-specific facts (``colmap_inliers``).
     time_s : float
         Wall time of the estimate [s].
+    cov_total : (6, 6) ndarray or None
+        The covariance with every modelled term, same convention as `cov`: correlated
+        corner errors (when `correlated_corners_used`) and the intrinsics' uncertainty
+        (when `intrinsics_used`); None when neither was given (`estimate_pose`).
+    correlated_corners_used, intrinsics_used : bool
     """
 
     ok: bool
@@ -96,6 +101,9 @@ class PoseResult:
     alternative_angle_deg: float | None = None
     extra: dict = field(default_factory=dict)
     time_s: float = 0.0
+    cov_total: np.ndarray | None = None
+    correlated_corners_used: bool = False
+    intrinsics_used: bool = False
 
     @property
     def rvec(self):
@@ -130,11 +138,24 @@ class PoseResult:
     @property
     def normal_sigma_deg(self):
         """RMS angular error of `normal` [deg]: sqrt(trace(P C_rot P)), P = I - n n^T."""
-        if self.cov is None:
+        return self._normal_sigma_deg(self.cov)
+
+    @property
+    def rotation_sigma_total_deg(self):
+        """(3,) as `rotation_sigma_deg`, from `cov_total`; None without it."""
+        return None if self.cov_total is None else np.degrees(np.sqrt(np.maximum(np.diag(self.cov_total)[:3], 0.0)))
+
+    @property
+    def normal_sigma_total_deg(self):
+        """As `normal_sigma_deg`, from `cov_total`; None without it."""
+        return self._normal_sigma_deg(self.cov_total)
+
+    def _normal_sigma_deg(self, cov):
+        if cov is None:
             return None
         n = self.R_cam_from_target[:, 2]
         P = np.eye(3) - np.outer(n, n)
-        return float(np.degrees(np.sqrt(max(np.trace(P @ self.cov[:3, :3] @ P), 0.0))))
+        return float(np.degrees(np.sqrt(max(np.trace(P @ cov[:3, :3] @ P), 0.0))))
 
     def to_dict(self, residuals=True):
         """JSON-ready record of this estimate (numpy arrays are converted on writing): the
@@ -144,7 +165,9 @@ class PoseResult:
         Keys: ok, error, method, corners, R_cam_from_target (3, 3), t_cam_from_target (3,)
         [length unit], rvec (3,) [rad], tvec (3,), normal (3,), distance [length unit],
         reproj_rms_px [px], cov (6, 6), sigma_px [px], sigma_from, rotation_sigma_deg (3,)
-        [deg], translation_sigma (3,) [length unit], normal_sigma_deg [deg], flipped,
+        [deg], translation_sigma (3,) [length unit], normal_sigma_deg [deg], cov_total (6, 6),
+        rotation_sigma_total_deg (3,) [deg], normal_sigma_total_deg [deg],
+        correlated_corners_used, intrinsics_used, flipped,
         alternative_rms_px [px], alternative_angle_deg [deg], refined, refine_change_deg
         [deg], refine_change [length unit], lm_iterations, the `extra` keys, and with
         `residuals` also residuals_px (K, 2) [px]. Pose keys are None when not ok.
@@ -156,6 +179,9 @@ class PoseResult:
             "reproj_rms_px": self.reproj_rms_px, "cov": self.cov, "sigma_px": self.sigma_px,
             "sigma_from": self.sigma_from, "rotation_sigma_deg": self.rotation_sigma_deg,
             "translation_sigma": self.translation_sigma, "normal_sigma_deg": self.normal_sigma_deg,
+            "cov_total": self.cov_total, "rotation_sigma_total_deg": self.rotation_sigma_total_deg,
+            "normal_sigma_total_deg": self.normal_sigma_total_deg,
+            "correlated_corners_used": bool(self.correlated_corners_used), "intrinsics_used": bool(self.intrinsics_used),
             "flipped": bool(self.flipped), "alternative_rms_px": self.alternative_rms_px,
             "alternative_angle_deg": self.alternative_angle_deg,
             "refined": bool(self.refined), "refine_change_deg": self.refine_change_deg,
