@@ -62,3 +62,12 @@ def two_spokes_and_a_stray(camera, pencil, rng, tilt_range=(70.0, 80.0), depth=3
     u = np.array([np.cos(ang), np.sin(ang)])
     stray = np.r_[v + rng.uniform(20, 60) * u, v + rng.uniform(120, 260) * u]
     return np.r_[seg[keep], stray[None]], R, t
+
+
+def clutter_segments(camera, k, rng, length=(20.0, 300.0)):
+    """k random segments anywhere in the image: uniform centres and directions, lengths
+    uniform in `length` [px]. Returns (k, 4) raw pixels."""
+    c = rng.uniform([0.0, 0.0], [camera.width, camera.height], (k, 2))
+    a = rng.uniform(0.0, np.pi, k)
+    d = np.stack([np.cos(a), np.sin(a)], -1) * rng.uniform(*length, k)[:, None] / 2
+    return np.c_[c - d, c + d]

@@ -56,12 +56,24 @@ class Assignment:
         shifted by one spoke are a rival with the same normal (only the in-plane angle is
         unknown); a rival found by coincidence can have another normal.
     hypotheses: number of hypotheses scored.
+    chance_lines: the number of the lines, besides the three any labelling fits exactly,
+        expected within the assignment tolerance of some predicted spoke by chance alone
+        (random directions): sum over the lines of min(1, 2 tol_k N' / period), N' distinct
+        spoke directions. At 1 or more the labelling cannot tell the pencil's lines from
+        the clutter's: several labellings, each with lines that merely happen to fit, are
+        then as good as the true one (`clutter_ambiguous`).
     """
 
     spoke: np.ndarray
     fit: PencilFit
     rivals: list
     hypotheses: int
+    chance_lines: float = 0.0
+
+    @property
+    def clutter_ambiguous(self) -> bool:
+        """True when random lines would fit the labelling's spokes (`chance_lines` >= 1)."""
+        return self.chance_lines >= 1.0
 
     @property
     def labels_ambiguous(self) -> bool:
@@ -229,10 +241,21 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
         # equally good labelling is missed
         labels, fit, rivals = _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriented, period)
         rivals += [r for r in fewer if _conflict(r[0], labels)]
-        return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=scored)
-    rivals += fewer
-    rivals += _shifted_rivals(fitter, labels, fit, rivals, period)
-    return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=scored)
+    else:
+        rivals += fewer
+        rivals += _shifted_rivals(fitter, labels, fit, rivals, period)
+    return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=scored,
+                      chance_lines=_chance_lines(fitter, fit, period))
+
+
+def _chance_lines(fitter, fit, period):
+    """Lines (besides the three a hypothesis fits exactly) expected by chance within the
+    tolerance of a predicted spoke of `fit`: a random direction falls within tol_k of one
+    of N' distinct spoke directions with probability min(1, 2 tol_k N' / period)."""
+    _, _, tol = fitter.match(fit)
+    dirs = np.unique(np.round(np.remainder(fitter.th, period), 9)).size
+    q = np.minimum(1.0, 2.0 * tol * dirs / period)
+    return float(max(0.0, q.sum() - np.sort(q)[-3:].sum()))
 
 
 def _ordered_triples(a, th, oriented, period, max_gap):
@@ -336,30 +359,36 @@ class _LabelFitter:
         return fit_pencil(self.a[lines], self.th[spokes], self.vertex, sigma=self.s[lines],
                           vertex_cov=self.vertex_cov, oriented=self.oriented)
 
+    def match(self, fit):
+        """Each line's nearest predicted spoke k (M,), its residual (M,) [rad] and the
+        tolerance (M,) [rad] within which it is that spoke's, for a PencilFit."""
+        wrap = wrap_angle if self.oriented else wrap_line
+        pred, J, Jx = pencil_jacobian(fit.R_cam_from_target, self.vertex, self.th)
+        # a line is compared with a prediction that is uncertain itself (rotation and
+        # vertex): the tolerance covers both, else good short lines near the vertex drop
+        var_pred = np.einsum("ni,ij,nj->n", J, fit.cov, J)
+        if self.vertex_cov is not None:
+            var_pred = var_pred + np.einsum("ni,ij,nj->n", Jx, self.vertex_cov, Jx)
+        res = wrap(self.a[:, None] - pred[None, :])
+        k = np.argmin(np.abs(res), -1)
+        tol_k = np.minimum(np.maximum(self.tolerance_sigmas * np.sqrt(self.s**2 + var_pred[k]), np.radians(0.01)),
+                           self.cap)
+        return k, res[np.arange(self.a.size), k], tol_k
+
     def refine(self, labels):
         """Fit on the labelled lines, re-label all lines by the fit's prediction, repeat.
 
         labels: (M,) spoke per line, -1 unassigned. Returns (labels, fit or None).
         """
-        a, th, s, M = self.a, self.th, self.s, self.a.size
-        wrap = wrap_angle if self.oriented else wrap_line
+        s, M = self.s, self.a.size
         fit = None
         for _ in range(3):
             used = labels >= 0
             if np.unique(labels[used]).size < 3:
                 return labels, fit
             fit = self.fit(used, labels[used])
-            pred, J, Jx = pencil_jacobian(fit.R_cam_from_target, self.vertex, th)
-            # a line is compared with a prediction that is uncertain itself (rotation and
-            # vertex): the tolerance covers both, else good short lines near the vertex drop
-            var_pred = np.einsum("ni,ij,nj->n", J, fit.cov, J)
-            if self.vertex_cov is not None:
-                var_pred = var_pred + np.einsum("ni,ij,nj->n", Jx, self.vertex_cov, Jx)
-            res = wrap(a[:, None] - pred[None, :])
-            k = np.argmin(np.abs(res), -1)
-            tol_k = np.minimum(np.maximum(self.tolerance_sigmas * np.sqrt(s**2 + var_pred[k]), np.radians(0.01)),
-                               self.cap)
-            new = _one_per_spoke(np.where(np.abs(res[np.arange(M), k]) < tol_k, k, -1), s)
+            k, r, tol_k = self.match(fit)
+            new = _one_per_spoke(np.where(np.abs(r) < tol_k, k, -1), s)
             if np.array_equal(new, labels) or np.unique(new[new >= 0]).size < 3:
                 break
             labels = new

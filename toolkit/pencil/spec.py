@@ -143,11 +143,14 @@ def pencil_from_dict(d, source="pencil"):
     if angles.size < 3:
         raise InputError(f"{source}: a pencil needs at least three spokes, got {angles.size}")
     # two spokes in the same direction cannot be told apart in the image
-    a = np.sort(np.remainder(angles, 360.0))
+    order = np.argsort(np.remainder(angles, 360.0), kind="stable")
+    a = np.remainder(angles, 360.0)[order]
     gaps = np.diff(np.concatenate([a, a[:1] + 360.0]))
     if np.min(gaps) < 1e-6:
         k = int(np.argmin(gaps))
-        raise InputError(f"{source}: two spokes share the same direction ({a[k]:g} deg, modulo 360)")
+        i, j = sorted((int(order[k]), int(order[(k + 1) % a.size])))
+        raise InputError(f"{source}: spokes {i} and {j} share the same direction "
+                         f"({angles[i]:g} and {angles[j]:g} deg)")
     for key in ("name", "units"):
         if d.get(key) is not None and not isinstance(d[key], str):
             raise InputError(f"{source}: '{key}' must be a string, got {d[key]!r}")

@@ -61,6 +61,7 @@ __all__ = [
     "lines_through",
     "vertex_crlb",
     "propagate_cov",
+    "LOCAL_CANDIDATES",
 ]
 
 
@@ -140,6 +141,12 @@ class VertexFit:
         test is close, else a lower bound (already decisive).
     condition: condition number of the information matrix sum n n^T / sigma^2.
     iterations: reweighting iterations of the last least-squares solve.
+    gain: the MSAC evidence for the vertex, sum over the lines of T^2 - min(e_k^2, T^2)
+        (each inlier adds up to T^2, the chi-square(1) inlier quantile; 0: no line through it).
+    rival_gain: the same for the best other vertex the robust search found that shares at
+        most two lines with this one (0 when there is none): in clutter, where random
+        segments meet anywhere, it is close to `gain`, and the vertex is then one of many.
+    rival_vertex: (2,) [px] that other vertex, or None.
     """
 
     vertex: np.ndarray
@@ -154,6 +161,9 @@ class VertexFit:
     chi2_infinity: float
     condition: float
     iterations: int
+    gain: float = 0.0
+    rival_gain: float = 0.0
+    rival_vertex: np.ndarray | None = None
 
     @property
     def dof(self) -> int:
@@ -313,6 +323,96 @@ def _pair_hypotheses(lines, max_pairs, seed, min_sin):
     return np.stack([x, y], -1)[ok]
 
 
+def _msac_costs(hyp, lines, dm, st2, sc2, t2, consistent):
+    """MSAC cost sum_k min(e_k^2, T^2) (P,) of every hypothesis hyp (P, 2) [px] from its
+    (P, M) normalised residuals, in blocks of ~16k entries (128 kB): temporaries that leave
+    the cache cost more than the arithmetic. A line counts only where `consistent`."""
+    m = lines.normal.shape[0]
+    step = max(1, 16384 // m)
+    cost = np.empty(hyp.shape[0])
+    for i in range(0, hyp.shape[0], step):
+        h = hyp[i : i + step]
+        d = h @ lines.normal.T + lines.offset
+        c = np.minimum(d * d / _line_var(h, lines, dm, st2, sc2), t2)
+        if consistent is not None:
+            c = np.where(consistent(h), c, t2)
+        cost[i : i + step] = c.sum(1)
+    return cost
+
+
+def _msac_cost(p, e, t2, consistent):
+    """MSAC cost sum_k min(e_k^2, T^2) of the point p (2,) from its normalised residuals e
+    (M,), a line counting only where `consistent` (T^2 elsewhere)."""
+    c = np.minimum(e * e, t2)
+    if consistent is not None:
+        c = np.where(consistent(np.asarray(p, float)[None])[0], c, t2)
+    return float(c.sum())
+
+
+def _refine_inliers(p, fit, classify, inliers, t2):
+    """Weighted LS from p (2,) on its inliers, re-classifying the lines until the inlier set
+    is stable (2-3 rounds). Returns (p (2,), mask (M,), iterations, MSAC cost at p).
+    EstimationError when fewer than two lines agree."""
+    e, _ = classify(p)
+    mask = inliers(p, e)
+    for _ in range(10):
+        if np.count_nonzero(mask) < 2:
+            raise EstimationError("vertex: fewer than two lines agree on a common point")
+        p, it = fit(p, mask)
+        e, _ = classify(p)
+        new = inliers(p, e)
+        if np.array_equal(new, mask):
+            break
+        mask = new
+    else:  # still changing (lines on the threshold): keep the last set, fit it
+        if np.count_nonzero(mask) < 2:
+            raise EstimationError("vertex: fewer than two lines agree on a common point")
+        p, it = fit(p, mask)
+        e, _ = classify(p)
+    return p, mask, it, float(np.sum(np.where(inliers(p, e), np.minimum(e * e, t2), t2)))
+
+
+#: Hypotheses (best first) refined before the vertex is chosen (local optimisation); the
+#: rival vertex (VertexFit.rival_gain) is the best of them.
+LOCAL_CANDIDATES = 16
+
+
+def _local_optimisation(hyp, cost, refine, start_inliers, no_vertex):
+    """Refine the `LOCAL_CANDIDATES` best hypotheses hyp (P, 2) by their MSAC cost (P,) and
+    keep the best refined vertex; a pair's intersection is noisy, and in clutter a random
+    point near many lines can score better than the true vertex before refinement.
+
+    start_inliers(p) -> (M,) bool: the lines through a hypothesis before refinement.
+    Returns (p (2,), inliers (M,), iterations, rival): rival is (vertex (2,), gain) of the
+    best refined vertex that shares at most two lines with the chosen one (None if none),
+    gain = no_vertex - its cost (no_vertex: M T^2, the cost of no vertex at all).
+    """
+    order = np.argsort(cost, kind="stable")[:LOCAL_CANDIDATES]
+    found, first_error = [], None
+    for h in order:
+        if found and any(np.all(f[1][start_inliers(hyp[h])]) for f in found):
+            continue  # its lines are all a found vertex's: it would refine to that one
+        try:
+            p, mask, it, c = refine(hyp[h])
+        except EstimationError as e:
+            first_error = first_error or e
+            continue
+        if not any(np.array_equal(mask, f[1]) for f in found):
+            found.append((p, mask, it, c))
+    if not found:
+        raise first_error
+    best = found[0]
+    for f in found[1:]:  # only a strictly better one replaces the first
+        if f[3] < best[3] - 1e-9 * max(1.0, abs(best[3])):
+            best = f
+    rivals = [f for f in found if np.count_nonzero(f[1] & best[1]) <= 2]
+    rival = None
+    if rivals:
+        r = min(rivals, key=lambda f: f[3])
+        rival = (r[0], float(no_vertex - r[3]))
+    return best[0], best[1], best[2], rival
+
+
 def intersect_lines(
     segments,
     angle_sigma=None,
@@ -398,40 +498,21 @@ def intersect_lines(
         hyp = _pair_hypotheses(lines, max_pairs, seed, min_sin=1e-9)
         if hyp.shape[0] == 0:
             raise EstimationError("vertex: the lines are parallel, they meet only at infinity")
-        # MSAC score of every hypothesis from its (P, M) normalised residuals, in blocks of
-        # ~16k entries (128 kB): temporaries that leave the cache cost more than the arithmetic
-        step = max(1, 16384 // m)
-        cost = np.empty(hyp.shape[0])
-        for i in range(0, hyp.shape[0], step):
-            h = hyp[i : i + step]
-            d = h @ lines.normal.T + lines.offset
-            c = np.minimum(d * d / _line_var(h, lines, dm, st2, sc2), t2)
-            if consistent is not None:
-                c = np.where(consistent(h), c, t2)
-            cost[i : i + step] = c.sum(1)
-        p = hyp[int(np.argmin(cost))]
+        cost = _msac_costs(hyp, lines, dm, st2, sc2, t2, consistent)
 
         def inliers(p, e):
             ok = e * e < t2
             return ok if consistent is None else ok & consistent(p[None])[0]
 
-        e, _ = classify(p)
-        mask = inliers(p, e)
-        for _ in range(10):  # re-classify until the inlier set is stable (2-3 rounds)
-            if np.count_nonzero(mask) < 2:
-                raise EstimationError("vertex: fewer than two lines agree on a common point")
-            p, it = fit(p, mask)
-            e, _ = classify(p)
-            new = inliers(p, e)
-            if np.array_equal(new, mask):
-                break
-            mask = new
-        else:  # still changing (lines on the threshold): keep the last set, fit it
-            if np.count_nonzero(mask) < 2:
-                raise EstimationError("vertex: fewer than two lines agree on a common point")
-            p, it = fit(p, mask)
+        def refine(p):
+            return _refine_inliers(p, fit, classify, inliers, t2)
+
+        def start_inliers(p):
+            return inliers(p, classify(p)[0])
+
+        p, mask, it, rival = _local_optimisation(hyp, cost, refine, start_inliers, m * t2)
     else:
-        mask = np.ones(m, dtype=bool)
+        mask, rival = np.ones(m, dtype=bool), None
         # start from the offset-only solution (lever arms unknown yet)
         p, _ = fit(np.zeros(2), mask, 1, np.zeros(m))
         p, it = fit(p, mask)
@@ -471,6 +552,9 @@ def intersect_lines(
         chi2_infinity=chi2_inf,
         condition=cond,
         iterations=it,
+        gain=float(m * t2 - _msac_cost(p, e, t2, consistent if robust else None)),
+        rival_gain=0.0 if rival is None else rival[1],
+        rival_vertex=None if rival is None else rival[0],
     )
 
 

@@ -131,3 +131,15 @@ def test_memory_does_not_grow_with_spokes_times_lines():
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     assert peak < 200e6 and time.perf_counter() - t0 < 60
+
+
+def test_lines_that_chance_would_fit_are_counted(rng):
+    """chance_lines: how many lines (beyond the three a hypothesis fits exactly) random
+    directions would put within the tolerance of a predicted spoke. Tiny for a clean fan,
+    over 1 (clutter_ambiguous) with dozens of random lines through the vertex."""
+    x = np.array([0.05, 0.1])
+    a = image_angles(random_pose(rng, x, 35.0), x, SPOKES)
+    clean = assign_spokes(a, SPOKES, x, SIGMA)
+    assert clean.chance_lines < 0.2 and not clean.clutter_ambiguous
+    busy = assign_spokes(np.r_[a, rng.uniform(-np.pi, np.pi, 60)], SPOKES, x, np.radians(0.5))
+    assert busy.clutter_ambiguous

@@ -29,7 +29,7 @@ def test_regular_and_explicit_forms():
     ({"angles_deg": [float(a) for a in range(0, 1000)]}, "1000 spokes, over the limit of 360"),
     ({"start_deg": 0, "step_deg": 0.36, "count": 1000}, "'count' is 1000 spokes, over the limit of 360"),
     ({"start_deg": 0, "step_deg": 1, "count": 10**12}, "over the limit"),  # never allocated
-    ({"angles_deg": [0, 20, 380]}, "same direction .20 deg"),
+    ({"angles_deg": [0, 20, 380]}, "spokes 1 and 2 share the same direction .20 and 380 deg"),
     ({"angles_deg": [0, 20, "40"]}, "'angles_deg' must be a list of 3 numbers, got '40'"),
     ({"angles_deg": [0, 20, True]}, "got True"),
     ({"start_deg": "0", "step_deg": 20, "count": 8}, "'start_deg' must be a number"),

@@ -389,3 +389,17 @@ def test_lines_through_a_known_point(rng):
     assert not lines_through(v, off, SIGMA_THETA, SIGMA_C)[1].any()
     cov = np.eye(2) * float(np.max(sig[:3])) ** 2 * 4.0
     assert lines_through(v, off, SIGMA_THETA, SIGMA_C, point_cov=cov)[1].all()
+
+
+def test_rival_vertex_in_clutter_and_none_for_a_clean_pencil(rng):
+    """gain: each line through the vertex adds up to T^2 (10.8). A clean pencil has no rival
+    vertex; among random segments alone the best vertex is one of many (rival about as
+    well supported), which orient refuses as clutter."""
+    _, noisy, _ = _fans(rng, 1, 90.0, m=8)
+    fit = intersect_lines(noisy[0], SIGMA_THETA, SIGMA_C)
+    assert fit.rival_vertex is None and fit.rival_gain == 0.0 and 8 * 8.0 < fit.gain <= 8 * 10.83
+    c = rng.uniform(0, 1000, (300, 2))
+    a = rng.uniform(0, np.pi, 300)
+    d = np.stack([np.cos(a), np.sin(a)], -1) * rng.uniform(10, 150, 300)[:, None]
+    fit = intersect_lines(np.c_[c - d, c + d], offset_sigma=0.3)
+    assert fit.rival_vertex is not None and fit.rival_gain > 0.8 * fit.gain
