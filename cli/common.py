@@ -173,6 +173,51 @@ class FiniteFloat(click.FloatRange):
         return super().convert(v, param, ctx)
 
 
+jsonl_option = click.option(
+    "--jsonl", "jsonl_path", default=None, metavar="PATH|-",
+    help="Also write one JSON object per frame as each frame is done (- for standard output), for a live "
+         "consumer (a ROS bridge, a dashboard); the output file is written at the end as usual.")
+overlay_option = click.option(
+    "--overlay", "overlay_path", default=None, metavar="OUT.mp4|DIR/",
+    help="Also write the frames with the estimate drawn on them: a video (.mp4, .avi) or one PNG per frame in "
+         "a folder (a path ending with /).")
+
+
+class FrameOutputs:
+    """The live outputs of a per-frame command: --jsonl (one object per frame, as it is
+    done) and --overlay (the drawn frames). Used as a context manager around the frame
+    loop; ``emit(record, drawn)`` per frame. A failure or interrupt leaves no
+    half-written video."""
+
+    def __init__(self, jsonl_path=None, overlay_path=None, force=False, fps=25.0):
+        from pencilcal.toolkit.draw.writer import OverlayWriter
+        from pencilcal.toolkit.io.jsonl import open_jsonl
+
+        self.jsonl = open_jsonl(jsonl_path, force) if jsonl_path else None
+        self.overlay = OverlayWriter(overlay_path, fps=fps, force=force) if overlay_path else None
+
+    @property
+    def drawing(self):
+        """Whether the frames must be drawn (the tasks then return the drawn frame)."""
+        return self.overlay is not None
+
+    def emit(self, record, drawn=None, name=None):
+        if self.jsonl is not None:
+            self.jsonl.write(record)
+        if self.overlay is not None and drawn is not None:
+            self.overlay.write(name or str(record.get("image", f"{self.overlay.frames:06d}")), drawn)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if self.overlay is not None:
+            self.overlay.close(ok=exc_type is None)
+        if self.jsonl is not None:
+            self.jsonl.close()
+        return False
+
+
 def images_argument(required=True):
     """IMAGES: one or more paths (files, folders, quoted or shell-expanded globs) or one
     video; the command receives them as a tuple (None when optional and absent)."""

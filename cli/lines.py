@@ -10,18 +10,25 @@ from pencilcal.toolkit.detect.region_detect import sequence_region
 from pencilcal.toolkit.detect.segments import DETECTORS
 from pencilcal.toolkit.io.lines_file import write_lines
 
-from .common import (camera_options, check_output, FiniteFloat, force_option, images_argument, mask_option,
-                     max_pixels_option, output_option, quiet_option, run, run_frames, warn, workers_option)
+from .common import (FiniteFloat, FrameOutputs, camera_options, check_output, force_option, images_argument,
+                     jsonl_option, mask_option, max_pixels_option, output_option, overlay_option, quiet_option, run,
+                     run_frames, warn, workers_option)
 
 
 def _lines_task(frame, ctx):
-    """One frame's lines.json record (module level: runs in worker processes too)."""
-    camera, detector, bars, shaft, min_length, bar_width, region = ctx
+    """One frame's lines.json record, and the frame drawn with them when the overlay is
+    asked for (module level: runs in worker processes too)."""
+    camera, detector, bars, shaft, min_length, bar_width, region, drawing = ctx
     if frame.image is None:
-        return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}
+        return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
-    return lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
-                        valid_region=region)
+    rec = lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
+                       valid_region=region)
+    if not drawing:
+        return rec, None
+    from pencilcal.toolkit.draw.overlay import draw_frame
+
+    return rec, draw_frame(frame.image, segments=rec["segments"], shafts=rec.get("shafts"), text=[frame.name])
 
 
 @click.command()
@@ -43,13 +50,15 @@ def _lines_task(frame, ctx):
               help="Shortest segment written [px]. Default 20; with --bars, 20 or 1/30 of the image's "
                    "smaller side, whichever is longer (36 px at 1080p).")
 @mask_option
+@jsonl_option
+@overlay_option
 @max_pixels_option
 @workers_option
 @force_option
 @quiet_option
 @run
-def lines(images, camera_path, camera_id, output, detector, bars, bar_width, shaft, min_length, mask_path, max_pixels,
-          workers, force, quiet):
+def lines(images, camera_path, camera_id, output, detector, bars, bar_width, shaft, min_length, mask_path, jsonl_path,
+          overlay_path, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel precision, with angle uncertainty.
 
     IMAGES is one or more image files, folders or glob patterns, in the order given (a
@@ -64,7 +73,8 @@ def lines(images, camera_path, camera_id, output, detector, bars, bar_width, sha
     endoscope's circular field stop, letterbox bars), which lines.json records once, as
     `valid_region`.
 
-    A frame that cannot be decoded is reported and written with ok: false.
+    A frame that cannot be decoded is reported and written with ok: false. --jsonl streams
+    each frame's record as it is done; --overlay draws the segments and shafts on the frames.
 
     \b
     Example:
@@ -84,11 +94,13 @@ def lines(images, camera_path, camera_id, output, detector, bars, bar_width, sha
     check_output(output, force, [*source.paths, camera_path, mask_path])
     region = sequence_region(source, mask_path, shape=(camera.height, camera.width))
     records = []
-    ctx = (camera, detector, bars, shaft, min_length, bar_width, region)
-    for rec in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
-        if not rec["ok"]:
-            warn(f"{rec['image']}: {rec['error']}")
-        records.append(rec)
+    with FrameOutputs(jsonl_path, overlay_path, force) as live:
+        ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing)
+        for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
+            if not rec["ok"]:
+                warn(f"{rec['image']}: {rec['error']}")
+            records.append(rec)
+            live.emit(rec, drawn)
     meta = {"detector": detector, "mode": "bars" if bars else "edges", "camera": str(camera_path)}
     write_lines(output, records, force=force, meta=meta, valid_region=None if region is None else region.to_dict())
     if not quiet:

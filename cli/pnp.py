@@ -20,26 +20,40 @@ from pencilcal.validation.pnp import (
     write_poses,
 )
 
-from .common import (camera_options, check_output, FiniteFloat, force_option, images_argument, max_pixels_option,
-                     output_option, quiet_option, run, run_frames, warn, workers_option)
+from .common import (FiniteFloat, FrameOutputs, camera_options, check_output, force_option, images_argument,
+                     jsonl_option, max_pixels_option, output_option, overlay_option, quiet_option, run, run_frames,
+                     warn, workers_option)
 
 _MIN_CORNERS_FLOOR = 4
 
 
 def _pnp_task(frame, ctx):
-    """(poses.json record, warnings) of one frame (module level: runs in worker processes
-    too; the warnings are printed by the parent, in frame order)."""
-    camera, board, method, refine, corner_sigma, max_rms, min_corners = ctx
+    """(poses.json record, warnings, the frame drawn or None) of one frame (module level:
+    runs in worker processes too; the warnings are printed by the parent, in frame order)."""
+    camera, board, method, refine, corner_sigma, max_rms, min_corners, drawing = ctx
+    rec, warnings, det = _pnp_frame(frame, camera, board, method, refine, corner_sigma, max_rms, min_corners)
+    if not drawing or frame.image is None:
+        return rec, warnings, None
+    from pencilcal.toolkit.draw.overlay import draw_pose
+
+    length = 3.0 * board.square
+    drawn = draw_pose(frame.image, camera, rec.get("R_cam_from_target") if rec["ok"] else None,
+                      rec.get("t_cam_from_target"), length, None if det is None else det.corners)
+    return rec, warnings, drawn
+
+
+def _pnp_frame(frame, camera, board, method, refine, corner_sigma, max_rms, min_corners):
+    """(record, warnings, board detection or None) of one frame."""
     label = "all" if method == "all" else method
     if frame.image is None:
-        return empty_frame_record(frame.name, frame.error, method=label), [f"{frame.name}: {frame.error}"]
+        return empty_frame_record(frame.name, frame.error, method=label), [f"{frame.name}: {frame.error}"], None
     check_image_size(frame, camera)
     det = detect_board(frame.image, board)
     if det.count < min_corners:
         err = "no board corners found" if det.count == 0 else \
             f"only {det.count} board corners found (--min-corners {min_corners})"
         return (empty_frame_record(frame.name, err, method=label, corners=det.count, ids=det.ids),
-                [f"{frame.name}: {err}"])
+                [f"{frame.name}: {err}"], det)
     X = board.object_points()[det.ids]
     warnings = []
     if method == "all":
@@ -57,7 +71,7 @@ def _pnp_task(frame, ctx):
         rec = frame_record(frame.name, res, ids=det.ids)
     if not rec["ok"]:
         warnings.append(f"{frame.name}: {rec['error']}")
-    return rec, warnings
+    return rec, warnings, det
 
 
 @click.command()
@@ -78,12 +92,14 @@ def _pnp_task(frame, ctx):
 @click.option("--refine/--no-refine", default=True, show_default=True,
               help="LM refinement of every method's pose on the raw-pixel reprojection error.")
 @max_pixels_option
+@jsonl_option
+@overlay_option
 @workers_option
 @force_option
 @quiet_option
 @run
 def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma, min_corners, max_rms, refine,
-        max_pixels, workers, force, quiet):
+        max_pixels, jsonl_path, overlay_path, workers, force, quiet):
     """Pose of a calibration board in every frame (poses.json).
 
     IMAGES is one or more image files, folders or glob patterns, in the order given, or
@@ -113,11 +129,13 @@ def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma
     check_output(output, force, [*source.paths, camera_path, board_path])
     label = "all" if method == "all" else method
     records = []
-    ctx = (camera, board, method, refine, corner_sigma, max_rms, min_corners)
-    for rec, warnings in run_frames(source, _pnp_task, ctx, workers, "pnp", quiet):
-        for w in warnings:
-            warn(w)
-        records.append(rec)
+    with FrameOutputs(jsonl_path, overlay_path, force) as live:
+        ctx = (camera, board, method, refine, corner_sigma, max_rms, min_corners, live.drawing)
+        for rec, warnings, drawn in run_frames(source, _pnp_task, ctx, workers, "pnp", quiet):
+            for w in warnings:
+                warn(w)
+            records.append(rec)
+            live.emit(rec, drawn)
     meta = {
         "method": label,
         "methods": list(METHODS) if method == "all" else [method],

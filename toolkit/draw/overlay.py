@@ -10,6 +10,7 @@ estimate puts it to 1/16 px:
   with tilt +- sigma, detectable, twin;
 - `draw_shafts`: each shaft's two edges and its midline (the image of the axis);
 - `draw_fulcrum`: the fulcrum's image and ellipse, or an arrow towards it;
+- `draw_pose`: a board's axes at its pose, and its detected corners;
 - `draw_frame`: any of these on one frame, as one call.
 
 Example
@@ -26,7 +27,7 @@ import math
 
 import numpy as np
 
-__all__ = ["draw_frame", "draw_orientation", "draw_shafts", "draw_fulcrum", "spoke_colour", "SHIFT"]
+__all__ = ["draw_frame", "draw_orientation", "draw_shafts", "draw_fulcrum", "draw_pose", "spoke_colour", "SHIFT"]
 
 # sub-pixel bits of cv2's drawing calls: coordinates are multiplied by 2**SHIFT
 SHIFT = 4
@@ -194,6 +195,26 @@ def draw_fulcrum(image, vertex_px, cov_px2=None, label="fulcrum"):
     """The fulcrum's image with its 3-sigma ellipse, or an arrow towards it."""
     img = _bgr(image)
     _point(img, None if vertex_px is None else np.asarray(vertex_px, float), cov_px2, _RED, label)
+    return img
+
+
+def draw_pose(image, camera, R_cam_from_target, t_cam_from_target, length, corners=None):
+    """A target's axes at a pose (x red, y green, z blue, `length` in the target's unit)
+    and its detected corners (K, 2) raw px, on a BGR copy of `image`."""
+    img = _bgr(image)
+    if corners is not None:
+        for c in np.asarray(corners, float).reshape(-1, 2):
+            _line(img, c - 2, c + 2, _CYAN, 1)
+            _line(img, c + [-2, 2], c + [2, -2], _CYAN, 1)
+    if R_cam_from_target is None or t_cam_from_target is None:
+        return img
+    R, t = np.asarray(R_cam_from_target, float), np.asarray(t_cam_from_target, float)
+    pts = (np.vstack([np.zeros(3), length * np.eye(3)]) @ R.T) + t
+    if np.any(pts[:, 2] <= 0):
+        return img
+    px = camera.project(pts)
+    for k, colour in enumerate(((40, 40, 230), (60, 200, 60), (230, 120, 40))):
+        _line(img, px[0], px[k + 1], colour, 2 * _thickness(img))
     return img
 
 
