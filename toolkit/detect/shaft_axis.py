@@ -65,18 +65,20 @@ _MAX_CLUTTER = 0.25  # largest gradient beside an edge point, relative to its ow
 _MIN_OVERLAP_PX = 10.0  # the two edges must be seen together along at least this [px]
 
 
-def plane_bisector(K, l1, l2, inside):
+def plane_bisector(K, l1, l2, inside, Kinv=None):
     """The image (3,) of the plane bisecting the planes back-projected from the edge lines
     l1, l2 (3,) [ideal px, homogeneous], normalised (a^2 + b^2 = 1); inside (2,) [px]: a
-    point between the edges (it orients the planes). See the module docstring."""
+    point between the edges (it orients the planes); Kinv: K's inverse, when at hand. See
+    the module docstring."""
     K = np.asarray(K, float)
-    r = np.linalg.solve(K, np.r_[np.asarray(inside, float), 1.0])
+    Kinv = np.linalg.inv(K) if Kinv is None else Kinv
+    r = Kinv @ np.r_[np.asarray(inside, float), 1.0]
     ns = []
     for ln in (l1, l2):
         n = K.T @ np.asarray(ln, float)
         n = n / np.linalg.norm(n)
         ns.append(n if n @ r >= 0 else -n)
-    la = np.linalg.solve(K.T, ns[0] - ns[1])
+    la = Kinv.T @ (ns[0] - ns[1])
     return la / np.hypot(la[0], la[1])
 
 
@@ -128,8 +130,10 @@ def _angle_offset(line, ref):
 def _axis_jacobian(K, e1, e2, inside, la, ref):
     """Jacobian (2, 4) of (angle [rad], offset at ref [px]) of the plane bisector of edges
     e1, e2 with respect to their (tm, b), by central differences at their sds."""
+    Kinv = np.linalg.inv(K)
+
     def axis(p):
-        l = plane_bisector(K, e1.line(e1.tm + p[0], e1.b + p[1]), e2.line(e2.tm + p[2], e2.b + p[3]), inside)
+        l = plane_bisector(K, e1.line(e1.tm + p[0], e1.b + p[1]), e2.line(e2.tm + p[2], e2.b + p[3]), inside, Kinv)
         return _angle_offset(l if l[:2] @ la[:2] >= 0 else -l, ref)
 
     sd = np.sqrt(np.maximum([e1.var_t, e1.var_b, e2.var_t, e2.var_b], 1e-12))

@@ -38,6 +38,7 @@ Example
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -133,11 +134,15 @@ def _samples(image, camera, cx, cy, nx, ny, t):
     ends = np.stack([np.stack([X[..., 0], Y[..., 0]], -1), np.stack([X[..., -1], Y[..., -1]], -1)], -2)
     H, W = image.shape[:2]
     fin = np.isfinite(X) & np.isfinite(Y)
-    x0 = int(np.clip(np.floor(np.min(np.where(fin, X, np.inf))) - 1, 0, W - 1)) if fin.any() else 0
-    x1 = int(np.clip(np.ceil(np.max(np.where(fin, X, -np.inf))) + 2, x0 + 1, W)) if fin.any() else W
-    y0 = int(np.clip(np.floor(np.min(np.where(fin, Y, np.inf))) - 1, 0, H - 1)) if fin.any() else 0
-    y1 = int(np.clip(np.ceil(np.max(np.where(fin, Y, -np.inf))) + 2, y0 + 1, H)) if fin.any() else H
-    crop = np.ascontiguousarray(image[y0:y1, x0:x1], dtype=np.float32)
+    if image.dtype == np.float32 and image.flags.c_contiguous:
+        x0 = y0 = 0  # a float frame is sampled as it is
+        crop = image
+    else:  # only the part the samples need, as float32 (converting a whole frame costs more)
+        x0 = int(np.clip(np.floor(np.min(np.where(fin, X, np.inf))) - 1, 0, W - 1)) if fin.any() else 0
+        x1 = int(np.clip(np.ceil(np.max(np.where(fin, X, -np.inf))) + 2, x0 + 1, W)) if fin.any() else W
+        y0 = int(np.clip(np.floor(np.min(np.where(fin, Y, np.inf))) - 1, 0, H - 1)) if fin.any() else 0
+        y1 = int(np.clip(np.ceil(np.max(np.where(fin, Y, -np.inf))) + 2, y0 + 1, H)) if fin.any() else H
+        crop = np.ascontiguousarray(image[y0:y1, x0:x1], dtype=np.float32)
     M, S, T = X.shape
     mx = np.where(fin, X - x0, -1e4).reshape(M * S, T)
     my = np.where(fin, Y - y0, -1e4).reshape(M * S, T)
@@ -145,13 +150,13 @@ def _samples(image, camera, cx, cy, nx, ny, t):
     return prof.reshape(M, S, T, -1), ends
 
 
-def _peaks(g, thr, inside):
+def _peaks(g, thr, inside, allowed):
     """Per station of the responses g (M, S, nwin): the largest positive local maximum above
-    thr, refined by a parabola. Returns t_idx (M, S) [samples, fractional] and strength (M,
+    thr where allowed (M, 1, nwin) (each edge's corridor), refined by a parabola. Returns t_idx (M, S) [samples, fractional] and strength (M,
     S), found (M, S) bool."""
     pk = np.zeros(g.shape, bool)
     pk[..., 1:-1] = (g[..., 1:-1] >= g[..., :-2]) & (g[..., 1:-1] > g[..., 2:]) & (g[..., 1:-1] > thr)
-    gm = np.where(pk, g, -np.inf)
+    gm = np.where(pk & allowed, g, -np.inf)
     jm = np.argmax(gm, -1)
     a0 = np.take_along_axis(gm, jm[..., None], -1)[..., 0]
     found = np.isfinite(a0) & inside
@@ -197,8 +202,9 @@ def _bend_cut(s, res, inl):
 
 
 def _line_fits(s, t, w, base, count_obs, specs, max_gap):
-    """Robust line fits of the stations (M, S) (the best run with gaps up to max_gap [px])
-    with the bend cut, and their variances: one `EdgeLine` (or None) per spec."""
+    """Robust line fits of the stations (M, S) (the best run with gaps up to max_gap (M, 1)
+    [px], or all with None) with the bend cut, and their variances: one `EdgeLine` (or None)
+    per spec."""
     sm, tm, b, Sss, Wt, res, inl = robust_line_fit(s, t, w, base, max_gap)
     cut = inl.copy()
     ok = inl.sum(-1) >= MIN_STATIONS
@@ -210,7 +216,8 @@ def _line_fits(s, t, w, base, count_obs, specs, max_gap):
             cut[m] = c
     changed = ok & np.any(cut != inl, -1)
     if np.any(changed):
-        got = robust_line_fit(s[changed], t[changed], w[changed], cut[changed], max_gap)
+        got = robust_line_fit(s[changed], t[changed], w[changed], cut[changed],
+                              None if max_gap is None else max_gap[changed])
         for arr, new in zip((sm, tm, b, Sss, Wt, res, inl), got):
             arr[changed] = new
     var_b, var_t = fit_variances(res, w, inl, Sss, Wt)
@@ -231,18 +238,17 @@ def _line_fits(s, t, w, base, count_obs, specs, max_gap):
 
 def _colour_difference(prof, inside, mc):
     """The unit colour difference (M, S, C) of each station's edge: outside minus inside
-    (medians of the `_STRIP_PX` strips beyond the corridor), the running median over
+    (means of the `_STRIP_PX` strips beyond the corridor), the running median over
     `_BEND_WIN` stations (what lies beside a shaft changes along it: tissue, then a drape),
     the edge's median where a station has none."""
     from scipy.ndimage import median_filter
 
-    d = np.median(prof[:, :, -mc:], axis=2) - np.median(prof[:, :, :mc], axis=2)  # (M, S, C)
-    out = np.empty_like(d)
-    for m in range(d.shape[0]):
-        dm = d[m]
-        glob = np.median(dm[inside[m]], 0) if inside[m].any() else np.zeros(d.shape[-1])
-        dm = np.where(inside[m][:, None], dm, glob)
-        out[m] = median_filter(dm, size=(_BEND_WIN, 1), mode="nearest")
+    d = prof[:, :, -mc:].mean(2) - prof[:, :, :mc].mean(2)  # (M, S, C)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an edge without an inside station
+        glob = np.nan_to_num(np.nanmedian(np.where(inside[..., None], d, np.nan), axis=1))  # (M, C)
+    d = np.where(inside[..., None], d, glob[:, None, :])
+    out = median_filter(d, size=(1, _BEND_WIN, 1), mode="nearest")
     return out / np.maximum(np.linalg.norm(out, axis=-1, keepdims=True), 1e-9)
 
 
@@ -253,7 +259,8 @@ def fit_edges(image, camera, validity, noise, specs, corridor, max_gap=None):
     Parameters
     ----------
     image : (H, W, 3) or (H, W) array
-        The raw frame.
+        The raw frame (a contiguous float32 one is sampled without a copy: convert once
+        for several calls).
     camera : Camera or None
     validity : shaft_work.Validity
         Where the image may be sampled.
@@ -262,9 +269,9 @@ def fit_edges(image, camera, validity, noise, specs, corridor, max_gap=None):
     specs : list of (p0 (2,), u (2,), n (2,), s0, s1)
         Each proposed edge: a point [ideal px], its unit direction and unit outward normal,
         and the range [s0, s1] [px] along u to measure.
-    corridor : float [px]
+    corridor : float or (M,) [px]
         Half-width of the search across each proposed line.
-    max_gap : float [px], optional
+    max_gap : float or (M,) [px], optional
         Each edge is the best run of stations with gaps up to this (None: all stations).
 
     Returns
@@ -276,7 +283,8 @@ def fit_edges(image, camera, validity, noise, specs, corridor, max_gap=None):
         return []
     kern, r = derivative_kernel(SIGMA_PX)
     DT = SAMPLE_STEP_PX
-    nw, mc = int(np.ceil(corridor / DT)), int(np.ceil(_STRIP_PX / DT))
+    corr = np.broadcast_to(np.asarray(corridor, float), (len(specs),))
+    nw, mc = int(np.ceil(corr.max() / DT)), int(np.ceil(_STRIP_PX / DT))
     half = nw + r + mc
     t = np.arange(-half, half + 1) * DT
     lo = np.array([sp[3] for sp in specs], float)
@@ -298,11 +306,13 @@ def fit_edges(image, camera, validity, noise, specs, corridor, max_gap=None):
     for q in range(1, kern.size):
         g += kern[q] * pe[..., mc + q:mc + q + nwin]
     thr = Z_999 * noise * float(np.sqrt(np.sum(kern.astype(float) ** 2)))
-    j, strength, found = _peaks(g, thr, inside)
+    allowed = (np.abs(np.arange(nwin) - nw) * DT)[None, None, :] <= corr[:, None, None]
+    j, strength, found = _peaks(g, thr, inside, allowed)
     # an edge goes on where its contrast does: a station's peak at least _REL_STRENGTH of the
     # edge's median (texture beside a shaft's end gives weaker peaks)
     med = np.array([np.median(strength[m][found[m]]) if found[m].any() else 0.0 for m in range(len(specs))])
     found &= strength >= _REL_STRENGTH * med[:, None]
     tt = (j - nw) * DT
     w = np.where(found, (strength / np.maximum(med, 1e-300)[:, None]) ** 2, 0.0)
-    return _line_fits(s, tt, w, found, inside.sum(-1), specs, max_gap)
+    gap = None if max_gap is None else np.broadcast_to(np.asarray(max_gap, float), (len(specs),))[:, None]
+    return _line_fits(s, tt, w, found, inside.sum(-1), specs, gap)

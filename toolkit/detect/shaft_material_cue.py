@@ -112,9 +112,11 @@ def _bands(work, mm, o, wmin, wmax, min_len):
     region evidence first, the better of overlapping ones."""
     bands = []
     Ball = None
-    for lev, kind, Bm in region_levels(mm, work):
+    for lev, kind, Bm, repeat in region_levels(mm, work):
         if kind == "all":
             Ball = Bm
+        if repeat:
+            continue
         lines = boundary_lines(Bm, work.dist, 0.5 * min_len)
         pairs = region_pairs(lines, wmin, wmax, np.degrees(o.region_conv_max), 0.5 * min_len, _MAX_PAIRS)
         bands += evaluate_bands(lines, pairs, work, Bm, Ball, min_len, lev, kind)
@@ -161,27 +163,38 @@ def _grown(fit, spec):
     return (p0, u, n, lo, hi), 3.0 * float(np.sqrt(fit.var_t + lever**2 * fit.var_b)) + 1.0
 
 
-def _band_edges(image, camera, validity, noise, band, work, corridor, stretch):
-    """The two edges of a band (`shaft_edges.EdgeLine`), or None: fitted over its region
+def _band_edges(image, camera, validity, noise, bands, work, corridor, stretches):
+    """The two edges (`shaft_edges.EdgeLine`) of each band, or None: fitted over its region
     run, then grown along their own lines over the stretch of chord where its
-    cross-section goes on looking like the run's (stretch [b0, b1), `shaft_region_bands.
-    band_stretch`)
-    (`_GROW_PASSES` passes, each at most doubling them: a line extrapolated from a short
-    region boundary would leave the corridor), each the best run of stations with gaps up to
-    the band's width, cut where it bends away: the edges tell how far the shaft goes."""
-    w = band.width_run / work.mean_scale
-    fits = fit_edges(image, camera, validity, noise, _edge_specs(band, work, band.run), corridor, max_gap=w)
-    target = _edge_specs(band, work, stretch)
+    cross-section goes on looking like the run's (stretches: [b0, b1) each,
+    `shaft_region_bands.band_stretch`), `_GROW_PASSES` passes each at most doubling them in
+    a corridor holding 3 sd of the line's prediction (a line extrapolated from a short
+    region boundary would leave the fixed corridor), each the best run of stations with
+    gaps up to the band's width, cut where it bends away: the edges tell how far the shaft
+    goes. All bands' edges are fitted together, pass by pass."""
+    gaps = np.repeat([e.width_run / work.mean_scale for e in bands], 2)
+    specs = [sp for e in bands for sp in _edge_specs(e, work, e.run)]
+    fits = fit_edges(image, camera, validity, noise, specs, corridor, max_gap=gaps)
+    targets = [sp for e, st in zip(bands, stretches) for sp in _edge_specs(e, work, st)]
+    alive = [k for k in range(len(bands)) if fits[2 * k] is not None and fits[2 * k + 1] is not None]
     for _ in range(_GROW_PASSES):
-        if any(f is None for f in fits):
-            return None
-        grown = [_grown(f, t) for f, t in zip(fits, target)]
-        specs = [g[0] for g in grown]
-        if all(sp[3] >= -1.0 and sp[4] <= f.s_hi - f.s_lo + 1.0 for sp, f in zip(specs, fits)):
-            break  # nothing left to grow into
-        narrow = min(corridor, max(_MIN_CORRIDOR_PX, max(g[1] for g in grown)))
-        fits = fit_edges(image, camera, validity, noise, specs, narrow, max_gap=w)
-    return None if any(f is None for f in fits) else fits
+        todo, specs, corr = [], [], []
+        for k in alive:
+            grown = [_grown(fits[m], targets[m]) for m in (2 * k, 2 * k + 1)]
+            if all(g[0][3] >= -1.0 and g[0][4] <= fits[m].s_hi - fits[m].s_lo + 1.0
+                   for g, m in zip(grown, (2 * k, 2 * k + 1))):
+                continue  # nothing left to grow into
+            todo.append(k)
+            specs += [g[0] for g in grown]
+            corr += [min(corridor, max(_MIN_CORRIDOR_PX, max(g[1] for g in grown)))] * 2
+        if not todo:
+            break
+        new = fit_edges(image, camera, validity, noise, specs, np.array(corr),
+                        max_gap=np.repeat([gaps[2 * k] for k in todo], 2))
+        for q, k in enumerate(todo):
+            fits[2 * k], fits[2 * k + 1] = new[2 * q], new[2 * q + 1]
+        alive = [k for k in alive if fits[2 * k] is not None and fits[2 * k + 1] is not None]
+    return [(fits[2 * k], fits[2 * k + 1]) if k in alive else None for k in range(len(bands))]
 
 
 def _reaches_border(m, camera, validity, corridor):
@@ -208,9 +221,11 @@ def material_cue(image, camera, validity, work, mm, o, K, noise):
     long_len = _LONG_FRACTION * float(np.hypot(*work.shape)) / s
     corridor = max(o.corridor_px, 1.5 / s)
     out = []
-    for e in _bands(work, mm, o, wmin, wmax, min_len)[:_MAX_REFINE]:
-        stretch = band_stretch(e, mm.luma_noise)
-        fits = _band_edges(image, camera, validity, noise, e, work, corridor, stretch)
+    bands = _bands(work, mm, o, wmin, wmax, min_len)[:_MAX_REFINE]
+    stretches = [band_stretch(e, mm.luma_noise) for e in bands]
+    fimg = np.ascontiguousarray(image, dtype=np.float32) if bands else image  # sampled pass after pass
+    for e, stretch, fits in zip(bands, stretches,
+                                _band_edges(fimg, camera, validity, noise, bands, work, corridor, stretches)):
         if fits is None:
             continue
         m = midline_from_edges(K, fits[0], fits[1])

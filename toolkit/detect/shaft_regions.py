@@ -70,6 +70,7 @@ Z_999 = 3.090232306167813
 #: Recursive Otsu levels of the likeness: tissue / instrument-like, then the darker part of
 #: that (black shafts), then the darkest (a black shaft against a grey-blue drape).
 LEVELS = 3
+_SAME_MAP = 0.02  # two level maps differing in fewer pixels than this fraction are one
 _MODE_RADIUS = 0.03  # the dominant colour: mean of the chromaticities this close to the mode
 _HIST_BINS = 200  # chromaticity histogram bins over [-1, 1] per axis
 _SAMPLES = 20000  # pixels the colour statistics are taken from
@@ -195,8 +196,9 @@ def otsu_threshold(v, bins=128):
 
 def region_levels(mm, work, n_levels=LEVELS):
     """The binary maps of the levels (module docstring, step 2): a list of (level index,
-    kind "all" or "dark", (h, w) uint8 map after a 3 x 3 close and open), "all" first at
-    each level."""
+    kind "all" or "dark", (h, w) uint8 map after a 3 x 3 close and open, repeat), "all"
+    first at each level; repeat: the map differs from an earlier one in under
+    `_SAME_MAP` of its pixels (its boundaries, and bands, are that one's)."""
     import cv2
 
     vin = work.valid & (work.dist > 1.0)
@@ -215,7 +217,9 @@ def region_levels(mm, work, n_levels=LEVELS):
             maps.append(("dark", B0 & (work.luma < otsu_threshold(yv))))
         for kind, B in maps:
             Bm = cv2.morphologyEx(cv2.morphologyEx(B.astype(np.uint8), cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
-            out.append((lev, kind, Bm))
+            n = max(int(np.count_nonzero(Bm)), 1)
+            repeat = any(np.count_nonzero(Bm != o[2]) < _SAME_MAP * n for o in out)
+            out.append((lev, kind, Bm, repeat))
     return out
 
 
