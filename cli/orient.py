@@ -7,7 +7,7 @@ import click
 from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.io.lines_file import read_lines
-from pencilcal.toolkit.pencil.orient import MODELS, orient_segments, resolve_twins_by_continuity
+from pencilcal.toolkit.pencil.orient import MAX_SEGMENTS, MODELS, orient_segments, resolve_twins_by_continuity
 from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.spec import read_pencil
 
@@ -24,10 +24,13 @@ def _orient_record(camera, pencil, fr, opts):
     sig = fr.get("angle_sigma_deg")
     if sig is None and opts["angle_sigma"] is not None:
         sig = opts["angle_sigma"]
+    n, cap = len(fr["segments"]), opts["max_segments"]
+    if n > cap:
+        warn(f"{fr['image']}: {n} segments, more than --max-segments {cap}: the {cap} longest are used")
     return orient_segments(
         camera, fr["segments"], pencil, model=opts["model"], endpoint_sigma_px=opts["endpoint_sigma"],
         angle_sigma=None if sig is None else np.radians(sig), prior=opts["priors"].get(fr["image"]),
-        image=fr["image"], offset_sigma=fr.get("offset_sigma_px"),
+        image=fr["image"], offset_sigma=fr.get("offset_sigma_px"), max_segments=cap,
     )
 
 
@@ -102,13 +105,15 @@ def _check_priors_match(priors, names, path):
 @click.option("--edges", is_flag=True,
               help="With IMAGES: plain edge segments (as `pencilcal lines`) instead of the spokes' midlines.")
 @mask_option
+@click.option("--max-segments", type=click.IntRange(min=3), default=MAX_SEGMENTS, show_default=True,
+              help="Segments used per frame at most, the longest; a warning says when a frame has more.")
 @max_pixels_option
 @workers_option
 @force_option
 @quiet_option
 @run
 def orient(images, lines_path, camera_path, camera_id, pencil_path, output, model, endpoint_sigma, angle_sigma,
-           prior_path, continuity, detector, edges, mask_path, max_pixels, workers, force, quiet):
+           prior_path, continuity, detector, edges, mask_path, max_segments, max_pixels, workers, force, quiet):
     """Orientation of the pencil in every frame, from its image angles alone.
 
     From IMAGES (image files, folders or glob patterns in the order given, or one video)
@@ -140,7 +145,8 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     camera = read_camera(camera_path, camera_id=camera_id)
     pencil = read_pencil(pencil_path)
     priors = _prior_rotations(prior_path) if prior_path else {}
-    opts = dict(model=model, endpoint_sigma=endpoint_sigma, angle_sigma=angle_sigma, priors=priors)
+    opts = dict(model=model, endpoint_sigma=endpoint_sigma, angle_sigma=angle_sigma, priors=priors,
+                max_segments=max_segments)
     if lines_path is not None:
         frames = read_lines(lines_path)
         if not frames:

@@ -59,6 +59,24 @@ def test_orient_writes_contract(scene):
     assert "bad.png" in r.output
 
 
+def test_max_segments_keeps_the_longest_and_says_so(scene):
+    """A frame with more segments than --max-segments is oriented from the longest, with a
+    warning naming the frame and the option; the other frames are untouched."""
+    d, truth = scene
+    lines = json.loads((d / "lines.json").read_text())
+    short = [[100.0, 100.0 + 3 * k, 110.0, 101.0 + 3 * k] for k in range(4)]
+    lines["frames"][0]["segments"] = short + lines["frames"][0]["segments"]
+    (d / "lines.json").write_text(json.dumps(lines))
+    r = invoke("orient", "--lines", d / "lines.json", "--camera", d / "camera.yaml", "--pencil", d / "pencil.yaml",
+               "-o", d / "out.json", "--max-segments", 8)
+    assert r.exit_code == 0, r.output
+    assert any("warning" in ln and "000.png: 12 segments, more than --max-segments 8" in ln for ln in r.output.splitlines())
+    f = json.loads((d / "out.json").read_text())["frames"][0]
+    assert f["ok"] and f["lines_used"] == 8 and f["spokes"][:4] == [-1] * 4
+    assert invoke("orient", "--lines", d / "lines.json", "--camera", d / "camera.yaml", "--pencil",
+                  d / "pencil.yaml", "-o", d / "o2.json", "--max-segments", 2).exit_code == 2
+
+
 def test_no_overwrite_without_force(scene):
     d, _ = scene
     (d / "out.json").write_text("keep me")
