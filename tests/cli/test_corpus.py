@@ -3,6 +3,7 @@ the documented exit code; nothing already on disk is overwritten by a failing ru
 failing run leaves nothing that looks like a result."""
 from __future__ import annotations
 
+import importlib.util
 import json
 from pathlib import Path
 
@@ -16,8 +17,21 @@ CORPUS = Path(__file__).resolve().parents[1] / "corpus"
 CASES = yaml.safe_load((CORPUS / "cases.yaml").read_text())
 
 
+def _make_corpus():
+    """tests/corpus/make_corpus.py, whose generators make the inputs too big (or too many)
+    to keep in the repository."""
+    spec = importlib.util.spec_from_file_location("make_corpus", CORPUS / "make_corpus.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
 def _args(case, out):
-    args = [str(CORPUS / a) if (CORPUS / a).exists() and not a.startswith("-") else a for a in case["args"]]
+    """The case's command line: corpus files and generated inputs (made in out's folder)
+    by their paths."""
+    made = _make_corpus().generate(case["generate"], out.parent) if case.get("generate") else {}
+    args = [str(made[a]) if a in made else str(CORPUS / a) if (CORPUS / a).exists() and not a.startswith("-") else a
+            for a in case["args"]]
     return args + ["-o", str(out), "-q"]
 
 
@@ -51,6 +65,12 @@ def test_case(case, tmp_path, monkeypatch):
     if "frontal_not_detectable" in checks:
         f = json.loads(out.read_text())["frames"][0]
         assert f["ok"] is True and f["detectable"] is False and f["tilt_deg"] < 10
+    if "clean_ok" in checks:  # the frame without clutter beside the refused ones: estimated, unflagged
+        f = [fr for fr in json.loads(out.read_text())["frames"] if fr["image"] == "clean.png"][0]
+        assert f["ok"] is True and f["lines_used"] == 8 and not f["normal_ambiguous"], f
+    if "first_segment_rejected" in checks:
+        f = json.loads(out.read_text())["frames"][0]
+        assert f["ok"] is True and f["spokes"][0] == -1 and f["lines_used"] == 7, f
 
 
 @pytest.mark.parametrize("case", [c for c in CASES if c["exit"] == 1], ids=lambda c: c["name"])

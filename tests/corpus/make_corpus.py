@@ -2,10 +2,15 @@
 
 Run from the repository root: python tests/corpus/make_corpus.py. The text files beside it
 (cameras, boards, pencils, lines) are written by hand; cases.yaml says what each case must
-produce.
+produce. Inputs too large to keep in the repository (100k segments, a 14 MB lines.json,
+clutter) or one per numeric field (NaN, inf, strings) are made by the `GENERATORS` below
+when a case runs (its ``generate:`` key); ``python tests/corpus/make_corpus.py --big DIR``
+writes them all to DIR for use by hand.
 """
 from __future__ import annotations
 
+import json
+import sys
 from pathlib import Path
 
 import cv2
@@ -64,5 +69,119 @@ def main():
     print("corpus written to", HERE)
 
 
+# ---------------------------------------------------------------- generated inputs
+
+SMALL = (320, 180)  # camera_pinhole.json
+FRONTAL = json.loads((HERE / "lines_frontal.json").read_text())["frames"][0]["segments"]
+
+
+def _fan_segments(seed):
+    """The 8 spokes of pencil.yaml (0-140 deg, no radius) tilted 35 deg in camera_pinhole.json
+    (320x180), 0.3 px of end point noise: (8, 4) raw px."""
+    from pencilcal.toolkit.camera.formats import read_camera
+    from pencilcal.toolkit.pencil.spec import project_spokes, read_pencil
+
+    cam, pen = read_camera(HERE / "camera_pinhole.json"), read_pencil(HERE / "pencil.yaml")
+    rng = np.random.default_rng(seed)
+    R = rotation_about_axis([0.0, 0, 1], rng.uniform(0, 6.28)) @ rotation_about_axis([1.0, 0, 0], np.radians(35.0))
+    seg = project_spokes(cam, R.T, np.array([0.0, 0.0, 60.0]), pen, (5.0, 30.0))
+    return seg + 0.3 * rng.normal(size=seg.shape)
+
+
+def _clutter(k, seed, size=SMALL, length=(5.0, 100.0)):
+    rng = np.random.default_rng(seed)
+    c = rng.uniform([0, 0], size, (k, 2))
+    a = rng.uniform(0, np.pi, k)
+    d = np.stack([np.cos(a), np.sin(a)], -1) * rng.uniform(*length, k)[:, None] / 2
+    return np.c_[c - d, c + d]
+
+
+def _write_lines(path, frames):
+    Path(path).write_text(json.dumps({"frames": frames}, allow_nan=True))
+
+
+def clutter_lines(path, k=1000, frames=2):
+    """A clean frame (the fan alone) and `frames` frames of the fan among k random segments."""
+    out = [{"image": "clean.png", "segments": _fan_segments(0).tolist()}]
+    for i in range(frames):
+        seg = np.r_[_fan_segments(i + 1), _clutter(k, i + 1)]
+        out.append({"image": f"clutter_{i}.png", "segments": seg[np.random.default_rng(i).permutation(len(seg))].tolist()})
+    _write_lines(path, out)
+
+
+def many_segments(path, k=100_000):
+    """A clean frame (the fan alone) and one of the fan among k random segments (a detector
+    gone wild, or an attacker)."""
+    _write_lines(path, [{"image": "clean.png", "segments": _fan_segments(0).tolist()},
+                        {"image": "many.png", "segments": np.r_[_fan_segments(5), _clutter(k, 5)].round(3).tolist()}])
+
+
+def huge_lines(path):
+    """A 14 MB lines.json (well within files.MAX_INPUT_BYTES): 400k segments in one frame."""
+    many_segments(path, 400_000)
+
+
+def bad_frame_field(path, key, value):
+    """The frontal frame with one per-segment field (or `segments` itself) given `value`
+    for every segment (a string, NaN, inf...)."""
+    fr = {"image": "bad.png", "segments": FRONTAL}
+    if key == "segments":
+        fr["segments"] = [FRONTAL[0][:3] + [value]] + FRONTAL[1:]
+    else:
+        fr[key] = [value] * len(FRONTAL)
+    _write_lines(path, [fr])
+
+
+def bad_shaft_field(path, key, value):
+    """A pivot-like frame whose one shaft has `key` set to `value` (midline: its last
+    coordinate)."""
+    shaft = {"midline": [100.0, 20.0, 160.0, 170.0], "width_px": 20.0, "angle_sigma_deg": 0.2,
+             "offset_sigma_px": 0.3, "edges": [[90.0, 20.0, 150.0, 170.0], [110.0, 20.0, 170.0, 170.0]],
+             "convergence_deg": 0.5, "score": 3.0}
+    if key in ("midline", "edges"):
+        shaft[key] = shaft["midline"][:3] + [value] if key == "midline" else [shaft["edges"][0][:3] + [value]]
+    else:
+        shaft[key] = value
+    _write_lines(path, [{"image": "bad.png", "segments": [], "shafts": [shaft]}])
+
+
+def bad_pencil(path, key, value):
+    """pencil_fan.yaml with one field set to `value` (angles_deg: its last angle)."""
+    import yaml
+
+    d = yaml.safe_load((HERE / "pencil_fan.yaml").read_text())
+    if key == "angles_deg":
+        d[key] = d[key][:-1] + [value]
+    elif key in ("vertex", "radius"):
+        d[key] = [d[key][0], value]
+    elif key in ("start_deg", "step_deg", "count"):
+        d = {"start_deg": 0, "step_deg": 20, "count": 8, key: value}
+    else:
+        d[key] = value
+    Path(path).write_text(yaml.safe_dump(d, sort_keys=False))
+
+
+GENERATORS = {f.__name__: f for f in (clutter_lines, many_segments, huge_lines, bad_frame_field, bad_shaft_field,
+                                      bad_pencil)}
+
+
+def generate(spec, folder):
+    """Make a case's generated inputs: spec {file name: [generator, *args]} -> the paths."""
+    out = {}
+    for name, (gen, *args) in spec.items():
+        out[name] = Path(folder) / name
+        GENERATORS[gen](out[name], *args)
+    return out
+
+
 if __name__ == "__main__":
-    main()
+    if sys.argv[1:2] == ["--big"]:
+        import yaml
+
+        folder = Path(sys.argv[2])
+        folder.mkdir(parents=True, exist_ok=True)
+        for case in yaml.safe_load((HERE / "cases.yaml").read_text()):
+            for name, path in generate(case.get("generate", {}), folder).items():
+                print(case["name"], "->", path)
+    else:
+        main()

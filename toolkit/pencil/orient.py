@@ -39,10 +39,10 @@ from pencilcal.toolkit.pencil.estimator import (
     choose_by_prior,
 )
 from pencilcal.toolkit.geometry.frames import normalize, rotation_angle, rotation_from_rotvec
-from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
+from pencilcal.toolkit.pencil.defaults import DETECTION_LEVEL, ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.orientation import Orientation
 from pencilcal.toolkit.pencil.spec import image_angles
-from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
+from pencilcal.toolkit.pencil.vertex import LOCAL_CANDIDATES, intersect_lines, lines_through
 
 __all__ = ["orient_segments", "orientation_record", "raw_vertex", "MODELS", "MAX_SEGMENTS", "metric_depth",
            "resolve_twins_by_continuity"]
@@ -51,6 +51,11 @@ MODELS = ("exact", "general", "aligned")
 
 # Segments shorter than this carry almost no angle information and are mostly noise.
 MIN_LENGTH_PX = 8.0
+#: A vertex is ambiguous when the best other vertex found (through other lines, vertex.VertexFit
+#: rival_gain) has MSAC evidence within this of its own: the chi-square(2) quantile at the
+#: detection level, Bonferroni-corrected for the candidate vertices compared (the rival is
+#: the best of them: in clutter, random segments meet about as well in many places).
+VERTEX_RIVAL_CHI2 = -2.0 * np.log(DETECTION_LEVEL / LOCAL_CANDIDATES)
 #: Most segments of one frame that are used, the longest (`orient_segments`' max_segments,
 #: `pencilcal orient --max-segments`). A pencil has tens of lines; a detector gives a few
 #: thousand on a busy image; past this the frame is mostly other edges, the shortest of
@@ -298,6 +303,12 @@ def _label_and_fit(ln, pencil, labels, idx, sigma_metric):
     oriented = not np.any(ln.straddle)
     if labels is None:
         asg = assign_spokes(ln.angle, pencil.angles, ln.vertex, ln.sigma, vertex_cov=ln.vertex_cov, oriented=oriented)
+        if asg.clutter_ambiguous:
+            # too many lines through the vertex: the labelling is one of many equally good
+            raise EstimationError(
+                f"clutter: {ln.angle.size} lines pass through the vertex and random ones would fit "
+                f"{asg.chance_lines:.1f} of the pencil's predicted spokes; its {int(np.sum(asg.spoke >= 0))} "
+                "labelled lines cannot be told from chance")
         lab, fit, rivals = asg.spoke, asg.fit, list(asg.rivals)
         if rivals and pencil.radius is not None:
             lab, fit, rivals = _break_label_ties(lab, fit, rivals, ln.vertex, pencil, ln.p1, ln.p2, sigma_metric)
@@ -386,6 +397,13 @@ def _find_vertex(ideal, st, sc, radius):
     """
     cons = None if radius is None else _radius_consistent(ideal, radius)
     vf = intersect_lines(ideal, angle_sigma=st, offset_sigma=sc, robust=True, consistent=cons)
+    if vf.rival_vertex is not None and vf.gain - vf.rival_gain < VERTEX_RIVAL_CHI2:
+        # clutter: random segments meet everywhere, and this vertex is one of many
+        far = float(np.hypot(*(vf.rival_vertex - vf.vertex)))
+        raise EstimationError(
+            f"clutter: the vertex is ambiguous: other lines meet {far:.0f} px away about as well "
+            f"(evidence {vf.rival_gain:.1f} against {vf.gain:.1f}, less than {VERTEX_RIVAL_CHI2:.1f} apart) "
+            f"among {len(ideal)} segments")
     return vf.vertex, vf.cov, vf.inliers
 
 
