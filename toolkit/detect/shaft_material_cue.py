@@ -7,31 +7,30 @@ frames whose colour tells the materials apart (`shafts`).
 2. *bands* (`shaft_region_bands`): each pair judged along its chord through the work frame;
    proposed when its run of region is at least the least length and differs in material
    from both sides, the better of overlapping ones;
-3. *edges* (`shaft_edges`): each proposed band's two boundaries refitted at full resolution
-   in a corridor (`corridor_px`, at least 1.5 work px: the region boundary's own resolution)
-   around them over its run, then grown along their own lines over the band's extension
-   (where its inside stays region: a shaft running into a drape of its own material, or a
-   white shaft merging with white tissue, is a short band of region whose edges go on),
-   each edge the best run of stations with gaps up to a width (a thread, a highlight); its
-   midline the plane bisector of the two
-   (`shaft_axis`). It is a shaft when both edges are seen together along at least the
-   least length and a third of the region's run, they, its band or its region's extension
-   (the instrument's material, its wrist included) along 2.5 widths (a jaw is not
-   elongated), when
-   they converge by at most the largest convergence and meet outside the stretch (by half a
-   width), and when the band's extension reaches the border of the view or the stretch ends
-   within a width of it (an instrument enters from outside; its edges may fade before the
-   border into a dark, vignetted surround) or is very long (`_LONG_FRACTION` of the diagonal). The
-   score is the length of the band's run of region seen as a shaft [raw px] (of two
-   readings of one instrument, the band of instrument-like material is the shaft, the band
-   that takes in its shadow too is not) times the least fraction of stations where an edge
-   was found;
-4. *selection* (`select`): A shaft whose band overlaps a better
-   one's, or that runs along a better one's axis (within `_COAXIAL_DEG`, its centre within
-   half that one's width: a wrist, the far part of a shaft split by a highlight), is another
-   reading of the same instrument; a short band (its run under two widths, accepted through
-   its extension) whose extension runs into another shaft's band is a wrist or jaw part
-   continuing into that instrument's shaft. Both are dropped.
+3. *edges* (`shaft_edges`, `_band_edges`): each proposed band's two boundaries refitted at
+   full resolution in a corridor (`corridor_px`, at least 1.5 work px: the region boundary's
+   own resolution) over its run, then grown along their own lines over the stretch where
+   the band's cross-section goes on looking like the run's (`shaft_region_bands.
+   band_stretch`: a shaft running into a drape of its own material, or a white shaft
+   merging with white tissue, is a short band of region whose edges go on), each edge the
+   best run of stations with gaps up to a width (a thread, a highlight); the midline is the
+   plane bisector of the two (`shaft_axis`). It is a shaft when both edges are seen
+   together along at least the least length and a third of the region's run; when they,
+   its band or its region's extension (the instrument's material, its wrist included) run
+   along 2.5 widths (a jaw is not elongated); when they converge by at most the largest
+   convergence and meet outside the stretch (by half a width); and when the band's
+   extension reaches the border of the view or the stretch ends within a width of it (an
+   instrument enters from outside; its edges may fade into a dark, vignetted surround
+   before the border), or it is very long (`_LONG_FRACTION` of the diagonal). The score is
+   the length of the band's run of region seen as a shaft [raw px] (of two readings of one
+   instrument, the band of instrument-like material is the shaft, the band that takes in
+   its shadow too is not) times the least fraction of stations where an edge was found;
+4. *selection* (`select`): a shaft whose band overlaps a better one's, or that runs along a
+   better one's axis (within `_COAXIAL_DEG`, its centre within half that one's width: a
+   wrist, the far part of a shaft split by a highlight), is another reading of the same
+   instrument; a short band (its run under two widths) whose extension runs into another
+   shaft's band is a wrist or jaw part continuing into that instrument's shaft. Both are
+   dropped.
 
 Work pixels in the region steps, ideal pixels from the edges on.
 

@@ -17,11 +17,12 @@ boundaries: the proposals of the shaft detector's material cue (`shafts`).
    noise sd of one pixel's projection (from the image noise and brightness). A grey frame,
    or a colour frame of a grey scene, has no material cue, and the shaft detector judges its
    bands by their edges alone (`shafts`).
-2. *levels* (`region_levels`): recursive two-class Otsu splits of the likeness over the
-   valid region. The instruments are its upper tail and may cover only a few percent of the
-   view, so each split isolates a more extreme part. At each level the region ("all") and
-   its darker part (an Otsu split of its luma: a black shaft against a grey drape is
-   instrument-like on both sides of its edge but differs in lightness).
+2. *levels* (`region_levels`): `LEVELS` recursive two-class Otsu splits of the likeness
+   over the valid region. The instruments are its upper tail and may cover only a few
+   percent of the view, so each split isolates a more extreme part. At each level the
+   region ("all") and its darker part (an Otsu split of its luma: a black shaft against a
+   grey drape is instrument-like on both sides of its edge but differs in lightness); a
+   map that repeats an earlier one is marked so and not searched again.
 3. *boundaries* (`boundary_lines`): every contour of a level's map (after a 3 x 3 close and
    open) is approximated by a polygon (Douglas-Peucker, `_DP_EPS_PX`); its sides at least
    half the least length long whose middle is off the valid region's boundary are refitted
