@@ -453,16 +453,35 @@ def _sampled_frames(source, k):
             if img is not None:
                 out.append(img)
     else:
-        # a stream has no random access: decode in order, keep the sampled frames (the
-        # container's count may be off: without one, the first k frames)
-        for f in source:
-            if (want is None and len(out) < k) or (want is not None and f.index in want):
-                if f.image is not None:
-                    out.append(f.image)
-            if (want is None and len(out) >= k) or (want is not None and f.index >= max(want)):
-                break
+        out = _video_frames(source, want, k)
     shape = out[0].shape[:2] if out else None
     return [_as_u8(f) for f in out if f.shape[:2] == shape]
+
+
+def _video_frames(source, want, k):
+    """The frames at indices `want` of a video source (seeking; the container's count may be
+    off: without one, or where seeking fails, the first k frames)."""
+    import cv2
+
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    cap = cv2.VideoCapture(str(source.paths[0]))
+    out = []
+    try:
+        for i in sorted(want or ()):
+            if cap.set(cv2.CAP_PROP_POS_FRAMES, int(i)):
+                ok, img = cap.read()
+                if ok and img is not None:
+                    out.append(img)
+    finally:
+        cap.release()
+    if out:
+        return [cv2.cvtColor(f, cv2.COLOR_BGR2GRAY) if source.gray and f.ndim == 3 else f for f in out]
+    for f in source:  # decode in order
+        if f.image is not None:
+            out.append(f.image)
+        if len(out) >= k:
+            break
+    return out
 
 
 def sequence_region(source, mask_path=None, shape=None, max_frames=MAX_FRAMES):

@@ -102,6 +102,7 @@ def _band_profiles(img, camera, pr, s, blur_px, n_in=_N_IN):
     bins beyond edge a (outer first), n_in inside, _N_OUT beyond edge b; valid (K, S) (all
     bins inside the image, edges not crossed), valid_in (K, S) (the inside bins are) and
     in_img (K, S) (the inside bins are in the image, whether or not the edges have crossed).
+    With a valid region (`image.GrayImage.region`) "in the image" means in its interior.
 
     Inside, the bins keep max(0.1 w, 2 blur_px) (at most 0.4 w) away from the edges;
     outside they run from 2 blur_px + 1 to that plus max(0.3 w, 4) px beyond them, so that
@@ -128,6 +129,8 @@ def _band_profiles(img, camera, pr, s, blur_px, n_in=_N_IN):
     H, W = img.shape
     with np.errstate(invalid="ignore"):
         inside = (X >= 0) & (X <= W - 1) & (Y >= 0) & (Y <= H - 1)
+    if getattr(img, "region", None) is not None:
+        inside &= img.in_region(X, Y)  # the valid region's boundary is the border of the view
     ok = w > 0
     in_img = np.all(inside[..., _N_OUT:_N_OUT + n_in], -1)
     valid_in = in_img & ok

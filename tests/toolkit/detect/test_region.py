@@ -237,7 +237,8 @@ def test_dict_roundtrip_and_conventions():
 def test_mask_contains_distance_consistent():
     regs = [ValidRegion.from_circle(100.3, 70.7, 90.0, 200, 150),
             ValidRegion.from_rect(10.5, 5.0, 180.2, 140.0, 200, 150),
-            ValidRegion.from_dict({"polygon": [[10, 10], [190, 20], [150, 140], [100, 60], [20, 130]]}, shape=(150, 200)),
+            ValidRegion.from_dict({"polygon": [[10, 10], [190, 20], [150, 140], [100, 60], [20, 130]]},
+                                  shape=(150, 200)),
             ValidRegion(200, 150, circle=(100.0, 75.0, 70.0), holes=((150.0, 60.0, 190.0, 90.0),), kind="circle")]
     yy, xx = np.mgrid[0:150, 0:200]
     pts = np.stack([xx, yy], axis=-1).astype(float)
@@ -464,3 +465,22 @@ def test_shaft_entering_the_field_reaches_its_border():
     near_end = shafts[0].midline[:2]  # the wide (near) end: where the shaft enters the view
     assert abs(float(reg.distance_to_boundary(near_end))) < 15.0
     assert 45 < shafts[0].width_px < 56
+
+
+def test_sequence_region_from_images_a_video_or_a_mask(tmp_path):
+    from pencilcal.toolkit.io.images import open_images
+
+    (tmp_path / "frames").mkdir()
+    vid = cv2.VideoWriter(str(tmp_path / "field.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 10, (640, 480))
+    for i in range(20):
+        img = field_with_shaft(seed=i % 3)
+        cv2.imwrite(str(tmp_path / "frames" / f"{i:02d}.png"), img)
+        vid.write(cv2.cvtColor(img, cv2.COLOR_GRAY2BGR))
+    vid.release()
+    for src in (open_images(tmp_path / "frames"), open_images(tmp_path / "field.avi")):
+        reg = sequence_region(src)
+        assert reg.kind == "circle" and reg.info["n_frames"] == 16
+        assert np.hypot(reg.circle[0] - FIELD[0], reg.circle[1] - FIELD[1]) < 1.5
+    (tmp_path / "m.json").write_text('{"circle": [300, 200, 100]}')
+    reg = sequence_region(open_images(tmp_path / "frames"), tmp_path / "m.json", shape=(480, 640))
+    assert reg.to_dict() == {"circle": [300.0, 200.0, 100.0]} and reg.shape == (480, 640)
