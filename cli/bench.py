@@ -8,12 +8,12 @@ import click
 from pencilcal.toolkit.io.files import to_jsonable, write_json
 from pencilcal.validation.bench import format_table, run_bench
 
-from .common import check_output, run
+from .common import command, check_output, run
 
 SECTIONS = ("orient", "shafts", "pnp", "sfm", "estimator")
 
 
-@click.command()
+@command()
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object instead of a table.")
 @click.option("--quick", is_flag=True, help="Fewer frames and repeats (noisier, a few times faster).")
 @click.option("--sections", default=",".join(SECTIONS), show_default=True,

@@ -17,9 +17,21 @@ from pencilcal.toolkit.errors import InputError, PencilcalError
 from pencilcal.toolkit.io.files import check_writable
 from pencilcal.toolkit.io.images import DEFAULT_MAX_PIXELS
 
-__all__ = ["run", "progress", "warn", "output_option", "force_option", "quiet_option", "check_output",
+__all__ = ["CONTEXT_SETTINGS", "command", "run", "progress", "warn", "output_option", "force_option", "quiet_option", "check_output",
            "camera_options", "StageBars", "workers_option", "run_frames", "images_argument", "max_pixels_option",
            "IMAGES_HELP", "FiniteFloat", "LabelledProgress", "mask_option"]
+
+#: Every command's click context settings: -h as well as --help, the width of the help. Set on
+#: each command (not only inherited from the group), so a command invoked on its own, as the
+#: tests and the Python API do, prints the same help as `pencilcal COMMAND -h`.
+CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
+
+
+def command(*args, **kwargs):
+    """`click.command` with `CONTEXT_SETTINGS`."""
+    kwargs.setdefault("context_settings", CONTEXT_SETTINGS)
+    return click.command(*args, **kwargs)
+
 
 
 class Terminated(BaseException):

@@ -9,7 +9,7 @@ from pathlib import Path
 from pencilcal.toolkit.camera.formats import camera_format, read_camera, write_camera
 from pencilcal.toolkit.errors import InputError
 
-from .common import check_output, force_option, run
+from .common import command, check_output, force_option, run
 
 
 def _check_output(output, force):
@@ -21,7 +21,7 @@ def _check_output(output, force):
         raise InputError(f"{output}: already exists; pass --force to overwrite it")
 
 
-@click.command()
+@command()
 @click.argument("cam", type=click.Path())
 @click.option("-o", "--output", required=True, type=click.Path(),
               help="Output camera file, format by extension (a path without one: a COLMAP model folder).")

@@ -9,7 +9,7 @@ import click
 
 from pencilcal.toolkit.errors import InputError
 
-from .common import LabelledProgress, StageBars, progress, quiet_option, run, warn
+from .common import command, LabelledProgress, StageBars, progress, quiet_option, run, warn
 
 # What makes a folder an earlier demo's (safe to replace with --force).
 _DEMO_FILES = ("report.html", "validation.json", "sequence")
@@ -32,7 +32,7 @@ def _check_demo_folder(out, force):
                              "not replacing them, even with --force")
 
 
-@click.command()
+@command()
 @click.option("-o", "--output", "out", type=click.Path(file_okay=False), default="pencilcal-demo", show_default=True,
               help="Folder for the sequence, validation.json and report.html.")
 @click.option("--frames", type=click.IntRange(min=6, max=60), default=16, show_default=True,

@@ -17,7 +17,7 @@ import click
 
 from pencilcal.toolkit.io.files import check_writable, write_json
 
-from .common import (check_output, FiniteFloat, force_option, output_option, run, warn)
+from .common import (CONTEXT_SETTINGS, check_output, FiniteFloat, force_option, output_option, run, warn)
 
 __all__ = ["experiment"]
 
@@ -59,7 +59,7 @@ def _fmt(x, spec=".3g"):
     return "-" if x is None else format(x, spec)
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(context_settings=CONTEXT_SETTINGS)
 def experiment():
     """The book chapter's experiments on a validation.json (of `pencilcal validate`).
 

@@ -11,7 +11,7 @@ from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles
 from pencilcal.toolkit.io.images import open_images
 from pencilcal.toolkit.io.lines_file import read_lines
 
-from .common import (camera_options, check_output, FiniteFloat, force_option, images_argument, mask_option,
+from .common import (command, camera_options, check_output, FiniteFloat, force_option, images_argument, mask_option,
                      max_pixels_option, output_option, quiet_option, run, run_frames, warn, workers_option)
 
 
@@ -44,7 +44,7 @@ def _shafts(source, camera, detector, quiet, workers, mask_path=None):
     return frames
 
 
-@click.command()
+@command()
 @images_argument(required=False)
 @click.option("--lines", "lines_path", type=click.Path(dir_okay=False), default=None,
               help="Lines per frame (lines.json; shaft midlines are used when present), instead of IMAGES.")

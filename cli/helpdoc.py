@@ -5,7 +5,6 @@ what this prints, so the page never drifts from the code.
 """
 from __future__ import annotations
 
-import click
 
 __all__ = ["cli_reference"]
 
@@ -16,23 +15,29 @@ Every command's `--help`, as `pencilcal COMMAND --help` prints it. Generated fro
 """
 
 
+def _context(cmd, name, parent=None):
+    # make_context applies the command's context_settings (-h) the same way on every click
+    # version; a bare click.Context does so on some versions only
+    return cmd.make_context(name, [], parent=parent, resilient_parsing=True,
+                            max_content_width=100, terminal_width=100)
+
+
 def _help(cmd, name, parent=None):
-    ctx = click.Context(cmd, info_name=name, parent=parent, max_content_width=100, terminal_width=100)
-    return cmd.get_help(ctx)
+    return cmd.get_help(_context(cmd, name, parent))
 
 
 def cli_reference() -> str:
     """The Markdown of docs/cli.md."""
     from .main import cli
 
-    root = click.Context(cli, info_name="pencilcal", max_content_width=100, terminal_width=100)
+    root = _context(cli, "pencilcal")
     parts = [_HEAD, "## pencilcal\n", "```text\n" + cli.get_help(root) + "\n```\n"]
     for name in sorted(cli.commands):
         cmd = cli.commands[name]
         parts.append(f"## pencilcal {name}\n")
         parts.append("```text\n" + _help(cmd, name, root) + "\n```\n")
         for sub in sorted(getattr(cmd, "commands", {}) or {}):
-            sub_ctx = click.Context(cmd, info_name=name, parent=root)
+            sub_ctx = _context(cmd, name, root)
             parts.append(f"### pencilcal {name} {sub}\n")
             parts.append("```text\n" + _help(cmd.commands[sub], sub, sub_ctx) + "\n```\n")
     return "\n".join(parts)

@@ -10,7 +10,7 @@ from pencilcal.toolkit.detect.region_detect import sequence_region
 from pencilcal.toolkit.detect.segments import DETECTORS
 from pencilcal.toolkit.io.lines_file import write_lines
 
-from .common import (FiniteFloat, FrameOutputs, camera_options, check_output, force_option, images_argument,
+from .common import (command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option, images_argument,
                      jsonl_option, mask_option, max_pixels_option, output_option, overlay_option, quiet_option, run,
                      run_frames, warn, workers_option)
 
@@ -31,7 +31,7 @@ def _lines_task(frame, ctx):
     return rec, draw_frame(frame.image, segments=rec["segments"], shafts=rec.get("shafts"), text=[frame.name])
 
 
-@click.command()
+@command()
 @images_argument()
 @camera_options
 @output_option

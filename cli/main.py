@@ -8,7 +8,7 @@ import click
 from .bench import bench
 from .calibrate import calibrate
 from .convert import convert
-from .common import install_signal_handlers
+from .common import CONTEXT_SETTINGS, install_signal_handlers
 from .demo import demo
 from .experiment import experiment
 from .fulcrum import fulcrum
@@ -28,7 +28,7 @@ except PackageNotFoundError:  # running from a source tree without installing
     __version__ = "0+unknown"
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.group(context_settings=CONTEXT_SETTINGS)
 @click.version_option(__version__, prog_name="pencilcal")
 @click.option("--debug", is_flag=True, help="Show the traceback of an internal error instead of one line.")
 def cli(debug):

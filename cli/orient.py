@@ -11,7 +11,7 @@ from pencilcal.toolkit.pencil.orient import MAX_SEGMENTS, MODELS, orient_segment
 from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.spec import read_pencil
 
-from .common import (camera_options, check_output, FiniteFloat, force_option, images_argument, mask_option,
+from .common import (command, camera_options, check_output, FiniteFloat, force_option, images_argument, mask_option,
                      max_pixels_option, output_option, progress, quiet_option, run, run_frames, warn,
                      workers_option)
 
@@ -82,7 +82,7 @@ def _check_priors_match(priors, names, path):
         raise InputError(f"{path}: none of its {len(priors)} image names ({some}, ...) is a frame of this run")
 
 
-@click.command()
+@command()
 @images_argument(required=False)
 @click.option("--lines", "lines_path", type=click.Path(dir_okay=False), default=None,
               help="Line segments per frame (lines.json, raw pixels), instead of IMAGES.")

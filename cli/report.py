@@ -9,7 +9,7 @@ import click
 from pencilcal.validation.report import FORMATS, load_sensitivity, write_report
 from pencilcal.validation.validation_file import load_validation
 
-from .common import check_output, force_option, quiet_option, run
+from .common import command, check_output, force_option, quiet_option, run
 
 
 def _command(validation, output, samples, title, sensitivity, force, quiet):
@@ -28,7 +28,7 @@ def _command(validation, output, samples, title, sensitivity, force, quiet):
     return shlex.join(args)
 
 
-@click.command()
+@command()
 @click.argument("validation", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Report file: .html (self-contained page) or .pdf (A4 pages).")

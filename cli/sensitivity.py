@@ -9,7 +9,7 @@ import numpy as np
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import check_writable, write_json
 
-from .common import (check_output, FiniteFloat, force_option, output_option, quiet_option, run)
+from .common import (command, check_output, FiniteFloat, force_option, output_option, quiet_option, run)
 
 MAP_CHOICES = ("tilt-offaxis", "spokes-spacing", "noise", "all")
 
@@ -27,7 +27,7 @@ def _offaxis_deg(spec, focal):
     return parse_range(s.removesuffix("deg"), "--offaxis")
 
 
-@click.command()
+@command()
 @output_option
 @click.option("--focal", type=FiniteFloat(), default=800.0, show_default=True, metavar="PX",
               help="Focal length [px]: converts off-axis angles to pixel distances (and --offaxis ...px to angles).")

@@ -22,7 +22,7 @@ from pencilcal.validation.sfm import (
     write_poses,
 )
 
-from .common import (StageBars, camera_options, force_option, images_argument, max_pixels_option, quiet_option, run,
+from .common import (command, StageBars, camera_options, force_option, images_argument, max_pixels_option, quiet_option, run,
                      warn)
 
 # what a folder must hold (one of) for --force to replace it: never a folder of other things
@@ -51,7 +51,7 @@ def _check_output_folder(out: Path, force: bool, source):
         raise InputError(f"{out}: holds the input images or the working folder; choose another output")
 
 
-@click.command()
+@command()
 @images_argument()
 @camera_options
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False),

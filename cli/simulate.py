@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from .common import FiniteFloat, progress, quiet_option, run
+from .common import command, FiniteFloat, progress, quiet_option, run
 
 MODELS = ("opencv", "fisheye", "pinhole")
 
@@ -20,7 +20,7 @@ def _parse_size(text):
     return w, h
 
 
-@click.command()
+@command()
 @click.argument("out", type=click.Path(file_okay=False))
 @click.option("--scenario", type=click.Choice(["orbit", "pivot", "tilt-sweep"]), required=True,
               help="orbit: moving camera around the sheet on a textured table (for SfM); pivot: fixed camera, "

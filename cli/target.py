@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from .common import (check_output, FiniteFloat, force_option, output_option, quiet_option, run)
+from .common import (command, check_output, FiniteFloat, force_option, output_option, quiet_option, run)
 
 
 def _parse_squares(text):
@@ -16,7 +16,7 @@ def _parse_squares(text):
     return nx, ny
 
 
-@click.command()
+@command()
 @output_option
 @click.option("--paper", type=click.Choice(["a4", "a3", "letter"]), default="a4", show_default=True, help="Paper size.")
 @click.option("--orientation", type=click.Choice(["landscape", "portrait"]), default="landscape", show_default=True)

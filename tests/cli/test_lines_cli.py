@@ -82,7 +82,9 @@ def test_shaft_option(tmp_path):
     fr = read_lines(tmp_path / "l.json")[0]
     assert len(fr["shafts"]) == 1
     sh = fr["shafts"][0]
-    assert sh["midline"].shape == (4,) and sh["width_px"] > 40 and 0 < sh["angle_sigma_deg"] < 0.1
+    # the sigma holds the measured edge floor (EDGE_FLOOR_PX at either end of each edge), so even
+    # a clean render's shaft is not surer than about floor / seen length
+    assert sh["midline"].shape == (4,) and sh["width_px"] > 40 and 0.05 < sh["angle_sigma_deg"] < 1.0
 
 
 def test_undecodable_frame_is_a_warning(scene, tmp_path):
