@@ -10,16 +10,17 @@ import numpy as np
 
 from pencilcal.toolkit.board.spec import read_board
 from pencilcal.toolkit.board.calibrate import MODELS, calibrate as calibrate_views
+from pencilcal.toolkit.board.calibration_file import write_calibration_file
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.camera.formats import camera_format, camera_to_dict, write_camera
 from pencilcal.toolkit.board.corners_cache import check_image_name, write_corners_vnl
 from pencilcal.toolkit.board.detect import detect_board
-from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.files import atomic_paths, write_json
+from pencilcal.toolkit.errors import EstimationError, InputError
+from pencilcal.toolkit.io.files import atomic_paths
 from pencilcal.toolkit.io.images import open_images
 from pencilcal.validation.calibration_report import coverage_grid, write_calibration_report
 
-from .common import (check_output, force_option, images_argument, max_pixels_option, quiet_option, run, run_frames,
+from .common import (command, check_output, force_option, images_argument, max_pixels_option, quiet_option, run, run_frames,
                      warn, workers_option)
 
 _CAMERA_SUFFIXES = (".json", ".yaml", ".yml", ".xml", ".cameramodel", ".txt", ".bin")
@@ -108,9 +109,22 @@ def _detect_all(source, board, workers, quiet):
     return frames, detections, decoded_index, first[1]
 
 
+def _cross_validation(detections, board, image_size, model, n_coef, fix_aspect, min_corners):
+    """The report's two-halves cross-validation (`validation.checks.calibration_halves`:
+    odd and even views), or {"error": why} when a half cannot be calibrated."""
+    from pencilcal.validation.checks import calibration_halves
+
+    try:
+        return calibration_halves(detections, board, image_size, model=model, coefficients=n_coef,
+                                  fix_aspect=fix_aspect, min_corners=min_corners)
+    except EstimationError as e:
+        return {"error": str(e)}
+
+
 def _report(result, frames, detections, decoded_index, source, board, board_path, image_size, model, fix_aspect,
-            output, corners_path):
-    """The --report record: per-view errors, rejections with reasons, counts, the camera."""
+            output, corners_path, cross_validation=None):
+    """The --report record: per-view errors, rejections with reasons, counts, the camera,
+    the intrinsics' covariance, the corner-noise model and the two-halves check."""
     views, rejected = [], []
     for idx, (frame, rec, det) in enumerate(frames):
         v = dict(rec)
@@ -156,6 +170,9 @@ def _report(result, frames, detections, decoded_index, source, board, board_path
         "flags": result.flags,
         "rms_px": result.rms_px,
         "std_intrinsics": result.std_intrinsics,
+        "cov_intrinsics": None if result.cov_intrinsics is None else result.cov_intrinsics.to_dict(),
+        "corner_noise": None if result.corner_noise is None else result.corner_noise.to_dict(),
+        "cross_validation": cross_validation,
         "camera": camera_to_dict(result.camera),
         "counts": counts,
         "views": views,
@@ -165,7 +182,7 @@ def _report(result, frames, detections, decoded_index, source, board, board_path
     }
 
 
-@click.command()
+@command()
 @images_argument()
 @click.option("--board", "board_path", required=True, type=click.Path(dir_okay=False),
               help="Board file (.yaml/.json): charuco or chessboard, squares, square, marker, dictionary.")
@@ -198,8 +215,11 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
     IMAGES is one or more image files, folders or glob patterns, in the order given (a
     folder's images sorted naturally), or one video. Views without a usable board are
     skipped; outlier views and corners are rejected (with their reasons in --report);
-    the camera file gets the intrinsics with their standard deviations and the RMS
-    reprojection error.
+    the camera file gets the intrinsics with their standard deviations, their full
+    covariance (cov_intrinsics) and the correlated corner-noise model fitted to the
+    residuals (corner_noise), where its format holds statistics (.json, .yaml), and the
+    RMS reprojection error. --report also calibrates the odd and the even views apart and
+    says whether the two agree within their sigmas (cross_validation).
 
     \b
     Example:
@@ -228,10 +248,12 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
 
     frames, detections, decoded_index, image_size = _detect_all(source, board, workers, quiet)
     result = calibrate_views(detections, board, image_size, model=model, coefficients=n_coef,
-                             fix_aspect=fix_aspect, min_corners=min_corners)
+                             fix_aspect=fix_aspect, min_corners=min_corners, corner_noise=True)
     camera = result.camera
+    cv = _cross_validation(detections, board, image_size, model, n_coef, fix_aspect, min_corners) if report_path \
+        else None
     report = _report(result, frames, detections, decoded_index, source, board, board_path, image_size, model,
-                     fix_aspect, output, corners_path)
+                     fix_aspect, output, corners_path, cv)
 
     # --- outputs, all or nothing
     todo = []
@@ -241,7 +263,7 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
     if report_path and Path(report_path).suffix.lower() in (".html", ".htm"):
         todo.append((report_path, lambda tmp: write_calibration_report(tmp, report, force=True)))
     elif report_path:
-        todo.append((report_path, lambda tmp: write_json(tmp, report, force=True)))
+        todo.append((report_path, lambda tmp: write_calibration_file(tmp, report, force=True)))
     todo.append((output, lambda tmp: write_camera(tmp, camera, force=True)))
     with atomic_paths([path for path, _ in todo], force) as tmps:
         for (_, writer), tmp in zip(todo, tmps):

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import click
 
+from pencilcal.toolkit.board.calibration_file import camera_with_report, read_calibration_file, \
+    uncertainty_record
 from pencilcal.toolkit.board.spec import read_board
 from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.board.detect import detect_board
@@ -20,7 +22,7 @@ from pencilcal.validation.pnp import (
     write_poses,
 )
 
-from .common import (FiniteFloat, FrameOutputs, camera_options, check_output, force_option, images_argument,
+from .common import (command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option, images_argument,
                      jsonl_option, max_pixels_option, output_option, overlay_option, quiet_option, run, run_frames,
                      warn, workers_option)
 
@@ -74,7 +76,7 @@ def _pnp_frame(frame, camera, board, method, refine, corner_sigma, max_rms, min_
     return rec, warnings, det
 
 
-@click.command()
+@command()
 @images_argument()
 @camera_options
 @click.option("--board", "board_path", required=True, type=click.Path(dir_okay=False),
@@ -91,6 +93,9 @@ def _pnp_frame(frame, camera, board, method, refine, corner_sigma, max_rms, min_
               help="Reject a pose whose reprojection RMS exceeds this [px] (a wrong local minimum or a wrong camera).")
 @click.option("--refine/--no-refine", default=True, show_default=True,
               help="LM refinement of every method's pose on the raw-pixel reprojection error.")
+@click.option("--calibration", "calib_path", type=click.Path(dir_okay=False), default=None,
+              help="calib.json of `pencilcal calibrate --report`: its intrinsics' covariance and corner-noise model "
+                   "give cov_total (default: those the camera file carries, if any).")
 @max_pixels_option
 @jsonl_option
 @overlay_option
@@ -99,7 +104,7 @@ def _pnp_frame(frame, camera, board, method, refine, corner_sigma, max_rms, min_
 @quiet_option
 @run
 def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma, min_corners, max_rms, refine,
-        max_pixels, jsonl_path, overlay_path, workers, force, quiet):
+        calib_path, max_pixels, jsonl_path, overlay_path, workers, force, quiet):
     """Pose of a calibration board in every frame (poses.json).
 
     IMAGES is one or more image files, folders or glob patterns, in the order given, or
@@ -124,6 +129,8 @@ def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma
         raise click.BadParameter("must be a positive number of pixels", param_hint="--max-rms")
     check_output(output, force)
     camera = read_camera(camera_path, camera_id=camera_id)
+    if calib_path:
+        camera = camera_with_report(camera, read_calibration_file(calib_path), str(camera_path))
     board = read_board(board_path)
     source = open_images(images, max_pixels=max_pixels)
     check_output(output, force, [*source.paths, camera_path, board_path])
@@ -149,6 +156,7 @@ def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma
         "corner_sigma_px": corner_sigma,
         "min_corners": min_corners,
         "max_rms_px": max_rms,
+        **uncertainty_record(camera, calib_path or camera_path),
     }
     n_ok = sum(r["ok"] for r in records)
     if n_ok == 0:

@@ -10,7 +10,7 @@ from pencilcal.validation.pnp import METHODS
 from pencilcal.validation.validate import find_sequences, sequence_files, validate_many, validate_path
 from pencilcal.validation.validation_file import write_validation
 
-from .common import (LabelledProgress, StageBars, check_output, force_option, mask_option, output_option,
+from .common import (command, LabelledProgress, StageBars, check_output, force_option, mask_option, output_option,
                      quiet_option, run, warn, workers_option)
 
 
@@ -34,7 +34,7 @@ def _grid(value):
     return ij
 
 
-@click.command()
+@command()
 @click.argument("sequence", nargs=-1, required=True, type=click.Path())
 @click.option("--camera", "camera_path", type=click.Path(), default=None,
               help="Camera file (any supported format); default: camera.json of a simulate folder.")
@@ -58,6 +58,13 @@ def _grid(value):
 @mask_option
 @click.option("--calibration", "calib_path", type=click.Path(dir_okay=False), default=None,
               help="calib.json of `pencilcal calibrate --report`, shown in the report.")
+@click.option("--right", "right_images", default=None, metavar="IMAGES",
+              help="Frames of a second camera rigidly fixed to the first (a stereo pair, paired by image name): "
+                   "checks whether R_right R_left^T is one rotation within the PnP covariances (checks.rig).")
+@click.option("--right-camera", "right_camera", type=click.Path(), default=None,
+              help="Camera file of the --right camera.")
+@click.option("--right-calibration", "right_calib_path", type=click.Path(dir_okay=False), default=None,
+              help="calib.json of the --right camera (its intrinsics' covariance and corner noise).")
 @click.option("--dask", "dask_address", default=None, metavar="ADDRESS",
               help="With a folder of sequences: send each sequence to this Dask scheduler (tcp://host:8786).")
 @workers_option
@@ -66,7 +73,8 @@ def _grid(value):
 @quiet_option
 @run
 def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pencil, truth_path, models, methods,
-             sfm, sfm_dir, detector, edges, mask_path, calib_path, dask_address, workers, output, force, quiet):
+             sfm, sfm_dir, detector, edges, mask_path, calib_path, right_images, right_camera, right_calib_path,
+             dask_address, workers, output, force, quiet):
     """Compare the angular-variation estimate with PnP (and a reconstruction) on the same frames.
 
     SEQUENCE is one or more image files, folders or glob patterns (in the order given), a
@@ -77,6 +85,11 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
     every PnP method, and with --sfm a pycolmap reconstruction (intrinsics fixed) is aligned
     to the board frame. Errors are measured against the truth when there is one, else
     against the PnP pose. `pencilcal report` turns the output into a page.
+
+    Truth-free checks go under ``checks``: with --calibration (a calib.json of this camera)
+    its two halves of the views calibrated apart, and its intrinsics' covariance and
+    corner-noise model in the PnP totals (cov_total); with --right and --right-camera
+    (a stereo pair) the rigid-rig check of the relative rotation.
 
     SEQUENCE may also be a folder of sequence folders: each is validated (one after the
     other, or each as a task on a Dask cluster with --dask) and the output holds them all
@@ -110,6 +123,12 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
     options = dict(camera=camera_path, camera_id=camera_id, board=board_path, pencil=pencil_path, grid_pencil=grid,
                    truth=truth_path, models=models_t, methods=methods_t, sfm=sfm, detector=detector,
                    calibration=calib_path, workers=workers, edges=edges, mask=mask_path)
+    if right_images is not None or right_camera is not None:
+        if right_images is None or right_camera is None:
+            raise click.UsageError("--right and --right-camera go together")
+        if subs is not None:
+            raise click.UsageError("--right checks one stereo pair: not with a folder of sequences")
+        options.update(right=right_images, right_camera=right_camera, right_calibration=right_calib_path)
     if subs is not None:
         if sfm_dir:
             raise click.UsageError("--sfm-dir keeps one reconstruction: not with a folder of sequences")

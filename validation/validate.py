@@ -337,7 +337,7 @@ def _frame_task(frame, ctx):
 
 def validate_sequence(source, camera, board, lines_source, *, truth=None, models=MODELS, methods=METHODS,
                       sfm=False, sfm_workdir=None, progress=None, warn=None, quiet=True, keep_pixels=True,
-                      sfm_progress=None, workers=1):
+                      sfm_progress=None, workers=1, right_poses=None, rig_intrinsics=(None, None)):
     """Run orient, every PnP method and optionally SfM on one sequence and compare them.
 
     source: an ImageSource; camera: Camera; board: Board; lines_source: FanLines or GridLines
@@ -347,7 +347,10 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
     (sfm_workdir: where; a temporary folder if None); progress: callable(iterable, label)
     -> iterable; warn: callable(str) for per-frame problems; sfm_progress: callable(stage,
     done, total) for the reconstruction's stages (validation.sfm.reconstruct); workers:
-    frames in this many processes (toolkit.parallel.map_frames; same results).
+    frames in this many processes (toolkit.parallel.map_frames; same results);
+    right_poses: the board's poses in a second camera rigidly fixed to this one (image name
+    -> PoseResult, `checks.board_poses`): the rig check (`checks.rig_check`, with each
+    camera's intrinsics covariance in rig_intrinsics) goes under ``checks``.
 
     Returns the validation.json dict (numpy arrays inside; write with files.write_json).
     """
@@ -371,6 +374,11 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
             out["sfm"] = _sfm(source, camera, frames, best_poses, sfm_workdir or tmp, warn, quiet, sfm_progress)
         keys.append("sfm")
     out["summary"] = summarise(frames, keys)
+    if right_poses is not None:
+        from .checks import pair_by_name, rig_check
+
+        left, right = pair_by_name([f["image"] for f in frames], best_poses, right_poses)
+        out["checks"] = {"rig": rig_check(left, right, rig_intrinsics)}
     out["frames"] = frames
     return out
 
@@ -426,7 +434,7 @@ def find_sequences(path):
 def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=None, grid_pencil=None, truth=None,
                   models=MODELS, methods=METHODS, sfm=False, sfm_dir=None, detector="lsd", calibration=None,
                   workers=1, progress=None, warn=None, quiet=True, sfm_progress=None, argv=None, edges=False,
-                  mask=None):
+                  mask=None, right=None, right_camera=None, right_calibration=None):
     """Validate one sequence given by paths; returns the whole validation.json dict.
 
     sequence: folder, glob, video, or a `pencilcal simulate` folder (whose camera, board,
@@ -435,8 +443,13 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
     grid lines as the pencil. argv: the command line to record (default sys.argv; a Dask
     worker's own is meaningless). edges: the fan's plain edge segments instead of its
     spokes' midlines (`FanLines`); mask: the frames' valid region file (default: detected,
-    `toolkit.detect.region_detect.sequence_region`). The other arguments as
-    `validate_sequence`. Module level and paths only, so a Dask worker can run it.
+    `toolkit.detect.region_detect.sequence_region`). right, right_camera,
+    right_calibration: the images, camera file and calib.json of a second camera rigidly
+    fixed to the first (a stereo pair, frames paired by image name): the rig check
+    (`checks`). A calibration report of this camera lends its intrinsics covariance and
+    corner-noise model to the PnP poses (``cov_total``) and its two-halves
+    cross-validation to ``checks``. The other arguments as `validate_sequence`. Module
+    level and paths only, so a Dask worker can run it.
     """
     from pencilcal.toolkit.board.spec import read_board
     from pencilcal.toolkit.camera.formats import camera_to_dict, read_camera
@@ -477,10 +490,15 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
 
         lines.valid_region = sequence_region(source, mask, shape=(cam.height, cam.width))
     calib = load_structured(calibration, "calibration report") if calibration else None
+    from .checks import stereo_inputs
+
+    cam, rig, checks = stereo_inputs(cam, camera, calibration, brd, methods, right, right_camera, right_calibration)
     result = validate_sequence(source, cam, brd, lines, truth=truth_frames, models=models, methods=methods, sfm=sfm,
                                sfm_workdir=sfm_dir, progress=progress, warn=warn, quiet=quiet,
-                               sfm_progress=sfm_progress, workers=workers)
-    inputs = [p for p in (camera, board, pencil, truth, calibration, mask) if p]
+                               sfm_progress=sfm_progress, workers=workers, **rig)
+    if checks:
+        result["checks"] = {**checks, **result.get("checks", {})}
+    inputs = [p for p in (camera, board, pencil, truth, calibration, mask, right_camera, right_calibration) if p]
     return {
         "sequence": str(sequence),
         "images": str(images),

@@ -95,3 +95,27 @@ def test_usage_errors(tmp_path):
     assert r.exit_code == 2 and "either --pencil or --grid-pencil" in r.output
     r = CliRunner().invoke(cli, ["validate", str(tmp_path), "--models", "best", "-o", str(tmp_path / "v.json")])
     assert r.exit_code == 2
+
+
+def test_rig_check_and_calibration_report_go_under_checks(tmp_path):
+    """--right (a second camera's frames and file) runs the rigid-rig check; here the 'second
+    camera' is the same one, so the relative rotation is the identity in every frame, and a
+    calibration report of another camera is named in the notes, not used."""
+    d = tmp_path / "seq"
+    r = CliRunner().invoke(cli, ["simulate", str(d), "--scenario", "orbit", "--frames", "6", "--seed", "3",
+                                 "--size", "960x540", "-q"])
+    assert r.exit_code == 0, r.output
+    (tmp_path / "calib.json").write_text(json.dumps({"command": "calibrate", "camera": {
+        "model": "pinhole", "width": 960, "height": 540, "K": [[400.0, 0, 479.5], [0, 400.0, 269.5], [0, 0, 1]],
+        "dist": []}}))
+    r = CliRunner().invoke(cli, ["validate", str(d), "--methods", "sqpnp", "--right", str(d / "images"),
+                                 "--right-camera", str(d / "camera.json"), "--calibration", str(tmp_path / "calib.json"),
+                                 "-o", str(tmp_path / "v.json"), "-q"])
+    assert r.exit_code == 0, r.output
+    v = json.loads((tmp_path / "v.json").read_text())
+    checks = v["checks"]
+    with_board = sum(f.get("pnp_best") is not None for f in v["frames"])
+    assert with_board >= 3 and checks["rig"]["pairs"] == with_board and checks["rig"]["vergence_deg"] < 1e-6
+    assert "another camera" in checks["notes"][0]
+    r = CliRunner().invoke(cli, ["validate", str(d), "--right", str(d / "images"), "-o", str(tmp_path / "w.json")])
+    assert r.exit_code == 2 and "--right-camera" in r.output

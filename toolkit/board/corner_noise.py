@@ -38,6 +38,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2
 
 from pencilcal.toolkit.errors import InputError
 
@@ -57,6 +58,11 @@ _LENGTH_GRID.flags.writeable = False
 _RATIO_GRID = np.r_[0.0, np.geomspace(1e-3, 10.0, 81)]
 _RATIO_GRID.flags.writeable = False
 _GOLDEN_STEPS = 6
+# the correlated part is kept only when it explains the residuals better than white errors
+# at this level (likelihood ratio, chi-square with the model's two parameters): where it
+# does not, the long lengths (a field the poses absorb whole) leave the ratio undetermined
+_EVIDENCE_LEVEL = 0.01
+_MIN_GAIN = 0.5 * float(chi2.ppf(1.0 - _EVIDENCE_LEVEL, 2))
 _KERNEL = "squared_exponential"
 
 
@@ -229,8 +235,9 @@ def fit_corner_noise(views, image_size):
     -------
     CornerNoise
         The (ratio, length) of highest restricted likelihood, with the views and corners
-        used and the log-likelihood gain over white errors. `WHITE` (ratio 0) when no view
-        has enough corners or the correlated model does not fit better.
+        used and the log-likelihood gain over white errors. Ratio 0 (white errors) when no
+        view has enough corners or the gain is not significant at the 1 % level (twice the
+        gain under chi-square(2): 4.6).
     """
     views = [_subset(v) for v in views if v.points.shape[0] >= _MIN_FIT_CORNERS]
     if not views:
@@ -254,8 +261,8 @@ def fit_corner_noise(views, image_size):
     best = min(cache, key=lambda k: cache[k][0])
     nll, ratio = cache[best]
     gain = white - nll
-    if ratio <= 0 or gain <= 0:
-        return CornerNoise(0.0, math.exp(best), len(views), corners, 0.0)
+    if ratio <= 0 or gain < _MIN_GAIN:
+        return CornerNoise(0.0, math.exp(best), len(views), corners, float(max(gain, 0.0)))
     return CornerNoise(float(ratio), float(math.exp(best)), len(views), corners, float(gain))
 
 

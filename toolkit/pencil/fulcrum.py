@@ -30,6 +30,8 @@ from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.estimator import check_vertex, fit_pencil
 from pencilcal.toolkit.geometry.frames import normalize
 from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
+from pencilcal.toolkit.pencil.lens_uncertainty import (orientation_totals, ray_sigma_total_deg,
+                                                       resolve_intrinsics_cov, vertex_cov_total_px2)
 from pencilcal.toolkit.pencil.orient import orientation_record, raw_vertex
 from pencilcal.toolkit.pencil.orientation import Orientation
 from pencilcal.toolkit.pencil.vertex import intersect_lines
@@ -93,7 +95,9 @@ class Fulcrum:
     that miss it; rms: the weighted RMS of the lines' residuals; lines_from: "shafts" or
     "segments" (which lines of the frames were used); warnings: what the caller should
     tell the user. With pivot angles, `pivot` is the pivot plane's `Orientation` (its keys
-    join the record) from `pivot_frames` frames.
+    join the record) from `pivot_frames` frames. With the intrinsics' covariance known
+    (`intrinsics_used`), ray_sigma_total_deg and vertex_cov_total_px2 hold its term too
+    (`lens_uncertainty`), as the pivot's total keys do.
     """
 
     vertex_px: np.ndarray | None
@@ -108,6 +112,9 @@ class Fulcrum:
     warnings: tuple = ()
     pivot: Orientation | None = None
     pivot_frames: int | None = None
+    ray_sigma_total_deg: float | None = None
+    vertex_cov_total_px2: np.ndarray | None = None
+    intrinsics_used: bool | None = None
 
     def to_dict(self) -> dict:
         """The fulcrum.json record: the fulcrum's keys, then with a pivot plane the keys
@@ -115,6 +122,9 @@ class Fulcrum:
         out = {"ok": True, "error": None, "vertex_px": self.vertex_px, "vertex_cov_px2": self.vertex_cov_px2,
                "ray": self.ray, "ray_sigma_deg": self.ray_sigma_deg, "lines_used": self.lines_used,
                "outliers": self.outliers, "frames_used": self.frames_used, "rms": self.rms}
+        for k in ("ray_sigma_total_deg", "vertex_cov_total_px2", "intrinsics_used"):
+            if getattr(self, k) is not None:
+                out[k] = getattr(self, k)
         if self.pivot is not None:
             rec = self.pivot.to_dict()
             rec.pop("image", None)
@@ -171,13 +181,14 @@ def _sequence_lines(frames, endpoint_sigma_px):
         warnings
 
 
-def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_SIGMA_PX):
+def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_SIGMA_PX, intrinsics_cov="camera"):
     """The fulcrum (and with `angles` the pivot plane) from the lines of a sequence.
 
     camera: Camera; frames: lines.json frame dicts (io.lines_file.read_lines); angles: (F,)
     pivot angles [rad] per frame or None; endpoint_sigma_px: end point noise [px] of
     segments without their own angle sigma. Per frame the lines are the shaft midlines
-    when any frame of the sequence has them, else the segments.
+    when any frame of the sequence has them, else the segments. intrinsics_cov: as
+    `orient.orient_segments` ("camera": the camera file's, if it carries one).
 
     Returns a `Fulcrum` (its ``to_dict()`` is the fulcrum.json record). Raises
     EstimationError when there is no fulcrum.
@@ -216,6 +227,12 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
         outliers=[{"image": frames[owner[k][0]].get("image"), "segment": owner[k][1]} for k in np.flatnonzero(~inl)],
         frames_used=int(len({owner[k][0] for k in np.flatnonzero(inl)})), rms=vf.rms, lines_from=lines_from,
         warnings=tuple(warnings))
+    C = resolve_intrinsics_cov(camera, intrinsics_cov)
+    if C is not None:
+        k_in = idx[vf.inliers]
+        ray_total, X = ray_sigma_total_deg(camera, C, x, cov_x, seg[k_in], st[k_in], sc[k_in])
+        out = dataclasses.replace(out, ray_sigma_total_deg=ray_total, intrinsics_used=True, vertex_cov_total_px2=(
+            None if cov_raw is None else vertex_cov_total_px2(camera, C, x, X, cov_raw)))
     if angles is None:
         return out
     # one oriented line per frame: its longest inlier, pointing from the fulcrum outwards
@@ -241,4 +258,8 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
     fit = fit_pencil(a, angles[fr_idx], x, sigma=s_n, vertex_cov=cov_x)
     pivot = orientation_record(camera, fit, x, vf.vertex, vf.cov, model="exact",
                                sigma_mean=float(np.sqrt(np.mean(s_n**2))))
+    if C is not None:
+        pivot = pivot.replace(**orientation_totals(
+            camera, C, fit.R_cam_from_target, x, fit.cov, pivot.tilt_sigma_deg, pivot.vertex_cov_px2, seg[ks], a,
+            angles[fr_idx], s_n, seg[k_in], st[k_in], sc[k_in]))
     return dataclasses.replace(out, pivot=pivot, pivot_frames=int(len(ks)))

@@ -40,6 +40,7 @@ from pencilcal.toolkit.pencil.estimator import (
 )
 from pencilcal.toolkit.geometry.frames import normalize, rotation_angle, rotation_from_rotvec
 from pencilcal.toolkit.pencil.defaults import DETECTION_LEVEL, ENDPOINT_SIGMA_PX
+from pencilcal.toolkit.pencil.lens_uncertainty import orientation_totals, resolve_intrinsics_cov
 from pencilcal.toolkit.pencil.orientation import Orientation
 from pencilcal.toolkit.pencil.spec import image_angles
 from pencilcal.toolkit.pencil.vertex import LOCAL_CANDIDATES, intersect_lines, lines_through
@@ -130,7 +131,7 @@ def _segment_geometry(camera, segments, endpoint_sigma_px):
 
 def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_px=ENDPOINT_SIGMA_PX, angle_sigma=None,
                     prior=None, vertex_px=None, vertex_cov_px2=None, image=None, labels=None, keep_lines=False,
-                    offset_sigma=None, spoke_radii=None, max_segments=MAX_SEGMENTS):
+                    offset_sigma=None, spoke_radii=None, max_segments=MAX_SEGMENTS, intrinsics_cov="camera"):
     """Orientation of a pencil seen in one frame.
 
     camera: a Camera; segments: (M, 4) raw pixels [x1, y1, x2, y2]; pencil: a Pencil.
@@ -150,6 +151,10 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         through a corner), -1 to ignore one; skips the assignment.
     keep_lines: also return ``lines``: the used lines in normalised coordinates
         (``angle`` and ``sigma`` [rad], ``spoke`` index, ``segment`` index), for experiments.
+    intrinsics_cov: the intrinsics' covariance to propagate into the totals
+        (``tilt_sigma_total_deg``, ``normal_sigma_total_deg``, ``vertex_cov_total_px2``;
+        `lens_uncertainty`): "camera" (default) the one the camera file carries, if any;
+        None none; or a (P, P) array / `IntrinsicsCovariance`.
     max_segments: use at most this many segments, the longest (the others get spoke -1):
         memory and time then stay bounded whatever the frame holds.
 
@@ -188,6 +193,11 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         s_mean = float(np.sqrt(np.mean(s_used**2)))
         rec = orientation_record(camera, fit, ln.vertex, v_ideal, cov_ideal, model=model, image=image,
                                  sigma_mean=s_mean, resolved_by=resolved_by)
+        C = resolve_intrinsics_cov(camera, intrinsics_cov)
+        if C is not None:
+            rec = rec.replace(**orientation_totals(
+                camera, C, fit.R_cam_from_target, ln.vertex, fit.cov, rec.tilt_sigma_deg, rec.vertex_cov_px2,
+                seg[idx[used]], a_used, th_used, s_used, seg[idx], st, sc[through], vertex_px))
         # rival labellings that put the normal elsewhere make the normal itself ambiguous
         alt = _rival_normals(fit, rivals)
         extra = dict(labels_ambiguous=bool(labels_ambiguous), normal_ambiguous=bool(alt),

@@ -45,10 +45,11 @@ _CORE = ("image", "ok", "error", "vertex_px", "vertex_cov_px2", "lines_used", "r
 _ESTIMATE = ("resolved_by", "ray")
 # written only when known
 _OPTIONAL = ("tilt_threshold_deg", "labels_ambiguous", "normal_ambiguous", "normal_alternatives", "spokes",
-             "lines", "vertex_cam", "t_cam_from_target")
+             "lines", "vertex_cam", "t_cam_from_target", "tilt_sigma_total_deg", "normal_sigma_total_deg",
+             "vertex_cov_total_px2", "intrinsics_used")
 _ARRAYS = {"vertex_px": (2,), "vertex_cov_px2": (2, 2), "normal": (3,), "normal_twin": (3,),
            "R_cam_from_target": (3, 3), "R_cam_from_target_twin": (3, 3), "ray": (3,), "vertex_cam": (3,),
-           "t_cam_from_target": (3,)}
+           "t_cam_from_target": (3,), "vertex_cov_total_px2": (2, 2)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,7 +61,9 @@ class Orientation:
     (3, 3); spokes (M,) the spoke of every input segment (-1: not used); lines (only with
     ``keep_lines``): the used lines in normalised coordinates, for experiments;
     vertex_cam, t_cam_from_target (3,) in the pencil file's length unit, when the spoke
-    radii fix the depth.
+    radii fix the depth; tilt_sigma_total_deg, normal_sigma_total_deg [deg] and
+    vertex_cov_total_px2 (2, 2) [px^2]: the sigmas with the intrinsics' uncertainty too
+    (`lens_uncertainty`), only when the intrinsics' covariance was known (intrinsics_used).
     """
 
     image: str | None = None
@@ -90,6 +93,10 @@ class Orientation:
     lines: dict | None = None
     vertex_cam: np.ndarray | None = None
     t_cam_from_target: np.ndarray | None = None
+    tilt_sigma_total_deg: float | None = None
+    normal_sigma_total_deg: float | None = None
+    vertex_cov_total_px2: np.ndarray | None = None
+    intrinsics_used: bool | None = None
 
     def replace(self, **changes) -> "Orientation":
         """A copy with `changes` (dataclasses.replace)."""

@@ -161,15 +161,18 @@ def total_covariance(camera, object_points, image_points, R, t, J, r, corner_noi
     -------
     cov : (6, 6) ndarray
         Same convention as the corner-noise covariance (rotation first, rad and length).
-    correlated, intrinsics : bool
-        Which of the two terms it holds.
+    correlated : bool
+        Whether it holds the correlated corner term.
+    G : (6, P) ndarray or None
+        `pose_intrinsics_sensitivity` when it holds the intrinsics' term.
     """
     correlated = corner_noise is not None and corner_noise.ratio > 0
     if correlated:
         cov, _ = correlated_covariance(J, r, image_points, corner_noise)
     else:
         cov, _ = covariance_from_jacobian(J, r)
-    used = intrinsics_cov is not None
-    if used:
-        cov = cov + propagate(pose_intrinsics_sensitivity(camera, object_points, R, t, J), intrinsics_cov)
-    return cov, correlated, used
+    G = None
+    if intrinsics_cov is not None:
+        G = pose_intrinsics_sensitivity(camera, object_points, R, t, J)
+        cov = cov + propagate(G, intrinsics_cov)
+    return cov, correlated, G

@@ -25,6 +25,7 @@ from types import MappingProxyType
 
 import numpy as np
 
+from pencilcal.toolkit.board.calibration_file import uncertainty_of
 from pencilcal.toolkit.errors import InputError
 
 from .covariance import covariance_from_jacobian, total_covariance
@@ -195,8 +196,8 @@ def _geometry_problem(X, method, s=None):
 
 
 def estimate_pose(object_points, image_points, camera, method=DEFAULT_METHOD, refine=True,
-                  corner_sigma_px=None, max_rms_px=DEFAULT_MAX_RMS_PX, seed=0, *, corner_noise=None,
-                  intrinsics_cov=None):
+                  corner_sigma_px=None, max_rms_px=DEFAULT_MAX_RMS_PX, seed=0, *, corner_noise="camera",
+                  intrinsics_cov="camera"):
     """Pose of a target from K point correspondences, refined in raw pixels, with covariance.
 
     Parameters
@@ -224,14 +225,16 @@ def estimate_pose(object_points, image_points, camera, method=DEFAULT_METHOD, re
         mislabelled). None: no limit.
     seed : int
         RANSAC seed of the colmap method (results are reproducible).
-    corner_noise : CornerNoise, optional
-        Correlated corner errors (`toolkit.board.corner_noise`, e.g. from the calibration)
-        for ``cov_total``.
-    intrinsics_cov : (P, P) array_like, optional
-        Covariance of the camera's intrinsics (`toolkit.camera.intrinsics`, e.g. from the
-        calibration) for ``cov_total``. With either, ``cov_total`` (6, 6) holds the corner
-        term of that model and the intrinsics' (`covariance.total_covariance`); ``cov``
-        stays the white corner-noise covariance.
+    corner_noise : CornerNoise, "camera" or None
+        Correlated corner errors (`toolkit.board.corner_noise`) for ``cov_total``;
+        "camera" (default): the model the camera file's statistics carry (``corner_noise``,
+        written by `pencilcal calibrate`), if any.
+    intrinsics_cov : (P, P) array_like, IntrinsicsCovariance, "camera" or None
+        Covariance of the camera's intrinsics (`toolkit.camera.intrinsics`) for
+        ``cov_total``; "camera" (default): the one the camera file carries
+        (``cov_intrinsics``), if any. With either, ``cov_total`` (6, 6) holds the corner term
+        of that model and the intrinsics' (`covariance.total_covariance`); ``cov`` stays
+        the white corner-noise covariance.
 
     Returns
     -------
@@ -455,17 +458,34 @@ def _covariance_at(project, chosen, R, t, corner_sigma_px):
     return cov, sigma, r
 
 
+def _resolve_total(camera, corner_noise, intrinsics_cov):
+    """(CornerNoise or None, (P, P) array or None): "camera" resolved from the camera file's
+    statistics (`toolkit.board.calibration_file.uncertainty_of`)."""
+    if isinstance(corner_noise, str) or isinstance(intrinsics_cov, str):
+        for v in (corner_noise, intrinsics_cov):
+            if isinstance(v, str) and v != "camera":
+                raise InputError(f"expected 'camera', None or a value, got {v!r}")
+        cov, noise = uncertainty_of(camera)
+        corner_noise = noise if isinstance(corner_noise, str) else corner_noise
+        intrinsics_cov = cov if isinstance(intrinsics_cov, str) else intrinsics_cov
+    if hasattr(intrinsics_cov, "for_camera"):
+        intrinsics_cov = intrinsics_cov.for_camera(camera)
+    return corner_noise, intrinsics_cov
+
+
 def _total_at(project, chosen, R, t, camera, X, u, cov, corner_noise, intrinsics_cov):
     """The `PoseResult` keywords of the total covariance (`covariance.total_covariance`):
     none without a corner-noise model or intrinsics' covariance, or without `cov`."""
+    corner_noise, intrinsics_cov = _resolve_total(camera, corner_noise, intrinsics_cov)
     if cov is None or (corner_noise is None and intrinsics_cov is None):
         return {}
     r, J = chosen.r, chosen.J
     if J is None:
         with np.errstate(all="ignore"):
             r, J, _ = project(R, t)
-    total, correlated, used = total_covariance(camera, X, u, R, t, J, r, corner_noise, intrinsics_cov)
-    return {"cov_total": total, "correlated_corners_used": correlated, "intrinsics_used": used}
+    total, correlated, G = total_covariance(camera, X, u, R, t, J, r, corner_noise, intrinsics_cov)
+    return {"cov_total": total, "correlated_corners_used": correlated, "intrinsics_used": G is not None,
+            "intrinsics_sensitivity": G}
 
 
 def estimate_all(object_points, image_points, camera, methods=METHODS, refine=True, corner_sigma_px=None,

@@ -125,6 +125,11 @@ def _frame_arrays(f, where):
         if a.shape != shape:
             raise InputError(f"{where}: '{k}' must have shape {shape}, got {a.shape}")
         out[k] = a
+    if f.get("intrinsics_sensitivity") is not None:
+        a = np.array(f["intrinsics_sensitivity"], dtype=float)
+        if a.ndim != 2 or a.shape[0] != 6:
+            raise InputError(f"{where}: 'intrinsics_sensitivity' must be 6 x P")
+        out["intrinsics_sensitivity"] = a
     if f.get("residuals_px") is not None:
         a = np.array(f["residuals_px"], dtype=float)
         if a.ndim != 2 or a.shape[1] != 2:

@@ -79,6 +79,10 @@ class PoseResult:
         corner errors (when `correlated_corners_used`) and the intrinsics' uncertainty
         (when `intrinsics_used`); None when neither was given (`estimate_pose`).
     correlated_corners_used, intrinsics_used : bool
+    intrinsics_sensitivity : (6, P) ndarray or None
+        d(pose)/d(intrinsics) [rad or length per unit of each intrinsic, in
+        `toolkit.camera.intrinsics.intrinsic_names` order] when `intrinsics_used`: a rig
+        check needs it to tell what all frames of a camera share.
     """
 
     ok: bool
@@ -104,6 +108,7 @@ class PoseResult:
     cov_total: np.ndarray | None = None
     correlated_corners_used: bool = False
     intrinsics_used: bool = False
+    intrinsics_sensitivity: np.ndarray | None = None
 
     @property
     def rvec(self):
@@ -157,6 +162,16 @@ class PoseResult:
         P = np.eye(3) - np.outer(n, n)
         return float(np.degrees(np.sqrt(max(np.trace(P @ cov[:3, :3] @ P), 0.0))))
 
+    @classmethod
+    def from_record(cls, rec):
+        """The PoseResult of a poses.json frame record as `poses_file.read_board_poses` returns
+        it (arrays as ndarrays): the pose, its covariances and their facts; the derived keys
+        (rvec, normal, sigmas) are properties again."""
+        names = {f for f in cls.__dataclass_fields__} - {"extra", "time_s"}
+        kw = {k: rec[k] for k in names if k in rec and rec[k] is not None}
+        kw.setdefault("method", rec.get("method") or DEFAULT_METHOD)
+        return cls(**kw)
+
     def to_dict(self, residuals=True):
         """JSON-ready record of this estimate (numpy arrays are converted on writing): the
         pose keys of a poses.json frame, in the file's order, and each method's record
@@ -167,7 +182,7 @@ class PoseResult:
         reproj_rms_px [px], cov (6, 6), sigma_px [px], sigma_from, rotation_sigma_deg (3,)
         [deg], translation_sigma (3,) [length unit], normal_sigma_deg [deg], cov_total (6, 6),
         rotation_sigma_total_deg (3,) [deg], normal_sigma_total_deg [deg],
-        correlated_corners_used, intrinsics_used, flipped,
+        correlated_corners_used, intrinsics_used, intrinsics_sensitivity (6, P), flipped,
         alternative_rms_px [px], alternative_angle_deg [deg], refined, refine_change_deg
         [deg], refine_change [length unit], lm_iterations, the `extra` keys, and with
         `residuals` also residuals_px (K, 2) [px]. Pose keys are None when not ok.
@@ -182,6 +197,7 @@ class PoseResult:
             "cov_total": self.cov_total, "rotation_sigma_total_deg": self.rotation_sigma_total_deg,
             "normal_sigma_total_deg": self.normal_sigma_total_deg,
             "correlated_corners_used": bool(self.correlated_corners_used), "intrinsics_used": bool(self.intrinsics_used),
+            "intrinsics_sensitivity": self.intrinsics_sensitivity,
             "flipped": bool(self.flipped), "alternative_rms_px": self.alternative_rms_px,
             "alternative_angle_deg": self.alternative_angle_deg,
             "refined": bool(self.refined), "refine_change_deg": self.refine_change_deg,

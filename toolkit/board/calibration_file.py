@@ -1,0 +1,121 @@
+"""calib.json, the report of `pencilcal calibrate --report`: its writer and its one reader.
+
+The report is a JSON object (docs/formats.md): the camera (``camera``, with its statistics),
+per-view errors and rejections, counts, and what later estimates need to carry the
+calibration's uncertainty: ``cov_intrinsics`` (``{"names", "cov"}``,
+`toolkit.camera.intrinsics.IntrinsicsCovariance`), ``corner_noise`` (the correlated
+corner-error model, `toolkit.board.corner_noise.CornerNoise`) and ``cross_validation``
+(two halves of the views, `validation.checks.calibration_halves`).
+
+`read_calibration_file` returns a typed `CalibrationFile`; `uncertainty_of` gives a
+camera's intrinsics covariance and corner-noise model from a report or, without one, from
+the camera file's own statistics.
+
+Example
+-------
+>>> import os, tempfile
+>>> import numpy as np
+>>> from pencilcal.toolkit.camera.model import Camera
+>>> from pencilcal.toolkit.camera.formats import camera_to_dict
+>>> cam = Camera("pinhole", 640, 480, [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
+>>> p = os.path.join(tempfile.mkdtemp(), "calib.json")
+>>> write_calibration_file(p, {"command": "calibrate", "camera": camera_to_dict(cam),
+...     "cov_intrinsics": {"names": ["fx", "fy", "cx", "cy"], "cov": np.eye(4).tolist()}})
+>>> r = read_calibration_file(p)
+>>> r.camera == cam, r.cov_intrinsics.std.tolist(), r.corner_noise
+(True, [1.0, 1.0, 1.0, 1.0], None)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pencilcal.toolkit.board.corner_noise import CornerNoise
+from pencilcal.toolkit.camera.intrinsics import META_KEY, IntrinsicsCovariance, camera_intrinsics_covariance
+from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.io.files import load_structured, write_json
+
+__all__ = ["CalibrationFile", "write_calibration_file", "read_calibration_file", "uncertainty_of",
+           "camera_with_report", "uncertainty_record", "CORNER_NOISE_KEY"]
+
+#: The camera meta and report key of the corner-noise model.
+CORNER_NOISE_KEY = "corner_noise"
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationFile:
+    """What a calib.json says about the camera's uncertainty.
+
+    camera : Camera; cov_intrinsics : IntrinsicsCovariance or None; corner_noise :
+    CornerNoise or None; cross_validation : dict or None (as written); source : the path.
+    """
+
+    camera: object
+    cov_intrinsics: IntrinsicsCovariance | None
+    corner_noise: CornerNoise | None
+    cross_validation: dict | None
+    source: str
+
+
+def write_calibration_file(path, report, force=False):
+    """Write the report dict (numpy inside is fine) atomically (`files.write_json`)."""
+    write_json(path, report, force=force)
+
+
+def read_calibration_file(path):
+    """Read a calib.json into a `CalibrationFile`; InputError (one line, naming the file)
+    when it is not one (no ``camera``) or a key is malformed. A report of an older
+    pencilcal, without ``cov_intrinsics``, gives None there (its camera's statistics may
+    still carry one)."""
+    from pencilcal.toolkit.camera.formats import camera_from_dict
+
+    data = load_structured(path, "calibration report")
+    if not isinstance(data, dict) or not isinstance(data.get("camera"), dict):
+        raise InputError(f"{path}: not a calibration report (no 'camera'; write one with `pencilcal calibrate "
+                         "--report`)")
+    camera = camera_from_dict(data["camera"], source=str(path))
+    cov = data.get(META_KEY)
+    cov = IntrinsicsCovariance.from_dict(cov, str(path)) if cov is not None else \
+        camera_intrinsics_covariance(camera, str(path))
+    if cov is not None:
+        cov.for_camera(camera)
+    noise = data.get(CORNER_NOISE_KEY, (camera.meta or {}).get(CORNER_NOISE_KEY))
+    noise = None if noise is None else CornerNoise.from_dict(noise, str(path))
+    cv = data.get("cross_validation")
+    return CalibrationFile(camera, cov, noise, cv if isinstance(cv, dict) else None, str(path))
+
+
+def uncertainty_of(camera, report=None, camera_source="camera"):
+    """(IntrinsicsCovariance or None, CornerNoise or None) for `camera`: from the
+    CalibrationFile `report` when given (InputError if it calibrated another camera),
+    else from the camera file's statistics (``cov_intrinsics``, ``corner_noise``)."""
+    if report is not None:
+        if report.camera != camera:
+            raise InputError(f"{report.source}: the calibration report is of another camera (its intrinsics differ "
+                             f"from {camera_source}'s)")
+        return report.cov_intrinsics, report.corner_noise
+    cov = camera_intrinsics_covariance(camera, camera_source)
+    noise = (camera.meta or {}).get(CORNER_NOISE_KEY)
+    return cov, (None if noise is None else CornerNoise.from_dict(noise, camera_source))
+
+
+def camera_with_report(camera, report, camera_source="camera"):
+    """`camera` with the report's intrinsics covariance and corner-noise model in its
+    statistics (``meta``), so every estimate made with it carries them (InputError if the
+    report calibrated another camera)."""
+    from pencilcal.toolkit.camera.model import Camera
+
+    cov, noise = uncertainty_of(camera, report, camera_source)
+    meta = dict(camera.meta or {})
+    if cov is not None:
+        meta[META_KEY] = cov.to_dict()
+    if noise is not None:
+        meta[CORNER_NOISE_KEY] = noise.to_dict()
+    return Camera(camera.model, camera.width, camera.height, camera.K, camera.dist, meta=meta)
+
+
+def uncertainty_record(camera, source):
+    """The run-level record of what a camera's estimates carry: ``intrinsics_covariance``
+    (`source` or None) and ``corner_noise`` (the model's record or None)."""
+    cov, noise = uncertainty_of(camera, camera_source=source)
+    return {"intrinsics_covariance": None if cov is None else str(source),
+            "corner_noise": None if noise is None else noise.to_dict()}
