@@ -11,9 +11,9 @@ from pencilcal.toolkit.pencil.orient import MAX_SEGMENTS, MODELS, orient_segment
 from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.spec import read_pencil
 
-from .common import (command, camera_options, check_output, FiniteFloat, force_option, images_argument, mask_option,
-                     max_pixels_option, output_option, progress, quiet_option, run, run_frames, warn,
-                     workers_option)
+from .common import (command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, images_argument,
+                     jsonl_option, mask_option, max_pixels_option, output_option, overlay_option, progress,
+                     quiet_option, run, run_frames, warn, workers_option)
 
 
 def _orient_record(camera, pencil, fr, opts):
@@ -35,12 +35,13 @@ def _orient_record(camera, pencil, fr, opts):
 
 
 def _orient_image_task(frame, ctx):
-    """Lines (as `pencilcal lines` finds them) and orientation of one decoded frame; module
-    level, so it runs in worker processes too."""
+    """Lines (as `pencilcal lines` finds them) and orientation of one decoded frame, and the
+    frame drawn with them when the overlay is asked for (None otherwise); module level, so it
+    runs in worker processes too."""
     from pencilcal.toolkit.io.images import check_image_size
     from pencilcal.toolkit.detect.lines import fan_line_options, lines_record
 
-    camera, pencil, detector, opts, edges, region = ctx
+    camera, pencil, detector, opts, edges, region, drawing = ctx
     if frame.image is None:
         fr = {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}
     else:
@@ -48,7 +49,26 @@ def _orient_image_task(frame, ctx):
         bars, polarity = fan_line_options(pencil.width, edges)
         fr = lines_record(frame.name, frame.image, camera, detector, bars=bars, valid_region=region,
                           bar_polarity=polarity)
-    return _orient_record(camera, pencil, fr, opts)
+    rec = _orient_record(camera, pencil, fr, opts)
+    return rec, _drawn(frame, rec, fr["segments"], camera) if drawing else None
+
+
+def _drawn(frame, rec, segments, camera):
+    """The frame with its orientation drawn (labelled spokes, vertex ellipse, normal, tilt
+    +- sigma), or None for a frame that did not decode."""
+    if frame.image is None:
+        return None
+    from pencilcal.toolkit.draw.overlay import draw_orientation
+
+    return draw_orientation(frame.image, rec, segments, camera)
+
+
+def _warn_frame(rec):
+    if not rec.ok:
+        warn(f"{rec.image}: {rec.error}")
+    elif rec.normal_ambiguous:
+        warn(f"{rec.image}: the normal is ambiguous: other labellings of its {rec.lines_used} lines fit "
+             "about as well and put it elsewhere (normal_alternatives)")
 
 
 def _prior_rotations(path):
@@ -107,13 +127,16 @@ def _check_priors_match(priors, names, path):
 @mask_option
 @click.option("--max-segments", type=click.IntRange(min=3), default=MAX_SEGMENTS, show_default=True,
               help="Segments used per frame at most, the longest; a warning says when a frame has more.")
+@jsonl_option
+@overlay_option
 @max_pixels_option
 @workers_option
 @force_option
 @quiet_option
 @run
 def orient(images, lines_path, camera_path, camera_id, pencil_path, output, model, endpoint_sigma, angle_sigma,
-           prior_path, continuity, detector, edges, mask_path, max_segments, max_pixels, workers, force, quiet):
+           prior_path, continuity, detector, edges, mask_path, max_segments, jsonl_path, overlay_path, max_pixels,
+           workers, force, quiet):
     """Orientation of the pencil in every frame, from its image angles alone.
 
     From IMAGES (image files, folders or glob patterns in the order given, or one video)
@@ -126,6 +149,11 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     segments are tolerated) and the plane's orientation fitted with its uncertainty. Both
     twin solutions are written; the twin is chosen where the spoke radii (pencil file), a
     prior pose or continuity tell them apart.
+
+    --jsonl streams each frame's record as it is done (the twin as known then: continuity
+    over the whole sequence is applied to the output file only); --overlay draws the
+    labelled spokes, the vertex and its 3-sigma ellipse, the normal and tilt +- sigma on
+    the frames.
 
     \b
     Examples:
@@ -141,19 +169,26 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         raise click.UsageError("give IMAGES or --lines (one of them)")
     if lines_path is not None and (edges or mask_path is not None):
         raise click.UsageError("--edges and --mask are for IMAGES (a lines file's lines are already found)")
+    if lines_path is not None and overlay_path is not None:
+        raise click.UsageError("--overlay draws on the frames: it needs IMAGES, not --lines")
     check_output(output, force, [lines_path, camera_path, pencil_path, prior_path, mask_path])
     camera = read_camera(camera_path, camera_id=camera_id)
     pencil = read_pencil(pencil_path)
     priors = _prior_rotations(prior_path) if prior_path else {}
     opts = dict(model=model, endpoint_sigma=endpoint_sigma, angle_sigma=angle_sigma, priors=priors,
                 max_segments=max_segments)
+    records = []
     if lines_path is not None:
         frames = read_lines(lines_path)
         if not frames:
             raise InputError(f"{lines_path}: no frames")
         _check_priors_match(priors, [fr["image"] for fr in frames], prior_path)
-        with progress(frames, "orient", quiet) as bar:
-            records = [_orient_record(camera, pencil, fr, opts) for fr in bar]
+        with FrameOutputs(jsonl_path, None, force) as live, progress(frames, "orient", quiet) as bar:
+            for fr in bar:
+                rec = _orient_record(camera, pencil, fr, opts)
+                _warn_frame(rec)
+                records.append(rec)
+                live.emit(rec.to_dict())
     else:
         from pencilcal.toolkit.io.images import open_images
 
@@ -162,17 +197,15 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         source = open_images(images, max_pixels=max_pixels)
         check_output(output, force, [*source.paths, mask_path])
         region = sequence_region(source, mask_path, shape=(camera.height, camera.width))
-        ctx = (camera, pencil, detector, opts, edges, region)
         names = [p.name for p in source.paths] if source.kind == "images" else \
             [f"frame_{i:06d}" for i in range(source.count)]
         _check_priors_match(priors, names, prior_path)
-        records = list(run_frames(source, _orient_image_task, ctx, workers, "orient", quiet))
-    for rec in records:
-        if not rec.ok:
-            warn(f"{rec.image}: {rec.error}")
-        elif rec.normal_ambiguous:
-            warn(f"{rec.image}: the normal is ambiguous: other labellings of its {rec.lines_used} lines fit "
-                 "about as well and put it elsewhere (normal_alternatives)")
+        with FrameOutputs(jsonl_path, overlay_path, force, fps=source.fps or 25.0) as live:
+            ctx = (camera, pencil, detector, opts, edges, region, live.drawing)
+            for rec, drawn in run_frames(source, _orient_image_task, ctx, workers, "orient", quiet):
+                _warn_frame(rec)
+                records.append(rec)
+                live.emit(rec.to_dict(), drawn, name=rec.image)
     if not any(r.ok for r in records):
         # a run with no estimate at all failed: say so and leave nothing that looks like a result
         raise EstimationError(f"{lines_path or source.description}: no frame gave an orientation")

@@ -4,7 +4,7 @@ Everything is drawn in raw pixels ((0, 0) the centre of the top-left pixel) on a
 of the frame, anti-aliased with 4 bits of sub-pixel precision, so a line lands where the
 estimate puts it to 1/16 px:
 
-- `draw_orientation`: the pencil's segments coloured by spoke (rejected ones thin red),
+- `draw_orientation`: the pencil's segments coloured and numbered by spoke (rejected ones thin red),
   the vertex with its 3-sigma ellipse (an arrow at the border when it lies outside), the
   normal's image (from the vertex towards the normal's vanishing point), and a text box
   with tilt +- sigma, detectable, twin;
@@ -134,6 +134,25 @@ def _text_box(img, lines, origin=(8, 8)):
         cv2.putText(img, t, (x0 + 6, y0 + (k + 1) * lh), cv2.FONT_HERSHEY_SIMPLEX, scale, _WHITE, th, cv2.LINE_AA)
 
 
+def _spoke_labels(img, seg, lab, vertex_px):
+    """Each labelled segment's spoke index at its end farther from the vertex (the segment's
+    second end without a vertex). seg: (M, 4) raw px; lab: (M,) spoke or -1."""
+    import cv2
+
+    v = None if vertex_px is None else np.asarray(vertex_px, float)
+    scale = max(0.45, min(img.shape[:2]) / 1800)
+    for s, k in zip(seg, lab):
+        if k < 0 or not np.all(np.isfinite(s)):
+            continue
+        p, q = s[:2], s[2:]
+        if v is not None and np.all(np.isfinite(v)) and np.hypot(*(p - v)) > np.hypot(*(q - v)):
+            p, q = q, p
+        d = q - p
+        at = q + 12.0 * d / max(float(np.hypot(*d)), 1e-9)
+        cv2.putText(img, str(int(k)), (int(round(at[0])) - 5, int(round(at[1])) + 5), cv2.FONT_HERSHEY_SIMPLEX,
+                    scale, spoke_colour(int(k)), max(1, _thickness(img)), cv2.LINE_AA)
+
+
 def _normal_line(img, orientation, camera, length_px):
     """From the vertex towards the vanishing point of the normal: the normal's image."""
     n = np.asarray(orientation.normal, float)
@@ -166,6 +185,7 @@ def draw_orientation(image, orientation, segments=None, camera=None):
         lab = np.asarray(orientation.spokes if orientation.spokes is not None else np.full(len(seg), -1)).ravel()
         for s, k in zip(seg, lab):
             _line(img, s[:2], s[2:], spoke_colour(int(k)), (2 if k >= 0 else 1) * _thickness(img))
+        _spoke_labels(img, seg, lab, orientation.vertex_px if orientation.ok else None)
     if orientation.ok:
         _point(img, orientation.vertex_px, orientation.vertex_cov_px2, _CYAN, "vertex")
         _normal_line(img, orientation, camera, 0.12 * min(img.shape[:2]))

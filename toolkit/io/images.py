@@ -93,7 +93,8 @@ class ImageSource:
     frame10). The same image given twice, or a video together with anything else, is an
     InputError. Attributes: `description` (the IMAGES as given, for messages and
     outputs), `count` (number of frames; for video the container's count, which may be
-    approximate), `kind` ("images" or "video"), `paths`.
+    approximate), `kind` ("images" or "video"), `paths`, `fps` (a video's frame rate [Hz] as
+    its container gives it, None for images or when unknown).
     """
 
     def __init__(self, spec, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
@@ -108,8 +109,9 @@ class ImageSource:
         if videos and len(specs) > 1:
             raise InputError(f"{videos[0]}: a video must be the only IMAGES argument "
                              f"(got {len(specs)}: {self.spec})")
+        self.fps = None
         if videos:
-            self.kind, self.paths, self._video_count = resolved[0]
+            self.kind, self.paths, self._video_count, self.fps = resolved[0]
         else:
             self.kind = "images"
             self.paths = [q for _, files in resolved for q in files]
@@ -124,7 +126,8 @@ class ImageSource:
 
     @staticmethod
     def _resolve(spec):
-        """("video", [path], frame count) or ("images", [paths]) for one IMAGES argument."""
+        """("video", [path], frame count, frame rate [Hz] or None) or ("images", [paths]) for one
+        IMAGES argument."""
         p = Path(spec)
         if p.is_dir():
             files = [q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_EXTENSIONS]
@@ -141,6 +144,7 @@ class ImageSource:
                 cap = cv2.VideoCapture(str(p))
                 ok = cap.isOpened()
                 n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if ok else 0
+                fps = float(cap.get(cv2.CAP_PROP_FPS)) if ok else 0.0
                 # the container's count can be missing or wrong: a video without one frame
                 # that decodes is no input (it used to end the command with exit 0 and nothing)
                 first = ok and cap.read()[0]
@@ -149,7 +153,7 @@ class ImageSource:
                 raise InputError(f"{p}: cannot open this video")
             if not first and n <= 0:
                 raise InputError(f"{p}: the video holds no frames")
-            return "video", [p], max(n, 0)
+            return "video", [p], max(n, 0), (fps if 0 < fps < 1000 else None)
         if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS:
             return "images", [p]
         if any(c in spec for c in "*?["):
