@@ -552,6 +552,7 @@ def orientation_record(camera, fit, vertex, vertex_ideal, cov_ideal, *, model="e
         normal_twin=fit.normal_twin, R_cam_from_target=fit.R_cam_from_target, R_cam_from_target_twin=fit.R_twin,
         ambiguous=bool(fit.ambiguous), model=model, resolved_by=resolved_by, ray=fit.ray,
         tilt_threshold_deg=None if sigma_mean is None else float(np.degrees(detection_threshold(sigma_mean))),
+        chi2=float(fit.chi2),
     )
 
 

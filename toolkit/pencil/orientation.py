@@ -46,7 +46,7 @@ _ESTIMATE = ("resolved_by", "ray")
 # written only when known
 _OPTIONAL = ("tilt_threshold_deg", "labels_ambiguous", "normal_ambiguous", "normal_alternatives", "spokes",
              "lines", "vertex_cam", "t_cam_from_target", "tilt_sigma_total_deg", "normal_sigma_total_deg",
-             "vertex_cov_total_px2", "intrinsics_used")
+             "vertex_cov_total_px2", "intrinsics_used", "chi2")
 _ARRAYS = {"vertex_px": (2,), "vertex_cov_px2": (2, 2), "normal": (3,), "normal_twin": (3,),
            "R_cam_from_target": (3, 3), "R_cam_from_target_twin": (3, 3), "ray": (3,), "vertex_cam": (3,),
            "t_cam_from_target": (3,), "vertex_cov_total_px2": (2, 2)}
@@ -63,7 +63,9 @@ class Orientation:
     vertex_cam, t_cam_from_target (3,) in the pencil file's length unit, when the spoke
     radii fix the depth; tilt_sigma_total_deg, normal_sigma_total_deg [deg] and
     vertex_cov_total_px2 (2, 2) [px^2]: the sigmas with the intrinsics' uncertainty too
-    (`lens_uncertainty`), only when the intrinsics' covariance was known (intrinsics_used).
+    (`lens_uncertainty`), only when the intrinsics' covariance was known (intrinsics_used);
+    chi2: the fit's sum of squared weighted angle residuals (lines_used - 3 degrees of
+    freedom; `sequence_noise` pools it).
     """
 
     image: str | None = None
@@ -97,6 +99,7 @@ class Orientation:
     normal_sigma_total_deg: float | None = None
     vertex_cov_total_px2: np.ndarray | None = None
     intrinsics_used: bool | None = None
+    chi2: float | None = None
 
     def replace(self, **changes) -> "Orientation":
         """A copy with `changes` (dataclasses.replace)."""

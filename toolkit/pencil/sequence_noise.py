@@ -1,0 +1,245 @@
+"""The line noise of a sequence, estimated from its residuals: the a-posteriori variance factor.
+
+orient assumes a line noise when none is given (0.5 px at each segment end point). The
+frames' fits say how good that guess was: every frame's chi-square ``chi2_i`` (weighted
+squared angle residuals at the estimate) has ``dof_i = lines - 3`` degrees of freedom, and
+under the assumed noise ``E[chi2_i] = dof_i``. The pooled factor::
+
+    s0^2 = sum chi2_i / sum dof_i
+
+is the ratio of the true to the assumed noise variance, with ``sum dof_i`` degrees of
+freedom: every frame's covariance is multiplied by it (its sigmas by s0), so the sigmas hold
+the noise the sequence shows, not the one assumed.
+
+An assumed noise far too small also truncates what the fits see: a frame's line gates
+(which segments pass through the vertex, which fit a spoke) then drop the larger errors,
+and the pooled factor comes out low. `estimate_sequence_noise` therefore runs the frames
+again with the noise estimated so far while the factor is far from 1, until the gates fit
+the noise (the factor is the product of the runs').
+
+Outlier frames (a stray line kept, a misdetected spoke) would inflate it: frames whose
+``chi2_i / dof_i`` lies beyond the 99.9 % point of chi2(dof_i) / dof_i at the current
+factor are left out of the pool and the factor re-estimated, until nothing changes
+(starting from the median of the frames' factors, which no minority of outliers moves far).
+Their own sigmas are scaled by the pooled factor too: they are not wrong in noise, only in
+model.
+
+The fulcrum is one fit over the whole sequence: its factor is its own intersection's
+``chi2 / (lines - 2)`` (the robust fit's inliers), and the pivot plane's that of its fit
+(`fulcrum_noise`). Where the lines carry the detector's own sigmas (shaft midlines, with
+their measured floor) the factor only inflates: a fit that scatters less than the
+detector says keeps the detector's sigmas.
+
+Example
+-------
+>>> import numpy as np
+>>> rng = np.random.default_rng(0)
+>>> dof = np.full(40, 5)
+>>> chi2 = 4.0 * rng.chisquare(5, 40)  # the noise is twice the assumed one
+>>> chi2[3] = 500.0                     # one frame with a stray line
+>>> est = variance_factor(chi2, dof)
+>>> 1.6 < est.scale < 2.4, est.frames, est.rejected
+(True, 39, 1)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+__all__ = ["NoiseEstimate", "variance_factor", "sequence_noise", "estimate_sequence_noise", "rescale",
+           "fulcrum_noise", "estimate_fulcrum_noise", "MIN_DOF", "MAX_RUNS"]
+
+#: The pooled degrees of freedom below which the factor is not estimated (too uncertain:
+#: its relative sd is sqrt(2 / dof)).
+MIN_DOF = 10
+# a frame is an outlier beyond this point of its chi-square distribution
+_OUTLIER_LEVEL = 0.999
+_ITERATIONS = 20
+# a first factor outside this band (sigma scale 0.9-1.1) runs the frames again with the
+# estimated noise: the gates of the first run were set for another noise
+_RERUN_BAND = (0.9**2, 1.1**2)
+#: Runs at most of `estimate_sequence_noise` and `estimate_fulcrum_noise`.
+MAX_RUNS = 5
+
+
+@dataclass(frozen=True)
+class NoiseEstimate:
+    """The estimated noise of a sequence.
+
+    variance_factor: s0^2, true / assumed noise variance; scale: s0 (the sigmas' factor);
+    dof: pooled degrees of freedom (the factor's relative sd is sqrt(2 / dof)); frames:
+    frames pooled; rejected: frames left out as outliers.
+    """
+
+    variance_factor: float
+    dof: int
+    frames: int
+    rejected: int
+
+    @property
+    def scale(self) -> float:
+        return float(np.sqrt(self.variance_factor))
+
+    def to_dict(self) -> dict:
+        """The orientation.json header record ``noise``."""
+        return {"estimated": True, "variance_factor": self.variance_factor, "sigma_scale": self.scale,
+                "dof": self.dof, "frames": self.frames, "rejected_frames": self.rejected}
+
+
+def variance_factor(chi2, dof):
+    """The robust pooled a-posteriori variance factor of frames' fits.
+
+    chi2: (F,) each frame's chi-square at its estimate; dof: (F,) its degrees of freedom
+    (frames with dof <= 0 carry no information and are skipped). Returns a `NoiseEstimate`,
+    or None when the pooled dof is under `MIN_DOF`.
+    """
+    chi2 = np.asarray(chi2, float)
+    dof = np.asarray(dof, float)
+    use = (dof > 0) & np.isfinite(chi2)
+    chi2, dof = chi2[use], dof[use]
+    if dof.sum() < MIN_DOF:
+        return None
+    s2 = float(np.median(chi2 / dof))
+    keep = np.ones(chi2.size, bool)
+    limit = stats.chi2.ppf(_OUTLIER_LEVEL, dof)
+    for _ in range(_ITERATIONS):
+        new = chi2 <= max(s2, 1e-300) * limit
+        if dof[new].sum() < MIN_DOF:
+            new = keep
+        s2 = float(chi2[new].sum() / dof[new].sum())
+        if np.array_equal(new, keep):
+            break
+        keep = new
+    return NoiseEstimate(variance_factor=s2, dof=int(dof[keep].sum()), frames=int(keep.sum()),
+                         rejected=int((~keep).sum()))
+
+
+def rescale(record, factor):
+    """The `Orientation` `record` with its noise covariances multiplied by `factor` (s0^2):
+    tilt, normal and vertex sigmas, the noise-equivalent tilt, and the noise part of the
+    totals (the intrinsics' part stays)."""
+    if not record.ok:
+        return record
+    s = float(np.sqrt(factor))
+    ch = {"tilt_sigma_deg": record.tilt_sigma_deg * s, "normal_sigma_deg": record.normal_sigma_deg * s}
+    if record.vertex_cov_px2 is not None:
+        ch["vertex_cov_px2"] = np.asarray(record.vertex_cov_px2) * factor
+    if record.tilt_threshold_deg is not None:
+        ch["tilt_threshold_deg"] = record.tilt_threshold_deg * s
+    for total, noise in (("tilt_sigma_total_deg", "tilt_sigma_deg"), ("normal_sigma_total_deg", "normal_sigma_deg")):
+        t = getattr(record, total)
+        if t is not None:
+            lens2 = max(t**2 - getattr(record, noise) ** 2, 0.0)
+            ch[total] = float(np.sqrt(lens2 + ch[noise] ** 2))
+    if record.vertex_cov_total_px2 is not None and record.vertex_cov_px2 is not None:
+        lens = np.asarray(record.vertex_cov_total_px2) - np.asarray(record.vertex_cov_px2)
+        ch["vertex_cov_total_px2"] = lens + ch["vertex_cov_px2"]
+    return record.replace(**ch)
+
+
+def sequence_noise(records):
+    """(records rescaled, NoiseEstimate or None): the variance factor of the ok records'
+    fits (their ``chi2`` and ``lines_used``; the exact estimator's 3 parameters) applied to
+    each of them. None, and the records unchanged, when the pool has under `MIN_DOF`."""
+    ok = [r for r in records if r.ok and r.chi2 is not None]
+    est = variance_factor([r.chi2 for r in ok], [r.lines_used - 3 for r in ok])
+    if est is None:
+        return list(records), None
+    return [rescale(r, est.variance_factor) for r in records], est
+
+
+def _with_factor(est, factor):
+    return None if est is None else NoiseEstimate(float(factor), est.dof, est.frames, est.rejected)
+
+
+def estimate_sequence_noise(run, sigma):
+    """The frames oriented with the noise their residuals show.
+
+    run: callable(sigma) -> list of `Orientation`, the frames oriented with the assumed
+    noise `sigma` (e.g. the end point sd [px]); sigma: the assumed noise. While a run's
+    factor lies outside 0.9-1.1 in sigma, the frames are run again with the noise
+    estimated so far (at most `MAX_RUNS` runs), so that their gates fit the noise.
+
+    Returns (records, NoiseEstimate or None): the records' covariances hold the estimated
+    noise; the estimate's factor is relative to `sigma` (the noise used is sigma *
+    estimate.scale). None (and the first run's records unchanged) when the pool has under
+    `MIN_DOF` degrees of freedom.
+    """
+    total, best = 1.0, None
+    for _ in range(MAX_RUNS):
+        records, est = sequence_noise(run(sigma * np.sqrt(total)))
+        if est is None:
+            return (records, None) if best is None else best
+        total *= est.variance_factor
+        best = (records, _with_factor(est, total))
+        if _RERUN_BAND[0] <= est.variance_factor <= _RERUN_BAND[1]:
+            break
+    return best
+
+
+def _inflate_only(est, inflate_only):
+    if est is None or not inflate_only or est.variance_factor >= 1.0:
+        return est
+    return NoiseEstimate(1.0, est.dof, est.frames, est.rejected)
+
+
+def fulcrum_noise(fulcrum, inflate_only=False):
+    """(Fulcrum rescaled, {"vertex": NoiseEstimate or None, "pivot": ... or None}).
+
+    fulcrum: a `fulcrum.Fulcrum`. The vertex's factor is its intersection's chi2 / (lines
+    used - 2) (chi2 = rms^2 * lines used); it scales vertex_cov_px2, ray_sigma_deg and the
+    noise part of the totals. The pivot plane's is its fit's chi2 / (frames - 3) when
+    that has `MIN_DOF`, else the vertex's. inflate_only: never below 1 (lines with the
+    detector's own sigmas).
+    """
+    import dataclasses
+
+    k = int(fulcrum.lines_used)
+    est = variance_factor([fulcrum.rms**2 * k], [k - 2])
+    est = _inflate_only(None if est is None else NoiseEstimate(est.variance_factor, est.dof, fulcrum.frames_used,
+                                                               len(fulcrum.outliers)), inflate_only)
+    ch = {}
+    if est is not None:
+        f, s = est.variance_factor, est.scale
+        ch["ray_sigma_deg"] = fulcrum.ray_sigma_deg * s
+        if fulcrum.vertex_cov_px2 is not None:
+            ch["vertex_cov_px2"] = np.asarray(fulcrum.vertex_cov_px2) * f
+        if fulcrum.ray_sigma_total_deg is not None:
+            lens2 = max(fulcrum.ray_sigma_total_deg**2 - fulcrum.ray_sigma_deg**2, 0.0)
+            ch["ray_sigma_total_deg"] = float(np.sqrt(lens2 + ch["ray_sigma_deg"] ** 2))
+        if fulcrum.vertex_cov_total_px2 is not None and fulcrum.vertex_cov_px2 is not None:
+            ch["vertex_cov_total_px2"] = (np.asarray(fulcrum.vertex_cov_total_px2)
+                                          - np.asarray(fulcrum.vertex_cov_px2) + ch["vertex_cov_px2"])
+    pivot_est = None
+    if fulcrum.pivot is not None:
+        p = fulcrum.pivot
+        pivot_est = None if p.chi2 is None else variance_factor([p.chi2], [p.lines_used - 3])
+        pivot_est = _inflate_only(pivot_est, inflate_only) or est
+        if pivot_est is not None:
+            ch["pivot"] = rescale(p, pivot_est.variance_factor)
+    return dataclasses.replace(fulcrum, **ch), {"vertex": est, "pivot": pivot_est}
+
+
+def estimate_fulcrum_noise(run, sigma):
+    """`fulcrum_noise` with the gates of the estimated noise (as `estimate_sequence_noise`):
+    run: callable(sigma) -> Fulcrum with the assumed line noise sigma (the end point sd
+    [px] of segments without their own), run again with the noise estimated so far while
+    the factor lies outside 0.9-1.1 in sigma. Returns (Fulcrum, estimates) as
+    `fulcrum_noise`, the factors relative to `sigma`."""
+    total, best = 1.0, None
+    for _ in range(MAX_RUNS):
+        s = sigma * np.sqrt(total)
+        f, est = fulcrum_noise(run(s))
+        v = est["vertex"]
+        if v is None:
+            return (f, est) if best is None else best
+        factor = v.variance_factor
+        total *= factor
+        pivot = est["pivot"]
+        best = (f, {"vertex": _with_factor(v, total),
+                    "pivot": None if pivot is None else _with_factor(pivot, pivot.variance_factor * total / factor)})
+        if _RERUN_BAND[0] <= factor <= _RERUN_BAND[1]:
+            break
+    return best
