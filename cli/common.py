@@ -19,7 +19,8 @@ from pencilcal.toolkit.io.images import DEFAULT_MAX_PIXELS
 
 __all__ = ["CONTEXT_SETTINGS", "command", "run", "progress", "warn", "output_option", "force_option", "quiet_option", "check_output",
            "camera_options", "StageBars", "workers_option", "run_frames", "images_argument", "max_pixels_option",
-           "IMAGES_HELP", "FiniteFloat", "LabelledProgress", "mask_option"]
+           "IMAGES_HELP", "FiniteFloat", "LabelledProgress", "mask_option", "jsonl_option", "overlay_option",
+           "FrameOutputs", "source_option", "open_input", "frames_region", "stream_meta"]
 
 #: Every command's click context settings: -h as well as --help, the width of the help. Set on
 #: each command (not only inherited from the group), so a command invoked on its own, as the
@@ -195,16 +196,70 @@ overlay_option = click.option(
          "a folder (a path ending with /).")
 
 
+source_option = click.option(
+    "--source", "source_spec", default=None, metavar="INDEX|URL|FILE",
+    help="Instead of IMAGES: a camera index (0), a URL OpenCV opens (rtsp://...), or a video file still being "
+         "written (followed until it stops growing for 5 s). Frames are read as they come; frames dropped "
+         "because processing is slower than the source are counted (a warning, frames_dropped in --jsonl). "
+         "Ctrl-C stops it and the output is written for the frames done.")
+
+
+def open_input(images, source_spec, max_pixels, gray=False):
+    """The frames of a per-frame command: IMAGES (`open_images`) or --source (`open_stream`),
+    exactly one of them."""
+    if (images is None) == (source_spec is None):
+        raise click.UsageError("give IMAGES or --source (one of them)")
+    if source_spec is not None:
+        from pencilcal.toolkit.io.stream import open_stream
+
+        return open_stream(source_spec, gray=gray, max_pixels=max_pixels)
+    from pencilcal.toolkit.io.images import open_images
+
+    return open_images(images, gray=gray, max_pixels=max_pixels)
+
+
+def frames_region(source, mask_path, shape):
+    """The valid region of the frames (`region_detect.sequence_region`); for a stream from
+    the mask file or from its first frames (read now, processed as usual afterwards)."""
+    from pencilcal.toolkit.detect.region_detect import MAX_FRAMES, detect_valid_region, sequence_region
+
+    if getattr(source, "kind", None) != "stream":
+        return sequence_region(source, mask_path, shape=shape)
+    if mask_path is not None:
+        from pencilcal.toolkit.detect.region import read_mask_file
+
+        return read_mask_file(mask_path, shape)
+    frames = [f for f in source.head(MAX_FRAMES) if f.shape[:2] == tuple(shape)]
+    return detect_valid_region(frames) if frames else None
+
+
+def stream_meta(source):
+    """The output file's record of a stream: {source, frames_read, frames_dropped,
+    interrupted}; {} for IMAGES."""
+    if getattr(source, "kind", None) != "stream":
+        return {}
+    return {"source": source.description, "frames_read": source.read, "frames_dropped": source.dropped,
+            "interrupted": bool(source.interrupted)}
+
+
 class FrameOutputs:
     """The live outputs of a per-frame command: --jsonl (one object per frame, as it is
     done) and --overlay (the drawn frames). Used as a context manager around the frame
-    loop; ``emit(record, drawn)`` per frame. A failure or interrupt leaves no
-    half-written video."""
+    loop; ``emit(record, drawn)`` per frame. A failure leaves no half-written video; a
+    stream stopped by Ctrl-C keeps it.
 
-    def __init__(self, jsonl_path=None, overlay_path=None, force=False, fps=25.0):
+    With a stream `source` each jsonl record also says ``frame_index`` and
+    ``frames_dropped`` (so far), and at the end a warning says how many frames were
+    dropped and whether Ctrl-C ended the stream. The overlay video's frame rate is `fps`,
+    else the source's, else 25.
+    """
+
+    def __init__(self, jsonl_path=None, overlay_path=None, force=False, fps=None, source=None):
         from pencilcal.toolkit.draw.writer import OverlayWriter
         from pencilcal.toolkit.io.jsonl import open_jsonl
 
+        self.source = source if getattr(source, "kind", None) == "stream" else None
+        fps = fps or getattr(source, "fps", None) or 25.0
         self.jsonl = open_jsonl(jsonl_path, force) if jsonl_path else None
         self.overlay = OverlayWriter(overlay_path, fps=fps, force=force) if overlay_path else None
 
@@ -213,9 +268,13 @@ class FrameOutputs:
         """Whether the frames must be drawn (the tasks then return the drawn frame)."""
         return self.overlay is not None
 
-    def emit(self, record, drawn=None, name=None):
+    def emit(self, record, drawn=None, name=None, extra=None):
+        """One frame's record (a dict) to --jsonl, with `extra` keys for the stream only, and
+        its drawn frame (or None) to --overlay."""
         if self.jsonl is not None:
-            self.jsonl.write(record)
+            if self.source is not None:
+                extra = {**(extra or {}), "frame_index": _index(record), "frames_dropped": self.source.dropped}
+            self.jsonl.write({**record, **extra} if extra else record)
         if self.overlay is not None and drawn is not None:
             self.overlay.write(name or str(record.get("image", f"{self.overlay.frames:06d}")), drawn)
 
@@ -227,7 +286,20 @@ class FrameOutputs:
             self.overlay.close(ok=exc_type is None)
         if self.jsonl is not None:
             self.jsonl.close()
+        if exc_type is None and self.source is not None:
+            src = self.source
+            if src.dropped:
+                warn(f"{src.description}: {src.dropped} of {src.read + src.dropped} frames dropped (processing was "
+                     "slower than the source)")
+            if src.interrupted:
+                warn(f"{src.description}: stopped by Ctrl-C after {src.read} frames; writing what was done")
         return False
+
+
+def _index(record):
+    name = str(record.get("image", ""))
+    tail = name.rsplit("_", 1)[-1]
+    return int(tail) if tail.isdigit() else None
 
 
 def images_argument(required=True):
@@ -308,5 +380,8 @@ def run_frames(source, task, context, workers, label, quiet):
     from pencilcal.toolkit.io.parallel import Sized, map_frames
 
     results = map_frames(task, source, context, workers)
+    if getattr(source, "kind", None) == "stream":  # no length: no bar
+        yield from results
+        return
     with progress(Sized(results, len(source)), label, quiet) as it:
         yield from it

@@ -12,8 +12,9 @@ from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.spec import read_pencil
 
 from .common import (command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, images_argument,
-                     jsonl_option, mask_option, max_pixels_option, output_option, overlay_option, progress,
-                     quiet_option, run, run_frames, warn, workers_option)
+                     frames_region, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
+                     overlay_option, progress, quiet_option, run, run_frames, source_option, stream_meta, warn,
+                     workers_option)
 
 
 def _orient_record(camera, pencil, fr, opts):
@@ -127,6 +128,7 @@ def _check_priors_match(priors, names, path):
 @mask_option
 @click.option("--max-segments", type=click.IntRange(min=3), default=MAX_SEGMENTS, show_default=True,
               help="Segments used per frame at most, the longest; a warning says when a frame has more.")
+@source_option
 @jsonl_option
 @overlay_option
 @max_pixels_option
@@ -135,12 +137,12 @@ def _check_priors_match(priors, names, path):
 @quiet_option
 @run
 def orient(images, lines_path, camera_path, camera_id, pencil_path, output, model, endpoint_sigma, angle_sigma,
-           prior_path, continuity, detector, edges, mask_path, max_segments, jsonl_path, overlay_path, max_pixels,
-           workers, force, quiet):
+           prior_path, continuity, detector, edges, mask_path, max_segments, source_spec, jsonl_path, overlay_path,
+           max_pixels, workers, force, quiet):
     """Orientation of the pencil in every frame, from its image angles alone.
 
     From IMAGES (image files, folders or glob patterns in the order given, or one video)
-    the lines are detected first: the midlines of the printed spokes, at whatever width
+    or --source (a camera, a URL, a video file being written) the lines are detected first: the midlines of the printed spokes, at whatever width
     they are seen (dark bars when the pencil file gives their width; else dark or light,
     whichever the frame shows), or with --edges plain edge segments (as `pencilcal lines`),
     never on the boundary of the frames' valid region (--mask, or detected once from up to
@@ -165,19 +167,19 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         raise click.BadParameter("must be positive", param_hint="--endpoint-sigma")
     if angle_sigma is not None and angle_sigma <= 0:
         raise click.BadParameter("must be positive", param_hint="--angle-sigma")
-    if (images is None) == (lines_path is None):
-        raise click.UsageError("give IMAGES or --lines (one of them)")
+    if sum(x is not None for x in (images, lines_path, source_spec)) != 1:
+        raise click.UsageError("give IMAGES, --source or --lines (one of them)")
     if lines_path is not None and (edges or mask_path is not None):
         raise click.UsageError("--edges and --mask are for IMAGES (a lines file's lines are already found)")
     if lines_path is not None and overlay_path is not None:
-        raise click.UsageError("--overlay draws on the frames: it needs IMAGES, not --lines")
+        raise click.UsageError("--overlay draws on the frames: it needs IMAGES or --source, not --lines")
     check_output(output, force, [lines_path, camera_path, pencil_path, prior_path, mask_path])
     camera = read_camera(camera_path, camera_id=camera_id)
     pencil = read_pencil(pencil_path)
     priors = _prior_rotations(prior_path) if prior_path else {}
     opts = dict(model=model, endpoint_sigma=endpoint_sigma, angle_sigma=angle_sigma, priors=priors,
                 max_segments=max_segments)
-    records = []
+    records, source = [], None
     if lines_path is not None:
         frames = read_lines(lines_path)
         if not frames:
@@ -190,17 +192,14 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
                 records.append(rec)
                 live.emit(rec.to_dict())
     else:
-        from pencilcal.toolkit.io.images import open_images
-
-        from pencilcal.toolkit.detect.region_detect import sequence_region
-
-        source = open_images(images, max_pixels=max_pixels)
+        source = open_input(images, source_spec, max_pixels)
         check_output(output, force, [*source.paths, mask_path])
-        region = sequence_region(source, mask_path, shape=(camera.height, camera.width))
-        names = [p.name for p in source.paths] if source.kind == "images" else \
-            [f"frame_{i:06d}" for i in range(source.count)]
-        _check_priors_match(priors, names, prior_path)
-        with FrameOutputs(jsonl_path, overlay_path, force, fps=source.fps or 25.0) as live:
+        region = frames_region(source, mask_path, shape=(camera.height, camera.width))
+        if source.kind != "stream":
+            names = [p.name for p in source.paths] if source.kind == "images" else \
+                [f"frame_{i:06d}" for i in range(source.count)]
+            _check_priors_match(priors, names, prior_path)
+        with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
             ctx = (camera, pencil, detector, opts, edges, region, live.drawing)
             for rec, drawn in run_frames(source, _orient_image_task, ctx, workers, "orient", quiet):
                 _warn_frame(rec)
@@ -208,12 +207,13 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
                 live.emit(rec.to_dict(), drawn, name=rec.image)
     if not any(r.ok for r in records):
         # a run with no estimate at all failed: say so and leave nothing that looks like a result
-        raise EstimationError(f"{lines_path or source.description}: no frame gave an orientation")
+        raise EstimationError(f"{lines_path or source.description}: no frame gave an orientation"
+                              + (f" ({len(records)} frames)" if source_spec else ""))
     if continuity:
         records = resolve_twins_by_continuity(records)
     write_orientations(output, records, force=force, model=model, camera=str(camera_path), pencil=str(pencil_path),
                        lines=None if lines_path is None else str(lines_path),
-                       images=None if images is None else source.description)
+                       images=None if images is None else source.description, **stream_meta(source))
     n_ok = sum(r.ok for r in records)
     n_amb = sum(bool(r.ok and r.normal_ambiguous) for r in records)
     if not quiet:

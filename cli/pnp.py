@@ -9,7 +9,7 @@ from pencilcal.toolkit.board.spec import read_board
 from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.board.detect import detect_board
 from pencilcal.toolkit.errors import EstimationError
-from pencilcal.toolkit.io.images import check_image_size, open_images
+from pencilcal.toolkit.io.images import check_image_size
 from pencilcal.validation.pnp import (
     DEFAULT_MAX_RMS_PX,
     DEFAULT_METHOD,
@@ -23,8 +23,8 @@ from pencilcal.validation.pnp import (
 )
 
 from .common import (command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option, images_argument,
-                     jsonl_option, max_pixels_option, output_option, overlay_option, quiet_option, run, run_frames,
-                     warn, workers_option)
+                     jsonl_option, max_pixels_option, open_input, output_option, overlay_option, quiet_option, run,
+                     run_frames, source_option, stream_meta, warn, workers_option)
 
 _MIN_CORNERS_FLOOR = 4
 
@@ -77,7 +77,7 @@ def _pnp_frame(frame, camera, board, method, refine, corner_sigma, max_rms, min_
 
 
 @command()
-@images_argument()
+@images_argument(required=False)
 @camera_options
 @click.option("--board", "board_path", required=True, type=click.Path(dir_okay=False),
               help="Board file (.yaml/.json): charuco or chessboard, square size in the length unit of the output.")
@@ -96,6 +96,7 @@ def _pnp_frame(frame, camera, board, method, refine, corner_sigma, max_rms, min_
 @click.option("--calibration", "calib_path", type=click.Path(dir_okay=False), default=None,
               help="calib.json of `pencilcal calibrate --report`: its intrinsics' covariance and corner-noise model "
                    "give cov_total (default: those the camera file carries, if any).")
+@source_option
 @max_pixels_option
 @jsonl_option
 @overlay_option
@@ -104,11 +105,12 @@ def _pnp_frame(frame, camera, board, method, refine, corner_sigma, max_rms, min_
 @quiet_option
 @run
 def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma, min_corners, max_rms, refine,
-        calib_path, max_pixels, jsonl_path, overlay_path, workers, force, quiet):
+        calib_path, source_spec, max_pixels, jsonl_path, overlay_path, workers, force, quiet):
     """Pose of a calibration board in every frame (poses.json).
 
     IMAGES is one or more image files, folders or glob patterns, in the order given, or
-    one video. Detects the board's corners (ChArUco or chessboard), estimates R_cam_from_target and
+    one video; or --source: a camera, a URL, a video file being written. Detects the
+    board's corners (ChArUco or chessboard), estimates R_cam_from_target and
     t_cam_from_target (length unit of the board file) with the chosen method, refines it
     on the reprojection error in raw pixels under the full lens model, and writes the
     6x6 covariance (rotation first: rad about the camera axes, left perturbation; then
@@ -132,11 +134,11 @@ def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma
     if calib_path:
         camera = camera_with_report(camera, read_calibration_file(calib_path), str(camera_path))
     board = read_board(board_path)
-    source = open_images(images, max_pixels=max_pixels)
+    source = open_input(images, source_spec, max_pixels)
     check_output(output, force, [*source.paths, camera_path, board_path])
     label = "all" if method == "all" else method
     records = []
-    with FrameOutputs(jsonl_path, overlay_path, force) as live:
+    with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
         ctx = (camera, board, method, refine, corner_sigma, max_rms, min_corners, live.drawing)
         for rec, warnings, drawn in run_frames(source, _pnp_task, ctx, workers, "pnp", quiet):
             for w in warnings:
@@ -157,6 +159,7 @@ def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma
         "min_corners": min_corners,
         "max_rms_px": max_rms,
         **uncertainty_record(camera, calib_path or camera_path),
+        **stream_meta(source),
     }
     n_ok = sum(r["ok"] for r in records)
     if n_ok == 0:

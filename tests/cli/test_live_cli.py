@@ -93,3 +93,83 @@ def test_orient_jsonl_from_a_lines_file(sim, tmp_path):
     recs = [json.loads(x) for x in r.output.splitlines() if x.startswith("{")]
     assert [x["image"] for x in recs] == [f"{i:03d}.png" for i in range(4)] and all(x["ok"] for x in recs)
     assert all(len(x["spokes"]) > 0 for x in recs)
+
+
+def _record_progressively(images, path, repeat=2, pause=0.05):
+    """Append the frames of `images` (PNG files) as JPEG to an MJPEG recording in a thread,
+    as a recorder writes it: the file grows while the command reads it."""
+    import threading
+    import time
+
+    frames = [cv2.imencode(".jpg", cv2.imread(str(p)), [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+              for p in sorted(images.glob("*.png"))] * repeat
+    path.write_bytes(b"")
+
+    def run():
+        with open(path, "ab", buffering=0) as f:
+            for b in frames:
+                f.write(b)
+                time.sleep(pause)
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    return th, len(frames)
+
+
+@pytest.fixture
+def short_idle(monkeypatch):
+    import pencilcal.toolkit.io.stream as stream
+
+    monkeypatch.setattr(stream, "FOLLOW_IDLE_S", 1.0)
+
+
+def test_orient_follows_a_video_being_written(sim, tmp_path, short_idle):
+    rec, out, stream = tmp_path / "rec.mjpeg", tmp_path / "o.json", tmp_path / "s.jsonl"
+    writer, n = _record_progressively(sim / "images", rec)
+    r = CliRunner().invoke(cli, ["orient", "--source", str(rec), "--camera", str(sim / "camera.json"), "--pencil",
+                                 str(sim / "pencil.yaml"), "-o", str(out), "--jsonl", str(stream), "--overlay",
+                                 str(tmp_path / "o.avi"), "-q"])
+    writer.join()
+    assert r.exit_code == 0, r.output
+    lines = [json.loads(x) for x in stream.read_text().splitlines()]
+    assert [x["frame_index"] for x in lines] == list(range(n)) and all(x["frames_dropped"] == 0 for x in lines)
+    data = json.loads(out.read_text())
+    assert data["source"] == str(rec) and data["frames_read"] == n and data["frames_dropped"] == 0
+    assert [f["image"] for f in data["frames"]] == [f"frame_{i:06d}" for i in range(n)]
+    assert sum(f["ok"] for f in data["frames"]) >= n - 1
+    assert cv2.VideoCapture(str(tmp_path / "o.avi")).get(cv2.CAP_PROP_FRAME_COUNT) == n
+
+
+def test_ctrl_c_stops_a_stream_and_writes_what_was_done(sim, tmp_path):
+    import os
+    import signal
+    import threading
+    import time
+
+    rec, out, stream = tmp_path / "rec.mjpeg", tmp_path / "o.json", tmp_path / "s.jsonl"
+    writer, n = _record_progressively(sim / "images", rec, repeat=6, pause=0.1)
+
+    def interrupt():
+        while not (stream.exists() and stream.read_text().count("\n") >= 2):
+            time.sleep(0.02)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    threading.Thread(target=interrupt, daemon=True).start()
+    r = CliRunner().invoke(cli, ["pnp", "--source", str(rec), "--camera", str(sim / "camera.json"), "--board",
+                                 str(sim / "board.yaml"), "-o", str(out), "--jsonl", str(stream)])
+    writer.join()
+    assert r.exit_code == 0, r.output
+    assert "stopped by Ctrl-C" in r.output
+    data = json.loads(out.read_text())
+    assert data["interrupted"] is True and 2 <= len(data["frames"]) < n
+    assert len(stream.read_text().splitlines()) == len(data["frames"])
+
+
+def test_source_and_images_exclude_each_other(sim, tmp_path):
+    r = CliRunner().invoke(cli, ["pnp", str(sim / "images"), "--source", "0", "--camera", str(sim / "camera.json"),
+                                 "--board", str(sim / "board.yaml"), "-o", str(tmp_path / "p.json")])
+    assert r.exit_code == 2 and "--source" in r.output
+    r = CliRunner().invoke(cli, ["orient", "--source", str(tmp_path / "none.avi"), "--camera",
+                                 str(sim / "camera.json"), "--pencil", str(sim / "pencil.yaml"), "-o",
+                                 str(tmp_path / "o.json")])
+    assert r.exit_code == 1 and "none.avi: no such video file" in r.output

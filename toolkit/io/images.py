@@ -38,7 +38,7 @@ import numpy as np
 from pencilcal.toolkit.errors import InputError
 
 __all__ = ["Frame", "ImageSource", "open_images", "decode_image", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS",
-           "DEFAULT_MAX_PIXELS", "check_image_size"]
+           "DEFAULT_MAX_PIXELS", "check_image_size", "quiet_c_stderr"]
 
 IMAGE_EXTENSIONS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
 VIDEO_EXTENSIONS = {".mp4", ".avi", ".mov", ".mkv", ".m4v", ".mpg", ".mpeg", ".wmv", ".webm"}
@@ -57,7 +57,7 @@ class Frame:
 
 
 @contextlib.contextmanager
-def _quiet_c_stderr():
+def quiet_c_stderr():
     """Silence what C libraries (libpng, libjpeg) print on stderr while decoding: pencilcal
     reports an undecodable frame in one line of its own. Only file descriptor 2 of this
     process, only around the decode call."""
@@ -140,7 +140,7 @@ class ImageSource:
             # FFmpeg logs its own complaints about a broken file on stderr, before
             # pencilcal's one line: silenced, as for decoding
             cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
-            with _quiet_c_stderr():
+            with quiet_c_stderr():
                 cap = cv2.VideoCapture(str(p))
                 ok = cap.isOpened()
                 n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if ok else 0
@@ -204,14 +204,14 @@ class ImageSource:
     def _iter_video(self):
         import cv2
 
-        with _quiet_c_stderr():
+        with quiet_c_stderr():
             cap = cv2.VideoCapture(str(self.paths[0]))
         try:
             i = 0
             misses = 0
             n = self._video_count
             while True:
-                with _quiet_c_stderr():  # libavcodec reports corrupt frames itself
+                with quiet_c_stderr():  # libavcodec reports corrupt frames itself
                     ok, img = cap.read()
                 if not ok or img is None:
                     # a corrupt frame inside the stream: report it and try the next; stop
@@ -281,7 +281,7 @@ def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
     # applied (IMREAD_UNCHANGED ignores it; IMREAD_GRAYSCALE applies it)
     flags = cv2.IMREAD_GRAYSCALE if gray else (cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
     try:
-        with _quiet_c_stderr():
+        with quiet_c_stderr():
             img = cv2.imdecode(data, flags)
     except cv2.error as e:
         return None, f"cannot decode the image: {str(e).strip().splitlines()[-1]}"
