@@ -51,6 +51,9 @@ def _shafts(source, camera, detector, quiet, workers, mask_path=None):
 @camera_options
 @click.option("--angles", "angles_path", type=click.Path(dir_okay=False), default=None,
               help="CSV of pivot angles (image,angle_deg, or one angle per frame): also fit the pivot plane.")
+@click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
+              help="The instrument shaft's diameter (e.g. 8 for 8 mm): also the 3-D fulcrum, point [x, y, z] in the "
+                   "camera frame with point_cov and point_sigma, in D's unit, from every shaft's 3-D axis.")
 @click.option("--endpoint-sigma", type=FiniteFloat(), default=0.5, show_default=True,
               help="End point noise [px] for segments without their own angle sigma.")
 @click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
@@ -62,8 +65,8 @@ def _shafts(source, camera, detector, quiet, workers, mask_path=None):
 @force_option
 @quiet_option
 @run
-def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_sigma, detector, mask_path, max_pixels,
-            workers, output, force, quiet):
+def fulcrum(images, lines_path, camera_path, camera_id, angles_path, shaft_diameter, endpoint_sigma, detector, mask_path,
+            max_pixels, workers, output, force, quiet):
     """The fulcrum of an instrument pivoting about its entry port.
 
     Every frame's instrument line passes through the fulcrum's image: their robust weighted
@@ -76,14 +79,22 @@ def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_si
     (--lines).
     With --angles (one pivot angle per frame) the lines form a pencil with known angles and
     the orientation of the pivot plane comes out too, with the keys of orientation.json.
+    With --shaft-diameter D every shaft's two silhouette edges give its 3-D axis (the band's
+    width fixes its depth), and the fulcrum is also the robust weighted least-squares point
+    closest to all the axes: point [x, y, z] (camera frame, D's unit), point_cov, point_sigma
+    (the RMS 3-D error its covariance predicts), and the axes that pass far from it named in
+    point_outliers. Its lines must be shafts with their edges' covariance (lines --shaft).
 
     \b
     Examples:
       pencilcal fulcrum frames/ --camera camera.yaml -o fulcrum.json
       pencilcal fulcrum --lines lines.json --camera camera.yaml --angles angles.csv -o fulcrum.json
+      pencilcal fulcrum frames/ --camera camera.yaml --shaft-diameter 8 -o fulcrum.json
     """
     if endpoint_sigma <= 0:
         raise click.BadParameter("must be positive", param_hint="--endpoint-sigma")
+    if shaft_diameter is not None and not shaft_diameter > 0:
+        raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     if (images is None) == (lines_path is None):
         raise click.UsageError("give IMAGES or --lines (one of them)")
     if lines_path is not None and mask_path is not None:
@@ -100,7 +111,8 @@ def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_si
         frames = _shafts(source, camera, detector, quiet, workers, mask_path)
     angles = read_angles(angles_path, [f["image"] for f in frames]) if angles_path else None
     try:
-        res = fulcrum_from_frames(camera, frames, angles=angles, endpoint_sigma_px=endpoint_sigma)
+        res = fulcrum_from_frames(camera, frames, angles=angles, endpoint_sigma_px=endpoint_sigma,
+                                  shaft_diameter=shaft_diameter)
     except EstimationError as e:
         raise EstimationError(f"{lines_path or source.description}: {e}") from None
     for w in res.warnings:
@@ -116,3 +128,7 @@ def fulcrum(images, lines_path, camera_path, camera_id, angles_path, endpoint_si
         where = ("at ({:.2f}, {:.2f}) px".format(*out["vertex_px"]) if out["vertex_px"] is not None
                  else f"on the ray {off_axis:.1f} deg off axis")
         click.echo(f"fulcrum {where} from {out['lines_used']} lines -> {output}", err=True)
+        if shaft_diameter is not None:
+            bad = ", ".join(f"{o['image']}" for o in out["point_outliers"]) or "none"
+            click.echo("3-D fulcrum ({:.2f}, {:.2f}, {:.2f}) +- {:.2f} (rms) from {} axes; outliers: {}".format(
+                *out["point"], out["point_sigma"], out["point_axes_used"], bad), err=True)

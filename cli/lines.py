@@ -15,15 +15,29 @@ from .common import (command, FiniteFloat, FrameOutputs, camera_options, check_o
                      run_frames, warn, workers_option)
 
 
+def with_axis(camera, shaft, diameter):
+    """A shaft record with its 3-D axis keys (`cylinder.shaft_axis_record`) added, or with
+    ``axis_error`` saying why there is none (edges that bound no cylinder)."""
+    from pencilcal.toolkit.errors import EstimationError, InputError
+    from pencilcal.toolkit.pencil.cylinder import shaft_axis_record
+
+    try:
+        return {**shaft, **shaft_axis_record(camera, shaft["edges"], shaft["edge_cov"], diameter)}
+    except (EstimationError, InputError) as e:
+        return {**shaft, "axis_error": str(e)}
+
+
 def _lines_task(frame, ctx):
     """One frame's lines.json record, and the frame drawn with them when the overlay is
     asked for (module level: runs in worker processes too)."""
-    camera, detector, bars, shaft, min_length, bar_width, region, drawing = ctx
+    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
     rec = lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
                        valid_region=region)
+    if diameter is not None:
+        rec["shafts"] = [with_axis(camera, s, diameter) for s in rec.get("shafts") or []]
     if not drawing:
         return rec, None
     from pencilcal.toolkit.draw.overlay import draw_frame
@@ -45,7 +59,11 @@ def _lines_task(frame, ctx):
               help="With --bars: accepted bar widths [px, undistorted]; default 2.5 px to 1/8 of the image.")
 @click.option("--shaft", is_flag=True,
               help="Also find instrument shafts (pairs of long converging edges) and write them "
-                   "as 'shafts': midline (image of the axis), width_px, angle_sigma_deg.")
+                   "as 'shafts': midline (image of the axis), width_px, angle_sigma_deg, edge_cov.")
+@click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
+              help="With --shaft: the shafts' diameter (e.g. 8 for an 8 mm instrument); each shaft also gets "
+                   "its 3-D axis in the camera frame, in D's unit: axis_point, axis_direction, axis_distance, "
+                   "axis_cov, axis_direction_sigma_deg, axis_distance_sigma.")
 @click.option("--min-length", type=FiniteFloat(), default=None,
               help="Shortest segment written [px]. Default 20; with --bars, 20 or 1/30 of the image's "
                    "smaller side, whichever is longer (36 px at 1080p).")
@@ -57,8 +75,8 @@ def _lines_task(frame, ctx):
 @force_option
 @quiet_option
 @run
-def lines(images, camera_path, camera_id, output, detector, bars, bar_width, shaft, min_length, mask_path, jsonl_path,
-          overlay_path, max_pixels, workers, force, quiet):
+def lines(images, camera_path, camera_id, output, detector, bars, bar_width, shaft, shaft_diameter, min_length,
+          mask_path, jsonl_path, overlay_path, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel precision, with angle uncertainty.
 
     IMAGES is one or more image files, folders or glob patterns, in the order given (a
@@ -73,6 +91,12 @@ def lines(images, camera_path, camera_id, output, detector, bars, bar_width, sha
     endoscope's circular field stop, letterbox bars), which lines.json records once, as
     `valid_region`.
 
+    With --shaft --shaft-diameter D each shaft also gets its 3-D axis from the two silhouette
+    edges (the band's width fixes the depth): axis_point (the axis point closest to the
+    camera centre), axis_direction (unit, away from the camera), axis_distance, and their
+    covariance axis_cov in the axis chart of docs/formats.md, with axis_direction_sigma_deg
+    and axis_distance_sigma; lengths in D's unit.
+
     A frame that cannot be decoded is reported and written with ok: false. --jsonl streams
     each frame's record as it is done; --overlay draws the segments and shafts on the frames.
 
@@ -80,6 +104,7 @@ def lines(images, camera_path, camera_id, output, detector, bars, bar_width, sha
     Example:
       pencilcal lines frames/ --camera camera.yaml --bars -o lines.json
       pencilcal lines left/*.png --camera camera.yaml -o lines.json
+      pencilcal lines frames/ --camera camera.yaml --shaft --shaft-diameter 8 -o lines.json
       pencilcal orient --lines lines.json --camera camera.yaml --pencil pencil.yaml -o orientation.json
     """
     if min_length is not None and min_length <= 0:
@@ -88,6 +113,10 @@ def lines(images, camera_path, camera_id, output, detector, bars, bar_width, sha
         raise click.BadParameter("needs 0 < MIN < MAX", param_hint="--bar-width")
     if bar_width is not None and not bars:
         raise click.BadParameter("only with --bars", param_hint="--bar-width")
+    if shaft_diameter is not None and not shaft:
+        raise click.BadParameter("only with --shaft", param_hint="--shaft-diameter")
+    if shaft_diameter is not None and not shaft_diameter > 0:
+        raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     check_output(output, force)
     camera = read_camera(camera_path, camera_id=camera_id)
     source = open_images(images, max_pixels=max_pixels)
@@ -95,13 +124,15 @@ def lines(images, camera_path, camera_id, output, detector, bars, bar_width, sha
     region = sequence_region(source, mask_path, shape=(camera.height, camera.width))
     records = []
     with FrameOutputs(jsonl_path, overlay_path, force) as live:
-        ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing)
+        ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
             records.append(rec)
             live.emit(rec, drawn)
     meta = {"detector": detector, "mode": "bars" if bars else "edges", "camera": str(camera_path)}
+    if shaft_diameter is not None:
+        meta["shaft_diameter"] = shaft_diameter
     write_lines(output, records, force=force, meta=meta, valid_region=None if region is None else region.to_dict())
     if not quiet:
         n_ok = sum(r["ok"] for r in records)

@@ -51,17 +51,21 @@ def _parse_size(text):
               help="tilt-sweep: direction of the tilt axis in the sheet, from its x axis [deg].")
 @click.option("--max-tilt", type=FiniteFloat(min=0, max=89), default=80.0, show_default=True,
               help="tilt-sweep: the last frame's tilt [deg].")
+@click.option("--shaft-diameter", type=FiniteFloat(min=0.1, max=100), default=8.0, show_default=True,
+              help="pivot: the instrument shaft's diameter [mm]; truth.json gives the 3-D fulcrum (fulcrum_cam) and "
+                   "every frame's 3-D axis (axis_point_cam, axis_direction_cam).")
 @click.option("--force", is_flag=True, help="Replace OUT if it holds an earlier simulate output.")
 @quiet_option
 @run
 def simulate(out, scenario, frames, seed, size, model, camera_path, noise, blur, lighting, gamma, color,
-             background, axis, max_tilt, force, quiet):
+             background, axis, max_tilt, shaft_diameter, force, quiet):
     """Write a synthetic image sequence with exact ground truth to the folder OUT.
 
     OUT gets images/000.png..., camera.json and camera.yaml, board.yaml, pencil.yaml (what
     the simulated sheet has printed on it, as `pencilcal target` prints it) and truth.json:
     per frame R_cam_from_target, t_cam_from_target, normal, vertex_px, tilt_deg and more.
-    The pivot scenario also writes angles.csv (image,angle_deg). Frames are rendered with
+    The pivot scenario also writes angles.csv (image,angle_deg); its shaft has the diameter
+    --shaft-diameter, and truth.json gives the 3-D fulcrum and every frame's 3-D axis. Frames are rendered with
     exact area anti-aliasing for the camera's own lens model, then blurred, lit unevenly
     and given sensor noise. OUT is written whole or not at all: a failed run leaves no
     partial folder. OUT must be absent or empty; --force replaces an earlier output.
@@ -80,6 +84,8 @@ def simulate(out, scenario, frames, seed, size, model, camera_path, noise, blur,
     check_sequence_output(out_path, force)
     camera = read_camera(camera_path) if camera_path else None
     options = {"axis_deg": axis, "max_tilt_deg": max_tilt} if scenario == "tilt-sweep" else {}
+    if scenario == "pivot":
+        options = {"shaft_radius": shaft_diameter / 2.0}
     sc = make_scenario(scenario, frames, seed, camera=camera, size=(w, h), model=model, **options)
 
     def bar(frames):

@@ -64,7 +64,7 @@ from pencilcal.toolkit.detect.edges import (
 )
 from pencilcal.toolkit.detect.shaft_edges import EdgeLine
 
-__all__ = ["EDGE_FLOOR_PX", "plane_bisector", "Midline", "floor_variances", "midline_from_edges",
+__all__ = ["EDGE_FLOOR_PX", "plane_bisector", "Midline", "floor_variances", "edge_covariance", "midline_from_edges",
            "class_line_fit", "measure_edge_pair"]
 
 #: The error floor of an edge's position at either end [px], measured on the masked real
@@ -116,6 +116,12 @@ class Midline:
         The angle between the two edges.
     edges : (2, 4) [px]
         The two edge lines over their seen stretches ``[x1, y1, x2, y2]``.
+    edge_cov : (2, 2, 2)
+        Per edge, the covariance of its (angle [rad], offset [px]) errors about the centre of
+        its segment in `edges` (`edge_covariance`; floor included): the angle of the
+        direction from its first end to its second, the offset along that direction turned
+        by +90 deg. What a caller needs to carry the edges' errors into anything built from
+        them (the shaft's 3-D axis, `pencil.cylinder.shaft_axis`).
     """
 
     ends: np.ndarray
@@ -129,6 +135,7 @@ class Midline:
     cov_floor: np.ndarray
     convergence_deg: float
     edges: np.ndarray
+    edge_cov: np.ndarray | None = None
 
 
 def _angle_offset(line, ref):
@@ -160,6 +167,33 @@ def floor_variances(e, floor_px):
     at either end of its seen stretch, independent (module docstring)."""
     L = max(e.s_hi - e.s_lo, 1.0)
     return np.array([0.5 * floor_px**2, 2.0 * floor_px**2 / L**2])
+
+
+def edge_covariance(e, floor_px=EDGE_FLOOR_PX):
+    """(2, 2) covariance of an `EdgeLine`'s (angle [rad], offset [px]) errors about the
+    centre of its seen stretch (the midpoint of `EdgeLine.ends`), floor included.
+
+    The fit gives the variances of its offset tm and slope b, uncorrelated at the stations'
+    centroid sm; the floor adds `floor_variances` to them, as `midline_from_edges` does. The
+    line through ``p0 + s u + (tm + b (s - sm)) n`` has the direction angle
+    ``sigma atan(b)`` (sigma = +1 when n is u turned by +90 deg, else -1), so
+    ``d angle = sigma db / (1 + b^2)``; its offset at the centre s_c moves by
+    ``dtm + (s_c - sm) db`` along n, ``sigma / sqrt(1 + b^2)`` of that across the line.
+    The signs cancel in the covariance (angle and offset both follow the segment's own
+    direction, `pencil.cylinder` conventions).
+
+    >>> import numpy as np
+    >>> e = EdgeLine(np.zeros(2), np.array([1.0, 0.0]), np.array([0.0, 1.0]), 30.0, 0.0, 0.0, 0.01, 1e-6,
+    ...              0.0, 100.0, 50, 1.0, 0.1)
+    >>> c = edge_covariance(e, floor_px=0.0)                 # centroid 20 px before the centre
+    >>> np.round(c / [[1e-6, 1e-5], [1e-5, 1e-2]], 6).tolist()
+    [[1.0, 2.0], [2.0, 1.04]]
+    """
+    var = np.array([e.var_t, e.var_b]) + floor_variances(e, floor_px)
+    sc = 0.5 * (e.s_lo + e.s_hi)
+    q = 1.0 + e.b * e.b
+    J = np.array([[0.0, 1.0 / q], [1.0 / np.sqrt(q), (sc - e.sm) / np.sqrt(q)]])
+    return (J * var) @ J.T
 
 
 def midline_from_edges(K, e1, e2, floor_px=EDGE_FLOOR_PX):
@@ -210,7 +244,8 @@ def midline_from_edges(K, e1, e2, floor_px=EDGE_FLOOR_PX):
     return Midline(ends=np.stack([A, B]), line=la, centre=ref, width_px=width(ref),
                    angle_sigma=float(np.sqrt(cov[0, 0])), offset_sigma=float(np.sqrt(cov[1, 1])), cov=cov,
                    cov_stat=cov_stat, cov_floor=(J * np.r_[floor_variances(e1, 1.0), floor_variances(e2, 1.0)]) @ J.T,
-                   convergence_deg=conv, edges=np.stack([ends[0].reshape(-1), ends[1].reshape(-1)]))
+                   convergence_deg=conv, edges=np.stack([ends[0].reshape(-1), ends[1].reshape(-1)]),
+                   edge_cov=np.stack([edge_covariance(e1, floor_px), edge_covariance(e2, floor_px)]))
 
 
 def class_line_fit(s, t, w, base, cls, floor_px=REJECT_FLOOR_PX, iters=6):

@@ -108,6 +108,12 @@ class Shaft:
     cov_stat, cov_floor : (2, 2)
         Its part from the edge fits, and the floor's part per px^2 of
         `shaft_axis.EDGE_FLOOR_PX` (what measuring the floor needs).
+    ideal_edges : (2, 4) [px]
+        The two edges in undistorted pixels (`edges` is their raw image).
+    edge_cov : (2, 2, 2)
+        Per edge, the covariance of its (angle [rad], offset [undistorted px]) about the
+        centre of its ideal segment, floor included (`shaft_axis.edge_covariance`): what
+        the shaft's 3-D axis is propagated from (`pencil.cylinder.shaft_axis`).
     """
 
     midline: np.ndarray
@@ -123,11 +129,14 @@ class Shaft:
     cov: np.ndarray | None = None
     cov_stat: np.ndarray | None = None
     cov_floor: np.ndarray | None = None
+    ideal_edges: np.ndarray | None = None
+    edge_cov: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         """The shaft's record in a lines.json frame (docs/formats.md): midline, width_px,
-        angle_sigma_deg, offset_sigma_px, edges, convergence_deg, polarity, score, cue."""
-        return {
+        angle_sigma_deg, offset_sigma_px, edges, edge_cov (when known), convergence_deg,
+        polarity, score, cue."""
+        out = {
             "midline": [float(v) for v in self.midline],
             "width_px": float(self.width_px),
             "angle_sigma_deg": float(np.degrees(self.angle_sigma)),
@@ -138,6 +147,9 @@ class Shaft:
             "score": float(self.score),
             "cue": self.cue,
         }
+        if self.edge_cov is not None:
+            out["edge_cov"] = np.asarray(self.edge_cov, float).tolist()
+        return out
 
 
 @dataclass(frozen=True)
@@ -208,7 +220,8 @@ def _shaft(camera, m, score, polarity, cue):
     return Shaft(midline=raw, width_px=float(m.width_px), angle_sigma=float(m.angle_sigma),
                  offset_sigma=float(m.offset_sigma), edges=edges, score=float(score), ideal_midline=ideal,
                  convergence_deg=float(m.convergence_deg), polarity=polarity, cue=cue, cov=m.cov,
-                 cov_stat=m.cov_stat, cov_floor=m.cov_floor)
+                 cov_stat=m.cov_stat, cov_floor=m.cov_floor, ideal_edges=np.asarray(m.edges, float),
+                 edge_cov=m.edge_cov)
 
 
 def _by_material(image, camera, validity, o, K):

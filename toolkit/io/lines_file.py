@@ -90,8 +90,31 @@ def _positive(value, key, where):
 
 
 # a shaft's numeric keys (detect.shafts.Shaft.to_dict): those > 0, and the other numbers
-_SHAFT_POSITIVE = ("width_px", "angle_sigma_deg", "offset_sigma_px")
+_SHAFT_POSITIVE = ("width_px", "angle_sigma_deg", "offset_sigma_px", "axis_distance", "axis_direction_sigma_deg",
+                   "axis_distance_sigma", "diameter")
 _SHAFT_NUMBERS = ("convergence_deg", "score")
+# its arrays of finite numbers (edge_cov of the detector, the 3-D axis of lines --shaft-diameter)
+_SHAFT_ARRAYS = {"edge_cov": (2, 2, 2), "axis_point": (3,), "axis_direction": (3,), "axis_cov": (4, 4)}
+
+
+def _shaft_array(value, key, shape, where):
+    """(shape) finite float array of a shaft's `key`; covariances symmetric with a positive
+    diagonal."""
+    if not _all_numbers(value):
+        raise InputError(f"{where}: '{key}' must contain only numbers")
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is None or arr.shape != shape:
+        raise InputError(f"{where}: '{key}' must be {'x'.join(map(str, shape))} numbers")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{where}: '{key}' must be finite")
+    if key.endswith("_cov"):
+        diag = np.diagonal(arr, axis1=-2, axis2=-1)
+        if not (np.all(diag > 0) and np.allclose(arr, np.swapaxes(arr, -1, -2), rtol=1e-6, atol=0.0)):
+            raise InputError(f"{where}: '{key}' must be symmetric with a positive diagonal")
+    return arr
 
 
 def _shaft_record(sh, where):
@@ -112,6 +135,9 @@ def _shaft_record(sh, where):
             raise InputError(f"{where}: '{key}' must be a finite number, got {v!r}")
     if sh.get("edges") is not None:
         _segments(sh["edges"], where, "edges", finite=True)
+    for key, shape in _SHAFT_ARRAYS.items():
+        if sh.get(key) is not None:
+            _shaft_array(sh[key], key, shape, where)
     return out
 
 

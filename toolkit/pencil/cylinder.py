@@ -71,6 +71,7 @@ from pencilcal.toolkit.pencil.vertex import propagate_cov, segment_angle_sigma, 
 
 __all__ = [
     "GATE_CONFIDENCE",
+    "AXIS_KEYS",
     "CylinderOutline",
     "CylinderAxis",
     "ShaftAxis",
@@ -85,6 +86,7 @@ __all__ = [
     "axis_frame",
     "axis_chart",
     "shaft_axis",
+    "shaft_axis_record",
     "fulcrum_3d",
     "ray_from_image_point",
     "triangulate_rays",
@@ -454,6 +456,39 @@ def shaft_axis(K, edges_px, radius, *, angle_sigma=None, offset_sigma=None, edge
         normals=normals,
         image_line_px=image_px,
     )
+
+
+#: The keys `shaft_axis_record` adds to a shaft's record (docs/formats.md).
+AXIS_KEYS = ("axis_point", "axis_direction", "axis_distance", "axis_cov", "axis_direction_sigma_deg",
+             "axis_distance_sigma")
+
+
+def shaft_axis_record(camera, edges_raw, edge_cov, diameter):
+    """The 3-D axis keys of one detected shaft (`AXIS_KEYS`), in the camera frame.
+
+    camera: the `Camera` the shaft was detected with; edges_raw: (2, 4) the shaft's two
+    edges [raw px] (``Shaft.edges``, a lines.json shaft's ``edges``); edge_cov: (2, 2, 2)
+    per edge the covariance of its (angle [rad], offset [undistorted px]) about the centre
+    of its undistorted segment (``Shaft.edge_cov``: the edge fits' a-posteriori variances
+    plus the detector's edge floor); diameter: the shaft's diameter, in the unit every
+    length of the result takes. The edges are undistorted (the detector fitted them
+    straight there) and `shaft_axis` gives the axis and its chart covariance.
+
+    Returns a dict of plain floats and lists: axis_point (3,), axis_direction (3,),
+    axis_distance, axis_cov (4, 4) (the chart of the module docstring: theta_u, theta_w
+    [rad], s_u, s_w [length]), axis_direction_sigma_deg, axis_distance_sigma [length].
+    InputError for a diameter that is not positive or edges the lens model cannot undistort;
+    EstimationError when the edges bound no cylinder.
+    """
+    if not (np.isfinite(diameter) and diameter > 0):
+        raise InputError(f"shaft diameter must be a positive number, got {diameter!r}")
+    edges_raw = np.asarray(edges_raw, float).reshape(2, 4)
+    ideal = np.asarray(camera.undistort_pixels(edges_raw.reshape(-1, 2)), float).reshape(2, 4)
+    if not np.all(np.isfinite(ideal)):
+        raise InputError("shaft edges beyond the reach of the lens model cannot be undistorted")
+    ax = shaft_axis(np.asarray(camera.K, float), ideal, 0.5 * float(diameter),
+                    edge_cov=np.asarray(edge_cov, float).reshape(2, 2, 2))
+    return {k: _arrays_to_lists(getattr(ax, k)) for k in AXIS_KEYS}
 
 
 # ------------------------------------------------------------------ weighted line intersection

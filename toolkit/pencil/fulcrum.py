@@ -14,6 +14,12 @@ Per frame the instrument line is the shaft midline when the lines file has shaft
 fit keeps those through the fulcrum; for the pivot plane each frame contributes its longest such
 line, oriented from the fulcrum towards the visible shaft.
 
+3. with the shafts' diameter known (``shaft_diameter``), every shaft's two silhouette edges
+   give its 3-D axis (`cylinder.shaft_axis_record`: the band's width fixes the depth), and
+   the fulcrum is the robust weighted least-squares point closest to all of them
+   (`cylinder.fulcrum_3d`), a 3-D point in the camera frame with its covariance, the axes
+   that pass far from it named (`fulcrum_point`).
+
 The pivot frame ("target" of the orientation): the shaft at pivot angle theta points along
 (cos theta, sin theta, 0); its normal is R_cam_from_target[:, 2].
 """
@@ -34,9 +40,10 @@ from pencilcal.toolkit.pencil.lens_uncertainty import (orientation_totals, ray_s
                                                        resolve_intrinsics_cov, vertex_cov_total_px2)
 from pencilcal.toolkit.pencil.orient import orientation_record, raw_vertex
 from pencilcal.toolkit.pencil.orientation import Orientation
+from pencilcal.toolkit.pencil.cylinder import Fulcrum3D, fulcrum_3d, shaft_axis_record
 from pencilcal.toolkit.pencil.vertex import intersect_lines
 
-__all__ = ["Fulcrum", "fulcrum_from_frames", "read_angles"]
+__all__ = ["Fulcrum", "FulcrumPoint", "fulcrum_from_frames", "fulcrum_point", "read_angles"]
 
 
 def read_angles(path, images):
@@ -95,7 +102,8 @@ class Fulcrum:
     that miss it; rms: the weighted RMS of the lines' residuals; lines_from: "shafts" or
     "segments" (which lines of the frames were used); warnings: what the caller should
     tell the user. With pivot angles, `pivot` is the pivot plane's `Orientation` (its keys
-    join the record) from `pivot_frames` frames. With the intrinsics' covariance known
+    join the record) from `pivot_frames` frames. With the shafts' diameter, `point` is the 3-D
+    fulcrum (`FulcrumPoint`, its keys join the record). With the intrinsics' covariance known
     (`intrinsics_used`), ray_sigma_total_deg and vertex_cov_total_px2 hold its term too
     (`lens_uncertainty`), as the pivot's total keys do.
     """
@@ -115,6 +123,7 @@ class Fulcrum:
     ray_sigma_total_deg: float | None = None
     vertex_cov_total_px2: np.ndarray | None = None
     intrinsics_used: bool | None = None
+    point: "FulcrumPoint | None" = None
 
     def to_dict(self) -> dict:
         """The fulcrum.json record: the fulcrum's keys, then with a pivot plane the keys
@@ -130,8 +139,78 @@ class Fulcrum:
             rec.pop("image", None)
             out.update({k: v for k, v in rec.items() if k not in out})
             out["pivot_frames"] = self.pivot_frames
+        if self.point is not None:
+            out.update(self.point.to_dict())
         out["lines_from"] = self.lines_from
         return out
+
+
+@dataclass(frozen=True, eq=False)
+class FulcrumPoint:
+    """The 3-D fulcrum from the shafts' 3-D axes (`fulcrum_point`), camera frame, lengths in
+    the unit of the diameter.
+
+    fit: the `cylinder.Fulcrum3D` over the N axes; owners: N (image, shaft index) of the
+    axes; diameter: the shafts' diameter; skipped: shafts without a 3-D axis (no edge
+    covariance in the lines file, or edges that bound no cylinder).
+    """
+
+    fit: Fulcrum3D
+    owners: list
+    diameter: float
+    skipped: int = 0
+
+    def to_dict(self) -> dict:
+        """point, point_cov, point_sigma, point_axes_used, point_outliers ({image, shaft,
+        distance, chi2} of each axis left out), point_axes ({image, shaft, distance, chi2,
+        used} of every axis), point_chi2_dof and shaft_diameter (docs/formats.md)."""
+        f = self.fit
+        used = np.asarray(f.inliers)
+        axes = [{"image": im, "shaft": j, "distance": float(f.distances[k]), "chi2": float(f.chi2[k]),
+                 "used": bool(used[k])} for k, (im, j) in enumerate(self.owners)]
+        dof = max(2 * int(used.sum()) - 3, 1)
+        return {"point": np.asarray(f.point, float).tolist(), "point_cov": np.asarray(f.point_cov, float).tolist(),
+                "point_sigma": float(f.point_sigma), "point_axes_used": int(used.sum()),
+                "point_outliers": [{k: a[k] for k in ("image", "shaft", "distance", "chi2")} for a in axes
+                                   if not a["used"]],
+                "point_chi2_dof": float(np.sum(np.asarray(f.chi2)[used]) / dof),
+                "point_axes": axes, "shaft_diameter": self.diameter}
+
+
+def fulcrum_point(camera, frames, diameter, robust=True):
+    """The 3-D fulcrum: the point closest to every shaft's 3-D axis over a sequence.
+
+    camera: Camera; frames: lines.json frame dicts whose shafts carry ``edges`` [raw px]
+    and ``edge_cov`` (`pencilcal lines --shaft`); diameter: the shafts' diameter (every
+    length of the result in its unit). Each shaft's axis and its 4x4 chart covariance come
+    from its edges and their covariance (`cylinder.shaft_axis_record`); the point is their
+    robust weighted least-squares intersection (`cylinder.fulcrum_3d`: an MSAC start from
+    pairs of axes, then a chi2 gate at 99 % on each axis's offset), its covariance the
+    inverse of the normal equations. Returns a `FulcrumPoint`; EstimationError when fewer
+    than two crossing axes remain.
+    """
+    points, dirs, covs, owners, skipped = [], [], [], [], 0
+    for fr in frames:
+        if not fr.get("ok", True):
+            continue
+        for j, sh in enumerate(fr.get("shafts") or []):
+            if sh.get("edges") is None or sh.get("edge_cov") is None:
+                skipped += 1
+                continue
+            try:
+                ax = shaft_axis_record(camera, sh["edges"], sh["edge_cov"], diameter)
+            except (EstimationError, InputError):
+                skipped += 1
+                continue
+            points.append(ax["axis_point"])
+            dirs.append(ax["axis_direction"])
+            covs.append(ax["axis_cov"])
+            owners.append((fr.get("image"), j))
+    if len(points) < 2:
+        raise EstimationError(f"the 3-D fulcrum needs the 3-D axes of two shafts at least, got {len(points)}"
+                              + (f" ({skipped} shaft(s) without edge_cov or a valid axis)" if skipped else ""))
+    fit = fulcrum_3d(np.array(points), np.array(dirs), np.array(covs), robust=robust)
+    return FulcrumPoint(fit=fit, owners=owners, diameter=float(diameter), skipped=skipped)
 
 
 def _frame_lines(fr, endpoint_sigma_px, shafts_only):
@@ -181,7 +260,8 @@ def _sequence_lines(frames, endpoint_sigma_px):
         warnings
 
 
-def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_SIGMA_PX, intrinsics_cov="camera"):
+def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_SIGMA_PX, intrinsics_cov="camera",
+                        shaft_diameter=None):
     """The fulcrum (and with `angles` the pivot plane) from the lines of a sequence.
 
     camera: Camera; frames: lines.json frame dicts (io.lines_file.read_lines); angles: (F,)
@@ -189,6 +269,7 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
     segments without their own angle sigma. Per frame the lines are the shaft midlines
     when any frame of the sequence has them, else the segments. intrinsics_cov: as
     `orient.orient_segments` ("camera": the camera file's, if it carries one).
+    shaft_diameter: the shafts' diameter; then also the 3-D fulcrum (`fulcrum_point`).
 
     Returns a `Fulcrum` (its ``to_dict()`` is the fulcrum.json record). Raises
     EstimationError when there is no fulcrum.
@@ -233,6 +314,11 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
         ray_total, X = ray_sigma_total_deg(camera, C, x, cov_x, seg[k_in], st[k_in], sc[k_in])
         out = dataclasses.replace(out, ray_sigma_total_deg=ray_total, intrinsics_used=True, vertex_cov_total_px2=(
             None if cov_raw is None else vertex_cov_total_px2(camera, C, x, X, cov_raw)))
+    if shaft_diameter is not None:
+        pt = fulcrum_point(camera, frames, shaft_diameter)
+        more = [f"{pt.skipped} shaft(s) without edge_cov or a valid 3-D axis left out of the 3-D fulcrum"] \
+            if pt.skipped else []
+        out = dataclasses.replace(out, point=pt, warnings=out.warnings + tuple(more))
     if angles is None:
         return out
     # one oriented line per frame: its longest inlier, pointing from the fulcrum outwards

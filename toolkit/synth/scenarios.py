@@ -27,7 +27,9 @@ the camera), ``vertex_px`` (the fan's vertex; the fulcrum for pivot) and ``verte
 ``tilt_deg`` (angle between the normal and the vertex's viewing ray), ``camera_center``
 (in the target frame), ``spokes_px`` (raw pixel end points of every spoke's centre line,
 inner to outer), ``board_corners_in_view``; plus ``axis_deg`` (tilt-sweep) or
-``angle_deg``, ``fulcrum_cam``, ``shaft_direction_cam``, ``tip_px``,
+``angle_deg``, ``fulcrum_cam`` (the 3-D fulcrum), ``shaft_direction_cam`` (from the fulcrum
+towards the tip), the frame's 3-D axis as `pencil.cylinder` gives it (``axis_point_cam``, its
+point closest to the camera centre, and ``axis_direction_cam``, unit with z >= 0), ``tip_px``,
 ``shaft_edges_normalized`` (pivot).
 
 Example
@@ -65,7 +67,7 @@ RENDER_DEFAULTS = MappingProxyType({"noise": 2.0, "blur_px": 0.6, "lighting": 0.
 _OPTIONS = MappingProxyType({
     "orbit": frozenset({"distance", "azimuth_span_deg", "elevation_deg"}),
     "pivot": frozenset({"distance", "tilt_deg", "angle_range_deg", "shaft_radius", "fulcrum", "height", "tip",
-                        "back"}),
+                        "back", "port_view"}),
     "tilt-sweep": frozenset({"distance", "axis_deg", "max_tilt_deg", "vertex_px"}),
 })
 
@@ -296,7 +298,11 @@ def make_scenario(name, frames, seed=0, camera=None, sheet=None, size=(1280, 720
         pivot: ``distance`` (380), ``tilt_deg`` (35, of the camera against the sheet),
         ``angle_range_deg`` ((50, 130)), ``shaft_radius`` (2.5), ``fulcrum`` (x, y in the
         target frame; default the fan's vertex), ``height`` (radius + 2: the pivot plane
-        is z = -height, parallel to the sheet), ``tip`` (60) and ``back`` (300) [mm].
+        is z = -height, parallel to the sheet), ``tip`` (60) and ``back`` (300) [mm];
+        ``port_view`` [mm] (None: the camera sees the sheet and the fulcrum): the camera
+        looks from this distance, ``tilt_deg`` off the pivot plane's normal, at the shafts'
+        middle 0.7 ``tip`` from the fulcrum, as an endoscope sees an instrument whose entry
+        port lies outside its view (the sheet far behind, when ``height`` is large).
         tilt-sweep: ``axis_deg`` (0: the tilt axis's direction in the sheet, from the
         target x axis), ``max_tilt_deg`` (80), ``distance`` (400), ``vertex_px`` (where
         the vertex is seen; default the principal point, i.e. on the optical axis).
@@ -398,14 +404,22 @@ def _pivot(camera, sheet, backdrop, n, seed, options):
     if not (radius > 0 and height >= radius and 0 <= tilt < math.radians(80) and D > 0):
         raise InputError("pivot: needs shaft_radius > 0, height >= shaft_radius, 0 <= tilt_deg < 80, distance > 0")
     fulcrum = np.array([fxy[0], fxy[1], -height])
-    # the camera looks at the middle of the printed area and the fulcrum
-    target = (sheet.content_center + np.array([fxy[0], fxy[1], 0.0])) / 2.0
     az = math.pi / 2 + rng.uniform(-0.5, 0.5)
     u = np.array([math.sin(tilt) * math.cos(az), math.sin(tilt) * math.sin(az), -math.cos(tilt)])
-    pts = np.concatenate([_content_points(sheet), fulcrum[None]])
-    m = 1.0
-    while m < 2.5 and not _in_view(camera, *look_at(target + m * D * u, target), pts, 15.0):
-        m += 0.02
+    port_view = options.get("port_view")
+    if port_view is not None:
+        if not (float(port_view) > radius):
+            raise InputError("pivot: port_view must be a distance [mm] beyond the shaft radius")
+        mid = math.radians(0.5 * (a0 + a1))
+        target = fulcrum + 0.7 * tip * np.array([math.cos(mid), math.sin(mid), 0.0])
+        m, D = 1.0, float(port_view)
+    else:
+        # the camera looks at the middle of the printed area and the fulcrum
+        target = (sheet.content_center + np.array([fxy[0], fxy[1], 0.0])) / 2.0
+        pts = np.concatenate([_content_points(sheet), fulcrum[None]])
+        m = 1.0
+        while m < 2.5 and not _in_view(camera, *look_at(target + m * D * u, target), pts, 15.0):
+            m += 0.02
     R, t = look_at(target + m * D * u, target, (0.0, 1.0, 0.0), rng.uniform(-0.05, 0.05))
     angles = np.linspace(a0, a1, n) if n > 1 else np.array([(a0 + a1) / 2.0])
     names = _names(n)
@@ -415,6 +429,7 @@ def _pivot(camera, sheet, backdrop, n, seed, options):
         ins = Instrument.in_plane(fxy, height, ang, radius=radius, tip=tip, back=back)
         fr = _frame_truth(camera, sheet, R, t, names[k])
         _, a_cam = ins.axis_cam(R, t)
+        closest = F_cam - np.dot(F_cam, a_cam) * a_cam
         fr.update({
             "vertex_px": camera.project(F_cam),
             "vertex_cam": F_cam,
@@ -422,13 +437,16 @@ def _pivot(camera, sheet, backdrop, n, seed, options):
             "angle_deg": float(ang),
             "fulcrum_cam": F_cam,
             "shaft_direction_cam": a_cam,
+            "axis_point_cam": closest,
+            "axis_direction_cam": a_cam if a_cam[2] >= 0 else -a_cam,
             "tip_px": camera.project(F_cam + tip * a_cam),
             "shaft_edges_normalized": _edge_lines(ins.silhouette_planes(R, t)),
         })
         frames.append(fr)
         instruments.append(ins)
     opts = {"distance": D * m, "tilt_deg": math.degrees(tilt), "angle_range_deg": [a0, a1], "shaft_radius": radius,
-            "fulcrum": fxy.tolist(), "height": height, "tip": tip, "back": back}
+            "fulcrum": fxy.tolist(), "height": height, "tip": tip, "back": back, "port_view": port_view,
+            "shaft_diameter": 2.0 * radius}
     extra = {"pivot": {
         "fulcrum_target": fulcrum,
         "fulcrum_cam": F_cam,
