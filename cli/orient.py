@@ -10,6 +10,7 @@ from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.orient import MAX_SEGMENTS, MODELS, orient_segments, resolve_twins_by_continuity
 from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.spec import read_pencil
+from pencilcal.toolkit.pencil.track import orient_tracked
 
 from .common import (command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, images_argument,
                      frames_region, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
@@ -28,11 +29,17 @@ def _orient_record(camera, pencil, fr, opts):
     n, cap = len(fr["segments"]), opts["max_segments"]
     if n > cap:
         warn(f"{fr['image']}: {n} segments, more than --max-segments {cap}: the {cap} longest are used")
-    return orient_segments(
-        camera, fr["segments"], pencil, model=opts["model"], endpoint_sigma_px=opts["endpoint_sigma"],
-        angle_sigma=None if sig is None else np.radians(sig), prior=opts["priors"].get(fr["image"]),
-        image=fr["image"], offset_sigma=fr.get("offset_sigma_px"), max_segments=cap,
-    )
+    kw = dict(model=opts["model"], endpoint_sigma_px=opts["endpoint_sigma"],
+              angle_sigma=None if sig is None else np.radians(sig), prior=opts["priors"].get(fr["image"]),
+              image=fr["image"], offset_sigma=fr.get("offset_sigma_px"), max_segments=cap)
+    state = opts.get("tracking")
+    if state is None:
+        return orient_segments(camera, fr["segments"], pencil, **kw)
+    # frames in order in this process: the previous frame's estimate is the prior
+    rec, tracked = orient_tracked(camera, fr["segments"], pencil, state["previous"], **kw)
+    state["previous"] = rec if rec.ok else None
+    state["tracked"] += bool(tracked)
+    return rec
 
 
 def _orient_image_task(frame, ctx):
@@ -121,6 +128,9 @@ def _check_priors_match(priors, names, path):
               help="poses.json (pencilcal pnp): picks the twin closer to each frame's board pose.")
 @click.option("--continuity/--no-continuity", default=True, show_default=True,
               help="Carry twin choices along the sequence to ambiguous frames.")
+@click.option("--track/--no-track", default=True, show_default=True,
+              help="Label each frame's lines by the previous frame's orientation (the full search where that "
+                   "fails) and keep its twin; needs the frames in order in one process (--workers 1).")
 @click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
               help="Line detector, with IMAGES.")
 @click.option("--edges", is_flag=True,
@@ -137,7 +147,7 @@ def _check_priors_match(priors, names, path):
 @quiet_option
 @run
 def orient(images, lines_path, camera_path, camera_id, pencil_path, output, model, endpoint_sigma, angle_sigma,
-           prior_path, continuity, detector, edges, mask_path, max_segments, source_spec, jsonl_path, overlay_path,
+           prior_path, continuity, track, detector, edges, mask_path, max_segments, source_spec, jsonl_path, overlay_path,
            max_pixels, workers, force, quiet):
     """Orientation of the pencil in every frame, from its image angles alone.
 
@@ -151,6 +161,10 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     segments are tolerated) and the plane's orientation fitted with its uncertainty. Both
     twin solutions are written; the twin is chosen where the spoke radii (pencil file), a
     prior pose or continuity tell them apart.
+
+    From frame to frame (--track, with --workers 1) the previous frame's orientation labels
+    the lines (the full search where it fails: the estimate is the full run's whenever the
+    labels agree) and keeps the twin where a frame alone cannot choose.
 
     --jsonl streams each frame's record as it is done (the twin as known then: continuity
     over the whole sequence is applied to the output file only); --overlay draws the
@@ -178,7 +192,7 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     pencil = read_pencil(pencil_path)
     priors = _prior_rotations(prior_path) if prior_path else {}
     opts = dict(model=model, endpoint_sigma=endpoint_sigma, angle_sigma=angle_sigma, priors=priors,
-                max_segments=max_segments)
+                max_segments=max_segments, tracking={"previous": None, "tracked": 0} if track and workers == 1 else None)
     records, source = [], None
     if lines_path is not None:
         frames = read_lines(lines_path)
@@ -213,7 +227,8 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         records = resolve_twins_by_continuity(records)
     write_orientations(output, records, force=force, model=model, camera=str(camera_path), pencil=str(pencil_path),
                        lines=None if lines_path is None else str(lines_path),
-                       images=None if images is None else source.description, **stream_meta(source))
+                       images=None if images is None else source.description, **stream_meta(source),
+                       **({} if opts["tracking"] is None else {"frames_tracked": opts["tracking"]["tracked"]}))
     n_ok = sum(r.ok for r in records)
     n_amb = sum(bool(r.ok and r.normal_ambiguous) for r in records)
     if not quiet:

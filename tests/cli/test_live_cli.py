@@ -173,3 +173,35 @@ def test_source_and_images_exclude_each_other(sim, tmp_path):
                                  str(sim / "camera.json"), "--pencil", str(sim / "pencil.yaml"), "-o",
                                  str(tmp_path / "o.json")])
     assert r.exit_code == 1 and "none.avi: no such video file" in r.output
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    """A tilt sweep, 0-80 deg in 8 frames: the pencil turns by up to 11 deg a frame."""
+    d = tmp_path_factory.mktemp("live") / "sweep"
+    r = CliRunner().invoke(cli, ["simulate", str(d), "--scenario", "tilt-sweep", "--frames", "8", "--size", "800x450",
+                                 "-q"])
+    assert r.exit_code == 0, r.output
+    return d
+
+
+def test_tracking_stays_within_the_sigmas_of_a_full_run(sweep, tmp_path):
+    import numpy as np
+
+    sim = sweep
+    out = {}
+    for flag in ("--track", "--no-track"):
+        out[flag] = tmp_path / f"o{flag}.json"
+        r = CliRunner().invoke(cli, ["orient", str(sim / "images"), "--camera", str(sim / "camera.json"), "--pencil",
+                                     str(sim / "pencil.yaml"), "-o", str(out[flag]), flag, "--no-continuity", "-q"])
+        assert r.exit_code == 0, r.output
+    tracked, full = (json.loads(out[f].read_text()) for f in ("--track", "--no-track"))
+    assert tracked["frames_tracked"] >= 2
+    for a, b in zip(tracked["frames"], full["frames"]):
+        assert a["ok"] == b["ok"]
+        if not b["ok"]:
+            continue
+        assert abs(a["tilt_deg"] - b["tilt_deg"]) <= b["tilt_sigma_deg"]
+        # the tracked frame may hold the twin a full run leaves open: compare with the nearer
+        near = max(np.dot(a["normal"], b["normal"]), np.dot(a["normal"], b["normal_twin"]))
+        assert np.degrees(np.arccos(min(1.0, near))) <= b["normal_sigma_deg"]

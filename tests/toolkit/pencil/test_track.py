@@ -1,0 +1,58 @@
+"""Tracking from frame to frame: labels by the previous frame, checked, with the full search
+as the fallback."""
+from __future__ import annotations
+
+import numpy as np
+
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.geometry.frames import rotation_about_axis
+from pencilcal.toolkit.pencil.orient import orient_segments
+from pencilcal.toolkit.pencil.spec import Pencil, image_angles
+from pencilcal.toolkit.pencil.track import orient_tracked, prior_labels
+
+CAM = Camera("pinhole", 1280, 720, [[900.0, 0, 639.5], [0, 900.0, 359.5], [0, 0, 1]])
+PEN = Pencil(np.radians(np.arange(8) * 20.0 - 70.0))
+
+
+def _segments(tilt_deg, extra=0, seed=0):
+    """Spoke segments (8 + extra, 4) raw px of the pencil tilted about x, vertex at the
+    centre, 0.2 px noise on the end points; `extra` random clutter segments."""
+    rng = np.random.default_rng(seed)
+    R = rotation_about_axis([1.0, 0.0, 0.0], np.radians(tilt_deg)) @ rotation_about_axis([0, 0, 1.0], 0.3)
+    a = image_angles(R, np.zeros(2), PEN.angles)
+    c = np.array([639.5, 359.5])
+    u = np.stack([np.cos(a), np.sin(a)], -1)
+    seg = np.concatenate([c + 60 * u, c + 320 * u], -1) + rng.normal(0, 0.2, (8, 4))
+    if extra:
+        seg = np.concatenate([seg, rng.uniform([0, 0, 0, 0], [1279, 719, 1279, 719], (extra, 4))])
+    return seg
+
+
+def test_tracked_frames_equal_the_full_run_when_the_labels_agree():
+    prev = None
+    for k, tilt in enumerate(np.linspace(20, 40, 6)):
+        seg = _segments(tilt, extra=5, seed=k)
+        full = orient_segments(CAM, seg, PEN, endpoint_sigma_px=0.3)
+        rec, tracked = orient_tracked(CAM, seg, PEN, prev, endpoint_sigma_px=0.3)
+        assert tracked == (k > 0)
+        assert np.array_equal(rec.spokes, full.spokes)
+        assert abs(rec.tilt_deg - full.tilt_deg) < 1e-9
+        prev = rec
+
+
+def test_a_prior_that_does_not_fit_falls_back_to_the_full_search():
+    prev, _ = orient_tracked(CAM, _segments(30), PEN, None)
+    # the pencil turned by half a spoke step since: every label by the prior would be wrong
+    R = rotation_about_axis([0, 0, 1.0], np.radians(10.0)) @ np.asarray(prev.R_cam_from_target)
+    moved = prev.replace(R_cam_from_target=R)
+    assert (prior_labels(CAM, _segments(30), PEN, moved) >= 0).sum() < 3
+    seg = _segments(30, seed=3)
+    rec, tracked = orient_tracked(CAM, seg, PEN, moved)
+    full = orient_segments(CAM, seg, PEN)
+    assert not tracked and np.array_equal(rec.spokes, full.spokes) and rec.tilt_deg == full.tilt_deg
+
+
+def test_no_previous_estimate_means_the_full_search():
+    failed = orient_segments(CAM, np.zeros((0, 4)), PEN)
+    rec, tracked = orient_tracked(CAM, _segments(25), PEN, failed)
+    assert not tracked and rec.ok

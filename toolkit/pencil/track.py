@@ -1,0 +1,121 @@
+"""Orientation from frame to frame: the previous frame's estimate as a prior.
+
+In a video the pencil moves little between frames. `orient_tracked` labels a frame's
+segments with spokes by the previous frame's orientation instead of searching all
+labellings (`assign.assign_spokes`, most of `orient.orient_segments`' time), then fits as
+`orient_segments` does with those labels, so a frame whose labels come out the same gets
+the same estimate as a full run. The twin chosen in the previous frame is kept where this
+frame alone cannot choose (`orient.resolve_twins_by_continuity` over the two frames).
+
+The prior is checked, never trusted: the frame falls back to the full search when the
+previous frame has no estimate, when fewer spokes are labelled than the previous frame
+used (less one), or when a labelled line misses the spoke it was given by more than
+`GATE_SIGMA` of its angle sd. The vertex is always found from this frame's lines.
+
+Labelling by the prior: each segment (undistorted, normalised) is oriented away from the
+previous vertex and given the spoke whose predicted image angle (`spec.image_angles` of
+the previous rotation at the previous vertex) is nearest, if within the gate: `gate_deg`,
+at most 0.4 of the smallest angle between neighbouring predicted spokes (so no segment can
+match two), and only if the segment's line passes the previous vertex within
+`VERTEX_GATE` of its distance from it.
+
+Example
+-------
+>>> import numpy as np
+>>> from pencilcal.toolkit.camera.model import Camera
+>>> from pencilcal.toolkit.pencil.spec import Pencil
+>>> cam = Camera("pinhole", 640, 480, [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
+>>> pen = Pencil(np.radians(np.arange(6) * 30.0))
+>>> th = np.radians(np.arange(6) * 30.0 + 3.0)
+>>> seg = np.c_[319.5 + 40 * np.cos(th), 239.5 + 40 * np.sin(th), 319.5 + 200 * np.cos(th), 239.5 + 200 * np.sin(th)]
+>>> first, tracked = orient_tracked(cam, seg, pen, None)
+>>> second, tracked2 = orient_tracked(cam, seg + 0.3, pen, first)
+>>> tracked, tracked2, np.array_equal(second.spokes, first.spokes)
+(False, True, True)
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from pencilcal.toolkit.geometry.angles import wrap_angle
+from pencilcal.toolkit.pencil.orient import orient_segments, resolve_twins_by_continuity
+from pencilcal.toolkit.pencil.spec import image_angles
+
+__all__ = ["orient_tracked", "prior_labels", "GATE_DEG", "GATE_SIGMA", "VERTEX_GATE"]
+
+#: Largest angle [deg] between a segment and the spoke the previous frame predicts for it.
+GATE_DEG = 6.0
+#: A tracked fit is refused when a labelled line misses its spoke by more than this many sd.
+GATE_SIGMA = 5.0
+#: A segment's line must pass the previous vertex within this fraction of its distance from it.
+VERTEX_GATE = 0.25
+
+
+def prior_labels(camera, segments, pencil, previous, gate_deg=GATE_DEG):
+    """Spoke label (M,) of each segment by the previous frame's orientation (-1: none).
+
+    segments: (M, 4) raw px; previous: an `Orientation` with an estimate (``ok``);
+    gate_deg [deg]: see the module docstring.
+    """
+    seg = np.asarray(segments, float).reshape(-1, 4)
+    lab = np.full(len(seg), -1)
+    ray = np.asarray(previous.ray, float)
+    if len(seg) == 0 or not ray[2] > 0:
+        return lab
+    x0 = ray[:2] / ray[2]
+    pred = image_angles(np.asarray(previous.R_cam_from_target, float), x0, pencil.angles)  # (N,)
+    gap = np.abs(wrap_angle(pred[:, None] - pred[None, :]))
+    gap[np.diag_indices_from(gap)] = np.inf
+    gate = min(np.radians(gate_deg), 0.4 * float(np.min(gap))) if len(pred) > 1 else np.radians(gate_deg)
+    with np.errstate(invalid="ignore"):
+        p = camera.normalized_from_pixels(seg.reshape(-1, 2)).reshape(-1, 2, 2)
+    d1, d2 = np.linalg.norm(p[:, 0] - x0, axis=-1), np.linalg.norm(p[:, 1] - x0, axis=-1)
+    near, far = np.where((d1 <= d2)[:, None], p[:, 0], p[:, 1]), np.where((d1 <= d2)[:, None], p[:, 1], p[:, 0])
+    t = far - near
+    L = np.linalg.norm(t, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        perp = np.abs(t[:, 0] * (x0[1] - near[:, 1]) - t[:, 1] * (x0[0] - near[:, 0])) / L
+        passes = perp <= VERTEX_GATE * np.minimum(d1, d2) + 1e-9
+    a = np.arctan2(t[:, 1], t[:, 0])
+    diff = np.abs(wrap_angle(a[:, None] - pred[None, :]))  # (M, N)
+    best = np.argmin(diff, -1)
+    ok = np.isfinite(a) & (L > 0) & passes & (diff[np.arange(len(seg)), best] <= gate)
+    lab[ok] = best[ok]
+    return lab
+
+
+def orient_tracked(camera, segments, pencil, previous, gate_deg=GATE_DEG, **orient_kwargs):
+    """This frame's `Orientation` with the previous frame's as a prior: (orientation,
+    tracked), tracked False when the full search was used (module docstring).
+
+    segments: (M, 4) raw px; previous: the previous frame's `Orientation` or None;
+    orient_kwargs: `orient_segments`' (model, endpoint_sigma_px, angle_sigma, offset_sigma,
+    max_segments, image, ...; not labels or keep_lines).
+    """
+    if previous is None or not previous.ok or previous.ray is None:
+        return orient_segments(camera, segments, pencil, **orient_kwargs), False
+    lab = prior_labels(camera, segments, pencil, previous, gate_deg)
+    need = max(3, int(previous.lines_used or 0) - 1)
+    rec = None
+    if np.unique(lab[lab >= 0]).size >= need:
+        rec = orient_segments(camera, segments, pencil, labels=lab, keep_lines=True, **orient_kwargs)
+        if not (rec.ok and rec.lines_used >= need and _fits_its_labels(rec, pencil)):
+            rec = None
+    if rec is None:
+        return orient_segments(camera, segments, pencil, **orient_kwargs), False
+    rec = rec.replace(lines=None)
+    if rec.ambiguous and not previous.ambiguous:
+        rec = resolve_twins_by_continuity([previous, rec])[1]
+    return rec, True
+
+
+def _fits_its_labels(rec, pencil):
+    """Whether every labelled line lies within GATE_SIGMA sd of its spoke's image angle
+    under the fitted orientation (a wrong label misses by far more)."""
+    ln = rec.lines
+    pred = image_angles(np.asarray(rec.R_cam_from_target, float), np.asarray(ln["vertex"], float),
+                        pencil.angles[np.asarray(ln["spoke"], int)])
+    res = wrap_angle(np.asarray(ln["angle"], float) - pred)
+    # lines, not directions: a straddling segment's angle is known modulo pi
+    res = np.minimum(np.abs(res), np.abs(wrap_angle(res + np.pi)))
+    return bool(np.all(res <= GATE_SIGMA * np.asarray(ln["sigma"], float)))
