@@ -40,7 +40,7 @@ from .metrics import coverage, normal_error_deg, rotation_error_deg, summary
 from .pnp import METHODS, best_method, estimate_all, frame_record
 
 __all__ = ["validate_sequence", "validate_path", "validate_many", "find_sequences", "sequence_files", "frame_errors",
-           "summarise", "reproducibility", "FanLines", "GridLines"]
+           "reference_sigmas", "summarise", "reproducibility", "FanLines", "GridLines"]
 
 
 class FanLines:
@@ -150,12 +150,15 @@ def summarise(frames, keys):
             "tilt": summary([e["tilt_deg"] for e in errs]),
             "twin": {k: twins.count(k) for k in ("right", "wrong", "ambiguous", "none") if twins.count(k)},
         }
-        tilt_pairs = [(e["tilt_deg"], e["tilt_sigma_deg"]) for e in errs
-                      if e.get("tilt_sigma_deg") is not None and e.get("tilt_deg") is not None]
+        # judged by the sigmas of the difference where the record has them (the method's
+        # totals with the reference's own sigma, `_coverage_sigmas`), else the method's own
+        st = lambda e: e.get("coverage_tilt_sigma_deg") or e.get("tilt_sigma_deg")  # noqa: E731
+        sn = lambda e: e.get("coverage_normal_sigma_deg") or e.get("normal_sigma_deg")  # noqa: E731
+        tilt_pairs = [(e["tilt_deg"], st(e)) for e in errs if st(e) is not None and e.get("tilt_deg") is not None]
         if tilt_pairs:
             s["tilt_coverage"] = coverage(*zip(*tilt_pairs), kind="tilt")
-        norm_pairs = [(e["normal_closer_deg"] if use_closer else e["normal_deg"], e["normal_sigma_deg"]) for e in errs
-                      if e.get("normal_sigma_deg") is not None]
+        norm_pairs = [(e["normal_closer_deg"] if use_closer else e["normal_deg"], sn(e)) for e in errs
+                      if sn(e) is not None]
         if norm_pairs:
             s["normal_coverage"] = coverage(*zip(*norm_pairs), kind="normal")
         det = [f["orient"][key.split(":", 1)[1]].get("detectable") for f in frames
@@ -207,6 +210,41 @@ def _pose_of(truth_frame, pnp_best):
     if pnp_best is not None and pnp_best.ok:
         return "pnp", pnp_best.R_cam_from_target, pnp_best.t_cam_from_target
     return None, None, None
+
+
+def reference_sigmas(pose, ray):
+    """(tilt sigma, normal sigma) [deg] of a PnP reference pose (`PoseResult`) at the
+    vertex ray `ray` (3,): from its total covariance when it has one, else its noise-only
+    one. The tilt moves with the rotation about the axis normal x ray (left perturbation
+    in the camera frame, poses.json's convention)."""
+    cov = pose.cov_total if pose.cov_total is not None else pose.cov
+    if cov is None:
+        return None, None
+    C = np.asarray(cov, float)[:3, :3]
+    n = np.asarray(pose.R_cam_from_target, float)[:, 2]
+    u = np.cross(n, np.asarray(ray, float))
+    tilt = None
+    if np.linalg.norm(u) > 1e-9:
+        u = u / np.linalg.norm(u)
+        tilt = float(np.degrees(np.sqrt(max(u @ C @ u, 0.0))))
+    P = np.eye(3) - np.outer(n, n)
+    return tilt, float(np.degrees(np.sqrt(max(np.trace(P @ C @ P), 0.0))))
+
+
+def _coverage_sigmas(o, ref_pose, ray):
+    """The sigmas an orientation's coverage is judged by: its total ones where the
+    intrinsics' covariance was known, and against a PnP reference that pose's own sigmas
+    added in quadrature (the reference errs too). Keys ``coverage_tilt_sigma_deg``,
+    ``coverage_normal_sigma_deg``, ``reference_tilt_sigma_deg``,
+    ``reference_normal_sigma_deg``, ``sigma_kind`` ("total" or "noise")."""
+    total = o.tilt_sigma_total_deg is not None
+    st = o.tilt_sigma_total_deg if total else o.tilt_sigma_deg
+    sn = o.normal_sigma_total_deg if total else o.normal_sigma_deg
+    rt, rn = (None, None) if ref_pose is None else reference_sigmas(ref_pose, ray)
+    quad = lambda a, b: None if a is None else float(np.hypot(a, b or 0.0))  # noqa: E731
+    return {"coverage_tilt_sigma_deg": quad(st, rt), "coverage_normal_sigma_deg": quad(sn, rn),
+            "reference_tilt_sigma_deg": rt, "reference_normal_sigma_deg": rn,
+            "sigma_kind": "total" if total else "noise"}
 
 
 def _process(frame, camera, board, lines_source, models, methods, truth, keep_pixels):
@@ -261,8 +299,10 @@ def _process(frame, camera, board, lines_source, models, methods, truth, keep_pi
     for m, o in orients.items():
         if o.ok:
             ray_m = ray if ray is not None else np.asarray(o.ray, float)
-            errors[f"orient:{m}"] = frame_errors(o.R_cam_from_target, o.R_cam_from_target_twin, o.ambiguous, R_ref,
-                                                 ray_m, o.tilt_sigma_deg, o.normal_sigma_deg)
+            e = frame_errors(o.R_cam_from_target, o.R_cam_from_target_twin, o.ambiguous, R_ref, ray_m,
+                             o.tilt_sigma_deg, o.normal_sigma_deg)
+            e.update(_coverage_sigmas(o, best if source == "pnp" else None, ray_m))
+            errors[f"orient:{m}"] = e
     exact = orients.get("exact")
     if exact is not None and exact.ok and exact.lines is not None:
         ln = exact.lines

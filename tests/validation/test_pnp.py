@@ -566,7 +566,8 @@ def test_stereo_pairs_agree_on_one_relative_rotation(tmp_path):
     the pairs fall inside its 68 % region. With the intrinsics' covariance and the
     correlated corner-noise model of the calibration (`pencilcal calibrate`, carried by the
     camera file) the totals cover 68 +- 8 %. The two halves of each calibration agree
-    within their sigmas (`checks.calibration_halves`, in the report)."""
+    within their sigmas (`checks.calibration_halves`, in the report), and orient's grid
+    pencil agrees with PnP within both totals."""
     from click.testing import CliRunner
 
     from pencilcal.cli.main import cli
@@ -601,3 +602,14 @@ def test_stereo_pairs_agree_on_one_relative_rotation(tmp_path):
     lo, hi = 0.68 - 0.08, 0.68 + 0.08
     assert rig["noise"]["inside"] < lo  # the corner noise alone is too confident on real corners
     assert lo <= rig["total"]["inside"] <= hi and rig["total"]["consistent"], rig["total"]
+    # orient on the board's grid lines through a corner, against PnP on the same corners: the
+    # totals of both (each with the calibration's uncertainty) cover 68 +- 8 % of the tilt
+    # differences, and the normal's within 8 % of the 2-D expectation
+    r = CliRunner().invoke(cli, [str(a) for a in (
+        "validate", d / "left", "--camera", tmp_path / "left.json", "--board", tmp_path / "board.yaml",
+        "--grid-pencil", "auto", "--methods", "sqpnp", "-o", tmp_path / "grid.json", "-q")])
+    assert r.exit_code == 0, r.output
+    s = json.loads((tmp_path / "grid.json").read_text())["summary"]["orient:exact"]
+    assert s["frames"] >= 45
+    assert lo <= s["tilt_coverage"]["fraction"] <= hi, s["tilt_coverage"]
+    assert abs(s["normal_coverage"]["fraction"] - s["normal_coverage"]["expected"]) <= 0.08, s["normal_coverage"]

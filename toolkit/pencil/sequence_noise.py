@@ -139,12 +139,13 @@ def rescale(record, factor):
     return record.replace(**ch)
 
 
-def sequence_noise(records):
+def sequence_noise(records, inflate_only=False):
     """(records rescaled, NoiseEstimate or None): the variance factor of the ok records'
     fits (their ``chi2`` and ``lines_used``; the exact estimator's 3 parameters) applied to
-    each of them. None, and the records unchanged, when the pool has under `MIN_DOF`."""
+    each of them. None, and the records unchanged, when the pool has under `MIN_DOF`.
+    inflate_only: a factor below 1 is taken as 1 (lines with the detector's own sigmas)."""
     ok = [r for r in records if r.ok and r.chi2 is not None]
-    est = variance_factor([r.chi2 for r in ok], [r.lines_used - 3 for r in ok])
+    est = _inflate_only(variance_factor([r.chi2 for r in ok], [r.lines_used - 3 for r in ok]), inflate_only)
     if est is None:
         return list(records), None
     return [rescale(r, est.variance_factor) for r in records], est
@@ -154,13 +155,14 @@ def _with_factor(est, factor):
     return None if est is None else NoiseEstimate(float(factor), est.dof, est.frames, est.rejected)
 
 
-def estimate_sequence_noise(run, sigma):
+def estimate_sequence_noise(run, sigma, first=None):
     """The frames oriented with the noise their residuals show.
 
     run: callable(sigma) -> list of `Orientation`, the frames oriented with the assumed
     noise `sigma` (e.g. the end point sd [px]); sigma: the assumed noise. While a run's
     factor lies outside 0.9-1.1 in sigma, the frames are run again with the noise
     estimated so far (at most `MAX_RUNS` runs), so that their gates fit the noise.
+    first: the records of run(sigma) when the caller has them already (not run again).
 
     Returns (records, NoiseEstimate or None): the records' covariances hold the estimated
     noise; the estimate's factor is relative to `sigma` (the noise used is sigma *
@@ -168,8 +170,8 @@ def estimate_sequence_noise(run, sigma):
     `MIN_DOF` degrees of freedom.
     """
     total, best = 1.0, None
-    for _ in range(MAX_RUNS):
-        records, est = sequence_noise(run(sigma * np.sqrt(total)))
+    for i in range(MAX_RUNS):
+        records, est = sequence_noise(first if i == 0 and first is not None else run(sigma * np.sqrt(total)))
         if est is None:
             return (records, None) if best is None else best
         total *= est.variance_factor

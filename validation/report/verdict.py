@@ -171,11 +171,16 @@ def _sigma_sentences(data, prim):
         if isinstance(c, dict) and finite(c.get("fraction")) is not None:
             _, words = coverage_judgement(c.get("fraction"), c.get("expected"), c.get("count"))
             covs.append(f"{pct(c['fraction'])} of the {what} errors ({words})")
-    if covs:
+    # validate judges the coverage by the difference's sigmas where the frames carry them
+    # (the estimate's totals with the PnP reference's own sigma in quadrature)
+    combined = any(finite(e.get("reference_normal_sigma_deg")) is not None for _, _, e in method_errors(data, prim))
+    if covs and combined:
+        out.append("Its reported sigmas, combined with the PnP reference's own, cover " + " and ".join(covs) + ".")
+    elif covs:
         out.append("Its reported sigmas cover " + " and ".join(covs) + ".")
     else:
         out.append("It reports no sigmas to check.")
-    if data.get("reference") == "pnp":
+    if data.get("reference") == "pnp" and not combined:
         cc = _combined_coverage(data, prim)
         if cc is not None:
             _, words = coverage_judgement(cc["fraction"], cc["expected"], cc["count"])
