@@ -10,7 +10,7 @@ from pencilcal.validation.bench import format_table, run_bench
 
 from .common import command, check_output, run
 
-SECTIONS = ("orient", "shafts", "pnp", "sfm", "estimator")
+SECTIONS = ("orient", "shafts", "pnp", "sfm", "estimator", "orient_video", "shafts_video")
 
 
 @command()
@@ -33,7 +33,10 @@ def bench(as_json, quick, sections, seed, output, force, quiet):
     else rendered ones; shafts_frames says which), pnp over CharucoDetector + solvePnP (pnp_vs_opencv), the
     reconstruction over bare pycolmap (sfm_vs_pycolmap), batched over looped fits
     (batch_speedup, fits_per_minute_batched) and the Monte Carlo RMSE over the Cramer-Rao
-    bound at 20 deg of tilt (crlb_ratio_tilt20). Ratios mean the same on any machine.
+    bound at 20 deg of tilt (crlb_ratio_tilt20); a whole `pencilcal orient` / `fulcrum`
+    process on a 1080p video over decoding it plus FLD on every frame
+    (orient_video_vs_decode_fld_1080p, shafts_video_vs_decode_fld_1080p, with the start-up
+    and the per-frame time beside them). Ratios mean the same on any machine.
 
     \b
     Examples:
