@@ -8,7 +8,9 @@ from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.orient import MAX_SEGMENTS, MODELS, orient_segments, resolve_twins_by_continuity
+from pencilcal.toolkit.pencil.defaults import MIN_ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.orientation import write_orientations
+from pencilcal.toolkit.pencil.sequence_noise import estimate_sequence_noise, sequence_noise
 from pencilcal.toolkit.pencil.spec import read_pencil
 from pencilcal.toolkit.pencil.track import orient_tracked
 
@@ -27,7 +29,7 @@ def _orient_record(camera, pencil, fr, opts):
     if sig is None and opts["angle_sigma"] is not None:
         sig = opts["angle_sigma"]
     n, cap = len(fr["segments"]), opts["max_segments"]
-    if n > cap:
+    if n > cap and opts.get("warn", True):
         warn(f"{fr['image']}: {n} segments, more than --max-segments {cap}: the {cap} longest are used")
     kw = dict(model=opts["model"], endpoint_sigma_px=opts["endpoint_sigma"],
               angle_sigma=None if sig is None else np.radians(sig), prior=opts["priors"].get(fr["image"]),
@@ -40,6 +42,36 @@ def _orient_record(camera, pencil, fr, opts):
     state["previous"] = rec if rec.ok else None
     state["tracked"] += bool(tracked)
     return rec
+
+
+def _sequence_noise(records, frames, camera, pencil, opts, given):
+    """(records, the orientation.json header's ``noise``): the sigmas with the noise the
+    sequence's residuals show (`sequence_noise`), unless the user gave the noise (`given`).
+    Lines of a lines file without their own sigmas: estimated, the frames run again with
+    the estimate where it is far from the assumed end point sigma; lines with the
+    detector's sigmas (IMAGES, or a lines file that has them): only ever inflated."""
+    if given:
+        return records, {"estimated": False, "endpoint_sigma_px": opts["endpoint_sigma"],
+                         "angle_sigma_deg": opts["angle_sigma"]}
+    if frames is not None and not any(fr.get("angle_sigma_deg") is not None for fr in frames):
+        def run(sigma):
+            o = dict(opts, endpoint_sigma=sigma, warn=False, tracking=None if opts["tracking"] is None else
+                     {"previous": None, "tracked": 0})
+            return [_orient_record(camera, pencil, fr, o) for fr in frames]
+
+        out, est = estimate_sequence_noise(run, opts["endpoint_sigma"], first=records, floor=MIN_ENDPOINT_SIGMA_PX)
+        kind = {"assumed_endpoint_sigma_px": opts["endpoint_sigma"]}
+    else:
+        out, est = sequence_noise(records, inflate_only=True)
+        kind = {"inflate_only": True}
+    if est is None:
+        return records, {"estimated": False, "reason": "too few degrees of freedom to estimate the noise", **kind}
+    if not (0.5 < est.scale < 2.0):
+        said = (f"the assumed {opts['endpoint_sigma']:g} px end point noise" if "assumed_endpoint_sigma_px" in kind
+                else "their own sigmas say")
+        warn(f"the lines scatter {est.scale:.2g} times as much as {said}: every sigma is scaled by that "
+             f"(from {est.frames} frames, {est.dof} degrees of freedom; give --endpoint-sigma to fix the noise)")
+    return out, {**est.to_dict(), **kind}
 
 
 def _orient_image_task(frame, ctx):
@@ -121,7 +153,9 @@ def _check_priors_match(priors, names, path):
 @click.option("--model", type=click.Choice(MODELS), default="exact", show_default=True,
               help="exact: the exact estimator; general/aligned: the chapter's models, for comparison.")
 @click.option("--endpoint-sigma", type=FiniteFloat(), default=0.5, show_default=True,
-              help="Noise of each segment end point [px], sets the angle and offset uncertainty.")
+              help="Noise of each segment end point [px], sets the angle and offset uncertainty. Not given (and "
+                   "no --angle-sigma): the sequence's residuals estimate it, starting from this default, for "
+                   "lines without their own sigmas; detected lines' own sigmas are only ever inflated by them.")
 @click.option("--angle-sigma", type=FiniteFloat(), default=None,
               help="Angle noise of every segment [deg], instead of deriving it from the end points.")
 @click.option("--prior", "prior_path", type=click.Path(dir_okay=False), default=None,
@@ -166,8 +200,13 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     the lines (the full search where it fails: the estimate is the full run's whenever the
     labels agree) and keeps the twin where a frame alone cannot choose.
 
-    --jsonl streams each frame's record as it is done (the twin as known then: continuity
-    over the whole sequence is applied to the output file only); --overlay draws the
+    Unless the noise is given (--endpoint-sigma, --angle-sigma) the sigmas hold the noise
+    the sequence shows: the frames' pooled residuals give a variance factor (outlier frames
+    left out) by which every covariance is scaled; the output's ``noise`` says what was
+    found.
+
+    --jsonl streams each frame's record as it is done (the twin and the noise as known
+    then: continuity and the sequence's noise are applied to the output file only); --overlay draws the
     labelled spokes, the vertex and its 3-sigma ellipse, the normal and tilt +- sigma on
     the frames.
 
@@ -223,9 +262,13 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         # a run with no estimate at all failed: say so and leave nothing that looks like a result
         raise EstimationError(f"{lines_path or source.description}: no frame gave an orientation"
                               + (f" ({len(records)} frames)" if source_spec else ""))
+    given = angle_sigma is not None or \
+        click.get_current_context().get_parameter_source("endpoint_sigma") != click.core.ParameterSource.DEFAULT
+    records, noise = _sequence_noise(records, frames if lines_path is not None else None, camera, pencil, opts, given)
     if continuity:
         records = resolve_twins_by_continuity(records)
     write_orientations(output, records, force=force, model=model, camera=str(camera_path), pencil=str(pencil_path),
+                       noise=noise,
                        lines=None if lines_path is None else str(lines_path),
                        images=None if images is None else source.description, **stream_meta(source),
                        **({} if opts["tracking"] is None else {"frames_tracked": opts["tracking"]["tracked"]}))

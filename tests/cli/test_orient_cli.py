@@ -150,3 +150,34 @@ def test_an_ambiguous_normal_is_said_on_stderr(tmp_path, rng):
     for name in amb:
         assert f"{name}: the normal is ambiguous" in r.output
     assert f"({len(amb)} with an ambiguous normal)" in r.output
+
+
+def test_the_noise_is_estimated_from_the_sequence(tmp_path, rng):
+    """Lines with 0.15 px end point noise and no sigmas: orient does not keep the assumed
+    0.5 px, it estimates the noise from the frames' residuals, and the tilt sigmas cover
+    about 68 % of the errors; given --endpoint-sigma, the noise is the user's."""
+    from pencilcal.toolkit.geometry.frames import angle_between
+
+    cam = hd_camera()
+    write_camera(tmp_path / "camera.yaml", cam)
+    pen = fan(radius=None)
+    (tmp_path / "pencil.yaml").write_text("start_deg: 0\nstep_deg: 20\ncount: 8\n")
+    frames, truth = [], []
+    for i in range(80):
+        seg, R, t = frame(cam, pen, rng.uniform(25, 55), 250.0, rng, noise_px=0.15)
+        frames.append({"image": f"{i:03d}.png", "segments": seg.tolist()})
+        truth.append(np.degrees(angle_between(R[:, 2], cam.rays_from_pixels(cam.project(t)))))
+    (tmp_path / "lines.json").write_text(json.dumps({"frames": frames}))
+    common = ["orient", "--lines", tmp_path / "lines.json", "--camera", tmp_path / "camera.yaml", "--pencil",
+              tmp_path / "pencil.yaml", "-q"]
+    r = invoke(*common, "-o", tmp_path / "est.json")
+    assert r.exit_code == 0, r.output
+    out = json.loads((tmp_path / "est.json").read_text())
+    assert out["noise"]["estimated"] and out["noise"]["sigma_scale"] == pytest.approx(0.3, rel=0.15)
+    inside = [abs(f["tilt_deg"] - t) < f["tilt_sigma_deg"] for f, t in zip(out["frames"], truth) if f["ok"]]
+    assert len(inside) >= 76 and 0.58 <= np.mean(inside) <= 0.78
+    r = invoke(*common, "--endpoint-sigma", "0.5", "-o", tmp_path / "given.json")
+    given = json.loads((tmp_path / "given.json").read_text())
+    assert given["noise"] == {"estimated": False, "endpoint_sigma_px": 0.5, "angle_sigma_deg": None}
+    a, b = out["frames"][0], given["frames"][0]
+    assert a["tilt_sigma_deg"] == pytest.approx(b["tilt_sigma_deg"] * out["noise"]["sigma_scale"], rel=0.2)

@@ -8,12 +8,16 @@ from statistics import NormalDist
 
 import numpy as np
 
-__all__ = ["ENDPOINT_SIGMA_PX", "DETECTION_LEVEL", "CHI2_2_DETECTION", "CHI2_1_99", "MAX_VERTEX", "MIN_COS"]
+__all__ = ["ENDPOINT_SIGMA_PX", "MIN_ENDPOINT_SIGMA_PX", "DETECTION_LEVEL", "CHI2_2_DETECTION", "CHI2_1_99", "MAX_VERTEX", "MIN_COS"]
 
 # Noise of a line segment's end point, per coordinate [px], when nothing better is known:
 # the default of orient, fulcrum and the plain segment detector. A segment of length L then
 # has angle sd sqrt(2) * 0.5 / L and offset sd 0.5 / sqrt(2) at its centre.
 ENDPOINT_SIGMA_PX = 0.5
+#: The smallest end point noise [px] an estimate from the residuals may give: sub-pixel
+#: line detectors do not localise better, and exact (synthetic) lines would otherwise get
+#: sigmas of zero (`sequence_noise`).
+MIN_ENDPOINT_SIGMA_PX = 0.01
 
 # --------------------------------------------------------------- the exact estimator's tests
 #: Level of the frontal likelihood-ratio test: a pencil's tilt is declared detectable when

@@ -155,7 +155,7 @@ def _with_factor(est, factor):
     return None if est is None else NoiseEstimate(float(factor), est.dof, est.frames, est.rejected)
 
 
-def estimate_sequence_noise(run, sigma, first=None):
+def estimate_sequence_noise(run, sigma, first=None, floor=None):
     """The frames oriented with the noise their residuals show.
 
     run: callable(sigma) -> list of `Orientation`, the frames oriented with the assumed
@@ -163,22 +163,32 @@ def estimate_sequence_noise(run, sigma, first=None):
     factor lies outside 0.9-1.1 in sigma, the frames are run again with the noise
     estimated so far (at most `MAX_RUNS` runs), so that their gates fit the noise.
     first: the records of run(sigma) when the caller has them already (not run again).
+    floor: the smallest noise to believe (in sigma's unit): a smaller estimate is raised to
+    it (exact lines would otherwise get sigmas of zero).
 
     Returns (records, NoiseEstimate or None): the records' covariances hold the estimated
     noise; the estimate's factor is relative to `sigma` (the noise used is sigma *
     estimate.scale). None (and the first run's records unchanged) when the pool has under
     `MIN_DOF` degrees of freedom.
     """
+    low = 0.0 if floor is None else (floor / sigma) ** 2
     total, best = 1.0, None
     for i in range(MAX_RUNS):
         records, est = sequence_noise(first if i == 0 and first is not None else run(sigma * np.sqrt(total)))
         if est is None:
             return (records, None) if best is None else best
+        ran_at_floor = total <= low
         total *= est.variance_factor
         best = (records, _with_factor(est, total))
-        if _RERUN_BAND[0] <= est.variance_factor <= _RERUN_BAND[1]:
+        if _RERUN_BAND[0] <= est.variance_factor <= _RERUN_BAND[1] or (ran_at_floor and total <= low):
             break
-    return best
+        # the next run's gates never below the floor
+        total = max(total, low)
+    records, est = best
+    if est.variance_factor < low:
+        records = [rescale(r, low / est.variance_factor) for r in records]
+        est = _with_factor(est, low)
+    return records, est
 
 
 def _inflate_only(est, inflate_only):
