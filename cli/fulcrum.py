@@ -8,11 +8,13 @@ from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.io.files import write_json
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles
-from pencilcal.toolkit.io.images import open_images
 from pencilcal.toolkit.io.lines_file import read_lines
+from pencilcal.toolkit.pencil.defaults import MIN_ENDPOINT_SIGMA_PX
+from pencilcal.toolkit.pencil.sequence_noise import estimate_fulcrum_noise, fulcrum_noise
 
-from .common import (command, camera_options, check_output, FiniteFloat, force_option, images_argument, mask_option,
-                     max_pixels_option, output_option, quiet_option, run, run_frames, warn, workers_option)
+from .common import (command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, frames_region,
+                     images_argument, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
+                     overlay_option, quiet_option, run, run_frames, source_option, stream_meta, warn, workers_option)
 
 
 def _shaft_task(frame, ctx):
@@ -22,30 +24,60 @@ def _shaft_task(frame, ctx):
     from pencilcal.toolkit.io.images import check_image_size
     from pencilcal.toolkit.detect.shafts import detect_shafts
 
-    camera, detector, region = ctx
+    camera, detector, region, drawing = ctx
     if frame.image is None:
-        return {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}
+        return {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}, None
     check_image_size(frame, camera)
-    shafts = detect_shafts(frame.image, camera, detector=detector, valid_region=region)
-    return {"image": frame.name, "ok": True, "segments": np.zeros((0, 4)), "shafts": [s.to_dict() for s in shafts],
-            "error": None if shafts else "no instrument shaft found"}
+    shafts = [s.to_dict() for s in detect_shafts(frame.image, camera, detector=detector, valid_region=region)]
+    rec = {"image": frame.name, "ok": True, "segments": np.zeros((0, 4)), "shafts": shafts,
+           "error": None if shafts else "no instrument shaft found"}
+    if not drawing:
+        return rec, None
+    from pencilcal.toolkit.draw.overlay import draw_frame
+
+    return rec, draw_frame(frame.image, shafts=shafts, text=[frame.name])
 
 
-def _shafts(source, camera, detector, quiet, workers, mask_path=None):
+def _shafts(source, camera, detector, quiet, workers, mask_path, live):
     """Instrument shafts of every frame of an image source, as lines.json frames, within the
-    sequence's valid region (the mask file's, or detected: `region_detect.sequence_region`)."""
-    from pencilcal.toolkit.detect.region_detect import sequence_region
-
-    region = sequence_region(source, mask_path, shape=(camera.height, camera.width))
-    frames = list(run_frames(source, _shaft_task, (camera, detector, region), workers, "shafts", quiet))
-    for f in frames:
+    sequence's valid region (the mask file's, or detected: `region_detect.sequence_region`);
+    each frame's shafts to the live outputs as they are found (the fulcrum is known only at
+    the end)."""
+    region = frames_region(source, mask_path, shape=(camera.height, camera.width))
+    frames = []
+    for f, drawn in run_frames(source, _shaft_task, (camera, detector, region, live.drawing), workers, "shafts", quiet):
         if f["error"]:
             warn(f"{f['image']}: {f['error']}")
+        frames.append(f)
+        live.emit({k: v for k, v in f.items() if k != "segments"}, drawn, name=f["image"])
     return frames
+
+
+def _with_noise(res, run, frames, sigma, given):
+    """(Fulcrum, the fulcrum.json ``noise`` record): the sigmas with the noise the lines'
+    residuals show (`sequence_noise.fulcrum_noise`) unless the user gave it; segments
+    without their own sigmas are estimated (the fit run again with the estimate), the
+    detector's sigmas (shaft midlines, a lines file's angle sigmas) only inflated."""
+    if given:
+        return res, {"estimated": False, "endpoint_sigma_px": sigma}
+    if res.lines_from == "segments" and not any(f.get("angle_sigma_deg") is not None for f in frames):
+        out, est = estimate_fulcrum_noise(run, sigma, floor=MIN_ENDPOINT_SIGMA_PX)
+        kind = {"assumed_endpoint_sigma_px": sigma}
+    else:
+        out, est = fulcrum_noise(res, inflate_only=True)
+        kind = {"inflate_only": True}
+    v, p = est["vertex"], est["pivot"]
+    if v is None:
+        return res, {"estimated": False, "reason": "too few degrees of freedom to estimate the noise", **kind}
+    if not (0.5 < v.scale < 2.0):
+        warn(f"the fulcrum's lines scatter {v.scale:.2g} times as much as their sigmas say: its sigmas are scaled "
+             f"by that ({v.dof} degrees of freedom)")
+    return out, {**v.to_dict(), **kind, "pivot": None if p is None else p.to_dict()}
 
 
 @command()
 @images_argument(required=False)
+@source_option
 @click.option("--lines", "lines_path", type=click.Path(dir_okay=False), default=None,
               help="Lines per frame (lines.json; shaft midlines are used when present), instead of IMAGES.")
 @camera_options
@@ -59,14 +91,16 @@ def _shafts(source, camera, detector, quiet, workers, mask_path=None):
 @click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
               help="Line detector for the shaft proposals, with IMAGES.")
 @mask_option
+@jsonl_option
+@overlay_option
 @max_pixels_option
 @workers_option
 @output_option
 @force_option
 @quiet_option
 @run
-def fulcrum(images, lines_path, camera_path, camera_id, angles_path, shaft_diameter, endpoint_sigma, detector, mask_path,
-            max_pixels, workers, output, force, quiet):
+def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path, shaft_diameter, endpoint_sigma,
+            detector, mask_path, jsonl_path, overlay_path, max_pixels, workers, output, force, quiet):
     """The fulcrum of an instrument pivoting about its entry port.
 
     Every frame's instrument line passes through the fulcrum's image: their robust weighted
@@ -85,6 +119,12 @@ def fulcrum(images, lines_path, camera_path, camera_id, angles_path, shaft_diame
     (the RMS 3-D error its covariance predicts), and the axes that pass far from it named in
     point_outliers. Its lines must be shafts with their edges' covariance (lines --shaft).
 
+    Unless --endpoint-sigma is given, the sigmas hold the noise the lines show: the
+    intersection's chi-square per degree of freedom scales them (segments without their
+    own sigmas: estimated; shaft midlines: only ever inflated); ``noise`` says what was
+    found. --source reads a camera or a growing video; --jsonl streams each frame's shafts
+    as they are found and --overlay draws them (the fulcrum is known at the end only).
+
     \b
     Examples:
       pencilcal fulcrum frames/ --camera camera.yaml -o fulcrum.json
@@ -95,30 +135,43 @@ def fulcrum(images, lines_path, camera_path, camera_id, angles_path, shaft_diame
         raise click.BadParameter("must be positive", param_hint="--endpoint-sigma")
     if shaft_diameter is not None and not shaft_diameter > 0:
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
-    if (images is None) == (lines_path is None):
-        raise click.UsageError("give IMAGES or --lines (one of them)")
-    if lines_path is not None and mask_path is not None:
-        raise click.UsageError("--mask is for IMAGES (a lines file's lines are already found)")
+    if sum(x is not None for x in (images, source_spec, lines_path)) != 1:
+        raise click.UsageError("give IMAGES, --source or --lines (one of them)")
+    if lines_path is not None and (mask_path is not None or overlay_path is not None):
+        raise click.UsageError("--mask and --overlay are for frames (a lines file's lines are already found)")
     check_output(output, force, [lines_path, camera_path, angles_path, mask_path])
     camera = read_camera(camera_path, camera_id=camera_id)
+    source = None
     if lines_path is not None:
         frames = read_lines(lines_path)
         if not frames:
             raise InputError(f"{lines_path}: no frames")
+        with FrameOutputs(jsonl_path, None, force) as live:
+            for f in frames:
+                live.emit({k: v for k, v in f.items() if k != "segments"})
     else:
-        source = open_images(images, max_pixels=max_pixels)
+        source = open_input(images, source_spec, max_pixels)
         check_output(output, force, source.paths)
-        frames = _shafts(source, camera, detector, quiet, workers, mask_path)
+        with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
+            frames = _shafts(source, camera, detector, quiet, workers, mask_path, live)
+    where = lines_path or source.description
     angles = read_angles(angles_path, [f["image"] for f in frames]) if angles_path else None
-    try:
-        res = fulcrum_from_frames(camera, frames, angles=angles, endpoint_sigma_px=endpoint_sigma,
-                                  shaft_diameter=shaft_diameter)
-    except EstimationError as e:
-        raise EstimationError(f"{lines_path or source.description}: {e}") from None
+
+    def run(sigma):
+        try:
+            return fulcrum_from_frames(camera, frames, angles=angles, endpoint_sigma_px=sigma,
+                                       shaft_diameter=shaft_diameter)
+        except EstimationError as e:
+            raise EstimationError(f"{where}: {e}") from None
+
+    res = run(endpoint_sigma)
+    given = click.get_current_context().get_parameter_source("endpoint_sigma") != click.core.ParameterSource.DEFAULT
+    res, noise = _with_noise(res, run, frames, endpoint_sigma, given)
     for w in res.warnings:
         warn(w)
     out = {"camera": str(camera_path), "lines": None if lines_path is None else str(lines_path),
-           "images": None if images is None else source.description, **res.to_dict()}
+           "images": None if images is None else source.description, **stream_meta(source), "noise": noise,
+           **res.to_dict()}
     write_json(output, out, force=force)
     off_axis = float(np.degrees(np.arccos(np.clip(out["ray"][2], -1.0, 1.0))))
     if out["vertex_px"] is None:

@@ -4,15 +4,14 @@ from __future__ import annotations
 import click
 
 from pencilcal.toolkit.camera.formats import read_camera
-from pencilcal.toolkit.io.images import check_image_size, open_images
+from pencilcal.toolkit.io.images import check_image_size
 from pencilcal.toolkit.detect.lines import lines_record
-from pencilcal.toolkit.detect.region_detect import sequence_region
 from pencilcal.toolkit.detect.segments import DETECTORS
 from pencilcal.toolkit.io.lines_file import write_lines
 
-from .common import (command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option, images_argument,
-                     jsonl_option, mask_option, max_pixels_option, output_option, overlay_option, quiet_option, run,
-                     run_frames, warn, workers_option)
+from .common import (command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option, frames_region,
+                     images_argument, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
+                     overlay_option, quiet_option, run, run_frames, source_option, stream_meta, warn, workers_option)
 
 
 def with_axis(camera, shaft, diameter):
@@ -46,7 +45,8 @@ def _lines_task(frame, ctx):
 
 
 @command()
-@images_argument()
+@images_argument(required=False)
+@source_option
 @camera_options
 @output_option
 @click.option("--detector", type=click.Choice(DETECTORS), default="lsd", show_default=True,
@@ -75,12 +75,13 @@ def _lines_task(frame, ctx):
 @force_option
 @quiet_option
 @run
-def lines(images, camera_path, camera_id, output, detector, bars, bar_width, shaft, shaft_diameter, min_length,
+def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, shaft, shaft_diameter, min_length,
           mask_path, jsonl_path, overlay_path, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel precision, with angle uncertainty.
 
     IMAGES is one or more image files, folders or glob patterns, in the order given (a
-    folder's images sorted naturally), or one video. The chosen OpenCV detector proposes
+    folder's images sorted naturally), or one video; or --source, a camera or a video still
+    being written, read as it comes. The chosen OpenCV detector proposes
     segments; collinear fragments are merged and every line is refitted to its
     edge pixels (straight in undistorted pixels, so lens distortion does not bend it).
     Each frame gets `segments` in raw (distorted) pixels [x1, y1, x2, y2] and, per segment,
@@ -119,18 +120,19 @@ def lines(images, camera_path, camera_id, output, detector, bars, bar_width, sha
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     check_output(output, force)
     camera = read_camera(camera_path, camera_id=camera_id)
-    source = open_images(images, max_pixels=max_pixels)
+    source = open_input(images, source_spec, max_pixels)
     check_output(output, force, [*source.paths, camera_path, mask_path])
-    region = sequence_region(source, mask_path, shape=(camera.height, camera.width))
+    region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     records = []
-    with FrameOutputs(jsonl_path, overlay_path, force) as live:
+    with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
         ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
             records.append(rec)
             live.emit(rec, drawn)
-    meta = {"detector": detector, "mode": "bars" if bars else "edges", "camera": str(camera_path)}
+    meta = {"detector": detector, "mode": "bars" if bars else "edges", "camera": str(camera_path),
+            **stream_meta(source)}
     if shaft_diameter is not None:
         meta["shaft_diameter"] = shaft_diameter
     write_lines(output, records, force=force, meta=meta, valid_region=None if region is None else region.to_dict())

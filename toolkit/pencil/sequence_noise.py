@@ -43,13 +43,14 @@ Example
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats
 
 __all__ = ["NoiseEstimate", "variance_factor", "sequence_noise", "estimate_sequence_noise", "rescale",
-           "fulcrum_noise", "estimate_fulcrum_noise", "MIN_DOF", "MAX_RUNS"]
+           "fulcrum_noise", "rescale_fulcrum", "estimate_fulcrum_noise", "MIN_DOF", "MAX_RUNS"]
 
 #: The pooled degrees of freedom below which the factor is not estimated (too uncertain:
 #: its relative sd is sqrt(2 / dof)).
@@ -197,6 +198,25 @@ def _inflate_only(est, inflate_only):
     return NoiseEstimate(1.0, est.dof, est.frames, est.rejected)
 
 
+def rescale_fulcrum(fulcrum, factor, pivot_factor=None):
+    """The `fulcrum.Fulcrum` with its vertex's noise covariance multiplied by `factor`
+    (vertex_cov_px2, ray_sigma_deg and the noise part of the totals) and its pivot plane's
+    by `pivot_factor` (`rescale`; default the same factor). The 3-D point keeps its own."""
+    f, s = float(factor), float(np.sqrt(factor))
+    ch = {"ray_sigma_deg": fulcrum.ray_sigma_deg * s}
+    if fulcrum.vertex_cov_px2 is not None:
+        ch["vertex_cov_px2"] = np.asarray(fulcrum.vertex_cov_px2) * f
+    if fulcrum.ray_sigma_total_deg is not None:
+        lens2 = max(fulcrum.ray_sigma_total_deg**2 - fulcrum.ray_sigma_deg**2, 0.0)
+        ch["ray_sigma_total_deg"] = float(np.sqrt(lens2 + ch["ray_sigma_deg"] ** 2))
+    if fulcrum.vertex_cov_total_px2 is not None and fulcrum.vertex_cov_px2 is not None:
+        ch["vertex_cov_total_px2"] = (np.asarray(fulcrum.vertex_cov_total_px2)
+                                      - np.asarray(fulcrum.vertex_cov_px2) + ch["vertex_cov_px2"])
+    if fulcrum.pivot is not None:
+        ch["pivot"] = rescale(fulcrum.pivot, f if pivot_factor is None else pivot_factor)
+    return dataclasses.replace(fulcrum, **ch)
+
+
 def fulcrum_noise(fulcrum, inflate_only=False):
     """(Fulcrum rescaled, {"vertex": NoiseEstimate or None, "pivot": ... or None}).
 
@@ -206,40 +226,31 @@ def fulcrum_noise(fulcrum, inflate_only=False):
     that has `MIN_DOF`, else the vertex's. inflate_only: never below 1 (lines with the
     detector's own sigmas).
     """
-    import dataclasses
-
     k = int(fulcrum.lines_used)
     est = variance_factor([fulcrum.rms**2 * k], [k - 2])
     est = _inflate_only(None if est is None else NoiseEstimate(est.variance_factor, est.dof, fulcrum.frames_used,
                                                                len(fulcrum.outliers)), inflate_only)
-    ch = {}
-    if est is not None:
-        f, s = est.variance_factor, est.scale
-        ch["ray_sigma_deg"] = fulcrum.ray_sigma_deg * s
-        if fulcrum.vertex_cov_px2 is not None:
-            ch["vertex_cov_px2"] = np.asarray(fulcrum.vertex_cov_px2) * f
-        if fulcrum.ray_sigma_total_deg is not None:
-            lens2 = max(fulcrum.ray_sigma_total_deg**2 - fulcrum.ray_sigma_deg**2, 0.0)
-            ch["ray_sigma_total_deg"] = float(np.sqrt(lens2 + ch["ray_sigma_deg"] ** 2))
-        if fulcrum.vertex_cov_total_px2 is not None and fulcrum.vertex_cov_px2 is not None:
-            ch["vertex_cov_total_px2"] = (np.asarray(fulcrum.vertex_cov_total_px2)
-                                          - np.asarray(fulcrum.vertex_cov_px2) + ch["vertex_cov_px2"])
     pivot_est = None
     if fulcrum.pivot is not None:
         p = fulcrum.pivot
         pivot_est = None if p.chi2 is None else variance_factor([p.chi2], [p.lines_used - 3])
         pivot_est = _inflate_only(pivot_est, inflate_only) or est
-        if pivot_est is not None:
-            ch["pivot"] = rescale(p, pivot_est.variance_factor)
-    return dataclasses.replace(fulcrum, **ch), {"vertex": est, "pivot": pivot_est}
+    if est is None and pivot_est is None:
+        return fulcrum, {"vertex": None, "pivot": None}
+    out = rescale_fulcrum(fulcrum, 1.0 if est is None else est.variance_factor,
+                          None if pivot_est is None else pivot_est.variance_factor)
+    if fulcrum.pivot is not None and pivot_est is None:
+        out = dataclasses.replace(out, pivot=fulcrum.pivot)
+    return out, {"vertex": est, "pivot": pivot_est}
 
 
-def estimate_fulcrum_noise(run, sigma):
+def estimate_fulcrum_noise(run, sigma, floor=None):
     """`fulcrum_noise` with the gates of the estimated noise (as `estimate_sequence_noise`):
     run: callable(sigma) -> Fulcrum with the assumed line noise sigma (the end point sd
     [px] of segments without their own), run again with the noise estimated so far while
-    the factor lies outside 0.9-1.1 in sigma. Returns (Fulcrum, estimates) as
-    `fulcrum_noise`, the factors relative to `sigma`."""
+    the factor lies outside 0.9-1.1 in sigma; floor: the smallest noise to believe.
+    Returns (Fulcrum, estimates) as `fulcrum_noise`, the factors relative to `sigma`."""
+    low = 0.0 if floor is None else (floor / sigma) ** 2
     total, best = 1.0, None
     for _ in range(MAX_RUNS):
         s = sigma * np.sqrt(total)
@@ -248,10 +259,16 @@ def estimate_fulcrum_noise(run, sigma):
         if v is None:
             return (f, est) if best is None else best
         factor = v.variance_factor
+        ran_at_floor = total <= low
         total *= factor
         pivot = est["pivot"]
         best = (f, {"vertex": _with_factor(v, total),
                     "pivot": None if pivot is None else _with_factor(pivot, pivot.variance_factor * total / factor)})
-        if _RERUN_BAND[0] <= factor <= _RERUN_BAND[1]:
+        if _RERUN_BAND[0] <= factor <= _RERUN_BAND[1] or (ran_at_floor and total <= low):
             break
-    return best
+        total = max(total, low)
+    f, est = best
+    if est["vertex"].variance_factor < low:
+        f = rescale_fulcrum(f, low / est["vertex"].variance_factor)
+        est = {"vertex": _with_factor(est["vertex"], low), "pivot": est["pivot"]}
+    return f, est
