@@ -17,7 +17,9 @@ frames whose colour tells the materials apart (`shafts`).
    plane bisector of the two (`shaft_axis`). It is a shaft when both edges are seen
    together along at least the least length and a third of the region's run; when they,
    its band or its region's extension (the instrument's material, its wrist included) run
-   along 2.5 widths (a jaw is not elongated); when they converge by at most the largest
+   along 2.5 widths (a jaw is not elongated), or they run along 1.5 widths and the border
+   of the view cuts them (a wide shaft close to the lens, entering at a corner; a wrist or
+   jaw ends inside the view); when they converge by at most the largest
    convergence and meet outside the stretch (by half a width); and when the band's
    extension reaches the border of the view or the stretch ends within a width of it (an
    instrument enters from outside; its edges may fade into a dark, vignetted surround
@@ -65,6 +67,8 @@ _GROW_PASSES = 3  # passes growing a band's edges along its chord
 _MIN_CORRIDOR_PX = 1.5  # the narrowest corridor of a growing edge [px]
 _COAXIAL_DEG = 3.0  # two readings of one instrument: axes this close ...
 _LONG_FRACTION = 0.25  # a run this fraction of the work frame's diagonal need not reach the border
+_ELONGATED_WIDTHS = 2.5  # a shaft is seen along this many widths (a jaw is not) ...
+_SHORT_WIDTHS = 1.5  # ... or along this many, cut by the border of the view
 # E[|z| : |z| below its 90th percentile q] / E[|z|] for z normal: (1 - exp(-q^2 / 2)) / 0.9
 _TRUNCATED_MEAN = (1.0 - np.exp(-0.5 * 1.6448536269514722**2)) / 0.9
 _LAPLACE_DIFF = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
@@ -205,6 +209,19 @@ def _reaches_border(m, camera, validity, corridor):
     return bool(np.min(d) <= m.width_px + corridor)
 
 
+def _elongated(m, seen, along, camera, validity, corridor):
+    """Whether a band is elongated like a shaft (a jaw, a blob between two short straight
+    boundaries is not): its edges, its band or its instrument-like material run along
+    `_ELONGATED_WIDTHS` widths; or its edges are seen together along `_SHORT_WIDTHS` widths
+    and the border of the view cuts them (a shaft close to the lens, entering the view
+    obliquely at a corner, is seen over fewer widths; a wrist or jaw ends inside the view).
+    seen, along [ideal px]."""
+    w = m.width_px
+    if max(seen, along) >= _ELONGATED_WIDTHS * w:
+        return True
+    return seen >= _SHORT_WIDTHS * w and _reaches_border(m, camera, validity, corridor)
+
+
 def material_cue(image, camera, validity, work, mm, o, K, noise):
     """Shafts by the material cue (module docstring, steps 1-3): `MaterialShaft` per band
     that held up, before the selection.
@@ -232,10 +249,10 @@ def material_cue(image, camera, validity, work, mm, o, K, noise):
             continue
         seen = float(np.hypot(*(m.ends[1] - m.ends[0])))
         along = max(stretch[1] - stretch[0], e.ext[1] - e.ext[0]) * e.step / s
-        # elongated (a jaw, a blob between two short straight boundaries is not: its edges,
-        # its band or its instrument-like material along 2.5 widths), along a good part of
-        # the region's run, entering from the border of the view or very long
-        if seen < min_len / s or max(seen, along) < 2.5 * m.width_px or seen < 0.3 * e.run_len / s:
+        # elongated (`_elongated`), along a good part of the region's run, entering from the
+        # border of the view or very long
+        if seen < min_len / s or seen < 0.3 * e.run_len / s or not _elongated(m, seen, along, camera, validity,
+                                                                              corridor):
             continue
         if seen < long_len and not (any(e.reach) or _reaches_border(m, camera, validity, corridor)):
             continue

@@ -92,7 +92,8 @@ class RegionBand:
     y_in, y_side : float [grey levels]
         Mean luma inside and beside the run.
     level, kind : int, str
-        The region level and map ("all" or "dark") it came from.
+        The region level and map ("all", "dark" or "darker": `shaft_regions.DARK_SPLITS`)
+        it came from.
     """
 
     lines: tuple

@@ -20,9 +20,13 @@ boundaries: the proposals of the shaft detector's material cue (`shafts`).
 2. *levels* (`region_levels`): `LEVELS` recursive two-class Otsu splits of the likeness
    over the valid region. The instruments are its upper tail and may cover only a few
    percent of the view, so each split isolates a more extreme part. At each level the
-   region ("all") and its darker part (an Otsu split of its luma: a black shaft against a
-   grey drape is instrument-like on both sides of its edge but differs in lightness); a
-   map that repeats an earlier one is marked so and not searched again.
+   region ("all"), its darker part (an Otsu split of its luma: a black shaft against a
+   grey drape is instrument-like on both sides of its edge but differs in lightness) and,
+   at the last level, the darker part of that (`DARK_SPLITS`: where the drape is dim and
+   shaded itself, the first split of the luma separates the drape's light and dark parts,
+   the second the black shaft from the dark drape; at the levels above, whose region still
+   holds tissue and drape, it would split their shading into more bands); a map that
+   repeats an earlier one is marked so and not searched again.
 3. *boundaries* (`boundary_lines`): every contour of a level's map (after a 3 x 3 close and
    open) is approximated by a polygon (Douglas-Peucker, `_DP_EPS_PX`); its sides at least
    half the least length long whose middle is off the valid region's boundary are refitted
@@ -60,17 +64,22 @@ import numpy as np
 
 from pencilcal.toolkit.detect.noise import estimate_noise
 
-__all__ = ["DARK_DAMPING", "Z_999", "LEVELS", "MaterialMap", "material_map", "otsu_threshold", "region_levels",
-           "BoundaryLines", "boundary_lines", "RegionPairs", "region_pairs", "scene_angle"]
+__all__ = ["DARK_DAMPING", "Z_999", "LEVELS", "DARK_SPLITS", "MaterialMap", "material_map", "otsu_threshold",
+           "region_levels", "BoundaryLines", "boundary_lines", "RegionPairs", "region_pairs", "scene_angle"]
 
 #: eps of the chromaticity, as a fraction of the median brightness: a pixel this much darker
 #: than the scene keeps half of its colour (0.01-0.1 give the same maps on the real sets).
 DARK_DAMPING = 0.1
 #: The one-sided 0.999 normal quantile, the detector's significance level.
 Z_999 = 3.090232306167813
-#: Recursive Otsu levels of the likeness: tissue / instrument-like, then the darker part of
-#: that (black shafts), then the darkest (a black shaft against a grey-blue drape).
+#: Recursive Otsu levels of the likeness: tissue / instrument-like, then the more extreme part
+#: of that, then the most extreme.
 LEVELS = 3
+#: The recursive Otsu splits of the luma within a level's region: its darker part, and at the
+#: last level the darker part of that too (a black shaft against a dim grey-blue drape is
+#: instrument-like on both sides of its edge; the drape's own shading takes the first split,
+#: the shaft the second).
+DARK_SPLITS = ("dark", "darker")
 _SAME_MAP = 0.02  # two level maps differing in fewer pixels than this fraction are one
 _MODE_RADIUS = 0.03  # the dominant colour: mean of the chromaticities this close to the mode
 _HIST_BINS = 200  # chromaticity histogram bins over [-1, 1] per axis
@@ -197,8 +206,8 @@ def otsu_threshold(v, bins=128):
 
 def region_levels(mm, work, n_levels=LEVELS):
     """The binary maps of the levels (module docstring, step 2): a list of (level index,
-    kind "all" or "dark", (h, w) uint8 map after a 3 x 3 close and open, repeat), "all"
-    first at each level; repeat: the map differs from an earlier one in under
+    kind "all" or one of `DARK_SPLITS`, (h, w) uint8 map after a 3 x 3 close and open,
+    repeat), "all" first at each level; repeat: the map differs from an earlier one in under
     `_SAME_MAP` of its pixels (its boundaries, and bands, are that one's)."""
     import cv2
 
@@ -213,9 +222,16 @@ def region_levels(mm, work, n_levels=LEVELS):
         v = v[v > t]
         B0 = (mm.likeness > t) & vin
         maps = [("all", B0)]
-        yv = work.luma[B0]
-        if yv.size > 50:
-            maps.append(("dark", B0 & (work.luma < otsu_threshold(yv))))
+        M = B0
+        # the second split at the last (most instrument-like) level only: above it the region
+        # still holds tissue and drape, whose shading it would split into more bands (a shaft
+        # read together with its shadow)
+        for kind in DARK_SPLITS if lev == n_levels - 1 else DARK_SPLITS[:1]:
+            yv = work.luma[M]
+            if yv.size <= 50:
+                break
+            M = M & (work.luma < otsu_threshold(yv))
+            maps.append((kind, M))
         for kind, B in maps:
             Bm = cv2.morphologyEx(cv2.morphologyEx(B.astype(np.uint8), cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
             n = max(int(np.count_nonzero(Bm)), 1)

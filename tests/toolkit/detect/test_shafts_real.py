@@ -103,9 +103,11 @@ def masked():
 
 
 def test_masked_sets_found_and_false(masked):
-    """Reached: 6 of the 9 instruments within 1.5 deg and 15 px (target 90 %), 0.2 false
-    detections per frame (target <= 0.25); the misses are the right-hand dVRK instruments,
-    which run into a grey-blue drape of their own material."""
+    """Reached: all 9 instruments within 1.5 deg and 15 px (target 90 %), no false detection
+    (target <= 0.25 per frame). The right-hand dVRK instruments, black against a dim grey-blue
+    drape as instrument-like as they are, come from the last level's second luma split
+    (`shaft_regions.DARK_SPLITS`); the one in image_01420 is seen over 1.8 widths only,
+    cut by the corner of the view (`shaft_material_cue._elongated`)."""
     refs = sum(len(m[1]) for m in masked)
     found = sum(len(m[3]) for m in masked)
     false = sum(len(m[4]) for m in masked) / len(masked)
@@ -114,8 +116,8 @@ def test_masked_sets_found_and_false(masked):
               f"{[(round(float(np.degrees(a)), 3), round(float(o), 2)) for _, _, a, o in got]}, {len(un)} false")
     print(f"masked: {found}/{refs} found, {false:.2f} false per frame")
     assert refs == 9
-    assert found >= 6
-    assert false <= 0.25
+    assert found >= 9
+    assert false == 0.0
 
 
 def _angle_terms(masked):
@@ -137,7 +139,8 @@ def _floor_for(terms):
 def test_floor_is_the_masked_sets_and_holds_frame_by_frame(masked):
     """EDGE_FLOOR_PX is the masked sets' floor (fitted on all of them); left out one frame at
     a time, the floor of the others gives that frame's midlines chi2/N within the 0.999
-    quantile of chi2 with their count (measured: at most 7.3, the dVRK left shaft whose
+    quantile of chi2 with their count (measured with the 9 midlines found: the fit 2.96 px,
+    left out one frame at a time 2.5-3.4 px, chi2 at most 5.5, image_01335 whose left shaft's
     lower silhouette lies in its own shadow, which the mask follows)."""
     from scipy.stats import chi2
 
