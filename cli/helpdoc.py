@@ -32,8 +32,8 @@ def cli_reference() -> str:
 
     root = _context(cli, "pencilcal")
     parts = [_HEAD, "## pencilcal\n", "```text\n" + cli.get_help(root) + "\n```\n"]
-    for name in sorted(cli.commands):
-        cmd = cli.commands[name]
+    for name in cli.list_commands(root):
+        cmd = cli.get_command(root, name)
         parts.append(f"## pencilcal {name}\n")
         parts.append("```text\n" + _help(cmd, name, root) + "\n```\n")
         for sub in sorted(getattr(cmd, "commands", {}) or {}):

@@ -1,26 +1,35 @@
 """The `pencilcal` command group."""
 from __future__ import annotations
 
+import importlib
 from importlib.metadata import PackageNotFoundError, version
 
 import click
 
-from .bench import bench
-from .calibrate import calibrate
-from .convert import convert
 from .common import CONTEXT_SETTINGS, install_signal_handlers
-from .demo import demo
-from .experiment import experiment
-from .fulcrum import fulcrum
-from .lines import lines
-from .orient import orient
-from .pnp import pnp
-from .report import report
-from .sensitivity import sensitivity
-from .sfm import sfm
-from .simulate import simulate
-from .target import target
-from .validate import validate
+
+# command name -> its module in this package: a command's module (and what it imports:
+# OpenCV, scipy, pycolmap, matplotlib) is loaded only when that command runs, so a live
+# `pencilcal orient` does not pay for the others' imports at start-up
+COMMANDS = {
+    "bench": "bench", "calibrate": "calibrate", "convert": "convert", "demo": "demo", "experiment": "experiment",
+    "fulcrum": "fulcrum", "lines": "lines", "orient": "orient", "pnp": "pnp", "report": "report",
+    "sensitivity": "sensitivity", "sfm": "sfm", "simulate": "simulate", "target": "target", "validate": "validate",
+}
+
+
+class LazyGroup(click.Group):
+    """A click group whose commands are imported when first asked for (`COMMANDS`)."""
+
+    def list_commands(self, ctx):
+        return sorted(set(COMMANDS) | set(self.commands))
+
+    def get_command(self, ctx, name):
+        if name not in self.commands and name in COMMANDS:
+            module = importlib.import_module(f"{__package__}.{COMMANDS[name]}")
+            self.add_command(getattr(module, name.replace("-", "_")), name)
+        return self.commands.get(name)
+
 
 try:
     __version__ = version("pencilcal")
@@ -28,7 +37,7 @@ except PackageNotFoundError:  # running from a source tree without installing
     __version__ = "0+unknown"
 
 
-@click.group(context_settings=CONTEXT_SETTINGS)
+@click.group(cls=LazyGroup, context_settings=CONTEXT_SETTINGS)
 @click.version_option(__version__, prog_name="pencilcal")
 @click.option("--debug", is_flag=True, help="Show the traceback of an internal error instead of one line.")
 def cli(debug):
@@ -41,23 +50,6 @@ def cli(debug):
     Conventions: OpenCV camera frame (x right, y down, z forward); transforms named
     a_from_b; angles in degrees in files and options.
     """
-
-
-cli.add_command(bench)
-cli.add_command(calibrate)
-cli.add_command(demo)
-cli.add_command(convert)
-cli.add_command(experiment)
-cli.add_command(orient)
-cli.add_command(fulcrum)
-cli.add_command(lines)
-cli.add_command(pnp)
-cli.add_command(report)
-cli.add_command(sensitivity)
-cli.add_command(sfm)
-cli.add_command(simulate)
-cli.add_command(target)
-cli.add_command(validate)
 
 
 def main():

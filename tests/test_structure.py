@@ -20,21 +20,21 @@ MAX_FILE_LINES = 1000
 MAX_FUNCTION_LINES = 120
 
 # What each part of pencilcal may import (besides itself). Subpackages of toolkit are named
-# by their first component; a module directly in toolkit/ (errors) by its own name.
+# by their first component; a module directly in toolkit/ (errors, lazy) by its own name.
+# the base every part may import: the error types and the lazy exports of the packages
+BASE = {"toolkit.errors", "toolkit.lazy"}
 LAYERS = {
     "toolkit.errors": set(),
-    "toolkit.geometry": {"toolkit.errors"},
-    "toolkit.io": {"toolkit.errors", "toolkit.geometry"},
-    "toolkit.camera": {"toolkit.errors", "toolkit.geometry", "toolkit.io"},
-    "toolkit.board": {"toolkit.errors", "toolkit.geometry", "toolkit.io", "toolkit.camera"},
-    "toolkit.pencil": {"toolkit.errors", "toolkit.geometry", "toolkit.io", "toolkit.camera"},
-    "toolkit.detect": {"toolkit.errors", "toolkit.geometry", "toolkit.io", "toolkit.camera",
-                       "toolkit.pencil"},
-    "toolkit.draw": {"toolkit.errors", "toolkit.geometry", "toolkit.io", "toolkit.camera", "toolkit.pencil"},
-    "toolkit.synth": {"toolkit.errors", "toolkit.geometry", "toolkit.io", "toolkit.camera",
-                      "toolkit.board", "toolkit.pencil"},
+    "toolkit.lazy": set(),
+    "toolkit.geometry": BASE,
+    "toolkit.io": BASE | {"toolkit.geometry"},
+    "toolkit.camera": BASE | {"toolkit.geometry", "toolkit.io"},
+    "toolkit.board": BASE | {"toolkit.geometry", "toolkit.io", "toolkit.camera"},
+    "toolkit.pencil": BASE | {"toolkit.geometry", "toolkit.io", "toolkit.camera"},
+    "toolkit.detect": BASE | {"toolkit.geometry", "toolkit.io", "toolkit.camera", "toolkit.pencil"},
+    "toolkit.draw": BASE | {"toolkit.geometry", "toolkit.io", "toolkit.camera", "toolkit.pencil"},
+    "toolkit.synth": BASE | {"toolkit.geometry", "toolkit.io", "toolkit.camera", "toolkit.board", "toolkit.pencil"},
 }
-
 
 def _modules():
     """{dotted name: path} of every source module of the three packages."""

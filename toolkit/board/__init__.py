@@ -3,10 +3,17 @@ corner cache (`corners_cache`), and intrinsic calibration from board views (`cal
 
 from __future__ import annotations
 
-from pencilcal.toolkit.board.spec import Board, read_board, write_board
-from pencilcal.toolkit.board.detect import BoardDetection, detect_board
-from pencilcal.toolkit.board.corners_cache import read_corners_vnl, write_corners_vnl
-from pencilcal.toolkit.board.calibrate import CalibrationResult, calibrate
+from pencilcal.toolkit.lazy import lazy_exports
+
+# each name imported from its module when first used: importing one module of this package
+# does not import the others
+__getattr__, __dir__ = lazy_exports(__name__, {
+    "spec": ["Board", "read_board", "write_board"],
+    "detect": ["BoardDetection", "detect_board"],
+    "corners_cache": ["read_corners_vnl", "write_corners_vnl"],
+    "calibrate": ["CalibrationResult", "calibrate"],
+})
+
 
 __all__ = ["Board", "read_board", "write_board", "BoardDetection", "detect_board", "read_corners_vnl",
            "write_corners_vnl", "CalibrationResult", "calibrate"]

@@ -16,10 +16,17 @@
 
 from __future__ import annotations
 
-from pencilcal.toolkit.detect.segments import Segments, detect_segments, DETECTORS
-from pencilcal.toolkit.detect.bars import Bars, detect_bars
-from pencilcal.toolkit.detect.shafts import Shaft, detect_shafts
-from pencilcal.toolkit.detect.lines import lines_record
+from pencilcal.toolkit.lazy import lazy_exports
+
+# each name imported from its module when first used: importing one module of this package
+# does not import the others
+__getattr__, __dir__ = lazy_exports(__name__, {
+    "segments": ["Segments", "detect_segments", "DETECTORS"],
+    "bars": ["Bars", "detect_bars"],
+    "shafts": ["Shaft", "detect_shafts"],
+    "lines": ["lines_record"],
+})
+
 
 __all__ = ["Segments", "detect_segments", "DETECTORS", "Bars", "detect_bars", "Shaft", "detect_shafts",
            "lines_record"]

@@ -4,7 +4,14 @@ the drawn frames as a video or as PNGs (`writer`)."""
 
 from __future__ import annotations
 
-from pencilcal.toolkit.draw.overlay import draw_frame, draw_fulcrum, draw_orientation, draw_shafts
-from pencilcal.toolkit.draw.writer import OverlayWriter
+from pencilcal.toolkit.lazy import lazy_exports
+
+# each name imported from its module when first used: importing one module of this package
+# does not import the others
+__getattr__, __dir__ = lazy_exports(__name__, {
+    "overlay": ["draw_frame", "draw_fulcrum", "draw_orientation", "draw_shafts"],
+    "writer": ["OverlayWriter"],
+})
+
 
 __all__ = ["draw_frame", "draw_orientation", "draw_shafts", "draw_fulcrum", "OverlayWriter"]

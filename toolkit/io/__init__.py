@@ -4,10 +4,17 @@ worker processes (`parallel`)."""
 
 from __future__ import annotations
 
-from pencilcal.toolkit.io.files import atomic_write, atomic_path, atomic_folder, write_json, load_structured
-from pencilcal.toolkit.io.images import open_images, decode_image, Frame
-from pencilcal.toolkit.io.lines_file import LineFrame, read_lines, write_lines
-from pencilcal.toolkit.io.parallel import map_frames
+from pencilcal.toolkit.lazy import lazy_exports
+
+# each name imported from its module when first used: importing one module of this package
+# does not import the others
+__getattr__, __dir__ = lazy_exports(__name__, {
+    "files": ["atomic_write", "atomic_path", "atomic_folder", "write_json", "load_structured"],
+    "images": ["open_images", "decode_image", "Frame"],
+    "lines_file": ["LineFrame", "read_lines", "write_lines"],
+    "parallel": ["map_frames"],
+})
+
 
 __all__ = ["atomic_write", "atomic_path", "atomic_folder", "write_json", "load_structured", "open_images",
            "decode_image", "Frame", "LineFrame", "read_lines", "write_lines", "map_frames"]

@@ -14,14 +14,21 @@
 
 from __future__ import annotations
 
-from pencilcal.toolkit.pencil.spec import Pencil, read_pencil, write_pencil, image_angles
-from pencilcal.toolkit.pencil.estimator import PencilFit, fit_pencil, crlb, detection_threshold
-from pencilcal.toolkit.pencil.assign import assign_spokes
-from pencilcal.toolkit.pencil.vertex import VertexFit, intersect_lines
-from pencilcal.toolkit.pencil.orientation import Orientation, read_orientations, write_orientations
-from pencilcal.toolkit.pencil.orient import orient_segments, resolve_twins_by_continuity
-from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles
-from pencilcal.toolkit.pencil.cylinder import shaft_axis, fulcrum_3d
+from pencilcal.toolkit.lazy import lazy_exports
+
+# each name imported from its module when first used: importing one module of this package
+# does not import the others
+__getattr__, __dir__ = lazy_exports(__name__, {
+    "spec": ["Pencil", "read_pencil", "write_pencil", "image_angles"],
+    "estimator": ["PencilFit", "fit_pencil", "crlb", "detection_threshold"],
+    "assign": ["assign_spokes"],
+    "vertex": ["VertexFit", "intersect_lines"],
+    "orientation": ["Orientation", "read_orientations", "write_orientations"],
+    "orient": ["orient_segments", "resolve_twins_by_continuity"],
+    "fulcrum": ["fulcrum_from_frames", "read_angles"],
+    "cylinder": ["shaft_axis", "fulcrum_3d"],
+})
+
 
 __all__ = ["Pencil", "read_pencil", "write_pencil", "image_angles", "PencilFit", "fit_pencil", "crlb",
            "detection_threshold", "assign_spokes", "VertexFit", "intersect_lines", "Orientation",

@@ -4,8 +4,15 @@ tilt-sweep scenarios (`scenarios`)."""
 
 from __future__ import annotations
 
-from pencilcal.toolkit.synth.sheet import Sheet, layout_sheet
-from pencilcal.toolkit.synth.render import render_frame
-from pencilcal.toolkit.synth.scenarios import Scenario, make_scenario
+from pencilcal.toolkit.lazy import lazy_exports
+
+# each name imported from its module when first used: importing one module of this package
+# does not import the others
+__getattr__, __dir__ = lazy_exports(__name__, {
+    "sheet": ["Sheet", "layout_sheet"],
+    "render": ["render_frame"],
+    "scenarios": ["Scenario", "make_scenario"],
+})
+
 
 __all__ = ["Sheet", "layout_sheet", "render_frame", "Scenario", "make_scenario"]
