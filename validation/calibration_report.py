@@ -162,14 +162,29 @@ def _intrinsics_table(rep):
 
 
 def _cross_validation(cv):
-    """Blocks for the two-halves cross-validation record, whatever keys it has."""
-    rows = [[str(k), num(v) if isinstance(v, (int, float)) else str(v)] for k, v in cv.items()
-            if not isinstance(v, (dict, list))]
-    blocks = [Table(["quantity", "value"], rows, text_cols=(1,))]
-    note = cv.get("verdict") or cv.get("summary")
-    if note:
-        blocks.insert(0, Para(str(note)))
-    return blocks
+    """Blocks for the two-halves cross-validation (`validation.checks.calibration_halves`):
+    per split a sentence (chi-square, p, the projection difference against its predicted
+    size) and the difference of each intrinsic in sigmas."""
+    if cv.get("error"):
+        return [Para(f"The two halves could not be calibrated apart: {cv['error']}.")]
+    blocks = []
+    for name, r in cv.items():
+        if not isinstance(r, dict) or "chi2" not in r:
+            continue
+        views = r.get("views") or ["?", "?"]
+        agree = r.get("p_value") is not None and r["p_value"] >= 0.01
+        blocks.append(Para(
+            f"{name.replace('_', ' and ')} views calibrated apart ({views[0]} and {views[1]} views): the two sets "
+            f"of intrinsics differ by chi-square {num(r['chi2'])} on {r['dof']} degrees of freedom (p = "
+            f"{num(r['p_value'])}): {'they agree within their sigmas' if agree else 'they disagree beyond their sigmas'}"
+            f". Their projections differ by {num(r.get('projection_rms_px'))} px RMS over the image (at most "
+            f"{num(r.get('projection_max_px'))} px), against {num(r.get('projection_predicted_rms_px'))} px "
+            "that the sigmas predict."))
+        z = r.get("z") or {}
+        if z:
+            blocks.append(Table(["intrinsic", "difference / sigma"], [[k, num(v)] for k, v in z.items()],
+                                caption="Each intrinsic's difference between the halves, in its combined sigma."))
+    return blocks or [Para("No two-halves result in this record.")]
 
 
 def _rejections(rep):

@@ -47,3 +47,10 @@ def test_calibrate_writes_the_page(tmp_path):
     assert sum(map(sum, rec["coverage"]["counts"])) == rec["counts"]["corners_used"]
     rep = build_calibration_report(rec)
     assert [s.id for s in rep.sections][:3] == ["summary", "views", "coverage"]
+    # the two halves of the views, calibrated apart, are on the page in words
+    assert "Two halves of the views" in page
+    cv = rec["cross_validation"]
+    if "odd_even" in cv:
+        assert "views calibrated apart" in page and f"{cv['odd_even']['dof']} degrees of freedom" in page
+    else:
+        assert "could not be calibrated apart" in page

@@ -440,6 +440,10 @@ def _as_u8(image):
     return to_u8(img)
 
 
+# a video of fewer frames than this per sampled frame is read in order instead of seeking
+_SEQUENTIAL_FRAMES_PER_SAMPLE = 8
+
+
 def _sampled_frames(source, k):
     """Up to k decodable frames (arrays of one size) spread evenly over an ImageSource."""
     from pencilcal.toolkit.io.images import decode_image
@@ -467,11 +471,22 @@ def _video_frames(source, want, k):
     cap = cv2.VideoCapture(str(source.paths[0]))
     out = []
     try:
-        for i in sorted(want or ()):
-            if cap.set(cv2.CAP_PROP_POS_FRAMES, int(i)):
-                ok, img = cap.read()
-                if ok and img is not None:
-                    out.append(img)
+        if want and max(want) < _SEQUENTIAL_FRAMES_PER_SAMPLE * k:
+            # a short video: grabbing every frame in order (decoding, no colour conversion)
+            # costs less than seeking, which decodes again from the last keyframe each time
+            for i in range(max(want) + 1):
+                if not cap.grab():
+                    break
+                if i in want:
+                    ok, img = cap.retrieve()
+                    if ok and img is not None:
+                        out.append(img)
+        else:
+            for i in sorted(want or ()):
+                if cap.set(cv2.CAP_PROP_POS_FRAMES, int(i)):
+                    ok, img = cap.read()
+                    if ok and img is not None:
+                        out.append(img)
     finally:
         cap.release()
     if out:

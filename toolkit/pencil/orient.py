@@ -458,10 +458,11 @@ def _break_label_ties(lab, fit, rivals, x, pencil, p1, p2, sigma_metric):
     rival = scores - scores[best] < _CHI2_2
     if scatter > 1.0:
         # two scatters estimated from the data are told apart only by their ratio
-        from scipy.stats import f as f_dist
+        # the F quantile from scipy.special (scipy.stats costs a second or more to import)
+        from scipy.special import fdtri
 
         ratio = per_point / per_point[best]
-        rival |= (angles - angles[best] < _CHI2_2) & (ratio < f_dist.ppf(0.99, points, points[best]))
+        rival |= (angles - angles[best] < _CHI2_2) & (ratio < fdtri(points, points[best], 0.99))
     rest = [c for i, c in enumerate(cands) if i != best and rival[i]]
     return cands[best][0], cands[best][1], rest
 
