@@ -5,9 +5,10 @@ import click
 import numpy as np
 
 from pencilcal.toolkit.camera.formats import read_camera
+from pencilcal.toolkit.camera.stereo import read_stereo
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.io.files import write_json
-from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles
+from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles, stereo_fulcrum
 from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.defaults import MIN_ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.sequence_noise import estimate_fulcrum_noise, fulcrum_noise
@@ -75,6 +76,37 @@ def _with_noise(res, run, frames, sigma, given):
     return out, {**v.to_dict(), **kind, "pivot": None if p is None else p.to_dict()}
 
 
+def _stereo(left, right_images, camera_right, camera_right_path, rig, detector, endpoint_sigma, given, max_pixels,
+            workers, quiet, force):
+    """fulcrum.json's ``stereo`` record: the right view's shafts and fulcrum from its own
+    frames (its valid region detected on them), the noise as for the left view, then
+    `fulcrum.stereo_fulcrum` with the left's."""
+    source = open_input((right_images,), None, max_pixels)
+    with FrameOutputs(None, None, force) as live:
+        frames = _shafts(source, camera_right, detector, quiet, workers, None, live)
+
+    def run(sigma):
+        try:
+            return fulcrum_from_frames(camera_right, frames, endpoint_sigma_px=sigma)
+        except EstimationError as e:
+            raise EstimationError(f"{right_images} (right view): {e}") from None
+
+    right, noise = _with_noise(run(endpoint_sigma), run, frames, endpoint_sigma, given)
+    for w in right.warnings:
+        warn(f"right view: {w}")
+    try:
+        st = stereo_fulcrum(left, right, rig)
+    except EstimationError as e:
+        raise EstimationError(f"{rig.source}: {e}") from None
+    rec = st.to_dict()
+    rec["right"] = {"images": source.description, "camera": str(camera_right_path), "noise": noise, **rec["right"]}
+    if "agreement" in rec and not rec["agreement"]["consistent"]:
+        warn("the diameter-based and the triangulated 3-D fulcrum disagree beyond their sigmas (chi2 {:.1f}, {} dof, "
+             "p {:.2g}): check the shaft diameter and the stereo file's unit".format(
+                 rec["agreement"]["chi2"], rec["agreement"]["dof"], rec["agreement"]["p_value"]))
+    return rec
+
+
 @command()
 @images_argument(required=False)
 @source_option
@@ -86,6 +118,14 @@ def _with_noise(res, run, frames, sigma, given):
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
               help="The instrument shaft's diameter (e.g. 8 for 8 mm): also the 3-D fulcrum, point [x, y, z] in the "
                    "camera frame with point_cov and point_sigma, in D's unit, from every shaft's 3-D axis.")
+@click.option("--right", "right_images", default=None, metavar="IMAGES",
+              help="Frames of a second camera rigidly fixed to the first (a stereo endoscope's right view): its own "
+                   "fulcrum, and the 3-D fulcrum triangulated from the two views' rays (stereo).")
+@click.option("--camera-right", "camera_right_path", type=click.Path(dir_okay=False), default=None,
+              help="Camera file of the --right camera.")
+@click.option("--right-from-left", "stereo_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="Stereo calibration: OpenCV's R and T (cv2.stereoCalibrate, e.g. extrinsics.yml) or "
+                   "R_right_from_left and t_right_from_left; T in the unit of --shaft-diameter.")
 @click.option("--endpoint-sigma", type=FiniteFloat(), default=0.5, show_default=True,
               help="End point noise [px] for segments without their own angle sigma.")
 @click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
@@ -99,8 +139,9 @@ def _with_noise(res, run, frames, sigma, given):
 @force_option
 @quiet_option
 @run
-def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path, shaft_diameter, endpoint_sigma,
-            detector, mask_path, jsonl_path, overlay_path, max_pixels, workers, output, force, quiet):
+def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path, shaft_diameter, right_images,
+            camera_right_path, stereo_path, endpoint_sigma, detector, mask_path, jsonl_path, overlay_path, max_pixels,
+            workers, output, force, quiet):
     """The fulcrum of an instrument pivoting about its entry port.
 
     Every frame's instrument line passes through the fulcrum's image: their robust weighted
@@ -119,6 +160,14 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     (the RMS 3-D error its covariance predicts), and the axes that pass far from it named in
     point_outliers. Its lines must be shafts with their edges' covariance (lines --shaft).
 
+    With --right IMAGES, --camera-right and --right-from-left (a stereo pair) the right
+    view's fulcrum is found from its own frames, and the two fulcrum rays meet at the 3-D
+    fulcrum: ``stereo.triangulated`` (left camera frame, the unit of the stereo file's T;
+    no diameter needed). With --shaft-diameter too, ``stereo.agreement`` says whether the
+    diameter-based point and the triangulated one agree within their sigmas (chi2, its dof
+    and p; the left view's ray, which both hold, counted once) and ``stereo.combined`` is
+    their fusion.
+
     Unless --endpoint-sigma is given, the sigmas hold the noise the lines show: the
     intersection's chi-square per degree of freedom scales them (segments without their
     own sigmas: estimated; shaft midlines: only ever inflated); ``noise`` says what was
@@ -130,6 +179,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
       pencilcal fulcrum frames/ --camera camera.yaml -o fulcrum.json
       pencilcal fulcrum --lines lines.json --camera camera.yaml --angles angles.csv -o fulcrum.json
       pencilcal fulcrum frames/ --camera camera.yaml --shaft-diameter 8 -o fulcrum.json
+      pencilcal fulcrum left/ --camera l.yaml --right right/ --camera-right r.yaml --right-from-left extrinsics.yml -o f.json
     """
     if endpoint_sigma <= 0:
         raise click.BadParameter("must be positive", param_hint="--endpoint-sigma")
@@ -139,8 +189,13 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         raise click.UsageError("give IMAGES, --source or --lines (one of them)")
     if lines_path is not None and (mask_path is not None or overlay_path is not None):
         raise click.UsageError("--mask and --overlay are for frames (a lines file's lines are already found)")
-    check_output(output, force, [lines_path, camera_path, angles_path, mask_path])
+    stereo = (right_images, camera_right_path, stereo_path)
+    if any(x is not None for x in stereo) and not all(x is not None for x in stereo):
+        raise click.UsageError("--right, --camera-right and --right-from-left go together")
+    check_output(output, force, [lines_path, camera_path, angles_path, mask_path, camera_right_path, stereo_path])
     camera = read_camera(camera_path, camera_id=camera_id)
+    rig = None if stereo_path is None else read_stereo(stereo_path)
+    camera_right = None if camera_right_path is None else read_camera(camera_right_path)
     source = None
     if lines_path is not None:
         frames = read_lines(lines_path)
@@ -172,6 +227,9 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     out = {"camera": str(camera_path), "lines": None if lines_path is None else str(lines_path),
            "images": None if images is None else source.description, **stream_meta(source), "noise": noise,
            **res.to_dict()}
+    if rig is not None:
+        out["stereo"] = _stereo(res, right_images, camera_right, camera_right_path, rig, detector, endpoint_sigma,
+                                given, max_pixels, workers, quiet, force)
     write_json(output, out, force=force)
     off_axis = float(np.degrees(np.arccos(np.clip(out["ray"][2], -1.0, 1.0))))
     if out["vertex_px"] is None:
@@ -185,3 +243,14 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
             bad = ", ".join(f"{o['image']}" for o in out["point_outliers"]) or "none"
             click.echo("3-D fulcrum ({:.2f}, {:.2f}, {:.2f}) +- {:.2f} (rms) from {} axes; outliers: {}".format(
                 *out["point"], out["point_sigma"], out["point_axes_used"], bad), err=True)
+        if rig is not None:
+            st = out["stereo"]
+            click.echo("stereo fulcrum ({:.2f}, {:.2f}, {:.2f}) +- {:.2f} (rms), triangulated from the right view's "
+                       "{} lines".format(*st["triangulated"]["point"], st["triangulated"]["point_sigma"],
+                                         st["right"]["lines_used"]), err=True)
+            if "agreement" in st:
+                a = st["agreement"]
+                click.echo("diameter and stereo {}: chi2 {:.2f} ({} dof, p {:.3f}); combined ({:.2f}, {:.2f}, "
+                           "{:.2f}) +- {:.2f}".format("agree" if a["consistent"] else "DISAGREE", a["chi2"], a["dof"],
+                                                       a["p_value"], *st["combined"]["point"],
+                                                       st["combined"]["point_sigma"]), err=True)

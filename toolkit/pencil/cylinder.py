@@ -71,6 +71,7 @@ from pencilcal.toolkit.pencil.vertex import propagate_cov, segment_angle_sigma, 
 
 __all__ = [
     "GATE_CONFIDENCE",
+    "SHARED_FLOOR",
     "AXIS_KEYS",
     "CylinderOutline",
     "CylinderAxis",
@@ -96,6 +97,12 @@ __all__ = [
 # Confidence of the chi2 gates (outlier axes in fulcrum_3d, the consistency test of
 # combine_estimates); the thresholds are its chi2 quantiles, never literals.
 GATE_CONFIDENCE = 0.99
+
+# combine_estimates with shared data: a component of the difference whose variance is under
+# this fraction of its variance for independent estimates is one the shared data make up
+# (left out of the consistency test). Not smaller: two fits of one view's data differ a few
+# per cent in what they hold (an axis gated out of one, weights at a different point).
+SHARED_FLOOR = 0.05
 
 # Most refits of the inlier set in fulcrum_3d (it is stable after two or three).
 _GATE_ROUNDS = 10
@@ -750,6 +757,12 @@ class RayTriangulation(_Record):
     ranges: (..., 2) [length] distance of the point's foot along each ray from its camera.
     distances: (..., 2) [length] the point's distance from each ray.
     chi2: (...) sum of the rays' normalised squared offsets; it has 1 dof (4 - 3).
+    ray_information: (..., 2, 3, 3) what each ray (left, right) tells of the point, at the
+        point: ``E^T S^-1 E`` with E (2, 3) the ray's chart rows and S the covariance of the
+        point's offset from it (the ray's angular covariance times the squared range);
+        their sum is ``point_cov^-1``. ray_information_vector: (..., 2, 3) ``I_k c_k`` with
+        c_k the ray's camera centre (left frame): with it a ray is one term of an
+        information sum (`combine_estimates`'s ``shared``).
     """
 
     point: np.ndarray
@@ -758,6 +771,8 @@ class RayTriangulation(_Record):
     ranges: np.ndarray
     distances: np.ndarray
     chi2: np.ndarray
+    ray_information: np.ndarray
+    ray_information_vector: np.ndarray
 
 
 def triangulate_rays(ray_left, cov_left, ray_right, cov_right, R_right_from_left, t_right_from_left,
@@ -801,8 +816,10 @@ def triangulate_rays(ray_left, cov_left, ray_right, cov_right, R_right_from_left
     use = np.ones(points.shape[:-1], bool)
     x, cov, _ = _weighted_point(x0[..., 0, :], points, dirs, frames, covs, use, max_iter, tol)
     r, S, along = _perpendicular(x, points, dirs, frames, covs)
+    info = np.swapaxes(frames, -1, -2) @ _inv2(S) @ frames
     return RayTriangulation(point=x, point_cov=cov, point_sigma=np.sqrt(np.trace(cov, axis1=-2, axis2=-1)),
-                            ranges=along, distances=np.linalg.norm(r, axis=-1), chi2=_chi2(r, S).sum(-1))
+                            ranges=along, distances=np.linalg.norm(r, axis=-1), chi2=_chi2(r, S).sum(-1),
+                            ray_information=info, ray_information_vector=np.einsum("...ij,...j->...i", info, points))
 
 
 @dataclass(frozen=True, eq=False)
@@ -810,41 +827,83 @@ class Fusion(_Record):
     """Two estimates of one point fused by information (`combine_estimates`).
 
     point: (..., n) [length]; cov: (..., n, n) = (C1^-1 + C2^-1)^-1; sigma: (...) sqrt(trace).
-    chi2: (...) squared Mahalanobis distance of x1 - x2 under C1 + C2 (n dof);
-    threshold: ``chi2.ppf(confidence, n)``; consistent: (...) bool, chi2 <= threshold;
-    p_value: (...) chi2.sf(chi2, n).
+    chi2: (...) squared Mahalanobis distance of x1 - x2 under its covariance (C1 + C2 for
+    independent estimates; n dof); dof: n; threshold: ``chi2.ppf(confidence, n)``;
+    consistent: (...) bool, chi2 <= threshold; p_value: (...) chi2.sf(chi2, n).
     """
 
     point: np.ndarray
     cov: np.ndarray
     sigma: np.ndarray
     chi2: np.ndarray
+    dof: int
     threshold: float
     consistent: np.ndarray
     p_value: np.ndarray
 
 
-def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE):
-    """Information-weighted fusion of two independent estimates, and their consistency test.
+def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None):
+    """Information-weighted fusion of two estimates, and their consistency test.
 
-    x1, x2: (..., n) the estimates; C1, C2: (..., n, n) their covariances. The test: the
-    difference's squared Mahalanobis distance ``(x1 - x2)^T (C1 + C2)^-1 (x1 - x2)`` is chi2
-    with n dof when both are right; consistent at `confidence` when it is at most
-    ``chi2.ppf(confidence, n)``. Returns a `Fusion`.
+    x1, x2: (..., n) the estimates; C1, C2: (..., n, n) their covariances. shared: None when
+    the estimates come from independent data, else ``(I_s, h_s)``, (..., n, n) and (..., n):
+    the information matrix and vector of data that both contain (e.g. one view's fulcrum
+    ray, `RayTriangulation.ray_information`, in a triangulation and in that view's
+    diameter-based point), each estimate being, to first order, the information sum of
+    its own data and these. Then the fusion counts them once,
+    ``cov = (C1^-1 + C2^-1 - I_s)^-1``, ``point = cov (C1^-1 x1 + C2^-1 x2 - h_s)``, and the
+    difference's covariance is ``cov_diff = C1 + C2 - C1 I_s C2 - C2 I_s C1`` (their shared
+    part cancels in it). The test: ``(x1 - x2)^T cov_diff^-1 (x1 - x2)`` is chi2 with n dof
+    when both are right (independent estimates: ``cov_diff = C1 + C2``). With shared data a
+    component of the difference can vanish (both estimates hold nothing else there): the
+    components whose variance in cov_diff is under `SHARED_FLOOR` of their variance in
+    C1 + C2 (or below zero: two fits of the same data differ a little in what they hold)
+    are left out of the test, and ``dof`` counts the others (the least over a batch).
+    Consistent at `confidence` when chi2 is at most ``chi2.ppf(confidence, dof)``. Returns a
+    `Fusion`; EstimationError when the shared information exceeds what both estimates hold
+    together (the fused covariance is not positive definite).
 
     >>> f = combine_estimates([0.0, 0, 100], np.eye(3), [0.0, 0, 102], np.eye(3))
-    >>> f.point.tolist(), float(f.chi2), bool(f.consistent)
-    ([0.0, 0.0, 101.0], 2.0, True)
+    >>> f.point.tolist(), float(f.chi2), bool(f.consistent), f.dof
+    ([0.0, 0.0, 101.0], 2.0, True, 3)
+    >>> I_s = np.diag([0.5, 0.5, 0.0])                      # both hold the same x, y information
+    >>> f = combine_estimates([0.0, 0, 100], np.eye(3), [0.0, 0, 102], np.eye(3), shared=(I_s, np.zeros(3)))
+    >>> np.round(np.diag(f.cov), 6).tolist(), f.dof         # x, y counted once
+    ([0.666667, 0.666667, 0.5], 3)
+    >>> f = combine_estimates([0.0, 0, 100], np.eye(3), [0.0, 0, 102], np.eye(3), shared=(np.diag([1.0, 0, 0]),
+    ...                       np.zeros(3)))                     # x: all either holds
+    >>> float(f.chi2), f.dof
+    (2.0, 2)
     """
     x1, x2 = np.asarray(x1, float), np.asarray(x2, float)
     C1, C2 = np.asarray(C1, float), np.asarray(C2, float)
     I1, I2 = np.linalg.inv(C1), np.linalg.inv(C2)
-    cov = np.linalg.inv(I1 + I2)
+    if shared is None:
+        I_s, h_s = np.zeros_like(I1), np.zeros_like(x1)
+    else:
+        I_s, h_s = np.asarray(shared[0], float), np.asarray(shared[1], float)
+    cov = np.linalg.inv(I1 + I2 - I_s)
     point = np.einsum("...ij,...j->...i", cov, np.einsum("...ij,...j->...i", I1, x1)
-                      + np.einsum("...ij,...j->...i", I2, x2))
+                      + np.einsum("...ij,...j->...i", I2, x2) - h_s)
     diff = x1 - x2
-    c2 = _dot(diff, np.linalg.solve(C1 + C2, diff[..., None])[..., 0])
     n = x1.shape[-1]
-    threshold = float(chi2_dist.ppf(confidence, n))
-    return Fusion(point=point, cov=cov, sigma=np.sqrt(np.trace(cov, axis1=-2, axis2=-1)), chi2=c2,
-                  threshold=threshold, consistent=c2 <= threshold, p_value=chi2_dist.sf(c2, n))
+    if np.any(np.linalg.eigvalsh(cov)[..., 0] <= 0):
+        raise EstimationError("combine_estimates: the shared information exceeds what the estimates hold")
+    if shared is None:
+        c2 = _dot(diff, np.linalg.solve(C1 + C2, diff[..., None])[..., 0])
+        dof = np.full(c2.shape, n)
+    else:
+        cross = C1 @ I_s @ C2
+        D = C1 + C2 - cross - np.swapaxes(cross, -1, -2)
+        # whitened by C1 + C2, D's eigenvalues are the fractions of each component's
+        # variance the shared data leave in the difference (1: independent, 0: the same)
+        W = np.linalg.inv(np.linalg.cholesky(C1 + C2))
+        lam, V = np.linalg.eigh(W @ (0.5 * (D + np.swapaxes(D, -1, -2))) @ np.swapaxes(W, -1, -2))
+        keep = lam > SHARED_FLOOR
+        z = np.einsum("...ji,...j->...i", V, np.einsum("...ij,...j->...i", W, diff))
+        c2 = np.sum(np.where(keep, z * z / np.where(keep, lam, 1.0), 0.0), -1)
+        dof = keep.sum(-1)
+    dof = int(np.min(dof)) if np.ndim(dof) else int(dof)
+    threshold = float(chi2_dist.ppf(confidence, dof))
+    return Fusion(point=point, cov=cov, sigma=np.sqrt(np.trace(cov, axis1=-2, axis2=-1)), chi2=c2, dof=dof,
+                  threshold=threshold, consistent=c2 <= threshold, p_value=chi2_dist.sf(c2, dof))

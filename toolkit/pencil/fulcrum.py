@@ -20,6 +20,13 @@ line, oriented from the fulcrum towards the visible shaft.
    (`cylinder.fulcrum_3d`), a 3-D point in the camera frame with its covariance, the axes
    that pass far from it named (`fulcrum_point`).
 
+4. with a second, calibrated view of the same instrument (a stereo endoscope: the right
+   camera's pose from the left's, `camera.stereo.StereoRig`), the right view's own fulcrum
+   ray and the left's meet at the 3-D fulcrum (`stereo_fulcrum`: `cylinder.triangulate_rays`),
+   with no diameter needed; with the diameter too, the two 3-D estimates are compared
+   (chi2, 3 dof) and fused (`cylinder.combine_estimates`), the left ray they share counted
+   once.
+
 The pivot frame ("target" of the orientation): the shaft at pivot angle theta points along
 (cos theta, sin theta, 0); its normal is R_cam_from_target[:, 2].
 """
@@ -40,10 +47,12 @@ from pencilcal.toolkit.pencil.lens_uncertainty import (orientation_totals, ray_s
                                                        resolve_intrinsics_cov, vertex_cov_total_px2)
 from pencilcal.toolkit.pencil.orient import orientation_record, raw_vertex
 from pencilcal.toolkit.pencil.orientation import Orientation
-from pencilcal.toolkit.pencil.cylinder import Fulcrum3D, fulcrum_3d, shaft_axis_record
+from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, Fusion, RayTriangulation, combine_estimates,
+                                               fulcrum_3d, shaft_axis_record, triangulate_rays)
 from pencilcal.toolkit.pencil.vertex import intersect_lines
 
-__all__ = ["Fulcrum", "FulcrumPoint", "fulcrum_from_frames", "fulcrum_point", "read_angles"]
+__all__ = ["Fulcrum", "FulcrumPoint", "StereoFulcrum", "fulcrum_from_frames", "fulcrum_point", "stereo_fulcrum",
+           "read_angles"]
 
 
 def read_angles(path, images):
@@ -105,7 +114,9 @@ class Fulcrum:
     join the record) from `pivot_frames` frames. With the shafts' diameter, `point` is the 3-D
     fulcrum (`FulcrumPoint`, its keys join the record). With the intrinsics' covariance known
     (`intrinsics_used`), ray_sigma_total_deg and vertex_cov_total_px2 hold its term too
-    (`lens_uncertainty`), as the pivot's total keys do.
+    (`lens_uncertainty`), as the pivot's total keys do. ray_cov (3, 3): the unit ray's
+    covariance when the fit was made (`ray_covariance` gives it with the current
+    ray_sigma_deg).
     """
 
     vertex_px: np.ndarray | None
@@ -124,6 +135,17 @@ class Fulcrum:
     vertex_cov_total_px2: np.ndarray | None = None
     intrinsics_used: bool | None = None
     point: "FulcrumPoint | None" = None
+    ray_cov: np.ndarray | None = None
+
+    def ray_covariance(self):
+        """(3, 3) covariance of the unit `ray` (camera frame), singular along it, with the
+        noise `ray_sigma_deg` holds (``trace = radians(ray_sigma_deg)^2``: a rescaled
+        fulcrum's ray_sigma_deg rescales it); None when not known."""
+        if self.ray_cov is None:
+            return None
+        C = np.asarray(self.ray_cov, float)
+        tr = float(np.trace(C))
+        return C * (np.radians(self.ray_sigma_deg) ** 2 / tr) if tr > 0 else C
 
     def to_dict(self) -> dict:
         """The fulcrum.json record: the fulcrum's keys, then with a pivot plane the keys
@@ -131,6 +153,8 @@ class Fulcrum:
         out = {"ok": True, "error": None, "vertex_px": self.vertex_px, "vertex_cov_px2": self.vertex_cov_px2,
                "ray": self.ray, "ray_sigma_deg": self.ray_sigma_deg, "lines_used": self.lines_used,
                "outliers": self.outliers, "frames_used": self.frames_used, "rms": self.rms}
+        if self.ray_cov is not None:
+            out["ray_cov"] = self.ray_covariance()
         for k in ("ray_sigma_total_deg", "vertex_cov_total_px2", "intrinsics_used"):
             if getattr(self, k) is not None:
                 out[k] = getattr(self, k)
@@ -300,14 +324,15 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
     # ray uncertainty: the unit ray moves by (I - r r^T)[:, :2] / |(x, 1)| per unit of x
     v = np.r_[x, 1.0]
     P = (np.eye(3) - np.outer(v, v) / (v @ v))[:, :2] / np.linalg.norm(v)
-    ray_sigma = np.sqrt(max(np.trace(P @ cov_x @ P.T), 0.0))
+    ray_cov = P @ cov_x @ P.T
+    ray_sigma = np.sqrt(max(np.trace(ray_cov), 0.0))
     v_raw, cov_raw = raw_vertex(camera, x, vf.vertex, vf.cov)
     out = Fulcrum(
         vertex_px=v_raw, vertex_cov_px2=cov_raw, ray=ray, ray_sigma_deg=float(np.degrees(ray_sigma)),
         lines_used=int(vf.lines_used),
         outliers=[{"image": frames[owner[k][0]].get("image"), "segment": owner[k][1]} for k in np.flatnonzero(~inl)],
         frames_used=int(len({owner[k][0] for k in np.flatnonzero(inl)})), rms=vf.rms, lines_from=lines_from,
-        warnings=tuple(warnings))
+        warnings=tuple(warnings), ray_cov=ray_cov)
     C = resolve_intrinsics_cov(camera, intrinsics_cov)
     if C is not None:
         k_in = idx[vf.inliers]
@@ -349,3 +374,96 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
             camera, C, fit.R_cam_from_target, x, fit.cov, pivot.tilt_sigma_deg, pivot.vertex_cov_px2, seg[ks], a,
             angles[fr_idx], s_n, seg[k_in], st[k_in], sc[k_in]))
     return dataclasses.replace(out, pivot=pivot, pivot_frames=int(len(ks)))
+
+
+_RIGHT_KEYS = ("vertex_px", "vertex_cov_px2", "ray", "ray_cov", "ray_sigma_deg", "lines_used", "outliers",
+               "frames_used", "rms", "lines_from")
+
+
+@dataclass(frozen=True, eq=False)
+class StereoFulcrum:
+    """The 3-D fulcrum from two views (`stereo_fulcrum`), in the left camera frame, lengths in
+    the unit of the rig's translation.
+
+    rig: the `camera.stereo.StereoRig`; right: the right view's `Fulcrum` (its ray in the
+    right camera frame); triangulated: the `cylinder.RayTriangulation` of the two fulcrum
+    rays; combined: with the left view's diameter-based point, the `cylinder.Fusion` of it
+    and the triangulated point (its chi2 the agreement test, 3 dof), else None; shared:
+    whether the fusion counted the left ray once (False: the shared information exceeded
+    the diameter point's, the two were fused as independent).
+    """
+
+    rig: object
+    right: Fulcrum
+    triangulated: RayTriangulation
+    combined: Fusion | None = None
+    shared: bool = True
+    confidence: float = GATE_CONFIDENCE
+
+    def to_dict(self) -> dict:
+        """fulcrum.json's ``stereo`` record: the rig (``file``, ``R_right_from_left``,
+        ``t_right_from_left``, ``baseline``), ``right`` (the right view's fulcrum keys),
+        ``triangulated`` (``point``, ``point_cov``, ``point_sigma``, ``ranges``,
+        ``ray_distances``, ``chi2``, ``dof``, ``p_value``) and with the diameter ``agreement``
+        (``chi2``, ``dof``, ``p_value``, ``threshold``, ``confidence``, ``consistent``,
+        ``shared_left_ray``) and ``combined`` (``point``, ``point_cov``, ``point_sigma``)."""
+        from scipy.stats import chi2 as chi2_dist
+
+        rec = self.right.to_dict()
+        t = self.triangulated
+        out = {**self.rig.to_dict(), "right": {k: rec[k] for k in _RIGHT_KEYS if k in rec}}
+        out["triangulated"] = {"point": np.asarray(t.point, float).tolist(),
+                               "point_cov": np.asarray(t.point_cov, float).tolist(),
+                               "point_sigma": float(t.point_sigma), "ranges": np.asarray(t.ranges, float).tolist(),
+                               "ray_distances": np.asarray(t.distances, float).tolist(), "chi2": float(t.chi2),
+                               "dof": 1, "p_value": float(chi2_dist.sf(float(t.chi2), 1))}
+        c = self.combined
+        if c is not None:
+            out["agreement"] = {"chi2": float(c.chi2), "dof": int(c.dof), "p_value": float(c.p_value),
+                                "threshold": float(c.threshold), "confidence": float(self.confidence),
+                                "consistent": bool(c.consistent), "shared_left_ray": bool(self.shared)}
+            out["combined"] = {"point": np.asarray(c.point, float).tolist(),
+                               "point_cov": np.asarray(c.cov, float).tolist(), "point_sigma": float(c.sigma)}
+        return out
+
+
+def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
+    """The 3-D fulcrum from the fulcrum rays of two calibrated views of one pivot.
+
+    left, right: the `Fulcrum` of each view (`fulcrum_from_frames` on its own frames; the
+    right's ray in the right camera frame), each with its ray covariance
+    (`Fulcrum.ray_covariance`); rig: the `camera.stereo.StereoRig` (``p_right =
+    R_right_from_left p_left + t_right_from_left``). The point is the weighted least-squares
+    meeting of the two rays (`cylinder.triangulate_rays`: each ray's angular covariance
+    times its range, iterated), in the left camera frame and the rig's length unit, with
+    its covariance and the chi2 (1 dof) of the rays' miss.
+
+    When `left` has its diameter-based point (`FulcrumPoint`, lengths in the diameter's
+    unit, which must be the rig's), the two are compared and fused
+    (`cylinder.combine_estimates`): both hold the left view's midlines (the diameter-based
+    axes lie in their planes; the triangulation holds their intersection, the left ray),
+    so the left ray's information (`RayTriangulation.ray_information`) is passed as
+    shared: the agreement chi2 (3 dof) then tests the depth from the shaft's width against
+    the depth from the baseline and the right view, and the fusion counts the left ray
+    once. confidence: of the agreement test. Returns a `StereoFulcrum`; EstimationError
+    when a ray has no covariance, the rays are parallel or meet behind a camera.
+    """
+    Cl, Cr = left.ray_covariance(), right.ray_covariance()
+    if Cl is None or Cr is None:
+        raise EstimationError("the stereo fulcrum needs each view's ray covariance")
+    R, t = rig.R_right_from_left, rig.t_right_from_left
+    tri = triangulate_rays(left.ray, Cl, right.ray, Cr, R, t)
+    if np.any(~(np.asarray(tri.ranges) > 0)):
+        raise EstimationError("the two views' fulcrum rays meet behind a camera (ranges {:.3g}, {:.3g}): check the "
+                              "stereo file's R and T (right from left)".format(*np.asarray(tri.ranges, float)))
+    if left.point is None:
+        return StereoFulcrum(rig, right, tri, confidence=confidence)
+    fit = left.point.fit
+    shared = True
+    try:
+        fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence,
+                                  shared=(tri.ray_information[0], tri.ray_information_vector[0]))
+    except EstimationError:
+        shared = False
+        fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence)
+    return StereoFulcrum(rig, right, tri, fused, shared, confidence)

@@ -1,0 +1,86 @@
+"""`pencilcal fulcrum --right IMAGES --camera-right CAM --right-from-left FILE`: the stereo
+fulcrum from two rendered views of one pivot sequence (simulate's pivot scenario in its
+port view, the second camera 10 mm to the right, turned 3 deg towards the first; OpenCV's
+FileStorage R and T as cv2.stereoCalibrate writes them)."""
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pencilcal.cli.main import cli
+from pencilcal.toolkit.camera.formats import write_camera
+from pencilcal.toolkit.geometry.frames import rotation_about_axis
+from pencilcal.toolkit.synth.scenarios import default_camera, make_scenario
+
+R_RL = rotation_about_axis([0.0, 1.0, 0.0], np.radians(-3.0))
+T_RL = np.array([-10.0, 0.0, 0.0])
+
+
+def stereo_pivot(out, frames=10, seed=0):
+    """Two views of one pivot sequence written under `out` (left/, right/, left.json,
+    right.json, extrinsics.yml); returns the left view's scenario (its truth)."""
+    cam = default_camera("pinhole", (960, 540))
+    sc = make_scenario("pivot", frames, seed, camera=cam, shaft_radius=4.0, port_view=100.0, height=150.0, tip=90.0,
+                       fulcrum=(700.0, 600.0))
+    right = dataclasses.replace(sc, frames=[{**f, "R_cam_from_target": R_RL @ f["R_cam_from_target"],
+                                             "t_cam_from_target": R_RL @ f["t_cam_from_target"] + T_RL}
+                                            for f in sc.frames])
+    for name, view in (("left", sc), ("right", right)):
+        (out / name).mkdir(parents=True)
+        write_camera(out / f"{name}.json", cam)
+        for i, f in enumerate(view.frames):
+            img = view.render(i, noise=4.0, blur_px=1.2, background=0.8, gamma=1.0)
+            cv2.imwrite(str(out / name / f["image"]), img)
+    fs = cv2.FileStorage(str(out / "extrinsics.yml"), cv2.FILE_STORAGE_WRITE)
+    fs.write("R", R_RL)
+    fs.write("T", T_RL.reshape(3, 1))
+    fs.release()
+    return sc
+
+
+def invoke(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+@pytest.mark.slow
+def test_fulcrum_stereo_cli(tmp_path):
+    sc = stereo_pivot(tmp_path)
+    F = sc.extra["pivot"]["fulcrum_cam"]
+    base = ["fulcrum", tmp_path / "left", "--camera", tmp_path / "left.json", "--right", tmp_path / "right",
+            "--camera-right", tmp_path / "right.json", "--right-from-left", tmp_path / "extrinsics.yml"]
+    r = invoke(*base, "--shaft-diameter", 8, "-o", tmp_path / "f.json")
+    assert r.exit_code == 0, r.output
+    out = json.loads((tmp_path / "f.json").read_text())
+    st = out["stereo"]
+    tri = st["triangulated"]
+    err = np.asarray(tri["point"]) - F
+    assert err @ np.linalg.solve(np.asarray(tri["point_cov"]), err) < 16.0, (err, tri["point_sigma"])
+    assert st["right"]["frames_used"] >= 8 and np.allclose(st["R_right_from_left"], R_RL)
+    a = st["agreement"]
+    assert set(a) >= {"chi2", "dof", "p_value", "consistent"} and 1 <= a["dof"] <= 3
+    assert st["combined"]["point_sigma"] <= min(out["point_sigma"], tri["point_sigma"]) + 1e-9
+    assert "stereo fulcrum" in r.output and "chi2" in r.output
+    # triangulation alone, without the diameter
+    r = invoke(*base, "-o", tmp_path / "g.json", "-q")
+    assert r.exit_code == 0, r.output
+    st = json.loads((tmp_path / "g.json").read_text())["stereo"]
+    assert "agreement" not in st and np.allclose(st["triangulated"]["point"], tri["point"])
+
+
+def test_fulcrum_stereo_options_go_together_and_bad_files(tmp_path):
+    (tmp_path / "l.json").write_text(json.dumps({"frames": [{"image": "a.png", "segments": [[0, 0, 1, 1]]}]}))
+    write_camera(tmp_path / "c.json", default_camera("pinhole", (320, 240)))
+    r = invoke("fulcrum", "--lines", tmp_path / "l.json", "--camera", tmp_path / "c.json", "--right", tmp_path,
+               "-o", tmp_path / "f.json")
+    assert r.exit_code == 2 and "go together" in r.output
+    (tmp_path / "s.yml").write_text("R: [0, 0, 0]\n")
+    r = invoke("fulcrum", "--lines", tmp_path / "l.json", "--camera", tmp_path / "c.json", "--right", tmp_path,
+               "--camera-right", tmp_path / "c.json", "--right-from-left", tmp_path / "s.yml", "-o",
+               tmp_path / "f.json")
+    assert r.exit_code == 1 and "s.yml" in r.output and "no T" in r.output
+    assert len(r.output.strip().splitlines()) == 1

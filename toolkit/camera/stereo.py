@@ -1,0 +1,183 @@
+"""The stereo file: where a second camera sits relative to the first.
+
+A stereo calibration gives the rigid transform from the left camera's frame to the right
+one's, ``p_right = R_right_from_left p_left + t_right_from_left`` (OpenCV camera frames,
+the translation in the calibration's length unit: that of its board's square). Read from
+
+- an OpenCV FileStorage file (``.yml``, ``.yaml``, ``.xml``, ``.json``) as
+  ``cv2.stereoCalibrate``'s samples write it (``extrinsics.yml`` of OpenCV's stereo_calib:
+  ``R``, ``T``, and ``R1 R2 P1 P2 Q`` which are ignored): ``R`` a 3x3 matrix or a 3-vector
+  rotation (Rodrigues), ``T`` three numbers;
+- a JSON or YAML mapping with ``R_right_from_left`` (3x3) and ``t_right_from_left`` (3),
+  also under a ``stereo`` key.
+
+OpenCV's ``R`` and ``T`` are exactly ``R_right_from_left`` and ``t_right_from_left``
+(stereoCalibrate: "R: rotation from the first camera's coordinate system to the second's").
+A rotation more than 1e-3 from orthonormal is refused; a nearly orthonormal one (written
+with few digits) is projected onto the nearest rotation.
+
+>>> import tempfile, os, json
+>>> d = tempfile.mkdtemp()
+>>> p = os.path.join(d, "rig.json")
+>>> _ = open(p, "w").write(json.dumps({"R_right_from_left": np.eye(3).tolist(), "t_right_from_left": [-5, 0, 0]}))
+>>> rig = read_stereo(p)
+>>> rig.t_right_from_left.tolist(), round(rig.baseline, 6)
+([-5.0, 0.0, 0.0], 5.0)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.geometry.frames import project_to_rotation, rotation_from_rotvec
+from pencilcal.toolkit.io.files import load_structured, read_input_text
+
+__all__ = ["StereoRig", "read_stereo", "ORTHONORMAL_TOLERANCE"]
+
+# Largest |R^T R - I| (any entry) of a rotation read from a file; below it R is projected
+# onto the nearest rotation, above it refused.
+ORTHONORMAL_TOLERANCE = 1e-3
+
+_ROTATION_KEYS = ("R_right_from_left", "R")
+_TRANSLATION_KEYS = ("t_right_from_left", "T", "t")
+
+
+@dataclass(frozen=True)
+class StereoRig:
+    """The right camera's pose relative to the left one.
+
+    R_right_from_left: (3, 3) rotation; t_right_from_left: (3,) translation [the
+    calibration's length unit]; ``p_right = R p_left + t``. source: the file it came from.
+    """
+
+    R_right_from_left: np.ndarray
+    t_right_from_left: np.ndarray
+    source: str = ""
+
+    @property
+    def baseline(self) -> float:
+        """Distance between the two camera centres [length]: |t| (the right centre is
+        ``-R^T t`` in the left frame)."""
+        return float(np.linalg.norm(self.t_right_from_left))
+
+    @property
+    def right_centre_in_left(self) -> np.ndarray:
+        """(3,) the right camera's centre in the left camera frame [length]."""
+        return -self.R_right_from_left.T @ self.t_right_from_left
+
+    def to_dict(self) -> dict:
+        """``{file, R_right_from_left, t_right_from_left, baseline}`` as plain lists."""
+        return {"file": self.source, "R_right_from_left": self.R_right_from_left.tolist(),
+                "t_right_from_left": self.t_right_from_left.tolist(), "baseline": self.baseline}
+
+
+def _filestorage(p):
+    """The top-level keys of an OpenCV FileStorage file: matrices as float arrays, numbers
+    as floats, the rest as None. InputError naming the file when it cannot be parsed."""
+    import cv2
+
+    try:
+        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as e:
+        cause = e.__cause__ if isinstance(e, SystemError) and e.__cause__ is not None else e
+        first = (str(cause).strip().splitlines() or [type(cause).__name__])[-1]
+        raise InputError(f"{p}: not a valid OpenCV FileStorage file: {first}") from None
+    if not fs.isOpened():
+        raise InputError(f"{p}: cannot open as an OpenCV FileStorage file")
+    try:
+        root = fs.root()
+        out = {}
+        for k in (root.keys() if root.isMap() else []):
+            node = root.getNode(k)
+            if node.isMap() and "data" in node.keys():
+                m = node.mat()
+                out[k] = None if m is None else np.asarray(m, float)
+            elif node.isSeq():
+                vals = [node.at(i) for i in range(node.size())]
+                out[k] = (np.array([v.real() for v in vals], float) if vals and all(v.isReal() or v.isInt()
+                                                                                    for v in vals) else None)
+            elif node.isReal() or node.isInt():
+                out[k] = float(node.real())
+            else:
+                out[k] = None
+        return out
+    except (cv2.error, SystemError) as e:
+        raise InputError(f"{p}: cannot read OpenCV FileStorage file: {str(e).strip().splitlines()[-1]}") from None
+    finally:
+        fs.release()
+
+
+def _numbers(value, key, p):
+    """Flat float array of a file's value (a matrix, nested lists, or OpenCV's JSON
+    ``{"type_id": "opencv-matrix", "rows", "cols", "data"}``), or InputError naming the
+    file and key."""
+    if isinstance(value, dict) and "data" in value:
+        value = value["data"]
+    try:
+        a = np.asarray(value, float).ravel()
+    except (TypeError, ValueError):
+        raise InputError(f"{p}: '{key}' must hold numbers only") from None
+    if not np.all(np.isfinite(a)):
+        raise InputError(f"{p}: '{key}' must be finite numbers")
+    return a
+
+
+def _rotation(value, key, p):
+    a = _numbers(value, key, p)
+    if a.size == 3:
+        return rotation_from_rotvec(a)
+    if a.size != 9:
+        raise InputError(f"{p}: '{key}' must be a 3x3 rotation matrix or a 3-vector rotation, got {a.size} numbers")
+    R = a.reshape(3, 3)
+    off = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    if off > ORTHONORMAL_TOLERANCE or np.linalg.det(R) <= 0:
+        det = np.linalg.det(R)
+        raise InputError(f"{p}: '{key}' is not a rotation (R^T R differs from I by {off:.2g}, det {det:.3g})")
+    return project_to_rotation(R)
+
+
+def _pick(data, keys):
+    for k in keys:
+        if k in data and data[k] is not None:
+            return k, data[k]
+    return None, None
+
+
+def read_stereo(path) -> StereoRig:
+    """Read a stereo calibration (module docstring) as a `StereoRig`.
+
+    path: an OpenCV FileStorage file with ``R`` and ``T``, or a JSON / YAML file with
+    ``R_right_from_left`` and ``t_right_from_left``. InputError, one line naming the file
+    and the problem (no such file, not parseable, a key missing, not a rotation, a zero
+    baseline).
+    """
+    p = Path(path)
+    text = read_input_text(p, "stereo file")
+    if p.suffix.lower() in (".xml",) or text.lstrip().startswith("%YAML"):
+        data = _filestorage(p)
+    else:
+        data = load_structured(p, "stereo file")
+        if isinstance(data, dict) and isinstance(data.get("stereo"), dict):
+            data = data["stereo"]
+        if not isinstance(data, dict):
+            raise InputError(f"{p}: expected a mapping with R_right_from_left and t_right_from_left (or R and T)")
+    rk, rv = _pick(data, _ROTATION_KEYS)
+    tk, tv = _pick(data, _TRANSLATION_KEYS)
+    if rk is None or tk is None:
+        missing = " and ".join(w for w, k in (("R", rk), ("T", tk)) if k is None)
+        hint = ""
+        if "imagelist" in data or not data:
+            hint = " (an image list, the input of OpenCV's stereo_calib; its output extrinsics.yml holds R and T)"
+        elif "M1" in data or "camera_matrix" in data:
+            hint = " (a file of intrinsics; the stereo pose is in the calibration's extrinsics file)"
+        raise InputError(f"{p}: no {missing} (R_right_from_left, t_right_from_left) in the stereo file{hint}")
+    R = _rotation(rv, rk, p)
+    t = _numbers(tv, tk, p)
+    if t.size != 3:
+        raise InputError(f"{p}: '{tk}' must be three numbers, got {t.size}")
+    if not np.linalg.norm(t) > 0:
+        raise InputError(f"{p}: '{tk}' is zero: the two cameras share a centre (no baseline to triangulate with)")
+    return StereoRig(R, t, str(p))
