@@ -65,6 +65,12 @@ def _grid(value):
               help="Camera file of the --right camera.")
 @click.option("--right-calibration", "right_calib_path", type=click.Path(dir_okay=False), default=None,
               help="calib.json of the --right camera (its intrinsics' covariance and corner noise).")
+@click.option("--fulcrum/--no-fulcrum", "fulcrum", default=None,
+              help="Also the fulcrum of an instrument pivoting in the frames (its shafts detected in every frame): "
+                   "the 2-D vertex, each frame's axis residual, the fulcrum in the board frame (fulcrum). Default: "
+                   "on for a simulate pivot folder.")
+@click.option("--shaft-diameter", type=float, default=None, metavar="D",
+              help="With the fulcrum: the shaft's diameter, for the 3-D fulcrum (default: a pivot folder's own).")
 @click.option("--dask", "dask_address", default=None, metavar="ADDRESS",
               help="With a folder of sequences: send each sequence to this Dask scheduler (tcp://host:8786).")
 @workers_option
@@ -74,7 +80,7 @@ def _grid(value):
 @run
 def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pencil, truth_path, models, methods,
              sfm, sfm_dir, detector, edges, mask_path, calib_path, right_images, right_camera, right_calib_path,
-             dask_address, workers, output, force, quiet):
+             fulcrum, shaft_diameter, dask_address, workers, output, force, quiet):
     """Compare the angular-variation estimate with PnP (and a reconstruction) on the same frames.
 
     SEQUENCE is one or more image files, folders or glob patterns (in the order given), a
@@ -90,6 +96,12 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
     its two halves of the views calibrated apart, and its intrinsics' covariance and
     corner-noise model in the PnP totals (cov_total); with --right and --right-camera
     (a stereo pair) the rigid-rig check of the relative rotation.
+
+    With --fulcrum (the default for a `simulate --scenario pivot` folder) the instrument's
+    shafts are detected in every frame and ``fulcrum`` holds the fulcrum as `pencilcal
+    fulcrum` finds it, each frame's axis residual, its error against the truth and, with
+    --shaft-diameter (a pivot folder's own by default), the 3-D point in the camera and the
+    board frame.
 
     SEQUENCE may also be a folder of sequence folders: each is validated (one after the
     other, or each as a task on a Dask cluster with --dask) and the output holds them all
@@ -122,7 +134,10 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
     check_output(output, force)
     options = dict(camera=camera_path, camera_id=camera_id, board=board_path, pencil=pencil_path, grid_pencil=grid,
                    truth=truth_path, models=models_t, methods=methods_t, sfm=sfm, detector=detector,
-                   calibration=calib_path, workers=workers, edges=edges, mask=mask_path)
+                   calibration=calib_path, workers=workers, edges=edges, mask=mask_path, fulcrum=fulcrum,
+                   shaft_diameter=shaft_diameter)
+    if shaft_diameter is not None and not shaft_diameter > 0:
+        raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     if right_images is not None or right_camera is not None:
         if right_images is None or right_camera is None:
             raise click.UsageError("--right and --right-camera go together")

@@ -474,7 +474,7 @@ def find_sequences(path):
 def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=None, grid_pencil=None, truth=None,
                   models=MODELS, methods=METHODS, sfm=False, sfm_dir=None, detector="lsd", calibration=None,
                   workers=1, progress=None, warn=None, quiet=True, sfm_progress=None, argv=None, edges=False,
-                  mask=None, right=None, right_camera=None, right_calibration=None):
+                  mask=None, right=None, right_camera=None, right_calibration=None, fulcrum=None, shaft_diameter=None):
     """Validate one sequence given by paths; returns the whole validation.json dict.
 
     sequence: folder, glob, video, or a `pencilcal simulate` folder (whose camera, board,
@@ -488,8 +488,12 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
     fixed to the first (a stereo pair, frames paired by image name): the rig check
     (`checks`). A calibration report of this camera lends its intrinsics covariance and
     corner-noise model to the PnP poses (``cov_total``) and its two-halves
-    cross-validation to ``checks``. The other arguments as `validate_sequence`. Module
-    level and paths only, so a Dask worker can run it.
+    cross-validation to ``checks``. fulcrum: also the ``fulcrum`` record
+    (`fulcrum_validation.fulcrum_record`: the instrument's shafts detected in every frame,
+    the fulcrum and with shaft_diameter its 3-D point, against the truth where known);
+    None: when the truth is a pivot scenario's (its shaft diameter then the default). The
+    other arguments as `validate_sequence`. Module level and paths only, so a Dask worker
+    can run it.
     """
     from pencilcal.toolkit.board.spec import read_board
     from pencilcal.toolkit.camera.formats import camera_to_dict, read_camera
@@ -538,6 +542,16 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
                                sfm_progress=sfm_progress, workers=workers, **rig)
     if checks:
         result["checks"] = {**checks, **result.get("checks", {})}
+    truth_doc = load_structured(truth, "truth file") if truth else {}
+    pivot_truth = truth_doc.get("pivot") if isinstance(truth_doc, dict) else None
+    if fulcrum or (fulcrum is None and pivot_truth):
+        from .fulcrum_validation import fulcrum_record, shaft_frames
+
+        if shaft_diameter is None and pivot_truth:
+            shaft_diameter = (truth_doc.get("options") or {}).get("shaft_diameter")
+        region = getattr(lines, "valid_region", None)
+        result["fulcrum"] = fulcrum_record(cam, shaft_frames(source, cam, detector, region), result["frames"],
+                                           truth=pivot_truth, shaft_diameter=shaft_diameter)
     inputs = [p for p in (camera, board, pencil, truth, calibration, mask, right_camera, right_calibration) if p]
     return {
         "sequence": str(sequence),

@@ -17,6 +17,7 @@ from .gates import failed_gates_sentence, fig_nees, gates, gates_table
 from .figures import fig_error_vs_tilt, fig_sigma_calibration
 from .format import lookup, num
 from .html import render_html
+from .fulcrum_section import fulcrum_section
 from .overlay import overlay_section
 from .pdf import render_pdf
 from .sections import calibration_section, reproducibility_section, sensitivity_section, sfm_section
@@ -119,6 +120,9 @@ def build_report(data, *, title=None, samples=4, sensitivity=None, source=None, 
                 sfm_section(data),
                 sensitivity_section(data, sensitivity),
                 reproducibility_section(data, source, report_command, sensitivity_path)]
+    fulcrum = fulcrum_section(data, number=10)
+    if fulcrum is not None:
+        sections.append(fulcrum)
     return Report(title, subtitle, sections)
 
 

@@ -1,0 +1,71 @@
+"""validation.json's ``fulcrum`` record and the report's fulcrum section, from a simulated
+pivot folder (`pencilcal simulate --scenario pivot`, 8 frames at 640x360, an 8 mm shaft
+pivoting about a port 6 mm above the printed sheet, seen with the board)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pencilcal.cli.main import cli
+from pencilcal.validation.report.build import build_report
+from pencilcal.validation.report.document import Plot
+from pencilcal.validation.report.fulcrum_section import fulcrum_section
+from pencilcal.validation.validation_file import load_validation
+
+
+def invoke(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def pivot(tmp_path_factory):
+    out = tmp_path_factory.mktemp("pivot")
+    r = invoke("simulate", out / "p", "--scenario", "pivot", "--frames", 8, "--size", "640x360", "--shaft-diameter",
+               8, "-q")
+    assert r.exit_code == 0, r.output
+    r = invoke("validate", out / "p", "--methods", "ippe", "-o", out / "v.json", "-q")
+    assert r.exit_code == 0, r.output
+    return out
+
+
+def test_validate_pivot_folder_has_the_fulcrum(pivot):
+    v = json.loads((pivot / "v.json").read_text())
+    truth = json.loads((pivot / "p" / "truth.json").read_text())["pivot"]
+    f = v["fulcrum"]
+    assert f["ok"] and f["shaft_diameter"] == 8.0 and f["frames_used"] == 8
+    t = f["truth"]
+    # the 2-D vertex within its own 3-sigma ellipse, the 3-D point within its 3-sigma region
+    assert t["vertex_chi2"] < 9.0 and t["vertex_error_px"] < 1.0, t
+    assert t["point_chi2"] < 14.2 and np.allclose(t["fulcrum_cam"], truth["fulcrum_cam"]), t
+    e = np.asarray(f["point"]) - truth["fulcrum_cam"]
+    assert np.isclose(np.linalg.norm(e), t["point_error_norm"])
+    # each frame's axis residual, 2-D and 3-D
+    assert len(f["axis_residuals"]) == 8 and all(r["residual_px"] < 3 * r["sigma_px"] for r in f["axis_residuals"])
+    assert len(f["point_axes"]) == 8
+    # the board frame: the PnP poses take the point to the sheet's frame, where the truth is
+    b = f["board_frame"]
+    assert b["frames"] >= 1 and np.asarray(b["point_cov"]).shape == (3, 3)
+    assert b["error"] < 3 * np.sqrt(np.trace(np.asarray(b["point_cov"]))) + 1.0, b
+
+
+def test_validate_no_fulcrum_and_report_section(pivot, tmp_path):
+    r = invoke("validate", pivot / "p", "--methods", "ippe", "--no-fulcrum", "-o", tmp_path / "n.json", "-q")
+    assert r.exit_code == 0, r.output
+    assert "fulcrum" not in json.loads((tmp_path / "n.json").read_text())
+    data = load_validation(pivot / "v.json")
+    sec = fulcrum_section(data)
+    plots = [b for b in sec.blocks if isinstance(b, Plot)]
+    assert len(plots) == 2 and all(p.png[:8] == b"\x89PNG\r\n\x1a\n" for p in plots)
+    assert "error ellipse" in plots[0].alt and "truth" in plots[0].caption
+    rows = sec.blocks[0].rows
+    assert [r[0] for r in rows] == ["2-D vertex", "3-D point (camera frame)", "3-D point (board frame)"]
+    assert build_report(data).sections[-1].id == "fulcrum"
+    assert fulcrum_section({"frames": []}) is None
+    failed = fulcrum_section({"fulcrum": {"ok": False, "error": "fewer than two instrument lines"}})
+    assert "fewer than two" in failed.blocks[0].text
+    r = invoke("report", pivot / "v.json", "-o", tmp_path / "r.html", "-q")
+    assert r.exit_code == 0, r.output
+    assert "Fulcrum of the pivoting instrument" in (tmp_path / "r.html").read_text()

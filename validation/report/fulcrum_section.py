@@ -1,0 +1,133 @@
+"""The report's fulcrum section: the fulcrum of a pivot sequence (validation.json's
+``fulcrum``, `validation.fulcrum_validation`), against its truth where known.
+
+A table of the 2-D vertex and the 3-D point with their sigmas, errors and the board-frame
+point; a top view (x-z plane of the camera frame) of the 3-D point with its 1- and 2-sigma
+ellipses, the truth and the camera; the per-frame axis residuals (2-D, against their
+sigmas), drawn and tabled.
+
+Example
+-------
+>>> fulcrum_section({"frames": []}) is None
+True
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .document import Details, Para, Plot, Section, Table
+from .figures import new_figure, png_bytes
+from .format import finite, lookup, num
+
+__all__ = ["fulcrum_section"]
+
+
+def _vec(v, unit=""):
+    try:
+        return "(" + ", ".join(num(x) for x in v) + ")" + unit
+    except TypeError:
+        return "–"
+
+
+def _ellipse(ax, centre, cov2, k, **kw):
+    """The k-sigma ellipse of a 2x2 covariance about centre (2,) on the axes."""
+    w, V = np.linalg.eigh(np.asarray(cov2, float))
+    t = np.linspace(0.0, 2 * np.pi, 121)
+    circle = np.stack([np.cos(t), np.sin(t)], -1) * (k * np.sqrt(np.maximum(w, 0.0)))
+    pts = np.asarray(centre, float) + circle @ V.T
+    ax.plot(pts[:, 0], pts[:, 1], **kw)
+
+
+def _fig_top_view(rec):
+    """Top view (x right, z forward) of the 3-D fulcrum and its ellipses; None without a point."""
+    if rec.get("point") is None or rec.get("point_cov") is None:
+        return None
+    P = np.asarray(rec["point"], float)
+    C = np.asarray(rec["point_cov"], float)[np.ix_([0, 2], [0, 2])]
+    fig = new_figure(figsize=(6.4, 4.2))
+    ax = fig.add_subplot(1, 1, 1)
+    ax.plot([0.0], [0.0], "ks", label="camera centre")
+    ray = np.asarray(rec.get("ray") or [0, 0, 1], float)
+    reach = 1.2 * float(np.linalg.norm(P))
+    ax.plot([0.0, reach * ray[0]], [0.0, reach * ray[2]], "C7--", lw=0.8, label="fulcrum ray (2-D vertex)")
+    ax.plot([P[0]], [P[2]], "C0o", label="3-D fulcrum")
+    _ellipse(ax, P[[0, 2]], C, 1.0, color="C0", lw=1.2, label="1 sigma")
+    _ellipse(ax, P[[0, 2]], C, 2.0, color="C0", lw=0.8, ls=":", label="2 sigma")
+    truth = lookup(rec, "truth", "fulcrum_cam")
+    if truth is not None:
+        ax.plot([truth[0]], [truth[2]], "C3x", ms=9, label="truth")
+    ax.set_xlabel("x (camera frame)")
+    ax.set_ylabel("z (depth)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.legend(fontsize=8, loc="best")
+    cap = (f"Top view of the 3-D fulcrum {_vec(P)} with its 1- and 2-sigma ellipses in the x-z plane "
+           f"(point_sigma {num(rec.get('point_sigma'))})")
+    if truth is not None:
+        cap += f"; the truth is {num(lookup(rec, 'truth', 'point_error_norm'))} away"
+    return Plot(png_bytes(fig), cap + ".", "top view of the 3-D fulcrum and its error ellipse")
+
+
+def _fig_residuals(rows):
+    """Each shaft's 2-D residual against its sigma (a bar per shaft)."""
+    if not rows:
+        return None
+    fig = new_figure(figsize=(6.4, 3.0))
+    ax = fig.add_subplot(1, 1, 1)
+    x = np.arange(len(rows))
+    res = np.array([finite(r.get("residual_px")) or 0.0 for r in rows])
+    sig = np.array([finite(r.get("sigma_px")) or 0.0 for r in rows])
+    used = np.array([bool(r.get("used")) for r in rows])
+    ax.bar(x[used], res[used], color="C0", label="residual (used)")
+    if np.any(~used):
+        ax.bar(x[~used], res[~used], color="C3", label="residual (outlier)")
+    ax.plot(x, sig, "k_", ms=10, label="midline sigma there")
+    ax.set_xlabel("shaft (frame order)")
+    ax.set_ylabel("residual [px]")
+    ax.legend(fontsize=8)
+    return Plot(png_bytes(fig), "Each frame's axis residual: the distance of the fulcrum's (undistorted) image from "
+                "the frame's shaft midline, with the midline's sigma at that point.", "axis residuals per frame")
+
+
+def fulcrum_section(data, number=8):
+    """The fulcrum section (`Section`), or None when the file has no ``fulcrum`` record."""
+    rec = data.get("fulcrum")
+    if not isinstance(rec, dict):
+        return None
+    sec = Section("fulcrum", f"{number}. Fulcrum of the pivoting instrument")
+    if not rec.get("ok"):
+        sec.blocks.append(Para(f"No fulcrum: {rec.get('error')}.", "note"))
+        return sec
+    t = rec.get("truth") or {}
+    cov = rec.get("vertex_cov_px2")
+    vs = None if cov is None else float(np.sqrt(np.trace(np.asarray(cov, float))))
+    rows = [["2-D vertex", _vec(rec.get("vertex_px"), " px"), num(vs, " px"), num(t.get("vertex_error_px"), " px"),
+             f"{rec.get('lines_used')} lines of {rec.get('frames_used')} frames, {len(rec.get('outliers') or [])} "
+             "outliers"]]
+    if rec.get("point") is not None:
+        rows.append(["3-D point (camera frame)", _vec(rec["point"]), num(rec.get("point_sigma")),
+                     num(t.get("point_error_norm")),
+                     f"{rec.get('point_axes_used')} axes, chi2/dof {num(rec.get('point_chi2_dof'))}"
+                     + (f", truth chi2 {num(t.get('point_chi2'))} (3 dof, p {num(t.get('point_p_value'))})"
+                        if "point_chi2" in t else "")])
+    board = rec.get("board_frame")
+    if isinstance(board, dict):
+        bs = float(np.sqrt(np.trace(np.asarray(board["point_cov"], float))))
+        rows.append(["3-D point (board frame)", _vec(board.get("point")), num(bs), num(board.get("error")),
+                     f"median over {board.get('frames')} PnP poses (spread {num(board.get('spread'))})"])
+    sec.blocks.append(Table(["estimate", "value", "sigma (rms)", "error vs truth", "from"], rows, None,
+                            f"The fulcrum as `pencilcal fulcrum` finds it from the shafts detected in every frame; "
+                            f"lengths in the shaft diameter's unit ({num(rec.get('shaft_diameter'))}).",
+                            numeric_from=2, text_cols=(4,)))
+    for p in (_fig_top_view(rec), _fig_residuals(rec.get("axis_residuals") or [])):
+        if p is not None:
+            sec.blocks.append(p)
+    axes3 = {(a["image"], a["shaft"]): a for a in rec.get("point_axes") or []}
+    table = [[r["image"], str(r["shaft"]), num(r["residual_px"]), num(r["sigma_px"]),
+              num(lookup(axes3, (r["image"], r["shaft"]), "distance")),
+              num(lookup(axes3, (r["image"], r["shaft"]), "chi2")), "yes" if r["used"] else "no"]
+             for r in rec.get("axis_residuals") or []]
+    sec.blocks.append(Details(f"Axis residuals ({len(table)} shafts)", [Table(
+        ["image", "shaft", "2-D residual [px]", "sigma [px]", "3-D distance", "3-D chi2", "used"], table, None,
+        "2-D: the fulcrum image's distance from the midline; 3-D: the point's distance from the frame's 3-D axis "
+        "and its chi2 (2 dof).", numeric_from=2, text_cols=(6,))]))
+    return sec
