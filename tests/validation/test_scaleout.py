@@ -97,5 +97,9 @@ def test_per_frame_commands_give_the_same_output_with_workers(tmp_path_factory, 
                 "--workers", str(w)] + [a.format(d=d) for a in extra]
         r = CliRunner().invoke(cli, args)
         assert r.exit_code == 0, r.output
-        out[w] = _strip(json.loads(o.read_text()))
+        rec = _strip(json.loads(o.read_text()))
+        # orient tracks from frame to frame in one process only; where it does, it says how
+        # often it held (the estimates are the same: tracking keeps a full run's labels)
+        rec.pop("frames_tracked", None)
+        out[w] = rec
     assert out[1] == out[2]
