@@ -20,7 +20,7 @@ from pencilcal.toolkit.io.images import DEFAULT_MAX_PIXELS
 __all__ = ["CONTEXT_SETTINGS", "command", "run", "progress", "warn", "output_option", "force_option", "quiet_option", "check_output",
            "camera_options", "StageBars", "workers_option", "run_frames", "images_argument", "max_pixels_option",
            "IMAGES_HELP", "FiniteFloat", "LabelledProgress", "mask_option", "jsonl_option", "overlay_option",
-           "FrameOutputs", "source_option", "open_input", "frames_region", "stream_meta"]
+           "FrameOutputs", "detector_option", "endpoint_sigma_option", "source_option", "open_input", "frames_region", "stream_meta"]
 
 #: Every command's click context settings: -h as well as --help, the width of the help. Set on
 #: each command (not only inherited from the group), so a command invoked on its own, as the
@@ -162,6 +162,29 @@ def check_output(path, force, inputs=()):
 output_option = click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output file.")
 force_option = click.option("--force", is_flag=True, help="Overwrite the output if it exists.")
 quiet_option = click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+def _positive(ctx, param, value):
+    if value is not None and not value > 0:
+        raise click.BadParameter("must be positive")
+    return value
+
+
+def detector_option(help):
+    """--detector: the OpenCV line detector proposing segments (one list, one default, for
+    every command that detects lines); `help` says what it proposes there."""
+    from pencilcal.toolkit.detect.segments import DETECTORS
+
+    return click.option("--detector", type=click.Choice(DETECTORS), default="lsd", show_default=True, help=help)
+
+
+def endpoint_sigma_option(help):
+    """--endpoint-sigma [px]: the end point noise of segments without their own sigma, with
+    the library's default (`pencil.defaults.ENDPOINT_SIGMA_PX`); positive and finite."""
+    from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
+
+    return click.option("--endpoint-sigma", type=FiniteFloat(), default=ENDPOINT_SIGMA_PX, show_default=True,
+                        callback=_positive, help=help)
+
+
 max_pixels_option = click.option(
     "--max-pixels", type=click.IntRange(min=1), default=DEFAULT_MAX_PIXELS, show_default=True,
     help="Refuse an image whose header claims more pixels than this, before decoding it.")

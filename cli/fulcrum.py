@@ -13,7 +13,7 @@ from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.defaults import MIN_ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.sequence_noise import estimate_fulcrum_noise, fulcrum_noise
 
-from .common import (command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, frames_region,
+from .common import (detector_option, endpoint_sigma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, frames_region,
                      images_argument, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
                      overlay_option, quiet_option, run, run_frames, source_option, stream_meta, warn, workers_option)
 
@@ -126,10 +126,8 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, detector, 
 @click.option("--right-from-left", "stereo_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Stereo calibration: OpenCV's R and T (cv2.stereoCalibrate, e.g. extrinsics.yml) or "
                    "R_right_from_left and t_right_from_left; T in the unit of --shaft-diameter.")
-@click.option("--endpoint-sigma", type=FiniteFloat(), default=0.5, show_default=True,
-              help="End point noise [px] for segments without their own angle sigma.")
-@click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
-              help="Line detector for the shaft proposals, with IMAGES.")
+@endpoint_sigma_option("End point noise [px] for segments without their own angle sigma.")
+@detector_option("Line detector for the shaft proposals, with IMAGES.")
 @mask_option
 @jsonl_option
 @overlay_option
@@ -181,8 +179,6 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
       pencilcal fulcrum frames/ --camera camera.yaml --shaft-diameter 8 -o fulcrum.json
       pencilcal fulcrum left/ --camera l.yaml --right right/ --camera-right r.yaml --right-from-left extrinsics.yml -o f.json
     """
-    if endpoint_sigma <= 0:
-        raise click.BadParameter("must be positive", param_hint="--endpoint-sigma")
     if shaft_diameter is not None and not shaft_diameter > 0:
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     if sum(x is not None for x in (images, source_spec, lines_path)) != 1:

@@ -6,10 +6,9 @@ import click
 from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.io.images import check_image_size
 from pencilcal.toolkit.detect.lines import lines_record
-from pencilcal.toolkit.detect.segments import DETECTORS
 from pencilcal.toolkit.io.lines_file import write_lines
 
-from .common import (command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option, frames_region,
+from .common import (detector_option, command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option, frames_region,
                      images_argument, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
                      overlay_option, quiet_option, run, run_frames, source_option, stream_meta, warn, workers_option)
 
@@ -49,8 +48,7 @@ def _lines_task(frame, ctx):
 @source_option
 @camera_options
 @output_option
-@click.option("--detector", type=click.Choice(DETECTORS), default="lsd", show_default=True,
-              help="OpenCV detector proposing the segments: LSD, FLD (fast line detector) or EDLines.")
+@detector_option("OpenCV detector proposing the segments: LSD, FLD (fast line detector) or EDLines.")
 @click.option("--bars", is_flag=True,
               help="Find the printed spokes: dark bars, each written as ONE segment, its midline "
                    "(bisector of the bar's two edges) between its end caps. Without it every "

@@ -14,7 +14,7 @@ from pencilcal.toolkit.pencil.sequence_noise import estimate_sequence_noise, seq
 from pencilcal.toolkit.pencil.spec import read_pencil
 from pencilcal.toolkit.pencil.track import orient_tracked
 
-from .common import (command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, images_argument,
+from .common import (detector_option, endpoint_sigma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, images_argument,
                      frames_region, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
                      overlay_option, progress, quiet_option, run, run_frames, source_option, stream_meta, warn,
                      workers_option)
@@ -152,10 +152,10 @@ def _check_priors_match(priors, names, path):
 @output_option
 @click.option("--model", type=click.Choice(MODELS), default="exact", show_default=True,
               help="exact: the exact estimator; general/aligned: the chapter's models, for comparison.")
-@click.option("--endpoint-sigma", type=FiniteFloat(), default=0.5, show_default=True,
-              help="Noise of each segment end point [px], sets the angle and offset uncertainty. Not given (and "
-                   "no --angle-sigma): the sequence's residuals estimate it, starting from this default, for "
-                   "lines without their own sigmas; detected lines' own sigmas are only ever inflated by them.")
+@endpoint_sigma_option("Noise of each segment end point [px], sets the angle and offset uncertainty. Not given "
+                       "(and no --angle-sigma): the sequence's residuals estimate it, starting from this default, "
+                       "for lines without their own sigmas; detected lines' own sigmas are only ever inflated by "
+                       "them.")
 @click.option("--angle-sigma", type=FiniteFloat(), default=None,
               help="Angle noise of every segment [deg], instead of deriving it from the end points.")
 @click.option("--prior", "prior_path", type=click.Path(dir_okay=False), default=None,
@@ -165,8 +165,7 @@ def _check_priors_match(priors, names, path):
 @click.option("--track/--no-track", default=True, show_default=True,
               help="Label each frame's lines by the previous frame's orientation (the full search where that "
                    "fails) and keep its twin; needs the frames in order in one process (--workers 1).")
-@click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
-              help="Line detector, with IMAGES.")
+@detector_option("Line detector, with IMAGES.")
 @click.option("--edges", is_flag=True,
               help="With IMAGES: plain edge segments (as `pencilcal lines`) instead of the spokes' midlines.")
 @mask_option
@@ -216,8 +215,6 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
       pencilcal orient --lines lines.json --camera camera.yaml \\
           --pencil pencil.yaml -o orientation.json
     """
-    if endpoint_sigma <= 0:
-        raise click.BadParameter("must be positive", param_hint="--endpoint-sigma")
     if angle_sigma is not None and angle_sigma <= 0:
         raise click.BadParameter("must be positive", param_hint="--angle-sigma")
     if sum(x is not None for x in (images, lines_path, source_spec)) != 1:

@@ -10,7 +10,7 @@ from pencilcal.validation.pnp import METHODS
 from pencilcal.validation.validate import find_sequences, sequence_files, validate_many, validate_path
 from pencilcal.validation.validation_file import write_validation
 
-from .common import (command, LabelledProgress, StageBars, check_output, force_option, mask_option, output_option,
+from .common import (detector_option, command, LabelledProgress, StageBars, check_output, force_option, mask_option, output_option,
                      quiet_option, run, warn, workers_option)
 
 
@@ -52,8 +52,7 @@ def _grid(value):
 @click.option("--methods", default=",".join(METHODS), show_default=True, help="PnP methods to run.")
 @click.option("--sfm", is_flag=True, help="Also reconstruct with pycolmap and compare after alignment.")
 @click.option("--sfm-dir", type=click.Path(file_okay=False), default=None, help="Keep the reconstruction here.")
-@click.option("--detector", type=click.Choice(["lsd", "fld", "edlines"]), default="lsd", show_default=True,
-              help="Line detector for the fan.")
+@detector_option("Line detector for the fan.")
 @click.option("--edges", is_flag=True, help="The fan's plain edge segments instead of its spokes' midlines.")
 @mask_option
 @click.option("--calibration", "calib_path", type=click.Path(dir_okay=False), default=None,

@@ -407,7 +407,7 @@ class StereoFulcrum:
         ``ray_distances``, ``chi2``, ``dof``, ``p_value``) and with the diameter ``agreement``
         (``chi2``, ``dof``, ``p_value``, ``threshold``, ``confidence``, ``consistent``,
         ``shared_left_ray``) and ``combined`` (``point``, ``point_cov``, ``point_sigma``)."""
-        from scipy.stats import chi2 as chi2_dist
+        from scipy.special import chdtrc  # not scipy.stats: a second or more to import
 
         rec = self.right.to_dict()
         t = self.triangulated
@@ -416,7 +416,7 @@ class StereoFulcrum:
                                "point_cov": np.asarray(t.point_cov, float).tolist(),
                                "point_sigma": float(t.point_sigma), "ranges": np.asarray(t.ranges, float).tolist(),
                                "ray_distances": np.asarray(t.distances, float).tolist(), "chi2": float(t.chi2),
-                               "dof": 1, "p_value": float(chi2_dist.sf(float(t.chi2), 1))}
+                               "dof": 1, "p_value": float(chdtrc(1, float(t.chi2)))}
         c = self.combined
         if c is not None:
             out["agreement"] = {"chi2": float(c.chi2), "dof": int(c.dof), "p_value": float(c.p_value),
