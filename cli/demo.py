@@ -12,7 +12,7 @@ from pencilcal.toolkit.errors import InputError
 from .common import command, LabelledProgress, StageBars, progress, quiet_option, run, warn
 
 # What makes a folder an earlier demo's (safe to replace with --force).
-_DEMO_FILES = ("report.html", "validation.json", "sequence")
+_DEMO_FILES = ("report.html", "validation.json", "sequence", "pivot", "pivot-validation.json", "pivot-report.html")
 
 
 def _check_demo_folder(out, force):
@@ -39,11 +39,13 @@ def _check_demo_folder(out, force):
               help="Frames of the simulated sequence (more: a slower, steadier reconstruction).")
 @click.option("--sfm/--no-sfm", default=True, show_default=True,
               help="Also reconstruct the sequence with pycolmap and compare it.")
+@click.option("--pivot/--no-pivot", default=True, show_default=True,
+              help="Also an instrument pivoting about its port: its fulcrum in 2-D and 3-D against the truth.")
 @click.option("--seed", type=int, default=1, show_default=True, help="Seed of the simulated sequence.")
 @click.option("--force", is_flag=True, help="Replace an earlier demo in the folder.")
 @quiet_option
 @run
-def demo(out, frames, sfm, seed, force, quiet):
+def demo(out, frames, sfm, pivot, seed, force, quiet):
     """Simulate a sequence of the printed target and validate it end to end.
 
     A camera orbits the printed sheet (a ChArUco board with a fan of spokes beside it, as
@@ -51,8 +53,10 @@ def demo(out, frames, sfm, seed, force, quiet):
     estimated from the fan's image angles alone and compared with the exact truth, with
     board PnP by every method and (unless --no-sfm) with a pycolmap reconstruction; the
     report puts them side by side. Writes OUT/sequence/ (images, camera, board, pencil,
-    truth), OUT/validation.json and OUT/report.html, and prints the report's path. About
-    1-2 minutes on two cores.
+    truth), OUT/validation.json and OUT/report.html, and prints the report's path. Unless
+    --no-pivot, an 8 mm instrument shaft pivoting about its port is simulated too
+    (OUT/pivot/): its fulcrum, found from the shafts alone, in the image and in 3-D, against
+    the truth, in OUT/pivot-report.html. About 1-2 minutes on two cores.
 
     \b
     Example:
@@ -89,3 +93,30 @@ def demo(out, frames, sfm, seed, force, quiet):
     if not quiet:
         click.echo(f"{len(data['frames'])} frames, {len(report.sections)} sections", err=True)
     click.echo(str(out / "report.html"))
+    if pivot:
+        _pivot_demo(out, seed, quiet)
+
+
+def _pivot_demo(out, seed, quiet):
+    """OUT/pivot/, OUT/pivot-validation.json and OUT/pivot-report.html: a simulated pivot
+    sequence validated (the fulcrum record) and its report; prints the report's path."""
+    from pencilcal.toolkit.synth.folder import write_sequence
+    from pencilcal.toolkit.synth.scenarios import make_scenario
+    from pencilcal.validation.report import write_report
+    from pencilcal.validation.validate import validate_path
+    from pencilcal.validation.validation_file import write_validation
+
+    seq = out / "pivot"
+
+    def bar(it):
+        with progress(it, "simulate pivot", quiet) as b:
+            yield from b
+
+    write_sequence(seq, make_scenario("pivot", 12, seed, size=(960, 540), shaft_radius=4.0),
+                   camera_source="built-in opencv", progress=bar)
+    data = validate_path(str(seq), warn=warn, quiet=quiet,
+                         progress=lambda it, label: LabelledProgress(it, label, quiet))
+    write_validation(out / "pivot-validation.json", data, force=True)
+    write_report(out / "pivot-report.html", data, force=True, source=str(out / "pivot-validation.json"),
+                 title="pencilcal demo: an instrument pivoting about its port")
+    click.echo(str(out / "pivot-report.html"))

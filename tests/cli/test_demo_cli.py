@@ -14,8 +14,13 @@ def test_demo_writes_a_report_and_every_file_it_used(tmp_path):
     out = tmp_path / "demo"
     r = CliRunner().invoke(cli, ["demo", "-o", str(out), "--frames", "8", "--no-sfm", "-q"])
     assert r.exit_code == 0, r.output
-    assert r.output.strip().endswith("report.html")
+    printed = r.output.strip().splitlines()
+    assert printed[-2].endswith("report.html") and printed[-1].endswith("pivot-report.html")
     assert (out / "report.html").read_text().startswith("<!DOCTYPE html>")
+    # the pivoting instrument: its fulcrum against the truth, in its own report
+    assert "Fulcrum of the pivoting instrument" in (out / "pivot-report.html").read_text()
+    fulcrum = json.loads((out / "pivot-validation.json").read_text())["fulcrum"]
+    assert fulcrum["truth"]["vertex_error_px"] < 1.0 and fulcrum["truth"]["point_error_norm"] < 5.0
     data = json.loads((out / "validation.json").read_text())
     assert len(data["frames"]) == 8 and sum(f["ok"] for f in data["frames"]) >= 6
     for f in ("truth.json", "camera.json", "board.yaml", "pencil.yaml"):

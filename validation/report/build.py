@@ -8,7 +8,7 @@ import datetime as _dt
 from pathlib import Path
 
 from pencilcal.toolkit.errors import InputError, PencilcalError
-from pencilcal.toolkit.io.files import atomic_path, atomic_write, check_writable
+from pencilcal.toolkit.io.files import atomic_path, atomic_write, check_writable, to_jsonable
 
 from ..validation_file import check_validation
 from .document import Bullets, Details, Para, Report, Section, Table
@@ -135,6 +135,8 @@ def write_report(path, data, *, force=False, title=None, samples=4, sensitivity=
     if fmt is None:
         raise InputError(f"{p}: unknown report format {p.suffix!r}; expected .html or .pdf")
     check_writable(p, force)  # before the work
+    # what validate returns in memory (numpy arrays inside) reads as the file does
+    data = to_jsonable(data)
     try:
         report = build_report(data, title=title, samples=samples, sensitivity=sensitivity, source=source,
                               report_command=report_command, sensitivity_path=sensitivity_path)
