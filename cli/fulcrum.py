@@ -18,6 +18,10 @@ from .common import (detector_option, endpoint_sigma_option, command, camera_opt
                      overlay_option, quiet_option, run, run_frames, source_option, stream_meta, warn, workers_option)
 
 
+# frames with a line needed for the jackknife of the fulcrum
+_JACKKNIFE_FRAMES = 8
+
+
 def _shaft_task(frame, ctx):
     """The shafts of one frame as a lines.json frame (module level: runs in workers too)."""
     import numpy as np
@@ -52,6 +56,28 @@ def _shafts(source, camera, detector, quiet, workers, mask_path, live):
         frames.append(f)
         live.emit({k: v for k, v in f.items() if k != "segments"}, drawn, name=f["image"])
     return frames
+
+
+def _with_jackknife(res, camera, frames, angles, sigma, noise):
+    """(Fulcrum, the fulcrum.json ``jackknife`` record or None): each frame with a line left
+    out once (`validation.checks.fulcrum_jackknife`, with the noise the fit used), and the
+    sigmas raised to the jackknife's where the frames scatter the fulcrum significantly more
+    than they say (`checks.jackknife_inflation`). None with fewer than `_JACKKNIFE_FRAMES`."""
+    from pencilcal.validation.checks import fulcrum_jackknife, jackknife_inflation
+
+    if sum(1 for f in frames if len(f.get("segments", ())) or f.get("shafts")) < _JACKKNIFE_FRAMES:
+        return res, None
+    used = sigma * (noise.get("sigma_scale", 1.0) if "assumed_endpoint_sigma_px" in noise else 1.0)
+    try:
+        jk = fulcrum_jackknife(camera, frames, angles, endpoint_sigma_px=used)
+    except EstimationError:
+        return res, None
+    out, rec = jackknife_inflation(res, jk)
+    if rec["inflated"]:
+        warn(f"leaving one frame out at a time moves the fulcrum's ray by {rec['ray_sigma_jackknife_deg']:.3g} deg, "
+             f"{rec['ratio']:.2g} times its sigma: the lines of different frames disagree (a fulcrum that moved, "
+             "shafts misdetected in some frames); its sigmas are the jackknife's")
+    return out, rec
 
 
 def _with_noise(res, run, frames, sigma, given):
@@ -169,7 +195,9 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     Unless --endpoint-sigma is given, the sigmas hold the noise the lines show: the
     intersection's chi-square per degree of freedom scales them (segments without their
     own sigmas: estimated; shaft midlines: only ever inflated); ``noise`` says what was
-    found. --source reads a camera or a growing video; --jsonl streams each frame's shafts
+    found. With 8 frames or more each is left out once (``jackknife``): where the fulcrum
+    moves between frames far more than its sigmas say, they are raised to the jackknife's,
+    with a warning. --source reads a camera or a growing video; --jsonl streams each frame's shafts
     as they are found and --overlay draws them (the fulcrum is known at the end only).
 
     \b
@@ -218,11 +246,12 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     res = run(endpoint_sigma)
     given = click.get_current_context().get_parameter_source("endpoint_sigma") != click.core.ParameterSource.DEFAULT
     res, noise = _with_noise(res, run, frames, endpoint_sigma, given)
+    res, jackknife = _with_jackknife(res, camera, frames, angles, endpoint_sigma, noise)
     for w in res.warnings:
         warn(w)
     out = {"camera": str(camera_path), "lines": None if lines_path is None else str(lines_path),
            "images": None if images is None else source.description, **stream_meta(source), "noise": noise,
-           **res.to_dict()}
+           "jackknife": jackknife, **res.to_dict()}
     if rig is not None:
         out["stereo"] = _stereo(res, right_images, camera_right, camera_right_path, rig, detector, endpoint_sigma,
                                 given, max_pixels, workers, quiet, force)

@@ -47,7 +47,7 @@ from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.geometry.frames import rotation_from_rotvec, rotvec_from_rotation
 
 __all__ = ["REGION", "binomial_band", "rig_check", "calibration_halves", "intrinsics_agreement", "jackknife",
-           "fulcrum_jackknife", "board_poses", "pair_by_name", "stereo_inputs"]
+           "fulcrum_jackknife", "jackknife_inflation", "board_poses", "pair_by_name", "stereo_inputs"]
 
 #: The probability of the region whose coverage the checks count (one sigma in 1-D).
 REGION = 0.683
@@ -280,7 +280,9 @@ def fulcrum_jackknife(camera, frames, angles=None, **options):
 
     full = fulcrum_from_frames(camera, frames, angles, **options)
     rays, normals = [], []
-    for k in range(len(frames)):
+    # a frame without a line leaves the fit as it is: it is not a leave-one-out estimate
+    with_lines = [k for k, f in enumerate(frames) if len(f.get("segments", ())) or f.get("shafts")]
+    for k in with_lines:
         keep = [i for i in range(len(frames)) if i != k]
         try:
             f = fulcrum_from_frames(camera, [frames[i] for i in keep],
@@ -386,3 +388,39 @@ def stereo_inputs(camera, camera_path, calibration, board, methods, right=None, 
     covs = tuple(None if c is None else c.cov for c in (uncertainty_of(camera)[0], uncertainty_of(cam_r)[0]))
     rig = {"right_poses": board_poses(right, cam_r, board, methods), "rig_intrinsics": covs}
     return camera, rig, checks
+
+
+def jackknife_inflation(fulcrum, jk, level=0.99):
+    """(Fulcrum, record): the fulcrum's sigmas raised to its jackknife's where the frames
+    scatter it significantly more than its sigmas say.
+
+    fulcrum: a `toolkit.pencil.fulcrum.Fulcrum` (its sigmas as reported, e.g. with the
+    sequence's noise factor); jk: `fulcrum_jackknife`'s record for the same frames. The
+    jackknife variance of the ray over n leave-one-out fits, against the reported one, is
+    significant when their ratio exceeds chi2(n - 1) / (n - 1) at `level`: the lines of
+    different frames then disagree in a way no per-line noise explains (a fulcrum that
+    moved, a shaft misdetected in a group of frames), and the jackknife's is the honest
+    figure. The record: ``frames``, ``ray_sigma_jackknife_deg``, ``ratio`` (jackknife /
+    reported sigma), ``inflated``; with a pivot plane also ``normal_ratio``.
+    """
+    from scipy.special import chdtri
+
+    from pencilcal.toolkit.pencil.sequence_noise import rescale_fulcrum
+
+    n = int(jk["frames"])
+    rec = {"frames": n, "ray_sigma_jackknife_deg": jk["ray_sigma_jackknife_deg"], "inflated": False}
+    if n < 3 or not fulcrum.ray_sigma_deg > 0:
+        rec["ratio"] = None
+        return fulcrum, rec
+    limit = float(chdtri(n - 1, 1.0 - level)) / (n - 1)
+    ratio = jk["ray_sigma_jackknife_deg"] / fulcrum.ray_sigma_deg
+    rec["ratio"] = ratio
+    pivot_factor = None
+    if fulcrum.pivot is not None and jk.get("normal_sigma_jackknife_deg") and fulcrum.pivot.normal_sigma_deg > 0:
+        r = jk["normal_sigma_jackknife_deg"] / fulcrum.pivot.normal_sigma_deg
+        rec["normal_ratio"] = r
+        pivot_factor = r**2 if r**2 > limit else 1.0
+    if ratio**2 <= limit and not (pivot_factor and pivot_factor > 1.0):
+        return fulcrum, rec
+    rec["inflated"] = True
+    return rescale_fulcrum(fulcrum, max(ratio**2, 1.0) if ratio**2 > limit else 1.0, pivot_factor), rec

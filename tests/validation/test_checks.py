@@ -1,0 +1,45 @@
+"""Truth-free checks: the fulcrum's jackknife, and sigmas raised to it where frames disagree."""
+from __future__ import annotations
+
+import numpy as np
+
+from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames
+from pencilcal.validation.checks import fulcrum_jackknife, jackknife, jackknife_inflation
+from tests.helpers import hd_camera
+from tests.toolkit.pencil.test_fulcrum import pivot_sequence
+
+
+def test_jackknife_of_a_mean_is_its_standard_error(rng):
+    y = rng.normal(size=(400, 2))
+    # leave-one-out means: their jackknife covariance is that of the mean, I / n
+    loo = (y.sum(0) - y) / (len(y) - 1)
+    np.testing.assert_allclose(jackknife(loo)["cov"], np.cov(y.T) / len(y), rtol=1e-9)
+
+
+def test_consistent_frames_keep_their_sigmas(rng):
+    cam = hd_camera()
+    frames, _, _, _ = pivot_sequence(cam, rng, n=30, noise_px=0.5)
+    full = fulcrum_from_frames(cam, frames, endpoint_sigma_px=0.5)
+    jk = fulcrum_jackknife(cam, frames, endpoint_sigma_px=0.5)
+    assert jk["frames"] == 30 and 0.5 < jk["ratio"] < 2.0
+    out, rec = jackknife_inflation(full, jk)
+    assert not rec["inflated"] and out.ray_sigma_deg == full.ray_sigma_deg
+
+
+def test_a_fulcrum_that_moved_gets_the_jackknife_sigma(rng):
+    """Half the frames pivot about another point 15 mm away: each half's lines are exact
+    and the fit takes a majority, but leaving frames out moves it far more than its sigma."""
+    cam = hd_camera()
+    a, _, _, _ = pivot_sequence(cam, rng, n=14, noise_px=0.3)
+    b, _, _, _ = pivot_sequence(cam, rng, n=14, noise_px=0.3)
+    shift = cam.project(np.array([[-20.0, 10.0, 150.0], [-5.0, 10.0, 150.0]]))
+    d = shift[1] - shift[0]
+    for f in b:
+        f["segments"] = f["segments"] + np.r_[d, d]
+    frames = [dict(f, image=f"{i:03d}.png") for i, f in enumerate(a + b)]
+    full = fulcrum_from_frames(cam, frames, endpoint_sigma_px=0.3)
+    jk = fulcrum_jackknife(cam, frames, endpoint_sigma_px=0.3)
+    out, rec = jackknife_inflation(full, jk)
+    # two groups of 14: leaving one frame out flips the majority between them
+    assert rec["inflated"] and rec["ratio"] > 10 and out.ray_sigma_deg == jk["ray_sigma_jackknife_deg"]
+    assert np.trace(out.vertex_cov_px2) > 100 * np.trace(full.vertex_cov_px2)
