@@ -63,7 +63,9 @@ def _with_jackknife(res, camera, frames, angles, sigma, noise):
     out once (`validation.checks.fulcrum_jackknife`, with the noise the fit used), and the
     sigmas raised to the jackknife's where the frames scatter the fulcrum significantly more
     than they say (`checks.jackknife_inflation`). None with fewer than `_JACKKNIFE_FRAMES`."""
-    from pencilcal.validation.checks import fulcrum_jackknife, jackknife_inflation
+    import dataclasses
+
+    from pencilcal.validation.checks import fulcrum_jackknife, jackknife_inflation, point_jackknife
 
     if sum(1 for f in frames if len(f.get("segments", ())) or f.get("shafts")) < _JACKKNIFE_FRAMES:
         return res, None
@@ -77,6 +79,13 @@ def _with_jackknife(res, camera, frames, angles, sigma, noise):
         warn(f"leaving one frame out at a time moves the fulcrum's ray by {rec['ray_sigma_jackknife_deg']:.3g} deg, "
              f"{rec['ratio']:.2g} times its sigma: the lines of different frames disagree (a fulcrum that moved, "
              "shafts misdetected in some frames); its sigmas are the jackknife's")
+    if out.point is not None:
+        point, prec = point_jackknife(camera, frames, out.point.diameter, out.point)
+        rec["point"] = prec
+        if prec["inflated"]:
+            warn(f"leaving one frame out at a time moves the 3-D fulcrum by {prec['point_sigma_jackknife']:.3g} "
+                 f"(RMS), {prec['ratio']:.2g} times its sigma: its covariance is the jackknife's")
+            out = dataclasses.replace(out, point=point)
     return out, rec
 
 

@@ -47,7 +47,7 @@ from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.geometry.frames import rotation_from_rotvec, rotvec_from_rotation
 
 __all__ = ["REGION", "binomial_band", "rig_check", "calibration_halves", "intrinsics_agreement", "jackknife",
-           "fulcrum_jackknife", "jackknife_inflation", "board_poses", "pair_by_name", "stereo_inputs"]
+           "fulcrum_jackknife", "jackknife_inflation", "point_jackknife", "board_poses", "pair_by_name", "stereo_inputs"]
 
 #: The probability of the region whose coverage the checks count (one sigma in 1-D).
 REGION = 0.683
@@ -424,3 +424,44 @@ def jackknife_inflation(fulcrum, jk, level=0.99):
         return fulcrum, rec
     rec["inflated"] = True
     return rescale_fulcrum(fulcrum, max(ratio**2, 1.0) if ratio**2 > limit else 1.0, pivot_factor), rec
+
+
+def point_jackknife(camera, frames, diameter, point, level=0.99):
+    """(FulcrumPoint, record): the 3-D fulcrum's covariance against its jackknife over frames,
+    raised to it where the frames scatter the point significantly more than it says.
+
+    camera; frames: lines.json frame dicts with shafts (their ``edges``, ``edge_cov``);
+    diameter: the shafts' diameter; point: the `toolkit.pencil.fulcrum.FulcrumPoint` of all
+    frames. Each frame with a shaft is left out once (`fulcrum.fulcrum_point`); the
+    jackknife covariance of the point is compared with ``point_cov`` by their traces, and
+    taken in its place when the ratio exceeds chi2(3 (n - 1)) / (3 (n - 1)) at `level`. The
+    record: ``frames``, ``point_sigma_jackknife`` [unit of the diameter], ``ratio``
+    (jackknife / reported RMS), ``inflated``.
+    """
+    import dataclasses
+
+    from scipy.special import chdtri
+
+    from pencilcal.toolkit.pencil.fulcrum import fulcrum_point
+
+    pts = []
+    for k, f in enumerate(frames):
+        if not f.get("shafts"):
+            continue
+        try:
+            pts.append(fulcrum_point(camera, frames[:k] + frames[k + 1:], diameter).fit.point)
+        except EstimationError:
+            continue
+    if len(pts) < 3:
+        return point, {"frames": len(pts), "point_sigma_jackknife": None, "ratio": None, "inflated": False}
+    jk = jackknife(np.asarray(pts, float))
+    n = jk["n"]
+    sigma_jk = float(np.sqrt(max(np.trace(jk["cov"]), 0.0)))
+    ratio = sigma_jk / float(point.fit.point_sigma) if point.fit.point_sigma > 0 else None
+    rec = {"frames": n, "point_sigma_jackknife": sigma_jk, "ratio": ratio, "inflated": False}
+    dof = 3 * (n - 1)
+    if ratio is None or ratio**2 <= float(chdtri(dof, 1.0 - level)) / dof:
+        return point, rec
+    rec["inflated"] = True
+    fit = dataclasses.replace(point.fit, point_cov=jk["cov"], point_sigma=np.asarray(sigma_jk))
+    return dataclasses.replace(point, fit=fit), rec

@@ -155,3 +155,25 @@ def test_target_rendered_port_view():
     assert len(dir_err) >= 25, len(dir_err)
     assert err <= 1.0, (err, rec["point_sigma"])
     assert np.median(dir_err) <= 0.3, np.median(dir_err)
+
+
+def test_point_jackknife_keeps_a_consistent_point_and_raises_a_moved_one():
+    from pencilcal.validation.checks import point_jackknife
+
+    segs, _ = pivot_frames()
+    covs = np.zeros(segs.shape[:2] + (2, 2))
+    covs[..., 0, 0], covs[..., 1, 1] = 1e-7, 0.01
+    cam = _pinhole()
+    frames = _frames(segs, covs)
+    full = fulcrum_point(cam, frames, 2 * RADIUS)
+    same, rec = point_jackknife(cam, frames, 2 * RADIUS, full)
+    assert not rec["inflated"] and rec["frames"] == len(frames) and same is full
+    # the second half of the frames 5 px off in the image: the robust fit keeps one half, and
+    # leaving a frame out moves it (30 px off, the other half is an outlier group every time)
+    moved = segs.copy()
+    moved[len(segs) // 2:] += 5.0
+    frames = _frames(moved, covs)
+    full = fulcrum_point(cam, frames, 2 * RADIUS)
+    raised, rec = point_jackknife(cam, frames, 2 * RADIUS, full)
+    assert rec["inflated"] and rec["ratio"] > 3
+    assert float(raised.fit.point_sigma) == pytest.approx(rec["point_sigma_jackknife"])
