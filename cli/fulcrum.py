@@ -71,7 +71,7 @@ def _with_jackknife(res, camera, frames, angles, sigma, noise):
         return res, None
     used = sigma * (noise.get("sigma_scale", 1.0) if "assumed_endpoint_sigma_px" in noise else 1.0)
     try:
-        jk = fulcrum_jackknife(camera, frames, angles, endpoint_sigma_px=used)
+        jk = fulcrum_jackknife(camera, frames, angles, full=res, endpoint_sigma_px=used)
     except EstimationError:
         return res, None
     out, rec = jackknife_inflation(res, jk)

@@ -266,7 +266,7 @@ def jackknife(estimates):
     return {"n": int(n), "mean": m, "cov": (n - 1) / n * d.T @ d}
 
 
-def fulcrum_jackknife(camera, frames, angles=None, **options):
+def fulcrum_jackknife(camera, frames, angles=None, full=None, **options):
     """The fulcrum's ray sigma against its jackknife over frames.
 
     camera; frames: lines.json frame dicts; angles: pivot angles (F,) [rad] or None;
@@ -274,11 +274,13 @@ def fulcrum_jackknife(camera, frames, angles=None, **options):
     left out once. Returns ``frames`` (leave-one-out fits), ``ray_sigma_deg`` (reported by
     the full fit, noise only), ``ray_sigma_jackknife_deg`` (RMS angle of the jackknife
     covariance of the unit ray) and their ``ratio``; with angles also the pivot normal's
-    ``normal_sigma_deg`` and ``normal_sigma_jackknife_deg``.
+    ``normal_sigma_deg`` and ``normal_sigma_jackknife_deg``. full: the fit of all frames
+    when the caller has it (not fitted again).
     """
     from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames
 
-    full = fulcrum_from_frames(camera, frames, angles, **options)
+    if full is None:
+        full = fulcrum_from_frames(camera, frames, angles, **options)
     rays, normals = [], []
     # a frame without a line leaves the fit as it is: it is not a leave-one-out estimate
     with_lines = [k for k, f in enumerate(frames) if len(f.get("segments", ())) or f.get("shafts")]

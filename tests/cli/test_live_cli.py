@@ -11,13 +11,17 @@ from pencilcal.cli.main import cli
 from pencilcal.toolkit.io.jsonl import JsonlWriter
 
 
-@pytest.fixture(scope="module")
-def sim(tmp_path_factory):
-    d = tmp_path_factory.mktemp("live") / "sim"
-    r = CliRunner().invoke(cli, ["simulate", str(d), "--scenario", "orbit", "--frames", "4", "--size", "960x540",
+def _simulated(tmp_path_factory, name, scenario, frames, size):
+    d = tmp_path_factory.mktemp("live") / name
+    r = CliRunner().invoke(cli, ["simulate", str(d), "--scenario", scenario, "--frames", str(frames), "--size", size,
                                  "-q"])
     assert r.exit_code == 0, r.output
     return d
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    return _simulated(tmp_path_factory, "sim", "orbit", 4, "960x540")
 
 
 @pytest.mark.parametrize("cmd", ["lines", "pnp"])
@@ -182,11 +186,7 @@ def test_source_and_images_exclude_each_other(sim, tmp_path):
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
     """A tilt sweep, 0-80 deg in 8 frames: the pencil turns by up to 11 deg a frame."""
-    d = tmp_path_factory.mktemp("live") / "sweep"
-    r = CliRunner().invoke(cli, ["simulate", str(d), "--scenario", "tilt-sweep", "--frames", "8", "--size", "800x450",
-                                 "-q"])
-    assert r.exit_code == 0, r.output
-    return d
+    return _simulated(tmp_path_factory, "sweep", "tilt-sweep", 8, "800x450")
 
 
 def test_tracking_stays_within_the_sigmas_of_a_full_run(sweep, tmp_path):

@@ -173,24 +173,41 @@ def estimate_sequence_noise(run, sigma, first=None, floor=None):
     estimate.scale). None (and the first run's records unchanged) when the pool has under
     `MIN_DOF` degrees of freedom.
     """
+    def estimate(records):
+        scaled, est = sequence_noise(records)
+        return scaled, None if est is None else est.variance_factor, est
+
+    records, est, total, _, low = _steady_runs(run, sigma, estimate, first, floor)
+    if total is None:
+        return records, None
+    if total < low:
+        records = [rescale(r, low / total) for r in records]
+        total = low
+    return records, _with_factor(est, total)
+
+
+def _steady_runs(run, sigma, estimate, first=None, floor=None):
+    """The runs of `estimate_sequence_noise` and `estimate_fulcrum_noise`: run(sigma) with
+    the noise estimated so far until a run's own factor lies within 0.9-1.1 in sigma (or the
+    runs sit at the floor), at most `MAX_RUNS`. estimate(result) -> (the result rescaled,
+    its factor or None when it cannot tell, its estimates). Returns (the last rescaled
+    result, its estimates, the total factor relative to `sigma` or None, the last run's own
+    factor, the floor's factor)."""
     low = 0.0 if floor is None else (floor / sigma) ** 2
     total, best = 1.0, None
     for i in range(MAX_RUNS):
-        records, est = sequence_noise(first if i == 0 and first is not None else run(sigma * np.sqrt(total)))
-        if est is None:
-            return (records, None) if best is None else best
+        result = first if i == 0 and first is not None else run(sigma * np.sqrt(total))
+        scaled, factor, est = estimate(result)
+        if factor is None:
+            return best or (scaled, est, None, None, low)
         ran_at_floor = total <= low
-        total *= est.variance_factor
-        best = (records, _with_factor(est, total))
-        if _RERUN_BAND[0] <= est.variance_factor <= _RERUN_BAND[1] or (ran_at_floor and total <= low):
+        total *= factor
+        best = (scaled, est, total, factor, low)
+        if _RERUN_BAND[0] <= factor <= _RERUN_BAND[1] or (ran_at_floor and total <= low):
             break
         # the next run's gates never below the floor
         total = max(total, low)
-    records, est = best
-    if est.variance_factor < low:
-        records = [rescale(r, low / est.variance_factor) for r in records]
-        est = _with_factor(est, low)
-    return records, est
+    return best
 
 
 def _inflate_only(est, inflate_only):
@@ -251,25 +268,17 @@ def estimate_fulcrum_noise(run, sigma, floor=None):
     [px] of segments without their own), run again with the noise estimated so far while
     the factor lies outside 0.9-1.1 in sigma; floor: the smallest noise to believe.
     Returns (Fulcrum, estimates) as `fulcrum_noise`, the factors relative to `sigma`."""
-    low = 0.0 if floor is None else (floor / sigma) ** 2
-    total, best = 1.0, None
-    for _ in range(MAX_RUNS):
-        s = sigma * np.sqrt(total)
-        f, est = fulcrum_noise(run(s))
+    def estimate(f):
+        out, est = fulcrum_noise(f)
         v = est["vertex"]
-        if v is None:
-            return (f, est) if best is None else best
-        factor = v.variance_factor
-        ran_at_floor = total <= low
-        total *= factor
-        pivot = est["pivot"]
-        best = (f, {"vertex": _with_factor(v, total),
-                    "pivot": None if pivot is None else _with_factor(pivot, pivot.variance_factor * total / factor)})
-        if _RERUN_BAND[0] <= factor <= _RERUN_BAND[1] or (ran_at_floor and total <= low):
-            break
-        total = max(total, low)
-    f, est = best
-    if est["vertex"].variance_factor < low:
-        f = rescale_fulcrum(f, low / est["vertex"].variance_factor)
-        est = {"vertex": _with_factor(est["vertex"], low), "pivot": est["pivot"]}
-    return f, est
+        return out, None if v is None else v.variance_factor, est
+
+    f, est, total, factor, low = _steady_runs(run, sigma, estimate, floor=floor)
+    if total is None:
+        return f, est
+    pivot = est["pivot"]
+    pivot = None if pivot is None else _with_factor(pivot, pivot.variance_factor * total / factor)
+    if total < low:
+        f = rescale_fulcrum(f, low / total)
+        total = low
+    return f, {"vertex": _with_factor(est["vertex"], total), "pivot": pivot}

@@ -73,12 +73,16 @@ def draw_shaft(img, p0, p1, width, value=12):
 # ----------------------------------------------------------------------------
 # detection on synthetic data
 # ----------------------------------------------------------------------------
+def _detected_circle(h, w, cx, cy, r, **field_options):
+    """The region detected in one synthetic circular field: (region, its 50 % circle)."""
+    reg = detect_valid_region([field(h, w, cx, cy, r, **field_options)])
+    assert reg.kind == "circle", reg.info.get("circle_diag")
+    return reg, reg.info["circle_50"]
+
+
 def test_circle_field_centre_radius():
     h, w, cx, cy, r = 720, 1280, 652.3, 371.8, 318.4
-    img = field(h, w, cx, cy, r, seed=1)
-    reg = detect_valid_region([img])
-    assert reg.kind == "circle", reg.info.get("circle_diag")
-    c50 = reg.info["circle_50"]
+    reg, c50 = _detected_circle(h, w, cx, cy, r, seed=1)
     assert abs(c50[0] - cx) < 1.0 and abs(c50[1] - cy) < 1.0, c50
     assert abs(c50[2] - r) < 1.0, c50
     # conservative: the returned circle lies inside, by ~ the blur (2 sigma + 1)
@@ -92,10 +96,7 @@ def test_circle_field_centre_radius():
 
 def test_circle_clipped_by_image_top_bottom():
     h, w, cx, cy, r = 1080, 1920, 955.0, 548.0, 700.0
-    img = field(h, w, cx, cy, r, seed=2, blur=2.0)
-    reg = detect_valid_region([img])
-    assert reg.kind == "circle", reg.info.get("circle_diag")
-    c50 = reg.info["circle_50"]
+    reg, c50 = _detected_circle(h, w, cx, cy, r, seed=2, blur=2.0)
     assert np.hypot(c50[0] - cx, c50[1] - cy) < 2.0 and abs(c50[2] - r) < 2.0, c50
     # the image rectangle clips it: the top-centre pixel is valid, the corners are not
     m = reg.mask()
@@ -104,10 +105,7 @@ def test_circle_clipped_by_image_top_bottom():
 
 def test_circle_only_corners_clipped():
     h, w, cx, cy, r = 720, 1280, 640.0, 360.0, 700.0
-    img = field(h, w, cx, cy, r, seed=3)
-    reg = detect_valid_region([img])
-    assert reg.kind == "circle", reg.info.get("circle_diag")
-    c50 = reg.info["circle_50"]
+    reg, c50 = _detected_circle(h, w, cx, cy, r, seed=3)
     assert np.hypot(c50[0] - cx, c50[1] - cy) < 2.0 and abs(c50[2] - r) < 2.0, c50
 
 
