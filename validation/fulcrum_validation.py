@@ -25,23 +25,19 @@ from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames
 from pencilcal.toolkit.pencil.sequence_noise import fulcrum_noise
 
-__all__ = ["fulcrum_record", "shaft_frames"]
+__all__ = ["fulcrum_record", "shaft_frame"]
 
 
-def shaft_frames(source, camera, detector="lsd", valid_region=None):
-    """lines.json frames (image, ok, segments, shafts) of every frame of `source` (an
-    ImageSource), the shafts of `detect.shafts.detect_shafts` within valid_region."""
+def shaft_frame(frame, camera, detector="lsd", valid_region=None):
+    """The lines.json frame (image, ok, segments, shafts) of one decoded `Frame`: the shafts
+    of `detect.shafts.detect_shafts` within valid_region (validate calls it in its frame task,
+    on the frame it decoded for everything else)."""
     from pencilcal.toolkit.detect.shafts import detect_shafts
 
-    out = []
-    for frame in source:
-        if frame.image is None:
-            out.append({"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error})
-            continue
-        shafts = [s.to_dict() for s in detect_shafts(frame.image, camera, detector=detector,
-                                                     valid_region=valid_region)]
-        out.append({"image": frame.name, "ok": True, "segments": np.zeros((0, 4)), "shafts": shafts})
-    return out
+    if frame.image is None:
+        return {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}
+    shafts = [s.to_dict() for s in detect_shafts(frame.image, camera, detector=detector, valid_region=valid_region)]
+    return {"image": frame.name, "ok": True, "segments": np.zeros((0, 4)), "shafts": shafts}
 
 
 def _ideal_vertex(camera, ray):
@@ -102,7 +98,7 @@ def _board_frame(point, cov, frames):
 def fulcrum_record(camera, frames, validated=(), truth=None, shaft_diameter=None):
     """The ``fulcrum`` record of validation.json (module docstring).
 
-    camera: Camera; frames: lines.json frames with shafts (`shaft_frames`); validated: the
+    camera: Camera; frames: lines.json frames with shafts (`shaft_frame`); validated: the
     validation's frame records (their PnP poses give the board frame); truth: the truth
     file's ``pivot`` dict (``fulcrum_px``, ``fulcrum_cam``, ``fulcrum_target``) or None;
     shaft_diameter: the shafts' diameter (the 3-D point) or None. Returns a dict; ``ok``

@@ -365,19 +365,24 @@ def _sfm(source, camera, frames, best_poses, workdir, warn, quiet, progress):
 
 
 def _frame_task(frame, ctx):
-    """One frame's validation record and the PoseResult of its best PnP method (or None)
+    """One frame's validation record, the PoseResult of its best PnP method (or None) and,
+    with `shafts` (detector, valid region), its shafts as a lines.json frame (else None)
     (module level: runs in worker processes too)."""
-    camera, board, lines_source, models, methods, truth, keep_pixels = ctx
+    camera, board, lines_source, models, methods, truth, keep_pixels, shafts = ctx
     try:
         rec, best = _process(frame, camera, board, lines_source, models, methods, truth, keep_pixels)
     except EstimationError as e:
         rec, best = {"image": frame.name, "ok": False, "error": str(e)}, None
-    return rec, best
+    if shafts is None:
+        return rec, best, None
+    from .fulcrum_validation import shaft_frame
+
+    return rec, best, shaft_frame(frame, camera, *shafts)
 
 
 def validate_sequence(source, camera, board, lines_source, *, truth=None, models=MODELS, methods=METHODS,
                       sfm=False, sfm_workdir=None, progress=None, warn=None, quiet=True, keep_pixels=True,
-                      sfm_progress=None, workers=1, right_poses=None, rig_intrinsics=(None, None)):
+                      sfm_progress=None, workers=1, right_poses=None, rig_intrinsics=(None, None), fulcrum=None):
     """Run orient, every PnP method and optionally SfM on one sequence and compare them.
 
     source: an ImageSource; camera: Camera; board: Board; lines_source: FanLines or GridLines
@@ -390,19 +395,24 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
     frames in this many processes (toolkit.parallel.map_frames; same results);
     right_poses: the board's poses in a second camera rigidly fixed to this one (image name
     -> PoseResult, `checks.board_poses`): the rig check (`checks.rig_check`, with each
-    camera's intrinsics covariance in rig_intrinsics) goes under ``checks``.
+    camera's intrinsics covariance in rig_intrinsics) goes under ``checks``; fulcrum: a
+    dict of detector, valid_region, truth (the pivot truth or None) and shaft_diameter: the
+    instrument's shafts are detected in every frame as it is processed and the ``fulcrum``
+    record (`fulcrum_validation.fulcrum_record`) is made from them.
 
     Returns the validation.json dict (numpy arrays inside; write with files.write_json).
     """
-    frames, best_poses = [], []
-    ctx = (camera, board, lines_source, models, methods, truth, keep_pixels)
+    frames, best_poses, shaft_frames = [], [], []
+    shafts = None if fulcrum is None else (fulcrum.get("detector", "lsd"), fulcrum.get("valid_region"))
+    ctx = (camera, board, lines_source, models, methods, truth, keep_pixels, shafts)
     results = map_frames(_frame_task, source, ctx, workers)
     it = results if progress is None else progress(Sized(results, len(source)), "validate")
-    for rec, best in it:
+    for rec, best, shaft_rec in it:
         if not rec["ok"] and warn is not None:
             warn(f"{rec['image']}: {rec['error']}")
         frames.append(rec)
         best_poses.append(best)
+        shaft_frames.append(shaft_rec)
     if not any(f["ok"] for f in frames):
         raise EstimationError("no frame could be validated (no pencil and no board pose in any frame)")
     keys = [f"orient:{m}" for m in models] + [f"pnp:{m}" for m in methods]
@@ -419,6 +429,11 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
 
         left, right = pair_by_name([f["image"] for f in frames], best_poses, right_poses)
         out["checks"] = {"rig": rig_check(left, right, rig_intrinsics)}
+    if fulcrum is not None:
+        from .fulcrum_validation import fulcrum_record
+
+        out["fulcrum"] = fulcrum_record(camera, shaft_frames, frames, truth=fulcrum.get("truth"),
+                                        shaft_diameter=fulcrum.get("shaft_diameter"))
     out["frames"] = frames
     return out
 
@@ -537,21 +552,19 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
     from .checks import stereo_inputs
 
     cam, rig, checks = stereo_inputs(cam, camera, calibration, brd, methods, right, right_camera, right_calibration)
-    result = validate_sequence(source, cam, brd, lines, truth=truth_frames, models=models, methods=methods, sfm=sfm,
-                               sfm_workdir=sfm_dir, progress=progress, warn=warn, quiet=quiet,
-                               sfm_progress=sfm_progress, workers=workers, **rig)
-    if checks:
-        result["checks"] = {**checks, **result.get("checks", {})}
     truth_doc = load_structured(truth, "truth file") if truth else {}
     pivot_truth = truth_doc.get("pivot") if isinstance(truth_doc, dict) else None
+    pivot = None
     if fulcrum or (fulcrum is None and pivot_truth):
-        from .fulcrum_validation import fulcrum_record, shaft_frames
-
         if shaft_diameter is None and pivot_truth:
             shaft_diameter = (truth_doc.get("options") or {}).get("shaft_diameter")
-        region = getattr(lines, "valid_region", None)
-        result["fulcrum"] = fulcrum_record(cam, shaft_frames(source, cam, detector, region), result["frames"],
-                                           truth=pivot_truth, shaft_diameter=shaft_diameter)
+        pivot = {"detector": detector, "valid_region": getattr(lines, "valid_region", None), "truth": pivot_truth,
+                 "shaft_diameter": shaft_diameter}
+    result = validate_sequence(source, cam, brd, lines, truth=truth_frames, models=models, methods=methods, sfm=sfm,
+                               sfm_workdir=sfm_dir, progress=progress, warn=warn, quiet=quiet,
+                               sfm_progress=sfm_progress, workers=workers, fulcrum=pivot, **rig)
+    if checks:
+        result["checks"] = {**checks, **result.get("checks", {})}
     inputs = [p for p in (camera, board, pencil, truth, calibration, mask, right_camera, right_calibration) if p]
     return {
         "sequence": str(sequence),
