@@ -43,3 +43,28 @@ def test_a_fulcrum_that_moved_gets_the_jackknife_sigma(rng):
     # two groups of 14: leaving one frame out flips the majority between them
     assert rec["inflated"] and rec["ratio"] > 10 and out.ray_sigma_deg == jk["ray_sigma_jackknife_deg"]
     assert np.trace(out.vertex_cov_px2) > 100 * np.trace(full.vertex_cov_px2)
+
+
+def test_real_phantom_fulcrum_gets_its_jackknife_sigma():
+    """The real phantom sequence (docs/uncertainty.md): its frames point to two fulcrums, the
+    fit takes a majority of 16 frames, and leaving one frame out moves the ray by about 10
+    deg against a sigma of 2-3: the reported sigma becomes the jackknife's."""
+    from pencilcal.toolkit.detect.region_detect import detect_valid_region
+    from pencilcal.toolkit.detect.shafts import detect_shafts
+    from pencilcal.toolkit.pencil.sequence_noise import fulcrum_noise
+    from tests.conftest import data_dir
+    from tests.toolkit.detect.test_shafts_real import _phantom_camera, _read
+
+    root = data_dir("real-instruments") / "dvrk-lnd-phantom-sequence"
+    paths = sorted(root.glob("*.png"), key=lambda p: int(p.stem))
+    imgs = [_read(p) for p in paths]
+    cam = _phantom_camera(root)
+    region = detect_valid_region(imgs)
+    frames = [{"image": p.name, "ok": True, "segments": np.zeros((0, 4)),
+               "shafts": [s.to_dict() for s in detect_shafts(im, cam, valid_region=region)]} for p, im in zip(paths, imgs)]
+    full, _ = fulcrum_noise(fulcrum_from_frames(cam, frames), inflate_only=True)
+    jk = fulcrum_jackknife(cam, frames, full=full)
+    out, rec = jackknife_inflation(full, jk)
+    print(f"phantom: ray sigma {full.ray_sigma_deg:.2f} deg, jackknife {jk['ray_sigma_jackknife_deg']:.2f} deg")
+    assert jk["frames"] >= 19 and rec["inflated"] and rec["ratio"] > 2.5
+    assert out.ray_sigma_deg > 8.0
