@@ -91,8 +91,11 @@ def robust_noise(channel):
                         for s0 in starts])
     if r.size == 0:
         return 1.0 / np.sqrt(12.0)
-    k = int(0.9 * (r.size - 1))
-    r = r[r <= np.partition(r, k)[k]]
+    # the 90th percentile from every 4th response (its sampling error is far below the
+    # estimator's own; a partition of all of them is a third of the cost)
+    q = r[::4]
+    k = int(0.9 * (q.size - 1))
+    r = r[r <= np.partition(q, k)[k]]
     return max(float(np.sqrt(np.pi / 2) * r.mean() / 6.0 / _TRUNCATED_MEAN), 1.0 / np.sqrt(12.0))
 
 

@@ -178,8 +178,9 @@ class WorkFrame:
         self.origin = np.array([x0, y0], float)
         if camera is None:
             self.bgr = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA) if (w, h) != (W, H) else img
-            yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-            raw = self.to_ideal(np.stack([xx, yy], -1))
+            raw = np.empty((h, w, 2))
+            raw[..., 0] = self.to_ideal(np.stack([np.arange(w), np.zeros(w)], -1))[:, 0][None, :]
+            raw[..., 1] = self.to_ideal(np.stack([np.zeros(h), np.arange(h)], -1))[:, 1][:, None]
         else:
             raw = self._raw_of_grid(camera, h, w)
             sr = min(1.0, 1.25 * s)  # reduce first (no aliasing), then remap
