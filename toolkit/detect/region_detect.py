@@ -440,7 +440,8 @@ def _as_u8(image):
     return to_u8(img)
 
 
-# a video of fewer frames than this per sampled frame is read in order instead of seeking
+# a video of fewer frames than this per sampled frame gives its first frames, read ahead for
+# the run, instead of frames sought across it
 _SEQUENTIAL_FRAMES_PER_SAMPLE = 8
 
 
@@ -451,7 +452,11 @@ def _sampled_frames(source, k):
     n = len(source)
     want = set(sample_indices(n, k).tolist()) if n > 0 else None
     out = []
-    if source.kind == "images":
+    if source.kind == "video" and (not want or max(want) < _SEQUENTIAL_FRAMES_PER_SAMPLE * k):
+        # a short video (or one without a frame count): its first k frames, kept for the run
+        # (sampling them across it would decode the whole video a second time)
+        out = source.head(k)
+    elif source.kind == "images":
         for i in sorted(want or ()):
             img, _ = decode_image(source.paths[i], gray=source.gray, max_pixels=source.max_pixels)
             if img is not None:
@@ -463,40 +468,24 @@ def _sampled_frames(source, k):
 
 
 def _video_frames(source, want, k):
-    """The frames at indices `want` of a video source (seeking; the container's count may be
-    off: without one, or where seeking fails, the first k frames)."""
+    """The frames at indices `want` of a long video source (seeking; the container's count
+    may be off: where seeking fails, the first k frames)."""
     import cv2
 
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
     cap = cv2.VideoCapture(str(source.paths[0]))
     out = []
     try:
-        if want and max(want) < _SEQUENTIAL_FRAMES_PER_SAMPLE * k:
-            # a short video: grabbing every frame in order (decoding, no colour conversion)
-            # costs less than seeking, which decodes again from the last keyframe each time
-            for i in range(max(want) + 1):
-                if not cap.grab():
-                    break
-                if i in want:
-                    ok, img = cap.retrieve()
-                    if ok and img is not None:
-                        out.append(img)
-        else:
-            for i in sorted(want or ()):
-                if cap.set(cv2.CAP_PROP_POS_FRAMES, int(i)):
-                    ok, img = cap.read()
-                    if ok and img is not None:
-                        out.append(img)
+        for i in sorted(want or ()):
+            if cap.set(cv2.CAP_PROP_POS_FRAMES, int(i)):
+                ok, img = cap.read()
+                if ok and img is not None:
+                    out.append(img)
     finally:
         cap.release()
     if out:
         return [cv2.cvtColor(f, cv2.COLOR_BGR2GRAY) if source.gray and f.ndim == 3 else f for f in out]
-    for f in source:  # decode in order
-        if f.image is not None:
-            out.append(f.image)
-        if len(out) >= k:
-            break
-    return out
+    return source.head(k)
 
 
 def sequence_region(source, mask_path=None, shape=None, max_frames=MAX_FRAMES):
@@ -513,7 +502,10 @@ def sequence_region(source, mask_path=None, shape=None, max_frames=MAX_FRAMES):
         The frames' size (the camera's); default that of the first frame that decodes.
     max_frames : int
         The region is detected from up to this many frames sampled evenly across the
-        sequence (`detect_valid_region`; ~0.02 s a frame).
+        sequence (`detect_valid_region`; ~0.02 s a frame); from a video shorter than
+        `_SEQUENTIAL_FRAMES_PER_SAMPLE` x max_frames, its first ones, read ahead and kept
+        for the run (the source's next iteration yields them first) instead of decoding
+        the video twice.
 
     Returns
     -------

@@ -123,6 +123,7 @@ class ImageSource:
                     raise InputError(f"{q}: given twice{also}; each image may appear once in IMAGES")
                 seen[key] = s
         self.description = self.spec
+        self._head, self._rest = [], None  # frames read ahead by `head`
 
     @staticmethod
     def _resolve(spec):
@@ -173,13 +174,32 @@ class ImageSource:
     def __len__(self):
         return self.count
 
+    def head(self, k):
+        """A video's first `k` frames' images (the decoded ones), read now and yielded again
+        by the next iteration, so that a sequence-level step (the valid region) costs no
+        second decoding of the video; an image list's first k images (decoded again later)."""
+        if self.kind != "video":
+            return [img for img, _ in (self._read(p) for p in self.paths[:k]) if img is not None]
+        if not self._head:
+            it = self._iter_video()
+            for frame in it:
+                self._head.append(frame)
+                if len(self._head) >= k:
+                    break
+            self._rest = it
+        return [f.image for f in self._head if f.image is not None]
+
     def __iter__(self):
         import cv2
 
         # OpenCV logs its own lines about broken files and streams on stderr; pencilcal
         # reports each undecodable frame once, in one line, itself
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
-        if self.kind == "video":
+        if self._head:
+            head, rest, self._head, self._rest = self._head, self._rest, [], None
+            yield from head
+            yield from rest
+        elif self.kind == "video":
             yield from self._iter_video()
         else:
             yield from self._iter_files()

@@ -59,6 +59,25 @@ def test_a_video_must_come_alone(tmp_path):
         open_images([str(v), str(_png(tmp_path / "a.png"))])
 
 
+def test_a_videos_head_is_read_once_and_yielded_again(tmp_path):
+    # the valid region reads a short video's first frames ahead: the run then gets every
+    # frame once, in order, the read-ahead ones first, without decoding them again
+    v = tmp_path / "v.avi"
+    w = cv2.VideoWriter(str(v), cv2.VideoWriter_fourcc(*"MJPG"), 5, (32, 24))
+    for k in range(7):
+        w.write(np.full((24, 32, 3), 30 * k, np.uint8))
+    w.release()
+    src = open_images(str(v))
+    plain = [f.image for f in open_images(str(v))]
+    head = src.head(3)
+    assert len(head) == 3 and all(np.array_equal(a, b) for a, b in zip(head, plain))
+    frames = list(src)
+    assert [f.index for f in frames] == list(range(7))
+    assert all(np.array_equal(f.image, b) for f, b in zip(frames, plain))
+    assert frames[0].image is head[0]  # the same array: not decoded again
+    assert [f.index for f in src] == list(range(7))  # and the source stays re-iterable
+
+
 def test_no_images_at_all(tmp_path):
     with pytest.raises(InputError, match="no images given"):
         open_images([])
