@@ -37,7 +37,7 @@ import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["Frame", "ImageSource", "open_images", "decode_image", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS",
+__all__ = ["Frame", "ImageSource", "read_ahead", "open_images", "decode_image", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS",
            "DEFAULT_MAX_PIXELS", "check_image_size", "quiet_c_stderr"]
 
 IMAGE_EXTENSIONS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
@@ -83,6 +83,18 @@ def _natural_key(s):
 # Frames larger than this are refused before they are decoded (a 1 kB PNG can claim
 # 100000 x 100000 pixels): 8K video is 33 MP. Raise it with `max_pixels`.
 DEFAULT_MAX_PIXELS = 100_000_000
+
+
+def read_ahead(frames, k):
+    """The first `k` frames (a list of `Frame`) of the iterator `frames`, read now, and the
+    iterator of the rest: a source's `head` keeps both for its next iteration to yield the
+    read-ahead frames first (`ImageSource.head`, `stream.StreamSource.head`)."""
+    head = []
+    for frame in frames:
+        head.append(frame)
+        if len(head) >= k:
+            break
+    return head, frames
 
 
 class ImageSource:
@@ -181,12 +193,7 @@ class ImageSource:
         if self.kind != "video":
             return [img for img, _ in (self._read(p) for p in self.paths[:k]) if img is not None]
         if not self._head:
-            it = self._iter_video()
-            for frame in it:
-                self._head.append(frame)
-                if len(self._head) >= k:
-                    break
-            self._rest = it
+            self._head, self._rest = read_ahead(self._iter_video(), k)
         return [f.image for f in self._head if f.image is not None]
 
     def __iter__(self):

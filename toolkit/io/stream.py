@@ -46,7 +46,7 @@ import time
 from pathlib import Path
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.images import DEFAULT_MAX_PIXELS, Frame, quiet_c_stderr
+from pencilcal.toolkit.io.images import DEFAULT_MAX_PIXELS, Frame, quiet_c_stderr, read_ahead
 
 __all__ = ["StreamSource", "open_stream", "is_stream_spec", "FOLLOW_IDLE_S", "LIVE_BUFFER"]
 
@@ -123,12 +123,7 @@ class StreamSource:
         """The first `k` frames' images (decoded ones), read now and yielded again by the
         iteration: what a sequence-level step (the valid region) sees before the run."""
         if not self._head:
-            it = iter(self)
-            for frame in it:
-                self._head.append(frame)
-                if len(self._head) >= k:
-                    break
-            self._rest = it
+            self._head, self._rest = read_ahead(iter(self), k)
         return [f.image for f in self._head if f.image is not None]
 
     def stop(self):
