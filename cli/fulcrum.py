@@ -111,14 +111,34 @@ def _with_noise(res, run, frames, sigma, given):
     return out, {**v.to_dict(), **kind, "pivot": None if p is None else p.to_dict()}
 
 
+def _is_lines_file(path):
+    """Whether --right names a lines file (a .json file: `pencilcal lines`'s output) rather
+    than frames (image files, folders, patterns, a video)."""
+    from pathlib import Path
+
+    return Path(path).suffix.lower() == ".json" and not Path(path).is_dir()
+
+
+def _right_frames(right, camera_right, detector, max_pixels, workers, quiet, force):
+    """(lines.json frames of the right view, the record's key and value saying where they
+    came from): read from a lines file, else its shafts detected in its own frames (its
+    valid region detected on them)."""
+    if _is_lines_file(right):
+        frames = read_lines(right)
+        if not frames:
+            raise InputError(f"{right}: no frames")
+        return frames, ("lines", str(right))
+    source = open_input((right,), None, max_pixels)
+    with FrameOutputs(None, None, force) as live:
+        return _shafts(source, camera_right, detector, quiet, workers, None, live), ("images", source.description)
+
+
 def _stereo(left, right_images, camera_right, camera_right_path, rig, detector, endpoint_sigma, given, max_pixels,
             workers, quiet, force):
-    """fulcrum.json's ``stereo`` record: the right view's shafts and fulcrum from its own
-    frames (its valid region detected on them), the noise as for the left view, then
+    """fulcrum.json's ``stereo`` record: the right view's fulcrum from its own shafts (a lines
+    file's, or detected in its frames), the noise as for the left view, then
     `fulcrum.stereo_fulcrum` with the left's."""
-    source = open_input((right_images,), None, max_pixels)
-    with FrameOutputs(None, None, force) as live:
-        frames = _shafts(source, camera_right, detector, quiet, workers, None, live)
+    frames, (key, where) = _right_frames(right_images, camera_right, detector, max_pixels, workers, quiet, force)
 
     def run(sigma):
         try:
@@ -134,7 +154,7 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, detector, 
     except EstimationError as e:
         raise EstimationError(f"{rig.source}: {e}") from None
     rec = st.to_dict()
-    rec["right"] = {"images": source.description, "camera": str(camera_right_path), "noise": noise, **rec["right"]}
+    rec["right"] = {key: where, "camera": str(camera_right_path), "noise": noise, **rec["right"]}
     if "agreement" in rec and not rec["agreement"]["consistent"]:
         warn("the diameter-based and the triangulated 3-D fulcrum disagree beyond their sigmas (chi2 {:.1f}, {} dof, "
              "p {:.2g}): check the shaft diameter and the stereo file's unit".format(
@@ -153,9 +173,10 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, detector, 
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
               help="The instrument shaft's diameter (e.g. 8 for 8 mm): also the 3-D fulcrum, point [x, y, z] in the "
                    "camera frame with point_cov and point_sigma, in D's unit, from every shaft's 3-D axis.")
-@click.option("--right", "right_images", default=None, metavar="IMAGES",
-              help="Frames of a second camera rigidly fixed to the first (a stereo endoscope's right view): its own "
-                   "fulcrum, and the 3-D fulcrum triangulated from the two views' rays (stereo).")
+@click.option("--right", "right_images", default=None, metavar="IMAGES|LINES",
+              help="Frames of a second camera rigidly fixed to the first (a stereo endoscope's right view), or their "
+                   "lines file (a .json written by `pencilcal lines --shaft`): its own fulcrum, and the 3-D fulcrum "
+                   "triangulated from the two views' rays (stereo).")
 @click.option("--camera-right", "camera_right_path", type=click.Path(dir_okay=False), default=None,
               help="Camera file of the --right camera.")
 @click.option("--right-from-left", "stereo_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
@@ -194,12 +215,14 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     point_outliers. Its lines must be shafts with their edges' covariance (lines --shaft).
 
     With --right IMAGES, --camera-right and --right-from-left (a stereo pair) the right
-    view's fulcrum is found from its own frames, and the two fulcrum rays meet at the 3-D
-    fulcrum: ``stereo.triangulated`` (left camera frame, the unit of the stereo file's T;
-    no diameter needed). With --shaft-diameter too, ``stereo.agreement`` says whether the
-    diameter-based point and the triangulated one agree within their sigmas (chi2, its dof
-    and p; the left view's ray, which both hold, counted once) and ``stereo.combined`` is
-    their fusion.
+    view's fulcrum is found from its own frames (or from its lines file: --right LINES.json),
+    and the two fulcrum rays meet at the 3-D fulcrum: ``stereo.triangulated`` (left camera
+    frame, the unit of the stereo file's T; no diameter needed). Where the camera files
+    carry the intrinsics' covariance it holds their term too, in point_cov_total and
+    point_sigma_total (point_cov: the noise alone). With --shaft-diameter too,
+    ``stereo.agreement`` says whether the diameter-based point and the triangulated one
+    agree within their sigmas (chi2, its dof and p; the left view's ray, which both hold,
+    counted once) and ``stereo.combined`` is their fusion.
 
     Unless --endpoint-sigma is given, the sigmas hold the noise the lines show: the
     intersection's chi-square per degree of freedom scales them (segments without their
@@ -215,6 +238,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
       pencilcal fulcrum --lines lines.json --camera camera.yaml --angles angles.csv -o fulcrum.json
       pencilcal fulcrum frames/ --camera camera.yaml --shaft-diameter 8 -o fulcrum.json
       pencilcal fulcrum left/ --camera l.yaml --right right/ --camera-right r.yaml --right-from-left extrinsics.yml -o f.json
+      pencilcal fulcrum --lines l.json --camera l.yaml --right r.json --camera-right r.yaml --right-from-left s.yml -o f.json
     """
     if shaft_diameter is not None and not shaft_diameter > 0:
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
@@ -225,7 +249,9 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     stereo = (right_images, camera_right_path, stereo_path)
     if any(x is not None for x in stereo) and not all(x is not None for x in stereo):
         raise click.UsageError("--right, --camera-right and --right-from-left go together")
-    check_output(output, force, [lines_path, camera_path, angles_path, mask_path, camera_right_path, stereo_path])
+    right_lines = right_images if right_images is not None and _is_lines_file(right_images) else None
+    check_output(output, force, [lines_path, camera_path, angles_path, mask_path, camera_right_path, stereo_path,
+                                 right_lines])
     camera = read_camera(camera_path, camera_id=camera_id)
     rig = None if stereo_path is None else read_stereo(stereo_path)
     camera_right = None if camera_right_path is None else read_camera(camera_right_path)
@@ -279,9 +305,12 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
                 *out["point"], out["point_sigma"], out["point_axes_used"], bad), err=True)
         if rig is not None:
             st = out["stereo"]
-            click.echo("stereo fulcrum ({:.2f}, {:.2f}, {:.2f}) +- {:.2f} (rms), triangulated from the right view's "
-                       "{} lines".format(*st["triangulated"]["point"], st["triangulated"]["point_sigma"],
-                                         st["right"]["lines_used"]), err=True)
+            tri = st["triangulated"]
+            views = " and ".join(tri.get("intrinsics_views", ()))
+            total = f" ({tri['point_sigma_total']:.2f} with the intrinsics of the {views} camera)" \
+                if "point_sigma_total" in tri else ""
+            click.echo("stereo fulcrum ({:.2f}, {:.2f}, {:.2f}) +- {:.2f} (rms){}, triangulated from the right view's "
+                       "{} lines".format(*tri["point"], tri["point_sigma"], total, st["right"]["lines_used"]), err=True)
             if "agreement" in st:
                 a = st["agreement"]
                 click.echo("diameter and stereo {}: chi2 {:.2f} ({} dof, p {:.3f}); combined ({:.2f}, {:.2f}, "

@@ -33,7 +33,8 @@ def _command(validation, output, samples, title, sensitivity, force, quiet):
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Report file: .html (self-contained page) or .pdf (A4 pages).")
 @click.option("--samples", type=click.IntRange(0, 50), default=4, show_default=True,
-              help="Sample frames drawn with their overlays, spread over the reference tilt (0: none).")
+              help="Sample frames drawn with their overlays, spread over the reference tilt (0: none); the "
+                   "fulcrum section, where there is one, draws the fulcrum on as many, three at most.")
 @click.option("--title", default=None, help="Page title (default: 'Validation report: SEQUENCE').")
 @click.option("--sensitivity", "sensitivity_path", type=click.Path(dir_okay=False), default=None,
               help="sensitivity.json of `pencilcal sensitivity`: adds its answer, heatmaps and the plan next to "

@@ -9,7 +9,8 @@ record adds what validation needs:
 
 - each frame's axis residual: in 2-D the distance of the fulcrum's (ideal) image from the
   frame's midline with the midline's sigma there, in 3-D the distance of the point from the
-  frame's 3-D axis and its chi2 (2 dof);
+  frame's 3-D axis and its chi2 (2 dof); every detected shaft's midline (raw px), which
+  the report draws on sample frames;
 - the truth where known (a simulate folder's ``pivot``): the vertex's error [px], the 3-D
   point's error [length] and its chi2 under point_cov (3 dof);
 - the fulcrum in the board frame where a board pose is known (PnP, per frame):
@@ -114,6 +115,8 @@ def fulcrum_record(camera, frames, validated=(), truth=None, shaft_diameter=None
     rec["shaft_diameter"] = shaft_diameter
     rec["frames"] = len(frames)
     rec["axis_residuals"] = _residuals_2d(camera, frames, _ideal_vertex(camera, rec["ray"]), rec["outliers"])
+    rec["midlines"] = [{"image": fr["image"], "shaft": j, "midline": np.asarray(sh["midline"], float).tolist()}
+                       for fr in frames for j, sh in enumerate(fr.get("shafts") or [])]
     point = None if res.point is None else (np.asarray(rec["point"], float), np.asarray(rec["point_cov"], float))
     if truth:
         t = {}

@@ -84,3 +84,48 @@ def test_fulcrum_stereo_options_go_together_and_bad_files(tmp_path):
                tmp_path / "f.json")
     assert r.exit_code == 1 and "s.yml" in r.output and "no T" in r.output
     assert len(r.output.strip().splitlines()) == 1
+
+
+def test_fulcrum_stereo_from_lines_files_with_the_intrinsics(tmp_path):
+    """--right as a lines file (what `pencilcal lines --shaft` writes), both camera files with
+    the intrinsics' covariance: the triangulated point gains point_cov_total (noise and the
+    intrinsics' term), the right record names its lines file; the exact lines of
+    test_stereo_fulcrum's two views (pinhole, 20 mm baseline, the port 100 mm away)."""
+    from pencilcal.toolkit.camera.intrinsics import intrinsic_names
+    from pencilcal.toolkit.camera.model import Camera
+    from pencilcal.toolkit.io.lines_file import write_lines
+    from tests.toolkit.pencil.test_stereo_fulcrum import CAM, FULCRUM, R_RL as R2, T_RL as T2, _lens_cov, _views
+
+    left, right = _views()
+    meta = {"cov_intrinsics": {"names": intrinsic_names(CAM), "cov": _lens_cov().tolist()}}
+    for name, view in (("left", left), ("right", right)):
+        write_lines(tmp_path / f"{name}.json", view.frames())
+        write_camera(tmp_path / f"{name}-cam.json", Camera(CAM.model, CAM.width, CAM.height, CAM.K, CAM.dist,
+                                                           meta=meta))
+    write_camera(tmp_path / "plain.json", CAM)
+    (tmp_path / "rig.json").write_text(json.dumps({"R_right_from_left": R2.tolist(), "t_right_from_left": T2.tolist()}))
+    base = ["fulcrum", "--lines", tmp_path / "left.json", "--camera", tmp_path / "left-cam.json", "--right",
+            tmp_path / "right.json", "--right-from-left", tmp_path / "rig.json", "--shaft-diameter", 8]
+    r = invoke(*base, "--camera-right", tmp_path / "right-cam.json", "-o", tmp_path / "f.json")
+    assert r.exit_code == 0, r.output
+    out = json.loads((tmp_path / "f.json").read_text())
+    st, tri = out["stereo"], out["stereo"]["triangulated"]
+    assert st["right"]["lines"] == str(tmp_path / "right.json") and "images" not in st["right"]
+    assert np.allclose(tri["point"], FULCRUM, atol=1e-3)
+    assert tri["intrinsics_views"] == ["left", "right"] and tri["point_sigma_total"] > 5 * tri["point_sigma"]
+    total, noise = np.asarray(tri["point_cov_total"]), np.asarray(tri["point_cov"])
+    assert np.all(np.linalg.eigvalsh(total - noise) > -1e-12) and np.trace(total) == pytest.approx(
+        tri["point_sigma_total"] ** 2)
+    assert out["intrinsics_used"] and np.asarray(out["ray_cov_total"]).shape == (3, 3)
+    assert st["right"]["intrinsics_used"] and "with the intrinsics of the left and right camera" in r.output
+    # the right camera without a covariance: the left's term alone, the noise-only part the same
+    r = invoke(*base, "--camera-right", tmp_path / "plain.json", "-o", tmp_path / "g.json", "-q")
+    assert r.exit_code == 0, r.output
+    tri2 = json.loads((tmp_path / "g.json").read_text())["stereo"]["triangulated"]
+    assert tri2["intrinsics_views"] == ["left"] and tri2["point_sigma_total"] < tri["point_sigma_total"]
+    assert np.allclose(tri2["point_cov"], noise, rtol=1e-6)
+    # a right lines file that is not one: one line naming it
+    (tmp_path / "bad.json").write_text('{"frames": 3}')
+    r = invoke(*base[:5], "--right", tmp_path / "bad.json", "--camera-right", tmp_path / "plain.json",
+               "--right-from-left", tmp_path / "rig.json", "-o", tmp_path / "h.json")
+    assert r.exit_code == 1 and "bad.json" in r.output and len(r.output.strip().splitlines()) == 1, r.output

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 
+import cv2
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -45,6 +46,12 @@ def test_validate_pivot_folder_has_the_fulcrum(pivot):
     # each frame's axis residual, 2-D and 3-D
     assert len(f["axis_residuals"]) == 8 and all(r["residual_px"] < 3 * r["sigma_px"] for r in f["axis_residuals"])
     assert len(f["point_axes"]) == 8
+    # every frame's 3-D axis, as far from the point as its distance says; every midline
+    P = np.asarray(f["point"])
+    for a in f["point_axes"]:
+        A, d = np.asarray(a["axis_point"]), np.asarray(a["axis_direction"])
+        assert np.isclose(np.linalg.norm(d), 1.0) and np.isclose(np.linalg.norm(np.cross(P - A, d)), a["distance"])
+    assert [m["image"] for m in f["midlines"]] == [fr["image"] for fr in v["frames"]]
     # the board frame: the PnP poses take the point to the sheet's frame, where the truth is
     b = f["board_frame"]
     assert b["frames"] >= 1 and np.asarray(b["point_cov"]).shape == (3, 3)
@@ -58,8 +65,15 @@ def test_validate_no_fulcrum_and_report_section(pivot, tmp_path):
     data = load_validation(pivot / "v.json")
     sec = fulcrum_section(data)
     plots = [b for b in sec.blocks if isinstance(b, Plot)]
-    assert len(plots) == 2 and all(p.png[:8] == b"\x89PNG\r\n\x1a\n" for p in plots)
-    assert "error ellipse" in plots[0].alt and "truth" in plots[0].caption
+    assert len(plots) == 5 and all(p.png[:8] == b"\x89PNG\r\n\x1a\n" for p in plots)
+    # three sample frames spread over the sequence, the fulcrum's ellipsoid drawn on them (cyan)
+    assert [p.alt for p in plots[:3]] == ["fulcrum on 000.png", "fulcrum on 004.png", "fulcrum on 007.png"]
+    assert "68 % ellipsoid" in plots[0].caption and "truth" in plots[0].caption
+    img = cv2.imdecode(np.frombuffer(plots[0].png, np.uint8), cv2.IMREAD_COLOR).astype(int)
+    cyan = (img[..., 0] > 200) & (img[..., 1] > 200) & (img[..., 2] < 60)
+    assert cyan[: int(0.8 * img.shape[0]), img.shape[1] // 2:].sum() > 100  # in the zoom, not the legend
+    assert "error ellipse" in plots[3].alt and "truth" in plots[3].caption and "8 used" in plots[3].caption
+    assert len([b for b in fulcrum_section(data, samples=0).blocks if isinstance(b, Plot)]) == 2
     rows = sec.blocks[0].rows
     assert [r[0] for r in rows] == ["2-D vertex", "3-D point (camera frame)", "3-D point (board frame)"]
     assert build_report(data).sections[-1].id == "fulcrum"

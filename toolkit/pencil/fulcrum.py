@@ -43,6 +43,7 @@ from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.estimator import check_vertex, fit_pencil
 from pencilcal.toolkit.geometry.frames import normalize
 from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
+from pencilcal.toolkit.camera.intrinsics import propagate
 from pencilcal.toolkit.pencil.lens_uncertainty import (orientation_totals, ray_sigma_total_deg,
                                                        resolve_intrinsics_cov, vertex_cov_total_px2)
 from pencilcal.toolkit.pencil.orient import orientation_record, raw_vertex
@@ -52,7 +53,7 @@ from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, Fusio
 from pencilcal.toolkit.pencil.vertex import intersect_lines
 
 __all__ = ["Fulcrum", "FulcrumPoint", "StereoFulcrum", "fulcrum_from_frames", "fulcrum_point", "stereo_fulcrum",
-           "read_angles"]
+           "triangulation_lens_cov", "read_angles"]
 
 
 def read_angles(path, images):
@@ -116,7 +117,8 @@ class Fulcrum:
     (`intrinsics_used`), ray_sigma_total_deg and vertex_cov_total_px2 hold its term too
     (`lens_uncertainty`), as the pivot's total keys do. ray_cov (3, 3): the unit ray's
     covariance when the fit was made (`ray_covariance` gives it with the current
-    ray_sigma_deg).
+    ray_sigma_deg); ray_cov_lens (3, 3): the intrinsics' term of it (with intrinsics_used;
+    a rescaled noise leaves it as it is), ``ray_cov_total`` in the record their sum.
     """
 
     vertex_px: np.ndarray | None
@@ -136,6 +138,7 @@ class Fulcrum:
     intrinsics_used: bool | None = None
     point: "FulcrumPoint | None" = None
     ray_cov: np.ndarray | None = None
+    ray_cov_lens: np.ndarray | None = None
 
     def ray_covariance(self):
         """(3, 3) covariance of the unit `ray` (camera frame), singular along it, with the
@@ -147,6 +150,12 @@ class Fulcrum:
         tr = float(np.trace(C))
         return C * (np.radians(self.ray_sigma_deg) ** 2 / tr) if tr > 0 else C
 
+    def ray_covariance_total(self):
+        """(3, 3) the unit ray's covariance with the intrinsics' term (`ray_covariance` plus
+        ray_cov_lens); None without the intrinsics' covariance."""
+        C = self.ray_covariance()
+        return None if C is None or self.ray_cov_lens is None else C + np.asarray(self.ray_cov_lens, float)
+
     def to_dict(self) -> dict:
         """The fulcrum.json record: the fulcrum's keys, then with a pivot plane the keys
         of orientation.json (but the image and those the fulcrum has) and pivot_frames."""
@@ -155,6 +164,8 @@ class Fulcrum:
                "outliers": self.outliers, "frames_used": self.frames_used, "rms": self.rms}
         if self.ray_cov is not None:
             out["ray_cov"] = self.ray_covariance()
+            if self.ray_cov_lens is not None:
+                out["ray_cov_total"] = self.ray_covariance_total()
         for k in ("ray_sigma_total_deg", "vertex_cov_total_px2", "intrinsics_used"):
             if getattr(self, k) is not None:
                 out[k] = getattr(self, k)
@@ -176,22 +187,30 @@ class FulcrumPoint:
 
     fit: the `cylinder.Fulcrum3D` over the N axes; owners: N (image, shaft index) of the
     axes; diameter: the shafts' diameter; skipped: shafts without a 3-D axis (no edge
-    covariance in the lines file, or edges that bound no cylinder).
+    covariance in the lines file, or edges that bound no cylinder). axis_points,
+    axis_directions: (N, 3) each axis's point closest to the camera centre and its unit
+    direction (camera frame), or None.
     """
 
     fit: Fulcrum3D
     owners: list
     diameter: float
     skipped: int = 0
+    axis_points: np.ndarray | None = None
+    axis_directions: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         """point, point_cov, point_sigma, point_axes_used, point_outliers ({image, shaft,
         distance, chi2} of each axis left out), point_axes ({image, shaft, distance, chi2,
-        used} of every axis), point_chi2_dof and shaft_diameter (docs/formats.md)."""
+        used, and axis_point, axis_direction where known} of every axis), point_chi2_dof and
+        shaft_diameter (docs/formats.md)."""
         f = self.fit
         used = np.asarray(f.inliers)
         axes = [{"image": im, "shaft": j, "distance": float(f.distances[k]), "chi2": float(f.chi2[k]),
                  "used": bool(used[k])} for k, (im, j) in enumerate(self.owners)]
+        if self.axis_points is not None and self.axis_directions is not None:
+            for a, p, d in zip(axes, self.axis_points, self.axis_directions):
+                a.update(axis_point=np.asarray(p, float).tolist(), axis_direction=np.asarray(d, float).tolist())
         dof = max(2 * int(used.sum()) - 3, 1)
         return {"point": np.asarray(f.point, float).tolist(), "point_cov": np.asarray(f.point_cov, float).tolist(),
                 "point_sigma": float(f.point_sigma), "point_axes_used": int(used.sum()),
@@ -234,7 +253,8 @@ def fulcrum_point(camera, frames, diameter, robust=True):
         raise EstimationError(f"the 3-D fulcrum needs the 3-D axes of two shafts at least, got {len(points)}"
                               + (f" ({skipped} shaft(s) without edge_cov or a valid axis)" if skipped else ""))
     fit = fulcrum_3d(np.array(points), np.array(dirs), np.array(covs), robust=robust)
-    return FulcrumPoint(fit=fit, owners=owners, diameter=float(diameter), skipped=skipped)
+    return FulcrumPoint(fit=fit, owners=owners, diameter=float(diameter), skipped=skipped,
+                        axis_points=np.array(points), axis_directions=normalize(np.array(dirs)))
 
 
 def _frame_lines(fr, endpoint_sigma_px, shafts_only):
@@ -338,7 +358,8 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
         k_in = idx[vf.inliers]
         ray_total, X = ray_sigma_total_deg(camera, C, x, cov_x, seg[k_in], st[k_in], sc[k_in])
         out = dataclasses.replace(out, ray_sigma_total_deg=ray_total, intrinsics_used=True, vertex_cov_total_px2=(
-            None if cov_raw is None else vertex_cov_total_px2(camera, C, x, X, cov_raw)))
+            None if cov_raw is None else vertex_cov_total_px2(camera, C, x, X, cov_raw)),
+            ray_cov_lens=P @ propagate(X, C) @ P.T)
     if shaft_diameter is not None:
         pt = fulcrum_point(camera, frames, shaft_diameter)
         more = [f"{pt.skipped} shaft(s) without edge_cov or a valid 3-D axis left out of the 3-D fulcrum"] \
@@ -377,7 +398,8 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
 
 
 _RIGHT_KEYS = ("vertex_px", "vertex_cov_px2", "ray", "ray_cov", "ray_sigma_deg", "lines_used", "outliers",
-               "frames_used", "rms", "lines_from")
+               "frames_used", "rms", "lines_from", "ray_cov_total", "ray_sigma_total_deg", "vertex_cov_total_px2",
+               "intrinsics_used")
 
 
 @dataclass(frozen=True, eq=False)
@@ -390,7 +412,10 @@ class StereoFulcrum:
     rays; combined: with the left view's diameter-based point, the `cylinder.Fusion` of it
     and the triangulated point (its chi2 the agreement test, 3 dof), else None; shared:
     whether the fusion counted the left ray once (False: the shared information exceeded
-    the diameter point's, the two were fused as independent).
+    the diameter point's, the two were fused as independent). lens_cov (3, 3): the
+    intrinsics' term of the triangulated point's covariance (`triangulation_lens_cov`)
+    from the views in lens_views ("left", "right": those whose camera carried an
+    intrinsics covariance), None when neither did.
     """
 
     rig: object
@@ -399,12 +424,16 @@ class StereoFulcrum:
     combined: Fusion | None = None
     shared: bool = True
     confidence: float = GATE_CONFIDENCE
+    lens_cov: np.ndarray | None = None
+    lens_views: tuple = ()
 
     def to_dict(self) -> dict:
         """fulcrum.json's ``stereo`` record: the rig (``file``, ``R_right_from_left``,
         ``t_right_from_left``, ``baseline``), ``right`` (the right view's fulcrum keys),
         ``triangulated`` (``point``, ``point_cov``, ``point_sigma``, ``ranges``,
-        ``ray_distances``, ``chi2``, ``dof``, ``p_value``) and with the diameter ``agreement``
+        ``ray_distances``, ``chi2``, ``dof``, ``p_value``; with the intrinsics' covariance
+        of either camera also ``point_cov_total``, ``point_sigma_total``, ``intrinsics_used``
+        and ``intrinsics_views``) and with the diameter ``agreement``
         (``chi2``, ``dof``, ``p_value``, ``threshold``, ``confidence``, ``consistent``,
         ``shared_left_ray``) and ``combined`` (``point``, ``point_cov``, ``point_sigma``)."""
         from scipy.special import chdtrc  # not scipy.stats: a second or more to import
@@ -417,6 +446,11 @@ class StereoFulcrum:
                                "point_sigma": float(t.point_sigma), "ranges": np.asarray(t.ranges, float).tolist(),
                                "ray_distances": np.asarray(t.distances, float).tolist(), "chi2": float(t.chi2),
                                "dof": 1, "p_value": float(chdtrc(1, float(t.chi2)))}
+        if self.lens_cov is not None:
+            total = np.asarray(t.point_cov, float) + np.asarray(self.lens_cov, float)
+            out["triangulated"].update({"point_cov_total": total.tolist(),
+                                        "point_sigma_total": float(np.sqrt(max(np.trace(total), 0.0))),
+                                        "intrinsics_used": True, "intrinsics_views": list(self.lens_views)})
         c = self.combined
         if c is not None:
             out["agreement"] = {"chi2": float(c.chi2), "dof": int(c.dof), "p_value": float(c.p_value),
@@ -425,6 +459,29 @@ class StereoFulcrum:
             out["combined"] = {"point": np.asarray(c.point, float).tolist(),
                                "point_cov": np.asarray(c.cov, float).tolist(), "point_sigma": float(c.sigma)}
         return out
+
+
+def triangulation_lens_cov(tri, lens_left, lens_right):
+    """(3, 3) the intrinsics' term of a triangulated point's covariance (left camera frame).
+
+    tri: the `cylinder.RayTriangulation` of two rays; lens_left, lens_right: (3, 3) the
+    intrinsics' term of each unit ray's covariance (`Fulcrum.ray_cov_lens`; the right one
+    in the left camera frame, ``R^T C R``), or None where that camera has none. The point
+    is the weighted least-squares meeting of the rays, ``x = H^-1 sum_k I_k c_k`` with I_k
+    the ray's information (`RayTriangulation.ray_information`) and H their sum; turning
+    ray k by d moves its offset from x by its range rho_k times d, and x by
+    ``H^-1 I_k rho_k d``. The rays' lens errors (independent cameras) then add
+    ``H^-1 (sum_k rho_k^2 I_k C_k I_k) H^-1``; with a ray's noise covariance in place of
+    C_k the same sum is H^-1, the noise-only covariance.
+    """
+    H_inv = np.asarray(tri.point_cov, float)
+    M = np.zeros((3, 3))
+    for k, C in enumerate((lens_left, lens_right)):
+        if C is not None:
+            I_k = np.asarray(tri.ray_information, float)[k]
+            M += float(tri.ranges[k]) ** 2 * I_k @ np.asarray(C, float) @ I_k
+    out = H_inv @ M @ H_inv
+    return 0.5 * (out + out.T)
 
 
 def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
@@ -445,8 +502,12 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     so the left ray's information (`RayTriangulation.ray_information`) is passed as
     shared: the agreement chi2 (3 dof) then tests the depth from the shaft's width against
     the depth from the baseline and the right view, and the fusion counts the left ray
-    once. confidence: of the agreement test. Returns a `StereoFulcrum`; EstimationError
-    when a ray has no covariance, the rays are parallel or meet behind a camera.
+    once. confidence: of the agreement test. With either view's intrinsics' term
+    (`Fulcrum.ray_cov_lens`, the camera file's intrinsics covariance) the triangulated
+    point's covariance gains it too (`triangulation_lens_cov`, ``StereoFulcrum.lens_cov``);
+    the agreement and the fusion keep the noise-only covariances (the diameter-based point
+    has no intrinsics term). Returns a `StereoFulcrum`; EstimationError when a ray has no
+    covariance, the rays are parallel or meet behind a camera.
     """
     Cl, Cr = left.ray_covariance(), right.ray_covariance()
     if Cl is None or Cr is None:
@@ -456,8 +517,13 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     if np.any(~(np.asarray(tri.ranges) > 0)):
         raise EstimationError("the two views' fulcrum rays meet behind a camera (ranges {:.3g}, {:.3g}): check the "
                               "stereo file's R and T (right from left)".format(*np.asarray(tri.ranges, float)))
+    lens = {"lens_cov": None, "lens_views": tuple(v for v, f in (("left", left), ("right", right))
+                                                  if f.ray_cov_lens is not None)}
+    if lens["lens_views"]:
+        lens["lens_cov"] = triangulation_lens_cov(tri, left.ray_cov_lens, None if right.ray_cov_lens is None
+                                                  else R.T @ np.asarray(right.ray_cov_lens, float) @ R)
     if left.point is None:
-        return StereoFulcrum(rig, right, tri, confidence=confidence)
+        return StereoFulcrum(rig, right, tri, confidence=confidence, **lens)
     fit = left.point.fit
     shared = True
     try:
@@ -466,4 +532,4 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     except EstimationError:
         shared = False
         fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence)
-    return StereoFulcrum(rig, right, tri, fused, shared, confidence)
+    return StereoFulcrum(rig, right, tri, fused, shared, confidence, **lens)

@@ -120,7 +120,7 @@ def build_report(data, *, title=None, samples=4, sensitivity=None, source=None, 
                 sfm_section(data),
                 sensitivity_section(data, sensitivity),
                 reproducibility_section(data, source, report_command, sensitivity_path)]
-    fulcrum = fulcrum_section(data, number=10)
+    fulcrum = fulcrum_section(data, number=10, samples=min(samples, 3), source=source)
     if fulcrum is not None:
         sections.append(fulcrum)
     return Report(title, subtitle, sections)

@@ -12,6 +12,8 @@ Example
 (0.5, None, None)
 >>> num(0.12345, " deg"), num(2.7e-8), num(None), pct(0.683)
 ('0.123 deg', '2.7e-08', '–', '68%')
+>>> vec([1.0, 2.5, None], " px"), vec(None)
+('(1.00, 2.50, –) px', '–')
 """
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ import math
 
 import numpy as np
 
-__all__ = ["lookup", "finite", "finite_or_nan", "num", "pct"]
+__all__ = ["lookup", "finite", "finite_or_nan", "num", "pct", "vec"]
 
 
 def lookup(d, *keys, default=None):
@@ -75,3 +77,12 @@ def pct(x):
     """A fraction (0.683) as a whole percentage ("68%"), a dash when missing."""
     v = finite(x)
     return "–" if v is None else f"{100 * v:.0f}%"
+
+
+def vec(v, unit=""):
+    """A vector for people, "(x, y, z)" with each number as `num` writes it and `unit`
+    after it; a dash when it is no vector."""
+    try:
+        return "(" + ", ".join(num(x) for x in v) + ")" + unit
+    except TypeError:
+        return "–"

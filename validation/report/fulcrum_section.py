@@ -2,9 +2,10 @@
 ``fulcrum``, `validation.fulcrum_validation`), against its truth where known.
 
 A table of the 2-D vertex and the 3-D point with their sigmas, errors and the board-frame
-point; a top view (x-z plane of the camera frame) of the 3-D point with its 1- and 2-sigma
-ellipses, the truth and the camera; the per-frame axis residuals (2-D, against their
-sigmas), drawn and tabled.
+point; the fulcrum drawn on a few sample frames with their shaft midlines and a top view
+(x-z plane of the camera frame) of the 3-D point among the frames' 3-D axes, with its
+ellipses (`fulcrum_figures`); the per-frame axis residuals (2-D, against their sigmas),
+drawn and tabled.
 
 Example
 -------
@@ -17,54 +18,10 @@ import numpy as np
 
 from .document import Details, Para, Plot, Section, Table
 from .figures import new_figure, png_bytes
-from .format import finite, lookup, num
+from .format import finite, lookup, num, vec
+from .fulcrum_figures import fig_top_view, fulcrum_frames
 
 __all__ = ["fulcrum_section"]
-
-
-def _vec(v, unit=""):
-    try:
-        return "(" + ", ".join(num(x) for x in v) + ")" + unit
-    except TypeError:
-        return "–"
-
-
-def _ellipse(ax, centre, cov2, k, **kw):
-    """The k-sigma ellipse of a 2x2 covariance about centre (2,) on the axes."""
-    w, V = np.linalg.eigh(np.asarray(cov2, float))
-    t = np.linspace(0.0, 2 * np.pi, 121)
-    circle = np.stack([np.cos(t), np.sin(t)], -1) * (k * np.sqrt(np.maximum(w, 0.0)))
-    pts = np.asarray(centre, float) + circle @ V.T
-    ax.plot(pts[:, 0], pts[:, 1], **kw)
-
-
-def _fig_top_view(rec):
-    """Top view (x right, z forward) of the 3-D fulcrum and its ellipses; None without a point."""
-    if rec.get("point") is None or rec.get("point_cov") is None:
-        return None
-    P = np.asarray(rec["point"], float)
-    C = np.asarray(rec["point_cov"], float)[np.ix_([0, 2], [0, 2])]
-    fig = new_figure(figsize=(6.4, 4.2))
-    ax = fig.add_subplot(1, 1, 1)
-    ax.plot([0.0], [0.0], "ks", label="camera centre")
-    ray = np.asarray(rec.get("ray") or [0, 0, 1], float)
-    reach = 1.2 * float(np.linalg.norm(P))
-    ax.plot([0.0, reach * ray[0]], [0.0, reach * ray[2]], "C7--", lw=0.8, label="fulcrum ray (2-D vertex)")
-    ax.plot([P[0]], [P[2]], "C0o", label="3-D fulcrum")
-    _ellipse(ax, P[[0, 2]], C, 1.0, color="C0", lw=1.2, label="1 sigma")
-    _ellipse(ax, P[[0, 2]], C, 2.0, color="C0", lw=0.8, ls=":", label="2 sigma")
-    truth = lookup(rec, "truth", "fulcrum_cam")
-    if truth is not None:
-        ax.plot([truth[0]], [truth[2]], "C3x", ms=9, label="truth")
-    ax.set_xlabel("x (camera frame)")
-    ax.set_ylabel("z (depth)")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.legend(fontsize=8, loc="best")
-    cap = (f"Top view of the 3-D fulcrum {_vec(P)} with its 1- and 2-sigma ellipses in the x-z plane "
-           f"(point_sigma {num(rec.get('point_sigma'))})")
-    if truth is not None:
-        cap += f"; the truth is {num(lookup(rec, 'truth', 'point_error_norm'))} away"
-    return Plot(png_bytes(fig), cap + ".", "top view of the 3-D fulcrum and its error ellipse")
 
 
 def _fig_residuals(rows):
@@ -88,8 +45,10 @@ def _fig_residuals(rows):
                 "the frame's shaft midline, with the midline's sigma at that point.", "axis residuals per frame")
 
 
-def fulcrum_section(data, number=8):
-    """The fulcrum section (`Section`), or None when the file has no ``fulcrum`` record."""
+def fulcrum_section(data, number=8, samples=3, source=None):
+    """The fulcrum section (`Section`), or None when the file has no ``fulcrum`` record.
+    samples: how many frames to draw the fulcrum on; source: the validation file's path
+    (relative image paths are looked for beside it)."""
     rec = data.get("fulcrum")
     if not isinstance(rec, dict):
         return None
@@ -100,11 +59,11 @@ def fulcrum_section(data, number=8):
     t = rec.get("truth") or {}
     cov = rec.get("vertex_cov_px2")
     vs = None if cov is None else float(np.sqrt(np.trace(np.asarray(cov, float))))
-    rows = [["2-D vertex", _vec(rec.get("vertex_px"), " px"), num(vs, " px"), num(t.get("vertex_error_px"), " px"),
+    rows = [["2-D vertex", vec(rec.get("vertex_px"), " px"), num(vs, " px"), num(t.get("vertex_error_px"), " px"),
              f"{rec.get('lines_used')} lines of {rec.get('frames_used')} frames, {len(rec.get('outliers') or [])} "
              "outliers"]]
     if rec.get("point") is not None:
-        rows.append(["3-D point (camera frame)", _vec(rec["point"]), num(rec.get("point_sigma")),
+        rows.append(["3-D point (camera frame)", vec(rec["point"]), num(rec.get("point_sigma")),
                      num(t.get("point_error_norm")),
                      f"{rec.get('point_axes_used')} axes, chi2/dof {num(rec.get('point_chi2_dof'))}"
                      + (f", truth chi2 {num(t.get('point_chi2'))} (3 dof, p {num(t.get('point_p_value'))})"
@@ -112,13 +71,14 @@ def fulcrum_section(data, number=8):
     board = rec.get("board_frame")
     if isinstance(board, dict):
         bs = float(np.sqrt(np.trace(np.asarray(board["point_cov"], float))))
-        rows.append(["3-D point (board frame)", _vec(board.get("point")), num(bs), num(board.get("error")),
+        rows.append(["3-D point (board frame)", vec(board.get("point")), num(bs), num(board.get("error")),
                      f"median over {board.get('frames')} PnP poses (spread {num(board.get('spread'))})"])
     sec.blocks.append(Table(["estimate", "value", "sigma (rms)", "error vs truth", "from"], rows, None,
                             f"The fulcrum as `pencilcal fulcrum` finds it from the shafts detected in every frame; "
                             f"lengths in the shaft diameter's unit ({num(rec.get('shaft_diameter'))}).",
                             numeric_from=2, text_cols=(4,)))
-    for p in (_fig_top_view(rec), _fig_residuals(rec.get("axis_residuals") or [])):
+    sec.blocks += fulcrum_frames(data, rec, samples, source)
+    for p in (fig_top_view(rec), _fig_residuals(rec.get("axis_residuals") or [])):
         if p is not None:
             sec.blocks.append(p)
     axes3 = {(a["image"], a["shaft"]): a for a in rec.get("point_axes") or []}

@@ -29,7 +29,8 @@ from .document import Para, Plot, Section
 from .figures import new_figure, nice_floor, png_bytes, tilt_axis
 from .format import lookup, num
 
-__all__ = ["usable_camera", "field_radius", "sample_frames", "fig_overlay", "overlay_section"]
+__all__ = ["usable_camera", "field_radius", "frame_image", "project_points", "sample_frames", "fig_overlay",
+           "overlay_section"]
 
 
 def usable_camera(data):
@@ -74,10 +75,12 @@ def _image_path(data, fr, roots=()):
     return path
 
 
-def _read_image(path):
-    """((H, W, 3) uint8 RGB image, None), or (None, why not)."""
+def frame_image(data, fr, roots=()):
+    """((H, W, 3) uint8 RGB image of the validation file's frame `fr`, None), or (None, why
+    not); the image found as `_image_path` finds it."""
     import cv2
 
+    path = _image_path(data, fr, roots)
     if not path or not Path(str(path)).is_file():
         return None, f"image not found at {path}"
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
@@ -86,7 +89,7 @@ def _read_image(path):
     return img[..., ::-1], None
 
 
-def _proj_polyline(cam, P, rmax):
+def project_points(cam, P, rmax):
     """Project camera-frame points P: (N, 3) to (N, 2) raw pixels; NaN where a point is
     behind the camera or beyond the normalised radius `rmax` the lens's field reaches."""
     P = np.asarray(P, float)
@@ -253,12 +256,12 @@ def _draw_board(ax, sc, keep):
     W, H = sc.size
     corners = np.array([[0, 0, 0], [W, 0, 0], [W, H, 0], [0, H, 0], [0, 0, 0]], float)
     outline = np.concatenate([c0 + s * (c1 - c0) for c0, c1 in zip(corners[:-1], corners[1:])])
-    uv = _proj_polyline(sc.cam, (sc.R_ref @ outline.T).T + sc.t_ref, sc.field_r)
+    uv = project_points(sc.cam, (sc.R_ref @ outline.T).T + sc.t_ref, sc.field_r)
     keep("board outline (reference pose)", ax.plot(uv[:, 0], uv[:, 1], "-", color="cyan", lw=0.9)[0])
     for axis, col, name in ((0, "red", "x"), (1, "lime", "y"), (2, "blue", "z")):
         e = np.zeros(3)
         e[axis] = sc.L
-        uv = _proj_polyline(sc.cam, (sc.R_ref @ (s * e).T).T + sc.t_ref, sc.field_r)
+        uv = project_points(sc.cam, (sc.R_ref @ (s * e).T).T + sc.t_ref, sc.field_r)
         keep(f"board {name} axis (reference pose)", ax.plot(uv[:, 0], uv[:, 1], "-", color=col, lw=2.4)[0])
 
 
@@ -306,7 +309,7 @@ def _draw_normals(ax, ai, sc, keep):
                                      "reference normal", 1.3)):
         if vec is None:
             continue
-        uv = _proj_polyline(sc.cam, sc.P0 + s * (sc.L * np.asarray(vec, float)), sc.field_r)
+        uv = project_points(sc.cam, sc.P0 + s * (sc.L * np.asarray(vec, float)), sc.field_r)
         lw_n = wid if ai else wid * 0.7
         ln = ax.plot(uv[:, 0], uv[:, 1], ls=ls, color=col, lw=lw_n,
                      path_effects=[patheffects.withStroke(linewidth=lw_n + 1.6, foreground="black")])[0]
@@ -372,7 +375,7 @@ def fig_overlay(data, index, cam, field_r, roots=()):
     from matplotlib.patches import Rectangle
 
     fr = data["frames"][index]
-    img, why = _read_image(_image_path(data, fr, roots))
+    img, why = frame_image(data, fr, roots)
     if img is None:
         return None, f"{fr.get('image')}: {why}; no overlay."
     o = _orient_record(data, fr)

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from pencilcal.toolkit.camera.intrinsics import intrinsics_vector, with_intrinsics
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.camera.stereo import read_stereo
 from pencilcal.toolkit.detect.shaft_axis import plane_bisector
@@ -205,6 +206,55 @@ def test_stereo_monte_carlo():
     assert 0.58 <= np.mean(np.array(p) >= 0.32) <= 0.78, np.mean(np.array(p) >= 0.32)
     # as independent estimates (3 dof) the two would look far too alike
     assert np.mean(naive) / 3.0 < 0.8, np.mean(naive)
+
+
+def _lens_cov():
+    """A calibration-like intrinsics covariance of CAM (fx, fy, cx, cy): 1.5 px focal (fx, fy
+    correlated 0.9), 2 px centre."""
+    s = np.array([1.5, 1.5, 2.0, 2.0])
+    C = np.diag(s**2)
+    C[0, 1] = C[1, 0] = 0.9 * s[0] * s[1]
+    return C
+
+
+def test_stereo_total_covariance_predicts_the_spread_from_the_intrinsics():
+    """Exact midlines in raw pixels, each view's camera drawn from the intrinsics' covariance:
+    the triangulated points' spread is the lens term alone, and point_cov_total - point_cov
+    must predict it (mean squared Mahalanobis distance about 3, the RMS within 20 %)."""
+    left, right = _views()
+    fl0, fr0 = left.frames(), right.frames()
+    C = _lens_cov()
+    a = fulcrum_from_frames(CAM, fl0, endpoint_sigma_px=MIDLINE_ENDPOINT_PX, intrinsics_cov=C)
+    b = fulcrum_from_frames(CAM, fr0, endpoint_sigma_px=MIDLINE_ENDPOINT_PX, intrinsics_cov=C)
+    st = stereo_fulcrum(a, b, Rig())
+    rec = st.to_dict()["triangulated"]
+    lens = np.asarray(rec["point_cov_total"]) - np.asarray(rec["point_cov"])
+    assert st.lens_views == ("left", "right") and rec["intrinsics_used"]
+    assert rec["intrinsics_views"] == ["left", "right"]
+    assert rec["point_sigma_total"] > rec["point_sigma"]
+    # the noise-only covariance is the one without the intrinsics
+    plain = stereo_fulcrum(fulcrum_from_frames(CAM, fl0, endpoint_sigma_px=MIDLINE_ENDPOINT_PX),
+                           fulcrum_from_frames(CAM, fr0, endpoint_sigma_px=MIDLINE_ENDPOINT_PX), Rig()).to_dict()
+    assert np.allclose(plain["triangulated"]["point_cov"], rec["point_cov"]) and "point_cov_total" not in \
+        plain["triangulated"]
+    # the right view's own totals are in its record
+    assert np.asarray(st.to_dict()["right"]["ray_cov_total"]).shape == (3, 3)
+    rng = np.random.default_rng(11)
+    th = intrinsics_vector(CAM)
+    L = np.linalg.cholesky(C)
+    err = []
+    for _ in range(150):
+        cl, cr = (with_intrinsics(CAM, th + L @ rng.normal(size=th.size)) for _ in range(2))
+        err.append(stereo_fulcrum(fulcrum_from_frames(cl, fl0, endpoint_sigma_px=MIDLINE_ENDPOINT_PX),
+                                  fulcrum_from_frames(cr, fr0, endpoint_sigma_px=MIDLINE_ENDPOINT_PX),
+                                  Rig()).triangulated.point - FULCRUM)
+    err = np.array(err)
+    m2 = np.einsum("ni,ij,nj->n", err, np.linalg.inv(lens), err)
+    assert 2.4 < m2.mean() < 3.6, m2.mean()
+    assert 0.8 < np.sqrt(np.mean(np.sum(err**2, -1)) / np.trace(lens)) < 1.25
+    # one camera with a covariance: its term alone, smaller than both
+    one = stereo_fulcrum(a, fulcrum_from_frames(CAM, fr0, endpoint_sigma_px=MIDLINE_ENDPOINT_PX), Rig())
+    assert one.lens_views == ("left",) and 0 < np.trace(one.lens_cov) < np.trace(lens)
 
 
 # ------------------------------------------------------------------------ the stereo file
