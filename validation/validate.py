@@ -48,7 +48,7 @@ class FanLines:
     the midlines of its bars (`toolkit.detect.bars.detect_bars`), or plain edge segments with
     `edges`; within `valid_region` (a `toolkit.detect.region.ValidRegion`) when one is set."""
 
-    def __init__(self, pencil, detector="lsd", edges=False, valid_region=None):
+    def __init__(self, pencil, detector="auto", edges=False, valid_region=None):
         self.pencil = pencil
         self.detector = detector
         self.edges = edges
@@ -403,7 +403,7 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
     Returns the validation.json dict (numpy arrays inside; write with files.write_json).
     """
     frames, best_poses, shaft_frames = [], [], []
-    shafts = None if fulcrum is None else (fulcrum.get("detector", "lsd"), fulcrum.get("valid_region"))
+    shafts = None if fulcrum is None else (fulcrum.get("detector", "auto"), fulcrum.get("valid_region"))
     ctx = (camera, board, lines_source, models, methods, truth, keep_pixels, shafts)
     results = map_frames(_frame_task, source, ctx, workers)
     it = results if progress is None else progress(Sized(results, len(source)), "validate")
@@ -487,7 +487,7 @@ def find_sequences(path):
 
 
 def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=None, grid_pencil=None, truth=None,
-                  models=MODELS, methods=METHODS, sfm=False, sfm_dir=None, detector="lsd", calibration=None,
+                  models=MODELS, methods=METHODS, sfm=False, sfm_dir=None, detector="auto", calibration=None,
                   workers=1, progress=None, warn=None, quiet=True, sfm_progress=None, argv=None, edges=False,
                   mask=None, right=None, right_camera=None, right_calibration=None, fulcrum=None, shaft_diameter=None):
     """Validate one sequence given by paths; returns the whole validation.json dict.

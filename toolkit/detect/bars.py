@@ -41,6 +41,7 @@ from pencilcal.toolkit.detect.segments import (
     detect_fragments,
     in_valid_region,
     merge_collinear,
+    proposal_detector,
 )
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw, to_raw_points, to_working
 from pencilcal.toolkit.errors import InputError
@@ -637,7 +638,7 @@ def _bars_from_pairs(img, camera, E, sub, a, b, o):
     )
 
 
-def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_length=30.0, min_aspect=4.0,
+def detect_bars(image, detector="auto", *, camera=None, width_px_range=None, min_length=30.0, min_aspect=4.0,
                 max_convergence_deg=3.0, min_overlap=0.5, refine_ends=True, search_px=None,
                 sigma_px=RefitOptions.sigma_px, step_px=RefitOptions.step_px, max_gap_px=RefitOptions.max_gap_px,
                 min_gradient=RefitOptions.min_gradient, detector_params=None, proposal_scale=None,
@@ -660,7 +661,8 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
     Parameters
     ----------
     image : (H, W) or (H, W, 3) array
-    detector : {"lsd", "fld", "edlines"}
+    detector : {"auto", "lsd", "fld", "edlines"}
+        The proposals' detector; "auto": FLD (`segments.proposal_detector`).
     camera : Camera, optional
         Lens model; see `detect_segments`. Midlines are returned in raw pixels.
     width_px_range : (2,) [px], optional
@@ -719,6 +721,7 @@ def detect_bars(image, detector="lsd", *, camera=None, width_px_range=None, min_
     """
     if polarity not in BAR_POLARITIES:
         raise InputError(f"unknown bar polarity {polarity!r}; expected one of {', '.join(BAR_POLARITIES)}")
+    detector = proposal_detector(detector, bars=True)
     img = GrayImage(image, valid_region)
     check_camera_image(camera, img)
     o = BarOptions.resolve(img.shape, width_px_range=width_px_range, max_convergence_deg=max_convergence_deg,

@@ -60,7 +60,7 @@ def fan_line_options(pencil_width, edges=False):
     return True, ("dark" if pencil_width is not None else "either")
 
 
-def detect_frame_lines(name, image, camera=None, detector="lsd", bars=False, shaft=False, min_length=None,
+def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None,
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark"):
     """The lines of one decoded image, as a `LineFrame`.
 
@@ -70,7 +70,9 @@ def detect_frame_lines(name, image, camera=None, detector="lsd", bars=False, sha
         The frame's name.
     image : (H, W) or (H, W, 3) array
     camera : Camera, optional
-    detector : {"lsd", "fld", "edlines"}
+    detector : {"auto", "lsd", "fld", "edlines"}
+        The OpenCV detector proposing lines; "auto": FLD for bars, LSD for edge segments
+        and shafts (`segments.proposal_detector`).
     bars : bool
         Midlines of dark bars (`detect_bars`, the printed spokes; with ``width_px``) instead
         of edge segments (`detect_segments`).
@@ -106,7 +108,7 @@ def detect_frame_lines(name, image, camera=None, detector="lsd", bars=False, sha
     )
 
 
-def lines_record(name, image, camera=None, detector="lsd", bars=False, shaft=False, min_length=None, bar_width=None,
+def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None, bar_width=None,
                  proposal_scale=None, valid_region=None, bar_polarity="dark"):
     """One lines.json frame record from one decoded image: ``detect_frame_lines(...).to_dict()``
     (the same arguments)."""

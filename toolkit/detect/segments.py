@@ -62,6 +62,8 @@ from pencilcal.toolkit.pencil.vertex import segment_angle_sigma
 
 __all__ = [
     "DETECTORS",
+    "DETECTOR_CHOICES",
+    "proposal_detector",
     "MERGE_ANGLE_TOL_DEG",
     "MERGE_DIST_TOL_PX",
     "MIN_LENGTH_PX",
@@ -76,6 +78,26 @@ __all__ = [
 ]
 
 DETECTORS = ("lsd", "fld", "edlines")
+#: What a caller may ask for: a detector, or "auto" (`proposal_detector`).
+DETECTOR_CHOICES = ("auto",) + DETECTORS
+
+
+def proposal_detector(detector, bars=False):
+    """The OpenCV detector to run: `detector` itself, or for "auto" FLD where it proposes
+    printed bars and LSD elsewhere (edge segments, shaft proposals).
+
+    On rendered fans without their width (thin 1.2 mm and thick 4 mm spokes, dark on light
+    and light on dark, 1280x720 and 1920x1080, noise sd 5 and 12, blur 1.5 and 3 px) FLD
+    proposals let as many frames through as LSD's, or more (the blurred thick bars: 5 of 5
+    frames against 2), with the same tilt errors, at about a fifth of LSD's cost; LSD's
+    a-contrario test keeps the long, low-contrast edges of plain segments and shafts.
+
+    >>> proposal_detector("auto", bars=True), proposal_detector("auto"), proposal_detector("edlines", True)
+    ('fld', 'lsd', 'edlines')
+    """
+    if detector == "auto":
+        return "fld" if bars else "lsd"
+    return detector
 MERGE_ANGLE_TOL_DEG = 2.0  # fragments of one line differ in direction by less [deg] (merge_collinear)
 MERGE_DIST_TOL_PX = 1.5  # ... and lie within this distance of each other's line [px]
 MIN_LENGTH_PX = 20.0  # shortest segment detect_segments returns by default [px]
@@ -215,8 +237,9 @@ def detect_raw(image, detector="lsd", params=None):
     >>> detect_raw(img, "fld").shape[1]
     4
     """
+    detector = proposal_detector(detector)
     if detector not in DETECTORS:
-        raise InputError(f"unknown detector {detector!r}; expected one of {', '.join(DETECTORS)}")
+        raise InputError(f"unknown detector {detector!r}; expected one of {', '.join(DETECTOR_CHOICES)}")
     params = dict(params or {})
     u8 = (image if isinstance(image, GrayImage) else GrayImage(image)).u8
     try:
