@@ -40,7 +40,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import stats
 
 from pencilcal.toolkit.camera.intrinsics import jacobian_pixels_wrt_intrinsics, propagate
 from pencilcal.toolkit.errors import EstimationError
@@ -62,12 +61,16 @@ _GRID = (9, 7)
 def binomial_band(n, p=REGION, level=_BAND):
     """(low, high): the fractions of n Bernoulli(p) trials that fall inside with probability
     `level` (central binomial quantiles / n)."""
+    from scipy import stats
+
     a = (1.0 - level) / 2.0
     return float(stats.binom.ppf(a, n, p) / n), float(stats.binom.ppf(1.0 - a, n, p) / n)
 
 
 def _coverage(z2, dof):
     """The coverage record of squared Mahalanobis distances z2 (N,) with `dof`."""
+    from scipy import stats
+
     z2 = np.asarray(z2, float)
     thr = float(stats.chi2.ppf(REGION, dof))
     lo, hi = binomial_band(z2.size)
@@ -186,6 +189,8 @@ def intrinsics_agreement(a, b, camera_a, camera_b):
     over the image through camera a's ray into camera b, and ``projection_predicted_rms_px``,
     its first-order sigma from C_a + C_b.
     """
+    from scipy import stats
+
     from pencilcal.toolkit.camera.intrinsics import intrinsics_vector
 
     d = intrinsics_vector(camera_a) - intrinsics_vector(camera_b)
@@ -224,6 +229,8 @@ def calibration_halves(detections, board, image_size, repeats=0, seed=0, **optio
     its chi2(dof), and the mean chi2 per dof. A half that cannot be calibrated is an
     EstimationError (the check needs twice the views a calibration does).
     """
+    from scipy import stats
+
     from pencilcal.toolkit.board.calibrate import calibrate
 
     usable = [i for i, d in enumerate(detections) if d is not None and d.count > 0]

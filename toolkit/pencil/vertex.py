@@ -46,7 +46,6 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 from scipy.special import chdtri
 
 from pencilcal.toolkit.geometry.angles import wrap_line
@@ -269,6 +268,8 @@ def _chi2_infinity(phi, st2, enough):
     hi = best + float(np.min(up))
     lo = best - float(np.min(np.pi - up))
     pad = 1e-9 * (hi - lo)
+    from scipy.optimize import minimize_scalar
+
     res = minimize_scalar(f, bounds=(lo + pad, hi - pad), method="bounded", options={"xatol": 1e-12})
     return float(min(res.fun, f(best)))
 
