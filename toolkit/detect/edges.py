@@ -33,6 +33,7 @@ Example
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -355,6 +356,15 @@ def reject_outliers(s, t, w, base, inl, floor_px, max_gap=None, iters=5):
     return inl
 
 
+@functools.lru_cache(maxsize=None)
+def _pairs(n):
+    """np.triu_indices(n, 1), made once per n (read-only)."""
+    i, j = np.triu_indices(n, 1)
+    i.flags.writeable = False
+    j.flags.writeable = False
+    return i, j
+
+
 def theil_sen(s, t, mask, n_max=160):
     """Per row, the Theil-Sen line (median of the pairwise slopes, then median intercept)
     through the stations in mask (M, S) (at most n_max of them, evenly picked): a start that
@@ -375,7 +385,7 @@ def theil_sen(s, t, mask, n_max=160):
         if idx.size > n_max:
             idx = idx[np.linspace(0, idx.size - 1, n_max).astype(int)]
         sv, tv = s[m, idx], t[m, idx]
-        i, j = np.triu_indices(idx.size, 1)
+        i, j = _pairs(idx.size)
         ds = sv[j] - sv[i]
         good = np.abs(ds) > 1e-9
         if not np.any(good):

@@ -56,6 +56,16 @@ def noise_of(img):
         return estimate_noise(g)
     rows = max(8, H // 40)
     starts = np.unique(np.linspace(0, H - rows, 10).astype(int))
+    if g.dtype == np.uint8:
+        # integer responses (|r| <= 16 x 255): their median from one histogram, exactly the
+        # float32 median below at a third of its cost
+        k = _LAPLACE_DIFF.astype(np.int16)
+        h = sum(np.bincount(np.abs(cv2.filter2D(g[s:s + rows], cv2.CV_16S, k)[1:-1, 1:-1]).ravel(), minlength=4081)
+                for s in starts)
+        cum = np.cumsum(h)
+        n = int(cum[-1])
+        lo, hi = np.searchsorted(cum, [(n - 1) // 2 + 1, n // 2 + 1])
+        return float(np.float32((int(lo) + int(hi)) / 2.0) / 0.6745 / 6.0)
     r = [np.abs(cv2.filter2D(g[s:s + rows].astype(np.float32), -1, _LAPLACE_DIFF)[1:-1, 1:-1]).ravel()
          for s in starts]
     return float(np.median(np.concatenate(r)) / 0.6745 / 6.0)

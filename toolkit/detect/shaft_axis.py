@@ -259,49 +259,61 @@ def class_line_fit(s, t, w, base, cls, floor_px=REJECT_FLOOR_PX, iters=6):
     least floor_px) are rejected. Classes with fewer than 4 stations are left out. Returns
     (b, offsets dict, inl (S,) bool) or None.
     """
-    classes = [c for c in np.unique(cls[base]) if np.sum(base & (cls == c)) >= 4]
+    present = np.unique(cls[base])
+    masks = {c: cls == c for c in present}
+    classes = [c for c in present if np.count_nonzero(base & masks[c]) >= 4]
     if not classes:
         return None
-    ok = base & np.isin(cls, classes)
-    big = max(classes, key=lambda c: np.sum(w[ok & (cls == c)]))
-    b = theil_sen(s[None], t[None], (ok & (cls == big))[None])[0][0]
+    cm = [masks[c] for c in classes]
+    okc = [base & m for m in cm]  # the stations of each class
+    ok = np.logical_or.reduce(okc)
+    big = max(range(len(classes)), key=lambda k: w[okc[k]].sum())
+    b = theil_sen(s[None], t[None], okc[big][None])[0][0]
     if not np.isfinite(b):
         return None
     inl = ok.copy()
-    off = {}
+    off = [None] * len(classes)
     for it in range(iters):
         r = np.full(s.shape, np.inf)
-        for c in classes:
-            m = (inl if it else ok) & (cls == c)
-            if not np.any(m):
+        for k in range(len(classes)):
+            m = (inl & cm[k]) if it else okc[k]
+            if not m.any():
                 continue
             if it == 0:
-                off[c] = np.median(t[m] - b * s[m])
-            sel = ok & (cls == c)
-            r[sel] = t[sel] - b * s[sel] - off[c]
-        sc = 1.4826 * np.median(np.abs(r[ok & np.isfinite(r)]))
-        new = ok & (np.abs(r) <= max(3.0 * sc, floor_px))
-        if new.sum() < MIN_STATIONS:
+                off[k] = np.median(t[m] - b * s[m])
+            sel = okc[k]
+            r[sel] = t[sel] - b * s[sel] - off[k]
+        ar = np.abs(r)
+        sc = 1.4826 * np.median(ar[ok & np.isfinite(r)])
+        new = ok & (ar <= max(3.0 * sc, floor_px))
+        if np.count_nonzero(new) < MIN_STATIONS:
             return None
+        if it >= 2 and np.array_equal(new, inl):
+            break  # the same inliers give the same fit: every further pass repeats this one
         inl = new
         # weighted least squares: one slope, class offsets
         num = den = 0.0
-        for c in classes:
-            m = inl & (cls == c)
-            if m.sum() == 0:
-                continue
+        sub = []
+        for k in range(len(classes)):
+            m = inl & cm[k]
             wc = w[m]
-            sc_, tc_ = np.sum(wc * s[m]) / wc.sum(), np.sum(wc * t[m]) / wc.sum()
-            num += np.sum(wc * (s[m] - sc_) * (t[m] - tc_))
-            den += np.sum(wc * (s[m] - sc_) ** 2)
+            if wc.size == 0:
+                sub.append(None)
+                continue
+            sk, tk = s[m], t[m]
+            sub.append((wc, sk, tk))
+            W = wc.sum()
+            ds = sk - (wc * sk).sum() / W
+            num += (wc * ds * (tk - (wc * tk).sum() / W)).sum()
+            den += (wc * ds**2).sum()
         if den <= 0:
             return None
         b = num / den
-        for c in classes:
-            m = inl & (cls == c)
-            if m.sum():
-                off[c] = np.sum(w[m] * (t[m] - b * s[m])) / w[m].sum()
-    return b, off, inl
+        for k, got in enumerate(sub):
+            if got is not None:
+                wc, sk, tk = got
+                off[k] = (wc * (tk - b * sk)).sum() / wc.sum()
+    return b, {c: off[k] for k, c in enumerate(classes) if off[k] is not None}, inl
 
 
 def _edge_frames(one, pts):
@@ -334,7 +346,10 @@ def _class_edge(P0, U, n_ab, s, t, w, base, g):
         return None
     b, off, inl = fit
     c0 = max(off, key=lambda c: np.sum(w[inl & (cls == c)]))
-    res = np.where(inl, t - b * s - np.array([off.get(int(c), 0.0) for c in cls]), 0.0)
+    offs = np.zeros(s.shape)
+    for c, v in off.items():
+        offs[cls == c] = v
+    res = np.where(inl, t - b * s - offs, 0.0)
     sel = inl & (cls == c0)
     wc = np.where(sel, w, 0.0)
     Wt = max(float(wc.sum()), 1e-300)
