@@ -38,10 +38,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-# scipy.special, not scipy.stats: the same quantile, without a second of import time
-from scipy.special import chdtri
 
 from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.geometry.quantiles import chi2_isf
 
 __all__ = ["CornerNoise", "WHITE", "CornerView", "fit_corner_noise", "correlated_covariance", "kernel",
            "restricted_nll"]
@@ -63,7 +62,7 @@ _GOLDEN_STEPS = 6
 # at this level (likelihood ratio, chi-square with the model's two parameters): where it
 # does not, the long lengths (a field the poses absorb whole) leave the ratio undetermined
 _EVIDENCE_LEVEL = 0.01
-_MIN_GAIN = 0.5 * float(chdtri(2, _EVIDENCE_LEVEL))
+_MIN_GAIN = 0.5 * chi2_isf(_EVIDENCE_LEVEL, 2)
 _KERNEL = "squared_exponential"
 
 

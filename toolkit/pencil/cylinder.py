@@ -62,10 +62,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-# chi-square quantiles from scipy.special (scipy.stats costs a second or more to import)
-from scipy.special import chdtrc, chdtri
 
 from pencilcal.toolkit.errors import EstimationError, InputError
+from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
 from pencilcal.toolkit.geometry.frames import normalize
 from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.vertex import propagate_cov, segment_angle_sigma, segment_lines
@@ -691,7 +690,7 @@ def fulcrum_3d(axis_points, axis_directions, axis_covs, robust=True, *, axis_fra
     P, D, C, E = _check_lines(axis_points, axis_directions, axis_covs, axis_frames)
     if P.shape[-2] < 2:
         raise EstimationError("fulcrum_3d: at least two axes are needed")
-    gate = float(chdtri(2, 1.0 - confidence))
+    gate = chi2_isf(1.0 - confidence, 2)
     use = np.ones(P.shape[:-1], bool)
     if robust:
         x = _robust_start(P, D, E, C, gate, max_pairs, seed)
@@ -905,6 +904,6 @@ def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None):
         c2 = np.sum(np.where(keep, z * z / np.where(keep, lam, 1.0), 0.0), -1)
         dof = keep.sum(-1)
     dof = int(np.min(dof)) if np.ndim(dof) else int(dof)
-    threshold = float(chdtri(dof, 1.0 - confidence))
+    threshold = chi2_isf(1.0 - confidence, dof)
     return Fusion(point=point, cov=cov, sigma=np.sqrt(np.trace(cov, axis1=-2, axis2=-1)), chi2=c2, dof=dof,
-                  threshold=threshold, consistent=c2 <= threshold, p_value=chdtrc(dof, c2))
+                  threshold=threshold, consistent=c2 <= threshold, p_value=chi2_sf(c2, dof))

@@ -42,6 +42,7 @@ import numpy as np
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.estimator import check_vertex, fit_pencil
 from pencilcal.toolkit.geometry.frames import normalize
+from pencilcal.toolkit.geometry.quantiles import chi2_sf
 from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.camera.intrinsics import propagate
 from pencilcal.toolkit.pencil.lens_uncertainty import (orientation_totals, ray_sigma_total_deg,
@@ -436,8 +437,6 @@ class StereoFulcrum:
         and ``intrinsics_views``) and with the diameter ``agreement``
         (``chi2``, ``dof``, ``p_value``, ``threshold``, ``confidence``, ``consistent``,
         ``shared_left_ray``) and ``combined`` (``point``, ``point_cov``, ``point_sigma``)."""
-        from scipy.special import chdtrc  # not scipy.stats: a second or more to import
-
         rec = self.right.to_dict()
         t = self.triangulated
         out = {**self.rig.to_dict(), "right": {k: rec[k] for k in _RIGHT_KEYS if k in rec}}
@@ -445,7 +444,7 @@ class StereoFulcrum:
                                "point_cov": np.asarray(t.point_cov, float).tolist(),
                                "point_sigma": float(t.point_sigma), "ranges": np.asarray(t.ranges, float).tolist(),
                                "ray_distances": np.asarray(t.distances, float).tolist(), "chi2": float(t.chi2),
-                               "dof": 1, "p_value": float(chdtrc(1, float(t.chi2)))}
+                               "dof": 1, "p_value": chi2_sf(float(t.chi2), 1)}
         if self.lens_cov is not None:
             total = np.asarray(t.point_cov, float) + np.asarray(self.lens_cov, float)
             out["triangulated"].update({"point_cov_total": total.tolist(),

@@ -47,8 +47,8 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
-# scipy.special, not scipy.stats: the same quantile, without a second of import time
-from scipy.special import chdtri
+
+from pencilcal.toolkit.geometry.quantiles import chi2_isf
 
 __all__ = ["NoiseEstimate", "variance_factor", "sequence_noise", "estimate_sequence_noise", "rescale",
            "fulcrum_noise", "rescale_fulcrum", "estimate_fulcrum_noise", "MIN_DOF", "MAX_RUNS"]
@@ -105,7 +105,7 @@ def variance_factor(chi2, dof):
         return None
     s2 = float(np.median(chi2 / dof))
     keep = np.ones(chi2.size, bool)
-    limit = chdtri(dof, 1.0 - _OUTLIER_LEVEL)
+    limit = chi2_isf(1.0 - _OUTLIER_LEVEL, dof)
     for _ in range(_ITERATIONS):
         new = chi2 <= max(s2, 1e-300) * limit
         if dof[new].sum() < MIN_DOF:

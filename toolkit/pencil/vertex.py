@@ -46,9 +46,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from scipy.special import chdtri
 
 from pencilcal.toolkit.geometry.angles import wrap_line
+from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.errors import EstimationError, InputError
 
 __all__ = [
@@ -483,7 +483,7 @@ def intersect_lines(
     else:
         st = _check_sigma(angle_sigma, m, "angle_sigma", positive=False)
     st2, sc2 = st * st, sc * sc
-    t2 = float(chdtri(1, 1.0 - inlier_confidence))
+    t2 = chi2_isf(1.0 - inlier_confidence, 1)
     dm = np.sum(lines.direction * lines.centre, -1)
 
     def fit(p, mask, iters=max_iter, st2=st2):
@@ -528,7 +528,7 @@ def intersect_lines(
             f"vertex: the lines are (nearly) parallel, intersection ill-conditioned (condition {cond:.3g})"
         )
     chi2 = float(np.sum(e[mask] ** 2))
-    gain_min = float(chdtri(1, 1.0 - infinity_confidence))
+    gain_min = chi2_isf(1.0 - infinity_confidence, 1)
     phi = np.arctan2(lines.direction[mask, 1], lines.direction[mask, 0])
     chi2_inf = _chi2_infinity(phi, st2[mask], chi2 + gain_min)
     if chi2_inf - chi2 < gain_min:
@@ -582,7 +582,7 @@ def lines_through(point, segments, angle_sigma, offset_sigma, point_cov=None, co
     extra = None if point_cov is None else np.einsum("mi,ij,mj->m", lines.normal, np.asarray(point_cov, float),
                                                       lines.normal)
     z, _ = _normalised_residuals(p, lines, dm, st * st, sc * sc, extra)
-    return z, z * z < float(chdtri(1, 1.0 - confidence))
+    return z, z * z < chi2_isf(1.0 - confidence, 1)
 
 
 def vertex_crlb(vertex, segments, angle_sigma, offset_sigma):

@@ -1,0 +1,40 @@
+"""The chi-square tails and quantiles of the gates agree with scipy's to 1e-10 relative,
+over the degrees of freedom and probabilities the gates use and far beyond them."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.special import chdtrc, chdtri
+
+from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
+
+DOFS = [0.1, 0.5, 1, 2, 2.5, 3, 4, 5, 7, 10, 17, 30, 61, 150, 1000, 20000]
+PROBS = [1e-300, 1e-100, 1e-12, 1e-6, 0.001, 0.01, 0.05, 0.3173, 0.5, 0.7, 0.9, 0.999, 1 - 1e-9]
+
+
+@pytest.mark.parametrize("dof", DOFS)
+def test_quantiles_and_tails_agree_with_scipy(dof):
+    for p in PROBS:
+        x = chdtri(dof, p)
+        assert chi2_isf(p, dof) == pytest.approx(x, rel=1e-10), (dof, p)
+        assert chi2_sf(x, dof) == pytest.approx(chdtrc(dof, x), rel=1e-10), (dof, x)
+
+
+def test_arrays_broadcast_and_the_ends():
+    dof = np.array([1.0, 3.0, 12.0])
+    assert np.allclose(chi2_isf(0.01, dof), chdtri(dof, 0.01), rtol=1e-10)
+    assert np.allclose(chi2_sf([[1.0], [9.0]], dof), chdtrc(dof, np.array([[1.0], [9.0]])), rtol=1e-10)
+    assert chi2_isf(0.0, 3) == np.inf and chi2_isf(1.0, 3) == 0.0
+    assert chi2_sf(0.0, 3) == 1.0 and chi2_sf(np.inf, 3) == 0.0
+
+
+def test_no_scipy_for_one_and_two_degrees_of_freedom():
+    # the per-frame gates must not import scipy.special (half a second of start-up)
+    import subprocess
+    import sys
+
+    code = ("import sys; from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf; "
+            "chi2_isf(0.01, 1); chi2_isf(0.01, 2); chi2_sf(3.0, 2); chi2_isf(0.01, 5); chi2_sf(4.0, 7); "
+            "print('scipy.special' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
