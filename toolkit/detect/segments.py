@@ -424,9 +424,6 @@ def merge_collinear(segments, angle_tol_deg=MERGE_ANGLE_TOL_DEG, dist_tol_px=MER
     >>> np.round(m, 6).tolist(), lab.tolist()                     # the third runs the other way
     ([[0.0, 0.0, 100.0, 0.0], [100.0, 10.0, 0.0, 10.0]], [0, 0, 1])
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     seg = np.asarray(segments, float).reshape(-1, 4)
     N = seg.shape[0]
     labels = np.full(N, -1)
@@ -443,9 +440,7 @@ def merge_collinear(segments, angle_tol_deg=MERGE_ANGLE_TOL_DEG, dist_tol_px=MER
     tol_b = tol + np.minimum(1.0 / L, tol)
     pairs = _nearby_pairs(s, u, L, tol, max_gap_px, dist_tol_px)
     i, j = _collinear_pairs(pairs, s, c, u, n, L, theta, tol_b, dist_tol_px, max_gap_px)
-    K = keep.size
-    graph = coo_matrix((np.ones(i.size), (i, j)), shape=(K, K))
-    _, lab = connected_components(graph, directed=False)
+    lab = _components(keep.size, i, j)
     inv, m, dirs = _group_lines(lab, c, u, L)
     nd = np.stack([-dirs[:, 1], dirs[:, 0]], -1)
     far = np.maximum(np.abs(np.sum((s[:, :2] - m[inv]) * nd[inv], -1)),
@@ -457,6 +452,30 @@ def merge_collinear(segments, angle_tol_deg=MERGE_ANGLE_TOL_DEG, dist_tol_px=MER
         inv, m, dirs = _group_lines(lab, c, u, L)
     labels[keep] = inv
     return _group_extents(s, m, dirs, inv), labels
+
+
+def _components(n, i, j):
+    """The connected components (n,) of the undirected graph on n nodes with edges (i, j),
+    numbered as scipy.sparse.csgraph.connected_components numbers them (in the order of
+    their lowest node): labels only fall, to the lowest node reachable, by the edges and by
+    pointer jumping, until nothing changes (a few passes for the short chains of collinear
+    fragments; scipy.sparse would cost a command a third of a second to import).
+
+    >>> _components(6, np.array([0, 3, 4]), np.array([2, 5, 3])).tolist()
+    [0, 1, 0, 2, 2, 2]
+    """
+    lab = np.arange(n)
+    i, j = np.asarray(i, int), np.asarray(j, int)
+    while i.size:
+        low = np.minimum(lab[i], lab[j])
+        new = lab.copy()
+        np.minimum.at(new, i, low)
+        np.minimum.at(new, j, low)
+        new = new[new]
+        if np.array_equal(new, lab):
+            break
+        lab = new
+    return np.unique(lab, return_inverse=True)[1]
 
 
 # ============================================================================ pipeline
