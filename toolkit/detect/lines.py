@@ -21,7 +21,6 @@ import numpy as np
 
 from pencilcal.toolkit.detect.bars import detect_bars
 from pencilcal.toolkit.detect.segments import MIN_LENGTH_PX, detect_segments
-from pencilcal.toolkit.detect.shafts import detect_shafts
 from pencilcal.toolkit.io.lines_file import LineFrame
 
 __all__ = ["default_min_length", "detect_frame_lines", "lines_record", "fan_line_options"]
@@ -104,8 +103,16 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         angle_sigma_deg=np.degrees(segs.angle_sigma),
         offset_sigma_px=segs.offset_sigma,
         width_px=segs.width_px if bars else None,
-        shafts=[s.to_dict() for s in detect_shafts(image, camera, valid_region=valid_region)] if shaft else None,
+        shafts=_shafts(image, camera, valid_region) if shaft else None,
     )
+
+
+def _shafts(image, camera, valid_region):
+    """The shaft records of one image (`shafts.detect_shafts`, imported only when asked for:
+    a fan's orientation does not need the shaft detector's modules)."""
+    from pencilcal.toolkit.detect.shafts import detect_shafts
+
+    return [s.to_dict() for s in detect_shafts(image, camera, valid_region=valid_region)]
 
 
 def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None, bar_width=None,
