@@ -39,3 +39,34 @@ def test_fulcrum_from_pivot_images(tmp_path, model, seed, min_frames):
     assert err @ np.linalg.solve(np.asarray(got["vertex_cov_px2"]), err) < 25.0
     normal_err = min(_angle_deg(got["normal"], truth["normal"]), _angle_deg(got["normal_twin"], truth["normal"]))
     assert normal_err < 0.5
+
+
+def test_tracking_stays_within_the_sigmas_of_a_full_run(tmp_path):
+    """`pencilcal fulcrum IMAGES` tracks the shafts from frame to frame by default: the
+    fulcrum and every frame's midline agree with --no-track's (every frame in full) within
+    a fraction of their sigmas."""
+    out = tmp_path / "pivot"
+    r = CliRunner().invoke(cli, ["simulate", str(out), "--scenario", "pivot", "--frames", "8", "--size", "960x540",
+                                 "-q"])
+    assert r.exit_code == 0, r.output
+    got = {}
+    for flag in ("--track", "--no-track"):
+        r = CliRunner().invoke(cli, ["fulcrum", str(out / "images"), "--camera", str(out / "camera.json"), flag,
+                                     "-o", str(tmp_path / f"f{flag}.json"), "--jsonl", str(tmp_path / f"f{flag}.jsonl"),
+                                     "-q"])
+        assert r.exit_code == 0, r.output
+        lines = [json.loads(x) for x in (tmp_path / f"f{flag}.jsonl").read_text().splitlines()]
+        got[flag] = json.loads((tmp_path / f"f{flag}.json").read_text()), lines
+    (tracked, t_lines), (full, f_lines) = got["--track"], got["--no-track"]
+    assert tracked["frames_tracked"] >= 6 and "frames_tracked" not in full
+    d = np.asarray(tracked["vertex_px"]) - full["vertex_px"]
+    assert d @ np.linalg.solve(np.asarray(full["vertex_cov_px2"]), d) < 0.25  # within half a sigma
+    for a, b in zip(t_lines, f_lines):
+        assert len(a["shafts"]) == len(b["shafts"]) >= 1
+        for sa, sb in zip(a["shafts"], b["shafts"]):
+            ma, mb = np.asarray(sa["midline"]).reshape(2, 2), np.asarray(sb["midline"]).reshape(2, 2)
+            ua = (ma[1] - ma[0]) / np.linalg.norm(ma[1] - ma[0])
+            ub = (mb[1] - mb[0]) / np.linalg.norm(mb[1] - mb[0])
+            assert _angle_deg(np.r_[ua, 0.0], np.r_[ub, 0.0]) <= 0.5 * sb["angle_sigma_deg"]
+            c = mb.mean(0) - ma[0]
+            assert abs(ua[0] * c[1] - ua[1] * c[0]) <= 0.5 * sb["offset_sigma_px"]

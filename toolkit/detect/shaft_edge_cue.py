@@ -47,7 +47,7 @@ Lengths in working pixels (`working`), the options those of `shafts.detect_shaft
 Example
 -------
 >>> import numpy as np
->>> _unsigned(np.array([[10.0, 0.0, 0.0, 5.0]])).tolist()
+>>> unsigned_lines(np.array([[10.0, 0.0, 0.0, 5.0]])).tolist()
 [[0.0, 5.0, 10.0, 0.0]]
 """
 from __future__ import annotations
@@ -70,12 +70,12 @@ from pencilcal.toolkit.detect.shaft_axis import measure_edge_pair
 from pencilcal.toolkit.detect.shaft_bands import assess_bands, assess_chords, border_polygon, nested_bands
 from pencilcal.toolkit.detect.working import to_raw
 
-__all__ = ["edge_cue"]
+__all__ = ["edge_cue", "bands_from_edges", "refit_edges", "unsigned_lines", "drop_repeated"]
 
 _MAX_ONE_SIDED = 0.3  # largest fraction of a band's stations with exactly one of its edges
 
 
-def _unsigned(lines):
+def unsigned_lines(lines):
     """Lines (M, 4) oriented with d_x > 0 (d_y > 0 when vertical): one direction per line,
     whatever the polarity of its edge."""
     out = np.array(lines, float).reshape(-1, 4)
@@ -86,15 +86,15 @@ def _unsigned(lines):
 
 
 def _both_ways(lines):
-    """Unsigned lines (`_unsigned`) plus, for those within 6 deg of vertical (where that
+    """Unsigned lines (`unsigned_lines`) plus, for those within 6 deg of vertical (where that
     orientation turns over), a reversed copy: collinear lines always meet in one direction."""
-    work = _unsigned(lines)
+    work = unsigned_lines(lines)
     d = work[:, 2:] - work[:, :2]
     near_v = np.abs(d[:, 0]) < np.sin(np.radians(6.0)) * np.hypot(d[:, 0], d[:, 1])
     return np.concatenate([work, work[near_v][:, [2, 3, 0, 1]]])
 
 
-def _drop_repeated(lines, support, tol_px=2.0, tol_deg=1.0):
+def drop_repeated(lines, support, tol_px=2.0, tol_deg=1.0):
     """Indices of the lines (M, 4) to keep: a line that repeats a better-supported one (both
     ends within tol_px of its line, directions within tol_deg either way, overlapping it by
     half the shorter) is dropped; the near-vertical groups come twice (`_both_ways`)."""
@@ -224,7 +224,7 @@ def _edge_hypotheses(frag, o):
     merged, lab = merge_collinear(frag, 3.0, 1.5 / o.scale, o.max_gap_px)
     Lf = np.hypot(frag[:, 2] - frag[:, 0], frag[:, 3] - frag[:, 1])
     support = np.bincount(lab[lab >= 0], Lf[lab >= 0], merged.shape[0])
-    hyp = _unsigned(merged[support >= 0.2 * o.min_length])
+    hyp = unsigned_lines(merged[support >= 0.2 * o.min_length])
     if hyp.shape[0] < 2:
         return None
     hyp = hyp[_partnered(hyp, o.conv_max + np.radians(2.0), o.wmin, o.wmax, 0.1 * o.min_length)]
@@ -236,8 +236,7 @@ def _shaft_edges(img, camera, hyp, o, sig_n):
     when fewer than two: each refitted to the unsigned edge, then joined whatever their
     polarity (accurate pieces, tight tolerances: the two edges of a thin shaft are not
     chained together through the clutter between them). sig_n: the image noise sd."""
-    P, ok, _ = _refit_unsigned(img, camera, hyp, search=o.search_px, sigma_px=o.sigma_px, step_px=3.0, extend_px=5.0,
-                               max_gap_px=o.max_gap_px, min_gradient=max(2.0, 1.5 * sig_n))
+    P, ok = refit_edges(img, camera, hyp, o, sig_n)
     Lp = np.hypot(P[:, 2] - P[:, 0], P[:, 3] - P[:, 1])
     P = P[ok & (Lp >= 0.1 * o.min_length)]
     if P.shape[0] < 2:
@@ -247,8 +246,8 @@ def _shaft_edges(img, camera, hyp, o, sig_n):
     Lj = np.hypot(P2[:, 2] - P2[:, 0], P2[:, 3] - P2[:, 1])
     support = np.bincount(lab[lab >= 0], Lj[lab >= 0], joined.shape[0])
     good = support >= 0.25 * o.min_length
-    E, support = _unsigned(joined[good]), support[good]
-    E = E[_drop_repeated(E, support)]
+    E, support = unsigned_lines(joined[good]), support[good]
+    E = E[drop_repeated(E, support)]
     return E if E.shape[0] >= 2 else None
 
 
@@ -434,7 +433,23 @@ def edge_cue(img, camera, o, sig_n):
     if hyp is None:
         return []
     E = _shaft_edges(img, camera, hyp, o, sig_n)
-    if E is None:
+    return [] if E is None else bands_from_edges(img, camera, E, o, sig_n)
+
+
+def refit_edges(img, camera, lines, o, sig_n):
+    """Lines (M, 4) [working px] refitted to the unsigned edges beside them (within
+    `search_px`), as the edge cue refits its hypotheses (step 2): (lines (M, 4), ok (M,))."""
+    P, ok, _ = _refit_unsigned(img, camera, np.asarray(lines, float).reshape(-1, 4), search=o.search_px,
+                               sigma_px=o.sigma_px, step_px=3.0, extend_px=5.0, max_gap_px=o.max_gap_px,
+                               min_gradient=max(2.0, 1.5 * sig_n))
+    return P, ok
+
+
+def bands_from_edges(img, camera, E, o, sig_n):
+    """Steps 3 and 4 of the edge cue on the unsigned edge lines E (M, 4) [working px]: the
+    shafts between them, as `edge_cue` returns them (also what tracking from frame to frame
+    gives its edges to: `shafts.track_shafts`)."""
+    if E.shape[0] < 2:
         return []
     pr = _candidate_bands(img, camera, E, o, sig_n)
     found = None if pr is None else _chords(img, camera, pr, o, sig_n, _view_polygon(camera, img))
