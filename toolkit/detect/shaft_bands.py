@@ -223,11 +223,13 @@ def _level_trend(I, s, edge, C, sig_n, iters=3):
     a = np.nan_to_num(masked_median(I, edge), nan=0.0)
     b = np.zeros(K)
     c = np.zeros(K)
+    xp = [x**p for p in range(5)]
     for _ in range(iters):
         use = edge & (np.abs(I - (a[:, None] + b[:, None] * x + c[:, None] * x2)) <= tol[:, None])
         wv = use.astype(float)
-        m = [np.sum(wv * x**p, -1) for p in range(5)]
-        r = [np.sum(wv * I * x**p, -1) for p in range(3)]
+        wI = wv * I
+        m = [np.sum(wv * xp[p], -1) for p in range(5)]
+        r = [np.sum(wI * xp[p], -1) for p in range(3)]
         n = m[0]
         A = np.stack([np.stack([m[0], m[1], m[2]], -1), np.stack([m[1], m[2], m[3]], -1),
                       np.stack([m[2], m[3], m[4]], -1)], -2) + 1e-9 * np.eye(3)

@@ -170,13 +170,22 @@ def _peaks(g, thr, inside, allowed):
     return jm + np.clip(off, -0.5, 0.5), np.where(found, ac, 0.0), found
 
 
+def _running_median(x, axis):
+    """The median of every `_BEND_WIN` (odd) neighbours along `axis`, the ends repeated:
+    scipy.ndimage.median_filter's with mode "nearest", in numpy (the same values, without
+    importing scipy.ndimage at the first frame)."""
+    h = _BEND_WIN // 2
+    pad = [(0, 0)] * x.ndim
+    pad[axis] = (h, h)
+    win = np.lib.stride_tricks.sliding_window_view(np.pad(x, pad, mode="edge"), _BEND_WIN, axis=axis)
+    return np.median(win, axis=-1)
+
+
 def _bend_cut(s, res, inl):
     """Inliers (S,) of one edge without the ends that bend away from its line: where the
     running median of `_BEND_WIN` residuals leaves 3 sd of its own noise for at least half
     the window, the edge is cut, keeping the straight stretch around its middle; None when
     less than `MIN_STATIONS` stations stay."""
-    from scipy.ndimage import median_filter
-
     idx = np.flatnonzero(inl)
     if idx.size < 3 * _BEND_WIN:
         return inl
@@ -184,7 +193,7 @@ def _bend_cut(s, res, inl):
     rc = r - r.mean()
     rho = float(np.clip(np.sum(rc[1:] * rc[:-1]) / max(np.sum(rc * rc), 1e-12), 0.0, 0.9))
     sd_t = 1.2533 * np.sqrt(np.mean(r * r) * (1 + rho) / (1 - rho) / _BEND_WIN)
-    bad = np.abs(median_filter(r, size=_BEND_WIN, mode="nearest")) > 3.0 * sd_t
+    bad = np.abs(_running_median(r, 0)) > 3.0 * sd_t
     if not bad.any():
         return inl
     run = np.convolve(bad.astype(float), np.ones(_BEND_WIN // 2 + 1), "same") >= _BEND_WIN // 2 + 1
@@ -241,14 +250,12 @@ def _colour_difference(prof, inside, mc):
     (means of the `_STRIP_PX` strips beyond the corridor), the running median over
     `_BEND_WIN` stations (what lies beside a shaft changes along it: tissue, then a drape),
     the edge's median where a station has none."""
-    from scipy.ndimage import median_filter
-
     d = prof[:, :, -mc:].mean(2) - prof[:, :, :mc].mean(2)  # (M, S, C)
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # an edge without an inside station
         glob = np.nan_to_num(np.nanmedian(np.where(inside[..., None], d, np.nan), axis=1))  # (M, C)
     d = np.where(inside[..., None], d, glob[:, None, :])
-    out = median_filter(d, size=(1, _BEND_WIN, 1), mode="nearest")
+    out = _running_median(d, 1)
     return out / np.maximum(np.linalg.norm(out, axis=-1, keepdims=True), 1e-9)
 
 
