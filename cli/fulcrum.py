@@ -189,7 +189,7 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, detector, 
 @detector_option("Line detector for the shaft proposals, with IMAGES.")
 @click.option("--track/--no-track", default=True, show_default=True,
               help="Look for each frame's shafts around the previous frame's (a full detection where they are not "
-                   "found again, and every 15th frame); needs the frames in order in one process (--workers 1).")
+                   "found again, and every 30th frame); needs the frames in order in one process (--workers 1).")
 @mask_option
 @jsonl_option
 @overlay_option
@@ -240,7 +240,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
 
     From frame to frame (--track, with --workers 1) each shaft is looked for in a corridor
     around where the previous frame had it, without the detector's proposals (a full
-    detection where it is not found again, and every 15th frame: an instrument entering
+    detection where it is not found again, and every 30th frame: an instrument entering
     the view): the same shafts, measured alike, several times faster on video;
     ``frames_tracked`` counts the frames tracked.
 

@@ -433,9 +433,9 @@ def _same_band(m1, w1, m2, w2, max_deg, max_offset):
     return off(c1, m2, d2) <= max_offset * w2 and off(c2, m1, d1) <= max_offset * w1
 
 
-#: A `ShaftTracker` runs a full detection at least every this many frames (half a second
-#: at 30 fps): an instrument that enters the view is found by then.
-REDETECT_FRAMES = 15
+#: A `ShaftTracker` runs a full detection at least every this many frames (a second at 30
+#: fps): an instrument that enters the view is found by then.
+REDETECT_FRAMES = 30
 
 
 class ShaftTracker:
