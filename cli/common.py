@@ -178,6 +178,19 @@ def detector_option(help):
                         " cost), LSD for edge segments and shaft proposals.")
 
 
+def gamma_option(fn):
+    """--gamma: the frames' encoding gamma, where shafts are detected (one option, one
+    default, for every command that detects them: `detect.shafts.detect_shafts`)."""
+    from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
+
+    return click.option(
+        "--gamma", type=FiniteFloat(min=0.1, max=5), default=DEFAULT_GAMMA, show_default=True,
+        help="Encoding gamma of the frames: the shafts' silhouette edges are located on intensities linearised "
+             "with it (blur acts on linear light; on encoded levels a blurred edge's gradient peak leans towards "
+             "its dark side, the band comes out narrow and the 3-D axis too far). 2.2: 8-bit video and JPEG "
+             "(and `pencilcal simulate`'s default); 1: linear frames (`simulate --gamma 1`).")(fn)
+
+
 def endpoint_sigma_option(help):
     """--endpoint-sigma [px]: the end point noise of segments without their own sigma, with
     the library's default (`pencil.defaults.ENDPOINT_SIGMA_PX`); positive and finite."""

@@ -13,7 +13,7 @@ from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.defaults import MIN_ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.sequence_noise import estimate_fulcrum_noise, fulcrum_noise
 
-from .common import (detector_option, endpoint_sigma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, frames_region,
+from .common import (detector_option, endpoint_sigma_option, gamma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, frames_region,
                      images_argument, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
                      overlay_option, quiet_option, run, run_frames, source_option, stream_meta, warn, workers_option)
 
@@ -29,11 +29,11 @@ def _shaft_task(frame, ctx):
     from pencilcal.toolkit.io.images import check_image_size
     from pencilcal.toolkit.detect.shafts import detect_shafts
 
-    camera, detector, region, drawing, tracker = ctx
+    camera, options, region, drawing, tracker = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}, None
     check_image_size(frame, camera)
-    found = (detect_shafts(frame.image, camera, detector=detector, valid_region=region) if tracker is None
+    found = (detect_shafts(frame.image, camera, valid_region=region, **options) if tracker is None
              else tracker(frame.image, camera, valid_region=region))
     shafts = [s.to_dict() for s in found]
     rec = {"image": frame.name, "ok": True, "segments": np.zeros((0, 4)), "shafts": shafts,
@@ -45,14 +45,15 @@ def _shaft_task(frame, ctx):
     return rec, draw_frame(frame.image, shafts=shafts, text=[frame.name])
 
 
-def _shafts(source, camera, detector, quiet, workers, mask_path, live, tracker=None):
+def _shafts(source, camera, options, quiet, workers, mask_path, live, tracker=None):
     """Instrument shafts of every frame of an image source, as lines.json frames, within the
     sequence's valid region (the mask file's, or detected: `region_detect.sequence_region`);
     each frame's shafts to the live outputs as they are found (the fulcrum is known only at
-    the end). tracker: a `shafts.ShaftTracker` (frames in order, --workers 1), or None."""
+    the end). options: keywords of `shafts.detect_shafts` (detector, gamma); tracker: a
+    `shafts.ShaftTracker` (frames in order, --workers 1), or None."""
     region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     frames = []
-    ctx = (camera, detector, region, live.drawing, tracker)
+    ctx = (camera, options, region, live.drawing, tracker)
     for f, drawn in run_frames(source, _shaft_task, ctx, workers, "shafts", quiet):
         if f["error"]:
             warn(f"{f['image']}: {f['error']}")
@@ -122,7 +123,7 @@ def _is_lines_file(path):
     return Path(path).suffix.lower() == ".json" and not Path(path).is_dir()
 
 
-def _right_frames(right, camera_right, detector, max_pixels, workers, quiet, force):
+def _right_frames(right, camera_right, options, max_pixels, workers, quiet, force):
     """(lines.json frames of the right view, the record's key and value saying where they
     came from): read from a lines file, else its shafts detected in its own frames (its
     valid region detected on them)."""
@@ -133,15 +134,15 @@ def _right_frames(right, camera_right, detector, max_pixels, workers, quiet, for
         return frames, ("lines", str(right))
     source = open_input((right,), None, max_pixels)
     with FrameOutputs(None, None, force) as live:
-        return _shafts(source, camera_right, detector, quiet, workers, None, live), ("images", source.description)
+        return _shafts(source, camera_right, options, quiet, workers, None, live), ("images", source.description)
 
 
-def _stereo(left, right_images, camera_right, camera_right_path, rig, detector, endpoint_sigma, given, max_pixels,
+def _stereo(left, right_images, camera_right, camera_right_path, rig, options, endpoint_sigma, given, max_pixels,
             workers, quiet, force):
     """fulcrum.json's ``stereo`` record: the right view's fulcrum from its own shafts (a lines
     file's, or detected in its frames), the noise as for the left view, then
     `fulcrum.stereo_fulcrum` with the left's."""
-    frames, (key, where) = _right_frames(right_images, camera_right, detector, max_pixels, workers, quiet, force)
+    frames, (key, where) = _right_frames(right_images, camera_right, options, max_pixels, workers, quiet, force)
 
     def run(sigma):
         try:
@@ -187,6 +188,7 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, detector, 
                    "R_right_from_left and t_right_from_left; T in the unit of --shaft-diameter.")
 @endpoint_sigma_option("End point noise [px] for segments without their own angle sigma.")
 @detector_option("Line detector for the shaft proposals, with IMAGES.")
+@gamma_option
 @click.option("--track/--no-track", default=True, show_default=True,
               help="Look for each frame's shafts around the previous frame's (a full detection where they are not "
                    "found again, and every 30th frame); needs the frames in order in one process (--workers 1).")
@@ -200,7 +202,7 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, detector, 
 @quiet_option
 @run
 def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path, shaft_diameter, right_images,
-            camera_right_path, stereo_path, endpoint_sigma, detector, track, mask_path, jsonl_path, overlay_path,
+            camera_right_path, stereo_path, endpoint_sigma, detector, gamma, track, mask_path, jsonl_path, overlay_path,
             max_pixels, workers, output, force, quiet):
     """The fulcrum of an instrument pivoting about its entry port.
 
@@ -268,6 +270,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     rig = None if stereo_path is None else read_stereo(stereo_path)
     camera_right = None if camera_right_path is None else read_camera(camera_right_path)
     source = tracker = None
+    options = {"detector": detector, "gamma": gamma}
     if lines_path is not None:
         frames = read_lines(lines_path)
         if not frames:
@@ -280,9 +283,9 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         check_output(output, force, source.paths)
         from pencilcal.toolkit.detect.shafts import ShaftTracker
 
-        tracker = ShaftTracker(detector=detector) if track and workers == 1 else None
+        tracker = ShaftTracker(**options) if track and workers == 1 else None
         with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
-            frames = _shafts(source, camera, detector, quiet, workers, mask_path, live, tracker)
+            frames = _shafts(source, camera, options, quiet, workers, mask_path, live, tracker)
     where = lines_path or source.description
     angles = read_angles(angles_path, [f["image"] for f in frames]) if angles_path else None
 
@@ -305,7 +308,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     if tracker is not None:
         out["frames_tracked"] = tracker.tracked
     if rig is not None:
-        out["stereo"] = _stereo(res, right_images, camera_right, camera_right_path, rig, detector, endpoint_sigma,
+        out["stereo"] = _stereo(res, right_images, camera_right, camera_right_path, rig, options, endpoint_sigma,
                                 given, max_pixels, workers, quiet, force)
     write_json(output, out, force=force)
     off_axis = float(np.degrees(np.arccos(np.clip(out["ray"][2], -1.0, 1.0))))

@@ -5,10 +5,11 @@ import click
 
 from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.io.images import check_image_size
+from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.lines import lines_record
 from pencilcal.toolkit.io.lines_file import write_lines
 
-from .common import (detector_option, command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option, frames_region,
+from .common import (detector_option, gamma_option, command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option, frames_region,
                      images_argument, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
                      overlay_option, quiet_option, run, run_frames, source_option, stream_meta, warn, workers_option)
 
@@ -28,12 +29,12 @@ def with_axis(camera, shaft, diameter):
 def _lines_task(frame, ctx):
     """One frame's lines.json record, and the frame drawn with them when the overlay is
     asked for (module level: runs in worker processes too)."""
-    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter = ctx
+    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
     rec = lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
-                       valid_region=region)
+                       valid_region=region, gamma=gamma)
     if diameter is not None:
         rec["shafts"] = [with_axis(camera, s, diameter) for s in rec.get("shafts") or []]
     if not drawing:
@@ -62,6 +63,7 @@ def _lines_task(frame, ctx):
               help="With --shaft: the shafts' diameter (e.g. 8 for an 8 mm instrument); each shaft also gets "
                    "its 3-D axis in the camera frame, in D's unit: axis_point, axis_direction, axis_distance, "
                    "axis_cov, axis_direction_sigma_deg, axis_distance_sigma.")
+@gamma_option
 @click.option("--min-length", type=FiniteFloat(), default=None,
               help="Shortest segment written [px]. Default 20; with --bars, 20 or 1/30 of the image's "
                    "smaller side, whichever is longer (36 px at 1080p).")
@@ -73,7 +75,8 @@ def _lines_task(frame, ctx):
 @force_option
 @quiet_option
 @run
-def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, shaft, shaft_diameter, min_length,
+def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, shaft, shaft_diameter, gamma,
+          min_length,
           mask_path, jsonl_path, overlay_path, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel precision, with angle uncertainty.
 
@@ -114,6 +117,8 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         raise click.BadParameter("only with --bars", param_hint="--bar-width")
     if shaft_diameter is not None and not shaft:
         raise click.BadParameter("only with --shaft", param_hint="--shaft-diameter")
+    if gamma != DEFAULT_GAMMA and not shaft:
+        raise click.BadParameter("only with --shaft", param_hint="--gamma")
     if shaft_diameter is not None and not shaft_diameter > 0:
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     check_output(output, force)
@@ -123,7 +128,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     records = []
     with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
-        ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter)
+        ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
@@ -133,6 +138,8 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
             **stream_meta(source)}
     if shaft_diameter is not None:
         meta["shaft_diameter"] = shaft_diameter
+    if shaft:
+        meta["gamma"] = gamma
     write_lines(output, records, force=force, meta=meta, valid_region=None if region is None else region.to_dict())
     if not quiet:
         n_ok = sum(r["ok"] for r in records)

@@ -57,6 +57,9 @@ __all__ = [
     "theil_sen",
     "robust_line_fit",
     "fit_variances",
+    "DEFAULT_GAMMA",
+    "linearised",
+    "peak_near",
 ]
 
 # Sampling of the profiles across a line: step along the normal [px]. A Gaussian-derivative
@@ -67,6 +70,12 @@ MIN_STATIONS = 6  # fewest stations a line is sampled at, and fewest inliers a f
 REJECT_FLOOR_PX = 0.2  # smallest rejection threshold of the robust line fits by default [px]
 _SCATTER_FLOOR_PX = 0.01  # smallest per-station scatter [px] the uncertainty may assume
 _GOLDEN = 0.6180339887498949  # sample phase of station j: frac(j * golden ratio) of a step
+#: The encoding gamma of the frames by default: 8-bit video and JPEG (sRGB, BT.709) store
+#: about (linear light)^(1/2.2); 1 says the frames are linear.
+DEFAULT_GAMMA = 2.2
+#: A linear edge's peak is climbed to from the encoded one's, at most this many samples away
+#: (a black shaft's edge, blurred by 2.5 px all told, moves by ~0.7 of that: 1.7 px).
+_LINEAR_REACH = 8
 
 
 def derivative_kernel(sigma):
@@ -100,6 +109,50 @@ def stations(lo, hi, cnt):
     return s, valid
 
 
+def linearised(values, gamma):
+    """Encoded intensities (any shape) [grey levels] back in linear light, float32: the
+    power law ``v^gamma`` (clipped at 0), scaled by ``255^(1 - gamma)`` so that 0 and 255
+    stay put (a constant factor: no edge moves with it). gamma 1 returns the values.
+
+    Blur and the lens's spread act on linear light: a step blurred and then encoded has the
+    steepest gradient on its dark side, off the step; linearised it is back on it.
+
+    >>> [round(float(v), 1) for v in linearised(np.array([0.0, 64.0, 255.0]), 2.2)]
+    [0.0, 12.2, 255.0]
+    """
+    v = np.asarray(values, np.float32)
+    if gamma == 1.0:
+        return v
+    return np.power(np.maximum(v, np.float32(0.0)), np.float32(gamma)) * np.float32(255.0 ** (1.0 - gamma))
+
+
+def peak_near(g, jm, reach=_LINEAR_REACH):
+    """The index (N,) of the local maximum of each row of g (N, T) that the samples jm (N,)
+    climb to (the peak found on another response of the same edge: the encoded profile's;
+    one sample at a time uphill, at most `reach`), kept one sample inside the row (a
+    parabola needs both neighbours). Climbing keeps to the edge jm is on, where the largest
+    response nearby could be another's. Also whether each climb ended on a peak within
+    `reach` (N,) bool: a response still rising beyond it is led off by something else (a
+    highlight beyond a black shaft's edge).
+
+    >>> g = np.exp(-0.5 * ((np.arange(20.0) - 9.3) / 2.0) ** 2)[None]
+    >>> [v.tolist() for v in peak_near(g, np.array([7]))]
+    [[9], [True]]
+    """
+    N, T = g.shape
+    rr = np.arange(N)
+    j = np.clip(jm, 1, T - 2)
+    for _ in range(reach + 1):
+        c, lo, hi = g[rr, j], g[rr, j - 1], g[rr, j + 1]
+        step = np.where((hi > c) & (hi >= lo), 1, np.where(lo > c, -1, 0))
+        step[(j + step < 1) | (j + step > T - 2) | (np.abs(j + step - jm) > reach)] = 0
+        if not step.any():
+            break
+        j = j + step
+    c = g[rr, j]
+    return j, (c >= g[rr, j - 1]) & (c >= g[rr, j + 1])
+
+
 @dataclass(frozen=True, eq=False)
 class EdgeProfiles:
     """The edge across M lines at S stations each (`edge_profiles`); arrays (M, S).
@@ -109,7 +162,8 @@ class EdgeProfiles:
     t : (M, S) [working px]
         The derivative's peak, along the normal n = (-u_y, u_x) from the station.
     g : (M, S) [grey levels / px]
-        The signed derivative there (positive: brighter on the +n side).
+        The signed derivative of the profiles as sampled (encoded) at their peak (positive:
+        brighter on the +n side).
     strength : (M, S)
         What the peak maximised: g, or |g| for unsigned edges.
     inside : (M, S) bool
@@ -181,7 +235,7 @@ def _slope_shift(prof, first, gs, pos, den, sigma_px, search):
 
 
 def edge_profiles(img, camera, P0, u, s, search, kernel, sigma_px, *, unsigned=False, slope_correction=False,
-                  guard_px=0.0):
+                  guard_px=0.0, gamma=1.0):
     """The edge across lines at stations along them.
 
     Parameters
@@ -212,6 +266,11 @@ def edge_profiles(img, camera, P0, u, s, search, kernel, sigma_px, *, unsigned=F
         largest |derivative| between there and 2.5 sd of the edge's own blurred response
         (sqrt(2) sigma_px) short of the peak, relative to the peak's (another edge beside
         this one pulls its peak off it).
+    gamma : float
+        The frames' encoding gamma (`linearised`). Other than 1, the edge is found on the
+        sampled profiles as they are (the peak, its strength, `found`, `clutter`) and located
+        on them linearised: the peak of their derivative the encoded one's climbs to
+        (`peak_near`), refined and slope-corrected there (`t`).
 
     Returns
     -------
@@ -248,20 +307,32 @@ def edge_profiles(img, camera, P0, u, s, search, kernel, sigma_px, *, unsigned=F
     a2 = np.abs(g2) if unsigned else g2
     jm = np.argmax(a2[:, ng + 1:-1], -1) + ng + 1  # the peak within +-search
     rr = np.arange(g2.shape[0])
-    am, a0, ap = (a2[rr, jm + o].reshape(M, S).astype(float) for o in (-1, 0, 1))
-    gs = g2[rr, jm].reshape(M, S).astype(float)
+    strength = a2[rr, jm].reshape(M, S).astype(float)
+    g_enc = g2[rr, jm].reshape(M, S).astype(float)
     clutter = None
     if ng:
         gap = int(np.ceil(2.5 * np.sqrt(2.0) * sigma_px / DT))
         near = np.arange(nwin)[None, :] <= (jm - gap)[:, None]
         clutter = (np.max(np.where(near, a2, 0.0), -1) / np.maximum(a2[rr, jm], 1e-12)).reshape(M, S)
+    lin = prof
+    if gamma != 1.0:  # located on linear light (the docstring)
+        lin = linearised(prof, gamma)
+        g2 = kern[0] * lin[..., 0:nwin]
+        for q in range(1, kern.size):
+            g2 += kern[q] * lin[..., q:q + nwin]
+        g2 = g2.reshape(-1, nwin)
+        a2 = np.abs(g2) if unsigned else g2
+        jm, top = peak_near(a2, jm)
+        strength = np.where(top.reshape(M, S), strength, 0.0)
+    am, a0, ap = (a2[rr, jm + o].reshape(M, S).astype(float) for o in (-1, 0, 1))
+    gs = g2[rr, jm].reshape(M, S).astype(float)
     jm = jm.reshape(M, S) - ng
     off, pos, den = _log_parabola(am, a0, ap)
     tk = (jm - nw + np.clip(off, -0.5, 0.5)) * DT + shift[None, :]
     if slope_correction:
-        tk = tk - _slope_shift(prof, ng, gs, pos, den, sigma_px, search)
-    found = (a0 > 0) & (np.abs(tk) <= search)
-    return EdgeProfiles(t=tk, g=gs, strength=a0, inside=inside, found=found, profiles=prof, clutter=clutter)
+        tk = tk - _slope_shift(lin, ng, gs, pos, den, sigma_px, search)
+    found = (strength > 0) & (a0 > 0) & (np.abs(tk) <= search)
+    return EdgeProfiles(t=tk, g=g_enc, strength=strength, inside=inside, found=found, profiles=prof, clutter=clutter)
 
 
 # ============================================================================ line fits

@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from pencilcal.toolkit.detect.bars import detect_bars
+from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.segments import MIN_LENGTH_PX, detect_segments
 from pencilcal.toolkit.io.lines_file import LineFrame
 
@@ -60,7 +61,8 @@ def fan_line_options(pencil_width, edges=False):
 
 
 def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None,
-                       bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark"):
+                       bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
+                       gamma=DEFAULT_GAMMA):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -89,6 +91,8 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
     bar_polarity : {"dark", "light", "either"}
         With `bars`: dark bars on a light ground, light bars on a dark ground, or whichever
         of the two this frame shows (`detect_bars`).
+    gamma : float
+        With `shaft`: the frame's encoding gamma (`detect_shafts`; 1: linear frames).
     """
     if min_length is None:
         min_length = default_min_length(np.shape(image), bars)
@@ -103,21 +107,21 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         angle_sigma_deg=np.degrees(segs.angle_sigma),
         offset_sigma_px=segs.offset_sigma,
         width_px=segs.width_px if bars else None,
-        shafts=_shafts(image, camera, valid_region) if shaft else None,
+        shafts=_shafts(image, camera, valid_region, gamma) if shaft else None,
     )
 
 
-def _shafts(image, camera, valid_region):
+def _shafts(image, camera, valid_region, gamma):
     """The shaft records of one image (`shafts.detect_shafts`, imported only when asked for:
     a fan's orientation does not need the shaft detector's modules)."""
     from pencilcal.toolkit.detect.shafts import detect_shafts
 
-    return [s.to_dict() for s in detect_shafts(image, camera, valid_region=valid_region)]
+    return [s.to_dict() for s in detect_shafts(image, camera, valid_region=valid_region, gamma=gamma)]
 
 
 def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None, bar_width=None,
-                 proposal_scale=None, valid_region=None, bar_polarity="dark"):
+                 proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA):
     """One lines.json frame record from one decoded image: ``detect_frame_lines(...).to_dict()``
     (the same arguments)."""
     return detect_frame_lines(name, image, camera, detector, bars, shaft, min_length, bar_width,
-                              proposal_scale, valid_region, bar_polarity).to_dict()
+                              proposal_scale, valid_region, bar_polarity, gamma).to_dict()

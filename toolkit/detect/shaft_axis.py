@@ -54,6 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pencilcal.toolkit.detect.edges import (
+    DEFAULT_GAMMA,
     MIN_STATIONS,
     REJECT_FLOOR_PX,
     derivative_kernel,
@@ -368,7 +369,7 @@ def _class_edge(P0, U, n_ab, s, t, w, base, g):
                     frac=float(inl.sum()) / max(int(base.sum()), 1), rms=float(np.sqrt(np.mean(res[inl] ** 2)))), inl
 
 
-def _measure_edges(img, camera, one, pts, shaft, search, kernel, sigma_px, slope_correction, guard_px):
+def _measure_edges(img, camera, one, pts, shaft, search, kernel, sigma_px, slope_correction, guard_px, gamma):
     """Both edges of the band `one` (`pairs.EdgePairs`, one pair) measured at the stations
     pts (S, 2) on its bisector where each is seen cleanly (no other edge beside it), each
     fitted on its own (`_class_edge`); both must fit at `MIN_STATIONS` shaft stations at
@@ -378,7 +379,7 @@ def _measure_edges(img, camera, one, pts, shaft, search, kernel, sigma_px, slope
     w, P0, U, s2 = _edge_frames(one, pts)
     n_ab = np.stack([-U[:, 1], U[:, 0]], -1)
     p = edge_profiles(img, camera, P0, U, s2, search, kernel, sigma_px, unsigned=True,
-                      slope_correction=slope_correction, guard_px=guard_px)
+                      slope_correction=slope_correction, guard_px=guard_px, gamma=gamma)
     a = np.abs(p.g)
     base = p.inside & p.found & (a > 0) & (p.clutter <= _MAX_CLUTTER) & (w[0] * np.sign(np.median(w[0])) > 0)[None, :]
     med = masked_median(a, base & shaft[None, :])
@@ -399,12 +400,13 @@ def _measure_edges(img, camera, one, pts, shaft, search, kernel, sigma_px, slope
     return edges, pair
 
 
-def measure_edge_pair(img, camera, pr, k, lo, hi, shaft_at, search, sigma_px, slope_correction):
+def measure_edge_pair(img, camera, pr, k, lo, hi, shaft_at, search, sigma_px, slope_correction, gamma=DEFAULT_GAMMA):
     """The two edges of band k of `pr` (`pairs.EdgePairs`) measured at paired stations over
     its run [lo, hi] [px] along its bisector (module docstring): each edge at every station
     of the run where it is seen cleanly and the band was seen as a shaft (shaft_at(s) ->
     bool), twice (the second time with the search narrowed to 1.5 px around the first fit).
-    search, sigma_px [px]: the edge search half-width and the Gaussian-derivative sd.
+    search, sigma_px [px]: the edge search half-width and the Gaussian-derivative sd; gamma:
+    the frame's encoding gamma (each edge located on linear light, `edges.edge_profiles`).
     Returns the two `shaft_edges.EdgeLine` (working px) or None.
     """
     kernel = derivative_kernel(sigma_px)
@@ -423,7 +425,7 @@ def measure_edge_pair(img, camera, pr, k, lo, hi, shaft_at, search, sigma_px, sl
     edges = None
     for it in range(2):
         got = _measure_edges(img, camera, one, pts, shaft, search if it == 0 else min(search, 1.5), kernel,
-                             sigma_px, slope_correction, guard_px)
+                             sigma_px, slope_correction, guard_px, gamma)
         if got is None:
             return None
         edges, one = got

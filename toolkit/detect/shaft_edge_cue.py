@@ -399,7 +399,7 @@ def _measure(img, camera, pr, ch, k, o):
     wide = min(abs(float(one.signed_width_at(np.array([lo]))[0])),
                abs(float(one.signed_width_at(np.array([hi]))[0]))) > 2 * reach
     return measure_edge_pair(img, camera, pr, k, lo, hi, shaft_at, o.search_px, o.sigma_px,
-                             o.slope_correction and wide)
+                             o.slope_correction and wide, o.gamma)
 
 
 def _view_polygon(camera, img):

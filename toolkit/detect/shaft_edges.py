@@ -14,7 +14,9 @@ step along grey, which projects weakly, and it lies outside the corridor anyway.
 
 Per station the edge is the largest positive local maximum of the response above `Z_999`
 noise sd (one-sided 0.999) and `_REL_STRENGTH` of the edge's median (an edge goes on where
-its contrast does), refined by a parabola. A station is observable when its whole
+its contrast does), refined by a parabola; with the frame's encoding gamma (`fit_edges`) it
+is located on the profile linearised (blur acts on linear light: the gradient peak of a
+blurred, gamma-encoded edge leans towards its dark side), found where it is as encoded. A station is observable when its whole
 profile lies in the image and at least `region.DETECTION_MARGIN_PX` inside the valid
 region. The line is the robust weighted fit of the stations' edges (`edges.
 robust_line_fit`, weights: the squared response), cut where its ends bend away (a wrist, a
@@ -48,6 +50,8 @@ from pencilcal.toolkit.detect.edges import (
     SAMPLE_STEP_PX,
     derivative_kernel,
     fit_variances,
+    linearised,
+    peak_near,
     robust_line_fit,
     stations,
 )
@@ -170,6 +174,27 @@ def _peaks(g, thr, inside, allowed):
     return jm + np.clip(off, -0.5, 0.5), np.where(found, ac, 0.0), found
 
 
+def _linear_peaks(prof, e, kern, j, gamma):
+    """The subpixel peaks (M, S) [samples] of the responses of the profiles (M, S, T, C)
+    linearised (`edges.linearised`) and projected on the colour differences e (M, S, C),
+    each the local maximum the encoded response's peak j (M, S) climbs to
+    (`edges.peak_near`), refined by a parabola (as `_peaks`); and whether that climb ended
+    on a peak (M, S) bool (where not, the station has no edge)."""
+    pe = np.einsum("mstc,msc->mst", linearised(prof, gamma), e.astype(np.float32))
+    nwin = pe.shape[-1] - kern.size + 1
+    g = kern[0] * pe[..., :nwin]
+    for q in range(1, kern.size):
+        g += kern[q] * pe[..., q:q + nwin]
+    g2 = g.reshape(-1, nwin)
+    jm, top = peak_near(g2, np.clip(np.rint(j), 1, nwin - 2).astype(int).reshape(-1))
+    rr = np.arange(g2.shape[0])
+    am, ac, ap = (g2[rr, jm + o].astype(float) for o in (-1, 0, 1))
+    den = am - 2 * ac + ap
+    with np.errstate(all="ignore"):
+        off = np.where(den < 0, 0.5 * (am - ap) / np.where(den < 0, den, -1.0), 0.0)
+    return (jm + np.clip(off, -0.5, 0.5)).reshape(j.shape), top.reshape(j.shape)
+
+
 def _running_median(x, axis):
     """The median of every `_BEND_WIN` (odd) neighbours along `axis`, the ends repeated:
     scipy.ndimage.median_filter's with mode "nearest", in numpy (the same values, without
@@ -259,7 +284,7 @@ def _colour_difference(prof, inside, mc):
     return out / np.maximum(np.linalg.norm(out, axis=-1, keepdims=True), 1e-9)
 
 
-def fit_edges(image, camera, validity, noise, specs, corridor, max_gap=None):
+def fit_edges(image, camera, validity, noise, specs, corridor, max_gap=None, gamma=1.0):
     """Silhouette edges at full resolution in corridors around proposed lines (module
     docstring).
 
@@ -280,6 +305,11 @@ def fit_edges(image, camera, validity, noise, specs, corridor, max_gap=None):
         Half-width of the search across each proposed line.
     max_gap : float or (M,) [px], optional
         Each edge is the best run of stations with gaps up to this (None: all stations).
+    gamma : float
+        The frame's encoding gamma (`edges.linearised`). Other than 1, each station's edge
+        is found on the profile as sampled (its peak above the noise, its strength: the
+        weights) and located on the profile linearised: the peak of that one's response
+        the encoded one's climbs to (`edges.peak_near`), refined there.
 
     Returns
     -------
@@ -315,11 +345,15 @@ def fit_edges(image, camera, validity, noise, specs, corridor, max_gap=None):
     thr = Z_999 * noise * float(np.sqrt(np.sum(kern.astype(float) ** 2)))
     allowed = (np.abs(np.arange(nwin) - nw) * DT)[None, None, :] <= corr[:, None, None]
     j, strength, found = _peaks(g, thr, inside, allowed)
+    if gamma != 1.0:  # located on linear light (the docstring)
+        j, top = _linear_peaks(prof[:, :, mc:mc + nwin + kern.size - 1], e, kern, j, gamma)
+        found &= top
     # an edge goes on where its contrast does: a station's peak at least _REL_STRENGTH of the
     # edge's median (texture beside a shaft's end gives weaker peaks)
     med = np.array([np.median(strength[m][found[m]]) if found[m].any() else 0.0 for m in range(len(specs))])
     found &= strength >= _REL_STRENGTH * med[:, None]
     tt = (j - nw) * DT
-    w = np.where(found, (strength / np.maximum(med, 1e-300)[:, None]) ** 2, 0.0)
+    with np.errstate(over="ignore"):  # an edge without a found station has no median
+        w = np.where(found, (strength / np.maximum(med, 1e-300)[:, None]) ** 2, 0.0)
     gap = None if max_gap is None else np.broadcast_to(np.asarray(max_gap, float), (len(specs),))[:, None]
     return _line_fits(s, tt, w, found, inside.sum(-1), specs, gap)

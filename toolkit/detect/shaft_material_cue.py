@@ -169,7 +169,15 @@ def _grown(fit, spec):
     return (p0, u, n, lo, hi), 3.0 * float(np.sqrt(fit.var_t + lever**2 * fit.var_b)) + 1.0
 
 
-def _band_edges(image, camera, validity, noise, bands, work, corridor, stretches):
+#: The encoding gamma the material cue's edges are located with (`shaft_edges.fit_edges`):
+#: 1, on the frames' levels as they are, whatever `detect_shafts`' gamma. Its frames are
+#: real video, whose tone curve is no pure 2.2: linearised so, the black shaft's edges of the
+#: dVRK phantom moved out by up to 1.7 px (widths +8 %) and 3 of the 43 shafts of the real
+#: sets were lost. Until it is measured against truth, the cue keeps its measured behaviour.
+_MATERIAL_GAMMA = 1.0
+
+
+def _band_edges(image, camera, validity, noise, bands, work, corridor, stretches, gamma):
     """The two edges (`shaft_edges.EdgeLine`) of each band, or None: fitted over its region
     run, then grown along their own lines over the stretch of chord where its
     cross-section goes on looking like the run's (stretches: [b0, b1) each,
@@ -177,10 +185,11 @@ def _band_edges(image, camera, validity, noise, bands, work, corridor, stretches
     a corridor holding 3 sd of the line's prediction (a line extrapolated from a short
     region boundary would leave the fixed corridor), each the best run of stations with
     gaps up to the band's width, cut where it bends away: the edges tell how far the shaft
-    goes. All bands' edges are fitted together, pass by pass."""
+    goes. All bands' edges are fitted together, pass by pass; gamma: the frame's encoding
+    gamma (the edges located on linear light, `shaft_edges.fit_edges`)."""
     gaps = np.repeat([e.width_run / work.mean_scale for e in bands], 2)
     specs = [sp for e in bands for sp in _edge_specs(e, work, e.run)]
-    fits = fit_edges(image, camera, validity, noise, specs, corridor, max_gap=gaps)
+    fits = fit_edges(image, camera, validity, noise, specs, corridor, max_gap=gaps, gamma=gamma)
     targets = [sp for e, st in zip(bands, stretches) for sp in _edge_specs(e, work, st)]
     alive = [k for k in range(len(bands)) if fits[2 * k] is not None and fits[2 * k + 1] is not None]
     for _ in range(_GROW_PASSES):
@@ -196,7 +205,7 @@ def _band_edges(image, camera, validity, noise, bands, work, corridor, stretches
         if not todo:
             break
         new = fit_edges(image, camera, validity, noise, specs, np.array(corr),
-                        max_gap=np.repeat([gaps[2 * k] for k in todo], 2))
+                        max_gap=np.repeat([gaps[2 * k] for k in todo], 2), gamma=gamma)
         for q, k in enumerate(todo):
             fits[2 * k], fits[2 * k + 1] = new[2 * q], new[2 * q + 1]
         alive = [k for k in alive if fits[2 * k] is not None and fits[2 * k + 1] is not None]
@@ -244,7 +253,8 @@ def material_cue(image, camera, validity, work, mm, o, K, noise):
     stretches = [band_stretch(e, mm.luma_noise) for e in bands]
     fimg = np.ascontiguousarray(image, dtype=np.float32) if bands else image  # sampled pass after pass
     for e, stretch, fits in zip(bands, stretches,
-                                _band_edges(fimg, camera, validity, noise, bands, work, corridor, stretches)):
+                                _band_edges(fimg, camera, validity, noise, bands, work, corridor, stretches,
+                                            _MATERIAL_GAMMA)):
         if fits is None:
             continue
         m = midline_from_edges(K, fits[0], fits[1])

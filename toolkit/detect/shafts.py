@@ -43,7 +43,7 @@ Example
 >>> img = np.full((240, 320), 170, np.uint8)
 >>> pts = np.array([[0, 80], [0, 160], [300, 135], [300, 105]], np.int32)   # converging
 >>> import cv2; _ = cv2.fillConvexPoly(img, pts, 40)
->>> sh = detect_shafts(cv2.GaussianBlur(img, (0, 0), 1.0), min_length=100)
+>>> sh = detect_shafts(cv2.GaussianBlur(img, (0, 0), 1.0), min_length=100, gamma=1.0)  # blurred as stored
 >>> len(sh), round(float(sh[0].width_px)), sh[0].cue                 # 55 px at x = 150, plus the fill's rims
 (1, 56, 'edges')
 """
@@ -55,6 +55,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.image import GrayImage
 from pencilcal.toolkit.detect.noise import noise_of
 from pencilcal.toolkit.detect.shaft_axis import midline_from_edges
@@ -188,6 +189,7 @@ class ShaftOptions:
     border_px: float
     min_score_ratio: float
     corridor_px: float
+    gamma: float
 
     @classmethod
     def resolve(cls, shape, *, min_length, width_px_range, max_convergence_deg, scale, max_gap_px, border_px, **kw):
@@ -201,6 +203,8 @@ class ShaftOptions:
         else:
             wmin, wmax = map(float, width_px_range)
             rw = (wmin, wmax)
+        if not (0.1 <= kw["gamma"] <= 5.0):
+            raise InputError(f"gamma must be in [0.1, 5], got {kw['gamma']!r}")
         if not (0 < wmin < wmax):
             raise InputError(f"width_px_range must be (min, max) with 0 < min < max, got {width_px_range!r}")
         if scale is None:
@@ -266,7 +270,7 @@ def _by_edges(image, camera, valid_region, o, K):
 def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_length=None, width_px_range=None,
                   max_convergence_deg=30.0, max_shafts=4, scale=None, max_gap_px=None, search_px=3.0,
                   sigma_px=1.5, min_support=0.3, max_background=0.1, slope_correction=True, from_border=True,
-                  border_px=None, min_score_ratio=0.25, corridor_px=4.0, detector_params=None):
+                  border_px=None, min_score_ratio=0.25, corridor_px=4.0, detector_params=None, gamma=DEFAULT_GAMMA):
     """Instrument shafts in one image: midline (the axis image), width, angle uncertainty.
 
     Parameters
@@ -325,6 +329,13 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         boundary [px] (at least 1.5 work px, that boundary's own resolution).
     detector_params : dict, optional
         Passed to the edge cue's detector.
+    gamma : float
+        The frame's encoding gamma: 8-bit video and JPEG store about (linear light)^(1/2.2)
+        (the default); 1 for linear frames (`pencilcal simulate --gamma 1`). The edge cue
+        locates its edges on the sampled profiles linearised with it (`edges.linearised`):
+        a blurred edge's gradient peak leans towards its dark side in encoded levels, so
+        the band would come out narrow and the shaft too far. The material cue (real
+        video) keeps the levels as they are (`shaft_material_cue._MATERIAL_GAMMA`).
 
     Returns
     -------
@@ -340,7 +351,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         max_convergence_deg=max_convergence_deg, max_shafts=max_shafts, scale=scale, max_gap_px=max_gap_px,
         search_px=search_px, sigma_px=sigma_px, min_support=min_support, max_background=max_background,
         slope_correction=slope_correction, from_border=from_border, border_px=border_px,
-        min_score_ratio=min_score_ratio, corridor_px=corridor_px))
+        min_score_ratio=min_score_ratio, corridor_px=corridor_px, gamma=gamma))
     found = _by_material(image, camera, validity, o, K)
     if found is None:
         found = _by_edges(image, camera, valid_region, o, K)
