@@ -33,7 +33,8 @@ def _orient_record(camera, pencil, fr, opts):
         warn(f"{fr['image']}: {n} segments, more than --max-segments {cap}: the {cap} longest are used")
     kw = dict(model=opts["model"], endpoint_sigma_px=opts["endpoint_sigma"],
               angle_sigma=None if sig is None else np.radians(sig), prior=opts["priors"].get(fr["image"]),
-              image=fr["image"], offset_sigma=fr.get("offset_sigma_px"), max_segments=cap)
+              image=fr["image"], offset_sigma=fr.get("offset_sigma_px"), max_segments=cap,
+              bar_width_px=fr.get("width_px"))
     state = opts.get("tracking")
     if state is None:
         return orient_segments(camera, fr["segments"], pencil, **kw)
@@ -193,7 +194,10 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     the vertex found, the segments labelled with spokes (missing spokes and spurious
     segments are tolerated) and the plane's orientation fitted with its uncertainty. Both
     twin solutions are written; the twin is chosen where the spoke radii (pencil file), a
-    prior pose or continuity tell them apart.
+    prior pose or continuity tell them apart. Midlines of bars (with their width, as found
+    from images or in a lines file) are then moved onto the images of the bars' printed
+    centre lines under the fitted plane, which under perspective they miss by w^2 / (4 V)
+    (w the width, V the distance to the horizon), and the frame is fitted again.
 
     From frame to frame (--track, with --workers 1) the previous frame's orientation labels
     the lines (the full search where it fails: the estimate is the full run's whenever the

@@ -54,11 +54,18 @@ def _parse_size(text):
 @click.option("--shaft-diameter", type=FiniteFloat(min=0.1, max=100), default=8.0, show_default=True,
               help="pivot: the instrument shaft's diameter [mm]; truth.json gives the 3-D fulcrum (fulcrum_cam) and "
                    "every frame's 3-D axis (axis_point_cam, axis_direction_cam).")
+@click.option("--spokes", type=click.IntRange(min=3), default=8, show_default=True,
+              help="Spokes of the printed fan, 20 deg apart (as `pencilcal target --spokes`).")
+@click.option("--spoke-width", type=FiniteFloat(min=0, min_open=True), default=1.0, show_default=True,
+              help="Width of the printed spokes (dark bars) [mm].")
+@click.option("--spoke-radius", type=(FiniteFloat(), FiniteFloat()), default=(15.0, 80.0), show_default=True,
+              help="Inner and outer end of every spoke, from the vertex [mm] (wide spokes need a larger inner "
+                   "radius, or they overlap).")
 @click.option("--force", is_flag=True, help="Replace OUT if it holds an earlier simulate output.")
 @quiet_option
 @run
 def simulate(out, scenario, frames, seed, size, model, camera_path, noise, blur, lighting, gamma, color,
-             background, axis, max_tilt, shaft_diameter, force, quiet):
+             background, axis, max_tilt, shaft_diameter, spokes, spoke_width, spoke_radius, force, quiet):
     """Write a synthetic image sequence with exact ground truth to the folder OUT.
 
     OUT gets images/000.png..., camera.json and camera.yaml, board.yaml, pencil.yaml (what
@@ -74,10 +81,12 @@ def simulate(out, scenario, frames, seed, size, model, camera_path, noise, blur,
     Example:
       pencilcal simulate runs/orbit --scenario orbit --frames 40 --seed 1
       pencilcal simulate runs/pivot --scenario pivot --frames 12 --model fisheye
+      pencilcal simulate runs/thin --scenario tilt-sweep --frames 11 --spokes 9 --spoke-width 1.2
     """
     from pencilcal.toolkit.camera.formats import read_camera
     from pencilcal.toolkit.synth.folder import check_sequence_output, write_sequence
     from pencilcal.toolkit.synth.scenarios import make_scenario
+    from pencilcal.toolkit.synth.sheet import layout_sheet
 
     w, h = _parse_size(size)
     out_path = Path(out)
@@ -86,7 +95,8 @@ def simulate(out, scenario, frames, seed, size, model, camera_path, noise, blur,
     options = {"axis_deg": axis, "max_tilt_deg": max_tilt} if scenario == "tilt-sweep" else {}
     if scenario == "pivot":
         options = {"shaft_radius": shaft_diameter / 2.0}
-    sc = make_scenario(scenario, frames, seed, camera=camera, size=(w, h), model=model, **options)
+    sheet = layout_sheet(spokes=spokes, width=spoke_width, radius=spoke_radius)
+    sc = make_scenario(scenario, frames, seed, camera=camera, sheet=sheet, size=(w, h), model=model, **options)
 
     def bar(frames):
         with progress(frames, "simulate", quiet) as it:

@@ -67,7 +67,8 @@ class FanLines:
         else:
             found = detect_segments(image, self.detector, camera=camera, valid_region=self.valid_region)
         return {"segments": found.segments, "angle_sigma": found.angle_sigma, "offset_sigma": found.offset_sigma,
-                "labels": None, "vertex_px": None, "vertex_cov_px2": None, "pencil": self.pencil}
+                "labels": None, "vertex_px": None, "vertex_cov_px2": None, "pencil": self.pencil,
+                "width_px": found.width_px if bars else None}
 
 
 class GridLines:
@@ -280,7 +281,8 @@ def _process(frame, camera, board, lines_source, models, methods, truth, keep_pi
                 camera, src["segments"], src["pencil"], model=m, angle_sigma=src["angle_sigma"],
                 vertex_px=src["vertex_px"], vertex_cov_px2=src["vertex_cov_px2"], labels=src["labels"],
                 image=frame.name, keep_lines=(m == "exact"), offset_sigma=src.get("offset_sigma"),
-                spoke_radii=src.get("radii"), endpoint_sigma_px=src.get("corner_sigma_px") or ENDPOINT_SIGMA_PX)
+                spoke_radii=src.get("radii"), endpoint_sigma_px=src.get("corner_sigma_px") or ENDPOINT_SIGMA_PX,
+                bar_width_px=src.get("width_px"))
         rec["orient"] = {m: o.to_dict() for m, o in orients.items()}
         if keep_pixels:
             rec["segments"] = src["segments"]

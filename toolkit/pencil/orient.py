@@ -30,6 +30,7 @@ import numpy as np
 
 from pencilcal.toolkit.geometry.angles import wrap_angle
 from pencilcal.toolkit.pencil.assign import assign_spokes
+from pencilcal.toolkit.pencil.bar_centre import centre_lines
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.estimator import (
     detection_threshold,
@@ -131,7 +132,8 @@ def _segment_geometry(camera, segments, endpoint_sigma_px):
 
 def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_px=ENDPOINT_SIGMA_PX, angle_sigma=None,
                     prior=None, vertex_px=None, vertex_cov_px2=None, image=None, labels=None, keep_lines=False,
-                    offset_sigma=None, spoke_radii=None, max_segments=MAX_SEGMENTS, intrinsics_cov="camera"):
+                    offset_sigma=None, spoke_radii=None, max_segments=MAX_SEGMENTS, intrinsics_cov="camera",
+                    bar_width_px=None):
     """Orientation of a pencil seen in one frame.
 
     camera: a Camera; segments: (M, 4) raw pixels [x1, y1, x2, y2]; pencil: a Pencil.
@@ -157,6 +159,13 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         None none; or a (P, P) array / `IntrinsicsCovariance`.
     max_segments: use at most this many segments, the longest (the others get spoke -1):
         memory and time then stay bounded whatever the frame holds.
+    bar_width_px: (M,) [undistorted px] when the segments are the midlines of printed bars
+        (`detect.bars`' width_px; NaN for a segment that is no bar): once the frame is
+        fitted and its twin chosen, the midlines are moved onto the images of the bars'
+        centre lines on the fitted plane (`bar_centre.centre_lines`: under perspective a
+        bar's midline sits w^2 / (4 V) off them, towards the horizon) and the frame is
+        fitted again with the same labels. A frame whose twin is left open keeps its
+        first fit (the two twins' horizons lie on opposite sides).
 
     Returns an `Orientation` (its ``to_dict()`` is the orientation.json record) with
     ``spokes`` (label per input segment, -1 rejected), ``labels_ambiguous``,
@@ -164,6 +173,25 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
     twin, ``vertex_cam`` (and ``t_cam_from_target`` if the pencil file gives the vertex).
     A frame with no estimate has ``ok`` false and ``error``.
     """
+    kw = dict(model=model, endpoint_sigma_px=endpoint_sigma_px, angle_sigma=angle_sigma, prior=prior,
+              vertex_px=vertex_px, vertex_cov_px2=vertex_cov_px2, image=image, labels=labels, keep_lines=keep_lines,
+              offset_sigma=offset_sigma, spoke_radii=spoke_radii, max_segments=max_segments,
+              intrinsics_cov=intrinsics_cov)
+    rec = _orient_once(camera, segments, pencil, **kw)
+    if bar_width_px is None or not rec.ok or rec.ambiguous:
+        return rec
+    moved = centre_lines(camera, segments, bar_width_px, rec.normal)
+    again = _orient_once(camera, moved, pencil, **dict(kw, labels=rec.spokes))
+    if not again.ok:
+        return rec
+    # the labelling's own ambiguities are the first fit's (the second one is given the labels)
+    return again.replace(labels_ambiguous=rec.labels_ambiguous, normal_ambiguous=rec.normal_ambiguous,
+                         normal_alternatives=rec.normal_alternatives)
+
+
+def _orient_once(camera, segments, pencil, *, model, endpoint_sigma_px, angle_sigma, prior, vertex_px,
+                 vertex_cov_px2, image, labels, keep_lines, offset_sigma, spoke_radii, max_segments, intrinsics_cov):
+    """One fit of `orient_segments` (its arguments but bar_width_px)."""
     if model not in MODELS:
         raise InputError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}")
     if isinstance(max_segments, bool) or not isinstance(max_segments, (int, np.integer)) or max_segments < 3:
