@@ -174,8 +174,9 @@ def detector_option(help):
     from pencilcal.toolkit.detect.segments import DETECTOR_CHOICES
 
     return click.option("--detector", type=click.Choice(DETECTOR_CHOICES), default="auto", show_default=True,
-                        help=help + " auto: FLD for printed bars (as sensitive there as LSD, at a fraction of its"
-                        " cost), LSD for edge segments and shaft proposals.")
+                        help=help + " auto: FLD for printed bars on frames of 720 lines or more (proposed at"
+                        " half resolution: as sensitive there as LSD, at a fraction of its cost), LSD on"
+                        " smaller frames and for edge segments and shaft proposals.")
 
 
 def gamma_option(fn):

@@ -43,6 +43,7 @@ import numpy as np
 
 from pencilcal.toolkit.camera.intrinsics import jacobian_pixels_wrt_intrinsics, propagate
 from pencilcal.toolkit.errors import EstimationError
+from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.geometry.frames import rotation_from_rotvec, rotvec_from_rotation
 
 __all__ = ["REGION", "binomial_band", "rig_check", "calibration_halves", "intrinsics_agreement", "jackknife",
@@ -412,8 +413,6 @@ def jackknife_inflation(fulcrum, jk, level=0.99):
     figure. The record: ``frames``, ``ray_sigma_jackknife_deg``, ``ratio`` (jackknife /
     reported sigma), ``inflated``; with a pivot plane also ``normal_ratio``.
     """
-    from scipy.special import chdtri
-
     from pencilcal.toolkit.pencil.sequence_noise import rescale_fulcrum
 
     n = int(jk["frames"])
@@ -421,7 +420,7 @@ def jackknife_inflation(fulcrum, jk, level=0.99):
     if n < 3 or not fulcrum.ray_sigma_deg > 0:
         rec["ratio"] = None
         return fulcrum, rec
-    limit = float(chdtri(n - 1, 1.0 - level)) / (n - 1)
+    limit = chi2_isf(1.0 - level, n - 1) / (n - 1)
     ratio = jk["ray_sigma_jackknife_deg"] / fulcrum.ray_sigma_deg
     rec["ratio"] = ratio
     pivot_factor = None
@@ -449,8 +448,6 @@ def point_jackknife(camera, frames, diameter, point, level=0.99):
     """
     import dataclasses
 
-    from scipy.special import chdtri
-
     from pencilcal.toolkit.pencil.fulcrum import fulcrum_point
 
     pts = []
@@ -469,7 +466,7 @@ def point_jackknife(camera, frames, diameter, point, level=0.99):
     ratio = sigma_jk / float(point.fit.point_sigma) if point.fit.point_sigma > 0 else None
     rec = {"frames": n, "point_sigma_jackknife": sigma_jk, "ratio": ratio, "inflated": False}
     dof = 3 * (n - 1)
-    if ratio is None or ratio**2 <= float(chdtri(dof, 1.0 - level)) / dof:
+    if ratio is None or ratio**2 <= chi2_isf(1.0 - level, dof) / dof:
         return point, rec
     rec["inflated"] = True
     fit = dataclasses.replace(point.fit, point_cov=jk["cov"], point_sigma=np.asarray(sigma_jk))

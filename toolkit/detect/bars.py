@@ -662,7 +662,8 @@ def detect_bars(image, detector="auto", *, camera=None, width_px_range=None, min
     ----------
     image : (H, W) or (H, W, 3) array
     detector : {"auto", "lsd", "fld", "edlines"}
-        The proposals' detector; "auto": FLD (`segments.proposal_detector`).
+        The proposals' detector; "auto": FLD on a reduced image (proposal_scale < 1), LSD on
+        the full-resolution one (`segments.proposal_detector`).
     camera : Camera, optional
         Lens model; see `detect_segments`. Midlines are returned in raw pixels.
     width_px_range : (2,) [px], optional
@@ -721,13 +722,13 @@ def detect_bars(image, detector="auto", *, camera=None, width_px_range=None, min
     """
     if polarity not in BAR_POLARITIES:
         raise InputError(f"unknown bar polarity {polarity!r}; expected one of {', '.join(BAR_POLARITIES)}")
-    detector = proposal_detector(detector, bars=True)
     img = GrayImage(image, valid_region)
     check_camera_image(camera, img)
     o = BarOptions.resolve(img.shape, width_px_range=width_px_range, max_convergence_deg=max_convergence_deg,
                            search_px=search_px, proposal_scale=proposal_scale, min_length=min_length,
                            min_aspect=min_aspect, min_overlap=min_overlap, refine_ends=refine_ends,
                            sigma_px=sigma_px, step_px=step_px, max_gap_px=max_gap_px, min_gradient=min_gradient)
+    detector = proposal_detector(detector, bars=o.proposal_scale < 1.0)
     if polarity == "dark":
         return _dark_bars(img, detector, camera, o, detector_params)
     light = _dark_bars(img.inverted(), detector, camera, o, detector_params)

@@ -72,8 +72,8 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
     image : (H, W) or (H, W, 3) array
     camera : Camera, optional
     detector : {"auto", "lsd", "fld", "edlines"}
-        The OpenCV detector proposing lines; "auto": FLD for bars, LSD for edge segments
-        and shafts (`segments.proposal_detector`).
+        The OpenCV detector proposing lines; "auto": FLD for bars on frames of 720 lines or
+        more, LSD otherwise and for edge segments and shafts (`segments.proposal_detector`).
     bars : bool
         Midlines of dark bars (`detect_bars`, the printed spokes; with ``width_px``) instead
         of edge segments (`detect_segments`).
