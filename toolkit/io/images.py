@@ -189,9 +189,9 @@ class ImageSource:
     def head(self, k):
         """A video's first `k` frames' images (the decoded ones), read now and yielded again
         by the next iteration, so that a sequence-level step (the valid region) costs no
-        second decoding of the video; an image list's first k images (decoded again later)."""
+        second decoding of the video. Image files need no read-ahead (they are read by path)."""
         if self.kind != "video":
-            return [img for img, _ in (self._read(p) for p in self.paths[:k]) if img is not None]
+            raise ValueError("head: only a video source reads ahead")
         if not self._head:
             self._head, self._rest = read_ahead(self._iter_video(), k)
         return [f.image for f in self._head if f.image is not None]
