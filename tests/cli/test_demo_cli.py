@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -20,7 +21,13 @@ def test_demo_writes_a_report_and_every_file_it_used(tmp_path):
     # the pivoting instrument: its fulcrum against the truth, in its own report
     assert "Fulcrum of the pivoting instrument" in (out / "pivot-report.html").read_text()
     fulcrum = json.loads((out / "pivot-validation.json").read_text())["fulcrum"]
-    assert fulcrum["truth"]["vertex_error_px"] < 1.0 and fulcrum["truth"]["point_error_norm"] < 5.0
+    truth = fulcrum["truth"]
+    assert truth["vertex_error_px"] < 1.0
+    # the 3-D point within its own covariance, and within 3 % of its distance: the rendered
+    # shaft's shaded limbs widen its 16-24 px band by ~2 %, so every axis and the point come
+    # out ~2 % near (docs/method.md, seeds 0-4: 1.4-2.3 %)
+    assert truth["point_p_value"] > 0.01
+    assert truth["point_error_norm"] < 0.03 * float(np.linalg.norm(truth["fulcrum_cam"]))
     data = json.loads((out / "validation.json").read_text())
     assert len(data["frames"]) == 8 and sum(f["ok"] for f in data["frames"]) >= 6
     for f in ("truth.json", "camera.json", "board.yaml", "pencil.yaml"):
