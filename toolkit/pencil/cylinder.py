@@ -684,7 +684,8 @@ def fulcrum_3d(axis_points, axis_directions, axis_covs, robust=True, *, axis_fra
     >>> pts = np.array([0.0, 0, 100]) - 20 * d             # three axes through (0, 0, 100)
     >>> covs = np.diag([1e-6, 1e-6, 0.01, 0.01])            # 1 mrad, 0.1 mm
     >>> fit = fulcrum_3d(pts, d, np.broadcast_to(covs, (3, 4, 4)))
-    >>> np.round(fit.point, 9).tolist(), fit.outliers
+    >>> # (+ 0.0: a zero that comes out as -1e-15 rounds to -0.0)
+    >>> (np.round(fit.point, 9) + 0.0).tolist(), fit.outliers
     ([0.0, 0.0, 100.0], ())
     """
     P, D, C, E = _check_lines(axis_points, axis_directions, axis_covs, axis_frames)
