@@ -44,6 +44,7 @@ from pencilcal.toolkit.detect.segments import (
     proposal_detector,
 )
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw, to_raw_points, to_working
+from pencilcal.toolkit.geometry.neighbours import neighbours_within
 from pencilcal.toolkit.errors import InputError
 
 __all__ = ["Bars", "BarOptions", "BAR_POLARITIES", "detect_bars", "bar_midlines_on_plane"]
@@ -144,8 +145,6 @@ def _antiparallel_candidates(lines, max_conv, max_width, min_aspect, min_overlap
     the longer line's centre, and each line queries a KD-tree of centres with that radius
     (short texture fragments meet only their close neighbours).
     """
-    from scipy.spatial import cKDTree
-
     P = np.asarray(lines, float)
     M = P.shape[0]
     if M < 2:
@@ -161,12 +160,7 @@ def _antiparallel_candidates(lines, max_conv, max_width, min_aspect, min_overlap
     wcap = np.minimum(max_width, (L + 2.0) / min_aspect)  # the widest bar each line allows
     # every pair is found from its longer line (ties: the larger index)
     R = L + wcap + 0.5 * L * tan_c + 3.0
-    nb = cKDTree(c).query_ball_point(c, R, return_sorted=False)
-    cnt = np.fromiter(map(len, nb), int, M)
-    if cnt.sum() == 0:
-        return np.zeros(0, int), np.zeros(0, int)
-    a = np.repeat(np.arange(M), cnt)
-    b = np.concatenate([np.asarray(x, int) for x in nb])
+    a, b = neighbours_within(c, R)
     keep = (L[b] < L[a]) | ((L[b] == L[a]) & (b > a))
     a, b = a[keep], b[keep]
     ok = np.sum(u[a] * u[b], -1) <= -np.cos(max_conv)

@@ -56,6 +56,7 @@ import numpy as np
 from pencilcal.toolkit.detect.image import GrayImage
 from pencilcal.toolkit.detect.refit import EdgeFit, RefitOptions, refit_lines
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw, to_working
+from pencilcal.toolkit.geometry.neighbours import pairs_within
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.vertex import segment_angle_sigma
@@ -309,13 +310,11 @@ def _nearby_pairs(s, u, L, tol, max_gap_px, dist_tol_px):
     """Candidate pairs (P, 2) of fragments (K, 4) that come within max_gap of each other
     with similar directions (unit u (K, 2), lengths L).
 
-    Points every max_gap along each fragment (ends included) go into a KD-tree on
+    Points every max_gap along each fragment (ends included) are paired (`pairs_within`) on
     (position, direction scaled so that the angle tolerance `tol` [rad] weighs like the
     gap); a Hough-like (angle, offset) key would need an offset tolerance growing with the
     distance from its origin and flood a busy image with candidates.
     """
-    from scipy.spatial import cKDTree
-
     reach = max(max_gap_px, 2.0) + dist_tol_px
     npts = np.ceil(L / max(max_gap_px, 2.0)).astype(int) + 1
     owner = np.repeat(np.arange(L.size), npts)
@@ -324,7 +323,7 @@ def _nearby_pairs(s, u, L, tol, max_gap_px, dist_tol_px):
     pts = s[owner, :2] + frac[:, None] * (s[owner, 2:] - s[owner, :2])
     dscale = reach / (2.0 * np.sin(min(2.0 * tol, 1.5) / 2.0))
     feat = np.column_stack([pts, dscale * u[owner]])
-    pp = cKDTree(feat).query_pairs(np.sqrt(2.0) * reach, output_type="ndarray")
+    pp = pairs_within(feat, np.sqrt(2.0) * reach)
     if not pp.size:
         return np.zeros((0, 2), int)
     i, j = owner[pp[:, 0]], owner[pp[:, 1]]

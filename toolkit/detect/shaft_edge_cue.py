@@ -69,6 +69,7 @@ from pencilcal.toolkit.detect.segments import detect_fragments, in_valid_region,
 from pencilcal.toolkit.detect.shaft_axis import measure_edge_pair
 from pencilcal.toolkit.detect.shaft_bands import assess_bands, assess_chords, border_polygon, nested_bands
 from pencilcal.toolkit.detect.working import to_raw
+from pencilcal.toolkit.geometry.neighbours import pairs_within
 
 __all__ = ["edge_cue", "bands_from_edges", "refit_edges", "unsigned_lines", "drop_repeated"]
 
@@ -128,9 +129,7 @@ def drop_repeated(lines, support, tol_px=2.0, tol_deg=1.0):
 
 def _parallel_candidates(E, max_conv, max_dist):
     """Index pairs (a, b), a < b, of unsigned lines within max_conv of parallel whose
-    centres are within max_dist + half their lengths (KD-tree on doubled angles)."""
-    from scipy.spatial import cKDTree
-
+    centres are within max_dist + half their lengths (`pairs_within` on doubled angles)."""
     M = E.shape[0]
     if M < 2:
         return np.zeros(0, int), np.zeros(0, int)
@@ -138,7 +137,7 @@ def _parallel_candidates(E, max_conv, max_dist):
     th2 = 2.0 * np.arctan2(d[:, 1], d[:, 0])
     v = np.stack([np.cos(th2), np.sin(th2)], -1)
     r = 2.0 * np.sin(min(max_conv, 1.5))
-    pp = cKDTree(v).query_pairs(r, output_type="ndarray")
+    pp = pairs_within(v, r)
     if pp.size == 0:
         return np.zeros(0, int), np.zeros(0, int)
     a, b = pp[:, 0], pp[:, 1]
