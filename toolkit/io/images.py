@@ -10,7 +10,10 @@ through `open_images`, so they all accept the same inputs and fail the same way:
   ``ok: false`` and warn.
 
 Frames are decoded once, in order, by `decode_image` (OpenCV; BGR, 8 or 16 bit as stored,
-EXIF orientation applied); ``gray=True`` converts to single-channel 8 bit.
+EXIF orientation applied); ``gray=True`` converts to single-channel 8 bit. A video's frames
+are decoded in a thread of their own, a few frames ahead of the command (`prefetched`): the
+decoder releases the interpreter while it works, so the decoding of the next frames
+overlaps the processing of this one.
 
 Example
 -------
@@ -27,8 +30,10 @@ from __future__ import annotations
 import contextlib
 import glob as _glob
 import os
+import queue
 import re
 import sys
+import threading
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,8 +42,17 @@ import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["Frame", "ImageSource", "read_ahead", "open_images", "decode_image", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS",
+__all__ = ["Frame", "ImageSource", "read_ahead", "prefetched", "open_images", "decode_image", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS",
            "DEFAULT_MAX_PIXELS", "check_image_size", "quiet_c_stderr"]
+
+# FFmpeg (OpenCV's video backend) logs its complaints about corrupt frames on stderr; pencilcal
+# reports an undecodable frame in one line itself. Its own log level, read when OpenCV starts
+# the backend, silences it in whichever thread decodes (a user's own setting is kept); the
+# file-descriptor swap of `quiet_c_stderr` would silence every thread's stderr meanwhile.
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+
+# frames a video's decoding thread runs ahead of the command (a 1080p BGR frame: 6 MB)
+PREFETCH_FRAMES = 4
 
 IMAGE_EXTENSIONS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
 VIDEO_EXTENSIONS = {".mp4", ".avi", ".mov", ".mkv", ".m4v", ".mpg", ".mpeg", ".wmv", ".webm"}
@@ -95,6 +109,59 @@ def read_ahead(frames, k):
         if len(head) >= k:
             break
     return head, frames
+
+
+def prefetched(make_iter, depth=PREFETCH_FRAMES):
+    """The items of the iterator `make_iter()`, produced in a thread of their own at most
+    `depth` ahead of the consumer: decoding (which releases the interpreter) overlaps what
+    the consumer does with the previous frame. The iterator is created, advanced and closed
+    in that thread; an exception it raises is raised here, in order. A consumer that stops
+    early (break, an error, Ctrl-C) stops the thread after the item it is producing.
+
+    >>> [x * x for x in prefetched(lambda: iter(range(5)))]
+    [0, 1, 4, 9, 16]
+    """
+    q = queue.Queue(max(1, int(depth)))
+    stop = threading.Event()
+
+    def put(item):
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.05)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def produce():
+        it = None
+        try:
+            it = make_iter()
+            for item in it:
+                if not put(("item", item)):
+                    break
+        except BaseException as e:  # noqa: BLE001 - handed to the consumer, raised there
+            put(("error", e))
+        finally:
+            close = getattr(it, "close", None)
+            if close is not None:
+                close()
+            put(("done", None))
+
+    worker = threading.Thread(target=produce, name="pencilcal-decode", daemon=True)
+    worker.start()
+    try:
+        while True:
+            kind, value = q.get()
+            if kind == "item":
+                yield value
+            elif kind == "error":
+                raise value
+            else:
+                return
+    finally:
+        stop.set()
+        worker.join(timeout=5.0)
 
 
 class ImageSource:
@@ -193,7 +260,7 @@ class ImageSource:
         if self.kind != "video":
             raise ValueError("head: only a video source reads ahead")
         if not self._head:
-            self._head, self._rest = read_ahead(self._iter_video(), k)
+            self._head, self._rest = read_ahead(prefetched(self._iter_video), k)
         return [f.image for f in self._head if f.image is not None]
 
     def __iter__(self):
@@ -207,7 +274,7 @@ class ImageSource:
             yield from head
             yield from rest
         elif self.kind == "video":
-            yield from self._iter_video()
+            yield from prefetched(self._iter_video)
         else:
             yield from self._iter_files()
 
@@ -229,17 +296,17 @@ class ImageSource:
             yield Frame(p.name, i, img, err, str(p))
 
     def _iter_video(self):
+        """The video's frames, decoded in order (run in the decoding thread, `prefetched`:
+        nothing here may touch file descriptor 2, which the main thread writes on)."""
         import cv2
 
-        with quiet_c_stderr():
-            cap = cv2.VideoCapture(str(self.paths[0]))
+        cap = cv2.VideoCapture(str(self.paths[0]))
         try:
             i = 0
             misses = 0
             n = self._video_count
             while True:
-                with quiet_c_stderr():  # libavcodec reports corrupt frames itself
-                    ok, img = cap.read()
+                ok, img = cap.read()
                 if not ok or img is None:
                     # a corrupt frame inside the stream: report it and try the next; stop
                     # at the end (or after many misses in a row)

@@ -110,3 +110,38 @@ def test_exif_orientation_is_applied_in_colour_and_grey(tmp_path):
     assert colour.shape[:2] == grey.shape == (40, 20)
     np.testing.assert_allclose(cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY), grey, atol=2)
     assert np.array_equal(colour, cv2.imread(str(path)))
+
+
+def test_prefetched_yields_in_order_raises_in_order_and_stops_when_left():
+    import threading
+
+    from pencilcal.toolkit.io.images import prefetched
+
+    assert list(prefetched(lambda: iter(range(50)), depth=3)) == list(range(50))
+
+    def failing():
+        yield 1
+        yield 2
+        raise ValueError("frame 3 is broken")
+
+    got = []
+    with pytest.raises(ValueError, match="frame 3"):
+        for x in prefetched(failing):
+            got.append(x)
+    assert got == [1, 2]
+
+    closed = threading.Event()
+
+    def endless():
+        try:
+            i = 0
+            while True:
+                yield i
+                i += 1
+        finally:
+            closed.set()  # the source is closed in its own thread when the consumer leaves
+
+    for x in prefetched(endless, depth=2):
+        if x == 5:
+            break
+    assert closed.wait(5.0)
