@@ -85,13 +85,39 @@ def _orient_image_task(frame, ctx):
     camera, pencil, detector, opts, edges, region, drawing = ctx
     if frame.image is None:
         fr = {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}
+        rec = _orient_record(camera, pencil, fr, opts)
     else:
         check_image_size(frame, camera)
         bars, polarity = fan_line_options(pencil.width, edges)
-        fr = lines_record(frame.name, frame.image, camera, detector, bars=bars, valid_region=region,
-                          bar_polarity=polarity)
-    rec = _orient_record(camera, pencil, fr, opts)
+        state = opts.get("tracking")
+        tracker = state["bars"] if state is not None and bars else None
+
+        def detected():
+            fr = lines_record(frame.name, frame.image, camera, detector, bars=bars, valid_region=region,
+                              bar_polarity=polarity, bar_tracker=tracker)
+            return fr, _orient_record(camera, pencil, fr, opts)
+
+        fr, rec = detected() if tracker is None else _tracked_bars_frame(detected, tracker, state)
     return rec, _drawn(frame, rec, fr["segments"], camera) if drawing else None
+
+
+def _tracked_bars_frame(detected, tracker, state):
+    """A frame whose bars the tracker found from the previous frame's (`bar_track`): kept
+    when its orientation is ok and uses as many spokes as the last full detection, less one;
+    else detected in full and fitted again (the orientation's own tracking state as before
+    the tracked try). Returns (lines record, orientation)."""
+    before = dict(state)
+    fr, rec = detected()
+    need = max(3, (tracker.full_used or 3) - 1)
+    if tracker.last_tracked and not (rec.ok and rec.lines_used >= need):
+        tracker.lost()
+        state.update(previous=before["previous"], tracked=before["tracked"])
+        fr, rec = detected()
+    if rec.ok:
+        tracker.keep(np.asarray(rec.spokes) >= 0, used=rec.lines_used)
+    else:
+        tracker.lost()
+    return fr, rec
 
 
 def _drawn(frame, rec, segments, camera):
@@ -102,6 +128,14 @@ def _drawn(frame, rec, segments, camera):
     from pencilcal.toolkit.draw.overlay import draw_orientation
 
     return draw_orientation(frame.image, rec, segments, camera)
+
+
+def _tracking_meta(state):
+    """The output file's record of tracking: frames_tracked (labelled by the previous
+    frame's orientation), bars_tracked (bars found from the previous frame's, with IMAGES)."""
+    if state is None:
+        return {}
+    return {"frames_tracked": state["tracked"], **({"bars_tracked": state["bars"].tracked} if "bars" in state else {})}
 
 
 def _warn_frame(rec):
@@ -164,8 +198,9 @@ def _check_priors_match(priors, names, path):
 @click.option("--continuity/--no-continuity", default=True, show_default=True,
               help="Carry twin choices along the sequence to ambiguous frames.")
 @click.option("--track/--no-track", default=True, show_default=True,
-              help="Label each frame's lines by the previous frame's orientation (the full search where that "
-                   "fails) and keep its twin; needs the frames in order in one process (--workers 1).")
+              help="Find each frame's spokes where the previous frame's were and label them by its orientation "
+                   "(a full detection and search where that fails, and every 30th frame) and keep its twin; "
+                   "needs the frames in order in one process (--workers 1).")
 @detector_option("Line detector, with IMAGES.")
 @click.option("--edges", is_flag=True,
               help="With IMAGES: plain edge segments (as `pencilcal lines`) instead of the spokes' midlines.")
@@ -199,9 +234,12 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     centre lines under the fitted plane, which under perspective they miss by w^2 / (4 V)
     (w the width, V the distance to the horizon), and the frame is fitted again.
 
-    From frame to frame (--track, with --workers 1) the previous frame's orientation labels
-    the lines (the full search where it fails: the estimate is the full run's whenever the
-    labels agree) and keeps the twin where a frame alone cannot choose.
+    From frame to frame (--track, with --workers 1) the previous frame's spokes are looked
+    for again where they were (their edges within 6 px, then measured as a full detection
+    measures them; a full detection on the first frame, every 30th, and where the tracked
+    frame's fit fails or loses more than one spoke), the previous frame's orientation labels
+    the lines (the full search where that fails) and the twin is kept where a frame alone
+    cannot choose.
 
     Unless the noise is given (--endpoint-sigma, --angle-sigma) the sigmas hold the noise
     the sequence shows: the frames' pooled residuals give a variance factor (outlier frames
@@ -232,7 +270,8 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     pencil = read_pencil(pencil_path)
     priors = _prior_rotations(prior_path) if prior_path else {}
     opts = dict(model=model, endpoint_sigma=endpoint_sigma, angle_sigma=angle_sigma, priors=priors,
-                max_segments=max_segments, tracking={"previous": None, "tracked": 0} if track and workers == 1 else None)
+                max_segments=max_segments,
+                tracking={"previous": None, "tracked": 0} if track and workers == 1 else None)
     records, source = [], None
     if lines_path is not None:
         frames = read_lines(lines_path)
@@ -248,6 +287,10 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     else:
         source = open_input(images, source_spec, max_pixels)
         check_output(output, force, [*source.paths, mask_path])
+        if opts["tracking"] is not None:
+            from pencilcal.toolkit.detect.bar_track import BarTracker
+
+            opts["tracking"]["bars"] = BarTracker()
         region = frames_region(source, mask_path, shape=(camera.height, camera.width))
         if source.kind != "stream":
             names = [p.name for p in source.paths] if source.kind == "images" else \
@@ -272,7 +315,7 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
                        noise=noise,
                        lines=None if lines_path is None else str(lines_path),
                        images=None if images is None else source.description, **stream_meta(source),
-                       **({} if opts["tracking"] is None else {"frames_tracked": opts["tracking"]["tracked"]}))
+                       **_tracking_meta(opts["tracking"]))
     n_ok = sum(r.ok for r in records)
     n_amb = sum(bool(r.ok and r.normal_ambiguous) for r in records)
     if not quiet:

@@ -113,7 +113,8 @@ def bench_orient_video(frames=64, repeats=2, seed=0, workdir=None):
             "orient_video_startup_s": float(startup), "orient_video_ms_per_frame": float(per * 1e3),
             "orient_video_steady_vs_decode_fld": float(per / (floor / n)),
             "orient_video_frames_ok": f"{ok}/{len(data['frames'])}",
-            "orient_video_frames_tracked": f"{data.get('frames_tracked', 0)}/{len(data['frames'])}"}
+            "orient_video_frames_tracked": f"{data.get('frames_tracked', 0)}/{len(data['frames'])}",
+            "orient_video_bars_tracked": f"{data.get('bars_tracked', 0)}/{len(data['frames'])}"}
 
 
 def bench_shafts_video(frames=48, repeats=2, seed=0, workdir=None):

@@ -44,15 +44,21 @@ def test_small_tilts_not_detectable(sweep):
 
 def test_sigmas_cover_the_errors(sweep):
     """Reported tilt sigmas are honest on the detectable frames: the errors in units of
-    their sigma (z) have a robust sd (1.4826 MAD) in [0.75, 1.33], at least 95% lie within
-    3, and the 1-sigma coverage is within the 99% binomial interval around 68% (with ~38
-    frames that is +-0.2; a fixed +-0.1 would fail one honest sequence in five)."""
+    their sigma (z) have a mean square within the 99% chi-square interval of n frames
+    (~[0.51, 1.69] for 38), a robust sd (1.4826 MAD) within its own 99% sampling interval
+    around 1 (sd 1.166 / sqrt(n): [0.51, 1.49]; a fixed [0.75, 1.33] failed one honest
+    sequence in ten), at least 95% lie within 3, and the 1-sigma coverage is within the 99%
+    binomial interval around 68% (+-0.2 for 38 frames)."""
+    from pencilcal.toolkit.geometry.quantiles import chi2_isf
+
     out, truth = sweep
     z = np.array([(o["tilt_deg"] - t["tilt_deg"]) / o["tilt_sigma_deg"]
                   for o, t in zip(out, truth) if o["ok"] and o["detectable"] and t["tilt_deg"] >= 5])
     n = z.size
     assert n >= 25
-    assert 0.75 <= 1.4826 * np.median(np.abs(z - np.median(z))) <= 1.33
+    assert chi2_isf(0.995, n) / n <= np.mean(z**2) <= chi2_isf(0.005, n) / n
+    spread = 2.576 * 1.166 / np.sqrt(n)
+    assert 1 - spread <= 1.4826 * np.median(np.abs(z - np.median(z))) <= 1 + spread
     assert np.mean(np.abs(z) <= 3.0) >= 0.95
     half = 2.576 * np.sqrt(0.68 * 0.32 / n)
     assert 0.68 - half <= np.mean(np.abs(z) <= 1.0) <= 0.68 + half

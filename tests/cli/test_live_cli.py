@@ -189,23 +189,61 @@ def sweep(tmp_path_factory):
     return _simulated(tmp_path_factory, "sweep", "tilt-sweep", 8, "800x450")
 
 
-def test_tracking_stays_within_the_sigmas_of_a_full_run(sweep, tmp_path):
-    import numpy as np
-
-    sim = sweep
+def _tracked_and_full(sim, tmp_path):
     out = {}
     for flag in ("--track", "--no-track"):
         out[flag] = tmp_path / f"o{flag}.json"
         r = CliRunner().invoke(cli, ["orient", str(sim / "images"), "--camera", str(sim / "camera.json"), "--pencil",
                                      str(sim / "pencil.yaml"), "-o", str(out[flag]), flag, "--no-continuity", "-q"])
         assert r.exit_code == 0, r.output
-    tracked, full = (json.loads(out[f].read_text()) for f in ("--track", "--no-track"))
+    return tuple(json.loads(out[f].read_text()) for f in ("--track", "--no-track"))
+
+
+def _within(a, b, k):
+    """Frame records a (tracked) and b (full) agree within k of b's sigmas."""
+    import numpy as np
+
+    assert abs(a["tilt_deg"] - b["tilt_deg"]) <= k * b["tilt_sigma_deg"]
+    # the tracked frame may hold the twin a full run leaves open: compare with the nearer
+    near = max(np.dot(a["normal"], b["normal"]), np.dot(a["normal"], b["normal_twin"]))
+    assert np.degrees(np.arccos(min(1.0, near))) <= k * b["normal_sigma_deg"]
+
+
+def test_tracking_stays_within_the_sigmas_of_a_full_run(sweep, tmp_path):
+    # 11 deg a frame: the labels follow; the bars mostly do not (a full detection then)
+    tracked, full = _tracked_and_full(sweep, tmp_path)
     assert tracked["frames_tracked"] >= 2
     for a, b in zip(tracked["frames"], full["frames"]):
         assert a["ok"] == b["ok"]
+        if b["ok"]:
+            # a tracked bar is the same edge measured from other stations along it: the two
+            # estimates differ by measurement noise (up to ~1.7 sd seen), not by a bias
+            _within(a, b, 2.0)
+
+
+@pytest.fixture(scope="module")
+def gentle_sweep(tmp_path_factory):
+    """A tilt sweep, 0-80 deg in 24 frames (3.5 deg a frame): the bars move a few px."""
+    return _simulated(tmp_path_factory, "gentle", "tilt-sweep", 24, "800x450")
+
+
+def test_tracked_bars_measure_as_well_as_a_full_detection(gentle_sweep, tmp_path):
+    import numpy as np
+
+    tracked, full = _tracked_and_full(gentle_sweep, tmp_path)
+    truth = json.loads((gentle_sweep / "truth.json").read_text())["frames"]
+    # the previous frame's bars were this frame's proposals in most frames
+    assert tracked["bars_tracked"] >= 15 and "bars_tracked" not in full
+    z = {"tracked": [], "full": []}
+    for a, b, t in zip(tracked["frames"], full["frames"], truth):
+        assert a["ok"] == b["ok"]
         if not b["ok"]:
             continue
-        assert abs(a["tilt_deg"] - b["tilt_deg"]) <= b["tilt_sigma_deg"]
-        # the tracked frame may hold the twin a full run leaves open: compare with the nearer
-        near = max(np.dot(a["normal"], b["normal"]), np.dot(a["normal"], b["normal_twin"]))
-        assert np.degrees(np.arccos(min(1.0, near))) <= b["normal_sigma_deg"]
+        _within(a, b, 2.5)
+        assert a["lines_used"] >= b["lines_used"] - 1
+        if t["tilt_deg"] < 70:  # beyond, three or four spokes are left
+            z["tracked"].append((a["tilt_deg"] - t["tilt_deg"]) / a["tilt_sigma_deg"])
+            z["full"].append((b["tilt_deg"] - t["tilt_deg"]) / b["tilt_sigma_deg"])
+    rms = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in z.items()}
+    # against the truth the tracked run is as good as the full one (measured: 0.86 and 0.91)
+    assert len(z["full"]) >= 18 and rms["tracked"] <= 1.25 * rms["full"] + 0.2, rms

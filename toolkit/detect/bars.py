@@ -26,6 +26,7 @@ Example
 """
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
@@ -47,7 +48,14 @@ from pencilcal.toolkit.detect.working import check_camera_image, to_raw, to_raw_
 from pencilcal.toolkit.geometry.neighbours import neighbours_within
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["Bars", "BarOptions", "BAR_POLARITIES", "detect_bars", "bar_midlines_on_plane"]
+__all__ = ["Bars", "BarOptions", "BAR_POLARITIES", "TRACK_SEARCH_PX", "detect_bars", "find_bars",
+           "bar_midlines_on_plane"]
+
+#: Half-width [px] of the first edge search around a previous frame's edge (`find_bars` with
+#: a prior): a target moved by hand at 30 fps shifts its edges by up to ~5 px a frame (the
+#: bench's tilt sweep, 2 deg a frame); an edge of the other polarity (the bar's other side)
+#: is never taken, so the window may be wider than the bar.
+TRACK_SEARCH_PX = 6.0
 
 _PENCIL_BIN_DEG = 3.0  # directions closer than this count as one (`_pencil_support`)
 _PENCIL_TOL_PX, _PENCIL_TOL_REL = 2.0, 0.005  # a line passes through a point within 2 px + 0.5 % of its distance
@@ -714,24 +722,64 @@ def detect_bars(image, detector="auto", *, camera=None, width_px_range=None, min
     -------
     See the module docstring.
     """
+    return find_bars(image, detector, camera=camera, width_px_range=width_px_range, min_length=min_length,
+                     min_aspect=min_aspect, max_convergence_deg=max_convergence_deg, min_overlap=min_overlap,
+                     refine_ends=refine_ends, search_px=search_px, sigma_px=sigma_px, step_px=step_px,
+                     max_gap_px=max_gap_px, min_gradient=min_gradient, detector_params=detector_params,
+                     proposal_scale=proposal_scale, valid_region=valid_region, polarity=polarity)[0]
+
+
+def find_bars(image, detector="auto", *, polarity="dark", prior=None, valid_region=None, detector_params=None,
+              camera=None, **options):
+    """`detect_bars` (the same arguments) and the polarity of what it found: (Bars,
+    "dark" or "light"), and with a prior, the bars of the previous frame looked for again.
+
+    prior : (M, 2, 4) array, optional
+        The ``edges`` [raw px] of the previous frame's bars (`Bars.edges`, the same camera,
+        found with the same polarity, which must then be "dark" or "light"): instead of
+        proposing lines over the whole frame, each edge is looked for again within
+        `TRACK_SEARCH_PX` of where it was (its own polarity only), then refitted, paired and
+        measured exactly as a full detection's candidates are. Bars that moved further,
+        and bars new in the frame, are not found: the caller falls back on a full detection
+        (`bar_track.BarTracker`).
+    """
     if polarity not in BAR_POLARITIES:
         raise InputError(f"unknown bar polarity {polarity!r}; expected one of {', '.join(BAR_POLARITIES)}")
+    if prior is not None and polarity == "either":
+        raise InputError("find_bars: a prior needs the polarity it was found with (dark or light)")
     img = GrayImage(image, valid_region)
     check_camera_image(camera, img)
-    o = BarOptions.resolve(img.shape, width_px_range=width_px_range, max_convergence_deg=max_convergence_deg,
-                           search_px=search_px, proposal_scale=proposal_scale, min_length=min_length,
-                           min_aspect=min_aspect, min_overlap=min_overlap, refine_ends=refine_ends,
-                           sigma_px=sigma_px, step_px=step_px, max_gap_px=max_gap_px, min_gradient=min_gradient)
+    o = BarOptions.resolve(img.shape, **{**_BAR_DEFAULTS, **options})
     detector = proposal_detector(detector, bars=o.proposal_scale < 1.0)
+    if prior is not None:
+        lines = to_working(camera, np.asarray(prior, float).reshape(-1, 4))
+        seen = img.inverted() if polarity == "light" else img
+        return _bars_from_candidates(seen, camera, _tracked_lines(seen, camera, lines, o), o), polarity
     if polarity == "dark":
-        return _dark_bars(img, detector, camera, o, detector_params)
+        return _dark_bars(img, detector, camera, o, detector_params), "dark"
     light = _dark_bars(img.inverted(), detector, camera, o, detector_params)
     if polarity == "light":
-        return light
+        return light, "light"
     dark = _dark_bars(img, detector, camera, o, detector_params)
     # the frame's own polarity: the one whose bars look more like a pencil (the gaps between
     # a fan's spokes are wedges, no bars; the other polarity finds strips of other print)
-    return light if _pencil_support(light.ideal, light.length) > _pencil_support(dark.ideal, dark.length) else dark
+    if _pencil_support(light.ideal, light.length) > _pencil_support(dark.ideal, dark.length):
+        return light, "light"
+    return dark, "dark"
+
+
+def _tracked_lines(img, camera, lines, o):
+    """The previous frame's edges (M, 4) [working px] found again: one refit pass with
+    the edge search `TRACK_SEARCH_PX` wide, whose lines (those refitted) are then this
+    frame's candidates."""
+    opts = replace(o.refit_options(), search=max(TRACK_SEARCH_PX, o.search_px))
+    fit = EdgeRefit(img, lines, camera, opts).fit()
+    return fit.lines()[fit.ok]
+
+
+# the options `BarOptions.resolve` takes, with detect_bars' defaults (one source: its signature)
+_BAR_DEFAULTS = {k: v.default for k, v in inspect.signature(detect_bars).parameters.items()
+                 if k not in ("image", "detector", "camera", "detector_params", "valid_region", "polarity")}
 
 
 def _pencil_support(lines, length):
@@ -786,11 +834,19 @@ def _dark_bars(img, detector, camera, o, detector_params):
     lines, a, b = _proposed_pairs(img, detector, camera, o, detector_params)
     if a.size == 0:
         return Bars.empty()
+    return _bars_from_candidates(img, camera, lines[np.unique(np.concatenate([a, b]))], o)
+
+
+def _bars_from_candidates(img, camera, lines, o):
+    """The dark bars of img whose edges are among the candidate lines (M, 4) [working px,
+    oriented by polarity]: refitted, paired, cleared of neighbours and measured."""
+    if lines.shape[0] < 2:
+        return Bars.empty()
     # a printed bar's edge is continuous: the refit keeps only an unbroken run of stations
     # (fragments are merged across gaps first), so edges of squares in a row, lined up
     # with gaps between them, do not make a bar
     opts = o.refit_options()
-    E, sub = _refitted_edges(img, camera, lines[np.unique(np.concatenate([a, b]))], o, opts)
+    E, sub = _refitted_edges(img, camera, lines, o, opts)
     pr = _bar_pairs(img, camera, E, sub, o)
     if pr is None:
         return Bars.empty()

@@ -62,7 +62,7 @@ def fan_line_options(pencil_width, edges=False):
 
 def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None,
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
-                       gamma=DEFAULT_GAMMA):
+                       gamma=DEFAULT_GAMMA, bar_tracker=None):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -93,12 +93,16 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         of the two this frame shows (`detect_bars`).
     gamma : float
         With `shaft`: the frame's encoding gamma (`detect_shafts`; 1: linear frames).
+    bar_tracker : bar_track.BarTracker, optional
+        With `bars`, frames in order: the bars found by it (the previous frame's bars as
+        this frame's proposals where it has them) instead of a full detection.
     """
     if min_length is None:
         min_length = default_min_length(np.shape(image), bars)
     if bars:
-        segs = detect_bars(image, detector, camera=camera, min_length=min_length, width_px_range=bar_width,
-                           proposal_scale=proposal_scale, valid_region=valid_region, polarity=bar_polarity)
+        kw = dict(camera=camera, min_length=min_length, width_px_range=bar_width, proposal_scale=proposal_scale,
+                  valid_region=valid_region, polarity=bar_polarity)
+        segs = detect_bars(image, detector, **kw) if bar_tracker is None else bar_tracker(image, detector, **kw)[0]
     else:
         segs = detect_segments(image, detector, camera=camera, min_length=min_length, valid_region=valid_region)
     return LineFrame(
@@ -120,8 +124,8 @@ def _shafts(image, camera, valid_region, gamma):
 
 
 def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None, bar_width=None,
-                 proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA):
+                 proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA, bar_tracker=None):
     """One lines.json frame record from one decoded image: ``detect_frame_lines(...).to_dict()``
     (the same arguments)."""
     return detect_frame_lines(name, image, camera, detector, bars, shaft, min_length, bar_width,
-                              proposal_scale, valid_region, bar_polarity, gamma).to_dict()
+                              proposal_scale, valid_region, bar_polarity, gamma, bar_tracker).to_dict()
