@@ -173,6 +173,19 @@ def _normal_line(img, orientation, camera, length_px):
     _line(img, v, tip, _YELLOW, 2 * _thickness(img))
 
 
+def _value_pm(value, sigma):
+    """"value +- sigma" with the sigma to two significant digits and the value to the same
+    decimal place (at least two decimals), so a 0.004 deg sigma does not print as 0.00.
+
+    >>> _value_pm(28.71342, 0.00384), _value_pm(12.3, 0.25), _value_pm(5.0, float("nan"))
+    ('28.7134 +- 0.0038', '12.30 +- 0.25', '5.00 +- nan')
+    """
+    if not (np.isfinite(sigma) and sigma > 0):
+        return f"{value:.2f} +- {sigma:.2f}"
+    d = int(min(6, max(2, 1 - np.floor(np.log10(sigma)))))
+    return f"{value:.{d}f} +- {sigma:.{d}f}"
+
+
 def draw_orientation(image, orientation, segments=None, camera=None):
     """One frame's `Orientation` drawn on `image` (a BGR copy is returned).
 
@@ -191,7 +204,7 @@ def draw_orientation(image, orientation, segments=None, camera=None):
         _normal_line(img, orientation, camera, 0.12 * min(img.shape[:2]))
         twin = "resolved by " + str(orientation.resolved_by) if not orientation.ambiguous else "twin: ambiguous"
         _text_box(img, [f"{orientation.image or ''}",
-                        f"tilt {orientation.tilt_deg:.2f} +- {orientation.tilt_sigma_deg:.2f} deg"
+                        f"tilt {_value_pm(orientation.tilt_deg, orientation.tilt_sigma_deg)} deg"
                         + ("" if orientation.detectable else " (not detectable)"),
                         f"{orientation.lines_used} lines, {twin}"])
     else:
