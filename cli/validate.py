@@ -10,7 +10,7 @@ from pencilcal.validation.pnp import METHODS
 from pencilcal.validation.validate import find_sequences, sequence_files, validate_many, validate_path
 from pencilcal.validation.validation_file import write_validation
 
-from .common import (detector_option, command, LabelledProgress, StageBars, check_output, force_option, mask_option, output_option,
+from .common import (detector_option, gamma_option, command, LabelledProgress, StageBars, check_output, force_option, mask_option, output_option,
                      quiet_option, run, warn, workers_option)
 
 
@@ -70,6 +70,7 @@ def _grid(value):
                    "on for a simulate pivot folder.")
 @click.option("--shaft-diameter", type=float, default=None, metavar="D",
               help="With the fulcrum: the shaft's diameter, for the 3-D fulcrum (default: a pivot folder's own).")
+@gamma_option
 @click.option("--dask", "dask_address", default=None, metavar="ADDRESS",
               help="With a folder of sequences: send each sequence to this Dask scheduler (tcp://host:8786).")
 @workers_option
@@ -79,7 +80,7 @@ def _grid(value):
 @run
 def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pencil, truth_path, models, methods,
              sfm, sfm_dir, detector, edges, mask_path, calib_path, right_images, right_camera, right_calib_path,
-             fulcrum, shaft_diameter, dask_address, workers, output, force, quiet):
+             fulcrum, shaft_diameter, gamma, dask_address, workers, output, force, quiet):
     """Compare the angular-variation estimate with PnP (and a reconstruction) on the same frames.
 
     SEQUENCE is one or more image files, folders or glob patterns (in the order given), a
@@ -100,7 +101,7 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
     shafts are detected in every frame and ``fulcrum`` holds the fulcrum as `pencilcal
     fulcrum` finds it, each frame's axis residual, its error against the truth and, with
     --shaft-diameter (a pivot folder's own by default), the 3-D point in the camera and the
-    board frame.
+    board frame; the shafts' edges are located on levels linearised with --gamma.
 
     SEQUENCE may also be a folder of sequence folders: each is validated (one after the
     other, or each as a task on a Dask cluster with --dask) and the output holds them all
@@ -134,7 +135,7 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
     options = dict(camera=camera_path, camera_id=camera_id, board=board_path, pencil=pencil_path, grid_pencil=grid,
                    truth=truth_path, models=models_t, methods=methods_t, sfm=sfm, detector=detector,
                    calibration=calib_path, workers=workers, edges=edges, mask=mask_path, fulcrum=fulcrum,
-                   shaft_diameter=shaft_diameter)
+                   shaft_diameter=shaft_diameter, gamma=gamma)
     if shaft_diameter is not None and not shaft_diameter > 0:
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     if right_images is not None or right_camera is not None:

@@ -368,7 +368,7 @@ def _sfm(source, camera, frames, best_poses, workdir, warn, quiet, progress):
 
 def _frame_task(frame, ctx):
     """One frame's validation record, the PoseResult of its best PnP method (or None) and,
-    with `shafts` (detector, valid region), its shafts as a lines.json frame (else None)
+    with `shafts` (detector, valid region, gamma), its shafts as a lines.json frame (else None)
     (module level: runs in worker processes too)."""
     camera, board, lines_source, models, methods, truth, keep_pixels, shafts = ctx
     try:
@@ -405,7 +405,8 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
     Returns the validation.json dict (numpy arrays inside; write with files.write_json).
     """
     frames, best_poses, shaft_frames = [], [], []
-    shafts = None if fulcrum is None else (fulcrum.get("detector", "auto"), fulcrum.get("valid_region"))
+    shafts = None if fulcrum is None else (fulcrum.get("detector", "auto"), fulcrum.get("valid_region"),
+                                           fulcrum.get("gamma"))
     ctx = (camera, board, lines_source, models, methods, truth, keep_pixels, shafts)
     results = map_frames(_frame_task, source, ctx, workers)
     it = results if progress is None else progress(Sized(results, len(source)), "validate")
@@ -434,8 +435,11 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
     if fulcrum is not None:
         from .fulcrum_validation import fulcrum_record
 
+        from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
+
         out["fulcrum"] = fulcrum_record(camera, shaft_frames, frames, truth=fulcrum.get("truth"),
                                         shaft_diameter=fulcrum.get("shaft_diameter"))
+        out["fulcrum"]["gamma"] = DEFAULT_GAMMA if fulcrum.get("gamma") is None else float(fulcrum["gamma"])
     out["frames"] = frames
     return out
 
@@ -491,7 +495,8 @@ def find_sequences(path):
 def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=None, grid_pencil=None, truth=None,
                   models=MODELS, methods=METHODS, sfm=False, sfm_dir=None, detector="auto", calibration=None,
                   workers=1, progress=None, warn=None, quiet=True, sfm_progress=None, argv=None, edges=False,
-                  mask=None, right=None, right_camera=None, right_calibration=None, fulcrum=None, shaft_diameter=None):
+                  mask=None, right=None, right_camera=None, right_calibration=None, fulcrum=None, shaft_diameter=None,
+                  gamma=None):
     """Validate one sequence given by paths; returns the whole validation.json dict.
 
     sequence: folder, glob, video, or a `pencilcal simulate` folder (whose camera, board,
@@ -508,7 +513,8 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
     cross-validation to ``checks``. fulcrum: also the ``fulcrum`` record
     (`fulcrum_validation.fulcrum_record`: the instrument's shafts detected in every frame,
     the fulcrum and with shaft_diameter its 3-D point, against the truth where known);
-    None: when the truth is a pivot scenario's (its shaft diameter then the default). The
+    None: when the truth is a pivot scenario's (its shaft diameter then the default); gamma:
+    the frames' encoding gamma for the shafts' edges (None: `detect_shafts`' default). The
     other arguments as `validate_sequence`. Module level and paths only, so a Dask worker
     can run it.
     """
@@ -561,7 +567,7 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
         if shaft_diameter is None and pivot_truth:
             shaft_diameter = (truth_doc.get("options") or {}).get("shaft_diameter")
         pivot = {"detector": detector, "valid_region": getattr(lines, "valid_region", None), "truth": pivot_truth,
-                 "shaft_diameter": shaft_diameter}
+                 "shaft_diameter": shaft_diameter, "gamma": gamma}
     result = validate_sequence(source, cam, brd, lines, truth=truth_frames, models=models, methods=methods, sfm=sfm,
                                sfm_workdir=sfm_dir, progress=progress, warn=warn, quiet=quiet,
                                sfm_progress=sfm_progress, workers=workers, fulcrum=pivot, **rig)

@@ -83,3 +83,17 @@ def test_validate_no_fulcrum_and_report_section(pivot, tmp_path):
     r = invoke("report", pivot / "v.json", "-o", tmp_path / "r.html", "-q")
     assert r.exit_code == 0, r.output
     assert "Fulcrum of the pivoting instrument" in (tmp_path / "r.html").read_text()
+
+
+def test_validate_gamma_reaches_the_shaft_edges(pivot, tmp_path):
+    """--gamma is the one the shafts' edges are located with (as in `lines --shaft` and
+    `fulcrum`), and the record says which: simulate writes gamma 2.2 (the default)."""
+    r = invoke("validate", pivot / "p", "--methods", "ippe", "--gamma", 1.0, "-o", tmp_path / "g.json", "-q")
+    assert r.exit_code == 0, r.output
+    linear = json.loads((tmp_path / "g.json").read_text())["fulcrum"]
+    default = json.loads((pivot / "v.json").read_text())["fulcrum"]
+    assert linear["gamma"] == 1.0 and default["gamma"] == 2.2
+    # other edge locations, so another fulcrum, both ok
+    assert linear["ok"] and default["ok"] and linear["vertex_px"] != default["vertex_px"]
+    r = invoke("validate", pivot / "p", "--methods", "ippe", "--gamma", 0.0, "-o", tmp_path / "bad.json", "-q")
+    assert r.exit_code == 2 and "--gamma" in r.output
