@@ -219,8 +219,9 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     With --shaft-diameter D every shaft's two silhouette edges give its 3-D axis (the band's
     width fixes its depth), and the fulcrum is also the robust weighted least-squares point
     closest to all the axes: point [x, y, z] (camera frame, D's unit), point_cov, point_sigma
-    (the RMS 3-D error its covariance predicts), and the axes that pass far from it named in
-    point_outliers. Its lines must be shafts with their edges' covariance (lines --shaft).
+    (the RMS 3-D error its covariance predicts; with the intrinsics' covariance in the camera
+    file also point_cov_total and point_sigma_total), and the axes that pass far from it named
+    in point_outliers. Its lines must be shafts with their edges' covariance (lines --shaft).
 
     With --right IMAGES, --camera-right and --right-from-left (a stereo pair) the right
     view's fulcrum is found from its own frames (or from its lines file: --right LINES.json),

@@ -117,6 +117,9 @@ def test_fulcrum_stereo_from_lines_files_with_the_intrinsics(tmp_path):
     assert np.all(np.linalg.eigvalsh(total - noise) > -1e-12) and np.trace(total) == pytest.approx(
         tri["point_sigma_total"] ** 2)
     assert out["intrinsics_used"] and np.asarray(out["ray_cov_total"]).shape == (3, 3)
+    # the diameter-based point has its intrinsics' term too
+    p_total, p_noise = np.asarray(out["point_cov_total"]), np.asarray(out["point_cov"])
+    assert np.all(np.linalg.eigvalsh(p_total - p_noise) > -1e-12) and out["point_sigma_total"] > out["point_sigma"]
     assert st["right"]["intrinsics_used"] and "with the intrinsics of the left and right camera" in r.output
     # the right camera without a covariance: the left's term alone, the noise-only part the same
     r = invoke(*base, "--camera-right", tmp_path / "plain.json", "-o", tmp_path / "g.json", "-q")

@@ -53,7 +53,8 @@ from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, Fusio
                                                fulcrum_3d, shaft_axis_record, triangulate_rays)
 from pencilcal.toolkit.pencil.vertex import intersect_lines
 
-__all__ = ["Fulcrum", "FulcrumPoint", "StereoFulcrum", "fulcrum_from_frames", "fulcrum_point", "stereo_fulcrum",
+__all__ = ["Fulcrum", "FulcrumPoint", "StereoFulcrum", "fulcrum_from_frames", "fulcrum_point", "point_lens_cov",
+           "stereo_fulcrum",
            "triangulation_lens_cov", "read_angles"]
 
 
@@ -199,12 +200,14 @@ class FulcrumPoint:
     skipped: int = 0
     axis_points: np.ndarray | None = None
     axis_directions: np.ndarray | None = None
+    lens_cov: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         """point, point_cov, point_sigma, point_axes_used, point_outliers ({image, shaft,
         distance, chi2} of each axis left out), point_axes ({image, shaft, distance, chi2,
         used, and axis_point, axis_direction where known} of every axis), point_chi2_dof and
-        shaft_diameter (docs/formats.md)."""
+        shaft_diameter; with `lens_cov` (the intrinsics' term) also point_cov_total =
+        point_cov + lens_cov and point_sigma_total (docs/formats.md)."""
         f = self.fit
         used = np.asarray(f.inliers)
         axes = [{"image": im, "shaft": j, "distance": float(f.distances[k]), "chi2": float(f.chi2[k]),
@@ -213,15 +216,20 @@ class FulcrumPoint:
             for a, p, d in zip(axes, self.axis_points, self.axis_directions):
                 a.update(axis_point=np.asarray(p, float).tolist(), axis_direction=np.asarray(d, float).tolist())
         dof = max(2 * int(used.sum()) - 3, 1)
-        return {"point": np.asarray(f.point, float).tolist(), "point_cov": np.asarray(f.point_cov, float).tolist(),
-                "point_sigma": float(f.point_sigma), "point_axes_used": int(used.sum()),
-                "point_outliers": [{k: a[k] for k in ("image", "shaft", "distance", "chi2")} for a in axes
-                                   if not a["used"]],
-                "point_chi2_dof": float(np.sum(np.asarray(f.chi2)[used]) / dof),
-                "point_axes": axes, "shaft_diameter": self.diameter}
+        out = {"point": np.asarray(f.point, float).tolist(), "point_cov": np.asarray(f.point_cov, float).tolist(),
+               "point_sigma": float(f.point_sigma), "point_axes_used": int(used.sum()),
+               "point_outliers": [{k: a[k] for k in ("image", "shaft", "distance", "chi2")} for a in axes
+                                  if not a["used"]],
+               "point_chi2_dof": float(np.sum(np.asarray(f.chi2)[used]) / dof),
+               "point_axes": axes, "shaft_diameter": self.diameter}
+        if self.lens_cov is not None:
+            # the jackknife may have replaced point_cov: the intrinsics' term adds to whichever
+            total = np.asarray(f.point_cov, float) + np.asarray(self.lens_cov, float)
+            out.update(point_cov_total=total.tolist(), point_sigma_total=float(np.sqrt(max(np.trace(total), 0.0))))
+        return out
 
 
-def fulcrum_point(camera, frames, diameter, robust=True):
+def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None):
     """The 3-D fulcrum: the point closest to every shaft's 3-D axis over a sequence.
 
     camera: Camera; frames: lines.json frame dicts whose shafts carry ``edges`` [raw px]
@@ -230,10 +238,12 @@ def fulcrum_point(camera, frames, diameter, robust=True):
     from its edges and their covariance (`cylinder.shaft_axis_record`); the point is their
     robust weighted least-squares intersection (`cylinder.fulcrum_3d`: an MSAC start from
     pairs of axes, then a chi2 gate at 99 % on each axis's offset), its covariance the
-    inverse of the normal equations. Returns a `FulcrumPoint`; EstimationError when fewer
-    than two crossing axes remain.
+    inverse of the normal equations. intrinsics_cov: (P, P) the covariance of the camera's
+    intrinsics (`camera.intrinsics`), or None: then also the point's ``lens_cov``
+    (`point_lens_cov`). Returns a `FulcrumPoint`; EstimationError when fewer than two
+    crossing axes remain.
     """
-    points, dirs, covs, owners, skipped = [], [], [], [], 0
+    points, dirs, covs, owners, skipped, measured = [], [], [], [], 0, []
     for fr in frames:
         if not fr.get("ok", True):
             continue
@@ -250,12 +260,51 @@ def fulcrum_point(camera, frames, diameter, robust=True):
             dirs.append(ax["axis_direction"])
             covs.append(ax["axis_cov"])
             owners.append((fr.get("image"), j))
+            measured.append((sh["edges"], sh["edge_cov"]))
     if len(points) < 2:
         raise EstimationError(f"the 3-D fulcrum needs the 3-D axes of two shafts at least, got {len(points)}"
                               + (f" ({skipped} shaft(s) without edge_cov or a valid axis)" if skipped else ""))
     fit = fulcrum_3d(np.array(points), np.array(dirs), np.array(covs), robust=robust)
+    lens = None
+    if intrinsics_cov is not None:
+        used = [measured[k] for k in np.flatnonzero(np.asarray(fit.inliers))]
+        lens = point_lens_cov(camera, intrinsics_cov, used, diameter)
     return FulcrumPoint(fit=fit, owners=owners, diameter=float(diameter), skipped=skipped,
-                        axis_points=np.array(points), axis_directions=normalize(np.array(dirs)))
+                        axis_points=np.array(points), axis_directions=normalize(np.array(dirs)), lens_cov=lens)
+
+
+def point_lens_cov(camera, intrinsics_cov, shafts, diameter):
+    """(3, 3) the intrinsics' term of the 3-D fulcrum's covariance (camera frame, unit of
+    the diameter), or None where it cannot be had.
+
+    shafts: [(edges (2, 4) [raw px], edge_cov (2, 2, 2))] of the axes the point was fitted
+    to. Every intrinsic parameter with a variance is stepped by 1e-3 of its sigma either
+    way (`lens_uncertainty.perturbed_cameras`), each shaft's axis found again through the
+    stepped lens and the point fitted again to those axes with the same weights' model
+    (`cylinder.fulcrum_3d`, no outlier search: the same axes); the central differences G
+    (3, P) give ``G C G^T``. One lens for every frame: its error moves all the axes
+    together, which is why this term is no smaller for more frames, unlike the noise's.
+    """
+    from pencilcal.toolkit.camera.intrinsics import propagate
+    from pencilcal.toolkit.pencil.lens_uncertainty import intrinsics_steps, perturbed_cameras
+
+    C = np.asarray(intrinsics_cov, float)
+    steps = intrinsics_steps(C)
+    if not steps or len(shafts) < 2:
+        return None
+
+    def point(cam):
+        axes = [shaft_axis_record(cam, e, c, diameter) for e, c in shafts]
+        return fulcrum_3d(np.array([a["axis_point"] for a in axes]), np.array([a["axis_direction"] for a in axes]),
+                          np.array([a["axis_cov"] for a in axes]), robust=False).point
+
+    G = np.zeros((3, C.shape[0]))
+    try:
+        for j, h, plus, minus in perturbed_cameras(camera, steps):
+            G[:, j] = (np.asarray(point(plus), float) - np.asarray(point(minus), float)) / (2.0 * h)
+    except (EstimationError, InputError):
+        return None
+    return propagate(G, C)
 
 
 def _frame_lines(fr, endpoint_sigma_px, shafts_only):
@@ -362,7 +411,7 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
             None if cov_raw is None else vertex_cov_total_px2(camera, C, x, X, cov_raw)),
             ray_cov_lens=P @ propagate(X, C) @ P.T)
     if shaft_diameter is not None:
-        pt = fulcrum_point(camera, frames, shaft_diameter)
+        pt = fulcrum_point(camera, frames, shaft_diameter, intrinsics_cov=C)
         more = [f"{pt.skipped} shaft(s) without edge_cov or a valid 3-D axis left out of the 3-D fulcrum"] \
             if pt.skipped else []
         out = dataclasses.replace(out, point=pt, warnings=out.warnings + tuple(more))

@@ -116,6 +116,36 @@ def test_fulcrum_point_monte_carlo():
     assert 0.60 <= coverage <= 0.76, coverage
 
 
+def test_fulcrum_point_lens_cov_is_the_spread_the_intrinsics_cause():
+    """The 3-D point's intrinsics term (`point_lens_cov`): exact edges seen through lenses
+    drawn from the intrinsics' covariance (focal lengths 3 px, principal point 4 px, k1
+    0.01) scatter the point as lens_cov says: the mean squared Mahalanobis distance near 3
+    (3 dof) and the scatter's trace within 15 % of lens_cov's, and the totals add up."""
+    from pencilcal.toolkit.camera.intrinsics import intrinsics_vector, with_intrinsics
+
+    segs, _ = pivot_frames()
+    length = np.linalg.norm(segs[..., 2:] - segs[..., :2], axis=-1)
+    covs = np.zeros(segs.shape[:2] + (2, 2))
+    covs[..., 0, 0], covs[..., 1, 1] = (0.3 * np.sqrt(12.0 / 40.0) / length) ** 2, 0.3**2 / 40.0
+    cam = Camera("opencv", WIDTH, HEIGHT, K, [0.0, 0.0, 0.0, 0.0, 0.0])
+    C = np.diag([9.0, 9.0, 16.0, 16.0, 1e-4, 0.0, 0.0, 0.0, 0.0])
+    frames = _frames(segs, covs)
+    pt = fulcrum_point(cam, frames, 2 * RADIUS, intrinsics_cov=C)
+    assert pt.lens_cov is not None and np.all(np.linalg.eigvalsh(pt.lens_cov) > 0)
+    rec = pt.to_dict()
+    assert np.allclose(rec["point_cov_total"], np.asarray(rec["point_cov"]) + pt.lens_cov)
+    assert rec["point_sigma_total"] > rec["point_sigma"]
+    assert "point_cov_total" not in fulcrum_point(cam, frames, 2 * RADIUS).to_dict()
+    rng = np.random.default_rng(5)
+    th0 = intrinsics_vector(cam)
+    pts = np.array([fulcrum_point(with_intrinsics(cam, rng.multivariate_normal(th0, C)), frames, 2 * RADIUS,
+                                  robust=False).fit.point for _ in range(120)])
+    d = pts - pt.fit.point
+    m2 = np.einsum("ni,ij,nj->n", d, np.linalg.inv(pt.lens_cov), d)
+    assert 2.4 <= np.mean(m2) <= 3.6, np.mean(m2)
+    assert abs(np.trace(np.cov(d.T)) / np.trace(pt.lens_cov) - 1.0) < 0.15
+
+
 def test_fulcrum_point_names_an_outlier_frame_and_needs_two_axes():
     segs, _ = pivot_frames(n=12)
     covs = np.broadcast_to(np.diag([1e-8, 0.01]), segs.shape[:2] + (2, 2)).copy()
