@@ -11,7 +11,7 @@ from pencilcal.toolkit.io.files import write_json
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles, stereo_fulcrum
 from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.defaults import MIN_ENDPOINT_SIGMA_PX
-from pencilcal.toolkit.pencil.sequence_noise import estimate_fulcrum_noise, fulcrum_noise
+from pencilcal.toolkit.pencil.sequence_noise import fulcrum_with_noise
 
 from .common import (detector_option, endpoint_sigma_option, gamma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, frames_region,
                      images_argument, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
@@ -95,24 +95,15 @@ def _with_jackknife(res, camera, frames, angles, sigma, noise):
 
 def _with_noise(res, run, frames, sigma, given):
     """(Fulcrum, the fulcrum.json ``noise`` record): the sigmas with the noise the lines'
-    residuals show (`sequence_noise.fulcrum_noise`) unless the user gave it; segments
+    residuals show (`sequence_noise.fulcrum_with_noise`) unless the user gave it; segments
     without their own sigmas are estimated (the fit run again with the estimate), the
     detector's sigmas (shaft midlines, a lines file's angle sigmas) only inflated."""
-    if given:
-        return res, {"estimated": False, "endpoint_sigma_px": sigma}
-    if res.lines_from == "segments" and not any(f.get("angle_sigma_deg") is not None for f in frames):
-        out, est = estimate_fulcrum_noise(run, sigma, floor=MIN_ENDPOINT_SIGMA_PX)
-        kind = {"assumed_endpoint_sigma_px": sigma}
-    else:
-        out, est = fulcrum_noise(res, inflate_only=True)
-        kind = {"inflate_only": True}
-    v, p = est["vertex"], est["pivot"]
-    if v is None:
-        return res, {"estimated": False, "reason": "too few degrees of freedom to estimate the noise", **kind}
-    if not (0.5 < v.scale < 2.0):
-        warn(f"the fulcrum's lines scatter {v.scale:.2g} times as much as their sigmas say: its sigmas are scaled "
-             f"by that ({v.dof} degrees of freedom)")
-    return out, {**v.to_dict(), **kind, "pivot": None if p is None else p.to_dict()}
+    estimable = res.lines_from == "segments" and not any(f.get("angle_sigma_deg") is not None for f in frames)
+    out, noise, message = fulcrum_with_noise(res, run, sigma, given=given, estimable=estimable,
+                                             floor=MIN_ENDPOINT_SIGMA_PX)
+    if message:
+        warn(message)
+    return out, noise
 
 
 def _is_lines_file(path):

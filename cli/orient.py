@@ -10,7 +10,7 @@ from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.orient import MAX_SEGMENTS, MODELS, orient_segments, resolve_twins_by_continuity
 from pencilcal.toolkit.pencil.defaults import MIN_ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.orientation import write_orientations
-from pencilcal.toolkit.pencil.sequence_noise import estimate_sequence_noise, sequence_noise
+from pencilcal.toolkit.pencil.sequence_noise import orientations_with_noise
 from pencilcal.toolkit.pencil.spec import read_pencil
 from pencilcal.toolkit.pencil.track import orient_tracked
 
@@ -47,32 +47,22 @@ def _orient_record(camera, pencil, fr, opts):
 
 def _sequence_noise(records, frames, camera, pencil, opts, given):
     """(records, the orientation.json header's ``noise``): the sigmas with the noise the
-    sequence's residuals show (`sequence_noise`), unless the user gave the noise (`given`).
-    Lines of a lines file without their own sigmas: estimated, the frames run again with
-    the estimate where it is far from the assumed end point sigma; lines with the
-    detector's sigmas (IMAGES, or a lines file that has them): only ever inflated."""
-    if given:
-        return records, {"estimated": False, "endpoint_sigma_px": opts["endpoint_sigma"],
-                         "angle_sigma_deg": opts["angle_sigma"]}
-    if frames is not None and not any(fr.get("angle_sigma_deg") is not None for fr in frames):
-        def run(sigma):
-            o = dict(opts, endpoint_sigma=sigma, warn=False, tracking=None if opts["tracking"] is None else
-                     {"previous": None, "tracked": 0})
-            return [_orient_record(camera, pencil, fr, o) for fr in frames]
+    sequence shows (`sequence_noise.orientations_with_noise`), unless the user gave it
+    (`given`). Lines of a lines file without their own sigmas: estimated, the frames run
+    again with the estimate; lines with the detector's sigmas (IMAGES, or a lines file that
+    has them): only ever inflated."""
+    def run(sigma):
+        o = dict(opts, endpoint_sigma=sigma, warn=False, tracking=None if opts["tracking"] is None else
+                 {"previous": None, "tracked": 0})
+        return [_orient_record(camera, pencil, fr, o) for fr in frames]
 
-        out, est = estimate_sequence_noise(run, opts["endpoint_sigma"], first=records, floor=MIN_ENDPOINT_SIGMA_PX)
-        kind = {"assumed_endpoint_sigma_px": opts["endpoint_sigma"]}
-    else:
-        out, est = sequence_noise(records, inflate_only=True)
-        kind = {"inflate_only": True}
-    if est is None:
-        return records, {"estimated": False, "reason": "too few degrees of freedom to estimate the noise", **kind}
-    if not (0.5 < est.scale < 2.0):
-        said = (f"the assumed {opts['endpoint_sigma']:g} px end point noise" if "assumed_endpoint_sigma_px" in kind
-                else "their own sigmas say")
-        warn(f"the lines scatter {est.scale:.2g} times as much as {said}: every sigma is scaled by that "
-             f"(from {est.frames} frames, {est.dof} degrees of freedom; give --endpoint-sigma to fix the noise)")
-    return out, {**est.to_dict(), **kind}
+    estimable = frames is not None and not any(fr.get("angle_sigma_deg") is not None for fr in frames)
+    out, noise, message = orientations_with_noise(
+        records, run, opts["endpoint_sigma"], given=given, estimable=estimable, angle_sigma=opts["angle_sigma"],
+        floor=MIN_ENDPOINT_SIGMA_PX, fix_hint="give --endpoint-sigma to fix the noise")
+    if message:
+        warn(message)
+    return out, noise
 
 
 def _orient_image_task(frame, ctx):

@@ -24,6 +24,11 @@ factor are left out of the pool and the factor re-estimated, until nothing chang
 Their own sigmas are scaled by the pooled factor too: they are not wrong in noise, only in
 model.
 
+What a command writes comes from `orientations_with_noise` and `fulcrum_with_noise`: the
+noise the user gave, estimated (lines without sigmas of their own), or only inflated (the
+detector's sigmas), with the record that says which and a warning where the lines scatter
+more than twice or less than half what was assumed.
+
 The fulcrum is one fit over the whole sequence: its factor is its own intersection's
 ``chi2 / (lines - 2)`` (the robust fit's inliers), and the pivot plane's that of its fit
 (`fulcrum_noise`). Where the lines carry the detector's own sigmas (shaft midlines, with
@@ -51,7 +56,8 @@ import numpy as np
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 
 __all__ = ["NoiseEstimate", "variance_factor", "sequence_noise", "estimate_sequence_noise", "rescale",
-           "fulcrum_noise", "rescale_fulcrum", "estimate_fulcrum_noise", "MIN_DOF", "MAX_RUNS"]
+           "fulcrum_noise", "rescale_fulcrum", "estimate_fulcrum_noise", "orientations_with_noise",
+           "fulcrum_with_noise", "MIN_DOF", "MAX_RUNS"]
 
 #: The pooled degrees of freedom below which the factor is not estimated (too uncertain:
 #: its relative sd is sqrt(2 / dof)).
@@ -282,3 +288,68 @@ def estimate_fulcrum_noise(run, sigma, floor=None):
         f = rescale_fulcrum(f, low / total)
         total = low
     return f, {"vertex": _with_factor(est["vertex"], total), "pivot": pivot}
+
+
+# ------------------------------------------------------------------ what a command writes
+
+
+def orientations_with_noise(records, run, sigma, *, given=False, estimable=True, angle_sigma=None, floor=None,
+                            fix_hint=None):
+    """(records, the orientation.json ``noise`` record, a warning or None): a sequence's
+    orientations with the noise they hold, as `pencilcal orient` writes them.
+
+    records: the frames' `Orientation` from ``run(sigma)``; run: callable(sigma) -> the
+    frames oriented again with end point noise sigma [px]; given: the user gave the noise
+    (nothing is estimated; `angle_sigma` [deg] is recorded beside sigma); estimable: the
+    lines carry no sigmas of their own (a lines file of plain segments): the noise is
+    estimated, the frames run again with it (`estimate_sequence_noise`, never below
+    `floor` [px]); otherwise (the detector's own sigmas) the sigmas are only ever inflated
+    (`sequence_noise`). The warning says when the lines scatter more than twice or less
+    than half what was assumed; fix_hint: how to fix the noise instead, said in it.
+    """
+    if given:
+        return records, {"estimated": False, "endpoint_sigma_px": sigma, "angle_sigma_deg": angle_sigma}, None
+    if estimable:
+        out, est = estimate_sequence_noise(run, sigma, first=records, floor=floor)
+        kind = {"assumed_endpoint_sigma_px": sigma}
+    else:
+        out, est = sequence_noise(records, inflate_only=True)
+        kind = {"inflate_only": True}
+    if est is None:
+        return records, {"estimated": False, "reason": "too few degrees of freedom to estimate the noise", **kind}, None
+    message = None
+    if not (0.5 < est.scale < 2.0):
+        said = f"the assumed {sigma:g} px end point noise" if estimable else "their own sigmas say"
+        message = (f"the lines scatter {est.scale:.2g} times as much as {said}: every sigma is scaled by that "
+                   f"(from {est.frames} frames, {est.dof} degrees of freedom" + (f"; {fix_hint})" if fix_hint else ")"))
+    return out, {**est.to_dict(), **kind}, message
+
+
+def fulcrum_with_noise(fulcrum, run, sigma, *, given=False, estimable=True, floor=None):
+    """(Fulcrum, the fulcrum.json ``noise`` record, a warning or None): the fulcrum with the
+    noise its lines show, as `pencilcal fulcrum` writes it.
+
+    fulcrum: ``run(sigma)``'s `fulcrum.Fulcrum`; run: callable(sigma) -> the fulcrum found
+    again with end point noise sigma [px] for segments without their own sigmas; given:
+    the user gave the noise (nothing estimated); estimable: its lines are segments without
+    sigmas of their own: the noise is estimated, the fit run again with it
+    (`estimate_fulcrum_noise`, never below `floor` [px]); otherwise (shaft midlines, a
+    lines file's angle sigmas) only ever inflated (`fulcrum_noise`). The warning says when
+    the lines scatter more than twice or less than half what their sigmas say.
+    """
+    if given:
+        return fulcrum, {"estimated": False, "endpoint_sigma_px": sigma}, None
+    if estimable:
+        out, est = estimate_fulcrum_noise(run, sigma, floor=floor)
+        kind = {"assumed_endpoint_sigma_px": sigma}
+    else:
+        out, est = fulcrum_noise(fulcrum, inflate_only=True)
+        kind = {"inflate_only": True}
+    v, p = est["vertex"], est["pivot"]
+    if v is None:
+        return fulcrum, {"estimated": False, "reason": "too few degrees of freedom to estimate the noise", **kind}, None
+    message = None
+    if not (0.5 < v.scale < 2.0):
+        message = (f"the fulcrum's lines scatter {v.scale:.2g} times as much as their sigmas say: its sigmas are "
+                   f"scaled by that ({v.dof} degrees of freedom)")
+    return out, {**v.to_dict(), **kind, "pivot": None if p is None else p.to_dict()}, message

@@ -105,3 +105,36 @@ def test_fulcrum_noise_scales_the_ray_sigma(rng):
     f0 = fulcrum_from_frames(cam, frames, endpoint_sigma_px=0.5)
     f1, est = fulcrum_noise(f0, inflate_only=True)
     assert est["vertex"].variance_factor == 1.0 and f1.ray_sigma_deg == f0.ray_sigma_deg
+
+
+def test_what_orient_and_fulcrum_write_as_their_noise(rng):
+    """`orientations_with_noise` and `fulcrum_with_noise`: the user's noise kept as given, lines
+    without sigmas estimated (with a warning when they scatter more than twice the assumed
+    noise), and too few degrees of freedom said so."""
+    from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames
+    from pencilcal.toolkit.pencil.sequence_noise import fulcrum_with_noise, orientations_with_noise
+
+    cam, pen, seq = _sequence(rng, 1.5, n=30)
+
+    def run(sigma):
+        return [orient_segments(cam, seg, pen, endpoint_sigma_px=sigma) for seg, _, _ in seq]
+
+    first = run(0.5)
+    out, rec, msg = orientations_with_noise(first, run, 0.5, given=True, angle_sigma=0.1)
+    assert out is first and rec == {"estimated": False, "endpoint_sigma_px": 0.5, "angle_sigma_deg": 0.1} and msg is None
+    out, rec, msg = orientations_with_noise(first, run, 0.5, floor=0.05, fix_hint="give the noise")
+    assert rec["estimated"] and rec["assumed_endpoint_sigma_px"] == 0.5 and 2.4 < rec["sigma_scale"] < 3.6
+    assert msg.startswith("the lines scatter 3") and "the assumed 0.5 px end point noise" in msg
+    assert msg.endswith("degrees of freedom; give the noise)")
+    k = next(i for i, r in enumerate(first) if r.ok)
+    assert out[k].tilt_sigma_deg > 2 * first[k].tilt_sigma_deg
+    _, rec, msg = orientations_with_noise(first[:1], run, 0.5, estimable=False)
+    assert rec["estimated"] is False and "too few degrees of freedom" in rec["reason"] and rec["inflate_only"]
+
+    X, frames = _pivot_frames(cam, rng, 1.5)
+    f0 = fulcrum_from_frames(cam, frames, endpoint_sigma_px=0.5)
+    f, rec, msg = fulcrum_with_noise(f0, lambda s: fulcrum_from_frames(cam, frames, endpoint_sigma_px=s), 0.5)
+    assert rec["assumed_endpoint_sigma_px"] == 0.5 and f.ray_sigma_deg > 2 * f0.ray_sigma_deg
+    assert msg.startswith("the fulcrum's lines scatter") and rec["pivot"] is None
+    f, rec, msg = fulcrum_with_noise(f0, None, 0.5, given=True)
+    assert f is f0 and rec == {"estimated": False, "endpoint_sigma_px": 0.5} and msg is None
