@@ -12,14 +12,12 @@ from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles, s
 from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.defaults import MIN_ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.sequence_noise import fulcrum_with_noise
+from pencilcal.validation.fulcrum_run import fulcrum_with_sigmas
 
 from .common import (detector_option, endpoint_sigma_option, gamma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, frames_region,
                      images_argument, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
                      overlay_option, quiet_option, run, run_frames, source_option, stream_meta, warn, workers_option)
 
-
-# frames with a line needed for the jackknife of the fulcrum
-_JACKKNIFE_FRAMES = 8
 
 
 def _shaft_task(frame, ctx):
@@ -60,37 +58,6 @@ def _shafts(source, camera, options, quiet, workers, mask_path, live, tracker=No
         frames.append(f)
         live.emit({k: v for k, v in f.items() if k != "segments"}, drawn, name=f["image"])
     return frames
-
-
-def _with_jackknife(res, camera, frames, angles, sigma, noise):
-    """(Fulcrum, the fulcrum.json ``jackknife`` record or None): each frame with a line left
-    out once (`validation.checks.fulcrum_jackknife`, with the noise the fit used), and the
-    sigmas raised to the jackknife's where the frames scatter the fulcrum significantly more
-    than they say (`checks.jackknife_inflation`). None with fewer than `_JACKKNIFE_FRAMES`."""
-    import dataclasses
-
-    from pencilcal.validation.checks import fulcrum_jackknife, jackknife_inflation, point_jackknife
-
-    if sum(1 for f in frames if len(f.get("segments", ())) or f.get("shafts")) < _JACKKNIFE_FRAMES:
-        return res, None
-    used = sigma * (noise.get("sigma_scale", 1.0) if "assumed_endpoint_sigma_px" in noise else 1.0)
-    try:
-        jk = fulcrum_jackknife(camera, frames, angles, full=res, endpoint_sigma_px=used)
-    except EstimationError:
-        return res, None
-    out, rec = jackknife_inflation(res, jk)
-    if rec["inflated"]:
-        warn(f"leaving one frame out at a time moves the fulcrum's ray by {rec['ray_sigma_jackknife_deg']:.3g} deg, "
-             f"{rec['ratio']:.2g} times its sigma: the lines of different frames disagree (a fulcrum that moved, "
-             "shafts misdetected in some frames); its sigmas are the jackknife's")
-    if out.point is not None:
-        point, prec = point_jackknife(camera, frames, out.point.diameter, out.point)
-        rec["point"] = prec
-        if prec["inflated"]:
-            warn(f"leaving one frame out at a time moves the 3-D fulcrum by {prec['point_sigma_jackknife']:.3g} "
-                 f"(RMS), {prec['ratio']:.2g} times its sigma: its covariance is the jackknife's")
-            out = dataclasses.replace(out, point=point)
-    return out, rec
 
 
 def _with_noise(res, run, frames, sigma, given):
@@ -281,22 +248,13 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     where = lines_path or source.description
     angles = read_angles(angles_path, [f["image"] for f in frames]) if angles_path else None
 
-    def run(sigma):
-        try:
-            return fulcrum_from_frames(camera, frames, angles=angles, endpoint_sigma_px=sigma,
-                                       shaft_diameter=shaft_diameter)
-        except EstimationError as e:
-            raise EstimationError(f"{where}: {e}") from None
-
-    res = run(endpoint_sigma)
     given = click.get_current_context().get_parameter_source("endpoint_sigma") != click.core.ParameterSource.DEFAULT
-    res, noise = _with_noise(res, run, frames, endpoint_sigma, given)
-    res, jackknife = _with_jackknife(res, camera, frames, angles, endpoint_sigma, noise)
-    for w in res.warnings:
+    res, messages = fulcrum_with_sigmas(camera, frames, angles, endpoint_sigma_px=endpoint_sigma if given else None,
+                                        shaft_diameter=shaft_diameter, where=where)
+    for w in (*messages, *res.warnings):
         warn(w)
     out = {"camera": str(camera_path), "lines": None if lines_path is None else str(lines_path),
-           "images": None if images is None else source.description, **stream_meta(source), "noise": noise,
-           "jackknife": jackknife, **res.to_dict()}
+           "images": None if images is None else source.description, **stream_meta(source), **res.to_dict()}
     if tracker is not None:
         out["frames_tracked"] = tracker.tracked
     if rig is not None:

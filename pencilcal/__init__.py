@@ -110,18 +110,28 @@ def detect_lines(image, camera=None, *, bars=False, detector="lsd", name="image"
     return detect_frame_lines(name, image, camera, detector=detector, bars=bars, **options)
 
 
-def fulcrum(lines, camera, angles=None, **options):
-    """The fulcrum of a pivoting instrument from the lines of its frames, as a `Fulcrum`.
+def fulcrum(lines, camera, angles=None, *, endpoint_sigma_px=None, shaft_diameter=None):
+    """The fulcrum of a pivoting instrument from the lines of its frames, as a `Fulcrum`,
+    with the sigmas `pencilcal fulcrum` writes.
 
     lines : the path of a lines.json, or its frames ([`LineFrame`] or records); camera :
     Camera; angles : (F,) pivot angles [rad] per frame, for the pivot plane too;
-    options : ``endpoint_sigma_px`` (as `pencilcal fulcrum`).
+    endpoint_sigma_px : the end point noise [px] of segments without sigmas of their own, or
+    None to estimate it from the residuals (the detector's own sigmas, a shaft's, are only
+    ever inflated); shaft_diameter : for the 3-D fulcrum (``point``, in its unit). With 8
+    frames or more each is left out once and where the frames disagree beyond chance the
+    sigmas are the jackknife's. The result's ``noise`` and ``jackknife`` say what was found
+    and its ``warnings`` what to tell the user (`validation.fulcrum_run`).
     """
+    import dataclasses
+
     from pencilcal.toolkit.io.lines_file import LineFrame, read_lines
-    from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames
+    from pencilcal.validation.fulcrum_run import fulcrum_with_sigmas
 
     if isinstance(lines, (str, bytes)) or hasattr(lines, "__fspath__"):
         frames = read_lines(lines)
     else:
         frames = [f.to_dict() if isinstance(f, LineFrame) else f for f in lines]
-    return fulcrum_from_frames(camera, frames, angles=angles, **options)
+    res, messages = fulcrum_with_sigmas(camera, frames, angles, endpoint_sigma_px=endpoint_sigma_px,
+                                        shaft_diameter=shaft_diameter)
+    return dataclasses.replace(res, warnings=tuple(messages) + tuple(res.warnings))

@@ -121,6 +121,8 @@ class Fulcrum:
     covariance when the fit was made (`ray_covariance` gives it with the current
     ray_sigma_deg); ray_cov_lens (3, 3): the intrinsics' term of it (with intrinsics_used;
     a rescaled noise leaves it as it is), ``ray_cov_total`` in the record their sum.
+    noise, jackknife: the fulcrum.json records of the noise its sigmas hold and of the
+    leave-one-out check, where they were decided (`validation.fulcrum_run`); None otherwise.
     """
 
     vertex_px: np.ndarray | None
@@ -141,6 +143,8 @@ class Fulcrum:
     point: "FulcrumPoint | None" = None
     ray_cov: np.ndarray | None = None
     ray_cov_lens: np.ndarray | None = None
+    noise: dict | None = None
+    jackknife: dict | None = None
 
     def ray_covariance(self):
         """(3, 3) covariance of the unit `ray` (camera frame), singular along it, with the
@@ -159,11 +163,13 @@ class Fulcrum:
         return None if C is None or self.ray_cov_lens is None else C + np.asarray(self.ray_cov_lens, float)
 
     def to_dict(self) -> dict:
-        """The fulcrum.json record: the fulcrum's keys, then with a pivot plane the keys
-        of orientation.json (but the image and those the fulcrum has) and pivot_frames."""
-        out = {"ok": True, "error": None, "vertex_px": self.vertex_px, "vertex_cov_px2": self.vertex_cov_px2,
-               "ray": self.ray, "ray_sigma_deg": self.ray_sigma_deg, "lines_used": self.lines_used,
-               "outliers": self.outliers, "frames_used": self.frames_used, "rms": self.rms}
+        """The fulcrum.json record: ``noise`` and ``jackknife`` where they were decided, the
+        fulcrum's keys, then with a pivot plane the keys of orientation.json (but the image
+        and those the fulcrum has) and pivot_frames."""
+        out = {} if self.noise is None else {"noise": self.noise, "jackknife": self.jackknife}
+        out.update({"ok": True, "error": None, "vertex_px": self.vertex_px, "vertex_cov_px2": self.vertex_cov_px2,
+                    "ray": self.ray, "ray_sigma_deg": self.ray_sigma_deg, "lines_used": self.lines_used,
+                    "outliers": self.outliers, "frames_used": self.frames_used, "rms": self.rms})
         if self.ray_cov is not None:
             out["ray_cov"] = self.ray_covariance()
             if self.ray_cov_lens is not None:

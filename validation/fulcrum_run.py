@@ -1,0 +1,96 @@
+"""The fulcrum of a sequence with the sigmas `pencilcal fulcrum` writes.
+
+`toolkit.pencil.fulcrum.fulcrum_from_frames` fits the lines with the noise they are given.
+What the command writes holds two more steps, and a Python user gets the same from
+`fulcrum_with_sigmas`:
+
+1. the noise the lines show (`toolkit.pencil.sequence_noise.fulcrum_with_noise`): estimated
+   from the residuals for segments without sigmas of their own, only ever inflated for the
+   detector's sigmas (shaft midlines), kept where the user gave it;
+2. with `JACKKNIFE_FRAMES` frames or more, each frame left out once
+   (`checks.fulcrum_jackknife`, `checks.point_jackknife`): where the frames scatter the
+   fulcrum significantly more than its sigmas say, the sigmas become the jackknife's.
+
+Example
+-------
+>>> res, messages = fulcrum_with_sigmas(camera, frames)    # doctest: +SKIP
+>>> res.noise["sigma_scale"], res.jackknife["inflated"]     # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import dataclasses
+
+from pencilcal.toolkit.errors import EstimationError
+from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX, MIN_ENDPOINT_SIGMA_PX
+from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames
+from pencilcal.toolkit.pencil.sequence_noise import fulcrum_with_noise
+
+__all__ = ["fulcrum_with_sigmas", "jackknife_sigmas", "JACKKNIFE_FRAMES"]
+
+#: Frames with a line below which the jackknife is not run (too few to judge the spread).
+JACKKNIFE_FRAMES = 8
+
+
+def fulcrum_with_sigmas(camera, frames, angles=None, *, endpoint_sigma_px=None, shaft_diameter=None, where=None):
+    """(Fulcrum, messages): the fulcrum of lines.json `frames` with the sigmas `pencilcal
+    fulcrum` writes (module docstring), its ``noise`` and ``jackknife`` records set.
+
+    camera: Camera; angles: (F,) pivot angles [rad] or None; endpoint_sigma_px: the end
+    point noise [px] of segments without sigmas of their own, as given by the user (kept),
+    or None (`ENDPOINT_SIGMA_PX` assumed, then estimated); shaft_diameter: for the 3-D
+    fulcrum; where: a name for error messages (the input's path). messages: what to tell
+    the user (the noise or the jackknife raised the sigmas), in order. EstimationError when
+    there is no fulcrum.
+    """
+    given = endpoint_sigma_px is not None
+    sigma = float(endpoint_sigma_px) if given else ENDPOINT_SIGMA_PX
+
+    def run(s):
+        try:
+            return fulcrum_from_frames(camera, frames, angles=angles, endpoint_sigma_px=s,
+                                       shaft_diameter=shaft_diameter)
+        except EstimationError as e:
+            if where is None:
+                raise
+            raise EstimationError(f"{where}: {e}") from None
+
+    res = run(sigma)
+    estimable = res.lines_from == "segments" and not any(f.get("angle_sigma_deg") is not None for f in frames)
+    res, noise, message = fulcrum_with_noise(res, run, sigma, given=given, estimable=estimable,
+                                             floor=MIN_ENDPOINT_SIGMA_PX)
+    messages = [message] if message else []
+    used = sigma * (noise.get("sigma_scale", 1.0) if "assumed_endpoint_sigma_px" in noise else 1.0)
+    res, jackknife, more = jackknife_sigmas(res, camera, frames, angles, used)
+    return dataclasses.replace(res, noise=noise, jackknife=jackknife), messages + more
+
+
+def jackknife_sigmas(res, camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_SIGMA_PX):
+    """(Fulcrum, the fulcrum.json ``jackknife`` record or None, messages): each frame with a
+    line left out once (`checks.fulcrum_jackknife`, with the noise the fit used:
+    endpoint_sigma_px), and the sigmas raised to the jackknife's where the frames scatter
+    the fulcrum significantly more than they say (`checks.jackknife_inflation`; the 3-D
+    point's by `checks.point_jackknife`). None with fewer than `JACKKNIFE_FRAMES` frames."""
+    from pencilcal.validation.checks import fulcrum_jackknife, jackknife_inflation, point_jackknife
+
+    if sum(1 for f in frames if len(f.get("segments", ())) or f.get("shafts")) < JACKKNIFE_FRAMES:
+        return res, None, []
+    try:
+        jk = fulcrum_jackknife(camera, frames, angles, full=res, endpoint_sigma_px=endpoint_sigma_px)
+    except EstimationError:
+        return res, None, []
+    out, rec = jackknife_inflation(res, jk)
+    messages = []
+    if rec["inflated"]:
+        messages.append(f"leaving one frame out at a time moves the fulcrum's ray by "
+                        f"{rec['ray_sigma_jackknife_deg']:.3g} deg, {rec['ratio']:.2g} times its sigma: the lines of "
+                        "different frames disagree (a fulcrum that moved, shafts misdetected in some frames); its "
+                        "sigmas are the jackknife's")
+    if out.point is not None:
+        point, prec = point_jackknife(camera, frames, out.point.diameter, out.point)
+        rec["point"] = prec
+        if prec["inflated"]:
+            messages.append(f"leaving one frame out at a time moves the 3-D fulcrum by "
+                            f"{prec['point_sigma_jackknife']:.3g} (RMS), {prec['ratio']:.2g} times its sigma: its "
+                            "covariance is the jackknife's")
+            out = dataclasses.replace(out, point=point)
+    return out, rec, messages
