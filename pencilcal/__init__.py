@@ -97,12 +97,13 @@ def calibrate(images, board, model="opencv", coefficients=None, **options):
     return calibrate_images(images, board, model=model, coefficients=coefficients, **options)
 
 
-def detect_lines(image, camera=None, *, bars=False, detector="lsd", name="image", **options):
+def detect_lines(image, camera=None, *, bars=False, detector="auto", name="image", **options):
     """The lines of one image as a `LineFrame`: edge segments, or with ``bars=True`` the
     midlines of printed bars (the spokes of a fan), each with its angle and offset sigma.
 
     image : (H, W) or (H, W, 3) array; camera : Camera (lines are straight in undistorted
-    pixels, so give it for a distorting lens); detector : "lsd", "fld" or "edlines";
+    pixels, so give it for a distorting lens); detector : "auto" (as `pencilcal lines`: FLD
+    for bars on frames of 720 lines or more, LSD otherwise), "lsd", "fld" or "edlines";
     options : ``min_length``, ``bar_width``, ``shaft`` (as `pencilcal lines`).
     """
     from pencilcal.toolkit.detect.lines import detect_frame_lines
