@@ -10,7 +10,6 @@ from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.io.files import write_json
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles, stereo_fulcrum
 from pencilcal.toolkit.io.lines_file import read_lines
-from pencilcal.toolkit.pencil.defaults import MIN_ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.sequence_noise import fulcrum_with_noise
 from pencilcal.validation.fulcrum_run import fulcrum_with_sigmas
 
@@ -65,9 +64,7 @@ def _with_noise(res, run, frames, sigma, given):
     residuals show (`sequence_noise.fulcrum_with_noise`) unless the user gave it; segments
     without their own sigmas are estimated (the fit run again with the estimate), the
     detector's sigmas (shaft midlines, a lines file's angle sigmas) only inflated."""
-    estimable = res.lines_from == "segments" and not any(f.get("angle_sigma_deg") is not None for f in frames)
-    out, noise, message = fulcrum_with_noise(res, run, sigma, given=given, estimable=estimable,
-                                             floor=MIN_ENDPOINT_SIGMA_PX)
+    out, noise, message = fulcrum_with_noise(res, run, sigma, frames, given=given)
     if message:
         warn(message)
     return out, noise
@@ -249,9 +246,9 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     angles = read_angles(angles_path, [f["image"] for f in frames]) if angles_path else None
 
     given = click.get_current_context().get_parameter_source("endpoint_sigma") != click.core.ParameterSource.DEFAULT
-    res, messages = fulcrum_with_sigmas(camera, frames, angles, endpoint_sigma_px=endpoint_sigma if given else None,
-                                        shaft_diameter=shaft_diameter, where=where)
-    for w in (*messages, *res.warnings):
+    res = fulcrum_with_sigmas(camera, frames, angles, endpoint_sigma_px=endpoint_sigma if given else None,
+                              shaft_diameter=shaft_diameter, where=where)
+    for w in res.warnings:
         warn(w)
     out = {"camera": str(camera_path), "lines": None if lines_path is None else str(lines_path),
            "images": None if images is None else source.description, **stream_meta(source), **res.to_dict()}

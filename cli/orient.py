@@ -8,7 +8,6 @@ from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.orient import MAX_SEGMENTS, MODELS, orient_segments, resolve_twins_by_continuity
-from pencilcal.toolkit.pencil.defaults import MIN_ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.sequence_noise import orientations_with_noise
 from pencilcal.toolkit.pencil.spec import read_pencil
@@ -59,7 +58,7 @@ def _sequence_noise(records, frames, camera, pencil, opts, given):
     estimable = frames is not None and not any(fr.get("angle_sigma_deg") is not None for fr in frames)
     out, noise, message = orientations_with_noise(
         records, run, opts["endpoint_sigma"], given=given, estimable=estimable, angle_sigma=opts["angle_sigma"],
-        floor=MIN_ENDPOINT_SIGMA_PX, fix_hint="give --endpoint-sigma to fix the noise")
+        fix_hint="give --endpoint-sigma to fix the noise")
     if message:
         warn(message)
     return out, noise

@@ -124,8 +124,6 @@ def fulcrum(lines, camera, angles=None, *, endpoint_sigma_px=None, shaft_diamete
     sigmas are the jackknife's. The result's ``noise`` and ``jackknife`` say what was found
     and its ``warnings`` what to tell the user (`validation.fulcrum_run`).
     """
-    import dataclasses
-
     from pencilcal.toolkit.io.lines_file import LineFrame, read_lines
     from pencilcal.validation.fulcrum_run import fulcrum_with_sigmas
 
@@ -133,6 +131,5 @@ def fulcrum(lines, camera, angles=None, *, endpoint_sigma_px=None, shaft_diamete
         frames = read_lines(lines)
     else:
         frames = [f.to_dict() if isinstance(f, LineFrame) else f for f in lines]
-    res, messages = fulcrum_with_sigmas(camera, frames, angles, endpoint_sigma_px=endpoint_sigma_px,
-                                        shaft_diameter=shaft_diameter)
-    return dataclasses.replace(res, warnings=tuple(messages) + tuple(res.warnings))
+    return fulcrum_with_sigmas(camera, frames, angles, endpoint_sigma_px=endpoint_sigma_px,
+                               shaft_diameter=shaft_diameter)

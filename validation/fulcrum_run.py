@@ -13,15 +13,15 @@ What the command writes holds two more steps, and a Python user gets the same fr
 
 Example
 -------
->>> res, messages = fulcrum_with_sigmas(camera, frames)    # doctest: +SKIP
->>> res.noise["sigma_scale"], res.jackknife["inflated"]     # doctest: +SKIP
+>>> res = fulcrum_with_sigmas(camera, frames)                         # doctest: +SKIP
+>>> res.noise["sigma_scale"], res.jackknife["inflated"], res.warnings  # doctest: +SKIP
 """
 from __future__ import annotations
 
 import dataclasses
 
 from pencilcal.toolkit.errors import EstimationError
-from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX, MIN_ENDPOINT_SIGMA_PX
+from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames
 from pencilcal.toolkit.pencil.sequence_noise import fulcrum_with_noise
 
@@ -32,15 +32,15 @@ JACKKNIFE_FRAMES = 8
 
 
 def fulcrum_with_sigmas(camera, frames, angles=None, *, endpoint_sigma_px=None, shaft_diameter=None, where=None):
-    """(Fulcrum, messages): the fulcrum of lines.json `frames` with the sigmas `pencilcal
-    fulcrum` writes (module docstring), its ``noise`` and ``jackknife`` records set.
+    """The fulcrum of lines.json `frames` with the sigmas `pencilcal fulcrum` writes (module
+    docstring): a `Fulcrum` with its ``noise`` and ``jackknife`` records set.
 
     camera: Camera; angles: (F,) pivot angles [rad] or None; endpoint_sigma_px: the end
     point noise [px] of segments without sigmas of their own, as given by the user (kept),
     or None (`ENDPOINT_SIGMA_PX` assumed, then estimated); shaft_diameter: for the 3-D
-    fulcrum; where: a name for error messages (the input's path). messages: what to tell
-    the user (the noise or the jackknife raised the sigmas), in order. EstimationError when
-    there is no fulcrum.
+    fulcrum; where: a name for error messages (the input's path). Its ``warnings`` say what
+    to tell the user: first whether the noise or the jackknife raised the sigmas, then the
+    fit's own. EstimationError when there is no fulcrum.
     """
     given = endpoint_sigma_px is not None
     sigma = float(endpoint_sigma_px) if given else ENDPOINT_SIGMA_PX
@@ -54,14 +54,11 @@ def fulcrum_with_sigmas(camera, frames, angles=None, *, endpoint_sigma_px=None, 
                 raise
             raise EstimationError(f"{where}: {e}") from None
 
-    res = run(sigma)
-    estimable = res.lines_from == "segments" and not any(f.get("angle_sigma_deg") is not None for f in frames)
-    res, noise, message = fulcrum_with_noise(res, run, sigma, given=given, estimable=estimable,
-                                             floor=MIN_ENDPOINT_SIGMA_PX)
-    messages = [message] if message else []
+    res, noise, message = fulcrum_with_noise(run(sigma), run, sigma, frames, given=given)
     used = sigma * (noise.get("sigma_scale", 1.0) if "assumed_endpoint_sigma_px" in noise else 1.0)
     res, jackknife, more = jackknife_sigmas(res, camera, frames, angles, used)
-    return dataclasses.replace(res, noise=noise, jackknife=jackknife), messages + more
+    said = ([message] if message else []) + more
+    return dataclasses.replace(res, noise=noise, jackknife=jackknife, warnings=(*said, *res.warnings))
 
 
 def jackknife_sigmas(res, camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_SIGMA_PX):

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
+from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames
 from pencilcal.toolkit.pencil.sequence_noise import fulcrum_noise
@@ -29,18 +30,17 @@ from pencilcal.toolkit.pencil.sequence_noise import fulcrum_noise
 __all__ = ["fulcrum_record", "shaft_frame"]
 
 
-def shaft_frame(frame, camera, detector="lsd", valid_region=None, gamma=None):
+def shaft_frame(frame, camera, detector="lsd", valid_region=None, gamma=DEFAULT_GAMMA):
     """The lines.json frame (image, ok, segments, shafts) of one decoded `Frame`: the shafts
     of `detect.shafts.detect_shafts` within valid_region, their edges located on levels
-    linearised with `gamma` (None: detect_shafts' default; validate calls it in its frame
-    task, on the frame it decoded for everything else)."""
-    from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
+    linearised with `gamma` (validate calls it in its frame task, on the frame it decoded
+    for everything else)."""
     from pencilcal.toolkit.detect.shafts import detect_shafts
 
     if frame.image is None:
         return {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}
     shafts = [s.to_dict() for s in detect_shafts(frame.image, camera, detector=detector, valid_region=valid_region,
-                                                 gamma=DEFAULT_GAMMA if gamma is None else gamma)]
+                                                 gamma=gamma)]
     return {"image": frame.name, "ok": True, "segments": np.zeros((0, 4)), "shafts": shafts}
 
 

@@ -405,8 +405,12 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
     Returns the validation.json dict (numpy arrays inside; write with files.write_json).
     """
     frames, best_poses, shaft_frames = [], [], []
-    shafts = None if fulcrum is None else (fulcrum.get("detector", "auto"), fulcrum.get("valid_region"),
-                                           fulcrum.get("gamma"))
+    shafts = None
+    if fulcrum is not None:
+        from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
+
+        gamma = DEFAULT_GAMMA if fulcrum.get("gamma") is None else float(fulcrum["gamma"])
+        shafts = (fulcrum.get("detector", "auto"), fulcrum.get("valid_region"), gamma)
     ctx = (camera, board, lines_source, models, methods, truth, keep_pixels, shafts)
     results = map_frames(_frame_task, source, ctx, workers)
     it = results if progress is None else progress(Sized(results, len(source)), "validate")
@@ -435,11 +439,9 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
     if fulcrum is not None:
         from .fulcrum_validation import fulcrum_record
 
-        from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
-
         out["fulcrum"] = fulcrum_record(camera, shaft_frames, frames, truth=fulcrum.get("truth"),
                                         shaft_diameter=fulcrum.get("shaft_diameter"))
-        out["fulcrum"]["gamma"] = DEFAULT_GAMMA if fulcrum.get("gamma") is None else float(fulcrum["gamma"])
+        out["fulcrum"]["gamma"] = shafts[2]
     out["frames"] = frames
     return out
 

@@ -40,6 +40,6 @@ def test_python_and_the_command_give_the_same_fulcrum(tmp_path, rng):
     raw = fulcrum_from_frames(cam, frames)
     assert api.ray_sigma_deg > 2 * raw.ray_sigma_deg and raw.noise is None and "noise" not in raw.to_dict()
     # the noise given is kept, the warnings said
-    given, messages = fulcrum_with_sigmas(cam, frames, endpoint_sigma_px=1.5)
-    assert given.noise == {"estimated": False, "endpoint_sigma_px": 1.5} and not messages
+    given = fulcrum_with_sigmas(cam, frames, endpoint_sigma_px=1.5)
+    assert given.noise == {"estimated": False, "endpoint_sigma_px": 1.5} and not given.warnings
     assert any("scatter" in w for w in api.warnings)

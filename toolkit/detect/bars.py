@@ -150,8 +150,8 @@ def _antiparallel_candidates(lines, max_conv, max_width, min_aspect, min_overlap
 
     The aspect bound makes this near-linear on busy frames: a bar is at most a quarter as
     wide as its shorter edge is long, so the centres of a pair lie within ~1.4 lengths of
-    the longer line's centre, and each line queries a KD-tree of centres with that radius
-    (short texture fragments meet only their close neighbours).
+    the longer line's centre, and each line looks only at the centres within that radius
+    (`neighbours_within`: short texture fragments meet only their close neighbours).
     """
     P = np.asarray(lines, float)
     M = P.shape[0]

@@ -4,9 +4,10 @@ The detectors ask this of a few hundred to a few thousand points per frame (frag
 sample points, line centres, doubled line angles). `scipy.spatial.cKDTree` answers it, but
 importing scipy.spatial (with scipy.sparse and scipy.linalg behind it) costs a command
 0.3-0.6 s of start-up before its first frame, more than these queries cost over a whole
-video. A uniform grid of cells one radius wide answers the same question exactly: two
-points within r of each other lie in the same or in adjacent cells of their first two
-coordinates, and every candidate is then tested on the full distance.
+video. numpy answers the same question exactly: for one radius a uniform grid of cells one
+radius wide (two points within r of each other lie in the same or in adjacent cells of
+their first two coordinates), for a radius per point a sweep along x; every candidate is
+then tested on the full distance.
 
 - `pairs_within(points, r)`: every unordered pair closer than r (as
   ``cKDTree(points).query_pairs(r, output_type="ndarray")``, rows sorted).
@@ -28,30 +29,25 @@ import numpy as np
 __all__ = ["pairs_within", "neighbours_within"]
 
 
-
-def _adjacent(q, d, size, half=False):
-    """Candidate pairs (i, j) of query points q (Nq, 2) and data points d (Nd, 2) whose cells
-    on a grid of `size` are the same or adjacent (a superset of every pair within `size`).
-    half (q is d): each pair of adjacent cells once, and of one cell's points i < j only."""
-    lo = np.minimum(q.min(0), d.min(0))
-    cq = np.floor((q - lo) / size).astype(np.int64) + 1
-    cd = np.floor((d - lo) / size).astype(np.int64) + 1
-    W = int(max(cq[:, 0].max(), cd[:, 0].max())) + 2
-    kq = cq[:, 1] * W + cq[:, 0]
-    kd = cd[:, 1] * W + cd[:, 0]
-    order = np.argsort(kd, kind="stable")
-    skey = kd[order]
+def _adjacent(xy, size):
+    """Candidate pairs (i, j) of points xy (N, 2) whose cells on a grid of `size` are the
+    same or adjacent (a superset of every pair within `size`): each pair of adjacent cells
+    once (the cell itself and the four ahead of it), within one cell i < j only."""
+    c = np.floor((xy - xy.min(0)) / size).astype(np.int64) + 1
+    W = int(c[:, 0].max()) + 2
+    key = c[:, 1] * W + c[:, 0]
+    order = np.argsort(key, kind="stable")
+    skey = key[order]
     ii, jj = [], []
-    offsets = (0, 1, W - 1, W, W + 1) if half else (-W - 1, -W, -W + 1, -1, 0, 1, W - 1, W, W + 1)
-    for off in offsets:
-        a = np.searchsorted(skey, kq + off, "left")
-        cnt = np.searchsorted(skey, kq + off, "right") - a
+    for off in (0, 1, W - 1, W, W + 1):
+        a = np.searchsorted(skey, key + off, "left")
+        cnt = np.searchsorted(skey, key + off, "right") - a
         if not cnt.any():
             continue
-        i = np.repeat(np.arange(kq.size), cnt)
+        i = np.repeat(np.arange(key.size), cnt)
         start = np.cumsum(cnt) - cnt
         j = order[np.repeat(a - start, cnt) + np.arange(i.size)]
-        if half and off == 0:
+        if off == 0:
             i, j = i[i < j], j[i < j]
         ii.append(i)
         jj.append(j)
@@ -81,7 +77,7 @@ def pairs_within(points, r):
     P = np.asarray(points, float)
     if P.shape[0] < 2 or not r > 0:
         return np.zeros((0, 2), np.int64)
-    i, j = _adjacent(P[:, :2], P[:, :2], float(r), half=True)
+    i, j = _adjacent(P[:, :2], float(r))
     near = _sq_dist(P, i, j) <= r * r
     pp = np.sort(np.stack([i[near], j[near]], -1), axis=1)
     return pp[np.lexsort((pp[:, 1], pp[:, 0]))]

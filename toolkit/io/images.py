@@ -42,8 +42,8 @@ import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["Frame", "ImageSource", "read_ahead", "prefetched", "open_images", "decode_image", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS",
-           "DEFAULT_MAX_PIXELS", "check_image_size", "quiet_c_stderr"]
+__all__ = ["Frame", "ImageSource", "read_ahead", "prefetched", "open_images", "decode_image", "IMAGE_EXTENSIONS",
+           "VIDEO_EXTENSIONS", "DEFAULT_MAX_PIXELS", "check_image_size", "quiet_c_stderr"]
 
 # FFmpeg (OpenCV's video backend) logs its complaints about corrupt frames on stderr; pencilcal
 # reports an undecodable frame in one line itself. Its own log level, read when OpenCV starts

@@ -54,6 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
+from pencilcal.toolkit.pencil.defaults import MIN_ENDPOINT_SIGMA_PX
 
 __all__ = ["NoiseEstimate", "variance_factor", "sequence_noise", "estimate_sequence_noise", "rescale",
            "fulcrum_noise", "rescale_fulcrum", "estimate_fulcrum_noise", "orientations_with_noise",
@@ -293,8 +294,8 @@ def estimate_fulcrum_noise(run, sigma, floor=None):
 # ------------------------------------------------------------------ what a command writes
 
 
-def orientations_with_noise(records, run, sigma, *, given=False, estimable=True, angle_sigma=None, floor=None,
-                            fix_hint=None):
+def orientations_with_noise(records, run, sigma, *, given=False, estimable=True, angle_sigma=None,
+                            floor=MIN_ENDPOINT_SIGMA_PX, fix_hint=None):
     """(records, the orientation.json ``noise`` record, a warning or None): a sequence's
     orientations with the noise they hold, as `pencilcal orient` writes them.
 
@@ -325,18 +326,20 @@ def orientations_with_noise(records, run, sigma, *, given=False, estimable=True,
     return out, {**est.to_dict(), **kind}, message
 
 
-def fulcrum_with_noise(fulcrum, run, sigma, *, given=False, estimable=True, floor=None):
+def fulcrum_with_noise(fulcrum, run, sigma, frames, *, given=False, floor=MIN_ENDPOINT_SIGMA_PX):
     """(Fulcrum, the fulcrum.json ``noise`` record, a warning or None): the fulcrum with the
     noise its lines show, as `pencilcal fulcrum` writes it.
 
     fulcrum: ``run(sigma)``'s `fulcrum.Fulcrum`; run: callable(sigma) -> the fulcrum found
-    again with end point noise sigma [px] for segments without their own sigmas; given:
-    the user gave the noise (nothing estimated); estimable: its lines are segments without
-    sigmas of their own: the noise is estimated, the fit run again with it
-    (`estimate_fulcrum_noise`, never below `floor` [px]); otherwise (shaft midlines, a
-    lines file's angle sigmas) only ever inflated (`fulcrum_noise`). The warning says when
-    the lines scatter more than twice or less than half what their sigmas say.
+    again with end point noise sigma [px] for segments without their own sigmas; frames:
+    the lines.json frames it came from; given: the user gave the noise (nothing
+    estimated). Where its lines are segments without sigmas of their own the noise is
+    estimated, the fit run again with it (`estimate_fulcrum_noise`, never below `floor`
+    [px]); otherwise (shaft midlines, a lines file's angle sigmas) only ever inflated
+    (`fulcrum_noise`). The warning says when the lines scatter more than twice or less
+    than half what their sigmas say.
     """
+    estimable = fulcrum.lines_from == "segments" and not any(f.get("angle_sigma_deg") is not None for f in frames)
     if given:
         return fulcrum, {"estimated": False, "endpoint_sigma_px": sigma}, None
     if estimable:

@@ -133,8 +133,8 @@ def test_what_orient_and_fulcrum_write_as_their_noise(rng):
 
     X, frames = _pivot_frames(cam, rng, 1.5)
     f0 = fulcrum_from_frames(cam, frames, endpoint_sigma_px=0.5)
-    f, rec, msg = fulcrum_with_noise(f0, lambda s: fulcrum_from_frames(cam, frames, endpoint_sigma_px=s), 0.5)
+    f, rec, msg = fulcrum_with_noise(f0, lambda s: fulcrum_from_frames(cam, frames, endpoint_sigma_px=s), 0.5, frames)
     assert rec["assumed_endpoint_sigma_px"] == 0.5 and f.ray_sigma_deg > 2 * f0.ray_sigma_deg
     assert msg.startswith("the fulcrum's lines scatter") and rec["pivot"] is None
-    f, rec, msg = fulcrum_with_noise(f0, None, 0.5, given=True)
+    f, rec, msg = fulcrum_with_noise(f0, None, 0.5, frames, given=True)
     assert f is f0 and rec == {"estimated": False, "endpoint_sigma_px": 0.5} and msg is None
