@@ -258,14 +258,14 @@ def open_input(images, source_spec, max_pixels, gray=False):
 
 
 def frames_region(source, mask_path, shape):
-    """The valid region of the frames (`region_detect.sequence_region`); for a stream from
+    """The valid region of the frames (`region.detect.sequence_region`); for a stream from
     the mask file or from its first frames (read now, processed as usual afterwards)."""
-    from pencilcal.toolkit.detect.region_detect import MAX_FRAMES, detect_valid_region, sequence_region
+    from pencilcal.toolkit.detect.region.detect import MAX_FRAMES, detect_valid_region, sequence_region
 
     if getattr(source, "kind", None) != "stream":
         return sequence_region(source, mask_path, shape=shape)
     if mask_path is not None:
-        from pencilcal.toolkit.detect.region import read_mask_file
+        from pencilcal.toolkit.detect.region.valid import read_mask_file
 
         return read_mask_file(mask_path, shape)
     frames = [f for f in source.head(MAX_FRAMES) if f.shape[:2] == tuple(shape)]

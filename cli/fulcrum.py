@@ -24,7 +24,7 @@ def _shaft_task(frame, ctx):
     import numpy as np
 
     from pencilcal.toolkit.io.images import check_image_size
-    from pencilcal.toolkit.detect.shafts import detect_shafts
+    from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 
     camera, options, region, drawing, tracker = ctx
     if frame.image is None:
@@ -44,10 +44,10 @@ def _shaft_task(frame, ctx):
 
 def _shafts(source, camera, options, quiet, workers, mask_path, live, tracker=None):
     """Instrument shafts of every frame of an image source, as lines.json frames, within the
-    sequence's valid region (the mask file's, or detected: `region_detect.sequence_region`);
+    sequence's valid region (the mask file's, or detected: `region.detect.sequence_region`);
     each frame's shafts to the live outputs as they are found (the fulcrum is known only at
-    the end). options: keywords of `shafts.detect_shafts` (detector, gamma); tracker: a
-    `shafts.ShaftTracker` (frames in order, --workers 1), or None."""
+    the end). options: keywords of `shaft.detector.detect_shafts` (detector, gamma); tracker: a
+    `shaft.detector.ShaftTracker` (frames in order, --workers 1), or None."""
     region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     frames = []
     ctx = (camera, options, region, live.drawing, tracker)
@@ -237,7 +237,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     else:
         source = open_input(images, source_spec, max_pixels)
         check_output(output, force, source.paths)
-        from pencilcal.toolkit.detect.shafts import ShaftTracker
+        from pencilcal.toolkit.detect.shaft.detector import ShaftTracker
 
         tracker = ShaftTracker(**options) if track and workers == 1 else None
         with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:

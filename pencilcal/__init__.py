@@ -53,7 +53,7 @@ _NAMES = {
     "Camera": "pencilcal.toolkit.camera.model",
     "fit_pencil": "pencilcal.toolkit.pencil.estimator", "PencilFit": "pencilcal.toolkit.pencil.estimator",
     "orient_segments": "pencilcal.toolkit.pencil.orient", "Orientation": "pencilcal.toolkit.pencil.orientation",
-    "Shaft": "pencilcal.toolkit.detect.shafts", "detect_shafts": "pencilcal.toolkit.detect.shafts",
+    "Shaft": "pencilcal.toolkit.detect.shaft.detector", "detect_shafts": "pencilcal.toolkit.detect.shaft.detector",
     "LineFrame": "pencilcal.toolkit.io.lines_file", "read_lines": "pencilcal.toolkit.io.lines_file",
     "Fulcrum": "pencilcal.toolkit.pencil.fulcrum",
     "CalibrationResult": "pencilcal.toolkit.board.calibrate",

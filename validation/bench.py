@@ -149,8 +149,8 @@ def bench_shafts(n=16, repeats=3, seed=0):
     """shafts_vs_fld_1080p, per-frame times [ms] and which frames (module docstring)."""
     import cv2
 
-    from pencilcal.toolkit.detect.region_detect import detect_valid_region
-    from pencilcal.toolkit.detect.shafts import detect_shafts
+    from pencilcal.toolkit.detect.region.detect import detect_valid_region
+    from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 
     bufs = _laparoscopy_1080p(n)
     if bufs is not None:

@@ -35,7 +35,7 @@ def shaft_frame(frame, camera, detector="lsd", valid_region=None, gamma=DEFAULT_
     of `detect.shafts.detect_shafts` within valid_region, their edges located on levels
     linearised with `gamma` (validate calls it in its frame task, on the frame it decoded
     for everything else)."""
-    from pencilcal.toolkit.detect.shafts import detect_shafts
+    from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 
     if frame.image is None:
         return {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}

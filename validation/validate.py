@@ -555,7 +555,7 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
     truth_frames = read_truth(truth) if truth else None
     source = open_images(images)
     if isinstance(lines, FanLines):
-        from pencilcal.toolkit.detect.region_detect import sequence_region
+        from pencilcal.toolkit.detect.region.detect import sequence_region
 
         lines.valid_region = sequence_region(source, mask, shape=(cam.height, cam.width))
     calib = load_structured(calibration, "calibration report") if calibration else None

@@ -14,7 +14,7 @@ from pencilcal.toolkit.camera.formats import write_camera
 from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.orient import orient_segments
 from tests.toolkit.detect.scenes import fan_scene, line_errors
-from tests.toolkit.detect.test_shafts import render_shaft, shaft_from
+from tests.toolkit.detect.shaft.test_detector import render_shaft, shaft_from
 
 
 def invoke(*args):

@@ -14,7 +14,7 @@ from pencilcal.cli.orient import orient
 from pencilcal.toolkit.camera.formats import write_camera
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.io.lines_file import read_lines
-from tests.toolkit.detect.test_region import FIELD, field_with_shaft
+from tests.toolkit.detect.region.test_valid import FIELD, field_with_shaft
 
 
 @pytest.fixture(scope="module")

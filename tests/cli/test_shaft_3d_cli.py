@@ -12,7 +12,7 @@ from pencilcal.cli.main import cli
 from pencilcal.toolkit.camera.formats import write_camera
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.geometry.frames import angle_between, normalize
-from tests.toolkit.detect.test_shafts import render_shaft, shaft_from
+from tests.toolkit.detect.shaft.test_detector import render_shaft, shaft_from
 from tests.toolkit.pencil.test_cylinder import FULCRUM, HEIGHT, K, RADIUS, WIDTH, pivot_frames
 
 

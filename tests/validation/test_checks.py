@@ -49,11 +49,11 @@ def test_real_phantom_fulcrum_gets_its_jackknife_sigma():
     """The real phantom sequence (docs/uncertainty.md): its frames point to two fulcrums, the
     fit takes a majority of 16 frames, and leaving one frame out moves the ray by about 10
     deg against a sigma of 2-3: the reported sigma becomes the jackknife's."""
-    from pencilcal.toolkit.detect.region_detect import detect_valid_region
-    from pencilcal.toolkit.detect.shafts import detect_shafts
+    from pencilcal.toolkit.detect.region.detect import detect_valid_region
+    from pencilcal.toolkit.detect.shaft.detector import detect_shafts
     from pencilcal.toolkit.pencil.sequence_noise import fulcrum_noise
     from tests.conftest import data_dir
-    from tests.toolkit.detect.test_shafts_real import _phantom_camera, _read
+    from tests.toolkit.detect.shaft.test_real import _phantom_camera, _read
 
     root = data_dir("real-instruments") / "dvrk-lnd-phantom-sequence"
     paths = sorted(root.glob("*.png"), key=lambda p: int(p.stem))

@@ -5,12 +5,9 @@
   their peaks, robust line refits, pairs of edges, the image noise);
 - `segments`: line segments (LSD, FLD, EDLines proposals, merged and refitted);
 - `bars`: printed bars (the spokes of a fan) as their midlines;
-- `shafts`: instrument shafts and their axis images, by the material cue on colour frames
-  (`shaft_work`, `shaft_regions`, `shaft_region_bands`, `shaft_edges`, `shaft_material_cue`)
-  or the edge cue on grey ones (`shaft_edge_cue`, `shaft_bands`), the midline from the two
-  silhouette edges (`shaft_axis`);
+- `shaft/`: instrument shafts and their axis images (a subpackage, one module per stage);
 - `lines`, `assemble`: one frame's lines as a lines.json record, and the pencil's lines;
-- `region` (with `region_detect`, `region_circle`): the valid region of a sequence's images
+- `region/`: the valid region of a sequence's images
   (a field stop, letterbox bars, overlays), within which the detectors look.
 """
 
@@ -23,7 +20,7 @@ from pencilcal.toolkit.lazy import lazy_exports
 __getattr__, __dir__ = lazy_exports(__name__, {
     "segments": ["Segments", "detect_segments", "DETECTORS"],
     "bars": ["Bars", "detect_bars"],
-    "shafts": ["Shaft", "detect_shafts"],
+    "shaft.detector": ["Shaft", "detect_shafts"],
     "lines": ["lines_record"],
 })
 

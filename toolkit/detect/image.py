@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pencilcal.toolkit.detect.region import DETECTION_MARGIN_PX
+from pencilcal.toolkit.detect.region.valid import DETECTION_MARGIN_PX
 from pencilcal.toolkit.errors import InputError
 
 __all__ = ["GrayImage", "gray_image", "to_u8"]
@@ -184,7 +184,7 @@ class GrayImage:
         boundary); points beyond the image or not finite are not. Without a region: the
         points within the image.
 
-        >>> from pencilcal.toolkit.detect.region import ValidRegion
+        >>> from pencilcal.toolkit.detect.region.valid import ValidRegion
         >>> img = GrayImage(np.zeros((20, 20), np.uint8), ValidRegion.from_circle(10, 10, 8, 20, 20))
         >>> img.in_region(np.array([10.0, 15.0, 16.5, 19.0]), np.full(4, 10.0)).tolist()
         [True, True, False, False]

@@ -3,7 +3,7 @@ lines`, `orient IMAGES` and `fulcrum IMAGES` turn a decoded image into lines.
 
 `detect_frame_lines` finds the edge segments (`segments.detect_segments`) or the midlines
 of the printed bars (`bars.detect_bars`) of one image, and optionally its instrument
-shafts (`shafts.detect_shafts`), and returns them as an `io.lines_file.LineFrame`: segments
+shafts (`shaft.detector.detect_shafts`), and returns them as an `io.lines_file.LineFrame`: segments
 ``[x1, y1, x2, y2]`` in raw pixels, angle sd in degrees, offset sd in pixels;
 `lines_record` is its record.
 
@@ -116,9 +116,9 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
 
 
 def _shafts(image, camera, valid_region, gamma):
-    """The shaft records of one image (`shafts.detect_shafts`, imported only when asked for:
+    """The shaft records of one image (`shaft.detector.detect_shafts`, imported only when asked for:
     a fan's orientation does not need the shaft detector's modules)."""
-    from pencilcal.toolkit.detect.shafts import detect_shafts
+    from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 
     return [s.to_dict() for s in detect_shafts(image, camera, valid_region=valid_region, gamma=gamma)]
 

@@ -1,6 +1,6 @@
 """Geometry of pairs of edges: the bisector, the overlap along it, the width across it.
 
-The two long edges of a printed bar (`bars`) or of an instrument shaft (`shafts`) are two
+The two long edges of a printed bar (`bars`) or of an instrument shaft (`shaft.detector`) are two
 oriented lines ``[x1, y1, x2, y2]`` [working px] running in opposite directions.
 `pair_geometry` describes K such pairs (a, b) at once: the bisector of the two lines
 (unit normal N, offset C with N . x + C = 0, direction D along a, foot point O = -C N),

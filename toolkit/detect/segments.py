@@ -492,7 +492,7 @@ def in_valid_region(img, raw):
     a few pixels uncertain, and a refitted line ends where its edge profiles leave the
     region anyway). All True without a region.
 
-    >>> from pencilcal.toolkit.detect.region import ValidRegion
+    >>> from pencilcal.toolkit.detect.region.valid import ValidRegion
     >>> img = GrayImage(np.zeros((100, 100), np.uint8), ValidRegion.from_circle(50, 50, 40, 100, 100))
     >>> in_valid_region(img, [[20, 50, 80, 50], [50, 5, 50, 60], [10, 51, 11, 60], [0, 0, 5, 5]]).tolist()
     [True, True, False, False]

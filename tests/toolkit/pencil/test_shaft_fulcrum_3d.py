@@ -26,13 +26,13 @@ import pytest
 from scipy.stats import chi2
 
 from pencilcal.toolkit.camera.model import Camera
-from pencilcal.toolkit.detect.shaft_axis import plane_bisector
-from pencilcal.toolkit.detect.shafts import detect_shafts
+from pencilcal.toolkit.detect.shaft.axis import plane_bisector
+from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 from pencilcal.toolkit.geometry.frames import angle_between
 from pencilcal.toolkit.pencil.cylinder import fulcrum_3d, shaft_axis, shaft_axis_record
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, fulcrum_point
 from pencilcal.toolkit.pencil.vertex import segment_lines
-from tests.toolkit.detect.test_shafts import render_shaft, shaft_from
+from tests.toolkit.detect.shaft.test_detector import render_shaft, shaft_from
 from tests.toolkit.pencil.test_cylinder import FULCRUM, HEIGHT, K, RADIUS, WIDTH, pivot_frames
 
 Q68_3 = chi2.ppf(0.68, 3)

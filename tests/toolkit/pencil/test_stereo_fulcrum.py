@@ -25,7 +25,7 @@ from scipy.stats import chi2
 from pencilcal.toolkit.camera.intrinsics import intrinsics_vector, with_intrinsics
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.camera.stereo import read_stereo
-from pencilcal.toolkit.detect.shaft_axis import plane_bisector
+from pencilcal.toolkit.detect.shaft.axis import plane_bisector
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.frames import normalize, rotation_about_axis
 from pencilcal.toolkit.pencil.cylinder import combine_estimates, project_cylinder

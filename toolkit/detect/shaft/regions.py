@@ -1,7 +1,7 @@
 """Instrument-like regions of a colour frame and the bands between their straight
-boundaries: the proposals of the shaft detector's material cue (`shafts`).
+boundaries: the proposals of the shaft detector's material cue (`shaft.detector`).
 
-1. *material map* (`material_map`, work frame, `shaft_work`): how instrument-like each pixel
+1. *material map* (`material_map`, work frame, `shaft.work`): how instrument-like each pixel
    is, from the frame's own colour statistics. The colour direction is the opponent
    chromaticity ``x = (R - G) / S, y = (R + G - 2 B) / (sqrt(3) S)``, ``S = R + G + B + 3
    eps``; grey (black, white, metal) sits at (0, 0). eps = `DARK_DAMPING` x the median
@@ -16,7 +16,7 @@ boundaries: the proposals of the shaft detector's material cue (`shafts`).
    stay near 0. The map is *informative* when the frame has a colour: p_med exceeds `Z_999`
    noise sd of one pixel's projection (from the image noise and brightness). A grey frame,
    or a colour frame of a grey scene, has no material cue, and the shaft detector judges its
-   bands by their edges alone (`shafts`).
+   bands by their edges alone (`shaft.detector`).
 2. *levels* (`region_levels`): `LEVELS` recursive two-class Otsu splits of the likeness
    over the valid region. The instruments are its upper tail and may cover only a few
    percent of the view, so each split isolates a more extreme part. At each level the
@@ -44,7 +44,7 @@ Coordinates are work pixels; widths and lengths too.
 Example
 -------
 >>> import numpy as np
->>> from pencilcal.toolkit.detect.shaft_work import Validity, WorkFrame
+>>> from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
 >>> img = np.zeros((240, 320, 3), np.uint8); img[:] = (90, 110, 200)        # pink tissue
 >>> img[100:140, :] = (60, 60, 60)                                           # a grey band
 >>> wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=320)
@@ -144,7 +144,7 @@ def _dominant(xv, yv):
 def material_map(work):
     """The instrument-likeness of each work pixel (module docstring, step 1).
 
-    work: `shaft_work.WorkFrame` (a BGR copy; a grey one gives an uninformative map of
+    work: `shaft.work.WorkFrame` (a BGR copy; a grey one gives an uninformative map of
     darkness alone). Returns a `MaterialMap`.
     """
     import cv2

@@ -1,4 +1,4 @@
-"""The valid region (toolkit.detect.region, region_detect): synthetic fields (circle,
+"""The valid region (toolkit.detect.region, region.detect): synthetic fields (circle,
 clipped circle, letterbox, logo, black shaft, ordinary image), the ValidRegion API, mask
 files, and real image sets where they are present."""
 from __future__ import annotations
@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from pencilcal.toolkit.detect.region import ValidRegion, read_mask_file
-from pencilcal.toolkit.detect.region_detect import detect_valid_region, sequence_region
+from pencilcal.toolkit.detect.region.valid import ValidRegion, read_mask_file
+from pencilcal.toolkit.detect.region.detect import detect_valid_region, sequence_region
 from pencilcal.toolkit.errors import InputError
 from tests.conftest import data_dir
 
@@ -454,7 +454,7 @@ def test_bars_inside_a_letterbox():
 
 
 def test_shaft_entering_the_field_reaches_its_border():
-    from pencilcal.toolkit.detect.shafts import detect_shafts
+    from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 
     img = field_with_shaft()
     reg = detect_valid_region([img])

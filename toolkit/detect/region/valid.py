@@ -4,9 +4,9 @@ stop or between letterbox bars, minus static burnt-in overlays.
 A `ValidRegion` is a circle ``(cx, cy, r)`` intersected with the image rectangle, or a
 polygon (a letterbox rectangle, the full image, a circle clipped by bars, any simple
 polygon), optionally minus axis-aligned boxes (``holes``: overlays), or a raster (a mask
-file). The detectors (`segments`, `bars`, `shafts`) take one and find nothing on its
+file). The detectors (`segments`, `bars`, `shaft.detector`) take one and find nothing on its
 boundary: the edge of a field stop is a strong, straight-ish edge that is no line of the
-scene. `region_detect.detect_valid_region` finds it from the frames of a sequence;
+scene. `region.detect.detect_valid_region` finds it from the frames of a sequence;
 `read_mask_file` reads a user's mask (a PNG, or JSON/YAML with a circle or a polygon).
 
 Conventions
@@ -43,7 +43,7 @@ __all__ = ["ValidRegion", "read_mask_file", "DETECTION_MARGIN_PX", "KINDS"]
 
 #: The detectors keep every sample they judge an edge by (profile windows, band
 #: cross-sections) at least this far inside the region's boundary [px]: the detected
-#: region is already shrunk past the field edge's blur (region_detect), this keeps the
+#: region is already shrunk past the field edge's blur (region.detect), this keeps the
 #: kernels' tails off it too. The image border is no boundary (nothing lies beyond it).
 DETECTION_MARGIN_PX = 2.0
 

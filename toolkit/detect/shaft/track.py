@@ -2,7 +2,7 @@
 
 In a video an instrument moves between frames, but not far across the view, and it keeps
 its width. `corridor_edges` looks for a prior shaft's band (the previous frame's) in a
-corridor around its midline, without the edge cue's proposals (`shaft_edge_cue`, steps 1
+corridor around its midline, without the edge cue's proposals (`shaft.edge_cue`, steps 1
 and 2: the line detector over the whole frame, the hypotheses, their refits):
 
 1. *stations*: `STATIONS` cross-sections perpendicular to the prior midline, evenly from
@@ -19,9 +19,9 @@ and 2: the line detector over the whole frame, the hypotheses, their refits):
    the inliers' peaks. At least `MIN_SUPPORT` of the stations in view must support it.
 
 The edges are then refitted at full resolution and judged as the edge cue judges its
-edges (`shaft_edge_cue.refit_edges`, `shaft_edge_cue.bands_from_edges`): a band found
+edges (`shaft.edge_cue.refit_edges`, `shaft.edge_cue.bands_from_edges`): a band found
 here is a shaft only where a full detection would keep it too, and it is measured the same
-way. Working pixels (`working`); the options those of `shafts.detect_shafts`.
+way. Working pixels (`working`); the options those of `shaft.detector.detect_shafts`.
 
 Example
 -------
@@ -178,7 +178,7 @@ def corridor_edges(img, camera, prior, o, sig_n, reach_px):
     shaft, or None (module docstring).
 
     img: `image.GrayImage`; prior: the prior's two edges (2, 4) [working px]; o: the
-    options of `shafts.detect_shafts` (sigma_px); sig_n: the image noise sd (the least
+    options of `shaft.detector.detect_shafts` (sigma_px); sig_n: the image noise sd (the least
     gradient is the edge cue's, max(2, 1.5 sig_n)); reach_px: how far the band may have
     moved [px].
     """

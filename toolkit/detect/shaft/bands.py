@@ -1,4 +1,4 @@
-"""Bands between two edges, judged along their length: the third step of `shafts`.
+"""Bands between two edges, judged along their length: the third step of `shaft.detector`.
 
 A candidate shaft is a pair of edges (`pairs.EdgePairs`, K pairs, working pixels). Its
 cross-section is sampled at stations s (K, S) [px along the bisector]: the level inside

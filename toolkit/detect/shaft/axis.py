@@ -7,9 +7,9 @@ axis lies in the plane that bisects them, and its image is that plane's image
 that a ray between the edges is on the positive side of both) the axis plane is n1 - n2 and
 its image ``l = K^-T (n1 - n2)``. This is exact for any pose, where the 2-D bisector of the
 two edges is not (a shaft seen obliquely is wider at its near end on one side than on the
-other). Without a camera a nominal pinhole stands in for K (`shaft_work.axis_matrix`).
+other). Without a camera a nominal pinhole stands in for K (`shaft.work.axis_matrix`).
 
-`midline_from_edges` builds the midline from two `shaft_edges.EdgeLine` fits (ideal pixels):
+`midline_from_edges` builds the midline from two `shaft.silhouette.EdgeLine` fits (ideal pixels):
 over the stretch where both edges were seen, from the wide (near) end to the narrow one.
 Its angle and offset (at the midline's centre) have the covariance propagated linearly from
 the two edge fits (their offset and slope variances, a-posteriori: the scatter of the
@@ -30,7 +30,7 @@ px. It is tested where it was not fitted: each masked frame left out in turn (th
 floor, 1.9-3.5 px, keeps its midlines within the chi2 0.999 quantile), and the phantom
 sequence's fulcrum (chi2/dof of its consistent majority, 1.9-2.7 with this floor).
 
-`measure_edge_pair` measures the edges of a band of the edge cue (`shafts`, frames without
+`measure_edge_pair` measures the edges of a band of the edge cue (`shaft.detector`, frames without
 colour contrast) at paired stations across it (each edge where it is seen cleanly, its
 gradient peak optionally corrected for the grey-level slopes beside it), each a robust line
 fit with one offset per polarity (`class_line_fit`: the gradient peak of a blurred,
@@ -63,7 +63,7 @@ from pencilcal.toolkit.detect.edges import (
     masked_median,
     theil_sen,
 )
-from pencilcal.toolkit.detect.shaft_edges import EdgeLine
+from pencilcal.toolkit.detect.shaft.silhouette import EdgeLine
 
 __all__ = ["EDGE_FLOOR_PX", "plane_bisector", "Midline", "floor_variances", "edge_covariance", "midline_from_edges",
            "class_line_fit", "measure_edge_pair"]
@@ -202,7 +202,7 @@ def midline_from_edges(K, e1, e2, floor_px=EDGE_FLOOR_PX):
     ideal px), or None when they are not seen together along `_MIN_OVERLAP_PX` or meet
     within the stretch (they are no silhouettes of one cylinder).
 
-    K: (3, 3) the camera matrix (`shaft_work.axis_matrix`); floor_px: the edges' error
+    K: (3, 3) the camera matrix (`shaft.work.axis_matrix`); floor_px: the edges' error
     floor [px] (`floor_variances`).
 
     >>> import numpy as np
@@ -407,7 +407,7 @@ def measure_edge_pair(img, camera, pr, k, lo, hi, shaft_at, search, sigma_px, sl
     bool), twice (the second time with the search narrowed to 1.5 px around the first fit).
     search, sigma_px [px]: the edge search half-width and the Gaussian-derivative sd; gamma:
     the frame's encoding gamma (each edge located on linear light, `edges.edge_profiles`).
-    Returns the two `shaft_edges.EdgeLine` (working px) or None.
+    Returns the two `shaft.silhouette.EdgeLine` (working px) or None.
     """
     kernel = derivative_kernel(sigma_px)
     guard_px = 3.0 * sigma_px + 1.0

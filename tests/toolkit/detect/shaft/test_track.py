@@ -1,5 +1,5 @@
-"""Shafts from frame to frame: `shafts.track_shafts`, `shafts.ShaftTracker` and the corridor
-search (`shaft_track.corridor_edges`)."""
+"""Shafts from frame to frame: `shaft.detector.track_shafts`, `shaft.detector.ShaftTracker` and the corridor
+search (`shaft.track.corridor_edges`)."""
 from __future__ import annotations
 
 import dataclasses
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from pencilcal.toolkit.detect.image import GrayImage
-from pencilcal.toolkit.detect.shaft_track import corridor_edges
-from pencilcal.toolkit.detect.shafts import ShaftTracker, detect_shafts, track_shafts
+from pencilcal.toolkit.detect.shaft.track import corridor_edges
+from pencilcal.toolkit.detect.shaft.detector import ShaftTracker, detect_shafts, track_shafts
 
 
 @pytest.fixture(scope="module")

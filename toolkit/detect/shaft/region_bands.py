@@ -1,7 +1,7 @@
 """Bands of instrument-like region, judged along their whole chord: the material cue's band
-test (`shafts`).
+test (`shaft.detector`).
 
-A candidate band lies between two straight region boundaries (`shaft_regions.region_pairs`).
+A candidate band lies between two straight region boundaries (`shaft.regions.region_pairs`).
 Its cross-section is sampled at `STATIONS` stations along the chord of its mean axis through
 the work frame, at `_NU` positions across from -2 to +2 half-widths (the boundaries at -1
 and +1), for all candidates in one remap. Per station:
@@ -14,12 +14,12 @@ and +1), for all candidates in one remap. Per station:
 A station is *shaft* (+1) when fin >= `FILL_IN`, both sides <= `FILL_SIDE` and supported;
 -0.5 when the inside is region but a side too or unsupported; -1.5 when the inside is not
 region (a wrist or jaws are narrower); -3 not observable. The run is the stretch of largest
-sum (`shaft_bands.best_segment`); it extends while the inside stays region (fin >= 0.5),
+sum (`shaft.bands.best_segment`); it extends while the inside stays region (fin >= 0.5),
 and the band *reaches the border* when that extension ends within 2 stations of the first
 unobservable one. For the runs long enough, the material difference of the inside from each
 side: the side is not instrument-like at this level (fraction of the "all" map <=
 `FILL_SIDE`), or the spectral angle between the mean colours exceeds twice the scene's
-colour variability (`shaft_regions.scene_angle`: a shade or a fold of one surface keeps its
+colour variability (`shaft.regions.scene_angle`: a shade or a fold of one surface keeps its
 colour direction, a grey shaft against a grey-blue drape not). `proposed` keeps the bands
 that may be shafts, `suppress_overlaps` the better of overlapping ones.
 
@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pencilcal.toolkit.detect.shaft_bands import best_segment
+from pencilcal.toolkit.detect.shaft.bands import best_segment
 
 __all__ = ["STATIONS", "FILL_IN", "FILL_SIDE", "RegionBand", "evaluate_bands", "best_run", "band_stretch", "proposed",
            "suppress_overlaps", "band_polygon"]
@@ -65,7 +65,7 @@ class RegionBand:
     Attributes
     ----------
     lines : tuple of two (p (2,), u (2,), n (2,), lo, hi)
-        The two boundary lines (`shaft_regions.BoundaryLines` rows, n into the region).
+        The two boundary lines (`shaft.regions.BoundaryLines` rows, n into the region).
     C : (S, 2)
         Station points on the mean axis; ua, na (2,) its direction and normal.
     oi, oj : (S,)
@@ -92,7 +92,7 @@ class RegionBand:
     y_in, y_side : float [grey levels]
         Mean luma inside and beside the run.
     level, kind : int, str
-        The region level and map ("all", "dark" or "darker": `shaft_regions.DARK_SPLITS`)
+        The region level and map ("all", "dark" or "darker": `shaft.regions.DARK_SPLITS`)
         it came from.
     """
 
@@ -303,7 +303,7 @@ def evaluate_bands(lines, pairs, work, Bm, Ball, min_run, level=0, kind="all"):
     docstring): a `RegionBand` for each whose run is at least min_run [work px] long.
 
     Bm: (h, w) the map the boundaries came from; Ball: (h, w) the level's "all" map (for
-    the material difference); work: `shaft_work.WorkFrame`.
+    the material difference); work: `shaft.work.WorkFrame`.
     """
     if len(pairs.i) == 0:
         return []
@@ -346,7 +346,7 @@ def proposed(band, min_len, ang_thr):
     material difference from both sides (not instrument-like there, or a colour direction
     more than ang_thr [deg] away), a run of at least min_len, shaft stations along min_len /
     2. Whether it is long and reaches the border is judged on its edges
-    (`shaft_material_cue`): a shaft running into a drape of its own material is a short
+    (`shaft.material_cue`): a shaft running into a drape of its own material is a short
     region band whose edges go on."""
     side_ok = all((f <= FILL_SIDE) or (np.isfinite(a) and a > ang_thr) for f, a in zip(band.fall, band.ang))
     return bool(side_ok and band.run_len >= min_len and band.shaft_len >= 0.5 * min_len)

@@ -15,7 +15,7 @@ only the image border bounds it. `WorkFrame` is the reduced copy with its valid 
 distance to the boundary in work pixels.
 
 Without a camera the axis of a shaft is still the image of a plane through the camera
-centre (`shaft_axis`); `axis_matrix` then gives a nominal pinhole (focal length the image
+centre (`shaft.axis`); `axis_matrix` then gives a nominal pinhole (focal length the image
 width, principal point the image centre), `nominal` says so.
 
 Example

@@ -21,7 +21,7 @@ from scipy.special import ndtr
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.detect.noise import estimate_noise
-from pencilcal.toolkit.detect.shafts import Shaft, detect_shafts
+from pencilcal.toolkit.detect.shaft.detector import Shaft, detect_shafts
 from tests.toolkit.detect.scenes import edge_px, normalized_grid
 
 

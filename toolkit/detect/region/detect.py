@@ -3,7 +3,7 @@ static overlays (`detect_valid_region`), and the region every detecting command 
 (`sequence_region`: a user's mask file, or the region detected from up to 16 frames).
 
 Algorithm of `detect_valid_region` (thresholds: the named constants below, and
-`region_circle`'s):
+`region.circle`'s):
 
 1. *frames*: up to `max_frames` sampled evenly; brightness is the channel maximum. ``hi``,
    the per-pixel maximum over the frames, is what is analysed: a moving dark instrument
@@ -16,11 +16,11 @@ Algorithm of `detect_valid_region` (thresholds: the named constants below, and
    side. The bar's depth d is D's mode; it is a bar when D is within +-2 px of d at 20 % of
    the positions and shorter at most at 30 % (dark content beyond a bar makes the run
    longer, only text in the bar shorter), bar and outermost line are at most 40 % of the
-   content beyond, the step is at least `region_circle.MIN_STEP`, the outer line flat, the
+   content beyond, the step is at least `region.circle.MIN_STEP`, the outer line flat, the
    edge's 10-90 % ramp at most `BAR_MAX_RAMP_PX` (blanking is sharp; a soft edge is
    shading) and a bar deeper than 5 % of the image is matched on the opposite side within
    20 % (letterboxing is symmetric). Its edge is the median sub-pixel 50 % crossing.
-3. *circle* inside the rectangle the bars leave (`region_circle.detect_circle`).
+3. *circle* inside the rectangle the bars leave (`region.circle.detect_circle`).
 4. *margins*: each detected boundary moves inward by 2 sigma_edge + 1 px, sigma_edge =
    ramp / 2.563 (the 10-90 % width of a Gaussian-blurred step), so the ramp counts as
    outside; a circle the bars cut becomes a polygon (circle ∩ bar rectangle).
@@ -45,8 +45,8 @@ import time
 
 import numpy as np
 
-from pencilcal.toolkit.detect.region import ValidRegion, circle_polygon, clip_polygon_to_rect, read_mask_file
-from pencilcal.toolkit.detect.region_circle import MIN_STEP, detect_circle, edge_ramp
+from pencilcal.toolkit.detect.region.valid import ValidRegion, circle_polygon, clip_polygon_to_rect, read_mask_file
+from pencilcal.toolkit.detect.region.circle import MIN_STEP, detect_circle, edge_ramp
 from pencilcal.toolkit.errors import InputError
 
 __all__ = ["MAX_FRAMES", "detect_valid_region", "sequence_region", "sample_indices"]

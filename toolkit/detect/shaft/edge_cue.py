@@ -1,5 +1,5 @@
 """The edge cue of the shaft detector: bands between two long edges, judged along their
-length, for frames whose colour tells no material apart (`shafts`).
+length, for frames whose colour tells no material apart (`shaft.detector`).
 
 What tells a shaft from the other bands of a grey scene is not its grey level against its
 surroundings (a grey metal shaft is darker than white paper and brighter than black print,
@@ -21,7 +21,7 @@ with unsigned edges and judges whole bands:
 3. *bands*: pairs of edges, converging by at most `max_convergence_deg`, at a width in
    `width_px_range`, overlapping. The cross-section of each candidate band is sampled at
    stations along its whole chord through the valid part of the image, from boundary to
-   boundary, and each station is a shaft, neutral or contradicting one (`shaft_bands`). The
+   boundary, and each station is a shaft, neutral or contradicting one (`shaft.bands`). The
    band is the run of stations with the largest score: it runs from the shaft's tip to
    where the shaft leaves the view, across polarity flips, and stops where a planar
    structure stops looking like a band. Kept: bands with few contradicting stations
@@ -33,8 +33,8 @@ with unsigned edges and judges whole bands:
    wider one that shares an edge with it or runs along its axis (the strips beside a
    specular stripe) gives way to it when the wider one is clean and has a highlight;
 4. *edges again*: each kept band's two edges are measured once more at paired stations
-   across it (`shaft_axis.measure_edge_pair`), which gives the midline
-   (`shaft_axis.midline_from_edges`).
+   across it (`shaft.axis.measure_edge_pair`), which gives the midline
+   (`shaft.axis.midline_from_edges`).
 
 Limits: a shaft seen only over a background of its own grey level, or only in part of its
 length without reaching the border (pass ``from_border=False``), is found from what remains;
@@ -42,7 +42,7 @@ a band of paper that reaches the image border with a clean cross-section (a shee
 out of the view) is a shaft candidate too, scored by the length along which both its edges
 are seen, so give the width you expect (`width_px_range`) where that can happen.
 
-Lengths in working pixels (`working`), the options those of `shafts.detect_shafts`.
+Lengths in working pixels (`working`), the options those of `shaft.detector.detect_shafts`.
 
 Example
 -------
@@ -66,8 +66,8 @@ from pencilcal.toolkit.detect.edges import (
 )
 from pencilcal.toolkit.detect.pairs import antiparallel_pairs, pair_geometry
 from pencilcal.toolkit.detect.segments import detect_fragments, in_valid_region, merge_collinear
-from pencilcal.toolkit.detect.shaft_axis import measure_edge_pair
-from pencilcal.toolkit.detect.shaft_bands import assess_bands, assess_chords, border_polygon, nested_bands
+from pencilcal.toolkit.detect.shaft.axis import measure_edge_pair
+from pencilcal.toolkit.detect.shaft.bands import assess_bands, assess_chords, border_polygon, nested_bands
 from pencilcal.toolkit.detect.working import to_raw
 from pencilcal.toolkit.geometry.neighbours import pairs_within
 
@@ -383,7 +383,7 @@ def _chosen(pr, ok, score, M, o):
 
 
 def _measure(img, camera, pr, ch, k, o):
-    """`shaft_axis.measure_edge_pair` of band k over its run; the slope correction only for a
+    """`shaft.axis.measure_edge_pair` of band k over its run; the slope correction only for a
     band wider than twice the profile's reach (on a thinner one the slopes would be read
     off the other edge)."""
     sk, shk = ch.s[k], ch.q.shaft[k]
@@ -404,7 +404,7 @@ def _measure(img, camera, pr, ch, k, o):
 def _view_polygon(camera, img):
     """The border of the view in working pixels, a closed polygon (P, 2): the outline of
     the `GrayImage`'s valid region (its sides densified to follow the lens), or the image
-    border (`shaft_bands.border_polygon`) without one."""
+    border (`shaft.bands.border_polygon`) without one."""
     H, W = img.shape
     if img.region is None:
         return border_polygon(camera, W, H)
@@ -421,7 +421,7 @@ def edge_cue(img, camera, o, sig_n):
     [px], polarity "dark" / "bright") per shaft, best score first.
 
     img: `image.GrayImage` (with its valid region: proposals and profiles keep inside it);
-    camera: Camera or None; o: the options of `shafts.detect_shafts` (`shafts.ShaftOptions`);
+    camera: Camera or None; o: the options of `shaft.detector.detect_shafts` (`shaft.detector.ShaftOptions`);
     sig_n: the image noise sd.
     """
     frag = detect_fragments(img, o.detector, camera, o.detector_params, min_fragment=8.0, scale=o.scale)[1]
@@ -447,7 +447,7 @@ def refit_edges(img, camera, lines, o, sig_n):
 def bands_from_edges(img, camera, E, o, sig_n):
     """Steps 3 and 4 of the edge cue on the unsigned edge lines E (M, 4) [working px]: the
     shafts between them, as `edge_cue` returns them (also what tracking from frame to frame
-    gives its edges to: `shafts.track_shafts`)."""
+    gives its edges to: `shaft.detector.track_shafts`)."""
     if E.shape[0] < 2:
         return []
     pr = _candidate_bands(img, camera, E, o, sig_n)

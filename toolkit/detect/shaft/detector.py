@@ -7,23 +7,23 @@ scene, and `detect_shafts` takes each where the frame carries it:
 
 - *material*: on a real endoscope frame the instrument is grey, black, white or metal
   against coloured tissue. Where the frame's colour tells the materials apart (grey is an
-  outlier of the dominant colour's distribution: `shaft_regions.material_map`), shafts are
+  outlier of the dominant colour's distribution: `shaft.regions.material_map`), shafts are
   found as long bands of instrument-like region, with straight boundaries, differing in
-  material from both sides and entering the view from its border (`shaft_material_cue`);
+  material from both sides and entering the view from its border (`shaft.material_cue`);
   their edges are then refitted at full resolution in a corridor around the region's
-  boundaries (`shaft_edges`). Folds, rims and shadows of tissue keep the tissue's colour;
+  boundaries (`shaft.silhouette`). Folds, rims and shadows of tissue keep the tissue's colour;
   white tissue and highlights are not straight-edged;
 - *edges*: a grey frame (a calibration render of a metal shaft over paper or a table) has
   no material cue. There a shaft is a band between two long edges that looks the same all
   along its length, whatever lies behind it, seen from the border to its tip
-  (`shaft_edge_cue`): unsigned edges (a grey shaft is darker than white paper and brighter
-  than black print), bands judged station by station along their chord (`shaft_bands`).
+  (`shaft.edge_cue`): unsigned edges (a grey shaft is darker than white paper and brighter
+  than black print), bands judged station by station along their chord (`shaft.bands`).
 
 Both end in two silhouette edges, fitted as straight lines in undistorted pixels with
 a-posteriori variances, and the midline is the image of the plane bisecting the two planes
-the edges back-project to (`shaft_axis`): exact for any pose, unlike the 2-D bisector. Its
+the edges back-project to (`shaft.axis`): exact for any pose, unlike the 2-D bisector. Its
 angle and offset sigmas are propagated from the edge fits, plus a measured error floor
-(`shaft_axis.EDGE_FLOOR_PX`). Without a camera a nominal pinhole (focal
+(`shaft.axis.EDGE_FLOOR_PX`). Without a camera a nominal pinhole (focal
 length the image width) stands in for the camera matrix.
 
 Nothing is detected on the valid region's boundary (`valid_region`: an endoscope's field
@@ -31,7 +31,7 @@ stop, letterbox bars): samples keep inside it, and a band stops where it leaves 
 
 In a video, `track_shafts` (and `ShaftTracker`, frame after frame) looks for the previous
 frame's shafts in corridors around them instead of over the whole frame
-(`shaft_track`), then judges and measures them as the edge cue does: the same shafts,
+(`shaft.track`), then judges and measures them as the edge cue does: the same shafts,
 several times faster; a full detection where the prior fails.
 
 Conventions: pixels with (0, 0) the centre of the top-left pixel; midlines and edges in raw
@@ -58,12 +58,12 @@ import numpy as np
 from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.image import GrayImage
 from pencilcal.toolkit.detect.noise import noise_of
-from pencilcal.toolkit.detect.shaft_axis import midline_from_edges
-from pencilcal.toolkit.detect.shaft_edge_cue import bands_from_edges, drop_repeated, edge_cue, refit_edges, unsigned_lines
-from pencilcal.toolkit.detect.shaft_material_cue import material_cue, robust_noise, select
-from pencilcal.toolkit.detect.shaft_regions import material_map
-from pencilcal.toolkit.detect.shaft_track import REACH, corridor_edges
-from pencilcal.toolkit.detect.shaft_work import Validity, WorkFrame, axis_matrix
+from pencilcal.toolkit.detect.shaft.axis import midline_from_edges
+from pencilcal.toolkit.detect.shaft.edge_cue import bands_from_edges, drop_repeated, edge_cue, refit_edges, unsigned_lines
+from pencilcal.toolkit.detect.shaft.material_cue import material_cue, robust_noise, select
+from pencilcal.toolkit.detect.shaft.regions import material_map
+from pencilcal.toolkit.detect.shaft.track import REACH, corridor_edges
+from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame, axis_matrix
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw
 from pencilcal.toolkit.errors import InputError
 
@@ -112,15 +112,15 @@ class Shaft:
         What found it: "material" or "edges" (`CUES`).
     cov : (2, 2)
         Covariance of the midline's (angle [rad], offset [px] at its centre), floor
-        included: ``cov_stat + EDGE_FLOOR_PX**2 * cov_floor`` (`shaft_axis.Midline`).
+        included: ``cov_stat + EDGE_FLOOR_PX**2 * cov_floor`` (`shaft.axis.Midline`).
     cov_stat, cov_floor : (2, 2)
         Its part from the edge fits, and the floor's part per px^2 of
-        `shaft_axis.EDGE_FLOOR_PX` (what measuring the floor needs).
+        `shaft.axis.EDGE_FLOOR_PX` (what measuring the floor needs).
     ideal_edges : (2, 4) [px]
         The two edges in undistorted pixels (`edges` is their raw image).
     edge_cov : (2, 2, 2)
         Per edge, the covariance of its (angle [rad], offset [undistorted px]) about the
-        centre of its ideal segment, floor included (`shaft_axis.edge_covariance`): what
+        centre of its ideal segment, floor included (`shaft.axis.edge_covariance`): what
         the shaft's 3-D axis is propagated from (`pencil.cylinder.shaft_axis`).
     """
 
@@ -221,7 +221,7 @@ class ShaftOptions:
 
 
 def _shaft(camera, m, score, polarity, cue):
-    """The `Shaft` of a `shaft_axis.Midline` (ideal px), or None where it leaves the lens
+    """The `Shaft` of a `shaft.axis.Midline` (ideal px), or None where it leaves the lens
     model's reach."""
     ideal = m.ends.reshape(-1)
     raw = to_raw(camera, ideal)[0]
@@ -251,7 +251,7 @@ def _by_material(image, camera, validity, o, K):
 
 
 def _edge_shafts(found, camera, o, K):
-    """The `Shaft` of each (edges, score, polarity) the edge cue found (`shaft_edge_cue`)."""
+    """The `Shaft` of each (edges, score, polarity) the edge cue found (`shaft.edge_cue`)."""
     out = []
     for edges, score, polarity in found:
         m = midline_from_edges(K, edges[0], edges[1])
@@ -323,7 +323,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         whose near part is hidden.
     slope_correction : bool
         The edge cue corrects each edge point for the grey-level slopes beside it (textured
-        tissue), for shafts wider than twice the profile's reach (`shaft_edge_cue`).
+        tissue), for shafts wider than twice the profile's reach (`shaft.edge_cue`).
     corridor_px : float
         Half-width of the material cue's full-resolution edge search around a region's
         boundary [px] (at least 1.5 work px, that boundary's own resolution).
@@ -335,7 +335,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         locates its edges on the sampled profiles linearised with it (`edges.linearised`):
         a blurred edge's gradient peak leans towards its dark side in encoded levels, so
         the band would come out narrow and the shaft too far. The material cue (real
-        video) keeps the levels as they are (`shaft_material_cue._MATERIAL_GAMMA`).
+        video) keeps the levels as they are (`shaft.material_cue._MATERIAL_GAMMA`).
 
     Returns
     -------
@@ -383,10 +383,10 @@ def track_shafts(image, camera, previous, *, valid_region=None, **options):
     False where a full `detect_shafts` was run.
 
     Each instrument of the previous frame (its shafts, one per instrument: `_instruments`)
-    is looked for in a corridor around it (`shaft_track.corridor_edges`, reach
-    `shaft_track.REACH` of the image diagonal), without the edge cue's proposals; the bands
+    is looked for in a corridor around it (`shaft.track.corridor_edges`, reach
+    `shaft.track.REACH` of the image diagonal), without the edge cue's proposals; the bands
     found there are judged and measured as the edge cue judges and measures its own
-    (`shaft_edge_cue.bands_from_edges`), so a shaft found again is the one a full detection
+    (`shaft.edge_cue.bands_from_edges`), so a shaft found again is the one a full detection
     finds, measured alike. The prior is checked, never trusted: the frame gets a full
     detection when there is no prior, when a prior shaft was found by the material cue
     (that cue is not tracked), or when fewer instruments are found than the prior had. A

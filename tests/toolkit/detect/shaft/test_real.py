@@ -4,7 +4,7 @@
   instruments whose midline is found within 1.5 deg and 15 px of the mask reference
   (`mask_reference`: the plane bisector of the straight part of each instrument's mask), and
   the detections that match none, per frame;
-- the error floor: `shaft_axis.EDGE_FLOOR_PX` is what brings the masked sets' angle errors to
+- the error floor: `shaft.axis.EDGE_FLOOR_PX` is what brings the masked sets' angle errors to
   chi2/N = 1; that is where it was fitted, so it is tested elsewhere: on the phantom
   sequence's fulcrum, and frame by frame on the masked sets (left out one at a time);
 - dvrk-lnd-phantom-sequence (20 frames, M1/D1 of stereo_calibration_published.yaml): a shaft
@@ -26,14 +26,14 @@ import numpy as np
 import pytest
 
 from pencilcal.toolkit.camera.model import Camera
-from pencilcal.toolkit.detect.region_detect import detect_valid_region
-from pencilcal.toolkit.detect.shaft_axis import EDGE_FLOOR_PX
-from pencilcal.toolkit.detect.shaft_work import axis_matrix
-from pencilcal.toolkit.detect.shafts import detect_shafts
+from pencilcal.toolkit.detect.region.detect import detect_valid_region
+from pencilcal.toolkit.detect.shaft.axis import EDGE_FLOOR_PX
+from pencilcal.toolkit.detect.shaft.work import axis_matrix
+from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames
 from tests.conftest import data_dir
-from tests.toolkit.detect.mask_reference import reference_axes
+from tests.toolkit.detect.shaft.mask_reference import reference_axes
 
 pytestmark = pytest.mark.slow
 
@@ -106,8 +106,8 @@ def test_masked_sets_found_and_false(masked):
     """Reached: all 9 instruments within 1.5 deg and 15 px (target 90 %), no false detection
     (target <= 0.25 per frame). The right-hand dVRK instruments, black against a dim grey-blue
     drape as instrument-like as they are, come from the last level's second luma split
-    (`shaft_regions.DARK_SPLITS`); the one in image_01420 is seen over 1.8 widths only,
-    cut by the corner of the view (`shaft_material_cue._elongated`)."""
+    (`shaft.regions.DARK_SPLITS`); the one in image_01420 is seen over 1.8 widths only,
+    cut by the corner of the view (`shaft.material_cue._elongated`)."""
     refs = sum(len(m[1]) for m in masked)
     found = sum(len(m[3]) for m in masked)
     false = sum(len(m[4]) for m in masked) / len(masked)

@@ -1,20 +1,20 @@
 """The material cue of the shaft detector: shafts as bands of instrument-like material, for
-frames whose colour tells the materials apart (`shafts`).
+frames whose colour tells the materials apart (`shaft.detector`).
 
-1. *regions* (`shaft_regions`): the frame's instrument-likeness (grey, black, white, metal
+1. *regions* (`shaft.regions`): the frame's instrument-likeness (grey, black, white, metal
    against the dominant tissue colour), its levels, the straight boundaries of each level's
    regions and the pairs of them with region between;
-2. *bands* (`shaft_region_bands`): each pair judged along its chord through the work frame;
+2. *bands* (`shaft.region_bands`): each pair judged along its chord through the work frame;
    proposed when its run of region is at least the least length and differs in material
    from both sides, the better of overlapping ones;
-3. *edges* (`shaft_edges`, `_band_edges`): each proposed band's two boundaries refitted at
+3. *edges* (`shaft.silhouette`, `_band_edges`): each proposed band's two boundaries refitted at
    full resolution in a corridor (`corridor_px`, at least 1.5 work px: the region boundary's
    own resolution) over its run, then grown along their own lines over the stretch where
-   the band's cross-section goes on looking like the run's (`shaft_region_bands.
+   the band's cross-section goes on looking like the run's (`shaft.region_bands.
    band_stretch`: a shaft running into a drape of its own material, or a white shaft
    merging with white tissue, is a short band of region whose edges go on), each edge the
    best run of stations with gaps up to a width (a thread, a highlight); the midline is the
-   plane bisector of the two (`shaft_axis`). It is a shaft when both edges are seen
+   plane bisector of the two (`shaft.axis`). It is a shaft when both edges are seen
    together along at least the least length and a third of the region's run; when they,
    its band or its region's extension (the instrument's material, its wrist included) run
    along 2.5 widths (a jaw is not elongated), or they run along 1.5 widths and the border
@@ -48,16 +48,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pencilcal.toolkit.detect.shaft_axis import midline_from_edges
-from pencilcal.toolkit.detect.shaft_edges import fit_edges
-from pencilcal.toolkit.detect.shaft_region_bands import (
+from pencilcal.toolkit.detect.shaft.axis import midline_from_edges
+from pencilcal.toolkit.detect.shaft.silhouette import fit_edges
+from pencilcal.toolkit.detect.shaft.region_bands import (
     band_polygon,
     band_stretch,
     evaluate_bands,
     proposed,
     suppress_overlaps,
 )
-from pencilcal.toolkit.detect.shaft_regions import boundary_lines, region_levels, region_pairs, scene_angle
+from pencilcal.toolkit.detect.shaft.regions import boundary_lines, region_levels, region_pairs, scene_angle
 
 __all__ = ["MaterialShaft", "material_cue", "select", "robust_noise"]
 
@@ -101,8 +101,8 @@ def robust_noise(channel):
 
 @dataclass(eq=False)
 class MaterialShaft:
-    """A shaft of the material cue (`material_cue`): its `shaft_axis.Midline`, score [raw
-    px], polarity, the band that proposed it (`shaft_region_bands.RegionBand`) and its
+    """A shaft of the material cue (`material_cue`): its `shaft.axis.Midline`, score [raw
+    px], polarity, the band that proposed it (`shaft.region_bands.RegionBand`) and its
     outline over the run and over the extension (work px), for the selection."""
 
     midline: object
@@ -169,7 +169,7 @@ def _grown(fit, spec):
     return (p0, u, n, lo, hi), 3.0 * float(np.sqrt(fit.var_t + lever**2 * fit.var_b)) + 1.0
 
 
-#: The encoding gamma the material cue's edges are located with (`shaft_edges.fit_edges`):
+#: The encoding gamma the material cue's edges are located with (`shaft.silhouette.fit_edges`):
 #: 1, on the frames' levels as they are, whatever `detect_shafts`' gamma. Its frames are
 #: real video, whose tone curve is no pure 2.2: linearised so, the black shaft's edges of the
 #: dVRK phantom moved out by up to 1.7 px (widths +8 %) and 3 of the 43 shafts of the real
@@ -178,15 +178,15 @@ _MATERIAL_GAMMA = 1.0
 
 
 def _band_edges(image, camera, validity, noise, bands, work, corridor, stretches, gamma):
-    """The two edges (`shaft_edges.EdgeLine`) of each band, or None: fitted over its region
+    """The two edges (`shaft.silhouette.EdgeLine`) of each band, or None: fitted over its region
     run, then grown along their own lines over the stretch of chord where its
     cross-section goes on looking like the run's (stretches: [b0, b1) each,
-    `shaft_region_bands.band_stretch`), `_GROW_PASSES` passes each at most doubling them in
+    `shaft.region_bands.band_stretch`), `_GROW_PASSES` passes each at most doubling them in
     a corridor holding 3 sd of the line's prediction (a line extrapolated from a short
     region boundary would leave the fixed corridor), each the best run of stations with
     gaps up to the band's width, cut where it bends away: the edges tell how far the shaft
     goes. All bands' edges are fitted together, pass by pass; gamma: the frame's encoding
-    gamma (the edges located on linear light, `shaft_edges.fit_edges`)."""
+    gamma (the edges located on linear light, `shaft.silhouette.fit_edges`)."""
     gaps = np.repeat([e.width_run / work.mean_scale for e in bands], 2)
     specs = [sp for e in bands for sp in _edge_specs(e, work, e.run)]
     fits = fit_edges(image, camera, validity, noise, specs, corridor, max_gap=gaps, gamma=gamma)
@@ -238,10 +238,10 @@ def material_cue(image, camera, validity, work, mm, o, K, noise):
     """Shafts by the material cue (module docstring, steps 1-3): `MaterialShaft` per band
     that held up, before the selection.
 
-    image: (H, W, 3) the raw frame; validity: `shaft_work.Validity`; work:
-    `shaft_work.WorkFrame`; mm: its `shaft_regions.MaterialMap`; o: the options of
-    `shafts.detect_shafts` (`shafts.ShaftOptions`); K: (3, 3) the axis camera
-    (`shaft_work.axis_matrix`); noise: the image noise sd [grey levels].
+    image: (H, W, 3) the raw frame; validity: `shaft.work.Validity`; work:
+    `shaft.work.WorkFrame`; mm: its `shaft.regions.MaterialMap`; o: the options of
+    `shaft.detector.detect_shafts` (`shaft.detector.ShaftOptions`); K: (3, 3) the axis camera
+    (`shaft.work.axis_matrix`); noise: the image noise sd [grey levels].
     """
     s = work.mean_scale
     wmin, wmax = o.region_wmin * s, o.region_wmax * s

@@ -1,7 +1,7 @@
 """A shaft's silhouette edges at full resolution, in a corridor around a proposed line: the
-edge fit of the shaft detector's material cue (`shafts`).
+edge fit of the shaft detector's material cue (`shaft.detector`).
 
-Each edge is proposed by a line in ideal pixels (`shaft_work`: the boundary of a region
+Each edge is proposed by a line in ideal pixels (`shaft.work`: the boundary of a region
 found in the reduced work frame, good to about 1.5 work px) with its normal pointing out of
 the shaft. At stations along it (at most `MAX_STATIONS`, at least 2 px apart) the colour
 profile across it is sampled in the raw image along the image of that normal (`working.
@@ -30,7 +30,7 @@ Ideal pixels throughout (s along the proposed line, t along its outward normal).
 Example
 -------
 >>> import numpy as np
->>> from pencilcal.toolkit.detect.shaft_work import Validity
+>>> from pencilcal.toolkit.detect.shaft.work import Validity
 >>> img = np.zeros((200, 300, 3), np.uint8); img[:] = (90, 110, 200); img[80:120] = 50
 >>> import cv2; img = cv2.GaussianBlur(img, (0, 0), 1.0)
 >>> e = fit_edges(img, None, Validity(None, img.shape[:2]), 1.0,
@@ -55,7 +55,7 @@ from pencilcal.toolkit.detect.edges import (
     robust_line_fit,
     stations,
 )
-from pencilcal.toolkit.detect.shaft_regions import Z_999
+from pencilcal.toolkit.detect.shaft.regions import Z_999
 from pencilcal.toolkit.detect.working import raw_frame
 
 __all__ = ["SIGMA_PX", "MAX_STATIONS", "EdgeLine", "fit_edges"]
@@ -294,7 +294,7 @@ def fit_edges(image, camera, validity, noise, specs, corridor, max_gap=None, gam
         The raw frame (a contiguous float32 one is sampled without a copy: convert once
         for several calls).
     camera : Camera or None
-    validity : shaft_work.Validity
+    validity : shaft.work.Validity
         Where the image may be sampled.
     noise : float [grey levels]
         The image noise sd (per channel).

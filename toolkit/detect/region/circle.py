@@ -1,4 +1,4 @@
-"""The circular field stop of an endoscope image: the circle step of `region_detect`.
+"""The circular field stop of an endoscope image: the circle step of `region.detect`.
 
 `detect_circle` looks for a circle inside the content rectangle (what the letterbox bars
 leave) of the per-pixel maximum of a sequence's frames:
@@ -20,7 +20,7 @@ leave) of the per-pixel maximum of a sequence's frames:
    deg), three passes; it must keep 80 % of the coarse completeness.
 
 Returns the circle at the 50 % level and the boundary's 10-90 % ramp width, from which
-`region_detect` sets the margin. Pixels as everywhere in pencilcal: (0, 0) the centre of
+`region.detect` sets the margin. Pixels as everywhere in pencilcal: (0, 0) the centre of
 the top-left pixel.
 
 Example
@@ -39,7 +39,7 @@ import numpy as np
 __all__ = ["MIN_STEP", "edge_ramp", "fit_circle", "detect_circle"]
 
 #: Smallest step [grey levels] between the surround and the content that counts as a
-#: boundary (also the bars' floor in region_detect): below it, compression and sensor
+#: boundary (also the bars' floor in region.detect): below it, compression and sensor
 #: noise make one up anywhere.
 MIN_STEP = 8.0
 _REL_DARK = 0.4  # the surround is at most 1 - this of the content level (60 %)

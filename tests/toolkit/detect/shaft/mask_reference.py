@@ -13,7 +13,7 @@ For each connected component of an instrument mask (at least `min_area` pixels):
    runs overlap along the axis (the wrist and jaws are left out: their boundary is not on
    these two lines).
 
-The reference axis is the plane bisector of the two edges (`shaft_axis.plane_bisector`, the
+The reference axis is the plane bisector of the two edges (`shaft.axis.plane_bisector`, the
 detector's construction, with the same nominal camera), its point the middle of the overlap.
 The masks are polygons drawn by hand, straight to about a pixel, and one follows a shaft's
 shadow for part of its length: a reference good to a few tenths of a degree.
@@ -104,7 +104,7 @@ def reference_axes(mask, valid, K, min_area=3000, seed=0):
     `mid` (2,) its point [px], `edges` the two stretches' points."""
     import cv2
 
-    from pencilcal.toolkit.detect.shaft_axis import plane_bisector
+    from pencilcal.toolkit.detect.shaft.axis import plane_bisector
 
     H, W = mask.shape
     rng = np.random.default_rng(seed)
