@@ -1,0 +1,321 @@
+"""Instruments in a segmentation mask, and the axis each mask gives by its own outline.
+
+A lab's segmentation network (or an annotator) marks the instrument pixels. Two readings of
+such a mask serve pencilcal: the instruments it holds (`instruments_in_mask`: one boolean
+mask per instrument, from a binary mask's connected components, a label image's selected
+values, or an instance image's ids) and the axis each one's outline gives (`mask_axis`),
+which is the reference of the detector's scores (`validation.shaft_score`) and where a
+mask-guided detection starts.
+
+`mask_axis` looks for the two silhouette edges on the instrument's outer contour:
+
+1. the contour, less its points on the image border or on the valid region's boundary (the
+   mask stops there; that is no silhouette);
+2. the longest straight stretch of the contour (RANSAC: a line through two contour points,
+   its inliers within `tol` px, and among them the longest run of contour-consecutive inliers,
+   gaps of up to `gap` points bridged): a silhouette edge is one contiguous stretch of the
+   boundary;
+3. the longest such stretch among those within `MAX_EDGE_ANGLE_DEG` of the first, on the
+   other side of the mask;
+4. each edge refitted by total least squares to its run; the straight part is where both
+   runs overlap along the axis (a wrist, jaws or a hook beyond it are left out: their outline
+   is not on these two lines).
+
+The axis is then the plane bisector of the two edges (`axis.plane_bisector`, the construction
+the detector uses). A mask with no such pair of edges (the distal part alone: jaws, a hook, a
+clip applier with the shaft out of view) gets its principal axis instead, kind ``"part"``:
+the direction of the largest second moment of its pixels, through their centroid, good to a
+few degrees for an elongated part and meaningless for a round one (`MaskAxis.elongation`).
+
+Pixels: raw image pixels, (0, 0) the centre of the top-left pixel; lines (3,) homogeneous
+with a^2 + b^2 = 1.
+
+Example
+-------
+>>> import numpy as np
+>>> m = np.zeros((200, 300), bool); m[80:120, :200] = True            # a band from the border
+>>> ax = mask_axis(m)
+>>> ax.kind, [round(float(v), 2) + 0.0 for v in ax.line], round(ax.width_px), round(ax.length_px)
+('shaft', [0.0, 1.0, -99.5], 40, 196)
+>>> blob = np.zeros((200, 300), bool); blob[90:110, 100:160] = True       # edges too short for a shaft
+>>> part = mask_axis(blob, min_edge_px=80)
+>>> part.kind, [round(float(v), 2) + 0.0 for v in part.line[:2]], round(part.elongation, 1)
+('part', [0.0, 1.0], 3.0)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pencilcal.toolkit.detect.shaft.axis import plane_bisector
+from pencilcal.toolkit.errors import InputError
+
+__all__ = ["MaskAxis", "mask_axis", "instruments_in_mask", "MIN_INSTRUMENT_AREA", "MERGE_GAP_PX", "MAX_EDGE_ANGLE_DEG"]
+
+#: The least area of an instrument in a mask [px]: below it a component is a speck of the
+#: annotation, not an instrument.
+MIN_INSTRUMENT_AREA = 200
+#: Pieces of a mask this close are one instrument [px]: an annotator draws a shaft, its wrist
+#: and its jaws as polygons with a gap of a pixel or two between them.
+MERGE_GAP_PX = 5.0
+#: The largest angle between a shaft's two silhouette edges [deg] (a shaft seen end-on from
+#: close by converges by a few degrees).
+MAX_EDGE_ANGLE_DEG = 12.0
+_RANSAC_ITERS = 600
+
+
+@dataclass(frozen=True, eq=False)
+class MaskAxis:
+    """The axis an instrument's mask gives (`mask_axis`).
+
+    Attributes
+    ----------
+    line : (3,)
+        The axis image [raw px], a^2 + b^2 = 1.
+    point : (2,) [px]
+        Its point in the middle of the straight part (kind "shaft") or the mask's centroid.
+    kind : str
+        "shaft": two straight silhouette edges were found; "part": the principal axis of a
+        mask without them (a distal part alone).
+    width_px, length_px : float
+        Apparent width across the axis (at `point`) and the length along which both edges are
+        seen [px]; for a part, the extent of the mask across and along its principal axis.
+    elongation : float
+        Length over width (how well the principal axis of a part is defined).
+    edges : (2, 4) or None
+        The two straight silhouette stretches as segments [x1, y1, x2, y2] (kind "shaft").
+    area : int
+        The instrument's pixels in the mask.
+    """
+
+    line: np.ndarray
+    point: np.ndarray
+    kind: str
+    width_px: float
+    length_px: float
+    elongation: float
+    edges: np.ndarray | None
+    area: int
+
+    def segment(self) -> np.ndarray:
+        """(4,) the axis drawn over the straight part (or the part's length), centred on
+        `point` [px]."""
+        d = np.array([self.line[1], -self.line[0]])
+        h = 0.5 * self.length_px
+        return np.r_[self.point - h * d, self.point + h * d]
+
+
+def instruments_in_mask(mask, labels=None, instances=False, min_area=MIN_INSTRUMENT_AREA, merge_gap_px=MERGE_GAP_PX):
+    """One boolean mask per instrument of a mask image.
+
+    Parameters
+    ----------
+    mask : (H, W) or (H, W, 3) array
+        A binary mask (any non-zero value is instrument), a label image (each value a class or
+        a part) or an instance image (each value one instrument). A colour mask is read as
+        instrument wherever it is not black.
+    labels : sequence of int or of (B, G, R), optional
+        The values that are instrument (e.g. a part label image's shaft label), or the colours
+        of a colour mask that are; default every non-zero value (every non-black colour).
+    instances : bool
+        Each selected value is one instrument (an instance image), however many pieces it has;
+        otherwise each connected component of the selected pixels is one (pieces closer than
+        merge_gap_px joined).
+    min_area : int
+        Smaller instruments are left out [px].
+    merge_gap_px : float
+        Components closer than this are one instrument [px] (`MERGE_GAP_PX`).
+
+    Returns
+    -------
+    list of (H, W) bool
+        Largest first.
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> m = np.zeros((50, 80), np.uint8); m[5:15, 10:70] = 10; m[30:40, 10:70] = 20; m[20:25, :] = 30
+    >>> [int(x.sum()) for x in instruments_in_mask(m, labels=[10, 20], min_area=100)]
+    [600, 600]
+    >>> len(instruments_in_mask(m, instances=True, min_area=100))
+    3
+    """
+    import cv2
+
+    m = np.asarray(mask)
+    if m.ndim == 3 and labels is not None and all(np.ndim(v) == 1 for v in labels):
+        # colour labels (B, G, R): each selected colour a value of a label image
+        m3 = m[..., :3]
+        lab = np.zeros(m.shape[:2], np.int32)
+        for k, v in enumerate(labels, 1):
+            lab[np.all(m3 == np.asarray(v, m3.dtype), axis=-1)] = k
+        m, labels = lab, list(range(1, len(labels) + 1))
+    elif m.ndim == 3:
+        m = np.any(m[..., :3] != 0, axis=-1).astype(np.uint8)
+    if m.ndim != 2:
+        raise InputError(f"mask: expected (H, W) or (H, W, 3), got shape {m.shape}")
+    values = [int(v) for v in np.unique(m) if v != 0] if labels is None else [int(v) for v in labels]
+    out = []
+    if instances:
+        out = [m == v for v in values]
+    else:
+        sel = np.isin(m, values).astype(np.uint8)
+        r = int(np.ceil(0.5 * merge_gap_px))
+        grown = cv2.dilate(sel, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))) if r else sel
+        n, lab = cv2.connectedComponents(grown, connectivity=8)
+        out = [(lab == k) & (sel > 0) for k in range(1, n)]
+    out = [x for x in out if int(x.sum()) >= min_area]
+    return sorted(out, key=lambda x: -int(x.sum()))
+
+
+def _line_tls(P):
+    c = P.mean(0)
+    u = np.linalg.svd(P - c, full_matrices=False)[2][0]
+    return c, u, np.array([-u[1], u[0]])
+
+
+def _runs(flag, gap):
+    """Runs of True in a cyclic bool array, bridging gaps of up to `gap` False: index arrays."""
+    N = flag.size
+    idx = np.flatnonzero(flag)
+    if idx.size == 0:
+        return []
+    d = np.diff(np.r_[idx, idx[0] + N])
+    start = (np.argmax(d) + 1) % idx.size
+    order = np.r_[idx[start:], idx[:start] + N]
+    breaks = np.flatnonzero(np.diff(order) > gap + 1) + 1
+    return [r % N for r in np.split(order, breaks)]
+
+
+def _best_stretch(P, usable, rng, tol, gap, min_len, constraint=None):
+    """The longest run of contour points P (N, 2) on one line (index array), or None."""
+    cand = np.flatnonzero(usable)
+    if cand.size < 10:
+        return None
+    best = None
+    for _ in range(_RANSAC_ITERS):
+        i, j = rng.choice(cand, 2, replace=False)
+        d = P[j] - P[i]
+        L = np.hypot(*d)
+        if L < 0.5 * min_len:
+            continue
+        u = d / L
+        n = np.array([-u[1], u[0]])
+        if constraint is not None and not constraint(u, P[i]):
+            continue
+        for run in _runs((np.abs((P - P[i]) @ n) < tol) & usable, gap):
+            if best is None or run.size > best.size:
+                best = run
+    if best is None:
+        return None
+    for _ in range(2):  # refit to the run and take the run again
+        c, u, n = _line_tls(P[best].astype(float))
+        runs = [q for q in _runs((np.abs((P - c) @ n) < tol) & usable, gap) if np.intersect1d(q, best).size]
+        if not runs:
+            break
+        best = max(runs, key=len)
+    return best
+
+
+def _principal(mask):
+    """(centroid, direction, extent along, extent across) of a mask's pixels."""
+    ys, xs = np.nonzero(mask)
+    P = np.c_[xs, ys].astype(float)
+    c, u, n = _line_tls(P)
+    s, t = (P - c) @ u, (P - c) @ n
+    return c, u, float(s.max() - s.min() + 1), float(t.max() - t.min() + 1)
+
+
+def mask_axis(mask, valid=None, K=None, *, tol=2.5, gap=10, min_edge_px=40.0, seed=0):
+    """The axis of one instrument's mask (module docstring).
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+        One instrument (`instruments_in_mask`).
+    valid : (H, W) bool, optional
+        The valid region's mask: the outline on its boundary is no silhouette.
+    K : (3, 3), optional
+        The camera matrix the plane bisector is taken with; default the nominal pinhole (focal
+        length the image width, centre in the middle) the detector uses without a camera.
+    tol, gap : float, int
+        A silhouette stretch: contour points within tol px of its line, gaps of up to gap
+        points bridged.
+    min_edge_px : float
+        Shortest silhouette stretch [contour points ~ px]; shorter ones give kind "part".
+    seed : int
+        The RANSAC's seed (the axis is repeatable).
+
+    Returns
+    -------
+    MaskAxis or None
+        None when the mask is empty.
+    """
+    import cv2
+
+    m = np.asarray(mask, bool)
+    if not m.any():
+        return None
+    H, W = m.shape
+    if K is None:
+        K = np.array([[W, 0.0, 0.5 * (W - 1)], [0.0, W, 0.5 * (H - 1)], [0, 0, 1]])
+    area = int(m.sum())
+    c0, u0, along, across = _principal(m)
+    l0 = np.r_[-u0[1], u0[0], u0[1] * c0[0] - u0[0] * c0[1]]
+    part = MaskAxis(line=l0 if l0[1] > 0 or (l0[1] == 0 and l0[0] > 0) else -l0, point=c0, kind="part",
+                    width_px=across, length_px=along, elongation=along / across, edges=None, area=area)
+    cs, _ = cv2.findContours(m.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    C = max(cs, key=len)[:, 0, :]
+    usable = (C[:, 0] > 2) & (C[:, 0] < W - 3) & (C[:, 1] > 2) & (C[:, 1] < H - 3)
+    if valid is not None:
+        vb = cv2.erode(np.asarray(valid, np.uint8), np.ones((7, 7), np.uint8))
+        usable &= vb[C[:, 1], C[:, 0]] > 0
+    got = _two_edges(C, m, usable, np.random.default_rng(seed), tol, gap, min_edge_px)
+    if got is None:
+        return part
+    (c1, u1, _), (c2, u2, _) = (_line_tls(C[r].astype(float)) for r in got)
+    u2 = u2 if u2 @ u1 > 0 else -u2
+    s1, s2 = C[got[0]] @ u1, C[got[1]] @ u1
+    lo, hi = max(s1.min(), s2.min()), min(s1.max(), s2.max())
+    if hi - lo < 0.5 * min_edge_px:
+        return part
+    # the contour runs through the mask's outermost pixel centres, half a pixel inside the
+    # silhouette: each edge moved out by that much
+    n1 = np.array([-u1[1], u1[0]])
+    n1 = n1 if (c2 - c1) @ n1 > 0 else -n1
+    c1, c2 = c1 - 0.5 * n1, c2 + 0.5 * n1
+    s_mid = 0.5 * (lo + hi)
+    p1 = c1 + (s_mid - c1 @ u1) * u1
+    p2 = c2 + (s_mid - c2 @ u1) / (u2 @ u1) * u2
+    mid = 0.5 * (p1 + p2)
+    lines = [np.cross(np.r_[c, 1.0], np.r_[c + u, 1.0]) for c, u in ((c1, u1), (c2, u2))]
+    la = plane_bisector(K, lines[0], lines[1], mid)
+    la = la if la[1] > 0 or (la[1] == 0 and la[0] > 0) else -la   # one sign for one line
+    point = mid - (la[:2] @ mid + la[2]) * la[:2]
+    width = float(abs((p2 - p1) @ la[:2]))
+    edges = np.array([np.r_[c1 + (lo - c1 @ u1) * u1, c1 + (hi - c1 @ u1) * u1],
+                      np.r_[c2 + (lo - c2 @ u1) / (u2 @ u1) * u2, c2 + (hi - c2 @ u1) / (u2 @ u1) * u2]])
+    return MaskAxis(line=la, point=point, kind="shaft", width_px=width, length_px=float(hi - lo),
+                    elongation=float(hi - lo) / max(width, 1.0), edges=edges, area=area)
+
+
+def _two_edges(C, m, usable, rng, tol, gap, min_len):
+    """The two silhouette stretches (index arrays) of a contour C (N, 2), or None."""
+    run1 = _best_stretch(C, usable, rng, tol, gap, min_len)
+    if run1 is None or run1.size < min_len:
+        return None
+    c1, u1, n1 = _line_tls(C[run1].astype(float))
+    ys, xs = np.nonzero(m)
+    side = np.sign(np.median((np.c_[xs, ys] - c1) @ n1))
+    us2 = usable.copy()
+    us2[run1] = False
+    cos_max = np.cos(np.radians(MAX_EDGE_ANGLE_DEG))
+
+    def other_side(u, p0):
+        return abs(u @ u1) >= cos_max and (p0 - c1) @ n1 * side > 3.0 * tol
+
+    run2 = _best_stretch(C, us2, rng, tol, gap, min_len, constraint=other_side)
+    if run2 is None or run2.size < min_len:
+        return None
+    return run1, run2
