@@ -19,3 +19,29 @@ SOURCES = {
     # da Vinci Xi, 1920x1080 letterboxed; 255 = any instrument part (masks_parts/ tells shaft 10, wrist 20, claspers 30)
     "endovis17": ("endovis17-seq4-masks", "frames/*.png", "masks/*.png", None, False),
 }
+
+
+def load_source(name):
+    """(frames, region) of one source: frames a list of (image path, BGR image, references
+    (MaskAxis per instrument), instrument masks); the valid region detected from its frames."""
+    import cv2
+    import numpy as np
+
+    from pencilcal.toolkit.detect.region.detect import detect_valid_region
+    from pencilcal.toolkit.detect.shaft.mask import instruments_in_mask, mask_axis
+    from pencilcal.toolkit.detect.shaft.work import axis_matrix
+    from tests.conftest import data_dir
+
+    folder, image_glob, mask_glob, labels, instances = SOURCES[name]
+    root = data_dir("real-instruments") / folder
+    paths, mask_paths = sorted(root.glob(image_glob)), sorted(root.glob(mask_glob))
+    assert paths and len(paths) == len(mask_paths), f"{name}: {len(paths)} frames, {len(mask_paths)} masks"
+    images = [cv2.imread(str(p)) for p in paths]
+    region = detect_valid_region(images)
+    frames = []
+    for path, mpath, img in zip(paths, mask_paths, images):
+        insts = instruments_in_mask(cv2.imread(str(mpath), cv2.IMREAD_UNCHANGED), labels, instances)
+        valid = region.mask(img.shape[:2])
+        K = axis_matrix(None, img.shape[:2])[0]
+        frames.append((path, img, [mask_axis(m, valid, K) for m in insts], insts))
+    return frames, region
