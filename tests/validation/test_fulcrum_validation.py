@@ -97,3 +97,36 @@ def test_validate_gamma_reaches_the_shaft_edges(pivot, tmp_path):
     assert linear["ok"] and default["ok"] and linear["vertex_px"] != default["vertex_px"]
     r = invoke("validate", pivot / "p", "--methods", "ippe", "--gamma", 0.0, "-o", tmp_path / "bad.json", "-q")
     assert r.exit_code == 2 and "--gamma" in r.output
+
+
+def test_continuity_resolves_the_twin_and_rescores_the_frames(pivot, tmp_path):
+    """validate carries the twin chosen in resolved frames to the ambiguous ones, as orient
+    does (the camera is fixed: every frame shows the same pose): frames reported with the
+    wrong twin and left ambiguous come out right, resolved by continuity, their errors
+    measured again; --no-continuity leaves the frames as the spoke radii left them."""
+    from pencilcal.toolkit.pencil.orientation import Orientation
+    from pencilcal.validation.validate import twins_by_continuity
+
+    frames = json.loads((pivot / "v.json").read_text())["frames"]
+    estimates = []
+    for i, fr in enumerate(frames):
+        o = Orientation.from_dict(fr["orient"]["exact"])
+        if fr["errors"]["orient:exact"]["twin"] == "wrong":
+            o = o.swapped()
+        # frame 0 resolved (the radii's choice, say); the others ambiguous, every other one
+        # reporting the wrong twin
+        o = o.replace(ambiguous=False, resolved_by="radius") if i == 0 else \
+            (o.swapped() if i % 2 else o).replace(ambiguous=True, resolved_by=None)
+        fr["orient"]["exact"] = o.to_dict()
+        estimates.append({"orients": {"exact": o}, "R_ref": np.asarray(fr["R_ref"], float), "ray": None,
+                          "ref_pose": None})
+    twins_by_continuity(frames, estimates)
+    for fr in frames[1:]:
+        assert fr["orient"]["exact"]["resolved_by"] == "continuity" and not fr["orient"]["exact"]["ambiguous"]
+        e = fr["errors"]["orient:exact"]
+        assert e["twin"] == "right" and e["normal_deg"] == e["normal_closer_deg"] < 1.0
+    r = invoke("validate", pivot / "p", "--methods", "ippe", "--no-fulcrum", "--no-continuity", "-o",
+               tmp_path / "nc.json", "-q")
+    assert r.exit_code == 0, r.output
+    nc = json.loads((tmp_path / "nc.json").read_text())
+    assert all(f["orient"]["exact"].get("resolved_by") != "continuity" for f in nc["frames"] if f["ok"])
