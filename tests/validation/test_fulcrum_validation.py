@@ -76,7 +76,8 @@ def test_validate_no_fulcrum_and_report_section(pivot, tmp_path):
     assert len([b for b in fulcrum_section(data, samples=0).blocks if isinstance(b, Plot)]) == 2
     rows = sec.blocks[0].rows
     assert [r[0] for r in rows] == ["2-D vertex", "3-D point (camera frame)", "3-D point (board frame)"]
-    assert build_report(data).sections[-1].id == "fulcrum"
+    # a pivot's report leads with its fulcrum: right after what was validated
+    assert build_report(data).sections[1].id == "fulcrum"
     assert fulcrum_section({"frames": []}) is None
     failed = fulcrum_section({"fulcrum": {"ok": False, "error": "fewer than two instrument lines"}})
     assert "fewer than two" in failed.blocks[0].text
