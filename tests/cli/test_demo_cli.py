@@ -15,8 +15,8 @@ def test_demo_writes_a_report_and_every_file_it_used(tmp_path):
     out = tmp_path / "demo"
     r = CliRunner().invoke(cli, ["demo", "-o", str(out), "--frames", "8", "--no-sfm", "-q"])
     assert r.exit_code == 0, r.output
-    printed = r.output.strip().splitlines()
-    assert printed[-2].endswith("report.html") and printed[-1].endswith("pivot-report.html")
+    # with --quiet the absolute paths alone, on standard output
+    assert r.stdout.splitlines() == [str(out / "report.html"), str(out / "pivot-report.html")]
     assert (out / "report.html").read_text().startswith("<!DOCTYPE html>")
     # the pivoting instrument: its fulcrum against the truth, in its own report
     assert "Fulcrum of the pivoting instrument" in (out / "pivot-report.html").read_text()
@@ -40,3 +40,26 @@ def test_demo_writes_a_report_and_every_file_it_used(tmp_path):
     (other / "thesis.tex").write_text("keep")
     r = CliRunner().invoke(cli, ["demo", "-o", str(other), "--force", "-q"])
     assert r.exit_code == 1 and "not replacing" in r.output and (other / "thesis.tex").read_text() == "keep"
+
+
+def test_the_default_folder_is_outside_a_checkout(tmp_path):
+    """In a git checkout (the source's own, say) the demo writes to the temporary folder, so
+    that a clone never fills with untracked files; elsewhere to ./pencilcal-demo. The
+    repository ignores pencilcal-demo/ besides."""
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
+    from pencilcal.cli.demo import default_folder
+
+    plain = tmp_path / "work"
+    (plain / "deep").mkdir(parents=True)
+    assert default_folder(plain / "deep") == (plain / "deep" / "pencilcal-demo").resolve()
+    clone = tmp_path / "clone"
+    (clone / ".git").mkdir(parents=True)
+    (clone / "docs").mkdir()
+    assert default_folder(clone / "docs") == Path(tempfile.gettempdir()) / "pencilcal-demo"
+    repo = Path(__file__).resolve().parents[2]
+    if (repo / ".git").exists():
+        r = subprocess.run(["git", "-C", str(repo), "check-ignore", "-q", "pencilcal-demo/report.html"])
+        assert r.returncode == 0, ".gitignore does not ignore the demo's folder"
