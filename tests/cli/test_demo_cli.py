@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -12,14 +13,23 @@ from pencilcal.cli.main import cli
 
 @pytest.mark.slow
 def test_demo_writes_a_report_and_every_file_it_used(tmp_path):
+    from tests.validation.report.figure_rules import linted_figures
+
     out = tmp_path / "demo"
-    r = CliRunner().invoke(cli, ["demo", "-o", str(out), "--frames", "8", "--no-sfm", "-q"])
+    with linted_figures() as problems:  # every figure of both reports legible, labelled, legends off the data
+        r = CliRunner().invoke(cli, ["demo", "-o", str(out), "--frames", "8", "--no-sfm", "-q"])
+    assert problems == []
     assert r.exit_code == 0, r.output
     # with --quiet the absolute paths alone, on standard output
     assert r.stdout.splitlines() == [str(out / "report.html"), str(out / "pivot-report.html")]
     assert (out / "report.html").read_text().startswith("<!DOCTYPE html>")
-    # the pivoting instrument: its fulcrum against the truth, in its own report
-    assert "Fulcrum of the pivoting instrument" in (out / "pivot-report.html").read_text()
+    # the pivoting instrument: its fulcrum against the truth, in its own report, which opens
+    # with it; the fan's twin resolved in every frame (the spoke radii, then continuity)
+    page = (out / "pivot-report.html").read_text()
+    assert '<p class="verdict good" id="verdict"><b>PASS</b>fulcrum of the pivoting instrument: the 3-D point' in page
+    assert "2. Fulcrum of the pivoting instrument" in page
+    twin = json.loads((out / "pivot-validation.json").read_text())["summary"]["orient:exact"]["twin"]
+    assert twin == {"right": 12}, twin
     fulcrum = json.loads((out / "pivot-validation.json").read_text())["fulcrum"]
     truth = fulcrum["truth"]
     assert truth["vertex_error_px"] < 1.0
@@ -32,6 +42,15 @@ def test_demo_writes_a_report_and_every_file_it_used(tmp_path):
     assert len(data["frames"]) == 8 and sum(f["ok"] for f in data["frames"]) >= 6
     for f in ("truth.json", "camera.json", "board.yaml", "pencil.yaml"):
         assert (out / "sequence" / f).is_file()
+    # each report's first screen (1280x900, headless Chromium) shows its verdict with the
+    # headline figure and its unit
+    from tests.validation.report.browser import CHROMIUM, first_screen
+
+    if CHROMIUM.exists():
+        for name, figure in (("report", r"median error \d[\d.]* deg, sigma \d[\d.]* deg"),
+                             ("pivot-report", r"the 3-D point \([-\d., ]+\) mm in the camera frame, sigma [\d.]+ mm")):
+            verdict, problems = first_screen(out / f"{name}.html", tmp_path, tmp_path / f"{name}-first-screen.png")
+            assert problems == [] and re.search(figure, verdict), (name, verdict, problems)
     # an earlier demo is replaced only with --force; a folder of other files never
     r = CliRunner().invoke(cli, ["demo", "-o", str(out), "--frames", "6", "--no-sfm", "-q"])
     assert r.exit_code == 1 and "--force" in r.output

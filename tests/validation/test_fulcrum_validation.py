@@ -4,6 +4,7 @@ pivoting about a port 6 mm above the printed sheet, seen with the board)."""
 from __future__ import annotations
 
 import json
+import re
 
 import cv2
 import numpy as np
@@ -81,9 +82,14 @@ def test_validate_no_fulcrum_and_report_section(pivot, tmp_path):
     assert fulcrum_section({"frames": []}) is None
     failed = fulcrum_section({"fulcrum": {"ok": False, "error": "fewer than two instrument lines"}})
     assert "fewer than two" in failed.blocks[0].text
-    r = invoke("report", pivot / "v.json", "-o", tmp_path / "r.html", "-q")
+    from tests.validation.report.figure_rules import linted_figures
+
+    with linted_figures() as problems:  # a fixed camera: every frame at one tilt, plotted against the frame
+        r = invoke("report", pivot / "v.json", "-o", tmp_path / "r.html", "-q")
     assert r.exit_code == 0, r.output
-    assert "Fulcrum of the pivoting instrument" in (tmp_path / "r.html").read_text()
+    assert problems == []
+    page = (tmp_path / "r.html").read_text()
+    assert "2. Fulcrum of the pivoting instrument" in page and "lengths in mm" in page
 
 
 def test_validate_gamma_reaches_the_shaft_edges(pivot, tmp_path):
@@ -131,3 +137,18 @@ def test_continuity_resolves_the_twin_and_rescores_the_frames(pivot, tmp_path):
     assert r.exit_code == 0, r.output
     nc = json.loads((tmp_path / "nc.json").read_text())
     assert all(f["orient"]["exact"].get("resolved_by") != "continuity" for f in nc["frames"] if f["ok"])
+
+
+def test_the_pivot_report_opens_with_the_fulcrum_in_a_browser(pivot, tmp_path):
+    """The first screen (1280x900, headless Chromium) shows the verdict on the fulcrum, its
+    3-D point in mm; nothing overflows, every figure's axes are labelled."""
+    from tests.validation.report.browser import CHROMIUM, first_screen
+
+    if not CHROMIUM.exists():
+        pytest.skip("Chromium not installed (apt-get install chromium)")
+    r = invoke("report", pivot / "v.json", "-o", tmp_path / "pivot.html", "-q")
+    assert r.exit_code == 0, r.output
+    verdict, problems = first_screen(tmp_path / "pivot.html", tmp_path, tmp_path / "first-screen.png")
+    assert problems == []
+    assert re.match(r"(PASS|FAIL) ?fulcrum of the pivoting instrument: the 3-D point \([-\d., ]+\) mm in the camera "
+                    r"frame, sigma [\d.]+ mm", verdict), verdict

@@ -75,11 +75,14 @@ class Table:
 
 @dataclass
 class Plot:
-    """A matplotlib figure, rendered once to PNG: the file's bytes, a caption and alt text."""
+    """A matplotlib figure, rendered once to PNG: the file's bytes, a caption, alt text and
+    what its axes show ("x: reference tilt [deg]; y: ...", "image" for a frame drawn on;
+    `figures.plot_of` reads them off the figure)."""
 
     png: bytes
     caption: str
     alt: str
+    axes: str = ""
 
 
 @dataclass

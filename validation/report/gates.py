@@ -32,9 +32,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .document import Cell, Plot, Table
+from .document import Cell, Table
 from .facts import comparison_keys, method_errors, method_keys, method_label, same_as_reference
-from .figures import new_figure, png_bytes
+from .figures import MAX_WIDTH_IN, legend_below, new_figure, plot_of
 from .format import finite, lookup, pct
 
 __all__ = ["Gate", "gate", "gates", "gates_table", "failed_gates_sentence", "fig_nees", "MIN_FRAMES", "BAND"]
@@ -177,25 +177,48 @@ def fig_nees(data):
 
     keys = [k for k in method_keys(data) if not same_as_reference(data, k)]
     series = [(k, *_nees(data, k)) for k in keys]
-    series = [s for s in series if s[1].size or s[2].size]
+    series = _same_drawn_once([s for s in series if s[1].size or s[2].size])
     if not series:
         return None
-    fig = new_figure(figsize=(9.0, 3.6))
+    fig = new_figure(figsize=(MAX_WIDTH_IN, 4.2))
     axes = fig.subplots(1, 2)
     for ax, j, dof, what in ((axes[0], 1, 1, "tilt"), (axes[1], 2, 2, "normal")):
         top = 1.0
         for i, s in enumerate(series):
             v = np.sort(s[j])
             if v.size:
-                ax.step(v, np.arange(1, v.size + 1) / v.size, where="post", label=method_label(s[0]), color=f"C{i}")
+                ax.step(v, np.arange(1, v.size + 1) / v.size, where="post", label=s[0], color=f"C{i}")
                 top = max(top, float(v[-1]))
         x = np.logspace(-3, np.log10(max(top, chi2.ppf(0.999, dof))), 200)
-        ax.plot(x, chi2.cdf(x, dof), "k--", label=f"chi2, {dof} dof (honest sigmas)")
+        ax.plot(x, chi2.cdf(x, dof), "k--", label="chi2 (honest sigmas): 1 dof tilt, 2 dof normal")
         ax.set_xscale("log")
         ax.set_xlabel(f"NEES of the {what}")
         ax.set_ylabel("fraction of frames")
         ax.set_ylim(0, 1.02)
-    axes[1].legend(fontsize=7, loc="lower right")
-    return Plot(png_bytes(fig), "Normalised squared errors (error / sigma)^2 of every method, against the chi2 "
-                "distribution honest sigmas give: a curve to the right of the dashed one means sigmas too small.",
+    handles, labels = axes[1].get_legend_handles_labels()
+    for h, lab in zip(*axes[0].get_legend_handles_labels()):
+        if lab not in labels:
+            handles.append(h)
+            labels.append(lab)
+    legend_below(fig, handles, labels, ncol=2)
+    return plot_of(fig, "Normalised squared errors (error / sigma)^2 of every method, against the chi2 "
+                "distribution honest sigmas give: a curve to the right of the dashed one means sigmas too small. "
+                "Methods whose errors and sigmas agree are drawn once, named together.",
                 "empirical CDFs of the normalised squared errors")
+
+
+def _same_drawn_once(series):
+    """[(label, tilt NEES, normal NEES)]: methods with the same NEES (to 1e-4) in one
+    series, labelled "first (= others)"."""
+    out = []
+    for k, t, n in series:
+        for item in out:
+            _, t0, n0, names = item
+            if t0.shape == t.shape and n0.shape == n.shape and np.allclose(t0, t, rtol=1e-4) \
+                    and np.allclose(n0, n, rtol=1e-4):
+                names.append(method_label(k))
+                break
+        else:
+            out.append((k, t, n, [method_label(k)]))
+    return [(names[0] + (f" (= {', '.join(names[1:])})" if len(names) > 1 else ""), t, n)
+            for _, t, n, names in out]

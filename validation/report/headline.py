@@ -40,7 +40,7 @@ from .facts import comparison_keys, method_errors, primary_method, reference_phr
 from .format import finite, lookup, num, pct
 from .gates import gate
 
-__all__ = ["Headline", "headline", "P_MIN", "STATUS_CLASS"]
+__all__ = ["Headline", "headline", "no_shaft_frames", "P_MIN", "STATUS_CLASS"]
 
 #: a fulcrum's error passes when its chi-square in the covariance has a p-value above this
 P_MIN = 0.01

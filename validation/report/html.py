@@ -31,7 +31,7 @@ p.verdict b{display:inline-block;padding:1px 8px;margin-right:8px;border-radius:
 p.verdict.good{border-color:#1a7f37;background:#effbf1} p.verdict.good b{background:#1a7f37}
 p.verdict.bad{border-color:#cf222e;background:#fff0ee} p.verdict.bad b{background:#cf222e}
 p.verdict.warn{border-color:#bf8700;background:#fff8e1} p.verdict.warn b{background:#9a6700}
-div.lead table{font-size:13px} div.lead td{white-space:normal}
+div.lead table{font-size:13px} div.lead td{white-space:normal} div.lead td:not(:last-child){white-space:nowrap}
 p.note{color:#6e4c00;background:#fff8e1;border-left:4px solid #d4a72c;padding:6px 12px}
 p.caption{color:#57606a;font-size:12.5px;margin-top:4px}
 table{border-collapse:collapse;margin:8px 0 4px;font-size:12.5px}
@@ -97,7 +97,8 @@ def _block_html(b):
         return _table_html(b)
     if isinstance(b, Plot):
         data = base64.b64encode(b.png).decode("ascii")
-        return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(b.alt)}">'
+        alt = f"{b.alt} ({b.axes})" if b.axes else b.alt
+        return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(alt)}">'
                 f"<figcaption>{html.escape(b.caption)}</figcaption></figure>")
     if isinstance(b, Details):
         return (f"<details{' open' if b.open else ''}><summary>{html.escape(b.summary)}</summary>"
