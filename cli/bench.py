@@ -8,7 +8,7 @@ import click
 from pencilcal.toolkit.io.files import to_jsonable, write_json
 from pencilcal.validation.bench import format_table, run_bench
 
-from .common import command, check_output, run
+from .common import command, check_output, done, run
 
 SECTIONS = ("orient", "shafts", "pnp", "sfm", "estimator", "orient_video", "shafts_video")
 
@@ -60,3 +60,5 @@ def bench(as_json, quick, sections, seed, output, force, quiet):
         click.echo(json.dumps(to_jsonable(res), indent=1))
     else:
         click.echo(format_table(res))
+    if output:
+        done("bench: the figures above, as JSON", output, quiet=quiet)
