@@ -93,15 +93,15 @@ def _right_frames(right, camera_right, options, max_pixels, workers, quiet, forc
         return _shafts(source, camera_right, options, quiet, workers, None, live), ("images", source.description)
 
 
-def _summary(out, off_axis, shaft_diameter):
+def _summary(out, off_axis, shaft_diameter, n_frames):
     """The last line: the fulcrum (3-D [mm] where measured, its image [px]) with sigmas,
-    from how many lines and frames, the outliers."""
+    from how many lines and of how many frames (`n_frames`), the outliers."""
     where = ("its image ({:.2f}, {:.2f}) px".format(*out["vertex_px"]) if out["vertex_px"] is not None
              else f"its ray {off_axis:.1f} deg off axis")
     cov = out.get("vertex_cov_px2")
     if out["vertex_px"] is not None and cov is not None:
         where += f" +- {float(np.sqrt(np.trace(np.asarray(cov, float)))):.2g} px"
-    line = f"fulcrum: {where} from {out['lines_used']} lines of {out.get('frames_used', '?')} frames"
+    line = f"fulcrum: {where} from {out['lines_used']} lines in {out.get('frames_used', '?')} of {n_frames} frames"
     if shaft_diameter is not None and out.get("point") is not None:
         bad = ", ".join(str(o["image"]) for o in out.get("point_outliers") or [])
         line = ("3-D fulcrum ({:.1f}, {:.1f}, {:.1f}) mm +- {:.2g} mm (RMS, camera frame) from {} axes{}; ".format(
@@ -303,4 +303,4 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
                            "{:.2f}) +- {:.2f}".format("agree" if a["consistent"] else "DISAGREE", a["chi2"], a["dof"],
                                                        a["p_value"], *st["combined"]["point"],
                                                        st["combined"]["point_sigma"]), err=True)
-    done(_summary(out, off_axis, shaft_diameter), output, quiet=quiet)
+    done(_summary(out, off_axis, shaft_diameter, len(frames)), output, quiet=quiet)
