@@ -8,7 +8,7 @@ import click
 from pencilcal.toolkit.io.files import to_jsonable, write_json
 from pencilcal.validation.bench import format_table, run_bench
 
-from .common import command, check_output, run
+from .common import command, check_output, done, run
 
 SECTIONS = ("orient", "shafts", "pnp", "sfm", "estimator", "orient_video", "shafts_video")
 
@@ -26,22 +26,25 @@ SECTIONS = ("orient", "shafts", "pnp", "sfm", "estimator", "orient_video", "shaf
 def bench(as_json, quick, sections, seed, output, force, quiet):
     """Timings and accuracy, as ratios against OpenCV and pycolmap run in this process.
 
-    Renders frames with exact truth once, then times pencilcal and the bare library calls
-    on the same inputs: image -> orientation over FLD detection on 1920x1080 frames
-    (orient_vs_fld_1080p), decoding and instrument-shaft detection over decoding and FLD on
-    1920x1080 frames (shafts_vs_fld_1080p: the shared real laparoscopy frames when present,
-    else rendered ones; shafts_frames says which), pnp over CharucoDetector + solvePnP (pnp_vs_opencv), the
-    reconstruction over bare pycolmap (sfm_vs_pycolmap), batched over looped fits
-    (batch_speedup, fits_per_minute_batched) and the Monte Carlo RMSE over the Cramer-Rao
-    bound at 20 deg of tilt (crlb_ratio_tilt20); a whole `pencilcal orient` / `fulcrum`
-    process on a 1080p video over decoding it plus FLD on every frame
-    (orient_video_vs_decode_fld_1080p, shafts_video_vs_decode_fld_1080p, with the start-up
-    and the per-frame time beside them). Ratios mean the same on any machine.
-
     \b
     Examples:
       pencilcal bench
       pencilcal bench --json --quick --sections orient,estimator
+
+    Ratios of pencilcal against the bare library calls on the same inputs: they mean the
+    same on any machine. In detail: docs/cli.md, docs/performance.md.
+    \f
+    Renders frames with exact truth once, then times pencilcal and the bare library calls
+    on the same inputs: image -> orientation over FLD detection on 1920x1080 frames
+    (orient_vs_fld_1080p), decoding and instrument-shaft detection over decoding and FLD on
+    1920x1080 frames (shafts_vs_fld_1080p: the shared real laparoscopy frames when present,
+    else rendered ones; shafts_frames says which), pnp over CharucoDetector + solvePnP
+    (pnp_vs_opencv), the reconstruction over bare pycolmap (sfm_vs_pycolmap), batched over
+    looped fits (batch_speedup, fits_per_minute_batched) and the Monte Carlo RMSE over the
+    Cramer-Rao bound at 20 deg of tilt (crlb_ratio_tilt20); a whole `pencilcal orient` /
+    `fulcrum` process on a 1080p video over decoding it plus FLD on every frame
+    (orient_video_vs_decode_fld_1080p, shafts_video_vs_decode_fld_1080p, with the start-up
+    and the per-frame time beside them). Ratios mean the same on any machine.
     """
     chosen = tuple(s.strip() for s in sections.split(",") if s.strip())
     bad = [s for s in chosen if s not in SECTIONS]
@@ -57,3 +60,5 @@ def bench(as_json, quick, sections, seed, output, force, quiet):
         click.echo(json.dumps(to_jsonable(res), indent=1))
     else:
         click.echo(format_table(res))
+    if output:
+        done("bench: the figures above, as JSON", output, quiet=quiet)

@@ -20,8 +20,8 @@ from pencilcal.toolkit.io.files import atomic_paths
 from pencilcal.toolkit.io.images import open_images
 from pencilcal.validation.calibration_report import coverage_grid, write_calibration_report
 
-from .common import (command, check_output, force_option, images_argument, max_pixels_option, quiet_option, run, run_frames,
-                     warn, workers_option)
+from .common import (command, check_output, done, force_option, images_argument, max_pixels_option, quiet_option, run,
+                     run_frames, warn, workers_option)
 
 _CAMERA_SUFFIXES = (".json", ".yaml", ".yml", ".xml", ".cameramodel", ".txt", ".bin")
 
@@ -185,24 +185,20 @@ def _report(result, frames, detections, decoded_index, source, board, board_path
 @command()
 @images_argument()
 @click.option("--board", "board_path", required=True, type=click.Path(dir_okay=False),
-              help="Board file (.yaml/.json): charuco or chessboard, squares, square, marker, dictionary.")
+              help="Board file (.yaml/.json): charuco or chessboard.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Camera file: .json, .yaml/.yml/.xml (OpenCV), .cameramodel (mrcal), "
-                   "COLMAP cameras.txt/.bin.")
+              help="Camera file (.json, OpenCV .yaml, mrcal, COLMAP).")
 @click.option("--model", type=click.Choice(list(MODELS)), default="opencv", show_default=True,
-              help="Lens model: opencv (radial-tangential), fisheye (Kannala-Brandt), pinhole (no distortion).")
+              help="Lens model.")
 @click.option("--coefficients", type=click.Choice(["4", "5", "8", "12", "14"]), default=None,
-              help="opencv only: distortion coefficients, k1 k2 p1 p2 [k3 [k4-k6 [s1-s4 [taux tauy]]]]. "
-                   "[default: 5]")
+              help="opencv only: distortion coefficients.  [default: 5]")
 @click.option("--fix-aspect", is_flag=True, help="Hold fx = fy (square pixels); not with --model fisheye.")
 @click.option("--min-corners", type=int, default=6, show_default=True,
               help="Views with fewer corners are skipped.")
 @click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
-              help="Report: .json (per-view errors and poses, std devs, outliers with reasons, skipped views, "
-                   "corner coverage) or .html (a page: per-view residuals, coverage heatmap, sigmas, advice).")
+              help="Also a report: .json, or an .html page.")
 @click.option("--corners", "corners_path", type=click.Path(dir_okay=False), default=None,
-              help="Also write the detections as mrcal's corner cache (corners.vnl, "
-                   "for mrcal-calibrate-cameras --corners-cache).")
+              help="Also mrcal's corner cache (corners.vnl).")
 @max_pixels_option
 @workers_option
 @force_option
@@ -212,19 +208,32 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
               max_pixels, workers, force, quiet):
     """Calibrate a camera's intrinsics from views of a ChArUco board or a chessboard.
 
-    IMAGES is one or more image files, folders or glob patterns, in the order given (a
-    folder's images sorted naturally), or one video. Views without a usable board are
-    skipped; outlier views and corners are rejected (with their reasons in --report);
-    the camera file gets the intrinsics with their standard deviations, their full
-    covariance (cov_intrinsics) and the correlated corner-noise model fitted to the
-    residuals (corner_noise), where its format holds statistics (.json, .yaml), and the
-    RMS reprojection error. --report also calibrates the odd and the even views apart and
-    says whether the two agree within their sigmas (cross_validation).
-
     \b
-    Example:
-      pencilcal calibrate calib/*.png --board board.yaml -o camera.yaml \\
-          --report calib.json --corners calib/corners.vnl
+    Examples:
+      pencilcal calibrate calib/*.png --board board.yaml -o camera.yaml
+      pencilcal calibrate calib/ --board board.yaml -o cam.json --report c.html
+
+    IMAGES: files, folders or globs in the order given, or a video. The intrinsics with
+    their sigmas and covariance; outliers rejected. In detail: docs/cli.md.
+    \f
+    IMAGES is one or more image files, folders or glob patterns, in the order given (a
+    folder's images sorted naturally), or one video. Views without a usable board (fewer
+    than --min-corners corners) are skipped; outlier views and corners are rejected (with
+    their reasons in --report); the camera file gets the intrinsics with their standard
+    deviations, their full covariance (cov_intrinsics) and the correlated corner-noise
+    model fitted to the residuals (corner_noise), where its format holds statistics
+    (.json, .yaml), and the RMS reprojection error. Lens models: opencv
+    (radial-tangential, with --coefficients k1 k2 p1 p2 [k3 [k4-k6 [s1-s4 [taux tauy]]]]),
+    fisheye (Kannala-Brandt), pinhole (no distortion). --report writes .json (per-view
+    errors and poses, std devs, outliers with reasons, skipped views, corner coverage) or
+    .html (a page: per-view residuals, coverage heatmap, sigmas, advice); it also
+    calibrates the odd and the even views apart and says whether the two agree within
+    their sigmas (cross_validation). --corners writes the detections as mrcal's corner
+    cache (corners.vnl, for mrcal-calibrate-cameras --corners-cache).
+
+    More examples:
+
+        pencilcal calibrate calib/*.png --board board.yaml -o camera.yaml --report calib.json --corners calib/corners.vnl
     """
     if coefficients is not None and model != "opencv":
         raise click.BadParameter(f"applies to --model opencv only (the {model} model has a fixed set)",
@@ -274,6 +283,6 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
         extra = ""
         if n_outlier_views or n_outlier_corners:
             extra = f" ({n_outlier_views} outlier view(s), {n_outlier_corners} outlier corner(s) rejected)"
-        click.echo(f"{result.views_used}/{len(frames)} views used{extra}, RMS {result.rms_px:.3f} px: "
-                   f"fx {camera.fx:.2f} fy {camera.fy:.2f} cx {camera.cx:.2f} cy {camera.cy:.2f} -> {output}",
-                   err=True)
+        done(f"{result.views_used}/{len(frames)} views used{extra}, RMS {result.rms_px:.3f} px: "
+             f"fx {camera.fx:.2f} fy {camera.fy:.2f} cx {camera.cx:.2f} cy {camera.cy:.2f}", output,
+             *[p for p in (report_path, corners_path) if p])

@@ -17,9 +17,10 @@ from pencilcal.toolkit.errors import InputError, PencilcalError
 from pencilcal.toolkit.io.files import check_writable
 from pencilcal.toolkit.io.images import DEFAULT_MAX_PIXELS
 
-__all__ = ["CONTEXT_SETTINGS", "command", "run", "progress", "warn", "output_option", "force_option", "quiet_option", "check_output",
+__all__ = ["CONTEXT_SETTINGS", "command", "Command", "Group", "OneLineUsageError", "run", "progress", "warn", "done",
+           "output_option", "force_option", "quiet_option", "check_output",
            "camera_options", "StageBars", "workers_option", "run_frames", "images_argument", "max_pixels_option",
-           "IMAGES_HELP", "FiniteFloat", "LabelledProgress", "mask_option", "jsonl_option", "overlay_option",
+           "IMAGES_HELP", "SHARED_DETAILS", "FiniteFloat", "LabelledProgress", "mask_option", "jsonl_option", "overlay_option",
            "FrameOutputs", "detector_option", "endpoint_sigma_option", "source_option", "open_input", "frames_region", "stream_meta"]
 
 #: Every command's click context settings: -h as well as --help, the width of the help. Set on
@@ -28,9 +29,55 @@ __all__ = ["CONTEXT_SETTINGS", "command", "run", "progress", "warn", "output_opt
 CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
 
 
+class OneLineUsageError(click.UsageError):
+    """A usage error (a missing or malformed option or argument) said in one line on
+    stderr, exit status 2 as click and OpenCV's tools have it: ``pencilcal: usage error:
+    MESSAGE (see 'pencilcal CMD --help')``."""
+
+    def show(self, file=None):
+        where = self.ctx.command_path if self.ctx is not None else "pencilcal"
+        msg = " ".join(self.format_message().split())
+        click.echo(f"pencilcal: usage error: {msg} (see '{where} --help')", err=True)
+
+
+def _one_line(e):
+    """`e` as a `OneLineUsageError` (a group's help on no arguments stays as it is)."""
+    if isinstance(e, (OneLineUsageError, click.exceptions.NoArgsIsHelpError)):
+        return e
+    return OneLineUsageError(e.format_message(), e.ctx)
+
+
+class OneLineUsage:
+    """Mixin of pencilcal's commands and groups: usage errors, raised while parsing or by
+    the command itself (`click.UsageError`), are said in one line (`OneLineUsageError`)."""
+
+    def make_context(self, *args, **kwargs):
+        try:
+            return super().make_context(*args, **kwargs)
+        except click.UsageError as e:
+            raise _one_line(e) from None
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except click.UsageError as e:
+            raise _one_line(e) from None
+
+
+class Command(OneLineUsage, click.Command):
+    """A pencilcal command: `OneLineUsage`."""
+
+
+class Group(OneLineUsage, click.Group):
+    """A group of pencilcal commands: `OneLineUsage`, its commands `Command`s."""
+
+    command_class = Command
+
+
 def command(*args, **kwargs):
-    """`click.command` with `CONTEXT_SETTINGS`."""
+    """`click.command` with `CONTEXT_SETTINGS`, as a `Command`."""
     kwargs.setdefault("context_settings", CONTEXT_SETTINGS)
+    kwargs.setdefault("cls", Command)
     return click.command(*args, **kwargs)
 
 
@@ -121,6 +168,17 @@ def warn(msg):
     click.echo(f"pencilcal: warning: {msg}", err=True)
 
 
+def done(summary, *paths, quiet=False):
+    """A command's last line on stderr (none with --quiet): its headline figure and the
+    absolute paths of what it wrote ("SUMMARY -> /abs/out.json")."""
+    import os
+
+    if quiet:
+        return
+    where = ", ".join(os.path.abspath(str(p)) for p in paths if p is not None)
+    click.echo(f"{summary} -> {where}" if where else summary, err=True)
+
+
 @contextlib.contextmanager
 def progress(items, label, quiet):
     """A progress bar on stderr over `items` (silent with --quiet or when not a terminal)."""
@@ -159,9 +217,47 @@ def check_output(path, force, inputs=()):
             raise InputError(f"{path}: is one of the inputs; choose another output")
 
 
+#: The options several commands share, in detail: docs/cli.md (`helpdoc`) prints these after
+#: the commands' --help, which keeps each option to one line.
+SHARED_DETAILS = {
+    "--camera": "Camera file: pencilcal `.json`, OpenCV `.yaml/.yml/.xml`, mrcal `.cameramodel`, COLMAP "
+                "`cameras.txt`, `cameras.bin` or a sparse model folder (`--camera-id` picks one camera of a "
+                "COLMAP file with several).",
+    "IMAGES": "One or more image files, folders or glob patterns, taken in the order given (a folder's images "
+              "sorted naturally: 2 before 10), or one video file.",
+    "--source": "Instead of IMAGES: a camera index (0), a URL OpenCV opens (rtsp://...), or a video file still "
+                "being written (followed until it stops growing for 5 s). Frames are read as they come; frames "
+                "dropped because processing is slower than the source are counted (a warning, frames_dropped "
+                "in --jsonl). Ctrl-C stops it and the output is written for the frames done.",
+    "--mask": "Where the scene is in the frames: a PNG (nonzero = valid) or a .json/.yaml with "
+              "{circle: [cx, cy, r]} or {polygon: [[x, y], ...]} [px] (a lines.json's valid_region too). "
+              "Default: detected once per sequence from up to 16 frames (a circular field stop, letterbox "
+              "bars); nothing is detected on its boundary.",
+    "--detector": "The OpenCV detector proposing segments: LSD, FLD (fast line detector) or EDLines. auto: FLD "
+                  "for printed bars on frames of 720 lines or more (proposed at half resolution: as sensitive "
+                  "there as LSD, at a fraction of its cost), LSD on smaller frames and for edge segments and "
+                  "shaft proposals.",
+    "--gamma": "Encoding gamma of the frames: the shafts' silhouette edges are located on intensities "
+               "linearised with it (blur acts on linear light; on encoded levels a blurred edge's gradient "
+               "peak leans towards its dark side, the band comes out narrow and the 3-D axis too far). 2.2: "
+               "8-bit video and JPEG (and `pencilcal simulate`'s default); 1: linear frames "
+               "(`simulate --gamma 1`).",
+    "--jsonl": "Also write one JSON object per frame as each frame is done (- for standard output), for a live "
+               "consumer (a ROS bridge, a dashboard); the output file is written at the end as usual.",
+    "--overlay": "Also write the frames with the estimate drawn on them: a video (.mp4, .avi) or one PNG per "
+                 "frame in a folder (a path ending with /).",
+    "--max-pixels": "Refuse an image whose header claims more pixels than this, before decoding it (a "
+                    "decompression bomb).",
+    "--workers": "Process frames in this many worker processes; the results are the same, in the same order.",
+    "--force": "Overwrite the output if it exists; nothing the user has is overwritten without it, and an "
+               "input is never overwritten by an output.",
+    "-q, --quiet": "No progress bar and no summary line; errors and warnings are still said on stderr.",
+}
+
+
 output_option = click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output file.")
 force_option = click.option("--force", is_flag=True, help="Overwrite the output if it exists.")
-quiet_option = click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+quiet_option = click.option("-q", "--quiet", is_flag=True, help="No progress bar, no summary line.")
 def _positive(ctx, param, value):
     if value is not None and not value > 0:
         raise click.BadParameter("must be positive")
@@ -174,9 +270,7 @@ def detector_option(help):
     from pencilcal.toolkit.detect.segments import DETECTOR_CHOICES
 
     return click.option("--detector", type=click.Choice(DETECTOR_CHOICES), default="auto", show_default=True,
-                        help=help + " auto: FLD for printed bars on frames of 720 lines or more (proposed at"
-                        " half resolution: as sensitive there as LSD, at a fraction of its cost), LSD on"
-                        " smaller frames and for edge segments and shaft proposals.")
+                        help=help + " auto: FLD for printed bars at 720 lines or more, else LSD.")
 
 
 def gamma_option(fn):
@@ -186,10 +280,7 @@ def gamma_option(fn):
 
     return click.option(
         "--gamma", type=FiniteFloat(min=0.1, max=5), default=DEFAULT_GAMMA, show_default=True,
-        help="Encoding gamma of the frames: the shafts' silhouette edges are located on intensities linearised "
-             "with it (blur acts on linear light; on encoded levels a blurred edge's gradient peak leans towards "
-             "its dark side, the band comes out narrow and the 3-D axis too far). 2.2: 8-bit video and JPEG "
-             "(and `pencilcal simulate`'s default); 1: linear frames (`simulate --gamma 1`).")(fn)
+        help="Encoding gamma, for the shafts' edges (1: linear).")(fn)
 
 
 def endpoint_sigma_option(help):
@@ -203,7 +294,7 @@ def endpoint_sigma_option(help):
 
 max_pixels_option = click.option(
     "--max-pixels", type=click.IntRange(min=1), default=DEFAULT_MAX_PIXELS, show_default=True,
-    help="Refuse an image whose header claims more pixels than this, before decoding it.")
+    help="Refuse larger images (their header's size).")
 
 IMAGES_HELP = ("IMAGES is one or more image files, folders or glob patterns, taken in the order given (a "
                "folder's images sorted naturally: 2 before 10), or one video file.")
@@ -216,6 +307,10 @@ class FiniteFloat(click.FloatRange):
 
     name = "float"
 
+    def _describe_range(self):
+        # click writes an open range as "x<=None" in the help; no bounds: nothing to say
+        return "" if self.min is None and self.max is None else super()._describe_range()
+
     def convert(self, value, param, ctx):
         import math
 
@@ -227,20 +322,15 @@ class FiniteFloat(click.FloatRange):
 
 jsonl_option = click.option(
     "--jsonl", "jsonl_path", default=None, metavar="PATH|-",
-    help="Also write one JSON object per frame as each frame is done (- for standard output), for a live "
-         "consumer (a ROS bridge, a dashboard); the output file is written at the end as usual.")
+    help="Also stream one JSON object per frame as it is done (- for standard output).")
 overlay_option = click.option(
     "--overlay", "overlay_path", default=None, metavar="OUT.mp4|DIR/",
-    help="Also write the frames with the estimate drawn on them: a video (.mp4, .avi) or one PNG per frame in "
-         "a folder (a path ending with /).")
+    help="Also draw the estimates on the frames: a video (.mp4, .avi) or DIR/ of PNGs.")
 
 
 source_option = click.option(
     "--source", "source_spec", default=None, metavar="INDEX|URL|FILE",
-    help="Instead of IMAGES: a camera index (0), a URL OpenCV opens (rtsp://...), or a video file still being "
-         "written (followed until it stops growing for 5 s). Frames are read as they come; frames dropped "
-         "because processing is slower than the source are counted (a warning, frames_dropped in --jsonl). "
-         "Ctrl-C stops it and the output is written for the frames done.")
+    help="Instead of IMAGES: a camera index, a URL, or a video still being written.")
 
 
 def open_input(images, source_spec, max_pixels, gray=False):
@@ -353,21 +443,18 @@ def images_argument(required=True):
 
 mask_option = click.option(
     "--mask", "mask_path", type=click.Path(dir_okay=False), default=None,
-    help="Where the scene is in the frames: a PNG (nonzero = valid) or a .json/.yaml with "
-         "{circle: [cx, cy, r]} or {polygon: [[x, y], ...]} [px] (a lines.json's valid_region too). "
-         "Default: detected once per sequence from up to 16 frames (a circular field stop, letterbox "
-         "bars); nothing is detected on its boundary.")
+    help="Valid region (PNG, or .json/.yaml circle/polygon); default: detected.")
 
 workers_option = click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
-                              help="Process frames in this many worker processes (same results, in order).")
+                              help="Worker processes (same results, in order).")
 
 
 def camera_options(fn):
     """--camera (any supported format) and --camera-id (COLMAP files with several cameras)."""
-    fn = click.option("--camera-id", type=int, default=None, help="Camera id in a COLMAP file with several cameras.")(fn)
+    fn = click.option("--camera-id", type=int, default=None, help="The camera's id in a COLMAP file.")(fn)
     return click.option(
         "--camera", "camera_path", required=True, type=click.Path(),
-        help="Camera file: .json, .yaml/.yml/.xml (OpenCV), .cameramodel (mrcal), COLMAP cameras.txt/.bin or model folder.",
+        help="Camera file (pencilcal, OpenCV, mrcal or COLMAP).",
     )(fn)
 
 

@@ -1,6 +1,8 @@
 """`pencilcal convert`: a camera file in another format, and what the conversion changed."""
 from __future__ import annotations
 
+import os
+
 import click
 
 from pencilcal.toolkit.camera.convert import EXACT_PX, convert_camera, describe_camera, projection_difference
@@ -34,9 +36,18 @@ def _check_output(output, force):
 def convert(cam, output, camera_id, approximate, force):
     """Convert the camera file CAM to another format, and say what that changed.
 
+    \b
+    Examples:
+      pencilcal convert camera.json -o cameras.txt
+      pencilcal convert sparse/0 --camera-id 2 -o camera.yaml
+
+    The format follows the extension. The last line gives the largest reprojection
+    difference the conversion causes [px]. In detail: docs/cli.md.
+    \f
     Formats follow the extension: .json (pencilcal), .yaml/.yml/.xml (OpenCV
-    FileStorage), .cameramodel (mrcal), COLMAP cameras.txt/cameras.bin or a model folder.
-    COLMAP's principal point is pencilcal's + 0.5 px; the conversion applies it.
+    FileStorage), .cameramodel (mrcal), COLMAP cameras.txt/cameras.bin or a model folder
+    (a path without an extension). COLMAP's principal point is pencilcal's + 0.5 px; the
+    conversion applies it.
 
     The output is read back and compared with CAM where they project a dense grid of
     rays covering the whole image, both ways; the largest difference [px] goes to stderr
@@ -44,13 +55,9 @@ def convert(cam, output, camera_id, approximate, force):
     0.01 px (12 or 14 opencv coefficients or skew in COLMAP, fisheye or 14 coefficients
     in mrcal) is refused with the difference it would cause, unless --approximate: then
     the nearest model the format holds is fitted to CAM's projection over the image
-    (least squares) and written, and its max and RMS difference are printed.
+    (least squares) and written, and its max and RMS difference are printed:
 
-    \b
-    Examples:
-      pencilcal convert camera.json -o cameras.txt
-      pencilcal convert sparse/0 --camera-id 2 -o camera.yaml
-      pencilcal convert camera12.json -o cameras.txt --approximate
+        pencilcal convert camera12.json -o cameras.txt --approximate
     """
     _check_output(output, force)
     camera = read_camera(cam, camera_id=camera_id)
@@ -58,6 +65,7 @@ def convert(cam, output, camera_id, approximate, force):
     write_camera(output, conv.camera, force=force)
     back = read_camera(output)
     diff = conv.difference if back == conv.stored else projection_difference(camera, back)
+    cam, output = os.path.abspath(cam), os.path.abspath(output)
     if conv.fitted:
         click.echo(f"{cam} -> {output}: {conv.reason}; fitted {describe_camera(back)}: reprojection difference "
                    f"over the image max {diff.max_px:.3g} px, RMS {diff.rms_px:.3g} px", err=True)

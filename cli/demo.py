@@ -32,36 +32,60 @@ def _check_demo_folder(out, force):
                              "not replacing them, even with --force")
 
 
+def default_folder(cwd=None):
+    """Where the demo writes by default: ./pencilcal-demo, or, when the current folder is
+    inside a git checkout (the source's own, say: its files must not fill it),
+    pencilcal-demo in the system's temporary folder."""
+    import tempfile
+
+    cwd = Path(cwd or os.getcwd()).resolve()
+    inside = any((d / ".git").exists() for d in (cwd, *cwd.parents))
+    return (Path(tempfile.gettempdir()) if inside else cwd) / "pencilcal-demo"
+
+
 @command()
-@click.option("-o", "--output", "out", type=click.Path(file_okay=False), default="pencilcal-demo", show_default=True,
-              help="Folder for the sequence, validation.json and report.html.")
+@click.option("-o", "--output", "out", type=click.Path(file_okay=False), default=None,
+              help="Folder to write; default: ./pencilcal-demo, or in the temporary folder inside a checkout.")
 @click.option("--frames", type=click.IntRange(min=6, max=60), default=16, show_default=True,
-              help="Frames of the simulated sequence (more: a slower, steadier reconstruction).")
+              help="Frames of the simulated orbit.")
 @click.option("--sfm/--no-sfm", default=True, show_default=True,
-              help="Also reconstruct the sequence with pycolmap and compare it.")
+              help="Also reconstruct the orbit with pycolmap and compare.")
 @click.option("--pivot/--no-pivot", default=True, show_default=True,
-              help="Also an instrument pivoting about its port: its fulcrum in 2-D and 3-D against the truth.")
-@click.option("--seed", type=int, default=1, show_default=True, help="Seed of the simulated sequence.")
+              help="Also a pivoting instrument: its fulcrum against the truth.")
+@click.option("--seed", type=int, default=1, show_default=True, help="Seed of the simulated sequences.")
 @click.option("--force", is_flag=True, help="Replace an earlier demo in the folder.")
 @quiet_option
 @run
 def demo(out, frames, sfm, pivot, seed, force, quiet):
     """Simulate a sequence of the printed target and validate it end to end.
 
+    \b
+    Examples:
+      pencilcal demo
+      pencilcal demo -o /tmp/demo --frames 30 --force
+
+    Writes OUT/report.html (the orientation against truth, PnP and SfM) and
+    OUT/pivot-report.html (a pivoting instrument's fulcrum), each with every file it used,
+    and prints their verdicts and absolute paths. About a minute. In detail: docs/cli.md.
+    \f
     A camera orbits the printed sheet (a ChArUco board with a fan of spokes beside it, as
     `pencilcal target` prints it) on a textured table. Every frame's orientation is
     estimated from the fan's image angles alone and compared with the exact truth, with
     board PnP by every method and (unless --no-sfm) with a pycolmap reconstruction; the
     report puts them side by side. Writes OUT/sequence/ (images, camera, board, pencil,
-    truth), OUT/validation.json and OUT/report.html, and prints the report's path. Unless
-    --no-pivot, an 8 mm instrument shaft pivoting about its port is simulated too
-    (OUT/pivot/): its fulcrum, found from the shafts alone, in the image and in 3-D, against
-    the truth, in OUT/pivot-report.html. About 1-2 minutes on two cores.
+    truth), OUT/validation.json and OUT/report.html. Unless --no-pivot, an 8 mm instrument
+    shaft pivoting about its port is simulated too (OUT/pivot/), the camera fixed above the
+    sheet: its fulcrum, found from the shafts alone, in the image and in 3-D, against the
+    truth, in OUT/pivot-report.html. In both, the twin of frames the spoke radii leave
+    ambiguous is resolved by continuity along the sequence (`validate --continuity`), and
+    the verdict says how many frames each resolved.
 
-    \b
-    Example:
-      pencilcal demo
-      pencilcal demo -o /tmp/demo --frames 30 --force
+    The default OUT is pencilcal-demo in the current folder, or in the system's temporary
+    folder when the current folder is inside a git checkout (the source's own, say), so
+    that a demo never fills a clone with untracked files; the repository ignores
+    pencilcal-demo/ too. Each report's verdict line and its absolute path end the output
+    (the paths alone, on standard output, with --quiet). An earlier demo in OUT is replaced
+    only with --force; a folder holding anything else never is.
     """
     from pencilcal.toolkit.synth.folder import write_sequence
     from pencilcal.toolkit.synth.scenarios import make_scenario
@@ -69,7 +93,8 @@ def demo(out, frames, sfm, pivot, seed, force, quiet):
     from pencilcal.validation.validate import validate_path
     from pencilcal.validation.validation_file import write_validation
 
-    out = Path(out)
+    out = Path(out) if out is not None else default_folder()
+    out = out.absolute()
     _check_demo_folder(out, force)
     out.mkdir(exist_ok=True)
     seq = out / "sequence"
@@ -90,16 +115,22 @@ def demo(out, frames, sfm, pivot, seed, force, quiet):
     write_validation(out / "validation.json", data, force=True)
     report = write_report(out / "report.html", data, force=True, source=str(out / "validation.json"),
                           title="pencilcal demo: a simulated orbit of the printed target")
-    if not quiet:
-        click.echo(f"{len(data['frames'])} frames, {len(report.sections)} sections", err=True)
-    click.echo(str(out / "report.html"))
+    _said(report, out / "report.html", quiet)
     if pivot:
         _pivot_demo(out, seed, quiet)
 
 
+def _said(report, path, quiet):
+    """A report's verdict line on stderr (not with --quiet), its absolute path on stdout."""
+    v = report.lead[0]
+    if not quiet:
+        click.echo(f"{v.status}: {v.text}", err=True)
+    click.echo(str(Path(path).absolute()))
+
+
 def _pivot_demo(out, seed, quiet):
     """OUT/pivot/, OUT/pivot-validation.json and OUT/pivot-report.html: a simulated pivot
-    sequence validated (the fulcrum record) and its report; prints the report's path."""
+    sequence validated (the fulcrum record) and its report; says its verdict and path."""
     from pencilcal.toolkit.synth.folder import write_sequence
     from pencilcal.toolkit.synth.scenarios import make_scenario
     from pencilcal.validation.report import write_report
@@ -117,6 +148,6 @@ def _pivot_demo(out, seed, quiet):
     data = validate_path(str(seq), warn=warn, quiet=quiet,
                          progress=lambda it, label: LabelledProgress(it, label, quiet))
     write_validation(out / "pivot-validation.json", data, force=True)
-    write_report(out / "pivot-report.html", data, force=True, source=str(out / "pivot-validation.json"),
-                 title="pencilcal demo: an instrument pivoting about its port")
-    click.echo(str(out / "pivot-report.html"))
+    report = write_report(out / "pivot-report.html", data, force=True, source=str(out / "pivot-validation.json"),
+                          title="pencilcal demo: an instrument pivoting about its port")
+    _said(report, out / "pivot-report.html", quiet)

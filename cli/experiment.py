@@ -17,7 +17,7 @@ import click
 
 from pencilcal.toolkit.io.files import check_writable, write_json
 
-from .common import (CONTEXT_SETTINGS, check_output, FiniteFloat, force_option, output_option, run, warn)
+from .common import (CONTEXT_SETTINGS, check_output, done, FiniteFloat, force_option, Group, output_option, run, warn)
 
 __all__ = ["experiment"]
 
@@ -50,8 +50,7 @@ def _execute(name, compute, validation_path, output, png_prefix, force, quiet, l
     write_json(output, result, force=force)
     for item in result.get("insufficient", []):
         warn(f"{name}: {item['section']}: insufficient data: {item['reason']}")
-    if not quiet:
-        click.echo(f"pencilcal experiment {name}: {line(result)} -> {output}", err=True)
+    done(f"pencilcal experiment {name}: {line(result)}", output, quiet=quiet)
     return result
 
 
@@ -59,23 +58,23 @@ def _fmt(x, spec=".3g"):
     return "-" if x is None else format(x, spec)
 
 
-@click.group(context_settings=CONTEXT_SETTINGS)
+@click.group(cls=Group, context_settings=CONTEXT_SETTINGS)
 def experiment():
     """The book chapter's experiments on a validation.json (of `pencilcal validate`).
 
     \b
-      single-angle   tilt from two spokes a known angle apart, error vs rotation (Figs. 8-9)
-      distribution   image angles vs rotation, error by spoke spacing with the bound (Figs. 10-11)
-      threshold      the detection threshold measured vs 2 sqrt(sigma) and the noise floor
-
-    Each writes a JSON result (-o) and with --png the figures. Works on synthetic sequences
-    (errors against the exact truth) and real ones (against the board's PnP pose).
-
-    \b
-    Example:
-      pencilcal simulate ts --scenario tilt-sweep --frames 41 --seed 1 --axis 30
-      pencilcal validate ts --models exact --methods sqpnp -o ts.json
+    Examples:
       pencilcal experiment single-angle ts.json -o single.json --png figs/ts
+      pencilcal experiment threshold ts8.json -o threshold.json
+
+    Each writes a JSON result (-o) and with --png the figures. In detail: docs/cli.md.
+    \f
+    Each works on synthetic sequences (errors against the exact truth) and real ones
+    (against the board's PnP pose). A tilt sweep to run them on:
+
+        pencilcal simulate ts --scenario tilt-sweep --frames 41 --seed 1 --axis 30
+        pencilcal validate ts --models exact --methods sqpnp -o ts.json
+        pencilcal experiment single-angle ts.json -o single.json --png figs/ts
     """
 
 
@@ -104,19 +103,24 @@ def _single_line(r):
 def single_angle_cmd(validation_path, output, png_prefix, force, quiet, pairs, on_axis_tol):
     """Chapter Figs. 8-9: the tilt from two spokes with a known 3D angle, error vs rotation.
 
+    \b
+    Examples:
+      pencilcal experiment single-angle ts.json -o single.json --png figs/ts
+      pencilcal experiment single-angle ts.json -o single.json --pairs all
+
+    Per frame and spoke pair, the tilt from the two lines alone, against the reference.
+    In detail: docs/cli.md.
+    \f
     Per frame, the tilt axis comes from the reference pose (its image through the
     vertex by exact projection); every line is moved into the plane orthogonal to the
     vertex ray, where tan(alpha) = tan(theta) cos(gamma) holds exactly. Cases: on_line (a
-    spoke lies on the axis: its measured line is the axis image), known (axis image from
-    the reference, neither line on it) and unknown (no axis: only a lower bound). Each
+    spoke lies on the axis, within --on-axis-tol of it: its measured line is the axis
+    image), known (axis image from the reference, neither line on it) and unknown (no
+    axis: only a lower bound); --pairs takes neighbouring spokes or every pair. Each
     pair's status (unique, two_roots, lower_bound, inconsistent) is reported as it is,
     with the sd at the reference tilt and, for on_line, the chapter's curve
     sd(g) = sigma (1 + cos^2 g tan^2 theta) / (tan theta sin g). On a tilt sweep --axis 30
     puts a spoke of the default fan on the axis.
-
-    \b
-    Example:
-      pencilcal experiment single-angle ts.json -o single.json --png figs/ts
     """
     from pencilcal.validation import experiments as ex
 
@@ -158,16 +162,20 @@ def _dist_line(r):
 def distribution_cmd(validation_path, output, png_prefix, force, quiet, strides):
     """Chapter Figs. 10-11: image angles vs rotation, and the error of sparser fans.
 
+    \b
+    Examples:
+      pencilcal experiment distribution ts.json -o dist.json --png figs/ts
+      pencilcal experiment distribution ts.json -o dist.json --strides 1,2,3
+
+    Every line's image angle against exact projection, and the orientation from sparser
+    subsets of the spokes with their bounds. In detail: docs/cli.md.
+    \f
     (a) Every labelled line's image angle against exact projection at the reference pose
     (residual and residual / sigma), and its angular variation: the angle in the plane
     orthogonal to the vertex ray from the tilt axis minus the 3D angle, measured and
     predicted. (b) The orientation refitted from subsets of the spokes (every spoke,
-    every 2nd, every 3rd, ...: 20/40/60 deg apart for the default 8-spoke fan), with the
-    Cramer-Rao bound of each subset at the reference pose.
-
-    \b
-    Example:
-      pencilcal experiment distribution ts.json -o dist.json --strides 1,2,3 --png figs/ts
+    every 2nd, every 3rd, ...: 20/40/60 deg apart for the default 8-spoke fan; --strides),
+    with the Cramer-Rao bound of each subset at the reference pose.
     """
     from pencilcal.validation import experiments as ex
 
@@ -206,20 +214,26 @@ def _thr_line(r):
 def threshold_cmd(validation_path, output, png_prefix, force, quiet, n_boot, trials, seed):
     """The detection threshold measured on the data, against 2 sqrt(sigma).
 
+    \b
+    Examples:
+      pencilcal experiment threshold ts8.json -o threshold.json --png figs/ts8
+      pencilcal experiment threshold ts8.json -o threshold.json --bootstrap 5000
+
+    The tilt at which the tilt becomes detectable, with its interval, against theory.
+    Needs frames near zero tilt. In detail: docs/cli.md.
+    \f
     From the frames: the tilt at which the estimator's `detectable` flag is on for half of
     them (monotone fit, bootstrap interval widened to the sampled tilts), the tilt below
     which the tilt error reaches half the tilt, and the estimated tilt of frontal-ish
     frames. Compared with 2 sqrt(sigma), estimator.detection_threshold(sigma) and the
     likelihood-ratio test's predicted 50% point for the measured line sigma, and with
-    the noise floor of a frontal pencil (median 3.75 deg at sigma = 0.1 deg, scaled by sqrt(sigma))
-    and a Monte Carlo of the same lines. Needs frames near zero tilt: a sweep from 0 deg
-    (--max-tilt 8 samples the transition finely).
+    the noise floor of a frontal pencil (median 3.75 deg at sigma = 0.1 deg, scaled by
+    sqrt(sigma)) and a Monte Carlo of the same lines. Needs frames near zero tilt: a sweep
+    from 0 deg (--max-tilt 8 samples the transition finely):
 
-    \b
-    Example:
-      pencilcal simulate ts8 --scenario tilt-sweep --frames 41 --max-tilt 8 --seed 2
-      pencilcal validate ts8 --models exact --methods sqpnp -o ts8.json
-      pencilcal experiment threshold ts8.json -o threshold.json --png figs/ts8
+        pencilcal simulate ts8 --scenario tilt-sweep --frames 41 --max-tilt 8 --seed 2
+        pencilcal validate ts8 --models exact --methods sqpnp -o ts8.json
+        pencilcal experiment threshold ts8.json -o threshold.json --png figs/ts8
     """
     from pencilcal.validation import experiments as ex
 

@@ -15,7 +15,8 @@ from pencilcal.validation.fulcrum_run import fulcrum_with_sigmas
 
 from .common import (detector_option, endpoint_sigma_option, gamma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, frames_region,
                      images_argument, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
-                     overlay_option, quiet_option, run, run_frames, source_option, stream_meta, warn, workers_option)
+                     overlay_option, quiet_option, run, run_frames, source_option, stream_meta, warn, workers_option,
+                     done)
 
 
 
@@ -92,6 +93,23 @@ def _right_frames(right, camera_right, options, max_pixels, workers, quiet, forc
         return _shafts(source, camera_right, options, quiet, workers, None, live), ("images", source.description)
 
 
+def _summary(out, off_axis, shaft_diameter, n_frames):
+    """The last line: the fulcrum (3-D [mm] where measured, its image [px]) with sigmas,
+    from how many lines and of how many frames (`n_frames`), the outliers."""
+    where = ("its image ({:.2f}, {:.2f}) px".format(*out["vertex_px"]) if out["vertex_px"] is not None
+             else f"its ray {off_axis:.1f} deg off axis")
+    cov = out.get("vertex_cov_px2")
+    if out["vertex_px"] is not None and cov is not None:
+        where += f" +- {float(np.sqrt(np.trace(np.asarray(cov, float)))):.2g} px"
+    line = f"fulcrum: {where} from {out['lines_used']} lines in {out.get('frames_used', '?')} of {n_frames} frames"
+    if shaft_diameter is not None and out.get("point") is not None:
+        bad = ", ".join(str(o["image"]) for o in out.get("point_outliers") or [])
+        line = ("3-D fulcrum ({:.1f}, {:.1f}, {:.1f}) mm +- {:.2g} mm (RMS, camera frame) from {} axes{}; ".format(
+            *out["point"], out["point_sigma"], out["point_axes_used"], f" (outliers: {bad})" if bad else "")
+            + line.removeprefix("fulcrum: "))
+    return line
+
+
 def _stereo(left, right_images, camera_right, camera_right_path, rig, options, endpoint_sigma, given, max_pixels,
             workers, quiet, force):
     """fulcrum.json's ``stereo`` record: the right view's fulcrum from its own shafts (a lines
@@ -125,28 +143,23 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
 @images_argument(required=False)
 @source_option
 @click.option("--lines", "lines_path", type=click.Path(dir_okay=False), default=None,
-              help="Lines per frame (lines.json; shaft midlines are used when present), instead of IMAGES.")
+              help="lines.json (its shaft midlines where present), instead of IMAGES.")
 @camera_options
 @click.option("--angles", "angles_path", type=click.Path(dir_okay=False), default=None,
-              help="CSV of pivot angles (image,angle_deg, or one angle per frame): also fit the pivot plane.")
+              help="CSV of pivot angles per frame: also the pivot plane.")
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
-              help="The instrument shaft's diameter (e.g. 8 for 8 mm): also the 3-D fulcrum, point [x, y, z] in the "
-                   "camera frame with point_cov and point_sigma, in D's unit, from every shaft's 3-D axis.")
+              help="The shaft's diameter [mm]: also the 3-D fulcrum, in mm.")
 @click.option("--right", "right_images", default=None, metavar="IMAGES|LINES",
-              help="Frames of a second camera rigidly fixed to the first (a stereo endoscope's right view), or their "
-                   "lines file (a .json written by `pencilcal lines --shaft`): its own fulcrum, and the 3-D fulcrum "
-                   "triangulated from the two views' rays (stereo).")
+              help="A stereo pair's right view (frames or lines.json): the fulcrum triangulated.")
 @click.option("--camera-right", "camera_right_path", type=click.Path(dir_okay=False), default=None,
-              help="Camera file of the --right camera.")
+              help="Camera file of the --right view.")
 @click.option("--right-from-left", "stereo_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
-              help="Stereo calibration: OpenCV's R and T (cv2.stereoCalibrate, e.g. extrinsics.yml) or "
-                   "R_right_from_left and t_right_from_left; T in the unit of --shaft-diameter.")
-@endpoint_sigma_option("End point noise [px] for segments without their own angle sigma.")
-@detector_option("Line detector for the shaft proposals, with IMAGES.")
+              help="Stereo calibration (OpenCV's R and T, e.g. extrinsics.yml).")
+@endpoint_sigma_option("End point noise [px] of segments without their own sigma.")
+@detector_option("Shaft proposals' detector.")
 @gamma_option
 @click.option("--track/--no-track", default=True, show_default=True,
-              help="Look for each frame's shafts around the previous frame's (a full detection where they are not "
-                   "found again, and every 30th frame); needs the frames in order in one process (--workers 1).")
+              help="Find the shafts where the previous frame had them (--workers 1).")
 @mask_option
 @jsonl_option
 @overlay_option
@@ -161,54 +174,67 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
             max_pixels, workers, output, force, quiet):
     """The fulcrum of an instrument pivoting about its entry port.
 
+    \b
+    Examples:
+      pencilcal fulcrum frames/ --camera cam.yaml --shaft-diameter 8 -o f.json
+      pencilcal fulcrum --lines l.json --camera cam.yaml --angles a.csv -o f.json
+
+    Shafts from IMAGES (files, folders or globs in the order given, or a video), --source
+    or --lines. The fulcrum's image and ray with sigmas; with --shaft-diameter its 3-D point
+    [mm]; with --right a stereo pair's. In detail: docs/cli.md.
+    \f
     Every frame's instrument line passes through the fulcrum's image: their robust weighted
     intersection gives the fulcrum's viewing ray and, where the lens model reaches it (a
-    port far off axis may lie beyond), its raw pixel and covariance. From
-    IMAGES (image files, folders or glob patterns in the order given, or one video) the
-    instrument shafts are detected in every frame
-    (their midlines are the axis images), never on the boundary of the frames' valid region
-    (--mask, or detected once from up to 16 frames); or the lines come from a lines file
-    (--lines).
-    With --angles (one pivot angle per frame) the lines form a pencil with known angles and
-    the orientation of the pivot plane comes out too, with the keys of orientation.json.
-    With --shaft-diameter D every shaft's two silhouette edges give its 3-D axis (the band's
-    width fixes its depth), and the fulcrum is also the robust weighted least-squares point
-    closest to all the axes: point [x, y, z] (camera frame, D's unit), point_cov, point_sigma
-    (the RMS 3-D error its covariance predicts; with the intrinsics' covariance in the camera
-    file also point_cov_total and point_sigma_total), and the axes that pass far from it named
-    in point_outliers. Its lines must be shafts with their edges' covariance (lines --shaft).
+    port far off axis may lie beyond), its raw pixel and covariance. From IMAGES the
+    instrument shafts are detected in every frame (their midlines are the axis images),
+    never on the boundary of the frames' valid region (--mask, or detected once from up to
+    16 frames); or the lines come from a lines file (--lines; its shaft midlines are used
+    when present). With --angles (a CSV of image,angle_deg, or one pivot angle per frame)
+    the lines form a pencil with known angles and the orientation of the pivot plane comes
+    out too, with the keys of orientation.json.
 
-    With --right IMAGES, --camera-right and --right-from-left (a stereo pair) the right
-    view's fulcrum is found from its own frames (or from its lines file: --right LINES.json),
-    and the two fulcrum rays meet at the 3-D fulcrum: ``stereo.triangulated`` (left camera
-    frame, the unit of the stereo file's T; no diameter needed). Where the camera files
-    carry the intrinsics' covariance it holds their term too, in point_cov_total and
-    point_sigma_total (point_cov: the noise alone). With --shaft-diameter too,
-    ``stereo.agreement`` says whether the diameter-based point and the triangulated one
-    agree within their sigmas (chi2, its dof and p; the left view's ray, which both hold,
-    counted once) and ``stereo.combined`` is their fusion.
+    With --shaft-diameter D (e.g. 8 for an 8 mm instrument; lengths then come out in D's
+    unit, mm as the board and pencil files have them) every shaft's two silhouette edges
+    give its 3-D axis (the band's width fixes its depth), and the fulcrum is also the
+    robust weighted least-squares point closest to all the axes: point [x, y, z] (camera
+    frame), point_cov, point_sigma (the RMS 3-D error its covariance predicts; with the
+    intrinsics' covariance in the camera file also point_cov_total and point_sigma_total),
+    and the axes that pass far from it named in point_outliers. Its lines must be shafts
+    with their edges' covariance (lines --shaft).
+
+    With --right IMAGES (frames of a second camera rigidly fixed to the first: a stereo
+    endoscope's right view), --camera-right and --right-from-left (OpenCV's R and T of
+    cv2.stereoCalibrate, e.g. extrinsics.yml, or R_right_from_left and t_right_from_left;
+    T in the unit of --shaft-diameter) the right view's fulcrum is found from its own
+    frames (or from its lines file: --right LINES.json, written by `pencilcal lines
+    --shaft`), and the two fulcrum rays meet at the 3-D fulcrum: `stereo.triangulated`
+    (left camera frame, the unit of the stereo file's T; no diameter needed). Where the
+    camera files carry the intrinsics' covariance it holds their term too, in
+    point_cov_total and point_sigma_total (point_cov: the noise alone). With
+    --shaft-diameter too, `stereo.agreement` says whether the diameter-based point and the
+    triangulated one agree within their sigmas (chi2, its dof and p; the left view's ray,
+    which both hold, counted once) and `stereo.combined` is their fusion.
 
     Unless --endpoint-sigma is given, the sigmas hold the noise the lines show: the
     intersection's chi-square per degree of freedom scales them (segments without their
-    own sigmas: estimated; shaft midlines: only ever inflated); ``noise`` says what was
-    found. With 8 frames or more each is left out once (``jackknife``): where the fulcrum
+    own sigmas: estimated; shaft midlines: only ever inflated); `noise` says what was
+    found. With 8 frames or more each is left out once (`jackknife`): where the fulcrum
     moves between frames far more than its sigmas say, they are raised to the jackknife's,
-    with a warning. --source reads a camera or a growing video; --jsonl streams each frame's shafts
-    as they are found and --overlay draws them (the fulcrum is known at the end only).
+    with a warning. --source reads a camera or a growing video; --jsonl streams each
+    frame's shafts as they are found and --overlay draws them (the fulcrum is known at the
+    end only).
 
     From frame to frame (--track, with --workers 1) each shaft is looked for in a corridor
     around where the previous frame had it, without the detector's proposals (a full
     detection where it is not found again, and every 30th frame: an instrument entering
     the view): the same shafts, measured alike, several times faster on video;
-    ``frames_tracked`` counts the frames tracked.
+    `frames_tracked` counts the frames tracked.
 
-    \b
-    Examples:
-      pencilcal fulcrum frames/ --camera camera.yaml -o fulcrum.json
-      pencilcal fulcrum --lines lines.json --camera camera.yaml --angles angles.csv -o fulcrum.json
-      pencilcal fulcrum frames/ --camera camera.yaml --shaft-diameter 8 -o fulcrum.json
-      pencilcal fulcrum left/ --camera l.yaml --right right/ --camera-right r.yaml --right-from-left extrinsics.yml -o f.json
-      pencilcal fulcrum --lines l.json --camera l.yaml --right r.json --camera-right r.yaml --right-from-left s.yml -o f.json
+    More examples:
+
+        pencilcal fulcrum frames/ --camera camera.yaml -o fulcrum.json
+        pencilcal fulcrum left/ --camera l.yaml --right right/ --camera-right r.yaml --right-from-left extrinsics.yml -o f.json
+        pencilcal fulcrum --lines l.json --camera l.yaml --right r.json --camera-right r.yaml --right-from-left s.yml -o f.json
     """
     if shaft_diameter is not None and not shaft_diameter > 0:
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
@@ -263,13 +289,6 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         warn(f"the fulcrum lies {off_axis:.1f} deg off the optical axis, beyond the part of the field the lens "
              "model maps to pixels: fulcrum.json gives its ray, vertex_px is null")
     if not quiet:
-        where = ("at ({:.2f}, {:.2f}) px".format(*out["vertex_px"]) if out["vertex_px"] is not None
-                 else f"on the ray {off_axis:.1f} deg off axis")
-        click.echo(f"fulcrum {where} from {out['lines_used']} lines -> {output}", err=True)
-        if shaft_diameter is not None:
-            bad = ", ".join(f"{o['image']}" for o in out["point_outliers"]) or "none"
-            click.echo("3-D fulcrum ({:.2f}, {:.2f}, {:.2f}) +- {:.2f} (rms) from {} axes; outliers: {}".format(
-                *out["point"], out["point_sigma"], out["point_axes_used"], bad), err=True)
         if rig is not None:
             st = out["stereo"]
             tri = st["triangulated"]
@@ -284,3 +303,4 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
                            "{:.2f}) +- {:.2f}".format("agree" if a["consistent"] else "DISAGREE", a["chi2"], a["dof"],
                                                        a["p_value"], *st["combined"]["point"],
                                                        st["combined"]["point_sigma"]), err=True)
+    done(_summary(out, off_axis, shaft_diameter, len(frames)), output, quiet=quiet)

@@ -1,7 +1,11 @@
 """docs/cli.md from the commands' own --help: the reference of the command line.
 
 ``python -m pencilcal.cli.helpdoc > docs/cli.md`` writes it; a test keeps the file equal to
-what this prints, so the page never drifts from the code.
+what this prints, so the page never drifts from the code. A command's --help fits a screen
+(usage, two examples, a few lines, one line per option); what it has to say at length is
+written in its docstring after a form feed (``\\f``: click shows nothing after it) and
+printed here under "In detail", with the options several commands share
+(`common.SHARED_DETAILS`) at the end.
 """
 from __future__ import annotations
 
@@ -10,8 +14,13 @@ __all__ = ["cli_reference"]
 
 _HEAD = """# Command line reference
 
-Every command's `--help`, as `pencilcal COMMAND --help` prints it. Generated from the code
-(`python -m pencilcal.cli.helpdoc > docs/cli.md`); a test keeps this page current.
+Every command's `--help`, as `pencilcal COMMAND --help` prints it, and what the command
+does in detail. Generated from the code (`python -m pencilcal.cli.helpdoc > docs/cli.md`);
+a test keeps this page current.
+
+Exit status: 0 on success; 1 with one line on stderr (`pencilcal: error: ...`) when the
+input cannot be used or processing fails; 2 with one line (`pencilcal: usage error: ...`)
+for a missing or malformed option or argument.
 """
 
 
@@ -26,6 +35,30 @@ def _help(cmd, name, parent=None):
     return cmd.get_help(_context(cmd, name, parent))
 
 
+def _details(cmd):
+    """A command's text after the form feed of its docstring, as Markdown ("" when none)."""
+    import inspect
+
+    rest = inspect.cleandoc(cmd.help or "").partition("\f")[2].strip("\n")
+    return inspect.cleandoc(rest) + "\n" if rest.strip() else ""
+
+
+def _command_parts(cmd, title, help_text):
+    parts = [title, "```text\n" + help_text + "\n```\n"]
+    more = _details(cmd)
+    if more:
+        parts.append("In detail:\n\n" + more)
+    return parts
+
+
+def _shared():
+    """The options several commands share, in detail."""
+    from .common import SHARED_DETAILS
+
+    rows = "".join(f"- `{k}`: {v}\n" for k, v in SHARED_DETAILS.items())
+    return "## Options several commands share\n\n" + rows
+
+
 def cli_reference() -> str:
     """The Markdown of docs/cli.md."""
     from .main import cli
@@ -34,12 +67,12 @@ def cli_reference() -> str:
     parts = [_HEAD, "## pencilcal\n", "```text\n" + cli.get_help(root) + "\n```\n"]
     for name in cli.list_commands(root):
         cmd = cli.get_command(root, name)
-        parts.append(f"## pencilcal {name}\n")
-        parts.append("```text\n" + _help(cmd, name, root) + "\n```\n")
+        parts += _command_parts(cmd, f"## pencilcal {name}\n", _help(cmd, name, root))
         for sub in sorted(getattr(cmd, "commands", {}) or {}):
             sub_ctx = _context(cmd, name, root)
-            parts.append(f"### pencilcal {name} {sub}\n")
-            parts.append("```text\n" + _help(cmd.commands[sub], sub, sub_ctx) + "\n```\n")
+            parts += _command_parts(cmd.commands[sub], f"### pencilcal {name} {sub}\n",
+                                    _help(cmd.commands[sub], sub, sub_ctx))
+    parts.append(_shared())
     return "\n".join(parts)
 
 

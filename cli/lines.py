@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import click
+import numpy as np
 
 from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.io.images import check_image_size
@@ -11,7 +12,8 @@ from pencilcal.toolkit.io.lines_file import write_lines
 
 from .common import (detector_option, gamma_option, command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option, frames_region,
                      images_argument, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
-                     overlay_option, quiet_option, run, run_frames, source_option, stream_meta, warn, workers_option)
+                     overlay_option, quiet_option, run, run_frames, source_option, stream_meta, warn, workers_option,
+                     done)
 
 
 def with_axis(camera, shaft, diameter):
@@ -44,29 +46,37 @@ def _lines_task(frame, ctx):
     return rec, draw_frame(frame.image, segments=rec["segments"], shafts=rec.get("shafts"), text=[frame.name])
 
 
+def _summary(records):
+    """The last line: frames, segments and their median angle sigma, shafts."""
+    n_ok = sum(r["ok"] for r in records)
+    n_seg = sum(len(r["segments"]) for r in records)
+    sig = [float(s) for r in records if r.get("angle_sigma_deg") is not None
+           for s in np.ravel(np.asarray(r["angle_sigma_deg"], float)) if np.isfinite(s)]
+    line = f"{n_ok}/{len(records)} frames, {n_seg} segments"
+    if sig:
+        line += f" (angle sigma {np.median(sig):.2g} deg median)"
+    if any("shafts" in r for r in records):
+        line += f", {sum(len(r.get('shafts') or []) for r in records)} shafts"
+    return line
+
+
 @command()
 @images_argument(required=False)
 @source_option
 @camera_options
 @output_option
-@detector_option("OpenCV detector proposing the segments: LSD, FLD (fast line detector) or EDLines.")
+@detector_option("OpenCV detector proposing the segments.")
 @click.option("--bars", is_flag=True,
-              help="Find the printed spokes: dark bars, each written as ONE segment, its midline "
-                   "(bisector of the bar's two edges) between its end caps. Without it every "
-                   "straight edge is a segment (a bar gives two).")
+              help="Printed spokes: each dark bar as one segment, its midline.")
 @click.option("--bar-width", nargs=2, type=FiniteFloat(), default=None, metavar="MIN MAX",
-              help="With --bars: accepted bar widths [px, undistorted]; default 2.5 px to 1/8 of the image.")
+              help="With --bars: bar widths accepted [px]; default 2.5 px to 1/8 image.")
 @click.option("--shaft", is_flag=True,
-              help="Also find instrument shafts (pairs of long converging edges) and write them "
-                   "as 'shafts': midline (image of the axis), width_px, angle_sigma_deg, edge_cov.")
+              help="Also instrument shafts: their midlines, widths and sigmas.")
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
-              help="With --shaft: the shafts' diameter (e.g. 8 for an 8 mm instrument); each shaft also gets "
-                   "its 3-D axis in the camera frame, in D's unit: axis_point, axis_direction, axis_distance, "
-                   "axis_cov, axis_direction_sigma_deg, axis_distance_sigma.")
+              help="With --shaft: their diameter [mm]; each shaft's 3-D axis too.")
 @gamma_option
 @click.option("--min-length", type=FiniteFloat(), default=None,
-              help="Shortest segment written [px]. Default 20; with --bars, 20 or 1/30 of the image's "
-                   "smaller side, whichever is longer (36 px at 1080p).")
+              help="Shortest segment written [px]; default 20 (bars: 1/30 of the image).")
 @mask_option
 @jsonl_option
 @overlay_option
@@ -80,34 +90,50 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
           mask_path, jsonl_path, overlay_path, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel precision, with angle uncertainty.
 
+    \b
+    Examples:
+      pencilcal lines frames/ --camera cam.yaml --bars -o lines.json
+      pencilcal lines frames/ --camera c.yaml --shaft --shaft-diameter 8 -o l.json
+
+    IMAGES: files, folders or globs in the order given, or a video; or --source. Every
+    segment in raw pixels with its angle and offset sigmas; with --bars the printed
+    spokes' midlines, with --shaft instrument shafts. In detail: docs/cli.md.
+    \f
     IMAGES is one or more image files, folders or glob patterns, in the order given (a
     folder's images sorted naturally), or one video; or --source, a camera or a video still
-    being written, read as it comes. The chosen OpenCV detector proposes
-    segments; collinear fragments are merged and every line is refitted to its
-    edge pixels (straight in undistorted pixels, so lens distortion does not bend it).
-    Each frame gets `segments` in raw (distorted) pixels [x1, y1, x2, y2] and, per segment,
-    `angle_sigma_deg` (sd of its angle) and `offset_sigma_px` (sd of its position across,
-    at its midpoint), which `pencilcal orient` uses to weight the lines. Segments are
-    oriented with the darker side on the left on screen. Nothing is found on the boundary
-    of the frames' valid region (--mask, or detected once from up to 16 frames: an
-    endoscope's circular field stop, letterbox bars), which lines.json records once, as
-    `valid_region`.
+    being written, read as it comes. The chosen OpenCV detector proposes segments;
+    collinear fragments are merged and every line is refitted to its edge pixels (straight
+    in undistorted pixels, so lens distortion does not bend it). Each frame gets `segments`
+    in raw (distorted) pixels [x1, y1, x2, y2] and, per segment, `angle_sigma_deg` (sd of
+    its angle) and `offset_sigma_px` (sd of its position across, at its midpoint), which
+    `pencilcal orient` uses to weight the lines. Segments are oriented with the darker side
+    on the left on screen. Segments shorter than --min-length are dropped (default 20 px;
+    with --bars, 20 or 1/30 of the image's smaller side, whichever is longer: 36 px at
+    1080p). Nothing is found on the boundary of the frames' valid region (--mask, or
+    detected once from up to 16 frames: an endoscope's circular field stop, letterbox
+    bars), which lines.json records once, as `valid_region`.
 
-    With --shaft --shaft-diameter D each shaft also gets its 3-D axis from the two silhouette
-    edges (the band's width fixes the depth): axis_point (the axis point closest to the
-    camera centre), axis_direction (unit, away from the camera), axis_distance, and their
-    covariance axis_cov in the axis chart of docs/formats.md, with axis_direction_sigma_deg
-    and axis_distance_sigma; lengths in D's unit.
+    --bars finds the printed spokes: dark bars, each written as ONE segment, its midline
+    (bisector of the bar's two edges) between its end caps, for widths within --bar-width
+    (undistorted pixels; default 2.5 px to 1/8 of the image). Without it every straight
+    edge is a segment (a bar gives two).
+
+    --shaft also finds instrument shafts (pairs of long converging edges) and writes them
+    as `shafts`: midline (image of the axis), width_px, angle_sigma_deg, edge_cov. With
+    --shaft-diameter D (e.g. 8 for an 8 mm instrument) each shaft also gets its 3-D axis
+    from the two silhouette edges (the band's width fixes the depth): axis_point (the axis
+    point closest to the camera centre), axis_direction (unit, away from the camera),
+    axis_distance, and their covariance axis_cov in the axis chart of docs/formats.md, with
+    axis_direction_sigma_deg and axis_distance_sigma; lengths in D's unit.
 
     A frame that cannot be decoded is reported and written with ok: false. --jsonl streams
-    each frame's record as it is done; --overlay draws the segments and shafts on the frames.
+    each frame's record as it is done; --overlay draws the segments and shafts on the
+    frames.
 
-    \b
-    Example:
-      pencilcal lines frames/ --camera camera.yaml --bars -o lines.json
-      pencilcal lines left/*.png --camera camera.yaml -o lines.json
-      pencilcal lines frames/ --camera camera.yaml --shaft --shaft-diameter 8 -o lines.json
-      pencilcal orient --lines lines.json --camera camera.yaml --pencil pencil.yaml -o orientation.json
+    More examples:
+
+        pencilcal lines left/*.png --camera camera.yaml -o lines.json
+        pencilcal orient --lines lines.json --camera camera.yaml --pencil pencil.yaml -o orientation.json
     """
     if min_length is not None and min_length <= 0:
         raise click.BadParameter("must be positive", param_hint="--min-length")
@@ -141,7 +167,4 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     if shaft:
         meta["gamma"] = gamma
     write_lines(output, records, force=force, meta=meta, valid_region=None if region is None else region.to_dict())
-    if not quiet:
-        n_ok = sum(r["ok"] for r in records)
-        n_seg = sum(len(r["segments"]) for r in records)
-        click.echo(f"{n_ok}/{len(records)} frames, {n_seg} segments -> {output}", err=True)
+    done(_summary(records), output, quiet=quiet)

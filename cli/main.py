@@ -6,7 +6,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 import click
 
-from .common import CONTEXT_SETTINGS, install_signal_handlers
+from .common import CONTEXT_SETTINGS, Group, install_signal_handlers
 
 # command name -> its module in this package: a command's module (and what it imports:
 # OpenCV, scipy, pycolmap, matplotlib) is loaded only when that command runs, so a live
@@ -18,7 +18,7 @@ COMMANDS = {
 }
 
 
-class LazyGroup(click.Group):
+class LazyGroup(Group):
     """A click group whose commands are imported when first asked for (`COMMANDS`)."""
 
     def list_commands(self, ctx):
@@ -43,12 +43,18 @@ except PackageNotFoundError:  # running from a source tree without installing
 def cli(debug):
     """pencilcal: orientation of a pencil of lines from its image angles.
 
+    \b
+    Examples:
+      pencilcal demo
+      pencilcal orient frames/ --camera cam.yaml --pencil pencil.yaml -o o.json
+
     A camera sees a pencil (straight lines through one point: a printed fan of spokes, an
     instrument pivoting about its port). From the image angles alone pencilcal recovers the
     plane's orientation, the vertex and its viewing ray, and how far to trust them.
 
     Conventions: OpenCV camera frame (x right, y down, z forward); transforms named
-    a_from_b; angles in degrees in files and options.
+    a_from_b; angles in degrees in files and options. Exit status: 0 done; 1 an input
+    that cannot be used or a failure (one line); 2 a usage error (one line).
     """
 
 

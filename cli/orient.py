@@ -16,7 +16,7 @@ from pencilcal.toolkit.pencil.track import orient_tracked
 from .common import (detector_option, endpoint_sigma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, images_argument,
                      frames_region, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
                      overlay_option, progress, quiet_option, run, run_frames, source_option, stream_meta, warn,
-                     workers_option)
+                     workers_option, done)
 
 
 def _orient_record(camera, pencil, fr, opts):
@@ -135,6 +135,27 @@ def _warn_frame(rec):
              "about as well and put it elsewhere (normal_alternatives)")
 
 
+def _summary(records):
+    """The last line: frames oriented, the tilt and its sigma (medians), and how the twin
+    was chosen (what resolves the frames left ambiguous)."""
+    from collections import Counter
+
+    ok = [r for r in records if r.ok]
+    line = f"{len(ok)}/{len(records)} frames oriented"
+    if not ok:
+        return line
+    n_amb = sum(bool(r.normal_ambiguous) for r in ok)
+    line += (f": tilt {np.median([r.tilt_deg for r in ok]):.2f} deg median (sigma "
+             f"{np.median([r.tilt_sigma_deg for r in ok]):.2g} deg), detectable in {sum(bool(r.detectable) for r in ok)}")
+    twin = sum(bool(r.ambiguous) for r in ok)
+    by = Counter(r.resolved_by for r in ok if not r.ambiguous)
+    how = ", ".join(f"{c} by {'the spoke radii' if k == 'radius' else k}" for k, c in by.most_common())
+    line += f"; twin resolved in {len(ok) - twin}" + (f" ({how})" if how else "")
+    if twin:
+        line += f", ambiguous in {twin} (spoke radii, --prior or --continuity from a resolved frame choose it)"
+    return line + (f" ({n_amb} with an ambiguous normal)" if n_amb else "")
+
+
 def _prior_rotations(path):
     """R_cam_from_target per image name from a poses.json (pencilcal pnp) file."""
     from pencilcal.toolkit.io.files import load_frames
@@ -169,33 +190,27 @@ def _check_priors_match(priors, names, path):
 @command()
 @images_argument(required=False)
 @click.option("--lines", "lines_path", type=click.Path(dir_okay=False), default=None,
-              help="Line segments per frame (lines.json, raw pixels), instead of IMAGES.")
+              help="lines.json (raw pixels), instead of IMAGES.")
 @camera_options
 @click.option("--pencil", "pencil_path", required=True, type=click.Path(dir_okay=False),
               help="Pencil file (.yaml/.json): spoke angles, optional vertex and radius.")
 @output_option
 @click.option("--model", type=click.Choice(MODELS), default="exact", show_default=True,
-              help="exact: the exact estimator; general/aligned: the chapter's models, for comparison.")
-@endpoint_sigma_option("Noise of each segment end point [px], sets the angle and offset uncertainty. Not given "
-                       "(and no --angle-sigma): the sequence's residuals estimate it, starting from this default, "
-                       "for lines without their own sigmas; detected lines' own sigmas are only ever inflated by "
-                       "them.")
+              help="exact; general, aligned: the chapter's models, for comparison.")
+@endpoint_sigma_option("End point noise [px]; not given: estimated from the sequence.")
 @click.option("--angle-sigma", type=FiniteFloat(), default=None,
-              help="Angle noise of every segment [deg], instead of deriving it from the end points.")
+              help="Every segment's angle noise [deg], instead.")
 @click.option("--prior", "prior_path", type=click.Path(dir_okay=False), default=None,
-              help="poses.json (pencilcal pnp): picks the twin closer to each frame's board pose.")
+              help="poses.json (pencilcal pnp): the twin closer to each frame's pose.")
 @click.option("--continuity/--no-continuity", default=True, show_default=True,
               help="Carry twin choices along the sequence to ambiguous frames.")
 @click.option("--track/--no-track", default=True, show_default=True,
-              help="Find each frame's spokes where the previous frame's were and label them by its orientation "
-                   "(a full detection and search where that fails, and every 30th frame) and keep its twin; "
-                   "needs the frames in order in one process (--workers 1).")
+              help="Find the spokes where the previous frame had them (--workers 1).")
 @detector_option("Line detector, with IMAGES.")
-@click.option("--edges", is_flag=True,
-              help="With IMAGES: plain edge segments (as `pencilcal lines`) instead of the spokes' midlines.")
+@click.option("--edges", is_flag=True, help="With IMAGES: plain edge segments, not the spokes' midlines.")
 @mask_option
 @click.option("--max-segments", type=click.IntRange(min=3), default=MAX_SEGMENTS, show_default=True,
-              help="Segments used per frame at most, the longest; a warning says when a frame has more.")
+              help="The longest segments used per frame, at most.")
 @source_option
 @jsonl_option
 @overlay_option
@@ -209,19 +224,32 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
            max_pixels, workers, force, quiet):
     """Orientation of the pencil in every frame, from its image angles alone.
 
-    From IMAGES (image files, folders or glob patterns in the order given, or one video)
-    or --source (a camera, a URL, a video file being written) the lines are detected first: the midlines of the printed spokes, at whatever width
-    they are seen (dark bars when the pencil file gives their width; else dark or light,
-    whichever the frame shows), or with --edges plain edge segments (as `pencilcal lines`),
-    never on the boundary of the frames' valid region (--mask, or detected once from up to
-    16 frames); or they come from a lines file (--lines). Segments are undistorted,
-    the vertex found, the segments labelled with spokes (missing spokes and spurious
-    segments are tolerated) and the plane's orientation fitted with its uncertainty. Both
-    twin solutions are written; the twin is chosen where the spoke radii (pencil file), a
-    prior pose or continuity tell them apart. Midlines of bars (with their width, as found
-    from images or in a lines file) are then moved onto the images of the bars' printed
-    centre lines under the fitted plane, which under perspective they miss by w^2 / (4 V)
-    (w the width, V the distance to the horizon), and the frame is fitted again.
+    \b
+    Examples:
+      pencilcal orient frames/ --camera cam.yaml --pencil pencil.yaml -o o.json
+      pencilcal orient --lines l.json --camera cam.yaml --pencil p.yaml -o o.json
+
+    Lines from IMAGES (files, folders or globs in the order given, or a video), --source
+    or --lines. Per frame: tilt, normal, rotation, their sigmas and the twin, chosen where
+    the spoke radii, --prior or continuity can. In detail: docs/cli.md.
+    \f
+    From IMAGES or --source (a camera, a URL, a video file being written) the lines are
+    detected first: the midlines of the printed spokes, at whatever width they are seen
+    (dark bars when the pencil file gives their width; else dark or light, whichever the
+    frame shows), or with --edges plain edge segments (as `pencilcal lines`), never on the
+    boundary of the frames' valid region (--mask, or detected once from up to 16 frames);
+    or they come from a lines file (--lines). Segments are undistorted, the vertex found,
+    the segments labelled with spokes (missing spokes and spurious segments are tolerated)
+    and the plane's orientation fitted with its uncertainty. Both twin solutions are
+    written; the twin is chosen where the spoke radii (pencil file), a prior pose (--prior:
+    the twin closer to each frame's board pose in a poses.json of `pencilcal pnp`) or
+    continuity (--continuity: the choices of resolved frames carried along the sequence to
+    the ambiguous ones) tell them apart. Midlines of bars (with their width, as found from
+    images or in a lines file) are then moved onto the images of the bars' printed centre
+    lines under the fitted plane, which under perspective they miss by w^2 / (4 V) (w the
+    width, V the distance to the horizon), and the frame is fitted again. --max-segments:
+    at most this many segments per frame are used, the longest; a warning says when a
+    frame has more.
 
     From frame to frame (--track, with --workers 1) the previous frame's spokes are looked
     for again where they were (their edges within 6 px, then measured as a full detection
@@ -230,21 +258,17 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     the lines (the full search where that fails) and the twin is kept where a frame alone
     cannot choose.
 
-    Unless the noise is given (--endpoint-sigma, --angle-sigma) the sigmas hold the noise
-    the sequence shows: the frames' pooled residuals give a variance factor (outlier frames
-    left out) by which every covariance is scaled; the output's ``noise`` says what was
-    found.
+    Unless the noise is given (--endpoint-sigma: the noise of each segment end point [px],
+    which sets the angle and offset uncertainty; --angle-sigma: every segment's angle noise
+    [deg]) the sigmas hold the noise the sequence shows: the frames' pooled residuals give a
+    variance factor (outlier frames left out) by which every covariance is scaled, starting
+    from the default end point noise for lines without their own sigmas; detected lines'
+    own sigmas are only ever inflated. The output's `noise` says what was found.
 
     --jsonl streams each frame's record as it is done (the twin and the noise as known
-    then: continuity and the sequence's noise are applied to the output file only); --overlay draws the
-    labelled spokes, the vertex and its 3-sigma ellipse, the normal and tilt +- sigma on
-    the frames.
-
-    \b
-    Examples:
-      pencilcal orient frames/ --camera camera.yaml --pencil pencil.yaml -o orientation.json
-      pencilcal orient --lines lines.json --camera camera.yaml \\
-          --pencil pencil.yaml -o orientation.json
+    then: continuity and the sequence's noise are applied to the output file only);
+    --overlay draws the labelled spokes, the vertex and its 3-sigma ellipse, the normal and
+    tilt +- sigma on the frames.
     """
     if angle_sigma is not None and angle_sigma <= 0:
         raise click.BadParameter("must be positive", param_hint="--angle-sigma")
@@ -305,8 +329,4 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
                        lines=None if lines_path is None else str(lines_path),
                        images=None if images is None else source.description, **stream_meta(source),
                        **_tracking_meta(opts["tracking"]))
-    n_ok = sum(r.ok for r in records)
-    n_amb = sum(bool(r.ok and r.normal_ambiguous) for r in records)
-    if not quiet:
-        amb = f" ({n_amb} with an ambiguous normal)" if n_amb else ""
-        click.echo(f"{n_ok}/{len(records)} frames oriented{amb} -> {output}", err=True)
+    done(_summary(records), output, quiet=quiet)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import click
+import numpy as np
 
 from pencilcal.toolkit.board.calibration_file import camera_with_report, read_calibration_file, \
     uncertainty_record
@@ -24,7 +25,7 @@ from pencilcal.validation.pnp import (
 
 from .common import (command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option, images_argument,
                      jsonl_option, max_pixels_option, open_input, output_option, overlay_option, quiet_option, run,
-                     run_frames, source_option, stream_meta, warn, workers_option)
+                     run_frames, source_option, stream_meta, warn, workers_option, done)
 
 _MIN_CORNERS_FLOOR = 4
 
@@ -80,22 +81,20 @@ def _pnp_frame(frame, camera, board, method, refine, corner_sigma, max_rms, min_
 @images_argument(required=False)
 @camera_options
 @click.option("--board", "board_path", required=True, type=click.Path(dir_okay=False),
-              help="Board file (.yaml/.json): charuco or chessboard, square size in the length unit of the output.")
+              help="Board file (.yaml/.json): charuco or chessboard; its unit is the output's.")
 @output_option
 @click.option("--method", type=click.Choice(METHODS + ("all",)), default=DEFAULT_METHOD, show_default=True,
-              help="PnP initialiser, refined by LM in raw pixels; 'all' runs every method and keeps each under "
-                   "'methods' (the frame-level pose is sqpnp's unless another reached a lower RMS).")
+              help="PnP initialiser, refined in raw pixels; all: every method.")
 @click.option("--corner-sigma", type=FiniteFloat(), default=None,
-              help="Corner noise [px] behind the covariance; default: from each frame's residuals.")
+              help="Corner noise [px]; default: from each frame's residuals.")
 @click.option("--min-corners", type=int, default=6, show_default=True,
-              help="Frames with fewer detected corners get no pose (at least 4).")
+              help="Frames with fewer corners get no pose (at least 4).")
 @click.option("--max-rms", type=FiniteFloat(), default=DEFAULT_MAX_RMS_PX, show_default=True,
-              help="Reject a pose whose reprojection RMS exceeds this [px] (a wrong local minimum or a wrong camera).")
+              help="Reject a pose whose reprojection RMS exceeds this [px].")
 @click.option("--refine/--no-refine", default=True, show_default=True,
-              help="LM refinement of every method's pose on the raw-pixel reprojection error.")
+              help="Refine every method's pose on the raw-pixel error.")
 @click.option("--calibration", "calib_path", type=click.Path(dir_okay=False), default=None,
-              help="calib.json of `pencilcal calibrate --report`: its intrinsics' covariance and corner-noise model "
-                   "give cov_total (default: those the camera file carries, if any).")
+              help="calib.json (calibrate --report): the intrinsics' share of cov_total.")
 @source_option
 @max_pixels_option
 @jsonl_option
@@ -108,20 +107,30 @@ def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma
         calib_path, source_spec, max_pixels, jsonl_path, overlay_path, workers, force, quiet):
     """Pose of a calibration board in every frame (poses.json).
 
+    \b
+    Examples:
+      pencilcal pnp images/ --camera cam.yaml --board board.yaml -o poses.json
+      pencilcal pnp 'shots/*.png' --camera c.json --board b.yaml --method all
+
+    IMAGES: files, folders or globs in the order given, or a video; or --source. Per
+    frame R_cam_from_target, t_cam_from_target and their 6x6 covariance. In detail:
+    docs/cli.md.
+    \f
     IMAGES is one or more image files, folders or glob patterns, in the order given, or
     one video; or --source: a camera, a URL, a video file being written. Detects the
     board's corners (ChArUco or chessboard), estimates R_cam_from_target and
     t_cam_from_target (length unit of the board file) with the chosen method, refines it
-    on the reprojection error in raw pixels under the full lens model, and writes the
-    6x6 covariance (rotation first: rad about the camera axes, left perturbation; then
-    translation). Frames that cannot be decoded or show too little of the board are
-    written with ok: false and a warning.
-
-    \b
-    Example:
-      pencilcal pnp images/ --camera camera.yaml --board board.yaml -o poses.json
-      pencilcal pnp 'shots/*.png' --camera camera.json --board board.yaml \\
-          --method all --corner-sigma 0.2 -o poses.json
+    (Levenberg-Marquardt, unless --no-refine) on the reprojection error in raw pixels under
+    the full lens model, and writes the 6x6 covariance (rotation first: rad about the
+    camera axes, left perturbation; then translation). --method all runs every method and
+    keeps each under `methods` (the frame-level pose is sqpnp's unless another reached a
+    lower RMS). The covariance holds the corner noise (--corner-sigma, or estimated from
+    each frame's residuals); with --calibration (calib.json of `pencilcal calibrate
+    --report`; default: what the camera file carries, if anything) also the intrinsics'
+    covariance and the correlated corner-noise model, in cov_total. A pose whose RMS
+    exceeds --max-rms (a wrong local minimum or a wrong camera) is rejected. Frames that
+    cannot be decoded or show too little of the board (fewer than --min-corners corners)
+    are written with ok: false and a warning.
     """
     if corner_sigma is not None and not corner_sigma > 0:
         raise click.BadParameter("must be a positive number of pixels", param_hint="--corner-sigma")
@@ -166,5 +175,7 @@ def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma
         # a run with no pose at all failed: say so and leave nothing that looks like a result
         raise EstimationError(f"{source.description}: no frame gave a pose (is the board file right for these images?)")
     write_poses(output, records, force=force, **meta)
-    if not quiet:
-        click.echo(f"{n_ok}/{len(records)} frames with a pose -> {output}", err=True)
+    rms = [r.get("reproj_rms_px") for r in records if r.get("ok") and r.get("reproj_rms_px") is not None]
+    sig = [r.get("normal_sigma_deg") for r in records if r.get("ok") and r.get("normal_sigma_deg") is not None]
+    done(f"{n_ok}/{len(records)} frames with a pose" + (f": reprojection RMS {np.median(rms):.2g} px median" if rms else "")
+         + (f", normal sigma {np.median(sig):.2g} deg median" if sig else ""), output, quiet=quiet)

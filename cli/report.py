@@ -9,7 +9,7 @@ import click
 from pencilcal.validation.report import FORMATS, load_sensitivity, write_report
 from pencilcal.validation.validation_file import load_validation
 
-from .common import command, check_output, force_option, quiet_option, run
+from .common import command, check_output, done, force_option, quiet_option, run
 
 
 def _command(validation, output, samples, title, sensitivity, force, quiet):
@@ -33,36 +33,48 @@ def _command(validation, output, samples, title, sensitivity, force, quiet):
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Report file: .html (self-contained page) or .pdf (A4 pages).")
 @click.option("--samples", type=click.IntRange(0, 50), default=4, show_default=True,
-              help="Sample frames drawn with their overlays, spread over the reference tilt (0: none); the "
-                   "fulcrum section, where there is one, draws the fulcrum on as many, three at most.")
+              help="Sample frames drawn with their overlays (0: none).")
 @click.option("--title", default=None, help="Page title (default: 'Validation report: SEQUENCE').")
 @click.option("--sensitivity", "sensitivity_path", type=click.Path(dir_okay=False), default=None,
-              help="sensitivity.json of `pencilcal sensitivity`: adds its answer, heatmaps and the plan next to "
-                   "the measured errors.")
+              help="sensitivity.json: the plan next to the measured errors.")
 @force_option
 @quiet_option
 @run
 def report(validation, output, samples, title, sensitivity_path, force, quiet):
     """Turn a validation.json into a report a reviewer can read: HTML or PDF.
 
-    VALIDATION is the output of `pencilcal validate`. The report holds, in order: what was
-    validated and a verdict computed from the numbers (including what the file does not
-    cover); a summary table of every method (orient models, PnP methods, SfM); error
-    against tilt with the Cramer-Rao bound and the calibration of the reported sigmas;
-    per-frame tables; overlays on sample frames (pencil segments by spoke, vertex and its
-    covariance, board axes at the reference pose, normals); calibration quality, the
-    reconstruction and a sensitivity plan when present; versions, commands and input hashes.
+    \b
+    Examples:
+      pencilcal report validation.json -o report.html
+      pencilcal report validation.json -o report.pdf --sensitivity plan.json
+
+    The page opens with its answer: the verdict line, the few numbers that matter, then
+    the evidence. The last line says the verdict too. In detail: docs/cli.md, docs/report.md.
+    \f
+    VALIDATION is the output of `pencilcal validate`. The report opens with its answer:
+    one verdict line (what was measured, the headline figure with its unit and sigma, and
+    whether it passes against its stated tolerance) and a small table of the numbers that
+    matter; the comparison models of the book chapter are shown as comparisons, never as
+    failed gates. A validation of a pivot (a `fulcrum` record) leads with the fulcrum: its
+    image and 3-D point [mm] against the truth where known. Then the evidence: the gates
+    on the honesty of every sigma, the summary table of every method (orient models, PnP
+    methods, SfM), error against tilt with the Cramer-Rao bound and the calibration of the
+    reported sigmas, per-frame tables, overlays on sample frames (--samples of them, spread
+    over the reference tilt: pencil segments by spoke, vertex and its covariance, board
+    axes at the reference pose, normals; the fulcrum drawn on as many, three at most),
+    calibration quality, the reconstruction and a sensitivity plan (--sensitivity: a
+    sensitivity.json of `pencilcal sensitivity`, its answer, heatmaps and the plan next to
+    the measured errors) when present; versions, commands and input hashes.
 
     The HTML page is self-contained (styles inline, images embedded, nothing fetched from
     the network); the PDF has the same content on A4 pages. The format follows the
     suffix of -o.
 
-    \b
-    Example:
-      pencilcal simulate sim --scenario orbit --frames 30 --seed 1
-      pencilcal validate sim --sfm -o validation.json
-      pencilcal report validation.json -o report.html
-      pencilcal report validation.json -o report.pdf --sensitivity sensitivity.json
+    More examples:
+
+        pencilcal simulate sim --scenario orbit --frames 30 --seed 1
+        pencilcal validate sim --sfm -o validation.json
+        pencilcal report validation.json -o report.html
     """
     if Path(output).suffix.lower() not in FORMATS:
         raise click.BadParameter(f"{output}: the suffix must be .html or .pdf", param_hint="-o/--output")
@@ -72,6 +84,5 @@ def report(validation, output, samples, title, sensitivity_path, force, quiet):
     rep = write_report(output, data, force=force, title=title, samples=samples, sensitivity=sens, source=validation,
                        report_command=_command(validation, output, samples, title, sensitivity_path, force, quiet),
                        sensitivity_path=sensitivity_path)
-    if not quiet:
-        n = len(data["frames"])
-        click.echo(f"{rep.title}: {n} frames, {len(rep.sections)} sections -> {output}", err=True)
+    verdict = rep.lead[0]
+    done(f"{verdict.status}: {verdict.text}", output, quiet=quiet)

@@ -9,7 +9,7 @@ import numpy as np
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import check_writable, write_json
 
-from .common import (command, check_output, FiniteFloat, force_option, output_option, quiet_option, run)
+from .common import (command, check_output, done, FiniteFloat, force_option, output_option, quiet_option, run)
 
 MAP_CHOICES = ("tilt-offaxis", "spokes-spacing", "noise", "all")
 
@@ -30,37 +30,36 @@ def _offaxis_deg(spec, focal):
 @command()
 @output_option
 @click.option("--focal", type=FiniteFloat(), default=800.0, show_default=True, metavar="PX",
-              help="Focal length [px]: converts off-axis angles to pixel distances (and --offaxis ...px to angles).")
-@click.option("--spokes", type=int, default=8, show_default=True, help="Number of spokes of the fan.")
-@click.option("--step-deg", type=FiniteFloat(), default=20.0, show_default=True, help="Angle between neighbouring spokes [deg].")
+              help="Focal length [px] (for --offaxis in px).")
+@click.option("--spokes", type=int, default=8, show_default=True, help="Spokes of the fan.")
+@click.option("--step-deg", type=FiniteFloat(), default=20.0, show_default=True, help="Angle between spokes [deg].")
 @click.option("--sigma-deg", type=FiniteFloat(), default=0.1, show_default=True,
-              help="Line-angle noise, one standard deviation [deg] (the same in pixels and normalised coordinates).")
+              help="Line-angle noise, sd [deg].")
 @click.option("--tilts", default="0:80:2", show_default=True, metavar="RANGE",
-              help="Tilts against the vertex ray [deg]: start:stop:step, or a list a,b,c.")
+              help="Tilts [deg]: start:stop:step, or a,b,c.")
 @click.option("--offaxis", default="0:40:10", show_default=True, metavar="RANGE",
-              help="Vertex positions: angle off the optical axis [deg], or pixels from the principal point "
-                   "with a px suffix (0:400:100px).")
+              help="Vertex off axis [deg], or [px] with a px suffix.")
 @click.option("--trials", type=int, default=1000, show_default=True,
-              help="Monte Carlo pencils per cell (0: Cramer-Rao bound only).")
+              help="Monte Carlo pencils per cell (0: the bound only).")
 @click.option("--accuracy", type=FiniteFloat(), default=1.0, show_default=True, metavar="DEG",
-              help="Requested accuracy of the normal [deg RMS]: the answer is the minimum tilt that reaches it.")
+              help="Accuracy asked of the normal [deg RMS].")
 @click.option("--map", "maps", type=click.Choice(MAP_CHOICES), multiple=True,
-              help="Maps to compute (repeatable): tilt-offaxis (always computed), spokes-spacing, noise or all.")
+              help="More maps (repeatable; tilt-offaxis always).")
 @click.option("--spokes-grid", default="3,4,6,8,12,16", show_default=True, metavar="RANGE",
-              help="Spoke counts of the spokes-spacing map.")
+              help="Spoke counts of that map.")
 @click.option("--step-grid", default="5,10,15,20,30,45", show_default=True, metavar="RANGE",
-              help="Spacings [deg] of the spokes-spacing map.")
+              help="Spacings [deg] of that map.")
 @click.option("--sigma-grid", default="0.02,0.05,0.1,0.2,0.5,1", show_default=True, metavar="RANGE",
-              help="Line noise values [deg] of the noise map.")
+              help="Noise values [deg] of the noise map.")
 @click.option("--tilt-ref", type=FiniteFloat(), default=30.0, show_default=True,
-              help="Tilt [deg] at which the spokes-spacing map reports the error.")
+              help="Tilt [deg] of the spokes-spacing map.")
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
-              help="Where the batched torch fits run (cuda needs torch with CUDA and a GPU).")
+              help="Where the torch fits run.")
 @click.option("--dtype", type=click.Choice(["float64", "float32"]), default="float64", show_default=True,
-              help="Precision of the torch fits; float32 is enough for planning and faster on GPUs.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Random seed (results are reproducible).")
+              help="Precision of the torch fits.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
 @click.option("--png", "png_prefix", default=None, metavar="PREFIX",
-              help="Also write heatmaps PREFIX_tilt-offaxis.png (and PREFIX_spokes-spacing.png, PREFIX_noise.png).")
+              help="Also the heatmaps as PREFIX_<map>.png.")
 @force_option
 @quiet_option
 @run
@@ -68,18 +67,34 @@ def sensitivity(output, focal, spokes, step_deg, sigma_deg, tilts, offaxis, tria
                 step_grid, sigma_grid, tilt_ref, device, dtype, seed, png_prefix, force, quiet):
     """Plan a set-up: from which tilt on is the orientation good to --accuracy deg?
 
-    For your focal length, fan (--spokes, --step-deg), line noise (--sigma-deg) and the
-    places where the vertex sits in the image (--offaxis), computes the Cramer-Rao bound
-    and a Monte Carlo of the exact estimator over a grid of tilts: RMSE, median and 95th
-    percentile of the tilt and normal errors, the rate at which the tilt is detectable
-    (against the 2 sqrt(sigma) rule), and the minimum tilt for the requested accuracy.
-    --map adds a spokes x spacing map and a noise x tilt map. Runs batched in torch
-    when it is installed, otherwise with the (slower) numpy estimator.
-
     \b
-    Example:
-      pencilcal sensitivity -o sensitivity.json --spokes 8 --step-deg 20 \\
-          --sigma-deg 0.1 --accuracy 0.5 --offaxis 0:400:100px --png plan
+    Examples:
+      pencilcal sensitivity -o plan.json --accuracy 0.5 --png plan
+      pencilcal sensitivity -o plan.json --sigma-deg 0.05 --offaxis 0:400:100px
+
+    The Cramer-Rao bound and a Monte Carlo of the exact estimator over tilts and vertex
+    positions, for your focal length, fan and noise. In detail: docs/cli.md.
+    \f
+    For your focal length (--focal [px], which also converts --offaxis given in pixels to
+    angles), fan (--spokes, --step-deg), line noise (--sigma-deg: one standard deviation of
+    a line's angle, the same in pixels and normalised coordinates) and the places where
+    the vertex sits in the image (--offaxis: angles off the optical axis, or pixels from
+    the principal point with a px suffix, 0:400:100px), computes the Cramer-Rao bound and a
+    Monte Carlo of the exact estimator (--trials pencils per cell; 0: the bound only) over
+    a grid of tilts (--tilts, start:stop:step or a list a,b,c): RMSE, median and 95th
+    percentile of the tilt and normal errors, the rate at which the tilt is detectable
+    (against the 2 sqrt(sigma) rule), and the minimum tilt for the requested accuracy
+    (--accuracy, RMS of the normal). --map adds a spokes x spacing map (--spokes-grid,
+    --step-grid, at the tilt --tilt-ref) and a noise x tilt map (--sigma-grid); the
+    tilt x off-axis map is always computed. Runs batched in torch when it is installed
+    (--device cuda needs torch with CUDA and a GPU; --dtype float32 is enough for planning
+    and faster on GPUs), otherwise with the (slower) numpy estimator. Results are
+    reproducible for a --seed. --png PREFIX also writes the heatmaps
+    PREFIX_tilt-offaxis.png (and PREFIX_spokes-spacing.png, PREFIX_noise.png).
+
+    More examples:
+
+        pencilcal sensitivity -o sensitivity.json --spokes 8 --step-deg 20 --sigma-deg 0.1 --accuracy 0.5 --offaxis 0:400:100px --png plan
     """
     from pencilcal.toolkit.pencil import torch_backend as te
     from pencilcal.validation import sensitivity as sens
@@ -119,6 +134,4 @@ def sensitivity(output, focal, spokes, step_deg, sigma_deg, tilts, offaxis, tria
     if png_prefix:
         result["png"] = sens.write_heatmaps(result, png_prefix, force=force)
     write_json(output, result, force=force)
-    if not quiet:
-        click.echo(result["answer"]["text"], err=True)
-        click.echo(f"-> {output}", err=True)
+    done(result["answer"]["text"], output, *(result.get("png") or []), quiet=quiet)

@@ -22,8 +22,8 @@ from pencilcal.validation.sfm import (
     write_poses,
 )
 
-from .common import (command, StageBars, camera_options, force_option, images_argument, max_pixels_option, quiet_option, run,
-                     warn)
+from .common import (command, StageBars, camera_options, done, force_option, images_argument, max_pixels_option,
+                     quiet_option, run, warn)
 
 # what a folder must hold (one of) for --force to replace it: never a folder of other things
 _SFM_MARKERS = ("poses.json", "sparse", "database.db")
@@ -55,21 +55,18 @@ def _check_output_folder(out: Path, force: bool, source):
 @images_argument()
 @camera_options
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
-              help="Output folder (COLMAP layout): poses.json, sparse/0 (binary and text model), database.db, "
-                   "colmap.log.")
+              help="Output folder (COLMAP layout, poses.json).")
 @click.option("--matching", type=click.Choice(MATCHING_MODES), default="auto", show_default=True,
-              help=f"Image pairs to match: every pair (exhaustive), or each frame with its next "
-                   f"{SEQUENTIAL_OVERLAP} (sequential, for video); auto: exhaustive up to "
-                   f"{EXHAUSTIVE_MAX_IMAGES} images.")
+              help=f"Pairs: all, or the next {SEQUENTIAL_OVERLAP} (video); auto: all up to {EXHAUSTIVE_MAX_IMAGES} images.")
 @click.option("--max-features", type=int, default=DEFAULT_MAX_FEATURES, show_default=True,
               help="SIFT features per image.")
 @click.option("--min-registered", type=int, default=DEFAULT_MIN_REGISTERED, show_default=True,
               help="Fail when fewer frames get a pose (at least 2).")
 @click.option("--seed", type=int, default=0, show_default=True,
-              help="Seed of COLMAP's RANSAC and mapper, for repeatable runs (-1: random).")
+              help="Seed of COLMAP's RANSAC and mapper (-1: random).")
 @click.option("--keep-frames", is_flag=True,
-              help="Keep the decoded frames (video input) or image links under OUTPUT/images.")
-@click.option("--verbose", is_flag=True, help="Show pycolmap's own log on stderr (always in OUTPUT/colmap.log).")
+              help="Keep the frames or image links in OUTPUT/images.")
+@click.option("--verbose", is_flag=True, help="pycolmap's log on stderr too.")
 @max_pixels_option
 @force_option
 @quiet_option
@@ -78,19 +75,26 @@ def sfm(images, camera_path, camera_id, output, matching, max_features, min_regi
         max_pixels, force, quiet):
     """Structure from motion (pycolmap) with the intrinsics held fixed.
 
-    IMAGES is one or more image files, folders or glob patterns, in the order given, or one
-    video. SIFT features on the CPU, exhaustive or sequential matching, then COLMAP's incremental
-    mapper with one shared camera whose focal length, principal point and distortion are
-    those of CAM and are never refined (checked bit for bit afterwards). Writes a COLMAP
-    project in OUTPUT (sparse/0: the largest model, binary and text; database.db) and
-    OUTPUT/poses.json: per frame image, registered, R_cam_from_world, t_cam_from_world and
-    camera_center, in the reconstruction's own world frame and scale. The output is built
-    beside OUTPUT and moved into place when complete.
-
     \b
-    Example:
+    Examples:
       pencilcal sfm frames/ --camera camera.yaml -o sfm/
-      pencilcal sfm clip.mp4 --camera camera.json --matching sequential -o sfm/ --force
+      pencilcal sfm clip.mp4 --camera camera.json --matching sequential -o sfm/
+
+    IMAGES: files, folders or globs in the order given, or a video. Writes a COLMAP
+    project and OUTPUT/poses.json. In detail: docs/cli.md.
+    \f
+    IMAGES is one or more image files, folders or glob patterns, in the order given, or one
+    video. SIFT features on the CPU (--max-features per image), exhaustive or sequential
+    matching (--matching), then COLMAP's incremental mapper with one shared camera whose
+    focal length, principal point and distortion are those of CAM and are never refined
+    (checked bit for bit afterwards). Writes a COLMAP project in OUTPUT (sparse/0: the
+    largest model, binary and text; database.db; colmap.log, pycolmap's own log, also on
+    stderr with --verbose) and OUTPUT/poses.json: per frame image, registered,
+    R_cam_from_world, t_cam_from_world and camera_center, in the reconstruction's own world
+    frame and scale. It fails when fewer than --min-registered frames get a pose. --seed
+    seeds COLMAP's RANSAC and mapper, for repeatable runs (-1: random). --keep-frames keeps
+    the decoded frames (video input) or image links under OUTPUT/images. The output is
+    built beside OUTPUT and moved into place when complete.
     """
     if max_features < 1:
         raise click.BadParameter("must be a positive number of features", param_hint="--max-features")
@@ -123,6 +127,6 @@ def sfm(images, camera_path, camera_id, output, matching, max_features, min_regi
         with contextlib.suppress(FileNotFoundError):
             shutil.rmtree(tmp)
     if not quiet:
-        click.echo(f"{res.n_registered}/{res.n_frames} frames registered, {res.n_points3D} points, "
-                   f"mean reprojection error {res.mean_reprojection_error_px:.3f} px ({res.matching} matching, "
-                   f"{res.timings['total']:.1f} s) -> {out}", err=True)
+        done(f"{res.n_registered}/{res.n_frames} frames registered, {res.n_points3D} points, "
+             f"mean reprojection error {res.mean_reprojection_error_px:.3f} px ({res.matching} matching, "
+             f"{res.timings['total']:.1f} s)", out)

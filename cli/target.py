@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from .common import (command, check_output, FiniteFloat, force_option, output_option, quiet_option, run)
+from .common import (command, check_output, done, FiniteFloat, force_option, output_option, quiet_option, run)
 
 
 def _parse_squares(text):
@@ -21,7 +21,7 @@ def _parse_squares(text):
 @click.option("--paper", type=click.Choice(["a4", "a3", "letter"]), default="a4", show_default=True, help="Paper size.")
 @click.option("--orientation", type=click.Choice(["landscape", "portrait"]), default="landscape", show_default=True)
 @click.option("--dpi", type=FiniteFloat(min=10, max=2400), default=300.0, show_default=True,
-              help="PNG resolution [dots per inch] (a PDF is vector and ignores it).")
+              help="PNG resolution [dots per inch].")
 @click.option("--board-squares", default="7x5", show_default=True, help="ChArUco squares along x and y, NxM.")
 @click.option("--square", type=FiniteFloat(min=0, min_open=True), default=25.0, show_default=True,
               help="Square side [mm].")
@@ -32,15 +32,15 @@ def _parse_squares(text):
 @click.option("--spokes", type=click.IntRange(min=3), default=8, show_default=True, help="Number of spokes.")
 @click.option("--step-deg", type=FiniteFloat(), default=20.0, show_default=True, help="Angle between spokes [deg].")
 @click.option("--start-deg", type=FiniteFloat(), default=None,
-              help="Angle of the first spoke [deg]; default: the fan opens away from the board.")
+              help="Angle of the first spoke [deg]; default: away from the board.")
 @click.option("--radius", type=(FiniteFloat(), FiniteFloat()), default=(15.0, 80.0), show_default=True,
-              help="Inner and outer end of every spoke, from the vertex [mm].")
+              help="Inner and outer end of the spokes [mm].")
 @click.option("--width", type=FiniteFloat(min=0, min_open=True), default=1.0, show_default=True,
               help="Width of the printed spokes (dark bars) [mm].")
 @click.option("--side", type=click.Choice(["right", "below"]), default="right", show_default=True,
               help="Where the fan goes relative to the board.")
 @click.option("--margin", type=FiniteFloat(min=0), default=10.0, show_default=True,
-              help="Blank border kept on the paper [mm] (printers cannot print to the edge).")
+              help="Blank border kept on the paper [mm].")
 @force_option
 @quiet_option
 @run
@@ -48,17 +48,23 @@ def target(output, paper, orientation, dpi, board_squares, square, marker, dicti
            start_deg, radius, width, side, margin, force, quiet):
     """Write a printable target: a ChArUco board with a fan of spokes beside it.
 
+    \b
+    Examples:
+      pencilcal target -o target.pdf
+      pencilcal target -o target.png --dpi 600 --paper letter --spokes 10
+
+    A PDF or PNG at true scale (print at 100 %), with board.yaml and pencil.yaml beside it.
+    Measure a square after printing: it must be --square mm. In detail: docs/cli.md.
+    \f
     The output is a PDF (vector, the page exactly the paper size) or a PNG (at --dpi, with
     the dpi in its metadata); either prints at true scale when printed at 100 % ("actual
     size", no "fit to page"). board.yaml and pencil.yaml are written beside it and state
     exactly what is printed: the board, and the spokes' angles, vertex, radius and width in
-    the board frame (x right, y down, origin at the board's outer corner, mm). Measure a
-    square after printing; it must be --square millimetres.
-
-    \b
-    Example:
-      pencilcal target -o target.pdf
-      pencilcal target -o target.png --dpi 600 --paper letter --spokes 10 --step-deg 15
+    the board frame (x right, y down, origin at the board's outer corner, mm). The fan goes
+    to the right of the board or below it (--side); the first spoke's angle defaults to
+    the fan opening away from the board. --margin is the blank border kept on the paper
+    (printers cannot print to the edge). Measure a square after printing; it must be
+    --square millimetres.
     """
     from pencilcal.toolkit.board.spec import board_from_dict, write_board
     from pencilcal.toolkit.pencil.spec import write_pencil
@@ -85,5 +91,5 @@ def target(output, paper, orientation, dpi, board_squares, square, marker, dicti
     write_pencil(pencil_path, sheet.pencil, force=force)
     if not quiet:
         v = sheet.pencil.vertex
-        click.echo(f"{sheet.paper}: board {nx}x{ny} x {square:g} mm, {spokes} spokes at vertex "
-                   f"({v[0]:g}, {v[1]:g}) mm -> {out}, {board_path.name}, {pencil_path.name}", err=True)
+        done(f"{sheet.paper}: board {nx}x{ny} x {square:g} mm, {spokes} spokes at vertex ({v[0]:g}, {v[1]:g}) mm",
+             out, board_path, pencil_path)

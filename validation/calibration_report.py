@@ -29,7 +29,7 @@ import numpy as np
 from pencilcal.toolkit.io.files import atomic_write
 
 from .report.document import Bullets, Cell, Para, Plot, Report, Section, Table
-from .report.figures import new_figure, png_bytes
+from .report.figures import legend_below, new_figure, png_bytes
 from .report.format import num
 from .report.html import render_html
 
@@ -119,7 +119,7 @@ def _fig_views(views):
         ax.plot(xs[none], np.zeros(none.sum()), "x", color="0.5", label="no corners / skipped")
     ax.set_xlabel("view")
     ax.set_ylabel("RMS residual [px]")
-    ax.legend(fontsize=8)
+    legend_below(fig, *ax.get_legend_handles_labels())  # below the bars, never over them
     return Plot(png_bytes(fig), "Per-view RMS of the corner residuals; red: views rejected as outliers, grey "
                 "crosses: views without a usable board.", "bar chart of per-view residuals")
 
@@ -136,7 +136,7 @@ def _fig_coverage(grid):
         for i in range(nx):
             if counts[j, i] == 0:
                 ax.text((i + 0.5) * w / nx - 0.5, (j + 0.5) * h / ny - 0.5, "0", ha="center", va="center",
-                        color="C3", fontsize=7)
+                        color="C3", fontsize=8)
     ax.set_xlim(-0.5, w - 0.5)
     ax.set_ylim(h - 0.5, -0.5)
     ax.set_xlabel("u [px]")

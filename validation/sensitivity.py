@@ -677,7 +677,7 @@ def _heat_tilt_offaxis(fig, m, accuracy, sigma_deg):
     ax.set_xlabel("tilt against the vertex ray [deg]")
     ax.set_ylabel("vertex off axis [deg]")
     ax.set_title("normal error (" + ("Monte Carlo, closer twin)" if mc is not None else "Cramer-Rao bound)"))
-    ax.legend(loc="upper right", fontsize=7, framealpha=0.6)
+    _legend_under(ax)
     if mc is not None:
         ax2 = axes[1]
         pm2 = ax2.pcolormesh(_edges(t), _edges(o), _masked(mc["detect_rate"]), vmin=0, vmax=1, cmap="magma",
@@ -692,15 +692,20 @@ def _heat_tilt_offaxis(fig, m, accuracy, sigma_deg):
         ax2.set_xlabel("tilt against the vertex ray [deg]")
         ax2.set_ylabel("vertex off axis [deg]")
         ax2.set_title("detection (likelihood-ratio test, 1%)")
-        ax2.legend(loc="lower right", fontsize=7, framealpha=0.6)
+        _legend_under(ax2)
     for a in axes:
         a.set_ylim(max(_edges(o)[0], 0.0), _edges(o)[-1])
     ax.set_xlim(max(_edges(t)[0], 0.0), _edges(t)[-1])
 
 
+def _legend_under(ax):
+    """The axes' legend below it, outside the map (never over its cells)."""
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, fontsize=8, framealpha=0.9)
+
+
 def _annotate(ax, values, fmt):
     for (i, j), v in np.ndenumerate(np.asarray(values, float)):
-        ax.text(j, i, fmt(v), ha="center", va="center", fontsize=7, color="black",
+        ax.text(j, i, fmt(v), ha="center", va="center", fontsize=8, color="black",
                 bbox=dict(boxstyle="round,pad=0.1", fc="white", ec="none", alpha=0.6))
 
 
@@ -748,7 +753,7 @@ def _heat_noise(fig, m, accuracy):
     ax.set_xlabel("tilt against the vertex ray [deg]")
     ax.set_ylabel("line-angle noise sigma [deg]")
     ax.set_title("normal error over noise and tilt (" + ("Monte Carlo)" if mc is not None else "bound)"))
-    ax.legend(loc="upper right", fontsize=7, framealpha=0.6)
+    _legend_under(ax)
 
 
 def heatmap_paths(prefix, maps):

@@ -5,7 +5,9 @@
 - orient: lines of the pencil (the printed fan's bars, or the board's grid lines through one
   corner, `grid_pencil`) -> the exact estimator and the chapter's general and aligned
   models (`toolkit.orient.orient_segments`); the twin is chosen only by the pencil's own
-  information (spoke radii), never by the board pose it is compared with;
+  information (spoke radii, then continuity along the sequence as `pencilcal orient` has
+  it by default: `orient.resolve_twins_by_continuity`), never by the board pose it is
+  compared with;
 - pnp: the board's corners -> every PnP method, each refined (`validation.pnp`);
 - sfm (optional): a pycolmap reconstruction with the intrinsics held fixed, aligned to the
   board frame by robust rotation averaging against the PnP poses (`validation.align`).
@@ -40,6 +42,7 @@ from .metrics import coverage, normal_error_deg, rotation_error_deg, summary
 from .pnp import METHODS, best_method, estimate_all, frame_record
 
 __all__ = ["validate_sequence", "validate_path", "validate_many", "find_sequences", "sequence_files", "frame_errors",
+           "twins_by_continuity",
            "reference_sigmas", "summarise", "reproducibility", "FanLines", "GridLines"]
 
 
@@ -253,7 +256,7 @@ def _process(frame, camera, board, lines_source, models, methods, truth, keep_pi
     rec = {"image": frame.name, "ok": False, "error": None, "path": frame.path}
     if frame.image is None:
         rec["error"] = frame.error
-        return rec, None
+        return rec, None, None
     check_image_size(frame, camera)
     det = detect_board(frame.image, board)
     obj = board.object_points()
@@ -292,19 +295,16 @@ def _process(frame, camera, board, lines_source, models, methods, truth, keep_pi
     rec["reference"] = source
     if R_ref is None:
         rec["error"] = "no reference pose (no truth and no board pose)"
-        return rec, None
+        return rec, None, None
     rec["R_ref"] = R_ref
     rec["t_ref"] = t_ref
     ray = _vertex_ray(R_ref, t_ref, pencil)
     rec["reference_tilt_deg"] = None if ray is None else _tilt_deg(R_ref, ray)
     errors = {}
+    ref_pose = best if source == "pnp" else None
     for m, o in orients.items():
         if o.ok:
-            ray_m = ray if ray is not None else np.asarray(o.ray, float)
-            e = frame_errors(o.R_cam_from_target, o.R_cam_from_target_twin, o.ambiguous, R_ref, ray_m,
-                             o.tilt_sigma_deg, o.normal_sigma_deg)
-            e.update(_coverage_sigmas(o, best if source == "pnp" else None, ray_m))
-            errors[f"orient:{m}"] = e
+            errors[f"orient:{m}"] = _orient_errors(o, R_ref, ray, ref_pose)
     exact = orients.get("exact")
     if exact is not None and exact.ok and exact.lines is not None:
         ln = exact.lines
@@ -327,7 +327,42 @@ def _process(frame, camera, board, lines_source, models, methods, truth, keep_pi
     rec["ok"] = bool(errors)
     if not errors:
         rec["error"] = "no estimate in this frame"
-    return rec, best
+    return rec, best, {"orients": orients, "R_ref": R_ref, "ray": ray, "ref_pose": ref_pose}
+
+
+def _orient_errors(o, R_ref, ray, ref_pose):
+    """One orientation's error record against the reference (`frame_errors` with the
+    sigmas its coverage is judged by); ray: the reference's vertex ray, or None for the
+    estimate's own."""
+    ray_m = ray if ray is not None else np.asarray(o.ray, float)
+    e = frame_errors(o.R_cam_from_target, o.R_cam_from_target_twin, o.ambiguous, R_ref, ray_m,
+                     o.tilt_sigma_deg, o.normal_sigma_deg)
+    e.update(_coverage_sigmas(o, ref_pose, ray_m))
+    return e
+
+
+def twins_by_continuity(frames, estimates):
+    """Resolve the twin of ambiguous frames by continuity along the sequence, per orient
+    model, as `pencilcal orient` does by default (`orient.resolve_twins_by_continuity`:
+    the choices of frames the spoke radii resolved carried to the others, which then say
+    ``resolved_by: "continuity"``; with no resolved frame the twins are only made
+    consistent and stay ambiguous). frames: the validation records, changed in place
+    (their ``orient`` and ``errors``); estimates: per frame `_process`'s third value (the
+    Orientations, the reference and its ray) or None."""
+    from pencilcal.toolkit.pencil.orient import resolve_twins_by_continuity
+
+    models = sorted({m for e in estimates if e for m in e["orients"]})
+    for m in models:
+        idx = [i for i, e in enumerate(estimates) if e and e["orients"].get(m) is not None and e["orients"][m].ok]
+        done = resolve_twins_by_continuity([estimates[i]["orients"][m] for i in idx])
+        for i, o in zip(idx, done):
+            e = estimates[i]
+            if o is e["orients"][m]:
+                continue
+            e["orients"][m] = o
+            frames[i]["orient"][m] = o.to_dict()
+            if e["R_ref"] is not None and f"orient:{m}" in frames[i].get("errors", {}):
+                frames[i]["errors"][f"orient:{m}"] = _orient_errors(o, e["R_ref"], e["ray"], e["ref_pose"])
 
 
 def _sfm(source, camera, frames, best_poses, workdir, warn, quiet, progress):
@@ -370,21 +405,23 @@ def _frame_task(frame, ctx):
     """One frame's validation record, the PoseResult of its best PnP method (or None) and,
     with `shafts` (detector, valid region, gamma), its shafts as a lines.json frame (else None)
     (module level: runs in worker processes too)."""
-    camera, board, lines_source, models, methods, truth, keep_pixels, shafts = ctx
+    camera, board, lines_source, models, methods, truth, keep_pixels, shafts, continuity = ctx
     try:
-        rec, best = _process(frame, camera, board, lines_source, models, methods, truth, keep_pixels)
+        rec, best, est = _process(frame, camera, board, lines_source, models, methods, truth, keep_pixels)
     except EstimationError as e:
-        rec, best = {"image": frame.name, "ok": False, "error": str(e)}, None
+        rec, best, est = {"image": frame.name, "ok": False, "error": str(e)}, None, None
+    est = est if continuity else None  # the Orientations travel back only where they are used
     if shafts is None:
-        return rec, best, None
+        return rec, best, None, est
     from .fulcrum_validation import shaft_frame
 
-    return rec, best, shaft_frame(frame, camera, *shafts)
+    return rec, best, shaft_frame(frame, camera, *shafts), est
 
 
 def validate_sequence(source, camera, board, lines_source, *, truth=None, models=MODELS, methods=METHODS,
                       sfm=False, sfm_workdir=None, progress=None, warn=None, quiet=True, keep_pixels=True,
-                      sfm_progress=None, workers=1, right_poses=None, rig_intrinsics=(None, None), fulcrum=None):
+                      sfm_progress=None, workers=1, right_poses=None, rig_intrinsics=(None, None), fulcrum=None,
+                      continuity=True):
     """Run orient, every PnP method and optionally SfM on one sequence and compare them.
 
     source: an ImageSource; camera: Camera; board: Board; lines_source: FanLines or GridLines
@@ -400,26 +437,31 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
     camera's intrinsics covariance in rig_intrinsics) goes under ``checks``; fulcrum: a
     dict of detector, valid_region, truth (the pivot truth or None) and shaft_diameter: the
     instrument's shafts are detected in every frame as it is processed and the ``fulcrum``
-    record (`fulcrum_validation.fulcrum_record`) is made from them.
+    record (`fulcrum_validation.fulcrum_record`) is made from them; continuity: resolve the
+    twin of ambiguous frames along the sequence as `pencilcal orient` does
+    (`twins_by_continuity`; the frames in the order given).
 
     Returns the validation.json dict (numpy arrays inside; write with files.write_json).
     """
-    frames, best_poses, shaft_frames = [], [], []
+    frames, best_poses, shaft_frames, estimates = [], [], [], []
     shafts = None
     if fulcrum is not None:
         from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 
         gamma = DEFAULT_GAMMA if fulcrum.get("gamma") is None else float(fulcrum["gamma"])
         shafts = (fulcrum.get("detector", "auto"), fulcrum.get("valid_region"), gamma)
-    ctx = (camera, board, lines_source, models, methods, truth, keep_pixels, shafts)
+    ctx = (camera, board, lines_source, models, methods, truth, keep_pixels, shafts, continuity)
     results = map_frames(_frame_task, source, ctx, workers)
     it = results if progress is None else progress(Sized(results, len(source)), "validate")
-    for rec, best, shaft_rec in it:
+    for rec, best, shaft_rec, est in it:
         if not rec["ok"] and warn is not None:
             warn(f"{rec['image']}: {rec['error']}")
         frames.append(rec)
         best_poses.append(best)
         shaft_frames.append(shaft_rec)
+        estimates.append(est)
+    if continuity:
+        twins_by_continuity(frames, estimates)
     if not any(f["ok"] for f in frames):
         raise EstimationError("no frame could be validated (no pencil and no board pose in any frame)")
     keys = [f"orient:{m}" for m in models] + [f"pnp:{m}" for m in methods]
@@ -498,7 +540,7 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
                   models=MODELS, methods=METHODS, sfm=False, sfm_dir=None, detector="auto", calibration=None,
                   workers=1, progress=None, warn=None, quiet=True, sfm_progress=None, argv=None, edges=False,
                   mask=None, right=None, right_camera=None, right_calibration=None, fulcrum=None, shaft_diameter=None,
-                  gamma=None):
+                  gamma=None, continuity=True):
     """Validate one sequence given by paths; returns the whole validation.json dict.
 
     sequence: folder, glob, video, or a `pencilcal simulate` folder (whose camera, board,
@@ -517,8 +559,8 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
     the fulcrum and with shaft_diameter its 3-D point, against the truth where known);
     None: when the truth is a pivot scenario's (its shaft diameter then the default); gamma:
     the frames' encoding gamma for the shafts' edges (None: `detect_shafts`' default). The
-    other arguments as `validate_sequence`. Module level and paths only, so a Dask worker
-    can run it.
+    other arguments (continuity among them) as `validate_sequence`. Module level and paths
+    only, so a Dask worker can run it.
     """
     from pencilcal.toolkit.board.spec import read_board
     from pencilcal.toolkit.camera.formats import camera_to_dict, read_camera
@@ -572,7 +614,8 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
                  "shaft_diameter": shaft_diameter, "gamma": gamma}
     result = validate_sequence(source, cam, brd, lines, truth=truth_frames, models=models, methods=methods, sfm=sfm,
                                sfm_workdir=sfm_dir, progress=progress, warn=warn, quiet=quiet,
-                               sfm_progress=sfm_progress, workers=workers, fulcrum=pivot, **rig)
+                               sfm_progress=sfm_progress, workers=workers, fulcrum=pivot, continuity=continuity,
+                               **rig)
     if checks:
         result["checks"] = {**checks, **result.get("checks", {})}
     inputs = [p for p in (camera, board, pencil, truth, calibration, mask, right_camera, right_calibration) if p]

@@ -77,7 +77,7 @@ def scratch(tmp_path, rendered, names=None):
 def test_help_has_an_example():
     r = CliRunner().invoke(calibrate, ["--help"])
     assert r.exit_code == 0
-    assert "Example:" in r.output and "pencilcal calibrate" in r.output
+    assert "Examples:" in r.output and "pencilcal calibrate" in r.output
     for opt in ("--board", "--model", "--coefficients", "--fix-aspect", "--report", "--corners", "--force", "--quiet"):
         assert opt in r.output
 

@@ -3,18 +3,16 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
-import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from pencilcal.cli.report import report
+from tests.validation.report.browser import CHROMIUM, first_screen, run
 from tests.validation.report.helpers import assert_self_contained, decoded_images, pdf_pages, summary_rows, synthetic
-
-CHROMIUM = Path("/usr/bin/chromium")
 
 
 def invoke(*args):
@@ -109,27 +107,20 @@ def test_help_has_an_example():
 
 # ---------------------------------------------------------------------------------- in a browser
 
-_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-          "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-extensions",
-          "--hide-scrollbars", "--mute-audio"]
-
-
-def _chromium(args, tmp_path):
-    profile = tmp_path / "chromium-profile"
-    return subprocess.run([str(CHROMIUM), *_FLAGS, f"--user-data-dir={profile}", *args], capture_output=True,
-                          text=True, timeout=90)
-
 
 @pytest.mark.skipif(not CHROMIUM.exists(), reason="Chromium not installed (apt-get install chromium)")
 def test_renders_in_headless_chromium(page, tmp_path):
-    url = page.resolve().as_uri()
-    dom = _chromium(["--virtual-time-budget=3000", "--dump-dom", url], tmp_path)
+    dom = run(["--virtual-time-budget=3000", "--dump-dom", page.resolve().as_uri()], tmp_path)
     assert dom.returncode == 0, dom.stderr[-2000:]
     assert "2. Summary of every method" in dom.stdout
     # every figure of the page is in the rendered DOM
     assert dom.stdout.count("<img") == page.read_text().count("<img") >= 5 and "orient:exact" in dom.stdout and "pnp:ippe" in dom.stdout
+    # the first screen (1280x900) opens with the verdict: the headline figure with its unit
+    verdict, problems = first_screen(page, tmp_path, tmp_path / "first-screen.png")
+    assert problems == []
+    assert re.match(r"FAIL ?plane normal .* median error \d[\d.]* deg", verdict), verdict
     shot = tmp_path / "shot.png"
-    r = _chromium(["--window-size=1280,2400", f"--screenshot={shot}", url], tmp_path)
+    r = run(["--window-size=1280,2400", f"--screenshot={shot}", page.resolve().as_uri()], tmp_path)
     assert r.returncode == 0 and shot.is_file(), r.stderr[-2000:]
     from matplotlib.image import imread
 

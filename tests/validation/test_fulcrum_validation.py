@@ -4,6 +4,7 @@ pivoting about a port 6 mm above the printed sheet, seen with the board)."""
 from __future__ import annotations
 
 import json
+import re
 
 import cv2
 import numpy as np
@@ -76,13 +77,19 @@ def test_validate_no_fulcrum_and_report_section(pivot, tmp_path):
     assert len([b for b in fulcrum_section(data, samples=0).blocks if isinstance(b, Plot)]) == 2
     rows = sec.blocks[0].rows
     assert [r[0] for r in rows] == ["2-D vertex", "3-D point (camera frame)", "3-D point (board frame)"]
-    assert build_report(data).sections[-1].id == "fulcrum"
+    # a pivot's report leads with its fulcrum: right after what was validated
+    assert build_report(data).sections[1].id == "fulcrum"
     assert fulcrum_section({"frames": []}) is None
     failed = fulcrum_section({"fulcrum": {"ok": False, "error": "fewer than two instrument lines"}})
     assert "fewer than two" in failed.blocks[0].text
-    r = invoke("report", pivot / "v.json", "-o", tmp_path / "r.html", "-q")
+    from tests.validation.report.figure_rules import linted_figures
+
+    with linted_figures() as problems:  # a fixed camera: every frame at one tilt, plotted against the frame
+        r = invoke("report", pivot / "v.json", "-o", tmp_path / "r.html", "-q")
     assert r.exit_code == 0, r.output
-    assert "Fulcrum of the pivoting instrument" in (tmp_path / "r.html").read_text()
+    assert problems == []
+    page = (tmp_path / "r.html").read_text()
+    assert "2. Fulcrum of the pivoting instrument" in page and "lengths in mm" in page
 
 
 def test_validate_gamma_reaches_the_shaft_edges(pivot, tmp_path):
@@ -97,3 +104,51 @@ def test_validate_gamma_reaches_the_shaft_edges(pivot, tmp_path):
     assert linear["ok"] and default["ok"] and linear["vertex_px"] != default["vertex_px"]
     r = invoke("validate", pivot / "p", "--methods", "ippe", "--gamma", 0.0, "-o", tmp_path / "bad.json", "-q")
     assert r.exit_code == 2 and "--gamma" in r.output
+
+
+def test_continuity_resolves_the_twin_and_rescores_the_frames(pivot, tmp_path):
+    """validate carries the twin chosen in resolved frames to the ambiguous ones, as orient
+    does (the camera is fixed: every frame shows the same pose): frames reported with the
+    wrong twin and left ambiguous come out right, resolved by continuity, their errors
+    measured again; --no-continuity leaves the frames as the spoke radii left them."""
+    from pencilcal.toolkit.pencil.orientation import Orientation
+    from pencilcal.validation.validate import twins_by_continuity
+
+    frames = json.loads((pivot / "v.json").read_text())["frames"]
+    estimates = []
+    for i, fr in enumerate(frames):
+        o = Orientation.from_dict(fr["orient"]["exact"])
+        if fr["errors"]["orient:exact"]["twin"] == "wrong":
+            o = o.swapped()
+        # frame 0 resolved (the radii's choice, say); the others ambiguous, every other one
+        # reporting the wrong twin
+        o = o.replace(ambiguous=False, resolved_by="radius") if i == 0 else \
+            (o.swapped() if i % 2 else o).replace(ambiguous=True, resolved_by=None)
+        fr["orient"]["exact"] = o.to_dict()
+        estimates.append({"orients": {"exact": o}, "R_ref": np.asarray(fr["R_ref"], float), "ray": None,
+                          "ref_pose": None})
+    twins_by_continuity(frames, estimates)
+    for fr in frames[1:]:
+        assert fr["orient"]["exact"]["resolved_by"] == "continuity" and not fr["orient"]["exact"]["ambiguous"]
+        e = fr["errors"]["orient:exact"]
+        assert e["twin"] == "right" and e["normal_deg"] == e["normal_closer_deg"] < 1.0
+    r = invoke("validate", pivot / "p", "--methods", "ippe", "--no-fulcrum", "--no-continuity", "-o",
+               tmp_path / "nc.json", "-q")
+    assert r.exit_code == 0, r.output
+    nc = json.loads((tmp_path / "nc.json").read_text())
+    assert all(f["orient"]["exact"].get("resolved_by") != "continuity" for f in nc["frames"] if f["ok"])
+
+
+def test_the_pivot_report_opens_with_the_fulcrum_in_a_browser(pivot, tmp_path):
+    """The first screen (1280x900, headless Chromium) shows the verdict on the fulcrum, its
+    3-D point in mm; nothing overflows, every figure's axes are labelled."""
+    from tests.validation.report.browser import CHROMIUM, first_screen
+
+    if not CHROMIUM.exists():
+        pytest.skip("Chromium not installed (apt-get install chromium)")
+    r = invoke("report", pivot / "v.json", "-o", tmp_path / "pivot.html", "-q")
+    assert r.exit_code == 0, r.output
+    verdict, problems = first_screen(tmp_path / "pivot.html", tmp_path, tmp_path / "first-screen.png")
+    assert problems == []
+    assert re.match(r"(PASS|FAIL) ?fulcrum of the pivoting instrument: the 3-D point \([-\d., ]+\) mm in the camera "
+                    r"frame, sigma [\d.]+ mm", verdict), verdict

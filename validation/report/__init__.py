@@ -3,6 +3,9 @@
 `pencilcal validate` writes what was measured; this module turns it into what a reviewer
 reads, in this order:
 
+0. the answer (`headline`): one verdict line (what was measured, the headline figure with
+   its unit and sigma, PASS/FAIL/CHECK against its tolerance) and the numbers that matter;
+   a pivot's report leads with the fulcrum, and its fulcrum section comes second;
 1. header: what was validated (sequence, frames, camera, board, pencil, reference) and a
    verdict in plain words, *computed from the numbers* (`verdict`), which also says what
    the file does not cover (no truth, no reconstruction, no calibration statistics,
@@ -24,7 +27,7 @@ script, no network resource) or to a multi-page A4 PDF with matplotlib's PdfPage
 (`render_pdf`). `write_report` picks the format by suffix and writes atomically.
 
 Modules: `document` (the blocks), `format` (values and numbers for people), `facts`
-(methods, errors, phrases the parts share), `verdict`, `tables`, `figures` (error
+(methods, errors, phrases the parts share), `headline` (the answer first), `verdict`, `tables`, `figures` (error
 against tilt, calibration of the sigmas), `overlay` (sample frames), `sections`
 (calibration, reconstruction, sensitivity plan, reproducibility), `html`, `pdf`, and
 `build` (the whole report, written). The validation.json itself is read by
@@ -49,6 +52,7 @@ from ..validation_file import check_validation, load_validation
 from .build import FORMATS, build_report, write_report
 from .document import Bullets, Cell, Details, Para, Plot, Pre, Report, Section, Table
 from .facts import method_keys, method_label
+from .headline import Headline, headline
 from .figures import fig_error_vs_tilt, fig_sigma_calibration
 from .format import num, pct
 from .html import render_html
@@ -67,6 +71,8 @@ __all__ = [
     "render_pdf",
     "write_report",
     "verdict",
+    "headline",
+    "Headline",
     "summary_table",
     "method_keys",
     "method_label",

@@ -1,21 +1,25 @@
-"""The whole report: its sections in reading order (`build_report`), and the file written
-in the format its suffix names (`write_report`, atomically, through `files.atomic_write`
-and `files.atomic_path`).
+"""The whole report: its answer first (`headline`: the verdict line and the numbers that
+matter), then its sections in reading order, numbered as they come (`build_report`); a
+pivot's report puts the fulcrum right after the first section. `write_report` writes it in
+the format its suffix names (atomically, through `files.atomic_write` and
+`files.atomic_path`).
 """
 from __future__ import annotations
 
 import datetime as _dt
+import re
 from pathlib import Path
 
 from pencilcal.toolkit.errors import InputError, PencilcalError
 from pencilcal.toolkit.io.files import atomic_path, atomic_write, check_writable, to_jsonable
 
 from ..validation_file import check_validation
-from .document import Bullets, Details, Para, Report, Section, Table
+from .document import Bullets, Details, Para, Report, Section, Table, Verdict
 from .facts import pencil_phrase, reference_counts, reference_phrase
 from .gates import failed_gates_sentence, fig_nees, gates, gates_table
 from .figures import fig_error_vs_tilt, fig_sigma_calibration
 from .format import lookup, num
+from .headline import headline
 from .html import render_html
 from .fulcrum_section import fulcrum_section
 from .overlay import overlay_section
@@ -120,10 +124,20 @@ def build_report(data, *, title=None, samples=4, sensitivity=None, source=None, 
                 sfm_section(data),
                 sensitivity_section(data, sensitivity),
                 reproducibility_section(data, source, report_command, sensitivity_path)]
-    fulcrum = fulcrum_section(data, number=10, samples=min(samples, 3), source=source)
+    fulcrum = fulcrum_section(data, number=2, samples=min(samples, 3), source=source)
     if fulcrum is not None:
-        sections.append(fulcrum)
-    return Report(title, subtitle, sections)
+        sections.insert(1, fulcrum)  # a pivot's report leads with its subject
+    head = headline(data)
+    lead = [Verdict(head.status, head.sentence)] + ([head.table] if head.table is not None else [])
+    return Report(title, subtitle, _numbered(sections), lead)
+
+
+def _numbered(sections):
+    """The sections with their titles numbered 1, 2, ... in reading order."""
+    for i, s in enumerate(sections, 1):
+        s.title = re.sub(r"^\d+\.\s*", "", s.title)
+        s.title = f"{i}. {s.title}"
+    return sections
 
 
 def write_report(path, data, *, force=False, title=None, samples=4, sensitivity=None, source=None,

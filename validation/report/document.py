@@ -1,7 +1,8 @@
 """The report's content as simple blocks, built once and rendered to HTML or PDF.
 
-A `Report` is a title, a subtitle and a list of `Section`s; a section holds blocks:
-`Para`, `Bullets`, `Table` (of str or `Cell`), `Plot` (a PNG), `Details` (a collapsible
+A `Report` is a title, a subtitle, its lead (the blocks before everything else: the
+`Verdict` and the numbers that matter) and a list of `Section`s; a section holds blocks:
+`Para`, `Verdict`, `Bullets`, `Table` (of str or `Cell`), `Plot` (a PNG), `Details` (a collapsible
 group of blocks) and `Pre`. The renderers (`html.render_html`, `pdf.render_pdf`) know
 every block type; nothing here depends on how it is drawn.
 
@@ -17,7 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-__all__ = ["Cell", "Para", "Bullets", "Table", "Plot", "Details", "Pre", "Section", "Report"]
+__all__ = ["Cell", "Para", "Verdict", "Bullets", "Table", "Plot", "Details", "Pre", "Section", "Report"]
 
 
 @dataclass
@@ -35,6 +36,15 @@ class Para:
 
     text: str
     kind: str = "text"
+
+
+@dataclass
+class Verdict:
+    """The report's answer in one line: status (PASS, FAIL, CHECK, NOT JUDGED) and the
+    sentence saying what was measured, its headline figure and its tolerance."""
+
+    status: str
+    text: str
 
 
 @dataclass
@@ -65,11 +75,14 @@ class Table:
 
 @dataclass
 class Plot:
-    """A matplotlib figure, rendered once to PNG: the file's bytes, a caption and alt text."""
+    """A matplotlib figure, rendered once to PNG: the file's bytes, a caption, alt text and
+    what its axes show ("x: reference tilt [deg]; y: ...", "image" for a frame drawn on;
+    `figures.plot_of` reads them off the figure)."""
 
     png: bytes
     caption: str
     alt: str
+    axes: str = ""
 
 
 @dataclass
@@ -99,8 +112,10 @@ class Section:
 
 @dataclass
 class Report:
-    """The whole report: title, subtitle and sections in reading order."""
+    """The whole report: title, subtitle, sections in reading order, and the lead: the
+    blocks a reader sees first, before the sections (the verdict and its table)."""
 
     title: str
     subtitle: str
     sections: list
+    lead: list = field(default_factory=list)

@@ -32,6 +32,7 @@ __all__ = [
     "same_as_reference",
     "reference_counts",
     "primary_method",
+    "comparison_keys",
     "reference_phrase",
     "pencil_phrase",
     "calibration_same_images",
@@ -96,6 +97,14 @@ def primary_method(data):
         if key.startswith("orient:") and (lookup(data, "summary", key, "frames") or 0) > 0:
             return key
     return None
+
+
+def comparison_keys(data):
+    """The orient keys kept for comparison: every orient model but the primary one (the
+    book chapter's general and aligned models beside the exact estimator). The report
+    shows them labelled, grey, and never judges them."""
+    prim = primary_method(data)
+    return [k for k in method_keys(data) if k.startswith("orient:") and k != prim]
 
 
 def reference_phrase(data):

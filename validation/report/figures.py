@@ -1,7 +1,12 @@
 """The report's plots of every method's errors: error against the reference tilt with the
 per-frame Cramer-Rao bound (`fig_error_vs_tilt`), and the calibration of the reported
 sigmas (`fig_sigma_calibration`); and the figure helpers the other plots share
-(`new_figure`, `png_bytes`, `nice_floor`). Angles in degrees.
+(`new_figure`, `png_bytes`, `legend_below`, `nice_floor`). Angles in degrees.
+
+Every figure is drawn to be read at 900 px: at most `MAX_WIDTH_IN` wide at `DPI`, no text
+under `MIN_FONT` points, its legend below its plots (never over their data), its axes
+labelled with their units. A plot whose data have one value on an axis is not drawn that
+way: every frame at one reference tilt is plotted against the frame instead.
 
 matplotlib is imported when a figure is made, never on import (Agg backend, no window).
 
@@ -9,8 +14,10 @@ Example
 -------
 >>> nice_floor(37.0), nice_floor(0.3), nice(0.037)
 (20.0, 1.0, 0.05)
->>> tilt_axis({"frames": [{"reference_tilt_deg": 12.0}, {}]})
-({0: 12.0, 1: None}, 'reference tilt [deg]')
+>>> tilt_axis({"frames": [{"reference_tilt_deg": 12.0}, {"reference_tilt_deg": 20.0}, {}]})
+({0: 12.0, 1: 20.0, 2: None}, 'reference tilt [deg]')
+>>> tilt_axis({"frames": [{"reference_tilt_deg": 33.7}, {"reference_tilt_deg": 33.7}]})
+({0: 0.0, 1: 1.0}, 'frame (every frame at a reference tilt of 33.7 deg)')
 """
 from __future__ import annotations
 
@@ -23,11 +30,17 @@ from .document import Plot
 from .facts import method_errors, method_keys, method_label, primary_method, reference_phrase, same_as_reference
 from .format import finite, finite_or_nan, lookup, num
 
-__all__ = ["DPI", "new_figure", "png_bytes", "nice", "nice_floor", "tilt_axis", "fig_error_vs_tilt",
-           "fig_sigma_calibration"]
+__all__ = ["DPI", "MAX_WIDTH_IN", "MIN_FONT", "new_figure", "png_bytes", "plot_of", "axes_text", "legend_below", "nice", "nice_floor",
+           "tilt_axis", "fig_error_vs_tilt", "fig_sigma_calibration"]
 
 #: [dots per inch] of every PNG in the report
 DPI = 100
+#: [in] the widest figure: 900 px at `DPI`, shown at its size in a 900 px window
+MAX_WIDTH_IN = 9.0
+#: [pt] the smallest text in a figure (legends, tick labels)
+MIN_FONT = 8.0
+#: [deg] reference tilts spread less than this are one tilt (a fixed camera)
+ONE_TILT_DEG = 1e-3
 
 _ORIENT_STYLE = {"exact": ("C0", "o"), "general": ("C1", "s"), "aligned": ("C2", "^")}
 _OTHER_MARKERS = ["D", "v", "<", ">", "P", "h", "*"]
@@ -41,6 +54,48 @@ def new_figure(**kw):
     from matplotlib.figure import Figure
 
     return Figure(layout="constrained", **kw)
+
+
+def legend_below(fig, handles, labels, ncol=3):
+    """One legend for the whole figure, below its plots (constrained layout makes room)."""
+    if handles:
+        fig.legend(handles, labels, loc="outside lower center", ncol=ncol, fontsize=MIN_FONT, framealpha=0.9)
+
+
+def _gather(*axes):
+    """(handles, labels) of the artists of `axes` that have a label, each label once."""
+    out = {}
+    for ax in axes:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            out.setdefault(lab, h)
+    return list(out.values()), list(out.keys())
+
+
+def axes_text(fig):
+    """What the figure's plots show, read off its axes after drawing: "x: LABEL; y: LABEL"
+    per plot ("(none)" where a shown axis has no label; an axis whose tick labels are
+    hidden, shared with its neighbour, left out), "image" for a panel without ticks (a
+    frame drawn on), joined by " | "."""
+    parts = []
+    for ax in fig.axes:
+        if not ax.get_visible() or hasattr(ax, "_colorbar"):
+            continue
+        if not ax.axison or (not len(ax.get_xticks()) and not len(ax.get_yticks())):
+            parts.append("image")
+            continue
+        shown = []
+        for name, label, ticks in (("x", ax.get_xlabel(), ax.get_xticklabels()),
+                                   ("y", ax.get_ylabel(), ax.get_yticklabels())):
+            if any(t.get_visible() and t.get_text() for t in ticks):
+                shown.append(f"{name}: {label or '(none)'}")
+        parts.append("; ".join(shown))
+    return " | ".join(dict.fromkeys(p for p in parts if p))
+
+
+def plot_of(fig, caption, alt, dpi=DPI):
+    """The figure as a `Plot`: its PNG, the caption, the alt text and what its axes show."""
+    png = png_bytes(fig, dpi)
+    return Plot(png, caption, alt, axes_text(fig))
 
 
 def png_bytes(fig, dpi=DPI):
@@ -69,11 +124,14 @@ def nice(v):
 
 def tilt_axis(data):
     """(x per frame index, axis label): the reference tilt [deg] (None where a frame has
-    none), else the frame index when no frame has a reference tilt."""
+    none); the frame index when no frame has a reference tilt, or when every frame has the
+    same one (a fixed camera: one tilt would plot every frame on one vertical line)."""
     xs = {i: finite(f.get("reference_tilt_deg")) for i, f in enumerate(data["frames"])}
-    if any(v is not None for v in xs.values()):
+    known = [v for v in xs.values() if v is not None]
+    if known and max(known) - min(known) >= ONE_TILT_DEG:
         return xs, "reference tilt [deg]"
-    return {i: float(i) for i in xs}, "frame"
+    label = f"frame (every frame at a reference tilt of {num(known[0])} deg)" if known else "frame"
+    return {i: float(i) for i in xs}, label
 
 
 def _style(key, i):
@@ -178,9 +236,9 @@ def _draw_method(ax1, ax2, k, i, name, rows, chosen_label):
     return positive, [abs(v) for v in tilt if np.isfinite(v)], chosen_label
 
 
-def _error_vs_tilt_caption(data, xs, symlog, dup, hidden):
+def _error_vs_tilt_caption(data, xs, symlog, dup, hidden, xlabel=""):
     """The caption, with what the plot leaves out or draws once. symlog: the tilt axis's
-    linear half-width [deg] or None."""
+    linear half-width [deg] or None; xlabel: the x axis's label (`tilt_axis`)."""
     missing = sum(1 for i, f in enumerate(data["frames"]) if f.get("errors") and xs.get(i) is None)
     cap = ("Top: the angle between each method's normal and the reference normal (closer twin; a cross marks the "
            "solution the method reported where it is the other twin), with the Cramer-Rao bound of each frame's lines "
@@ -197,6 +255,9 @@ def _error_vs_tilt_caption(data, xs, symlog, dup, hidden):
                 f"(< 1e-6 deg).")
     if missing:
         cap += f" {missing} frames with errors but no reference tilt are left out."
+    if xlabel.startswith("frame (every frame"):
+        cap += (" Every frame has the same reference tilt (a fixed camera): the errors are drawn against the frame, "
+                "not piled on one tilt.")
     return cap
 
 
@@ -213,7 +274,7 @@ def fig_error_vs_tilt(data):
             for k in keys}
     prim = primary_method(data)
     xs, xlabel = tilt_axis(data)
-    fig = new_figure(figsize=(11, 7.6))
+    fig = new_figure(figsize=(MAX_WIDTH_IN, 8.4))
     ax1, ax2 = fig.subplots(2, 1, sharex=True)
     positive, bt = _draw_bounds(data, xs, ax1, ax2)
     chosen_label = False
@@ -232,9 +293,8 @@ def fig_error_vs_tilt(data):
     if pos:
         ax1.set_ylim(min(pos) / 2, max(pos) * 2)
     ax1.set_ylabel("normal error [deg] (closer twin)")
-    ax1.set_title("Normal error against the " + reference_phrase(data))
+    ax1.set_title("Normal error against the " + reference_phrase(data), fontsize=10)
     ax1.grid(True, which="both", alpha=0.25)
-    ax1.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), framealpha=0.7)
     symlog = None
     if tilt_abs:
         # a linear band that holds the bound and most errors, logarithmic beyond (outliers)
@@ -245,8 +305,9 @@ def fig_error_vs_tilt(data):
     ax2.set_ylabel("tilt error [deg] (estimate - reference)")
     ax2.set_xlabel(xlabel)
     ax2.grid(True, alpha=0.25)
-    ax2.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), framealpha=0.7)
-    return Plot(png_bytes(fig), _error_vs_tilt_caption(data, xs, symlog, dup, hidden), "Error versus reference tilt")
+    ax2.margins(y=0.08)  # the outermost markers whole, not cut by the frame
+    legend_below(fig, *_gather(ax1, ax2), ncol=2)
+    return plot_of(fig, _error_vs_tilt_caption(data, xs, symlog, dup, hidden, xlabel), "Error versus reference tilt")
 
 
 # ----------------------------------------------------------------------------------------
@@ -313,17 +374,22 @@ def _merge_repeated(series):
     return series, merged
 
 
-def _draw_sigma_series(ax1, ax2, series):
-    """Error against sigma (left) and the distribution of error / sigma (right)."""
-    allv = []
+def _draw_sigma_series(ax1, ax2, series, zmax):
+    """Error against sigma (left) and the distribution of error / sigma (right, up to
+    zmax). Returns the labels of the series all of whose errors lie beyond zmax sigma (not
+    drawn on the right: their curve would lie on its x axis)."""
+    allv, beyond = [], []
     for label, e, s, kind, color, marker in series:
         ok = (e > 0) & (s > 0)
         ax1.plot(s[ok], e[ok], ls="none", marker=marker, ms=4, color=color, mfc="none" if kind == "normal" else color,
-                 alpha=0.8, label=label)
+                 alpha=0.8, label=f"{label} (n={int(ok.sum())})")
         allv += list(e[ok]) + list(s[ok])
         z = np.sort(e / s)
+        if z.size and z[0] >= zmax:
+            beyond.append(label)
+            continue
         ax2.step(np.r_[0, z], np.r_[0, np.arange(1, z.size + 1) / z.size], where="post", color=color,
-                 ls="-" if kind == "tilt" else "--", label=f"{label} (n={z.size})")
+                 ls="-" if kind == "tilt" else "--")
     if allv:
         lo, hi = min(allv) / 2, max(allv) * 2
         g = np.array([lo, hi])
@@ -332,6 +398,7 @@ def _draw_sigma_series(ax1, ax2, series):
         ax1.plot(g, 1.731 * g, "k:", lw=0.8)
         ax1.set_xlim(lo, hi)
         ax1.set_ylim(lo, hi)
+    return beyond
 
 
 def fig_sigma_calibration(data):
@@ -342,16 +409,16 @@ def fig_sigma_calibration(data):
         return None
     # keep the plot readable: a method that repeats another's errors and sigmas is named, not redrawn
     series, merged = _merge_repeated(series)
-    fig = new_figure(figsize=(11, 4.8))
+    fig = new_figure(figsize=(MAX_WIDTH_IN, 5.6))
     ax1, ax2 = fig.subplots(1, 2)
-    _draw_sigma_series(ax1, ax2, series)
+    zmax = 4.0
+    beyond = _draw_sigma_series(ax1, ax2, series, zmax)
     ax1.set_xscale("log")
     ax1.set_yscale("log")
     ax1.set_xlabel("reported sigma [deg]")
     ax1.set_ylabel("|error| [deg]")
-    ax1.set_title("Reported sigma against actual error")
+    ax1.set_title("Reported sigma against actual error", fontsize=10)
     ax1.grid(True, which="both", alpha=0.25)
-    zmax = 4.0
     z = np.linspace(0, zmax, 200)
     ax2.plot(z, _half_normal_cdf(z), color="0.5", lw=2.5, alpha=0.5, label="expected, tilt (1-D Gaussian)")
     ax2.plot(z, 1 - np.exp(-z**2), color="0.5", lw=2.5, alpha=0.5, ls="--",
@@ -361,17 +428,20 @@ def fig_sigma_calibration(data):
     ax2.set_ylim(0, 1.02)
     ax2.set_xlabel("|error| / reported sigma")
     ax2.set_ylabel("fraction of frames")
-    ax2.set_title("Calibration of the uncertainties")
+    ax2.set_title("Calibration of the uncertainties", fontsize=10)
     ax2.grid(True, alpha=0.25)
-    ax1.legend(fontsize=6.5, loc="upper left", framealpha=0.7)
-    ax2.legend(fontsize=6.5, loc="lower right", framealpha=0.7)
-    cap = ("Left: each point is one frame; with correct sigmas the tilt points scatter about the solid line with 95% "
-           "below the dotted one. Right: the fraction of frames with |error| / sigma below each value, against the "
-           "curves correct sigmas give (68.3% at 1 for the tilt, 63.2% for the normal's RMS angle). A curve to the "
-           "right of its expectation means sigmas that are too small.")
+    legend_below(fig, *_gather(ax1, ax2), ncol=2)
+    cap = ("Left: each point is one frame (filled: tilt; open: normal); with correct sigmas the tilt points scatter "
+           "about the solid line with 95% below the dotted one. Right: the fraction of frames with |error| / sigma "
+           "below each value (solid: tilt; dashed: normal; coloured as on the left), against the curves correct "
+           "sigmas give (grey: 68.3% at 1 for the tilt, 63.2% for the normal's RMS angle). A curve to the right of "
+           "its expectation means sigmas that are too small.")
+    if beyond:
+        cap += (f" Not on the right: {', '.join(beyond)}, every error beyond {zmax:g} sigma (its sigmas far too "
+                f"small).")
     if data.get("reference") == "pnp":
         cap += (" With PnP as the reference the errors include the reference's own; the black curve uses the combined "
                 "sigma of both.")
     if merged:
         cap += " Drawn once, as their errors and sigmas agree to 1e-4: " + "; ".join(merged) + "."
-    return Plot(png_bytes(fig), cap, "Calibration of the reported sigmas")
+    return plot_of(fig, cap, "Calibration of the reported sigmas")

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .document import Para, Plot
-from .figures import new_figure, nice_floor, png_bytes
+from .figures import MAX_WIDTH_IN, legend_below, new_figure, nice_floor, plot_of, png_bytes
 from .format import lookup, num, vec
 from .overlay import field_radius, frame_image, project_points, usable_camera
 
@@ -188,7 +188,7 @@ def _fig_frame(img, fr, lines, marks):
     """(png, the zoom's magnification) of one frame with its shafts and the fulcrum's marks."""
     h, w = img.shape[:2]
     zoom = _zoom(marks, w, h)
-    fig = new_figure(figsize=(11.2 if zoom else 6.6, 5.6 * h / w + 1.6))
+    fig = new_figure(figsize=(MAX_WIDTH_IN if zoom else 6.6, MAX_WIDTH_IN / 2 * h / w + 1.8))
     axes = fig.subplots(1, 2 if zoom else 1, squeeze=False)[0]
     handles = {}
 
@@ -214,8 +214,7 @@ def _fig_frame(img, fr, lines, marks):
         axes[1].set_xlim(cx - hx, cx + hx)
         axes[1].set_ylim(cy + hy, cy - hy)
         axes[1].set_title(f"around the fulcrum ({num(2 * hx)} x {num(2 * hy)} px)", fontsize=9)
-    fig.legend(list(handles.values()), list(handles.keys()), loc="outside lower center", ncol=3, fontsize=7,
-               framealpha=0.8)
+    legend_below(fig, list(handles.values()), list(handles.keys()))
     fig.suptitle(f"{fr.get('image')}: {len(lines)} shaft(s)", fontsize=9)
     return png_bytes(fig), (zoom[3] if zoom else 1.0)
 
@@ -247,7 +246,7 @@ def fulcrum_frames(data, rec, count, source=None):
                 cont = None if marks["x"] is None else _continuation(cam, m["midline"], marks["x"], rmax)
                 lines.append((np.asarray(m["midline"], float), cont, (m["image"], m["shaft"]) not in bad))
         png, scale = _fig_frame(img, fr, lines, marks)
-        out.append(Plot(png, _frame_caption(fr, marks, scale), f"fulcrum on {fr.get('image')}"))
+        out.append(Plot(png, _frame_caption(fr, marks, scale), f"fulcrum on {fr.get('image')}", "image"))
     return out
 
 
@@ -309,8 +308,8 @@ def _draw_top(ax, rec, P, C, axes, full, keep):
     truth = lookup(rec, "truth", "fulcrum_cam")
     if truth is not None:
         keep("truth", ax.plot([truth[0]], [truth[2]], "C3x", ms=9, mew=1.6)[0])
-    ax.set_xlabel("x (camera frame, right)")
-    ax.set_ylabel("z (depth)")
+    ax.set_xlabel("x [mm] (camera frame, right)")
+    ax.set_ylabel("z [mm] (depth)")
     ax.grid(True, alpha=0.25)
 
 
@@ -327,7 +326,7 @@ def fig_top_view(rec):
     if truth is not None:
         half = max(half, 1.3 * float(np.max(np.abs(np.asarray(truth, float)[[0, 2]] - P[[0, 2]]))))
     axes = _top_axes(rec, P, max(0.1 * float(np.linalg.norm(P)), 2.0 * half))
-    fig = new_figure(figsize=(11.2, 4.8))
+    fig = new_figure(figsize=(MAX_WIDTH_IN, 5.0))
     ax1, ax2 = fig.subplots(1, 2)
     handles = {}
 
@@ -342,16 +341,15 @@ def fig_top_view(rec):
     ax2.set_aspect("equal", adjustable="box")
     ax1.set_title("the camera, the axes and the fulcrum", fontsize=9)
     ax2.set_title("around the fulcrum", fontsize=9)
-    fig.legend(list(handles.values()), list(handles.keys()), loc="outside lower center", ncol=4, fontsize=7,
-               framealpha=0.8)
+    legend_below(fig, list(handles.values()), list(handles.keys()))
     used = sum(1 for _, u in axes if u)
-    cap = (f"Top view (the x-z plane of the camera frame, seen from above) of the 3-D fulcrum {vec(P)} "
-           f"(point_sigma {num(rec.get('point_sigma'))}) with its 1- and 2-sigma ellipses (the x-z marginal of "
+    cap = (f"Top view (the x-z plane of the camera frame, seen from above) of the 3-D fulcrum {vec(P, ' mm')} "
+           f"(point_sigma {num(rec.get('point_sigma'), ' mm')}) with its 1- and 2-sigma ellipses (the x-z marginal of "
            f"point_cov), among the 3-D axes of the frames' shafts ({used} used")
     cap += f", {len(axes) - used} left out, red)" if len(axes) > used else ")"
     if not axes:
         cap = cap.rsplit(", among", 1)[0] + " (the file holds no per-frame 3-D axes)"
     cap += "; the dashed line is the 2-D vertex's ray. Right: around the point"
     if truth is not None:
-        cap += f"; the truth (red cross) is {num(lookup(rec, 'truth', 'point_error_norm'))} away"
-    return Plot(png_bytes(fig), cap + ".", "top view of the 3-D fulcrum, the frames' axes and its error ellipse")
+        cap += f"; the truth (red cross) is {num(lookup(rec, 'truth', 'point_error_norm'), ' mm')} away"
+    return plot_of(fig, cap + ".", "top view of the 3-D fulcrum, the frames' axes and its error ellipse")

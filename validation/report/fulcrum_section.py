@@ -16,10 +16,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .document import Details, Para, Plot, Section, Table
-from .figures import new_figure, png_bytes
+from .document import Details, Para, Section, Table
+from .figures import legend_below, new_figure, plot_of
 from .format import finite, lookup, num, vec
 from .fulcrum_figures import fig_top_view, fulcrum_frames
+from .headline import no_shaft_frames
 
 __all__ = ["fulcrum_section"]
 
@@ -28,7 +29,7 @@ def _fig_residuals(rows):
     """Each shaft's 2-D residual against its sigma (a bar per shaft)."""
     if not rows:
         return None
-    fig = new_figure(figsize=(6.4, 3.0))
+    fig = new_figure(figsize=(6.4, 3.4))
     ax = fig.add_subplot(1, 1, 1)
     x = np.arange(len(rows))
     res = np.array([finite(r.get("residual_px")) or 0.0 for r in rows])
@@ -40,8 +41,8 @@ def _fig_residuals(rows):
     ax.plot(x, sig, "k_", ms=10, label="midline sigma there")
     ax.set_xlabel("shaft (frame order)")
     ax.set_ylabel("residual [px]")
-    ax.legend(fontsize=8)
-    return Plot(png_bytes(fig), "Each frame's axis residual: the distance of the fulcrum's (undistorted) image from "
+    legend_below(fig, *ax.get_legend_handles_labels())
+    return plot_of(fig, "Each frame's axis residual: the distance of the fulcrum's (undistorted) image from "
                 "the frame's shaft midline, with the midline's sigma at that point.", "axis residuals per frame")
 
 
@@ -63,20 +64,27 @@ def fulcrum_section(data, number=8, samples=3, source=None):
              f"{rec.get('lines_used')} lines of {rec.get('frames_used')} frames, {len(rec.get('outliers') or [])} "
              "outliers"]]
     if rec.get("point") is not None:
-        rows.append(["3-D point (camera frame)", vec(rec["point"]), num(rec.get("point_sigma")),
-                     num(t.get("point_error_norm")),
+        rows.append(["3-D point (camera frame)", vec(rec["point"], " mm"), num(rec.get("point_sigma"), " mm"),
+                     num(t.get("point_error_norm"), " mm"),
                      f"{rec.get('point_axes_used')} axes, chi2/dof {num(rec.get('point_chi2_dof'))}"
                      + (f", truth chi2 {num(t.get('point_chi2'))} (3 dof, p {num(t.get('point_p_value'))})"
                         if "point_chi2" in t else "")])
     board = rec.get("board_frame")
     if isinstance(board, dict):
         bs = float(np.sqrt(np.trace(np.asarray(board["point_cov"], float))))
-        rows.append(["3-D point (board frame)", vec(board.get("point")), num(bs), num(board.get("error")),
+        rows.append(["3-D point (board frame)", vec(board.get("point"), " mm"), num(bs, " mm"),
+                     num(board.get("error"), " mm"),
                      f"median over {board.get('frames')} PnP poses (spread {num(board.get('spread'))})"])
     sec.blocks.append(Table(["estimate", "value", "sigma (rms)", "error vs truth", "from"], rows, None,
                             f"The fulcrum as `pencilcal fulcrum` finds it from the shafts detected in every frame; "
-                            f"lengths in the shaft diameter's unit ({num(rec.get('shaft_diameter'))}).",
+                            f"lengths in mm, the unit of the board file and of the shaft's diameter "
+                            f"({num(rec.get('shaft_diameter'), ' mm')}).",
                             numeric_from=2, text_cols=(4,)))
+    missing = no_shaft_frames(data, rec)
+    if missing:
+        sec.blocks.append(Para(f"No shaft was found in {len(missing)} of {len(data['frames'])} frames: "
+                               f"{', '.join(missing[:12])}{' ...' if len(missing) > 12 else ''}; the fulcrum is "
+                               f"found from the others.", "note"))
     sec.blocks += fulcrum_frames(data, rec, samples, source)
     for p in (fig_top_view(rec), _fig_residuals(rec.get("axis_residuals") or [])):
         if p is not None:

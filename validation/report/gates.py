@@ -5,7 +5,10 @@ in a known fraction of frames (68.3% for a 1-D error such as the tilt, 1 - 1/e =
 for the RMS angle of a 2-D error such as the normal; validation/metrics.py). A gate
 compares the fraction found with that expected, against the binomial band for the number
 of frames (the central 95% of what honest sigmas would give), and says PASS or FAIL;
-with fewer than `MIN_FRAMES` frames it cannot tell ("too few frames").
+with fewer than `MIN_FRAMES` frames it cannot tell ("too few frames"). The book chapter's
+models, kept beside the exact estimator for comparison (`facts.comparison_keys`), are
+listed with status "comparison": shown, never judged. Methods whose gates agree exactly
+(the PnP methods, often) share one row of the table.
 
 Gates come from the summary `pencilcal validate` writes (tilt and normal coverage per
 method) and from its truth-free checks (``checks``: any record with ``fraction``,
@@ -25,13 +28,13 @@ Example
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .document import Cell, Plot, Table
-from .facts import method_errors, method_keys, method_label, same_as_reference
-from .figures import new_figure, png_bytes
+from .document import Cell, Table
+from .facts import comparison_keys, method_errors, method_keys, method_label, same_as_reference
+from .figures import MAX_WIDTH_IN, legend_below, new_figure, plot_of
 from .format import finite, lookup, pct
 
 __all__ = ["Gate", "gate", "gates", "gates_table", "failed_gates_sentence", "fig_nees", "MIN_FRAMES", "BAND"]
@@ -46,7 +49,7 @@ BAND = 0.95
 class Gate:
     """One honesty test: `found` of `count` frames within one sigma against `expected`;
     `band` the binomial band of fractions honest sigmas give (central `BAND`); status
-    PASS, FAIL or "too few frames"."""
+    PASS, FAIL, "too few frames", or "comparison" (a comparison model's: not judged)."""
 
     method: str
     quantity: str
@@ -84,8 +87,10 @@ def _check_gates(data):
 
 
 def gates(data):
-    """Every gate of a validation dict: per method tilt and normal coverage, then checks."""
+    """Every gate of a validation dict: per method tilt and normal coverage (status
+    "comparison" for the comparison models), then checks."""
     out = []
+    compare = set(comparison_keys(data))
     for key in method_keys(data):
         if same_as_reference(data, key):
             continue  # the reference itself: no error to judge its sigmas by
@@ -94,21 +99,49 @@ def gates(data):
             c = s.get(f"{quantity}_coverage") or {}
             f, e, n = finite(c.get("fraction")), finite(c.get("expected")), c.get("count") or 0
             if f is not None and e is not None and n:
-                out.append(gate(method_label(key), quantity, f, e, n))
+                g = gate(method_label(key), quantity, f, e, n)
+                out.append(replace(g, status="comparison") if key in compare else g)
     return out + _check_gates(data)
 
 
-def gates_table(gs):
-    """The gates as the report's first table."""
+def _merged(gs):
+    """[(methods, gate)]: gates equal in all but the method, of one family (orient:, pnp:),
+    in one row."""
     rows = []
     for g in gs:
+        fam = g.method.split(":", 1)[0]
+        for names, h in rows:
+            if (h.method.split(":", 1)[0] == fam and ":" in g.method and h.quantity == g.quantity
+                    and h.status == g.status and h.count == g.count and abs(h.found - g.found) < 1e-12
+                    and abs(h.expected - g.expected) < 1e-12):
+                names.append(g.method)
+                break
+        else:
+            rows.append(([g.method], g))
+    return rows
+
+
+def gates_table(gs):
+    """The gates as a table: one row per gate (gates equal but for the method share one),
+    the comparison models grey."""
+    rows = []
+    for names, g in _merged(gs):
+        fam = names[0].split(":", 1)[0]
+        name = names[0] if len(names) == 1 else f"{fam}: " + ", ".join(n.split(":", 1)[1] for n in names)
+        if g.status == "comparison":
+            rows.append([Cell(name, "muted"), Cell(g.quantity, "muted"), Cell(pct(g.found), "muted"),
+                         Cell(pct(g.expected), "muted"), Cell(str(g.count), "muted"),
+                         Cell(f"{pct(g.band[0])} - {pct(g.band[1])}", "muted"),
+                         Cell("comparison, not judged", "muted")])
+            continue
         cls = {"PASS": "good", "FAIL": "bad"}.get(g.status, "muted")
-        rows.append([g.method, g.quantity, pct(g.found), pct(g.expected), str(g.count),
+        rows.append([name, g.quantity, pct(g.found), pct(g.expected), str(g.count),
                      f"{pct(g.band[0])} - {pct(g.band[1])}", Cell(g.status, cls)])
     return Table(["method", "quantity", "within 1 sigma", "expected", "frames", f"{pct(BAND)} band", "gate"], rows,
                  numeric_from=2, text_cols=(6,),
                  caption="Are the sigmas honest? The fraction of frames whose error is within the reported sigma, "
-                         "against the fraction honest sigmas give and the binomial band for this many frames.")
+                         "against the fraction honest sigmas give and the binomial band for this many frames. The "
+                         "book chapter's models (grey) are kept for comparison and not judged.")
 
 
 def failed_gates_sentence(gs):
@@ -120,8 +153,6 @@ def failed_gates_sentence(gs):
              for g in bad]
     small = [g for g in bad if g.found < g.band[0]]
     why = " Sigmas too small promise more than the data hold." if small else ""
-    if all(g.method in ("orient:general", "orient:aligned") for g in bad):
-        why += " (Only the chapter's models, kept for comparison, fail: the exact estimator's sigmas hold.)"
     return f"Gates failed: {'; '.join(parts)}.{why}"
 
 
@@ -146,25 +177,48 @@ def fig_nees(data):
 
     keys = [k for k in method_keys(data) if not same_as_reference(data, k)]
     series = [(k, *_nees(data, k)) for k in keys]
-    series = [s for s in series if s[1].size or s[2].size]
+    series = _same_drawn_once([s for s in series if s[1].size or s[2].size])
     if not series:
         return None
-    fig = new_figure(figsize=(9.0, 3.6))
+    fig = new_figure(figsize=(MAX_WIDTH_IN, 4.2))
     axes = fig.subplots(1, 2)
     for ax, j, dof, what in ((axes[0], 1, 1, "tilt"), (axes[1], 2, 2, "normal")):
         top = 1.0
         for i, s in enumerate(series):
             v = np.sort(s[j])
             if v.size:
-                ax.step(v, np.arange(1, v.size + 1) / v.size, where="post", label=method_label(s[0]), color=f"C{i}")
+                ax.step(v, np.arange(1, v.size + 1) / v.size, where="post", label=s[0], color=f"C{i}")
                 top = max(top, float(v[-1]))
         x = np.logspace(-3, np.log10(max(top, chi2.ppf(0.999, dof))), 200)
-        ax.plot(x, chi2.cdf(x, dof), "k--", label=f"chi2, {dof} dof (honest sigmas)")
+        ax.plot(x, chi2.cdf(x, dof), "k--", label="chi2 (honest sigmas): 1 dof tilt, 2 dof normal")
         ax.set_xscale("log")
         ax.set_xlabel(f"NEES of the {what}")
         ax.set_ylabel("fraction of frames")
         ax.set_ylim(0, 1.02)
-    axes[1].legend(fontsize=7, loc="lower right")
-    return Plot(png_bytes(fig), "Normalised squared errors (error / sigma)^2 of every method, against the chi2 "
-                "distribution honest sigmas give: a curve to the right of the dashed one means sigmas too small.",
+    handles, labels = axes[1].get_legend_handles_labels()
+    for h, lab in zip(*axes[0].get_legend_handles_labels()):
+        if lab not in labels:
+            handles.append(h)
+            labels.append(lab)
+    legend_below(fig, handles, labels, ncol=2)
+    return plot_of(fig, "Normalised squared errors (error / sigma)^2 of every method, against the chi2 "
+                "distribution honest sigmas give: a curve to the right of the dashed one means sigmas too small. "
+                "Methods whose errors and sigmas agree are drawn once, named together.",
                 "empirical CDFs of the normalised squared errors")
+
+
+def _same_drawn_once(series):
+    """[(label, tilt NEES, normal NEES)]: methods with the same NEES (to 1e-4) in one
+    series, labelled "first (= others)"."""
+    out = []
+    for k, t, n in series:
+        for item in out:
+            _, t0, n0, names = item
+            if t0.shape == t.shape and n0.shape == n.shape and np.allclose(t0, t, rtol=1e-4) \
+                    and np.allclose(n0, n, rtol=1e-4):
+                names.append(method_label(k))
+                break
+        else:
+            out.append((k, t, n, [method_label(k)]))
+    return [(names[0] + (f" (= {', '.join(names[1:])})" if len(names) > 1 else ""), t, n)
+            for _, t, n, names in out]

@@ -13,7 +13,7 @@ from __future__ import annotations
 import base64
 import html
 
-from .document import Bullets, Cell, Details, Para, Plot, Pre, Table
+from .document import Bullets, Cell, Details, Para, Plot, Pre, Table, Verdict
 
 __all__ = ["render_html"]
 
@@ -26,6 +26,12 @@ h2{font-size:19px;border-bottom:2px solid #d0d7de;padding-bottom:3px;margin-top:
 nav{background:#f6f8fa;border:1px solid #d0d7de;border-radius:6px;padding:6px 12px;font-size:13px}
 nav a{margin-right:14px;color:#0550ae;text-decoration:none}
 p.lead{background:#f1f8ff;border-left:4px solid #0969da;padding:10px 14px;font-size:15px}
+p.verdict{font-size:16px;padding:10px 14px;margin:6px 0 10px;border-left:6px solid #6e7781;background:#f6f8fa}
+p.verdict b{display:inline-block;padding:1px 8px;margin-right:8px;border-radius:4px;color:#fff;background:#6e7781}
+p.verdict.good{border-color:#1a7f37;background:#effbf1} p.verdict.good b{background:#1a7f37}
+p.verdict.bad{border-color:#cf222e;background:#fff0ee} p.verdict.bad b{background:#cf222e}
+p.verdict.warn{border-color:#bf8700;background:#fff8e1} p.verdict.warn b{background:#9a6700}
+div.lead table{font-size:13px} div.lead td{white-space:normal} div.lead td:not(:last-child){white-space:nowrap}
 p.note{color:#6e4c00;background:#fff8e1;border-left:4px solid #d4a72c;padding:6px 12px}
 p.caption{color:#57606a;font-size:12.5px;margin-top:4px}
 table{border-collapse:collapse;margin:8px 0 4px;font-size:12.5px}
@@ -80,13 +86,19 @@ def _block_html(b):
         cls = {"lead": "lead", "note": "note", "caption": "caption"}.get(b.kind)
         attr = f' class="{cls}"' if cls else ""
         return f"<p{attr}>{html.escape(b.text)}</p>"
+    if isinstance(b, Verdict):
+        from .headline import STATUS_CLASS
+
+        cls = STATUS_CLASS.get(b.status, "muted")
+        return f'<p class="verdict {cls}" id="verdict"><b>{html.escape(b.status)}</b>{html.escape(b.text)}</p>'
     if isinstance(b, Bullets):
         return "<ul>" + "".join(f"<li>{html.escape(str(i))}</li>" for i in b.items) + "</ul>"
     if isinstance(b, Table):
         return _table_html(b)
     if isinstance(b, Plot):
         data = base64.b64encode(b.png).decode("ascii")
-        return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(b.alt)}">'
+        alt = f"{b.alt} ({b.axes})" if b.axes else b.alt
+        return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(alt)}">'
                 f"<figcaption>{html.escape(b.caption)}</figcaption></figure>")
     if isinstance(b, Details):
         return (f"<details{' open' if b.open else ''}><summary>{html.escape(b.summary)}</summary>"
@@ -99,8 +111,10 @@ def _block_html(b):
 def render_html(report):
     """The report as one self-contained HTML page (str)."""
     nav = " ".join(f'<a href="#{s.id}">{html.escape(s.title)}</a>' for s in report.sections)
-    body = [f"<h1>{html.escape(report.title)}</h1>", f'<p class="subtitle">{html.escape(report.subtitle)}</p>',
-            f"<nav>{nav}</nav>"]
+    body = [f"<h1>{html.escape(report.title)}</h1>", f'<p class="subtitle">{html.escape(report.subtitle)}</p>']
+    if report.lead:
+        body.append('<div class="lead">' + "\n".join(_block_html(b) for b in report.lead) + "</div>")
+    body.append(f"<nav>{nav}</nav>")
     for s in report.sections:
         body.append(f'<section id="{s.id}"><h2>{html.escape(s.title)}</h2>')
         body += [_block_html(b) for b in s.blocks]

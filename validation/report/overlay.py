@@ -26,8 +26,8 @@ import numpy as np
 from pencilcal.toolkit.errors import PencilcalError
 
 from .document import Para, Plot, Section
-from .figures import new_figure, nice_floor, png_bytes, tilt_axis
-from .format import lookup, num
+from .figures import MAX_WIDTH_IN, MIN_FONT, legend_below, new_figure, nice_floor, png_bytes, tilt_axis
+from .format import finite, lookup, num
 
 __all__ = ["usable_camera", "field_radius", "frame_image", "project_points", "sample_frames", "fig_overlay",
            "overlay_section"]
@@ -282,7 +282,7 @@ def _draw_segments(ax, ai, sc, keep):
             keep("pencil segment, numbered by spoke", ax.plot(sgm[0::2], sgm[1::2], "-", color=c, lw=lw + 0.6)[0])
             if ai == 1 and sc.vpx is not None:
                 ax.annotate(str(int(k)), _segment_point_at(sgm, sc.vpx, 0.8 * min(sc.hx, sc.hy)), color="white",
-                            fontsize=7, ha="center", va="center", annotation_clip=True,
+                            fontsize=MIN_FONT, ha="center", va="center", annotation_clip=True,
                             bbox=dict(boxstyle="round,pad=0.15", fc=c, ec="none", alpha=0.85))
 
 
@@ -382,8 +382,8 @@ def fig_overlay(data, index, cam, field_r, roots=()):
     sc = _scene(data, fr, o, img, cam, field_r)
     h, w = img.shape[:2]
     zoom = sc.zoom_box is not None
-    panel_w = 5.6
-    fig = new_figure(figsize=(2 * panel_w if zoom else panel_w + 1, panel_w * h / w + 1.5))
+    panel_w = MAX_WIDTH_IN / 2
+    fig = new_figure(figsize=(2 * panel_w if zoom else panel_w + 1, panel_w * h / w + 1.7))
     axes = fig.subplots(1, 2 if zoom else 1, squeeze=False)[0]
     notes = []
     if cam is not None and (cam.width, cam.height) != (w, h):
@@ -402,8 +402,7 @@ def fig_overlay(data, index, cam, field_r, roots=()):
         axes[1].set_title("around the vertex", fontsize=9)
         axes[0].add_patch(Rectangle((x0, y1), x1 - x0, y0 - y1, fill=False, ec="white", lw=0.8, ls="--"))
     if handles:
-        fig.legend(list(handles.values()), list(handles.keys()), loc="outside lower center", ncol=4, fontsize=7,
-                   framealpha=0.8)
+        legend_below(fig, list(handles.values()), list(handles.keys()), ncol=3)
     fig.suptitle(_overlay_title(fr, o), fontsize=9)
     return png_bytes(fig, dpi=100), _overlay_caption(index, fr, sc, notes)
 
@@ -423,13 +422,17 @@ def overlay_section(data, samples, source=None):
     field_r = field_radius(cam) if cam is not None else 10.0
     picks = sample_frames(data, samples)
     if picks:
-        xs, _ = tilt_axis(data)
-        s5.blocks.append(Para(f"{len(picks)} frames spread over the reference tilt: "
-                              + ", ".join(f"{data['frames'][i].get('image')} ({num(xs.get(i))} deg)" for i in picks)
+        _, axis = tilt_axis(data)
+        over = "the reference tilt" if axis.startswith("reference tilt") else "the sequence"
+        tilt = {i: finite(data["frames"][i].get("reference_tilt_deg")) for i in picks}
+        s5.blocks.append(Para(f"{len(picks)} frames spread over {over}: "
+                              + ", ".join(f"{data['frames'][i].get('image')}"
+                                          + (f" ({num(tilt[i])} deg)" if tilt[i] is not None else "") for i in picks)
                               + "."))
     for i in picks:
         png, cap = fig_overlay(data, i, cam, field_r, [Path(source).parent] if source is not None else [])
-        s5.blocks.append(Plot(png, cap, f"overlay {data['frames'][i].get('image')}") if png else Para(cap, "note"))
+        s5.blocks.append(Plot(png, cap, f"overlay {data['frames'][i].get('image')}", "image") if png
+                         else Para(cap, "note"))
     if not picks:
         s5.blocks.append(Para("No frame to show.", "note"))
     return s5

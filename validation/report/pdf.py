@@ -7,7 +7,7 @@ from __future__ import annotations
 import io
 import textwrap
 
-from .document import Bullets, Cell, Details, Para, Plot, Pre, Table
+from .document import Bullets, Cell, Details, Para, Plot, Pre, Table, Verdict
 
 __all__ = ["render_pdf"]
 
@@ -183,6 +183,9 @@ class _Pdf:
                 self.para(b.text, 7.5, color="0.35")
             else:
                 self.para(b.text, 9)
+        elif isinstance(b, Verdict):
+            color = {"PASS": "#1a7f37", "FAIL": "#cf222e", "CHECK": "#9a6700"}.get(b.status, "0.3")
+            self.para(f"{b.status}: {b.text}", 10.5, color=color, weight="bold")
         elif isinstance(b, Bullets):
             for it in b.items:
                 self.para("- " + str(it), 8.5, indent=0.15)
@@ -205,6 +208,8 @@ def _paginate(report, sink):
     doc.new_page()
     doc.para(report.title, 15, weight="bold")
     doc.para(report.subtitle, 8.5, color="0.35")
+    for b in report.lead:
+        doc.block(b)
     for s in report.sections:
         if s.id in ("frames", "overlays", "calibration", "reproducibility"):
             doc.new_page()

@@ -26,9 +26,9 @@ import numpy as np
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import load_structured
 
-from .document import Cell, Details, Para, Plot, Section, Table
+from .document import Cell, Details, Para, Section, Table
 from .facts import calibration_same_images, method_errors, method_label, primary_method, reference_phrase
-from .figures import new_figure, png_bytes
+from .figures import MAX_WIDTH_IN, legend_below, new_figure, plot_of
 from .format import finite, lookup, num
 
 __all__ = ["load_sensitivity", "calibration_section", "sfm_section", "sensitivity_section", "reproducibility_section"]
@@ -69,25 +69,34 @@ def _view_table_and_fig(cal):
         rejected_rms = {str(r.get("image")): finite(r.get("rms_px")) for r in cal.get("rejected") or []
                         if isinstance(r, dict) and r.get("corner") is None and finite(r.get("rms_px")) is not None}
         rms = [r if r is not None else rejected_rms.get(nm) for r, nm in zip(rms, names)]
-        if any(r is not None for r in rms):
-            fig = new_figure(figsize=(10, 3.6))
-            ax = fig.subplots()
-            x = np.arange(len(views))
-            ax.bar(x, [r or 0 for r in rms], color=["C0" if u else "C3" for u in used], width=0.8)
-            for i, r in enumerate(rms):
-                if r is None:
-                    ax.plot(i, 0, "x", color="0.4", ms=4)
-            total = finite(cal.get("rms_px"))
-            if total is not None:
-                ax.axhline(total, color="k", ls="--", lw=1, label=f"overall RMS {num(total)} px")
-                ax.legend(fontsize=8)
-            ax.set_xticks(x, names, rotation=90, fontsize=max(4, min(8, 400 // max(len(x), 1))))
-            ax.set_ylabel("reprojection RMS [px]")
-            ax.set_title("Per-view reprojection error (blue: used; red: rejected; x: no board)")
-            ax.set_xlim(-0.7, len(x) - 0.3)
-            blocks.append(Plot(png_bytes(fig), "Per-view RMS reprojection error of the calibration; views without a "
-                                               "usable board are marked with a cross at zero.", "Per-view errors"))
+        known = [r for r in rms if r is not None]
+        if len(known) == 1:  # one bar is no plot
+            blocks.append(Para(f"One view with a reprojection error: {num(known[0])} px RMS.", "note"))
+        elif known:
+            blocks.append(_fig_views(names, rms, used, finite(cal.get("rms_px"))))
     return blocks
+
+
+def _fig_views(names, rms, used, total):
+    """The per-view RMS [px] as bars (Plot); rms: per view, None where it had no board."""
+    fig = new_figure(figsize=(MAX_WIDTH_IN, 3.8))
+    ax = fig.subplots()
+    x = np.arange(len(names))
+    ax.bar(x, [r or 0 for r in rms], color=["C0" if u else "C3" for u in used], width=0.8)
+    for i, r in enumerate(rms):
+        if r is None:
+            ax.plot(i, 0, "x", color="0.4", ms=4)
+    if total is not None:
+        ax.axhline(total, color="k", ls="--", lw=1, label=f"overall RMS {num(total)} px")
+        legend_below(fig, *ax.get_legend_handles_labels())
+    step = max(1, -(-len(names) // 45))  # at most 45 names, each legible
+    ax.set_xticks(x[::step], names[::step], rotation=90, fontsize=8)
+    ax.set_xlabel("view" + (f" (every {step}th named)" if step > 1 else ""))
+    ax.set_ylabel("reprojection RMS [px]")
+    ax.set_title("Per-view reprojection error (blue: used; red: rejected; x: no board)", fontsize=10)
+    ax.set_xlim(-0.7, len(x) - 0.3)
+    return plot_of(fig, "Per-view RMS reprojection error of the calibration; views without a usable board "
+                                "are marked with a cross at zero.", "Per-view errors")
 
 
 # the names of the distortion coefficients of each camera model, in the file's order
@@ -285,15 +294,15 @@ def sensitivity_section(data, sens):
     maps = _as_arrays(sens.get("maps") or {})
     acc = finite(st.get("accuracy_deg")) or 1.0
     sigma = finite(st.get("sigma_deg")) or 0.1
-    for key, fn, size in (("tilt_offaxis", lambda fig, m: sv._heat_tilt_offaxis(fig, m, acc, sigma), (11, 4.4)),
-                          ("spokes_spacing", lambda fig, m: sv._heat_spokes_spacing(fig, m), (11, 4.4)),
-                          ("noise", lambda fig, m: sv._heat_noise(fig, m, acc), (7.5, 4.4))):
+    for key, fn, size in (("tilt_offaxis", lambda fig, m: sv._heat_tilt_offaxis(fig, m, acc, sigma), (9, 5.2)),
+                          ("spokes_spacing", lambda fig, m: sv._heat_spokes_spacing(fig, m), (9, 4.4)),
+                          ("noise", lambda fig, m: sv._heat_noise(fig, m, acc), (7.5, 5.2))):
         if key not in maps:
             continue
         try:
             fig = new_figure(figsize=size)
             fn(fig, maps[key])
-            sec.blocks.append(Plot(png_bytes(fig), f"Sensitivity map {key.replace('_', ' x ')} (docs/sensitivity.md, "
+            sec.blocks.append(plot_of(fig, f"Sensitivity map {key.replace('_', ' x ')} (docs/sensitivity.md, "
                                                    f"'Reading the heatmaps').", f"sensitivity {key}"))
         except (KeyError, TypeError, ValueError, IndexError, AttributeError) as e:
             sec.blocks.append(Para(f"The {key} map could not be drawn ({type(e).__name__}: {e}).", "note"))
@@ -313,7 +322,7 @@ def _fig_planned_vs_measured(data, m, prim):
     plan's tilt x off-axis map (arrays, `_as_arrays`)."""
     import matplotlib
 
-    fig = new_figure(figsize=(9, 4.6))
+    fig = new_figure(figsize=(9, 5.4))
     ax = fig.subplots()
     t, off = m["tilts_deg"], np.atleast_1d(m["offaxis_deg"])
     mc = m.get("mc") if isinstance(m.get("mc"), dict) else None
@@ -351,11 +360,11 @@ def _fig_planned_vs_measured(data, m, prim):
     ax.set_ylabel("normal error [deg]")
     ax.set_title("Planned against measured")
     ax.grid(True, which="both", alpha=0.25)
-    ax.legend(fontsize=7, framealpha=0.7)
+    legend_below(fig, *ax.get_legend_handles_labels(), ncol=2)
     caption = ("The plan's RMS normal error over tilt (one curve per off-axis angle of the plan) with the errors "
                "measured here (one point per frame, coloured by how far off axis its vertex was) and this sequence's "
                "own per-frame bound. Single frames scatter about an RMS curve; the summary table has the RMS.")
-    return Plot(png_bytes(fig), caption, "planned vs measured")
+    return plot_of(fig, caption, "planned vs measured")
 
 
 # ----------------------------------------------------------------------------------------
