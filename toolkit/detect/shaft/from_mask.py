@@ -63,6 +63,7 @@ from pencilcal.toolkit.detect.noise import estimate_noise
 from pencilcal.toolkit.detect.shaft.axis import class_edge, midline_from_edges
 from pencilcal.toolkit.detect.shaft.detector import Shaft
 from pencilcal.toolkit.detect.shaft.mask import instruments_in_mask, mask_axis
+from pencilcal.toolkit.detect.shaft.regions import Z_999
 from pencilcal.toolkit.detect.shaft.silhouette import EdgeLine, fit_edges
 from pencilcal.toolkit.detect.shaft.work import Validity, axis_matrix
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw
@@ -200,12 +201,13 @@ def _edge_specs(camera, edges_raw):
     return specs, masked
 
 
-def _grey_refit(gimg, camera, fit, spec, corridor, gamma):
+def _grey_refit(gimg, camera, fit, spec, corridor, gamma, noise):
     """One edge refined on the grey levels (`edges.edge_profiles`: unsigned, corrected for
     the slopes beside it, located on linear light; `shaft.axis.class_edge`: one offset per
     polarity, the edge where it is best seen) within `REFINE_SEARCH_PX` of its colour fit
     (`shaft.silhouette.EdgeLine`), or within the corridor of the mask's edge (spec) where
-    the colour fit found none; the colour fit (or None) where the grey levels show too
+    the colour fit found none; a station's edge above `Z_999` of the noise (sd noise [grey
+    levels]) through the kernel; the colour fit (or None) where the grey levels show too
     little."""
     p0, u, n_out, s0, s1 = spec
     if fit is not None:
@@ -225,7 +227,7 @@ def _grey_refit(gimg, camera, fit, spec, corridor, gamma):
     p = edge_profiles(gimg, camera, A[None], U[None], sv, search, kern, REFINE_SIGMA_PX, unsigned=True,
                       slope_correction=True, gamma=gamma)
     a = np.abs(p.g[0])
-    base = p.inside[0] & p.found[0] & (a > 0)
+    base = p.inside[0] & p.found[0] & (a > Z_999 * noise * float(np.sqrt(np.sum(kern[0].astype(float) ** 2))))
     if base.sum() < MIN_STATIONS:
         return fit
     base &= a >= _REL_STRENGTH * np.median(a[base])
@@ -381,7 +383,7 @@ def _instrument(fr, k, m):
         specs, masked = _edge_specs(fr.camera, ax.edges)
         corr = float(np.clip(CORRIDOR_WIDTH_FRAC * ax.width_px, 1.5, fr.corridor_px))
         fits = fit_edges(fr.fimg, fr.camera, fr.validity, fr.noise, specs, corr, gamma=fr.gamma)
-        fits = [_grey_refit(fr.gimg, fr.camera, f, sp, corr, fr.gamma) for f, sp in zip(fits, specs)]
+        fits = [_grey_refit(fr.gimg, fr.camera, f, sp, corr, fr.gamma, fr.noise) for f, sp in zip(fits, specs)]
         got = [_judged(f, sp) for f, sp in zip(fits, specs)]
         mid = midline_from_edges(fr.K, *(g[0] if g[0] is not None else mk for g, mk in zip(got, masked)))
         if mid is None:  # the image's edges bound no cylinder here: the mask's own
