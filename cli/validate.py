@@ -10,8 +10,8 @@ from pencilcal.validation.pnp import METHODS
 from pencilcal.validation.validate import find_sequences, sequence_files, validate_many, validate_path
 from pencilcal.validation.validation_file import write_validation
 
-from .common import (detector_option, gamma_option, command, LabelledProgress, StageBars, check_output, force_option, mask_option, output_option,
-                     quiet_option, run, warn, workers_option)
+from .common import (detector_option, gamma_option, command, LabelledProgress, StageBars, check_output, force_option,
+                     instrument_mask_options, mask_option, output_option, quiet_option, run, warn, workers_option)
 
 
 def _split(value, allowed, what):
@@ -71,6 +71,7 @@ def _grid(value):
 @click.option("--shaft-diameter", type=float, default=None, metavar="D",
               help="With the fulcrum: the shaft's diameter, for the 3-D fulcrum (default: a pivot folder's own).")
 @gamma_option
+@instrument_mask_options
 @click.option("--dask", "dask_address", default=None, metavar="ADDRESS",
               help="With a folder of sequences: send each sequence to this Dask scheduler (tcp://host:8786).")
 @workers_option
@@ -80,7 +81,8 @@ def _grid(value):
 @run
 def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pencil, truth_path, models, methods,
              sfm, sfm_dir, detector, edges, mask_path, calib_path, right_images, right_camera, right_calib_path,
-             fulcrum, shaft_diameter, gamma, dask_address, workers, output, force, quiet):
+             fulcrum, shaft_diameter, gamma, instrument_mask, mask_labels, mask_instances, dask_address, workers, output,
+             force, quiet):
     """Compare the angular-variation estimate with PnP (and a reconstruction) on the same frames.
 
     SEQUENCE is one or more image files, folders or glob patterns (in the order given), a
@@ -101,7 +103,8 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
     shafts are detected in every frame and ``fulcrum`` holds the fulcrum as `pencilcal
     fulcrum` finds it, each frame's axis residual, its error against the truth and, with
     --shaft-diameter (a pivot folder's own by default), the 3-D point in the camera and the
-    board frame; the shafts' edges are located on levels linearised with --gamma.
+    board frame; the shafts' edges are located on levels linearised with --gamma. With
+    --instrument-mask the shafts are the masked instruments' axes refined on the image.
 
     SEQUENCE may also be a folder of sequence folders: each is validated (one after the
     other, or each as a task on a Dask cluster with --dask) and the output holds them all
@@ -131,11 +134,16 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
             raise click.UsageError("--board is required (SEQUENCE is not a simulate folder)")
         if pencil_path is None and grid is None and "pencil" not in found:
             raise click.UsageError("--pencil or --grid-pencil is required (SEQUENCE is not a simulate folder)")
+    if instrument_mask is None and (mask_labels or mask_instances):
+        raise click.UsageError("--mask-label and --mask-instances go with --instrument-mask")
+    if instrument_mask is not None and subs is not None:
+        raise click.UsageError("--instrument-mask pairs masks with one sequence's frames: not with a folder of sequences")
     check_output(output, force)
     options = dict(camera=camera_path, camera_id=camera_id, board=board_path, pencil=pencil_path, grid_pencil=grid,
                    truth=truth_path, models=models_t, methods=methods_t, sfm=sfm, detector=detector,
                    calibration=calib_path, workers=workers, edges=edges, mask=mask_path, fulcrum=fulcrum,
-                   shaft_diameter=shaft_diameter, gamma=gamma)
+                   shaft_diameter=shaft_diameter, gamma=gamma, instrument_mask=instrument_mask, mask_labels=mask_labels,
+                   mask_instances=mask_instances)
     if shaft_diameter is not None and not shaft_diameter > 0:
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     if right_images is not None or right_camera is not None:

@@ -21,8 +21,9 @@ instrument of a mask (`mask.instruments_in_mask`)
    their fits plus the detector's floor (`shaft.axis.midline_from_edges`).
 
 The mask restricts the search and judges the result: the image's edge is taken where it
-spans `MIN_FOUND_FRACTION` of the mask's stretch and lies within `MAX_AGREEMENT_PX` of the
-mask's edge all along their common stretch. Elsewhere (no edge in the corridor: low
+spans `MIN_FOUND_FRACTION` of the mask's stretch, is seen at `MIN_SEEN_FRACTION` of its
+stations and lies within `MAX_AGREEMENT_PX` of the mask's edge all along their common
+stretch. Elsewhere (no edge in the corridor: low
 contrast, a mask off by more; or an edge further off: a shadow, a tissue edge, an inner
 streak, or the mask drawn wide) mask and image disagree, and it is said (`MaskShaft.
 edge_from`, `mask_offset_px`, `disagreement`): the mask's own edge stands in, with the
@@ -52,7 +53,7 @@ Example
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -70,7 +71,7 @@ from pencilcal.toolkit.detect.working import check_camera_image, to_raw
 from pencilcal.toolkit.errors import InputError
 
 __all__ = ["MaskShaft", "shafts_from_masks", "MASK_CORRIDOR_PX", "CORRIDOR_WIDTH_FRAC", "MASK_EDGE_SIGMA_PX",
-           "MAX_AGREEMENT_PX", "MIN_FOUND_FRACTION", "REFINE_SIGMA_PX", "REFINE_SEARCH_PX", "PART_OFFSET_SIGMA_FRAC"]
+           "MAX_AGREEMENT_PX", "MIN_FOUND_FRACTION", "MIN_SEEN_FRACTION", "REFINE_SIGMA_PX", "REFINE_SEARCH_PX", "PART_OFFSET_SIGMA_FRAC"]
 
 #: Half-width of the search for the image's edge around the mask's [px].
 MASK_CORRIDOR_PX = 5.0
@@ -80,8 +81,12 @@ CORRIDOR_WIDTH_FRAC = 0.2
 #: The image's edge is taken where it lies within this of the mask's all along their common
 #: stretch [px]; further, it is a disagreement and the mask's edge is used.
 MAX_AGREEMENT_PX = 3.0
-#: The image shows an edge when its fit spans at least this fraction of the mask's stretch.
+#: The image shows an edge when its fit spans at least this fraction of the mask's stretch ...
 MIN_FOUND_FRACTION = 0.5
+#: ... and is seen at this fraction of the stations that could see it at least (texture or
+#: print beside a shaft, where a mask is drawn wide of it, gives 0.14-0.19; the silhouettes of
+#: the sources the constants were chosen on 0.42-0.93).
+MIN_SEEN_FRACTION = 0.3
 #: The error of a mask's edge at either end of its stretch [px] (sd, independent), used where
 #: the mask's edge stands for the image's.
 MASK_EDGE_SIGMA_PX = 2.0
@@ -233,20 +238,24 @@ def _grey_refit(gimg, camera, fit, spec, corridor, gamma, noise):
     base &= a >= _REL_STRENGTH * np.median(a[base])
     w = a * a / np.median(a[base] ** 2)
     got = class_edge(A, U, n_in, sv[0], p.t[0], w, base, p.g[0])
-    return fit if got is None else got[0]
+    if got is None:
+        return fit
+    # seen along this fraction of the stations that could see it (as the colour fit's frac)
+    return replace(got[0], frac=got[0].count / max(int(p.inside[0].sum()), 1))
 
 
 def _judged(fit, spec):
     """(the edge to use or None, "image" | "mask", offset [px] or None) of one edge: the
-    image's fit where it spans `MIN_FOUND_FRACTION` of the mask's stretch (spec) and lies
-    within `MAX_AGREEMENT_PX` of the mask's edge over their common stretch (offset: the
-    larger distance at its two ends); else None: the mask's edge stands."""
+    image's fit where it spans `MIN_FOUND_FRACTION` of the mask's stretch (spec), is seen at
+    `MIN_SEEN_FRACTION` of its stations and lies within `MAX_AGREEMENT_PX` of the mask's edge
+    over their common stretch (offset: the larger distance at its two ends); else None: the
+    mask's edge stands."""
     if fit is None:
         return None, "mask", None
     p0, u, _, s0, s1 = spec
     span = np.sort((fit.ends() - p0) @ u)
     lo, hi = max(span[0], s0), min(span[1], s1)
-    if hi - lo < MIN_FOUND_FRACTION * (s1 - s0):
+    if hi - lo < MIN_FOUND_FRACTION * (s1 - s0) or fit.frac < MIN_SEEN_FRACTION:
         return None, "mask", None
     ln = fit.line()
     off = max(abs(float(ln[:2] @ (p0 + s * u) + ln[2])) for s in (lo, hi))
