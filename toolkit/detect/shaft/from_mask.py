@@ -62,12 +62,12 @@ from pencilcal.toolkit.detect.edges import (DEFAULT_GAMMA, MIN_STATIONS, derivat
 from pencilcal.toolkit.detect.image import GrayImage
 from pencilcal.toolkit.detect.noise import estimate_noise
 from pencilcal.toolkit.detect.shaft.axis import class_edge, midline_from_edges
-from pencilcal.toolkit.detect.shaft.detector import Shaft
+from pencilcal.toolkit.detect.shaft.detector import Shaft, shaft_of_midline
 from pencilcal.toolkit.detect.shaft.mask import instruments_in_mask, mask_axis
 from pencilcal.toolkit.detect.shaft.regions import Z_999
 from pencilcal.toolkit.detect.shaft.silhouette import EdgeLine, fit_edges
 from pencilcal.toolkit.detect.shaft.work import Validity, axis_matrix
-from pencilcal.toolkit.detect.working import check_camera_image, to_raw
+from pencilcal.toolkit.detect.working import check_camera_image
 from pencilcal.toolkit.errors import InputError
 
 __all__ = ["MaskShaft", "shafts_from_masks", "MASK_CORRIDOR_PX", "CORRIDOR_WIDTH_FRAC", "MASK_EDGE_SIGMA_PX",
@@ -287,22 +287,6 @@ def _part(ax, camera, index, polarity):
                      kind="part", instrument=index, edge_from=(), mask_offset_px=())
 
 
-def _shaft(m, camera, index, polarity, edge_from, offsets):
-    """The `MaskShaft` of a `shaft.axis.Midline` (ideal px), or None where it leaves the lens
-    model's reach."""
-    ideal = m.ends.reshape(-1)
-    raw = to_raw(camera, ideal)[0]
-    edges = to_raw(camera, m.edges)
-    if not (np.all(np.isfinite(raw)) and np.all(np.isfinite(edges))):
-        return None
-    return MaskShaft(midline=raw, width_px=float(m.width_px), angle_sigma=float(m.angle_sigma),
-                     offset_sigma=float(m.offset_sigma), edges=edges, score=float(np.hypot(*(m.ends[1] - m.ends[0]))),
-                     ideal_midline=ideal, convergence_deg=float(m.convergence_deg), polarity=polarity, cue="mask",
-                     cov=m.cov, cov_stat=m.cov_stat, cov_floor=m.cov_floor, ideal_edges=np.asarray(m.edges, float),
-                     edge_cov=m.edge_cov, kind="shaft", instrument=index, edge_from=tuple(edge_from),
-                     mask_offset_px=tuple(offsets))
-
-
 def shafts_from_masks(image, masks, camera=None, *, labels=None, instances=False, valid_region=None,
                       gamma=DEFAULT_GAMMA, corridor_px=MASK_CORRIDOR_PX):
     """Each masked instrument's axis, refined on the image's edges, with its covariance
@@ -399,5 +383,7 @@ def _instrument(fr, k, m):
             got = [(None, "mask", g[2]) for g in got]
             mid = midline_from_edges(fr.K, masked[0], masked[1])
         if mid is not None:
-            return _shaft(mid, fr.camera, k, pol, [g[1] for g in got], [g[2] for g in got])
+            return shaft_of_midline(fr.camera, mid, float(np.hypot(*(mid.ends[1] - mid.ends[0]))), pol, "mask",
+                                    MaskShaft, kind="shaft", instrument=k, edge_from=tuple(g[1] for g in got),
+                                    mask_offset_px=tuple(g[2] for g in got))
     return _part(ax, fr.camera, k, pol)
