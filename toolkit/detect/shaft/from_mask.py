@@ -22,12 +22,12 @@ instrument of a mask (`mask.instruments_in_mask`)
 
 The mask restricts the search and judges the result: the image's edge is taken where it
 spans `MIN_FOUND_FRACTION` of the mask's stretch, is seen at `MIN_SEEN_FRACTION` of its
-stations and lies within `MAX_AGREEMENT_PX` of the mask's edge all along their common
-stretch. Elsewhere (no edge in the corridor: low
+stations, lies within `MAX_AGREEMENT_PX` of the mask's edge all along their common stretch
+and turns from it by `MAX_AGREEMENT_DEG` at most. Elsewhere (no edge in the corridor: low
 contrast, a mask off by more; or an edge further off: a shadow, a tissue edge, an inner
 streak, or the mask drawn wide) mask and image disagree, and it is said (`MaskShaft.
-edge_from`, `mask_offset_px`, `disagreement`): the mask's own edge stands in, with the
-mask's error `MASK_EDGE_SIGMA_PX` at either end in place of a fit's. A mask without two
+edge_from`, `mask_offset_px`, `mask_turn_deg`, `disagreement`): the mask's own edge stands
+in, with the mask's error `MASK_EDGE_SIGMA_PX` at either end in place of a fit's. A mask without two
 straight silhouette stretches (the distal part alone: jaws, a hook, a clip applier with the
 shaft out of view) gives its principal axis, kind ``"part"``, with the larger sigmas: its
 own half-angle atan(width / length) and `PART_OFFSET_SIGMA_FRAC` of its width; it has no
@@ -71,7 +71,7 @@ from pencilcal.toolkit.detect.working import check_camera_image
 from pencilcal.toolkit.errors import InputError
 
 __all__ = ["MaskShaft", "shafts_from_masks", "MASK_CORRIDOR_PX", "CORRIDOR_WIDTH_FRAC", "MASK_EDGE_SIGMA_PX",
-           "MAX_AGREEMENT_PX", "MIN_FOUND_FRACTION", "MIN_SEEN_FRACTION", "REFINE_SIGMA_PX", "REFINE_SEARCH_PX", "PART_OFFSET_SIGMA_FRAC"]
+           "MAX_AGREEMENT_PX", "MAX_AGREEMENT_DEG", "MIN_FOUND_FRACTION", "MIN_SEEN_FRACTION", "REFINE_SIGMA_PX", "REFINE_SEARCH_PX", "PART_OFFSET_SIGMA_FRAC"]
 
 #: Half-width of the search for the image's edge around the mask's [px].
 MASK_CORRIDOR_PX = 5.0
@@ -79,8 +79,10 @@ MASK_CORRIDOR_PX = 5.0
 #: the inner side (`shaft.silhouette`: 7.5 px further) must stay inside a thin shaft.
 CORRIDOR_WIDTH_FRAC = 0.2
 #: The image's edge is taken where it lies within this of the mask's all along their common
-#: stretch [px]; further, it is a disagreement and the mask's edge is used.
+#: stretch [px] and turns from it by at most `MAX_AGREEMENT_DEG`; further, it is a
+#: disagreement and the mask's edge is used (the tolerances of the masked sources' score).
 MAX_AGREEMENT_PX = 3.0
+MAX_AGREEMENT_DEG = 1.5
 #: The image shows an edge when its fit spans at least this fraction of the mask's stretch ...
 MIN_FOUND_FRACTION = 0.5
 #: ... and is seen at this fraction of the stations that could see it at least (texture or
@@ -121,12 +123,15 @@ class MaskShaft(Shaft):
     mask_offset_px : (2,) float or None
         Per edge: the largest distance [undistorted px] between the image's edge and the
         mask's over their common stretch; None where the image shows no edge.
+    mask_turn_deg : (2,) float or None
+        Per edge: the angle between the image's edge and the mask's [deg]; None likewise.
     """
 
     kind: str = "shaft"
     instrument: int = 0
     edge_from: tuple = ()
     mask_offset_px: tuple = ()
+    mask_turn_deg: tuple = ()
 
     @property
     def mask_agrees(self) -> bool | None:
@@ -141,14 +146,16 @@ class MaskShaft(Shaft):
             return (f"instrument {self.instrument}: no straight silhouette edges in its mask (a distal part "
                     f"alone?): its principal axis, +-{np.degrees(self.angle_sigma):.0f} deg")
         out = [f"edge {k + 1} not seen in the image" if o is None else
-               f"the image's edge {k + 1} lies {o:.1f} px from the mask's"
-               for k, (f, o) in enumerate(zip(self.edge_from, self.mask_offset_px)) if f == "mask"]
+               f"the image's edge {k + 1} lies {o:.1f} px from the mask's" if o > MAX_AGREEMENT_PX else
+               f"the image's edge {k + 1} turns {a:.1f} deg from the mask's"
+               for k, (f, o, a) in enumerate(zip(self.edge_from, self.mask_offset_px, self.mask_turn_deg))
+               if f == "mask"]
         return f"instrument {self.instrument}: {'; '.join(out)} (the mask's edge used)" if out else None
 
     def to_dict(self) -> dict:
         """`Shaft.to_dict`'s record with kind, instrument, edge_from, mask_offset_px,
-        mask_agrees and, where they disagree, mask_warning (docs/formats.md); a part's
-        without edges."""
+        mask_turn_deg, mask_agrees and, where they disagree, mask_warning (docs/formats.md);
+        a part's without edges."""
         out = super().to_dict()
         out.update(kind=self.kind, instrument=int(self.instrument))
         if self.kind == "part":
@@ -156,6 +163,7 @@ class MaskShaft(Shaft):
         else:
             out.update(edge_from=list(self.edge_from),
                        mask_offset_px=[None if o is None else float(o) for o in self.mask_offset_px],
+                       mask_turn_deg=[None if a is None else float(a) for a in self.mask_turn_deg],
                        mask_agrees=bool(self.mask_agrees))
         note = self.disagreement()
         if note:
@@ -212,8 +220,7 @@ def _grey_refit(gimg, camera, fit, spec, corridor, gamma, noise):
     polarity, the edge where it is best seen) within `REFINE_SEARCH_PX` of its colour fit
     (`shaft.silhouette.EdgeLine`), or within the corridor of the mask's edge (spec) where
     the colour fit found none; a station's edge above `Z_999` of the noise (sd noise [grey
-    levels]) through the kernel; the colour fit (or None) where the grey levels show too
-    little."""
+    levels]) through the kernel; None where the grey levels show too little."""
     p0, u, n_out, s0, s1 = spec
     if fit is not None:
         A, B = fit.point_at(s0), fit.point_at(s1)
@@ -234,32 +241,43 @@ def _grey_refit(gimg, camera, fit, spec, corridor, gamma, noise):
     a = np.abs(p.g[0])
     base = p.inside[0] & p.found[0] & (a > Z_999 * noise * float(np.sqrt(np.sum(kern[0].astype(float) ** 2))))
     if base.sum() < MIN_STATIONS:
-        return fit
+        return None
     base &= a >= _REL_STRENGTH * np.median(a[base])
     w = a * a / np.median(a[base] ** 2)
     got = class_edge(A, U, n_in, sv[0], p.t[0], w, base, p.g[0])
     if got is None:
-        return fit
+        return None
     # seen along this fraction of the stations that could see it (as the colour fit's frac)
     return replace(got[0], frac=got[0].count / max(int(p.inside[0].sum()), 1))
 
 
-def _judged(fit, spec):
-    """(the edge to use or None, "image" | "mask", offset [px] or None) of one edge: the
-    image's fit where it spans `MIN_FOUND_FRACTION` of the mask's stretch (spec), is seen at
-    `MIN_SEEN_FRACTION` of its stations and lies within `MAX_AGREEMENT_PX` of the mask's edge
-    over their common stretch (offset: the larger distance at its two ends); else None: the
-    mask's edge stands."""
-    if fit is None:
-        return None, "mask", None
+def _seen(fit, spec):
+    """The stretch (lo, hi) [px along the mask's edge] where an edge fit and the mask's edge
+    (spec) are both seen, when the fit spans `MIN_FOUND_FRACTION` of the mask's stretch and
+    is seen at `MIN_SEEN_FRACTION` of its stations; else None."""
+    if fit is None or fit.frac < MIN_SEEN_FRACTION:
+        return None
     p0, u, _, s0, s1 = spec
     span = np.sort((fit.ends() - p0) @ u)
     lo, hi = max(span[0], s0), min(span[1], s1)
-    if hi - lo < MIN_FOUND_FRACTION * (s1 - s0) or fit.frac < MIN_SEEN_FRACTION:
-        return None, "mask", None
+    return (lo, hi) if hi - lo >= MIN_FOUND_FRACTION * (s1 - s0) else None
+
+
+def _judged(fit, spec):
+    """(the edge to use or None, "image" | "mask", offset [px] or None, turn [deg] or None)
+    of one edge: the image's fit where it is seen (`_seen`), lies within `MAX_AGREEMENT_PX` of
+    the mask's edge over their common stretch (offset: the larger distance at its two ends)
+    and turns from it by `MAX_AGREEMENT_DEG` at most; else None: the mask's edge stands."""
+    common = _seen(fit, spec)
+    if common is None:
+        return None, "mask", None, None
+    p0, u = spec[0], spec[1]
     ln = fit.line()
-    off = max(abs(float(ln[:2] @ (p0 + s * u) + ln[2])) for s in (lo, hi))
-    return (fit, "image", off) if off <= MAX_AGREEMENT_PX else (None, "mask", off)
+    off = max(abs(float(ln[:2] @ (p0 + s * u) + ln[2])) for s in common)
+    turn = float(np.degrees(np.arcsin(min(1.0, abs(float(ln[:2] @ u))))))
+    if off <= MAX_AGREEMENT_PX and turn <= MAX_AGREEMENT_DEG:
+        return fit, "image", off, turn
+    return None, "mask", off, turn
 
 
 def _polarity(gray, m):
@@ -284,7 +302,7 @@ def _part(ax, camera, index, polarity):
                      offset_sigma=float(so), edges=np.zeros((0, 4)), score=float(ax.length_px),
                      ideal_midline=np.asarray(ideal, float), convergence_deg=0.0, polarity=polarity, cue="mask",
                      cov=cov, cov_stat=cov, cov_floor=np.zeros((2, 2)), ideal_edges=None, edge_cov=None,
-                     kind="part", instrument=index, edge_from=(), mask_offset_px=())
+                     kind="part", instrument=index, edge_from=(), mask_offset_px=(), mask_turn_deg=())
 
 
 def shafts_from_masks(image, masks, camera=None, *, labels=None, instances=False, valid_region=None,
@@ -376,14 +394,16 @@ def _instrument(fr, k, m):
         specs, masked = _edge_specs(fr.camera, ax.edges)
         corr = float(np.clip(CORRIDOR_WIDTH_FRAC * ax.width_px, 1.5, fr.corridor_px))
         fits = fit_edges(fr.fimg, fr.camera, fr.validity, fr.noise, specs, corr, gamma=fr.gamma)
-        fits = [_grey_refit(fr.gimg, fr.camera, f, sp, corr, fr.gamma, fr.noise) for f, sp in zip(fits, specs)]
+        # the refinement where the grey levels show the edge, else the colour fit
+        refits = [_grey_refit(fr.gimg, fr.camera, f, sp, corr, fr.gamma, fr.noise) for f, sp in zip(fits, specs)]
+        fits = [r if _seen(r, sp) is not None else f for r, f, sp in zip(refits, fits, specs)]
         got = [_judged(f, sp) for f, sp in zip(fits, specs)]
         mid = midline_from_edges(fr.K, *(g[0] if g[0] is not None else mk for g, mk in zip(got, masked)))
         if mid is None:  # the image's edges bound no cylinder here: the mask's own
-            got = [(None, "mask", g[2]) for g in got]
+            got = [(None, "mask", g[2], g[3]) for g in got]
             mid = midline_from_edges(fr.K, masked[0], masked[1])
         if mid is not None:
             return shaft_of_midline(fr.camera, mid, float(np.hypot(*(mid.ends[1] - mid.ends[0]))), pol, "mask",
                                     MaskShaft, kind="shaft", instrument=k, edge_from=tuple(g[1] for g in got),
-                                    mask_offset_px=tuple(g[2] for g in got))
+                                    mask_offset_px=tuple(g[2] for g in got), mask_turn_deg=tuple(g[3] for g in got))
     return _part(ax, fr.camera, k, pol)
