@@ -291,9 +291,13 @@ def _polarity(gray, m):
     return "dark" if np.median(gray[m]) < np.median(gray[ring]) else "bright"
 
 
-def _part(ax, camera, index, polarity):
-    """The `MaskShaft` of a distal part alone: the mask's principal axis (kind "part")."""
-    seg = ax.segment()
+def _part(ax, m, camera, index, polarity):
+    """The `MaskShaft` of a distal part alone (mask m (H, W) bool): the mask's principal axis
+    (kind "part") over the mask's extent along it."""
+    ys, xs = np.nonzero(m)
+    d = np.array([ax.line[1], -ax.line[0]])
+    along = (np.c_[xs, ys] - ax.point) @ d
+    seg = np.r_[ax.point + along.min() * d, ax.point + along.max() * d]
     ideal = seg if camera is None else camera.undistort_pixels(seg.reshape(2, 2)).reshape(-1)
     sa = float(np.arctan2(ax.width_px, ax.length_px))
     so = PART_OFFSET_SIGMA_FRAC * ax.width_px
@@ -406,4 +410,4 @@ def _instrument(fr, k, m):
             return shaft_of_midline(fr.camera, mid, float(np.hypot(*(mid.ends[1] - mid.ends[0]))), pol, "mask",
                                     MaskShaft, kind="shaft", instrument=k, edge_from=tuple(g[1] for g in got),
                                     mask_offset_px=tuple(g[2] for g in got), mask_turn_deg=tuple(g[3] for g in got))
-    return _part(ax, fr.camera, k, pol)
+    return _part(ax, m, fr.camera, k, pol)
