@@ -21,7 +21,8 @@ __all__ = ["CONTEXT_SETTINGS", "command", "Command", "Group", "OneLineUsageError
            "output_option", "force_option", "quiet_option", "check_output",
            "camera_options", "StageBars", "workers_option", "run_frames", "images_argument", "max_pixels_option",
            "IMAGES_HELP", "SHARED_DETAILS", "FiniteFloat", "LabelledProgress", "mask_option", "jsonl_option", "overlay_option",
-           "FrameOutputs", "detector_option", "endpoint_sigma_option", "source_option", "open_input", "frames_region", "stream_meta"]
+           "FrameOutputs", "detector_option", "endpoint_sigma_option", "source_option", "open_input", "frames_region", "stream_meta",
+           "instrument_mask_options", "instrument_masks", "warn_masks"]
 
 #: Every command's click context settings: -h as well as --help, the width of the help. Set on
 #: each command (not only inherited from the group), so a command invoked on its own, as the
@@ -444,6 +445,41 @@ def images_argument(required=True):
 mask_option = click.option(
     "--mask", "mask_path", type=click.Path(dir_okay=False), default=None,
     help="Valid region (PNG, or .json/.yaml circle/polygon); default: detected.")
+
+def instrument_mask_options(fn):
+    """--instrument-mask MASKS (one segmentation mask per frame), --mask-label V (repeatable:
+    an integer or B,G,R) and --mask-instances: the shafts from the masks' instruments
+    (`detect.shaft.from_mask`); the command receives instrument_mask, mask_labels,
+    mask_instances."""
+    fn = click.option("--mask-instances", is_flag=True, help="Each mask value is one instrument.")(fn)
+    fn = click.option("--mask-label", "mask_labels", multiple=True, metavar="V",
+                      help="A mask value (or B,G,R) that is instrument; repeatable.")(fn)
+    return click.option("--instrument-mask", "instrument_mask", default=None, metavar="MASKS",
+                        help="Instrument masks, one per frame (folder, pattern): their shafts.")(fn)
+
+
+def instrument_masks(source, spec, labels, instances):
+    """The `io.instrument_masks.InstrumentMasks` of --instrument-mask for the frames of
+    `source`, or None without it; usage errors for --mask-label and --mask-instances alone,
+    and for a live --source."""
+    if spec is None:
+        if labels or instances:
+            raise click.UsageError("--mask-label and --mask-instances go with --instrument-mask")
+        return None
+    if getattr(source, "kind", None) == "stream":
+        raise click.UsageError("--instrument-mask pairs masks with IMAGES, not with --source")
+    from pencilcal.toolkit.io.instrument_masks import source_masks
+
+    return source_masks(source, spec, labels, instances)
+
+
+def warn_masks(record):
+    """A warning per shaft of a frame record whose mask and image disagree (its
+    ``mask_warning``, `detect.shaft.from_mask.MaskShaft.disagreement`)."""
+    for sh in record.get("shafts") or []:
+        if sh.get("mask_warning"):
+            warn(f"{record.get('image')}: {sh['mask_warning']}")
+
 
 workers_option = click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
                               help="Worker processes (same results, in order).")

@@ -14,9 +14,9 @@ from pencilcal.toolkit.pencil.sequence_noise import fulcrum_with_noise
 from pencilcal.validation.fulcrum_run import fulcrum_with_sigmas
 
 from .common import (detector_option, endpoint_sigma_option, gamma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, frames_region,
-                     images_argument, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
-                     overlay_option, quiet_option, run, run_frames, source_option, stream_meta, warn, workers_option,
-                     done)
+                     images_argument, instrument_mask_options, instrument_masks, jsonl_option, mask_option,
+                     max_pixels_option, open_input, output_option, overlay_option, quiet_option, run, run_frames,
+                     source_option, stream_meta, warn, warn_masks, workers_option, done)
 
 
 
@@ -25,15 +25,17 @@ def _shaft_task(frame, ctx):
     import numpy as np
 
     from pencilcal.toolkit.io.images import check_image_size
-    from pencilcal.toolkit.detect.shaft.detector import detect_shafts
+    from pencilcal.toolkit.detect.lines import shaft_records
 
-    camera, options, region, drawing, tracker = ctx
+    camera, options, region, drawing, tracker, masks = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}, None
     check_image_size(frame, camera)
-    found = (detect_shafts(frame.image, camera, valid_region=region, **options) if tracker is None
-             else tracker(frame.image, camera, valid_region=region))
-    shafts = [s.to_dict() for s in found]
+    if tracker is None:
+        shafts = shaft_records(frame.image, camera, region, instrument_mask=None if masks is None else masks.of(frame),
+                               **options)
+    else:
+        shafts = [s.to_dict() for s in tracker(frame.image, camera, valid_region=region)]
     rec = {"image": frame.name, "ok": True, "segments": np.zeros((0, 4)), "shafts": shafts,
            "error": None if shafts else "no instrument shaft found"}
     if not drawing:
@@ -43,18 +45,20 @@ def _shaft_task(frame, ctx):
     return rec, draw_frame(frame.image, shafts=shafts, text=[frame.name])
 
 
-def _shafts(source, camera, options, quiet, workers, mask_path, live, tracker=None):
+def _shafts(source, camera, options, quiet, workers, mask_path, live, tracker=None, masks=None):
     """Instrument shafts of every frame of an image source, as lines.json frames, within the
     sequence's valid region (the mask file's, or detected: `region.detect.sequence_region`);
     each frame's shafts to the live outputs as they are found (the fulcrum is known only at
     the end). options: keywords of `shaft.detector.detect_shafts` (detector, gamma); tracker: a
-    `shaft.detector.ShaftTracker` (frames in order, --workers 1), or None."""
+    `shaft.detector.ShaftTracker` (frames in order, --workers 1), or None; masks: the
+    `io.instrument_masks.InstrumentMasks`, or None: the shafts are their instruments'."""
     region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     frames = []
-    ctx = (camera, options, region, live.drawing, tracker)
+    ctx = (camera, options, region, live.drawing, tracker, masks)
     for f, drawn in run_frames(source, _shaft_task, ctx, workers, "shafts", quiet):
         if f["error"]:
             warn(f"{f['image']}: {f['error']}")
+        warn_masks(f)
         frames.append(f)
         live.emit({k: v for k, v in f.items() if k != "segments"}, drawn, name=f["image"])
     return frames
@@ -160,6 +164,7 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
 @gamma_option
 @click.option("--track/--no-track", default=True, show_default=True,
               help="Find the shafts where the previous frame had them (--workers 1).")
+@instrument_mask_options
 @mask_option
 @jsonl_option
 @overlay_option
@@ -170,8 +175,8 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
 @quiet_option
 @run
 def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path, shaft_diameter, right_images,
-            camera_right_path, stereo_path, endpoint_sigma, detector, gamma, track, mask_path, jsonl_path, overlay_path,
-            max_pixels, workers, output, force, quiet):
+            camera_right_path, stereo_path, endpoint_sigma, detector, gamma, track, instrument_mask, mask_labels,
+            mask_instances, mask_path, jsonl_path, overlay_path, max_pixels, workers, output, force, quiet):
     """The fulcrum of an instrument pivoting about its entry port.
 
     \b
@@ -188,10 +193,12 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     port far off axis may lie beyond), its raw pixel and covariance. From IMAGES the
     instrument shafts are detected in every frame (their midlines are the axis images),
     never on the boundary of the frames' valid region (--mask, or detected once from up to
-    16 frames); or the lines come from a lines file (--lines; its shaft midlines are used
-    when present). With --angles (a CSV of image,angle_deg, or one pivot angle per frame)
-    the lines form a pencil with known angles and the orientation of the pivot plane comes
-    out too, with the keys of orientation.json.
+    16 frames); or, with --instrument-mask MASKS, they are the axes of the masks'
+    instruments refined on the image (as `lines --shaft --instrument-mask`); or the lines
+    come from a lines file (--lines; its shaft midlines are used when present). With
+    --angles (a CSV of image,angle_deg, or one pivot angle per frame) the lines form a
+    pencil with known angles and the orientation of the pivot plane comes out too, with the
+    keys of orientation.json.
 
     With --shaft-diameter D (e.g. 8 for an 8 mm instrument; lengths then come out in D's
     unit, mm as the board and pencil files have them) every shaft's two silhouette edges
@@ -240,8 +247,9 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     if sum(x is not None for x in (images, source_spec, lines_path)) != 1:
         raise click.UsageError("give IMAGES, --source or --lines (one of them)")
-    if lines_path is not None and (mask_path is not None or overlay_path is not None):
-        raise click.UsageError("--mask and --overlay are for frames (a lines file's lines are already found)")
+    if lines_path is not None and (mask_path is not None or overlay_path is not None or instrument_mask is not None):
+        raise click.UsageError("--mask, --instrument-mask and --overlay are for frames (a lines file's lines are "
+                               "already found)")
     stereo = (right_images, camera_right_path, stereo_path)
     if any(x is not None for x in stereo) and not all(x is not None for x in stereo):
         raise click.UsageError("--right, --camera-right and --right-from-left go together")
@@ -262,12 +270,13 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
                 live.emit({k: v for k, v in f.items() if k != "segments"})
     else:
         source = open_input(images, source_spec, max_pixels)
-        check_output(output, force, source.paths)
+        masks = instrument_masks(source, instrument_mask, mask_labels, mask_instances)
+        check_output(output, force, [*source.paths, *(masks.paths.values() if masks else ())])
         from pencilcal.toolkit.detect.shaft.detector import ShaftTracker
 
-        tracker = ShaftTracker(**options) if track and workers == 1 else None
+        tracker = ShaftTracker(**options) if track and workers == 1 and masks is None else None
         with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
-            frames = _shafts(source, camera, options, quiet, workers, mask_path, live, tracker)
+            frames = _shafts(source, camera, options, quiet, workers, mask_path, live, tracker, masks)
     where = lines_path or source.description
     angles = read_angles(angles_path, [f["image"] for f in frames]) if angles_path else None
 
@@ -278,6 +287,8 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         warn(w)
     out = {"camera": str(camera_path), "lines": None if lines_path is None else str(lines_path),
            "images": None if images is None else source.description, **stream_meta(source), **res.to_dict()}
+    if instrument_mask is not None:
+        out["instrument_mask"] = str(instrument_mask)
     if tracker is not None:
         out["frames_tracked"] = tracker.tracked
     if rig is not None:

@@ -10,10 +10,10 @@ from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.lines import lines_record
 from pencilcal.toolkit.io.lines_file import write_lines
 
-from .common import (detector_option, gamma_option, command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option, frames_region,
-                     images_argument, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
-                     overlay_option, quiet_option, run, run_frames, source_option, stream_meta, warn, workers_option,
-                     done)
+from .common import (detector_option, gamma_option, command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option,
+                     frames_region, images_argument, instrument_mask_options, instrument_masks, jsonl_option,
+                     mask_option, max_pixels_option, open_input, output_option, overlay_option, quiet_option, run,
+                     run_frames, source_option, stream_meta, warn, warn_masks, workers_option, done)
 
 
 def with_axis(camera, shaft, diameter):
@@ -22,6 +22,8 @@ def with_axis(camera, shaft, diameter):
     from pencilcal.toolkit.errors import EstimationError, InputError
     from pencilcal.toolkit.pencil.cylinder import shaft_axis_record
 
+    if shaft.get("edges") is None:
+        return {**shaft, "axis_error": "no silhouette edges (a distal part alone)"}
     try:
         return {**shaft, **shaft_axis_record(camera, shaft["edges"], shaft["edge_cov"], diameter)}
     except (EstimationError, InputError) as e:
@@ -31,12 +33,12 @@ def with_axis(camera, shaft, diameter):
 def _lines_task(frame, ctx):
     """One frame's lines.json record, and the frame drawn with them when the overlay is
     asked for (module level: runs in worker processes too)."""
-    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma = ctx
+    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, masks = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
     rec = lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
-                       valid_region=region, gamma=gamma)
+                       valid_region=region, gamma=gamma, instrument_mask=None if masks is None else masks.of(frame))
     if diameter is not None:
         rec["shafts"] = [with_axis(camera, s, diameter) for s in rec.get("shafts") or []]
     if not drawing:
@@ -77,6 +79,7 @@ def _summary(records):
 @gamma_option
 @click.option("--min-length", type=FiniteFloat(), default=None,
               help="Shortest segment written [px]; default 20 (bars: 1/30 of the image).")
+@instrument_mask_options
 @mask_option
 @jsonl_option
 @overlay_option
@@ -86,7 +89,7 @@ def _summary(records):
 @quiet_option
 @run
 def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, shaft, shaft_diameter, gamma,
-          min_length,
+          min_length, instrument_mask, mask_labels, mask_instances,
           mask_path, jsonl_path, overlay_path, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel precision, with angle uncertainty.
 
@@ -120,6 +123,8 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
 
     --shaft also finds instrument shafts (pairs of long converging edges) and writes them
     as `shafts`: midline (image of the axis), width_px, angle_sigma_deg, edge_cov. With
+    --shaft --instrument-mask MASKS the shafts are the masked instruments' axes refined on
+    the image's edges, saying where mask and image disagree. With
     --shaft-diameter D (e.g. 8 for an 8 mm instrument) each shaft also gets its 3-D axis
     from the two silhouette edges (the band's width fixes the depth): axis_point (the axis
     point closest to the camera centre), axis_direction (unit, away from the camera),
@@ -147,17 +152,21 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         raise click.BadParameter("only with --shaft", param_hint="--gamma")
     if shaft_diameter is not None and not shaft_diameter > 0:
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
+    if instrument_mask is not None and not shaft:
+        raise click.BadParameter("only with --shaft", param_hint="--instrument-mask")
     check_output(output, force)
     camera = read_camera(camera_path, camera_id=camera_id)
     source = open_input(images, source_spec, max_pixels)
-    check_output(output, force, [*source.paths, camera_path, mask_path])
+    masks = instrument_masks(source, instrument_mask, mask_labels, mask_instances)
+    check_output(output, force, [*source.paths, camera_path, mask_path, *(masks.paths.values() if masks else ())])
     region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     records = []
     with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
-        ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma)
+        ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma, masks)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
+            warn_masks(rec)
             records.append(rec)
             live.emit(rec, drawn)
     meta = {"detector": detector, "mode": "bars" if bars else "edges", "camera": str(camera_path),
@@ -166,5 +175,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         meta["shaft_diameter"] = shaft_diameter
     if shaft:
         meta["gamma"] = gamma
+    if masks is not None:
+        meta["instrument_mask"] = str(instrument_mask)
     write_lines(output, records, force=force, meta=meta, valid_region=None if region is None else region.to_dict())
     done(_summary(records), output, quiet=quiet)

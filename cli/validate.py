@@ -11,7 +11,7 @@ from pencilcal.validation.validate import find_sequences, sequence_files, valida
 from pencilcal.validation.validation_file import write_validation
 
 from .common import (detector_option, gamma_option, command, LabelledProgress, StageBars, check_output, done, force_option,
-                     mask_option, output_option, quiet_option, run, warn, workers_option)
+                     instrument_mask_options, mask_option, output_option, quiet_option, run, warn, workers_option)
 
 
 def _split(value, allowed, what):
@@ -69,6 +69,7 @@ def _grid(value):
 @click.option("--shaft-diameter", type=float, default=None, metavar="D",
               help="The shaft's diameter [mm], for the 3-D fulcrum.")
 @gamma_option
+@instrument_mask_options
 @click.option("--dask", "dask_address", default=None, metavar="ADDRESS",
               help="Folders of sequences: each to this Dask scheduler.")
 @workers_option
@@ -78,7 +79,8 @@ def _grid(value):
 @run
 def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pencil, truth_path, models, methods,
              sfm, sfm_dir, detector, edges, continuity, mask_path, calib_path, right_images, right_camera, right_calib_path,
-             fulcrum, shaft_diameter, gamma, dask_address, workers, output, force, quiet):
+             fulcrum, shaft_diameter, gamma, instrument_mask, mask_labels, mask_instances, dask_address, workers, output,
+             force, quiet):
     """Compare the angular-variation estimate with PnP (and a reconstruction) on the same frames.
 
     \b
@@ -119,7 +121,8 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
     fulcrum` finds it, each frame's axis residual, its error against the truth and, with
     --shaft-diameter (a pivot folder's own by default; mm, the board's unit), the 3-D point
     in the camera and the board frame; the shafts' edges are located on levels linearised
-    with --gamma.
+    with --gamma. With --instrument-mask the shafts are the masked instruments' axes refined
+    on the image.
 
     SEQUENCE may also be a folder of sequence folders: each is validated (one after the
     other, or each as a task on a Dask cluster with --dask tcp://host:8786) and the output
@@ -149,11 +152,16 @@ def validate(sequence, camera_path, camera_id, board_path, pencil_path, grid_pen
             raise click.UsageError("--board is required (SEQUENCE is not a simulate folder)")
         if pencil_path is None and grid is None and "pencil" not in found:
             raise click.UsageError("--pencil or --grid-pencil is required (SEQUENCE is not a simulate folder)")
+    if instrument_mask is None and (mask_labels or mask_instances):
+        raise click.UsageError("--mask-label and --mask-instances go with --instrument-mask")
+    if instrument_mask is not None and subs is not None:
+        raise click.UsageError("--instrument-mask pairs masks with one sequence's frames: not with a folder of sequences")
     check_output(output, force)
     options = dict(camera=camera_path, camera_id=camera_id, board=board_path, pencil=pencil_path, grid_pencil=grid,
                    truth=truth_path, models=models_t, methods=methods_t, sfm=sfm, detector=detector,
                    calibration=calib_path, workers=workers, edges=edges, mask=mask_path, fulcrum=fulcrum,
-                   shaft_diameter=shaft_diameter, gamma=gamma, continuity=continuity)
+                   shaft_diameter=shaft_diameter, gamma=gamma, continuity=continuity, instrument_mask=instrument_mask,
+                   mask_labels=mask_labels, mask_instances=mask_instances)
     if shaft_diameter is not None and not shaft_diameter > 0:
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     if right_images is not None or right_camera is not None:

@@ -16,6 +16,8 @@ each):
 `detect_lines`      one image -> `LineFrame` (segments or printed bars' midlines, with
                     their sigmas; the lines.json record)
 `detect_shafts`     one image -> [`Shaft`]: instrument shafts, their axis images
+`shafts_from_masks` one image and its instrument mask -> [`MaskShaft`]: each masked
+                    instrument's axis refined on the image, with where they disagree
 `fulcrum`           the lines of a pivot sequence -> `Fulcrum` (the fulcrum.json record)
 `calibrate`         views of a board -> `CalibrationResult` (``.camera``)
 `board_pose`        one image of a board -> `PoseResult` (R_cam_from_target, t, cov)
@@ -54,6 +56,8 @@ _NAMES = {
     "fit_pencil": "pencilcal.toolkit.pencil.estimator", "PencilFit": "pencilcal.toolkit.pencil.estimator",
     "orient_segments": "pencilcal.toolkit.pencil.orient", "Orientation": "pencilcal.toolkit.pencil.orientation",
     "Shaft": "pencilcal.toolkit.detect.shaft.detector", "detect_shafts": "pencilcal.toolkit.detect.shaft.detector",
+    "MaskShaft": "pencilcal.toolkit.detect.shaft.from_mask",
+    "shafts_from_masks": "pencilcal.toolkit.detect.shaft.from_mask",
     "LineFrame": "pencilcal.toolkit.io.lines_file", "read_lines": "pencilcal.toolkit.io.lines_file",
     "Fulcrum": "pencilcal.toolkit.pencil.fulcrum",
     "CalibrationResult": "pencilcal.toolkit.board.calibrate",
@@ -68,9 +72,9 @@ _NAMES = {
 
 __all__ = [
     "__version__", "read_camera", "write_camera", "Camera", "fit_pencil", "orient_segments", "detect_lines",
-    "detect_shafts", "fulcrum", "calibrate", "board_pose",
+    "detect_shafts", "shafts_from_masks", "fulcrum", "calibrate", "board_pose",
     # the results and inputs they take and give
-    "PencilFit", "Orientation", "LineFrame", "Shaft", "Fulcrum", "CalibrationResult", "PoseResult",
+    "PencilFit", "Orientation", "LineFrame", "Shaft", "MaskShaft", "Fulcrum", "CalibrationResult", "PoseResult",
     "Pencil", "read_pencil", "Board", "read_board", "read_lines", "image_angles", "rotation_about_axis",
     "PencilcalError", "InputError", "EstimationError",
 ]

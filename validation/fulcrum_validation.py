@@ -30,17 +30,18 @@ from pencilcal.toolkit.pencil.sequence_noise import fulcrum_noise
 __all__ = ["fulcrum_record", "shaft_frame"]
 
 
-def shaft_frame(frame, camera, detector="lsd", valid_region=None, gamma=DEFAULT_GAMMA):
+def shaft_frame(frame, camera, detector="lsd", valid_region=None, gamma=DEFAULT_GAMMA, masks=None):
     """The lines.json frame (image, ok, segments, shafts) of one decoded `Frame`: the shafts
     of `detect.shafts.detect_shafts` within valid_region, their edges located on levels
     linearised with `gamma` (validate calls it in its frame task, on the frame it decoded
-    for everything else)."""
-    from pencilcal.toolkit.detect.shaft.detector import detect_shafts
+    for everything else); with masks (`io.instrument_masks.InstrumentMasks`) the axes of
+    the frame's masked instruments instead (`detect.shaft.from_mask.shafts_from_masks`)."""
+    from pencilcal.toolkit.detect.lines import shaft_records
 
     if frame.image is None:
         return {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}
-    shafts = [s.to_dict() for s in detect_shafts(frame.image, camera, detector=detector, valid_region=valid_region,
-                                                 gamma=gamma)]
+    shafts = shaft_records(frame.image, camera, valid_region, gamma, None if masks is None else masks.of(frame),
+                           detector=detector)
     return {"image": frame.name, "ok": True, "segments": np.zeros((0, 4)), "shafts": shafts}
 
 

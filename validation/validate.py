@@ -403,7 +403,8 @@ def _sfm(source, camera, frames, best_poses, workdir, warn, quiet, progress):
 
 def _frame_task(frame, ctx):
     """One frame's validation record, the PoseResult of its best PnP method (or None) and,
-    with `shafts` (detector, valid region, gamma), its shafts as a lines.json frame (else None)
+    with `shafts` (detector, valid region, gamma, instrument masks), its shafts as a
+    lines.json frame (else None)
     (module level: runs in worker processes too)."""
     camera, board, lines_source, models, methods, truth, keep_pixels, shafts, continuity = ctx
     try:
@@ -435,8 +436,9 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
     right_poses: the board's poses in a second camera rigidly fixed to this one (image name
     -> PoseResult, `checks.board_poses`): the rig check (`checks.rig_check`, with each
     camera's intrinsics covariance in rig_intrinsics) goes under ``checks``; fulcrum: a
-    dict of detector, valid_region, truth (the pivot truth or None) and shaft_diameter: the
-    instrument's shafts are detected in every frame as it is processed and the ``fulcrum``
+    dict of detector, valid_region, truth (the pivot truth or None), shaft_diameter and
+    masks (`io.instrument_masks.InstrumentMasks` or None): the instrument's shafts are
+    detected in every frame as it is processed (or taken from its masks) and the ``fulcrum``
     record (`fulcrum_validation.fulcrum_record`) is made from them; continuity: resolve the
     twin of ambiguous frames along the sequence as `pencilcal orient` does
     (`twins_by_continuity`; the frames in the order given).
@@ -449,7 +451,7 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
         from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 
         gamma = DEFAULT_GAMMA if fulcrum.get("gamma") is None else float(fulcrum["gamma"])
-        shafts = (fulcrum.get("detector", "auto"), fulcrum.get("valid_region"), gamma)
+        shafts = (fulcrum.get("detector", "auto"), fulcrum.get("valid_region"), gamma, fulcrum.get("masks"))
     ctx = (camera, board, lines_source, models, methods, truth, keep_pixels, shafts, continuity)
     results = map_frames(_frame_task, source, ctx, workers)
     it = results if progress is None else progress(Sized(results, len(source)), "validate")
@@ -460,6 +462,9 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
         best_poses.append(best)
         shaft_frames.append(shaft_rec)
         estimates.append(est)
+        for sh in (shaft_rec or {}).get("shafts") or []:
+            if sh.get("mask_warning") and warn is not None:
+                warn(f"{shaft_rec['image']}: {sh['mask_warning']}")
     if continuity:
         twins_by_continuity(frames, estimates)
     if not any(f["ok"] for f in frames):
@@ -540,7 +545,7 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
                   models=MODELS, methods=METHODS, sfm=False, sfm_dir=None, detector="auto", calibration=None,
                   workers=1, progress=None, warn=None, quiet=True, sfm_progress=None, argv=None, edges=False,
                   mask=None, right=None, right_camera=None, right_calibration=None, fulcrum=None, shaft_diameter=None,
-                  gamma=None, continuity=True):
+                  gamma=None, continuity=True, instrument_mask=None, mask_labels=(), mask_instances=False):
     """Validate one sequence given by paths; returns the whole validation.json dict.
 
     sequence: folder, glob, video, or a `pencilcal simulate` folder (whose camera, board,
@@ -558,9 +563,11 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
     (`fulcrum_validation.fulcrum_record`: the instrument's shafts detected in every frame,
     the fulcrum and with shaft_diameter its 3-D point, against the truth where known);
     None: when the truth is a pivot scenario's (its shaft diameter then the default); gamma:
-    the frames' encoding gamma for the shafts' edges (None: `detect_shafts`' default). The
-    other arguments (continuity among them) as `validate_sequence`. Module level and paths
-    only, so a Dask worker can run it.
+    the frames' encoding gamma for the shafts' edges (None: `detect_shafts`' default);
+    instrument_mask, mask_labels, mask_instances: the frames' instrument masks (MASKS,
+    `io.instrument_masks.source_masks`): the fulcrum's shafts are their instruments' axes
+    (`detect.shaft.from_mask`). The other arguments (continuity among them) as
+    `validate_sequence`. Module level and paths only, so a Dask worker can run it.
     """
     from pencilcal.toolkit.board.spec import read_board
     from pencilcal.toolkit.camera.formats import camera_to_dict, read_camera
@@ -611,7 +618,13 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
         if shaft_diameter is None and pivot_truth:
             shaft_diameter = (truth_doc.get("options") or {}).get("shaft_diameter")
         pivot = {"detector": detector, "valid_region": getattr(lines, "valid_region", None), "truth": pivot_truth,
-                 "shaft_diameter": shaft_diameter, "gamma": gamma}
+                 "shaft_diameter": shaft_diameter, "gamma": gamma, "masks": None}
+        if instrument_mask is not None:
+            from pencilcal.toolkit.io.instrument_masks import source_masks
+
+            pivot["masks"] = source_masks(source, instrument_mask, mask_labels, mask_instances)
+    elif instrument_mask is not None:
+        raise InputError(f"{instrument_mask}: instrument masks are for the fulcrum (--fulcrum)")
     result = validate_sequence(source, cam, brd, lines, truth=truth_frames, models=models, methods=methods, sfm=sfm,
                                sfm_workdir=sfm_dir, progress=progress, warn=warn, quiet=quiet,
                                sfm_progress=sfm_progress, workers=workers, fulcrum=pivot, continuity=continuity,
@@ -619,6 +632,9 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
     if checks:
         result["checks"] = {**checks, **result.get("checks", {})}
     inputs = [p for p in (camera, board, pencil, truth, calibration, mask, right_camera, right_calibration) if p]
+    if pivot is not None and pivot["masks"] is not None:
+        result["fulcrum"]["instrument_mask"] = str(instrument_mask)
+        inputs += list(pivot["masks"].paths.values())
     return {
         "sequence": str(sequence),
         "images": str(images),

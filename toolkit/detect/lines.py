@@ -24,7 +24,7 @@ from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.segments import MIN_LENGTH_PX, detect_segments
 from pencilcal.toolkit.io.lines_file import LineFrame
 
-__all__ = ["default_min_length", "detect_frame_lines", "lines_record", "fan_line_options"]
+__all__ = ["default_min_length", "detect_frame_lines", "lines_record", "fan_line_options", "shaft_records"]
 
 
 def default_min_length(shape, bars):
@@ -62,7 +62,7 @@ def fan_line_options(pencil_width, edges=False):
 
 def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None,
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
-                       gamma=DEFAULT_GAMMA, bar_tracker=None):
+                       gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -96,6 +96,10 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
     bar_tracker : bar_track.BarTracker, optional
         With `bars`, frames in order: the bars found by it (the previous frame's bars as
         this frame's proposals where it has them) instead of a full detection.
+    instrument_mask : dict, optional
+        With `shaft`: the shafts of the frame's instrument mask instead of the detector's
+        (`shaft.from_mask.shafts_from_masks`): ``{"mask": array, "labels": ..., "instances":
+        ...}``.
     """
     if min_length is None:
         min_length = default_min_length(np.shape(image), bars)
@@ -111,21 +115,33 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         angle_sigma_deg=np.degrees(segs.angle_sigma),
         offset_sigma_px=segs.offset_sigma,
         width_px=segs.width_px if bars else None,
-        shafts=_shafts(image, camera, valid_region, gamma) if shaft else None,
+        shafts=shaft_records(image, camera, valid_region, gamma, instrument_mask) if shaft else None,
     )
 
 
-def _shafts(image, camera, valid_region, gamma):
-    """The shaft records of one image (`shaft.detector.detect_shafts`, imported only when asked for:
-    a fan's orientation does not need the shaft detector's modules)."""
-    from pencilcal.toolkit.detect.shaft.detector import detect_shafts
+def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, instrument_mask=None, **options):
+    """The shaft records of one image: `shaft.detector.detect_shafts`' (options: its
+    keywords), or with `instrument_mask` (``{"mask": array, "labels": ..., "instances":
+    ...}``) those of the mask's instruments (`shaft.from_mask.shafts_from_masks`). Imported
+    only when asked for: a fan's orientation does not need the shaft modules."""
+    if instrument_mask is not None:
+        from pencilcal.toolkit.detect.shaft.from_mask import shafts_from_masks
 
-    return [s.to_dict() for s in detect_shafts(image, camera, valid_region=valid_region, gamma=gamma)]
+        found = shafts_from_masks(image, instrument_mask["mask"], camera, labels=instrument_mask.get("labels"),
+                                  instances=bool(instrument_mask.get("instances")), valid_region=valid_region,
+                                  gamma=gamma)
+    else:
+        from pencilcal.toolkit.detect.shaft.detector import detect_shafts
+
+        found = detect_shafts(image, camera, valid_region=valid_region, gamma=gamma, **options)
+    return [s.to_dict() for s in found]
 
 
 def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None, bar_width=None,
-                 proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA, bar_tracker=None):
+                 proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA, bar_tracker=None,
+                 instrument_mask=None):
     """One lines.json frame record from one decoded image: ``detect_frame_lines(...).to_dict()``
     (the same arguments)."""
     return detect_frame_lines(name, image, camera, detector, bars, shaft, min_length, bar_width,
-                              proposal_scale, valid_region, bar_polarity, gamma, bar_tracker).to_dict()
+                              proposal_scale, valid_region, bar_polarity, gamma, bar_tracker,
+                              instrument_mask).to_dict()

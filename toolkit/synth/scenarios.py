@@ -191,6 +191,20 @@ class Scenario:
                             background=self.backdrop if background is None else background,
                             color=color, rng=rng, **d)
 
+    def instrument_coverage(self, i):
+        """(H, W) float: the fraction of each pixel the instrument of frame i covers, exact for
+        the camera's lens model as `render` draws it (its true segmentation mask: >= 0.5);
+        zeros where no instrument shows (InputError for a scenario without instruments)."""
+        if self.instruments is None:
+            raise InputError(f"the {self.name} scenario has no instrument")
+        from pencilcal.toolkit.synth.raster import render_coverage
+
+        fr = self.frames[i]
+        outline = self.instruments[i].outline(fr["R_cam_from_target"], fr["t_cam_from_target"])
+        if outline is None:
+            return np.zeros((self.camera.height, self.camera.width))
+        return np.clip(render_coverage(self.camera, [(outline, 1)]), 0.0, 1.0)
+
     def truth(self, render=None):
         """The truth file's content (JSON-ready: lists and floats)."""
         from pencilcal.toolkit.camera.formats import camera_to_dict

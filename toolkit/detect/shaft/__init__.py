@@ -10,7 +10,9 @@ One module per stage:
 - `edge_cue`, `bands`: the edge cue (bands between long edges, judged along their chord);
 - `track`: the corridors a tracked shaft is looked for in;
 - `axis`: the midline (the image of the axis) from the two silhouette edges, its covariance
-  and the edge floor.
+  and the edge floor;
+- `mask`, `from_mask`: instruments in a segmentation mask and the axis its outline gives;
+  each masked instrument's axis refined on the image's edges (masks in).
 """
 
 from __future__ import annotations
@@ -20,7 +22,8 @@ from pencilcal.toolkit.lazy import lazy_exports
 __getattr__, __dir__ = lazy_exports(__name__, {
     "detector": ["Shaft", "ShaftOptions", "detect_shafts", "track_shafts", "ShaftTracker", "CUES"],
     "axis": ["Midline", "midline_from_edges", "plane_bisector", "EDGE_FLOOR_PX"],
+    "from_mask": ["MaskShaft", "shafts_from_masks"],
 })
 
 __all__ = ["Shaft", "ShaftOptions", "detect_shafts", "track_shafts", "ShaftTracker", "CUES", "Midline",
-           "midline_from_edges", "plane_bisector", "EDGE_FLOOR_PX"]
+           "midline_from_edges", "plane_bisector", "EDGE_FLOOR_PX", "MaskShaft", "shafts_from_masks"]

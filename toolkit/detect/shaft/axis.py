@@ -66,7 +66,7 @@ from pencilcal.toolkit.detect.edges import (
 from pencilcal.toolkit.detect.shaft.silhouette import EdgeLine
 
 __all__ = ["EDGE_FLOOR_PX", "plane_bisector", "Midline", "floor_variances", "edge_covariance", "midline_from_edges",
-           "class_line_fit", "measure_edge_pair"]
+           "class_line_fit", "class_edge", "measure_edge_pair"]
 
 #: The error floor of an edge's position at either end [px], measured on the masked real
 #: sets and tested on the phantom sequence (module docstring).
@@ -336,11 +336,24 @@ def _edge_frames(one, pts):
     return w, P0, U, s2
 
 
-def _class_edge(P0, U, n_ab, s, t, w, base, g):
+def class_edge(P0, U, n_ab, s, t, w, base, g):
     """One edge of a band from its stations (S,) (`class_line_fit`, one offset per
     polarity): an `EdgeLine` on its best-seen class, n pointing out of the band, with the
     variances of that class' offset and of the common slope (`edges.fit_variances`), and
-    its inlier stations (S,); or None."""
+    its inlier stations (S,); or None.
+
+    P0 (2,) [px], U (2,): the edge's first point and unit direction, the stations s (S,)
+    [px] along U from P0; n_ab (2,): the unit normal into the band (the profiles' +t
+    side); t (S,) [px]: each station's edge along n_ab; w (S,): its weight; base (S,) bool:
+    the stations with an edge; g (S,): its signed derivative (the polarity classes).
+
+    >>> import numpy as np
+    >>> s = np.arange(20.0); g = np.where(s % 2 == 0, 2.0, -1.0)   # two polarities, 0.6 px apart
+    >>> e, inl = class_edge(np.zeros(2), np.array([1.0, 0.0]), np.array([0.0, 1.0]), s, np.where(g > 0, 0.3, -0.3),
+    ...                     g * g, np.ones(20, bool), g)
+    >>> round(e.tm, 3) + 0.0, round(e.b, 3) + 0.0, int(inl.sum())     # the stronger class, t along -n_ab
+    (-0.3, 0.0, 20)
+    """
     cls = (g > 0).astype(int)
     fit = class_line_fit(s, t, w, base, cls)
     if fit is None:
@@ -372,7 +385,7 @@ def _class_edge(P0, U, n_ab, s, t, w, base, g):
 def _measure_edges(img, camera, one, pts, shaft, search, kernel, sigma_px, slope_correction, guard_px, gamma):
     """Both edges of the band `one` (`pairs.EdgePairs`, one pair) measured at the stations
     pts (S, 2) on its bisector where each is seen cleanly (no other edge beside it), each
-    fitted on its own (`_class_edge`); both must fit at `MIN_STATIONS` shaft stations at
+    fitted on its own (`class_edge`); both must fit at `MIN_STATIONS` shaft stations at
     least. Returns the two `EdgeLine` and their `EdgePairs`, or None."""
     from pencilcal.toolkit.detect.pairs import antiparallel_pairs, pair_geometry
 
@@ -388,7 +401,7 @@ def _measure_edges(img, camera, one, pts, shaft, search, kernel, sigma_px, slope
     w2 = w2 / np.maximum(np.nan_to_num(masked_median(w2, base), nan=1.0), 1e-300)[:, None]
     edges, both = [], shaft.copy()
     for e in range(2):
-        fit = _class_edge(P0[e], U[e], n_ab[e], s2[e], p.t[e], w2[e], base[e], p.g[e])
+        fit = class_edge(P0[e], U[e], n_ab[e], s2[e], p.t[e], w2[e], base[e], p.g[e])
         if fit is None:
             return None
         edges.append(fit[0])

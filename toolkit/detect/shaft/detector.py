@@ -67,7 +67,8 @@ from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame, axis_matrix
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["Shaft", "ShaftOptions", "detect_shafts", "track_shafts", "ShaftTracker", "CUES", "REDETECT_FRAMES"]
+__all__ = ["Shaft", "ShaftOptions", "detect_shafts", "track_shafts", "ShaftTracker", "CUES", "REDETECT_FRAMES",
+           "shaft_of_midline"]
 
 #: The cues a shaft can be found by (`Shaft.cue`).
 CUES = ("material", "edges")
@@ -220,19 +221,19 @@ class ShaftOptions:
                    border_px=0.03 * diag + 8.0 if border_px is None else border_px, **kw)
 
 
-def _shaft(camera, m, score, polarity, cue):
+def shaft_of_midline(camera, m, score, polarity, cue, cls=None, **fields):
     """The `Shaft` of a `shaft.axis.Midline` (ideal px), or None where it leaves the lens
-    model's reach."""
+    model's reach; cls: a subclass of `Shaft` to build instead, with its own fields."""
     ideal = m.ends.reshape(-1)
     raw = to_raw(camera, ideal)[0]
     edges = to_raw(camera, m.edges)
     if not (np.all(np.isfinite(raw)) and np.all(np.isfinite(edges))):
         return None
-    return Shaft(midline=raw, width_px=float(m.width_px), angle_sigma=float(m.angle_sigma),
-                 offset_sigma=float(m.offset_sigma), edges=edges, score=float(score), ideal_midline=ideal,
-                 convergence_deg=float(m.convergence_deg), polarity=polarity, cue=cue, cov=m.cov,
-                 cov_stat=m.cov_stat, cov_floor=m.cov_floor, ideal_edges=np.asarray(m.edges, float),
-                 edge_cov=m.edge_cov)
+    return (cls or Shaft)(midline=raw, width_px=float(m.width_px), angle_sigma=float(m.angle_sigma),
+                          offset_sigma=float(m.offset_sigma), edges=edges, score=float(score), ideal_midline=ideal,
+                          convergence_deg=float(m.convergence_deg), polarity=polarity, cue=cue, cov=m.cov,
+                          cov_stat=m.cov_stat, cov_floor=m.cov_floor, ideal_edges=np.asarray(m.edges, float),
+                          edge_cov=m.edge_cov, **fields)
 
 
 def _by_material(image, camera, validity, o, K):
@@ -247,7 +248,7 @@ def _by_material(image, camera, validity, o, K):
     img = np.asarray(image)
     noise = max(robust_noise(img[..., 1]), 0.5)
     found = select(material_cue(img, camera, validity, work, mm, o, K, noise), o.max_shafts)
-    return [_shaft(camera, f.midline, f.score, f.polarity, "material") for f in found]
+    return [shaft_of_midline(camera, f.midline, f.score, f.polarity, "material") for f in found]
 
 
 def _edge_shafts(found, camera, o, K):
@@ -257,7 +258,7 @@ def _edge_shafts(found, camera, o, K):
         m = midline_from_edges(K, edges[0], edges[1])
         # both edges seen together along half the least length, as the band was
         if m is not None and np.hypot(*(m.ends[1] - m.ends[0])) >= 0.5 * o.min_length:
-            out.append(_shaft(camera, m, score, polarity, "edges"))
+            out.append(shaft_of_midline(camera, m, score, polarity, "edges"))
     return out
 
 
