@@ -22,7 +22,7 @@ __all__ = ["CONTEXT_SETTINGS", "command", "Command", "Group", "OneLineUsageError
            "camera_options", "StageBars", "workers_option", "run_frames", "images_argument", "max_pixels_option",
            "IMAGES_HELP", "SHARED_DETAILS", "FiniteFloat", "LabelledProgress", "mask_option", "jsonl_option", "overlay_option",
            "FrameOutputs", "detector_option", "endpoint_sigma_option", "source_option", "open_input", "frames_region", "stream_meta",
-           "instrument_mask_options", "instrument_masks", "warn_masks"]
+           "instrument_mask_options", "instrument_masks", "warn_masks", "camera_options_optional"]
 
 #: Every command's click context settings: -h as well as --help, the width of the help. Set on
 #: each command (not only inherited from the group), so a command invoked on its own, as the
@@ -485,13 +485,19 @@ workers_option = click.option("--workers", type=click.IntRange(min=1), default=1
                               help="Worker processes (same results, in order).")
 
 
-def camera_options(fn):
+def camera_options(fn, required=True):
     """--camera (any supported format) and --camera-id (COLMAP files with several cameras)."""
     fn = click.option("--camera-id", type=int, default=None, help="The camera's id in a COLMAP file.")(fn)
     return click.option(
-        "--camera", "camera_path", required=True, type=click.Path(),
-        help="Camera file (pencilcal, OpenCV, mrcal or COLMAP).",
+        "--camera", "camera_path", required=required, type=click.Path(),
+        help="Camera file (pencilcal, OpenCV, mrcal or COLMAP)." + ("" if required else " Optional."),
     )(fn)
+
+
+def camera_options_optional(fn):
+    """`camera_options` where the camera may be left out (the command then works in raw
+    pixels with a nominal pinhole)."""
+    return camera_options(fn, required=False)
 
 
 _SFM_LABELS = {"prepare": "frames  ", "extract": "features", "match": "matching", "map": "mapping "}

@@ -14,7 +14,7 @@ from .common import CONTEXT_SETTINGS, Group, install_signal_handlers
 COMMANDS = {
     "bench": "bench", "calibrate": "calibrate", "convert": "convert", "demo": "demo", "experiment": "experiment",
     "fulcrum": "fulcrum", "lines": "lines", "orient": "orient", "pnp": "pnp", "report": "report",
-    "sensitivity": "sensitivity", "sfm": "sfm", "simulate": "simulate", "target": "target", "validate": "validate",
+    "score": "score", "sensitivity": "sensitivity", "sfm": "sfm", "simulate": "simulate", "target": "target", "validate": "validate",
 }
 
 

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Tolerance", "FrameScore", "score_frame", "summarize", "detection_line"]
+__all__ = ["Tolerance", "FrameScore", "score_frame", "summarize", "detection_line", "frame_references", "score_record"]
 
 
 @dataclass(frozen=True)
@@ -177,3 +177,26 @@ def summarize(frames):
             "false_per_frame": false / len(frames) if frames else None,
             "angle_err_deg_median": q(a, 50), "angle_err_deg_p90": q(a, 90),
             "offset_err_px_median": q(o, 50), "offset_err_px_p90": q(o, 90)}
+
+
+def frame_references(mask_image, labels=None, instances=False, valid=None, K=None):
+    """The references of one frame's mask: (list of MaskAxis, small (H, W) bool: the pixels of
+    instruments too small to score, `mask.MIN_INSTRUMENT_AREA`, None when there are none).
+
+    mask_image: the mask as stored; labels, instances: as `mask.instruments_in_mask`; valid:
+    the valid region's mask (H, W) bool; K: the axis camera (`shaft.work.axis_matrix`)."""
+    from pencilcal.toolkit.detect.shaft.mask import MIN_INSTRUMENT_AREA, instruments_in_mask, mask_axis
+
+    every = instruments_in_mask(mask_image, labels, instances, min_area=1)
+    big = [m for m in every if int(m.sum()) >= MIN_INSTRUMENT_AREA]
+    small = [m for m in every if int(m.sum()) < MIN_INSTRUMENT_AREA]
+    refs = [a for a in (mask_axis(m, valid, K) for m in big) if a is not None]
+    return refs, (np.any(small, axis=0) if small else None)
+
+
+def score_record(frame_score, references):
+    """One frame's record in score.json: `FrameScore.to_dict` with each instrument's axis
+    (kind, line's segment [px], width)."""
+    return {**frame_score.to_dict(),
+            "references": [{"kind": r.kind, "axis": [float(v) for v in r.segment()], "width_px": float(r.width_px)}
+                           for r in references]}

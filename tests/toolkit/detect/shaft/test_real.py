@@ -2,7 +2,7 @@
 
 - masked sets (dvrk-suturing-masks, box-trainer-and-greenscreen): the fraction of the
   instruments whose midline is found within 1.5 deg and 15 px of the mask reference
-  (`mask_reference`: the plane bisector of the straight part of each instrument's mask), and
+  (`shaft.mask.mask_axis`: the plane bisector of the straight part of each instrument's mask), and
   the detections that match none, per frame;
 - the error floor: `shaft.axis.EDGE_FLOOR_PX` is what brings the masked sets' angle errors to
   chi2/N = 1; that is where it was fitted, so it is tested elsewhere: on the phantom
@@ -33,7 +33,7 @@ from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames
 from tests.conftest import data_dir
-from tests.toolkit.detect.shaft.mask_reference import reference_axes
+from pencilcal.toolkit.detect.shaft.mask import instruments_in_mask, mask_axis
 
 pytestmark = pytest.mark.slow
 
@@ -72,8 +72,8 @@ def _match(shafts, refs):
     for i, s in enumerate(shafts):
         ls = _line(s.ideal_midline)
         for j, r in enumerate(refs):
-            a = np.arccos(np.clip(abs(ls[:2] @ r["line"][:2]), 0.0, 1.0))
-            o = abs(ls[:2] @ r["mid"] + ls[2])
+            a = np.arccos(np.clip(abs(ls[:2] @ r.line[:2]), 0.0, 1.0))
+            o = abs(ls[:2] @ r.point + ls[2])
             if np.degrees(a) <= ANGLE_TOL_DEG and o <= OFFSET_TOL_PX:
                 pairs.append((i, j, a, o))
     pairs.sort(key=lambda p: -shafts[p[0]].score)
@@ -94,8 +94,9 @@ def masked():
     for folder, img_name, mask_name in MASKED:
         img = _read(root / folder / img_name)
         region = detect_valid_region([img])
-        refs = reference_axes(_mask(root / folder / mask_name), region.mask(img.shape[:2]),
-                              axis_matrix(None, img.shape[:2])[0])
+        valid, K = region.mask(img.shape[:2]), axis_matrix(None, img.shape[:2])[0]
+        refs = [a for a in (mask_axis(m, valid, K) for m in instruments_in_mask(_mask(root / folder / mask_name),
+                                                                                min_area=3000)) if a.kind == "shaft"]
         shafts = detect_shafts(img, valid_region=region)
         got, unmatched = _match(shafts, refs)
         out.append((img_name, refs, shafts, got, unmatched))
