@@ -43,7 +43,7 @@ from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 
 __all__ = ["CornerNoise", "WHITE", "CornerView", "fit_corner_noise", "correlated_covariance", "kernel",
-           "restricted_nll"]
+           "restricted_nll", "white_variance"]
 
 # views with fewer corners do not enter the fit (their residuals say little about the
 # correlation and their white level is poorly known)
@@ -164,6 +164,12 @@ class _Spectral:
         logdet_S = -2.0 * np.sum(np.log(w), -1)
         nll = 0.5 * (self.n * np.log(s2) + logdet_S + np.linalg.slogdet(JtSJ)[1] - self.logdet_JtJ)
         return nll, s2
+
+
+def white_variance(view, noise):
+    """sigma_w^2 [px^2 per axis] of one CornerView under `noise` (REML: the residuals' part
+    orthogonal to the view's Jacobian, 2K - P degrees of freedom)."""
+    return float(_Spectral(view, noise.length_px).nll(noise.ratio)[1][0])
 
 
 def restricted_nll(views, noise):
@@ -289,7 +295,7 @@ def correlated_covariance(J, residuals, points, noise):
     """
     J = np.asarray(J, float)
     view = CornerView(np.asarray(points, float), np.asarray(residuals, float), J)
-    s2 = float(_Spectral(view, noise.length_px).nll(noise.ratio)[1][0])
+    s2 = white_variance(view, noise)
     K = view.points.shape[0]
     Hinv = np.linalg.inv(J.T @ J)
     k = kernel(view.points, noise.length_px)
