@@ -61,11 +61,18 @@ _GRID = (9, 7)
 
 def binomial_band(n, p=REGION, level=_BAND):
     """(low, high): the fractions of n Bernoulli(p) trials that fall inside with probability
-    `level` (central binomial quantiles / n)."""
-    from scipy import stats
-
+    `level` (central binomial quantiles / n: the smallest k whose cumulative probability
+    reaches the tail, as scipy.stats.binom.ppf; summed in logs, without importing scipy.stats)."""
+    n = int(n)
     a = (1.0 - level) / 2.0
-    return float(stats.binom.ppf(a, n, p) / n), float(stats.binom.ppf(1.0 - a, n, p) / n)
+    logs = [math.lgamma(n + 1) - math.lgamma(k + 1) - math.lgamma(n - k + 1) + k * math.log(p)
+            + (n - k) * math.log1p(-p) for k in range(n + 1)]
+    cdf = np.cumsum(np.exp(logs))
+
+    def ppf(q):
+        return int(np.searchsorted(cdf, q * (1.0 - 1e-12), side="left"))
+
+    return ppf(a) / n, ppf(1.0 - a) / n
 
 
 def _coverage(z2, dof):

@@ -384,15 +384,17 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None):
     s2, mids, sig_e = [], [], []
     for r, Jg, Jp, Ci, PJ, img in views:
         K = img.shape[0]
+        k = kernel(img, noise.length_px) if noise is not None and noise.ratio > 0 else None
         if noise is None:
             s2.append(solution.sse / dof)
-            Sigma = None
         else:
-            s2.append(white_variance(CornerView(img, -r.reshape(-1, 2), Jp), noise))
-            Sigma = noise.ratio * np.kron(kernel(img, noise.length_px), np.eye(2)) if noise.ratio > 0 else None
-        M = PJ.T @ PJ if Sigma is None else PJ.T @ PJ + PJ.T @ Sigma @ PJ
+            s2.append(white_variance(CornerView(img, -r.reshape(-1, 2), Jp), noise, k))
+        M = PJ.T @ PJ
+        if k is not None:
+            P3 = PJ.reshape(K, 2, -1)
+            M = M + noise.ratio * np.einsum("kbp,kbq->pq", P3, np.einsum("kl,lbq->kbq", k, P3))
         mids.append(M)
-        sig_e.append(Sigma)
+        sig_e.append(None if k is None else noise.ratio * k)
     if np.all(np.isfinite(Si)):
         Cg = Si @ sum(v * M for v, M in zip(s2, mids)) @ Si
         Cg = 0.5 * (Cg + Cg.T)
@@ -404,8 +406,9 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None):
         if not np.all(np.isfinite(Cg)):
             cov_poses.append(np.full((6, 6), np.inf))
             continue
-        # dpose = Ci Jp^T e - Ci B^T dg, dg = Si sum PJ^T e
-        Jp_S = Jp if Sigma is None else Jp + Sigma @ Jp      # (I + Sigma) Jp
+        # dpose = Ci Jp^T e - Ci B^T dg, dg = Si sum PJ^T e; Sigma: the view's correlated
+        # part per axis (K, K), so (I + Sigma (x) I_2) Jp
+        Jp_S = Jp if Sigma is None else Jp + np.einsum("kl,lbq->kbq", Sigma, Jp.reshape(-1, 2, 6)).reshape(-1, 6)
         own = v * Ci @ (Jp.T @ Jp_S) @ Ci
         cross = v * Ci @ (Jp_S.T @ PJ) @ Si @ B @ Ci
         cp = own - cross - cross.T + Ci @ B.T @ Cg @ B @ Ci

@@ -65,13 +65,17 @@ from pencilcal.toolkit.board.bundle import WARP_NAMES, Layout, camera_parts, cor
     theta_of, view_residuals, warp_basis
 from pencilcal.toolkit.board.corner_noise import fit_corner_noise
 from pencilcal.toolkit.board.detect import BoardDetection
+from pencilcal.toolkit.board.model_choice import CANDIDATES, choose_model, chosen_score
 from pencilcal.toolkit.board.synthetic import synthetic_detections
 from pencilcal.toolkit.errors import EstimationError, InputError
 
-__all__ = ["CalibrationResult", "calibrate", "calibrate_images", "intrinsic_names", "synthetic_detections", "MODELS"]
+__all__ = ["CalibrationResult", "calibrate", "calibrate_images", "intrinsic_names", "synthetic_detections", "MODELS",
+           "AUTO"]
 
 #: Lens models `calibrate` fits, and the coefficient counts each takes (default first).
 MODELS = {"opencv": (5, 4, 8, 12, 14), "pinhole": (0,), "fisheye": (4,)}
+#: The model name that asks `calibrate` to choose the lens model on held-out views.
+AUTO = "auto"
 
 # a view is never rejected as an outlier while its median residual is within this factor
 # of the median view's: real data sets have views that are legitimately noisier (blur, tilt)
@@ -150,6 +154,8 @@ class CalibrationResult:
     warp : dict or None
         With ``warp=True``: the board's warp ``{"names", "value" (2,), "std" (2,), "cov"}``
         [board unit] (`toolkit.board.bundle`); also ``camera.meta["board_warp"]``.
+    model_choice : ModelChoice or None
+        With ``model="auto"``: every candidate's held-out score and why one was chosen.
     layout, solution, covariance : bundle.Layout, bundle.Solution, bundle.Covariance
         The final problem, its optimum (over the used views, in their order) and the
         covariance (intrinsics, warp, poses, each view's white noise level).
@@ -172,6 +178,7 @@ class CalibrationResult:
     cov_intrinsics: IntrinsicsCovariance | None = None
     corner_noise: object = None
     warp: dict | None = None
+    model_choice: object = None
     layout: object = None
     solution: object = None
     covariance: object = None
@@ -383,7 +390,8 @@ def _single_threaded(fn):
 @_single_threaded
 def calibrate(detections, board, image_size, model="opencv", coefficients=None, *, fix_aspect=False,
               fix_principal_point=False, zero_tangent=False, min_corners=6, min_views=3,
-              outlier_view_sigma=4.0, outlier_corner_sigma=5.0, max_rounds=20, corner_noise=False, warp=False):
+              outlier_view_sigma=4.0, outlier_corner_sigma=5.0, max_rounds=20, corner_noise=False, warp=False,
+              candidates=CANDIDATES):
     """Calibrate one camera's intrinsics from board detections in several views.
 
     Parameters
@@ -394,8 +402,11 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
         The board seen (boards.py); its object points are in its length unit.
     image_size : (width, height)
         [px]; every detection must come from an image of this size.
-    model : {"opencv", "pinhole", "fisheye"}
-        Lens model (camera.py). ``"pinhole"`` fits no distortion at all.
+    model : {"opencv", "pinhole", "fisheye", "auto"}
+        Lens model (camera.py). ``"pinhole"`` fits no distortion at all. ``"auto"``: the
+        views are screened and outliers rejected with opencv's 5 coefficients, then the
+        `candidates` are compared on held-out views and the one chosen is fitted
+        (`toolkit.board.model_choice`; ``model_choice`` on the result says why).
     coefficients : int, optional
         opencv: 4 (k1 k2 p1 p2), 5 (+ k3, the default), 8 (rational k4..k6), 12 (thin
         prism s1..s4), 14 (tilted sensor); fisheye: 4; pinhole: 0.
@@ -422,6 +433,8 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
         (`toolkit.board.corner_noise.fit_corner_noise`; a second on a few thousand
         corners), and give the intrinsics the covariance it implies (`bundle.covariance`:
         each view's own noise level and the correlated part, not one white level).
+    candidates : sequence of (model, coefficients)
+        The models ``"auto"`` compares (`model_choice.CANDIDATES`: all of them).
     warp : bool
         Also estimate the board's warp (`bundle`: two parabolas along the board, mrcal's
         calobject_warp), in the final solve; ``warp`` on the result and ``board_warp`` in
@@ -450,6 +463,9 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
     >>> res.camera.model, bool(abs(res.camera.fx - 600.0) < 1.0), sorted(res.std_intrinsics)[:3]
     ('fisheye', True, ['cx', 'cy', 'fx'])
     """
+    auto = model == AUTO
+    if auto:
+        model, coefficients = "opencv", None
     n_coef = _coefficient_count(model, coefficients)
     image_size = _check_options(model, fix_aspect, zero_tangent, image_size, min_corners, min_views)
     detections = list(detections)
@@ -473,8 +489,32 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
     used, masks, theta, poses, rounds, flag_names = _fit_with_rejection(layout, objs, imgs, usable, image_size,
                                                                         rejection, rejected)
     layout = Layout(model, n_coef, bool(fix_aspect), bool(fix_principal_point), bool(zero_tangent), warp=bool(warp))
-    return _final(layout, board, detections, objs, imgs, used, masks, theta, poses, image_size, corner_noise,
-                  rejected, rounds, flag_names)
+    choice, warp0 = None, None
+    if auto:
+        choice, layout, theta, poses, warp0 = _auto(layout, board, objs, imgs, used, masks, theta, poses,
+                                                    candidates)
+        flag_names = _opencv_flags(layout.model, layout.n_coef, layout.fix_aspect, layout.fix_principal_point,
+                                   layout.zero_tangent)[1]
+    result = _final(layout, board, detections, objs, imgs, used, masks, theta, poses, image_size, corner_noise,
+                    rejected, rounds, flag_names, warp0)
+    result.model_choice = choice
+    return result
+
+
+def _auto(layout, board, objs, imgs, used, masks, theta, poses, candidates):
+    """`model_choice.choose_model` on the views and corners kept: (the choice, its layout,
+    and its fit to start the final solve from: theta, {view: pose}, warp)."""
+    obj_all = board.object_points()
+    o = [objs[i][masks[i]] for i in used]
+    p = [imgs[i][masks[i]] for i in used]
+    K, dist = camera_parts(theta, layout)
+    choice = choose_model(o, p, [warp_basis(obj_all, x) for x in o], K, dist, [poses[i] for i in used],
+                          candidates=candidates, warp=layout.warp, fix_aspect=layout.fix_aspect,
+                          fix_principal_point=layout.fix_principal_point, zero_tangent=layout.zero_tangent)
+    sol = chosen_score(choice).solution
+    chosen = Layout(choice.model, choice.coefficients, layout.fix_aspect, layout.fix_principal_point,
+                    layout.zero_tangent and choice.model == "opencv", layout.warp)
+    return choice, chosen, sol.theta, {i: (sol.poses[j][0], sol.poses[j][1]) for j, i in enumerate(used)}, sol.warp
 
 
 def _check_options(model, fix_aspect, zero_tangent, image_size, min_corners, min_views):
@@ -554,7 +594,7 @@ class _Poses:
 
 
 def _final(layout, board, detections, objs, imgs, used, masks, theta, poses, image_size, corner_noise, rejected,
-           rounds, flag_names):
+           rounds, flag_names, warp0=None):
     """The final solve (with the warp when the layout has it), the covariance under the
     corner errors seen, and the result."""
     obj_all = board.object_points()
@@ -562,7 +602,7 @@ def _final(layout, board, detections, objs, imgs, used, masks, theta, poses, ima
     o = [objs[i][masks[i]] for i in used]
     p = [imgs[i][masks[i]] for i in used]
     bases = [warp_basis(obj_all, x) for x in o]
-    sol = refine(layout, theta, [poses[i] for i in used], o, p, bases)
+    sol = refine(layout, theta, [poses[i] for i in used], o, p, bases, warp=warp0)
     noise = fit_corner_noise(corner_views(layout, sol, o, p, bases), image_size) if corner_noise else None
     cov = covariance(layout, sol, o, p, bases, noise)
     K, dist = camera_parts(sol.theta, layout)

@@ -132,7 +132,9 @@ def kernel(points, length_px):
 
 def _squared_distances(points):
     u = np.asarray(points, float)
-    return np.sum((u[:, None, :] - u[None, :, :]) ** 2, -1)
+    u = u - u.mean(0)
+    n = np.sum(u * u, -1)
+    return np.maximum(n[:, None] + n[None, :] - 2.0 * (u @ u.T), 0.0)
 
 
 class _Spectral:
@@ -170,10 +172,23 @@ class _Spectral:
         return nll, s2
 
 
-def white_variance(view, noise):
-    """sigma_w^2 [px^2 per axis] of one CornerView under `noise` (REML: the residuals' part
-    orthogonal to the view's Jacobian, 2K - P degrees of freedom)."""
-    return float(_Spectral(view, noise.length_px).nll(noise.ratio)[1][0])
+def white_variance(view, noise, k=None):
+    """sigma_w^2 [px^2 per axis] of one CornerView under `noise` (REML: the generalised
+    least-squares residual of the view's Jacobian under the model's correlation, over
+    2K - P degrees of freedom; what `fit_corner_noise` profiles). k : the view's
+    `kernel` at the noise's length, when already at hand."""
+    r = np.asarray(view.residuals, float).reshape(-1, 2)
+    K = r.shape[0]
+    J = view.jacobian.reshape(K, 2, -1)
+    if noise.ratio > 0:
+        k = kernel(view.points, noise.length_px) if k is None else k
+        L = np.linalg.cholesky(np.eye(K) + noise.ratio * k)
+        r = np.linalg.solve(L, r)
+        J = np.linalg.solve(L, J.reshape(K, -1)).reshape(K, 2, -1)
+    J = J.reshape(2 * K, -1)
+    r = r.reshape(-1)
+    q = r - J @ np.linalg.lstsq(J, r, rcond=None)[0]
+    return float(q @ q) / (2 * K - J.shape[1])
 
 
 def restricted_nll(views, noise):
