@@ -170,10 +170,12 @@ def calibration_halves(result, detections, board, repeats=RANDOM_HALVES, seed=0)
     detections, board : what `calibrate` was given. repeats : random halves besides the odd
     and even views.
 
-    Returns ``{"odd_even": rec, "random": summary, "map": {...}}``: ``rec`` as
+    Returns ``{"odd_even": rec, "random": summary, "pooled": summary, "map": {...}}``: ``rec`` as
     `halves_agreement` (``z``: each intrinsic's difference in its combined sigma; ``views``);
     the random halves' mean chi-square per dof, the ratio of their pooled projection RMS to
     the predicted one, and the fraction inside the 68.3 % region with its binomial band;
+    ``pooled`` the same two figures over every split, odd-even included (one split's
+    figures scatter: a difference along one direction gives a ratio distributed as |z|);
     the map holds the odd-even difference and its predicted RMS per grid cell [px] and the
     covered cells. EstimationError when a half cannot be solved (fewer than 6 views).
     """
@@ -188,9 +190,9 @@ def calibration_halves(result, detections, board, repeats=RANDOM_HALVES, seed=0)
     out = {"method": "halves solved apart with the calibration's corners, lens model, board warp and corner-noise "
                      "model; projection differences over the covered region, up to the rotation that aligns them",
            "odd_even": odd_even}
+    recs = []
     if repeats:
         rng = np.random.default_rng(seed)
-        recs = []
         for _ in range(int(repeats)):
             r = _split(result, views, grid, sorted(rng.choice(n, n // 2, replace=False).tolist()), size)
             r.pop("_maps")
@@ -203,6 +205,14 @@ def calibration_halves(result, detections, board, repeats=RANDOM_HALVES, seed=0)
                                           / sum(r["projection_predicted_rms_px"] ** 2 for r in recs)),
             "inside": inside, "expected": REGION, "band": [lo, hi], "consistent": bool(lo <= inside <= hi),
             "chi2_per_dof": [r["chi2_per_dof"] for r in recs]}
+    every = [odd_even] + recs
+    out["pooled"] = {"splits": len(every),
+                     "chi2_per_dof": float(np.mean([r["chi2_per_dof"] for r in every])),
+                     "projection_ratio": math.sqrt(sum(r["projection_rms_px"] ** 2 for r in every)
+                                                   / sum(r["projection_predicted_rms_px"] ** 2 for r in every)),
+                     "projection_rms_px": math.sqrt(float(np.mean([r["projection_rms_px"] ** 2 for r in every]))),
+                     "projection_predicted_rms_px": math.sqrt(float(np.mean([r["projection_predicted_rms_px"] ** 2
+                                                                             for r in every])))}
     out["map"] = {"step_px": grid.step_px, "grid": [grid.shape[1], grid.shape[0]],
                   "difference_px": _map_list(maps[0]), "predicted_px": _map_list(maps[1]),
                   "covered": grid.mask.astype(int).tolist()}

@@ -156,6 +156,9 @@ class CalibrationResult:
         [board unit] (`toolkit.board.bundle`); also ``camera.meta["board_warp"]``.
     model_choice : ModelChoice or None
         With ``model="auto"``: every candidate's held-out score and why one was chosen.
+    checks : CalibrationChecks or None
+        The checks and the verdict, where `validation.calibration_run.calibrate_checked`
+        made the result (what `pencilcal calibrate` and `pencilcal.calibrate` run).
     layout, solution, covariance : bundle.Layout, bundle.Solution, bundle.Covariance
         The final problem, its optimum (over the used views, in their order) and the
         covariance (intrinsics, warp, poses, each view's white noise level).
@@ -182,6 +185,7 @@ class CalibrationResult:
     layout: object = None
     solution: object = None
     covariance: object = None
+    checks: object = None
 
     @property
     def views_used(self) -> int:
@@ -190,6 +194,35 @@ class CalibrationResult:
     @property
     def corners_used(self) -> int:
         return int(sum(int(m.sum()) for m in self.corner_used if m is not None))
+
+    def to_dict(self, names=None):
+        """The calibration's record (calib.json without the command's own keys): the camera,
+        the model (and how it was chosen), RMS, the intrinsics' sigmas and covariance, the
+        corner-noise model, the board's warp, counts, each view's report (`view_report`,
+        named by `names`), every rejection, and with ``checks`` the verdict, the
+        cross-validation, the projection uncertainty map, the views' geometry and coverage."""
+        from pencilcal.toolkit.camera.formats import camera_to_dict
+
+        n = len(self.used)
+        views = [self.view_report(i, None if names is None else names[i]) for i in range(n)]
+        rec = {"model": self.model, "coefficients": self.coefficients, "flags": list(self.flags),
+               "rms_px": self.rms_px, "std_intrinsics": dict(self.std_intrinsics),
+               "cov_intrinsics": None if self.cov_intrinsics is None else self.cov_intrinsics.to_dict(),
+               "corner_noise": None if self.corner_noise is None else self.corner_noise.to_dict(),
+               "covariance_model": None if self.covariance is None else self.covariance.model,
+               "board_warp": self.warp,
+               "model_choice": None if self.model_choice is None else self.model_choice.to_dict(),
+               "camera": camera_to_dict(self.camera),
+               "counts": {"views": n, "views_skipped": sum(1 for r in self.rejected if r["stage"] == "skipped"),
+                          "views_rejected": sum(1 for r in self.rejected
+                                                if r["stage"] == "outlier" and "corner" not in r),
+                          "views_used": self.views_used,
+                          "corners_rejected": sum(1 for r in self.rejected if "corner" in r),
+                          "corners_used": self.corners_used},
+               "views": views, "rejected": [dict(r) for r in self.rejected]}
+        if self.checks is not None:
+            rec.update(self.checks.to_dict())
+        return rec
 
     def view_report(self, index, name=None):
         """JSON-ready summary of one view: name, used, rms, pose and its std, rejections."""

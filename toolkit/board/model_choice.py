@@ -40,7 +40,7 @@ import numpy as np
 from pencilcal.toolkit.board.bundle import Layout, fit_pose, refine, theta_of
 from pencilcal.toolkit.errors import EstimationError
 
-__all__ = ["CANDIDATES", "FOLDS", "ModelScore", "ModelChoice", "choose_model", "chosen_score"]
+__all__ = ["CANDIDATES", "FOLDS", "ModelScore", "ModelChoice", "choose_model", "chosen_score", "simpler_choice"]
 
 #: The lens models `choose_model` compares by default: (model, coefficients).
 CANDIDATES = (("pinhole", 0), ("opencv", 4), ("opencv", 5), ("opencv", 8), ("opencv", 12), ("opencv", 14),
@@ -161,15 +161,37 @@ def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds
     ok = [s for s in scores if s.scores is not None]
     if not ok:
         raise EstimationError("no lens model could be scored on held-out views")
-    best = min(ok, key=lambda s: float(np.mean(s.scores)))
+    pick, best = _pick(ok)
     for s in ok:
-        d = s.scores - best.scores
         s.heldout_rms_px = math.sqrt(float(np.mean(s.scores)))
-        s.excess = float(np.mean(d))
-        s.excess_se = float(np.std(d, ddof=1) / math.sqrt(V)) if s is not best else 0.0
-    near = [s for s in ok if s.excess <= s.excess_se]
-    pick = min(near, key=lambda s: (s.parameters, float(np.mean(s.scores))))
     return ModelChoice(pick.model, pick.coefficients, scores, folds, _reason(pick, best, V, folds))
+
+
+def _pick(scored):
+    """(pick, best) of the scored candidates by the one-standard-error rule; sets each one's
+    excess over the best and its standard error."""
+    best = min(scored, key=lambda s: float(np.mean(s.scores)))
+    for s in scored:
+        d = s.scores - best.scores
+        s.excess = float(np.mean(d))
+        s.excess_se = float(np.std(d, ddof=1) / math.sqrt(d.size)) if s is not best else 0.0
+    near = [s for s in scored if s.excess <= s.excess_se]
+    return min(near, key=lambda s: (s.parameters, float(np.mean(s.scores)))), best
+
+
+def simpler_choice(choice, rejected, why):
+    """The choice again among the candidates with fewer parameters than every one in
+    `rejected` ((model, coefficients) pairs that failed a later check, `why` says which):
+    a new ModelChoice, or None when no candidate is left. The scores are kept."""
+    fewest = min(s.parameters for s in choice.scores if (s.model, s.coefficients) in set(rejected))
+    left = [s for s in choice.scores if s.scores is not None and s.parameters < fewest]
+    if not left:
+        return None
+    pick, best = _pick(left)
+    V = left[0].scores.size
+    reason = (f"{', '.join(f'{m} {n}' for m, n in rejected)} failed {why}; among the simpler models: "
+              + _reason(pick, best, V, choice.folds))
+    return ModelChoice(pick.model, pick.coefficients, choice.scores, choice.folds, reason)
 
 
 def chosen_score(choice):
