@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from pencilcal.toolkit.board.calibrate import AUTO, calibrate
 from pencilcal.toolkit.board.coverage import view_geometry
 from pencilcal.toolkit.board.model_choice import CANDIDATES, simpler_choice
+from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.errors import EstimationError
 
 from .calibration_report import coverage_grid
@@ -124,5 +125,10 @@ def calibrate_checked(detections, board, image_size, model="opencv", coefficient
         noise.update(ratio=result.corner_noise.ratio, length_px=result.corner_noise.length_px)
     verdict = judge(result.views_used, halves, umap, geometry, usable_px, noise)
     result.checks = CalibrationChecks(halves, umap, geometry, verdict, tried, coverage)
+    cam = result.camera
+    # the camera file says whether it is usable, wherever it goes
+    result.camera = Camera(cam.model, cam.width, cam.height, cam.K, cam.dist,
+                           meta={**(cam.meta or {}), "verdict": {"status": verdict.status,
+                                                                 "headline": verdict.headline}})
     return result
 
