@@ -48,7 +48,7 @@ def test_calibrate_writes_the_page(tmp_path):
     assert [s.id for s in rep.sections][:4] == ["verdict", "uncertainty", "cross-validation", "advice"]
     verdict = rec["verdict"]
     assert verdict["status"] in ("usable", "usable within this region", "not usable")
-    assert page.index(html.escape(verdict["headline"])) < page.index("2. Projection uncertainty")
+    assert page.index(html.escape(verdict["headline"])) < page.index('<section id="uncertainty">')
     cv = rec["cross_validation"]
     maps = 4 if "odd_even" in cv else 3        # uncertainty, [difference], per-view residuals, coverage
     assert page.startswith("<!DOCTYPE html>") and len(re.findall(r"data:image/png;base64,", page)) == maps
