@@ -69,8 +69,8 @@ from pencilcal.toolkit.board.model_choice import CANDIDATES, choose_model, chose
 from pencilcal.toolkit.board.synthetic import synthetic_detections
 from pencilcal.toolkit.errors import EstimationError, InputError
 
-__all__ = ["CalibrationResult", "calibrate", "calibrate_images", "intrinsic_names", "synthetic_detections", "MODELS",
-           "AUTO"]
+__all__ = ["CalibrationResult", "calibrate", "calibrate_images", "detect_views", "intrinsic_names",
+           "synthetic_detections", "MODELS", "AUTO"]
 
 #: Lens models `calibrate` fits, and the coefficient counts each takes (default first).
 MODELS = {"opencv": (5, 4, 8, 12, 14), "pinhole": (0,), "fisheye": (4,)}
@@ -766,16 +766,12 @@ def _reject_corners(used, masks, norms, k, sigma, min_corners, rejected):
     return changed
 
 
-def calibrate_images(images, board, model="opencv", coefficients=None, **options):
-    """Calibrate from images: detect the board in each, then `calibrate`.
+def detect_views(images, board):
+    """The board's detections in images: (Board, [BoardDetection or None per image], (w, h)).
 
     images : IMAGES (a path, folder, glob or video, or a list of them) or a sequence of
-        (H, W[, 3]) arrays, all the same size.
-    board : Board, or the path of a board file.
-    model, coefficients, options : as `calibrate`.
-
-    Returns the `CalibrationResult`; its ``camera`` is the calibrated Camera. Views that
-    cannot be decoded are skipped like views without the board.
+        (H, W[, 3]) arrays, all the same size; board : Board, or the path of a board file.
+    Images that cannot be decoded give None.
     """
     from pencilcal.toolkit.board.detect import detect_board
     from pencilcal.toolkit.board.spec import Board, read_board
@@ -792,6 +788,15 @@ def calibrate_images(images, board, model="opencv", coefficients=None, **options
     sizes = {(im.shape[1], im.shape[0]) for im in decoded}
     if len(sizes) > 1:
         raise InputError(f"the images differ in size ({sorted(sizes)}); calibrate one camera at one size")
-    detections = [None if im is None else detect_board(im, board) for im in frames]
-    return calibrate(detections, board, sizes.pop(), model=model, coefficients=coefficients, **options)
+    return board, [None if im is None else detect_board(im, board) for im in frames], sizes.pop()
 
+
+def calibrate_images(images, board, model="opencv", coefficients=None, **options):
+    """Calibrate from images: detect the board in each (`detect_views`), then `calibrate`.
+
+    model, coefficients, options : as `calibrate`. Returns the `CalibrationResult`; its
+    ``camera`` is the calibrated Camera. Views that cannot be decoded are skipped like
+    views without the board. (`pencilcal.calibrate` adds the checks and the verdict.)
+    """
+    board, detections, size = detect_views(images, board)
+    return calibrate(detections, board, size, model=model, coefficients=coefficients, **options)
