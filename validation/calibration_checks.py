@@ -53,7 +53,7 @@ from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
 __all__ = ["RANDOM_HALVES", "used_views", "calibration_halves", "uncertainty_map", "halves_agreement"]
 
 #: Random halves solved besides the odd and even views.
-RANDOM_HALVES = 8
+RANDOM_HALVES = 16
 # a half needs at least this many views
 _MIN_HALF_VIEWS = 3
 

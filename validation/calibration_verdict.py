@@ -160,13 +160,17 @@ def _geometry_reasons(views_used, geometry, region_share, umap, noise):
                        f"least {100 * MIN_REGION_SHARE:.0f}% needed)")
     elif region_share < MIN_REGION_SHARE:
         med = umap.get("median_covered_px")
-        why = ""
-        if noise:
-            why = (f" (corner residuals {noise.get('rms_px', float('nan')):.2f} px RMS, correlated part "
-                   f"{noise.get('ratio', 0.0):.2g} x the white one over {noise.get('length_px', 0.0):.0f} px)")
+        if area.size and float(np.median(area)) < _SMALL_BOARD:
+            why = f"the board is small in the image ({100 * np.median(area):.1f}% of it in the median view)"
+        elif views_used < _GOOD_VIEWS:
+            why = f"there are few views ({views_used})"
+        else:
+            why = "the corners are noisy"
+            if noise:
+                why += (f" ({noise.get('rms_px', float('nan')):.2f} px RMS, correlated part "
+                        f"{noise.get('ratio', 0.0):.2g} x the white one over {noise.get('length_px', 0.0):.0f} px)")
         reasons.append(f"the projection is known to {USABLE_PX:g} px over only {100 * region_share:.0f}% of the image "
-                       f"(median {med:.2f} px over the {100 * cov:.0f}% the views cover): the corners are too noisy "
-                       f"for so few views{why}")
+                       f"(median {med:.2f} px over the {100 * cov:.0f}% the views cover): {why}")
     return reasons
 
 

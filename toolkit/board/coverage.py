@@ -3,10 +3,11 @@
 A lens model is measured where corners fell and extrapolated elsewhere. `covered_grid` marks
 the cells of a grid over the image that lie inside at least one view's board (the convex
 hull of the view's corners): the region the views cover. `view_geometry` says how the
-board was seen: each view's tilt (the angle between the board's normal and the line of
-sight to its centre), its distance, and the share of the image its corners span; a set of
-views that are all nearly fronto-parallel, all at one distance, or all small leaves the
-focal length and the distortion poorly separated.
+board was seen: each view's tilt (the angle between the board's normal and the camera's
+optical axis: a board parallel to the image plane shows no perspective, wherever it is in
+the image), its distance, and the share of the image its corners span; a set of views
+that are all nearly fronto-parallel, all at one distance, or all small leaves the focal
+length and the distortion poorly separated.
 
 Example
 -------
@@ -98,8 +99,8 @@ def view_geometry(poses, board_points, corners, image_size):
     board points seen [board unit]; corners : per view (K_i, 2) [px]; image_size (w, h).
 
     Returns a dict of arrays over the views: ``tilt_deg`` (angle between the board's normal
-    and the line of sight to its seen corners' centre), ``distance`` (to that centre, board
-    unit) and ``area_fraction`` (the seen corners' convex hull over the image area).
+    and the optical axis), ``distance`` (to the seen corners' centre, board unit) and
+    ``area_fraction`` (the seen corners' convex hull over the image area).
     """
     import cv2
 
@@ -108,9 +109,7 @@ def view_geometry(poses, board_points, corners, image_size):
     for (rvec, tvec), obj, px in zip(poses, board_points, corners):
         R = cv2.Rodrigues(np.asarray(rvec, float).reshape(3, 1))[0]
         centre = R @ np.asarray(obj, float).mean(0) + np.asarray(tvec, float).ravel()
-        n = R[:, 2]
-        cosang = abs(float(n @ centre)) / max(float(np.linalg.norm(centre)), 1e-12)
-        tilt.append(math.degrees(math.acos(min(1.0, cosang))))
+        tilt.append(math.degrees(math.acos(min(1.0, abs(float(R[2, 2]))))))
         dist.append(float(np.linalg.norm(centre)))
         hull = cv2.convexHull(np.asarray(px, np.float32).reshape(-1, 1, 2))
         area.append(float(cv2.contourArea(hull)) / float(w * h))
