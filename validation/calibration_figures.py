@@ -7,8 +7,8 @@ matplotlib is imported when a figure is made.
 
 Example
 -------
->>> m = {"step_px": 20.0, "grid": [4, 3], "sigma_px": [[0.1, 0.2, 0.3, 2.0], [0.1, 0.1, 0.2, 1.5], [0.2, None, 0.3, 3.0]],
-...      "covered": [[1, 1, 1, 0], [1, 1, 1, 0], [1, 1, 1, 0]]}
+>>> m = {"step_px": 20.0, "grid": [4, 3], "covered": [[1, 1, 1, 0], [1, 1, 1, 0], [1, 1, 1, 0]],
+...      "sigma_px": [[0.1, 0.2, 0.3, 2.0], [0.1, 0.1, 0.2, 1.5], [0.2, None, 0.3, 3.0]]}
 >>> fig_uncertainty(m, (80, 60), 1.0).alt
 'map of the projection uncertainty over the image'
 """

@@ -257,7 +257,8 @@ def build_calibration_report(rep, title=None):
                 Section("model", "5. Lens model", _model(rep)),
                 Section("views", "6. Per-view residuals", [fig_views(rep.get("views", []))])]
     if grid:
-        sections.append(Section("coverage", "7. Coverage of the image", [fig_coverage(grid), Para(coverage_sentence(grid))]))
+        sections.append(Section("coverage", "7. Coverage of the image",
+                                [fig_coverage(grid), Para(coverage_sentence(grid))]))
     sections.append(Section("intrinsics", f"{len(sections) + 1}. Intrinsics and their sigmas",
                             [_intrinsics_table(rep)] + _noise(rep)))
     sections.append(Section("rejected", f"{len(sections) + 1}. Rejected views and corners", [_rejections(rep)]))
