@@ -96,7 +96,7 @@ def _region_summary(diff, pred2):
     (N, 2, 2) give, and the ratio."""
     ok = np.all(np.isfinite(diff), -1) & np.all(np.isfinite(pred2), (-1, -2))
     d2 = np.sum(diff[ok] ** 2, -1)
-    p2 = np.trace(pred2[ok], axis1=-2, axis2=-1)
+    p2 = np.maximum(np.trace(pred2[ok], axis1=-2, axis2=-1), 0.0)
     rms, pred = math.sqrt(float(np.mean(d2))), math.sqrt(float(np.mean(p2)))
     return {"rms_px": rms, "max_px": float(np.sqrt(d2.max())), "predicted_rms_px": pred,
             "ratio": rms / pred if pred > 0 else None}
@@ -140,7 +140,8 @@ def halves_agreement(camera_a, cov_a, camera_b, cov_b, grid):
                camera_frame=frame)
     centres = grid.centres().reshape(-1, 2)
     full = projection_difference(camera_a, camera_b, centres, region)
-    pred = np.sqrt(np.trace(_pred(camera_a, cov_a, camera_b, cov_b, centres, region), axis1=-2, axis2=-1))
+    pred = np.sqrt(np.maximum(np.trace(_pred(camera_a, cov_a, camera_b, cov_b, centres, region), axis1=-2,
+                                       axis2=-1), 0.0))
     rec["_maps"] = (np.linalg.norm(full, axis=-1).reshape(grid.shape), pred.reshape(grid.shape))
     return rec
 

@@ -49,6 +49,10 @@ CANDIDATES = (("pinhole", 0), ("opencv", 4), ("opencv", 5), ("opencv", 8), ("ope
 FOLDS = 5
 # fewer views than this cannot be split into training and held-out views usefully
 _MIN_VIEWS = 6
+# a simpler model taken instead of one that failed a later check must predict the held-out
+# views within this share of the best candidate's held-out RMS (not a pinhole for a lens
+# that distorts)
+_FALLBACK_RMS = 0.10
 
 
 @dataclass
@@ -181,10 +185,13 @@ def _pick(scored):
 
 def simpler_choice(choice, rejected, why):
     """The choice again among the candidates with fewer parameters than every one in
-    `rejected` ((model, coefficients) pairs that failed a later check, `why` says which):
-    a new ModelChoice, or None when no candidate is left. The scores are kept."""
+    `rejected` ((model, coefficients) pairs that failed a later check, `why` says which)
+    whose held-out RMS is within 10 % of the best candidate's: a new ModelChoice, or None
+    when no candidate is left. The scores are kept."""
     fewest = min(s.parameters for s in choice.scores if (s.model, s.coefficients) in set(rejected))
-    left = [s for s in choice.scores if s.scores is not None and s.parameters < fewest]
+    scored = [s for s in choice.scores if s.scores is not None]
+    best = min(s.heldout_rms_px for s in scored)
+    left = [s for s in scored if s.parameters < fewest and s.heldout_rms_px <= (1.0 + _FALLBACK_RMS) * best]
     if not left:
         return None
     pick, best = _pick(left)
