@@ -38,9 +38,12 @@ def _map_axes(fig, size):
 
 
 def _draw_map(ax, values, step, size, vmax, cmap):
+    import matplotlib
+
     ny, nx = values.shape
     extent = (-0.5, nx * step - 0.5, ny * step - 0.5, -0.5)
-    return ax.imshow(np.clip(values, 0, vmax), extent=extent, cmap=cmap, vmin=0.0, vmax=vmax,
+    cm = matplotlib.colormaps[cmap].with_extremes(bad="0.85")   # pixels whose ray the lens cannot find
+    return ax.imshow(np.clip(values, 0, vmax), extent=extent, cmap=cm, vmin=0.0, vmax=vmax,
                      interpolation="nearest")
 
 
@@ -84,7 +87,8 @@ def fig_uncertainty(umap, size, usable_px):
                 f"How well the calibration knows where a ray lands: the worst direction's standard deviation [px] "
                 f"of the pixel of the ray each pixel sees, from the intrinsics' covariance (the corner errors seen), "
                 f"up to the common rotation the board poses absorb. White dashed: the region the views cover; red: "
-                f"the usable region (<= {usable_px:g} px and covered). Colours stop at {vmax:.3g} px.",
+                f"the usable region (<= {usable_px:g} px and covered); grey: no ray (the lens model does not invert "
+                f"there). Colours stop at {vmax:.3g} px.",
                 "map of the projection uncertainty over the image")
 
 

@@ -135,8 +135,8 @@ def _verdict(rep):
         return Section("verdict", "1. Verdict", [Para("No verdict in this record (a calib.json of an older "
                                                       "pencilcal).", "note")])
     blocks = [Para(v["headline"], "lead")]
-    if v.get("reasons"):
-        blocks.append(Bullets([f"Why: {r}." for r in v["reasons"]]))
+    if len(v.get("reasons") or []) > 1:           # the headline says the first
+        blocks.append(Bullets([f"Also: {r}." for r in v["reasons"][1:]]))
     blocks += [Para(f"Note: {w}.", "note") for w in v.get("warnings", [])]
     c, f = rep.get("counts", {}), v.get("figures", {})
     lines = [f"{rep.get('model')} model with {rep.get('coefficients')} coefficients; {c.get('views_used')} of "

@@ -114,8 +114,9 @@ def calibrate_checked(detections, board, image_size, model="opencv", coefficient
         while halves_state(halves)[0] in ("loose", "disagree"):
             tried.append(_summary(result, halves))
             choice = simpler_choice(choice, [(t["model"], t["coefficients"]) for t in tried], "the two-halves check")
-            if choice is None:
+            if choice is None:        # no simpler model qualifies: the first stays, the verdict warns
                 result, halves, umap, geometry, coverage = first
+                tried = []
                 break
             result = fit(choice.model, choice.coefficients)
             result.model_choice = choice

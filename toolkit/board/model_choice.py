@@ -211,8 +211,9 @@ def _reason(pick, best, views, folds):
     head = f"{folds}-fold cross-validation over {views} views: "
     if pick is best:
         return head + f"{name} predicts the held-out views best (held-out RMS {pick.heldout_rms_px:.3f} px per axis)."
+    fewer = best.parameters - pick.parameters
     return (head + f"{_name(best)} predicts the held-out views best ({best.heldout_rms_px:.3f} px per axis), but "
-            f"{name}, with {best.parameters - pick.parameters} parameters fewer, is within one standard error of it "
+            f"{name}, with {fewer} parameter{'s' if fewer != 1 else ''} fewer, is within one standard error of it "
             f"({pick.heldout_rms_px:.3f} px; excess {pick.excess:.2g} +- {pick.excess_se:.2g} px^2).")
 
 
