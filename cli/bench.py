@@ -36,9 +36,7 @@ def bench(as_json, quick, sections, seed, output, force, quiet):
     bound at 20 deg of tilt (crlb_ratio_tilt20); a whole `pencilcal orient` / `fulcrum`
     process on a 1080p video over decoding it plus FLD on every frame
     (orient_video_vs_decode_fld_1080p, shafts_video_vs_decode_fld_1080p, with the start-up
-    and the per-frame time beside them); `pencilcal calibrate`'s work on 50 960x540 views
-    over the same detection plus cv2.calibrateCamera (calibrate_vs_opencv_960x540). Ratios
-    mean the same on any machine.
+    and the per-frame time beside them). Ratios mean the same on any machine.
 
     \b
     Examples:

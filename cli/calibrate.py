@@ -163,23 +163,20 @@ def _report(result, frames, decoded_index, source, board_path, image_size, fix_a
 @command()
 @images_argument()
 @click.option("--board", "board_path", required=True, type=click.Path(dir_okay=False),
-              help="Board file (.yaml/.json): charuco or chessboard, squares, square, marker, dictionary.")
+              help="Board file (.yaml/.json): charuco or chessboard.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Camera file: .json, .yaml/.yml/.xml (OpenCV), .cameramodel (mrcal), "
-                   "COLMAP cameras.txt/.bin.")
+              help="Camera file (.json, OpenCV .yaml, mrcal, COLMAP).")
 @click.option("--model", type=click.Choice([*MODELS, AUTO]), default="opencv", show_default=True,
-              help="Lens model: opencv (radial-tangential), fisheye (Kannala-Brandt), pinhole (none), or auto "
-                   "(chosen on held-out views).")
+              help="Lens model; auto: chosen on held-out views.")
 @click.option("--coefficients", type=click.Choice(["4", "5", "8", "12", "14"]), default=None,
-              help="opencv: distortion coefficients (k1 k2 p1 p2 [k3 [k4-k6 [s1-s4 [taux tauy]]]]). [default: 5]")
+              help="opencv only: distortion coefficients.  [default: 5]")
 @click.option("--fix-aspect", is_flag=True, help="Hold fx = fy (square pixels); not with --model fisheye.")
 @click.option("--min-corners", type=int, default=6, show_default=True,
               help="Views with fewer corners are skipped.")
 @click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
-              help="Report: .json (everything measured) or .html (the verdict, the uncertainty and "
-                   "cross-validation maps, advice).")
+              help="Also a report: .json, or an .html page.")
 @click.option("--corners", "corners_path", type=click.Path(dir_okay=False), default=None,
-              help="Also write the detections as mrcal's corners.vnl (--corners-cache).")
+              help="Also mrcal's corner cache (corners.vnl).")
 @max_pixels_option
 @workers_option
 @force_option
@@ -189,18 +186,21 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
               max_pixels, workers, force, quiet):
     """Calibrate a camera from views of a board, and say whether it is good enough.
 
-    IMAGES: image files, folders, globs or one video. Outlier views and corners are
-    rejected, the board's warp is estimated, and the sigmas hold the corner errors seen
-    (correlated ones too). Two halves of the views are calibrated apart as a check; the
-    verdict (usable, usable within a region, not usable, and why) is printed, and
-    --report writes it with the projection-uncertainty and cross-validation maps and
-    advice on what views to add.
-
     \b
     Examples:
       pencilcal calibrate calib/*.png --board board.yaml -o camera.yaml --report calib.html
-      pencilcal calibrate calib.mp4 --board board.yaml -o camera.json --model auto \\
-          --report calib.json --corners corners.vnl
+      pencilcal calibrate calib.mp4 --board board.yaml -o camera.json --model auto --report c.json
+
+    IMAGES: files, folders or globs in the order given, or a video. Prints the verdict:
+    usable, usable within a region, or not usable and why. In detail: docs/calibration.md.
+    \f
+    Views without a usable board are skipped, outlier views and corners rejected (with
+    their reasons in --report); the board's warp is estimated and the sigmas hold the
+    corner errors seen, correlated ones too. Two halves of the views are calibrated apart
+    as a check. --report writes .json (everything measured) or .html (the verdict, the
+    projection-uncertainty and cross-validation maps, advice on what views to add).
+    --model auto compares the lens models on held-out views. --corners writes mrcal's
+    corner cache (corners.vnl, for mrcal-calibrate-cameras --corners-cache).
     """
     if coefficients is not None and model != "opencv":
         raise click.BadParameter(f"applies to --model opencv only (the {model} model has a fixed set)",
