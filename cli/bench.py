@@ -10,7 +10,7 @@ from pencilcal.validation.bench import format_table, run_bench
 
 from .common import command, check_output, done, run
 
-SECTIONS = ("orient", "shafts", "pnp", "sfm", "estimator", "orient_video", "shafts_video")
+SECTIONS = ("orient", "shafts", "pnp", "sfm", "estimator", "orient_video", "shafts_video", "calibrate")
 
 
 @command()

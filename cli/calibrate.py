@@ -9,16 +9,18 @@ import click
 import numpy as np
 
 from pencilcal.toolkit.board.spec import read_board
-from pencilcal.toolkit.board.calibrate import MODELS, calibrate as calibrate_views
+from pencilcal.toolkit.board.calibrate import AUTO, MODELS
 from pencilcal.toolkit.board.calibration_file import write_calibration_file
+from pencilcal.toolkit.board.model_choice import CANDIDATES
 from pencilcal.toolkit.camera.model import Camera
-from pencilcal.toolkit.camera.formats import camera_format, camera_to_dict, write_camera
+from pencilcal.toolkit.camera.formats import camera_format, write_camera
 from pencilcal.toolkit.board.corners_cache import check_image_name, write_corners_vnl
 from pencilcal.toolkit.board.detect import detect_board
-from pencilcal.toolkit.errors import EstimationError, InputError
+from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import atomic_paths
 from pencilcal.toolkit.io.images import open_images
-from pencilcal.validation.calibration_report import coverage_grid, write_calibration_report
+from pencilcal.validation.calibration_report import write_calibration_report
+from pencilcal.validation.calibration_run import calibrate_checked
 
 from .common import (command, check_output, done, force_option, images_argument, max_pixels_option, quiet_option, run,
                      run_frames, warn, workers_option)
@@ -109,77 +111,53 @@ def _detect_all(source, board, workers, quiet):
     return frames, detections, decoded_index, first[1]
 
 
-def _cross_validation(detections, board, image_size, model, n_coef, fix_aspect, min_corners):
-    """The report's two-halves cross-validation (`validation.checks.calibration_halves`:
-    odd and even views), or {"error": why} when a half cannot be calibrated."""
-    from pencilcal.validation.checks import calibration_halves
+def _candidates(output, fix_aspect):
+    """The lens models --model auto may choose: those the output's format can hold."""
+    out = []
+    for model, n in CANDIDATES:
+        if model == "fisheye" and fix_aspect:
+            continue
+        try:
+            _probe_camera_format(output, model, n)
+        except InputError:
+            continue
+        out.append((model, n))
+    if not out:
+        raise InputError(f"{output}: this camera format holds none of the lens models --model auto compares")
+    return tuple(out)
 
-    try:
-        return calibration_halves(detections, board, image_size, model=model, coefficients=n_coef,
-                                  fix_aspect=fix_aspect, min_corners=min_corners)
-    except EstimationError as e:
-        return {"error": str(e)}
 
-
-def _report(result, frames, detections, decoded_index, source, board, board_path, image_size, model, fix_aspect,
-            output, corners_path, cross_validation=None):
-    """The --report record: per-view errors, rejections with reasons, counts, the camera,
-    the intrinsics' covariance, the corner-noise model and the two-halves check."""
+def _report(result, frames, decoded_index, source, board_path, image_size, fix_aspect, output, corners_path):
+    """The --report record: the result's own (`CalibrationResult.to_dict`: camera, sigmas,
+    warp, model choice, verdict, cross-validation, maps) with every frame, readable or not,
+    its rejections named by image, and the command's inputs and outputs."""
+    names = [frames[i][0].name for i in decoded_index]
+    rec = result.to_dict(names)
     views, rejected = [], []
-    for idx, (frame, rec, det) in enumerate(frames):
-        v = dict(rec)
+    by_frame = {idx: j for j, idx in enumerate(decoded_index)}
+    for idx, (frame, info, det) in enumerate(frames):
+        v = dict(info)
         if det is None:
-            v.update(used=False, rms_px=None, reason=f"unreadable: {rec['error']}")
-            rejected.append({"image": frame.name, "stage": "unreadable", "reason": rec["error"]})
+            v.update(used=False, rms_px=None, reason=f"unreadable: {info['error']}")
+            rejected.append({"image": frame.name, "stage": "unreadable", "reason": info["error"]})
         else:
-            j = decoded_index.index(idx)
-            v.update(result.view_report(j))
-            v.pop("view", None)
+            j = by_frame[idx]
+            v.update({k: val for k, val in rec["views"][j].items() if k != "view"})
             if v.get("reason") is None and not v["used"]:
                 v["reason"] = "not used"
-            for r in result.rejected:
-                if r["view"] == j:
-                    rejected.append({"image": frame.name, **{k: val for k, val in r.items() if k != "view"}})
+            rejected += [{"image": frame.name, **{k: val for k, val in r.items() if k != "view"}}
+                         for r in result.rejected if r["view"] == j]
         v["index"] = idx
         views.append(v)
-    counts = {
-        "images": len(frames),
-        "unreadable": sum(1 for _, rec, _ in frames if not rec["decoded"]),
-        "views_with_corners": sum(1 for d in detections if d.count > 0),
-        "views_skipped": sum(1 for r in result.rejected if r["stage"] == "skipped"),
-        "views_rejected": sum(1 for r in result.rejected if r["stage"] == "outlier" and "corner" not in r),
-        "views_used": result.views_used,
-        "corners_detected": int(sum(d.count for d in detections)),
-        "corners_rejected": sum(1 for r in result.rejected if "corner" in r),
-        "corners_used": result.corners_used,
-    }
-    used_corners = []
-    for j, det in enumerate(detections):
-        mask = result.corner_used[j] if result.used[j] else None
-        if mask is not None and len(mask) == len(det.corners):
-            used_corners.append(np.asarray(det.corners)[np.asarray(mask, bool)])
-    return {
-        "command": "calibrate",
-        "images": source.description,
-        "board_file": str(board_path),
-        "board": board.to_dict(),
-        "image_size": list(image_size),
-        "model": model,
-        "coefficients": result.coefficients,
-        "fix_aspect": bool(fix_aspect),
-        "flags": result.flags,
-        "rms_px": result.rms_px,
-        "std_intrinsics": result.std_intrinsics,
-        "cov_intrinsics": None if result.cov_intrinsics is None else result.cov_intrinsics.to_dict(),
-        "corner_noise": None if result.corner_noise is None else result.corner_noise.to_dict(),
-        "cross_validation": cross_validation,
-        "camera": camera_to_dict(result.camera),
-        "counts": counts,
-        "views": views,
-        "rejected": rejected,
-        "coverage": coverage_grid(used_corners, image_size),
-        "outputs": {"camera": str(output), "corners": str(corners_path) if corners_path else None},
-    }
+    detected = [d for _, _, d in frames if d is not None]
+    rec["counts"].update(images=len(frames), unreadable=sum(1 for _, info, _ in frames if not info["decoded"]),
+                         views_with_corners=sum(1 for d in detected if d.count > 0),
+                         corners_detected=int(sum(d.count for d in detected)))
+    rec.update(command="calibrate", images=source.description, board_file=str(board_path),
+               board=result.camera.meta["calibration"]["board"], image_size=list(image_size),
+               fix_aspect=bool(fix_aspect), views=views, rejected=rejected,
+               outputs={"camera": str(output), "corners": str(corners_path) if corners_path else None})
+    return rec
 
 
 @command()
@@ -188,8 +166,8 @@ def _report(result, frames, detections, decoded_index, source, board, board_path
               help="Board file (.yaml/.json): charuco or chessboard.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Camera file (.json, OpenCV .yaml, mrcal, COLMAP).")
-@click.option("--model", type=click.Choice(list(MODELS)), default="opencv", show_default=True,
-              help="Lens model.")
+@click.option("--model", type=click.Choice([*MODELS, AUTO]), default="opencv", show_default=True,
+              help="Lens model; auto: chosen on held-out views.")
 @click.option("--coefficients", type=click.Choice(["4", "5", "8", "12", "14"]), default=None,
               help="opencv only: distortion coefficients.  [default: 5]")
 @click.option("--fix-aspect", is_flag=True, help="Hold fx = fy (square pixels); not with --model fisheye.")
@@ -206,34 +184,23 @@ def _report(result, frames, detections, decoded_index, source, board, board_path
 @run
 def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_corners, report_path, corners_path,
               max_pixels, workers, force, quiet):
-    """Calibrate a camera's intrinsics from views of a ChArUco board or a chessboard.
+    """Calibrate a camera from views of a board, and say whether it is good enough.
 
     \b
     Examples:
-      pencilcal calibrate calib/*.png --board board.yaml -o camera.yaml
-      pencilcal calibrate calib/ --board board.yaml -o cam.json --report c.html
+      pencilcal calibrate calib/*.png --board board.yaml -o camera.yaml --report calib.html
+      pencilcal calibrate calib.mp4 --board board.yaml -o camera.json --model auto --report c.json
 
-    IMAGES: files, folders or globs in the order given, or a video. The intrinsics with
-    their sigmas and covariance; outliers rejected. In detail: docs/cli.md.
+    IMAGES: files, folders or globs in the order given, or a video. Prints the verdict:
+    usable, usable within a region, or not usable and why. In detail: docs/calibration.md.
     \f
-    IMAGES is one or more image files, folders or glob patterns, in the order given (a
-    folder's images sorted naturally), or one video. Views without a usable board (fewer
-    than --min-corners corners) are skipped; outlier views and corners are rejected (with
-    their reasons in --report); the camera file gets the intrinsics with their standard
-    deviations, their full covariance (cov_intrinsics) and the correlated corner-noise
-    model fitted to the residuals (corner_noise), where its format holds statistics
-    (.json, .yaml), and the RMS reprojection error. Lens models: opencv
-    (radial-tangential, with --coefficients k1 k2 p1 p2 [k3 [k4-k6 [s1-s4 [taux tauy]]]]),
-    fisheye (Kannala-Brandt), pinhole (no distortion). --report writes .json (per-view
-    errors and poses, std devs, outliers with reasons, skipped views, corner coverage) or
-    .html (a page: per-view residuals, coverage heatmap, sigmas, advice); it also
-    calibrates the odd and the even views apart and says whether the two agree within
-    their sigmas (cross_validation). --corners writes the detections as mrcal's corner
-    cache (corners.vnl, for mrcal-calibrate-cameras --corners-cache).
-
-    More examples:
-
-        pencilcal calibrate calib/*.png --board board.yaml -o camera.yaml --report calib.json --corners calib/corners.vnl
+    Views without a usable board are skipped, outlier views and corners rejected (with
+    their reasons in --report); the board's warp is estimated and the sigmas hold the
+    corner errors seen, correlated ones too. Two halves of the views are calibrated apart
+    as a check. --report writes .json (everything measured) or .html (the verdict, the
+    projection-uncertainty and cross-validation maps, advice on what views to add).
+    --model auto compares the lens models on held-out views. --corners writes mrcal's
+    corner cache (corners.vnl, for mrcal-calibrate-cameras --corners-cache).
     """
     if coefficients is not None and model != "opencv":
         raise click.BadParameter(f"applies to --model opencv only (the {model} model has a fixed set)",
@@ -242,10 +209,11 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
         raise click.BadParameter("is not available with --model fisheye", param_hint="--fix-aspect")
     if min_corners < 4:
         raise click.BadParameter("must be at least 4", param_hint="--min-corners")
-    n_coef = int(coefficients) if coefficients is not None else MODELS[model][0]
+    n_coef = int(coefficients) if coefficients is not None else MODELS.get(model, (None,))[0]
 
     outputs = _check_outputs(output, report_path, corners_path, force)
-    _probe_camera_format(output, model, n_coef)
+    if model != AUTO:
+        _probe_camera_format(output, model, n_coef)
     board = read_board(board_path)
     source = open_images(images, gray=True, max_pixels=max_pixels)
     for p in outputs:
@@ -256,13 +224,13 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
             check_image_name(_vnl_name(str(path), path.name, corners_path, source.kind))
 
     frames, detections, decoded_index, image_size = _detect_all(source, board, workers, quiet)
-    result = calibrate_views(detections, board, image_size, model=model, coefficients=n_coef,
-                             fix_aspect=fix_aspect, min_corners=min_corners, corner_noise=True)
+    candidates = _candidates(output, fix_aspect) if model == AUTO else CANDIDATES
+    result = calibrate_checked(detections, board, image_size, model=model,
+                               coefficients=None if model == AUTO else n_coef, fix_aspect=fix_aspect,
+                               min_corners=min_corners, candidates=candidates)
     camera = result.camera
-    cv = _cross_validation(detections, board, image_size, model, n_coef, fix_aspect, min_corners) if report_path \
-        else None
-    report = _report(result, frames, detections, decoded_index, source, board, board_path, image_size, model,
-                     fix_aspect, output, corners_path, cv)
+    report = _report(result, frames, decoded_index, source, board_path, image_size, fix_aspect, output,
+                     corners_path)
 
     # --- outputs, all or nothing
     todo = []
@@ -283,6 +251,7 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
         extra = ""
         if n_outlier_views or n_outlier_corners:
             extra = f" ({n_outlier_views} outlier view(s), {n_outlier_corners} outlier corner(s) rejected)"
-        done(f"{result.views_used}/{len(frames)} views used{extra}, RMS {result.rms_px:.3f} px: "
-             f"fx {camera.fx:.2f} fy {camera.fy:.2f} cx {camera.cx:.2f} cy {camera.cy:.2f}", output,
-             *[p for p in (report_path, corners_path) if p])
+        chosen = f"{result.model} {result.coefficients}, " if model == AUTO else ""
+        done(f"{result.checks.verdict.headline}; {result.views_used}/{len(frames)} views used{extra}, {chosen}"
+             f"RMS {result.rms_px:.3f} px: fx {camera.fx:.2f} fy {camera.fy:.2f} cx {camera.cx:.2f} cy {camera.cy:.2f}",
+             output, *[p for p in (report_path, corners_path) if p])

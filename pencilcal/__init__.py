@@ -19,7 +19,8 @@ each):
 `shafts_from_masks` one image and its instrument mask -> [`MaskShaft`]: each masked
                     instrument's axis refined on the image, with where they disagree
 `fulcrum`           the lines of a pivot sequence -> `Fulcrum` (the fulcrum.json record)
-`calibrate`         views of a board -> `CalibrationResult` (``.camera``)
+`calibrate`         views of a board -> `CalibrationResult` (``.camera``, ``.checks``
+                    with the verdict), as `pencilcal calibrate`
 `board_pose`        one image of a board -> `PoseResult` (R_cam_from_target, t, cov)
 ==================  ==============================================================
 
@@ -93,12 +94,21 @@ def __dir__():
 
 
 def calibrate(images, board, model="opencv", coefficients=None, **options):
-    """Calibrate a camera from views of a board: a `CalibrationResult` (``.camera`` is the
-    Camera). images: IMAGES (paths, folders, globs or a video) or a list of arrays; board:
-    a Board or a board file; options as `pencilcal.toolkit.board.calibrate.calibrate`."""
-    from pencilcal.toolkit.board.calibrate import calibrate_images
+    """Calibrate a camera from views of a board, as `pencilcal calibrate` does: a
+    `CalibrationResult` (``.camera`` is the Camera) with the board's warp, sigmas from the
+    corner errors seen, and ``.checks``: the two-halves cross-validation, the projection
+    uncertainty map and the verdict (``.checks.verdict.status``, ``.headline``, ``.advice``);
+    ``.to_dict()`` is the calib.json record.
 
-    return calibrate_images(images, board, model=model, coefficients=coefficients, **options)
+    images: IMAGES (paths, folders, globs or a video) or a list of arrays; board: a Board or
+    a board file; model: "opencv", "pinhole", "fisheye" or "auto" (chosen on held-out
+    views); options as `pencilcal.validation.calibration_run.calibrate_checked`
+    (fix_aspect, min_corners, usable_px, ...)."""
+    from pencilcal.toolkit.board.calibrate import detect_views
+    from pencilcal.validation.calibration_run import calibrate_checked
+
+    board, detections, size = detect_views(images, board)
+    return calibrate_checked(detections, board, size, model=model, coefficients=coefficients, **options)
 
 
 def detect_lines(image, camera=None, *, bars=False, detector="auto", name="image", **options):

@@ -1,17 +1,20 @@
 """The calibration report as a page: what `pencilcal calibrate --report calib.html` writes.
 
-Users of Kalibr and mrcal expect to *see* a calibration: how well each view fits, where
-in the image the corners fell (lens distortion is only known where corners were), the
-parameters with their sigmas, and a plain sentence on what to add. The page is built from
-the same record `--report calib.json` holds (cli/calibrate.py), with the corner coverage
-(`coverage_grid`) added, and drawn with the validation report's blocks and HTML renderer:
+The answer comes first. The page is built from the record `--report calib.json` holds
+(`CalibrationResult.to_dict` with the command's inputs) and drawn with the validation
+report's blocks and HTML renderer:
 
-1. summary: model, views used, RMS, and the advice (`coverage_advice`);
-2. per-view residuals: a bar per view (RMS), rejected views marked with their reasons;
-3. coverage: a heatmap of the used corners over the image;
-4. the intrinsics with their standard deviations;
-5. the two-halves cross-validation, when the record has one;
-6. every rejected view and corner with its reason.
+1. the verdict: usable / usable within this region / not usable, the headline figure and
+   why (`validation.calibration_verdict`), with the figures it read;
+2. the projection uncertainty over the image (mrcal-show-projection-uncertainty's map:
+   the worst direction's 1-sigma [px]), the covered and the usable region outlined;
+3. the cross-validation: the odd and even views calibrated apart, their projection
+   difference over the image beside the one their sigmas predict, and the figures of
+   every split;
+4. what to add (views at the corners, tilted views, other distances);
+5. the lens model and, with --model auto, how it was chosen;
+6. per-view residuals, 7. corner coverage, 8. the intrinsics with their sigmas, the board's
+   warp and the corner-noise model, 9. every rejected view and corner with its reason.
 
 Example
 -------
@@ -28,13 +31,13 @@ import numpy as np
 
 from pencilcal.toolkit.io.files import atomic_write
 
-from .report.document import Bullets, Cell, Para, Plot, Report, Section, Table
-from .report.figures import legend_below, new_figure, png_bytes
+from .calibration_figures import fig_coverage, fig_difference, fig_uncertainty, fig_views
+from .report.document import Bullets, Cell, Details, Para, Report, Section, Table
 from .report.format import num
 from .report.html import render_html
 
-__all__ = ["coverage_grid", "coverage_advice", "build_calibration_report", "write_calibration_report",
-           "COVERAGE_CELLS"]
+__all__ = ["coverage_grid", "coverage_advice", "coverage_sentence", "build_calibration_report",
+           "write_calibration_report", "COVERAGE_CELLS"]
 
 # cells of the coverage grid across and down the image: ~100 px cells at 1280x720, fine
 # enough to show a missing corner of the image, coarse enough that a good set fills them
@@ -65,6 +68,13 @@ def coverage_grid(corners, image_size, cells=COVERAGE_CELLS):
     return {"cells": [nx, ny], "image_size": [int(w), int(h)], "counts": counts.tolist()}
 
 
+def coverage_sentence(grid):
+    """How many cells of the coverage grid hold a corner, in words."""
+    counts = np.asarray(grid["counts"], int)
+    filled = int((counts > 0).sum())
+    return f"Corners fell in {filled} of {counts.size} cells of the image ({100.0 * filled / counts.size:.0f}%)."
+
+
 def coverage_advice(grid):
     """A plain sentence on which part of the image needs more views.
 
@@ -83,7 +93,7 @@ def coverage_advice(grid):
     for name, (frac, total) in density.items():
         if frac < 0.25 or total < 0.1 * busiest:
             thin.append(name)
-    head = f"Corners fell in {filled} of {counts.size} cells of the image ({100.0 * filled / counts.size:.0f}%)."
+    head = coverage_sentence(grid)
     if not thin:
         return head + " Every part of the image is covered; no region needs more views."
     if len(thin) == 8 and "centre" not in thin:
@@ -92,58 +102,6 @@ def coverage_advice(grid):
     where = ", ".join(thin)
     return (head + f" Thin or empty: {where}. Add views with the board in those parts of the image (near the "
             "border, tilted): the lens distortion there is extrapolated from the middle, not measured.")
-
-
-def _summary(rep, advice):
-    c = rep.get("counts", {})
-    lines = [f"{rep.get('model')} model with {rep.get('coefficients')} coefficients; "
-             f"{c.get('views_used')} of {c.get('images')} views used, {c.get('corners_used')} corners; "
-             f"RMS reprojection error {num(rep.get('rms_px'), ' px')}.",
-             f"{c.get('views_rejected', 0)} outlier view(s) and {c.get('corners_rejected', 0)} outlier corner(s) "
-             f"rejected, {c.get('views_skipped', 0)} view(s) skipped, {c.get('unreadable', 0)} unreadable."]
-    return Section("summary", "1. Summary", [Para(advice, "lead"), Bullets(lines)])
-
-
-def _fig_views(views):
-    fig = new_figure(figsize=(8.0, 3.0))
-    ax = fig.add_subplot()
-    xs = np.arange(len(views))
-    rms = np.array([v.get("rms_px") if v.get("rms_px") is not None else np.nan for v in views], float)
-    used = np.array([bool(v.get("used")) for v in views])
-    ax.bar(xs[used], rms[used], color="C0", label="used")
-    bad = ~used & np.isfinite(rms)
-    if bad.any():
-        ax.bar(xs[bad], rms[bad], color="C3", label="rejected")
-    none = ~np.isfinite(rms)
-    if none.any():
-        ax.plot(xs[none], np.zeros(none.sum()), "x", color="0.5", label="no corners / skipped")
-    ax.set_xlabel("view")
-    ax.set_ylabel("RMS residual [px]")
-    legend_below(fig, *ax.get_legend_handles_labels())  # below the bars, never over them
-    return Plot(png_bytes(fig), "Per-view RMS of the corner residuals; red: views rejected as outliers, grey "
-                "crosses: views without a usable board.", "bar chart of per-view residuals")
-
-
-def _fig_coverage(grid):
-    counts = np.asarray(grid["counts"], float)
-    w, h = grid["image_size"]
-    fig = new_figure(figsize=(6.4, 6.4 * h / w + 0.6))
-    ax = fig.add_subplot()
-    shown = np.where(counts > 0, counts, np.nan)
-    im = ax.imshow(shown, extent=(-0.5, w - 0.5, h - 0.5, -0.5), cmap="viridis", interpolation="nearest")
-    ny, nx = counts.shape
-    for j in range(ny):
-        for i in range(nx):
-            if counts[j, i] == 0:
-                ax.text((i + 0.5) * w / nx - 0.5, (j + 0.5) * h / ny - 0.5, "0", ha="center", va="center",
-                        color="C3", fontsize=8)
-    ax.set_xlim(-0.5, w - 0.5)
-    ax.set_ylim(h - 0.5, -0.5)
-    ax.set_xlabel("u [px]")
-    ax.set_ylabel("v [px]")
-    fig.colorbar(im, ax=ax, label="corners used", shrink=0.8)
-    return Plot(png_bytes(fig), "Where the corners used in the fit fell in the image (cells without any: red 0).",
-                "heatmap of corner coverage")
 
 
 def _intrinsics_table(rep):
@@ -156,35 +114,11 @@ def _intrinsics_table(rep):
     for k, name in enumerate(names):
         v = values.get(name, dist[k - 4] if 4 <= k < 4 + len(dist) else None)
         s = rep["std_intrinsics"][name]
-        rows.append([name, num(v), num(s), Cell(num(abs(s / v) * 100 if v else None, " %"), "muted")])
+        rows.append([name, "" if v is None else f"{v:.6g}", f"{s:.3g}",
+                     Cell(num(abs(s / v) * 100 if v else None, " %"), "muted")])
     return Table(["parameter", "value", "sigma", "sigma / value"], rows,
-                 caption="One standard deviation from the fit's covariance, scaled by its residuals.")
-
-
-def _cross_validation(cv):
-    """Blocks for the two-halves cross-validation (`validation.checks.calibration_halves`):
-    per split a sentence (chi-square, p, the projection difference against its predicted
-    size) and the difference of each intrinsic in sigmas."""
-    if cv.get("error"):
-        return [Para(f"The two halves could not be calibrated apart: {cv['error']}.")]
-    blocks = []
-    for name, r in cv.items():
-        if not isinstance(r, dict) or "chi2" not in r:
-            continue
-        views = r.get("views") or ["?", "?"]
-        agree = r.get("p_value") is not None and r["p_value"] >= 0.01
-        blocks.append(Para(
-            f"{name.replace('_', ' and ')} views calibrated apart ({views[0]} and {views[1]} views): the two sets "
-            f"of intrinsics differ by chi-square {num(r['chi2'])} on {r['dof']} degrees of freedom (p = "
-            f"{num(r['p_value'])}): {'they agree within their sigmas' if agree else 'they disagree beyond their sigmas'}"
-            f". Their projections differ by {num(r.get('projection_rms_px'))} px RMS over the image (at most "
-            f"{num(r.get('projection_max_px'))} px), against {num(r.get('projection_predicted_rms_px'))} px "
-            "that the sigmas predict."))
-        z = r.get("z") or {}
-        if z:
-            blocks.append(Table(["intrinsic", "difference / sigma"], [[k, num(v)] for k, v in z.items()],
-                                caption="Each intrinsic's difference between the halves, in its combined sigma."))
-    return blocks or [Para("No two-halves result in this record.")]
+                 caption="One standard deviation from the fit's covariance under the corner errors seen (each view's "
+                         "own level and the correlated part).")
 
 
 def _rejections(rep):
@@ -194,20 +128,141 @@ def _rejections(rep):
         Para("Nothing was rejected.")
 
 
+def _verdict(rep):
+    """Section 1: the verdict first, then its reasons, warnings and the figures it read."""
+    v = rep.get("verdict")
+    if not v:
+        return Section("verdict", "1. Verdict", [Para("No verdict in this record (a calib.json of an older "
+                                                      "pencilcal).", "note")])
+    blocks = [Para(v["headline"], "lead")]
+    if len(v.get("reasons") or []) > 1:           # the headline says the first
+        blocks.append(Bullets([f"Also: {r}." for r in v["reasons"][1:]]))
+    blocks += [Para(f"Note: {w}.", "note") for w in v.get("warnings", [])]
+    c, f = rep.get("counts", {}), v.get("figures", {})
+    lines = [f"{rep.get('model')} model with {rep.get('coefficients')} coefficients; {c.get('views_used')} of "
+             f"{c.get('images', c.get('views'))} views used, {c.get('corners_used')} corners; RMS reprojection error "
+             f"{num(rep.get('rms_px'), ' px')}.",
+             f"Projection uncertainty over the covered region: median {num(f.get('median_covered_px'), ' px')}, worst "
+             f"{num(f.get('max_covered_px'), ' px')}; usable (<= {num(v.get('region', {}).get('threshold_px'))} px and "
+             f"covered) over {num(100 * (f.get('usable_share') or 0.0))}% of the image."]
+    if f.get("halves_chi2_per_dof") is not None:
+        lines.append(f"Two halves of the views, pooled over every split: chi-square per dof "
+                     f"{num(f['halves_chi2_per_dof'])} and projection difference {num(f['halves_projection_ratio'])} x "
+                     "the predicted (1 for honest sigmas).")
+    blocks.append(Bullets(lines))
+    return Section("verdict", "1. Verdict", blocks)
+
+
+def _uncertainty(rep):
+    um = rep.get("projection_uncertainty") or {}
+    if "sigma_px" not in um:
+        return [Para(f"No projection uncertainty: {um.get('error', 'not in this record')}.", "note")]
+    thr = (rep.get("verdict") or {}).get("region", {}).get("threshold_px", 1.0)
+    return [fig_uncertainty(um, rep.get("image_size"), thr)]
+
+
+def _halves_table(cv):
+    rows = []
+
+    def row(name, r, ratio_key="projection_ratio"):
+        rows.append([name, num(r.get("chi2_per_dof")), num(r.get("p_value")), num(r.get("projection_rms_px")),
+                     num(r.get("projection_predicted_rms_px")), num(r.get(ratio_key))])
+
+    oe = cv["odd_even"]
+    row(f"odd / even ({oe['views'][0]} + {oe['views'][1]} views)", oe)
+    rd = cv.get("random")
+    if rd:
+        rows.append([f"{rd['repeats']} random halves (mean)", num(rd["chi2_per_dof_mean"]), "", "", "",
+                     num(rd["projection_ratio"])])
+    po = cv.get("pooled")
+    if po:
+        row(f"all {po['splits']} splits (pooled)", po)
+    return Table(["split", "chi2 / dof", "p", "difference RMS [px]", "predicted RMS [px]", "ratio"], rows,
+                 caption="Each split's two halves calibrated apart: the chi-square of their intrinsics' difference "
+                         "per degree of freedom (1 expected), and their projection difference over the covered "
+                         "region, up to the rotation that aligns them, against the RMS their sigmas predict.")
+
+
+def _cross_validation(cv, size):
+    """Blocks for the two-halves cross-validation (`validation.calibration_checks`)."""
+    if cv.get("error"):
+        return [Para(f"The two halves could not be calibrated apart: {cv['error']}.", "note")]
+    if "odd_even" not in cv:
+        return [Para("No two-halves result in this record.")]
+    blocks = []
+    if cv.get("map"):
+        blocks.append(fig_difference(cv["map"], size))
+    blocks.append(_halves_table(cv))
+    oe = cv["odd_even"]
+    z = oe.get("z") or {}
+    if z:
+        blocks.append(Details("Each intrinsic's odd-even difference in its combined sigma",
+                              [Table(["intrinsic", "difference / sigma"], [[k, num(v)] for k, v in z.items()])]))
+    fr = oe.get("camera_frame")
+    if fr:
+        blocks.append(Para(f"Without taking out the rotation, the odd and even views' projections differ by "
+                           f"{num(fr['rms_px'])} px RMS against {num(fr['predicted_rms_px'])} px predicted "
+                           f"(ratio {num(fr['ratio'])}): the part of an intrinsics error that every board pose "
+                           "absorbs as a turn of the camera.", "caption"))
+    return blocks
+
+
+def _model(rep):
+    blocks = [Para(f"{rep.get('model')} with {rep.get('coefficients')} coefficients"
+                   + (f", board warp {_warp_text(rep['board_warp'])}" if rep.get("board_warp") else "") + ".")]
+    mc = rep.get("model_choice")
+    if mc:
+        blocks.append(Para(mc["reason"]))
+        rows = [[f"{c['model']} {c['coefficients']}", str(c["parameters"]), num(c.get("fit_rms_px")),
+                 num(c.get("heldout_rms_px")), num(c.get("excess_px2")), num(c.get("excess_se_px2")), c["status"]]
+                for c in mc["candidates"]]
+        blocks.append(Table(["model", "parameters", "fit RMS [px]", "held-out RMS [px/axis]", "excess [px^2]",
+                             "its SE [px^2]", "status"], rows, text_cols=(6,),
+                            caption=f"{mc['folds']}-fold cross-validation over the views: each left-out view's pose "
+                                    "alone refitted through the intrinsics fitted to the others. Rule: "
+                                    f"{mc['rule']}."))
+    for t in rep.get("models_tried") or []:
+        blocks.append(Para(f"{t['model']} {t['coefficients']} was tried first and set aside: its two halves "
+                           f"{t['halves']} (chi2/dof {num(t.get('chi2_per_dof'))}, projection ratio "
+                           f"{num(t.get('projection_ratio'))}).", "note"))
+    return blocks
+
+
+def _warp_text(w):
+    return ", ".join(f"{n} {num(v)} +- {num(s)}" for n, v, s in zip(w["names"], w["value"], w["std"])) + \
+        " (board units, at the board's middle)"
+
+
+def _noise(rep):
+    cn = rep.get("corner_noise")
+    if not cn:
+        return []
+    return [Para(f"Corner errors: white per view plus a smooth part {num(cn['ratio'])} x its variance, correlated "
+                 f"over {num(cn['length_px'])} px (fitted to {cn['corners']} corners of {cn['views']} views; "
+                 f"log-likelihood gain {num(cn['log_likelihood_gain'])}). The sigmas hold both "
+                 f"({rep.get('covariance_model')}).")]
+
+
 def build_calibration_report(rep, title=None):
-    """The page of a calibration record (the --report JSON, with ``coverage``): a Report."""
+    """The page of a calibration record (the --report JSON): a Report, the verdict first."""
+    size = rep.get("image_size")
     grid = rep.get("coverage")
-    advice = coverage_advice(grid) if grid else "No corner coverage in this record."
-    sections = [_summary(rep, advice),
-                Section("views", "2. Per-view residuals", [_fig_views(rep.get("views", []))])]
+    advice = (rep.get("verdict") or {}).get("advice") or [coverage_advice(grid) if grid else "No advice."]
+    cv = rep.get("cross_validation") or {}
+    sections = [_verdict(rep),
+                Section("uncertainty", "2. Projection uncertainty", _uncertainty(rep)),
+                Section("cross-validation", "3. Cross-validation: two halves of the views",
+                        _cross_validation(cv, size) if cv else [Para("No two-halves result in this record.")]),
+                Section("advice", "4. What to add", [Bullets(advice)]),
+                Section("model", "5. Lens model", _model(rep)),
+                Section("views", "6. Per-view residuals", [fig_views(rep.get("views", []))])]
     if grid:
-        sections.append(Section("coverage", "3. Coverage of the image", [_fig_coverage(grid), Para(advice)]))
-    sections.append(Section("intrinsics", "4. Intrinsics and their sigmas", [_intrinsics_table(rep)]))
-    cv = rep.get("cross_validation")
-    if cv:
-        sections.append(Section("cross-validation", "5. Two halves of the views", _cross_validation(cv)))
+        sections.append(Section("coverage", "7. Coverage of the image",
+                                [fig_coverage(grid), Para(coverage_sentence(grid))]))
+    sections.append(Section("intrinsics", f"{len(sections) + 1}. Intrinsics and their sigmas",
+                            [_intrinsics_table(rep)] + _noise(rep)))
     sections.append(Section("rejected", f"{len(sections) + 1}. Rejected views and corners", [_rejections(rep)]))
-    size = rep.get("image_size") or ["?", "?"]
+    size = size or ["?", "?"]
     return Report(title or f"Calibration: {rep.get('images')}",
                   f"{size[0]}x{size[1]} px, board {rep.get('board_file')}", sections)
 

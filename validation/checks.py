@@ -1,4 +1,4 @@
-"""Truth-free checks of the sigmas: a rigid stereo rig, two halves of a calibration, the jackknife.
+"""Truth-free checks of the sigmas: a rigid stereo rig, the jackknife.
 
 None of these needs ground truth; each compares a scatter that the data show with the
 scatter the reported covariances predict.
@@ -13,11 +13,9 @@ scatter the reported covariances predict.
     shared by all its frames, and the part of it that is the same in every frame moves
     only the mean (`rig_check`'s joint covariance). Run with every covariance kind given
     ("noise": the corner-noise `cov`; "total": `cov_total`).
-`calibration_halves`
-    The views split in two (odd and even, or random halves repeated): each half calibrates
-    the camera, and the two sets of intrinsics must agree within their covariances (chi2
-    of the difference with its degrees of freedom, mrcal's cross-validation idea); the
-    projection difference over the image [px] beside its predicted size.
+`calibration_halves` (in `validation.calibration_checks`)
+    The views split in two (odd and even, and random halves): each half calibrates the
+    camera, and the two must agree within their covariances.
 `jackknife`, `fulcrum_jackknife`
     Leave-one-out estimates and their covariance ``(n - 1)/n sum (y_i - mean)(y_i - mean)^T``,
     and for the fulcrum the jackknife sigma of its ray (leaving out one frame at a time)
@@ -46,7 +44,7 @@ from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.geometry.frames import rotation_from_rotvec, rotvec_from_rotation
 
-__all__ = ["REGION", "binomial_band", "rig_check", "calibration_halves", "intrinsics_agreement", "jackknife",
+__all__ = ["REGION", "binomial_band", "rig_check", "jackknife",
            "fulcrum_jackknife", "jackknife_inflation", "point_jackknife", "board_poses", "pair_by_name", "stereo_inputs"]
 
 #: The probability of the region whose coverage the checks count (one sigma in 1-D).
@@ -61,11 +59,18 @@ _GRID = (9, 7)
 
 def binomial_band(n, p=REGION, level=_BAND):
     """(low, high): the fractions of n Bernoulli(p) trials that fall inside with probability
-    `level` (central binomial quantiles / n)."""
-    from scipy import stats
-
+    `level` (central binomial quantiles / n: the smallest k whose cumulative probability
+    reaches the tail, as scipy.stats.binom.ppf; summed in logs, without importing scipy.stats)."""
+    n = int(n)
     a = (1.0 - level) / 2.0
-    return float(stats.binom.ppf(a, n, p) / n), float(stats.binom.ppf(1.0 - a, n, p) / n)
+    logs = [math.lgamma(n + 1) - math.lgamma(k + 1) - math.lgamma(n - k + 1) + k * math.log(p)
+            + (n - k) * math.log1p(-p) for k in range(n + 1)]
+    cdf = np.cumsum(np.exp(logs))
+
+    def ppf(q):
+        return int(np.searchsorted(cdf, q * (1.0 - 1e-12), side="left"))
+
+    return ppf(a) / n, ppf(1.0 - a) / n
 
 
 def _coverage(z2, dof):
@@ -178,88 +183,6 @@ def _rig_kind(pairs, Rrel, attr, intrinsics_cov):
            "shared_intrinsics": bool(G[0] is not None or G[1] is not None)}
     rec.update(_coverage(z2, 3))
     return rec
-
-
-def intrinsics_agreement(a, b, camera_a, camera_b):
-    """Do two calibrations of one camera agree within their covariances?
-
-    a, b : IntrinsicsCovariance of the two (same names); camera_a, camera_b : their Cameras.
-    Returns ``chi2`` of the difference d over (C_a + C_b) (pseudo-inverse on the parameters
-    that were estimated), its ``dof`` and ``p_value``; per parameter ``z`` (d / sigma);
-    ``projection_rms_px``, ``projection_max_px``: the pixel of each point of a 9 x 7 grid
-    over the image through camera a's ray into camera b, and ``projection_predicted_rms_px``,
-    its first-order sigma from C_a + C_b.
-    """
-    from scipy import stats
-
-    from pencilcal.toolkit.camera.intrinsics import intrinsics_vector
-
-    d = intrinsics_vector(camera_a) - intrinsics_vector(camera_b)
-    C = a.cov + b.cov
-    free = np.diag(C) > 0
-    Cf = C[np.ix_(free, free)]
-    w, V = np.linalg.eigh(Cf)
-    keep = w > 1e-12 * w.max()
-    df = V.T @ d[free]
-    chi2 = float(np.sum(df[keep] ** 2 / w[keep]))
-    dof = int(keep.sum())
-    z = {n: (float(d[i] / math.sqrt(C[i, i])) if C[i, i] > 0 else None) for i, n in enumerate(a.names)}
-    W, H = camera_a.width, camera_a.height
-    u, v = np.meshgrid(np.linspace(0, W - 1, _GRID[0]), np.linspace(0, H - 1, _GRID[1]))
-    px = np.stack([u.ravel(), v.ravel()], -1)
-    xy = camera_a.normalized_from_pixels(px)
-    ok = np.all(np.isfinite(xy), -1)
-    diff = np.linalg.norm(camera_b.pixels_from_normalized(xy[ok]) - px[ok], axis=1)
-    Jt = jacobian_pixels_wrt_intrinsics(camera_b, xy[ok])
-    pred = np.trace(propagate(Jt, C), axis1=-2, axis2=-1)
-    return {"chi2": chi2, "dof": dof, "p_value": float(stats.chi2.sf(chi2, dof)) if dof else None,
-            "chi2_per_dof": chi2 / dof if dof else None, "z": z,
-            "projection_rms_px": float(np.sqrt(np.mean(diff ** 2))), "projection_max_px": float(diff.max()),
-            "projection_predicted_rms_px": float(np.sqrt(np.mean(pred)))}
-
-
-def calibration_halves(detections, board, image_size, repeats=0, seed=0, **options):
-    """Calibrate from two halves of the views and compare (`intrinsics_agreement`).
-
-    detections : sequence of BoardDetection or None (as `toolkit.board.calibrate.calibrate`);
-    board; image_size (w, h); options : `calibrate`'s (model, coefficients, fix_aspect, ...).
-    repeats : 0 for the odd and even views; n for n random halves (seed) as well.
-
-    Returns ``{"odd_even": agreement, "random": {"repeats", "inside", "band", "chi2", ...}}``:
-    with random halves, the fraction of repeats whose chi2 lies inside the 68.3 % region of
-    its chi2(dof), and the mean chi2 per dof. A half that cannot be calibrated is an
-    EstimationError (the check needs twice the views a calibration does).
-    """
-    from scipy import stats
-
-    from pencilcal.toolkit.board.calibrate import calibrate
-
-    usable = [i for i, d in enumerate(detections) if d is not None and d.count > 0]
-    if len(usable) < 6:
-        raise EstimationError(f"two halves need at least 6 views with corners, got {len(usable)}")
-
-    def split(first):
-        a = [detections[i] for i in first]
-        b = [detections[i] for i in usable if i not in set(first)]
-        ra, rb = calibrate(a, board, image_size, **options), calibrate(b, board, image_size, **options)
-        if ra.cov_intrinsics is None or rb.cov_intrinsics is None:
-            raise EstimationError("a half's intrinsics are not determined (no covariance)")
-        rec = intrinsics_agreement(ra.cov_intrinsics, rb.cov_intrinsics, ra.camera, rb.camera)
-        rec["views"] = [ra.views_used, rb.views_used]
-        return rec
-
-    out = {"odd_even": split(usable[0::2])}
-    if repeats:
-        rng = np.random.default_rng(seed)
-        recs = [split(sorted(rng.choice(usable, len(usable) // 2, replace=False).tolist())) for _ in range(repeats)]
-        z2 = [r["chi2"] for r in recs]
-        dofs = {r["dof"] for r in recs}
-        inside = np.mean([r["chi2"] < stats.chi2.ppf(REGION, r["dof"]) for r in recs])
-        lo, hi = binomial_band(len(recs))
-        out["random"] = {"repeats": len(recs), "inside": float(inside), "expected": REGION, "band": [lo, hi],
-                         "consistent": bool(lo <= inside <= hi), "chi2": z2, "dof": sorted(dofs),
-                         "chi2_per_dof": float(np.mean([r["chi2_per_dof"] for r in recs]))}
-    return out
 
 
 def jackknife(estimates):

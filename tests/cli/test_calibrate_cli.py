@@ -74,10 +74,11 @@ def scratch(tmp_path, rendered, names=None):
     return out
 
 
-def test_help_has_an_example():
+def test_help_has_two_examples_and_fits_a_screen():
     r = CliRunner().invoke(calibrate, ["--help"])
     assert r.exit_code == 0
-    assert "Examples:" in r.output and "pencilcal calibrate" in r.output
+    assert "Examples:" in r.output and r.output.count("pencilcal calibrate ") >= 2
+    assert len(r.output.splitlines()) <= 60 and "<=None" not in r.output
     for opt in ("--board", "--model", "--coefficients", "--fix-aspect", "--report", "--corners", "--force", "--quiet"):
         assert opt in r.output
 

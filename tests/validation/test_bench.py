@@ -22,3 +22,14 @@ def test_shafts_bench_runs():
 
     r = bench_shafts(n=1, repeats=1)
     assert r["shafts_vs_fld_1080p"] > 0 and r["shafts_frames"].split()[0] in ("laparoscopy-hysterectomy-frames", "rendered")
+
+
+def test_calibrate_bench_runs():
+    """A dozen rendered views: pencilcal's calibration finds the lens (fx within a pixel) and
+    the ratio and its parts are there."""
+    from pencilcal.validation.bench_calibrate import bench_calibrate
+
+    r = bench_calibrate(n=12)
+    assert r["calibrate_vs_opencv_960x540"] > 0 and r["calibrate_fit_vs_opencv"] > 0
+    assert r["calibrate_views_found"] == "12/12" and abs(r["calibrate_fx_error"]) < 1.0
+    assert r["calibrate_verdict"] in ("usable", "usable within this region", "not usable")

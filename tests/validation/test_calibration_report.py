@@ -1,6 +1,7 @@
 """The calibration page: residuals per view, where the corners fell, sigmas, advice."""
 from __future__ import annotations
 
+import html
 import json
 import re
 
@@ -40,17 +41,21 @@ def test_calibrate_writes_the_page(tmp_path):
                                      "-o", str(tmp_path / f"{report}.yaml"), "--report", str(tmp_path / report), "-q"])
         assert r.exit_code == 0, r.output
     page = (tmp_path / "calib.html").read_text()
-    assert page.startswith("<!DOCTYPE html>") and len(re.findall(r"data:image/png;base64,", page)) == 2
-    for words in ("Per-view residuals", "Coverage of the image", "Intrinsics and their sigmas", "Corners fell in"):
-        assert words in page
     rec = json.loads((tmp_path / "calib.json").read_text())
     assert sum(map(sum, rec["coverage"]["counts"])) == rec["counts"]["corners_used"]
     rep = build_calibration_report(rec)
-    assert [s.id for s in rep.sections][:3] == ["summary", "views", "coverage"]
-    # the two halves of the views, calibrated apart, are on the page in words
-    assert "Two halves of the views" in page
+    # the answer first: the verdict, the uncertainty map, the cross-validation, the advice
+    assert [s.id for s in rep.sections][:4] == ["verdict", "uncertainty", "cross-validation", "advice"]
+    verdict = rec["verdict"]
+    assert verdict["status"] in ("usable", "usable within this region", "not usable")
+    assert page.index(html.escape(verdict["headline"])) < page.index('<section id="uncertainty">')
     cv = rec["cross_validation"]
+    maps = 4 if "odd_even" in cv else 3        # uncertainty, [difference], per-view residuals, coverage
+    assert page.startswith("<!DOCTYPE html>") and len(re.findall(r"data:image/png;base64,", page)) == maps
+    for words in ("Per-view residuals", "Coverage of the image", "Intrinsics and their sigmas", "What to add",
+                  "worst direction's standard deviation [px]"):
+        assert html.escape(words) in page
     if "odd_even" in cv:
-        assert "views calibrated apart" in page and f"{cv['odd_even']['dof']} degrees of freedom" in page
+        assert "odd and the even views calibrated apart" in page and "projection difference" in page
     else:
         assert "could not be calibrated apart" in page

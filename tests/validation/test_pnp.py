@@ -566,7 +566,7 @@ def test_stereo_pairs_agree_on_one_relative_rotation(tmp_path):
     the pairs fall inside its 68 % region. With the intrinsics' covariance and the
     correlated corner-noise model of the calibration (`pencilcal calibrate`, carried by the
     camera file) the totals cover 68 +- 8 %. The two halves of each calibration agree
-    within their sigmas (`checks.calibration_halves`, in the report), and orient's grid
+    within their sigmas (`calibration_checks.calibration_halves`, in the report), and orient's grid
     pencil agrees with PnP within both totals."""
     from click.testing import CliRunner
 

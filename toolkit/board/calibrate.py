@@ -61,14 +61,21 @@ import numpy as np
 from pencilcal.toolkit.camera.intrinsics import META_KEY as COV_META_KEY, IntrinsicsCovariance, \
     model_intrinsic_names
 from pencilcal.toolkit.camera.model import Camera
-from pencilcal.toolkit.board.corner_noise import CornerView, fit_corner_noise
+from pencilcal.toolkit.board.bundle import WARP_NAMES, Layout, camera_parts, corner_views, covariance, refine, \
+    theta_of, view_residuals, warp_basis
+from pencilcal.toolkit.board.corner_noise import fit_corner_noise
 from pencilcal.toolkit.board.detect import BoardDetection
+from pencilcal.toolkit.board.model_choice import CANDIDATES, choose_model, chosen_score
+from pencilcal.toolkit.board.synthetic import synthetic_detections
 from pencilcal.toolkit.errors import EstimationError, InputError
 
-__all__ = ["CalibrationResult", "calibrate", "calibrate_images", "intrinsic_names", "synthetic_detections", "MODELS"]
+__all__ = ["CalibrationResult", "calibrate", "calibrate_images", "detect_views", "intrinsic_names",
+           "synthetic_detections", "MODELS", "AUTO"]
 
 #: Lens models `calibrate` fits, and the coefficient counts each takes (default first).
 MODELS = {"opencv": (5, 4, 8, 12, 14), "pinhole": (0,), "fisheye": (4,)}
+#: The model name that asks `calibrate` to choose the lens model on held-out views.
+AUTO = "auto"
 
 # a view is never rejected as an outlier while its median residual is within this factor
 # of the median view's: real data sets have views that are legitimately noisier (blur, tilt)
@@ -144,6 +151,17 @@ class CalibrationResult:
         The lens model, its coefficient count and the OpenCV flags of the final fit.
     rounds : int
         Number of fits run (1 + the rounds that rejected something).
+    warp : dict or None
+        With ``warp=True``: the board's warp ``{"names", "value" (2,), "std" (2,), "cov"}``
+        [board unit] (`toolkit.board.bundle`); also ``camera.meta["board_warp"]``.
+    model_choice : ModelChoice or None
+        With ``model="auto"``: every candidate's held-out score and why one was chosen.
+    checks : CalibrationChecks or None
+        The checks and the verdict, where `validation.calibration_run.calibrate_checked`
+        made the result (what `pencilcal calibrate` and `pencilcal.calibrate` run).
+    layout, solution, covariance : bundle.Layout, bundle.Solution, bundle.Covariance
+        The final problem, its optimum (over the used views, in their order) and the
+        covariance (intrinsics, warp, poses, each view's white noise level).
     """
 
     camera: Camera
@@ -162,6 +180,12 @@ class CalibrationResult:
     rounds: int = 1
     cov_intrinsics: IntrinsicsCovariance | None = None
     corner_noise: object = None
+    warp: dict | None = None
+    model_choice: object = None
+    layout: object = None
+    solution: object = None
+    covariance: object = None
+    checks: object = None
 
     @property
     def views_used(self) -> int:
@@ -170,6 +194,35 @@ class CalibrationResult:
     @property
     def corners_used(self) -> int:
         return int(sum(int(m.sum()) for m in self.corner_used if m is not None))
+
+    def to_dict(self, names=None):
+        """The calibration's record (calib.json without the command's own keys): the camera,
+        the model (and how it was chosen), RMS, the intrinsics' sigmas and covariance, the
+        corner-noise model, the board's warp, counts, each view's report (`view_report`,
+        named by `names`), every rejection, and with ``checks`` the verdict, the
+        cross-validation, the projection uncertainty map, the views' geometry and coverage."""
+        from pencilcal.toolkit.camera.formats import camera_to_dict
+
+        n = len(self.used)
+        views = [self.view_report(i, None if names is None else names[i]) for i in range(n)]
+        rec = {"model": self.model, "coefficients": self.coefficients, "flags": list(self.flags),
+               "rms_px": self.rms_px, "std_intrinsics": dict(self.std_intrinsics),
+               "cov_intrinsics": None if self.cov_intrinsics is None else self.cov_intrinsics.to_dict(),
+               "corner_noise": None if self.corner_noise is None else self.corner_noise.to_dict(),
+               "covariance_model": None if self.covariance is None else self.covariance.model,
+               "board_warp": self.warp,
+               "model_choice": None if self.model_choice is None else self.model_choice.to_dict(),
+               "camera": camera_to_dict(self.camera),
+               "counts": {"views": n, "views_skipped": sum(1 for r in self.rejected if r["stage"] == "skipped"),
+                          "views_rejected": sum(1 for r in self.rejected
+                                                if r["stage"] == "outlier" and "corner" not in r),
+                          "views_used": self.views_used,
+                          "corners_rejected": sum(1 for r in self.rejected if "corner" in r),
+                          "corners_used": self.corners_used},
+               "views": views, "rejected": [dict(r) for r in self.rejected]}
+        if self.checks is not None:
+            rec.update(self.checks.to_dict())
+        return rec
 
     def view_report(self, index, name=None):
         """JSON-ready summary of one view: name, used, rms, pose and its std, rejections."""
@@ -346,160 +399,6 @@ def _fit(model, n_coef, objs, imgs, image_size, K0, flags):
     return K, dist, rvecs, tvecs
 
 
-def _project(model, K, dist, rvec, tvec, obj, jacobian=False):
-    """Pixels of board points (N, 3) and, optionally, the Jacobian (2N, P_cv) of OpenCV's
-    layout: opencv/pinhole [rvec, tvec, fx, fy, cx, cy, dist...]; fisheye [fx, fy, cx, cy,
-    k1..k4, rvec, tvec, alpha]."""
-    import cv2
-
-    o = obj.reshape(-1, 1, 3).astype(np.float64)
-    if model == "fisheye":
-        px, J = cv2.fisheye.projectPoints(o, np.asarray(rvec, float).reshape(3, 1),
-                                          np.asarray(tvec, float).reshape(3, 1), K, dist)
-    else:
-        d = dist if dist.size else None
-        px, J = cv2.projectPoints(o, rvec, tvec, K, d)
-    px = px.reshape(-1, 2)
-    return (px, J) if jacobian else px
-
-
-# ------------------------------------------------------------------- uncertainties
-def _jacobian_blocks(model, n_coef, fix_aspect, fix_principal_point, zero_tangent, K, dist, rvec, tvec, obj):
-    """Per view: (J_intrinsics (2N, Pi), J_pose (2N, 6)) for the *free* parameters, in the
-    order of `intrinsic_names` restricted to what was estimated."""
-    _, J = _project(model, K, dist, rvec, tvec, obj, jacobian=True)
-    J = np.asarray(J, float)
-    if model == "fisheye":
-        f, c, k, pose = J[:, 0:2], J[:, 2:4], J[:, 4:8], J[:, 8:14]
-    else:
-        pose, f, c, k = J[:, 0:6], J[:, 6:8], J[:, 8:10], J[:, 10:10 + dist.size]
-    cols = []
-    if fix_aspect:
-        # fx = a fy with a fixed: one free focal length
-        a = K[0, 0] / K[1, 1]
-        cols.append(a * f[:, :1] + f[:, 1:2])
-    else:
-        cols.append(f)
-    if not fix_principal_point:
-        cols.append(c)
-    if model == "opencv":
-        free = np.ones(dist.size, bool)
-        if zero_tangent:
-            free[2:4] = False
-        cols.append(k[:, free])
-    elif model == "fisheye":
-        cols.append(k)
-    return np.hstack(cols), pose
-
-
-def _covariance(model, n_coef, opts, K, dist, rvecs, tvecs, objs, imgs):
-    """sigma^2 (J^T J)^-1 for the free intrinsics (Pi, Pi) and each view's pose (V, 6, 6),
-    eliminating the poses with a Schur complement. Also returns sigma^2 and the free
-    intrinsic names."""
-    fix_aspect, fix_pp, zero_tan = opts
-    A = None
-    b_blocks, c_inv = [], []
-    sse, m = 0.0, 0
-    for rvec, tvec, obj, img in zip(rvecs, tvecs, objs, imgs):
-        Ji, Jp = _jacobian_blocks(model, n_coef, fix_aspect, fix_pp, zero_tan, K, dist, rvec, tvec, obj)
-        r = img - _project(model, K, dist, rvec, tvec, obj)
-        sse += float(np.sum(r * r))
-        m += obj.shape[0]
-        A = Ji.T @ Ji if A is None else A + Ji.T @ Ji
-        B = Ji.T @ Jp
-        C = Jp.T @ Jp
-        try:
-            Ci = np.linalg.inv(C)
-        except np.linalg.LinAlgError:
-            Ci = np.linalg.pinv(C)
-        b_blocks.append(B)
-        c_inv.append(Ci)
-    n_intr = A.shape[0]
-    dof = 2 * m - (n_intr + 6 * len(objs))
-    if dof <= 0:
-        raise EstimationError(f"{m} corners cannot determine {n_intr + 6 * len(objs)} parameters")
-    sigma2 = sse / dof
-    S = A - sum(B @ Ci @ B.T for B, Ci in zip(b_blocks, c_inv))
-    try:
-        S_inv = np.linalg.inv(S)
-        if not np.all(np.isfinite(S_inv)) or np.any(np.diag(S_inv) < 0):
-            raise np.linalg.LinAlgError
-    except np.linalg.LinAlgError:
-        S_inv = np.full_like(S, np.inf)
-    cov_i = sigma2 * S_inv
-    cov_p = []
-    for B, Ci in zip(b_blocks, c_inv):
-        G = Ci @ B.T
-        cov_p.append(sigma2 * (Ci + G @ S_inv @ G.T) if np.all(np.isfinite(S_inv)) else np.full((6, 6), np.inf))
-    return cov_i, np.array(cov_p), sigma2
-
-
-def _std_intrinsics(model, n_coef, opts, K, cov_i):
-    """Named 1-sigma of every intrinsic parameter; fixed ones get 0 (they were not
-    estimated), fx gets aspect * std(fy) when the aspect ratio is fixed."""
-    fix_aspect, fix_pp, zero_tan = opts
-    names = intrinsic_names(model, n_coef)
-    sd = np.sqrt(np.clip(np.diag(cov_i), 0, None))
-    out = {}
-    j = 0
-    if fix_aspect:
-        out["fy"] = float(sd[j])
-        out["fx"] = float(sd[j] * K[0, 0] / K[1, 1])
-        j += 1
-    else:
-        out["fx"], out["fy"] = float(sd[j]), float(sd[j + 1])
-        j += 2
-    if fix_pp:
-        out["cx"] = out["cy"] = 0.0
-    else:
-        out["cx"], out["cy"] = float(sd[j]), float(sd[j + 1])
-        j += 2
-    for i, name in enumerate(names[4:]):
-        if model == "opencv" and zero_tan and i in (2, 3):
-            out[name] = 0.0
-        else:
-            out[name] = float(sd[j])
-            j += 1
-    return {n: out[n] for n in names}
-
-
-def _full_covariance(model, n_coef, opts, K, cov_i):
-    """The (P, P) covariance over every intrinsic of `intrinsic_names` from that of the free
-    ones (`_covariance`): held parameters get zero rows, fx = a fy a row a times fy's."""
-    fix_aspect, fix_pp, zero_tan = opts
-    names = intrinsic_names(model, n_coef)
-    T = np.zeros((len(names), cov_i.shape[0]))
-    j = 0
-    if fix_aspect:
-        T[1, j] = 1.0
-        T[0, j] = K[0, 0] / K[1, 1]
-        j += 1
-    else:
-        T[0, j], T[1, j + 1] = 1.0, 1.0
-        j += 2
-    if not fix_pp:
-        T[2, j], T[3, j + 1] = 1.0, 1.0
-        j += 2
-    for i in range(len(names) - 4):
-        if not (model == "opencv" and zero_tan and i in (2, 3)):
-            T[4 + i, j] = 1.0
-            j += 1
-    C = T @ cov_i @ T.T
-    return 0.5 * (C + C.T)
-
-
-def _corner_views(model, K, dist, rvecs, tvecs, objs, imgs):
-    """Each used view's corners, residuals (projected - observed) and pose Jacobian, for
-    `fit_corner_noise`."""
-    views = []
-    for rvec, tvec, obj, img in zip(rvecs, tvecs, objs, imgs):
-        px, J = _project(model, K, dist, rvec, tvec, obj, jacobian=True)
-        J = np.asarray(J, float)
-        pose = J[:, 8:14] if model == "fisheye" else J[:, 0:6]
-        views.append(CornerView(img, px - img, pose))
-    return views
-
-
 # ---------------------------------------------------------------------- the driver
 def _single_threaded(fn):
     """Run OpenCV single-threaded inside `fn`: its multithreaded calibration reduces in a
@@ -524,7 +423,8 @@ def _single_threaded(fn):
 @_single_threaded
 def calibrate(detections, board, image_size, model="opencv", coefficients=None, *, fix_aspect=False,
               fix_principal_point=False, zero_tangent=False, min_corners=6, min_views=3,
-              outlier_view_sigma=4.0, outlier_corner_sigma=5.0, max_rounds=20, corner_noise=False):
+              outlier_view_sigma=4.0, outlier_corner_sigma=5.0, max_rounds=20, corner_noise=False, warp=False,
+              candidates=CANDIDATES):
     """Calibrate one camera's intrinsics from board detections in several views.
 
     Parameters
@@ -535,8 +435,11 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
         The board seen (boards.py); its object points are in its length unit.
     image_size : (width, height)
         [px]; every detection must come from an image of this size.
-    model : {"opencv", "pinhole", "fisheye"}
-        Lens model (camera.py). ``"pinhole"`` fits no distortion at all.
+    model : {"opencv", "pinhole", "fisheye", "auto"}
+        Lens model (camera.py). ``"pinhole"`` fits no distortion at all. ``"auto"``: the
+        views are screened and outliers rejected with opencv's 5 coefficients, then the
+        `candidates` are compared on held-out views and the one chosen is fitted
+        (`toolkit.board.model_choice`; ``model_choice`` on the result says why).
     coefficients : int, optional
         opencv: 4 (k1 k2 p1 p2), 5 (+ k3, the default), 8 (rational k4..k6), 12 (thin
         prism s1..s4), 14 (tilted sensor); fisheye: 4; pinhole: 0.
@@ -560,7 +463,15 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
         At most this many fits (rejection stops at the last one).
     corner_noise : bool
         Also fit the correlated corner-error model to the final residuals
-        (`toolkit.board.corner_noise.fit_corner_noise`; seconds on a few thousand corners).
+        (`toolkit.board.corner_noise.fit_corner_noise`; a second on a few thousand
+        corners), and give the intrinsics the covariance it implies (`bundle.covariance`:
+        each view's own noise level and the correlated part, not one white level).
+    candidates : sequence of (model, coefficients)
+        The models ``"auto"`` compares (`model_choice.CANDIDATES`: all of them).
+    warp : bool
+        Also estimate the board's warp (`bundle`: two parabolas along the board, mrcal's
+        calobject_warp), in the final solve; ``warp`` on the result and ``board_warp`` in
+        the camera's statistics.
 
     Returns
     -------
@@ -585,7 +496,62 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
     >>> res.camera.model, bool(abs(res.camera.fx - 600.0) < 1.0), sorted(res.std_intrinsics)[:3]
     ('fisheye', True, ['cx', 'cy', 'fx'])
     """
+    auto = model == AUTO
+    if auto:
+        model, coefficients = "opencv", None
     n_coef = _coefficient_count(model, coefficients)
+    image_size = _check_options(model, fix_aspect, zero_tangent, image_size, min_corners, min_views)
+    detections = list(detections)
+    for d in detections:
+        if d is not None and not isinstance(d, BoardDetection):
+            raise InputError(f"detections must be BoardDetection or None, got {type(d).__name__}")
+    obj_all = board.object_points()
+    n_views = len(detections)
+    rejected = []
+    objs, imgs = [None] * n_views, [None] * n_views
+    for i, det in enumerate(detections):
+        o, p, reason = _screen(det, obj_all, int(min_corners), image_size)
+        if reason is not None:
+            rejected.append({"view": i, "stage": "skipped", "reason": reason})
+        objs[i], imgs[i] = o, p
+    usable = [i for i in range(n_views) if objs[i] is not None]
+    if len(usable) < min_views:
+        raise EstimationError(_too_few_views(len(usable), min_views, n_views, rejected))
+    layout = Layout(model, n_coef, bool(fix_aspect), bool(fix_principal_point), bool(zero_tangent), warp=False)
+    rejection = (outlier_view_sigma, outlier_corner_sigma, int(min_corners), int(min_views), int(max_rounds))
+    used, masks, theta, poses, rounds, flag_names = _fit_with_rejection(layout, objs, imgs, usable, image_size,
+                                                                        rejection, rejected)
+    layout = Layout(model, n_coef, bool(fix_aspect), bool(fix_principal_point), bool(zero_tangent), warp=bool(warp))
+    choice, warp0 = None, None
+    if auto:
+        choice, layout, theta, poses, warp0 = _auto(layout, board, objs, imgs, used, masks, theta, poses,
+                                                    candidates)
+        flag_names = _opencv_flags(layout.model, layout.n_coef, layout.fix_aspect, layout.fix_principal_point,
+                                   layout.zero_tangent)[1]
+    result = _final(layout, board, detections, objs, imgs, used, masks, theta, poses, image_size, corner_noise,
+                    rejected, rounds, flag_names, warp0)
+    result.model_choice = choice
+    return result
+
+
+def _auto(layout, board, objs, imgs, used, masks, theta, poses, candidates):
+    """`model_choice.choose_model` on the views and corners kept: (the choice, its layout,
+    and its fit to start the final solve from: theta, {view: pose}, warp)."""
+    obj_all = board.object_points()
+    o = [objs[i][masks[i]] for i in used]
+    p = [imgs[i][masks[i]] for i in used]
+    K, dist = camera_parts(theta, layout)
+    choice = choose_model(o, p, [warp_basis(obj_all, x) for x in o], K, dist, [poses[i] for i in used],
+                          candidates=candidates, warp=layout.warp, fix_aspect=layout.fix_aspect,
+                          fix_principal_point=layout.fix_principal_point, zero_tangent=layout.zero_tangent)
+    sol = chosen_score(choice).solution
+    chosen = Layout(choice.model, choice.coefficients, layout.fix_aspect, layout.fix_principal_point,
+                    layout.zero_tangent and choice.model == "opencv", layout.warp)
+    return choice, chosen, sol.theta, {i: (sol.poses[j][0], sol.poses[j][1]) for j, i in enumerate(used)}, sol.warp
+
+
+def _check_options(model, fix_aspect, zero_tangent, image_size, min_corners, min_views):
+    """(w, h) after checking the options (InputError for a bad one)."""
     if model == "fisheye" and fix_aspect:
         raise InputError("fix_aspect is not available for the fisheye model (cv2.fisheye.calibrate "
                          "cannot tie fx to fy)")
@@ -601,102 +567,119 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
         raise InputError(f"min_corners must be at least 4 (a homography needs 4 points), got {min_corners}")
     if int(min_views) < 1:
         raise InputError(f"min_views must be at least 1, got {min_views}")
-    detections = list(detections)
-    for d in detections:
-        if d is not None and not isinstance(d, BoardDetection):
-            raise InputError(f"detections must be BoardDetection or None, got {type(d).__name__}")
-    image_size = (w, h)
-    obj_all = board.object_points()
-    n_views = len(detections)
-    rejected = []
-    objs, imgs = [None] * n_views, [None] * n_views
-    for i, det in enumerate(detections):
-        o, p, reason = _screen(det, obj_all, int(min_corners), image_size)
-        if reason is not None:
-            rejected.append({"view": i, "stage": "skipped", "reason": reason})
-        objs[i], imgs[i] = o, p
-    usable = [i for i in range(n_views) if objs[i] is not None]
-    if len(usable) < min_views:
-        raise EstimationError(_too_few_views(len(usable), min_views, n_views, rejected))
-    masks = {i: np.ones(objs[i].shape[0], bool) for i in usable}
-    flags, flag_names = _opencv_flags(model, n_coef, fix_aspect, fix_principal_point, zero_tangent)
-    K0 = _initial_K([objs[i] for i in usable], [imgs[i] for i in usable], image_size, fix_aspect)
+    return (w, h)
 
+
+def _fit_with_rejection(layout, objs, imgs, usable, image_size, rejection, rejected):
+    """The fit and its outlier rounds: OpenCV's solve first (from initCameraMatrix2D), then
+    `bundle.refine` from the last round's parameters after every rejection. Returns (used
+    view indices, corner masks, theta (P,), {view: (rvec, tvec)}, rounds, OpenCV flags)."""
+    view_k, corner_k, min_corners, min_views, max_rounds = rejection
+    model, n_coef = layout.model, layout.n_coef
+    masks = {i: np.ones(objs[i].shape[0], bool) for i in usable}
+    flags, flag_names = _opencv_flags(model, n_coef, layout.fix_aspect, layout.fix_principal_point,
+                                      layout.zero_tangent)
     used = list(usable)
     rounds = 0
     corner_sigma = None
+    theta, poses = None, {}
     while True:
         rounds += 1
         if len(used) < min_views:
             raise EstimationError(f"only {len(used)} view(s) left after outlier rejection, need at least {min_views}")
         o = [objs[i][masks[i]] for i in used]
         p = [imgs[i][masks[i]] for i in used]
-        _check_counts(model, n_coef, fix_aspect, fix_principal_point, zero_tangent, o)
-        K, dist, rvecs, tvecs = _fit(model, n_coef, o, p, image_size, K0, flags)
+        _check_counts(model, n_coef, layout.fix_aspect, layout.fix_principal_point, layout.zero_tangent, o)
+        if theta is None:
+            K0 = _initial_K(o, p, image_size, layout.fix_aspect)
+            K, dist, rvecs, tvecs = _fit(model, n_coef, o, p, image_size, K0, flags)
+            theta = theta_of(K, dist, layout)
+            poses = {i: (rvecs[j], tvecs[j]) for j, i in enumerate(used)}
+        else:
+            sol = refine(layout, theta, [poses[i] for i in used], o, p)
+            theta = sol.theta
+            poses = {i: (sol.poses[j][0], sol.poses[j][1]) for j, i in enumerate(used)}
         if rounds >= max_rounds:
             break
-        res = {i: imgs[i] - _project(model, K, dist, rvecs[j], tvecs[j], objs[i]) for j, i in enumerate(used)}
-        norms = {i: np.linalg.norm(res[i], axis=1) for i in used}
-        if _reject_views(used, masks, norms, outlier_view_sigma, min_views, rejected):
+        res = view_residuals(layout, _Poses(theta, [poses[i] for i in used]), [objs[i] for i in used],
+                             [imgs[i] for i in used])
+        norms = {i: np.linalg.norm(r, axis=1) for i, r in zip(used, res)}
+        if _reject_views(used, masks, norms, view_k, min_views, rejected):
             continue
-        if outlier_corner_sigma and corner_sigma is None:
+        if corner_k and corner_sigma is None:
             # sigma is estimated once, when the views have settled: re-estimating it after
             # every round would peel off the (heavy) tails of real residuals round by round
             allr = np.concatenate([norms[i][masks[i]] for i in used])
             corner_sigma = math.sqrt(float(np.median(allr ** 2)) / _CHI2_2_MEDIAN)
-        if _reject_corners(used, masks, norms, outlier_corner_sigma, corner_sigma, int(min_corners), rejected):
+        if _reject_corners(used, masks, norms, corner_k, corner_sigma, min_corners, rejected):
             continue
         break
+    return used, masks, theta, poses, rounds, flag_names
 
-    # final statistics with the final parameters
+
+class _Poses:
+    """The parts of a `bundle.Solution` that `view_residuals` reads."""
+
+    def __init__(self, theta, poses, warp=None):
+        self.theta = theta
+        self.poses = [(np.ravel(r), np.ravel(t)) for r, t in poses]
+        self.warp = np.zeros(2) if warp is None else warp
+
+
+def _final(layout, board, detections, objs, imgs, used, masks, theta, poses, image_size, corner_noise, rejected,
+           rounds, flag_names, warp0=None):
+    """The final solve (with the warp when the layout has it), the covariance under the
+    corner errors seen, and the result."""
+    obj_all = board.object_points()
+    n_views = len(detections)
     o = [objs[i][masks[i]] for i in used]
     p = [imgs[i][masks[i]] for i in used]
-    opts = (fix_aspect, fix_principal_point, zero_tangent)
-    cov_i, cov_p, _ = _covariance(model, n_coef, opts, K, dist, rvecs, tvecs, o, p)
-    std_intr = _std_intrinsics(model, n_coef, opts, K, cov_i)
-    cov_full = None
-    if np.all(np.isfinite(cov_i)):
-        cov_full = IntrinsicsCovariance(tuple(intrinsic_names(model, n_coef)), _full_covariance(model, n_coef, opts,
-                                                                                                K, cov_i))
-    noise = fit_corner_noise(_corner_views(model, K, dist, rvecs, tvecs, o, p), image_size) if corner_noise else None
-    per_view_rms = [None] * n_views
-    residuals = [None] * n_views
-    corner_used = [None] * n_views
-    std_ext = [None] * n_views
-    poses = [None] * n_views
+    bases = [warp_basis(obj_all, x) for x in o]
+    sol = refine(layout, theta, [poses[i] for i in used], o, p, bases, warp=warp0)
+    noise = fit_corner_noise(corner_views(layout, sol, o, p, bases), image_size) if corner_noise else None
+    cov = covariance(layout, sol, o, p, bases, noise)
+    K, dist = camera_parts(sol.theta, layout)
+    names = intrinsic_names(layout.model, layout.n_coef)
+    sd = np.sqrt(np.clip(np.diag(cov.intrinsics), 0, None))
+    std_intr = {n: float(v) for n, v in zip(names, sd)}
+    cov_full = IntrinsicsCovariance(tuple(names), cov.intrinsics) if np.all(np.isfinite(cov.intrinsics)) else None
+    per_view_rms, residuals, corner_used, std_ext, view_poses = ([None] * n_views for _ in range(5))
+    full_res = view_residuals(layout, sol, [objs[i] for i in used], [imgs[i] for i in used],
+                              [warp_basis(obj_all, objs[i]) for i in used])
     sse, m = 0.0, 0
     for j, i in enumerate(used):
-        r = imgs[i] - _project(model, K, dist, rvecs[j], tvecs[j], objs[i])
-        residuals[i] = r
+        residuals[i] = full_res[j]
         corner_used[i] = masks[i].copy()
-        e2 = np.sum(r[masks[i]] ** 2)
-        per_view_rms[i] = float(np.sqrt(e2 / masks[i].sum()))
-        sse += float(e2)
+        e2 = float(np.sum(full_res[j][masks[i]] ** 2))
+        per_view_rms[i] = math.sqrt(e2 / masks[i].sum())
+        sse += e2
         m += int(masks[i].sum())
-        sd = np.sqrt(np.clip(np.diag(cov_p[j]), 0, None))
-        std_ext[i] = {"rvec": sd[:3], "tvec": sd[3:]}
-        poses[i] = (rvecs[j].copy(), tvecs[j].copy())
-    rms = float(np.sqrt(sse / m))
-    used_set = set(used)
-    used_flags = [i in used_set for i in range(n_views)]
-    meta = {
-        "rms_px": rms,
-        "std_intrinsics": std_intr,
-        "views_used": len(used),
-        "views_total": n_views,
-        "corners_used": m,
-        "calibration": {"model": model, "coefficients": n_coef, "fix_aspect": bool(fix_aspect),
-                        "flags": flag_names, "board": board.to_dict()},
-    }
+        s = np.sqrt(np.clip(np.diag(cov.poses[j]), 0, None))
+        std_ext[i] = {"rvec": s[:3], "tvec": s[3:]}
+        view_poses[i] = (sol.poses[j][0].copy(), sol.poses[j][1].copy())
+    rms = math.sqrt(sse / m)
+    warp_rec = None
+    if layout.warp:
+        warp_rec = {"names": list(WARP_NAMES), "value": sol.warp.tolist(),
+                    "std": np.sqrt(np.clip(np.diag(cov.warp), 0, None)).tolist(), "cov": cov.warp.tolist()}
+    meta = {"rms_px": rms, "std_intrinsics": std_intr, "views_used": len(used), "views_total": n_views,
+            "corners_used": m,
+            "calibration": {"model": layout.model, "coefficients": layout.n_coef, "fix_aspect": layout.fix_aspect,
+                            "flags": flag_names, "board": board.to_dict()}}
     if cov_full is not None:
         meta[COV_META_KEY] = cov_full.to_dict()
     if noise is not None:
         meta["corner_noise"] = noise.to_dict()
-    camera = Camera(model, w, h, K, dist if model != "pinhole" else np.zeros(0), meta=meta)
+    if warp_rec is not None:
+        meta["board_warp"] = warp_rec
+    camera = Camera(layout.model, image_size[0], image_size[1], K, dist, meta=meta)
+    used_set = set(used)
     return CalibrationResult(camera=camera, rms_px=rms, per_view_rms=per_view_rms, std_intrinsics=std_intr,
-                             std_extrinsics=std_ext, view_poses=poses, used=used_flags, rejected=rejected,
-                             residuals=residuals, corner_used=corner_used, model=model, coefficients=n_coef,
-                             flags=flag_names, rounds=rounds, cov_intrinsics=cov_full, corner_noise=noise)
+                             std_extrinsics=std_ext, view_poses=view_poses,
+                             used=[i in used_set for i in range(n_views)], rejected=rejected, residuals=residuals,
+                             corner_used=corner_used, model=layout.model, coefficients=layout.n_coef,
+                             flags=flag_names, rounds=rounds, cov_intrinsics=cov_full, corner_noise=noise,
+                             warp=warp_rec, layout=layout, solution=sol, covariance=cov)
 
 
 def _too_few_views(n_usable, min_views, n_views, rejected):
@@ -783,80 +766,12 @@ def _reject_corners(used, masks, norms, k, sigma, min_corners, rejected):
     return changed
 
 
-# ---------------------------------------------------------------- synthetic views
-def synthetic_detections(camera, board, views=10, noise_px=0.2, seed=0, distance=None, tilt_deg=40.0,
-                         margin_px=10.0):
-    """Detections of `board` seen by `camera` from random poses, with Gaussian corner noise.
-
-    For tests and examples. Each view sees the whole board, tilted up to `tilt_deg` about a
-    random in-plane axis, at `distance` (default: the board fills about half the image
-    width), placed at random so that every corner lands at least `margin_px` inside the
-    image. ``ids`` are the board's corner ids; `corners` raw pixels + N(0, noise_px^2) per
-    axis. Also attaches the true poses as ``.truth`` = list of (rvec, tvec) on the
-    returned list.
-
-    Example
-    -------
-    >>> from pencilcal.toolkit.board.spec import board_from_dict
-    >>> b = board_from_dict({"type": "chessboard", "squares": [9, 6], "square": 25.0})
-    >>> cam = Camera("pinhole", 640, 480, [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
-    >>> dets = synthetic_detections(cam, b, views=3, noise_px=0.0, seed=0)
-    >>> len(dets), dets[0].count, dets[0].image_size
-    (3, 54, (640, 480))
-    """
-    import cv2
-
-    rng = np.random.default_rng(seed)
-    obj = board.object_points()
-    centre = obj.mean(0)
-    span = float(np.ptp(obj[:, 0]) + 1e-9)
-    if distance is None:
-        distance = 2.0 * camera.fx * span / camera.width
-    out = _DetectionList()
-    out.truth = []
-    for _ in range(int(views)):
-        for _try in range(500):
-            axis = rng.normal(size=3)
-            axis[2] = 0.0
-            axis /= np.linalg.norm(axis)
-            tilt = np.radians(rng.uniform(0.3, 1.0) * tilt_deg)
-            spin = rng.uniform(-0.4, 0.4)
-            R = cv2.Rodrigues(axis * tilt)[0] @ cv2.Rodrigues(np.array([0.0, 0.0, spin]))[0]
-            depth = distance * rng.uniform(0.8, 1.3)
-            target = np.array([rng.uniform(-0.35, 0.35) * camera.width / camera.fx,
-                               rng.uniform(-0.3, 0.3) * camera.height / camera.fy, 1.0]) * depth
-            t = target - R @ centre
-            pc = obj @ R.T + t
-            if np.any(pc[:, 2] <= 0):
-                continue
-            px = camera.project(pc)
-            lo = margin_px
-            hi = np.array([camera.width, camera.height]) - 1 - margin_px
-            if np.all(np.isfinite(px)) and np.all(px.min(0) > lo) and np.all(px.max(0) < hi):
-                break
-        else:
-            raise RuntimeError("no pose keeps the board inside the image; lower the distortion or move it further")
-        px = px + noise_px * rng.normal(size=px.shape)
-        out.append(BoardDetection(np.arange(obj.shape[0]), px, (camera.width, camera.height),
-                                  np.zeros(0, int), np.zeros((0, 4, 2))))
-        out.truth.append((cv2.Rodrigues(R)[0].ravel(), t))
-    return out
-
-
-class _DetectionList(list):
-    """A list that can carry the true poses of synthetic views (``.truth``)."""
-
-
-def calibrate_images(images, board, model="opencv", coefficients=None, **options):
-    """Calibrate from images: detect the board in each, then `calibrate`.
+def detect_views(images, board):
+    """The board's detections in images: (Board, [BoardDetection or None per image], (w, h)).
 
     images : IMAGES (a path, folder, glob or video, or a list of them) or a sequence of
-        (H, W[, 3]) arrays, all the same size.
-    board : Board, or the path of a board file.
-    model, coefficients, options : as `calibrate`.
-
-    Returns the `CalibrationResult`; its ``camera`` is the calibrated Camera. Views that
-    cannot be decoded are skipped like views without the board.
+        (H, W[, 3]) arrays, all the same size; board : Board, or the path of a board file.
+    Images that cannot be decoded give None.
     """
     from pencilcal.toolkit.board.detect import detect_board
     from pencilcal.toolkit.board.spec import Board, read_board
@@ -873,6 +788,15 @@ def calibrate_images(images, board, model="opencv", coefficients=None, **options
     sizes = {(im.shape[1], im.shape[0]) for im in decoded}
     if len(sizes) > 1:
         raise InputError(f"the images differ in size ({sorted(sizes)}); calibrate one camera at one size")
-    detections = [None if im is None else detect_board(im, board) for im in frames]
-    return calibrate(detections, board, sizes.pop(), model=model, coefficients=coefficients, **options)
+    return board, [None if im is None else detect_board(im, board) for im in frames], sizes.pop()
 
+
+def calibrate_images(images, board, model="opencv", coefficients=None, **options):
+    """Calibrate from images: detect the board in each (`detect_views`), then `calibrate`.
+
+    model, coefficients, options : as `calibrate`. Returns the `CalibrationResult`; its
+    ``camera`` is the calibrated Camera. Views that cannot be decoded are skipped like
+    views without the board. (`pencilcal.calibrate` adds the checks and the verdict.)
+    """
+    board, detections, size = detect_views(images, board)
+    return calibrate(detections, board, size, model=model, coefficients=coefficients, **options)

@@ -5,7 +5,8 @@ per-view errors and rejections, counts, and what later estimates need to carry t
 calibration's uncertainty: ``cov_intrinsics`` (``{"names", "cov"}``,
 `toolkit.camera.intrinsics.IntrinsicsCovariance`), ``corner_noise`` (the correlated
 corner-error model, `toolkit.board.corner_noise.CornerNoise`) and ``cross_validation``
-(two halves of the views, `validation.checks.calibration_halves`).
+(two halves of the views, `validation.calibration_checks.calibration_halves`), and the
+verdict and the maps of `pencilcal calibrate` (docs/calibration.md).
 
 `read_calibration_file` returns a typed `CalibrationFile`; `uncertainty_of` gives a
 camera's intrinsics covariance and corner-noise model from a report or, without one, from

@@ -43,7 +43,7 @@ from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 
 __all__ = ["CornerNoise", "WHITE", "CornerView", "fit_corner_noise", "correlated_covariance", "kernel",
-           "restricted_nll"]
+           "restricted_nll", "white_variance"]
 
 # views with fewer corners do not enter the fit (their residuals say little about the
 # correlation and their white level is poorly known)
@@ -127,9 +127,14 @@ class CornerView:
 
 def kernel(points, length_px):
     """(K, K) squared-exponential correlation exp(-|u_a - u_b|^2 / (2 l^2)) of points (K, 2) [px]."""
+    return np.exp(-0.5 * _squared_distances(points) / float(length_px) ** 2)
+
+
+def _squared_distances(points):
     u = np.asarray(points, float)
-    d2 = np.sum((u[:, None, :] - u[None, :, :]) ** 2, -1)
-    return np.exp(-0.5 * d2 / float(length_px) ** 2)
+    u = u - u.mean(0)
+    n = np.sum(u * u, -1)
+    return np.maximum(n[:, None] + n[None, :] - 2.0 * (u @ u.T), 0.0)
 
 
 class _Spectral:
@@ -137,19 +142,20 @@ class _Spectral:
     reduced to per-eigenvector sums, so that the restricted likelihood is cheap for many
     ratios at once."""
 
-    def __init__(self, view, length_px):
-        lam, U = np.linalg.eigh(kernel(view.points, length_px))
+    def __init__(self, view, length_px, d2=None, logdet_JtJ=None):
+        d2 = _squared_distances(view.points) if d2 is None else d2
+        lam, U = np.linalg.eigh(np.exp(-0.5 / float(length_px) ** 2 * d2))
         self.lam = np.clip(lam, 0.0, None)
         K = view.points.shape[0]
         P = view.jacobian.shape[1]
         r = U.T @ np.asarray(view.residuals, float).reshape(K, 2)                      # (K, 2)
-        J = np.einsum("ka,kbp->abp", U, view.jacobian.reshape(K, 2, P))                # (K, 2, P)
-        self.JJ = np.einsum("kbp,kbq->kpq", J, J).reshape(K, P * P)
-        self.Jr = np.einsum("kbp,kb->kp", J, r)
+        J = (U.T @ view.jacobian.reshape(K, 2 * P)).reshape(K, 2, P)                  # (K, 2, P)
+        self.JJ = (J.transpose(0, 2, 1) @ J).reshape(K, P * P)
+        self.Jr = (J.transpose(0, 2, 1) @ r[..., None])[..., 0]
         self.rr = np.sum(r * r, -1)
         self.P = P
         self.n = 2 * K - P
-        self.logdet_JtJ = np.linalg.slogdet(view.jacobian.T @ view.jacobian)[1]
+        self.logdet_JtJ = np.linalg.slogdet(view.jacobian.T @ view.jacobian)[1] if logdet_JtJ is None else logdet_JtJ
 
     def nll(self, ratios):
         """(nll (R,), sigma_w^2 (R,)) for ratios (R,): -log restricted likelihood (constants
@@ -164,6 +170,25 @@ class _Spectral:
         logdet_S = -2.0 * np.sum(np.log(w), -1)
         nll = 0.5 * (self.n * np.log(s2) + logdet_S + np.linalg.slogdet(JtSJ)[1] - self.logdet_JtJ)
         return nll, s2
+
+
+def white_variance(view, noise, k=None):
+    """sigma_w^2 [px^2 per axis] of one CornerView under `noise` (REML: the generalised
+    least-squares residual of the view's Jacobian under the model's correlation, over
+    2K - P degrees of freedom; what `fit_corner_noise` profiles). k : the view's
+    `kernel` at the noise's length, when already at hand."""
+    r = np.asarray(view.residuals, float).reshape(-1, 2)
+    K = r.shape[0]
+    J = view.jacobian.reshape(K, 2, -1)
+    if noise.ratio > 0:
+        k = kernel(view.points, noise.length_px) if k is None else k
+        L = np.linalg.cholesky(np.eye(K) + noise.ratio * k)
+        r = np.linalg.solve(L, r)
+        J = np.linalg.solve(L, J.reshape(K, -1)).reshape(K, 2, -1)
+    J = J.reshape(2 * K, -1)
+    r = r.reshape(-1)
+    q = r - J @ np.linalg.lstsq(J, r, rcond=None)[0]
+    return float(q @ q) / (2 * K - J.shape[1])
 
 
 def restricted_nll(views, noise):
@@ -246,10 +271,12 @@ def fit_corner_noise(views, image_size):
     corners = int(sum(v.points.shape[0] for v in views))
     white = float(sum(_Spectral(v, side).nll(0.0)[0][0] for v in views))
     cache = {}
+    d2 = [_squared_distances(v.points) for v in views]
+    logdets = [np.linalg.slogdet(v.jacobian.T @ v.jacobian)[1] for v in views]
 
     def profile(log_l):
         if log_l not in cache:
-            spectra = [_Spectral(v, math.exp(log_l)) for v in views]
+            spectra = [_Spectral(v, math.exp(log_l), d, ld) for v, d, ld in zip(views, d2, logdets)]
             cache[log_l] = _best_ratio(spectra)
         return cache[log_l][0]
 
@@ -289,7 +316,7 @@ def correlated_covariance(J, residuals, points, noise):
     """
     J = np.asarray(J, float)
     view = CornerView(np.asarray(points, float), np.asarray(residuals, float), J)
-    s2 = float(_Spectral(view, noise.length_px).nll(noise.ratio)[1][0])
+    s2 = white_variance(view, noise)
     K = view.points.shape[0]
     Hinv = np.linalg.inv(J.T @ J)
     k = kernel(view.points, noise.length_px)

@@ -1,0 +1,64 @@
+"""The lens model chosen on held-out views: the true one, or a simpler one that predicts as well."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pencilcal.toolkit.board.calibrate import calibrate
+from pencilcal.toolkit.board.model_choice import CANDIDATES, simpler_choice
+from pencilcal.toolkit.board.spec import board_from_dict
+from pencilcal.toolkit.board.synthetic import synthetic_detections
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.errors import EstimationError
+
+BOARD = board_from_dict({"type": "chessboard", "squares": [9, 6], "square": 25.0})
+K = [[600.0, 0, 480.0], [0, 600.0, 270.0], [0, 0, 1]]
+
+
+@pytest.mark.parametrize("truth, expected", [
+    (Camera("fisheye", 960, 540, K, [0.08, -0.03, 0.01, -0.002]), ("fisheye", 4)),
+    (Camera("pinhole", 960, 540, K), ("pinhole", 0)),
+    (Camera("opencv", 960, 540, K, [-0.3, 0.12, 0.0, 0.0, 0.0]), ("opencv", 4)),
+])
+def test_auto_finds_the_lens(truth, expected):
+    dets = synthetic_detections(truth, BOARD, views=20, noise_px=0.2, seed=6, tilt_deg=50)
+    r = calibrate(dets, BOARD, truth.size, model="auto", warp=True)
+    choice = r.model_choice
+    assert (r.model, r.coefficients) == expected, choice.reason
+    assert (choice.model, choice.coefficients) == expected and "cross-validation over 20 views" in choice.reason
+    scored = {(s.model, s.coefficients): s for s in choice.scores}
+    assert set(scored) == set(CANDIDATES) and all(s.status == "ok" for s in scored.values())
+    # the chosen model's held-out score is within one standard error of the best
+    pick = scored[expected]
+    assert pick.excess <= pick.excess_se
+    assert abs(r.camera.fx - truth.fx) < 5 * r.std_intrinsics["fx"]
+
+
+def test_a_simpler_choice_when_the_first_fails_a_check():
+    truth = Camera("opencv", 960, 540, K, [-0.3, 0.12, 0.0, 0.0, 0.02])
+    dets = synthetic_detections(truth, BOARD, views=12, noise_px=0.2, seed=7, tilt_deg=50)
+    choice = calibrate(dets, BOARD, truth.size, model="auto").model_choice
+    again = simpler_choice(choice, [(choice.model, choice.coefficients)], "a test")
+    first = next(s for s in choice.scores if (s.model, s.coefficients) == (choice.model, choice.coefficients))
+    best = min(s.heldout_rms_px for s in choice.scores)
+    simpler = [s for s in choice.scores if s.parameters < first.parameters and s.heldout_rms_px <= 1.1 * best]
+    if not simpler:                        # the pinhole predicts far worse: no fallback to it
+        assert again is None
+    else:
+        assert again is not None and again.reason.startswith(f"{choice.model} {choice.coefficients} failed a test")
+        assert 4 + again.coefficients < first.parameters
+
+
+def test_too_few_views_to_choose():
+    dets = synthetic_detections(Camera("pinhole", 960, 540, K), BOARD, views=5, noise_px=0.2, seed=1)
+    with pytest.raises(EstimationError, match="at least 6 views"):
+        calibrate(dets, BOARD, (960, 540), model="auto")
+
+
+def test_candidates_can_be_restricted():
+    truth = Camera("fisheye", 960, 540, K, [0.08, -0.03, 0.01, -0.002])
+    dets = synthetic_detections(truth, BOARD, views=10, noise_px=0.2, seed=8)
+    r = calibrate(dets, BOARD, truth.size, model="auto", candidates=(("opencv", 4), ("opencv", 8)))
+    assert r.model == "opencv" and [(s.model, s.coefficients) for s in r.model_choice.scores] == [("opencv", 4),
+                                                                                                  ("opencv", 8)]
+    assert np.isfinite(r.rms_px)

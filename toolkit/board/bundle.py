@@ -1,0 +1,437 @@
+"""Calibration as one least-squares problem: intrinsics, every view's pose and the board's warp.
+
+`refine` minimises the sum of squared corner residuals over the free intrinsics, the pose of
+every view and, with ``Layout.warp``, two warp parameters of the board, as mrcal's
+``calobject_warp`` does: a printed board is not flat, and a sheet that sags or bulges by a
+fraction of a millimetre moves the corners of a tilted view by more than their noise. The
+board's points are displaced along its normal (board frame z, into the sheet) by::
+
+    dz = warp_x * 4 s (1 - s) + warp_y * 4 t (1 - t)
+
+with s, t in [0, 1] the corner's position across the board's corner grid (`warp_basis`):
+two parabolas, zero along the grid's border, ``warp_x`` and ``warp_y`` [board unit] at its
+middle. The solver is Levenberg-Marquardt on the normal equations with the poses eliminated
+by a Schur complement (one small solve per view), the projection and its Jacobian from
+``cv2.projectPoints`` / ``cv2.fisheye.projectPoints``.
+
+`covariance` gives the covariance of the estimate under the corner errors the residuals show
+(`toolkit.board.corner_noise`): each view's errors white at that view's own level, plus a
+smooth part correlated between neighbouring corners. The estimate is ordinary least squares,
+so its covariance is the sandwich ``S^-1 (sum_v A_v^T Sigma_v A_v) S^-1`` with ``A_v`` the
+view's Jacobian of the global parameters with its pose projected out and ``S = sum_v
+A_v^T A_v`` (the Schur complement). With white errors of one level this is OpenCV's
+``sigma^2 (J^T J)^-1``.
+
+Conventions as `toolkit.board.calibrate`: raw pixels, residual = observed - projected,
+poses ``cam_from_target`` as (rvec, tvec), tvec and the warp in the board's length unit.
+
+Example
+-------
+>>> import numpy as np
+>>> from pencilcal.toolkit.board.spec import board_from_dict
+>>> from pencilcal.toolkit.board.calibrate import synthetic_detections
+>>> from pencilcal.toolkit.camera.model import Camera
+>>> board = board_from_dict({"type": "chessboard", "squares": [9, 6], "square": 25.0})
+>>> cam = Camera("opencv", 640, 480, [[530.0, 0, 320.0], [0, 530.0, 240.0], [0, 0, 1]], [-0.2, 0.05, 0, 0, 0])
+>>> dets = synthetic_detections(cam, board, views=8, noise_px=0.1, seed=2, warp=(0.0, 0.4))
+>>> objs = [board.object_points()] * 8
+>>> bases = [warp_basis(board.object_points(), o) for o in objs]
+>>> layout = Layout("opencv", 5)
+>>> sol = refine(layout, theta_of(cam.K, cam.dist, layout), dets.truth, objs, [d.corners for d in dets], bases)
+>>> cov = covariance(layout, sol, objs, [d.corners for d in dets], bases)
+>>> bool(abs(sol.warp[1] - 0.4) < 4 * np.sqrt(cov.warp[1, 1])), sol.warp.shape
+(True, (2,))
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pencilcal.toolkit.camera.intrinsics import model_intrinsic_names
+from pencilcal.toolkit.errors import EstimationError
+
+__all__ = ["Layout", "Solution", "Covariance", "warp_basis", "theta_of", "camera_parts", "refine", "covariance",
+           "fit_pose", "view_residuals", "WARP_NAMES"]
+
+#: Names of the board's warp parameters [board unit].
+WARP_NAMES = ("warp_x", "warp_y")
+# Levenberg-Marquardt: the first damping (relative to the normal matrix's diagonal), the
+# largest before giving up, and the relative decrease of the cost that ends the iteration
+_LAMBDA0 = 1e-4
+_LAMBDA_MAX = 1e10
+_REL_TOL = 1e-12
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Which parameters a calibration estimates.
+
+    model : "opencv" | "pinhole" | "fisheye"; n_coef : its distortion coefficient count (0
+    for pinhole); fix_aspect : fx = a fy with a held; fix_principal_point : cx, cy held;
+    zero_tangent : opencv p1 = p2 = 0 held; warp : the board's two warp parameters estimated.
+    """
+
+    model: str
+    n_coef: int
+    fix_aspect: bool = False
+    fix_principal_point: bool = False
+    zero_tangent: bool = False
+    warp: bool = True
+
+    @property
+    def names(self):
+        """The full intrinsic vector's names (fx, fy, cx, cy, coefficients)."""
+        return model_intrinsic_names(self.model, self.n_coef)
+
+    def transform(self, theta):
+        """T (P, F): the full intrinsics move by ``T @ delta`` for a step ``delta`` of the F
+        free ones (fx follows fy with the aspect ratio held)."""
+        P = 4 + self.n_coef
+        cols = []
+        if self.fix_aspect:
+            c = np.zeros(P)
+            c[0], c[1] = theta[0] / theta[1], 1.0
+            cols.append(c)
+        else:
+            cols += [np.eye(P)[0], np.eye(P)[1]]
+        if not self.fix_principal_point:
+            cols += [np.eye(P)[2], np.eye(P)[3]]
+        for i in range(self.n_coef):
+            if not (self.model == "opencv" and self.zero_tangent and i in (2, 3)):
+                cols.append(np.eye(P)[4 + i])
+        return np.array(cols).T
+
+    @property
+    def n_global(self):
+        """Free intrinsics plus warp parameters."""
+        free = (1 if self.fix_aspect else 2) + (0 if self.fix_principal_point else 2) + self.n_coef
+        if self.model == "opencv" and self.zero_tangent:
+            free -= 2
+        return free + (2 if self.warp else 0)
+
+
+@dataclass
+class Solution:
+    """The optimum: theta (P,) full intrinsics, poses (V, 2, 3) (rvec, tvec) per view, warp
+    (2,) [board unit] (zeros when not estimated), the sum of squared residuals [px^2] over
+    ``corners`` corners, and the iterations run."""
+
+    theta: np.ndarray
+    poses: np.ndarray
+    warp: np.ndarray
+    sse: float
+    corners: int
+    iterations: int
+
+
+@dataclass
+class Covariance:
+    """The estimate's covariance under a corner-error model.
+
+    intrinsics : (P, P) over the full intrinsic vector (held parameters zero rows);
+    warp : (2, 2) [board unit^2] (zeros when not estimated); cross : (P, 2) between them;
+    poses : (V, 6, 6) each view's (rvec, tvec); sigma_w : (V,) each view's white corner
+    noise [px per axis]; model : "white" (one level, OpenCV's) or "views" (each view's level
+    and the correlated part).
+    """
+
+    intrinsics: np.ndarray
+    warp: np.ndarray
+    cross: np.ndarray
+    poses: np.ndarray
+    sigma_w: np.ndarray
+    model: str = "white"
+    extra: dict = field(default_factory=dict)
+
+
+def warp_basis(board_points, points):
+    """(N, 2) the warp's two shapes at `points` (N, 3) of a board whose corners are
+    `board_points` (M, 3): ``4 s (1 - s)`` and ``4 t (1 - t)``, s and t the position across
+    the corner grid's extent along x and y (0 at the first corner, 1 at the last).
+
+    >>> b = np.array([[0.0, 0, 0], [10, 0, 0], [0, 20, 0], [10, 20, 0]])
+    >>> warp_basis(b, np.array([[5.0, 10, 0], [0, 0, 0]])).tolist()
+    [[1.0, 1.0], [0.0, 0.0]]
+    """
+    lo = np.min(board_points[:, :2], 0)
+    span = np.maximum(np.ptp(board_points[:, :2], 0), 1e-12)
+    s = (np.asarray(points, float)[:, :2] - lo) / span
+    return 4.0 * s * (1.0 - s)
+
+
+def theta_of(K, dist, layout):
+    """The full intrinsic vector (fx, fy, cx, cy, coefficients) of K and dist for `layout`
+    (coefficients cut or zero-padded to its count)."""
+    d = np.zeros(layout.n_coef)
+    src = np.asarray(dist, float).ravel()[:layout.n_coef]
+    d[:src.size] = src
+    return np.r_[K[0][0], K[1][1], K[0][2], K[1][2], d]
+
+
+def camera_parts(theta, layout):
+    """(K (3, 3), dist (n_coef,)) of a full intrinsic vector."""
+    K = np.array([[theta[0], 0.0, theta[2]], [0.0, theta[1], theta[3]], [0.0, 0.0, 1.0]])
+    return K, np.asarray(theta[4:], float).copy()
+
+
+def _project(layout, theta, rvec, tvec, obj):
+    """Pixels (N, 2), d px / d full intrinsics (2N, P), d px / d (rvec, tvec) (2N, 6)."""
+    import cv2
+
+    K, dist = camera_parts(theta, layout)
+    rvec = np.asarray(rvec, float).reshape(3, 1)
+    tvec = np.asarray(tvec, float).reshape(3, 1)
+    o = np.asarray(obj, np.float64).reshape(-1, 1, 3)
+    if layout.model == "fisheye":
+        px, J = cv2.fisheye.projectPoints(o, rvec, tvec, K, dist)
+        J = np.asarray(J, float)
+        return px.reshape(-1, 2), J[:, 0:8], J[:, 8:14]
+    px, J = cv2.projectPoints(o, rvec, tvec, K, dist if dist.size else None)
+    J = np.asarray(J, float)
+    return px.reshape(-1, 2), J[:, 6:10 + layout.n_coef], J[:, 0:6]
+
+
+def _warped(obj, basis, warp):
+    if basis is None or not np.any(warp):
+        return obj
+    out = np.array(obj, float)
+    out[:, 2] += basis @ warp
+    return out
+
+
+def _view(layout, theta, T, pose, obj, img, basis, warp):
+    """One view at the current parameters: residuals r (2N,), the Jacobian of the
+    *predictions* in the global parameters Jg (2N, G) and in the pose Jp (2N, 6)."""
+    import cv2
+
+    px, Ji, Jp = _project(layout, theta, pose[0], pose[1], _warped(obj, basis, warp))
+    Jg = Ji @ T
+    if layout.warp:
+        R = cv2.Rodrigues(np.asarray(pose[0], float))[0]
+        dz = Jp[:, 3:6] @ R[:, 2]                   # d px / d (board z), through tvec
+        Jg = np.hstack([Jg, dz[:, None] * np.repeat(basis, 2, axis=0)])
+    return (np.asarray(img, float) - px).reshape(-1), Jg, Jp
+
+
+def _normal(layout, theta, T, poses, warp, objs, imgs, bases):
+    """The normal equations' blocks: A (G, G), g (G,), per view B (G, 6), C (6, 6), q (6,),
+    and the cost."""
+    G = T.shape[1] + (2 if layout.warp else 0)
+    A, g = np.zeros((G, G)), np.zeros(G)
+    Bs, Cs, qs = [], [], []
+    sse = 0.0
+    for pose, obj, img, basis in zip(poses, objs, imgs, bases):
+        r, Jg, Jp = _view(layout, theta, T, pose, obj, img, basis, warp)
+        A += Jg.T @ Jg
+        g += Jg.T @ r
+        Bs.append(Jg.T @ Jp)
+        Cs.append(Jp.T @ Jp)
+        qs.append(Jp.T @ r)
+        sse += float(r @ r)
+    return A, g, Bs, Cs, qs, sse
+
+
+def _step(A, g, Bs, Cs, qs, lam):
+    """The damped Gauss-Newton step (global, per view) by the Schur complement."""
+    S = A + lam * np.diag(np.diag(A) + 1e-12)
+    rhs = g.copy()
+    Cinv = []
+    for B, C, q in zip(Bs, Cs, qs):
+        Ci = np.linalg.inv(C + lam * np.diag(np.diag(C) + 1e-12))
+        Cinv.append(Ci)
+        S -= B @ Ci @ B.T
+        rhs -= B @ (Ci @ q)
+    dg = np.linalg.solve(S, rhs)
+    return dg, [Ci @ (q - B.T @ dg) for B, Ci, q in zip(Bs, Cinv, qs)]
+
+
+def refine(layout, theta, poses, objs, imgs, bases=None, warp=None, max_iterations=100):
+    """Levenberg-Marquardt over the free intrinsics, the poses and the warp.
+
+    Parameters
+    ----------
+    layout : Layout
+    theta : (P,) the full intrinsics to start from (held ones stay).
+    poses : (V, 2, 3) or sequence of (rvec, tvec): each view's pose to start from.
+    objs, imgs : per view the board points (N_v, 3) [board unit] and their corners (N_v, 2) [px].
+    bases : per view `warp_basis` (N_v, 2); needed with ``layout.warp``.
+    warp : (2,) to start from (zeros).
+
+    Returns
+    -------
+    Solution
+        Raises EstimationError when a step cannot be solved (a singular problem).
+    """
+    theta = np.array(theta, float)
+    poses = np.array([np.r_[np.ravel(r), np.ravel(t)] for r, t in poses], float).reshape(-1, 2, 3)
+    warp = np.zeros(2) if warp is None else np.array(warp, float)
+    bases = list(bases) if bases is not None else [None] * len(objs)
+    if layout.warp and any(b is None for b in bases):
+        raise ValueError("the warp needs every view's warp_basis")
+    T = layout.transform(theta)
+    F = T.shape[1]
+    blocks = _normal(layout, theta, T, poses, warp, objs, imgs, bases)
+    lam = _LAMBDA0
+    it = 0
+    for it in range(1, int(max_iterations) + 1):
+        try:
+            dg, dps = _step(*blocks[:5], lam)
+        except np.linalg.LinAlgError:
+            raise EstimationError("the calibration problem is singular (too few views or corners for this "
+                                  "model)") from None
+        theta2 = theta + T @ dg[:F]
+        warp2 = warp + dg[F:] if layout.warp else warp
+        poses2 = poses + np.array(dps).reshape(-1, 2, 3)
+        if not (np.all(np.isfinite(theta2)) and theta2[0] > 0 and theta2[1] > 0):
+            lam *= 10.0
+        else:
+            new = _normal(layout, theta2, T, poses2, warp2, objs, imgs, bases)
+            if new[5] <= blocks[5]:
+                done = blocks[5] - new[5] <= _REL_TOL * max(blocks[5], 1e-300)
+                theta, warp, poses, blocks = theta2, warp2, poses2, new
+                lam = max(lam / 10.0, 1e-15)
+                if done:
+                    break
+                continue
+            lam *= 10.0
+        if lam > _LAMBDA_MAX:
+            break
+    corners = int(sum(np.asarray(o).shape[0] for o in objs))
+    return Solution(theta, poses, warp if layout.warp else np.zeros(2), float(blocks[5]), corners, it)
+
+
+def view_residuals(layout, solution, objs, imgs, bases=None):
+    """Per view observed - projected (N_v, 2) [px] at the solution."""
+    bases = list(bases) if bases is not None else [None] * len(objs)
+    out = []
+    for pose, obj, img, basis in zip(solution.poses, objs, imgs, bases):
+        px = _project(layout, solution.theta, pose[0], pose[1], _warped(obj, basis, solution.warp))[0]
+        out.append(np.asarray(img, float) - px)
+    return out
+
+
+def fit_pose(layout, theta, warp, pose, obj, img, basis=None, max_iterations=30):
+    """One view's pose with the intrinsics and warp held: ((rvec, tvec), residuals (N, 2)).
+    For held-out views (`toolkit.board.model_choice`)."""
+    lay = Layout(layout.model, layout.n_coef, warp=False)
+    o = _warped(obj, basis, np.asarray(warp, float))
+    rvec, tvec = np.array(pose[0], float).ravel(), np.array(pose[1], float).ravel()
+    lam = _LAMBDA0
+    px, _, Jp = _project(lay, theta, rvec, tvec, o)
+    r = (np.asarray(img, float) - px).reshape(-1)
+    cost = float(r @ r)
+    for _ in range(int(max_iterations)):
+        H = Jp.T @ Jp
+        try:
+            d = np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), Jp.T @ r)
+        except np.linalg.LinAlgError:
+            break
+        rv2, tv2 = rvec + d[:3], tvec + d[3:]
+        px2, _, Jp2 = _project(lay, theta, rv2, tv2, o)
+        r2 = (np.asarray(img, float) - px2).reshape(-1)
+        c2 = float(r2 @ r2)
+        if np.isfinite(c2) and c2 <= cost:
+            done = cost - c2 <= _REL_TOL * max(cost, 1e-300)
+            rvec, tvec, r, Jp, cost = rv2, tv2, r2, Jp2, c2
+            lam = max(lam / 10.0, 1e-15)
+            if done:
+                break
+        else:
+            lam *= 10.0
+            if lam > _LAMBDA_MAX:
+                break
+    return (rvec, tvec), r.reshape(-1, 2)
+
+
+def covariance(layout, solution, objs, imgs, bases=None, noise=None):
+    """The covariance of `refine`'s estimate.
+
+    noise : None for white corner errors of one level, estimated from all residuals
+        (``sum r^2 / (2M - P)``, OpenCV's figure); or a `CornerNoise`: each view's white
+        level by REML (`corner_noise.white_variance`) and the correlated part, through the
+        sandwich (the module's docstring). `corner_noise.WHITE` gives each view its own
+        white level only.
+
+    Returns a `Covariance`; its intrinsics and warp blocks are inf where the problem is
+    singular.
+    """
+    from pencilcal.toolkit.board.corner_noise import CornerView, kernel, white_variance
+
+    bases = list(bases) if bases is not None else [None] * len(objs)
+    T = layout.transform(solution.theta)
+    F = T.shape[1]
+    views = []
+    S = None
+    for pose, obj, img, basis in zip(solution.poses, objs, imgs, bases):
+        r, Jg, Jp = _view(layout, solution.theta, T, pose, obj, img, basis, solution.warp)
+        C = Jp.T @ Jp
+        Ci = np.linalg.pinv(C)
+        PJ = Jg - Jp @ (Ci @ (Jp.T @ Jg))               # the pose projected out
+        S = Jg.T @ PJ if S is None else S + Jg.T @ PJ
+        views.append((r, Jg, Jp, Ci, PJ, np.asarray(img, float)))
+    G = S.shape[0]
+    dof = 2 * solution.corners - (G + 6 * len(views))
+    if dof <= 0:
+        raise EstimationError(f"{solution.corners} corners cannot determine {G + 6 * len(views)} parameters")
+    try:
+        Si = np.linalg.inv(S)
+        if not np.all(np.isfinite(Si)) or np.any(np.diag(Si) <= 0):
+            raise np.linalg.LinAlgError
+    except np.linalg.LinAlgError:
+        Si = np.full((G, G), np.inf)
+    s2, mids, sig_e = [], [], []
+    for r, Jg, Jp, Ci, PJ, img in views:
+        K = img.shape[0]
+        k = kernel(img, noise.length_px) if noise is not None and noise.ratio > 0 else None
+        if noise is None:
+            s2.append(solution.sse / dof)
+        else:
+            s2.append(white_variance(CornerView(img, -r.reshape(-1, 2), Jp), noise, k))
+        M = PJ.T @ PJ
+        if k is not None:
+            P3 = PJ.reshape(K, 2, -1)
+            M = M + noise.ratio * np.einsum("kbp,kbq->pq", P3, np.einsum("kl,lbq->kbq", k, P3))
+        mids.append(M)
+        sig_e.append(None if k is None else noise.ratio * k)
+    if np.all(np.isfinite(Si)):
+        Cg = Si @ sum(v * M for v, M in zip(s2, mids)) @ Si
+        Cg = 0.5 * (Cg + Cg.T)
+    else:
+        Cg = Si
+    cov_poses = []
+    for (r, Jg, Jp, Ci, PJ, img), v, Sigma in zip(views, s2, sig_e):
+        B = Jg.T @ Jp
+        if not np.all(np.isfinite(Cg)):
+            cov_poses.append(np.full((6, 6), np.inf))
+            continue
+        # dpose = Ci Jp^T e - Ci B^T dg, dg = Si sum PJ^T e; Sigma: the view's correlated
+        # part per axis (K, K), so (I + Sigma (x) I_2) Jp
+        Jp_S = Jp if Sigma is None else Jp + np.einsum("kl,lbq->kbq", Sigma, Jp.reshape(-1, 2, 6)).reshape(-1, 6)
+        own = v * Ci @ (Jp.T @ Jp_S) @ Ci
+        cross = v * Ci @ (Jp_S.T @ PJ) @ Si @ B @ Ci
+        cp = own - cross - cross.T + Ci @ B.T @ Cg @ B @ Ci
+        cov_poses.append(0.5 * (cp + cp.T))
+    Ti = np.zeros((T.shape[0] + 2, G))
+    Ti[:T.shape[0], :F] = T
+    if layout.warp:
+        Ti[T.shape[0]:, F:] = np.eye(2)
+    full = Ti @ Cg @ Ti.T if np.all(np.isfinite(Cg)) else np.full((Ti.shape[0],) * 2, np.inf)
+    P = T.shape[0]
+    return Covariance(0.5 * (full[:P, :P] + full[:P, :P].T), full[P:, P:], full[:P, P:], np.array(cov_poses),
+                      np.sqrt(np.array(s2)), "white" if noise is None else "views")
+
+
+def corner_views(layout, solution, objs, imgs, bases=None):
+    """Each view's corners, residuals (projected - observed) and pose Jacobian at the
+    solution, as `corner_noise.CornerView`s (for `corner_noise.fit_corner_noise`)."""
+    from pencilcal.toolkit.board.corner_noise import CornerView
+
+    bases = list(bases) if bases is not None else [None] * len(objs)
+    T = layout.transform(solution.theta)
+    out = []
+    for pose, obj, img, basis in zip(solution.poses, objs, imgs, bases):
+        r, _, Jp = _view(layout, solution.theta, T, pose, obj, img, basis, solution.warp)
+        out.append(CornerView(np.asarray(img, float), -r.reshape(-1, 2), Jp))
+    return out

@@ -1,0 +1,223 @@
+"""The lens model chosen by how well it predicts views it was not fitted to.
+
+A richer lens model always fits its own views better; whether it describes the lens better
+shows only on views it has not seen. `choose_model` fits every candidate (pinhole, OpenCV's
+4, 5, 8, 12 and 14 coefficients, Kannala-Brandt fisheye) with k-fold cross-validation over
+the views: the views are dealt into `folds` groups (view i into group i mod k), each group
+is left out in turn, the intrinsics (and the board's warp) are fitted to the others, and
+each left-out view's pose alone is fitted to its corners through them. A view's score is
+its held-out residual variance, ``sum |r|^2 / (2 K - 6)`` [px^2 per axis]: what is left when
+only its pose could adapt.
+
+The choice follows the one-standard-error rule: among the candidates whose mean held-out
+score is within one standard error of the best one's (the standard error of the views'
+paired differences to the best), the one with the fewest parameters. A model that wins
+by less than the noise of the comparison does not earn its extra coefficients.
+
+Example
+-------
+>>> import numpy as np
+>>> from pencilcal.toolkit.board.spec import board_from_dict
+>>> from pencilcal.toolkit.board.synthetic import synthetic_detections
+>>> from pencilcal.toolkit.board.bundle import warp_basis
+>>> from pencilcal.toolkit.camera.model import Camera
+>>> board = board_from_dict({"type": "chessboard", "squares": [9, 6], "square": 25.0})
+>>> cam = Camera("opencv", 640, 480, [[530.0, 0, 320.0], [0, 530.0, 240.0], [0, 0, 1]], [-0.3, 0.1, 0, 0, 0])
+>>> dets = synthetic_detections(cam, board, views=10, noise_px=0.1, seed=4)
+>>> objs = [board.object_points()] * 10
+>>> choice = choose_model(objs, [d.corners for d in dets], [warp_basis(objs[0], o) for o in objs],
+...                       cam.K, cam.dist, dets.truth, candidates=(("pinhole", 0), ("opencv", 4), ("opencv", 8)))
+>>> (choice.model, choice.coefficients), [s.status for s in choice.scores]
+(('opencv', 4), ['ok', 'ok', 'ok'])
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pencilcal.toolkit.board.bundle import Layout, fit_pose, refine, theta_of
+from pencilcal.toolkit.errors import EstimationError
+
+__all__ = ["CANDIDATES", "FOLDS", "ModelScore", "ModelChoice", "choose_model", "chosen_score", "simpler_choice"]
+
+#: The lens models `choose_model` compares by default: (model, coefficients).
+CANDIDATES = (("pinhole", 0), ("opencv", 4), ("opencv", 5), ("opencv", 8), ("opencv", 12), ("opencv", 14),
+              ("fisheye", 4))
+#: Groups of views left out in turn.
+FOLDS = 5
+# fewer views than this cannot be split into training and held-out views usefully
+_MIN_VIEWS = 6
+# a simpler model taken instead of one that failed a later check must predict the held-out
+# views within this share of the best candidate's held-out RMS (not a pinhole for a lens
+# that distorts)
+_FALLBACK_RMS = 0.10
+
+
+@dataclass
+class ModelScore:
+    """One candidate's cross-validation.
+
+    model, coefficients : the candidate; parameters : its intrinsic count;
+    fit_rms_px : RMS residual of the fit to all views [px] (OpenCV's definition);
+    heldout_rms_px : sqrt of the mean held-out score [px per axis]; excess, excess_se :
+    its mean score minus the best candidate's and that difference's standard error
+    [px^2 per axis]; status : "ok" or why it could not be scored.
+    """
+
+    model: str
+    coefficients: int
+    parameters: int
+    fit_rms_px: float | None = None
+    heldout_rms_px: float | None = None
+    excess: float | None = None
+    excess_se: float | None = None
+    status: str = "ok"
+    scores: np.ndarray | None = field(default=None, repr=False)
+    solution: object = field(default=None, repr=False)
+
+    def to_dict(self):
+        return {"model": self.model, "coefficients": self.coefficients, "parameters": self.parameters,
+                "fit_rms_px": self.fit_rms_px, "heldout_rms_px": self.heldout_rms_px, "excess_px2": self.excess,
+                "excess_se_px2": self.excess_se, "status": self.status}
+
+
+@dataclass
+class ModelChoice:
+    """What `choose_model` picked (model, coefficients), every candidate's `ModelScore`
+    (with its fit to all views, ``solution``), the folds and a sentence saying why."""
+
+    model: str
+    coefficients: int
+    scores: list
+    folds: int
+    reason: str
+
+    def to_dict(self):
+        return {"model": self.model, "coefficients": self.coefficients, "folds": self.folds, "reason": self.reason,
+                "rule": "fewest parameters within one standard error of the best held-out score",
+                "candidates": [s.to_dict() for s in self.scores]}
+
+
+def _layout(model, n, warp, fix_aspect, fix_principal_point, zero_tangent):
+    return Layout(model, n, bool(fix_aspect), bool(fix_principal_point), bool(zero_tangent and model == "opencv"),
+                  warp=bool(warp))
+
+
+def _score(layout, theta0, poses, objs, imgs, bases, folds):
+    """(the fit to all views (`bundle.Solution`), per-view held-out scores (V,)) of one
+    candidate."""
+    full = refine(layout, theta0, poses, objs, imgs, bases if layout.warp else None)
+    scores = np.zeros(len(objs))
+    for f in range(folds):
+        train = [i for i in range(len(objs)) if i % folds != f]
+        test = [i for i in range(len(objs)) if i % folds == f]
+        sol = refine(layout, full.theta, full.poses[train], [objs[i] for i in train], [imgs[i] for i in train],
+                     [bases[i] for i in train] if layout.warp else None, warp=full.warp)
+        for i in test:
+            _, r = fit_pose(layout, sol.theta, sol.warp, full.poses[i], objs[i], imgs[i],
+                            bases[i] if layout.warp else None)
+            scores[i] = float(np.sum(r * r)) / max(r.size - 6, 1)
+    return full, scores
+
+
+def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds=FOLDS, warp=True,
+                 fix_aspect=False, fix_principal_point=False, zero_tangent=False):
+    """Compare lens models on held-out views and pick one (the module's docstring).
+
+    Parameters
+    ----------
+    objs, imgs, bases : per view the board points (N_v, 3), their corners (N_v, 2) [px]
+        and `bundle.warp_basis` (N_v, 2): the views and corners a calibration kept.
+    K, dist, poses : a calibration of these views to start every candidate from (3, 3),
+        its coefficients (OpenCV's order), per view (rvec, tvec).
+    candidates : (model, coefficients) pairs; folds : groups of views (at most the views).
+    warp, fix_aspect, fix_principal_point, zero_tangent : as `calibrate`, for every
+        candidate (fisheye is skipped with fix_aspect).
+
+    Returns
+    -------
+    ModelChoice
+        EstimationError when fewer than 6 views are given or no candidate can be scored.
+    """
+    V = len(objs)
+    if V < _MIN_VIEWS:
+        raise EstimationError(f"choosing a lens model by held-out views needs at least {_MIN_VIEWS} views, got {V}")
+    folds = int(min(max(2, folds), V))
+    scores = []
+    for model, n in candidates:
+        layout = _layout(model, n, warp, fix_aspect, fix_principal_point, zero_tangent)
+        rec = ModelScore(model, n, 4 + n)
+        if model == "fisheye" and fix_aspect:
+            rec.status = "not with a fixed aspect ratio"
+            scores.append(rec)
+            continue
+        d0 = np.zeros(n) if model == "fisheye" else dist
+        try:
+            rec.solution, rec.scores = _score(layout, theta_of(K, d0, layout), poses, objs, imgs, bases, folds)
+            rec.fit_rms_px = math.sqrt(rec.solution.sse / rec.solution.corners)
+        except (EstimationError, np.linalg.LinAlgError) as e:
+            rec.status = f"failed: {e}"
+        if rec.scores is not None and not np.all(np.isfinite(rec.scores)):
+            rec.status, rec.scores = "failed: a held-out view did not converge", None
+        scores.append(rec)
+    ok = [s for s in scores if s.scores is not None]
+    if not ok:
+        raise EstimationError("no lens model could be scored on held-out views")
+    pick, best = _pick(ok)
+    for s in ok:
+        s.heldout_rms_px = math.sqrt(float(np.mean(s.scores)))
+    return ModelChoice(pick.model, pick.coefficients, scores, folds, _reason(pick, best, V, folds))
+
+
+def _pick(scored):
+    """(pick, best) of the scored candidates by the one-standard-error rule; sets each one's
+    excess over the best and its standard error."""
+    best = min(scored, key=lambda s: float(np.mean(s.scores)))
+    for s in scored:
+        d = s.scores - best.scores
+        s.excess = float(np.mean(d))
+        s.excess_se = float(np.std(d, ddof=1) / math.sqrt(d.size)) if s is not best else 0.0
+    near = [s for s in scored if s.excess <= s.excess_se]
+    return min(near, key=lambda s: (s.parameters, float(np.mean(s.scores)))), best
+
+
+def simpler_choice(choice, rejected, why):
+    """The choice again among the candidates with fewer parameters than every one in
+    `rejected` ((model, coefficients) pairs that failed a later check, `why` says which)
+    whose held-out RMS is within 10 % of the best candidate's: a new ModelChoice, or None
+    when no candidate is left. The scores are kept."""
+    fewest = min(s.parameters for s in choice.scores if (s.model, s.coefficients) in set(rejected))
+    scored = [s for s in choice.scores if s.scores is not None]
+    best = min(s.heldout_rms_px for s in scored)
+    left = [s for s in scored if s.parameters < fewest and s.heldout_rms_px <= (1.0 + _FALLBACK_RMS) * best]
+    if not left:
+        return None
+    pick, best = _pick(left)
+    V = left[0].scores.size
+    reason = (f"{', '.join(f'{m} {n}' for m, n in rejected)} failed {why}; among the simpler models: "
+              + _reason(pick, best, V, choice.folds))
+    return ModelChoice(pick.model, pick.coefficients, choice.scores, choice.folds, reason)
+
+
+def chosen_score(choice):
+    """The `ModelScore` of the candidate `choice` picked."""
+    return next(s for s in choice.scores if (s.model, s.coefficients) == (choice.model, choice.coefficients))
+
+
+def _reason(pick, best, views, folds):
+    name = _name(pick)
+    head = f"{folds}-fold cross-validation over {views} views: "
+    if pick is best:
+        return head + f"{name} predicts the held-out views best (held-out RMS {pick.heldout_rms_px:.3f} px per axis)."
+    fewer = best.parameters - pick.parameters
+    return (head + f"{_name(best)} predicts the held-out views best ({best.heldout_rms_px:.3f} px per axis), but "
+            f"{name}, with {fewer} parameter{'s' if fewer != 1 else ''} fewer, is within one standard error of it "
+            f"({pick.heldout_rms_px:.3f} px; excess {pick.excess:.2g} +- {pick.excess_se:.2g} px^2).")
+
+
+def _name(s):
+    if s.model == "pinhole":
+        return "pinhole (no distortion)"
+    return f"{s.model} with {s.coefficients} coefficients"

@@ -1,0 +1,245 @@
+"""A calibration checked without truth: two halves of its views, and its projection uncertainty.
+
+`calibration_halves` splits the views a calibration kept in two (the odd and the even ones,
+then `RANDOM_HALVES` random halves) and solves each half alone: the same corners, lens
+model and board warp as the full calibration, started from its solution, each half's
+covariance from the same corner-noise model (`toolkit.board.bundle.covariance`). Two
+independent calibrations of one camera must agree within their covariances:
+
+- on the parameters: the chi-square of the intrinsics' difference over the sum of the two
+  covariances, with its degrees of freedom and p-value (mrcal's cross-validation idea);
+- on the image: the rays one half sees are projected by the other, over the region the
+  views cover, after the rotation that best aligns the two (`toolkit.camera.
+  projection_uncertainty.projection_difference`: a common rotation is what every later pose
+  absorbs); the RMS of that difference against the RMS the two covariances predict (their
+  ratio is 1 for honest sigmas). The camera-frame figures, without the rotation, are given
+  beside it.
+
+`uncertainty_map` is the full calibration's projection uncertainty on a grid over the image
+(the worst direction's sigma [px], up to the same rotation), with the covered cells.
+
+Example
+-------
+>>> import numpy as np
+>>> from pencilcal.toolkit.board.spec import board_from_dict
+>>> from pencilcal.toolkit.board.calibrate import calibrate, synthetic_detections
+>>> from pencilcal.toolkit.camera.model import Camera
+>>> board = board_from_dict({"type": "chessboard", "squares": [9, 6], "square": 25.0})
+>>> cam = Camera("opencv", 640, 480, [[530.0, 0, 320.0], [0, 530.0, 240.0], [0, 0, 1]], [-0.2, 0.05, 0, 0, 0])
+>>> dets = synthetic_detections(cam, board, views=16, noise_px=0.2, seed=5)
+>>> res = calibrate(dets, board, (640, 480), warp=True, corner_noise=True)
+>>> cv = calibration_halves(res, dets, board, repeats=2)
+>>> cv["odd_even"]["views"], cv["odd_even"]["dof"], cv["random"]["repeats"]
+([8, 8], 9, 2)
+>>> m = uncertainty_map(res, dets, board)
+>>> bool(0 < m["median_covered_px"] < 0.5), m["grid"]
+(True, [48, 36])
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pencilcal.toolkit.board.bundle import camera_parts, covariance, refine, warp_basis
+from pencilcal.toolkit.board.corner_noise import WHITE
+from pencilcal.toolkit.board.coverage import covered_grid
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.camera.projection_uncertainty import projection_difference, projection_sensitivity, \
+    projection_uncertainty
+from pencilcal.toolkit.errors import EstimationError
+from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
+
+__all__ = ["RANDOM_HALVES", "used_views", "calibration_halves", "uncertainty_map", "halves_agreement"]
+
+#: Random halves solved besides the odd and even views.
+RANDOM_HALVES = 16
+# a half needs at least this many views
+_MIN_HALF_VIEWS = 3
+
+
+def used_views(result, detections, board):
+    """The views and corners a `CalibrationResult` fitted, in its solution's order: (view
+    indices, board points (K_i, 3), corners (K_i, 2) [px], warp bases (K_i, 2))."""
+    obj_all = board.object_points()
+    idx = [i for i, u in enumerate(result.used) if u]
+    objs, imgs = [], []
+    for i in idx:
+        d, m = detections[i], np.asarray(result.corner_used[i], bool)
+        objs.append(obj_all[np.asarray(d.ids, int)][m])
+        imgs.append(np.asarray(d.corners, float).reshape(-1, 2)[m])
+    return idx, objs, imgs, [warp_basis(obj_all, o) for o in objs]
+
+
+def _camera(layout, theta, size):
+    K, dist = camera_parts(theta, layout)
+    return Camera(layout.model, size[0], size[1], K, dist)
+
+
+def _noise_of(result):
+    if result.covariance is None or result.covariance.model == "white":
+        return None
+    return result.corner_noise if result.corner_noise is not None else WHITE
+
+
+def _solve_half(result, views, subset):
+    _, objs, imgs, bases = views
+    sol = result.solution
+    o, p, b = [objs[j] for j in subset], [imgs[j] for j in subset], [bases[j] for j in subset]
+    half = refine(result.layout, sol.theta, sol.poses[subset], o, p, b if result.layout.warp else None, warp=sol.warp)
+    cov = covariance(result.layout, half, o, p, b if result.layout.warp else None, _noise_of(result))
+    return half, cov
+
+
+def _region_summary(diff, pred2):
+    """RMS and max of the differences (N, 2), the RMS their predicted 2 x 2 covariances
+    (N, 2, 2) give, and the ratio."""
+    ok = np.all(np.isfinite(diff), -1) & np.all(np.isfinite(pred2), (-1, -2))
+    d2 = np.sum(diff[ok] ** 2, -1)
+    p2 = np.maximum(np.trace(pred2[ok], axis1=-2, axis2=-1), 0.0)
+    rms, pred = math.sqrt(float(np.mean(d2))), math.sqrt(float(np.mean(p2)))
+    return {"rms_px": rms, "max_px": float(np.sqrt(d2.max())), "predicted_rms_px": pred,
+            "ratio": rms / pred if pred > 0 else None}
+
+
+def _pred(camera_a, cov_a, camera_b, cov_b, pixels, region):
+    """(N, 2, 2) the covariance of the difference of two independent calibrations'
+    projections at `pixels`, each linearised at its own intrinsics."""
+    Aa = projection_sensitivity(camera_a, pixels, region)
+    Ab = projection_sensitivity(camera_b, pixels, region)
+    return Aa @ cov_a @ np.swapaxes(Aa, -1, -2) + Ab @ cov_b @ np.swapaxes(Ab, -1, -2)
+
+
+def halves_agreement(camera_a, cov_a, camera_b, cov_b, grid):
+    """Do two calibrations of one camera agree within their covariances (P, P)? grid : the
+    `CoveredGrid` of the views. Returns the chi-square record and the projection
+    differences over the covered region (up to rotation, and in the camera frame), plus
+    the maps of both over the whole grid."""
+    names = camera_a.dist.size + 4
+    d = np.r_[camera_a.fx - camera_b.fx, camera_a.fy - camera_b.fy, camera_a.cx - camera_b.cx,
+              camera_a.cy - camera_b.cy, camera_a.dist - camera_b.dist]
+    C = cov_a + cov_b
+    free = np.diag(C) > 0
+    w, V = np.linalg.eigh(C[np.ix_(free, free)])
+    keep = w > 1e-12 * w.max()
+    df = V.T @ d[free]
+    chi2, dof = float(np.sum(df[keep] ** 2 / w[keep])), int(keep.sum())
+    z = [float(d[i] / math.sqrt(C[i, i])) if C[i, i] > 0 else None for i in range(names)]
+    region = grid.pixels()
+    rec = {"chi2": chi2, "dof": dof, "p_value": float(chi2_sf(chi2, dof)) if dof else None,
+           "chi2_per_dof": chi2 / dof if dof else None, "z_values": z}
+    # each calibration's error linearised at its own estimate: the difference's covariance
+    # is the sum of the two projection covariances (not C_a + C_b through one Jacobian,
+    # which a lens model with nearly degenerate coefficients turns into nonsense)
+    covered = _region_summary(projection_difference(camera_a, camera_b, region, region),
+                              _pred(camera_a, cov_a, camera_b, cov_b, region, region))
+    frame = _region_summary(projection_difference(camera_a, camera_b, region),
+                            _pred(camera_a, cov_a, camera_b, cov_b, region, None))
+    rec.update(projection_rms_px=covered["rms_px"], projection_max_px=covered["max_px"],
+               projection_predicted_rms_px=covered["predicted_rms_px"], projection_ratio=covered["ratio"],
+               camera_frame=frame)
+    centres = grid.centres().reshape(-1, 2)
+    full = projection_difference(camera_a, camera_b, centres, region)
+    pred = np.sqrt(np.maximum(np.trace(_pred(camera_a, cov_a, camera_b, cov_b, centres, region), axis1=-2,
+                                       axis2=-1), 0.0))
+    rec["_maps"] = (np.linalg.norm(full, axis=-1).reshape(grid.shape), pred.reshape(grid.shape))
+    return rec
+
+
+def _split(result, views, grid, first, size):
+    idx = views[0]
+    second = [j for j in range(len(idx)) if j not in set(first)]
+    if min(len(first), len(second)) < _MIN_HALF_VIEWS:
+        raise EstimationError(f"two halves need at least {2 * _MIN_HALF_VIEWS} views, got {len(idx)}")
+    (sa, ca), (sb, cb) = _solve_half(result, views, list(first)), _solve_half(result, views, second)
+    if not (np.all(np.isfinite(ca.intrinsics)) and np.all(np.isfinite(cb.intrinsics))):
+        raise EstimationError("a half's intrinsics are not determined (no covariance)")
+    rec = halves_agreement(_camera(result.layout, sa.theta, size), ca.intrinsics,
+                           _camera(result.layout, sb.theta, size), cb.intrinsics, grid)
+    rec["z"] = dict(zip(result.layout.names, rec.pop("z_values")))
+    rec["views"] = [len(first), len(second)]
+    return rec
+
+
+def _map_list(a):
+    return [[None if not np.isfinite(v) else round(float(v), 4) for v in row] for row in a]
+
+
+def calibration_halves(result, detections, board, repeats=RANDOM_HALVES, seed=0):
+    """The two-halves check of a `CalibrationResult` (the module's docstring).
+
+    detections, board : what `calibrate` was given. repeats : random halves besides the odd
+    and even views.
+
+    Returns ``{"odd_even": rec, "random": summary, "pooled": summary, "map": {...}}``: ``rec`` as
+    `halves_agreement` (``z``: each intrinsic's difference in its combined sigma; ``views``);
+    the random halves' mean chi-square per dof, the ratio of their pooled projection RMS to
+    the predicted one, and the fraction inside the 68.3 % region with its binomial band;
+    ``pooled`` the same two figures over every split, odd-even included (one split's
+    figures scatter: a difference along one direction gives a ratio distributed as |z|);
+    the map holds the odd-even difference and its predicted RMS per grid cell [px] and the
+    covered cells. EstimationError when a half cannot be solved (fewer than 6 views).
+    """
+    from pencilcal.validation.checks import REGION, binomial_band
+
+    views = used_views(result, detections, board)
+    size = result.camera.size
+    grid = covered_grid(views[2], size)
+    n = len(views[0])
+    odd_even = _split(result, views, grid, list(range(0, n, 2)), size)
+    maps = odd_even.pop("_maps")
+    out = {"method": "halves solved apart with the calibration's corners, lens model, board warp and corner-noise "
+                     "model; projection differences over the covered region, up to the rotation that aligns them",
+           "odd_even": odd_even}
+    recs = []
+    if repeats:
+        rng = np.random.default_rng(seed)
+        for _ in range(int(repeats)):
+            r = _split(result, views, grid, sorted(rng.choice(n, n // 2, replace=False).tolist()), size)
+            r.pop("_maps")
+            recs.append(r)
+        inside = float(np.mean([r["chi2"] < chi2_isf(1.0 - REGION, r["dof"]) for r in recs]))
+        lo, hi = binomial_band(len(recs))
+        out["random"] = {
+            "repeats": len(recs), "chi2_per_dof_mean": float(np.mean([r["chi2_per_dof"] for r in recs])),
+            "projection_ratio": math.sqrt(sum(r["projection_rms_px"] ** 2 for r in recs)
+                                          / sum(r["projection_predicted_rms_px"] ** 2 for r in recs)),
+            "inside": inside, "expected": REGION, "band": [lo, hi], "consistent": bool(lo <= inside <= hi),
+            "chi2_per_dof": [r["chi2_per_dof"] for r in recs]}
+    every = [odd_even] + recs
+    out["pooled"] = {"splits": len(every),
+                     "chi2_per_dof": float(np.mean([r["chi2_per_dof"] for r in every])),
+                     "projection_ratio": math.sqrt(sum(r["projection_rms_px"] ** 2 for r in every)
+                                                   / sum(r["projection_predicted_rms_px"] ** 2 for r in every)),
+                     "projection_rms_px": math.sqrt(float(np.mean([r["projection_rms_px"] ** 2 for r in every]))),
+                     "projection_predicted_rms_px": math.sqrt(float(np.mean([r["projection_predicted_rms_px"] ** 2
+                                                                             for r in every])))}
+    out["map"] = {"step_px": grid.step_px, "grid": [grid.shape[1], grid.shape[0]],
+                  "difference_px": _map_list(maps[0]), "predicted_px": _map_list(maps[1]),
+                  "covered": grid.mask.astype(int).tolist()}
+    return out
+
+
+def uncertainty_map(result, detections, board):
+    """The projection uncertainty of a `CalibrationResult` on a grid over the image.
+
+    Returns ``{"step_px", "grid": [nx, ny], "sigma_px": ny x nx (the worst direction's
+    standard deviation, up to the rotation fitted over the covered region), "covered": ny
+    x nx 0/1, "covered_fraction", "median_covered_px", "max_covered_px", "median_image_px",
+    "max_image_px"}``.
+    """
+    views = used_views(result, detections, board)
+    grid = covered_grid(views[2], result.camera.size)
+    if result.cov_intrinsics is None:
+        raise EstimationError("the calibration has no covariance (its intrinsics are not determined)")
+    centres = grid.centres().reshape(-1, 2)
+    sigma, _ = projection_uncertainty(result.camera, result.cov_intrinsics.cov, centres, grid.pixels())
+    sigma = sigma.reshape(grid.shape)
+    inside = sigma[grid.mask & np.isfinite(sigma)]
+    allv = sigma[np.isfinite(sigma)]
+    return {"step_px": grid.step_px, "grid": [grid.shape[1], grid.shape[0]], "sigma_px": _map_list(sigma),
+            "covered": grid.mask.astype(int).tolist(), "covered_fraction": grid.fraction,
+            "median_covered_px": float(np.median(inside)) if inside.size else None,
+            "max_covered_px": float(inside.max()) if inside.size else None,
+            "median_image_px": float(np.median(allv)) if allv.size else None,
+            "max_image_px": float(allv.max()) if allv.size else None}
