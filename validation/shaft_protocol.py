@@ -4,8 +4,9 @@ chosen on the others.
 A detector tuned on the frames it is scored on says nothing about the next hospital's video.
 The protocol here keeps the two apart. For each source in turn:
 
-1. the detector's setting (`SETTINGS`: the least evidence a detection must have, as a
-   fraction of the image diagonal along which its band is seen) is chosen on the *other*
+1. the detector's setting (`SETTINGS`: the least evidence a detection must have, the length
+   along which its band is seen, as a fraction of the view's diagonal, `view_diagonal`) is
+   chosen on the *other*
    sources: the one that finds the most instruments there with at most `MAX_FALSE_PER_FRAME`
    false detections per frame (ties: fewer false);
 2. the left-out source is scored with that setting (`shaft_score`).
@@ -16,6 +17,13 @@ annotated sources validates the detector on their frames. Detections are compute
 frame at the detector's defaults and the setting filters them, so the protocol costs one
 detection per frame.
 
+The evidence is measured against the *view*, the valid region's bounding box, not the image:
+a letterboxed da Vinci frame (1920x1080, the scene in its middle 1280x1024) shows its
+instruments as large as a frame cropped to the scene, and its black bars hold none. Against
+the image diagonal its shafts scored 0.06-0.09 and the setting chosen on the other sources
+(0.1) dropped them all; against the view's diagonal (1611 of 2203 px) the same shafts score
+0.08-0.12.
+
 Example
 -------
 >>> import numpy as np
@@ -25,21 +33,42 @@ Example
 >>> good = {"midline": [0.0, 50.0, 140.0, 49.5], "score": 130.0}
 >>> weak = {"midline": [0.0, 5.0, 60.0, 30.0], "score": 20.0}
 >>> frames = {"a": [(ref, [good, weak])], "b": [(ref, [good])], "c": [(ref, [good, weak])]}
->>> rows = leave_one_source_out(frames, diagonal={"a": 224.0, "b": 224.0, "c": 224.0})
+>>> rows = leave_one_source_out(frames, diagonal={k: view_diagonal(m.shape) for k in "abc"})
 >>> [(r["source"], r["setting"], r["found"], r["false"]) for r in rows]
 [('a', 0.1, 1, 0), ('b', 0.1, 1, 0), ('c', 0.1, 1, 0)]
 """
 from __future__ import annotations
 
+import numpy as np
+
 from pencilcal.validation.shaft_score import Tolerance, score_frame, summarize
 
-__all__ = ["SETTINGS", "MAX_FALSE_PER_FRAME", "filtered", "choose_setting", "leave_one_source_out", "table_markdown"]
+__all__ = ["SETTINGS", "MAX_FALSE_PER_FRAME", "view_diagonal", "filtered", "choose_setting", "leave_one_source_out", "table_markdown"]
 
 #: The settings tried: the least evidence (`Shaft.score`: the length along which the band is
-#: seen as a shaft) as a fraction of the image diagonal.
+#: seen as a shaft) as a fraction of the view's diagonal (`view_diagonal`).
 SETTINGS = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3)
 #: The most false detections per frame a chosen setting may give on the other sources.
 MAX_FALSE_PER_FRAME = 0.25
+
+
+def view_diagonal(shape, valid=None):
+    """The diagonal [px] of the view: the bounding box of the valid pixels (valid: (H, W)
+    bool, e.g. `region.ValidRegion.mask(shape)`), the whole image (shape (H, W)) without one
+    or where none is valid.
+
+    >>> import numpy as np
+    >>> v = np.zeros((1080, 1920), bool); v[28:1052, 320:1600] = True      # letterboxed
+    >>> round(view_diagonal(v.shape), 1), round(view_diagonal(v.shape, v), 1)
+    (2202.9, 1639.2)
+    """
+    H, W = int(shape[0]), int(shape[1])
+    if valid is not None:
+        v = np.asarray(valid, bool)
+        rows, cols = np.flatnonzero(v.any(1)), np.flatnonzero(v.any(0))
+        if rows.size:
+            H, W = rows[-1] - rows[0] + 1, cols[-1] - cols[0] + 1
+    return float(np.hypot(H, W))
 
 
 def filtered(detections, setting, diagonal):
@@ -73,7 +102,7 @@ def leave_one_source_out(frames, diagonal, settings=SETTINGS, tol=Tolerance(), m
     frames : dict
         {source: [(references (list of MaskAxis), detections (list of dict)) per frame]}.
     diagonal : dict
-        {source: its images' diagonal [px]}.
+        {source: its view's diagonal [px] (`view_diagonal`)}.
 
     Returns
     -------
