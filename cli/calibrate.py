@@ -188,8 +188,8 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
 
     \b
     Examples:
-      pencilcal calibrate calib/*.png --board board.yaml -o camera.yaml --report calib.html
-      pencilcal calibrate calib.mp4 --board board.yaml -o camera.json --model auto --report c.json
+      pencilcal calibrate calib/*.png --board b.yaml -o cam.yaml --report c.html
+      pencilcal calibrate v.mp4 --board b.yaml -o c.json --model auto
 
     IMAGES: files, folders or globs in the order given, or a video. Prints the verdict:
     usable, usable within a region, or not usable and why. In detail: docs/calibration.md.
