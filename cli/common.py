@@ -180,16 +180,18 @@ def detector_option(help):
 
 
 def gamma_option(fn):
-    """--gamma: the frames' encoding gamma, where shafts are detected (one option, one
-    default, for every command that detects them: `detect.shafts.detect_shafts`)."""
+    """--gamma: the frames' encoding gamma, where shafts or a radial target's edges are detected
+    (one option, one default, for every command that detects them: `detect.shafts.detect_shafts`,
+    `detect.radial.detect_radial_edges`)."""
     from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 
     return click.option(
         "--gamma", type=FiniteFloat(min=0.1, max=5), default=DEFAULT_GAMMA, show_default=True,
-        help="Encoding gamma of the frames: the shafts' silhouette edges are located on intensities linearised "
-             "with it (blur acts on linear light; on encoded levels a blurred edge's gradient peak leans towards "
-             "its dark side, the band comes out narrow and the 3-D axis too far). 2.2: 8-bit video and JPEG "
-             "(and `pencilcal simulate`'s default); 1: linear frames (`simulate --gamma 1`).")(fn)
+        help="Encoding gamma of the frames: the shafts' silhouette edges (--shaft) and a radial target's edges "
+             "(--radial) are located on intensities linearised with it (blur acts on linear light; on encoded "
+             "levels a blurred edge's gradient peak leans towards its dark side: the shaft's band comes out narrow "
+             "and its 3-D axis too far, a star's edges miss its vertex). 2.2: 8-bit video and JPEG (and "
+             "`pencilcal simulate`'s default); 1: linear frames (`simulate --gamma 1`).")(fn)
 
 
 def endpoint_sigma_option(help):

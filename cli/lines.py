@@ -29,12 +29,12 @@ def with_axis(camera, shaft, diameter):
 def _lines_task(frame, ctx):
     """One frame's lines.json record, and the frame drawn with them when the overlay is
     asked for (module level: runs in worker processes too)."""
-    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma = ctx
+    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, radial = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
     rec = lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
-                       valid_region=region, gamma=gamma)
+                       valid_region=region, gamma=gamma, radial=radial)
     if diameter is not None:
         rec["shafts"] = [with_axis(camera, s, diameter) for s in rec.get("shafts") or []]
     if not drawing:
@@ -56,6 +56,10 @@ def _lines_task(frame, ctx):
                    "straight edge is a segment (a bar gives two).")
 @click.option("--bar-width", nargs=2, type=FiniteFloat(), default=None, metavar="MIN MAX",
               help="With --bars: accepted bar widths [px, undistorted]; default 2.5 px to 1/8 of the image.")
+@click.option("--radial", type=click.IntRange(min=0), default=None, metavar="EDGES",
+              help="Find the edges of a radial target (a Siemens star, a dartboard) all round its vertex, "
+                   "EDGES of them (a star of N wedges has 2N; 0: whatever the frame shows), and the edge points "
+                   "of the circles about it (circle_points).")
 @click.option("--shaft", is_flag=True,
               help="Also find instrument shafts (pairs of long converging edges) and write them "
                    "as 'shafts': midline (image of the axis), width_px, angle_sigma_deg, edge_cov.")
@@ -75,8 +79,8 @@ def _lines_task(frame, ctx):
 @force_option
 @quiet_option
 @run
-def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, shaft, shaft_diameter, gamma,
-          min_length,
+def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, radial, shaft, shaft_diameter,
+          gamma, min_length,
           mask_path, jsonl_path, overlay_path, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel precision, with angle uncertainty.
 
@@ -93,6 +97,13 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     endoscope's circular field stop, letterbox bars), which lines.json records once, as
     `valid_region`.
 
+    With --radial the segments are the edges of a radial target through its vertex: a Siemens
+    star's wedges, a dartboard's sector boundaries (`pencilcal orient` labels them by the
+    pencil file's shape), each located on the profiles linearised with --gamma, from where it
+    lies clear of its neighbours out to where it ends; `circle_points` holds the edge points
+    across rays between them, among them the images of circles about the vertex (a star's
+    outline, a dartboard's rings), which `orient` fits.
+
     With --shaft --shaft-diameter D each shaft also gets its 3-D axis from the two silhouette
     edges (the band's width fixes the depth): axis_point (the axis point closest to the
     camera centre), axis_direction (unit, away from the camera), axis_distance, and their
@@ -106,6 +117,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     Example:
       pencilcal lines frames/ --camera camera.yaml --bars -o lines.json
       pencilcal lines left/*.png --camera camera.yaml -o lines.json
+      pencilcal lines star.png --camera camera.yaml --radial 128 -o lines.json
       pencilcal lines frames/ --camera camera.yaml --shaft --shaft-diameter 8 -o lines.json
       pencilcal orient --lines lines.json --camera camera.yaml --pencil pencil.yaml -o orientation.json
     """
@@ -117,8 +129,10 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         raise click.BadParameter("only with --bars", param_hint="--bar-width")
     if shaft_diameter is not None and not shaft:
         raise click.BadParameter("only with --shaft", param_hint="--shaft-diameter")
-    if gamma != DEFAULT_GAMMA and not shaft:
-        raise click.BadParameter("only with --shaft", param_hint="--gamma")
+    if gamma != DEFAULT_GAMMA and not shaft and radial is None:
+        raise click.BadParameter("only with --shaft or --radial", param_hint="--gamma")
+    if radial is not None and bars:
+        raise click.UsageError("--radial and --bars find different spokes: give one of them")
     if shaft_diameter is not None and not shaft_diameter > 0:
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     check_output(output, force)
@@ -128,17 +142,18 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     records = []
     with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
-        ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma)
+        ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma, radial)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
             records.append(rec)
             live.emit(rec, drawn)
-    meta = {"detector": detector, "mode": "bars" if bars else "edges", "camera": str(camera_path),
+    meta = {"detector": detector, "mode": "bars" if bars else ("radial" if radial is not None else "edges"),
+            "camera": str(camera_path),
             **stream_meta(source)}
     if shaft_diameter is not None:
         meta["shaft_diameter"] = shaft_diameter
-    if shaft:
+    if shaft or radial is not None:
         meta["gamma"] = gamma
     write_lines(output, records, force=force, meta=meta, valid_region=None if region is None else region.to_dict())
     if not quiet:

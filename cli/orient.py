@@ -33,7 +33,7 @@ def _orient_record(camera, pencil, fr, opts):
     kw = dict(model=opts["model"], endpoint_sigma_px=opts["endpoint_sigma"],
               angle_sigma=None if sig is None else np.radians(sig), prior=opts["priors"].get(fr["image"]),
               image=fr["image"], offset_sigma=fr.get("offset_sigma_px"), max_segments=cap,
-              bar_width_px=fr.get("width_px"))
+              bar_width_px=fr.get("width_px"), circle_points=fr.get("circle_points"))
     state = opts.get("tracking")
     if state is None:
         return orient_segments(camera, fr["segments"], pencil, **kw)
@@ -69,7 +69,7 @@ def _orient_image_task(frame, ctx):
     frame drawn with them when the overlay is asked for (None otherwise); module level, so it
     runs in worker processes too."""
     from pencilcal.toolkit.io.images import check_image_size
-    from pencilcal.toolkit.detect.lines import fan_line_options, lines_record
+    from pencilcal.toolkit.detect.lines import fan_line_options, lines_record, radial_edge_count
 
     camera, pencil, detector, opts, edges, region, drawing = ctx
     if frame.image is None:
@@ -78,12 +78,13 @@ def _orient_image_task(frame, ctx):
     else:
         check_image_size(frame, camera)
         bars, polarity = fan_line_options(pencil.width, edges)
+        radial = None if edges else radial_edge_count(pencil)
         state = opts.get("tracking")
-        tracker = state["bars"] if state is not None and bars else None
+        tracker = state["bars"] if state is not None and bars and radial is None else None
 
         def detected():
             fr = lines_record(frame.name, frame.image, camera, detector, bars=bars, valid_region=region,
-                              bar_polarity=polarity, bar_tracker=tracker)
+                              bar_polarity=polarity, bar_tracker=tracker, radial=radial)
             return fr, _orient_record(camera, pencil, fr, opts)
 
         fr, rec = detected() if tracker is None else _tracked_bars_frame(detected, tracker, state)
@@ -212,13 +213,18 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     From IMAGES (image files, folders or glob patterns in the order given, or one video)
     or --source (a camera, a URL, a video file being written) the lines are detected first: the midlines of the printed spokes, at whatever width
     they are seen (dark bars when the pencil file gives their width; else dark or light,
-    whichever the frame shows), or with --edges plain edge segments (as `pencilcal lines`),
+    whichever the frame shows); for wedges and sector boundaries (the pencil file's shape:
+    a Siemens star, a dartboard) their edges all round the vertex, as `pencilcal lines
+    --radial` finds them, with the edge points of the circles about it; or with --edges
+    plain edge segments (as `pencilcal lines`),
     never on the boundary of the frames' valid region (--mask, or detected once from up to
     16 frames); or they come from a lines file (--lines). Segments are undistorted,
     the vertex found, the segments labelled with spokes (missing spokes and spurious
     segments are tolerated) and the plane's orientation fitted with its uncertainty. Both
-    twin solutions are written; the twin is chosen where the spoke radii (pencil file), a
-    prior pose or continuity tell them apart. Midlines of bars (with their width, as found
+    twin solutions are written; the twin is chosen where the spoke radii (pencil file), the
+    images of circles about the vertex (their pole-polar relation gives the plane a second
+    time, written beside the lines' with whether the two agree), a prior pose or continuity
+    tell them apart. Midlines of bars (with their width, as found
     from images or in a lines file) are then moved onto the images of the bars' printed
     centre lines under the fitted plane, which under perspective they miss by w^2 / (4 V)
     (w the width, V the distance to the horizon), and the frame is fitted again.

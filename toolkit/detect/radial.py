@@ -58,19 +58,20 @@ __all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_PX", "OFFSET_FLOOR_PX"]
 #: Two neighbouring edges are measured only where they lie at least this far apart [px]: the
 #: profile across an edge spans the search window and the derivative kernel (about 5 px to
 #: either side); closer, the neighbour's blurred edge enters it and pulls the peak.
-CLEAR_PX = 9.0
+CLEAR_PX = 4.5
 _ARC_SAMPLE_PX = 0.5  # sampling along the circles of the angular profile, at its outer radius
 _RADIUS_STEP_PX = 2.0  # spacing of those circles, and at most _BAND_CIRCLES of them in a band
 _BAND_CIRCLES = 12
 _VERTEX_FLOOR_DEG, _VERTEX_FLOOR_PX = 0.05, 0.5  # the rough vertex: a floor under the segments' noise
 _PEAK_REL = 0.15  # an angular-profile peak: at least this fraction of the typical edge's
 _BAND_RATIO = 1.3  # the angular profiles' bands of radii: from r to 1.3 r
-_SEARCH_PX = (2.0, 1.0)  # edge search half-width in the first and second rounds
+_SEARCH_PX = (4.0, 2.0, 1.0)  # edge search half-width [px], round by round (the vertex sharpens)
 _KERNEL_PX = 1.0  # sd of the derivative kernel across an edge
 #: The least sd [px] of an edge's position across it: what the stations' scatter cannot show,
 #: an edge located on levels linearised with a gamma not quite the camera's tone curve
 #: (rendered with 2.2 and located so, edges still sit 0.03 px into their dark side), JPEG's
-#: blocks, a neighbour's blur.
+#: blocks, a neighbour's blur; more where the edges' own distances from their vertex say so
+#: (`_common_offset`).
 OFFSET_FLOOR_PX = 0.05
 
 
@@ -79,8 +80,9 @@ class RadialEdges(Segments):
     """The edges through a radial target's vertex (`detect_radial_edges`): a `Segments`
     whose rows run outwards... or inwards, oriented by polarity as every edge segment.
 
-    Extra attributes: ``vertex`` (2,) [working px] the point they were found about (the
-    orientation intersects them again, with their own sigmas); ``circle_points`` (K, 2)
+    Extra attributes: ``vertex`` (2,) [working px] the
+    point they were found about (the orientation intersects them again, with their own
+    sigmas); ``circle_points`` (K, 2)
     [raw px]: edge points across rays between the spokes that run on from ray to ray, the
     candidates for the images of circles centred on the vertex.
     """
@@ -140,13 +142,33 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         except EstimationError:
             return RadialEdges.empty()
     out = Segments.from_fit(fit, camera, min_length)
-    out = replace(out, offset_sigma=np.hypot(out.offset_sigma, OFFSET_FLOOR_PX))
     keep = in_valid_region(img, out.segments)
     _, through = lines_through(v, out.ideal, np.maximum(out.angle_sigma, np.radians(_VERTEX_FLOOR_DEG)),
                                np.maximum(out.offset_sigma, _VERTEX_FLOOR_PX))
     out = out.select(keep & through)
+    out = replace(out, offset_sigma=np.hypot(out.offset_sigma, max(OFFSET_FLOOR_PX, _common_offset(out, v))))
     pts = circle_points(img, camera, v, out.ideal, reach, gamma) if circles else np.zeros((0, 2))
     return RadialEdges(**{f: getattr(out, f) for f in out.__dataclass_fields__}, vertex=v, circle_points=pts)
+
+
+def _common_offset(segs, v):
+    """The sd [px] of the edges' distances from the vertex v (2,) they share beyond what
+    their own sigmas allow (robust: from the medians of the squared distances and of their
+    predicted variances, the median of chi-square(1) being 0.455): what the stations' scatter
+    cannot show and every edge has, a gamma not quite the camera's, a raised wire beside a
+    dartboard's boundary (seen obliquely, its side shows on one side of the line). 0 where
+    the edges meet as their sigmas say."""
+    if len(segs) < 4:
+        return 0.0
+    p1, p2 = segs.ideal[:, :2], segs.ideal[:, 2:]
+    d = p2 - p1
+    L = np.hypot(d[:, 0], d[:, 1])
+    u = d / np.maximum(L, 1e-12)[:, None]
+    c = 0.5 * (p1 + p2)
+    dist = u[:, 0] * (v[1] - c[:, 1]) - u[:, 1] * (v[0] - c[:, 0])
+    lever = np.sum((v - c) * u, -1)
+    var = segs.offset_sigma**2 + (lever * segs.angle_sigma) ** 2
+    return float(np.sqrt(max(0.0, np.median(dist**2) / 0.455 - np.median(var))))
 
 
 def _rough_vertex(segs):
@@ -213,7 +235,9 @@ def _edge_directions(img, camera, v, reach, edges):
     H, W = img.shape
     # no farther than the image's farthest corner from the vertex
     r_max = min(1.5 * reach, float(np.max(np.hypot(np.r_[0, W - 1] - v[0], np.r_[0, H - 1, 0, H - 1][:, None] - v[1]))))
-    r_min = min(max(10.0, CLEAR_PX * (edges or 0) / (2 * np.pi), 0.15 * reach), 0.5 * r_max)
+    # from where the edges lie half CLEAR_PX apart on average: a tilted target's far side is
+    # nearer the vertex, where they come apart at a smaller radius
+    r_min = min(max(10.0, 0.5 * CLEAR_PX * (edges or 0) / (2 * np.pi), 0.15 * reach), 0.5 * r_max)
     bands = r_min * _BAND_RATIO ** np.arange(int(np.ceil(np.log(r_max / r_min) / np.log(_BAND_RATIO))))
     profiles = []
     for r_a in bands:
@@ -320,17 +344,23 @@ def _strongest_apart(ang, strength, sep):
     return np.sort(order[keep])
 
 
+def _clear_radius(phi):
+    """The radius [px] (E,) from which each of the directions phi (E,) [rad] lies CLEAR_PX
+    from its neighbours."""
+    order = np.argsort(phi)
+    gaps = np.diff(np.r_[phi[order], phi[order][0] + 2 * np.pi])
+    clear = np.empty_like(phi)
+    clear[order] = np.minimum(gaps, np.roll(gaps, 1))
+    return CLEAR_PX / np.maximum(np.sin(np.minimum(clear, np.pi / 2)), 1e-6)
+
+
 def _refit_edges(img, camera, v, phi, sign, seen, search, gamma):
     """The edges along directions phi (E,) [rad] from v, refitted (`EdgeFit`, E rows) from
     where each is CLEAR_PX from its neighbours (and not much inside the radii seen (E, 2)
     [px] where its angular profile showed it) out to a quarter beyond those radii, oriented
     by their sign."""
-    order = np.argsort(phi)
-    gaps = np.diff(np.r_[phi[order], phi[order][0] + 2 * np.pi])
-    clear = np.empty_like(phi)
-    clear[order] = np.minimum(gaps, np.roll(gaps, 1))
     r_hi = 1.25 * seen[:, 1]
-    r_lo = np.maximum(CLEAR_PX / np.maximum(np.sin(np.minimum(clear, np.pi / 2)), 1e-6), 0.5 * seen[:, 0])
+    r_lo = np.maximum(_clear_radius(phi), 0.5 * seen[:, 0])
     r_lo = np.minimum(r_lo, 0.8 * r_hi)
     u = np.stack([np.cos(phi), np.sin(phi)], -1)
     inner, outer = v + r_lo[:, None] * u, v + r_hi[:, None] * u

@@ -5,8 +5,8 @@ an ellipse that surrounds the vertex's image: along every ray from the vertex it
 once, at a radius that changes smoothly with the ray's direction. `circle_points` samples
 the grey levels along rays between the spokes' edges (where no spoke runs along the ray),
 finds the edges across each ray (peaks of the Gaussian-derivative response above the ray's
-noise, either sign: a dartboard's ring is lighter than a black sector and darker than a
-cream one) and keeps those that continue on the neighbouring rays at about the same radius
+noise and a fraction of the ray's strongest, either sign: a dartboard's ring is lighter than
+a black sector and darker than a cream one) and keeps those that continue on the neighbouring rays at about the same radius
 (isolated peaks are texture). Which of them lie on one circle is decided with the plane's
 orientation (`pencil.circle`): nested rings a few pixels apart, whose edges change sign at
 every sector, are told apart there by their radius on the plane.
@@ -28,6 +28,7 @@ _RAY_STEP_DEG = 1.0  # rays at most this far apart
 _SAMPLE_PX = 0.5  # along a ray
 _KERNEL_PX = 1.0  # sd of the derivative kernel along a ray
 _PEAK_NOISE = 6.0  # an edge along a ray: at least this many sds of the ray's derivative noise
+_PEAK_REL = 0.15  # and this fraction of its strongest edge (JPEG's ringing beside a strong edge is no edge)
 _LINK_PX = 1.5  # a point continues on a neighbouring ray within this, plus 1 % of its radius per degree
 _MIN_RUN = 3  # points linked from ray to ray at least
 
@@ -62,7 +63,7 @@ def circle_points(img, camera, v, edge_lines, reach, gamma=1.0):
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a ray wholly outside: NaN, no edges
         noise = 1.4826 * np.nanmedian(np.where(valid, a, np.nan), 1, keepdims=True)
-    peak &= a >= _PEAK_NOISE * np.nan_to_num(noise, nan=np.inf)
+    peak &= a >= np.maximum(_PEAK_NOISE * np.nan_to_num(noise, nan=np.inf), _PEAK_REL * a.max(1, keepdims=True))
     ray, j = np.nonzero(peak)
     # sub-sample radius by a parabola through the peak
     am, a0, ap = a[ray, j - 1], a[ray, j], a[ray, j + 1]

@@ -280,14 +280,15 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
         rivals += fewer
         rivals += _shifted_rivals(fitter, labels, fit, rivals, period)
     return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=scored,
-                      chance_lines=_chance_lines(fitter, fit, period))
+                      chance_lines=_chance_lines(fitter, fit, period, fitter.scatter(fit, labels)))
 
 
-def _chance_lines(fitter, fit, period):
+def _chance_lines(fitter, fit, period, scale=1.0):
     """Lines (besides the three a hypothesis fits exactly) expected by chance within the
-    tolerance of a predicted spoke of `fit`: a random direction falls within tol_k of one
-    of N' distinct spoke directions with probability min(1, 2 tol_k N' / period)."""
-    _, _, tol = fitter.match(fit)
+    tolerance of a predicted spoke of `fit` (its variance factor `scale`): a random
+    direction falls within tol_k of one of N' distinct spoke directions with probability
+    min(1, 2 tol_k N' / period)."""
+    _, _, tol = fitter.match(fit, scale)
     if fitter.kinds is None:
         dirs = np.unique(np.round(np.remainder(fitter.th, period), 9)).size
     else:  # a line can only match the spokes of its kind
@@ -504,12 +505,13 @@ class _LabelFitter:
         return fit_pencil(self.a[lines], self.th[spokes], self.vertex, sigma=self.s[lines],
                           vertex_cov=self.vertex_cov, oriented=self.oriented)
 
-    def match(self, fit):
+    def match(self, fit, scale=1.0):
         """Each line's nearest predicted spoke k (M,) (of its kind), its residual (M,)
         [rad] and the tolerance (M,) [rad] within which it is that spoke's, for a PencilFit:
-        `tolerance_sigmas` sds of the residual, at least 0.01 deg and at most `cap`; where
-        those sds exceed `cap` (a spoke far from the lines fitted so far) the tolerance is 0:
-        the prediction cannot tell that spoke from its neighbours yet."""
+        `tolerance_sigmas` sds of the residual (times sqrt(scale), the fit's own variance
+        factor, `scatter`), at least 0.01 deg and at most `cap`; where those sds exceed
+        `cap` (a spoke far from the lines fitted so far) the tolerance is 0: the prediction
+        cannot tell that spoke from its neighbours yet."""
         wrap = wrap_angle if self.oriented else wrap_line
         pred, J, Jx = pencil_jacobian(fit.R_cam_from_target, self.vertex, self.th)
         # a line is compared with a prediction that is uncertain itself (rotation and
@@ -521,9 +523,20 @@ class _LabelFitter:
         if self.kinds is not None:
             res = np.where(self.kinds[0][:, None] == self.kinds[1][None, :], res, np.pi)
         k = np.argmin(np.abs(res), -1)
-        spread = self.tolerance_sigmas * np.sqrt(self.s**2 + var_pred[k])
+        spread = self.tolerance_sigmas * np.sqrt(scale * (self.s**2 + var_pred[k]))
         tol_k = np.where(spread <= self.cap, np.clip(spread, np.radians(0.01), self.cap), 0.0)
         return k, res[np.arange(self.a.size), k], tol_k
+
+    def scatter(self, fit, labels):
+        """The fit's own variance factor: the robust scatter of the labelled lines' residuals
+        over their sigmas, squared (1.4826 times their median absolute value), at least 1;
+        1 with fewer than 8 lines (three fit exactly, a few more say little). Real lines
+        miss a model the camera does not quite hold by more than their own scatter says."""
+        used = labels >= 0
+        if used.sum() < 8:
+            return 1.0
+        z = np.asarray(fit.residuals, float) / self.s[used]
+        return float(max(1.0, (1.4826 * np.median(np.abs(z))) ** 2))
 
     def refine(self, labels):
         """Fit on the labelled lines, re-label all lines by the fit's prediction, repeat
@@ -539,7 +552,7 @@ class _LabelFitter:
             if np.unique(labels[used]).size < 3:
                 return labels, fit
             fit = self.fit(used, labels[used])
-            k, r, tol_k = self.match(fit)
+            k, r, tol_k = self.match(fit, self.scatter(fit, labels))
             new = _one_per_spoke(np.where(np.abs(r) < tol_k, k, -1), s)
             if np.array_equal(new, labels) or np.unique(new[new >= 0]).size < 3:
                 break

@@ -47,14 +47,16 @@ from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.geometry.conic import conic_matrix, fit_ellipse, sampson_distances
 
 __all__ = ["CircleEstimate", "circle_estimate", "conic_normal", "plane_radii", "normal_agreement", "circle_choice",
-           "circle_record", "line_normal_cov", "DECISIVE_CHI2"]
+           "circle_record", "line_normal_cov", "circular_points", "DECISIVE_CHI2"]
 
 #: Points of one circle lie within this of each other in log radius on the plane (under the
 #: right rotation): 1 px of scatter at 100 px is 1 %; rings of a dartboard differ by 5 %.
 GROUP_LOG_RADIUS = 0.01
 MIN_POINTS = 12  # a circle needs at least this many points
 MAX_RMS_PX = 1.5  # and its ellipse must fit them this well [px]
-MAX_GAP_DEG = 60.0  # and they lie all round the vertex: no gap between their directions wider
+#: And they lie round the vertex: no gap between their directions wider [deg] (an arc of 240 deg
+#: fixes an ellipse; a circle near the image's border is cut by it).
+MAX_GAP_DEG = 120.0
 _RADIUS_MATCH = 0.01  # a group matches a listed radius within 1 %
 
 
@@ -67,7 +69,8 @@ class CircleEstimate:
     many circles; chi2, dof: their normals' consistency with one another; grouped_by: 0 or
     1, the twin whose radii grouped the points; radii: (C,) each circle's radius on the
     plane in units of the vertex depth; points: (C,) points each ellipse used; rms_px: (C,)
-    their scatter about it [px]; depth: the vertex depth from the listed radii, or None.
+    their scatter about it [px]; depth: the vertex depth from the listed radii, or None;
+    conics: (C, 3, 3) the circles' images (normalised coordinates, unit norm).
     """
 
     normal: np.ndarray
@@ -81,6 +84,7 @@ class CircleEstimate:
     points: np.ndarray
     rms_px: np.ndarray
     depth: float | None = None
+    conics: np.ndarray | None = None
 
 
 def conic_normal(C, x):
@@ -114,19 +118,27 @@ def plane_radii(points, x, R):
 
 
 def _groups(rho, ang):
-    """Index arrays of the points whose radii (K,) cluster within `GROUP_LOG_RADIUS` in log
-    radius (runs of the sorted values with no larger step), with `MIN_POINTS` or more lying
-    all round (directions ang (K,) [rad] with no gap over `MAX_GAP_DEG`)."""
+    """Index arrays of the points whose radii (K,) gather at one radius: the peaks of their
+    density in log radius (a kernel of `GROUP_LOG_RADIUS` / 4), each with the points within
+    `GROUP_LOG_RADIUS` of it not taken by a denser one, where they number `MIN_POINTS` or
+    more and lie all round (directions ang (K,) [rad] with no gap over `MAX_GAP_DEG`)."""
     ok = np.flatnonzero(np.isfinite(rho) & (rho > 0))
     if ok.size < MIN_POINTS:
         return []
-    order = ok[np.argsort(np.log(rho[ok]))]
-    lr = np.log(rho[order])
-    cut = np.flatnonzero(np.diff(lr) > GROUP_LOG_RADIUS) + 1
+    lr = np.log(rho[ok])
+    h = GROUP_LOG_RADIUS / 4.0
+    grid = np.arange(lr.min() - 3 * h, lr.max() + 3 * h, h / 2)
+    dens = np.histogram(lr, np.r_[grid, grid[-1] + h / 2])[0].astype(float)
+    taps = np.exp(-0.5 * (np.arange(-6, 7) / 2.0) ** 2)
+    dens = np.convolve(dens, taps, "same")
+    peaks = np.flatnonzero((dens >= np.roll(dens, 1)) & (dens > np.roll(dens, -1)) & (dens >= 0.5 * MIN_POINTS))
+    taken = np.zeros(ok.size, bool)
     out = []
-    for g in np.split(order, cut):
-        if g.size >= MIN_POINTS and _around(ang[g]):
-            out.append(g)
+    for pk in peaks[np.argsort(-dens[peaks], kind="stable")]:
+        g = ~taken & (np.abs(lr - grid[pk]) <= GROUP_LOG_RADIUS)
+        if g.sum() >= MIN_POINTS and _around(ang[ok[g]]):
+            out.append(ok[g])
+            taken |= g
     return out
 
 
@@ -178,7 +190,9 @@ def _combine(normals, covs):
 def _matched_radii(radii, listed):
     """Which of the groups' radii (C,) (in units of the vertex depth) are listed radii
     (L,) seen from one depth: (mask (C,), depth or None). The depth is the one that puts
-    the most groups within `_RADIUS_MATCH` of a listed radius (ties: the smaller spread)."""
+    the most groups within `_RADIUS_MATCH` of a listed radius (ties: the smaller spread);
+    it is given only where it is unique: two groups or more in the listed ratios, or one
+    group found (one listed radius fits any single group, and with two groups either)."""
     if listed is None or radii.size == 0:
         return np.ones(radii.size, bool), None
     best = (0, np.inf, None, None)
@@ -191,6 +205,8 @@ def _matched_radii(radii, listed):
     if best[2] is None:
         return np.zeros(radii.size, bool), None
     mask, z = best[2], best[3]
+    if best[0] < 2 and radii.size > 1:
+        return np.ones(radii.size, bool), None  # no ratio to go by: every group, no depth
     # the depth from every matched group, not just the one that proposed it
     ratio = np.array([np.asarray(listed, float)[np.argmin(np.abs(np.asarray(listed) / z / r - 1))] / r
                       for r in radii[mask]])
@@ -241,7 +257,7 @@ def circle_estimate(points, x, x_cov, R, R_twin, *, scale, radii=None):
     sigma = float(np.degrees(np.sqrt(max(np.trace(cov), 0.0))))
     return CircleEstimate(n, 0.5 * (cov + cov.T), sigma, len(fits), chi2, dof, which,
                           np.array([f[2] for f in fits]), np.array([f[1].size for f in fits]),
-                          np.array([f[0].rms * scale for f in fits]), depth)
+                          np.array([f[0].rms * scale for f in fits]), depth, np.array([f[0].conic for f in fits]))
 
 
 def _combined_jacobian(fits, x, covs, h=1e-7):
@@ -311,3 +327,30 @@ def circle_record(fit, est):
     return dict(circle_normal=est.normal, circle_normal_sigma_deg=est.sigma_deg, circle_tilt_deg=tilt,
                 circles_used=int(est.circles), circle_angle_deg=ang, circle_chi2=chi2,
                 circle_consistent=bool(chi2 <= CHI2_2_DETECTION))
+
+
+def circular_points(C, x):
+    """The images (2,) complex of the plane's circular points: where the horizon (the polar
+    of x (2,), the image of the circle's centre) meets the circle's image C (3, 3); a pair
+    of complex conjugates, the first returned. In normalised coordinates of the right
+    camera they lie on the image of the absolute conic, I_x^2 + I_y^2 + 1 = 0: with an
+    assumed focal length f0, a circle's image gives the true one as f0 sqrt(-(I_x^2 + I_y^2)).
+
+    >>> from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
+    >>> R = rotation_from_rotvec([0.6, 0.1, 0.0]); x = np.array([0.02, 0.05])
+    >>> a = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    >>> X = R @ np.stack([0.3 * np.cos(a), 0.3 * np.sin(a), 0 * a]) + np.r_[x, 1.0][:, None]
+    >>> from pencilcal.toolkit.geometry.conic import fit_ellipse
+    >>> I = circular_points(fit_ellipse((X[:2] / X[2]).T).conic, x)
+    >>> bool(abs(I[0] ** 2 + I[1] ** 2 + 1) < 1e-9)        # on the absolute conic's image
+    True
+    """
+    C = np.asarray(C, float)
+    ell = C @ np.r_[np.asarray(x, float), 1.0]
+    # a point on the horizon and its direction
+    d = np.array([-ell[1], ell[0], 0.0])
+    p0 = -ell[2] * ell / max(ell[0] ** 2 + ell[1] ** 2, 1e-300)
+    p0[2] = 1.0
+    a, b, c = d @ C @ d, p0 @ C @ d, p0 @ C @ p0
+    t = (-b + np.sqrt(complex(b * b - a * c))) / a
+    return p0[:2] + t * d[:2]

@@ -505,10 +505,11 @@ def _find_vertex(ideal, st, sc, radius):
     if vf.rival_vertex is not None and vf.gain - vf.rival_gain < VERTEX_RIVAL_CHI2:
         # clutter: random segments meet everywhere, and this vertex is one of many
         far = float(np.hypot(*(vf.rival_vertex - vf.vertex)))
+        (x, y), (xr, yr) = vf.vertex, vf.rival_vertex
         raise EstimationError(
-            f"clutter: the vertex is ambiguous: other lines meet {far:.0f} px away about as well "
-            f"(evidence {vf.rival_gain:.1f} against {vf.gain:.1f}, less than {VERTEX_RIVAL_CHI2:.1f} apart) "
-            f"among {len(ideal)} segments")
+            f"clutter: the vertex is ambiguous: {vf.lines_used} of {len(ideal)} segments meet at ({x:.0f}, {y:.0f}) "
+            f"and {vf.rival_lines} others at ({xr:.0f}, {yr:.0f}) [undistorted px], {far:.0f} px away, about as well "
+            f"(evidence {vf.gain:.1f} against {vf.rival_gain:.1f}, less than {VERTEX_RIVAL_CHI2:.1f} apart)")
     return vf.vertex, vf.cov, vf.inliers
 
 
