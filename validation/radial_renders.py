@@ -71,7 +71,7 @@ def radial_conditions(n, seed=0, kinds=KINDS):
                         noise=float(rng.uniform(1.0, 3.0)), jpeg=int(rng.integers(70, 96)),
                         k1=float(rng.uniform(-0.3, 0.0)), vertex_px=rng.uniform([540, 400], [740, 560]).tolist(),
                         axis_deg=float(rng.uniform(0, 360)), roll_deg=float(rng.uniform(0, 360)),
-                        fill=float(rng.uniform(0.7, 0.9)), seed=int(rng.integers(1 << 30))))
+                        fill=float(rng.uniform(0.75, 0.9)), seed=int(rng.integers(1 << 30))))
     return out
 
 

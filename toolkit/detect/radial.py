@@ -63,6 +63,8 @@ _ARC_SAMPLE_PX = 0.5  # sampling along the circles of the angular profile, at it
 _RADIUS_STEP_PX = 2.0  # spacing of those circles, and at most _BAND_CIRCLES of them in a band
 _BAND_CIRCLES = 12
 _VERTEX_FLOOR_DEG, _VERTEX_FLOOR_PX = 0.05, 0.5  # the rough vertex: a floor under the segments' noise
+_DIRECTION_BIN_DEG = 6.0  # the rough vertex counts the directions crossing it in bins this wide
+_ROUGH_LINES = 96  # the longest segments it looks at
 _PEAK_REL = 0.15  # an angular-profile peak: at least this fraction of the typical edge's
 _BAND_RATIO = 1.3  # the angular profiles' bands of radii: from r to 1.3 r
 _SEARCH_PX = (4.0, 2.0, 1.0)  # edge search half-width [px], round by round (the vertex sharpens)
@@ -172,13 +174,52 @@ def _common_offset(segs, v):
 
 
 def _rough_vertex(segs):
-    """(vertex (2,) [working px], reach [px]): the point most of the edge segments pass
-    through, and how far from it they reach (their far ends' 90th percentile)."""
+    """(vertex (2,) [working px], reach [px]): the point crossed by edge segments of the most
+    directions (`_DIRECTION_BIN_DEG` bins; ties: the most length), refined as their robust
+    intersection, and how far from it they reach (their far ends' 90th percentile).
+
+    A radial target's vertex is crossed by edges from every direction; a chessboard's
+    corner beside it by whole rows of collinear square edges, from two.
+    """
     if len(segs) < 3:
         raise EstimationError("fewer than three edge segments")
-    vf = intersect_lines(segs.ideal, angle_sigma=np.maximum(segs.angle_sigma, np.radians(_VERTEX_FLOOR_DEG)),
-                         offset_sigma=np.maximum(segs.offset_sigma, _VERTEX_FLOOR_PX), robust=True)
-    return vf.vertex, _reach(segs.ideal[vf.inliers], vf.vertex)
+    L = segs.length
+    top = np.argsort(-L, kind="stable")[:_ROUGH_LINES]
+    lines = segs.ideal[top]
+    p, d = lines[:, :2], lines[:, 2:] - lines[:, :2]
+    u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
+    n = np.stack([-u[:, 1], u[:, 0]], -1)
+    c = -np.sum(n * p, -1)
+    i, j = np.triu_indices(len(lines), 1)
+    cross = u[i, 0] * u[j, 1] - u[i, 1] * u[j, 0]
+    ok = np.abs(cross) > np.sin(np.radians(_DIRECTION_BIN_DEG))
+    i, j, cross = i[ok], j[ok], cross[ok]
+    if i.size == 0:
+        raise EstimationError("the edge segments are parallel")
+    cand = np.stack([(n[i, 1] * c[j] - n[j, 1] * c[i]), (n[j, 0] * c[i] - n[i, 0] * c[j])], -1) / cross[:, None]
+    mid = 0.5 * (lines[:, :2] + lines[:, 2:])
+    bins = np.floor(np.degrees(np.arctan2(u[:, 1], u[:, 0])) % 180.0 / _DIRECTION_BIN_DEG).astype(int)
+    onehot = np.zeros((len(lines), int(180 / _DIRECTION_BIN_DEG) + 1), np.int32)
+    onehot[np.arange(len(lines)), bins] = 1
+    best, score = None, (-1, -1.0)
+    for k in range(0, cand.shape[0], 4096):  # blocks of candidates x lines
+        q = cand[k:k + 4096]
+        dist = np.abs(q @ n.T + c)
+        reach = np.linalg.norm(q[:, None, :] - mid[None], axis=-1)
+        through = dist <= 2.0 + 0.005 * reach
+        ndir = ((through.astype(np.int32) @ onehot) > 0).sum(-1)
+        total = through @ L[top]
+        b = int(np.lexsort((total, ndir))[-1])
+        if (int(ndir[b]), float(total[b])) > score:
+            best, score = q[b], (int(ndir[b]), float(total[b]))
+    # the lines through it, intersected with their noise (and floors)
+    ang = np.maximum(segs.angle_sigma, np.radians(_VERTEX_FLOOR_DEG))
+    off = np.maximum(segs.offset_sigma, _VERTEX_FLOOR_PX)
+    _, through = lines_through(best, segs.ideal, ang, np.maximum(off, 1.0))
+    if through.sum() < 3:
+        raise EstimationError("fewer than three edge segments meet")
+    vf = intersect_lines(segs.ideal[through], angle_sigma=ang[through], offset_sigma=off[through], robust=True)
+    return vf.vertex, _reach(segs.ideal[through][vf.inliers], vf.vertex)
 
 
 def _reach(lines, v):

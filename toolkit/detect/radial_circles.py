@@ -93,7 +93,8 @@ def _ray_directions(v, lines):
 
 def _runs(psi, ray, rad):
     """For each edge point (ray index (Q,), radius (Q,)), the number of points of its run:
-    points on neighbouring rays (up to 4 rays and 8 deg on, psi (P,) in increasing order,
+    points on neighbouring rays (up to 4 rays and 12 deg on: a star's outline shows on every
+    other ray, its wedges'; psi (P,) in increasing order,
     the last next to the first) within `_LINK_PX` plus 1 % of the radius per degree (an
     ellipse of axes 2:1 about its centre changes its radius by at most 0.6 % per degree),
     mutually nearest, are one run."""
@@ -115,7 +116,7 @@ def _runs(psi, ray, rad):
         for step in range(1, 5):
             nxt = by_ray[(k + step) % P]
             dpsi = np.degrees(np.remainder(psi[(k + step) % P] - psi[k], 2 * np.pi))
-            if nxt.size == 0 or dpsi > 8.0:
+            if nxt.size == 0 or dpsi > 12.0:
                 continue
             d = np.abs(rad[here][:, None] - rad[nxt][None, :])
             tol = _LINK_PX + 0.01 * rad[here][:, None] * dpsi

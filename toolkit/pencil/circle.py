@@ -70,7 +70,9 @@ class CircleEstimate:
     1, the twin whose radii grouped the points; radii: (C,) each circle's radius on the
     plane in units of the vertex depth; points: (C,) points each ellipse used; rms_px: (C,)
     their scatter about it [px]; depth: the vertex depth from the listed radii, or None;
-    conics: (C, 3, 3) the circles' images (normalised coordinates, unit norm).
+    conics: (C, 3, 3) the circles' images (normalised coordinates, unit norm);
+    cov_conics: (3, 3) the normal's covariance from the conics alone (the vertex held);
+    jac_vertex: (3, 2) how the normal moves with the vertex's image (normalised).
     """
 
     normal: np.ndarray
@@ -85,6 +87,8 @@ class CircleEstimate:
     rms_px: np.ndarray
     depth: float | None = None
     conics: np.ndarray | None = None
+    cov_conics: np.ndarray | None = None
+    jac_vertex: np.ndarray | None = None
 
 
 def conic_normal(C, x):
@@ -250,14 +254,15 @@ def circle_estimate(points, x, x_cov, R, R_twin, *, scale, radii=None):
         n, Jq, Jx = conic_normal(fit.conic, x)
         normals.append(n), covs.append(Jq @ fit.cov @ Jq.T), jxs.append(Jx)
     normals, covs = np.array(normals), np.array(covs)
-    n, cov, chi2, dof = _combine(normals, covs)
+    n, cov_c, chi2, dof = _combine(normals, covs)
     # the vertex moves every circle's normal together: its term on the combination
     Jx = _combined_jacobian(fits, x, covs)
-    cov = cov + Jx @ np.asarray(x_cov, float) @ Jx.T
+    cov = cov_c + Jx @ np.asarray(x_cov, float) @ Jx.T
     sigma = float(np.degrees(np.sqrt(max(np.trace(cov), 0.0))))
     return CircleEstimate(n, 0.5 * (cov + cov.T), sigma, len(fits), chi2, dof, which,
                           np.array([f[2] for f in fits]), np.array([f[1].size for f in fits]),
-                          np.array([f[0].rms * scale for f in fits]), depth, np.array([f[0].conic for f in fits]))
+                          np.array([f[0].rms * scale for f in fits]), depth, np.array([f[0].conic for f in fits]),
+                          0.5 * (cov_c + cov_c.T), Jx)
 
 
 def _combined_jacobian(fits, x, covs, h=1e-7):
@@ -314,15 +319,26 @@ def circle_choice(fit, est):
     return bool(which), bool(decisive), chi, chit
 
 
-def circle_record(fit, est):
+def circle_record(fit, est, lines_own=None, vertex_cov=None):
     """The orientation record's circle keys for the chosen rotation of `fit` (a PencilFit)
     and the circles' estimate `est`: circle_normal, circle_normal_sigma_deg, circle_tilt_deg,
     circles_used, circle_angle_deg, circle_chi2 and circle_consistent (the chi2 of the two
-    normals' difference, 2 dof, within its 99 % quantile)."""
+    normals' difference, 2 dof, within its 99 % quantile).
+
+    The two normals share the vertex, which moves both: with lines_own = (the lines'
+    normal's covariance with the vertex held (3, 3), how their normal moves with the vertex
+    (3, 2)) and the vertex's covariance vertex_cov (2, 2) (normalised), the difference's
+    covariance is their own parts plus the vertex's term on the difference; without, the
+    two covariances are added as if independent."""
     from pencilcal.toolkit.pencil.defaults import CHI2_2_DETECTION
 
-    c, _ = line_normal_cov(fit)
-    ang, chi2 = normal_agreement(fit.normal, c, est.normal, est.cov)
+    if lines_own is None or vertex_cov is None:
+        c, _ = line_normal_cov(fit)
+        ang, chi2 = normal_agreement(fit.normal, c, est.normal, est.cov)
+    else:
+        dJ = est.jac_vertex - lines_own[1]
+        ang, chi2 = normal_agreement(fit.normal, lines_own[0], est.normal,
+                                     est.cov_conics + dJ @ np.asarray(vertex_cov, float) @ dJ.T)
     tilt = float(np.degrees(np.arccos(np.clip(est.normal @ np.asarray(fit.ray, float), -1.0, 1.0))))
     return dict(circle_normal=est.normal, circle_normal_sigma_deg=est.sigma_deg, circle_tilt_deg=tilt,
                 circles_used=int(est.circles), circle_angle_deg=ang, circle_chi2=chi2,

@@ -27,6 +27,7 @@ angle part.
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
@@ -237,6 +238,7 @@ def _orient_once(camera, segments, pencil, *, model, endpoint_sigma_px, angle_si
         fit, resolved_by, metric = _resolve_twins(fit, ln, used, th_used, s_used, prior, radius, sigma_metric)
         fit, resolved_by, circ = _resolve_by_circles(camera, fit, ln, th_used, s_used, resolved_by, circle_points,
                                                      pencil)
+        own = None if circ is None else _lines_own(fit, ln, a_used, th_used, s_used)
         labels_out[idx] = np.where(used, edge_spoke[np.maximum(lab, 0)], -1)
         s_mean = float(np.sqrt(np.mean(s_used**2)))
         rec = orientation_record(camera, fit, ln.vertex, v_ideal, cov_ideal, model=model, image=image,
@@ -257,7 +259,7 @@ def _orient_once(camera, segments, pencil, *, model, endpoint_sigma_px, angle_si
         if metric is not None and resolved_by is not None:
             extra.update(_metric_position(fit, metric, resolved_by, ln.vertex, pencil))
         if circ is not None:
-            extra.update(circle_record(fit, circ))
+            extra.update(circle_record(fit, circ, own, ln.vertex_cov))
             if circ.depth is not None and resolved_by is not None and "vertex_cam" not in extra:
                 extra.update(_vertex_position(fit, circ.depth, ln.vertex, pencil))
         return rec.replace(**extra)
@@ -464,6 +466,27 @@ def _resolve_by_circles(camera, fit, ln, th_used, s_used, resolved_by, circle_po
     return fit, resolved_by, est
 
 
+def _lines_own(fit, ln, a_used, th_used, s_used, h=1e-6):
+    """The lines' normal's covariance with the vertex held (3, 3), and how their fitted
+    normal moves with the vertex's image (3, 2) (central differences, refitted from the
+    solution; normalised coordinates): what `circle.circle_record` compares the circles'
+    normal with, the vertex being both's."""
+    from pencilcal.toolkit.pencil.circle import line_normal_cov
+
+    n0 = np.asarray(fit.normal, float)
+    own = line_normal_cov(replace(fit, cov=pencil_covariance(fit.R_cam_from_target, ln.vertex, th_used, s_used)[0]))[0]
+    oriented = not np.any(ln.straddle)
+    cols = []
+    for e in np.eye(2):
+        ns = []
+        for sgn in (1.0, -1.0):
+            f = fit_pencil(a_used, th_used, ln.vertex + sgn * h * e, sigma=s_used, oriented=oriented)
+            pair = np.stack([np.asarray(f.normal, float), np.asarray(f.normal_twin, float)])
+            ns.append(pair[int(np.argmax(pair @ n0))])
+        cols.append((ns[0] - ns[1]) / (2 * h))
+    return own, np.stack(cols, -1)
+
+
 def _vertex_position(fit, depth, x, pencil):
     """vertex_cam at `depth` along the vertex's ray x (2,), and t_cam_from_target when the
     pencil file gives the vertex."""
@@ -654,15 +677,11 @@ def orientation_record(camera, fit, vertex, vertex_ideal, cov_ideal, *, model="e
 
 
 def _replace_rotation(fit, R, Rt):
-    from dataclasses import replace
-
     return replace(fit, R_cam_from_target=R, R_twin=Rt, normal=R[:, 2], normal_twin=Rt[:, 2])
 
 
 def _chapter_fit(model, a, th, x, s, cov_x, exact_fit):
     """Fit with the chapter's general or aligned model, reported like the exact estimator."""
-    from dataclasses import replace
-
     from pencilcal.toolkit.pencil.chapter import fit_aligned, fit_general
 
     if model == "general":

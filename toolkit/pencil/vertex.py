@@ -434,11 +434,18 @@ def _local_optimisation(hyp, cost, refine, start_inliers, no_vertex, spread):
     return best[0], best[1], best[2], rival
 
 
+#: Two refined vertices closer than this [px] are one, whatever their lines' sigmas: the two
+#: sides of a dartboard's wires meet a fraction of a pixel apart, each group precisely; a
+#: rival in clutter lies far away.
+COINCIDE_PX = 2.0
+
+
 def _coincide(a, b, spread):
     """Whether two refined vertices (p, mask, ...) are one: closer than the spread either
-    one's lines allow (`intersect_lines`: three sds of the lines' distances from it)."""
+    one's lines allow (`intersect_lines`: three sds of the lines' distances from it) or
+    than `COINCIDE_PX`."""
     d = float(np.hypot(*(np.asarray(a[0]) - np.asarray(b[0]))))
-    return d <= max(spread(a[0], a[1]), spread(b[0], b[1]))
+    return d <= max(spread(a[0], a[1]), spread(b[0], b[1]), COINCIDE_PX)
 
 
 def intersect_lines(

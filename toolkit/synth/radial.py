@@ -35,6 +35,7 @@ import numpy as np
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
 from pencilcal.toolkit.pencil.spec import Pencil
+from pencilcal.toolkit.synth.polygons import annular_sector
 from pencilcal.toolkit.synth.raster import target_coverage
 from pencilcal.toolkit.synth.render import REFLECTANCE, sensor_image
 
@@ -49,28 +50,10 @@ DARTBOARD = {
     "black": 0.035, "cream": 0.70, "red": 0.12, "green": 0.17, "wire": 0.45, "number": 0.60,
 }
 
-_ARC_STEP = np.radians(0.5)  # arcs are polylines with vertices at most this far apart
-
-
-def _arc(r, a0, a1):
-    """(K, 2) points [mm] on the circle of radius r about the origin from angle a0 to a1 [rad]."""
-    n = max(2, int(np.ceil(abs(a1 - a0) / _ARC_STEP)) + 1)
-    a = np.linspace(a0, a1, n)
-    return r * np.stack([np.cos(a), np.sin(a)], -1)
-
-
-def _annular_sector(r0, r1, a0, a1):
-    """Polygon (K, 2) [mm] between radii r0 < r1 and angles a0 < a1 (a wedge when r0 = 0)."""
-    outer = _arc(r1, a0, a1)
-    if r0 <= 0:
-        return np.concatenate([np.zeros((1, 2)), outer])
-    return np.concatenate([outer, _arc(r0, a1, a0)])
-
-
 def _ring(r0, r1):
     """An annulus as 36 annular sectors (each a simple polygon)."""
     edges = np.linspace(0.0, 2 * np.pi, 37)
-    return [_annular_sector(r0, r1, a, b) for a, b in zip(edges[:-1], edges[1:])]
+    return [annular_sector(r0, r1, a, b) for a, b in zip(edges[:-1], edges[1:])]
 
 
 def star_layers(pencil, *, ink=REFLECTANCE["ink"], paper=REFLECTANCE["paper"]):
@@ -82,7 +65,7 @@ def star_layers(pencil, *, ink=REFLECTANCE["ink"], paper=REFLECTANCE["paper"]):
     v = np.zeros(2) if pencil.vertex is None else np.asarray(pencil.vertex, float)
     r = float(pencil.radius[1])
     h = 0.5 * pencil.wedge
-    wedges = [v + _annular_sector(0.0, r, th - h, th + h) for th in pencil.angles]
+    wedges = [v + annular_sector(0.0, r, th - h, th + h) for th in pencil.angles]
     fg, bg = (ink, paper) if pencil.polarity != "light" else (paper, ink)
     return [([v + p for p in _ring(0.0, r * 1.15)], bg), (wedges, fg)]
 
@@ -113,9 +96,9 @@ def dartboard_layers(*, wires=False, numbers=False, darts=0, rng=None):
         a0 = np.radians(-99.0) + k * step  # sector k, the "20" (black) first
         dark = k % 2 == 0
         for r0, r1 in ((d["outer_bull"], d["treble"][0]), (d["treble"][1], d["double"][0])):
-            sectors["black" if dark else "cream"].append(_annular_sector(r0, r1, a0, a0 + step))
+            sectors["black" if dark else "cream"].append(annular_sector(r0, r1, a0, a0 + step))
         for r0, r1 in (d["treble"], d["double"]):
-            sectors["red" if dark else "green"].append(_annular_sector(r0, r1, a0, a0 + step))
+            sectors["red" if dark else "green"].append(annular_sector(r0, r1, a0, a0 + step))
     layers = [(_ring(0.0, d["board"]), black), (sectors["black"], black), (sectors["cream"], cream),
               (sectors["red"], red), (sectors["green"], green), (_ring(d["inner_bull"], d["outer_bull"]), green),
               (_ring(0.0, d["inner_bull"]), red)]

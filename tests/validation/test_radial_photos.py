@@ -1,0 +1,32 @@
+"""The shared dartboard photographs (../shared/data/real-radial-targets, no ground truth):
+the plane from the sector boundaries against the plane from the rings, the camera estimated
+from the board itself (`validation.radial_photos`). Nothing here was tuned on them."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from pencilcal.toolkit.synth.radial import dartboard_pencil
+from pencilcal.validation.radial_photos import check_photo
+from tests.conftest import data_dir
+
+# chi-square with 2 dof at the level of a 3-sigma Gaussian test (99.73 %)
+CHI2_3SIGMA = -2.0 * np.log(1.0 - 0.9973)
+
+
+@pytest.mark.parametrize("name,spokes", [("dartboard_side_left", 16), ("dartboard_side_right", 15)])
+def test_boundaries_and_rings_agree(name, spokes):
+    img = cv2.imread(str(data_dir("real-radial-targets") / f"{name}.jpg"))
+    r = check_photo(img, dartboard_pencil())
+    o = r["orientation"]
+    assert o.ok and o.resolved_by == "circle"
+    # a webcam's lens: about 800 px (53 deg across 800 px), every ring saying so within 5 %
+    assert 700 < r["focal_px"] < 900
+    per = r["focal_per_circle"][np.isfinite(r["focal_per_circle"])]
+    assert np.median(np.abs(per / r["focal_px"] - 1)) < 0.05
+    # the two planes within three sigmas of their difference (the shared vertex counted once)
+    assert r["circles_used"] >= 3 and r["circle_chi2"] <= CHI2_3SIGMA
+    assert 45 < o.tilt_deg < 65  # "strongly oblique, roughly 50-60 deg"
+    # the boundaries the orientation uses (of 20; the raised wires keep a few out: below)
+    assert r["spokes_used"] >= spokes
