@@ -88,21 +88,12 @@ def star_photo(tmp_path_factory):
     """The printed star of `target --star 32` beside its board, rendered as a webcam sees it
     (1280x960, k1 -0.12, 1 px blur, noise, uneven light, gamma 2.2, JPEG 90), with the
     camera and pencil files and the true rotation."""
-    from pencilcal.toolkit.synth.render import render_frame
-    from pencilcal.toolkit.synth.scenarios import default_camera, look_at
+    from tests.helpers import star_sheet_view
 
     d = tmp_path_factory.mktemp("star")
     r = _invoke(target, "-o", d / "star.pdf", "--star", 32, "-q")
     assert r.exit_code == 0, r.output
-    from pencilcal.toolkit.synth.sheet import layout_sheet
-
-    sheet = layout_sheet(star=32)
-    cam = default_camera("opencv", (1280, 960))
-    v3 = np.r_[sheet.pencil.vertex, 0.0]
-    tilt = np.radians(35.0)
-    R, t = look_at(v3 + 230 * np.array([0.6 * np.sin(tilt), -0.8 * np.sin(tilt), -np.cos(tilt)]),
-                   0.3 * sheet.content_center + 0.7 * v3)
-    img = render_frame(cam, R, t, sheet, blur_px=1.0, noise=2.0, gamma=2.2, lighting=0.3, rng=5)
+    img, cam, _, R, _ = star_sheet_view(32, 35.0, 230.0, rng=5)
     cv2.imwrite(str(d / "frame.jpg"), img, [cv2.IMWRITE_JPEG_QUALITY, 90])
     write_camera(d / "camera.json", cam)
     return d, R

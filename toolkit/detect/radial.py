@@ -53,12 +53,18 @@ from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
 
-__all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_PX", "OFFSET_FLOOR_PX"]
+__all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "OFFSET_FLOOR_PX"]
 
-#: Two neighbouring edges are measured only where they lie at least this far apart [px]: the
-#: profile across an edge spans the search window and the derivative kernel (about 5 px to
-#: either side); closer, the neighbour's blurred edge enters it and pulls the peak.
-CLEAR_PX = 4.5
+#: Two neighbouring edges are measured only where they lie at least this many sds of their
+#: blurred profile apart (`_edge_blur`: the sd of an edge's gradient across it as sampled,
+#: blur, pixel, resampling and JPEG together: 0.91, 1.16 and 1.51 px for Gaussian blurs of
+#: 0.6, 1 and 1.5 px): closer, the neighbour's blurred edge enters the profile and pulls the
+#: peak, a little more on one side than the other under perspective, and the edges turn.
+#: Chosen on renders (docs/method.md): 4.5 px at a 1 px blur kept the normal's error within
+#: its bound; 3.5 px doubled it; fixed at 4.5 px, frames blurred by 1.5 px had errors 1.5 times
+#: their sigmas.
+CLEAR_SIGMAS = 3.9
+CLEAR_PX = 3.0  # and never closer than this [px]
 _ARC_SAMPLE_PX = 0.5  # sampling along the circles of the angular profile, at its outer radius
 _RADIUS_STEP_PX = 2.0  # spacing of those circles, and at most _BAND_CIRCLES of them in a band
 _BAND_CIRCLES = 12
@@ -134,11 +140,13 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
     except EstimationError:
         return RadialEdges.empty()
     fit = None
+    clear = CLEAR_SIGMAS * 1.16  # a 1 px blur, until the edges say
     for search in _SEARCH_PX:
-        phi, sign, seen = _edge_directions(img, camera, v, reach, edges)
+        phi, sign, seen = _edge_directions(img, camera, v, reach, edges, clear)
         if phi.size < 3:
             return RadialEdges.empty()
-        fit = _refit_edges(img, camera, v, phi, sign, seen, search, gamma)
+        fit = _refit_edges(img, camera, v, phi, sign, seen, search, gamma, clear)
+        clear = max(CLEAR_PX, CLEAR_SIGMAS * _edge_blur(img, camera, fit, gamma, clear))
         try:
             v, reach = _vertex_of(fit, reach)
         except EstimationError:
@@ -262,7 +270,7 @@ def _angular_profile(img, camera, v, r_a, r_b, n_phi):
     return phi, prof
 
 
-def _edge_directions(img, camera, v, reach, edges):
+def _edge_directions(img, camera, v, reach, edges, clear):
     """Directions phi (E,) [rad] of the edges through v, their sign (E,) (+1: brighter
     towards larger angles) and the radii (E, 2) [px] between which they were seen, from
     angular profiles over bands of radii out to 1.5 reach.
@@ -276,9 +284,9 @@ def _edge_directions(img, camera, v, reach, edges):
     H, W = img.shape
     # no farther than the image's farthest corner from the vertex
     r_max = min(1.5 * reach, float(np.max(np.hypot(np.r_[0, W - 1] - v[0], np.r_[0, H - 1, 0, H - 1][:, None] - v[1]))))
-    # from where the edges lie half CLEAR_PX apart on average: a tilted target's far side is
+    # from where the edges lie half `clear` apart on average: a tilted target's far side is
     # nearer the vertex, where they come apart at a smaller radius
-    r_min = min(max(10.0, 0.5 * CLEAR_PX * (edges or 0) / (2 * np.pi), 0.15 * reach), 0.5 * r_max)
+    r_min = min(max(10.0, 0.5 * clear * (edges or 0) / (2 * np.pi), 0.15 * reach), 0.5 * r_max)
     bands = r_min * _BAND_RATIO ** np.arange(int(np.ceil(np.log(r_max / r_min) / np.log(_BAND_RATIO))))
     profiles = []
     for r_a in bands:
@@ -385,23 +393,54 @@ def _strongest_apart(ang, strength, sep):
     return np.sort(order[keep])
 
 
-def _clear_radius(phi):
-    """The radius [px] (E,) from which each of the directions phi (E,) [rad] lies CLEAR_PX
-    from its neighbours."""
+def _clear_radius(phi, clear):
+    """The radius [px] (E,) from which each of the directions phi (E,) [rad] lies `clear`
+    [px] from its neighbours."""
     order = np.argsort(phi)
     gaps = np.diff(np.r_[phi[order], phi[order][0] + 2 * np.pi])
-    clear = np.empty_like(phi)
-    clear[order] = np.minimum(gaps, np.roll(gaps, 1))
-    return CLEAR_PX / np.maximum(np.sin(np.minimum(clear, np.pi / 2)), 1e-6)
+    gap = np.empty_like(phi)
+    gap[order] = np.minimum(gaps, np.roll(gaps, 1))
+    return clear / np.maximum(np.sin(np.minimum(gap, np.pi / 2)), 1e-6)
 
 
-def _refit_edges(img, camera, v, phi, sign, seen, search, gamma):
+def _edge_blur(img, camera, fit, gamma, clear, lines=24):
+    """The sd [px] of the edges' gradient across them (blur and pixel together): the second
+    moment of the linearised profile's derivative within 4 px of its peak, the median over
+    the stations of the `lines` longest refitted edges, where their neighbours lie at least
+    twice `clear` away (their own profiles clean); `clear` / CLEAR_SIGMAS when there are
+    none to measure."""
+    from pencilcal.toolkit.detect.edges import derivative_kernel, edge_profiles, linearised
+
+    ok = np.flatnonzero(fit.ok)
+    if ok.size == 0:
+        return clear / CLEAR_SIGMAS
+    L = np.hypot(*(fit.p2[ok] - fit.p1[ok]).T)
+    top = ok[np.argsort(-L)[:lines]]
+    p1, p2 = fit.p1[top], fit.p2[top]
+    u = (p2 - p1) / np.maximum(np.hypot(*(p2 - p1).T), 1e-12)[:, None]
+    s = np.linspace(0.55, 0.95, 12)[None, :] * np.hypot(*(p2 - p1).T)[:, None]  # the outer part
+    prof = edge_profiles(img, camera, p1, u, s, 4.0, derivative_kernel(0.7), 0.7)
+    lin = linearised(prof.profiles, gamma).astype(float)
+    g = np.gradient(lin, axis=-1)  # per sample (0.5 px)
+    t = (np.arange(g.shape[-1]) - (g.shape[-1] - 1) / 2.0) * 0.5
+    g = np.where(np.abs(t - prof.t[..., None]) <= 4.0, np.maximum(g, 0.0), 0.0)  # brighter along n
+    m0 = g.sum(-1)
+    with np.errstate(all="ignore"):
+        mean = (g * t).sum(-1) / m0
+        var = (g * t * t).sum(-1) / m0 - mean**2
+    good = prof.inside & prof.found & (m0 > 0) & np.isfinite(var) & (var > 0)
+    if not good.any():
+        return clear / CLEAR_SIGMAS
+    return float(np.sqrt(np.median(var[good])))
+
+
+def _refit_edges(img, camera, v, phi, sign, seen, search, gamma, clear):
     """The edges along directions phi (E,) [rad] from v, refitted (`EdgeFit`, E rows) from
-    where each is CLEAR_PX from its neighbours (and not much inside the radii seen (E, 2)
-    [px] where its angular profile showed it) out to a quarter beyond those radii, oriented
-    by their sign."""
+    where each is `clear` [px] from its neighbours (and not much inside the radii seen
+    (E, 2) [px] where its angular profile showed it) out to a quarter beyond those radii,
+    oriented by their sign."""
     r_hi = 1.25 * seen[:, 1]
-    r_lo = np.maximum(_clear_radius(phi), 0.5 * seen[:, 0])
+    r_lo = np.maximum(_clear_radius(phi, clear), 0.5 * seen[:, 0])
     r_lo = np.minimum(r_lo, 0.8 * r_hi)
     u = np.stack([np.cos(phi), np.sin(phi)], -1)
     inner, outer = v + r_lo[:, None] * u, v + r_hi[:, None] * u

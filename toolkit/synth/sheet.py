@@ -297,12 +297,7 @@ def layout_sheet(board=None, *, paper="a4", orientation="landscape", margin=10.0
     board = default_board() if board is None else board
     if star is not None:
         return _star_sheet(board, paper, orientation, margin, gap, int(star), star_radius, side, vertex)
-    if paper not in PAPER_SIZES:
-        raise InputError(f"unknown paper {paper!r}; expected one of {sorted(PAPER_SIZES)}")
-    if orientation not in ("landscape", "portrait"):
-        raise InputError(f"orientation must be landscape or portrait, got {orientation!r}")
-    if side not in ("right", "below"):
-        raise InputError(f"side must be right or below, got {side!r}")
+    size = _paper(paper, orientation, side)
     r = np.asarray(radius, float)
     if r.shape != (2,) or not (0 <= r[0] < r[1]):
         raise InputError(f"radius must be [inner, outer] with 0 <= inner < outer, got {list(radius)}")
@@ -329,8 +324,6 @@ def layout_sheet(board=None, *, paper="a4", orientation="landscape", margin=10.0
             vertex = (bw / 2.0 - (fx0 + fx1) / 2.0, math.ceil(bh + gap - fy0 - 1e-9))
     vertex = np.round(np.asarray(vertex, float), 3) + 0.0
     pencil = Pencil(proto.angles, vertex, r, float(width))
-    long_side, short_side = PAPER_SIZES[paper]
-    size = (long_side, short_side) if orientation == "landscape" else (short_side, long_side)
     cx0 = min(0.0, vertex[0] + fx0)
     cy0 = min(0.0, vertex[1] + fy0)
     cx1 = max(bw, vertex[0] + fx1)

@@ -85,17 +85,10 @@ def test_a_star_beside_a_board():
     """The star of `pencilcal target --star` beside its ChArUco board: the vertex is the
     star's, where edges of every direction meet, not a corner of the board, whose rows of
     square edges pass through it from two."""
-    from pencilcal.toolkit.synth.render import render_frame
-    from pencilcal.toolkit.synth.scenarios import default_camera, look_at
-    from pencilcal.toolkit.synth.sheet import layout_sheet
+    from tests.helpers import star_sheet_view
 
-    sheet = layout_sheet(star=32)
-    cam = default_camera("opencv", (1280, 960))
-    v3 = np.r_[sheet.pencil.vertex, 0.0]
-    tilt = np.radians(30.0)
-    R, t = look_at(v3 + 260 * np.array([0.6 * np.sin(tilt), -0.8 * np.sin(tilt), -np.cos(tilt)]),
-                   0.3 * sheet.content_center + 0.7 * v3)
-    img = render_frame(cam, R, t, sheet, blur_px=1.0, noise=2.0, gamma=2.2, lighting=0.3, rng=0)
+    img, cam, sheet, R, t = star_sheet_view(32, 30.0, 260.0)
     found = detect_radial_edges(img, cam, edges=64)
     assert len(found) == 64
+    v3 = np.r_[sheet.pencil.vertex, 0.0]
     assert np.hypot(*(found.vertex - cam.undistort_pixels(cam.project(R @ v3 + t)))) < 0.1
