@@ -128,12 +128,18 @@ def _tracking_meta(state):
     return {"frames_tracked": state["tracked"], **({"bars_tracked": state["bars"].tracked} if "bars" in state else {})}
 
 
-def _warn_frame(rec):
+def _warn_frame(rec, pencil=None):
     if not rec.ok:
         warn(f"{rec.image}: {rec.error}")
     elif rec.normal_ambiguous:
         warn(f"{rec.image}: the normal is ambiguous: other labellings of its {rec.lines_used} lines fit "
              "about as well and put it elsewhere (normal_alternatives)")
+    elif (pencil is not None and pencil.shape == "line" and pencil.width is None and pencil.full_circle
+          and rec.spokes_used is not None and rec.spokes_used < 0.9 * pencil.count):
+        # a star's wedges or a dartboard's sectors measured as bars: their edges are the lines
+        warn(f"{rec.image}: {rec.spokes_used} of the {pencil.count} spokes all round the vertex used; if they are "
+             "a star's wedges or the boundaries between sectors, the pencil file says so (shape: wedge or edge, "
+             "docs/formats.md) and their edges are measured")
 
 
 def _prior_rotations(path):
@@ -276,7 +282,7 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         with FrameOutputs(jsonl_path, None, force) as live, progress(frames, "orient", quiet) as bar:
             for fr in bar:
                 rec = _orient_record(camera, pencil, fr, opts)
-                _warn_frame(rec)
+                _warn_frame(rec, pencil)
                 records.append(rec)
                 live.emit(rec.to_dict())
     else:
@@ -294,7 +300,7 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
             ctx = (camera, pencil, detector, opts, edges, region, live.drawing)
             for rec, drawn in run_frames(source, _orient_image_task, ctx, workers, "orient", quiet):
-                _warn_frame(rec)
+                _warn_frame(rec, pencil)
                 records.append(rec)
                 live.emit(rec.to_dict(), drawn, name=rec.image)
     if not any(r.ok for r in records):

@@ -126,3 +126,13 @@ def test_lines_radial_writes_the_edges_and_circle_points(star_photo):
     assert rec["spokes_used"] == 32 and rec["resolved_by"] == "circle"
     r = _invoke(lines, d / "frame.jpg", "--camera", d / "camera.json", "--radial", 64, "--bars", "-o", d / "x.json")
     assert r.exit_code != 0 and "--radial and --bars" in r.output
+
+
+def test_a_star_described_as_lines_is_told_so(star_photo):
+    """The star's pencil file without its shape (32 rays, as for a fan of bars): its wedges
+    are taken for bars, few fit, and the warning says what the file lacks."""
+    d, _ = star_photo
+    (d / "plain.yaml").write_text("start_deg: 0\nstep_deg: 11.25\ncount: 32\n")
+    r = _invoke(orient, d / "frame.jpg", "--camera", d / "camera.json", "--pencil", d / "plain.yaml", "-o",
+                d / "o3.json")
+    assert "shape: wedge or edge" in r.output or "no frame gave an orientation" in r.output
