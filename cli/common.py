@@ -275,13 +275,14 @@ def detector_option(help):
 
 
 def gamma_option(fn):
-    """--gamma: the frames' encoding gamma, where shafts are detected (one option, one
-    default, for every command that detects them: `detect.shafts.detect_shafts`)."""
+    """--gamma: the frames' encoding gamma, where shafts or a radial target's edges are detected
+    (one option, one default, for every command that detects them: `detect.shafts.detect_shafts`,
+    `detect.radial.detect_radial_edges`)."""
     from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 
     return click.option(
         "--gamma", type=FiniteFloat(min=0.1, max=5), default=DEFAULT_GAMMA, show_default=True,
-        help="Encoding gamma, for the shafts' edges (1: linear).")(fn)
+        help="Encoding gamma, for shaft and radial-target edges (1: linear).")(fn)
 
 
 def endpoint_sigma_option(help):

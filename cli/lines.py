@@ -33,12 +33,13 @@ def with_axis(camera, shaft, diameter):
 def _lines_task(frame, ctx):
     """One frame's lines.json record, and the frame drawn with them when the overlay is
     asked for (module level: runs in worker processes too)."""
-    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, masks = ctx
+    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, masks, radial = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
     rec = lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
-                       valid_region=region, gamma=gamma, instrument_mask=None if masks is None else masks.of(frame))
+                       valid_region=region, gamma=gamma, instrument_mask=None if masks is None else masks.of(frame),
+                       radial=radial)
     if diameter is not None:
         rec["shafts"] = [with_axis(camera, s, diameter) for s in rec.get("shafts") or []]
     if not drawing:
@@ -72,6 +73,8 @@ def _summary(records):
               help="Printed spokes: each dark bar as one segment, its midline.")
 @click.option("--bar-width", nargs=2, type=FiniteFloat(), default=None, metavar="MIN MAX",
               help="With --bars: bar widths accepted [px]; default 2.5 px to 1/8 image.")
+@click.option("--radial", type=click.IntRange(min=0), default=None, metavar="EDGES",
+              help="Edges of a radial target (star, dartboard) round its vertex; 0: any count.")
 @click.option("--shaft", is_flag=True,
               help="Also instrument shafts: their midlines, widths and sigmas.")
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
@@ -88,8 +91,8 @@ def _summary(records):
 @force_option
 @quiet_option
 @run
-def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, shaft, shaft_diameter, gamma,
-          min_length, instrument_mask, mask_labels, mask_instances,
+def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, radial, shaft, shaft_diameter,
+          gamma, min_length, instrument_mask, mask_labels, mask_instances,
           mask_path, jsonl_path, overlay_path, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel precision, with angle uncertainty.
 
@@ -121,6 +124,14 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     (undistorted pixels; default 2.5 px to 1/8 of the image). Without it every straight
     edge is a segment (a bar gives two).
 
+    With --radial EDGES the segments are the edges of a radial target through its vertex
+    (a Siemens star of N wedges has 2N; 0: whatever the frame shows): a star's wedges, a
+    dartboard's sector boundaries (`pencilcal orient` labels them by the pencil file's
+    shape), each located on the profiles linearised with --gamma, from where it lies clear
+    of its neighbours out to where it ends; `circle_points` holds the edge points across
+    rays between them, among them the images of circles about the vertex (a star's
+    outline, a dartboard's rings), which `orient` fits.
+
     --shaft also finds instrument shafts (pairs of long converging edges) and writes them
     as `shafts`: midline (image of the axis), width_px, angle_sigma_deg, edge_cov. With
     --shaft --instrument-mask MASKS the shafts are the masked instruments' axes refined on
@@ -138,6 +149,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     More examples:
 
         pencilcal lines left/*.png --camera camera.yaml -o lines.json
+        pencilcal lines star.png --camera camera.yaml --radial 128 -o lines.json
         pencilcal orient --lines lines.json --camera camera.yaml --pencil pencil.yaml -o orientation.json
     """
     if min_length is not None and min_length <= 0:
@@ -148,8 +160,10 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         raise click.BadParameter("only with --bars", param_hint="--bar-width")
     if shaft_diameter is not None and not shaft:
         raise click.BadParameter("only with --shaft", param_hint="--shaft-diameter")
-    if gamma != DEFAULT_GAMMA and not shaft:
-        raise click.BadParameter("only with --shaft", param_hint="--gamma")
+    if gamma != DEFAULT_GAMMA and not shaft and radial is None:
+        raise click.BadParameter("only with --shaft or --radial", param_hint="--gamma")
+    if radial is not None and bars:
+        raise click.UsageError("--radial and --bars find different spokes: give one of them")
     if shaft_diameter is not None and not shaft_diameter > 0:
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     if instrument_mask is not None and not shaft:
@@ -162,18 +176,20 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     records = []
     with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
-        ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma, masks)
+        ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma, masks,
+               radial)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
             warn_masks(rec)
             records.append(rec)
             live.emit(rec, drawn)
-    meta = {"detector": detector, "mode": "bars" if bars else "edges", "camera": str(camera_path),
+    meta = {"detector": detector, "mode": "bars" if bars else ("radial" if radial is not None else "edges"),
+            "camera": str(camera_path),
             **stream_meta(source)}
     if shaft_diameter is not None:
         meta["shaft_diameter"] = shaft_diameter
-    if shaft:
+    if shaft or radial is not None:
         meta["gamma"] = gamma
     if masks is not None:
         meta["instrument_mask"] = str(instrument_mask)

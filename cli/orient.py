@@ -33,7 +33,7 @@ def _orient_record(camera, pencil, fr, opts):
     kw = dict(model=opts["model"], endpoint_sigma_px=opts["endpoint_sigma"],
               angle_sigma=None if sig is None else np.radians(sig), prior=opts["priors"].get(fr["image"]),
               image=fr["image"], offset_sigma=fr.get("offset_sigma_px"), max_segments=cap,
-              bar_width_px=fr.get("width_px"))
+              bar_width_px=fr.get("width_px"), circle_points=fr.get("circle_points"))
     state = opts.get("tracking")
     if state is None:
         return orient_segments(camera, fr["segments"], pencil, **kw)
@@ -69,7 +69,7 @@ def _orient_image_task(frame, ctx):
     frame drawn with them when the overlay is asked for (None otherwise); module level, so it
     runs in worker processes too."""
     from pencilcal.toolkit.io.images import check_image_size
-    from pencilcal.toolkit.detect.lines import fan_line_options, lines_record
+    from pencilcal.toolkit.detect.lines import fan_line_options, lines_record, radial_edge_count
 
     camera, pencil, detector, opts, edges, region, drawing = ctx
     if frame.image is None:
@@ -78,12 +78,13 @@ def _orient_image_task(frame, ctx):
     else:
         check_image_size(frame, camera)
         bars, polarity = fan_line_options(pencil.width, edges)
+        radial = None if edges else radial_edge_count(pencil)
         state = opts.get("tracking")
-        tracker = state["bars"] if state is not None and bars else None
+        tracker = state["bars"] if state is not None and bars and radial is None else None
 
         def detected():
             fr = lines_record(frame.name, frame.image, camera, detector, bars=bars, valid_region=region,
-                              bar_polarity=polarity, bar_tracker=tracker)
+                              bar_polarity=polarity, bar_tracker=tracker, radial=radial)
             return fr, _orient_record(camera, pencil, fr, opts)
 
         fr, rec = detected() if tracker is None else _tracked_bars_frame(detected, tracker, state)
@@ -127,12 +128,18 @@ def _tracking_meta(state):
     return {"frames_tracked": state["tracked"], **({"bars_tracked": state["bars"].tracked} if "bars" in state else {})}
 
 
-def _warn_frame(rec):
+def _warn_frame(rec, pencil=None):
     if not rec.ok:
         warn(f"{rec.image}: {rec.error}")
     elif rec.normal_ambiguous:
         warn(f"{rec.image}: the normal is ambiguous: other labellings of its {rec.lines_used} lines fit "
              "about as well and put it elsewhere (normal_alternatives)")
+    elif (pencil is not None and pencil.shape == "line" and pencil.width is None and pencil.full_circle
+          and rec.spokes_used is not None and rec.spokes_used < 0.9 * pencil.count):
+        # a star's wedges or a dartboard's sectors measured as bars: their edges are the lines
+        warn(f"{rec.image}: {rec.spokes_used} of the {pencil.count} spokes all round the vertex used; if they are "
+             "a star's wedges or the boundaries between sectors, the pencil file says so (shape: wedge or edge, "
+             "docs/formats.md) and their edges are measured")
 
 
 def _summary(records):
@@ -231,25 +238,29 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
 
     Lines from IMAGES (files, folders or globs in the order given, or a video), --source
     or --lines. Per frame: tilt, normal, rotation, their sigmas and the twin, chosen where
-    the spoke radii, --prior or continuity can. In detail: docs/cli.md.
+    the spoke radii, circles, --prior or continuity can. In detail: docs/cli.md.
     \f
     From IMAGES or --source (a camera, a URL, a video file being written) the lines are
     detected first: the midlines of the printed spokes, at whatever width they are seen
     (dark bars when the pencil file gives their width; else dark or light, whichever the
-    frame shows), or with --edges plain edge segments (as `pencilcal lines`), never on the
-    boundary of the frames' valid region (--mask, or detected once from up to 16 frames);
-    or they come from a lines file (--lines). Segments are undistorted, the vertex found,
-    the segments labelled with spokes (missing spokes and spurious segments are tolerated)
-    and the plane's orientation fitted with its uncertainty. Both twin solutions are
-    written; the twin is chosen where the spoke radii (pencil file), a prior pose (--prior:
-    the twin closer to each frame's board pose in a poses.json of `pencilcal pnp`) or
-    continuity (--continuity: the choices of resolved frames carried along the sequence to
-    the ambiguous ones) tell them apart. Midlines of bars (with their width, as found from
-    images or in a lines file) are then moved onto the images of the bars' printed centre
-    lines under the fitted plane, which under perspective they miss by w^2 / (4 V) (w the
-    width, V the distance to the horizon), and the frame is fitted again. --max-segments:
-    at most this many segments per frame are used, the longest; a warning says when a
-    frame has more.
+    frame shows); for wedges and sector boundaries (the pencil file's shape: a Siemens
+    star, a dartboard) their edges all round the vertex, as `pencilcal lines --radial`
+    finds them, with the edge points of the circles about it; or with --edges plain edge
+    segments (as `pencilcal lines`), never on the boundary of the frames' valid region
+    (--mask, or detected once from up to 16 frames); or they come from a lines file
+    (--lines). Segments are undistorted, the vertex found, the segments labelled with
+    spokes (missing spokes and spurious segments are tolerated) and the plane's
+    orientation fitted with its uncertainty. Both twin solutions are written; the twin is
+    chosen where the spoke radii (pencil file), the images of circles about the vertex
+    (their pole-polar relation gives the plane a second time, written beside the lines'
+    with whether the two agree), a prior pose (--prior: the twin closer to each frame's
+    board pose in a poses.json of `pencilcal pnp`) or continuity (--continuity: the
+    choices of resolved frames carried along the sequence to the ambiguous ones) tell them
+    apart. Midlines of bars (with their width, as found from images or in a lines file)
+    are then moved onto the images of the bars' printed centre lines under the fitted
+    plane, which under perspective they miss by w^2 / (4 V) (w the width, V the distance
+    to the horizon), and the frame is fitted again. --max-segments: at most this many
+    segments per frame are used, the longest; a warning says when a frame has more.
 
     From frame to frame (--track, with --workers 1) the previous frame's spokes are looked
     for again where they were (their edges within 6 px, then measured as a full detection
@@ -294,7 +305,7 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         with FrameOutputs(jsonl_path, None, force) as live, progress(frames, "orient", quiet) as bar:
             for fr in bar:
                 rec = _orient_record(camera, pencil, fr, opts)
-                _warn_frame(rec)
+                _warn_frame(rec, pencil)
                 records.append(rec)
                 live.emit(rec.to_dict())
     else:
@@ -312,7 +323,7 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
             ctx = (camera, pencil, detector, opts, edges, region, live.drawing)
             for rec, drawn in run_frames(source, _orient_image_task, ctx, workers, "orient", quiet):
-                _warn_frame(rec)
+                _warn_frame(rec, pencil)
                 records.append(rec)
                 live.emit(rec.to_dict(), drawn, name=rec.image)
     if not any(r.ok for r in records):

@@ -1,4 +1,5 @@
-"""`pencilcal target`: the printable sheet (ChArUco board and a fan of spokes) at true scale."""
+"""`pencilcal target`: the printable sheet (ChArUco board and a fan of spokes, or a Siemens star) at true
+scale."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -38,15 +39,21 @@ def _parse_squares(text):
 @click.option("--width", type=FiniteFloat(min=0, min_open=True), default=1.0, show_default=True,
               help="Width of the printed spokes (dark bars) [mm].")
 @click.option("--side", type=click.Choice(["right", "below"]), default="right", show_default=True,
-              help="Where the fan goes relative to the board.")
+              help="Where the fan (or the star) goes relative to the board.")
+@click.option("--star", type=click.IntRange(min=4, max=180), default=None, metavar="N",
+              help="A Siemens star of N dark wedges instead of the fan (its wedges and gaps equal, its outline a "
+                   "circle): a focus target that doubles as the orientation target.")
+@click.option("--star-radius", type=FiniteFloat(min=0, min_open=True), default=None,
+              help="With --star: the star's radius [mm]; default the largest whole millimetre that fits beside "
+                   "the board.")
 @click.option("--margin", type=FiniteFloat(min=0), default=10.0, show_default=True,
               help="Blank border kept on the paper [mm].")
 @force_option
 @quiet_option
 @run
 def target(output, paper, orientation, dpi, board_squares, square, marker, dictionary, legacy, spokes, step_deg,
-           start_deg, radius, width, side, margin, force, quiet):
-    """Write a printable target: a ChArUco board with a fan of spokes beside it.
+           start_deg, radius, width, side, star, star_radius, margin, force, quiet):
+    """Write a printable target: a ChArUco board with a fan of spokes (or a Siemens star) beside it.
 
     \b
     Examples:
@@ -65,6 +72,16 @@ def target(output, paper, orientation, dpi, board_squares, square, marker, dicti
     the fan opening away from the board. --margin is the blank border kept on the paper
     (printers cannot print to the edge). Measure a square after printing; it must be
     --square millimetres.
+
+    With --star N the fan is a Siemens star of N dark wedges, each as wide as the gap beside
+    it, from the vertex out to --star-radius, their outer ends arcs of one circle: the pencil
+    file says shape wedge, and circles [radius], whose image resolves the twin and gives the
+    plane a second time (`pencilcal orient`). The fan's options (--spokes, --step-deg,
+    --start-deg, --radius, --width) do not apply.
+
+    More examples:
+
+        pencilcal target -o star.pdf --paper a3 --star 64
     """
     from pencilcal.toolkit.board.spec import board_from_dict, write_board
     from pencilcal.toolkit.pencil.spec import write_pencil
@@ -74,11 +91,20 @@ def target(output, paper, orientation, dpi, board_squares, square, marker, dicti
     suffix = out.suffix.lower()
     if suffix not in (".pdf", ".png"):
         raise click.BadParameter(f"the target must be a .pdf or .png file, got {out.name!r}", param_hint="-o/--output")
+    if star is None and star_radius is not None:
+        raise click.BadParameter("only with --star", param_hint="--star-radius")
+    if star is not None:
+        ctx = click.get_current_context()
+        given = [f"--{n.replace('_', '-')}" for n in ("spokes", "step_deg", "start_deg", "radius", "width")
+                 if ctx.get_parameter_source(n) != click.core.ParameterSource.DEFAULT]
+        if given:
+            raise click.UsageError(f"{', '.join(given)}: options of the fan, not of --star")
     nx, ny = _parse_squares(board_squares)
     board = board_from_dict({"type": "charuco", "squares": [nx, ny], "square": square, "marker": marker,
                              "dictionary": dictionary, "legacy": legacy}, source="board options")
     sheet = layout_sheet(board, paper=paper, orientation=orientation, margin=margin, spokes=spokes,
-                         step_deg=step_deg, start_deg=start_deg, radius=radius, width=width, side=side)
+                         step_deg=step_deg, start_deg=start_deg, radius=radius, width=width, side=side, star=star,
+                         star_radius=star_radius)
     board_path = out.parent / "board.yaml"
     pencil_path = out.parent / "pencil.yaml"
     for p in (out, board_path, pencil_path):
@@ -90,6 +116,7 @@ def target(output, paper, orientation, dpi, board_squares, square, marker, dicti
     write_board(board_path, board, force=force)
     write_pencil(pencil_path, sheet.pencil, force=force)
     if not quiet:
-        v = sheet.pencil.vertex
-        done(f"{sheet.paper}: board {nx}x{ny} x {square:g} mm, {spokes} spokes at vertex ({v[0]:g}, {v[1]:g}) mm",
+        v, p = sheet.pencil.vertex, sheet.pencil
+        what = f"a star of {p.count} wedges, radius {p.radius[1]:g} mm," if star else f"{spokes} spokes"
+        done(f"{sheet.paper}: board {nx}x{ny} x {square:g} mm, {what} at vertex ({v[0]:g}, {v[1]:g}) mm",
              out, board_path, pencil_path)

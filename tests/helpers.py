@@ -71,3 +71,21 @@ def clutter_segments(camera, k, rng, length=(20.0, 300.0)):
     a = rng.uniform(0.0, np.pi, k)
     d = np.stack([np.cos(a), np.sin(a)], -1) * rng.uniform(*length, k)[:, None] / 2
     return np.c_[c - d, c + d]
+
+
+def star_sheet_view(wedges, tilt_deg, distance, rng=0):
+    """`pencilcal target --star` (the default A4 layout) as the default 1280x960 camera sees
+    it from `distance` mm, `tilt_deg` from the star's axis, through a webcam's blur, noise,
+    uneven light and gamma 2.2: (image, camera, sheet, R_cam_from_target, t_cam_from_target)."""
+    from pencilcal.toolkit.synth.render import render_frame
+    from pencilcal.toolkit.synth.scenarios import default_camera, look_at
+    from pencilcal.toolkit.synth.sheet import layout_sheet
+
+    sheet = layout_sheet(star=wedges)
+    cam = default_camera("opencv", (1280, 960))
+    v3 = np.r_[sheet.pencil.vertex, 0.0]
+    tilt = np.radians(tilt_deg)
+    R, t = look_at(v3 + distance * np.array([0.6 * np.sin(tilt), -0.8 * np.sin(tilt), -np.cos(tilt)]),
+                   0.3 * sheet.content_center + 0.7 * v3)
+    img = render_frame(cam, R, t, sheet, blur_px=1.0, noise=2.0, gamma=2.2, lighting=0.3, rng=rng)
+    return img, cam, sheet, R, t

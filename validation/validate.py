@@ -48,8 +48,10 @@ __all__ = ["validate_sequence", "validate_path", "validate_many", "find_sequence
 
 class FanLines:
     """Lines of a printed fan as `orient IMAGES` finds them (`toolkit.detect.lines.fan_line_options`):
-    the midlines of its bars (`toolkit.detect.bars.detect_bars`), or plain edge segments with
-    `edges`; within `valid_region` (a `toolkit.detect.region.ValidRegion`) when one is set."""
+    the midlines of its bars (`toolkit.detect.bars.detect_bars`), a star's edges all round and
+    its circle points (`toolkit.detect.radial.detect_radial_edges`, for wedge and edge
+    pencils), or plain edge segments with `edges`; within `valid_region` (a
+    `toolkit.detect.region.ValidRegion`) when one is set."""
 
     def __init__(self, pencil, detector="auto", edges=False, valid_region=None):
         self.pencil = pencil
@@ -59,11 +61,16 @@ class FanLines:
 
     def __call__(self, image, camera, detection, corner_sigma_px=None):
         from pencilcal.toolkit.detect.bars import detect_bars
-        from pencilcal.toolkit.detect.lines import default_min_length, fan_line_options
+        from pencilcal.toolkit.detect.lines import default_min_length, fan_line_options, radial_edge_count
         from pencilcal.toolkit.detect.segments import detect_segments
 
         bars, polarity = fan_line_options(self.pencil.width, self.edges)
-        if bars:
+        radial = None if self.edges else radial_edge_count(self.pencil)
+        if radial is not None:
+            from pencilcal.toolkit.detect.radial import detect_radial_edges
+
+            found = detect_radial_edges(image, camera, edges=radial, valid_region=self.valid_region)
+        elif bars:
             # the bars `orient IMAGES` would find (lines_record's default shortest bar)
             found = detect_bars(image, self.detector, camera=camera, polarity=polarity, valid_region=self.valid_region,
                                 min_length=default_min_length(np.shape(image), bars=True))
@@ -71,7 +78,8 @@ class FanLines:
             found = detect_segments(image, self.detector, camera=camera, valid_region=self.valid_region)
         return {"segments": found.segments, "angle_sigma": found.angle_sigma, "offset_sigma": found.offset_sigma,
                 "labels": None, "vertex_px": None, "vertex_cov_px2": None, "pencil": self.pencil,
-                "width_px": found.width_px if bars else None}
+                "width_px": found.width_px if bars and radial is None else None,
+                "circle_points": getattr(found, "circle_points", None)}
 
 
 class GridLines:
@@ -285,7 +293,7 @@ def _process(frame, camera, board, lines_source, models, methods, truth, keep_pi
                 vertex_px=src["vertex_px"], vertex_cov_px2=src["vertex_cov_px2"], labels=src["labels"],
                 image=frame.name, keep_lines=(m == "exact"), offset_sigma=src.get("offset_sigma"),
                 spoke_radii=src.get("radii"), endpoint_sigma_px=src.get("corner_sigma_px") or ENDPOINT_SIGMA_PX,
-                bar_width_px=src.get("width_px"))
+                bar_width_px=src.get("width_px"), circle_points=src.get("circle_points"))
         rec["orient"] = {m: o.to_dict() for m, o in orients.items()}
         if keep_pixels:
             rec["segments"] = src["segments"]
@@ -554,7 +562,7 @@ def validate_path(sequence, *, camera=None, camera_id=None, board=None, pencil=N
     grid lines as the pencil. argv: the command line to record (default sys.argv; a Dask
     worker's own is meaningless). edges: the fan's plain edge segments instead of its
     spokes' midlines (`FanLines`); mask: the frames' valid region file (default: detected,
-    `toolkit.detect.region_detect.sequence_region`). right, right_camera,
+    `toolkit.detect.region.detect.sequence_region`). right, right_camera,
     right_calibration: the images, camera file and calib.json of a second camera rigidly
     fixed to the first (a stereo pair, frames paired by image name): the rig check
     (`checks`). A calibration report of this camera lends its intrinsics covariance and

@@ -1,9 +1,11 @@
 """The lines of one frame, as the lines file holds them: the one place where `pencilcal
 lines`, `orient IMAGES` and `fulcrum IMAGES` turn a decoded image into lines.
 
-`detect_frame_lines` finds the edge segments (`segments.detect_segments`) or the midlines
-of the printed bars (`bars.detect_bars`) of one image, and optionally its instrument
-shafts (`shaft.detector.detect_shafts`), and returns them as an `io.lines_file.LineFrame`: segments
+`detect_frame_lines` finds the edge segments (`segments.detect_segments`), the midlines
+of the printed bars (`bars.detect_bars`) or the edges of a radial target all round its
+vertex with the points of the circles about it (`radial.detect_radial_edges`) of one
+image, and optionally its instrument shafts (`shaft.detector.detect_shafts`, or from an
+instrument mask), and returns them as an `io.lines_file.LineFrame`: segments
 ``[x1, y1, x2, y2]`` in raw pixels, angle sd in degrees, offset sd in pixels;
 `lines_record` is its record.
 
@@ -24,7 +26,8 @@ from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.segments import MIN_LENGTH_PX, detect_segments
 from pencilcal.toolkit.io.lines_file import LineFrame
 
-__all__ = ["default_min_length", "detect_frame_lines", "lines_record", "fan_line_options", "shaft_records"]
+__all__ = ["default_min_length", "detect_frame_lines", "lines_record", "fan_line_options", "shaft_records",
+           "radial_edge_count"]
 
 
 def default_min_length(shape, bars):
@@ -60,9 +63,21 @@ def fan_line_options(pencil_width, edges=False):
     return True, ("dark" if pencil_width is not None else "either")
 
 
+def radial_edge_count(pencil):
+    """How many edges a pencil's target shows (`radial.detect_radial_edges`' ``edges``):
+    the edges of its wedges or its sector boundaries (`spec.Pencil.edge_angles`); None for a
+    fan of lines or bars, which are found as bars (`fan_line_options`).
+
+    >>> from pencilcal.toolkit.pencil.spec import pencil_from_dict
+    >>> radial_edge_count(pencil_from_dict({"start_deg": 0, "step_deg": 5.625, "count": 64, "shape": "wedge"}))
+    128
+    """
+    return None if pencil.shape == "line" else int(pencil.edge_angles()[0].size)
+
+
 def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None,
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
-                       gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None):
+                       gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None, radial=None):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -100,10 +115,22 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         With `shaft`: the shafts of the frame's instrument mask instead of the detector's
         (`shaft.from_mask.shafts_from_masks`): ``{"mask": array, "labels": ..., "instances":
         ...}``.
+    radial : int, optional
+        The edges of a radial target all round its vertex (`radial.detect_radial_edges`,
+        located on the profiles linearised with `gamma`), so many of them (0: whatever the
+        frame shows), with the points of the circles about it (``circle_points``), instead
+        of bars or edge segments.
     """
     if min_length is None:
         min_length = default_min_length(np.shape(image), bars)
-    if bars:
+    circle_points = None
+    if radial is not None:
+        from pencilcal.toolkit.detect.radial import detect_radial_edges
+
+        segs = detect_radial_edges(image, camera, edges=radial or None, valid_region=valid_region,
+                                   min_length=min_length, gamma=gamma)
+        circle_points = segs.circle_points
+    elif bars:
         kw = dict(camera=camera, min_length=min_length, width_px_range=bar_width, proposal_scale=proposal_scale,
                   valid_region=valid_region, polarity=bar_polarity)
         segs = detect_bars(image, detector, **kw) if bar_tracker is None else bar_tracker(image, detector, **kw)[0]
@@ -114,8 +141,9 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         segments=segs.segments,
         angle_sigma_deg=np.degrees(segs.angle_sigma),
         offset_sigma_px=segs.offset_sigma,
-        width_px=segs.width_px if bars else None,
+        width_px=segs.width_px if bars and radial is None else None,
         shafts=shaft_records(image, camera, valid_region, gamma, instrument_mask) if shaft else None,
+        circle_points=circle_points,
     )
 
 
@@ -139,9 +167,9 @@ def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, in
 
 def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None, bar_width=None,
                  proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA, bar_tracker=None,
-                 instrument_mask=None):
+                 instrument_mask=None, radial=None):
     """One lines.json frame record from one decoded image: ``detect_frame_lines(...).to_dict()``
     (the same arguments)."""
     return detect_frame_lines(name, image, camera, detector, bars, shaft, min_length, bar_width,
                               proposal_scale, valid_region, bar_polarity, gamma, bar_tracker,
-                              instrument_mask).to_dict()
+                              instrument_mask, radial).to_dict()

@@ -59,7 +59,9 @@ class RefitOptions:
     looks beyond each end; sigma_px: sd of the Gaussian-derivative kernel (~ the edge blur);
     step_px: spacing of the stations; max_gap_px: longest gap in one line's stations;
     min_gradient [grey levels / px] and rel_gradient (of the line's median): weakest edge
-    a station may have; floor_px: smallest rejection threshold of the robust fit.
+    a station may have; floor_px: smallest rejection threshold of the robust fit; gamma: the
+    frames' encoding gamma, the edge located on the profiles linearised with it
+    (`edges.edge_profiles`; 1: as sampled).
     """
 
     search: float = 2.0
@@ -70,6 +72,7 @@ class RefitOptions:
     min_gradient: float = 2.0
     rel_gradient: float = 0.3
     floor_px: float = 0.1
+    gamma: float = 1.0
 
     def __post_init__(self):
         if not (self.search > 0 and self.sigma_px > 0 and self.step_px > 0):
@@ -215,7 +218,7 @@ def _refit_pass(img, camera, P1, P2, opts, kernel, grow_frac=0.0):
     if M >= 32 and M * int(cnt.max()) > 3 * int(cnt.sum()) + 8000:
         return _by_length(img, camera, P1, P2, opts, kernel, grow_frac, cnt)
     s, st_valid = stations(lo, hi, cnt)
-    p = edge_profiles(img, camera, P1, u, s, opts.search, kernel, opts.sigma_px)
+    p = edge_profiles(img, camera, P1, u, s, opts.search, kernel, opts.sigma_px, gamma=opts.gamma)
     g0, tk = p.strength, p.t
     base = st_valid & p.inside & p.found & ok[:, None]
     med = masked_median(g0, base)

@@ -8,6 +8,7 @@ Format (docs/formats.md)::
                  "angle_sigma_deg": [...],            # optional, one per segment
                  "offset_sigma_px": [...],            # optional, one per segment
                  "width_px": [...],                   # optional, bars: one per segment
+                 "circle_points": [[x, y], ...],      # optional, radial targets
                  "shafts": [{"midline": [x1, y1, x2, y2], "width_px": 84.0,
                              "angle_sigma_deg": 0.2}]}]}
 
@@ -82,6 +83,18 @@ def _per_segment(value, key, n, where):
     return arr
 
 
+def _points(value, where, key="circle_points"):
+    """(K, 2) [px] finite points from a list of [x, y]."""
+    if not isinstance(value, (list, tuple, np.ndarray)) or not _all_numbers(value):
+        raise InputError(f"{where}: '{key}' must be a list of [x, y] numbers")
+    arr = np.asarray(value, float)
+    if arr.size == 0:
+        return np.zeros((0, 2))
+    if arr.ndim != 2 or arr.shape[1] != 2 or not np.all(np.isfinite(arr)):
+        raise InputError(f"{where}: each of '{key}' must be [x, y], finite numbers")
+    return arr
+
+
 def _positive(value, key, where):
     """One finite number > 0 for `key` (a shaft's sd or width)."""
     if not is_number(value) or not (np.isfinite(value) and value > 0):
@@ -147,7 +160,8 @@ def frame_record(d, where):
     `where` names the file and frame in the InputError raised for a wrong field: `segments`
     must be numbers ([x1, y1, x2, y2] each; NaN/inf kept: the estimators drop such
     segments and say so), `angle_sigma_deg`, `offset_sigma_px`, `width_px` one finite
-    number > 0 per segment, `ok` a boolean; each shaft as `_shaft_record` checks it.
+    number > 0 per segment, `circle_points` finite [x, y] pairs, `ok` a boolean; each shaft
+    as `_shaft_record` checks it.
 
     >>> frame_record({"segments": [[0, 0, 10, 0]], "angle_sigma_deg": ["0.1"]}, "l.json: frame 0")
     Traceback (most recent call last):
@@ -166,6 +180,8 @@ def frame_record(d, where):
     for key in ("angle_sigma_deg", "offset_sigma_px", "width_px"):
         if d.get(key) is not None:
             rec[key] = _per_segment(d[key], key, rec["segments"].shape[0], where)
+    if d.get("circle_points") is not None:
+        rec["circle_points"] = _points(d["circle_points"], where)
     shafts = d.get("shafts")
     if shafts is not None:
         if not isinstance(shafts, list):
@@ -174,7 +190,8 @@ def frame_record(d, where):
     return rec
 
 
-_KNOWN = ("image", "ok", "error", "segments", "angle_sigma_deg", "offset_sigma_px", "width_px", "shafts")
+_KNOWN = ("image", "ok", "error", "segments", "angle_sigma_deg", "offset_sigma_px", "width_px", "shafts",
+          "circle_points")
 
 
 @dataclass(frozen=True, eq=False)
@@ -198,6 +215,9 @@ class LineFrame:
         Width of each bar whose midline the segment is.
     shafts : list of dict or None
         Instrument shafts, each a record with at least ``midline`` (4,) [px].
+    circle_points : (K, 2) [px] or None
+        Edge points across rays from a radial target's vertex, some on the images of circles
+        about it (`detect.radial`), raw pixels.
     extra : dict
         Any other keys of the record, kept as they are.
 
@@ -218,13 +238,14 @@ class LineFrame:
     offset_sigma_px: np.ndarray | None = None
     width_px: np.ndarray | None = None
     shafts: list | None = None
+    circle_points: np.ndarray | None = None
     extra: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """The frame's record: image, ok, error, segments, then the optional keys that are
-        set (angle_sigma_deg, offset_sigma_px, width_px, shafts), then `extra`."""
+        set (angle_sigma_deg, offset_sigma_px, width_px, shafts, circle_points), then `extra`."""
         rec = {"image": self.image, "ok": self.ok, "error": self.error, "segments": self.segments}
-        for key in ("angle_sigma_deg", "offset_sigma_px", "width_px", "shafts"):
+        for key in ("angle_sigma_deg", "offset_sigma_px", "width_px", "shafts", "circle_points"):
             if getattr(self, key) is not None:
                 rec[key] = getattr(self, key)
         rec.update(self.extra)
@@ -238,7 +259,7 @@ class LineFrame:
         width = rec.get("width_px")
         return cls(image=rec["image"], segments=rec["segments"], ok=rec["ok"], error=rec.get("error"),
                    angle_sigma_deg=rec.get("angle_sigma_deg"), offset_sigma_px=rec.get("offset_sigma_px"),
-                   width_px=width, shafts=rec.get("shafts"),
+                   width_px=width, shafts=rec.get("shafts"), circle_points=rec.get("circle_points"),
                    extra={k: v for k, v in rec.items() if k not in _KNOWN})
 
 

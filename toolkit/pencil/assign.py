@@ -14,6 +14,14 @@ Regular fans are partly self-similar: a frontal view of 8 spokes 20 deg apart wi
 spoke missing is explained equally well with every label shifted by one. The result says
 so (`labels_ambiguous`) rather than pretending to know the in-plane angle.
 
+Spokes all around the vertex (a Siemens star's 128 edges) make the exhaustive screen too
+large (O(M^2 N^2) residuals): there every hypothesis is scored only on the lines and spokes
+next to its triple in the cyclic order (`_local_screen`), where a right triple predicts its
+neighbours well and a wrong one does not, and the labelling then grows from it: each refit
+labels the lines whose spoke it now predicts well enough to tell from its neighbours, until
+nothing changes. Lines and spokes may have a *kind* (an edge's polarity: which side is
+brighter): a line is then only ever given a spoke of its kind.
+
 All angles are radians in normalised image coordinates.
 """
 from __future__ import annotations
@@ -24,13 +32,16 @@ import numpy as np
 
 from pencilcal.toolkit.geometry.angles import wrap_angle, wrap_line
 from pencilcal.toolkit.errors import EstimationError
-from pencilcal.toolkit.pencil.defaults import CHI2_1_99, CHI2_2_DETECTION
+from pencilcal.toolkit.pencil.defaults import CHI2_1_99, CHI2_2_DETECTION, DETECTION_LEVEL
 from pencilcal.toolkit.pencil.estimator import fit_pencil, pencil_jacobian, PencilFit
 
 __all__ = ["Assignment", "assign_spokes"]
 
 # distinct labellings refitted after the MSAC screen
 _TOP = 4
+# refits of one labelling at most while it grows (a full circle of spokes grows from three
+# neighbouring lines in a dozen or so)
+_MAX_GROWTH = 64
 # with this many assigned lines or fewer, every order-keeping labelling is fitted (batched)
 _EXHAUSTIVE_MAX_LINES = 5
 _EXHAUSTIVE_MAX_FITS = 5000
@@ -59,9 +70,10 @@ class Assignment:
     chance_lines: the number of the lines, besides the three any labelling fits exactly,
         expected within the assignment tolerance of some predicted spoke by chance alone
         (random directions): sum over the lines of min(1, 2 tol_k N' / period), N' distinct
-        spoke directions. At 1 or more the labelling cannot tell the pencil's lines from
-        the clutter's: several labellings, each with lines that merely happen to fit, are
-        then as good as the true one (`clutter_ambiguous`).
+        spoke directions. At 1 or more the labelling may not tell the pencil's lines from
+        the clutter's: several labellings, each with lines that merely happen to fit, can
+        then be as good as the true one (`clutter_ambiguous`), unless it labels far more
+        lines than chance would.
     """
 
     spoke: np.ndarray
@@ -72,8 +84,16 @@ class Assignment:
 
     @property
     def clutter_ambiguous(self) -> bool:
-        """True when random lines would fit the labelling's spokes (`chance_lines` >= 1)."""
-        return self.chance_lines >= 1.0
+        """True when random lines would fit the labelling's spokes (`chance_lines` >= 1) and
+        chance alone would label as many lines as it does beyond three (a Poisson count of
+        mean `chance_lines` reaching them) with probability above the detection level: a
+        Siemens star's 128 edges leave nine chance matches expected, but not 125."""
+        if self.chance_lines < 1.0:
+            return False
+        from scipy.special import gammainc
+
+        m = int(np.sum(self.spoke >= 0)) - 3
+        return m <= 0 or float(gammainc(m, self.chance_lines)) > DETECTION_LEVEL
 
     @property
     def labels_ambiguous(self) -> bool:
@@ -127,8 +147,9 @@ def _one_per_spoke(labels, sigma):
     return out
 
 
-def _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriented, period):
-    """All cyclic-order-preserving labellings of the used lines, fitted in one batch.
+def _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriented, period, kinds=None):
+    """All cyclic-order-preserving labellings of the used lines (of their kinds, when
+    `kinds` = (line kinds (M,), spoke kinds (N,)) is given), fitted in one batch.
 
     Returns (labels, fit, rivals) with the best labelling first and every other within the
     chi-square detection quantile of it as a rival."""
@@ -143,6 +164,10 @@ def _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriente
         return labels, fit, rivals
     combos = list(combinations(order.tolist(), m))
     lab = np.array([[c[(i + r) % m] for i in range(m)] for c in combos for r in range(m)])  # (B, m)
+    if kinds is not None:
+        lab = lab[np.all(kinds[1][lab] == kinds[0][li], -1)]
+        if len(lab) == 0:
+            return labels, fit, rivals
     B = len(lab)
     fits = fit_pencil(np.broadcast_to(a[li], (B, m)), th[lab], np.broadcast_to(vertex, (B, 2)),
                       sigma=np.broadcast_to(s[li], (B, m)), vertex_cov=vertex_cov, oriented=oriented)
@@ -167,17 +192,20 @@ def _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriente
     return labels, fit, rivals
 
 
-def _score(a, period, sigma_tol, H, ct, st):
+def _score(a, period, sigma_tol, H, ct, st, kinds=None):
     """Nearest predicted spoke and MSAC cost for each hypothesis.
 
-    a: (M,) observed; H: (K, 2, 2); ct, st: (N,). Returns (cost (K,), nearest (K, M),
-    residual (K, M)).
+    a: (M,) observed; H: (K, 2, 2); ct, st: (N,); kinds: None or (line kinds (M,), spoke
+    kinds (N,)): a line is only compared with spokes of its kind. Returns (cost (K,),
+    nearest (K, M), residual (K, M)).
     """
     px = H[:, 0, 0, None] * ct + H[:, 0, 1, None] * st  # (K, N)
     py = H[:, 1, 0, None] * ct + H[:, 1, 1, None] * st
     p = np.arctan2(py, px)
     wrap = wrap_angle if period > np.pi else wrap_line
     res = wrap(a[None, :, None] - p[:, None, :])  # (K, M, N)
+    if kinds is not None:
+        res = np.where(kinds[0][:, None] == kinds[1][None, :], res, np.pi)
     k = np.argmin(np.abs(res), -1)
     r = np.take_along_axis(res, k[..., None], -1)[..., 0]
     cost = np.minimum((r / sigma_tol) ** 2, 1.0).sum(-1)
@@ -185,7 +213,7 @@ def _score(a, period, sigma_tol, H, ct, st):
 
 
 def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, oriented=True,
-                  max_gap=2, tolerance_sigmas=4.0):
+                  max_gap=2, tolerance_sigmas=4.0, line_kind=None, spoke_kind=None):
     """Label observed lines with spokes and fit the pencil.
 
     line_angles: (M,) [rad] observed image angles (normalised coordinates), oriented from
@@ -196,8 +224,11 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
     max_gap: spokes missing, or spurious lines, tolerated between two hypothesis lines.
     tolerance_sigmas: a line is assigned to the predicted spoke within this many sigmas of
         the residual (its own angle noise and the prediction's uncertainty from the fitted
-        rotation and the vertex; never tighter than 0.01 deg).
-
+        rotation and the vertex; never tighter than 0.01 deg), once that many sigmas are
+        within the largest tolerance (0.45 of the smallest gap between spokes): a spoke
+        predicted less surely than that is left for a later refit to label.
+    line_kind, spoke_kind: (M,), (N,) integers, or None: a line is only given a spoke of its
+        own kind (an edge's polarity: which side of it is brighter).
     Returns an `Assignment`. Raises EstimationError when fewer than three spokes can be
     matched.
 
@@ -219,6 +250,9 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
     a = np.asarray(line_angles, float).reshape(-1)
     th = np.asarray(spoke_angles, float).reshape(-1)
     M, N = a.size, th.size
+    kinds = None
+    if line_kind is not None and spoke_kind is not None:
+        kinds = (np.asarray(line_kind, int).reshape(M), np.asarray(spoke_kind, int).reshape(N))
     s = np.broadcast_to(np.asarray(sigma, float), (M,)).copy()
     if M < 3:
         raise EstimationError(f"fewer than three lines through the vertex ({M})")
@@ -230,8 +264,8 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
     gaps = np.diff(np.r_[np.sort(np.remainder(th, period)), np.sort(np.remainder(th, period))[0] + period])
     cap = 0.45 * max(np.min(gaps), 1e-6)
     tol = np.clip(5.0 * s, np.radians(0.25), cap)
-    nearest, resid, scored = _screen(a, th, oriented, period, max_gap, tol, 4 * _TOP)
-    fitter = _LabelFitter(a, th, s, vertex, vertex_cov, oriented, tolerance_sigmas, cap)
+    nearest, resid, scored = _screen(a, th, oriented, period, max_gap, tol, 4 * _TOP, kinds)
+    fitter = _LabelFitter(a, th, s, vertex, vertex_cov, oriented, tolerance_sigmas, cap, kinds)
     candidates = _candidates(nearest, resid, tol, s, fitter)
     labels, fit, rivals, fewer = _best_and_rivals(candidates)
     used = labels >= 0
@@ -239,21 +273,27 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
         # few lines: one redundancy or two, and many spoke subsets share a cross-ratio; fit
         # every labelling that keeps the cyclic order (a few hundred, batched) so that no
         # equally good labelling is missed
-        labels, fit, rivals = _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriented, period)
+        labels, fit, rivals = _exhaustive(a, th, s, used, labels, fit, rivals, vertex, vertex_cov, oriented, period,
+                                          kinds)
         rivals += [r for r in fewer if _conflict(r[0], labels)]
     else:
         rivals += fewer
         rivals += _shifted_rivals(fitter, labels, fit, rivals, period)
     return Assignment(spoke=labels, fit=fit, rivals=rivals, hypotheses=scored,
-                      chance_lines=_chance_lines(fitter, fit, period))
+                      chance_lines=_chance_lines(fitter, fit, period, fitter.scatter(fit, labels)))
 
 
-def _chance_lines(fitter, fit, period):
+def _chance_lines(fitter, fit, period, scale=1.0):
     """Lines (besides the three a hypothesis fits exactly) expected by chance within the
-    tolerance of a predicted spoke of `fit`: a random direction falls within tol_k of one
-    of N' distinct spoke directions with probability min(1, 2 tol_k N' / period)."""
-    _, _, tol = fitter.match(fit)
-    dirs = np.unique(np.round(np.remainder(fitter.th, period), 9)).size
+    tolerance of a predicted spoke of `fit` (its variance factor `scale`): a random
+    direction falls within tol_k of one of N' distinct spoke directions with probability
+    min(1, 2 tol_k N' / period)."""
+    _, _, tol = fitter.match(fit, scale)
+    if fitter.kinds is None:
+        dirs = np.unique(np.round(np.remainder(fitter.th, period), 9)).size
+    else:  # a line can only match the spokes of its kind
+        dirs = np.array([np.unique(np.round(np.remainder(fitter.th[fitter.kinds[1] == k], period), 9)).size
+                         for k in fitter.kinds[0]])
     q = np.minimum(1.0, 2.0 * tol * dirs / period)
     return float(max(0.0, q.sum() - np.sort(q)[-3:].sum()))
 
@@ -280,54 +320,72 @@ def _ordered_triples(a, th, oriented, period, max_gap):
     return oa[to], ot[ts]
 
 
+def _orientation_sign(H, A3, T3):
+    """(K,) the sign of each homography H (K, 2, 2) that best reproduces the orientation
+    of its three lines A3 (K, 3) from the spokes T3 (K, 3) [rad]."""
+    pxy = np.einsum("kij,kjl->kil", H, np.stack([np.cos(T3), np.sin(T3)], 1))  # (K, 2, 3)
+    return np.sign((pxy[:, 0] * np.cos(A3) + pxy[:, 1] * np.sin(A3)).sum(-1))
+
+
+def _homography_ok(H, A3, T3, oriented):
+    """(K,) bool: the homographies H (K, 2, 2) of line angles A3 (K, 3) and spoke angles T3
+    (K, 3) [rad] that reproduce their three lines (with their orientation when
+    `oriented`) and see the pencil from its front (det H > 0, cyclic order kept)."""
+    valid = np.all(np.isfinite(H.reshape(-1, 4)), -1) & (np.abs(H).reshape(-1, 4).max(-1) > 0)
+    sgn = np.ones(len(H))
+    if oriented:
+        sgn = _orientation_sign(H, A3, T3)
+        pxy = np.einsum("kij,kjl->kil", H, np.stack([np.cos(T3), np.sin(T3)], 1))
+        dots = pxy[:, 0] * np.cos(A3) + pxy[:, 1] * np.sin(A3)
+        valid &= np.all(dots * sgn[:, None] > 0, -1)
+    # det(s H) = det(H) for 2x2 matrices: the sign does not change it
+    return valid & (np.linalg.det(H) > 0)
+
+
 def _valid_homographies(A3, T3, oriented):
     """Homographies H (K', 2, 2) of the hypotheses pairing line angles A3 (K, 3) with spoke
     angles T3 (K, 3) [rad], kept when they reproduce their three lines (with their
     orientation when `oriented`) and see the pencil from its front (det H > 0, cyclic
     order kept)."""
     H = _homographies(A3, T3)
-    pxy = np.einsum("kij,kjl->kil", H, np.stack([np.cos(T3), np.sin(T3)], 1))  # (K, 2, 3)
-    dots = pxy[:, 0] * np.cos(A3) + pxy[:, 1] * np.sin(A3)
+    valid = _homography_ok(H, A3, T3, oriented)
     if oriented:
-        sgn = np.sign(dots.sum(-1))
-        H = H * sgn[:, None, None]
-        valid = np.all(dots * sgn[:, None] > 0, -1)
-    else:
-        valid = np.ones(len(H), bool)
-    valid &= np.linalg.det(H) > 0
-    valid &= np.all(np.isfinite(H.reshape(-1, 4)), -1) & (np.abs(H).reshape(-1, 4).max(-1) > 0)
+        H = H * _orientation_sign(H, A3, T3)[:, None, None]
     return H[valid]
 
 
-def _screen(a, th, oriented, period, max_gap, tol, keep, seed=0):
+def _screen(a, th, oriented, period, max_gap, tol, keep, kinds=None, seed=0):
     """MSAC screen of every hypothesis (`_ordered_triples` x `_valid_homographies`), in
     blocks, keeping the `keep` best.
 
-    a: (M,) [rad] observed; th: (N,) [rad] spokes; tol: (M,) [rad] each line's tolerance.
-    Memory stays under a few blocks of `_SCORE_BLOCK` residuals whatever M and N; when all
-    hypotheses would need more than `_MAX_SCORE_WORK` residuals, a sample drawn with `seed`
-    is scored. Returns (nearest (k, M) spoke of each line, resid (k, M) [rad] its residual,
-    for the k <= keep best hypotheses in order of cost; the number of hypotheses scored).
-    EstimationError when none is valid.
+    a: (M,) [rad] observed; th: (N,) [rad] spokes; tol: (M,) [rad] each line's tolerance;
+    kinds: None or (line kinds (M,), spoke kinds (N,)): triples pair lines and spokes of
+    the same kinds, and lines are scored only against spokes of their kind. Memory stays
+    under a few blocks of `_SCORE_BLOCK` residuals whatever M and N; when all hypotheses
+    would need more than `_MAX_SCORE_WORK` residuals, each is scored on its neighbours
+    only (`_local_screen`). Returns (nearest (k, M) spoke of each line, resid (k, M)
+    [rad] its residual, for the k <= keep best hypotheses in order of cost; the number of
+    hypotheses scored). EstimationError when none is valid.
     """
     obs, spk = _ordered_triples(a, th, oriented, period, max_gap)
+    if kinds is not None:
+        io, js = _same_kinds(obs, spk, kinds)
+    else:
+        io, js = None, None
     per_hyp = a.size * th.size  # residuals of one hypothesis
-    total = len(obs) * len(spk)
-    flat = None  # flat index io * Ts + js of each hypothesis, or all in order
+    total = len(obs) * len(spk) if io is None else io.size
     if total * per_hyp > _MAX_SCORE_WORK:
-        n = max(1, _MAX_SCORE_WORK // per_hyp)
-        flat = np.unique(np.random.default_rng(seed).integers(0, total, n))
-    count = total if flat is None else flat.size
+        return _local_screen(a, th, oriented, period, max_gap, tol, keep, kinds, obs, spk, io, js, seed)
     block = max(1, _SCORE_BLOCK // per_hyp)
     ct, st = np.cos(th), np.sin(th)
     costs, nearest, resid, scored = [], [], [], 0
-    for start in range(0, count, block):
-        f = np.arange(start, min(start + block, count)) if flat is None else flat[start:start + block]
-        io, js = np.divmod(f, len(spk))
-        H = _valid_homographies(a[obs[io]], th[spk[js]], oriented)
+    for start in range(0, total, block):
+        f = np.arange(start, min(start + block, total))
+        bo, bs = np.divmod(f, len(spk)) if io is None else (io[f], js[f])
+        H = _valid_homographies(a[obs[bo]], th[spk[bs]], oriented)
         if len(H) == 0:
             continue
-        cost, k, r = _score(a, period, tol, H, ct, st)
+        cost, k, r = _score(a, period, tol, H, ct, st, kinds)
         best = np.argsort(cost)[:keep]
         costs.append(cost[best]), nearest.append(k[best]), resid.append(r[best])
         scored += len(H)
@@ -337,12 +395,99 @@ def _screen(a, th, oriented, period, max_gap, tol, keep, seed=0):
     return np.concatenate(nearest)[order], np.concatenate(resid)[order], scored
 
 
+def _same_kinds(obs, spk, kinds):
+    """The pairs (io, js) of line triples obs (To, 3) and spoke triples spk (Ts, 3) whose
+    kinds agree element by element."""
+    code_o = kinds[0][obs] @ np.array([9, 3, 1]) if obs.size else np.zeros(0, int)
+    code_s = kinds[1][spk] @ np.array([9, 3, 1]) if spk.size else np.zeros(0, int)
+    io, js = [], []
+    for c in np.unique(code_o):
+        o, t = np.flatnonzero(code_o == c), np.flatnonzero(code_s == c)
+        io.append(np.repeat(o, t.size)), js.append(np.tile(t, o.size))
+    return (np.concatenate(io), np.concatenate(js)) if io else (np.zeros(0, int), np.zeros(0, int))
+
+
+#: Lines on either side of a hypothesis's middle line its local score looks at.
+_LOCAL_LINES = 6
+# The local screen scores at most this many residuals (a quarter of a second), a seeded
+# sample of its hypotheses beyond: every line triple of a dense pencil has a right spoke
+# triple, so a sample of a tenth still holds a hundred right seeds.
+_LOCAL_WORK = 1 << 22
+
+
+def _local_screen(a, th, oriented, period, max_gap, tol, keep, kinds, obs, spk, io, js, seed):
+    """`_screen` for pencils too large to score every hypothesis on every line (spokes all
+    around the vertex): each hypothesis, a line triple and a spoke triple in cyclic order,
+    is scored only on the `_LOCAL_LINES` lines either side of its middle line, against the
+    spokes as far either side of its middle spoke (and `max_gap` more). Three neighbouring
+    lines predict their neighbours well and the lines far away poorly, so this tells a
+    right local labelling from a wrong one where the whole pencil would count mostly chance
+    matches; the labelling then grows from it (`_LabelFitter.refine`). Beyond
+    `_LOCAL_WORK` residuals in all, a seeded sample of the hypotheses."""
+    M = a.size
+    oa = np.argsort(np.remainder(a, period))
+    rank_a = np.empty(M, int)
+    rank_a[oa] = np.arange(M)
+    sp_mod = np.remainder(th, period)
+    ot = np.argsort(sp_mod, kind="stable")
+    if not oriented:
+        ot = ot[np.r_[True, np.diff(sp_mod[ot]) > 1e-9]]
+    rank_t = np.full(th.size, -1)
+    rank_t[ot] = np.arange(ot.size)
+    W, G = _LOCAL_LINES, max_gap + 1
+    wl = np.arange(-min(W, (M - 1) // 2), min(W, M // 2) + 1)
+    ws = np.arange(-min(W + G, (ot.size - 1) // 2), min(W + G, ot.size // 2) + 1)
+    total = len(obs) * len(spk) if io is None else io.size
+    per_hyp = wl.size * ws.size
+    flat = None
+    if total * per_hyp > _LOCAL_WORK:
+        flat = np.unique(np.random.default_rng(seed).integers(0, total, max(1, _LOCAL_WORK // per_hyp)))
+    count = total if flat is None else flat.size
+    block = max(1, _SCORE_BLOCK // per_hyp)
+    wrap = wrap_angle if period > np.pi else wrap_line
+    costs, nearest, resid, scored = [], [], [], 0
+    for start in range(0, count, block):
+        f = np.arange(start, min(start + block, count)) if flat is None else flat[start:start + block]
+        bo, bs = np.divmod(f, len(spk)) if io is None else (io[f], js[f])
+        H = _homographies(a[obs[bo]], th[spk[bs]])
+        ok = _homography_ok(H, a[obs[bo]], th[spk[bs]], oriented)
+        bo, bs, H = bo[ok], bs[ok], H[ok]
+        if len(H) == 0:
+            continue
+        if oriented:  # the sign that reproduces the lines' orientation (`_homography_ok`)
+            H = H * _orientation_sign(H, a[obs[bo]], th[spk[bs]])[:, None, None]
+        lines = oa[(rank_a[obs[bo, 1]][:, None] + wl) % M]  # (K, Wl)
+        spokes = ot[(rank_t[spk[bs, 1]][:, None] + ws) % ot.size]  # (K, Ws)
+        pxy = np.einsum("kij,kjs->kis", H, np.stack([np.cos(th[spokes]), np.sin(th[spokes])], 1))
+        pred = np.arctan2(pxy[:, 1], pxy[:, 0])  # (K, Ws)
+        res = wrap(a[lines][:, :, None] - pred[:, None, :])  # (K, Wl, Ws)
+        if kinds is not None:
+            res = np.where(kinds[0][lines][:, :, None] == kinds[1][spokes][:, None, :], res, np.pi)
+        k = np.argmin(np.abs(res), -1)
+        r = np.take_along_axis(res, k[..., None], -1)[..., 0]
+        cost = np.minimum((r / tol[lines]) ** 2, 1.0).sum(-1)
+        best = np.argsort(cost)[:keep]
+        # back to full rows: the lines outside the window are not labelled by the screen
+        near = np.full((best.size, M), -1)
+        rr = np.full((best.size, M), np.inf)
+        rows = np.arange(best.size)[:, None]
+        near[rows, lines[best]] = np.take_along_axis(spokes[best], k[best], -1)
+        rr[rows, lines[best]] = r[best]
+        costs.append(cost[best]), nearest.append(near), resid.append(rr)
+        scored += len(H)
+    if not scored:
+        raise EstimationError("no consistent assignment of lines to spokes (cyclic order never matches)")
+    order = np.argsort(np.concatenate(costs), kind="stable")[:keep]
+    return np.concatenate(nearest)[order], np.concatenate(resid)[order], scored
+
+
 @dataclass(frozen=True, eq=False)
 class _LabelFitter:
     """The observed lines and the pencil, to fit labellings of them.
 
     a, s: (M,) [rad] line angles and their sigmas; th: (N,) [rad] spokes; vertex (2,),
-    vertex_cov (2, 2) or None; cap [rad]: the largest assignment tolerance.
+    vertex_cov (2, 2) or None; cap [rad]: the largest assignment tolerance; kinds: None or
+    (line kinds (M,), spoke kinds (N,)).
     """
 
     a: np.ndarray
@@ -353,15 +498,20 @@ class _LabelFitter:
     oriented: bool
     tolerance_sigmas: float
     cap: float
+    kinds: tuple | None = None
 
     def fit(self, lines, spokes):
         """PencilFit of the lines selected by `lines` (mask or indices) labelled `spokes`."""
         return fit_pencil(self.a[lines], self.th[spokes], self.vertex, sigma=self.s[lines],
                           vertex_cov=self.vertex_cov, oriented=self.oriented)
 
-    def match(self, fit):
-        """Each line's nearest predicted spoke k (M,), its residual (M,) [rad] and the
-        tolerance (M,) [rad] within which it is that spoke's, for a PencilFit."""
+    def match(self, fit, scale=1.0):
+        """Each line's nearest predicted spoke k (M,) (of its kind), its residual (M,)
+        [rad] and the tolerance (M,) [rad] within which it is that spoke's, for a PencilFit:
+        `tolerance_sigmas` sds of the residual (times sqrt(scale), the fit's own variance
+        factor, `scatter`), at least 0.01 deg and at most `cap`; where those sds exceed
+        `cap` (a spoke far from the lines fitted so far) the tolerance is 0: the prediction
+        cannot tell that spoke from its neighbours yet."""
         wrap = wrap_angle if self.oriented else wrap_line
         pred, J, Jx = pencil_jacobian(fit.R_cam_from_target, self.vertex, self.th)
         # a line is compared with a prediction that is uncertain itself (rotation and
@@ -370,24 +520,39 @@ class _LabelFitter:
         if self.vertex_cov is not None:
             var_pred = var_pred + np.einsum("ni,ij,nj->n", Jx, self.vertex_cov, Jx)
         res = wrap(self.a[:, None] - pred[None, :])
+        if self.kinds is not None:
+            res = np.where(self.kinds[0][:, None] == self.kinds[1][None, :], res, np.pi)
         k = np.argmin(np.abs(res), -1)
-        tol_k = np.minimum(np.maximum(self.tolerance_sigmas * np.sqrt(self.s**2 + var_pred[k]), np.radians(0.01)),
-                           self.cap)
+        spread = self.tolerance_sigmas * np.sqrt(scale * (self.s**2 + var_pred[k]))
+        tol_k = np.where(spread <= self.cap, np.clip(spread, np.radians(0.01), self.cap), 0.0)
         return k, res[np.arange(self.a.size), k], tol_k
 
+    def scatter(self, fit, labels):
+        """The fit's own variance factor: the robust scatter of the labelled lines' residuals
+        over their sigmas, squared (1.4826 times their median absolute value), at least 1;
+        1 with fewer than 8 lines (three fit exactly, a few more say little). Real lines
+        miss a model the camera does not quite hold by more than their own scatter says."""
+        used = labels >= 0
+        if used.sum() < 8:
+            return 1.0
+        z = np.asarray(fit.residuals, float) / self.s[used]
+        return float(max(1.0, (1.4826 * np.median(np.abs(z))) ** 2))
+
     def refine(self, labels):
-        """Fit on the labelled lines, re-label all lines by the fit's prediction, repeat.
+        """Fit on the labelled lines, re-label all lines by the fit's prediction, repeat
+        until the labels no longer change: a labelling grows from a few neighbouring lines
+        to the spokes it then predicts surely enough (`match`).
 
         labels: (M,) spoke per line, -1 unassigned. Returns (labels, fit or None).
         """
         s, M = self.s, self.a.size
         fit = None
-        for _ in range(3):
+        for _ in range(_MAX_GROWTH):
             used = labels >= 0
             if np.unique(labels[used]).size < 3:
                 return labels, fit
             fit = self.fit(used, labels[used])
-            k, r, tol_k = self.match(fit)
+            k, r, tol_k = self.match(fit, self.scatter(fit, labels))
             new = _one_per_spoke(np.where(np.abs(r) < tol_k, k, -1), s)
             if np.array_equal(new, labels) or np.unique(new[new >= 0]).size < 3:
                 break
@@ -449,12 +614,18 @@ def _shifted_rivals(fitter, labels, fit, rivals, period):
     th = fitter.th
     M, N = fitter.a.size, th.size
     used = labels >= 0
-    rank = np.empty(N, int)
-    order = np.argsort(np.remainder(th, period))
-    rank[order] = np.arange(N)
+    kind = np.zeros(N, int) if fitter.kinds is None else fitter.kinds[1]
     out = []
     for shift in (-1, 1):
-        lab = order[np.remainder(rank[labels[used]] + shift, N)]
+        # each label shifted to the next spoke of its kind in the cyclic order
+        lab = labels[used].copy()
+        for k in np.unique(kind):
+            members = np.flatnonzero(kind == k)
+            order = members[np.argsort(np.remainder(th[members], period))]
+            rank = np.full(N, -1)
+            rank[order] = np.arange(order.size)
+            sel = kind[lab] == k
+            lab[sel] = order[np.remainder(rank[lab[sel]] + shift, order.size)]
         if np.unique(lab).size < 3:
             continue
         full = np.full(M, -1)

@@ -10,10 +10,13 @@ of one frame (a record of ``orientation.json``, docs/formats.md):
    line with no direction);
 4. label the segments with spokes (assign.assign_spokes), tolerating missing spokes and
    spurious segments, and fit the pencil (the exact estimator, or the chapter's general or
-   aligned model), with the vertex covariance carried into the orientation;
+   aligned model), with the vertex covariance carried into the orientation; where the
+   spokes are wedges or sector boundaries (the pencil file's ``shape``) the segments are
+   their edges, each labelled with an edge (`spec.Pencil.edge_angles`) of its polarity;
 5. choose between the twins where extra information allows: a prior rotation (a board
-   pose, the previous frame) or, when the pencil file gives the spoke radii, the metric
-   positions of the segment end points along the spokes;
+   pose, the previous frame), when the pencil file gives the spoke radii, the metric
+   positions of the segment end points along the spokes, or the images of circles about
+   the vertex (`circle`), which also give the plane a second time;
 6. report in raw pixels and degrees.
 
 Noise model: each end point has isotropic noise `endpoint_sigma_px` per coordinate, so a
@@ -24,6 +27,7 @@ angle part.
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
@@ -31,6 +35,7 @@ import numpy as np
 from pencilcal.toolkit.geometry.angles import wrap_angle
 from pencilcal.toolkit.pencil.assign import assign_spokes
 from pencilcal.toolkit.pencil.bar_centre import centre_lines
+from pencilcal.toolkit.pencil.circle import circle_record
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.estimator import (
     detection_threshold,
@@ -133,7 +138,7 @@ def _segment_geometry(camera, segments, endpoint_sigma_px):
 def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_px=ENDPOINT_SIGMA_PX, angle_sigma=None,
                     prior=None, vertex_px=None, vertex_cov_px2=None, image=None, labels=None, keep_lines=False,
                     offset_sigma=None, spoke_radii=None, max_segments=MAX_SEGMENTS, intrinsics_cov="camera",
-                    bar_width_px=None):
+                    bar_width_px=None, circle_points=None):
     """Orientation of a pencil seen in one frame.
 
     camera: a Camera; segments: (M, 4) raw pixels [x1, y1, x2, y2]; pencil: a Pencil.
@@ -150,9 +155,12 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         covariance, instead of intersecting the segments.
     image: name stored in the record.
     labels: (M,) spoke index of every segment when it is known (e.g. board grid lines
-        through a corner), -1 to ignore one; skips the assignment.
+        through a corner), -1 to ignore one; skips the assignment. For wedges and sector
+        boundaries, the index of its edge in the pencil's `edge_angles`.
     keep_lines: also return ``lines``: the used lines in normalised coordinates
-        (``angle`` and ``sigma`` [rad], ``spoke`` index, ``segment`` index), for experiments.
+        (``angle`` and ``sigma`` [rad], ``spoke`` index, ``segment`` index), for experiments;
+        for wedges and sector boundaries ``spoke`` is the index of the edge in the pencil's
+        `edge_angles` (as `labels` is).
     intrinsics_cov: the intrinsics' covariance to propagate into the totals
         (``tilt_sigma_total_deg``, ``normal_sigma_total_deg``, ``vertex_cov_total_px2``;
         `lens_uncertainty`): "camera" (default) the one the camera file carries, if any;
@@ -166,9 +174,17 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         bar's midline sits w^2 / (4 V) off them, towards the horizon) and the frame is
         fitted again with the same labels. A frame whose twin is left open keeps its
         first fit (the two twins' horizons lie on opposite sides).
+    circle_points: (K, 2) raw px edge points of which some may lie on the images of circles
+        centred on the vertex (`detect.radial`'s ``circle_points``): grouped into circles
+        by their radius on the plane, each fitted with an ellipse whose polar of the vertex
+        gives the plane's normal (`circle.circle_estimate`). That normal chooses the twin
+        (``resolved_by: "circle"``) and is reported beside the lines' (``circle_normal``,
+        its sigma, and whether the two agree within them); with the circles' radii in the
+        pencil file, the vertex's depth too.
 
     Returns an `Orientation` (its ``to_dict()`` is the orientation.json record) with
-    ``spokes`` (label per input segment, -1 rejected), ``labels_ambiguous``,
+    ``spokes`` (label per input segment, -1 rejected; the wedge or boundary an edge belongs
+    to), ``spokes_used`` (the spokes with a line in the fit), ``labels_ambiguous``,
     ``resolved_by``, ``ray``, ``tilt_threshold_deg`` and, when the spoke radii resolve the
     twin, ``vertex_cam`` (and ``t_cam_from_target`` if the pencil file gives the vertex).
     A frame with no estimate has ``ok`` false and ``error``.
@@ -176,7 +192,7 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
     kw = dict(model=model, endpoint_sigma_px=endpoint_sigma_px, angle_sigma=angle_sigma, prior=prior,
               vertex_px=vertex_px, vertex_cov_px2=vertex_cov_px2, image=image, labels=labels, keep_lines=keep_lines,
               offset_sigma=offset_sigma, spoke_radii=spoke_radii, max_segments=max_segments,
-              intrinsics_cov=intrinsics_cov)
+              intrinsics_cov=intrinsics_cov, circle_points=circle_points)
     rec = _orient_once(camera, segments, pencil, **kw)
     if bar_width_px is None or not rec.ok or rec.ambiguous:
         return rec
@@ -190,7 +206,8 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
 
 
 def _orient_once(camera, segments, pencil, *, model, endpoint_sigma_px, angle_sigma, prior, vertex_px,
-                 vertex_cov_px2, image, labels, keep_lines, offset_sigma, spoke_radii, max_segments, intrinsics_cov):
+                 vertex_cov_px2, image, labels, keep_lines, offset_sigma, spoke_radii, max_segments, intrinsics_cov,
+                 circle_points):
     """One fit of `orient_segments` (its arguments but bar_width_px)."""
     if model not in MODELS:
         raise InputError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}")
@@ -211,13 +228,18 @@ def _orient_once(camera, segments, pencil, *, model, endpoint_sigma_px, angle_si
         sigma_metric = np.sqrt(np.mean(sig_e[through] ** 2)) * np.sqrt(abs(np.linalg.det(A)))
         lab, fit, rivals, labels_ambiguous = _label_and_fit(ln, pencil, labels, idx, sigma_metric)
         used = lab >= 0
-        th_used, a_used, s_used = pencil.angles[lab[used]], ln.angle[used], ln.sigma[used]
+        edge_angles, edge_spoke, _ = pencil.edge_angles()
+        th_used, a_used, s_used = edge_angles[lab[used]], ln.angle[used], ln.sigma[used]
         if model != "exact":
             fit = _chapter_fit(model, a_used, th_used, ln.vertex, s_used, ln.vertex_cov, fit)
         fit = _point_spokes_outwards(fit, ln, used, th_used, a_used)
-        radius = pencil.radius if spoke_radii is None else np.asarray(spoke_radii, float).reshape(-1, 2)[idx][used]
+        radius = _spoke_radius(pencil) if spoke_radii is None else \
+            np.asarray(spoke_radii, float).reshape(-1, 2)[idx][used]
         fit, resolved_by, metric = _resolve_twins(fit, ln, used, th_used, s_used, prior, radius, sigma_metric)
-        labels_out[idx] = lab
+        fit, resolved_by, circ = _resolve_by_circles(camera, fit, ln, th_used, s_used, resolved_by, circle_points,
+                                                     pencil)
+        own = None if circ is None else _lines_own(fit, ln, a_used, th_used, s_used)
+        labels_out[idx] = np.where(used, edge_spoke[np.maximum(lab, 0)], -1)
         s_mean = float(np.sqrt(np.mean(s_used**2)))
         rec = orientation_record(camera, fit, ln.vertex, v_ideal, cov_ideal, model=model, image=image,
                                  sigma_mean=s_mean, resolved_by=resolved_by)
@@ -229,12 +251,17 @@ def _orient_once(camera, segments, pencil, *, model, endpoint_sigma_px, angle_si
         # rival labellings that put the normal elsewhere make the normal itself ambiguous
         alt = _rival_normals(fit, rivals)
         extra = dict(labels_ambiguous=bool(labels_ambiguous), normal_ambiguous=bool(alt),
-                     normal_alternatives=alt or None, spokes=labels_out)
+                     normal_alternatives=alt or None, spokes=labels_out,
+                     spokes_used=int(np.unique(edge_spoke[lab[used]]).size))
         if keep_lines:
             extra["lines"] = {"angle": a_used, "sigma": s_used, "spoke": lab[used], "segment": idx[used],
                               "vertex": ln.vertex, "vertex_cov": ln.vertex_cov}
         if metric is not None and resolved_by is not None:
             extra.update(_metric_position(fit, metric, resolved_by, ln.vertex, pencil))
+        if circ is not None:
+            extra.update(circle_record(fit, circ, own, ln.vertex_cov))
+            if circ.depth is not None and resolved_by is not None and "vertex_cam" not in extra:
+                extra.update(_vertex_position(fit, circ.depth, ln.vertex, pencil))
         return rec.replace(**extra)
     except EstimationError as e:
         return Orientation(image=image, ok=False, error=str(e), model=model, spokes=labels_out)
@@ -287,7 +314,7 @@ def _vertex(camera, ideal, st, sc, pencil, vertex_px, vertex_cov_px2):
     """The vertex in ideal px, its covariance, and which lines (K,) pass through it: the
     given vertex (raw px) when there is one, else the lines' robust intersection."""
     if vertex_px is None:
-        return _find_vertex(ideal, st, sc, pencil.radius)
+        return _find_vertex(ideal, st, sc, _spoke_radius(pencil))
     K = np.asarray(camera.K, float)
     v_ideal = camera.undistort_pixels(np.asarray(vertex_px, float))
     J = np.linalg.inv(camera.jacobian_pixels_from_normalized(camera.normalized_from_pixels(vertex_px)))
@@ -296,9 +323,16 @@ def _vertex(camera, ideal, st, sc, pencil, vertex_px, vertex_cov_px2):
     # only the segments that pass through it (and, with spoke radii, reach close
     # enough to it) are the pencil's: the others are other edges of the scene
     _, through = lines_through(v_ideal, ideal, st, sc, cov_ideal)
-    if pencil.radius is not None:
+    if _spoke_radius(pencil) is not None:
         through &= _radius_consistent(ideal, pencil.radius)(v_ideal[None])[0]
     return v_ideal, cov_ideal, through
+
+
+def _spoke_radius(pencil):
+    """The spokes' [inner, outer] radius where the segments run between them: a fan of
+    lines or bars. A wedge's or a boundary's edge is measured where it is clear of its
+    neighbours (far out on a dense star), not from the printed inner radius: None."""
+    return pencil.radius if pencil.shape == "line" else None
 
 
 class _Lines(NamedTuple):
@@ -311,6 +345,7 @@ class _Lines(NamedTuple):
     angle: np.ndarray       # (K,) [rad] direction away from the vertex
     sigma: np.ndarray       # (K,) [rad] angle sd
     straddle: np.ndarray    # (K,) bool: the segment runs over the vertex (no direction)
+    kind: np.ndarray        # (K,) +1 / -1: an edge segment brighter towards larger / smaller angles
 
 
 def _normalised_lines(camera, ideal, st, v_ideal, cov_ideal):
@@ -332,15 +367,20 @@ def _normalised_lines(camera, ideal, st, v_ideal, cov_ideal):
     away = np.where(np.abs(s2) >= np.abs(s1), 1.0, -1.0)
     straddle = (s1 * s2) < 0
     a = np.arctan2(t[:, 1] * away, t[:, 0] * away)
-    return _Lines(x, cov_x, p1, p2, a, s_n, straddle)
+    # an edge segment is brighter along n = (-d_y, d_x), its direction turned by +90 deg:
+    # towards larger angles when it runs away from the vertex
+    return _Lines(x, cov_x, p1, p2, a, s_n, straddle, away.astype(int))
 
 
 def _label_and_fit(ln, pencil, labels, idx, sigma_metric):
     """Spoke labels (K,) of the lines (-1: not the pencil's), the fit, rival labellings
     [(labels, fit)] and whether the labels are ambiguous: given `labels` (M,) or assigned."""
     oriented = not np.any(ln.straddle)
+    edge_angles, _, edge_kind = pencil.edge_angles()
     if labels is None:
-        asg = assign_spokes(ln.angle, pencil.angles, ln.vertex, ln.sigma, vertex_cov=ln.vertex_cov, oriented=oriented)
+        kinds = dict(line_kind=ln.kind, spoke_kind=edge_kind) if edge_kind is not None and oriented else {}
+        asg = assign_spokes(ln.angle, edge_angles, ln.vertex, ln.sigma, vertex_cov=ln.vertex_cov, oriented=oriented,
+                            **kinds)
         if asg.clutter_ambiguous:
             # too many lines through the vertex: the labelling is one of many equally good
             raise EstimationError(
@@ -348,14 +388,14 @@ def _label_and_fit(ln, pencil, labels, idx, sigma_metric):
                 f"{asg.chance_lines:.1f} of the pencil's predicted spokes; its {int(np.sum(asg.spoke >= 0))} "
                 "labelled lines cannot be told from chance")
         lab, fit, rivals = asg.spoke, asg.fit, list(asg.rivals)
-        if rivals and pencil.radius is not None:
+        if rivals and _spoke_radius(pencil) is not None:
             lab, fit, rivals = _break_label_ties(lab, fit, rivals, ln.vertex, pencil, ln.p1, ln.p2, sigma_metric)
         return lab, fit, rivals, bool(rivals)
     lab = np.asarray(labels, int).reshape(-1)[idx]
     used = lab >= 0
     if np.unique(lab[used]).size < 3:
         raise EstimationError(f"only {np.unique(lab[used]).size} labelled spokes through the vertex; three are needed")
-    fit = fit_pencil(ln.angle[used], pencil.angles[lab[used]], ln.vertex, sigma=ln.sigma[used],
+    fit = fit_pencil(ln.angle[used], edge_angles[lab[used]], ln.vertex, sigma=ln.sigma[used],
                      vertex_cov=ln.vertex_cov, oriented=oriented)
     return lab, fit, [], False
 
@@ -400,6 +440,56 @@ def _metric_position(fit, metric, resolved_by, x, pencil):
     chi2 = metric["chi2_twin"] if chosen_twin else metric["chi2"]
     if not (np.isfinite(depth) and chi2 / metric["points"] < 9.0):
         return {}
+    return _vertex_position(fit, depth, x, pencil)
+
+
+def _resolve_by_circles(camera, fit, ln, th_used, s_used, resolved_by, circle_points, pencil):
+    """The circles' normal (`circle.circle_estimate`) from the edge points circle_points
+    (K, 2) [raw px], and the twin it chooses where nothing chose it yet: (fit, resolved_by,
+    the `CircleEstimate` or None)."""
+    from pencilcal.toolkit.pencil.circle import MIN_POINTS, circle_choice, circle_estimate
+
+    pts = None if circle_points is None else np.asarray(circle_points, float).reshape(-1, 2)
+    if pts is None or pts.shape[0] < MIN_POINTS:
+        return fit, resolved_by, None
+    with np.errstate(invalid="ignore"):
+        xn = camera.normalized_from_pixels(pts)
+    xn = xn[np.all(np.isfinite(xn), -1)]
+    est = circle_estimate(xn, ln.vertex, ln.vertex_cov, fit.R_cam_from_target, fit.R_twin,
+                          scale=float(np.sqrt(camera.K[0, 0] * camera.K[1, 1])), radii=pencil.circles)
+    if est is None:
+        return fit, resolved_by, None
+    which, decisive, _, _ = circle_choice(fit, est)
+    if resolved_by is None and decisive:
+        fit = swap_twins(fit, which, th_used, ln.vertex, s_used, ln.vertex_cov, resolved_by="circle")
+        resolved_by = "circle"
+    return fit, resolved_by, est
+
+
+def _lines_own(fit, ln, a_used, th_used, s_used, h=1e-6):
+    """The lines' normal's covariance with the vertex held (3, 3), and how their fitted
+    normal moves with the vertex's image (3, 2) (central differences, refitted from the
+    solution; normalised coordinates): what `circle.circle_record` compares the circles'
+    normal with, the vertex being both's."""
+    from pencilcal.toolkit.pencil.circle import line_normal_cov
+
+    n0 = np.asarray(fit.normal, float)
+    own = line_normal_cov(replace(fit, cov=pencil_covariance(fit.R_cam_from_target, ln.vertex, th_used, s_used)[0]))[0]
+    oriented = not np.any(ln.straddle)
+    cols = []
+    for e in np.eye(2):
+        ns = []
+        for sgn in (1.0, -1.0):
+            f = fit_pencil(a_used, th_used, ln.vertex + sgn * h * e, sigma=s_used, oriented=oriented)
+            pair = np.stack([np.asarray(f.normal, float), np.asarray(f.normal_twin, float)])
+            ns.append(pair[int(np.argmax(pair @ n0))])
+        cols.append((ns[0] - ns[1]) / (2 * h))
+    return own, np.stack(cols, -1)
+
+
+def _vertex_position(fit, depth, x, pencil):
+    """vertex_cam at `depth` along the vertex's ray x (2,), and t_cam_from_target when the
+    pencil file gives the vertex."""
     P0 = depth * np.r_[x, 1.0]
     out = {"vertex_cam": P0}
     if pencil.vertex is not None:
@@ -438,10 +528,11 @@ def _find_vertex(ideal, st, sc, radius):
     if vf.rival_vertex is not None and vf.gain - vf.rival_gain < VERTEX_RIVAL_CHI2:
         # clutter: random segments meet everywhere, and this vertex is one of many
         far = float(np.hypot(*(vf.rival_vertex - vf.vertex)))
+        (x, y), (xr, yr) = vf.vertex, vf.rival_vertex
         raise EstimationError(
-            f"clutter: the vertex is ambiguous: other lines meet {far:.0f} px away about as well "
-            f"(evidence {vf.rival_gain:.1f} against {vf.gain:.1f}, less than {VERTEX_RIVAL_CHI2:.1f} apart) "
-            f"among {len(ideal)} segments")
+            f"clutter: the vertex is ambiguous: {vf.lines_used} of {len(ideal)} segments meet at ({x:.0f}, {y:.0f}) "
+            f"and {vf.rival_lines} others at ({xr:.0f}, {yr:.0f}) [undistorted px], {far:.0f} px away, about as well "
+            f"(evidence {vf.gain:.1f} against {vf.rival_gain:.1f}, less than {VERTEX_RIVAL_CHI2:.1f} apart)")
     return vf.vertex, vf.cov, vf.inliers
 
 
@@ -586,15 +677,11 @@ def orientation_record(camera, fit, vertex, vertex_ideal, cov_ideal, *, model="e
 
 
 def _replace_rotation(fit, R, Rt):
-    from dataclasses import replace
-
     return replace(fit, R_cam_from_target=R, R_twin=Rt, normal=R[:, 2], normal_twin=Rt[:, 2])
 
 
 def _chapter_fit(model, a, th, x, s, cov_x, exact_fit):
     """Fit with the chapter's general or aligned model, reported like the exact estimator."""
-    from dataclasses import replace
-
     from pencilcal.toolkit.pencil.chapter import fit_aligned, fit_general
 
     if model == "general":

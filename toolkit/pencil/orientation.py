@@ -45,11 +45,13 @@ _CORE = ("image", "ok", "error", "vertex_px", "vertex_cov_px2", "lines_used", "r
 _ESTIMATE = ("resolved_by", "ray")
 # written only when known
 _OPTIONAL = ("tilt_threshold_deg", "labels_ambiguous", "normal_ambiguous", "normal_alternatives", "spokes",
+             "spokes_used",
              "lines", "vertex_cam", "t_cam_from_target", "tilt_sigma_total_deg", "normal_sigma_total_deg",
-             "vertex_cov_total_px2", "intrinsics_used", "chi2")
+             "vertex_cov_total_px2", "intrinsics_used", "chi2", "circle_normal", "circle_normal_sigma_deg",
+             "circle_tilt_deg", "circles_used", "circle_angle_deg", "circle_chi2", "circle_consistent")
 _ARRAYS = {"vertex_px": (2,), "vertex_cov_px2": (2, 2), "normal": (3,), "normal_twin": (3,),
            "R_cam_from_target": (3, 3), "R_cam_from_target_twin": (3, 3), "ray": (3,), "vertex_cam": (3,),
-           "t_cam_from_target": (3,), "vertex_cov_total_px2": (2, 2)}
+           "t_cam_from_target": (3,), "vertex_cov_total_px2": (2, 2), "circle_normal": (3,)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,14 +60,18 @@ class Orientation:
 
     Angles in degrees; vertex_px (2,) and vertex_cov_px2 (2, 2) in raw pixels; normal,
     normal_twin, ray (3,) unit vectors in the camera frame; R_cam_from_target(_twin)
-    (3, 3); spokes (M,) the spoke of every input segment (-1: not used); lines (only with
+    (3, 3); spokes (M,) the spoke of every input segment (-1: not used); spokes_used: the
+    spokes with a line in the fit (a wedge's two edges are one spoke); lines (only with
     ``keep_lines``): the used lines in normalised coordinates, for experiments;
     vertex_cam, t_cam_from_target (3,) in the pencil file's length unit, when the spoke
     radii fix the depth; tilt_sigma_total_deg, normal_sigma_total_deg [deg] and
     vertex_cov_total_px2 (2, 2) [px^2]: the sigmas with the intrinsics' uncertainty too
     (`lens_uncertainty`), only when the intrinsics' covariance was known (intrinsics_used);
     chi2: the fit's sum of squared weighted angle residuals (lines_used - 3 degrees of
-    freedom; `sequence_noise` pools it).
+    freedom; `sequence_noise` pools it); circle_*: the plane's normal from the images of
+    circles about the vertex (`circle`), its sigma [deg] and tilt [deg], how many circles,
+    its angle [deg] from ``normal`` and their difference's chi2 (2 dof), and whether that is
+    within the 99 % quantile (circle_consistent).
     """
 
     image: str | None = None
@@ -92,6 +98,7 @@ class Orientation:
     normal_ambiguous: bool | None = None
     normal_alternatives: list | None = None
     spokes: np.ndarray | None = None
+    spokes_used: int | None = None
     lines: dict | None = None
     vertex_cam: np.ndarray | None = None
     t_cam_from_target: np.ndarray | None = None
@@ -100,6 +107,13 @@ class Orientation:
     vertex_cov_total_px2: np.ndarray | None = None
     intrinsics_used: bool | None = None
     chi2: float | None = None
+    circle_normal: np.ndarray | None = None
+    circle_normal_sigma_deg: float | None = None
+    circle_tilt_deg: float | None = None
+    circles_used: int | None = None
+    circle_angle_deg: float | None = None
+    circle_chi2: float | None = None
+    circle_consistent: bool | None = None
 
     def replace(self, **changes) -> "Orientation":
         """A copy with `changes` (dataclasses.replace)."""

@@ -4,6 +4,15 @@ A *pencil* is a fan of coplanar spokes through one point, the vertex. Spoke k po
 ``(cos theta_k, sin theta_k, 0)`` in the target frame (frames.py); the vertex sits at
 ``(vertex[0], vertex[1], 0)`` and the spokes run from ``radius[0]`` to ``radius[1]`` from it.
 
+What is printed along a spoke is its *shape*: a thin line or a bar whose centre line is the
+spoke (``line``, a printed fan), a wedge whose two edges are rays through the vertex and
+whose centre line is the spoke (``wedge``, a Siemens star), or the boundary between two
+sectors of different shade (``edge``, a dartboard, a checkered star). Where the spokes are
+edges (`Pencil.edge_angles`), the image measures the edges themselves: each is an exact ray
+through the vertex, whatever the perspective, where a wedge's image bisector is not the
+image of its centre line. ``circles`` are the radii of circles about the vertex printed
+with it (a dartboard's rings, a star's outline): their images give the plane a second time.
+
 The forward model works in *normalised* image coordinates (z = 1 plane, no distortion):
 a spoke with camera-frame direction d through the vertex P0 = depth * (x_d, y_d, 1) images
 as the line through x_d with oriented direction
@@ -33,6 +42,8 @@ from pencilcal.toolkit.io.files import atomic_write, is_number, load_structured
 
 __all__ = [
     "MAX_SPOKES",
+    "SHAPES",
+    "POLARITIES",
     "Pencil",
     "pencil_from_dict",
     "read_pencil",
@@ -45,6 +56,16 @@ __all__ = [
 ]
 
 
+#: What is printed along each spoke (the pencil file's ``shape``): a thin line or a bar whose
+#: centre line is the spoke, a wedge whose centre line it is (its edges rays through the
+#: vertex: a Siemens star), or the boundary between two sectors of different shade.
+SHAPES = ("line", "wedge", "edge")
+#: ``polarity``: dark wedges on a light ground or light ones on a dark ground; for edges,
+#: whether the sector that starts at the first spoke (turning towards larger angles) is dark
+#: or light.
+POLARITIES = ("dark", "light")
+
+
 @dataclass(frozen=True, eq=False)
 class Pencil:
     """A fan of spokes in the target plane.
@@ -54,16 +75,62 @@ class Pencil:
     radius: (2,) inner and outer end of every spoke, measured from the vertex, or None.
     width: printed width of each spoke (a dark bar, length unit), or None. The spoke is
         the bar's centre line; `pencilcal lines` finds it from the bar's two edges.
+    shape: "line" (thin lines or bars), "wedge" or "edge" (`SHAPES`).
+    wedge: angular width [rad] of each wedge (shape "wedge"), or None.
+    polarity: "dark", "light" (`POLARITIES`) or None (edges: not said).
+    circles: (C,) radii of printed circles centred on the vertex (length unit), or None.
     """
 
     angles: np.ndarray
     vertex: np.ndarray | None = None
     radius: np.ndarray | None = None
     width: float | None = None
+    shape: str = "line"
+    wedge: float | None = None
+    polarity: str | None = None
+    circles: np.ndarray | None = None
 
     @property
     def count(self) -> int:
         return int(self.angles.shape[0])
+
+    @property
+    def full_circle(self) -> bool:
+        """True when the spokes go all around the vertex: no gap between neighbours (in
+        angle order) reaches 180 deg, so every image line through the vertex has spokes on
+        both sides of it."""
+        a = np.sort(np.remainder(self.angles, 2 * np.pi))
+        return bool(np.max(np.diff(np.r_[a, a[0] + 2 * np.pi])) < np.pi)
+
+    def edge_angles(self):
+        """The lines the image measures, as a pencil of their own: (angles (E,) [rad],
+        spoke (E,) the spoke each belongs to, kind (E,) or None).
+
+        For ``line`` the spokes themselves (E = N). For ``wedge`` the two edges of every
+        wedge, at theta_k -+ wedge / 2 (E = 2N). For ``edge`` the spokes. ``kind`` says which
+        side of an edge is brighter, seen from the vertex: +1 when the image gets brighter
+        turning towards larger angles, -1 when darker; None where the pencil file does not
+        say (lines, or edges without a polarity).
+
+        >>> p = pencil_from_dict({"start_deg": 0, "step_deg": 90, "count": 4, "shape": "wedge"})
+        >>> a, k, kind = p.edge_angles()
+        >>> np.degrees(a).round(6).tolist()[:4], k.tolist()[::4], kind.tolist()[::4]
+        ([-22.5, 67.5, 157.5, 247.5], [0, 0], [-1, 1])
+        """
+        n = self.count
+        if self.shape == "wedge":
+            h = 0.5 * self.wedge
+            sign = 1 if self.polarity != "light" else -1
+            angles = np.concatenate([self.angles - h, self.angles + h])
+            kind = np.concatenate([np.full(n, -sign), np.full(n, sign)])
+            return angles, np.tile(np.arange(n), 2), kind
+        if self.shape == "edge" and self.polarity is not None:
+            # alternating sectors: rank the spokes by angle from the first one
+            rank = np.empty(n, int)
+            rank[np.argsort(np.remainder(self.angles - self.angles[0], 2 * np.pi), kind="stable")] = np.arange(n)
+            sign = 1 if self.polarity == "dark" else -1
+            return self.angles.copy(), np.arange(n), np.where(rank % 2 == 0, -sign, sign)
+        return self.angles.copy(), np.arange(n), None
 
     def to_dict(self) -> dict:
         # degrees are what people type; 12 decimals hide the radian round trip's last bit
@@ -74,6 +141,14 @@ class Pencil:
             d["radius"] = [float(r) for r in self.radius]
         if self.width is not None:
             d["width"] = float(self.width)
+        if self.shape != "line":
+            d["shape"] = self.shape
+        if self.wedge is not None:
+            d["wedge_deg"] = float(np.round(np.degrees(self.wedge), 12))
+        if self.polarity is not None:
+            d["polarity"] = self.polarity
+        if self.circles is not None:
+            d["circles"] = [float(c) for c in self.circles]
         return d
 
 
@@ -103,7 +178,10 @@ def pencil_from_dict(d, source="pencil"):
     """Build a Pencil from a parsed pencil file (docs/formats.md), validating every field.
 
     Accepts ``angles_deg: [...]`` or ``start_deg, step_deg, count``; optional ``vertex``,
-    ``radius`` and ``width``. `source` names the file in error messages. At most
+    ``radius``, ``width``, ``shape`` (`SHAPES`), ``wedge_deg`` (wedges: their angular
+    width, default half the smallest gap between spokes: a regular Siemens star's wedges and
+    gaps are equal), ``polarity`` (`POLARITIES`; wedges default to dark) and ``circles``
+    (radii of circles about the vertex). `source` names the file in error messages. At most
     `MAX_SPOKES` spokes, no two in the same direction; every number a finite number (a
     string such as "12" is refused, not converted).
 
@@ -116,7 +194,8 @@ def pencil_from_dict(d, source="pencil"):
     """
     if not isinstance(d, dict):
         raise InputError(f"{source}: expected a mapping with 'angles_deg' or 'start_deg/step_deg/count'")
-    known = {"angles_deg", "start_deg", "step_deg", "count", "vertex", "radius", "width", "name", "units"}
+    known = {"angles_deg", "start_deg", "step_deg", "count", "vertex", "radius", "width", "name", "units", "shape",
+             "wedge_deg", "polarity", "circles"}
     unknown = sorted(set(d) - known)
     if unknown:
         raise InputError(f"{source}: unknown key(s) {unknown}; expected {sorted(known)}")
@@ -165,7 +244,47 @@ def pencil_from_dict(d, source="pencil"):
         width = _floats([d["width"]], 1, "width", source)[0]
         if width <= 0:
             raise InputError(f"{source}: 'width' must be positive, got {d['width']!r}")
-    return Pencil(np.radians(angles), vertex, radius, width)
+    shape, wedge, polarity = _shape_fields(d, source, np.min(gaps), width, angles.size)
+    circles = None
+    if d.get("circles") is not None:
+        raw = d["circles"]
+        if not isinstance(raw, (list, tuple)) or not raw:
+            raise InputError(f"{source}: 'circles' must be a list of radii")
+        circles = _floats(raw, len(raw), "circles", source)
+        if np.any(circles <= 0):
+            raise InputError(f"{source}: 'circles' must be positive radii, got {raw!r}")
+    return Pencil(np.radians(angles), vertex, radius, width, shape, wedge, polarity, circles)
+
+
+def _shape_fields(d, source, min_gap_deg, width, count):
+    """(shape, wedge [rad] or None, polarity or None) of a pencil file's mapping `d`, checked:
+    a wedge narrower than the smallest gap between spokes, no width but for lines, an even
+    count of alternating edges."""
+    shape = d.get("shape", "line")
+    if shape not in SHAPES:
+        raise InputError(f"{source}: 'shape' must be one of {', '.join(SHAPES)}, got {shape!r}")
+    polarity = d.get("polarity")
+    if polarity is not None and polarity not in POLARITIES:
+        raise InputError(f"{source}: 'polarity' must be one of {', '.join(POLARITIES)}, got {polarity!r}")
+    if polarity is not None and shape == "line":
+        raise InputError(f"{source}: 'polarity' is for wedges and edges (shape wedge or edge)")
+    if width is not None and shape != "line":
+        raise InputError(f"{source}: 'width' is the width of bars (shape line), not of {shape}s")
+    if d.get("wedge_deg") is not None and shape != "wedge":
+        raise InputError(f"{source}: 'wedge_deg' needs 'shape: wedge'")
+    wedge = None
+    if shape == "wedge":
+        wedge_deg = 0.5 * min_gap_deg
+        if d.get("wedge_deg") is not None:
+            wedge_deg = _floats([d["wedge_deg"]], 1, "wedge_deg", source)[0]
+            if not 0 < wedge_deg < min_gap_deg:
+                raise InputError(f"{source}: 'wedge_deg' must be between 0 and the smallest gap between spokes "
+                                 f"({min_gap_deg:g} deg), got {d['wedge_deg']!r}")
+        wedge = float(np.radians(wedge_deg))
+        polarity = polarity or "dark"
+    if shape == "edge" and polarity is not None and count % 2:
+        raise InputError(f"{source}: edges between alternating sectors come in an even number, got {count}")
+    return shape, wedge, polarity
 
 
 def read_pencil(path):

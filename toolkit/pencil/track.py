@@ -52,7 +52,8 @@ VERTEX_GATE = 0.25
 
 
 def prior_labels(camera, segments, pencil, previous, gate_deg=GATE_DEG):
-    """Spoke label (M,) of each segment by the previous frame's orientation (-1: none).
+    """Spoke label (M,) of each segment by the previous frame's orientation (-1: none); for
+    wedges and sector boundaries the edge's index in the pencil's `edge_angles`.
 
     segments: (M, 4) raw px; previous: an `Orientation` with an estimate (``ok``);
     gate_deg [deg]: see the module docstring.
@@ -63,7 +64,7 @@ def prior_labels(camera, segments, pencil, previous, gate_deg=GATE_DEG):
     if len(seg) == 0 or not ray[2] > 0:
         return lab
     x0 = ray[:2] / ray[2]
-    pred = image_angles(np.asarray(previous.R_cam_from_target, float), x0, pencil.angles)  # (N,)
+    pred = image_angles(np.asarray(previous.R_cam_from_target, float), x0, pencil.edge_angles()[0])  # (N,)
     gap = np.abs(wrap_angle(pred[:, None] - pred[None, :]))
     gap[np.diag_indices_from(gap)] = np.inf
     gate = min(np.radians(gate_deg), 0.4 * float(np.min(gap))) if len(pred) > 1 else np.radians(gate_deg)
@@ -114,7 +115,7 @@ def _fits_its_labels(rec, pencil):
     under the fitted orientation (a wrong label misses by far more)."""
     ln = rec.lines
     pred = image_angles(np.asarray(rec.R_cam_from_target, float), np.asarray(ln["vertex"], float),
-                        pencil.angles[np.asarray(ln["spoke"], int)])
+                        pencil.edge_angles()[0][np.asarray(ln["spoke"], int)])
     res = wrap_angle(np.asarray(ln["angle"], float) - pred)
     # lines, not directions: a straddling segment's angle is known modulo pi
     res = np.minimum(np.abs(res), np.abs(wrap_angle(res + np.pi)))

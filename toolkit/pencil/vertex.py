@@ -146,6 +146,7 @@ class VertexFit:
         most two lines with this one (0 when there is none): in clutter, where random
         segments meet anywhere, it is close to `gain`, and the vertex is then one of many.
     rival_vertex: (2,) [px] that other vertex, or None.
+    rival_lines: the lines through it.
     """
 
     vertex: np.ndarray
@@ -163,6 +164,7 @@ class VertexFit:
     gain: float = 0.0
     rival_gain: float = 0.0
     rival_vertex: np.ndarray | None = None
+    rival_lines: int = 0
 
     @property
     def dof(self) -> int:
@@ -350,12 +352,12 @@ def _msac_cost(p, e, t2, consistent):
     return float(c.sum())
 
 
-def _refine_inliers(p, fit, classify, inliers, t2):
-    """Weighted LS from p (2,) on its inliers, re-classifying the lines until the inlier set
-    is stable (2-3 rounds). Returns (p (2,), mask (M,), iterations, MSAC cost at p).
-    EstimationError when fewer than two lines agree."""
+def _refine_inliers(p, fit, classify, inliers, t2, start=None):
+    """Weighted LS from p (2,) on its inliers (or, the first time, the lines `start` (M,)),
+    re-classifying the lines until the inlier set is stable (2-3 rounds). Returns (p (2,),
+    mask (M,), iterations, MSAC cost at p). EstimationError when fewer than two lines agree."""
     e, _ = classify(p)
-    mask = inliers(p, e)
+    mask = inliers(p, e) if start is None else start
     for _ in range(10):
         if np.count_nonzero(mask) < 2:
             raise EstimationError("vertex: fewer than two lines agree on a common point")
@@ -378,15 +380,19 @@ def _refine_inliers(p, fit, classify, inliers, t2):
 LOCAL_CANDIDATES = 16
 
 
-def _local_optimisation(hyp, cost, refine, start_inliers, no_vertex):
+def _local_optimisation(hyp, cost, refine, start_inliers, no_vertex, spread):
     """Refine the `LOCAL_CANDIDATES` best hypotheses hyp (P, 2) by their MSAC cost (P,) and
     keep the best refined vertex; a pair's intersection is noisy, and in clutter a random
     point near many lines can score better than the true vertex before refinement.
 
-    start_inliers(p) -> (M,) bool: the lines through a hypothesis before refinement.
-    Returns (p (2,), inliers (M,), iterations, rival): rival is (vertex (2,), gain) of the
-    best refined vertex that shares at most two lines with the chosen one (None if none),
-    gain = no_vertex - its cost (no_vertex: M T^2, the cost of no vertex at all).
+    start_inliers(p) -> (M,) bool: the lines through a hypothesis before refinement;
+    spread(p, mask) -> [px] how far apart two estimates of one vertex from those lines may
+    lie (`_coincide`). Refined vertices that coincide (two groups of the same lines' edges,
+    fragments of the same spokes, each refined to nearly the same point) are one candidate:
+    the best is refined again on all their lines. Returns (p (2,), inliers (M,), iterations,
+    rival): rival is (vertex (2,), gain, lines) of the best refined vertex elsewhere that
+    shares at most two lines with the chosen one (None if none), gain = no_vertex - its cost
+    (no_vertex: M T^2, the cost of no vertex at all).
     """
     order = np.argsort(cost, kind="stable")[:LOCAL_CANDIDATES]
     found, first_error = [], None
@@ -406,12 +412,40 @@ def _local_optimisation(hyp, cost, refine, start_inliers, no_vertex):
     for f in found[1:]:  # only a strictly better one replaces the first
         if f[3] < best[3] - 1e-9 * max(1.0, abs(best[3])):
             best = f
-    rivals = [f for f in found if np.count_nonzero(f[1] & best[1]) <= 2]
+    same = [f for f in found if f is not best and _coincide(best, f, spread)]
+    if same:
+        # one vertex seen through two groups of lines: refined on all of them
+        union = best[1].copy()
+        for f in same:
+            union |= f[1]
+        try:
+            merged = refine(best[0], union)
+        except EstimationError:
+            merged = None
+        if merged is not None and merged[3] <= best[3] + 1e-9 * max(1.0, abs(best[3])):
+            best = merged
+        found = [f for f in found if not any(f is g for g in same)]
+    rivals = [f for f in found if f is not best and np.count_nonzero(f[1] & best[1]) <= 2
+              and not _coincide(best, f, spread)]
     rival = None
     if rivals:
         r = min(rivals, key=lambda f: f[3])
-        rival = (r[0], float(no_vertex - r[3]))
+        rival = (r[0], float(no_vertex - r[3]), int(np.count_nonzero(r[1])))
     return best[0], best[1], best[2], rival
+
+
+#: Two refined vertices closer than this [px] are one, whatever their lines' sigmas: the two
+#: sides of a dartboard's wires meet a fraction of a pixel apart, each group precisely; a
+#: rival in clutter lies far away.
+COINCIDE_PX = 2.0
+
+
+def _coincide(a, b, spread):
+    """Whether two refined vertices (p, mask, ...) are one: closer than the spread either
+    one's lines allow (`intersect_lines`: three sds of the lines' distances from it) or
+    than `COINCIDE_PX`."""
+    d = float(np.hypot(*(np.asarray(a[0]) - np.asarray(b[0]))))
+    return d <= max(spread(a[0], a[1]), spread(b[0], b[1]), COINCIDE_PX)
 
 
 def intersect_lines(
@@ -505,13 +539,20 @@ def intersect_lines(
             ok = e * e < t2
             return ok if consistent is None else ok & consistent(p[None])[0]
 
-        def refine(p):
-            return _refine_inliers(p, fit, classify, inliers, t2)
+        def refine(p, start=None):
+            return _refine_inliers(p, fit, classify, inliers, t2, start)
 
         def start_inliers(p):
             return inliers(p, classify(p)[0])
 
-        p, mask, it, rival = _local_optimisation(hyp, cost, refine, start_inliers, m * t2)
+        def spread(p, mask):
+            # two estimates of one vertex, each from half of these lines, differ by about
+            # sqrt(2) sigma / sqrt(n / 2) = 2 sigma / sqrt(n) (sigma the lines' distance sd):
+            # three of those
+            _, sig = classify(p)
+            return 6.0 * float(np.sqrt(np.mean(sig[mask] ** 2) / max(np.count_nonzero(mask), 1)))
+
+        p, mask, it, rival = _local_optimisation(hyp, cost, refine, start_inliers, m * t2, spread)
     else:
         mask, rival = np.ones(m, dtype=bool), None
         # start from the offset-only solution (lever arms unknown yet)
@@ -556,6 +597,7 @@ def intersect_lines(
         gain=float(m * t2 - _msac_cost(p, e, t2, consistent if robust else None)),
         rival_gain=0.0 if rival is None else rival[1],
         rival_vertex=None if rival is None else rival[0],
+        rival_lines=0 if rival is None else rival[2],
     )
 
 

@@ -19,7 +19,12 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["rect", "signed_area", "oriented", "convex_overlap", "point_in_polygon", "convex_hull"]
+__all__ = ["rect", "signed_area", "oriented", "convex_overlap", "point_in_polygon", "convex_hull", "arc",
+           "annular_sector", "ARC_STEP"]
+
+#: Arcs are polylines with vertices at most this far apart [rad]: a chord of 0.5 deg strays
+#: from its arc by 1e-5 of the radius (7e-4 mm at 70 mm).
+ARC_STEP = np.radians(0.5)
 
 
 def rect(x0, y0, x1, y1):
@@ -98,3 +103,24 @@ def convex_hull(pts):
             upper.pop()
         upper.append(q)
     return np.array(lower[:-1] + upper[:-1])
+
+
+def arc(r, a0, a1, centre=(0.0, 0.0)):
+    """(K, 2) points on the circle of radius r about `centre` from angle a0 to a1 [rad], at
+    most `ARC_STEP` apart (both ends included)."""
+    n = max(2, int(np.ceil(abs(a1 - a0) / ARC_STEP)) + 1)
+    a = np.linspace(a0, a1, n)
+    return np.asarray(centre, float) + r * np.stack([np.cos(a), np.sin(a)], -1)
+
+
+def annular_sector(r0, r1, a0, a1, centre=(0.0, 0.0)):
+    """The polygon (K, 2) between radii r0 < r1 about `centre` and angles a0 < a1 [rad]: a
+    wedge (its tip at the centre) when r0 is 0.
+
+    >>> np.round(annular_sector(0.0, 1.0, 0.0, np.pi / 2)[[0, 1, -1]], 9).tolist()
+    [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]
+    """
+    outer = arc(r1, a0, a1, centre)
+    if r0 <= 0:
+        return np.concatenate([np.asarray(centre, float)[None], outer])
+    return np.concatenate([outer, arc(r0, a1, a0, centre)])

@@ -45,7 +45,7 @@ from pencilcal.toolkit.synth.polygons import rect
 from pencilcal.toolkit.synth.raster import pixel_rays, render_coverage, to_camera
 from pencilcal.toolkit.synth.texture import plane_texture, sample_texture
 
-__all__ = ["render_frame", "REFLECTANCE"]
+__all__ = ["render_frame", "REFLECTANCE", "sensor_image"]
 
 
 def _readonly(values):
@@ -174,7 +174,7 @@ def render_frame(camera, R_cam_from_target, t_cam_from_target, sheet, *, instrum
         _draw_table_scene(img, camera, R, t, C_t, backdrop, c_paper, paper_term + ink_term, color)
     if instrument is not None:
         _draw_instrument(img, camera, R, t, instrument, color)
-    return _sensor_image(img, float(lighting), float(exposure), blur_px, float(gamma), noise, rng)
+    return sensor_image(img, float(lighting), float(exposure), blur_px, float(gamma), noise, rng)
 
 
 def _tint(name, color):
@@ -258,7 +258,7 @@ def _draw_instrument(img, camera, R, t, instrument, color):
         win[sel] = win[sel] * (1.0 - c[sel])[:, None] + (c[sel] * lum)[:, None] * _tint("shaft", color)
 
 
-def _sensor_image(img, lighting, exposure, blur_px, gamma, noise, rng):
+def sensor_image(img, lighting, exposure, blur_px, gamma, noise, rng):
     """What the camera records of the linear scene img (H, W, C): uneven lighting, exposure,
     optical blur, gamma encoding and sensor noise (arguments as `render_frame`'s), in that
     order; (H, W) or (H, W, 3) uint8."""

@@ -1,4 +1,5 @@
-"""The printed target: a ChArUco board and a fan of dark bars (the spokes) on a sheet of paper.
+"""The printed target: a ChArUco board and a fan of dark bars (the spokes), or a Siemens star, on a
+sheet of paper.
 
 `Sheet` defines everything printed analytically, as polygons in the *target frame* (= the
 board frame, frames.py: x right, y down the sheet, z into the sheet, origin at the outer
@@ -25,10 +26,10 @@ import numpy as np
 from pencilcal.toolkit.board.spec import Board, board_from_dict
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.pencil.spec import Pencil, pencil_from_dict
-from pencilcal.toolkit.synth.polygons import convex_overlap, oriented, point_in_polygon, rect
+from pencilcal.toolkit.synth.polygons import annular_sector, convex_overlap, oriented, point_in_polygon, rect
 from pencilcal.toolkit.synth.raster import polygon_coverage
 
-__all__ = ["PAPER_SIZES", "DEFAULT_BOARD", "Sheet", "layout_sheet", "default_board", "sheet_raster",
+__all__ = ["PAPER_SIZES", "DEFAULT_BOARD", "Sheet", "layout_sheet", "default_board", "star_pencil", "sheet_raster",
            "write_sheet_png", "write_sheet_pdf"]
 
 #: Paper sizes (long side, short side) [mm].
@@ -59,7 +60,8 @@ def _bar_corners(vertex, theta, radius, width):
 
 @dataclass(frozen=True, eq=False)
 class Sheet:
-    """The printed target: a ChArUco board and a fan of dark bars on a sheet of paper.
+    """The printed target: a ChArUco board and a fan of dark bars (or a Siemens star) on a sheet
+    of paper.
 
     All geometry is in the target frame (the board frame: x right, y down the sheet, origin
     at the outer corner of the board's first square) in the board's length unit (mm).
@@ -72,6 +74,8 @@ class Sheet:
         The printed fan: ``angles`` [rad], ``vertex`` (2,), ``radius`` (2,) and ``width``
         all required. Bar k is the rectangle of width ``width`` whose centre line runs
         from ``radius[0]`` to ``radius[1]`` from the vertex along (cos theta_k, sin theta_k).
+        Or a Siemens star (shape "wedge"): wedge k runs from the vertex out to ``radius[1]``
+        between theta_k -+ ``wedge`` / 2, its outer end an arc of the star's outline.
     paper_size : (2,) float
         Paper (width, height) as printed [mm]; (297, 210) is A4 landscape.
     paper_origin : (2,) float
@@ -109,8 +113,10 @@ class Sheet:
         if not isinstance(b, Board) or b.type != "charuco":
             raise InputError("the sheet's board must be a ChArUco board")
         p = self.pencil
-        if p.vertex is None or p.radius is None or p.width is None:
-            raise InputError("the sheet's pencil needs a vertex, a radius and a width")
+        if p.vertex is None or p.radius is None or (p.width is None and p.shape != "wedge"):
+            raise InputError("the sheet's pencil needs a vertex, a radius and a width (or wedges)")
+        if p.shape == "edge":
+            raise InputError("the sheet prints bars or a star's wedges, not sector boundaries")
         size = tuple(float(v) for v in self.paper_size)
         origin = tuple(float(v) for v in self.paper_origin)
         object.__setattr__(self, "paper_size", size)
@@ -142,8 +148,12 @@ class Sheet:
     # ------------------------------------------------------------------ geometry
     @cached_property
     def bars(self):
-        """List of (4, 2) corner arrays, one rotated rectangle per spoke [target mm]."""
+        """List of (K, 2) polygons, one per spoke [target mm]: the rotated rectangle of a bar,
+        or a star's wedge."""
         p = self.pencil
+        if p.shape == "wedge":
+            h = 0.5 * p.wedge
+            return [annular_sector(0.0, float(p.radius[1]), th - h, th + h, p.vertex) for th in p.angles]
         return [_bar_corners(p.vertex, th, p.radius, p.width) for th in p.angles]
 
     @property
@@ -234,8 +244,9 @@ class Sheet:
 
 def layout_sheet(board=None, *, paper="a4", orientation="landscape", margin=10.0, gap=8.0,
                  spokes=8, step_deg=20.0, start_deg=None, angles_deg=None, radius=(15.0, 80.0),
-                 width=1.0, side="right", vertex=None):
-    """The default printable layout: a ChArUco board with a fan of spokes beside it.
+                 width=1.0, side="right", vertex=None, star=None, star_radius=None):
+    """The default printable layout: a ChArUco board with a fan of spokes (or a Siemens star)
+    beside it.
 
     Parameters
     ----------
@@ -261,6 +272,10 @@ def layout_sheet(board=None, *, paper="a4", orientation="landscape", margin=10.0
         Where the fan goes relative to the board.
     vertex : (2,) float, optional
         Explicit vertex in the target frame [mm] instead of the automatic placement.
+    star : int, optional
+        A Siemens star of this many dark wedges instead of the fan (`star_pencil`): wedge k
+        centred at k 360 / star deg, as wide as the gaps, from the vertex out to
+        `star_radius` [mm] (default: the largest whole millimetre that fits beside the board).
 
     Returns
     -------
@@ -280,12 +295,9 @@ def layout_sheet(board=None, *, paper="a4", orientation="landscape", margin=10.0
     (10, (420.0, 297.0))
     """
     board = default_board() if board is None else board
-    if paper not in PAPER_SIZES:
-        raise InputError(f"unknown paper {paper!r}; expected one of {sorted(PAPER_SIZES)}")
-    if orientation not in ("landscape", "portrait"):
-        raise InputError(f"orientation must be landscape or portrait, got {orientation!r}")
-    if side not in ("right", "below"):
-        raise InputError(f"side must be right or below, got {side!r}")
+    if star is not None:
+        return _star_sheet(board, paper, orientation, margin, gap, int(star), star_radius, side, vertex)
+    size = _paper(paper, orientation, side)
     r = np.asarray(radius, float)
     if r.shape != (2,) or not (0 <= r[0] < r[1]):
         raise InputError(f"radius must be [inner, outer] with 0 <= inner < outer, got {list(radius)}")
@@ -312,12 +324,64 @@ def layout_sheet(board=None, *, paper="a4", orientation="landscape", margin=10.0
             vertex = (bw / 2.0 - (fx0 + fx1) / 2.0, math.ceil(bh + gap - fy0 - 1e-9))
     vertex = np.round(np.asarray(vertex, float), 3) + 0.0
     pencil = Pencil(proto.angles, vertex, r, float(width))
-    long_side, short_side = PAPER_SIZES[paper]
-    size = (long_side, short_side) if orientation == "landscape" else (short_side, long_side)
     cx0 = min(0.0, vertex[0] + fx0)
     cy0 = min(0.0, vertex[1] + fy0)
     cx1 = max(bw, vertex[0] + fx1)
     cy1 = max(bh, vertex[1] + fy1)
+    origin = (round((cx0 + cx1) / 2.0 - size[0] / 2.0, 3), round((cy0 + cy1) / 2.0 - size[1] / 2.0, 3))
+    return Sheet(board, pencil, size, origin, float(margin), f"{paper} {orientation}")
+
+
+def _paper(paper, orientation, side):
+    """(width, height) [mm] of the paper, checked."""
+    if paper not in PAPER_SIZES:
+        raise InputError(f"unknown paper {paper!r}; expected one of {sorted(PAPER_SIZES)}")
+    if orientation not in ("landscape", "portrait"):
+        raise InputError(f"orientation must be landscape or portrait, got {orientation!r}")
+    if side not in ("right", "below"):
+        raise InputError(f"side must be right or below, got {side!r}")
+    long_side, short_side = PAPER_SIZES[paper]
+    return (long_side, short_side) if orientation == "landscape" else (short_side, long_side)
+
+
+def star_pencil(wedges, radius, vertex=(0.0, 0.0)):
+    """The pencil of a printed Siemens star: `wedges` dark wedges centred at k 360 / wedges
+    deg, each half the step wide, from the vertex out to `radius` [mm], whose outline is a
+    circle (its pencil file: shape wedge, circles [radius]).
+
+    >>> p = star_pencil(64, 40.0)
+    >>> p.count, p.shape, round(float(np.degrees(p.wedge)), 4), p.circles.tolist()
+    (64, 'wedge', 2.8125, [40.0])
+    """
+    if int(wedges) < 4:
+        raise InputError(f"a Siemens star needs at least 4 wedges, got {wedges}")
+    step = 360.0 / int(wedges)
+    return pencil_from_dict({"angles_deg": [float(a) for a in step * np.arange(int(wedges))], "shape": "wedge",
+                             "vertex": [float(v) for v in vertex], "radius": [0.0, float(radius)],
+                             "circles": [float(radius)], "polarity": "dark"}, source="star")
+
+
+def _star_sheet(board, paper, orientation, margin, gap, wedges, radius, side, vertex):
+    """`layout_sheet` with a Siemens star of `wedges` beside the board (its arguments)."""
+    size = _paper(paper, orientation, side)
+    bw, bh = board.size
+    if side == "right":
+        room = (size[0] - 2 * margin - bw - gap, size[1] - 2 * margin)
+    else:
+        room = (size[0] - 2 * margin, size[1] - 2 * margin - bh - gap)
+    fits = math.floor(min(room) / 2.0 - 1e-9)
+    if radius is None:
+        radius = fits
+    if not radius > 0:
+        raise InputError(f"no room for a star beside the board on {paper} {orientation} paper; use larger paper")
+    if vertex is None:
+        r = float(radius)
+        vertex = (math.ceil(bw + gap + r - 1e-9), bh / 2.0) if side == "right" else \
+            (bw / 2.0, math.ceil(bh + gap + r - 1e-9))
+    pencil = star_pencil(wedges, radius, np.round(np.asarray(vertex, float), 3) + 0.0)
+    v, r = pencil.vertex, float(radius)
+    cx0, cy0 = min(0.0, v[0] - r), min(0.0, v[1] - r)
+    cx1, cy1 = max(bw, v[0] + r), max(bh, v[1] + r)
     origin = (round((cx0 + cx1) / 2.0 - size[0] / 2.0, 3), round((cy0 + cy1) / 2.0 - size[1] / 2.0, 3))
     return Sheet(board, pencil, size, origin, float(margin), f"{paper} {orientation}")
 
@@ -354,8 +418,10 @@ def _caption(sheet):
     steps = np.degrees(np.diff(p.angles))
     fan = (f"{p.count} spokes {steps[0]:g} deg apart" if np.allclose(steps, steps[0])
            else f"{p.count} spokes")
+    what = (f"Siemens star of {p.count} wedges, radius {p.radius[1]:g} mm" if p.shape == "wedge" else
+            f"fan of {fan}, radius {p.radius[0]:g}-{p.radius[1]:g} mm, width {p.width:g} mm")
     return [f"pencilcal target: ChArUco {b.squares[0]}x{b.squares[1]}, square {b.square:g} mm, marker {b.marker:g} mm, "
-            f"{b.dictionary}; fan of {fan}, radius {p.radius[0]:g}-{p.radius[1]:g} mm, width {p.width:g} mm",
+            f"{b.dictionary}; {what}",
             f"Print at 100 % (actual size, no fit to page). A square must measure {b.square:g} mm."]
 
 

@@ -1,0 +1,94 @@
+"""The edges of radial targets on rendered webcam frames: every edge found, each through the
+vertex as its sigmas say, the circle points on the outline, clutter beside it."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.detect.radial import detect_radial_edges
+from pencilcal.toolkit.pencil.spec import image_angles, pencil_from_dict
+from pencilcal.toolkit.synth.radial import dartboard_layers, dartboard_pencil, radial_pose, render_layers, star_layers
+
+CAM = Camera("opencv", 1280, 960, [[1000.0, 0, 643.1], [0, 1000.5, 477.4], [0, 0, 1]], [-0.2, 0.0, 0.0, 0.0])
+
+
+def _star(n, polarity="dark"):
+    return pencil_from_dict({"start_deg": 0, "step_deg": 360.0 / n, "count": n, "shape": "wedge", "radius": [0, 70],
+                             "circles": [70], "polarity": polarity})
+
+
+def _residuals(found, pen, R, t):
+    """Each found edge's angle error [rad] against the nearest true edge of its kind of
+    polarity, and its sigma."""
+    x = t[:2] / t[2]
+    ea, _, _ = pen.edge_angles()
+    true = image_angles(R, x, ea)
+    vpx = CAM.undistort_pixels(CAM.project(t))
+    mid = 0.5 * (found.ideal[:, :2] + found.ideal[:, 2:])
+    d = found.ideal[:, 2:] - found.ideal[:, :2]
+    out = np.sign(np.sum(d * (mid - vpx), -1))
+    a = np.arctan2(d[:, 1] * out / CAM.K[1, 1], d[:, 0] * out / CAM.K[0, 0])  # normalised coordinates
+    res = np.angle(np.exp(1j * (a[:, None] - true[None, :])))
+    k = np.argmin(np.abs(res), 1)
+    return res[np.arange(len(a)), k], k
+
+
+@pytest.mark.parametrize("n,tilt,polarity", [(16, 40.0, "dark"), (64, 25.0, "dark"), (64, 50.0, "light")])
+def test_every_edge_of_a_star(n, tilt, polarity):
+    """All 2n edges, the vertex within 0.02 px (a 1 px blur, gamma 2.2, JPEG 85, k1 -0.2),
+    the angle errors as large as their sigmas say (located on linear light: on the encoded
+    levels every edge sat 0.5 px into its dark side and missed the vertex)."""
+    pen = _star(n, polarity)
+    R, t = radial_pose(CAM, (700, 450), tilt, 70.0, fill=0.8, axis_deg=30, roll_deg=10)
+    img = render_layers(CAM, R, t, star_layers(pen), blur_px=1.0, noise=2.0, gamma=2.2, lighting=0.3,
+                        jpeg_quality=85, rng=1)
+    found = detect_radial_edges(img, CAM, edges=2 * n)
+    r, k = _residuals(found, pen, R, t)
+    assert len(found) == 2 * n and np.unique(k).size == 2 * n
+    assert np.hypot(*(found.vertex - CAM.undistort_pixels(CAM.project(t)))) < 0.02
+    z = r / found.angle_sigma
+    assert 0.5 < np.sqrt(np.mean(z**2)) < 1.5
+
+
+def test_dartboard_in_its_clutter():
+    """A dartboard with its wires, numbers and three darts: its sector boundaries found
+    (the darts hide a few), and the ring of numbers, whose bars point at the bull, no
+    boundary."""
+    pen = dartboard_pencil()
+    R, t = radial_pose(CAM, (620, 500), 45.0, 225.0, fill=0.85, axis_deg=70, roll_deg=5)
+    img = render_layers(CAM, R, t, dartboard_layers(wires=True, numbers=True, darts=3, rng=4), blur_px=1.0,
+                        noise=2.0, gamma=2.2, lighting=0.3, jpeg_quality=85, rng=4)
+    found = detect_radial_edges(img, CAM, edges=20)
+    r, k = _residuals(found, pen, R, t)
+    on_boundary = np.abs(r) < np.radians(0.2)
+    assert np.unique(k[on_boundary]).size >= 17
+    assert len(found.circle_points) > 200
+
+
+def test_circle_points_hold_the_outline():
+    """Of the edge points across rays, those of the star's outline lie on the image of the
+    circle of radius 70 mm about the vertex, within 0.3 px."""
+    pen = _star(32)
+    R, t = radial_pose(CAM, (640, 480), 35.0, 70.0, fill=0.75, axis_deg=-20, roll_deg=40)
+    img = render_layers(CAM, R, t, star_layers(pen), blur_px=1.0, noise=2.0, gamma=2.2, jpeg_quality=85, rng=2)
+    found = detect_radial_edges(img, CAM, edges=64)
+    pts = CAM.undistort_pixels(found.circle_points)
+    a = np.linspace(0, 2 * np.pi, 3600, endpoint=False)
+    circle = CAM.undistort_pixels(CAM.project((R @ np.stack([70 * np.cos(a), 70 * np.sin(a), 0 * a])).T + t))
+    dist = np.min(np.hypot(pts[:, None, 0] - circle[None, :, 0], pts[:, None, 1] - circle[None, :, 1]), 1)
+    on = dist < 0.3
+    assert on.sum() >= 24  # a point at the tip of each of the 32 wedges but those cut off
+
+
+def test_a_star_beside_a_board():
+    """The star of `pencilcal target --star` beside its ChArUco board: the vertex is the
+    star's, where edges of every direction meet, not a corner of the board, whose rows of
+    square edges pass through it from two."""
+    from tests.helpers import star_sheet_view
+
+    img, cam, sheet, R, t = star_sheet_view(32, 30.0, 260.0)
+    found = detect_radial_edges(img, cam, edges=64)
+    assert len(found) == 64
+    v3 = np.r_[sheet.pencil.vertex, 0.0]
+    assert np.hypot(*(found.vertex - cam.undistort_pixels(cam.project(R @ v3 + t)))) < 0.1

@@ -1,0 +1,197 @@
+"""Radial targets in the core, on exact and noisy lines: the pencil file's shape, full-circle
+labelling, edges' polarity, coincident vertex candidates, the circles' normal and the twin."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.geometry.conic import conic_vector, fit_ellipse
+from pencilcal.toolkit.geometry.frames import angle_between, rotation_from_rotvec
+from pencilcal.toolkit.pencil.assign import assign_spokes
+from pencilcal.toolkit.pencil.circle import circle_estimate, circular_points, normal_agreement
+from pencilcal.toolkit.pencil.spec import image_angles, pencil_from_dict
+from pencilcal.toolkit.pencil.vertex import intersect_lines
+from tests.toolkit.pencil.test_assign import random_pose
+
+STAR = {"start_deg": 0, "step_deg": 5.625, "count": 64, "shape": "wedge", "radius": [0, 70], "circles": [70]}
+
+
+class TestPencilFile:
+    def test_shapes_and_their_edges(self):
+        star = pencil_from_dict(STAR)
+        a, spoke, kind = star.edge_angles()
+        assert a.size == 128 and star.full_circle and star.polarity == "dark"
+        # a dark wedge: darker towards larger angles at its first edge, brighter at its second
+        assert np.allclose(np.degrees(a[:2]), [-1.40625, 4.21875]) and kind[0] == -1 and kind[64] == 1
+        assert spoke[0] == spoke[64] == 0
+        board = pencil_from_dict({"start_deg": 9, "step_deg": 18, "count": 20, "shape": "edge", "polarity": "dark"})
+        _, _, k = board.edge_angles()
+        assert k.tolist() == [-1, 1] * 10
+        assert pencil_from_dict({"start_deg": 9, "step_deg": 18, "count": 20, "shape": "edge"}).edge_angles()[2] is None
+        fan = pencil_from_dict({"start_deg": 0, "step_deg": 20, "count": 8})
+        assert fan.shape == "line" and not fan.full_circle
+
+    @pytest.mark.parametrize("extra,message", [
+        ({"shape": "star"}, "'shape' must be one of"),
+        ({"shape": "wedge", "wedge_deg": 6.0}, "'wedge_deg' must be between 0 and"),
+        ({"wedge_deg": 2.0}, "'wedge_deg' needs 'shape: wedge'"),
+        ({"polarity": "dark"}, "'polarity' is for wedges and edges"),
+        ({"shape": "edge", "width": 1.0}, "'width' is the width of bars"),
+        ({"shape": "wedge", "circles": [-3.0]}, "'circles' must be positive"),
+    ])
+    def test_bad_fields_say_what(self, extra, message):
+        with pytest.raises(InputError, match=message):
+            pencil_from_dict({"start_deg": 0, "step_deg": 5.625, "count": 64, **extra}, "p.yaml")
+
+    def test_an_odd_count_of_alternating_edges_is_refused(self):
+        with pytest.raises(InputError, match="even number"):
+            pencil_from_dict({"start_deg": 0, "step_deg": 30, "count": 11, "shape": "edge", "polarity": "dark"})
+
+    def test_round_trip(self):
+        p = pencil_from_dict({**STAR, "wedge_deg": 2.0, "polarity": "light"})
+        q = pencil_from_dict(p.to_dict())
+        assert q.shape == "wedge" and q.polarity == "light" and np.isclose(q.wedge, p.wedge)
+        assert q.circles.tolist() == [70.0]
+
+
+def _star_lines(rng, n=64, tilt=35.0, sigma_deg=0.02, keep=None):
+    """The 2n edges of a star of n wedges, seen at `tilt`, their image angles with noise,
+    shuffled; (angles, kinds, truth labels, pencil, R, vertex)."""
+    star = pencil_from_dict({"start_deg": 0, "step_deg": 360.0 / n, "count": n, "shape": "wedge"})
+    edges, _, kind = star.edge_angles()
+    x = rng.uniform(-0.2, 0.2, 2)
+    R = random_pose(rng, x, tilt)
+    idx = np.arange(edges.size) if keep is None else keep
+    a = image_angles(R, x, edges[idx]) + np.radians(sigma_deg) * rng.normal(size=idx.size)
+    p = rng.permutation(idx.size)
+    return a[p], kind[idx][p], idx[p], star, R, x
+
+
+class TestFullCircle:
+    @pytest.mark.parametrize("n", [16, 64, 128])
+    def test_every_edge_all_round_is_labelled(self, rng, n):
+        """A star's 2n edges all round the vertex: every one labelled, from any seed. Before,
+        a labelling seeded by three neighbouring lines predicted the far side too poorly and
+        a 64-wedge star used 15 of its spokes, all on one side."""
+        for _ in range(3):
+            a, k, truth, star, R, x = _star_lines(rng, n)
+            res = assign_spokes(a, star.edge_angles()[0], x, np.radians(0.02), line_kind=k,
+                                spoke_kind=star.edge_angles()[2])
+            used = res.spoke >= 0
+            assert used.all()
+            # the star is the same turned by a step: labels are known up to a whole wedge, each
+            # edge on its own side of its wedge (edges k and n + k are wedge k's two sides)
+            assert np.unique((res.spoke % n - truth % n) % n).size == 1
+            assert np.array_equal(res.spoke // n, truth // n)
+            err = min(angle_between(res.fit.normal, R[:, 2]), angle_between(res.fit.normal_twin, R[:, 2]))
+            assert np.degrees(err) < 5 * np.degrees(float(res.fit.normal_sigma)) + 1e-6
+            assert not res.clutter_ambiguous
+
+    def test_polarity_keeps_an_edge_off_its_neighbours(self, rng):
+        """Without kinds, a regular star's edges could all shift by one edge (a wedge for a
+        gap): with them, every edge keeps its own side."""
+        a, k, truth, star, R, x = _star_lines(rng, 32)
+        res = assign_spokes(a, star.edge_angles()[0], x, np.radians(0.02), line_kind=k, spoke_kind=star.edge_angles()[2])
+        assert np.all(star.edge_angles()[2][res.spoke] == k)
+
+    def test_missing_edges_and_clutter_lines(self, rng):
+        """A quarter of the edges missing and ten random lines through the vertex: every
+        edge there labelled, every random line left out."""
+        keep = np.sort(rng.choice(128, 96, replace=False))
+        a, k, truth, star, R, x = _star_lines(rng, 64, keep=keep)
+        junk = rng.uniform(-np.pi, np.pi, 10)
+        res = assign_spokes(np.r_[a, junk], star.edge_angles()[0], x, np.radians(0.02),
+                            line_kind=np.r_[k, rng.choice([-1, 1], 10)], spoke_kind=star.edge_angles()[2])
+        assert (res.spoke[:96] >= 0).all()
+        pred = image_angles(res.fit.R_cam_from_target, x, star.edge_angles()[0][res.spoke[96:][res.spoke[96:] >= 0]])
+        # a random line labelled only where it happens to fall on an edge
+        assert np.all(np.abs(np.angle(np.exp(1j * (junk[res.spoke[96:] >= 0] - pred)))) < np.radians(0.1))
+
+
+def test_coincident_vertex_candidates_are_one():
+    """Two groups of lines meeting 0.3 px apart, each precisely (the two sides of a
+    dartboard's wires), refined to two vertices that share no line: one vertex, not a rival
+    "0 px away" whose evidence equals its own (orient then refused the frame as clutter);
+    a group meeting 150 px away stays a rival."""
+    from pencilcal.toolkit.pencil.vertex import _local_optimisation
+
+    a, b, c = np.zeros(30, bool), np.zeros(30, bool), np.zeros(30, bool)
+    a[:10], b[10:20], c[20:] = True, True, True
+    where = {0: (np.array([400.0, 300.0]), a), 1: (np.array([400.3, 300.0]), b), 2: (np.array([550.0, 300.0]), c)}
+    hyp = np.array([where[k][0] for k in (0, 1, 2)])
+
+    def refine(p, start=None):
+        k = int(np.argmin(np.hypot(*(hyp - p).T)))
+        mask = where[k][1] if start is None else start
+        return where[k][0], mask, 1, 30 * 10.8 - 10 * 10.8 - (0.0 if start is None else 1.0)
+
+    def start_inliers(p):
+        return where[int(np.argmin(np.hypot(*(hyp - p).T)))][1]
+
+    def spread(p, mask):
+        return 0.01  # each group alone fixes its point to a hundredth of a pixel
+
+    p, mask, _, rival = _local_optimisation(hyp, np.array([0.0, 0.1, 0.2]), refine, start_inliers, 30 * 10.8, spread)
+    assert mask.sum() == 20  # refined on both groups' lines
+    assert rival is not None and np.hypot(*(rival[0] - [550.0, 300.0])) < 1e-9 and rival[2] == 10
+
+
+def _circle_points(R, x, radii, n=120, noise=0.0, rng=None):
+    """Image points (normalised) of circles of `radii` (in units of the vertex depth) about
+    the vertex imaged at x, for the rotation R."""
+    a = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    out = []
+    for rho in radii:
+        X = R @ np.stack([rho * np.cos(a), rho * np.sin(a), 0 * a]) + np.r_[x, 1.0][:, None]
+        out.append((X[:2] / X[2]).T)
+    p = np.concatenate(out)
+    return p if rng is None else p + noise * rng.normal(size=p.shape)
+
+
+class TestCircles:
+    def test_the_polar_of_the_vertex_is_the_horizon(self):
+        """Exact circles about the vertex give the plane's normal exactly, and only one of
+        the lines' two twins."""
+        R = rotation_from_rotvec([0.5, -0.3, 0.2])
+        x = np.array([0.08, -0.05])
+        ray = np.r_[x, 1.0] / np.linalg.norm(np.r_[x, 1.0])
+        Rt = (2 * np.outer(ray, ray) - np.eye(3)) @ R @ np.diag([-1.0, -1.0, 1.0])  # the twin
+        est = circle_estimate(_circle_points(R, x, (0.1, 0.25)), x, np.zeros((2, 2)), Rt, R, scale=1000.0)
+        assert est.circles == 2 and est.grouped_by == 1
+        assert np.degrees(angle_between(est.normal, R[:, 2])) < 1e-7
+        assert np.degrees(angle_between(est.normal, Rt[:, 2])) > 10.0
+
+    def test_its_sigma_holds_the_error(self):
+        """Noisy points (0.3 px at f = 1000 px) on two rings: the normal's error within its
+        reported covariance 68 % of the time (chi2, 2 dof), over 200 trials."""
+        rng = np.random.default_rng(3)
+        R = rotation_from_rotvec([0.6, 0.1, -0.2])
+        x = np.array([0.03, 0.04])
+        chi2 = []
+        for _ in range(200):
+            pts = _circle_points(R, x, (0.12, 0.2), n=90, noise=0.3e-3, rng=rng)
+            xv = x + 0.05e-3 * rng.normal(size=2)
+            est = circle_estimate(pts, xv, (0.05e-3) ** 2 * np.eye(2), R, R, scale=1000.0)
+            chi2.append(normal_agreement(R[:, 2], np.zeros((3, 3)), est.normal, est.cov)[1])
+        cover = np.mean(np.array(chi2) <= -2 * np.log(1 - 0.6827))
+        assert 0.6 <= cover <= 0.76
+
+    def test_listed_radii_give_the_depth(self):
+        R = rotation_from_rotvec([0.4, 0.2, 0.0])
+        x = np.array([0.0, 0.02])
+        # circles of 99 and 170 mm seen with the vertex 600 mm away
+        est = circle_estimate(_circle_points(R, x, (99 / 600, 170 / 600)), x, np.zeros((2, 2)), R, R, scale=1000.0,
+                              radii=[6.35, 15.9, 99, 107, 162, 170])
+        assert est.depth == pytest.approx(600.0, rel=1e-6)
+
+    def test_circular_points_give_the_focal_length(self):
+        """A ring seen by a camera of f = 1000 px, fitted in the coordinates of an assumed
+        f0 = 800 px: its circular points say 1000."""
+        R = rotation_from_rotvec([0.7, 0.1, 0.0])
+        x = np.array([0.05, 0.0])
+        true = _circle_points(R, x, (0.2,))
+        C = fit_ellipse(true * 1000.0 / 800.0).conic
+        Ix, Iy = circular_points(C, x * 1000.0 / 800.0)
+        assert 800.0 * np.sqrt(-(Ix * Ix + Iy * Iy).real) == pytest.approx(1000.0, rel=1e-6)
+        assert conic_vector(C).shape == (6,)

@@ -1,0 +1,451 @@
+"""The edges of a radial target: every ray through one point along which the image changes
+from dark to light (a Siemens star's wedges, a dartboard's sectors), and the circles about it.
+
+A wedge's edges and the boundaries between sectors are straight lines through the vertex in
+the target plane, so their images are exact rays through the vertex's image, whatever the
+perspective: measured as edges, they need no model of the wedge (the image bisector of a
+wedge is not the image of its centre line). `detect_radial_edges` finds them all around
+the vertex, in working (undistorted) pixels:
+
+1. *vertex*: the robust intersection of the frame's edge segments (`segments.detect_segments`,
+   `pencil.vertex.intersect_lines`): the point most edges pass through;
+2. *directions*: the grey levels on circles about it (an annulus where the edges are far
+   apart), differentiated along each circle and summed over the radii: every edge through
+   the vertex is a peak of that angular profile, its sign the edge's polarity;
+3. *edges*: each direction refitted as an edge (`refit.EdgeRefit`, the edge-profile engine)
+   from where it is clear of its neighbours (their profiles must not overlap: near the centre
+   a star's wedges merge into grey, which is no edge) out to where it ends; the vertex is then
+   intersected again from the refitted edges, and steps 2-3 repeated about it;
+4. *circles*: along rays between the edges, the edges across them (`radial_circles`): the
+   points of closed curves about the vertex (the images of circles centred on it: a star's
+   outline, a dartboard's rings), returned in raw pixels for the orientation to group by
+   circle and fit (`pencil.circle`).
+
+Conventions as in `segments`: segments ``[x1, y1, x2, y2]`` in raw pixels, oriented so that
+the image is brighter along n = (-d_y, d_x); uncertainties of the undistorted lines.
+
+Example
+-------
+>>> from pencilcal.toolkit.camera.model import Camera
+>>> from pencilcal.toolkit.pencil.spec import pencil_from_dict
+>>> from pencilcal.toolkit.synth.radial import radial_pose, render_layers, star_layers
+>>> star = pencil_from_dict({"start_deg": 0, "step_deg": 22.5, "count": 16, "shape": "wedge",
+...                          "radius": [0, 60]})
+>>> cam = Camera("pinhole", 480, 360, [[400.0, 0, 239.5], [0, 400.0, 179.5], [0, 0, 1]])
+>>> R, t = radial_pose(cam, (250, 170), 30.0, 60.0, fill=0.8)
+>>> img = render_layers(cam, R, t, star_layers(star), blur_px=0.8, noise=1.0, rng=0)   # linear light
+>>> found = detect_radial_edges(img, cam, edges=32, gamma=1.0)
+>>> len(found), bool(np.hypot(*(found.vertex - [250, 170])) < 0.05)
+(32, True)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
+from pencilcal.toolkit.detect.image import GrayImage
+from pencilcal.toolkit.detect.radial_circles import circle_points
+from pencilcal.toolkit.detect.refit import EdgeRefit, RefitOptions
+from pencilcal.toolkit.detect.segments import Segments, detect_segments, in_valid_region
+from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
+from pencilcal.toolkit.errors import EstimationError
+from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
+
+__all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "OFFSET_FLOOR_PX"]
+
+#: Two neighbouring edges are measured only where they lie at least this many sds of their
+#: blurred profile apart (`_edge_blur`: the sd of an edge's gradient across it as sampled,
+#: blur, pixel, resampling and JPEG together: 0.91, 1.16 and 1.51 px for Gaussian blurs of
+#: 0.6, 1 and 1.5 px): closer, the neighbour's blurred edge enters the profile and pulls the
+#: peak, a little more on one side than the other under perspective, and the edges turn.
+#: Chosen on renders (docs/method.md): 4.5 px at a 1 px blur kept the normal's error within
+#: its bound; 3.5 px doubled it; fixed at 4.5 px, frames blurred by 1.5 px had errors 1.5 times
+#: their sigmas.
+CLEAR_SIGMAS = 3.9
+CLEAR_PX = 3.0  # and never closer than this [px]
+_ARC_SAMPLE_PX = 0.5  # sampling along the circles of the angular profile, at its outer radius
+_RADIUS_STEP_PX = 2.0  # spacing of those circles, and at most _BAND_CIRCLES of them in a band
+_BAND_CIRCLES = 12
+_VERTEX_FLOOR_DEG, _VERTEX_FLOOR_PX = 0.05, 0.5  # the rough vertex: a floor under the segments' noise
+_DIRECTION_BIN_DEG = 6.0  # the rough vertex counts the directions crossing it in bins this wide
+_ROUGH_LINES = 96  # the longest segments it looks at
+_PEAK_REL = 0.15  # an angular-profile peak: at least this fraction of the typical edge's
+_BAND_RATIO = 1.3  # the angular profiles' bands of radii: from r to 1.3 r
+_SEARCH_PX = (4.0, 2.0, 1.0)  # edge search half-width [px], round by round (the vertex sharpens)
+_KERNEL_PX = 1.0  # sd of the derivative kernel across an edge
+#: The least sd [px] of an edge's position across it: what the stations' scatter cannot show,
+#: an edge located on levels linearised with a gamma not quite the camera's tone curve
+#: (rendered with 2.2 and located so, edges still sit 0.03 px into their dark side), JPEG's
+#: blocks, a neighbour's blur; more where the edges' own distances from their vertex say so
+#: (`_common_offset`).
+OFFSET_FLOOR_PX = 0.05
+
+
+@dataclass(frozen=True, eq=False)
+class RadialEdges(Segments):
+    """The edges through a radial target's vertex (`detect_radial_edges`): a `Segments`
+    whose rows run outwards... or inwards, oriented by polarity as every edge segment.
+
+    Extra attributes: ``vertex`` (2,) [working px] the
+    point they were found about (the orientation intersects them again, with their own
+    sigmas); ``circle_points`` (K, 2)
+    [raw px]: edge points across rays between the spokes that run on from ray to ray, the
+    candidates for the images of circles centred on the vertex.
+    """
+
+    vertex: np.ndarray
+    circle_points: np.ndarray
+
+    @classmethod
+    def empty(cls, **extra):
+        return super().empty(vertex=np.full(2, np.nan), circle_points=np.zeros((0, 2)), **extra)
+
+
+def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, min_length=20.0, circles=True,
+                        gamma=DEFAULT_GAMMA):
+    """The edges through the vertex of a radial target, and the closed curves about it.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, 3) array
+    camera : Camera, optional
+        Lens model: edges are fitted straight in undistorted pixels, returned in raw pixels.
+    edges : int, optional
+        How many edges the target has all around (a star of N wedges: 2N; a dartboard: 20):
+        sets the finest angular detail looked for. None: whatever the profile shows.
+    valid_region : region.ValidRegion, optional
+        Where the scene is; see `detect_segments`.
+    min_length : float
+        Shortest edge returned [px].
+    circles : bool
+        Also gather the edge points of circles about the vertex (`RadialEdges.circle_points`).
+    gamma : float
+        The frames' encoding gamma: each edge is located on its profiles linearised with it
+        (`edges.edge_profiles`). Blur acts on linear light; located on encoded levels, every
+        edge of a star blurred by 1 px moves ~0.5 px into its dark side, and the edges no
+        longer meet in one point. 1: linear frames.
+
+    Returns
+    -------
+    RadialEdges
+        Empty when no point is crossed by enough edges.
+    """
+    img = GrayImage(image, valid_region)
+    check_camera_image(camera, img)
+    segs = detect_segments(image, "lsd", camera=camera, min_length=min_length, valid_region=valid_region)
+    try:
+        v, reach = _rough_vertex(segs)
+    except EstimationError:
+        return RadialEdges.empty()
+    fit = None
+    clear = CLEAR_SIGMAS * 1.16  # a 1 px blur, until the edges say
+    for search in _SEARCH_PX:
+        phi, sign, seen = _edge_directions(img, camera, v, reach, edges, clear)
+        if phi.size < 3:
+            return RadialEdges.empty()
+        fit = _refit_edges(img, camera, v, phi, sign, seen, search, gamma, clear)
+        clear = max(CLEAR_PX, CLEAR_SIGMAS * _edge_blur(img, camera, fit, gamma, clear))
+        try:
+            v, reach = _vertex_of(fit, reach)
+        except EstimationError:
+            return RadialEdges.empty()
+    out = Segments.from_fit(fit, camera, min_length)
+    keep = in_valid_region(img, out.segments)
+    _, through = lines_through(v, out.ideal, np.maximum(out.angle_sigma, np.radians(_VERTEX_FLOOR_DEG)),
+                               np.maximum(out.offset_sigma, _VERTEX_FLOOR_PX))
+    out = out.select(keep & through)
+    out = replace(out, offset_sigma=np.hypot(out.offset_sigma, max(OFFSET_FLOOR_PX, _common_offset(out, v))))
+    pts = circle_points(img, camera, v, out.ideal, reach, gamma) if circles else np.zeros((0, 2))
+    return RadialEdges(**{f: getattr(out, f) for f in out.__dataclass_fields__}, vertex=v, circle_points=pts)
+
+
+def _common_offset(segs, v):
+    """The sd [px] of the edges' distances from the vertex v (2,) they share beyond what
+    their own sigmas allow (robust: from the medians of the squared distances and of their
+    predicted variances, the median of chi-square(1) being 0.455): what the stations' scatter
+    cannot show and every edge has, a gamma not quite the camera's, a raised wire beside a
+    dartboard's boundary (seen obliquely, its side shows on one side of the line). 0 where
+    the edges meet as their sigmas say."""
+    if len(segs) < 4:
+        return 0.0
+    p1, p2 = segs.ideal[:, :2], segs.ideal[:, 2:]
+    d = p2 - p1
+    L = np.hypot(d[:, 0], d[:, 1])
+    u = d / np.maximum(L, 1e-12)[:, None]
+    c = 0.5 * (p1 + p2)
+    dist = u[:, 0] * (v[1] - c[:, 1]) - u[:, 1] * (v[0] - c[:, 0])
+    lever = np.sum((v - c) * u, -1)
+    var = segs.offset_sigma**2 + (lever * segs.angle_sigma) ** 2
+    return float(np.sqrt(max(0.0, np.median(dist**2) / 0.455 - np.median(var))))
+
+
+def _rough_vertex(segs):
+    """(vertex (2,) [working px], reach [px]): the point crossed by edge segments of the most
+    directions (`_DIRECTION_BIN_DEG` bins; ties: the most length), refined as their robust
+    intersection, and how far from it they reach (their far ends' 90th percentile).
+
+    A radial target's vertex is crossed by edges from every direction; a chessboard's
+    corner beside it by whole rows of collinear square edges, from two.
+    """
+    if len(segs) < 3:
+        raise EstimationError("fewer than three edge segments")
+    L = segs.length
+    top = np.argsort(-L, kind="stable")[:_ROUGH_LINES]
+    lines = segs.ideal[top]
+    p, d = lines[:, :2], lines[:, 2:] - lines[:, :2]
+    u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
+    n = np.stack([-u[:, 1], u[:, 0]], -1)
+    c = -np.sum(n * p, -1)
+    i, j = np.triu_indices(len(lines), 1)
+    cross = u[i, 0] * u[j, 1] - u[i, 1] * u[j, 0]
+    ok = np.abs(cross) > np.sin(np.radians(_DIRECTION_BIN_DEG))
+    i, j, cross = i[ok], j[ok], cross[ok]
+    if i.size == 0:
+        raise EstimationError("the edge segments are parallel")
+    cand = np.stack([(n[i, 1] * c[j] - n[j, 1] * c[i]), (n[j, 0] * c[i] - n[i, 0] * c[j])], -1) / cross[:, None]
+    mid = 0.5 * (lines[:, :2] + lines[:, 2:])
+    bins = np.floor(np.degrees(np.arctan2(u[:, 1], u[:, 0])) % 180.0 / _DIRECTION_BIN_DEG).astype(int)
+    onehot = np.zeros((len(lines), int(180 / _DIRECTION_BIN_DEG) + 1), np.int32)
+    onehot[np.arange(len(lines)), bins] = 1
+    best, score = None, (-1, -1.0)
+    for k in range(0, cand.shape[0], 4096):  # blocks of candidates x lines
+        q = cand[k:k + 4096]
+        dist = np.abs(q @ n.T + c)
+        reach = np.linalg.norm(q[:, None, :] - mid[None], axis=-1)
+        through = dist <= 2.0 + 0.005 * reach
+        ndir = ((through.astype(np.int32) @ onehot) > 0).sum(-1)
+        total = through @ L[top]
+        b = int(np.lexsort((total, ndir))[-1])
+        if (int(ndir[b]), float(total[b])) > score:
+            best, score = q[b], (int(ndir[b]), float(total[b]))
+    # the lines through it, intersected with their noise (and floors)
+    ang = np.maximum(segs.angle_sigma, np.radians(_VERTEX_FLOOR_DEG))
+    off = np.maximum(segs.offset_sigma, _VERTEX_FLOOR_PX)
+    _, through = lines_through(best, segs.ideal, ang, np.maximum(off, 1.0))
+    if through.sum() < 3:
+        raise EstimationError("fewer than three edge segments meet")
+    vf = intersect_lines(segs.ideal[through], angle_sigma=ang[through], offset_sigma=off[through], robust=True)
+    return vf.vertex, _reach(segs.ideal[through][vf.inliers], vf.vertex)
+
+
+def _reach(lines, v):
+    """How far from v (2,) the lines (K, 4) reach: their far ends' 90th percentile [px]."""
+    far = np.maximum(np.hypot(*(lines[:, :2] - v).T), np.hypot(*(lines[:, 2:] - v).T))
+    return float(np.percentile(far, 90))
+
+
+def _vertex_of(fit, reach):
+    """The vertex of refitted edges (`EdgeFit`) and their reach, from their own sigmas."""
+    ok = np.flatnonzero(fit.ok)
+    if ok.size < 3:
+        raise EstimationError("fewer than three edges were refitted")
+    lines = fit.lines()[ok]
+    mid = 0.5 * (fit.p1[ok] + fit.p2[ok])
+    vf = intersect_lines(lines, angle_sigma=np.maximum(fit.angle_sigma[ok], 1e-6),
+                         offset_sigma=np.maximum(fit.take(ok).offset_sigma_at(mid), 0.02), robust=True)
+    return vf.vertex, max(_reach(lines[vf.inliers], vf.vertex), 0.5 * reach)
+
+
+def _angular_profile(img, camera, v, r_a, r_b, n_phi):
+    """phi (P,) [rad] and the tangential derivative of the grey level [levels / px] summed
+    over circles of radius r_a..r_b [working px] about v: each edge through v is a peak."""
+    phi = np.arange(n_phi) * (2 * np.pi / n_phi)
+    radii = np.linspace(r_a, r_b, max(2, min(_BAND_CIRCLES, int((r_b - r_a) / _RADIUS_STEP_PX) + 1)))
+    c, s = np.cos(phi), np.sin(phi)
+    pts = v + radii[:, None, None] * np.stack([c, s], -1)[None]  # (R, P, 2)
+    raw = to_raw_points(camera, pts)
+    inside = img.in_region(raw[..., 0], raw[..., 1])
+    vals = img.sample(np.where(inside, raw[..., 0], 0), np.where(inside, raw[..., 1], 0)).astype(float)
+    # central difference along each circle [levels / px], smoothed over ~1 px of arc
+    d = (np.roll(vals, -1, 1) - np.roll(vals, 1, 1)) / (2.0 * radii[:, None] * (2 * np.pi / n_phi))
+    ok = inside & np.roll(inside, -1, 1) & np.roll(inside, 1, 1)
+    prof = np.sum(np.where(ok, d, 0.0), 0) / np.maximum(np.sum(ok, 0), 1)
+    k = max(1.0, 1.0 / _ARC_SAMPLE_PX)
+    taps = np.exp(-0.5 * (np.arange(-3 * int(k), 3 * int(k) + 1) / k) ** 2)
+    taps /= taps.sum()
+    prof = np.real(np.fft.ifft(np.fft.fft(prof) * np.fft.fft(np.r_[taps[len(taps) // 2:], np.zeros(n_phi - len(taps)),
+                                                                     taps[:len(taps) // 2]])))
+    return phi, prof
+
+
+def _edge_directions(img, camera, v, reach, edges, clear):
+    """Directions phi (E,) [rad] of the edges through v, their sign (E,) (+1: brighter
+    towards larger angles) and the radii (E, 2) [px] between which they were seen, from
+    angular profiles over bands of radii out to 1.5 reach.
+
+    An edge through the vertex shows at the same direction in neighbouring bands, its peaks
+    chained from band to band; other print (a ring of numbers, a dart) shows in one. A
+    tilted target's image reaches much farther from the vertex on its near side than on its
+    far side: each edge's direction is taken from the outermost band of its chain (there the
+    edges lie farthest apart, and an error of the vertex turns them least).
+    """
+    H, W = img.shape
+    # no farther than the image's farthest corner from the vertex
+    r_max = min(1.5 * reach, float(np.max(np.hypot(np.r_[0, W - 1] - v[0], np.r_[0, H - 1, 0, H - 1][:, None] - v[1]))))
+    # from where the edges lie half `clear` apart on average: a tilted target's far side is
+    # nearer the vertex, where they come apart at a smaller radius
+    r_min = min(max(10.0, 0.5 * clear * (edges or 0) / (2 * np.pi), 0.15 * reach), 0.5 * r_max)
+    bands = r_min * _BAND_RATIO ** np.arange(int(np.ceil(np.log(r_max / r_min) / np.log(_BAND_RATIO))))
+    profiles = []
+    for r_a in bands:
+        n_phi = int(np.ceil(2 * np.pi * _BAND_RATIO * r_a / _ARC_SAMPLE_PX))
+        profiles.append(_angular_profile(img, camera, v, r_a, _BAND_RATIO * r_a, n_phi))
+    # the typical edge of the band that shows the edges best: bands beyond the target hold
+    # only noise and other print, whose peaks must not count as edges
+    typical = max(_typical_peak(prof, edges) for _, prof in profiles)
+    peaks = [_profile_peaks(phi, prof, typical, r_a) for r_a, (phi, prof) in zip(bands, profiles)]
+    chains = _chain_bands(peaks, bands)
+    if not chains:
+        return np.zeros(0), np.zeros(0), np.zeros((0, 2))
+    # strongest evidence first: the most bands, then the strongest peak
+    chains.sort(key=lambda c: (-len(c), -max(peaks[b][2][i] for b, i in c)))
+    out = []
+    for c in chains:
+        b, i = c[-1]  # outermost
+        ang, sgn = peaks[b][0][i], peaks[b][1][i]
+        r_out = _BAND_RATIO * bands[b]
+        if len(c) < 2 and peaks[b][2][i] < 0.5:
+            continue  # one band, and weak: other print
+        if any(sgn == o[1] and abs(np.angle(np.exp(1j * (ang - o[0])))) < 2.0 / min(r_out, o[3]) for o in out):
+            continue
+        out.append((ang, sgn, bands[c[0][0]], r_out))
+    out.sort()
+    ang, sgn, r0, r1 = (np.array(x, float) for x in zip(*out))
+    return ang, sgn, np.stack([r0, r1], -1)
+
+
+def _chain_bands(peaks, bands):
+    """Chains of peaks [(band, index), ...], inner band first: a peak of band b continues the
+    chain of the nearest peak of band b - 1 of its sign within 3 px at that band's radius
+    (the vertex's error turns an edge's direction by about its size over the radius)."""
+    chains, last = [], {}
+    for b, (ang, sgn, _) in enumerate(peaks):
+        prev = peaks[b - 1] if b else (np.zeros(0), np.zeros(0), np.zeros(0))
+        here = {}
+        for i in range(ang.size):
+            d = np.abs(np.angle(np.exp(1j * (ang[i] - prev[0]))))
+            d = np.where(prev[1] == sgn[i], d, np.inf)
+            j = int(np.argmin(d)) if d.size else -1
+            if j >= 0 and d[j] <= 3.0 / bands[b - 1] and j in last:
+                chain = last.pop(j)
+            else:
+                chain = []
+                chains.append(chain)
+            chain.append((b, i))
+            here[i] = chain
+        last = here
+    return chains
+
+
+def _peaks(prof):
+    """Indices of the local extrema of a periodic profile (P,) (peaks of |prof| within runs
+    of one sign)."""
+    a = np.abs(prof)
+    return np.flatnonzero((a >= np.roll(a, 1)) & (a > np.roll(a, -1)) & (np.sign(prof) == np.sign(np.roll(prof, 1))))
+
+
+def _typical_peak(prof, edges):
+    """The typical edge's height in an angular profile: the median of its strongest peaks
+    (as many as the edges expected, or a quarter of all)."""
+    a = np.abs(prof)[_peaks(prof)]
+    if a.size == 0:
+        return 0.0
+    return float(np.median(np.sort(a)[::-1][: max(3, edges or a.size // 4)]))
+
+
+def _profile_peaks(phi, prof, typical, r_a):
+    """The peaks of one angular profile prof (P,) at angles phi (P,) [rad] that reach
+    `_PEAK_REL` of the typical edge's height: their angles (sub-sample), signs and height
+    relative to `typical`, each at least 2 px (at radius r_a) from a stronger one."""
+    n_phi = phi.size
+    a = np.abs(prof)
+    idx = _peaks(prof)
+    idx = idx[a[idx] >= _PEAK_REL * typical]
+    if idx.size == 0:
+        return np.zeros(0), np.zeros(0), np.zeros(0)
+    am, a0, ap = a[(idx - 1) % n_phi], a[idx], a[(idx + 1) % n_phi]
+    den = am - 2 * a0 + ap
+    off = np.where(den < 0, 0.5 * (am - ap) / np.where(den < 0, den, -1.0), 0.0)
+    ang = phi[idx] + np.clip(off, -0.5, 0.5) * (2 * np.pi / n_phi)
+    keep = _strongest_apart(ang, a0, 2.0 / r_a)
+    return ang[keep], np.sign(prof[idx][keep]), a0[keep] / max(typical, 1e-12)
+
+
+def _strongest_apart(ang, strength, sep):
+    """Indices (in angle order) of the directions ang (E,) [rad] that have no stronger one
+    within sep [rad] (cyclic)."""
+    order = np.argsort(ang)
+    a, w = ang[order], strength[order]
+    n = a.size
+    if n < 2:
+        return order
+    ext = np.r_[a - 2 * np.pi, a, a + 2 * np.pi]
+    wext = np.r_[w, w, w]
+    lo = np.searchsorted(ext, a - sep, "left")
+    hi = np.searchsorted(ext, a + sep, "right")
+    keep = np.ones(n, bool)
+    for k in range(1, int(np.max(hi - lo)) + 1):  # the neighbours within sep, k at a time
+        for j in (n + np.arange(n) - k, n + np.arange(n) + k):
+            inside = (j >= lo) & (j < hi)
+            keep &= ~(inside & ((wext[j] > w) | ((wext[j] == w) & (j < n + np.arange(n)))))
+    return np.sort(order[keep])
+
+
+def _clear_radius(phi, clear):
+    """The radius [px] (E,) from which each of the directions phi (E,) [rad] lies `clear`
+    [px] from its neighbours."""
+    order = np.argsort(phi)
+    gaps = np.diff(np.r_[phi[order], phi[order][0] + 2 * np.pi])
+    gap = np.empty_like(phi)
+    gap[order] = np.minimum(gaps, np.roll(gaps, 1))
+    return clear / np.maximum(np.sin(np.minimum(gap, np.pi / 2)), 1e-6)
+
+
+def _edge_blur(img, camera, fit, gamma, clear, lines=24):
+    """The sd [px] of the edges' gradient across them (blur and pixel together): the second
+    moment of the linearised profile's derivative within 4 px of its peak, the median over
+    the stations of the `lines` longest refitted edges, where their neighbours lie at least
+    twice `clear` away (their own profiles clean); `clear` / CLEAR_SIGMAS when there are
+    none to measure."""
+    from pencilcal.toolkit.detect.edges import derivative_kernel, edge_profiles, linearised
+
+    ok = np.flatnonzero(fit.ok)
+    if ok.size == 0:
+        return clear / CLEAR_SIGMAS
+    L = np.hypot(*(fit.p2[ok] - fit.p1[ok]).T)
+    top = ok[np.argsort(-L)[:lines]]
+    p1, p2 = fit.p1[top], fit.p2[top]
+    u = (p2 - p1) / np.maximum(np.hypot(*(p2 - p1).T), 1e-12)[:, None]
+    s = np.linspace(0.55, 0.95, 12)[None, :] * np.hypot(*(p2 - p1).T)[:, None]  # the outer part
+    prof = edge_profiles(img, camera, p1, u, s, 4.0, derivative_kernel(0.7), 0.7)
+    lin = linearised(prof.profiles, gamma).astype(float)
+    g = np.gradient(lin, axis=-1)  # per sample (0.5 px)
+    t = (np.arange(g.shape[-1]) - (g.shape[-1] - 1) / 2.0) * 0.5
+    g = np.where(np.abs(t - prof.t[..., None]) <= 4.0, np.maximum(g, 0.0), 0.0)  # brighter along n
+    m0 = g.sum(-1)
+    with np.errstate(all="ignore"):
+        mean = (g * t).sum(-1) / m0
+        var = (g * t * t).sum(-1) / m0 - mean**2
+    good = prof.inside & prof.found & (m0 > 0) & np.isfinite(var) & (var > 0)
+    if not good.any():
+        return clear / CLEAR_SIGMAS
+    return float(np.sqrt(np.median(var[good])))
+
+
+def _refit_edges(img, camera, v, phi, sign, seen, search, gamma, clear):
+    """The edges along directions phi (E,) [rad] from v, refitted (`EdgeFit`, E rows) from
+    where each is `clear` [px] from its neighbours (and not much inside the radii seen
+    (E, 2) [px] where its angular profile showed it) out to a quarter beyond those radii,
+    oriented by their sign."""
+    r_hi = 1.25 * seen[:, 1]
+    r_lo = np.maximum(_clear_radius(phi, clear), 0.5 * seen[:, 0])
+    r_lo = np.minimum(r_lo, 0.8 * r_hi)
+    u = np.stack([np.cos(phi), np.sin(phi)], -1)
+    inner, outer = v + r_lo[:, None] * u, v + r_hi[:, None] * u
+    # brighter along n = (-d_y, d_x): outwards for edges brighter towards larger angles
+    p1 = np.where(sign[:, None] > 0, inner, outer)
+    p2 = np.where(sign[:, None] > 0, outer, inner)
+    opts = RefitOptions(search=search, extend=0.0, gamma=gamma, sigma_px=_KERNEL_PX)
+    return EdgeRefit(img, np.concatenate([p1, p2], -1), camera, opts).fit()

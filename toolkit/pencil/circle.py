@@ -1,0 +1,372 @@
+"""The plane from the images of circles centred on a pencil's vertex: a second orientation,
+and the twin.
+
+A circle in the plane images as a conic C; the image of its centre and the image of the
+plane's line at infinity (the horizon) are pole and polar with respect to it, as they are
+for the circle itself (a projective map keeps poles and polars). In normalised camera
+coordinates the horizon of a plane with unit normal n is the line n, so
+
+    n ~ C x_v,      x_v = (x, y, 1) the image of the centre (the pencil's vertex),
+
+with n . x_v > 0 (the plane in front of the camera). Every circle about the vertex gives
+the same n, whatever its radius, and there is no twin: the lines of the pencil fit two
+normals equally (Rot(ray, 180 deg) turns one into the other), a circle about the vertex
+only one of them. The circle's normal shares only the vertex with the lines' orientation:
+a second, nearly independent measurement of the plane.
+
+Which edge points are the circle's is told with the lines' orientation (`circle_estimate`):
+under the right rotation, the points of one circle all lie at one radius on the plane (in
+units of the vertex depth), nested rings a few pixels apart at different radii. The points
+are grouped by that radius under each twin, an ellipse fitted to each group (points beyond
+3 sd of it left out), its normal taken from the vertex's polar, and the normals of all the
+circles combined by their covariances (their consistency a chi2); the twin whose grouping
+holds more of the points is the one grouped by (the other smears every circle over a range
+of radii). With the circles' radii given (the pencil file's ``circles``), only groups whose
+radii stand in the ratios of the listed ones are used, and the vertex's depth follows.
+
+Example
+-------
+>>> from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
+>>> R = rotation_from_rotvec([0.5, 0.2, 0.1]); x = np.array([0.05, -0.02])
+>>> a = np.linspace(0, 2 * np.pi, 90, endpoint=False)
+>>> pts = []
+>>> for rho in (0.2, 0.3):                       # two circles about the vertex, depth 1
+...     X = R @ np.stack([rho * np.cos(a), rho * np.sin(a), 0 * a]) + np.r_[x, 1.0][:, None]
+...     pts.append((X[:2] / X[2]).T)
+>>> est = circle_estimate(np.concatenate(pts), x, np.zeros((2, 2)), R, R, scale=1000.0)
+>>> est.circles, round(float(np.degrees(np.arccos(est.normal @ R[:, 2]))), 9)
+(2, 0.0)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pencilcal.toolkit.errors import EstimationError
+from pencilcal.toolkit.geometry.conic import conic_matrix, fit_ellipse, sampson_distances
+
+__all__ = ["CircleEstimate", "circle_estimate", "conic_normal", "plane_radii", "normal_agreement", "circle_choice",
+           "circle_record", "line_normal_cov", "circular_points", "DECISIVE_CHI2"]
+
+#: Points of one circle lie within this of each other in log radius on the plane (under the
+#: right rotation): 1 px of scatter at 100 px is 1 %; rings of a dartboard differ by 5 %.
+GROUP_LOG_RADIUS = 0.01
+MIN_POINTS = 12  # a circle needs at least this many points
+MAX_RMS_PX = 1.5  # and its ellipse must fit them this well [px]
+#: And they lie round the vertex: no gap between their directions wider [deg] (an arc of 240 deg
+#: fixes an ellipse; a circle near the image's border is cut by it).
+MAX_GAP_DEG = 120.0
+_RADIUS_MATCH = 0.01  # a group matches a listed radius within 1 %
+
+
+@dataclass(frozen=True, eq=False)
+class CircleEstimate:
+    """The plane's normal from circles about the vertex.
+
+    normal: (3,) unit, camera frame, away from the camera; cov: (3, 3) its covariance
+    (the conics' and the vertex's); sigma_deg: RMS angle of its error [deg]; circles: how
+    many circles; chi2, dof: their normals' consistency with one another; grouped_by: 0 or
+    1, the twin whose radii grouped the points; radii: (C,) each circle's radius on the
+    plane in units of the vertex depth; points: (C,) points each ellipse used; rms_px: (C,)
+    their scatter about it [px]; depth: the vertex depth from the listed radii, or None;
+    conics: (C, 3, 3) the circles' images (normalised coordinates, unit norm);
+    cov_conics: (3, 3) the normal's covariance from the conics alone (the vertex held);
+    jac_vertex: (3, 2) how the normal moves with the vertex's image (normalised).
+    """
+
+    normal: np.ndarray
+    cov: np.ndarray
+    sigma_deg: float
+    circles: int
+    chi2: float
+    dof: int
+    grouped_by: int
+    radii: np.ndarray
+    points: np.ndarray
+    rms_px: np.ndarray
+    depth: float | None = None
+    conics: np.ndarray | None = None
+    cov_conics: np.ndarray | None = None
+    jac_vertex: np.ndarray | None = None
+
+
+def conic_normal(C, x):
+    """The plane normal (3,) from the image conic C (3, 3) of a circle about the point whose
+    image is x (2,) (normalised coordinates): the polar of x, pointing away from the camera;
+    and its Jacobians (3, 6) by the conic's vector (`geometry.conic.conic_vector`) and (3, 2)
+    by x."""
+    xh = np.r_[np.asarray(x, float), 1.0]
+    ell = np.asarray(C, float) @ xh
+    norm = np.linalg.norm(ell)
+    s = 1.0 if ell @ xh > 0 else -1.0
+    n = s * ell / norm
+    P = s * (np.eye(3) - np.outer(n, n)) / norm
+    Jq = np.stack([P @ (conic_matrix(e) @ xh) for e in np.eye(6)], -1)
+    Jx = P @ np.asarray(C, float)[:, :2]
+    return n, Jq, Jx
+
+
+def plane_radii(points, x, R):
+    """Radius (K,) and direction (K,) [rad] on the plane of image points (K, 2) (normalised)
+    about the vertex imaged at x (2,), for the rotation R (3, 3), in units of the vertex's
+    depth; NaN for points beyond the plane's horizon."""
+    n = R[:, 2]
+    P0 = np.r_[x, 1.0]
+    d = np.concatenate([points, np.ones((points.shape[0], 1))], -1)
+    with np.errstate(all="ignore"):
+        t = (n @ P0) / (d @ n)
+        u = (d * t[:, None] - P0) @ R
+        rho = np.where(t > 0, np.hypot(u[:, 0], u[:, 1]), np.nan)
+    return rho, np.arctan2(u[:, 1], u[:, 0])
+
+
+def _groups(rho, ang):
+    """Index arrays of the points whose radii (K,) gather at one radius: the peaks of their
+    density in log radius (a kernel of `GROUP_LOG_RADIUS` / 4), each with the points within
+    `GROUP_LOG_RADIUS` of it not taken by a denser one, where they number `MIN_POINTS` or
+    more and lie all round (directions ang (K,) [rad] with no gap over `MAX_GAP_DEG`)."""
+    ok = np.flatnonzero(np.isfinite(rho) & (rho > 0))
+    if ok.size < MIN_POINTS:
+        return []
+    lr = np.log(rho[ok])
+    h = GROUP_LOG_RADIUS / 4.0
+    grid = np.arange(lr.min() - 3 * h, lr.max() + 3 * h, h / 2)
+    dens = np.histogram(lr, np.r_[grid, grid[-1] + h / 2])[0].astype(float)
+    taps = np.exp(-0.5 * (np.arange(-6, 7) / 2.0) ** 2)
+    dens = np.convolve(dens, taps, "same")
+    peaks = np.flatnonzero((dens >= np.roll(dens, 1)) & (dens > np.roll(dens, -1)) & (dens >= 0.5 * MIN_POINTS))
+    taken = np.zeros(ok.size, bool)
+    out = []
+    for pk in peaks[np.argsort(-dens[peaks], kind="stable")]:
+        g = ~taken & (np.abs(lr - grid[pk]) <= GROUP_LOG_RADIUS)
+        if g.sum() >= MIN_POINTS and _around(ang[ok[g]]):
+            out.append(ok[g])
+            taken |= g
+    return out
+
+
+def _around(ang):
+    """No gap between the directions ang (K,) [rad] wider than `MAX_GAP_DEG`."""
+    a = np.sort(np.remainder(ang, 2 * np.pi))
+    return bool(np.degrees(np.max(np.diff(np.r_[a, a[0] + 2 * np.pi]))) <= MAX_GAP_DEG)
+
+
+def _circle(points, idx, scale):
+    """The ellipse through points[idx] (normalised), points beyond 3 sd of it (at least
+    0.3 px) left out (three rounds): (fit, the indices kept) or None where it fits worse than
+    `MAX_RMS_PX` or keeps too few."""
+    keep = idx
+    fit = None
+    for _ in range(3):
+        if keep.size < MIN_POINTS:
+            return None
+        try:
+            fit = fit_ellipse(points[keep])
+        except EstimationError:
+            return None
+        d = np.abs(sampson_distances(fit.conic, points[idx])) * scale
+        new = idx[d <= max(3.0 * fit.rms * scale, 0.3)]
+        if np.array_equal(new, keep):
+            break
+        keep = new
+    if fit is None or keep.size < MIN_POINTS or fit.rms * scale > MAX_RMS_PX:
+        return None
+    return fit, keep
+
+
+def _combine(normals, covs):
+    """Information-weighted mean of unit normals (C, 3) with covariances (C, 3, 3) on the
+    tangent plane at their first: (normal (3,), cov (3, 3), chi2 of their scatter, dof)."""
+    n0 = normals[0]
+    B = np.linalg.svd(np.eye(3) - np.outer(n0, n0))[0][:, :2]  # (3, 2) basis across n0
+    e = normals @ B
+    W = [np.linalg.pinv(B.T @ c @ B) for c in covs]
+    info = np.sum(W, 0)
+    cov2 = np.linalg.inv(info)
+    mean = cov2 @ np.sum([w @ ei for w, ei in zip(W, e)], 0)
+    chi2 = float(sum((ei - mean) @ w @ (ei - mean) for w, ei in zip(W, e)))
+    n = n0 + B @ mean
+    n /= np.linalg.norm(n)
+    return n, B @ cov2 @ B.T, chi2, 2 * (len(normals) - 1)
+
+
+def _matched_radii(radii, listed):
+    """Which of the groups' radii (C,) (in units of the vertex depth) are listed radii
+    (L,) seen from one depth: (mask (C,), depth or None). The depth is the one that puts
+    the most groups within `_RADIUS_MATCH` of a listed radius (ties: the smaller spread);
+    it is given only where it is unique: two groups or more in the listed ratios, or one
+    group found (one listed radius fits any single group, and with two groups either)."""
+    if listed is None or radii.size == 0:
+        return np.ones(radii.size, bool), None
+    best = (0, np.inf, None, None)
+    for z in (np.asarray(listed, float)[None, :] / radii[:, None]).ravel():
+        rel = np.abs(np.asarray(listed, float)[None, :] / z / radii[:, None] - 1.0)
+        match = np.min(rel, 1) <= _RADIUS_MATCH
+        spread = float(np.sum(np.min(rel, 1)[match]))
+        if (match.sum(), -spread) > (best[0], -best[1]):
+            best = (int(match.sum()), spread, match, z)
+    if best[2] is None:
+        return np.zeros(radii.size, bool), None
+    mask, z = best[2], best[3]
+    if best[0] < 2 and radii.size > 1:
+        return np.ones(radii.size, bool), None  # no ratio to go by: every group, no depth
+    # the depth from every matched group, not just the one that proposed it
+    ratio = np.array([np.asarray(listed, float)[np.argmin(np.abs(np.asarray(listed) / z / r - 1))] / r
+                      for r in radii[mask]])
+    return mask, float(np.median(ratio))
+
+
+def circle_estimate(points, x, x_cov, R, R_twin, *, scale, radii=None):
+    """The plane's normal from the images of circles about the vertex, or None.
+
+    points: (K, 2) edge points (normalised coordinates, undistorted), some of them on the
+        images of circles centred on the vertex; x: (2,) the vertex's image, x_cov (2, 2) its
+        covariance (normalised); R, R_twin: (3, 3) the lines' two rotations (the points are
+        grouped by their radius on the plane under each); scale: pixels per normalised unit
+        (the camera's focal length), for the thresholds in pixels; radii: (L,) the circles'
+        radii when known (the pencil file's ``circles``): only groups in their ratios count.
+
+    Returns a `CircleEstimate`, None when no group of points makes a circle.
+    """
+    points = np.asarray(points, float).reshape(-1, 2)
+    best = None
+    for which, Rk in enumerate((R, R_twin)):
+        rho, ang = plane_radii(points, x, Rk)
+        fits = []
+        for g in _groups(rho, ang):
+            got = _circle(points, g, scale)
+            if got is not None:
+                fits.append((got[0], got[1], float(np.median(rho[got[1]]))))
+        count = sum(f[1].size for f in fits)
+        if fits and (best is None or count > best[0]):
+            best = (count, which, fits)
+    if best is None:
+        return None
+    _, which, fits = best
+    rad = np.array([f[2] for f in fits])
+    mask, depth = _matched_radii(rad, radii)
+    fits = [f for f, m in zip(fits, mask) if m]
+    if not fits:
+        return None
+    normals, covs, jxs = [], [], []
+    for fit, _, _ in fits:
+        n, Jq, Jx = conic_normal(fit.conic, x)
+        normals.append(n), covs.append(Jq @ fit.cov @ Jq.T), jxs.append(Jx)
+    normals, covs = np.array(normals), np.array(covs)
+    n, cov_c, chi2, dof = _combine(normals, covs)
+    # the vertex moves every circle's normal together: its term on the combination
+    Jx = _combined_jacobian(fits, x, covs)
+    cov = cov_c + Jx @ np.asarray(x_cov, float) @ Jx.T
+    sigma = float(np.degrees(np.sqrt(max(np.trace(cov), 0.0))))
+    return CircleEstimate(n, 0.5 * (cov + cov.T), sigma, len(fits), chi2, dof, which,
+                          np.array([f[2] for f in fits]), np.array([f[1].size for f in fits]),
+                          np.array([f[0].rms * scale for f in fits]), depth, np.array([f[0].conic for f in fits]),
+                          0.5 * (cov_c + cov_c.T), Jx)
+
+
+def _combined_jacobian(fits, x, covs, h=1e-7):
+    """d (combined normal) / d x (3, 2) by central differences, the conics fixed."""
+    cols = []
+    for e in np.eye(2):
+        ns = []
+        for sgn in (1.0, -1.0):
+            nn = np.array([conic_normal(f[0].conic, x + sgn * h * e)[0] for f in fits])
+            ns.append(_combine(nn, covs)[0])
+        cols.append((ns[0] - ns[1]) / (2 * h))
+    return np.stack(cols, -1)
+
+
+def normal_agreement(n_a, cov_a, n_b, cov_b):
+    """How two estimates of one unit normal agree: (angle between them [deg], chi2 of their
+    difference with the sum of their covariances, 2 dof)."""
+    n_a, n_b = np.asarray(n_a, float), np.asarray(n_b, float)
+    B = np.linalg.svd(np.eye(3) - np.outer(n_a, n_a))[0][:, :2]
+    d = B.T @ (n_b - n_a)
+    C = B.T @ (np.asarray(cov_a, float) + np.asarray(cov_b, float)) @ B
+    ang = float(np.degrees(np.arccos(np.clip(n_a @ n_b, -1.0, 1.0))))
+    return ang, float(d @ np.linalg.solve(C, d))
+
+
+#: The circles choose a twin when the other's chi2 against them exceeds the chosen one's by
+#: this much (as the spoke radii do, `orient._metric_choice`).
+DECISIVE_CHI2 = 25.0
+
+
+def line_normal_cov(fit):
+    """(3, 3) covariances of a PencilFit's normal and of its twin's: the rotation's left
+    perturbation (cov, camera frame) moves the normal by delta x n; the twin is that turned
+    by 180 deg about the vertex ray."""
+    n = np.asarray(fit.normal, float)
+    K = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
+    c = K @ np.asarray(fit.cov, float) @ K.T
+    v = np.asarray(fit.ray, float)
+    Q = 2 * np.outer(v, v) - np.eye(3)
+    return c, Q @ c @ Q.T
+
+
+def circle_choice(fit, est):
+    """How the circles' normal `est` (a `CircleEstimate`) judges the lines' twins: (which,
+    decisive, chi2 of the normal, chi2 of the twin); which is True when the twin agrees
+    better. Decisive when the other's chi2 exceeds it by `DECISIVE_CHI2` and the chosen one
+    lies nearer the circles' normal than half the twins' separation."""
+    c, ct = line_normal_cov(fit)
+    a, chi = normal_agreement(fit.normal, c, est.normal, est.cov)
+    at, chit = normal_agreement(fit.normal_twin, ct, est.normal, est.cov)
+    which = chit < chi
+    sep = float(np.degrees(np.arccos(np.clip(np.asarray(fit.normal) @ np.asarray(fit.normal_twin), -1, 1))))
+    decisive = abs(chit - chi) > DECISIVE_CHI2 and min(a, at) < 0.5 * sep
+    return bool(which), bool(decisive), chi, chit
+
+
+def circle_record(fit, est, lines_own=None, vertex_cov=None):
+    """The orientation record's circle keys for the chosen rotation of `fit` (a PencilFit)
+    and the circles' estimate `est`: circle_normal, circle_normal_sigma_deg, circle_tilt_deg,
+    circles_used, circle_angle_deg, circle_chi2 and circle_consistent (the chi2 of the two
+    normals' difference, 2 dof, within its 99 % quantile).
+
+    The two normals share the vertex, which moves both: with lines_own = (the lines'
+    normal's covariance with the vertex held (3, 3), how their normal moves with the vertex
+    (3, 2)) and the vertex's covariance vertex_cov (2, 2) (normalised), the difference's
+    covariance is their own parts plus the vertex's term on the difference; without, the
+    two covariances are added as if independent."""
+    from pencilcal.toolkit.pencil.defaults import CHI2_2_DETECTION
+
+    if lines_own is None or vertex_cov is None:
+        c, _ = line_normal_cov(fit)
+        ang, chi2 = normal_agreement(fit.normal, c, est.normal, est.cov)
+    else:
+        dJ = est.jac_vertex - lines_own[1]
+        ang, chi2 = normal_agreement(fit.normal, lines_own[0], est.normal,
+                                     est.cov_conics + dJ @ np.asarray(vertex_cov, float) @ dJ.T)
+    tilt = float(np.degrees(np.arccos(np.clip(est.normal @ np.asarray(fit.ray, float), -1.0, 1.0))))
+    return dict(circle_normal=est.normal, circle_normal_sigma_deg=est.sigma_deg, circle_tilt_deg=tilt,
+                circles_used=int(est.circles), circle_angle_deg=ang, circle_chi2=chi2,
+                circle_consistent=bool(chi2 <= CHI2_2_DETECTION))
+
+
+def circular_points(C, x):
+    """The images (2,) complex of the plane's circular points: where the horizon (the polar
+    of x (2,), the image of the circle's centre) meets the circle's image C (3, 3); a pair
+    of complex conjugates, the first returned. In normalised coordinates of the right
+    camera they lie on the image of the absolute conic, I_x^2 + I_y^2 + 1 = 0: with an
+    assumed focal length f0, a circle's image gives the true one as f0 sqrt(-(I_x^2 + I_y^2)).
+
+    >>> from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
+    >>> R = rotation_from_rotvec([0.6, 0.1, 0.0]); x = np.array([0.02, 0.05])
+    >>> a = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    >>> X = R @ np.stack([0.3 * np.cos(a), 0.3 * np.sin(a), 0 * a]) + np.r_[x, 1.0][:, None]
+    >>> from pencilcal.toolkit.geometry.conic import fit_ellipse
+    >>> I = circular_points(fit_ellipse((X[:2] / X[2]).T).conic, x)
+    >>> bool(abs(I[0] ** 2 + I[1] ** 2 + 1) < 1e-9)        # on the absolute conic's image
+    True
+    """
+    C = np.asarray(C, float)
+    ell = C @ np.r_[np.asarray(x, float), 1.0]
+    # a point on the horizon and its direction
+    d = np.array([-ell[1], ell[0], 0.0])
+    p0 = -ell[2] * ell / max(ell[0] ** 2 + ell[1] ** 2, 1e-300)
+    p0[2] = 1.0
+    a, b, c = d @ C @ d, p0 @ C @ d, p0 @ C @ p0
+    t = (-b + np.sqrt(complex(b * b - a * c))) / a
+    return p0[:2] + t * d[:2]

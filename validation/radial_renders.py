@@ -1,0 +1,171 @@
+"""Radial targets on rendered webcam frames, with exact truth: how many spokes the orientation
+uses, whether it resolves the twin, and its normal's error against its bound and its sigma.
+
+`radial_conditions` draws the conditions the method must hold under (Siemens stars of 16 to
+128 wedges and dartboards, dark on light and the reverse, tilts 15-60 deg, a webcam's blur,
+noise, uneven light, gamma 2.2 and JPEG, barrel distortion down to k1 = -0.3, the target
+anywhere near the middle of a 1280x960 frame); `radial_trial` renders one
+(`toolkit.synth.radial`), finds its edges and circle points (`toolkit.detect.radial`),
+orients it (`toolkit.pencil.orient`) and compares with the truth; `radial_summary` gives the
+figures tests/validation/test_radial_renders.py checks and docs/method.md reports.
+
+The bound: the covariance of the normal at the *true* rotation and vertex for the lines the
+fit used, with their sigmas (`estimator.pencil_covariance`): the Cramer-Rao bound of the
+normal for those lines. Coverage: the fraction of frames whose normal error lies within the
+68.3 % region of the covariance the fit reports (chi2 with 2 dof).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.pencil.estimator import pencil_covariance
+from pencilcal.toolkit.pencil.spec import Pencil, pencil_from_dict
+
+__all__ = ["RadialTrial", "radial_conditions", "radial_trial", "radial_summary", "KINDS"]
+
+#: What is rendered: Siemens stars of so many wedges, and a dartboard.
+KINDS = ("star16", "star32", "star64", "star128", "dartboard")
+_CHI2_2_68 = -2.0 * np.log(1.0 - 0.6827)  # chi-square(2) quantile of 68.27 %
+_STAR_RADIUS = 70.0  # [mm]
+
+
+@dataclass(frozen=True)
+class RadialTrial:
+    """One rendered frame and what the orientation made of it.
+
+    spokes, spokes_used: the target's spokes and those in the fit; ok: an estimate; resolved:
+    the twin chosen (any way); twin_right: it is the true one; err_deg: the chosen normal's
+    angle from the truth (the closer twin's when not resolved); sigma_deg: the reported
+    normal sigma; bound_deg: the normal's bound at the truth (module docstring); chi2: the
+    normal error's chi2 (2 dof) with the reported covariance; circle_err_deg,
+    circle_sigma_deg: the circles' normal's error and sigma (None without circles);
+    conditions: the rendering's conditions.
+    """
+
+    kind: str
+    spokes: int
+    spokes_used: int
+    ok: bool
+    resolved: bool
+    twin_right: bool
+    err_deg: float
+    sigma_deg: float
+    bound_deg: float
+    chi2: float
+    circle_err_deg: float | None
+    circle_sigma_deg: float | None
+    conditions: dict
+
+
+def radial_conditions(n, seed=0, kinds=KINDS):
+    """n conditions drawn with `seed`, cycling through `kinds`: dicts with kind, polarity,
+    tilt_deg, blur_px, noise, jpeg, k1, vertex_px, axis_deg, roll_deg, fill, seed."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        out.append(dict(kind=kinds[i % len(kinds)], polarity=("dark", "light")[(i // len(kinds)) % 2],
+                        tilt_deg=float(rng.uniform(15, 60)), blur_px=float(rng.uniform(0.6, 1.5)),
+                        noise=float(rng.uniform(1.0, 3.0)), jpeg=int(rng.integers(70, 96)),
+                        k1=float(rng.uniform(-0.3, 0.0)), vertex_px=rng.uniform([540, 400], [740, 560]).tolist(),
+                        axis_deg=float(rng.uniform(0, 360)), roll_deg=float(rng.uniform(0, 360)),
+                        fill=float(rng.uniform(0.75, 0.9)), seed=int(rng.integers(1 << 30))))
+    return out
+
+
+def _camera(k1):
+    """A webcam: 1280x960, f = 1000 px (65 deg across), barrel distortion k1."""
+    return Camera("opencv", 1280, 960, [[1000.0, 0, 643.1], [0, 1000.5, 477.4], [0, 0, 1]], [k1, 0.0, 0.0, 0.0])
+
+
+def _target(kind, polarity, seed):
+    """(pencil, layers, radius [mm] the frame is filled to, edges all around)."""
+    from pencilcal.toolkit.synth.radial import DARTBOARD, dartboard_layers, dartboard_pencil, star_layers
+
+    if kind == "dartboard":
+        pen = dartboard_pencil()
+        layers = dartboard_layers(numbers=True, darts=0, rng=seed)
+        if polarity == "light":  # the reverse board: black and cream swapped
+            swap = {DARTBOARD["black"]: DARTBOARD["cream"], DARTBOARD["cream"]: DARTBOARD["black"]}
+            layers = [(p, swap.get(r, r)) for p, r in layers]
+            pen = Pencil(pen.angles, pen.vertex, pen.radius, None, "edge", None, "light", pen.circles)
+        return pen, layers, DARTBOARD["board"], 20
+    n = int(kind[4:])
+    pen = pencil_from_dict({"start_deg": 0.0, "step_deg": 360.0 / n, "count": n, "shape": "wedge",
+                            "radius": [0.0, _STAR_RADIUS], "circles": [_STAR_RADIUS], "polarity": polarity})
+    return pen, star_layers(pen), _STAR_RADIUS, 2 * n
+
+
+def radial_trial(cond):
+    """Render, detect and orient one frame of `cond` (`radial_conditions`); a `RadialTrial`."""
+    from pencilcal.toolkit.detect.radial import detect_radial_edges
+    from pencilcal.toolkit.pencil.orient import orient_segments
+    from pencilcal.toolkit.synth.radial import radial_pose, render_layers
+
+    cam = _camera(cond["k1"])
+    pen, layers, radius, edges = _target(cond["kind"], cond["polarity"], cond["seed"])
+    R, t = radial_pose(cam, cond["vertex_px"], cond["tilt_deg"], radius, fill=cond["fill"], axis_deg=cond["axis_deg"],
+                       roll_deg=cond["roll_deg"])
+    img = render_layers(cam, R, t, layers, blur_px=cond["blur_px"], noise=cond["noise"], gamma=2.2, lighting=0.3,
+                        jpeg_quality=cond["jpeg"], rng=cond["seed"])
+    found = detect_radial_edges(img, cam, edges=edges)
+    rec = orient_segments(cam, found.segments, pen, angle_sigma=found.angle_sigma, offset_sigma=found.offset_sigma,
+                          circle_points=found.circle_points, keep_lines=True)
+    if not rec.ok:
+        return RadialTrial(cond["kind"], pen.count, 0, False, False, False, np.inf, np.nan, np.nan, np.inf, None, None,
+                           cond)
+    n_true = R[:, 2]
+    err = np.degrees(np.arccos(np.clip(np.asarray(rec.normal) @ n_true, -1, 1)))
+    err_twin = np.degrees(np.arccos(np.clip(np.asarray(rec.normal_twin) @ n_true, -1, 1)))
+    resolved = not rec.ambiguous
+    twin_right = resolved and err < err_twin
+    n_est = np.asarray(rec.normal if (twin_right or not resolved and err <= err_twin) else rec.normal_twin)
+    ln = rec.lines
+    th = pen.edge_angles()[0][np.asarray(ln["spoke"], int)]
+    R_est = np.asarray(rec.R_cam_from_target if n_est is rec.normal else rec.R_cam_from_target_twin, float)
+    cov_est = _normal_cov(R_est, ln, th)
+    x_true = t[:2] / t[2]
+    cov_true = _normal_cov(R, dict(ln, vertex=x_true), th)
+    d = n_est - n_true
+    B = np.linalg.svd(np.eye(3) - np.outer(n_true, n_true))[0][:, :2]
+    e2 = B.T @ d
+    chi2 = float(e2 @ np.linalg.solve(B.T @ cov_est @ B, e2))
+    circ_err = None
+    if rec.circle_normal is not None:
+        circ_err = float(np.degrees(np.arccos(np.clip(np.asarray(rec.circle_normal) @ n_true, -1, 1))))
+    return RadialTrial(cond["kind"], pen.count, int(rec.spokes_used), True, resolved, bool(twin_right),
+                       float(min(err, err_twin) if not resolved else (err if twin_right else err_twin)),
+                       float(rec.normal_sigma_deg), float(np.degrees(np.sqrt(np.trace(cov_true)))), chi2, circ_err,
+                       rec.circle_normal_sigma_deg, cond)
+
+
+def _normal_cov(R, ln, th):
+    """(3, 3) covariance of the normal R[:, 2] for the lines ln (orient's ``lines``) of edge
+    angles th: the rotation's (left perturbation) turned into the normal's."""
+    cov, _, _ = pencil_covariance(R, np.asarray(ln["vertex"], float), th, np.asarray(ln["sigma"], float),
+                                  np.asarray(ln["vertex_cov"], float))
+    n = R[:, 2]
+    K = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
+    return K @ cov @ K.T
+
+
+def radial_summary(trials):
+    """The figures over trials: frames, ok, spokes_used (fraction of all spokes), resolved and
+    twin_right (fractions of frames), rmse_deg, bound_deg (RMS), ratio (rmse over bound),
+    coverage (fraction within the reported 68.3 % region), circle_rmse_deg."""
+    ok = [t for t in trials if t.ok]
+    err = np.array([t.err_deg for t in ok])
+    bound = np.array([t.bound_deg for t in ok])
+    chi2 = np.array([t.chi2 for t in ok])
+    circ = np.array([t.circle_err_deg for t in ok if t.circle_err_deg is not None])
+    rmse = float(np.sqrt(np.mean(err**2))) if ok else np.nan
+    rb = float(np.sqrt(np.mean(bound**2))) if ok else np.nan
+    return {"frames": len(trials), "ok": len(ok),
+            "spokes_used": sum(t.spokes_used for t in trials) / max(sum(t.spokes for t in trials), 1),
+            "resolved": sum(t.resolved for t in trials) / max(len(trials), 1),
+            "twin_right": sum(t.twin_right for t in trials) / max(len(trials), 1),
+            "rmse_deg": rmse, "bound_deg": rb, "ratio": rmse / rb if ok else np.nan,
+            "coverage": float(np.mean(chi2 <= _CHI2_2_68)) if ok else np.nan,
+            "circle_rmse_deg": float(np.sqrt(np.mean(circ**2))) if circ.size else None}
