@@ -8,6 +8,7 @@ from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.camera.stereo import read_stereo
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.io.files import write_json
+from pencilcal.toolkit.pencil.epochs import frame_epochs
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles, stereo_fulcrum
 from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.sequence_noise import fulcrum_with_noise
@@ -26,11 +27,12 @@ def _shaft_task(frame, ctx):
     from pencilcal.toolkit.io.images import check_image_size
     from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 
-    camera, options, region, drawing, tracker = ctx
+    camera, options, region, drawing, tracker, priors = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}, None
     check_image_size(frame, camera)
-    found = (detect_shafts(frame.image, camera, valid_region=region, **options) if tracker is None
+    prior = None if priors is None else priors[1].get(frame.name, priors[0])
+    found = (detect_shafts(frame.image, camera, valid_region=region, axis_prior=prior, **options) if tracker is None
              else tracker(frame.image, camera, valid_region=region))
     shafts = [s.to_dict() for s in found]
     rec = {"image": frame.name, "ok": True, "segments": np.zeros((0, 4)), "shafts": shafts,
@@ -42,15 +44,16 @@ def _shaft_task(frame, ctx):
     return rec, draw_frame(frame.image, shafts=shafts, text=[frame.name])
 
 
-def _shafts(source, camera, options, quiet, workers, mask_path, live, tracker=None):
+def _shafts(source, camera, options, quiet, workers, mask_path, live, tracker=None, priors=None):
     """Instrument shafts of every frame of an image source, as lines.json frames, within the
     sequence's valid region (the mask file's, or detected: `region.detect.sequence_region`);
     each frame's shafts to the live outputs as they are found (the fulcrum is known only at
     the end). options: keywords of `shaft.detector.detect_shafts` (detector, gamma); tracker: a
-    `shaft.detector.ShaftTracker` (frames in order, --workers 1), or None."""
+    `shaft.detector.ShaftTracker` (frames in order, --workers 1), or None; priors: (default
+    `shaft.prior.AxisPrior` or None, {image name: prior}) or None (`shaft.prior.read_priors`)."""
     region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     frames = []
-    ctx = (camera, options, region, live.drawing, tracker)
+    ctx = (camera, options, region, live.drawing, tracker, priors)
     for f, drawn in run_frames(source, _shaft_task, ctx, workers, "shafts", quiet):
         if f["error"]:
             warn(f"{f['image']}: {f['error']}")
@@ -121,6 +124,43 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
     return rec
 
 
+def _auto_priors(camera, frames, ep):
+    """(None, {image name: its epoch's `shaft.prior.AxisPrior`}) of the frames' epochs
+    (`shaft.prior.fulcrum_prior` on each epoch's frames)."""
+    from pencilcal.toolkit.detect.shaft.prior import fulcrum_prior
+
+    by_image = {}
+    for a, b in ep.bounds:
+        p = fulcrum_prior(camera, frames[a:b])
+        if p is not None:
+            by_image.update({f["image"]: p for f in frames[a:b]})
+    if not by_image:
+        raise EstimationError("--fulcrum-prior auto: no epoch of the frames has a fulcrum to search the shafts by")
+    return None, by_image
+
+
+def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter, priors):
+    """fulcrum.json's ``epoch_test`` and ``epochs`` (when the fulcrum moved) records, with a
+    warning naming the epochs (`fulcrum_run.fulcrum_epochs`); each epoch's ``axis_prior``
+    is the one the frames were searched with, else estimated from its frames."""
+    from pencilcal.toolkit.detect.shaft.prior import fulcrum_prior
+    from pencilcal.validation.fulcrum_run import epochs_record, fulcrum_epochs
+
+    ep, results = fulcrum_epochs(camera, frames, angles, endpoint_sigma_px=endpoint_sigma,
+                                 shaft_diameter=shaft_diameter)
+    names = [f["image"] for f in frames]
+    used = None
+    if len(ep.bounds) > 1:
+        used = [(priors[1].get(names[a], priors[0]) if priors is not None else None) or fulcrum_prior(camera,
+                                                                                                       frames[a:b])
+                for a, b in ep.bounds]
+        spans = ", ".join(f"{names[a]}-{names[b - 1]}" for a, b in ep.bounds)
+        warn(f"the fulcrum moved: {len(ep.bounds)} pivot epochs ({spans}; change points " + ", ".join(
+            f"at {names[c.index]} (F {c.statistic:.1f}, p {c.p_corrected:.2g})" for c in ep.changes)
+             + "): each epoch's fulcrum is in 'epochs', the one of all frames at the top")
+    return epochs_record(ep, results, names, used)
+
+
 @command()
 @images_argument(required=False)
 @source_option
@@ -144,6 +184,9 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
 @endpoint_sigma_option("End point noise [px] for segments without their own angle sigma.")
 @detector_option("Line detector for the shaft proposals, with IMAGES.")
 @gamma_option
+@click.option("--fulcrum-prior", "prior_spec", default=None, metavar="FILE|auto",
+              help="Search each frame's shaft through the fulcrum's image: FILE, a fulcrum.json (each epoch's for its "
+                   "images) or ray and ray_cov (robot kinematics); auto: estimated per epoch, then every frame again.")
 @click.option("--track/--no-track", default=True, show_default=True,
               help="Look for each frame's shafts around the previous frame's (a full detection where they are not "
                    "found again, and every 30th frame); needs the frames in order in one process (--workers 1).")
@@ -157,8 +200,8 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
 @quiet_option
 @run
 def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path, shaft_diameter, right_images,
-            camera_right_path, stereo_path, endpoint_sigma, detector, gamma, track, mask_path, jsonl_path, overlay_path,
-            max_pixels, workers, output, force, quiet):
+            camera_right_path, stereo_path, endpoint_sigma, detector, gamma, prior_spec, track, mask_path, jsonl_path,
+            overlay_path, max_pixels, workers, output, force, quiet):
     """The fulcrum of an instrument pivoting about its entry port.
 
     Every frame's instrument line passes through the fulcrum's image: their robust weighted
@@ -196,6 +239,11 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     with a warning. --source reads a camera or a growing video; --jsonl streams each frame's shafts
     as they are found and --overlay draws them (the fulcrum is known at the end only).
 
+    Where the fulcrum moved (the arm re-set, the port slipped, the camera moved), a
+    change-point test on the lines splits the frames into pivot epochs: ``epoch_test`` says
+    where and why, ``epochs`` holds each one's fulcrum (docs/method.md). --fulcrum-prior
+    searches every frame's shaft through its epoch's fulcrum image, at most one a frame.
+
     From frame to frame (--track, with --workers 1) each shaft is looked for in a corridor
     around where the previous frame had it, without the detector's proposals (a full
     detection where it is not found again, and every 30th frame: an instrument entering
@@ -214,15 +262,24 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     if sum(x is not None for x in (images, source_spec, lines_path)) != 1:
         raise click.UsageError("give IMAGES, --source or --lines (one of them)")
-    if lines_path is not None and (mask_path is not None or overlay_path is not None):
-        raise click.UsageError("--mask and --overlay are for frames (a lines file's lines are already found)")
+    if lines_path is not None and (mask_path is not None or overlay_path is not None or prior_spec is not None):
+        raise click.UsageError("--mask, --overlay and --fulcrum-prior are for frames (a lines file's lines are "
+                               "already found)")
+    if prior_spec == "auto" and source_spec is not None:
+        raise click.UsageError("--fulcrum-prior auto reads the frames twice: give IMAGES, not --source")
     stereo = (right_images, camera_right_path, stereo_path)
     if any(x is not None for x in stereo) and not all(x is not None for x in stereo):
         raise click.UsageError("--right, --camera-right and --right-from-left go together")
     right_lines = right_images if right_images is not None and _is_lines_file(right_images) else None
+    prior_file = prior_spec if prior_spec not in (None, "auto") else None
     check_output(output, force, [lines_path, camera_path, angles_path, mask_path, camera_right_path, stereo_path,
-                                 right_lines])
+                                 right_lines, prior_file])
     camera = read_camera(camera_path, camera_id=camera_id)
+    priors = None
+    if prior_file is not None:
+        from pencilcal.toolkit.detect.shaft.prior import read_priors
+
+        priors = read_priors(prior_file, camera)
     rig = None if stereo_path is None else read_stereo(stereo_path)
     camera_right = None if camera_right_path is None else read_camera(camera_right_path)
     source = tracker = None
@@ -239,21 +296,37 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         check_output(output, force, source.paths)
         from pencilcal.toolkit.detect.shaft.detector import ShaftTracker
 
-        tracker = ShaftTracker(**options) if track and workers == 1 else None
+        tracker = ShaftTracker(**options) if track and workers == 1 and priors is None else None
+        if prior_spec == "auto":  # a first pass to estimate each epoch's prior from
+            with FrameOutputs(None, None, force) as first:
+                frames = _shafts(source, camera, options, quiet, workers, mask_path, first, tracker)
+            priors = _auto_priors(camera, frames, frame_epochs(camera, frames))
+            tracker = None
         with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
-            frames = _shafts(source, camera, options, quiet, workers, mask_path, live, tracker)
+            frames = _shafts(source, camera, options, quiet, workers, mask_path, live, tracker, priors)
     where = lines_path or source.description
     angles = read_angles(angles_path, [f["image"] for f in frames]) if angles_path else None
 
     given = click.get_current_context().get_parameter_source("endpoint_sigma") != click.core.ParameterSource.DEFAULT
     res = fulcrum_with_sigmas(camera, frames, angles, endpoint_sigma_px=endpoint_sigma if given else None,
                               shaft_diameter=shaft_diameter, where=where)
+    epoch_test, epochs = _epochs(camera, frames, angles, endpoint_sigma if given else None, shaft_diameter, priors)
     for w in res.warnings:
         warn(w)
     out = {"camera": str(camera_path), "lines": None if lines_path is None else str(lines_path),
            "images": None if images is None else source.description, **stream_meta(source), **res.to_dict()}
     if tracker is not None:
         out["frames_tracked"] = tracker.tracked
+    from pencilcal.toolkit.detect.shaft.prior import fulcrum_prior, prior_record
+
+    whole = fulcrum_prior(camera, frames, endpoint_sigma if given else None)
+    if whole is not None:
+        out["axis_prior"] = prior_record(whole)
+    out["epoch_test"] = epoch_test
+    if len(epochs) > 1:
+        out["epochs"] = epochs
+    if priors is not None:
+        out["fulcrum_prior"] = prior_spec
     if rig is not None:
         out["stereo"] = _stereo(res, right_images, camera_right, camera_right_path, rig, options, endpoint_sigma,
                                 given, max_pixels, workers, quiet, force)

@@ -29,12 +29,13 @@ def with_axis(camera, shaft, diameter):
 def _lines_task(frame, ctx):
     """One frame's lines.json record, and the frame drawn with them when the overlay is
     asked for (module level: runs in worker processes too)."""
-    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma = ctx
+    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, priors = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
     rec = lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
-                       valid_region=region, gamma=gamma)
+                       valid_region=region, gamma=gamma,
+                       axis_prior=None if priors is None else priors[1].get(frame.name, priors[0]))
     if diameter is not None:
         rec["shafts"] = [with_axis(camera, s, diameter) for s in rec.get("shafts") or []]
     if not drawing:
@@ -64,6 +65,9 @@ def _lines_task(frame, ctx):
                    "its 3-D axis in the camera frame, in D's unit: axis_point, axis_direction, axis_distance, "
                    "axis_cov, axis_direction_sigma_deg, axis_distance_sigma.")
 @gamma_option
+@click.option("--fulcrum-prior", "prior_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="With --shaft: each frame's shaft through the fulcrum's image of FILE (fulcrum.json, its epochs' "
+                   "by image name; or ray and ray_cov): at most one shaft a frame, tissue bands left out.")
 @click.option("--min-length", type=FiniteFloat(), default=None,
               help="Shortest segment written [px]. Default 20; with --bars, 20 or 1/30 of the image's "
                    "smaller side, whichever is longer (36 px at 1080p).")
@@ -76,7 +80,7 @@ def _lines_task(frame, ctx):
 @quiet_option
 @run
 def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, shaft, shaft_diameter, gamma,
-          min_length,
+          prior_path, min_length,
           mask_path, jsonl_path, overlay_path, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel precision, with angle uncertainty.
 
@@ -121,14 +125,22 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         raise click.BadParameter("only with --shaft", param_hint="--gamma")
     if shaft_diameter is not None and not shaft_diameter > 0:
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
+    if prior_path is not None and not shaft:
+        raise click.BadParameter("only with --shaft", param_hint="--fulcrum-prior")
     check_output(output, force)
     camera = read_camera(camera_path, camera_id=camera_id)
+    priors = None
+    if prior_path is not None:
+        from pencilcal.toolkit.detect.shaft.prior import read_priors
+
+        priors = read_priors(prior_path, camera)
     source = open_input(images, source_spec, max_pixels)
-    check_output(output, force, [*source.paths, camera_path, mask_path])
+    check_output(output, force, [*source.paths, camera_path, mask_path, prior_path])
     region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     records = []
     with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
-        ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma)
+        ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma,
+               priors)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
@@ -140,6 +152,8 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         meta["shaft_diameter"] = shaft_diameter
     if shaft:
         meta["gamma"] = gamma
+    if prior_path is not None:
+        meta["fulcrum_prior"] = str(prior_path)
     write_lines(output, records, force=force, meta=meta, valid_region=None if region is None else region.to_dict())
     if not quiet:
         n_ok = sum(r["ok"] for r in records)
