@@ -8,6 +8,7 @@ from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.camera.stereo import read_stereo
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.io.files import write_json
+from pencilcal.toolkit.detect.shaft.prior import epoch_priors
 from pencilcal.toolkit.pencil.epochs import frame_epochs
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles, stereo_fulcrum
 from pencilcal.toolkit.io.lines_file import read_lines
@@ -20,20 +21,24 @@ from .common import (detector_option, endpoint_sigma_option, gamma_option, comma
 
 
 
+#: Passes through the epochs' priors --fulcrum-prior auto makes at most.
+AUTO_PASSES = 2
+
+
 def _shaft_task(frame, ctx):
     """The shafts of one frame as a lines.json frame (module level: runs in workers too)."""
     import numpy as np
 
     from pencilcal.toolkit.io.images import check_image_size
-    from pencilcal.toolkit.detect.shaft.detector import detect_shafts
+    from pencilcal.toolkit.detect.shaft.detector import detect_through
 
     camera, options, region, drawing, tracker, priors = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}, None
     check_image_size(frame, camera)
     prior = None if priors is None else priors[1].get(frame.name, priors[0])
-    found = (detect_shafts(frame.image, camera, valid_region=region, axis_prior=prior, **options) if tracker is None
-             else tracker(frame.image, camera, valid_region=region))
+    found = (detect_through(frame.image, camera, prior if isinstance(prior, list) else [prior], valid_region=region,
+                            **options) if tracker is None else tracker(frame.image, camera, valid_region=region))
     shafts = [s.to_dict() for s in found]
     rec = {"image": frame.name, "ok": True, "segments": np.zeros((0, 4)), "shafts": shafts,
            "error": None if shafts else "no instrument shaft found"}
@@ -50,7 +55,8 @@ def _shafts(source, camera, options, quiet, workers, mask_path, live, tracker=No
     each frame's shafts to the live outputs as they are found (the fulcrum is known only at
     the end). options: keywords of `shaft.detector.detect_shafts` (detector, gamma); tracker: a
     `shaft.detector.ShaftTracker` (frames in order, --workers 1), or None; priors: (default
-    `shaft.prior.AxisPrior` or None, {image name: prior}) or None (`shaft.prior.read_priors`)."""
+    `shaft.prior.AxisPrior` or None, {image name: a prior, or a list of them to try in turn})
+    or None (`shaft.prior.read_priors`, `shaft.prior.epoch_priors`)."""
     region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     frames = []
     ctx = (camera, options, region, live.drawing, tracker, priors)
@@ -124,25 +130,32 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
     return rec
 
 
-def _auto_priors(camera, frames, ep):
-    """(None, {image name: its epoch's `shaft.prior.AxisPrior`}) of the frames' epochs
-    (`shaft.prior.fulcrum_prior` on each epoch's frames)."""
-    from pencilcal.toolkit.detect.shaft.prior import fulcrum_prior
+def _auto_priors(source, camera, options, quiet, workers, mask_path, tracker, force):
+    """(priors, frames) of --fulcrum-prior auto: a first pass without a prior, its pivot
+    epochs and each one's prior (`shaft.prior.epoch_priors`), then passes through them until
+    the epochs found on their shafts stay (at most `AUTO_PASSES`): the last pass's priors,
+    (None, {image name: [priors to try in turn]}), and its frames."""
+    with FrameOutputs(None, None, force) as silent:
+        frames = _shafts(source, camera, options, quiet, workers, mask_path, silent, tracker)
+    bounds = frame_epochs(camera, frames).bounds
+    for _ in range(AUTO_PASSES):
+        priors = (None, epoch_priors(camera, frames, bounds))
+        if all(p == [None] for p in priors[1].values()):
+            raise EstimationError(f"{source.description}: --fulcrum-prior auto: no pivot epoch of the frames has a "
+                                  "fulcrum to search the shafts by")
+        with FrameOutputs(None, None, force) as silent:
+            frames = _shafts(source, camera, options, quiet, workers, mask_path, silent, None, priors)
+        new = frame_epochs(camera, frames).bounds
+        if new == bounds:
+            break
+        bounds = new
+    return priors, frames
 
-    by_image = {}
-    for a, b in ep.bounds:
-        p = fulcrum_prior(camera, frames[a:b])
-        if p is not None:
-            by_image.update({f["image"]: p for f in frames[a:b]})
-    if not by_image:
-        raise EstimationError("--fulcrum-prior auto: no epoch of the frames has a fulcrum to search the shafts by")
-    return None, by_image
 
-
-def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter, priors):
+def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter):
     """fulcrum.json's ``epoch_test`` and ``epochs`` (when the fulcrum moved) records, with a
     warning naming the epochs (`fulcrum_run.fulcrum_epochs`); each epoch's ``axis_prior``
-    is the one the frames were searched with, else estimated from its frames."""
+    estimated from its frames (`shaft.prior.fulcrum_prior`)."""
     from pencilcal.toolkit.detect.shaft.prior import fulcrum_prior
     from pencilcal.validation.fulcrum_run import epochs_record, fulcrum_epochs
 
@@ -151,9 +164,7 @@ def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter, priors):
     names = [f["image"] for f in frames]
     used = None
     if len(ep.bounds) > 1:
-        used = [(priors[1].get(names[a], priors[0]) if priors is not None else None) or fulcrum_prior(camera,
-                                                                                                       frames[a:b])
-                for a, b in ep.bounds]
+        used = [fulcrum_prior(camera, frames[a:b]) for a, b in ep.bounds]
         spans = ", ".join(f"{names[a]}-{names[b - 1]}" for a, b in ep.bounds)
         warn(f"the fulcrum moved: {len(ep.bounds)} pivot epochs ({spans}; change points " + ", ".join(
             f"at {names[c.index]} (F {c.statistic:.1f}, p {c.p_corrected:.2g})" for c in ep.changes)
@@ -242,7 +253,8 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     Where the fulcrum moved (the arm re-set, the port slipped, the camera moved), a
     change-point test on the lines splits the frames into pivot epochs: ``epoch_test`` says
     where and why, ``epochs`` holds each one's fulcrum (docs/method.md). --fulcrum-prior
-    searches every frame's shaft through its epoch's fulcrum image, at most one a frame.
+    searches every frame's shaft through its epoch's fulcrum image, at most one a frame
+    (auto: a first pass, then up to two through its epochs' priors).
 
     From frame to frame (--track, with --workers 1) each shaft is looked for in a corridor
     around where the previous frame had it, without the detector's proposals (a full
@@ -297,20 +309,20 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         from pencilcal.toolkit.detect.shaft.detector import ShaftTracker
 
         tracker = ShaftTracker(**options) if track and workers == 1 and priors is None else None
-        if prior_spec == "auto":  # a first pass to estimate each epoch's prior from
-            with FrameOutputs(None, None, force) as first:
-                frames = _shafts(source, camera, options, quiet, workers, mask_path, first, tracker)
-            priors = _auto_priors(camera, frames, frame_epochs(camera, frames))
+        frames = None
+        if prior_spec == "auto":
+            priors, frames = _auto_priors(source, camera, options, quiet, workers, mask_path, tracker, force)
             tracker = None
-        with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
-            frames = _shafts(source, camera, options, quiet, workers, mask_path, live, tracker, priors)
+        if frames is None or jsonl_path is not None or overlay_path is not None:
+            with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
+                frames = _shafts(source, camera, options, quiet, workers, mask_path, live, tracker, priors)
     where = lines_path or source.description
     angles = read_angles(angles_path, [f["image"] for f in frames]) if angles_path else None
 
     given = click.get_current_context().get_parameter_source("endpoint_sigma") != click.core.ParameterSource.DEFAULT
     res = fulcrum_with_sigmas(camera, frames, angles, endpoint_sigma_px=endpoint_sigma if given else None,
                               shaft_diameter=shaft_diameter, where=where)
-    epoch_test, epochs = _epochs(camera, frames, angles, endpoint_sigma if given else None, shaft_diameter, priors)
+    epoch_test, epochs = _epochs(camera, frames, angles, endpoint_sigma if given else None, shaft_diameter)
     for w in res.warnings:
         warn(w)
     out = {"camera": str(camera_path), "lines": None if lines_path is None else str(lines_path),

@@ -69,7 +69,8 @@ from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame, axis_matrix
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["Shaft", "ShaftOptions", "detect_shafts", "track_shafts", "ShaftTracker", "CUES", "REDETECT_FRAMES"]
+__all__ = ["Shaft", "ShaftOptions", "detect_shafts", "detect_through", "track_shafts", "ShaftTracker", "CUES",
+           "REDETECT_FRAMES"]
 
 #: What a shaft can be found by (`Shaft.cue`): the two cues, and the angle search about a
 #: fulcrum's image (`detect_shafts(..., axis_prior=...)`).
@@ -383,6 +384,19 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         for m, score, polarity in pencil_search(image, camera, validity, work, p, o, K, noise, gamma_edges):
             found.append(_shaft(camera, m, score, polarity, "prior"))
     return select_through([s for s in found if s is not None], priors)
+
+
+def detect_through(image, camera, alternatives, **options):
+    """The shafts (`detect_shafts`) through the first of the `alternatives` (a list of
+    `shaft.prior.AxisPrior`, or of lists of them) that gives any: a frame whose pivot epoch
+    is uncertain (at a change of the fulcrum) is searched with each candidate epoch's
+    prior in turn. options: the keywords of `detect_shafts`."""
+    found = []
+    for p in alternatives:
+        found = detect_shafts(image, camera, axis_prior=p, **options)
+        if found:
+            break
+    return found
 
 
 def _prepared(image, camera, valid_region, options):

@@ -8,12 +8,14 @@ as the shaft (w / rho in angle). Its edges are the only structure of the scene t
 a pair of opposite gradients centred on one column from row to row: tissue bands, folds
 and drapes cross the columns obliquely. So:
 
-1. *pairs*: in the reduced, undistorted work frame (`shaft.work.WorkFrame`), the luma
+1. *pairs*: in the reduced, undistorted work frame (`shaft.work.WorkFrame`), its
+   instrument-likeness where the frame has a colour (`shaft.regions.material_map`: grey,
+   black and metal against tissue; a pale fold keeps the tissue's colour), else its luma,
    resampled in pencil coordinates; per row, the gradient across the columns (a Gaussian
    derivative, sd `_SIGMA_COLS` columns, in grey levels per work px), its local maxima
    above `_Z_PEAK` noise sd (the `_PEAKS` strongest), and every pair of them of opposite
-   sign (a band darker or brighter than both sides) whose width is a shaft's, weighted by
-   the weaker one in noise sd (at most `_Z_CAP`);
+   sign (a band darker or brighter than both sides; more instrument-like than both, on
+   the likeness) whose width is a shaft's, weighted by the weaker one's gradient;
 2. *votes*: each pair votes for its centre column and its width (bins of `_WIDTH_STEP`),
    and the angle with most votes (smoothed over neighbouring widths: the band narrows
    along the shaft in perspective) is the shaft's. Where X itself is uncertain (the
@@ -134,10 +136,11 @@ class _Grid:
         return (1.0 - f) * self.pts[row, c0] + f * self.pts[row, c0 + 1]
 
 
-def _pairs(grid, P, D, noise, wmin, wmax):
+def _pairs(grid, P, D, noise, wmin, wmax, bright_only):
     """Step 1: (row, left col, right col, centre col, width [work px], weight, dark) of every
-    pair of opposite gradient peaks at a shaft's width in the resampled luma P (rows,
-    cols) (D: the distance to the view's border there)."""
+    pair of opposite gradient peaks at a shaft's width in the resampled channel P (rows,
+    cols) (D: the distance to the view's border there); bright_only: only bands above
+    both sides (the instrument-likeness)."""
     import cv2
 
     r = int(np.ceil(3 * _SIGMA_COLS))
@@ -155,6 +158,8 @@ def _pairs(grid, P, D, noise, wmin, wmax):
     valid = zs > 0
     wd = (idx[:, None, :] - idx[:, :, None]) * grid.spacing[:, None, None]  # [row, i, j]
     good = valid[:, :, None] & valid[:, None, :] & (sg[:, :, None] * sg[:, None, :] < 0) & (wd >= wmin) & (wd <= wmax)
+    if bright_only:
+        good &= (sg > 0)[:, :, None]
     R, I, J = np.nonzero(good)
     ci, cj = idx[R, I].astype(float), idx[R, J].astype(float)
     return (R, ci, cj, 0.5 * (ci + cj), wd[R, I, J], np.minimum(np.minimum(zs[R, I], zs[R, J]), _Z_CAP),
@@ -212,7 +217,7 @@ def _line_fit(P):
     return c, u, keep
 
 
-def _inside_ok(P, pairs, sel):
+def _inside_ok(P, D, pairs, sel):
     """(sel,) bool: the inside of each pair `sel` is a band's: darker (brighter) than both
     sides, and `_INSIDE_FRACTION` of its inner 80 % on its side of the level halfway to the
     nearer side's (a specular stripe along a black shaft is allowed; tissue between two
@@ -222,12 +227,12 @@ def _inside_ok(P, pairs, sel):
     for q, k in enumerate(sel):
         a, b = ci[k], cj[k]
         w = b - a
-        row = P[R[k]]
-        inner = row[int(np.ceil(a + 0.1 * w)):int(np.floor(b - 0.1 * w)) + 1]
+        row, seen = P[R[k]], D[R[k]] >= 0
+        i0, i1 = int(np.ceil(a + 0.1 * w)), int(np.floor(b - 0.1 * w)) + 1
         side = max(2, int(0.3 * w))
-        left = row[max(int(a) - 1 - side, 0):max(int(a) - 1, 0)]
-        right = row[int(b) + 2:int(b) + 2 + side]
-        if inner.size < 2 or left.size < 1 or right.size < 1 or min(inner.min(), left.min(), right.min()) < 0:
+        l0, l1, r0, r1 = max(int(a) - 1 - side, 0), max(int(a) - 1, 0), int(b) + 2, int(b) + 2 + side
+        inner, left, right = row[i0:i1][seen[i0:i1]], row[l0:l1][seen[l0:l1]], row[r0:r1][seen[r0:r1]]
+        if inner.size < 2 or left.size < 1 or right.size < 1:
             continue
         m, l_, r_ = float(np.median(inner)), float(np.median(left)), float(np.median(right))
         sgn = 1.0 if dark[k] else -1.0
@@ -238,7 +243,7 @@ def _inside_ok(P, pairs, sel):
     return out
 
 
-def _band_points(grid, P, pairs, b_of, c, b, shift):
+def _band_points(grid, P, D, pairs, b_of, c, b, shift):
     """Step 3: the best pair per row near a peak (column c, width bin b, shift) whose inside
     is a band's (`_inside_ok`), over the run of rows (gaps up to `_GAP_ROWS`) of largest weight, its two
     sides' points on two lines: (rows, left cols, right cols, dark, weight) or None."""
@@ -250,7 +255,7 @@ def _band_points(grid, P, pairs, b_of, c, b, shift):
         return None
     order = idx[np.lexsort((-wt[idx], R[idx]))]
     best = order[np.r_[True, R[order][1:] != R[order][:-1]]]  # the heaviest pair of each row
-    best = best[_inside_ok(P, pairs, best)]
+    best = best[_inside_ok(P, D, pairs, best)]
     if best.size < _MIN_ROWS:
         return None
     rows = R[best]
@@ -269,8 +274,24 @@ def _band_points(grid, P, pairs, b_of, c, b, shift):
     return R[sel], ci[sel], cj[sel], bool(np.mean(dark[sel]) > 0.5), float(np.sum(wt[sel]))
 
 
+def _chord(work, p, u):
+    """(s0, s1) [ideal px] of the line p + s u (ideal px) inside the work frame's rectangle."""
+    h, w = work.shape
+    lo, hi = work.to_ideal(np.array([[0.0, 0.0]]))[0], work.to_ideal(np.array([[w - 1.0, h - 1.0]]))[0]
+    s0, s1 = -np.inf, np.inf
+    for k in range(2):
+        if abs(u[k]) < 1e-12:
+            continue
+        a, b = sorted(((lo[k] - p[k]) / u[k], (hi[k] - p[k]) / u[k]))
+        s0, s1 = max(s0, a), min(s1, b)
+    return float(s0), float(s1)
+
+
 def _edge_specs(work, grid, rows, cl, cr):
-    """The two proposed edges (p0, u, n_out, s0, s1) [ideal px] of a band's points."""
+    """The two proposed edges (p0, u, n_out, s0, s1) [ideal px] of a band's points, each
+    over its line's whole chord through the frame: the full-resolution fit keeps its best
+    run of stations (the band's run in the work frame stops where perspective has changed
+    its width by `_WIDTH_TOL`; the shaft's edges go on)."""
     left = work.to_ideal(grid.point(rows, cl))
     right = work.to_ideal(grid.point(rows, cr))
     specs = []
@@ -279,7 +300,8 @@ def _edge_specs(work, grid, rows, cl, cr):
         s = (P - p) @ u
         n = np.array([-u[1], u[0]])
         n = n if n @ (p - other.mean(0)) >= 0 else -n
-        specs.append((p, u, n, float(s.min()), float(s.max())))
+        c0, c1 = _chord(work, p, u)
+        specs.append((p, u, n, min(float(s.min()), c0), max(float(s.max()), c1)))
     return specs
 
 
@@ -306,21 +328,36 @@ def _shifts(grid, pw):
     return np.linspace(-span, span, int(min(_MAX_SHIFTS, 2 * np.ceil(span / unit) + 1)))
 
 
+def _channel(work):
+    """(the channel searched (h, w) float32, whether only bands above their sides count):
+    a colour frame's instrument-likeness (`shaft.regions.material_map`, x 100: grey, black
+    and metal against tissue, where a pale fold of tissue keeps the tissue's colour), else
+    the luma, either polarity."""
+    from pencilcal.toolkit.detect.shaft.regions import material_map
+
+    if work.bgr.ndim == 3:
+        mm = material_map(work)
+        if mm.informative:
+            return (100.0 * mm.likeness).astype(np.float32), True
+    return work.luma, False
+
+
 def _bands(work, pw, wmin, wmax):
     """Steps 1-3 in the work frame: up to `_CANDIDATES` (grid, rows, left cols, right cols,
     dark), the heaviest first."""
     from pencilcal.toolkit.detect.shaft.material_cue import robust_noise
 
     grid = _Grid(pw.point, work.shape, float(np.hypot(*work.shape)))
-    P, D = grid.sample(work.luma), grid.sample(work.dist)
-    pairs = _pairs(grid, P, D, max(robust_noise(work.luma), 0.5), wmin, wmax)
+    chan, bright_only = _channel(work)
+    P, D = grid.sample(chan), grid.sample(work.dist)
+    pairs = _pairs(grid, P, D, max(robust_noise(chan), 0.5), wmin, wmax, bright_only)
     if pairs[0].size == 0:
         return []
     shifts = _shifts(grid, pw)
     A, b_of = _votes(grid, pairs, shifts, wmin, grid.pts.shape[1])
     found = []
     for q, c, b in _peaks(A, wmin):
-        band = _band_points(grid, P, pairs, b_of, c, b, shifts[q])
+        band = _band_points(grid, P, D, pairs, b_of, c, b, shifts[q])
         if band is not None:
             found.append(band)
     found.sort(key=lambda t: -t[4])

@@ -45,7 +45,8 @@ import numpy as np
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 
-__all__ = ["AxisPrior", "AXIS_GATE", "JACKKNIFE_GROUPS", "line_chi2", "select_through", "as_priors", "fulcrum_prior", "prior_record",
+__all__ = ["AxisPrior", "AXIS_GATE", "JACKKNIFE_GROUPS", "line_chi2", "select_through", "as_priors", "fulcrum_prior",
+           "epoch_priors", "prior_record",
            "read_priors"]
 
 #: A midline passes through a prior when its chi-square (1 dof) is below this (0.999).
@@ -212,8 +213,10 @@ def fulcrum_prior(camera, frames, endpoint_sigma_px=None):
     lines (lines.json frame dicts, the lines `pencil.fulcrum` fits: shaft midlines where
     there are any), or None (fewer than three lines, or no common point).
 
-    The point is their robust common point (`pencil.vertex.intersect_lines`, allowed as far
-    as infinity), its covariance the larger (by trace) of the fit's, scaled by the
+    The point is the robust common point (`pencil.vertex.intersect_lines`, allowed as far
+    as infinity) of the lines that do not repeat from frame to frame (`pencil.epochs.
+    distinct_lines`: a band of tissue detected in every frame would pull it onto itself),
+    its covariance the larger (by trace) of the fit's, scaled by the
     residuals' chi2 / dof when above 1, and the jackknife's leaving out one frame (one run
     of consecutive frames, `JACKKNIFE_GROUPS` runs at most) at a time (a camera that
     drifted, a misdetected frame: the prior must hold the frames' spread, or it rejects
@@ -221,10 +224,13 @@ def fulcrum_prior(camera, frames, endpoint_sigma_px=None):
     (undistorted px, as detected) when the lines are shafts.
     """
     from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
+    from pencilcal.toolkit.pencil.epochs import distinct_lines
     from pencilcal.toolkit.pencil.fulcrum import sequence_lines
 
     sl = sequence_lines(camera, frames, ENDPOINT_SIGMA_PX if endpoint_sigma_px is None else endpoint_sigma_px)
     idx = np.flatnonzero(sl.good)
+    owners = np.array([sl.owner[k][0] for k in idx], int)
+    idx = idx[distinct_lines(sl.ideal[idx], sl.angle_sigma[idx], sl.offset_sigma[idx], owners)]
     if idx.size < 3:
         return None
     fit = _point_fit(sl.ideal[idx], sl.angle_sigma[idx], sl.offset_sigma[idx])
@@ -255,6 +261,24 @@ def fulcrum_prior(camera, frames, endpoint_sigma_px=None):
         w = [x for x in w if np.isfinite(x) and x > 0]
         widths = (min(w), max(w)) if w else None
     return AxisPrior(X, C, widths)
+
+
+def epoch_priors(camera, frames, bounds, endpoint_sigma_px=None):
+    """{image name: [priors to try in turn]} for lines.json `frames` split into pivot epochs
+    (bounds [(start, stop)], `pencil.epochs.frame_epochs`): each frame its epoch's prior
+    (`fulcrum_prior` of the epoch's frames; [None] where it has none); a frame without a
+    shaft after its epoch's last one, where the fulcrum may already have moved (a change is
+    placed at the first frame with a line after it), also the next epoch's
+    (`shaft.detector.detect_through`)."""
+    priors = [fulcrum_prior(camera, frames[a:b], endpoint_sigma_px) for a, b in bounds]
+    out = {}
+    for e, (a, b) in enumerate(bounds):
+        with_shaft = [k for k in range(a, b) if frames[k].get("shafts")]
+        last = with_shaft[-1] if with_shaft else a - 1
+        for k in range(a, b):
+            alts = [priors[e]] + ([priors[e + 1]] if k > last and e + 1 < len(priors) else [])
+            out[frames[k]["image"]] = [p for p in alts if p is not None] or [None]
+    return out
 
 
 def prior_record(prior):
