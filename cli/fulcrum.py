@@ -21,7 +21,7 @@ from .common import (detector_option, endpoint_sigma_option, gamma_option, comma
 
 
 
-#: Passes through the epochs' priors --fulcrum-prior auto makes at most.
+#: Passes through the epochs' priors --fulcrum-prior auto makes after its first.
 AUTO_PASSES = 2
 
 
@@ -132,23 +132,19 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
 
 def _auto_priors(source, camera, options, quiet, workers, mask_path, tracker, force):
     """(priors, frames) of --fulcrum-prior auto: a first pass without a prior, its pivot
-    epochs and each one's prior (`shaft.prior.epoch_priors`), then passes through them until
-    the epochs found on their shafts stay (at most `AUTO_PASSES`): the last pass's priors,
-    (None, {image name: [priors to try in turn]}), and its frames."""
+    epochs and each one's prior (`shaft.prior.epoch_priors`), then `AUTO_PASSES` passes,
+    each through the epochs and priors of the shafts the one before found (their lines are
+    the better ones): the last pass's priors, (None, {image name: [priors to try in
+    turn]}), and its frames."""
     with FrameOutputs(None, None, force) as silent:
         frames = _shafts(source, camera, options, quiet, workers, mask_path, silent, tracker)
-    bounds = frame_epochs(camera, frames).bounds
     for _ in range(AUTO_PASSES):
-        priors = (None, epoch_priors(camera, frames, bounds))
+        priors = (None, epoch_priors(camera, frames, frame_epochs(camera, frames).bounds))
         if all(p == [None] for p in priors[1].values()):
             raise EstimationError(f"{source.description}: --fulcrum-prior auto: no pivot epoch of the frames has a "
                                   "fulcrum to search the shafts by")
         with FrameOutputs(None, None, force) as silent:
             frames = _shafts(source, camera, options, quiet, workers, mask_path, silent, None, priors)
-        new = frame_epochs(camera, frames).bounds
-        if new == bounds:
-            break
-        bounds = new
     return priors, frames
 
 
@@ -254,7 +250,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     change-point test on the lines splits the frames into pivot epochs: ``epoch_test`` says
     where and why, ``epochs`` holds each one's fulcrum (docs/method.md). --fulcrum-prior
     searches every frame's shaft through its epoch's fulcrum image, at most one a frame
-    (auto: a first pass, then up to two through its epochs' priors).
+    (auto: a first pass, then two through its epochs' priors).
 
     From frame to frame (--track, with --workers 1) each shaft is looked for in a corridor
     around where the previous frame had it, without the detector's proposals (a full

@@ -393,4 +393,8 @@ def pencil_search(image, camera, validity, work, prior, o, K, noise, gamma=1.0):
         if seen < _MIN_WIDTHS * m.width_px or not _reaches_border(m, camera, validity, corridor):
             continue
         out.append((m, seen * min(e[0].frac, e[1].frac), "dark" if dark else "bright"))
-    return sorted(out, key=lambda t: -t[1])
+    kept = []
+    for t in sorted(out, key=lambda t: -t[1]):
+        if not any(np.allclose(t[0].edges, k[0].edges, atol=0.5) for k in kept):  # two vote peaks, one band
+            kept.append(t)
+    return kept
