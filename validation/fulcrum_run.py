@@ -125,8 +125,8 @@ def fulcrum_epochs(camera, frames, angles=None, *, endpoint_sigma_px=None, shaft
 
 def epochs_record(ep, results, names, priors=None):
     """fulcrum.json's ``epoch_test`` record and its ``epochs`` list (docs/formats.md): the
-    change-point test (alpha, min_frames, its change points, and the runs it kept whole
-    with the p-value of their best split), and per epoch its frames (``first``, ``last``
+    change-point test (alpha, min_frames, its change points, the runs it kept whole with
+    the p-value of their best split, and the changes merged again), and per epoch its frames (``first``, ``last``
     indices, ``images``) with its fulcrum's record (``ok`` false and ``error`` where it has
     none) and, given, its ``axis_prior`` (priors: one `shaft.prior.AxisPrior` or None per
     epoch, `shaft.prior.prior_record`)."""
@@ -134,7 +134,8 @@ def epochs_record(ep, results, names, priors=None):
 
     test = {"alpha": ep.alpha, "min_frames": ep.min_frames, "epochs": len(ep.bounds),
             "change_points": [c.to_dict(names) for c in ep.changes],
-            "kept": [{"frames": [a, b - 1], "p_corrected": p} for a, b, p in ep.kept]}
+            "kept": [{"frames": [a, b - 1], "p_corrected": p} for a, b, p in ep.kept],
+            "merged": [{"index": k, "p_value": p} for k, p in ep.merged]}
     epochs = []
     for e, ((a, b), (res, err)) in enumerate(zip(ep.bounds, results)):
         rec = {"first": a, "last": b - 1, "images": list(names[a:b])}

@@ -27,7 +27,11 @@ splits the frames, in their order, into runs (epochs) each with its own point:
    tried, times 2 (the two kinds; Bonferroni: the best of many), is below `alpha`;
 3. *binary segmentation*: the whole sequence is tested, and each run between change points
    in turn, until no run splits. A long run is tried on a grid of at most `MAX_POSITIONS`
-   frames (segments: half as many ends), then around the best.
+   frames (segments: half as many ends), then around the best;
+4. *merging*: binary segmentation may first split between two changes close together, then
+   again at each; so every change is tested once more on its two neighbouring epochs alone,
+   at its own frame (no multiplicity), and the least significant is removed while its
+   p-value is alpha or more.
 
 F(2, nu) has the closed-form survival function ``(1 + 2 F / nu)^(-nu / 2)``; Monte Carlo
 on lines with the fulcrum's noise model (tests/toolkit/pencil/test_epochs.py) gives the
@@ -48,7 +52,7 @@ Example
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -125,13 +129,15 @@ class Epochs:
     frame indices (all frames, those without a line included, in order); changes: the
     `ChangePoint` between consecutive epochs; kept: per run tested without a split, (start,
     stop, p_corrected of its best alternative or None where it could not be split), what
-    says why it stayed whole; alpha, min_frames: the test's settings."""
+    says why it stayed whole; merged: (frame, p-value) of the changes removed again (step 4);
+    alpha, min_frames: the test's settings."""
 
     bounds: list
     changes: list
     kept: list = field(default_factory=list)
     alpha: float = ALPHA
     min_frames: int = MIN_FRAMES
+    merged: list = field(default_factory=list)
 
     def epoch_of(self, frame):
         """The index of the epoch holding `frame`."""
@@ -324,6 +330,32 @@ def _test(runs, counts, a, b, min_frames):
     return min(tests, key=lambda t: t[0])
 
 
+def _merged(runs, changes, n_frames, alpha):
+    """(the change points without those between two epochs that one point explains, [(frame,
+    p-value)] of those removed) (module docstring, step 4): the split at each change tested on
+    its two neighbouring epochs alone, at that frame only; the least significant removed
+    while its p-value is alpha or more."""
+    changes, removed = list(changes), []
+    while changes:
+        cuts = [0] + [c.index for c in changes] + [n_frames]
+        tests = [_stat(runs, cuts[k], cuts[k + 2], ("split", cuts[k + 1]), *_drop(runs, cuts[k], cuts[k + 1],
+                                                                                    cuts[k + 2]), 1)
+                 for k in range(len(changes))]
+        k = int(np.argmax([t[0] for t in tests]))
+        if tests[k][0] < alpha:
+            break
+        removed.append((changes[k].index, float(tests[k][0])))
+        del changes[k]
+    gone = {k for k, _ in removed}
+    return [replace(c, partner=None) if c.partner in gone else c for c in changes], removed
+
+
+def _drop(runs, a, k, b):
+    """(drop, inlier chi2, inliers) of splitting [a, b) at k."""
+    l, r = runs.fit((a, k)), runs.fit((k, b))
+    return runs.fit((a, b))[0] - l[0] - r[0], l[1] + r[1], l[2] + r[2]
+
+
 def split_epochs(segments, angle_sigma, offset_sigma, frame_of, n_frames, *, alpha=ALPHA, min_frames=MIN_FRAMES):
     """The pivot epochs of a sequence from its instrument lines (module docstring).
 
@@ -359,10 +391,10 @@ def split_epochs(segments, angle_sigma, offset_sigma, frame_of, n_frames, *, alp
             todo += list(zip(cuts[:-1], cuts[1:]))
         else:
             kept.append((a, b, None if t is None else t[0]))
-    changes.sort(key=lambda c: c.index)
+    changes, removed = _merged(runs, sorted(changes, key=lambda c: c.index), int(n_frames), float(alpha))
     cuts = [0] + [c.index for c in changes] + [int(n_frames)]
     return Epochs(bounds=list(zip(cuts[:-1], cuts[1:])), changes=changes, kept=sorted(kept), alpha=float(alpha),
-                  min_frames=int(min_frames))
+                  min_frames=int(min_frames), merged=removed)
 
 
 def distinct_lines(segments, angle_sigma, offset_sigma, frame_of, tol=3.0):

@@ -22,10 +22,11 @@ and drapes cross the columns obliquely. So:
    prior's sd across the lines, `AxisPrior.offset_sigma`), a line through a point delta
    beside X moves by delta / rho in angle: the votes are also counted for shifts delta
    within 3 sd (`_MAX_SHIFTS` of them), the best kept;
-3. *band*: the pairs near the winning centre and width, the best per row, over the longest
-   run of rows with gaps up to a width; each side's points fitted by a line, refitted at
-   full resolution in a corridor of 2 work px (`shaft.silhouette.fit_edges`, as the
-   material cue's edges) and the midline their plane bisector (`shaft.axis`). Kept where
+3. *band*: the pairs near the winning centre and width, the best per row, over the heaviest
+   run of rows with gaps up to `_GAP_ROWS`; each side's points fitted by a line, extended along
+   it while the band's cross-section goes on looking like its run's, refitted at full
+   resolution in a corridor of 2 work px (`shaft.silhouette.fit_edges`, as the material
+   cue's edges) and the midline their plane bisector (`shaft.axis`). Kept where
    both edges are seen together along 1.5 widths at least and the band reaches the border
    of the view (an instrument enters from outside); the score is that length [raw px]
    times the least fraction of stations with an edge.
@@ -288,10 +289,8 @@ def _chord(work, p, u):
 
 
 def _edge_specs(work, grid, rows, cl, cr):
-    """The two proposed edges (p0, u, n_out, s0, s1) [ideal px] of a band's points, each
-    over its line's whole chord through the frame: the full-resolution fit keeps its best
-    run of stations (the band's run in the work frame stops where perspective has changed
-    its width by `_WIDTH_TOL`; the shaft's edges go on)."""
+    """The two proposed edges (p0, u, n_out, s0, s1) [ideal px] of a band's points, over the
+    band's run."""
     left = work.to_ideal(grid.point(rows, cl))
     right = work.to_ideal(grid.point(rows, cr))
     specs = []
@@ -300,9 +299,59 @@ def _edge_specs(work, grid, rows, cl, cr):
         s = (P - p) @ u
         n = np.array([-u[1], u[0]])
         n = n if n @ (p - other.mean(0)) >= 0 else -n
-        c0, c1 = _chord(work, p, u)
-        specs.append((p, u, n, min(float(s.min()), c0), max(float(s.max()), c1)))
+        specs.append((p, u, n, float(s.min()), float(s.max())))
     return specs
+
+
+def _extended(work, chan, noise, specs, dark):
+    """The edges' specs over the stretch of their chord through the frame along which the band
+    goes on looking like its run (the band's run in the work frame stops where perspective
+    has changed its width by `_WIDTH_TOL`; the shaft goes on): at stations 2 work px apart
+    on the first edge, the channel inside the band (its median over the middle 60 %) against
+    each side (a fifth of the width beyond the edges) differs by half the run's median
+    contrast and 3 noise sd at least; the stretch of such stations (gaps up to `_GAP_ROWS`)
+    around the run, inside the view."""
+    import cv2
+
+    (p, u, n, a0, a1), (q, v, m, _, _) = specs
+    c0, c1 = _chord(work, p, u)
+    st = np.arange(c0, c1, _ROW_STEP / work.mean_scale)
+    if st.size < 2:
+        return specs
+    A = p + st[:, None] * u
+    # the second edge where the first edge's normal through A meets it
+    t = ((q - A) @ np.array([-v[1], v[0]])) / (n @ np.array([-v[1], v[0]]))
+    B = A + t[:, None] * n
+    w = np.abs(t)[:, None]
+    inside = A[:, None] + np.linspace(0.2, 0.8, 7)[None, :, None] * (B - A)[:, None]
+    sides = [A[:, None] + n * (w * np.array([0.15, 0.3]))[..., None], B[:, None] + m * (w * np.array([0.15, 0.3]))[..., None]]
+    pts = np.concatenate([inside, *sides], 1)
+    wk = work.to_work(pts).astype(np.float32)
+    val = cv2.remap(np.ascontiguousarray(chan, np.float32), wk[..., 0], wk[..., 1], cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    seen = cv2.remap(work.dist, wk[..., 0], wk[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                     borderValue=-1.0).min(1) >= 0
+    mid = np.median(val[:, :7], 1)
+    l_, r_ = val[:, 7:9].mean(1), val[:, 9:].mean(1)
+    con = (np.minimum(l_, r_) - mid) if dark else (mid - np.maximum(l_, r_))
+    run = (st >= a0) & (st <= a1)
+    ref = float(np.median(con[run])) if run.any() else 0.0
+    ok = seen & (con >= max(0.5 * ref, 3.0 * noise))
+    k0 = int(np.argmin(np.abs(st - 0.5 * (a0 + a1))))
+    lo = hi = k0
+    gap = 0
+    while lo > 0 and seen[lo - 1] and gap <= _GAP_ROWS:
+        lo -= 1
+        gap = 0 if ok[lo] else gap + 1
+    lo += gap
+    gap = 0
+    while hi < st.size - 1 and seen[hi + 1] and gap <= _GAP_ROWS:
+        hi += 1
+        gap = 0 if ok[hi] else gap + 1
+    hi -= gap
+    s0, s1 = min(float(st[lo]), a0), max(float(st[hi]), a1)
+    e0, e1 = sorted(float((P - q) @ v) for P in (p + s0 * u, p + s1 * u))
+    return [(p, u, n, s0, s1), (q, v, m, e0 - 1.0, e1 + 1.0)]
 
 
 def _reaches_border(m, camera, validity, margin):
@@ -380,8 +429,12 @@ def pencil_search(image, camera, validity, work, prior, o, K, noise, gamma=1.0):
                                                                              1.25 * prior.widths[1])
     out = []
     corridor = max(o.corridor_px, _CORRIDOR_WORK / s)
+    chan, _ = _channel(work)
+    from pencilcal.toolkit.detect.shaft.material_cue import robust_noise
+
+    chan_noise = max(robust_noise(chan), 0.5)
     for grid, rows, cl, cr, dark in _bands(work, prior.affine(A_w), max(lo * s, 3.0), hi * s):
-        specs = _edge_specs(work, grid, rows, cl, cr)
+        specs = _extended(work, chan, chan_noise, _edge_specs(work, grid, rows, cl, cr), dark)
         width = float(np.median(np.abs(cr - cl) * grid.spacing[rows])) / s
         e = fit_edges(image, camera, validity, noise, specs, corridor, max_gap=max(width, 10.0), gamma=gamma)
         if e[0] is None or e[1] is None:

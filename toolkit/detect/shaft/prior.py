@@ -45,7 +45,7 @@ import numpy as np
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 
-__all__ = ["AxisPrior", "AXIS_GATE", "JACKKNIFE_GROUPS", "line_chi2", "select_through", "as_priors", "fulcrum_prior",
+__all__ = ["AxisPrior", "AXIS_GATE", "JACKKNIFE_GROUPS", "WIDTH_RANGE", "line_chi2", "select_through", "as_priors", "fulcrum_prior",
            "epoch_priors", "prior_record",
            "read_priors"]
 
@@ -53,6 +53,10 @@ __all__ = ["AxisPrior", "AXIS_GATE", "JACKKNIFE_GROUPS", "line_chi2", "select_th
 AXIS_GATE = chi2_isf(0.001, 1)
 #: `fulcrum_prior`'s jackknife leaves out at most this many runs of frames in turn.
 JACKKNIFE_GROUPS = 32
+#: A shaft through a prior that knows the instrument's widths (lo, hi) is WIDTH_RANGE[0] lo
+#: to WIDTH_RANGE[1] hi wide (its distance changes as it pivots; the angle search looks
+#: for 0.8 lo to 1.25 hi).
+WIDTH_RANGE = (0.7, 1.4)
 
 
 @dataclass(frozen=True, eq=False)
@@ -171,13 +175,18 @@ def as_priors(axis_prior):
 def select_through(shafts, priors, gate=AXIS_GATE):
     """At most one shaft per prior (module docstring): for each prior in turn, the
     best-scored shaft not yet taken whose midline passes through it (chi-square below
-    `gate`). shafts: `shaft.detector.Shaft` with ``ideal_midline``, ``cov``; returns them in
-    the priors' order (a prior without one is skipped)."""
+    `gate`) and, where the prior knows the instrument's widths, whose width is within
+    `WIDTH_RANGE` of them (a band half as wide, or twice, is something else). shafts:
+    `shaft.detector.Shaft` with ``ideal_midline``, ``cov``, ``width_px``; returns them in the
+    priors' order (a prior without one is skipped)."""
     out, used = [], set()
     for p in priors:
         best = None
         for k, s in enumerate(shafts):
             if k in used or s.cov is None:
+                continue
+            if p.widths is not None and not (WIDTH_RANGE[0] * p.widths[0] <= s.width_px
+                                             <= WIDTH_RANGE[1] * p.widths[1]):
                 continue
             m = np.asarray(s.ideal_midline, float).reshape(2, 2)
             ln = np.cross(np.r_[m[0], 1.0], np.r_[m[1], 1.0])
@@ -220,8 +229,8 @@ def fulcrum_prior(camera, frames, endpoint_sigma_px=None):
     residuals' chi2 / dof when above 1, and the jackknife's leaving out one frame (one run
     of consecutive frames, `JACKKNIFE_GROUPS` runs at most) at a time (a camera that
     drifted, a misdetected frame: the prior must hold the frames' spread, or it rejects
-    the instrument it is for). widths: the range of the inlier shafts' widths
-    (undistorted px, as detected) when the lines are shafts.
+    the instrument it is for). widths: the inlier shafts' widths (undistorted px, as
+    detected; their 20th to 80th percentile from five on) when the lines are shafts.
     """
     from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
     from pencilcal.toolkit.pencil.epochs import distinct_lines
@@ -258,8 +267,11 @@ def fulcrum_prior(camera, frames, endpoint_sigma_px=None):
     widths = None
     if sl.lines_from == "shafts":
         w = [float(frames[sl.owner[k][0]]["shafts"][sl.owner[k][1]].get("width_px", np.nan)) for k in idx[inl]]
-        w = [x for x in w if np.isfinite(x) and x > 0]
-        widths = (min(w), max(w)) if w else None
+        w = np.array([x for x in w if np.isfinite(x) and x > 0])
+        if w.size >= 5:  # the middle of the widths: an inlier may be a band of another width
+            widths = tuple(float(v) for v in np.percentile(w, [20, 80]))
+        elif w.size:
+            widths = (float(w.min()), float(w.max()))
     return AxisPrior(X, C, widths)
 
 

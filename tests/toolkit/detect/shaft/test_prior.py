@@ -175,15 +175,19 @@ def test_rendered_pivots_epochs_and_the_prior():
     after frames 9 and 19): a first detection without a prior, its epochs
     (`pencil.epochs.frame_epochs`) and their priors (`shaft.prior.epoch_priors`), then every
     frame through its prior. Measured: without the prior 86 of 120 shafts found, 7 false;
-    the first pass's epochs exact in 2 of 4 (a change placed two or three frames late
-    where the frames around it had no shaft); with the prior 115 of 120 found (96 %), 1
-    false (0.008 a frame); the epochs of the shafts found through the prior exact in 3 of
-    4 (the fourth's second change 2 frames early)."""
+    with the prior 116 of 120 (97 %), none false. The epochs, from the first detection and
+    from the shafts found through the prior: as many as the camera's, each change within 5
+    frames of its move in all four (exact in 2 and 3 of 4: where the frames' lines run along
+    the fulcrum's move, they pass near either point, and the change may fall anywhere among
+    them)."""
     from pencilcal.toolkit.detect.shaft.detector import detect_shafts, detect_through
     from pencilcal.toolkit.pencil.epochs import frame_epochs
     from tests.toolkit.detect.shaft.pivot_frames import lines_frames, pivot_frames, score
 
-    total = found0 = false0 = found = false = exact = 0
+    def near(got, truth):
+        return len(got) == len(truth) and all(abs(g[0] - t[0]) <= 5 for g, t in zip(got, truth))
+
+    total = found0 = false0 = found = false = close = 0
     for seed in range(4):
         sc, imgs = pivot_frames(seed)
         cam = sc.camera
@@ -191,16 +195,18 @@ def test_rendered_pivots_epochs_and_the_prior():
         first = [detect_shafts(im, cam) for im in imgs]
         f0, fa0 = score(sc, first)
         frames = lines_frames(sc, first)
-        priors = epoch_priors(cam, frames, frame_epochs(cam, frames).bounds)
+        bounds = frame_epochs(cam, frames).bounds
+        priors = epoch_priors(cam, frames, bounds)
         through = [detect_through(im, cam, priors[fr["image"]]) for fr, im in zip(sc.frames, imgs)]
         f1, fa1 = score(sc, through)
         got = frame_epochs(cam, lines_frames(sc, through)).bounds
-        print(f"seed {seed}: without the prior {f0} found, {fa0} false; with it {f1}, {fa1}; epochs {got}")
+        print(f"seed {seed}: without the prior {f0} found, {fa0} false, epochs {bounds}; with it {f1}, {fa1}, "
+              f"epochs {got}")
         total += len(imgs)
         found0, false0, found, false = found0 + f0, false0 + fa0, found + f1, false + fa1
-        exact += got == truth
+        close += near(bounds, truth) + near(got, truth)
         assert all(len(s) <= 1 for s in through)
     assert found >= 0.95 * total
     assert false <= 0.05 * total
     assert found > found0
-    assert exact >= 3
+    assert close >= 7
