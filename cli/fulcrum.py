@@ -8,6 +8,8 @@ from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.camera.stereo import read_stereo
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.io.files import write_json
+from pencilcal.toolkit.detect.shaft.prior import epoch_priors
+from pencilcal.toolkit.pencil.epochs import frame_epochs
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles, stereo_fulcrum
 from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.sequence_noise import fulcrum_with_noise
@@ -20,22 +22,30 @@ from .common import (detector_option, endpoint_sigma_option, gamma_option, comma
 
 
 
+#: Passes through the epochs' priors --fulcrum-prior auto makes after its first.
+AUTO_PASSES = 2
+
+
 def _shaft_task(frame, ctx):
     """The shafts of one frame as a lines.json frame (module level: runs in workers too)."""
     import numpy as np
 
     from pencilcal.toolkit.io.images import check_image_size
     from pencilcal.toolkit.detect.lines import shaft_records
+    from pencilcal.toolkit.detect.shaft.detector import detect_through
 
-    camera, options, region, drawing, tracker, masks = ctx
+    camera, options, region, drawing, tracker, masks, priors = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}, None
     check_image_size(frame, camera)
-    if tracker is None:
-        shafts = shaft_records(frame.image, camera, region, instrument_mask=None if masks is None else masks.of(frame),
-                               **options)
-    else:
+    if masks is not None:
+        shafts = shaft_records(frame.image, camera, region, instrument_mask=masks.of(frame), **options)
+    elif tracker is not None:
         shafts = [s.to_dict() for s in tracker(frame.image, camera, valid_region=region)]
+    else:
+        prior = None if priors is None else priors[1].get(frame.name, priors[0])
+        shafts = [s.to_dict() for s in detect_through(frame.image, camera, prior if isinstance(prior, list) else [prior],
+                                                      valid_region=region, **options)]
     rec = {"image": frame.name, "ok": True, "segments": np.zeros((0, 4)), "shafts": shafts,
            "error": None if shafts else "no instrument shaft found"}
     if not drawing:
@@ -45,16 +55,18 @@ def _shaft_task(frame, ctx):
     return rec, draw_frame(frame.image, shafts=shafts, text=[frame.name])
 
 
-def _shafts(source, camera, options, quiet, workers, mask_path, live, tracker=None, masks=None):
+def _shafts(source, camera, options, quiet, workers, mask_path, live, tracker=None, masks=None, priors=None):
     """Instrument shafts of every frame of an image source, as lines.json frames, within the
     sequence's valid region (the mask file's, or detected: `region.detect.sequence_region`);
     each frame's shafts to the live outputs as they are found (the fulcrum is known only at
     the end). options: keywords of `shaft.detector.detect_shafts` (detector, gamma); tracker: a
     `shaft.detector.ShaftTracker` (frames in order, --workers 1), or None; masks: the
-    `io.instrument_masks.InstrumentMasks`, or None: the shafts are their instruments'."""
+    `io.instrument_masks.InstrumentMasks`, or None: the shafts are their instruments';
+    priors: (default `shaft.prior.AxisPrior` or None, {image name: a prior, or a list of
+    them to try in turn}) or None (`shaft.prior.read_priors`, `shaft.prior.epoch_priors`)."""
     region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     frames = []
-    ctx = (camera, options, region, live.drawing, tracker, masks)
+    ctx = (camera, options, region, live.drawing, tracker, masks, priors)
     for f, drawn in run_frames(source, _shaft_task, ctx, workers, "shafts", quiet):
         if f["error"]:
             warn(f"{f['image']}: {f['error']}")
@@ -143,6 +155,44 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
     return rec
 
 
+def _auto_priors(source, camera, options, quiet, workers, mask_path, tracker, force):
+    """(priors, frames) of --fulcrum-prior auto: a first pass without a prior, its pivot
+    epochs and each one's prior (`shaft.prior.epoch_priors`), then `AUTO_PASSES` passes,
+    each through the epochs and priors of the shafts the one before found (their lines are
+    the better ones): the last pass's priors, (None, {image name: [priors to try in
+    turn]}), and its frames."""
+    with FrameOutputs(None, None, force) as silent:
+        frames = _shafts(source, camera, options, quiet, workers, mask_path, silent, tracker)
+    for _ in range(AUTO_PASSES):
+        priors = (None, epoch_priors(camera, frames, frame_epochs(camera, frames).bounds))
+        if all(p == [None] for p in priors[1].values()):
+            raise EstimationError(f"{source.description}: --fulcrum-prior auto: no pivot epoch of the frames has a "
+                                  "fulcrum to search the shafts by")
+        with FrameOutputs(None, None, force) as silent:
+            frames = _shafts(source, camera, options, quiet, workers, mask_path, silent, None, priors=priors)
+    return priors, frames
+
+
+def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter):
+    """fulcrum.json's ``epoch_test`` and ``epochs`` (when the fulcrum moved) records, with a
+    warning naming the epochs (`fulcrum_run.fulcrum_epochs`); each epoch's ``axis_prior``
+    estimated from its frames (`shaft.prior.fulcrum_prior`)."""
+    from pencilcal.toolkit.detect.shaft.prior import fulcrum_prior
+    from pencilcal.validation.fulcrum_run import epochs_record, fulcrum_epochs
+
+    ep, results = fulcrum_epochs(camera, frames, angles, endpoint_sigma_px=endpoint_sigma,
+                                 shaft_diameter=shaft_diameter)
+    names = [f["image"] for f in frames]
+    used = None
+    if len(ep.bounds) > 1:
+        used = [fulcrum_prior(camera, frames[a:b]) for a, b in ep.bounds]
+        spans = ", ".join(f"{names[a]}-{names[b - 1]}" for a, b in ep.bounds)
+        warn(f"the fulcrum moved: {len(ep.bounds)} pivot epochs ({spans}; change points " + ", ".join(
+            f"at {names[c.index]} (F {c.statistic:.1f}, p {c.p_corrected:.2g})" for c in ep.changes)
+             + "): each epoch's fulcrum is in 'epochs', the one of all frames at the top")
+    return epochs_record(ep, results, names, used)
+
+
 @command()
 @images_argument(required=False)
 @source_option
@@ -150,9 +200,9 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
               help="lines.json (its shaft midlines where present), instead of IMAGES.")
 @camera_options
 @click.option("--angles", "angles_path", type=click.Path(dir_okay=False), default=None,
-              help="CSV of pivot angles per frame: also the pivot plane.")
+              help="Pivot angles (CSV): the pivot plane too.")
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
-              help="The shaft's diameter [mm]: also the 3-D fulcrum, in mm.")
+              help="Shaft diameter [mm]: the 3-D fulcrum too.")
 @click.option("--right", "right_images", default=None, metavar="IMAGES|LINES",
               help="A stereo pair's right view (frames or lines.json): the fulcrum triangulated.")
 @click.option("--camera-right", "camera_right_path", type=click.Path(dir_okay=False), default=None,
@@ -162,6 +212,8 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
 @endpoint_sigma_option("End point noise [px] of segments without their own sigma.")
 @detector_option("Shaft proposals' detector.")
 @gamma_option
+@click.option("--fulcrum-prior", "prior_spec", default=None, metavar="FILE|auto",
+              help="Shafts through the fulcrum's image: FILE (fulcrum.json, ray); auto: estimated.")
 @click.option("--track/--no-track", default=True, show_default=True,
               help="Find the shafts where the previous frame had them (--workers 1).")
 @instrument_mask_options
@@ -175,8 +227,8 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
 @quiet_option
 @run
 def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path, shaft_diameter, right_images,
-            camera_right_path, stereo_path, endpoint_sigma, detector, gamma, track, instrument_mask, mask_labels,
-            mask_instances, mask_path, jsonl_path, overlay_path, max_pixels, workers, output, force, quiet):
+            camera_right_path, stereo_path, endpoint_sigma, detector, gamma, prior_spec, track, instrument_mask,
+            mask_labels, mask_instances, mask_path, jsonl_path, overlay_path, max_pixels, workers, output, force, quiet):
     """The fulcrum of an instrument pivoting about its entry port.
 
     \b
@@ -231,6 +283,14 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     frame's shafts as they are found and --overlay draws them (the fulcrum is known at the
     end only).
 
+    Where the fulcrum moved (the arm re-set, the port slipped, the camera moved), a
+    change-point test on the lines splits the frames into pivot epochs: ``epoch_test`` says
+    where and why, ``epochs`` holds each one's fulcrum (docs/method.md). --fulcrum-prior
+    searches every frame's shaft through its epoch's fulcrum image, at most one a frame:
+    FILE a fulcrum.json (each epoch's prior for its images) or a file with ray and ray_cov
+    (robot kinematics) or vertex_px and vertex_cov_px2; auto: a first pass, then two
+    through its epochs' priors.
+
     From frame to frame (--track, with --workers 1) each shaft is looked for in a corridor
     around where the previous frame had it, without the detector's proposals (a full
     detection where it is not found again, and every 30th frame: an instrument entering
@@ -247,16 +307,27 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     if sum(x is not None for x in (images, source_spec, lines_path)) != 1:
         raise click.UsageError("give IMAGES, --source or --lines (one of them)")
-    if lines_path is not None and (mask_path is not None or overlay_path is not None or instrument_mask is not None):
-        raise click.UsageError("--mask, --instrument-mask and --overlay are for frames (a lines file's lines are "
-                               "already found)")
+    if lines_path is not None and (mask_path is not None or overlay_path is not None or instrument_mask is not None
+                                   or prior_spec is not None):
+        raise click.UsageError("--mask, --instrument-mask, --overlay and --fulcrum-prior are for frames (a lines "
+                               "file's lines are already found)")
+    if instrument_mask is not None and prior_spec is not None:
+        raise click.UsageError("--instrument-mask gives the shafts: --fulcrum-prior is for detecting them")
+    if prior_spec == "auto" and source_spec is not None:
+        raise click.UsageError("--fulcrum-prior auto reads the frames twice: give IMAGES, not --source")
     stereo = (right_images, camera_right_path, stereo_path)
     if any(x is not None for x in stereo) and not all(x is not None for x in stereo):
         raise click.UsageError("--right, --camera-right and --right-from-left go together")
     right_lines = right_images if right_images is not None and _is_lines_file(right_images) else None
+    prior_file = prior_spec if prior_spec not in (None, "auto") else None
     check_output(output, force, [lines_path, camera_path, angles_path, mask_path, camera_right_path, stereo_path,
-                                 right_lines])
+                                 right_lines, prior_file])
     camera = read_camera(camera_path, camera_id=camera_id)
+    priors = None
+    if prior_file is not None:
+        from pencilcal.toolkit.detect.shaft.prior import read_priors
+
+        priors = read_priors(prior_file, camera)
     rig = None if stereo_path is None else read_stereo(stereo_path)
     camera_right = None if camera_right_path is None else read_camera(camera_right_path)
     source = tracker = None
@@ -274,15 +345,21 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         check_output(output, force, [*source.paths, *(masks.paths.values() if masks else ())])
         from pencilcal.toolkit.detect.shaft.detector import ShaftTracker
 
-        tracker = ShaftTracker(**options) if track and workers == 1 and masks is None else None
-        with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
-            frames = _shafts(source, camera, options, quiet, workers, mask_path, live, tracker, masks)
+        tracker = ShaftTracker(**options) if track and workers == 1 and masks is None and priors is None else None
+        frames = None
+        if prior_spec == "auto":
+            priors, frames = _auto_priors(source, camera, options, quiet, workers, mask_path, tracker, force)
+            tracker = None
+        if frames is None or jsonl_path is not None or overlay_path is not None:
+            with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
+                frames = _shafts(source, camera, options, quiet, workers, mask_path, live, tracker, masks, priors)
     where = lines_path or source.description
     angles = read_angles(angles_path, [f["image"] for f in frames]) if angles_path else None
 
     given = click.get_current_context().get_parameter_source("endpoint_sigma") != click.core.ParameterSource.DEFAULT
     res = fulcrum_with_sigmas(camera, frames, angles, endpoint_sigma_px=endpoint_sigma if given else None,
                               shaft_diameter=shaft_diameter, where=where)
+    epoch_test, epochs = _epochs(camera, frames, angles, endpoint_sigma if given else None, shaft_diameter)
     for w in res.warnings:
         warn(w)
     out = {"camera": str(camera_path), "lines": None if lines_path is None else str(lines_path),
@@ -291,6 +368,16 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         out["instrument_mask"] = str(instrument_mask)
     if tracker is not None:
         out["frames_tracked"] = tracker.tracked
+    from pencilcal.toolkit.detect.shaft.prior import fulcrum_prior, prior_record
+
+    whole = fulcrum_prior(camera, frames, endpoint_sigma if given else None)
+    if whole is not None:
+        out["axis_prior"] = prior_record(whole)
+    out["epoch_test"] = epoch_test
+    if len(epochs) > 1:
+        out["epochs"] = epochs
+    if priors is not None:
+        out["fulcrum_prior"] = prior_spec
     if rig is not None:
         out["stereo"] = _stereo(res, right_images, camera_right, camera_right_path, rig, options, endpoint_sigma,
                                 given, max_pixels, workers, quiet, force)

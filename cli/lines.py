@@ -33,13 +33,13 @@ def with_axis(camera, shaft, diameter):
 def _lines_task(frame, ctx):
     """One frame's lines.json record, and the frame drawn with them when the overlay is
     asked for (module level: runs in worker processes too)."""
-    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, masks, radial = ctx
+    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, masks, radial, priors = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
     rec = lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
                        valid_region=region, gamma=gamma, instrument_mask=None if masks is None else masks.of(frame),
-                       radial=radial)
+                       radial=radial, axis_prior=None if priors is None else priors[1].get(frame.name, priors[0]))
     if diameter is not None:
         rec["shafts"] = [with_axis(camera, s, diameter) for s in rec.get("shafts") or []]
     if not drawing:
@@ -80,6 +80,8 @@ def _summary(records):
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
               help="With --shaft: their diameter [mm]; each shaft's 3-D axis too.")
 @gamma_option
+@click.option("--fulcrum-prior", "prior_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="With --shaft: shafts through FILE's fulcrum image (fulcrum.json, or ray).")
 @click.option("--min-length", type=FiniteFloat(), default=None,
               help="Shortest segment written [px]; default 20 (bars: 1/30 of the image).")
 @instrument_mask_options
@@ -92,7 +94,7 @@ def _summary(records):
 @quiet_option
 @run
 def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, radial, shaft, shaft_diameter,
-          gamma, min_length, instrument_mask, mask_labels, mask_instances,
+          gamma, prior_path, min_length, instrument_mask, mask_labels, mask_instances,
           mask_path, jsonl_path, overlay_path, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel precision, with angle uncertainty.
 
@@ -134,6 +136,9 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
 
     --shaft also finds instrument shafts (pairs of long converging edges) and writes them
     as `shafts`: midline (image of the axis), width_px, angle_sigma_deg, edge_cov. With
+    --fulcrum-prior FILE (a fulcrum.json, each epoch's prior for its images by name; or a
+    file with ray and ray_cov) every frame's shaft is searched through the fulcrum's image:
+    at most one a frame, tissue bands left out. With
     --shaft --instrument-mask MASKS the shafts are the masked instruments' axes refined on
     the image's edges, saying where mask and image disagree. With
     --shaft-diameter D (e.g. 8 for an 8 mm instrument) each shaft also gets its 3-D axis
@@ -168,16 +173,26 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     if instrument_mask is not None and not shaft:
         raise click.BadParameter("only with --shaft", param_hint="--instrument-mask")
+    if prior_path is not None and not shaft:
+        raise click.BadParameter("only with --shaft", param_hint="--fulcrum-prior")
+    if prior_path is not None and instrument_mask is not None:
+        raise click.UsageError("--instrument-mask gives the shafts: --fulcrum-prior is for detecting them")
     check_output(output, force)
     camera = read_camera(camera_path, camera_id=camera_id)
+    priors = None
+    if prior_path is not None:
+        from pencilcal.toolkit.detect.shaft.prior import read_priors
+
+        priors = read_priors(prior_path, camera)
     source = open_input(images, source_spec, max_pixels)
     masks = instrument_masks(source, instrument_mask, mask_labels, mask_instances)
-    check_output(output, force, [*source.paths, camera_path, mask_path, *(masks.paths.values() if masks else ())])
+    check_output(output, force, [*source.paths, camera_path, mask_path, prior_path,
+                                 *(masks.paths.values() if masks else ())])
     region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     records = []
     with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
         ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma, masks,
-               radial)
+               radial, priors)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
@@ -193,5 +208,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         meta["gamma"] = gamma
     if masks is not None:
         meta["instrument_mask"] = str(instrument_mask)
+    if prior_path is not None:
+        meta["fulcrum_prior"] = str(prior_path)
     write_lines(output, records, force=force, meta=meta, valid_region=None if region is None else region.to_dict())
     done(_summary(records), output, quiet=quiet)

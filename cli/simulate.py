@@ -42,14 +42,16 @@ def _parse_size(text):
 @click.option("--gamma", type=FiniteFloat(min=0.1, max=5), default=2.2, show_default=True,
               help="Encoding gamma of the images (1: linear).")
 @click.option("--color", is_flag=True, help="Colour (BGR) images instead of grey.")
-@click.option("--background", type=click.Choice(["table", "plain"]), default="table", show_default=True,
-              help="Around the sheet: a textured table, or plain grey.")
+@click.option("--background", type=click.Choice(["table", "plain", "tissue"]), default="table", show_default=True,
+              help="Around the sheet: table, plain grey; tissue: folds, no sheet (pivot).")
 @click.option("--axis", type=FiniteFloat(), default=0.0, show_default=True,
               help="tilt-sweep: the tilt axis from the sheet's x [deg].")
 @click.option("--max-tilt", type=FiniteFloat(min=0, max=89), default=80.0, show_default=True,
               help="tilt-sweep: the last tilt [deg].")
 @click.option("--shaft-diameter", type=FiniteFloat(min=0.1, max=100), default=8.0, show_default=True,
               help="pivot: the shaft's diameter [mm].")
+@click.option("--epochs", type=click.IntRange(min=1), default=1, show_default=True,
+              help="pivot: the camera moves between this many runs of frames.")
 @click.option("--spokes", type=click.IntRange(min=3), default=8, show_default=True,
               help="Spokes of the printed fan, 20 deg apart.")
 @click.option("--spoke-width", type=FiniteFloat(min=0, min_open=True), default=1.0, show_default=True,
@@ -60,7 +62,7 @@ def _parse_size(text):
 @quiet_option
 @run
 def simulate(out, scenario, frames, seed, size, model, camera_path, noise, blur, lighting, gamma, color,
-             background, axis, max_tilt, shaft_diameter, spokes, spoke_width, spoke_radius, force, quiet):
+             background, axis, max_tilt, shaft_diameter, epochs, spokes, spoke_width, spoke_radius, force, quiet):
     """Write a synthetic image sequence with exact ground truth to the folder OUT.
 
     \b
@@ -110,7 +112,9 @@ def simulate(out, scenario, frames, seed, size, model, camera_path, noise, blur,
     camera = read_camera(camera_path) if camera_path else None
     options = {"axis_deg": axis, "max_tilt_deg": max_tilt} if scenario == "tilt-sweep" else {}
     if scenario == "pivot":
-        options = {"shaft_radius": shaft_diameter / 2.0}
+        options = {"shaft_radius": shaft_diameter / 2.0, "epochs": epochs}
+    elif epochs != 1 or background == "tissue":
+        raise click.UsageError("--epochs and --background tissue are for the pivot scenario")
     sheet = layout_sheet(spokes=spokes, width=spoke_width, radius=spoke_radius)
     sc = make_scenario(scenario, frames, seed, camera=camera, sheet=sheet, size=(w, h), model=model, **options)
 

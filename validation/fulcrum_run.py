@@ -25,22 +25,24 @@ from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames
 from pencilcal.toolkit.pencil.sequence_noise import fulcrum_with_noise
 
-__all__ = ["fulcrum_with_sigmas", "jackknife_sigmas", "JACKKNIFE_FRAMES"]
+__all__ = ["fulcrum_with_sigmas", "jackknife_sigmas", "fulcrum_epochs", "epochs_record", "JACKKNIFE_FRAMES"]
 
 #: Frames with a line below which the jackknife is not run (too few to judge the spread).
 JACKKNIFE_FRAMES = 8
 
 
-def fulcrum_with_sigmas(camera, frames, angles=None, *, endpoint_sigma_px=None, shaft_diameter=None, where=None):
+def fulcrum_with_sigmas(camera, frames, angles=None, *, endpoint_sigma_px=None, shaft_diameter=None, where=None,
+                        jackknife_frames=JACKKNIFE_FRAMES):
     """The fulcrum of lines.json `frames` with the sigmas `pencilcal fulcrum` writes (module
     docstring): a `Fulcrum` with its ``noise`` and ``jackknife`` records set.
 
     camera: Camera; angles: (F,) pivot angles [rad] or None; endpoint_sigma_px: the end
     point noise [px] of segments without sigmas of their own, as given by the user (kept),
     or None (`ENDPOINT_SIGMA_PX` assumed, then estimated); shaft_diameter: for the 3-D
-    fulcrum; where: a name for error messages (the input's path). Its ``warnings`` say what
-    to tell the user: first whether the noise or the jackknife raised the sigmas, then the
-    fit's own. EstimationError when there is no fulcrum.
+    fulcrum; where: a name for error messages (the input's path); jackknife_frames: the
+    fewest frames with a line the jackknife is run on. Its ``warnings`` say what to tell the
+    user: first whether the noise or the jackknife raised the sigmas, then the fit's own.
+    EstimationError when there is no fulcrum.
     """
     given = endpoint_sigma_px is not None
     sigma = float(endpoint_sigma_px) if given else ENDPOINT_SIGMA_PX
@@ -56,20 +58,20 @@ def fulcrum_with_sigmas(camera, frames, angles=None, *, endpoint_sigma_px=None, 
 
     res, noise, message = fulcrum_with_noise(run(sigma), run, sigma, frames, given=given)
     used = sigma * (noise.get("sigma_scale", 1.0) if "assumed_endpoint_sigma_px" in noise else 1.0)
-    res, jackknife, more = jackknife_sigmas(res, camera, frames, angles, used)
+    res, jackknife, more = jackknife_sigmas(res, camera, frames, angles, used, jackknife_frames)
     said = ([message] if message else []) + more
     return dataclasses.replace(res, noise=noise, jackknife=jackknife, warnings=(*said, *res.warnings))
 
 
-def jackknife_sigmas(res, camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_SIGMA_PX):
+def jackknife_sigmas(res, camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_SIGMA_PX, min_frames=JACKKNIFE_FRAMES):
     """(Fulcrum, the fulcrum.json ``jackknife`` record or None, messages): each frame with a
     line left out once (`checks.fulcrum_jackknife`, with the noise the fit used:
     endpoint_sigma_px), and the sigmas raised to the jackknife's where the frames scatter
     the fulcrum significantly more than they say (`checks.jackknife_inflation`; the 3-D
-    point's by `checks.point_jackknife`). None with fewer than `JACKKNIFE_FRAMES` frames."""
+    point's by `checks.point_jackknife`). None with fewer than `min_frames` frames."""
     from pencilcal.validation.checks import fulcrum_jackknife, jackknife_inflation, point_jackknife
 
-    if sum(1 for f in frames if len(f.get("segments", ())) or f.get("shafts")) < JACKKNIFE_FRAMES:
+    if sum(1 for f in frames if len(f.get("segments", ())) or f.get("shafts")) < min_frames:
         return res, None, []
     try:
         jk = fulcrum_jackknife(camera, frames, angles, full=res, endpoint_sigma_px=endpoint_sigma_px)
@@ -91,3 +93,56 @@ def jackknife_sigmas(res, camera, frames, angles=None, endpoint_sigma_px=ENDPOIN
                             "covariance is the jackknife's")
             out = dataclasses.replace(out, point=point)
     return out, rec, messages
+
+
+def fulcrum_epochs(camera, frames, angles=None, *, endpoint_sigma_px=None, shaft_diameter=None, alpha=None,
+                   min_frames=None):
+    """The pivot epochs of lines.json `frames` (`toolkit.pencil.epochs.frame_epochs`) and,
+    when the fulcrum moved, each epoch's fulcrum with its sigmas (`fulcrum_with_sigmas` on
+    its frames, the jackknife from the epoch's least number of frames on).
+
+    Returns (`Epochs`, per epoch (Fulcrum or None, its error message or None)); with one
+    epoch the list is empty (the sequence's fulcrum is the epoch's). angles: (F,) pivot
+    angles [rad] or None; alpha, min_frames: the change-point test's (None: its defaults).
+    """
+    import numpy as np
+
+    from pencilcal.toolkit.pencil.epochs import ALPHA, MIN_FRAMES, frame_epochs
+
+    ep = frame_epochs(camera, frames, endpoint_sigma_px, alpha=ALPHA if alpha is None else alpha,
+                      min_frames=MIN_FRAMES if min_frames is None else min_frames)
+    out = []
+    if len(ep.bounds) > 1:
+        for a, b in ep.bounds:
+            try:
+                out.append((fulcrum_with_sigmas(camera, frames[a:b], None if angles is None else np.asarray(angles)[a:b],
+                                                endpoint_sigma_px=endpoint_sigma_px, shaft_diameter=shaft_diameter,
+                                                jackknife_frames=ep.min_frames), None))
+            except EstimationError as e:
+                out.append((None, str(e)))
+    return ep, out
+
+
+def epochs_record(ep, results, names, priors=None):
+    """fulcrum.json's ``epoch_test`` record and its ``epochs`` list (docs/formats.md): the
+    change-point test (alpha, min_frames, its change points, the runs it kept whole with
+    the p-value of their best split, and the changes merged again), and per epoch its frames (``first``, ``last``
+    indices, ``images``) with its fulcrum's record (``ok`` false and ``error`` where it has
+    none) and, given, its ``axis_prior`` (priors: one `shaft.prior.AxisPrior` or None per
+    epoch, `shaft.prior.prior_record`)."""
+    from pencilcal.toolkit.detect.shaft.prior import prior_record
+
+    test = {"alpha": ep.alpha, "min_frames": ep.min_frames, "epochs": len(ep.bounds),
+            "change_points": [c.to_dict(names) for c in ep.changes],
+            "kept": [{"frames": [a, b - 1], "p_corrected": p} for a, b, p in ep.kept],
+            "merged": [{"index": k, "p_value": p} for k, p in ep.merged]}
+    epochs = []
+    for e, ((a, b), (res, err)) in enumerate(zip(ep.bounds, results)):
+        rec = {"first": a, "last": b - 1, "images": list(names[a:b])}
+        rec.update(res.to_dict() if res is not None else {"ok": False, "error": err})
+        if res is not None and res.warnings:
+            rec["warnings"] = list(res.warnings)
+        if priors is not None and priors[e] is not None:
+            rec["axis_prior"] = prior_record(priors[e])
+        epochs.append(rec)
+    return test, epochs

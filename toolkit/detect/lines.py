@@ -77,7 +77,7 @@ def radial_edge_count(pencil):
 
 def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None,
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
-                       gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None, radial=None):
+                       gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None, radial=None, axis_prior=None):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -120,6 +120,9 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         located on the profiles linearised with `gamma`), so many of them (0: whatever the
         frame shows), with the points of the circles about it (``circle_points``), instead
         of bars or edge segments.
+    axis_prior : shaft.prior.AxisPrior or list of them, optional
+        With `shaft`: the instruments' fulcrum images (`detect_shafts`): at most one shaft
+        each, through it.
     """
     if min_length is None:
         min_length = default_min_length(np.shape(image), bars)
@@ -142,16 +145,18 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         angle_sigma_deg=np.degrees(segs.angle_sigma),
         offset_sigma_px=segs.offset_sigma,
         width_px=segs.width_px if bars and radial is None else None,
-        shafts=shaft_records(image, camera, valid_region, gamma, instrument_mask) if shaft else None,
+        shafts=shaft_records(image, camera, valid_region, gamma, instrument_mask, axis_prior=axis_prior)
+        if shaft else None,
         circle_points=circle_points,
     )
 
 
 def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, instrument_mask=None, **options):
     """The shaft records of one image: `shaft.detector.detect_shafts`' (options: its
-    keywords), or with `instrument_mask` (``{"mask": array, "labels": ..., "instances":
-    ...}``) those of the mask's instruments (`shaft.from_mask.shafts_from_masks`). Imported
-    only when asked for: a fan's orientation does not need the shaft modules."""
+    keywords, `axis_prior` among them), or with `instrument_mask` (``{"mask": array,
+    "labels": ..., "instances": ...}``) those of the mask's instruments
+    (`shaft.from_mask.shafts_from_masks`). Imported only when asked for: a fan's
+    orientation does not need the shaft modules."""
     if instrument_mask is not None:
         from pencilcal.toolkit.detect.shaft.from_mask import shafts_from_masks
 
@@ -167,9 +172,9 @@ def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, in
 
 def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None, bar_width=None,
                  proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA, bar_tracker=None,
-                 instrument_mask=None, radial=None):
+                 instrument_mask=None, radial=None, axis_prior=None):
     """One lines.json frame record from one decoded image: ``detect_frame_lines(...).to_dict()``
     (the same arguments)."""
     return detect_frame_lines(name, image, camera, detector, bars, shaft, min_length, bar_width,
                               proposal_scale, valid_region, bar_polarity, gamma, bar_tracker,
-                              instrument_mask, radial).to_dict()
+                              instrument_mask, radial, axis_prior).to_dict()

@@ -36,6 +36,7 @@ import csv
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -53,7 +54,8 @@ from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, Fusio
                                                fulcrum_3d, shaft_axis_record, triangulate_rays)
 from pencilcal.toolkit.pencil.vertex import intersect_lines
 
-__all__ = ["Fulcrum", "FulcrumPoint", "StereoFulcrum", "fulcrum_from_frames", "fulcrum_point", "point_lens_cov",
+__all__ = ["Fulcrum", "FulcrumPoint", "StereoFulcrum", "SequenceLines", "fulcrum_from_frames", "fulcrum_point",
+           "point_lens_cov", "sequence_lines",
            "stereo_fulcrum",
            "triangulation_lens_cov", "read_angles"]
 
@@ -360,6 +362,42 @@ def _sequence_lines(frames, endpoint_sigma_px):
         warnings
 
 
+class SequenceLines(NamedTuple):
+    """The instrument lines of a sequence as the fulcrum fits them (`sequence_lines`), N lines.
+
+    raw: (N, 4) raw px; ideal: (N, 4) undistorted px (NaN where the lens model does not
+    reach); good: (N,) bool, undistorted; length: (N,) [ideal px]; angle_sigma (N,) [rad]
+    (the line's own, else from the end point noise) and offset_sigma (N,) [px] at the
+    line's centre; owner: [(frame index, line index in the frame)]; lines_from: "shafts"
+    or "segments"; warnings: what the caller should tell the user.
+    """
+
+    raw: np.ndarray
+    ideal: np.ndarray
+    good: np.ndarray
+    length: np.ndarray
+    angle_sigma: np.ndarray
+    offset_sigma: np.ndarray
+    owner: list
+    lines_from: str
+    warnings: list
+
+
+def sequence_lines(camera, frames, endpoint_sigma_px=ENDPOINT_SIGMA_PX):
+    """The instrument lines of lines.json `frames` in undistorted pixels with their noise
+    model (`SequenceLines`): per frame its shaft midlines when any frame of the sequence
+    has them, else its segments; a line without its own angle sigma has the end point
+    noise's, ``sqrt(2) endpoint_sigma_px / L``, and every line the offset sigma
+    ``endpoint_sigma_px / sqrt(2)`` (`vertex.segment_angle_sigma`)."""
+    seg, sig, owner, lines_from, warnings = _sequence_lines(frames, endpoint_sigma_px)
+    ideal = camera.undistort_pixels(seg.reshape(-1, 2)).reshape(-1, 4)
+    good = np.all(np.isfinite(ideal), -1)
+    L = np.hypot(ideal[:, 2] - ideal[:, 0], ideal[:, 3] - ideal[:, 1])
+    st = np.where(np.isfinite(sig), sig, np.sqrt(2.0) * endpoint_sigma_px / np.maximum(np.nan_to_num(L), 1e-9))
+    sc = np.full(len(seg), endpoint_sigma_px / np.sqrt(2.0))
+    return SequenceLines(seg, ideal, good, L, st, sc, owner, lines_from, warnings)
+
+
 def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_SIGMA_PX, intrinsics_cov="camera",
                         shaft_diameter=None):
     """The fulcrum (and with `angles` the pivot plane) from the lines of a sequence.
@@ -374,17 +412,11 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
     Returns a `Fulcrum` (its ``to_dict()`` is the fulcrum.json record). Raises
     EstimationError when there is no fulcrum.
     """
-    seg, sig, owner, lines_from, warnings = _sequence_lines(frames, endpoint_sigma_px)
+    seg, ideal, good, L, st, sc, owner, lines_from, warnings = sequence_lines(camera, frames, endpoint_sigma_px)
     if len(seg) < 2:
         raise EstimationError(f"fewer than two instrument lines in the sequence ({len(seg)})")
-    ideal = camera.undistort_pixels(seg.reshape(-1, 2)).reshape(-1, 4)
-    good = np.all(np.isfinite(ideal), -1)
     if good.sum() < 2:
         raise EstimationError("fewer than two lines could be undistorted")
-    L = np.hypot(ideal[:, 2] - ideal[:, 0], ideal[:, 3] - ideal[:, 1])
-    # end point noise model where the line has no sigma of its own
-    st = np.where(np.isfinite(sig), sig, np.sqrt(2.0) * endpoint_sigma_px / np.maximum(L, 1e-9))
-    sc = np.full(len(seg), endpoint_sigma_px / np.sqrt(2.0))
     idx = np.flatnonzero(good)
     vf = intersect_lines(ideal[idx], angle_sigma=st[idx], offset_sigma=sc[idx], robust=True)
     inl = np.zeros(len(seg), bool)

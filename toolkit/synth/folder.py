@@ -61,7 +61,8 @@ def write_sequence(out, scenario, *, noise=None, blur_px=None, lighting=None, ga
 
     noise, blur_px, lighting, gamma: rendering settings (None: the scenario's defaults,
     scenarios.RENDER_DEFAULTS); color: BGR frames instead of grey; background: "table"
-    (textured, for SfM) or "plain"; camera_source: what truth.json says the camera came
+    (textured, for SfM), "plain" or "tissue" (`tissue.tissue_image`, the sheet not drawn);
+    camera_source: what truth.json says the camera came
     from; progress: a wrapper for the frame loop (e.g. a progress bar), given
     ``range(len(scenario))``.
     """
@@ -76,7 +77,7 @@ def write_sequence(out, scenario, *, noise=None, blur_px=None, lighting=None, ga
     given = {"noise": noise, "blur_px": blur_px, "lighting": lighting, "gamma": gamma}
     settings = {k: (RENDER_DEFAULTS[k] if v is None and k in RENDER_DEFAULTS else v) for k, v in given.items()}
     settings = {k: v for k, v in settings.items() if v is not None}
-    bg = None if background == "table" else "plain"
+    bg = {"table": None, "tissue": "tissue"}.get(background, "plain")
     frames = range(len(scenario))
     with atomic_folder(out) as tmp:
         (tmp / "images").mkdir()

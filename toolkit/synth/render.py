@@ -107,9 +107,12 @@ def render_frame(camera, R_cam_from_target, t_cam_from_target, sheet, *, instrum
     sheet : Sheet
     instrument : Instrument, optional
         A shaft drawn over everything else (it is closer to the camera than the sheet).
-    background : "table" | "plain" | float | Backdrop
+    background : "table" | "plain" | float | Backdrop | ndarray
         "table": `Backdrop.around(sheet)` (textured table, boxes, wall); "plain" or a
-        number: a uniform grey (linear reflectance, default 0.3) around the paper.
+        number: a uniform grey (linear reflectance, default 0.3) around the paper; an
+        (H, W, 3) or (H, W, 1) array: an image-space backdrop in linear light (e.g.
+        `tissue.tissue_image`) drawn instead of the sheet and everything else (the
+        instrument alone over it).
     blur_px : float
         Standard deviation of a Gaussian blur (the optics) [pixels]; 0 for none.
     noise : float
@@ -163,9 +166,17 @@ def render_frame(camera, R_cam_from_target, t_cam_from_target, sheet, *, instrum
     if C_t[2] >= 0:
         raise InputError("the camera is behind the sheet (it must see the printed face, z < 0 side)")
     nch = 3 if color else 1
+    img = np.empty((H, W, nch), np.float64)
+    if isinstance(background, np.ndarray):
+        bg = np.asarray(background, np.float64)
+        if bg.ndim != 3 or bg.shape[:2] != (H, W) or bg.shape[2] not in (1, 3):
+            raise InputError(f"background image must be ({H}, {W}, 3) or ({H}, {W}, 1), got {bg.shape}")
+        img[:] = bg if bg.shape[2] == nch else (bg @ np.array([0.114, 0.587, 0.299]))[..., None] if nch == 1 else bg
+        if instrument is not None:
+            _draw_instrument(img, camera, R, t, instrument, color)
+        return sensor_image(img, float(lighting), float(exposure), blur_px, float(gamma), noise, rng)
     c_paper, c_ink = _sheet_coverage(camera, R, t, sheet)
     backdrop = _backdrop(background, sheet)
-    img = np.empty((H, W, nch), np.float64)
     paper_term = REFLECTANCE["paper"] * (c_paper - c_ink)[..., None] * _tint("paper", color)
     ink_term = REFLECTANCE["ink"] * c_ink[..., None] * _tint("ink", color)
     if backdrop is None:

@@ -67,7 +67,7 @@ RENDER_DEFAULTS = MappingProxyType({"noise": 2.0, "blur_px": 0.6, "lighting": 0.
 _OPTIONS = MappingProxyType({
     "orbit": frozenset({"distance", "azimuth_span_deg", "elevation_deg"}),
     "pivot": frozenset({"distance", "tilt_deg", "angle_range_deg", "shaft_radius", "fulcrum", "height", "tip",
-                        "back", "port_view"}),
+                        "back", "port_view", "epochs", "epoch_move_deg"}),
     "tilt-sweep": frozenset({"distance", "axis_deg", "max_tilt_deg", "vertex_px"}),
 })
 
@@ -178,13 +178,20 @@ class Scenario:
         Unset options take `RENDER_DEFAULTS` (noise 2 grey levels, blur 0.6 px, lighting
         0.25, gamma 2.2). The noise and lighting of frame i are seeded by (seed, i), so a
         frame renders identically whatever the order. ``background`` overrides the
-        scenario's backdrop ("plain", a grey level, or a Backdrop).
+        scenario's backdrop ("plain", a grey level, or a Backdrop), or is "tissue": a
+        tissue-like image behind the instrument instead of the sheet (`tissue.tissue_image`,
+        seeded by the seed and the frame's camera epoch: it stays while the camera does).
         """
         fr = self.frames[i]
         d = dict(RENDER_DEFAULTS)
         for k, v in (("noise", noise), ("blur_px", blur_px), ("lighting", lighting), ("gamma", gamma)):
             if v is not None:
                 d[k] = v
+        if isinstance(background, str) and background == "tissue":
+            from pencilcal.toolkit.synth.tissue import tissue_image
+
+            background = tissue_image((self.camera.height, self.camera.width), (self.seed, fr.get("epoch", 0)),
+                                      color=color)
         rng = np.random.default_rng([int(self.seed), 1, int(i)])
         return render_frame(self.camera, fr["R_cam_from_target"], fr["t_cam_from_target"], self.sheet,
                             instrument=None if self.instruments is None else self.instruments[i],
@@ -316,7 +323,12 @@ def make_scenario(name, frames, seed=0, camera=None, sheet=None, size=(1280, 720
         ``port_view`` [mm] (None: the camera sees the sheet and the fulcrum): the camera
         looks from this distance, ``tilt_deg`` off the pivot plane's normal, at the shafts'
         middle 0.7 ``tip`` from the fulcrum, as an endoscope sees an instrument whose entry
-        port lies outside its view (the sheet far behind, when ``height`` is large).
+        port lies outside its view (the sheet far behind, when ``height`` is large);
+        ``epochs`` (1): the frames split evenly into this many runs, the camera moved
+        between them (turned by ``epoch_move_deg``, 4, about a random axis across its view,
+        about a point 100 mm behind it: an endoscope moved about its own port), so that
+        the fulcrum's image moves; each frame's truth says its ``epoch``, and the
+        scenario's ``epochs`` each one's frames and fulcrum image.
         tilt-sweep: ``axis_deg`` (0: the tilt axis's direction in the sheet, from the
         target x axis), ``max_tilt_deg`` (80), ``distance`` (400), ``vertex_px`` (where
         the vertex is seen; default the principal point, i.e. on the optical axis).
@@ -438,10 +450,22 @@ def _pivot(camera, sheet, backdrop, n, seed, options):
     angles = np.linspace(a0, a1, n) if n > 1 else np.array([(a0 + a1) / 2.0])
     names = _names(n)
     frames, instruments = [], []
-    F_cam = R @ fulcrum + t
+    n_ep = int(_option(options, "epochs", 1))
+    if not 1 <= n_ep <= n:
+        raise InputError(f"pivot: epochs must be between 1 and the number of frames ({n}), got {n_ep}")
+    poses = _epoch_poses(R, t, n_ep, float(_option(options, "epoch_move_deg", 4.0)), rng)
+    epoch_of = np.minimum((np.arange(n) * n_ep) // max(n, 1), n_ep - 1)
+    epochs = [{"epoch": e, "first": int(np.flatnonzero(epoch_of == e)[0]), "last": int(np.flatnonzero(epoch_of == e)[-1]),
+               "R_cam_from_target": poses[e][0], "t_cam_from_target": poses[e][1],
+               "fulcrum_cam": poses[e][0] @ fulcrum + poses[e][1],
+               "fulcrum_px": camera.project(poses[e][0] @ fulcrum + poses[e][1])} for e in range(n_ep)]
+    R0, t0 = R, t
     for k, ang in enumerate(angles):
+        R, t = poses[int(epoch_of[k])]
+        F_cam = R @ fulcrum + t
         ins = Instrument.in_plane(fxy, height, ang, radius=radius, tip=tip, back=back)
         fr = _frame_truth(camera, sheet, R, t, names[k])
+        fr["epoch"] = int(epoch_of[k])
         _, a_cam = ins.axis_cam(R, t)
         closest = F_cam - np.dot(F_cam, a_cam) * a_cam
         fr.update({
@@ -458,10 +482,13 @@ def _pivot(camera, sheet, backdrop, n, seed, options):
         })
         frames.append(fr)
         instruments.append(ins)
+    R, t = R0, t0
+    F_cam = R @ fulcrum + t
     opts = {"distance": D * m, "tilt_deg": math.degrees(tilt), "angle_range_deg": [a0, a1], "shaft_radius": radius,
             "fulcrum": fxy.tolist(), "height": height, "tip": tip, "back": back, "port_view": port_view,
-            "shaft_diameter": 2.0 * radius}
-    extra = {"pivot": {
+            "shaft_diameter": 2.0 * radius, "epochs": n_ep, "epoch_move_deg": float(_option(options, "epoch_move_deg",
+                                                                                               4.0))}
+    extra = {"epochs": epochs, "pivot": {
         "fulcrum_target": fulcrum,
         "fulcrum_cam": F_cam,
         "fulcrum_px": camera.project(F_cam),
@@ -473,6 +500,24 @@ def _pivot(camera, sheet, backdrop, n, seed, options):
                  "towards +y, so the pivot frame is the target frame moved to the fulcrum"),
     }}
     return Scenario("pivot", camera, sheet, backdrop, frames, seed, opts, instruments, extra)
+
+
+def _epoch_poses(R, t, n, move_deg, rng):
+    """[(R, t)] of n camera epochs: the first the given pose, each next one the previous turned
+    by move_deg [deg] about a random axis across the view, about the point 100 mm behind
+    the camera (an endoscope moved about its port)."""
+    poses = [(R, t)]
+    for _ in range(n - 1):
+        Rp, tp = poses[-1]
+        C = -Rp.T @ tp
+        P = C - 100.0 * Rp[2]  # Rp[2]: the viewing direction in the target frame
+        a = rng.uniform(0, 2 * np.pi)
+        axis = np.cos(a) * Rp[0] + np.sin(a) * Rp[1]
+        Q = rotation_about_axis(axis, math.radians(move_deg))
+        C2 = P + Q @ (C - P)
+        R2 = Rp @ Q.T
+        poses.append((R2, -R2 @ C2))
+    return poses
 
 
 def _edge_lines(m):

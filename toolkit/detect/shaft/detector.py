@@ -61,17 +61,20 @@ from pencilcal.toolkit.detect.noise import noise_of
 from pencilcal.toolkit.detect.shaft.axis import midline_from_edges
 from pencilcal.toolkit.detect.shaft.edge_cue import bands_from_edges, drop_repeated, edge_cue, refit_edges, unsigned_lines
 from pencilcal.toolkit.detect.shaft.material_cue import material_cue, robust_noise, select
+from pencilcal.toolkit.detect.shaft.pencil_search import pencil_search
+from pencilcal.toolkit.detect.shaft.prior import as_priors, select_through
 from pencilcal.toolkit.detect.shaft.regions import material_map
 from pencilcal.toolkit.detect.shaft.track import REACH, corridor_edges
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame, axis_matrix
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["Shaft", "ShaftOptions", "detect_shafts", "track_shafts", "ShaftTracker", "CUES", "REDETECT_FRAMES",
-           "shaft_of_midline"]
+__all__ = ["Shaft", "ShaftOptions", "detect_shafts", "detect_through", "track_shafts", "ShaftTracker", "CUES",
+           "REDETECT_FRAMES", "shaft_of_midline"]
 
-#: The cues a shaft can be found by (`Shaft.cue`).
-CUES = ("material", "edges")
+#: What a shaft can be found by (`Shaft.cue`): the two cues, and the angle search about a
+#: fulcrum's image (`detect_shafts(..., axis_prior=...)`).
+CUES = ("material", "edges", "prior")
 #: The material cue's widths when none are given, as fractions of the image's longer side
 #: (1.5 % gave many 30 px tissue bands on the in-vivo frames; the closest shafts of the real
 #: sets are a quarter of the side wide).
@@ -110,7 +113,7 @@ class Shaft:
     polarity : str
         "dark" (shaft darker than its surroundings along most of its length) or "bright".
     cue : str
-        What found it: "material" or "edges" (`CUES`).
+        What found it: "material", "edges" or "prior" (`CUES`).
     cov : (2, 2)
         Covariance of the midline's (angle [rad], offset [px] at its centre), floor
         included: ``cov_stat + EDGE_FLOOR_PX**2 * cov_floor`` (`shaft.axis.Midline`).
@@ -236,12 +239,12 @@ def shaft_of_midline(camera, m, score, polarity, cue, cls=None, **fields):
                           edge_cov=m.edge_cov, **fields)
 
 
-def _by_material(image, camera, validity, o, K):
+def _by_material(image, camera, validity, o, K, work):
     """The shafts of the material cue, or None when the frame's colour tells no material
-    apart (module docstring)."""
+    apart (module docstring). work: the frame's `shaft.work.WorkFrame`, or None (made here)."""
     if np.asarray(image).ndim != 3:
         return None
-    work = WorkFrame(image, camera, validity, _WORK_PX)
+    work = WorkFrame(image, camera, validity, _WORK_PX) if work is None else work
     mm = material_map(work)
     if not mm.informative:
         return None
@@ -271,7 +274,8 @@ def _by_edges(image, camera, valid_region, o, K):
 def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_length=None, width_px_range=None,
                   max_convergence_deg=30.0, max_shafts=4, scale=None, max_gap_px=None, search_px=3.0,
                   sigma_px=1.5, min_support=0.3, max_background=0.1, slope_correction=True, from_border=True,
-                  border_px=None, min_score_ratio=0.25, corridor_px=4.0, detector_params=None, gamma=DEFAULT_GAMMA):
+                  border_px=None, min_score_ratio=0.25, corridor_px=4.0, detector_params=None, gamma=DEFAULT_GAMMA,
+                  axis_prior=None):
     """Instrument shafts in one image: midline (the axis image), width, angle uncertainty.
 
     Parameters
@@ -337,11 +341,20 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         a blurred edge's gradient peak leans towards its dark side in encoded levels, so
         the band would come out narrow and the shaft too far. The material cue (real
         video) keeps the levels as they are (`shaft.material_cue._MATERIAL_GAMMA`).
+    axis_prior : AxisPrior or list of AxisPrior, optional
+        The image of each instrument's fulcrum (`shaft.prior.AxisPrior`: a homogeneous
+        point in ideal pixels with its covariance, e.g. `AxisPrior.from_ray` of a
+        fulcrum.json's ``ray`` and ``ray_cov``). Its axis passes through it: besides the
+        cues, the shaft is searched by its angle about the point (`shaft.pencil_search`,
+        cue "prior"), and of all the shafts found at most one per prior is returned, the
+        best-scored whose midline passes through it (`shaft.prior.select_through`);
+        max_shafts and min_score_ratio then do not apply.
 
     Returns
     -------
     list of Shaft
-        Best score first; empty when none is found.
+        Best score first (with axis_prior: one per prior that has one, in the priors'
+        order); empty when none is found.
 
     Example
     -------
@@ -353,10 +366,37 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         search_px=search_px, sigma_px=sigma_px, min_support=min_support, max_background=max_background,
         slope_correction=slope_correction, from_border=from_border, border_px=border_px,
         min_score_ratio=min_score_ratio, corridor_px=corridor_px, gamma=gamma))
-    found = _by_material(image, camera, validity, o, K)
+    priors = as_priors(axis_prior)
+    work = WorkFrame(image, camera, validity, _WORK_PX) if priors else None
+    found = _by_material(image, camera, validity, o, K, work)
+    colour = found is not None
     if found is None:
         found = _by_edges(image, camera, valid_region, o, K)
-    return [s for s in found if s is not None]
+    found = [s for s in found if s is not None]
+    if not priors:
+        return found
+    img = np.asarray(image)
+    noise = max(robust_noise(img[..., 1] if img.ndim == 3 else img), 0.5)
+    # the material cue's edges keep a colour frame's levels (`shaft.material_cue`), the
+    # edge cue's are located on linear light: the search's edges follow the frame's cue
+    gamma_edges = 1.0 if colour else o.gamma
+    for p in priors:
+        for m, score, polarity in pencil_search(image, camera, validity, work, p, o, K, noise, gamma_edges):
+            found.append(shaft_of_midline(camera, m, score, polarity, "prior"))
+    return select_through([s for s in found if s is not None], priors)
+
+
+def detect_through(image, camera, alternatives, **options):
+    """The shafts (`detect_shafts`) through the first of the `alternatives` (a list of
+    `shaft.prior.AxisPrior`, or of lists of them) that gives any: a frame whose pivot epoch
+    is uncertain (at a change of the fulcrum) is searched with each candidate epoch's
+    prior in turn. options: the keywords of `detect_shafts`."""
+    found = []
+    for p in alternatives:
+        found = detect_shafts(image, camera, axis_prior=p, **options)
+        if found:
+            break
+    return found
 
 
 def _prepared(image, camera, valid_region, options):
@@ -376,7 +416,7 @@ def _prepared(image, camera, valid_region, options):
 
 #: The keywords of `detect_shafts` and their defaults (those `track_shafts` passes on).
 _DEFAULTS = {k: p.default for k, p in inspect.signature(detect_shafts).parameters.items()
-             if p.kind is p.KEYWORD_ONLY and k != "valid_region"}
+             if p.kind is p.KEYWORD_ONLY and k not in ("valid_region", "axis_prior")}
 
 
 def track_shafts(image, camera, previous, *, valid_region=None, **options):
@@ -391,14 +431,17 @@ def track_shafts(image, camera, previous, *, valid_region=None, **options):
     finds, measured alike. The prior is checked, never trusted: the frame gets a full
     detection when there is no prior, when a prior shaft was found by the material cue
     (that cue is not tracked), or when fewer instruments are found than the prior had. A
-    tracked frame is searched by the edge cue alone, as its prior was.
+    tracked frame is searched by the edge cue alone, as its prior was. With an
+    ``axis_prior`` in the options every frame gets a full detection.
 
     previous: the previous frame's list of `Shaft` (or None); options: the keywords of
     `detect_shafts`.
     """
-    if not previous or any(s.cue != "edges" or s.ideal_edges is None for s in previous):
+    if not previous or options.get("axis_prior") is not None or \
+            any(s.cue != "edges" or s.ideal_edges is None for s in previous):
         return detect_shafts(image, camera, valid_region=valid_region, **options), False
-    image, o, validity, K = _prepared(image, camera, valid_region, options)
+    image, o, validity, K = _prepared(image, camera, valid_region,
+                                      {k: v for k, v in options.items() if k != "axis_prior"})
     img = GrayImage(image, valid_region)
     sig_n = noise_of(img)
     reach = REACH * float(np.hypot(*img.shape))

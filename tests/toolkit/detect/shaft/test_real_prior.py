@@ -1,0 +1,102 @@
+"""The fulcrum prior and the pivot epochs on the real phantom sequence
+(../shared/data/real-instruments/dvrk-lnd-phantom-sequence, M1/D1 of its published
+calibration; every frame's shaft axis by hand in tests/data/real_frames_truth.yaml).
+
+`pencilcal fulcrum IMAGES --fulcrum-prior auto` as a user runs it: the shafts detected, the
+pivot epochs, every frame detected again through its epoch's fulcrum image (twice), the
+epochs and each one's fulcrum; its --jsonl shafts scored frame by frame against the hand-made
+axes. The endoscope of this sequence is not still: the tissue moves by 7-34 px between
+consecutive frames (dense optical flow outside the instrument), so its epochs are
+approximations and the fulcrum of each still scatters (docs/method.md, "Pivot epochs").
+Skips with the reason without ../shared/data.
+"""
+from __future__ import annotations
+
+import json
+
+import pytest
+from click.testing import CliRunner
+
+from pencilcal.cli.main import cli
+from pencilcal.toolkit.camera.formats import write_camera
+from pencilcal.toolkit.detect.shaft.mask import MaskAxis
+from pencilcal.validation.shaft_score import Tolerance, detection_line, score_frame
+from tests.conftest import data_dir
+from tests.toolkit.detect.shaft.frames_truth import load_real_frames_truth
+from tests.toolkit.detect.shaft.test_real import _phantom_camera
+
+pytestmark = pytest.mark.slow
+
+#: A shaft is found within these of the hand-made axis: the axes are good to about 1 deg and
+#: 2 px, and the detector's midlines of these short shafts (the straight black part is 60-180
+#: px long in frames 7-19) have an angle sd of 1-1.5 deg: 1 deg plus twice that.
+TOLERANCE = Tolerance(angle_deg=3.5, offset_px=10.0)
+
+
+def _score(records, truth):
+    """(found, false, per frame [(image, found, false)]) of the jsonl records."""
+    out = []
+    for r in records:
+        inst = truth[r["image"]]["instruments"][0]
+        ln, c = detection_line(inst["axis"])
+        ref = MaskAxis(line=ln, point=c, kind=inst["kind"], width_px=inst["width_px"], length_px=0.0, elongation=0.0,
+                       edges=None, area=0)
+        fs = score_frame(r["shafts"], [ref], TOLERANCE)
+        out.append((r["image"], fs.found, fs.false))
+    return sum(o[1] for o in out), sum(o[2] for o in out), out
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """{name: (fulcrum.json, jsonl records)} of `fulcrum IMAGES` without and with the prior."""
+    root = data_dir("real-instruments") / "dvrk-lnd-phantom-sequence"
+    tmp = tmp_path_factory.mktemp("phantom")
+    write_camera(tmp / "cam.json", _phantom_camera(root))
+    out = {}
+    for name, extra in (("plain", []), ("prior", ["--fulcrum-prior", "auto"])):
+        r = CliRunner().invoke(cli, ["fulcrum", str(root), "--camera", str(tmp / "cam.json"), "--shaft-diameter", "8",
+                                     "-o", str(tmp / f"{name}.json"), "--jsonl", str(tmp / f"{name}.jsonl"), "-q",
+                                     *extra])
+        assert r.exit_code == 0, r.output
+        out[name] = (json.loads((tmp / f"{name}.json").read_text()),
+                     [json.loads(line) for line in (tmp / f"{name}.jsonl").read_text().splitlines()])
+    return out
+
+
+def test_the_prior_keeps_the_instrument_and_drops_the_tissue(runs):
+    """Reached: without the prior 17 of 20 frames found and 15 false shafts (0.75 a frame:
+    the rim of the phantom's cavity, tissue folds, wrist parts); through the epochs' priors
+    17 found and none false: frames 1 and 2 (before and after the camera's largest moves,
+    whose shafts pass 30 chi2 off their epoch's fulcrum) and 20 have none. The angle
+    search measures the band the hand-made axes follow: 0.0-0.7 deg off them in frames 3-19
+    (frame 7's and 18's by the material cue, 0.2 and 2.2 deg), where the cues alone read
+    1.5-2.9 deg in frames 12-19 and took half-bands and wrists in 8, 10 and 11. Targets:
+    >= 95 % found (not reached: 85 %), <= 0.05 false a frame (reached)."""
+    truth = load_real_frames_truth()["dvrk-lnd-phantom-sequence"]
+    f0, fa0, _ = _score(runs["plain"][1], truth)
+    f1, fa1, per = _score(runs["prior"][1], truth)
+    print(f"without the prior {f0}/20 found, {fa0} false; with it {f1}/20, {fa1} false; {per}")
+    assert all(len(r["shafts"]) <= 1 for r in runs["prior"][1])
+    assert f1 >= 16 and fa1 <= 1
+    assert fa1 < fa0
+
+
+def test_the_epochs_of_the_phantom(runs):
+    """Reached: on the shafts found through the prior the change-point test finds frames
+    8-14 apart from the rest (F 24.0, p 0.003 corrected); tested again on its neighbours
+    alone the change after frame 7 is not significant (p 0.34) and is merged, so the epochs
+    are frames 1-14 and 15-20 (the hand-made axes alone, at their 1 deg, split after 13).
+    Without the prior's lines the best split has p 0.017 (not significant at 0.01). Frames
+    1-14's fulcrum moves 1.9 times its sigma when one frame is left out (significant: its
+    sigmas are the jackknife's); 15-20's lines are too close to parallel for a finite
+    fulcrum. The issue's target (each epoch's jackknife within 1.5 of its fit's sigma) is not
+    reached: the camera moves in every frame."""
+    doc = runs["prior"][0]
+    test = doc["epoch_test"]
+    print(json.dumps(test, indent=1))
+    for e in doc.get("epochs", []):
+        jk = (e.get("jackknife") or {}).get("ratio")
+        print(e["first"], e["last"], e.get("ok"), e.get("error"), e.get("vertex_px"), jk)
+    assert test["epochs"] >= 2 and all(c["p_corrected"] < test["alpha"] for c in test["change_points"])
+    assert len(doc["epochs"]) == test["epochs"]
+    assert runs["plain"][0]["epoch_test"]["epochs"] == 1
