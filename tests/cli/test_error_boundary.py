@@ -80,7 +80,7 @@ def test_ctrl_c_with_workers_stops_within_two_seconds(frames):
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)
     assert time.monotonic() - t0 < 2.0
-    assert p.returncode == 1 and "interrupted" in err and "Traceback" not in err
+    assert p.returncode == 130 and "interrupted" in err and "Traceback" not in err
     assert not out.exists() and not [f for f in os.listdir(frames) if f.startswith(".o.")]
     assert _wait_for(lambda: subprocess.run(["pgrep", "-g", str(p.pid)], capture_output=True).stdout == b"", 5), \
         "worker processes left behind"

@@ -20,7 +20,7 @@ import os
 from pathlib import Path
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.files import atomic_write, check_writable, staging_folder
+from pencilcal.toolkit.io.files import atomic_write, check_writable, put_in_place, staging_folder
 
 __all__ = ["OverlayWriter", "VIDEO_SUFFIXES"]
 
@@ -92,7 +92,7 @@ class OverlayWriter:
             self._video = None
             try:
                 if ok:
-                    os.replace(self._tmp, self.path)
+                    put_in_place(self._tmp, self.path, force=self.force)
             finally:
                 shutil.rmtree(self._tmp.parent, ignore_errors=True)
 

@@ -40,6 +40,8 @@ __all__ = [
     "check_folder_writable",
     "signals_deferred",
     "write_error",
+    "outputs_written",
+    "put_in_place",
     "atomic_path",
     "atomic_paths",
     "atomic_write",
@@ -147,6 +149,15 @@ def signals_deferred():
             signal.raise_signal(caught[0])
 
 
+_WRITTEN = []  # every output this process has put in place, in order
+
+
+def outputs_written():
+    """The outputs this process has put in place so far (paths, in order): what a run
+    stopped by a signal had already written."""
+    return list(_WRITTEN)
+
+
 # What an OSError while writing an output means to the user
 _WRITE_REASONS = {errno.ENOSPC: "no space left on device (the disk is full)",
                   errno.EDQUOT: "disk quota exceeded",
@@ -220,6 +231,22 @@ def _place(tmp, target, force):
     tmp.unlink()
 
 
+def _staged(path):
+    """Whether `path` lies in a staging folder (`staging_folder`): not an output yet."""
+    return any(part.startswith(".") and part.endswith(".partial") for part in Path(path).parts[:-1])
+
+
+def put_in_place(tmp, target, force=False):
+    """Rename the finished file `tmp` (written by a library that chose its own temporary
+    name, such as OpenCV's video writer) to `target`, as `atomic_paths` does: flushed to the
+    disk, signals held back, never over an existing `target` without `force`."""
+    tmp, target = Path(tmp), Path(target)
+    try:
+        _commit([target], [tmp], force)
+    except OSError as e:
+        raise write_error([target], e) from None
+
+
 def _backup(path):
     """A hard link to the existing output `path` beside it (None when there is none or the
     file system has no hard links): what a failed commit of several outputs puts back."""
@@ -253,6 +280,7 @@ def _commit(targets, staged, force):
                 done.append((p, existed, bak))
             for folder in {p.parent for p in targets}:
                 _fsync(folder if str(folder) else Path("."), folder=True)
+            _WRITTEN.extend(p for p in targets if not _staged(p))
         except BaseException:
             for p, existed, bak in reversed(done):
                 with contextlib.suppress(OSError):
@@ -360,6 +388,7 @@ def replace_folder(tmp, out):
             out.rmdir()
         if not out.exists():
             os.replace(tmp, out)
+            _WRITTEN.append(out)
             return
         old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=tmp.parent))
         try:
@@ -369,6 +398,7 @@ def replace_folder(tmp, out):
             except BaseException:
                 os.replace(old / out.name, out)  # put the earlier output back
                 raise
+            _WRITTEN.append(out)
         finally:
             shutil.rmtree(old, ignore_errors=True)
 
