@@ -19,7 +19,7 @@ Example
 -------
 >>> import tempfile, os, numpy as np, cv2
 >>> d = tempfile.mkdtemp()
->>> _ = cv2.imwrite(os.path.join(d, "b.png"), np.zeros((4, 6), np.uint8))
+>>> _ = cv2.imwrite(os.path.join(d, "b.png"), np.zeros((16, 24), np.uint8))
 >>> _ = open(os.path.join(d, "a.png"), "wb").write(b"\\x89PNG broken")
 >>> src = open_images(d)
 >>> [(f.name, f.image is None, f.error is not None) for f in src]
@@ -43,7 +43,8 @@ import numpy as np
 from pencilcal.toolkit.errors import InputError
 
 __all__ = ["Frame", "ImageSource", "read_ahead", "prefetched", "open_images", "decode_image", "IMAGE_EXTENSIONS",
-           "VIDEO_EXTENSIONS", "DEFAULT_MAX_PIXELS", "check_image_size", "quiet_c_stderr"]
+           "VIDEO_EXTENSIONS", "DEFAULT_MAX_PIXELS", "MIN_SIDE_PX", "check_image_size", "quiet_c_stderr",
+           "frame_size_error"]
 
 # FFmpeg (OpenCV's video backend) logs its complaints about corrupt frames on stderr; pencilcal
 # reports an undecodable frame in one line itself. Its own log level, read when OpenCV starts
@@ -97,6 +98,24 @@ def _natural_key(s):
 # Frames larger than this are refused before they are decoded (a 1 kB PNG can claim
 # 100000 x 100000 pixels): 8K video is 33 MP. Raise it with `max_pixels`.
 DEFAULT_MAX_PIXELS = 100_000_000
+#: Frames with a side under this many pixels are refused: too small for any detector (a
+#: printed bar is 2.5 px to 1/8 of the image; a 1x1 frame divided by empty slices).
+MIN_SIDE_PX = 16
+
+
+def frame_size_error(image, max_pixels=DEFAULT_MAX_PIXELS):
+    """Why a decoded frame is refused for its size (more than `max_pixels`, or a side under
+    MIN_SIDE_PX), or None.
+
+    >>> frame_size_error(np.zeros((1, 1), np.uint8))
+    'the image is 1x1 pixels, under the minimum of 16 a side'
+    """
+    h, w = image.shape[:2]
+    if h * w > max_pixels:
+        return f"the frame has over {max_pixels:,} pixels (--max-pixels raises it)"
+    if min(h, w) < MIN_SIDE_PX:
+        return f"the image is {w}x{h} pixels, under the minimum of {MIN_SIDE_PX} a side"
+    return None
 
 
 def read_ahead(frames, k):
@@ -319,7 +338,8 @@ class ImageSource:
                 misses = 0
                 if self.gray and img.ndim == 3:
                     img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-                yield Frame(f"frame_{i:06d}", i, img, None, str(self.paths[0]))
+                err = frame_size_error(img, self.max_pixels)
+                yield Frame(f"frame_{i:06d}", i, None if err else img, err, str(self.paths[0]))
                 i += 1
         finally:
             cap.release()
@@ -381,6 +401,8 @@ def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
         return None, f"cannot decode the image: {str(e).strip().splitlines()[-1]}"
     if img is None:
         return None, "cannot decode the image (corrupt or truncated)"
+    if min(img.shape[:2]) < MIN_SIDE_PX:
+        return None, frame_size_error(img, max_pixels)
     if img.ndim == 3 and img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
     return img, None

@@ -46,7 +46,7 @@ import time
 from pathlib import Path
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.images import DEFAULT_MAX_PIXELS, Frame, quiet_c_stderr, read_ahead
+from pencilcal.toolkit.io.images import DEFAULT_MAX_PIXELS, Frame, frame_size_error, quiet_c_stderr, read_ahead
 
 __all__ = ["StreamSource", "open_stream", "is_stream_spec", "FOLLOW_IDLE_S", "LIVE_BUFFER"]
 
@@ -148,9 +148,8 @@ class StreamSource:
             for image, index in frames:
                 if self.gray and image.ndim == 3:
                     image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-                err = None
-                if image.shape[0] * image.shape[1] > self.max_pixels:
-                    image, err = None, f"the frame has over {self.max_pixels:,} pixels (--max-pixels raises it)"
+                err = frame_size_error(image, self.max_pixels)
+                image = None if err else image
                 self.read += 1
                 yield Frame(f"frame_{index:06d}", index, image, err, None)
                 if self._stop.is_set():
