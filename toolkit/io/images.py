@@ -28,6 +28,7 @@ Example
 from __future__ import annotations
 
 import contextlib
+import errno
 import glob as _glob
 import os
 import queue
@@ -183,6 +184,15 @@ def prefetched(make_iter, depth=PREFETCH_FRAMES):
         worker.join(timeout=5.0)
 
 
+def _reason(e):
+    """An OSError's reason in words, a symlink to nowhere or in a loop named as such."""
+    if e.errno == errno.ELOOP:
+        return "a symbolic link in a loop"
+    if e.errno == errno.ENOENT:
+        return "a symbolic link to nothing"
+    return (e.strerror or str(e)).lower()
+
+
 class ImageSource:
     """An ordered, re-iterable sequence of frames from IMAGES: one or more image files,
     folders and glob patterns, taken in the order given, or one video file.
@@ -229,7 +239,13 @@ class ImageSource:
         IMAGES argument."""
         p = Path(spec)
         if p.is_dir():
-            files = [q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_EXTENSIONS]
+            # every entry named as an image is a frame, even one that cannot be read (a
+            # symlink loop or to nowhere, no permission): it is reported when decoded
+            # (ok: false with the reason), never silently left out
+            try:
+                files = [q for q in p.iterdir() if q.suffix.lower() in IMAGE_EXTENSIONS and not q.is_dir()]
+            except OSError as e:
+                raise InputError(f"{p}: cannot list this folder ({_reason(e)})") from None
             if not files:
                 raise InputError(f"{p}: no images in this folder (looked for {', '.join(sorted(IMAGE_EXTENSIONS))})")
             return "images", sorted(files, key=lambda q: _natural_key(q.name))
@@ -249,7 +265,9 @@ class ImageSource:
                 first = ok and cap.read()[0]
                 cap.release()
             if not ok:
-                raise InputError(f"{p}: cannot open this video")
+                hint = (" (an MP4 or MOV cut short has no index: was the recording stopped before it was finished?)"
+                        if p.suffix.lower() in (".mp4", ".mov", ".m4v") else "")
+                raise InputError(f"{p}: cannot open this video{hint}")
             if not first and n <= 0:
                 raise InputError(f"{p}: the video holds no frames")
             return "video", [p], max(n, 0), (fps if 0 < fps < 1000 else None)
@@ -263,6 +281,11 @@ class ImageSource:
             return "images", sorted(files, key=lambda q: _natural_key(str(q)))
         if p.exists():
             raise InputError(f"{p}: not a folder of images, an image or a video ({p.suffix or 'no extension'})")
+        try:
+            os.stat(p)
+        except OSError as e:
+            if e.errno != errno.ENOENT or p.is_symlink():
+                raise InputError(f"{p}: cannot read ({_reason(e)})") from None
         raise InputError(f"{p}: no such file or folder")
 
     @property
@@ -321,26 +344,28 @@ class ImageSource:
 
         cap = cv2.VideoCapture(str(self.paths[0]))
         try:
-            i = 0
-            misses = 0
-            n = self._video_count
+            i, n, missed = 0, self._video_count, []
             while True:
                 ok, img = cap.read()
                 if not ok or img is None:
-                    # a corrupt frame inside the stream: report it and try the next; stop
-                    # at the end (or after many misses in a row)
-                    if n and i < n and misses < 25:
-                        yield Frame(f"frame_{i:06d}", i, None, "cannot decode this video frame")
+                    # a corrupt frame inside the stream, or its end: which, the next frames say
+                    if n and i < n and len(missed) < 25:
+                        missed.append(i)
                         i += 1
-                        misses += 1
                         continue
                     break
-                misses = 0
+                for k in missed:  # frames in the middle that did not decode
+                    yield Frame(f"frame_{k:06d}", k, None, "cannot decode this video frame")
+                missed = []
                 if self.gray and img.ndim == 3:
                     img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
                 err = frame_size_error(img, self.max_pixels)
                 yield Frame(f"frame_{i:06d}", i, None if err else img, err, str(self.paths[0]))
                 i += 1
+            if missed:  # nothing decoded after them: the file ends early, said once
+                k = missed[0]
+                yield Frame(f"frame_{k:06d}", k, None, f"the video ends here, after {k} of the {n} frames its "
+                                                       "header announces (cut short?)")
         finally:
             cap.release()
 
@@ -383,7 +408,8 @@ def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
     try:
         data = np.fromfile(str(path), dtype=np.uint8)
     except OSError as e:
-        return None, f"cannot read: {e.strerror}"
+        gone = e.errno == errno.ENOENT and not os.path.islink(path)
+        return None, f"cannot read: {'the file is gone (removed during the run?)' if gone else _reason(e)}"
     if data.size == 0:
         return None, "empty file"
     size = _header_size(data.tobytes()[:1 << 20] if data.size > (1 << 20) else data.tobytes())
