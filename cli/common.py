@@ -500,6 +500,11 @@ class FrameOutputs:
                      "slower than the source)")
             if src.interrupted:
                 warn(f"{src.description}: stopped by Ctrl-C after {src.read} frames; writing what was done")
+            if getattr(src, "stalled", False):
+                from pencilcal.toolkit.io.stream import LIVE_SILENCE_S
+
+                warn(f"{src.description}: no frame for {LIVE_SILENCE_S:g} s, the source stopped sending; ending after "
+                     f"{src.read} frames, writing what was done")
         return False
 
 
