@@ -60,19 +60,61 @@ def pencilcal_command():
     return [str(script)] if script.is_file() else [sys.executable, "-m", "pencilcal.cli.main"]
 
 
-def as_other_user():
-    """The prefix that runs a command as an unprivileged user (nobody), for permission faults
-    root does not see: [] when this process is not root; skip when it cannot drop privileges."""
-    if os.geteuid() != 0:
-        return []
-    setpriv = shutil.which("setpriv")
-    if setpriv is None:
-        pytest.skip("running as root and no setpriv(1) to run as another user: permissions do not stop root")
-    return [setpriv, "--reuid=65534", "--regid=65534", "--clear-groups"]
-
-
 def files_in(folder):
     """{relative path: bytes} of every file under `folder` (hidden ones too): what a run left
     behind, byte for byte."""
     folder = Path(folder)
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def without_privileges():
+    """The prefix that runs a command without root's power to read and write whatever it
+    likes (CAP_DAC_OVERRIDE, CAP_DAC_READ_SEARCH), so that a file's permissions stop it as
+    they stop a user: [] when this process is not root; skip when it cannot drop them."""
+    if os.geteuid() != 0:
+        return []
+    setpriv = shutil.which("setpriv")
+    if setpriv is None:
+        pytest.skip("running as root and no setpriv(1) to drop root's file permissions: a mode 000 file is "
+                    "readable to root")
+    caps = "-dac_override,-dac_read_search"
+    return [setpriv, f"--bounding-set={caps}", f"--inh-caps={caps}"]
+
+
+@contextlib.contextmanager
+def stalled_mjpeg_server(jpegs):
+    """An HTTP MJPEG source (multipart/x-mixed-replace, as IP cameras serve it) that sends
+    the frames `jpegs` (bytes) and then holds every connection open without a byte more: a
+    live source that stopped sending. Yields its URL."""
+    import socket
+    import threading
+    import time
+
+    srv = socket.socket()
+    srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+    stop = threading.Event()
+
+    def serve(conn):
+        with contextlib.suppress(OSError), conn:
+            conn.recv(65536)
+            conn.sendall(b"HTTP/1.0 200 OK\r\nContent-Type: multipart/x-mixed-replace; boundary=frame\r\n\r\n")
+            for f in jpegs:
+                conn.sendall(b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: %d\r\n\r\n" % len(f) + f
+                             + b"\r\n")
+                time.sleep(0.05)
+            stop.wait()
+
+    def accept():
+        with contextlib.suppress(OSError):
+            while not stop.is_set():
+                conn, _ = srv.accept()
+                threading.Thread(target=serve, args=(conn,), daemon=True).start()
+
+    threading.Thread(target=accept, daemon=True).start()
+    try:
+        yield f"http://127.0.0.1:{srv.getsockname()[1]}/stream.mjpg"
+    finally:
+        stop.set()
+        srv.close()

@@ -384,10 +384,10 @@ def _header_size(data):
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # judged below, by our limit
             with Image.open(io.BytesIO(data)) as im:
                 return im.size
-    except Image.DecompressionBombError:
-        # Pillow refuses to open over twice its own limit; all that is known is "more"
-        n = 2 * int(Image.MAX_IMAGE_PIXELS or 0) + 1
-        return (n, 1)
+    except Image.DecompressionBombError as e:
+        # Pillow refuses to open over twice its own limit, saying the pixel count it read
+        said = re.search(r"\((\d+) pixels\)", str(e))
+        return (int(said.group(1)), 1) if said else (2 * int(Image.MAX_IMAGE_PIXELS or 0) + 1, 1)
     except Exception:  # noqa: BLE001 - any reason Pillow cannot identify it: let OpenCV try
         return None
 
@@ -414,7 +414,7 @@ def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
         return None, "empty file"
     size = _header_size(data.tobytes()[:1 << 20] if data.size > (1 << 20) else data.tobytes())
     if size is not None and size[0] * size[1] > max_pixels:
-        claim = f"{size[0]}x{size[1]}" if size[1] > 1 else f"over {size[0] - 1:,}"
+        claim = f"{size[0]}x{size[1]}" if size[1] > 1 else f"{size[0]:,}"
         return None, (f"the image claims {claim} pixels, over the limit of {max_pixels:,} "
                       "(--max-pixels raises it)")
     # ANYDEPTH | ANYCOLOR: as stored, like IMREAD_UNCHANGED, but with the EXIF orientation
