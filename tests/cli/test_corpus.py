@@ -176,7 +176,7 @@ def _workers_of(pid):
     return [int(x) for x in out.stdout.split()]
 
 
-def _during(step, proc, run):
+def _during(step, proc, run, names):
     """What happens to the run while it works (`during:` of a case): after `records` --jsonl
     records (or once a path exists), a signal to its process group as a terminal sends it,
     a worker killed, its output folder removed, input files changed."""
@@ -191,10 +191,11 @@ def _during(step, proc, run):
 
         shutil.rmtree(run / rel)
     for path in step.get("delete", []):
-        Path(path).unlink()
+        Path(_substitute(path, names)).unlink()
     for path in step.get("truncate", []):
-        data = Path(path).read_bytes()
-        Path(path).write_bytes(data[: len(data) // 3])
+        path = Path(_substitute(path, names))
+        data = path.read_bytes()
+        path.write_bytes(data[: len(data) // 3])
     if "kill_worker" in step:
         assert _wait(lambda: _workers_of(proc.p.pid), 60), "no worker started"
         os.kill(_workers_of(proc.p.pid)[0], getattr(signal, step["kill_worker"]))
@@ -275,7 +276,7 @@ def test_process_case(case, tmp_path):
         prefix = faults.without_privileges() if case.get("unprivileged") else []
         procs = [_Process(prefix + faults.pencilcal_command() + args, run, tmp_path / f"stderr{i}")
                  for i in range(case.get("runs", 1))]
-        _during(case.get("during"), procs[0], run)
+        _during(case.get("during"), procs[0], run, names)
         exits = sorted(p.finish() for p in procs)
         left = _snapshot(run)
         for rel in mounts:  # the filler of a full disk is the test's, not the run's
