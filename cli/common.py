@@ -521,11 +521,13 @@ def images_argument(required=True):
     def as_tuple(ctx, param, value):
         return tuple(value) if value else None
 
-    return click.argument("images", nargs=-1, required=required, type=click.Path(), callback=as_tuple)
+    # readable=False: an input the user may not read is an input error (exit 1, said by the
+    # reader with what it is), not a usage error
+    return click.argument("images", nargs=-1, required=required, type=click.Path(readable=False), callback=as_tuple)
 
 
 mask_option = click.option(
-    "--mask", "mask_path", type=click.Path(dir_okay=False), default=None,
+    "--mask", "mask_path", type=click.Path(dir_okay=False, readable=False), default=None,
     help="Valid region (PNG, or .json/.yaml circle/polygon); default: detected.")
 
 def _workers(ctx, param, value):
@@ -548,7 +550,7 @@ def camera_options(fn):
     """--camera (any supported format) and --camera-id (COLMAP files with several cameras)."""
     fn = click.option("--camera-id", type=int, default=None, help="The camera's id in a COLMAP file.")(fn)
     return click.option(
-        "--camera", "camera_path", required=True, type=click.Path(),
+        "--camera", "camera_path", required=True, type=click.Path(readable=False),
         help="Camera file (pencilcal, OpenCV, mrcal or COLMAP).",
     )(fn)
 

@@ -198,6 +198,23 @@ def unreadable_folder(folder):
     os.chmod(hostile / "002_secret.png", 0)
 
 
+def locked_folder(folder):
+    """A folder of two good frames that the user running pencilcal may not list (mode 000)."""
+    many_frames(folder, 2)
+    os.chmod(folder, 0)
+
+
+def locked_file(path, name):
+    """A copy of the corpus file `name` that the user running pencilcal may not read."""
+    Path(path).write_bytes((HERE / name).read_bytes())
+    os.chmod(path, 0)
+
+
+def latin1_file(path):
+    """A camera file in Latin-1, not UTF-8: a key with an e-acute."""
+    Path(path).write_bytes(b'{"\xe9": 1}')
+
+
 def symlink_loop(path):
     """IMAGES that is a symlink to itself."""
     os.symlink(Path(path).name, path)
@@ -265,8 +282,9 @@ def blank_frames(folder, n):
 
 
 GENERATORS = {f.__name__: f for f in (clutter_lines, many_segments, huge_lines, bad_frame_field, bad_shaft_field,
-                                      bad_pencil, many_frames, hostile_folder, unreadable_folder, symlink_loop, video,
-                                      camera_with, tiny_image, pixel_bomb, sparse_file, blank_frames)}
+                                      bad_pencil, many_frames, hostile_folder, unreadable_folder, locked_folder,
+                                      locked_file, latin1_file, symlink_loop, video, camera_with, tiny_image,
+                                      pixel_bomb, sparse_file, blank_frames)}
 
 
 def generate(spec, folder):

@@ -533,8 +533,11 @@ def read_input_text(path, what="file", kind=None) -> str:
             raise InputError(f"{p}: {what} of {size:,} bytes is over the limit of {MAX_INPUT_BYTES:,}")
         data = p.read_bytes()
         text = data.decode("utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"{p}: cannot read {what}: {e}") from None
+    except OSError as e:
+        raise InputError(f"{p}: cannot read {what}: {(e.strerror or str(e)).lower()}") from None
+    except UnicodeDecodeError as e:
+        raise InputError(f"{p}: cannot read {what}: not UTF-8 text (byte 0x{data[e.start]:02x} at offset "
+                         f"{e.start})") from None
     kind = kind or {".json": "json", ".xml": "xml"}.get(p.suffix.lower(), "yaml")
     depth = nesting_depth(data, kind)
     if depth > MAX_NESTING:
