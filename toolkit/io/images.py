@@ -392,7 +392,7 @@ def _header_size(data):
         return None
 
 
-def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
+def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS, min_side=MIN_SIDE_PX):
     """Decode one image file: (image, None) or (None, why).
 
     The one image decoder of pencilcal: every command reads its images through it, so a
@@ -401,7 +401,8 @@ def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
     8-bit channel). The EXIF orientation of a JPEG is applied, as OpenCV's imread does by
     default, so a camera calibrated from phone pictures fits the same pictures in every
     command. A header that claims more than `max_pixels` pixels is refused before any
-    pixel is decoded.
+    pixel is decoded, and a frame with a side under `min_side` (MIN_SIDE_PX; a mask file,
+    which is not a frame, passes 1) is refused after.
     """
     import cv2
 
@@ -427,7 +428,7 @@ def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
         return None, f"cannot decode the image: {str(e).strip().splitlines()[-1]}"
     if img is None:
         return None, "cannot decode the image (corrupt or truncated)"
-    if min(img.shape[:2]) < MIN_SIDE_PX:
+    if min(img.shape[:2]) < min_side:
         return None, frame_size_error(img, max_pixels)
     if img.ndim == 3 and img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
