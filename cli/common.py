@@ -187,6 +187,7 @@ def run(fn):
 
         ctx = click.get_current_context(silent=True)
         mark = len(outputs_written())
+        _shown_warnings.clear()
         try:
             with warnings.catch_warnings():
                 if not _debug(ctx):

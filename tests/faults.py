@@ -60,6 +60,18 @@ def pencilcal_command():
     return [str(script)] if script.is_file() else [sys.executable, "-m", "pencilcal.cli.main"]
 
 
+def wait_for(cond, timeout):
+    """Whether `cond()` came true within `timeout` seconds (asked every 50 ms)."""
+    import time
+
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(0.05)
+    return False
+
+
 def files_in(folder):
     """{relative path: bytes} of every file under `folder` (hidden ones too): what a run left
     behind, byte for byte."""

@@ -153,21 +153,12 @@ class _Process:
             if self.p.poll() is None:
                 os.killpg(self.p.pid, signal.SIGKILL)
         # its workers end with it: nothing of the process group is left (a zombie reaped at once aside)
-        assert _wait(lambda: subprocess.run(["pgrep", "-g", str(self.p.pid)], capture_output=True).stdout == b"", 5), \
+        assert faults.wait_for(lambda: subprocess.run(["pgrep", "-g", str(self.p.pid)], capture_output=True).stdout == b"", 5), \
             "processes of the run left behind"
         return self.p.returncode
 
     def stderr(self):
         return Path(self.err_path).read_bytes().decode("utf-8", "backslashreplace")
-
-
-def _wait(cond, timeout):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if cond():
-            return True
-        time.sleep(0.05)
-    return False
 
 
 def _workers_of(pid):
@@ -185,7 +176,7 @@ def _during(step, proc, run, names):
     if "records" in step:
         proc.wait_for_records(step["records"])
     if "exists" in step:
-        assert _wait(lambda: any(run.glob(step["exists"])), 120), step["exists"]
+        assert faults.wait_for(lambda: any(run.glob(step["exists"])), 120), step["exists"]
     for rel in step.get("remove", []):
         import shutil
 
@@ -197,7 +188,7 @@ def _during(step, proc, run, names):
         data = path.read_bytes()
         path.write_bytes(data[: len(data) // 3])
     if "kill_worker" in step:
-        assert _wait(lambda: _workers_of(proc.p.pid), 60), "no worker started"
+        assert faults.wait_for(lambda: _workers_of(proc.p.pid), 60), "no worker started"
         os.kill(_workers_of(proc.p.pid)[0], getattr(signal, step["kill_worker"]))
     for name in step.get("signals", []):
         os.killpg(proc.p.pid, getattr(signal, name))

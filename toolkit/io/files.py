@@ -82,17 +82,13 @@ def check_writable(path, force=False):
         raise InputError(f"{p}: already exists; pass --force to overwrite it")
     if p.is_dir():
         raise InputError(f"{p}: is a folder; give a file name")
-    parent = p.parent if str(p.parent) else Path(".")
-    if not parent.is_dir():
-        raise InputError(f"{p}: folder {parent} does not exist")
-    why = _folder_unwritable(parent)
-    if why:
-        raise InputError(f"{p}: cannot write in folder {parent} ({why})")
+    check_folder_writable(p)
 
 
 def check_folder_writable(path):
-    """Raise InputError if the output folder `path` could not be created or filled: its
-    parent is missing or cannot be written in (it is built beside itself, `staging_folder`)."""
+    """Raise InputError if the output `path` (a file, or a folder: it is built beside
+    itself, `staging_folder`) could not be created: its parent folder is missing or cannot
+    be written in."""
     p = Path(path)
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
