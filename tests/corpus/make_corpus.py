@@ -215,6 +215,15 @@ def latin1_file(path):
     Path(path).write_bytes(b'{"\xe9": 1}')
 
 
+def odd_entries_folder(folder):
+    """frames/000.png beside a pipe named as an image (a read would wait for ever) and a 3 GB
+    image file (a hole on the disk: past 16 bytes a pixel of --max-pixels)."""
+    folder = Path(folder)
+    many_frames(folder, 1)
+    os.mkfifo(folder / "pipe.png")
+    sparse_file(folder / "huge.png", 3 * 2**30)
+
+
 def symlink_loop(path):
     """IMAGES that is a symlink to itself."""
     os.symlink(Path(path).name, path)
@@ -283,7 +292,7 @@ def blank_frames(folder, n):
 
 GENERATORS = {f.__name__: f for f in (clutter_lines, many_segments, huge_lines, bad_frame_field, bad_shaft_field,
                                       bad_pencil, many_frames, hostile_folder, unreadable_folder, locked_folder,
-                                      locked_file, latin1_file, symlink_loop, video, camera_with, tiny_image,
+                                      locked_file, latin1_file, odd_entries_folder, symlink_loop, video, camera_with, tiny_image,
                                       pixel_bomb, sparse_file, blank_frames)}
 
 

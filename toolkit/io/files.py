@@ -82,6 +82,9 @@ def check_writable(path, force=False):
         raise InputError(f"{p}: already exists; pass --force to overwrite it")
     if p.is_dir():
         raise InputError(f"{p}: is a folder; give a file name")
+    if p.exists() and not p.is_file():
+        # an output is renamed into place: it would replace the device or pipe itself
+        raise InputError(f"{p}: is not a regular file (a device, a pipe); give a file name")
     check_folder_writable(p)
 
 
@@ -321,7 +324,9 @@ def atomic_paths(paths, force=False):
     try:
         try:
             for p in targets:
-                fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=p.suffix,
+                # the stem shortened: a name near the file system's limit must not fail for the
+                # temporary's few characters more
+                fd, tmp = tempfile.mkstemp(prefix=f".{p.stem[:48]}.", suffix=p.suffix[:16],
                                            dir=p.parent if str(p.parent) else ".")
                 os.close(fd)
                 staged.append(Path(tmp))
@@ -364,7 +369,7 @@ def staging_folder(path) -> Path:
     parent = p.parent if str(p.parent) else Path(".")
     check_folder_writable(p)
     try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{p.name}.", suffix=".partial", dir=parent))
+        tmp = Path(tempfile.mkdtemp(prefix=f".{p.name[:48]}.", suffix=".partial", dir=parent))
     except OSError as e:
         raise write_error([p], e) from None
     _normal_permissions(tmp, 0o777)
@@ -522,7 +527,7 @@ def read_input_text(path, what="file", kind=None) -> str:
     (default: from the suffix)."""
     p = Path(path)
     if not p.is_file():
-        raise InputError(f"{p}: {what} not found")
+        raise InputError(f"{p}: {what} {'is not a regular file' if p.exists() else 'not found'}")
     try:
         size = p.stat().st_size
         if size > MAX_INPUT_BYTES:

@@ -33,6 +33,7 @@ import glob as _glob
 import os
 import queue
 import re
+import stat
 import sys
 import threading
 import warnings
@@ -44,7 +45,7 @@ import numpy as np
 from pencilcal.toolkit.errors import InputError
 
 __all__ = ["Frame", "ImageSource", "read_ahead", "prefetched", "open_images", "decode_image", "IMAGE_EXTENSIONS",
-           "VIDEO_EXTENSIONS", "DEFAULT_MAX_PIXELS", "MIN_SIDE_PX", "check_image_size", "quiet_c_stderr",
+           "VIDEO_EXTENSIONS", "DEFAULT_MAX_PIXELS", "MIN_SIDE_PX", "MAX_BYTES_PER_PIXEL", "check_image_size", "quiet_c_stderr",
            "frame_size_error"]
 
 # FFmpeg (OpenCV's video backend) logs its complaints about corrupt frames on stderr; pencilcal
@@ -99,6 +100,9 @@ def _natural_key(s):
 # Frames larger than this are refused before they are decoded (a 1 kB PNG can claim
 # 100000 x 100000 pixels): 8K video is 33 MP. Raise it with `max_pixels`.
 DEFAULT_MAX_PIXELS = 100_000_000
+#: An image file larger than this many bytes a pixel of `max_pixels` is refused before it is
+#: read (16: four 32-bit float channels, uncompressed; real files are far smaller).
+MAX_BYTES_PER_PIXEL = 16
 #: Frames with a side under this many pixels are refused: too small for any detector (a
 #: printed bar is 2.5 px to 1/8 of the image; a 1x1 frame divided by empty slices).
 MIN_SIDE_PX = 16
@@ -407,6 +411,13 @@ def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS, min_side=MIN_S
     import cv2
 
     try:
+        st = os.stat(path)
+        if not stat.S_ISREG(st.st_mode):  # a pipe would block the read for ever, a device never end
+            return None, "not a regular file (a pipe, a device or a socket)"
+        limit = MAX_BYTES_PER_PIXEL * max_pixels
+        if st.st_size > limit:
+            return None, (f"the file is {st.st_size:,} bytes, over the limit of {limit:,} ({MAX_BYTES_PER_PIXEL} "
+                          "bytes a pixel of --max-pixels)")
         data = np.fromfile(str(path), dtype=np.uint8)
     except OSError as e:
         gone = e.errno == errno.ENOENT and not os.path.islink(path)
