@@ -282,6 +282,13 @@ def sparse_file(path, size):
         f.truncate(int(size))
 
 
+def huge_validation(path):
+    """A validation.json whose first frame's tilt is 1e308 (the report's figures overflowed
+    on it)."""
+    frame = {"image": "000.png", "ok": True, "tilt_deg": 1e308}
+    Path(path).write_text(json.dumps({"frames": [frame], "summary": {}, "pencil": {"angles_deg": [0, 20, 40]}}))
+
+
 def blank_frames(folder, n):
     """`n` plain grey 320x180 frames: neither a board nor a pencil to find."""
     folder = Path(folder)
@@ -293,7 +300,7 @@ def blank_frames(folder, n):
 GENERATORS = {f.__name__: f for f in (clutter_lines, many_segments, huge_lines, bad_frame_field, bad_shaft_field,
                                       bad_pencil, many_frames, hostile_folder, unreadable_folder, locked_folder,
                                       locked_file, latin1_file, odd_entries_folder, symlink_loop, video, camera_with, tiny_image,
-                                      pixel_bomb, sparse_file, blank_frames)}
+                                      pixel_bomb, sparse_file, blank_frames, huge_validation)}
 
 
 def generate(spec, folder):

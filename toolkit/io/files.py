@@ -54,6 +54,8 @@ __all__ = [
     "nesting_depth",
     "MAX_INPUT_BYTES",
     "MAX_NESTING",
+    "MAX_MAGNITUDE",
+    "check_magnitudes",
     "to_jsonable",
     "load_frames",
     "is_number",
@@ -580,6 +582,32 @@ def load_structured(path, what="file"):
     except (json.JSONDecodeError, yaml.YAMLError, RecursionError) as e:
         msg = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise InputError(f"{p}: not valid {'JSON' if p.suffix.lower() == '.json' else 'YAML'}: {msg}") from None
+
+
+#: No number a pencilcal file holds comes near this magnitude; a file that holds one is
+#: refused as it is read (squared, or multiplied a few times, such numbers overflow).
+MAX_MAGNITUDE = 1e100
+
+
+def check_magnitudes(data, source, limit=MAX_MAGNITUDE):
+    """InputError (naming `source` and where) if a number in the parsed file `data` is
+    larger in magnitude than `limit`; returns `data`.
+
+    >>> check_magnitudes({"frames": [{"tilt_deg": 1e308}]}, "v.json")
+    Traceback (most recent call last):
+    ...
+    pencilcal.toolkit.errors.InputError: v.json: frames[0].tilt_deg is 1e+308, beyond 1e+100: no measurement is that large
+    """
+    stack = [(data, "")]
+    while stack:
+        obj, where = stack.pop()
+        if isinstance(obj, dict):
+            stack.extend((v, f"{where}.{k}" if where else str(k)) for k, v in obj.items())
+        elif isinstance(obj, list):
+            stack.extend((v, f"{where}[{i}]") for i, v in enumerate(obj))
+        elif is_number(obj) and math.isfinite(obj) and abs(obj) > limit:
+            raise InputError(f"{source}: {where} is {float(obj):g}, beyond {limit:g}: no measurement is that large")
+    return data
 
 
 def load_frames(path, what, required=()):
