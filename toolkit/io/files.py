@@ -569,7 +569,7 @@ def load_structured(path, what="file"):
 
     `what` names the kind of file in error messages ("camera file", "pencil file", ...).
     The file is checked first (`read_input_text`: size, encoding, nesting); YAML aliases
-    are refused.
+    are refused, and so is a number beyond MAX_MAGNITUDE (`check_magnitudes`).
     """
     import yaml
 
@@ -577,16 +577,24 @@ def load_structured(path, what="file"):
     text = read_input_text(p, what)
     try:
         if p.suffix.lower() == ".json":
-            return json.loads(text)
-        return yaml.load(text, Loader=_yaml_loader())  # noqa: S506 - a safe loader, aliases refused
+            data = json.loads(text)
+        else:
+            data = yaml.load(text, Loader=_yaml_loader())  # noqa: S506 - a safe loader, aliases refused
     except (json.JSONDecodeError, yaml.YAMLError, RecursionError) as e:
         msg = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise InputError(f"{p}: not valid {'JSON' if p.suffix.lower() == '.json' else 'YAML'}: {msg}") from None
+    # only a text with an exponent of 100 or more (or 101 digits in a row) can hold one: the
+    # walk through a 14 MB lines file is saved
+    if _MAYBE_HUGE.search(text):
+        check_magnitudes(data, str(p))
+    return data
 
 
 #: No number a pencilcal file holds comes near this magnitude; a file that holds one is
-#: refused as it is read (squared, or multiplied a few times, such numbers overflow).
+#: refused as it is read (squared, or multiplied a few times, such numbers overflow: lines
+#: of 1e300 px overflowed in the vertex, a validation.json of 1e308 in the report).
 MAX_MAGNITUDE = 1e100
+_MAYBE_HUGE = re.compile(r"[eE]\+?0*[1-9]\d{2,}|\d{101,}")
 
 
 def check_magnitudes(data, source, limit=MAX_MAGNITUDE):
@@ -601,10 +609,10 @@ def check_magnitudes(data, source, limit=MAX_MAGNITUDE):
     stack = [(data, "")]
     while stack:
         obj, where = stack.pop()
-        if isinstance(obj, dict):
-            stack.extend((v, f"{where}.{k}" if where else str(k)) for k, v in obj.items())
+        if isinstance(obj, dict):  # reversed: the first in the file is said first
+            stack.extend(reversed([(v, f"{where}.{k}" if where else str(k)) for k, v in obj.items()]))
         elif isinstance(obj, list):
-            stack.extend((v, f"{where}[{i}]") for i, v in enumerate(obj))
+            stack.extend(reversed([(v, f"{where}[{i}]") for i, v in enumerate(obj)]))
         elif is_number(obj) and math.isfinite(obj) and abs(obj) > limit:
             raise InputError(f"{source}: {where} is {float(obj):g}, beyond {limit:g}: no measurement is that large")
     return data

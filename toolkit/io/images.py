@@ -414,6 +414,15 @@ def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS, min_side=MIN_S
         st = os.stat(path)
         if not stat.S_ISREG(st.st_mode):  # a pipe would block the read for ever, a device never end
             return None, "not a regular file (a pipe, a device or a socket)"
+        with open(path, "rb") as f:
+            head = f.read(1 << 20)
+        if not head:
+            return None, "empty file"
+        size = _header_size(head)
+        if size is not None and size[0] * size[1] > max_pixels:
+            claim = f"{size[0]}x{size[1]}" if size[1] > 1 else f"{size[0]:,}"
+            return None, (f"the image claims {claim} pixels, over the limit of {max_pixels:,} "
+                          "(--max-pixels raises it)")
         limit = MAX_BYTES_PER_PIXEL * max_pixels
         if st.st_size > limit:
             return None, (f"the file is {st.st_size:,} bytes, over the limit of {limit:,} ({MAX_BYTES_PER_PIXEL} "
@@ -424,11 +433,6 @@ def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS, min_side=MIN_S
         return None, f"cannot read: {'the file is gone (removed during the run?)' if gone else _reason(e)}"
     if data.size == 0:
         return None, "empty file"
-    size = _header_size(data.tobytes()[:1 << 20] if data.size > (1 << 20) else data.tobytes())
-    if size is not None and size[0] * size[1] > max_pixels:
-        claim = f"{size[0]}x{size[1]}" if size[1] > 1 else f"{size[0]:,}"
-        return None, (f"the image claims {claim} pixels, over the limit of {max_pixels:,} "
-                      "(--max-pixels raises it)")
     # ANYDEPTH | ANYCOLOR: as stored, like IMREAD_UNCHANGED, but with the EXIF orientation
     # applied (IMREAD_UNCHANGED ignores it; IMREAD_GRAYSCALE applies it)
     flags = cv2.IMREAD_GRAYSCALE if gray else (cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
