@@ -122,3 +122,21 @@ def test_a_python_warning_is_one_pencilcal_line_once(frames, monkeypatch):
     assert len(said) == 1 and said[0].startswith("pencilcal: warning: RuntimeWarning: overflow encountered in "
                                                  "scalar multiply (test_error_boundary.py:"), r.output
     assert said[0].endswith("; please report this)")
+
+
+def _python(code):
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+
+
+def test_a_signal_outside_a_command_ends_the_same_way():
+    """While click parses or a command's module is imported (outside `run`), and while Python
+    imports the command line (cli/entry.py's first handlers): one line, 128 + the signal."""
+    r = _python("import signal, pencilcal.cli.main as m\n"
+                "from pencilcal.cli.common import Stopped\n"
+                "def parsing(**kw):\n    raise Stopped(signal.SIGTERM)\n"
+                "m.cli = parsing\nm.main()")
+    assert (r.returncode, r.stderr) == (143, "pencilcal: error: terminated (SIGTERM)\n")
+    r = _python("import os, signal, time, pencilcal.cli.entry as e\n"
+                "signal.signal(signal.SIGINT, e._before_any_work)\n"
+                "os.kill(os.getpid(), signal.SIGINT)\ntime.sleep(5)")
+    assert (r.returncode, r.stderr) == (130, "pencilcal: error: interrupted\n")
