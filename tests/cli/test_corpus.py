@@ -121,6 +121,14 @@ def test_calibrate_failure_leaves_no_partial_outputs(tmp_path):
 # ---------------------------------------------------------------- the installed command, in a subprocess
 
 
+def _default_signals():
+    """In the child: the stop signals as a terminal's foreground job has them, whatever this
+    test run inherited (nohup ignores SIGHUP, a background job SIGINT; the command keeps an
+    ignored signal ignored)."""
+    for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(s, signal.SIG_DFL)
+
+
 class _Process:
     """One run of the installed command: stdout read line by line as it comes (the --jsonl
     records that say how far it got), stderr to a file."""
@@ -128,7 +136,8 @@ class _Process:
     def __init__(self, argv, cwd, err_path):
         self.err_path = err_path
         self.p = subprocess.Popen(argv, cwd=cwd, stdout=subprocess.PIPE, stderr=open(err_path, "wb"),
-                                  start_new_session=True)  # its own process group, as a terminal's job
+                                  start_new_session=True,  # its own process group, as a terminal's job
+                                  preexec_fn=_default_signals)
         self.lines, self._cond = [], threading.Condition()
         threading.Thread(target=self._read, daemon=True).start()
 
