@@ -143,8 +143,9 @@ _shown_warnings = set()
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     """A Python warning (numpy's floating-point ones above all) as one pencilcal line, once
-    per place: every number pencilcal writes is checked where it is made, so a warning is a
-    flaw to report, never an answer to trust or ignore. ``--debug`` shows them as Python does."""
+    per place. Inputs whose numbers would overflow are refused where they are read and frames
+    without an estimate are written ok: false, so a warning that still arises is a flaw to
+    report, not noise to ignore. ``--debug`` shows them as Python does."""
     key = (category, str(message), filename, lineno)
     if key in _shown_warnings:
         return
@@ -530,6 +531,7 @@ def images_argument(required=True):
 mask_option = click.option(
     "--mask", "mask_path", type=click.Path(dir_okay=False, readable=False), default=None,
     help="Valid region (PNG, or .json/.yaml circle/polygon); default: detected.")
+
 
 def _workers(ctx, param, value):
     """--workers: at most what the machine can hold (`parallel.worker_limit`: its CPUs and

@@ -279,9 +279,6 @@ def _commit(targets, staged, force):
                 existed = p.exists()
                 _place(tmp, p, force)
                 done.append((p, existed, bak))
-            for folder in {p.parent for p in targets}:
-                _fsync(folder if str(folder) else Path("."), folder=True)
-            _WRITTEN.extend(p for p in targets if not _staged(p))
         except BaseException:
             for p, existed, bak in reversed(done):
                 with contextlib.suppress(OSError):
@@ -295,6 +292,10 @@ def _commit(targets, staged, force):
                 if bak is not None:
                     with contextlib.suppress(OSError):
                         bak.unlink()
+        _WRITTEN.extend(p for p in targets if not _staged(p))
+        for folder in {p.parent for p in targets}:  # the renames themselves on the disk: best effort, they are done
+            with contextlib.suppress(OSError):
+                _fsync(folder if str(folder) else Path("."), folder=True)
 
 
 @contextlib.contextmanager
