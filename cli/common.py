@@ -128,13 +128,17 @@ def release_signal_handlers():
         signal.signal(s, signal.SIG_IGN)
 
 
-def stopped_status(signum, written=()):
-    """Say that a stop signal ended the run (and which outputs it had already put in
-    place); the exit status, 128 + the signal's number."""
-    name = signal.Signals(signum).name
-    msg = f"{STOP_SIGNALS.get(signum, 'stopped')} ({name})"
-    if written:
-        msg += f"; already written: {', '.join(str(p) for p in written)}"
+def stopped_status(signum, since=None):
+    """Say that a stop signal ended the run (and which outputs it had put in place after the
+    first `since` of the process, `files.outputs_written`); the exit status, 128 + the
+    signal's number."""
+    from pencilcal.toolkit.io.files import outputs_written
+
+    msg = f"{STOP_SIGNALS.get(signum, 'stopped')} ({signal.Signals(signum).name})"
+    n, latest = outputs_written(since) if since is not None else (0, [])
+    if n:
+        names = ", ".join(str(p) for p in latest[:3])
+        msg += f"; already written: {names}{f' and {n - 3} more' if n > 3 else ''}"
     return _fail(msg, status=128 + signum)
 
 
@@ -187,7 +191,7 @@ def run(fn):
         from pencilcal.toolkit.io.files import outputs_written
 
         ctx = click.get_current_context(silent=True)
-        mark = len(outputs_written())
+        mark = outputs_written()[0]
         _shown_warnings.clear()
         try:
             with warnings.catch_warnings():
@@ -197,9 +201,9 @@ def run(fn):
         except (click.ClickException, click.exceptions.Exit, click.Abort):
             raise
         except Stopped as e:
-            raise SystemExit(stopped_status(e.signum, outputs_written()[mark:]))
+            raise SystemExit(stopped_status(e.signum, mark))
         except KeyboardInterrupt:  # SIGINT where pencilcal's handlers are not installed (the API, tests)
-            raise SystemExit(stopped_status(signal.SIGINT, outputs_written()[mark:]))
+            raise SystemExit(stopped_status(signal.SIGINT, mark))
         except PencilcalError as e:
             raise SystemExit(_fail(str(e)))
         except MemoryError:

@@ -140,3 +140,19 @@ def test_a_signal_outside_a_command_ends_the_same_way():
                 "signal.signal(signal.SIGINT, e._before_any_work)\n"
                 "os.kill(os.getpid(), signal.SIGINT)\ntime.sleep(5)")
     assert (r.returncode, r.stderr) == (130, "pencilcal: error: interrupted\n")
+
+
+def test_a_stop_names_what_was_already_in_place(frames, monkeypatch):
+    """Ctrl-C after the overlay video is in place but before the output: 130, the overlay
+    named, the output absent."""
+    import pencilcal.cli.lines as lines_cli
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(lines_cli, "write_lines", interrupted)
+    ov, out = frames / "ov.avi", frames / "o.json"
+    r = CliRunner().invoke(cli, ["lines", str(frames / "frames" / "000.png"), "--camera", str(frames / "camera.json"),
+                                 "--overlay", str(ov), "-o", str(out), "-q"])
+    assert r.exit_code == 130 and r.output == f"pencilcal: error: interrupted (SIGINT); already written: {ov}\n"
+    assert ov.is_file() and not out.exists()

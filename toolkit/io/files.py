@@ -19,6 +19,7 @@ Example
 """
 from __future__ import annotations
 
+import collections
 import contextlib
 import errno
 import json
@@ -150,13 +151,28 @@ def signals_deferred():
             signal.raise_signal(caught[0])
 
 
-_WRITTEN = []  # every output this process has put in place, in order
+# the outputs this process has put in place: how many, and the latest (bounded: a live run
+# writing a PNG a frame for hours must not grow a list)
+_WRITTEN = collections.deque(maxlen=64)
+_WRITTEN_COUNT = [0]
 
 
-def outputs_written():
-    """The outputs this process has put in place so far (paths, in order): what a run
-    stopped by a signal had already written."""
-    return list(_WRITTEN)
+def _record(paths):
+    for p in paths:
+        _WRITTEN.append(p)
+        _WRITTEN_COUNT[0] += 1
+
+
+def outputs_written(since=0):
+    """(how many outputs this process has put in place, the latest of those after the first
+    `since`, at most 64): what a run stopped by a signal had already written.
+
+    >>> n, _ = outputs_written()
+    >>> outputs_written(since=n)
+    (0, [])
+    """
+    n = _WRITTEN_COUNT[0]
+    return n - since, list(_WRITTEN)[len(_WRITTEN) - min(n - since, len(_WRITTEN)):]
 
 
 # What an OSError while writing an output means to the user
@@ -292,7 +308,7 @@ def _commit(targets, staged, force):
                 if bak is not None:
                     with contextlib.suppress(OSError):
                         bak.unlink()
-        _WRITTEN.extend(p for p in targets if not _staged(p))
+        _record(p for p in targets if not _staged(p))
         for folder in {p.parent for p in targets}:  # the renames themselves on the disk: best effort, they are done
             with contextlib.suppress(OSError):
                 _fsync(folder if str(folder) else Path("."), folder=True)
@@ -392,7 +408,7 @@ def replace_folder(tmp, out):
             out.rmdir()
         if not out.exists():
             os.replace(tmp, out)
-            _WRITTEN.append(out)
+            _record([out])
             return
         old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=tmp.parent))
         try:
@@ -402,7 +418,7 @@ def replace_folder(tmp, out):
             except BaseException:
                 os.replace(old / out.name, out)  # put the earlier output back
                 raise
-            _WRITTEN.append(out)
+            _record([out])
         finally:
             shutil.rmtree(old, ignore_errors=True)
 
