@@ -285,9 +285,9 @@ def _commit(targets, staged, force):
     """Put every staged file in place, all or none: signals are held back meanwhile, and when
     one rename fails the outputs already placed are undone (an earlier file put back, a new
     one removed)."""
+    for tmp in staged:  # before the signals are held: a flush can take a while
+        _fsync(tmp)
     with signals_deferred():
-        for tmp in staged:
-            _fsync(tmp)
         backups = [_backup(p) if force and len(targets) > 1 else None for p in targets]
         done = []
         try:
@@ -400,10 +400,10 @@ def replace_folder(tmp, out):
     removed only once the new one is in place (and put back if that fails); signals are held
     back meanwhile (`signals_deferred`)."""
     tmp, out = Path(tmp), Path(out)
+    for f in tmp.rglob("*"):  # before the signals are held: a flush can take a while
+        if f.is_file() and not f.is_symlink():
+            _fsync(f)
     with signals_deferred():
-        for f in tmp.rglob("*"):
-            if f.is_file() and not f.is_symlink():
-                _fsync(f)
         if out.is_dir() and not any(out.iterdir()):
             out.rmdir()
         if not out.exists():
