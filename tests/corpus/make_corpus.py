@@ -319,7 +319,9 @@ if __name__ == "__main__":
         folder = Path(sys.argv[2])
         folder.mkdir(parents=True, exist_ok=True)
         for case in yaml.safe_load((HERE / "cases.yaml").read_text()):
-            for name, path in generate(case.get("generate", {}), folder).items():
+            # an input several cases share is made once
+            todo = {n: g for n, g in case.get("generate", {}).items() if not os.path.lexists(folder / n)}
+            for name, path in generate(todo, folder).items():
                 print(case["name"], "->", path)
     else:
         main()
