@@ -8,8 +8,11 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import os
+import signal
 import sys
 import threading
+import warnings
 
 import click
 
@@ -83,20 +86,77 @@ def command(*args, **kwargs):
 
 
 
-class Terminated(BaseException):
-    """SIGTERM, raised in the main process so that clean-up runs as for Ctrl-C."""
+# The signals that end a run: Ctrl-C, kill's default, a closed terminal. Exit status 128 + the
+# signal's number, as shells report a command a signal ended (130, 143, 129).
+STOP_SIGNALS = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
+if hasattr(signal, "SIGHUP"):
+    STOP_SIGNALS[signal.SIGHUP] = "hung up"
+_received = []  # the stop signals this process has received
 
 
-def _on_sigterm(signum, frame):
-    raise Terminated()
+class Stopped(BaseException):
+    """A stop signal (`STOP_SIGNALS`), raised in the main thread so that clean-up runs on
+    the way out (temporary files removed, workers stopped) as for any exception."""
+
+    def __init__(self, signum):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _on_signal(signum, frame):
+    """The first stop signal raises `Stopped`; a second is ignored, so that the clean-up it
+    starts is not cut short (it takes well under a second); a third ends the process at once."""
+    _received.append(signum)
+    if len(_received) == 1:
+        raise Stopped(signum)
+    if len(_received) >= 3:
+        os._exit(128 + _received[0])
 
 
 def install_signal_handlers():
-    """SIGTERM becomes `Terminated` (temp files and folders are removed on the way out,
-    worker pools stopped), as Ctrl-C becomes KeyboardInterrupt."""
-    import signal
+    """Stop signals become `Stopped` (see `_on_signal`). A signal the command was started
+    with ignored (a background job's Ctrl-C, nohup's SIGHUP) stays ignored."""
+    _received.clear()
+    for s in STOP_SIGNALS:
+        if signal.getsignal(s) is not signal.SIG_IGN:
+            signal.signal(s, _on_signal)
 
-    signal.signal(signal.SIGTERM, _on_sigterm)
+
+def release_signal_handlers():
+    """Once the run's outcome is settled (its outputs written or not, its message said): a
+    late signal changes nothing, and must not end the exit with a traceback."""
+    for s in STOP_SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
+
+
+def stopped_status(signum, since=None):
+    """Say that a stop signal ended the run (and which outputs it had put in place after the
+    first `since` of the process, `files.outputs_written`); the exit status, 128 + the
+    signal's number."""
+    from pencilcal.toolkit.io.files import outputs_written
+
+    msg = f"{STOP_SIGNALS.get(signum, 'stopped')} ({signal.Signals(signum).name})"
+    n, latest = outputs_written(since) if since is not None else (0, [])
+    if n:
+        names = ", ".join(str(p) for p in latest[:3])
+        msg += f"; already written: {names}{f' and {n - 3} more' if n > 3 else ''}"
+    return _fail(msg, status=128 + signum)
+
+
+_shown_warnings = set()
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """A Python warning (numpy's floating-point ones above all) as one pencilcal line, once
+    per place. Inputs whose numbers would overflow are refused where they are read and frames
+    without an estimate are written ok: false, so a warning that still arises is a flaw to
+    report, not noise to ignore. ``--debug`` shows them as Python does."""
+    key = (category, str(message), filename, lineno)
+    if key in _shown_warnings:
+        return
+    _shown_warnings.add(key)
+    warn(f"{category.__name__}: {' '.join(str(message).split())} ({os.path.basename(filename)}:{lineno}; please "
+         "report this)")
 
 
 def _inputs(ctx):
@@ -117,26 +177,36 @@ def _debug(ctx):
 def run(fn):
     """Decorator: the command's one error boundary.
 
-    Every exception ends in one line on stderr and exit status 1, never a traceback: the
-    errors pencilcal raises on purpose as they are; OS errors with the file they concern;
-    running out of memory with the input; Ctrl-C and SIGTERM as "interrupted" /
-    "terminated"; anything else as an internal error naming the command and its input
-    (``pencilcal --debug`` shows the traceback instead). Usage errors stay click's (exit 2).
+    Every exception ends in one line on stderr, never a traceback: the errors pencilcal
+    raises on purpose as they are; OS errors with the file they concern; running out of
+    memory with the input; anything else as an internal error naming the command and its
+    input (``pencilcal --debug`` shows the traceback instead); all with exit status 1. A
+    stop signal (Ctrl-C, SIGTERM, SIGHUP) says so, and which outputs were already in place,
+    with exit status 128 + its number (130, 143, 129). Usage errors stay click's (exit 2).
+    Python warnings (numpy's floating-point ones) are said in one line each
+    (`_show_warning`).
     """
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
+        from pencilcal.toolkit.io.files import outputs_written
+
         ctx = click.get_current_context(silent=True)
+        mark = outputs_written()[0]
+        _shown_warnings.clear()
         try:
-            return fn(*args, **kwargs)
+            with warnings.catch_warnings():
+                if not _debug(ctx):
+                    warnings.showwarning = _show_warning
+                return fn(*args, **kwargs)
         except (click.ClickException, click.exceptions.Exit, click.Abort):
             raise
+        except Stopped as e:
+            raise SystemExit(stopped_status(e.signum, mark))
+        except KeyboardInterrupt:  # SIGINT where pencilcal's handlers are not installed (the API, tests)
+            raise SystemExit(stopped_status(signal.SIGINT, mark))
         except PencilcalError as e:
             raise SystemExit(_fail(str(e)))
-        except KeyboardInterrupt:
-            raise SystemExit(_fail("interrupted"))
-        except Terminated:
-            raise SystemExit(_fail("terminated", status=143))
         except MemoryError:
             where = _inputs(ctx)
             raise SystemExit(_fail(f"{where + ': ' if where else ''}out of memory (the inputs need more memory "
@@ -151,22 +221,34 @@ def run(fn):
         except Exception as e:  # noqa: BLE001 - the boundary: nothing escapes as a traceback
             if _debug(ctx):
                 raise
-            cmd = ctx.command_path if ctx is not None else "pencilcal"
-            where = _inputs(ctx)
-            what = f"{type(e).__name__}: {str(e).strip().splitlines()[0] if str(e).strip() else ''}".rstrip(": ")
-            raise SystemExit(_fail(f"internal error in `{cmd}`{' on ' + where if where else ''}: {what} "
-                                   "(please report this; `pencilcal --debug ...` shows the traceback)"))
+            raise SystemExit(_fail(_internal(ctx, e)))
 
     return wrapper
 
 
+def _internal(ctx, e):
+    """An unexpected exception's one line: the command, its input, the exception."""
+    cmd = ctx.command_path if ctx is not None else "pencilcal"
+    where = _inputs(ctx)
+    what = f"{type(e).__name__}: {str(e).strip().splitlines()[0] if str(e).strip() else ''}".rstrip(": ")
+    return (f"internal error in `{cmd}`{' on ' + where if where else ''}: {what} "
+            "(please report this; `pencilcal --debug ...` shows the traceback)")
+
+
 def _fail(msg, status=1):
-    click.echo(f"pencilcal: error: {msg.splitlines()[0] if msg else 'failed'}", err=True)
+    say(f"pencilcal: error: {msg.splitlines()[0] if msg else 'failed'}")
     return status
 
 
+def say(line):
+    """One line on stderr, whatever it holds: a file name that is not UTF-8 (its bytes kept
+    as surrogates by Python) is written with those bytes escaped, never an encoding error."""
+    text = line.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    click.echo(text, err=True)
+
+
 def warn(msg):
-    click.echo(f"pencilcal: warning: {msg}", err=True)
+    say(f"pencilcal: warning: {msg}")
 
 
 def done(summary, *paths, quiet=False):
@@ -177,7 +259,7 @@ def done(summary, *paths, quiet=False):
     if quiet:
         return
     where = ", ".join(os.path.abspath(str(p)) for p in paths if p is not None)
-    click.echo(f"{summary} -> {where}" if where else summary, err=True)
+    say(f"{summary} -> {where}" if where else summary)
 
 
 @contextlib.contextmanager
@@ -249,7 +331,9 @@ SHARED_DETAILS = {
                  "frame in a folder (a path ending with /).",
     "--max-pixels": "Refuse an image whose header claims more pixels than this, before decoding it (a "
                     "decompression bomb).",
-    "--workers": "Process frames in this many worker processes; the results are the same, in the same order.",
+    "--workers": "Process frames in this many worker processes; the results are the same, in the same order. "
+                 "At most as many as the CPUs this process may use, and as the available memory holds at 512 MiB "
+                 "a worker (a warning says when fewer are used than asked for).",
     "--force": "Overwrite the output if it exists; nothing the user has is overwritten without it, and an "
                "input is never overwritten by an output.",
     "-q, --quiet": "No progress bar and no summary line; errors and warnings are still said on stderr.",
@@ -424,6 +508,11 @@ class FrameOutputs:
                      "slower than the source)")
             if src.interrupted:
                 warn(f"{src.description}: stopped by Ctrl-C after {src.read} frames; writing what was done")
+            if getattr(src, "stalled", False):
+                from pencilcal.toolkit.io.stream import LIVE_SILENCE_S
+
+                warn(f"{src.description}: no frame for {LIVE_SILENCE_S:g} s, the source stopped sending; ending after "
+                     f"{src.read} frames, writing what was done")
         return False
 
 
@@ -440,11 +529,13 @@ def images_argument(required=True):
     def as_tuple(ctx, param, value):
         return tuple(value) if value else None
 
-    return click.argument("images", nargs=-1, required=required, type=click.Path(), callback=as_tuple)
+    # readable=False: an input the user may not read is an input error (exit 1, said by the
+    # reader with what it is), not a usage error
+    return click.argument("images", nargs=-1, required=required, type=click.Path(readable=False), callback=as_tuple)
 
 
 mask_option = click.option(
-    "--mask", "mask_path", type=click.Path(dir_okay=False), default=None,
+    "--mask", "mask_path", type=click.Path(dir_okay=False, readable=False), default=None,
     help="Valid region (PNG, or .json/.yaml circle/polygon); default: detected.")
 
 def instrument_mask_options(fn):
@@ -482,15 +573,27 @@ def warn_masks(record):
             warn(f"{record.get('image')}: {sh['mask_warning']}")
 
 
+def _workers(ctx, param, value):
+    """--workers: at most what the machine can hold (`parallel.worker_limit`: its CPUs and
+    memory), said in a warning when the request is more."""
+    from pencilcal.toolkit.io.parallel import worker_limit
+
+    limit, why = worker_limit()
+    if value is not None and value > limit:
+        warn(f"--workers {value}: using {limit} ({why})")
+        return limit
+    return value
+
+
 workers_option = click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
-                              help="Worker processes (same results, in order).")
+                              callback=_workers, help="Worker processes (same results, in order).")
 
 
 def camera_options(fn, required=True):
     """--camera (any supported format) and --camera-id (COLMAP files with several cameras)."""
     fn = click.option("--camera-id", type=int, default=None, help="The camera's id in a COLMAP file.")(fn)
     return click.option(
-        "--camera", "camera_path", required=required, type=click.Path(),
+        "--camera", "camera_path", required=required, type=click.Path(readable=False),
         help="Camera file (pencilcal, OpenCV, mrcal or COLMAP)." + ("" if required else " Optional."),
     )(fn)
 

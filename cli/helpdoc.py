@@ -20,7 +20,10 @@ a test keeps this page current.
 
 Exit status: 0 on success; 1 with one line on stderr (`pencilcal: error: ...`) when the
 input cannot be used or processing fails; 2 with one line (`pencilcal: usage error: ...`)
-for a missing or malformed option or argument.
+for a missing or malformed option or argument; 130, 143 or 129 when Ctrl-C, SIGTERM or a
+closed terminal stopped it, its outputs then not written and the earlier ones kept byte for
+byte (docs/faults.md: what is guaranteed on an interrupt, a full disk, bad input, and the
+limits on what a user can make large).
 """
 
 

@@ -6,7 +6,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 import click
 
-from .common import CONTEXT_SETTINGS, Group, install_signal_handlers
+from .common import CONTEXT_SETTINGS, Group, Stopped, install_signal_handlers, release_signal_handlers, stopped_status
 
 # command name -> its module in this package: a command's module (and what it imports:
 # OpenCV, scipy, pycolmap, matplotlib) is loaded only when that command runs, so a live
@@ -54,13 +54,23 @@ def cli(debug):
 
     Conventions: OpenCV camera frame (x right, y down, z forward); transforms named
     a_from_b; angles in degrees in files and options. Exit status: 0 done; 1 an input
-    that cannot be used or a failure (one line); 2 a usage error (one line).
+    that cannot be used or a failure (one line); 2 a usage error (one line); 130, 143 stopped
+    by Ctrl-C or SIGTERM (earlier outputs kept: docs/faults.md).
     """
 
 
 def main():
+    """The command line, with pencilcal's stop signals (`common.install_signal_handlers`):
+    a signal outside a command's body (while click parses, while a command's module is
+    imported) ends it with the same line and status as inside; once the outcome is settled
+    a late signal is ignored."""
     install_signal_handlers()
-    cli(prog_name="pencilcal")
+    try:
+        cli(prog_name="pencilcal")
+    except Stopped as e:
+        raise SystemExit(stopped_status(e.signum)) from None
+    finally:
+        release_signal_handlers()
 
 
 if __name__ == "__main__":

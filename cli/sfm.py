@@ -1,8 +1,6 @@
 """`pencilcal sfm`: a pycolmap reconstruction with the calibrated intrinsics held fixed."""
 from __future__ import annotations
 
-import contextlib
-import shutil
 import sys
 from pathlib import Path
 
@@ -10,7 +8,7 @@ import click
 
 from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.files import replace_folder, staging_folder
+from pencilcal.toolkit.io.files import atomic_folder, check_folder_writable
 from pencilcal.toolkit.io.images import open_images
 from pencilcal.validation.sfm import (
     DEFAULT_MAX_FEATURES,
@@ -32,9 +30,7 @@ _SFM_MARKERS = ("poses.json", "sparse", "database.db")
 def _check_output_folder(out: Path, force: bool, source):
     """Fail before any work: a file in the way, a non-empty folder without --force, a
     folder that is not an earlier sfm output (never replaced), or the input inside it."""
-    parent = out.parent if str(out.parent) else Path(".")
-    if not parent.is_dir():
-        raise InputError(f"{out}: folder {parent} does not exist")
+    check_folder_writable(out)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder")
     if not out.is_dir() or not any(out.iterdir()):
@@ -105,9 +101,9 @@ def sfm(images, camera_path, camera_id, output, matching, max_features, min_regi
     source = open_images(images, max_pixels=max_pixels)
     _check_output_folder(out, force, source)
     camera = read_camera(camera_path, camera_id=camera_id)
-    tmp = staging_folder(out)
     bars = StageBars() if not quiet and sys.stderr.isatty() else None
-    try:
+    # built beside OUTPUT and put in place whole; errors name OUTPUT, never the staging folder
+    with atomic_folder(out) as tmp:
         try:
             res = reconstruct(source, camera, tmp, matching=matching, max_features=max_features,
                               min_registered=min_registered, seed=seed, keep_frames=keep_frames, quiet=quiet,
@@ -122,10 +118,6 @@ def sfm(images, camera_path, camera_id, output, matching, max_features, min_regi
             warn(w)
         write_poses(tmp / "poses.json", res, images=source.description, camera_file=str(camera_path),
                     camera_id=camera_id, seed=seed, min_registered=min_registered)
-        replace_folder(tmp, out)
-    finally:
-        with contextlib.suppress(FileNotFoundError):
-            shutil.rmtree(tmp)
     if not quiet:
         done(f"{res.n_registered}/{res.n_frames} frames registered, {res.n_points3D} points, "
              f"mean reprojection error {res.mean_reprojection_error_px:.3f} px ({res.matching} matching, "

@@ -53,7 +53,7 @@ import numpy as np
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.pencil.estimator import crlb, detection_threshold, fit_pencil
 from pencilcal.toolkit.geometry.frames import angle_between, rotation_about_axis, rotation_to_z
-from pencilcal.toolkit.pencil.spec import image_angles
+from pencilcal.toolkit.pencil.spec import MAX_SPOKES, image_angles
 
 __all__ = [
     "Setup",
@@ -82,6 +82,15 @@ _MAP_ID = {"tilt-offaxis": 1, "spokes-spacing": 2, "noise": 3}
 _BATCH = 200_000
 
 
+# Limits of a plan: past them a set-up is no pencil (noise of tens of degrees), the numbers
+# overflow (a focal length of 1e308 px, ranges to 1e300), or the Monte Carlo outgrows memory
+# (its noise draws are trials x spokes floats: 1e9 trials were 64 GB).
+MAX_FOCAL_PX = 1e7
+MAX_SIGMA_DEG = 30.0
+MAX_TRIALS = 1_000_000
+MAX_RANGE_VALUE = 1e9
+
+
 @dataclass(frozen=True)
 class Setup:
     """A pencil set-up to plan.
@@ -98,14 +107,14 @@ class Setup:
     sigma_deg: float = 0.1
 
     def __post_init__(self):
-        if not (np.isfinite(self.focal_px) and self.focal_px > 0):
-            raise InputError(f"focal length must be positive, got {self.focal_px!r} px")
-        if int(self.spokes) != self.spokes or self.spokes < 3:
-            raise InputError(f"a pencil needs at least three spokes, got {self.spokes!r}")
-        if not (np.isfinite(self.step_deg) and self.step_deg > 0):
-            raise InputError(f"spoke spacing must be positive, got {self.step_deg!r} deg")
-        if not (np.isfinite(self.sigma_deg) and self.sigma_deg > 0):
-            raise InputError(f"line noise must be positive, got {self.sigma_deg!r} deg")
+        if not (np.isfinite(self.focal_px) and 0 < self.focal_px <= MAX_FOCAL_PX):
+            raise InputError(f"focal length must be positive and at most {MAX_FOCAL_PX:g} px, got {self.focal_px!r} px")
+        if int(self.spokes) != self.spokes or not 3 <= self.spokes <= MAX_SPOKES:
+            raise InputError(f"a pencil has three spokes to {MAX_SPOKES}, got {self.spokes!r}")
+        if not (np.isfinite(self.step_deg) and 0 < self.step_deg <= 180):
+            raise InputError(f"spoke spacing must be in (0, 180] deg, got {self.step_deg!r} deg")
+        if not (np.isfinite(self.sigma_deg) and 0 < self.sigma_deg <= MAX_SIGMA_DEG):
+            raise InputError(f"line noise must be in (0, {MAX_SIGMA_DEG:g}] deg, got {self.sigma_deg!r} deg")
         if _distinct_lines(self.spoke_angles()) < 3:
             raise InputError(f"{self.spokes} spokes {self.step_deg} deg apart give fewer than three distinct "
                              f"line directions (lines repeat every 180 deg)")
@@ -146,6 +155,8 @@ def parse_range(spec, name="range"):
             raise InputError(f"{name}: {spec!r} is not a range (use start:stop:step or a list a,b,c)") from None
         if not all(math.isfinite(v) for v in nums):
             raise InputError(f"{name}: {spec!r} has a non-finite value")
+        if any(abs(v) > MAX_RANGE_VALUE for v in nums):
+            raise InputError(f"{name}: {spec!r} has a value beyond +-{MAX_RANGE_VALUE:g}")
         if len(nums) == 1:
             vals.append(nums[0])
         elif len(nums) == 3:
@@ -388,9 +399,9 @@ def _curve_answers(tilts, crb_t, crb_n, mc, accuracy):
 def _grid(v, name, lo=None, hi=None):
     g = parse_range(v, name)
     if lo is not None and g.min() < lo:
-        raise InputError(f"{name}: values must be >= {lo}, got {g.min():g}")
+        raise InputError(f"{name}: values must be >= {lo:g}, got {g.min():g}")
     if hi is not None and g.max() >= hi:
-        raise InputError(f"{name}: values must be < {hi}, got {g.max():g}")
+        raise InputError(f"{name}: values must be < {hi:g}, got {g.max():g}")
     return g
 
 
@@ -401,13 +412,13 @@ def validate_grids(tilts_deg, offaxis_deg, spokes_grid=None, steps_grid=None, si
     _grid(tilts_deg, "--tilts", 0.0, 90.0)
     _grid(offaxis_deg, "--offaxis", 0.0, 90.0)
     if spokes_grid is not None:
-        S = _grid(spokes_grid, "--spokes-grid", 3.0)
+        S = _grid(spokes_grid, "--spokes-grid", 3.0, MAX_SPOKES + 1.0)
         if np.any(S != np.round(S)):
             raise InputError("--spokes-grid: whole numbers only")
     if steps_grid is not None:
         _grid(steps_grid, "--step-grid", 1e-9, 360.0)
     if sigmas_grid is not None:
-        _grid(sigmas_grid, "--sigma-grid", 1e-9)
+        _grid(sigmas_grid, "--sigma-grid", 1e-9, MAX_SIGMA_DEG + 1e-9)
 
 
 def _one_offaxis(offaxis_deg):
@@ -562,6 +573,8 @@ def plan(setup, tilts_deg="0:80:2", offaxis_deg="0:40:10", trials=1000, accuracy
         raise InputError(f"unknown map(s) {unknown}; expected {', '.join(MAPS)} or all")
     if trials < 0 or int(trials) != trials:
         raise InputError(f"trials must be a whole number >= 0, got {trials!r}")
+    if trials > MAX_TRIALS:
+        raise InputError(f"trials: {trials:,} is over the limit of {MAX_TRIALS:,} Monte Carlo pencils per cell")
     if not (np.isfinite(accuracy_deg) and accuracy_deg > 0):
         raise InputError(f"accuracy must be positive, got {accuracy_deg!r} deg")
     trials = int(trials)

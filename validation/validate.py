@@ -476,7 +476,9 @@ def validate_sequence(source, camera, board, lines_source, *, truth=None, models
     if continuity:
         twins_by_continuity(frames, estimates)
     if not any(f["ok"] for f in frames):
-        raise EstimationError("no frame could be validated (no pencil and no board pose in any frame)")
+        where = getattr(source, "description", None)
+        raise EstimationError(f"{where + ': ' if where else ''}no frame could be validated (no pencil and no board "
+                              f"pose in any of its {len(frames)} frames)")
     keys = [f"orient:{m}" for m in models] + [f"pnp:{m}" for m in methods]
     out = {"reference": "truth" if truth is not None else "pnp", "models": list(models), "methods": list(methods)}
     if sfm:

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.files import load_structured, write_json
+from pencilcal.toolkit.io.files import check_magnitudes, load_structured, write_json
 
 __all__ = ["write_validation", "check_validation", "load_validation", "load_pencil_validation"]
 
@@ -38,7 +38,9 @@ def write_validation(path, data, force=False):
 
 def check_validation(data, source="validation file"):
     """Raise InputError (naming `source`) unless `data` looks like a validation.json: an
-    object with a 'frames' list of objects and a 'summary' object of objects. Returns `data`."""
+    object with a 'frames' list of objects and a 'summary' object of objects, no number in
+    it beyond files.MAX_MAGNITUDE (the report's figures and verdict overflowed on 1e308).
+    Returns `data`."""
     if not isinstance(data, dict) or not isinstance(data.get("frames"), list) \
             or not isinstance(data.get("summary"), dict):
         raise InputError(f"{source}: not a validation file (expected an object with a 'frames' list and a "
@@ -49,7 +51,7 @@ def check_validation(data, source="validation file"):
     for k, s in data["summary"].items():
         if not isinstance(s, dict):
             raise InputError(f"{source}: summary[{k!r}] is not an object")
-    return data
+    return check_magnitudes(data, source)
 
 
 def load_validation(path):
@@ -78,4 +80,4 @@ def load_pencil_validation(path):
         np.asarray(pencil["angles_deg"], float)
     except (TypeError, ValueError):
         raise InputError(f"{path}: pencil 'angles_deg' must be numbers") from None
-    return data
+    return check_magnitudes(data, str(path))

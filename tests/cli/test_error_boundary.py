@@ -16,6 +16,7 @@ from click.testing import CliRunner
 from pencilcal.cli.main import cli
 from pencilcal.toolkit.camera.formats import write_camera
 from pencilcal.toolkit.camera.model import Camera
+from tests.faults import wait_for
 
 
 @pytest.fixture()
@@ -54,22 +55,13 @@ def _pencilcal(*args, **kw):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True, **kw)
 
 
-def _wait_for(cond, timeout):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if cond():
-            return True
-        time.sleep(0.05)
-    return False
-
-
 @pytest.mark.slow
 def test_ctrl_c_with_workers_stops_within_two_seconds(frames):
     out = frames / "o.json"
     p = _pencilcal("lines", str(frames / "frames"), "--camera", str(frames / "camera.json"), "-o", str(out),
                    "--workers", "2", "--detector", "lsd")
     # the pool is up once a worker process exists
-    assert _wait_for(lambda: len(subprocess.run(["pgrep", "-g", str(p.pid)], capture_output=True).stdout.split()) > 2,
+    assert wait_for(lambda: len(subprocess.run(["pgrep", "-g", str(p.pid)], capture_output=True).stdout.split()) > 2,
                      60), "no worker started"
     time.sleep(0.5)
     t0 = time.monotonic()
@@ -80,9 +72,9 @@ def test_ctrl_c_with_workers_stops_within_two_seconds(frames):
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)
     assert time.monotonic() - t0 < 2.0
-    assert p.returncode == 1 and "interrupted" in err and "Traceback" not in err
+    assert p.returncode == 130 and "interrupted" in err and "Traceback" not in err
     assert not out.exists() and not [f for f in os.listdir(frames) if f.startswith(".o.")]
-    assert _wait_for(lambda: subprocess.run(["pgrep", "-g", str(p.pid)], capture_output=True).stdout == b"", 5), \
+    assert wait_for(lambda: subprocess.run(["pgrep", "-g", str(p.pid)], capture_output=True).stdout == b"", 5), \
         "worker processes left behind"
 
 
@@ -91,7 +83,7 @@ def test_sigterm_during_simulate_leaves_no_partial_folder(tmp_path):
     out = tmp_path / "sim"
     p = _pencilcal("simulate", str(out), "--scenario", "orbit", "--frames", "200", "--size", "640x360", "-q")
     # the staging folder exists once rendering has begun
-    assert _wait_for(lambda: any(f.endswith(".partial") for f in os.listdir(tmp_path)), 60)
+    assert wait_for(lambda: any(f.endswith(".partial") for f in os.listdir(tmp_path)), 60)
     p.send_signal(signal.SIGTERM)
     _, err = p.communicate(timeout=20)
     assert p.returncode == 143 and "terminated" in err and "Traceback" not in err
@@ -107,3 +99,60 @@ def test_nan_and_inf_options_are_usage_errors(frames, tmp_path):
         r = CliRunner().invoke(cli, [*args, "-o", str(tmp_path / "o.json")] if args[0] != "simulate" else args)
         assert r.exit_code == 2 and "finite" in r.output, (args, r.output)
     assert not (tmp_path / "s").exists()
+
+
+def test_a_python_warning_is_one_pencilcal_line_once(frames, monkeypatch):
+    """A floating-point warning that escapes the checks is a flaw to report: one line in
+    pencilcal's words, once per place, never Python's two lines with the source."""
+    import pencilcal.cli.lines as lines_cli
+
+    real = lines_cli.read_camera
+
+    def overflowing(*a, **k):
+        for _ in range(3):
+            np.float64(1e308) * 10.0  # overflow, three times from one place
+        return real(*a, **k)
+
+    monkeypatch.setattr(lines_cli, "read_camera", overflowing)
+    args = ["lines", str(frames / "frames" / "000.png"), "--camera", str(frames / "camera.json"), "-o",
+            str(frames / "o.json"), "-q"]
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 0, r.output
+    said = [ln for ln in r.output.splitlines() if "Warning" in ln]
+    assert len(said) == 1 and said[0].startswith("pencilcal: warning: RuntimeWarning: overflow encountered in "
+                                                 "scalar multiply (test_error_boundary.py:"), r.output
+    assert said[0].endswith("; please report this)")
+
+
+def _python(code):
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+
+
+def test_a_signal_outside_a_command_ends_the_same_way():
+    """While click parses or a command's module is imported (outside `run`), and while Python
+    imports the command line (cli/entry.py's first handlers): one line, 128 + the signal."""
+    r = _python("import signal, pencilcal.cli.main as m\n"
+                "from pencilcal.cli.common import Stopped\n"
+                "def parsing(**kw):\n    raise Stopped(signal.SIGTERM)\n"
+                "m.cli = parsing\nm.main()")
+    assert (r.returncode, r.stderr) == (143, "pencilcal: error: terminated (SIGTERM)\n")
+    r = _python("import os, signal, time, pencilcal.cli.entry as e\n"
+                "signal.signal(signal.SIGINT, e._before_any_work)\n"
+                "os.kill(os.getpid(), signal.SIGINT)\ntime.sleep(5)")
+    assert (r.returncode, r.stderr) == (130, "pencilcal: error: interrupted\n")
+
+
+def test_a_stop_names_what_was_already_in_place(frames, monkeypatch):
+    """Ctrl-C after the overlay video is in place but before the output: 130, the overlay
+    named, the output absent."""
+    import pencilcal.cli.lines as lines_cli
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(lines_cli, "write_lines", interrupted)
+    ov, out = frames / "ov.avi", frames / "o.json"
+    r = CliRunner().invoke(cli, ["lines", str(frames / "frames" / "000.png"), "--camera", str(frames / "camera.json"),
+                                 "--overlay", str(ov), "-o", str(out), "-q"])
+    assert r.exit_code == 130 and r.output == f"pencilcal: error: interrupted (SIGINT); already written: {ov}\n"
+    assert ov.is_file() and not out.exists()

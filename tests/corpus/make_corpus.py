@@ -10,6 +10,7 @@ writes them all to DIR for use by hand.
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -161,8 +162,145 @@ def bad_pencil(path, key, value):
     Path(path).write_text(yaml.safe_dump(d, sort_keys=False))
 
 
+# ---------------------------------------------------------------- whole-system faults (issue 27)
+# inputs of the cases run as the installed command in a subprocess (`process: true`)
+
+
+def many_frames(folder, n):
+    """A folder of `n` copies of frames/000.png: a run long enough to be interrupted."""
+    import shutil
+
+    folder = Path(folder)
+    folder.mkdir()
+    for i in range(int(n)):
+        shutil.copyfile(HERE / "frames" / "000.png", folder / f"{i:03d}.png")
+
+
+def hostile_folder(folder):
+    """Two good frames among entries that cannot be read: a symlink in a loop, a symlink to
+    nothing, and a frame whose name is not UTF-8 (the byte 0xE9, Latin-1's e-acute)."""
+    import shutil
+
+    folder = Path(folder)
+    folder.mkdir()
+    for name in ("000.png", "001.png"):
+        shutil.copyfile(HERE / "frames" / name, folder / name)
+    os.symlink("loop.png", folder / "loop.png")
+    os.symlink("nowhere.png", folder / "dangling.png")
+    shutil.copyfile(HERE / "frames" / "000.png", os.fsencode(folder) + b"/caf\xe9.png")
+
+
+def unreadable_folder(folder):
+    """Two good frames and one the user running pencilcal may not read (mode 000)."""
+    hostile = Path(folder)
+    many_frames(hostile, 2)
+    (hostile / "002_secret.png").write_bytes((HERE / "frames" / "000.png").read_bytes())
+    os.chmod(hostile / "002_secret.png", 0)
+
+
+def locked_folder(folder):
+    """A folder of two good frames that the user running pencilcal may not list (mode 000)."""
+    many_frames(folder, 2)
+    os.chmod(folder, 0)
+
+
+def locked_file(path, name):
+    """A copy of the corpus file `name` that the user running pencilcal may not read."""
+    Path(path).write_bytes((HERE / name).read_bytes())
+    os.chmod(path, 0)
+
+
+def latin1_file(path):
+    """A camera file in Latin-1, not UTF-8: a key with an e-acute."""
+    Path(path).write_bytes(b'{"\xe9": 1}')
+
+
+def odd_entries_folder(folder):
+    """frames/000.png beside a pipe named as an image (a read would wait for ever) and a 3 GB
+    image file (a hole on the disk: past 16 bytes a pixel of --max-pixels)."""
+    folder = Path(folder)
+    many_frames(folder, 1)
+    os.mkfifo(folder / "pipe.png")
+    sparse_file(folder / "huge.png", 3 * 2**30)
+
+
+def symlink_loop(path):
+    """IMAGES that is a symlink to itself."""
+    os.symlink(Path(path).name, path)
+
+
+def video(path, frames, keep=1.0):
+    """An MJPEG AVI (or an MP4) of `frames` frames, the corpus' good frames over and over,
+    cut to its first `keep` fraction of bytes (a recording cut short)."""
+    good = [cv2.imread(str(HERE / "frames" / n)) for n in ("000.png", "001.png")]
+    fourcc = "mp4v" if str(path).endswith(".mp4") else "MJPG"
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), 10, (320, 180))
+    for k in range(int(frames)):
+        vw.write(good[k % 2])
+    vw.release()
+    data = Path(path).read_bytes()
+    Path(path).write_bytes(data[: int(len(data) * float(keep))])
+
+
+def camera_with(path, entry, value):
+    """camera_pinhole.json with one entry of K (fx, fy, cx, cy) set to `value`."""
+    d = json.loads((HERE / "camera_pinhole.json").read_text())
+    i, j = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}[entry]
+    d["K"][i][j] = float(value)
+    Path(path).write_text(json.dumps(d))
+
+
+def tiny_image(path, width, height):
+    """A `width` x `height` grey image, and a camera of that size beside it (NAME.json)."""
+    cv2.imwrite(str(path), np.full((int(height), int(width)), 128, np.uint8))
+    cam = {"model": "pinhole", "width": int(width), "height": int(height),
+           "K": [[300.0, 0, width / 2], [0, 300.0, height / 2], [0, 0, 1]], "dist": []}
+    Path(path).with_suffix(".json").write_text(json.dumps(cam))
+
+
+def pixel_bomb(folder, width, height):
+    """frames/000.png and a PNG of a few hundred bytes whose header claims width x height."""
+    import shutil
+    import zlib
+
+    folder = Path(folder)
+    folder.mkdir()
+    shutil.copyfile(HERE / "frames" / "000.png", folder / "000.png")
+
+    def chunk(kind, data):
+        return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
+
+    ihdr = int(width).to_bytes(4, "big") + int(height).to_bytes(4, "big") + bytes([8, 0, 0, 0, 0])
+    (folder / "001_bomb.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) +
+                                          chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b""))
+
+
+def sparse_file(path, size):
+    """A file of `size` bytes that takes no room on the disk (a hole): a camera file past
+    files.MAX_INPUT_BYTES without writing one."""
+    with open(path, "wb") as f:
+        f.truncate(int(size))
+
+
+def huge_validation(path):
+    """A validation.json whose first frame's tilt is 1e308 (the report's figures overflowed
+    on it)."""
+    frame = {"image": "000.png", "ok": True, "tilt_deg": 1e308}
+    Path(path).write_text(json.dumps({"frames": [frame], "summary": {}, "pencil": {"angles_deg": [0, 20, 40]}}))
+
+
+def blank_frames(folder, n):
+    """`n` plain grey 320x180 frames: neither a board nor a pencil to find."""
+    folder = Path(folder)
+    folder.mkdir()
+    for i in range(int(n)):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), np.full((180, 320), 128, np.uint8))
+
+
 GENERATORS = {f.__name__: f for f in (clutter_lines, many_segments, huge_lines, bad_frame_field, bad_shaft_field,
-                                      bad_pencil)}
+                                      bad_pencil, many_frames, hostile_folder, unreadable_folder, locked_folder,
+                                      locked_file, latin1_file, odd_entries_folder, symlink_loop, video, camera_with, tiny_image,
+                                      pixel_bomb, sparse_file, blank_frames, huge_validation)}
 
 
 def generate(spec, folder):
@@ -181,7 +319,9 @@ if __name__ == "__main__":
         folder = Path(sys.argv[2])
         folder.mkdir(parents=True, exist_ok=True)
         for case in yaml.safe_load((HERE / "cases.yaml").read_text()):
-            for name, path in generate(case.get("generate", {}), folder).items():
+            # an input several cases share is made once
+            todo = {n: g for n, g in case.get("generate", {}).items() if not os.path.lexists(folder / n)}
+            for name, path in generate(todo, folder).items():
                 print(case["name"], "->", path)
     else:
         main()

@@ -108,10 +108,18 @@ class Board:
         return d
 
 
+# a board's lengths, in its unit (mm: a micron to a kilometre): past them OpenCV's board
+# fails inside (a square of 1e-300 mm was an internal error) and the layout overflows
+_LENGTH_RANGE = (1e-6, 1e6)
+
+
 def _positive(d, key, source):
     v = d.get(key)
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v <= 0:
         raise InputError(f"{source}: '{key}' must be a positive number, got {v!r}")
+    lo, hi = _LENGTH_RANGE
+    if not lo <= v <= hi:
+        raise InputError(f"{source}: '{key}' must be from {lo:g} to {hi:g} (the board's length unit), got {v!r}")
     return float(v)
 
 

@@ -67,7 +67,8 @@ import numpy as np
 
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.files import atomic_path, load_structured, read_input_text, staging_folder, write_json
+from pencilcal.toolkit.io.files import (atomic_path, load_structured, read_input_text, signals_deferred, staging_folder,
+                                        write_json)
 
 __all__ = [
     "read_camera",
@@ -736,13 +737,14 @@ def _write_colmap(p, camera, force, fmt):
     tmp = staging_folder(p)
     try:
         (rec.write_binary if binary else rec.write_text)(str(tmp))
-        if not p.exists():
-            os.replace(tmp, p)
-        else:
-            # cameras last: a reader never sees new cameras beside old images
-            names = sorted(os.listdir(tmp), key=lambda f: f.startswith("cameras"))
-            for f in names:
-                os.replace(tmp / f, p / f)
+        with signals_deferred():  # Ctrl-C cannot land between two of the renames
+            if not p.exists():
+                os.replace(tmp, p)
+            else:
+                # cameras last: a reader never sees new cameras beside old images
+                names = sorted(os.listdir(tmp), key=lambda f: f.startswith("cameras"))
+                for f in names:
+                    os.replace(tmp / f, p / f)
     finally:
         with contextlib.suppress(FileNotFoundError):
             shutil.rmtree(tmp)

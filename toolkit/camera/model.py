@@ -52,7 +52,7 @@ import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["Camera", "MODELS", "OPENCV_COEFFICIENT_COUNTS", "tilt_matrices"]
+__all__ = ["Camera", "MODELS", "OPENCV_COEFFICIENT_COUNTS", "tilt_matrices", "K_RATIO_LIMIT"]
 
 #: Lens models and the coefficient counts each accepts.
 MODELS = {"pinhole": (0,), "opencv": (4, 5, 8, 12, 14), "fisheye": (4,)}
@@ -64,12 +64,31 @@ OPENCV_COEFFICIENT_COUNTS = MODELS["opencv"]
 # pixels), far beyond any real sensor (a 100 MP sensor is 1e8 px).
 MAX_SIDE_PX = 1 << 20
 MAX_CAMERA_PIXELS = 1 << 30
+# K's entries relative to the image's larger side: focal lengths within 1/1000 and 1000
+# times it (fields of view from 0.06 deg to beyond any fisheye), the principal point and the
+# skew within 1000 sides. Past them no lens exists and the numbers overflow (fx = 1e308
+# made every segment's direction 0/0).
+K_RATIO_LIMIT = 1000.0
 _NEWTON_ITERATIONS = 50
 _NEWTON_TOL = 1e-14
 _ACCEPT_TOL = 1e-11
 # Samples along the segment from the principal point to a solution on which the lens
 # model must stay locally invertible; a root beyond a fold of the model is rejected.
 _FOLD_SAMPLES = np.linspace(0.0, 1.0, 9)[1:]
+
+
+def _check_k_scale(K, side):
+    """InputError when K's focal lengths, principal point or skew are out of proportion to
+    the image (`K_RATIO_LIMIT`)."""
+    lo, hi = side / K_RATIO_LIMIT, side * K_RATIO_LIMIT
+    for name, v in (("fx", K[0, 0]), ("fy", K[1, 1])):
+        if not lo <= v <= hi:
+            raise InputError(f"K: {name} = {float(v):.6g} px is outside {lo:.6g}..{hi:.6g} px (1/{K_RATIO_LIMIT:g} to "
+                             f"{K_RATIO_LIMIT:g} times the image's larger side, {side} px): no lens gives it")
+    for name, v in (("cx", K[0, 2]), ("cy", K[1, 2]), ("skew", K[0, 1])):
+        if not abs(v) <= hi:
+            raise InputError(f"K: {name} = {float(v):.6g} px is beyond +-{hi:.6g} px ({K_RATIO_LIMIT:g} times the "
+                             f"image's larger side, {side} px)")
 
 
 def tilt_matrices(taux, tauy):
@@ -177,6 +196,7 @@ class Camera:
             raise InputError(f"K must have fx > 0 and fy > 0, got fx={float(K[0, 0])!r}, fy={float(K[1, 1])!r}")
         if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
             raise InputError(f"K must be upper triangular with bottom row [0, 0, 1], got {K.tolist()}")
+        _check_k_scale(K, max(self.width, self.height))
         if self.dist is None:
             dist = np.zeros(0)
         else:

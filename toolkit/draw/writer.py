@@ -20,7 +20,7 @@ import os
 from pathlib import Path
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.files import atomic_write, check_writable, staging_folder
+from pencilcal.toolkit.io.files import atomic_write, check_writable, put_in_place, staging_folder
 
 __all__ = ["OverlayWriter", "VIDEO_SUFFIXES"]
 
@@ -92,9 +92,27 @@ class OverlayWriter:
             self._video = None
             try:
                 if ok:
-                    os.replace(self._tmp, self.path)
+                    self._check_whole()
+                    put_in_place(self._tmp, self.path, force=self.force)
             finally:
                 shutil.rmtree(self._tmp.parent, ignore_errors=True)
+
+    def _check_whole(self):
+        """InputError unless the finished video holds every frame written: OpenCV's writer
+        drops frames without a word when the disk fills up."""
+        import cv2
+
+        cap = cv2.VideoCapture(str(self._tmp))
+        try:
+            held = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
+        finally:
+            cap.release()
+        if held != self.frames:
+            st = os.statvfs(self._tmp.parent)
+            why = "no space left on device (the disk is full)" if st.f_bavail * st.f_frsize < (1 << 20) else \
+                "OpenCV's video writer failed"
+            raise InputError(f"{self.path}: cannot write: {why}: the video holds {held} of the {self.frames} frames; "
+                             + ("the earlier one is kept" if self.path.exists() else "nothing was written"))
 
     def __exit__(self, exc_type, exc, tb):
         self.close(ok=exc_type is None)

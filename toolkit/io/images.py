@@ -19,7 +19,7 @@ Example
 -------
 >>> import tempfile, os, numpy as np, cv2
 >>> d = tempfile.mkdtemp()
->>> _ = cv2.imwrite(os.path.join(d, "b.png"), np.zeros((4, 6), np.uint8))
+>>> _ = cv2.imwrite(os.path.join(d, "b.png"), np.zeros((16, 24), np.uint8))
 >>> _ = open(os.path.join(d, "a.png"), "wb").write(b"\\x89PNG broken")
 >>> src = open_images(d)
 >>> [(f.name, f.image is None, f.error is not None) for f in src]
@@ -28,10 +28,12 @@ Example
 from __future__ import annotations
 
 import contextlib
+import errno
 import glob as _glob
 import os
 import queue
 import re
+import stat
 import sys
 import threading
 import warnings
@@ -43,7 +45,8 @@ import numpy as np
 from pencilcal.toolkit.errors import InputError
 
 __all__ = ["Frame", "ImageSource", "read_ahead", "prefetched", "open_images", "decode_image", "IMAGE_EXTENSIONS",
-           "VIDEO_EXTENSIONS", "DEFAULT_MAX_PIXELS", "check_image_size", "quiet_c_stderr"]
+           "VIDEO_EXTENSIONS", "DEFAULT_MAX_PIXELS", "MIN_SIDE_PX", "MAX_BYTES_PER_PIXEL", "check_image_size", "quiet_c_stderr",
+           "frame_size_error"]
 
 # FFmpeg (OpenCV's video backend) logs its complaints about corrupt frames on stderr; pencilcal
 # reports an undecodable frame in one line itself. Its own log level, read when OpenCV starts
@@ -97,6 +100,27 @@ def _natural_key(s):
 # Frames larger than this are refused before they are decoded (a 1 kB PNG can claim
 # 100000 x 100000 pixels): 8K video is 33 MP. Raise it with `max_pixels`.
 DEFAULT_MAX_PIXELS = 100_000_000
+#: An image file larger than this many bytes a pixel of `max_pixels` is refused before it is
+#: read (16: four 32-bit float channels, uncompressed; real files are far smaller).
+MAX_BYTES_PER_PIXEL = 16
+#: Frames with a side under this many pixels are refused: too small for any detector (a
+#: printed bar is 2.5 px to 1/8 of the image; a 1x1 frame divided by empty slices).
+MIN_SIDE_PX = 16
+
+
+def frame_size_error(image, max_pixels=DEFAULT_MAX_PIXELS):
+    """Why a decoded frame is refused for its size (more than `max_pixels`, or a side under
+    MIN_SIDE_PX), or None.
+
+    >>> frame_size_error(np.zeros((1, 1), np.uint8))
+    'the image is 1x1 pixels, under the minimum of 16 a side'
+    """
+    h, w = image.shape[:2]
+    if h * w > max_pixels:
+        return f"the frame has over {max_pixels:,} pixels (--max-pixels raises it)"
+    if min(h, w) < MIN_SIDE_PX:
+        return f"the image is {w}x{h} pixels, under the minimum of {MIN_SIDE_PX} a side"
+    return None
 
 
 def read_ahead(frames, k):
@@ -164,6 +188,15 @@ def prefetched(make_iter, depth=PREFETCH_FRAMES):
         worker.join(timeout=5.0)
 
 
+def _reason(e):
+    """An OSError's reason in words, a symlink to nowhere or in a loop named as such."""
+    if e.errno == errno.ELOOP:
+        return "a symbolic link in a loop"
+    if e.errno == errno.ENOENT:
+        return "a symbolic link to nothing"
+    return (e.strerror or str(e)).lower()
+
+
 class ImageSource:
     """An ordered, re-iterable sequence of frames from IMAGES: one or more image files,
     folders and glob patterns, taken in the order given, or one video file.
@@ -210,7 +243,13 @@ class ImageSource:
         IMAGES argument."""
         p = Path(spec)
         if p.is_dir():
-            files = [q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_EXTENSIONS]
+            # every entry named as an image is a frame, even one that cannot be read (a
+            # symlink loop or to nowhere, no permission): it is reported when decoded
+            # (ok: false with the reason), never silently left out
+            try:
+                files = [q for q in p.iterdir() if q.suffix.lower() in IMAGE_EXTENSIONS and not q.is_dir()]
+            except OSError as e:
+                raise InputError(f"{p}: cannot list this folder ({_reason(e)})") from None
             if not files:
                 raise InputError(f"{p}: no images in this folder (looked for {', '.join(sorted(IMAGE_EXTENSIONS))})")
             return "images", sorted(files, key=lambda q: _natural_key(q.name))
@@ -230,7 +269,9 @@ class ImageSource:
                 first = ok and cap.read()[0]
                 cap.release()
             if not ok:
-                raise InputError(f"{p}: cannot open this video")
+                hint = (" (an MP4 or MOV cut short has no index: was the recording stopped before it was finished?)"
+                        if p.suffix.lower() in (".mp4", ".mov", ".m4v") else "")
+                raise InputError(f"{p}: cannot open this video{hint}")
             if not first and n <= 0:
                 raise InputError(f"{p}: the video holds no frames")
             return "video", [p], max(n, 0), (fps if 0 < fps < 1000 else None)
@@ -244,6 +285,11 @@ class ImageSource:
             return "images", sorted(files, key=lambda q: _natural_key(str(q)))
         if p.exists():
             raise InputError(f"{p}: not a folder of images, an image or a video ({p.suffix or 'no extension'})")
+        try:
+            os.stat(p)
+        except OSError as e:
+            if e.errno != errno.ENOENT or p.is_symlink():
+                raise InputError(f"{p}: cannot read ({_reason(e)})") from None
         raise InputError(f"{p}: no such file or folder")
 
     @property
@@ -302,25 +348,28 @@ class ImageSource:
 
         cap = cv2.VideoCapture(str(self.paths[0]))
         try:
-            i = 0
-            misses = 0
-            n = self._video_count
+            i, n, missed = 0, self._video_count, []
             while True:
                 ok, img = cap.read()
                 if not ok or img is None:
-                    # a corrupt frame inside the stream: report it and try the next; stop
-                    # at the end (or after many misses in a row)
-                    if n and i < n and misses < 25:
-                        yield Frame(f"frame_{i:06d}", i, None, "cannot decode this video frame")
+                    # a corrupt frame inside the stream, or its end: which, the next frames say
+                    if n and i < n and len(missed) < 25:
+                        missed.append(i)
                         i += 1
-                        misses += 1
                         continue
                     break
-                misses = 0
+                for k in missed:  # frames in the middle that did not decode
+                    yield Frame(f"frame_{k:06d}", k, None, "cannot decode this video frame")
+                missed = []
                 if self.gray and img.ndim == 3:
                     img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-                yield Frame(f"frame_{i:06d}", i, img, None, str(self.paths[0]))
+                err = frame_size_error(img, self.max_pixels)
+                yield Frame(f"frame_{i:06d}", i, None if err else img, err, str(self.paths[0]))
                 i += 1
+            if missed:  # nothing decoded after them: the file ends early, said once
+                k = missed[0]
+                yield Frame(f"frame_{k:06d}", k, None, f"the video ends here, after {k} of the {n} frames its "
+                                                       "header announces (cut short?)")
         finally:
             cap.release()
 
@@ -339,15 +388,15 @@ def _header_size(data):
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # judged below, by our limit
             with Image.open(io.BytesIO(data)) as im:
                 return im.size
-    except Image.DecompressionBombError:
-        # Pillow refuses to open over twice its own limit; all that is known is "more"
-        n = 2 * int(Image.MAX_IMAGE_PIXELS or 0) + 1
-        return (n, 1)
+    except Image.DecompressionBombError as e:
+        # Pillow refuses to open over twice its own limit, saying the pixel count it read
+        said = re.search(r"\((\d+) pixels\)", str(e))
+        return (int(said.group(1)), 1) if said else (2 * int(Image.MAX_IMAGE_PIXELS or 0) + 1, 1)
     except Exception:  # noqa: BLE001 - any reason Pillow cannot identify it: let OpenCV try
         return None
 
 
-def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
+def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS, min_side=MIN_SIDE_PX):
     """Decode one image file: (image, None) or (None, why).
 
     The one image decoder of pencilcal: every command reads its images through it, so a
@@ -356,21 +405,34 @@ def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
     8-bit channel). The EXIF orientation of a JPEG is applied, as OpenCV's imread does by
     default, so a camera calibrated from phone pictures fits the same pictures in every
     command. A header that claims more than `max_pixels` pixels is refused before any
-    pixel is decoded.
+    pixel is decoded, and a frame with a side under `min_side` (MIN_SIDE_PX; a mask file,
+    which is not a frame, passes 1) is refused after.
     """
     import cv2
 
     try:
+        st = os.stat(path)
+        if not stat.S_ISREG(st.st_mode):  # a pipe would block the read for ever, a device never end
+            return None, "not a regular file (a pipe, a device or a socket)"
+        with open(path, "rb") as f:
+            head = f.read(1 << 20)
+        if not head:
+            return None, "empty file"
+        size = _header_size(head)
+        if size is not None and size[0] * size[1] > max_pixels:
+            claim = f"{size[0]}x{size[1]}" if size[1] > 1 else f"{size[0]:,}"
+            return None, (f"the image claims {claim} pixels, over the limit of {max_pixels:,} "
+                          "(--max-pixels raises it)")
+        limit = MAX_BYTES_PER_PIXEL * max_pixels
+        if st.st_size > limit:
+            return None, (f"the file is {st.st_size:,} bytes, over the limit of {limit:,} ({MAX_BYTES_PER_PIXEL} "
+                          "bytes a pixel of --max-pixels)")
         data = np.fromfile(str(path), dtype=np.uint8)
     except OSError as e:
-        return None, f"cannot read: {e.strerror}"
+        gone = e.errno == errno.ENOENT and not os.path.islink(path)
+        return None, f"cannot read: {'the file is gone (removed during the run?)' if gone else _reason(e)}"
     if data.size == 0:
         return None, "empty file"
-    size = _header_size(data.tobytes()[:1 << 20] if data.size > (1 << 20) else data.tobytes())
-    if size is not None and size[0] * size[1] > max_pixels:
-        claim = f"{size[0]}x{size[1]}" if size[1] > 1 else f"over {size[0] - 1:,}"
-        return None, (f"the image claims {claim} pixels, over the limit of {max_pixels:,} "
-                      "(--max-pixels raises it)")
     # ANYDEPTH | ANYCOLOR: as stored, like IMREAD_UNCHANGED, but with the EXIF orientation
     # applied (IMREAD_UNCHANGED ignores it; IMREAD_GRAYSCALE applies it)
     flags = cv2.IMREAD_GRAYSCALE if gray else (cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
@@ -381,6 +443,8 @@ def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
         return None, f"cannot decode the image: {str(e).strip().splitlines()[-1]}"
     if img is None:
         return None, "cannot decode the image (corrupt or truncated)"
+    if min(img.shape[:2]) < min_side:
+        return None, frame_size_error(img, max_pixels)
     if img.ndim == 3 and img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
     return img, None

@@ -17,12 +17,14 @@ Example
 """
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import sys
 from pathlib import Path
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.files import check_writable, to_jsonable
+from pencilcal.toolkit.io.files import check_writable, to_jsonable, write_error
 
 __all__ = ["JsonlWriter", "open_jsonl"]
 
@@ -72,14 +74,47 @@ class JsonlWriter:
         return False
 
 
+class _LineFile:
+    """A file written one whole line at a time: a line that cannot be written in full (a
+    full disk) is cut off again, so the file always ends with a complete line, and the
+    error names the file and how many lines it holds."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+        self.size, self.lines = 0, 0
+
+    def write(self, text):
+        data = text.encode("utf-8", "surrogateescape")
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(self.fd, view):]
+        except OSError as e:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self.fd, self.size)
+            err = write_error([self.path], e)
+            raise InputError(f"{str(err).split('; ')[0]}; it holds the first {self.lines} frames, each line whole") \
+                from None
+        self.size += len(data)
+        self.lines += 1
+
+    def flush(self):
+        pass  # every line went to the file whole, at once
+
+    def close(self):
+        os.close(self.fd)
+
+
 def open_jsonl(path, force=False):
     """A JsonlWriter on `path` ("-": standard output). An existing file is replaced only
-    with `force`."""
+    with `force`, when the run starts: the file is a stream, written as frames are done
+    (and kept as far as it got when a run fails or is stopped, each line whole)."""
     if str(path) == "-":
         return JsonlWriter(sys.stdout)
     p = Path(path)
     check_writable(p, force)
     try:
-        return JsonlWriter(open(p, "w", encoding="utf-8", buffering=1), close=True)
+        return JsonlWriter(_LineFile(p), close=True)
     except OSError as e:
-        raise InputError(f"{p}: cannot write: {e.strerror}") from None
+        raise write_error([p], e) from None

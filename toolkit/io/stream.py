@@ -46,16 +46,17 @@ import time
 from pathlib import Path
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.images import DEFAULT_MAX_PIXELS, Frame, quiet_c_stderr, read_ahead
+from pencilcal.toolkit.io.images import DEFAULT_MAX_PIXELS, Frame, frame_size_error, quiet_c_stderr, read_ahead
 
-__all__ = ["StreamSource", "open_stream", "is_stream_spec", "FOLLOW_IDLE_S", "LIVE_BUFFER"]
+__all__ = ["StreamSource", "open_stream", "is_stream_spec", "FOLLOW_IDLE_S", "LIVE_BUFFER", "LIVE_SILENCE_S"]
 
 #: Follow mode ends when the file has not grown for this long [s].
 FOLLOW_IDLE_S = 5.0
 #: Live mode keeps at most this many frames waiting; an older one is dropped for a newer.
 LIVE_BUFFER = 2
-# a live source that delivers nothing for this long has ended [s]
-_LIVE_SILENCE_S = 10.0
+#: A live source that delivers nothing for this long has ended [s]: the run ends with the
+#: frames read (a warning says so).
+LIVE_SILENCE_S = 10.0
 _POLL_S = 0.05
 
 
@@ -95,6 +96,7 @@ class StreamSource:
         self.dropped = 0
         self.fps = None
         self.interrupted = False
+        self.stalled = False  # a live source that sent nothing for LIVE_SILENCE_S: the stream ended there
         self._stop = threading.Event()
         self._head = []
         if self.mode == "follow" and not Path(self.spec).is_file():
@@ -148,9 +150,8 @@ class StreamSource:
             for image, index in frames:
                 if self.gray and image.ndim == 3:
                     image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-                err = None
-                if image.shape[0] * image.shape[1] > self.max_pixels:
-                    image, err = None, f"the frame has over {self.max_pixels:,} pixels (--max-pixels raises it)"
+                err = frame_size_error(image, self.max_pixels)
+                image = None if err else image
                 self.read += 1
                 yield Frame(f"frame_{index:06d}", index, image, err, None)
                 if self._stop.is_set():
@@ -211,7 +212,7 @@ class StreamSource:
                 while not self._stop.is_set():
                     ok, img = cap.read()
                     if not ok or img is None:
-                        if not cap.isOpened() or time.monotonic() - last > _LIVE_SILENCE_S or not self.spec.isdigit():
+                        if not cap.isOpened() or time.monotonic() - last > LIVE_SILENCE_S or not self.spec.isdigit():
                             break
                         time.sleep(_POLL_S)
                         continue
@@ -233,17 +234,22 @@ class StreamSource:
 
         thread = threading.Thread(target=reader, name="pencilcal-stream", daemon=True)
         thread.start()
+        last = time.monotonic()
         try:
             while True:
                 with lock:
                     while not waiting and not state["end"] and not self._stop.is_set():
                         lock.wait(_POLL_S)
+                        if time.monotonic() - last > LIVE_SILENCE_S:  # a source that stopped sending
+                            self.stalled = True
+                            self._stop.set()
                     if waiting:
                         item = waiting.popleft()
                     elif state["end"] or self._stop.is_set():
                         break
                     else:
                         continue
+                last = time.monotonic()
                 yield item
             if state["error"] is not None:
                 raise InputError(f"{self.spec}: reading the stream failed: {state['error']}")
@@ -255,8 +261,12 @@ class StreamSource:
 def _capture(target):
     import cv2
 
+    # a network source that stops sending ends a read after the silence (FFmpeg's own
+    # default waits 30 s)
+    ms = int(LIVE_SILENCE_S * 1000)
+    timeouts = [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms, cv2.CAP_PROP_READ_TIMEOUT_MSEC, ms]
     with quiet_c_stderr():
-        return cv2.VideoCapture(target)
+        return cv2.VideoCapture(target, cv2.CAP_ANY, timeouts) if isinstance(target, str) else cv2.VideoCapture(target)
 
 
 def _fps(cap):

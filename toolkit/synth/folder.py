@@ -41,10 +41,10 @@ def check_sequence_output(out, force=False):
     """InputError before any work if the folder `out` cannot (or must not) be written: its
     parent is missing, it is a file, or it holds anything but an earlier sequence (that
     one only with `force`)."""
+    from pencilcal.toolkit.io.files import check_folder_writable
+
     out = Path(out)
-    parent = out.parent if str(out.parent) else Path(".")
-    if not parent.is_dir():
-        raise InputError(f"{out}: folder {parent} does not exist")
+    check_folder_writable(out)
     if out.exists() or out.is_symlink():
         if not out.is_dir() or out.is_symlink():
             raise InputError(f"{out}: exists and is not a folder")
@@ -84,8 +84,10 @@ def write_sequence(out, scenario, *, noise=None, blur_px=None, lighting=None, ga
         for i in (progress(frames) if progress else frames):
             img = scenario.render(i, color=color, background=bg, **settings)
             path = tmp / "images" / scenario.frames[i]["image"]
-            if not cv2.imwrite(str(path), img):
-                raise InputError(f"{path}: cannot write the image")
+            ok, buf = cv2.imencode(path.suffix, img)
+            if not ok:
+                raise InputError(f"{path}: cannot encode the image")
+            path.write_bytes(buf.tobytes())  # an OSError (a full disk) names the output folder: atomic_folder
         write_camera(tmp / "camera.json", scenario.camera)
         write_camera(tmp / "camera.yaml", scenario.camera)
         write_board(tmp / "board.yaml", scenario.sheet.board)

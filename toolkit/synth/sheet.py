@@ -303,6 +303,12 @@ def layout_sheet(board=None, *, paper="a4", orientation="landscape", margin=10.0
         raise InputError(f"radius must be [inner, outer] with 0 <= inner < outer, got {list(radius)}")
     if not width > 0:
         raise InputError(f"the bar width must be positive, got {width}")
+    # no larger fan fits; said before the layout's arithmetic, which overflows past 1e150 mm
+    page = max(PAPER_SIZES[paper])
+    for what, v in (("outer radius", r[1]), ("bar width", width)):
+        if v > page:
+            raise InputError(f"the fan's {what} of {float(v):g} mm is larger than {paper} paper ({page:g} mm): it "
+                             "cannot fit")
     if angles_deg is None:
         if int(spokes) < 3:
             raise InputError(f"a pencil needs at least three spokes, got {spokes}")

@@ -709,7 +709,7 @@ def read_mask_file(path, shape):
         raise InputError(f"{p}: no such mask file")
     if os.path.splitext(p)[1].lower() in (".json", ".yaml", ".yml"):
         return _region_file(p, h, w)
-    img, err = decode_image(p)
+    img, err = decode_image(p, min_side=1)  # a mask of the wrong size is said below, with both sizes
     if img is None:
         raise InputError(f"{p}: not a readable mask image nor a .json/.yaml region ({err})")
     if img.shape[:2] != (h, w):
