@@ -101,8 +101,9 @@ def fig_difference(cv_map, size):
     inside = np.r_[d[covered & np.isfinite(d)], p[covered & np.isfinite(p)]]
     vmax = 2.0 * float(inside.max()) if inside.size else float(np.nanmax(d))
     step = cv_map["step_px"]
-    fig = new_figure(figsize=(12.0, 6.0 * size[1] / size[0] + 1.0))
-    axes = fig.subplots(1, 2)
+    # one above the other: each as wide as the page allows at 900 px
+    fig = new_figure(figsize=(7.2, 2.0 * 6.0 * size[1] / size[0] + 1.6))
+    axes = fig.subplots(2, 1)
     for ax, values, title in ((axes[0], d, "odd - even views: |difference|"),
                               (axes[1], p, "predicted RMS difference (both halves' sigmas)")):
         ax.set_xlim(-0.5, size[0] - 0.5)
@@ -115,9 +116,9 @@ def fig_difference(cv_map, size):
         ax.set_title(title, fontsize=10)
     fig.colorbar(im, ax=list(axes), extend="max", shrink=0.85, label="projection difference [px]")
     return Plot(png_bytes(fig),
-                "Cross-validation: the odd and the even views calibrated apart. Left, how far apart the two put each "
+                "Cross-validation: the odd and the even views calibrated apart. Top, how far apart the two put each "
                 "pixel's ray [px], after the rotation that best aligns them over the covered region (white dashed); "
-                f"right, the RMS difference the two calibrations' sigmas predict [px]. Colours stop at {vmax:.3g} px.",
+                f"bottom, the RMS difference the two calibrations' sigmas predict [px]. Colours stop at {vmax:.3g} px.",
                 "map of the projection difference between the two halves")
 
 
