@@ -1,6 +1,8 @@
 """`pencilcal orient`: angular-variation orientation per frame."""
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import click
 
@@ -87,25 +89,28 @@ def _orient_image_task(frame, ctx):
             return fr, _orient_record(camera, pencil, fr, opts)
 
         fr, rec = detected() if tracker is None else _tracked_bars_frame(detected, tracker, state)
-    return rec, _drawn(frame, rec, fr["segments"], camera) if drawing else None
+    # drawn by the overlay's own thread (`FrameOutputs`), or in the worker process
+    return rec, partial(_drawn, frame, rec, fr["segments"], camera) if drawing else None
 
 
 def _tracked_bars_frame(detected, tracker, state):
-    """A frame whose bars the tracker found from the previous frame's (`bar_track`): kept
-    when its orientation is ok and uses as many spokes as the last full detection, less one;
-    else detected in full and fitted again (the orientation's own tracking state as before
-    the tracked try). Returns (lines record, orientation)."""
+    """A frame whose bars the tracker found where it predicted them (`bar_track`): kept
+    when its orientation is ok and uses as many spokes as the last detection, less one,
+    and four at least where that had four or more (three lines fit any orientation: a
+    wrong bar among them would pass unseen); else detected in the region around the
+    prediction, then in the whole frame, and fitted again each time (the orientation's own
+    tracking state as before the first try). Returns (lines record, orientation)."""
     before = dict(state)
-    fr, rec = detected()
-    need = max(3, (tracker.full_used or 3) - 1)
-    if tracker.last_tracked and not (rec.ok and rec.lines_used >= need):
-        tracker.lost()
-        state.update(previous=before["previous"], tracked=before["tracked"])
+    while True:
         fr, rec = detected()
-    if rec.ok:
+        used = tracker.full_used or 3
+        need = max(min(used, 4), used - 1, 3)
+        good = rec.ok and (tracker.last_mode == "full" or rec.lines_used >= need)
+        if good or not tracker.lost():
+            break
+        state.update(previous=before["previous"], tracked=before["tracked"])
+    if good:
         tracker.keep(np.asarray(rec.spokes) >= 0, used=rec.lines_used)
-    else:
-        tracker.lost()
     return fr, rec
 
 

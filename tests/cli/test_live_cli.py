@@ -239,8 +239,10 @@ def test_tracked_bars_measure_as_well_as_a_full_detection(gentle_sweep, tmp_path
         assert a["ok"] == b["ok"]
         if not b["ok"]:
             continue
-        _within(a, b, 2.5)
         assert a["lines_used"] >= b["lines_used"] - 1
+        if b["normal_ambiguous"]:  # the full run's labels are open (three spokes at 73 deg)
+            continue
+        _within(a, b, 2.5)
         if t["tilt_deg"] < 70:  # beyond, three or four spokes are left
             z["tracked"].append((a["tilt_deg"] - t["tilt_deg"]) / a["tilt_sigma_deg"])
             z["full"].append((b["tilt_deg"] - t["tilt_deg"]) / b["tilt_sigma_deg"])
