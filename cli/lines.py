@@ -1,6 +1,8 @@
 """`pencilcal lines`: line segments per frame, with angle uncertainty (lines.json)."""
 from __future__ import annotations
 
+from functools import partial
+
 import click
 import numpy as np
 
@@ -31,19 +33,20 @@ def with_axis(camera, shaft, diameter):
 def _lines_task(frame, ctx):
     """One frame's lines.json record, and the frame drawn with them when the overlay is
     asked for (module level: runs in worker processes too)."""
-    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma = ctx
+    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, tracker = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
     rec = lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
-                       valid_region=region, gamma=gamma)
+                       valid_region=region, gamma=gamma, shaft_tracker=tracker)
     if diameter is not None:
         rec["shafts"] = [with_axis(camera, s, diameter) for s in rec.get("shafts") or []]
     if not drawing:
         return rec, None
     from pencilcal.toolkit.draw.overlay import draw_frame
 
-    return rec, draw_frame(frame.image, segments=rec["segments"], shafts=rec.get("shafts"), text=[frame.name])
+    # drawn by the overlay's own thread (`FrameOutputs`), or in the worker process
+    return rec, partial(draw_frame, frame.image, segments=rec["segments"], shafts=rec.get("shafts"), text=[frame.name])
 
 
 def _summary(records):
@@ -74,6 +77,8 @@ def _summary(records):
               help="Also instrument shafts: their midlines, widths and sigmas.")
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
               help="With --shaft: their diameter [mm]; each shaft's 3-D axis too.")
+@click.option("--track/--no-track", default=True, show_default=True,
+              help="With --shaft: find them where the previous frame had them.")
 @gamma_option
 @click.option("--min-length", type=FiniteFloat(), default=None,
               help="Shortest segment written [px]; default 20 (bars: 1/30 of the image).")
@@ -85,8 +90,8 @@ def _summary(records):
 @force_option
 @quiet_option
 @run
-def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, shaft, shaft_diameter, gamma,
-          min_length,
+def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, shaft, shaft_diameter, track,
+          gamma, min_length,
           mask_path, jsonl_path, overlay_path, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel precision, with angle uncertainty.
 
@@ -119,7 +124,9 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     edge is a segment (a bar gives two).
 
     --shaft also finds instrument shafts (pairs of long converging edges) and writes them
-    as `shafts`: midline (image of the axis), width_px, angle_sigma_deg, edge_cov. With
+    as `shafts`: midline (image of the axis), width_px, angle_sigma_deg, edge_cov. From
+    frame to frame (--track, with --workers 1) each is looked for where the previous frames
+    predict it, as `pencilcal fulcrum --track` does; `frames_tracked` says how often. With
     --shaft-diameter D (e.g. 8 for an 8 mm instrument) each shaft also gets its 3-D axis
     from the two silhouette edges (the band's width fixes the depth): axis_point (the axis
     point closest to the camera centre), axis_direction (unit, away from the camera),
@@ -153,8 +160,14 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     check_output(output, force, [*source.paths, camera_path, mask_path])
     region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     records = []
+    tracker = None
+    if shaft and track and workers == 1:
+        from pencilcal.toolkit.detect.shaft.detector import ShaftTracker
+
+        tracker = ShaftTracker(gamma=gamma)
     with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
-        ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma)
+        ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma,
+               tracker)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
@@ -166,5 +179,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         meta["shaft_diameter"] = shaft_diameter
     if shaft:
         meta["gamma"] = gamma
+    if tracker is not None:
+        meta["frames_tracked"] = tracker.tracked
     write_lines(output, records, force=force, meta=meta, valid_region=None if region is None else region.to_dict())
     done(_summary(records), output, quiet=quiet)

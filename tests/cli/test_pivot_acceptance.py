@@ -70,3 +70,25 @@ def test_tracking_stays_within_the_sigmas_of_a_full_run(tmp_path):
             assert _angle_deg(np.r_[ua, 0.0], np.r_[ub, 0.0]) <= 0.5 * sb["angle_sigma_deg"]
             c = mb.mean(0) - ma[0]
             assert abs(ua[0] * c[1] - ua[1] * c[0]) <= 0.5 * sb["offset_sigma_px"]
+
+
+def test_lines_shaft_tracks_as_fulcrum_does(tmp_path):
+    """`pencilcal lines --shaft` on a sequence tracks the shafts by default (frames_tracked),
+    the same midlines as --no-track within half their sigmas."""
+    out = tmp_path / "pivot"
+    r = CliRunner().invoke(cli, ["simulate", str(out), "--scenario", "pivot", "--frames", "8", "--size", "960x540",
+                                 "-q"])
+    assert r.exit_code == 0, r.output
+    got = {}
+    for flag in ("--track", "--no-track"):
+        r = CliRunner().invoke(cli, ["lines", str(out / "images"), "--camera", str(out / "camera.json"), "--shaft", flag,
+                                     "-o", str(tmp_path / f"l{flag}.json"), "-q"])
+        assert r.exit_code == 0, r.output
+        got[flag] = json.loads((tmp_path / f"l{flag}.json").read_text())
+    assert got["--track"]["frames_tracked"] >= 6 and "frames_tracked" not in got["--no-track"]
+    for a, b in zip(got["--track"]["frames"], got["--no-track"]["frames"]):
+        assert len(a["shafts"]) == len(b["shafts"]) == 1
+        ma, mb = (np.asarray(f["shafts"][0]["midline"]).reshape(2, 2) for f in (a, b))
+        ua = (ma[1] - ma[0]) / np.linalg.norm(ma[1] - ma[0])
+        ub = (mb[1] - mb[0]) / np.linalg.norm(mb[1] - mb[0])
+        assert _angle_deg(np.r_[ua, 0.0], np.r_[ub, 0.0]) <= 0.5 * b["shafts"][0]["angle_sigma_deg"]

@@ -742,7 +742,7 @@ def find_bars(image, detector="auto", *, polarity="dark", prior=None, prior_sear
         model predicts them (`bar_track.BarTracker`), the same camera, found with the same
         polarity, which must then be "dark" or "light": instead of proposing lines over the
         whole frame, each edge is looked for within `prior_search` of it (its own polarity
-        only; a coarse pass with stations `_TRACK_STATIONS` along it), then refitted,
+        only; a coarse pass with `_TRACK_STATIONS` stations along it), then refitted,
         paired and measured exactly as a full detection's candidates are. Bars further off,
         and bars new in the frame, are not found: the caller falls back on a detection.
     prior_search : float or (M,) [px], optional

@@ -62,7 +62,7 @@ def fan_line_options(pencil_width, edges=False):
 
 def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None,
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
-                       gamma=DEFAULT_GAMMA, bar_tracker=None):
+                       gamma=DEFAULT_GAMMA, bar_tracker=None, shaft_tracker=None):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -96,6 +96,9 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
     bar_tracker : bar_track.BarTracker, optional
         With `bars`, frames in order: the bars found by it (the previous frame's bars as
         this frame's proposals where it has them) instead of a full detection.
+    shaft_tracker : shaft.detector.ShaftTracker, optional
+        With `shaft`, frames in order: the shafts found by it (where the previous frame's
+        were) instead of a full detection.
     """
     if min_length is None:
         min_length = default_min_length(np.shape(image), bars)
@@ -111,21 +114,25 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         angle_sigma_deg=np.degrees(segs.angle_sigma),
         offset_sigma_px=segs.offset_sigma,
         width_px=segs.width_px if bars else None,
-        shafts=_shafts(image, camera, valid_region, gamma) if shaft else None,
+        shafts=_shafts(image, camera, valid_region, gamma, shaft_tracker) if shaft else None,
     )
 
 
-def _shafts(image, camera, valid_region, gamma):
+def _shafts(image, camera, valid_region, gamma, tracker=None):
     """The shaft records of one image (`shaft.detector.detect_shafts`, imported only when asked for:
-    a fan's orientation does not need the shaft detector's modules)."""
+    a fan's orientation does not need the shaft detector's modules), or those a tracker
+    found (its own options)."""
+    if tracker is not None:
+        return [s.to_dict() for s in tracker(image, camera, valid_region=valid_region)]
     from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 
     return [s.to_dict() for s in detect_shafts(image, camera, valid_region=valid_region, gamma=gamma)]
 
 
 def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None, bar_width=None,
-                 proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA, bar_tracker=None):
+                 proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA, bar_tracker=None,
+                 shaft_tracker=None):
     """One lines.json frame record from one decoded image: ``detect_frame_lines(...).to_dict()``
     (the same arguments)."""
     return detect_frame_lines(name, image, camera, detector, bars, shaft, min_length, bar_width,
-                              proposal_scale, valid_region, bar_polarity, gamma, bar_tracker).to_dict()
+                              proposal_scale, valid_region, bar_polarity, gamma, bar_tracker, shaft_tracker).to_dict()

@@ -173,13 +173,15 @@ class Scenario:
     def __len__(self):
         return len(self.frames)
 
-    def render(self, i, *, noise=None, blur_px=None, lighting=None, gamma=None, color=False, background=None):
+    def render(self, i, *, noise=None, blur_px=None, lighting=None, gamma=None, color=False, background=None,
+               scene=None):
         """Image of frame i, uint8 (H, W) or (H, W, 3) with ``color``.
 
         Unset options take `RENDER_DEFAULTS` (noise 2 grey levels, blur 0.6 px, lighting
         0.25, gamma 2.2). The noise and lighting of frame i are seeded by (seed, i), so a
         frame renders identically whatever the order. ``background`` overrides the
-        scenario's backdrop ("plain", a grey level, or a Backdrop).
+        scenario's backdrop ("plain", a grey level, or a Backdrop). ``scene``: the frame's
+        `render.render_scene`, when the sequence shares one (a fixed camera: pivot).
         """
         fr = self.frames[i]
         d = dict(RENDER_DEFAULTS)
@@ -190,7 +192,7 @@ class Scenario:
         return render_frame(self.camera, fr["R_cam_from_target"], fr["t_cam_from_target"], self.sheet,
                             instrument=None if self.instruments is None else self.instruments[i],
                             background=self.backdrop if background is None else background,
-                            color=color, rng=rng, **d)
+                            color=color, rng=rng, scene=scene, **d)
 
     def truth(self, render=None):
         """The truth file's content (JSON-ready: lists and floats)."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pencilcal.toolkit.detect.bar_track import MIN_SEARCH_PX, MOTION_PRIOR_PX, BarTracker, EdgeMotion, region_of
+from pencilcal.toolkit.detect.bar_track import BarTracker, region_of
 from pencilcal.toolkit.detect.bars import find_bars
 from pencilcal.toolkit.errors import InputError
 
@@ -108,36 +108,6 @@ def test_the_region_proposes_in_part_of_the_frame_and_measures_alike(sweep):
     assert len(spokes) == 8 and np.all(dist < 0.05) and np.all(z < 2.5) and np.sqrt(np.mean(z**2)) < 1.0
     # nothing in a corner of the frame
     assert len(find_bars(frames[1], camera=camera, polarity="dark", roi=(0, 0, 200, 150))[0]) == 0
-
-
-def _moving(edges, v, k):
-    """Bars' edges (M, 2, 4) moved by k times the velocity v (2,) [px a frame]."""
-    return edges + k * np.tile(v, 2)
-
-
-def test_the_motion_model_predicts_a_constant_velocity_and_learns_its_noise():
-    e = np.array([[[0.0, 0, 100, 0], [100, 4, 0, 4]], [[0, 50, 100, 60], [100, 64, 0, 54]]])
-    m = EdgeMotion()
-    m.update(e)
-    pred, search = m.search()
-    # velocity unknown: searched as far as a hand-held target moves between two frames
-    assert np.array_equal(pred, e) and np.all(search >= MOTION_PRIOR_PX)
-    rng = np.random.default_rng(0)
-    v = np.array([7.0, -3.0])
-    for k in range(1, 12):
-        m.update(_moving(e, v, k) + rng.normal(0, 0.3, e.shape))
-    pred, search = m.search()
-    assert np.abs(pred - _moving(e, v, 12)).max() < 2.0
-    # the innovations (~1 px: the noise of three positions) make the search narrow
-    assert np.sqrt(m.q) < 1.5 and np.all(search <= 4.0)
-    # a jolt widens it
-    m.update(_moving(e, v, 12) + 6.0)
-    assert np.all(m.search()[1] >= 8.0)
-    # a frame without the bars: the next prediction is two frames ahead, twice as uncertain
-    sd1 = m.predict()[1]
-    m.missed()
-    pred2, sd2 = m.predict()
-    assert np.allclose(sd2, 2 * sd1) and np.allclose(pred2, m.edges + 2 * m.velocity)
 
 
 def test_the_tracker_follows_a_hand_held_target_at_twice_the_issue_speed():
