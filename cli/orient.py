@@ -303,7 +303,9 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
                 records.append(rec)
                 live.emit(rec.to_dict())
     else:
-        source = open_input(images, source_spec, max_pixels)
+        # the lines are found on grey frames: decoded to grey in the decoding thread, unless
+        # the overlay draws on the colour frames
+        source = open_input(images, source_spec, max_pixels, gray=overlay_path is None)
         check_output(output, force, [*source.paths, mask_path])
         if opts["tracking"] is not None:
             from pencilcal.toolkit.detect.bar_track import BarTracker

@@ -263,7 +263,7 @@ def moving_shaft_frames(frames, seed=0, size=(1920, 1080), period=60):
     from pencilcal.toolkit.synth.render import render_scene
     from pencilcal.toolkit.synth.scenarios import make_scenario
 
-    fine = 8 * frames
+    fine = max(8 * frames, 720)  # the pivot angles fine enough that the sine stays smooth
     sc = make_scenario("pivot", frames=fine, seed=seed, size=size, fulcrum=(40.0, 320.0), port_view=150.0,
                        height=40.0, tilt_deg=30.0, angle_range_deg=(55.0, 125.0))
     f0 = sc.frames[0]

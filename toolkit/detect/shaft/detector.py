@@ -380,7 +380,7 @@ _DEFAULTS = {k: p.default for k, p in inspect.signature(detect_shafts).parameter
 
 
 def track_shafts(image, camera, previous, *, valid_region=None, prior=None, reach_px=None, widths=None, colours=None,
-                 **options):
+                 detect=True, **options):
     """This frame's shafts with the previous frame's as a prior: (shafts, tracked), tracked
     False where a full `detect_shafts` was run.
 
@@ -402,7 +402,8 @@ def track_shafts(image, camera, previous, *, valid_region=None, prior=None, reac
     previous frame's; `ShaftTracker` gives the last full detection's, so that no error
     builds up from frame to frame); colours (K,) the (inside, outside) colours of the
     instruments' bands (`shaft.track.band_colours`) a shaft found by its colour must keep
-    (default none). options: the keywords of `detect_shafts`.
+    (default none); detect: False returns ([], False) instead of the full detection.
+    options: the keywords of `detect_shafts`.
     """
     if not previous or any(s.ideal_edges is None for s in previous):
         return detect_shafts(image, camera, valid_region=valid_region, **options), False
@@ -430,7 +431,7 @@ def track_shafts(image, camera, previous, *, valid_region=None, prior=None, reac
             found += [s for s in _edge_shafts(bands_from_edges(img, camera, E, o, sig_n), camera, o, K)
                       if s is not None]
     if len(_instruments(found)) < len(prior):
-        return detect_shafts(image, camera, valid_region=valid_region, **options), False
+        return (detect_shafts(image, camera, valid_region=valid_region, **options) if detect else []), False
     return found, True
 
 
@@ -489,9 +490,10 @@ class ShaftTracker:
     """Shafts frame after frame (`track_shafts`): each frame's prior is the previous
     frame's instruments where a constant-velocity model of their edges predicts them
     (`detect.motion.EdgeMotion`, unsigned edges in undistorted px), each looked for within
-    its predicted uncertainty (before its velocity is known, within `shaft.track.REACH` of
-    the image diagonal); every `redetect_frames`-th frame gets a full detection whatever the
-    prior (a new instrument, one the corridors lost). Call it on the frames in order;
+    its predicted uncertainty (before its velocity is known, and where that fails for a
+    shaft of the edge cue, within `shaft.track.REACH` of the image diagonal around the
+    previous frame's, before a full detection); every `redetect_frames`-th frame gets a full detection whatever the prior
+    (a new instrument, one the corridors lost). Call it on the frames in order;
     ``tracked`` counts the frames tracked.
 
     options: the keywords of `detect_shafts` (valid_region aside, given per frame).
@@ -516,9 +518,15 @@ class ShaftTracker:
         prior = self.previous if self.since_full + 1 < self.redetect_frames else None
         pred, search = self.motion.search() if prior and len(self.motion) == len(_instruments(prior)) else (None, None)
         ref = pred is not None
-        found, tracked = track_shafts(image, camera, prior, valid_region=valid_region, prior=pred, reach_px=search,
-                                      widths=self.widths if ref else None, colours=self.colours if ref else None,
-                                      **self.options)
+        kw = dict(valid_region=valid_region, widths=self.widths if ref else None,
+                  colours=self.colours if ref else None, **self.options)
+        found, tracked = track_shafts(image, camera, prior, prior=pred, reach_px=search, detect=not ref, **kw)
+        if ref and not tracked:
+            # lost where predicted: in corridors around where it was, as far as it may move
+            # (the edge cue's band test judges what it finds there; a colour fit that far out
+            # may take the tissue's edges), then in full
+            wide = all(s.cue == "edges" for s in prior)
+            found, tracked = track_shafts(image, camera, prior if wide else None, **kw)
         ones = [s for s in _instruments(found) if s.ideal_edges is not None]
         if tracked and ref and ones:  # each instrument keeps its full detection's width and colours
             m = match_pairs(pred, np.stack([s.ideal_edges for s in ones]), np.inf, max_deg=90.0)
