@@ -162,7 +162,7 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
 @detector_option("Shaft proposals' detector.")
 @gamma_option
 @click.option("--track/--no-track", default=True, show_default=True,
-              help="Find the shafts where the previous frame had them (--workers 1).")
+              help="Find the shafts where the previous frames predict them (--workers 1).")
 @mask_option
 @jsonl_option
 @overlay_option

@@ -78,7 +78,7 @@ def _summary(records):
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
               help="With --shaft: their diameter [mm]; each shaft's 3-D axis too.")
 @click.option("--track/--no-track", default=True, show_default=True,
-              help="With --shaft: find them where the previous frame had them.")
+              help="With --shaft: find them where the previous frames predict them.")
 @gamma_option
 @click.option("--min-length", type=FiniteFloat(), default=None,
               help="Shortest segment written [px]; default 20 (bars: 1/30 of the image).")

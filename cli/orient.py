@@ -210,7 +210,7 @@ def _check_priors_match(priors, names, path):
 @click.option("--continuity/--no-continuity", default=True, show_default=True,
               help="Carry twin choices along the sequence to ambiguous frames.")
 @click.option("--track/--no-track", default=True, show_default=True,
-              help="Find the spokes where the previous frame had them (--workers 1).")
+              help="Find the spokes where the previous frames predict them (--workers 1).")
 @detector_option("Line detector, with IMAGES.")
 @click.option("--edges", is_flag=True, help="With IMAGES: plain edge segments, not the spokes' midlines.")
 @mask_option
@@ -256,12 +256,13 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     at most this many segments per frame are used, the longest; a warning says when a
     frame has more.
 
-    From frame to frame (--track, with --workers 1) the previous frame's spokes are looked
-    for again where they were (their edges within 6 px, then measured as a full detection
-    measures them; a full detection on the first frame, every 30th, and where the tracked
-    frame's fit fails or loses more than one spoke), the previous frame's orientation labels
-    the lines (the full search where that fails) and the twin is kept where a frame alone
-    cannot choose.
+    From frame to frame (--track, with --workers 1) each spoke is looked for where a
+    constant-velocity model of its edges predicts it, within that prediction's uncertainty
+    (then measured as a full detection measures it); where the tracked frame's fit fails or
+    loses more than one spoke, the spokes are detected in the region around the prediction,
+    then in the whole frame (and on the first frame, the second, and every 30th). The
+    previous frame's orientation labels the lines (the full search where that fails) and
+    the twin is kept where a frame alone cannot choose. In detail: docs/live.md.
 
     Unless the noise is given (--endpoint-sigma: the noise of each segment end point [px],
     which sets the angle and offset uncertainty; --angle-sigma: every segment's angle noise

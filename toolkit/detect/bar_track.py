@@ -20,7 +20,8 @@ orientation: `orient` falls back when the tracked frame's fit fails or uses fewe
 than the last detection, less one) and calls `BarTracker.lost`; the next call then detects
 the bars in the region around their prediction (`region_of`, the line detector on that part
 of the frame only), and if that fails too, in the whole frame. The first frame, a frame of
-another size and every `REDETECT_FRAMES`-th frame (a spoke that came into view) are
+another size and every `REDETECT_FRAMES`-th frame (a spoke that came into view; every
+`REDETECT_SHORT_FRAMES`-th while fewer bars are followed than a detection once kept) are
 detected too: the periodic one in the region around the prediction.
 
 Example
@@ -38,10 +39,13 @@ import numpy as np
 from pencilcal.toolkit.detect.bars import find_bars
 from pencilcal.toolkit.detect.motion import EdgeMotion
 
-__all__ = ["BarTracker", "region_of", "REDETECT_FRAMES", "REGION_MARGIN"]
+__all__ = ["BarTracker", "region_of", "REDETECT_FRAMES", "REDETECT_SHORT_FRAMES", "REGION_MARGIN"]
 
 #: A detection at least every this many frames (a second at 30 fps), whatever the prior.
 REDETECT_FRAMES = 30
+#: ... and every this many while fewer bars are followed than a detection once kept (a spoke
+#: lost to a frame's blur or glare comes back within a third of a second).
+REDETECT_SHORT_FRAMES = 8
 #: The region around a lost track's prediction: its bars' bounding box grown by this
 #: fraction of its size on every side (plus the search), within the frame.
 REGION_MARGIN = 0.5
@@ -81,6 +85,7 @@ class BarTracker:
         self.tracked = 0
         self.regional = 0
         self.full_used = None
+        self._most = 0  # the most bars a detection's caller kept
         self.motion = EdgeMotion()
         self.last_mode = None
         self._polarity = None
@@ -99,7 +104,8 @@ class BarTracker:
             mode = "full"
         elif mode == "track" and not self.motion.known.any():
             mode = "region"  # no velocity known yet: nothing to predict by
-        elif mode == "track" and self._since_full + 1 >= self.redetect_frames:
+        elif mode == "track" and self._since_full + 1 >= (
+                self.redetect_frames if len(self.motion) >= self._most else min(self.redetect_frames, REDETECT_SHORT_FRAMES)):
             mode = "region"
         roi = None
         if mode == "track":
@@ -141,6 +147,7 @@ class BarTracker:
             if mask is not None:
                 edges = edges[np.asarray(mask, bool)]
             self.full_used = used
+            self._most = max(self._most, len(edges))
         self.motion.update(edges)
 
     def lost(self):
