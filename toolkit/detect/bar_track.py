@@ -99,13 +99,16 @@ class BarTracker:
         `bars.detect_bars`' (detector, camera, min_length, width_px_range, valid_region, ...);
         give the same ones every frame."""
         shape = np.shape(image)[:2]
+        if shape != self._shape:  # another size: nothing carries over
+            self.motion, self._most = EdgeMotion(), 0
         mode = self._next
-        if shape != self._shape or len(self.motion) < 2:
+        period = self.redetect_frames if len(self.motion) >= self._most else min(self.redetect_frames,
+                                                                                  REDETECT_SHORT_FRAMES)
+        if len(self.motion) < 2:
             mode = "full"
         elif mode == "track" and not self.motion.known.any():
             mode = "region"  # no velocity known yet: nothing to predict by
-        elif mode == "track" and self._since_full + 1 >= (
-                self.redetect_frames if len(self.motion) >= self._most else min(self.redetect_frames, REDETECT_SHORT_FRAMES)):
+        elif mode == "track" and self._since_full + 1 >= period:
             mode = "region"
         roi = None
         if mode == "track":
