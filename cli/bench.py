@@ -10,7 +10,8 @@ from pencilcal.validation.bench import format_table, run_bench
 
 from .common import command, check_output, done, run
 
-SECTIONS = ("orient", "shafts", "pnp", "sfm", "estimator", "orient_video", "shafts_video", "calibrate")
+SECTIONS = ("orient", "shafts", "pnp", "sfm", "estimator", "orient_video", "shafts_video", "orient_motion",
+            "shafts_motion", "calibrate")
 
 
 @command()
@@ -44,7 +45,11 @@ def bench(as_json, quick, sections, seed, output, force, quiet):
     Cramer-Rao bound at 20 deg of tilt (crlb_ratio_tilt20); a whole `pencilcal orient` /
     `fulcrum` process on a 1080p video over decoding it plus FLD on every frame
     (orient_video_vs_decode_fld_1080p, shafts_video_vs_decode_fld_1080p, with the start-up
-    and the per-frame time beside them). Ratios mean the same on any machine.
+    and the per-frame time beside them); on a moving camera (a hand-held fan at the speeds
+    of a hand and twice them, with and without --overlay; a moving instrument over a
+    tissue-like texture) both sides as whole processes, with the fraction of frames tracked
+    and, for the fan, of tilts within 0.5 deg of the truth (orient_motion_*,
+    orient_motion2x_*, shafts_motion_*). Ratios mean the same on any machine.
     """
     chosen = tuple(s.strip() for s in sections.split(",") if s.strip())
     bad = [s for s in chosen if s not in SECTIONS]

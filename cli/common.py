@@ -476,7 +476,8 @@ class FrameOutputs:
         self.source = source if getattr(source, "kind", None) == "stream" else None
         fps = fps or getattr(source, "fps", None) or 25.0
         self.jsonl = open_jsonl(jsonl_path, force) if jsonl_path else None
-        self.overlay = OverlayWriter(overlay_path, fps=fps, force=force) if overlay_path else None
+        # drawn and encoded in a thread of their own: the overlay overlaps the next frames' work
+        self.overlay = OverlayWriter(overlay_path, fps=fps, force=force, background=True) if overlay_path else None
 
     @property
     def drawing(self):
@@ -485,7 +486,8 @@ class FrameOutputs:
 
     def emit(self, record, drawn=None, name=None, extra=None):
         """One frame's record (a dict) to --jsonl, with `extra` keys for the stream only, and
-        its drawn frame (or None) to --overlay."""
+        its drawn frame (an image, a function of no arguments that draws it, or None) to
+        --overlay."""
         if self.jsonl is not None:
             if self.source is not None:
                 extra = {**(extra or {}), "frame_index": _index(record), "frames_dropped": self.source.dropped}

@@ -50,9 +50,12 @@ def _shaft_task(frame, ctx):
            "error": None if shafts else "no instrument shaft found"}
     if not drawing:
         return rec, None
+    from functools import partial
+
     from pencilcal.toolkit.draw.overlay import draw_frame
 
-    return rec, draw_frame(frame.image, shafts=shafts, text=[frame.name])
+    # drawn by the overlay's own thread (`FrameOutputs`), or in the worker process
+    return rec, partial(draw_frame, frame.image, shafts=shafts, text=[frame.name])
 
 
 def _shafts(source, camera, options, quiet, workers, mask_path, live, tracker=None, masks=None, priors=None):
@@ -215,7 +218,7 @@ def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter):
 @click.option("--fulcrum-prior", "prior_spec", default=None, metavar="FILE|auto",
               help="Shafts through the fulcrum's image: FILE (fulcrum.json, ray); auto: estimated.")
 @click.option("--track/--no-track", default=True, show_default=True,
-              help="Find the shafts where the previous frame had them (--workers 1).")
+              help="Find the shafts where the previous frames predict them (--workers 1).")
 @instrument_mask_options
 @mask_option
 @jsonl_option
@@ -291,11 +294,12 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     (robot kinematics) or vertex_px and vertex_cov_px2; auto: a first pass, then two
     through its epochs' priors.
 
-    From frame to frame (--track, with --workers 1) each shaft is looked for in a corridor
-    around where the previous frame had it, without the detector's proposals (a full
-    detection where it is not found again, and every 30th frame: an instrument entering
-    the view): the same shafts, measured alike, several times faster on video;
-    `frames_tracked` counts the frames tracked.
+    From frame to frame (--track, with --workers 1) each shaft is looked for where a
+    constant-velocity model of its edges predicts it, within that prediction's uncertainty,
+    without the detector's proposals (one the colour found, by its colour; a full detection
+    where it is not found again, and every 30th frame: an instrument entering the view):
+    the same shafts, measured alike, several times faster on video; `frames_tracked` counts
+    the frames tracked.
 
     More examples:
 

@@ -1,6 +1,8 @@
 """`pencilcal lines`: line segments per frame, with angle uncertainty (lines.json)."""
 from __future__ import annotations
 
+from functools import partial
+
 import click
 import numpy as np
 
@@ -33,20 +35,23 @@ def with_axis(camera, shaft, diameter):
 def _lines_task(frame, ctx):
     """One frame's lines.json record, and the frame drawn with them when the overlay is
     asked for (module level: runs in worker processes too)."""
-    camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, masks, radial, priors = ctx
+    (camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, masks, radial, priors,
+     tracker) = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
     rec = lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
                        valid_region=region, gamma=gamma, instrument_mask=None if masks is None else masks.of(frame),
-                       radial=radial, axis_prior=None if priors is None else priors[1].get(frame.name, priors[0]))
+                       radial=radial, axis_prior=None if priors is None else priors[1].get(frame.name, priors[0]),
+                       shaft_tracker=tracker)
     if diameter is not None:
         rec["shafts"] = [with_axis(camera, s, diameter) for s in rec.get("shafts") or []]
     if not drawing:
         return rec, None
     from pencilcal.toolkit.draw.overlay import draw_frame
 
-    return rec, draw_frame(frame.image, segments=rec["segments"], shafts=rec.get("shafts"), text=[frame.name])
+    # drawn by the overlay's own thread (`FrameOutputs`), or in the worker process
+    return rec, partial(draw_frame, frame.image, segments=rec["segments"], shafts=rec.get("shafts"), text=[frame.name])
 
 
 def _summary(records):
@@ -79,6 +84,8 @@ def _summary(records):
               help="Also instrument shafts: their midlines, widths and sigmas.")
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
               help="With --shaft: their diameter [mm]; each shaft's 3-D axis too.")
+@click.option("--track/--no-track", default=True, show_default=True,
+              help="With --shaft: where the last frames predict them.")
 @gamma_option
 @click.option("--fulcrum-prior", "prior_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="With --shaft: shafts through FILE's fulcrum image (fulcrum.json, or ray).")
@@ -94,9 +101,9 @@ def _summary(records):
 @quiet_option
 @run
 def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, radial, shaft, shaft_diameter,
-          gamma, prior_path, min_length, instrument_mask, mask_labels, mask_instances,
+          track, gamma, prior_path, min_length, instrument_mask, mask_labels, mask_instances,
           mask_path, jsonl_path, overlay_path, max_pixels, workers, force, quiet):
-    """Line segments in every frame, refined to subpixel precision, with angle uncertainty.
+    """Line segments in every frame, refined to subpixel, with angle uncertainty.
 
     \b
     Examples:
@@ -135,7 +142,9 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     outline, a dartboard's rings), which `orient` fits.
 
     --shaft also finds instrument shafts (pairs of long converging edges) and writes them
-    as `shafts`: midline (image of the axis), width_px, angle_sigma_deg, edge_cov. With
+    as `shafts`: midline (image of the axis), width_px, angle_sigma_deg, edge_cov. From
+    frame to frame (--track, with --workers 1) each is looked for where the previous frames
+    predict it, as `pencilcal fulcrum --track` does; `frames_tracked` says how often. With
     --fulcrum-prior FILE (a fulcrum.json, each epoch's prior for its images by name; or a
     file with ray and ray_cov) every frame's shaft is searched through the fulcrum's image:
     at most one a frame, tissue bands left out. With
@@ -190,9 +199,14 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
                                  *(masks.paths.values() if masks else ())])
     region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     records = []
+    tracker = None
+    if shaft and track and workers == 1 and masks is None and priors is None:
+        from pencilcal.toolkit.detect.shaft.detector import ShaftTracker
+
+        tracker = ShaftTracker(gamma=gamma)
     with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
         ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma, masks,
-               radial, priors)
+               radial, priors, tracker)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
@@ -210,5 +224,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         meta["instrument_mask"] = str(instrument_mask)
     if prior_path is not None:
         meta["fulcrum_prior"] = str(prior_path)
+    if tracker is not None:
+        meta["frames_tracked"] = tracker.tracked
     write_lines(output, records, force=force, meta=meta, valid_region=None if region is None else region.to_dict())
     done(_summary(records), output, quiet=quiet)

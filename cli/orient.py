@@ -1,6 +1,8 @@
 """`pencilcal orient`: angular-variation orientation per frame."""
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import click
 
@@ -88,25 +90,28 @@ def _orient_image_task(frame, ctx):
             return fr, _orient_record(camera, pencil, fr, opts)
 
         fr, rec = detected() if tracker is None else _tracked_bars_frame(detected, tracker, state)
-    return rec, _drawn(frame, rec, fr["segments"], camera) if drawing else None
+    # drawn by the overlay's own thread (`FrameOutputs`), or in the worker process
+    return rec, partial(_drawn, frame, rec, fr["segments"], camera) if drawing else None
 
 
 def _tracked_bars_frame(detected, tracker, state):
-    """A frame whose bars the tracker found from the previous frame's (`bar_track`): kept
-    when its orientation is ok and uses as many spokes as the last full detection, less one;
-    else detected in full and fitted again (the orientation's own tracking state as before
-    the tracked try). Returns (lines record, orientation)."""
+    """A frame whose bars the tracker found where it predicted them (`bar_track`): kept
+    when its orientation is ok and uses as many spokes as the last detection, less one,
+    and four at least where that had four or more (three lines fit any orientation: a
+    wrong bar among them would pass unseen); else detected in the region around the
+    prediction, then in the whole frame, and fitted again each time (the orientation's own
+    tracking state as before the first try). Returns (lines record, orientation)."""
     before = dict(state)
-    fr, rec = detected()
-    need = max(3, (tracker.full_used or 3) - 1)
-    if tracker.last_tracked and not (rec.ok and rec.lines_used >= need):
-        tracker.lost()
-        state.update(previous=before["previous"], tracked=before["tracked"])
+    while True:
         fr, rec = detected()
-    if rec.ok:
+        used = tracker.full_used or 3
+        need = max(min(used, 4), used - 1, 3)
+        good = rec.ok and (tracker.last_mode == "full" or rec.lines_used >= need)
+        if good or not tracker.lost():
+            break
+        state.update(previous=before["previous"], tracked=before["tracked"])
+    if good:
         tracker.keep(np.asarray(rec.spokes) >= 0, used=rec.lines_used)
-    else:
-        tracker.lost()
     return fr, rec
 
 
@@ -212,7 +217,7 @@ def _check_priors_match(priors, names, path):
 @click.option("--continuity/--no-continuity", default=True, show_default=True,
               help="Carry twin choices along the sequence to ambiguous frames.")
 @click.option("--track/--no-track", default=True, show_default=True,
-              help="Find the spokes where the previous frame had them (--workers 1).")
+              help="Find the spokes where the previous frames predict them (--workers 1).")
 @detector_option("Line detector, with IMAGES.")
 @click.option("--edges", is_flag=True, help="With IMAGES: plain edge segments, not the spokes' midlines.")
 @mask_option
@@ -262,12 +267,13 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     to the horizon), and the frame is fitted again. --max-segments: at most this many
     segments per frame are used, the longest; a warning says when a frame has more.
 
-    From frame to frame (--track, with --workers 1) the previous frame's spokes are looked
-    for again where they were (their edges within 6 px, then measured as a full detection
-    measures them; a full detection on the first frame, every 30th, and where the tracked
-    frame's fit fails or loses more than one spoke), the previous frame's orientation labels
-    the lines (the full search where that fails) and the twin is kept where a frame alone
-    cannot choose.
+    From frame to frame (--track, with --workers 1) each spoke is looked for where a
+    constant-velocity model of its edges predicts it, within that prediction's uncertainty
+    (then measured as a full detection measures it); where the tracked frame's fit fails or
+    loses more than one spoke, the spokes are detected in the region around the prediction,
+    then in the whole frame (and on the first frame, the second, and every 30th). The
+    previous frame's orientation labels the lines (the full search where that fails) and
+    the twin is kept where a frame alone cannot choose. In detail: docs/live.md.
 
     Unless the noise is given (--endpoint-sigma: the noise of each segment end point [px],
     which sets the angle and offset uncertainty; --angle-sigma: every segment's angle noise
@@ -309,7 +315,9 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
                 records.append(rec)
                 live.emit(rec.to_dict())
     else:
-        source = open_input(images, source_spec, max_pixels)
+        # the lines are found on grey frames: decoded to grey in the decoding thread, unless
+        # the overlay draws on the colour frames
+        source = open_input(images, source_spec, max_pixels, gray=overlay_path is None)
         check_output(output, force, [*source.paths, mask_path])
         if opts["tracking"] is not None:
             from pencilcal.toolkit.detect.bar_track import BarTracker

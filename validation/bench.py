@@ -32,6 +32,10 @@ from somewhere else, so it means the same on a laptop and on a 2-core CI machine
 - ``calibrate_vs_opencv_960x540``: `pencilcal calibrate`'s work (calibration, two halves,
   uncertainty map, verdict) on 50 rendered 960x540 chessboard views over the same decoding
   and detection plus cv2.calibrateCamera (`bench_calibrate`). Target <= 2.0.
+- ``orient_motion_*``, ``orient_motion2x_*``, ``shafts_motion_*``: the same on a moving
+  camera (a hand-held fan at the speeds of a hand and twice them; a moving instrument over a
+  tissue-like texture), both sides whole processes, with the fraction of frames tracked
+  (`bench_video`).
 
 Frames are rendered once (toolkit.synth.render, exact truth) and encoded to PNG in memory; both
 sides decode them. Each timing is the median over frames of the best of `repeats` runs.
@@ -45,7 +49,8 @@ import numpy as np
 __all__ = ["run_bench", "TARGETS", "format_table", "benchmark_batched"]
 
 from pencilcal.validation.bench_calibrate import CALIBRATE_TARGETS, bench_calibrate
-from pencilcal.validation.bench_video import VIDEO_TARGETS, bench_orient_video, bench_shafts_video
+from pencilcal.validation.bench_video import (VIDEO_TARGETS, bench_orient_motion, bench_orient_video,
+                                              bench_shafts_motion, bench_shafts_video)
 
 TARGETS = {**VIDEO_TARGETS, **CALIBRATE_TARGETS, "orient_vs_fld_1080p": ("<=", 1.3), "shafts_vs_fld_1080p": ("<=", 2.0), "pnp_vs_opencv": ("<=", 1.1), "sfm_vs_pycolmap": ("<=", 1.05),
            "batch_speedup": (">=", 50.0), "fits_per_minute_batched": (">=", 1e6), "crlb_ratio_tilt20": ("in", (0.9, 1.15))}
@@ -412,6 +417,8 @@ def run_bench(quick=False, seed=0, sections=("orient", "shafts", "pnp", "sfm", "
         "orient_video": lambda: bench_orient_video(frames=32 if quick else 64, repeats=1 if quick else 2, seed=seed),
         "shafts_video": lambda: bench_shafts_video(frames=24 if quick else 48, repeats=1 if quick else 2, seed=seed),
         "calibrate": lambda: bench_calibrate(n=50, seed=seed),
+        "orient_motion": lambda: bench_orient_motion(frames=48 if quick else 120, repeats=1 if quick else 2, seed=seed),
+        "shafts_motion": lambda: bench_shafts_motion(frames=45 if quick else 90, repeats=1 if quick else 2, seed=seed),
     }
     for name in sections:
         if log:

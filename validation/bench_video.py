@@ -15,6 +15,27 @@ Beside each ratio: the process's seconds, the floor's, and from the --jsonl stre
 orient process its start-up (until the first frame's record) and its per-frame time after
 that (``orient_video_ms_per_frame``), over the floor's per frame
 (``orient_video_steady_vs_decode_fld``): how much of the ratio is start-up.
+
+On a moving camera (`bench_orient_motion`, `bench_shafts_motion`), both sides whole
+processes (the floor a Python process that imports OpenCV, decodes the video and runs FLD
+on every frame), best of `repeats`:
+
+- ``orient_motion_vs_decode_fld_1080p``, ``orient_motion_overlay_vs_decode_fld_1080p``: a
+  1920x1080 MJPEG video of the printed fan seen by a hand-held camera (the ``handheld``
+  scenario: the fan's centre up to 8 px a frame, its in-plane angle 3 deg and its tilt 1 deg
+  a frame, lens k1 -0.2, a plain backdrop, blur 1 px), ``orient VIDEO`` without and with
+  ``--overlay OUT.mp4`` (and ``--jsonl``). Targets <= 1.5 with the overlay; beside them the
+  fraction of frames whose bars were tracked (``orient_motion_tracked``, target >= 0.9) and
+  of frames with the tilt within 0.5 deg of the truth (``orient_motion_tilt_within_0p5``,
+  >= 0.95).
+- ``orient_motion2x_overlay_vs_decode_fld_1080p``: the same path at twice the speed (every
+  other frame of a path twice as long), with the overlay: target <= 2.0 and no frame lost
+  (``orient_motion2x_frames_lost``).
+- ``shafts_motion_vs_decode_fld_1080p``: ``fulcrum VIDEO`` on a 1920x1080 colour MJPEG video
+  of an instrument pivoting back and forth (up to ~3.7 deg a frame) over a textured,
+  tissue-like backdrop, seen from near its port (the pivot scenario's ``port_view``): target
+  <= 2.0, with the fraction of frames whose shafts were tracked (``shafts_motion_tracked``,
+  >= 0.9).
 """
 from __future__ import annotations
 
@@ -26,16 +47,33 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["bench_orient_video", "bench_shafts_video", "VIDEO_TARGETS"]
+__all__ = ["bench_orient_video", "bench_shafts_video", "bench_orient_motion", "bench_shafts_motion", "VIDEO_TARGETS",
+           "handheld_frames", "moving_shaft_frames"]
 
-VIDEO_TARGETS = {"orient_video_vs_decode_fld_1080p": ("<=", 1.5), "shafts_video_vs_decode_fld_1080p": ("<=", 2.0)}
+VIDEO_TARGETS = {"orient_video_vs_decode_fld_1080p": ("<=", 1.5), "shafts_video_vs_decode_fld_1080p": ("<=", 2.0),
+                 "orient_motion_overlay_vs_decode_fld_1080p": ("<=", 1.5), "orient_motion_tracked": (">=", 0.9),
+                 "orient_motion_tilt_within_0p5": (">=", 0.95),
+                 "orient_motion2x_overlay_vs_decode_fld_1080p": ("<=", 2.0), "orient_motion2x_frames_lost": ("<=", 0),
+                 "shafts_motion_vs_decode_fld_1080p": ("<=", 2.0), "shafts_motion_tracked": (">=", 0.9)}
+
+# decoding a video and FLD on every frame, as a process of its own (the floor of the motion
+# benchmarks: both sides pay a Python process's start-up)
+_FLOOR = """import sys, cv2
+fld = cv2.ximgproc.createFastLineDetector()
+cap = cv2.VideoCapture(sys.argv[1])
+while True:
+    ok, img = cap.read()
+    if not ok:
+        break
+    fld.detect(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+"""
 
 
-def _write_video(path, images, fps=30.0):
+def _write_video(path, images, fps=30.0, fourcc="mp4v"):
     import cv2
 
     h, w = images[0].shape[:2]
-    out = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+    out = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, (w, h))
     for im in images:
         out.write(im if im.ndim == 3 else cv2.cvtColor(im, cv2.COLOR_GRAY2BGR))
     out.release()
@@ -140,3 +178,120 @@ def bench_shafts_video(frames=48, repeats=2, seed=0, workdir=None):
         floor, n = _floor(d / "pivot.mp4", repeats)
     return {"shafts_video_vs_decode_fld_1080p": float(min(t) / floor), "shafts_video_s": float(min(t)),
             "shafts_decode_fld_video_s": float(floor), "shafts_video_frames": n}
+
+
+def _floor_process(video, repeats):
+    """Best wall seconds of a process decoding `video` with FLD on every frame (`_FLOOR`)."""
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        r = subprocess.run([sys.executable, "-c", _FLOOR, str(video)], capture_output=True)
+        best = min(best, time.perf_counter() - t0)
+        if r.returncode != 0:
+            raise RuntimeError(f"bench: the decode + FLD floor failed: {r.stderr.decode(errors='replace')[-200:]}")
+    return best
+
+
+def handheld_frames(frames, seed=0, size=(1920, 1080)):
+    """(camera, pencil, images, tilts, images2x, tilts2x): `frames` frames of the printed fan
+    seen by a hand-held camera (module docstring), and as many of the same path at twice the
+    speed (every other frame of a path twice as long); the true tilt of each [deg]."""
+    from pencilcal.toolkit.camera.model import Camera
+    from pencilcal.toolkit.synth.scenarios import default_camera, make_scenario
+
+    c = default_camera("opencv", size)
+    cam = Camera("opencv", c.width, c.height, c.K, [-0.2, 0.05, 0.0, 0.0, 0.0])
+    sc = make_scenario("handheld", frames=2 * frames, seed=seed, camera=cam, distance=250.0)
+    want = sorted(set(range(frames)) | set(range(0, 2 * frames, 2)))
+    img = {i: sc.render(i, background="plain", blur_px=1.0) for i in want}
+    tilt = [f["tilt_deg"] for f in sc.frames]
+    slow, fast = list(range(frames)), list(range(0, 2 * frames, 2))
+    return (cam, sc.sheet.pencil, [img[i] for i in slow], [tilt[i] for i in slow], [img[i] for i in fast],
+            [tilt[i] for i in fast])
+
+
+def _orient_run(d, video, overlay, repeats):
+    """(best wall seconds, start-up, seconds a frame, orientation.json) of ``orient VIDEO``
+    (with ``--overlay`` when asked)."""
+    import json
+
+    args = ["orient", str(video), "--camera", str(d / "camera.json"), "--pencil", str(d / "pencil.yaml"), "-o",
+            str(d / "o.json"), "--force", "-q"] + (["--overlay", str(d / "overlay.mp4")] if overlay else [])
+    wall, startup, per = _process(args, repeats)
+    return wall, startup, per, json.loads((d / "o.json").read_text())
+
+
+def _motion_figures(prefix, data, tilts):
+    """Tracked, within-0.5-deg and lost frames of an orientation.json against the truth."""
+    fr = data["frames"]
+    ok = [f["ok"] for f in fr]
+    err = np.array([abs(f["tilt_deg"] - t) if f["ok"] else np.inf for f, t in zip(fr, tilts)])
+    return {f"{prefix}_frames": len(fr), f"{prefix}_tracked": data.get("bars_tracked", 0) / len(fr),
+            f"{prefix}_tilt_within_0p5": float(np.mean(err <= 0.5)), f"{prefix}_frames_lost": len(fr) - sum(ok)}
+
+
+def bench_orient_motion(frames=120, repeats=2, seed=0, workdir=None):
+    """orient_motion_* and orient_motion2x_* (module docstring)."""
+    from pencilcal.toolkit.camera.formats import write_camera
+    from pencilcal.toolkit.pencil.spec import write_pencil
+
+    cam, pencil, slow, tilt, fast, tilt2 = handheld_frames(frames, seed)
+    out = {}
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        d = Path(tmp)
+        write_camera(d / "camera.json", cam)
+        write_pencil(d / "pencil.yaml", pencil)
+        for name, images, truth, runs in (("orient_motion", slow, tilt, (False, True)),
+                                          ("orient_motion2x", fast, tilt2, (True,))):
+            video = d / f"{name}.avi"
+            _write_video(video, images, fourcc="MJPG")
+            floor = _floor_process(video, repeats)
+            out[f"{name}_decode_fld_s"] = float(floor)
+            for overlay in runs:
+                key = f"{name}{'_overlay' if overlay else ''}"
+                wall, startup, per, data = _orient_run(d, video, overlay, repeats)
+                out.update({f"{key}_vs_decode_fld_1080p": float(wall / floor), f"{key}_s": float(wall),
+                            f"{key}_startup_s": float(startup), f"{key}_ms_per_frame": float(per * 1e3)})
+            out.update(_motion_figures(name, data, truth))
+    return out
+
+
+def moving_shaft_frames(frames, seed=0, size=(1920, 1080), period=60):
+    """(camera, images): `frames` colour frames of an instrument pivoting back and forth (its
+    angle 90 +- 35 deg, a sine of `period` frames) seen from near its port, over the table's
+    textured backdrop only (the fulcrum below the printed sheet, out of view)."""
+    from pencilcal.toolkit.synth.render import render_scene
+    from pencilcal.toolkit.synth.scenarios import make_scenario
+
+    fine = max(8 * frames, 720)  # the pivot angles fine enough that the sine stays smooth
+    sc = make_scenario("pivot", frames=fine, seed=seed, size=size, fulcrum=(40.0, 320.0), port_view=150.0,
+                       height=40.0, tilt_deg=30.0, angle_range_deg=(55.0, 125.0))
+    f0 = sc.frames[0]
+    scene = render_scene(sc.camera, f0["R_cam_from_target"], f0["t_cam_from_target"], sc.sheet,
+                         background=sc.backdrop, color=True)
+    t = np.arange(frames)
+    idx = np.round((fine - 1) * (0.5 + 0.5 * np.sin(2 * np.pi * t / period))).astype(int)
+    img = {i: sc.render(int(i), color=True, scene=scene, blur_px=1.0) for i in np.unique(idx)}
+    return sc.camera, [img[i] for i in idx]
+
+
+def bench_shafts_motion(frames=90, repeats=2, seed=0, workdir=None):
+    """shafts_motion_* (module docstring)."""
+    import json
+
+    from pencilcal.toolkit.camera.formats import write_camera
+
+    cam, images = moving_shaft_frames(frames, seed)
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        d = Path(tmp)
+        video = d / "instrument.avi"
+        _write_video(video, images, fourcc="MJPG")
+        write_camera(d / "camera.json", cam)
+        args = ["fulcrum", str(video), "--camera", str(d / "camera.json"), "-o", str(d / "f.json"), "--force", "-q"]
+        wall, startup, per = _process(args, repeats)
+        floor = _floor_process(video, repeats)
+        data = json.loads((d / "f.json").read_text())
+    n = len(images)
+    return {"shafts_motion_vs_decode_fld_1080p": float(wall / floor), "shafts_motion_s": float(wall),
+            "shafts_motion_decode_fld_s": float(floor), "shafts_motion_frames": n,
+            "shafts_motion_tracked": data.get("frames_tracked", 0) / n, "shafts_motion_startup_s": float(startup)}

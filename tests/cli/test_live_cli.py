@@ -239,11 +239,50 @@ def test_tracked_bars_measure_as_well_as_a_full_detection(gentle_sweep, tmp_path
         assert a["ok"] == b["ok"]
         if not b["ok"]:
             continue
-        _within(a, b, 2.5)
         assert a["lines_used"] >= b["lines_used"] - 1
+        if b["normal_ambiguous"]:  # the full run's labels are open (three spokes at 73 deg)
+            continue
+        _within(a, b, 2.5)
         if t["tilt_deg"] < 70:  # beyond, three or four spokes are left
             z["tracked"].append((a["tilt_deg"] - t["tilt_deg"]) / a["tilt_sigma_deg"])
             z["full"].append((b["tilt_deg"] - t["tilt_deg"]) / b["tilt_sigma_deg"])
     rms = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in z.items()}
     # against the truth the tracked run is as good as the full one (measured: 0.86 and 0.91)
     assert len(z["full"]) >= 18 and rms["tracked"] <= 1.25 * rms["full"] + 0.2, rms
+
+
+def test_per_frame_tilt_sigmas_cover_the_errors_on_a_hand_held_video(tmp_path):
+    """Sigmas that hold on video: a hand-held camera (the handheld scenario: the fan's centre
+    up to 5 px a frame at 1280x720, its in-plane angle 3 deg, its tilt 1 deg a frame, lens k1
+    -0.2) over printed bars 0.5 mm wide, seen 2 px wide (1-3 px as the tilt turns them),
+    blurred by 1 px, noisy and stored as MJPEG: each frame's own tilt sigma (the --jsonl
+    line, no sequence noise, no smoothing) covers 68 +- 8 % of the errors against the exact
+    truth (measured: 67 %, RMS of the errors over their sigmas 1.11)."""
+    import numpy as np
+
+    from pencilcal.toolkit.camera.formats import write_camera
+    from pencilcal.toolkit.camera.model import Camera
+    from pencilcal.toolkit.pencil.spec import write_pencil
+    from pencilcal.toolkit.synth.scenarios import default_camera, make_scenario
+    from pencilcal.toolkit.synth.sheet import layout_sheet
+
+    c = default_camera("opencv", (1280, 720))
+    cam = Camera("opencv", 1280, 720, c.K, [-0.2, 0.05, 0.0, 0.0, 0.0])
+    sheet = layout_sheet(width=0.5)
+    sc = make_scenario("handheld", frames=120, seed=7, camera=cam, sheet=sheet, distance=250.0)
+    video = cv2.VideoWriter(str(tmp_path / "hand.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (1280, 720))
+    for i in range(len(sc)):
+        video.write(cv2.cvtColor(sc.render(i, blur_px=1.0, background="plain"), cv2.COLOR_GRAY2BGR))
+    video.release()
+    write_camera(tmp_path / "camera.json", cam)
+    write_pencil(tmp_path / "pencil.yaml", sheet.pencil)
+    r = CliRunner().invoke(cli, ["orient", str(tmp_path / "hand.avi"), "--camera", str(tmp_path / "camera.json"),
+                                 "--pencil", str(tmp_path / "pencil.yaml"), "-o", str(tmp_path / "o.json"),
+                                 "--jsonl", str(tmp_path / "o.jsonl"), "-q"])
+    assert r.exit_code == 0, r.output
+    lines = [json.loads(x) for x in (tmp_path / "o.jsonl").read_text().splitlines()]
+    assert len(lines) == len(sc) and all(x["ok"] for x in lines)
+    z = np.array([(x["tilt_deg"] - f["tilt_deg"]) / x["tilt_sigma_deg"] for x, f in zip(lines, sc.frames)])
+    assert 0.60 <= np.mean(np.abs(z) <= 1.0) <= 0.76
+    assert np.sqrt(np.mean(z**2)) < 1.25
+    assert json.loads((tmp_path / "o.json").read_text())["bars_tracked"] >= 0.9 * len(sc)

@@ -33,3 +33,20 @@ def test_calibrate_bench_runs():
     assert r["calibrate_vs_opencv_960x540"] > 0 and r["calibrate_fit_vs_opencv"] > 0
     assert r["calibrate_views_found"] == "12/12" and abs(r["calibrate_fx_error"]) < 1.0
     assert r["calibrate_verdict"] in ("usable", "usable within this region", "not usable")
+def test_motion_benches_run_and_report_tracking():
+    """The moving-camera benchmarks on a few frames: every figure there, the fan's tilts
+    against the truth, the instrument's tracking counted."""
+    from pencilcal.validation.bench_video import bench_orient_motion, bench_shafts_motion, handheld_frames
+
+    cam, pencil, slow, tilt, fast, tilt2 = handheld_frames(4, size=(640, 360))
+    assert len(slow) == len(fast) == 4 and slow[0].shape == (360, 640)
+    assert tilt2[1] == pytest.approx(tilt[2]) and tilt2[0] == pytest.approx(tilt[0])  # twice as fast, the same path
+    r = bench_orient_motion(frames=6, repeats=1)
+    assert r["orient_motion_frames"] == r["orient_motion2x_frames"] == 6
+    for key in ("orient_motion_vs_decode_fld_1080p", "orient_motion_overlay_vs_decode_fld_1080p",
+                "orient_motion2x_overlay_vs_decode_fld_1080p"):
+        assert r[key] > 0
+    assert r["orient_motion_tilt_within_0p5"] == 1.0 and r["orient_motion2x_frames_lost"] == 0
+    assert 0.5 <= r["orient_motion_tracked"] <= 1.0
+    s = bench_shafts_motion(frames=6, repeats=1)
+    assert s["shafts_motion_vs_decode_fld_1080p"] > 0 and 0.5 <= s["shafts_motion_tracked"] <= 1.0

@@ -34,7 +34,7 @@ import numpy as np
 from pencilcal.toolkit.detect.edges import best_run
 from pencilcal.toolkit.detect.image import GrayImage
 from pencilcal.toolkit.detect.pairs import pair_geometry
-from pencilcal.toolkit.detect.refit import EdgeFit, EdgeRefit, RefitOptions
+from pencilcal.toolkit.detect.refit import EdgeFit, EdgeRefit, RefitOptions, refit_lines
 from pencilcal.toolkit.detect.segments import (
     MERGE_ANGLE_TOL_DEG,
     MERGE_DIST_TOL_PX,
@@ -56,6 +56,9 @@ __all__ = ["Bars", "BarOptions", "BAR_POLARITIES", "TRACK_SEARCH_PX", "detect_ba
 #: bench's tilt sweep, 2 deg a frame); an edge of the other polarity (the bar's other side)
 #: is never taken, so the window may be wider than the bar.
 TRACK_SEARCH_PX = 6.0
+#: Stations along a prior edge in the coarse search for it (`find_bars` with a prior): enough
+#: for its line and extent; the refit that measures it samples every `step_px` again.
+_TRACK_STATIONS = 24
 
 _PENCIL_BIN_DEG = 3.0  # directions closer than this count as one (`_pencil_support`)
 _PENCIL_TOL_PX, _PENCIL_TOL_REL = 2.0, 0.005  # a line passes through a point within 2 px + 0.5 % of its distance
@@ -311,7 +314,7 @@ def _complete_partners(img, camera, lines, idx, max_width, min_aspect, max_conv,
     return np.concatenate([q2, q1], -1), idx[o]
 
 
-def _proposed_pairs(img, detector, camera, o, detector_params):
+def _proposed_pairs(img, detector, camera, o, detector_params, roi=None):
     """The detector's merged lines (M, 4) [working px] and their candidate pairs (a, b).
 
     On a reduced image (proposal_scale < 1) the detector often sees one edge of a thin bar
@@ -327,7 +330,7 @@ def _proposed_pairs(img, detector, camera, o, detector_params):
             params.setdefault("length_threshold", shortest)
         elif detector == "edlines":
             params.setdefault("MinLineLength", shortest)
-    _, work = detect_fragments(img, detector, camera, params, scale=o.proposal_scale, dark_grow=_DARK_GROW)
+    _, work = detect_fragments(img, detector, camera, params, scale=o.proposal_scale, dark_grow=_DARK_GROW, roi=roi)
     lines = merge_collinear(work, MERGE_ANGLE_TOL_DEG, MERGE_DIST_TOL_PX, o.max_gap_px)[0]
     L = np.hypot(lines[:, 2] - lines[:, 0], lines[:, 3] - lines[:, 1])
     keep = L >= max(0.5 * o.min_length, 4.0)
@@ -729,19 +732,25 @@ def detect_bars(image, detector="auto", *, camera=None, width_px_range=None, min
                      proposal_scale=proposal_scale, valid_region=valid_region, polarity=polarity)[0]
 
 
-def find_bars(image, detector="auto", *, polarity="dark", prior=None, valid_region=None, detector_params=None,
-              camera=None, **options):
+def find_bars(image, detector="auto", *, polarity="dark", prior=None, prior_search=None, roi=None,
+              valid_region=None, detector_params=None, camera=None, **options):
     """`detect_bars` (the same arguments) and the polarity of what it found: (Bars,
     "dark" or "light"), and with a prior, the bars of the previous frame looked for again.
 
     prior : (M, 2, 4) array, optional
-        The ``edges`` [raw px] of the previous frame's bars (`Bars.edges`, the same camera,
-        found with the same polarity, which must then be "dark" or "light"): instead of
-        proposing lines over the whole frame, each edge is looked for again within
-        `TRACK_SEARCH_PX` of where it was (its own polarity only), then refitted, paired and
-        measured exactly as a full detection's candidates are. Bars that moved further,
-        and bars new in the frame, are not found: the caller falls back on a full detection
-        (`bar_track.BarTracker`).
+        The ``edges`` [raw px] of the previous frame's bars (`Bars.edges`), or where a motion
+        model predicts them (`bar_track.BarTracker`), the same camera, found with the same
+        polarity, which must then be "dark" or "light": instead of proposing lines over the
+        whole frame, each edge is looked for within `prior_search` of it (its own polarity
+        only; a coarse pass with `_TRACK_STATIONS` stations along it), then refitted,
+        paired and measured exactly as a full detection's candidates are. Bars further off,
+        and bars new in the frame, are not found: the caller falls back on a detection.
+    prior_search : float or (M,) [px], optional
+        Half-width of the search around each prior bar's edges; default `TRACK_SEARCH_PX`.
+    roi : (4,) int [raw px], optional
+        Without a prior: (x0, y0, x1, y1), the lines are proposed in this part of the frame
+        only (around where a lost track predicts the bars), then refitted, paired and
+        measured in the whole frame as any detection's.
     """
     if polarity not in BAR_POLARITIES:
         raise InputError(f"unknown bar polarity {polarity!r}; expected one of {', '.join(BAR_POLARITIES)}")
@@ -752,15 +761,19 @@ def find_bars(image, detector="auto", *, polarity="dark", prior=None, valid_regi
     o = BarOptions.resolve(img.shape, **{**_BAR_DEFAULTS, **options})
     detector = proposal_detector(detector, bars=o.proposal_scale < 1.0)
     if prior is not None:
-        lines = to_working(camera, np.asarray(prior, float).reshape(-1, 4))
+        prior = np.asarray(prior, float).reshape(-1, 2, 4)
+        search = np.broadcast_to(TRACK_SEARCH_PX if prior_search is None else np.asarray(prior_search, float),
+                                 prior.shape[:1])
+        lines = to_working(camera, prior.reshape(-1, 4))
         seen = img.inverted() if polarity == "light" else img
-        return _bars_from_candidates(seen, camera, _tracked_lines(seen, camera, lines, o), o), polarity
+        found = _tracked_lines(seen, camera, lines, np.repeat(search, 2), o)
+        return _bars_from_candidates(seen, camera, found, o), polarity
     if polarity == "dark":
-        return _dark_bars(img, detector, camera, o, detector_params), "dark"
-    light = _dark_bars(img.inverted(), detector, camera, o, detector_params)
+        return _dark_bars(img, detector, camera, o, detector_params, roi), "dark"
+    light = _dark_bars(img.inverted(), detector, camera, o, detector_params, roi)
     if polarity == "light":
         return light, "light"
-    dark = _dark_bars(img, detector, camera, o, detector_params)
+    dark = _dark_bars(img, detector, camera, o, detector_params, roi)
     # the frame's own polarity: the one whose bars look more like a pencil (the gaps between
     # a fan's spokes are wedges, no bars; the other polarity finds strips of other print)
     if _pencil_support(light.ideal, light.length) > _pencil_support(dark.ideal, dark.length):
@@ -768,13 +781,21 @@ def find_bars(image, detector="auto", *, polarity="dark", prior=None, valid_regi
     return dark, "dark"
 
 
-def _tracked_lines(img, camera, lines, o):
-    """The previous frame's edges (M, 4) [working px] found again: one refit pass with
-    the edge search `TRACK_SEARCH_PX` wide, whose lines (those refitted) are then this
-    frame's candidates."""
-    opts = replace(o.refit_options(), search=max(TRACK_SEARCH_PX, o.search_px))
-    fit = EdgeRefit(img, lines, camera, opts).fit()
-    return fit.lines()[fit.ok]
+def _tracked_lines(img, camera, lines, search, o):
+    """The prior edges (M, 4) [working px] found again, each within search (M,) [px] of
+    it: a coarse refit (`_TRACK_STATIONS` stations along each line, passes that grow it
+    where the edge runs on), whose lines (those refitted) are then this frame's
+    candidates. Lines with the same window are refitted together."""
+    search = np.maximum(np.ceil(np.asarray(search, float)), o.search_px)
+    L = np.hypot(lines[:, 2] - lines[:, 0], lines[:, 3] - lines[:, 1])
+    out = []
+    for w in np.unique(search):
+        sel = search == w
+        step = max(o.step_px, float(np.median(L[sel])) / _TRACK_STATIONS)
+        opts = replace(o.refit_options(), search=float(w), step_px=step, max_gap_px=2.5 * step)
+        fit = refit_lines(img, lines[sel], camera, opts, max_passes=3)
+        out.append(fit.lines()[fit.ok])
+    return np.concatenate(out) if out else np.zeros((0, 4))
 
 
 # the options `BarOptions.resolve` takes, with detect_bars' defaults (one source: its signature)
@@ -829,9 +850,10 @@ def _pencil_support(lines, length):
     return (int(ndir[best]), float(total[best]))
 
 
-def _dark_bars(img, detector, camera, o, detector_params):
-    """`detect_bars` of dark bars in the `GrayImage` img with the options o (`BarOptions`)."""
-    lines, a, b = _proposed_pairs(img, detector, camera, o, detector_params)
+def _dark_bars(img, detector, camera, o, detector_params, roi=None):
+    """`detect_bars` of dark bars in the `GrayImage` img with the options o (`BarOptions`),
+    proposed within roi (`find_bars`) when given."""
+    lines, a, b = _proposed_pairs(img, detector, camera, o, detector_params, roi)
     if a.size == 0:
         return Bars.empty()
     return _bars_from_candidates(img, camera, lines[np.unique(np.concatenate([a, b]))], o)

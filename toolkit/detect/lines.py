@@ -77,7 +77,8 @@ def radial_edge_count(pencil):
 
 def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None,
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
-                       gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None, radial=None, axis_prior=None):
+                       gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None, radial=None, axis_prior=None,
+                       shaft_tracker=None):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -123,6 +124,9 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
     axis_prior : shaft.prior.AxisPrior or list of them, optional
         With `shaft`: the instruments' fulcrum images (`detect_shafts`): at most one shaft
         each, through it.
+    shaft_tracker : shaft.detector.ShaftTracker, optional
+        With `shaft`, frames in order: the shafts found by it (where the previous frame's
+        were) instead of a full detection.
     """
     if min_length is None:
         min_length = default_min_length(np.shape(image), bars)
@@ -145,18 +149,22 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         angle_sigma_deg=np.degrees(segs.angle_sigma),
         offset_sigma_px=segs.offset_sigma,
         width_px=segs.width_px if bars and radial is None else None,
-        shafts=shaft_records(image, camera, valid_region, gamma, instrument_mask, axis_prior=axis_prior)
-        if shaft else None,
+        shafts=shaft_records(image, camera, valid_region, gamma, instrument_mask, tracker=shaft_tracker,
+                             axis_prior=axis_prior) if shaft else None,
         circle_points=circle_points,
     )
 
 
-def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, instrument_mask=None, **options):
+def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, instrument_mask=None, tracker=None,
+                  **options):
     """The shaft records of one image: `shaft.detector.detect_shafts`' (options: its
     keywords, `axis_prior` among them), or with `instrument_mask` (``{"mask": array,
     "labels": ..., "instances": ...}``) those of the mask's instruments
-    (`shaft.from_mask.shafts_from_masks`). Imported only when asked for: a fan's
+    (`shaft.from_mask.shafts_from_masks`), or those a tracker found (frames in order:
+    `shaft.detector.ShaftTracker`, its own options). Imported only when asked for: a fan's
     orientation does not need the shaft modules."""
+    if tracker is not None and instrument_mask is None:
+        return [s.to_dict() for s in tracker(image, camera, valid_region=valid_region)]
     if instrument_mask is not None:
         from pencilcal.toolkit.detect.shaft.from_mask import shafts_from_masks
 
@@ -172,9 +180,9 @@ def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, in
 
 def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None, bar_width=None,
                  proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA, bar_tracker=None,
-                 instrument_mask=None, radial=None, axis_prior=None):
+                 instrument_mask=None, radial=None, axis_prior=None, shaft_tracker=None):
     """One lines.json frame record from one decoded image: ``detect_frame_lines(...).to_dict()``
     (the same arguments)."""
     return detect_frame_lines(name, image, camera, detector, bars, shaft, min_length, bar_width,
                               proposal_scale, valid_region, bar_polarity, gamma, bar_tracker,
-                              instrument_mask, radial, axis_prior).to_dict()
+                              instrument_mask, radial, axis_prior, shaft_tracker).to_dict()

@@ -505,9 +505,11 @@ def in_valid_region(img, raw):
 
 
 
-def detect_fragments(img, detector, camera, detector_params, min_fragment=4.0, scale=1.0, dark_grow=0):
+def detect_fragments(img, detector, camera, detector_params, min_fragment=4.0, scale=1.0, dark_grow=0, roi=None):
     """The detector's fragments of a `GrayImage`, oriented by polarity, at least
-    `min_fragment` [px] long, whose working pixels are finite.
+    `min_fragment` [px] long, whose working pixels are finite; with `roi` (x0, y0, x1, y1)
+    [raw px, integers, x1 and y1 excluded] the detector sees that part of the image only
+    (its fragments in the whole image's pixels).
 
     With `scale` < 1 the detector runs on the image reduced by that factor (area
     averaging) and its fragments are mapped back to full-resolution pixels: proposals for
@@ -518,11 +520,12 @@ def detect_fragments(img, detector, camera, detector_params, min_fragment=4.0, s
 
     Returns (raw (N, 4) [raw px], work (N, 4) [working px]).
     """
+    x0, y0, x1, y1 = (0, 0, img.shape[1], img.shape[0]) if roi is None else (int(v) for v in roi)
     if scale < 1.0:
         import cv2
 
-        H, W = img.shape
-        src = img.u8
+        src = img.u8 if roi is None else np.ascontiguousarray(img.u8[y0:y1, x0:x1])
+        H, W = src.shape
         if dark_grow > 0:
             src = cv2.erode(src, np.ones((2 * dark_grow + 1, 2 * dark_grow + 1), np.uint8))
         small = cv2.resize(src, (max(int(round(W * scale)), 8), max(int(round(H * scale)), 8)),
@@ -531,8 +534,10 @@ def detect_fragments(img, detector, camera, detector_params, min_fragment=4.0, s
         # pixel centres: x_full + 0.5 = (x_small + 0.5) * s
         raw = (detect_raw(small, detector, detector_params) + 0.5) * np.array([sx, sy, sx, sy]) - 0.5
     else:
-        raw = detect_raw(img.u8, detector, detector_params)
+        raw = detect_raw(img.u8 if roi is None else np.ascontiguousarray(img.u8[y0:y1, x0:x1]), detector,
+                         detector_params)
         dark_grow = 0
+    raw = raw + np.array([x0, y0, x0, y0], float)
     L = np.hypot(raw[:, 2] - raw[:, 0], raw[:, 3] - raw[:, 1])
     raw = raw[L >= min_fragment]
     raw, _ = orient_by_polarity(img, raw, 1.0 / min(scale, 1.0))

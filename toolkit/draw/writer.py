@@ -5,6 +5,13 @@
 written beside its target and renamed over it when closed without error (an interrupted
 run leaves no half-written video); PNGs are written one by one, each atomically.
 
+With ``background=True`` the frames are drawn and encoded in a thread of their own, in the
+order given: `write` takes the drawn frame or a function that draws it, and returns at once
+unless `BACKGROUND_FRAMES` frames are already waiting (then it waits: a live source drops,
+and counts, the frames it cannot hand over, `io.stream`). OpenCV's drawing and encoding
+release the interpreter, so on two cores the overlay costs little beyond the measurement.
+An error of the thread (a full disk) is raised by the next `write` or by `close`.
+
 Example
 -------
 >>> import tempfile, os, numpy as np
@@ -17,14 +24,18 @@ Example
 from __future__ import annotations
 
 import os
+import queue
+import threading
 from pathlib import Path
 
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import atomic_write, check_writable, put_in_place, staging_folder
 
-__all__ = ["OverlayWriter", "VIDEO_SUFFIXES"]
+__all__ = ["OverlayWriter", "VIDEO_SUFFIXES", "BACKGROUND_FRAMES"]
 
 VIDEO_SUFFIXES = {".mp4": "mp4v", ".m4v": "mp4v", ".mov": "mp4v", ".avi": "MJPG", ".mkv": "MJPG"}
+#: With background=True, at most this many frames wait for the writing thread.
+BACKGROUND_FRAMES = 3
 
 
 class OverlayWriter:
@@ -32,16 +43,20 @@ class OverlayWriter:
 
     path: the video file, or the folder (absent, empty, or with --force an earlier one);
     fps: the video's frame rate; force: replace an existing video / write into a folder
-    that already holds files.
+    that already holds files; background: draw and write in a thread (module docstring).
     """
 
-    def __init__(self, path, fps=25.0, force=False):
+    def __init__(self, path, fps=25.0, force=False, background=False):
         self.path = Path(path)
         self.fps = float(fps)
         self.force = force
         self._video = None
         self._tmp = None
         self.frames = 0
+        self._queue = self._thread = self._error = None
+        self._raised = False
+        if background:
+            self._queue = queue.Queue(BACKGROUND_FRAMES)
         suffix = self.path.suffix.lower()
         self.kind = "video" if suffix in VIDEO_SUFFIXES and not str(path).endswith(os.sep) else "folder"
         if self.kind == "video":
@@ -59,7 +74,40 @@ class OverlayWriter:
         return self
 
     def write(self, name, frame):
-        """Add one drawn frame; `name` names its PNG in folder mode."""
+        """Add one drawn frame (BGR uint8), or a function of no arguments that returns it
+        (called in the writing thread with background=True); `name` names its PNG in folder
+        mode."""
+        if self._queue is None:
+            self._write(name, frame() if callable(frame) else frame)
+            return
+        self._raise_error()
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._drain, name="pencilcal-overlay", daemon=True)
+            self._thread.start()
+        self._queue.put((name, frame))
+        self.frames += 1
+
+    def _drain(self):
+        """The writing thread: the frames in order until None; after an error it only empties
+        the queue (the error is raised in the caller)."""
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            if self._error is None:
+                try:
+                    name, frame = item
+                    self._write(name, frame() if callable(frame) else frame, count=False)
+                except BaseException as e:  # noqa: BLE001 - raised in the caller's thread
+                    self._error = e
+
+    def _raise_error(self):
+        """Raise the writing thread's error, once."""
+        if self._error is not None and not self._raised:
+            self._raised = True
+            raise self._error
+
+    def _write(self, name, frame, count=True):
         import cv2
 
         if self.kind == "folder":
@@ -72,7 +120,7 @@ class OverlayWriter:
             if self._video is None:
                 self._open(frame.shape[1], frame.shape[0])
             self._video.write(frame)
-        self.frames += 1
+        self.frames += count
 
     def _open(self, width, height):
         import cv2
@@ -84,7 +132,18 @@ class OverlayWriter:
             raise InputError(f"{self.path}: OpenCV cannot write this video format here")
 
     def close(self, ok=True):
-        """Finish: the video is renamed into place when `ok`, else removed."""
+        """Finish (the frames waiting written first): the video is renamed into place when
+        `ok`, else removed; an error of the writing thread is raised here when `ok`."""
+        if self._thread is not None:
+            self._queue.put(None)
+            self._thread.join()
+            self._thread = None
+        failed = self._error is not None
+        self._close_video(ok and not failed)
+        if ok and failed:
+            self._raise_error()
+
+    def _close_video(self, ok):
         import shutil
 
         if self._video is not None:

@@ -51,8 +51,8 @@ from pencilcal.toolkit.pencil.orientation import Orientation
 from pencilcal.toolkit.pencil.spec import image_angles
 from pencilcal.toolkit.pencil.vertex import LOCAL_CANDIDATES, intersect_lines, lines_through
 
-__all__ = ["orient_segments", "orientation_record", "raw_vertex", "MODELS", "MAX_SEGMENTS", "metric_depth",
-           "resolve_twins_by_continuity"]
+__all__ = ["orient_segments", "orientation_record", "raw_vertex", "MODELS", "MAX_SEGMENTS", "PLANE_PRIOR_DEG",
+           "metric_depth", "resolve_twins_by_continuity"]
 
 MODELS = ("exact", "general", "aligned")
 
@@ -68,6 +68,8 @@ VERTEX_RIVAL_CHI2 = -2.0 * np.log(DETECTION_LEVEL / LOCAL_CANDIDATES)
 #: thousand on a busy image; past this the frame is mostly other edges, the shortest of
 #: which say least about any vertex, and the work (vertex hypotheses x segments) grows.
 MAX_SEGMENTS = 20000
+#: `orient_segments`' plane_normal is kept when the fit's normal lies within this of it [deg].
+PLANE_PRIOR_DEG = 5.0
 
 
 def metric_depth(R_cam_from_target, vertex, spoke_angles, inner, outer, radius):
@@ -138,7 +140,7 @@ def _segment_geometry(camera, segments, endpoint_sigma_px):
 def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_px=ENDPOINT_SIGMA_PX, angle_sigma=None,
                     prior=None, vertex_px=None, vertex_cov_px2=None, image=None, labels=None, keep_lines=False,
                     offset_sigma=None, spoke_radii=None, max_segments=MAX_SEGMENTS, intrinsics_cov="camera",
-                    bar_width_px=None, circle_points=None):
+                    bar_width_px=None, circle_points=None, plane_normal=None):
     """Orientation of a pencil seen in one frame.
 
     camera: a Camera; segments: (M, 4) raw pixels [x1, y1, x2, y2]; pencil: a Pencil.
@@ -181,6 +183,11 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         (``resolved_by: "circle"``) and is reported beside the lines' (``circle_normal``,
         its sigma, and whether the two agree within them); with the circles' radii in the
         pencil file, the vertex's depth too.
+    plane_normal: (3,) with bar_width_px, the plane's unit normal known already (a video's
+        previous frame): the midlines are moved onto the centre lines under it and the frame
+        is fitted once, kept if its normal lies within `PLANE_PRIOR_DEG` of the one given
+        (the move is w^2 / (4 V), a few hundredths of a pixel: a degree off changes it by
+        far less than its noise); else the two fits above.
 
     Returns an `Orientation` (its ``to_dict()`` is the orientation.json record) with
     ``spokes`` (label per input segment, -1 rejected; the wedge or boundary an edge belongs
@@ -193,6 +200,11 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
               vertex_px=vertex_px, vertex_cov_px2=vertex_cov_px2, image=image, labels=labels, keep_lines=keep_lines,
               offset_sigma=offset_sigma, spoke_radii=spoke_radii, max_segments=max_segments,
               intrinsics_cov=intrinsics_cov, circle_points=circle_points)
+    if bar_width_px is not None and plane_normal is not None:
+        n = np.asarray(plane_normal, float)
+        rec = _orient_once(camera, centre_lines(camera, segments, bar_width_px, n), pencil, **kw)
+        if rec.ok and not rec.ambiguous and np.dot(rec.normal, n) >= np.cos(np.radians(PLANE_PRIOR_DEG)):
+            return rec
     rec = _orient_once(camera, segments, pencil, **kw)
     if bar_width_px is None or not rec.ok or rec.ambiguous:
         return rec

@@ -87,7 +87,9 @@ def prior_labels(camera, segments, pencil, previous, gate_deg=GATE_DEG):
 
 def orient_tracked(camera, segments, pencil, previous, gate_deg=GATE_DEG, **orient_kwargs):
     """This frame's `Orientation` with the previous frame's as a prior: (orientation,
-    tracked), tracked False when the full search was used (module docstring).
+    tracked), tracked False when the full search was used (module docstring). Bars'
+    midlines (``bar_width_px``) are moved onto their centre lines under the previous
+    frame's plane and fitted once (`orient_segments`' plane_normal).
 
     segments: (M, 4) raw px; previous: the previous frame's `Orientation` or None;
     orient_kwargs: `orient_segments`' (model, endpoint_sigma_px, angle_sigma, offset_sigma,
@@ -99,7 +101,10 @@ def orient_tracked(camera, segments, pencil, previous, gate_deg=GATE_DEG, **orie
     need = max(3, int(previous.lines_used or 0) - 1)
     rec = None
     if np.unique(lab[lab >= 0]).size >= need:
-        rec = orient_segments(camera, segments, pencil, labels=lab, keep_lines=True, **orient_kwargs)
+        # bars' midlines moved onto their centre lines under the previous frame's plane: one fit
+        plane = None if previous.ambiguous else previous.normal
+        rec = orient_segments(camera, segments, pencil, labels=lab, keep_lines=True, plane_normal=plane,
+                              **orient_kwargs)
         if not (rec.ok and rec.lines_used >= need and _fits_its_labels(rec, pencil)):
             rec = None
     if rec is None:

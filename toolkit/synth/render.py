@@ -45,7 +45,7 @@ from pencilcal.toolkit.synth.polygons import rect
 from pencilcal.toolkit.synth.raster import pixel_rays, render_coverage, to_camera
 from pencilcal.toolkit.synth.texture import plane_texture, sample_texture
 
-__all__ = ["render_frame", "REFLECTANCE", "sensor_image"]
+__all__ = ["render_frame", "render_scene", "REFLECTANCE", "sensor_image"]
 
 
 def _readonly(values):
@@ -93,7 +93,7 @@ def _lighting_gain(W, H, strength, rng):
 
 def render_frame(camera, R_cam_from_target, t_cam_from_target, sheet, *, instrument=None,
                  background="table", blur_px=0.0, noise=0.0, lighting=0.0, gamma=1.0, exposure=1.0,
-                 color=False, rng=None):
+                 color=False, rng=None, scene=None):
     """Render what `camera` sees of the sheet (and a backdrop and an instrument).
 
     Parameters
@@ -130,6 +130,10 @@ def render_frame(camera, R_cam_from_target, t_cam_from_target, sheet, *, instrum
         (H, W, 3) BGR output instead of (H, W) grey.
     rng : numpy Generator or int or None
         Source of the lighting field and noise; a seed gives identical images.
+    scene : (H, W, C) float array, optional
+        `render_scene` of the same camera, pose, sheet, background and colour: the frames of
+        a fixed camera share it (the backdrop is most of the work), so a sequence renders
+        it once; only the instrument and the sensor are added here.
 
     Returns
     -------
@@ -156,11 +160,35 @@ def render_frame(camera, R_cam_from_target, t_cam_from_target, sheet, *, instrum
     >>> img.shape
     (120, 160)
     """
-    R = np.asarray(R_cam_from_target, float)
-    t = np.asarray(t_cam_from_target, float).reshape(3)
-    if R.shape != (3, 3) or not np.all(np.isfinite(R)) or not np.all(np.isfinite(t)):
-        raise InputError("R_cam_from_target must be a finite 3x3 matrix and t a finite 3-vector")
+    R, t = _pose(R_cam_from_target, t_cam_from_target)
     rng = _as_rng(rng)
+    if scene is None:
+        img = render_scene(camera, R, t, sheet, background=background, color=color)
+    else:
+        img = np.array(scene, np.float64)
+        if img.shape != (camera.height, camera.width, 3 if color else 1):
+            raise InputError(f"render_frame: the scene is {img.shape}, the camera's frame {camera.height}x{camera.width}")
+    if instrument is not None:
+        _draw_instrument(img, camera, R, t, instrument, color)
+    return sensor_image(img, float(lighting), float(exposure), blur_px, float(gamma), noise, rng)
+
+
+def render_scene(camera, R_cam_from_target, t_cam_from_target, sheet, *, background="table", color=False):
+    """The linear image (H, W, 1 or 3) of the sheet and its backdrop that `camera` sees, before
+    an instrument, the lighting and the sensor (`render_frame`'s scene, its arguments).
+
+    Example
+    -------
+    >>> from pencilcal.toolkit.camera.model import Camera
+    >>> from pencilcal.toolkit.synth.sheet import layout_sheet
+    >>> cam = Camera("pinhole", 160, 120, [[150.0, 0, 79.5], [0, 150.0, 59.5], [0, 0, 1]])
+    >>> sc = render_scene(cam, np.eye(3), [-131.0, -62.0, 600.0], layout_sheet())
+    >>> a = render_frame(cam, np.eye(3), [-131.0, -62.0, 600.0], layout_sheet(), noise=2.0, rng=1)
+    >>> bool(np.array_equal(a, render_frame(cam, np.eye(3), [-131.0, -62.0, 600.0], layout_sheet(),
+    ...                                     noise=2.0, rng=1, scene=sc)))
+    True
+    """
+    R, t = _pose(R_cam_from_target, t_cam_from_target)
     W, H = camera.width, camera.height
     C_t = -R.T @ t  # camera centre in the target frame
     if C_t[2] >= 0:
@@ -172,9 +200,7 @@ def render_frame(camera, R_cam_from_target, t_cam_from_target, sheet, *, instrum
         if bg.ndim != 3 or bg.shape[:2] != (H, W) or bg.shape[2] not in (1, 3):
             raise InputError(f"background image must be ({H}, {W}, 3) or ({H}, {W}, 1), got {bg.shape}")
         img[:] = bg if bg.shape[2] == nch else (bg @ np.array([0.114, 0.587, 0.299]))[..., None] if nch == 1 else bg
-        if instrument is not None:
-            _draw_instrument(img, camera, R, t, instrument, color)
-        return sensor_image(img, float(lighting), float(exposure), blur_px, float(gamma), noise, rng)
+        return img
     c_paper, c_ink = _sheet_coverage(camera, R, t, sheet)
     backdrop = _backdrop(background, sheet)
     paper_term = REFLECTANCE["paper"] * (c_paper - c_ink)[..., None] * _tint("paper", color)
@@ -183,9 +209,16 @@ def render_frame(camera, R_cam_from_target, t_cam_from_target, sheet, *, instrum
         _draw_plain(img, background, c_paper, paper_term + ink_term, color)
     else:
         _draw_table_scene(img, camera, R, t, C_t, backdrop, c_paper, paper_term + ink_term, color)
-    if instrument is not None:
-        _draw_instrument(img, camera, R, t, instrument, color)
-    return sensor_image(img, float(lighting), float(exposure), blur_px, float(gamma), noise, rng)
+    return img
+
+
+def _pose(R_cam_from_target, t_cam_from_target):
+    """R (3, 3) and t (3,) as float arrays, checked finite (InputError)."""
+    R = np.asarray(R_cam_from_target, float)
+    t = np.asarray(t_cam_from_target, float).reshape(3)
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)) or not np.all(np.isfinite(t)):
+        raise InputError("R_cam_from_target must be a finite 3x3 matrix and t a finite 3-vector")
+    return R, t
 
 
 def _tint(name, color):

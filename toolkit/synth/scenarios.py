@@ -58,7 +58,7 @@ from pencilcal.toolkit.synth.sheet import Sheet, layout_sheet
 
 __all__ = ["SCENARIOS", "RENDER_DEFAULTS", "Scenario", "make_scenario", "default_camera", "look_at", "image_names"]
 
-SCENARIOS = ("orbit", "pivot", "tilt-sweep")
+SCENARIOS = ("orbit", "pivot", "tilt-sweep", "handheld")
 
 #: What a real camera adds, used by `Scenario.render` (and `pencilcal simulate`).
 RENDER_DEFAULTS = MappingProxyType({"noise": 2.0, "blur_px": 0.6, "lighting": 0.25, "gamma": 2.2})
@@ -69,6 +69,7 @@ _OPTIONS = MappingProxyType({
     "pivot": frozenset({"distance", "tilt_deg", "angle_range_deg", "shaft_radius", "fulcrum", "height", "tip",
                         "back", "port_view", "epochs", "epoch_move_deg"}),
     "tilt-sweep": frozenset({"distance", "axis_deg", "max_tilt_deg", "vertex_px"}),
+    "handheld": frozenset({"distance", "tilt_deg", "speed", "speed_px", "roll_deg", "tilt_rate_deg"}),
 })
 
 
@@ -172,7 +173,8 @@ class Scenario:
     def __len__(self):
         return len(self.frames)
 
-    def render(self, i, *, noise=None, blur_px=None, lighting=None, gamma=None, color=False, background=None):
+    def render(self, i, *, noise=None, blur_px=None, lighting=None, gamma=None, color=False, background=None,
+               scene=None):
         """Image of frame i, uint8 (H, W) or (H, W, 3) with ``color``.
 
         Unset options take `RENDER_DEFAULTS` (noise 2 grey levels, blur 0.6 px, lighting
@@ -181,6 +183,8 @@ class Scenario:
         scenario's backdrop ("plain", a grey level, or a Backdrop), or is "tissue": a
         tissue-like image behind the instrument instead of the sheet (`tissue.tissue_image`,
         seeded by the seed and the frame's camera epoch: it stays while the camera does).
+        ``scene``: the frame's `render.render_scene`, when the sequence shares one (a fixed
+        camera: pivot); it replaces the backdrop.
         """
         fr = self.frames[i]
         d = dict(RENDER_DEFAULTS)
@@ -196,7 +200,7 @@ class Scenario:
         return render_frame(self.camera, fr["R_cam_from_target"], fr["t_cam_from_target"], self.sheet,
                             instrument=None if self.instruments is None else self.instruments[i],
                             background=self.backdrop if background is None else background,
-                            color=color, rng=rng, **d)
+                            color=color, rng=rng, scene=scene, **d)
 
     def instrument_coverage(self, i):
         """(H, W) float: the fraction of each pixel the instrument of frame i covers, exact for
@@ -361,7 +365,7 @@ def make_scenario(name, frames, seed=0, camera=None, sheet=None, size=(1280, 720
     # boxes give structure from motion depth off the plane; only the orbit needs them, and
     # in the fixed-camera scenarios they could hide the shaft or, at grazing tilt, the fan
     backdrop = Backdrop.around(sheet, seed=seed, boxes=6 if name == "orbit" else 0)
-    build = {"orbit": _orbit, "pivot": _pivot, "tilt-sweep": _tilt_sweep}[name]
+    build = {"orbit": _orbit, "pivot": _pivot, "tilt-sweep": _tilt_sweep, "handheld": _handheld}[name]
     return build(camera, sheet, backdrop, int(frames), seed, options)
 
 
@@ -558,3 +562,63 @@ def _tilt_sweep(camera, sheet, backdrop, n, seed, options):
         frames.append(fr)
     opts = {"distance": D, "axis_deg": axis_deg, "max_tilt_deg": max_tilt, "vertex_px": vpx.tolist()}
     return Scenario("tilt-sweep", camera, sheet, backdrop, frames, seed, opts)
+
+
+# the hand's motion: three sinusoids per channel (slow drift, sway, shake), periods in frames
+# at speed 1, each a share of the channel's peak rate
+_HAND_PERIODS = (100.0, 45.0, 17.0)
+_HAND_SHARES = (0.6, 0.3, 0.1)
+
+
+def _hand_channel(rng, s, peak_rate, dims=1):
+    """A channel (n, dims) of the hand's motion at times s (n,) [frames at speed 1], zero
+    mean, its largest change from one frame to the next at speed 1 (the norm over dims)
+    equal to `peak_rate`; (n,) for dims 1."""
+    ph = rng.uniform(0.0, 2 * math.pi, (dims, len(_HAND_PERIODS)))
+
+    def at(x):
+        return np.stack([sum(sh * T / (2 * math.pi) * np.sin(2 * math.pi * x / T + p)
+                             for T, sh, p in zip(_HAND_PERIODS, _HAND_SHARES, phd)) for phd in ph], -1)
+
+    grid = np.arange(0.0, max(float(s[-1]), 1.0) + 1.0)
+    out = at(s) * (peak_rate / np.max(np.linalg.norm(np.diff(at(grid), axis=0), axis=-1)))
+    return out[:, 0] if dims == 1 else out
+
+
+def _handheld(camera, sheet, backdrop, n, seed, options):
+    """The handheld scenario of `n` frames (make_scenario's options for "handheld")."""
+    rng = np.random.default_rng([seed, 4])
+    scale = _distance_scale(camera)
+    D = float(_option(options, "distance", 400.0 * scale))
+    tilt0 = float(_option(options, "tilt_deg", 35.0))
+    speed = float(_option(options, "speed", 1.0))
+    v_px = float(_option(options, "speed_px", 8.0 * camera.width / 1920.0))
+    roll_rate = float(_option(options, "roll_deg", 3.0))
+    tilt_rate = float(_option(options, "tilt_rate_deg", 1.0))
+    if not (D > 0 and speed > 0 and 0 <= tilt0 < 80 and min(v_px, roll_rate, tilt_rate) >= 0):
+        raise InputError("handheld: needs distance > 0, speed > 0, 0 <= tilt_deg < 80 and rates >= 0")
+    s = np.arange(n) * speed
+    # the vertex's image: two channels whose joint speed peaks at speed_px
+    xy = _hand_channel(rng, s, v_px, dims=2)
+    roll = np.radians(_hand_channel(rng, s, roll_rate))
+    tilt = np.clip(tilt0 + _hand_channel(rng, s, tilt_rate), 0.0, 85.0)
+    axis = np.radians(_hand_channel(rng, s, tilt_rate))
+    dist = D * (1.0 + 0.05 * np.sin(2 * math.pi * s / _HAND_PERIODS[0] + rng.uniform(0, 2 * math.pi)))
+    v = sheet.pencil.vertex
+    vt = np.array([v[0], v[1], 0.0])
+    names = _names(n)
+    frames = []
+    for k in range(n):
+        ray = camera.rays_from_pixels(camera.K[:2, 2] + xy[k])
+        if not np.all(np.isfinite(ray)):
+            raise InputError("handheld: the vertex's path leaves the lens model's field of view")
+        ray = ray / np.linalg.norm(ray)
+        axis_t = np.array([math.cos(axis[k]), math.sin(axis[k]), 0.0])
+        R = rotation_about_axis(ray, roll[k]) @ rotation_to_z(ray).T @ rotation_about_axis(axis_t, math.radians(tilt[k]))
+        t = ray * dist[k] - R @ vt
+        fr = _frame_truth(camera, sheet, R, t, names[k])
+        fr["roll_deg"] = float(np.degrees(roll[k]))
+        frames.append(fr)
+    opts = {"distance": D, "tilt_deg": tilt0, "speed": speed, "speed_px": v_px, "roll_deg": roll_rate,
+            "tilt_rate_deg": tilt_rate}
+    return Scenario("handheld", camera, sheet, backdrop, frames, seed, opts)

@@ -55,3 +55,34 @@ def test_video_and_folder_writers(tmp_path):
         w.write("a.png", img)
         w.write("b.jpg", img)
     assert sorted(p.name for p in folder.iterdir()) == ["a.png", "b.png"]
+
+
+def test_the_background_writer_draws_in_order_and_raises_its_errors(tmp_path):
+    import threading
+
+    video = tmp_path / "o.avi"
+    drawn_in = []
+
+    def draw(i):
+        drawn_in.append((i, threading.current_thread().name))
+        return np.full((48, 64, 3), 40 * i, np.uint8)
+
+    with OverlayWriter(video, fps=5, background=True) as w:
+        for i in range(5):
+            w.write(f"{i:03d}", lambda i=i: draw(i))
+    # drawn in the writer's own thread, in the order given, every frame in the video
+    assert [i for i, _ in drawn_in] == list(range(5)) and {n for _, n in drawn_in} == {"pencilcal-overlay"}
+    cap = cv2.VideoCapture(str(video))
+    levels = [cap.read()[1].mean() for _ in range(5)]
+    assert np.allclose(levels, [0, 40, 80, 120, 160], atol=2)  # MJPEG
+    # an error of the thread is raised by the next write or by close, and leaves no video
+    bad = tmp_path / "bad.avi"
+    w = OverlayWriter(bad, background=True)
+    w.write("0", lambda: np.zeros((48, 64, 3), np.uint8))
+    w.write("1", lambda: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        for i in range(50):
+            w.write(str(i), np.zeros((48, 64, 3), np.uint8))
+        w.close()
+    w.close(ok=False)
+    assert not bad.exists()

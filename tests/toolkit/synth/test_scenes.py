@@ -185,3 +185,22 @@ def test_fisheye_and_custom_cameras():
     assert all(f["board_corners_in_view"] == 24 for f in sc.frames)
     R, t = look_at([0.0, 0.0, -100.0], [0.0, 0.0, 0.0])
     assert np.allclose(R, np.eye(3)) and np.allclose(t, [0, 0, 100])
+
+
+def test_handheld_moves_at_the_speeds_asked_and_twice_as_fast_along_the_same_path():
+    cam = default_camera("opencv", (1920, 1080))
+    slow = make_scenario("handheld", frames=121, seed=2, camera=cam, distance=250.0)
+    check_common(slow)
+    v = np.array([f["vertex_px"] for f in slow.frames])
+    roll = np.array([f["roll_deg"] for f in slow.frames])
+    tilt = np.array([f["tilt_deg"] for f in slow.frames])
+    # the fan's centre up to 8 px a frame, its in-plane angle 3 deg, its tilt ~1 deg
+    assert np.linalg.norm(np.diff(v, axis=0), axis=1).max() == pytest.approx(8.0, rel=0.02)
+    assert np.abs(np.diff(roll)).max() == pytest.approx(3.0, rel=0.02)
+    assert 0.7 < np.abs(np.diff(tilt)).max() < 1.5 and 15 < tilt.min() and tilt.max() < 55
+    for f in slow.frames:
+        assert inside(cam, f["spokes_px"], 5)
+    # speed 2: every other frame of the same path
+    fast = make_scenario("handheld", frames=61, seed=2, camera=cam, distance=250.0, speed=2.0)
+    assert np.allclose([f["vertex_px"] for f in fast.frames], v[::2], atol=1e-6)
+    assert np.allclose([f["R_cam_from_target"] for f in fast.frames], [f["R_cam_from_target"] for f in slow.frames[::2]])

@@ -57,6 +57,7 @@ import numpy as np
 
 from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.image import GrayImage
+from pencilcal.toolkit.detect.motion import EdgeMotion, match_pairs
 from pencilcal.toolkit.detect.noise import noise_of
 from pencilcal.toolkit.detect.shaft.axis import midline_from_edges
 from pencilcal.toolkit.detect.shaft.edge_cue import bands_from_edges, drop_repeated, edge_cue, refit_edges, unsigned_lines
@@ -64,7 +65,7 @@ from pencilcal.toolkit.detect.shaft.material_cue import material_cue, robust_noi
 from pencilcal.toolkit.detect.shaft.pencil_search import pencil_search
 from pencilcal.toolkit.detect.shaft.prior import as_priors, select_through
 from pencilcal.toolkit.detect.shaft.regions import material_map
-from pencilcal.toolkit.detect.shaft.track import REACH, corridor_edges
+from pencilcal.toolkit.detect.shaft.track import REACH, band_colours, corridor_edges, material_edges
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame, axis_matrix
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw
 from pencilcal.toolkit.errors import InputError
@@ -419,45 +420,80 @@ _DEFAULTS = {k: p.default for k, p in inspect.signature(detect_shafts).parameter
              if p.kind is p.KEYWORD_ONLY and k not in ("valid_region", "axis_prior")}
 
 
-def track_shafts(image, camera, previous, *, valid_region=None, **options):
+def track_shafts(image, camera, previous, *, valid_region=None, prior=None, reach_px=None, widths=None, colours=None,
+                 detect=True, **options):
     """This frame's shafts with the previous frame's as a prior: (shafts, tracked), tracked
     False where a full `detect_shafts` was run.
 
     Each instrument of the previous frame (its shafts, one per instrument: `_instruments`)
-    is looked for in a corridor around it (`shaft.track.corridor_edges`, reach
-    `shaft.track.REACH` of the image diagonal), without the edge cue's proposals; the bands
-    found there are judged and measured as the edge cue judges and measures its own
-    (`shaft.edge_cue.bands_from_edges`), so a shaft found again is the one a full detection
-    finds, measured alike. The prior is checked, never trusted: the frame gets a full
-    detection when there is no prior, when a prior shaft was found by the material cue
-    (that cue is not tracked), or when fewer instruments are found than the prior had. A
-    tracked frame is searched by the edge cue alone, as its prior was. With an
+    is looked for around where it was, without the cues' proposals over the whole frame:
+    one the edge cue found, in a corridor around it (`shaft.track.corridor_edges`), the
+    bands found there judged and measured as the edge cue judges and measures its own
+    (`shaft.edge_cue.bands_from_edges`); one the material cue found, on a colour frame, by
+    its colour, its silhouette edges fitted as that cue fits them
+    (`shaft.track.material_edges`). A shaft found again is the one a full detection finds,
+    measured alike. The prior is checked, never trusted: the frame gets a full detection
+    when there is no prior or when fewer instruments are found than the prior had. With an
     ``axis_prior`` in the options every frame gets a full detection.
 
-    previous: the previous frame's list of `Shaft` (or None); options: the keywords of
-    `detect_shafts`.
+    previous: the previous frame's list of `Shaft` (or None); prior: (K, 2, 4) [undistorted
+    px], where a motion model predicts the K instruments' edges (`ShaftTracker`), and
+    reach_px (K,) [px] how far each may lie from that; default the previous frame's edges
+    (`_instruments(previous)`) and `shaft.track.REACH` of the image diagonal; widths (K,)
+    [px] the instruments' widths a shaft found by its colour is checked against (default the
+    previous frame's; `ShaftTracker` gives the last full detection's, so that no error
+    builds up from frame to frame); colours (K,) the (inside, outside) colours of the
+    instruments' bands (`shaft.track.band_colours`) a shaft found by its colour must keep
+    (default none); detect: False returns ([], False) instead of the full detection.
+    options: the keywords of `detect_shafts`.
     """
-    if not previous or options.get("axis_prior") is not None or \
-            any(s.cue != "edges" or s.ideal_edges is None for s in previous):
+    if not previous or options.get("axis_prior") is not None or any(s.ideal_edges is None for s in previous):
         return detect_shafts(image, camera, valid_region=valid_region, **options), False
     image, o, validity, K = _prepared(image, camera, valid_region,
                                       {k: v for k, v in options.items() if k != "axis_prior"})
-    img = GrayImage(image, valid_region)
-    sig_n = noise_of(img)
-    reach = REACH * float(np.hypot(*img.shape))
-    prior = _instruments(previous)
-    lines = [corridor_edges(img, camera, s.ideal_edges, o, sig_n, reach) for s in prior]
-    found = []
-    if all(e is not None for e in lines):
+    ones = _instruments(previous)
+    if prior is None:
+        prior = [s.ideal_edges for s in ones]
+        reach_px = np.full(len(prior), REACH * float(np.hypot(*validity.shape)))
+    widths = [s.width_px for s in ones] if widths is None else widths
+    colour = np.asarray(image).ndim == 3
+    by_colour = [k for k, s in enumerate(ones) if s.cue == "material" and colour]
+    colours = [None] * len(ones) if colours is None else colours
+    found = _by_colour(image, camera, validity, o, K, [ones[k] for k in by_colour], [prior[k] for k in by_colour],
+                       [reach_px[k] for k in by_colour], [widths[k] for k in by_colour],
+                       [colours[k] for k in by_colour])
+    rest = [k for k in range(len(ones)) if k not in by_colour]
+    img = GrayImage(image, valid_region) if rest else None
+    sig_n = noise_of(img) if rest else None
+    lines = [corridor_edges(img, camera, prior[k], o, sig_n, float(reach_px[k])) for k in rest]
+    if rest and all(e is not None for e in lines):
         P, ok = refit_edges(img, camera, np.concatenate(lines), o, sig_n)
         if np.all(ok):
             E = unsigned_lines(P)
             E = E[drop_repeated(E, np.hypot(E[:, 2] - E[:, 0], E[:, 3] - E[:, 1]))]
-            found = [s for s in _edge_shafts(bands_from_edges(img, camera, E, o, sig_n), camera, o, K)
-                     if s is not None]
+            found += [s for s in _edge_shafts(bands_from_edges(img, camera, E, o, sig_n), camera, o, K)
+                      if s is not None]
     if len(_instruments(found)) < len(prior):
-        return detect_shafts(image, camera, valid_region=valid_region, **options), False
+        return (detect_shafts(image, camera, valid_region=valid_region, **options) if detect else []), False
     return found, True
+
+
+def _by_colour(image, camera, validity, o, K, shafts, prior, reach, widths, colours):
+    """The material cue's shafts found again by their colour around their predicted edges
+    (`shaft.track.material_edges`), each checked against its width in widths and its band's
+    colours in colours; the list holds those that held."""
+    if not shafts:
+        return []
+    img = np.ascontiguousarray(image, dtype=np.float32)
+    noise = max(robust_noise(np.asarray(image)[..., 1]), 0.5)
+    out = []
+    for s, e, r, w, c in zip(shafts, prior, reach, widths, colours):
+        fits = material_edges(img, camera, validity, noise, np.asarray(e, float), r, o.corridor_px, w, c)
+        m = None if fits is None else midline_from_edges(K, fits[0], fits[1])
+        if m is not None and m.convergence_deg <= np.degrees(o.region_conv_max):
+            seen = float(np.hypot(*(m.ends[1] - m.ends[0])))
+            out.append(shaft_of_midline(camera, m, seen * min(f.frac for f in fits), s.polarity, "material"))
+    return [s for s in out if s is not None]
 
 
 def _instruments(shafts, max_deg=2.0, max_offset=0.5):
@@ -495,8 +531,12 @@ REDETECT_FRAMES = 30
 
 class ShaftTracker:
     """Shafts frame after frame (`track_shafts`): each frame's prior is the previous
-    frame's shafts, and every `redetect_frames`-th frame gets a full detection whatever
-    the prior (a new instrument, one the corridors lost). Call it on the frames in order;
+    frame's instruments where a constant-velocity model of their edges predicts them
+    (`detect.motion.EdgeMotion`, unsigned edges in undistorted px), each looked for within
+    its predicted uncertainty (before its velocity is known, and where that fails for a
+    shaft of the edge cue, within `shaft.track.REACH` of the image diagonal around the
+    previous frame's, before a full detection); every `redetect_frames`-th frame gets a full detection whatever the prior
+    (a new instrument, one the corridors lost). Call it on the frames in order;
     ``tracked`` counts the frames tracked.
 
     options: the keywords of `detect_shafts` (valid_region aside, given per frame).
@@ -508,11 +548,43 @@ class ShaftTracker:
         self.previous = None
         self.since_full = 0
         self.tracked = 0
+        self.motion = None
+        self.widths = None  # the instruments' widths at the last full detection
+        self.colours = None  # and their bands' colours (inside, outside), on colour frames
 
     def __call__(self, image, camera=None, valid_region=None):
         """This frame's shafts (list of `Shaft`)."""
+        reach = REACH * float(np.hypot(*np.shape(image)[:2]))
+        if self.motion is None or self.motion.prior_px != reach:  # the first frame, or another size
+            self.motion, self.previous = EdgeMotion(polar=False, prior_px=reach, max_search_px=reach,
+                                                    windows=False, along=False), None
         prior = self.previous if self.since_full + 1 < self.redetect_frames else None
-        found, tracked = track_shafts(image, camera, prior, valid_region=valid_region, **self.options)
+        pred, search = self.motion.search() if prior and len(self.motion) == len(_instruments(prior)) else (None, None)
+        ref = pred is not None
+        kw = dict(valid_region=valid_region, widths=self.widths if ref else None,
+                  colours=self.colours if ref else None, **self.options)
+        found, tracked = track_shafts(image, camera, prior, prior=pred, reach_px=search, detect=not ref, **kw)
+        if ref and not tracked:
+            # lost where predicted: in corridors around where it was, as far as it may move
+            # (the edge cue's band test judges what it finds there; a colour fit that far out
+            # may take the tissue's edges), then in full
+            wide = all(s.cue == "edges" for s in prior)
+            found, tracked = track_shafts(image, camera, prior if wide else None, **kw)
+        ones = [s for s in _instruments(found) if s.ideal_edges is not None]
+        if tracked and ref and ones:  # each instrument keeps its full detection's width and colours
+            m = match_pairs(pred, np.stack([s.ideal_edges for s in ones]), np.inf, max_deg=90.0)
+            self.widths = [self.widths[k] if k >= 0 else s.width_px for k, s in zip(m, ones)]
+            self.colours = [self.colours[k] if k >= 0 else None for k in m]
+        elif not tracked:
+            self.widths = [s.width_px for s in ones]
+            colour = np.ndim(image) == 3
+            self.colours = [band_colours(image, camera, s.ideal_edges) if colour else None for s in ones]
+        if ones:
+            # a tracked shaft is measured over part of its length: the next search covers
+            # the whole of the last full detection's
+            self.motion.update(np.stack([s.ideal_edges for s in ones]), keep_extent=tracked)
+        else:
+            self.motion.missed()
         self.previous = found
         self.since_full = self.since_full + 1 if tracked else 0
         self.tracked += bool(tracked)

@@ -23,6 +23,15 @@ edges (`shaft.edge_cue.refit_edges`, `shaft.edge_cue.bands_from_edges`): a band 
 here is a shaft only where a full detection would keep it too, and it is measured the same
 way. Working pixels (`working`); the options those of `shaft.detector.detect_shafts`.
 
+A shaft the material cue found (on a colour frame, against tissue whose grey levels may
+match the instrument's: the edge cue need not see it) is found again by its colour instead
+(`material_edges`): its two silhouette edges fitted as that cue fits them
+(`shaft.silhouette.fit_edges`, the colour profile projected on each edge's own colour
+difference), first within the reach around the prediction over its predicted stretch, then
+in the cue's own corridor around that fit; kept where both edges hold along `MIN_SEEN` of
+the prior's stretch and the width stays within `COLOUR_WIDTH_TOL` of the prior's. (A shaft
+pushed further into the view is seen at its full length again at the next full detection.)
+
 Example
 -------
 >>> import numpy as np, cv2
@@ -43,8 +52,8 @@ import numpy as np
 from pencilcal.toolkit.detect.edges import MIN_STATIONS, SAMPLE_STEP_PX, derivative_kernel
 from pencilcal.toolkit.detect.working import to_raw_smooth
 
-__all__ = ["corridor_edges", "REACH", "STATIONS", "WIDTH_TOL", "PER_STATION", "TOL_PX", "MAX_TURN_DEG",
-           "MIN_SUPPORT"]
+__all__ = ["corridor_edges", "material_edges", "band_colours", "REACH", "STATIONS", "WIDTH_TOL", "PER_STATION", "TOL_PX",
+           "MAX_TURN_DEG", "MIN_SUPPORT", "MIN_SEEN", "COLOUR_WIDTH_TOL"]
 
 #: Half-width of the corridor around a prior shaft, as a fraction of the image diagonal
 #: (beyond the band's own width): how far a shaft may move between two frames.
@@ -61,6 +70,16 @@ TOL_PX = 2.0
 MAX_TURN_DEG = 20.0
 #: Fewest stations supporting the band, as a fraction of those in view.
 MIN_SUPPORT = 0.3
+#: A colour-tracked shaft's edges must hold along this fraction of the prior's stretch.
+MIN_SEEN = 0.5
+#: A colour-tracked edge's first fit (within the reach) is taken when its stations lie within
+#: this RMS of its line [px] (a silhouette's ~0.7; the tissue's own edges, taken at some
+#: stations, scatter by far more).
+FIRST_RMS_PX = 2.0
+#: A colour-tracked shaft's width within this fraction of the prior's (a shaft's apparent
+#: width changes by about a per cent a frame as it moves; an edge of the tissue taken for
+#: one of its own changes it by far more).
+COLOUR_WIDTH_TOL = 0.1
 _PEAKS = 40  # strongest gradient peaks per station looked at
 _SEEDS = 2  # the line hypotheses join two stations' strongest candidates
 _NMS = 3  # non-maximum suppression half-window [samples]
@@ -219,3 +238,91 @@ def corridor_edges(img, camera, prior, o, sig_n, reach_px):
         ends = [A + sv * u + (fit[0] + fit[1] * sv) * n for sv in (lo, hi)]
         out.append(np.concatenate(ends))
     return np.stack(out)
+
+
+def _specs(edges, shrink=0.0):
+    """`shaft.silhouette.fit_edges` specs (p0, u, n_out, s0, s1) of a shaft's two edges (2, 4)
+    [ideal px], each over the stretch where both are (their overlap along the first one),
+    less `shrink` of it at each end, its normal pointing away from the other edge."""
+    E = np.asarray(edges, float).reshape(2, 4)
+    c = E.reshape(2, 2, 2).mean((0, 1))
+    u0 = (E[0, 2:] - E[0, :2]) / max(float(np.hypot(*(E[0, 2:] - E[0, :2]))), 1e-12)
+    t = (E.reshape(2, 2, 2) - E[0, :2]) @ u0  # (2 edges, 2 ends) along the first edge
+    lo, hi = max(t[0].min(), t[1].min()), min(t[0].max(), t[1].max())
+    lo, hi = lo + shrink * (hi - lo), hi - shrink * (hi - lo)
+    out = []
+    for e in E:
+        p, q = e[:2], e[2:]
+        u = (q - p) / max(float(np.hypot(*(q - p))), 1e-12)
+        n = np.array([-u[1], u[0]])
+        n = n if float((p - c) @ n) >= 0 else -n
+        a, b = sorted([float((E[0, :2] + lo * u0 - p) @ u), float((E[0, :2] + hi * u0 - p) @ u)])
+        out.append((p, u, n, a, b))
+    return out
+
+
+def material_edges(image, camera, validity, noise, prior, reach_px, corridor_px, width_px, colours=None):
+    """The two silhouette edges (`shaft.silhouette.EdgeLine`, ideal px) of a shaft the
+    material cue found, looked for again around its predicted edges `prior` (2, 4) [ideal
+    px], within reach_px; None where they do not hold (module docstring).
+
+    image: the raw colour frame (float32 once for several calls); validity:
+    `shaft.work.Validity`; noise: its noise sd per channel; corridor_px: the material cue's
+    corridor; width_px: the prior's width [px]; colours: (inside, outside) the prior's band
+    colours (`band_colours`): the band found must keep the inside's colour, nearer it than
+    half the way to the outside's (a band beside the shaft holds tissue).
+    """
+    from pencilcal.toolkit.detect.shaft.silhouette import fit_edges
+
+    first = fit_edges(image, camera, validity, noise, _specs(prior, 0.05), max(float(reach_px), corridor_px))
+    good = [f is not None and f.rms <= FIRST_RMS_PX for f in first]
+    if not any(good):
+        return None
+    edges = [np.concatenate(f.ends()) if g else None for f, g in zip(first, good)]
+    if not all(good):  # the other edge: the good one's line moved across by the width
+        f = first[good.index(True)]
+        # its normal points out of the shaft: the other edge lies a width the other way
+        edges[good.index(False)] = np.concatenate([f.point_at(f.s_lo) - width_px * f.n,
+                                                   f.point_at(f.s_hi) - width_px * f.n])
+    again = np.stack(edges)
+    fits = fit_edges(image, camera, validity, noise, _specs(again), corridor_px)
+    if any(f is None for f in fits):
+        return None
+    seen = min(f.s_hi - f.s_lo for f in fits)
+    L = 0.9 * min(float(np.hypot(*(e[2:] - e[:2]))) for e in prior)
+    w = abs(float(fits[1].line() @ np.r_[fits[0].point_at(0.5 * (fits[0].s_lo + fits[0].s_hi)), 1.0]))
+    if seen < MIN_SEEN * L or abs(w / max(width_px, 1e-9) - 1.0) > COLOUR_WIDTH_TOL:
+        return None
+    if colours is not None:
+        E = np.stack([np.concatenate(f.ends()) for f in fits])
+        inside, _ = band_colours(image, camera, E)
+        ref_in, ref_out = colours
+        if not np.linalg.norm(_chroma(inside) - _chroma(ref_in)) <= 0.5 * np.linalg.norm(_chroma(ref_out) - _chroma(ref_in)):
+            return None
+    return fits
+
+
+def _chroma(bgr):
+    """(2,) the colour without its brightness: (B - G, R - G) over their sum."""
+    b, g, r = (float(v) for v in bgr)
+    return np.array([b - g, r - g]) / max(b + g + r, 1e-9)
+
+
+def band_colours(image, camera, edges, stations=32):
+    """(inside, outside): the mean colour (3,) of a shaft's band between its two edges (2, 4)
+    [ideal px], over its middle half across, and of the strips beside it (a quarter of the
+    width wide, a quarter beyond each edge), at `stations` places along its middle 90 %.
+    image: the raw colour frame."""
+    import cv2
+
+    E = np.asarray(edges, float).reshape(2, 4)
+    p0, p1 = E[0, :2], E[0, 2:]
+    q = E[1] if float((E[1, 2:] - E[1, :2]) @ (p1 - p0)) >= 0 else E[1, [2, 3, 0, 1]]
+    f = np.linspace(0.05, 0.95, stations)[:, None]
+    a, b = p0 + f * (p1 - p0), q[:2] + f * (q[2:] - q[:2])  # (S, 2) on each edge
+    across = np.array([0.3, 0.4, 0.5, 0.6, 0.7, -0.375, -0.25, 1.25, 1.375])  # from a (0) to b (1)
+    pts = a[:, None, :] + across[None, :, None] * (b - a)[:, None, :]  # (S, 9, 2)
+    raw = to_raw_smooth(camera, pts.transpose(1, 0, 2), every=8).transpose(1, 0, 2).astype(np.float32)
+    img = np.asarray(image, np.float32)
+    v = cv2.remap(img, raw[..., 0], raw[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)  # (S, 9, 3)
+    return v[:, :5].reshape(-1, 3).mean(0), v[:, 5:].reshape(-1, 3).mean(0)
