@@ -205,25 +205,33 @@ def run(fn):
             raise SystemExit(stopped_status(e.signum, mark))
         except KeyboardInterrupt:  # SIGINT where pencilcal's handlers are not installed (the API, tests)
             raise SystemExit(stopped_status(signal.SIGINT, mark))
-        except PencilcalError as e:
-            raise SystemExit(_fail(str(e)))
-        except MemoryError:
-            where = _inputs(ctx)
-            raise SystemExit(_fail(f"{where + ': ' if where else ''}out of memory (the inputs need more memory "
-                                   "than this machine has; use fewer or smaller frames)"))
-        except OSError as e:
-            name = getattr(e, "filename", None)
-            reason = e.strerror or str(e)
-            raise SystemExit(_fail(f"{name}: {reason}" if name else reason))
-        except RecursionError:
-            where = _inputs(ctx)
-            raise SystemExit(_fail(f"{where + ': ' if where else ''}input nested too deeply to read"))
         except Exception as e:  # noqa: BLE001 - the boundary: nothing escapes as a traceback
-            if _debug(ctx):
-                raise
-            raise SystemExit(_fail(_internal(ctx, e)))
+            if _received:
+                # a stop signal whose `Stopped` was raised inside C code (a callback of a
+                # builtin) comes back as another error: the run was still stopped by it
+                raise SystemExit(stopped_status(_received[0], mark)) from None
+            raise SystemExit(_failure(ctx, e)) from None
 
     return wrapper
+
+
+def _failure(ctx, e):
+    """The one line and exit status of an exception that ended a command (`run`)."""
+    where = _inputs(ctx)
+    if isinstance(e, PencilcalError):
+        return _fail(str(e))
+    if isinstance(e, MemoryError):
+        return _fail(f"{where + ': ' if where else ''}out of memory (the inputs need more memory than this machine "
+                     "has; use fewer or smaller frames)")
+    if isinstance(e, OSError):
+        name = getattr(e, "filename", None)
+        reason = e.strerror or str(e)
+        return _fail(f"{name}: {reason}" if name else reason)
+    if isinstance(e, RecursionError):
+        return _fail(f"{where + ': ' if where else ''}input nested too deeply to read")
+    if _debug(ctx):
+        raise e
+    return _fail(_internal(ctx, e))
 
 
 def _internal(ctx, e):
