@@ -12,7 +12,6 @@ def _score_task(frame, ctx):
     """One frame's score record and, with the sheet, its overlay (module level: runs in worker
     processes too)."""
     from pencilcal.toolkit.detect.lines import shaft_records
-    from pencilcal.toolkit.detect.shaft.mask import instruments_in_mask
     from pencilcal.toolkit.detect.shaft.work import axis_matrix
     from pencilcal.toolkit.io.images import check_image_size
     from pencilcal.validation.shaft_score import frame_references, score_frame, score_record
@@ -25,7 +24,8 @@ def _score_task(frame, ctx):
     shape = frame.image.shape[:2]
     m = masks.of(frame)
     valid = None if region is None else region.mask(shape)
-    refs, small = frame_references(m["mask"], m["labels"], m["instances"], valid, axis_matrix(camera, shape)[0])
+    refs, inst, small = frame_references(m["mask"], m["labels"], m["instances"], valid,
+                                         axis_matrix(camera, shape)[0])
     if given is None:
         dets = shaft_records(frame.image, camera, valid_region=region, gamma=gamma, detector=detector)
     else:
@@ -39,7 +39,6 @@ def _score_task(frame, ctx):
         return rec, None
     from pencilcal.validation.shaft_sheet import overlay
 
-    inst = instruments_in_mask(m["mask"], m["labels"], m["instances"])
     return rec, (overlay(frame.image, inst, refs, dets, fs), fs)
 
 
@@ -119,7 +118,7 @@ def score(images, masks_spec, mask_labels, mask_instances, lines_path, camera_pa
     from pencilcal.toolkit.camera.formats import read_camera
     from pencilcal.toolkit.io.files import write_json
     from pencilcal.toolkit.io.instrument_masks import source_masks
-    from pencilcal.validation.shaft_score import Tolerance, summarize
+    from pencilcal.validation.shaft_score import FrameScore, Tolerance, summarize
 
     if lines_path is not None and (camera_path is not None or mask_path is not None):
         raise click.UsageError("--lines gives the shafts: --camera and --mask are for detecting them")
@@ -135,19 +134,13 @@ def score(images, masks_spec, mask_labels, mask_instances, lines_path, camera_pa
     tol = Tolerance(angle_deg=angle_tol, offset_px=offset_tol)
     ctx = (camera, masks, region, detector, gamma, given, tol, sheet_path is not None)
     records, items = [], []
-    from pencilcal.validation.shaft_score import FrameScore
-
     for rec, drawn in run_frames(source, _score_task, ctx, workers, "score", quiet):
         if not rec["ok"]:
             warn(f"{rec['image']}: {rec['error']}")
         records.append(rec)
         if drawn is not None:
             items.append((rec["image"], *drawn))
-    scored = [FrameScore(references=r["instruments"], detections=r["detections"],
-                         matches=[(m["detection"], m["instrument"], m["angle_err_deg"], m["offset_err_px"])
-                                  for m in r["matches"]],
-                         missed_refs=r["missed_instruments"], false_dets=r["false_detections"],
-                         ignored_dets=r["ignored_detections"]) for r in records if r["ok"]]
+    scored = [FrameScore.from_dict(r) for r in records if r["ok"]]
     summary = summarize(scored)
     write_json(output, {"masks": str(masks_spec), "labels": [str(v) for v in mask_labels], "instances": mask_instances,
                         "lines": lines_path, "tolerance": {"angle_deg": angle_tol, "offset_px": offset_tol},

@@ -98,6 +98,15 @@ class FrameScore:
     def offset_err_px(self) -> list:
         return [m[3] for m in self.matches]
 
+    @classmethod
+    def from_dict(cls, d):
+        """The score of a `to_dict` record (score.json's frames)."""
+        return cls(references=d["instruments"], detections=d["detections"],
+                   matches=[(m["detection"], m["instrument"], m["angle_err_deg"], m["offset_err_px"])
+                            for m in d["matches"]],
+                   missed_refs=list(d["missed_instruments"]), false_dets=list(d["false_detections"]),
+                   ignored_dets=list(d["ignored_detections"]))
+
     def to_dict(self) -> dict:
         return {"instruments": self.references, "detections": self.detections, "found": self.found,
                 "missed": self.missed, "false": self.false,
@@ -180,8 +189,9 @@ def summarize(frames):
 
 
 def frame_references(mask_image, labels=None, instances=False, valid=None, K=None):
-    """The references of one frame's mask: (list of MaskAxis, small (H, W) bool: the pixels of
-    instruments too small to score, `mask.MIN_INSTRUMENT_AREA`, None when there are none).
+    """The references of one frame's mask: (list of MaskAxis, their instruments' masks (list of
+    (H, W) bool), small (H, W) bool: the pixels of instruments too small to score,
+    `mask.MIN_INSTRUMENT_AREA`, None when there are none).
 
     mask_image: the mask as stored; labels, instances: as `mask.instruments_in_mask`; valid:
     the valid region's mask (H, W) bool; K: the axis camera (`shaft.work.axis_matrix`)."""
@@ -191,7 +201,7 @@ def frame_references(mask_image, labels=None, instances=False, valid=None, K=Non
     big = [m for m in every if int(m.sum()) >= MIN_INSTRUMENT_AREA]
     small = [m for m in every if int(m.sum()) < MIN_INSTRUMENT_AREA]
     refs = [a for a in (mask_axis(m, valid, K) for m in big) if a is not None]
-    return refs, (np.any(small, axis=0) if small else None)
+    return refs, big, (np.any(small, axis=0) if small else None)
 
 
 def score_record(frame_score, references):
