@@ -59,7 +59,7 @@ from pencilcal.toolkit.detect.shaft.region_bands import (
 )
 from pencilcal.toolkit.detect.shaft.regions import boundary_lines, region_levels, region_pairs, scene_angle
 
-__all__ = ["MaterialShaft", "material_cue", "select", "robust_noise"]
+__all__ = ["MaterialShaft", "material_cue", "judge_band", "select", "robust_noise"]
 
 _MAX_PAIRS = 40  # candidate pairs per region map, the longest overlaps first
 _MAX_REFINE = 6  # bands refitted at full resolution
@@ -248,31 +248,45 @@ def material_cue(image, camera, validity, work, mm, o, K, noise):
     min_len = o.region_min_length * s
     long_len = _LONG_FRACTION * float(np.hypot(*work.shape)) / s
     corridor = max(o.corridor_px, 1.5 / s)
-    out = []
     bands = _bands(work, mm, o, wmin, wmax, min_len)[:_MAX_REFINE]
     stretches = [band_stretch(e, mm.luma_noise) for e in bands]
     fimg = np.ascontiguousarray(image, dtype=np.float32) if bands else image  # sampled pass after pass
-    for e, stretch, fits in zip(bands, stretches,
-                                _band_edges(fimg, camera, validity, noise, bands, work, corridor, stretches,
-                                            _MATERIAL_GAMMA)):
-        if fits is None:
-            continue
-        m = midline_from_edges(K, fits[0], fits[1])
-        if m is None or m.convergence_deg > np.degrees(o.region_conv_max) or not _meet_outside(m):
-            continue
-        seen = float(np.hypot(*(m.ends[1] - m.ends[0])))
-        along = max(stretch[1] - stretch[0], e.ext[1] - e.ext[0]) * e.step / s
-        # elongated (`_elongated`), along a good part of the region's run, entering from the
-        # border of the view or very long
-        if seen < min_len / s or seen < 0.3 * e.run_len / s or not _elongated(m, seen, along, camera, validity,
-                                                                              corridor):
-            continue
-        if seen < long_len and not (any(e.reach) or _reaches_border(m, camera, validity, corridor)):
-            continue
-        out.append(MaterialShaft(midline=m, score=e.shaft_len / s * min(f.frac for f in fits),
-                                 polarity="dark" if e.y_in < e.y_side else "bright",
-                                 band=e, poly_run=band_polygon(e), poly_ext=band_polygon(e, e.ext)))
-    return out
+    fitted = _band_edges(fimg, camera, validity, noise, bands, work, corridor, stretches, _MATERIAL_GAMMA)
+    judged = [judge_band(e, st, f, camera, validity, o, K, s, corridor, long_len)
+              for e, st, f in zip(bands, stretches, fitted)]
+    return [sh for sh, _ in judged if sh is not None]
+
+
+def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
+    """(MaterialShaft or None, why): one proposed band `e` (`shaft.region_bands.RegionBand`)
+    with its stretch and its two fitted edges (or None) judged as `material_cue` judges
+    it (module docstring, step 3); why names the test it failed ("" when it held).
+
+    s: work px per ideal px; corridor [px]; long_len [ideal px]: a band this long need not
+    reach the border.
+    """
+    if fits is None:
+        return None, "no edge pair fitted"
+    m = midline_from_edges(K, fits[0], fits[1])
+    if m is None:
+        return None, "no midline from the edges"
+    if m.convergence_deg > np.degrees(o.region_conv_max):
+        return None, "edges converge"
+    if not _meet_outside(m):
+        return None, "edges meet inside the stretch"
+    seen = float(np.hypot(*(m.ends[1] - m.ends[0])))
+    along = max(stretch[1] - stretch[0], e.ext[1] - e.ext[0]) * e.step / s
+    # elongated (`_elongated`), along a good part of the region's run, entering from the
+    # border of the view or very long
+    if seen < o.region_min_length or seen < 0.3 * e.run_len / s:
+        return None, "edges seen too short"
+    if not _elongated(m, seen, along, camera, validity, corridor):
+        return None, "not elongated"
+    if seen < long_len and not (any(e.reach) or _reaches_border(m, camera, validity, corridor)):
+        return None, "not from the border"
+    return MaterialShaft(midline=m, score=e.shaft_len / s * min(f.frac for f in fits),
+                         polarity="dark" if e.y_in < e.y_side else "bright",
+                         band=e, poly_run=band_polygon(e), poly_ext=band_polygon(e, e.ext)), ""
 
 
 def _meet_outside(m):
