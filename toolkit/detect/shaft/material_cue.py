@@ -57,12 +57,17 @@ from pencilcal.toolkit.detect.shaft.region_bands import (
     proposed,
     suppress_overlaps,
 )
-from pencilcal.toolkit.detect.shaft.regions import boundary_lines, region_levels, region_pairs, scene_angle
+from pencilcal.toolkit.detect.shaft.partner import partner_bands
+from pencilcal.toolkit.detect.shaft.regions import (BoundaryLines, RegionPairs, boundary_lines, region_levels,
+                                                    region_pairs, scene_angle)
 
 __all__ = ["MaterialShaft", "material_cue", "judge_band", "select", "robust_noise"]
 
 _MAX_PAIRS = 40  # candidate pairs per region map, the longest overlaps first
-_MAX_REFINE = 6  # bands refitted at full resolution
+_MAX_REFINE = 6  # bands of the region maps refitted at full resolution
+_MAX_PARTNER = 4  # ... and bands from a single edge (`shaft.partner`)
+_TOUCH = 0.1  # ... unless it overlaps one of those by this fraction (`_touches`)
+_GROUP_TOL = (3.0, 3.0)  # one boundary at two levels: offset [work px], angle [deg]
 _GROW_PASSES = 3  # passes growing a band's edges along its chord
 _MIN_CORRIDOR_PX = 1.5  # the narrowest corridor of a growing edge [px]
 _COAXIAL_DEG = 3.0  # two readings of one instrument: axes this close ...
@@ -114,25 +119,91 @@ class MaterialShaft:
 
 
 def _bands(work, mm, o, wmin, wmax, min_len):
-    """The proposed bands of every region level (module docstring, steps 1-2), the most
-    region evidence first, the better of overlapping ones."""
-    bands = []
-    Ball = None
+    """The proposed bands (module docstring, steps 1-2): those of every region level, the
+    most region evidence first, the better of overlapping ones, at most `_MAX_REFINE`; then
+    those from a single edge (`shaft.partner`) that overlap none of them, at most
+    `_MAX_PARTNER`."""
+    bands, seeds = [], []
+    Ball = B0 = None
     for lev, kind, Bm, repeat in region_levels(mm, work):
         if kind == "all":
             Ball = Bm
+            B0 = Bm if B0 is None else B0
         if repeat:
             continue
         lines = boundary_lines(Bm, work.dist, 0.5 * min_len)
+        seeds.append(lines)
         pairs = region_pairs(lines, wmin, wmax, np.degrees(o.region_conv_max), 0.5 * min_len, _MAX_PAIRS)
         bands += evaluate_bands(lines, pairs, work, Bm, Ball, min_len, lev, kind)
-    if not bands:
+    if Ball is None:
         return []
     vin = work.valid & (work.dist > 1.0)
     ang_thr = 2.0 * scene_angle(work.bgr, vin, 0.5 * wmin)
     acc = [e for e in bands if proposed(e, min_len, ang_thr)]
     acc.sort(key=lambda e: -e.shaft_len)
-    return suppress_overlaps(acc)
+    acc = suppress_overlaps(acc)[:_MAX_REFINE]
+    seed = _unused_seeds(seeds, acc, min_len)
+    lines, pairs, maps = partner_bands(work, seed, wmin, wmax, np.degrees(o.region_conv_max), mm.luma_noise)
+    more = [e for q, B in enumerate(maps)
+            for e in evaluate_bands(lines, _one_pair(pairs, q), work, B, B0, min_len, -1, "partner")]
+    more = [e for e in more if proposed(e, min_len, ang_thr) and not _touches(e, acc)]
+    more.sort(key=lambda e: -e.shaft_len)
+    return acc + suppress_overlaps(more)[:_MAX_PARTNER]
+
+
+def _touches(band, bands):
+    """Whether a band's extension overlaps any of bands' runs by `_TOUCH` of the smaller
+    area: a single edge's band beside a region band is that instrument read again (the
+    region band is the better reading: two boundaries of its material)."""
+    import cv2
+
+    P = cv2.convexHull(band_polygon(band, band.ext))[:, 0, :]
+    a = abs(cv2.contourArea(P))
+    for e in bands:
+        Q = cv2.convexHull(band_polygon(e))[:, 0, :]
+        if cv2.intersectConvexConvex(P, Q)[0] > _TOUCH * min(a, abs(cv2.contourArea(Q))):
+            return True
+    return False
+
+
+def _one_pair(pairs, q):
+    """The q-th pair of a `shaft.regions.RegionPairs` alone."""
+    return RegionPairs(i=pairs.i[q:q + 1], j=pairs.j[q:q + 1], width=pairs.width[q:q + 1],
+                       overlap=pairs.overlap[q:q + 1])
+
+
+def _unused_seeds(seeds, bands, min_len):
+    """The boundary lines of every level (list of `shaft.regions.BoundaryLines`) at least
+    half the least length long, on no side of a proposed band and along no longer one
+    (within `_GROUP_TOL` px and deg: the same boundary at another level), as one
+    `BoundaryLines`."""
+    sides = [ln for e in bands for ln in e.lines]
+    keep = []
+    for L in seeds:
+        for k in range(len(L.p)):
+            if L.hi[k] - L.lo[k] >= 0.5 * min_len:
+                keep.append((L.p[k], L.u[k], L.n[k], float(L.lo[k]), float(L.hi[k])))
+    keep.sort(key=lambda r: -(r[4] - r[3]))
+    out = []
+    for r in keep:
+        if not any(_same_line(r, q) for q in sides + out):
+            out.append(r)
+    z = np.zeros((0, 2))
+    return BoundaryLines(p=np.array([r[0] for r in out]).reshape(-1, 2) if out else z,
+                         u=np.array([r[1] for r in out]).reshape(-1, 2) if out else z,
+                         n=np.array([r[2] for r in out]).reshape(-1, 2) if out else z,
+                         lo=np.array([r[3] for r in out]), hi=np.array([r[4] for r in out]),
+                         support=np.array([r[4] - r[3] for r in out]))
+
+
+def _same_line(r, q):
+    """Whether two boundary lines (p, u, n, lo, hi) lie along one another (the middle of r
+    within `_GROUP_TOL[0]` px of q's line, their directions within `_GROUP_TOL[1]` deg)."""
+    if abs(float(r[1] @ q[1])) < np.cos(np.radians(_GROUP_TOL[1])):
+        return False
+    c = r[0] + 0.5 * (r[3] + r[4]) * r[1]
+    nq = np.array([-q[1][1], q[1][0]])
+    return abs(float((c - q[0]) @ nq)) <= _GROUP_TOL[0]
 
 
 def _edge_specs(band, work, ends):
@@ -248,7 +319,7 @@ def material_cue(image, camera, validity, work, mm, o, K, noise):
     min_len = o.region_min_length * s
     long_len = _LONG_FRACTION * float(np.hypot(*work.shape)) / s
     corridor = max(o.corridor_px, 1.5 / s)
-    bands = _bands(work, mm, o, wmin, wmax, min_len)[:_MAX_REFINE]
+    bands = _bands(work, mm, o, wmin, wmax, min_len)
     stretches = [band_stretch(e, mm.luma_noise) for e in bands]
     fimg = np.ascontiguousarray(image, dtype=np.float32) if bands else image  # sampled pass after pass
     fitted = _band_edges(fimg, camera, validity, noise, bands, work, corridor, stretches, _MATERIAL_GAMMA)

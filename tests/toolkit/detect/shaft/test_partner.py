@@ -1,0 +1,80 @@
+"""The far edge of a band found from one edge (`shaft.partner`): on renders with exact truth,
+a dark shaft on dark tissue, blurred and noisy, with inner streaks, the far edge is the
+silhouette (the outermost edge), not a streak; a seed on tissue with nothing beyond gives
+no band."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from pencilcal.toolkit.detect.shaft.partner import partner_bands
+from pencilcal.toolkit.detect.shaft.regions import BoundaryLines
+from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
+
+
+def _render(angle_deg, width, streaks, blur, seed=0):
+    """A (240, 320, 3) frame: dark reddish tissue, a dark grey band of `width` px through the
+    centre at angle_deg, with bright streaks inside at the given fractions of the width;
+    JPEG-compressed. Returns the frame, the band's unit direction, normal and the offsets of
+    its two edges from the centre along the normal [px]."""
+    rng = np.random.default_rng(seed)
+    H, W = 240, 320
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    a = np.radians(angle_deg)
+    u, n = np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])
+    c = np.array([W / 2 - 0.5, H / 2 - 0.5])
+    t = (xx - c[0]) * n[0] + (yy - c[1]) * n[1]
+    img = np.empty((H, W, 3))
+    img[:] = (38, 45, 85)
+    img += rng.normal(0, 4, (H, W, 1)) * np.array([1, 1, 1.5])  # tissue texture
+    img = cv2.GaussianBlur(img, (0, 0), 3.0)
+    inside = np.abs(t) <= width / 2
+    img[inside] = (30, 32, 36)
+    for f in streaks:  # thin specular streaks along the axis
+        img[np.abs(t - f * width / 2) <= 1.5] = (90, 92, 96)
+    img = cv2.GaussianBlur(img, (0, 0), blur) + rng.normal(0, 1.5, (H, W, 3))
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    _, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
+    return cv2.imdecode(buf, cv2.IMREAD_COLOR), u, n, c, (-width / 2, width / 2)
+
+
+def _seed(u, n, c, offset, half_len=120.0):
+    """One boundary line along the band's edge at `offset` [px], the band on its left."""
+    p = c + offset * n
+    uu = u if (-u[1] * n[0] + u[0] * n[1]) > 0 else -u  # (-u_y, u_x) along +n: into the band
+    return BoundaryLines(p=p[None], u=uu[None], n=np.array([[-uu[1], uu[0]]]), lo=np.array([-half_len]),
+                         hi=np.array([half_len]), support=np.array([2 * half_len]))
+
+
+@pytest.mark.parametrize("angle_deg, width, blur", [(8.0, 40.0, 1.5), (-25.0, 56.0, 2.5), (60.0, 30.0, 2.0)])
+def test_far_edge_is_the_silhouette(angle_deg, width, blur):
+    img, u, n, c, (lo, hi) = _render(angle_deg, width, streaks=(-0.3, 0.35), blur=blur)
+    wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=320)
+    lines, pairs, maps = partner_bands(wf, _seed(u, n, c, lo), 10.0, 100.0, 15.0, 1.5)
+    assert len(pairs.i) >= 1
+    # the pair whose far edge lies on the band's side of the seed
+    far = [lines.p[j] + 0.5 * (lines.lo[j] + lines.hi[j]) * lines.u[j] for j in pairs.j]
+    off = [float((q - c) @ n) for q in far]
+    k = int(np.argmin([abs(o - hi) for o in off]))
+    assert abs(off[k] - hi) <= 1.5, off                # the outer edge, not a streak (1.5 work px)
+    turn = np.degrees(np.arccos(min(1.0, abs(float(lines.u[pairs.j[k]] @ u)))))
+    assert turn <= 1.0
+    B = maps[k]
+    assert B[int(round(c[1])), int(round(c[0]))] or B[int(round(c[1] + 0.25 * width * n[1])),
+                                                      int(round(c[0] + 0.25 * width * n[0]))]
+
+
+def test_no_band_beyond_a_lone_edge():
+    """A straight edge between two tissues (a fold's rim) with nothing beyond it: no far edge
+    on its uniform side within the widths searched."""
+    rng = np.random.default_rng(3)
+    img = np.empty((240, 320, 3))
+    img[:] = (40, 50, 90)
+    img[:120] = (60, 80, 140)
+    img = cv2.GaussianBlur(img + rng.normal(0, 1.5, img.shape), (0, 0), 1.5)
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=320)
+    seeds = _seed(np.array([1.0, 0.0]), np.array([0.0, 1.0]), np.array([159.5, 119.5]), 0.0)
+    _, pairs, _ = partner_bands(wf, seeds, 10.0, 100.0, 15.0, 1.5)
+    assert len(pairs.i) == 0

@@ -1,0 +1,208 @@
+"""The other edge of a band, found from one strong edge: the material cue's proposals where
+the region maps give only one side (`shaft.material_cue`).
+
+A dark shaft on dark tissue, a blurred or shadowed one, a metal part mirroring the tissue's
+colour: the instrument-likeness map (`shaft.regions`) then holds one straight boundary of the
+instrument, or pieces of both, and no band between two of them is proposed. Here every long
+straight boundary (a *seed*) is taken as one silhouette edge, and the other is searched by
+a gradient model across it: at stations along the seed, the colour profile along its normal,
+on either side, out to the widest band (work frame, Gaussian-smoothed along the profile,
+sd `_SMOOTH_PX`), differentiated and projected on the reverse of the seed's own colour
+transition (a band on a background: the far edge steps back to the colour the near edge
+stepped from). The far edge is a straight line t(s) = t0 + b (s - s_mid) through the
+stations' responses, b up to the largest convergence: a station supports it where the
+response there reaches `_REL_STRENGTH` of the seed's step (and `Z_999` noise sd), and a
+line is a candidate where `_MIN_SUPPORT` of the observable stations support it. Of the
+candidates the **outermost** is the far edge, whatever lies inside (streaks, slots, a
+sheen, a wrist's joint make inner edges of either sign): the band is the instrument's whole
+silhouette.
+
+Each (seed, far edge) pair is a candidate band with its own region map: the pixels whose
+colour is nearer the band's inside (median over the stations, between a quarter and three
+quarters of the width) than either side's (beyond each edge, out to half a width), so that
+the band test (`shaft.region_bands.evaluate_bands`: the inside the same all along, the
+sides different) and everything after it judge it as they judge a band of the region maps.
+
+Work pixels throughout (as `shaft.regions`).
+
+Example
+-------
+>>> import numpy as np, cv2
+>>> from pencilcal.toolkit.detect.shaft.regions import BoundaryLines
+>>> from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
+>>> img = np.zeros((240, 320, 3), np.uint8); img[:] = (40, 50, 90)            # dark tissue
+>>> img[100:130, :] = (35, 38, 42)                                           # a dark shaft
+>>> img = cv2.GaussianBlur(img, (0, 0), 2.0)
+>>> wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=320)
+>>> seed = BoundaryLines(p=np.array([[0.0, 99.5]]), u=np.array([[1.0, 0.0]]), n=np.array([[0.0, 1.0]]),
+...                      lo=np.array([10.0]), hi=np.array([300.0]), support=np.array([290.0]))
+>>> lines, pairs, maps = partner_bands(wf, seed, 10.0, 80.0, 15.0, 1.0)
+>>> len(pairs.i), round(float(lines.p[1][1] + (160 - lines.p[1][0]) * lines.u[1][1] / lines.u[1][0]), 0)
+(1, 130.0)
+>>> bool(maps[0][115, 160]), bool(maps[0][60, 160])
+(True, False)
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from pencilcal.toolkit.detect.shaft.regions import Z_999, BoundaryLines, RegionPairs
+
+__all__ = ["partner_bands", "MAX_SEEDS"]
+
+#: Seeds searched per frame, the longest first.
+MAX_SEEDS = 12
+_SMOOTH_PX = 1.0  # sd of the profile smoothing [work px]
+_STEP_PX = 0.5  # profile sample spacing [work px]
+_MAX_STATIONS = 40
+_REL_STRENGTH = 0.35  # a station supports a far edge whose response is this fraction of the seed's step
+_MIN_SUPPORT = 0.5  # ... and a line is a candidate where this fraction of the stations support it
+_SLOPES = 21  # slopes tried, over +-tan(largest convergence)
+
+
+def _profiles(work, P, m, t):
+    """Colours (S, T, C) float32 and observability (S, T) bool at P (S, 2) + t (T,) m (2,)."""
+    import cv2
+
+    X = (P[:, None, 0] + t[None, :] * m[0]).astype(np.float32)
+    Y = (P[:, None, 1] + t[None, :] * m[1]).astype(np.float32)
+    img = work.bgr.astype(np.float32) if work.bgr.ndim == 3 else work.bgr.astype(np.float32)[..., None]
+    col = cv2.remap(img, X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    col = col.reshape(X.shape + (-1,))
+    d = cv2.remap(work.dist, X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1)
+    return col, d > 1.0
+
+
+def _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise):
+    """(t0, b, supported (S,) bool) of the outermost far edge, or None (module docstring)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    sm = gaussian_filter1d(col, _SMOOTH_PX / _STEP_PX, axis=1)
+    D = np.gradient(sm, _STEP_PX, axis=1)  # per work px
+    j0 = int(np.searchsorted(t, 0.0))
+    k = max(1, int(round(2.0 / _STEP_PX)))
+    ok_seed = obs[:, j0 - k] & obs[:, j0 + k]
+    if np.count_nonzero(ok_seed) < 0.5 * len(s):
+        return None
+    d0 = np.median(sm[ok_seed, j0 + k] - sm[ok_seed, j0 - k], axis=0)
+    step = float(np.linalg.norm(d0))
+    if step < Z_999 * noise * np.sqrt(2.0):
+        return None
+    g = D @ (-d0 / step)  # (S, T): the response of a step back to the seed's outside colour
+    # a step of height `step` blurred by the smoothing (sd >= _SMOOTH_PX) peaks at most at
+    # step / (sqrt(2 pi) sd)
+    thr = max(_REL_STRENGTH * step / (np.sqrt(2 * np.pi) * _SMOOTH_PX), Z_999 * noise / _SMOOTH_PX)
+    sup = (g >= thr) & obs
+    s_mid = 0.5 * (s[0] + s[-1])
+    T0 = t[(t >= wmin) & (t <= wmax)]
+    found = []
+    for b in np.linspace(-tan_max, tan_max, _SLOPES):
+        idx = np.rint((T0[None, :] + b * (s - s_mid)[:, None] - t[0]) / _STEP_PX).astype(int)
+        inside = (idx >= 0) & (idx < t.size)
+        idx = np.clip(idx, 0, t.size - 1)
+        rows = np.arange(len(s))[:, None]
+        seen = obs[rows, idx] & inside
+        hit = sup[rows, idx] & inside
+        frac = hit.sum(0) / np.maximum(seen.sum(0), 1)
+        good = (frac >= _MIN_SUPPORT) & (seen.sum(0) >= 0.5 * len(s))
+        if not np.any(good):
+            continue
+        # the outermost run of candidates, at its strongest mean response
+        resp = np.where(seen, g[rows, idx], 0.0).sum(0) / np.maximum(seen.sum(0), 1)
+        q1 = int(np.flatnonzero(good)[-1])
+        q0 = q1
+        while q0 > 0 and good[q0 - 1]:
+            q0 -= 1
+        q = q0 + int(np.argmax(resp[q0:q1 + 1]))
+        found.append((T0[q], resp[q], b, hit[:, q]))
+    if not found:
+        return None
+    # the outermost edge; of the slopes that find it (within 2 px), the strongest
+    far = max(f[0] for f in found)
+    t0, _, b, hit = max((f for f in found if f[0] >= far - 2.0), key=lambda f: f[1])
+    return t0, b, hit
+
+
+def _band_map(work, col, obs, t, t0, b, s, s_mid):
+    """The band's own region map (h, w) uint8 (module docstring)."""
+    import cv2
+
+    w = t0 + b * (s - s_mid)  # (S,)
+    tt = t[None, :]
+    inner = (tt >= 0.25 * w[:, None]) & (tt <= 0.75 * w[:, None]) & obs
+    side1 = (tt <= -2.0) & (tt >= -0.5 * w[:, None]) & obs
+    side2 = (tt >= w[:, None] + 2.0) & (tt <= 1.5 * w[:, None]) & obs
+    if min(np.count_nonzero(inner), np.count_nonzero(side1), np.count_nonzero(side2)) < 10:
+        return None
+    c_in, c1, c2 = (np.median(col[k], axis=0) for k in (inner, side1, side2))
+    img = work.bgr.astype(np.float32) if work.bgr.ndim == 3 else work.bgr.astype(np.float32)[..., None]
+    d_in = np.linalg.norm(img - c_in, axis=-1)
+    d_out = np.minimum(np.linalg.norm(img - c1, axis=-1), np.linalg.norm(img - c2, axis=-1))
+    B = ((d_in < d_out) & work.valid).astype(np.uint8)
+    k3 = np.ones((3, 3), np.uint8)
+    return cv2.morphologyEx(cv2.morphologyEx(B, cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
+
+
+def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SEEDS):
+    """Candidate bands from single edges (module docstring).
+
+    Parameters
+    ----------
+    work : WorkFrame
+    seeds : BoundaryLines
+        The straight edges to start from (`shaft.regions.boundary_lines`), work px.
+    wmin, wmax : float [work px]
+        The band widths searched.
+    conv_max_deg : float
+        The largest convergence of the two edges [deg].
+    noise : float [grey levels]
+        The work frame's noise sd per channel.
+
+    Returns
+    -------
+    (BoundaryLines, RegionPairs, list of (h, w) uint8)
+        The lines (each pair's seed, oriented with the band on its left, and its far edge),
+        the pairs between them, and each pair's region map.
+    """
+    order = np.argsort(-(seeds.hi - seeds.lo))[:max_seeds]
+    tan_max = float(np.tan(np.radians(conv_max_deg)))
+    t = np.arange(-0.5 * wmax - 3.0, 1.5 * wmax + 3.0 + _STEP_PX, _STEP_PX)
+    P_, U_, LO, HI, maps, I, J, W = [], [], [], [], [], [], [], []
+    for k in order:
+        p, u, lo, hi = seeds.p[k], seeds.u[k], float(seeds.lo[k]), float(seeds.hi[k])
+        S = int(np.clip((hi - lo) / 2.0, 8, _MAX_STATIONS))
+        s = lo + (np.arange(S) + 0.5) * (hi - lo) / S
+        P = p[None, :] + s[:, None] * u[None, :]
+        for sign in (1.0, -1.0):
+            m = sign * seeds.n[k]  # across the seed, into the band
+            col, obs = _profiles(work, P, m, t)
+            got = _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise)
+            if got is None:
+                continue
+            t0, b, hit = got
+            s_mid = 0.5 * (s[0] + s[-1])
+            B = _band_map(work, col, obs, t, t0, b, s, s_mid)
+            if B is None:
+                continue
+            # the seed oriented with the band on its left (n = (-u_y, u_x) into it)
+            us, ls, hs = (u, lo, hi) if sign > 0 else (-u, -hi, -lo)
+            q0 = p + s_mid * u + t0 * m
+            uf = u + b * m
+            uf = uf / np.linalg.norm(uf)
+            uf = uf if (-uf[1] * m[0] + uf[0] * m[1]) < 0 else -uf  # its left towards the seed
+            sh = ((P[hit] + (t0 + b * (s[hit] - s_mid))[:, None] * m) - q0) @ uf
+            I.append(len(P_))
+            P_ += [p, q0]
+            U_ += [us, uf]
+            LO += [ls, float(sh.min())]
+            HI += [hs, float(sh.max())]
+            J.append(len(P_) - 1)
+            W.append(t0)
+            maps.append(B)
+    U = np.array(U_).reshape(-1, 2)
+    lines = BoundaryLines(p=np.array(P_).reshape(-1, 2), u=U, n=np.stack([-U[:, 1], U[:, 0]], -1) if len(U) else U,
+                          lo=np.array(LO), hi=np.array(HI), support=np.array(HI) - np.array(LO))
+    pairs = RegionPairs(i=np.array(I, int), j=np.array(J, int), width=np.array(W),
+                        overlap=np.minimum(np.array(HI)[I] - np.array(LO)[I], np.array(HI)[J] - np.array(LO)[J])
+                        if I else np.zeros(0))
+    return lines, pairs, maps
