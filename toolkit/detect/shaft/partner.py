@@ -107,20 +107,39 @@ def _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise):
         good = (frac >= _MIN_SUPPORT) & (seen.sum(0) >= 0.5 * len(s))
         if not np.any(good):
             continue
-        # the outermost run of candidates, at its strongest mean response
+        # each run of candidates at its strongest mean response, kept where the band's
+        # inside at its far rim is of the seed's inside material
         resp = np.where(seen, g[rows, idx], 0.0).sum(0) / np.maximum(seen.sum(0), 1)
-        q1 = int(np.flatnonzero(good)[-1])
-        q0 = q1
-        while q0 > 0 and good[q0 - 1]:
-            q0 -= 1
-        q = q0 + int(np.argmax(resp[q0:q1 + 1]))
-        found.append((T0[q], resp[q], b, hit[:, q]))
+        for q0, q1 in _runs(good):
+            q = q0 + int(np.argmax(resp[q0:q1]))
+            if _same_inside(sm, obs, (T0[q] + b * (s - s_mid) - t[0]) / _STEP_PX, j0, k):
+                found.append((T0[q], resp[q], b, hit[:, q]))
     if not found:
         return None
     # the outermost edge; of the slopes that find it (within 2 px), the strongest
     far = max(f[0] for f in found)
     t0, _, b, hit = max((f for f in found if f[0] >= far - 2.0), key=lambda f: f[1])
     return t0, b, hit
+
+
+def _runs(flag):
+    """[(start, stop)] of the runs of True in a 1-D bool array."""
+    d = np.diff(np.r_[0, flag.astype(np.int8), 0])
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+
+
+def _same_inside(sm, obs, jf, j0, k):
+    """Whether the colour just inside a far edge (at profile index jf (S,), k samples
+    inwards) is nearer the seed's inside (j0 + k) than its outside (j0 - k), median over the
+    stations: a far edge beyond the instrument, on tissue, has tissue inside it."""
+    rows = np.arange(sm.shape[0])
+    ji = np.clip(np.rint(jf).astype(int) - k, 0, sm.shape[1] - 1)
+    ok = obs[rows, ji] & obs[:, j0 + k] & obs[:, j0 - k]
+    if not np.any(ok):
+        return False
+    c = np.median(sm[rows[ok], ji[ok]], axis=0)
+    return bool(np.linalg.norm(c - np.median(sm[ok, j0 + k], axis=0))
+                < np.linalg.norm(c - np.median(sm[ok, j0 - k], axis=0)))
 
 
 def _band_map(work, col, obs, t, t0, b, s, s_mid):
