@@ -27,7 +27,7 @@ pytestmark = pytest.mark.slow
 #: endovis17 left out the setting chosen on the others (0.1 of the view's diagonal, which keeps
 #: cholec's false detections down) keeps 2 of its 7 detections (all right): the detector's
 #: evidence is not comparable between sources (docs/method.md).
-REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (6, 0.6),
+REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (6, 0.5),
            "endovis17": (2, 0.0)}
 
 

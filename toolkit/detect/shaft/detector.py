@@ -195,6 +195,7 @@ class ShaftOptions:
     min_score_ratio: float
     corridor_px: float
     gamma: float
+    single_edge: bool = True
 
     @classmethod
     def resolve(cls, shape, *, min_length, width_px_range, max_convergence_deg, scale, max_gap_px, border_px, **kw):
@@ -276,7 +277,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
                   max_convergence_deg=30.0, max_shafts=4, scale=None, max_gap_px=None, search_px=3.0,
                   sigma_px=1.5, min_support=0.3, max_background=0.1, slope_correction=True, from_border=True,
                   border_px=None, min_score_ratio=0.25, corridor_px=4.0, detector_params=None, gamma=DEFAULT_GAMMA,
-                  axis_prior=None):
+                  axis_prior=None, single_edge=True):
     """Instrument shafts in one image: midline (the axis image), width, angle uncertainty.
 
     Parameters
@@ -351,6 +352,14 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         best-scored whose midline passes through it (`shaft.prior.select_through`);
         max_shafts and min_score_ratio then do not apply.
 
+    single_edge : bool
+        The material cue also proposes bands from a single straight boundary, to the far
+        edge a gradient model finds across it (`shaft.partner`: a white or metal shaft the
+        colour does not tell from tissue, beside a dark region): more instruments found on
+        in-vivo frames (docs/method.md), at about 0.4 FLD times more per 1080p frame
+        (`shafts_vs_fld_1080p` of `pencilcal bench`: 1.5-1.7 without, 1.8-2.1 with).
+        False: the region bands alone.
+
     Returns
     -------
     list of Shaft
@@ -366,7 +375,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         max_convergence_deg=max_convergence_deg, max_shafts=max_shafts, scale=scale, max_gap_px=max_gap_px,
         search_px=search_px, sigma_px=sigma_px, min_support=min_support, max_background=max_background,
         slope_correction=slope_correction, from_border=from_border, border_px=border_px,
-        min_score_ratio=min_score_ratio, corridor_px=corridor_px, gamma=gamma))
+        min_score_ratio=min_score_ratio, corridor_px=corridor_px, gamma=gamma, single_edge=bool(single_edge)))
     priors = as_priors(axis_prior)
     work = WorkFrame(image, camera, validity, _WORK_PX) if priors else None
     found = _by_material(image, camera, validity, o, K, work)

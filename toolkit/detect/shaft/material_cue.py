@@ -60,7 +60,7 @@ from pencilcal.toolkit.detect.shaft.region_bands import (
     proposed,
     suppress_overlaps,
 )
-from pencilcal.toolkit.detect.shaft.partner import partner_bands
+from pencilcal.toolkit.detect.shaft.partner import MAX_SEEDS, partner_bands
 from pencilcal.toolkit.detect.shaft.regions import (BoundaryLines, RegionPairs, boundary_lines, region_levels,
                                                     region_pairs, scene_angle)
 
@@ -145,6 +145,8 @@ def _bands(work, mm, o, wmin, wmax, min_len):
     acc = [e for e in bands if proposed(e, min_len, ang_thr)]
     acc.sort(key=lambda e: -e.shaft_len)
     acc = suppress_overlaps(acc)[:_MAX_REFINE]
+    if not o.single_edge:
+        return acc
     seed = _unused_seeds(seeds, acc, min_len)
     lines, pairs, maps = partner_bands(work, seed, wmin, wmax, np.degrees(o.region_conv_max), mm.luma_noise)
     more = [e for q, B in enumerate(maps)
@@ -179,34 +181,33 @@ def _unused_seeds(seeds, bands, min_len):
     """The boundary lines of every level (list of `shaft.regions.BoundaryLines`) at least
     half the least length long, on no side of a proposed band and along no longer one
     (within `_GROUP_TOL` px and deg: the same boundary at another level), as one
-    `BoundaryLines`."""
-    sides = [ln for e in bands for ln in e.lines]
+    `BoundaryLines`, the longest first, at most `shaft.partner.MAX_SEEDS`."""
+    P = np.concatenate([L.p for L in seeds]).reshape(-1, 2)
+    U = np.concatenate([L.u for L in seeds]).reshape(-1, 2)
+    N = np.concatenate([L.n for L in seeds]).reshape(-1, 2)
+    lo, hi = np.concatenate([L.lo for L in seeds]), np.concatenate([L.hi for L in seeds])
+    k = np.flatnonzero(hi - lo >= 0.5 * min_len)
+    k = k[np.argsort(-(hi - lo)[k], kind="stable")]
+    # the lines taken so far: the proposed bands' sides, then the seeds kept
+    tp = [ln[0] for e in bands for ln in e.lines]
+    tu = [ln[1] for e in bands for ln in e.lines]
+    cos_tol = np.cos(np.radians(_GROUP_TOL[1]))
     keep = []
-    for L in seeds:
-        for k in range(len(L.p)):
-            if L.hi[k] - L.lo[k] >= 0.5 * min_len:
-                keep.append((L.p[k], L.u[k], L.n[k], float(L.lo[k]), float(L.hi[k])))
-    keep.sort(key=lambda r: -(r[4] - r[3]))
-    out = []
-    for r in keep:
-        if not any(_same_line(r, q) for q in sides + out):
-            out.append(r)
-    z = np.zeros((0, 2))
-    return BoundaryLines(p=np.array([r[0] for r in out]).reshape(-1, 2) if out else z,
-                         u=np.array([r[1] for r in out]).reshape(-1, 2) if out else z,
-                         n=np.array([r[2] for r in out]).reshape(-1, 2) if out else z,
-                         lo=np.array([r[3] for r in out]), hi=np.array([r[4] for r in out]),
-                         support=np.array([r[4] - r[3] for r in out]))
-
-
-def _same_line(r, q):
-    """Whether two boundary lines (p, u, n, lo, hi) lie along one another (the middle of r
-    within `_GROUP_TOL[0]` px of q's line, their directions within `_GROUP_TOL[1]` deg)."""
-    if abs(float(r[1] @ q[1])) < np.cos(np.radians(_GROUP_TOL[1])):
-        return False
-    c = r[0] + 0.5 * (r[3] + r[4]) * r[1]
-    nq = np.array([-q[1][1], q[1][0]])
-    return abs(float((c - q[0]) @ nq)) <= _GROUP_TOL[0]
+    for i in k:
+        if len(keep) == MAX_SEEDS:  # all `shaft.partner` searches
+            break
+        c = P[i] + 0.5 * (lo[i] + hi[i]) * U[i]
+        if tp:
+            A, B = np.array(tp), np.array(tu)
+            d = c - A
+            near = (np.abs(B @ U[i]) >= cos_tol) & (np.abs(B[:, 0] * d[:, 1] - B[:, 1] * d[:, 0]) <= _GROUP_TOL[0])
+            if np.any(near):
+                continue
+        keep.append(i)
+        tp.append(P[i])
+        tu.append(U[i])
+    keep = np.array(keep, int)
+    return BoundaryLines(p=P[keep], u=U[keep], n=N[keep], lo=lo[keep], hi=hi[keep], support=(hi - lo)[keep])
 
 
 def _edge_specs(band, work, ends):

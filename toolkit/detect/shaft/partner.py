@@ -1,12 +1,14 @@
 """The other edge of a band, found from one strong edge: the material cue's proposals where
 the region maps give only one side (`shaft.material_cue`).
 
-A dark shaft on dark tissue, a blurred or shadowed one, a metal part mirroring the tissue's
-colour: the instrument-likeness map (`shaft.regions`) then holds one straight boundary of the
-instrument, or pieces of both, and no band between two of them is proposed. Here every long
-straight boundary (a *seed*) is taken as one silhouette edge, and the other is searched by
-a gradient model across it: at stations along the seed, the colour profile along its normal,
-on either side, out to the widest band (work frame, Gaussian-smoothed along the profile,
+A white or metal shaft whose colour the instrument-likeness map (`shaft.regions`) does not
+tell from tissue, a blurred one, one in shadow: the map then holds a straight boundary of the
+instrument only where something instrument-like lies beside it (a dark region: shadow, dark
+tissue, the vignetted periphery), and no band between two boundaries is proposed. Here each
+long straight boundary (a *seed*, at most `MAX_SEEDS`, the longest first) is taken as one
+silhouette edge of a band on the side away from its region, and the band's other edge is
+searched by a gradient model across it: at stations along the seed, the colour profile
+along its normal, out to the widest band (work frame, Gaussian-smoothed along the profile,
 sd `_SMOOTH_PX`), differentiated and projected on the reverse of the seed's own colour
 transition (a band on a background: the far edge steps back to the colour the near edge
 stepped from). The far edge is a straight line t(s) = t0 + b (s - s_mid) through the
@@ -34,8 +36,9 @@ Example
 >>> img[100:130, :] = (35, 38, 42)                                           # a dark shaft
 >>> img = cv2.GaussianBlur(img, (0, 0), 2.0)
 >>> wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=320)
->>> seed = BoundaryLines(p=np.array([[0.0, 99.5]]), u=np.array([[1.0, 0.0]]), n=np.array([[0.0, 1.0]]),
-...                      lo=np.array([10.0]), hi=np.array([300.0]), support=np.array([290.0]))
+>>> # the boundary of a dark region above the shaft (n: into that region, upwards)
+>>> seed = BoundaryLines(p=np.array([[310.0, 99.5]]), u=np.array([[-1.0, 0.0]]), n=np.array([[0.0, -1.0]]),
+...                      lo=np.array([0.0]), hi=np.array([290.0]), support=np.array([290.0]))
 >>> lines, pairs, maps = partner_bands(wf, seed, 10.0, 80.0, 15.0, 1.0)
 >>> len(pairs.i), round(float(lines.p[1][1] + (160 - lines.p[1][0]) * lines.u[1][1] / lines.u[1][0]), 0)
 (1, 130.0)
@@ -51,22 +54,22 @@ from pencilcal.toolkit.detect.shaft.regions import Z_999, BoundaryLines, RegionP
 __all__ = ["partner_bands", "MAX_SEEDS"]
 
 #: Seeds searched per frame, the longest first.
-MAX_SEEDS = 12
+MAX_SEEDS = 6  # (12 gave the same masked-source table at twice the cost)
 _SMOOTH_PX = 1.0  # sd of the profile smoothing [work px]
-_STEP_PX = 0.5  # profile sample spacing [work px]
+_STEP_PX = 1.0  # profile sample spacing [work px] (the far edge is refitted at full resolution)
 _MAX_STATIONS = 40
 _REL_STRENGTH = 0.35  # a station supports a far edge whose response is this fraction of the seed's step
 _MIN_SUPPORT = 0.5  # ... and a line is a candidate where this fraction of the stations support it
-_SLOPES = 21  # slopes tried, over +-tan(largest convergence)
+_SLOPES = 21  # slopes tried, over +-tan(largest convergence) (1.5 deg apart at 15 deg)
 
 
-def _profiles(work, P, m, t):
-    """Colours (S, T, C) float32 and observability (S, T) bool at P (S, 2) + t (T,) m (2,)."""
+def _profiles(work, img, P, m, t):
+    """Colours (S, T, C) float32 and observability (S, T) bool at P (S, 2) + t (T,) m (2,);
+    img: the work frame's colours (h, w, C) float32."""
     import cv2
 
     X = (P[:, None, 0] + t[None, :] * m[0]).astype(np.float32)
     Y = (P[:, None, 1] + t[None, :] * m[1]).astype(np.float32)
-    img = work.bgr.astype(np.float32) if work.bgr.ndim == 3 else work.bgr.astype(np.float32)[..., None]
     col = cv2.remap(img, X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     col = col.reshape(X.shape + (-1,))
     d = cv2.remap(work.dist, X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1)
@@ -75,50 +78,57 @@ def _profiles(work, P, m, t):
 
 def _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise):
     """(t0, b, supported (S,) bool) of the outermost far edge, or None (module docstring)."""
-    from scipy.ndimage import gaussian_filter1d
+    import cv2
 
-    sm = gaussian_filter1d(col, _SMOOTH_PX / _STEP_PX, axis=1)
-    D = np.gradient(sm, _STEP_PX, axis=1)  # per work px
+    S, T, C = col.shape
     j0 = int(np.searchsorted(t, 0.0))
     k = max(1, int(round(2.0 / _STEP_PX)))
     ok_seed = obs[:, j0 - k] & obs[:, j0 + k]
-    if np.count_nonzero(ok_seed) < 0.5 * len(s):
+    if np.count_nonzero(ok_seed) < 0.5 * S:
         return None
-    d0 = np.median(sm[ok_seed, j0 + k] - sm[ok_seed, j0 - k], axis=0)
+    r = int(np.ceil(3.0 * _SMOOTH_PX / _STEP_PX))
+    sm = cv2.GaussianBlur(col.reshape(S, T * C) if C == 1 else col, (2 * r + 1, 1), _SMOOTH_PX / _STEP_PX,
+                          sigmaY=1e-6, borderType=cv2.BORDER_REPLICATE).reshape(S, T, C)
+    c_in, c_out = np.median(sm[ok_seed, j0 + k], axis=0), np.median(sm[ok_seed, j0 - k], axis=0)
+    d0 = c_in - c_out
     step = float(np.linalg.norm(d0))
     if step < Z_999 * noise * np.sqrt(2.0):
         return None
-    g = D @ (-d0 / step)  # (S, T): the response of a step back to the seed's outside colour
+    # (S, T): the response of a step back to the seed's outside colour, per work px
+    g = np.gradient(sm @ (-d0 / step), _STEP_PX, axis=1)
     # a step of height `step` blurred by the smoothing (sd >= _SMOOTH_PX) peaks at most at
     # step / (sqrt(2 pi) sd)
     thr = max(_REL_STRENGTH * step / (np.sqrt(2 * np.pi) * _SMOOTH_PX), Z_999 * noise / _SMOOTH_PX)
     sup = (g >= thr) & obs
     s_mid = 0.5 * (s[0] + s[-1])
     T0 = t[(t >= wmin) & (t <= wmax)]
-    found = []
-    for b in np.linspace(-tan_max, tan_max, _SLOPES):
-        idx = np.rint((T0[None, :] + b * (s - s_mid)[:, None] - t[0]) / _STEP_PX).astype(int)
-        inside = (idx >= 0) & (idx < t.size)
-        idx = np.clip(idx, 0, t.size - 1)
-        rows = np.arange(len(s))[:, None]
-        seen = obs[rows, idx] & inside
-        hit = sup[rows, idx] & inside
-        frac = hit.sum(0) / np.maximum(seen.sum(0), 1)
-        good = (frac >= _MIN_SUPPORT) & (seen.sum(0) >= 0.5 * len(s))
-        if not np.any(good):
-            continue
-        # each run of candidates at its strongest mean response, kept where the band's
-        # inside at its far rim is of the seed's inside material
-        resp = np.where(seen, g[rows, idx], 0.0).sum(0) / np.maximum(seen.sum(0), 1)
-        for q0, q1 in _runs(good):
-            q = q0 + int(np.argmax(resp[q0:q1]))
-            if _same_inside(sm, obs, (T0[q] + b * (s - s_mid) - t[0]) / _STEP_PX, j0, k):
-                found.append((T0[q], resp[q], b, hit[:, q]))
-    if not found:
+    # every slope at once: (slopes, S, T0) profile indices of the candidate lines
+    bs = np.linspace(-tan_max, tan_max, _SLOPES)
+    idx = np.rint((T0[None, None, :] + bs[:, None, None] * (s - s_mid)[None, :, None] - t[0]) / _STEP_PX).astype(int)
+    inside = (idx >= 0) & (idx < T)
+    idx = np.clip(idx, 0, T - 1)
+    rows = np.arange(S)[None, :, None]
+    code = (obs.astype(np.uint8) | (sup.astype(np.uint8) << 1))[rows, idx] * inside  # one gather for both
+    seen, hit = (code & 1).astype(bool), code >= 2
+    n_seen = seen.sum(1)
+    good = (hit.sum(1) >= _MIN_SUPPORT * np.maximum(n_seen, 1)) & (n_seen >= 0.5 * S)  # (slopes, T0)
+    cands = []
+    for a in np.flatnonzero(good.any(1)):
+        for q0, q1 in _runs(good[a]):  # each run of candidates at its strongest mean response
+            blk = idx[a, :, q0:q1]
+            resp = np.where(seen[a, :, q0:q1], g[rows[0], blk], 0.0).sum(0) / np.maximum(n_seen[a, q0:q1], 1)
+            q = q0 + int(np.argmax(resp))
+            cands.append((T0[q], resp[q - q0], bs[a], idx[a, :, q], hit[a, :, q]))
+    if not cands:
         return None
-    # the outermost edge; of the slopes that find it (within 2 px), the strongest
-    far = max(f[0] for f in found)
-    t0, _, b, hit = max((f for f in found if f[0] >= far - 2.0), key=lambda f: f[1])
+    # the outermost whose band is of the seed's inside material at its far rim; of the
+    # slopes that find it (within 2 px), the strongest
+    same = _same_inside(sm, obs, np.array([c[3] for c in cands]), k, c_in, c_out)
+    cands = [c for c, ok in zip(cands, same) if ok]
+    if not cands:
+        return None
+    far = max(c[0] for c in cands)
+    t0, _, b, _, hit = max((c for c in cands if c[0] >= far - 2.0), key=lambda c: c[1])
     return t0, b, hit
 
 
@@ -128,22 +138,25 @@ def _runs(flag):
     return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
 
 
-def _same_inside(sm, obs, jf, j0, k):
-    """Whether the colour just inside a far edge (at profile index jf (S,), k samples
-    inwards) is nearer the seed's inside (j0 + k) than its outside (j0 - k), median over the
-    stations: a far edge beyond the instrument, on tissue, has tissue inside it."""
-    rows = np.arange(sm.shape[0])
-    ji = np.clip(np.rint(jf).astype(int) - k, 0, sm.shape[1] - 1)
-    ok = obs[rows, ji] & obs[:, j0 + k] & obs[:, j0 - k]
-    if not np.any(ok):
-        return False
-    c = np.median(sm[rows[ok], ji[ok]], axis=0)
-    return bool(np.linalg.norm(c - np.median(sm[ok, j0 + k], axis=0))
-                < np.linalg.norm(c - np.median(sm[ok, j0 - k], axis=0)))
+def _same_inside(sm, obs, jf, k, c_in, c_out):
+    """Per candidate far edge (its profile indices jf (N, S)), whether the colour just
+    inside it (k samples inwards) is nearer the seed's inside colour c_in than its outside
+    c_out, median over the stations: (N,) bool. A far edge beyond the instrument, on
+    tissue, has tissue inside it."""
+    rows = np.arange(sm.shape[0])[None, :]
+    ji = np.clip(jf - k, 0, sm.shape[1] - 1)
+    seen = obs[rows, ji]
+    # the median of each candidate's seen stations: NaN sorts last, the middle of the rest
+    V = np.sort(np.where(seen[..., None], sm[rows, ji], np.nan), axis=1)
+    n = seen.sum(1)
+    c = np.take_along_axis(V, np.maximum((n - 1) // 2, 0)[:, None, None], axis=1)[:, 0]  # (N, C)
+    ok = n > 0
+    return ok & (np.sum((c - c_in) ** 2, axis=1) < np.sum((c - c_out) ** 2, axis=1))
 
 
-def _band_map(work, col, obs, t, t0, b, s, s_mid):
-    """The band's own region map (h, w) uint8 (module docstring)."""
+def _band_map(work, img, col, obs, t, t0, b, s, s_mid):
+    """The band's own region map (h, w) uint8 (module docstring); img: the work frame's
+    colours (h, w, C) float32."""
     import cv2
 
     w = t0 + b * (s - s_mid)  # (S,)
@@ -154,10 +167,10 @@ def _band_map(work, col, obs, t, t0, b, s, s_mid):
     if min(np.count_nonzero(inner), np.count_nonzero(side1), np.count_nonzero(side2)) < 10:
         return None
     c_in, c1, c2 = (np.median(col[k], axis=0) for k in (inner, side1, side2))
-    img = work.bgr.astype(np.float32) if work.bgr.ndim == 3 else work.bgr.astype(np.float32)[..., None]
-    d_in = np.linalg.norm(img - c_in, axis=-1)
-    d_out = np.minimum(np.linalg.norm(img - c1, axis=-1), np.linalg.norm(img - c2, axis=-1))
-    B = ((d_in < d_out) & work.valid).astype(np.uint8)
+    # |x - c|^2 = |x|^2 - 2 x.c + |c|^2: the |x|^2 common to all three drops out
+    d = [cv2.transform(img, (-2.0 * c).reshape(1, -1).astype(np.float32)).reshape(work.shape) + float(c @ c)
+         for c in (c_in, c1, c2)]
+    B = ((d[0] < np.minimum(d[1], d[2])) & work.valid).astype(np.uint8)
     k3 = np.ones((3, 3), np.uint8)
     return cv2.morphologyEx(cv2.morphologyEx(B, cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
 
@@ -169,7 +182,8 @@ def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SE
     ----------
     work : WorkFrame
     seeds : BoundaryLines
-        The straight edges to start from (`shaft.regions.boundary_lines`), work px.
+        The straight edges to start from (`shaft.regions.boundary_lines`, n into their
+        region; the band is searched on the other side), work px.
     wmin, wmax : float [work px]
         The band widths searched.
     conv_max_deg : float
@@ -180,44 +194,44 @@ def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SE
     Returns
     -------
     (BoundaryLines, RegionPairs, list of (h, w) uint8)
-        The lines (each pair's seed, oriented with the band on its left, and its far edge),
+        The lines (each pair's seed, reversed: the band on its left, and its far edge),
         the pairs between them, and each pair's region map.
     """
     order = np.argsort(-(seeds.hi - seeds.lo))[:max_seeds]
     tan_max = float(np.tan(np.radians(conv_max_deg)))
     t = np.arange(-0.5 * wmax - 3.0, 1.5 * wmax + 3.0 + _STEP_PX, _STEP_PX)
+    img = work.bgr.astype(np.float32).reshape(work.shape + (-1,))
     P_, U_, LO, HI, maps, I, J, W = [], [], [], [], [], [], [], []
     for k in order:
         p, u, lo, hi = seeds.p[k], seeds.u[k], float(seeds.lo[k]), float(seeds.hi[k])
         S = int(np.clip((hi - lo) / 2.0, 8, _MAX_STATIONS))
         s = lo + (np.arange(S) + 0.5) * (hi - lo) / S
         P = p[None, :] + s[:, None] * u[None, :]
-        for sign in (1.0, -1.0):
-            m = sign * seeds.n[k]  # across the seed, into the band
-            col, obs = _profiles(work, P, m, t)
-            got = _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise)
-            if got is None:
-                continue
-            t0, b, hit = got
-            s_mid = 0.5 * (s[0] + s[-1])
-            B = _band_map(work, col, obs, t, t0, b, s, s_mid)
-            if B is None:
-                continue
-            # the seed oriented with the band on its left (n = (-u_y, u_x) into it)
-            us, ls, hs = (u, lo, hi) if sign > 0 else (-u, -hi, -lo)
-            q0 = p + s_mid * u + t0 * m
-            uf = u + b * m
-            uf = uf / np.linalg.norm(uf)
-            uf = uf if (-uf[1] * m[0] + uf[0] * m[1]) < 0 else -uf  # its left towards the seed
-            sh = ((P[hit] + (t0 + b * (s[hit] - s_mid))[:, None] * m) - q0) @ uf
-            I.append(len(P_))
-            P_ += [p, q0]
-            U_ += [us, uf]
-            LO += [ls, float(sh.min())]
-            HI += [hs, float(sh.max())]
-            J.append(len(P_) - 1)
-            W.append(t0)
-            maps.append(B)
+        m = -seeds.n[k]  # across the seed, away from its region: into the band
+        col, obs = _profiles(work, img, P, m, t)
+        got = _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise)
+        if got is None:
+            continue
+        t0, b, hit = got
+        s_mid = 0.5 * (s[0] + s[-1])
+        B = _band_map(work, img, col, obs, t, t0, b, s, s_mid)
+        if B is None:
+            continue
+        # the seed reversed: the band on its left (n = (-u_y, u_x) into it)
+        us, ls, hs = -u, -hi, -lo
+        q0 = p + s_mid * u + t0 * m
+        uf = u + b * m
+        uf = uf / np.linalg.norm(uf)
+        uf = uf if (-uf[1] * m[0] + uf[0] * m[1]) < 0 else -uf  # its left towards the seed
+        sh = ((P[hit] + (t0 + b * (s[hit] - s_mid))[:, None] * m) - q0) @ uf
+        I.append(len(P_))
+        P_ += [p, q0]
+        U_ += [us, uf]
+        LO += [ls, float(sh.min())]
+        HI += [hs, float(sh.max())]
+        J.append(len(P_) - 1)
+        W.append(t0)
+        maps.append(B)
     U = np.array(U_).reshape(-1, 2)
     lines = BoundaryLines(p=np.array(P_).reshape(-1, 2), u=U, n=np.stack([-U[:, 1], U[:, 0]], -1) if len(U) else U,
                           lo=np.array(LO), hi=np.array(HI), support=np.array(HI) - np.array(LO))

@@ -40,9 +40,10 @@ def _render(angle_deg, width, streaks, blur, seed=0):
 
 
 def _seed(u, n, c, offset, half_len=120.0):
-    """One boundary line along the band's edge at `offset` [px], the band on its left."""
+    """One region boundary along the band's edge at `offset` [px], its region (n = (-u_y,
+    u_x)) outside the band, on the -n side."""
     p = c + offset * n
-    uu = u if (-u[1] * n[0] + u[0] * n[1]) > 0 else -u  # (-u_y, u_x) along +n: into the band
+    uu = u if (-u[1] * n[0] + u[0] * n[1]) < 0 else -u  # (-u_y, u_x) along -n: away from the band
     return BoundaryLines(p=p[None], u=uu[None], n=np.array([[-uu[1], uu[0]]]), lo=np.array([-half_len]),
                          hi=np.array([half_len]), support=np.array([2 * half_len]))
 
