@@ -7,9 +7,10 @@ frames whose colour tells the materials apart (`shaft.detector`).
 2. *bands* (`shaft.region_bands`): each pair judged along its chord through the work frame;
    proposed when its run of region is at least the least length and differs in material
    from both sides, the better of overlapping ones; then, from each long boundary on no
-   side of these (a dark shaft on dark tissue, a blurred one: the maps give one side),
-   the band to the outermost far edge a gradient model finds across it, with its own
-   region map (`shaft.partner`), judged alike, where it overlaps none of them;
+   side of these, the band on the side away from its region (a white or metal shaft
+   beside a dark region: the maps give one side) to the outermost far edge a gradient
+   model finds across it, with its own region map (`shaft.partner`), judged alike, where
+   it overlaps none of them;
 3. *edges* (`shaft.silhouette`, `_band_edges`): each proposed band's two boundaries refitted at
    full resolution in a corridor (`corridor_px`, at least 1.5 work px: the region boundary's
    own resolution) over its run, then grown along their own lines over the stretch where
