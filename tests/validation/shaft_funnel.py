@@ -18,6 +18,10 @@ that loses it is named:
   chose on the other sources;
 - ``found``.
 
+It also prints each source's found and false detections at every setting of the protocol
+(`validation.shaft_protocol.SETTINGS`): how near each choice lies to the bound on false
+detections of the other sources.
+
 A band or shaft lies "along" an instrument within `ALONG_DEG` (parts `ALONG_PART_DEG`) and
 its line passes within max(`ALONG_PX`, half the width) of the reference's point. The
 overlays (``--out``): the mask's outline green, segments blue, evaluated bands' axes
@@ -267,6 +271,16 @@ def main(argv=None):
         else:
             frames[name] = [(r["_refs"], r["detections"]) for r in refs]
     table = {r["source"]: r for r in leave_one_source_out(frames, diag)}
+    # found / false of every source at every setting: how near the choice is to its bound
+    from pencilcal.validation.shaft_protocol import SETTINGS
+    from pencilcal.validation.shaft_score import score_frame, summarize
+
+    for name, fr in frames.items():
+        cells = []
+        for st in SETTINGS:
+            S = summarize([score_frame(filtered(d, st, diag[name]), r) for r, d in fr])
+            cells.append(f"{st:g}: {S['found']}/{S['instruments']} ({S['false']} false)")
+        print(f"{name} by setting: " + ", ".join(cells))
     for name, rows in traced_rows.items():
         setting = table[name]["setting"]
         count = Counter()
