@@ -68,6 +68,7 @@ _CELLS = 240  # cells of the shaft's shading across the profile
 _ROUGH_RANGE = (0.03, 1.0)  # the specular lobe's roughness's bounds
 _SIGMA_RANGE = (0.3, 6.0)  # the blur sd's bounds [px]
 _MIN_BINS = 3
+_STARTS_PX = (0.0, 1.5)  # the limb fit's starts from the step edge, outwards [px]
 
 
 class LimbFit(NamedTuple):
@@ -98,11 +99,15 @@ def specular_lobe(c, roughness):
     return np.where(c > 0, D * G1 * G1 / (4 * np.maximum(c, 1e-300)), 0.0)
 
 
-def limb_design(t, edge, sigma, half_width, roughness, sin_view=1.0):
+def limb_design(t, edge, sigma, half_width, roughness, sin_view=1.0, q=0.0):
     """(T, 4) the blurred model's columns at the offsets t (T,) [px] for the limb edge [px],
     the blur sd sigma [px], the band's half-width [px] and the specular lobe's roughness:
     sin_view: the sine of the angle between the viewing ray and the axis (c is that times
-    the cross-section's cosine). The profile is this times (b0, b1, kd, ks) (module
+    the cross-section's cosine); q: the sine of the band's half-angle at the camera (its
+    half-width over the focal length), for the light's fall-off: the surface point at
+    cross-section cosine c' lies at ``z = rho (sqrt(1 - q^2 + q^2 c'^2) - q c')`` from the
+    camera (rho the axis's distance), nearer than the limb, and its irradiance is
+    ``(z_limb / z)^2`` that of the limb. The profile is this times (b0, b1, kd, ks) (module
     docstring). The background's columns
     in closed form; the shaft's as sums over `_CELLS` cells even in the surface's angle psi
     from the limb (d = W (1 - cos psi), c = sin psi: fine where the shading changes fast),
@@ -117,17 +122,20 @@ def limb_design(t, edge, sigma, half_width, roughness, sin_view=1.0):
     psi_max = float(np.arccos(np.clip(1.0 - max(deep, 0.1) / half_width, -1.0, 1.0)))
     dpsi = psi_max / _CELLS
     psi = (np.arange(_CELLS) + 0.5) * dpsi
-    dd = half_width * np.sin(psi) * dpsi  # each cell's depth [px]
-    c = sin_view * np.sin(psi)
+    cs = np.sin(psi)  # the cross-section's cosine
+    dd = half_width * cs * dpsi  # each cell's depth [px]
+    c = sin_view * cs
+    fall = (1.0 - q * q) / (np.sqrt(1.0 - q * q + q * q * cs * cs) - q * cs) ** 2
+    dd = dd * fall
     x = edge - half_width * (1.0 - np.cos(psi))
     g = np.exp(-0.5 * ((t[:, None] - x) / sigma) ** 2) / (np.sqrt(2 * np.pi) * sigma)
     return np.column_stack([ndtr(z), sigma * (z * ndtr(z) + phi), g @ (c * dd), g @ (specular_lobe(c, roughness) * dd)])
 
 
-def fit_limb_profile(t, y, half_width, edge0, sigma0, roughness0=0.3, sin_view=1.0, use=None):
+def fit_limb_profile(t, y, half_width, edge0, sigma0, roughness0=0.3, sin_view=1.0, q=0.0, use=None):
     """The limb model fitted to one profile (`LimbFit`): samples y (T,) [linear light] at
     offsets t (T,) [px] along the outward normal, the band's half-width [px], starts for
-    the edge [px], the blur sd [px] and the specular lobe's roughness; sin_view as
+    the edge [px], the blur sd [px] and the specular lobe's roughness; sin_view and q as
     `limb_design`; use (T,) bool: the samples fitted (default all; a saturated one is not
     what the model predicts)."""
     from scipy.optimize import least_squares
@@ -137,7 +145,7 @@ def fit_limb_profile(t, y, half_width, edge0, sigma0, roughness0=0.3, sin_view=1
     use = np.ones(t.shape, bool) if use is None else np.asarray(use, bool)
 
     def solve(p):
-        A = limb_design(t, p[0], np.exp(p[1]), half_width, np.exp(p[2]), sin_view)[use]
+        A = limb_design(t, p[0], np.exp(p[1]), half_width, np.exp(p[2]), sin_view, q)[use]
         coef, *_ = np.linalg.lstsq(A, y[use], rcond=None)
         return A, coef
 
@@ -193,8 +201,9 @@ def refine_edge(image, camera, edge, geometry, gamma=1.0, sigma0=1.2):
 
     image: the raw frame (H, W) or (H, W, 3); camera: its `Camera` or None; edge: the
     step fit, a `shaft.silhouette.EdgeLine` (ideal px, n outward); geometry: a callable
-    giving, at the edge's points (M, 2) [ideal px], the band's half-width [px] (M,) and the
-    sine of the angle between the viewing ray and the axis (M,); gamma: the frame's
+    giving, at the edge's points (M, 2) [ideal px], the band's half-width [px] (M,), the
+    sine of the angle between the viewing ray and the axis (M,) and the sine of the band's
+    half-angle (M,) (`limb_design`); gamma: the frame's
     encoding gamma; sigma0: the blur's start [px]. Returns a new `EdgeLine` (the refitted
     line, its variances, s_lo, s_hi, count the bins used, frac, rms), or None where fewer
     than 3 bins give a limb.
@@ -206,7 +215,7 @@ def refine_edge(image, camera, edge, geometry, gamma=1.0, sigma0=1.2):
     edges_s = np.linspace(edge.s_lo, edge.s_hi, nb + 1)
     s_st = np.arange(edge.s_lo, edge.s_hi + 1e-9, 1.0)
     pts = np.stack([edge.point_at(s) for s in s_st])
-    W_st, k_st = (np.asarray(v, float) for v in geometry(pts))
+    W_st, k_st, q_st = (np.asarray(v, float) for v in geometry(pts))
     Wm = float(np.median(W_st))
     if not (np.isfinite(Wm) and Wm > 1.0):
         return None
@@ -220,10 +229,15 @@ def refine_edge(image, camera, edge, geometry, gamma=1.0, sigma0=1.2):
         use = ~sat[sel].any(0)
         if sel.sum() < 3 or use.sum() < 0.6 * t.size:
             continue
-        fit = fit_limb_profile(t, prof[sel].mean(0), float(np.median(W_st[sel])), 0.0, sigma0,
-                               sin_view=float(np.median(k_st[sel])), use=use)
-        if not fit.ok:
+        # from the step edge and from beyond it (the step edge lies inside the limb; where
+        # the shaft's rim meets the background at one level the step edge may be pixels in)
+        fits = [fit_limb_profile(t, prof[sel].mean(0), float(np.median(W_st[sel])), e0, sigma0,
+                                 sin_view=float(np.median(k_st[sel])), q=float(np.median(q_st[sel])), use=use)
+                for e0 in _STARTS_PX]
+        fits = [f for f in fits if f.ok]
+        if not fits:
             continue
+        fit = min(fits, key=lambda f: f.rms)
         s_c = float(s_st[sel].mean())
         sb.append(s_c)
         tb.append(edge.tm + edge.b * (s_c - edge.sm) + fit.edge)
@@ -255,11 +269,13 @@ def limb_edges(image, camera, K, e1, e2, gamma=1.0):
     outward) located by the limb model (`refine_edge`); None where either gives no limb.
 
     K (3, 3): the camera matrix of the ideal pixels (`shaft.work.axis_matrix`). Each edge's
-    half-width is half its distance to the other's line, and the axis direction (for the
-    angle between each viewing ray and the axis) the cross product of the two silhouette
-    planes' normals ``K^T l``."""
+    half-width W is half its distance to the other's line, the sine of the band's
+    half-angle W / f (f the focal length), and the axis direction (for the angle between
+    each viewing ray and the axis) the cross product of the two silhouette planes' normals
+    ``K^T l``."""
     K = np.asarray(K, float)
     Kinv = np.linalg.inv(K)
+    f = float(np.sqrt(K[0, 0] * K[1, 1]))
     nrm = [K.T @ e.line() for e in (e1, e2)]
     d = np.cross(nrm[0], nrm[1])
     d = d / max(np.linalg.norm(d), 1e-300)
@@ -270,7 +286,8 @@ def limb_edges(image, camera, K, e1, e2, gamma=1.0):
         def geometry(p, lo=lo):
             v = np.column_stack([p, np.ones(len(p))]) @ Kinv.T
             v = v / np.linalg.norm(v, axis=1, keepdims=True)
-            return 0.5 * np.abs(p @ lo[:2] + lo[2]), np.linalg.norm(np.cross(v, d), axis=1)
+            w = 0.5 * np.abs(p @ lo[:2] + lo[2])
+            return w, np.linalg.norm(np.cross(v, d), axis=1), np.clip(w / f, 0.0, 0.9)
 
         got = refine_edge(image, camera, e, geometry, gamma)
         if got is None:
