@@ -1,0 +1,300 @@
+"""A shaft's 3-D axis from both eyes of a calibrated stereo pair, and the fulcrum of such axes.
+
+Each silhouette edge of a shaft back-projects to a plane through its camera's centre that
+touches the cylinder: with two eyes a shaft gives four such planes. Every one is parallel
+to the axis and at the radius r from it, eight conditions on five unknowns (the axis's four
+degrees of freedom and r), so the axis and the radius follow from the silhouettes alone, by
+least squares, with no fulcrum ray and, if need be, no known diameter: the baseline fixes
+the depth where one eye has only the band's width.
+
+`stereo_axis` fits them in the left camera frame. It starts from the planes (the direction
+orthogonal to the four normals, then the point and r linear in the plane equations) and
+minimises the edges' image residuals: per eye and edge, the angle between the measured edge
+and the cylinder's silhouette line (`cylinder.project_cylinder`) and the measured segment
+centre's distance from that line, whitened by the edge's 2x2 covariance of (angle
+[rad], offset [px]) (`shaft.axis.Midline.edge_cov`, `cylinder.shaft_axis`'s convention).
+Unknowns: the axis in the chart of `pencil.cylinder` (theta_u, theta_w, s_u, s_w) about
+the start, and r; with a known diameter a prior on r (its sd given). The covariance is
+``(J^T J)^-1`` of the whitened residuals; with the rig's covariance (its rotation vector and
+translation, 6x6) the rig's part ``A J_rig C_rig J_rig^T A^T`` (A = (J^T J)^-1 J^T) is
+added, the rig being one for all the shafts of a sequence (`stereo_fulcrum_axes` adds it
+once, to the fulcrum, not per axis, where it would count as independent).
+
+`match_shafts` pairs the shafts of the two eyes of a frame by the chi2 of their joint fit;
+`stereo_fulcrum_axes` is the fulcrum of the stereo axes (`cylinder.fulcrum_3d`).
+
+Conventions as `pencil.cylinder`: OpenCV camera frames, lengths in the rig's unit (mm),
+``p_right = R_right_from_left p_left + t_right_from_left``, undistorted pixels of each eye's
+K; edge segments ``[x1, y1, x2, y2]``.
+
+Example
+-------
+>>> import numpy as np
+>>> from pencilcal.toolkit.pencil.cylinder import project_cylinder
+>>> K = np.array([[600.0, 0, 320], [0, 600, 240], [0, 0, 1]])
+>>> R, t = np.eye(3), np.array([-5.0, 0, 0])                 # right eye 5 mm to the right
+>>> A, d = np.array([0.0, 5, 80]), np.array([1.0, 0.2, 0.3])
+>>> def edges(K, A, d):
+...     ls = project_cylinder(K, A, d, 4.0).lines
+...     return np.array([[0.0, -l[2] / l[1], 640.0, -(l[2] + 640 * l[0]) / l[1]] for l in ls])
+>>> cov = np.broadcast_to(np.diag([1e-6, 0.01]), (2, 2, 2))
+>>> ax = stereo_axis(K, edges(K, A, d), cov, K, edges(K, R @ A + t, R @ d), cov, R, t)
+>>> round(float(ax.radius), 6), np.round(ax.axis_point, 4).tolist()
+(4.0, [0.0, 4.7451, 80.4149])
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pencilcal.toolkit.errors import EstimationError, InputError
+from pencilcal.toolkit.geometry.frames import normalize, rotation_from_rotvec
+from pencilcal.toolkit.geometry.quantiles import chi2_isf
+from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, axis_frame, fulcrum_3d, project_cylinder,
+                                               silhouette_planes)
+
+__all__ = ["StereoAxis", "stereo_axis", "match_shafts", "stereo_fulcrum_axes"]
+
+_STEP = 1e-6  # central-difference step of the Jacobians (chart units, mm, rad)
+
+
+@dataclass(frozen=True, eq=False)
+class StereoAxis:
+    """A shaft's axis from both eyes (`stereo_axis`), left camera frame.
+
+    axis_point (3,) [length]: the axis's point closest to the left camera centre;
+    axis_direction (3,) unit, d_z > 0; axis_cov (4, 4): covariance of the chart
+    (theta_u, theta_w [rad], s_u, s_w [length]) about it (`pencil.cylinder`), the edges'
+    noise only; axis_frame (2, 3): the chart's (u, w); radius [length] and radius_sigma;
+    cov (5, 5): the chart's and r's covariance; rig_jacobian (5, 6): d (chart, r) / d (rig
+    rotation vector [rad], translation [length]), for the rig's covariance; chi2: the
+    whitened residuals' sum of squares, dof its degrees of freedom (8 - 5, plus 1 with a
+    radius prior).
+    """
+
+    axis_point: np.ndarray
+    axis_direction: np.ndarray
+    axis_cov: np.ndarray
+    axis_frame: np.ndarray
+    radius: float
+    radius_sigma: float
+    cov: np.ndarray
+    rig_jacobian: np.ndarray
+    chi2: float
+    dof: int
+
+
+def _canon(d):
+    d = normalize(d)
+    return -d if (d[2] < 0 or (d[2] == 0 and (d[1] < 0 or (d[1] == 0 and d[0] < 0)))) else d
+
+
+def _line_of(chart, A, d, frame):
+    """(point, direction) of the line at chart coordinates (4,) about (A, d, frame)."""
+    u, w = frame
+    return A + chart[2] * u + chart[3] * w, normalize(d + chart[0] * u + chart[1] * w)
+
+
+def _edge_terms(edges):
+    """(centre (2, 2), angle (2,)) of two edge segments (2, 4) [px]."""
+    e = np.asarray(edges, float)
+    c = 0.5 * (e[:, :2] + e[:, 2:])
+    return c, np.arctan2(e[:, 3] - e[:, 1], e[:, 2] - e[:, 0])
+
+
+def _whiteners(covs):
+    """(2, 2, 2) the inverse Cholesky factors of two edges' (angle, offset) covariances."""
+    covs = np.asarray(covs, float).reshape(2, 2, 2)
+    try:
+        return np.stack([np.linalg.inv(np.linalg.cholesky(c)) for c in covs])
+    except np.linalg.LinAlgError:
+        raise InputError("stereo_axis: an edge covariance is not positive definite") from None
+
+
+def _residuals_eye(K, A, d, r, centre, angle, Wh, order):
+    """Whitened residuals (4,) of one eye's two edges against the cylinder's silhouette
+    lines, the lines taken in the given order (2,)."""
+    lines = project_cylinder(K, A, d, r).lines[list(order)]
+    out = []
+    for k in range(2):
+        a, b, c = lines[k]
+        ang = np.arctan2(a, -b)  # the direction (-b, a)... of the line, mod pi
+        dphi = (ang - angle[k] + 0.5 * np.pi) % np.pi - 0.5 * np.pi
+        nu = np.array([-np.sin(angle[k]), np.cos(angle[k])])
+        # the measured centre's distance from the line, along the measured normal
+        off = -(a * centre[k, 0] + b * centre[k, 1] + c) / (a * nu[0] + b * nu[1])
+        out.append(Wh[k] @ np.array([dphi, off]))
+    return np.concatenate(out)
+
+
+def _order(K, A, d, r, centre):
+    """Which silhouette line (of `project_cylinder`) each measured edge is: (2,)."""
+    lines = project_cylinder(K, A, d, r).lines
+    dist = np.abs(lines[:, :2] @ centre.T + lines[:, 2:3])  # (line, edge)
+    return (0, 1) if dist[0, 0] + dist[1, 1] <= dist[1, 0] + dist[0, 1] else (1, 0)
+
+
+def _planes(K, edges, R=None, t=None):
+    """The oriented tangent planes (2, 3) normals and (2,) offsets of one eye's edges, in
+    the left frame: ``n . X = n . C`` (C the eye's centre)."""
+    e = np.asarray(edges, float)
+    h = np.stack([np.cross(np.r_[s[:2], 1.0], np.r_[s[2:], 1.0]) for s in e])
+    inside = np.linalg.inv(K) @ np.r_[0.25 * (e[0, :2] + e[0, 2:] + e[1, :2] + e[1, 2:]), 1.0]
+    n = silhouette_planes(h @ K, inside[:2] / inside[2])
+    if R is None:
+        return n, np.zeros(2)
+    n = n @ R  # R^T n: right-frame normals into the left frame
+    C = -R.T @ t
+    return n, n @ C
+
+
+def _start(K_l, edges_l, K_r, edges_r, R, t, radius):
+    """(A, d, r): the axis and radius from the four planes, linear (module docstring)."""
+    n1, o1 = _planes(K_l, edges_l)
+    n2, o2 = _planes(K_r, edges_r, R, t)
+    N = np.concatenate([n1, n2])
+    off = np.concatenate([o1, o2])
+    d = _canon(np.linalg.svd(N)[2][-1])
+    # n_i . A - r = n_i . C_i, A . d = 0
+    M = np.zeros((5, 4))
+    M[:4, :3] = N
+    M[:4, 3] = -1.0
+    M[4, :3] = d
+    rhs = np.r_[off, 0.0]
+    if radius is not None:
+        sol, *_ = np.linalg.lstsq(M[:, :3], rhs + np.r_[np.full(4, radius), 0.0], rcond=None)
+        return sol, d, float(radius)
+    sol, *_ = np.linalg.lstsq(M, rhs, rcond=None)
+    if not sol[3] > 0:
+        raise EstimationError("stereo_axis: the four silhouette planes bound no cylinder")
+    return sol[:3], d, float(sol[3])
+
+
+def stereo_axis(K_left, edges_left, cov_left, K_right, edges_right, cov_right, R_right_from_left, t_right_from_left,
+                *, radius=None, radius_sigma=None, iterations=20):
+    """A shaft's 3-D axis and radius from its silhouette edges in both eyes (module docstring).
+
+    K_left, K_right: (3, 3) each eye's camera matrix of its undistorted pixels;
+    edges_left, edges_right: (2, 4) each eye's two edge segments [undistorted px];
+    cov_left, cov_right: (2, 2, 2) per edge the covariance of its (angle [rad], offset [px])
+    about the segment's centre; R_right_from_left (3, 3), t_right_from_left (3,) [length]:
+    the rig; radius [length], radius_sigma [length]: a prior on the radius (the shaft's
+    known diameter over two, and how well it is known; radius_sigma None with a radius: 1e-3
+    of it). Returns a `StereoAxis`; EstimationError when the edges bound no cylinder.
+    """
+    K_l, K_r = np.asarray(K_left, float), np.asarray(K_right, float)
+    R, t = np.asarray(R_right_from_left, float), np.asarray(t_right_from_left, float)
+    el, er = np.asarray(edges_left, float).reshape(2, 4), np.asarray(edges_right, float).reshape(2, 4)
+    cl, al = _edge_terms(el)
+    cr, ar = _edge_terms(er)
+    Wl, Wr = _whiteners(cov_left), _whiteners(cov_right)
+    A0, d0, r0 = _start(K_l, el, K_r, er, R, t, radius)
+    prior = None
+    if radius is not None:
+        prior = (float(radius), float(1e-3 * radius if radius_sigma is None else radius_sigma))
+    ord_l, ord_r = _order(K_l, A0, d0, r0, cl), _order(K_r, R @ A0 + t, R @ d0, r0, cr)
+
+    def residuals(p, A, d, frame, R=R, t=t):
+        P, D = _line_of(p[:4], A, d, frame)
+        r = p[4]
+        if not r > 0:
+            raise EstimationError("stereo_axis: the fit left the cylinder (radius <= 0)")
+        res = [_residuals_eye(K_l, P, D, r, cl, al, Wl, ord_l), _residuals_eye(K_r, R @ P + t, R @ D, r, cr, ar, Wr, ord_r)]
+        if prior is not None:
+            res.append([(r - prior[0]) / prior[1]])
+        return np.concatenate(res)
+
+    def jac(f, p, n):
+        return np.stack([(f(p + h) - f(p - h)) / (2 * _STEP) for h in np.eye(n) * _STEP], -1)
+
+    A, d, r = A0, d0, r0
+    for _ in range(iterations):  # Gauss-Newton, the chart re-centred on the estimate each step
+        frame = axis_frame(A, d)
+        p0 = np.r_[np.zeros(4), r]
+        f0 = residuals(p0, A, d, frame)
+        J = jac(lambda p: residuals(p, A, d, frame), p0, 5)
+        step = np.linalg.lstsq(J, -f0, rcond=None)[0]
+        P, D = _line_of(step[:4], A, d, frame)
+        A, d, r = P - (P @ D) * D, _canon(D), r + step[4]
+        if np.max(np.abs(step)) < 1e-10:
+            break
+    frame = axis_frame(A, d)
+    p0 = np.r_[np.zeros(4), r]
+    f0 = residuals(p0, A, d, frame)
+    J = jac(lambda p: residuals(p, A, d, frame), p0, 5)
+    cov = np.linalg.inv(J.T @ J)
+
+    def rig_res(q):
+        Rq = rotation_from_rotvec(q[:3]) @ R
+        return residuals(p0, A, d, frame, Rq, t + q[3:])
+
+    J_rig = jac(rig_res, np.zeros(6), 6)
+    return StereoAxis(axis_point=A, axis_direction=d, axis_cov=cov[:4, :4], axis_frame=frame, radius=float(r),
+                      radius_sigma=float(np.sqrt(cov[4, 4])), cov=cov, rig_jacobian=-cov @ J.T @ J_rig,
+                      chi2=float(f0 @ f0), dof=3 + (prior is not None))
+
+
+def match_shafts(K_left, left, K_right, right, R_right_from_left, t_right_from_left, *, confidence=GATE_CONFIDENCE,
+                 **kw):
+    """Pairs of one frame's shafts seen by the two eyes: [(i, j, StereoAxis)], each left
+    shaft i with at most one right shaft j, by the least chi2 of their joint fit
+    (`stereo_axis`) under its gate (``chi2.ppf(confidence, dof)``), greedily.
+
+    left, right: lists of (edges (2, 4) [px], edge covariance (2, 2, 2)); kw: the radius
+    prior of `stereo_axis`."""
+    cands = []
+    for i, (el, cl) in enumerate(left):
+        for j, (er, cr) in enumerate(right):
+            try:
+                ax = stereo_axis(K_left, el, cl, K_right, er, cr, R_right_from_left, t_right_from_left, **kw)
+            except (EstimationError, np.linalg.LinAlgError):
+                continue
+            if ax.chi2 <= chi2_isf(1.0 - confidence, ax.dof):
+                cands.append((ax.chi2, i, j, ax))
+    out, used_l, used_r = [], set(), set()
+    for _, i, j, ax in sorted(cands, key=lambda c: c[0]):
+        if i not in used_l and j not in used_r:
+            out.append((i, j, ax))
+            used_l.add(i)
+            used_r.add(j)
+    return out
+
+
+def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
+    """The fulcrum (`cylinder.Fulcrum3D`, left camera frame) of stereo axes (`StereoAxis`,
+    at least two), and its covariance with the rig's.
+
+    rig_cov: (6, 6) the rig's covariance (rotation vector [rad], translation [length]) or
+    None. The rig is common to every axis, so its errors move them together: with it the
+    point's covariance gains ``G C_rig G^T``, G the fulcrum's Jacobian with respect to the
+    rig through the axes' (`StereoAxis.rig_jacobian`) and the fit's own weights (by central
+    differences: every axis shifted along its rig Jacobian and the point solved again).
+    Returns (Fulcrum3D, point_cov_total (3, 3)).
+    """
+    if len(axes) < 2:
+        raise EstimationError(f"the stereo fulcrum needs two axes, got {len(axes)}")
+    P = np.stack([a.axis_point for a in axes])
+    D = np.stack([a.axis_direction for a in axes])
+    C = np.stack([a.axis_cov for a in axes])
+    E = np.stack([a.axis_frame for a in axes])
+    fit = fulcrum_3d(P, D, C, robust, axis_frames=E)
+    total = np.asarray(fit.point_cov, float)
+    if rig_cov is None:
+        return fit, total
+    rig_cov = np.asarray(rig_cov, float)
+    if rig_cov.shape != (6, 6):
+        raise InputError(f"the rig's covariance must be 6x6 (rotation vector, translation), got {rig_cov.shape}")
+    use = np.asarray(fit.inliers, bool)
+    G = np.zeros((3, 6))
+    h = 1e-4
+    for k in range(6):
+        pts = []
+        for sgn in (1.0, -1.0):
+            moved = [_line_of(sgn * h * a.rig_jacobian[:4, k], a.axis_point, a.axis_direction, a.axis_frame)
+                     for a in axes]
+            Pm = np.stack([m[0] for m in moved])[use]
+            Dm = np.stack([m[1] for m in moved])[use]
+            pts.append(fulcrum_3d(Pm, Dm, C[use], False, axis_frames=axis_frame(Pm, Dm)).point)
+        G[:, k] = (pts[0] - pts[1]) / (2 * h)
+    return fit, total + G @ rig_cov @ G.T
