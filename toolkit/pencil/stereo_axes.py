@@ -193,14 +193,21 @@ def stereo_axis(K_left, edges_left, cov_left, K_right, edges_right, cov_right, R
     prior = None
     if radius is not None:
         prior = (float(radius), float(1e-3 * radius if radius_sigma is None else radius_sigma))
-    ord_l, ord_r = _order(K_l, A0, d0, r0, cl), _order(K_r, R @ A0 + t, R @ d0, r0, cr)
+    try:
+        ord_l, ord_r = _order(K_l, A0, d0, r0, cl), _order(K_r, R @ A0 + t, R @ d0, r0, cr)
+    except InputError:
+        raise EstimationError("stereo_axis: the edges bound no cylinder clear of both cameras") from None
 
     def residuals(p, A, d, frame, R=R, t=t):
         P, D = _line_of(p[:4], A, d, frame)
         r = p[4]
         if not r > 0:
             raise EstimationError("stereo_axis: the fit left the cylinder (radius <= 0)")
-        res = [_residuals_eye(K_l, P, D, r, cl, al, Wl, ord_l), _residuals_eye(K_r, R @ P + t, R @ D, r, cr, ar, Wr, ord_r)]
+        try:
+            res = [_residuals_eye(K_l, P, D, r, cl, al, Wl, ord_l),
+                   _residuals_eye(K_r, R @ P + t, R @ D, r, cr, ar, Wr, ord_r)]
+        except InputError:  # a camera centre inside the cylinder: these edges bound none
+            raise EstimationError("stereo_axis: the edges bound no cylinder clear of both cameras") from None
         if prior is not None:
             res.append([(r - prior[0]) / prior[1]])
         return np.concatenate(res)
