@@ -15,10 +15,11 @@ centre's distance from that line, whitened by the edge's 2x2 covariance of (angl
 [rad], offset [px]) (`shaft.axis.Midline.edge_cov`, `cylinder.shaft_axis`'s convention).
 Unknowns: the axis in the chart of `pencil.cylinder` (theta_u, theta_w, s_u, s_w) about
 the start, and r; with a known diameter a prior on r (its sd given). The covariance is
-``(J^T J)^-1`` of the whitened residuals; with the rig's covariance (its rotation vector and
-translation, 6x6) the rig's part ``A J_rig C_rig J_rig^T A^T`` (A = (J^T J)^-1 J^T) is
-added, the rig being one for all the shafts of a sequence (`stereo_fulcrum_axes` adds it
-once, to the fulcrum, not per axis, where it would count as independent).
+``(J^T J)^-1`` of the whitened residuals, and ``rig_jacobian = -(J^T J)^-1 J^T J_rig``
+says how the axis moves with an error of the rig (its rotation vector and translation).
+The rig is one for all the shafts of a sequence: `stereo_fulcrum_axes` solves the fulcrum
+together with the rig's error, under its prior, not axis by axis (where its effect would
+count as independent and average away).
 
 `match_shafts` pairs the shafts of the two eyes of a frame by the chi2 of their joint fit;
 `stereo_fulcrum_axes` is the fulcrum of the stereo axes (`cylinder.fulcrum_3d`).
@@ -54,7 +55,7 @@ from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, axis_frame, fulcrum_3d, project_cylinder,
                                                silhouette_planes)
 
-__all__ = ["StereoAxis", "stereo_axis", "match_shafts", "stereo_fulcrum_axes"]
+__all__ = ["StereoAxis", "AxesFulcrum", "stereo_axis", "match_shafts", "stereo_fulcrum_axes"]
 
 _STEP = 1e-6  # central-difference step of the Jacobians (chart units, mm, rad)
 
@@ -81,6 +82,8 @@ class StereoAxis:
     radius_sigma: float
     cov: np.ndarray
     rig_jacobian: np.ndarray
+    rig_information: np.ndarray
+    rig_vector: np.ndarray
     chi2: float
     dof: int
 
@@ -237,9 +240,11 @@ def stereo_axis(K_left, edges_left, cov_left, K_right, edges_right, cov_right, R
         return residuals(p0, A, d, frame, Rq, t + q[3:])
 
     J_rig = jac(rig_res, np.zeros(6), 6)
+    A_rig = J_rig - J @ (cov @ (J.T @ J_rig))
     return StereoAxis(axis_point=A, axis_direction=d, axis_cov=cov[:4, :4], axis_frame=frame, radius=float(r),
                       radius_sigma=float(np.sqrt(cov[4, 4])), cov=cov, rig_jacobian=-cov @ J.T @ J_rig,
-                      chi2=float(f0 @ f0), dof=3 + (prior is not None))
+                      rig_information=A_rig.T @ A_rig, rig_vector=A_rig.T @ f0, chi2=float(f0 @ f0),
+                      dof=3 + (prior is not None))
 
 
 def match_shafts(K_left, left, K_right, right, R_right_from_left, t_right_from_left, *, confidence=GATE_CONFIDENCE,
@@ -268,16 +273,64 @@ def match_shafts(K_left, left, K_right, right, R_right_from_left, t_right_from_l
     return out
 
 
-def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
-    """The fulcrum (`cylinder.Fulcrum3D`, left camera frame) of stereo axes (`StereoAxis`,
-    at least two), and its covariance with the rig's.
+@dataclass(frozen=True, eq=False)
+class AxesFulcrum:
+    """The fulcrum of stereo axes (`stereo_fulcrum_axes`), left camera frame: point (3,)
+    [length] and point_cov (3, 3) (the edges' noise and, with its covariance, the rig's),
+    point_sigma sqrt(trace); fit: the `cylinder.Fulcrum3D` of the axes alone (which axes
+    were used, their chi2); rig_used: whether the rig's covariance was in the fit."""
 
-    rig_cov: (6, 6) the rig's covariance (rotation vector [rad], translation [length]) or
-    None. The rig is common to every axis, so its errors move them together: with it the
-    point's covariance gains ``G C_rig G^T``, G the fulcrum's Jacobian with respect to the
-    rig through the axes' (`StereoAxis.rig_jacobian`) and the fit's own weights (by central
-    differences: every axis shifted along its rig Jacobian and the point solved again).
-    Returns (Fulcrum3D, point_cov_total (3, 3)).
+    point: np.ndarray
+    point_cov: np.ndarray
+    point_sigma: float
+    fit: Fulcrum3D
+    rig_used: bool
+
+
+def _with_rig(x, axes, use, rig_cov, iterations=10):
+    """(point (3,), covariance (3, 3)) of the fulcrum with the rig's error as an unknown
+    common to every axis, under its prior: each used axis moves by its rig Jacobian times
+    the rig's error delta (6,), and x and delta minimise the axes' weighted offsets, their
+    own fits' residuals as delta changes them (`StereoAxis.rig_information`) and
+    ``delta^T C_rig^-1 delta`` (a rig error that one axis would take for its own noise is
+    seen in all of them together)."""
+    Cinv = np.linalg.pinv(rig_cov)
+    for _ in range(iterations):
+        H = np.zeros((9, 9))
+        g = np.zeros(9)
+        for a, u in zip(axes, use):
+            if not u:
+                continue
+            E = a.axis_frame
+            t = float(a.axis_direction @ (x - a.axis_point))
+            M = np.array([[t, 0.0, 1.0, 0.0], [0.0, t, 0.0, 1.0]])
+            Sinv = np.linalg.inv(M @ a.axis_cov @ M.T)
+            B = np.hstack([E, -M @ a.rig_jacobian[:4]])  # d offset / d (x, delta)
+            H += B.T @ Sinv @ B
+            g += B.T @ Sinv @ (E @ a.axis_point)
+            # the axis's own residuals: where the eyes disagree, the rig is off
+            H[3:, 3:] += a.rig_information
+            g[3:] -= a.rig_vector
+        H[3:, 3:] += Cinv
+        z = np.linalg.solve(H, g)
+        done = np.max(np.abs(z[:3] - x)) < 1e-9
+        x = z[:3]
+        if done:
+            break
+    cov = np.linalg.inv(H)[:3, :3]
+    return x, 0.5 * (cov + cov.T)
+
+
+def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
+    """The fulcrum (`AxesFulcrum`, left camera frame) of stereo axes (`StereoAxis`, at least
+    two), with the rig's covariance if given.
+
+    The axes are gated and weighted as `cylinder.fulcrum_3d` does. rig_cov: (6, 6) the
+    rig's covariance (rotation vector [rad], translation [length]; ``R = exp(w) R0``,
+    ``t = t0 + dt``) or None. The rig is one for every axis, so its error moves them all
+    at once: with its covariance the point is solved together with that error, under its
+    prior (`_with_rig`), and its covariance is the point's marginal, the edges' noise and
+    the rig's both in it.
     """
     if len(axes) < 2:
         raise EstimationError(f"the stereo fulcrum needs two axes, got {len(axes)}")
@@ -286,22 +339,11 @@ def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
     C = np.stack([a.axis_cov for a in axes])
     E = np.stack([a.axis_frame for a in axes])
     fit = fulcrum_3d(P, D, C, robust, axis_frames=E)
-    total = np.asarray(fit.point_cov, float)
     if rig_cov is None:
-        return fit, total
+        return AxesFulcrum(fit.point, fit.point_cov, float(fit.point_sigma), fit, False)
     rig_cov = np.asarray(rig_cov, float)
-    if rig_cov.shape != (6, 6):
-        raise InputError(f"the rig's covariance must be 6x6 (rotation vector, translation), got {rig_cov.shape}")
-    use = np.asarray(fit.inliers, bool)
-    G = np.zeros((3, 6))
-    h = 1e-4
-    for k in range(6):
-        pts = []
-        for sgn in (1.0, -1.0):
-            moved = [_line_of(sgn * h * a.rig_jacobian[:4, k], a.axis_point, a.axis_direction, a.axis_frame)
-                     for a in axes]
-            Pm = np.stack([m[0] for m in moved])[use]
-            Dm = np.stack([m[1] for m in moved])[use]
-            pts.append(fulcrum_3d(Pm, Dm, C[use], False, axis_frames=axis_frame(Pm, Dm)).point)
-        G[:, k] = (pts[0] - pts[1]) / (2 * h)
-    return fit, total + G @ rig_cov @ G.T
+    if rig_cov.shape != (6, 6) or not np.all(np.isfinite(rig_cov)):
+        raise InputError(f"the rig's covariance must be a finite 6x6 matrix (rotation vector, translation), "
+                         f"got shape {rig_cov.shape}")
+    x, cov = _with_rig(np.asarray(fit.point, float), axes, np.ones(len(axes), bool), rig_cov)
+    return AxesFulcrum(x, cov, float(np.sqrt(np.trace(cov))), fit, True)
