@@ -168,9 +168,12 @@ def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, in
     if instrument_mask is not None:
         from pencilcal.toolkit.detect.shaft.from_mask import shafts_from_masks
 
+        from pencilcal.toolkit.detect.shaft.detector import with_limbs
+
         found = shafts_from_masks(image, instrument_mask["mask"], camera, labels=instrument_mask.get("labels"),
                                   instances=bool(instrument_mask.get("instances")), valid_region=valid_region,
                                   gamma=gamma)
+        found = with_limbs(image, camera, found, options.get("edge_model", "step"), gamma)
     else:
         from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 

@@ -55,7 +55,7 @@ from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, axis_frame, fulcrum_3d, project_cylinder,
                                                silhouette_planes)
 
-__all__ = ["StereoAxis", "AxesFulcrum", "stereo_axis", "match_shafts", "stereo_fulcrum_axes"]
+__all__ = ["StereoAxis", "AxesFulcrum", "stereo_axis", "match_shafts", "stereo_fulcrum_axes", "stereo_axes_from_frames"]
 
 _STEP = 1e-6  # central-difference step of the Jacobians (chart units, mm, rad)
 
@@ -347,3 +347,71 @@ def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
                          f"got shape {rig_cov.shape}")
     x, cov = _with_rig(np.asarray(fit.point, float), axes, np.ones(len(axes), bool), rig_cov)
     return AxesFulcrum(x, cov, float(np.sqrt(np.trace(cov))), fit, True)
+
+
+def _frame_pairs(frames_left, frames_right):
+    """Index pairs of the two eyes' lines.json frames: by image base name when every left
+    name has a right one, else in order (InputError when the counts differ)."""
+    from pathlib import PurePath
+
+    names = [PurePath(str(f.get("image", ""))).name for f in frames_right]
+    by_name = {n: j for j, n in enumerate(names)}
+    left = [PurePath(str(f.get("image", ""))).name for f in frames_left]
+    if len(by_name) == len(names) and all(n in by_name for n in left):
+        return [(i, by_name[n]) for i, n in enumerate(left)]
+    if len(frames_left) != len(frames_right):
+        raise InputError(f"the stereo pair's views have {len(frames_left)} and {len(frames_right)} frames and their "
+                         "image names do not pair them")
+    return [(i, i) for i in range(len(frames_left))]
+
+
+def _measured(camera, frame):
+    """(edges (2, 4) [undistorted px], edge_cov (2, 2, 2)) of a frame's shafts that carry them."""
+    out = []
+    for sh in frame.get("shafts") or []:
+        if sh.get("edges") is None or sh.get("edge_cov") is None:
+            continue
+        e = np.asarray(camera.undistort_pixels(np.asarray(sh["edges"], float).reshape(-1, 2)), float).reshape(2, 4)
+        if np.all(np.isfinite(e)):
+            out.append((e, np.asarray(sh["edge_cov"], float).reshape(2, 2, 2)))
+    return out
+
+
+def stereo_axes_from_frames(camera_left, frames_left, camera_right, frames_right, rig, diameter=None):
+    """fulcrum.json's ``stereo.axes`` record: each frame's shafts matched between the eyes
+    (`match_shafts`), their stereo axes (`stereo_axis`; with the diameter a prior on the
+    radius, 1e-3 of it) and the fulcrum of those (`stereo_fulcrum_axes`, with the rig's
+    covariance when the stereo file has one).
+
+    camera_left, camera_right: each eye's `Camera`; frames_left, frames_right: lines.json
+    frames whose shafts carry ``edges`` [raw px] and ``edge_cov`` (`pencilcal lines
+    --shaft`), paired by image name or order; rig: the `camera.stereo.StereoRig`;
+    diameter: the shafts' diameter in the rig's unit, or None (the radius from the
+    baseline). Returns a dict: point, point_cov, point_sigma [rig unit], rig_used, frames
+    (paired), axes (matched), axes_used, outliers ([{"image", "left", "right"}]), radius
+    and radius_sigma (the matched axes' weighted mean). EstimationError with fewer than two
+    matched axes.
+    """
+    R, t = rig.R_right_from_left, rig.t_right_from_left
+    Kl, Kr = np.asarray(camera_left.K, float), np.asarray(camera_right.K, float)
+    prior = {} if diameter is None else {"radius": 0.5 * float(diameter)}
+    axes, owners = [], []
+    pairs = _frame_pairs(frames_left, frames_right)
+    for i, j in pairs:
+        got = match_shafts(Kl, _measured(camera_left, frames_left[i]), Kr, _measured(camera_right, frames_right[j]),
+                           R, t, **prior)
+        for a, b, ax in got:
+            axes.append(ax)
+            owners.append({"image": frames_left[i].get("image"), "left": a, "right": b})
+    if len(axes) < 2:
+        raise EstimationError(f"fewer than two shafts matched between the eyes ({len(axes)} in {len(pairs)} frame "
+                              "pairs): check the stereo file and that both views' shafts were measured")
+    res = stereo_fulcrum_axes(axes, rig.cov)
+    r = np.array([a.radius for a in axes])
+    w = 1.0 / np.maximum(np.array([a.radius_sigma for a in axes]) ** 2, 1e-300)
+    inl = np.asarray(res.fit.inliers, bool)
+    return {"point": np.asarray(res.point, float).tolist(), "point_cov": np.asarray(res.point_cov, float).tolist(),
+            "point_sigma": float(res.point_sigma), "rig_used": bool(res.rig_used), "frames": len(pairs),
+            "axes": len(axes), "axes_used": int(inl.sum()),
+            "outliers": [o for o, k in zip(owners, inl) if not k],
+            "radius": float(np.sum(w * r) / np.sum(w)), "radius_sigma": float(np.sqrt(1.0 / np.sum(w)))}

@@ -49,6 +49,8 @@ Example
 """
 from __future__ import annotations
 
+import dataclasses
+
 import inspect
 from dataclasses import dataclass
 from types import SimpleNamespace
@@ -261,24 +263,35 @@ def _edge_line(seg, other):
                     frac=1.0, rms=0.0)
 
 
-def with_limbs(image, camera, shafts, o, K):
+def with_limbs(image, camera, shafts, edge_model="limb", gamma=DEFAULT_GAMMA, K=None):
     """The shafts with their edges located by the limb model (`shaft.limb.limb_edges`) when
-    o.edge_model is "limb" (else as they are): each a new `Shaft` from the refitted edges'
-    midline, its score, polarity and cue kept; one whose edges give no limb as it was."""
-    if o.edge_model != "limb":
+    edge_model is "limb" (else as they are): each a new `Shaft` from the refitted edges'
+    midline, its score, polarity and cue kept; one whose edges give no limb as it was.
+    gamma: the frame's encoding gamma; K: the camera matrix of the ideal pixels (default
+    `shaft.work.axis_matrix`'s)."""
+    if edge_model not in EDGE_MODELS:
+        raise InputError(f"edge_model must be one of {', '.join(EDGE_MODELS)}, got {edge_model!r}")
+    if edge_model != "limb" or not shafts:
         return shafts
     from pencilcal.toolkit.detect.shaft.limb import limb_edges
 
+    K = axis_matrix(camera, np.asarray(image).shape[:2])[0] if K is None else K
     out = []
     for s in shafts:
         new = None
         if s.ideal_edges is not None:
             e = np.asarray(s.ideal_edges, float)
-            got = limb_edges(image, camera, K, _edge_line(e[0], e[1]), _edge_line(e[1], e[0]), o.gamma)
+            got = limb_edges(image, camera, K, _edge_line(e[0], e[1]), _edge_line(e[1], e[0]), gamma)
             m = None if got is None else midline_from_edges(K, got[0], got[1])
             new = None if m is None else shaft_of_midline(camera, m, s.score, s.polarity, s.cue)
-        out.append(s if new is None else new)
+        # the measured fields replaced, the rest kept (a mask's shaft keeps its mask's)
+        out.append(s if new is None else dataclasses.replace(s, **{k: getattr(new, k) for k in _MEASURED}))
     return out
+
+
+#: The fields of a `Shaft` its edges give (`with_limbs` replaces them).
+_MEASURED = ("midline", "width_px", "angle_sigma", "offset_sigma", "edges", "ideal_midline", "convergence_deg", "cov",
+             "cov_stat", "cov_floor", "ideal_edges", "edge_cov")
 
 
 def _by_material(image, camera, validity, o, K, work):
@@ -421,7 +434,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         found = _by_edges(image, camera, valid_region, o, K)
     found = [s for s in found if s is not None]
     if not priors:
-        return with_limbs(image, camera, found, o, K)
+        return with_limbs(image, camera, found, o.edge_model, o.gamma, K)
     img = np.asarray(image)
     noise = max(robust_noise(img[..., 1] if img.ndim == 3 else img), 0.5)
     # the material cue's edges keep a colour frame's levels (`shaft.material_cue`), the
@@ -430,7 +443,8 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
     for p in priors:
         for m, score, polarity in pencil_search(image, camera, validity, work, p, o, K, noise, gamma_edges):
             found.append(shaft_of_midline(camera, m, score, polarity, "prior"))
-    return with_limbs(image, camera, select_through([s for s in found if s is not None], priors), o, K)
+    return with_limbs(image, camera, select_through([s for s in found if s is not None], priors), o.edge_model,
+                      o.gamma, K)
 
 
 def detect_through(image, camera, alternatives, **options):
@@ -521,7 +535,7 @@ def track_shafts(image, camera, previous, *, valid_region=None, prior=None, reac
                       if s is not None]
     if len(_instruments(found)) < len(prior):
         return (detect_shafts(image, camera, valid_region=valid_region, **options) if detect else []), False
-    return with_limbs(image, camera, found, o, K), True
+    return with_limbs(image, camera, found, o.edge_model, o.gamma, K), True
 
 
 def _by_colour(image, camera, validity, o, K, shafts, prior, reach, widths, colours):
