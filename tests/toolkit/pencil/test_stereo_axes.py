@@ -109,3 +109,24 @@ def test_a_rig_error_left_out_of_the_fit_shows():
     told = stereo_fulcrum_axes(Ss, rig_cov=np.diag([1e-3**2] * 3 + [0.05**2] * 3))
     m2 = [(f.point - F) @ np.linalg.solve(f.point_cov, f.point - F) for f in (blind, told)]
     assert m2[0] > chi2_isf(0.001, 3) and m2[1] < chi2_isf(0.01, 3)
+
+
+def test_stereo_file_with_the_rigs_covariance(tmp_path):
+    import json
+
+    import pytest
+
+    from pencilcal.toolkit.camera.stereo import read_stereo
+    from pencilcal.toolkit.errors import InputError
+
+    cov = np.diag([1e-6] * 3 + [1e-3] * 3)
+    p = tmp_path / "rig.json"
+    p.write_text(json.dumps({"R_right_from_left": R0.tolist(), "t_right_from_left": T0.tolist(),
+                             "cov_right_from_left": cov.tolist()}))
+    rig = read_stereo(p)
+    assert np.allclose(rig.cov, cov) and np.allclose(rig.to_dict()["cov_right_from_left"], cov)
+    for bad in (np.eye(5), cov - 2e-3 * np.eye(6)):
+        p.write_text(json.dumps({"R_right_from_left": R0.tolist(), "t_right_from_left": T0.tolist(),
+                                 "cov_right_from_left": bad.tolist()}))
+        with pytest.raises(InputError, match="cov_right_from_left"):
+            read_stereo(p)
