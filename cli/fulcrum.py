@@ -15,7 +15,7 @@ from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.sequence_noise import fulcrum_with_noise
 from pencilcal.validation.fulcrum_run import fulcrum_with_sigmas
 
-from .common import (detector_option, endpoint_sigma_option, gamma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, frames_region,
+from .common import (detector_option, edge_model_option, endpoint_sigma_option, gamma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, frames_region,
                      images_argument, instrument_mask_options, instrument_masks, jsonl_option, mask_option,
                      max_pixels_option, open_input, output_option, overlay_option, quiet_option, run, run_frames,
                      source_option, stream_meta, warn, warn_masks, workers_option, done)
@@ -223,8 +223,7 @@ def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter):
 @endpoint_sigma_option("End point noise [px] of segments without their own sigma.")
 @detector_option("Shaft proposals' detector.")
 @gamma_option
-@click.option("--edge-model", type=click.Choice(["step", "limb"]), default="step", show_default=True,
-              help="Shaft edges: the step's gradient peak, or the lit cylinder's limb.")
+@edge_model_option
 @click.option("--fulcrum-prior", "prior_spec", default=None, metavar="FILE|auto",
               help="Shafts through the fulcrum's image: FILE (fulcrum.json, ray); auto: estimated.")
 @click.option("--track/--no-track", default=True, show_default=True,
