@@ -10,23 +10,27 @@ shaft's 3-D axis, `pencil.cylinder.shaft_axis`) inherits it.
 
 The model. Across an edge, at distance d [px] inside the silhouette of a band of half-width
 W [px], the surface's normal makes the angle with the viewing ray whose cosine is
-``c(d) = sqrt(1 - (1 - d / W)^2)`` (a cylinder seen nearly orthographically across its
-width: exact at the limb, where it matters). With the light at the camera the shaft's
-radiance is a function of c alone that vanishes at c = 0: Lambert's diffuse light
-``kd c`` plus a microfacet specular lobe ``ks S_a(c)`` (`specular_lobe`: GGX normals of
-roughness a, Smith's shadowing; as the light and the view coincide the half vector is the
-view, and the lobe rises from the limb as c / pi over c < a, a thin bright rim on polished
-metal, then peaks along the axis). The fit sees at most 0.7 W inside the edge, short of the
-central highlight. Beside the edge the background is ``b0 + b1 (t - e)`` (a level and a
-slope), and the optics' blur a Gaussian of sd sigma (pixel area and sampling included).
-The profile, on linear light (the frame's encoding gamma undone, `edges.linearised`), is
+``c(d) = k sqrt(1 - (1 - d / W)^2)`` (a cylinder seen nearly orthographically across its
+width: exact at the limb, where it matters; k the sine of the angle between the viewing ray
+and the axis, as an oblique shaft never faces the camera squarely). With the light at the
+camera the shaft's radiance is a function of c alone that vanishes at c = 0: Lambert's
+diffuse light ``kd c`` plus a microfacet specular lobe ``ks S_a(c)`` (`specular_lobe`: GGX
+normals of roughness a, Smith's shadowing; as the light and the view coincide the half
+vector is the view, and the lobe rises from the limb as c / pi over c < a, a thin bright
+rim on polished metal, then peaks along the axis), both times the light's fall-off E
+(the middle of the shaft is nearer the light than its limb, `limb_design`). The fit sees
+at most 0.7 W inside the edge, short of the central highlight, saturated samples left out.
+Beside the edge the background is ``b0 + b1 (t - e)`` (a level and a slope), and the
+optics' blur a Gaussian of sd sigma (pixel area and sampling included). The profile, on
+linear light (the frame's encoding gamma undone, `edges.linearised`), is
 
-    y(t) = G_sigma * [ (b0 + b1 (t - e)) H(t - e) + (kd c(e - t) + ks S_a(c(e - t))) H(e - t) ]
+    y(t) = G_sigma * [ (b0 + b1 (t - e)) H(t - e) + E (kd c + ks S_a(c)) H(e - t) ]
 
 with t the offset along the edge's outward normal, e the limb, H the step. It is linear in
 (b0, b1, kd, ks) and fitted by variable projection: scipy's least squares over (e,
-log sigma, log a), the linear coefficients solved at each step. The limb e is where the
-band ends.
+log sigma, log a), the linear coefficients solved at each step, from two starts (the step
+edge and `_STARTS_PX` beyond it: where the shaft's rim meets the background at one level
+the step edge may be pixels inside). The limb e is where the band ends.
 
 Per edge (`refine_edge`): the profiles across the step fit's line at stations 1 px apart,
 linearised, averaged over bins of `BIN_PX` along the edge (a bin's mean profile has the
