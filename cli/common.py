@@ -333,6 +333,11 @@ SHARED_DETAILS = {
                "peak leans towards its dark side, the band comes out narrow and the 3-D axis too far). 2.2: "
                "8-bit video and JPEG (and `pencilcal simulate`'s default); 1: linear frames "
                "(`simulate --gamma 1`).",
+    "--edge-model": "How the shafts' silhouette edges are located: step, the gradient peak of the edge's "
+                    "profile; limb, a profile model of a cylinder lit from the endoscope fitted across each edge "
+                    "(background level and slope, diffuse and specular shading that darken towards the "
+                    "silhouette, the optics' blur; docs/method.md): the step edge lies inside a shaded shaft's "
+                    "limb, narrowing the band and putting its 3-D axis too far. limb costs seconds a frame.",
     "--jsonl": "Also write one JSON object per frame as each frame is done (- for standard output), for a live "
                "consumer (a ROS bridge, a dashboard); the output file is written at the end as usual.",
     "--overlay": "Also write the frames with the estimate drawn on them: a video (.mp4, .avi) or one PNG per "
@@ -375,6 +380,16 @@ def gamma_option(fn):
     return click.option(
         "--gamma", type=FiniteFloat(min=0.1, max=5), default=DEFAULT_GAMMA, show_default=True,
         help="Encoding gamma, for shaft and radial-target edges (1: linear).")(fn)
+
+
+def edge_model_option(fn):
+    """--edge-model: how the shafts' silhouette edges are located (one option, one default, for
+    every command that detects shafts: `detect.shaft.detector.detect_shafts`' edge_model)."""
+    from pencilcal.toolkit.detect.shaft.detector import EDGE_MODELS
+
+    return click.option(
+        "--edge-model", type=click.Choice(EDGE_MODELS), default="step", show_default=True,
+        help="Shaft edges: the step's gradient peak, or the lit cylinder's limb (slower).")(fn)
 
 
 def endpoint_sigma_option(help):

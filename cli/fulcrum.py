@@ -15,7 +15,7 @@ from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.sequence_noise import fulcrum_with_noise
 from pencilcal.validation.fulcrum_run import fulcrum_with_sigmas
 
-from .common import (detector_option, endpoint_sigma_option, gamma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, frames_region,
+from .common import (detector_option, edge_model_option, endpoint_sigma_option, gamma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, frames_region,
                      images_argument, instrument_mask_options, instrument_masks, jsonl_option, mask_option,
                      max_pixels_option, open_input, output_option, overlay_option, quiet_option, run, run_frames,
                      source_option, stream_meta, warn, warn_masks, workers_option, done)
@@ -130,10 +130,12 @@ def _summary(out, off_axis, shaft_diameter, n_frames):
 
 
 def _stereo(left, right_images, camera_right, camera_right_path, rig, options, endpoint_sigma, given, max_pixels,
-            workers, quiet, force):
+            workers, quiet, force, left_view):
     """fulcrum.json's ``stereo`` record: the right view's fulcrum from its own shafts (a lines
     file's, or detected in its frames), the noise as for the left view, then
-    `fulcrum.stereo_fulcrum` with the left's."""
+    `fulcrum.stereo_fulcrum` with the left's; and ``axes``, the fulcrum of the shafts' axes
+    triangulated from both eyes' silhouettes (`stereo_axes.stereo_axes_from_frames`; left_view:
+    (camera, frames, shaft diameter) of the left view)."""
     frames, (key, where) = _right_frames(right_images, camera_right, options, max_pixels, workers, quiet, force)
 
     def run(sigma):
@@ -151,6 +153,12 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
         raise EstimationError(f"{rig.source}: {e}") from None
     rec = st.to_dict()
     rec["right"] = {key: where, "camera": str(camera_right_path), "noise": noise, **rec["right"]}
+    from pencilcal.toolkit.pencil.stereo_axes import stereo_axes_from_frames
+
+    try:
+        rec["axes"] = stereo_axes_from_frames(left_view[0], left_view[1], camera_right, frames, rig, left_view[2])
+    except EstimationError as e:
+        warn(f"no fulcrum from the stereo axes: {e}")
     if "agreement" in rec and not rec["agreement"]["consistent"]:
         warn("the diameter-based and the triangulated 3-D fulcrum disagree beyond their sigmas (chi2 {:.1f}, {} dof, "
              "p {:.2g}): check the shaft diameter and the stereo file's unit".format(
@@ -215,6 +223,7 @@ def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter):
 @endpoint_sigma_option("End point noise [px] of segments without their own sigma.")
 @detector_option("Shaft proposals' detector.")
 @gamma_option
+@edge_model_option
 @click.option("--fulcrum-prior", "prior_spec", default=None, metavar="FILE|auto",
               help="Shafts through the fulcrum's image: FILE (fulcrum.json, ray); auto: estimated.")
 @click.option("--track/--no-track", default=True, show_default=True,
@@ -230,7 +239,7 @@ def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter):
 @quiet_option
 @run
 def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path, shaft_diameter, right_images,
-            camera_right_path, stereo_path, endpoint_sigma, detector, gamma, prior_spec, track, instrument_mask,
+            camera_right_path, stereo_path, endpoint_sigma, detector, gamma, edge_model, prior_spec, track, instrument_mask,
             mask_labels, mask_instances, mask_path, jsonl_path, overlay_path, max_pixels, workers, output, force, quiet):
     """The fulcrum of an instrument pivoting about its entry port.
 
@@ -275,7 +284,20 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     point_cov_total and point_sigma_total (point_cov: the noise alone). With
     --shaft-diameter too, `stereo.agreement` says whether the diameter-based point and the
     triangulated one agree within their sigmas (chi2, its dof and p; the left view's ray,
-    which both hold, counted once) and `stereo.combined` is their fusion.
+    which both hold, counted once) and `stereo.combined` is their fusion. And every frame's
+    shafts are matched between the two views (frames paired by image name, else in order)
+    and each shaft's 3-D axis triangulated from its four silhouette edges, two per view
+    (each edge's plane touches the cylinder: axis and radius by least squares, the radius
+    held to --shaft-diameter where given): `stereo.axes` is the fulcrum of those axes
+    (point, point_cov, point_sigma, the axes used of those matched, the radius), with the
+    rig's error in it where the stereo file gives cov_right_from_left (6x6: the rotation
+    vector's error [rad], then the translation's).
+
+    --edge-model limb locates each shaft's two edges by a profile model of a cylinder lit
+    from the endoscope (it darkens towards its silhouette, so the step edge of the default
+    lies inside it, narrowing the band and putting the 3-D axis too far): background level
+    and slope, diffuse and specular shading of the angle to the camera, the optics' blur,
+    fitted across each edge (docs/method.md). It costs seconds a frame.
 
     Unless --endpoint-sigma is given, the sigmas hold the noise the lines show: the
     intersection's chi-square per degree of freedom scales them (segments without their
@@ -335,7 +357,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     rig = None if stereo_path is None else read_stereo(stereo_path)
     camera_right = None if camera_right_path is None else read_camera(camera_right_path)
     source = tracker = None
-    options = {"detector": detector, "gamma": gamma}
+    options = {"detector": detector, "gamma": gamma, "edge_model": edge_model}
     if lines_path is not None:
         frames = read_lines(lines_path)
         if not frames:
@@ -384,7 +406,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         out["fulcrum_prior"] = prior_spec
     if rig is not None:
         out["stereo"] = _stereo(res, right_images, camera_right, camera_right_path, rig, options, endpoint_sigma,
-                                given, max_pixels, workers, quiet, force)
+                                given, max_pixels, workers, quiet, force, (camera, frames, shaft_diameter))
     write_json(output, out, force=force)
     off_axis = float(np.degrees(np.arccos(np.clip(out["ray"][2], -1.0, 1.0))))
     if out["vertex_px"] is None:
@@ -399,6 +421,12 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
                 if "point_sigma_total" in tri else ""
             click.echo("stereo fulcrum ({:.2f}, {:.2f}, {:.2f}) +- {:.2f} (rms){}, triangulated from the right view's "
                        "{} lines".format(*tri["point"], tri["point_sigma"], total, st["right"]["lines_used"]), err=True)
+            if "axes" in st:
+                ax = st["axes"]
+                click.echo("stereo axes fulcrum ({:.2f}, {:.2f}, {:.2f}) +- {:.2f} (rms{}) from {} of {} shafts matched "
+                           "between the eyes in {} frame pairs, radius {:.3f} +- {:.3f}".format(
+                               *ax["point"], ax["point_sigma"], ", the rig's covariance in" if ax["rig_used"] else "",
+                               ax["axes_used"], ax["axes"], ax["frames"], ax["radius"], ax["radius_sigma"]), err=True)
             if "agreement" in st:
                 a = st["agreement"]
                 click.echo("diameter and stereo {}: chi2 {:.2f} ({} dof, p {:.3f}); combined ({:.2f}, {:.2f}, "

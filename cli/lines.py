@@ -12,7 +12,7 @@ from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.lines import lines_record
 from pencilcal.toolkit.io.lines_file import write_lines
 
-from .common import (detector_option, gamma_option, command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option,
+from .common import (detector_option, edge_model_option, gamma_option, command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option,
                      frames_region, images_argument, instrument_mask_options, instrument_masks, jsonl_option,
                      mask_option, max_pixels_option, open_input, output_option, overlay_option, quiet_option, run,
                      run_frames, source_option, stream_meta, warn, warn_masks, workers_option, done)
@@ -36,14 +36,14 @@ def _lines_task(frame, ctx):
     """One frame's lines.json record, and the frame drawn with them when the overlay is
     asked for (module level: runs in worker processes too)."""
     (camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, masks, radial, priors,
-     tracker) = ctx
+     tracker, edge_model) = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
     rec = lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
                        valid_region=region, gamma=gamma, instrument_mask=None if masks is None else masks.of(frame),
                        radial=radial, axis_prior=None if priors is None else priors[1].get(frame.name, priors[0]),
-                       shaft_tracker=tracker)
+                       shaft_tracker=tracker, edge_model=edge_model)
     if diameter is not None:
         rec["shafts"] = [with_axis(camera, s, diameter) for s in rec.get("shafts") or []]
     if not drawing:
@@ -87,6 +87,7 @@ def _summary(records):
 @click.option("--track/--no-track", default=True, show_default=True,
               help="With --shaft: where the last frames predict them.")
 @gamma_option
+@edge_model_option
 @click.option("--fulcrum-prior", "prior_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="With --shaft: shafts through FILE's fulcrum image (fulcrum.json, or ray).")
 @click.option("--min-length", type=FiniteFloat(), default=None,
@@ -101,7 +102,7 @@ def _summary(records):
 @quiet_option
 @run
 def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, radial, shaft, shaft_diameter,
-          track, gamma, prior_path, min_length, instrument_mask, mask_labels, mask_instances,
+          track, gamma, edge_model, prior_path, min_length, instrument_mask, mask_labels, mask_instances,
           mask_path, jsonl_path, overlay_path, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel, with angle uncertainty.
 
@@ -174,6 +175,8 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         raise click.BadParameter("only with --bars", param_hint="--bar-width")
     if shaft_diameter is not None and not shaft:
         raise click.BadParameter("only with --shaft", param_hint="--shaft-diameter")
+    if edge_model != "step" and not shaft:
+        raise click.BadParameter("only with --shaft", param_hint="--edge-model")
     if gamma != DEFAULT_GAMMA and not shaft and radial is None:
         raise click.BadParameter("only with --shaft or --radial", param_hint="--gamma")
     if radial is not None and bars:
@@ -203,10 +206,10 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     if shaft and track and workers == 1 and masks is None and priors is None:
         from pencilcal.toolkit.detect.shaft.detector import ShaftTracker
 
-        tracker = ShaftTracker(gamma=gamma)
+        tracker = ShaftTracker(gamma=gamma, edge_model=edge_model)
     with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
         ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma, masks,
-               radial, priors, tracker)
+               radial, priors, tracker, edge_model)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
@@ -220,6 +223,8 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         meta["shaft_diameter"] = shaft_diameter
     if shaft or radial is not None:
         meta["gamma"] = gamma
+    if shaft:
+        meta["edge_model"] = edge_model
     if masks is not None:
         meta["instrument_mask"] = str(instrument_mask)
     if prior_path is not None:

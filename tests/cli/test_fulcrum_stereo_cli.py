@@ -65,6 +65,12 @@ def test_fulcrum_stereo_cli(tmp_path):
     assert set(a) >= {"chi2", "dof", "p_value", "consistent"} and 1 <= a["dof"] <= 3
     assert st["combined"]["point_sigma"] <= min(out["point_sigma"], tri["point_sigma"]) + 1e-9
     assert "stereo fulcrum" in r.output and "chi2" in r.output
+    # the axes triangulated from both views' silhouettes: as sure as the diameter's point, or surer
+    ax = st["axes"]
+    err = np.asarray(ax["point"]) - F
+    assert ax["axes_used"] >= 8 and abs(ax["radius"] - 4.0) < 0.05 and not ax["rig_used"]
+    assert err @ np.linalg.solve(np.asarray(ax["point_cov"]), err) < 16.0, (err, ax["point_sigma"])
+    assert ax["point_sigma"] <= out["point_sigma"] and "stereo axes fulcrum" in r.output
     # triangulation alone, without the diameter
     r = invoke(*base, "-o", tmp_path / "g.json", "-q")
     assert r.exit_code == 0, r.output

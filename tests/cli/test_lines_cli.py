@@ -137,3 +137,27 @@ def test_help_has_an_example():
     r = invoke("--help")
     assert r.exit_code == 0
     assert "Example" in r.output and "--bars" in r.output and "--shaft" in r.output
+
+
+def test_lines_shaft_edge_model_limb(tmp_path):
+    """--edge-model limb: the shaded shaft's band as wide as it is (docs/method.md, the limb
+    model); only with --shaft."""
+    from pencilcal.toolkit.synth.shaded import MATERIALS, render_shaded_shaft
+
+    cam = Camera("pinhole", 640, 480, [[520.0, 0, 319.5], [0, 520.0, 239.5], [0, 0, 1]])
+    write_camera(tmp_path / "camera.json", cam)
+    img, truth = render_shaded_shaft(cam, [0, 0, 120], [1.0, 0.35, 0.5], 4.0, MATERIALS["glossy"],
+                                     background=(0.35, 0.3, 0.5), blur_px=1.0, noise=1.5, rng=3)
+    (tmp_path / "frames").mkdir()
+    cv2.imwrite(str(tmp_path / "frames" / "0.png"), img)
+    r = invoke(tmp_path / "frames", "--camera", tmp_path / "camera.json", "--shaft", "--edge-model", "limb",
+               "-o", tmp_path / "l.json", "-q")
+    assert r.exit_code == 0, r.output
+    data = json.loads((tmp_path / "l.json").read_text())
+    assert data["edge_model"] == "limb"
+    sh = read_lines(tmp_path / "l.json")[0]["shafts"][0]
+    mid = np.asarray(sh["midline"], float)
+    assert abs(sh["width_px"] / truth.width_at(0.5 * (mid[:2] + mid[2:])) - 1) < 0.003
+    r = invoke(tmp_path / "frames", "--camera", tmp_path / "camera.json", "--edge-model", "limb",
+               "-o", tmp_path / "m.json")
+    assert r.exit_code == 2 and "--edge-model" in r.output

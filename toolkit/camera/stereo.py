@@ -14,7 +14,10 @@ the translation in the calibration's length unit: that of its board's square). R
 OpenCV's ``R`` and ``T`` are exactly ``R_right_from_left`` and ``t_right_from_left``
 (stereoCalibrate: "R: rotation from the first camera's coordinate system to the second's").
 A rotation more than 1e-3 from orthonormal is refused; a nearly orthonormal one (written
-with few digits) is projected onto the nearest rotation.
+with few digits) is projected onto the nearest rotation. Optionally the calibration's
+uncertainty, ``cov_right_from_left``: the 6x6 covariance of the rotation's error as a
+rotation vector [rad] (``R = exp(w) R_right_from_left``) and of the translation [length],
+in that order, symmetric and positive semi-definite.
 
 >>> import tempfile, os, json
 >>> d = tempfile.mkdtemp()
@@ -51,11 +54,14 @@ class StereoRig:
 
     R_right_from_left: (3, 3) rotation; t_right_from_left: (3,) translation [the
     calibration's length unit]; ``p_right = R p_left + t``. source: the file it came from.
+    cov: (6, 6) or None, the covariance of the rotation's error (rotation vector [rad],
+    ``R = exp(w) R_right_from_left``) and of the translation [length].
     """
 
     R_right_from_left: np.ndarray
     t_right_from_left: np.ndarray
     source: str = ""
+    cov: np.ndarray | None = None
 
     @property
     def baseline(self) -> float:
@@ -70,8 +76,11 @@ class StereoRig:
 
     def to_dict(self) -> dict:
         """``{file, R_right_from_left, t_right_from_left, baseline}`` as plain lists."""
-        return {"file": self.source, "R_right_from_left": self.R_right_from_left.tolist(),
-                "t_right_from_left": self.t_right_from_left.tolist(), "baseline": self.baseline}
+        out = {"file": self.source, "R_right_from_left": self.R_right_from_left.tolist(),
+               "t_right_from_left": self.t_right_from_left.tolist(), "baseline": self.baseline}
+        if self.cov is not None:
+            out["cov_right_from_left"] = np.asarray(self.cov, float).tolist()
+        return out
 
 
 def _filestorage(p):
@@ -180,4 +189,14 @@ def read_stereo(path) -> StereoRig:
         raise InputError(f"{p}: '{tk}' must be three numbers, got {t.size}")
     if not np.linalg.norm(t) > 0:
         raise InputError(f"{p}: '{tk}' is zero: the two cameras share a centre (no baseline to triangulate with)")
-    return StereoRig(R, t, str(p))
+    cov = None
+    if data.get("cov_right_from_left") is not None:
+        c = _numbers(data["cov_right_from_left"], "cov_right_from_left", p)
+        if c.size != 36:
+            raise InputError(f"{p}: 'cov_right_from_left' must be a 6x6 matrix, got {c.size} numbers")
+        cov = c.reshape(6, 6)
+        if not np.allclose(cov, cov.T, rtol=1e-6, atol=1e-15) or np.linalg.eigvalsh(0.5 * (cov + cov.T))[0] < \
+                -1e-9 * max(float(np.max(np.abs(cov))), 1e-300):
+            raise InputError(f"{p}: 'cov_right_from_left' is not a covariance (symmetric, positive semi-definite)")
+        cov = 0.5 * (cov + cov.T)
+    return StereoRig(R, t, str(p), cov)

@@ -78,7 +78,7 @@ def radial_edge_count(pencil):
 def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None,
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
                        gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None, radial=None, axis_prior=None,
-                       shaft_tracker=None):
+                       shaft_tracker=None, edge_model="step"):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -127,6 +127,9 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
     shaft_tracker : shaft.detector.ShaftTracker, optional
         With `shaft`, frames in order: the shafts found by it (where the previous frame's
         were) instead of a full detection.
+    edge_model : {"step", "limb"}
+        With `shaft`: how the shafts' edges are located (`detect_shafts`; a tracker has its
+        own).
     """
     if min_length is None:
         min_length = default_min_length(np.shape(image), bars)
@@ -150,7 +153,7 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         offset_sigma_px=segs.offset_sigma,
         width_px=segs.width_px if bars and radial is None else None,
         shafts=shaft_records(image, camera, valid_region, gamma, instrument_mask, tracker=shaft_tracker,
-                             axis_prior=axis_prior) if shaft else None,
+                             axis_prior=axis_prior, edge_model=edge_model) if shaft else None,
         circle_points=circle_points,
     )
 
@@ -168,9 +171,12 @@ def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, in
     if instrument_mask is not None:
         from pencilcal.toolkit.detect.shaft.from_mask import shafts_from_masks
 
+        from pencilcal.toolkit.detect.shaft.detector import with_limbs
+
         found = shafts_from_masks(image, instrument_mask["mask"], camera, labels=instrument_mask.get("labels"),
                                   instances=bool(instrument_mask.get("instances")), valid_region=valid_region,
                                   gamma=gamma)
+        found = with_limbs(image, camera, found, options.get("edge_model", "step"), gamma)
     else:
         from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 
@@ -180,9 +186,9 @@ def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, in
 
 def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None, bar_width=None,
                  proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA, bar_tracker=None,
-                 instrument_mask=None, radial=None, axis_prior=None, shaft_tracker=None):
+                 instrument_mask=None, radial=None, axis_prior=None, shaft_tracker=None, edge_model="step"):
     """One lines.json frame record from one decoded image: ``detect_frame_lines(...).to_dict()``
     (the same arguments)."""
     return detect_frame_lines(name, image, camera, detector, bars, shaft, min_length, bar_width,
                               proposal_scale, valid_region, bar_polarity, gamma, bar_tracker,
-                              instrument_mask, radial, axis_prior, shaft_tracker).to_dict()
+                              instrument_mask, radial, axis_prior, shaft_tracker, edge_model).to_dict()

@@ -49,6 +49,8 @@ Example
 """
 from __future__ import annotations
 
+import dataclasses
+
 import inspect
 from dataclasses import dataclass
 from types import SimpleNamespace
@@ -60,6 +62,7 @@ from pencilcal.toolkit.detect.image import GrayImage
 from pencilcal.toolkit.detect.motion import EdgeMotion, match_pairs
 from pencilcal.toolkit.detect.noise import noise_of
 from pencilcal.toolkit.detect.shaft.axis import midline_from_edges
+from pencilcal.toolkit.detect.shaft.silhouette import EdgeLine
 from pencilcal.toolkit.detect.shaft.edge_cue import bands_from_edges, drop_repeated, edge_cue, refit_edges, unsigned_lines
 from pencilcal.toolkit.detect.shaft.material_cue import material_cue, robust_noise, select
 from pencilcal.toolkit.detect.shaft.pencil_search import pencil_search
@@ -71,7 +74,7 @@ from pencilcal.toolkit.detect.working import check_camera_image, to_raw
 from pencilcal.toolkit.errors import InputError
 
 __all__ = ["Shaft", "ShaftOptions", "detect_shafts", "detect_through", "track_shafts", "ShaftTracker", "CUES",
-           "REDETECT_FRAMES", "shaft_of_midline"]
+           "REDETECT_FRAMES", "shaft_of_midline", "EDGE_MODELS", "with_limbs"]
 
 #: What a shaft can be found by (`Shaft.cue`): the two cues, and the angle search about a
 #: fulcrum's image (`detect_shafts(..., axis_prior=...)`).
@@ -196,6 +199,7 @@ class ShaftOptions:
     corridor_px: float
     gamma: float
     single_edge: bool = True
+    edge_model: str = "step"
 
     @classmethod
     def resolve(cls, shape, *, min_length, width_px_range, max_convergence_deg, scale, max_gap_px, border_px, **kw):
@@ -209,6 +213,8 @@ class ShaftOptions:
         else:
             wmin, wmax = map(float, width_px_range)
             rw = (wmin, wmax)
+        if kw.get("edge_model", "step") not in EDGE_MODELS:
+            raise InputError(f"edge_model must be one of {', '.join(EDGE_MODELS)}, got {kw['edge_model']!r}")
         if not (0.1 <= kw["gamma"] <= 5.0):
             raise InputError(f"gamma must be in [0.1, 5], got {kw['gamma']!r}")
         if not (0 < wmin < wmax):
@@ -239,6 +245,54 @@ def shaft_of_midline(camera, m, score, polarity, cue, cls=None, **fields):
                           convergence_deg=float(m.convergence_deg), polarity=polarity, cue=cue, cov=m.cov,
                           cov_stat=m.cov_stat, cov_floor=m.cov_floor, ideal_edges=np.asarray(m.edges, float),
                           edge_cov=m.edge_cov, **fields)
+
+
+#: The edge models of `detect_shafts`.
+EDGE_MODELS = ("step", "limb")
+
+
+def _edge_line(seg, other):
+    """A `shaft.silhouette.EdgeLine` of the edge segment seg (4,) [ideal px], its normal
+    away from the other edge's segment (4,)."""
+    p0, p1 = np.asarray(seg[:2], float), np.asarray(seg[2:], float)
+    L = float(np.hypot(*(p1 - p0)))
+    u = (p1 - p0) / L
+    n = np.array([-u[1], u[0]])
+    if n @ (0.5 * (np.asarray(other[:2], float) + np.asarray(other[2:], float)) - p0) > 0:
+        n = -n
+    return EdgeLine(p0=p0, u=u, n=n, sm=0.5 * L, tm=0.0, b=0.0, var_t=0.0, var_b=0.0, s_lo=0.0, s_hi=L, count=0,
+                    frac=1.0, rms=0.0)
+
+
+def with_limbs(image, camera, shafts, edge_model="limb", gamma=DEFAULT_GAMMA, K=None):
+    """The shafts with their edges located by the limb model (`shaft.limb.limb_edges`) when
+    edge_model is "limb" (else as they are): each a new `Shaft` from the refitted edges'
+    midline, its score, polarity and cue kept; one whose edges give no limb as it was.
+    gamma: the frame's encoding gamma; K: the camera matrix of the ideal pixels (default
+    `shaft.work.axis_matrix`'s)."""
+    if edge_model not in EDGE_MODELS:
+        raise InputError(f"edge_model must be one of {', '.join(EDGE_MODELS)}, got {edge_model!r}")
+    if edge_model != "limb" or not shafts:
+        return shafts
+    from pencilcal.toolkit.detect.shaft.limb import limb_edges
+
+    K = axis_matrix(camera, np.asarray(image).shape[:2])[0] if K is None else K
+    out = []
+    for s in shafts:
+        new = None
+        if s.ideal_edges is not None:
+            e = np.asarray(s.ideal_edges, float)
+            got = limb_edges(image, camera, K, _edge_line(e[0], e[1]), _edge_line(e[1], e[0]), gamma)
+            m = None if got is None else midline_from_edges(K, got[0], got[1])
+            new = None if m is None else shaft_of_midline(camera, m, s.score, s.polarity, s.cue)
+        # the measured fields replaced, the rest kept (a mask's shaft keeps its mask's)
+        out.append(s if new is None else dataclasses.replace(s, **{k: getattr(new, k) for k in _MEASURED}))
+    return out
+
+
+#: The fields of a `Shaft` its edges give (`with_limbs` replaces them).
+_MEASURED = ("midline", "width_px", "angle_sigma", "offset_sigma", "edges", "ideal_midline", "convergence_deg", "cov",
+             "cov_stat", "cov_floor", "ideal_edges", "edge_cov")
 
 
 def _by_material(image, camera, validity, o, K, work):
@@ -277,7 +331,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
                   max_convergence_deg=30.0, max_shafts=4, scale=None, max_gap_px=None, search_px=3.0,
                   sigma_px=1.5, min_support=0.3, max_background=0.1, slope_correction=True, from_border=True,
                   border_px=None, min_score_ratio=0.25, corridor_px=4.0, detector_params=None, gamma=DEFAULT_GAMMA,
-                  axis_prior=None, single_edge=True):
+                  axis_prior=None, single_edge=True, edge_model="step"):
     """Instrument shafts in one image: midline (the axis image), width, angle uncertainty.
 
     Parameters
@@ -351,7 +405,11 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         cue "prior"), and of all the shafts found at most one per prior is returned, the
         best-scored whose midline passes through it (`shaft.prior.select_through`);
         max_shafts and min_score_ratio then do not apply.
-
+    edge_model : {"step", "limb"}
+        "limb": each shaft's two edges, once found, are located again by the profile model
+        of a cylinder lit from the camera (`shaft.limb`: it darkens towards its silhouette,
+        so the step edge lies inside it and the band comes out narrow); a shaft whose edges
+        give no limb keeps its step edges.
     single_edge : bool
         The material cue also proposes bands from a single straight boundary, to the far
         edge a gradient model finds across it (`shaft.partner`: a white or metal shaft the
@@ -375,7 +433,8 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         max_convergence_deg=max_convergence_deg, max_shafts=max_shafts, scale=scale, max_gap_px=max_gap_px,
         search_px=search_px, sigma_px=sigma_px, min_support=min_support, max_background=max_background,
         slope_correction=slope_correction, from_border=from_border, border_px=border_px,
-        min_score_ratio=min_score_ratio, corridor_px=corridor_px, gamma=gamma, single_edge=bool(single_edge)))
+        min_score_ratio=min_score_ratio, corridor_px=corridor_px, gamma=gamma, single_edge=bool(single_edge),
+        edge_model=edge_model))
     priors = as_priors(axis_prior)
     work = WorkFrame(image, camera, validity, _WORK_PX) if priors else None
     found = _by_material(image, camera, validity, o, K, work)
@@ -384,7 +443,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         found = _by_edges(image, camera, valid_region, o, K)
     found = [s for s in found if s is not None]
     if not priors:
-        return found
+        return with_limbs(image, camera, found, o.edge_model, o.gamma, K)
     img = np.asarray(image)
     noise = max(robust_noise(img[..., 1] if img.ndim == 3 else img), 0.5)
     # the material cue's edges keep a colour frame's levels (`shaft.material_cue`), the
@@ -393,7 +452,8 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
     for p in priors:
         for m, score, polarity in pencil_search(image, camera, validity, work, p, o, K, noise, gamma_edges):
             found.append(shaft_of_midline(camera, m, score, polarity, "prior"))
-    return select_through([s for s in found if s is not None], priors)
+    return with_limbs(image, camera, select_through([s for s in found if s is not None], priors), o.edge_model,
+                      o.gamma, K)
 
 
 def detect_through(image, camera, alternatives, **options):
@@ -484,7 +544,7 @@ def track_shafts(image, camera, previous, *, valid_region=None, prior=None, reac
                       if s is not None]
     if len(_instruments(found)) < len(prior):
         return (detect_shafts(image, camera, valid_region=valid_region, **options) if detect else []), False
-    return found, True
+    return with_limbs(image, camera, found, o.edge_model, o.gamma, K), True
 
 
 def _by_colour(image, camera, validity, o, K, shafts, prior, reach, widths, colours):

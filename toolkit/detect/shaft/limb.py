@@ -1,0 +1,300 @@
+"""A shaft's silhouette edges located by a profile model of the lit cylinder (the limb).
+
+An endoscope lights what it sees from (almost) its own viewpoint, so a shaft's surface
+turns away from the light where it turns away from the camera: its radiance falls to
+nothing at the silhouette. A step-edge locator (the gradient peak of the blurred profile,
+`shaft.silhouette`, `shaft.axis.measure_edge_pair`) then finds each edge inside the true
+limb, where the darkening shaft meets the background most steeply: by some tenths of a
+pixel, a few per cent of a narrow band's width, and the depth from the band's width (the
+shaft's 3-D axis, `pencil.cylinder.shaft_axis`) inherits it.
+
+The model. Across an edge, at distance d [px] inside the silhouette of a band of half-width
+W [px], the surface's normal makes the angle with the viewing ray whose cosine is
+``c(d) = k sqrt(1 - (1 - d / W)^2)`` (a cylinder seen nearly orthographically across its
+width: exact at the limb, where it matters; k the sine of the angle between the viewing ray
+and the axis, as an oblique shaft never faces the camera squarely). With the light at the
+camera the shaft's radiance is a function of c alone that vanishes at c = 0: Lambert's
+diffuse light ``kd c`` plus a microfacet specular lobe ``ks S_a(c)`` (`specular_lobe`: GGX
+normals of roughness a, Smith's shadowing; as the light and the view coincide the half
+vector is the view, and the lobe rises from the limb as c / pi over c < a, a thin bright
+rim on polished metal, then peaks along the axis), both times the light's fall-off E
+(the middle of the shaft is nearer the light than its limb, `limb_design`). The fit sees
+at most 0.7 W inside the edge, short of the central highlight, saturated samples left out.
+Beside the edge the background is ``b0 + b1 (t - e)`` (a level and a slope), and the
+optics' blur a Gaussian of sd sigma (pixel area and sampling included). The profile, on
+linear light (the frame's encoding gamma undone, `edges.linearised`), is
+
+    y(t) = G_sigma * [ (b0 + b1 (t - e)) H(t - e) + E (kd c + ks S_a(c)) H(e - t) ]
+
+with t the offset along the edge's outward normal, e the limb, H the step. It is linear in
+(b0, b1, kd, ks) and fitted by variable projection: scipy's least squares over (e,
+log sigma, log a), the linear coefficients solved at each step, from two starts (the step
+edge and `_STARTS_PX` beyond it: where the shaft's rim meets the background at one level
+the step edge may be pixels inside). The limb e is where the band ends.
+
+Per edge (`refine_edge`): the profiles across the step fit's line at stations 1 px apart,
+linearised, averaged over bins of `BIN_PX` along the edge (a bin's mean profile has the
+noise down by the square root of its stations), the model fitted to each bin's, and the
+edge line refitted through the bins' limbs (weighted least squares), with the a-posteriori
+variances of its offset and slope (the scatter of the bins about the line, at least the
+fits' own). `limb_edges` refines both edges of a shaft, each bin's W from the other edge.
+
+Ideal pixels throughout (s along the edge, t along its outward normal), as
+`shaft.silhouette.EdgeLine`.
+
+Example
+-------
+>>> import numpy as np
+>>> t = np.arange(-8.0, 6.0, 0.25)
+>>> y = limb_design(t, 0.3, 1.0, 12.0, 0.2) @ [40.0, 0.0, 20.0, 200.0]   # a limb at t = 0.3
+>>> fit = fit_limb_profile(t, y, 12.0, 0.0, 1.2)
+>>> round(fit.edge, 4), round(fit.sigma, 4), round(fit.roughness, 3)
+(0.3, 1.0, 0.2)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import NamedTuple
+
+import numpy as np
+
+from pencilcal.toolkit.detect.edges import linearised
+from pencilcal.toolkit.detect.working import raw_frame
+
+__all__ = ["BIN_PX", "LimbFit", "specular_lobe", "limb_design", "fit_limb_profile", "refine_edge", "limb_edges"]
+
+#: Stations averaged per bin along an edge [px].
+BIN_PX = 12.0
+_STEP_PX = 0.25  # profile sample spacing [px]
+_OUT_PX = 7.0  # the profile's reach beyond the step edge [px]
+_IN_FRAC, _IN_MIN, _IN_MAX = 0.7, 4.0, 12.0  # its reach inside: this fraction of W, within [min, max] px
+_CELLS = 240  # cells of the shaft's shading across the profile
+_ROUGH_RANGE = (0.03, 1.0)  # the specular lobe's roughness's bounds
+_SIGMA_RANGE = (0.3, 6.0)  # the blur sd's bounds [px]
+_MIN_BINS = 3
+_STARTS_PX = (0.0, 1.5)  # the limb fit's starts from the step edge, outwards [px]
+
+
+class LimbFit(NamedTuple):
+    """One profile's limb model fit (`fit_limb_profile`): edge [px] the limb e; sigma [px]
+    the blur; roughness the specular lobe's; coef (4,) (b0, b1, kd, ks); rms the residual's RMS; edge_var [px^2] e's
+    variance (the fit's, from its residual); ok whether the fit converged to a limb."""
+
+    edge: float
+    sigma: float
+    roughness: float
+    coef: np.ndarray
+    rms: float
+    edge_var: float
+    ok: bool
+
+
+def specular_lobe(c, roughness):
+    """The specular radiance (...) of a microfacet surface (GGX normals, Smith's shadowing,
+    Fresnel 1) lit and seen from one point, at incidence cosine c (...):
+    ``D(c) G1(c)^2 / (4 c)``, ``D = a^2 / (pi (c^2 (a^2 - 1) + 1)^2)``,
+    ``G1 = 2 c / (c + sqrt(a^2 + (1 - a^2) c^2))``, a the roughness. It rises from 0 at the
+    limb as c / pi over c < a (a bright rim as thin as the surface is smooth) and peaks at
+    c = 1 (the highlight along the axis)."""
+    c = np.asarray(c, float)
+    a2 = roughness * roughness
+    D = a2 / (np.pi * (c * c * (a2 - 1.0) + 1.0) ** 2)
+    G1 = 2 * c / np.maximum(c + np.sqrt(a2 + (1 - a2) * c * c), 1e-300)
+    return np.where(c > 0, D * G1 * G1 / (4 * np.maximum(c, 1e-300)), 0.0)
+
+
+def limb_design(t, edge, sigma, half_width, roughness, sin_view=1.0, q=0.0):
+    """(T, 4) the blurred model's columns at the offsets t (T,) [px] for the limb edge [px],
+    the blur sd sigma [px], the band's half-width [px] and the specular lobe's roughness:
+    sin_view: the sine of the angle between the viewing ray and the axis (c is that times
+    the cross-section's cosine); q: the sine of the band's half-angle at the camera (its
+    half-width over the focal length), for the light's fall-off: the surface point at
+    cross-section cosine c' lies at ``z = rho (sqrt(1 - q^2 + q^2 c'^2) - q c')`` from the
+    camera (rho the axis's distance), nearer than the limb, and its irradiance is
+    ``(z_limb / z)^2`` that of the limb. The profile is this times (b0, b1, kd, ks) (module
+    docstring). The background's columns
+    in closed form; the shaft's as sums over `_CELLS` cells even in the surface's angle psi
+    from the limb (d = W (1 - cos psi), c = sin psi: fine where the shading changes fast),
+    each cell's integral times the Gaussian at its centre (smooth in every parameter, as
+    the least squares need)."""
+    from scipy.special import ndtr
+
+    t = np.asarray(t, float)
+    z = (t - edge) / sigma
+    phi = np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi)
+    deep = min(float(edge - t.min() + 6.0 * sigma), 2.0 * half_width)
+    psi_max = float(np.arccos(np.clip(1.0 - max(deep, 0.1) / half_width, -1.0, 1.0)))
+    dpsi = psi_max / _CELLS
+    psi = (np.arange(_CELLS) + 0.5) * dpsi
+    cs = np.sin(psi)  # the cross-section's cosine
+    dd = half_width * cs * dpsi  # each cell's depth [px]
+    c = sin_view * cs
+    fall = (1.0 - q * q) / (np.sqrt(1.0 - q * q + q * q * cs * cs) - q * cs) ** 2
+    dd = dd * fall
+    x = edge - half_width * (1.0 - np.cos(psi))
+    g = np.exp(-0.5 * ((t[:, None] - x) / sigma) ** 2) / (np.sqrt(2 * np.pi) * sigma)
+    return np.column_stack([ndtr(z), sigma * (z * ndtr(z) + phi), g @ (c * dd), g @ (specular_lobe(c, roughness) * dd)])
+
+
+def fit_limb_profile(t, y, half_width, edge0, sigma0, roughness0=0.3, sin_view=1.0, q=0.0, use=None):
+    """The limb model fitted to one profile (`LimbFit`): samples y (T,) [linear light] at
+    offsets t (T,) [px] along the outward normal, the band's half-width [px], starts for
+    the edge [px], the blur sd [px] and the specular lobe's roughness; sin_view and q as
+    `limb_design`; use (T,) bool: the samples fitted (default all; a saturated one is not
+    what the model predicts)."""
+    from scipy.optimize import least_squares
+
+    t = np.asarray(t, float)
+    y = np.asarray(y, float)
+    use = np.ones(t.shape, bool) if use is None else np.asarray(use, bool)
+
+    def solve(p):
+        A = limb_design(t, p[0], np.exp(p[1]), half_width, np.exp(p[2]), sin_view, q)[use]
+        coef, *_ = np.linalg.lstsq(A, y[use], rcond=None)
+        return A, coef
+
+    def res(p):
+        A, coef = solve(p)
+        return A @ coef - y[use]
+
+    lo = [t[0] + 1.0, np.log(_SIGMA_RANGE[0]), np.log(_ROUGH_RANGE[0])]
+    hi = [t[-1] - 1.0, np.log(_SIGMA_RANGE[1]), np.log(_ROUGH_RANGE[1])]
+    x0 = np.clip([float(edge0), np.log(sigma0), np.log(roughness0)], np.add(lo, 1e-6), np.subtract(hi, 1e-6))
+    r = least_squares(res, x0, bounds=(lo, hi), x_scale=[0.1, 0.1, 0.3], diff_step=1e-4)
+    A, coef = solve(r.x)
+    resid = A @ coef - y[use]
+    s2 = float(resid @ resid) / max(resid.size - 7, 1)
+    try:
+        var = float(np.linalg.inv(r.jac.T @ r.jac)[0, 0] * s2)
+    except np.linalg.LinAlgError:
+        var = np.inf
+    # the edge and the blur must not sit at a bound (the roughness may: a mirror, a matte coat)
+    ok = bool(r.success and np.all(np.isfinite(r.x)) and lo[1] + 1e-3 < r.x[1] < hi[1] - 1e-3
+              and lo[0] + 0.5 < r.x[0] < hi[0] - 0.5 and np.isfinite(var))
+    return LimbFit(float(r.x[0]), float(np.exp(r.x[1])), float(np.exp(r.x[2])), coef,
+                   float(np.sqrt(np.mean(resid ** 2))), var, ok)
+
+
+_SATURATED = 250.0  # an encoded level at least this is clipped, not measured [grey levels]
+
+
+def _profiles(image, camera, pts, n, t):
+    """Grey profiles (M, T) float32 of the image (mean of its channels) at the points pts
+    (M, 2) [ideal px] along the ideal unit normal n (2,) at offsets t (T,) [px]; whether
+    each sample is saturated in any channel (M, T); whether each profile lies in the
+    image (M,)."""
+    import cv2
+
+    nx = np.full((1, 1), n[0])
+    ny = np.full((1, 1), n[1])
+    rx, ry, jx, jy = raw_frame(camera, pts[None, :, 0], pts[None, :, 1], nx, ny)
+    X = (rx[0, :, None] + jx[0, :, None] * t).astype(np.float32)
+    Y = (ry[0, :, None] + jy[0, :, None] * t).astype(np.float32)
+    img = np.asarray(image, np.float32)
+    top = img.max(-1) if img.ndim == 3 else img
+    grey = img.mean(-1) if img.ndim == 3 else img
+    H, W = grey.shape
+    inside = np.all((X >= 0) & (X <= W - 1) & (Y >= 0) & (Y <= H - 1), -1)
+    prof = cv2.remap(np.ascontiguousarray(grey), X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    sat = cv2.remap(np.ascontiguousarray(top), X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return prof, sat >= _SATURATED, inside
+
+
+def refine_edge(image, camera, edge, geometry, gamma=1.0, sigma0=1.2):
+    """One silhouette edge located by the limb model (module docstring).
+
+    image: the raw frame (H, W) or (H, W, 3); camera: its `Camera` or None; edge: the
+    step fit, a `shaft.silhouette.EdgeLine` (ideal px, n outward); geometry: a callable
+    giving, at the edge's points (M, 2) [ideal px], the band's half-width [px] (M,), the
+    sine of the angle between the viewing ray and the axis (M,) and the sine of the band's
+    half-angle (M,) (`limb_design`); gamma: the frame's
+    encoding gamma; sigma0: the blur's start [px]. Returns a new `EdgeLine` (the refitted
+    line, its variances, s_lo, s_hi, count the bins used, frac, rms), or None where fewer
+    than 3 bins give a limb.
+    """
+    L = edge.s_hi - edge.s_lo
+    nb = int(np.clip(np.floor(L / BIN_PX), 0, 64))
+    if nb < _MIN_BINS:
+        return None
+    edges_s = np.linspace(edge.s_lo, edge.s_hi, nb + 1)
+    s_st = np.arange(edge.s_lo, edge.s_hi + 1e-9, 1.0)
+    pts = np.stack([edge.point_at(s) for s in s_st])
+    W_st, k_st, q_st = (np.asarray(v, float) for v in geometry(pts))
+    Wm = float(np.median(W_st))
+    if not (np.isfinite(Wm) and Wm > 1.0):
+        return None
+    inner = float(np.clip(_IN_FRAC * Wm, _IN_MIN, _IN_MAX))
+    t = np.arange(-inner, _OUT_PX + 1e-9, _STEP_PX)
+    prof, sat, inside = _profiles(image, camera, pts, edge.n, t)
+    prof = linearised(prof, gamma)
+    sb, tb, vb = [], [], []
+    for k in range(nb):
+        sel = inside & (s_st >= edges_s[k]) & (s_st < edges_s[k + 1] + (k == nb - 1))
+        use = ~sat[sel].any(0)
+        if sel.sum() < 3 or use.sum() < 0.6 * t.size:
+            continue
+        # from the step edge and from beyond it (the step edge lies inside the limb; where
+        # the shaft's rim meets the background at one level the step edge may be pixels in)
+        fits = [fit_limb_profile(t, prof[sel].mean(0), float(np.median(W_st[sel])), e0, sigma0,
+                                 sin_view=float(np.median(k_st[sel])), q=float(np.median(q_st[sel])), use=use)
+                for e0 in _STARTS_PX]
+        fits = [f for f in fits if f.ok]
+        if not fits:
+            continue
+        fit = min(fits, key=lambda f: f.rms)
+        s_c = float(s_st[sel].mean())
+        sb.append(s_c)
+        tb.append(edge.tm + edge.b * (s_c - edge.sm) + fit.edge)
+        vb.append(fit.edge_var)
+    if len(sb) < _MIN_BINS:
+        return None
+    return _line_through(edge, np.array(sb), np.array(tb), np.array(vb), nb)
+
+
+def _line_through(edge, s, t, v, nb):
+    """The `EdgeLine` through the bins' limbs (s, t) (B,) [px] of variances v (B,) [px^2],
+    weighted least squares, the variances a-posteriori (at least the fits' own)."""
+    w = 1.0 / np.maximum(v, 1e-8)
+    W = w.sum()
+    sm = float(np.sum(w * s) / W)
+    ds = s - sm
+    Sss = max(float(np.sum(w * ds * ds)), 1e-12)
+    b = float(np.sum(w * ds * (t - np.sum(w * t) / W)) / Sss)
+    tm = float(np.sum(w * t) / W)
+    r = t - tm - b * ds
+    chi2 = float(np.sum(w * r * r)) / max(len(s) - 2, 1)
+    scale = max(chi2, 1.0)
+    return replace(edge, sm=sm, tm=tm, b=b, var_t=scale / W, var_b=scale / Sss, s_lo=float(s.min()),
+                   s_hi=float(s.max()), count=int(len(s)), frac=len(s) / nb, rms=float(np.sqrt(np.mean(r * r))))
+
+
+def limb_edges(image, camera, K, e1, e2, gamma=1.0):
+    """Both silhouette edges of a shaft (`shaft.silhouette.EdgeLine`, ideal px, normals
+    outward) located by the limb model (`refine_edge`); None where either gives no limb.
+
+    K (3, 3): the camera matrix of the ideal pixels (`shaft.work.axis_matrix`). Each edge's
+    half-width W is half its distance to the other's line, the sine of the band's
+    half-angle W / f (f the focal length), and the axis direction (for the angle between
+    each viewing ray and the axis) the cross product of the two silhouette planes' normals
+    ``K^T l``."""
+    K = np.asarray(K, float)
+    Kinv = np.linalg.inv(K)
+    f = float(np.sqrt(K[0, 0] * K[1, 1]))
+    nrm = [K.T @ e.line() for e in (e1, e2)]
+    d = np.cross(nrm[0], nrm[1])
+    d = d / max(np.linalg.norm(d), 1e-300)
+    out = []
+    for e, other in ((e1, e2), (e2, e1)):
+        lo = other.line()
+
+        def geometry(p, lo=lo):
+            v = np.column_stack([p, np.ones(len(p))]) @ Kinv.T
+            v = v / np.linalg.norm(v, axis=1, keepdims=True)
+            w = 0.5 * np.abs(p @ lo[:2] + lo[2])
+            return w, np.linalg.norm(np.cross(v, d), axis=1), np.clip(w / f, 0.0, 0.9)
+
+        got = refine_edge(image, camera, e, geometry, gamma)
+        if got is None:
+            return None
+        out.append(got)
+    return tuple(out)

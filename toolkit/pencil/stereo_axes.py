@@ -1,0 +1,417 @@
+"""A shaft's 3-D axis from both eyes of a calibrated stereo pair, and the fulcrum of such axes.
+
+Each silhouette edge of a shaft back-projects to a plane through its camera's centre that
+touches the cylinder: with two eyes a shaft gives four such planes. Every one is parallel
+to the axis and at the radius r from it, eight conditions on five unknowns (the axis's four
+degrees of freedom and r), so the axis and the radius follow from the silhouettes alone, by
+least squares, with no fulcrum ray and, if need be, no known diameter: the baseline fixes
+the depth where one eye has only the band's width.
+
+`stereo_axis` fits them in the left camera frame. It starts from the planes (the direction
+orthogonal to the four normals, then the point and r linear in the plane equations) and
+minimises the edges' image residuals: per eye and edge, the angle between the measured edge
+and the cylinder's silhouette line (`cylinder.project_cylinder`) and the measured segment
+centre's distance from that line, whitened by the edge's 2x2 covariance of (angle
+[rad], offset [px]) (`shaft.axis.Midline.edge_cov`, `cylinder.shaft_axis`'s convention).
+Unknowns: the axis in the chart of `pencil.cylinder` (theta_u, theta_w, s_u, s_w) about
+the start, and r; with a known diameter a prior on r (its sd given). The covariance is
+``(J^T J)^-1`` of the whitened residuals, and ``rig_jacobian = -(J^T J)^-1 J^T J_rig``
+says how the axis moves with an error of the rig (its rotation vector and translation).
+The rig is one for all the shafts of a sequence: `stereo_fulcrum_axes` solves the fulcrum
+together with the rig's error, under its prior, not axis by axis (where its effect would
+count as independent and average away).
+
+`match_shafts` pairs the shafts of the two eyes of a frame by the chi2 of their joint fit;
+`stereo_fulcrum_axes` is the fulcrum of the stereo axes (`cylinder.fulcrum_3d`).
+
+Conventions as `pencil.cylinder`: OpenCV camera frames, lengths in the rig's unit (mm),
+``p_right = R_right_from_left p_left + t_right_from_left``, undistorted pixels of each eye's
+K; edge segments ``[x1, y1, x2, y2]``.
+
+Example
+-------
+>>> import numpy as np
+>>> from pencilcal.toolkit.pencil.cylinder import project_cylinder
+>>> K = np.array([[600.0, 0, 320], [0, 600, 240], [0, 0, 1]])
+>>> R, t = np.eye(3), np.array([-5.0, 0, 0])                 # right eye 5 mm to the right
+>>> A, d = np.array([0.0, 5, 80]), np.array([1.0, 0.2, 0.3])
+>>> def edges(K, A, d):
+...     ls = project_cylinder(K, A, d, 4.0).lines
+...     return np.array([[0.0, -l[2] / l[1], 640.0, -(l[2] + 640 * l[0]) / l[1]] for l in ls])
+>>> cov = np.broadcast_to(np.diag([1e-6, 0.01]), (2, 2, 2))
+>>> ax = stereo_axis(K, edges(K, A, d), cov, K, edges(K, R @ A + t, R @ d), cov, R, t)
+>>> round(float(ax.radius), 6), np.round(ax.axis_point, 4).tolist()
+(4.0, [-22.1239, 0.5752, 73.3628])
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pencilcal.toolkit.errors import EstimationError, InputError
+from pencilcal.toolkit.geometry.frames import normalize, rotation_from_rotvec
+from pencilcal.toolkit.geometry.quantiles import chi2_isf
+from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, axis_frame, fulcrum_3d, project_cylinder,
+                                               silhouette_planes)
+
+__all__ = ["StereoAxis", "AxesFulcrum", "stereo_axis", "match_shafts", "stereo_fulcrum_axes", "stereo_axes_from_frames"]
+
+_STEP = 1e-6  # central-difference step of the Jacobians (chart units, mm, rad)
+
+
+@dataclass(frozen=True, eq=False)
+class StereoAxis:
+    """A shaft's axis from both eyes (`stereo_axis`), left camera frame.
+
+    axis_point (3,) [length]: the axis's point closest to the left camera centre;
+    axis_direction (3,) unit, d_z > 0; axis_cov (4, 4): covariance of the chart
+    (theta_u, theta_w [rad], s_u, s_w [length]) about it (`pencil.cylinder`), the edges'
+    noise only; axis_frame (2, 3): the chart's (u, w); radius [length] and radius_sigma;
+    cov (5, 5): the chart's and r's covariance; rig_jacobian (5, 6): d (chart, r) / d (rig
+    rotation vector [rad], translation [length]), for the rig's covariance; chi2: the
+    whitened residuals' sum of squares, dof its degrees of freedom (8 - 5, plus 1 with a
+    radius prior).
+    """
+
+    axis_point: np.ndarray
+    axis_direction: np.ndarray
+    axis_cov: np.ndarray
+    axis_frame: np.ndarray
+    radius: float
+    radius_sigma: float
+    cov: np.ndarray
+    rig_jacobian: np.ndarray
+    rig_information: np.ndarray
+    rig_vector: np.ndarray
+    chi2: float
+    dof: int
+
+
+def _canon(d):
+    d = normalize(d)
+    return -d if (d[2] < 0 or (d[2] == 0 and (d[1] < 0 or (d[1] == 0 and d[0] < 0)))) else d
+
+
+def _line_of(chart, A, d, frame):
+    """(point, direction) of the line at chart coordinates (4,) about (A, d, frame)."""
+    u, w = frame
+    return A + chart[2] * u + chart[3] * w, normalize(d + chart[0] * u + chart[1] * w)
+
+
+def _edge_terms(edges):
+    """(centre (2, 2), angle (2,)) of two edge segments (2, 4) [px]."""
+    e = np.asarray(edges, float)
+    c = 0.5 * (e[:, :2] + e[:, 2:])
+    return c, np.arctan2(e[:, 3] - e[:, 1], e[:, 2] - e[:, 0])
+
+
+def _whiteners(covs):
+    """(2, 2, 2) the inverse Cholesky factors of two edges' (angle, offset) covariances."""
+    covs = np.asarray(covs, float).reshape(2, 2, 2)
+    try:
+        return np.stack([np.linalg.inv(np.linalg.cholesky(c)) for c in covs])
+    except np.linalg.LinAlgError:
+        raise InputError("stereo_axis: an edge covariance is not positive definite") from None
+
+
+def _residuals_eye(K, A, d, r, centre, angle, Wh, order):
+    """Whitened residuals (4,) of one eye's two edges against the cylinder's silhouette
+    lines, the lines taken in the given order (2,)."""
+    lines = project_cylinder(K, A, d, r).lines[list(order)]
+    out = []
+    for k in range(2):
+        a, b, c = lines[k]
+        ang = np.arctan2(a, -b)  # the direction (-b, a)... of the line, mod pi
+        dphi = (ang - angle[k] + 0.5 * np.pi) % np.pi - 0.5 * np.pi
+        nu = np.array([-np.sin(angle[k]), np.cos(angle[k])])
+        # the measured centre's distance from the line, along the measured normal
+        off = -(a * centre[k, 0] + b * centre[k, 1] + c) / (a * nu[0] + b * nu[1])
+        out.append(Wh[k] @ np.array([dphi, off]))
+    return np.concatenate(out)
+
+
+def _order(K, A, d, r, centre):
+    """Which silhouette line (of `project_cylinder`) each measured edge is: (2,)."""
+    lines = project_cylinder(K, A, d, r).lines
+    dist = np.abs(lines[:, :2] @ centre.T + lines[:, 2:3])  # (line, edge)
+    return (0, 1) if dist[0, 0] + dist[1, 1] <= dist[1, 0] + dist[0, 1] else (1, 0)
+
+
+def _planes(K, edges, R=None, t=None):
+    """The oriented tangent planes (2, 3) normals and (2,) offsets of one eye's edges, in
+    the left frame: ``n . X = n . C`` (C the eye's centre)."""
+    e = np.asarray(edges, float)
+    h = np.stack([np.cross(np.r_[s[:2], 1.0], np.r_[s[2:], 1.0]) for s in e])
+    inside = np.linalg.inv(K) @ np.r_[0.25 * (e[0, :2] + e[0, 2:] + e[1, :2] + e[1, 2:]), 1.0]
+    n = silhouette_planes(h @ K, inside[:2] / inside[2])
+    if R is None:
+        return n, np.zeros(2)
+    n = n @ R  # R^T n: right-frame normals into the left frame
+    C = -R.T @ t
+    return n, n @ C
+
+
+def _start(K_l, edges_l, K_r, edges_r, R, t, radius):
+    """(A, d, r): the axis and radius from the four planes, linear (module docstring)."""
+    n1, o1 = _planes(K_l, edges_l)
+    n2, o2 = _planes(K_r, edges_r, R, t)
+    N = np.concatenate([n1, n2])
+    off = np.concatenate([o1, o2])
+    d = _canon(np.linalg.svd(N)[2][-1])
+    # n_i . A - r = n_i . C_i, A . d = 0
+    M = np.zeros((5, 4))
+    M[:4, :3] = N
+    M[:4, 3] = -1.0
+    M[4, :3] = d
+    rhs = np.r_[off, 0.0]
+    if radius is not None:
+        sol, *_ = np.linalg.lstsq(M[:, :3], rhs + np.r_[np.full(4, radius), 0.0], rcond=None)
+        return sol, d, float(radius)
+    sol, *_ = np.linalg.lstsq(M, rhs, rcond=None)
+    if not sol[3] > 0:
+        raise EstimationError("stereo_axis: the four silhouette planes bound no cylinder")
+    return sol[:3], d, float(sol[3])
+
+
+def stereo_axis(K_left, edges_left, cov_left, K_right, edges_right, cov_right, R_right_from_left, t_right_from_left,
+                *, radius=None, radius_sigma=None, iterations=20):
+    """A shaft's 3-D axis and radius from its silhouette edges in both eyes (module docstring).
+
+    K_left, K_right: (3, 3) each eye's camera matrix of its undistorted pixels;
+    edges_left, edges_right: (2, 4) each eye's two edge segments [undistorted px];
+    cov_left, cov_right: (2, 2, 2) per edge the covariance of its (angle [rad], offset [px])
+    about the segment's centre; R_right_from_left (3, 3), t_right_from_left (3,) [length]:
+    the rig; radius [length], radius_sigma [length]: a prior on the radius (the shaft's
+    known diameter over two, and how well it is known; radius_sigma None with a radius: 1e-3
+    of it). Returns a `StereoAxis`; EstimationError when the edges bound no cylinder.
+    """
+    K_l, K_r = np.asarray(K_left, float), np.asarray(K_right, float)
+    R, t = np.asarray(R_right_from_left, float), np.asarray(t_right_from_left, float)
+    el, er = np.asarray(edges_left, float).reshape(2, 4), np.asarray(edges_right, float).reshape(2, 4)
+    cl, al = _edge_terms(el)
+    cr, ar = _edge_terms(er)
+    Wl, Wr = _whiteners(cov_left), _whiteners(cov_right)
+    A0, d0, r0 = _start(K_l, el, K_r, er, R, t, radius)
+    prior = None
+    if radius is not None:
+        prior = (float(radius), float(1e-3 * radius if radius_sigma is None else radius_sigma))
+    try:
+        ord_l, ord_r = _order(K_l, A0, d0, r0, cl), _order(K_r, R @ A0 + t, R @ d0, r0, cr)
+    except InputError:
+        raise EstimationError("stereo_axis: the edges bound no cylinder clear of both cameras") from None
+
+    def residuals(p, A, d, frame, R=R, t=t):
+        P, D = _line_of(p[:4], A, d, frame)
+        r = p[4]
+        if not r > 0:
+            raise EstimationError("stereo_axis: the fit left the cylinder (radius <= 0)")
+        try:
+            res = [_residuals_eye(K_l, P, D, r, cl, al, Wl, ord_l),
+                   _residuals_eye(K_r, R @ P + t, R @ D, r, cr, ar, Wr, ord_r)]
+        except InputError:  # a camera centre inside the cylinder: these edges bound none
+            raise EstimationError("stereo_axis: the edges bound no cylinder clear of both cameras") from None
+        if prior is not None:
+            res.append([(r - prior[0]) / prior[1]])
+        return np.concatenate(res)
+
+    def jac(f, p, n):
+        return np.stack([(f(p + h) - f(p - h)) / (2 * _STEP) for h in np.eye(n) * _STEP], -1)
+
+    A, d, r = A0, d0, r0
+    for _ in range(iterations):  # Gauss-Newton, the chart re-centred on the estimate each step
+        frame = axis_frame(A, d)
+        p0 = np.r_[np.zeros(4), r]
+        f0 = residuals(p0, A, d, frame)
+        J = jac(lambda p: residuals(p, A, d, frame), p0, 5)
+        step = np.linalg.lstsq(J, -f0, rcond=None)[0]
+        P, D = _line_of(step[:4], A, d, frame)
+        A, d, r = P - (P @ D) * D, _canon(D), r + step[4]
+        if np.max(np.abs(step)) < 1e-10:
+            break
+    frame = axis_frame(A, d)
+    p0 = np.r_[np.zeros(4), r]
+    f0 = residuals(p0, A, d, frame)
+    J = jac(lambda p: residuals(p, A, d, frame), p0, 5)
+    cov = np.linalg.inv(J.T @ J)
+
+    def rig_res(q):
+        Rq = rotation_from_rotvec(q[:3]) @ R
+        return residuals(p0, A, d, frame, Rq, t + q[3:])
+
+    J_rig = jac(rig_res, np.zeros(6), 6)
+    A_rig = J_rig - J @ (cov @ (J.T @ J_rig))
+    return StereoAxis(axis_point=A, axis_direction=d, axis_cov=cov[:4, :4], axis_frame=frame, radius=float(r),
+                      radius_sigma=float(np.sqrt(cov[4, 4])), cov=cov, rig_jacobian=-cov @ J.T @ J_rig,
+                      rig_information=A_rig.T @ A_rig, rig_vector=A_rig.T @ f0, chi2=float(f0 @ f0),
+                      dof=3 + (prior is not None))
+
+
+def match_shafts(K_left, left, K_right, right, R_right_from_left, t_right_from_left, *, confidence=GATE_CONFIDENCE,
+                 **kw):
+    """Pairs of one frame's shafts seen by the two eyes: [(i, j, StereoAxis)], each left
+    shaft i with at most one right shaft j, by the least chi2 of their joint fit
+    (`stereo_axis`) under its gate (``chi2.ppf(confidence, dof)``), greedily.
+
+    left, right: lists of (edges (2, 4) [px], edge covariance (2, 2, 2)); kw: the radius
+    prior of `stereo_axis`."""
+    cands = []
+    for i, (el, cl) in enumerate(left):
+        for j, (er, cr) in enumerate(right):
+            try:
+                ax = stereo_axis(K_left, el, cl, K_right, er, cr, R_right_from_left, t_right_from_left, **kw)
+            except (EstimationError, np.linalg.LinAlgError):
+                continue
+            if ax.chi2 <= chi2_isf(1.0 - confidence, ax.dof):
+                cands.append((ax.chi2, i, j, ax))
+    out, used_l, used_r = [], set(), set()
+    for _, i, j, ax in sorted(cands, key=lambda c: c[0]):
+        if i not in used_l and j not in used_r:
+            out.append((i, j, ax))
+            used_l.add(i)
+            used_r.add(j)
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class AxesFulcrum:
+    """The fulcrum of stereo axes (`stereo_fulcrum_axes`), left camera frame: point (3,)
+    [length] and point_cov (3, 3) (the edges' noise and, with its covariance, the rig's),
+    point_sigma sqrt(trace); fit: the `cylinder.Fulcrum3D` of the axes alone (which axes
+    were used, their chi2); rig_used: whether the rig's covariance was in the fit."""
+
+    point: np.ndarray
+    point_cov: np.ndarray
+    point_sigma: float
+    fit: Fulcrum3D
+    rig_used: bool
+
+
+def _with_rig(x, axes, use, rig_cov, iterations=10):
+    """(point (3,), covariance (3, 3)) of the fulcrum with the rig's error as an unknown
+    common to every axis, under its prior: each used axis moves by its rig Jacobian times
+    the rig's error delta (6,), and x and delta minimise the axes' weighted offsets, their
+    own fits' residuals as delta changes them (`StereoAxis.rig_information`) and
+    ``delta^T C_rig^-1 delta`` (a rig error that one axis would take for its own noise is
+    seen in all of them together)."""
+    Cinv = np.linalg.pinv(rig_cov)
+    for _ in range(iterations):
+        H = np.zeros((9, 9))
+        g = np.zeros(9)
+        for a, u in zip(axes, use):
+            if not u:
+                continue
+            E = a.axis_frame
+            t = float(a.axis_direction @ (x - a.axis_point))
+            M = np.array([[t, 0.0, 1.0, 0.0], [0.0, t, 0.0, 1.0]])
+            Sinv = np.linalg.inv(M @ a.axis_cov @ M.T)
+            B = np.hstack([E, -M @ a.rig_jacobian[:4]])  # d offset / d (x, delta)
+            H += B.T @ Sinv @ B
+            g += B.T @ Sinv @ (E @ a.axis_point)
+            # the axis's own residuals: where the eyes disagree, the rig is off
+            H[3:, 3:] += a.rig_information
+            g[3:] -= a.rig_vector
+        H[3:, 3:] += Cinv
+        z = np.linalg.solve(H, g)
+        done = np.max(np.abs(z[:3] - x)) < 1e-9
+        x = z[:3]
+        if done:
+            break
+    cov = np.linalg.inv(H)[:3, :3]
+    return x, 0.5 * (cov + cov.T)
+
+
+def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
+    """The fulcrum (`AxesFulcrum`, left camera frame) of stereo axes (`StereoAxis`, at least
+    two), with the rig's covariance if given.
+
+    The axes are gated and weighted as `cylinder.fulcrum_3d` does. rig_cov: (6, 6) the
+    rig's covariance (rotation vector [rad], translation [length]; ``R = exp(w) R0``,
+    ``t = t0 + dt``) or None. The rig is one for every axis, so its error moves them all
+    at once: with its covariance the point is solved together with that error, under its
+    prior (`_with_rig`), and its covariance is the point's marginal, the edges' noise and
+    the rig's both in it.
+    """
+    if len(axes) < 2:
+        raise EstimationError(f"the stereo fulcrum needs two axes, got {len(axes)}")
+    P = np.stack([a.axis_point for a in axes])
+    D = np.stack([a.axis_direction for a in axes])
+    C = np.stack([a.axis_cov for a in axes])
+    E = np.stack([a.axis_frame for a in axes])
+    fit = fulcrum_3d(P, D, C, robust, axis_frames=E)
+    if rig_cov is None:
+        return AxesFulcrum(fit.point, fit.point_cov, float(fit.point_sigma), fit, False)
+    rig_cov = np.asarray(rig_cov, float)
+    if rig_cov.shape != (6, 6) or not np.all(np.isfinite(rig_cov)):
+        raise InputError(f"the rig's covariance must be a finite 6x6 matrix (rotation vector, translation), "
+                         f"got shape {rig_cov.shape}")
+    x, cov = _with_rig(np.asarray(fit.point, float), axes, np.ones(len(axes), bool), rig_cov)
+    return AxesFulcrum(x, cov, float(np.sqrt(np.trace(cov))), fit, True)
+
+
+def _frame_pairs(frames_left, frames_right):
+    """Index pairs of the two eyes' lines.json frames: by image base name when every left
+    name has a right one, else in order (InputError when the counts differ)."""
+    from pathlib import PurePath
+
+    names = [PurePath(str(f.get("image", ""))).name for f in frames_right]
+    by_name = {n: j for j, n in enumerate(names)}
+    left = [PurePath(str(f.get("image", ""))).name for f in frames_left]
+    if len(by_name) == len(names) and all(n in by_name for n in left):
+        return [(i, by_name[n]) for i, n in enumerate(left)]
+    if len(frames_left) != len(frames_right):
+        raise InputError(f"the stereo pair's views have {len(frames_left)} and {len(frames_right)} frames and their "
+                         "image names do not pair them")
+    return [(i, i) for i in range(len(frames_left))]
+
+
+def _measured(camera, frame):
+    """(edges (2, 4) [undistorted px], edge_cov (2, 2, 2)) of a frame's shafts that carry them."""
+    out = []
+    for sh in frame.get("shafts") or []:
+        if sh.get("edges") is None or sh.get("edge_cov") is None:
+            continue
+        e = np.asarray(camera.undistort_pixels(np.asarray(sh["edges"], float).reshape(-1, 2)), float).reshape(2, 4)
+        if np.all(np.isfinite(e)):
+            out.append((e, np.asarray(sh["edge_cov"], float).reshape(2, 2, 2)))
+    return out
+
+
+def stereo_axes_from_frames(camera_left, frames_left, camera_right, frames_right, rig, diameter=None):
+    """fulcrum.json's ``stereo.axes`` record: each frame's shafts matched between the eyes
+    (`match_shafts`), their stereo axes (`stereo_axis`; with the diameter a prior on the
+    radius, 1e-3 of it) and the fulcrum of those (`stereo_fulcrum_axes`, with the rig's
+    covariance when the stereo file has one).
+
+    camera_left, camera_right: each eye's `Camera`; frames_left, frames_right: lines.json
+    frames whose shafts carry ``edges`` [raw px] and ``edge_cov`` (`pencilcal lines
+    --shaft`), paired by image name or order; rig: the `camera.stereo.StereoRig`;
+    diameter: the shafts' diameter in the rig's unit, or None (the radius from the
+    baseline). Returns a dict: point, point_cov, point_sigma [rig unit], rig_used, frames
+    (paired), axes (matched), axes_used, outliers ([{"image", "left", "right"}]), radius
+    and radius_sigma (the matched axes' weighted mean). EstimationError with fewer than two
+    matched axes.
+    """
+    R, t = rig.R_right_from_left, rig.t_right_from_left
+    Kl, Kr = np.asarray(camera_left.K, float), np.asarray(camera_right.K, float)
+    prior = {} if diameter is None else {"radius": 0.5 * float(diameter)}
+    axes, owners = [], []
+    pairs = _frame_pairs(frames_left, frames_right)
+    for i, j in pairs:
+        got = match_shafts(Kl, _measured(camera_left, frames_left[i]), Kr, _measured(camera_right, frames_right[j]),
+                           R, t, **prior)
+        for a, b, ax in got:
+            axes.append(ax)
+            owners.append({"image": frames_left[i].get("image"), "left": a, "right": b})
+    if len(axes) < 2:
+        raise EstimationError(f"fewer than two shafts matched between the eyes ({len(axes)} in {len(pairs)} frame "
+                              "pairs): check the stereo file and that both views' shafts were measured")
+    res = stereo_fulcrum_axes(axes, rig.cov)
+    r = np.array([a.radius for a in axes])
+    w = 1.0 / np.maximum(np.array([a.radius_sigma for a in axes]) ** 2, 1e-300)
+    inl = np.asarray(res.fit.inliers, bool)
+    return {"point": np.asarray(res.point, float).tolist(), "point_cov": np.asarray(res.point_cov, float).tolist(),
+            "point_sigma": float(res.point_sigma), "rig_used": bool(res.rig_used), "frames": len(pairs),
+            "axes": len(axes), "axes_used": int(inl.sum()),
+            "outliers": [o for o, k in zip(owners, inl) if not k],
+            "radius": float(np.sum(w * r) / np.sum(w)), "radius_sigma": float(np.sqrt(1.0 / np.sum(w)))}
