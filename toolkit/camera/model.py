@@ -471,26 +471,44 @@ class Camera:
         return u + _spl.correction(self._spline, self.dist, u)[0]
 
     def _splined_u(self, d):
-        """Solve u + du(u) = d (N, 2) for u by Newton; NaN where it does not converge or
-        the model folds there (det of d(u + du)/du not positive)."""
+        """Solve u + du(u) = d (N, 2) for u by damped Newton (steps halved until the
+        residual falls); NaN where it does not converge or the model folds there (det of
+        d(u + du)/du not positive)."""
+        cfg, ctrl = self._spline, self.dist
+
+        def residual(u):
+            e = u + _spl.correction(cfg, ctrl, u)[0] - d
+            n = np.hypot(e[:, 0], e[:, 1])
+            return e, np.where(np.isfinite(n), n, np.inf)
+
         u = d.copy()
         scale = 1.0 + np.hypot(d[:, 0], d[:, 1])
         with np.errstate(all="ignore"):
+            e, err = residual(u)
             for _ in range(_NEWTON_ITERATIONS):
-                du, J, _, _ = _spl.correction(self._spline, self.dist, u, jac=True)
-                e = u + du - d
-                if np.all(~np.all(np.isfinite(e), -1) | (np.hypot(e[:, 0], e[:, 1]) <= _NEWTON_TOL * scale)):
+                active = err > _NEWTON_TOL * scale
+                if not np.any(active):
                     break
-                J = J + np.eye(2)
-                det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
-                sx = (J[:, 1, 1] * e[:, 0] - J[:, 0, 1] * e[:, 1]) / det
-                sy = (J[:, 0, 0] * e[:, 1] - J[:, 1, 0] * e[:, 0]) / det
-                u = u - np.stack([sx, sy], -1)
-            du, J, _, _ = _spl.correction(self._spline, self.dist, u, jac=True)
-            e = u + du - d
-            J = J + np.eye(2)
+                J = _spl.correction(cfg, ctrl, u, jac=True)[1] + np.eye(2)
+                step = np.linalg.solve(np.where(np.isfinite(J), J, 0.0) + 1e-300 * np.eye(2), e[..., None])[..., 0]
+                t = np.ones(len(u))
+                todo = active.copy()
+                for _ in range(31):
+                    cand = u - t[:, None] * step
+                    ec, errc = residual(cand)
+                    ok = todo & (errc < err)
+                    u = np.where(ok[:, None], cand, u)
+                    e = np.where(ok[:, None], ec, e)
+                    err = np.where(ok, errc, err)
+                    todo &= ~ok
+                    if not np.any(todo):
+                        break
+                    t = np.where(todo, 0.5 * t, t)
+                if np.all(todo | ~active):
+                    break               # no point improved: at round-off or stuck
+            J = _spl.correction(cfg, ctrl, u, jac=True)[1] + np.eye(2)
             det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
-            ok = (np.hypot(e[:, 0], e[:, 1]) <= _ACCEPT_TOL * scale) & (det > 0)
+            ok = (err <= _ACCEPT_TOL * scale) & (det > 0)
         u[~ok] = np.nan
         return u
 
