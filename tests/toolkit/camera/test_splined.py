@@ -159,3 +159,14 @@ def test_a_fit_on_renders_recovers_a_distortion_opencv_cannot_hold():
     assert rms(spl.camera) < 0.08
     assert rms(lean.camera) > 2.0 * rms(spl.camera)
     assert spl.rms_px < lean.rms_px
+
+
+def test_colmap_takes_the_nearest_opencv_model_only_when_asked(tmp_path):
+    from pencilcal.toolkit.camera.convert import convert_camera
+
+    cam = bumped()
+    with pytest.raises(InputError, match="COLMAP has no splined.*--approximate writes the best-fitting opencv"):
+        convert_camera(cam, tmp_path / "cameras.txt")
+    conv = convert_camera(cam, tmp_path / "cameras.txt", approximate=True)
+    # the bump (2.5 px) is what no opencv model holds: measured 0.56 px at worst
+    assert conv.camera.model == "opencv" and conv.fitted and 0.1 < conv.difference.max_px < 1.5
