@@ -170,3 +170,20 @@ def test_colmap_takes_the_nearest_opencv_model_only_when_asked(tmp_path):
     conv = convert_camera(cam, tmp_path / "cameras.txt", approximate=True)
     # the bump (2.5 px) is what no opencv model holds: measured 0.56 px at worst
     assert conv.camera.model == "opencv" and conv.fitted and 0.1 < conv.difference.max_px < 1.5
+
+
+def test_calibrate_splined_places_its_grid_and_refuses_what_does_not_apply():
+    from pencilcal.toolkit.board.calibrate import calibrate
+    from pencilcal.toolkit.board.spec import board_from_dict
+    from pencilcal.toolkit.board.synthetic import synthetic_detections
+
+    board = board_from_dict({"type": "chessboard", "squares": [11, 8], "square": 4.77})
+    truth = bumped()
+    dets = synthetic_detections(truth, board, views=12, noise_px=0.1, seed=2, tilt_deg=45)
+    r = calibrate(dets, board, truth.size, model="splined")
+    cfg = r.camera.spline
+    assert cfg is not None and r.model == r.camera.model and r.flags == []
+    assert cfg.fov_x_deg >= 60 and cfg.Ny < cfg.Nx          # covers the 960 x 540 image, wider than tall
+    assert r.rms_px < 0.2 and set(r.std_intrinsics) >= {"fx", "du_x[0,0]"}
+    with pytest.raises(InputError, match="do not apply to the splined model"):
+        calibrate(dets, board, truth.size, model="splined", fix_aspect=True)
