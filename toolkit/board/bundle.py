@@ -458,7 +458,17 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None):
         mids.append(M)
         sig_e.append(None if k is None else noise.ratio * k)
     if np.all(np.isfinite(Si)):
-        Cg = Si @ sum(v * M for v, M in zip(s2, mids)) @ Si
+        meat = sum(v * M for v, M in zip(s2, mids))
+        if reg is not None:
+            # the penalty read as a prior: its residuals [px] weigh like a corner's, so
+            # they carry the corners' mean white variance; where no corner sees a
+            # control point its sigma is then the prior's, and the halves' different
+            # pulls towards zero are inside it (without this the sandwich is the
+            # penalised estimate's scatter alone, its bias left out)
+            w = np.array([Jp.shape[0] for _, _, Jp, _, _, _ in views], float)
+            meat = meat.copy()
+            meat[:F, :F] += float(np.sum(w * np.array(s2)) / np.sum(w)) * (reg[1].T @ reg[1])
+        Cg = Si @ meat @ Si
         Cg = 0.5 * (Cg + Cg.T)
     else:
         Cg = Si
