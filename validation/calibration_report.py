@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pencilcal.toolkit.camera.splined import is_splined, splined_config
+from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import atomic_write
 
 from .calibration_figures import fig_coverage, fig_difference, fig_uncertainty, fig_views
@@ -139,7 +141,7 @@ def _verdict(rep):
         blocks.append(Bullets([f"Also: {r}." for r in v["reasons"][1:]]))
     blocks += [Para(f"Note: {w}.", "note") for w in v.get("warnings", [])]
     c, f = rep.get("counts", {}), v.get("figures", {})
-    lines = [f"{rep.get('model')} model with {rep.get('coefficients')} coefficients; {c.get('views_used')} of "
+    lines = [f"{_model_name(rep)}; {c.get('views_used')} of "
              f"{c.get('images', c.get('views'))} views used, {c.get('corners_used')} corners; RMS reprojection error "
              f"{num(rep.get('rms_px'), ' px')}.",
              f"Projection uncertainty over the covered region: median {num(f.get('median_covered_px'), ' px')}, worst "
@@ -210,8 +212,22 @@ def _cross_validation(cv, size):
     return blocks
 
 
+def _model_name(rep):
+    """The lens model in words: "opencv model with 5 coefficients", or a splined model's
+    grid and control points."""
+    model = str(rep.get("model"))
+    if is_splined(model):
+        try:
+            cfg = splined_config(model)
+        except InputError:
+            return f"{model} model"
+        return (f"splined stereographic model ({cfg.Nx} x {cfg.Ny} knots over {cfg.fov_x_deg} deg, "
+                f"{cfg.parameters} control-point values)")
+    return f"{model} model with {rep.get('coefficients')} coefficients"
+
+
 def _model(rep):
-    blocks = [Para(f"{rep.get('model')} with {rep.get('coefficients')} coefficients"
+    blocks = [Para(_model_name(rep)
                    + (f", board warp {_warp_text(rep['board_warp'])}" if rep.get("board_warp") else "") + ".")]
     mc = rep.get("model_choice")
     if mc:
