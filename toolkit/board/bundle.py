@@ -121,7 +121,7 @@ class Layout:
 class Solution:
     """The optimum: theta (P,) full intrinsics, poses (V, 2, 3) (rvec, tvec) per view, warp
     (2,) [board unit] (zeros when not estimated), the sum of squared residuals [px^2] over
-    ``corners`` corners, and the iterations run."""
+    ``corners`` corners (a splined model's penalty not included), and the iterations run."""
 
     theta: np.ndarray
     poses: np.ndarray
@@ -358,7 +358,10 @@ def refine(layout, theta, poses, objs, imgs, bases=None, warp=None, max_iteratio
         if lam > _LAMBDA_MAX:
             break
     corners = int(sum(np.asarray(o).shape[0] for o in objs))
-    return Solution(theta, poses, warp if layout.warp else np.zeros(2), float(blocks[5]), corners, it)
+    reg = _regularization(layout, theta, T)
+    # the solution's sse is the corners' alone (the penalty is not a residual of the data)
+    sse = float(blocks[5]) - (float(reg[0] @ reg[0]) if reg is not None else 0.0)
+    return Solution(theta, poses, warp if layout.warp else np.zeros(2), sse, corners, it)
 
 
 def view_residuals(layout, solution, objs, imgs, bases=None):
