@@ -11,8 +11,9 @@ import numpy as np
 from pencilcal.toolkit.board.spec import read_board
 from pencilcal.toolkit.board.calibrate import AUTO, MODELS
 from pencilcal.toolkit.board.calibration_file import write_calibration_file
-from pencilcal.toolkit.board.model_choice import CANDIDATES
+from pencilcal.toolkit.board.model_choice import CANDIDATES, SPLINED
 from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.camera.splined import splined_name
 from pencilcal.toolkit.camera.formats import camera_format, write_camera
 from pencilcal.toolkit.board.corners_cache import check_image_name, write_corners_vnl
 from pencilcal.toolkit.board.detect import detect_board
@@ -37,6 +38,8 @@ def _probe_camera_format(path, model, coefficients):
         raise InputError(f"{p}: unknown camera file type {p.suffix or '(none)'!r}; expected "
                          f"{', '.join(_CAMERA_SUFFIXES)} (.txt/.bin: COLMAP cameras file)")
     camera_format(p)
+    if model == SPLINED:
+        model, coefficients = splined_name(4, 4, 90), 32
     n = {"pinhole": 0, "fisheye": 4}.get(model, coefficients)
     dummy = Camera(model, 640, 480, [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]], np.zeros(n))
     with tempfile.TemporaryDirectory(prefix="pencilcal-probe-") as d:
@@ -115,7 +118,7 @@ def _candidates(output, fix_aspect):
     """The lens models --model auto may choose: those the output's format can hold."""
     out = []
     for model, n in CANDIDATES:
-        if model == "fisheye" and fix_aspect:
+        if model in ("fisheye", SPLINED) and fix_aspect:
             continue
         try:
             _probe_camera_format(output, model, n)
@@ -166,8 +169,8 @@ def _report(result, frames, decoded_index, source, board_path, image_size, fix_a
               help="Board file (.yaml/.json): charuco or chessboard.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Camera file (.json, OpenCV .yaml, mrcal, COLMAP).")
-@click.option("--model", type=click.Choice([*MODELS, AUTO]), default="opencv", show_default=True,
-              help="Lens model; auto: chosen on held-out views.")
+@click.option("--model", type=click.Choice([*MODELS, SPLINED, AUTO]), default="opencv", show_default=True,
+              help="Lens model; splined: mrcal's splined stereographic; auto: chosen on held-out views.")
 @click.option("--coefficients", type=click.Choice(["4", "5", "8", "12", "14"]), default=None,
               help="opencv only: distortion coefficients.  [default: 5]")
 @click.option("--fix-aspect", is_flag=True, help="Hold fx = fy (square pixels); not with --model fisheye.")
@@ -199,14 +202,17 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
     corner errors seen, correlated ones too. Two halves of the views are calibrated apart
     as a check. --report writes .json (everything measured) or .html (the verdict, the
     projection-uncertainty and cross-validation maps, advice on what views to add).
-    --model auto compares the lens models on held-out views. --corners writes mrcal's
+    --model splined fits mrcal's splined stereographic model (a B-spline correction on a
+    grid of knots covering the image; .cameramodel holds it as mrcal's, COLMAP cannot);
+    --model auto compares the lens models on held-out views, the splined one among them.
+    --corners writes mrcal's
     corner cache (corners.vnl, for mrcal-calibrate-cameras --corners-cache).
     """
     if coefficients is not None and model != "opencv":
         raise click.BadParameter(f"applies to --model opencv only (the {model} model has a fixed set)",
                                  param_hint="--coefficients")
-    if fix_aspect and model == "fisheye":
-        raise click.BadParameter("is not available with --model fisheye", param_hint="--fix-aspect")
+    if fix_aspect and model in ("fisheye", SPLINED):
+        raise click.BadParameter(f"is not available with --model {model}", param_hint="--fix-aspect")
     if min_corners < 4:
         raise click.BadParameter("must be at least 4", param_hint="--min-corners")
     n_coef = int(coefficients) if coefficients is not None else MODELS.get(model, (None,))[0]

@@ -50,10 +50,13 @@ from pencilcal.toolkit.camera.projection_uncertainty import projection_differenc
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
 
-__all__ = ["RANDOM_HALVES", "used_views", "calibration_halves", "uncertainty_map", "halves_agreement"]
+__all__ = ["RANDOM_HALVES", "RATIO_DRAWS", "used_views", "calibration_halves", "uncertainty_map", "halves_agreement",
+           "ratio_chance"]
 
 #: Random halves solved besides the odd and even views.
 RANDOM_HALVES = 16
+#: Draws of the two halves' errors behind a projection ratio's chance probability.
+RATIO_DRAWS = 2000
 # a half needs at least this many views
 _MIN_HALF_VIEWS = 3
 
@@ -110,6 +113,40 @@ def _pred(camera_a, cov_a, camera_b, cov_b, pixels, region):
     return Aa @ cov_a @ np.swapaxes(Aa, -1, -2) + Ab @ cov_b @ np.swapaxes(Ab, -1, -2)
 
 
+def _root(C):
+    """L with L L^T = C for a symmetric positive semi-definite C (negative round-off cut)."""
+    w, V = np.linalg.eigh(0.5 * (C + C.T))
+    return V * np.sqrt(np.clip(w, 0.0, None))
+
+
+def ratio_chance(camera_a, cov_a, camera_b, cov_b, region, observed, draws=RATIO_DRAWS, seed=0):
+    """The probability that two calibrations whose errors are as their covariances say
+    differ over `region` (M, 2) by a projection ratio of `observed` or more: the share of
+    `draws` pairs of errors drawn from them (through each one's linearised projection, up
+    to the aligning rotation) whose RMS difference is at least `observed` x the predicted
+    RMS. A one-split figure's p-value: when the difference lies along one direction (a
+    focal length, say) the ratio scatters like |z|, and 1.9 happens once in 20 splits."""
+    Aa = projection_sensitivity(camera_a, region, region)
+    Ab = projection_sensitivity(camera_b, region, region)
+    ok = np.all(np.isfinite(Aa), (-1, -2)) & np.all(np.isfinite(Ab), (-1, -2))
+    Aa, Ab = Aa[ok], Ab[ok]
+    if not Aa.size or observed is None:
+        return None
+    rng = np.random.default_rng(seed)
+    # each draw's pixel differences are linear in standard normals: D = G z, G (2M, 2P)
+    G = np.concatenate([(Aa @ _root(cov_a)).reshape(-1, Aa.shape[-1]),
+                        -(Ab @ _root(cov_b)).reshape(-1, Ab.shape[-1])], 1)
+    pred2 = float(np.sum(G * G)) / Aa.shape[0]
+    if pred2 <= 0:
+        return None
+    # the RMS difference squared of a draw is z^T (G^T G / M) z: only G's singular values matter
+    lam = np.linalg.eigvalsh(G.T @ G) / Aa.shape[0]
+    lam = lam[lam > 1e-12 * lam.max()]
+    z2 = rng.standard_normal((int(draws), lam.size)) ** 2
+    ratios = np.sqrt(z2 @ lam / pred2)
+    return float(np.mean(ratios >= observed))
+
+
 def halves_agreement(camera_a, cov_a, camera_b, cov_b, grid):
     """Do two calibrations of one camera agree within their covariances (P, P)? grid : the
     `CoveredGrid` of the views. Returns the chi-square record and the projection
@@ -137,6 +174,7 @@ def halves_agreement(camera_a, cov_a, camera_b, cov_b, grid):
                             _pred(camera_a, cov_a, camera_b, cov_b, region, None))
     rec.update(projection_rms_px=covered["rms_px"], projection_max_px=covered["max_px"],
                projection_predicted_rms_px=covered["predicted_rms_px"], projection_ratio=covered["ratio"],
+               projection_ratio_p=ratio_chance(camera_a, cov_a, camera_b, cov_b, region, covered["ratio"]),
                camera_frame=frame)
     centres = grid.centres().reshape(-1, 2)
     full = projection_difference(camera_a, camera_b, centres, region)

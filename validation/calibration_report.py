@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pencilcal.toolkit.camera.splined import is_splined, splined_config
+from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import atomic_write
 
 from .calibration_figures import fig_coverage, fig_difference, fig_uncertainty, fig_views
@@ -139,7 +141,7 @@ def _verdict(rep):
         blocks.append(Bullets([f"Also: {r}." for r in v["reasons"][1:]]))
     blocks += [Para(f"Note: {w}.", "note") for w in v.get("warnings", [])]
     c, f = rep.get("counts", {}), v.get("figures", {})
-    lines = [f"{rep.get('model')} model with {rep.get('coefficients')} coefficients; {c.get('views_used')} of "
+    lines = [f"{_model_name(rep)}; {c.get('views_used')} of "
              f"{c.get('images', c.get('views'))} views used, {c.get('corners_used')} corners; RMS reprojection error "
              f"{num(rep.get('rms_px'), ' px')}.",
              f"Projection uncertainty over the covered region: median {num(f.get('median_covered_px'), ' px')}, worst "
@@ -166,21 +168,24 @@ def _halves_table(cv):
 
     def row(name, r, ratio_key="projection_ratio"):
         rows.append([name, num(r.get("chi2_per_dof")), num(r.get("p_value")), num(r.get("projection_rms_px")),
-                     num(r.get("projection_predicted_rms_px")), num(r.get(ratio_key))])
+                     num(r.get("projection_predicted_rms_px")), num(r.get(ratio_key)), num(r.get("projection_ratio_p"))])
 
     oe = cv["odd_even"]
     row(f"odd / even ({oe['views'][0]} + {oe['views'][1]} views)", oe)
     rd = cv.get("random")
     if rd:
         rows.append([f"{rd['repeats']} random halves (mean)", num(rd["chi2_per_dof_mean"]), "", "", "",
-                     num(rd["projection_ratio"])])
+                     num(rd["projection_ratio"]), ""])
     po = cv.get("pooled")
     if po:
         row(f"all {po['splits']} splits (pooled)", po)
-    return Table(["split", "chi2 / dof", "p", "difference RMS [px]", "predicted RMS [px]", "ratio"], rows,
+    return Table(["split", "chi2 / dof", "p", "difference RMS [px]", "predicted RMS [px]", "ratio", "ratio's p"], rows,
                  caption="Each split's two halves calibrated apart: the chi-square of their intrinsics' difference "
                          "per degree of freedom (1 expected), and their projection difference over the covered "
-                         "region, up to the rotation that aligns them, against the RMS their sigmas predict.")
+                         "region, up to the rotation that aligns them, against the RMS their sigmas predict; the "
+                         "ratio's p: how often halves whose errors are as their sigmas say differ by that ratio "
+                         "or more (one split's ratio scatters: 1.9 happens once in 20 when one direction "
+                         "dominates).")
 
 
 def _cross_validation(cv, size):
@@ -207,8 +212,22 @@ def _cross_validation(cv, size):
     return blocks
 
 
+def _model_name(rep):
+    """The lens model in words: "opencv model with 5 coefficients", or a splined model's
+    grid and control points."""
+    model = str(rep.get("model"))
+    if is_splined(model):
+        try:
+            cfg = splined_config(model)
+        except InputError:
+            return f"{model} model"
+        return (f"splined stereographic model ({cfg.Nx} x {cfg.Ny} knots over {cfg.fov_x_deg} deg, "
+                f"{cfg.parameters} control-point values)")
+    return f"{model} model with {rep.get('coefficients')} coefficients"
+
+
 def _model(rep):
-    blocks = [Para(f"{rep.get('model')} with {rep.get('coefficients')} coefficients"
+    blocks = [Para(_model_name(rep)
                    + (f", board warp {_warp_text(rep['board_warp'])}" if rep.get("board_warp") else "") + ".")]
     mc = rep.get("model_choice")
     if mc:

@@ -77,6 +77,9 @@ def test_the_calibration_passes_its_own_cross_validation(checked, name):
     assert cv["pooled"]["chi2_per_dof"] <= 1.5, cv["pooled"]
     assert cv["pooled"]["projection_ratio"] <= 1.3, cv["pooled"]
     assert cv["odd_even"]["chi2_per_dof"] <= 1.5, cv["odd_even"]
+    # the odd/even split's projection ratio is one draw: chance gives it at least once in a
+    # hundred (measured p: 0.054 da Vinci left at ratio 1.90, 0.20-1.0 on the others)
+    assert cv["odd_even"]["projection_ratio_p"] > 0.01, cv["odd_even"]
     # the halves' difference is judged where the views are, and that is most of what they cover
     assert res.checks.uncertainty["covered_fraction"] > 0.3
 
@@ -187,3 +190,15 @@ def test_synthetic_bad_views_are_not_usable(case, kwargs, words):
     v = calibrate_checked(dets, BOARD, LENS.size).checks.verdict
     assert v.status == "not usable", (case, v.headline)
     assert any(words in r for r in v.reasons), (case, v.reasons)
+
+
+@pytest.mark.parametrize("name", ["opencv_left", "opencv_right"])
+def test_the_splined_model_passes_its_own_cross_validation(name):
+    """mrcal's splined model on the OpenCV chessboard views: with its penalty read as a prior
+    the halves agree (measured pooled chi2/dof 0.71 and 0.55, ratios 0.88 and 0.95; with
+    the sandwich over the corners alone 1.82 and 1.90)."""
+    board, dets, size, _ = detections(name)
+    res = calibrate_checked(dets, board, size, model="splined")
+    assert res.camera.spline is not None
+    pooled = res.checks.halves["pooled"]
+    assert pooled["chi2_per_dof"] <= 1.5 and pooled["projection_ratio"] <= 1.3, pooled

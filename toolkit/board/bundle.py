@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pencilcal.toolkit.camera import splined as _spl
 from pencilcal.toolkit.camera.intrinsics import model_intrinsic_names
 from pencilcal.toolkit.errors import EstimationError
 
@@ -68,9 +69,12 @@ _REL_TOL = 1e-12
 class Layout:
     """Which parameters a calibration estimates.
 
-    model : "opencv" | "pinhole" | "fisheye"; n_coef : its distortion coefficient count (0
-    for pinhole); fix_aspect : fx = a fy with a held; fix_principal_point : cx, cy held;
-    zero_tangent : opencv p1 = p2 = 0 held; warp : the board's two warp parameters estimated.
+    model : "opencv" | "pinhole" | "fisheye" | a splined model's name; n_coef : its
+    distortion coefficient count (0 for pinhole, 2 Nx Ny control points for splined);
+    fix_aspect : fx = a fy with a held; fix_principal_point : cx, cy held; zero_tangent :
+    opencv p1 = p2 = 0 held; warp : the board's two warp parameters estimated;
+    spline_weight : a splined model's penalty on each control point [px per unit of u]
+    (`splined.REGULARIZATION` times the focal length: `splined_layout`).
     """
 
     model: str
@@ -79,6 +83,7 @@ class Layout:
     fix_principal_point: bool = False
     zero_tangent: bool = False
     warp: bool = True
+    spline_weight: float = 0.0
 
     @property
     def names(self):
@@ -116,7 +121,7 @@ class Layout:
 class Solution:
     """The optimum: theta (P,) full intrinsics, poses (V, 2, 3) (rvec, tvec) per view, warp
     (2,) [board unit] (zeros when not estimated), the sum of squared residuals [px^2] over
-    ``corners`` corners, and the iterations run."""
+    ``corners`` corners (a splined model's penalty not included), and the iterations run."""
 
     theta: np.ndarray
     poses: np.ndarray
@@ -170,6 +175,25 @@ def theta_of(K, dist, layout):
     return np.r_[K[0][0], K[1][1], K[0][2], K[1][2], d]
 
 
+def splined_layout(layout, cfg, theta):
+    """The layout of `layout`'s options with the splined model `cfg` (a `SplineConfig`),
+    its control points penalised with the weight `splined.REGULARIZATION` x sqrt(fx fy) of
+    the intrinsics `theta` to start from."""
+    w = _spl.REGULARIZATION * math.sqrt(abs(theta[0] * theta[1]))
+    return Layout(cfg.name, cfg.parameters, layout.fix_aspect, layout.fix_principal_point, False, layout.warp, w)
+
+
+def _regularization(layout, theta, T):
+    """The penalty's residuals (R,), observed 0 minus ``w * control points``, and their
+    Jacobian in the free parameters (R, F); None for a lean model."""
+    if not layout.spline_weight:
+        return None
+    P = 4 + layout.n_coef
+    Jfull = np.zeros((layout.n_coef, P))
+    Jfull[:, 4:] = layout.spline_weight * np.eye(layout.n_coef)
+    return -layout.spline_weight * np.asarray(theta[4:], float), Jfull @ T
+
+
 def camera_parts(theta, layout):
     """(K (3, 3), dist (n_coef,)) of a full intrinsic vector."""
     K = np.array([[theta[0], 0.0, theta[2]], [0.0, theta[1], theta[3]], [0.0, 0.0, 1.0]])
@@ -180,6 +204,8 @@ def _project(layout, theta, rvec, tvec, obj):
     """Pixels (N, 2), d px / d full intrinsics (2N, P), d px / d (rvec, tvec) (2N, 6)."""
     import cv2
 
+    if _spl.is_splined(layout.model):
+        return _project_splined(layout, theta, rvec, tvec, obj)
     K, dist = camera_parts(theta, layout)
     rvec = np.asarray(rvec, float).reshape(3, 1)
     tvec = np.asarray(tvec, float).reshape(3, 1)
@@ -191,6 +217,33 @@ def _project(layout, theta, rvec, tvec, obj):
     px, J = cv2.projectPoints(o, rvec, tvec, K, dist if dist.size else None)
     J = np.asarray(J, float)
     return px.reshape(-1, 2), J[:, 6:10 + layout.n_coef], J[:, 0:6]
+
+
+def _project_splined(layout, theta, rvec, tvec, obj):
+    """`_project` of the splined model: pixels (N, 2), d px / d intrinsics (2N, P), d px /
+    d (rvec, tvec) (2N, 6); the control points' columns hold the spline's weights."""
+    import cv2
+
+    cfg = _spl.splined_config(layout.model)
+    R, dR = cv2.Rodrigues(np.asarray(rvec, float).reshape(3))
+    o = np.asarray(obj, float).reshape(-1, 3)
+    p = o @ R.T + np.asarray(tvec, float).reshape(3)
+    # dR (3, 9): d R.ravel() / d rvec, so dp_i / drvec_k = sum_j dR[k, 3 i + j] o_j
+    dp_dr = np.einsum("kij,nj->nik", dR.reshape(3, 3, 3), o)
+    u, du_dp = _spl.stereographic(p)
+    c, Jc, idx, w = _spl.correction(cfg, theta[4:], u, jac=True)
+    f = np.asarray(theta[:2], float)
+    N = o.shape[0]
+    px = f * (u + c) + np.asarray(theta[2:4], float)
+    dq_dp = f[:, None] * ((np.eye(2) + Jc) @ du_dp)                  # (N, 2, 3)
+    Jp = np.concatenate([dq_dp @ dp_dr, dq_dp], -1).reshape(2 * N, 6)
+    Ji = np.zeros((N, 2, 4 + cfg.parameters))
+    Ji[:, 0, 0], Ji[:, 1, 1] = u[:, 0] + c[:, 0], u[:, 1] + c[:, 1]
+    Ji[:, 0, 2] = Ji[:, 1, 3] = 1.0
+    rows = np.arange(N)[:, None]
+    for a in range(2):
+        Ji[rows, a, 4 + idx[..., a]] = f[a] * w
+    return px, Ji.reshape(2 * N, -1), Jp
 
 
 def _warped(obj, basis, warp):
@@ -229,6 +282,12 @@ def _normal(layout, theta, T, poses, warp, objs, imgs, bases):
         Bs.append(Jg.T @ Jp)
         Cs.append(Jp.T @ Jp)
         qs.append(Jp.T @ r)
+        sse += float(r @ r)
+    reg = _regularization(layout, theta, T)
+    if reg is not None:
+        r, J = reg
+        A[:J.shape[1], :J.shape[1]] += J.T @ J
+        g[:J.shape[1]] += J.T @ r
         sse += float(r @ r)
     return A, g, Bs, Cs, qs, sse
 
@@ -299,7 +358,10 @@ def refine(layout, theta, poses, objs, imgs, bases=None, warp=None, max_iteratio
         if lam > _LAMBDA_MAX:
             break
     corners = int(sum(np.asarray(o).shape[0] for o in objs))
-    return Solution(theta, poses, warp if layout.warp else np.zeros(2), float(blocks[5]), corners, it)
+    reg = _regularization(layout, theta, T)
+    # the solution's sse is the corners' alone (the penalty is not a residual of the data)
+    sse = float(blocks[5]) - (float(reg[0] @ reg[0]) if reg is not None else 0.0)
+    return Solution(theta, poses, warp if layout.warp else np.zeros(2), sse, corners, it)
 
 
 def view_residuals(layout, solution, objs, imgs, bases=None):
@@ -372,6 +434,9 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None):
         S = Jg.T @ PJ if S is None else S + Jg.T @ PJ
         views.append((r, Jg, Jp, Ci, PJ, np.asarray(img, float)))
     G = S.shape[0]
+    reg = _regularization(layout, solution.theta, T)
+    if reg is not None:
+        S[:F, :F] += reg[1].T @ reg[1]
     dof = 2 * solution.corners - (G + 6 * len(views))
     if dof <= 0:
         raise EstimationError(f"{solution.corners} corners cannot determine {G + 6 * len(views)} parameters")
@@ -396,7 +461,17 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None):
         mids.append(M)
         sig_e.append(None if k is None else noise.ratio * k)
     if np.all(np.isfinite(Si)):
-        Cg = Si @ sum(v * M for v, M in zip(s2, mids)) @ Si
+        meat = sum(v * M for v, M in zip(s2, mids))
+        if reg is not None:
+            # the penalty read as a prior: its residuals [px] weigh like a corner's, so
+            # they carry the corners' mean white variance; where no corner sees a
+            # control point its sigma is then the prior's, and the halves' different
+            # pulls towards zero are inside it (without this the sandwich is the
+            # penalised estimate's scatter alone, its bias left out)
+            w = np.array([Jp.shape[0] for _, _, Jp, _, _, _ in views], float)
+            meat = meat.copy()
+            meat[:F, :F] += float(np.sum(w * np.array(s2)) / np.sum(w)) * (reg[1].T @ reg[1])
+        Cg = Si @ meat @ Si
         Cg = 0.5 * (Cg + Cg.T)
     else:
         Cg = Si

@@ -65,7 +65,8 @@ from pencilcal.toolkit.board.bundle import WARP_NAMES, Layout, camera_parts, cor
     theta_of, view_residuals, warp_basis
 from pencilcal.toolkit.board.corner_noise import fit_corner_noise
 from pencilcal.toolkit.board.detect import BoardDetection
-from pencilcal.toolkit.board.model_choice import CANDIDATES, choose_model, chosen_score
+from pencilcal.toolkit.board.model_choice import CANDIDATES, SPLINED, choose_model, chosen_score, splined_start
+from pencilcal.toolkit.camera.splined import is_splined, splined_config
 from pencilcal.toolkit.board.synthetic import synthetic_detections
 from pencilcal.toolkit.errors import EstimationError, InputError
 
@@ -435,11 +436,15 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
         The board seen (boards.py); its object points are in its length unit.
     image_size : (width, height)
         [px]; every detection must come from an image of this size.
-    model : {"opencv", "pinhole", "fisheye", "auto"}
+    model : {"opencv", "pinhole", "fisheye", "splined", "auto"} or a splined model's name
         Lens model (camera.py). ``"pinhole"`` fits no distortion at all. ``"auto"``: the
         views are screened and outliers rejected with opencv's 5 coefficients, then the
         `candidates` are compared on held-out views and the one chosen is fitted
         (`toolkit.board.model_choice`; ``model_choice`` on the result says why).
+        ``"splined"``: screened the same way, then mrcal's splined stereographic model on
+        a grid covering the image, started from the opencv fit (`model_choice.
+        splined_start`); ``"splined_stereographic_order=3_Nx=.._Ny=.._fov_x_deg=.."``: on
+        that grid.
     coefficients : int, optional
         opencv: 4 (k1 k2 p1 p2), 5 (+ k3, the default), 8 (rational k4..k6), 12 (thin
         prism s1..s4), 14 (tilted sensor); fisheye: 4; pinhole: 0.
@@ -497,7 +502,12 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
     ('fisheye', True, ['cx', 'cy', 'fx'])
     """
     auto = model == AUTO
-    if auto:
+    spline = None
+    if model == SPLINED or is_splined(model):
+        if fix_aspect or zero_tangent:
+            raise InputError("fix_aspect and zero_tangent do not apply to the splined model")
+        spline = SPLINED if model == SPLINED else splined_config(model)
+    if auto or spline is not None:
         model, coefficients = "opencv", None
     n_coef = _coefficient_count(model, coefficients)
     image_size = _check_options(model, fix_aspect, zero_tangent, image_size, min_corners, min_views)
@@ -525,16 +535,27 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
     choice, warp0 = None, None
     if auto:
         choice, layout, theta, poses, warp0 = _auto(layout, board, objs, imgs, used, masks, theta, poses,
-                                                    candidates)
-        flag_names = _opencv_flags(layout.model, layout.n_coef, layout.fix_aspect, layout.fix_principal_point,
-                                   layout.zero_tangent)[1]
+                                                    candidates, image_size)
+        flag_names = _flag_names(layout)
+    elif spline is not None:
+        K, dist = camera_parts(theta, layout)
+        layout, theta = splined_start(layout, K, dist, image_size, config=spline if spline != SPLINED else None)
+        flag_names = _flag_names(layout)
     result = _final(layout, board, detections, objs, imgs, used, masks, theta, poses, image_size, corner_noise,
                     rejected, rounds, flag_names, warp0)
     result.model_choice = choice
     return result
 
 
-def _auto(layout, board, objs, imgs, used, masks, theta, poses, candidates):
+def _flag_names(layout):
+    """OpenCV's flags of a lean layout; none for a splined one (pencilcal's own solver)."""
+    if is_splined(layout.model):
+        return []
+    return _opencv_flags(layout.model, layout.n_coef, layout.fix_aspect, layout.fix_principal_point,
+                         layout.zero_tangent)[1]
+
+
+def _auto(layout, board, objs, imgs, used, masks, theta, poses, candidates, image_size):
     """`model_choice.choose_model` on the views and corners kept: (the choice, its layout,
     and its fit to start the final solve from: theta, {view: pose}, warp)."""
     obj_all = board.object_points()
@@ -543,10 +564,13 @@ def _auto(layout, board, objs, imgs, used, masks, theta, poses, candidates):
     K, dist = camera_parts(theta, layout)
     choice = choose_model(o, p, [warp_basis(obj_all, x) for x in o], K, dist, [poses[i] for i in used],
                           candidates=candidates, warp=layout.warp, fix_aspect=layout.fix_aspect,
-                          fix_principal_point=layout.fix_principal_point, zero_tangent=layout.zero_tangent)
-    sol = chosen_score(choice).solution
-    chosen = Layout(choice.model, choice.coefficients, layout.fix_aspect, layout.fix_principal_point,
-                    layout.zero_tangent and choice.model == "opencv", layout.warp)
+                          fix_principal_point=layout.fix_principal_point, zero_tangent=layout.zero_tangent,
+                          image_size=image_size, lean=(layout.model, layout.n_coef))
+    score = chosen_score(choice)
+    sol = score.solution
+    chosen = score.layout if score.layout is not None else \
+        Layout(choice.model, choice.coefficients, layout.fix_aspect, layout.fix_principal_point,
+               layout.zero_tangent and choice.model == "opencv", layout.warp)
     return choice, chosen, sol.theta, {i: (sol.poses[j][0], sol.poses[j][1]) for j, i in enumerate(used)}, sol.warp
 
 
@@ -639,7 +663,7 @@ def _final(layout, board, detections, objs, imgs, used, masks, theta, poses, ima
     noise = fit_corner_noise(corner_views(layout, sol, o, p, bases), image_size) if corner_noise else None
     cov = covariance(layout, sol, o, p, bases, noise)
     K, dist = camera_parts(sol.theta, layout)
-    names = intrinsic_names(layout.model, layout.n_coef)
+    names = model_intrinsic_names(layout.model, layout.n_coef)
     sd = np.sqrt(np.clip(np.diag(cov.intrinsics), 0, None))
     std_intr = {n: float(v) for n, v in zip(names, sd)}
     cov_full = IntrinsicsCovariance(tuple(names), cov.intrinsics) if np.all(np.isfinite(cov.intrinsics)) else None

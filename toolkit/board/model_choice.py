@@ -2,7 +2,8 @@
 
 A richer lens model always fits its own views better; whether it describes the lens better
 shows only on views it has not seen. `choose_model` fits every candidate (pinhole, OpenCV's
-4, 5, 8, 12 and 14 coefficients, Kannala-Brandt fisheye) with k-fold cross-validation over
+4, 5, 8, 12 and 14 coefficients, Kannala-Brandt fisheye, mrcal's splined stereographic model
+on a grid that covers the image, `splined_start`) with k-fold cross-validation over
 the views: the views are dealt into `folds` groups (view i into group i mod k), each group
 is left out in turn, the intrinsics (and the board's warp) are fitted to the others, and
 each left-out view's pose alone is fitted to its corners through them. A view's score is
@@ -37,14 +38,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pencilcal.toolkit.board.bundle import Layout, fit_pose, refine, theta_of
+from pencilcal.toolkit.board.bundle import Layout, fit_pose, refine, splined_layout, theta_of
+from pencilcal.toolkit.camera import splined as _spl
 from pencilcal.toolkit.errors import EstimationError
 
-__all__ = ["CANDIDATES", "FOLDS", "ModelScore", "ModelChoice", "choose_model", "chosen_score", "simpler_choice"]
+__all__ = ["CANDIDATES", "SPLINED", "FOLDS", "ModelScore", "ModelChoice", "choose_model", "chosen_score",
+           "simpler_choice", "splined_start"]
 
-#: The lens models `choose_model` compares by default: (model, coefficients).
+#: The candidate name of the splined model on the grid `splined_start` places.
+SPLINED = "splined"
+#: The lens models `choose_model` compares by default: (model, coefficients); the splined
+#: model's coefficient count (0 here) follows from its grid.
 CANDIDATES = (("pinhole", 0), ("opencv", 4), ("opencv", 5), ("opencv", 8), ("opencv", 12), ("opencv", 14),
-              ("fisheye", 4))
+              ("fisheye", 4), (SPLINED, 0))
 #: Groups of views left out in turn.
 FOLDS = 5
 # fewer views than this cannot be split into training and held-out views usefully
@@ -76,6 +82,7 @@ class ModelScore:
     status: str = "ok"
     scores: np.ndarray | None = field(default=None, repr=False)
     solution: object = field(default=None, repr=False)
+    layout: object = field(default=None, repr=False)
 
     def to_dict(self):
         return {"model": self.model, "coefficients": self.coefficients, "parameters": self.parameters,
@@ -105,6 +112,21 @@ def _layout(model, n, warp, fix_aspect, fix_principal_point, zero_tangent):
                   warp=bool(warp))
 
 
+def splined_start(layout, K, dist, image_size, Nx=None, config=None):
+    """(the splined layout, its intrinsics to start from) for a calibration whose lean fit
+    is K (3, 3), dist (OpenCV's order, `layout.model`): the grid covers the whole image under
+    the lean fit (`splined.config_covering`, Nx knots across x, default one interval per
+    sixth of the image width; or the `SplineConfig` `config`) and the control points
+    reproduce the lean model there (`splined.fit_correction`)."""
+    from pencilcal.toolkit.camera.model import Camera
+
+    lean_model = "pinhole" if layout.model == "pinhole" else layout.model
+    lean = Camera(lean_model, int(image_size[0]), int(image_size[1]), K, dist)
+    cfg = config if config is not None else _spl.config_covering(lean, Nx=Nx)
+    theta = np.r_[lean.fx, lean.fy, lean.cx, lean.cy, _spl.fit_correction(cfg, lean)]
+    return splined_layout(layout, cfg, theta), theta
+
+
 def _score(layout, theta0, poses, objs, imgs, bases, folds):
     """(the fit to all views (`bundle.Solution`), per-view held-out scores (V,)) of one
     candidate."""
@@ -123,7 +145,7 @@ def _score(layout, theta0, poses, objs, imgs, bases, folds):
 
 
 def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds=FOLDS, warp=True,
-                 fix_aspect=False, fix_principal_point=False, zero_tangent=False):
+                 fix_aspect=False, fix_principal_point=False, zero_tangent=False, image_size=None, lean=None):
     """Compare lens models on held-out views and pick one (the module's docstring).
 
     Parameters
@@ -135,6 +157,8 @@ def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds
     candidates : (model, coefficients) pairs; folds : groups of views (at most the views).
     warp, fix_aspect, fix_principal_point, zero_tangent : as `calibrate`, for every
         candidate (fisheye is skipped with fix_aspect).
+    image_size : (w, h) [px], for the splined candidate's grid (skipped without it);
+        lean : the (model, coefficients) of K and dist (default opencv with dist's count).
 
     Returns
     -------
@@ -146,6 +170,7 @@ def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds
         raise EstimationError(f"choosing a lens model by held-out views needs at least {_MIN_VIEWS} views, got {V}")
     folds = int(min(max(2, folds), V))
     scores = []
+    lean = lean or ("opencv" if np.size(dist) else "pinhole", int(np.size(dist)))
     for model, n in candidates:
         layout = _layout(model, n, warp, fix_aspect, fix_principal_point, zero_tangent)
         rec = ModelScore(model, n, 4 + n)
@@ -153,9 +178,19 @@ def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds
             rec.status = "not with a fixed aspect ratio"
             scores.append(rec)
             continue
-        d0 = np.zeros(n) if model == "fisheye" else dist
+        if model == SPLINED:
+            if image_size is None or fix_aspect:
+                rec.status = "not without the image size" if image_size is None else "not with a fixed aspect ratio"
+                scores.append(rec)
+                continue
+            layout, theta0 = splined_start(_layout(lean[0], lean[1], warp, False, fix_principal_point, False), K,
+                                           dist, image_size)
+            rec.model, rec.coefficients, rec.parameters = layout.model, layout.n_coef, 4 + layout.n_coef
+        else:
+            theta0 = theta_of(K, np.zeros(n) if model == "fisheye" else dist, layout)
         try:
-            rec.solution, rec.scores = _score(layout, theta_of(K, d0, layout), poses, objs, imgs, bases, folds)
+            rec.layout = layout
+            rec.solution, rec.scores = _score(layout, theta0, poses, objs, imgs, bases, folds)
             rec.fit_rms_px = math.sqrt(rec.solution.sse / rec.solution.corners)
         except (EstimationError, np.linalg.LinAlgError) as e:
             rec.status = f"failed: {e}"
@@ -220,4 +255,7 @@ def _reason(pick, best, views, folds):
 def _name(s):
     if s.model == "pinhole":
         return "pinhole (no distortion)"
+    if _spl.is_splined(s.model):
+        cfg = _spl.splined_config(s.model)
+        return f"splined stereographic ({cfg.Nx} x {cfg.Ny} knots over {cfg.fov_x_deg} deg)"
     return f"{s.model} with {s.coefficients} coefficients"

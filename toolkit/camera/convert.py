@@ -110,6 +110,9 @@ def describe_camera(camera: Camera) -> str:
     """
     if camera.model == "opencv":
         return f"opencv with {camera.dist.size} coefficients"
+    if camera.spline is not None:
+        c = camera.spline
+        return f"splined stereographic ({c.Nx} x {c.Ny} knots over {c.fov_x_deg} deg)"
     return camera.model
 
 
@@ -254,6 +257,8 @@ def nearest_model(camera: Camera, path) -> tuple[str, int, bool]:
         candidates = [m for m in opencv if m[1] <= n] + [("pinhole", 0)]
     elif camera.model == "fisheye":
         candidates = [("fisheye", n)] + opencv + [("pinhole", 0)]
+    elif camera.spline is not None:
+        candidates = opencv + [("fisheye", 4), ("pinhole", 0)]
     else:
         candidates = [("pinhole", 0)]
     for model, count in candidates:

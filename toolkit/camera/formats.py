@@ -12,8 +12,10 @@ The format follows the path (docs/formats.md, "Camera files"):
                        ``rational_polynomial`` and ``equidistant`` are read too). Without it
                        a file is opencv, or pinhole if it has no coefficients. Other keys
                        are kept in ``camera.meta``.
-``.cameramodel``       mrcal: LENSMODEL_PINHOLE and LENSMODEL_OPENCV4/5/8/12. Parsed as a
-                       Python literal (never evaluated); any other lens model is an error.
+``.cameramodel``       mrcal: LENSMODEL_PINHOLE, LENSMODEL_OPENCV4/5/8/12 and
+                       LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=.._Ny=.._fov_x_deg=..
+                       (pencilcal's splined_stereographic_...). Parsed as a Python literal
+                       (never evaluated); any other lens model is an error.
 ``.txt`` ``.bin``      COLMAP ``cameras.txt`` / ``cameras.bin``, read and written through
                        pycolmap (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV,
                        FULL_OPENCV, OPENCV_FISHEYE).
@@ -66,6 +68,8 @@ from pathlib import Path
 import numpy as np
 
 from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.camera.splined import MRCAL_PREFIX as MRCAL_SPLINED_PREFIX, PREFIX as SPLINED_PREFIX, \
+    is_splined, splined_config, splined_name
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import (atomic_path, load_structured, read_input_text, signals_deferred, staging_folder,
                                         write_json)
@@ -396,9 +400,13 @@ def _read_filestorage(p) -> Camera:
     if m_name is None:
         model = "opencv" if dist.size else "pinhole"
     else:
-        if not isinstance(m_val, str) or m_val.strip().lower() not in _FS_MODELS:
-            raise InputError(f"{source}: unknown '{m_name}' {_short(m_val)}; expected 'opencv', 'fisheye' or 'pinhole'")
-        model = _FS_MODELS[m_val.strip().lower()]
+        if isinstance(m_val, str) and is_splined(m_val.strip()):
+            model = m_val.strip()
+        elif not isinstance(m_val, str) or m_val.strip().lower() not in _FS_MODELS:
+            raise InputError(f"{source}: unknown '{m_name}' {_short(m_val)}; expected 'opencv', 'fisheye', 'pinhole' "
+                             f"or {SPLINED_PREFIX}_...")
+        else:
+            model = _FS_MODELS[m_val.strip().lower()]
     used = {n for names in _FS_NAMES.values() for n in names}
     meta = {k: v for k, v in data.items() if k not in used}
     return _build(source, model=model, K=K.reshape(3, 3), dist=dist, meta=meta or None, **size)
@@ -519,10 +527,16 @@ def _read_cameramodel(p) -> Camera:
     if not isinstance(lensmodel, str):
         raise InputError(f"{source}: '{key}' must be a string, got {_short(lensmodel)}")
     lensmodel = lensmodel.replace("DISTORTION", "LENSMODEL")
-    if lensmodel not in MRCAL_LENSMODELS:
+    if lensmodel.startswith(MRCAL_SPLINED_PREFIX):
+        try:
+            n = splined_config(lensmodel).parameters
+        except InputError as e:
+            raise InputError(f"{source}: {e}") from None
+    elif lensmodel not in MRCAL_LENSMODELS:
         raise InputError(f"{source}: lens model {lensmodel} is not supported; pencilcal reads "
-                         f"{', '.join(MRCAL_LENSMODELS)}")
-    n = MRCAL_LENSMODELS[lensmodel]
+                         f"{', '.join(MRCAL_LENSMODELS)} and {MRCAL_SPLINED_PREFIX}_order=3_...")
+    else:
+        n = MRCAL_LENSMODELS[lensmodel]
     intr = d["intrinsics"]
     if not isinstance(intr, (list, tuple)):
         raise InputError(f"{source}: 'intrinsics' must be a list of {4 + n} numbers, got {_short(intr)}")
@@ -535,7 +549,8 @@ def _read_cameramodel(p) -> Camera:
         raise InputError(f"{source}: 'imagersize' must be [width, height], got {_short(size)}")
     fx, fy, cx, cy = intr[:4]
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-    return _build(source, model="opencv" if n else "pinhole", K=K, dist=intr[4:],
+    model = lensmodel if lensmodel.startswith(MRCAL_SPLINED_PREFIX) else "opencv" if n else "pinhole"
+    return _build(source, model=model, K=K, dist=intr[4:],
                   width=_int_value(size[0], "imagersize", source),
                   height=_int_value(size[1], "imagersize", source))
 
@@ -547,7 +562,13 @@ def _cameramodel_text(camera, p) -> str:
     if camera.skew != 0:
         raise InputError(f"{p}: a camera with skew (K[0,1] = {camera.skew!r}) cannot be written as a .cameramodel")
     n = camera.dist.size
-    lensmodel = next((m for m, c in MRCAL_LENSMODELS.items() if c == n), None)
+    if camera.spline is not None:
+        cfg = camera.spline
+        lensmodel = splined_name(cfg.Nx, cfg.Ny, cfg.fov_x_deg, cfg.order, mrcal=True)
+    elif camera.model == "pinhole":
+        lensmodel = "LENSMODEL_PINHOLE"
+    else:
+        lensmodel = next((m for m, c in MRCAL_LENSMODELS.items() if c == n and m != "LENSMODEL_PINHOLE"), None)
     if lensmodel is None:
         raise InputError(f"{p}: {n} opencv coefficients (sensor tilt) cannot be written as a .cameramodel; "
                          "mrcal takes 4, 5, 8 or 12")
@@ -630,6 +651,9 @@ def camera_to_colmap(camera: Camera, camera_id=1, source="COLMAP"):
 
     if camera.skew != 0:
         raise InputError(f"{source}: COLMAP camera models have no skew; this camera has K[0,1] = {camera.skew!r}")
+    if camera.spline is not None:
+        raise InputError(f"{source}: COLMAP has no splined lens model; write the camera as .cameramodel or .json "
+                         "(or convert it to an opencv model first)")
     core = [camera.fx, camera.fy, camera.cx + _COLMAP_SHIFT, camera.cy + _COLMAP_SHIFT]
     d = camera.dist.tolist()
     if camera.model == "pinhole":

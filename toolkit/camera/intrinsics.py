@@ -32,6 +32,7 @@ import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 
+from . import splined as _spl
 from .model import Camera
 
 __all__ = ["META_KEY", "OPENCV_DIST_NAMES", "FISHEYE_DIST_NAMES", "model_intrinsic_names", "intrinsic_names",
@@ -57,6 +58,8 @@ def model_intrinsic_names(model, n_dist):
     >>> model_intrinsic_names("fisheye", 4)
     ['fx', 'fy', 'cx', 'cy', 'k1', 'k2', 'k3', 'k4']
     """
+    if _spl.is_splined(model):
+        return ["fx", "fy", "cx", "cy"] + _spl.control_names(_spl.splined_config(model))
     dist = FISHEYE_DIST_NAMES if model == "fisheye" else OPENCV_DIST_NAMES[:n_dist]
     return ["fx", "fy", "cx", "cy"] + list(dist)
 
@@ -95,7 +98,7 @@ def jacobian_pixels_wrt_intrinsics(camera, xy):
     (..., 2, P) ndarray
         [px per unit of each parameter], columns in `intrinsic_names` order. The K columns
         are exact; the distortion columns are central differences (step 1e-6), exact to
-        ~1e-10 relative.
+        ~1e-10 relative (a splined model's control points: exact, the spline's weights).
     """
     xy = np.asarray(xy, float)
     xd = camera.distort_normalized(xy)
@@ -105,6 +108,14 @@ def jacobian_pixels_wrt_intrinsics(camera, xy):
     J[..., 1, 1] = xd[..., 1]
     J[..., 0, 2] = 1.0
     J[..., 1, 3] = 1.0
+    if camera.spline is not None:
+        u, _ = _spl.stereographic(np.concatenate([xy, np.ones_like(xy[..., :1])], -1))
+        _, _, idx, w = _spl.correction(camera.spline, camera.dist, u, jac=True)
+        flat = J.reshape(-1, 2, 4 + n)
+        rows = np.arange(flat.shape[0])[:, None]
+        for a, f in ((0, camera.fx), (1, camera.fy)):
+            flat[rows, a, 4 + idx.reshape(-1, 16, 2)[..., a]] = f * w.reshape(-1, 16)
+        return flat.reshape(J.shape)
     if n:
         A = np.asarray(camera.K, float)[:2, :2]
         th = intrinsics_vector(camera)

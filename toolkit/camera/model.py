@@ -52,6 +52,8 @@ import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 
+from . import splined as _spl
+
 __all__ = ["Camera", "MODELS", "OPENCV_COEFFICIENT_COUNTS", "tilt_matrices", "K_RATIO_LIMIT"]
 
 #: Lens models and the coefficient counts each accepts.
@@ -171,8 +173,14 @@ class Camera:
 
     def __post_init__(self):
         model = self.model
-        if not isinstance(model, str) or model not in MODELS:
-            raise InputError(f"unknown camera model {model!r}; expected one of {sorted(MODELS)}")
+        spline = None
+        if _spl.is_splined(model):
+            spline = _spl.splined_config(model)
+            model = spline.name
+            object.__setattr__(self, "model", model)
+        elif not isinstance(model, str) or model not in MODELS:
+            raise InputError(f"unknown camera model {model!r}; expected one of {sorted(MODELS)} or "
+                             f"{_spl.PREFIX}_order=3_Nx=.._Ny=.._fov_x_deg=..")
         for name in ("width", "height"):
             v = getattr(self, name)
             if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer, float, np.floating)) \
@@ -204,7 +212,7 @@ class Camera:
                 dist = np.array(self.dist, dtype=float).reshape(-1)
             except (TypeError, ValueError):
                 raise InputError("distortion coefficients must be numbers") from None
-        counts = MODELS[model]
+        counts = (spline.parameters,) if spline is not None else MODELS[model]
         if dist.size not in counts:
             hint = " (use model 'pinhole' for none)" if model == "opencv" and dist.size == 0 else ""
             raise InputError(
@@ -220,10 +228,12 @@ class Camera:
         object.__setattr__(self, "dist", _readonly(dist))
         object.__setattr__(self, "meta", None if self.meta is None else dict(self.meta))
         k = np.zeros(14)
-        k[: dist.size] = dist
+        if spline is None:
+            k[: dist.size] = dist
         object.__setattr__(self, "_k", k)
         tilt = tilt_matrices(k[12], k[13]) if model == "opencv" and dist.size == 14 else None
         object.__setattr__(self, "_tilt", tilt)
+        object.__setattr__(self, "_spline", spline)
 
     # ------------------------------------------------------------------ basics
     def __eq__(self, other):
@@ -269,6 +279,11 @@ class Camera:
     def skew(self) -> float:
         """K[0, 1] [pixels]; 0 for almost every camera."""
         return float(self.K[0, 1])
+
+    @property
+    def spline(self):
+        """The `splined.SplineConfig` of a splined camera, else None."""
+        return self._spline
 
     @property
     def size(self) -> tuple[int, int]:
@@ -364,6 +379,8 @@ class Camera:
             return xy.copy()
         if self.model == "fisheye":
             return self._fisheye_from_points(np.concatenate([xy, np.ones_like(xy[..., :1])], -1))
+        if self._spline is not None:
+            return self._splined_from_points(np.concatenate([xy, np.ones_like(xy[..., :1])], -1))
         xd, yd, _ = self._rtp(xy[..., 0], xy[..., 1])
         if self._tilt is not None:
             xd, yd, _ = self._apply_tilt(xd, yd)
@@ -408,6 +425,8 @@ class Camera:
         p = _last_dim(points_cam, 3, "points")
         if self.model == "fisheye":
             return self._apply_K(self._fisheye_from_points(p))
+        if self._spline is not None:
+            return self._apply_K(self._splined_from_points(p))
         Z = p[..., 2]
         front = Z > 0
         Zs = np.where(front, Z, np.nan)
@@ -429,6 +448,12 @@ class Camera:
             xd, yd, jac = self._rtp(x, y, jac=True)
             if self._tilt is not None:
                 _, _, jac = self._apply_tilt(xd, yd, jac)
+        elif self._spline is not None:
+            p = np.concatenate([xy, np.ones_like(xy[..., :1])], -1)
+            u, du_dp = _spl.stereographic(p)
+            _, Jc, _, _ = _spl.correction(self._spline, self.dist, u, jac=True)
+            Jd = (np.eye(2) + Jc) @ du_dp[..., :, :2]
+            jac = (Jd[..., 0, 0], Jd[..., 0, 1], Jd[..., 1, 0], Jd[..., 1, 1])
         else:
             jac = self._fisheye_jacobian(x, y)
         j00, j01, j10, j11 = jac
@@ -439,6 +464,53 @@ class Camera:
         J[..., 1, 0] = K[1, 1] * j10
         J[..., 1, 1] = K[1, 1] * j11
         return J
+
+    def _splined_from_points(self, p):
+        """u + du(u) (..., 2) of camera-frame points under the splined model."""
+        u, _ = _spl.stereographic(p)
+        return u + _spl.correction(self._spline, self.dist, u)[0]
+
+    def _splined_u(self, d):
+        """Solve u + du(u) = d (N, 2) for u by damped Newton (steps halved until the
+        residual falls); NaN where it does not converge or the model folds there (det of
+        d(u + du)/du not positive)."""
+        cfg, ctrl = self._spline, self.dist
+
+        def residual(u):
+            e = u + _spl.correction(cfg, ctrl, u)[0] - d
+            n = np.hypot(e[:, 0], e[:, 1])
+            return e, np.where(np.isfinite(n), n, np.inf)
+
+        u = d.copy()
+        scale = 1.0 + np.hypot(d[:, 0], d[:, 1])
+        with np.errstate(all="ignore"):
+            e, err = residual(u)
+            for _ in range(_NEWTON_ITERATIONS):
+                active = err > _NEWTON_TOL * scale
+                if not np.any(active):
+                    break
+                J = _spl.correction(cfg, ctrl, u, jac=True)[1] + np.eye(2)
+                step = np.linalg.solve(np.where(np.isfinite(J), J, 0.0) + 1e-300 * np.eye(2), e[..., None])[..., 0]
+                t = np.ones(len(u))
+                todo = active.copy()
+                for _ in range(31):
+                    cand = u - t[:, None] * step
+                    ec, errc = residual(cand)
+                    ok = todo & (errc < err)
+                    u = np.where(ok[:, None], cand, u)
+                    e = np.where(ok[:, None], ec, e)
+                    err = np.where(ok, errc, err)
+                    todo &= ~ok
+                    if not np.any(todo):
+                        break
+                    t = np.where(todo, 0.5 * t, t)
+                if np.all(todo | ~active):
+                    break               # no point improved: at round-off or stuck
+            J = _spl.correction(cfg, ctrl, u, jac=True)[1] + np.eye(2)
+            det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+            ok = (err <= _ACCEPT_TOL * scale) & (det > 0)
+        u[~ok] = np.nan
+        return u
 
     def _fisheye_jacobian(self, x, y):
         # x_d = s(r) (x, y) with s = theta_d(atan r) / r, so J = s I + (s'(r) / r) (x, y)(x, y)^T
@@ -593,6 +665,8 @@ class Camera:
             out = d
         elif self.model == "opencv":
             out = self._undistort_rtp(d)
+        elif self._spline is not None:
+            out = _spl.normalized_from_stereographic(self._splined_u(d))
         else:
             rd = np.hypot(d[:, 0], d[:, 1])
             theta = self._fisheye_theta(rd)
@@ -609,6 +683,9 @@ class Camera:
         includes rays beyond 90 degrees off the axis (z < 0). NaN where undistortion fails.
         """
         px = _last_dim(px, 2, "pixels")
+        if self._spline is not None:
+            u = self._splined_u(self._distorted_from_pixels(px.reshape(-1, 2)))
+            return _spl.rays_from_stereographic(u).reshape(px.shape[:-1] + (3,))
         if self.model != "fisheye":
             xy = self.normalized_from_pixels(px)
             v = np.concatenate([xy, np.ones_like(xy[..., :1])], -1)

@@ -5,10 +5,11 @@ import numpy as np
 import pytest
 
 from pencilcal.toolkit.board.calibrate import calibrate
-from pencilcal.toolkit.board.model_choice import CANDIDATES, simpler_choice
+from pencilcal.toolkit.board.model_choice import CANDIDATES, SPLINED, simpler_choice
 from pencilcal.toolkit.board.spec import board_from_dict
 from pencilcal.toolkit.board.synthetic import synthetic_detections
 from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.camera.splined import is_splined
 from pencilcal.toolkit.errors import EstimationError
 
 BOARD = board_from_dict({"type": "chessboard", "squares": [9, 6], "square": 25.0})
@@ -26,7 +27,7 @@ def test_auto_finds_the_lens(truth, expected):
     choice = r.model_choice
     assert (r.model, r.coefficients) == expected, choice.reason
     assert (choice.model, choice.coefficients) == expected and "cross-validation over 20 views" in choice.reason
-    scored = {(s.model, s.coefficients): s for s in choice.scores}
+    scored = {(SPLINED, 0) if is_splined(s.model) else (s.model, s.coefficients): s for s in choice.scores}
     assert set(scored) == set(CANDIDATES) and all(s.status == "ok" for s in scored.values())
     # the chosen model's held-out score is within one standard error of the best
     pick = scored[expected]
@@ -62,3 +63,16 @@ def test_candidates_can_be_restricted():
     assert r.model == "opencv" and [(s.model, s.coefficients) for s in r.model_choice.scores] == [("opencv", 4),
                                                                                                   ("opencv", 8)]
     assert np.isfinite(r.rms_px)
+
+
+def test_auto_takes_the_splined_model_for_a_lens_no_opencv_model_holds():
+    from tests.toolkit.camera.test_splined import bumped
+
+    truth = bumped(Camera("opencv", 960, 540, K, [-0.3, 0.12, 0.0, 0.0, 0.0]), px=3.0)
+    dets = synthetic_detections(truth, BOARD, views=20, noise_px=0.1, seed=6, tilt_deg=50)
+    r = calibrate(dets, BOARD, truth.size, model="auto", warp=True,
+                  candidates=(("opencv", 5), ("opencv", 8), (SPLINED, 0)))
+    assert is_splined(r.model) and r.camera.spline is not None, r.model_choice.reason
+    assert "splined stereographic" in r.model_choice.reason
+    lean = next(s for s in r.model_choice.scores if s.model == "opencv" and s.coefficients == 5)
+    assert lean.excess > 3 * lean.excess_se
