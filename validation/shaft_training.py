@@ -11,6 +11,19 @@ common in the largest source.
 The fit is the maximum of the weighted log-likelihood with a small L2 penalty on the weights
 (L-BFGS, seeded, repeatable), `hidden` tanh units.
 
+`fold_models` trains the models a leave-one-source-out table needs (`validation.
+shaft_protocol`): one without each source, and one without each pair (the others' evidence
+when a threshold is chosen for a source must come from a model that saw neither).
+
+The model the package ships (`toolkit/detect/shaft/instrument_pixels.json`) is trained on
+every masked real source the project has, by
+
+    python -m pencilcal.validation.shaft_training tests/data/masked_sources.json \
+        toolkit/detect/shaft/instrument_pixels.json --data ../shared/data/real-instruments
+
+(`main`: the sources' folders, image and mask globs, labels; each source's valid region
+detected from its frames; seed 0).
+
 Example
 -------
 >>> import numpy as np
@@ -32,7 +45,7 @@ import numpy as np
 from pencilcal.toolkit.detect.shaft.pixels import FEATURES, WORK_PX, PixelModel, expanded_inputs, pixel_features
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
 
-__all__ = ["pixel_samples", "train_pixel_model", "SAMPLES_PER_FRAME", "HIDDEN"]
+__all__ = ["pixel_samples", "train_pixel_model", "fold_models", "read_sources", "main", "SAMPLES_PER_FRAME", "HIDDEN"]
 
 #: Samples drawn from each frame (half instrument, half not).
 SAMPLES_PER_FRAME = 4000
@@ -107,3 +120,69 @@ def train_pixel_model(samples, hidden=HIDDEN, l2=_L2, seed=0, maxiter=300):
     th = minimize(loss, th0, jac=True, method="L-BFGS-B", options={"maxiter": int(maxiter)}).x
     W1, b1, w2, b2 = unpack(th)
     return PixelModel(mu=mu, sd=sd, W1=W1, b1=b1, w2=w2, b2=float(b2), trained_on=tuple(samples))
+
+
+def fold_models(samples, pairs=True, **options):
+    """{frozenset of the sources left out: `PixelModel`} trained on samples ({source: [(X, y)
+    per frame]}, `pixel_samples`): without each source and, with pairs, without each pair.
+    options: `train_pixel_model`'s."""
+    from itertools import combinations
+
+    names = list(samples)
+    out = {}
+    for k in (1, 2) if pairs else (1,):
+        for left in combinations(names, k):
+            if len(left) < len(names):
+                out[frozenset(left)] = train_pixel_model({n: v for n, v in samples.items() if n not in left}, **options)
+    return out
+
+
+def read_sources(spec, root):
+    """{name: [(image (H, W, 3) uint8, instrument mask (H, W) bool, valid region)]} of a
+    sources file (JSON: {name: {"folder", "images", "masks", "labels" (values, or B, G, R
+    colours; null: every non-zero), "instances"}}) under root; images and masks paired in
+    sorted order, each source's valid region detected from its frames."""
+    import json
+    from pathlib import Path
+
+    import cv2
+
+    from pencilcal.toolkit.detect.region.detect import detect_valid_region
+    from pencilcal.toolkit.detect.shaft.mask import instruments_in_mask
+    from pencilcal.toolkit.errors import InputError
+
+    out = {}
+    for name, s in json.loads(Path(spec).read_text()).items():
+        folder = Path(root) / s["folder"]
+        paths, masks = sorted(folder.glob(s["images"])), sorted(folder.glob(s["masks"]))
+        if not paths or len(paths) != len(masks):
+            raise InputError(f"{spec}: source {name}: {len(paths)} images and {len(masks)} masks under {folder}")
+        images = [cv2.imread(str(q)) for q in paths]
+        region = detect_valid_region(images)
+        labels = None if s.get("labels") is None else [tuple(v) if isinstance(v, list) else v for v in s["labels"]]
+        frames = []
+        for img, mp in zip(images, masks):
+            inst = instruments_in_mask(cv2.imread(str(mp), cv2.IMREAD_UNCHANGED), labels, bool(s.get("instances")))
+            frames.append((img, np.any(inst, 0) if inst else np.zeros(img.shape[:2], bool), region))
+        out[name] = frames
+    return out
+
+
+def main(argv=None):
+    """Train the pixel model on a sources file and write it (module docstring)."""
+    import argparse
+
+    from pencilcal.toolkit.io.files import write_json
+
+    ap = argparse.ArgumentParser(prog="python -m pencilcal.validation.shaft_training", description=__doc__.split("\n")[0])
+    ap.add_argument("sources", help="JSON sources file (read_sources)")
+    ap.add_argument("out", help="the model's JSON file")
+    ap.add_argument("--data", required=True, help="the folder the sources' folders are in")
+    a = ap.parse_args(argv)
+    samples = {n: [pixel_samples(img, m, reg) for img, m, reg in frames]
+               for n, frames in read_sources(a.sources, a.data).items()}
+    write_json(a.out, train_pixel_model(samples).to_dict(), force=True, indent=None)
+
+
+if __name__ == "__main__":
+    main()

@@ -63,6 +63,8 @@ from pencilcal.toolkit.detect.shaft.axis import midline_from_edges
 from pencilcal.toolkit.detect.shaft.edge_cue import bands_from_edges, drop_repeated, edge_cue, refit_edges, unsigned_lines
 from pencilcal.toolkit.detect.shaft.material_cue import material_cue, robust_noise, select
 from pencilcal.toolkit.detect.shaft.pencil_search import pencil_search
+from pencilcal.toolkit.detect.shaft.pixel_evidence import MIN_PIXEL_EVIDENCE
+from pencilcal.toolkit.detect.shaft.pixel_evidence import pixel_evidence as shaft_pixel_evidence
 from pencilcal.toolkit.detect.shaft.prior import as_priors, select_through
 from pencilcal.toolkit.detect.shaft.regions import material_map
 from pencilcal.toolkit.detect.shaft.track import REACH, band_colours, corridor_edges, material_edges
@@ -276,7 +278,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
                   max_convergence_deg=30.0, max_shafts=4, scale=None, max_gap_px=None, search_px=3.0,
                   sigma_px=1.5, min_support=0.3, max_background=0.1, slope_correction=True, from_border=True,
                   border_px=None, min_score_ratio=0.25, corridor_px=4.0, detector_params=None, gamma=DEFAULT_GAMMA,
-                  axis_prior=None):
+                  axis_prior=None, pixel_evidence=MIN_PIXEL_EVIDENCE):
     """Instrument shafts in one image: midline (the axis image), width, angle uncertainty.
 
     Parameters
@@ -350,6 +352,10 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         cue "prior"), and of all the shafts found at most one per prior is returned, the
         best-scored whose midline passes through it (`shaft.prior.select_through`);
         max_shafts and min_score_ratio then do not apply.
+    pixel_evidence : float or None
+        On a colour frame, a shaft of the cues is kept only where the learned instrument map
+        inside its band reaches this (`shaft.pixel_evidence`: tissue bands with two long
+        edges are not instrument-like); None: not judged.
 
     Returns
     -------
@@ -374,6 +380,9 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
     if found is None:
         found = _by_edges(image, camera, valid_region, o, K)
     found = [s for s in found if s is not None]
+    if pixel_evidence is not None and np.ndim(image) == 3 and found:
+        ev = shaft_pixel_evidence(image, found, camera, valid_region)
+        found = [s for s, e in zip(found, ev) if e >= pixel_evidence]
     if not priors:
         return found
     img = np.asarray(image)
@@ -417,7 +426,7 @@ def _prepared(image, camera, valid_region, options):
 
 #: The keywords of `detect_shafts` and their defaults (those `track_shafts` passes on).
 _DEFAULTS = {k: p.default for k, p in inspect.signature(detect_shafts).parameters.items()
-             if p.kind is p.KEYWORD_ONLY and k not in ("valid_region", "axis_prior")}
+             if p.kind is p.KEYWORD_ONLY and k not in ("valid_region", "axis_prior", "pixel_evidence")}
 
 
 def track_shafts(image, camera, previous, *, valid_region=None, prior=None, reach_px=None, widths=None, colours=None,
