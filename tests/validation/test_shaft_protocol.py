@@ -103,8 +103,8 @@ def test_hysterectomy_false_per_frame():
     """Reached: the false detections per frame on the 24 hysterectomy frames against the
     hand-made list (target <= 0.25); detections on an uncertain entry count neither way. The
     frames are in no pixel model's training: a check of the shipped least pixel evidence
-    (0 false; it also drops 2 of the 12 listed instruments found without it, thin shafts whose
-    map is weak at the model's 320 px)."""
+    (0 false; it also drops 1 of the 12 listed instruments found without it, a grey shaft in
+    shadow on pale tissue whose map is weak)."""
     import cv2
 
     from pencilcal.toolkit.detect.region.detect import detect_valid_region

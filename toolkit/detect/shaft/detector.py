@@ -354,7 +354,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         max_shafts and min_score_ratio then do not apply.
     pixel_evidence : float or None
         On a colour frame, a shaft of the cues is kept only where the learned instrument map
-        inside its band reaches this (`shaft.pixel_evidence`: tissue bands with two long
+        inside its band reaches this (default 0.3) (`shaft.pixel_evidence`: tissue bands with two long
         edges are not instrument-like); None: not judged.
 
     Returns
