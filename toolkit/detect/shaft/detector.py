@@ -26,6 +26,9 @@ angle and offset sigmas are propagated from the edge fits, plus a measured error
 (`shaft.axis.EDGE_FLOOR_PX`). Without a camera a nominal pinhole (focal
 length the image width) stands in for the camera matrix.
 
+On a colour frame, a band of either cue is then judged by a learned map of instrument pixels
+(`shaft.pixel_evidence`): a band of tissue with two long edges is not instrument-like inside.
+
 Nothing is detected on the valid region's boundary (`valid_region`: an endoscope's field
 stop, letterbox bars): samples keep inside it, and a band stops where it leaves it.
 

@@ -31,6 +31,7 @@ import numpy as np
 
 from pencilcal.toolkit.detect.shaft.pixels import WORK_PX, instrument_probability
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
+from pencilcal.toolkit.errors import InputError
 
 __all__ = ["band_evidence", "pixel_evidence", "MIN_PIXEL_EVIDENCE", "STATIONS", "ACROSS", "INNER"]
 
@@ -83,7 +84,7 @@ def pixel_evidence(image, shafts, camera=None, valid_region=None, model=None):
     if not len(shafts):
         return np.zeros(0)
     if img.ndim != 3:
-        raise ValueError("pixel evidence needs a colour (BGR) frame")
+        raise InputError(f"pixel evidence needs a colour (BGR) frame, got shape {img.shape}")
     work = WorkFrame(img, camera, Validity(valid_region, img.shape[:2]), WORK_PX)
     p = instrument_probability(work, model)
     get = (lambda s, k: s[k]) if isinstance(shafts[0], dict) else getattr
