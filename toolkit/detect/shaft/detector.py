@@ -357,8 +357,8 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         max_shafts and min_score_ratio then do not apply.
     pixel_evidence : float or None
         On a colour frame, a shaft of the cues is kept only where the learned instrument map
-        inside its band reaches this (default 0.3) (`shaft.pixel_evidence`: tissue bands with two long
-        edges are not instrument-like); None: not judged.
+        inside its band reaches this (`shaft.pixel_evidence.MIN_PIXEL_EVIDENCE`, 0.3: a
+        tissue band with two long edges is not instrument-like inside); None: not judged.
 
     Returns
     -------
