@@ -5,11 +5,18 @@ A detector tuned on the frames it is scored on says nothing about the next hospi
 The protocol here keeps the two apart. For each source in turn:
 
 1. the detector's setting (`SETTINGS`: the least evidence a detection must have, the length
-   along which its band is seen, as a fraction of the view's diagonal, `view_diagonal`) is
-   chosen on the *other*
-   sources: the one that finds the most instruments there with at most `MAX_FALSE_PER_FRAME`
-   false detections per frame (ties: fewer false);
+   along which its band is seen, as a fraction of the view's diagonal, `view_diagonal`; and,
+   where the detections carry it, `EVIDENCES`: the least pixel evidence, the learned
+   instrument map's median inside the band, `toolkit.detect.shaft.pixel_evidence`) is
+   chosen on the *other* sources: the one that finds the most instruments there with at
+   most `MAX_FALSE_PER_FRAME` false detections per frame (ties: fewer false, then the
+   smaller setting and evidence);
 2. the left-out source is scored with that setting (`shaft_score`).
+
+A learned map must itself never have seen the source it judges: the scored source's
+detections carry the evidence of a model trained without it, and those of the others, when
+the setting is chosen for it, that of a model trained without either
+(`leave_one_source_out`'s ``choice_frames``; `validation.shaft_training.fold_models`).
 
 The table (`leave_one_source_out`) gives per source the setting chosen, found / instruments,
 false per frame and the median angle and offset errors; the same run over one lab's own
@@ -36,6 +43,10 @@ Example
 >>> rows = leave_one_source_out(frames, diagonal={k: view_diagonal(m.shape) for k in "abc"})
 >>> [(r["source"], r["setting"], r["found"], r["false"]) for r in rows]
 [('a', 0.1, 1, 0), ('b', 0.1, 1, 0), ('c', 0.1, 1, 0)]
+>>> weak["pixel_evidence"], good["pixel_evidence"] = 0.1, 0.9                 # the map says tissue
+>>> rows = leave_one_source_out(frames, {k: view_diagonal(m.shape) for k in "abc"}, evidences=(0.0, 0.5))
+>>> [(r["setting"], r["evidence"], r["found"], r["false"]) for r in rows]
+[(0.0, 0.5, 1, 0), (0.0, 0.5, 1, 0), (0.0, 0.5, 1, 0)]
 """
 from __future__ import annotations
 
@@ -43,11 +54,14 @@ import numpy as np
 
 from pencilcal.validation.shaft_score import Tolerance, score_frame, summarize
 
-__all__ = ["SETTINGS", "MAX_FALSE_PER_FRAME", "view_diagonal", "filtered", "choose_setting", "leave_one_source_out", "table_markdown"]
+__all__ = ["SETTINGS", "EVIDENCES", "MAX_FALSE_PER_FRAME", "view_diagonal", "filtered", "choose_setting", "leave_one_source_out", "table_markdown"]
 
 #: The settings tried: the least evidence (`Shaft.score`: the length along which the band is
 #: seen as a shaft) as a fraction of the view's diagonal (`view_diagonal`).
 SETTINGS = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3)
+#: The least pixel evidences tried (`toolkit.detect.shaft.pixel_evidence`; a detection
+#: without one passes).
+EVIDENCES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7)
 #: The most false detections per frame a chosen setting may give on the other sources.
 MAX_FALSE_PER_FRAME = 0.25
 
@@ -71,30 +85,35 @@ def view_diagonal(shape, valid=None):
     return float(np.hypot(H, W))
 
 
-def filtered(detections, setting, diagonal):
+def filtered(detections, setting, diagonal, evidence=0.0):
     """The detections (list of dict, lines.json shaft records) whose score reaches setting x
-    diagonal [px]."""
-    return [d for d in detections if float(d.get("score", 0.0)) >= setting * diagonal]
+    diagonal [px] and whose ``pixel_evidence`` (where they carry one) reaches evidence."""
+    return [d for d in detections if float(d.get("score", 0.0)) >= setting * diagonal
+            and float(d.get("pixel_evidence", 1.0)) >= evidence]
 
 
-def _scores(frames, setting, diagonal, tol):
-    return [score_frame(filtered(dets, setting, diagonal), refs, tol) for refs, dets in frames]
+def _scores(frames, setting, diagonal, tol, evidence=0.0):
+    return [score_frame(filtered(dets, setting, diagonal, evidence), refs, tol) for refs, dets in frames]
 
 
-def choose_setting(sources, diagonal, settings=SETTINGS, tol=Tolerance(), max_false=MAX_FALSE_PER_FRAME):
-    """The setting that finds the most instruments over `sources` ({name: [(references,
-    detections) per frame]}) with at most max_false false detections per frame (ties: fewer
-    false, then the smaller setting); the one with the fewest false when none keeps to it."""
+def choose_setting(sources, diagonal, settings=SETTINGS, tol=Tolerance(), max_false=MAX_FALSE_PER_FRAME,
+                   evidences=(0.0,)):
+    """The (setting, evidence) that finds the most instruments over `sources` ({name:
+    [(references, detections) per frame]}) with at most max_false false detections per frame
+    (ties: fewer false, then the smaller setting, then the smaller evidence); the one with
+    the fewest false when none keeps to it."""
     best = None
     for s in settings:
-        S = summarize([f for name, frames in sources.items() for f in _scores(frames, s, diagonal[name], tol)])
-        key = (S["false_per_frame"] <= max_false, S["found"], -S["false"], -s)
-        if best is None or key > best[0]:
-            best = (key, s)
+        for e in evidences:
+            S = summarize([f for name, frames in sources.items() for f in _scores(frames, s, diagonal[name], tol, e)])
+            key = (S["false_per_frame"] <= max_false, S["found"], -S["false"], -s, -e)
+            if best is None or key > best[0]:
+                best = (key, (s, e))
     return best[1]
 
 
-def leave_one_source_out(frames, diagonal, settings=SETTINGS, tol=Tolerance(), max_false=MAX_FALSE_PER_FRAME):
+def leave_one_source_out(frames, diagonal, settings=SETTINGS, tol=Tolerance(), max_false=MAX_FALSE_PER_FRAME,
+                         evidences=(0.0,), choice_frames=None):
     """The protocol's table (module docstring).
 
     Parameters
@@ -103,29 +122,37 @@ def leave_one_source_out(frames, diagonal, settings=SETTINGS, tol=Tolerance(), m
         {source: [(references (list of MaskAxis), detections (list of dict)) per frame]}.
     diagonal : dict
         {source: its view's diagonal [px] (`view_diagonal`)}.
+    evidences : sequence of float
+        The least pixel evidences tried (`EVIDENCES`; (0,): none).
+    choice_frames : dict, optional
+        {held source: {other source: frames}}: the others' frames the setting for the held
+        source is chosen on (their detections' pixel evidence from a model that saw neither);
+        default `frames`.
 
     Returns
     -------
     list of dict
-        Per source: source, setting (chosen on the others), and `shaft_score.summarize`'s keys
-        for the source scored with it.
+        Per source: source, setting and evidence (chosen on the others), and
+        `shaft_score.summarize`'s keys for the source scored with them.
     """
     rows = []
     for held in frames:
-        others = {k: v for k, v in frames.items() if k != held}
-        s = choose_setting(others, diagonal, settings, tol, max_false) if others else settings[0]
-        rows.append({"source": held, "setting": s, **summarize(_scores(frames[held], s, diagonal[held], tol))})
+        pool = frames if choice_frames is None else {**frames, **choice_frames.get(held, {})}
+        others = {k: v for k, v in pool.items() if k != held}
+        s, e = choose_setting(others, diagonal, settings, tol, max_false, evidences) if others else (settings[0], 0.0)
+        rows.append({"source": held, "setting": s, "evidence": e,
+                     **summarize(_scores(frames[held], s, diagonal[held], tol, e))})
     return rows
 
 
 def table_markdown(rows):
     """The table as Markdown (docs/method.md)."""
-    out = ["| source left out | setting chosen on the others | found | false per frame | median angle error | "
-           "median offset error |", "|---|---|---|---|---|---|"]
+    out = ["| source left out | setting chosen on the others | pixel evidence chosen on the others | found | "
+           "false per frame | median angle error | median offset error |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         a = "-" if r["angle_err_deg_median"] is None else f"{r['angle_err_deg_median']:.2f} deg"
         o = "-" if r["offset_err_px_median"] is None else f"{r['offset_err_px_median']:.1f} px"
-        out.append(f"| {r['source']} | {r['setting']:g} | {r['found']}/{r['instruments']} | "
+        out.append(f"| {r['source']} | {r['setting']:g} | {r.get('evidence', 0.0):g} | {r['found']}/{r['instruments']} | "
                    f"{r['false_per_frame']:.2f} | {a} | {o} |")
     return "\n".join(out)
 

@@ -1,8 +1,11 @@
 """The shaft detector on real frames it was not tuned on.
 
 - Leave one source out over every masked real source (tests/validation/masked_sources.py):
-  each source scored with the detector's setting chosen on the others
-  (`validation.shaft_protocol`); the table is docs/method.md's. The assertions hold what the
+  each source scored with the detector's setting and least pixel evidence chosen on the
+  others (`validation.shaft_protocol`); the table is docs/method.md's. The pixel model is
+  trained per fold (`validation.shaft_training.fold_models`): a source's detections are
+  judged by a model trained without it, and the others', when its setting is chosen, by one
+  trained without either. The assertions hold what the
   detector reaches now, so that a regression fails; the issue's target (>= 90 % found, <= 0.25
   false per frame on every source left out) is printed beside it, not asserted, while it is
   not reached.
@@ -17,34 +20,59 @@ import numpy as np
 import pytest
 
 from pencilcal.toolkit.detect.shaft.detector import detect_shafts
-from pencilcal.validation.shaft_protocol import leave_one_source_out, table_markdown, view_diagonal
+from pencilcal.toolkit.detect.shaft.pixel_evidence import MIN_PIXEL_EVIDENCE, pixel_evidence
+from pencilcal.validation.shaft_protocol import (EVIDENCES, choose_setting, leave_one_source_out, table_markdown,
+                                                view_diagonal)
 from pencilcal.validation.shaft_score import detection_line
 from tests.validation.masked_sources import SOURCES, load_source
 
 pytestmark = pytest.mark.slow
 
-#: What the detector reaches per source left out (found, most false per frame): a floor. With
-#: endovis17 left out the setting chosen on the others (0.1 of the view's diagonal, which keeps
-#: cholec's false detections down) keeps 2 of its 7 detections (all right): the detector's
-#: evidence is not comparable between sources (docs/method.md).
+#: What the detector reaches per source left out (found, most false per frame): a floor. The
+#: pixel evidence chosen on the others removes cholec's low-scored false detections, so the
+#: least score chosen for endovis17 is 0 (it was 0.1 of the view's diagonal, which kept 2 of its
+#: 7 detections); with cholec left out the others have no false detection to remove and the
+#: evidence chosen is 0: its false detections stay (docs/method.md). The bands from a single
+#: edge (shaft.partner) find two more of cholec's.
 REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (6, 0.5),
-           "endovis17": (2, 0.0)}
+           "endovis17": (7, 0.0)}
 
 
 @pytest.fixture(scope="module")
 def detected():
-    """{source: ([(references, detections) per frame], diagonal)}."""
-    out = {}
-    for name in SOURCES:
-        frames, region = load_source(name)
-        per = [(refs, [s.to_dict() for s in detect_shafts(img, valid_region=region)]) for _, img, refs, _ in frames]
+    """({source: [(references, detections) per frame]}, {source: diagonal}, {held source:
+    {other source: frames}}): the detections at the detector's defaults, not judged by the
+    shipped pixel model, each carrying the pixel evidence of a model that never saw its
+    source (and, in the choice frames, never saw the held one either)."""
+    from pencilcal.validation.shaft_training import fold_models, pixel_samples
+
+    loaded = {name: load_source(name) for name in SOURCES}
+    samples = {name: [pixel_samples(img, np.any(insts, 0) if insts else np.zeros(img.shape[:2], bool), region)
+                      for _, img, _, insts in frames] for name, (frames, region) in loaded.items()}
+    models = fold_models(samples)
+    dets, diag = {}, {}
+    for name, (frames, region) in loaded.items():
+        dets[name] = [[s.to_dict() for s in detect_shafts(img, valid_region=region, pixel_evidence=None)]
+                      for _, img, _, _ in frames]
         shape = frames[0][1].shape[:2]
-        out[name] = (per, view_diagonal(shape, region.mask(shape)))
-    return out
+        diag[name] = view_diagonal(shape, region.mask(shape))
+
+    def judged(name, left_out):
+        frames, region = loaded[name]
+        out = []
+        for (_, img, refs, _), ds in zip(frames, dets[name]):
+            ev = pixel_evidence(img, ds, valid_region=region, model=models[frozenset(left_out)])
+            out.append((refs, [dict(d, pixel_evidence=float(e)) for d, e in zip(ds, ev)]))
+        return out
+
+    scored = {name: judged(name, {name}) for name in SOURCES}
+    choice = {held: {o: judged(o, {o, held}) for o in SOURCES if o != held} for held in SOURCES}
+    return scored, diag, choice
 
 
 def test_leave_one_source_out(detected):
-    rows = leave_one_source_out({k: v[0] for k, v in detected.items()}, {k: v[1] for k, v in detected.items()})
+    scored, diag, choice = detected
+    rows = leave_one_source_out(scored, diag, evidences=EVIDENCES, choice_frames=choice)
     print("\n" + table_markdown(rows))
     for r in rows:
         print(f"{r['source']}: target >= 90 % found ({0.9 * r['instruments']:.1f}), <= 0.25 false per frame")
@@ -55,6 +83,9 @@ def test_leave_one_source_out(detected):
     # where found, as accurate as the detector is (median <= 0.5 deg on the masked sources)
     errs = [e for r in rows if r["angle_err_deg_median"] is not None for e in [r["angle_err_deg_median"]]]
     assert max(errs) <= 1.0
+    # the shipped least evidence is the protocol's choice over all five sources, each judged
+    # by a model that never saw it
+    assert choose_setting(scored, diag, evidences=EVIDENCES)[1] == pytest.approx(MIN_PIXEL_EVIDENCE)
 
 
 def _matches(det, inst, angle_deg=6.0):
@@ -71,7 +102,10 @@ def _matches(det, inst, angle_deg=6.0):
 
 def test_hysterectomy_false_per_frame():
     """Reached: the false detections per frame on the 24 hysterectomy frames against the
-    hand-made list (target <= 0.25); detections on an uncertain entry count neither way."""
+    hand-made list (target <= 0.25); detections on an uncertain entry count neither way. The
+    frames are in no pixel model's training: a check of the shipped least pixel evidence
+    (0 false; it also drops 1 of the 12 listed instruments found without it, a grey shaft in
+    shadow on pale tissue whose map is weak)."""
     import cv2
 
     from pencilcal.toolkit.detect.region.detect import detect_valid_region

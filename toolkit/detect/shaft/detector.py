@@ -26,6 +26,9 @@ angle and offset sigmas are propagated from the edge fits, plus a measured error
 (`shaft.axis.EDGE_FLOOR_PX`). Without a camera a nominal pinhole (focal
 length the image width) stands in for the camera matrix.
 
+On a colour frame, a band of either cue is then judged by a learned map of instrument pixels
+(`shaft.pixel_evidence`): a band of tissue with two long edges is not instrument-like inside.
+
 Nothing is detected on the valid region's boundary (`valid_region`: an endoscope's field
 stop, letterbox bars): samples keep inside it, and a band stops where it leaves it.
 
@@ -66,6 +69,8 @@ from pencilcal.toolkit.detect.shaft.silhouette import EdgeLine
 from pencilcal.toolkit.detect.shaft.edge_cue import bands_from_edges, drop_repeated, edge_cue, refit_edges, unsigned_lines
 from pencilcal.toolkit.detect.shaft.material_cue import material_cue, robust_noise, select
 from pencilcal.toolkit.detect.shaft.pencil_search import pencil_search
+from pencilcal.toolkit.detect.shaft.pixel_evidence import MIN_PIXEL_EVIDENCE
+from pencilcal.toolkit.detect.shaft.pixel_evidence import pixel_evidence as shaft_pixel_evidence
 from pencilcal.toolkit.detect.shaft.prior import as_priors, select_through
 from pencilcal.toolkit.detect.shaft.regions import material_map
 from pencilcal.toolkit.detect.shaft.track import REACH, band_colours, corridor_edges, material_edges
@@ -331,7 +336,8 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
                   max_convergence_deg=30.0, max_shafts=4, scale=None, max_gap_px=None, search_px=3.0,
                   sigma_px=1.5, min_support=0.3, max_background=0.1, slope_correction=True, from_border=True,
                   border_px=None, min_score_ratio=0.25, corridor_px=4.0, detector_params=None, gamma=DEFAULT_GAMMA,
-                  axis_prior=None, single_edge=True, edge_model="step"):
+                  axis_prior=None, single_edge=True, edge_model="step",
+                  pixel_evidence=MIN_PIXEL_EVIDENCE):
     """Instrument shafts in one image: midline (the axis image), width, angle uncertainty.
 
     Parameters
@@ -417,6 +423,10 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         in-vivo frames (docs/method.md), at about 0.4 FLD times more per 1080p frame
         (`shafts_vs_fld_1080p` of `pencilcal bench`: 1.5-1.7 without, 1.8-2.1 with).
         False: the region bands alone.
+    pixel_evidence : float or None
+        On a colour frame, a shaft of the cues is kept only where the learned instrument map
+        inside its band reaches this (`shaft.pixel_evidence.MIN_PIXEL_EVIDENCE`, 0.3: a
+        tissue band with two long edges is not instrument-like inside); None: not judged.
 
     Returns
     -------
@@ -442,6 +452,9 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
     if found is None:
         found = _by_edges(image, camera, valid_region, o, K)
     found = [s for s in found if s is not None]
+    if pixel_evidence is not None and np.ndim(image) == 3 and found:
+        ev = shaft_pixel_evidence(image, found, camera, valid_region)
+        found = [s for s, e in zip(found, ev) if e >= pixel_evidence]
     if not priors:
         return with_limbs(image, camera, found, o.edge_model, o.gamma, K)
     img = np.asarray(image)
@@ -486,7 +499,7 @@ def _prepared(image, camera, valid_region, options):
 
 #: The keywords of `detect_shafts` and their defaults (those `track_shafts` passes on).
 _DEFAULTS = {k: p.default for k, p in inspect.signature(detect_shafts).parameters.items()
-             if p.kind is p.KEYWORD_ONLY and k not in ("valid_region", "axis_prior")}
+             if p.kind is p.KEYWORD_ONLY and k not in ("valid_region", "axis_prior", "pixel_evidence")}
 
 
 def track_shafts(image, camera, previous, *, valid_region=None, prior=None, reach_px=None, widths=None, colours=None,
