@@ -47,6 +47,7 @@ import numpy as np
 from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.image import GrayImage
 from pencilcal.toolkit.detect.radial_circles import circle_points
+from pencilcal.toolkit.detect.radial_joint import joint_refit
 from pencilcal.toolkit.detect.refit import EdgeRefit, RefitOptions
 from pencilcal.toolkit.detect.segments import Segments, detect_segments, in_valid_region
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
@@ -65,6 +66,9 @@ __all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "OF
 #: their sigmas.
 CLEAR_SIGMAS = 3.9
 CLEAR_PX = 3.0  # and never closer than this [px]
+#: Located jointly with their neighbours' blurred edges (`radial_joint`), the edges are
+#: measured from where they lie this many blur sds apart.
+JOINT_SIGMAS = 2.0
 _ARC_SAMPLE_PX = 0.5  # sampling along the circles of the angular profile, at its outer radius
 _RADIUS_STEP_PX = 2.0  # spacing of those circles, and at most _BAND_CIRCLES of them in a band
 _BAND_CIRCLES = 12
@@ -140,13 +144,28 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
     except EstimationError:
         return RadialEdges.empty()
     fit = None
-    clear = CLEAR_SIGMAS * 1.16  # a 1 px blur, until the edges say
+    blur = 1.16  # a 1 px blur, until the edges say
     for search in _SEARCH_PX:
+        clear = max(CLEAR_PX, CLEAR_SIGMAS * blur)
         phi, sign, seen = _edge_directions(img, camera, v, reach, edges, clear)
         if phi.size < 3:
             return RadialEdges.empty()
         fit = _refit_edges(img, camera, v, phi, sign, seen, search, gamma, clear)
-        clear = max(CLEAR_PX, CLEAR_SIGMAS * _edge_blur(img, camera, fit, gamma, clear))
+        blur = max(CLEAR_PX / CLEAR_SIGMAS, _edge_blur(img, camera, fit, gamma, clear))
+        try:
+            v, reach = _vertex_of(fit, reach)
+        except EstimationError:
+            return RadialEdges.empty()
+    # the edges that are nowhere clear of their neighbours, located with them (their blurred
+    # edges modelled) from where they lie JOINT_SIGMAS blur sds apart
+    crowded = np.flatnonzero(~fit.ok)
+    if crowded.size:
+        ray = np.concatenate([v + 0 * phi[:, None], v + np.stack([np.cos(phi), np.sin(phi)], -1)], -1)
+        r_hi = 1.25 * seen[:, 1]
+        r_lo = np.minimum(np.maximum(_clear_radius(phi, JOINT_SIGMAS * blur), 0.5 * seen[:, 0]), 0.8 * r_hi)
+        joint = joint_refit(img, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi,
+                            gamma, rows=crowded, search=_SEARCH_PX[-1])
+        fit = _merged(fit, crowded, joint)
         try:
             v, reach = _vertex_of(fit, reach)
         except EstimationError:
@@ -159,6 +178,14 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
     out = replace(out, offset_sigma=np.hypot(out.offset_sigma, max(OFFSET_FLOOR_PX, _common_offset(out, v))))
     pts = circle_points(img, camera, v, out.ideal, reach, gamma) if circles else np.zeros((0, 2))
     return RadialEdges(**{f: getattr(out, f) for f in out.__dataclass_fields__}, vertex=v, circle_points=pts)
+
+
+def _merged(fit, rows, other):
+    """`fit` (EdgeFit) with its rows `rows` replaced by those of `other` (EdgeFit, one row each)."""
+    merged = {f: getattr(fit, f).copy() for f in fit.__dataclass_fields__}
+    for f, a in merged.items():
+        a[rows] = getattr(other, f)
+    return replace(fit, **merged)
 
 
 def _common_offset(segs, v):
