@@ -44,7 +44,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
+from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA, linearised
 from pencilcal.toolkit.detect.image import GrayImage
 from pencilcal.toolkit.detect.radial_circles import circle_points
 from pencilcal.toolkit.detect.radial_joint import joint_refit
@@ -68,7 +68,7 @@ CLEAR_SIGMAS = 3.9
 CLEAR_PX = 3.0  # and never closer than this [px]
 #: Located jointly with their neighbours' blurred edges (`radial_joint`), the edges are
 #: measured from where they lie this many blur sds apart.
-JOINT_SIGMAS = 2.0
+JOINT_SIGMAS = 2.5
 _ARC_SAMPLE_PX = 0.5  # sampling along the circles of the angular profile, at its outer radius
 _RADIUS_STEP_PX = 2.0  # spacing of those circles, and at most _BAND_CIRCLES of them in a band
 _BAND_CIRCLES = 12
@@ -80,11 +80,11 @@ _BAND_RATIO = 1.3  # the angular profiles' bands of radii: from r to 1.3 r
 _SEARCH_PX = (4.0, 2.0, 1.0)  # edge search half-width [px], round by round (the vertex sharpens)
 _KERNEL_PX = 1.0  # sd of the derivative kernel across an edge
 #: The least sd [px] of an edge's position across it: what the stations' scatter cannot show,
-#: an edge located on levels linearised with a gamma not quite the camera's tone curve
-#: (rendered with 2.2 and located so, edges still sit 0.03 px into their dark side), JPEG's
-#: blocks, a neighbour's blur; more where the edges' own distances from their vertex say so
-#: (`_common_offset`).
-OFFSET_FLOOR_PX = 0.05
+#: a gamma not quite the camera's tone curve, JPEG's blocks, bilinear interpolation across a
+#: sharp edge (on renders located on linear light, a star's edges still sit 0.00-0.02 px
+#: towards their bright side, the sharper the more; chosen on renders, seed 7); more where
+#: the edges' own distances from their vertex say so (`_common_offset`).
+OFFSET_FLOOR_PX = 0.02
 
 
 @dataclass(frozen=True, eq=False)
@@ -138,6 +138,11 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
     """
     img = GrayImage(image, valid_region)
     check_camera_image(camera, img)
+    # edges are located on linear light, the pixels linearised before they are interpolated:
+    # interpolated first, a pixel pair across a sharp edge is made darker than its linear
+    # mean by the power law, and every edge sat 0.03-0.06 px towards its bright side (the
+    # sharper, the more), a bias all of a star's edges share
+    lin = img if gamma == 1.0 else GrayImage(linearised(img.src, gamma), valid_region)
     segs = detect_segments(image, "lsd", camera=camera, min_length=min_length, valid_region=valid_region)
     try:
         v, reach = _rough_vertex(segs)
@@ -150,8 +155,8 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         phi, sign, seen = _edge_directions(img, camera, v, reach, edges, clear)
         if phi.size < 3:
             return RadialEdges.empty()
-        fit = _refit_edges(img, camera, v, phi, sign, seen, search, gamma, clear)
-        blur = max(CLEAR_PX / CLEAR_SIGMAS, _edge_blur(img, camera, fit, gamma, clear))
+        fit = _refit_edges(lin, camera, v, phi, sign, seen, search, 1.0, clear)
+        blur = max(CLEAR_PX / CLEAR_SIGMAS, _edge_blur(lin, camera, fit, 1.0, clear))
         try:
             v, reach = _vertex_of(fit, reach)
         except EstimationError:
@@ -163,8 +168,8 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         ray = np.concatenate([v + 0 * phi[:, None], v + np.stack([np.cos(phi), np.sin(phi)], -1)], -1)
         r_hi = 1.25 * seen[:, 1]
         r_lo = np.minimum(np.maximum(_clear_radius(phi, JOINT_SIGMAS * blur), 0.5 * seen[:, 0]), 0.8 * r_hi)
-        joint = joint_refit(img, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi,
-                            gamma, rows=crowded, search=_SEARCH_PX[-1])
+        joint = joint_refit(lin, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi,
+                            1.0, rows=crowded, search=_SEARCH_PX[-1])
         fit = _merged(fit, crowded, joint)
         try:
             v, reach = _vertex_of(fit, reach)
@@ -176,7 +181,7 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
                                np.maximum(out.offset_sigma, _VERTEX_FLOOR_PX))
     out = out.select(keep & through)
     out = replace(out, offset_sigma=np.hypot(out.offset_sigma, max(OFFSET_FLOOR_PX, _common_offset(out, v))))
-    pts = circle_points(img, camera, v, out.ideal, reach, gamma) if circles else np.zeros((0, 2))
+    pts = circle_points(lin, camera, v, out.ideal, reach, 1.0) if circles else np.zeros((0, 2))
     return RadialEdges(**{f: getattr(out, f) for f in out.__dataclass_fields__}, vertex=v, circle_points=pts)
 
 

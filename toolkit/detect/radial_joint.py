@@ -254,10 +254,8 @@ def _lines_from_stations(foot, u, e, s, t, c, info, base, sign):
     count = inl.sum(-1)
     ok = count >= MIN_STATIONS
     var_b, var_a = fit_variances(res, w, inl, Sss, Wt)
-    s_in = np.where(inl, s, np.nan)
-    with np.errstate(all="ignore"):
-        s_first, s_last = np.nanmin(s_in, -1), np.nanmax(s_in, -1)
-    s_first, s_last = np.nan_to_num(s_first), np.nan_to_num(s_last)
+    s_first = np.where(ok, np.min(np.where(inl, s, np.inf), -1), 0.0)
+    s_last = np.where(ok, np.max(np.where(inl, s, -np.inf), -1), 0.0)
 
     def at(sv):
         return foot + sv[:, None] * u + (tm + b * (sv - sm))[:, None] * e
