@@ -161,20 +161,18 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
             v, reach = _vertex_of(fit, reach)
         except EstimationError:
             return RadialEdges.empty()
-    # the edges that are nowhere clear of their neighbours, located with them (their blurred
-    # edges modelled) from where they lie JOINT_SIGMAS blur sds apart
-    crowded = np.flatnonzero(~fit.ok)
-    if crowded.size:
-        ray = np.concatenate([v + 0 * phi[:, None], v + np.stack([np.cos(phi), np.sin(phi)], -1)], -1)
-        r_hi = 1.25 * seen[:, 1]
-        r_lo = np.minimum(np.maximum(_clear_radius(phi, JOINT_SIGMAS * blur), 0.5 * seen[:, 0]), 0.8 * r_hi)
-        joint = joint_refit(lin, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi,
-                            1.0, rows=crowded, search=_SEARCH_PX[-1])
-        fit = _merged(fit, crowded, joint)
-        try:
-            v, reach = _vertex_of(fit, reach)
-        except EstimationError:
-            return RadialEdges.empty()
+    # every edge located again with its neighbours (their blurred edges modelled): where it is
+    # clear of them as before, where it is nowhere clear from JOINT_SIGMAS blur sds apart
+    ray = np.concatenate([v + 0 * phi[:, None], v + np.stack([np.cos(phi), np.sin(phi)], -1)], -1)
+    r_hi = 1.25 * seen[:, 1]
+    r_lo = np.where(fit.ok, _clear_radius(phi, clear), _clear_radius(phi, JOINT_SIGMAS * blur))
+    r_lo = np.minimum(np.maximum(r_lo, 0.5 * seen[:, 0]), 0.8 * r_hi)
+    fit = joint_refit(lin, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi, 1.0,
+                      search=_SEARCH_PX[-1])
+    try:
+        v, reach = _vertex_of(fit, reach)
+    except EstimationError:
+        return RadialEdges.empty()
     out = Segments.from_fit(fit, camera, min_length)
     keep = in_valid_region(img, out.segments)
     _, through = lines_through(v, out.ideal, np.maximum(out.angle_sigma, np.radians(_VERTEX_FLOOR_DEG)),
@@ -183,14 +181,6 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
     out = replace(out, offset_sigma=np.hypot(out.offset_sigma, max(OFFSET_FLOOR_PX, _common_offset(out, v))))
     pts = circle_points(lin, camera, v, out.ideal, reach, 1.0) if circles else np.zeros((0, 2))
     return RadialEdges(**{f: getattr(out, f) for f in out.__dataclass_fields__}, vertex=v, circle_points=pts)
-
-
-def _merged(fit, rows, other):
-    """`fit` (EdgeFit) with its rows `rows` replaced by those of `other` (EdgeFit, one row each)."""
-    merged = {f: getattr(fit, f).copy() for f in fit.__dataclass_fields__}
-    for f, a in merged.items():
-        a[rows] = getattr(other, f)
-    return replace(fit, **merged)
 
 
 def _common_offset(segs, v):
