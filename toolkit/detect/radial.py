@@ -15,7 +15,9 @@ the vertex, in working (undistorted) pixels:
 3. *edges*: each direction refitted as an edge (`refit.EdgeRefit`, the edge-profile engine)
    from where it is clear of its neighbours (their profiles must not overlap: near the centre
    a star's wedges merge into grey, which is no edge) out to where it ends; the vertex is then
-   intersected again from the refitted edges, and steps 2-3 repeated about it;
+   intersected again from the refitted edges, and steps 2-3 repeated about it; then every
+   edge is located again jointly with its neighbours' blurred edges (`radial_joint`), also
+   where it is nowhere clear of them (a dense star's far side);
 4. *circles*: along rays between the edges, the edges across them (`radial_circles`): the
    points of closed curves about the vertex (the images of circles centred on it: a star's
    outline, a dartboard's rings), returned in raw pixels for the orientation to group by
@@ -54,7 +56,7 @@ from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
 
-__all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "OFFSET_FLOOR_PX"]
+__all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "JOINT_SIGMAS", "OFFSET_FLOOR_PX"]
 
 #: Two neighbouring edges are measured only where they lie at least this many sds of their
 #: blurred profile apart (`_edge_blur`: the sd of an edge's gradient across it as sampled,
@@ -66,8 +68,11 @@ __all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "OF
 #: their sigmas.
 CLEAR_SIGMAS = 3.9
 CLEAR_PX = 3.0  # and never closer than this [px]
-#: Located jointly with their neighbours' blurred edges (`radial_joint`), the edges are
-#: measured from where they lie this many blur sds apart.
+#: Located jointly with their neighbours' blurred edges (`radial_joint`), the edges that are
+#: nowhere CLEAR_SIGMAS sds from their neighbours are measured from where they lie this many
+#: blur sds apart. Chosen on renders (seed 7, the 128-wedge stars at 55-58 deg): from 2 sds
+#: their angles' errors were twice their sigmas (the positions hang on the blur's exact
+#: value there), from 3 sds some had too little left to measure.
 JOINT_SIGMAS = 2.5
 _ARC_SAMPLE_PX = 0.5  # sampling along the circles of the angular profile, at its outer radius
 _RADIUS_STEP_PX = 2.0  # spacing of those circles, and at most _BAND_CIRCLES of them in a band
