@@ -77,12 +77,12 @@ JOINT_SIGMAS = 2.5
 #: An edge is located jointly with its neighbours where they keep it from being measured
 #: over more than this fraction of its reach (the radius from which it is CLEAR_SIGMAS
 #: sds from them, against the outer radius it was seen at): a dense star's (64 wedges: a
-#: third; 128: two thirds to all of it), where the neighbours' pull at the clearance,
+#: fifth to a half; 128: two fifths to all of it), where the neighbours' pull at the clearance,
 #: alike for neighbouring edges, moved the normal (20 frames of 64-wedge stars, seed 7:
 #: RMSE 0.0035 -> 0.0025 deg, coverage 50 -> 65 %); not a dartboard's (a tenth): on the
 #: shared photographs the model, which has no raised wire beside a boundary, left 13 and
 #: 15 boundaries of 20 used instead of 18 and 16.
-DENSE_FRACTION = 0.25
+DENSE_FRACTION = 0.15
 _ARC_SAMPLE_PX = 0.5  # sampling along the circles of the angular profile, at its outer radius
 _RADIUS_STEP_PX = 2.0  # spacing of those circles, and at most _BAND_CIRCLES of them in a band
 _BAND_CIRCLES = 12
