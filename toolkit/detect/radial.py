@@ -15,9 +15,9 @@ the vertex, in working (undistorted) pixels:
 3. *edges*: each direction refitted as an edge (`refit.EdgeRefit`, the edge-profile engine)
    from where it is clear of its neighbours (their profiles must not overlap: near the centre
    a star's wedges merge into grey, which is no edge) out to where it ends; the vertex is then
-   intersected again from the refitted edges, and steps 2-3 repeated about it; then a dense
-   star's edges are located again jointly with their neighbours' blurred edges
-   (`radial_joint`), also where they are nowhere clear of them (its far side);
+   intersected again from the refitted edges, and steps 2-3 repeated about it; an edge
+   that is nowhere clear of its neighbours (a dense star's far side at a steep tilt) is
+   then located jointly with their blurred edges (`radial_joint`);
 4. *circles*: along rays between the edges, the edges across them (`radial_circles`): the
    points of closed curves about the vertex (the images of circles centred on it: a star's
    outline, a dartboard's rings), returned in raw pixels for the orientation to group by
@@ -56,7 +56,7 @@ from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
 
-__all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "JOINT_SIGMAS", "DENSE_FRACTION", "OFFSET_FLOOR_PX"]
+__all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "JOINT_SIGMAS", "OFFSET_FLOOR_PX"]
 
 #: Two neighbouring edges are measured only where they lie at least this many sds of their
 #: blurred profile apart (`_edge_blur`: the sd of an edge's gradient across it as sampled,
@@ -74,15 +74,6 @@ CLEAR_PX = 3.0  # and never closer than this [px]
 #: their angles' errors were twice their sigmas (the positions hang on the blur's exact
 #: value there), from 3 sds some had too little left to measure.
 JOINT_SIGMAS = 2.5
-#: An edge is located jointly with its neighbours where they keep it from being measured
-#: over more than this fraction of its reach (the radius from which it is CLEAR_SIGMAS
-#: sds from them, against the outer radius it was seen at): a dense star's (64 wedges: a
-#: fifth to a half; 128: two fifths to all of it), where the neighbours' pull at the clearance,
-#: alike for neighbouring edges, moved the normal (20 frames of 64-wedge stars, seed 7:
-#: RMSE 0.0035 -> 0.0025 deg, coverage 50 -> 65 %); not a dartboard's (a tenth): on the
-#: shared photographs the model, which has no raised wire beside a boundary, left 13 and
-#: 15 boundaries of 20 used instead of 18 and 16.
-DENSE_FRACTION = 0.15
 _ARC_SAMPLE_PX = 0.5  # sampling along the circles of the angular profile, at its outer radius
 _RADIUS_STEP_PX = 2.0  # spacing of those circles, and at most _BAND_CIRCLES of them in a band
 _BAND_CIRCLES = 12
@@ -175,18 +166,16 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
             v, reach = _vertex_of(fit, reach)
         except EstimationError:
             return RadialEdges.empty()
-    # the edges of a dense target located again with their neighbours (their blurred edges
-    # modelled): where clear of them as before, where nowhere clear from JOINT_SIGMAS apart
-    r_hi = 1.25 * seen[:, 1]
-    r_clear = _clear_radius(phi, clear)
-    dense = np.flatnonzero(~fit.ok | (r_clear > DENSE_FRACTION * seen[:, 1]))
-    if dense.size:
+    # the edges that are nowhere clear of their neighbours, located with them (their blurred
+    # edges modelled) from where they lie JOINT_SIGMAS blur sds apart
+    crowded = np.flatnonzero(~fit.ok)
+    if crowded.size:
         ray = np.concatenate([v + 0 * phi[:, None], v + np.stack([np.cos(phi), np.sin(phi)], -1)], -1)
-        r_lo = np.where(fit.ok, r_clear, _clear_radius(phi, JOINT_SIGMAS * blur))
-        r_lo = np.minimum(np.maximum(r_lo, 0.5 * seen[:, 0]), 0.8 * r_hi)
+        r_hi = 1.25 * seen[:, 1]
+        r_lo = np.minimum(np.maximum(_clear_radius(phi, JOINT_SIGMAS * blur), 0.5 * seen[:, 0]), 0.8 * r_hi)
         joint = joint_refit(lin, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi,
-                            1.0, rows=dense, search=_SEARCH_PX[-1])
-        fit = _merged(fit, dense, joint)
+                            1.0, rows=crowded, search=_SEARCH_PX[-1])
+        fit = _merged(fit, crowded, joint)
         try:
             v, reach = _vertex_of(fit, reach)
         except EstimationError:
