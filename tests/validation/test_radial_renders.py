@@ -21,11 +21,12 @@ def trials():
 def test_spokes_and_twin(trials):
     s = radial_summary(trials)
     assert s["ok"] == 25
-    assert s["spokes_used"] >= 0.93
+    assert s["spokes_used"] >= 0.95
     assert s["twin_right"] >= 0.92 and s["twin_right"] == s["resolved"]  # resolved only ever rightly
     for t in trials:
-        if t.kind != "star128":  # a dense star's far side at a steep tilt: its edges lie too close
-            assert t.spokes_used == t.spokes, (t.kind, t.conditions)
+        # a 128-wedge star's far side at a steep tilt: its edges, located jointly with their
+        # neighbours, are found, but the labelling may leave a few out (docs/method.md)
+        assert t.spokes_used >= (0.85 if t.kind == "star128" else 1.0) * t.spokes, (t.kind, t.conditions)
 
 
 def test_normal_against_its_bound_and_sigma(trials):

@@ -15,7 +15,9 @@ the vertex, in working (undistorted) pixels:
 3. *edges*: each direction refitted as an edge (`refit.EdgeRefit`, the edge-profile engine)
    from where it is clear of its neighbours (their profiles must not overlap: near the centre
    a star's wedges merge into grey, which is no edge) out to where it ends; the vertex is then
-   intersected again from the refitted edges, and steps 2-3 repeated about it;
+   intersected again from the refitted edges, and steps 2-3 repeated about it; an edge
+   that is nowhere clear of its neighbours (a dense star's far side at a steep tilt) is
+   then located jointly with their blurred edges (`radial_joint`);
 4. *circles*: along rays between the edges, the edges across them (`radial_circles`): the
    points of closed curves about the vertex (the images of circles centred on it: a star's
    outline, a dartboard's rings), returned in raw pixels for the orientation to group by
@@ -44,16 +46,17 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
+from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA, linearised
 from pencilcal.toolkit.detect.image import GrayImage
 from pencilcal.toolkit.detect.radial_circles import circle_points
+from pencilcal.toolkit.detect.radial_joint import joint_refit
 from pencilcal.toolkit.detect.refit import EdgeRefit, RefitOptions
 from pencilcal.toolkit.detect.segments import Segments, detect_segments, in_valid_region
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
 
-__all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "OFFSET_FLOOR_PX"]
+__all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "JOINT_SIGMAS", "OFFSET_FLOOR_PX"]
 
 #: Two neighbouring edges are measured only where they lie at least this many sds of their
 #: blurred profile apart (`_edge_blur`: the sd of an edge's gradient across it as sampled,
@@ -65,6 +68,12 @@ __all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "OF
 #: their sigmas.
 CLEAR_SIGMAS = 3.9
 CLEAR_PX = 3.0  # and never closer than this [px]
+#: Located jointly with their neighbours' blurred edges (`radial_joint`), the edges that are
+#: nowhere CLEAR_SIGMAS sds from their neighbours are measured from where they lie this many
+#: blur sds apart. Chosen on renders (seed 7, the 128-wedge stars at 55-58 deg): from 2 sds
+#: their angles' errors were twice their sigmas (the positions hang on the blur's exact
+#: value there), from 3 sds some had too little left to measure.
+JOINT_SIGMAS = 2.5
 _ARC_SAMPLE_PX = 0.5  # sampling along the circles of the angular profile, at its outer radius
 _RADIUS_STEP_PX = 2.0  # spacing of those circles, and at most _BAND_CIRCLES of them in a band
 _BAND_CIRCLES = 12
@@ -76,11 +85,11 @@ _BAND_RATIO = 1.3  # the angular profiles' bands of radii: from r to 1.3 r
 _SEARCH_PX = (4.0, 2.0, 1.0)  # edge search half-width [px], round by round (the vertex sharpens)
 _KERNEL_PX = 1.0  # sd of the derivative kernel across an edge
 #: The least sd [px] of an edge's position across it: what the stations' scatter cannot show,
-#: an edge located on levels linearised with a gamma not quite the camera's tone curve
-#: (rendered with 2.2 and located so, edges still sit 0.03 px into their dark side), JPEG's
-#: blocks, a neighbour's blur; more where the edges' own distances from their vertex say so
-#: (`_common_offset`).
-OFFSET_FLOOR_PX = 0.05
+#: a gamma not quite the camera's tone curve, JPEG's blocks, bilinear interpolation across a
+#: sharp edge (on renders located on linear light, a star's edges still sit 0.00-0.02 px
+#: towards their bright side, the sharper the more; chosen on renders, seed 7); more where
+#: the edges' own distances from their vertex say so (`_common_offset`).
+OFFSET_FLOOR_PX = 0.02
 
 
 @dataclass(frozen=True, eq=False)
@@ -134,19 +143,39 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
     """
     img = GrayImage(image, valid_region)
     check_camera_image(camera, img)
+    # edges are located on linear light, the pixels linearised before they are interpolated:
+    # interpolated first, a pixel pair across a sharp edge is made darker than its linear
+    # mean by the power law, and every edge sat 0.03-0.06 px towards its bright side (the
+    # sharper, the more), a bias all of a star's edges share
+    lin = img if gamma == 1.0 else GrayImage(linearised(img.src, gamma), valid_region)
     segs = detect_segments(image, "lsd", camera=camera, min_length=min_length, valid_region=valid_region)
     try:
         v, reach = _rough_vertex(segs)
     except EstimationError:
         return RadialEdges.empty()
     fit = None
-    clear = CLEAR_SIGMAS * 1.16  # a 1 px blur, until the edges say
+    blur = 1.16  # a 1 px blur, until the edges say
     for search in _SEARCH_PX:
+        clear = max(CLEAR_PX, CLEAR_SIGMAS * blur)
         phi, sign, seen = _edge_directions(img, camera, v, reach, edges, clear)
         if phi.size < 3:
             return RadialEdges.empty()
-        fit = _refit_edges(img, camera, v, phi, sign, seen, search, gamma, clear)
-        clear = max(CLEAR_PX, CLEAR_SIGMAS * _edge_blur(img, camera, fit, gamma, clear))
+        fit = _refit_edges(lin, camera, v, phi, sign, seen, search, 1.0, clear)
+        blur = max(CLEAR_PX / CLEAR_SIGMAS, _edge_blur(lin, camera, fit, 1.0, clear))
+        try:
+            v, reach = _vertex_of(fit, reach)
+        except EstimationError:
+            return RadialEdges.empty()
+    # the edges that are nowhere clear of their neighbours, located with them (their blurred
+    # edges modelled) from where they lie JOINT_SIGMAS blur sds apart
+    crowded = np.flatnonzero(~fit.ok)
+    if crowded.size:
+        ray = np.concatenate([v + 0 * phi[:, None], v + np.stack([np.cos(phi), np.sin(phi)], -1)], -1)
+        r_hi = 1.25 * seen[:, 1]
+        r_lo = np.minimum(np.maximum(_clear_radius(phi, JOINT_SIGMAS * blur), 0.5 * seen[:, 0]), 0.8 * r_hi)
+        joint = joint_refit(lin, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi,
+                            1.0, rows=crowded, search=_SEARCH_PX[-1])
+        fit = _merged(fit, crowded, joint)
         try:
             v, reach = _vertex_of(fit, reach)
         except EstimationError:
@@ -157,8 +186,16 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
                                np.maximum(out.offset_sigma, _VERTEX_FLOOR_PX))
     out = out.select(keep & through)
     out = replace(out, offset_sigma=np.hypot(out.offset_sigma, max(OFFSET_FLOOR_PX, _common_offset(out, v))))
-    pts = circle_points(img, camera, v, out.ideal, reach, gamma) if circles else np.zeros((0, 2))
+    pts = circle_points(lin, camera, v, out.ideal, reach, 1.0) if circles else np.zeros((0, 2))
     return RadialEdges(**{f: getattr(out, f) for f in out.__dataclass_fields__}, vertex=v, circle_points=pts)
+
+
+def _merged(fit, rows, other):
+    """`fit` (EdgeFit) with its rows `rows` replaced by those of `other` (EdgeFit, one row each)."""
+    merged = {f: getattr(fit, f).copy() for f in fit.__dataclass_fields__}
+    for f, a in merged.items():
+        a[rows] = getattr(other, f)
+    return replace(fit, **merged)
 
 
 def _common_offset(segs, v):

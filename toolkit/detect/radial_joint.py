@@ -1,0 +1,268 @@
+"""A dense radial target's edges located jointly with their neighbours' blurred edges.
+
+Where a Siemens star's edges lie a few blur sds apart (many wedges, the far side of a tilted
+star), the profile across one edge holds its neighbours' blurred edges too: the peak of its
+derivative is pulled towards the nearer one, more on one side than the other under
+perspective, and the edge turns. Instead of leaving those stretches out, each station's
+profile is modelled as what it is, the sum of the blurred steps of every edge that crosses
+it (`joint_refit`):
+
+    y(tau) = a + b tau + c sum_k s_k Phi((tau - tau_k) g_k / sigma)
+
+on linear light (blur acts there), tau [px] along the profile towards larger angles about
+the vertex, s_k = +-1 each edge's polarity (+1: brighter towards larger angles), tau_k where
+edge k crosses the profile and g_k the cosine of its angle with the profile's normal, sigma
+the edges' blur (measured on the image, `radial._edge_blur`), a, b the local level and
+slope (uneven light), c the step. The neighbours' crossings come from their current lines;
+the edge's own, t, is fitted (Gauss-Newton, the linear a, b, c projected out at each step).
+Each station's weight is its information about t (the model's derivative in t after
+projecting out a, b, c): low where the neighbours crowd it. The stations give a line as in
+the edge-profile engine (`edges.reject_outliers`, `edges.weighted_line`,
+`edges.fit_variances`: its sigmas from the stations' own scatter), and the lines are fitted
+again with their neighbours' new positions.
+
+Example
+-------
+>>> from pencilcal.toolkit.camera.model import Camera
+>>> from pencilcal.toolkit.detect.image import GrayImage
+>>> from pencilcal.toolkit.pencil.spec import pencil_from_dict
+>>> from pencilcal.toolkit.synth.radial import radial_pose, render_layers, star_layers
+>>> star = pencil_from_dict({"start_deg": 0, "step_deg": 360 / 64, "count": 64, "shape": "wedge",
+...                          "radius": [0, 60]})
+>>> cam = Camera("pinhole", 480, 360, [[400.0, 0, 239.5], [0, 400.0, 179.5], [0, 0, 1]])
+>>> R, t = radial_pose(cam, (240, 180), 0.0, 60.0, fill=0.9)
+>>> img = GrayImage(render_layers(cam, R, t, star_layers(star), blur_px=1.0, noise=0.5, rng=0))
+>>> a = np.arange(128) * np.pi / 64 - np.pi / 128          # the true edges (frontal: image = plane)
+>>> sign = np.where(np.arange(128) % 2 == 0, -1.0, 1.0)    # dark wedges
+>>> u = np.stack([np.cos(a + 0.002), np.sin(a + 0.002)], -1)    # a little off
+>>> v = np.array([240.0, 180.0])
+>>> fit = joint_refit(img, None, np.concatenate([v + 0 * u, v + 100 * u], -1), v, sign, 1.2,
+...                   np.full(128, 25.0), np.full(128, 150.0), 1.0)
+>>> err = np.angle(np.exp(1j * (np.arctan2(*(fit.p2 - fit.p1)[:, ::-1].T) - np.where(sign > 0, a, a + np.pi))))
+>>> bool(fit.ok.all()), bool(np.abs(err).max() < 3e-4)        # edges 2.5 px apart at r = 25 px
+(True, True)
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import erf
+
+from pencilcal.toolkit.detect.edges import (
+    MIN_STATIONS,
+    SAMPLE_STEP_PX,
+    fit_variances,
+    linearised,
+    masked_median,
+    reject_outliers,
+    relative_weights,
+    weighted_line,
+)
+from pencilcal.toolkit.detect.refit import EdgeFit
+from pencilcal.toolkit.detect.working import raw_frame
+
+__all__ = ["joint_refit", "NEIGHBOURS", "FREE_SIGMAS"]
+
+#: Neighbours modelled on each side of an edge (in angle order): enough that any edge
+#: crossing a profile is in the model where neighbours lie 1.5 blur sds apart.
+NEIGHBOURS = 5
+#: A neighbour is fitted with the edge (its position free) where it crosses the profile
+#: within this many blur sds beyond the window's end: a neighbour's step held at a position
+#: a little off moves the edge (through the level and slope fitted across the window) by a
+#: third of that even 5 sds away; free, it does not.
+FREE_SIGMAS = 2.0
+_STEP_PX = 2.0  # station spacing along an edge [px]
+_MAX_STATIONS = 300
+_ITERATIONS = 6
+_FLOOR_PX = 0.1  # the robust line fit's smallest rejection threshold [px]
+_MAX_GAP_PX = 30.0
+_PRIOR = 0.01  # holds a free neighbour near its line where the window barely shows it
+_REL_STEP = 0.4  # a station's fitted step must reach this fraction of the edge's median
+
+
+def _cross(a, b):
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def _phi(z):
+    """The standard normal distribution function."""
+    return 0.5 * (1.0 + erf(z / np.sqrt(2.0)))
+
+
+def _pdf(z):
+    """The standard normal density."""
+    return np.exp(-0.5 * z * z) / np.sqrt(2.0 * np.pi)
+
+
+def _edge_frames(lines, v):
+    """Each line (E, 4) [px] as (foot (E, 2): the point nearest the vertex v (2,), u (E, 2):
+    its unit direction away from v)."""
+    p1, p2 = lines[:, :2], lines[:, 2:]
+    d = p2 - p1
+    u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
+    u = np.where((np.sum((0.5 * (p1 + p2) - v) * u, -1) < 0)[:, None], -u, u)
+    foot = p1 + np.sum((v - p1) * u, -1)[:, None] * u
+    return foot, u
+
+
+def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, gamma, *, rows=None, search=1.0, rounds=2):
+    """The edges through a radial target's vertex, each located jointly with its neighbours'
+    blurred edges (module docstring).
+
+    Parameters
+    ----------
+    img : GrayImage
+    camera : Camera or None
+        Lens model: lines in undistorted (working) pixels, profiles sampled in the raw image.
+    lines : (E, 4) [working px]
+        The edges' current lines, in the order of their angle about the vertex (cyclic).
+    v : (2,) [working px]
+        The vertex.
+    sign : (E,)
+        Each edge's polarity: +1 brighter towards larger angles about v, -1 darker.
+    sigma : float [px]
+        The sd of the edges' blur (as sampled: blur, pixel and resampling together).
+    r_lo, r_hi : (E,) [px]
+        Distances from v along each edge between which it is measured.
+    gamma : float
+        The frames' encoding gamma (`edges.linearised`).
+    rows : (K,) int, optional
+        The edges to fit (all when None); the others are the neighbours' lines as given.
+    search : float [px]
+        How far an edge may lie from its current line.
+    rounds : int
+        Fits of the edges, each with the neighbours' lines of the one before.
+
+    Returns
+    -------
+    EdgeFit
+        K rows (the edges `rows`, in that order), oriented brighter along n = (-d_y, d_x);
+        ``contrast`` the median fitted step in linear grey levels.
+    """
+    lines = np.array(lines, float)
+    sign = np.asarray(sign, float)
+    rows = np.arange(lines.shape[0]) if rows is None else np.asarray(rows, int)
+    fit = None
+    for _ in range(rounds):
+        fit = _fit_round(img, camera, lines, v, sign, sigma, r_lo[rows], r_hi[rows], gamma, search, rows)
+        lines[rows] = np.where(fit.ok[:, None], fit.lines(), lines[rows])
+    return fit
+
+
+def _stations(foot, u, r_lo, r_hi, v):
+    """Stations s (E, S) [px along u from the foot] between r_lo and r_hi from v, and valid (E, S)."""
+    along = np.sum((foot - v) * u, -1)  # ~0: the foot is the point nearest v
+    lo, hi = r_lo - along, r_hi - along
+    cnt = np.clip(np.round((hi - lo) / _STEP_PX).astype(int) + 1, 0, _MAX_STATIONS)
+    S = max(int(cnt.max()), 1)
+    j = np.arange(S)
+    valid = j[None, :] < cnt[:, None]
+    step = (hi - lo) / np.maximum(cnt - 1, 1)
+    return lo[:, None] + j[None, :] * step[:, None], valid & (hi > lo)[:, None]
+
+
+def _fit_round(img, camera, lines, v, sign, sigma, r_lo, r_hi, gamma, search, rows):
+    """One joint fit of the edges `rows` (`joint_refit`) with the neighbours at `lines`."""
+    E = lines.shape[0]
+    foot_all, u_all = _edge_frames(lines, v)
+    foot, u = foot_all[rows], u_all[rows]
+    e = np.stack([-u[:, 1], u[:, 0]], -1)  # towards larger angles (image y down: clockwise)
+    s, valid = _stations(foot, u, r_lo, r_hi, v)
+    x = foot[:, None, :] + s[..., None] * u[:, None, :]  # (E, S, 2)
+    half = search + 3.0 * sigma
+    nt = int(np.ceil(half / SAMPLE_STEP_PX))
+    tau = np.arange(-nt, nt + 1) * SAMPLE_STEP_PX  # (T,)
+    rx, ry, jx, jy = raw_frame(camera, x[..., 0], x[..., 1], e[:, 0, None], e[:, 1, None])
+    X = rx[..., None] + jx[..., None] * tau
+    Y = ry[..., None] + jy[..., None] * tau
+    H, W = img.shape
+    inside = valid & np.all((X >= 0) & (X <= W - 1) & (Y >= 0) & (Y <= H - 1), -1)
+    if getattr(img, "region", None) is not None:
+        inside &= img.in_region(X[..., 0], Y[..., 0]) & img.in_region(X[..., -1], Y[..., -1])
+    y = linearised(img.sample(np.where(inside[..., None], X, 0).astype(np.float32),
+                              np.where(inside[..., None], Y, 0).astype(np.float32)), gamma).astype(float)
+    # the neighbours' blurred edges, where they cross each station's profile: those within
+    # reach of the window fitted with the edge (their positions free), the others fixed
+    fixed = np.zeros(y.shape)
+    near = []
+    for k in range(1, NEIGHBOURS + 1):
+        for j in (rows - k) % E, (rows + k) % E:
+            den = _cross(e, u_all[j])  # (K,): the profile's direction against edge j's
+            tk = _cross(foot_all[j][:, None, :] - x, u_all[j][:, None, :]) / np.where(np.abs(den) > 1e-6, den, 1e-6)[:, None]
+            g = np.broadcast_to(np.maximum(np.abs(den), 0.2)[:, None], tk.shape)
+            free = (np.abs(tk) < half + FREE_SIGMAS * sigma) & (np.abs(den) > 0.2)[:, None]
+            sk = np.broadcast_to(sign[j][:, None], tk.shape)
+            if free.any():
+                near.append((tk, g, sk, free))
+            edge = sk[..., None] * _phi((tau - tk[..., None]) * g[..., None] / sigma)
+            fixed += np.where(free[..., None] | (np.abs(den) <= 0.2)[:, None, None], 0.0, edge)
+    t, c, info, ok = _solve_stations(y, tau, fixed, near, np.broadcast_to(sign[rows, None], s.shape), sigma, search)
+    return _lines_from_stations(foot, u, e, s, t, c, info, inside & ok, sign[rows])
+
+
+def _solve_stations(y, tau, fixed, near, sgn, sigma, search):
+    """Gauss-Newton at each station for its own edge t (E, S) [px] in the profiles y
+    (E, S, T) = a + b tau + c (fixed + sgn Phi((tau - t) / sigma) + the free neighbours'
+    steps, their positions fitted too: a weak prior, `_PRIOR` of the edge's own information,
+    holds each near its line where the window barely shows it); returns t, c, the
+    information about t per unit noise (the other parameters projected out) and ok
+    (converged, c > 0). near: per neighbour, (tau_k, g_k, s_k, free), each (E, S)."""
+    shape = y.shape[:2]
+    P = 4 + len(near)
+    p = np.zeros(shape + (P,))  # a, b, c, t, and the neighbours' shifts
+    tt = np.broadcast_to(tau, y.shape)
+    pin = np.stack([np.zeros(shape)] * 4 + [~nb[3] for nb in near], -1)  # held at 0
+    prior = np.stack([np.zeros(shape)] * 4 + [nb[3].astype(float) for nb in near], -1)
+    for it in range(_ITERATIONS + 1):
+        a, b, c, t = (p[..., i] for i in range(4))
+        z = (tau - t[..., None]) / sigma
+        bracket = fixed + sgn[..., None] * _phi(z)
+        cols = [np.ones_like(y), tt, None, -c[..., None] * sgn[..., None] * _pdf(z) / sigma]
+        for i, (tk, g, sk, free) in enumerate(near):
+            zk = (tau - tk[..., None] - p[..., 4 + i, None]) * g[..., None] / sigma
+            bracket = bracket + np.where(free[..., None], sk[..., None] * _phi(zk), 0.0)
+            cols.append(np.where(free[..., None], -c[..., None] * sk[..., None] * _pdf(zk) * g[..., None] / sigma, 0.0))
+        cols[2] = bracket
+        A = np.stack(cols, -1)  # (E, S, T, P)
+        r = y - a[..., None] - b[..., None] * tau - c[..., None] * bracket
+        N = np.einsum("...ti,...tj->...ij", A, A)
+        scale = np.maximum(np.einsum("...ii->...i", N), 1e-12)
+        ridge = 1e-9 * scale + pin * scale + _PRIOR * prior * N[..., 3, 3, None]
+        rhs = np.einsum("...ti,...t->...i", A, r) - _PRIOR * prior * N[..., 3, 3, None] * p
+        N = N + np.eye(P) * ridge[..., None, :]
+        if it == 0:  # the first step finds the levels and the step only
+            N = N + np.eye(P) * (np.arange(P) >= 3) * 1e12
+        step = np.linalg.solve(N, rhs[..., None])[..., 0]
+        step[..., 3:] = np.clip(step[..., 3:], -0.5, 0.5)
+        p = p + step
+        p[..., 3] = np.clip(p[..., 3], -search - 0.5, search + 0.5)
+    t, c = p[..., 3], p[..., 2]
+    with np.errstate(all="ignore"):
+        info = 1.0 / np.linalg.inv(N)[..., 3, 3]
+    ok = (c > 0) & (np.abs(t) <= search) & (info > 0) & np.isfinite(t) & np.all(np.abs(p[..., 4:]) < 1.0, -1)
+    return t, c, info, ok
+
+
+def _lines_from_stations(foot, u, e, s, t, c, info, base, sign):
+    """The lines (`EdgeFit`) through the stations' edges t (E, S) [px along e] at s (E, S)
+    [px along u from foot], weighted by their information; robust as the edge-profile engine."""
+    med = masked_median(c, base)
+    base = base & (c >= _REL_STEP * med[:, None])
+    w = relative_weights(np.sqrt(np.maximum(info, 0.0)), base)
+    inl = reject_outliers(s, t, w, base, base, _FLOOR_PX, _MAX_GAP_PX, iters=4)
+    sm, tm, b, Sss, Wt = weighted_line(s, t, w, inl)
+    res = t - tm[:, None] - b[:, None] * (s - sm[:, None])
+    count = inl.sum(-1)
+    ok = count >= MIN_STATIONS
+    var_b, var_a = fit_variances(res, w, inl, Sss, Wt)
+    s_first = np.where(ok, np.min(np.where(inl, s, np.inf), -1), 0.0)
+    s_last = np.where(ok, np.max(np.where(inl, s, -np.inf), -1), 0.0)
+
+    def at(sv):
+        return foot + sv[:, None] * u + (tm + b * (sv - sm))[:, None] * e
+
+    inner, outer = at(s_first), at(s_last)
+    p1 = np.where(sign[:, None] > 0, inner, outer)  # brighter along n = (-d_y, d_x)
+    p2 = np.where(sign[:, None] > 0, outer, inner)
+    return EdgeFit(ok=ok, p1=p1, p2=p2, centroid=at(sm), angle_sigma=np.sqrt(var_b) / (1.0 + b * b),
+                   centre_sigma=np.sqrt(var_a), contrast=np.nan_to_num(masked_median(c, inl)),
+                   residual=np.sqrt(np.sum(np.where(inl, res * res, 0.0), -1) / np.maximum(count, 1)), count=count)
