@@ -389,7 +389,7 @@ def edge_model_option(fn):
 
     return click.option(
         "--edge-model", type=click.Choice(EDGE_MODELS), default="step", show_default=True,
-        help="Shaft edges: the step's gradient peak, or the lit cylinder's limb (slower).")(fn)
+        help="Shaft edge model.")(fn)
 
 
 def endpoint_sigma_option(help):
@@ -570,7 +570,7 @@ def instrument_mask_options(fn):
     mask_instances."""
     fn = click.option("--mask-instances", is_flag=True, help="Each mask value is one instrument.")(fn)
     fn = click.option("--mask-label", "mask_labels", multiple=True, metavar="V",
-                      help="A mask value (or B,G,R) that is instrument; repeatable.")(fn)
+                      help="Instrument mask value (or B,G,R); repeatable.")(fn)
     return click.option("--instrument-mask", "instrument_mask", default=None, metavar="MASKS",
                         help="Instrument masks, one per frame (folder, pattern): their shafts.")(fn)
 

@@ -64,7 +64,7 @@ def _lines_shafts(path):
 @click.option("--masks", "masks_spec", required=True, metavar="MASKS",
               help="Instrument masks, one per frame (folder, pattern, files).")
 @click.option("--mask-label", "mask_labels", multiple=True, metavar="V",
-              help="A mask value (or B,G,R) that is instrument; repeatable.")
+              help="Instrument mask value (or B,G,R); repeatable.")
 @click.option("--mask-instances", is_flag=True, help="Each mask value is one instrument.")
 @click.option("--lines", "lines_path", type=click.Path(exists=True, dir_okay=False), default=None,
               help="Score the shafts of this lines.json instead of detecting them.")
