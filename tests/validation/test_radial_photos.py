@@ -15,8 +15,10 @@ from tests.conftest import data_dir
 CHI2_3SIGMA = -2.0 * np.log(1.0 - 0.9973)
 
 
-@pytest.mark.parametrize("name,spokes,tilt", [("dartboard_side_left", 16, (45, 65)),
-                                              ("dartboard_side_right", 15, (45, 65)),
+# boundaries used, of 20: measured 19, 18 and 18 (docs/method.md), the floors one below, as
+# the estimate of k1 moves with the edges and with it the labelling's margin on the rest
+@pytest.mark.parametrize("name,spokes,tilt", [("dartboard_side_left", 18, (45, 65)),
+                                              ("dartboard_side_right", 17, (45, 65)),
                                               ("dartboard_far", 17, (5, 25))])
 def test_boundaries_and_rings_agree(name, spokes, tilt):
     img = cv2.imread(str(data_dir("real-radial-targets") / f"{name}.jpg"))
@@ -32,5 +34,5 @@ def test_boundaries_and_rings_agree(name, spokes, tilt):
     # the two planes within three sigmas of their difference (the shared vertex counted once)
     assert r["circles_used"] >= 3 and r["circle_chi2"] <= CHI2_3SIGMA
     assert tilt[0] < o.tilt_deg < tilt[1]  # side views "strongly oblique, roughly 50-60 deg"; far: "nearly frontal"
-    # the boundaries the orientation uses (of 20; the raised wires keep a few out: below)
+    # the boundaries the orientation uses (of 20; the numbers' ring and a dart keep a few out)
     assert r["spokes_used"] >= spokes

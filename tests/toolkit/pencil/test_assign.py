@@ -143,3 +143,24 @@ def test_lines_that_chance_would_fit_are_counted(rng):
     assert clean.chance_lines < 0.2 and not clean.clutter_ambiguous
     busy = assign_spokes(np.r_[a, rng.uniform(-np.pi, np.pi, 60)], SPOKES, x, np.radians(0.5))
     assert busy.clutter_ambiguous
+
+
+def test_shared_model_error_keeps_sharp_lines(rng):
+    """Lines that all miss the model by a shared error (a lens or a raised wire the camera
+    model leaves out: 0.3 deg each), most of them stating tiny sigmas (long clean edges,
+    0.02 deg): the sharp lines are labelled too, not left out as many of their own sds off.
+    Measured over 10 poses on seeds 0-2: 18.3-20.0 of 20 labelled a pose on average, and
+    15.2-16.3 with the lines judged on their own sigmas and the scatter factor alone."""
+    spokes = np.radians(9.0 + 18.0 * np.arange(20))
+    used = []
+    for _ in range(10):
+        x = rng.uniform(-0.2, 0.2, 2)
+        R = random_pose(rng, x, rng.uniform(30, 60))
+        sigma = np.where(rng.random(20) < 0.8, np.radians(0.02), np.radians(0.3))
+        a = image_angles(R, x, spokes) + np.radians(0.3) * rng.normal(size=20)
+        lab = assign_spokes(a, spokes, x, sigma).spoke
+        # all round, a regular pencil's labels are known up to a step: count the lines
+        # labelled consistently with the first labelled one
+        first = np.flatnonzero(lab >= 0)[0]
+        used.append(int(((lab >= 0) & (np.mod(lab - lab[first] - (np.arange(20) - first), 20) == 0)).sum()))
+    assert np.mean(used) >= 18, used
