@@ -19,6 +19,8 @@ mask-guided detection starts.
    mask's side, the mask between them; of these pairs, the one whose straight band (overlap
    along the axis times the width) is largest: where the shaft is in view, its two edges (a
    clip applier's or a jaw's single edge may be longer, a prong's pair longer but narrow);
+   where it shares an edge with the pair of the longest stretch and runs within
+   `SAME_AXIS_DEG` of it, that pair stands (a straight instrument: one axis);
 4. each edge refitted by total least squares to its run; the straight part is where both
    runs overlap along the axis (a wrist, jaws or a hook beyond it are left out: their outline
    is not on these two lines).
@@ -64,6 +66,10 @@ MERGE_GAP_PX = 5.0
 #: The largest angle between a shaft's two silhouette edges [deg] (a shaft seen end-on from
 #: close by converges by a few degrees).
 MAX_EDGE_ANGLE_DEG = 12.0
+#: Two pairs of silhouette edges sharing one edge and this close in direction [deg] read one
+#: axis (a straight instrument's tip and shaft; the detector's own bound for two readings of
+#: one instrument).
+SAME_AXIS_DEG = 3.0
 _RANSAC_ITERS = 600
 #: The straight stretches of an outline paired into silhouette edges (`_two_edges`): a shaft's
 #: two, its wrist's and jaws' a few more.
@@ -314,9 +320,11 @@ def _two_edges(C, m, usable, rng, tol, gap, min_len):
     stretches overlap along the axis, times the width between them) covers most of the mask.
     An instrument with its shaft in view is read by its shaft: the jaws or a clip applier
     beyond the wrist may have a longer single straight edge, and a jaw's prong two long edges
-    close together, but the shaft's band is the largest straight part.
+    close together, but the shaft's band is the largest straight part. Where that band shares
+    an edge with the first pair (the longest stretch's) and runs within `SAME_AXIS_DEG` of it,
+    the first stands: a straight instrument, one axis.
     """
-    best, best_area = None, 0.0
+    best, best_area, first = None, 0.0, None
     us = usable.copy()
     for _ in range(_MAX_STRETCHES):
         run1 = _best_stretch(C, us, rng, tol, gap, min_len)
@@ -340,7 +348,23 @@ def _two_edges(C, m, usable, rng, tol, gap, min_len):
         inside = (q[:, 0] >= 0) & (q[:, 0] < m.shape[1]) & (q[:, 1] >= 0) & (q[:, 1] < m.shape[0])
         if inside.all() and m[q[:, 1], q[:, 0]].mean() >= 0.75:
             best, best_area = (run1, run2), (hi - lo) * abs(off)
+            first = best if first is None else first
+    if best is not None and first is not best:
+        # a straight instrument whose one silhouette edge runs on from its shaft to its tip:
+        # one axis, and the pair of the longest edges stands; another part (a bend, a clip
+        # applier, a jaw beside the axis) shares no edge with the shaft
+        u_b, u_f = (_pair_direction(C, pair) for pair in (best, first))
+        shared = any(np.intersect1d(a, b).size > 0.5 * min(a.size, b.size) for a in best for b in first)
+        if shared and abs(u_b @ u_f) >= np.cos(np.radians(SAME_AXIS_DEG)):
+            return first
     return best
+
+
+def _pair_direction(C, pair):
+    """The mean direction (2,) of a pair of stretches: the axis' direction."""
+    u1, u2 = (_line_tls(C[r].astype(float))[1] for r in pair)
+    u = u1 + (u2 if u1 @ u2 > 0 else -u2)
+    return u / np.linalg.norm(u)
 
 
 def _partner(C, m, usable, rng, tol, gap, min_len, run1):

@@ -84,14 +84,10 @@ def test_mask_instruments_get_an_axis_within_1_deg_and_3_px_of_the_mask_s(table)
 def test_the_image_shows_most_edges_and_the_mask_edge_error_is_what_the_fallback_assumes(table):
     """On the sources the constants were chosen on, the image's edge is taken for nearly
     every edge, and the mask's edges lie about `MASK_EDGE_SIGMA_PX` from them (RMS at the
-    ends); on the others too, at most half of the edges fall back to the mask's. Two of the
-    18 fall back: a dvrk-suturing edge and the box trainer's right shaft's upper edge, where
-    the shaft runs into its own shadow and the image's edge turns 1.9 deg off the mask's (the
-    axis of that mask is its shaft's; it was the distal part's, whose edges the image shows,
-    before `mask_axis` read an instrument by its largest straight band)."""
+    ends); on the others too, at most half of the edges fall back to the mask's."""
     tuning = [s for n in TUNING for _, _, s in table[n]]
     edges = [f for s in tuning for f in s.edge_from]
-    assert edges.count("image") >= len(edges) - 2
+    assert edges.count("image") >= 0.9 * len(edges)
     offs = np.array([o for s in tuning for o in s.mask_offset_px if o is not None])
     rms = float(np.sqrt(np.mean(offs**2)))
     print(f"\nmask edge offsets on {', '.join(TUNING)}: RMS {rms:.2f} px (of the larger end)")
