@@ -55,7 +55,8 @@ import numpy as np
 from pencilcal.toolkit.detect.shaft.axis import plane_bisector
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["MaskAxis", "mask_axis", "instruments_in_mask", "MIN_INSTRUMENT_AREA", "MERGE_GAP_PX", "MAX_EDGE_ANGLE_DEG"]
+__all__ = ["MaskAxis", "mask_axis", "instruments_in_mask", "MIN_INSTRUMENT_AREA", "MERGE_GAP_PX", "MAX_EDGE_ANGLE_DEG",
+           "SAME_AXIS_DEG"]
 
 #: The least area of an instrument in a mask [px]: below it a component is a speck of the
 #: annotation, not an instrument.
