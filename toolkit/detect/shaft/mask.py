@@ -11,12 +11,16 @@ mask-guided detection starts.
 
 1. the contour, less its points on the image border or on the valid region's boundary (the
    mask stops there; that is no silhouette);
-2. the longest straight stretch of the contour (RANSAC: a line through two contour points,
-   its inliers within `tol` px, and among them the longest run of contour-consecutive inliers,
-   gaps of up to `gap` points bridged): a silhouette edge is one contiguous stretch of the
-   boundary;
-3. the longest such stretch among those within `MAX_EDGE_ANGLE_DEG` of the first, on the
-   other side of the mask;
+2. the straight stretches of the contour, longest first (RANSAC: a line through two contour
+   points, its inliers within `tol` px, and among them the longest run of contour-consecutive
+   inliers, gaps of up to `gap` points bridged; then the next on the points left): a
+   silhouette edge is one contiguous stretch of the boundary;
+3. each with its partner, the longest stretch within `MAX_EDGE_ANGLE_DEG` of it on the
+   mask's side, the mask between them; of these pairs, the one whose straight band (overlap
+   along the axis times the width) is largest: where the shaft is in view, its two edges (a
+   clip applier's or a jaw's single edge may be longer, a prong's pair longer but narrow);
+   where it shares an edge with the pair of the longest stretch and runs within
+   `SAME_AXIS_DEG` of it, that pair stands (a straight instrument: one axis);
 4. each edge refitted by total least squares to its run; the straight part is where both
    runs overlap along the axis (a wrist, jaws or a hook beyond it are left out: their outline
    is not on these two lines).
@@ -51,7 +55,8 @@ import numpy as np
 from pencilcal.toolkit.detect.shaft.axis import plane_bisector
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["MaskAxis", "mask_axis", "instruments_in_mask", "MIN_INSTRUMENT_AREA", "MERGE_GAP_PX", "MAX_EDGE_ANGLE_DEG"]
+__all__ = ["MaskAxis", "mask_axis", "instruments_in_mask", "MIN_INSTRUMENT_AREA", "MERGE_GAP_PX", "MAX_EDGE_ANGLE_DEG",
+           "SAME_AXIS_DEG"]
 
 #: The least area of an instrument in a mask [px]: below it a component is a speck of the
 #: annotation, not an instrument.
@@ -62,7 +67,14 @@ MERGE_GAP_PX = 5.0
 #: The largest angle between a shaft's two silhouette edges [deg] (a shaft seen end-on from
 #: close by converges by a few degrees).
 MAX_EDGE_ANGLE_DEG = 12.0
+#: Two pairs of silhouette edges sharing one edge and this close in direction [deg] read one
+#: axis (a straight instrument's tip and shaft; the detector's own bound for two readings of
+#: one instrument).
+SAME_AXIS_DEG = 3.0
 _RANSAC_ITERS = 600
+#: The straight stretches of an outline paired into silhouette edges (`_two_edges`): a shaft's
+#: two, its wrist's and jaws' a few more.
+_MAX_STRETCHES = 8
 
 
 @dataclass(frozen=True, eq=False)
@@ -301,10 +313,64 @@ def mask_axis(mask, valid=None, K=None, *, tol=2.5, gap=10, min_edge_px=40.0, se
 
 
 def _two_edges(C, m, usable, rng, tol, gap, min_len):
-    """The two silhouette stretches (index arrays) of a contour C (N, 2), or None."""
-    run1 = _best_stretch(C, usable, rng, tol, gap, min_len)
-    if run1 is None or run1.size < min_len:
-        return None
+    """The two silhouette stretches (index arrays) of a contour C (N, 2), or None.
+
+    The straight stretches of the outline, longest first (up to `_MAX_STRETCHES`), each with
+    its partner: the longest stretch within `MAX_EDGE_ANGLE_DEG` of it on the mask's side, with
+    the mask between the two. Of these pairs, the one whose straight band (where both
+    stretches overlap along the axis, times the width between them) covers most of the mask.
+    An instrument with its shaft in view is read by its shaft: the jaws or a clip applier
+    beyond the wrist may have a longer single straight edge, and a jaw's prong two long edges
+    close together, but the shaft's band is the largest straight part. Where that band shares
+    an edge with the first pair (the longest stretch's) and runs within `SAME_AXIS_DEG` of it,
+    the first stands: a straight instrument, one axis.
+    """
+    best, best_area, first = None, 0.0, None
+    us = usable.copy()
+    for _ in range(_MAX_STRETCHES):
+        run1 = _best_stretch(C, us, rng, tol, gap, min_len)
+        if run1 is None or run1.size < min_len:
+            break
+        us[run1] = False
+        if best is not None and any(np.intersect1d(run1, r).size > 0.5 * run1.size for r in best):
+            continue  # an edge of the pair held, read again: the pair found first stands
+        run2 = _partner(C, m, usable, rng, tol, gap, min_len, run1)
+        if run2 is None:
+            continue
+        c1, u1, n1 = _line_tls(C[run1].astype(float))
+        s1, s2 = C[run1] @ u1, C[run2] @ u1
+        lo, hi = max(s1.min(), s2.min()), min(s1.max(), s2.max())
+        off = float(np.median((C[run2] - c1) @ n1))
+        if (hi - lo) * abs(off) <= best_area:
+            continue
+        # the band between them is the mask's (not the background between two prongs)
+        s = np.linspace(lo, hi, 9)
+        q = np.rint(c1 + (s - c1 @ u1)[:, None] * u1 + 0.5 * off * n1).astype(int)
+        inside = (q[:, 0] >= 0) & (q[:, 0] < m.shape[1]) & (q[:, 1] >= 0) & (q[:, 1] < m.shape[0])
+        if inside.all() and m[q[:, 1], q[:, 0]].mean() >= 0.75:
+            best, best_area = (run1, run2), (hi - lo) * abs(off)
+            first = best if first is None else first
+    if best is not None and first is not best:
+        # a straight instrument whose one silhouette edge runs on from its shaft to its tip:
+        # one axis, and the pair of the longest edges stands; another part (a bend, a clip
+        # applier, a jaw beside the axis) shares no edge with the shaft
+        u_b, u_f = (_pair_direction(C, pair) for pair in (best, first))
+        shared = any(np.intersect1d(a, b).size > 0.5 * min(a.size, b.size) for a in best for b in first)
+        if shared and abs(u_b @ u_f) >= np.cos(np.radians(SAME_AXIS_DEG)):
+            return first
+    return best
+
+
+def _pair_direction(C, pair):
+    """The mean direction (2,) of a pair of stretches: the axis' direction."""
+    u1, u2 = (_line_tls(C[r].astype(float))[1] for r in pair)
+    u = u1 + (u2 if u1 @ u2 > 0 else -u2)
+    return u / np.linalg.norm(u)
+
+
+def _partner(C, m, usable, rng, tol, gap, min_len, run1):
+    """The longest stretch within `MAX_EDGE_ANGLE_DEG` of run1's line, on the mask's side of
+    it (index array), or None."""
     c1, u1, n1 = _line_tls(C[run1].astype(float))
     ys, xs = np.nonzero(m)
     side = np.sign(np.median((np.c_[xs, ys] - c1) @ n1))
@@ -316,6 +382,4 @@ def _two_edges(C, m, usable, rng, tol, gap, min_len):
         return abs(u @ u1) >= cos_max and (p0 - c1) @ n1 * side > 3.0 * tol
 
     run2 = _best_stretch(C, us2, rng, tol, gap, min_len, constraint=other_side)
-    if run2 is None or run2.size < min_len:
-        return None
-    return run1, run2
+    return None if run2 is None or run2.size < min_len else run2

@@ -137,3 +137,25 @@ def test_a_mask_of_another_size_is_an_input_error():
     with pytest.raises(InputError, match="mask is"):
         shafts_from_masks(img, [mask[:, :300] > 0])
     assert shafts_from_masks(img, np.zeros_like(mask)) == []
+
+
+def test_an_instrument_with_its_shaft_in_view_is_read_by_its_shaft():
+    """A shaft from the border (40 px wide, 150 long) and beyond it a narrower distal part
+    (20 px, 220 long, bent by 15 deg at the wrist) whose single edges are the longest straight
+    stretches of the outline: the axis is the shaft's (the distal part's before `mask_axis`
+    took the pair whose straight band is largest)."""
+    import cv2
+
+    from pencilcal.toolkit.detect.shaft.mask import mask_axis
+
+    m = np.zeros((300, 500), np.uint8)
+    m[100:140, :150] = 1
+    t = np.radians(15.0)
+    u, n = np.array([np.cos(t), np.sin(t)]), np.array([-np.sin(t), np.cos(t)])
+    c = np.array([145.0, 120.0])
+    cv2.fillPoly(m, [np.rint([c - 10 * n, c - 10 * n + 220 * u, c + 10 * n + 220 * u, c + 10 * n]).astype(np.int32)],
+                 1)
+    ax = mask_axis(m.astype(bool))
+    assert ax.kind == "shaft"
+    assert abs(ax.line[0]) < np.sin(np.radians(0.5))            # horizontal: the shaft's direction
+    assert abs(ax.point[1] - 119.5) < 1.0 and ax.width_px == pytest.approx(40.0, abs=1.5)
