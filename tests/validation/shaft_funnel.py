@@ -175,8 +175,9 @@ def stage_of(ref, mask, rec, work, dets, kept, min_len, ang_thr):
     return "no segment"
 
 
-def _cache_path(name):
-    return f"/work/scratch-shaft-edges/funnel-{name}.json"
+def _cache_path(out, name):
+    """Where one source's trace is kept between runs: beside the overlays in OUT."""
+    return Path(out) / f"funnel-{name}.json"
 
 
 def run_source(name, out=None):
@@ -245,13 +246,13 @@ def main(argv=None):
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("sources", nargs="*", default=list(SOURCES))
-    ap.add_argument("--out", default="/work/scratch-shaft-edges/funnel")
+    ap.add_argument("--out", default="shaft-funnel", help="folder of the overlays and the traces kept between runs")
     a = ap.parse_args(argv)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     traced_rows, diag = {}, {}
     for name in SOURCES:
-        cached = Path(_cache_path(name))
+        cached = _cache_path(out, name)
         if name in a.sources or not cached.exists():
             rows, diag[name] = run_source(name)
             traced_rows[name] = rows
@@ -261,7 +262,7 @@ def main(argv=None):
             diag[name] = json.loads(cached.read_text())["diagonal"]
     frames = {}
     for name in SOURCES:
-        c = json.loads(Path(_cache_path(name)).read_text())
+        c = json.loads(_cache_path(out, name).read_text())
         from tests.validation.masked_sources import load_source
 
         refs = traced_rows[name] if name in traced_rows else None

@@ -302,11 +302,9 @@ def test_read_stereo_errors_are_one_line(tmp_path, content, says):
 
 
 def test_read_stereo_names_what_the_opencv_samples_files_are():
-    data = "/work/shared/data/opencv-stereo-chessboard/"
-    import os
+    from tests.conftest import data_dir
 
-    if not os.path.isdir(data):
-        pytest.skip("the shared OpenCV stereo sample is not here")
+    data = str(data_dir("opencv-stereo-chessboard")) + "/"
     with pytest.raises(InputError, match="image list.*extrinsics.yml"):
         read_stereo(data + "stereo_calib.xml")          # the sample's input: an image list
     with pytest.raises(InputError, match="intrinsics"):
