@@ -420,8 +420,8 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         The material cue also proposes bands from a single straight boundary, to the far
         edge a gradient model finds across it (`shaft.partner`: a white or metal shaft the
         colour does not tell from tissue, beside a dark region): more instruments found on
-        in-vivo frames (docs/method.md), at about 0.4 FLD times more per 1080p frame
-        (`shafts_vs_fld_1080p` of `pencilcal bench`: 1.5-1.7 without, 1.8-2.1 with).
+        in-vivo frames (docs/method.md), at about 16 ms more per 1080p frame (51.7 ms
+        against 36.1 on the hysterectomy frames, docs/performance.md).
         False: the region bands alone.
     pixel_evidence : float or None
         On a colour frame, a shaft of the cues is kept only where the learned instrument map

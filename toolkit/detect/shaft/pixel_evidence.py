@@ -9,7 +9,8 @@ ragged at the outline. So it judges rather than locates: a band's *evidence* is 
 of the map over the middle 60 % of its width, `STATIONS` x `ACROSS` samples along its
 midline, and a detection with less than `MIN_PIXEL_EVIDENCE` is dropped
 (`detector.detect_shafts`' ``pixel_evidence``). The map is computed on the work frame
-(`pixels.WORK_PX` = 320 px on its longer side: a few milliseconds at 1080p).
+(`pixels.WORK_PX` = 320 px on its longer side: about 8 ms a 1080p frame, measured beside
+the rest of `detect_shafts` in docs/performance.md).
 
 How `MIN_PIXEL_EVIDENCE` was chosen (leave one source out, every threshold chosen on the
 sources other than the one scored) and what it gives: docs/method.md, pixel evidence.
