@@ -31,6 +31,7 @@ __all__ = [
     "rotation_from_rotvec",
     "rotvec_from_rotation",
     "rotation_about_axis",
+    "rotation_from_quaternion",
     "rotation_angle",
     "angle_between",
     "project_to_rotation",
@@ -101,6 +102,22 @@ def rotation_about_axis(axis, angle):
     """Rotation by `angle` [rad] about `axis` (normalised here). (..., 3), (...) -> (..., 3, 3)."""
     axis = normalize(axis)
     return rotation_from_rotvec(axis * np.asarray(angle, dtype=float)[..., None])
+
+
+def rotation_from_quaternion(q):
+    """The rotation of a unit quaternion in the order (w, x, y, z) (Hamilton, as ROS and
+    Eigen: ``v' = q v q*``). q: (..., 4) (either sign, normalised here) -> (..., 3, 3).
+
+    >>> np.round(rotation_from_quaternion([np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)]) @ [1.0, 0, 0], 12).tolist()
+    [0.0, 1.0, 0.0]
+    """
+    q = np.asarray(q, float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
 
 
 def rotation_angle(R_a, R_b):
