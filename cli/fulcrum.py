@@ -22,6 +22,10 @@ from .common import (detector_option, edge_model_option, endpoint_sigma_option, 
 
 
 
+#: The least side vote (`hand_eye.HandEye.twin_vote`) that decides a planar pivot's twin
+#: without a warning: three frames in four agree.
+TWIN_VOTE = 0.5
+
 #: Passes through the epochs' priors --fulcrum-prior auto makes after its first.
 AUTO_PASSES = 2
 
@@ -166,6 +170,44 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
     return rec
 
 
+def _robot(camera, frames, poses, shaft_diameter, point):
+    """fulcrum.json's ``robot`` record (`hand_eye.robot_from_frames`), with warnings for
+    raised sigmas and a disagreement."""
+    from pencilcal.toolkit.pencil.hand_eye import robot_from_frames
+
+    rec = robot_from_frames(camera, frames, poses, shaft_diameter, near=point).to_dict()
+    if rec["frames_without_axis"]:
+        warn(f"{poses.source}: {rec['frames_without_axis']} frame(s) with a tool pose have no shaft with a 3-D axis")
+    if rec["variance_factor"] > 1.0:
+        warn(f"the hand-eye's residuals are {rec['chi2_dof']:.3g} times what the axes' sigmas say (the axes' or the "
+             "kinematics' errors are larger): its covariance is raised by that factor")
+    left = [r["image"] for r in rec["residuals"] if not r["used"]]
+    if left:
+        warn(f"the hand-eye left out {len(left)} frame(s) whose shaft does not match the tool pose: "
+             + ", ".join(map(str, left[:5])) + (" ..." if len(left) > 5 else ""))
+    if rec["twin_by"] == "sides" and not rec["twin_vote"] >= TWIN_VOTE:
+        warn(f"the shaft's axes lie in one plane: the transform and its mirror image (a half turn about the plane's "
+             f"normal) fit alike, and the side of the fulcrum the camera sees the shaft on decides it only weakly "
+             f"(vote {rec['twin_vote']:.2f} of 1): pivot the tool out of that plane too")
+    a = rec["agreement"]
+    if not a["consistent"]:
+        warn(f"the robot's remote centre of motion and the camera's fulcrum disagree by {a['distance']:.3g} mm (chi2 "
+             f"{a['chi2']:.1f}, {a['dof']} dof, p {a['p_value']:.2g}): the tool axis, the pairing of poses and "
+             "frames, or the shaft diameter")
+    return rec
+
+
+def _robot_line(rec):
+    """The summary line of the ``robot`` record."""
+    a = rec["agreement"]
+    verdict = ("is the camera's fulcrum (the transform is fixed by it: no check left)" if a["dof"] == 0 else
+               "{} the camera's fulcrum".format("agrees with" if a["consistent"] else "DISAGREES with"))
+    return ("robot: remote centre ({:.1f}, {:.1f}, {:.1f}) +- {:.2g} mm (base frame); camera from base +- {:.2g} deg, "
+            "{:.2g} mm from {} of {} frames; in the camera frame it {} ({:.2g} mm, chi2 {:.1f}, {} dof)").format(
+        *rec["fulcrum_base_mm"], rec["fulcrum_base_sigma_mm"], rec["rotation_sigma_deg"], rec["translation_sigma_mm"],
+        rec["frames_used"], rec["frames_paired"], verdict, a["distance"], a["chi2"], a["dof"])
+
+
 def _auto_priors(source, camera, options, quiet, workers, mask_path, tracker, force):
     """(priors, frames) of --fulcrum-prior auto: a first pass without a prior, its pivot
     epochs and each one's prior (`shaft.prior.epoch_priors`), then `AUTO_PASSES` passes,
@@ -214,6 +256,8 @@ def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter):
               help="Pivot angles (CSV): the pivot plane too.")
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
               help="Shaft diameter [mm]: the 3-D fulcrum too.")
+@click.option("--kinematics", "kinematics_path", type=click.Path(dir_okay=False), default=None, metavar="CSV",
+              help="Robot tool poses: the hand-eye too.")
 @click.option("--right", "right_images", default=None, metavar="IMAGES|LINES",
               help="A stereo pair's right view (frames or lines.json): the fulcrum triangulated.")
 @click.option("--camera-right", "camera_right_path", type=click.Path(dir_okay=False), default=None,
@@ -238,7 +282,8 @@ def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter):
 @force_option
 @quiet_option
 @run
-def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path, shaft_diameter, right_images,
+def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path, shaft_diameter, kinematics_path,
+            right_images,
             camera_right_path, stereo_path, endpoint_sigma, detector, gamma, edge_model, prior_spec, track, instrument_mask,
             mask_labels, mask_instances, mask_path, jsonl_path, overlay_path, max_pixels, workers, output, force, quiet):
     """The fulcrum of an instrument pivoting about its entry port.
@@ -248,9 +293,9 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
       pencilcal fulcrum frames/ --camera cam.yaml --shaft-diameter 8 -o f.json
       pencilcal fulcrum --lines l.json --camera cam.yaml --angles a.csv -o f.json
 
-    Shafts from IMAGES (files, folders or globs in the order given, or a video), --source
-    or --lines. The fulcrum's image and ray with sigmas; with --shaft-diameter its 3-D point
-    [mm]; with --right a stereo pair's. In detail: docs/cli.md.
+    Shafts from IMAGES (files, folders, globs, a video), --source or --lines. The
+    fulcrum's image and ray with sigmas; with --shaft-diameter its 3-D point [mm];
+    with --right a stereo pair's. In detail: docs/cli.md.
     \f
     Every frame's instrument line passes through the fulcrum's image: their robust weighted
     intersection gives the fulcrum's viewing ray and, where the lens model reaches it (a
@@ -308,6 +353,14 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     frame's shafts as they are found and --overlay draws them (the fulcrum is known at the
     end only).
 
+    With --kinematics CSV (and --shaft-diameter: the tool's pose in the robot base per
+    frame, as the dVRK publishes it; docs/formats.md) every frame's shaft axis is paired
+    with the robot's (the tool frame's z axis through its origin), and ``robot`` holds the
+    camera-to-robot transform (hand-eye: R_cam_from_base, t_cam_from_base_mm and the
+    inverse, each with its 6x6 covariance), the remote centre of motion in the base frame
+    (fulcrum_base_mm, its covariance) and whether it agrees, carried into the camera frame,
+    with the camera's own fulcrum within their sigmas (docs/method.md).
+
     Where the fulcrum moved (the arm re-set, the port slipped, the camera moved), a
     change-point test on the lines splits the frames into pivot epochs: ``epoch_test`` says
     where and why, ``epochs`` holds each one's fulcrum (docs/method.md). --fulcrum-prior
@@ -331,6 +384,8 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     """
     if shaft_diameter is not None and not shaft_diameter > 0:
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
+    if kinematics_path is not None and shaft_diameter is None:
+        raise click.UsageError("--kinematics needs --shaft-diameter (the shaft's 3-D axes)")
     if sum(x is not None for x in (images, source_spec, lines_path)) != 1:
         raise click.UsageError("give IMAGES, --source or --lines (one of them)")
     if lines_path is not None and (mask_path is not None or overlay_path is not None or instrument_mask is not None
@@ -347,8 +402,13 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     right_lines = right_images if right_images is not None and _is_lines_file(right_images) else None
     prior_file = prior_spec if prior_spec not in (None, "auto") else None
     check_output(output, force, [lines_path, camera_path, angles_path, mask_path, camera_right_path, stereo_path,
-                                 right_lines, prior_file])
+                                 right_lines, prior_file, kinematics_path])
     camera = read_camera(camera_path, camera_id=camera_id)
+    poses = None
+    if kinematics_path is not None:
+        from pencilcal.toolkit.io.tool_poses import read_tool_poses
+
+        poses = read_tool_poses(kinematics_path)
     priors = None
     if prior_file is not None:
         from pencilcal.toolkit.detect.shaft.prior import read_priors
@@ -407,6 +467,8 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     if rig is not None:
         out["stereo"] = _stereo(res, right_images, camera_right, camera_right_path, rig, options, endpoint_sigma,
                                 given, max_pixels, workers, quiet, force, (camera, frames, shaft_diameter))
+    if poses is not None:
+        out["robot"] = _robot(camera, frames, poses, shaft_diameter, out.get("point"))
     write_json(output, out, force=force)
     off_axis = float(np.degrees(np.arccos(np.clip(out["ray"][2], -1.0, 1.0))))
     if out["vertex_px"] is None:
@@ -433,4 +495,6 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
                            "{:.2f}) +- {:.2f}".format("agree" if a["consistent"] else "DISAGREE", a["chi2"], a["dof"],
                                                        a["p_value"], *st["combined"]["point"],
                                                        st["combined"]["point_sigma"]), err=True)
+        if "robot" in out:
+            click.echo(_robot_line(out["robot"]), err=True)
     done(_summary(out, off_axis, shaft_diameter, len(frames)), output, quiet=quiet)

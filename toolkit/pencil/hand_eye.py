@@ -89,7 +89,10 @@ class HandEye:
     or chi2_dof where that is significantly above 1 (99 %); twin_chi2: the chi2 sum of the
     best transform with the other relative orientation of the lines; twin_by: "fit" (its
     chi2 is far worse) or "sides" (a fan in one plane: decided by the side of the fulcrum
-    the tool origins lie on); gain (N, 6, 4): the transform's first-order change per unit
+    the tool origins lie on); twin_vote: for "sides", the mean over the used frames of +1
+    where the tool origin and the part of the shaft the camera sees lie on the same side of
+    the fulcrum, -1 where not (1: all agree; near 0: the fulcrum is in view and the sides do
+    not decide), else NaN; gain (N, 6, 4): the transform's first-order change per unit
     change of each camera axis's chart coordinates (`fulcrum_agreement`), zero for frames
     left out; kin_cov (N, 4, 4): the kinematics' covariance in each camera axis's chart.
     """
@@ -106,6 +109,7 @@ class HandEye:
     variance_factor: float
     twin_chi2: float
     twin_by: str
+    twin_vote: float
     gain: np.ndarray
     kin_cov: np.ndarray
 
@@ -321,12 +325,12 @@ def hand_eye_from_axes(cam_points, cam_directions, cam_covs, base_points, base_d
         raise fits[0]
     cost = [np.inf if isinstance(f, EstimationError) else float(np.sum(f[2][f[3]])) for f in fits]
     order = np.argsort(cost)
-    twin_by = "fit"
+    twin_by, vote = "fit", float("nan")
     if cost[order[1]] - cost[order[0]] < chi2_isf(1.0 - confidence, 3):
         votes = [-np.inf if isinstance(f, EstimationError) else _side_vote(f[0], f[1], cam_p, cam_d, sides, base_p,
                                                                              f[3]) for f in fits]
         order = np.argsort([-v for v in votes])
-        twin_by = "sides"
+        twin_by, vote = "sides", float(votes[order[0]])
     R, t, c2, use, A, Linv, K = fits[order[0]]
     dof = 4 * int(use.sum()) - 6
     chi2_dof = float(np.sum(c2[use]) / dof) if dof > 0 else float("nan")
@@ -342,7 +346,8 @@ def hand_eye_from_axes(cam_points, cam_directions, cam_covs, base_points, base_d
                    angle_deg=np.degrees(np.arctan2(np.linalg.norm(np.cross(mapped, cam_d), axis=-1),
                                                     np.abs(np.sum(mapped * cam_d, -1)))),
                    offset=np.linalg.norm(charts[:, 2:], axis=-1), inliers=use, dof=dof, chi2_dof=chi2_dof,
-                   variance_factor=factor, twin_chi2=cost[order[1]], twin_by=twin_by, gain=gain, kin_cov=K)
+                   variance_factor=factor, twin_chi2=cost[order[1]], twin_by=twin_by, twin_vote=vote, gain=gain,
+                   kin_cov=K)
 
 
 def robot_fulcrum(base_points, base_directions, sigma_deg=0.0, sigma_mm=0.0):
@@ -494,6 +499,7 @@ class RobotCalibration:
             "rotation_sigma_deg": he.rotation_sigma_deg, "translation_sigma_mm": he.translation_sigma,
             "chi2": float(np.sum(he.chi2[used])), "dof": he.dof, "chi2_dof": he.chi2_dof,
             "variance_factor": he.variance_factor, "twin_chi2": he.twin_chi2, "twin_by": he.twin_by,
+            "twin_vote": None if np.isnan(he.twin_vote) else he.twin_vote,
             "residuals": [{"image": im, "line": int(r), "chi2": float(c), "angle_deg": float(a), "offset_mm": float(o),
                            "used": bool(u)}
                           for im, r, c, a, o, u in zip(self.images, self.rows, he.chi2, he.angle_deg, he.offset, used)],
@@ -505,13 +511,19 @@ class RobotCalibration:
 
 
 def _side_point(camera, edges_raw, point, direction):
-    """The point of an axis nearest the viewing ray through its band's centre (the part of
-    the shaft the camera sees), or None when the lens model cannot undistort the edges."""
-    ideal = np.asarray(camera.undistort_pixels(np.asarray(edges_raw, float).reshape(-1, 2)), float)
+    """The point of an axis nearest the viewing ray through the band's end farther from the
+    image border (the tip's end: the band enters across the border or from the port, and
+    ends where the tool does), or None when the lens model cannot undistort the edges."""
+    e = np.asarray(edges_raw, float).reshape(2, 2, 2)
+    if np.sum((e[0, 0] - e[1, 0]) ** 2) > np.sum((e[0, 0] - e[1, 1]) ** 2):
+        e[1] = e[1, ::-1]                                            # pair each end of one edge with the other's
+    ends = 0.5 * (e[0] + e[1])                                       # (2, 2) the band's two ends [raw px]
+    border = np.minimum.reduce([ends[:, 0], ends[:, 1], camera.width - 1 - ends[:, 0], camera.height - 1 - ends[:, 1]])
+    end = ends[int(np.argmax(border))]
+    ideal = np.asarray(camera.undistort_pixels(end[None]), float).reshape(2)
     if not np.all(np.isfinite(ideal)):
         return None
-    c = ideal.mean(0)
-    ray = normalize(np.linalg.solve(np.asarray(camera.K, float), [c[0], c[1], 1.0]))
+    ray = normalize(np.linalg.solve(np.asarray(camera.K, float), [ideal[0], ideal[1], 1.0]))
     d = normalize(direction)
     b = float(ray @ d)
     den = 1.0 - b * b
