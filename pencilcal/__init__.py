@@ -19,6 +19,8 @@ each):
 `shafts_from_masks` one image and its instrument mask -> [`MaskShaft`]: each masked
                     instrument's axis refined on the image, with where they disagree
 `fulcrum`           the lines of a pivot sequence -> `Fulcrum` (the fulcrum.json record)
+`hand_eye`          a pivot's lines and the robot's tool poses -> `RobotCalibration`
+                    (camera-to-robot transform, remote centre; fulcrum.json's robot)
 `calibrate`         views of a board -> `CalibrationResult` (``.camera``, ``.checks``
                     with the verdict), as `pencilcal calibrate`
 `board_pose`        one image of a board -> `PoseResult` (R_cam_from_target, t, cov)
@@ -61,6 +63,8 @@ _NAMES = {
     "shafts_from_masks": "pencilcal.toolkit.detect.shaft.from_mask",
     "LineFrame": "pencilcal.toolkit.io.lines_file", "read_lines": "pencilcal.toolkit.io.lines_file",
     "Fulcrum": "pencilcal.toolkit.pencil.fulcrum",
+    "RobotCalibration": "pencilcal.toolkit.pencil.hand_eye",
+    "ToolPoses": "pencilcal.toolkit.io.tool_poses", "read_tool_poses": "pencilcal.toolkit.io.tool_poses",
     "CalibrationResult": "pencilcal.toolkit.board.calibrate",
     "Board": "pencilcal.toolkit.board.spec", "read_board": "pencilcal.toolkit.board.spec",
     "Pencil": "pencilcal.toolkit.pencil.spec", "read_pencil": "pencilcal.toolkit.pencil.spec",
@@ -73,9 +77,10 @@ _NAMES = {
 
 __all__ = [
     "__version__", "read_camera", "write_camera", "Camera", "fit_pencil", "orient_segments", "detect_lines",
-    "detect_shafts", "shafts_from_masks", "fulcrum", "calibrate", "board_pose",
+    "detect_shafts", "shafts_from_masks", "fulcrum", "hand_eye", "calibrate", "board_pose",
     # the results and inputs they take and give
-    "PencilFit", "Orientation", "LineFrame", "Shaft", "MaskShaft", "Fulcrum", "CalibrationResult", "PoseResult",
+    "PencilFit", "Orientation", "LineFrame", "Shaft", "MaskShaft", "Fulcrum", "RobotCalibration", "ToolPoses",
+    "read_tool_poses", "CalibrationResult", "PoseResult",
     "Pencil", "read_pencil", "Board", "read_board", "read_lines", "image_angles", "rotation_about_axis",
     "PencilcalError", "InputError", "EstimationError",
 ]
@@ -125,6 +130,41 @@ def detect_lines(image, camera=None, *, bars=False, detector="auto", name="image
     return detect_frame_lines(name, image, camera, detector=detector, bars=bars, **options)
 
 
+def _line_frames(lines):
+    """lines.json frames as records: from a path, or [`LineFrame`] or records."""
+    from pencilcal.toolkit.io.lines_file import LineFrame, read_lines
+
+    if isinstance(lines, (str, bytes)) or hasattr(lines, "__fspath__"):
+        return read_lines(lines)
+    return [f.to_dict() if isinstance(f, LineFrame) else f for f in lines]
+
+
+def hand_eye(lines, camera, kinematics, shaft_diameter, *, tool_axis=(0.0, 0.0, 1.0)):
+    """The camera-to-robot transform and the remote centre of motion of a pivot whose tool
+    poses the robot reports, as `pencilcal fulcrum --kinematics` writes them: a
+    `RobotCalibration` (``.hand_eye.R_cam_from_base``, ``.t_cam_from_base``, ``.cov``;
+    ``.robot``: the centre in the base frame and its covariance; ``.agreement``: with the
+    camera's own fulcrum); ``.to_dict()`` is fulcrum.json's ``robot`` record.
+
+    lines : a lines.json path, or its frames ([`LineFrame`] or records), whose shafts carry
+    their edges' covariance (`detect_shafts`, `pencilcal lines --shaft`); camera : Camera;
+    kinematics : the kinematics CSV's path or `ToolPoses` (docs/formats.md); shaft_diameter
+    : [mm]; tool_axis : the shaft's axis in the tool frame (the dVRK's z).
+    """
+    from pencilcal.toolkit.errors import EstimationError as _Estimation
+    from pencilcal.toolkit.io.tool_poses import ToolPoses, read_tool_poses as _read
+    from pencilcal.toolkit.pencil.fulcrum import fulcrum_point
+    from pencilcal.toolkit.pencil.hand_eye import robot_from_frames
+
+    frames = _line_frames(lines)
+    poses = kinematics if isinstance(kinematics, ToolPoses) else _read(kinematics)
+    try:
+        near = fulcrum_point(camera, frames, shaft_diameter).fit.point
+    except _Estimation:
+        near = None
+    return robot_from_frames(camera, frames, poses, shaft_diameter, tool_axis=tool_axis, near=near)
+
+
 def fulcrum(lines, camera, angles=None, *, endpoint_sigma_px=None, shaft_diameter=None):
     """The fulcrum of a pivoting instrument from the lines of its frames, as a `Fulcrum`,
     with the sigmas `pencilcal fulcrum` writes.
@@ -138,12 +178,7 @@ def fulcrum(lines, camera, angles=None, *, endpoint_sigma_px=None, shaft_diamete
     sigmas are the jackknife's. The result's ``noise`` and ``jackknife`` say what was found
     and its ``warnings`` what to tell the user (`validation.fulcrum_run`).
     """
-    from pencilcal.toolkit.io.lines_file import LineFrame, read_lines
     from pencilcal.validation.fulcrum_run import fulcrum_with_sigmas
 
-    if isinstance(lines, (str, bytes)) or hasattr(lines, "__fspath__"):
-        frames = read_lines(lines)
-    else:
-        frames = [f.to_dict() if isinstance(f, LineFrame) else f for f in lines]
-    return fulcrum_with_sigmas(camera, frames, angles, endpoint_sigma_px=endpoint_sigma_px,
+    return fulcrum_with_sigmas(camera, _line_frames(lines), angles, endpoint_sigma_px=endpoint_sigma_px,
                                shaft_diameter=shaft_diameter)

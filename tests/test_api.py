@@ -14,7 +14,7 @@ BLOCKS = re.findall(r"```python\n(.*?)```", DOC.read_text(), re.S)
 
 def test_the_api_names():
     for name in ("__version__", "read_camera", "write_camera", "Camera", "fit_pencil", "orient_segments",
-                 "detect_lines", "detect_shafts", "fulcrum", "calibrate", "board_pose"):
+                 "detect_lines", "detect_shafts", "fulcrum", "hand_eye", "calibrate", "board_pose"):
         assert hasattr(pencilcal, name), name
     assert set(pencilcal.__all__) <= set(dir(pencilcal))
 
