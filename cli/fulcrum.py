@@ -197,6 +197,21 @@ def _robot(camera, frames, poses, shaft_diameter, point):
     return rec
 
 
+def _epoch_robots(camera, frames, poses, shaft_diameter, epochs):
+    """Each pivot epoch's ``robot`` record (the camera or the arm moved between epochs: each
+    has its own transform), or ``{"ok": false, "error"}`` where its frames do not fix one."""
+    from pencilcal.toolkit.pencil.hand_eye import robot_from_frames
+
+    if len(epochs) < 2:
+        return
+    for ep in epochs:
+        try:
+            ep["robot"] = robot_from_frames(camera, frames[ep["first"]:ep["last"] + 1], poses, shaft_diameter,
+                                            near=ep.get("point"), first=ep["first"]).to_dict()
+        except EstimationError as e:
+            ep["robot"] = {"ok": False, "error": str(e)}
+
+
 def _robot_line(rec):
     """The summary line of the ``robot`` record."""
     a = rec["agreement"]
@@ -359,7 +374,8 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     camera-to-robot transform (hand-eye: R_cam_from_base, t_cam_from_base_mm and the
     inverse, each with its 6x6 covariance), the remote centre of motion in the base frame
     (fulcrum_base_mm, its covariance) and whether it agrees, carried into the camera frame,
-    with the camera's own fulcrum within their sigmas (docs/method.md).
+    with the camera's own fulcrum within their sigmas (docs/method.md); each pivot
+    epoch's in ``epochs`` too.
 
     Where the fulcrum moved (the arm re-set, the port slipped, the camera moved), a
     change-point test on the lines splits the frames into pivot epochs: ``epoch_test`` says
@@ -469,6 +485,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
                                 given, max_pixels, workers, quiet, force, (camera, frames, shaft_diameter))
     if poses is not None:
         out["robot"] = _robot(camera, frames, poses, shaft_diameter, out.get("point"))
+        _epoch_robots(camera, frames, poses, shaft_diameter, epochs)
     write_json(output, out, force=force)
     off_axis = float(np.degrees(np.arccos(np.clip(out["ray"][2], -1.0, 1.0))))
     if out["vertex_px"] is None:

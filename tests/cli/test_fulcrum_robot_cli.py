@@ -176,3 +176,37 @@ def test_simulate_pivot_with_the_fulcrum_in_view(tmp_path):
     e, m2 = errors(rob)
     assert rob["twin_by"] == "sides" and rob["twin_vote"] >= 0.5
     assert m2 < chi2_3sigma(6), (e, m2)
+
+
+def test_each_pivot_epoch_has_its_own_hand_eye(tmp_path):
+    """simulate's pivot whose camera moves between two runs of frames, the robot's base fixed
+    in the scene: each epoch's ``robot`` holds that epoch's transform (within 3 sigma) and the
+    same remote centre in the base."""
+    out = tmp_path / "p"
+    r = invoke("simulate", out, "--scenario", "pivot", "--frames", 16, "--seed", 1, "--epochs", 2,
+               "--shaft-diameter", 8, "-q")
+    assert r.exit_code == 0, r.output
+    truth = json.loads((out / "truth.json").read_text())
+    tip = truth["options"]["tip"]
+    # the base: the target frame turned and shifted (R_TRUE, T_TRUE as target-from-base)
+    rows = [f"frame,x_mm,y_mm,z_mm,{MATRIX}"]
+    for k, fr in enumerate(truth["frames"]):
+        Rc, tc = np.asarray(fr["R_cam_from_target"]), np.asarray(fr["t_cam_from_target"])
+        d_t = Rc.T @ np.asarray(fr["shaft_direction_cam"])
+        tip_t = Rc.T @ (np.asarray(fr["fulcrum_cam"]) + tip * np.asarray(fr["shaft_direction_cam"]) - tc)
+        vals = [*(R_TRUE.T @ (tip_t - T_TRUE)), *tool_rotation(R_TRUE.T @ d_t).ravel()]
+        rows.append(",".join([str(k)] + [f"{v:.12f}" for v in vals]))
+    (tmp_path / "kin.csv").write_text("\n".join(rows) + "\n")
+    r = invoke("fulcrum", out / "images", "--camera", out / "camera.json", "--shaft-diameter", 8, "--kinematics",
+               tmp_path / "kin.csv", "-o", tmp_path / "f.json", "-q")
+    assert r.exit_code == 0, r.output
+    got = json.loads((tmp_path / "f.json").read_text())
+    assert len(got["epochs"]) == 2
+    centre = R_TRUE.T @ (np.asarray(truth["pivot"]["fulcrum_target"]) - T_TRUE)
+    for ep, te in zip(got["epochs"], truth["epochs"]):
+        rob = ep["robot"]
+        Rc, tc = np.asarray(te["R_cam_from_target"]), np.asarray(te["t_cam_from_target"])
+        R, t = Rc @ R_TRUE, Rc @ T_TRUE + tc                                    # cam from base, this epoch
+        e = np.r_[rotvec_from_rotation(R @ np.asarray(rob["R_cam_from_base"]).T), t - rob["t_cam_from_base_mm"]]
+        assert e @ np.linalg.solve(np.asarray(rob["cov_cam_from_base"]), e) < chi2_3sigma(6), e
+        assert np.allclose(rob["fulcrum_base_mm"], centre, atol=1e-3)

@@ -562,7 +562,7 @@ def _frame_axes(camera, frames, index, diameter, near):
     return out, missing
 
 
-def robot_from_frames(camera, frames, poses, diameter, *, tool_axis=(0.0, 0.0, 1.0), near=None,
+def robot_from_frames(camera, frames, poses, diameter, *, tool_axis=(0.0, 0.0, 1.0), near=None, first=0,
                       confidence=GATE_CONFIDENCE):
     """The hand-eye and the remote centre of motion of a pivot with the robot's tool poses.
 
@@ -570,14 +570,16 @@ def robot_from_frames(camera, frames, poses, diameter, *, tool_axis=(0.0, 0.0, 1
     ``edges`` and ``edge_cov`` (`pencilcal lines --shaft`); poses: `io.tool_poses.ToolPoses`
     (matched by image name or frame index); diameter: the shaft's [mm]; tool_axis: the
     shaft's axis in the tool frame (default z); near: (3,) the camera's 3-D fulcrum, to
-    choose the shaft of a frame with several (the one whose axis passes nearest), or None.
+    choose the shaft of a frame with several (the one whose axis passes nearest), or None;
+    first: the sequence index of frames[0] (a pivot epoch's frames, for a file of frame
+    indices).
 
     Per paired frame the shaft's 3-D axis (`cylinder.shaft_axis_record`) and the pose's axis
     go to `hand_eye_from_axes`, the used frames' tool axes to `robot_fulcrum`, and both
     fulcrums to `fulcrum_agreement`. Returns a `RobotCalibration`; EstimationError (naming
     the kinematics file) when the frames do not fix them.
     """
-    index = poses.index([f.get("image") for f in frames])
+    index = poses.index([f.get("image") for f in frames], first)
     if not np.any(index >= 0):
         raise EstimationError(f"{poses.source}: no frame has a tool pose (images named as in the frames, or frame "
                               "indices from 0)")
