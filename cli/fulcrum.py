@@ -134,12 +134,13 @@ def _summary(out, off_axis, shaft_diameter, n_frames):
 
 
 def _stereo(left, right_images, camera_right, camera_right_path, rig, options, endpoint_sigma, given, max_pixels,
-            workers, quiet, force, left_view):
+            workers, quiet, force, left_view, poses=None):
     """fulcrum.json's ``stereo`` record: the right view's fulcrum from its own shafts (a lines
     file's, or detected in its frames), the noise as for the left view, then
     `fulcrum.stereo_fulcrum` with the left's; and ``axes``, the fulcrum of the shafts' axes
     triangulated from both eyes' silhouettes (`stereo_axes.stereo_axes_from_frames`; left_view:
-    (camera, frames, shaft diameter) of the left view)."""
+    (camera, frames, shaft diameter) of the left view); with `poses` (--kinematics) also
+    ``robot``, the hand-eye from those axes (`hand_eye.robot_from_frames`)."""
     frames, (key, where) = _right_frames(right_images, camera_right, options, max_pixels, workers, quiet, force)
 
     def run(sigma):
@@ -163,6 +164,14 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
         rec["axes"] = stereo_axes_from_frames(left_view[0], left_view[1], camera_right, frames, rig, left_view[2])
     except EstimationError as e:
         warn(f"no fulcrum from the stereo axes: {e}")
+    if poses is not None:
+        from pencilcal.toolkit.pencil.hand_eye import robot_from_frames
+
+        try:
+            rec["robot"] = robot_from_frames(left_view[0], left_view[1], poses, left_view[2], stereo=(
+                camera_right, frames, rig), near=rec.get("axes", {}).get("point")).to_dict()
+        except EstimationError as e:
+            warn(f"no hand-eye from the stereo axes: {e}")
     if "agreement" in rec and not rec["agreement"]["consistent"]:
         warn("the diameter-based and the triangulated 3-D fulcrum disagree beyond their sigmas (chi2 {:.1f}, {} dof, "
              "p {:.2g}): check the shaft diameter and the stereo file's unit".format(
@@ -375,7 +384,8 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     inverse, each with its 6x6 covariance), the remote centre of motion in the base frame
     (fulcrum_base_mm, its covariance) and whether it agrees, carried into the camera frame,
     with the camera's own fulcrum within their sigmas (docs/method.md); each pivot
-    epoch's in ``epochs`` too.
+    epoch's in ``epochs`` too; with --right also ``stereo.robot`` from the axes both eyes
+    triangulate.
 
     Where the fulcrum moved (the arm re-set, the port slipped, the camera moved), a
     change-point test on the lines splits the frames into pivot epochs: ``epoch_test`` says
@@ -482,7 +492,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         out["fulcrum_prior"] = prior_spec
     if rig is not None:
         out["stereo"] = _stereo(res, right_images, camera_right, camera_right_path, rig, options, endpoint_sigma,
-                                given, max_pixels, workers, quiet, force, (camera, frames, shaft_diameter))
+                                given, max_pixels, workers, quiet, force, (camera, frames, shaft_diameter), poses)
     if poses is not None:
         out["robot"] = _robot(camera, frames, poses, shaft_diameter, out.get("point"))
         _epoch_robots(camera, frames, poses, shaft_diameter, epochs)
@@ -506,6 +516,8 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
                            "between the eyes in {} frame pairs, radius {:.3f} +- {:.3f}".format(
                                *ax["point"], ax["point_sigma"], ", the rig's covariance in" if ax["rig_used"] else "",
                                ax["axes_used"], ax["axes"], ax["frames"], ax["radius"], ax["radius_sigma"]), err=True)
+            if "robot" in st:
+                click.echo("stereo axes' " + _robot_line(st["robot"]), err=True)
             if "agreement" in st:
                 a = st["agreement"]
                 click.echo("diameter and stereo {}: chi2 {:.2f} ({} dof, p {:.3f}); combined ({:.2f}, {:.2f}, "

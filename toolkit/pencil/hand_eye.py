@@ -533,28 +533,52 @@ def _side_point(camera, edges_raw, point, direction):
     return point + d * (b * s - float(d @ point))
 
 
-def _frame_axes(camera, frames, index, diameter, near):
-    """Per paired frame (axis record, side point, its pose row): the frame's shaft whose 3-D
-    axis passes nearest `near` (the camera's fulcrum, or None: the first), and the count of
-    frames with a pose and no such shaft."""
-    out, missing = [], 0
-    for fr, k in zip(frames, index):
-        if k < 0:
-            continue
-        best = None
+def _mono_candidates(camera, frames, diameter):
+    """{frame index: [(axis record, raw edges)]}: each frame's shafts' 3-D axes from one view
+    (`cylinder.shaft_axis_record`)."""
+    out = {}
+    for i, fr in enumerate(frames):
         for sh in (fr.get("shafts") or []) if fr.get("ok", True) else []:
             if sh.get("edges") is None or sh.get("edge_cov") is None:
                 continue
             try:
-                ax = shaft_axis_record(camera, sh["edges"], sh["edge_cov"], diameter)
+                out.setdefault(i, []).append((shaft_axis_record(camera, sh["edges"], sh["edge_cov"], diameter),
+                                              sh["edges"]))
             except (EstimationError, InputError):
                 continue
-            p, d = np.asarray(ax["axis_point"]), np.asarray(ax["axis_direction"])
+    return out
+
+
+def _stereo_candidates(camera, frames, stereo, diameter):
+    """{frame index: [(axis record, left raw edges)]}: each frame's shafts matched between
+    the eyes, their axes from both (`stereo_axes.matched_axes`; left camera frame)."""
+    from pencilcal.toolkit.pencil.stereo_axes import matched_axes
+
+    camera_right, frames_right, rig = stereo
+    axes, owners, _ = matched_axes(camera, frames, camera_right, frames_right, rig, diameter)
+    out = {}
+    for ax, o in zip(axes, owners):
+        rec = {"axis_point": ax.axis_point, "axis_direction": ax.axis_direction, "axis_cov": ax.axis_cov}
+        out.setdefault(o["frame"], []).append((rec, frames[o["frame"]]["shafts"][o["left_shaft"]]["edges"]))
+    return out
+
+
+def _frame_axes(camera, frames, index, candidates, near):
+    """Per paired frame (image, axis record, side point, its pose row): of the frame's
+    candidate axes the one that passes nearest `near` (the camera's fulcrum, or None: the
+    first), and the count of frames with a pose and no such axis."""
+    out, missing = [], 0
+    for i, (fr, k) in enumerate(zip(frames, index)):
+        if k < 0:
+            continue
+        best = None
+        for ax, edges in candidates.get(i, ()):
+            p, d = np.asarray(ax["axis_point"], float), np.asarray(ax["axis_direction"], float)
             dist = 0.0 if near is None else float(np.linalg.norm(np.cross(np.asarray(near) - p, d)))
             if best is None or dist < best[0]:
-                best = (dist, ax, sh["edges"])
-        side = None if best is None else _side_point(camera, best[2], np.asarray(best[1]["axis_point"]),
-                                                      np.asarray(best[1]["axis_direction"]))
+                best = (dist, ax, edges)
+        side = None if best is None else _side_point(camera, best[2], np.asarray(best[1]["axis_point"], float),
+                                                      np.asarray(best[1]["axis_direction"], float))
         if best is None or side is None:
             missing += 1
             continue
@@ -563,7 +587,7 @@ def _frame_axes(camera, frames, index, diameter, near):
 
 
 def robot_from_frames(camera, frames, poses, diameter, *, tool_axis=(0.0, 0.0, 1.0), near=None, first=0,
-                      confidence=GATE_CONFIDENCE):
+                      stereo=None, confidence=GATE_CONFIDENCE):
     """The hand-eye and the remote centre of motion of a pivot with the robot's tool poses.
 
     camera: the `Camera` of the frames; frames: lines.json frames whose shafts carry
@@ -572,7 +596,10 @@ def robot_from_frames(camera, frames, poses, diameter, *, tool_axis=(0.0, 0.0, 1
     shaft's axis in the tool frame (default z); near: (3,) the camera's 3-D fulcrum, to
     choose the shaft of a frame with several (the one whose axis passes nearest), or None;
     first: the sequence index of frames[0] (a pivot epoch's frames, for a file of frame
-    indices).
+    indices); stereo: (camera_right, frames_right, `camera.stereo.StereoRig`) or None: then
+    the axes are triangulated from both eyes' silhouettes (`stereo_axes.matched_axes`, the
+    diameter a prior on the radius; the rig's error is not in their covariance), in the left
+    camera frame.
 
     Per paired frame the shaft's 3-D axis (`cylinder.shaft_axis_record`) and the pose's axis
     go to `hand_eye_from_axes`, the used frames' tool axes to `robot_fulcrum`, and both
@@ -583,7 +610,9 @@ def robot_from_frames(camera, frames, poses, diameter, *, tool_axis=(0.0, 0.0, 1
     if not np.any(index >= 0):
         raise EstimationError(f"{poses.source}: no frame has a tool pose (images named as in the frames, or frame "
                               "indices from 0)")
-    paired, missing = _frame_axes(camera, frames, index, diameter, near)
+    candidates = (_mono_candidates(camera, frames, diameter) if stereo is None
+                  else _stereo_candidates(camera, frames, stereo, diameter))
+    paired, missing = _frame_axes(camera, frames, index, candidates, near)
     no_pose = sum(1 for f, k in zip(frames, index) if k < 0 and f.get("shafts"))
     rows = np.array([k for *_, k in paired], int)
     base_p, base_d = poses.axes(tool_axis)

@@ -55,7 +55,8 @@ from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, axis_frame, fulcrum_3d, project_cylinder,
                                                silhouette_planes)
 
-__all__ = ["StereoAxis", "AxesFulcrum", "stereo_axis", "match_shafts", "stereo_fulcrum_axes", "stereo_axes_from_frames"]
+__all__ = ["StereoAxis", "AxesFulcrum", "stereo_axis", "match_shafts", "stereo_fulcrum_axes", "stereo_axes_from_frames",
+           "matched_axes"]
 
 _STEP = 1e-6  # central-difference step of the Jacobians (chart units, mm, rad)
 
@@ -366,15 +367,17 @@ def _frame_pairs(frames_left, frames_right):
 
 
 def _measured(camera, frame):
-    """(edges (2, 4) [undistorted px], edge_cov (2, 2, 2)) of a frame's shafts that carry them."""
-    out = []
-    for sh in frame.get("shafts") or []:
+    """[(edges (2, 4) [undistorted px], edge_cov (2, 2, 2))] of a frame's shafts that carry
+    them, and the index of each in the frame's shafts."""
+    out, index = [], []
+    for k, sh in enumerate(frame.get("shafts") or []):
         if sh.get("edges") is None or sh.get("edge_cov") is None:
             continue
         e = np.asarray(camera.undistort_pixels(np.asarray(sh["edges"], float).reshape(-1, 2)), float).reshape(2, 4)
         if np.all(np.isfinite(e)):
             out.append((e, np.asarray(sh["edge_cov"], float).reshape(2, 2, 2)))
-    return out
+            index.append(k)
+    return out, index
 
 
 def stereo_axes_from_frames(camera_left, frames_left, camera_right, frames_right, rig, diameter=None):
@@ -392,26 +395,39 @@ def stereo_axes_from_frames(camera_left, frames_left, camera_right, frames_right
     and radius_sigma (the matched axes' weighted mean). EstimationError with fewer than two
     matched axes.
     """
-    R, t = rig.R_right_from_left, rig.t_right_from_left
-    Kl, Kr = np.asarray(camera_left.K, float), np.asarray(camera_right.K, float)
-    prior = {} if diameter is None else {"radius": 0.5 * float(diameter)}
-    axes, owners = [], []
-    pairs = _frame_pairs(frames_left, frames_right)
-    for i, j in pairs:
-        got = match_shafts(Kl, _measured(camera_left, frames_left[i]), Kr, _measured(camera_right, frames_right[j]),
-                           R, t, **prior)
-        for a, b, ax in got:
-            axes.append(ax)
-            owners.append({"image": frames_left[i].get("image"), "left": a, "right": b})
+    axes, owners, pairs = matched_axes(camera_left, frames_left, camera_right, frames_right, rig, diameter)
+    owners = [{k: o[k] for k in ("image", "left", "right")} for o in owners]
     if len(axes) < 2:
-        raise EstimationError(f"fewer than two shafts matched between the eyes ({len(axes)} in {len(pairs)} frame "
+        raise EstimationError(f"fewer than two shafts matched between the eyes ({len(axes)} in {pairs} frame "
                               "pairs): check the stereo file and that both views' shafts were measured")
     res = stereo_fulcrum_axes(axes, rig.cov)
     r = np.array([a.radius for a in axes])
     w = 1.0 / np.maximum(np.array([a.radius_sigma for a in axes]) ** 2, 1e-300)
     inl = np.asarray(res.fit.inliers, bool)
     return {"point": np.asarray(res.point, float).tolist(), "point_cov": np.asarray(res.point_cov, float).tolist(),
-            "point_sigma": float(res.point_sigma), "rig_used": bool(res.rig_used), "frames": len(pairs),
+            "point_sigma": float(res.point_sigma), "rig_used": bool(res.rig_used), "frames": pairs,
             "axes": len(axes), "axes_used": int(inl.sum()),
             "outliers": [o for o, k in zip(owners, inl) if not k],
             "radius": float(np.sum(w * r) / np.sum(w)), "radius_sigma": float(np.sqrt(1.0 / np.sum(w)))}
+
+
+def matched_axes(camera_left, frames_left, camera_right, frames_right, rig, diameter=None):
+    """(axes, owners, frame pairs): every frame's shafts matched between the eyes
+    (`match_shafts`) and their `StereoAxis` (left camera frame; with the diameter a prior on
+    the radius, 1e-3 of it); owners: per axis {"image", "frame" (the left frame's index),
+    "left", "right" (the matched shafts' indices among those with edges and edge_cov, as
+    ``stereo.axes.outliers`` names them), "left_shaft" (its index in the left frame's
+    shafts)}; frame pairs: how many. Arguments as
+    `stereo_axes_from_frames`'s."""
+    R, t = rig.R_right_from_left, rig.t_right_from_left
+    Kl, Kr = np.asarray(camera_left.K, float), np.asarray(camera_right.K, float)
+    prior = {} if diameter is None else {"radius": 0.5 * float(diameter)}
+    axes, owners = [], []
+    pairs = _frame_pairs(frames_left, frames_right)
+    for i, j in pairs:
+        (left, at), (right, _) = _measured(camera_left, frames_left[i]), _measured(camera_right, frames_right[j])
+        for a, b, ax in match_shafts(Kl, left, Kr, right, R, t, **prior):
+            axes.append(ax)
+            owners.append({"image": frames_left[i].get("image"), "frame": i, "left": a, "right": b,
+                           "left_shaft": at[a]})
+    return axes, owners, len(pairs)
