@@ -55,6 +55,7 @@ def errors(rec):
     return e, float(e @ np.linalg.solve(np.asarray(rec["cov_cam_from_base"]), e))
 
 
+@pytest.mark.slow
 def test_rendered_port_view_pivot_gives_the_hand_eye(tmp_path):
     """Rendered frames (simulate's pivot in its port view: 8 mm shaft 60-150 mm away, the
     port off the image, noise and blur) with exact tool poses in metres and quaternions: the
@@ -157,6 +158,7 @@ def test_faults_at_the_boundary(tmp_path):
     assert r.exit_code != 0 and "kin.csv" in r.output
 
 
+@pytest.mark.slow
 def test_simulate_pivot_with_the_fulcrum_in_view(tmp_path):
     """simulate's pivot (a planar fan, the fulcrum in view, the shaft 60 mm past it to the
     tip and 300 mm behind it across the image): the mirror solution is decided by the band's
@@ -178,6 +180,7 @@ def test_simulate_pivot_with_the_fulcrum_in_view(tmp_path):
     assert m2 < chi2_3sigma(6), (e, m2)
 
 
+@pytest.mark.slow
 def test_each_pivot_epoch_has_its_own_hand_eye(tmp_path):
     """simulate's pivot whose camera moves between two runs of frames, the robot's base fixed
     in the scene: each epoch's ``robot`` holds that epoch's transform (within 3 sigma) and the
@@ -212,6 +215,7 @@ def test_each_pivot_epoch_has_its_own_hand_eye(tmp_path):
         assert np.allclose(rob["fulcrum_base_mm"], centre, atol=1e-3)
 
 
+@pytest.mark.slow
 def test_stereo_axes_give_a_surer_hand_eye(tmp_path):
     """The rendered stereo pivot of test_fulcrum_stereo_cli (10 frames, a 10 mm baseline)
     with exact tool poses: ``stereo.robot``, from the axes both eyes triangulate, holds the

@@ -88,6 +88,7 @@ def test_a_fan_in_one_plane_is_decided_by_the_side_of_the_tip():
     assert np.allclose(he.R_cam_from_base, R_TRUE, atol=1e-8) and np.allclose(he.t_cam_from_base, T_TRUE, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_monte_carlo_coverage_of_the_transform_and_the_agreement():
     ax, D = detector_axes()
     bp, bd = base_lines(D)
@@ -105,6 +106,7 @@ def test_monte_carlo_coverage_of_the_transform_and_the_agreement():
     assert 0.60 <= cover3 <= 0.76, cover3
 
 
+@pytest.mark.slow
 def test_monte_carlo_with_the_kinematics_noise():
     ax, D = detector_axes()
     bp0, bd0 = base_lines(D)
