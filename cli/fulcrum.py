@@ -377,9 +377,9 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     frame's shafts as they are found and --overlay draws them (the fulcrum is known at the
     end only).
 
-    With --kinematics CSV (and --shaft-diameter: the tool's pose in the robot base per
-    frame, as the dVRK publishes it; docs/formats.md) every frame's shaft axis is paired
-    with the robot's (the tool frame's z axis through its origin), and ``robot`` holds the
+    With --kinematics CSV, the tool's pose in the robot base per frame as the dVRK
+    publishes it (docs/formats.md; with --shaft-diameter), every frame's shaft axis is
+    paired with the robot's (the tool frame's z axis through its origin), and ``robot`` holds the
     camera-to-robot transform (hand-eye: R_cam_from_base, t_cam_from_base_mm and the
     inverse, each with its 6x6 covariance), the remote centre of motion in the base frame
     (fulcrum_base_mm, its covariance) and whether it agrees, carried into the camera frame,
