@@ -126,6 +126,17 @@ def test_lines_file_cone_pivot_with_a_frame_index_file(tmp_path):
     assert m2 < chi2_3sigma(6), (e, m2)
     assert rob["twin_by"] == "fit" and rob["frames_paired"] == 16 and len(rob["residuals"]) == 16
     assert rob["agreement"]["consistent"]
+    # the kinematics' own sigmas: the remote centre weighted by them, and the transform wider
+    lines = text.splitlines()
+    (tmp_path / "kin2.csv").write_text("\n".join([lines[0] + ",sigma_deg,sigma_mm"]
+                                                 + [ln + ",0.1,0.3" for ln in lines[1:]]) + "\n")
+    r = invoke("fulcrum", "--lines", tmp_path / "lines.json", "--camera", tmp_path / "cam.json", "--shaft-diameter",
+               2 * RADIUS, "--kinematics", tmp_path / "kin2.csv", "-o", tmp_path / "g.json", "-q")
+    assert r.exit_code == 0, r.output
+    noisy = json.loads((tmp_path / "g.json").read_text())["robot"]
+    assert noisy["fulcrum_base_cov_from"] == "sigmas" and noisy["fulcrum_base_sigma_mm"] > 0.1
+    assert noisy["translation_sigma_mm"] > rob["translation_sigma_mm"]
+    assert errors(noisy)[1] < chi2_3sigma(6)
 
 
 @pytest.mark.parametrize("rows, message", [
