@@ -56,7 +56,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pencilcal.toolkit.errors import EstimationError, InputError
-from pencilcal.toolkit.geometry.frames import normalize, rotation_from_rotvec, skew
+from pencilcal.toolkit.geometry.frames import normalize, rotation_from_rotvec, rotvec_from_rotation, skew
 from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
 from pencilcal.toolkit.pencil.cylinder import GATE_CONFIDENCE, SHARED_FLOOR, axis_chart, axis_frame, fulcrum_3d, shaft_axis_record
 
@@ -470,7 +470,8 @@ class RobotCalibration:
     (N,) the frames paired (an axis and a pose); rows: (N,) their kinematics file lines;
     source: the kinematics file; tool_axis: (3,) the shaft's axis in the tool frame;
     unpaired: frames with a pose but no shaft axis; no_pose: frames with an axis-bearing
-    shaft but no pose.
+    shaft but no pose; lens_cov: (6, 6) the intrinsics' term of the transform's covariance
+    (`robot_from_frames`), or None.
     """
 
     hand_eye: HandEye
@@ -482,6 +483,7 @@ class RobotCalibration:
     tool_axis: np.ndarray
     unpaired: int
     no_pose: int
+    lens_cov: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         """fulcrum.json's ``robot`` record (docs/formats.md)."""
@@ -507,7 +509,17 @@ class RobotCalibration:
             "fulcrum_base_sigma_mm": float(np.sqrt(np.trace(cov))), "fulcrum_base_cov_from": how,
             "fulcrum_base_rms_distance_mm": float(np.sqrt(np.mean(dist ** 2))),
             "agreement": self.agreement,
+            **self._totals(),
         }
+
+    def _totals(self):
+        """cov_cam_from_base_total (the intrinsics' term added), its sigmas, intrinsics_used."""
+        if self.lens_cov is None:
+            return {"intrinsics_used": False}
+        total = self.hand_eye.cov + self.lens_cov
+        return {"intrinsics_used": True, "cov_cam_from_base_total": total.tolist(),
+                "rotation_sigma_total_deg": float(np.degrees(np.sqrt(np.trace(total[:3, :3])))),
+                "translation_sigma_total_mm": float(np.sqrt(np.trace(total[3:, 3:])))}
 
 
 def _side_point(camera, edges_raw, point, direction):
@@ -543,7 +555,7 @@ def _mono_candidates(camera, frames, diameter):
                 continue
             try:
                 out.setdefault(i, []).append((shaft_axis_record(camera, sh["edges"], sh["edge_cov"], diameter),
-                                              sh["edges"]))
+                                              sh["edges"], sh["edge_cov"]))
             except (EstimationError, InputError):
                 continue
     return out
@@ -559,12 +571,12 @@ def _stereo_candidates(camera, frames, stereo, diameter):
     out = {}
     for ax, o in zip(axes, owners):
         rec = {"axis_point": ax.axis_point, "axis_direction": ax.axis_direction, "axis_cov": ax.axis_cov}
-        out.setdefault(o["frame"], []).append((rec, frames[o["frame"]]["shafts"][o["left_shaft"]]["edges"]))
+        out.setdefault(o["frame"], []).append((rec, frames[o["frame"]]["shafts"][o["left_shaft"]]["edges"], None))
     return out
 
 
 def _frame_axes(camera, frames, index, candidates, near):
-    """Per paired frame (image, axis record, side point, its pose row): of the frame's
+    """Per paired frame (image, axis record, side point, its pose row, (edges, edge_cov)): of the frame's
     candidate axes the one that passes nearest `near` (the camera's fulcrum, or None: the
     first), and the count of frames with a pose and no such axis."""
     out, missing = [], 0
@@ -572,22 +584,59 @@ def _frame_axes(camera, frames, index, candidates, near):
         if k < 0:
             continue
         best = None
-        for ax, edges in candidates.get(i, ()):
+        for ax, edges, edge_cov in candidates.get(i, ()):
             p, d = np.asarray(ax["axis_point"], float), np.asarray(ax["axis_direction"], float)
             dist = 0.0 if near is None else float(np.linalg.norm(np.cross(np.asarray(near) - p, d)))
             if best is None or dist < best[0]:
-                best = (dist, ax, edges)
+                best = (dist, ax, edges, edge_cov)
         side = None if best is None else _side_point(camera, best[2], np.asarray(best[1]["axis_point"], float),
                                                       np.asarray(best[1]["axis_direction"], float))
         if best is None or side is None:
             missing += 1
             continue
-        out.append((fr.get("image"), best[1], side, int(k)))
+        out.append((fr.get("image"), best[1], side, int(k), (best[2], best[3])))
     return out, missing
 
 
+def _lens_cov(camera, C, he, measured, diameter, base_p, base_d, kin):
+    """(6, 6) the intrinsics' term of the transform's covariance, or None: every intrinsic
+    parameter with a variance stepped by 1e-3 of its sigma either way
+    (`lens_uncertainty.perturbed_cameras`), each used frame's axis found again through the
+    stepped lens and the transform refitted to them from the estimate with the same
+    weights and frames; the central differences G (6, P) give ``G C G^T``. One lens for
+    every frame: its error moves all the axes together, so this term does not shrink with
+    more frames. measured: per paired frame (edges [raw px], edge_cov)."""
+    from pencilcal.toolkit.camera.intrinsics import propagate
+    from pencilcal.toolkit.pencil.lens_uncertainty import intrinsics_steps, perturbed_cameras
+
+    steps = intrinsics_steps(C)
+    use = np.asarray(he.inliers)
+    if not steps:
+        return None
+
+    def transform(cam):
+        axes = [shaft_axis_record(cam, e, c, diameter) for e, c in measured]
+        cp = np.array([a["axis_point"] for a in axes], float)
+        cd = normalize(np.array([a["axis_direction"] for a in axes], float))
+        cc = np.array([a["axis_cov"] for a in axes], float)
+        lines = (cp, cd, axis_frame(cp, cd), base_p, base_d)
+        K, _ = _kin_cov(he.R_cam_from_base, he.t_cam_from_base, *lines, *kin)
+        Linv = np.linalg.inv(np.linalg.cholesky(cc + K))
+        return _gauss_newton(he.R_cam_from_base, he.t_cam_from_base, lines, Linv, use)[:2]
+
+    G = np.zeros((6, C.shape[0]))
+    try:
+        for j, h, plus, minus in perturbed_cameras(camera, steps):
+            (Rp, tp), (Rm, tm) = transform(plus), transform(minus)
+            G[:3, j] = rotvec_from_rotation(Rp @ Rm.T) / (2.0 * h)
+            G[3:, j] = (tp - tm) / (2.0 * h)
+    except (EstimationError, InputError, np.linalg.LinAlgError):
+        return None
+    return propagate(G, C)
+
+
 def robot_from_frames(camera, frames, poses, diameter, *, tool_axis=(0.0, 0.0, 1.0), near=None, first=0,
-                      stereo=None, confidence=GATE_CONFIDENCE):
+                      stereo=None, intrinsics_cov="camera", confidence=GATE_CONFIDENCE):
     """The hand-eye and the remote centre of motion of a pivot with the robot's tool poses.
 
     camera: the `Camera` of the frames; frames: lines.json frames whose shafts carry
@@ -599,7 +648,9 @@ def robot_from_frames(camera, frames, poses, diameter, *, tool_axis=(0.0, 0.0, 1
     indices); stereo: (camera_right, frames_right, `camera.stereo.StereoRig`) or None: then
     the axes are triangulated from both eyes' silhouettes (`stereo_axes.matched_axes`, the
     diameter a prior on the radius; the rig's error is not in their covariance), in the left
-    camera frame.
+    camera frame; intrinsics_cov: as `fulcrum.fulcrum_from_frames` ("camera": the camera
+    file's, if it carries one): then, for one view, also the transform's intrinsics term
+    (`RobotCalibration.lens_cov`).
 
     Per paired frame the shaft's 3-D axis (`cylinder.shaft_axis_record`) and the pose's axis
     go to `hand_eye_from_axes`, the used frames' tool axes to `robot_fulcrum`, and both
@@ -614,13 +665,13 @@ def robot_from_frames(camera, frames, poses, diameter, *, tool_axis=(0.0, 0.0, 1
                   else _stereo_candidates(camera, frames, stereo, diameter))
     paired, missing = _frame_axes(camera, frames, index, candidates, near)
     no_pose = sum(1 for f, k in zip(frames, index) if k < 0 and f.get("shafts"))
-    rows = np.array([k for *_, k in paired], int)
+    rows = np.array([p[3] for p in paired], int)
     base_p, base_d = poses.axes(tool_axis)
     base_p, base_d = base_p[rows] if len(rows) else base_p[:0], base_d[rows] if len(rows) else base_d[:0]
     sd, sm = poses.sigma_deg[rows] if len(rows) else 0.0, poses.sigma_mm[rows] if len(rows) else 0.0
-    cam = [np.array([a[k] for _, a, _, _ in paired], float).reshape(-1, *s)
+    cam = [np.array([a[k] for _, a, *_ in paired], float).reshape(-1, *s)
            for k, s in (("axis_point", (3,)), ("axis_direction", (3,)), ("axis_cov", (4, 4)))]
-    sides = np.array([s for _, _, s, _ in paired], float).reshape(-1, 3)
+    sides = np.array([s for _, _, s, *_ in paired], float).reshape(-1, 3)
     try:
         he = hand_eye_from_axes(*cam, base_p, base_d, sigma_deg=sd, sigma_mm=sm, cam_sides=sides,
                                 confidence=confidence)
@@ -630,6 +681,14 @@ def robot_from_frames(camera, frames, poses, diameter, *, tool_axis=(0.0, 0.0, 1
         agreement = fulcrum_agreement(he, *cam, base_p, base_d, robot, sd, sm, confidence)
     except EstimationError as e:
         raise EstimationError(f"{poses.source}: {e}") from None
+    from pencilcal.toolkit.pencil.lens_uncertainty import resolve_intrinsics_cov
+
+    C = resolve_intrinsics_cov(camera, intrinsics_cov)
+    lens = None
+    if C is not None and stereo is None:
+        kin = (np.broadcast_to(np.radians(np.asarray(sd, float)), (len(rows),)),
+               np.broadcast_to(np.asarray(sm, float), (len(rows),)))
+        lens = _lens_cov(camera, C, he, [p[4] for p in paired], diameter, base_p, base_d, kin)
     return RobotCalibration(hand_eye=he, robot=robot, agreement=agreement, images=[im for im, *_ in paired],
                             rows=[int(poses.rows[k]) for k in rows], source=poses.source,
-                            tool_axis=normalize(tool_axis), unpaired=missing, no_pose=no_pose)
+                            tool_axis=normalize(tool_axis), unpaired=missing, no_pose=no_pose, lens_cov=lens)
