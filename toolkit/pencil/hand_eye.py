@@ -23,8 +23,8 @@ For a pure pivot every axis passes the fulcrum: the rotation comes from the dire
 the translation from the fulcrum itself, so the directions must spread
 (`MIN_AXIS_SPREAD_DEG`) and three frames are the fewest (`MIN_FRAMES`). A fan in one plane
 is symmetric under a half turn about the plane's normal through the fulcrum: the two
-solutions fit alike and the side of the fulcrum the tool origin lies on (the tip, inside)
-against the side the camera sees the shaft on decides between them.
+solutions fit alike, and the side of the fulcrum the tool origin (the tip) lies on against
+the side of the band's end where the tool ends in the image decides between them.
 
 The remote centre of motion in the base frame is the point nearest the base frame's axes
 (`cylinder.fulcrum_3d`, weighted by the kinematics' sigmas, or by the scatter of the axes
@@ -297,8 +297,9 @@ def hand_eye_from_axes(cam_points, cam_directions, cam_covs, base_points, base_d
         shaft's axis there (either sign: lines).
     sigma_deg, sigma_mm: scalars or (N,): the kinematics' isotropic error of each axis,
         angle [deg] and offset [mm] at the tool origin (0: exact).
-    cam_sides: (N, 3) a point of each camera axis on the part of the shaft the camera sees,
-        for the twin of a fan in one plane (module docstring); default cam_points.
+    cam_sides: (N, 3) a point of each camera axis on the tip's side of the fulcrum
+        (`robot_from_frames`: where the band ends in the image, away from its border), for
+        the twin of a fan in one plane (module docstring); default cam_points.
     confidence: of the chi2 gate on the frames (4 dof).
 
     Returns a `HandEye`. EstimationError with fewer than `MIN_FRAMES` frames, axes all
