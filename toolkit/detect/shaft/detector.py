@@ -453,7 +453,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         found = _by_edges(image, camera, valid_region, o, K)
     found = [s for s in found if s is not None]
     if pixel_evidence is not None and np.ndim(image) == 3 and found:
-        ev = shaft_pixel_evidence(image, found, camera, valid_region)
+        ev = shaft_pixel_evidence(image, found, camera, validity=validity)
         found = [s for s, e in zip(found, ev) if e >= pixel_evidence]
     if not priors:
         return with_limbs(image, camera, found, o.edge_model, o.gamma, K)
