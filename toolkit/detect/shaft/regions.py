@@ -171,7 +171,8 @@ def material_map(work):
     pm = float(np.median(pv))
     # the frame has a colour when the dominant one stands out of the noise of a projection
     # (a grey frame, or a colour frame of a grey scene, has none)
-    luma_noise = estimate_noise(work.luma)
+    # an 8-bit frame's luma holds whole levels: its noise from a histogram, exactly
+    luma_noise = estimate_noise(work.luma.astype(np.uint8) if work.bgr.dtype == np.uint8 else work.luma)
     noise = np.sqrt(2.0) * luma_noise / (3.0 * (1.0 + DARK_DAMPING) * y_med)
     informative = bool(work.bgr.ndim == 3 and pm > Z_999 * max(noise, 1e-6))
     # a scene that is almost grey itself: the scale stays >= 3 x the robust spread of p, so
