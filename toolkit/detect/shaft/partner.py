@@ -242,7 +242,7 @@ def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SE
     order = np.argsort(-(seeds.hi - seeds.lo))[:max_seeds]
     tan_max = float(np.tan(np.radians(conv_max_deg)))
     t = np.arange(-0.5 * wmax - 3.0, 1.5 * wmax + 3.0 + _STEP_PX, _STEP_PX)
-    img = work.bgr.astype(np.float32).reshape(work.shape + (-1,))
+    img = work.colours
     P_, U_, LO, HI, maps, I, J, W = [], [], [], [], [], [], [], []
     for k in order:
         p, u, lo, hi = seeds.p[k], seeds.u[k], float(seeds.lo[k]), float(seeds.hi[k])

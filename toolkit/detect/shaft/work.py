@@ -201,6 +201,15 @@ class WorkFrame:
         self.valid = self.dist >= 0
 
     @property
+    def colours(self):
+        """The copy as float32 (h, w, C) (C = 1 for a grey one), made once: the stages that
+        sample it share it (read-only)."""
+        if getattr(self, "_colours", None) is None:
+            self._colours = self.bgr.astype(np.float32).reshape(self.shape + (-1,))
+            self._colours.flags.writeable = False
+        return self._colours
+
+    @property
     def mean_scale(self):
         """Work px per ideal px (the mean of the two axes' scales, which differ by < 1 %)."""
         return float(np.mean(self.scale))
