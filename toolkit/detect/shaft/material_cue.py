@@ -327,8 +327,9 @@ def material_cue(image, camera, validity, work, mm, o, K, noise):
     corridor = max(o.corridor_px, 1.5 / s)
     bands = _bands(work, mm, o, wmin, wmax, min_len)
     stretches = [band_stretch(e, mm.luma_noise) for e in bands]
-    fimg = np.ascontiguousarray(image, dtype=np.float32) if bands else image  # sampled pass after pass
-    fitted = _band_edges(fimg, camera, validity, noise, bands, work, corridor, stretches, _MATERIAL_GAMMA)
+    # the frame as it is: each pass converts only the part its samples need (a third of a
+    # 1080p frame over all passes, the median pass a tenth), not the whole frame once
+    fitted = _band_edges(image, camera, validity, noise, bands, work, corridor, stretches, _MATERIAL_GAMMA)
     judged = [judge_band(e, st, f, camera, validity, o, K, s, corridor, long_len)
               for e, st, f in zip(bands, stretches, fitted)]
     return [sh for sh, _ in judged if sh is not None]
