@@ -10,9 +10,9 @@ of the map over the middle 60 % of its width, `STATIONS` x `ACROSS` samples alon
 midline, and a detection with less than `MIN_PIXEL_EVIDENCE` is dropped
 (`detector.detect_shafts`' ``pixel_evidence``). The map is that of the work frame
 (`pixels.WORK_PX` = 320 px on its longer side), evaluated only at the pixels the samples
-read (`pixel_evidence`; the same values as the whole map's, `band_evidence`): about 5 ms of
-CPU a 1080p frame, most of it the reduced copy and the frame's medians (15 ms for the whole
-map; docs/performance.md).
+read (`pixel_evidence`; the same values as the whole map's, `band_evidence`): about 6 ms of
+CPU a 1080p frame, most of it the reduced copy and the frame's medians (21 ms for the whole
+map in the same conditions; docs/performance.md).
 
 How `MIN_PIXEL_EVIDENCE` was chosen (leave one source out, every threshold chosen on the
 sources other than the one scored) and what it gives: docs/method.md, pixel evidence.
