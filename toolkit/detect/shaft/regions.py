@@ -152,9 +152,9 @@ def material_map(work):
     valid = work.valid & (work.dist > 1.0)
     if np.count_nonzero(valid) < 100:
         valid = np.ones(work.shape, bool)
-    F = work.bgr.astype(np.float32)
-    if F.ndim == 2:
-        F = np.repeat(F[..., None], 3, -1)
+    F = work.colours  # (h, w, C) float32, shared with the later stages
+    if F.shape[-1] == 1:
+        F = np.repeat(F, 3, -1)
     B, G, R = F[..., 0], F[..., 1], F[..., 2]
     iv = np.flatnonzero(valid.ravel())
     iv = iv[::max(1, iv.size // _SAMPLES)]
