@@ -257,24 +257,43 @@ def _tls(M):
     return np.stack([cx, cy], -1), np.stack([np.cos(th), np.sin(th)], -1)
 
 
-def _contour_sides(c, seg_min):
-    """Index ranges (a, b) (K,) of the Douglas-Peucker sides of one closed contour c (N, 1,
-    2) at least seg_min points long (b may run past N: the contour wraps)."""
+def _contour_sides(contours, seg_min):
+    """The Douglas-Peucker sides of closed contours (each (N, 1, 2)) at least seg_min points
+    long: (kept contours, a, b), the contours that have any, and per side (K,) its index
+    range [a, b) in the kept contours laid out twice in a row each (b may run past its
+    contour's end: it wraps). A polygon vertex is the first contour point at its position;
+    every contour's vertices are found by one sort of all their points."""
     import cv2
 
-    N = len(c)
-    P = c[:, 0, :]
-    poly = cv2.approxPolyDP(c, _DP_EPS_PX, True)[:, 0, :]
-    if len(poly) < 2:
-        return None
-    key = P[:, 0].astype(np.int64) * 100003 + P[:, 1]
-    kv = poly[:, 0].astype(np.int64) * 100003 + poly[:, 1]
+    polys = [cv2.approxPolyDP(c, _DP_EPS_PX, True)[:, 0, :] for c in contours]
+    cs = [c for c, q in zip(contours, polys) if len(q) >= 2]
+    polys = [q for q in polys if len(q) >= 2]
+    if not cs:
+        return [], np.zeros(0, np.intp), np.zeros(0, np.intp)
+    n = np.array([len(c) for c in cs])
+    start = np.concatenate([[0], np.cumsum(n)[:-1]])
+    P = np.concatenate([c[:, 0, :] for c in cs]).astype(np.int64)
+    V = np.concatenate(polys).astype(np.int64)
+    nv = np.array([len(q) for q in polys])
+    cid_p, cid_v = np.repeat(np.arange(len(cs)), n), np.repeat(np.arange(len(cs)), nv)
+    span = np.int64(100003) * 100003  # a contour's keys below it, each contour its own range
+    key = cid_p * span + P[:, 0] * 100003 + P[:, 1]
+    kv = cid_v * span + V[:, 0] * 100003 + V[:, 1]
     order = np.argsort(key, kind="stable")
-    pos = np.searchsorted(key[order], kv)
-    idx = np.sort(order[np.minimum(pos, N - 1)])
-    a, b = idx, np.concatenate((idx[1:], idx[:1] + N))
+    pos = np.minimum(np.searchsorted(key[order], kv), len(key) - 1)
+    g = np.sort(order[pos])  # the vertices' points, contour after contour, in contour order
+    cid = cid_v  # sorted by contour already: each contour's vertices stay in its range
+    a = g - start[cid]
+    last = np.r_[cid[1:] != cid[:-1], True]
+    first = np.r_[True, cid[1:] != cid[:-1]]
+    b = np.empty_like(a)
+    b[:-1] = a[1:]
+    b[last] = a[first] + n[cid[last]]  # the last side wraps to the first vertex
     keep = (b - a) >= seg_min
-    return (a[keep], b[keep]) if keep.any() else None
+    has = np.bincount(cid[keep], minlength=len(cs)) > 0
+    off = 2 * np.concatenate([[0], np.cumsum(np.where(has, n, 0))[:-1]])  # doubled layout of the kept
+    sel = keep & has[cid]
+    return [c for c, h in zip(cs, has) if h], a[sel] + off[cid[sel]], b[sel] + off[cid[sel]]
 
 
 def _sides(contours, Bm, dist, seg_min):
@@ -283,21 +302,11 @@ def _sides(contours, Bm, dist, seg_min):
     laid out twice in a row, so that a side may wrap, and the moments of every side come
     from one cumulative sum."""
     h, w = Bm.shape
-    Ps, As, Bs, off = [], [], [], 0
-    for c in contours:
-        if len(c) < 4 * seg_min:
-            continue
-        ab = _contour_sides(c, seg_min)
-        if ab is None:
-            continue
-        Ps += [c[:, 0, :], c[:, 0, :]]
-        As.append(ab[0] + off)
-        Bs.append(ab[1] + off)
-        off += 2 * len(c)
+    kept, a, b = _contour_sides([c for c in contours if len(c) >= 4 * seg_min], seg_min)
+    Ps = [c[:, 0, :] for c in kept for _ in range(2)]
     if not Ps:
         return None
     P2 = np.concatenate(Ps).astype(np.float64)
-    a, b = np.concatenate(As), np.concatenate(Bs)
     x, y = P2[:, 0], P2[:, 1]
     cum = np.concatenate([np.zeros((1, 6)), np.cumsum(np.stack([np.ones_like(x), x, y, x * x, y * y, x * y], -1), 0)])
     M = cum[b + 1] - cum[a]
