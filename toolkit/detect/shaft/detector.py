@@ -420,8 +420,8 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         The material cue also proposes bands from a single straight boundary, to the far
         edge a gradient model finds across it (`shaft.partner`: a white or metal shaft the
         colour does not tell from tissue, beside a dark region): more instruments found on
-        in-vivo frames (docs/method.md), at about 8 ms more CPU per 1080p frame (41 ms
-        against 32 on the hysterectomy frames, docs/performance.md).
+        in-vivo frames (docs/method.md), at about 8 ms more CPU per 1080p frame (39 ms
+        against 31 on the hysterectomy frames, docs/performance.md).
         False: the region bands alone.
     pixel_evidence : float or None
         On a colour frame, a shaft of the cues is kept only where the learned instrument map
