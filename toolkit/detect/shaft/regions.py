@@ -373,14 +373,14 @@ def _group(seg, mom):
         & (np.abs(B @ n.T - c[None, :]).T < _GROUP_TOL_PX)
     alone = (near.sum(0) + near.sum(1)) == 2  # on no other side's line, no other on its own
     used = alone.copy()
+    # their own lines, as they are: (p, u, lo, hi, support) arrays
+    cen, dirs = _tls(mom[alone])
+    dirs *= np.where(np.sum(dirs * u[alone], -1) < 0, -1.0, 1.0)[:, None]
+    ta, tb = np.sum((A[alone] - cen) * dirs, -1), np.sum((B[alone] - cen) * dirs, -1)
+    lone = (cen, dirs, np.minimum(ta, tb), np.maximum(ta, tb), L[alone])
     out = []
-    if np.any(alone):  # their own lines, as they are
-        cen, dirs = _tls(mom[alone])
-        dirs *= np.where(np.sum(dirs * u[alone], -1) < 0, -1.0, 1.0)[:, None]
-        ta, tb = np.sum((A[alone] - cen) * dirs, -1), np.sum((B[alone] - cen) * dirs, -1)
-        out += [(cen[k], dirs[k], float(min(ta[k], tb[k])), float(max(ta[k], tb[k])), float(Lk))
-                for k, Lk in enumerate(L[alone])]
-    for i in np.argsort(-L):
+    order = np.argsort(-L)
+    for i in order[~alone[order]]:
         if used[i]:
             continue
         mem = np.flatnonzero(near[i] & ~used)
@@ -397,10 +397,10 @@ def _group(seg, mom):
         used[mem] = True
         a = np.concatenate([(A[mem] - p) @ ui, (B[mem] - p) @ ui])
         out.append((p, ui, float(a.min()), float(a.max()), float(L[mem].sum())))
-    P = np.array([o[0] for o in out]).reshape(-1, 2)
-    U = np.array([o[1] for o in out]).reshape(-1, 2)
-    return BoundaryLines(p=P, u=U, n=np.stack([-U[:, 1], U[:, 0]], -1), lo=np.array([o[2] for o in out]),
-                         hi=np.array([o[3] for o in out]), support=np.array([o[4] for o in out]))
+    P = np.concatenate([lone[0], np.array([o[0] for o in out]).reshape(-1, 2)])
+    U = np.concatenate([lone[1], np.array([o[1] for o in out]).reshape(-1, 2)])
+    lo, hi, sup = (np.concatenate([lone[k], np.array([o[k] for o in out], float)]) for k in (2, 3, 4))
+    return BoundaryLines(p=P, u=U, n=np.stack([-U[:, 1], U[:, 0]], -1), lo=lo, hi=hi, support=sup)
 
 
 def boundary_lines(Bm, dist, seg_min):
