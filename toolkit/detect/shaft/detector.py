@@ -420,8 +420,8 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         The material cue also proposes bands from a single straight boundary, to the far
         edge a gradient model finds across it (`shaft.partner`: a white or metal shaft the
         colour does not tell from tissue, beside a dark region): more instruments found on
-        in-vivo frames (docs/method.md), at about 16 ms more per 1080p frame (51.7 ms
-        against 36.1 on the hysterectomy frames, docs/performance.md).
+        in-vivo frames (docs/method.md), at about 8 ms more CPU per 1080p frame (39 ms
+        against 31 on the hysterectomy frames, docs/performance.md).
         False: the region bands alone.
     pixel_evidence : float or None
         On a colour frame, a shaft of the cues is kept only where the learned instrument map
@@ -453,7 +453,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         found = _by_edges(image, camera, valid_region, o, K)
     found = [s for s in found if s is not None]
     if pixel_evidence is not None and np.ndim(image) == 3 and found:
-        ev = shaft_pixel_evidence(image, found, camera, valid_region)
+        ev = shaft_pixel_evidence(image, found, camera, validity=validity)
         found = [s for s, e in zip(found, ev) if e >= pixel_evidence]
     if not priors:
         return with_limbs(image, camera, found, o.edge_model, o.gamma, K)

@@ -76,6 +76,14 @@ def _profiles(work, img, P, m, t):
     return col, d > 1.0
 
 
+def _median0(X):
+    """np.median(X, axis=0) of a small (N, C) array, N >= 1 (the same values: the mean of the
+    middle two of each sorted column; np.median's overhead is most of its cost here)."""
+    Xs = np.sort(X, axis=0)
+    n = Xs.shape[0]
+    return Xs[(n - 1) // 2] if n % 2 else (Xs[n // 2 - 1] + Xs[n // 2]) / 2
+
+
 def _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise):
     """(t0, b, supported (S,) bool) of the outermost far edge, or None (module docstring)."""
     import cv2
@@ -89,7 +97,7 @@ def _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise):
     r = int(np.ceil(3.0 * _SMOOTH_PX / _STEP_PX))
     sm = cv2.GaussianBlur(col.reshape(S, T * C) if C == 1 else col, (2 * r + 1, 1), _SMOOTH_PX / _STEP_PX,
                           sigmaY=1e-6, borderType=cv2.BORDER_REPLICATE).reshape(S, T, C)
-    c_in, c_out = np.median(sm[ok_seed, j0 + k], axis=0), np.median(sm[ok_seed, j0 - k], axis=0)
+    c_in, c_out = _median0(sm[ok_seed, j0 + k]), _median0(sm[ok_seed, j0 - k])
     d0 = c_in - c_out
     step = float(np.linalg.norm(d0))
     if step < Z_999 * noise * np.sqrt(2.0):
@@ -101,30 +109,23 @@ def _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise):
     thr = max(_REL_STRENGTH * step / (np.sqrt(2 * np.pi) * _SMOOTH_PX), Z_999 * noise / _SMOOTH_PX)
     sup = (g >= thr) & obs
     s_mid = 0.5 * (s[0] + s[-1])
-    T0 = t[(t >= wmin) & (t <= wmax)]
-    # every slope at once: (slopes, S, T0) profile indices of the candidate lines
+    jT = np.flatnonzero((t >= wmin) & (t <= wmax))  # the widths searched, as profile indices
+    if jT.size == 0:
+        return None
+    # each slope's line through width index j at station s lies at profile index j + off
     bs = np.linspace(-tan_max, tan_max, _SLOPES)
-    idx = np.rint((T0[None, None, :] + bs[:, None, None] * (s - s_mid)[None, :, None] - t[0]) / _STEP_PX).astype(int)
-    inside = (idx >= 0) & (idx < T)
-    idx = np.clip(idx, 0, T - 1)
-    rows = np.arange(S)[None, :, None]
-    code = (obs.astype(np.uint8) | (sup.astype(np.uint8) << 1))[rows, idx] * inside  # one gather for both
-    seen, hit = (code & 1).astype(bool), code >= 2
-    n_seen = seen.sum(1)
-    good = (hit.sum(1) >= _MIN_SUPPORT * np.maximum(n_seen, 1)) & (n_seen >= 0.5 * S)  # (slopes, T0)
-    cands = []
-    for a in np.flatnonzero(good.any(1)):
-        for q0, q1 in _runs(good[a]):  # each run of candidates at its strongest mean response
-            blk = idx[a, :, q0:q1]
-            resp = np.where(seen[a, :, q0:q1], g[rows[0], blk], 0.0).sum(0) / np.maximum(n_seen[a, q0:q1], 1)
-            q = q0 + int(np.argmax(resp))
-            cands.append((T0[q], resp[q - q0], bs[a], idx[a, :, q], hit[a, :, q]))
+    off = np.rint(bs[:, None] * (s - s_mid)[None, :] / _STEP_PX).astype(np.intp)  # (slopes, S)
+    span = _supported_span(sup, jT, np.abs(off).max(0), S)
+    if span is None:  # no line can have the support a candidate needs
+        return None
+    q_lo, q_hi = span
+    cands = _candidates(obs, sup, g, off, jT[q_lo:q_hi], S, T)
     if not cands:
         return None
     # the outermost whose band is of the seed's inside material at its far rim; of the
     # slopes that find it (within 2 px), the strongest
     same = _same_inside(sm, obs, np.array([c[3] for c in cands]), k, c_in, c_out)
-    cands = [c for c, ok in zip(cands, same) if ok]
+    cands = [(t[j], resp, bs[a], jf, hit) for (j, resp, a, jf, hit), ok in zip(cands, same) if ok]
     if not cands:
         return None
     far = max(c[0] for c in cands)
@@ -132,10 +133,51 @@ def _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise):
     return t0, b, hit
 
 
-def _runs(flag):
-    """[(start, stop)] of the runs of True in a 1-D bool array."""
-    d = np.diff(np.r_[0, flag.astype(np.int8), 0])
-    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+def _supported_span(sup, jT, reach, S):
+    """The range [q_lo, q_hi) of the width indices jT (Q,) where a line can be a candidate, or
+    None: a candidate has support at `_MIN_SUPPORT` of at least half the stations, and a line
+    through jT[q] meets station s within reach[s] (its largest slope offset) of jT[q], so at
+    most as many stations support it as have support there (an exact bound, from one
+    cumulative sum)."""
+    T = sup.shape[1]
+    cs = np.zeros((S, T + 1), np.int32)
+    np.cumsum(sup, axis=1, out=cs[:, 1:])
+    hi = np.minimum(jT[None, :] + reach[:, None] + 1, T)
+    lo = np.clip(jT[None, :] - reach[:, None], 0, T)
+    rows = np.arange(S)[:, None]
+    bound = np.count_nonzero(cs[rows, hi] > cs[rows, lo], axis=0)  # (Q,)
+    can = np.flatnonzero(bound >= _MIN_SUPPORT * 0.5 * S)
+    return None if can.size == 0 else (int(can[0]), int(can[-1]) + 1)
+
+
+def _candidates(obs, sup, g, off, jT, S, T):
+    """The candidate far edges [(profile index j at the midline station, mean response,
+    slope index, profile indices (S,) of the line clipped to the profile, supported (S,)
+    bool)]: per slope, each run of width indices jT (contiguous) whose line has support at
+    `_MIN_SUPPORT` of its observed stations (at least half of them), at its strongest mean
+    response. Every slope's lines in one gather of row slices."""
+    Q = jT.size
+    pad = int(np.abs(off).max())
+    # profile codes (observed, supported), zero beyond the profile's ends
+    code = np.zeros((S, T + 2 * pad), np.uint8)
+    code[:, pad:pad + T] = obs.astype(np.uint8) | (sup.astype(np.uint8) << 1)
+    win = np.lib.stride_tricks.sliding_window_view(code, Q, axis=1)  # (S, T + 2 pad - Q + 1, Q)
+    got = win[np.arange(S)[None, :], off + (pad + int(jT[0]))]  # (slopes, S, Q)
+    seen, hit = (got & 1).astype(bool), got >= 2
+    n_seen = seen.sum(1)
+    good = (hit.sum(1) >= _MIN_SUPPORT * np.maximum(n_seen, 1)) & (n_seen >= 0.5 * S)  # (slopes, Q)
+    # each run of candidates (per slope, contiguous widths) at its strongest mean response:
+    # the responses of every candidate line at once, then the first maximum of each run
+    a, q = np.nonzero(good)
+    if a.size == 0:
+        return []
+    jf = np.clip(jT[q][None, :] + off[a].T, 0, T - 1)  # (S, K)
+    # summed over the stations in their order, as a run's block was
+    resp = np.where(seen[a, :, q].T, g[np.arange(S)[:, None], jf], 0.0).sum(0) / np.maximum(n_seen[a, q], 1)
+    run = np.cumsum(np.r_[True, (a[1:] != a[:-1]) | (q[1:] != q[:-1] + 1)])
+    order = np.lexsort((-resp, run))  # stable: of equal responses the first, as argmax
+    first = order[np.r_[True, run[order][1:] != run[order][:-1]]]
+    return [(int(jT[q[i]]), resp[i], int(a[i]), jf[:, i], hit[a[i], :, q[i]]) for i in first]
 
 
 def _same_inside(sm, obs, jf, k, c_in, c_out):
@@ -166,7 +208,7 @@ def _band_map(work, img, col, obs, t, t0, b, s, s_mid):
     side2 = (tt >= w[:, None] + 2.0) & (tt <= 1.5 * w[:, None]) & obs
     if min(np.count_nonzero(inner), np.count_nonzero(side1), np.count_nonzero(side2)) < 10:
         return None
-    c_in, c1, c2 = (np.median(col[k], axis=0) for k in (inner, side1, side2))
+    c_in, c1, c2 = (np.median(np.ascontiguousarray(col[k].T), axis=1) for k in (inner, side1, side2))
     # |x - c|^2 = |x|^2 - 2 x.c + |c|^2: the |x|^2 common to all three drops out
     d = [cv2.transform(img, (-2.0 * c).reshape(1, -1).astype(np.float32)).reshape(work.shape) + float(c @ c)
          for c in (c_in, c1, c2)]
@@ -200,7 +242,7 @@ def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SE
     order = np.argsort(-(seeds.hi - seeds.lo))[:max_seeds]
     tan_max = float(np.tan(np.radians(conv_max_deg)))
     t = np.arange(-0.5 * wmax - 3.0, 1.5 * wmax + 3.0 + _STEP_PX, _STEP_PX)
-    img = work.bgr.astype(np.float32).reshape(work.shape + (-1,))
+    img = work.colours
     P_, U_, LO, HI, maps, I, J, W = [], [], [], [], [], [], [], []
     for k in order:
         p, u, lo, hi = seeds.p[k], seeds.u[k], float(seeds.lo[k]), float(seeds.hi[k])

@@ -43,7 +43,8 @@ import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["FEATURES", "WORK_PX", "pixel_features", "expanded_inputs", "PixelModel", "default_model", "instrument_probability"]
+__all__ = ["FEATURES", "WORK_PX", "pixel_features", "pixel_features_at", "expanded_inputs", "PixelModel", "default_model",
+           "instrument_probability", "instrument_probability_at"]
 
 #: The pixel features, in the order `pixel_features` stacks them (module docstring).
 FEATURES = ("chroma", "along", "across", "log_luma", "luma_sd5", "chroma_mean5", "chroma_sd5", "luma_sd15",
@@ -62,14 +63,56 @@ def _local_sd(a, k):
     return np.sqrt(np.maximum(cv2.blur(a * a, (k, k)) - m * m, 0.0)), m
 
 
-def pixel_features(bgr, valid):
-    """The pixel features (module docstring) of a BGR image.
+def _hist_quantiles(hist, qs):
+    """np.percentile's quantiles qs (in [0, 1], linear interpolation) of the non-negative
+    integers whose histogram is hist (the same values, from the counts)."""
+    cum = np.cumsum(np.asarray(hist, np.float64).reshape(-1))
+    n = int(round(cum[-1]))
+    vi = (n - 1) * np.asarray(qs, float)
+    lo = np.floor(vi)
+    k = np.stack([lo, np.minimum(lo + 1, n - 1)])
+    a, b = np.searchsorted(cum, k + 1, side="left").astype(float)  # the k-th smallest: cum first exceeds k
+    return a, b, vi - lo
 
-    bgr: (h, w, 3) uint8 or float; valid: (h, w) bool, the pixels the frame's medians are taken
-    over. Returns (h, w, len(FEATURES)) float32.
-    """
+
+def _lerp(a, b, t):
+    """np.percentile's interpolation between neighbouring order statistics."""
+    return np.where(t >= 0.5, b - (b - a) * (1 - t), a + (b - a) * t)
+
+
+def _frame_levels(F, Y3, v, levels8):
+    """The median (3,) of each channel of F (h, w, 3) float32 over the pixels v, and the
+    median and `_SPECULAR_PCT` percentile there of the mean Y = Y3 / 3 (Y3 = B + G + R;
+    float32, as the features compute it): from histograms where the channels hold 8-bit
+    levels (levels8; the same values at a fraction of the cost of partitions), else by
+    np.percentile."""
     import cv2
 
+    third = np.float32(1.0 / 3.0)
+    if not levels8:
+        Y = Y3 * third
+        return (np.array([np.median(F[..., ch][v]) for ch in range(F.shape[-1])], np.float32),
+                *(float(q) for q in np.percentile(Y[v], [50.0, _SPECULAR_PCT])))
+    mask = v.astype(np.uint8)
+    med = []
+    for ch in range(F.shape[-1]):
+        a, b, t = _hist_quantiles(cv2.calcHist([F], [ch], mask, [256], [0, 256]), [0.5])
+        med.append(_lerp(a, b, t)[0])
+    # Y3 sums three 8-bit levels, exactly in float32; its quantiles are mapped to Y as Y is
+    # computed, so that a threshold on an order statistic is that value itself
+    a, b, t = _hist_quantiles(cv2.calcHist([Y3], [0], mask, [766], [0, 766]), [0.5, _SPECULAR_PCT / 100.0])
+    qa, qb = ((x.astype(np.float32) * third).astype(float) for x in (a, b))
+    y_med, y_spec = _lerp(qa, qb, t)
+    return np.array(med, np.float32), float(y_med), float(y_spec)
+
+
+def _features(bgr, valid, at=None):
+    """The pixel features (module docstring) of every pixel of a BGR image (h, w, F), or
+    only of the pixels at = (rows, cols) (M,) each (M, F): the frame's medians and the local
+    windows are the same either way, the per-pixel terms are computed where asked."""
+    import cv2
+
+    levels8 = np.asarray(bgr).dtype == np.uint8
     F = np.array(bgr, np.float32)
     v = np.asarray(valid, bool)
     if np.count_nonzero(v) < 16:
@@ -78,10 +121,11 @@ def pixel_features(bgr, valid):
         F = np.repeat(F[..., None], 3, -1)
     # outside the valid region (a field stop's black, letterbox bars) the frame's median
     # colour: the local windows near the boundary see the scene, not the black around it
-    F[~v] = np.median(F[v], axis=0)
     B, G, R = F[..., 0], F[..., 1], F[..., 2]
+    fill, y_med, y_spec = _frame_levels(F, B + G + R, v, levels8)
+    F[~v] = fill
     Y = (B + G + R) * np.float32(1.0 / 3.0)
-    y_med = max(float(np.median(Y[v])), 1.0)
+    y_med = max(y_med, 1.0)
     S = R + G + B + np.float32(3.0 * max(_DARK_EPS * y_med, 1.0))
     x = (R - G) / S
     y = (R + G - 2.0 * B) / (np.float32(np.sqrt(3.0)) * S)
@@ -89,20 +133,41 @@ def pixel_features(bgr, valid):
     cm = float(np.hypot(mx, my)) + 1e-3
     u = np.array([mx, my]) / cm
     c = (np.hypot(x, y) / cm).astype(np.float32)
-    along = ((x * u[0] + y * u[1]) / cm).astype(np.float32)
-    across = ((-x * u[1] + y * u[0]) / cm).astype(np.float32)
     ly = (np.log1p(Y) - np.float32(np.log1p(y_med))).astype(np.float32)
-    feats = [c, along, across, ly]
+
+    def pick(a):
+        return a if at is None else a[at]
+
+    xa, ya = pick(x), pick(y)
+    along = ((xa * u[0] + ya * u[1]) / cm).astype(np.float32)
+    across = ((-xa * u[1] + ya * u[0]) / cm).astype(np.float32)
+    feats = [pick(c), along, across, pick(ly)]
     for k in (5, 15):
         ls, _ = _local_sd(ly, k)
         cs, cmean = _local_sd(c, k)
-        feats += [ls, cmean, cs]
+        feats += [pick(ls), pick(cmean), pick(cs)]
     gx = cv2.Sobel(ly, cv2.CV_32F, 1, 0)
     gy = cv2.Sobel(ly, cv2.CV_32F, 0, 1)
-    feats.append(np.hypot(gx, gy))
-    spec = (Y > np.percentile(Y[v], _SPECULAR_PCT)).astype(np.float32)
-    feats.append(cv2.blur(spec, (9, 9)))
+    feats.append(np.hypot(pick(gx), pick(gy)))
+    spec = (Y > y_spec).astype(np.float32)
+    feats.append(pick(cv2.blur(spec, (9, 9))))
     return np.stack(feats, -1)
+
+
+def pixel_features(bgr, valid):
+    """The pixel features (module docstring) of a BGR image.
+
+    bgr: (h, w, 3) uint8 or float; valid: (h, w) bool, the pixels the frame's medians are taken
+    over. Returns (h, w, len(FEATURES)) float32.
+    """
+    return _features(bgr, valid)
+
+
+def pixel_features_at(bgr, valid, rows, cols):
+    """`pixel_features` (M, len(FEATURES)) float32 of the pixels (rows, cols) (M,) int only:
+    the same values (the frame's medians and local windows as for the whole image), without
+    the per-pixel terms of the pixels not asked for."""
+    return _features(bgr, valid, (np.asarray(rows, np.intp), np.asarray(cols, np.intp)))
 
 
 def expanded_inputs(X):
@@ -184,3 +249,13 @@ def instrument_probability(work, model=None):
     valid = work.valid & (work.dist > 1.0)
     p = model.probability(pixel_features(work.bgr, valid))
     return np.where(work.valid, p, 0.0).astype(np.float32)
+
+
+def instrument_probability_at(work, rows, cols, model=None):
+    """`instrument_probability` (M,) float32 of the work frame's pixels (rows, cols) (M,)
+    int only: the same values, the model evaluated at those pixels alone."""
+    model = default_model() if model is None else model
+    valid = work.valid & (work.dist > 1.0)
+    rows, cols = np.asarray(rows, np.intp), np.asarray(cols, np.intp)
+    p = model.probability(pixel_features_at(work.bgr, valid, rows, cols))
+    return np.where(work.valid[rows, cols], p, 0.0).astype(np.float32)

@@ -319,7 +319,7 @@ def evaluate_bands(lines, pairs, work, Bm, Ball, min_run, level=0, kind="all"):
         return []
     sub = _sampler(g.P[sel])
     sA, sY = sub(Ball.astype(np.float32)), sub(work.luma)
-    sC = sub(work.bgr.astype(np.float32)) if work.bgr.ndim == 3 else sY[..., None]
+    sC = sub(work.colours) if work.bgr.ndim == 3 else sY[..., None]
     out = []
     for q, m in enumerate(sel):
         i0, i1 = runs[m]

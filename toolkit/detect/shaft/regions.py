@@ -152,9 +152,9 @@ def material_map(work):
     valid = work.valid & (work.dist > 1.0)
     if np.count_nonzero(valid) < 100:
         valid = np.ones(work.shape, bool)
-    F = work.bgr.astype(np.float32)
-    if F.ndim == 2:
-        F = np.repeat(F[..., None], 3, -1)
+    F = work.colours  # (h, w, C) float32, shared with the later stages
+    if F.shape[-1] == 1:
+        F = np.repeat(F, 3, -1)
     B, G, R = F[..., 0], F[..., 1], F[..., 2]
     iv = np.flatnonzero(valid.ravel())
     iv = iv[::max(1, iv.size // _SAMPLES)]
@@ -171,7 +171,8 @@ def material_map(work):
     pm = float(np.median(pv))
     # the frame has a colour when the dominant one stands out of the noise of a projection
     # (a grey frame, or a colour frame of a grey scene, has none)
-    luma_noise = estimate_noise(work.luma)
+    # an 8-bit frame's luma holds whole levels: its noise from a histogram, exactly
+    luma_noise = estimate_noise(work.luma.astype(np.uint8) if work.bgr.dtype == np.uint8 else work.luma)
     noise = np.sqrt(2.0) * luma_noise / (3.0 * (1.0 + DARK_DAMPING) * y_med)
     informative = bool(work.bgr.ndim == 3 and pm > Z_999 * max(noise, 1e-6))
     # a scene that is almost grey itself: the scale stays >= 3 x the robust spread of p, so
@@ -256,24 +257,43 @@ def _tls(M):
     return np.stack([cx, cy], -1), np.stack([np.cos(th), np.sin(th)], -1)
 
 
-def _contour_sides(c, seg_min):
-    """Index ranges (a, b) (K,) of the Douglas-Peucker sides of one closed contour c (N, 1,
-    2) at least seg_min points long (b may run past N: the contour wraps)."""
+def _contour_sides(contours, seg_min):
+    """The Douglas-Peucker sides of closed contours (each (N, 1, 2)) at least seg_min points
+    long: (kept contours, a, b), the contours that have any, and per side (K,) its index
+    range [a, b) in the kept contours laid out twice in a row each (b may run past its
+    contour's end: it wraps). A polygon vertex is the first contour point at its position;
+    every contour's vertices are found by one sort of all their points."""
     import cv2
 
-    N = len(c)
-    P = c[:, 0, :]
-    poly = cv2.approxPolyDP(c, _DP_EPS_PX, True)[:, 0, :]
-    if len(poly) < 2:
-        return None
-    key = P[:, 0].astype(np.int64) * 100003 + P[:, 1]
-    kv = poly[:, 0].astype(np.int64) * 100003 + poly[:, 1]
+    polys = [cv2.approxPolyDP(c, _DP_EPS_PX, True)[:, 0, :] for c in contours]
+    cs = [c for c, q in zip(contours, polys) if len(q) >= 2]
+    polys = [q for q in polys if len(q) >= 2]
+    if not cs:
+        return [], np.zeros(0, np.intp), np.zeros(0, np.intp)
+    n = np.array([len(c) for c in cs])
+    start = np.concatenate([[0], np.cumsum(n)[:-1]])
+    P = np.concatenate([c[:, 0, :] for c in cs]).astype(np.int64)
+    V = np.concatenate(polys).astype(np.int64)
+    nv = np.array([len(q) for q in polys])
+    cid_p, cid_v = np.repeat(np.arange(len(cs)), n), np.repeat(np.arange(len(cs)), nv)
+    span = np.int64(100003) * 100003  # a contour's keys below it, each contour its own range
+    key = cid_p * span + P[:, 0] * 100003 + P[:, 1]
+    kv = cid_v * span + V[:, 0] * 100003 + V[:, 1]
     order = np.argsort(key, kind="stable")
-    pos = np.searchsorted(key[order], kv)
-    idx = np.sort(order[np.minimum(pos, N - 1)])
-    a, b = idx, np.concatenate((idx[1:], idx[:1] + N))
+    pos = np.minimum(np.searchsorted(key[order], kv), len(key) - 1)
+    g = np.sort(order[pos])  # the vertices' points, contour after contour, in contour order
+    cid = cid_v  # sorted by contour already: each contour's vertices stay in its range
+    a = g - start[cid]
+    last = np.r_[cid[1:] != cid[:-1], True]
+    first = np.r_[True, cid[1:] != cid[:-1]]
+    b = np.empty_like(a)
+    b[:-1] = a[1:]
+    b[last] = a[first] + n[cid[last]]  # the last side wraps to the first vertex
     keep = (b - a) >= seg_min
-    return (a[keep], b[keep]) if keep.any() else None
+    has = np.bincount(cid[keep], minlength=len(cs)) > 0
+    off = 2 * np.concatenate([[0], np.cumsum(np.where(has, n, 0))[:-1]])  # doubled layout of the kept
+    sel = keep & has[cid]
+    return [c for c, h in zip(cs, has) if h], a[sel] + off[cid[sel]], b[sel] + off[cid[sel]]
 
 
 def _sides(contours, Bm, dist, seg_min):
@@ -282,21 +302,11 @@ def _sides(contours, Bm, dist, seg_min):
     laid out twice in a row, so that a side may wrap, and the moments of every side come
     from one cumulative sum."""
     h, w = Bm.shape
-    Ps, As, Bs, off = [], [], [], 0
-    for c in contours:
-        if len(c) < 4 * seg_min:
-            continue
-        ab = _contour_sides(c, seg_min)
-        if ab is None:
-            continue
-        Ps += [c[:, 0, :], c[:, 0, :]]
-        As.append(ab[0] + off)
-        Bs.append(ab[1] + off)
-        off += 2 * len(c)
+    kept, a, b = _contour_sides([c for c in contours if len(c) >= 4 * seg_min], seg_min)
+    Ps = [c[:, 0, :] for c in kept for _ in range(2)]
     if not Ps:
         return None
     P2 = np.concatenate(Ps).astype(np.float64)
-    a, b = np.concatenate(As), np.concatenate(Bs)
     x, y = P2[:, 0], P2[:, 1]
     cum = np.concatenate([np.zeros((1, 6)), np.cumsum(np.stack([np.ones_like(x), x, y, x * x, y * y, x * y], -1), 0)])
     M = cum[b + 1] - cum[a]
@@ -363,14 +373,14 @@ def _group(seg, mom):
         & (np.abs(B @ n.T - c[None, :]).T < _GROUP_TOL_PX)
     alone = (near.sum(0) + near.sum(1)) == 2  # on no other side's line, no other on its own
     used = alone.copy()
+    # their own lines, as they are: (p, u, lo, hi, support) arrays
+    cen, dirs = _tls(mom[alone])
+    dirs *= np.where(np.sum(dirs * u[alone], -1) < 0, -1.0, 1.0)[:, None]
+    ta, tb = np.sum((A[alone] - cen) * dirs, -1), np.sum((B[alone] - cen) * dirs, -1)
+    lone = (cen, dirs, np.minimum(ta, tb), np.maximum(ta, tb), L[alone])
     out = []
-    if np.any(alone):  # their own lines, as they are
-        cen, dirs = _tls(mom[alone])
-        dirs *= np.where(np.sum(dirs * u[alone], -1) < 0, -1.0, 1.0)[:, None]
-        ta, tb = np.sum((A[alone] - cen) * dirs, -1), np.sum((B[alone] - cen) * dirs, -1)
-        out += [(cen[k], dirs[k], float(min(ta[k], tb[k])), float(max(ta[k], tb[k])), float(Lk))
-                for k, Lk in enumerate(L[alone])]
-    for i in np.argsort(-L):
+    order = np.argsort(-L)
+    for i in order[~alone[order]]:
         if used[i]:
             continue
         mem = np.flatnonzero(near[i] & ~used)
@@ -387,10 +397,10 @@ def _group(seg, mom):
         used[mem] = True
         a = np.concatenate([(A[mem] - p) @ ui, (B[mem] - p) @ ui])
         out.append((p, ui, float(a.min()), float(a.max()), float(L[mem].sum())))
-    P = np.array([o[0] for o in out]).reshape(-1, 2)
-    U = np.array([o[1] for o in out]).reshape(-1, 2)
-    return BoundaryLines(p=P, u=U, n=np.stack([-U[:, 1], U[:, 0]], -1), lo=np.array([o[2] for o in out]),
-                         hi=np.array([o[3] for o in out]), support=np.array([o[4] for o in out]))
+    P = np.concatenate([lone[0], np.array([o[0] for o in out]).reshape(-1, 2)])
+    U = np.concatenate([lone[1], np.array([o[1] for o in out]).reshape(-1, 2)])
+    lo, hi, sup = (np.concatenate([lone[k], np.array([o[k] for o in out], float)]) for k in (2, 3, 4))
+    return BoundaryLines(p=P, u=U, n=np.stack([-U[:, 1], U[:, 0]], -1), lo=lo, hi=hi, support=sup)
 
 
 def boundary_lines(Bm, dist, seg_min):

@@ -161,11 +161,14 @@ class WorkFrame:
     dist : (h, w) float32 [work px]
         Their distance to the boundary (raw distance x scale: a lower bound where the lens
         stretches the periphery).
+    validity : Validity
+        The one given (another work frame of the image can share it).
     """
 
     def __init__(self, image, camera, validity, target_px=480.0):
         import cv2
 
+        self.validity = validity
         img = np.asarray(image)
         if img.dtype != np.uint8:
             img = img.astype(np.float32)
@@ -196,6 +199,15 @@ class WorkFrame:
         d = validity.distance(raw) * float(np.mean(self.scale))
         self.dist = np.where(np.isfinite(d), d, -1.0).astype(np.float32)
         self.valid = self.dist >= 0
+
+    @property
+    def colours(self):
+        """The copy as float32 (h, w, C) (C = 1 for a grey one), made once: the stages that
+        sample it share it (read-only)."""
+        if getattr(self, "_colours", None) is None:
+            self._colours = self.bgr.astype(np.float32).reshape(self.shape + (-1,))
+            self._colours.flags.writeable = False
+        return self._colours
 
     @property
     def mean_scale(self):

@@ -62,3 +62,68 @@ def test_fold_models_leave_out_each_source_and_pair():
     assert len(models) == 4 + 6
     assert set(models[frozenset("ab")].trained_on) == {"c", "d"}
     assert set(models[frozenset("c")].trained_on) == {"a", "b", "d"}
+
+
+def _whole_map_evidence(img, shafts, region=None):
+    """The evidence as first computed: the map over the whole work frame, then its samples."""
+    from pencilcal.toolkit.detect.shaft.pixel_evidence import band_evidence
+    from pencilcal.toolkit.detect.shaft.pixels import WORK_PX, instrument_probability
+    from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
+
+    work = WorkFrame(img, None, Validity(region, img.shape[:2]), WORK_PX)
+    return band_evidence(instrument_probability(work), work, None, np.array([s.midline for s in shafts]),
+                         np.array([s.width_px for s in shafts]))
+
+
+def test_evidence_at_the_samples_equals_the_whole_map():
+    """The map evaluated only where the bands' samples read it gives the evidence of the
+    whole map (synthetic bands across the frame, some leaving it, and the detected ones)."""
+    from pencilcal.toolkit.detect.shaft.detector import Shaft
+
+    img = _frame(3)
+    shafts = detect_shafts(img, pixel_evidence=None)
+    rng = np.random.default_rng(1)
+    for _ in range(12):  # bands anywhere, of any width, partly outside the frame
+        a, b = rng.uniform([-100, -60], [740, 420], (2, 2))
+        shafts.append(Shaft(midline=np.r_[a, b], width_px=float(rng.uniform(4, 120)), angle_sigma=0.0,
+                            offset_sigma=0.0, edges=np.zeros((2, 4)), score=1.0, ideal_midline=np.r_[a, b],
+                            convergence_deg=0.0, polarity="dark"))
+    np.testing.assert_allclose(pixel_evidence(img, shafts), _whole_map_evidence(img, shafts), atol=1e-6)
+
+
+def test_features_at_pixels_and_frame_levels():
+    """pixel_features_at is pixel_features at those pixels, and the frame's medians and
+    specular threshold from histograms are np.percentile's, for 8-bit and float frames (a
+    valid region that leaves part of the frame out, odd and even pixel counts)."""
+    from pencilcal.toolkit.detect.shaft.pixels import pixel_features, pixel_features_at
+
+    img = _frame(4)[:180, :320]
+    valid = np.ones(img.shape[:2], bool)
+    valid[:, :20] = False
+    rows, cols = np.nonzero(np.random.default_rng(2).random(valid.shape) < 0.1)
+    for frame in (img, img.astype(np.float32) + 0.25):
+        for v in (valid, valid & (np.arange(320) != 300)[None, :], np.ones_like(valid)):
+            whole = pixel_features(frame, v)
+            np.testing.assert_array_equal(pixel_features_at(frame, v, rows, cols), whole[rows, cols])
+    # the histogram route (8-bit) against the partition route on the same levels
+    v = valid & (np.arange(320) != 300)[None, :]
+    np.testing.assert_allclose(pixel_features(img, v), pixel_features(img.astype(np.float32), v), atol=1e-5)
+
+
+def test_evidence_equals_the_whole_map_on_real_frames():
+    """On the real hysterectomy frames (every detection, before judging), the evidence at the
+    samples is the whole map's to 1e-6 (the shipped least evidence keeps the same bands)."""
+    from pencilcal.toolkit.detect.region.detect import detect_valid_region
+    from tests.conftest import data_dir
+
+    root = data_dir("real-instruments") / "laparoscopy-hysterectomy-frames"
+    n = 0
+    for path in sorted(root.glob("*.jpg"))[::3]:
+        img = cv2.imread(str(path))
+        region = detect_valid_region([img])
+        shafts = detect_shafts(img, valid_region=region, pixel_evidence=None)
+        if shafts:
+            n += len(shafts)
+            np.testing.assert_allclose(pixel_evidence(img, shafts, valid_region=region),
+                                       _whole_map_evidence(img, shafts, region), atol=1e-6)
+    assert n >= 3
