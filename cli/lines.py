@@ -36,14 +36,14 @@ def _lines_task(frame, ctx):
     """One frame's lines.json record, and the frame drawn with them when the overlay is
     asked for (module level: runs in worker processes too)."""
     (camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, masks, radial, priors,
-     tracker, edge_model) = ctx
+     tracker, edge_model, radial_joint) = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
     rec = lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
                        valid_region=region, gamma=gamma, instrument_mask=None if masks is None else masks.of(frame),
                        radial=radial, axis_prior=None if priors is None else priors[1].get(frame.name, priors[0]),
-                       shaft_tracker=tracker, edge_model=edge_model)
+                       shaft_tracker=tracker, edge_model=edge_model, radial_joint=radial_joint)
     if diameter is not None:
         rec["shafts"] = [with_axis(camera, s, diameter) for s in rec.get("shafts") or []]
     if not drawing:
@@ -80,6 +80,8 @@ def _summary(records):
               help="With --bars: bar widths accepted [px]; default 2.5 px to 1/8 image.")
 @click.option("--radial", type=click.IntRange(min=0), default=None, metavar="EDGES",
               help="Edges of a radial target (star, dartboard) round its vertex; 0: any count.")
+@click.option("--radial-joint", type=click.Choice(["crowded", "all"]), default="crowded", show_default=True,
+              help="With --radial: edges located with their neighbours' blur: all (a star's wedges).")
 @click.option("--shaft", is_flag=True,
               help="Also instrument shafts: their midlines, widths and sigmas.")
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
@@ -101,8 +103,8 @@ def _summary(records):
 @force_option
 @quiet_option
 @run
-def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, radial, shaft, shaft_diameter,
-          track, gamma, edge_model, prior_path, min_length, instrument_mask, mask_labels, mask_instances,
+def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, radial, radial_joint, shaft,
+          shaft_diameter, track, gamma, edge_model, prior_path, min_length, instrument_mask, mask_labels, mask_instances,
           mask_path, jsonl_path, overlay_path, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel, with angle uncertainty.
 
@@ -138,9 +140,13 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     (a Siemens star of N wedges has 2N; 0: whatever the frame shows): a star's wedges, a
     dartboard's sector boundaries (`pencilcal orient` labels them by the pencil file's
     shape), each located on the profiles linearised with --gamma, from where it lies clear
-    of its neighbours out to where it ends; `circle_points` holds the edge points across
-    rays between them, among them the images of circles about the vertex (a star's
-    outline, a dartboard's rings), which `orient` fits.
+    of its neighbours out to where it ends, and where its neighbours crowd it all along
+    located jointly with their blurred edges; with --radial-joint all every edge is (as
+    `pencilcal orient IMAGES` does for a pencil of wedges: by their derivative's peak a
+    star's edges feel their neighbours' pull, alike for neighbouring edges);
+    `circle_points` holds the edge points across rays between them, among them the images
+    of circles about the vertex (a star's outline, a dartboard's rings), which `orient`
+    fits.
 
     --shaft also finds instrument shafts (pairs of long converging edges) and writes them
     as `shafts`: midline (image of the axis), width_px, angle_sigma_deg, edge_cov. From
@@ -164,7 +170,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     More examples:
 
         pencilcal lines left/*.png --camera camera.yaml -o lines.json
-        pencilcal lines star.png --camera camera.yaml --radial 128 -o lines.json
+        pencilcal lines star.png --camera camera.yaml --radial 128 --radial-joint all -o lines.json
         pencilcal orient --lines lines.json --camera camera.yaml --pencil pencil.yaml -o orientation.json
     """
     if min_length is not None and min_length <= 0:
@@ -179,6 +185,8 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         raise click.BadParameter("only with --shaft", param_hint="--edge-model")
     if gamma != DEFAULT_GAMMA and not shaft and radial is None:
         raise click.BadParameter("only with --shaft or --radial", param_hint="--gamma")
+    if radial_joint != "crowded" and radial is None:
+        raise click.BadParameter("only with --radial", param_hint="--radial-joint")
     if radial is not None and bars:
         raise click.UsageError("--radial and --bars find different spokes: give one of them")
     if shaft_diameter is not None and not shaft_diameter > 0:
@@ -209,7 +217,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         tracker = ShaftTracker(gamma=gamma, edge_model=edge_model)
     with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
         ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma, masks,
-               radial, priors, tracker, edge_model)
+               radial, priors, tracker, edge_model, radial_joint)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
@@ -223,6 +231,8 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         meta["shaft_diameter"] = shaft_diameter
     if shaft or radial is not None:
         meta["gamma"] = gamma
+    if radial is not None:
+        meta["radial_joint"] = radial_joint
     if shaft:
         meta["edge_model"] = edge_model
     if masks is not None:

@@ -71,7 +71,7 @@ def _orient_image_task(frame, ctx):
     frame drawn with them when the overlay is asked for (None otherwise); module level, so it
     runs in worker processes too."""
     from pencilcal.toolkit.io.images import check_image_size
-    from pencilcal.toolkit.detect.lines import fan_line_options, lines_record, radial_edge_count
+    from pencilcal.toolkit.detect.lines import fan_line_options, lines_record, radial_edge_count, radial_joint_mode
 
     camera, pencil, detector, opts, edges, region, drawing = ctx
     if frame.image is None:
@@ -86,7 +86,8 @@ def _orient_image_task(frame, ctx):
 
         def detected():
             fr = lines_record(frame.name, frame.image, camera, detector, bars=bars, valid_region=region,
-                              bar_polarity=polarity, bar_tracker=tracker, radial=radial)
+                              bar_polarity=polarity, bar_tracker=tracker, radial=radial,
+                              radial_joint=radial_joint_mode(pencil))
             return fr, _orient_record(camera, pencil, fr, opts)
 
         fr, rec = detected() if tracker is None else _tracked_bars_frame(detected, tracker, state)

@@ -100,6 +100,7 @@ def _target(kind, polarity, seed):
 
 def radial_trial(cond):
     """Render, detect and orient one frame of `cond` (`radial_conditions`); a `RadialTrial`."""
+    from pencilcal.toolkit.detect.lines import radial_joint_mode
     from pencilcal.toolkit.detect.radial import detect_radial_edges
     from pencilcal.toolkit.pencil.orient import orient_segments
     from pencilcal.toolkit.synth.radial import radial_pose, render_layers
@@ -110,7 +111,7 @@ def radial_trial(cond):
                        roll_deg=cond["roll_deg"])
     img = render_layers(cam, R, t, layers, blur_px=cond["blur_px"], noise=cond["noise"], gamma=2.2, lighting=0.3,
                         jpeg_quality=cond["jpeg"], rng=cond["seed"])
-    found = detect_radial_edges(img, cam, edges=edges)
+    found = detect_radial_edges(img, cam, edges=edges, joint=radial_joint_mode(pen))
     rec = orient_segments(cam, found.segments, pen, angle_sigma=found.angle_sigma, offset_sigma=found.offset_sigma,
                           circle_points=found.circle_points, keep_lines=True)
     if not rec.ok:

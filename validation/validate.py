@@ -61,7 +61,8 @@ class FanLines:
 
     def __call__(self, image, camera, detection, corner_sigma_px=None):
         from pencilcal.toolkit.detect.bars import detect_bars
-        from pencilcal.toolkit.detect.lines import default_min_length, fan_line_options, radial_edge_count
+        from pencilcal.toolkit.detect.lines import (default_min_length, fan_line_options, radial_edge_count,
+                                                    radial_joint_mode)
         from pencilcal.toolkit.detect.segments import detect_segments
 
         bars, polarity = fan_line_options(self.pencil.width, self.edges)
@@ -69,7 +70,8 @@ class FanLines:
         if radial is not None:
             from pencilcal.toolkit.detect.radial import detect_radial_edges
 
-            found = detect_radial_edges(image, camera, edges=radial, valid_region=self.valid_region)
+            found = detect_radial_edges(image, camera, edges=radial, valid_region=self.valid_region,
+                                        joint=radial_joint_mode(self.pencil))
         elif bars:
             # the bars `orient IMAGES` would find (lines_record's default shortest bar)
             found = detect_bars(image, self.detector, camera=camera, polarity=polarity, valid_region=self.valid_region,

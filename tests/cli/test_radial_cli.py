@@ -126,6 +126,18 @@ def test_lines_radial_writes_the_edges_and_circle_points(star_photo):
     assert rec["spokes_used"] == 32 and rec["resolved_by"] == "circle"
     r = _invoke(lines, d / "frame.jpg", "--camera", d / "camera.json", "--radial", 64, "--bars", "-o", d / "x.json")
     assert r.exit_code != 0 and "--radial and --bars" in r.output
+    # every edge located jointly with its neighbours, as orient IMAGES does for wedges
+    r = _invoke(lines, d / "frame.jpg", "--camera", d / "camera.json", "--radial", 64, "--radial-joint", "all",
+                "-o", d / "lines_all.json", "-q")
+    assert r.exit_code == 0, r.output
+    doc = json.loads((d / "lines_all.json").read_text())
+    assert doc["radial_joint"] == "all" and len(doc["frames"][0]["segments"]) >= 60
+    r = _invoke(orient, "--lines", d / "lines_all.json", "--camera", d / "camera.json", "--pencil",
+                d / "pencil.yaml", "-o", d / "o_all.json", "-q")
+    assert r.exit_code == 0, r.output
+    assert json.loads((d / "o_all.json").read_text())["frames"][0]["spokes_used"] == 32
+    r = _invoke(lines, d / "frame.jpg", "--camera", d / "camera.json", "--radial-joint", "all", "-o", d / "y.json")
+    assert r.exit_code != 0 and "only with --radial" in r.output
 
 
 def test_a_star_described_as_lines_is_told_so(star_photo):

@@ -5,7 +5,9 @@ A Monte Carlo of 25 frames: five each of Siemens stars of 16, 32, 64 and 128 wed
 dartboards, dark on light and the reverse, tilts 15-60 deg, blur 0.6-1.5 px, noise, uneven
 light, gamma 2.2, JPEG 70-95, k1 down to -0.3. The bounds below hold for this sample with
 room for its size (a coverage of 25 frames scatters by 9 %); docs/method.md gives a 200-frame
-run against the issue's figures."""
+run against the issue's figures. Measured on this sample, a star's edges all located jointly
+with their neighbours: every spoke used, 25 of 25 twins rightly resolved, RMSE / bound 0.60,
+coverage 80 %, the circles' normal RMSE 0.008 deg."""
 from __future__ import annotations
 
 import pytest

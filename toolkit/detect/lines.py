@@ -27,7 +27,7 @@ from pencilcal.toolkit.detect.segments import MIN_LENGTH_PX, detect_segments
 from pencilcal.toolkit.io.lines_file import LineFrame
 
 __all__ = ["default_min_length", "detect_frame_lines", "lines_record", "fan_line_options", "shaft_records",
-           "radial_edge_count"]
+           "radial_edge_count", "radial_joint_mode"]
 
 
 def default_min_length(shape, bars):
@@ -75,10 +75,23 @@ def radial_edge_count(pencil):
     return None if pencil.shape == "line" else int(pencil.edge_angles()[0].size)
 
 
+def radial_joint_mode(pencil):
+    """Which of a radial target's edges are located jointly with their neighbours
+    (`radial.detect_radial_edges`' ``joint``): "all" for printed wedges (a Siemens star,
+    whose edges are what the model holds: blurred steps), "crowded" otherwise (a dartboard's
+    boundaries have raised wires beside them, which the model has not).
+
+    >>> from pencilcal.toolkit.pencil.spec import pencil_from_dict
+    >>> radial_joint_mode(pencil_from_dict({"start_deg": 0, "step_deg": 5.625, "count": 64, "shape": "wedge"}))
+    'all'
+    """
+    return "all" if pencil.shape == "wedge" else "crowded"
+
+
 def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None,
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
                        gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None, radial=None, axis_prior=None,
-                       shaft_tracker=None, edge_model="step"):
+                       shaft_tracker=None, edge_model="step", radial_joint="crowded"):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -130,6 +143,9 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
     edge_model : {"step", "limb"}
         With `shaft`: how the shafts' edges are located (`detect_shafts`; a tracker has its
         own).
+    radial_joint : {"crowded", "all"}
+        With `radial`: which edges are located jointly with their neighbours
+        (`radial.detect_radial_edges`' ``joint``; `radial_joint_mode` by the pencil's shape).
     """
     if min_length is None:
         min_length = default_min_length(np.shape(image), bars)
@@ -138,7 +154,7 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         from pencilcal.toolkit.detect.radial import detect_radial_edges
 
         segs = detect_radial_edges(image, camera, edges=radial or None, valid_region=valid_region,
-                                   min_length=min_length, gamma=gamma)
+                                   min_length=min_length, gamma=gamma, joint=radial_joint)
         circle_points = segs.circle_points
     elif bars:
         kw = dict(camera=camera, min_length=min_length, width_px_range=bar_width, proposal_scale=proposal_scale,
@@ -186,9 +202,10 @@ def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, in
 
 def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None, bar_width=None,
                  proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA, bar_tracker=None,
-                 instrument_mask=None, radial=None, axis_prior=None, shaft_tracker=None, edge_model="step"):
+                 instrument_mask=None, radial=None, axis_prior=None, shaft_tracker=None, edge_model="step",
+                 radial_joint="crowded"):
     """One lines.json frame record from one decoded image: ``detect_frame_lines(...).to_dict()``
     (the same arguments)."""
     return detect_frame_lines(name, image, camera, detector, bars, shaft, min_length, bar_width,
                               proposal_scale, valid_region, bar_polarity, gamma, bar_tracker,
-                              instrument_mask, radial, axis_prior, shaft_tracker, edge_model).to_dict()
+                              instrument_mask, radial, axis_prior, shaft_tracker, edge_model, radial_joint).to_dict()

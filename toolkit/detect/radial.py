@@ -53,7 +53,7 @@ from pencilcal.toolkit.detect.radial_joint import joint_refit
 from pencilcal.toolkit.detect.refit import EdgeRefit, RefitOptions
 from pencilcal.toolkit.detect.segments import Segments, detect_segments, in_valid_region
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
-from pencilcal.toolkit.errors import EstimationError
+from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
 
 __all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "JOINT_SIGMAS", "OFFSET_FLOOR_PX"]
@@ -113,7 +113,7 @@ class RadialEdges(Segments):
 
 
 def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, min_length=20.0, circles=True,
-                        gamma=DEFAULT_GAMMA):
+                        gamma=DEFAULT_GAMMA, joint="crowded"):
     """The edges through the vertex of a radial target, and the closed curves about it.
 
     Parameters
@@ -135,12 +135,24 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         (`edges.edge_profiles`). Blur acts on linear light; located on encoded levels, every
         edge of a star blurred by 1 px moves ~0.5 px into its dark side, and the edges no
         longer meet in one point. 1: linear frames.
+    joint : {"crowded", "all"}
+        Which edges are located jointly with their neighbours' blurred edges (`radial_joint`):
+        "crowded", those nowhere clear of them (a dense star's far side at a steep tilt);
+        "all", every edge (where clear as before, the others from `JOINT_SIGMAS` sds apart).
+        "all" for printed wedges (a Siemens star): at the clearance a neighbour still pulls
+        an edge, a little more from one side than the other under perspective and alike
+        for neighbouring edges, an error the normal does not average away (docs/method.md;
+        `lines.radial_joint_mode` chooses by the pencil's shape).
+        "crowded" where the target has what the model lacks beside its edges (a
+        dartboard's raised wires).
 
     Returns
     -------
     RadialEdges
         Empty when no point is crossed by enough edges.
     """
+    if joint not in ("crowded", "all"):
+        raise InputError(f"joint must be 'crowded' or 'all', got {joint!r}")
     img = GrayImage(image, valid_region)
     check_camera_image(camera, img)
     # edges are located on linear light, the pixels linearised before they are interpolated:
@@ -166,16 +178,18 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
             v, reach = _vertex_of(fit, reach)
         except EstimationError:
             return RadialEdges.empty()
-    # the edges that are nowhere clear of their neighbours, located with them (their blurred
-    # edges modelled) from where they lie JOINT_SIGMAS blur sds apart
-    crowded = np.flatnonzero(~fit.ok)
-    if crowded.size:
+    # the edges located with their neighbours (their blurred edges modelled): those that are
+    # nowhere clear of them from where they lie JOINT_SIGMAS blur sds apart; with joint="all"
+    # the others too, from where they are clear as before
+    rows = np.flatnonzero(~fit.ok) if joint == "crowded" else np.arange(phi.size)
+    if rows.size:
         ray = np.concatenate([v + 0 * phi[:, None], v + np.stack([np.cos(phi), np.sin(phi)], -1)], -1)
         r_hi = 1.25 * seen[:, 1]
-        r_lo = np.minimum(np.maximum(_clear_radius(phi, JOINT_SIGMAS * blur), 0.5 * seen[:, 0]), 0.8 * r_hi)
-        joint = joint_refit(lin, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi,
-                            1.0, rows=crowded, search=_SEARCH_PX[-1])
-        fit = _merged(fit, crowded, joint)
+        r_lo = np.where(fit.ok, _clear_radius(phi, clear), _clear_radius(phi, JOINT_SIGMAS * blur))
+        r_lo = np.minimum(np.maximum(r_lo, 0.5 * seen[:, 0]), 0.8 * r_hi)
+        located = joint_refit(lin, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi,
+                              1.0, rows=rows, search=_SEARCH_PX[-1])
+        fit = _merged(fit, rows, located)
         try:
             v, reach = _vertex_of(fit, reach)
         except EstimationError:

@@ -7,6 +7,7 @@ import pytest
 
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.detect.radial import detect_radial_edges
+from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.pencil.spec import image_angles, pencil_from_dict
 from pencilcal.toolkit.synth.radial import dartboard_layers, dartboard_pencil, radial_pose, render_layers, star_layers
 
@@ -34,16 +35,18 @@ def _residuals(found, pen, R, t):
     return res[np.arange(len(a)), k], k
 
 
-@pytest.mark.parametrize("n,tilt,polarity", [(16, 40.0, "dark"), (64, 25.0, "dark"), (64, 50.0, "light")])
-def test_every_edge_of_a_star(n, tilt, polarity):
+@pytest.mark.parametrize("n,tilt,polarity,joint", [(16, 40.0, "dark", "crowded"), (64, 25.0, "dark", "crowded"),
+                                                  (64, 50.0, "light", "crowded"), (64, 50.0, "light", "all")])
+def test_every_edge_of_a_star(n, tilt, polarity, joint):
     """All 2n edges, the vertex within 0.02 px (a 1 px blur, gamma 2.2, JPEG 85, k1 -0.2),
     the angle errors as large as their sigmas say (located on linear light: on the encoded
-    levels every edge sat 0.5 px into its dark side and missed the vertex)."""
+    levels every edge sat 0.5 px into its dark side and missed the vertex), located where
+    clear of their neighbours or every one jointly with them (a star's wedges)."""
     pen = _star(n, polarity)
     R, t = radial_pose(CAM, (700, 450), tilt, 70.0, fill=0.8, axis_deg=30, roll_deg=10)
     img = render_layers(CAM, R, t, star_layers(pen), blur_px=1.0, noise=2.0, gamma=2.2, lighting=0.3,
                         jpeg_quality=85, rng=1)
-    found = detect_radial_edges(img, CAM, edges=2 * n)
+    found = detect_radial_edges(img, CAM, edges=2 * n, joint=joint)
     r, k = _residuals(found, pen, R, t)
     assert len(found) == 2 * n and np.unique(k).size == 2 * n
     assert np.hypot(*(found.vertex - CAM.undistort_pixels(CAM.project(t)))) < 0.02
@@ -67,6 +70,11 @@ def test_a_dense_star_steeply_tilted():
     assert np.hypot(*(found.vertex - CAM.undistort_pixels(CAM.project(t)))) < 0.05
     z = r / found.angle_sigma
     assert 0.5 < np.sqrt(np.mean(z**2)) < 1.6
+
+
+def test_joint_is_crowded_or_all():
+    with pytest.raises(InputError, match="joint"):
+        detect_radial_edges(np.zeros((60, 80), np.uint8), edges=20, joint="every")
 
 
 def test_dartboard_in_its_clutter():
