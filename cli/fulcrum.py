@@ -270,11 +270,17 @@ def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter):
     return epochs_record(ep, results, names, used)
 
 
-def _stabilized(source, camera, frames, mask_path):
+#: Above this departure from a turn (`background_motion.FrameMotion.non_rotation`) the 3-D
+#: axes of --stabilize are warned about: the homography carries no depth.
+TURN_ONLY = 0.05
+
+
+def _stabilized(source, camera, frames, mask_path, shaft_diameter):
     """(frames with their lines in the reference frame, fulcrum.json's ``stabilize``
     record) of --stabilize: the background's homography of every frame to the middle one
     (`background_motion.background_motion`), the shafts mapped by it
-    (`background_motion.stabilize_frames`); a warning for the frames it could not measure."""
+    (`background_motion.stabilize_frames`); a warning for the frames it could not measure,
+    and with `shaft_diameter` where the motion is more than a turn."""
     from pencilcal.toolkit.detect.background_motion import background_motion, stabilize_frames
 
     shape = (camera.height, camera.width)
@@ -291,6 +297,10 @@ def _stabilized(source, camera, frames, mask_path):
         warn(f"--stabilize: the camera's motion is not measured in {len(bad)} frame(s), their lines left out: "
              + ", ".join(map(str, bad[:5])) + (" ..." if len(bad) > 5 else ""))
     ok = [m for m in motions if m.ok]
+    worst = max([m.non_rotation for m in ok] or [0.0])
+    if shaft_diameter is not None and worst > TURN_ONLY:
+        warn(f"--stabilize: the camera moved by more than a turn (its homography departs up to {worst:.2f} from "
+             "one): the 3-D axes mapped into the reference frame are not exact, the 3-D fulcrum neither")
     rec = {"model": "homography", "reference": names[ref], "frames_measured": len(ok),
            "median_rms_px": float(np.median([m.rms_px for m in ok if m.inliers and m is not motions[ref]] or [0.0])),
            "max_shift_px": float(max([m.shift_px for m in ok] or [0.0])),
@@ -509,7 +519,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     where = lines_path or source.description
     motion = None
     if stabilize:
-        frames, motion = _stabilized(source, camera, frames, mask_path)
+        frames, motion = _stabilized(source, camera, frames, mask_path, shaft_diameter)
     angles = read_angles(angles_path, [f["image"] for f in frames]) if angles_path else None
 
     given = click.get_current_context().get_parameter_source("endpoint_sigma") != click.core.ParameterSource.DEFAULT

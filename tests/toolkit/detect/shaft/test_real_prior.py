@@ -48,12 +48,14 @@ def _score(records, truth):
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """{name: (fulcrum.json, jsonl records)} of `fulcrum IMAGES` without and with the prior."""
+    """{name: (fulcrum.json, jsonl records)} of `fulcrum IMAGES` without and with the prior,
+    and with the prior and --stabilize."""
     root = data_dir("real-instruments") / "dvrk-lnd-phantom-sequence"
     tmp = tmp_path_factory.mktemp("phantom")
     write_camera(tmp / "cam.json", _phantom_camera(root))
     out = {}
-    for name, extra in (("plain", []), ("prior", ["--fulcrum-prior", "auto"])):
+    for name, extra in (("plain", []), ("prior", ["--fulcrum-prior", "auto"]),
+                        ("stabilized", ["--fulcrum-prior", "auto", "--stabilize"])):
         r = CliRunner().invoke(cli, ["fulcrum", str(root), "--camera", str(tmp / "cam.json"), "--shaft-diameter", "8",
                                      "-o", str(tmp / f"{name}.json"), "--jsonl", str(tmp / f"{name}.jsonl"), "-q",
                                      *extra])
@@ -100,3 +102,24 @@ def test_the_epochs_of_the_phantom(runs):
     assert test["epochs"] >= 2 and all(c["p_corrected"] < test["alpha"] for c in test["change_points"])
     assert len(doc["epochs"]) == test["epochs"]
     assert runs["plain"][0]["epoch_test"]["epochs"] == 1
+
+
+def test_the_phantom_stabilized(runs):
+    """Reached (--stabilize: each frame's background homography to frame 11, SIFT off the
+    instrument): 19 of 20 frames measured (frame 3's homography is no camera motion, its
+    singular values 3.3:1, and it is left out; it has no shaft anyway), 59-189 inliers,
+    residual 1.0-1.3 px, the background 18-173 px from frame 11's. The homographies scale
+    the image by 0.86-1.13 (the endoscope moves along its axis: more than a turn, 0.11-0.32
+    from one). On the stabilised lines the change-point test finds one epoch (16 lines; no
+    split at 0.01) and its fulcrum moves 1.34 times its sigma when one frame is left out: the
+    issue's target (<= 1.5) is met for the fulcrum's image, where the plain lines give two
+    epochs and 1.9. The 3-D fulcrum of the mapped edges is not (20 times: a homography
+    carries no depth, and the camera translates)."""
+    doc = runs["stabilized"][0]
+    st = doc["stabilize"]
+    ratios = [(e.get("jackknife") or {}).get("ratio") for e in doc.get("epochs", [doc])]
+    print(st["reference"], st["frames_measured"], doc["epoch_test"], ratios, doc["vertex_px"], doc.get("point"))
+    assert st["frames_measured"] >= 18 and st["reference"] == "11.png"
+    assert all(f["rms_px"] < 2.0 for f in st["frames"] if f["ok"])
+    assert doc["epoch_test"]["epochs"] == 1 and doc["lines_used"] >= 15
+    assert all(r is not None and r <= 1.5 for r in ratios)
