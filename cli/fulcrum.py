@@ -270,6 +270,30 @@ def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter):
     return epochs_record(ep, results, names, used)
 
 
+def _check_usage(o):
+    """Usage errors of the fulcrum command's options (o: its keyword arguments by name)."""
+    if o["shaft_diameter"] is not None and not o["shaft_diameter"] > 0:
+        raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
+    if o["kinematics_path"] is not None and o["shaft_diameter"] is None:
+        raise click.UsageError("--kinematics needs --shaft-diameter (the shaft's 3-D axes)")
+    if sum(o[k] is not None for k in ("images", "source_spec", "lines_path")) != 1:
+        raise click.UsageError("give IMAGES, --source or --lines (one of them)")
+    if o["lines_path"] is not None and any(o[k] is not None for k in ("mask_path", "overlay_path", "instrument_mask",
+                                                                        "prior_spec")):
+        raise click.UsageError("--mask, --instrument-mask, --overlay and --fulcrum-prior are for frames (a lines "
+                               "file's lines are already found)")
+    if o["stabilize"] and (o["images"] is None or o["right_images"] is not None):
+        raise click.UsageError("--stabilize measures the camera's motion on IMAGES (not --source or --lines), one "
+                               "view (not --right)")
+    if o["instrument_mask"] is not None and o["prior_spec"] is not None:
+        raise click.UsageError("--instrument-mask gives the shafts: --fulcrum-prior is for detecting them")
+    if o["prior_spec"] == "auto" and o["source_spec"] is not None:
+        raise click.UsageError("--fulcrum-prior auto reads the frames twice: give IMAGES, not --source")
+    stereo = (o["right_images"], o["camera_right_path"], o["stereo_path"])
+    if any(x is not None for x in stereo) and not all(x is not None for x in stereo):
+        raise click.UsageError("--right, --camera-right and --right-from-left go together")
+
+
 #: Above this departure from a turn (`background_motion.FrameMotion.non_rotation`) the 3-D
 #: axes of --stabilize are warned about: the homography carries no depth.
 TURN_ONLY = 0.05
@@ -359,7 +383,8 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
       pencilcal fulcrum --lines l.json --camera cam.yaml --angles a.csv -o f.json
 
     Shafts from IMAGES (files, folders, a video), --source or --lines: the
-    fulcrum's image and ray, its 3-D point [mm] with --shaft-diameter. docs/cli.md.
+    fulcrum's image and ray; its 3-D point [mm] with --shaft-diameter. In detail:
+    docs/cli.md.
     \f
     Every frame's instrument line passes through the fulcrum's image: their robust weighted
     intersection gives the fulcrum's viewing ray and, where the lens model reaches it (a
@@ -456,26 +481,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         pencilcal fulcrum left/ --camera l.yaml --right right/ --camera-right r.yaml --right-from-left extrinsics.yml -o f.json
         pencilcal fulcrum --lines l.json --camera l.yaml --right r.json --camera-right r.yaml --right-from-left s.yml -o f.json
     """
-    if shaft_diameter is not None and not shaft_diameter > 0:
-        raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
-    if kinematics_path is not None and shaft_diameter is None:
-        raise click.UsageError("--kinematics needs --shaft-diameter (the shaft's 3-D axes)")
-    if sum(x is not None for x in (images, source_spec, lines_path)) != 1:
-        raise click.UsageError("give IMAGES, --source or --lines (one of them)")
-    if lines_path is not None and (mask_path is not None or overlay_path is not None or instrument_mask is not None
-                                   or prior_spec is not None):
-        raise click.UsageError("--mask, --instrument-mask, --overlay and --fulcrum-prior are for frames (a lines "
-                               "file's lines are already found)")
-    if stabilize and (images is None or right_images is not None):
-        raise click.UsageError("--stabilize measures the camera's motion on IMAGES (not --source or --lines), one "
-                               "view (not --right)")
-    if instrument_mask is not None and prior_spec is not None:
-        raise click.UsageError("--instrument-mask gives the shafts: --fulcrum-prior is for detecting them")
-    if prior_spec == "auto" and source_spec is not None:
-        raise click.UsageError("--fulcrum-prior auto reads the frames twice: give IMAGES, not --source")
-    stereo = (right_images, camera_right_path, stereo_path)
-    if any(x is not None for x in stereo) and not all(x is not None for x in stereo):
-        raise click.UsageError("--right, --camera-right and --right-from-left go together")
+    _check_usage(locals())
     right_lines = right_images if right_images is not None and _is_lines_file(right_images) else None
     prior_file = prior_spec if prior_spec not in (None, "auto") else None
     check_output(output, force, [lines_path, camera_path, angles_path, mask_path, camera_right_path, stereo_path,
