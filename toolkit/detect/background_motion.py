@@ -88,6 +88,15 @@ class FrameMotion:
     non_rotation: float = float("nan")
     error: str | None = None
 
+    @classmethod
+    def from_dict(cls, d):
+        """The motion of a `to_dict` record (fulcrum.json's ``stabilize.frames`` entries)."""
+        if not d["ok"]:
+            return cls(str(d["image"]), False, matches=int(d["matches"]), inliers=int(d["inliers"]), error=d["error"])
+        return cls(str(d["image"]), True, np.asarray(d["H_ref_from_frame"], float), np.asarray(d["H_cov"], float),
+                   float(d["rms_px"]), int(d["inliers"]), int(d["matches"]), float(d["shift_px"]),
+                   float(d["non_rotation"]))
+
     def to_dict(self) -> dict:
         """fulcrum.json's record of the frame's motion (docs/formats.md, ``stabilize``)."""
         out = {"image": self.image, "ok": self.ok, "matches": self.matches, "inliers": self.inliers}
