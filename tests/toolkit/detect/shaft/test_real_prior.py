@@ -48,7 +48,7 @@ def _score(records, truth):
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """{name: (fulcrum.json, jsonl records)} of `fulcrum IMAGES` without and with the prior,
+    """{name: (fulcrum.json, jsonl records, output)} of `fulcrum IMAGES` without and with the prior,
     and with the prior and --stabilize."""
     root = data_dir("real-instruments") / "dvrk-lnd-phantom-sequence"
     tmp = tmp_path_factory.mktemp("phantom")
@@ -61,7 +61,7 @@ def runs(tmp_path_factory):
                                      *extra])
         assert r.exit_code == 0, r.output
         out[name] = (json.loads((tmp / f"{name}.json").read_text()),
-                     [json.loads(line) for line in (tmp / f"{name}.jsonl").read_text().splitlines()])
+                     [json.loads(line) for line in (tmp / f"{name}.jsonl").read_text().splitlines()], r.output)
     return out
 
 
@@ -124,6 +124,7 @@ def test_the_phantom_stabilized(runs):
     assert all(f["rms_px"] < 2.0 for f in st["frames"] if f["ok"])
     assert doc["epoch_test"]["epochs"] == 1 and doc["lines_used"] >= 15
     assert all(r is not None and r <= 1.5 for r in ratios)
+    assert "the camera moved by more than a turn" in runs["stabilized"][2]
 
 
 def test_the_hand_made_axes_stabilized(runs):
