@@ -8,7 +8,8 @@ simulate's pivot scenario (an 8 mm shaft pivoting about a port 60 mm above a pri
   is exact: H = K R K^-1 for any scene);
 - *about the port*: turned 0.6 deg a frame about a point 100 mm behind it, as an endoscope
   moved about its port (it translates 1 mm a frame too: the sheet's homography carries the
-  fulcrum, 60 mm off the sheet, with a parallax error).
+  fulcrum, 60 mm off the sheet, with a parallax error);
+- *still*: the camera never moves (what stabilising costs).
 
 Each frame's shaft midline is the exact one with Gaussian noise of its stated sigmas (0.3
 deg, 0.5 px); the fulcrum is fitted on the lines as they are and on the stabilised ones
@@ -54,7 +55,7 @@ def _turning(sc, seed):
 def _scene(kind):
     import cv2
 
-    epochs = N_FRAMES if kind == "port" else 1
+    epochs = N_FRAMES if kind == "port" else 1  # "still": the camera never moves
     sc = make_scenario("pivot", N_FRAMES, seed=5, size=(960, 540), port_view=100.0, shaft_radius=4.0, tip=100.0,
                        height=60.0, epochs=epochs, epoch_move_deg=MOVE_DEG, angle_range_deg=(55.0, 125.0))
     if kind == "turning":
@@ -96,7 +97,7 @@ def _frames(sc, ideal, rng):
     return out
 
 
-@pytest.fixture(scope="module", params=["turning", "port"])
+@pytest.fixture(scope="module", params=["turning", "port", "still"])
 def measured(request):
     """(kind, scenario, exact midlines, reference index, motions) of a rendered sequence."""
     sc, imgs = _scene(request.param)
@@ -113,11 +114,12 @@ def _chi2(fit, truth):
 
 def test_the_background_homography_is_the_camera_turn(measured):
     """Reached (turning): every frame's homography maps points across the image to within
-    0.31 px of the exact K R K^-1 (the sheet's 365-482 inliers, residual 0.46-0.57 px)."""
+    0.31 px of the exact K R K^-1 (the sheet's 365-482 inliers, residual 0.46-0.57 px);
+    still: 0.18 px of the identity (596-743 inliers, residual 0.37-0.46 px)."""
     kind, sc, ideal, ref, motions = measured
     assert all(m.ok for m in motions)
-    if kind != "turning":
-        pytest.skip("the exact homography is K R K^-1 only for a camera turning about its centre")
+    if kind == "port":
+        pytest.skip("the exact homography is K R K^-1 only for a camera turning about its centre (or still)")
     K = np.asarray(sc.camera.K, float)
     R0 = sc.frames[ref]["R_cam_from_target"]
     grid = np.array([[x, y] for x in (150.0, 480.0, 810.0) for y in (100.0, 270.0, 440.0)])
@@ -138,7 +140,8 @@ def test_stabilised_lines_give_the_reference_fulcrum(measured):
     (median) off the reference frame's and never within its 68 % ellipse; stabilised 0.97 px,
     coverage 64 % (mean chi2 2.14 of 2). About the port (parallax: the sheet's homography is
     wrong for the fulcrum 60 mm above it) 36.1 px -> 6.3 px, coverage 0 %: the homography
-    takes the turn out, not the translation."""
+    takes the turn out, not the translation. Still: 0.90 px and 65 % plain, 0.96 px and 63 %
+    stabilised (what the homographies' noise costs where there is no motion)."""
     kind, sc, ideal, ref, motions = measured
     truth = np.asarray(sc.frames[ref]["vertex_px"], float)
     rng = np.random.default_rng(1)
@@ -154,6 +157,9 @@ def test_stabilised_lines_give_the_reference_fulcrum(measured):
     cover = lambda c: float(np.mean(np.array(c) < 2.2957))  # noqa: E731  chi2(2) at 68.27 %
     print(f"{kind}: unstabilised error {np.median(raw_e):.1f} px, coverage {cover(raw_c):.2f}; stabilised "
           f"{np.median(stab_e):.2f} px, coverage {cover(stab_c):.2f}, mean chi2 {np.mean(stab_c):.2f}")
+    if kind == "still":
+        assert 0.58 <= cover(stab_c) <= 0.78 and np.median(stab_e) < 1.3 * np.median(raw_e)
+        return
     assert np.median(stab_e) < 0.5 * np.median(raw_e)
     if kind == "turning":
         assert 0.58 <= cover(stab_c) <= 0.78 and cover(raw_c) < 0.2
