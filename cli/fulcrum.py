@@ -310,12 +310,15 @@ def _stabilized(source, camera, frames, mask_path, shaft_diameter):
     shape = (camera.height, camera.width)
     region = frames_region(source, mask_path, shape=shape)
     valid = None if region is None else region.mask(shape)
-    shafts = {f["image"]: f.get("shafts") or [] for f in frames}
-    order = [fr for fr in source]
-    by_name = {fr.name: fr.image for fr in order}
-    ref, motions = background_motion((by_name.get(f["image"]) for f in frames), [shafts[f["image"]] for f in frames],
-                                     camera, valid)
     names = [f["image"] for f in frames]
+
+    def images():  # read again in the order the shafts were found: only their features are kept
+        for fr, name in zip(source, names):
+            if fr.name != name:
+                raise InputError(f"{source.description}: the frames changed while read ({fr.name}, was {name})")
+            yield fr.image
+
+    ref, motions = background_motion(images(), [f.get("shafts") or [] for f in frames], camera, valid)
     bad = [n for n, m in zip(names, motions) if not m.ok]
     if bad:
         warn(f"--stabilize: the camera's motion is not measured in {len(bad)} frame(s), their lines left out: "
@@ -326,7 +329,7 @@ def _stabilized(source, camera, frames, mask_path, shaft_diameter):
         warn(f"--stabilize: the camera moved by more than a turn (its homography departs up to {worst:.2f} from "
              "one): the 3-D axes mapped into the reference frame are not exact, the 3-D fulcrum neither")
     rec = {"model": "homography", "reference": names[ref], "frames_measured": len(ok),
-           "median_rms_px": float(np.median([m.rms_px for m in ok if m.inliers and m is not motions[ref]] or [0.0])),
+           "median_rms_px": float(np.median([m.rms_px for m in ok if m is not motions[ref]] or [0.0])),
            "max_shift_px": float(max([m.shift_px for m in ok] or [0.0])),
            "frames": [{**m.to_dict(), "image": n} for n, m in zip(names, motions)]}
     return stabilize_frames(camera, frames, motions), rec
