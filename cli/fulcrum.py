@@ -270,11 +270,76 @@ def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter):
     return epochs_record(ep, results, names, used)
 
 
+def _check_usage(o):
+    """Usage errors of the fulcrum command's options (o: its keyword arguments by name)."""
+    if o["shaft_diameter"] is not None and not o["shaft_diameter"] > 0:
+        raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
+    if o["kinematics_path"] is not None and o["shaft_diameter"] is None:
+        raise click.UsageError("--kinematics needs --shaft-diameter (the shaft's 3-D axes)")
+    if sum(o[k] is not None for k in ("images", "source_spec", "lines_path")) != 1:
+        raise click.UsageError("give IMAGES, --source or --lines (one of them)")
+    if o["lines_path"] is not None and any(o[k] is not None for k in ("mask_path", "overlay_path", "instrument_mask",
+                                                                        "prior_spec")):
+        raise click.UsageError("--mask, --instrument-mask, --overlay and --fulcrum-prior are for frames (a lines "
+                               "file's lines are already found)")
+    if o["stabilize"] and (o["images"] is None or o["right_images"] is not None):
+        raise click.UsageError("--stabilize measures the camera's motion on IMAGES (not --source or --lines), one "
+                               "view (not --right)")
+    if o["instrument_mask"] is not None and o["prior_spec"] is not None:
+        raise click.UsageError("--instrument-mask gives the shafts: --fulcrum-prior is for detecting them")
+    if o["prior_spec"] == "auto" and o["source_spec"] is not None:
+        raise click.UsageError("--fulcrum-prior auto reads the frames twice: give IMAGES, not --source")
+    stereo = (o["right_images"], o["camera_right_path"], o["stereo_path"])
+    if any(x is not None for x in stereo) and not all(x is not None for x in stereo):
+        raise click.UsageError("--right, --camera-right and --right-from-left go together")
+
+
+#: Above this departure from a turn (`background_motion.FrameMotion.non_rotation`) the 3-D
+#: axes of --stabilize are warned about: the homography carries no depth.
+TURN_ONLY = 0.05
+
+
+def _stabilized(source, camera, frames, mask_path, shaft_diameter):
+    """(frames with their lines in the reference frame, fulcrum.json's ``stabilize``
+    record) of --stabilize: the background's homography of every frame to the middle one
+    (`background_motion.background_motion`), the shafts mapped by it
+    (`background_motion.stabilize_frames`); a warning for the frames it could not measure,
+    and with `shaft_diameter` where the motion is more than a turn."""
+    from pencilcal.toolkit.detect.background_motion import background_motion, stabilize_frames
+
+    shape = (camera.height, camera.width)
+    region = frames_region(source, mask_path, shape=shape)
+    valid = None if region is None else region.mask(shape)
+    names = [f["image"] for f in frames]
+
+    def images():  # read again in the order the shafts were found: only their features are kept
+        for fr, name in zip(source, names):
+            if fr.name != name:
+                raise InputError(f"{source.description}: the frames changed while read ({fr.name}, was {name})")
+            yield fr.image
+
+    ref, motions = background_motion(images(), [f.get("shafts") or [] for f in frames], camera, valid)
+    bad = [n for n, m in zip(names, motions) if not m.ok]
+    if bad:
+        warn(f"--stabilize: the camera's motion is not measured in {len(bad)} frame(s), their lines left out: "
+             + ", ".join(map(str, bad[:5])) + (" ..." if len(bad) > 5 else ""))
+    ok = [m for m in motions if m.ok]
+    worst = max([m.non_rotation for m in ok] or [0.0])
+    if shaft_diameter is not None and worst > TURN_ONLY:
+        warn(f"--stabilize: the camera moved by more than a turn (its homography departs up to {worst:.2f} from "
+             "one): the 3-D axes mapped into the reference frame are not exact, the 3-D fulcrum neither")
+    rec = {"model": "homography", "reference": names[ref], "frames_measured": len(ok),
+           "median_rms_px": float(np.median([m.rms_px for m in ok if m is not motions[ref]] or [0.0])),
+           "max_shift_px": float(max([m.shift_px for m in ok] or [0.0])),
+           "frames": [{**m.to_dict(), "image": n} for n, m in zip(names, motions)]}
+    return stabilize_frames(camera, frames, motions), rec
+
+
 @command()
 @images_argument(required=False)
 @source_option
 @click.option("--lines", "lines_path", type=click.Path(dir_okay=False), default=None,
-              help="lines.json (its shaft midlines where present), instead of IMAGES.")
+              help="lines.json, instead of IMAGES.")
 @camera_options
 @click.option("--angles", "angles_path", type=click.Path(dir_okay=False), default=None,
               help="Pivot angles (CSV): the pivot plane too.")
@@ -283,17 +348,19 @@ def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter):
 @click.option("--kinematics", "kinematics_path", type=click.Path(dir_okay=False), default=None, metavar="CSV",
               help="Robot tool poses: the hand-eye too.")
 @click.option("--right", "right_images", default=None, metavar="IMAGES|LINES",
-              help="A stereo pair's right view (frames or lines.json): the fulcrum triangulated.")
+              help="Stereo right view (frames or lines.json).")
 @click.option("--camera-right", "camera_right_path", type=click.Path(dir_okay=False), default=None,
               help="Camera file of the --right view.")
 @click.option("--right-from-left", "stereo_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
-              help="Stereo calibration (OpenCV's R and T, e.g. extrinsics.yml).")
+              help="Stereo calibration (OpenCV's R, T).")
 @endpoint_sigma_option("End point noise [px] of segments without their own sigma.")
 @detector_option("Shaft proposals' detector.")
 @gamma_option
 @edge_model_option
 @click.option("--fulcrum-prior", "prior_spec", default=None, metavar="FILE|auto",
               help="Shafts through the fulcrum's image: FILE (fulcrum.json, ray); auto: estimated.")
+@click.option("--stabilize", is_flag=True,
+              help="Lines freed of the camera's motion.")
 @click.option("--track/--no-track", default=True, show_default=True,
               help="Find the shafts where the previous frames predict them (--workers 1).")
 @instrument_mask_options
@@ -308,7 +375,8 @@ def _epochs(camera, frames, angles, endpoint_sigma, shaft_diameter):
 @run
 def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path, shaft_diameter, kinematics_path,
             right_images,
-            camera_right_path, stereo_path, endpoint_sigma, detector, gamma, edge_model, prior_spec, track, instrument_mask,
+            camera_right_path, stereo_path, endpoint_sigma, detector, gamma, edge_model, prior_spec, stabilize, track,
+            instrument_mask,
             mask_labels, mask_instances, mask_path, jsonl_path, overlay_path, max_pixels, workers, output, force, quiet):
     """The fulcrum of an instrument pivoting about its entry port.
 
@@ -317,9 +385,9 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
       pencilcal fulcrum frames/ --camera cam.yaml --shaft-diameter 8 -o f.json
       pencilcal fulcrum --lines l.json --camera cam.yaml --angles a.csv -o f.json
 
-    Shafts from IMAGES (files, folders, globs, a video), --source or --lines. The
-    fulcrum's image and ray with sigmas; with --shaft-diameter its 3-D point [mm];
-    with --right a stereo pair's. In detail: docs/cli.md.
+    Shafts from IMAGES (files, folders, a video), --source or --lines: the
+    fulcrum's image and ray; its 3-D point [mm] with --shaft-diameter. In detail:
+    docs/cli.md.
     \f
     Every frame's instrument line passes through the fulcrum's image: their robust weighted
     intersection gives the fulcrum's viewing ray and, where the lens model reaches it (a
@@ -395,6 +463,14 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     (robot kinematics) or vertex_px and vertex_cov_px2; auto: a first pass, then two
     through its epochs' priors.
 
+    Where the camera moves (--stabilize; IMAGES, one view), its motion is measured on the
+    background: per frame a homography to the middle frame from SIFT matches off the
+    instrument (RANSAC, then least squares with its covariance), exact for a camera turning
+    about its centre or a flat background; each frame's shafts are mapped into the middle
+    frame's image, their sigmas with the homography's, before the fulcrum, the epochs and
+    the 3-D axes are fitted; ``stabilize`` holds each frame's homography, its covariance and
+    residual (docs/method.md). A frame whose motion is not measured gives no line.
+
     From frame to frame (--track, with --workers 1) each shaft is looked for where a
     constant-velocity model of its edges predicts it, within that prediction's uncertainty,
     without the detector's proposals (one the colour found, by its colour; a full detection
@@ -408,23 +484,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         pencilcal fulcrum left/ --camera l.yaml --right right/ --camera-right r.yaml --right-from-left extrinsics.yml -o f.json
         pencilcal fulcrum --lines l.json --camera l.yaml --right r.json --camera-right r.yaml --right-from-left s.yml -o f.json
     """
-    if shaft_diameter is not None and not shaft_diameter > 0:
-        raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
-    if kinematics_path is not None and shaft_diameter is None:
-        raise click.UsageError("--kinematics needs --shaft-diameter (the shaft's 3-D axes)")
-    if sum(x is not None for x in (images, source_spec, lines_path)) != 1:
-        raise click.UsageError("give IMAGES, --source or --lines (one of them)")
-    if lines_path is not None and (mask_path is not None or overlay_path is not None or instrument_mask is not None
-                                   or prior_spec is not None):
-        raise click.UsageError("--mask, --instrument-mask, --overlay and --fulcrum-prior are for frames (a lines "
-                               "file's lines are already found)")
-    if instrument_mask is not None and prior_spec is not None:
-        raise click.UsageError("--instrument-mask gives the shafts: --fulcrum-prior is for detecting them")
-    if prior_spec == "auto" and source_spec is not None:
-        raise click.UsageError("--fulcrum-prior auto reads the frames twice: give IMAGES, not --source")
-    stereo = (right_images, camera_right_path, stereo_path)
-    if any(x is not None for x in stereo) and not all(x is not None for x in stereo):
-        raise click.UsageError("--right, --camera-right and --right-from-left go together")
+    _check_usage(locals())
     right_lines = right_images if right_images is not None and _is_lines_file(right_images) else None
     prior_file = prior_spec if prior_spec not in (None, "auto") else None
     check_output(output, force, [lines_path, camera_path, angles_path, mask_path, camera_right_path, stereo_path,
@@ -466,6 +526,9 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
             with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
                 frames = _shafts(source, camera, options, quiet, workers, mask_path, live, tracker, masks, priors)
     where = lines_path or source.description
+    motion = None
+    if stabilize:
+        frames, motion = _stabilized(source, camera, frames, mask_path, shaft_diameter)
     angles = read_angles(angles_path, [f["image"] for f in frames]) if angles_path else None
 
     given = click.get_current_context().get_parameter_source("endpoint_sigma") != click.core.ParameterSource.DEFAULT
@@ -490,6 +553,8 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         out["epochs"] = epochs
     if priors is not None:
         out["fulcrum_prior"] = prior_spec
+    if motion is not None:
+        out["stabilize"] = motion
     if rig is not None:
         out["stereo"] = _stereo(res, right_images, camera_right, camera_right_path, rig, options, endpoint_sigma,
                                 given, max_pixels, workers, quiet, force, (camera, frames, shaft_diameter), poses)

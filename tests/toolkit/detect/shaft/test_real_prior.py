@@ -48,18 +48,20 @@ def _score(records, truth):
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """{name: (fulcrum.json, jsonl records)} of `fulcrum IMAGES` without and with the prior."""
+    """{name: (fulcrum.json, jsonl records, output)} of `fulcrum IMAGES` without and with the prior,
+    and with the prior and --stabilize."""
     root = data_dir("real-instruments") / "dvrk-lnd-phantom-sequence"
     tmp = tmp_path_factory.mktemp("phantom")
     write_camera(tmp / "cam.json", _phantom_camera(root))
     out = {}
-    for name, extra in (("plain", []), ("prior", ["--fulcrum-prior", "auto"])):
+    for name, extra in (("plain", []), ("prior", ["--fulcrum-prior", "auto"]),
+                        ("stabilized", ["--fulcrum-prior", "auto", "--stabilize"])):
         r = CliRunner().invoke(cli, ["fulcrum", str(root), "--camera", str(tmp / "cam.json"), "--shaft-diameter", "8",
                                      "-o", str(tmp / f"{name}.json"), "--jsonl", str(tmp / f"{name}.jsonl"), "-q",
                                      *extra])
         assert r.exit_code == 0, r.output
         out[name] = (json.loads((tmp / f"{name}.json").read_text()),
-                     [json.loads(line) for line in (tmp / f"{name}.jsonl").read_text().splitlines()])
+                     [json.loads(line) for line in (tmp / f"{name}.jsonl").read_text().splitlines()], r.output)
     return out
 
 
@@ -100,3 +102,55 @@ def test_the_epochs_of_the_phantom(runs):
     assert test["epochs"] >= 2 and all(c["p_corrected"] < test["alpha"] for c in test["change_points"])
     assert len(doc["epochs"]) == test["epochs"]
     assert runs["plain"][0]["epoch_test"]["epochs"] == 1
+
+
+def test_the_phantom_stabilized(runs):
+    """Reached (--stabilize: each frame's background homography to frame 11, SIFT off the
+    instrument): 19 of 20 frames measured (frame 3's homography is no camera motion, its
+    singular values 3.3:1, and it is left out; it has no shaft anyway), 34-189 inliers,
+    residual 0.95-1.26 px, the background 18-173 px from frame 11's. The homographies scale
+    the image by 0.86-1.14 (the endoscope moves along its axis: more than a turn, 0.11-0.32
+    from one). On the stabilised lines the change-point test finds one epoch (16 lines; the
+    best split p 0.047 corrected) and its fulcrum moves 1.34 times its sigma when one frame
+    is left out: the
+    issue's target (<= 1.5) is met for the fulcrum's image, where the plain lines give two
+    epochs and 1.9. The 3-D fulcrum of the mapped edges is not (20 times: a homography
+    carries no depth, and the camera translates)."""
+    doc = runs["stabilized"][0]
+    st = doc["stabilize"]
+    ratios = [(e.get("jackknife") or {}).get("ratio") for e in doc.get("epochs", [doc])]
+    print(st["reference"], st["frames_measured"], doc["epoch_test"], ratios, doc["vertex_px"], doc.get("point"))
+    assert st["frames_measured"] >= 18 and st["reference"] == "11.png"
+    assert all(f["rms_px"] < 2.0 for f in st["frames"] if f["ok"])
+    assert doc["epoch_test"]["epochs"] == 1 and doc["lines_used"] >= 15
+    assert all(r is not None and r <= 1.5 for r in ratios)
+    assert "the camera moved by more than a turn" in runs["stabilized"][2]
+
+
+def test_the_hand_made_axes_stabilized(runs):
+    """The hand-made axes (1 deg, 2 px) carried by the run's homographies: unstabilised their
+    fulcrum moves 1.92 times its sigma when one frame is left out, stabilised 0.82, and their
+    fulcrum image, (-302, 332) +- (150, 5) px in frame 11, is the detected shafts' (-378, 332)
+    +- (178, 7) within their sigmas: the homographies, measured on the background alone, make
+    the hand-made lines of all 18 frames agree."""
+    import numpy as np
+
+    from pencilcal.toolkit.detect.background_motion import FrameMotion, stabilize_frames
+    from pencilcal.validation.fulcrum_run import fulcrum_with_sigmas
+
+    root = data_dir("real-instruments") / "dvrk-lnd-phantom-sequence"
+    cam = _phantom_camera(root)
+    truth = load_real_frames_truth()["dvrk-lnd-phantom-sequence"]
+    doc = runs["stabilized"][0]
+    motions = [FrameMotion.from_dict(f) for f in doc["stabilize"]["frames"]]
+    frames = [{"image": m.image, "ok": True, "segments": np.zeros((0, 4)), "shafts": [
+        {"midline": [float(v) for v in i["axis"]], "width_px": float(i["width_px"]), "angle_sigma_deg": 1.0,
+         "offset_sigma_px": 2.0} for i in truth[m.image]["instruments"] if i["kind"] == "shaft"]} for m in motions]
+    fits = [fulcrum_with_sigmas(cam, f, None, endpoint_sigma_px=None, where="hand-made").to_dict()
+            for f in (frames, stabilize_frames(cam, frames, motions))]
+    ratios = [f["jackknife"]["ratio"] for f in fits]
+    e = np.asarray(fits[1]["vertex_px"]) - np.asarray(doc["vertex_px"])
+    chi2 = float(e @ np.linalg.solve(np.asarray(fits[1]["vertex_cov_px2"]) + np.asarray(doc["vertex_cov_px2"]), e))
+    print(ratios, fits[1]["vertex_px"], np.sqrt(np.diag(fits[1]["vertex_cov_px2"])), chi2)
+    assert ratios[0] > 1.5 and ratios[1] <= 1.5
+    assert chi2 < 9.21  # chi2(2) at 99 %

@@ -1,0 +1,382 @@
+"""The camera's motion over a sequence, measured on the background, and the instrument's
+lines carried into one reference frame (`pencilcal fulcrum --stabilize`).
+
+Within a pivot epoch every frame's shaft axis passes through one fulcrum image only while
+the camera holds still. Where it moves (a hand-held or drifting endoscope), each frame's
+lines are taken into the reference frame's image first:
+
+1. *features*: SIFT key points (a low contrast threshold, `CONTRAST`, after local contrast
+   equalisation: tissue is smooth) of every frame inside the sequence's valid region, off the
+   instrument (a band `BAND_WIDTHS` shaft widths either side of each shaft's midline, from
+   the border to `TIP_WIDTHS` widths beyond its far end: the wrist and jaws);
+2. *matches* to the reference frame's (Lowe's ratio test, `RATIO`), in undistorted pixels;
+3. *homography* ``H_ref_from_frame`` by RANSAC (`RANSAC_PX`), then Gauss-Newton on its
+   inliers' transfer errors, ``H[2, 2] = 1``: its 8 x 8 covariance is ``s^2 (J^T J)^-1``
+   with ``s^2`` the inliers' residual variance, so what the background does beyond a
+   homography (tissue that deforms, parallax) widens it;
+4. *lines*: a line's two end points map by H (its homogeneous vector by ``H^-T``), and its
+   (angle, offset) covariance about its centre is carried by the Jacobian of the mapped
+   line's (angle, offset) about its new centre in the line's own two parameters and in
+   the homography's eight: ``J_l C_l J_l^T + J_h C_h J_h^T`` (numeric central differences).
+
+The assumption: the background's image motion is a homography. That is exact for a camera
+that turns about its centre (``H = K R K^-1``, any scene: the fulcrum's image moves with
+it) and for a planar background; an endoscope moved about its port also translates, and a
+homography fitted to the tissue then carries points off the tissue's depth (the fulcrum)
+with a parallax error of the translation times the difference of inverse depths. The
+homography's uncertainty is carried into each line, but its error is shared by all lines
+of the frame and the reference's feature noise by all frames: neither correlation is
+modelled.
+
+>>> import numpy as np
+>>> H = np.array([[1.0, 0.0, 5.0], [0.0, 1.0, -3.0], [0.0, 0.0, 1.0]])
+>>> seg, cov = map_segment(np.array([0.0, 0.0, 100.0, 0.0]), np.diag([1e-4, 0.25]), H, np.zeros((8, 8)))
+>>> np.round(seg, 6).tolist(), np.round(np.sqrt(np.diag(cov)), 4).tolist()
+([5.0, -3.0, 105.0, -3.0], [0.01, 0.5])
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+
+from pencilcal.toolkit.errors import EstimationError
+
+__all__ = ["FrameMotion", "background_motion", "instrument_exclusion", "map_segment", "stabilize_frames",
+           "homography_cov", "MIN_INLIERS", "MAX_NON_ROTATION"]
+
+#: Lowe's ratio test of a feature's best match against its second best.
+RATIO = 0.8
+#: RANSAC's inlier threshold [undistorted px] of the homography's transfer error.
+RANSAC_PX = 3.0
+#: The least RANSAC inliers a frame's homography needs: fewer and its motion is unmeasured.
+MIN_INLIERS = 15
+#: Half-width of the band about each shaft's midline kept free of features [shaft widths].
+BAND_WIDTHS = 1.5
+#: How far beyond the midline's far end the band goes (the wrist and jaws) [shaft widths].
+TIP_WIDTHS = 4.0
+#: The most a homography may depart from a turn of the camera, as the ratio of the largest
+#: to the smallest singular value of K^-1 H K less 1 (0 for any rotation; a translation of
+#: a tenth of the scene's depth gives about 0.1-0.3): beyond it the matches that carried
+#: RANSAC are a coincidence (the phantom's frame 3: 3.3, from 23 of 103 matches).
+MAX_NON_ROTATION = 0.5
+#: SIFT features per frame.
+FEATURES = 4000
+#: SIFT's contrast threshold (its default 0.04 finds ~200 features on a bowel phantom's
+#: smooth tissue, 0.01 after CLAHE ~3600).
+CONTRAST = 0.01
+
+
+@dataclass(frozen=True)
+class FrameMotion:
+    """The background's motion of one frame to the reference: H (3, 3) maps its undistorted
+    pixels to the reference's (H[2, 2] = 1), cov (8, 8) of H's first eight entries (row
+    major), rms_px the inliers' transfer error [undistorted px], inliers of matches,
+    shift_px the median displacement of the inliers [px], non_rotation its departure from
+    a turn of the camera (`MAX_NON_ROTATION`); ok False (H None) with error
+    saying why where it is not measured."""
+
+    image: str
+    ok: bool
+    H: np.ndarray | None = None
+    cov: np.ndarray | None = None
+    rms_px: float = float("nan")
+    inliers: int = 0
+    matches: int = 0
+    shift_px: float = float("nan")
+    non_rotation: float = float("nan")
+    error: str | None = None
+
+    @classmethod
+    def from_dict(cls, d):
+        """The motion of a `to_dict` record (fulcrum.json's ``stabilize.frames`` entries)."""
+        if not d["ok"]:
+            return cls(str(d["image"]), False, matches=int(d["matches"]), inliers=int(d["inliers"]), error=d["error"])
+        return cls(str(d["image"]), True, np.asarray(d["H_ref_from_frame"], float), np.asarray(d["H_cov"], float),
+                   float(d["rms_px"]), int(d["inliers"]), int(d["matches"]), float(d["shift_px"]),
+                   float(d["non_rotation"]))
+
+    def to_dict(self) -> dict:
+        """fulcrum.json's record of the frame's motion (docs/formats.md, ``stabilize``)."""
+        out = {"image": self.image, "ok": self.ok, "matches": self.matches, "inliers": self.inliers}
+        if self.ok:
+            out.update({"H_ref_from_frame": self.H.tolist(), "H_cov": self.cov.tolist(),
+                        "rms_px": float(self.rms_px), "shift_px": float(self.shift_px),
+                        "non_rotation": float(self.non_rotation)})
+        else:
+            out["error"] = self.error
+        return out
+
+
+def instrument_exclusion(shape, shafts, valid=None):
+    """(H, W) uint8 mask, 255 where features may be taken: inside `valid` ((H, W) bool or
+    None: everywhere), off each shaft's band (module docstring; shafts: lines.json shaft
+    records, midline in raw px from the near end to the far end, width_px)."""
+    import cv2
+
+    m = np.full(shape[:2], 255, np.uint8) if valid is None else np.where(valid, 255, 0).astype(np.uint8)
+    reach = float(np.hypot(*shape[:2]))
+    for s in shafts or ():
+        x1, y1, x2, y2 = (float(v) for v in s["midline"])
+        d = np.array([x2 - x1, y2 - y1])
+        n = float(np.hypot(*d))
+        if not np.isfinite(n) or n < 1e-9:
+            continue
+        d /= n
+        w = max(float(s.get("width_px") or 10.0), 4.0)
+        a = np.array([x1, y1]) - reach * d
+        b = np.array([x2, y2]) + TIP_WIDTHS * w * d
+        cv2.line(m, tuple(int(round(v)) for v in a), tuple(int(round(v)) for v in b), 0,
+                 thickness=max(int(round(2 * BAND_WIDTHS * w)), 3))
+        cv2.circle(m, (int(round(b[0])), int(round(b[1]))), int(round(2.0 * w)), 0, -1)
+    return m
+
+
+def _features(image, mask, sift):
+    """(key points (N, 2) raw px, descriptors) of an image (grey or BGR) within mask."""
+    import cv2
+
+    g = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    if g.dtype != np.uint8:
+        g = cv2.normalize(g, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    g = cv2.createCLAHE(3.0, (8, 8)).apply(g)
+    kp, des = sift.detectAndCompute(g, mask)
+    return np.array([k.pt for k in kp], float).reshape(-1, 2), des
+
+
+def _transfer(h, src):
+    """src (N, 2) mapped by the homography of h (8,), H[2, 2] = 1, and the Jacobian
+    (N, 2, 8) of the mapped points in h."""
+    x, y = src[:, 0], src[:, 1]
+    w = h[6] * x + h[7] * y + 1.0
+    u = (h[0] * x + h[1] * y + h[2]) / w
+    v = (h[3] * x + h[4] * y + h[5]) / w
+    J = np.zeros((len(src), 2, 8))
+    one = np.ones_like(x)
+    J[:, 0, 0:3] = np.stack([x, y, one], -1) / w[:, None]
+    J[:, 1, 3:6] = np.stack([x, y, one], -1) / w[:, None]
+    J[:, 0, 6:8] = -np.stack([x, y], -1) * (u / w)[:, None]
+    J[:, 1, 6:8] = -np.stack([x, y], -1) * (v / w)[:, None]
+    return np.stack([u, v], -1), J
+
+
+def homography_cov(H, src, dst, iterations=3):
+    """(H refined, cov (8, 8), rms [px]) of the homography mapping src (N, 2) to dst (N, 2),
+    N >= 5: Gauss-Newton on the transfer errors from H (3, 3), its covariance s^2 (J^T J)^-1
+    with s^2 = |r|^2 / (2N - 8), the columns scaled for the inverse (pixel coordinates
+    make them differ by 10^6).
+
+    >>> rng = np.random.default_rng(0)
+    >>> src = rng.uniform(0, 500, (200, 2))
+    >>> H0 = np.array([[1.01, 0.02, 4.0], [-0.01, 0.99, -2.0], [1e-5, -2e-5, 1.0]])
+    >>> q = np.c_[src, np.ones(200)] @ H0.T
+    >>> dst = q[:, :2] / q[:, 2:] + rng.normal(0, 0.5, (200, 2))
+    >>> H, cov, rms = homography_cov(np.eye(3), src, dst, iterations=6)
+    >>> grid = np.array([[0.0, 0.0], [500.0, 0.0], [0.0, 500.0], [500.0, 500.0]])
+    >>> bool(np.abs(_apply(H, grid) - _apply(H0, grid)).max() < 0.3), round(rms, 1), cov.shape
+    (True, 0.5, (8, 8))
+    """
+    h = (np.asarray(H, float) / H[2, 2]).ravel()[:8].copy()
+    src, dst = np.asarray(src, float), np.asarray(dst, float)
+    for _ in range(iterations + 1):
+        p, J = _transfer(h, src)
+        r = (dst - p).reshape(-1)
+        A = J.reshape(-1, 8)
+        scale = 1.0 / np.maximum(np.linalg.norm(A, axis=0), 1e-300)
+        As = A * scale
+        N = np.linalg.inv(As.T @ As)
+        if _ < iterations:
+            h = h + scale * (N @ (As.T @ r))
+    dof = max(r.size - 8, 1)
+    s2 = float(r @ r) / dof
+    cov = s2 * (scale[:, None] * N * scale[None, :])
+    rms = float(np.sqrt(np.mean(np.sum((dst - p) ** 2, -1)) / 2.0))
+    return np.append(h, 1.0).reshape(3, 3), cov, rms
+
+
+def _match(ref, cur, camera):
+    """(src, dst) (M, 2) undistorted px of the matches of the current frame's features
+    `cur` to the reference's `ref` (each (points, descriptors)), Lowe's ratio test."""
+    import cv2
+
+    if cur[1] is None or ref[1] is None or len(cur[0]) < 2 or len(ref[0]) < 2:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(cur[1], ref[1], k=2)
+    good = [(m.queryIdx, m.trainIdx) for m, *rest in (p for p in pairs if len(p) >= 1)
+            if not rest or m.distance < RATIO * rest[0].distance]
+    if not good:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    qi, ti = np.array(good).T
+    src = camera.undistort_pixels(cur[0][qi])
+    dst = camera.undistort_pixels(ref[0][ti])
+    ok = np.all(np.isfinite(src), -1) & np.all(np.isfinite(dst), -1)
+    return src[ok], dst[ok]
+
+
+def _frame_motion(name, ref, cur, camera):
+    """The `FrameMotion` of one frame's features `cur` to the reference's `ref`."""
+    import cv2
+
+    src, dst = _match(ref, cur, camera)
+    if len(src) < MIN_INLIERS:
+        return FrameMotion(name, False, matches=len(src), error=f"{len(src)} background matches (< {MIN_INLIERS})")
+    H, inl = cv2.findHomography(src, dst, cv2.RANSAC, RANSAC_PX, maxIters=5000, confidence=0.999)
+    k = 0 if inl is None else int(inl.sum())
+    if H is None or k < MIN_INLIERS or not np.isfinite(H).all() or abs(H[2, 2]) < 1e-12:
+        return FrameMotion(name, False, matches=len(src), inliers=k,
+                           error=f"no homography of the background ({k} inliers of {len(src)} matches)")
+    keep = inl.ravel().astype(bool)
+    H, cov, rms = homography_cov(H, src[keep], dst[keep])
+    shift = float(np.median(np.hypot(*(dst[keep] - src[keep]).T)))
+    K = np.asarray(camera.K, float)
+    sv = np.linalg.svd(np.linalg.solve(K, H @ K), compute_uv=False)
+    nr = float(sv[0] / sv[2] - 1.0)
+    if not nr <= MAX_NON_ROTATION:
+        return FrameMotion(name, False, matches=len(src), inliers=k, non_rotation=nr, error=(
+            f"the background's homography is no camera motion ({k} inliers of {len(src)} matches, departs "
+            f"{nr:.2f} from a turn)"))
+    return FrameMotion(name, True, H, cov, rms, k, len(src), shift, nr)
+
+
+def background_motion(images, shafts, camera, valid=None, reference=None):
+    """The background's motion of every frame to the reference frame (module docstring).
+
+    images: iterable of (H, W[, 3]) uint8 frames or None (not decoded), raw px, read once
+    (only their features are kept); shafts: per frame its lines.json shaft records (their
+    bands are kept free of features); camera: a `Camera` (features matched in undistorted
+    px); valid: (H, W) bool valid region or None; reference: index of the reference frame,
+    default the middle one of those decoded. Returns (reference index, [FrameMotion] per
+    frame, named by index: the reference's the identity with zero covariance).
+    """
+    import cv2
+
+    sift = cv2.SIFT_create(nfeatures=FEATURES, contrastThreshold=CONTRAST)
+    feats = [None if im is None else _features(im, instrument_exclusion(im.shape, sh, valid), sift)
+             for im, sh in zip(images, shafts)]
+    idx = [i for i, f in enumerate(feats) if f is not None]
+    if not idx:
+        raise EstimationError("no frame decodes: no camera motion to measure")
+    ref = idx[len(idx) // 2] if reference is None else int(reference)
+    out = []
+    for i, f in enumerate(feats):
+        name = str(i)
+        if f is None:
+            out.append(FrameMotion(name, False, error="frame not decoded"))
+        elif i == ref:
+            out.append(FrameMotion(name, True, np.eye(3), np.zeros((8, 8)), 0.0, len(f[0]), len(f[0]), 0.0, 0.0))
+        else:
+            out.append(_frame_motion(name, feats[ref], f, camera))
+    return ref, out
+
+
+def _apply(H, p):
+    """p (N, 2) mapped by H (3, 3)."""
+    q = np.c_[p, np.ones(len(p))] @ H.T
+    return q[:, :2] / q[:, 2:]
+
+
+def _angle_offset(q, c0):
+    """(angle of q[0] -> q[1], offset of the line through them about the point c0 along
+    the direction turned by +90 deg)."""
+    d = q[1] - q[0]
+    a = np.arctan2(d[1], d[0])
+    n = np.array([-np.sin(a), np.cos(a)])
+    return np.array([a, n @ (q[0] - c0)])
+
+
+def map_segment(seg, cov, H, cov_H, step=(1e-6, 1e-4, 1e-7)):
+    """(mapped segment (4,), its (angle, offset) covariance (2, 2) about its new centre) of
+    a segment [x1, y1, x2, y2] in undistorted px with the (angle [rad], offset [px])
+    covariance `cov` (2, 2) about its centre, by H (3, 3, H[2, 2] = 1) with the covariance
+    cov_H (8, 8) of its first eight entries (module docstring, step 4). step: the central
+    differences' steps in the angle [rad], the offset [px] and H's entries (the projective
+    ones scaled by 1e-3)."""
+    seg = np.asarray(seg, float).reshape(2, 2)
+    H = np.asarray(H, float) / H[2, 2]
+    c = seg.mean(0)
+    d = seg[1] - seg[0]
+    L = float(np.hypot(*d))
+    a0 = float(np.arctan2(d[1], d[0]))
+    q0 = _apply(H, seg)
+    c0 = q0.mean(0)
+
+    def mapped(a, o, h):
+        u, n = np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])
+        p = c + o * n + np.outer([-L / 2.0, L / 2.0], u)
+        r = _angle_offset(_apply(np.append(h, 1.0).reshape(3, 3), p), c0)
+        r[0] = a0 + np.angle(np.exp(1j * (r[0] - a0)))  # no wrap between the two sides
+        return r
+
+    h0 = H.ravel()[:8]
+    Jl = np.zeros((2, 2))
+    for k, s in enumerate(step[:2]):
+        e = np.zeros(2)
+        e[k] = s
+        Jl[:, k] = (mapped(a0 + e[0], e[1], h0) - mapped(a0 - e[0], -e[1], h0)) / (2 * s)
+    Jh = np.zeros((2, 8))
+    for k in range(8):
+        s = step[2] if k >= 6 else step[2] * 1e3
+        e = np.zeros(8)
+        e[k] = s
+        Jh[:, k] = (mapped(a0, 0.0, h0 + e) - mapped(a0, 0.0, h0 - e)) / (2 * s)
+    out = Jl @ np.asarray(cov, float) @ Jl.T + Jh @ np.asarray(cov_H, float) @ Jh.T
+    return q0.ravel(), 0.5 * (out + out.T)
+
+
+def _map_raw(camera, raw, cov, motion):
+    """(raw segment (4,), cov (2, 2)) of a raw-px segment mapped into the reference (undistorted
+    for the homography, distorted back); None where the lens model does not reach it."""
+    ideal = camera.undistort_pixels(np.asarray(raw, float).reshape(2, 2)).ravel()
+    if not np.isfinite(ideal).all():
+        return None
+    seg, c = map_segment(ideal, cov, motion.H, motion.cov)
+    back = camera.distort_pixels(seg.reshape(2, 2)).ravel()
+    return None if not np.isfinite(back).all() else (back, c)
+
+
+def _map_shaft(camera, s, motion):
+    """A lines.json shaft record mapped into the reference frame, or None (lens)."""
+    s = copy.deepcopy(s)
+    cov = np.diag([np.radians(float(s.get("angle_sigma_deg") or 0.0)) ** 2, float(s.get("offset_sigma_px") or 0.0) ** 2])
+    m = _map_raw(camera, s["midline"], cov, motion)
+    if m is None:
+        return None
+    s["midline"] = m[0].tolist()
+    if s.get("angle_sigma_deg") is not None:
+        s["angle_sigma_deg"] = float(np.degrees(np.sqrt(m[1][0, 0])))
+    if s.get("offset_sigma_px") is not None:
+        s["offset_sigma_px"] = float(np.sqrt(m[1][1, 1]))
+    if s.get("edges"):
+        ecov = s.get("edge_cov") or [np.zeros((2, 2))] * len(s["edges"])
+        mapped = [_map_raw(camera, e, c, motion) for e, c in zip(s["edges"], ecov)]
+        if any(x is None for x in mapped):
+            return None
+        s["edges"] = [x[0].tolist() for x in mapped]
+        if s.get("edge_cov") is not None:
+            s["edge_cov"] = [x[1].tolist() for x in mapped]
+    return s
+
+
+def stabilize_frames(camera, frames, motions):
+    """lines.json `frames` with every shaft (midline, edges and their sigmas) and segment
+    mapped into the reference frame by its frame's `FrameMotion` (module docstring): a frame
+    whose motion is not measured keeps no line (its error says why). Returns new frames."""
+    out = []
+    for fr, mo in zip(frames, motions):
+        fr = dict(fr)
+        if not fr.get("ok", True):
+            out.append(fr)
+            continue
+        if not mo.ok:
+            fr.update({"shafts": [], "segments": np.zeros((0, 4)), "error": f"camera motion: {mo.error}"})
+            out.append(fr)
+            continue
+        shafts = [m for m in (_map_shaft(camera, s, mo) for s in fr.get("shafts") or []) if m is not None]
+        seg = np.asarray(fr.get("segments", np.zeros((0, 4))), float).reshape(-1, 4)
+        if len(seg):
+            ideal = camera.undistort_pixels(seg.reshape(-1, 2))
+            seg = camera.distort_pixels(_apply(mo.H / mo.H[2, 2], ideal)).reshape(-1, 4)
+        fr.update({"shafts": shafts, "segments": seg})
+        out.append(fr)
+    return out
