@@ -51,7 +51,8 @@ def _lines_task(frame, ctx):
     from pencilcal.toolkit.draw.overlay import draw_frame
 
     # drawn by the overlay's own thread (`FrameOutputs`), or in the worker process
-    return rec, partial(draw_frame, frame.image, segments=rec["segments"], shafts=rec.get("shafts"), text=[frame.name])
+    return rec, partial(draw_frame, frame.image, segments=rec["segments"], shafts=rec.get("shafts"), text=[frame.name],
+                        scale=drawing)
 
 
 def _summary(records):
@@ -103,7 +104,7 @@ def _summary(records):
 @run
 def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, radial, shaft, shaft_diameter,
           track, gamma, edge_model, prior_path, min_length, instrument_mask, mask_labels, mask_instances,
-          mask_path, jsonl_path, overlay_path, max_pixels, workers, force, quiet):
+          mask_path, jsonl_path, overlay_path, overlay_scale, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel, with angle uncertainty.
 
     \b
@@ -112,8 +113,8 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
       pencilcal lines frames/ --camera c.yaml --shaft --shaft-diameter 8 -o l.json
 
     IMAGES: files, folders or globs in the order given, or a video; or --source. Every
-    segment in raw pixels with its angle and offset sigmas; with --bars the printed
-    spokes' midlines, with --shaft instrument shafts. In detail: docs/cli.md.
+    segment in raw pixels with its angle and offset sigmas; with --bars the spokes'
+    midlines, with --shaft instrument shafts. In detail: docs/cli.md.
     \f
     IMAGES is one or more image files, folders or glob patterns, in the order given (a
     folder's images sorted naturally), or one video; or --source, a camera or a video still
@@ -207,7 +208,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         from pencilcal.toolkit.detect.shaft.detector import ShaftTracker
 
         tracker = ShaftTracker(gamma=gamma, edge_model=edge_model)
-    with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
+    with FrameOutputs(jsonl_path, overlay_path, force, source=source, scale=overlay_scale) as live:
         ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma, masks,
                radial, priors, tracker, edge_model)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):

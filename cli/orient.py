@@ -91,7 +91,7 @@ def _orient_image_task(frame, ctx):
 
         fr, rec = detected() if tracker is None else _tracked_bars_frame(detected, tracker, state)
     # drawn by the overlay's own thread (`FrameOutputs`), or in the worker process
-    return rec, partial(_drawn, frame, rec, fr["segments"], camera) if drawing else None
+    return rec, partial(_drawn, frame, rec, fr["segments"], camera, drawing) if drawing else None
 
 
 def _tracked_bars_frame(detected, tracker, state):
@@ -115,14 +115,14 @@ def _tracked_bars_frame(detected, tracker, state):
     return fr, rec
 
 
-def _drawn(frame, rec, segments, camera):
+def _drawn(frame, rec, segments, camera, scale):
     """The frame with its orientation drawn (labelled spokes, vertex ellipse, normal, tilt
-    +- sigma), or None for a frame that did not decode."""
+    +- sigma) at `scale` of its size, or None for a frame that did not decode."""
     if frame.image is None:
         return None
     from pencilcal.toolkit.draw.overlay import draw_orientation
 
-    return draw_orientation(frame.image, rec, segments, camera)
+    return draw_orientation(frame.image, rec, segments, camera, scale=scale)
 
 
 def _tracking_meta(state):
@@ -233,7 +233,7 @@ def _check_priors_match(priors, names, path):
 @run
 def orient(images, lines_path, camera_path, camera_id, pencil_path, output, model, endpoint_sigma, angle_sigma,
            prior_path, continuity, track, detector, edges, mask_path, max_segments, source_spec, jsonl_path, overlay_path,
-           max_pixels, workers, force, quiet):
+           overlay_scale, max_pixels, workers, force, quiet):
     """Orientation of the pencil in every frame, from its image angles alone.
 
     \b
@@ -328,7 +328,7 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
             names = [p.name for p in source.paths] if source.kind == "images" else \
                 [f"frame_{i:06d}" for i in range(source.count)]
             _check_priors_match(priors, names, prior_path)
-        with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
+        with FrameOutputs(jsonl_path, overlay_path, force, source=source, scale=overlay_scale) as live:
             ctx = (camera, pencil, detector, opts, edges, region, live.drawing)
             for rec, drawn in run_frames(source, _orient_image_task, ctx, workers, "orient", quiet):
                 _warn_frame(rec, pencil)

@@ -24,19 +24,22 @@ def sim(tmp_path_factory):
     return _simulated(tmp_path_factory, "sim", "orbit", 4, "960x540")
 
 
-@pytest.mark.parametrize("cmd", ["lines", "pnp"])
-def test_jsonl_lines_are_the_frames_records_and_the_overlay_has_every_frame(sim, tmp_path, cmd):
+@pytest.mark.parametrize("cmd, scale, width", [("lines", [], 480), ("pnp", ["--overlay-scale", "1"], 960),
+                                               ("lines", ["--overlay-scale", "0.3"], 288)])
+def test_jsonl_lines_are_the_frames_records_and_the_overlay_has_every_frame(sim, tmp_path, cmd, scale, width):
     extra = ["--board", str(sim / "board.yaml")] if cmd == "pnp" else []
     out, stream, video = tmp_path / "o.json", tmp_path / "s.jsonl", tmp_path / "o.avi"
     r = CliRunner().invoke(cli, [cmd, str(sim / "images"), "--camera", str(sim / "camera.json"), *extra,
-                                 "-o", str(out), "--jsonl", str(stream), "--overlay", str(video), "-q"])
+                                 "-o", str(out), "--jsonl", str(stream), "--overlay", str(video), *scale, "-q"])
     assert r.exit_code == 0, r.output
     lines = [json.loads(x) for x in stream.read_text().splitlines()]
     frames = json.loads(out.read_text())["frames"]
     assert [x["image"] for x in lines] == [f["image"] for f in frames] == [f"{i:03d}.png" for i in range(4)]
     assert lines[1] == frames[1]
     cap = cv2.VideoCapture(str(video))
-    assert cap.get(cv2.CAP_PROP_FRAME_COUNT) == 4 and cap.get(cv2.CAP_PROP_FRAME_WIDTH) == 960
+    # half the frames' size by default (--overlay-scale), each side even
+    assert cap.get(cv2.CAP_PROP_FRAME_COUNT) == 4 and cap.get(cv2.CAP_PROP_FRAME_WIDTH) == width
+    assert cap.get(cv2.CAP_PROP_FRAME_HEIGHT) == {480: 270, 960: 540, 288: 162}[width]
 
 
 def test_jsonl_to_stdout(sim, tmp_path):
@@ -78,6 +81,7 @@ def test_orient_streams_each_frame_and_draws_the_overlay(sim, tmp_path):
     drawn = sorted(p.name for p in folder.iterdir())
     assert drawn == [f"{i:03d}.png" for i in range(4)]
     img, raw = cv2.imread(str(folder / "001.png")), cv2.imread(str(sim / "images" / "001.png"))
+    raw = cv2.resize(raw, (480, 270), interpolation=cv2.INTER_AREA)  # at half size by default
     assert img.shape == raw.shape and (img != raw).any(axis=2).mean() > 0.001  # something is drawn
 
 
