@@ -458,18 +458,19 @@ source_option = click.option(
     help="Instead of IMAGES: a camera index, a URL, or a video still being written.")
 
 
-def open_input(images, source_spec, max_pixels, gray=False):
+def open_input(images, source_spec, max_pixels, gray=False, keep_colour=False):
     """The frames of a per-frame command: IMAGES (`open_images`) or --source (`open_stream`),
-    exactly one of them."""
+    exactly one of them; gray, keep_colour: grey frames, with their colour images too
+    (`io.images`)."""
     if (images is None) == (source_spec is None):
         raise click.UsageError("give IMAGES or --source (one of them)")
     if source_spec is not None:
         from pencilcal.toolkit.io.stream import open_stream
 
-        return open_stream(source_spec, gray=gray, max_pixels=max_pixels)
+        return open_stream(source_spec, gray=gray, max_pixels=max_pixels, keep_colour=keep_colour)
     from pencilcal.toolkit.io.images import open_images
 
-    return open_images(images, gray=gray, max_pixels=max_pixels)
+    return open_images(images, gray=gray, max_pixels=max_pixels, keep_colour=keep_colour)
 
 
 def frames_region(source, mask_path, shape):

@@ -122,7 +122,7 @@ def _drawn(frame, rec, segments, camera, scale):
         return None
     from pencilcal.toolkit.draw.overlay import draw_orientation
 
-    return draw_orientation(frame.image, rec, segments, camera, scale=scale)
+    return draw_orientation(frame.drawable, rec, segments, camera, scale=scale)
 
 
 def _tracking_meta(state):
@@ -315,9 +315,9 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
                 records.append(rec)
                 live.emit(rec.to_dict())
     else:
-        # the lines are found on grey frames: decoded to grey in the decoding thread, unless
-        # the overlay draws on the colour frames
-        source = open_input(images, source_spec, max_pixels, gray=overlay_path is None)
+        # the lines are found on grey frames, converted in the decoding thread; the overlay
+        # draws on the colour frames, kept beside them
+        source = open_input(images, source_spec, max_pixels, gray=True, keep_colour=overlay_path is not None)
         check_output(output, force, [*source.paths, mask_path])
         if opts["tracking"] is not None:
             from pencilcal.toolkit.detect.bar_track import BarTracker
