@@ -690,15 +690,30 @@ class StageBars:
             self._close()
 
 
+#: The interpreter's switch interval [s] while the frames run (Python's default: 5 ms). The
+#: decoding and overlay threads hold the interpreter only between OpenCV calls, a few
+#: microseconds at a time, dozens of times a frame; at 5 ms each such thread waits up to
+#: 5 ms for the measuring thread to let go every time, falls behind, and the measuring
+#: thread then waits for it. orient on a 1080p video with the overlay: 5.9-7.1 s at 1 ms
+#: against 6.5-8.4 s at 5 ms (runs in turns, other jobs on both cores; docs/performance.md).
+FRAME_SWITCH_INTERVAL_S = 0.001
+
+
 def run_frames(source, task, context, workers, label, quiet):
     """Results of ``task(frame, context)`` for every frame of `source`, in order, behind a
     progress bar; with workers > 1 in a process pool (toolkit.parallel.map_frames). `task`
-    must be a module-level function."""
+    must be a module-level function. Meanwhile the interpreter switches threads every
+    `FRAME_SWITCH_INTERVAL_S`."""
     from pencilcal.toolkit.io.parallel import Sized, map_frames
 
-    results = map_frames(task, source, context, workers)
-    if getattr(source, "kind", None) == "stream":  # no length: no bar
-        yield from results
-        return
-    with progress(Sized(results, len(source)), label, quiet) as it:
-        yield from it
+    before = sys.getswitchinterval()
+    sys.setswitchinterval(min(before, FRAME_SWITCH_INTERVAL_S))
+    try:
+        results = map_frames(task, source, context, workers)
+        if getattr(source, "kind", None) == "stream":  # no length: no bar
+            yield from results
+            return
+        with progress(Sized(results, len(source)), label, quiet) as it:
+            yield from it
+    finally:
+        sys.setswitchinterval(before)
