@@ -290,3 +290,23 @@ def test_per_frame_tilt_sigmas_cover_the_errors_on_a_hand_held_video(tmp_path):
     assert 0.60 <= np.mean(np.abs(z) <= 1.0) <= 0.76
     assert np.sqrt(np.mean(z**2)) < 1.25
     assert json.loads((tmp_path / "o.json").read_text())["bars_tracked"] >= 0.9 * len(sc)
+
+
+def test_the_frames_run_with_a_short_switch_interval_and_it_is_restored():
+    # the decoding and overlay threads get the interpreter back within 1 ms while the frames
+    # run (cli.common.FRAME_SWITCH_INTERVAL_S); before and after, the interpreter's own
+    import sys
+
+    from pencilcal.cli.common import FRAME_SWITCH_INTERVAL_S, run_frames
+
+    before = sys.getswitchinterval()
+    seen = list(run_frames([1, 2, 3], lambda frame, ctx: (frame, sys.getswitchinterval()), None, 1, "x", True))
+    assert [f for f, _ in seen] == [1, 2, 3]
+    assert all(s == pytest.approx(min(before, FRAME_SWITCH_INTERVAL_S)) for _, s in seen)
+    assert sys.getswitchinterval() == before
+    # a run that stops early (an error in a frame) restores it too
+    def fails(frame, ctx):
+        raise ValueError("bad frame")
+    with pytest.raises(ValueError):
+        list(run_frames([1, 2], fails, None, 1, "x", True))
+    assert sys.getswitchinterval() == before
