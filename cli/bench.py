@@ -46,10 +46,12 @@ def bench(as_json, quick, sections, seed, output, force, quiet):
     `fulcrum` process on a 1080p video over decoding it plus FLD on every frame
     (orient_video_vs_decode_fld_1080p, shafts_video_vs_decode_fld_1080p, with the start-up
     and the per-frame time beside them); on a moving camera (a hand-held fan at the speeds
-    of a hand and twice them, with and without --overlay; a moving instrument over a
-    tissue-like texture) both sides as whole processes, with the fraction of frames tracked
-    and, for the fan, of tilts within 0.5 deg of the truth (orient_motion_*,
-    orient_motion2x_*, shafts_motion_*). Ratios mean the same on any machine.
+    of a hand and twice them, with and without --overlay, at its default half size and at
+    full size; a moving instrument over a tissue-like texture) both sides as whole
+    processes, with the fraction of frames tracked and, for the fan, of tilts within 0.5
+    deg of the truth, and the CPU seconds over the floor's beside the wall-time ratios
+    (orient_motion_*, orient_motion2x_*, shafts_motion_*). Ratios mean the same on any
+    machine.
     """
     chosen = tuple(s.strip() for s in sections.split(",") if s.strip())
     bad = [s for s in chosen if s not in SECTIONS]

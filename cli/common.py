@@ -342,6 +342,11 @@ SHARED_DETAILS = {
                "consumer (a ROS bridge, a dashboard); the output file is written at the end as usual.",
     "--overlay": "Also write the frames with the estimate drawn on them: a video (.mp4, .avi) or one PNG per "
                  "frame in a folder (a path ending with /).",
+    "--overlay-scale": "The overlay's size over the frames' (each side to an even number of pixels, pixel areas "
+                       "averaged; the estimates drawn at their places on the smaller frame). The default, half "
+                       "size, keeps the overlay cheap: encoding a 1080p frame to mp4 costs more than decoding it "
+                       "and finding its lines, half of each side a quarter of that (docs/performance.md); 1 "
+                       "draws at full size.",
     "--max-pixels": "Refuse an image whose header claims more pixels than this, before decoding it (a "
                     "decompression bomb).",
     "--workers": "Process frames in this many worker processes; the results are the same, in the same order. "
@@ -432,9 +437,20 @@ class FiniteFloat(click.FloatRange):
 jsonl_option = click.option(
     "--jsonl", "jsonl_path", default=None, metavar="PATH|-",
     help="Also stream one JSON object per frame as it is done (- for standard output).")
-overlay_option = click.option(
-    "--overlay", "overlay_path", default=None, metavar="OUT.mp4|DIR/",
-    help="Also draw the estimates on the frames: a video (.mp4, .avi) or DIR/ of PNGs.")
+#: The overlay's size over the frames' unless --overlay-scale says otherwise: encoding a
+#: 1080p frame to mp4 costs more (~13 ms on the 2-core development machine) than decoding
+#: it and running FLD on it (~9 ms); at half size it costs a quarter (~3.5 ms), and the
+#: overlay keeps every line, label and ellipse legible (docs/performance.md).
+OVERLAY_SCALE = 0.5
+
+
+def overlay_option(fn):
+    """--overlay OUT.mp4|DIR/ and --overlay-scale S: the commands get `overlay_path` and
+    `overlay_scale` (`FrameOutputs`)."""
+    fn = click.option("--overlay-scale", type=FiniteFloat(min=0.1, max=1.0), default=OVERLAY_SCALE,
+                      show_default=True, metavar="S", help="Its size over the frames' (1: full).")(fn)
+    return click.option("--overlay", "overlay_path", default=None, metavar="OUT.mp4|DIR/",
+                        help="Also draw the estimates: a video or DIR/ PNGs.")(fn)
 
 
 source_option = click.option(
@@ -442,18 +458,19 @@ source_option = click.option(
     help="Instead of IMAGES: a camera index, a URL, or a video still being written.")
 
 
-def open_input(images, source_spec, max_pixels, gray=False):
+def open_input(images, source_spec, max_pixels, gray=False, keep_colour=False):
     """The frames of a per-frame command: IMAGES (`open_images`) or --source (`open_stream`),
-    exactly one of them."""
+    exactly one of them; gray, keep_colour: grey frames, with their colour images too
+    (`io.images`)."""
     if (images is None) == (source_spec is None):
         raise click.UsageError("give IMAGES or --source (one of them)")
     if source_spec is not None:
         from pencilcal.toolkit.io.stream import open_stream
 
-        return open_stream(source_spec, gray=gray, max_pixels=max_pixels)
+        return open_stream(source_spec, gray=gray, max_pixels=max_pixels, keep_colour=keep_colour)
     from pencilcal.toolkit.io.images import open_images
 
-    return open_images(images, gray=gray, max_pixels=max_pixels)
+    return open_images(images, gray=gray, max_pixels=max_pixels, keep_colour=keep_colour)
 
 
 def frames_region(source, mask_path, shape):
@@ -489,10 +506,11 @@ class FrameOutputs:
     With a stream `source` each jsonl record also says ``frame_index`` and
     ``frames_dropped`` (so far), and at the end a warning says how many frames were
     dropped and whether Ctrl-C ended the stream. The overlay video's frame rate is `fps`,
-    else the source's, else 25.
+    else the source's, else 25; its frames are drawn at `scale` of the frames' size
+    (--overlay-scale: `drawing` hands it to the tasks, which draw at it).
     """
 
-    def __init__(self, jsonl_path=None, overlay_path=None, force=False, fps=None, source=None):
+    def __init__(self, jsonl_path=None, overlay_path=None, force=False, fps=None, source=None, scale=1.0):
         from pencilcal.toolkit.draw.writer import OverlayWriter
         from pencilcal.toolkit.io.jsonl import open_jsonl
 
@@ -501,11 +519,13 @@ class FrameOutputs:
         self.jsonl = open_jsonl(jsonl_path, force) if jsonl_path else None
         # drawn and encoded in a thread of their own: the overlay overlaps the next frames' work
         self.overlay = OverlayWriter(overlay_path, fps=fps, force=force, background=True) if overlay_path else None
+        self.scale = float(scale)
 
     @property
     def drawing(self):
-        """Whether the frames must be drawn (the tasks then return the drawn frame)."""
-        return self.overlay is not None
+        """None when no frame is drawn, else the scale to draw them at (0 < scale <= 1): the
+        tasks then return the frame drawn at it (or a function that draws it)."""
+        return self.scale if self.overlay is not None else None
 
     def emit(self, record, drawn=None, name=None, extra=None):
         """One frame's record (a dict) to --jsonl, with `extra` keys for the stream only, and
@@ -670,15 +690,30 @@ class StageBars:
             self._close()
 
 
+#: The interpreter's switch interval [s] while the frames run (Python's default: 5 ms). The
+#: decoding and overlay threads hold the interpreter only between OpenCV calls, a few
+#: microseconds at a time, dozens of times a frame; at 5 ms each such thread waits up to
+#: 5 ms for the measuring thread to let go every time, falls behind, and the measuring
+#: thread then waits for it. orient on a 1080p video with the overlay: 5.9-7.1 s at 1 ms
+#: against 6.5-8.4 s at 5 ms (runs in turns, other jobs on both cores; docs/performance.md).
+FRAME_SWITCH_INTERVAL_S = 0.001
+
+
 def run_frames(source, task, context, workers, label, quiet):
     """Results of ``task(frame, context)`` for every frame of `source`, in order, behind a
     progress bar; with workers > 1 in a process pool (toolkit.parallel.map_frames). `task`
-    must be a module-level function."""
+    must be a module-level function. Meanwhile the interpreter switches threads every
+    `FRAME_SWITCH_INTERVAL_S`."""
     from pencilcal.toolkit.io.parallel import Sized, map_frames
 
-    results = map_frames(task, source, context, workers)
-    if getattr(source, "kind", None) == "stream":  # no length: no bar
-        yield from results
-        return
-    with progress(Sized(results, len(source)), label, quiet) as it:
-        yield from it
+    before = sys.getswitchinterval()
+    sys.setswitchinterval(min(before, FRAME_SWITCH_INTERVAL_S))
+    try:
+        results = map_frames(task, source, context, workers)
+        if getattr(source, "kind", None) == "stream":  # no length: no bar
+            yield from results
+            return
+        with progress(Sized(results, len(source)), label, quiet) as it:
+            yield from it
+    finally:
+        sys.setswitchinterval(before)

@@ -59,7 +59,7 @@ def _shaft_task(frame, ctx):
     from pencilcal.toolkit.draw.overlay import draw_frame
 
     # drawn by the overlay's own thread (`FrameOutputs`), or in the worker process
-    return rec, partial(draw_frame, frame.image, shafts=shafts, text=[frame.name])
+    return rec, partial(draw_frame, frame.image, shafts=shafts, text=[frame.name], scale=drawing)
 
 
 def _shafts(source, camera, options, quiet, workers, mask_path, live, tracker=None, masks=None, priors=None):
@@ -377,7 +377,8 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
             right_images,
             camera_right_path, stereo_path, endpoint_sigma, detector, gamma, edge_model, prior_spec, stabilize, track,
             instrument_mask,
-            mask_labels, mask_instances, mask_path, jsonl_path, overlay_path, max_pixels, workers, output, force, quiet):
+            mask_labels, mask_instances, mask_path, jsonl_path, overlay_path, overlay_scale, max_pixels, workers, output,
+            force, quiet):
     """The fulcrum of an instrument pivoting about its entry port.
 
     \b
@@ -523,7 +524,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
             priors, frames = _auto_priors(source, camera, options, quiet, workers, mask_path, tracker, force)
             tracker = None
         if frames is None or jsonl_path is not None or overlay_path is not None:
-            with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
+            with FrameOutputs(jsonl_path, overlay_path, force, source=source, scale=overlay_scale) as live:
                 frames = _shafts(source, camera, options, quiet, workers, mask_path, live, tracker, masks, priors)
     where = lines_path or source.description
     motion = None

@@ -51,7 +51,8 @@ def _lines_task(frame, ctx):
     from pencilcal.toolkit.draw.overlay import draw_frame
 
     # drawn by the overlay's own thread (`FrameOutputs`), or in the worker process
-    return rec, partial(draw_frame, frame.image, segments=rec["segments"], shafts=rec.get("shafts"), text=[frame.name])
+    return rec, partial(draw_frame, frame.image, segments=rec["segments"], shafts=rec.get("shafts"), text=[frame.name],
+                        scale=drawing)
 
 
 def _summary(records):
@@ -81,17 +82,17 @@ def _summary(records):
 @click.option("--radial", type=click.IntRange(min=0), default=None, metavar="EDGES",
               help="Edges of a radial target (star, dartboard) round its vertex; 0: any count.")
 @click.option("--radial-joint", type=click.Choice(["crowded", "all"]), default="crowded", show_default=True,
-              help="With --radial: edges located with their neighbours' blur: all (a star's wedges).")
+              help="Fit each edge with its neighbours' blur.")
 @click.option("--shaft", is_flag=True,
               help="Also instrument shafts: their midlines, widths and sigmas.")
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
-              help="With --shaft: their diameter [mm]; each shaft's 3-D axis too.")
+              help="Shaft diameter [mm]: the 3-D axes too.")
 @click.option("--track/--no-track", default=True, show_default=True,
               help="With --shaft: where the last frames predict them.")
 @gamma_option
 @edge_model_option
 @click.option("--fulcrum-prior", "prior_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
-              help="With --shaft: shafts through FILE's fulcrum image (fulcrum.json, or ray).")
+              help="With --shaft: through its fulcrum image.")
 @click.option("--min-length", type=FiniteFloat(), default=None,
               help="Shortest segment written [px]; default 20 (bars: 1/30 of the image).")
 @instrument_mask_options
@@ -105,7 +106,7 @@ def _summary(records):
 @run
 def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, radial, radial_joint, shaft,
           shaft_diameter, track, gamma, edge_model, prior_path, min_length, instrument_mask, mask_labels, mask_instances,
-          mask_path, jsonl_path, overlay_path, max_pixels, workers, force, quiet):
+          mask_path, jsonl_path, overlay_path, overlay_scale, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel, with angle uncertainty.
 
     \b
@@ -114,8 +115,8 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
       pencilcal lines frames/ --camera c.yaml --shaft --shaft-diameter 8 -o l.json
 
     IMAGES: files, folders or globs in the order given, or a video; or --source. Every
-    segment in raw pixels with its angle and offset sigmas; with --bars the printed
-    spokes' midlines, with --shaft instrument shafts. In detail: docs/cli.md.
+    segment in raw pixels with its angle and offset sigmas; with --bars the spokes'
+    midlines, with --shaft instrument shafts. In detail: docs/cli.md.
     \f
     IMAGES is one or more image files, folders or glob patterns, in the order given (a
     folder's images sorted naturally), or one video; or --source, a camera or a video still
@@ -215,7 +216,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         from pencilcal.toolkit.detect.shaft.detector import ShaftTracker
 
         tracker = ShaftTracker(gamma=gamma, edge_model=edge_model)
-    with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
+    with FrameOutputs(jsonl_path, overlay_path, force, source=source, scale=overlay_scale) as live:
         ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma, masks,
                radial, priors, tracker, edge_model, radial_joint)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):

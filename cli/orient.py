@@ -92,7 +92,7 @@ def _orient_image_task(frame, ctx):
 
         fr, rec = detected() if tracker is None else _tracked_bars_frame(detected, tracker, state)
     # drawn by the overlay's own thread (`FrameOutputs`), or in the worker process
-    return rec, partial(_drawn, frame, rec, fr["segments"], camera) if drawing else None
+    return rec, partial(_drawn, frame, rec, fr["segments"], camera, drawing) if drawing else None
 
 
 def _tracked_bars_frame(detected, tracker, state):
@@ -116,14 +116,14 @@ def _tracked_bars_frame(detected, tracker, state):
     return fr, rec
 
 
-def _drawn(frame, rec, segments, camera):
+def _drawn(frame, rec, segments, camera, scale):
     """The frame with its orientation drawn (labelled spokes, vertex ellipse, normal, tilt
-    +- sigma), or None for a frame that did not decode."""
+    +- sigma) at `scale` of its size, or None for a frame that did not decode."""
     if frame.image is None:
         return None
     from pencilcal.toolkit.draw.overlay import draw_orientation
 
-    return draw_orientation(frame.image, rec, segments, camera)
+    return draw_orientation(frame.drawable, rec, segments, camera, scale=scale)
 
 
 def _tracking_meta(state):
@@ -234,7 +234,7 @@ def _check_priors_match(priors, names, path):
 @run
 def orient(images, lines_path, camera_path, camera_id, pencil_path, output, model, endpoint_sigma, angle_sigma,
            prior_path, continuity, track, detector, edges, mask_path, max_segments, source_spec, jsonl_path, overlay_path,
-           max_pixels, workers, force, quiet):
+           overlay_scale, max_pixels, workers, force, quiet):
     """Orientation of the pencil in every frame, from its image angles alone.
 
     \b
@@ -286,7 +286,8 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     --jsonl streams each frame's record as it is done (the twin and the noise as known
     then: continuity and the sequence's noise are applied to the output file only);
     --overlay draws the labelled spokes, the vertex and its 3-sigma ellipse, the normal and
-    tilt +- sigma on the frames.
+    tilt +- sigma on the frames, at --overlay-scale of their size (half by default: encoding
+    a full-size 1080p overlay costs more than decoding and measuring the frame).
     """
     if angle_sigma is not None and angle_sigma <= 0:
         raise click.BadParameter("must be positive", param_hint="--angle-sigma")
@@ -316,9 +317,9 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
                 records.append(rec)
                 live.emit(rec.to_dict())
     else:
-        # the lines are found on grey frames: decoded to grey in the decoding thread, unless
-        # the overlay draws on the colour frames
-        source = open_input(images, source_spec, max_pixels, gray=overlay_path is None)
+        # the lines are found on grey frames, converted in the decoding thread; the overlay
+        # draws on the colour frames, kept beside them
+        source = open_input(images, source_spec, max_pixels, gray=True, keep_colour=overlay_path is not None)
         check_output(output, force, [*source.paths, mask_path])
         if opts["tracking"] is not None:
             from pencilcal.toolkit.detect.bar_track import BarTracker
@@ -329,7 +330,7 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
             names = [p.name for p in source.paths] if source.kind == "images" else \
                 [f"frame_{i:06d}" for i in range(source.count)]
             _check_priors_match(priors, names, prior_path)
-        with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
+        with FrameOutputs(jsonl_path, overlay_path, force, source=source, scale=overlay_scale) as live:
             ctx = (camera, pencil, detector, opts, edges, region, live.drawing)
             for rec, drawn in run_frames(source, _orient_image_task, ctx, workers, "orient", quiet):
                 _warn_frame(rec, pencil)

@@ -37,11 +37,14 @@ def _pnp_task(frame, ctx):
     rec, warnings, det = _pnp_frame(frame, camera, board, method, refine, corner_sigma, max_rms, min_corners)
     if not drawing or frame.image is None:
         return rec, warnings, None
+    from functools import partial
+
     from pencilcal.toolkit.draw.overlay import draw_pose
 
     length = 3.0 * board.square
-    drawn = draw_pose(frame.image, camera, rec.get("R_cam_from_target") if rec["ok"] else None,
-                      rec.get("t_cam_from_target"), length, None if det is None else det.corners)
+    # drawn by the overlay's own thread (`FrameOutputs`), or in the worker process
+    drawn = partial(draw_pose, frame.image, camera, rec.get("R_cam_from_target") if rec["ok"] else None,
+                    rec.get("t_cam_from_target"), length, None if det is None else det.corners, scale=drawing)
     return rec, warnings, drawn
 
 
@@ -104,7 +107,7 @@ def _pnp_frame(frame, camera, board, method, refine, corner_sigma, max_rms, min_
 @quiet_option
 @run
 def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma, min_corners, max_rms, refine,
-        calib_path, source_spec, max_pixels, jsonl_path, overlay_path, workers, force, quiet):
+        calib_path, source_spec, max_pixels, jsonl_path, overlay_path, overlay_scale, workers, force, quiet):
     """Pose of a calibration board in every frame (poses.json).
 
     \b
@@ -147,7 +150,7 @@ def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma
     check_output(output, force, [*source.paths, camera_path, board_path])
     label = "all" if method == "all" else method
     records = []
-    with FrameOutputs(jsonl_path, overlay_path, force, source=source) as live:
+    with FrameOutputs(jsonl_path, overlay_path, force, source=source, scale=overlay_scale) as live:
         ctx = (camera, board, method, refine, corner_sigma, max_rms, min_corners, live.drawing)
         for rec, warnings, drawn in run_frames(source, _pnp_task, ctx, workers, "pnp", quiet):
             for w in warnings:

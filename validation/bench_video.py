@@ -24,10 +24,13 @@ on every frame), best of `repeats`:
   1920x1080 MJPEG video of the printed fan seen by a hand-held camera (the ``handheld``
   scenario: the fan's centre up to 8 px a frame, its in-plane angle 3 deg and its tilt 1 deg
   a frame, lens k1 -0.2, a plain backdrop, blur 1 px), ``orient VIDEO`` without and with
-  ``--overlay OUT.mp4`` (and ``--jsonl``). Targets <= 1.5 with the overlay; beside them the
-  fraction of frames whose bars were tracked (``orient_motion_tracked``, target >= 0.9) and
-  of frames with the tilt within 0.5 deg of the truth (``orient_motion_tilt_within_0p5``,
-  >= 0.95).
+  ``--overlay OUT.mp4`` (and ``--jsonl``; the overlay at its default half size, and at full
+  size, ``--overlay-scale 1``, in ``orient_motion_overlay_full_*``). Targets <= 1.5 with
+  the overlay; beside them the fraction of frames whose bars were tracked
+  (``orient_motion_tracked``, target >= 0.9) and of frames with the tilt within 0.5 deg of
+  the truth (``orient_motion_tilt_within_0p5``, >= 0.95). Each run's CPU seconds (all its
+  threads, least of the runs) over the floor's: ``*_cpu_vs_decode_fld`` (with other jobs on
+  the machine, what the run cost rather than how the machine was shared).
 - ``orient_motion2x_overlay_vs_decode_fld_1080p``: the same path at twice the speed (every
   other frame of a path twice as long), with the overlay: target <= 2.0 and no frame lost
   (``orient_motion2x_frames_lost``).
@@ -106,22 +109,35 @@ def _floor(video, repeats):
     return best, n
 
 
-def _process(args, repeats):
+def _children_cpu():
+    """CPU seconds (user + system) of this process's finished children so far."""
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def _process(args, repeats, cpu=None):
     """(best wall seconds, start-up seconds to the first jsonl line, per-frame seconds after
-    it) of ``python -m pencilcal.cli.main ARGS --jsonl -``."""
-    best = (np.inf, np.nan, np.nan)
+    it) of ``python -m pencilcal.cli.main ARGS --jsonl -``; the least CPU seconds of the
+    runs (all its threads: with other jobs on the machine the wall time says how the
+    machine was shared, the CPU time what the run cost) appended to `cpu` when given."""
+    best, least = (np.inf, np.nan, np.nan), np.inf
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        c0, t0 = _children_cpu(), time.perf_counter()
         p = subprocess.Popen([sys.executable, "-m", "pencilcal.cli.main", *args, "--jsonl", "-"],
                              stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         stamps = [time.perf_counter() - t0 for _ in p.stdout]
         p.wait()
         wall = time.perf_counter() - t0
+        least = min(least, _children_cpu() - c0)
         if p.returncode != 0:
             raise RuntimeError(f"bench: `pencilcal {' '.join(args[:2])} ...` failed (exit {p.returncode})")
         if wall < best[0]:
             per = (stamps[-1] - stamps[0]) / (len(stamps) - 1) if len(stamps) > 1 else np.nan
             best = (wall, stamps[0] if stamps else np.nan, per)
+    if cpu is not None:
+        cpu.append(least)
     return best
 
 
@@ -180,15 +196,19 @@ def bench_shafts_video(frames=48, repeats=2, seed=0, workdir=None):
             "shafts_decode_fld_video_s": float(floor), "shafts_video_frames": n}
 
 
-def _floor_process(video, repeats):
-    """Best wall seconds of a process decoding `video` with FLD on every frame (`_FLOOR`)."""
-    best = np.inf
+def _floor_process(video, repeats, cpu=None):
+    """Best wall seconds of a process decoding `video` with FLD on every frame (`_FLOOR`);
+    its least CPU seconds appended to `cpu` when given."""
+    best, least = np.inf, np.inf
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        c0, t0 = _children_cpu(), time.perf_counter()
         r = subprocess.run([sys.executable, "-c", _FLOOR, str(video)], capture_output=True)
         best = min(best, time.perf_counter() - t0)
+        least = min(least, _children_cpu() - c0)
         if r.returncode != 0:
             raise RuntimeError(f"bench: the decode + FLD floor failed: {r.stderr.decode(errors='replace')[-200:]}")
+    if cpu is not None:
+        cpu.append(least)
     return best
 
 
@@ -210,14 +230,16 @@ def handheld_frames(frames, seed=0, size=(1920, 1080)):
             [tilt[i] for i in fast])
 
 
-def _orient_run(d, video, overlay, repeats):
+def _orient_run(d, video, overlay, repeats, cpu):
     """(best wall seconds, start-up, seconds a frame, orientation.json) of ``orient VIDEO``
-    (with ``--overlay`` when asked)."""
+    (with ``--overlay``, at its default size, when `overlay` is True; at full size when it
+    is "full"); its CPU seconds appended to `cpu`."""
     import json
 
     args = ["orient", str(video), "--camera", str(d / "camera.json"), "--pencil", str(d / "pencil.yaml"), "-o",
-            str(d / "o.json"), "--force", "-q"] + (["--overlay", str(d / "overlay.mp4")] if overlay else [])
-    wall, startup, per = _process(args, repeats)
+            str(d / "o.json"), "--force", "-q"] + (["--overlay", str(d / "overlay.mp4")] if overlay else []) \
+        + (["--overlay-scale", "1"] if overlay == "full" else [])
+    wall, startup, per = _process(args, repeats, cpu)
     return wall, startup, per, json.loads((d / "o.json").read_text())
 
 
@@ -241,16 +263,18 @@ def bench_orient_motion(frames=120, repeats=2, seed=0, workdir=None):
         d = Path(tmp)
         write_camera(d / "camera.json", cam)
         write_pencil(d / "pencil.yaml", pencil)
-        for name, images, truth, runs in (("orient_motion", slow, tilt, (False, True)),
+        for name, images, truth, runs in (("orient_motion", slow, tilt, (False, "full", True)),
                                           ("orient_motion2x", fast, tilt2, (True,))):
             video = d / f"{name}.avi"
             _write_video(video, images, fourcc="MJPG")
-            floor = _floor_process(video, repeats)
+            cpu = []
+            floor = _floor_process(video, repeats, cpu)
             out[f"{name}_decode_fld_s"] = float(floor)
             for overlay in runs:
-                key = f"{name}{'_overlay' if overlay else ''}"
-                wall, startup, per, data = _orient_run(d, video, overlay, repeats)
+                key = name + {False: "", True: "_overlay", "full": "_overlay_full"}[overlay]
+                wall, startup, per, data = _orient_run(d, video, overlay, repeats, cpu)
                 out.update({f"{key}_vs_decode_fld_1080p": float(wall / floor), f"{key}_s": float(wall),
+                            f"{key}_cpu_vs_decode_fld": float(cpu[-1] / cpu[0]),
                             f"{key}_startup_s": float(startup), f"{key}_ms_per_frame": float(per * 1e3)})
             out.update(_motion_figures(name, data, truth))
     return out

@@ -24,19 +24,22 @@ def sim(tmp_path_factory):
     return _simulated(tmp_path_factory, "sim", "orbit", 4, "960x540")
 
 
-@pytest.mark.parametrize("cmd", ["lines", "pnp"])
-def test_jsonl_lines_are_the_frames_records_and_the_overlay_has_every_frame(sim, tmp_path, cmd):
+@pytest.mark.parametrize("cmd, scale, width", [("lines", [], 480), ("pnp", ["--overlay-scale", "1"], 960),
+                                               ("lines", ["--overlay-scale", "0.3"], 288)])
+def test_jsonl_lines_are_the_frames_records_and_the_overlay_has_every_frame(sim, tmp_path, cmd, scale, width):
     extra = ["--board", str(sim / "board.yaml")] if cmd == "pnp" else []
     out, stream, video = tmp_path / "o.json", tmp_path / "s.jsonl", tmp_path / "o.avi"
     r = CliRunner().invoke(cli, [cmd, str(sim / "images"), "--camera", str(sim / "camera.json"), *extra,
-                                 "-o", str(out), "--jsonl", str(stream), "--overlay", str(video), "-q"])
+                                 "-o", str(out), "--jsonl", str(stream), "--overlay", str(video), *scale, "-q"])
     assert r.exit_code == 0, r.output
     lines = [json.loads(x) for x in stream.read_text().splitlines()]
     frames = json.loads(out.read_text())["frames"]
     assert [x["image"] for x in lines] == [f["image"] for f in frames] == [f"{i:03d}.png" for i in range(4)]
     assert lines[1] == frames[1]
     cap = cv2.VideoCapture(str(video))
-    assert cap.get(cv2.CAP_PROP_FRAME_COUNT) == 4 and cap.get(cv2.CAP_PROP_FRAME_WIDTH) == 960
+    # half the frames' size by default (--overlay-scale), each side even
+    assert cap.get(cv2.CAP_PROP_FRAME_COUNT) == 4 and cap.get(cv2.CAP_PROP_FRAME_WIDTH) == width
+    assert cap.get(cv2.CAP_PROP_FRAME_HEIGHT) == {480: 270, 960: 540, 288: 162}[width]
 
 
 def test_jsonl_to_stdout(sim, tmp_path):
@@ -78,6 +81,7 @@ def test_orient_streams_each_frame_and_draws_the_overlay(sim, tmp_path):
     drawn = sorted(p.name for p in folder.iterdir())
     assert drawn == [f"{i:03d}.png" for i in range(4)]
     img, raw = cv2.imread(str(folder / "001.png")), cv2.imread(str(sim / "images" / "001.png"))
+    raw = cv2.resize(raw, (480, 270), interpolation=cv2.INTER_AREA)  # at half size by default
     assert img.shape == raw.shape and (img != raw).any(axis=2).mean() > 0.001  # something is drawn
 
 
@@ -286,3 +290,23 @@ def test_per_frame_tilt_sigmas_cover_the_errors_on_a_hand_held_video(tmp_path):
     assert 0.60 <= np.mean(np.abs(z) <= 1.0) <= 0.76
     assert np.sqrt(np.mean(z**2)) < 1.25
     assert json.loads((tmp_path / "o.json").read_text())["bars_tracked"] >= 0.9 * len(sc)
+
+
+def test_the_frames_run_with_a_short_switch_interval_and_it_is_restored():
+    # the decoding and overlay threads get the interpreter back within 1 ms while the frames
+    # run (cli.common.FRAME_SWITCH_INTERVAL_S); before and after, the interpreter's own
+    import sys
+
+    from pencilcal.cli.common import FRAME_SWITCH_INTERVAL_S, run_frames
+
+    before = sys.getswitchinterval()
+    seen = list(run_frames([1, 2, 3], lambda frame, ctx: (frame, sys.getswitchinterval()), None, 1, "x", True))
+    assert [f for f, _ in seen] == [1, 2, 3]
+    assert all(s == pytest.approx(min(before, FRAME_SWITCH_INTERVAL_S)) for _, s in seen)
+    assert sys.getswitchinterval() == before
+    # a run that stops early (an error in a frame) restores it too
+    def fails(frame, ctx):
+        raise ValueError("bad frame")
+    with pytest.raises(ValueError):
+        list(run_frames([1, 2], fails, None, 1, "x", True))
+    assert sys.getswitchinterval() == before

@@ -231,6 +231,8 @@ class Camera:
         if spline is None:
             k[: dist.size] = dist
         object.__setattr__(self, "_k", k)
+        # only k1, k2, k3 (the common lens): `_rtp` then skips the terms that are exact zeros
+        object.__setattr__(self, "_radial_only", not np.any(k[[2, 3, 5, 6, 7, 8, 9, 10, 11]]))
         tilt = tilt_matrices(k[12], k[13]) if model == "opencv" and dist.size == 14 else None
         object.__setattr__(self, "_tilt", tilt)
         object.__setattr__(self, "_spline", spline)
@@ -306,6 +308,8 @@ class Camera:
     # -------------------------------------------------- opencv distortion and Jacobian
     def _rtp(self, x, y, jac=False):
         """Radial, tangential and thin-prism distortion (no tilt), as OpenCV orders it."""
+        if self._radial_only:
+            return self._radial(x, y, jac)
         k = self._k
         r2 = x * x + y * y
         r4 = r2 * r2
@@ -327,6 +331,35 @@ class Camera:
         j10 = 2.0 * x * y * drad + 2.0 * k[2] * x + 2.0 * k[3] * y + 2.0 * x * py_
         j11 = radial + 2.0 * y * y * drad + 6.0 * k[2] * y + 2.0 * k[3] * x + 2.0 * y * py_
         return xd, yd, (j00, j01, j10, j11)
+
+    def _radial(self, x, y, jac=False):
+        """`_rtp` of a lens with only k1, k2, k3: the same operations in the same order less
+        the terms that are exact zeros (no denominator, tangential or prism terms), so the
+        same numbers to the last bit, at half the cost of an undistortion (undistorting a
+        frame's few line ends calls it dozens of times on small arrays).
+
+        >>> cam = Camera("opencv", 640, 480, [[500.0, 0, 320], [0, 500, 240], [0, 0, 1]], [-0.3, 0.1, 0, 0, 0.02])
+        >>> x, y = np.linspace(-0.6, 0.6, 7), np.linspace(0.5, -0.4, 7)
+        >>> fast = cam._rtp(x, y, jac=True)
+        >>> object.__setattr__(cam, "_radial_only", False)  # the general terms, for comparison
+        >>> general = cam._rtp(x, y, jac=True)
+        >>> all(np.array_equal(a, b) for a, b in zip((*fast[:2], *fast[2]), (*general[:2], *general[2])))
+        True
+        """
+        k0, k1, k4 = self._k[0], self._k[1], self._k[4]
+        r2 = x * x + y * y
+        r4 = r2 * r2
+        radial = 1.0 + k0 * r2 + k1 * r4
+        if k4:
+            radial = radial + k4 * (r4 * r2)
+        xd, yd = x * radial, y * radial
+        if not jac:
+            return xd, yd, None
+        drad = k0 + 2.0 * k1 * r2
+        if k4:
+            drad = drad + 3.0 * k4 * r4
+        j01 = 2.0 * x * y * drad
+        return xd, yd, (radial + 2.0 * x * x * drad, j01, j01, radial + 2.0 * y * y * drad)
 
     def _apply_tilt(self, xd, yd, jac=None):
         T = self._tilt[0]

@@ -2,7 +2,10 @@
 
 Everything is drawn in raw pixels ((0, 0) the centre of the top-left pixel) on a BGR copy
 of the frame, anti-aliased with 4 bits of sub-pixel precision, so a line lands where the
-estimate puts it to 1/16 px:
+estimate puts it to 1/16 px. With ``scale`` < 1 the copy is the frame shrunk first (each
+side to an even number of pixels near `scale` of it, as a video encoder wants; pixel
+areas averaged) and the estimates are drawn at their places on it, lines and text at
+the smaller frame's own sizes: the cheaper overlay of `--overlay-scale`, drawn sharp:
 
 - `draw_orientation`: the pencil's segments coloured and numbered by spoke (rejected ones thin red),
   the vertex with its 3-sigma ellipse (an arrow at the border when it lies outside), the
@@ -27,7 +30,8 @@ import math
 
 import numpy as np
 
-__all__ = ["draw_frame", "draw_orientation", "draw_shafts", "draw_fulcrum", "draw_pose", "spoke_colour", "SHIFT"]
+__all__ = ["draw_frame", "draw_orientation", "draw_shafts", "draw_fulcrum", "draw_pose", "spoke_colour", "scaled_size",
+           "SHIFT"]
 
 # sub-pixel bits of cv2's drawing calls: coordinates are multiplied by 2**SHIFT
 SHIFT = 4
@@ -43,14 +47,49 @@ def spoke_colour(label):
     return _RED if label < 0 else _PALETTE[int(label) % len(_PALETTE)]
 
 
-def _bgr(image):
+def scaled_size(width, height, scale):
+    """(width, height) of a frame drawn at `scale` (0 < scale <= 1): each side the even
+    number of pixels nearest `scale` of it (2 at least); the frame's own at scale 1.
+
+    >>> scaled_size(1920, 1080, 0.5), scaled_size(1918, 1082, 0.33), scaled_size(641, 481, 1.0)
+    ((960, 540), (632, 358), (641, 481))
+    """
+    if scale == 1.0:
+        return int(width), int(height)
+    return max(2, 2 * int(round(width * scale / 2))), max(2, 2 * int(round(height * scale / 2)))
+
+
+def _canvas(image, scale=1.0):
+    """(BGR uint8 image to draw on, s): a copy of `image` at `scale` of its size
+    (`scaled_size`, pixel areas averaged), and s (2,) the factors (x, y) by which `_px`
+    takes the frame's raw pixels to the canvas's."""
     import cv2
 
     img = np.asarray(image)
     if img.dtype != np.uint8:
-        scale = 255.0 / max(float(np.max(img)), 1.0) if img.dtype.kind in "ui" and img.max() > 255 else 1.0
-        img = np.clip(img * scale, 0, 255).astype(np.uint8)
-    return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img.copy()
+        k = 255.0 / max(float(np.max(img)), 1.0) if img.dtype.kind in "ui" and img.max() > 255 else 1.0
+        img = np.clip(img * k, 0, 255).astype(np.uint8)
+    h, w = img.shape[:2]
+    size = scaled_size(w, h, float(scale))
+    if size != (w, h):
+        # resized before anything else: the copy, the conversion and the drawing all on
+        # the smaller frame (OpenCV works without the interpreter meanwhile)
+        img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+    elif img.ndim == 3:
+        img = img.copy()
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    return img, np.array([size[0] / w, size[1] / h])
+
+
+def _px(points, s):
+    """Raw pixels (..., 2) of the frame as raw pixels of a canvas `s` times its size: pixel
+    centres map to pixel centres (pixel k's area [k - 0.5, k + 0.5] scales to itself).
+
+    >>> _px([[0.0, 0.0], [1.5, 3.0]], np.array([0.5, 0.5])).tolist()
+    [[-0.25, -0.25], [0.5, 1.25]]
+    """
+    return (np.asarray(points, float) + 0.5) * s - 0.5
 
 
 def _pt(p):
@@ -153,12 +192,14 @@ def _spoke_labels(img, seg, lab, vertex_px):
                     scale, spoke_colour(int(k)), max(1, _thickness(img)), cv2.LINE_AA)
 
 
-def _normal_line(img, orientation, camera, length_px):
-    """From the vertex towards the vanishing point of the normal: the normal's image."""
+def _normal_line(img, s, orientation, camera):
+    """From the vertex towards the vanishing point of the normal: the normal's image, 0.12
+    of the frame's shorter side long (in the frame's pixels, then drawn on the canvas)."""
     n = np.asarray(orientation.normal, float)
     v = orientation.vertex_px
     if camera is None or v is None or not np.all(np.isfinite(n)):
         return
+    length_px = 0.12 * min(img.shape[0] / s[1], img.shape[1] / s[0])
     K = np.asarray(camera.K, float)
     ideal_v = camera.undistort_pixels(np.asarray(v, float))
     if abs(n[2]) > 1e-9:
@@ -170,7 +211,7 @@ def _normal_line(img, orientation, camera, length_px):
         return
     tip_ideal = ideal_v + length_px * d / np.linalg.norm(d)
     tip = camera.distort_pixels(tip_ideal)
-    _line(img, v, tip, _YELLOW, 2 * _thickness(img))
+    _line(img, _px(v, s), _px(tip, s), _YELLOW, 2 * _thickness(img))
 
 
 def _value_pm(value, sigma):
@@ -186,22 +227,20 @@ def _value_pm(value, sigma):
     return f"{value:.{d}f} +- {sigma:.{d}f}"
 
 
-def draw_orientation(image, orientation, segments=None, camera=None):
-    """One frame's `Orientation` drawn on `image` (a BGR copy is returned).
-
-    segments: (M, 4) raw px, the segments given to orient (coloured by
-    ``orientation.spokes``); camera: for the normal's image (omitted without it).
-    """
-    img = _bgr(image)
+def _orientation_on(img, s, orientation, segments, camera):
+    """`draw_orientation` on the canvas `img` (`_canvas`), in place."""
     if segments is not None:
-        seg = np.asarray(segments, float).reshape(-1, 4)
+        seg = _px(np.asarray(segments, float).reshape(-1, 2, 2), s).reshape(-1, 4)
         lab = np.asarray(orientation.spokes if orientation.spokes is not None else np.full(len(seg), -1)).ravel()
-        for s, k in zip(seg, lab):
-            _line(img, s[:2], s[2:], spoke_colour(int(k)), (2 if k >= 0 else 1) * _thickness(img))
-        _spoke_labels(img, seg, lab, orientation.vertex_px if orientation.ok else None)
+        for q, k in zip(seg, lab):
+            _line(img, q[:2], q[2:], spoke_colour(int(k)), (2 if k >= 0 else 1) * _thickness(img))
+        v = orientation.vertex_px if orientation.ok else None
+        _spoke_labels(img, seg, lab, None if v is None else _px(v, s))
     if orientation.ok:
-        _point(img, orientation.vertex_px, orientation.vertex_cov_px2, _CYAN, "vertex")
-        _normal_line(img, orientation, camera, 0.12 * min(img.shape[:2]))
+        v, cov = orientation.vertex_px, orientation.vertex_cov_px2
+        _point(img, None if v is None else _px(v, s), None if cov is None else s[:, None] * np.asarray(cov, float) * s,
+               _CYAN, "vertex")
+        _normal_line(img, s, orientation, camera)
         twin = "resolved by " + str(orientation.resolved_by) if not orientation.ambiguous else "twin: ambiguous"
         _text_box(img, [f"{orientation.image or ''}",
                         f"tilt {_value_pm(orientation.tilt_deg, orientation.tilt_sigma_deg)} deg"
@@ -209,34 +248,56 @@ def draw_orientation(image, orientation, segments=None, camera=None):
                         f"{orientation.lines_used} lines, {twin}"])
     else:
         _text_box(img, [f"{orientation.image or ''}", f"no estimate: {orientation.error}"[:80]])
+
+
+def draw_orientation(image, orientation, segments=None, camera=None, scale=1.0):
+    """One frame's `Orientation` drawn on `image` (a BGR copy at `scale` of its size is
+    returned, module docstring).
+
+    segments: (M, 4) raw px, the segments given to orient (coloured by
+    ``orientation.spokes``); camera: for the normal's image (omitted without it).
+    """
+    img, s = _canvas(image, scale)
+    _orientation_on(img, s, orientation, segments, camera)
     return img
 
 
-def draw_shafts(image, shafts):
-    """Shafts (records with ``midline`` and optionally ``edges``, raw px) drawn on `image`."""
-    img = _bgr(image)
+def _shafts_on(img, s, shafts):
     for sh in shafts:
         for e in sh.get("edges") or []:
-            e = np.asarray(e, float).ravel()
+            e = _px(np.asarray(e, float).reshape(2, 2), s).ravel()
             _line(img, e[:2], e[2:], _CYAN, _thickness(img))
-        m = np.asarray(sh["midline"], float).ravel()
+        m = _px(np.asarray(sh["midline"], float).reshape(2, 2), s).ravel()
         _line(img, m[:2], m[2:], _YELLOW, 2 * _thickness(img))
+
+
+def draw_shafts(image, shafts, scale=1.0):
+    """Shafts (records with ``midline`` and optionally ``edges``, raw px) drawn on `image`
+    (a BGR copy at `scale` of its size)."""
+    img, s = _canvas(image, scale)
+    _shafts_on(img, s, shafts)
     return img
 
 
-def draw_fulcrum(image, vertex_px, cov_px2=None, label="fulcrum"):
-    """The fulcrum's image with its 3-sigma ellipse, or an arrow towards it."""
-    img = _bgr(image)
-    _point(img, None if vertex_px is None else np.asarray(vertex_px, float), cov_px2, _RED, label)
+def _fulcrum_on(img, s, vertex_px, cov_px2, label):
+    p = None if vertex_px is None else _px(np.asarray(vertex_px, float), s)
+    _point(img, p, None if cov_px2 is None else s[:, None] * np.asarray(cov_px2, float) * s, _RED, label)
+
+
+def draw_fulcrum(image, vertex_px, cov_px2=None, label="fulcrum", scale=1.0):
+    """The fulcrum's image with its 3-sigma ellipse, or an arrow towards it (a BGR copy of
+    `image` at `scale` of its size)."""
+    img, s = _canvas(image, scale)
+    _fulcrum_on(img, s, vertex_px, cov_px2, label)
     return img
 
 
-def draw_pose(image, camera, R_cam_from_target, t_cam_from_target, length, corners=None):
+def draw_pose(image, camera, R_cam_from_target, t_cam_from_target, length, corners=None, scale=1.0):
     """A target's axes at a pose (x red, y green, z blue, `length` in the target's unit)
-    and its detected corners (K, 2) raw px, on a BGR copy of `image`."""
-    img = _bgr(image)
+    and its detected corners (K, 2) raw px, on a BGR copy of `image` at `scale` of its size."""
+    img, s = _canvas(image, scale)
     if corners is not None:
-        for c in np.asarray(corners, float).reshape(-1, 2):
+        for c in _px(np.asarray(corners, float).reshape(-1, 2), s):
             _line(img, c - 2, c + 2, _CYAN, 1)
             _line(img, c + [-2, 2], c + [2, -2], _CYAN, 1)
     if R_cam_from_target is None or t_cam_from_target is None:
@@ -245,28 +306,29 @@ def draw_pose(image, camera, R_cam_from_target, t_cam_from_target, length, corne
     pts = (np.vstack([np.zeros(3), length * np.eye(3)]) @ R.T) + t
     if np.any(pts[:, 2] <= 0):
         return img
-    px = camera.project(pts)
+    px = _px(camera.project(pts), s)
     for k, colour in enumerate(((40, 40, 230), (60, 200, 60), (230, 120, 40))):
         _line(img, px[0], px[k + 1], colour, 2 * _thickness(img))
     return img
 
 
-def draw_frame(image, orientation=None, segments=None, shafts=None, fulcrum=None, camera=None, text=None):
-    """Everything known about one frame on one BGR copy of it: the orientation with its
-    segments, the shafts, the fulcrum (a dict with ``vertex_px``, ``vertex_cov_px2``, or a
-    Fulcrum), extra text lines."""
-    img = _bgr(image)
+def draw_frame(image, orientation=None, segments=None, shafts=None, fulcrum=None, camera=None, text=None,
+               scale=1.0):
+    """Everything known about one frame on one BGR copy of it at `scale` of its size: the
+    orientation with its segments, the shafts, the fulcrum (a dict with ``vertex_px``,
+    ``vertex_cov_px2``, or a Fulcrum), extra text lines."""
+    img, s = _canvas(image, scale)
     if shafts:
-        img = draw_shafts(img, shafts)
+        _shafts_on(img, s, shafts)
     if orientation is not None:
-        img = draw_orientation(img, orientation, segments, camera)
+        _orientation_on(img, s, orientation, segments, camera)
     elif segments is not None:
-        for s in np.asarray(segments, float).reshape(-1, 4):
-            _line(img, s[:2], s[2:], _PALETTE[0], _thickness(img))
+        for q in _px(np.asarray(segments, float).reshape(-1, 2, 2), s).reshape(-1, 4):
+            _line(img, q[:2], q[2:], _PALETTE[0], _thickness(img))
     if fulcrum is not None:
         v = fulcrum.get("vertex_px") if isinstance(fulcrum, dict) else fulcrum.vertex_px
         c = fulcrum.get("vertex_cov_px2") if isinstance(fulcrum, dict) else fulcrum.vertex_cov_px2
-        img = draw_fulcrum(img, v, c)
+        _fulcrum_on(img, s, v, c, "fulcrum")
     if text:
         _text_box(img, list(text), origin=(8, img.shape[0] - 30 * len(text) - 8))
     return img

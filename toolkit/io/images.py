@@ -10,10 +10,13 @@ through `open_images`, so they all accept the same inputs and fail the same way:
   ``ok: false`` and warn.
 
 Frames are decoded once, in order, by `decode_image` (OpenCV; BGR, 8 or 16 bit as stored,
-EXIF orientation applied); ``gray=True`` converts to single-channel 8 bit. A video's frames
-are decoded in a thread of their own, a few frames ahead of the command (`prefetched`): the
-decoder releases the interpreter while it works, so the decoding of the next frames
-overlaps the processing of this one.
+EXIF orientation applied); ``gray=True`` converts to single-channel 8 bit, and with
+``keep_colour=True`` as well each frame keeps its colour image beside the grey one
+(`Frame.colour`: an overlay drawn in colour, the lines found on grey), the grey one then
+converted from it as a detector converts a colour frame (`with_grey`). A video's frames are
+decoded in a thread of their own, a few frames ahead of the command (`prefetched`): the
+decoder and the conversion release the interpreter while they work, so they overlap the
+processing of the previous frame.
 
 Example
 -------
@@ -44,7 +47,7 @@ import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["Frame", "ImageSource", "read_ahead", "prefetched", "open_images", "decode_image", "IMAGE_EXTENSIONS",
+__all__ = ["with_grey", "read_frame", "Frame", "ImageSource", "read_ahead", "prefetched", "open_images", "decode_image", "IMAGE_EXTENSIONS",
            "VIDEO_EXTENSIONS", "DEFAULT_MAX_PIXELS", "MIN_SIDE_PX", "MAX_BYTES_PER_PIXEL", "check_image_size", "quiet_c_stderr",
            "frame_size_error"]
 
@@ -64,13 +67,37 @@ VIDEO_EXTENSIONS = {".mp4", ".avi", ".mov", ".mkv", ".m4v", ".mpg", ".mpeg", ".w
 @dataclass(frozen=True)
 class Frame:
     """One frame: `name` (file name, or frame_000123 for video), `index` in the sequence,
-    `image` (H, W[, 3]) uint8/uint16 or None when it could not be decoded, `error`."""
+    `image` (H, W[, 3]) uint8/uint16 or None when it could not be decoded, `error`; `colour`
+    (H, W, 3) the colour image of a grey `image` when the source keeps it (`keep_colour`),
+    else None."""
 
     name: str
     index: int
     image: np.ndarray | None
     error: str | None = None
     path: str | None = None
+    colour: np.ndarray | None = None
+
+    @property
+    def drawable(self):
+        """The image to draw an overlay on: the colour one when kept, else `image`."""
+        return self.image if self.colour is None or self.image is None else self.colour
+
+
+def with_grey(image):
+    """(grey, colour): a colour image (H, W, 3) as one grey channel in its own dtype
+    (OpenCV's BGR to grey weights, as `detect.image` converts a colour frame) and itself; a
+    grey image (or None) as itself and None.
+
+    >>> g, c = with_grey(np.full((2, 2, 3), (10, 20, 30), np.uint8))
+    >>> g.tolist(), c.shape, with_grey(g)[1] is None
+    ([[22, 22], [22, 22]], (2, 2, 3), True)
+    """
+    import cv2
+
+    if image is None or image.ndim != 3:
+        return image, None
+    return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), image
 
 
 @contextlib.contextmanager
@@ -206,15 +233,17 @@ class ImageSource:
     InputError. Attributes: `description` (the IMAGES as given, for messages and
     outputs), `count` (number of frames; for video the container's count, which may be
     approximate), `kind` ("images" or "video"), `paths`, `fps` (a video's frame rate [Hz] as
-    its container gives it, None for images or when unknown).
+    its container gives it, None for images or when unknown). gray, keep_colour: module
+    docstring.
     """
 
-    def __init__(self, spec, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
+    def __init__(self, spec, gray=False, max_pixels=DEFAULT_MAX_PIXELS, keep_colour=False):
         specs = [str(spec)] if isinstance(spec, (str, os.PathLike)) else [str(s) for s in spec]
         if not specs:
             raise InputError("no images given (IMAGES: files, folders, glob patterns or one video)")
         self.spec = specs[0] if len(specs) == 1 else " ".join(specs)
         self.gray = gray
+        self.keep_colour = bool(gray and keep_colour)
         self.max_pixels = max_pixels
         resolved = [self._resolve(s) for s in specs]
         videos = [s for s, r in zip(specs, resolved) if r[0] == "video"]
@@ -338,8 +367,7 @@ class ImageSource:
 
     def _iter_files(self):
         for i, p in enumerate(self.paths):
-            img, err = self._read(p)
-            yield Frame(p.name, i, img, err, str(p))
+            yield read_frame(Frame(p.name, i, None, None, str(p)), self.gray, self.max_pixels, self.keep_colour)
 
     def _iter_video(self):
         """The video's frames, decoded in order (run in the decoding thread, `prefetched`:
@@ -361,10 +389,12 @@ class ImageSource:
                 for k in missed:  # frames in the middle that did not decode
                     yield Frame(f"frame_{k:06d}", k, None, "cannot decode this video frame")
                 missed = []
+                colour = None
                 if self.gray and img.ndim == 3:
-                    img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+                    img, colour = with_grey(img) if self.keep_colour else (cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), None)
                 err = frame_size_error(img, self.max_pixels)
-                yield Frame(f"frame_{i:06d}", i, None if err else img, err, str(self.paths[0]))
+                yield Frame(f"frame_{i:06d}", i, None if err else img, err, str(self.paths[0]),
+                            None if err else colour)
                 i += 1
             if missed:  # nothing decoded after them: the file ends early, said once
                 k = missed[0]
@@ -450,10 +480,21 @@ def decode_image(path, gray=False, max_pixels=DEFAULT_MAX_PIXELS, min_side=MIN_S
     return img, None
 
 
-def open_images(spec, gray=False, max_pixels=DEFAULT_MAX_PIXELS):
+def read_frame(frame, gray=False, max_pixels=DEFAULT_MAX_PIXELS, keep_colour=False):
+    """`frame` (a Frame with only its file's `path`) with its image decoded (`decode_image`);
+    with gray and keep_colour, a colour file's grey image and its colour one (`with_grey`)."""
+    if gray and keep_colour:
+        img, err = decode_image(frame.path, max_pixels=max_pixels)
+        grey, colour = with_grey(img)
+    else:
+        (grey, err), colour = decode_image(frame.path, gray=gray, max_pixels=max_pixels), None
+    return Frame(frame.name, frame.index, grey, err, frame.path, colour)
+
+
+def open_images(spec, gray=False, max_pixels=DEFAULT_MAX_PIXELS, keep_colour=False):
     """Open IMAGES: one path or pattern, or a sequence of them (files, folders, glob
     patterns, or one video). See `ImageSource`."""
-    return ImageSource(spec, gray=gray, max_pixels=max_pixels)
+    return ImageSource(spec, gray=gray, max_pixels=max_pixels, keep_colour=keep_colour)
 
 
 def check_image_size(frame, camera, source=None):

@@ -36,7 +36,7 @@ import threading
 import warnings
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.images import Frame, decode_image
+from pencilcal.toolkit.io.images import read_frame
 
 __all__ = ["map_frames", "Sized", "worker_limit", "WorkerDied", "WORKER_MEMORY_BYTES"]
 
@@ -97,12 +97,12 @@ def _init_worker():
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
 
 
-def _decode(gray, max_pixels, frame):
-    """The frame with its image (decoded here, in the worker, when only its path came)."""
+def _decode(decoding, frame):
+    """The frame with its image (decoded here, in the worker, when only its path came);
+    decoding: (gray, max_pixels, keep_colour) of the source (`images.read_frame`)."""
     if frame.image is not None or frame.error is not None or frame.path is None:
         return frame
-    img, err = decode_image(frame.path, gray=gray, max_pixels=max_pixels)
-    return Frame(frame.name, frame.index, img, err, frame.path)
+    return read_frame(frame, *decoding)
 
 
 def _packed(seq, ok, value, caught=()):
@@ -118,7 +118,7 @@ def _packed(seq, ok, value, caught=()):
         return pickle.dumps((seq, False, RuntimeError(f"{type(err).__name__}: {err}"), caught))
 
 
-def _worker(fn, context, gray, max_pixels, tasks, results, parent):
+def _worker(fn, context, decoding, tasks, results, parent):
     """A worker's life: frames from `tasks` until None, their results to `results`; it ends
     by itself when its parent (the command) is gone."""
     _init_worker()
@@ -137,7 +137,7 @@ def _worker(fn, context, gray, max_pixels, tasks, results, parent):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
-                out = (True, fn(_decode(gray, max_pixels, frame), context))
+                out = (True, fn(_decode(decoding, frame), context))
             except Exception as e:  # noqa: BLE001 - raised again in the parent, in order
                 out = (False, e)
         results.put(_packed(seq, *out, caught))
@@ -159,10 +159,10 @@ def _death(process):
 class _Workers:
     """`n` worker processes fed through two queues; `stop` ends them at once."""
 
-    def __init__(self, n, fn, context, gray, max_pixels):
+    def __init__(self, n, fn, context, decoding):
         ctx = multiprocessing.get_context("spawn")
         self.tasks, self.results = ctx.Queue(), ctx.Queue()
-        args = (fn, context, gray, max_pixels, self.tasks, self.results, os.getpid())
+        args = (fn, context, decoding, self.tasks, self.results, os.getpid())
         self.procs = [ctx.Process(target=_worker, args=args, daemon=True, name=f"pencilcal-worker-{i}")
                       for i in range(n)]
         # Workers start with SIGINT ignored (an ignored signal stays ignored across exec, and
@@ -231,7 +231,7 @@ def map_frames(fn, source, context, workers=1):
         for frame in source:
             yield fn(frame, context)
         return
-    pool = _Workers(n, fn, context, source.gray, source.max_pixels)
+    pool = _Workers(n, fn, context, (source.gray, source.max_pixels, getattr(source, "keep_colour", False)))
     try:
         window, sent, done, ready = 2 * n, 0, 0, {}
         refs = iter(source.refs())

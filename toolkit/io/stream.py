@@ -46,7 +46,8 @@ import time
 from pathlib import Path
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.io.images import DEFAULT_MAX_PIXELS, Frame, frame_size_error, quiet_c_stderr, read_ahead
+from pencilcal.toolkit.io.images import (DEFAULT_MAX_PIXELS, Frame, frame_size_error, quiet_c_stderr, read_ahead,
+                                         with_grey)
 
 __all__ = ["StreamSource", "open_stream", "is_stream_spec", "FOLLOW_IDLE_S", "LIVE_BUFFER", "LIVE_SILENCE_S"]
 
@@ -70,7 +71,8 @@ class StreamSource:
     """Frames of a camera, a URL or a growing video file, as they come (module docstring).
 
     spec: a camera index, a URL or a file path; mode: "live" or "follow" (default: live
-    for a camera index or URL, follow for a file); gray: frames as one 8-bit channel;
+    for a camera index or URL, follow for a file); gray: frames as one 8-bit channel
+    (keep_colour: their colour images too, `images.Frame.colour`);
     idle_s: follow mode ends after the file stops growing for this long [s] (None:
     FOLLOW_IDLE_S); buffer: live
     mode's waiting frames at most.
@@ -79,7 +81,7 @@ class StreamSource:
     kind = "stream"
 
     def __init__(self, spec, *, mode=None, gray=False, idle_s=None, buffer=LIVE_BUFFER,
-                 max_pixels=DEFAULT_MAX_PIXELS):
+                 max_pixels=DEFAULT_MAX_PIXELS, keep_colour=False):
         idle_s = FOLLOW_IDLE_S if idle_s is None else idle_s
         self.spec = str(spec).strip()
         if not self.spec:
@@ -90,6 +92,7 @@ class StreamSource:
         if not idle_s > 0 or not int(buffer) >= 1:
             raise InputError(f"{self.spec}: idle_s must be positive and buffer at least 1")
         self.gray, self.max_pixels, self.idle_s, self.buffer = gray, max_pixels, float(idle_s), int(buffer)
+        self.keep_colour = bool(gray and keep_colour)
         self.description = self.spec
         self.paths = [Path(self.spec)] if self.mode == "follow" else []
         self.read = 0
@@ -148,12 +151,14 @@ class StreamSource:
         with _stop_on_sigint(self):
             frames = self._live() if self.mode == "live" else self._follow()
             for image, index in frames:
+                colour = None
                 if self.gray and image.ndim == 3:
-                    image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+                    image, colour = with_grey(image) if self.keep_colour else \
+                        (cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), None)
                 err = frame_size_error(image, self.max_pixels)
                 image = None if err else image
                 self.read += 1
-                yield Frame(f"frame_{index:06d}", index, image, err, None)
+                yield Frame(f"frame_{index:06d}", index, image, err, None, None if err else colour)
                 if self._stop.is_set():
                     return
 
@@ -322,7 +327,8 @@ def _stop_on_sigint(source):
 
 
 def open_stream(spec, *, mode=None, gray=False, idle_s=None, buffer=LIVE_BUFFER,
-                max_pixels=DEFAULT_MAX_PIXELS):
+                max_pixels=DEFAULT_MAX_PIXELS, keep_colour=False):
     """Open `--source`: a camera index, a URL, or a video file still being written. See
     `StreamSource`."""
-    return StreamSource(spec, mode=mode, gray=gray, idle_s=idle_s, buffer=buffer, max_pixels=max_pixels)
+    return StreamSource(spec, mode=mode, gray=gray, idle_s=idle_s, buffer=buffer, max_pixels=max_pixels,
+                        keep_colour=keep_colour)

@@ -26,6 +26,34 @@ def test_spokes_are_drawn_in_their_colour_where_they_are(rng):
             assert np.abs(out[m[1], m[0]].astype(int) - spoke_colour(int(k))).max() < 60
 
 
+@pytest.mark.parametrize("scale", [0.5, 0.37])
+def test_at_a_smaller_scale_the_estimates_land_where_they_are_on_the_smaller_frame(rng, scale):
+    cam = hd_camera()
+    pen = fan(radius=None)
+    seg, R, t = frame(cam, pen, 30.0, 200.0, rng)
+    o = orient_segments(cam, seg, pen)
+    # a frame with a sharp, bright pixel block: where it lands on the canvas says the mapping
+    img = np.full((cam.height, cam.width), 128, np.uint8)
+    img[500:508, 700:708] = 255
+    full = draw_frame(img, orientation=o, segments=seg, camera=cam)
+    out = draw_frame(img, orientation=o, segments=seg, camera=cam, scale=scale)
+    h, w = out.shape[:2]
+    assert (h % 2, w % 2) == (0, 0) and abs(w - scale * cam.width) <= 1 and abs(h - scale * cam.height) <= 1
+    sx, sy = w / cam.width, h / cam.height
+    ys, xs = np.nonzero(out[..., 1] > 200)
+    near = (abs(xs - 703.5 * sx) < 8) & (abs(ys - 503.5 * sy) < 8)  # the block's centre (703.5, 503.5)
+    assert abs(xs[near].mean() - ((703.5 + 0.5) * sx - 0.5)) < 0.3
+    assert abs(ys[near].mean() - ((503.5 + 0.5) * sy - 0.5)) < 0.3
+    for s, k in zip(seg, o.spokes):
+        m = 0.5 * (s[:2] + s[2:])
+        c = np.round((m + 0.5) * [sx, sy] - 0.5).astype(int)
+        if 40 < m[0] < cam.width - 40 and 120 < m[1] < cam.height - 40:
+            patch = out[c[1] - 1:c[1] + 2, c[0] - 1:c[0] + 2].reshape(-1, 3).astype(int)
+            assert np.abs(patch - spoke_colour(int(k))).max(axis=1).min() < 60
+    # the text box drawn on the smaller frame too, at its top left
+    assert out[:80, :300].max() == 255 and full[:150, :600].max() == 255
+
+
 def test_a_failed_frame_says_why(rng):
     cam = hd_camera()
     o = orient_segments(cam, np.zeros((0, 4)), fan(radius=None), image="x.png")

@@ -145,3 +145,28 @@ def test_prefetched_yields_in_order_raises_in_order_and_stops_when_left():
         if x == 5:
             break
     assert closed.wait(5.0)
+
+
+def test_grey_frames_can_keep_their_colour_for_the_overlay(tmp_path):
+    # orient finds its lines on grey frames and draws its overlay on the colour ones: both
+    # from one decoding (in the decoding thread for a video), the grey one as a detector
+    # converts a colour frame; without keep_colour nothing changes
+    rng = np.random.default_rng(0)
+    colour = [rng.integers(0, 255, (24, 32, 3)).astype(np.uint8) for _ in range(3)]
+    v = tmp_path / "v.avi"
+    w = cv2.VideoWriter(str(v), cv2.VideoWriter_fourcc(*"MJPG"), 5, (32, 24))
+    for c in colour:
+        w.write(c)
+    w.release()
+    for f in colour:
+        cv2.imwrite(str(tmp_path / f"f{len(list(tmp_path.glob('*.png')))}.png"), f)
+    for spec in (str(v), str(tmp_path)):
+        plain = list(open_images(spec))
+        kept = list(open_images(spec, gray=True, keep_colour=True))
+        grey = list(open_images(spec, gray=True))
+        assert all(f.colour is None and f.drawable is f.image for f in plain + grey)
+        for k, p in zip(kept, plain):
+            assert np.array_equal(k.colour, p.image) and k.drawable is k.colour
+            assert np.array_equal(k.image, cv2.cvtColor(p.image, cv2.COLOR_BGR2GRAY))
+    # keep_colour alone (colour frames) keeps nothing twice
+    assert all(f.colour is None for f in open_images(str(v), keep_colour=True))
