@@ -61,6 +61,7 @@ from pencilcal.toolkit.detect.shaft.region_bands import (
     proposed,
     suppress_overlaps,
 )
+from pencilcal.toolkit.detect.shaft.edge_pairs import PAIR_MAX_CONVERGENCE_DEG, pair_bands
 from pencilcal.toolkit.detect.shaft.partner import MAX_SEEDS, partner_bands
 from pencilcal.toolkit.detect.shaft.regions import (BoundaryLines, RegionPairs, boundary_lines, region_levels,
                                                     region_pairs, scene_angle)
@@ -70,6 +71,7 @@ __all__ = ["MaterialShaft", "material_cue", "judge_band", "select", "robust_nois
 _MAX_PAIRS = 40  # candidate pairs per region map, the longest overlaps first
 _MAX_REFINE = 6  # bands of the region maps refitted at full resolution
 _MAX_PARTNER = 4  # ... and bands from a single edge (`shaft.partner`)
+_MAX_PAIRED = 4  # ... and bands between two grey-level edges (`shaft.edge_pairs`)
 _TOUCH = 0.1  # ... unless it overlaps one of those by this fraction (`_touches`)
 _GROUP_TOL = (3.0, 3.0)  # one boundary at two levels: offset [work px], angle [deg]
 _GROW_PASSES = 3  # passes growing a band's edges along its chord
@@ -126,7 +128,8 @@ def _bands(work, mm, o, wmin, wmax, min_len):
     """The proposed bands (module docstring, steps 1-2): those of every region level, the
     most region evidence first, the better of overlapping ones, at most `_MAX_REFINE`; then
     those from a single edge (`shaft.partner`) that overlap none of them, at most
-    `_MAX_PARTNER`."""
+    `_MAX_PARTNER`; then those between two grey-level edges (`shaft.edge_pairs`) that overlap
+    none of these, at most `_MAX_PAIRED`."""
     bands, seeds = [], []
     Ball = B0 = None
     for lev, kind, Bm, repeat in region_levels(mm, work):
@@ -146,15 +149,27 @@ def _bands(work, mm, o, wmin, wmax, min_len):
     acc = [e for e in bands if proposed(e, min_len, ang_thr)]
     acc.sort(key=lambda e: -e.shaft_len)
     acc = suppress_overlaps(acc)[:_MAX_REFINE]
-    if not o.single_edge:
-        return acc
-    seed = _unused_seeds(seeds, acc, min_len)
-    lines, pairs, maps = partner_bands(work, seed, wmin, wmax, np.degrees(o.region_conv_max), mm.luma_noise)
+    if o.single_edge:
+        seed = _unused_seeds(seeds, acc, min_len)
+        got = partner_bands(work, seed, wmin, wmax, np.degrees(o.region_conv_max), mm.luma_noise)
+        acc = acc + _more_bands(got, work, B0, min_len, ang_thr, acc, "partner")[:_MAX_PARTNER]
+    if o.edge_pairs:
+        got = pair_bands(work, wmin, wmax, min(np.degrees(o.conv_max), PAIR_MAX_CONVERGENCE_DEG), mm.luma_noise,
+                         min_len)
+        acc = acc + _more_bands(got, work, B0, min_len, ang_thr, acc, "pairs")[:_MAX_PAIRED]
+    return acc
+
+
+def _more_bands(got, work, B0, min_len, ang_thr, acc, kind):
+    """The bands of one more proposer (got: its (lines, pairs, region map per pair)) judged
+    along their chords, proposed and overlapping none of acc, the better of overlapping
+    ones, the most shaft evidence first."""
+    lines, pairs, maps = got
     more = [e for q, B in enumerate(maps)
-            for e in evaluate_bands(lines, _one_pair(pairs, q), work, B, B0, min_len, -1, "partner")]
+            for e in evaluate_bands(lines, _one_pair(pairs, q), work, B, B0, min_len, -1, kind)]
     more = [e for e in more if proposed(e, min_len, ang_thr) and not _touches(e, acc)]
     more.sort(key=lambda e: -e.shaft_len)
-    return acc + suppress_overlaps(more)[:_MAX_PARTNER]
+    return suppress_overlaps(more)
 
 
 def _touches(band, bands):
@@ -346,7 +361,8 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
     m = midline_from_edges(K, fits[0], fits[1])
     if m is None:
         return None, "no midline from the edges"
-    if m.convergence_deg > np.degrees(o.region_conv_max):
+    conv_max = min(o.conv_max, np.radians(PAIR_MAX_CONVERGENCE_DEG)) if e.kind == "pairs" else o.region_conv_max
+    if m.convergence_deg > np.degrees(conv_max):
         return None, "edges converge"
     if not _meet_outside(m):
         return None, "edges meet inside the stretch"
