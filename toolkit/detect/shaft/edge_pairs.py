@@ -7,8 +7,9 @@ under perspective: its two silhouette edges are clean straight steps of grey lev
 level of the map has a region with both as its boundaries, so no band is proposed. Here the
 edges are taken from the grey levels themselves:
 
-1. *segments*: OpenCV's fast line detector (FLD) on the work frame's luma (480 px on its
-   longer side: no full-resolution pass), fragments of one line merged
+1. *segments*: OpenCV's fast line detector (FLD) on the work frame (480 px on its longer
+   side: no full-resolution pass) reduced by `_FLD_SCALE`, in the mean of its luma and red
+   (`_edge_channel`), fragments of one line merged
    (`detect.segments.merge_collinear`), those at least half the least length long whose
    middle is off the valid region's boundary (the field stop's own edge is no instrument's),
    the `MAX_SEGMENTS` longest;
@@ -25,7 +26,8 @@ edges are taken from the grey levels themselves:
    along the band (one material, its shading changing slowly along it); a pair is a candidate where `_MIN_GOOD` of
    its observable stations are good and half of them are observable (a band between a
    bright shaft and the field stop has no outside there). Its score is the overlap times
-   the fraction of good stations; the best `MAX_PAIRS`, none covering most of a better one;
+   the fraction of good stations, times the overlap in `_SHORT_WIDTHS` widths where it is
+   seen along fewer (the material cue takes no shorter band for a shaft); the best `MAX_PAIRS`, none covering most of a better one;
 4. each candidate gets its own region map, as a band from a single edge does
    (`shaft.partner`): the pixels whose colour is nearer the band's median inside colour than
    either outside's, so that the band test (`shaft.region_bands.evaluate_bands`) and
@@ -42,8 +44,8 @@ Example
 >>> img = cv2.GaussianBlur(img, (0, 0), 1.5)                                 # a dark grey shaft
 >>> wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=320)
 >>> lines, pairs, maps = pair_bands(wf, 10.0, 80.0, 20.0, 1.0, 60.0)
->>> len(pairs.i), round(float(pairs.width[0]))         # the fill takes both rims
-(1, 41)
+>>> len(pairs.i), abs(float(pairs.width[0]) - 41.0) < 1.5   # 41 px: the fill takes both rims
+(1, True)
 >>> bool(maps[0][115, 160]), bool(maps[0][60, 160])
 (True, False)
 """
@@ -59,16 +61,19 @@ __all__ = ["pair_bands", "edge_segments", "MAX_PAIRS", "MAX_SEGMENTS", "PAIR_MAX
 #: Candidate bands per frame, the best first.
 MAX_PAIRS = 6
 #: Segments paired per frame, the longest first.
-MAX_SEGMENTS = 80
+MAX_SEGMENTS = 48
 #: The largest convergence of a pair's edges [deg]: a cylinder close to the lens, its axis
 #: inclined towards the camera, is seen with edges converging by up to about 2 atan(r / d)
 #: (r its radius, d its near end's distance): 25 deg at 2.3 radii, a 10 mm shaft 11 mm away.
 PAIR_MAX_CONVERGENCE_DEG = 25.0
-_BLUR_PX = 1.0  # sd of the luma's smoothing before FLD [work px]: tissue texture gives fewer fragments
-_CANNY = (15, 40)  # FLD's hysteresis thresholds: a dark grasper in a dark periphery steps by ~15 levels
-_FRAGMENT_PX = 6.0  # FLD fragments shorter than this are not merged [work px]
+_FLD_SCALE = 0.5  # FLD runs on the work frame reduced by this (area-averaged: tissue texture gives fewer
+# fragments, and the cost is a quarter; the band's edges are refitted at full resolution)
+_CANNY = (20, 50)  # FLD's hysteresis thresholds: a dark grasper in a dark periphery steps by ~15 levels
+_FRAGMENT_PX = 5.0  # FLD's shortest fragment [px of the reduced frame]
+_MERGE_PX = 8.0  # ... and the shortest merged into a line (tissue texture gives many short ones)
 _MERGE_GAP = 0.5  # ... across gaps up to this fraction of the least length
 _OFF_BOUNDARY_PX = 3.0  # a segment's middle at least this far inside the valid region [work px]
+_MAX_CANDIDATES = 120  # pairs judged by their material, the longest overlaps first
 _STATIONS = 16
 _INSIDE = np.linspace(0.25, 0.75, 5)  # across the band, 0 and 1 its edges
 _SIDE_PX = np.array([2.0, 3.5, 5.0])  # outside samples beyond each edge [work px]
@@ -76,6 +81,7 @@ _MIN_CONTRAST_SD = 6.0
 _REL_CONTRAST = 0.5
 _MIN_GOOD = 0.6
 _LUMA_WEIGHT = 0.5
+_SHORT_WIDTHS = 1.5
 _SAME_BAND = 0.8  # a candidate covering this fraction of a better one's area is that band again
 
 
@@ -91,13 +97,16 @@ def edge_segments(work, min_len):
     [work px], the longest first."""
     import cv2
 
-    g = cv2.GaussianBlur(np.clip(_edge_channel(work), 0, 255).astype(np.uint8), (0, 0), _BLUR_PX)
+    g = np.clip(_edge_channel(work), 0, 255).astype(np.uint8)
+    f = _FLD_SCALE
+    g = cv2.resize(g, (max(8, round(g.shape[1] * f)), max(8, round(g.shape[0] * f))), interpolation=cv2.INTER_AREA)
     fld = cv2.ximgproc.createFastLineDetector(length_threshold=int(_FRAGMENT_PX), canny_th1=_CANNY[0],
                                               canny_th2=_CANNY[1])
     raw = fld.detect(g)
     if raw is None:
         return np.zeros((0, 4))
-    seg, _ = merge_collinear(raw.reshape(-1, 4), max_gap_px=_MERGE_GAP * min_len, min_length_px=_FRAGMENT_PX)
+    seg, _ = merge_collinear(raw.reshape(-1, 4), max_gap_px=_MERGE_GAP * min_len * f, min_length_px=_MERGE_PX)
+    seg = (seg + 0.5) / f - 0.5  # work px
     L = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
     mid = 0.5 * (seg[:, :2] + seg[:, 2:])
     h, w = work.shape
@@ -209,7 +218,9 @@ def _material(work, img, lines, pairs, noise):
     good &= np.linalg.norm(cin - _trend(cin, seen), axis=-1) <= 0.5 * med_con[:, None]
     frac = np.count_nonzero(good, 1) / np.maximum(n_seen, 1)
     ok = (n_seen >= 0.5 * _STATIONS) & (frac >= _MIN_GOOD)
-    score = np.where(ok, pairs.overlap * frac, 0.0)
+    # a band seen along fewer than `_SHORT_WIDTHS` widths is no shaft (`shaft.material_cue`
+    # judges so): such a pair ranks after the elongated ones
+    score = np.where(ok, pairs.overlap * frac * np.minimum(1.0, pairs.overlap / (_SHORT_WIDTHS * pairs.width)), 0.0)
     ref = np.stack([_median_where(c, good) for c in (cin, c1, c2)])  # (3, K, C)
     return score, ref
 
@@ -242,25 +253,26 @@ def _distinct(lines, pairs, order):
     return kept
 
 
-def _feature(img):
-    """The colours (..., 3) float32 of BGR ones as the band's map compares them: luma and
-    chroma (YCrCb), the luma weighted by `_LUMA_WEIGHT` (a grey shaft's streaks and sheen
-    change its lightness, not its colour)."""
+#: BGR to the features the band's map compares: luma (weighted by `_LUMA_WEIGHT`: a grey
+#: shaft's streaks and sheen change its lightness, not its colour) and the two chroma
+#: differences of YCrCb, Cr = 0.713 (R - Y) and Cb = 0.564 (B - Y) (their offsets cancel).
+_Y = np.array([0.114, 0.587, 0.299])
+_FEATURE = np.array([_LUMA_WEIGHT * _Y, 0.713 * (np.array([0.0, 0.0, 1.0]) - _Y),
+                     0.564 * (np.array([1.0, 0.0, 0.0]) - _Y)])
+
+
+def _colour_map(work, img, c_in, c1, c2):
+    """The pixels (h, w) uint8 whose features (`_FEATURE` of img (h, w, 3) BGR) are nearer
+    c_in's than c1's and c2's (BGR colours), in the valid region, closed and opened by 3 x
+    3."""
     import cv2
 
-    f = cv2.cvtColor(np.ascontiguousarray(img, np.float32).reshape(-1, 1, 3), cv2.COLOR_BGR2YCrCb).reshape(img.shape)
-    return f * np.array([_LUMA_WEIGHT, 1.0, 1.0], np.float32)
-
-
-def _colour_map(work, feat, c_in, c1, c2):
-    """The pixels (h, w) uint8 whose features (feat: (h, w, 3), `_feature`) are nearer c_in's
-    than c1's and c2's (BGR colours), in the valid region, closed and opened by 3 x 3."""
-    import cv2
-
-    cs = _feature(np.stack([c_in, c1, c2]).astype(np.float32))
-    d = [cv2.transform(feat, (-2.0 * c).reshape(1, -1).astype(np.float32)).reshape(work.shape) + float(c @ c)
-         for c in cs]
-    B = ((d[0] < np.minimum(d[1], d[2])) & work.valid).astype(np.uint8)
+    cs = np.stack([c_in, c1, c2]).astype(np.float64)
+    fc = cs @ _FEATURE.T
+    # |F x - F c|^2 less the |F x|^2 common to all three: -2 (F^T F c) . x + |F c|^2, the
+    # three colours in one pass over the BGR frame
+    d = cv2.transform(img, np.c_[-2.0 * fc @ _FEATURE, np.sum(fc * fc, 1)].astype(np.float32))
+    B = ((d[..., 0] < np.minimum(d[..., 1], d[..., 2])) & work.valid).astype(np.uint8)
     k3 = np.ones((3, 3), np.uint8)
     return cv2.morphologyEx(cv2.morphologyEx(B, cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
 
@@ -290,7 +302,7 @@ def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, segments=None):
     """
     seg = edge_segments(work, min_len) if segments is None else np.asarray(segments, float).reshape(-1, 4)
     lines = _both_ways(seg)
-    pairs = region_pairs(lines, wmin, wmax, conv_max_deg, 0.5 * min_len, 4 * MAX_SEGMENTS)
+    pairs = region_pairs(lines, wmin, wmax, conv_max_deg, 0.5 * min_len, _MAX_CANDIDATES)
     empty = RegionPairs(i=np.zeros(0, int), j=np.zeros(0, int), width=np.zeros(0), overlap=np.zeros(0))
     if len(pairs.i) == 0:
         return lines, empty, []
@@ -300,8 +312,7 @@ def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, segments=None):
     keep = _distinct(lines, pairs, order)
     if not keep:
         return lines, empty, []
-    feat = _feature(img)
-    maps = [_colour_map(work, feat, *ref[:, k]) for k in keep]
+    maps = [_colour_map(work, img, *ref[:, k]) for k in keep]
     keep = np.array(keep, int)
     return lines, RegionPairs(i=pairs.i[keep], j=pairs.j[keep], width=pairs.width[keep],
                               overlap=pairs.overlap[keep]), maps
