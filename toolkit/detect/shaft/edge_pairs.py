@@ -23,11 +23,15 @@ edges are taken from the grey levels themselves:
    beyond each edge). A station is *good* where the inside differs from both outsides by
    `_MIN_CONTRAST_SD` noise sd (and `_REL_CONTRAST` of the band's median contrast) and its
    colour lies within half the median contrast of the inside colours' straight-line trend
-   along the band (one material, its shading changing slowly along it); a pair is a candidate where `_MIN_GOOD` of
-   its observable stations are good and half of them are observable (a band between a
-   bright shaft and the field stop has no outside there). Its score is the overlap times
-   the fraction of good stations, times the overlap in `_SHORT_WIDTHS` widths where it is
-   seen along fewer (the material cue takes no shorter band for a shaft); the best `MAX_PAIRS`, none covering most of a better one;
+   along the band (one material, its shading changing slowly along it). A pair is a
+   candidate where `_MIN_GOOD` of its observable stations are good, half of them are
+   observable (a band between a bright shaft and the field stop has no outside there), and
+   its inside is more instrument-like than both outsides (the median over the good stations
+   of the inside's `shaft.regions` likeness less the larger outside's exceeds
+   `_LIKENESS_MARGIN`: a fold or a vessel of tissue between two edges is tissue inside). Its
+   score is the overlap times the fraction of good stations, times the overlap in
+   `_SHORT_WIDTHS` widths where it is seen along fewer (the material cue takes no shorter
+   band for a shaft); the best `MAX_PAIRS`, none covering most of a better one;
 4. each candidate gets its own region map, as a band from a single edge does
    (`shaft.partner`): the pixels whose colour is nearer the band's median inside colour than
    either outside's, so that the band test (`shaft.region_bands.evaluate_bands`) and
@@ -43,7 +47,8 @@ Example
 >>> _ = cv2.fillConvexPoly(img, np.array([[0, 90], [319, 100], [319, 140], [0, 130]], np.int32), (22, 22, 24))
 >>> img = cv2.GaussianBlur(img, (0, 0), 1.5)                                 # a dark grey shaft
 >>> wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=320)
->>> lines, pairs, maps = pair_bands(wf, 10.0, 80.0, 20.0, 1.0, 60.0)
+>>> from pencilcal.toolkit.detect.shaft.regions import material_map
+>>> lines, pairs, maps = pair_bands(wf, 10.0, 80.0, 20.0, 1.0, 60.0, material_map(wf).likeness)
 >>> len(pairs.i), abs(float(pairs.width[0]) - 41.0) < 1.5   # 41 px: the fill takes both rims
 (1, True)
 >>> bool(maps[0][115, 160]), bool(maps[0][60, 160])
@@ -82,6 +87,7 @@ _REL_CONTRAST = 0.5
 _MIN_GOOD = 0.6
 _LUMA_WEIGHT = 0.5
 _SHORT_WIDTHS = 1.5
+_LIKENESS_MARGIN = 0.0  # the inside's instrument-likeness above the outsides' by more than this
 _SAME_BAND = 0.8  # a candidate covering this fraction of a better one's area is that band again
 
 
@@ -196,8 +202,9 @@ def _trend(c, mask):
     return cm[:, None, :] + (t - tm)[..., None] * b[:, None, :]
 
 
-def _material(work, img, lines, pairs, noise):
-    """Per pair (module docstring, step 3): (score (K,), inside, side1, side2 colours (K, C))."""
+def _material(work, img, lines, pairs, noise, likeness):
+    """Per pair (module docstring, steps 3-4): (score (K,), inside, side1, side2 colours (3,
+    K, 3)); img (h, w, 3) BGR float32, likeness (h, w) float32 the instrument-likeness."""
     Pi, Pj = _cross_sections(lines, pairs)
     across = Pj - Pi
     w = np.maximum(np.linalg.norm(across, axis=-1, keepdims=True), 1e-9)
@@ -205,7 +212,8 @@ def _material(work, img, lines, pairs, noise):
     inside = Pi[:, :, None, :] + _INSIDE[None, None, :, None] * across[:, :, None, :]
     out_i = Pi[:, :, None, :] - _SIDE_PX[None, None, :, None] * e[:, :, None, :]
     out_j = Pj[:, :, None, :] + _SIDE_PX[None, None, :, None] * e[:, :, None, :]
-    col, obs = _sample(work, img, np.concatenate([inside, out_i, out_j], 2))
+    col, obs = _sample(work, np.dstack([img, likeness]), np.concatenate([inside, out_i, out_j], 2))
+    col, lik = col[..., :3], col[..., 3]
     ni, ns = _INSIDE.size, _SIDE_PX.size
     seen = np.all(obs, 2)  # (K, S)
     cin = col[:, :, :ni].mean(2)
@@ -218,6 +226,9 @@ def _material(work, img, lines, pairs, noise):
     good &= np.linalg.norm(cin - _trend(cin, seen), axis=-1) <= 0.5 * med_con[:, None]
     frac = np.count_nonzero(good, 1) / np.maximum(n_seen, 1)
     ok = (n_seen >= 0.5 * _STATIONS) & (frac >= _MIN_GOOD)
+    # more instrument-like than both outsides (median over the good stations)
+    more = lik[:, :, :ni].mean(2) - np.maximum(lik[:, :, ni:ni + ns].mean(2), lik[:, :, ni + ns:].mean(2))
+    ok &= _median_where(more, good) > _LIKENESS_MARGIN
     # a band seen along fewer than `_SHORT_WIDTHS` widths is no shaft (`shaft.material_cue`
     # judges so): such a pair ranks after the elongated ones
     score = np.where(ok, pairs.overlap * frac * np.minimum(1.0, pairs.overlap / (_SHORT_WIDTHS * pairs.width)), 0.0)
@@ -277,7 +288,7 @@ def _colour_map(work, img, c_in, c1, c2):
     return cv2.morphologyEx(cv2.morphologyEx(B, cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
 
 
-def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, segments=None):
+def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segments=None):
     """Candidate bands between pairs of grey-level edges (module docstring).
 
     Parameters
@@ -291,6 +302,8 @@ def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, segments=None):
         The work frame's noise sd per channel.
     min_len : float [work px]
         The least length of a shaft: segments and overlaps at least half of it.
+    likeness : (h, w) float32
+        The work frame's instrument-likeness (`shaft.regions.MaterialMap.likeness`).
     segments : (N, 4), optional
         The edges to pair [work px]; default `edge_segments`.
 
@@ -307,7 +320,7 @@ def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, segments=None):
     if len(pairs.i) == 0:
         return lines, empty, []
     img = work.bgr.astype(np.float32).reshape(work.shape + (-1,))
-    score, ref = _material(work, img, lines, pairs, noise)
+    score, ref = _material(work, img, lines, pairs, noise, np.asarray(likeness, np.float32))
     order = [k for k in np.argsort(-score, kind="stable") if score[k] > 0]
     keep = _distinct(lines, pairs, order)
     if not keep:

@@ -10,7 +10,12 @@ frames whose colour tells the materials apart (`shaft.detector`).
    side of these, the band on the side away from its region (a white or metal shaft
    beside a dark region: the maps give one side) to the outermost far edge a gradient
    model finds across it, with its own region map (`shaft.partner`), judged alike, where
-   it overlaps none of them;
+   it overlaps none of them; then the bands between two long straight grey-level edges
+   whose inside is one material unlike both outsides (a dark grasper in the dark periphery,
+   a grey shaft the maps do not tell from the tissue, a close shaft whose edges converge
+   under perspective by up to `shaft.edge_pairs.PAIR_MAX_CONVERGENCE_DEG`), each with its
+   own colour map (`shaft.edge_pairs`), judged alike, where they overlap none of the
+   others;
 3. *edges* (`shaft.silhouette`, `_band_edges`): each proposed band's two boundaries refitted at
    full resolution in a corridor (`corridor_px`, at least 1.5 work px: the region boundary's
    own resolution) over its run, then grown along their own lines over the stretch where
@@ -24,7 +29,8 @@ frames whose colour tells the materials apart (`shaft.detector`).
    along 2.5 widths (a jaw is not elongated), or they run along 1.5 widths and the border
    of the view cuts them (a wide shaft close to the lens, entering at a corner; a wrist or
    jaw ends inside the view); when they converge by at most the largest
-   convergence and meet outside the stretch (by half a width); and when the band's
+   convergence (a band of edge pairs: up to `shaft.edge_pairs.PAIR_MAX_CONVERGENCE_DEG`)
+   and meet outside the stretch (by half a width); and when the band's
    extension reaches the border of the view or the stretch ends within a width of it (an
    instrument enters from outside; its edges may fade into a dark, vignetted surround
    before the border), or it is very long (`_LONG_FRACTION` of the diagonal). The score is
@@ -155,7 +161,7 @@ def _bands(work, mm, o, wmin, wmax, min_len):
         acc = acc + _more_bands(got, work, B0, min_len, ang_thr, acc, "partner")[:_MAX_PARTNER]
     if o.edge_pairs:
         got = pair_bands(work, wmin, wmax, min(np.degrees(o.conv_max), PAIR_MAX_CONVERGENCE_DEG), mm.luma_noise,
-                         min_len)
+                         min_len, mm.likeness)
         acc = acc + _more_bands(got, work, B0, min_len, ang_thr, acc, "pairs")[:_MAX_PAIRED]
     return acc
 
