@@ -64,7 +64,7 @@ from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs, r
 __all__ = ["pair_bands", "edge_segments", "MAX_PAIRS", "MAX_SEGMENTS", "PAIR_MAX_CONVERGENCE_DEG"]
 
 #: Candidate bands per frame, the best first.
-MAX_PAIRS = 6
+MAX_PAIRS = 4
 #: Segments paired per frame, the longest first.
 MAX_SEGMENTS = 48
 #: The largest convergence of a pair's edges [deg]: a cylinder close to the lens, its axis
@@ -78,7 +78,7 @@ _FRAGMENT_PX = 5.0  # FLD's shortest fragment [px of the reduced frame]
 _MERGE_PX = 8.0  # ... and the shortest merged into a line (tissue texture gives many short ones)
 _MERGE_GAP = 0.5  # ... across gaps up to this fraction of the least length
 _OFF_BOUNDARY_PX = 3.0  # a segment's middle at least this far inside the valid region [work px]
-_MAX_CANDIDATES = 120  # pairs judged by their material, the longest overlaps first
+_MAX_CANDIDATES = 60  # pairs judged by their material, the longest overlaps first
 _STATIONS = 16
 _INSIDE = np.linspace(0.25, 0.75, 5)  # across the band, 0 and 1 its edges
 _SIDE_PX = np.array([2.0, 3.5, 5.0])  # outside samples beyond each edge [work px]
@@ -106,13 +106,12 @@ def edge_segments(work, min_len):
     g = np.clip(_edge_channel(work), 0, 255).astype(np.uint8)
     f = _FLD_SCALE
     g = cv2.resize(g, (max(8, round(g.shape[1] * f)), max(8, round(g.shape[0] * f))), interpolation=cv2.INTER_AREA)
-    fld = cv2.ximgproc.createFastLineDetector(length_threshold=int(_FRAGMENT_PX), canny_th1=_CANNY[0],
-                                              canny_th2=_CANNY[1])
+    fld = cv2.ximgproc.createFastLineDetector(length_threshold=max(int(_FRAGMENT_PX), int(0.5 * min_len * f)),
+                                              canny_th1=_CANNY[0], canny_th2=_CANNY[1])
     raw = fld.detect(g)
     if raw is None:
         return np.zeros((0, 4))
-    seg, _ = merge_collinear(raw.reshape(-1, 4), max_gap_px=_MERGE_GAP * min_len * f, min_length_px=_MERGE_PX)
-    seg = (seg + 0.5) / f - 0.5  # work px
+    seg = (raw.reshape(-1, 4).astype(float) + 0.5) / f - 0.5  # work px
     L = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
     mid = 0.5 * (seg[:, :2] + seg[:, 2:])
     h, w = work.shape
@@ -212,8 +211,9 @@ def _material(work, img, lines, pairs, noise, likeness):
     inside = Pi[:, :, None, :] + _INSIDE[None, None, :, None] * across[:, :, None, :]
     out_i = Pi[:, :, None, :] - _SIDE_PX[None, None, :, None] * e[:, :, None, :]
     out_j = Pj[:, :, None, :] + _SIDE_PX[None, None, :, None] * e[:, :, None, :]
-    col, obs = _sample(work, np.dstack([img, likeness]), np.concatenate([inside, out_i, out_j], 2))
-    col, lik = col[..., :3], col[..., 3]
+    X = np.concatenate([inside, out_i, out_j], 2)
+    col, obs = _sample(work, img, X)
+    lik = _sample(work, likeness, X)[0][..., 0]
     ni, ns = _INSIDE.size, _SIDE_PX.size
     seen = np.all(obs, 2)  # (K, S)
     cin = col[:, :, :ni].mean(2)
@@ -272,18 +272,20 @@ _FEATURE = np.array([_LUMA_WEIGHT * _Y, 0.713 * (np.array([0.0, 0.0, 1.0]) - _Y)
                      0.564 * (np.array([1.0, 0.0, 0.0]) - _Y)])
 
 
-def _colour_map(work, img, c_in, c1, c2):
+def _colour_map(img, valid, c_in, c1, c2):
     """The pixels (h, w) uint8 whose features (`_FEATURE` of img (h, w, 3) BGR) are nearer
-    c_in's than c1's and c2's (BGR colours), in the valid region, closed and opened by 3 x
-    3."""
+    c_in's than c1's and c2's (BGR colours), in valid ((h, w) uint8 0/1), closed and opened
+    by 3 x 3."""
     import cv2
 
     cs = np.stack([c_in, c1, c2]).astype(np.float64)
     fc = cs @ _FEATURE.T
     # |F x - F c|^2 less the |F x|^2 common to all three: -2 (F^T F c) . x + |F c|^2, the
     # three colours in one pass over the BGR frame
-    d = cv2.transform(img, np.c_[-2.0 * fc @ _FEATURE, np.sum(fc * fc, 1)].astype(np.float32))
-    B = ((d[..., 0] < np.minimum(d[..., 1], d[..., 2])) & work.valid).astype(np.uint8)
+    M = np.c_[-2.0 * fc @ _FEATURE, np.sum(fc * fc, 1)]
+    # each outside's less the inside's (three rows: OpenCV's fast path)
+    d1, d2, _ = cv2.split(cv2.transform(img, (M - M[0])[[1, 2, 0]].astype(np.float32)))
+    B = cv2.bitwise_and((cv2.min(d1, d2) > 0).view(np.uint8), valid)
     k3 = np.ones((3, 3), np.uint8)
     return cv2.morphologyEx(cv2.morphologyEx(B, cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
 
@@ -325,7 +327,8 @@ def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segment
     keep = _distinct(lines, pairs, order)
     if not keep:
         return lines, empty, []
-    maps = [_colour_map(work, img, *ref[:, k]) for k in keep]
+    valid = work.valid.view(np.uint8)
+    maps = [_colour_map(img, valid, *ref[:, k]) for k in keep]
     keep = np.array(keep, int)
     return lines, RegionPairs(i=pairs.i[keep], j=pairs.j[keep], width=pairs.width[keep],
                               overlap=pairs.overlap[keep]), maps
