@@ -33,7 +33,12 @@ frames whose colour tells the materials apart (`shaft.detector`).
    and meet outside the stretch (by half a width); and when the band's
    extension reaches the border of the view or the stretch ends within a width of it (an
    instrument enters from outside; its edges may fade into a dark, vignetted surround
-   before the border), or it is very long (`_LONG_FRACTION` of the diagonal). The score is
+   before the border), or it is very long (`_LONG_FRACTION` of the diagonal). It is no
+   shaft when its inside differs from one side by less than `_ONE_SIDED` of its difference
+   from the other (the background beside a bright instrument's edge), or when it is seen
+   along fewer than `_ELONGATED_WIDTHS` widths, ends inside the view and its instrument's
+   material runs on beyond it for over `_DISTAL_RUN` times its length (a distal part,
+   open jaws or a wrist, of an instrument whose shaft is in view). The score is
    the length of the band's run of region seen as a shaft [raw px] (of two readings of one
    instrument, the band of instrument-like material is the shaft, the band that takes in
    its shadow too is not) times the least fraction of stations where an edge was found;
@@ -86,6 +91,8 @@ _COAXIAL_DEG = 3.0  # two readings of one instrument: axes this close ...
 _LONG_FRACTION = 0.25  # a run this fraction of the work frame's diagonal need not reach the border
 _ELONGATED_WIDTHS = 2.5  # a shaft is seen along this many widths (a jaw is not) ...
 _SHORT_WIDTHS = 1.5  # ... or along this many, cut by the border of the view
+_DISTAL_RUN = 2.0  # a short band whose material runs on over this many times its length is a distal part
+_ONE_SIDED = 0.25  # a band whose inside differs from one side by less than this of the other's is background
 # E[|z| : |z| below its 90th percentile q] / E[|z|] for z normal: (1 - exp(-q^2 / 2)) / 0.9
 _TRUNCATED_MEAN = (1.0 - np.exp(-0.5 * 1.6448536269514722**2)) / 0.9
 _LAPLACE_DIFF = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
@@ -364,6 +371,11 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
     """
     if fits is None:
         return None, "no edge pair fitted"
+    # the background beside one edge (a strip of tissue or shadow beside a bright instrument
+    # or its jaws) is like its far side: a shaft differs from both
+    cs = np.asarray(e.side_contrast, float)
+    if np.all(np.isfinite(cs)) and cs.min() < _ONE_SIDED * cs.max():
+        return None, "one side alike"
     m = midline_from_edges(K, fits[0], fits[1])
     if m is None:
         return None, "no midline from the edges"
@@ -382,6 +394,13 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
         return None, "not elongated"
     if seen < long_len and not (any(e.reach) or _reaches_border(m, camera, validity, corridor)):
         return None, "not from the border"
+    # a short band inside the view whose instrument's material runs on well beyond it is a
+    # distal part (open jaws, a wrist) of an instrument whose shaft is in view: its axis is
+    # not the shaft's
+    ext = (e.ext[1] - e.ext[0]) * e.step / s
+    if (seen < _ELONGATED_WIDTHS * m.width_px and ext > _DISTAL_RUN * seen
+            and not _reaches_border(m, camera, validity, corridor)):
+        return None, "a distal part"
     return MaterialShaft(midline=m, score=e.shaft_len / s * min(f.frac for f in fits),
                          polarity="dark" if e.y_in < e.y_side else "bright",
                          band=e, poly_run=band_polygon(e), poly_ext=band_polygon(e, e.ext)), ""
