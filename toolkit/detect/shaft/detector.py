@@ -429,7 +429,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         the work frame whose inside is one material, unlike both outsides and more
         instrument-like than they are (`shaft.edge_pairs`: a dark grasper in the dark
         periphery, a grey shaft the region maps do not tell from the tissue); the proposals
-        cost about 7 ms per 1080p frame (docs/method.md). False: not proposed.
+        cost about 7-8 ms per 1080p frame (docs/method.md). False: not proposed.
     pixel_evidence : float or None
         On a colour frame, a shaft of the cues is kept only where the learned instrument map
         inside its band reaches this (`shaft.pixel_evidence.MIN_PIXEL_EVIDENCE`, 0.3: a
