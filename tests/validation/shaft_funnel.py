@@ -24,8 +24,8 @@ detections of the other sources.
 
 A band or shaft lies "along" an instrument within `ALONG_DEG` (parts `ALONG_PART_DEG`) and
 its line passes within max(`ALONG_PX`, half the width) of the reference's point. The
-overlays (``--out``): the mask's outline green, segments blue, evaluated bands' axes
-yellow, detections red (thick: kept at the chosen setting), the missed references' axes
+overlays (``--out``): the mask's outline green, segments blue, the edge pairs proposed
+(`shaft.edge_pairs`) cyan, evaluated bands' axes yellow, detections red (thick: kept at the chosen setting), the missed references' axes
 magenta.
 """
 from __future__ import annotations
@@ -50,7 +50,7 @@ def traced():
     from pencilcal.toolkit.detect.shaft import material_cue as mc
 
     rec = {}
-    saved = {n: getattr(mc, n) for n in ("boundary_lines", "evaluate_bands", "_bands", "judge_band")}
+    saved = {n: getattr(mc, n) for n in ("boundary_lines", "evaluate_bands", "_bands", "judge_band", "pair_bands")}
     saved_sel = det.select
 
     def boundary_lines(Bm, dist, seg_min):
@@ -58,6 +58,14 @@ def traced():
         rec.setdefault("segments", []).extend(
             np.c_[L.p + L.lo[:, None] * L.u, L.p + L.hi[:, None] * L.u].tolist())
         return L
+
+    def pair_bands(*a, **k):
+        lines, pairs, maps = saved["pair_bands"](*a, **k)
+        rec.setdefault("pairs", []).extend(
+            [np.r_[lines.p[i] + lines.lo[i] * lines.u[i], lines.p[i] + lines.hi[i] * lines.u[i],
+                   lines.p[j] + lines.lo[j] * lines.u[j], lines.p[j] + lines.hi[j] * lines.u[j]].tolist()
+             for i, j in zip(pairs.i, pairs.j)])
+        return lines, pairs, maps
 
     def evaluate_bands(*a, **k):
         out = saved["evaluate_bands"](*a, **k)
@@ -79,7 +87,7 @@ def traced():
         return saved_sel(shafts, n)
 
     for n, f in (("boundary_lines", boundary_lines), ("evaluate_bands", evaluate_bands), ("_bands", bands),
-                 ("judge_band", judge_band)):
+                 ("judge_band", judge_band), ("pair_bands", pair_bands)):
         setattr(mc, n, f)
     det.select = select
     try:
@@ -169,7 +177,8 @@ def stage_of(ref, mask, rec, work, dets, kept, min_len, ang_thr):
         ok = [e for e in ev if proposed(e, min_len, ang_thr)]
         return "not refined" if ok else "not proposed: " + _why_not_proposed(ev[0], min_len, ang_thr)
     dist = _outline_dist(mask)
-    segs = [work.to_ideal(np.asarray(s).reshape(2, 2)).reshape(4) for s in rec.get("segments", [])]
+    segs = [work.to_ideal(np.asarray(s).reshape(2, 2)).reshape(4) for s in rec.get("segments", [])
+            + [q for pr in rec.get("pairs", []) for q in np.asarray(pr).reshape(2, 4)]]
     if any(_on_outline(s, dist) for s in segs):
         return "no band"
     return "no segment"
@@ -222,6 +231,10 @@ def _overlay(row, kept, stages, path):
     for sg in row["_rec"].get("segments", []):
         q = work.to_ideal(np.asarray(sg).reshape(2, 2))
         cv2.line(img, tuple(map(int, q[0])), tuple(map(int, q[1])), (255, 120, 0), 1)
+    for pr in row["_rec"].get("pairs", []):
+        for sg in np.asarray(pr).reshape(2, 4):
+            q = work.to_ideal(sg.reshape(2, 2))
+            cv2.line(img, tuple(map(int, q[0])), tuple(map(int, q[1])), (255, 255, 0), 1)
     for e in row["_rec"].get("evaluated", []):
         q = work.to_ideal(e.C[[e.run[0], e.run[1] - 1]])
         cv2.line(img, tuple(map(int, q[0])), tuple(map(int, q[1])), (0, 220, 255), 1)

@@ -205,6 +205,7 @@ class ShaftOptions:
     gamma: float
     single_edge: bool = True
     edge_model: str = "step"
+    edge_pairs: bool = True
 
     @classmethod
     def resolve(cls, shape, *, min_length, width_px_range, max_convergence_deg, scale, max_gap_px, border_px, **kw):
@@ -336,7 +337,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
                   max_convergence_deg=30.0, max_shafts=4, scale=None, max_gap_px=None, search_px=3.0,
                   sigma_px=1.5, min_support=0.3, max_background=0.1, slope_correction=True, from_border=True,
                   border_px=None, min_score_ratio=0.25, corridor_px=4.0, detector_params=None, gamma=DEFAULT_GAMMA,
-                  axis_prior=None, single_edge=True, edge_model="step",
+                  axis_prior=None, single_edge=True, edge_pairs=True, edge_model="step",
                   pixel_evidence=MIN_PIXEL_EVIDENCE):
     """Instrument shafts in one image: midline (the axis image), width, angle uncertainty.
 
@@ -423,9 +424,15 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         in-vivo frames (docs/method.md), at about 8 ms more CPU per 1080p frame (39 ms
         against 31 on the hysterectomy frames, docs/performance.md).
         False: the region bands alone.
+    edge_pairs : bool
+        The material cue also proposes bands between two long straight grey-level edges of
+        the work frame whose inside is one material, unlike both outsides and more
+        instrument-like than they are (`shaft.edge_pairs`: a dark grasper in the dark
+        periphery, a grey shaft the region maps do not tell from the tissue); the proposals
+        cost about 7-8 ms per 1080p frame (docs/method.md). False: not proposed.
     pixel_evidence : float or None
         On a colour frame, a shaft of the cues is kept only where the learned instrument map
-        inside its band reaches this (`shaft.pixel_evidence.MIN_PIXEL_EVIDENCE`, 0.3: a
+        inside its band reaches this (`shaft.pixel_evidence.MIN_PIXEL_EVIDENCE`, 0.1: a
         tissue band with two long edges is not instrument-like inside); None: not judged.
 
     Returns
@@ -444,7 +451,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         search_px=search_px, sigma_px=sigma_px, min_support=min_support, max_background=max_background,
         slope_correction=slope_correction, from_border=from_border, border_px=border_px,
         min_score_ratio=min_score_ratio, corridor_px=corridor_px, gamma=gamma, single_edge=bool(single_edge),
-        edge_model=edge_model))
+        edge_pairs=bool(edge_pairs), edge_model=edge_model))
     priors = as_priors(axis_prior)
     work = WorkFrame(image, camera, validity, _WORK_PX) if priors else None
     found = _by_material(image, camera, validity, o, K, work)

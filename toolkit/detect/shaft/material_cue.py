@@ -10,7 +10,12 @@ frames whose colour tells the materials apart (`shaft.detector`).
    side of these, the band on the side away from its region (a white or metal shaft
    beside a dark region: the maps give one side) to the outermost far edge a gradient
    model finds across it, with its own region map (`shaft.partner`), judged alike, where
-   it overlaps none of them;
+   it overlaps none of them; then the bands between two long straight grey-level edges
+   whose inside is one material unlike both outsides (a dark grasper in the dark periphery,
+   a grey shaft the maps do not tell from the tissue, a close shaft whose edges converge
+   under perspective by up to `shaft.edge_pairs.PAIR_MAX_CONVERGENCE_DEG`), each with its
+   own colour map (`shaft.edge_pairs`), judged alike, where they overlap none of the
+   others;
 3. *edges* (`shaft.silhouette`, `_band_edges`): each proposed band's two boundaries refitted at
    full resolution in a corridor (`corridor_px`, at least 1.5 work px: the region boundary's
    own resolution) over its run, then grown along their own lines over the stretch where
@@ -24,10 +29,16 @@ frames whose colour tells the materials apart (`shaft.detector`).
    along 2.5 widths (a jaw is not elongated), or they run along 1.5 widths and the border
    of the view cuts them (a wide shaft close to the lens, entering at a corner; a wrist or
    jaw ends inside the view); when they converge by at most the largest
-   convergence and meet outside the stretch (by half a width); and when the band's
+   convergence (a band of edge pairs: up to `shaft.edge_pairs.PAIR_MAX_CONVERGENCE_DEG`)
+   and meet outside the stretch (by half a width); and when the band's
    extension reaches the border of the view or the stretch ends within a width of it (an
    instrument enters from outside; its edges may fade into a dark, vignetted surround
-   before the border), or it is very long (`_LONG_FRACTION` of the diagonal). The score is
+   before the border), or it is very long (`_LONG_FRACTION` of the diagonal). It is no
+   shaft when its inside differs from one side by less than `_ONE_SIDED` of its difference
+   from the other (the background beside a bright instrument's edge), or when it is seen
+   along fewer than `_ELONGATED_WIDTHS` widths, ends inside the view and its instrument's
+   material runs on beyond it for over `_DISTAL_RUN` times its length (a distal part,
+   open jaws or a wrist, of an instrument whose shaft is in view). The score is
    the length of the band's run of region seen as a shaft [raw px] (of two readings of one
    instrument, the band of instrument-like material is the shaft, the band that takes in
    its shadow too is not) times the least fraction of stations where an edge was found;
@@ -61,6 +72,7 @@ from pencilcal.toolkit.detect.shaft.region_bands import (
     proposed,
     suppress_overlaps,
 )
+from pencilcal.toolkit.detect.shaft.edge_pairs import PAIR_MAX_CONVERGENCE_DEG, pair_bands
 from pencilcal.toolkit.detect.shaft.partner import MAX_SEEDS, partner_bands
 from pencilcal.toolkit.detect.shaft.regions import (BoundaryLines, RegionPairs, boundary_lines, region_levels,
                                                     region_pairs, scene_angle)
@@ -70,6 +82,7 @@ __all__ = ["MaterialShaft", "material_cue", "judge_band", "select", "robust_nois
 _MAX_PAIRS = 40  # candidate pairs per region map, the longest overlaps first
 _MAX_REFINE = 6  # bands of the region maps refitted at full resolution
 _MAX_PARTNER = 4  # ... and bands from a single edge (`shaft.partner`)
+_MAX_PAIRED = 3  # ... and bands between two grey-level edges (`shaft.edge_pairs`)
 _TOUCH = 0.1  # ... unless it overlaps one of those by this fraction (`_touches`)
 _GROUP_TOL = (3.0, 3.0)  # one boundary at two levels: offset [work px], angle [deg]
 _GROW_PASSES = 3  # passes growing a band's edges along its chord
@@ -78,6 +91,8 @@ _COAXIAL_DEG = 3.0  # two readings of one instrument: axes this close ...
 _LONG_FRACTION = 0.25  # a run this fraction of the work frame's diagonal need not reach the border
 _ELONGATED_WIDTHS = 2.5  # a shaft is seen along this many widths (a jaw is not) ...
 _SHORT_WIDTHS = 1.5  # ... or along this many, cut by the border of the view
+_DISTAL_RUN = 2.0  # a short band whose material runs on over this many times its length is a distal part
+_ONE_SIDED = 0.25  # a band whose inside differs from one side by less than this of the other's is background
 # E[|z| : |z| below its 90th percentile q] / E[|z|] for z normal: (1 - exp(-q^2 / 2)) / 0.9
 _TRUNCATED_MEAN = (1.0 - np.exp(-0.5 * 1.6448536269514722**2)) / 0.9
 _LAPLACE_DIFF = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
@@ -131,7 +146,8 @@ def _bands(work, mm, o, wmin, wmax, min_len):
     """The proposed bands (module docstring, steps 1-2): those of every region level, the
     most region evidence first, the better of overlapping ones, at most `_MAX_REFINE`; then
     those from a single edge (`shaft.partner`) that overlap none of them, at most
-    `_MAX_PARTNER`."""
+    `_MAX_PARTNER`; then those between two grey-level edges (`shaft.edge_pairs`) that overlap
+    none of these, at most `_MAX_PAIRED`."""
     bands, seeds = [], []
     Ball = B0 = None
     for lev, kind, Bm, repeat in region_levels(mm, work):
@@ -151,15 +167,27 @@ def _bands(work, mm, o, wmin, wmax, min_len):
     acc = [e for e in bands if proposed(e, min_len, ang_thr)]
     acc.sort(key=lambda e: -e.shaft_len)
     acc = suppress_overlaps(acc)[:_MAX_REFINE]
-    if not o.single_edge:
-        return acc
-    seed = _unused_seeds(seeds, acc, min_len)
-    lines, pairs, maps = partner_bands(work, seed, wmin, wmax, np.degrees(o.region_conv_max), mm.luma_noise)
+    if o.single_edge:
+        seed = _unused_seeds(seeds, acc, min_len)
+        got = partner_bands(work, seed, wmin, wmax, np.degrees(o.region_conv_max), mm.luma_noise)
+        acc = acc + _more_bands(got, work, B0, min_len, ang_thr, acc, "partner")[:_MAX_PARTNER]
+    if o.edge_pairs:
+        got = pair_bands(work, wmin, wmax, min(np.degrees(o.conv_max), PAIR_MAX_CONVERGENCE_DEG), mm.luma_noise,
+                         min_len, mm.likeness)
+        acc = acc + _more_bands(got, work, B0, min_len, ang_thr, acc, "pairs")[:_MAX_PAIRED]
+    return acc
+
+
+def _more_bands(got, work, B0, min_len, ang_thr, acc, kind):
+    """The bands of one more proposer (got: its (lines, pairs, region map per pair)) judged
+    along their chords, proposed and overlapping none of acc, the better of overlapping
+    ones, the most shaft evidence first."""
+    lines, pairs, maps = got
     more = [e for q, B in enumerate(maps)
-            for e in evaluate_bands(lines, _one_pair(pairs, q), work, B, B0, min_len, -1, "partner")]
+            for e in evaluate_bands(lines, _one_pair(pairs, q), work, B, B0, min_len, -1, kind)]
     more = [e for e in more if proposed(e, min_len, ang_thr) and not _touches(e, acc)]
     more.sort(key=lambda e: -e.shaft_len)
-    return acc + suppress_overlaps(more)[:_MAX_PARTNER]
+    return suppress_overlaps(more)
 
 
 def _touches(band, bands):
@@ -349,10 +377,16 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
     """
     if fits is None:
         return None, "no edge pair fitted"
+    # the background beside one edge (a strip of tissue or shadow beside a bright instrument
+    # or its jaws) is like its far side: a shaft differs from both
+    cs = np.asarray(e.side_contrast, float)
+    if np.all(np.isfinite(cs)) and cs.min() < _ONE_SIDED * cs.max():
+        return None, "one side alike"
     m = midline_from_edges(K, fits[0], fits[1])
     if m is None:
         return None, "no midline from the edges"
-    if m.convergence_deg > np.degrees(o.region_conv_max):
+    conv_max = min(o.conv_max, np.radians(PAIR_MAX_CONVERGENCE_DEG)) if e.kind == "pairs" else o.region_conv_max
+    if m.convergence_deg > np.degrees(conv_max):
         return None, "edges converge"
     if not _meet_outside(m):
         return None, "edges meet inside the stretch"
@@ -366,6 +400,13 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
         return None, "not elongated"
     if seen < long_len and not (any(e.reach) or _reaches_border(m, camera, validity, corridor)):
         return None, "not from the border"
+    # a short band inside the view whose instrument's material runs on well beyond it is a
+    # distal part (open jaws, a wrist) of an instrument whose shaft is in view: its axis is
+    # not the shaft's
+    ext = (e.ext[1] - e.ext[0]) * e.step / s
+    if (seen < _ELONGATED_WIDTHS * m.width_px and ext > _DISTAL_RUN * seen
+            and not _reaches_border(m, camera, validity, corridor)):
+        return None, "a distal part"
     return MaterialShaft(midline=m, score=e.shaft_len / s * min(f.frac for f in fits),
                          polarity="dark" if e.y_in < e.y_side else "bright",
                          band=e, poly_run=band_polygon(e), poly_ext=band_polygon(e, e.ext)), ""

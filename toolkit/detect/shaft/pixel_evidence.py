@@ -40,7 +40,7 @@ __all__ = ["band_evidence", "pixel_evidence", "MIN_PIXEL_EVIDENCE", "STATIONS", 
 
 #: The least evidence (median map inside the band) a detection must have; chosen on the
 #: masked real sources (docs/method.md).
-MIN_PIXEL_EVIDENCE = 0.3
+MIN_PIXEL_EVIDENCE = 0.1
 #: Samples along the midline and across the band's inner part.
 STATIONS, ACROSS = 24, 7
 #: The fraction of the band's width sampled, about its midline (its outline is the map's

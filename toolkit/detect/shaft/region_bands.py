@@ -94,6 +94,9 @@ class RegionBand:
     level, kind : int, str
         The region level and map ("all", "dark" or "darker": `shaft.regions.DARK_SPLITS`)
         it came from.
+    side_contrast : (2,) [grey levels]
+        The median over the run of the inside's colour distance from each side's (NaN: that
+        side not seen).
     """
 
     lines: tuple
@@ -119,6 +122,7 @@ class RegionBand:
     y_side: float
     level: int = 0
     kind: str = "all"
+    side_contrast: tuple = (np.nan, np.nan)
 
     @property
     def width_run(self):
@@ -325,8 +329,9 @@ def evaluate_bands(lines, pairs, work, Bm, Ball, min_run, level=0, kind="all"):
         i0, i1 = runs[m]
         ext, reach, reach_run, view = _extension(obs[m], fin[m], i0, i1)
         cin = sC[q][:, _IN].mean(1)
-        con = np.minimum(np.linalg.norm(cin - sC[q][:, _SL].mean(1), axis=-1),
-                         np.linalg.norm(cin - sC[q][:, _SR].mean(1), axis=-1))
+        cL = np.linalg.norm(cin - sC[q][:, _SL].mean(1), axis=-1)
+        cR = np.linalg.norm(cin - sC[q][:, _SR].mean(1), axis=-1)
+        con = np.minimum(cL, cR)
         run = slice(i0, i1)
         fall, ang = _side_colours(sC[q, run], okL[m, run], okR[m, run], sA[q, run])
         yy = sY[q, run]
@@ -337,7 +342,9 @@ def evaluate_bands(lines, pairs, work, Bm, Ball, min_run, level=0, kind="all"):
             reach_run=reach_run, view=view, obs=obs[m], inside_colour=cin, contrast=con, step=float(g.step[m]), run_len=float((i1 - i0) * g.step[m]),
             shaft_len=float(np.count_nonzero(shaft[m, run]) * g.step[m]), fall=fall, ang=ang,
             y_in=float(np.mean(yy[:, _IN])), y_side=float(0.5 * (np.mean(yy[:, _SL]) + np.mean(yy[:, _SR]))),
-            level=int(level), kind=kind))
+            level=int(level), kind=kind,
+            side_contrast=(float(np.median(cL[run][okL[m, run]])) if np.any(okL[m, run]) else np.nan,
+                           float(np.median(cR[run][okR[m, run]])) if np.any(okR[m, run]) else np.nan)))
     return out
 
 

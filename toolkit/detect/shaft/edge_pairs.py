@@ -1,0 +1,333 @@
+"""Bands between two long straight grey-level edges: the material cue's proposals where the
+region maps give neither side (`shaft.material_cue`).
+
+A dark grasper in the dark periphery, a grey shaft whose colour the instrument-likeness map
+(`shaft.regions`) does not tell from the tissue beside it, a close shaft whose edges converge
+under perspective: its two silhouette edges are clean straight steps of grey level, but no
+level of the map has a region with both as its boundaries, so no band is proposed. Here the
+edges are taken from the grey levels themselves:
+
+1. *segments*: OpenCV's fast line detector (FLD) on the work frame (480 px on its longer
+   side: no full-resolution pass) reduced by `_FLD_SCALE`, in the mean of its luma and red
+   (`_edge_channel`), its segments at least half the least length long (FLD's own length
+   threshold: merging shorter fragments cost as much as FLD itself and found nothing more)
+   whose middle is off the valid region's boundary (the field stop's own edge is no
+   instrument's), the `MAX_SEGMENTS` longest;
+2. *pairs*: each segment taken with either side as its band (`shaft.regions.region_pairs`
+   on the segments listed twice, once per orientation): two lines facing each other,
+   at a width in range, converging by at most the largest convergence (a close cylinder's
+   edges converge under perspective: `PAIR_MAX_CONVERGENCE_DEG`), overlapping along half the
+   least length;
+3. *material*: at `_STATIONS` stations along the overlap, the mean colour of the band's
+   inside (the middle `_INSIDE` of its width) and of each outside (strips `_SIDE_PX` work px
+   beyond each edge). A station is *good* where the inside differs from both outsides by
+   `_MIN_CONTRAST_SD` noise sd (and `_REL_CONTRAST` of the band's median contrast) and its
+   colour lies within half the median contrast of the inside colours' straight-line trend
+   along the band (one material, its shading changing slowly along it). A pair is a
+   candidate where `_MIN_GOOD` of its observable stations are good, half of them are
+   observable (a band between a bright shaft and the field stop has no outside there), and
+   its inside is more instrument-like than both outsides (the median over the good stations
+   of the inside's `shaft.regions` likeness less the larger outside's exceeds
+   `_LIKENESS_MARGIN`: a fold or a vessel of tissue between two edges is tissue inside). Its
+   score is the overlap times the fraction of good stations, times the overlap in
+   `_SHORT_WIDTHS` widths where it is seen along fewer (the material cue takes no shorter
+   band for a shaft); the best `MAX_PAIRS`, none covering most of a better one;
+4. each candidate gets its own region map, as a band from a single edge does
+   (`shaft.partner`): the pixels whose colour is nearer the band's median inside colour than
+   either outside's (in `_FEATURE`: luma, half-weighted, and chroma, so that a grey shaft's
+   streaks and sheen stay inside it), so that the band test
+   (`shaft.region_bands.evaluate_bands`) and everything after it judge it as they judge a
+   band of the region maps.
+
+Work pixels throughout (as `shaft.regions`). The proposals cost 7-8 ms of process time
+per 1080p frame (the 16 hysterectomy frames, on a loaded machine), FLD about half of it.
+
+Example
+-------
+>>> import numpy as np, cv2
+>>> from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
+>>> img = np.zeros((240, 320, 3), np.uint8); img[:] = (35, 45, 100)             # dark tissue
+>>> _ = cv2.fillConvexPoly(img, np.array([[0, 90], [319, 100], [319, 140], [0, 130]], np.int32), (22, 22, 24))
+>>> img = cv2.GaussianBlur(img, (0, 0), 1.5)                                 # a dark grey shaft
+>>> wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=320)
+>>> from pencilcal.toolkit.detect.shaft.regions import material_map
+>>> lines, pairs, maps = pair_bands(wf, 10.0, 80.0, 20.0, 1.0, 60.0, material_map(wf).likeness)
+>>> len(pairs.i), abs(float(pairs.width[0]) - 41.0) < 1.5   # 41 px: the fill takes both rims
+(1, True)
+>>> bool(maps[0][115, 160]), bool(maps[0][60, 160])
+(True, False)
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs, region_pairs
+
+__all__ = ["pair_bands", "edge_segments", "MAX_PAIRS", "MAX_SEGMENTS", "PAIR_MAX_CONVERGENCE_DEG"]
+
+#: Candidate bands per frame, the best first.
+MAX_PAIRS = 4
+#: Segments paired per frame, the longest first.
+MAX_SEGMENTS = 48
+#: The largest convergence of a pair's edges [deg]: a cylinder close to the lens, its axis
+#: inclined towards the camera, is seen with edges converging by up to about 2 atan(r / d)
+#: (r its radius, d its near end's distance): 25 deg at 2.3 radii, a 10 mm shaft 11 mm away.
+PAIR_MAX_CONVERGENCE_DEG = 25.0
+_FLD_SCALE = 0.5  # FLD runs on the work frame reduced by this (area-averaged: tissue texture gives fewer
+# fragments, and the cost is a quarter; the band's edges are refitted at full resolution)
+_CANNY = (20, 50)  # FLD's hysteresis thresholds: a dark grasper in a dark periphery steps by ~15 levels
+_FRAGMENT_PX = 5.0  # FLD's shortest segment at least [px of the reduced frame]
+_OFF_BOUNDARY_PX = 3.0  # a segment's middle at least this far inside the valid region [work px]
+_MAX_CANDIDATES = 60  # pairs judged by their material, the longest overlaps first
+_STATIONS = 16
+_INSIDE = np.linspace(0.25, 0.75, 5)  # across the band, 0 and 1 its edges
+_SIDE_PX = np.array([2.0, 3.5, 5.0])  # outside samples beyond each edge [work px]
+_MIN_CONTRAST_SD = 6.0
+_REL_CONTRAST = 0.5
+_MIN_GOOD = 0.6
+_LUMA_WEIGHT = 0.5
+_SHORT_WIDTHS = 1.5
+_LIKENESS_MARGIN = 0.0  # the inside's instrument-likeness above the outsides' by more than this
+_SAME_BAND = 0.8  # a candidate covering this fraction of a better one's area is that band again
+
+
+def _edge_channel(work):
+    """The grey levels the edges are found in: on a colour frame the mean of the luma and
+    the red channel (grey metal and pink tissue of one lightness differ in red; a dark grasper
+    on dark tissue in lightness), else the luma."""
+    return 0.5 * (work.luma + work.bgr[..., 2]) if work.bgr.ndim == 3 else work.luma
+
+
+def edge_segments(work, min_len):
+    """The straight grey-level edges of the work frame (module docstring, step 1): (N, 4)
+    [work px], the longest first."""
+    import cv2
+
+    g = np.clip(_edge_channel(work), 0, 255).astype(np.uint8)
+    f = _FLD_SCALE
+    g = cv2.resize(g, (max(8, round(g.shape[1] * f)), max(8, round(g.shape[0] * f))), interpolation=cv2.INTER_AREA)
+    fld = cv2.ximgproc.createFastLineDetector(length_threshold=max(int(_FRAGMENT_PX), int(0.5 * min_len * f)),
+                                              canny_th1=_CANNY[0], canny_th2=_CANNY[1])
+    raw = fld.detect(g)
+    if raw is None:
+        return np.zeros((0, 4))
+    seg = (raw.reshape(-1, 4).astype(float) + 0.5) / f - 0.5  # work px
+    L = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
+    mid = 0.5 * (seg[:, :2] + seg[:, 2:])
+    h, w = work.shape
+    xi = np.clip(np.rint(mid[:, 0]).astype(int), 0, w - 1)
+    yi = np.clip(np.rint(mid[:, 1]).astype(int), 0, h - 1)
+    ok = (L >= 0.5 * min_len) & (work.dist[yi, xi] >= _OFF_BOUNDARY_PX)
+    seg, L = seg[ok], L[ok]
+    return seg[np.argsort(-L, kind="stable")][:MAX_SEGMENTS]
+
+
+def _both_ways(seg):
+    """`shaft.regions.BoundaryLines` of segments (N, 4), each listed twice (rows k and N +
+    k): the band on its left, then on its right."""
+    p = seg[:, :2]
+    d = seg[:, 2:] - p
+    L = np.hypot(d[:, 0], d[:, 1])
+    u = d / np.maximum(L, 1e-12)[:, None]
+    P = np.concatenate([p, seg[:, 2:]])
+    U = np.concatenate([u, -u])
+    N = np.stack([-U[:, 1], U[:, 0]], -1)
+    lo = np.zeros(2 * len(seg))
+    hi = np.concatenate([L, L])
+    return BoundaryLines(p=P, u=U, n=N, lo=lo, hi=hi, support=hi.copy())
+
+
+def _cross_sections(lines, pairs):
+    """Per pair, the two edges' points (K, S, 2) each at `_STATIONS` stations over their
+    overlap along the band's mean axis."""
+    I, J = pairs.i, pairs.j
+    ua = lines.u[I] - lines.u[J]
+    ua /= np.maximum(np.linalg.norm(ua, axis=1, keepdims=True), 1e-12)
+
+    def ends(K):
+        a = np.sum((lines.p[K] + lines.lo[K, None] * lines.u[K]) * ua, 1)
+        b = np.sum((lines.p[K] + lines.hi[K, None] * lines.u[K]) * ua, 1)
+        return np.minimum(a, b), np.maximum(a, b)
+
+    (a0, a1), (b0, b1) = ends(I), ends(J)
+    lo, hi = np.maximum(a0, b0), np.minimum(a1, b1)
+    A = lo[:, None] + (np.arange(_STATIONS) + 0.5)[None, :] / _STATIONS * (hi - lo)[:, None]
+
+    def at(K):
+        t = (A - np.sum(lines.p[K] * ua, 1)[:, None]) / np.sum(lines.u[K] * ua, 1)[:, None]
+        return lines.p[K][:, None, :] + t[..., None] * lines.u[K][:, None, :]
+
+    return at(I), at(J)
+
+
+def _sample(work, img, X):
+    """Colours (..., C) float32 and observability (...) bool at work points X (..., 2)."""
+    import cv2
+
+    flat = X.reshape(-1, 2).astype(np.float32)
+    n = flat.shape[0]
+    cols = min(max(n, 1), 1024)
+    rows = -(-n // cols)
+    M = np.full((rows * cols, 2), -1e4, np.float32)
+    M[:n] = flat
+    mx, my = M[:, 0].reshape(rows, cols), M[:, 1].reshape(rows, cols)
+    col = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    d = cv2.remap(work.dist, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1)
+    C = img.shape[2] if img.ndim == 3 else 1
+    return col.reshape(-1, C)[:n].reshape(X.shape[:-1] + (C,)), d.reshape(-1)[:n].reshape(X.shape[:-1]) > 1.0
+
+
+def _median_where(x, mask):
+    """The median over axis 1 of x (K, S, ...) where mask (K, S) holds (the lower middle of
+    an even count; 0 where none does)."""
+    m = mask.reshape(mask.shape + (1,) * (x.ndim - 2))
+    V = np.sort(np.where(m, x, np.inf), axis=1)
+    n = np.count_nonzero(mask, 1)
+    idx = np.maximum((n - 1) // 2, 0).reshape((-1, 1) + (1,) * (x.ndim - 2))
+    out = np.take_along_axis(V, idx, axis=1)[:, 0]
+    return np.where((n > 0).reshape((-1,) + (1,) * (x.ndim - 2)), out, 0.0)
+
+
+def _trend(c, mask):
+    """The straight-line trend (K, S, C) of colours c (K, S, C) along the stations, fitted
+    by least squares where mask (K, S) holds (a shaft's shading changes slowly along it)."""
+    t = np.linspace(-1.0, 1.0, c.shape[1])[None, :]
+    w = mask.astype(float)
+    n = np.maximum(w.sum(1), 1.0)[:, None]
+    tm = (w * t).sum(1, keepdims=True) / n
+    cm = (w[..., None] * c).sum(1) / n
+    dt = (t - tm) * w
+    b = (dt[..., None] * c).sum(1) / np.maximum((dt * (t - tm)).sum(1), 1e-9)[:, None]
+    return cm[:, None, :] + (t - tm)[..., None] * b[:, None, :]
+
+
+def _material(work, img, lines, pairs, noise, likeness):
+    """Per pair (module docstring, steps 3-4): (score (K,), inside, side1, side2 colours (3,
+    K, 3)); img (h, w, 3) BGR float32, likeness (h, w) float32 the instrument-likeness."""
+    Pi, Pj = _cross_sections(lines, pairs)
+    across = Pj - Pi
+    w = np.maximum(np.linalg.norm(across, axis=-1, keepdims=True), 1e-9)
+    e = across / w
+    inside = Pi[:, :, None, :] + _INSIDE[None, None, :, None] * across[:, :, None, :]
+    out_i = Pi[:, :, None, :] - _SIDE_PX[None, None, :, None] * e[:, :, None, :]
+    out_j = Pj[:, :, None, :] + _SIDE_PX[None, None, :, None] * e[:, :, None, :]
+    X = np.concatenate([inside, out_i, out_j], 2)
+    col, obs = _sample(work, img, X)
+    lik = _sample(work, likeness, X)[0][..., 0]
+    ni, ns = _INSIDE.size, _SIDE_PX.size
+    seen = np.all(obs, 2)  # (K, S)
+    cin = col[:, :, :ni].mean(2)
+    c1 = col[:, :, ni:ni + ns].mean(2)
+    c2 = col[:, :, ni + ns:].mean(2)
+    con = np.minimum(np.linalg.norm(cin - c1, axis=-1), np.linalg.norm(cin - c2, axis=-1))  # (K, S)
+    n_seen = np.count_nonzero(seen, 1)
+    med_con = _median_where(con, seen)
+    good = seen & (con >= np.maximum(_MIN_CONTRAST_SD * noise, _REL_CONTRAST * med_con)[:, None])
+    good &= np.linalg.norm(cin - _trend(cin, seen), axis=-1) <= 0.5 * med_con[:, None]
+    frac = np.count_nonzero(good, 1) / np.maximum(n_seen, 1)
+    ok = (n_seen >= 0.5 * _STATIONS) & (frac >= _MIN_GOOD)
+    # more instrument-like than both outsides (median over the good stations)
+    more = lik[:, :, :ni].mean(2) - np.maximum(lik[:, :, ni:ni + ns].mean(2), lik[:, :, ni + ns:].mean(2))
+    ok &= _median_where(more, good) > _LIKENESS_MARGIN
+    # a band seen along fewer than `_SHORT_WIDTHS` widths is no shaft (`shaft.material_cue`
+    # judges so): such a pair ranks after the elongated ones
+    score = np.where(ok, pairs.overlap * frac * np.minimum(1.0, pairs.overlap / (_SHORT_WIDTHS * pairs.width)), 0.0)
+    ref = np.stack([_median_where(c, good) for c in (cin, c1, c2)])  # (3, K, C)
+    return score, ref
+
+
+def _quad(lines, i, j):
+    """The convex quadrilateral (4, 2) float32 between two lines' segments."""
+    import cv2
+
+    pts = [lines.p[k] + t * lines.u[k] for k in (i, j) for t in (lines.lo[k], lines.hi[k])]
+    return cv2.convexHull(np.array(pts, np.float32))[:, 0, :]
+
+
+def _distinct(lines, pairs, order):
+    """Of the pairs in order (best first), those not covering `_SAME_BAND` of a kept one's
+    area (nor it of theirs), at most `MAX_PAIRS`."""
+    import cv2
+
+    kept, polys = [], []
+    for k in order:
+        Q = _quad(lines, pairs.i[k], pairs.j[k])
+        a = abs(cv2.contourArea(Q))
+        if a <= 0:
+            continue
+        if any(cv2.intersectConvexConvex(Q, P)[0] > _SAME_BAND * min(a, abs(cv2.contourArea(P))) for P in polys):
+            continue
+        kept.append(k)
+        polys.append(Q)
+        if len(kept) == MAX_PAIRS:
+            break
+    return kept
+
+
+#: BGR to the features the band's map compares: luma (weighted by `_LUMA_WEIGHT`: a grey
+#: shaft's streaks and sheen change its lightness, not its colour) and the two chroma
+#: differences of YCrCb, Cr = 0.713 (R - Y) and Cb = 0.564 (B - Y) (their offsets cancel).
+_Y = np.array([0.114, 0.587, 0.299])
+_FEATURE = np.array([_LUMA_WEIGHT * _Y, 0.713 * (np.array([0.0, 0.0, 1.0]) - _Y),
+                     0.564 * (np.array([1.0, 0.0, 0.0]) - _Y)])
+
+
+def _colour_map(img, valid, c_in, c1, c2):
+    """The pixels (h, w) uint8 whose features (`_FEATURE` of img (h, w, 3) BGR) are nearer
+    c_in's than c1's and c2's (BGR colours), in valid ((h, w) uint8 0/1), closed and opened
+    by 3 x 3."""
+    import cv2
+
+    cs = np.stack([c_in, c1, c2]).astype(np.float64)
+    fc = cs @ _FEATURE.T
+    # |F x - F c|^2 less the |F x|^2 common to all three: -2 (F^T F c) . x + |F c|^2, the
+    # three colours in one pass over the BGR frame
+    M = np.c_[-2.0 * fc @ _FEATURE, np.sum(fc * fc, 1)]
+    # each outside's less the inside's (three rows: OpenCV's fast path)
+    d1, d2, _ = cv2.split(cv2.transform(img, (M - M[0])[[1, 2, 0]].astype(np.float32)))
+    B = cv2.bitwise_and((cv2.min(d1, d2) > 0).view(np.uint8), valid)
+    k3 = np.ones((3, 3), np.uint8)
+    return cv2.morphologyEx(cv2.morphologyEx(B, cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
+
+
+def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segments=None):
+    """Candidate bands between pairs of grey-level edges (module docstring).
+
+    Parameters
+    ----------
+    work : WorkFrame
+    wmin, wmax, conv_max_deg : float
+        The least and largest widths of a band [work px], and its edges' largest
+        convergence [deg].
+    noise : float [grey levels]
+        The sd of one work pixel's noise in each channel.
+    min_len : float [work px]
+        The least length of a shaft: segments and overlaps at least half of it.
+    likeness : (h, w) float32
+        The work frame's instrument-likeness (`shaft.regions.MaterialMap.likeness`).
+    segments : (N, 4), optional
+        The edges to pair [work px]; default `edge_segments`.
+
+    Returns
+    -------
+    (BoundaryLines, RegionPairs, list of (h, w) uint8)
+        The lines, the pairs between them (at most `MAX_PAIRS`, the best first) and each
+        pair's region map, as `shaft.partner.partner_bands` returns them.
+    """
+    seg = edge_segments(work, min_len) if segments is None else np.asarray(segments, float).reshape(-1, 4)
+    lines = _both_ways(seg)
+    pairs = region_pairs(lines, wmin, wmax, conv_max_deg, 0.5 * min_len, _MAX_CANDIDATES)
+    empty = RegionPairs(i=np.zeros(0, int), j=np.zeros(0, int), width=np.zeros(0), overlap=np.zeros(0))
+    if len(pairs.i) == 0:
+        return lines, empty, []
+    img = work.bgr.astype(np.float32).reshape(work.shape + (-1,))
+    score, ref = _material(work, img, lines, pairs, noise, np.asarray(likeness, np.float32))
+    order = [k for k in np.argsort(-score, kind="stable") if score[k] > 0]
+    keep = _distinct(lines, pairs, order)
+    if not keep:
+        return lines, empty, []
+    valid = work.valid.view(np.uint8)
+    maps = [_colour_map(img, valid, *ref[:, k]) for k in keep]
+    keep = np.array(keep, int)
+    return lines, RegionPairs(i=pairs.i[keep], j=pairs.j[keep], width=pairs.width[keep],
+                              overlap=pairs.overlap[keep]), maps
