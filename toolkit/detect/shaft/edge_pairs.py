@@ -95,7 +95,7 @@ def _edge_channel(work):
     """The grey levels the edges are found in: on a colour frame the mean of the luma and
     the red channel (grey metal and pink tissue of one lightness differ in red; a dark grasper
     on dark tissue in lightness), else the luma."""
-    return 0.5 * (work.luma + work.bgr[..., 2]) if work.bgr.ndim == 3 else work.luma
+    return 0.5 * (work.luma + work.colours[..., 2]) if work.bgr.ndim == 3 else work.luma
 
 
 def edge_segments(work, min_len):
@@ -160,8 +160,9 @@ def _cross_sections(lines, pairs):
     return at(I), at(J)
 
 
-def _sample(work, img, X):
-    """Colours (..., C) float32 and observability (...) bool at work points X (..., 2)."""
+def _sample(work, imgs, X):
+    """Per image of imgs ((h, w, C) or (h, w) float32 each) its values (..., C) float32 at
+    work points X (..., 2), and the points' observability (...) bool: one map for all."""
     import cv2
 
     flat = X.reshape(-1, 2).astype(np.float32)
@@ -171,10 +172,13 @@ def _sample(work, img, X):
     M = np.full((rows * cols, 2), -1e4, np.float32)
     M[:n] = flat
     mx, my = M[:, 0].reshape(rows, cols), M[:, 1].reshape(rows, cols)
-    col = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    vals = []
+    for img in imgs:
+        col = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        C = img.shape[2] if img.ndim == 3 else 1
+        vals.append(col.reshape(-1, C)[:n].reshape(X.shape[:-1] + (C,)))
     d = cv2.remap(work.dist, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1)
-    C = img.shape[2] if img.ndim == 3 else 1
-    return col.reshape(-1, C)[:n].reshape(X.shape[:-1] + (C,)), d.reshape(-1)[:n].reshape(X.shape[:-1]) > 1.0
+    return vals, d.reshape(-1)[:n].reshape(X.shape[:-1]) > 1.0
 
 
 def _median_where(x, mask):
@@ -212,8 +216,8 @@ def _material(work, img, lines, pairs, noise, likeness):
     out_i = Pi[:, :, None, :] - _SIDE_PX[None, None, :, None] * e[:, :, None, :]
     out_j = Pj[:, :, None, :] + _SIDE_PX[None, None, :, None] * e[:, :, None, :]
     X = np.concatenate([inside, out_i, out_j], 2)
-    col, obs = _sample(work, img, X)
-    lik = _sample(work, likeness, X)[0][..., 0]
+    (col, lik), obs = _sample(work, (img, likeness), X)
+    lik = lik[..., 0]
     ni, ns = _INSIDE.size, _SIDE_PX.size
     seen = np.all(obs, 2)  # (K, S)
     cin = col[:, :, :ni].mean(2)
@@ -320,7 +324,7 @@ def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segment
     empty = RegionPairs(i=np.zeros(0, int), j=np.zeros(0, int), width=np.zeros(0), overlap=np.zeros(0))
     if len(pairs.i) == 0:
         return lines, empty, []
-    img = work.bgr.astype(np.float32).reshape(work.shape + (-1,))
+    img = work.colours  # read-only float32, made once for all stages
     score, ref = _material(work, img, lines, pairs, noise, np.asarray(likeness, np.float32))
     order = [k for k in np.argsort(-score, kind="stable") if score[k] > 0]
     keep = _distinct(lines, pairs, order)
