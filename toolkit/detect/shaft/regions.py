@@ -459,12 +459,17 @@ def region_pairs(lines, wmin, wmax, max_conv_deg, min_overlap, max_pairs):
 
     (ai0, ai1), (aj0, aj1) = ext(I), ext(J)
     lo, hi = np.maximum(ai0, aj0), np.minimum(ai1, aj1)
+    # the overlap first (cheap, and most pairs fail it): the other tests only on those left
+    q = np.flatnonzero(hi - lo >= min_overlap)
+    I, J, ua, na, lo, hi = I[q], J[q], ua[q], na[q], lo[q], hi[q]
     dm = at(J, 0.5 * (lo + hi)) - at(I, 0.5 * (lo + hi))
     sep = dot(dm, na)
-    s_lo, s_hi = dot(at(J, lo) - at(I, lo), na), dot(at(J, hi) - at(I, hi), na)
     w = np.abs(sep)
-    ok = (dot(N[I], dm) > 0) & (dot(N[J], -dm) > 0) & (hi - lo >= min_overlap) & (w >= wmin) & (w <= wmax)
-    ok &= (np.sign(s_lo) == np.sign(sep)) & (np.sign(s_hi) == np.sign(sep))
+    ok = (dot(N[I], dm) > 0) & (dot(N[J], -dm) > 0) & (w >= wmin) & (w <= wmax)
+    q = np.flatnonzero(ok)
+    I, J, ua, na, lo, hi, sep, w = I[q], J[q], ua[q], na[q], lo[q], hi[q], sep[q], w[q]
+    s_lo, s_hi = dot(at(J, lo) - at(I, lo), na), dot(at(J, hi) - at(I, hi), na)
+    ok = (np.sign(s_lo) == np.sign(sep)) & (np.sign(s_hi) == np.sign(sep))
     ok &= np.minimum(np.abs(s_lo), np.abs(s_hi)) >= 0.5 * wmin
     k = np.flatnonzero(ok)
     k = k[np.argsort(-(hi - lo)[k], kind="stable")][:max_pairs]
