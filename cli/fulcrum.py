@@ -386,9 +386,9 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
       pencilcal fulcrum frames/ --camera cam.yaml --shaft-diameter 8 -o f.json
       pencilcal fulcrum --lines l.json --camera cam.yaml --angles a.csv -o f.json
 
-    Shafts from IMAGES (files, folders, a video), --source or --lines: the
-    fulcrum's image and ray; its 3-D point [mm] with --shaft-diameter. In detail:
-    docs/cli.md.
+    Shafts from IMAGES (files, folders, globs in the order given, a video),
+    --source or --lines: the fulcrum's image and ray; its 3-D point [mm] with
+    --shaft-diameter. In detail: docs/cli.md.
     \f
     Every frame's instrument line passes through the fulcrum's image: their robust weighted
     intersection gives the fulcrum's viewing ray and, where the lens model reaches it (a
