@@ -456,10 +456,16 @@ def _clear_radius(phi, clear):
 
 def _edge_blur(img, camera, fit, gamma, clear, lines=24):
     """The sd [px] of the edges' gradient across them (blur and pixel together): the second
-    moment of the linearised profile's derivative within 4 px of its peak, the median over
-    the stations of the `lines` longest refitted edges, where their neighbours lie at least
-    twice `clear` away (their own profiles clean); `clear` / CLEAR_SIGMAS when there are
-    none to measure."""
+    moment of the linearised profile's derivative within 4 px of the edge, pooled over the
+    stations of each of the `lines` longest refitted edges, where their neighbours lie at
+    least twice `clear` away (their own profiles clean), the median over those edges;
+    `clear` / CLEAR_SIGMAS when there are none to measure.
+
+    The derivative is summed as it is, noise and all: the noise's share of the moments
+    averages out over the stations. Clipped at 0 at each station (its negative samples
+    dropped), it made the blur larger the noisier the frame (on a 32-wedge star at a blur of
+    0.8 px: 0.99 px without noise, 1.08 px with noise 3), and the joint location, which
+    models the neighbours with it, turned every edge of a dense star the same way."""
     from pencilcal.toolkit.detect.edges import derivative_kernel, edge_profiles, linearised
 
     ok = np.flatnonzero(fit.ok)
@@ -472,17 +478,18 @@ def _edge_blur(img, camera, fit, gamma, clear, lines=24):
     s = np.linspace(0.55, 0.95, 12)[None, :] * np.hypot(*(p2 - p1).T)[:, None]  # the outer part
     prof = edge_profiles(img, camera, p1, u, s, 4.0, derivative_kernel(0.7), 0.7)
     lin = linearised(prof.profiles, gamma).astype(float)
-    g = np.gradient(lin, axis=-1)  # per sample (0.5 px)
+    g = np.gradient(lin, axis=-1)  # per sample (0.5 px), brighter along n
     t = (np.arange(g.shape[-1]) - (g.shape[-1] - 1) / 2.0) * 0.5
-    g = np.where(np.abs(t - prof.t[..., None]) <= 4.0, np.maximum(g, 0.0), 0.0)  # brighter along n
-    m0 = g.sum(-1)
+    d = t - np.nan_to_num(prof.t)[..., None]  # from each station's edge
+    good = prof.inside & prof.found & np.isfinite(prof.t)
+    g = np.where(good[..., None] & (np.abs(d) <= 4.0), g, 0.0)
+    m0, m1, m2 = g.sum((-2, -1)), (g * d).sum((-2, -1)), (g * d * d).sum((-2, -1))
     with np.errstate(all="ignore"):
-        mean = (g * t).sum(-1) / m0
-        var = (g * t * t).sum(-1) / m0 - mean**2
-    good = prof.inside & prof.found & (m0 > 0) & np.isfinite(var) & (var > 0)
-    if not good.any():
+        var = m2 / m0 - (m1 / m0) ** 2
+    use = (good.sum(-1) >= 3) & (m0 > 0) & np.isfinite(var) & (var > 0)
+    if not use.any():
         return clear / CLEAR_SIGMAS
-    return float(np.sqrt(np.median(var[good])))
+    return float(np.sqrt(np.median(var[use])))
 
 
 def _refit_edges(img, camera, v, phi, sign, seen, search, gamma, clear):
