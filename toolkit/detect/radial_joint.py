@@ -224,10 +224,11 @@ def _solve_stations(y, tau, fixed, near, sgn, sigma, search):
         cols[2] = bracket
         A = np.stack(cols, -1)  # (E, S, T, P)
         r = y - a[..., None] - b[..., None] * tau - c[..., None] * bracket
-        N = np.einsum("...ti,...tj->...ij", A, A)
+        At = np.swapaxes(A, -1, -2)
+        N = At @ A  # batched matmul: several times faster than einsum's loop here
         scale = np.maximum(np.einsum("...ii->...i", N), 1e-12)
         ridge = 1e-9 * scale + pin * scale + _PRIOR * prior * N[..., 3, 3, None]
-        rhs = np.einsum("...ti,...t->...i", A, r) - _PRIOR * prior * N[..., 3, 3, None] * p
+        rhs = (At @ r[..., None])[..., 0] - _PRIOR * prior * N[..., 3, 3, None] * p
         N = N + np.eye(P) * ridge[..., None, :]
         if it == 0:  # the first step finds the levels and the step only
             N = N + np.eye(P) * (np.arange(P) >= 3) * 1e12
