@@ -65,15 +65,17 @@ __all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "JO
 #: peak, a little more on one side than the other under perspective, and the edges turn.
 #: Chosen on renders (docs/method.md): 4.5 px at a 1 px blur kept the normal's error within
 #: its bound; 3.5 px doubled it; fixed at 4.5 px, frames blurred by 1.5 px had errors 1.5 times
-#: their sigmas.
-CLEAR_SIGMAS = 3.9
+#: their sigmas. 3.9 sds of the blur as once measured (clipped, 2-9 % too large with noise);
+#: 4.1 of the unbiased one (seed 7; 4.5 with JOINT_SIGMAS 3 doubled a 128-wedge star's error).
+CLEAR_SIGMAS = 4.1
 CLEAR_PX = 3.0  # and never closer than this [px]
 #: Located jointly with their neighbours' blurred edges (`radial_joint`), the edges that are
 #: nowhere CLEAR_SIGMAS sds from their neighbours are measured from where they lie this many
 #: blur sds apart. Chosen on renders (seed 7, the 128-wedge stars at 55-58 deg): from 2 sds
 #: their angles' errors were twice their sigmas (the positions hang on the blur's exact
-#: value there), from 3 sds some had too little left to measure.
-JOINT_SIGMAS = 2.5
+#: value there), from 3 sds some had too little left to measure. 2.5 of the once biased blur;
+#: 2.6 of the unbiased one (seed 7).
+JOINT_SIGMAS = 2.6
 _ARC_SAMPLE_PX = 0.5  # sampling along the circles of the angular profile, at its outer radius
 _RADIUS_STEP_PX = 2.0  # spacing of those circles, and at most _BAND_CIRCLES of them in a band
 _BAND_CIRCLES = 12
