@@ -66,8 +66,10 @@ __all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "JO
 #: Chosen on renders (docs/method.md): 4.5 px at a 1 px blur kept the normal's error within
 #: its bound; 3.5 px doubled it; fixed at 4.5 px, frames blurred by 1.5 px had errors 1.5 times
 #: their sigmas. 3.9 sds of the blur as once measured (clipped, 2-9 % too large with noise);
-#: 4.1 of the unbiased one (seed 7; 4.5 with JOINT_SIGMAS 3 doubled a 128-wedge star's error).
-CLEAR_SIGMAS = 4.1
+#: 4.0 of the unbiased one (seed 7: 3.9 and 4.1 both held the normals' errors within their
+#: bounds; 4.5 with JOINT_SIGMAS 3 doubled a 128-wedge star's error; at 4.1 a rendered
+#: dartboard with wires, numbers and darts kept 8 of its 20 boundaries, at 4.0 all 20).
+CLEAR_SIGMAS = 4.0
 CLEAR_PX = 3.0  # and never closer than this [px]
 #: Located jointly with their neighbours' blurred edges (`radial_joint`), the edges that are
 #: nowhere CLEAR_SIGMAS sds from their neighbours are measured from where they lie this many
