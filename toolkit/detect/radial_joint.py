@@ -219,9 +219,14 @@ def _solve_stations(y, tau, fixed, near, sgn, sigma, search):
         bracket = fixed + sgn[..., None] * _phi(z)
         cols = [np.ones_like(y), tt, None, -c[..., None] * sgn[..., None] * _pdf(z) / sigma]
         for i, (tk, g, sk, free) in enumerate(near):
-            zk = (tau - tk[..., None] - p[..., 4 + i, None]) * g[..., None] / sigma
-            bracket = bracket + np.where(free[..., None], sk[..., None] * _phi(zk), 0.0)
-            cols.append(np.where(free[..., None], -c[..., None] * sk[..., None] * _pdf(zk) * g[..., None] / sigma, 0.0))
+            # evaluated only where the neighbour is free (elsewhere its step and column are 0):
+            # most of a dense star's stations have few free neighbours
+            zk = (tau - tk[free][:, None] - p[..., 4 + i][free][:, None]) * g[free][:, None] / sigma
+            step_k, col_k = np.zeros(y.shape), np.zeros(y.shape)
+            step_k[free] = sk[free][:, None] * _phi(zk)
+            col_k[free] = -c[free][:, None] * sk[free][:, None] * _pdf(zk) * g[free][:, None] / sigma
+            bracket = bracket + step_k
+            cols.append(col_k)
         cols[2] = bracket
         A = np.stack(cols, -1)  # (E, S, T, P)
         r = y - a[..., None] - b[..., None] * tau - c[..., None] * bracket
