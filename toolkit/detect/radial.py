@@ -65,15 +65,19 @@ __all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "JO
 #: peak, a little more on one side than the other under perspective, and the edges turn.
 #: Chosen on renders (docs/method.md): 4.5 px at a 1 px blur kept the normal's error within
 #: its bound; 3.5 px doubled it; fixed at 4.5 px, frames blurred by 1.5 px had errors 1.5 times
-#: their sigmas.
-CLEAR_SIGMAS = 3.9
+#: their sigmas. 3.9 sds of the blur as once measured (clipped, 2-9 % too large with noise);
+#: 4.0 of the unbiased one (seed 7: 3.9 and 4.1 both held the normals' errors within their
+#: bounds; 4.5 with JOINT_SIGMAS 3 doubled a 128-wedge star's error; at 4.1 a rendered
+#: dartboard with wires, numbers and darts kept 8 of its 20 boundaries, at 4.0 all 20).
+CLEAR_SIGMAS = 4.0
 CLEAR_PX = 3.0  # and never closer than this [px]
 #: Located jointly with their neighbours' blurred edges (`radial_joint`), the edges that are
 #: nowhere CLEAR_SIGMAS sds from their neighbours are measured from where they lie this many
 #: blur sds apart. Chosen on renders (seed 7, the 128-wedge stars at 55-58 deg): from 2 sds
 #: their angles' errors were twice their sigmas (the positions hang on the blur's exact
-#: value there), from 3 sds some had too little left to measure.
-JOINT_SIGMAS = 2.5
+#: value there), from 3 sds some had too little left to measure. 2.5 of the once biased blur;
+#: 2.6 of the unbiased one (seed 7).
+JOINT_SIGMAS = 2.6
 _ARC_SAMPLE_PX = 0.5  # sampling along the circles of the angular profile, at its outer radius
 _RADIUS_STEP_PX = 2.0  # spacing of those circles, and at most _BAND_CIRCLES of them in a band
 _BAND_CIRCLES = 12
@@ -456,10 +460,16 @@ def _clear_radius(phi, clear):
 
 def _edge_blur(img, camera, fit, gamma, clear, lines=24):
     """The sd [px] of the edges' gradient across them (blur and pixel together): the second
-    moment of the linearised profile's derivative within 4 px of its peak, the median over
-    the stations of the `lines` longest refitted edges, where their neighbours lie at least
-    twice `clear` away (their own profiles clean); `clear` / CLEAR_SIGMAS when there are
-    none to measure."""
+    moment of the linearised profile's derivative within 4 px of the edge, pooled over the
+    stations of each of the `lines` longest refitted edges, where their neighbours lie at
+    least twice `clear` away (their own profiles clean), the median over those edges;
+    `clear` / CLEAR_SIGMAS when there are none to measure.
+
+    The derivative is summed as it is, noise and all: the noise's share of the moments
+    averages out over the stations. Clipped at 0 at each station (its negative samples
+    dropped), it made the blur larger the noisier the frame (on a 32-wedge star at a blur of
+    0.8 px: 0.99 px without noise, 1.08 px with noise 3), and the joint location, which
+    models the neighbours with it, turned every edge of a dense star the same way."""
     from pencilcal.toolkit.detect.edges import derivative_kernel, edge_profiles, linearised
 
     ok = np.flatnonzero(fit.ok)
@@ -472,17 +482,18 @@ def _edge_blur(img, camera, fit, gamma, clear, lines=24):
     s = np.linspace(0.55, 0.95, 12)[None, :] * np.hypot(*(p2 - p1).T)[:, None]  # the outer part
     prof = edge_profiles(img, camera, p1, u, s, 4.0, derivative_kernel(0.7), 0.7)
     lin = linearised(prof.profiles, gamma).astype(float)
-    g = np.gradient(lin, axis=-1)  # per sample (0.5 px)
+    g = np.gradient(lin, axis=-1)  # per sample (0.5 px), brighter along n
     t = (np.arange(g.shape[-1]) - (g.shape[-1] - 1) / 2.0) * 0.5
-    g = np.where(np.abs(t - prof.t[..., None]) <= 4.0, np.maximum(g, 0.0), 0.0)  # brighter along n
-    m0 = g.sum(-1)
+    d = t - np.nan_to_num(prof.t)[..., None]  # from each station's edge
+    good = prof.inside & prof.found & np.isfinite(prof.t)
+    g = np.where(good[..., None] & (np.abs(d) <= 4.0), g, 0.0)
+    m0, m1, m2 = g.sum((-2, -1)), (g * d).sum((-2, -1)), (g * d * d).sum((-2, -1))
     with np.errstate(all="ignore"):
-        mean = (g * t).sum(-1) / m0
-        var = (g * t * t).sum(-1) / m0 - mean**2
-    good = prof.inside & prof.found & (m0 > 0) & np.isfinite(var) & (var > 0)
-    if not good.any():
+        var = m2 / m0 - (m1 / m0) ** 2
+    use = (good.sum(-1) >= 3) & (m0 > 0) & np.isfinite(var) & (var > 0)
+    if not use.any():
         return clear / CLEAR_SIGMAS
-    return float(np.sqrt(np.median(var[good])))
+    return float(np.sqrt(np.median(var[use])))
 
 
 def _refit_edges(img, camera, v, phi, sign, seen, search, gamma, clear):
