@@ -389,12 +389,10 @@ class ImageSource:
                 for k in missed:  # frames in the middle that did not decode
                     yield Frame(f"frame_{k:06d}", k, None, "cannot decode this video frame")
                 missed = []
-                colour = None
-                if self.gray and img.ndim == 3:
-                    img, colour = with_grey(img) if self.keep_colour else (cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), None)
+                img, colour = with_grey(img) if self.gray else (img, None)
                 err = frame_size_error(img, self.max_pixels)
                 yield Frame(f"frame_{i:06d}", i, None if err else img, err, str(self.paths[0]),
-                            None if err else colour)
+                            None if err or not self.keep_colour else colour)
                 i += 1
             if missed:  # nothing decoded after them: the file ends early, said once
                 k = missed[0]
