@@ -82,7 +82,7 @@ def _summary(records):
 @click.option("--radial", type=click.IntRange(min=0), default=None, metavar="EDGES",
               help="Edges of a radial target (star, dartboard) round its vertex; 0: any count.")
 @click.option("--radial-joint", type=click.Choice(["crowded", "all"]), default="crowded", show_default=True,
-              help="Fit each edge with its neighbours' blur.")
+              help="Edges fitted with their neighbours' blur.")
 @click.option("--shaft", is_flag=True,
               help="Also instrument shafts: their midlines, widths and sigmas.")
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
