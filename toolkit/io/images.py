@@ -47,9 +47,9 @@ import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["with_grey", "read_frame", "Frame", "ImageSource", "read_ahead", "prefetched", "open_images", "decode_image", "IMAGE_EXTENSIONS",
-           "VIDEO_EXTENSIONS", "DEFAULT_MAX_PIXELS", "MIN_SIDE_PX", "MAX_BYTES_PER_PIXEL", "check_image_size", "quiet_c_stderr",
-           "frame_size_error"]
+__all__ = ["with_grey", "read_frame", "Frame", "ImageSource", "read_ahead", "prefetched", "open_images", "decode_image",
+           "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "DEFAULT_MAX_PIXELS", "MIN_SIDE_PX", "MAX_BYTES_PER_PIXEL",
+           "check_image_size", "quiet_c_stderr", "frame_size_error"]
 
 # FFmpeg (OpenCV's video backend) logs its complaints about corrupt frames on stderr; pencilcal
 # reports an undecodable frame in one line itself. Its own log level, read when OpenCV starts
