@@ -384,7 +384,7 @@ def gamma_option(fn):
 
     return click.option(
         "--gamma", type=FiniteFloat(min=0.1, max=5), default=DEFAULT_GAMMA, show_default=True,
-        help="Encoding gamma, for shaft and radial-target edges (1: linear).")(fn)
+        help="Encoding gamma of shaft and radial edges (1: linear).")(fn)
 
 
 def edge_model_option(fn):
@@ -450,7 +450,7 @@ def overlay_option(fn):
     fn = click.option("--overlay-scale", type=FiniteFloat(min=0.1, max=1.0), default=OVERLAY_SCALE,
                       show_default=True, metavar="S", help="Its size over the frames' (1: full).")(fn)
     return click.option("--overlay", "overlay_path", default=None, metavar="OUT.mp4|DIR/",
-                        help="Also draw the estimates: a video or DIR/ PNGs.")(fn)
+                        help="Also draw the estimates: video or DIR/ PNGs.")(fn)
 
 
 source_option = click.option(
@@ -590,7 +590,7 @@ def instrument_mask_options(fn):
     mask_instances."""
     fn = click.option("--mask-instances", is_flag=True, help="Each mask value is one instrument.")(fn)
     fn = click.option("--mask-label", "mask_labels", multiple=True, metavar="V",
-                      help="Instrument mask value (or B,G,R); repeatable.")(fn)
+                      help="Instrument mask value or B,G,R; repeatable.")(fn)
     return click.option("--instrument-mask", "instrument_mask", default=None, metavar="MASKS",
                         help="Instrument masks, one per frame (folder, pattern): their shafts.")(fn)
 

@@ -82,7 +82,7 @@ def _summary(records):
 @click.option("--radial", type=click.IntRange(min=0), default=None, metavar="EDGES",
               help="Edges of a radial target (star, dartboard) round its vertex; 0: any count.")
 @click.option("--radial-joint", type=click.Choice(["crowded", "all"]), default="crowded", show_default=True,
-              help="Fit each edge with its neighbours' blur.")
+              help="Edges fitted with their neighbours' blur.")
 @click.option("--shaft", is_flag=True,
               help="Also instrument shafts: their midlines, widths and sigmas.")
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
@@ -114,9 +114,9 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
       pencilcal lines frames/ --camera cam.yaml --bars -o lines.json
       pencilcal lines frames/ --camera c.yaml --shaft --shaft-diameter 8 -o l.json
 
-    IMAGES: files, folders or globs in the order given, or a video; or --source. Every
-    segment in raw pixels with its angle and offset sigmas; with --bars the spokes'
-    midlines, with --shaft instrument shafts. In detail: docs/cli.md.
+    IMAGES: files, folders or globs in the order given, or a video; or --source.
+    Each segment in raw pixels with its angle and offset sigmas; --bars: the
+    spokes' midlines; --shaft: instrument shafts. In detail: docs/cli.md.
     \f
     IMAGES is one or more image files, folders or glob patterns, in the order given (a
     folder's images sorted naturally), or one video; or --source, a camera or a video still

@@ -185,9 +185,8 @@ def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, in
     if tracker is not None and instrument_mask is None:
         return [s.to_dict() for s in tracker(image, camera, valid_region=valid_region)]
     if instrument_mask is not None:
-        from pencilcal.toolkit.detect.shaft.from_mask import shafts_from_masks
-
         from pencilcal.toolkit.detect.shaft.detector import with_limbs
+        from pencilcal.toolkit.detect.shaft.from_mask import shafts_from_masks
 
         found = shafts_from_masks(image, instrument_mask["mask"], camera, labels=instrument_mask.get("labels"),
                                   instances=bool(instrument_mask.get("instances")), valid_region=valid_region,

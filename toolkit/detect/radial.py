@@ -176,8 +176,8 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         phi, sign, seen = _edge_directions(img, camera, v, reach, edges, clear)
         if phi.size < 3:
             return RadialEdges.empty()
-        fit = _refit_edges(lin, camera, v, phi, sign, seen, search, 1.0, clear)
-        blur = max(CLEAR_PX / CLEAR_SIGMAS, _edge_blur(lin, camera, fit, 1.0, clear))
+        fit = _refit_edges(lin, camera, v, phi, sign, seen, search, clear)
+        blur = max(CLEAR_PX / CLEAR_SIGMAS, _edge_blur(lin, camera, fit, clear))
         try:
             v, reach = _vertex_of(fit, reach)
         except EstimationError:
@@ -192,7 +192,7 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         r_lo = np.where(fit.ok, _clear_radius(phi, clear), _clear_radius(phi, JOINT_SIGMAS * blur))
         r_lo = np.minimum(np.maximum(r_lo, 0.5 * seen[:, 0]), 0.8 * r_hi)
         located = joint_refit(lin, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi,
-                              1.0, rows=rows, search=_SEARCH_PX[-1])
+                              rows=rows, search=_SEARCH_PX[-1])
         fit = _merged(fit, rows, located)
         try:
             v, reach = _vertex_of(fit, reach)
@@ -458,7 +458,7 @@ def _clear_radius(phi, clear):
     return clear / np.maximum(np.sin(np.minimum(gap, np.pi / 2)), 1e-6)
 
 
-def _edge_blur(img, camera, fit, gamma, clear, lines=24):
+def _edge_blur(img, camera, fit, clear, lines=24):
     """The sd [px] of the edges' gradient across them (blur and pixel together): the second
     moment of the linearised profile's derivative within 4 px of the edge, pooled over the
     stations of each of the `lines` longest refitted edges, where their neighbours lie at
@@ -470,7 +470,7 @@ def _edge_blur(img, camera, fit, gamma, clear, lines=24):
     dropped), it made the blur larger the noisier the frame (on a 32-wedge star at a blur of
     0.8 px: 0.99 px without noise, 1.08 px with noise 3), and the joint location, which
     models the neighbours with it, turned every edge of a dense star the same way."""
-    from pencilcal.toolkit.detect.edges import derivative_kernel, edge_profiles, linearised
+    from pencilcal.toolkit.detect.edges import derivative_kernel, edge_profiles
 
     ok = np.flatnonzero(fit.ok)
     if ok.size == 0:
@@ -481,8 +481,7 @@ def _edge_blur(img, camera, fit, gamma, clear, lines=24):
     u = (p2 - p1) / np.maximum(np.hypot(*(p2 - p1).T), 1e-12)[:, None]
     s = np.linspace(0.55, 0.95, 12)[None, :] * np.hypot(*(p2 - p1).T)[:, None]  # the outer part
     prof = edge_profiles(img, camera, p1, u, s, 4.0, derivative_kernel(0.7), 0.7)
-    lin = linearised(prof.profiles, gamma).astype(float)
-    g = np.gradient(lin, axis=-1)  # per sample (0.5 px), brighter along n
+    g = np.gradient(prof.profiles.astype(float), axis=-1)  # per sample (0.5 px), brighter along n
     t = (np.arange(g.shape[-1]) - (g.shape[-1] - 1) / 2.0) * 0.5
     d = t - np.nan_to_num(prof.t)[..., None]  # from each station's edge
     good = prof.inside & prof.found & np.isfinite(prof.t)
@@ -496,7 +495,7 @@ def _edge_blur(img, camera, fit, gamma, clear, lines=24):
     return float(np.sqrt(np.median(var[use])))
 
 
-def _refit_edges(img, camera, v, phi, sign, seen, search, gamma, clear):
+def _refit_edges(img, camera, v, phi, sign, seen, search, clear):
     """The edges along directions phi (E,) [rad] from v, refitted (`EdgeFit`, E rows) from
     where each is `clear` [px] from its neighbours (and not much inside the radii seen
     (E, 2) [px] where its angular profile showed it) out to a quarter beyond those radii,
@@ -509,5 +508,5 @@ def _refit_edges(img, camera, v, phi, sign, seen, search, gamma, clear):
     # brighter along n = (-d_y, d_x): outwards for edges brighter towards larger angles
     p1 = np.where(sign[:, None] > 0, inner, outer)
     p2 = np.where(sign[:, None] > 0, outer, inner)
-    opts = RefitOptions(search=search, extend=0.0, gamma=gamma, sigma_px=_KERNEL_PX)
+    opts = RefitOptions(search=search, extend=0.0, sigma_px=_KERNEL_PX)
     return EdgeRefit(img, np.concatenate([p1, p2], -1), camera, opts).fit()

@@ -37,7 +37,7 @@ Example
 >>> u = np.stack([np.cos(a + 0.002), np.sin(a + 0.002)], -1)    # a little off
 >>> v = np.array([240.0, 180.0])
 >>> fit = joint_refit(img, None, np.concatenate([v + 0 * u, v + 100 * u], -1), v, sign, 1.2,
-...                   np.full(128, 25.0), np.full(128, 150.0), 1.0)
+...                   np.full(128, 25.0), np.full(128, 150.0))
 >>> err = np.angle(np.exp(1j * (np.arctan2(*(fit.p2 - fit.p1)[:, ::-1].T) - np.where(sign > 0, a, a + np.pi))))
 >>> bool(fit.ok.all()), bool(np.abs(err).max() < 3e-4)        # edges 2.5 px apart at r = 25 px
 (True, True)
@@ -51,7 +51,6 @@ from pencilcal.toolkit.detect.edges import (
     MIN_STATIONS,
     SAMPLE_STEP_PX,
     fit_variances,
-    linearised,
     masked_median,
     reject_outliers,
     relative_weights,
@@ -105,13 +104,14 @@ def _edge_frames(lines, v):
     return foot, u
 
 
-def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, gamma, *, rows=None, search=1.0, rounds=2):
+def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, *, rows=None, search=1.0, rounds=2):
     """The edges through a radial target's vertex, each located jointly with its neighbours'
     blurred edges (module docstring).
 
     Parameters
     ----------
     img : GrayImage
+        Linear light (`edges.linearised`: a frame's encoding undone before it is sampled).
     camera : Camera or None
         Lens model: lines in undistorted (working) pixels, profiles sampled in the raw image.
     lines : (E, 4) [working px]
@@ -124,8 +124,6 @@ def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, gamma, *, rows=N
         The sd of the edges' blur (as sampled: blur, pixel and resampling together).
     r_lo, r_hi : (E,) [px]
         Distances from v along each edge between which it is measured.
-    gamma : float
-        The frames' encoding gamma (`edges.linearised`).
     rows : (K,) int, optional
         The edges to fit (all when None); the others are the neighbours' lines as given.
     search : float [px]
@@ -144,7 +142,7 @@ def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, gamma, *, rows=N
     rows = np.arange(lines.shape[0]) if rows is None else np.asarray(rows, int)
     fit = None
     for _ in range(rounds):
-        fit = _fit_round(img, camera, lines, v, sign, sigma, r_lo[rows], r_hi[rows], gamma, search, rows)
+        fit = _fit_round(img, camera, lines, v, sign, sigma, r_lo[rows], r_hi[rows], search, rows)
         lines[rows] = np.where(fit.ok[:, None], fit.lines(), lines[rows])
     return fit
 
@@ -161,7 +159,7 @@ def _stations(foot, u, r_lo, r_hi, v):
     return lo[:, None] + j[None, :] * step[:, None], valid & (hi > lo)[:, None]
 
 
-def _fit_round(img, camera, lines, v, sign, sigma, r_lo, r_hi, gamma, search, rows):
+def _fit_round(img, camera, lines, v, sign, sigma, r_lo, r_hi, search, rows):
     """One joint fit of the edges `rows` (`joint_refit`) with the neighbours at `lines`."""
     E = lines.shape[0]
     foot_all, u_all = _edge_frames(lines, v)
@@ -179,8 +177,8 @@ def _fit_round(img, camera, lines, v, sign, sigma, r_lo, r_hi, gamma, search, ro
     inside = valid & np.all((X >= 0) & (X <= W - 1) & (Y >= 0) & (Y <= H - 1), -1)
     if getattr(img, "region", None) is not None:
         inside &= img.in_region(X[..., 0], Y[..., 0]) & img.in_region(X[..., -1], Y[..., -1])
-    y = linearised(img.sample(np.where(inside[..., None], X, 0).astype(np.float32),
-                              np.where(inside[..., None], Y, 0).astype(np.float32)), gamma).astype(float)
+    y = img.sample(np.where(inside[..., None], X, 0).astype(np.float32),
+                   np.where(inside[..., None], Y, 0).astype(np.float32)).astype(float)
     # the neighbours' blurred edges, where they cross each station's profile: those within
     # reach of the window fitted with the edge (their positions free), the others fixed
     fixed = np.zeros(y.shape)

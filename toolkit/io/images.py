@@ -47,9 +47,9 @@ import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["with_grey", "read_frame", "Frame", "ImageSource", "read_ahead", "prefetched", "open_images", "decode_image", "IMAGE_EXTENSIONS",
-           "VIDEO_EXTENSIONS", "DEFAULT_MAX_PIXELS", "MIN_SIDE_PX", "MAX_BYTES_PER_PIXEL", "check_image_size", "quiet_c_stderr",
-           "frame_size_error"]
+__all__ = ["with_grey", "read_frame", "Frame", "ImageSource", "read_ahead", "prefetched", "open_images", "decode_image",
+           "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "DEFAULT_MAX_PIXELS", "MIN_SIDE_PX", "MAX_BYTES_PER_PIXEL",
+           "check_image_size", "quiet_c_stderr", "frame_size_error"]
 
 # FFmpeg (OpenCV's video backend) logs its complaints about corrupt frames on stderr; pencilcal
 # reports an undecodable frame in one line itself. Its own log level, read when OpenCV starts
@@ -389,12 +389,10 @@ class ImageSource:
                 for k in missed:  # frames in the middle that did not decode
                     yield Frame(f"frame_{k:06d}", k, None, "cannot decode this video frame")
                 missed = []
-                colour = None
-                if self.gray and img.ndim == 3:
-                    img, colour = with_grey(img) if self.keep_colour else (cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), None)
+                img, colour = with_grey(img) if self.gray else (img, None)
                 err = frame_size_error(img, self.max_pixels)
                 yield Frame(f"frame_{i:06d}", i, None if err else img, err, str(self.paths[0]),
-                            None if err else colour)
+                            None if err or not self.keep_colour else colour)
                 i += 1
             if missed:  # nothing decoded after them: the file ends early, said once
                 k = missed[0]

@@ -151,14 +151,12 @@ class StreamSource:
         with _stop_on_sigint(self):
             frames = self._live() if self.mode == "live" else self._follow()
             for image, index in frames:
-                colour = None
-                if self.gray and image.ndim == 3:
-                    image, colour = with_grey(image) if self.keep_colour else \
-                        (cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), None)
+                image, colour = with_grey(image) if self.gray else (image, None)
                 err = frame_size_error(image, self.max_pixels)
                 image = None if err else image
                 self.read += 1
-                yield Frame(f"frame_{index:06d}", index, image, err, None, None if err else colour)
+                yield Frame(f"frame_{index:06d}", index, image, err, None,
+                            None if err or not self.keep_colour else colour)
                 if self._stop.is_set():
                     return
 
