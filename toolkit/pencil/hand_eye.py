@@ -56,7 +56,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pencilcal.toolkit.errors import EstimationError, InputError
-from pencilcal.toolkit.geometry.frames import normalize, rotation_from_rotvec, rotvec_from_rotation, skew
+from pencilcal.toolkit.geometry.frames import (normalize, project_to_rotation, rotation_from_rotvec, rotvec_from_rotation,
+                                              skew)
 from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
 from pencilcal.toolkit.pencil.cylinder import GATE_CONFIDENCE, SHARED_FLOOR, axis_chart, axis_frame, fulcrum_3d, shaft_axis_record
 
@@ -152,13 +153,6 @@ def _spread_deg(d):
     """RMS angle [deg] of unoriented directions (N, 3) about their principal direction."""
     w = np.linalg.eigvalsh(np.einsum("ni,nj->ij", d, d) / len(d))
     return float(np.degrees(np.arcsin(np.sqrt(np.clip(w[0] + w[1], 0.0, 1.0)))))
-
-
-def _kabsch(src, dst):
-    """The rotation R minimising sum |dst - R src|^2: (N, 3), (N, 3) -> (3, 3)."""
-    U, _, Vt = np.linalg.svd(dst.T @ src)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
 
 
 def _translation(R, cam_p, cam_d, base_p, use):
@@ -316,7 +310,8 @@ def hand_eye_from_axes(cam_points, cam_directions, cam_covs, base_points, base_d
     lines = (cam_p, cam_d, axis_frame(cam_p, cam_d), base_p, base_d)
     fits = []
     for s in (1.0, -1.0):
-        R0 = _kabsch(_principal(base_d), s * _principal(cam_d))
+        # Kabsch: the rotation minimising sum |cam - R base|^2 is the one nearest sum cam base^T
+        R0 = project_to_rotation((s * _principal(cam_d)).T @ _principal(base_d))
         t0 = _translation(R0, cam_p, cam_d, base_p, np.ones(n, bool))
         try:
             fits.append(_fit(R0, t0, lines, cam_cov, kin, confidence))
