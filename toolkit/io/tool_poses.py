@@ -162,7 +162,7 @@ def read_tool_poses(path) -> ToolPoses:
             raise InputError(f"{p}:{line}: {len(row)} fields, the header has {len(head)}")
         k = row[key[1]]
         if key[0] == "frame":
-            if not k.isdigit():
+            if not (k.isascii() and k.isdigit()):  # str.isdigit alone takes "²", which int() refuses
                 raise InputError(f"{p}:{line}: frame must be a frame index (0, 1, ...), got {k!r}")
             k = int(k)
         elif not k:

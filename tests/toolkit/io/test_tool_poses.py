@@ -45,6 +45,7 @@ def test_quaternions_in_metres_and_matrices_in_mm_read_alike(tmp_path):
     ("image,x_mm,y_mm,z_mm,qw,qx,qy,qz\na,1,2,3,0.5,0,0,0\n", "kin.csv:2: the quaternion (qw,qx,qy,qz) has norm"),
     ("image,x_mm,y_mm,z_mm,qw,qx,qy,qz\na,1,2,3,1,0,0,0\na,1,2,3,1,0,0,0\n", "kin.csv:3: image 'a' is listed twice"),
     ("frame,x_mm,y_mm,z_mm,qw,qx,qy,qz\na,1,2,3,1,0,0,0\n", "kin.csv:2: frame must be a frame index"),
+    ("frame,x_mm,y_mm,z_mm,qw,qx,qy,qz\n\u00b2,1,2,3,1,0,0,0\n", "kin.csv:2: frame must be a frame index"),
     ("image,x_mm,y_mm,z_mm,qw,qx,qy,qz,sigma_deg\na,1,2,3,1,0,0,0,1\n", "sigma_deg and sigma_mm go together"),
     ("image,x_mm,y_mm,z_mm,qw,qx,qy,qz,sigma_deg,sigma_mm\na,1,2,3,1,0,0,0,1,-1\n", "kin.csv:2: sigma_deg and"),
     ("image,x_mm,y_mm,z_mm," + ",".join(f"r{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3)) + "\na,1,2,3,1,0,0,0,1,0,0,0,-1\n",
