@@ -38,6 +38,7 @@ def test_quaternions_in_metres_and_matrices_in_mm_read_alike(tmp_path):
     ("x_mm,y_mm,z_mm,qw,qx,qy,qz\n", "kin.csv:1: no 'image' or 'frame' column"),
     ("image,x,y,z,qw,qx,qy,qz\n", "kin.csv:1: no tool position"),
     ("image,x_mm,y_mm,z_mm,rx,ry,rz\n", "kin.csv:1: no tool orientation"),
+    ("# a comment\n\nimage,x_mm,y_mm,z_mm,rx,ry,rz\n", "kin.csv:3: no tool orientation"),
     ("image,x_mm,y_mm,z_mm,qw,qx,qy,qz\n", "header (line 1) but no poses"),
     ("image,x_mm,y_mm,z_mm,qw,qx,qy,qz\na,1,2,3,1,0,0\n", "kin.csv:2: 7 fields, the header has 8"),
     ("image,x_mm,y_mm,z_mm,qw,qx,qy,qz\na,1,2,nan,1,0,0,0\n", "kin.csv:2: z_mm is not finite"),
