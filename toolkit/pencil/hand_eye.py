@@ -144,8 +144,7 @@ def invert_transform(R, t, cov):
 
 def _principal(d):
     """(N, 3) unit directions turned towards their principal direction (one hemisphere)."""
-    w, V = np.linalg.eigh(np.einsum("ni,nj->ij", d, d))
-    m = V[:, -1]
+    m = np.linalg.eigh(np.einsum("ni,nj->ij", d, d))[1][:, -1]
     return d * np.where(d @ m < 0, -1.0, 1.0)[:, None]
 
 
@@ -165,6 +164,15 @@ def _translation(R, cam_p, cam_d, base_p, use):
     return np.linalg.solve(H, np.einsum("nij,nj->i", P, r))
 
 
+def _iso_cov(sig_a, sig_p):
+    """(N, 4, 4) the chart covariance of lines with isotropic errors: angle sig_a (N,) [rad]
+    in both angles, offset sig_p (N,) [mm] in both offsets."""
+    K = np.zeros((len(sig_a), 4, 4))
+    K[:, 0, 0] = K[:, 1, 1] = np.asarray(sig_a, float) ** 2
+    K[:, 2, 2] = K[:, 3, 3] = np.asarray(sig_p, float) ** 2
+    return K
+
+
 def _kin_cov(R, t, cam_p, cam_d, frames, base_p, base_d, sig_a, sig_p):
     """(N, 4, 4) the kinematics' isotropic covariance (angle sig_a [rad], offset sig_p [mm]
     at the tool origin) in each camera axis's chart, and (N, 4, 4) M: the map from the base
@@ -178,9 +186,7 @@ def _kin_cov(R, t, cam_p, cam_d, frames, base_p, base_d, sig_a, sig_p):
     M[:, :2, :2] = sign * F
     M[:, 2:, :2] = tau * F
     M[:, 2:, 2:] = F
-    K = np.zeros((len(cam_p), 4, 4))
-    K[:, :2, :2] = np.eye(2) * (sig_a ** 2)[:, None, None]
-    K[:, 2:, 2:] = np.eye(2) * (sig_p ** 2)[:, None, None]
+    K = _iso_cov(sig_a, sig_p)
     return M @ K @ np.swapaxes(M, -1, -2), M
 
 
@@ -368,9 +374,7 @@ def robot_fulcrum(base_points, base_directions, sigma_deg=0.0, sigma_mm=0.0):
     sa = np.broadcast_to(np.radians(np.asarray(sigma_deg, float)), (n,))
     sp = np.broadcast_to(np.asarray(sigma_mm, float), (n,))
     weighted = bool(np.all(sp > 0))
-    covs = np.zeros((n, 4, 4))
-    covs[:, 0, 0] = covs[:, 1, 1] = sa ** 2 if weighted else 0.0
-    covs[:, 2, 2] = covs[:, 3, 3] = sp ** 2 if weighted else 1.0
+    covs = _iso_cov(sa, sp) if weighted else _iso_cov(np.zeros(n), np.ones(n))
     fit = fulcrum_3d(P, D, covs, robust=False)
     cov = np.asarray(fit.point_cov, float)
     if not weighted:
@@ -429,9 +433,7 @@ def fulcrum_agreement(he, cam_points, cam_directions, cam_covs, base_points, bas
         # and the robot's fulcrum: one term, per axis, of their joint gain
         bp, bd = np.asarray(base_points, float)[use], normalize(base_directions)[use]
         _, M = _kin_cov(R, t, cp, cd, axis_frame(cp, cd), bp, bd, sa, sp)
-        Kb = np.zeros((len(sa), 4, 4))
-        Kb[:, 0, 0] = Kb[:, 1, 1] = sa ** 2
-        Kb[:, 2, 2] = Kb[:, 3, 3] = sp ** 2
+        Kb = _iso_cov(sa, sp)
         Bb, _ = _point_gain(Fb, bp, bd, Kb)
         Y = np.einsum("ij,njk,nkl->nil", D, Q, M) - np.einsum("ij,njk->nik", R, Bb)
         cov = cov + np.einsum("nij,njk,nlk->il", Y, Kb, Y)
