@@ -79,10 +79,9 @@ class ToolPoses:
         """Per frame its pose's row in this file, or -1: names (F,) the frames' image names,
         matched by image name (``image``) or by position in the sequence (``frame``; first:
         the sequence index of names[0], for a part of the sequence)."""
-        if self.keys and isinstance(self.keys[0], int):
-            at = {k: i for i, k in enumerate(self.keys)}
-            return np.array([at.get(first + f, -1) for f in range(len(names))], int)
         at = {k: i for i, k in enumerate(self.keys)}
+        if self.keys and isinstance(self.keys[0], int):
+            return np.array([at.get(first + f, -1) for f in range(len(names))], int)
         return np.array([at.get(str(n), -1) for n in names], int)
 
 
