@@ -544,8 +544,8 @@ def _side_point(camera, edges_raw, point, direction):
 
 
 def _mono_candidates(camera, frames, diameter):
-    """{frame index: [(axis record, raw edges)]}: each frame's shafts' 3-D axes from one view
-    (`cylinder.shaft_axis_record`)."""
+    """{frame index: [(axis record, raw edges, edge_cov)]}: each frame's shafts' 3-D axes from
+    one view (`cylinder.shaft_axis_record`)."""
     out = {}
     for i, fr in enumerate(frames):
         for sh in (fr.get("shafts") or []) if fr.get("ok", True) else []:
@@ -560,8 +560,9 @@ def _mono_candidates(camera, frames, diameter):
 
 
 def _stereo_candidates(camera, frames, stereo, diameter):
-    """{frame index: [(axis record, left raw edges)]}: each frame's shafts matched between
-    the eyes, their axes from both (`stereo_axes.matched_axes`; left camera frame)."""
+    """{frame index: [(axis record, left raw edges, None)]}: each frame's shafts matched
+    between the eyes, their axes from both (`stereo_axes.matched_axes`; left camera frame;
+    no edge_cov: the lens term is for one view)."""
     from pencilcal.toolkit.pencil.stereo_axes import matched_axes
 
     camera_right, frames_right, rig = stereo
