@@ -79,10 +79,9 @@ class ToolPoses:
         """Per frame its pose's row in this file, or -1: names (F,) the frames' image names,
         matched by image name (``image``) or by position in the sequence (``frame``; first:
         the sequence index of names[0], for a part of the sequence)."""
-        if self.keys and isinstance(self.keys[0], int):
-            at = {k: i for i, k in enumerate(self.keys)}
-            return np.array([at.get(first + f, -1) for f in range(len(names))], int)
         at = {k: i for i, k in enumerate(self.keys)}
+        if self.keys and isinstance(self.keys[0], int):
+            return np.array([at.get(first + f, -1) for f in range(len(names))], int)
         return np.array([at.get(str(n), -1) for n in names], int)
 
 
@@ -101,30 +100,31 @@ def _numbers(row, cols, p, line):
     return np.array(out)
 
 
-def _columns(head, p):
+def _columns(head, p, line):
     """(key column (name, index), position columns, unit factor to mm, rotation kind and
-    columns, sigma columns or None) of the header; InputError naming what is missing."""
+    columns, sigma columns or None) of the header (the file's line `line`); InputError
+    naming what is missing."""
     at = {h: k for k, h in enumerate(head)}
     if len(at) != len(head):
-        raise InputError(f"{p}:1: a column is named twice")
+        raise InputError(f"{p}:{line}: a column is named twice")
     key = next(((n, at[n]) for n in ("image", "frame") if n in at), None)
     if key is None:
-        raise InputError(f"{p}:1: no 'image' or 'frame' column (the frame each pose belongs to)")
+        raise InputError(f"{p}:{line}: no 'image' or 'frame' column (the frame each pose belongs to)")
     for names, scale in ((("x_mm", "y_mm", "z_mm"), 1.0), (("x_m", "y_m", "z_m"), 1000.0)):
         if all(n in at for n in names):
             position = [(n, at[n]) for n in names]
             break
     else:
-        raise InputError(f"{p}:1: no tool position: columns x_mm,y_mm,z_mm (or x_m,y_m,z_m in metres)")
+        raise InputError(f"{p}:{line}: no tool position: columns x_mm,y_mm,z_mm (or x_m,y_m,z_m in metres)")
     if all(n in at for n in QUATERNION):
         rotation = ("quaternion", [(n, at[n]) for n in QUATERNION])
     elif all(n in at for n in MATRIX):
         rotation = ("matrix", [(n, at[n]) for n in MATRIX])
     else:
-        raise InputError(f"{p}:1: no tool orientation: columns qw,qx,qy,qz (unit quaternion) or r11..r33")
+        raise InputError(f"{p}:{line}: no tool orientation: columns qw,qx,qy,qz (unit quaternion) or r11..r33")
     sigmas = [(n, at[n]) for n in ("sigma_deg", "sigma_mm") if n in at]
     if len(sigmas) == 1:
-        raise InputError(f"{p}:1: sigma_deg and sigma_mm go together")
+        raise InputError(f"{p}:{line}: sigma_deg and sigma_mm go together")
     return key, position, scale, rotation, sigmas or None
 
 
@@ -154,7 +154,7 @@ def read_tool_poses(path) -> ToolPoses:
         raise InputError(f"{p}: kinematics file has no header")
     head_line, head = lines[0]
     head = [c.strip().lower() for c in next(csv.reader([head]))]
-    key, position, scale, (kind, rot_cols), sigmas = _columns(head, p)
+    key, position, scale, (kind, rot_cols), sigmas = _columns(head, p, head_line)
     keys, pos, rots, sig, rows, seen = [], [], [], [], [], {}
     for line, text_row in lines[1:]:
         row = [c.strip() for c in next(csv.reader([text_row]))]
@@ -162,7 +162,7 @@ def read_tool_poses(path) -> ToolPoses:
             raise InputError(f"{p}:{line}: {len(row)} fields, the header has {len(head)}")
         k = row[key[1]]
         if key[0] == "frame":
-            if not k.isdigit():
+            if not (k.isascii() and k.isdigit()):  # str.isdigit alone takes "²", which int() refuses
                 raise InputError(f"{p}:{line}: frame must be a frame index (0, 1, ...), got {k!r}")
             k = int(k)
         elif not k:

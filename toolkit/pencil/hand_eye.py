@@ -56,7 +56,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pencilcal.toolkit.errors import EstimationError, InputError
-from pencilcal.toolkit.geometry.frames import normalize, rotation_from_rotvec, rotvec_from_rotation, skew
+from pencilcal.toolkit.geometry.frames import (normalize, project_to_rotation, rotation_from_rotvec, rotvec_from_rotation,
+                                              skew)
 from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
 from pencilcal.toolkit.pencil.cylinder import GATE_CONFIDENCE, SHARED_FLOOR, axis_chart, axis_frame, fulcrum_3d, shaft_axis_record
 
@@ -143,8 +144,7 @@ def invert_transform(R, t, cov):
 
 def _principal(d):
     """(N, 3) unit directions turned towards their principal direction (one hemisphere)."""
-    w, V = np.linalg.eigh(np.einsum("ni,nj->ij", d, d))
-    m = V[:, -1]
+    m = np.linalg.eigh(np.einsum("ni,nj->ij", d, d))[1][:, -1]
     return d * np.where(d @ m < 0, -1.0, 1.0)[:, None]
 
 
@@ -152,13 +152,6 @@ def _spread_deg(d):
     """RMS angle [deg] of unoriented directions (N, 3) about their principal direction."""
     w = np.linalg.eigvalsh(np.einsum("ni,nj->ij", d, d) / len(d))
     return float(np.degrees(np.arcsin(np.sqrt(np.clip(w[0] + w[1], 0.0, 1.0)))))
-
-
-def _kabsch(src, dst):
-    """The rotation R minimising sum |dst - R src|^2: (N, 3), (N, 3) -> (3, 3)."""
-    U, _, Vt = np.linalg.svd(dst.T @ src)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
 
 
 def _translation(R, cam_p, cam_d, base_p, use):
@@ -169,6 +162,15 @@ def _translation(R, cam_p, cam_d, base_p, use):
     if np.linalg.cond(H) > 1e12:
         raise EstimationError("the axes do not fix the translation (fewer than two crossing axes)")
     return np.linalg.solve(H, np.einsum("nij,nj->i", P, r))
+
+
+def _iso_cov(sig_a, sig_p):
+    """(N, 4, 4) the chart covariance of lines with isotropic errors: angle sig_a (N,) [rad]
+    in both angles, offset sig_p (N,) [mm] in both offsets."""
+    K = np.zeros((len(sig_a), 4, 4))
+    K[:, 0, 0] = K[:, 1, 1] = np.asarray(sig_a, float) ** 2
+    K[:, 2, 2] = K[:, 3, 3] = np.asarray(sig_p, float) ** 2
+    return K
 
 
 def _kin_cov(R, t, cam_p, cam_d, frames, base_p, base_d, sig_a, sig_p):
@@ -184,9 +186,7 @@ def _kin_cov(R, t, cam_p, cam_d, frames, base_p, base_d, sig_a, sig_p):
     M[:, :2, :2] = sign * F
     M[:, 2:, :2] = tau * F
     M[:, 2:, 2:] = F
-    K = np.zeros((len(cam_p), 4, 4))
-    K[:, :2, :2] = np.eye(2) * (sig_a ** 2)[:, None, None]
-    K[:, 2:, 2:] = np.eye(2) * (sig_p ** 2)[:, None, None]
+    K = _iso_cov(sig_a, sig_p)
     return M @ K @ np.swapaxes(M, -1, -2), M
 
 
@@ -316,7 +316,8 @@ def hand_eye_from_axes(cam_points, cam_directions, cam_covs, base_points, base_d
     lines = (cam_p, cam_d, axis_frame(cam_p, cam_d), base_p, base_d)
     fits = []
     for s in (1.0, -1.0):
-        R0 = _kabsch(_principal(base_d), s * _principal(cam_d))
+        # Kabsch: the rotation minimising sum |cam - R base|^2 is the one nearest sum cam base^T
+        R0 = project_to_rotation((s * _principal(cam_d)).T @ _principal(base_d))
         t0 = _translation(R0, cam_p, cam_d, base_p, np.ones(n, bool))
         try:
             fits.append(_fit(R0, t0, lines, cam_cov, kin, confidence))
@@ -373,9 +374,7 @@ def robot_fulcrum(base_points, base_directions, sigma_deg=0.0, sigma_mm=0.0):
     sa = np.broadcast_to(np.radians(np.asarray(sigma_deg, float)), (n,))
     sp = np.broadcast_to(np.asarray(sigma_mm, float), (n,))
     weighted = bool(np.all(sp > 0))
-    covs = np.zeros((n, 4, 4))
-    covs[:, 0, 0] = covs[:, 1, 1] = sa ** 2 if weighted else 0.0
-    covs[:, 2, 2] = covs[:, 3, 3] = sp ** 2 if weighted else 1.0
+    covs = _iso_cov(sa, sp) if weighted else _iso_cov(np.zeros(n), np.ones(n))
     fit = fulcrum_3d(P, D, covs, robust=False)
     cov = np.asarray(fit.point_cov, float)
     if not weighted:
@@ -434,9 +433,7 @@ def fulcrum_agreement(he, cam_points, cam_directions, cam_covs, base_points, bas
         # and the robot's fulcrum: one term, per axis, of their joint gain
         bp, bd = np.asarray(base_points, float)[use], normalize(base_directions)[use]
         _, M = _kin_cov(R, t, cp, cd, axis_frame(cp, cd), bp, bd, sa, sp)
-        Kb = np.zeros((len(sa), 4, 4))
-        Kb[:, 0, 0] = Kb[:, 1, 1] = sa ** 2
-        Kb[:, 2, 2] = Kb[:, 3, 3] = sp ** 2
+        Kb = _iso_cov(sa, sp)
         Bb, _ = _point_gain(Fb, bp, bd, Kb)
         Y = np.einsum("ij,njk,nkl->nil", D, Q, M) - np.einsum("ij,njk->nik", R, Bb)
         cov = cov + np.einsum("nij,njk,nlk->il", Y, Kb, Y)
@@ -547,8 +544,8 @@ def _side_point(camera, edges_raw, point, direction):
 
 
 def _mono_candidates(camera, frames, diameter):
-    """{frame index: [(axis record, raw edges)]}: each frame's shafts' 3-D axes from one view
-    (`cylinder.shaft_axis_record`)."""
+    """{frame index: [(axis record, raw edges, edge_cov)]}: each frame's shafts' 3-D axes from
+    one view (`cylinder.shaft_axis_record`)."""
     out = {}
     for i, fr in enumerate(frames):
         for sh in (fr.get("shafts") or []) if fr.get("ok", True) else []:
@@ -563,8 +560,9 @@ def _mono_candidates(camera, frames, diameter):
 
 
 def _stereo_candidates(camera, frames, stereo, diameter):
-    """{frame index: [(axis record, left raw edges)]}: each frame's shafts matched between
-    the eyes, their axes from both (`stereo_axes.matched_axes`; left camera frame)."""
+    """{frame index: [(axis record, left raw edges, None)]}: each frame's shafts matched
+    between the eyes, their axes from both (`stereo_axes.matched_axes`; left camera frame;
+    no edge_cov: the lens term is for one view)."""
     from pencilcal.toolkit.pencil.stereo_axes import matched_axes
 
     camera_right, frames_right, rig = stereo
