@@ -179,14 +179,14 @@ def homography_cov(H, src, dst, iterations=3):
     """
     h = (np.asarray(H, float) / H[2, 2]).ravel()[:8].copy()
     src, dst = np.asarray(src, float), np.asarray(dst, float)
-    for _ in range(iterations + 1):
+    for it in range(iterations + 1):  # the last pass only evaluates: r, N at the final h
         p, J = _transfer(h, src)
         r = (dst - p).reshape(-1)
         A = J.reshape(-1, 8)
         scale = 1.0 / np.maximum(np.linalg.norm(A, axis=0), 1e-300)
         As = A * scale
         N = np.linalg.inv(As.T @ As)
-        if _ < iterations:
+        if it < iterations:
             h = h + scale * (N @ (As.T @ r))
     dof = max(r.size - 8, 1)
     s2 = float(r @ r) / dof
