@@ -52,10 +52,8 @@ Example
 """
 from __future__ import annotations
 
-import dataclasses
-
 import inspect
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -292,7 +290,7 @@ def with_limbs(image, camera, shafts, edge_model="limb", gamma=DEFAULT_GAMMA, K=
             m = None if got is None else midline_from_edges(K, got[0], got[1])
             new = None if m is None else shaft_of_midline(camera, m, s.score, s.polarity, s.cue)
         # the measured fields replaced, the rest kept (a mask's shaft keeps its mask's)
-        out.append(s if new is None else dataclasses.replace(s, **{k: getattr(new, k) for k in _MEASURED}))
+        out.append(s if new is None else replace(s, **{k: getattr(new, k) for k in _MEASURED}))
     return out
 
 

@@ -19,7 +19,8 @@ normals of roughness a, Smith's shadowing; as the light and the view coincide th
 vector is the view, and the lobe rises from the limb as c / pi over c < a, a thin bright
 rim on polished metal, then peaks along the axis), both times the light's fall-off E
 (the middle of the shaft is nearer the light than its limb, `limb_design`). The fit sees
-at most 0.7 W inside the edge, short of the central highlight, saturated samples left out.
+0.7 W inside the edge (kept within 4-12 px), short of the central highlight, saturated
+samples left out.
 Beside the edge the background is ``b0 + b1 (t - e)`` (a level and a slope), and the
 optics' blur a Gaussian of sd sigma (pixel area and sampling included). The profile, on
 linear light (the frame's encoding gamma undone, `edges.linearised`), is

@@ -220,6 +220,7 @@ def _unused_seeds(seeds, bands, min_len):
     U = np.concatenate([L.u for L in seeds]).reshape(-1, 2)
     N = np.concatenate([L.n for L in seeds]).reshape(-1, 2)
     lo, hi = np.concatenate([L.lo for L in seeds]), np.concatenate([L.hi for L in seeds])
+    sup = np.concatenate([L.support for L in seeds])
     k = np.flatnonzero(hi - lo >= 0.5 * min_len)
     k = k[np.argsort(-(hi - lo)[k], kind="stable")]
     # the lines taken so far: the proposed bands' sides, then the seeds kept
@@ -241,7 +242,7 @@ def _unused_seeds(seeds, bands, min_len):
         tp.append(P[i])
         tu.append(U[i])
     keep = np.array(keep, int)
-    return BoundaryLines(p=P[keep], u=U[keep], n=N[keep], lo=lo[keep], hi=hi[keep], support=(hi - lo)[keep])
+    return BoundaryLines(p=P[keep], u=U[keep], n=N[keep], lo=lo[keep], hi=hi[keep], support=sup[keep])
 
 
 def _edge_specs(band, work, ends):

@@ -107,9 +107,10 @@ def _frame_levels(F, Y3, v, levels8):
 
 
 def _features(bgr, valid, at=None):
-    """The pixel features (module docstring) of every pixel of a BGR image (h, w, F), or
-    only of the pixels at = (rows, cols) (M,) each (M, F): the frame's medians and the local
-    windows are the same either way, the per-pixel terms are computed where asked."""
+    """The pixel features (module docstring) of a BGR image (h, w, 3) (or grey (h, w)):
+    of every pixel (h, w, F), or only of the pixels at = (rows, cols) (M,) each (M, F), F =
+    len(FEATURES): the frame's medians and the local windows are the same either way, the
+    per-pixel terms are computed where asked."""
     import cv2
 
     levels8 = np.asarray(bgr).dtype == np.uint8

@@ -161,14 +161,11 @@ class WorkFrame:
     dist : (h, w) float32 [work px]
         Their distance to the boundary (raw distance x scale: a lower bound where the lens
         stretches the periphery).
-    validity : Validity
-        The one given (another work frame of the image can share it).
     """
 
     def __init__(self, image, camera, validity, target_px=480.0):
         import cv2
 
-        self.validity = validity
         img = np.asarray(image)
         if img.dtype != np.uint8:
             img = img.astype(np.float32)
