@@ -446,7 +446,16 @@ OVERLAY_SCALE = 0.5
 
 def overlay_option(fn):
     """--overlay OUT.mp4|DIR/ and --overlay-scale S: the commands get `overlay_path` and
-    `overlay_scale` (`FrameOutputs`)."""
+    `overlay_scale` (`FrameOutputs`). --overlay-scale given without --overlay is a usage
+    error, as every other "only with" option is, rather than silently ignored."""
+    @functools.wraps(fn)
+    def checked(*args, **kwargs):
+        source = click.get_current_context().get_parameter_source("overlay_scale")
+        if kwargs.get("overlay_path") is None and source not in (None, click.core.ParameterSource.DEFAULT):
+            raise click.BadParameter("only with --overlay", param_hint="--overlay-scale")
+        return command(*args, **kwargs)
+
+    command, fn = fn, checked
     fn = click.option("--overlay-scale", type=FiniteFloat(min=0.1, max=1.0), default=OVERLAY_SCALE,
                       show_default=True, metavar="S", help="Its size over the frames' (1: full).")(fn)
     return click.option("--overlay", "overlay_path", default=None, metavar="OUT.mp4|DIR/",

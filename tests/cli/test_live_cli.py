@@ -85,6 +85,17 @@ def test_orient_streams_each_frame_and_draws_the_overlay(sim, tmp_path):
     assert img.shape == raw.shape and (img != raw).any(axis=2).mean() > 0.001  # something is drawn
 
 
+@pytest.mark.parametrize("cmd", ["lines", "orient", "pnp", "fulcrum"])
+def test_overlay_scale_is_only_with_an_overlay(sim, tmp_path, cmd):
+    """--overlay-scale without --overlay is a usage error naming both, not silently ignored
+    (the default scale without --overlay is no error)."""
+    extra = {"orient": ["--pencil", str(sim / "pencil.yaml")], "pnp": ["--board", str(sim / "board.yaml")]}
+    r = CliRunner().invoke(cli, [cmd, str(sim / "images"), "--camera", str(sim / "camera.json"), *extra.get(cmd, []),
+                                 "-o", str(tmp_path / "o.json"), "--overlay-scale", "0.3", "-q"])
+    assert r.exit_code == 2 and "--overlay-scale" in r.output and "only with --overlay" in r.output, r.output
+    assert not (tmp_path / "o.json").exists()
+
+
 def test_orient_overlay_needs_frames(sim, tmp_path):
     lines = tmp_path / "lines.json"
     assert CliRunner().invoke(cli, ["lines", str(sim / "images" / "000.png"), "--camera", str(sim / "camera.json"),
