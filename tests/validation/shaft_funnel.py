@@ -50,7 +50,7 @@ def traced():
     from pencilcal.toolkit.detect.shaft import material_cue as mc
 
     rec = {}
-    saved = {n: getattr(mc, n) for n in ("boundary_lines", "evaluate_bands", "_bands", "judge_band", "pair_bands")}
+    saved = {n: getattr(mc, n) for n in ("boundary_lines", "evaluate_many", "_bands", "judge_band", "pair_bands")}
     saved_sel = det.select
 
     def boundary_lines(Bm, dist, seg_min):
@@ -67,9 +67,9 @@ def traced():
              for i, j in zip(pairs.i, pairs.j)])
         return lines, pairs, maps
 
-    def evaluate_bands(*a, **k):
-        out = saved["evaluate_bands"](*a, **k)
-        rec.setdefault("evaluated", []).extend(out)
+    def evaluate_many(*a, **k):
+        out = saved["evaluate_many"](*a, **k)
+        rec.setdefault("evaluated", []).extend(e for got in out for e in got)
         return out
 
     def bands(*a, **k):
@@ -86,7 +86,7 @@ def traced():
         rec["held"] = list(shafts)
         return saved_sel(shafts, n)
 
-    for n, f in (("boundary_lines", boundary_lines), ("evaluate_bands", evaluate_bands), ("_bands", bands),
+    for n, f in (("boundary_lines", boundary_lines), ("evaluate_many", evaluate_many), ("_bands", bands),
                  ("judge_band", judge_band), ("pair_bands", pair_bands)):
         setattr(mc, n, f)
     det.select = select

@@ -68,7 +68,7 @@ from pencilcal.toolkit.detect.shaft.silhouette import fit_edges
 from pencilcal.toolkit.detect.shaft.region_bands import (
     band_polygon,
     band_stretch,
-    evaluate_bands,
+    evaluate_many,
     proposed,
     suppress_overlaps,
 )
@@ -148,7 +148,7 @@ def _bands(work, mm, o, wmin, wmax, min_len):
     those from a single edge (`shaft.partner`) that overlap none of them, at most
     `_MAX_PARTNER`; then those between two grey-level edges (`shaft.edge_pairs`) that overlap
     none of these, at most `_MAX_PAIRED`."""
-    bands, seeds = [], []
+    sets, seeds = [], []
     Ball = B0 = None
     for lev, kind, Bm, repeat in region_levels(mm, work):
         if kind == "all":
@@ -159,9 +159,11 @@ def _bands(work, mm, o, wmin, wmax, min_len):
         lines = boundary_lines(Bm, work.dist, 0.5 * min_len)
         seeds.append(lines)
         pairs = region_pairs(lines, wmin, wmax, np.degrees(o.region_conv_max), 0.5 * min_len, _MAX_PAIRS)
-        bands += evaluate_bands(lines, pairs, work, Bm, Ball, min_len, lev, kind)
+        sets.append((lines, pairs, Bm, Ball, lev, kind))
     if Ball is None:
         return []
+    # every level's candidates judged in one batch (the same bands as level by level)
+    bands = [e for got in evaluate_many(sets, work, min_len) for e in got]
     vin = work.valid & (work.dist > 1.0)
     ang_thr = 2.0 * scene_angle(work.bgr, vin, 0.5 * wmin)
     acc = [e for e in bands if proposed(e, min_len, ang_thr)]
@@ -183,8 +185,8 @@ def _more_bands(got, work, B0, min_len, ang_thr, acc, kind):
     along their chords, proposed and overlapping none of acc, the better of overlapping
     ones, the most shaft evidence first."""
     lines, pairs, maps = got
-    more = [e for q, B in enumerate(maps)
-            for e in evaluate_bands(lines, _one_pair(pairs, q), work, B, B0, min_len, -1, kind)]
+    sets = [(lines, _one_pair(pairs, q), B, B0, -1, kind) for q, B in enumerate(maps)]
+    more = [e for got in evaluate_many(sets, work, min_len) for e in got]
     more = [e for e in more if proposed(e, min_len, ang_thr) and not _touches(e, acc)]
     more.sort(key=lambda e: -e.shaft_len)
     return suppress_overlaps(more)
