@@ -65,7 +65,8 @@ import numpy as np
 from pencilcal.toolkit.detect.noise import estimate_noise
 
 __all__ = ["DARK_DAMPING", "Z_999", "LEVELS", "DARK_SPLITS", "MaterialMap", "material_map", "otsu_threshold",
-           "region_levels", "BoundaryLines", "boundary_lines", "RegionPairs", "region_pairs", "scene_angle"]
+           "region_levels", "BoundaryLines", "boundary_lines", "boundary_lines_many", "RegionPairs", "region_pairs",
+           "scene_angle"]
 
 #: eps of the chromaticity, as a fraction of the median brightness: a pixel this much darker
 #: than the scene keeps half of its colour (0.01-0.1 give the same maps on the real sets).
@@ -259,17 +260,18 @@ def _tls(M):
 
 def _contour_sides(contours, seg_min):
     """The Douglas-Peucker sides of closed contours (each (N, 1, 2)) at least seg_min points
-    long: (kept contours, a, b), the contours that have any, and per side (K,) its index
+    long: (kept contours, a, b, source), the contours that have any, per side (K,) its index
     range [a, b) in the kept contours laid out twice in a row each (b may run past its
-    contour's end: it wraps). A polygon vertex is the first contour point at its position;
+    contour's end: it wraps), and per side the index of its contour in `contours`. A polygon vertex is the first contour point at its position;
     every contour's vertices are found by one sort of all their points."""
     import cv2
 
     polys = [cv2.approxPolyDP(c, _DP_EPS_PX, True)[:, 0, :] for c in contours]
-    cs = [c for c, q in zip(contours, polys) if len(q) >= 2]
-    polys = [q for q in polys if len(q) >= 2]
+    idx = np.array([k for k, q in enumerate(polys) if len(q) >= 2], np.intp)
+    cs = [contours[k] for k in idx]
+    polys = [polys[k] for k in idx]
     if not cs:
-        return [], np.zeros(0, np.intp), np.zeros(0, np.intp)
+        return [], np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros(0, np.intp)
     n = np.array([len(c) for c in cs])
     start = np.concatenate([[0], np.cumsum(n)[:-1]])
     P = np.concatenate([c[:, 0, :] for c in cs]).astype(np.int64)
@@ -293,19 +295,24 @@ def _contour_sides(contours, seg_min):
     has = np.bincount(cid[keep], minlength=len(cs)) > 0
     off = 2 * np.concatenate([[0], np.cumsum(np.where(has, n, 0))[:-1]])  # doubled layout of the kept
     sel = keep & has[cid]
-    return [c for c, h in zip(cs, has) if h], a[sel] + off[cid[sel]], b[sel] + off[cid[sel]]
+    return [c for c, h in zip(cs, has) if h], a[sel] + off[cid[sel]], b[sel] + off[cid[sel]], idx[cid[sel]]
 
 
-def _sides(contours, Bm, dist, seg_min):
-    """The straight sides (K, 4) of all contours (each (N, 1, 2)), oriented with the region
-    on their left, and their point moments (K, 6); None when there are none. Each contour is
-    laid out twice in a row, so that a side may wrap, and the moments of every side come
-    from one cumulative sum."""
-    h, w = Bm.shape
-    kept, a, b = _contour_sides([c for c in contours if len(c) >= 4 * seg_min], seg_min)
+def _sides(contours, maps, dist, seg_min):
+    """Per map of maps (each (h, w) uint8), the straight sides (K, 4) of its contours
+    (contours: a list per map of (N, 1, 2) each), oriented with the region on their left, and
+    their point moments (K, 6); None for a map without any. The maps' contours are measured
+    together: each contour is laid out twice in a row, so that a side may wrap, and the
+    moments of every side come from one cumulative sum (of integers: exact, whatever
+    precedes them)."""
+    h, w = dist.shape
+    cs = [c for cm in contours for c in cm if len(c) >= 4 * seg_min]
+    owner = np.array([k for k, cm in enumerate(contours) for c in cm if len(c) >= 4 * seg_min], np.intp)
+    kept, a, b, src = _contour_sides(cs, seg_min)
     Ps = [c[:, 0, :] for c in kept for _ in range(2)]
     if not Ps:
-        return None
+        return [None] * len(maps)
+    side_map = owner[src]
     P2 = np.concatenate(Ps).astype(np.float64)
     x, y = P2[:, 0], P2[:, 1]
     cum = np.concatenate([np.zeros((1, 6)), np.cumsum(np.stack([np.ones_like(x), x, y, x * x, y * y, x * y], -1), 0)])
@@ -317,17 +324,19 @@ def _sides(contours, Bm, dist, seg_min):
     A, B = cen + ta[:, None] * u, cen + tb[:, None] * u
     mi = np.clip(np.round(0.5 * (A + B)).astype(int), 0, [w - 1, h - 1])
     ok = (tb - ta >= seg_min) & (dist[mi[:, 1], mi[:, 0]] >= _OFF_BOUNDARY_PX)
-    if not np.any(ok):
-        return None
-    A, B, u, M = A[ok], B[ok], u[ok], M[ok]
+    some = np.bincount(side_map[ok], minlength=len(maps)) > 0
+    A, B, u, M, side_map = A[ok], B[ok], u[ok], M[ok], side_map[ok]
     n = np.stack([-u[:, 1], u[:, 0]], -1)
     Q = A[:, None, :] + np.linspace(0.2, 0.8, 5)[None, :, None] * (B - A)[:, None, :]
     pl = np.clip(np.round(Q + 2 * n[:, None, :]).astype(int), 0, [w - 1, h - 1])
     pr = np.clip(np.round(Q - 2 * n[:, None, :]).astype(int), 0, [w - 1, h - 1])
-    left = Bm[pl[..., 1], pl[..., 0]].mean(1) - Bm[pr[..., 1], pr[..., 0]].mean(1)
+    stack = np.stack(maps)
+    sm = side_map[:, None]
+    left = stack[sm, pl[..., 1], pl[..., 0]].mean(1) - stack[sm, pr[..., 1], pr[..., 0]].mean(1)
     ok = np.abs(left) >= 0.5
     sw = (left < 0)[:, None]
-    return np.concatenate([np.where(sw, B, A), np.where(sw, A, B)], -1)[ok], M[ok]
+    seg, M, side_map = np.concatenate([np.where(sw, B, A), np.where(sw, A, B)], -1)[ok], M[ok], side_map[ok]
+    return [(seg[side_map == k], M[side_map == k]) if some[k] else None for k in range(len(maps))]
 
 
 @dataclass(frozen=True, eq=False)
@@ -410,15 +419,25 @@ def boundary_lines(Bm, dist, seg_min):
     boundary (`WorkFrame.dist`); seg_min: the least side length [work px]. Returns
     `BoundaryLines`.
     """
+    return boundary_lines_many([Bm], dist, seg_min)[0]
+
+
+def boundary_lines_many(maps, dist, seg_min):
+    """`boundary_lines` of each of several region maps of one work frame (the same lines as
+    one map at a time): their contours' sides found and measured in one batch (`_sides`),
+    then grouped map by map."""
     import cv2
 
-    Bm = np.asarray(Bm).astype(np.uint8)
-    cs, _ = cv2.findContours(Bm, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
-    got = _sides(cs, Bm, dist, seg_min)
-    if got is None:
-        z = np.zeros((0, 2))
-        return BoundaryLines(p=z, u=z, n=z, lo=np.zeros(0), hi=np.zeros(0), support=np.zeros(0))
-    return _group(*got)
+    maps = [np.asarray(Bm).astype(np.uint8) for Bm in maps]
+    contours = [cv2.findContours(Bm, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)[0] for Bm in maps]
+    out = []
+    for got in _sides(contours, maps, dist, seg_min):
+        if got is None:
+            z = np.zeros((0, 2))
+            out.append(BoundaryLines(p=z, u=z, n=z, lo=np.zeros(0), hi=np.zeros(0), support=np.zeros(0)))
+        else:
+            out.append(_group(*got))
+    return out
 
 
 @dataclass(frozen=True, eq=False)
