@@ -75,7 +75,7 @@ from pencilcal.toolkit.detect.shaft.region_bands import (
 from pencilcal.toolkit.detect.shaft.edge_pairs import PAIR_MAX_CONVERGENCE_DEG, pair_bands
 from pencilcal.toolkit.detect.shaft.partner import MAX_SEEDS, partner_bands
 from pencilcal.toolkit.detect.shaft.regions import (BoundaryLines, RegionPairs, boundary_lines_many, region_levels,
-                                                    region_pairs, scene_angle)
+                                                    region_pairs_many, scene_angle)
 
 __all__ = ["MaterialShaft", "material_cue", "judge_band", "select", "robust_noise"]
 
@@ -158,11 +158,11 @@ def _bands(work, mm, o, wmin, wmax, min_len):
             maps.append((lev, kind, Bm, Ball))
     if Ball is None:
         return []
-    # every level's boundaries, and its candidates, found and judged in one batch each (the
-    # same lines and bands as level by level)
+    # every level's boundaries, their pairs and the candidates found and judged in one batch
+    # each (the same lines, pairs and bands as level by level)
     seeds = boundary_lines_many([m[2] for m in maps], work.dist, 0.5 * min_len)
-    sets = [(lines, region_pairs(lines, wmin, wmax, np.degrees(o.region_conv_max), 0.5 * min_len, _MAX_PAIRS), Bm, Ba,
-             lev, kind) for lines, (lev, kind, Bm, Ba) in zip(seeds, maps)]
+    pairs = region_pairs_many(seeds, wmin, wmax, np.degrees(o.region_conv_max), 0.5 * min_len, _MAX_PAIRS)
+    sets = [(lines, pr, Bm, Ba, lev, kind) for lines, pr, (lev, kind, Bm, Ba) in zip(seeds, pairs, maps)]
     bands = [e for got in evaluate_many(sets, work, min_len) for e in got]
     vin = work.valid & (work.dist > 1.0)
     ang_thr = 2.0 * scene_angle(work.bgr, vin, 0.5 * wmin)

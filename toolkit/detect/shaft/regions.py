@@ -66,7 +66,7 @@ from pencilcal.toolkit.detect.noise import estimate_noise
 
 __all__ = ["DARK_DAMPING", "Z_999", "LEVELS", "DARK_SPLITS", "MaterialMap", "material_map", "otsu_threshold",
            "region_levels", "BoundaryLines", "boundary_lines", "boundary_lines_many", "RegionPairs", "region_pairs",
-           "scene_angle"]
+           "region_pairs_many", "scene_angle"]
 
 #: eps of the chromaticity, as a fraction of the median brightness: a pixel this much darker
 #: than the scene keeps half of its colour (0.01-0.1 give the same maps on the real sets).
@@ -457,9 +457,22 @@ def region_pairs(lines, wmin, wmax, max_conv_deg, min_overlap, max_pairs):
     px] at the middle of their overlap (>= min_overlap [px]), width of one sign and at least
     wmin / 2 at the overlap's ends. The max_pairs longest overlaps first. Returns
     `RegionPairs`."""
-    G = len(lines.p)
-    I, J = np.triu_indices(G, 1)
-    P, U, N, LO, HI = lines.p, lines.u, lines.n, lines.lo, lines.hi
+    return region_pairs_many([lines], wmin, wmax, max_conv_deg, min_overlap, max_pairs)[0]
+
+
+def region_pairs_many(sets, wmin, wmax, max_conv_deg, min_overlap, max_pairs):
+    """`region_pairs` of each of several `BoundaryLines` (a frame's region maps), the pairs
+    of all tested together (each set's lines paired only among themselves; the same pairs as
+    one set at a time)."""
+    if not sets:
+        return []
+    sizes = [len(L.p) for L in sets]
+    off = np.cumsum([0] + sizes)
+    I, J = (np.concatenate(x) for x in zip(*[np.triu_indices(G, 1) for G in sizes]))
+    shift = np.repeat(off[:-1], [G * (G - 1) // 2 for G in sizes])
+    I, J = I + shift, J + shift
+    P, U, N = (np.concatenate([getattr(L, f) for L in sets]).reshape(-1, 2) for f in ("p", "u", "n"))
+    LO, HI = (np.concatenate([getattr(L, f) for L in sets]) for f in ("lo", "hi"))
     ok = np.sum(U[I] * U[J], 1) < -np.cos(np.radians(max_conv_deg))
     I, J = I[ok], J[ok]
     ua = U[I] - U[J]
@@ -490,9 +503,13 @@ def region_pairs(lines, wmin, wmax, max_conv_deg, min_overlap, max_pairs):
     s_lo, s_hi = dot(at(J, lo) - at(I, lo), na), dot(at(J, hi) - at(I, hi), na)
     ok = (np.sign(s_lo) == np.sign(sep)) & (np.sign(s_hi) == np.sign(sep))
     ok &= np.minimum(np.abs(s_lo), np.abs(s_hi)) >= 0.5 * wmin
-    k = np.flatnonzero(ok)
-    k = k[np.argsort(-(hi - lo)[k], kind="stable")][:max_pairs]
-    return RegionPairs(i=I[k], j=J[k], width=w[k], overlap=(hi - lo)[k])
+    owner = np.searchsorted(off, I, side="right") - 1  # each pair's set
+    out = []
+    for m in range(len(sets)):
+        k = np.flatnonzero(ok & (owner == m))
+        k = k[np.argsort(-(hi - lo)[k], kind="stable")][:max_pairs]
+        out.append(RegionPairs(i=I[k] - off[m], j=J[k] - off[m], width=w[k], overlap=(hi - lo)[k]))
+    return out
 
 
 def scene_angle(bgr, valid, patch):
