@@ -4,7 +4,8 @@ test (`shaft.detector`).
 A candidate band lies between two straight region boundaries (`shaft.regions.region_pairs`).
 Its cross-section is sampled at `STATIONS` stations along the chord of its mean axis through
 the work frame, at `_NU` positions across from -2 to +2 half-widths (the boundaries at -1
-and +1), for all candidates in one remap. Per station:
+and +1), for all candidates in one remap (of all a frame's maps at once: `evaluate_many`).
+Per station:
 
 - fin, the fraction of the inside (|nu| <= `_NU_IN`) that is region; fL, fR the same for
   each side strip (`_NU_SIDE` <= |nu| <= 2);

@@ -39,6 +39,10 @@ boundaries: the proposals of the shaft detector's material cue (`shaft.detector`
    vanishing point) lies outside the overlap. Every pair of straight boundaries is one
    hypothesis, whatever component it belongs to, which also splits touching instruments.
 
+Steps 3 and 4 of all a frame's levels run in one batch each (`boundary_lines_many`,
+`region_pairs_many`: the same lines and pairs as map by map, without numpy's per-call
+overheads for each of the 5-7 maps).
+
 Coordinates are work pixels; widths and lengths too.
 
 Example
