@@ -50,14 +50,15 @@ def traced():
     from pencilcal.toolkit.detect.shaft import material_cue as mc
 
     rec = {}
-    saved = {n: getattr(mc, n) for n in ("boundary_lines", "evaluate_bands", "_bands", "judge_band", "pair_bands")}
+    saved = {n: getattr(mc, n) for n in ("boundary_lines_many", "evaluate_many", "_bands", "judge_band", "pair_bands")}
     saved_sel = det.select
 
-    def boundary_lines(Bm, dist, seg_min):
-        L = saved["boundary_lines"](Bm, dist, seg_min)
-        rec.setdefault("segments", []).extend(
-            np.c_[L.p + L.lo[:, None] * L.u, L.p + L.hi[:, None] * L.u].tolist())
-        return L
+    def boundary_lines_many(maps, dist, seg_min):
+        out = saved["boundary_lines_many"](maps, dist, seg_min)
+        for L in out:
+            rec.setdefault("segments", []).extend(
+                np.c_[L.p + L.lo[:, None] * L.u, L.p + L.hi[:, None] * L.u].tolist())
+        return out
 
     def pair_bands(*a, **k):
         lines, pairs, maps = saved["pair_bands"](*a, **k)
@@ -67,9 +68,9 @@ def traced():
              for i, j in zip(pairs.i, pairs.j)])
         return lines, pairs, maps
 
-    def evaluate_bands(*a, **k):
-        out = saved["evaluate_bands"](*a, **k)
-        rec.setdefault("evaluated", []).extend(out)
+    def evaluate_many(*a, **k):
+        out = saved["evaluate_many"](*a, **k)
+        rec.setdefault("evaluated", []).extend(e for got in out for e in got)
         return out
 
     def bands(*a, **k):
@@ -86,7 +87,7 @@ def traced():
         rec["held"] = list(shafts)
         return saved_sel(shafts, n)
 
-    for n, f in (("boundary_lines", boundary_lines), ("evaluate_bands", evaluate_bands), ("_bands", bands),
+    for n, f in (("boundary_lines_many", boundary_lines_many), ("evaluate_many", evaluate_many), ("_bands", bands),
                  ("judge_band", judge_band), ("pair_bands", pair_bands)):
         setattr(mc, n, f)
     det.select = select

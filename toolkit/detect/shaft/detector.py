@@ -451,14 +451,14 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         min_score_ratio=min_score_ratio, corridor_px=corridor_px, gamma=gamma, single_edge=bool(single_edge),
         edge_pairs=bool(edge_pairs), edge_model=edge_model))
     priors = as_priors(axis_prior)
-    work = WorkFrame(image, camera, validity, _WORK_PX) if priors else None
+    work = WorkFrame(image, camera, validity, _WORK_PX) if priors or np.ndim(image) == 3 else None
     found = _by_material(image, camera, validity, o, K, work)
     colour = found is not None
     if found is None:
         found = _by_edges(image, camera, valid_region, o, K)
     found = [s for s in found if s is not None]
     if pixel_evidence is not None and np.ndim(image) == 3 and found:
-        ev = shaft_pixel_evidence(image, found, camera, validity=validity)
+        ev = shaft_pixel_evidence(image, found, camera, validity=validity, reductions=work.reductions)
         found = [s for s, e in zip(found, ev) if e >= pixel_evidence]
     if not priors:
         return with_limbs(image, camera, found, o.edge_model, o.gamma, K)

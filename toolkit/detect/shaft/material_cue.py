@@ -68,14 +68,14 @@ from pencilcal.toolkit.detect.shaft.silhouette import fit_edges
 from pencilcal.toolkit.detect.shaft.region_bands import (
     band_polygon,
     band_stretch,
-    evaluate_bands,
+    evaluate_many,
     proposed,
     suppress_overlaps,
 )
 from pencilcal.toolkit.detect.shaft.edge_pairs import PAIR_MAX_CONVERGENCE_DEG, pair_bands
 from pencilcal.toolkit.detect.shaft.partner import MAX_SEEDS, partner_bands
-from pencilcal.toolkit.detect.shaft.regions import (BoundaryLines, RegionPairs, boundary_lines, region_levels,
-                                                    region_pairs, scene_angle)
+from pencilcal.toolkit.detect.shaft.regions import (BoundaryLines, RegionPairs, boundary_lines_many, region_levels,
+                                                    region_pairs_many, scene_angle)
 
 __all__ = ["MaterialShaft", "material_cue", "judge_band", "select", "robust_noise"]
 
@@ -148,20 +148,22 @@ def _bands(work, mm, o, wmin, wmax, min_len):
     those from a single edge (`shaft.partner`) that overlap none of them, at most
     `_MAX_PARTNER`; then those between two grey-level edges (`shaft.edge_pairs`) that overlap
     none of these, at most `_MAX_PAIRED`."""
-    bands, seeds = [], []
+    maps = []
     Ball = B0 = None
     for lev, kind, Bm, repeat in region_levels(mm, work):
         if kind == "all":
             Ball = Bm
             B0 = Bm if B0 is None else B0
-        if repeat:
-            continue
-        lines = boundary_lines(Bm, work.dist, 0.5 * min_len)
-        seeds.append(lines)
-        pairs = region_pairs(lines, wmin, wmax, np.degrees(o.region_conv_max), 0.5 * min_len, _MAX_PAIRS)
-        bands += evaluate_bands(lines, pairs, work, Bm, Ball, min_len, lev, kind)
+        if not repeat:
+            maps.append((lev, kind, Bm, Ball))
     if Ball is None:
         return []
+    # every level's boundaries, their pairs and the candidates found and judged in one batch
+    # each (the same lines, pairs and bands as level by level)
+    seeds = boundary_lines_many([m[2] for m in maps], work.dist, 0.5 * min_len)
+    pairs = region_pairs_many(seeds, wmin, wmax, np.degrees(o.region_conv_max), 0.5 * min_len, _MAX_PAIRS)
+    sets = [(lines, pr, Bm, Ba, lev, kind) for lines, pr, (lev, kind, Bm, Ba) in zip(seeds, pairs, maps)]
+    bands = [e for got in evaluate_many(sets, work, min_len) for e in got]
     vin = work.valid & (work.dist > 1.0)
     ang_thr = 2.0 * scene_angle(work.bgr, vin, 0.5 * wmin)
     acc = [e for e in bands if proposed(e, min_len, ang_thr)]
@@ -183,8 +185,8 @@ def _more_bands(got, work, B0, min_len, ang_thr, acc, kind):
     along their chords, proposed and overlapping none of acc, the better of overlapping
     ones, the most shaft evidence first."""
     lines, pairs, maps = got
-    more = [e for q, B in enumerate(maps)
-            for e in evaluate_bands(lines, _one_pair(pairs, q), work, B, B0, min_len, -1, kind)]
+    sets = [(lines, _one_pair(pairs, q), B, B0, -1, kind) for q, B in enumerate(maps)]
+    more = [e for got in evaluate_many(sets, work, min_len) for e in got]
     more = [e for e in more if proposed(e, min_len, ang_thr) and not _touches(e, acc)]
     more.sort(key=lambda e: -e.shaft_len)
     return suppress_overlaps(more)

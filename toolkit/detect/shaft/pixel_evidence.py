@@ -10,9 +10,10 @@ of the map over the middle 60 % of its width, `STATIONS` x `ACROSS` samples alon
 midline, and a detection with less than `MIN_PIXEL_EVIDENCE` is dropped
 (`detector.detect_shafts`' ``pixel_evidence``). The map is that of the work frame
 (`pixels.WORK_PX` = 320 px on its longer side), evaluated only at the pixels the samples
-read (`pixel_evidence`; the same values as the whole map's, `band_evidence`): about 6 ms of
-CPU a 1080p frame, most of it the reduced copy and the frame's medians (21 ms for the whole
-map in the same conditions; docs/performance.md).
+read (`pixel_evidence`; the same values as the whole map's, `band_evidence`): about 3.5 ms
+of CPU a 1080p frame, most of it the frame's medians and local windows, the reduced copy
+sharing its pass over the full frame with the detector's work frame (`work.Reductions`; it
+was 6 ms with a reduction of its own; 21 ms for the whole map; docs/performance.md).
 
 How `MIN_PIXEL_EVIDENCE` was chosen (leave one source out, every threshold chosen on the
 sources other than the one scored) and what it gives: docs/method.md, pixel evidence.
@@ -117,7 +118,7 @@ def band_evidence(p, work, camera, midlines, widths):
     return _medians(np.asarray(p, np.float32), _sample_points(work, camera, midlines, widths))
 
 
-def pixel_evidence(image, shafts, camera=None, valid_region=None, model=None, validity=None):
+def pixel_evidence(image, shafts, camera=None, valid_region=None, model=None, validity=None, reductions=None):
     """The evidence (N,) of detected shafts (`detector.Shaft`, or lines.json records with
     ``midline`` and ``width_px``) in a BGR frame (module docstring); model: a
     `pixels.PixelModel` (default the shipped one).
@@ -125,7 +126,9 @@ def pixel_evidence(image, shafts, camera=None, valid_region=None, model=None, va
     The map is evaluated only at the pixels the bands' samples read: the same evidence as
     `band_evidence` of the whole map (`pixels.instrument_probability`) at a fraction of the
     cost. validity: the image's `work.Validity` (e.g. the shaft detector's work frame's),
-    instead of making one from valid_region.
+    instead of making one from valid_region; reductions: the image's `work.Reductions`
+    (the shaft detector's work frame's, whose pass over the full frame it shares) instead of
+    its own.
     """
     img = np.asarray(image)
     if not len(shafts):
@@ -133,7 +136,7 @@ def pixel_evidence(image, shafts, camera=None, valid_region=None, model=None, va
     if img.ndim != 3:
         raise InputError(f"pixel evidence needs a colour (BGR) frame, got shape {img.shape}")
     validity = Validity(valid_region, img.shape[:2]) if validity is None else validity
-    pw = WorkFrame(img, camera, validity, WORK_PX)
+    pw = WorkFrame(img, camera, validity, WORK_PX, reductions=reductions)
     get = (lambda s, k: s[k]) if isinstance(shafts[0], dict) else getattr
     mids = np.array([np.asarray(get(s, "midline"), float) for s in shafts])
     widths = np.array([float(get(s, "width_px")) for s in shafts])

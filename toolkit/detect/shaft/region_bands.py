@@ -4,7 +4,8 @@ test (`shaft.detector`).
 A candidate band lies between two straight region boundaries (`shaft.regions.region_pairs`).
 Its cross-section is sampled at `STATIONS` stations along the chord of its mean axis through
 the work frame, at `_NU` positions across from -2 to +2 half-widths (the boundaries at -1
-and +1), for all candidates in one remap. Per station:
+and +1), for all candidates in one remap (of all a frame's maps at once: `evaluate_many`).
+Per station:
 
 - fin, the fraction of the inside (|nu| <= `_NU_IN`) that is region; fL, fR the same for
   each side strip (`_NU_SIDE` <= |nu| <= 2);
@@ -39,8 +40,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from pencilcal.toolkit.detect.shaft.bands import best_segment
+from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs
 
-__all__ = ["STATIONS", "FILL_IN", "FILL_SIDE", "RegionBand", "evaluate_bands", "best_run", "band_stretch", "proposed",
+__all__ = ["STATIONS", "FILL_IN", "FILL_SIDE", "RegionBand", "evaluate_bands", "evaluate_many", "best_run", "band_stretch", "proposed",
            "suppress_overlaps", "band_polygon"]
 
 STATIONS = 96  # stations along a band's chord
@@ -166,7 +168,8 @@ def _line_offsets(P, U, C, na):
 class _Geometry:
     """The cross-sections of K bands at S stations: C (K, S, 2), ua, na (K, 2), oi, oj, ai,
     aj (K, S) (each line's offset across and position along itself), step (K,), good (K,)
-    (a chord of some length), P (K, S, U, 2) the sample points."""
+    (a chord of some length), X, Y (K, S, U) float32 the sample points' coordinates (as
+    `cv2.remap` takes them)."""
 
     C: np.ndarray
     ua: np.ndarray
@@ -177,7 +180,8 @@ class _Geometry:
     aj: np.ndarray
     step: np.ndarray
     good: np.ndarray
-    P: np.ndarray
+    X: np.ndarray
+    Y: np.ndarray
 
 
 def _geometry(lines, pairs, shape):
@@ -194,18 +198,20 @@ def _geometry(lines, pairs, shape):
     oi, ai = _line_offsets(lines.p[I], lines.u[I], C, na)
     oj, aj = _line_offsets(lines.p[J], lines.u[J], C, na)
     offs = 0.5 * (oi + oj)[..., None] + _NU[None, None, :] * (0.5 * (oj - oi))[..., None]
-    P = C[:, :, None, :] + offs[..., None] * na[:, None, None, :]
-    return _Geometry(C=C, ua=ua, na=na, oi=oi, oj=oj, ai=ai, aj=aj, step=(t1 - t0) / (STATIONS - 1), good=good, P=P)
+    # the points C + offs na, each coordinate made and cast on its own (no (K, S, U, 2)
+    # float64 array: the same values at a third of the cost)
+    X, Y = ((C[:, :, None, k] + offs * na[:, None, None, k]).astype(np.float32) for k in (0, 1))
+    return _Geometry(C=C, ua=ua, na=na, oi=oi, oj=oj, ai=ai, aj=aj, step=(t1 - t0) / (STATIONS - 1), good=good, X=X,
+                     Y=Y)
 
 
-def _sampler(P):
-    """A function sampling a work-frame image (h, w) or (h, w, 3) at the points P (K, S, U,
-    2) (bilinear, 0 outside): (K, S, U) or (K, S, U, 3)."""
+def _sampler(X, Y):
+    """A function sampling a work-frame image (h, w) or (h, w, 3) at the points (X, Y) (K, S,
+    U) float32 each (bilinear, 0 outside): (K, S, U) or (K, S, U, 3)."""
     import cv2
 
-    K, S, U = P.shape[:3]
-    X = P[..., 0].reshape(K * S, U).astype(np.float32)
-    Y = P[..., 1].reshape(K * S, U).astype(np.float32)
+    K, S, U = X.shape
+    X, Y = X.reshape(K * S, U), Y.reshape(K * S, U)
 
     def sample(im):
         out = cv2.remap(np.ascontiguousarray(im), X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
@@ -309,43 +315,90 @@ def evaluate_bands(lines, pairs, work, Bm, Ball, min_run, level=0, kind="all"):
     Bm: (h, w) the map the boundaries came from; Ball: (h, w) the level's "all" map (for
     the material difference); work: `shaft.work.WorkFrame`.
     """
-    if len(pairs.i) == 0:
-        return []
+    return evaluate_many([(lines, pairs, Bm, Ball, level, kind)], work, min_run)[0]
+
+
+def _joined(sets):
+    """The lines (`shaft.regions.BoundaryLines`) and pairs (`shaft.regions.RegionPairs`) of
+    several (lines, pairs, ...) as one of each, the pairs' indices shifted to the joined
+    lines; and the start of each set's pairs (len(sets) + 1,)."""
+    L = [x[0] for x in sets]
+    off = np.cumsum([0] + [len(q.p) for q in L])
+    lines = BoundaryLines(**{f: np.concatenate([getattr(q, f) for q in L]) for f in ("p", "u", "n", "lo", "hi",
+                                                                                     "support")})
+    P = [x[1] for x in sets]
+    pairs = RegionPairs(i=np.concatenate([q.i + o for q, o in zip(P, off)]),
+                        j=np.concatenate([q.j + o for q, o in zip(P, off)]),
+                        width=np.concatenate([q.width for q in P]), overlap=np.concatenate([q.overlap for q in P]))
+    return lines, pairs, np.cumsum([0] + [len(q.i) for q in P])
+
+
+def _per_set(starts, rows, sample, maps):
+    """Each set's map (maps) sampled at its own rows' points: the (len(rows), ...) stack, in
+    rows' order; rows: ascending indices into the joined pairs, starts: each set's first."""
+    rows = np.asarray(rows, int)
+    owner = np.searchsorted(starts, rows, side="right") - 1
+    parts = [sample(rows[owner == k], maps[k]) for k in range(len(maps)) if np.any(owner == k)]
+    return np.concatenate(parts)
+
+
+def evaluate_many(sets, work, min_run):
+    """`evaluate_bands` of several candidate sets at once: sets a list of (lines, pairs, Bm,
+    Ball, level, kind); the list of each set's bands, the same values as one call per set.
+    The bands of all sets share one geometry, labelling and sampling of the work frame (each
+    map sampled at its own set's points): a region map has 2 candidate pairs in the median,
+    and numpy's per-call overheads were most of the cost of judging them one map at a time."""
+    if sum(len(x[1].i) for x in sets) == 0:
+        return [[] for _ in sets]
+    lines, pairs, starts = _joined(sets)
     g = _geometry(lines, pairs, work.shape)
-    sample = _sampler(g.P)
-    sB = sample(Bm.astype(np.float32))
-    sV = sample(work.dist)
+
+    def sample(rows, im):
+        return _sampler(g.X[rows], g.Y[rows])(im)
+
+    every = np.arange(len(pairs.i))
+    sB = _per_set(starts, every, sample, [x[2].astype(np.float32) for x in sets])
+    sV = _sampler(g.X, g.Y)(work.dist)
     lab, obs, fin, okL, okR, shaft = _labels(g, lines, pairs, sB, sV)
     sel = [m for m in range(len(pairs.i)) if g.good[m]]
     runs = {m: best_run(lab[m]) for m in sel}
     sel = [m for m in sel if (runs[m][1] - runs[m][0]) * g.step[m] >= min_run]
+    out = [[] for _ in sets]
     if not sel:
-        return []
-    sub = _sampler(g.P[sel])
-    sA, sY = sub(Ball.astype(np.float32)), sub(work.luma)
+        return out
+    sA = _per_set(starts, sel, sample, [x[3].astype(np.float32) for x in sets])
+    sub = _sampler(g.X[sel], g.Y[sel])
+    sY = sub(work.luma)
     sC = sub(work.colours) if work.bgr.ndim == 3 else sY[..., None]
-    out = []
     for q, m in enumerate(sel):
-        i0, i1 = runs[m]
-        ext, reach, reach_run, view = _extension(obs[m], fin[m], i0, i1)
-        cin = sC[q][:, _IN].mean(1)
-        cL = np.linalg.norm(cin - sC[q][:, _SL].mean(1), axis=-1)
-        cR = np.linalg.norm(cin - sC[q][:, _SR].mean(1), axis=-1)
-        con = np.minimum(cL, cR)
-        run = slice(i0, i1)
-        fall, ang = _side_colours(sC[q, run], okL[m, run], okR[m, run], sA[q, run])
-        yy = sY[q, run]
-        li, lj = pairs.i[m], pairs.j[m]
-        out.append(RegionBand(
-            lines=tuple((lines.p[k], lines.u[k], lines.n[k], float(lines.lo[k]), float(lines.hi[k])) for k in (li, lj)),
-            C=g.C[m], ua=g.ua[m], na=g.na[m], oi=g.oi[m], oj=g.oj[m], run=(i0, i1), ext=ext, reach=reach,
-            reach_run=reach_run, view=view, obs=obs[m], inside_colour=cin, contrast=con, step=float(g.step[m]), run_len=float((i1 - i0) * g.step[m]),
-            shaft_len=float(np.count_nonzero(shaft[m, run]) * g.step[m]), fall=fall, ang=ang,
-            y_in=float(np.mean(yy[:, _IN])), y_side=float(0.5 * (np.mean(yy[:, _SL]) + np.mean(yy[:, _SR]))),
-            level=int(level), kind=kind,
-            side_contrast=(float(np.median(cL[run][okL[m, run]])) if np.any(okL[m, run]) else np.nan,
-                           float(np.median(cR[run][okR[m, run]])) if np.any(okR[m, run]) else np.nan)))
+        k = int(np.searchsorted(starts, m, side="right")) - 1
+        out[k].append(_band(g, lines, pairs, m, runs[m], obs, fin, okL, okR, shaft, sC[q], sA[q], sY[q], sets[k][4],
+                            sets[k][5]))
     return out
+
+
+def _band(g, lines, pairs, m, run_ends, obs, fin, okL, okR, shaft, cc, ca, cy, level, kind):
+    """The `RegionBand` of candidate m (`evaluate_many`): its run [i0, i1), its colours cc
+    (S, U, C), "all" map ca (S, U) and luma cy (S, U) samples."""
+    i0, i1 = run_ends
+    ext, reach, reach_run, view = _extension(obs[m], fin[m], i0, i1)
+    cin = cc[:, _IN].mean(1)
+    cL = np.linalg.norm(cin - cc[:, _SL].mean(1), axis=-1)
+    cR = np.linalg.norm(cin - cc[:, _SR].mean(1), axis=-1)
+    con = np.minimum(cL, cR)
+    run = slice(i0, i1)
+    fall, ang = _side_colours(cc[run], okL[m, run], okR[m, run], ca[run])
+    yy = cy[run]
+    li, lj = pairs.i[m], pairs.j[m]
+    return RegionBand(
+        lines=tuple((lines.p[k], lines.u[k], lines.n[k], float(lines.lo[k]), float(lines.hi[k])) for k in (li, lj)),
+        C=g.C[m], ua=g.ua[m], na=g.na[m], oi=g.oi[m], oj=g.oj[m], run=(i0, i1), ext=ext, reach=reach,
+        reach_run=reach_run, view=view, obs=obs[m], inside_colour=cin, contrast=con, step=float(g.step[m]),
+        run_len=float((i1 - i0) * g.step[m]), shaft_len=float(np.count_nonzero(shaft[m, run]) * g.step[m]), fall=fall,
+        ang=ang, y_in=float(np.mean(yy[:, _IN])), y_side=float(0.5 * (np.mean(yy[:, _SL]) + np.mean(yy[:, _SR]))),
+        level=int(level), kind=kind,
+        side_contrast=(float(np.median(cL[run][okL[m, run]])) if np.any(okL[m, run]) else np.nan,
+                       float(np.median(cR[run][okR[m, run]])) if np.any(okR[m, run]) else np.nan))
 
 
 def proposed(band, min_len, ang_thr):

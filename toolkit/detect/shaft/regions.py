@@ -39,6 +39,10 @@ boundaries: the proposals of the shaft detector's material cue (`shaft.detector`
    vanishing point) lies outside the overlap. Every pair of straight boundaries is one
    hypothesis, whatever component it belongs to, which also splits touching instruments.
 
+Steps 3 and 4 of all a frame's levels run in one batch each (`boundary_lines_many`,
+`region_pairs_many`: the same lines and pairs as map by map, without numpy's per-call
+overheads for each of the 5-7 maps).
+
 Coordinates are work pixels; widths and lengths too.
 
 Example
@@ -65,7 +69,8 @@ import numpy as np
 from pencilcal.toolkit.detect.noise import estimate_noise
 
 __all__ = ["DARK_DAMPING", "Z_999", "LEVELS", "DARK_SPLITS", "MaterialMap", "material_map", "otsu_threshold",
-           "region_levels", "BoundaryLines", "boundary_lines", "RegionPairs", "region_pairs", "scene_angle"]
+           "region_levels", "BoundaryLines", "boundary_lines", "boundary_lines_many", "RegionPairs", "region_pairs",
+           "region_pairs_many", "scene_angle"]
 
 #: eps of the chromaticity, as a fraction of the median brightness: a pixel this much darker
 #: than the scene keeps half of its colour (0.01-0.1 give the same maps on the real sets).
@@ -259,17 +264,18 @@ def _tls(M):
 
 def _contour_sides(contours, seg_min):
     """The Douglas-Peucker sides of closed contours (each (N, 1, 2)) at least seg_min points
-    long: (kept contours, a, b), the contours that have any, and per side (K,) its index
+    long: (kept contours, a, b, source), the contours that have any, per side (K,) its index
     range [a, b) in the kept contours laid out twice in a row each (b may run past its
-    contour's end: it wraps). A polygon vertex is the first contour point at its position;
+    contour's end: it wraps), and per side the index of its contour in `contours`. A polygon vertex is the first contour point at its position;
     every contour's vertices are found by one sort of all their points."""
     import cv2
 
     polys = [cv2.approxPolyDP(c, _DP_EPS_PX, True)[:, 0, :] for c in contours]
-    cs = [c for c, q in zip(contours, polys) if len(q) >= 2]
-    polys = [q for q in polys if len(q) >= 2]
+    idx = np.array([k for k, q in enumerate(polys) if len(q) >= 2], np.intp)
+    cs = [contours[k] for k in idx]
+    polys = [polys[k] for k in idx]
     if not cs:
-        return [], np.zeros(0, np.intp), np.zeros(0, np.intp)
+        return [], np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros(0, np.intp)
     n = np.array([len(c) for c in cs])
     start = np.concatenate([[0], np.cumsum(n)[:-1]])
     P = np.concatenate([c[:, 0, :] for c in cs]).astype(np.int64)
@@ -293,19 +299,24 @@ def _contour_sides(contours, seg_min):
     has = np.bincount(cid[keep], minlength=len(cs)) > 0
     off = 2 * np.concatenate([[0], np.cumsum(np.where(has, n, 0))[:-1]])  # doubled layout of the kept
     sel = keep & has[cid]
-    return [c for c, h in zip(cs, has) if h], a[sel] + off[cid[sel]], b[sel] + off[cid[sel]]
+    return [c for c, h in zip(cs, has) if h], a[sel] + off[cid[sel]], b[sel] + off[cid[sel]], idx[cid[sel]]
 
 
-def _sides(contours, Bm, dist, seg_min):
-    """The straight sides (K, 4) of all contours (each (N, 1, 2)), oriented with the region
-    on their left, and their point moments (K, 6); None when there are none. Each contour is
-    laid out twice in a row, so that a side may wrap, and the moments of every side come
-    from one cumulative sum."""
-    h, w = Bm.shape
-    kept, a, b = _contour_sides([c for c in contours if len(c) >= 4 * seg_min], seg_min)
+def _sides(contours, maps, dist, seg_min):
+    """Per map of maps (each (h, w) uint8), the straight sides (K, 4) of its contours
+    (contours: a list per map of (N, 1, 2) each), oriented with the region on their left, and
+    their point moments (K, 6); None for a map without any. The maps' contours are measured
+    together: each contour is laid out twice in a row, so that a side may wrap, and the
+    moments of every side come from one cumulative sum (of integers: exact, whatever
+    precedes them)."""
+    h, w = dist.shape
+    cs = [c for cm in contours for c in cm if len(c) >= 4 * seg_min]
+    owner = np.array([k for k, cm in enumerate(contours) for c in cm if len(c) >= 4 * seg_min], np.intp)
+    kept, a, b, src = _contour_sides(cs, seg_min)
     Ps = [c[:, 0, :] for c in kept for _ in range(2)]
     if not Ps:
-        return None
+        return [None] * len(maps)
+    side_map = owner[src]
     P2 = np.concatenate(Ps).astype(np.float64)
     x, y = P2[:, 0], P2[:, 1]
     cum = np.concatenate([np.zeros((1, 6)), np.cumsum(np.stack([np.ones_like(x), x, y, x * x, y * y, x * y], -1), 0)])
@@ -317,17 +328,19 @@ def _sides(contours, Bm, dist, seg_min):
     A, B = cen + ta[:, None] * u, cen + tb[:, None] * u
     mi = np.clip(np.round(0.5 * (A + B)).astype(int), 0, [w - 1, h - 1])
     ok = (tb - ta >= seg_min) & (dist[mi[:, 1], mi[:, 0]] >= _OFF_BOUNDARY_PX)
-    if not np.any(ok):
-        return None
-    A, B, u, M = A[ok], B[ok], u[ok], M[ok]
+    some = np.bincount(side_map[ok], minlength=len(maps)) > 0
+    A, B, u, M, side_map = A[ok], B[ok], u[ok], M[ok], side_map[ok]
     n = np.stack([-u[:, 1], u[:, 0]], -1)
     Q = A[:, None, :] + np.linspace(0.2, 0.8, 5)[None, :, None] * (B - A)[:, None, :]
     pl = np.clip(np.round(Q + 2 * n[:, None, :]).astype(int), 0, [w - 1, h - 1])
     pr = np.clip(np.round(Q - 2 * n[:, None, :]).astype(int), 0, [w - 1, h - 1])
-    left = Bm[pl[..., 1], pl[..., 0]].mean(1) - Bm[pr[..., 1], pr[..., 0]].mean(1)
+    stack = np.stack(maps)
+    sm = side_map[:, None]
+    left = stack[sm, pl[..., 1], pl[..., 0]].mean(1) - stack[sm, pr[..., 1], pr[..., 0]].mean(1)
     ok = np.abs(left) >= 0.5
     sw = (left < 0)[:, None]
-    return np.concatenate([np.where(sw, B, A), np.where(sw, A, B)], -1)[ok], M[ok]
+    seg, M, side_map = np.concatenate([np.where(sw, B, A), np.where(sw, A, B)], -1)[ok], M[ok], side_map[ok]
+    return [(seg[side_map == k], M[side_map == k]) if some[k] else None for k in range(len(maps))]
 
 
 @dataclass(frozen=True, eq=False)
@@ -410,15 +423,25 @@ def boundary_lines(Bm, dist, seg_min):
     boundary (`WorkFrame.dist`); seg_min: the least side length [work px]. Returns
     `BoundaryLines`.
     """
+    return boundary_lines_many([Bm], dist, seg_min)[0]
+
+
+def boundary_lines_many(maps, dist, seg_min):
+    """`boundary_lines` of each of several region maps of one work frame (the same lines as
+    one map at a time): their contours' sides found and measured in one batch (`_sides`),
+    then grouped map by map."""
     import cv2
 
-    Bm = np.asarray(Bm).astype(np.uint8)
-    cs, _ = cv2.findContours(Bm, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
-    got = _sides(cs, Bm, dist, seg_min)
-    if got is None:
-        z = np.zeros((0, 2))
-        return BoundaryLines(p=z, u=z, n=z, lo=np.zeros(0), hi=np.zeros(0), support=np.zeros(0))
-    return _group(*got)
+    maps = [np.asarray(Bm).astype(np.uint8) for Bm in maps]
+    contours = [cv2.findContours(Bm, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)[0] for Bm in maps]
+    out = []
+    for got in _sides(contours, maps, dist, seg_min):
+        if got is None:
+            z = np.zeros((0, 2))
+            out.append(BoundaryLines(p=z, u=z, n=z, lo=np.zeros(0), hi=np.zeros(0), support=np.zeros(0)))
+        else:
+            out.append(_group(*got))
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -438,9 +461,22 @@ def region_pairs(lines, wmin, wmax, max_conv_deg, min_overlap, max_pairs):
     px] at the middle of their overlap (>= min_overlap [px]), width of one sign and at least
     wmin / 2 at the overlap's ends. The max_pairs longest overlaps first. Returns
     `RegionPairs`."""
-    G = len(lines.p)
-    I, J = np.triu_indices(G, 1)
-    P, U, N, LO, HI = lines.p, lines.u, lines.n, lines.lo, lines.hi
+    return region_pairs_many([lines], wmin, wmax, max_conv_deg, min_overlap, max_pairs)[0]
+
+
+def region_pairs_many(sets, wmin, wmax, max_conv_deg, min_overlap, max_pairs):
+    """`region_pairs` of each of several `BoundaryLines` (a frame's region maps), the pairs
+    of all tested together (each set's lines paired only among themselves; the same pairs as
+    one set at a time)."""
+    if not sets:
+        return []
+    sizes = [len(L.p) for L in sets]
+    off = np.cumsum([0] + sizes)
+    I, J = (np.concatenate(x) for x in zip(*[np.triu_indices(G, 1) for G in sizes]))
+    shift = np.repeat(off[:-1], [G * (G - 1) // 2 for G in sizes])
+    I, J = I + shift, J + shift
+    P, U, N = (np.concatenate([getattr(L, f) for L in sets]).reshape(-1, 2) for f in ("p", "u", "n"))
+    LO, HI = (np.concatenate([getattr(L, f) for L in sets]) for f in ("lo", "hi"))
     ok = np.sum(U[I] * U[J], 1) < -np.cos(np.radians(max_conv_deg))
     I, J = I[ok], J[ok]
     ua = U[I] - U[J]
@@ -471,9 +507,13 @@ def region_pairs(lines, wmin, wmax, max_conv_deg, min_overlap, max_pairs):
     s_lo, s_hi = dot(at(J, lo) - at(I, lo), na), dot(at(J, hi) - at(I, hi), na)
     ok = (np.sign(s_lo) == np.sign(sep)) & (np.sign(s_hi) == np.sign(sep))
     ok &= np.minimum(np.abs(s_lo), np.abs(s_hi)) >= 0.5 * wmin
-    k = np.flatnonzero(ok)
-    k = k[np.argsort(-(hi - lo)[k], kind="stable")][:max_pairs]
-    return RegionPairs(i=I[k], j=J[k], width=w[k], overlap=(hi - lo)[k])
+    owner = np.searchsorted(off, I, side="right") - 1  # each pair's set
+    out = []
+    for m in range(len(sets)):
+        k = np.flatnonzero(ok & (owner == m))
+        k = k[np.argsort(-(hi - lo)[k], kind="stable")][:max_pairs]
+        out.append(RegionPairs(i=I[k] - off[m], j=J[k] - off[m], width=w[k], overlap=(hi - lo)[k]))
+    return out
 
 
 def scene_angle(bgr, valid, patch):

@@ -1,0 +1,43 @@
+"""The shaft detector's work frame: its shared reductions are OpenCV's INTER_AREA bit for bit."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from pencilcal.toolkit.detect.shaft.work import Reductions, Validity, WorkFrame
+
+
+@pytest.mark.parametrize("factor", range(1, 19))
+@pytest.mark.parametrize("channels", [None, 1, 3])
+def test_reductions_equal_inter_area(factor, channels):
+    # every factor, the exact-sum path (even factors 4-16) and cv2.resize itself (the rest);
+    # uniform noise over all 256 levels makes every rounding tie occur
+    rng = np.random.default_rng(factor)
+    shape = (factor * 13, factor * 17) + (() if channels is None else (channels,))
+    img = rng.integers(0, 256, shape, dtype=np.uint8)
+    got = Reductions(img).to(17, 13)
+    ref = img if factor == 1 else cv2.resize(img, (17, 13), interpolation=cv2.INTER_AREA)
+    assert got.dtype == ref.dtype and np.array_equal(got, ref)
+
+
+def test_reductions_shared_and_other_sizes():
+    """One image's reductions to several sizes, in any order, each as cv2.resize gives it;
+    sizes that are no even multiple (and float images) go to cv2.resize."""
+    rng = np.random.default_rng(7)
+    img = rng.integers(0, 256, (1080, 1920, 3), dtype=np.uint8)
+    r = Reductions(img)
+    for w, h in ((320, 180), (480, 270), (640, 360), (240, 135), (500, 281)):
+        assert np.array_equal(r.to(w, h), cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)), (w, h)
+    f = img[:64, :96].astype(np.float32) / 3
+    assert np.array_equal(Reductions(f).to(24, 16), cv2.resize(f, (24, 16), interpolation=cv2.INTER_AREA))
+
+
+def test_work_frames_sharing_reductions_are_the_same():
+    rng = np.random.default_rng(3)
+    img = cv2.GaussianBlur(rng.integers(0, 256, (540, 960, 3), dtype=np.uint8), (0, 0), 2.0)
+    v = Validity(None, img.shape[:2])
+    a = WorkFrame(img, None, v, 480)
+    b = WorkFrame(img, None, v, 320, reductions=a.reductions)
+    c = WorkFrame(img, None, v, 320)
+    assert np.array_equal(b.bgr, c.bgr) and np.array_equal(b.dist, c.dist) and b.reductions is a.reductions
