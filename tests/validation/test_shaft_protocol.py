@@ -21,8 +21,9 @@ import pytest
 
 from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 from pencilcal.toolkit.detect.shaft.pixel_evidence import MIN_PIXEL_EVIDENCE, pixel_evidence
-from pencilcal.validation.shaft_protocol import (EVIDENCES, choose_setting, leave_one_source_out, table_markdown,
-                                                view_diagonal)
+from pencilcal.toolkit.detect.shaft.tissue_colour import MAX_TISSUE_COLOUR, shaft_tissue_colour
+from pencilcal.validation.shaft_protocol import (EVIDENCES, TISSUE_COLOURS, choose_setting, leave_one_source_out,
+                                                table_markdown, view_diagonal)
 from pencilcal.validation.shaft_score import detection_line
 from tests.validation.masked_sources import SOURCES, load_source
 
@@ -56,8 +57,9 @@ def detected():
     models = fold_models(samples)
     dets, diag = {}, {}
     for name, (frames, region) in loaded.items():
-        dets[name] = [[s.to_dict() for s in detect_shafts(img, valid_region=region, pixel_evidence=None)]
-                      for _, img, _, _ in frames]
+        dets[name] = [[dict(s.to_dict(), tissue_colour=float(t)) for s, t in zip(ss, shaft_tissue_colour(img, ss, region))]
+                      for _, img, _, _ in frames
+                      for ss in [detect_shafts(img, valid_region=region, pixel_evidence=None, tissue_colour=None)]]
         shape = frames[0][1].shape[:2]
         diag[name] = view_diagonal(shape, region.mask(shape))
 
@@ -76,7 +78,7 @@ def detected():
 
 def test_leave_one_source_out(detected):
     scored, diag, choice = detected
-    rows = leave_one_source_out(scored, diag, evidences=EVIDENCES, choice_frames=choice)
+    rows = leave_one_source_out(scored, diag, evidences=EVIDENCES, choice_frames=choice, colours=TISSUE_COLOURS)
     print("\n" + table_markdown(rows))
     for r in rows:
         print(f"{r['source']}: target >= 90 % found ({0.9 * r['instruments']:.1f}), <= 0.25 false per frame")
@@ -89,7 +91,10 @@ def test_leave_one_source_out(detected):
     assert max(errs) <= 1.0
     # the shipped least evidence is the protocol's choice over all five sources, each judged
     # by a model that never saw it
-    assert choose_setting(scored, diag, evidences=EVIDENCES)[1] == pytest.approx(MIN_PIXEL_EVIDENCE)
+    _, evidence, colour = choose_setting(scored, diag, evidences=EVIDENCES, colours=TISSUE_COLOURS)
+    assert evidence == pytest.approx(MIN_PIXEL_EVIDENCE)
+    # and so is the most tissue colour
+    assert colour == pytest.approx(MAX_TISSUE_COLOUR)
 
 
 def _matches(det, inst, angle_deg=6.0):
