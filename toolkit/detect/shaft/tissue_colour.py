@@ -14,8 +14,8 @@ of its width, `STATIONS` x `ACROSS` samples, the chromaticity ``x = (R - G) / S`
 G - 2 B) / (sqrt(3) S)``, ``S = R + G + B + 3``: unlike the pixel map's it keeps a dark pixel's
 colour, and is unchanged by shading under a power-law gamma) projected on the frame's median
 chromaticity over the valid region (the tissue's hue), as a fraction of that median's. An
-instrument has at most about 1 (a metal shaft mirroring tissue: 1.05 at most on the masked
-real sources; a black or grey one 0.0-0.6; a coloured one is off the tissue's hue, negative);
+instrument has at most about 1 (bright shafts between saturated tissue: 1.04 at most on the
+masked real sources; black and grey ones 0.0-0.4; one off the tissue's hue negative);
 a detection over `MAX_TISSUE_COLOUR` is dropped (`detector.detect_shafts`' ``tissue_colour``).
 How it was chosen (leave one source out on the masked sources) and what it gives on the
 unmasked ones: docs/method.md, tissue colour.
