@@ -7,10 +7,14 @@ The protocol here keeps the two apart. For each source in turn:
 1. the detector's setting (`SETTINGS`: the least evidence a detection must have, the length
    along which its band is seen, as a fraction of the view's diagonal, `view_diagonal`; and,
    where the detections carry it, `EVIDENCES`: the least pixel evidence, the learned
-   instrument map's median inside the band, `toolkit.detect.shaft.pixel_evidence`) is
-   chosen on the *other* sources: the one that finds the most instruments there with at
-   most `MAX_FALSE_PER_FRAME` false detections per frame (ties: fewer false, then the
-   smaller setting and evidence);
+   instrument map's median inside the band, `toolkit.detect.shaft.pixel_evidence`; and,
+   where they carry it, `TISSUE_COLOURS`: the most tissue colour, the band's colour along
+   the tissue's hue against the frame's, `toolkit.detect.shaft.tissue_colour`) is chosen on
+   the *other* sources: the one that finds the most instruments there with at most
+   `MAX_FALSE_PER_FRAME` false detections per frame (ties: fewer false, then the smaller
+   setting and evidence, then the *smaller* most tissue colour: the masked sources hold
+   few tissue gaps for it to remove, so what they measure of it is what it costs, and the
+   strictest that costs nothing there is chosen);
 2. the left-out source is scored with that setting (`shaft_score`).
 
 A learned map must itself never have seen the source it judges: the scored source's
@@ -47,6 +51,10 @@ Example
 >>> rows = leave_one_source_out(frames, {k: view_diagonal(m.shape) for k in "abc"}, evidences=(0.0, 0.5))
 >>> [(r["setting"], r["evidence"], r["found"], r["false"]) for r in rows]
 [(0.0, 0.5, 1, 0), (0.0, 0.5, 1, 0), (0.0, 0.5, 1, 0)]
+>>> weak["pixel_evidence"], weak["tissue_colour"], good["tissue_colour"] = 0.9, 2.2, 0.1   # a tissue gap
+>>> rows = leave_one_source_out(frames, {k: view_diagonal(m.shape) for k in "abc"}, colours=(1.25, float("inf")))
+>>> [(r["setting"], r["colour"], r["found"], r["false"]) for r in rows]
+[(0.0, 1.25, 1, 0), (0.0, 1.25, 1, 0), (0.0, 1.25, 1, 0)]
 """
 from __future__ import annotations
 
@@ -54,7 +62,7 @@ import numpy as np
 
 from pencilcal.validation.shaft_score import Tolerance, score_frame, summarize
 
-__all__ = ["SETTINGS", "EVIDENCES", "MAX_FALSE_PER_FRAME", "view_diagonal", "filtered", "choose_setting", "leave_one_source_out", "table_markdown"]
+__all__ = ["SETTINGS", "EVIDENCES", "TISSUE_COLOURS", "MAX_FALSE_PER_FRAME", "view_diagonal", "filtered", "choose_setting", "leave_one_source_out", "table_markdown"]
 
 #: The settings tried: the least evidence (`Shaft.score`: the length along which the band is
 #: seen as a shaft) as a fraction of the view's diagonal (`view_diagonal`).
@@ -62,6 +70,10 @@ SETTINGS = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3)
 #: The least pixel evidences tried (`toolkit.detect.shaft.pixel_evidence`; a detection
 #: without one passes).
 EVIDENCES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7)
+#: The most tissue colours tried (`toolkit.detect.shaft.tissue_colour`; a detection without
+#: one passes): from a quarter above the bound an instrument keeps to (1: the tissue's own
+#: colour, which a metal shaft mirrors at most) to not judged (inf).
+TISSUE_COLOURS = (1.25, 1.5, 2.0, 3.0, float("inf"))
 #: The most false detections per frame a chosen setting may give on the other sources.
 MAX_FALSE_PER_FRAME = 0.25
 
@@ -85,35 +97,38 @@ def view_diagonal(shape, valid=None):
     return float(np.hypot(H, W))
 
 
-def filtered(detections, setting, diagonal, evidence=0.0):
+def filtered(detections, setting, diagonal, evidence=0.0, colour=float("inf")):
     """The detections (list of dict, lines.json shaft records) whose score reaches setting x
-    diagonal [px] and whose ``pixel_evidence`` (where they carry one) reaches evidence."""
+    diagonal [px], whose ``pixel_evidence`` (where they carry one) reaches evidence and whose
+    ``tissue_colour`` (where they carry one) stays within colour."""
     return [d for d in detections if float(d.get("score", 0.0)) >= setting * diagonal
-            and float(d.get("pixel_evidence", 1.0)) >= evidence]
+            and float(d.get("pixel_evidence", 1.0)) >= evidence and float(d.get("tissue_colour", 0.0)) <= colour]
 
 
-def _scores(frames, setting, diagonal, tol, evidence=0.0):
-    return [score_frame(filtered(dets, setting, diagonal, evidence), refs, tol) for refs, dets in frames]
+def _scores(frames, setting, diagonal, tol, evidence=0.0, colour=float("inf")):
+    return [score_frame(filtered(dets, setting, diagonal, evidence, colour), refs, tol) for refs, dets in frames]
 
 
 def choose_setting(sources, diagonal, settings=SETTINGS, tol=Tolerance(), max_false=MAX_FALSE_PER_FRAME,
-                   evidences=(0.0,)):
-    """The (setting, evidence) that finds the most instruments over `sources` ({name:
-    [(references, detections) per frame]}) with at most max_false false detections per frame
-    (ties: fewer false, then the smaller setting, then the smaller evidence); the one with
-    the fewest false when none keeps to it."""
+                   evidences=(0.0,), colours=(float("inf"),)):
+    """The (setting, evidence, most tissue colour) that finds the most instruments over
+    `sources` ({name: [(references, detections) per frame]}) with at most max_false false
+    detections per frame (ties: fewer false, then the smaller setting, then the smaller
+    evidence, then the smaller colour); the one with the fewest false when none keeps to it."""
     best = None
     for s in settings:
         for e in evidences:
-            S = summarize([f for name, frames in sources.items() for f in _scores(frames, s, diagonal[name], tol, e)])
-            key = (S["false_per_frame"] <= max_false, S["found"], -S["false"], -s, -e)
-            if best is None or key > best[0]:
-                best = (key, (s, e))
+            for c in colours:
+                S = summarize([f for name, frames in sources.items()
+                               for f in _scores(frames, s, diagonal[name], tol, e, c)])
+                key = (S["false_per_frame"] <= max_false, S["found"], -S["false"], -s, -e, -c)
+                if best is None or key > best[0]:
+                    best = (key, (s, e, c))
     return best[1]
 
 
 def leave_one_source_out(frames, diagonal, settings=SETTINGS, tol=Tolerance(), max_false=MAX_FALSE_PER_FRAME,
-                         evidences=(0.0,), choice_frames=None):
+                         evidences=(0.0,), choice_frames=None, colours=(float("inf"),)):
     """The protocol's table (module docstring).
 
     Parameters
@@ -128,31 +143,36 @@ def leave_one_source_out(frames, diagonal, settings=SETTINGS, tol=Tolerance(), m
         {held source: {other source: frames}}: the others' frames the setting for the held
         source is chosen on (their detections' pixel evidence from a model that saw neither);
         default `frames`.
+    colours : sequence of float
+        The most tissue colours tried (`TISSUE_COLOURS`; (inf,): none).
 
     Returns
     -------
     list of dict
-        Per source: source, setting and evidence (chosen on the others), and
+        Per source: source, setting, evidence and colour (chosen on the others), and
         `shaft_score.summarize`'s keys for the source scored with them.
     """
     rows = []
     for held in frames:
         pool = frames if choice_frames is None else {**frames, **choice_frames.get(held, {})}
         others = {k: v for k, v in pool.items() if k != held}
-        s, e = choose_setting(others, diagonal, settings, tol, max_false, evidences) if others else (settings[0], 0.0)
-        rows.append({"source": held, "setting": s, "evidence": e,
-                     **summarize(_scores(frames[held], s, diagonal[held], tol, e))})
+        s, e, c = choose_setting(others, diagonal, settings, tol, max_false, evidences, colours) if others \
+            else (settings[0], 0.0, float("inf"))
+        rows.append({"source": held, "setting": s, "evidence": e, "colour": c,
+                     **summarize(_scores(frames[held], s, diagonal[held], tol, e, c))})
     return rows
 
 
 def table_markdown(rows):
     """The table as Markdown (docs/method.md)."""
-    out = ["| source left out | setting chosen on the others | pixel evidence chosen on the others | found | "
-           "false per frame | median angle error | median offset error |", "|---|---|---|---|---|---|---|"]
+    out = ["| source left out | setting chosen on the others | pixel evidence chosen on the others | "
+           "most tissue colour chosen on the others | found | false per frame | median angle error | "
+           "median offset error |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         a = "-" if r["angle_err_deg_median"] is None else f"{r['angle_err_deg_median']:.2f} deg"
         o = "-" if r["offset_err_px_median"] is None else f"{r['offset_err_px_median']:.1f} px"
-        out.append(f"| {r['source']} | {r['setting']:g} | {r.get('evidence', 0.0):g} | {r['found']}/{r['instruments']} | "
+        out.append(f"| {r['source']} | {r['setting']:g} | {r.get('evidence', 0.0):g} | "
+                   f"{r.get('colour', float('inf')):g} | {r['found']}/{r['instruments']} | "
                    f"{r['false_per_frame']:.2f} | {a} | {o} |")
     return "\n".join(out)
 

@@ -27,7 +27,9 @@ angle and offset sigmas are propagated from the edge fits, plus a measured error
 length the image width) stands in for the camera matrix.
 
 On a colour frame, a band of either cue is then judged by a learned map of instrument pixels
-(`shaft.pixel_evidence`): a band of tissue with two long edges is not instrument-like inside.
+(`shaft.pixel_evidence`): a band of tissue with two long edges is not instrument-like inside;
+and by its colour (`shaft.tissue_colour`): a band more coloured in the tissue's hue than the
+tissue itself is tissue in shadow (a dark gap between two tissues), not an instrument.
 
 Nothing is detected on the valid region's boundary (`valid_region`: an endoscope's field
 stop, letterbox bars): samples keep inside it, and a band stops where it leaves it.
@@ -71,6 +73,7 @@ from pencilcal.toolkit.detect.shaft.pixel_evidence import MIN_PIXEL_EVIDENCE
 from pencilcal.toolkit.detect.shaft.pixel_evidence import pixel_evidence as shaft_pixel_evidence
 from pencilcal.toolkit.detect.shaft.prior import as_priors, select_through
 from pencilcal.toolkit.detect.shaft.regions import material_map
+from pencilcal.toolkit.detect.shaft.tissue_colour import MAX_TISSUE_COLOUR, shaft_tissue_colour
 from pencilcal.toolkit.detect.shaft.track import REACH, band_colours, corridor_edges, material_edges
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame, axis_matrix
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw
@@ -336,7 +339,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
                   sigma_px=1.5, min_support=0.3, max_background=0.1, slope_correction=True, from_border=True,
                   border_px=None, min_score_ratio=0.25, corridor_px=4.0, detector_params=None, gamma=DEFAULT_GAMMA,
                   axis_prior=None, single_edge=True, edge_pairs=True, edge_model="step",
-                  pixel_evidence=MIN_PIXEL_EVIDENCE):
+                  pixel_evidence=MIN_PIXEL_EVIDENCE, tissue_colour=MAX_TISSUE_COLOUR):
     """Instrument shafts in one image: midline (the axis image), width, angle uncertainty.
 
     Parameters
@@ -432,6 +435,12 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         On a colour frame, a shaft of the cues is kept only where the learned instrument map
         inside its band reaches this (`shaft.pixel_evidence.MIN_PIXEL_EVIDENCE`, 0.1: a
         tissue band with two long edges is not instrument-like inside); None: not judged.
+    tissue_colour : float or None
+        On a colour frame, a shaft of the cues is kept only where its inside's colour along
+        the tissue's hue stays under this fraction of the frame's median
+        (`shaft.tissue_colour.MAX_TISSUE_COLOUR`: an instrument is never more coloured than
+        the tissue it mirrors; a dark gap between tissues keeps, and deepens, their colour);
+        None: not judged.
 
     Returns
     -------
@@ -460,6 +469,9 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
     if pixel_evidence is not None and np.ndim(image) == 3 and found:
         ev = shaft_pixel_evidence(image, found, camera, validity=validity, reductions=work.reductions)
         found = [s for s, e in zip(found, ev) if e >= pixel_evidence]
+    if tissue_colour is not None and np.ndim(image) == 3 and found:
+        tc = shaft_tissue_colour(image, found, validity=validity)
+        found = [s for s, t in zip(found, tc) if t <= tissue_colour]
     if not priors:
         return with_limbs(image, camera, found, o.edge_model, o.gamma, K)
     img = np.asarray(image)
@@ -504,7 +516,8 @@ def _prepared(image, camera, valid_region, options):
 
 #: The keywords of `detect_shafts` and their defaults (those `track_shafts` passes on).
 _DEFAULTS = {k: p.default for k, p in inspect.signature(detect_shafts).parameters.items()
-             if p.kind is p.KEYWORD_ONLY and k not in ("valid_region", "axis_prior", "pixel_evidence")}
+             if p.kind is p.KEYWORD_ONLY and k not in ("valid_region", "axis_prior", "pixel_evidence",
+                                                                  "tissue_colour")}
 
 
 def track_shafts(image, camera, previous, *, valid_region=None, prior=None, reach_px=None, widths=None, colours=None,

@@ -1,0 +1,131 @@
+"""Tissue is not an instrument, by its colour: a band as coloured as the tissue, or more, is
+tissue in shadow.
+
+An instrument is grey, black or metal: what colour it shows is the tissue's, mirrored (metal,
+a specular streak) or cast on it, and always less of it than the tissue itself has. A dark gap
+between two tissues (the fat and the bowel at the edge of a phantom's cavity, a fold's shadow)
+has two long edges like a shaft and, in a dark frame, passes the learned pixel map
+(`shaft.pixel_evidence`, whose chromaticity fades towards black), but a shadow keeps the
+tissue's chromaticity, and light reflected back and forth in a cavity deepens it: the gaps
+of the dVRK phantom are twice as coloured as its median tissue.
+
+A band's *tissue colour* is the chromaticity of its inside (median over the middle `INNER`
+of its width, `STATIONS` x `ACROSS` samples, the chromaticity ``x = (R - G) / S``, ``y = (R +
+G - 2 B) / (sqrt(3) S)``, ``S = R + G + B + 3``: unlike the pixel map's it keeps a dark pixel's
+colour, and is unchanged by shading under a power-law gamma) projected on the frame's median
+chromaticity over the valid region (the tissue's hue), as a fraction of that median's. An
+instrument has at most about 1 (bright shafts between saturated tissue: 1.04 at most on the
+masked real sources; black and grey ones 0.0-0.4; one off the tissue's hue negative);
+a detection over `MAX_TISSUE_COLOUR` is dropped (`detector.detect_shafts`' ``tissue_colour``).
+How it was chosen (leave one source out on the masked sources) and what it gives on the
+unmasked ones: docs/method.md, tissue colour.
+
+Example
+-------
+>>> import numpy as np
+>>> img = np.zeros((180, 320, 3), np.uint8); img[:] = (90, 110, 190)          # pink tissue
+>>> img[40:60] = (12, 16, 64)                                                  # a deep red gap
+>>> img[120:140] = (40, 40, 42)                                                # a black shaft
+>>> mids = np.array([[0.0, 49.5, 319.0, 49.5], [0.0, 129.5, 319.0, 129.5]])
+>>> tissue_colour(img, mids, np.array([20.0, 20.0])).round(2).tolist()
+[2.25, 0.07]
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from pencilcal.toolkit.detect.shaft.work import Validity
+from pencilcal.toolkit.errors import InputError
+
+__all__ = ["tissue_colour", "shaft_tissue_colour", "MAX_TISSUE_COLOUR", "STATIONS", "ACROSS", "INNER"]
+
+#: The most tissue colour a detection may have (module docstring); chosen on the masked real
+#: sources (docs/method.md).
+MAX_TISSUE_COLOUR = 1.25
+#: Samples along the midline and across the band's inner part.
+STATIONS, ACROSS = 24, 7
+#: The fraction of the band's width sampled, about its midline (its outline mixes both sides).
+INNER = 0.6
+_FRAME_SAMPLES = 20000  # about as many pixels of the frame for its median chromaticity
+_EPS = 1.0  # added to each channel [DN]: a black pixel has no colour, not an undefined one
+
+
+def _chromaticity(bgr):
+    """(..., 2) opponent chromaticity of (..., 3) BGR values (module docstring)."""
+    b, g, r = (bgr[..., k].astype(float) for k in range(3))
+    S = r + g + b + 3.0 * _EPS
+    return np.stack([(r - g) / S, (r + g - 2.0 * b) / (np.sqrt(3.0) * S)], -1)
+
+
+def _frame_chromaticity(img, validity):
+    """(2,) the median chromaticity of the frame's valid pixels, on a grid of about
+    `_FRAME_SAMPLES` of them."""
+    H, W = img.shape[:2]
+    step = max(1, int(np.sqrt(H * W / _FRAME_SAMPLES)))
+    ys, xs = np.mgrid[step // 2:H:step, step // 2:W:step]
+    keep = validity.distance(np.stack([xs, ys], -1).astype(float)) > 0
+    if not keep.any():
+        keep[:] = True
+    return np.median(_chromaticity(img[ys[keep], xs[keep]]), 0)
+
+
+def _inside(img, midline, width):
+    """(K, 3) BGR samples of the inner part of one band (raw px), those off the image left out."""
+    import cv2
+
+    a, b = np.asarray(midline, float).reshape(2, 2)
+    L = float(np.hypot(*(b - a)))
+    if not np.isfinite(L) or L <= 0:
+        return np.zeros((0, 3))
+    n = np.array([a[1] - b[1], b[0] - a[0]]) / L
+    half = 0.5 * INNER * float(width)
+    s = np.linspace(0.0, 1.0, STATIONS)[:, None, None]
+    t = np.linspace(-half, half, ACROSS)[None, :, None]
+    P = (a + s * (b - a) + t * n).reshape(-1, 2)
+    H, W = img.shape[:2]
+    P = P[(P[:, 0] >= 0) & (P[:, 1] >= 0) & (P[:, 0] <= W - 1) & (P[:, 1] <= H - 1)].astype(np.float32)
+    if not len(P):
+        return np.zeros((0, 3))
+    return cv2.remap(img, np.ascontiguousarray(P[None, :, 0]), np.ascontiguousarray(P[None, :, 1]),
+                     cv2.INTER_LINEAR)[0].reshape(-1, 3)
+
+
+def tissue_colour(image, midlines, widths, valid_region=None, validity=None):
+    """The tissue colour (N,) of bands in a BGR frame (module docstring).
+
+    image: (H, W, 3) uint8 BGR; midlines: (N, 4) [raw px]; widths: (N,) [px] (a shaft's
+    ``width_px``: undistorted, which the raw band's differs from by the lens's local scale
+    only); valid_region: as `detect_shafts`' (the frame's median is taken inside it), or
+    validity: its `work.Validity`. A band without samples in the image has 0 (no evidence
+    either way). A frame without colour (the median grey) gives 0 for every band.
+    """
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise InputError(f"tissue colour needs a colour (BGR) frame, got shape {img.shape}")
+    mids = np.asarray(midlines, float).reshape(-1, 4)
+    wds = np.asarray(widths, float).reshape(-1)
+    if len(mids) != len(wds):
+        raise InputError(f"tissue colour: {len(mids)} midlines but {len(wds)} widths")
+    if not len(mids):
+        return np.zeros(0)
+    validity = Validity(valid_region, img.shape[:2]) if validity is None else validity
+    c = _frame_chromaticity(img, validity)
+    cc = float(c @ c)
+    out = np.zeros(len(mids))
+    if cc < 1e-6:  # a grey scene: no tissue hue to compare with
+        return out
+    for k, (m, w) in enumerate(zip(mids, wds)):
+        v = _inside(img, m, w)
+        if len(v):
+            out[k] = float(np.median(_chromaticity(v), 0) @ c) / cc
+    return out
+
+
+def shaft_tissue_colour(image, shafts, valid_region=None, validity=None):
+    """`tissue_colour` of detected shafts (`detector.Shaft`, or lines.json records with
+    ``midline`` and ``width_px``)."""
+    if not len(shafts):
+        return np.zeros(0)
+    get = (lambda s, k: s[k]) if isinstance(shafts[0], dict) else getattr
+    return tissue_colour(image, [np.asarray(get(s, "midline"), float) for s in shafts],
+                         [float(get(s, "width_px")) for s in shafts], valid_region, validity)
