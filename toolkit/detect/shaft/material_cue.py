@@ -24,7 +24,9 @@ frames whose colour tells the materials apart (`shaft.detector`).
    merging with white tissue, is a short band of region whose edges go on), each edge the
    best run of stations with gaps up to a width (a thread, a highlight); the midline is the
    plane bisector of the two (`shaft.axis`). It is a shaft when both edges are seen
-   together along at least the least length and a third of the region's run; when they,
+   together along at least the least length, or 1.5 widths where that is shorter (a thin
+   shaft: the length is relative to the width, `_least_seen`), and a third of the region's
+   run; when they,
    its band or its region's extension (the instrument's material, its wrist included) run
    along 2.5 widths (a jaw is not elongated), or they run along 1.5 widths and the border
    of the view cuts them (a wide shaft close to the lens, entering at a corner; a wrist or
@@ -331,6 +333,15 @@ def _reaches_border(m, camera, validity, corridor):
     return bool(np.min(d) <= m.width_px + corridor)
 
 
+def _least_seen(width, o):
+    """The least length [ideal px] along which a band's edges must be seen together: the
+    least length (`ShaftOptions.region_min_length`), or where a band is narrow enough that
+    this is more than `_SHORT_WIDTHS` widths, that many widths (of the band, at least the
+    least width): a thin shaft entering the view is elongated over fewer pixels than a wide
+    one. The least width keeps the floor at half the least length (a sliver is no shaft)."""
+    return min(o.region_min_length, _SHORT_WIDTHS * max(width, o.region_wmin))
+
+
 def _elongated(m, seen, along, camera, validity, corridor):
     """Whether a band is elongated like a shaft (a jaw, a blob between two short straight
     boundaries is not): its edges, its band or its instrument-like material run along
@@ -395,7 +406,7 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
     along = max(stretch[1] - stretch[0], e.ext[1] - e.ext[0]) * e.step / s
     # elongated (`_elongated`), along a good part of the region's run, entering from the
     # border of the view or very long
-    if seen < o.region_min_length or seen < 0.3 * e.run_len / s:
+    if seen < _least_seen(m.width_px, o) or seen < 0.3 * e.run_len / s:
         return None, "edges seen too short"
     if not _elongated(m, seen, along, camera, validity, corridor):
         return None, "not elongated"
