@@ -43,7 +43,10 @@ frames whose colour tells the materials apart (`shaft.detector`).
    open jaws or a wrist, of an instrument whose shaft is in view). The score is
    the length of the band's run of region seen as a shaft [raw px] (of two readings of one
    instrument, the band of instrument-like material is the shaft, the band that takes in
-   its shadow too is not) times the least fraction of stations where an edge was found;
+   its shadow too is not), at most the length along which both edges are seen together
+   (a long run whose edges are found together along a short part of it, one of them
+   drifting onto a jaw or a shadow, claims no more), times the least fraction of stations
+   where an edge was found;
 4. *selection* (`select`): a shaft whose band overlaps a better one's, or that runs along a
    better one's axis (within `_COAXIAL_DEG`, its centre within half that one's width: a
    wrist, the far part of a shaft split by a highlight), is another reading of the same
@@ -419,7 +422,9 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
     if (seen < _ELONGATED_WIDTHS * m.width_px and ext > _DISTAL_RUN * seen
             and not _reaches_border(m, camera, validity, corridor)):
         return None, "a distal part"
-    return MaterialShaft(midline=m, score=e.shaft_len / s * min(f.frac for f in fits),
+    # the evidence is what both edges confirm: a long run of region whose edges are found
+    # together along a short part of it (one edge drifting onto a jaw, a shadow) claims no more
+    return MaterialShaft(midline=m, score=min(e.shaft_len / s, seen) * min(f.frac for f in fits),
                          polarity="dark" if e.y_in < e.y_side else "bright",
                          band=e, poly_run=band_polygon(e), poly_ext=band_polygon(e, e.ext)), ""
 
