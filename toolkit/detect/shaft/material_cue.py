@@ -24,7 +24,9 @@ frames whose colour tells the materials apart (`shaft.detector`).
    merging with white tissue, is a short band of region whose edges go on), each edge the
    best run of stations with gaps up to a width (a thread, a highlight); the midline is the
    plane bisector of the two (`shaft.axis`). It is a shaft when both edges are seen
-   together along at least the least length and a third of the region's run; when they,
+   together along at least the least length, or 1.5 widths where that is shorter (a thin
+   shaft: the length is relative to the width, `_least_seen`), and a third of the region's
+   run; when they,
    its band or its region's extension (the instrument's material, its wrist included) run
    along 2.5 widths (a jaw is not elongated), or they run along 1.5 widths and the border
    of the view cuts them (a wide shaft close to the lens, entering at a corner; a wrist or
@@ -41,7 +43,10 @@ frames whose colour tells the materials apart (`shaft.detector`).
    open jaws or a wrist, of an instrument whose shaft is in view). The score is
    the length of the band's run of region seen as a shaft [raw px] (of two readings of one
    instrument, the band of instrument-like material is the shaft, the band that takes in
-   its shadow too is not) times the least fraction of stations where an edge was found;
+   its shadow too is not), at most the length along which both edges are seen together
+   (a long run whose edges are found together along a short part of it, one of them
+   drifting onto a jaw or a shadow, claims no more), times the least fraction of stations
+   where an edge was found;
 4. *selection* (`select`): a shaft whose band overlaps a better one's, or that runs along a
    better one's axis (within `_COAXIAL_DEG`, its centre within half that one's width: a
    wrist, the far part of a shaft split by a highlight), is another reading of the same
@@ -333,6 +338,15 @@ def _reaches_border(m, camera, validity, corridor):
     return bool(np.min(d) <= m.width_px + corridor)
 
 
+def _least_seen(width, o):
+    """The least length [ideal px] along which a band's edges must be seen together: the
+    least length (`ShaftOptions.region_min_length`), or where a band is narrow enough that
+    this is more than `_SHORT_WIDTHS` widths, that many widths (of the band, at least the
+    least width): a thin shaft entering the view is elongated over fewer pixels than a wide
+    one. The least width keeps the floor at half the least length (a sliver is no shaft)."""
+    return min(o.region_min_length, _SHORT_WIDTHS * max(width, o.region_wmin))
+
+
 def _elongated(m, seen, along, camera, validity, corridor):
     """Whether a band is elongated like a shaft (a jaw, a blob between two short straight
     boundaries is not): its edges, its band or its instrument-like material run along
@@ -397,7 +411,7 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
     along = max(stretch[1] - stretch[0], e.ext[1] - e.ext[0]) * e.step / s
     # elongated (`_elongated`), along a good part of the region's run, entering from the
     # border of the view or very long
-    if seen < o.region_min_length or seen < 0.3 * e.run_len / s:
+    if seen < _least_seen(m.width_px, o) or seen < 0.3 * e.run_len / s:
         return None, "edges seen too short"
     if not _elongated(m, seen, along, camera, validity, corridor):
         return None, "not elongated"
@@ -410,7 +424,9 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
     if (seen < _ELONGATED_WIDTHS * m.width_px and ext > _DISTAL_RUN * seen
             and not _reaches_border(m, camera, validity, corridor)):
         return None, "a distal part"
-    return MaterialShaft(midline=m, score=e.shaft_len / s * min(f.frac for f in fits),
+    # the evidence is what both edges confirm: a long run of region whose edges are found
+    # together along a short part of it (one edge drifting onto a jaw, a shadow) claims no more
+    return MaterialShaft(midline=m, score=min(e.shaft_len / s, seen) * min(f.frac for f in fits),
                          polarity="dark" if e.y_in < e.y_side else "bright",
                          band=e, poly_run=band_polygon(e), poly_ext=band_polygon(e, e.ext)), ""
 
