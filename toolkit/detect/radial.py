@@ -191,8 +191,8 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         r_hi = 1.25 * seen[:, 1]
         r_lo = np.where(fit.ok, _clear_radius(phi, clear), _clear_radius(phi, JOINT_SIGMAS * blur))
         r_lo = np.minimum(np.maximum(r_lo, 0.5 * seen[:, 0]), 0.8 * r_hi)
-        located = joint_refit(lin, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi,
-                              rows=rows, search=_SEARCH_PX[-1])
+        located, _ = joint_refit(lin, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi,
+                                 rows=rows, search=_SEARCH_PX[-1])
         fit = _merged(fit, rows, located)
         try:
             v, reach = _vertex_of(fit, reach)
