@@ -150,9 +150,10 @@ def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, *, rows=None, se
     lines = np.array(lines, float)
     sign = np.asarray(sign, float)
     rows = np.arange(lines.shape[0]) if rows is None else np.asarray(rows, int)
-    fit = None
+    fit, sigma0 = None, sigma
     for _ in range(rounds):
         fit, sigma = _fit_round(img, camera, lines, v, sign, sigma, r_lo[rows], r_hi[rows], search, rows, fit_blur)
+        sigma = float(np.clip(sigma, 0.5 * sigma0, 2.0 * sigma0))  # a misfit (clutter) does not run away
         lines[rows] = np.where(fit.ok[:, None], fit.lines(), lines[rows])
     return fit, sigma
 
@@ -178,7 +179,8 @@ def _fit_round(img, camera, lines, v, sign, sigma, r_lo, r_hi, search, rows, fit
     e = np.stack([-u[:, 1], u[:, 0]], -1)  # towards larger angles (image y down: clockwise)
     s, valid = _stations(foot, u, r_lo, r_hi, v)
     x = foot[:, None, :] + s[..., None] * u[:, None, :]  # (E, S, 2)
-    scale = blur_scale(camera, x[..., 0], x[..., 1], e[:, 0, None], e[:, 1, None])  # (E, S)
+    # (E, S); bounded where a lens model is far outside what it holds (its map folds back)
+    scale = np.clip(blur_scale(camera, x[..., 0], x[..., 1], e[:, 0, None], e[:, 1, None]), 0.5, 2.0)
     sig = sigma * scale  # the blur [working px] at each station, across its edge
     half = search + 3.0 * float(np.max(np.where(valid, sig, 0.0))) * (1.1 if fit_blur else 1.0)
     nt = int(np.ceil(half / SAMPLE_STEP_PX))
