@@ -231,19 +231,21 @@ def _blur_step(A, N, r, rhs, col, use):
     parameters projected out (its normal equations N (E, S, P, P) and right-hand side rhs
     (E, S, P), its model's columns A (E, S, T, P), residuals r (E, S, T), the blur's column
     col (E, S, T)), summed over the stations `use` (E, S): the Schur complement of the joint
-    normal equations. Returns the step and the stations' right-hand sides less its share.
-    Stations whose residuals are far above the typical (clutter) are left out."""
+    normal equations. Returns the step d and the stations' own steps with it (E, S, P),
+    N^-1 (rhs - A^T col d). Stations whose residuals are far above the typical (clutter)
+    are left out of d."""
     b = (np.swapaxes(A, -1, -2) @ col[..., None])[..., 0]  # (E, S, P)
-    Nb = np.linalg.solve(N, b[..., None])[..., 0]
+    X = np.linalg.solve(N, np.stack([rhs, b], -1))  # one factorisation for both
+    Nrhs, Nb = X[..., 0], X[..., 1]
     rr = np.sqrt(np.mean(r * r, -1))
     if use.any():
         use = use & (rr <= _CLUTTER * np.median(rr[use]))
     m = np.sum(np.where(use, np.sum(col * col, -1) - np.sum(b * Nb, -1), 0.0))
     g = np.sum(np.where(use, np.sum(col * r, -1) - np.sum(Nb * rhs, -1), 0.0))
     if use.sum() < _MIN_BLUR_STATIONS or not m > 0:
-        return 0.0, rhs
+        return 0.0, Nrhs
     d = g / m
-    return d, rhs - b * d
+    return d, Nrhs - Nb * d
 
 
 def _solve_stations(y, tau, fixed, near, sgn, blur, search, fit_blur):
@@ -295,11 +297,12 @@ def _solve_stations(y, tau, fixed, near, sgn, blur, search, fit_blur):
         N = N + np.eye(P) * ridge[..., None, :]
         if it == 0:  # the first step finds the levels and the step only
             N = N + np.eye(P) * (np.arange(P) >= 3) * 1e12
-        elif fit_blur is not None:
-            d, rhs = _blur_step(A, N, r, rhs, c[..., None] * dsig, fit_blur)
-            d = float(np.clip(d, -_BLUR_STEP * sigma, _BLUR_STEP * sigma))
-            sigma += d
-        step = np.linalg.solve(N, rhs[..., None])[..., 0]
+        if it > 0 and fit_blur is not None:
+            # the stations take their full joint step; the blur's is bounded (a far start)
+            d, step = _blur_step(A, N, r, rhs, c[..., None] * dsig, fit_blur)
+            sigma += float(np.clip(d, -_BLUR_STEP * sigma, _BLUR_STEP * sigma))
+        else:
+            step = np.linalg.solve(N, rhs[..., None])[..., 0]
         step[..., 3:] = np.clip(step[..., 3:], -0.5, 0.5)
         p = p + step
         p[..., 3] = np.clip(p[..., 3], -search - 0.5, search + 0.5)
