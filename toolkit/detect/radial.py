@@ -73,8 +73,8 @@ __all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "JO
 #: 7-13 of that dartboard's 26 directions as inliers, and their reach (far ends' 90th
 #: percentile) fell from 348 to 297 px at 4.1; the angular profile's bands, placed by the
 #: reach, moved inwards and chained the numbers' edges into 9 more directions, which pulled
-#: the vertex 3 px off. The reach over every refitted edge (356-360 px) kept all 20 at 4.0,
-#: 4.1 and 4.3 on that frame; not yet adopted, as it moves every frame's bands.
+#: the vertex 3 px off. The reach is now taken over every refitted edge (`_vertex_of`:
+#: 356-360 px there), and that frame keeps all 20 at 4.0, 4.1 and 4.3.
 CLEAR_SIGMAS = 4.0
 CLEAR_PX = 3.0  # and never closer than this [px]
 #: Located jointly with their neighbours' blurred edges (`radial_joint`), the edges that are
@@ -298,7 +298,12 @@ def _reach(lines, v):
 
 
 def _vertex_of(fit, reach):
-    """The vertex of refitted edges (`EdgeFit`) and their reach, from their own sigmas."""
+    """The vertex of refitted edges (`EdgeFit`) and their reach, from their own sigmas.
+
+    The reach is that of every refitted edge, not only the intersection's inliers: with a
+    dartboard's raised wires the robust intersection keeps a third of the edges or fewer,
+    which ones changing with the clearance, and the reach of those few, which places the
+    next angular bands, jumped by 15 % (`CLEAR_SIGMAS`)."""
     ok = np.flatnonzero(fit.ok)
     if ok.size < 3:
         raise EstimationError("fewer than three edges were refitted")
@@ -306,7 +311,7 @@ def _vertex_of(fit, reach):
     mid = 0.5 * (fit.p1[ok] + fit.p2[ok])
     vf = intersect_lines(lines, angle_sigma=np.maximum(fit.angle_sigma[ok], 1e-6),
                          offset_sigma=np.maximum(fit.take(ok).offset_sigma_at(mid), 0.02), robust=True)
-    return vf.vertex, max(_reach(lines[vf.inliers], vf.vertex), 0.5 * reach)
+    return vf.vertex, max(_reach(lines, vf.vertex), 0.5 * reach)
 
 
 def _angular_profile(img, camera, v, r_a, r_b, n_phi):
