@@ -15,8 +15,9 @@ from tests.conftest import data_dir
 CHI2_3SIGMA = -2.0 * np.log(1.0 - 0.9973)
 
 
-# boundaries used, of 20: measured 19, 18 and 18 (docs/method.md), the floors one below, as
-# the estimate of k1 moves with the edges and with it the labelling's margin on the rest
+# boundaries used, of 20: measured 19, 19 and 17 (docs/method.md; 19, 18 and 18 before the
+# joint location fitted the blur), the floors one or two below, as the estimate of k1 moves
+# with the edges and with it the labelling's margin on the rest
 @pytest.mark.parametrize("name,spokes,tilt", [("dartboard_side_left", 18, (45, 65)),
                                               ("dartboard_side_right", 17, (45, 65)),
                                               ("dartboard_far", 17, (5, 25))])

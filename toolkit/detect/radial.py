@@ -17,7 +17,7 @@ the vertex, in working (undistorted) pixels:
    a star's wedges merge into grey, which is no edge) out to where it ends; the vertex is then
    intersected again from the refitted edges, and steps 2-3 repeated about it; an edge
    that is nowhere clear of its neighbours (a dense star's far side at a steep tilt) is
-   then located jointly with their blurred edges (`radial_joint`);
+   then located jointly with their blurred edges (`radial_joint`, the blur fitted with them);
 4. *circles*: along rays between the edges, the edges across them (`radial_circles`): the
    points of closed curves about the vertex (the images of circles centred on it: a star's
    outline, a dartboard's rings), returned in raw pixels for the orientation to group by
@@ -68,7 +68,13 @@ __all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "JO
 #: their sigmas. 3.9 sds of the blur as once measured (clipped, 2-9 % too large with noise);
 #: 4.0 of the unbiased one (seed 7: 3.9 and 4.1 both held the normals' errors within their
 #: bounds; 4.5 with JOINT_SIGMAS 3 doubled a 128-wedge star's error; at 4.1 a rendered
-#: dartboard with wires, numbers and darts kept 8 of its 20 boundaries, at 4.0 all 20).
+#: dartboard with wires, numbers and darts kept 8 of its 20 boundaries, at 4.0 all 20). That
+#: cliff is not the clearance's own: the refitted edges' robust vertex (`_vertex_of`) keeps
+#: 7-13 of that dartboard's 26 directions as inliers, and their reach (far ends' 90th
+#: percentile) fell from 348 to 297 px at 4.1; the angular profile's bands, placed by the
+#: reach, moved inwards and chained the numbers' edges into 9 more directions, which pulled
+#: the vertex 3 px off. The reach is now taken over every refitted edge (`_vertex_of`:
+#: 356-360 px there), and that frame keeps all 20 at 4.0, 4.1 and 4.3.
 CLEAR_SIGMAS = 4.0
 CLEAR_PX = 3.0  # and never closer than this [px]
 #: Located jointly with their neighbours' blurred edges (`radial_joint`), the edges that are
@@ -191,8 +197,8 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         r_hi = 1.25 * seen[:, 1]
         r_lo = np.where(fit.ok, _clear_radius(phi, clear), _clear_radius(phi, JOINT_SIGMAS * blur))
         r_lo = np.minimum(np.maximum(r_lo, 0.5 * seen[:, 0]), 0.8 * r_hi)
-        located = joint_refit(lin, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi,
-                              rows=rows, search=_SEARCH_PX[-1])
+        located, _ = joint_refit(lin, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi,
+                                 rows=rows, search=_SEARCH_PX[-1])
         fit = _merged(fit, rows, located)
         try:
             v, reach = _vertex_of(fit, reach)
@@ -292,7 +298,12 @@ def _reach(lines, v):
 
 
 def _vertex_of(fit, reach):
-    """The vertex of refitted edges (`EdgeFit`) and their reach, from their own sigmas."""
+    """The vertex of refitted edges (`EdgeFit`) and their reach, from their own sigmas.
+
+    The reach is that of every refitted edge, not only the intersection's inliers: with a
+    dartboard's raised wires the robust intersection keeps a third of the edges or fewer,
+    which ones changing with the clearance, and the reach of those few, which places the
+    next angular bands, jumped by 15 % (`CLEAR_SIGMAS`)."""
     ok = np.flatnonzero(fit.ok)
     if ok.size < 3:
         raise EstimationError("fewer than three edges were refitted")
@@ -300,7 +311,7 @@ def _vertex_of(fit, reach):
     mid = 0.5 * (fit.p1[ok] + fit.p2[ok])
     vf = intersect_lines(lines, angle_sigma=np.maximum(fit.angle_sigma[ok], 1e-6),
                          offset_sigma=np.maximum(fit.take(ok).offset_sigma_at(mid), 0.02), robust=True)
-    return vf.vertex, max(_reach(lines[vf.inliers], vf.vertex), 0.5 * reach)
+    return vf.vertex, max(_reach(lines, vf.vertex), 0.5 * reach)
 
 
 def _angular_profile(img, camera, v, r_a, r_b, n_phi):
@@ -459,10 +470,11 @@ def _clear_radius(phi, clear):
 
 
 def _edge_blur(img, camera, fit, clear, lines=24):
-    """The sd [px] of the edges' gradient across them (blur and pixel together): the second
-    moment of the linearised profile's derivative within 4 px of the edge, pooled over the
-    stations of each of the `lines` longest refitted edges, where their neighbours lie at
-    least twice `clear` away (their own profiles clean), the median over those edges;
+    """The sd [px] of the edges' gradient across them (blur and pixel together): the scale of
+    the clearances, and where the joint location's own fit of the blur starts (`radial_joint`);
+    the second moment of the linearised profile's derivative within 4 px of the edge, pooled
+    over the stations of each of the `lines` longest refitted edges, where their neighbours
+    lie at least twice `clear` away (their own profiles clean), the median over those edges;
     `clear` / CLEAR_SIGMAS when there are none to measure.
 
     The derivative is summed as it is, noise and all: the noise's share of the moments
