@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import importlib
-from importlib.metadata import PackageNotFoundError, version
 
 import click
 
@@ -31,14 +30,25 @@ class LazyGroup(Group):
         return self.commands.get(name)
 
 
-try:
-    __version__ = version("pencilcal")
-except PackageNotFoundError:  # running from a source tree without installing
-    __version__ = "0+unknown"
+def _print_version(ctx, _param, value):
+    """--version: the installed version ("0+unknown" from a source tree without installing),
+    looked up only when asked for: importing importlib.metadata cost every command ~15 ms
+    of start-up."""
+    if not value or ctx.resilient_parsing:
+        return
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        v = version("pencilcal")
+    except PackageNotFoundError:
+        v = "0+unknown"
+    click.echo(f"pencilcal, version {v}")
+    ctx.exit()
 
 
 @click.group(cls=LazyGroup, context_settings=CONTEXT_SETTINGS)
-@click.version_option(__version__, prog_name="pencilcal")
+@click.option("--version", is_flag=True, expose_value=False, is_eager=True, callback=_print_version,
+              help="Show the version and exit.")
 @click.option("--debug", is_flag=True, help="Show the traceback of an internal error instead of one line.")
 def cli(debug):
     """pencilcal: orientation of a pencil of lines from its image angles.

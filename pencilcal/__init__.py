@@ -43,12 +43,6 @@ True
 from __future__ import annotations
 
 import importlib
-from importlib.metadata import PackageNotFoundError, version
-
-try:
-    __version__ = version("pencilcal")
-except PackageNotFoundError:  # running from a source tree without installing
-    __version__ = "0+unknown"
 
 # Where each public name lives. They are imported on first use (PEP 562), so that
 # `import pencilcal.toolkit.geometry` (which imports this package first) stays light and
@@ -86,7 +80,22 @@ __all__ = [
 ]
 
 
+def _version():
+    """The installed distribution's version ("0+unknown" from a source tree without
+    installing); looked up when first asked for: importing importlib.metadata costs a
+    live command's start-up ~15 ms."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("pencilcal")
+    except PackageNotFoundError:
+        return "0+unknown"
+
+
 def __getattr__(name):
+    if name == "__version__":
+        globals()[name] = _version()
+        return globals()[name]
     if name in _NAMES:
         value = getattr(importlib.import_module(_NAMES[name]), name)
         globals()[name] = value

@@ -21,8 +21,9 @@ than the last detection, less one) and calls `BarTracker.lost`; the next call th
 the bars in the region around their prediction (`region_of`, the line detector on that part
 of the frame only), and if that fails too, in the whole frame. The first frame, a frame of
 another size and every `REDETECT_FRAMES`-th frame (a spoke that came into view; every
-`REDETECT_SHORT_FRAMES`-th while fewer bars are followed than a detection once kept) are
-detected too: the periodic one in the region around the prediction.
+`REDETECT_SHORT_FRAMES`-th while fewer bars are followed than the latest detection kept: a
+spoke the tracker lost, not one that left the view) are detected too: the periodic one in
+the region around the prediction.
 
 Example
 -------
@@ -85,7 +86,7 @@ class BarTracker:
         self.tracked = 0
         self.regional = 0
         self.full_used = None
-        self._most = 0  # the most bars a detection's caller kept
+        self._most = 0  # the bars the latest detection's caller kept
         self.motion = EdgeMotion()
         self.last_mode = None
         self._polarity = None
@@ -150,7 +151,7 @@ class BarTracker:
             if mask is not None:
                 edges = edges[np.asarray(mask, bool)]
             self.full_used = used
-            self._most = max(self._most, len(edges))
+            self._most = len(edges)
         self.motion.update(edges)
 
     def lost(self):

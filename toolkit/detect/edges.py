@@ -350,8 +350,8 @@ def masked_median(a, mask):
         return np.full(M, np.nan)
     b = np.sort(np.where(mask, a, np.inf), axis=-1)
     r = np.arange(M)
-    lo = np.clip((cnt - 1) // 2, 0, S - 1)
-    hi = np.clip(cnt // 2, 0, S - 1)
+    lo = np.maximum((cnt - 1) // 2, 0)  # cnt <= S: no upper clip needed
+    hi = np.minimum(cnt // 2, S - 1)
     with np.errstate(invalid="ignore"):
         med = 0.5 * (b[r, lo] + b[r, hi])
     return np.where(cnt > 0, med, np.nan)
@@ -397,7 +397,7 @@ def best_run(s, mask, w, max_gap):
     prev = np.maximum.accumulate(idx, axis=1)  # last inlier at or before each station
     prev_before = np.concatenate([np.full((M, 1), -1), prev[:, :-1]], 1)
     has_prev = prev_before >= 0
-    s_prev = np.take_along_axis(s, np.maximum(prev_before, 0), 1)
+    s_prev = s[np.arange(M)[:, None], np.maximum(prev_before, 0)]
     start = mask & (~has_prev | (s - s_prev > max_gap))
     run = np.cumsum(start, 1) * mask  # 1-based run id of each inlier, 0 elsewhere
     flat = (np.arange(M)[:, None] * (S + 1) + run).ravel()

@@ -71,8 +71,13 @@ def to_raw_points(camera, pts):
 
 
 def _sparse_columns(S, every):
-    """Every `every`-th of S columns, and the last."""
-    return np.unique(np.r_[np.arange(0, S, every), S - 1])
+    """Every `every`-th of S columns, and the last (ascending, each once).
+
+    >>> _sparse_columns(10, 4).tolist(), _sparse_columns(9, 4).tolist(), _sparse_columns(1, 4).tolist()
+    ([0, 4, 8, 9], [0, 4, 8], [0])
+    """
+    cols = np.arange(0, S, every)
+    return cols if cols.size and cols[-1] == S - 1 else np.append(cols, S - 1)
 
 
 def _interpolate_columns(v, cols, S):
@@ -135,8 +140,9 @@ def raw_frame(camera, cx, cy, nx, ny, every=8):
     jx = J[..., 0, 0] * nx + J[..., 0, 1] * ny
     jy = J[..., 1, 0] * nx + J[..., 1, 1] * ny
     if cols.size < S:
-        jx = _interpolate_columns(jx, cols, S)
-        jy = _interpolate_columns(jy, cols, S)
+        # both components at once (the same columns and weights)
+        j = _interpolate_columns(np.stack([jx, jy], -1), cols, S)
+        jx, jy = j[..., 0], j[..., 1]
     return raw[..., 0], raw[..., 1], jx, jy
 
 

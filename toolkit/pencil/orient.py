@@ -124,11 +124,13 @@ def metric_depth(R_cam_from_target, vertex, spoke_angles, inner, outer, radius):
 def _segment_geometry(camera, segments, endpoint_sigma_px):
     """Ideal-pixel segments, their length, and the local scale raw -> ideal."""
     seg = np.asarray(segments, float)
-    ideal = camera.undistort_pixels(seg.reshape(-1, 2)).reshape(-1, 4)
     # the local linear scale of the undistortion at each segment centre: end point noise
-    # in raw pixels becomes noise in ideal pixels scaled by it
+    # in raw pixels becomes noise in ideal pixels scaled by it (the ends and the centres
+    # undistorted together: one inversion of the lens model instead of two)
+    M = seg.shape[0]
     centre = 0.5 * (seg[:, :2] + seg[:, 2:])
-    xy = camera.normalized_from_pixels(centre)
+    xy_all, ideal_all = camera.normalized_and_ideal(np.concatenate([seg.reshape(-1, 2), centre]))
+    ideal, xy = ideal_all[:2 * M].reshape(-1, 4), xy_all[2 * M:]
     K2 = np.asarray(camera.K, float)[:2, :2]
     with np.errstate(invalid="ignore"):  # NaN beyond the lens model's reach: dropped by the caller
         Jpn = camera.jacobian_pixels_from_normalized(xy)  # d raw / d normalised

@@ -109,18 +109,25 @@ def _brightness_stack(frames):
     import cv2
 
     hi = lo = hic = None
+    grey = True  # grey frames only: their colour maximum is hi's three channels, made once
     for f in frames:
         if f.ndim == 3 and f.shape[2] >= 3:
             c = np.ascontiguousarray(f[..., :3])
             b0, b1, b2 = cv2.split(c)
             b = cv2.max(cv2.max(b0, b1), b2)
+            if grey and hi is not None:
+                hic = cv2.merge([hi, hi, hi])
+            grey = False
         else:
             b = np.ascontiguousarray(f if f.ndim == 2 else f[..., 0])
-            c = cv2.merge([b, b, b])
+            c = None if grey else cv2.merge([b, b, b])
         if hi is None:
-            hi, lo, hic = b.copy(), b.copy(), c.copy()
+            hi, lo, hic = b.copy(), b.copy(), (None if c is None else c.copy())
         else:
-            hi, lo, hic = cv2.max(hi, b), cv2.min(lo, b), cv2.max(hic, c)
+            hi, lo = cv2.max(hi, b), cv2.min(lo, b)
+            hic = hic if c is None else cv2.max(hic, c)
+    if grey:
+        hic = cv2.merge([hi, hi, hi])
     return hi, lo, hic
 
 

@@ -390,6 +390,11 @@ class ValidRegion:
 
     __hash__ = None  # a raster and the info make it mutable in effect
 
+    def __getstate__(self):
+        # what it derives (the raster's distance field, the interiors) is made again where
+        # it is needed, not sent to worker processes
+        return {**self.__dict__, "_cache": {}}
+
     # ------------------------------------------------------------------ constructors
 
     @classmethod
@@ -542,14 +547,21 @@ class ValidRegion:
         """
         import cv2
 
+        # made once per margin and size (read-only): a video's every frame asks for it, and
+        # a 1080p one costs ~25 ms
+        key = ("interior", float(margin_px), self._check_shape(shape))
+        if key in self._cache:
+            return self._cache[key]
         m = self.mask(shape)
-        if margin_px <= 0 or m.all():
-            return m
-        pad = np.pad(m, 1, constant_values=True).astype(np.uint8)
-        d = cv2.distanceTransform(pad, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
-        # d: from a valid pixel's centre to the nearest invalid one's; the boundary lies
-        # about half a pixel short of it
-        return d >= margin_px + 0.5
+        if margin_px > 0 and not m.all():
+            pad = np.pad(m, 1, constant_values=True).astype(np.uint8)
+            d = cv2.distanceTransform(pad, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+            # d: from a valid pixel's centre to the nearest invalid one's; the boundary lies
+            # about half a pixel short of it
+            m = d >= margin_px + 0.5
+        m.flags.writeable = False
+        self._cache[key] = m
+        return m
 
     def outline(self, shape=None):
         """The region's outer boundary within the image: a closed polygon (P + 1, 2) [px]
