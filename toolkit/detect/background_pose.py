@@ -90,10 +90,11 @@ def _rodrigues(v):
     return cv2.Rodrigues(np.asarray(v, float).reshape(3, 1))[0]
 
 
-def _log(R):
-    import cv2
-
-    return cv2.Rodrigues(np.asarray(R, float))[0].ravel()
+def _small_log(D):
+    """The rotation vector of a rotation D (3, 3) near the identity, to first order: half
+    its antisymmetric part (cv2.Rodrigues returns 0 below 1e-5 rad, which central
+    differences need)."""
+    return 0.5 * np.array([D[2, 1] - D[1, 2], D[0, 2] - D[2, 0], D[1, 0] - D[0, 1]])
 
 
 def rotation_from_homography(H, cov_H, K):
@@ -116,7 +117,7 @@ def rotation_from_homography(H, cov_H, K):
         s = 1e-7 if k >= 6 else 1e-4
         e = np.zeros(8)
         e[k] = s
-        J[:, k] = (_log(rot(h0 + e) @ R0.T) - _log(rot(h0 - e) @ R0.T)) / (2 * s)
+        J[:, k] = (_small_log(rot(h0 + e) @ R0.T) - _small_log(rot(h0 - e) @ R0.T)) / (2 * s)
     return R0, J @ np.asarray(cov_H, float) @ J.T
 
 
@@ -135,7 +136,7 @@ def pose_inverse_cov(rvec, tvec, cov):
         e = np.zeros(6)
         e[k] = 1e-6
         (Rp, tp), (Rm, tm) = inv(x0 + e), inv(x0 - e)
-        J[:3, k] = (_log(Rp @ R0.T) - _log(Rm @ R0.T)) / 2e-6
+        J[:3, k] = (_small_log(Rp @ R0.T) - _small_log(Rm @ R0.T)) / 2e-6
         J[3:, k] = (tp - tm) / 2e-6
     out = J @ np.asarray(cov, float) @ J.T
     return R0, t0, 0.5 * (out + out.T)
@@ -230,16 +231,55 @@ def background_poses(matches, K, ref, homographies=None):
             if i == ref or m is None or h is None:
                 out.append(identity if i == ref else None)
                 continue
-                out.append(None)
-                continue
             R, c = rotation_from_homography(h[0], h[1], K)
             cov = np.zeros((6, 6))
             cov[:3, :3] = c
             out.append(FramePose(R, np.zeros(3), cov, len(m[0]), float("nan")))
         return "rotation", None, out
-    R, t, keep, _ = rel[anchor]
-    src, dst, idx = (np.asarray(a)[keep] for a in matches[anchor])
-    world = _add_points({}, src, dst, idx, K, R, t)
+    best = None
+    for R, t in _anchor_candidates(rel[anchor], matches[anchor], K):
+        got = _grow(matches, anchor, R, t, K)
+        key = (len(got), -sum(g[4] ** 2 * g[3] for g in got.values()) / max(sum(g[3] for g in got.values()), 1))
+        if best is None or key > best[0]:
+            best = (key, got)
+    got = best[1]
+    out = []
+    for i in range(len(matches)):
+        if i not in got:
+            out.append(identity if i == ref else None)
+            continue
+        Rr, tr, C = pose_inverse_cov(*got[i][:3])
+        out.append(FramePose(Rr, tr, C, got[i][3], got[i][4]))
+    return "map", anchor, out
+
+
+def _anchor_candidates(rel, match, K):
+    """[(R, t)] the anchor's relative poses to try (X_anchor = R X_ref + t, |t| = 1): the
+    essential matrix's, and the decompositions of the homography of its inliers (a flat
+    background leaves the essential matrix two-fold ambiguous; the map that poses the
+    other frames best decides)."""
+    import cv2
+
+    R, t, keep, _ = rel
+    out = [(R, t)]
+    src, dst = (np.asarray(a, float)[keep] for a in match[:2])
+    H, _ = cv2.findHomography(dst, src, cv2.RANSAC, RANSAC_PX)
+    if H is None:
+        return out
+    n, Rs, ts, _ = cv2.decomposeHomographyMat(H, K)
+    for Rc, tc in zip(Rs, ts):
+        tc = tc.ravel()
+        if np.linalg.norm(tc) > 1e-9:
+            out.append((Rc, tc / np.linalg.norm(tc)))
+    return out
+
+
+def _grow(matches, anchor, R, t, K):
+    """{frame index: PnP pose} of every frame the map reaches, from the anchor's relative
+    pose (R, t): the map triangulated from it, the frames posed, the map grown from their
+    matches, again (`MAP_ROUNDS`)."""
+    src, dst, idx = (np.asarray(a) for a in matches[anchor])
+    world = _add_points({}, src.astype(float), dst.astype(float), idx, K, R, t)
     got = {}
     for _ in range(MAP_ROUNDS):  # pose what the map reaches, grow the map from the new poses, again
         new = {}
@@ -258,14 +298,7 @@ def background_poses(matches, K, ref, homographies=None):
             m = matches[i]
             world = _add_points(world, np.asarray(m[0], float), np.asarray(m[1], float), np.asarray(m[2]), K,
                                 _rodrigues(pose[0]), pose[1])
-    out = []
-    for i in range(len(matches)):
-        if i not in got:
-            out.append(identity if i == ref else None)
-            continue
-        Rr, tr, C = pose_inverse_cov(*got[i][:3])
-        out.append(FramePose(Rr, tr, C, got[i][3], got[i][4]))
-    return "map", anchor, out
+    return got
 
 
 def _add_points(world, src, dst, idx, K, R, t):

@@ -1,0 +1,165 @@
+"""The camera's 3-D motion measured on the background and the 3-D fulcrum of axes carried
+into the reference camera (`detect.background_pose`, `pencil.moving_fulcrum`,
+`fulcrum --stabilize --shaft-diameter`), on rendered pivots with exact truth.
+
+simulate's pivot scenario (an 8 mm shaft pivoting about a port 60 mm above a printed
+sheet, 960x540, colour, noise 3, blur 1.5 px, JPEG 80) whose camera moves in every frame:
+turned by a random walk of 0.6 deg a frame about axes across its view and moved along its
+view axis by `DOLLY_MM` (-8 .. +8 mm over the sequence, as an endoscope pushed in and
+pulled back). A homography cannot undo that (the sheet's scale changes, the fulcrum 60 mm
+off it moves by parallax); the poses measured on the rendered frames carry each frame's
+3-D axis into the reference camera. Each frame's two silhouette edges are the exact ones
+with Gaussian noise of their stated sigmas (`EDGE_ANGLE_SD_DEG`, `EDGE_OFFSET_SD_PX`), drawn
+`DRAWS` times (the poses measured once); the 3-D fulcrum is compared with the reference
+frame's exact one.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pencilcal.toolkit.detect.background_motion import background_motion_3d, stabilize_frames
+from pencilcal.toolkit.geometry.frames import rotation_about_axis, rotation_angle
+from pencilcal.toolkit.pencil.cylinder import project_cylinder
+from pencilcal.toolkit.pencil.fulcrum import fulcrum_point
+from pencilcal.toolkit.synth.scenarios import make_scenario
+
+N_FRAMES = 14
+MOVE_DEG = 0.6
+DOLLY_MM = 8.0
+EDGE_ANGLE_SD_DEG, EDGE_OFFSET_SD_PX = 0.1, 0.3
+DRAWS = 200
+#: chi2 with 3 dof at 68.27 % (one sigma's probability).
+CHI2_3_68 = 3.5267
+
+
+def _moving(sc, seed):
+    """The scenario's frames re-posed: the camera turned (a random walk of MOVE_DEG a
+    frame) and moved along its view axis (a cosine from -DOLLY_MM to +DOLLY_MM), truth
+    recomputed."""
+    rng = np.random.default_rng(seed)
+    Q = np.eye(3)
+    n = len(sc.frames)
+    for i, fr in enumerate(sc.frames):
+        a = rng.uniform(0, 2 * np.pi)
+        Q = rotation_about_axis(np.array([np.cos(a), np.sin(a), 0.0]), math.radians(MOVE_DEG)) @ Q
+        tau = np.array([0.0, 0.0, -DOLLY_MM * math.cos(math.pi * i / (n - 1))])
+        R, t = fr["R_cam_from_target"], fr["t_cam_from_target"]
+        F, d = fr["fulcrum_cam"], fr["shaft_direction_cam"]
+        fr.update({"R_cam_from_target": Q @ R, "t_cam_from_target": Q @ t + tau, "fulcrum_cam": Q @ F + tau,
+                   "shaft_direction_cam": Q @ d, "vertex_px": sc.camera.project(Q @ F + tau)})
+    return sc
+
+
+@pytest.fixture(scope="module")
+def measured():
+    """(scenario, reference index, motions with poses, model, anchor) of the rendered
+    sequence."""
+    import cv2
+
+    sc = make_scenario("pivot", N_FRAMES, seed=5, size=(960, 540), port_view=100.0, shaft_radius=4.0, tip=100.0,
+                       height=60.0, angle_range_deg=(55.0, 125.0))
+    sc = _moving(sc, 11)
+    imgs = []
+    for i in range(N_FRAMES):
+        img = sc.render(i, color=True, noise=3.0, blur_px=1.5, lighting=0.3)
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 80])
+        imgs.append(cv2.imdecode(buf, cv2.IMREAD_COLOR))
+    frames = _frames(sc, np.random.default_rng(0))
+    ref, motions, model, anchor = background_motion_3d(imgs, [f["shafts"] for f in frames], sc.camera)
+    return sc, ref, motions, model, anchor
+
+
+def _frames(sc, rng):
+    """lines.json frames of each frame's exact silhouette edges (the axis 40-100 mm from the
+    port) with their stated noise drawn, raw px, with edge_cov."""
+    K = np.asarray(sc.camera.K, float)
+    cov = np.diag([math.radians(EDGE_ANGLE_SD_DEG) ** 2, EDGE_OFFSET_SD_PX ** 2])
+    out = []
+    for i, fr in enumerate(sc.frames):
+        F, d = np.asarray(fr["fulcrum_cam"], float), np.asarray(fr["shaft_direction_cam"], float)
+        lines = project_cylinder(K, F, d, 4.0).lines
+        ends = [K @ (F + s * d) for s in (40.0, 100.0)]
+        ends = [e[:2] / e[2] for e in ends]
+        edges = []
+        for ln in lines:
+            p = np.array([e - (ln[:2] @ e + ln[2]) * ln[:2] for e in ends])
+            u = (p[1] - p[0]) / np.hypot(*(p[1] - p[0]))
+            n = np.array([-u[1], u[0]])
+            c = p.mean(0) + rng.normal(0, EDGE_OFFSET_SD_PX) * n
+            a = math.atan2(u[1], u[0]) + math.radians(rng.normal(0, EDGE_ANGLE_SD_DEG))
+            v = np.array([math.cos(a), math.sin(a)]) * np.hypot(*(p[1] - p[0])) / 2
+            edges.append(sc.camera.distort_pixels(np.array([c - v, c + v])).ravel())
+        mid = 0.5 * (edges[0] + edges[1])
+        out.append({"image": f"{i:02d}.png", "ok": True, "segments": np.zeros((0, 4)), "shafts": [
+            {"midline": mid.tolist(), "width_px": 50.0, "angle_sigma_deg": EDGE_ANGLE_SD_DEG,
+             "offset_sigma_px": EDGE_OFFSET_SD_PX, "edges": [e.tolist() for e in edges],
+             "edge_cov": [cov.tolist(), cov.tolist()]}]})
+    return out
+
+
+def _exact_poses(sc, ref, unit):
+    """Per frame the exact camera_pose record in the reference's camera, translations in a
+    map unit of `unit` mm, zero covariance."""
+    R0, t0 = sc.frames[ref]["R_cam_from_target"], sc.frames[ref]["t_cam_from_target"]
+    out = []
+    for fr in sc.frames:
+        R_rf = R0 @ fr["R_cam_from_target"].T
+        out.append({"R_ref_from_frame": R_rf, "t_ref_from_frame": (t0 - R_rf @ fr["t_cam_from_target"]) / unit,
+                    "cov": np.zeros((6, 6))})
+    return out
+
+
+def test_the_background_poses_of_a_flat_sheet(measured):
+    """Reached on the printed sheet (flat, seen from 200 mm, the camera moved 16 mm along its
+    view): every frame posed by PnP on 250-440 map points at 0.2-0.5 px, but the map is the
+    flat scene's wrong twin: rotations 0.4-1.9 deg off the exact ones and translations
+    0.5-0.6 of the exact ones' size. A flat background leaves the motion two-fold ambiguous
+    (the essential matrix degenerates, the homography's decompositions are two), and the
+    frames' residuals do not tell the twins apart at 4 % of the depth: the limit the
+    method documents (docs/method.md). Asserted: the frames posed, their residuals."""
+    sc, ref, motions, model, anchor = measured
+    assert model == "map" and all(m.pose is not None for m in motions)
+    R0, t0 = sc.frames[ref]["R_cam_from_target"], sc.frames[ref]["t_cam_from_target"]
+    rot = [math.degrees(rotation_angle(R0 @ fr["R_cam_from_target"].T, m.pose.R)) for fr, m in zip(sc.frames, motions)]
+    print(f"anchor {anchor}, rotation errors {np.round(rot, 2)} deg, PnP inliers "
+          f"{[m.pose.inliers for m in motions]}, rms {[round(m.pose.rms_px, 2) for m in motions]} px")
+    assert all(m.pose.rms_px < 1.0 for m in motions) and min(m.pose.inliers for m in motions if m.pose.inliers) >= 100
+
+
+@pytest.fixture(scope="module")
+def sequence():
+    """(scenario, reference index) of the moving camera's sequence, geometry only."""
+    sc = make_scenario("pivot", N_FRAMES, seed=5, size=(960, 540), port_view=100.0, shaft_radius=4.0, tip=100.0,
+                       height=60.0, angle_range_deg=(55.0, 125.0))
+    return _moving(sc, 11), N_FRAMES // 2
+
+
+def test_the_carried_axes_give_the_reference_fulcrum(sequence):
+    """With the exact poses (translations in a map unit of 7 mm, which the fit does not
+    know), over 200 draws of the edge noise: ..."""
+    sc, ref = sequence
+    truth = np.asarray(sc.frames[ref]["fulcrum_cam"], float)
+    poses = _exact_poses(sc, ref, 7.0)
+    rng = np.random.default_rng(1)
+    c_moving, e_moving, c_raw, e_raw, scales = [], [], [], [], []
+    for _ in range(DRAWS):
+        frames = _frames(sc, rng)
+        carried = [dict(fr, camera_pose=p, shafts=[dict(s, edges_frame=s["edges"], edge_cov_frame=s["edge_cov"])
+                                                   for s in fr["shafts"]]) for fr, p in zip(frames, poses)]
+        for fr, c, e in ((carried, c_moving, e_moving), (frames, c_raw, e_raw)):
+            p = fulcrum_point(sc.camera, fr, 8.0)
+            x = np.asarray(p.fit.point, float) - truth
+            c.append(float(x @ np.linalg.solve(np.asarray(p.fit.point_cov, float), x)))
+            e.append(float(np.linalg.norm(x)))
+            if p.camera_motion is not None:
+                scales.append(p.camera_motion["scale"])
+    cover = lambda c: float(np.mean(np.array(c) < CHI2_3_68))  # noqa: E731
+    print(f"carried: error {np.median(e_moving):.2f} mm (median), coverage {cover(c_moving):.2f}, mean chi2 "
+          f"{np.mean(c_moving):.2f} of 3, scale {np.mean(scales):.3f} +- {np.std(scales):.3f} (7); as seen: "
+          f"{np.median(e_raw):.2f} mm, coverage {cover(c_raw):.2f}")
+    assert 0.58 <= cover(c_moving) <= 0.78
+    assert np.median(e_moving) < 0.5 * np.median(e_raw)
+    assert abs(np.mean(scales) - 7.0) < 3 * np.std(scales)
