@@ -62,11 +62,9 @@ def measured():
     sc = make_scenario("pivot", N_FRAMES, seed=5, size=(960, 540), port_view=100.0, shaft_radius=4.0, tip=100.0,
                        height=60.0, angle_range_deg=(55.0, 125.0))
     sc = _moving(sc, 11)
-    imgs = []
-    for i in range(N_FRAMES):
-        img = sc.render(i, color=True, noise=3.0, blur_px=1.5, lighting=0.3)
-        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 80])
-        imgs.append(cv2.imdecode(buf, cv2.IMREAD_COLOR))
+    jpeg = [cv2.imencode(".jpg", sc.render(i, color=True, noise=3.0, blur_px=1.5, lighting=0.3),
+                         [cv2.IMWRITE_JPEG_QUALITY, 80])[1] for i in range(N_FRAMES)]
+    imgs = [cv2.imdecode(buf, cv2.IMREAD_COLOR) for buf in jpeg]
     frames = _frames(sc, np.random.default_rng(0))
     ref, motions, model, anchor = background_motion_3d(imgs, [f["shafts"] for f in frames], sc.camera)
     return sc, ref, motions, model, anchor
@@ -114,7 +112,7 @@ def _exact_poses(sc, ref, unit):
 
 def test_the_background_poses_of_a_flat_sheet(measured):
     """Reached on the printed sheet (flat, seen from 200 mm, the camera moved 16 mm along its
-    view): every frame posed by PnP on 250-440 map points at 0.2-0.5 px, but the map is the
+    view): every frame posed by PnP on 257-462 map points at 0.25-0.59 px, but the map is the
     flat scene's wrong twin: rotations 0.4-1.9 deg off the exact ones and translations
     0.5-0.6 of the exact ones' size. A flat background leaves the motion two-fold ambiguous
     (the essential matrix degenerates, the homography's decompositions are two), and the
@@ -139,7 +137,9 @@ def sequence():
 
 def test_the_carried_axes_give_the_reference_fulcrum(sequence):
     """With the exact poses (translations in a map unit of 7 mm, which the fit does not
-    know), over 200 draws of the edge noise: ..."""
+    know), over 200 draws of the edge noise. Reached: the carried axes' 3-D fulcrum 0.79 mm
+    from the reference frame's (median), coverage 61 % (mean chi2 3.49 of 3), the map unit
+    6.99 +- 0.25 mm; the axes as seen (no carrying) 9.89 mm off, coverage 0 %."""
     sc, ref = sequence
     truth = np.asarray(sc.frames[ref]["fulcrum_cam"], float)
     poses = _exact_poses(sc, ref, 7.0)
