@@ -20,7 +20,7 @@ import math
 import numpy as np
 import pytest
 
-from pencilcal.toolkit.detect.background_motion import background_motion_3d, stabilize_frames
+from pencilcal.toolkit.detect.background_motion import background_motion_3d
 from pencilcal.toolkit.geometry.frames import rotation_about_axis, rotation_angle
 from pencilcal.toolkit.pencil.cylinder import project_cylinder
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_point
