@@ -18,17 +18,23 @@ the reference frame's features (undistorted px, off the instrument):
    Levenberg-Marquardt in undistorted px), so that all translations share the map's unit;
    each frame posed adds its own matches to the map (triangulated with its pose, the same
    parallax), and the frames the map did not reach are tried again (`MAP_ROUNDS`);
-   the pose's 6 x 6 covariance is ``s^2 (J^T J)^-1`` with ``s^2`` the inliers' residual
-   variance, carried to ``(rotation vector of a left turn of R_ref_from_frame,
-   t_ref_from_frame)``.
+4. *bundle adjustment*: the map and every posed frame refined together, each map point on
+   its reference ray at an inverse depth, the reprojection errors of all frames (soft L1 at
+   1 px), the scale's gauge held by the anchor's |t|. Its covariance is ``s^2 S^-1`` with
+   S the normal matrix's Schur complement on the poses over the inliers (within
+   `BUNDLE_INLIER_PX`) and ``s^2`` their residual variance: the map's noise is in each
+   pose's covariance (not the poses' correlations through it). Each frame's 6 x 6 block
+   is carried to ``(rotation vector of a left turn of R_ref_from_frame,
+   t_ref_from_frame)``. The anchor's pose is tried from the essential matrix and from each
+   decomposition of its homography (a flat background leaves it two-fold ambiguous), and
+   the map that poses most frames at the least robust cost is kept.
 
 The map's unit is not a length: the 3-D fulcrum fits it (mm per map unit) with the point,
 from the shafts' metric depths (`pencil.moving_fulcrum`). Where no frame has the parallax
 (the camera only turned, or stood still) the poses are the homographies' rotations
 (``R = polar(K^-1 H K)``) with no translation (``model`` "rotation"). Not modelled: the
-map points' own noise (shared by all poses: a common error of the unit, which the fitted
-scale absorbs, and of the directions), and the reference frame's feature noise, shared by
-all frames.
+reference frame's feature noise (its rays are held), and the poses' correlations through
+the shared map.
 
 >>> import numpy as np
 >>> K = np.array([[800.0, 0, 480], [0, 800, 270], [0, 0, 1]])
@@ -41,6 +47,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
 
 __all__ = ["FramePose", "background_poses", "rotation_from_homography", "pose_inverse_cov", "MIN_PARALLAX_DEG",
            "MAP_PARALLAX_DEG", "MIN_MAP_POINTS"]
@@ -57,6 +65,10 @@ MAP_PARALLAX_DEG = 0.3
 MIN_MAP_POINTS = 12
 #: Rounds of posing the frames the map reaches and growing the map from them.
 MAP_ROUNDS = 6
+#: The bundle adjustment's inliers: reprojection errors below this [undistorted px].
+BUNDLE_INLIER_PX = 3.0
+#: Weight [px per map unit] of the bundle adjustment's gauge: the anchor's |t| held.
+_GAUGE = 1e4
 
 
 @dataclass(frozen=True)
@@ -238,11 +250,14 @@ def background_poses(matches, K, ref, homographies=None):
         return "rotation", None, out
     best = None
     for R, t in _anchor_candidates(rel[anchor], matches[anchor], K):
-        got = _grow(matches, anchor, R, t, K)
-        key = (len(got), -sum(g[4] ** 2 * g[3] for g in got.values()) / max(sum(g[3] for g in got.values()), 1))
+        got, world = _grow(matches, anchor, R, t, K)
+        if anchor not in got:
+            continue
+        got, cost = _bundle(matches, got, world, K, anchor)
+        key = (len(got), -cost)
         if best is None or key > best[0]:
             best = (key, got)
-    got = best[1]
+    got = {} if best is None else best[1]
     out = []
     for i in range(len(matches)):
         if i not in got:
@@ -251,6 +266,84 @@ def background_poses(matches, K, ref, homographies=None):
         Rr, tr, C = pose_inverse_cov(*got[i][:3])
         out.append(FramePose(Rr, tr, C, got[i][3], got[i][4]))
     return "map", anchor, out
+
+
+def _observations(matches, frames, world):
+    """(frame slot (M,), point slot (M,), observed px (M, 2), per point its reference
+    pixel (P, 2), the map's keys (P,)) of every match of the posed `frames` to a map point."""
+    keys = sorted(world)
+    slot = {k: j for j, k in enumerate(keys)}
+    fi, pj, uv = [], [], []
+    ref_px = np.zeros((len(keys), 2))
+    for a, i in enumerate(frames):
+        src, dst, idx = matches[i]
+        for s, d, k in zip(np.asarray(src, float), np.asarray(dst, float), idx):
+            j = slot.get(int(k))
+            if j is not None:
+                fi.append(a)
+                pj.append(j)
+                uv.append(s)
+                ref_px[j] = d
+    return np.array(fi, int), np.array(pj, int), np.array(uv, float).reshape(-1, 2), ref_px, keys
+
+
+def _bundle(matches, got, world, K, anchor):
+    """({frame: (rvec, tvec, cov (6, 6), inliers, rms)}, robust cost per observation) of the
+    map and every posed frame refined together (module docstring, step 4): each map point
+    on its reference ray at an inverse depth, the reprojection errors in every posed frame
+    (soft L1 at 1 px), the scale held by the anchor's |t|; the poses' covariance is the
+    Schur complement's inverse over the inliers (within `BUNDLE_INLIER_PX`), times their
+    residual variance."""
+    from scipy.optimize import least_squares
+    from scipy.sparse import lil_matrix
+
+    frames = sorted(got)
+    fi, pj, uv, ref_px, keys = _observations(matches, frames, world)
+    nf, npt = len(frames), len(keys)
+    rays = np.c_[ref_px, np.ones(npt)] @ np.linalg.inv(K).T
+    a = frames.index(anchor)
+    x0 = np.r_[np.concatenate([np.r_[got[i][0], got[i][1]] for i in frames]),
+               [1.0 / max(world[k][2], 1e-9) for k in keys]]
+    norm0 = float(np.linalg.norm(got[anchor][1]))
+
+    def residuals(x):
+        P = x[:6 * nf].reshape(nf, 6)
+        X = rays[pj] / x[6 * nf + pj][:, None]
+        Xc = np.einsum("nij,nj->ni", rotation_from_rotvec(P[fi, :3]), X) + P[fi, 3:]
+        q = Xc @ K.T
+        return np.r_[(q[:, :2] / q[:, 2:3] - uv).ravel(), _GAUGE * (np.linalg.norm(P[a, 3:]) - norm0)]
+
+    A = lil_matrix((2 * len(fi) + 1, 6 * nf + npt), dtype=int)
+    rows = np.arange(len(fi))
+    for c in range(6):
+        A[2 * rows, 6 * fi + c] = 1
+        A[2 * rows + 1, 6 * fi + c] = 1
+    A[2 * rows, 6 * nf + pj] = 1
+    A[2 * rows + 1, 6 * nf + pj] = 1
+    A[2 * len(fi), 6 * a + 3:6 * a + 6] = 1
+    sol = least_squares(residuals, x0, jac_sparsity=A, method="trf", loss="soft_l1", f_scale=1.0, x_scale="jac",
+                        max_nfev=100)
+    r = sol.fun[:-1].reshape(-1, 2)
+    inl = np.hypot(*r.T) < BUNDLE_INLIER_PX
+    J = sol.jac.tocsr()
+    keep = np.r_[np.repeat(inl, 2), True]
+    J = J[keep]
+    JtJ = (J.T @ J).toarray()
+    Hc, Hx, Hp = JtJ[:6 * nf, :6 * nf], JtJ[:6 * nf, 6 * nf:], np.diag(JtJ)[6 * nf:]
+    S = Hc - (Hx / np.maximum(Hp, 1e-300)) @ Hx.T
+    dof = max(2 * int(inl.sum()) - 6 * nf - npt + 1, 1)
+    s2 = float(np.sum(r[inl] ** 2)) / dof
+    try:
+        cov = s2 * np.linalg.inv(S)
+    except np.linalg.LinAlgError:
+        return got, float("inf")
+    P = sol.x[:6 * nf].reshape(nf, 6)
+    out = {}
+    for k, i in enumerate(frames):
+        mine = inl & (fi == k)
+        rms = float(np.sqrt(np.mean(r[mine] ** 2))) if mine.any() else float("nan")
+        out[i] = (P[k, :3], P[k, 3:], cov[6 * k:6 * k + 6, 6 * k:6 * k + 6], int(mine.sum()), rms)
+    return out, float(sol.cost) / max(len(fi), 1)
 
 
 def _anchor_candidates(rel, match, K):
@@ -275,9 +368,9 @@ def _anchor_candidates(rel, match, K):
 
 
 def _grow(matches, anchor, R, t, K):
-    """{frame index: PnP pose} of every frame the map reaches, from the anchor's relative
-    pose (R, t): the map triangulated from it, the frames posed, the map grown from their
-    matches, again (`MAP_ROUNDS`)."""
+    """({frame index: PnP pose}, the map) of every frame the map reaches, from the anchor's
+    relative pose (R, t): the map triangulated from it, the frames posed, the map grown from
+    their matches, again (`MAP_ROUNDS`)."""
     src, dst, idx = (np.asarray(a) for a in matches[anchor])
     world = _add_points({}, src.astype(float), dst.astype(float), idx, K, R, t)
     got = {}
@@ -298,7 +391,7 @@ def _grow(matches, anchor, R, t, K):
             m = matches[i]
             world = _add_points(world, np.asarray(m[0], float), np.asarray(m[1], float), np.asarray(m[2]), K,
                                 _rodrigues(pose[0]), pose[1])
-    return got
+    return got, world
 
 
 def _add_points(world, src, dst, idx, K, R, t):
