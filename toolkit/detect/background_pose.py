@@ -20,14 +20,16 @@ the reference frame's features (undistorted px, off the instrument):
    parallax), and the frames the map did not reach are tried again (`MAP_ROUNDS`);
 4. *bundle adjustment*: the map and every posed frame refined together, each map point on
    its reference ray at an inverse depth, the reprojection errors of all frames (soft L1 at
-   1 px), the scale's gauge held by the anchor's |t|. Its covariance is ``s^2 S^-1`` with
+   1 px; the matches within 1.5 `BUNDLE_INLIER_PX` of the start), the scale's gauge held
+   by the anchor's |t|. Its covariance is ``s^2 S^-1`` with
    S the normal matrix's Schur complement on the poses over the inliers (within
    `BUNDLE_INLIER_PX`) and ``s^2`` their residual variance: the map's noise is in each
    pose's covariance (not the poses' correlations through it). Each frame's 6 x 6 block
    is carried to ``(rotation vector of a left turn of R_ref_from_frame,
    t_ref_from_frame)``. The anchor's pose is tried from the essential matrix and from each
-   decomposition of its homography (a flat background leaves it two-fold ambiguous), and
-   the map that poses most frames at the least robust cost is kept.
+   decomposition of its homography (the essential matrix of a few matches, or of a flat
+   background, is easily wrong), and the map that poses most frames with the most matches
+   within `BUNDLE_INLIER_PX` is kept.
 
 The map's unit is not a length: the 3-D fulcrum fits it (mm per map unit) with the point,
 from the shafts' metric depths (`pencil.moving_fulcrum`). Where no frame has the parallax
@@ -253,8 +255,8 @@ def background_poses(matches, K, ref, homographies=None):
         got, world = _grow(matches, anchor, R, t, K)
         if anchor not in got:
             continue
-        got, cost = _bundle(matches, got, world, K, anchor)
-        key = (len(got), -cost)
+        got, agree = _bundle(matches, got, world, K, anchor)
+        key = (len(got), agree)
         if best is None or key > best[0]:
             best = (key, got)
     got = {} if best is None else best[1]
@@ -287,31 +289,45 @@ def _observations(matches, frames, world):
     return np.array(fi, int), np.array(pj, int), np.array(uv, float).reshape(-1, 2), ref_px, keys
 
 
+def _project(x, nf, fi, pj, rays, K):
+    """(M, 2) the map points pj (on their reference rays `rays` at the inverse depths in x
+    after the nf poses) projected into the frames fi [undistorted px]."""
+    P = x[:6 * nf].reshape(nf, 6)
+    X = rays[pj] / x[6 * nf + pj][:, None]
+    q = (np.einsum("nij,nj->ni", rotation_from_rotvec(P[fi, :3]), X) + P[fi, 3:]) @ K.T
+    return q[:, :2] / q[:, 2:3]
+
+
 def _bundle(matches, got, world, K, anchor):
-    """({frame: (rvec, tvec, cov (6, 6), inliers, rms)}, robust cost per observation) of the
-    map and every posed frame refined together (module docstring, step 4): each map point
-    on its reference ray at an inverse depth, the reprojection errors in every posed frame
-    (soft L1 at 1 px), the scale held by the anchor's |t|; the poses' covariance is the
-    Schur complement's inverse over the inliers (within `BUNDLE_INLIER_PX`), times their
-    residual variance."""
+    """({frame: (rvec, tvec, cov (6, 6), inliers, rms)}, the observations within
+    `BUNDLE_INLIER_PX` at the solution) of the map and every posed frame refined together
+    (module docstring, step 4): each map point on its reference ray at an inverse depth, the
+    reprojection errors in every posed frame of the matches within 1.5 `BUNDLE_INLIER_PX`
+    of the start (soft L1 at 1 px), the scale held by the anchor's |t|; the poses'
+    covariance is the Schur complement's inverse over the inliers, times their residual
+    variance."""
     from scipy.optimize import least_squares
     from scipy.sparse import lil_matrix
 
     frames = sorted(got)
     fi, pj, uv, ref_px, keys = _observations(matches, frames, world)
-    nf, npt = len(frames), len(keys)
-    rays = np.c_[ref_px, np.ones(npt)] @ np.linalg.inv(K).T
+    nf = len(frames)
+    rays = np.c_[ref_px, np.ones(len(keys))] @ np.linalg.inv(K).T
     a = frames.index(anchor)
     x0 = np.r_[np.concatenate([np.r_[got[i][0], got[i][1]] for i in frames]),
                [1.0 / max(world[k][2], 1e-9) for k in keys]]
+    near = np.hypot(*(_project(x0, nf, fi, pj, rays, K) - uv).T) < 1.5 * BUNDLE_INLIER_PX
+    seen = np.unique(pj[near])                    # the points some start inlier sees, renumbered
+    slot = -np.ones(len(keys), int)
+    slot[seen] = np.arange(len(seen))
+    fi, pj, uv = fi[near], slot[pj[near]], uv[near]
+    rays, npt = rays[seen], len(seen)
+    x0 = np.r_[x0[:6 * nf], x0[6 * nf:][seen]]
     norm0 = float(np.linalg.norm(got[anchor][1]))
 
     def residuals(x):
-        P = x[:6 * nf].reshape(nf, 6)
-        X = rays[pj] / x[6 * nf + pj][:, None]
-        Xc = np.einsum("nij,nj->ni", rotation_from_rotvec(P[fi, :3]), X) + P[fi, 3:]
-        q = Xc @ K.T
-        return np.r_[(q[:, :2] / q[:, 2:3] - uv).ravel(), _GAUGE * (np.linalg.norm(P[a, 3:]) - norm0)]
+        return np.r_[(_project(x, nf, fi, pj, rays, K) - uv).ravel(),
+                     _GAUGE * (np.linalg.norm(x[6 * a + 3:6 * a + 6]) - norm0)]
 
     A = lil_matrix((2 * len(fi) + 1, 6 * nf + npt), dtype=int)
     rows = np.arange(len(fi))
@@ -322,12 +338,10 @@ def _bundle(matches, got, world, K, anchor):
     A[2 * rows + 1, 6 * nf + pj] = 1
     A[2 * len(fi), 6 * a + 3:6 * a + 6] = 1
     sol = least_squares(residuals, x0, jac_sparsity=A, method="trf", loss="soft_l1", f_scale=1.0, x_scale="jac",
-                        max_nfev=100)
+                        max_nfev=50)
     r = sol.fun[:-1].reshape(-1, 2)
     inl = np.hypot(*r.T) < BUNDLE_INLIER_PX
-    J = sol.jac.tocsr()
-    keep = np.r_[np.repeat(inl, 2), True]
-    J = J[keep]
+    J = sol.jac.tocsr()[np.r_[np.repeat(inl, 2), True]]
     JtJ = (J.T @ J).toarray()
     Hc, Hx, Hp = JtJ[:6 * nf, :6 * nf], JtJ[:6 * nf, 6 * nf:], np.diag(JtJ)[6 * nf:]
     S = Hc - (Hx / np.maximum(Hp, 1e-300)) @ Hx.T
@@ -336,14 +350,14 @@ def _bundle(matches, got, world, K, anchor):
     try:
         cov = s2 * np.linalg.inv(S)
     except np.linalg.LinAlgError:
-        return got, float("inf")
+        return got, 0
     P = sol.x[:6 * nf].reshape(nf, 6)
     out = {}
     for k, i in enumerate(frames):
         mine = inl & (fi == k)
         rms = float(np.sqrt(np.mean(r[mine] ** 2))) if mine.any() else float("nan")
         out[i] = (P[k, :3], P[k, 3:], cov[6 * k:6 * k + 6, 6 * k:6 * k + 6], int(mine.sum()), rms)
-    return out, float(sol.cost) / max(len(fi), 1)
+    return out, int(inl.sum())
 
 
 def _anchor_candidates(rel, match, K):
