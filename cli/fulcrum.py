@@ -487,7 +487,7 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     are fitted; ``stabilize`` holds each frame's homography, its covariance and residual
     (docs/method.md). A frame whose motion is not measured gives no line. With
     --shaft-diameter each frame's 3-D pose in the middle frame's camera is measured from
-    the same matches too (essential matrix, a map of the background, PnP with its
+    the same matches too (a map of the background, PnP, a bundle adjustment with its
     covariance; ``stabilize.frames[].pose``) and every frame's 3-D axis is carried into
     the middle frame's camera by it, the translations' unit fitted with the 3-D fulcrum
     (``point_camera_motion``): the 3-D point is then in the middle frame's camera.
