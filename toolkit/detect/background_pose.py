@@ -229,9 +229,9 @@ def background_poses(matches, K, ref, homographies=None):
     matches: per frame (src (M, 2) its undistorted px, dst (M, 2) the reference's, ref_idx
     (M,) the reference features' indices) or None (a frame not measured); K: (3, 3); ref:
     the reference frame's index; homographies: per frame (H, cov_H) or None, for the
-    rotations where no frame has the parallax. Returns (model "map" or "rotation", anchor index or
-    None, [FramePose or None] per frame: the reference's the identity; None where the pose
-    is not measured).
+    rotations where no frame has the parallax (or no map poses the anchor). Returns (model
+    "map" or "rotation", anchor index or None, [FramePose or None] per frame: the
+    reference's the identity; None where the pose is not measured).
     """
     K = np.asarray(K, float)
     matches = [None if i == ref else m for i, m in enumerate(matches)]
@@ -240,16 +240,7 @@ def background_poses(matches, K, ref, homographies=None):
     anchor = int(np.argmax(par)) if par else None
     identity = FramePose(np.eye(3), np.zeros(3), np.zeros((6, 6)), 0, 0.0)
     if anchor is None or par[anchor] < MIN_PARALLAX_DEG:
-        out = []
-        for i, (m, h) in enumerate(zip(matches, homographies or [None] * len(matches))):
-            if i == ref or m is None or h is None:
-                out.append(identity if i == ref else None)
-                continue
-            R, c = rotation_from_homography(h[0], h[1], K)
-            cov = np.zeros((6, 6))
-            cov[:3, :3] = c
-            out.append(FramePose(R, np.zeros(3), cov, len(m[0]), float("nan")))
-        return "rotation", None, out
+        return "rotation", None, _rotations(matches, homographies, ref, K, identity)
     best = None
     for R, t in _anchor_candidates(rel[anchor], matches[anchor], K):
         got, world = _grow(matches, anchor, R, t, K)
@@ -259,7 +250,9 @@ def background_poses(matches, K, ref, homographies=None):
         key = (len(got), agree)
         if best is None or key > best[0]:
             best = (key, got)
-    got = {} if best is None else best[1]
+    if best is None:  # no map poses the anchor: no frame measured in 3-D but by its turn
+        return "rotation", None, _rotations(matches, homographies, ref, K, identity)
+    got = best[1]
     out = []
     for i in range(len(matches)):
         if i not in got:
@@ -268,6 +261,21 @@ def background_poses(matches, K, ref, homographies=None):
         Rr, tr, C = pose_inverse_cov(*got[i][:3])
         out.append(FramePose(Rr, tr, C, got[i][3], got[i][4]))
     return "map", anchor, out
+
+
+def _rotations(matches, homographies, ref, K, identity):
+    """[FramePose or None] of the "rotation" model: each measured frame's homography's turn
+    (`rotation_from_homography`), no translation."""
+    out = []
+    for i, (m, h) in enumerate(zip(matches, homographies or [None] * len(matches))):
+        if i == ref or m is None or h is None:
+            out.append(identity if i == ref else None)
+            continue
+        R, c = rotation_from_homography(h[0], h[1], K)
+        cov = np.zeros((6, 6))
+        cov[:3, :3] = c
+        out.append(FramePose(R, np.zeros(3), cov, len(m[0]), float("nan")))
+    return out
 
 
 def _observations(matches, frames, world):
@@ -341,10 +349,11 @@ def _bundle(matches, got, world, K, anchor):
                         max_nfev=50)
     r = sol.fun[:-1].reshape(-1, 2)
     inl = np.hypot(*r.T) < BUNDLE_INLIER_PX
-    J = sol.jac.tocsr()[np.r_[np.repeat(inl, 2), True]]
-    JtJ = (J.T @ J).toarray()
-    Hc, Hx, Hp = JtJ[:6 * nf, :6 * nf], JtJ[:6 * nf, 6 * nf:], np.diag(JtJ)[6 * nf:]
-    S = Hc - (Hx / np.maximum(Hp, 1e-300)) @ Hx.T
+    J = sol.jac.tocsc()[np.r_[np.repeat(inl, 2), True]]
+    Jc, Jp = J[:, :6 * nf], J[:, 6 * nf:]          # the points' block of J^T J is diagonal
+    Hx = (Jc.T @ Jp).toarray()
+    Hp = np.asarray(Jp.multiply(Jp).sum(0)).ravel()
+    S = (Jc.T @ Jc).toarray() - (Hx / np.maximum(Hp, 1e-300)) @ Hx.T
     dof = max(2 * int(inl.sum()) - 6 * nf - npt + 1, 1)
     s2 = float(np.sum(r[inl] ** 2)) / dof
     try:
