@@ -158,3 +158,33 @@ def test_the_hand_made_axes_stabilized(runs):
     print(ratios, fits[1]["vertex_px"], np.sqrt(np.diag(fits[1]["vertex_cov_px2"])), chi2)
     assert ratios[0] > 1.5 and ratios[1] <= 1.5
     assert chi2 < 9.21  # chi2(2) at 99 %
+
+
+def test_the_phantom_3d_epochs(runs):
+    """The 3-D axes of the stabilised run carried by its poses, fitted by parts: frames 1-14
+    give the 3-D fulcrum (24.0, -1.1, 80.9) +- 4.4 mm (RMS) in frame 11's camera from 8 of
+    12 axes, and it moves 0.79 times its sigma when one frame is left out: the issue's target
+    (<= 1.5) is met for the 3-D point of that epoch. Frames 15-20 fix no point (2 of 5 axes
+    kept, sigma 108 mm), and with all frames the fit keeps 7 of 17 axes, those of 16-19
+    16-475 chi2 off it: in 3-D the fulcrum moved after frame 14, where the plain lines'
+    change-point test split (the image lines of the stabilised frames do not show it). Splitting on the 3-D axes is not done by
+    `fulcrum`: its epochs come from the image lines."""
+    import numpy as np
+
+    from pencilcal.toolkit.detect.background_motion import FrameMotion, stabilize_frames
+    from pencilcal.toolkit.pencil.fulcrum import fulcrum_point
+    from pencilcal.validation.checks import point_jackknife
+
+    root = data_dir("real-instruments") / "dvrk-lnd-phantom-sequence"
+    cam = _phantom_camera(root)
+    doc, records, _ = runs["stabilized"]
+    motions = [FrameMotion.from_dict(f) for f in doc["stabilize"]["frames"]]
+    frames = stabilize_frames(cam, [dict(r, segments=np.zeros((0, 4))) for r in records], motions)
+    first = fulcrum_point(cam, frames[:14], 8.0)
+    _, jk = point_jackknife(cam, frames[:14], 8.0, first)
+    rest = fulcrum_point(cam, frames[14:], 8.0)
+    print(first.to_dict()["point"], float(first.fit.point_sigma), int(np.sum(first.fit.inliers)), jk,
+          rest.to_dict()["point"], float(rest.fit.point_sigma), int(np.sum(rest.fit.inliers)))
+    assert jk["ratio"] is not None and jk["ratio"] <= 1.5
+    assert int(np.sum(first.fit.inliers)) >= 7 and float(first.fit.point_sigma) < 8.0
+    assert float(rest.fit.point_sigma) > 5 * float(first.fit.point_sigma)
