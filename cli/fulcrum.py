@@ -295,7 +295,7 @@ def _check_usage(o):
 
 
 #: Above this departure from a turn (`background_motion.FrameMotion.non_rotation`) the 3-D
-#: axes of --stabilize are warned about: the homography carries no depth.
+#: axes of --stabilize are warned about where no 3-D pose carries them.
 TURN_ONLY = 0.05
 
 
@@ -303,9 +303,11 @@ def _stabilized(source, camera, frames, mask_path, shaft_diameter):
     """(frames with their lines in the reference frame, fulcrum.json's ``stabilize``
     record) of --stabilize: the background's homography of every frame to the middle one
     (`background_motion.background_motion`), the shafts mapped by it
-    (`background_motion.stabilize_frames`); a warning for the frames it could not measure,
-    and with `shaft_diameter` where the motion is more than a turn."""
-    from pencilcal.toolkit.detect.background_motion import background_motion, stabilize_frames
+    (`background_motion.stabilize_frames`); with `shaft_diameter` every frame's 3-D pose in
+    the middle one's camera too (`background_motion.background_motion_3d`), by which the
+    3-D axes are carried; a warning for the frames it could not measure."""
+    from pencilcal.toolkit.detect.background_motion import (background_motion, background_motion_3d,
+                                                            stabilize_frames)
 
     shape = (camera.height, camera.width)
     region = frames_region(source, mask_path, shape=shape)
@@ -318,20 +320,33 @@ def _stabilized(source, camera, frames, mask_path, shaft_diameter):
                 raise InputError(f"{source.description}: the frames changed while read ({fr.name}, was {name})")
             yield fr.image
 
-    ref, motions = background_motion(images(), [f.get("shafts") or [] for f in frames], camera, valid)
+    shafts = [f.get("shafts") or [] for f in frames]
+    model = anchor = None
+    if shaft_diameter is None:
+        ref, motions = background_motion(images(), shafts, camera, valid)
+    else:
+        ref, motions, model, anchor = background_motion_3d(images(), shafts, camera, valid)
     bad = [n for n, m in zip(names, motions) if not m.ok]
     if bad:
         warn(f"--stabilize: the camera's motion is not measured in {len(bad)} frame(s), their lines left out: "
              + ", ".join(map(str, bad[:5])) + (" ..." if len(bad) > 5 else ""))
     ok = [m for m in motions if m.ok]
+    unposed = [n for n, m in zip(names, motions) if m.ok and m.pose is None]
+    if model is not None and unposed:
+        warn(f"--stabilize: the camera's 3-D pose is not measured in {len(unposed)} frame(s), their shafts give no "
+             "3-D axis: " + ", ".join(map(str, unposed[:5])) + (" ..." if len(unposed) > 5 else ""))
     worst = max([m.non_rotation for m in ok] or [0.0])
-    if shaft_diameter is not None and worst > TURN_ONLY:
+    if model == "rotation" and worst > TURN_ONLY:
         warn(f"--stabilize: the camera moved by more than a turn (its homography departs up to {worst:.2f} from "
-             "one): the 3-D axes mapped into the reference frame are not exact, the 3-D fulcrum neither")
+             "one) but no frame saw the background with the parallax to measure it: the 3-D axes are only turned "
+             "into the reference frame, the 3-D fulcrum is not exact")
     rec = {"model": "homography", "reference": names[ref], "frames_measured": len(ok),
            "median_rms_px": float(np.median([m.rms_px for m in ok if m is not motions[ref]] or [0.0])),
            "max_shift_px": float(max([m.shift_px for m in ok] or [0.0])),
            "frames": [{**m.to_dict(), "image": n} for n, m in zip(names, motions)]}
+    if model is not None:
+        rec.update(pose_model=model, pose_anchor=None if anchor is None else names[anchor],
+                   frames_posed=sum(1 for m in ok if m.pose is not None))
     return stabilize_frames(camera, frames, motions), rec
 
 
@@ -468,9 +483,14 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     background: per frame a homography to the middle frame from SIFT matches off the
     instrument (RANSAC, then least squares with its covariance), exact for a camera turning
     about its centre or a flat background; each frame's shafts are mapped into the middle
-    frame's image, their sigmas with the homography's, before the fulcrum, the epochs and
-    the 3-D axes are fitted; ``stabilize`` holds each frame's homography, its covariance and
-    residual (docs/method.md). A frame whose motion is not measured gives no line.
+    frame's image, their sigmas with the homography's, before the fulcrum and the epochs
+    are fitted; ``stabilize`` holds each frame's homography, its covariance and residual
+    (docs/method.md). A frame whose motion is not measured gives no line. With
+    --shaft-diameter each frame's 3-D pose in the middle frame's camera is measured from
+    the same matches too (a map of the background, PnP, a bundle adjustment with its
+    covariance; ``stabilize.frames[].pose``) and every frame's 3-D axis is carried into
+    the middle frame's camera by it, the translations' unit fitted with the 3-D fulcrum
+    (``point_camera_motion``): the 3-D point is then in the middle frame's camera.
 
     From frame to frame (--track, with --workers 1) each shaft is looked for where a
     constant-velocity model of its edges predicts it, within that prediction's uncertainty,

@@ -41,9 +41,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pencilcal.toolkit.detect.background_pose import FramePose, background_poses
 from pencilcal.toolkit.errors import EstimationError
 
-__all__ = ["FrameMotion", "background_motion", "instrument_exclusion", "map_segment", "stabilize_frames",
+__all__ = ["FrameMotion", "background_motion", "background_motion_3d", "instrument_exclusion", "map_segment", "stabilize_frames",
            "homography_cov", "MIN_INLIERS", "MAX_NON_ROTATION"]
 
 #: Lowe's ratio test of a feature's best match against its second best.
@@ -75,7 +76,8 @@ class FrameMotion:
     major), rms_px the inliers' transfer error [undistorted px], inliers of matches,
     shift_px the median displacement of the inliers [px], non_rotation its departure from
     a turn of the camera (`MAX_NON_ROTATION`); ok False (H None) with error
-    saying why where it is not measured."""
+    saying why where it is not measured; pose: its 3-D pose in the reference's camera
+    (`background_pose.FramePose`) where measured (`background_motion` with ``poses``)."""
 
     image: str
     ok: bool
@@ -87,15 +89,17 @@ class FrameMotion:
     shift_px: float = float("nan")
     non_rotation: float = float("nan")
     error: str | None = None
+    pose: FramePose | None = None
 
     @classmethod
     def from_dict(cls, d):
         """The motion of a `to_dict` record (fulcrum.json's ``stabilize.frames`` entries)."""
         if not d["ok"]:
             return cls(str(d["image"]), False, matches=int(d["matches"]), inliers=int(d["inliers"]), error=d["error"])
+        pose = None if d.get("pose") is None else FramePose.from_dict(d["pose"])
         return cls(str(d["image"]), True, np.asarray(d["H_ref_from_frame"], float), np.asarray(d["H_cov"], float),
                    float(d["rms_px"]), int(d["inliers"]), int(d["matches"]), float(d["shift_px"]),
-                   float(d["non_rotation"]))
+                   float(d["non_rotation"]), pose=pose)
 
     def to_dict(self) -> dict:
         """fulcrum.json's record of the frame's motion (docs/formats.md, ``stabilize``)."""
@@ -104,6 +108,8 @@ class FrameMotion:
             out.update({"H_ref_from_frame": self.H.tolist(), "H_cov": self.cov.tolist(),
                         "rms_px": float(self.rms_px), "shift_px": float(self.shift_px),
                         "non_rotation": float(self.non_rotation)})
+            if self.pose is not None:
+                out["pose"] = self.pose.to_dict()
         else:
             out["error"] = self.error
         return out
@@ -197,28 +203,32 @@ def homography_cov(H, src, dst, iterations=3):
 
 def _match(ref, cur, camera):
     """(src, dst) (M, 2) undistorted px of the matches of the current frame's features
-    `cur` to the reference's `ref` (each (points, descriptors)), Lowe's ratio test."""
+    `cur` to the reference's `ref` (each (points, descriptors)), Lowe's ratio test, and the
+    reference features' indices (M,)."""
     import cv2
 
     if cur[1] is None or ref[1] is None or len(cur[0]) < 2 or len(ref[0]) < 2:
-        return np.zeros((0, 2)), np.zeros((0, 2))
+        return np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, int)
     pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(cur[1], ref[1], k=2)
     good = [(m.queryIdx, m.trainIdx) for m, *rest in (p for p in pairs if len(p) >= 1)
             if not rest or m.distance < RATIO * rest[0].distance]
     if not good:
-        return np.zeros((0, 2)), np.zeros((0, 2))
+        return np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, int)
     qi, ti = np.array(good).T
     src = camera.undistort_pixels(cur[0][qi])
     dst = camera.undistort_pixels(ref[0][ti])
     ok = np.all(np.isfinite(src), -1) & np.all(np.isfinite(dst), -1)
-    return src[ok], dst[ok]
+    return src[ok], dst[ok], ti[ok]
 
 
-def _frame_motion(name, ref, cur, camera):
-    """The `FrameMotion` of one frame's features `cur` to the reference's `ref`."""
+def _frame_motion(name, ref, cur, camera, matches=None):
+    """The `FrameMotion` of one frame's features `cur` to the reference's `ref`; the
+    matches (src, dst, reference indices) are appended to `matches` where given."""
     import cv2
 
-    src, dst = _match(ref, cur, camera)
+    src, dst, ti = _match(ref, cur, camera)
+    if matches is not None:
+        matches.append((src, dst, ti))
     if len(src) < MIN_INLIERS:
         return FrameMotion(name, False, matches=len(src), error=f"{len(src)} background matches (< {MIN_INLIERS})")
     H, inl = cv2.findHomography(src, dst, cv2.RANSAC, RANSAC_PX, maxIters=5000, confidence=0.999)
@@ -239,6 +249,34 @@ def _frame_motion(name, ref, cur, camera):
     return FrameMotion(name, True, H, cov, rms, k, len(src), shift, nr)
 
 
+def _measure(images, shafts, camera, valid, reference):
+    """(reference index, [FrameMotion], per frame its matches (src, dst, reference indices)
+    or None) of `background_motion`."""
+    import cv2
+
+    sift = cv2.SIFT_create(nfeatures=FEATURES, contrastThreshold=CONTRAST)
+    feats = [None if im is None else _features(im, instrument_exclusion(im.shape, sh, valid), sift)
+             for im, sh in zip(images, shafts)]
+    idx = [i for i, f in enumerate(feats) if f is not None]
+    if not idx:
+        raise EstimationError("no frame decodes: no camera motion to measure")
+    ref = idx[len(idx) // 2] if reference is None else int(reference)
+    out, matches = [], []
+    for i, f in enumerate(feats):
+        name = str(i)
+        if f is None:
+            out.append(FrameMotion(name, False, error="frame not decoded"))
+            matches.append(None)
+        elif i == ref:
+            out.append(FrameMotion(name, True, np.eye(3), np.zeros((8, 8)), 0.0, len(f[0]), len(f[0]), 0.0, 0.0))
+            matches.append(None)
+        else:
+            got = []
+            out.append(_frame_motion(name, feats[ref], f, camera, got))
+            matches.append(got[0] if out[-1].ok else None)
+    return ref, out, matches
+
+
 def background_motion(images, shafts, camera, valid=None, reference=None):
     """The background's motion of every frame to the reference frame (module docstring).
 
@@ -249,25 +287,23 @@ def background_motion(images, shafts, camera, valid=None, reference=None):
     default the middle one of those decoded. Returns (reference index, [FrameMotion] per
     frame, named by index: the reference's the identity with zero covariance).
     """
-    import cv2
-
-    sift = cv2.SIFT_create(nfeatures=FEATURES, contrastThreshold=CONTRAST)
-    feats = [None if im is None else _features(im, instrument_exclusion(im.shape, sh, valid), sift)
-             for im, sh in zip(images, shafts)]
-    idx = [i for i, f in enumerate(feats) if f is not None]
-    if not idx:
-        raise EstimationError("no frame decodes: no camera motion to measure")
-    ref = idx[len(idx) // 2] if reference is None else int(reference)
-    out = []
-    for i, f in enumerate(feats):
-        name = str(i)
-        if f is None:
-            out.append(FrameMotion(name, False, error="frame not decoded"))
-        elif i == ref:
-            out.append(FrameMotion(name, True, np.eye(3), np.zeros((8, 8)), 0.0, len(f[0]), len(f[0]), 0.0, 0.0))
-        else:
-            out.append(_frame_motion(name, feats[ref], f, camera))
+    ref, out, _ = _measure(images, shafts, camera, valid, reference)
     return ref, out
+
+
+def background_motion_3d(images, shafts, camera, valid=None, reference=None):
+    """`background_motion` with every measured frame's 3-D pose in the reference frame's
+    camera too (`background_pose.background_poses`, from the same matches; ``pose`` of each
+    `FrameMotion`, None where it is not measured). Returns (reference index, [FrameMotion],
+    the poses' model: "map" (translations in the map's unit) or "rotation", the anchor
+    frame's index or None)."""
+    import dataclasses
+
+    ref, out, matches = _measure(images, shafts, camera, valid, reference)
+    homs = [(m.H, m.cov) if m.ok else None for m in out]
+    model, anchor, poses = background_poses(matches, camera.K, ref, homs)
+    out = [dataclasses.replace(m, pose=p) if m.ok else m for m, p in zip(out, poses)]
+    return ref, out, model, anchor
 
 
 def _apply(H, p):
@@ -335,9 +371,12 @@ def _map_raw(camera, raw, cov, motion):
     return None if not np.isfinite(back).all() else (back, c)
 
 
-def _map_shaft(camera, s, motion):
-    """A lines.json shaft record mapped into the reference frame, or None (lens)."""
+def _map_shaft(camera, s, motion, keep_own=False):
+    """A lines.json shaft record mapped into the reference frame, or None (lens); with
+    `keep_own` its own edges and their covariance kept (``edges_frame``, ``edge_cov_frame``)."""
     s = copy.deepcopy(s)
+    if keep_own:
+        s["edges_frame"], s["edge_cov_frame"] = copy.deepcopy(s.get("edges")), copy.deepcopy(s.get("edge_cov"))
     cov = np.diag([np.radians(float(s.get("angle_sigma_deg") or 0.0)) ** 2, float(s.get("offset_sigma_px") or 0.0) ** 2])
     m = _map_raw(camera, s["midline"], cov, motion)
     if m is None:
@@ -361,7 +400,11 @@ def _map_shaft(camera, s, motion):
 def stabilize_frames(camera, frames, motions):
     """lines.json `frames` with every shaft (midline, edges and their sigmas) and segment
     mapped into the reference frame by its frame's `FrameMotion` (module docstring): a frame
-    whose motion is not measured keeps no line (its error says why). Returns new frames."""
+    whose motion is not measured keeps no line (its error says why). Where the motions
+    carry 3-D poses (`background_motion_3d`), every frame keeps its camera's pose
+    (``camera_pose``) and each shaft its own edges (``edges_frame``, ``edge_cov_frame``):
+    `pencil.fulcrum.fulcrum_point` carries the 3-D axes with the poses. Returns new frames."""
+    posed = any(m.pose is not None for m in motions)
     out = []
     for fr, mo in zip(frames, motions):
         fr = dict(fr)
@@ -372,7 +415,9 @@ def stabilize_frames(camera, frames, motions):
             fr.update({"shafts": [], "segments": np.zeros((0, 4)), "error": f"camera motion: {mo.error}"})
             out.append(fr)
             continue
-        shafts = [m for m in (_map_shaft(camera, s, mo) for s in fr.get("shafts") or []) if m is not None]
+        shafts = [m for m in (_map_shaft(camera, s, mo, posed) for s in fr.get("shafts") or []) if m is not None]
+        if posed:  # None: not measured, its shafts give no 3-D axis
+            fr["camera_pose"] = None if mo.pose is None else mo.pose.to_dict()
         seg = np.asarray(fr.get("segments", np.zeros((0, 4))), float).reshape(-1, 4)
         if len(seg):
             ideal = camera.undistort_pixels(seg.reshape(-1, 2))

@@ -199,7 +199,10 @@ class FulcrumPoint:
     axes; diameter: the shafts' diameter; skipped: shafts without a 3-D axis (no edge
     covariance in the lines file, or edges that bound no cylinder). axis_points,
     axis_directions: (N, 3) each axis's point closest to the camera centre and its unit
-    direction (camera frame), or None.
+    direction (camera frame), or None. camera_motion: where the frames carry their
+    camera's pose (a moving camera: `moving_fulcrum`), {frames_moved, scale (the length
+    of the poses' map unit; None where the camera only turned), scale_sigma}; every 3-D
+    quantity is then in the reference frame's camera, and the axes' points are carried.
     """
 
     fit: Fulcrum3D
@@ -209,6 +212,7 @@ class FulcrumPoint:
     axis_points: np.ndarray | None = None
     axis_directions: np.ndarray | None = None
     lens_cov: np.ndarray | None = None
+    camera_motion: dict | None = None
 
     def to_dict(self) -> dict:
         """point, point_cov, point_sigma, point_axes_used, point_outliers ({image, shaft,
@@ -230,6 +234,8 @@ class FulcrumPoint:
                                   if not a["used"]],
                "point_chi2_dof": float(np.sum(np.asarray(f.chi2)[used]) / dof),
                "point_axes": axes, "shaft_diameter": self.diameter}
+        if self.camera_motion is not None:
+            out["point_camera_motion"] = dict(self.camera_motion)
         if self.lens_cov is not None:
             # the jackknife may have replaced point_cov: the intrinsics' term adds to whichever
             total = np.asarray(f.point_cov, float) + np.asarray(self.lens_cov, float)
@@ -250,17 +256,27 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None):
     intrinsics (`camera.intrinsics`), or None: then also the point's ``lens_cov``
     (`point_lens_cov`). Returns a `FulcrumPoint`; EstimationError when fewer than two
     crossing axes remain.
+
+    A moving camera (`pencilcal fulcrum --stabilize`): frames whose ``camera_pose`` gives
+    their camera in the reference frame's (R_ref_from_frame, t_ref_from_frame in the
+    poses' map unit, cov (6, 6): `detect.background_pose.FramePose.to_dict`) take each
+    shaft's axis from its own edges (``edges_frame``, ``edge_cov_frame``), carry it into
+    the reference camera and fit the point with the map unit's length
+    (`moving_fulcrum.fulcrum_moving`); no ``lens_cov`` then (the poses hold the lens too).
+    A frame whose ``camera_pose`` is None (its pose not measured) gives no axis.
     """
-    points, dirs, covs, owners, skipped, measured = [], [], [], [], 0, []
+    points, dirs, covs, owners, skipped, measured, poses = [], [], [], [], 0, [], []
     for fr in frames:
         if not fr.get("ok", True):
             continue
+        pose = fr.get("camera_pose")
+        keys = ("edges", "edge_cov") if "camera_pose" not in fr else ("edges_frame", "edge_cov_frame")
         for j, sh in enumerate(fr.get("shafts") or []):
-            if sh.get("edges") is None or sh.get("edge_cov") is None:
+            if ("camera_pose" in fr and pose is None) or sh.get(keys[0]) is None or sh.get(keys[1]) is None:
                 skipped += 1
                 continue
             try:
-                ax = shaft_axis_record(camera, sh["edges"], sh["edge_cov"], diameter)
+                ax = shaft_axis_record(camera, sh[keys[0]], sh[keys[1]], diameter)
             except (EstimationError, InputError):
                 skipped += 1
                 continue
@@ -268,10 +284,13 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None):
             dirs.append(ax["axis_direction"])
             covs.append(ax["axis_cov"])
             owners.append((fr.get("image"), j))
-            measured.append((sh["edges"], sh["edge_cov"]))
+            measured.append((sh[keys[0]], sh[keys[1]]))
+            poses.append(pose)
     if len(points) < 2:
         raise EstimationError(f"the 3-D fulcrum needs the 3-D axes of two shafts at least, got {len(points)}"
                               + (f" ({skipped} shaft(s) without edge_cov or a valid axis)" if skipped else ""))
+    if any(p is not None for p in poses):
+        return _moving_point(points, dirs, covs, poses, owners, diameter, skipped, robust)
     fit = fulcrum_3d(np.array(points), np.array(dirs), np.array(covs), robust=robust)
     lens = None
     if intrinsics_cov is not None:
@@ -279,6 +298,24 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None):
         lens = point_lens_cov(camera, intrinsics_cov, used, diameter)
     return FulcrumPoint(fit=fit, owners=owners, diameter=float(diameter), skipped=skipped,
                         axis_points=np.array(points), axis_directions=normalize(np.array(dirs)), lens_cov=lens)
+
+
+def _moving_point(points, dirs, covs, poses, owners, diameter, skipped, robust):
+    """`fulcrum_point` of axes whose frames carry their camera's pose in the reference's
+    (``camera_pose``; a frame without one is the reference's camera): `moving_fulcrum`."""
+    from pencilcal.toolkit.pencil.moving_fulcrum import fulcrum_moving
+
+    still = {"R_ref_from_frame": np.eye(3), "t_ref_from_frame": np.zeros(3), "cov": np.zeros((6, 6))}
+    poses = [still if p is None else p for p in poses]
+    mv = fulcrum_moving(np.array(points), np.array(dirs), np.array(covs),
+                        np.array([p["R_ref_from_frame"] for p in poses], float),
+                        np.array([p["t_ref_from_frame"] for p in poses], float),
+                        np.array([p["cov"] for p in poses], float), robust=robust)
+    moved = sum(1 for p in poses if np.any(np.asarray(p["t_ref_from_frame"], float) != 0)
+                or np.any(np.asarray(p["R_ref_from_frame"], float) != np.eye(3)))
+    motion = {"frames_moved": moved, "scale": mv.scale, "scale_sigma": mv.scale_sigma}
+    return FulcrumPoint(fit=mv.fit, owners=owners, diameter=float(diameter), skipped=skipped,
+                        axis_points=mv.points, axis_directions=mv.directions, camera_motion=motion)
 
 
 def point_lens_cov(camera, intrinsics_cov, shafts, diameter):
