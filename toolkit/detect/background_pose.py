@@ -163,9 +163,22 @@ def _relative(src, dst, K):
 
     if len(src) < 8:
         return None
-    E, mask = cv2.findEssentialMat(dst, src, K, method=cv2.RANSAC, prob=0.999, threshold=RANSAC_PX)
+    # SIFT gives one keypoint several orientations: the same match repeated. A five-point
+    # sample drawn from repeats is degenerate, and OpenCV's solver then fails an assertion
+    # (solvePoly's leading coefficient) rather than rejecting the sample: sample distinct
+    # matches, and take a failure that is left as no pose for this frame.
+    _, first = np.unique(np.round(np.c_[src, dst], 3), axis=0, return_index=True)
+    first = np.sort(first)
+    if len(first) < 8:
+        return None
+    try:
+        E, m = cv2.findEssentialMat(dst[first], src[first], K, method=cv2.RANSAC, prob=0.999, threshold=RANSAC_PX)
+    except cv2.error:
+        return None
     if E is None or E.shape != (3, 3):
         return None
+    mask = np.zeros((len(src), 1), np.uint8)
+    mask[first] = m.reshape(-1, 1)
     n, R, t, mask = cv2.recoverPose(E, dst, src, K, mask=mask)
     keep = mask.ravel() > 0
     if n < MIN_MAP_POINTS:
