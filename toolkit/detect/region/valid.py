@@ -480,6 +480,25 @@ class ValidRegion:
             raise InputError(f"points must have shape (..., 2), got {p.shape}")
         return self._sdf_xy(p[..., 0], p[..., 1])
 
+    def distance_grid(self, shape, step_px):
+        """Signed distance (Gy, Gx) float32 [px] to the boundary (`distance_to_boundary`) on the
+        grid x = 0, step, ... up to W - 1 + step, y likewise, of an image of `shape` (H, W):
+        made once per size and step (read-only), since a video's every frame samples it.
+
+        >>> ValidRegion.full(10, 10).distance_grid((10, 10), 8.0).shape
+        (3, 3)
+        """
+        H, W = int(shape[0]), int(shape[1])
+        key = ("grid", H, W, float(step_px))
+        if key not in self._cache:
+            gx = np.arange(0.0, W - 1 + step_px, step_px)
+            gy = np.arange(0.0, H - 1 + step_px, step_px)
+            X, Y = np.meshgrid(gx, gy)
+            g = np.ascontiguousarray(np.asarray(self.distance_to_boundary(np.stack([X, Y], -1)), np.float32))
+            g.flags.writeable = False
+            self._cache[key] = g
+        return self._cache[key]
+
     def contains(self, points):
         """(...) bool: points (..., 2) [px] inside the region (boundary included)."""
         return self.distance_to_boundary(points) >= -_EPS
