@@ -9,7 +9,7 @@ centre, `toolkit.pencil.circle`). Both need the camera; the target itself gives 
 - the lens's distortion (k1, about the image centre): the boundaries are straight lines through
   one point whose image angles are a 1-D projective map of their known angles, whatever the
   camera's focal length; distortion breaks that map, so the k1 under which the pencil
-  explains the boundaries best, among those explaining within one of the most
+  explains the boundaries best, among those explaining within two of the most
   (`straightest_k1`), is the estimate (it uses
   one degree of freedom of the boundaries' residuals, not their plane);
 - the focal length: the rings' images meet the horizon (the polar of the centre) in the
@@ -47,7 +47,7 @@ def _pencil_score(image, camera, pencil, edges):
     return (int(rec.spokes_used), -float(rec.chi2) / max(int(rec.lines_used) - 3, 1))
 
 
-def straightest_k1(image, camera, pencil, k1_range=(-0.5, 0.1), step=0.02, fine=0.01, slack=1):
+def straightest_k1(image, camera, pencil, k1_range=(-0.5, 0.1), step=0.02, fine=0.01, slack=2):
     """The k1 (about camera's principal point, its focal length kept) under which the
     pencil's boundaries fit a pencil best: the least chi2 per degree of freedom among the
     values that use within `slack` spokes of the most any value uses, over k1_range in

@@ -15,12 +15,13 @@ from tests.conftest import data_dir
 CHI2_3SIGMA = -2.0 * np.log(1.0 - 0.9973)
 
 
-# boundaries used, of 20: measured 19, 19 and 17 (docs/method.md; 19, 18 and 18 before the
-# joint location fitted the blur), the floors one or two below, as the estimate of k1 moves
-# with the edges and with it the labelling's margin on the rest
-@pytest.mark.parametrize("name,spokes,tilt", [("dartboard_side_left", 18, (45, 65)),
-                                              ("dartboard_side_right", 17, (45, 65)),
-                                              ("dartboard_far", 17, (5, 25))])
+# boundaries used, of 20: measured 18, 17 and 16 with k1 chosen by the fit among the values
+# within two boundaries of the most (docs/method.md; 19, 19 and 17 when the count chose it, at
+# chi2 / dof up to 156), the floors one below, as the estimate of k1 moves with the edges and
+# with it the labelling's margin on the rest
+@pytest.mark.parametrize("name,spokes,tilt", [("dartboard_side_left", 17, (45, 65)),
+                                              ("dartboard_side_right", 16, (45, 65)),
+                                              ("dartboard_far", 15, (5, 25))])
 def test_boundaries_and_rings_agree(name, spokes, tilt):
     img = cv2.imread(str(data_dir("real-radial-targets") / f"{name}.jpg"))
     r = check_photo(img, dartboard_pencil())
