@@ -466,13 +466,8 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
     if found is None:
         found = _by_edges(image, camera, valid_region, o, K)
     found = [s for s in found if s is not None]
-    if pixel_evidence is not None and np.ndim(image) == 3 and found:
-        ev = shaft_pixel_evidence(image, found, camera, validity=validity, reductions=work.reductions)
-        found = [s for s, e in zip(found, ev) if e >= pixel_evidence]
-    if tissue_colour is not None and np.ndim(image) == 3 and found:
-        tc = shaft_tissue_colour(image, found, validity=validity)
-        found = [s for s, t in zip(found, tc) if t <= tissue_colour]
     if not priors:
+        found = judged(image, camera, found, validity, work, pixel_evidence, tissue_colour)
         return with_limbs(image, camera, found, o.edge_model, o.gamma, K)
     img = np.asarray(image)
     noise = max(robust_noise(img[..., 1] if img.ndim == 3 else img), 0.5)
@@ -482,8 +477,33 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
     for p in priors:
         for m, score, polarity in pencil_search(image, camera, validity, work, p, o, K, noise, gamma_edges):
             found.append(shaft_of_midline(camera, m, score, polarity, "prior"))
-    return with_limbs(image, camera, select_through([s for s in found if s is not None], priors), o.edge_model,
-                      o.gamma, K)
+    found = judged(image, camera, [s for s in found if s is not None], validity, work, pixel_evidence,
+                   tissue_colour)
+    return with_limbs(image, camera, select_through(found, priors), o.edge_model, o.gamma, K)
+
+
+def judged(image, camera, shafts, validity, work=None, pixel_evidence=MIN_PIXEL_EVIDENCE,
+           tissue_colour=MAX_TISSUE_COLOUR):
+    """The shafts (list of `Shaft`) of a colour frame that are instrument-like: those whose
+    pixel evidence (`shaft.pixel_evidence`) reaches pixel_evidence and whose tissue colour
+    (`shaft.tissue_colour`) stays within tissue_colour (either None: not judged); a grey
+    frame's all. Every shaft the detector returns passes here, whichever path found it (the
+    cues, the fulcrum prior's angle search, tracking): each is judged on its own, so the
+    order and the others kept do not change a verdict.
+
+    validity: the image's `work.Validity`; work: its `work.WorkFrame` (whose pass over the
+    full frame the evidence shares), or None for one of its own.
+    """
+    if np.ndim(image) != 3 or not shafts:
+        return list(shafts)
+    if pixel_evidence is not None:
+        ev = shaft_pixel_evidence(image, shafts, camera, validity=validity,
+                                  reductions=None if work is None else work.reductions)
+        shafts = [s for s, e in zip(shafts, ev) if e >= pixel_evidence]
+    if tissue_colour is not None and shafts:
+        tc = shaft_tissue_colour(image, shafts, validity=validity)
+        shafts = [s for s, t in zip(shafts, tc) if t <= tissue_colour]
+    return list(shafts)
 
 
 def detect_through(image, camera, alternatives, **options):
@@ -532,7 +552,7 @@ def track_shafts(image, camera, previous, *, valid_region=None, prior=None, reac
     (`shaft.edge_cue.bands_from_edges`); one the material cue found, on a colour frame, by
     its colour, its silhouette edges fitted as that cue fits them
     (`shaft.track.material_edges`). A shaft found again is the one a full detection finds,
-    measured alike. The prior is checked, never trusted: the frame gets a full detection
+    measured and judged alike (`judged`). The prior is checked, never trusted: the frame gets a full detection
     when there is no prior or when fewer instruments are found than the prior had. With an
     ``axis_prior`` in the options every frame gets a full detection.
 
@@ -549,8 +569,8 @@ def track_shafts(image, camera, previous, *, valid_region=None, prior=None, reac
     """
     if not previous or options.get("axis_prior") is not None or any(s.ideal_edges is None for s in previous):
         return detect_shafts(image, camera, valid_region=valid_region, **options), False
-    image, o, validity, K = _prepared(image, camera, valid_region,
-                                      {k: v for k, v in options.items() if k != "axis_prior"})
+    image, o, validity, K = _prepared(image, camera, valid_region, {k: v for k, v in options.items() if k not in (
+        "axis_prior", "pixel_evidence", "tissue_colour")})
     ones = _instruments(previous)
     if prior is None:
         prior = [s.ideal_edges for s in ones]
@@ -573,6 +593,10 @@ def track_shafts(image, camera, previous, *, valid_region=None, prior=None, reac
             E = E[drop_repeated(E, np.hypot(E[:, 2] - E[:, 0], E[:, 3] - E[:, 1]))]
             found += [s for s in _edge_shafts(bands_from_edges(img, camera, E, o, sig_n), camera, o, K)
                       if s is not None]
+    # a shaft found again is judged as a detected one: one that lost its instrument-like
+    # pixels or took the tissue's colour (the corridor slid onto tissue) is not the instrument
+    found = judged(image, camera, found, validity, None, options.get("pixel_evidence", MIN_PIXEL_EVIDENCE),
+                   options.get("tissue_colour", MAX_TISSUE_COLOUR))
     if len(_instruments(found)) < len(prior):
         return (detect_shafts(image, camera, valid_region=valid_region, **options) if detect else []), False
     return with_limbs(image, camera, found, o.edge_model, o.gamma, K), True

@@ -103,3 +103,26 @@ def test_a_shaft_the_colour_found_is_tracked_by_its_colour_and_measured_alike():
     prev = detect_shafts(frames[0], camera)
     far = dataclasses.replace(prev[0], ideal_edges=prev[0].ideal_edges + [0.0, 200.0, 0.0, 200.0])
     assert track_shafts(frames[1], camera, [far])[1] is False
+
+
+def test_every_path_judges_its_shafts():
+    """A shaft found again by tracking, and one found by the fulcrum prior's angle search, is
+    judged as a detected one (`shaft.detector.judged`: pixel evidence, tissue colour): with a
+    bar no band can reach, neither path returns one (before, both returned the instrument)."""
+    from pencilcal.toolkit.detect.shaft.prior import AxisPrior
+    from pencilcal.validation.bench_video import moving_shaft_frames
+
+    camera, frames = moving_shaft_frames(6, size=(960, 540))
+    tracker = ShaftTracker()
+    for img in frames[:-1]:  # until a velocity is known: the last frame is tracked
+        prev = tracker(img, camera)
+    pred, reach = tracker.motion.search()
+    kw = dict(prior=pred, reach_px=reach, widths=tracker.widths, colours=tracker.colours, detect=False)
+    found, tracked = track_shafts(frames[-1], camera, prev, **kw)
+    assert tracked and len(found) == 1
+    for bar in (dict(pixel_evidence=1.01), dict(tissue_colour=-10.0)):
+        assert track_shafts(frames[-1], camera, prev, **kw, **bar) == ([], False)
+    m = np.asarray(found[0].ideal_midline, float).reshape(2, 2)
+    prior = AxisPrior.from_point(m[0] + 2.0 * (m[0] - m[1]), np.eye(2) * 25.0)
+    assert len(detect_shafts(frames[-1], camera, axis_prior=prior)) == 1
+    assert detect_shafts(frames[-1], camera, axis_prior=prior, pixel_evidence=1.01) == []
