@@ -33,6 +33,10 @@ splits the frames, in their order, into runs (epochs) each with its own point:
    at its own frame (no multiplicity), and the least significant is removed while its
    p-value is alpha or more.
 
+The engine (steps 2-4, `segment_runs`) takes any cost of runs of frames: the shafts' 3-D
+axes of a moving camera use it too (`axis_epochs`; a point and a scale, four parameters,
+F(4, nu) by `f_sf`).
+
 F(2, nu) has the closed-form survival function ``(1 + 2 F / nu)^(-nu / 2)``; Monte Carlo
 on lines with the fulcrum's noise model (tests/toolkit/pencil/test_epochs.py) gives the
 false split rate below `alpha` and the detected moves.
@@ -61,7 +65,7 @@ from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.pencil.vertex import intersect_lines
 
 __all__ = ["ALPHA", "MIN_FRAMES", "MAX_POSITIONS", "ChangePoint", "Epochs", "split_epochs", "frame_epochs", "distinct_lines",
-           "f2_sf"]
+           "f2_sf", "f_sf", "segment_runs"]
 
 #: Significance of a change point (after the Bonferroni factor over the frames tried).
 ALPHA = 0.01
@@ -71,6 +75,24 @@ MIN_FRAMES = 4
 #: A run is tried at this many frames at most, then around the best.
 MAX_POSITIONS = 32
 _INLIER_CONFIDENCE = 0.999  # the fulcrum's own (`vertex.intersect_lines`)
+
+
+def f_sf(f, k, nu):
+    """P(F > f) for F distributed F(k, nu), k even: with ``x = nu / (nu + k f)`` and ``a =
+    nu / 2``, ``x^a sum_{j < k/2} (a)_j / j! (1 - x)^j`` (the regularised incomplete beta
+    function of an integer second argument); k = 2 is `f2_sf`.
+
+    >>> round(f_sf(3.32, 4, 1e9), 4)        # nu -> inf: chi2(4) / 4 above 13.28
+    0.01
+    """
+    if int(k) != k or k < 2 or k % 2:
+        raise InputError(f"f_sf: k must be an even integer >= 2, got {k!r}")
+    x = nu / (nu + k * max(float(f), 0.0))
+    a, term, total = nu / 2.0, 1.0, 1.0
+    for j in range(int(k) // 2 - 1):
+        term *= (a + j) / (j + 1) * (1.0 - x)
+        total += term
+    return float(min(1.0, x**a * total))
 
 
 def f2_sf(f, nu):
@@ -149,7 +171,17 @@ class Epochs:
 
 class _Runs:
     """The cost of one common point for sets of runs of frames, cached (module docstring,
-    step 1); scale: the factor on the lines' sigmas."""
+    step 1); scale: the factor on the lines' sigmas. The engine (`segment_runs`) asks any
+    such cost for: ``fit(*runs)`` (MSAC cost, inlier chi2, inliers, the point or None),
+    ``scaled(s)``, ``params`` (the parameters of one point: its alternative frees as many)
+    and ``residuals(n)`` (the residuals of n inliers)."""
+
+    params = 2
+
+    @staticmethod
+    def residuals(n):
+        """One residual a line."""
+        return n
 
     def __init__(self, segments, angle_sigma, offset_sigma, frame_of, scale=1.0):
         self.s, self.st, self.sc, self.f = segments, angle_sigma * scale, offset_sigma * scale, frame_of
@@ -297,7 +329,8 @@ def _best(runs, a, b, ks, pairs):
 def _stat(runs, a, b, h, D, chi2, n_in, positions):
     """The test of alternative h on [a, b) (module docstring, step 2): (p_corrected,
     `ChangePoint` list)."""
-    nu = max(n_in - 4, 1)
+    k = runs.params
+    nu = max(runs.residuals(n_in) - 2 * k, 1)
     scale = max(1.0, chi2 / nu)
     (rl, rr) = _runs_of(h, a, b)
     if scale > 1.0:
@@ -306,9 +339,9 @@ def _stat(runs, a, b, h, D, chi2, n_in, positions):
         sr = runs.scaled(np.sqrt(scale))
         l, r = sr.fit(*rl), sr.fit(*rr)
         D = sr.fit((a, b))[0] - l[0] - r[0]
-        nu = max(l[2] + r[2] - 4, 1)
-    F = max(D, 0.0) / 2.0
-    p = f2_sf(F, nu)
+        nu = max(runs.residuals(l[2] + r[2]) - 2 * k, 1)
+    F = max(D, 0.0) / k
+    p = f_sf(F, k, nu)
     pc = min(1.0, 2.0 * p * positions)
     verts = (runs.fit(*rl)[3], runs.fit(*rr)[3])
     common = dict(start=a, stop=b, drop=float(D), scale=float(scale), statistic=float(F), dof=int(nu), p_value=p,
@@ -379,8 +412,16 @@ def split_epochs(segments, angle_sigma, offset_sigma, frame_of, n_frames, *, alp
         raise InputError(f"alpha must be in (0, 1), got {alpha!r}")
     st = np.broadcast_to(np.asarray(angle_sigma, float), (n,))
     sc = np.broadcast_to(np.asarray(offset_sigma, float), (n,))
-    runs = _Runs(s, st, sc, f)
-    counts = np.bincount(f, minlength=n_frames)
+    return segment_runs(_Runs(s, st, sc, f), np.bincount(f, minlength=n_frames), alpha=alpha, min_frames=min_frames)
+
+
+def segment_runs(runs, counts, *, alpha=ALPHA, min_frames=MIN_FRAMES):
+    """`Epochs` of frames [0, len(counts)) by binary segmentation and merging (module
+    docstring, steps 2-4) of a cost of runs of frames (`_Runs` says what it must give: the
+    lines' here, `axis_epochs.axis_epochs`' of 3-D axes); counts: (n_frames,) the
+    observations of each frame."""
+    counts = np.asarray(counts, int)
+    n_frames = counts.size
     todo, changes, kept = [(0, int(n_frames))], [], []
     while todo:
         a, b = todo.pop()

@@ -54,7 +54,7 @@ from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, Fusio
                                                fulcrum_3d, shaft_axis_record, triangulate_rays)
 from pencilcal.toolkit.pencil.vertex import intersect_lines
 
-__all__ = ["Fulcrum", "FulcrumPoint", "StereoFulcrum", "SequenceLines", "fulcrum_from_frames", "fulcrum_point",
+__all__ = ["Fulcrum", "FulcrumPoint", "StereoFulcrum", "SequenceLines", "fulcrum_from_frames", "fulcrum_point", "frame_axes", "point_epochs",
            "point_lens_cov", "sequence_lines",
            "stereo_fulcrum",
            "triangulation_lens_cov", "read_angles"]
@@ -265,8 +265,28 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None):
     (`moving_fulcrum.fulcrum_moving`); no ``lens_cov`` then (the poses hold the lens too).
     A frame whose ``camera_pose`` is None (its pose not measured) gives no axis.
     """
-    points, dirs, covs, owners, skipped, measured, poses = [], [], [], [], 0, [], []
-    for fr in frames:
+    points, dirs, covs, owners, measured, poses, _, skipped = frame_axes(camera, frames, diameter)
+    if len(points) < 2:
+        raise EstimationError(f"the 3-D fulcrum needs the 3-D axes of two shafts at least, got {len(points)}"
+                              + (f" ({skipped} shaft(s) without edge_cov or a valid axis)" if skipped else ""))
+    if any(p is not None for p in poses):
+        return _moving_point(points, dirs, covs, poses, owners, diameter, skipped, robust)
+    fit = fulcrum_3d(np.array(points), np.array(dirs), np.array(covs), robust=robust)
+    lens = None
+    if intrinsics_cov is not None:
+        used = [measured[k] for k in np.flatnonzero(np.asarray(fit.inliers))]
+        lens = point_lens_cov(camera, intrinsics_cov, used, diameter)
+    return FulcrumPoint(fit=fit, owners=owners, diameter=float(diameter), skipped=skipped,
+                        axis_points=np.array(points), axis_directions=normalize(np.array(dirs)), lens_cov=lens)
+
+
+def frame_axes(camera, frames, diameter):
+    """(points, directions, covs, owners [(image, shaft index)], measured [(edges,
+    edge_cov)], poses [``camera_pose`` or None], frame indices, skipped) of every shaft's
+    3-D axis in lines.json `frames` (`fulcrum_point`: in its own frame's camera where the
+    frame carries its ``camera_pose``); lists, one entry an axis."""
+    points, dirs, covs, owners, measured, poses, index, skipped = [], [], [], [], [], [], [], 0
+    for i, fr in enumerate(frames):
         if not fr.get("ok", True):
             continue
         pose = fr.get("camera_pose")
@@ -286,18 +306,33 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None):
             owners.append((fr.get("image"), j))
             measured.append((sh[keys[0]], sh[keys[1]]))
             poses.append(pose)
-    if len(points) < 2:
-        raise EstimationError(f"the 3-D fulcrum needs the 3-D axes of two shafts at least, got {len(points)}"
-                              + (f" ({skipped} shaft(s) without edge_cov or a valid axis)" if skipped else ""))
-    if any(p is not None for p in poses):
-        return _moving_point(points, dirs, covs, poses, owners, diameter, skipped, robust)
-    fit = fulcrum_3d(np.array(points), np.array(dirs), np.array(covs), robust=robust)
-    lens = None
-    if intrinsics_cov is not None:
-        used = [measured[k] for k in np.flatnonzero(np.asarray(fit.inliers))]
-        lens = point_lens_cov(camera, intrinsics_cov, used, diameter)
-    return FulcrumPoint(fit=fit, owners=owners, diameter=float(diameter), skipped=skipped,
-                        axis_points=np.array(points), axis_directions=normalize(np.array(dirs)), lens_cov=lens)
+            index.append(i)
+    return points, dirs, covs, owners, measured, poses, index, skipped
+
+
+def point_epochs(camera, frames, diameter, *, alpha=None, min_frames=None):
+    """The pivot epochs (`epochs.Epochs`) of lines.json `frames` whose ``camera_pose`` carries
+    their camera (``--stabilize`` with poses) from their shafts' 3-D axes carried into the
+    reference camera (`axis_epochs.axis_epochs`), or None where no frame has a pose.
+    alpha, min_frames: the test's (None: `epochs.ALPHA`, `epochs.MIN_FRAMES`)."""
+    from pencilcal.toolkit.pencil.axis_epochs import axis_epochs
+    from pencilcal.toolkit.pencil.epochs import ALPHA, MIN_FRAMES
+
+    points, dirs, covs, _, _, poses, index, _ = frame_axes(camera, frames, diameter)
+    if not any(p is not None for p in poses):
+        return None
+    R, t, S = _pose_arrays(poses)
+    return axis_epochs(np.array(points), np.array(dirs), np.array(covs), R, t, S, np.array(index, int), len(frames),
+                       alpha=ALPHA if alpha is None else alpha, min_frames=MIN_FRAMES if min_frames is None else min_frames)
+
+
+def _pose_arrays(poses):
+    """(R (N, 3, 3), t (N, 3), cov (N, 6, 6)) of ``camera_pose`` records (None: the
+    reference's camera)."""
+    still = {"R_ref_from_frame": np.eye(3), "t_ref_from_frame": np.zeros(3), "cov": np.zeros((6, 6))}
+    poses = [still if p is None else p for p in poses]
+    return (np.array([p["R_ref_from_frame"] for p in poses], float),
+            np.array([p["t_ref_from_frame"] for p in poses], float), np.array([p["cov"] for p in poses], float))
 
 
 def _moving_point(points, dirs, covs, poses, owners, diameter, skipped, robust):
@@ -305,14 +340,9 @@ def _moving_point(points, dirs, covs, poses, owners, diameter, skipped, robust):
     (``camera_pose``; a frame without one is the reference's camera): `moving_fulcrum`."""
     from pencilcal.toolkit.pencil.moving_fulcrum import fulcrum_moving
 
-    still = {"R_ref_from_frame": np.eye(3), "t_ref_from_frame": np.zeros(3), "cov": np.zeros((6, 6))}
-    poses = [still if p is None else p for p in poses]
-    mv = fulcrum_moving(np.array(points), np.array(dirs), np.array(covs),
-                        np.array([p["R_ref_from_frame"] for p in poses], float),
-                        np.array([p["t_ref_from_frame"] for p in poses], float),
-                        np.array([p["cov"] for p in poses], float), robust=robust)
-    moved = sum(1 for p in poses if np.any(np.asarray(p["t_ref_from_frame"], float) != 0)
-                or np.any(np.asarray(p["R_ref_from_frame"], float) != np.eye(3)))
+    R, t, S = _pose_arrays(poses)
+    mv = fulcrum_moving(np.array(points), np.array(dirs), np.array(covs), R, t, S, robust=robust)
+    moved = int(np.sum(np.any(t != 0, axis=-1) | np.any(R != np.eye(3), axis=(-2, -1))))
     motion = {"frames_moved": moved, "scale": mv.scale, "scale_sigma": mv.scale_sigma}
     return FulcrumPoint(fit=mv.fit, owners=owners, diameter=float(diameter), skipped=skipped,
                         axis_points=mv.points, axis_directions=mv.directions, camera_motion=motion)
