@@ -31,6 +31,11 @@ the reference frame's features (undistorted px, off the instrument):
    background, is easily wrong), and the map that poses most frames with the most matches
    within `BUNDLE_INLIER_PX` is kept.
 
+Poses are named by their frames as in COLMAP (X_a = R_a_from_b X_b + t_a_from_b): the
+matches, the essential matrix, PnP and the bundle work with R_frame_from_ref,
+t_frame_from_ref; a `FramePose` holds the inverse, R_ref_from_frame, t_ref_from_frame, which
+carries a frame's axis into the reference camera (`pencil.moving_fulcrum`).
+
 The map's unit is not a length: the 3-D fulcrum fits it (mm per map unit) with the point,
 from the shafts' metric depths (`pencil.moving_fulcrum`). Where no frame has the parallax
 (the camera only turned, or stood still) the poses are the homographies' rotations
@@ -75,20 +80,22 @@ _GAUGE = 1e4
 
 @dataclass(frozen=True)
 class FramePose:
-    """A frame's camera in the reference's (`background_poses`): R (3, 3) R_ref_from_frame,
-    t (3,) t_ref_from_frame [map unit], cov (6, 6) of (rotation vector of a left turn of R
-    [rad], t [map unit]); inliers of the PnP (or of the homography for "rotation"), rms_px
-    their reprojection error."""
+    """A frame's camera in the reference's (`background_poses`): R_ref_from_frame (3, 3),
+    t_ref_from_frame (3,) [map unit] (X_ref = R_ref_from_frame X_frame + t_ref_from_frame),
+    cov (6, 6) of (rotation vector of a left turn of R_ref_from_frame [rad],
+    t_ref_from_frame [map unit]); inliers of the PnP (or of the homography for
+    "rotation"), rms_px their reprojection error."""
 
-    R: np.ndarray
-    t: np.ndarray
+    R_ref_from_frame: np.ndarray
+    t_ref_from_frame: np.ndarray
     cov: np.ndarray
     inliers: int
     rms_px: float
 
     def to_dict(self) -> dict:
         """fulcrum.json's record of the pose (``stabilize.frames[].pose``)."""
-        return {"R_ref_from_frame": self.R.tolist(), "t_ref_from_frame": self.t.tolist(), "cov": self.cov.tolist(),
+        return {"R_ref_from_frame": self.R_ref_from_frame.tolist(), "t_ref_from_frame": self.t_ref_from_frame.tolist(),
+                "cov": self.cov.tolist(),
                 "inliers": self.inliers, "rms_px": float(self.rms_px)}
 
     @classmethod
@@ -137,11 +144,12 @@ def rotation_from_homography(H, cov_H, K):
 
 def pose_inverse_cov(rvec, tvec, cov):
     """(R_ref_from_frame, t_ref_from_frame, its 6 x 6 covariance) of the PnP pose
-    (rvec, tvec: frame from reference, cv2's convention) with the covariance cov (6, 6) of
-    (rvec, tvec), by central differences to the left turn of the inverse's rotation."""
+    (rvec, tvec: the rotation vector of R_frame_from_ref and t_frame_from_ref, cv2's
+    convention) with the covariance cov (6, 6) of (rvec, tvec), by central differences to
+    the left turn of the inverse's rotation."""
     def inv(x):
-        R = _rodrigues(x[:3])
-        return R.T, -R.T @ x[3:]
+        R_frame_from_ref = _rodrigues(x[:3])
+        return R_frame_from_ref.T, -R_frame_from_ref.T @ x[3:]
 
     x0 = np.r_[np.ravel(rvec), np.ravel(tvec)]
     R0, t0 = inv(x0)
@@ -157,8 +165,9 @@ def pose_inverse_cov(rvec, tvec, cov):
 
 
 def _relative(src, dst, K):
-    """(R, t, inlier mask, median parallax [deg]) of a frame (points src (M, 2)) to the
-    reference (dst): X_frame = R X_ref + t, |t| = 1; None where there is no essential matrix."""
+    """(R_frame_from_ref, t_frame_from_ref, inlier mask, median parallax [deg]) of a frame
+    (points src (M, 2)) to the reference (dst): X_frame = R_frame_from_ref X_ref +
+    t_frame_from_ref, |t_frame_from_ref| = 1; None where there is no essential matrix."""
     import cv2
 
     if len(src) < 8:
@@ -179,33 +188,34 @@ def _relative(src, dst, K):
         return None
     mask = np.zeros((len(src), 1), np.uint8)
     mask[first] = m.reshape(-1, 1)
-    n, R, t, mask = cv2.recoverPose(E, dst, src, K, mask=mask)
+    n, R_frame_from_ref, t_frame_from_ref, mask = cv2.recoverPose(E, dst, src, K, mask=mask)
     keep = mask.ravel() > 0
     if n < MIN_MAP_POINTS:
         return None
     Ki = np.linalg.inv(K)
     a = np.c_[dst[keep], np.ones(keep.sum())] @ Ki.T
-    b = (np.c_[src[keep], np.ones(keep.sum())] @ Ki.T) @ R      # the frame's rays turned into the reference's
+    b = (np.c_[src[keep], np.ones(keep.sum())] @ Ki.T) @ R_frame_from_ref   # the frame's rays in the reference's
     cosang = np.sum(a * b, -1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
-    return R, t.ravel(), keep, float(np.degrees(np.median(np.arccos(np.clip(cosang, -1.0, 1.0)))))
+    return (R_frame_from_ref, t_frame_from_ref.ravel(), keep,
+            float(np.degrees(np.median(np.arccos(np.clip(cosang, -1.0, 1.0))))))
 
 
-def _triangulate(src, dst, K, R, t):
+def _triangulate(src, dst, K, R_frame_from_ref, t_frame_from_ref):
     """(X (M, 3) in the reference camera, good (M,)) of matches src (frame) to dst
-    (reference) with the frame's pose X_frame = R X_ref + t: in front of both cameras,
-    reprojected within RANSAC_PX in both, parallax at least MAP_PARALLAX_DEG."""
+    (reference) with the frame's pose (R_frame_from_ref, t_frame_from_ref): in front of
+    both cameras, reprojected within RANSAC_PX in both, parallax at least MAP_PARALLAX_DEG."""
     import cv2
 
     P0 = K @ np.c_[np.eye(3), np.zeros(3)]
-    P1 = K @ np.c_[R, t]
+    P1 = K @ np.c_[R_frame_from_ref, t_frame_from_ref]
     Xh = cv2.triangulatePoints(P0, P1, dst.T.astype(float), src.T.astype(float))
     X = (Xh[:3] / Xh[3]).T
-    Xf = X @ R.T + t
+    Xf = X @ R_frame_from_ref.T + t_frame_from_ref
     good = (X[:, 2] > 0) & (Xf[:, 2] > 0)
     q0, q1 = X @ K.T, Xf @ K.T
     e0 = np.hypot(*(q0[:, :2] / q0[:, 2:] - dst).T)
     e1 = np.hypot(*(q1[:, :2] / q1[:, 2:] - src).T)
-    c = -R.T @ t                                               # the frame's centre in the reference
+    c = -R_frame_from_ref.T @ t_frame_from_ref                 # the frame's centre in the reference
     a, b = X, X - c
     cosang = np.sum(a * b, -1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
     par = np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
@@ -213,7 +223,8 @@ def _triangulate(src, dst, K, R, t):
 
 
 def _pnp(X, x, K):
-    """(rvec, tvec, cov (6, 6), inliers, rms [px]) of the pose (frame from reference) that
+    """(rvec, tvec, cov (6, 6), inliers, rms [px]) of the pose (R_frame_from_ref's rotation
+    vector, t_frame_from_ref) that
     projects the map points X (N, 3) to the frame's x (N, 2) [undistorted px], or None."""
     import cv2
 
@@ -255,8 +266,8 @@ def background_poses(matches, K, ref, homographies=None):
     if anchor is None or par[anchor] < MIN_PARALLAX_DEG:
         return "rotation", None, _rotations(matches, homographies, ref, K, identity)
     best = None
-    for R, t in _anchor_candidates(rel[anchor], matches[anchor], K):
-        got, world = _grow(matches, anchor, R, t, K)
+    for R_frame_from_ref, t_frame_from_ref in _anchor_candidates(rel[anchor], matches[anchor], K):
+        got, world = _grow(matches, anchor, R_frame_from_ref, t_frame_from_ref, K)
         if anchor not in got:
             continue
         got, agree = _bundle(matches, got, world, K, anchor)
@@ -284,10 +295,10 @@ def _rotations(matches, homographies, ref, K, identity):
         if i == ref or m is None or h is None:
             out.append(identity if i == ref else None)
             continue
-        R, c = rotation_from_homography(h[0], h[1], K)
+        R_ref_from_frame, c = rotation_from_homography(h[0], h[1], K)
         cov = np.zeros((6, 6))
         cov[:3, :3] = c
-        out.append(FramePose(R, np.zeros(3), cov, len(m[0]), float("nan")))
+        out.append(FramePose(R_ref_from_frame, np.zeros(3), cov, len(m[0]), float("nan")))
     return out
 
 
@@ -383,14 +394,14 @@ def _bundle(matches, got, world, K, anchor):
 
 
 def _anchor_candidates(rel, match, K):
-    """[(R, t)] the anchor's relative poses to try (X_anchor = R X_ref + t, |t| = 1): the
+    """[(R_frame_from_ref, t_frame_from_ref)] the anchor's relative poses to try (|t| = 1): the
     essential matrix's, and the decompositions of the homography of its inliers (a flat
     background leaves the essential matrix two-fold ambiguous; the map that poses the
     other frames best decides)."""
     import cv2
 
-    R, t, keep, _ = rel
-    out = [(R, t)]
+    R_frame_from_ref, t_frame_from_ref, keep, _ = rel
+    out = [(R_frame_from_ref, t_frame_from_ref)]
     src, dst = (np.asarray(a, float)[keep] for a in match[:2])
     H, _ = cv2.findHomography(dst, src, cv2.RANSAC, RANSAC_PX)
     if H is None:
@@ -403,12 +414,12 @@ def _anchor_candidates(rel, match, K):
     return out
 
 
-def _grow(matches, anchor, R, t, K):
+def _grow(matches, anchor, R_frame_from_ref, t_frame_from_ref, K):
     """({frame index: PnP pose}, the map) of every frame the map reaches, from the anchor's
-    relative pose (R, t): the map triangulated from it, the frames posed, the map grown from
-    their matches, again (`MAP_ROUNDS`)."""
+    relative pose: the map triangulated from it, the frames posed, the map grown from their
+    matches, again (`MAP_ROUNDS`)."""
     src, dst, idx = (np.asarray(a) for a in matches[anchor])
-    world = _add_points({}, src.astype(float), dst.astype(float), idx, K, R, t)
+    world = _add_points({}, src.astype(float), dst.astype(float), idx, K, R_frame_from_ref, t_frame_from_ref)
     got = {}
     for _ in range(MAP_ROUNDS):  # pose what the map reaches, grow the map from the new poses, again
         new = {}
@@ -430,10 +441,11 @@ def _grow(matches, anchor, R, t, K):
     return got, world
 
 
-def _add_points(world, src, dst, idx, K, R, t):
+def _add_points(world, src, dst, idx, K, R_frame_from_ref, t_frame_from_ref):
     """The map `world` ({reference feature index: (3,) point}) with the matches of a frame
-    of pose X_frame = R X_ref + t triangulated where they are not yet in it (`_triangulate`)."""
-    X, good = _triangulate(src, dst, K, R, t)
+    of pose (R_frame_from_ref, t_frame_from_ref) triangulated where they are not yet in it
+    (`_triangulate`)."""
+    X, good = _triangulate(src, dst, K, R_frame_from_ref, t_frame_from_ref)
     out = dict(world)
     for k, x, g in zip(idx, X, good):
         if g and int(k) not in out:

@@ -138,9 +138,9 @@ def test_the_background_poses(measured):
     rot, T, M = [], [], []
     for fr, m in zip(sc.frames, motions):
         R_rf = R0 @ fr["R_cam_from_target"].T
-        rot.append(math.degrees(rotation_angle(R_rf, m.pose.R)))
+        rot.append(math.degrees(rotation_angle(R_rf, m.pose.R_ref_from_frame)))
         T.append(t0 - R_rf @ fr["t_cam_from_target"])
-        M.append(m.pose.t)
+        M.append(m.pose.t_ref_from_frame)
     T, M = np.array(T), np.array(M)
     unit = float(np.sum(T * M) / np.sum(M * M))
     err = np.linalg.norm(T - unit * M, axis=-1)
@@ -253,11 +253,11 @@ def test_the_poses_of_random_background_points():
         model, anchor, got = background_poses(_synthetic_matches(rng, poses, K), K, 0)
         assert model == "map" and all(g is not None for g in got)
         T = np.array([t for _, t in poses[1:]])
-        M = np.array([g.t for g in got[1:]])
+        M = np.array([g.t_ref_from_frame for g in got[1:]])
         unit = float(np.sum(T * M) / np.sum(M * M))
         assert np.abs(T - unit * M).max() < 0.5
         for (R, _), g in zip(poses[1:], got[1:]):
-            e = rotvec_from_rotation(g.R @ R.T)
+            e = rotvec_from_rotation(g.R_ref_from_frame @ R.T)
             chi2.append(float(e @ np.linalg.solve(g.cov[:3, :3], e)))
     print("rotation chi2: mean", np.mean(chi2), "above 11.3:", int(np.sum(np.array(chi2) > 11.34)), "of", len(chi2))
     assert np.mean(chi2) < 6.0 and np.sum(np.array(chi2) > 11.34) <= 3
@@ -266,7 +266,7 @@ def test_the_poses_of_random_background_points():
     matches = _synthetic_matches(rng, turned, K)
     model, anchor, got = background_poses(matches, K, 0, homographies=[None] + [
         (_homography(m), np.zeros((8, 8))) for m in matches[1:]])
-    assert model == "rotation" and all(rotation_angle(g.R, R) < math.radians(0.05)
+    assert model == "rotation" and all(rotation_angle(g.R_ref_from_frame, R) < math.radians(0.05)
                                        for (R, _), g in zip(turned[1:], got[1:]))
 
 
