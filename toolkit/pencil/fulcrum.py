@@ -54,8 +54,8 @@ from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, Fusio
                                                fulcrum_3d, shaft_axis_record, triangulate_rays)
 from pencilcal.toolkit.pencil.vertex import intersect_lines
 
-__all__ = ["Fulcrum", "FulcrumPoint", "StereoFulcrum", "SequenceLines", "fulcrum_from_frames", "fulcrum_point", "frame_axes", "point_epochs",
-           "point_lens_cov", "sequence_lines",
+__all__ = ["Fulcrum", "FulcrumPoint", "StereoFulcrum", "SequenceLines", "fulcrum_from_frames", "fulcrum_point",
+           "frame_axes", "pose_arrays", "point_lens_cov", "sequence_lines",
            "stereo_fulcrum",
            "triangulation_lens_cov", "read_angles"]
 
@@ -201,7 +201,9 @@ class FulcrumPoint:
     axis_directions: (N, 3) each axis's point closest to the camera centre and its unit
     direction (camera frame), or None. camera_motion: where the frames carry their
     camera's pose (a moving camera: `moving_fulcrum`), {frames_moved, scale (the length
-    of the poses' map unit; None where the camera only turned), scale_sigma}; every 3-D
+    of the poses' map unit; None where the camera only turned), scale_sigma,
+    variance_factor (what the point's covariance was multiplied by: its axes' chi2 per
+    degree of freedom, at least 1)}; every 3-D
     quantity is then in the reference frame's camera, and the axes' points are carried.
     """
 
@@ -310,23 +312,7 @@ def frame_axes(camera, frames, diameter):
     return points, dirs, covs, owners, measured, poses, index, skipped
 
 
-def point_epochs(camera, frames, diameter, *, alpha=None, min_frames=None):
-    """The pivot epochs (`epochs.Epochs`) of lines.json `frames` whose ``camera_pose`` carries
-    their camera (``--stabilize`` with poses) from their shafts' 3-D axes carried into the
-    reference camera (`axis_epochs.axis_epochs`), or None where no frame has a pose.
-    alpha, min_frames: the test's (None: `epochs.ALPHA`, `epochs.MIN_FRAMES`)."""
-    from pencilcal.toolkit.pencil.axis_epochs import axis_epochs
-    from pencilcal.toolkit.pencil.epochs import ALPHA, MIN_FRAMES
-
-    points, dirs, covs, _, _, poses, index, _ = frame_axes(camera, frames, diameter)
-    if not any(p is not None for p in poses):
-        return None
-    R, t, S = _pose_arrays(poses)
-    return axis_epochs(np.array(points), np.array(dirs), np.array(covs), R, t, S, np.array(index, int), len(frames),
-                       alpha=ALPHA if alpha is None else alpha, min_frames=MIN_FRAMES if min_frames is None else min_frames)
-
-
-def _pose_arrays(poses):
+def pose_arrays(poses):
     """(R (N, 3, 3), t (N, 3), cov (N, 6, 6)) of ``camera_pose`` records (None: the
     reference's camera)."""
     still = {"R_ref_from_frame": np.eye(3), "t_ref_from_frame": np.zeros(3), "cov": np.zeros((6, 6))}
@@ -340,10 +326,11 @@ def _moving_point(points, dirs, covs, poses, owners, diameter, skipped, robust):
     (``camera_pose``; a frame without one is the reference's camera): `moving_fulcrum`."""
     from pencilcal.toolkit.pencil.moving_fulcrum import fulcrum_moving
 
-    R, t, S = _pose_arrays(poses)
+    R, t, S = pose_arrays(poses)
     mv = fulcrum_moving(np.array(points), np.array(dirs), np.array(covs), R, t, S, robust=robust)
     moved = int(np.sum(np.any(t != 0, axis=-1) | np.any(R != np.eye(3), axis=(-2, -1))))
-    motion = {"frames_moved": moved, "scale": mv.scale, "scale_sigma": mv.scale_sigma}
+    motion = {"frames_moved": moved, "scale": mv.scale, "scale_sigma": mv.scale_sigma,
+              "variance_factor": mv.variance_factor}
     return FulcrumPoint(fit=mv.fit, owners=owners, diameter=float(diameter), skipped=skipped,
                         axis_points=mv.points, axis_directions=mv.directions, camera_motion=motion)
 
