@@ -299,6 +299,27 @@ def _check_usage(o):
 TURN_ONLY = 0.05
 
 
+def _point_epochs(camera, frames, shaft_diameter):
+    """fulcrum.json's ``point_epoch_test`` (and ``point_epochs`` where the 3-D fulcrum moved)
+    of --stabilize with poses (`fulcrum_run.point_epochs_record`), with a warning naming
+    the 3-D epochs."""
+    from pencilcal.validation.fulcrum_run import point_epochs_record
+
+    names = [f["image"] for f in frames]
+    try:
+        test, epochs = point_epochs_record(camera, frames, shaft_diameter, names)
+    except EstimationError as e:
+        warn(f"--stabilize: no change-point test on the 3-D axes: {e}")
+        return {}
+    if test is None:
+        return {}
+    if epochs:
+        warn(f"the 3-D fulcrum moved: {len(epochs)} epochs of the carried axes ("
+             + ", ".join(f"{e['images'][0]}-{e['images'][-1]}" for e in epochs)
+             + "): each one's 3-D fulcrum is in 'point_epochs', the one of all frames at the top")
+    return {"point_epoch_test": test, **({"point_epochs": epochs} if epochs else {})}
+
+
 def _stabilized(source, camera, frames, mask_path, shaft_diameter):
     """(frames with their lines in the reference frame, fulcrum.json's ``stabilize``
     record) of --stabilize: the background's homography of every frame to the middle one
@@ -490,7 +511,9 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     the same matches too (a map of the background, PnP, a bundle adjustment with its
     covariance; ``stabilize.frames[].pose``) and every frame's 3-D axis is carried into
     the middle frame's camera by it, the translations' unit fitted with the 3-D fulcrum
-    (``point_camera_motion``): the 3-D point is then in the middle frame's camera.
+    (``point_camera_motion``): the 3-D point is then in the middle frame's camera, and a
+    change-point test on the carried 3-D axes (``point_epoch_test``) splits the frames
+    where the 3-D fulcrum moved (``point_epochs``: each one's 3-D fulcrum).
 
     From frame to frame (--track, with --workers 1) each shaft is looked for where a
     constant-velocity model of its edges predicts it, within that prediction's uncertainty,
@@ -576,6 +599,8 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
         out["fulcrum_prior"] = prior_spec
     if motion is not None:
         out["stabilize"] = motion
+        if shaft_diameter is not None and motion.get("pose_model") == "map":
+            out.update(_point_epochs(camera, frames, shaft_diameter))
     if rig is not None:
         out["stereo"] = _stereo(res, right_images, camera_right, camera_right_path, rig, options, endpoint_sigma,
                                 given, max_pixels, workers, quiet, force, (camera, frames, shaft_diameter), poses)

@@ -25,7 +25,8 @@ from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames
 from pencilcal.toolkit.pencil.sequence_noise import fulcrum_with_noise
 
-__all__ = ["fulcrum_with_sigmas", "jackknife_sigmas", "fulcrum_epochs", "epochs_record", "JACKKNIFE_FRAMES"]
+__all__ = ["fulcrum_with_sigmas", "jackknife_sigmas", "fulcrum_epochs", "epochs_record", "point_epochs_record",
+           "JACKKNIFE_FRAMES"]
 
 #: Frames with a line below which the jackknife is not run (too few to judge the spread).
 JACKKNIFE_FRAMES = 8
@@ -132,10 +133,7 @@ def epochs_record(ep, results, names, priors=None):
     epoch, `shaft.prior.prior_record`)."""
     from pencilcal.toolkit.detect.shaft.prior import prior_record
 
-    test = {"alpha": ep.alpha, "min_frames": ep.min_frames, "epochs": len(ep.bounds),
-            "change_points": [c.to_dict(names) for c in ep.changes],
-            "kept": [{"frames": [a, b - 1], "p_corrected": p} for a, b, p in ep.kept],
-            "merged": [{"index": k, "p_value": p} for k, p in ep.merged]}
+    test = _test_record(ep, names)
     epochs = []
     for e, ((a, b), (res, err)) in enumerate(zip(ep.bounds, results)):
         rec = {"first": a, "last": b - 1, "images": list(names[a:b])}
@@ -146,3 +144,43 @@ def epochs_record(ep, results, names, priors=None):
             rec["axis_prior"] = prior_record(priors[e])
         epochs.append(rec)
     return test, epochs
+
+
+def _test_record(ep, names):
+    """The ``epoch_test`` record of `epochs.Epochs` (`epochs_record`)."""
+    return {"alpha": ep.alpha, "min_frames": ep.min_frames, "epochs": len(ep.bounds),
+            "change_points": [c.to_dict(names) for c in ep.changes],
+            "kept": [{"frames": [a, b - 1], "p_corrected": p} for a, b, p in ep.kept],
+            "merged": [{"index": k, "p_value": p} for k, p in ep.merged]}
+
+
+def point_epochs_record(camera, frames, diameter, names):
+    """fulcrum.json's ``point_epoch_test`` and ``point_epochs`` records of frames whose
+    ``camera_pose`` carries their camera (--stabilize with poses): the change-point test on
+    the 3-D axes carried into the reference camera (`toolkit.pencil.axis_epochs.point_epochs`;
+    its change points' ``vertices_ideal_px`` are here ``points``, the two fits' 3-D points)
+    and, where it splits, each epoch's frames (``first``, ``last``, ``images``) with its 3-D
+    fulcrum's record (`fulcrum.fulcrum_point`) and ``jackknife`` (`checks.point_jackknife`:
+    the covariance is the jackknife's where the frames scatter the point significantly
+    more), or ``ok`` false and ``error``. (None, []) where no frame has a pose."""
+    from pencilcal.toolkit.pencil.axis_epochs import point_epochs
+    from pencilcal.toolkit.pencil.fulcrum import fulcrum_point
+    from pencilcal.validation.checks import point_jackknife
+
+    ep = point_epochs(camera, frames, diameter)
+    if ep is None:
+        return None, []
+    test = _test_record(ep, names)
+    for c in test["change_points"]:
+        c["points"] = c.pop("vertices_ideal_px")
+    out = []
+    for a, b in ep.bounds if len(ep.bounds) > 1 else ():
+        rec = {"first": a, "last": b - 1, "images": list(names[a:b])}
+        try:
+            point = fulcrum_point(camera, frames[a:b], diameter)
+            point, jk = point_jackknife(camera, frames[a:b], diameter, point)
+            rec.update(ok=True, **point.to_dict(), jackknife=jk)
+        except EstimationError as e:
+            rec.update(ok=False, error=str(e))
+        out.append(rec)
+    return test, out

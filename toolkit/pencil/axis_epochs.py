@@ -46,7 +46,7 @@ from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.pencil.epochs import ALPHA, MIN_FRAMES, segment_runs
 from pencilcal.toolkit.pencil.moving_fulcrum import fulcrum_moving
 
-__all__ = ["axis_epochs", "AXIS_INLIER_CONFIDENCE"]
+__all__ = ["axis_epochs", "point_epochs", "AXIS_INLIER_CONFIDENCE"]
 
 #: The MSAC truncation's quantile of chi-square(2) (the image lines' test uses 0.999 too).
 AXIS_INLIER_CONFIDENCE = 0.999
@@ -116,3 +116,19 @@ def axis_epochs(points, directions, covs, R, t, pose_cov, frame_of, n_frames, *,
         raise InputError(f"min_frames must be at least 3, got {min_frames!r}")
     return segment_runs(_AxisRuns(axes, f), np.bincount(f, minlength=int(n_frames)), alpha=alpha,
                         min_frames=min_frames)
+
+
+def point_epochs(camera, frames, diameter, *, alpha=None, min_frames=None):
+    """The pivot epochs (`epochs.Epochs`) of lines.json `frames` whose ``camera_pose`` carries
+    their camera (``--stabilize`` with poses) from their shafts' 3-D axes carried into the
+    reference camera (`axis_epochs`), or None where no frame has a pose.
+    alpha, min_frames: the test's (None: `epochs.ALPHA`, `epochs.MIN_FRAMES`)."""
+    from pencilcal.toolkit.pencil.fulcrum import frame_axes, pose_arrays
+
+    points, dirs, covs, _, _, poses, index, _ = frame_axes(camera, frames, diameter)
+    if not any(p is not None for p in poses):
+        return None
+    R, t, S = pose_arrays(poses)
+    return axis_epochs(np.array(points), np.array(dirs), np.array(covs), R, t, S, np.array(index, int), len(frames),
+                       alpha=ALPHA if alpha is None else alpha,
+                       min_frames=MIN_FRAMES if min_frames is None else min_frames)

@@ -115,9 +115,13 @@ def test_the_phantom_stabilized(runs):
     <= 1.5 not met: it was 1.13 before the tissue colour let the prior find frame 1 and read
     frame 9's short shaft by the angle search). The 3-D axes are carried by the background's
     3-D poses (19 frames posed, anchor frame 5): the 3-D fulcrum, (26.2, -1.5, 76.0) mm in
-    frame 11's camera, the map unit 30.8 +- 0.7 mm, moves 2.43 times its sigma when one frame
-    is left out (1.71 on the detections before the tissue colour; 21 with the axes carried by
-    the homographies; docs/method.md, "The camera's 3-D motion"): not reached."""
+    frame 11's camera, the map unit 30.8 +- 0.8 mm, its covariance times its axes' chi2 per
+    degree of freedom (1.35), moves 2.09 times its sigma when one frame is left out (2.43
+    without that factor, 1.71 on the detections before the tissue colour; 21 with the axes
+    carried by the homographies; docs/method.md, "The camera's 3-D motion"): not reached
+    over the whole sequence, which holds two 3-D fulcrums. The change-point test on the
+    carried 3-D axes (``point_epoch_test``) keeps it whole (best alternative p 0.021
+    corrected, alpha 0.01)."""
     doc = runs["stabilized"][0]
     st = doc["stabilize"]
     ratios = [(e.get("jackknife") or {}).get("ratio") for e in doc.get("epochs", [doc])]
@@ -129,7 +133,10 @@ def test_the_phantom_stabilized(runs):
     assert all(r is not None and r <= 2.1 for r in ratios)
     assert st["pose_model"] == "map" and st["frames_posed"] >= 18
     assert doc["point_camera_motion"]["frames_moved"] >= 15 and doc["point_camera_motion"]["scale"] > 0
-    assert doc["jackknife"]["point"]["ratio"] < 2.6
+    assert doc["jackknife"]["point"]["ratio"] < 2.3
+    pt = doc["point_epoch_test"]
+    print(pt["epochs"], pt["kept"], doc["point_camera_motion"]["variance_factor"])
+    assert pt["epochs"] == 1 and "point_epochs" not in doc and doc["point_camera_motion"]["variance_factor"] > 1.0
 
 
 def test_the_hand_made_axes_stabilized(runs):
@@ -163,13 +170,22 @@ def test_the_hand_made_axes_stabilized(runs):
 
 def test_the_phantom_3d_epochs(runs):
     """The 3-D axes of the stabilised run carried by its poses, fitted by parts: frames 1-14
-    give the 3-D fulcrum (27.3, -1.5, 77.1) +- 3.5 mm (RMS) in frame 11's camera from 9 of
-    12 axes, and it moves 1.66 times its sigma when one frame is left out (0.79 on the
-    detections before the tissue colour, which added frames 1 and 9): the issue's target
-    (<= 1.5) is not met. Frames 15-20 fix the point far more loosely (sigma 8.9 mm, 2 axes
-    kept): in 3-D the fulcrum moved after frame 14, where the plain lines' change-point test
-    split (the image lines of the stabilised frames do not show it). Splitting on the 3-D
-    axes is not done by `fulcrum`: its epochs come from the image lines."""
+    give the 3-D fulcrum (27.3, -1.5, 77.1) +- 4.5 mm (RMS) in frame 11's camera from 9 of
+    12 axes, their chi2 1.62 times its degrees of freedom (the variance factor the
+    covariance takes: 3.5 mm without it), and it moves 1.30 times its sigma when one frame
+    is left out (1.66 without the factor; 0.79 on the detections before the tissue colour,
+    which added frames 1 and 9): the issue's target (<= 1.5) is met for this epoch. Frames
+    15-20 fix the point more loosely (sigma 8.9 mm, 2 of 6 axes kept): in 3-D the fulcrum
+    moved after frame 14, where the plain lines' change-point test split (the image lines
+    of the stabilised frames do not show it). The change-point test
+    on the 3-D axes (`axis_epochs.point_epochs`) keeps the sequence whole: its best alternative,
+    frames 11-15 against the rest, has p 0.021 corrected (alpha 0.01), its split after 14 a
+    drop of 9.6 only: the robust fit of frames 15-20 keeps 2 of 6 axes, and short runs' fits
+    stop in local minima (some splits' drops are negative). What moves the jackknife of
+    frames 1-14: leaving out frame 7 moves the point 3.1 mm (10.7 in the fit's chi2(3)),
+    frame 11 3.9 mm (5.1), and leaving out frame 5 or 7 takes a second axis out at the gate
+    (docs/method.md, "The camera's 3-D motion"). Splitting on the 3-D axes is not done
+    by `fulcrum`: its epochs come from the image lines."""
     import numpy as np
 
     from pencilcal.toolkit.detect.background_motion import FrameMotion, stabilize_frames
@@ -186,6 +202,12 @@ def test_the_phantom_3d_epochs(runs):
     rest = fulcrum_point(cam, frames[14:], 8.0)
     print(first.to_dict()["point"], float(first.fit.point_sigma), int(np.sum(first.fit.inliers)), jk,
           rest.to_dict()["point"], float(rest.fit.point_sigma), int(np.sum(rest.fit.inliers)))
-    assert jk["ratio"] is not None and jk["ratio"] <= 1.75
+    assert jk["ratio"] is not None and jk["ratio"] <= 1.5
     assert int(np.sum(first.fit.inliers)) >= 7 and float(first.fit.point_sigma) < 8.0
-    assert float(rest.fit.point_sigma) > 2 * float(first.fit.point_sigma)
+    assert float(rest.fit.point_sigma) > 1.5 * float(first.fit.point_sigma)
+    assert first.camera_motion["variance_factor"] > 1.0
+    from pencilcal.toolkit.pencil.axis_epochs import point_epochs
+
+    ep = point_epochs(cam, frames, 8.0)
+    print(ep.bounds, ep.kept, [c.to_dict() for c in ep.changes])
+    assert ep.bounds == [(0, 20)] and ep.kept[0][2] is not None and 0.01 <= ep.kept[0][2] < 0.1
