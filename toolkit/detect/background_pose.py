@@ -25,16 +25,16 @@ the reference frame's features (undistorted px, off the instrument):
    S the normal matrix's Schur complement on the poses over the inliers (within
    `BUNDLE_INLIER_PX`) and ``s^2`` their residual variance: the map's noise is in each
    pose's covariance (not the poses' correlations through it). Each frame's 6 x 6 block
-   is carried to ``(rotation vector of a left turn of R_ref_from_frame,
-   t_ref_from_frame)``. The anchor's pose is tried from the essential matrix and from each
+   is carried to ``(rotation vector of a left turn of R_frame_from_ref,
+   t_frame_from_ref)``. The anchor's pose is tried from the essential matrix and from each
    decomposition of its homography (the essential matrix of a few matches, or of a flat
    background, is easily wrong), and the map that poses most frames with the most matches
    within `BUNDLE_INLIER_PX` is kept.
 
-Poses are named by their frames as in COLMAP (X_a = R_a_from_b X_b + t_a_from_b): the
-matches, the essential matrix, PnP and the bundle work with R_frame_from_ref,
-t_frame_from_ref; a `FramePose` holds the inverse, R_ref_from_frame, t_ref_from_frame, which
-carries a frame's axis into the reference camera (`pencil.moving_fulcrum`).
+Poses are named by their frames as in COLMAP (X_a = R_a_from_b X_b + t_a_from_b, a frame's
+camera from the reference's as COLMAP's cam_from_world): the essential matrix, PnP, the map,
+the bundle and every `FramePose` hold R_frame_from_ref, t_frame_from_ref;
+`pencil.moving_fulcrum` carries a frame's axis into the reference camera by its inverse.
 
 The map's unit is not a length: the 3-D fulcrum fits it (mm per map unit) with the point,
 from the shafts' metric depths (`pencil.moving_fulcrum`). Where no frame has the parallax
@@ -57,7 +57,7 @@ import numpy as np
 
 from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
 
-__all__ = ["FramePose", "background_poses", "rotation_from_homography", "pose_inverse_cov", "MIN_PARALLAX_DEG",
+__all__ = ["FramePose", "background_poses", "rotation_from_homography", "pose_left_cov", "MIN_PARALLAX_DEG",
            "MAP_PARALLAX_DEG", "MIN_MAP_POINTS"]
 
 #: RANSAC's inlier threshold [undistorted px] of the essential matrix and of PnP.
@@ -80,28 +80,28 @@ _GAUGE = 1e4
 
 @dataclass(frozen=True)
 class FramePose:
-    """A frame's camera in the reference's (`background_poses`): R_ref_from_frame (3, 3),
-    t_ref_from_frame (3,) [map unit] (X_ref = R_ref_from_frame X_frame + t_ref_from_frame),
-    cov (6, 6) of (rotation vector of a left turn of R_ref_from_frame [rad],
-    t_ref_from_frame [map unit]); inliers of the PnP (or of the homography for
+    """A frame's camera from the reference's (`background_poses`): R_frame_from_ref (3, 3),
+    t_frame_from_ref (3,) [map unit] (X_frame = R_frame_from_ref X_ref + t_frame_from_ref),
+    cov (6, 6) of (rotation vector of a left turn of R_frame_from_ref [rad],
+    t_frame_from_ref [map unit]); inliers of the PnP (or of the homography for
     "rotation"), rms_px their reprojection error."""
 
-    R_ref_from_frame: np.ndarray
-    t_ref_from_frame: np.ndarray
+    R_frame_from_ref: np.ndarray
+    t_frame_from_ref: np.ndarray
     cov: np.ndarray
     inliers: int
     rms_px: float
 
     def to_dict(self) -> dict:
         """fulcrum.json's record of the pose (``stabilize.frames[].pose``)."""
-        return {"R_ref_from_frame": self.R_ref_from_frame.tolist(), "t_ref_from_frame": self.t_ref_from_frame.tolist(),
+        return {"R_frame_from_ref": self.R_frame_from_ref.tolist(), "t_frame_from_ref": self.t_frame_from_ref.tolist(),
                 "cov": self.cov.tolist(),
                 "inliers": self.inliers, "rms_px": float(self.rms_px)}
 
     @classmethod
     def from_dict(cls, d):
         """The pose of a `to_dict` record."""
-        return cls(np.asarray(d["R_ref_from_frame"], float), np.asarray(d["t_ref_from_frame"], float),
+        return cls(np.asarray(d["R_frame_from_ref"], float), np.asarray(d["t_frame_from_ref"], float),
                    np.asarray(d["cov"], float), int(d["inliers"]), float(d["rms_px"]))
 
 
@@ -142,26 +142,20 @@ def rotation_from_homography(H, cov_H, K):
     return R0, J @ np.asarray(cov_H, float) @ J.T
 
 
-def pose_inverse_cov(rvec, tvec, cov):
-    """(R_ref_from_frame, t_ref_from_frame, its 6 x 6 covariance) of the PnP pose
-    (rvec, tvec: the rotation vector of R_frame_from_ref and t_frame_from_ref, cv2's
-    convention) with the covariance cov (6, 6) of (rvec, tvec), by central differences to
-    the left turn of the inverse's rotation."""
-    def inv(x):
-        R_frame_from_ref = _rodrigues(x[:3])
-        return R_frame_from_ref.T, -R_frame_from_ref.T @ x[3:]
-
-    x0 = np.r_[np.ravel(rvec), np.ravel(tvec)]
-    R0, t0 = inv(x0)
-    J = np.zeros((6, 6))
-    for k in range(6):
-        e = np.zeros(6)
+def pose_left_cov(rvec, cov):
+    """(R_frame_from_ref, the 6 x 6 covariance of (a left turn's rotation vector,
+    t_frame_from_ref)) of a PnP or bundle pose whose covariance cov (6, 6) is of (rvec,
+    tvec) (cv2's: rvec the rotation vector of R_frame_from_ref): the rotation's block by
+    central differences of the left turn ``log(R(rvec + e) R(rvec)^T)``."""
+    r0 = np.ravel(rvec).astype(float)
+    R0 = _rodrigues(r0)
+    J = np.eye(6)
+    for k in range(3):
+        e = np.zeros(3)
         e[k] = 1e-6
-        (Rp, tp), (Rm, tm) = inv(x0 + e), inv(x0 - e)
-        J[:3, k] = (_small_log(Rp @ R0.T) - _small_log(Rm @ R0.T)) / 2e-6
-        J[3:, k] = (tp - tm) / 2e-6
+        J[:3, k] = (_small_log(_rodrigues(r0 + e) @ R0.T) - _small_log(_rodrigues(r0 - e) @ R0.T)) / 2e-6
     out = J @ np.asarray(cov, float) @ J.T
-    return R0, t0, 0.5 * (out + out.T)
+    return R0, 0.5 * (out + out.T)
 
 
 def _relative(src, dst, K):
@@ -282,8 +276,8 @@ def background_poses(matches, K, ref, homographies=None):
         if i not in got:
             out.append(identity if i == ref else None)
             continue
-        Rr, tr, C = pose_inverse_cov(*got[i][:3])
-        out.append(FramePose(Rr, tr, C, got[i][3], got[i][4]))
+        R_frame_from_ref, C = pose_left_cov(got[i][0], got[i][2])
+        out.append(FramePose(R_frame_from_ref, np.asarray(got[i][1], float), C, got[i][3], got[i][4]))
     return "map", anchor, out
 
 
@@ -297,8 +291,9 @@ def _rotations(matches, homographies, ref, K, identity):
             continue
         R_ref_from_frame, c = rotation_from_homography(h[0], h[1], K)
         cov = np.zeros((6, 6))
-        cov[:3, :3] = c
-        out.append(FramePose(R_ref_from_frame, np.zeros(3), cov, len(m[0]), float("nan")))
+        # a left turn d of R_ref_from_frame is the left turn -R^T d of its inverse
+        cov[:3, :3] = R_ref_from_frame.T @ c @ R_ref_from_frame
+        out.append(FramePose(R_ref_from_frame.T, np.zeros(3), cov, len(m[0]), float("nan")))
     return out
 
 

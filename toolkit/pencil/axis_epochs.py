@@ -33,7 +33,7 @@ only together with its point, and a common scale would couple the epochs' fits.
 >>> C = np.broadcast_to(np.diag([1e-6, 1e-6, 0.01, 0.01]), (12, 4, 4))
 >>> t = rng.normal(size=(12, 3)) * 0.2
 >>> R = np.broadcast_to(np.eye(3), (12, 3, 3))
->>> ep = axis_epochs(A - 10 * t, d, C, R, t, np.zeros((12, 6, 6)), np.arange(12), 12)
+>>> ep = axis_epochs(A - 10 * t, d, C, R, -t, np.zeros((12, 6, 6)), np.arange(12), 12)   # centres at 10 t
 >>> ep.bounds
 [(0, 6), (6, 12)]
 """
@@ -102,8 +102,9 @@ def axis_epochs(points, directions, covs, R, t, pose_cov, frame_of, n_frames, *,
     (module docstring).
 
     points, directions: (N, 3) the axes in their own frames' cameras; covs: (N, 4, 4) their
-    chart covariances; R: (N, 3, 3), t: (N, 3) [map unit], pose_cov: (N, 6, 6) each axis's
-    frame's pose in the reference camera, as `moving_fulcrum.fulcrum_moving` takes them;
+    chart covariances; R: (N, 3, 3) R_frame_from_ref, t: (N, 3) t_frame_from_ref [map
+    unit], pose_cov: (N, 6, 6) each axis's frame's pose, as `moving_fulcrum.fulcrum_moving`
+    takes them;
     frame_of: (N,) each axis's frame index in [0, n_frames), frames in their order; alpha,
     min_frames: as `epochs.split_epochs`. Returns `epochs.Epochs` (its change points'
     ``vertices`` the two fits' 3-D points in the reference camera, or None).

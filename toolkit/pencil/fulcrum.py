@@ -260,7 +260,7 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None):
     crossing axes remain.
 
     A moving camera (`pencilcal fulcrum --stabilize`): frames whose ``camera_pose`` gives
-    their camera in the reference frame's (R_ref_from_frame, t_ref_from_frame in the
+    their camera from the reference frame's (R_frame_from_ref, t_frame_from_ref in the
     poses' map unit, cov (6, 6): `detect.background_pose.FramePose.to_dict`) take each
     shaft's axis from its own edges (``edges_frame``, ``edge_cov_frame``), carry it into
     the reference camera and fit the point with the map unit's length
@@ -315,10 +315,10 @@ def frame_axes(camera, frames, diameter):
 def pose_arrays(poses):
     """(R (N, 3, 3), t (N, 3), cov (N, 6, 6)) of ``camera_pose`` records (None: the
     reference's camera)."""
-    still = {"R_ref_from_frame": np.eye(3), "t_ref_from_frame": np.zeros(3), "cov": np.zeros((6, 6))}
+    still = {"R_frame_from_ref": np.eye(3), "t_frame_from_ref": np.zeros(3), "cov": np.zeros((6, 6))}
     poses = [still if p is None else p for p in poses]
-    return (np.array([p["R_ref_from_frame"] for p in poses], float),
-            np.array([p["t_ref_from_frame"] for p in poses], float), np.array([p["cov"] for p in poses], float))
+    return (np.array([p["R_frame_from_ref"] for p in poses], float),
+            np.array([p["t_frame_from_ref"] for p in poses], float), np.array([p["cov"] for p in poses], float))
 
 
 def _moving_point(points, dirs, covs, poses, owners, diameter, skipped, robust):

@@ -2,14 +2,16 @@
 reference camera by the frame's pose, the translations' scale fitted with the point.
 
 A shaft's 3-D axis (`cylinder.shaft_axis_record`) lives in the camera of its own frame.
-Where the camera moves, each frame's pose in the reference frame's camera is measured on
-the background (`detect.background_pose`): a rotation R_k and a translation ``lambda t_k``
-whose direction and relative size are known but whose unit is not (monocular motion has no
-scale): ``lambda`` is the length [mm, the diameter's unit] of one map unit. The shafts'
-metric depths fix it: every carried axis, through ``R_k A_k + lambda t_k`` along
-``R_k d_k``, passes through the fulcrum F, so
+Where the camera moves, each frame's pose from the reference frame's camera is measured on
+the background (`detect.background_pose`): R_k = R_frame_from_ref and a translation
+``lambda t_k`` (t_k = t_frame_from_ref) whose direction and relative size are known but
+whose unit is not (monocular motion has no scale): ``lambda`` is the length [mm, the
+diameter's unit] of one map unit. A frame's point X goes to ``R_k^T (X - lambda t_k)`` in
+the reference camera; with ``c_k = -R_k^T t_k`` (the frame's centre there, map units) the
+shafts' metric depths fix lambda: every carried axis, through ``R_k^T A_k + lambda c_k``
+along ``R_k^T d_k``, passes through the fulcrum F, so
 
-    minimise over (F, lambda)   sum_k r_k^T S_k^-1 r_k,   r_k = E_k (F - R_k A_k - lambda t_k),
+    minimise over (F, lambda)   sum_k r_k^T S_k^-1 r_k,   r_k = E_k (F - R_k^T A_k - lambda c_k),
 
 with E_k the carried axis's chart rows and S_k its perpendicular covariance at F (as
 `cylinder.fulcrum_3d`), from the axis's own chart covariance and the pose's, both carried
@@ -31,9 +33,9 @@ camera) it is not fitted and the axes are only turned.
 >>> d = np.array([[1.0, 0, 0], [0, 1, 0], [0.6, 0, 0.8]])
 >>> A = np.array([0.0, 0, 100]) - 20 * d                  # three axes through (0, 0, 100)
 >>> C = np.broadcast_to(np.diag([1e-6, 1e-6, 0.01, 0.01]), (3, 4, 4))
->>> t = np.array([[0.0, 0, 1], [1, 0, 0], [0, 0, -1]])      # frames moved by 5 t: seen from there
+>>> c = np.array([[0.0, 0, 1], [1, 0, 0], [0, 0, -1]])      # the frames' centres at 5 c: seen from there
 >>> R = np.broadcast_to(np.eye(3), (3, 3, 3))
->>> fit = fulcrum_moving(A - 5 * t, d, C, R, t, np.zeros((3, 6, 6)))
+>>> fit = fulcrum_moving(A - 5 * c, d, C, R, -c, np.zeros((3, 6, 6)))   # t_frame_from_ref = -c
 >>> np.round(fit.fit.point, 6).tolist(), round(float(fit.scale), 6)
 ([0.0, 0.0, 100.0], 5.0)
 """
@@ -78,18 +80,19 @@ class MovingFulcrum:
 
 def carry_axes(points, directions, covs, R, t, pose_cov, scale):
     """Axes carried into the reference camera: (points (N, 3), directions (N, 3), covs
-    (N, 4, 4)) of ``R A + scale t`` along ``R d``, each cov the axis's and the pose's carried
-    to the new axis's chart (module docstring).
+    (N, 4, 4)) of ``R^T (A - scale t)`` along ``R^T d``, each cov the axis's and the pose's
+    carried to the new axis's chart (module docstring).
 
     points, directions: (N, 3) axes in their frames' cameras; covs: (N, 4, 4) their chart
-    covariances; R: (N, 3, 3) R_ref_from_frame; t: (N, 3) t_ref_from_frame [map unit];
-    pose_cov: (N, 6, 6) of (left-turn rotation vector [rad], t [map unit]); scale: lambda.
+    covariances; R: (N, 3, 3) R_frame_from_ref; t: (N, 3) t_frame_from_ref [map unit];
+    pose_cov: (N, 6, 6) of (rotation vector of a left turn of R [rad], t [map unit]);
+    scale: lambda.
     """
     A, d = np.asarray(points, float), normalize(directions)
     C, R, t, Sp = (np.asarray(x, float) for x in (covs, R, t, pose_cov))
     E = axis_frame(A, d)                                            # (N, 2, 3)
-    p0 = np.einsum("nij,nj->ni", R, A) + scale * t
-    d0 = np.einsum("nij,nj->ni", R, d)
+    p0 = np.einsum("nji,nj->ni", R, A - scale * t)
+    d0 = np.einsum("nji,nj->ni", R, d)
     E0 = axis_frame(p0, d0)
     size = np.linalg.norm(A, axis=-1)[:, None] + 1.0
 
@@ -99,8 +102,8 @@ def carry_axes(points, directions, covs, R, t, pose_cov, scale):
         P = A + x[:, 2:3] * E[:, 0] + x[:, 3:4] * E[:, 1]
         D = d + x[:, 0:1] * E[:, 0] + x[:, 1:2] * E[:, 1]
         turn = rotation_from_rotvec(x[:, 4:7]) @ R
-        q = np.einsum("nij,nj->ni", turn, P) + scale * (t + x[:, 7:10])
-        return axis_chart(q, np.einsum("nij,nj->ni", turn, D), p0, d0, E0)
+        q = np.einsum("nji,nj->ni", turn, P - scale * (t + x[:, 7:10]))
+        return axis_chart(q, np.einsum("nji,nj->ni", turn, D), p0, d0, E0)
 
     n = len(A)
     J = np.zeros((n, 4, 10))
@@ -116,7 +119,8 @@ def carry_axes(points, directions, covs, R, t, pose_cov, scale):
 
 def _normal(F, P, D, C, t, use):
     """(H (4, 4), g (4,)) of the Gauss-Newton step of (F, lambda): residuals E (F - P) of
-    the used axes, weighted by their perpendicular covariance at F; d P / d lambda = t."""
+    the used axes, weighted by their perpendicular covariance at F; d P / d lambda = t (the
+    frames' centres in the reference camera, c_k)."""
     E = axis_frame(P, D)
     dx = F - P
     s = np.sum(dx * D, -1)[:, None, None]
@@ -131,7 +135,8 @@ def _normal(F, P, D, C, t, use):
 
 
 def _start(A, d, R, t):
-    """The unweighted least-squares (F, lambda) of all axes (the orthogonal distances)."""
+    """The unweighted least-squares (F, lambda) of all axes (the orthogonal distances); R
+    (N, 3, 3) R_ref_from_frame, t (N, 3) the frames' centres c_k in the reference camera."""
     P0 = np.einsum("nij,nj->ni", R, A)
     D = np.einsum("nij,nj->ni", R, normalize(d))
     M = np.eye(3) - D[:, :, None] * D[:, None, :]
@@ -153,8 +158,9 @@ def _start(A, d, R, t):
 def fulcrum_moving(points, directions, covs, R, t, pose_cov, robust=True):
     """The 3-D fulcrum in the reference camera of N axes seen from moving cameras (module
     docstring): points, directions (N, 3), covs (N, 4, 4) in their own frames' cameras (as
-    `cylinder.fulcrum_3d` takes them), R (N, 3, 3), t (N, 3) [map unit] and pose_cov
-    (N, 6, 6) each axis's frame's pose in the reference camera (`detect.background_pose`).
+    `cylinder.fulcrum_3d` takes them), R (N, 3, 3) R_frame_from_ref, t (N, 3)
+    t_frame_from_ref [map unit] and pose_cov (N, 6, 6) each axis's frame's pose
+    (`detect.background_pose.FramePose`).
     Returns a `MovingFulcrum`; EstimationError when the axes fix no point or no positive
     scale."""
     A, d, C = np.asarray(points, float), normalize(directions), np.asarray(covs, float)
@@ -165,14 +171,16 @@ def fulcrum_moving(points, directions, covs, R, t, pose_cov, robust=True):
         factor = _variance_factor(fit, 3)
         fit = dataclasses.replace(fit, point_cov=fit.point_cov * factor, point_sigma=fit.point_sigma * np.sqrt(factor))
         return MovingFulcrum(fit, None, None, P, D, Cc, factor)
-    F, lam = _start(A, d, R, t)
+    Rr = np.swapaxes(R, -1, -2)
+    c = -np.einsum("nij,nj->ni", Rr, t)                      # the frames' centres in the reference
+    F, lam = _start(A, d, Rr, c)
     for _ in range(_ROUNDS):
         if not (np.isfinite(lam) and lam > 0):
             raise EstimationError(f"the camera's translations and the axes give no positive scale ({lam:.3g})")
         P, D, Cc = carry_axes(A, d, C, R, t, Sp, lam)
         fit = fulcrum_3d(P, D, Cc, robust=robust)
         use = np.asarray(fit.inliers, float)
-        H, g = _normal(np.asarray(fit.point, float), P, D, Cc, t, use)
+        H, g = _normal(np.asarray(fit.point, float), P, D, Cc, c, use)
         try:
             step = -np.linalg.solve(H, g)
         except np.linalg.LinAlgError:
@@ -182,7 +190,7 @@ def fulcrum_moving(points, directions, covs, R, t, pose_cov, robust=True):
             break
     P, D, Cc = carry_axes(A, d, C, R, t, Sp, lam)
     fit = fulcrum_3d(P, D, Cc, robust=robust)
-    H, _ = _normal(np.asarray(fit.point, float), P, D, Cc, t, np.asarray(fit.inliers, float))
+    H, _ = _normal(np.asarray(fit.point, float), P, D, Cc, c, np.asarray(fit.inliers, float))
     cov = np.linalg.inv(H)
     if not np.all(np.isfinite(cov)) or not cov[3, 3] > 0:
         raise EstimationError("the axes and the camera's translations do not fix the scale")

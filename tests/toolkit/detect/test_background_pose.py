@@ -119,15 +119,15 @@ def _exact_poses(sc, ref, unit):
     out = []
     for fr in sc.frames:
         R_rf = R0 @ fr["R_cam_from_target"].T
-        out.append({"R_ref_from_frame": R_rf, "t_ref_from_frame": (t0 - R_rf @ fr["t_cam_from_target"]) / unit,
-                    "cov": np.zeros((6, 6))})
+        t_rf = (t0 - R_rf @ fr["t_cam_from_target"]) / unit
+        out.append({"R_frame_from_ref": R_rf.T, "t_frame_from_ref": -R_rf.T @ t_rf, "cov": np.zeros((6, 6))})
     return out
 
 
 def test_the_background_poses(measured):
     """Reached, boxes: every frame posed (156-1341 bundle inliers at 0.36-0.59 px; the
     essential matrix's anchor pose was 1.9 deg off, a decomposition of its homography
-    is kept), rotations 0.007-0.078 deg off the exact R_ref_from_frame (their sigmas
+    is kept), rotations 0.007-0.078 deg off the exact R_frame_from_ref (their sigmas
     0.01-0.05 deg), translations 0.03-0.24 mm off (of up to 9 mm; the map unit 5.5 mm).
     Sheet (flat: two-fold ambiguous): every frame posed (381-502 inliers at 0.46-0.58 px)
     but on the wrong twin, rotations 0.39-1.94 deg off where their sigmas say 0.03-0.05,
@@ -138,9 +138,9 @@ def test_the_background_poses(measured):
     rot, T, M = [], [], []
     for fr, m in zip(sc.frames, motions):
         R_rf = R0 @ fr["R_cam_from_target"].T
-        rot.append(math.degrees(rotation_angle(R_rf, m.pose.R_ref_from_frame)))
+        rot.append(math.degrees(rotation_angle(R_rf.T, m.pose.R_frame_from_ref)))
         T.append(t0 - R_rf @ fr["t_cam_from_target"])
-        M.append(m.pose.t_ref_from_frame)
+        M.append(-m.pose.R_frame_from_ref.T @ m.pose.t_frame_from_ref)       # the frame's t_ref_from_frame
     T, M = np.array(T), np.array(M)
     unit = float(np.sum(T * M) / np.sum(M * M))
     err = np.linalg.norm(T - unit * M, axis=-1)
@@ -234,7 +234,8 @@ def test_the_3d_epochs_of_the_carried_axes(sequence):
     for _ in range(4):
         frames = _frames(sc, rng)
         poses = _exact_poses(sc, ref, 7.0)
-        still, moved = ([dict(fr, camera_pose=dict(p, t_ref_from_frame=p["t_ref_from_frame"] + (k >= 7) * m / 7.0),
+        still, moved = ([dict(fr, camera_pose=dict(p, t_frame_from_ref=p["t_frame_from_ref"]
+                                                   - (k >= 7) * p["R_frame_from_ref"] @ m / 7.0),
                               shafts=[dict(s, edges_frame=s["edges"], edge_cov_frame=s["edge_cov"])
                                       for s in fr["shafts"]])
                          for k, (fr, p) in enumerate(zip(frames, poses))] for m in (0.0 * move, move))
@@ -291,11 +292,11 @@ def test_the_poses_of_random_background_points():
         model, anchor, got = background_poses(_synthetic_matches(rng, poses, K), K, 0)
         assert model == "map" and all(g is not None for g in got)
         T = np.array([t for _, t in poses[1:]])
-        M = np.array([g.t_ref_from_frame for g in got[1:]])
+        M = np.array([-g.R_frame_from_ref.T @ g.t_frame_from_ref for g in got[1:]])
         unit = float(np.sum(T * M) / np.sum(M * M))
         assert np.abs(T - unit * M).max() < 0.5
         for (R, _), g in zip(poses[1:], got[1:]):
-            e = rotvec_from_rotation(g.R_ref_from_frame @ R.T)
+            e = rotvec_from_rotation(g.R_frame_from_ref @ R)       # a left turn of R_frame_from_ref = R^T
             chi2.append(float(e @ np.linalg.solve(g.cov[:3, :3], e)))
     print("rotation chi2: mean", np.mean(chi2), "above 11.3:", int(np.sum(np.array(chi2) > 11.34)), "of", len(chi2))
     assert np.mean(chi2) < 6.0 and np.sum(np.array(chi2) > 11.34) <= 3
@@ -304,7 +305,7 @@ def test_the_poses_of_random_background_points():
     matches = _synthetic_matches(rng, turned, K)
     model, anchor, got = background_poses(matches, K, 0, homographies=[None] + [
         (_homography(m), np.zeros((8, 8))) for m in matches[1:]])
-    assert model == "rotation" and all(rotation_angle(g.R_ref_from_frame, R) < math.radians(0.05)
+    assert model == "rotation" and all(rotation_angle(g.R_frame_from_ref, R.T) < math.radians(0.05)
                                        for (R, _), g in zip(turned[1:], got[1:]))
 
 

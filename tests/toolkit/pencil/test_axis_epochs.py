@@ -2,7 +2,7 @@
 axes seen by a moving camera, and the F(k, nu) tail it uses (`epochs.f_sf`).
 
 Each frame's camera is the reference's moved by lambda t_k (t_k in the map unit, lambda
-= 12 mm) and turned by up to 3 deg; its shaft's axis passes through the fulcrum, is
+= 12 mm) and turned by up to 3 deg (handed over as R_frame_from_ref, t_frame_from_ref); its shaft's axis passes through the fulcrum, is
 noised in its chart by its covariance (0.3 deg, 0.3 mm across and 2 mm along the line of
 sight: the depth from the diameter is the weak one) and handed over in its own frame's
 camera with the exact pose (no pose noise: the test's scale is the axes').
@@ -49,7 +49,9 @@ def sequence(rng, fulcrums, per):
     x = np.einsum("nij,nj->ni", np.linalg.cholesky(C), rng.standard_normal((n, 4)))
     p = p + x[:, 2:3] * E[:, 0] + x[:, 3:4] * E[:, 1]
     dd = dd + x[:, 0:1] * E[:, 0] + x[:, 1:2] * E[:, 1]
-    return p, dd / np.linalg.norm(dd, axis=1, keepdims=True), C, R, t, np.zeros((n, 6, 6)), np.arange(n)
+    R_frame_from_ref = np.swapaxes(R, 1, 2)
+    return (p, dd / np.linalg.norm(dd, axis=1, keepdims=True), C, R_frame_from_ref,
+            -np.einsum("nij,nj->ni", R_frame_from_ref, t), np.zeros((n, 6, 6)), np.arange(n))
 
 
 def test_f_sf_is_the_f_distribution():
