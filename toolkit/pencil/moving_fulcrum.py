@@ -25,9 +25,9 @@ factor the image lines' fulcrum takes (`sequence_noise`), only ever inflating, a
 detector's sigmas. On the phantom's frames 1-14 the used axes scatter 1.5-1.6 times (in
 variance) what their covariances say, and each one left out is 3.2 in chi2(2) on average
 off the fit of the others (none beyond chi2(2)'s 99 %): the edges' and the poses'
-covariances are too small together, and no single axis is an outlier. lambda is fixed only where the
-translations differ between frames in a way the axes see; with no translation (a turning
-camera) it is not fitted and the axes are only turned.
+covariances are too small together, and no single axis is an outlier. lambda is fixed
+only where the translations differ between frames in a way the axes see; with no
+translation (a turning camera) it is not fitted and the axes are only turned.
 
 >>> import numpy as np
 >>> d = np.array([[1.0, 0, 0], [0, 1, 0], [0.6, 0, 0.8]])
