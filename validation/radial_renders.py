@@ -24,7 +24,7 @@ from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.pencil.estimator import pencil_covariance
 from pencilcal.toolkit.pencil.spec import Pencil, pencil_from_dict
 
-__all__ = ["RadialTrial", "radial_conditions", "radial_trial", "radial_summary", "KINDS"]
+__all__ = ["RadialTrial", "radial_conditions", "radial_trial", "ideal_lines_trial", "radial_summary", "KINDS"]
 
 #: What is rendered: Siemens stars of so many wedges, and a dartboard.
 KINDS = ("star16", "star32", "star64", "star128", "dartboard")
@@ -98,8 +98,8 @@ def _target(kind, polarity, seed):
     return pen, star_layers(pen), _STAR_RADIUS, 2 * n
 
 
-def radial_trial(cond):
-    """Render, detect and orient one frame of `cond` (`radial_conditions`); a `RadialTrial`."""
+def _render_and_orient(cond):
+    """Render `cond`, detect its edges and orient it: (camera, pencil, R, t, found, rec)."""
     from pencilcal.toolkit.detect.lines import radial_joint_mode
     from pencilcal.toolkit.detect.radial import detect_radial_edges
     from pencilcal.toolkit.pencil.orient import orient_segments
@@ -114,6 +114,12 @@ def radial_trial(cond):
     found = detect_radial_edges(img, cam, edges=edges, joint=radial_joint_mode(pen))
     rec = orient_segments(cam, found.segments, pen, angle_sigma=found.angle_sigma, offset_sigma=found.offset_sigma,
                           circle_points=found.circle_points, keep_lines=True)
+    return cam, pen, R, t, found, rec
+
+
+def radial_trial(cond):
+    """Render, detect and orient one frame of `cond` (`radial_conditions`); a `RadialTrial`."""
+    cam, pen, R, t, found, rec = _render_and_orient(cond)
     if not rec.ok:
         return RadialTrial(cond["kind"], pen.count, 0, False, False, False, np.inf, np.nan, np.nan, np.inf, None, None,
                            cond)
@@ -129,10 +135,7 @@ def radial_trial(cond):
     cov_est = _normal_cov(R_est, ln, th)
     x_true = t[:2] / t[2]
     cov_true = _normal_cov(R, dict(ln, vertex=x_true), th)
-    d = n_est - n_true
-    B = np.linalg.svd(np.eye(3) - np.outer(n_true, n_true))[0][:, :2]
-    e2 = B.T @ d
-    chi2 = float(e2 @ np.linalg.solve(B.T @ cov_est @ B, e2))
+    chi2 = _normal_chi2(n_est, cov_est, n_true)
     circ_err = None
     if rec.circle_normal is not None:
         circ_err = float(np.degrees(np.arccos(np.clip(np.asarray(rec.circle_normal) @ n_true, -1, 1))))
@@ -140,6 +143,71 @@ def radial_trial(cond):
                        float(min(err, err_twin) if not resolved else (err if twin_right else err_twin)),
                        float(rec.normal_sigma_deg), float(np.degrees(np.sqrt(np.trace(cov_true)))), chi2, circ_err,
                        rec.circle_normal_sigma_deg, cond)
+
+
+def _normal_chi2(n_est, cov, n_true):
+    """The chi2 (2 dof) of the normal's error n_est - n_true (3,) with its covariance (3, 3),
+    in the plane normal to n_true."""
+    B = np.linalg.svd(np.eye(3) - np.outer(n_true, n_true))[0][:, :2]
+    e2 = B.T @ (np.asarray(n_est, float) - n_true)
+    return float(e2 @ np.linalg.solve(B.T @ cov @ B, e2))
+
+
+def ideal_lines_trial(cond, draws, rng=0):
+    """The estimator alone on one frame of `cond`: its edges rendered and detected once, then
+    replaced, `draws` times, by the exact image lines of the edges they are (each detected
+    segment matched to the true edge nearest in angle about the true vertex), each given
+    independent Gaussian noise at the sigmas the detector reported (its angle about its
+    midpoint, its offset there), over the same extents, labelled as they are. Whatever the
+    normal's chi2 then shows is the estimator's; what the detected lines show beyond it is
+    the detector's (its errors not independent, or larger than its sigmas).
+
+    Returns a dict: chi2 (draws,) of the normal against the covariance it reports (the twin
+    nearer the truth), detected_chi2 (the detected lines' own), lines (how many).
+    """
+    from pencilcal.toolkit.pencil.orient import orient_segments
+
+    cam, pen, R, t, found, rec = _render_and_orient(cond)
+    if not rec.ok:
+        return {"chi2": np.full(draws, np.inf), "detected_chi2": np.inf, "lines": 0}
+    n_true = R[:, 2]
+    K = np.asarray(cam.K, float)
+    ea = pen.edge_angles()[0]
+    xv = (K @ np.append(t[:2] / t[2], 1.0))[:2]  # the vertex [ideal px]
+    P = R @ np.stack([np.cos(ea), np.sin(ea), np.zeros_like(ea)]) + t[:, None]
+    U = (K @ (P / P[2]))[:2].T - xv
+    U /= np.linalg.norm(U, axis=1)[:, None]  # each edge's image direction from the vertex
+    used = np.asarray(rec.lines["segment"], int)
+    raw = np.asarray(found.segments, float)[used]
+    ideal = np.concatenate([cam.undistort_pixels(raw[:, :2]), cam.undistort_pixels(raw[:, 2:])], 1)
+    mid = 0.5 * (ideal[:, :2] + ideal[:, 2:]) - xv
+    gap = np.angle(np.exp(1j * (np.arctan2(mid[:, 1], mid[:, 0])[:, None] - np.arctan2(U[:, 1], U[:, 0])[None])))
+    label = np.argmin(np.abs(gap), 1)
+    u = U[label]
+    nrm = np.stack([-u[:, 1], u[:, 0]], 1)
+    s1, s2 = np.sum((ideal[:, :2] - xv) * u, 1), np.sum((ideal[:, 2:] - xv) * u, 1)  # the extents along u
+    length = np.abs(s2 - s1)
+    centre = xv + 0.5 * (s1 + s2)[:, None] * u
+    a_sig = np.asarray(found.angle_sigma, float)[used]
+    o_sig = np.asarray(found.offset_sigma, float)[used]
+    scale = np.hypot(*(ideal[:, 2:] - ideal[:, :2]).T) / np.hypot(*(raw[:, 2:] - raw[:, :2]).T)  # raw -> ideal px
+    rng = np.random.default_rng(rng)
+    chi2 = np.empty(draws)
+    for k in range(draws):
+        a = rng.normal(0.0, a_sig)
+        d = np.cos(a)[:, None] * u + np.sin(a)[:, None] * nrm
+        c = centre + rng.normal(0.0, o_sig * scale)[:, None] * nrm
+        seg = np.concatenate([cam.distort_pixels(c - 0.5 * length[:, None] * d),
+                              cam.distort_pixels(c + 0.5 * length[:, None] * d)], 1)
+        r = orient_segments(cam, seg, pen, angle_sigma=a_sig, offset_sigma=o_sig, labels=label, keep_lines=True)
+        twins = [(r.normal, r.R_cam_from_target), (r.normal_twin, r.R_cam_from_target_twin)]
+        n_est, R_est = max(twins, key=lambda q: float(np.asarray(q[0]) @ n_true))
+        chi2[k] = _normal_chi2(n_est, _normal_cov(np.asarray(R_est, float), r.lines, ea[r.lines["spoke"]]), n_true)
+    twins = [(rec.normal, rec.R_cam_from_target), (rec.normal_twin, rec.R_cam_from_target_twin)]
+    n_est, R_est = max(twins, key=lambda q: float(np.asarray(q[0]) @ n_true))
+    det = _normal_chi2(n_est, _normal_cov(np.asarray(R_est, float), rec.lines, ea[np.asarray(rec.lines["spoke"], int)]),
+                       n_true)
+    return {"chi2": chi2, "detected_chi2": det, "lines": int(used.size)}
 
 
 def _normal_cov(R, ln, th):

@@ -11,9 +11,10 @@ resolved, RMSE / bound 0.74, coverage 84 % (the 128-wedge stars' 2 of 5), the ci
 RMSE 0.007 deg (with the blur measured and held: 0.69, 76 %, 0.007 deg)."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
-from pencilcal.validation.radial_renders import radial_conditions, radial_summary, radial_trial
+from pencilcal.validation.radial_renders import ideal_lines_trial, radial_conditions, radial_summary, radial_trial
 
 
 @pytest.fixture(scope="module")
@@ -38,3 +39,19 @@ def test_normal_against_its_bound_and_sigma(trials):
     assert 0.45 <= s["coverage"] <= 0.9
     # the circles' own normal: within a few hundredths of a degree
     assert s["circle_rmse_deg"] < 0.05
+
+
+def test_the_estimator_covers_independent_lines():
+    """The estimator alone (`ideal_lines_trial`): a 128-wedge star of this sample detected once,
+    its lines replaced 200 times by the exact lines with independent noise at the sigmas the
+    detector reported. Its normal's chi2 is then as the covariance says: coverage within the
+    binomial 95 % interval of 68.3 % for 200 draws (61-75 %), mean chi2 near 2 (its sd 0.14).
+    Measured: 67.0 %, mean 2.00, 253 lines (the frame's detected lines: chi2 3.16). The
+    detected lines' own chi2 on such stars is what is left of the issue (docs/method.md):
+    their errors share a part, stable over noise draws, that their sigmas do not hold."""
+    cond = next(c for c in radial_conditions(25, seed=3) if c["kind"] == "star128")
+    r = ideal_lines_trial(cond, 200)
+    assert r["lines"] >= 0.9 * 256
+    cover = float(np.mean(r["chi2"] <= -2.0 * np.log(1.0 - 0.6827)))
+    assert 0.58 <= cover <= 0.78, cover
+    assert 1.6 <= float(np.mean(r["chi2"])) <= 2.5
