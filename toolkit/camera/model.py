@@ -715,7 +715,8 @@ class Camera:
         Inverts the lens model by damped Newton iterations with the analytic Jacobian,
         started from the better of the distorted point and OpenCV's fixed-point iterate,
         to a residual of ~1e-12 normalised units (about 1e-9 px): much tighter than
-        cv2.undistortPoints with its default 5 iterations.
+        cv2.undistortPoints with its default 5 iterations. A lens with k1, k2, k3 only
+        is inverted along each point's radius, in one dimension, to the same roots.
 
         Parameters
         ----------
