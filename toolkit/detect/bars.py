@@ -793,7 +793,8 @@ def _tracked_lines(img, camera, lines, search, o):
         sel = search == w
         step = max(o.step_px, float(np.median(L[sel])) / _TRACK_STATIONS)
         opts = replace(o.refit_options(), search=float(w), step_px=step, max_gap_px=2.5 * step)
-        fit = refit_lines(img, lines[sel], camera, opts, max_passes=3)
+        # the lines only: the candidates are refitted and measured again (`_bars_from_candidates`)
+        fit = refit_lines(img, lines[sel], camera, opts, max_passes=3, measure=False)
         out.append(fit.lines()[fit.ok])
     return np.concatenate(out) if out else np.zeros((0, 4))
 

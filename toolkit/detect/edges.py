@@ -234,6 +234,12 @@ def _slope_shift(prof, first, gs, pos, den, sigma_px, search):
     return np.clip(corr, -0.5 * search, 0.5 * search)
 
 
+def _finite_or_zero(a):
+    """`a` with its values that are not finite set to 0 (`a` itself when all are)."""
+    fin = np.isfinite(a)
+    return a if fin.all() else np.where(fin, a, 0)
+
+
 def edge_profiles(img, camera, P0, u, s, search, kernel, sigma_px, *, unsigned=False, slope_correction=False,
                   guard_px=0.0, gamma=1.0):
     """The edge across lines at stations along them.
@@ -296,7 +302,7 @@ def edge_profiles(img, camera, P0, u, s, search, kernel, sigma_px, *, unsigned=F
     ts = t[None, :] + shift[:, None]  # (S, T)
     X = (rx[..., None] + jx[..., None] * ts).astype(np.float32)
     Y = (ry[..., None] + jy[..., None] * ts).astype(np.float32)
-    prof = img.sample(np.where(np.isfinite(X), X, 0), np.where(np.isfinite(Y), Y, 0))  # (M, S, T)
+    prof = img.sample(_finite_or_zero(X), _finite_or_zero(Y))  # (M, S, T)
     # derivative along +t at the window positions -(nw + ng) .. nw, tap by tap (a handful of
     # vectorised multiply-adds beats a strided matrix product here)
     nwin = 2 * nw + 1 + ng

@@ -95,6 +95,20 @@ def _sample(img, x, y):
     return out.reshape(-1)[:n].reshape(shape)
 
 
+def _span(v, n):
+    """(first, last + 1) pixel index [0, n] of the crop that bilinear samples at v (float32)
+    need (one pixel more on each side); (0, n) when none is finite. The plain min and max
+    when every value is finite (the common case: one pass each instead of NaN-aware ones).
+    """
+    lo, hi = np.min(v), np.max(v)
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        if not np.any(np.isfinite(v)):
+            return 0, n
+        with np.errstate(invalid="ignore"):
+            lo, hi = np.nanmin(v), np.nanmax(v)
+    return int(np.clip(np.floor(lo) - 1, 0, n - 1)), int(np.clip(np.ceil(hi) + 2, 1, n))
+
+
 class GrayImage:
     """A grey image to sample from: bilinear interpolation on a float32 copy of just the part
     the samples need (converting a whole 1080p frame costs more than a whole refit).
@@ -144,11 +158,8 @@ class GrayImage:
         H, W = self.shape
         if self.src.dtype == np.float32:
             return _sample(self.src, x, y)
-        with np.errstate(invalid="ignore"):
-            x0 = int(np.clip(np.floor(np.nanmin(x)) - 1, 0, W - 1)) if np.any(np.isfinite(x)) else 0
-            x1 = int(np.clip(np.ceil(np.nanmax(x)) + 2, 1, W)) if np.any(np.isfinite(x)) else W
-            y0 = int(np.clip(np.floor(np.nanmin(y)) - 1, 0, H - 1)) if np.any(np.isfinite(y)) else 0
-            y1 = int(np.clip(np.ceil(np.nanmax(y)) + 2, 1, H)) if np.any(np.isfinite(y)) else H
+        x0, x1 = _span(x, W)
+        y0, y1 = _span(y, H)
         x1, y1 = max(x1, x0 + 1), max(y1, y0 + 1)
         if (x1 - x0) * (y1 - y0) > 0.25 * H * W:
             # samples all over the frame (a refit pass over every candidate edge): convert

@@ -150,12 +150,12 @@ class _PassFit(EdgeFit):
         return EdgeFit(**{f.name: getattr(self, f.name).copy() for f in fields(EdgeFit)})
 
 
-def _by_length(img, camera, P1, P2, opts, kernel, grow_frac, cnt):
+def _by_length(img, camera, P1, P2, opts, kernel, grow_frac, cnt, measure=True):
     """`_refit_pass` over lines of very different lengths, in groups of similar length:
     padding every line to the longest would waste most of the work."""
     M = P1.shape[0]
     group = np.digitize(cnt, [24, 96])
-    outs = [(idx, _refit_pass(img, camera, P1[idx], P2[idx], opts, kernel, grow_frac))
+    outs = [(idx, _refit_pass(img, camera, P1[idx], P2[idx], opts, kernel, grow_frac, measure))
             for idx in (np.flatnonzero(group == g_) for g_ in np.unique(group))]
     first = outs[0][1]
     res = _PassFit(**{f.name: np.zeros((M,) + getattr(first, f.name).shape[1:], getattr(first, f.name).dtype)
@@ -203,9 +203,12 @@ def _half_response_ends(s, g0, gv, inl, k1, k2, cnt, ok):
     return ends
 
 
-def _refit_pass(img, camera, P1, P2, opts, kernel, grow_frac=0.0):
+def _refit_pass(img, camera, P1, P2, opts, kernel, grow_frac=0.0, measure=True):
     """One pass of the refit over lines P1 -> P2 (M, 2) [working px]; returns a `_PassFit`.
-    With grow_frac > 0 the stations reach max(extend, grow_frac L) beyond the ends."""
+    With grow_frac > 0 the stations reach max(extend, grow_frac L) beyond the ends. With
+    measure False only the lines (ok, ends, centroid, count and what decides on a further
+    pass): their sigmas, contrast and residual NaN (a coarse search whose lines are refitted
+    again skips their cost)."""
     M = P1.shape[0]
     d = P2 - P1
     L = np.hypot(d[:, 0], d[:, 1])
@@ -216,7 +219,7 @@ def _refit_pass(img, camera, P1, P2, opts, kernel, grow_frac=0.0):
     lo, hi = -e, L + e
     cnt = station_counts(lo, hi, opts.step_px, _MAX_STATIONS)
     if M >= 32 and M * int(cnt.max()) > 3 * int(cnt.sum()) + 8000:
-        return _by_length(img, camera, P1, P2, opts, kernel, grow_frac, cnt)
+        return _by_length(img, camera, P1, P2, opts, kernel, grow_frac, cnt, measure)
     s, st_valid = stations(lo, hi, cnt)
     p = edge_profiles(img, camera, P1, u, s, opts.search, kernel, opts.sigma_px, gamma=opts.gamma)
     g0, tk = p.strength, p.t
@@ -242,6 +245,10 @@ def _refit_pass(img, camera, P1, P2, opts, kernel, grow_frac=0.0):
         tv = tm + b * (sv - sm)
         return np.stack([P1[:, 0] + sv * ux + tv * nx, P1[:, 1] + sv * uy + tv * ny], -1)
 
+    if not measure:
+        nan = np.full(M, np.nan)
+        return _PassFit(ok=ok, p1=at(s_first), p2=at(s_last), centroid=at(sm), angle_sigma=nan, centre_sigma=nan.copy(),
+                        contrast=nan.copy(), residual=nan.copy(), count=count, touch=touch, dev=dev)
     var_b, var_a = fit_variances(res, w, inl, Sss, Wt)
     prof = p.profiles
     cst = masked_median(prof[..., -3:].mean(-1) - prof[..., :3].mean(-1), inl)
@@ -267,16 +274,18 @@ class EdgeRefit:
         Lens model: the working pixels are undistorted, the profiles are sampled in the raw
         image through it.
     options : RefitOptions
+    measure : bool
+        False: the lines only, their sigmas, contrast and residual NaN (`_refit_pass`).
     """
 
-    def __init__(self, img, lines, camera=None, options=RefitOptions()):
+    def __init__(self, img, lines, camera=None, options=RefitOptions(), measure=True):
         lines = np.asarray(lines, float).reshape(-1, 4)
-        self.img, self.camera, self.options = img, camera, options
+        self.img, self.camera, self.options, self._measure = img, camera, options, measure
         self._kernel = derivative_kernel(options.sigma_px)
         if lines.shape[0] == 0:
             self._res = _PassFit.empty()
         else:
-            self._res = _refit_pass(img, camera, lines[:, :2], lines[:, 2:], options, self._kernel)
+            self._res = _refit_pass(img, camera, lines[:, :2], lines[:, 2:], options, self._kernel, measure=measure)
 
     def more(self, idx=None, *, grow=True, max_passes=4):
         """Further passes over the lines `idx` (all when None), in place: while a line's fit
@@ -290,7 +299,7 @@ class EdgeRefit:
             if need.size == 0:
                 break
             new = _refit_pass(self.img, self.camera, res.p1[need], res.p2[need], self.options, self._kernel,
-                              grow_frac=0.25 if grow else 0.0)
+                              grow_frac=0.25 if grow else 0.0, measure=self._measure)
             good = new.ok
             for f in fields(_PassFit):
                 getattr(res, f.name)[need[good]] = getattr(new, f.name)[good]
@@ -303,11 +312,12 @@ class EdgeRefit:
         return self._res.fit()
 
 
-def refit_lines(img, lines, camera=None, options=RefitOptions(), *, grow=True, max_passes=4):
+def refit_lines(img, lines, camera=None, options=RefitOptions(), *, grow=True, max_passes=4, measure=True):
     """Refit oriented lines (M, 4) [working px] to the edges of `img` (a `GrayImage` of the
     raw image): the first pass and up to max_passes - 1 more (`EdgeRefit`). Returns an
-    `EdgeFit` (M rows, input order; ``ok`` False where a line could not be refitted)."""
-    st = EdgeRefit(img, lines, camera, options)
+    `EdgeFit` (M rows, input order; ``ok`` False where a line could not be refitted; with
+    measure False the lines only, `EdgeRefit`)."""
+    st = EdgeRefit(img, lines, camera, options, measure)
     st.more(None, grow=grow, max_passes=max_passes)
     return st.fit()
 

@@ -96,10 +96,16 @@ def _pt(p):
     return (int(round(float(p[0]) * _SCALE)), int(round(float(p[1]) * _SCALE)))
 
 
+def _finite(*xs):
+    """Whether every number is finite (math on Python floats: a frame's overlay draws dozens
+    of lines, in a thread that shares the interpreter with the measurement)."""
+    return all(math.isfinite(x) for x in xs)
+
+
 def _line(img, p, q, colour, thickness=1):
     import cv2
 
-    if np.all(np.isfinite(p)) and np.all(np.isfinite(q)):
+    if _finite(p[0], p[1], q[0], q[1]):
         cv2.line(img, _pt(p), _pt(q), colour, thickness, cv2.LINE_AA, SHIFT)
 
 
@@ -178,18 +184,21 @@ def _spoke_labels(img, seg, lab, vertex_px):
     second end without a vertex). seg: (M, 4) raw px; lab: (M,) spoke or -1."""
     import cv2
 
-    v = None if vertex_px is None else np.asarray(vertex_px, float)
+    v = None if vertex_px is None else [float(c) for c in np.ravel(vertex_px)]
+    if v is not None and not _finite(*v):
+        v = None
     scale = max(0.45, min(img.shape[:2]) / 1800)
-    for s, k in zip(seg, lab):
-        if k < 0 or not np.all(np.isfinite(s)):
+    th = max(1, _thickness(img))
+    for s, k in zip(np.asarray(seg, float).tolist(), np.asarray(lab).tolist()):
+        if k < 0 or not _finite(*s):
             continue
-        p, q = s[:2], s[2:]
-        if v is not None and np.all(np.isfinite(v)) and np.hypot(*(p - v)) > np.hypot(*(q - v)):
-            p, q = q, p
-        d = q - p
-        at = q + 12.0 * d / max(float(np.hypot(*d)), 1e-9)
-        cv2.putText(img, str(int(k)), (int(round(at[0])) - 5, int(round(at[1])) + 5), cv2.FONT_HERSHEY_SIMPLEX,
-                    scale, spoke_colour(int(k)), max(1, _thickness(img)), cv2.LINE_AA)
+        (px, py), (qx, qy) = s[:2], s[2:]
+        if v is not None and math.hypot(px - v[0], py - v[1]) > math.hypot(qx - v[0], qy - v[1]):
+            px, py, qx, qy = qx, qy, px, py
+        dx, dy = qx - px, qy - py
+        h = max(math.hypot(dx, dy), 1e-9)
+        cv2.putText(img, str(int(k)), (int(round(qx + 12.0 * dx / h)) - 5, int(round(qy + 12.0 * dy / h)) + 5),
+                    cv2.FONT_HERSHEY_SIMPLEX, scale, spoke_colour(int(k)), th, cv2.LINE_AA)
 
 
 def _normal_line(img, s, orientation, camera):
@@ -232,8 +241,9 @@ def _orientation_on(img, s, orientation, segments, camera):
     if segments is not None:
         seg = _px(np.asarray(segments, float).reshape(-1, 2, 2), s).reshape(-1, 4)
         lab = np.asarray(orientation.spokes if orientation.spokes is not None else np.full(len(seg), -1)).ravel()
-        for q, k in zip(seg, lab):
-            _line(img, q[:2], q[2:], spoke_colour(int(k)), (2 if k >= 0 else 1) * _thickness(img))
+        th = _thickness(img)
+        for q, k in zip(seg.tolist(), lab.tolist()):
+            _line(img, q[:2], q[2:], spoke_colour(int(k)), (2 if k >= 0 else 1) * th)
         v = orientation.vertex_px if orientation.ok else None
         _spoke_labels(img, seg, lab, None if v is None else _px(v, s))
     if orientation.ok:

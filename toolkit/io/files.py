@@ -477,6 +477,10 @@ def to_jsonable(obj):
     if isinstance(obj, (list, tuple)):
         return [to_jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
+        # numbers only, all finite: tolist() is already what the elements would give (a
+        # frame's record holds dozens of arrays, written as each frame is done)
+        if obj.dtype.kind in "biu" or (obj.dtype.kind == "f" and bool(np.isfinite(obj).all())):
+            return obj.tolist()
         return to_jsonable(obj.tolist())
     if isinstance(obj, (np.bool_,)):
         return bool(obj)

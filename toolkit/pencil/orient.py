@@ -728,8 +728,9 @@ def _metric_choice(fit, x, th, p1, p2, radius, sigma_n):
     noise (chi2 per point < 9) and the other is worse by more than 25 in chi2.
     """
     inner, outer = _inner_outer(p1, p2, x)
-    z, r = metric_depth(fit.R_cam_from_target, x, th, inner, outer, radius)
-    zt, rt = metric_depth(fit.R_twin, x, th, inner, outer, radius)
+    # both twins in one call (every tracked frame makes this choice)
+    (z, zt), (r, rt) = metric_depth(np.stack([fit.R_cam_from_target, fit.R_twin]), x, th, inner, outer, radius)
+    z, zt = float(z), float(zt)
     c, ct = np.sum((r / sigma_n) ** 2), np.sum((rt / sigma_n) ** 2)
     n = r.size
     best = min(c, ct)

@@ -310,3 +310,18 @@ def test_equality_hash_and_read_only():
     assert (a.fx, a.fy, a.cx, a.cy, a.skew) == (K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2], 0.0)
     for copy in (pickle.loads(pickle.dumps(CAMERAS["opencv14"])), deepcopy(a)):
         assert copy in (a, CAMERAS["opencv14"]) and not copy.K.flags.writeable
+
+
+@pytest.mark.parametrize("dist", [[-0.2, 0.05, 0, 0, 0], [-0.45, 0.1, 0, 0, 0.02], [0.3, 0.2, 0, 0, 0],
+                                  [-0.6, 0, 0, 0, 0], [-0.35, 0.12, 0, 0, -0.02]])
+def test_radial_lens_undistorted_along_the_radius_as_the_general_solver(dist):
+    """A k1, k2, k3 lens is inverted in one dimension (`_undistort_radial`): the same roots as
+    the general 2-D solver to its tolerance, and NaN for the same pixels (beyond a fold,
+    where strong barrel distortion folds the model over; the frame's corners and beyond)."""
+    cam = Camera("opencv", 1920, 1080, [[1000.0, 0, 959.5], [0, 1000.0, 539.5], [0, 0, 1]], dist)
+    px = np.random.default_rng(3).uniform([-500, -500], [2400, 1600], (4000, 2))
+    fast = cam.normalized_from_pixels(px)
+    general = cam._undistort_general(cam._distorted_from_pixels(px))
+    assert np.array_equal(np.isnan(fast), np.isnan(general))
+    both = np.isfinite(fast[:, 0])
+    assert both.any() and np.abs(fast[both] - general[both]).max() < 1e-12
