@@ -36,14 +36,14 @@ def _lines_task(frame, ctx):
     """One frame's lines.json record, and the frame drawn with them when the overlay is
     asked for (module level: runs in worker processes too)."""
     (camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, masks, radial, priors,
-     tracker, edge_model, radial_joint) = ctx
+     tracker, edge_model, radial_joint, segments) = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
     rec = lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
                        valid_region=region, gamma=gamma, instrument_mask=None if masks is None else masks.of(frame),
                        radial=radial, axis_prior=None if priors is None else priors[1].get(frame.name, priors[0]),
-                       shaft_tracker=tracker, edge_model=edge_model, radial_joint=radial_joint)
+                       shaft_tracker=tracker, edge_model=edge_model, radial_joint=radial_joint, segments=segments)
     if diameter is not None:
         rec["shafts"] = [with_axis(camera, s, diameter) for s in rec.get("shafts") or []]
     if not drawing:
@@ -84,9 +84,11 @@ def _summary(records):
 @click.option("--radial-joint", type=click.Choice(["crowded", "all"]), default="crowded", show_default=True,
               help="Edges fitted with their neighbours' blur.")
 @click.option("--shaft", is_flag=True,
-              help="Also instrument shafts: their midlines, widths and sigmas.")
+              help="Also instrument shafts, with sigmas.")
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
               help="Shaft diameter [mm]: the 3-D axes too.")
+@click.option("--no-segments", "segments", flag_value=False, default=True,
+              help="With --shaft: the shafts alone, no segments.")
 @click.option("--track/--no-track", default=True, show_default=True,
               help="With --shaft: where the last frames predict them.")
 @gamma_option
@@ -105,7 +107,7 @@ def _summary(records):
 @quiet_option
 @run
 def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, radial, radial_joint, shaft,
-          shaft_diameter, track, gamma, edge_model, prior_path, min_length, instrument_mask, mask_labels, mask_instances,
+          shaft_diameter, segments, track, gamma, edge_model, prior_path, min_length, instrument_mask, mask_labels, mask_instances,
           mask_path, jsonl_path, overlay_path, overlay_scale, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel, with angle uncertainty.
 
@@ -163,6 +165,9 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     point closest to the camera centre), axis_direction (unit, away from the camera),
     axis_distance, and their covariance axis_cov in the axis chart of docs/formats.md, with
     axis_direction_sigma_deg and axis_distance_sigma; lengths in D's unit.
+    --shaft --no-segments writes the shafts alone (every frame's segments empty): on a
+    textured scene the segments take most of the time, and a live video of an instrument
+    does not need them.
 
     A frame that cannot be decoded is reported and written with ok: false. --jsonl streams
     each frame's record as it is done; --overlay draws the segments and shafts on the
@@ -192,6 +197,9 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         raise click.UsageError("--radial and --bars find different spokes: give one of them")
     if shaft_diameter is not None and not shaft_diameter > 0:
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
+    if not segments and (not shaft or bars or radial is not None):
+        raise click.BadParameter("only with --shaft, without --bars or --radial (the shafts alone)",
+                                 param_hint="--no-segments")
     if instrument_mask is not None and not shaft:
         raise click.BadParameter("only with --shaft", param_hint="--instrument-mask")
     if prior_path is not None and not shaft:
@@ -218,7 +226,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         tracker = ShaftTracker(gamma=gamma, edge_model=edge_model)
     with FrameOutputs(jsonl_path, overlay_path, force, source=source, scale=overlay_scale) as live:
         ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma, masks,
-               radial, priors, tracker, edge_model, radial_joint)
+               radial, priors, tracker, edge_model, radial_joint, segments)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
@@ -236,6 +244,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         meta["radial_joint"] = radial_joint
     if shaft:
         meta["edge_model"] = edge_model
+        meta["segments"] = segments
     if masks is not None:
         meta["instrument_mask"] = str(instrument_mask)
     if prior_path is not None:

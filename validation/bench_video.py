@@ -38,7 +38,9 @@ on every frame), best of `repeats`:
   of an instrument pivoting back and forth (up to ~3.7 deg a frame) over a textured,
   tissue-like backdrop, seen from near its port (the pivot scenario's ``port_view``): target
   <= 2.0, with the fraction of frames whose shafts were tracked (``shafts_motion_tracked``,
-  >= 0.9).
+  >= 0.9); ``shafts_motion_lines_vs_decode_fld_1080p``: ``lines VIDEO --shaft --no-segments``
+  on the same video (the shafts alone, tracked), target <= 2.0
+  (``shafts_motion_lines_tracked``).
 """
 from __future__ import annotations
 
@@ -57,7 +59,8 @@ VIDEO_TARGETS = {"orient_video_vs_decode_fld_1080p": ("<=", 1.5), "shafts_video_
                  "orient_motion_overlay_vs_decode_fld_1080p": ("<=", 1.5), "orient_motion_tracked": (">=", 0.9),
                  "orient_motion_tilt_within_0p5": (">=", 0.95),
                  "orient_motion2x_overlay_vs_decode_fld_1080p": ("<=", 2.0), "orient_motion2x_frames_lost": ("<=", 0),
-                 "shafts_motion_vs_decode_fld_1080p": ("<=", 2.0), "shafts_motion_tracked": (">=", 0.9)}
+                 "shafts_motion_vs_decode_fld_1080p": ("<=", 2.0), "shafts_motion_tracked": (">=", 0.9),
+                 "shafts_motion_lines_vs_decode_fld_1080p": ("<=", 2.0), "shafts_motion_lines_tracked": (">=", 0.9)}
 
 # decoding a video and FLD on every frame, as a process of its own (the floor of the motion
 # benchmarks: both sides pay a Python process's start-up)
@@ -313,9 +316,16 @@ def bench_shafts_motion(frames=90, repeats=2, seed=0, workdir=None):
         write_camera(d / "camera.json", cam)
         args = ["fulcrum", str(video), "--camera", str(d / "camera.json"), "-o", str(d / "f.json"), "--force", "-q"]
         wall, startup, per = _process(args, repeats)
+        lines_args = ["lines", str(video), "--camera", str(d / "camera.json"), "--shaft", "--no-segments",
+                      "-o", str(d / "l.json"), "--force", "-q"]
+        lines_wall = _process(lines_args, repeats)[0]
         floor = _floor_process(video, repeats)
         data = json.loads((d / "f.json").read_text())
+        lines_data = json.loads((d / "l.json").read_text())
     n = len(images)
     return {"shafts_motion_vs_decode_fld_1080p": float(wall / floor), "shafts_motion_s": float(wall),
             "shafts_motion_decode_fld_s": float(floor), "shafts_motion_frames": n,
-            "shafts_motion_tracked": data.get("frames_tracked", 0) / n, "shafts_motion_startup_s": float(startup)}
+            "shafts_motion_tracked": data.get("frames_tracked", 0) / n, "shafts_motion_startup_s": float(startup),
+            "shafts_motion_lines_vs_decode_fld_1080p": float(lines_wall / floor),
+            "shafts_motion_lines_s": float(lines_wall),
+            "shafts_motion_lines_tracked": lines_data.get("frames_tracked", 0) / n}

@@ -85,6 +85,17 @@ def test_shaft_option(tmp_path):
     # the sigma holds the measured edge floor (EDGE_FLOOR_PX at either end of each edge), so even
     # a clean render's shaft is not surer than about floor / seen length
     assert sh["midline"].shape == (4,) and sh["width_px"] > 40 and 0.05 < sh["angle_sigma_deg"] < 1.0
+    assert fr["segments"].shape[0] >= 2  # the shaft's own edges among them
+
+    # --no-segments: the same shafts alone (a live shaft video does not pay for the segments)
+    r = invoke(tmp_path / "v", "--camera", tmp_path / "camera.yaml", "--shaft", "--no-segments",
+               "-o", tmp_path / "s.json", "-q")
+    assert r.exit_code == 0, r.output
+    alone = read_lines(tmp_path / "s.json")[0]
+    assert alone["segments"].shape == (0, 4) and len(alone["shafts"]) == 1
+    np.testing.assert_array_equal(alone["shafts"][0]["midline"], sh["midline"])
+    r = invoke(tmp_path / "v", "--camera", tmp_path / "camera.yaml", "--no-segments", "-o", tmp_path / "x.json")
+    assert r.exit_code == 2 and "--no-segments" in r.output and "only with --shaft" in r.output
 
 
 def test_undecodable_frame_is_a_warning(scene, tmp_path):

@@ -49,3 +49,4 @@ def test_motion_benches_run_and_report_tracking():
     assert 0.5 <= r["orient_motion_tracked"] <= 1.0
     s = bench_shafts_motion(frames=6, repeats=1)
     assert s["shafts_motion_vs_decode_fld_1080p"] > 0 and 0.5 <= s["shafts_motion_tracked"] <= 1.0
+    assert s["shafts_motion_lines_vs_decode_fld_1080p"] > 0 and 0.5 <= s["shafts_motion_lines_tracked"] <= 1.0

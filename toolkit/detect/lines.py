@@ -23,7 +23,7 @@ import numpy as np
 
 from pencilcal.toolkit.detect.bars import detect_bars
 from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
-from pencilcal.toolkit.detect.segments import MIN_LENGTH_PX, detect_segments
+from pencilcal.toolkit.detect.segments import MIN_LENGTH_PX, Segments, detect_segments
 from pencilcal.toolkit.io.lines_file import LineFrame
 
 __all__ = ["default_min_length", "detect_frame_lines", "lines_record", "fan_line_options", "shaft_records",
@@ -91,7 +91,7 @@ def radial_joint_mode(pencil):
 def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None,
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
                        gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None, radial=None, axis_prior=None,
-                       shaft_tracker=None, edge_model="step", radial_joint="crowded"):
+                       shaft_tracker=None, edge_model="step", radial_joint="crowded", segments=True):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -146,6 +146,10 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
     radial_joint : {"crowded", "all"}
         With `radial`: which edges are located jointly with their neighbours
         (`radial.detect_radial_edges`' ``joint``; `radial_joint_mode` by the pencil's shape).
+    segments : bool
+        Edge segments (`detect_segments`) where neither `bars` nor `radial` is asked for;
+        False with `shaft`: the shafts alone (the segments of a textured frame cost most of
+        the time, and a live shaft video does not need them).
     """
     if min_length is None:
         min_length = default_min_length(np.shape(image), bars)
@@ -160,8 +164,10 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         kw = dict(camera=camera, min_length=min_length, width_px_range=bar_width, proposal_scale=proposal_scale,
                   valid_region=valid_region, polarity=bar_polarity)
         segs = detect_bars(image, detector, **kw) if bar_tracker is None else bar_tracker(image, detector, **kw)[0]
-    else:
+    elif segments:
         segs = detect_segments(image, detector, camera=camera, min_length=min_length, valid_region=valid_region)
+    else:
+        segs = Segments.empty()
     return LineFrame(
         image=name,
         segments=segs.segments,
@@ -202,9 +208,10 @@ def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, in
 def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None, bar_width=None,
                  proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA, bar_tracker=None,
                  instrument_mask=None, radial=None, axis_prior=None, shaft_tracker=None, edge_model="step",
-                 radial_joint="crowded"):
+                 radial_joint="crowded", segments=True):
     """One lines.json frame record from one decoded image: ``detect_frame_lines(...).to_dict()``
     (the same arguments)."""
     return detect_frame_lines(name, image, camera, detector, bars, shaft, min_length, bar_width,
                               proposal_scale, valid_region, bar_polarity, gamma, bar_tracker,
-                              instrument_mask, radial, axis_prior, shaft_tracker, edge_model, radial_joint).to_dict()
+                              instrument_mask, radial, axis_prior, shaft_tracker, edge_model, radial_joint,
+                              segments).to_dict()
