@@ -36,14 +36,14 @@ def _lines_task(frame, ctx):
     """One frame's lines.json record, and the frame drawn with them when the overlay is
     asked for (module level: runs in worker processes too)."""
     (camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, masks, radial, priors,
-     tracker, edge_model, radial_joint) = ctx
+     tracker, edge_model, radial_joint, parts) = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
     rec = lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
                        valid_region=region, gamma=gamma, instrument_mask=None if masks is None else masks.of(frame),
                        radial=radial, axis_prior=None if priors is None else priors[1].get(frame.name, priors[0]),
-                       shaft_tracker=tracker, edge_model=edge_model, radial_joint=radial_joint)
+                       shaft_tracker=tracker, edge_model=edge_model, radial_joint=radial_joint, parts=parts)
     if diameter is not None:
         rec["shafts"] = [with_axis(camera, s, diameter) for s in rec.get("shafts") or []]
     if not drawing:
@@ -91,6 +91,8 @@ def _summary(records):
               help="With --shaft: where the last frames predict them.")
 @gamma_option
 @edge_model_option
+@click.option("--parts", is_flag=True,
+              help="With --shaft: also the axes of instrument regions with no shaft (kind part: a distal part alone).")
 @click.option("--fulcrum-prior", "prior_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="With --shaft: through its fulcrum image.")
 @click.option("--min-length", type=FiniteFloat(), default=None,
@@ -105,7 +107,7 @@ def _summary(records):
 @quiet_option
 @run
 def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, radial, radial_joint, shaft,
-          shaft_diameter, track, gamma, edge_model, prior_path, min_length, instrument_mask, mask_labels, mask_instances,
+          shaft_diameter, track, gamma, edge_model, parts, prior_path, min_length, instrument_mask, mask_labels, mask_instances,
           mask_path, jsonl_path, overlay_path, overlay_scale, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel, with angle uncertainty.
 
@@ -196,6 +198,10 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         raise click.BadParameter("only with --shaft", param_hint="--instrument-mask")
     if prior_path is not None and not shaft:
         raise click.BadParameter("only with --shaft", param_hint="--fulcrum-prior")
+    if parts and not shaft:
+        raise click.BadParameter("only with --shaft", param_hint="--parts")
+    if parts and instrument_mask is not None:
+        raise click.UsageError("--parts and --instrument-mask: the mask gives every instrument's axis, give one")
     if prior_path is not None and instrument_mask is not None:
         raise click.UsageError("--instrument-mask gives the shafts: --fulcrum-prior is for detecting them")
     check_output(output, force)
@@ -218,7 +224,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         tracker = ShaftTracker(gamma=gamma, edge_model=edge_model)
     with FrameOutputs(jsonl_path, overlay_path, force, source=source, scale=overlay_scale) as live:
         ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma, masks,
-               radial, priors, tracker, edge_model, radial_joint)
+               radial, priors, tracker, edge_model, radial_joint, parts)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
@@ -236,6 +242,8 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         meta["radial_joint"] = radial_joint
     if shaft:
         meta["edge_model"] = edge_model
+    if parts:
+        meta["parts"] = True
     if masks is not None:
         meta["instrument_mask"] = str(instrument_mask)
     if prior_path is not None:

@@ -22,8 +22,9 @@ import pytest
 from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 from pencilcal.toolkit.detect.shaft.pixel_evidence import MIN_PIXEL_EVIDENCE, pixel_evidence
 from pencilcal.toolkit.detect.shaft.tissue_colour import MAX_TISSUE_COLOUR, shaft_tissue_colour
-from pencilcal.validation.shaft_protocol import (EVIDENCES, TISSUE_COLOURS, choose_setting, leave_one_source_out,
-                                                table_markdown, view_diagonal)
+from pencilcal.toolkit.detect.shaft.parts import detect_parts
+from pencilcal.validation.shaft_protocol import (EVIDENCES, PART_SETTINGS, TISSUE_COLOURS, choose_setting,
+                                                leave_one_source_out, table_markdown, view_diagonal)
 from pencilcal.validation.shaft_score import detection_line
 from tests.validation.masked_sources import SOURCES, load_source
 
@@ -57,23 +58,29 @@ def detected():
     from pencilcal.validation.shaft_training import fold_models, pixel_samples
 
     loaded = {name: load_source(name) for name in SOURCES}
+    found = {name: [detect_shafts(img, valid_region=region, pixel_evidence=None, tissue_colour=None)
+                    for _, img, _, _ in frames] for name, (frames, region) in loaded.items()}
     samples = {name: [pixel_samples(img, np.any(insts, 0) if insts else np.zeros(img.shape[:2], bool), region)
                       for _, img, _, insts in frames] for name, (frames, region) in loaded.items()}
     models = fold_models(samples)
     dets, diag = {}, {}
     for name, (frames, region) in loaded.items():
         dets[name] = [[dict(s.to_dict(), tissue_colour=float(t)) for s, t in zip(ss, shaft_tissue_colour(img, ss, region))]
-                      for _, img, _, _ in frames
-                      for ss in [detect_shafts(img, valid_region=region, pixel_evidence=None, tissue_colour=None)]]
+                      for (_, img, _, _), ss in zip(frames, found[name])]
         shape = frames[0][1].shape[:2]
         diag[name] = view_diagonal(shape, region.mask(shape))
 
     def judged(name, left_out):
         frames, region = loaded[name]
         out = []
-        for (_, img, refs, _), ds in zip(frames, dets[name]):
-            ev = pixel_evidence(img, ds, valid_region=region, model=models[frozenset(left_out)])
-            out.append((refs, [dict(d, pixel_evidence=float(e)) for d, e in zip(ds, ev)]))
+        model = models[frozenset(left_out)]
+        for (_, img, refs, _), ds, ss in zip(frames, dets[name], found[name]):
+            ev = pixel_evidence(img, ds, valid_region=region, model=model)
+            # the instrument regions without a shaft, from the same model (`shaft.parts`)
+            parts = detect_parts(img, ss, valid_region=region, model=model)
+            tc = shaft_tissue_colour(img, parts, region) if parts else []
+            out.append((refs, [dict(d, pixel_evidence=float(e)) for d, e in zip(ds, ev)]
+                        + [dict(q.to_dict(), tissue_colour=float(t)) for q, t in zip(parts, tc)]))
         return out
 
     scored = {name: judged(name, {name}) for name in SOURCES}
@@ -83,7 +90,8 @@ def detected():
 
 def test_leave_one_source_out(detected):
     scored, diag, choice = detected
-    rows = leave_one_source_out(scored, diag, evidences=EVIDENCES, choice_frames=choice, colours=TISSUE_COLOURS)
+    rows = leave_one_source_out(scored, diag, evidences=EVIDENCES, choice_frames=choice, colours=TISSUE_COLOURS,
+                                parts=PART_SETTINGS)
     print("\n" + table_markdown(rows))
     for r in rows:
         print(f"{r['source']}: target >= 90 % found ({0.9 * r['instruments']:.1f}), <= 0.25 false per frame")

@@ -8,8 +8,9 @@ the tissue's colour. What it has is instrument-like pixels, which the learned pi
 (`shaft.pixels`) tells from tissue everywhere it was measured. Here:
 
 1. *regions*: the work frame's pixels (`shaft.pixels.WORK_PX`) whose instrument probability
-   exceeds `PART_PROBABILITY` (the map's own even odds: no tuned level), opened by 3 x 3,
-   as connected components; a component is kept when it covers at least `MIN_PART_AREA` of
+   exceeds `PART_PROBABILITY` (the map's own even odds: no tuned level), off the view's rim
+   (`RIM_FRACTION`: a field stop's glare, a strip along the border, lights the map up but
+   enters nothing), opened by 3 x 3, as connected components; a component is kept when it covers at least `MIN_PART_AREA` of
    the view (a speck of specular tissue is no instrument), touches the border of the view
    (an instrument enters from outside; its shaft, cut off by the border, is out of view) and
    touches none of the shafts already found (widened by half their width: the jaws or wrist
@@ -47,7 +48,7 @@ from pencilcal.toolkit.detect.shaft.from_mask import shafts_from_masks
 from pencilcal.toolkit.detect.shaft.pixels import WORK_PX, instrument_probability
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
 
-__all__ = ["detect_parts", "part_regions", "PART_PROBABILITY", "MIN_PART_AREA", "PART_CUE"]
+__all__ = ["detect_parts", "part_regions", "PART_PROBABILITY", "MIN_PART_AREA", "PART_CUE", "RIM_FRACTION"]
 
 #: A work pixel is instrument where the learned map's probability exceeds this.
 PART_PROBABILITY = 0.5
@@ -56,7 +57,10 @@ PART_PROBABILITY = 0.5
 MIN_PART_AREA = 0.01
 #: The cue of the axes found here (`shaft.detector.Shaft.cue`).
 PART_CUE = "pixels"
-_BORDER_WORK_PX = 2.0  # a region touches the border of the view within this [work px]
+#: The rim of the view left out, as a fraction of the work frame's longer side (5 work px of
+#: 320): not tuned, the width of a field stop's glare on the frames looked at.
+RIM_FRACTION = 0.015
+_BORDER_WORK_PX = 2.0  # a region touches the border of the view within this beyond the rim [work px]
 
 
 def _ideal_points(camera, pts):
@@ -90,7 +94,10 @@ def part_regions(work, p, shafts=(), camera=None, min_area=MIN_PART_AREA, probab
     """
     import cv2
 
-    B = (p > probability).astype(np.uint8)
+    # the view's rim (a field stop's glare and vignetting, a letterbox's edge) is left out:
+    # a strip along the border lights the map up but enters nothing
+    rim = RIM_FRACTION * max(work.shape)
+    B = ((p > probability) & (work.dist > rim)).astype(np.uint8)
     B = cv2.morphologyEx(B, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     n, lab, stats, _ = cv2.connectedComponentsWithStats(B, connectivity=8)
     if n <= 1:
@@ -98,7 +105,7 @@ def part_regions(work, p, shafts=(), camera=None, min_area=MIN_PART_AREA, probab
     keep = stats[:, cv2.CC_STAT_AREA] >= min_area * max(int(np.count_nonzero(work.valid)), 1)
     keep[0] = False
     border = np.zeros(n, bool)
-    near = lab[(work.dist <= _BORDER_WORK_PX) & work.valid]
+    near = lab[(work.dist <= rim + _BORDER_WORK_PX) & work.valid]
     border[np.unique(near)] = True
     taken = np.zeros(work.shape, np.uint8)
     for q in _shaft_quads(work, camera, shafts):
