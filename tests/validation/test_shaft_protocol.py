@@ -9,6 +9,8 @@
   detector reaches now, so that a regression fails; the issue's target (>= 90 % found, <= 0.25
   false per frame on every source left out) is printed beside it, not asserted, while it is
   not reached.
+- The same with the instrument regions' axes offered (`toolkit.detect.shaft.parts`, each
+  source's from the model that never saw it; the least part score chosen on the others).
 - The unmasked hysterectomy frames against the hand-made list of what each frame shows
   (tests/data/real_frames_truth.yaml): a detection matching no listed instrument is false
   (target <= 0.25 per frame).
@@ -25,7 +27,7 @@ from pencilcal.toolkit.detect.shaft.tissue_colour import MAX_TISSUE_COLOUR, shaf
 from pencilcal.toolkit.detect.shaft.parts import detect_parts
 from pencilcal.validation.shaft_protocol import (EVIDENCES, PART_SETTINGS, TISSUE_COLOURS, choose_setting,
                                                 leave_one_source_out, table_markdown, view_diagonal)
-from pencilcal.validation.shaft_score import detection_line
+from pencilcal.validation.shaft_score import detection_line, score_frame
 from tests.validation.masked_sources import SOURCES, load_source
 
 pytestmark = pytest.mark.slow
@@ -90,8 +92,7 @@ def detected():
 
 def test_leave_one_source_out(detected):
     scored, diag, choice = detected
-    rows = leave_one_source_out(scored, diag, evidences=EVIDENCES, choice_frames=choice, colours=TISSUE_COLOURS,
-                                parts=PART_SETTINGS)
+    rows = leave_one_source_out(scored, diag, evidences=EVIDENCES, choice_frames=choice, colours=TISSUE_COLOURS)
     print("\n" + table_markdown(rows))
     for r in rows:
         print(f"{r['source']}: target >= 90 % found ({0.9 * r['instruments']:.1f}), <= 0.25 false per frame")
@@ -108,6 +109,38 @@ def test_leave_one_source_out(detected):
     assert evidence == pytest.approx(MIN_PIXEL_EVIDENCE)
     # and so is the most tissue colour
     assert colour == pytest.approx(MAX_TISSUE_COLOUR)
+
+
+#: With the instrument regions' axes (`shaft.parts`, `lines --shaft --parts`) offered too, the
+#: least part score chosen on the others (none among the choices): what each source reaches
+#: (found, most false per frame). Chosen on the others, parts are taken only where they add a
+#: find there without passing 0.25 false a frame: with box-trainer left out (0.3 of the
+#: diagonal), where they add one false region (a large grey one, 20 deg sigma) and no find,
+#: and with greenscreen left out, where they add nothing. Cholec's two distal parts alone
+#: (VID03_000180: a white hook's tip, a grasper's jaws, references of kind part) are found by
+#: them, but the other sources gain nothing from parts, so none is chosen for cholec: the
+#: parts stay off by default (docs/method.md, distal parts).
+PARTS_REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 1.0), "greenscreen": (1, 0.0), "cholec": (10, 0.1),
+                 "endovis17": (7, 0.0)}
+
+
+def test_leave_one_source_out_with_parts(detected):
+    scored, diag, choice = detected
+    rows = leave_one_source_out(scored, diag, evidences=EVIDENCES, choice_frames=choice, colours=TISSUE_COLOURS,
+                                parts=PART_SETTINGS)
+    print("\n" + table_markdown(rows))
+    for r in rows:
+        found, false = PARTS_REACHED[r["source"]]
+        assert r["found"] >= found and r["false_per_frame"] <= false + 1e-9, r
+    # the parts found where cholec's masks show a distal part alone, with an honest sigma: the
+    # angle error within 1.5 of the part's own sd
+    hits = []
+    for refs, dets in scored["cholec"]:
+        for d in dets:
+            if d.get("cue") == "pixels":
+                fs = score_frame([d], refs)
+                hits += [(m[2], d["angle_sigma_deg"]) for m in fs.matches]
+    assert len(hits) >= 2 and all(err <= 1.5 * sd for err, sd in hits), hits
 
 
 def _matches(det, inst, angle_deg=6.0):
