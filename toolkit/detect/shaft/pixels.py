@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.geometry.quantiles import median
 
 __all__ = ["FEATURES", "WORK_PX", "pixel_features", "pixel_features_at", "expanded_inputs", "PixelModel", "default_model",
            "instrument_probability", "instrument_probability_at"]
@@ -130,7 +131,7 @@ def _features(bgr, valid, at=None):
     S = R + G + B + np.float32(3.0 * max(_DARK_EPS * y_med, 1.0))
     x = (R - G) / S
     y = (R + G - 2.0 * B) / (np.float32(np.sqrt(3.0)) * S)
-    mx, my = float(np.median(x[v])), float(np.median(y[v]))
+    mx, my = float(median(x[v])), float(median(y[v]))
     cm = float(np.hypot(mx, my)) + 1e-3
     u = np.array([mx, my]) / cm
     c = (np.hypot(x, y) / cm).astype(np.float32)

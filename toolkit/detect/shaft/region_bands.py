@@ -41,6 +41,7 @@ import numpy as np
 
 from pencilcal.toolkit.detect.shaft.bands import best_segment
 from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs
+from pencilcal.toolkit.geometry.quantiles import median
 
 __all__ = ["STATIONS", "FILL_IN", "FILL_SIDE", "RegionBand", "evaluate_bands", "evaluate_many", "best_run", "band_stretch", "proposed",
            "suppress_overlaps", "band_polygon"]
@@ -397,8 +398,8 @@ def _band(g, lines, pairs, m, run_ends, obs, fin, okL, okR, shaft, cc, ca, cy, l
         run_len=float((i1 - i0) * g.step[m]), shaft_len=float(np.count_nonzero(shaft[m, run]) * g.step[m]), fall=fall,
         ang=ang, y_in=float(np.mean(yy[:, _IN])), y_side=float(0.5 * (np.mean(yy[:, _SL]) + np.mean(yy[:, _SR]))),
         level=int(level), kind=kind,
-        side_contrast=(float(np.median(cL[run][okL[m, run]])) if np.any(okL[m, run]) else np.nan,
-                       float(np.median(cR[run][okR[m, run]])) if np.any(okR[m, run]) else np.nan))
+        side_contrast=(float(median(cL[run][okL[m, run]])) if np.any(okL[m, run]) else np.nan,
+                       float(median(cR[run][okR[m, run]])) if np.any(okR[m, run]) else np.nan))
 
 
 def proposed(band, min_len, ang_thr):

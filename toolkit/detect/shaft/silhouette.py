@@ -56,6 +56,7 @@ from pencilcal.toolkit.detect.edges import (
 )
 from pencilcal.toolkit.detect.shaft.regions import Z_999
 from pencilcal.toolkit.detect.working import raw_frame
+from pencilcal.toolkit.geometry.quantiles import median
 
 __all__ = ["SIGMA_PX", "MAX_STATIONS", "EdgeLine", "fit_edges"]
 
@@ -376,7 +377,7 @@ def fit_edges(image, camera, validity, noise, specs, corridor, max_gap=None, gam
         found &= top
     # an edge goes on where its contrast does: a station's peak at least _REL_STRENGTH of the
     # edge's median (texture beside a shaft's end gives weaker peaks)
-    med = np.array([np.median(strength[m][found[m]]) if found[m].any() else 0.0 for m in range(len(specs))])
+    med = np.array([median(strength[m][found[m]]) if found[m].any() else 0.0 for m in range(len(specs))])
     found &= strength >= _REL_STRENGTH * med[:, None]
     tt = (j - nw) * DT
     with np.errstate(over="ignore"):  # an edge without a found station has no median
