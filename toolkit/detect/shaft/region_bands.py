@@ -343,6 +343,22 @@ def _per_set(starts, rows, sample, maps):
     return np.concatenate(parts)
 
 
+def _map_part(B, X, Y):
+    """(X, Y, part): a region map B (h, w) as float32 where the points (X, Y) (float32) read
+    it: the bounding box of their bilinear neighbours (converting a whole map for a few
+    bands cost more than sampling it), the points shifted into it. The shift by whole pixels
+    is exact and every neighbour lies inside the box (or beyond the map's own border), so
+    the samples are those of the whole map's."""
+    h, w = B.shape[:2]
+    if X.size == 0 or not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
+        return X, Y, B.astype(np.float32)
+    x0 = int(np.clip(np.floor(X.min()) - 1, 0, w - 1))
+    x1 = int(np.clip(np.ceil(X.max()) + 2, x0 + 1, w))
+    y0 = int(np.clip(np.floor(Y.min()) - 1, 0, h - 1))
+    y1 = int(np.clip(np.ceil(Y.max()) + 2, y0 + 1, h))
+    return X - x0, Y - y0, np.ascontiguousarray(B[y0:y1, x0:x1], dtype=np.float32)
+
+
 def evaluate_many(sets, work, min_run):
     """`evaluate_bands` of several candidate sets at once: sets a list of (lines, pairs, Bm,
     Ball, level, kind); the list of each set's bands, the same values as one call per set.
@@ -355,10 +371,11 @@ def evaluate_many(sets, work, min_run):
     g = _geometry(lines, pairs, work.shape)
 
     def sample(rows, im):
-        return _sampler(g.X[rows], g.Y[rows])(im)
+        X, Y, part = _map_part(im, g.X[rows], g.Y[rows])
+        return _sampler(X, Y)(part)
 
     every = np.arange(len(pairs.i))
-    sB = _per_set(starts, every, sample, [x[2].astype(np.float32) for x in sets])
+    sB = _per_set(starts, every, sample, [x[2] for x in sets])
     sV = _sampler(g.X, g.Y)(work.dist)
     lab, obs, fin, okL, okR, shaft = _labels(g, lines, pairs, sB, sV)
     sel = [m for m in range(len(pairs.i)) if g.good[m]]
@@ -367,7 +384,7 @@ def evaluate_many(sets, work, min_run):
     out = [[] for _ in sets]
     if not sel:
         return out
-    sA = _per_set(starts, sel, sample, [x[3].astype(np.float32) for x in sets])
+    sA = _per_set(starts, sel, sample, [x[3] for x in sets])
     sub = _sampler(g.X[sel], g.Y[sel])
     sY = sub(work.luma)
     sC = sub(work.colours) if work.bgr.ndim == 3 else sY[..., None]
