@@ -35,6 +35,7 @@ Example
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -352,10 +353,10 @@ def _map_part(B, X, Y):
     h, w = B.shape[:2]
     if X.size == 0 or not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
         return X, Y, B.astype(np.float32)
-    x0 = int(np.clip(np.floor(X.min()) - 1, 0, w - 1))
-    x1 = int(np.clip(np.ceil(X.max()) + 2, x0 + 1, w))
-    y0 = int(np.clip(np.floor(Y.min()) - 1, 0, h - 1))
-    y1 = int(np.clip(np.ceil(Y.max()) + 2, y0 + 1, h))
+    x0 = min(max(math.floor(X.min()) - 1, 0), w - 1)
+    x1 = min(max(math.ceil(X.max()) + 2, x0 + 1), w)
+    y0 = min(max(math.floor(Y.min()) - 1, 0), h - 1)
+    y1 = min(max(math.ceil(Y.max()) + 2, y0 + 1), h)
     return X - x0, Y - y0, np.ascontiguousarray(B[y0:y1, x0:x1], dtype=np.float32)
 
 

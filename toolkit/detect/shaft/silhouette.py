@@ -40,6 +40,7 @@ Example
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -171,16 +172,18 @@ def _crop_groups(ends, shape):
     big = np.float32(np.inf)
     fin = np.all(np.isfinite(ends), -1).reshape(M, -1)
     E = ends.reshape(M, -1, 2)
-    lo_x, hi_x = np.where(fin, E[..., 0], big).min(1), np.where(fin, E[..., 0], -big).max(1)
-    lo_y, hi_y = np.where(fin, E[..., 1], big).min(1), np.where(fin, E[..., 1], -big).max(1)
+    # per edge, in Python floats (a few edges: numpy's scalar overheads would be the cost)
+    lo_x, hi_x = np.where(fin, E[..., 0], big).min(1).tolist(), np.where(fin, E[..., 0], -big).max(1).tolist()
+    lo_y, hi_y = np.where(fin, E[..., 1], big).min(1).tolist(), np.where(fin, E[..., 1], -big).max(1).tolist()
+    seen = fin.any(1).tolist()
 
     def box(m0, m1):
-        if not fin[m0:m1].any():
+        if not any(seen[m0:m1]):
             return 0, W, 0, H
-        x0 = int(np.clip(np.floor(lo_x[m0:m1].min()) - 1, 0, W - 1))
-        x1 = int(np.clip(np.ceil(hi_x[m0:m1].max()) + 2, x0 + 1, W))
-        y0 = int(np.clip(np.floor(lo_y[m0:m1].min()) - 1, 0, H - 1))
-        y1 = int(np.clip(np.ceil(hi_y[m0:m1].max()) + 2, y0 + 1, H))
+        x0 = min(max(math.floor(min(lo_x[m0:m1])) - 1, 0), W - 1)
+        x1 = min(max(math.ceil(max(hi_x[m0:m1])) + 2, x0 + 1), W)
+        y0 = min(max(math.floor(min(lo_y[m0:m1])) - 1, 0), H - 1)
+        y1 = min(max(math.ceil(max(hi_y[m0:m1])) + 2, y0 + 1), H)
         return x0, x1, y0, y1
 
     def area(b):
