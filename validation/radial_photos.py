@@ -8,10 +8,10 @@ centre, `toolkit.pencil.circle`). Both need the camera; the target itself gives 
 
 - the lens's distortion (k1, about the image centre): the boundaries are straight lines through
   one point whose image angles are a 1-D projective map of their known angles, whatever the
-  camera's focal length; distortion breaks that map, so the k1 under which the pencil
-  explains the boundaries best, among those explaining within two of the most
-  (`straightest_k1`), is the estimate (it uses
-  one degree of freedom of the boundaries' residuals, not their plane);
+  camera's focal length; distortion breaks that map, so the k1 under which a fixed set of
+  labelled boundaries fits a pencil best (the minimum of its chi2 profile, only the
+  undistortion refitted: `profile_k1`) is the estimate, with a sigma from the profile's
+  curvature (it uses one degree of freedom of the boundaries' residuals, not their plane);
 - the focal length: the rings' images meet the horizon (the polar of the centre) in the
   images of the plane's circular points, which lie on the image of the absolute conic: with
   an assumed focal length f0, each ring gives f = f0 sqrt(-(I_x^2 + I_y^2))
