@@ -78,7 +78,7 @@ from pencilcal.toolkit.detect.shaft.region_bands import (
     suppress_overlaps,
 )
 from pencilcal.toolkit.detect.shaft.edge_pairs import PAIR_MAX_CONVERGENCE_DEG, pair_bands
-from pencilcal.toolkit.detect.shaft.partner import MAX_SEEDS, partner_bands
+from pencilcal.toolkit.detect.shaft.partner import MAX_SEEDS, partner_bands, turned_round
 from pencilcal.toolkit.detect.shaft.regions import (BoundaryLines, RegionPairs, boundary_lines_many, region_levels,
                                                     region_pairs_many, scene_angle)
 
@@ -87,6 +87,8 @@ __all__ = ["MaterialShaft", "material_cue", "judge_band", "select", "robust_nois
 _MAX_PAIRS = 40  # candidate pairs per region map, the longest overlaps first
 _MAX_REFINE = 6  # bands of the region maps refitted at full resolution
 _MAX_PARTNER = 4  # ... and bands from a single edge (`shaft.partner`)
+#: Whether the bands from a single edge are also searched into its own region (`_inward_bands`).
+INWARD = True
 _MAX_PAIRED = 3  # ... and bands between two grey-level edges (`shaft.edge_pairs`)
 _TOUCH = 0.1  # ... unless it overlaps one of those by this fraction (`_touches`)
 _GROUP_TOL = (3.0, 3.0)  # one boundary at two levels: offset [work px], angle [deg]
@@ -178,11 +180,28 @@ def _bands(work, mm, o, wmin, wmax, min_len):
         seed = _unused_seeds(seeds, acc, min_len)
         got = partner_bands(work, seed, wmin, wmax, np.degrees(o.region_conv_max), mm.luma_noise)
         acc = acc + _more_bands(got, work, B0, min_len, ang_thr, acc, "partner")[:_MAX_PARTNER]
+        if INWARD:
+            acc = acc + _inward_bands(work, seed, wmin, wmax, o, mm, B0, min_len, ang_thr, acc)
     if o.edge_pairs:
         got = pair_bands(work, wmin, wmax, min(np.degrees(o.conv_max), PAIR_MAX_CONVERGENCE_DEG), mm.luma_noise,
                          min_len, mm.likeness)
         acc = acc + _more_bands(got, work, B0, min_len, ang_thr, acc, "pairs")[:_MAX_PAIRED]
     return acc
+
+
+def _inward_bands(work, seed, wmin, wmax, o, mm, B0, min_len, ang_thr, acc):
+    """The bands from a single edge into its own region (kind "inward", at most
+    `_MAX_PARTNER`): each unused boundary (seed) taken as one silhouette edge of the region
+    it bounds, its far edge the outermost a gradient model finds across the region
+    (`shaft.partner.partner_bands` on the boundaries turned round), converging by up to a
+    close shaft's under perspective (`shaft.edge_pairs.PAIR_MAX_CONVERGENCE_DEG`). A dark
+    shaft close to the lens is a region of the maps, but its far silhouette lies on shadowed
+    tissue of its own grey, so the region's far boundary follows a shadow or a streak inside
+    it, converging too much to be paired (the da Vinci frames' left shaft: its two boundaries
+    17-19 deg apart, its silhouette edges 12-16 deg)."""
+    conv = float(np.degrees(min(o.conv_max, np.radians(PAIR_MAX_CONVERGENCE_DEG))))
+    got = partner_bands(work, turned_round(seed), wmin, wmax, conv, mm.luma_noise)
+    return _more_bands(got, work, B0, min_len, ang_thr, acc, "inward")[:_MAX_PARTNER]
 
 
 def _more_bands(got, work, B0, min_len, ang_thr, acc, kind):
@@ -402,7 +421,7 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
     m = midline_from_edges(K, fits[0], fits[1])
     if m is None:
         return None, "no midline from the edges"
-    conv_max = min(o.conv_max, np.radians(PAIR_MAX_CONVERGENCE_DEG)) if e.kind == "pairs" else o.region_conv_max
+    conv_max = min(o.conv_max, np.radians(PAIR_MAX_CONVERGENCE_DEG)) if e.kind in ("pairs", "inward") else o.region_conv_max
     if m.convergence_deg > np.degrees(conv_max):
         return None, "edges converge"
     if not _meet_outside(m):
