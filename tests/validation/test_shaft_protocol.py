@@ -46,9 +46,12 @@ pytestmark = pytest.mark.slow
 #: a band's score at most the length along which both its edges are seen turns one false (edges
 #: 3-4 deg off the axis, one drifting) into a find. The most tissue colour chosen on the others (1.25
 #: for every source, `shaft.tissue_colour`) removes no find and no false detection here: the masked
-#: sources hold no tissue gap it removes.
+#: sources hold no tissue gap it removes. The bands from a single edge searched into its own
+#: region (`material_cue._inward_bands`) with the least elongation at the border 1.25 widths find
+#: endovis17's close dark left shaft in frame003 (the factor chosen by the nested protocol for the
+#: other four sources left out; for endovis17 itself they tie and 1.5 would stay: docs/method.md).
 REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (10, 0.1),
-           "endovis17": (7, 0.0)}
+           "endovis17": (8, 0.0)}
 
 
 @pytest.fixture(scope="module")

@@ -51,7 +51,7 @@ import numpy as np
 
 from pencilcal.toolkit.detect.shaft.regions import Z_999, BoundaryLines, RegionPairs
 
-__all__ = ["partner_bands", "MAX_SEEDS"]
+__all__ = ["partner_bands", "turned_round", "MAX_SEEDS"]
 
 #: Seeds searched per frame, the longest first.
 MAX_SEEDS = 6  # (12 gave the same masked-source table at twice the cost)
@@ -218,6 +218,20 @@ def _band_map(work, img, col, obs, t, t0, b, s, s_mid):
     B = ((d[0] < np.minimum(d[1], d[2])) & work.valid).astype(np.uint8)
     k3 = np.ones((3, 3), np.uint8)
     return cv2.morphologyEx(cv2.morphologyEx(B, cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
+
+
+def turned_round(lines):
+    """The same straight boundaries (`BoundaryLines`) with their normals turned round
+    (n = (-u_y, u_x) into the other side: u, lo and hi reversed), so that `partner_bands`
+    searches a band on the side of the region they bound.
+
+    >>> L = BoundaryLines(p=np.array([[0.0, 5.0]]), u=np.array([[1.0, 0.0]]), n=np.array([[0.0, 1.0]]),
+    ...                   lo=np.array([2.0]), hi=np.array([9.0]), support=np.array([7.0]))
+    >>> R = turned_round(L)
+    >>> R.n.tolist(), (R.p + R.lo[:, None] * R.u).tolist(), (R.p + R.hi[:, None] * R.u).tolist()
+    ([[-0.0, -1.0]], [[9.0, 5.0]], [[2.0, 5.0]])
+    """
+    return BoundaryLines(p=lines.p, u=-lines.u, n=-lines.n, lo=-lines.hi, hi=-lines.lo, support=lines.support)
 
 
 def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SEEDS):
