@@ -119,9 +119,9 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
       pencilcal lines frames/ --camera cam.yaml --bars -o lines.json
       pencilcal lines frames/ --camera c.yaml --shaft --shaft-diameter 8 -o l.json
 
-    IMAGES: files, folders or globs in order, or a video; or --source.
-    Each segment in raw pixels with its angle and offset sigmas; --bars: the
-    spokes' midlines; --shaft: instrument shafts. In detail: docs/cli.md.
+    IMAGES: files, folders or globs in the order given, or a video; or --source.
+    Each segment in raw pixels with its sigmas; --bars: the spokes' midlines;
+    --shaft: instrument shafts. In detail: docs/cli.md.
     \f
     IMAGES is one or more image files, folders or glob patterns, in the order given (a
     folder's images sorted naturally), or one video; or --source, a camera or a video still
