@@ -621,9 +621,10 @@ def instrument_masks(source, spec, labels, instances):
 
 def warn_masks(record):
     """A warning per shaft of a frame record whose mask and image disagree (its
-    ``mask_warning``, `detect.shaft.from_mask.MaskShaft.disagreement`)."""
+    ``mask_warning``, `detect.shaft.from_mask.MaskShaft.disagreement`); an instrument
+    region's (cue pixels, `--parts`) is no user's mask: its record keeps the note, unsaid."""
     for sh in record.get("shafts") or []:
-        if sh.get("mask_warning"):
+        if sh.get("mask_warning") and sh.get("cue") != "pixels":
             warn(f"{record.get('image')}: {sh['mask_warning']}")
 
 

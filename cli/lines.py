@@ -36,14 +36,15 @@ def _lines_task(frame, ctx):
     """One frame's lines.json record, and the frame drawn with them when the overlay is
     asked for (module level: runs in worker processes too)."""
     (camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, masks, radial, priors,
-     tracker, edge_model, radial_joint, segments) = ctx
+     tracker, edge_model, radial_joint, segments, parts) = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
     rec = lines_record(frame.name, frame.image, camera, detector, bars, shaft, min_length, bar_width,
                        valid_region=region, gamma=gamma, instrument_mask=None if masks is None else masks.of(frame),
                        radial=radial, axis_prior=None if priors is None else priors[1].get(frame.name, priors[0]),
-                       shaft_tracker=tracker, edge_model=edge_model, radial_joint=radial_joint, segments=segments)
+                       shaft_tracker=tracker, edge_model=edge_model, radial_joint=radial_joint, segments=segments,
+                       parts=parts)
     if diameter is not None:
         rec["shafts"] = [with_axis(camera, s, diameter) for s in rec.get("shafts") or []]
     if not drawing:
@@ -76,7 +77,7 @@ def _summary(records):
 @output_option
 @detector_option("OpenCV detector proposing the segments.")
 @click.option("--bars", is_flag=True,
-              help="Printed spokes: each dark bar as one segment, its midline.")
+              help="Printed spokes: each dark bar's midline.")
 @click.option("--bar-width", nargs=2, type=FiniteFloat(), default=None, metavar="MIN MAX",
               help="With --bars: bar widths accepted [px]; default 2.5 px to 1/8 image.")
 @click.option("--radial", type=click.IntRange(min=0), default=None, metavar="EDGES",
@@ -88,11 +89,13 @@ def _summary(records):
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
               help="Shaft diameter [mm]: the 3-D axes too.")
 @click.option("--no-segments", "segments", flag_value=False, default=True,
-              help="With --shaft: the shafts alone, no segments.")
+              help="With --shaft: no edge segments.")
 @click.option("--track/--no-track", default=True, show_default=True,
               help="With --shaft: where the last frames predict them.")
 @gamma_option
 @edge_model_option
+@click.option("--parts", is_flag=True,
+              help="Also instrument parts with no shaft.")
 @click.option("--fulcrum-prior", "prior_path", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="With --shaft: through its fulcrum image.")
 @click.option("--min-length", type=FiniteFloat(), default=None,
@@ -107,8 +110,8 @@ def _summary(records):
 @quiet_option
 @run
 def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, radial, radial_joint, shaft,
-          shaft_diameter, segments, track, gamma, edge_model, prior_path, min_length, instrument_mask, mask_labels, mask_instances,
-          mask_path, jsonl_path, overlay_path, overlay_scale, max_pixels, workers, force, quiet):
+          shaft_diameter, segments, track, gamma, edge_model, parts, prior_path, min_length, instrument_mask, mask_labels,
+          mask_instances, mask_path, jsonl_path, overlay_path, overlay_scale, max_pixels, workers, force, quiet):
     """Line segments in every frame, refined to subpixel, with angle uncertainty.
 
     \b
@@ -116,7 +119,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
       pencilcal lines frames/ --camera cam.yaml --bars -o lines.json
       pencilcal lines frames/ --camera c.yaml --shaft --shaft-diameter 8 -o l.json
 
-    IMAGES: files, folders or globs in the order given, or a video; or --source.
+    IMAGES: files, folders or globs in order, or a video; or --source.
     Each segment in raw pixels with its angle and offset sigmas; --bars: the
     spokes' midlines; --shaft: instrument shafts. In detail: docs/cli.md.
     \f
@@ -204,6 +207,10 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         raise click.BadParameter("only with --shaft", param_hint="--instrument-mask")
     if prior_path is not None and not shaft:
         raise click.BadParameter("only with --shaft", param_hint="--fulcrum-prior")
+    if parts and not shaft:
+        raise click.BadParameter("only with --shaft", param_hint="--parts")
+    if parts and instrument_mask is not None:
+        raise click.UsageError("--parts and --instrument-mask: the mask gives every instrument's axis, give one")
     if prior_path is not None and instrument_mask is not None:
         raise click.UsageError("--instrument-mask gives the shafts: --fulcrum-prior is for detecting them")
     check_output(output, force)
@@ -226,7 +233,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         tracker = ShaftTracker(gamma=gamma, edge_model=edge_model)
     with FrameOutputs(jsonl_path, overlay_path, force, source=source, scale=overlay_scale) as live:
         ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma, masks,
-               radial, priors, tracker, edge_model, radial_joint, segments)
+               radial, priors, tracker, edge_model, radial_joint, segments, parts)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
@@ -245,6 +252,8 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     if shaft:
         meta["edge_model"] = edge_model
         meta["segments"] = segments
+    if parts:
+        meta["parts"] = True
     if masks is not None:
         meta["instrument_mask"] = str(instrument_mask)
     if prior_path is not None:

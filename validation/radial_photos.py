@@ -8,10 +8,10 @@ centre, `toolkit.pencil.circle`). Both need the camera; the target itself gives 
 
 - the lens's distortion (k1, about the image centre): the boundaries are straight lines through
   one point whose image angles are a 1-D projective map of their known angles, whatever the
-  camera's focal length; distortion breaks that map, so the k1 under which the pencil
-  explains the boundaries best, among those explaining within two of the most
-  (`straightest_k1`), is the estimate (it uses
-  one degree of freedom of the boundaries' residuals, not their plane);
+  camera's focal length; distortion breaks that map, so the k1 under which a fixed set of
+  labelled boundaries fits a pencil best (the minimum of its chi2 profile, only the
+  undistortion refitted: `profile_k1`) is the estimate, with a sigma from the profile's
+  curvature (it uses one degree of freedom of the boundaries' residuals, not their plane);
 - the focal length: the rings' images meet the horizon (the polar of the centre) in the
   images of the plane's circular points, which lie on the image of the absolute conic: with
   an assumed focal length f0, each ring gives f = f0 sqrt(-(I_x^2 + I_y^2))
@@ -27,7 +27,7 @@ import numpy as np
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.errors import EstimationError
 
-__all__ = ["nominal_camera", "straightest_k1", "focal_from_circles", "check_photo"]
+__all__ = ["nominal_camera", "profile_k1", "focal_from_circles", "check_photo"]
 
 
 def nominal_camera(width, height, f=None, k1=0.0):
@@ -38,46 +38,96 @@ def nominal_camera(width, height, f=None, k1=0.0):
                   [float(k1), 0.0, 0.0, 0.0])
 
 
-def _pencil_score(image, camera, pencil, edges):
-    """(spokes used, -chi2 per degree of freedom) of the pencil fitted under `camera`: what
-    `straightest_k1` weighs."""
-    _, rec, _ = _orient(image, camera, pencil, edges, circles=False)
-    if not rec.ok:
-        return (0, -np.inf)
-    return (int(rec.spokes_used), -float(rec.chi2) / max(int(rec.lines_used) - 3, 1))
+def _labelled(image, camera, pencil, edges):
+    """The edges detected under `camera` and the pencil's fit labelling them:
+    (found, orientation with ``lines``, score (boundaries used, -chi2 per degree of freedom))."""
+    found, rec, _ = _orient(image, camera, pencil, edges, circles=False)
+    score = (int(rec.spokes_used), -_chi2_dof(rec)) if rec.ok else (0, -np.inf)
+    return found, rec, score
 
 
-def straightest_k1(image, camera, pencil, k1_range=(-0.5, 0.1), step=0.02, fine=0.01, slack=2):
-    """The k1 (about camera's principal point, its focal length kept) under which the
-    pencil's boundaries fit a pencil best: the least chi2 per degree of freedom among the
-    values that use within `slack` spokes of the most any value uses, over k1_range in
-    `step`, then around the best in `fine` steps. Returns (k1, [(k1, score)] of every value
-    tried, score as `_pencil_score`).
+def _chi2_dof(rec):
+    return float(rec.chi2) / max(int(rec.lines_used) - 3, 1)
 
-    The count guards against a k1 that loses boundaries; the fit, not the count, picks among
-    the rest: a spoke more or less (one edge's labelling margin) swung the most-spokes k1 by
-    0.2-0.4 on the shared dartboard photographs, to values whose chi2 / dof was 3-10 times
-    the best's. The count moves by a boundary or two between k1 0.02 apart, so the grid is
-    that fine: at 0.1 it missed every value within one boundary of the most but one.
+
+def profile_k1(image, camera, pencil, k1_range=(-0.5, 0.1), coarse=0.1, span=(-0.6, 0.4), step=0.01, rounds=2):
+    """The k1 (about camera's principal point, its focal length kept) under which a fixed set
+    of labelled boundaries fits a pencil best, and its sigma.
+
+    The boundaries are detected and labelled once per value of a coarse pass (k1_range in
+    `coarse` steps); those of the value labelling the most (ties: the least chi2 per degree of
+    freedom) are kept, their segments' raw end points, sigmas and labels fixed, and only the
+    undistortion varies: the pencil is refitted to them under every k1 of `span` in `step`
+    (`orient_segments` given the labels, no detection), a profile of chi2 smooth in k1, unlike
+    the count of labelled boundaries, which jumps by one to twenty between values 0.02 apart.
+    Its minimum (a parabola through it and its neighbours) is the estimate; its sigma, where
+    the profile has risen by one from there, widened by sqrt(chi2 / dof) where that exceeds
+    one (the lines' sigmas do not hold all of their scatter). The edges are then detected and
+    labelled again at that k1 and profiled once more (`rounds` in all), as the end points
+    were located straight under the labelling's k1.
+
+    Returns a dict: k1, k1_sigma, chi2_dof (at the minimum of the last profile), boundaries
+    (labelled in the last profile), coarse [(k1, (boundaries, -chi2/dof))], rounds [(k1 of
+    the labelling, k1 of the minimum, k1_sigma, boundaries)] and profile (S, 3) [k1, chi2,
+    lines used] of the last round.
     """
     from pencilcal.toolkit.detect.lines import radial_edge_count
 
     edges = radial_edge_count(pencil)
-    tried = [(float(k), _pencil_score(image, _with_k1(camera, k), pencil, edges))
-             for k in np.arange(k1_range[0], k1_range[1] + 1e-9, step)]
-    best = _best_fit(tried, slack)
-    tried += [(float(k), _pencil_score(image, _with_k1(camera, k), pencil, edges))
-              for k in best + fine * np.array([-1, 1])]
-    if max(t[1] for t in tried)[0] < 3:
+    tried = [(float(k), _labelled(image, _with_k1(camera, k), pencil, edges))
+             for k in np.arange(k1_range[0], k1_range[1] + 1e-9, coarse)]
+    k_lab, (found, rec, score) = max(tried, key=lambda t: t[1][2])
+    if score[0] < 3:
         raise EstimationError("the boundaries fit no pencil under any k1 tried")
-    return _best_fit(tried, slack), sorted(tried)
+    grid = np.arange(span[0], span[1] + 1e-9, step)
+    history = []
+    for r in range(rounds):
+        if r:
+            k_lab = k1
+            found, rec, score = _labelled(image, _with_k1(camera, k1), pencil, edges)
+            if score[0] < 3:
+                break
+        prof = _chi2_profile(found, rec, camera, pencil, grid)
+        k1, sigma, chi2_dof = _profile_minimum(prof)
+        history.append((k_lab, k1, sigma, score[0]))
+    return {"k1": k1, "k1_sigma": sigma, "chi2_dof": chi2_dof, "boundaries": history[-1][3],
+            "coarse": [(k, t[2]) for k, t in tried], "rounds": history, "profile": prof}
 
 
-def _best_fit(tried, slack):
-    """The k1 of [(k1, (spokes, -chi2/dof))] with the least chi2 / dof among those within
-    `slack` spokes of the most."""
-    most = max(s[0] for _, s in tried)
-    return max((t for t in tried if t[1][0] >= most - slack), key=lambda t: t[1][1])[0]
+def _chi2_profile(found, rec, camera, pencil, grid):
+    """(S, 3) [k1, chi2, lines used] of the pencil refitted under each k1 of grid (S,) to
+    the segments `found`, labelled as `rec` labelled them (NaN where the fit fails)."""
+    from pencilcal.toolkit.pencil.orient import orient_segments
+
+    labels = np.full(len(found), -1)
+    labels[rec.lines["segment"]] = rec.lines["spoke"]
+    out = []
+    for k in grid:
+        o = orient_segments(_with_k1(camera, k), found.segments, pencil, angle_sigma=found.angle_sigma,
+                            offset_sigma=found.offset_sigma, labels=labels)
+        out.append((k, o.chi2, o.lines_used) if o.ok else (k, np.nan, 0))
+    return np.array(out, float)
+
+
+def _profile_minimum(prof):
+    """(k1, sigma, chi2 / dof) at the least chi2 of a profile (S, 3) [k1, chi2, lines]: a
+    parabola through the least value and its two neighbours of the same line count (the
+    count changes where a line leaves the vertex's pencil, a step in chi2), sigma where it
+    has risen by one, widened by sqrt(chi2 / dof) when that exceeds one; at the span's end
+    or where the parabola opens downwards, the grid value and an infinite sigma."""
+    ok = np.isfinite(prof[:, 1])
+    if not ok.any():
+        raise EstimationError("the labelled boundaries fit no pencil under any k1 of the profile")
+    i = int(np.nanargmin(np.where(ok, prof[:, 1], np.nan)))
+    k, c, n = prof[i]
+    dof = max(n - 3, 1)
+    if 0 < i < len(prof) - 1 and np.all(prof[i - 1:i + 2, 2] == n):
+        (a, b, c0) = np.polyfit(prof[i - 1:i + 2, 0] - k, prof[i - 1:i + 2, 1], 2)
+        if a > 0:
+            dk = -b / (2 * a)
+            cmin = c0 - b * b / (4 * a)
+            return float(k + dk), float(np.sqrt(1 / a * max(1.0, cmin / dof))), float(cmin / dof)
+    return float(k), float("inf"), float(c / dof)
 
 
 def _with_k1(camera, k1):
@@ -134,7 +184,8 @@ def check_photo(image, pencil, f0=None):
     H, W = img.shape[:2]
     f0 = float(W if f0 is None else f0)
     edges = radial_edge_count(pencil)
-    k1, tried = straightest_k1(img, nominal_camera(W, H, f0), pencil)
+    prof = profile_k1(img, nominal_camera(W, H, f0), pencil)
+    k1 = prof["k1"]
     cam1 = nominal_camera(W, H, f0, k1)
     _, rec1, est1 = _orient(img, cam1, pencil, edges)
     if est1 is None:
@@ -143,7 +194,8 @@ def check_photo(image, pencil, f0=None):
     f = float(np.nanmedian(per_circle))
     cam = nominal_camera(W, H, f, k1 * (f / f0) ** 2)
     found, rec, _ = _orient(img, cam, pencil, edges)
-    return {"k1_nominal": k1, "f0": f0, "k1_tried": tried, "focal_px": f,
+    return {"k1_nominal": k1, "k1_sigma_nominal": prof["k1_sigma"], "f0": f0,
+            "k1_profile": prof, "focal_px": f,
             "focal_per_circle": per_circle, "camera": cam, "orientation": rec.replace(lines=None),
             "edges_found": len(found), "spokes_used": rec.spokes_used, "circles_used": rec.circles_used,
             "circle_angle_deg": rec.circle_angle_deg, "circle_chi2": rec.circle_chi2,

@@ -60,9 +60,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from pencilcal.toolkit.detect.shaft.parts import PART_CUE
 from pencilcal.validation.shaft_score import Tolerance, score_frame, summarize
 
-__all__ = ["SETTINGS", "EVIDENCES", "TISSUE_COLOURS", "MAX_FALSE_PER_FRAME", "view_diagonal", "filtered", "choose_setting", "leave_one_source_out", "table_markdown"]
+__all__ = ["SETTINGS", "EVIDENCES", "TISSUE_COLOURS", "PART_SETTINGS", "PART_CUE", "MAX_FALSE_PER_FRAME", "view_diagonal", "filtered", "choose_setting", "leave_one_source_out", "table_markdown"]
 
 #: The settings tried: the least evidence (`Shaft.score`: the length along which the band is
 #: seen as a shaft) as a fraction of the view's diagonal (`view_diagonal`).
@@ -74,6 +75,10 @@ EVIDENCES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7)
 #: one passes): from a quarter above the bound an instrument keeps to (1: the tissue's own
 #: colour, which a metal shaft mirrors at most) to not judged (inf).
 TISSUE_COLOURS = (1.25, 1.5, 2.0, 3.0, float("inf"))
+#: The least scores tried for an instrument region's axis (`toolkit.detect.shaft.parts`, cue
+#: `PART_CUE`: a distal part alone, or an instrument the shaft cues missed), as a fraction of
+#: the view's diagonal; inf: no parts.
+PART_SETTINGS = (float("inf"), 0.05, 0.1, 0.15, 0.2, 0.3)
 #: The most false detections per frame a chosen setting may give on the other sources.
 MAX_FALSE_PER_FRAME = 0.25
 
@@ -97,38 +102,43 @@ def view_diagonal(shape, valid=None):
     return float(np.hypot(H, W))
 
 
-def filtered(detections, setting, diagonal, evidence=0.0, colour=float("inf")):
+def filtered(detections, setting, diagonal, evidence=0.0, colour=float("inf"), part=float("inf")):
     """The detections (list of dict, lines.json shaft records) whose score reaches setting x
-    diagonal [px], whose ``pixel_evidence`` (where they carry one) reaches evidence and whose
-    ``tissue_colour`` (where they carry one) stays within colour."""
-    return [d for d in detections if float(d.get("score", 0.0)) >= setting * diagonal
+    diagonal [px] (an instrument region's, cue `PART_CUE`: part x diagonal), whose
+    ``pixel_evidence`` (where they carry one) reaches evidence and whose ``tissue_colour``
+    (where they carry one) stays within colour."""
+    return [d for d in detections
+            if float(d.get("score", 0.0)) >= (part if d.get("cue") == PART_CUE else setting) * diagonal
             and float(d.get("pixel_evidence", 1.0)) >= evidence and float(d.get("tissue_colour", 0.0)) <= colour]
 
 
-def _scores(frames, setting, diagonal, tol, evidence=0.0, colour=float("inf")):
-    return [score_frame(filtered(dets, setting, diagonal, evidence, colour), refs, tol) for refs, dets in frames]
+def _scores(frames, setting, diagonal, tol, evidence=0.0, colour=float("inf"), part=float("inf")):
+    return [score_frame(filtered(dets, setting, diagonal, evidence, colour, part), refs, tol) for refs, dets in frames]
 
 
 def choose_setting(sources, diagonal, settings=SETTINGS, tol=Tolerance(), max_false=MAX_FALSE_PER_FRAME,
-                   evidences=(0.0,), colours=(float("inf"),)):
+                   evidences=(0.0,), colours=(float("inf"),), parts=None):
     """The (setting, evidence, most tissue colour) that finds the most instruments over
     `sources` ({name: [(references, detections) per frame]}) with at most max_false false
     detections per frame (ties: fewer false, then the smaller setting, then the smaller
-    evidence, then the smaller colour); the one with the fewest false when none keeps to it."""
+    evidence, then the smaller colour); the one with the fewest false when none keeps to it.
+    parts: the least part scores tried (`PART_SETTINGS`; ties: the larger, no parts first):
+    the choice is then (setting, evidence, colour, part)."""
     best = None
     for s in settings:
         for e in evidences:
             for c in colours:
-                S = summarize([f for name, frames in sources.items()
-                               for f in _scores(frames, s, diagonal[name], tol, e, c)])
-                key = (S["false_per_frame"] <= max_false, S["found"], -S["false"], -s, -e, -c)
-                if best is None or key > best[0]:
-                    best = (key, (s, e, c))
-    return best[1]
+                for p in (float("inf"),) if parts is None else parts:
+                    S = summarize([f for name, frames in sources.items()
+                                   for f in _scores(frames, s, diagonal[name], tol, e, c, p)])
+                    key = (S["false_per_frame"] <= max_false, S["found"], -S["false"], -s, -e, -c, p)
+                    if best is None or key > best[0]:
+                        best = (key, (s, e, c, p))
+    return best[1][:3] if parts is None else best[1]
 
 
 def leave_one_source_out(frames, diagonal, settings=SETTINGS, tol=Tolerance(), max_false=MAX_FALSE_PER_FRAME,
-                         evidences=(0.0,), choice_frames=None, colours=(float("inf"),)):
+                         evidences=(0.0,), choice_frames=None, colours=(float("inf"),), parts=None):
     """The protocol's table (module docstring).
 
     Parameters
@@ -145,34 +155,38 @@ def leave_one_source_out(frames, diagonal, settings=SETTINGS, tol=Tolerance(), m
         default `frames`.
     colours : sequence of float
         The most tissue colours tried (`TISSUE_COLOURS`; (inf,): none).
+    parts : sequence of float, optional
+        The least part scores tried (`PART_SETTINGS`); default none (no parts).
 
     Returns
     -------
     list of dict
-        Per source: source, setting, evidence and colour (chosen on the others), and
+        Per source: source, setting, evidence, colour and part (chosen on the others), and
         `shaft_score.summarize`'s keys for the source scored with them.
     """
     rows = []
     for held in frames:
         pool = frames if choice_frames is None else {**frames, **choice_frames.get(held, {})}
         others = {k: v for k, v in pool.items() if k != held}
-        s, e, c = choose_setting(others, diagonal, settings, tol, max_false, evidences, colours) if others \
-            else (settings[0], 0.0, float("inf"))
-        rows.append({"source": held, "setting": s, "evidence": e, "colour": c,
-                     **summarize(_scores(frames[held], s, diagonal[held], tol, e, c))})
+        s, e, c, p = choose_setting(others, diagonal, settings, tol, max_false, evidences, colours,
+                                    (float("inf"),) if parts is None else parts) if others \
+            else (settings[0], 0.0, float("inf"), float("inf"))
+        rows.append({"source": held, "setting": s, "evidence": e, "colour": c, "part": p,
+                     **summarize(_scores(frames[held], s, diagonal[held], tol, e, c, p))})
     return rows
 
 
 def table_markdown(rows):
     """The table as Markdown (docs/method.md)."""
     out = ["| source left out | setting chosen on the others | pixel evidence chosen on the others | "
-           "most tissue colour chosen on the others | found | false per frame | median angle error | "
-           "median offset error |", "|---|---|---|---|---|---|---|---|"]
+           "most tissue colour chosen on the others | least part score chosen on the others | found | "
+           "false per frame | median angle error | median offset error |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         a = "-" if r["angle_err_deg_median"] is None else f"{r['angle_err_deg_median']:.2f} deg"
         o = "-" if r["offset_err_px_median"] is None else f"{r['offset_err_px_median']:.1f} px"
         out.append(f"| {r['source']} | {r['setting']:g} | {r.get('evidence', 0.0):g} | "
-                   f"{r.get('colour', float('inf')):g} | {r['found']}/{r['instruments']} | "
+                   f"{r.get('colour', float('inf')):g} | {r.get('part', float('inf')):g} | "
+                   f"{r['found']}/{r['instruments']} | "
                    f"{r['false_per_frame']:.2f} | {a} | {o} |")
     return "\n".join(out)
 

@@ -172,3 +172,24 @@ def test_lines_shaft_edge_model_limb(tmp_path):
     r = invoke(tmp_path / "frames", "--camera", tmp_path / "camera.json", "--edge-model", "limb",
                "-o", tmp_path / "m.json")
     assert r.exit_code == 2 and "--edge-model" in r.output
+
+
+def test_lines_shaft_parts(tmp_path):
+    """--parts: a stubby grey jaw entering from the border (110 px wide, as long: no shaft
+    for the cues) gets an axis (cue pixels, its kind written); only with --shaft."""
+    from tests.toolkit.detect.shaft.test_parts import _frame
+
+    write_camera(tmp_path / "camera.json", Camera("pinhole", 640, 480, [[640.0, 0, 319.5], [0, 640.0, 239.5], [0, 0, 1]]))
+    (tmp_path / "frames").mkdir()
+    cv2.imwrite(str(tmp_path / "frames" / "0.png"), _frame([[0, 170], [110, 185], [110, 295], [0, 290]]))
+    r = invoke(tmp_path / "frames", "--camera", tmp_path / "camera.json", "--shaft", "--parts", "-o",
+               tmp_path / "l.json", "-q")
+    assert r.exit_code == 0, r.output
+    data = json.loads((tmp_path / "l.json").read_text())
+    assert data["parts"] is True
+    shafts = read_lines(tmp_path / "l.json")[0]["shafts"]
+    got = [s for s in shafts if s["cue"] == "pixels"]
+    assert len(got) == 1 and got[0]["kind"] in ("shaft", "part")
+    assert all("kind" in s for s in shafts)
+    r = invoke(tmp_path / "frames", "--camera", tmp_path / "camera.json", "--parts", "-o", tmp_path / "m.json")
+    assert r.exit_code == 2 and "--parts" in r.output

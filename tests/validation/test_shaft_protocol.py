@@ -9,6 +9,8 @@
   detector reaches now, so that a regression fails; the issue's target (>= 90 % found, <= 0.25
   false per frame on every source left out) is printed beside it, not asserted, while it is
   not reached.
+- The same with the instrument regions' axes offered (`toolkit.detect.shaft.parts`, each
+  source's from the model that never saw it; the least part score chosen on the others).
 - The unmasked hysterectomy frames against the hand-made list of what each frame shows
   (tests/data/real_frames_truth.yaml): a detection matching no listed instrument is false
   (target <= 0.25 per frame).
@@ -22,9 +24,10 @@ import pytest
 from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 from pencilcal.toolkit.detect.shaft.pixel_evidence import MIN_PIXEL_EVIDENCE, pixel_evidence
 from pencilcal.toolkit.detect.shaft.tissue_colour import MAX_TISSUE_COLOUR, shaft_tissue_colour
-from pencilcal.validation.shaft_protocol import (EVIDENCES, TISSUE_COLOURS, choose_setting, leave_one_source_out,
-                                                table_markdown, view_diagonal)
-from pencilcal.validation.shaft_score import detection_line
+from pencilcal.toolkit.detect.shaft.parts import detect_parts
+from pencilcal.validation.shaft_protocol import (EVIDENCES, PART_SETTINGS, TISSUE_COLOURS, choose_setting,
+                                                leave_one_source_out, table_markdown, view_diagonal)
+from pencilcal.validation.shaft_score import detection_line, score_frame
 from tests.validation.masked_sources import SOURCES, load_source
 
 pytestmark = pytest.mark.slow
@@ -43,9 +46,12 @@ pytestmark = pytest.mark.slow
 #: a band's score at most the length along which both its edges are seen turns one false (edges
 #: 3-4 deg off the axis, one drifting) into a find. The most tissue colour chosen on the others (1.25
 #: for every source, `shaft.tissue_colour`) removes no find and no false detection here: the masked
-#: sources hold no tissue gap it removes.
+#: sources hold no tissue gap it removes. The bands from a single edge searched into its own
+#: region (`material_cue._inward_bands`) with the least elongation at the border 1.25 widths find
+#: endovis17's close dark left shaft in frame003 (the factor chosen by the nested protocol for the
+#: other four sources left out; for endovis17 itself they tie and 1.5 would stay: docs/method.md).
 REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (10, 0.1),
-           "endovis17": (7, 0.0)}
+           "endovis17": (8, 0.0)}
 
 
 @pytest.fixture(scope="module")
@@ -57,23 +63,29 @@ def detected():
     from pencilcal.validation.shaft_training import fold_models, pixel_samples
 
     loaded = {name: load_source(name) for name in SOURCES}
+    found = {name: [detect_shafts(img, valid_region=region, pixel_evidence=None, tissue_colour=None)
+                    for _, img, _, _ in frames] for name, (frames, region) in loaded.items()}
     samples = {name: [pixel_samples(img, np.any(insts, 0) if insts else np.zeros(img.shape[:2], bool), region)
                       for _, img, _, insts in frames] for name, (frames, region) in loaded.items()}
     models = fold_models(samples)
     dets, diag = {}, {}
     for name, (frames, region) in loaded.items():
         dets[name] = [[dict(s.to_dict(), tissue_colour=float(t)) for s, t in zip(ss, shaft_tissue_colour(img, ss, region))]
-                      for _, img, _, _ in frames
-                      for ss in [detect_shafts(img, valid_region=region, pixel_evidence=None, tissue_colour=None)]]
+                      for (_, img, _, _), ss in zip(frames, found[name])]
         shape = frames[0][1].shape[:2]
         diag[name] = view_diagonal(shape, region.mask(shape))
 
     def judged(name, left_out):
         frames, region = loaded[name]
         out = []
-        for (_, img, refs, _), ds in zip(frames, dets[name]):
-            ev = pixel_evidence(img, ds, valid_region=region, model=models[frozenset(left_out)])
-            out.append((refs, [dict(d, pixel_evidence=float(e)) for d, e in zip(ds, ev)]))
+        model = models[frozenset(left_out)]
+        for (_, img, refs, _), ds, ss in zip(frames, dets[name], found[name]):
+            ev = pixel_evidence(img, ds, valid_region=region, model=model)
+            # the instrument regions without a shaft, from the same model (`shaft.parts`)
+            parts = detect_parts(img, ss, valid_region=region, model=model)
+            tc = shaft_tissue_colour(img, parts, region) if parts else []
+            out.append((refs, [dict(d, pixel_evidence=float(e)) for d, e in zip(ds, ev)]
+                        + [dict(q.to_dict(), tissue_colour=float(t)) for q, t in zip(parts, tc)]))
         return out
 
     scored = {name: judged(name, {name}) for name in SOURCES}
@@ -100,6 +112,38 @@ def test_leave_one_source_out(detected):
     assert evidence == pytest.approx(MIN_PIXEL_EVIDENCE)
     # and so is the most tissue colour
     assert colour == pytest.approx(MAX_TISSUE_COLOUR)
+
+
+#: With the instrument regions' axes (`shaft.parts`, `lines --shaft --parts`) offered too, the
+#: least part score chosen on the others (none among the choices): what each source reaches
+#: (found, most false per frame). Chosen on the others, parts are taken only where they add a
+#: find there without passing 0.25 false a frame: with box-trainer left out (0.3 of the
+#: diagonal), where they add one false region (a large grey one, 20 deg sigma) and no find,
+#: and with greenscreen left out, where they add nothing. Cholec's two distal parts alone
+#: (VID03_000180: a white hook's tip, a grasper's jaws, references of kind part) are found by
+#: them, but the other sources gain nothing from parts, so none is chosen for cholec: the
+#: parts stay off by default (docs/method.md, distal parts).
+PARTS_REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 1.0), "greenscreen": (1, 0.0), "cholec": (10, 0.1),
+                 "endovis17": (7, 0.0)}
+
+
+def test_leave_one_source_out_with_parts(detected):
+    scored, diag, choice = detected
+    rows = leave_one_source_out(scored, diag, evidences=EVIDENCES, choice_frames=choice, colours=TISSUE_COLOURS,
+                                parts=PART_SETTINGS)
+    print("\n" + table_markdown(rows))
+    for r in rows:
+        found, false = PARTS_REACHED[r["source"]]
+        assert r["found"] >= found and r["false_per_frame"] <= false + 1e-9, r
+    # the parts found where cholec's masks show a distal part alone, with an honest sigma: the
+    # angle error within 1.5 of the part's own sd
+    hits = []
+    for refs, dets in scored["cholec"]:
+        for d in dets:
+            if d.get("cue") == "pixels":
+                fs = score_frame([d], refs)
+                hits += [(m[2], d["angle_sigma_deg"]) for m in fs.matches]
+    assert len(hits) >= 2 and all(err <= 1.5 * sd for err, sd in hits), hits
 
 
 def _matches(det, inst, angle_deg=6.0):

@@ -91,7 +91,7 @@ def radial_joint_mode(pencil):
 def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None,
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
                        gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None, radial=None, axis_prior=None,
-                       shaft_tracker=None, edge_model="step", radial_joint="crowded", segments=True):
+                       shaft_tracker=None, edge_model="step", radial_joint="crowded", segments=True, parts=False):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -150,6 +150,9 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         Edge segments (`detect_segments`) where neither `bars` nor `radial` is asked for;
         False with `shaft`: the shafts alone (the segments of a textured frame cost most of
         the time, and a live shaft video does not need them).
+    parts : bool
+        With `shaft`: also the axes of the instrument regions with no shaft, distal parts
+        alone among them (`shaft.parts.detect_parts`, cue "pixels").
     """
     if min_length is None:
         min_length = default_min_length(np.shape(image), bars)
@@ -175,22 +178,23 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         offset_sigma_px=segs.offset_sigma,
         width_px=segs.width_px if bars and radial is None else None,
         shafts=shaft_records(image, camera, valid_region, gamma, instrument_mask, tracker=shaft_tracker,
-                             axis_prior=axis_prior, edge_model=edge_model) if shaft else None,
+                             axis_prior=axis_prior, edge_model=edge_model, parts=parts) if shaft else None,
         circle_points=circle_points,
     )
 
 
 def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, instrument_mask=None, tracker=None,
-                  **options):
+                  parts=False, **options):
     """The shaft records of one image: `shaft.detector.detect_shafts`' (options: its
     keywords, `axis_prior` among them), or with `instrument_mask` (``{"mask": array,
     "labels": ..., "instances": ...}``) those of the mask's instruments
     (`shaft.from_mask.shafts_from_masks`), or those a tracker found (frames in order:
-    `shaft.detector.ShaftTracker`, its own options). Imported only when asked for: a fan's
-    orientation does not need the shaft modules."""
+    `shaft.detector.ShaftTracker`, its own options); parts: without a mask, also the axes of
+    the instrument regions with no shaft (`shaft.parts.detect_parts`). Imported only when
+    asked for: a fan's orientation does not need the shaft modules."""
     if tracker is not None and instrument_mask is None:
-        return [s.to_dict() for s in tracker(image, camera, valid_region=valid_region)]
-    if instrument_mask is not None:
+        found = tracker(image, camera, valid_region=valid_region)
+    elif instrument_mask is not None:
         from pencilcal.toolkit.detect.shaft.detector import with_limbs
         from pencilcal.toolkit.detect.shaft.from_mask import shafts_from_masks
 
@@ -202,16 +206,20 @@ def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, in
         from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 
         found = detect_shafts(image, camera, valid_region=valid_region, gamma=gamma, **options)
+    if parts and instrument_mask is None:
+        from pencilcal.toolkit.detect.shaft.parts import detect_parts
+
+        found = list(found) + detect_parts(image, found, camera, valid_region=valid_region, gamma=gamma)
     return [s.to_dict() for s in found]
 
 
 def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None, bar_width=None,
                  proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA, bar_tracker=None,
                  instrument_mask=None, radial=None, axis_prior=None, shaft_tracker=None, edge_model="step",
-                 radial_joint="crowded", segments=True):
+                 radial_joint="crowded", segments=True, parts=False):
     """One lines.json frame record from one decoded image: ``detect_frame_lines(...).to_dict()``
     (the same arguments)."""
     return detect_frame_lines(name, image, camera, detector, bars, shaft, min_length, bar_width,
                               proposal_scale, valid_region, bar_polarity, gamma, bar_tracker,
                               instrument_mask, radial, axis_prior, shaft_tracker, edge_model, radial_joint,
-                              segments).to_dict()
+                              segments, parts).to_dict()

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.special import chdtrc, chdtri
 
-from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
+from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf, median
 
 DOFS = [0.1, 0.5, 1, 2, 2.5, 3, 4, 5, 7, 10, 17, 30, 61, 150, 1000, 20000]
 PROBS = [1e-300, 1e-100, 1e-12, 1e-6, 0.001, 0.01, 0.05, 0.3173, 0.5, 0.7, 0.9, 0.999, 1 - 1e-9]
@@ -38,3 +38,16 @@ def test_no_scipy_for_one_and_two_degrees_of_freedom():
             "print('scipy.special' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_median_is_numpys_bit_for_bit():
+    rng = np.random.default_rng(5)
+    for trial in range(3000):
+        n = int(rng.integers(1, 2000)) if trial % 2 else int(rng.integers(1, 30))
+        kind = trial % 4
+        x = {0: rng.normal(size=n), 1: rng.integers(0, 5, n).astype(float), 2: rng.standard_cauchy(n) + 1e5,
+             3: np.where(rng.random(n) < 0.02, np.nan, rng.normal(size=n))}[kind]
+        x = x.astype((np.float32, np.float64)[trial % 3 == 0])
+        got, want = median(x), np.median(x)
+        assert type(got) is type(want) and (got.tobytes() == want.tobytes() or (np.isnan(got) and np.isnan(want)))
+    assert median(np.arange(7)) == 3.0 and np.isnan(median(np.zeros(0, np.float32)))

@@ -12,7 +12,9 @@ One module per stage:
 - `axis`: the midline (the image of the axis) from the two silhouette edges, its covariance
   and the edge floor;
 - `mask`, `from_mask`: instruments in a segmentation mask and the axis its outline gives;
-  each masked instrument's axis refined on the image's edges (masks in).
+  each masked instrument's axis refined on the image's edges (masks in);
+- `parts`: the axes of the instrument regions of the learned pixel map that have no shaft, a
+  distal part alone among them (kind "part").
 """
 
 from __future__ import annotations
@@ -22,8 +24,11 @@ from pencilcal.toolkit.lazy import lazy_exports
 __getattr__, __dir__ = lazy_exports(__name__, {
     "detector": ["Shaft", "ShaftOptions", "detect_shafts", "track_shafts", "ShaftTracker", "CUES"],
     "axis": ["Midline", "midline_from_edges", "plane_bisector", "EDGE_FLOOR_PX"],
-    "from_mask": ["MaskShaft", "shafts_from_masks"],
+    "from_mask": ["MaskShaft", "shafts_from_masks",
+           "detect_parts"],
+    "parts": ["detect_parts"],
 })
 
 __all__ = ["Shaft", "ShaftOptions", "detect_shafts", "track_shafts", "ShaftTracker", "CUES", "Midline",
-           "midline_from_edges", "plane_bisector", "EDGE_FLOOR_PX", "MaskShaft", "shafts_from_masks"]
+           "midline_from_edges", "plane_bisector", "EDGE_FLOOR_PX", "MaskShaft", "shafts_from_masks",
+           "detect_parts"]

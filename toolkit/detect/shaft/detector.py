@@ -136,6 +136,9 @@ class Shaft:
         Per edge, the covariance of its (angle [rad], offset [undistorted px]) about the
         centre of its ideal segment, floor included (`shaft.axis.edge_covariance`): what
         the shaft's 3-D axis is propagated from (`pencil.cylinder.shaft_axis`).
+    kind : str
+        "shaft": the axis of two silhouette edges; "part": the principal axis of a distal
+        part alone, with its larger sigmas (`shaft.parts`, `shaft.from_mask`).
     """
 
     midline: np.ndarray
@@ -153,11 +156,12 @@ class Shaft:
     cov_floor: np.ndarray | None = None
     ideal_edges: np.ndarray | None = None
     edge_cov: np.ndarray | None = None
+    kind: str = "shaft"
 
     def to_dict(self) -> dict:
         """The shaft's record in a lines.json frame (docs/formats.md): midline, width_px,
         angle_sigma_deg, offset_sigma_px, edges, edge_cov (when known), convergence_deg,
-        polarity, score, cue."""
+        polarity, score, cue, kind."""
         out = {
             "midline": [float(v) for v in self.midline],
             "width_px": float(self.width_px),
@@ -168,6 +172,7 @@ class Shaft:
             "polarity": self.polarity,
             "score": float(self.score),
             "cue": self.cue,
+            "kind": self.kind,
         }
         if self.edge_cov is not None:
             out["edge_cov"] = np.asarray(self.edge_cov, float).tolist()
@@ -421,7 +426,9 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
     single_edge : bool
         The material cue also proposes bands from a single straight boundary, to the far
         edge a gradient model finds across it (`shaft.partner`: a white or metal shaft the
-        colour does not tell from tissue, beside a dark region): more instruments found on
+        colour does not tell from tissue, beside a dark region; and, from a boundary at the
+        border of the view, into its own region: a close dark shaft converging under
+        perspective, `shaft.material_cue`): more instruments found on
         in-vivo frames (docs/method.md), at about 8 ms more CPU per 1080p frame (39 ms
         against 31 on the hysterectomy frames, docs/performance.md).
         False: the region bands alone.

@@ -10,7 +10,10 @@ frames whose colour tells the materials apart (`shaft.detector`).
    side of these, the band on the side away from its region (a white or metal shaft
    beside a dark region: the maps give one side) to the outermost far edge a gradient
    model finds across it, with its own region map (`shaft.partner`), judged alike, where
-   it overlaps none of them; then the bands between two long straight grey-level edges
+   it overlaps none of them, and the same into its own region, converging by up to a close
+   shaft's under perspective, where that band is darker than its sides (`_inward_bands`: a
+   dark shaft close to the lens whose far region boundary follows a shadow inside it); then
+   the bands between two long straight grey-level edges
    whose inside is one material unlike both outsides (a dark grasper in the dark periphery,
    a grey shaft the maps do not tell from the tissue, a close shaft whose edges converge
    under perspective by up to `shaft.edge_pairs.PAIR_MAX_CONVERGENCE_DEG`), each with its
@@ -24,14 +27,15 @@ frames whose colour tells the materials apart (`shaft.detector`).
    merging with white tissue, is a short band of region whose edges go on), each edge the
    best run of stations with gaps up to a width (a thread, a highlight); the midline is the
    plane bisector of the two (`shaft.axis`). It is a shaft when both edges are seen
-   together along at least the least length, or 1.5 widths where that is shorter (a thin
+   together along at least the least length, or 1.25 widths where that is shorter (a thin
    shaft: the length is relative to the width, `_least_seen`), and a third of the region's
    run; when they,
    its band or its region's extension (the instrument's material, its wrist included) run
-   along 2.5 widths (a jaw is not elongated), or they run along 1.5 widths and the border
+   along 2.5 widths (a jaw is not elongated), or they run along 1.25 widths and the border
    of the view cuts them (a wide shaft close to the lens, entering at a corner; a wrist or
    jaw ends inside the view); when they converge by at most the largest
-   convergence (a band of edge pairs: up to `shaft.edge_pairs.PAIR_MAX_CONVERGENCE_DEG`)
+   convergence (a band of edge pairs or one found into its own region: up to
+   `shaft.edge_pairs.PAIR_MAX_CONVERGENCE_DEG`)
    and meet outside the stretch (by half a width); and when the band's
    extension reaches the border of the view or the stretch ends within a width of it (an
    instrument enters from outside; its edges may fade into a dark, vignetted surround
@@ -78,7 +82,7 @@ from pencilcal.toolkit.detect.shaft.region_bands import (
     suppress_overlaps,
 )
 from pencilcal.toolkit.detect.shaft.edge_pairs import PAIR_MAX_CONVERGENCE_DEG, pair_bands
-from pencilcal.toolkit.detect.shaft.partner import MAX_SEEDS, partner_bands
+from pencilcal.toolkit.detect.shaft.partner import MAX_SEEDS, partner_bands, turned_round
 from pencilcal.toolkit.detect.shaft.regions import (BoundaryLines, RegionPairs, boundary_lines_many, region_levels,
                                                     region_pairs_many, scene_angle)
 
@@ -87,6 +91,8 @@ __all__ = ["MaterialShaft", "material_cue", "judge_band", "select", "robust_nois
 _MAX_PAIRS = 40  # candidate pairs per region map, the longest overlaps first
 _MAX_REFINE = 6  # bands of the region maps refitted at full resolution
 _MAX_PARTNER = 4  # ... and bands from a single edge (`shaft.partner`)
+#: Whether the bands from a single edge are also searched into its own region (`_inward_bands`).
+INWARD = True
 _MAX_PAIRED = 3  # ... and bands between two grey-level edges (`shaft.edge_pairs`)
 _TOUCH = 0.1  # ... unless it overlaps one of those by this fraction (`_touches`)
 _GROUP_TOL = (3.0, 3.0)  # one boundary at two levels: offset [work px], angle [deg]
@@ -95,7 +101,7 @@ _MIN_CORRIDOR_PX = 1.5  # the narrowest corridor of a growing edge [px]
 _COAXIAL_DEG = 3.0  # two readings of one instrument: axes this close ...
 _LONG_FRACTION = 0.25  # a run this fraction of the work frame's diagonal need not reach the border
 _ELONGATED_WIDTHS = 2.5  # a shaft is seen along this many widths (a jaw is not) ...
-_SHORT_WIDTHS = 1.5  # ... or along this many, cut by the border of the view
+_SHORT_WIDTHS = 1.25  # ... or along this many, cut by the border of the view (nested protocol, docs/method.md)
 _DISTAL_RUN = 2.0  # a short band whose material runs on over this many times its length is a distal part
 _ONE_SIDED = 0.25  # a band whose inside differs from one side by less than this of the other's is background
 # E[|z| : |z| below its 90th percentile q] / E[|z|] for z normal: (1 - exp(-q^2 / 2)) / 0.9
@@ -178,11 +184,45 @@ def _bands(work, mm, o, wmin, wmax, min_len):
         seed = _unused_seeds(seeds, acc, min_len)
         got = partner_bands(work, seed, wmin, wmax, np.degrees(o.region_conv_max), mm.luma_noise)
         acc = acc + _more_bands(got, work, B0, min_len, ang_thr, acc, "partner")[:_MAX_PARTNER]
+        if INWARD:
+            acc = acc + _inward_bands(work, seed, wmin, wmax, o, mm, B0, min_len, ang_thr, acc)
     if o.edge_pairs:
         got = pair_bands(work, wmin, wmax, min(np.degrees(o.conv_max), PAIR_MAX_CONVERGENCE_DEG), mm.luma_noise,
                          min_len, mm.likeness)
         acc = acc + _more_bands(got, work, B0, min_len, ang_thr, acc, "pairs")[:_MAX_PAIRED]
     return acc
+
+
+def _inward_bands(work, seed, wmin, wmax, o, mm, B0, min_len, ang_thr, acc):
+    """The bands from a single edge into its own region (kind "inward", at most
+    `_MAX_PARTNER`): each unused boundary (seed) taken as one silhouette edge of the region
+    it bounds, its far edge the outermost a gradient model finds across the region
+    (`shaft.partner.partner_bands` on the boundaries turned round), converging by up to a
+    close shaft's under perspective (`shaft.edge_pairs.PAIR_MAX_CONVERGENCE_DEG`). A dark
+    shaft close to the lens is a region of the maps, but its far silhouette lies on shadowed
+    tissue of its own grey, so the region's far boundary follows a shadow or a streak inside
+    it, converging too much to be paired (the da Vinci frames' left shaft: its two boundaries
+    17-19 deg apart, its silhouette edges 12-16 deg). Only boundaries from the border of
+    the view are searched (`_from_border`, within the least width), only bands darker than
+    their sides kept."""
+    conv = float(np.degrees(min(o.conv_max, np.radians(PAIR_MAX_CONVERGENCE_DEG))))
+    got = partner_bands(work, turned_round(_from_border(seed, work, wmin)), wmin, wmax, conv, mm.luma_noise)
+    # the case it is for: a dark instrument (a white band between two edges inside a region
+    # is as often a strip of pale tissue beside an instrument)
+    return [e for e in _more_bands(got, work, B0, min_len, ang_thr, acc, "inward") if e.y_in < e.y_side][:_MAX_PARTNER]
+
+
+def _from_border(seeds, work, reach):
+    """The boundaries (`BoundaryLines`) with an end within reach [work px] of the border of
+    the view: a shaft close to the lens enters the view there (and the search costs half as
+    much)."""
+    ends = np.concatenate([seeds.p + seeds.lo[:, None] * seeds.u, seeds.p + seeds.hi[:, None] * seeds.u])
+    x = np.clip(np.rint(ends[:, 0]).astype(int), 0, work.shape[1] - 1)
+    y = np.clip(np.rint(ends[:, 1]).astype(int), 0, work.shape[0] - 1)
+    near = (work.dist[y, x] <= reach).reshape(2, -1).any(0)
+    k = np.flatnonzero(near)
+    return BoundaryLines(p=seeds.p[k], u=seeds.u[k], n=seeds.n[k], lo=seeds.lo[k], hi=seeds.hi[k],
+                         support=seeds.support[k])
 
 
 def _more_bands(got, work, B0, min_len, ang_thr, acc, kind):
@@ -402,7 +442,7 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
     m = midline_from_edges(K, fits[0], fits[1])
     if m is None:
         return None, "no midline from the edges"
-    conv_max = min(o.conv_max, np.radians(PAIR_MAX_CONVERGENCE_DEG)) if e.kind == "pairs" else o.region_conv_max
+    conv_max = min(o.conv_max, np.radians(PAIR_MAX_CONVERGENCE_DEG)) if e.kind in ("pairs", "inward") else o.region_conv_max
     if m.convergence_deg > np.degrees(conv_max):
         return None, "edges converge"
     if not _meet_outside(m):

@@ -51,7 +51,7 @@ import numpy as np
 
 from pencilcal.toolkit.detect.shaft.regions import Z_999, BoundaryLines, RegionPairs
 
-__all__ = ["partner_bands", "MAX_SEEDS"]
+__all__ = ["partner_bands", "turned_round", "MAX_SEEDS"]
 
 #: Seeds searched per frame, the longest first.
 MAX_SEEDS = 6  # (12 gave the same masked-source table at twice the cost)
@@ -64,16 +64,19 @@ _SLOPES = 21  # slopes tried, over +-tan(largest convergence) (1.5 deg apart at 
 
 
 def _profiles(work, img, P, m, t):
-    """Colours (S, T, C) float32 and observability (S, T) bool at P (S, 2) + t (T,) m (2,);
-    img: the work frame's colours (h, w, C) float32."""
+    """Per seed, colours (S, T, C) float32 and observability (S, T) bool at P (S, 2) + t (T,)
+    m (2,) (P and m: lists, one per seed); img: the work frame's colours (h, w, C) float32.
+    All seeds' samples in one remap (each sample is its own bilinear read: the same values
+    as seed by seed)."""
     import cv2
 
-    X = (P[:, None, 0] + t[None, :] * m[0]).astype(np.float32)
-    Y = (P[:, None, 1] + t[None, :] * m[1]).astype(np.float32)
+    X = np.concatenate([(q[:, None, 0] + t[None, :] * d[0]).astype(np.float32) for q, d in zip(P, m)])
+    Y = np.concatenate([(q[:, None, 1] + t[None, :] * d[1]).astype(np.float32) for q, d in zip(P, m)])
     col = cv2.remap(img, X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     col = col.reshape(X.shape + (-1,))
-    d = cv2.remap(work.dist, X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1)
-    return col, d > 1.0
+    obs = cv2.remap(work.dist, X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1) > 1.0
+    cut = np.cumsum([len(q) for q in P])[:-1]
+    return list(zip(np.split(col, cut), np.split(obs, cut)))
 
 
 def _median0(X):
@@ -217,6 +220,20 @@ def _band_map(work, img, col, obs, t, t0, b, s, s_mid):
     return cv2.morphologyEx(cv2.morphologyEx(B, cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
 
 
+def turned_round(lines):
+    """The same straight boundaries (`BoundaryLines`) with their normals turned round
+    (n = (-u_y, u_x) into the other side: u, lo and hi reversed), so that `partner_bands`
+    searches a band on the side of the region they bound.
+
+    >>> L = BoundaryLines(p=np.array([[0.0, 5.0]]), u=np.array([[1.0, 0.0]]), n=np.array([[0.0, 1.0]]),
+    ...                   lo=np.array([2.0]), hi=np.array([9.0]), support=np.array([7.0]))
+    >>> R = turned_round(L)
+    >>> R.n.tolist(), (R.p + R.lo[:, None] * R.u).tolist(), (R.p + R.hi[:, None] * R.u).tolist()
+    ([[-0.0, -1.0]], [[9.0, 5.0]], [[2.0, 5.0]])
+    """
+    return BoundaryLines(p=lines.p, u=-lines.u, n=-lines.n, lo=-lines.hi, hi=-lines.lo, support=lines.support)
+
+
 def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SEEDS):
     """Candidate bands from single edges (module docstring).
 
@@ -244,13 +261,17 @@ def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SE
     t = np.arange(-0.5 * wmax - 3.0, 1.5 * wmax + 3.0 + _STEP_PX, _STEP_PX)
     img = work.colours
     P_, U_, LO, HI, maps, I, J, W = [], [], [], [], [], [], [], []
+    st, Ps = [], []
     for k in order:
-        p, u, lo, hi = seeds.p[k], seeds.u[k], float(seeds.lo[k]), float(seeds.hi[k])
+        lo, hi = float(seeds.lo[k]), float(seeds.hi[k])
         S = int(np.clip((hi - lo) / 2.0, 8, _MAX_STATIONS))
-        s = lo + (np.arange(S) + 0.5) * (hi - lo) / S
-        P = p[None, :] + s[:, None] * u[None, :]
-        m = -seeds.n[k]  # across the seed, away from its region: into the band
-        col, obs = _profiles(work, img, P, m, t)
+        st.append(lo + (np.arange(S) + 0.5) * (hi - lo) / S)
+        Ps.append(seeds.p[k][None, :] + st[-1][:, None] * seeds.u[k][None, :])
+    # across each seed, away from its region: into the band
+    prof = _profiles(work, img, Ps, [-seeds.n[k] for k in order], t) if len(order) else []
+    for k, s, P, (col, obs) in zip(order, st, Ps, prof):
+        p, u, lo, hi = seeds.p[k], seeds.u[k], float(seeds.lo[k]), float(seeds.hi[k])
+        m = -seeds.n[k]
         got = _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise)
         if got is None:
             continue

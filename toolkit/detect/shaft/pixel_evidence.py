@@ -36,6 +36,7 @@ import numpy as np
 from pencilcal.toolkit.detect.shaft.pixels import WORK_PX, instrument_probability_at
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
 from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.geometry.quantiles import median
 
 __all__ = ["band_evidence", "pixel_evidence", "MIN_PIXEL_EVIDENCE", "STATIONS", "ACROSS", "INNER"]
 
@@ -83,7 +84,7 @@ def _medians(p, points):
         if P is not None:
             v = cv2.remap(p, np.ascontiguousarray(P[None, :, 0]), np.ascontiguousarray(P[None, :, 1]),
                           cv2.INTER_LINEAR)[0]
-            out[k] = float(np.median(v))
+            out[k] = float(median(v))
     return out
 
 

@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.geometry.quantiles import median
 
 __all__ = ["FEATURES", "WORK_PX", "pixel_features", "pixel_features_at", "expanded_inputs", "PixelModel", "default_model",
            "instrument_probability", "instrument_probability_at"]
@@ -80,12 +81,13 @@ def _lerp(a, b, t):
     return np.where(t >= 0.5, b - (b - a) * (1 - t), a + (b - a) * t)
 
 
-def _frame_levels(F, Y3, v, levels8):
+def _frame_levels(F, Y3, v, levels8, u8=None):
     """The median (3,) of each channel of F (h, w, 3) float32 over the pixels v, and the
     median and `_SPECULAR_PCT` percentile there of the mean Y = Y3 / 3 (Y3 = B + G + R;
     float32, as the features compute it): from histograms where the channels hold 8-bit
-    levels (levels8; the same values at a fraction of the cost of partitions), else by
-    np.percentile."""
+    levels (levels8; the same values at a fraction of the cost of partitions; u8: the 8-bit
+    frame F is the float copy of, whose histograms are the same at a quarter of the cost),
+    else by np.percentile."""
     import cv2
 
     third = np.float32(1.0 / 3.0)
@@ -94,9 +96,10 @@ def _frame_levels(F, Y3, v, levels8):
         return (np.array([np.median(F[..., ch][v]) for ch in range(F.shape[-1])], np.float32),
                 *(float(q) for q in np.percentile(Y[v], [50.0, _SPECULAR_PCT])))
     mask = v.astype(np.uint8)
+    src = F if u8 is None else u8
     med = []
     for ch in range(F.shape[-1]):
-        a, b, t = _hist_quantiles(cv2.calcHist([F], [ch], mask, [256], [0, 256]), [0.5])
+        a, b, t = _hist_quantiles(cv2.calcHist([src], [ch], mask, [256], [0, 256]), [0.5])
         med.append(_lerp(a, b, t)[0])
     # Y3 sums three 8-bit levels, exactly in float32; its quantiles are mapped to Y as Y is
     # computed, so that a threshold on an order statistic is that value itself
@@ -123,14 +126,14 @@ def _features(bgr, valid, at=None):
     # outside the valid region (a field stop's black, letterbox bars) the frame's median
     # colour: the local windows near the boundary see the scene, not the black around it
     B, G, R = F[..., 0], F[..., 1], F[..., 2]
-    fill, y_med, y_spec = _frame_levels(F, B + G + R, v, levels8)
+    fill, y_med, y_spec = _frame_levels(F, B + G + R, v, levels8, bgr if levels8 and np.ndim(bgr) == 3 else None)
     F[~v] = fill
     Y = (B + G + R) * np.float32(1.0 / 3.0)
     y_med = max(y_med, 1.0)
     S = R + G + B + np.float32(3.0 * max(_DARK_EPS * y_med, 1.0))
     x = (R - G) / S
     y = (R + G - 2.0 * B) / (np.float32(np.sqrt(3.0)) * S)
-    mx, my = float(np.median(x[v])), float(np.median(y[v]))
+    mx, my = float(median(x[v])), float(median(y[v]))
     cm = float(np.hypot(mx, my)) + 1e-3
     u = np.array([mx, my]) / cm
     c = (np.hypot(x, y) / cm).astype(np.float32)

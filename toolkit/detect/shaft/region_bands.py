@@ -35,12 +35,14 @@ Example
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from pencilcal.toolkit.detect.shaft.bands import best_segment
 from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs
+from pencilcal.toolkit.geometry.quantiles import median
 
 __all__ = ["STATIONS", "FILL_IN", "FILL_SIDE", "RegionBand", "evaluate_bands", "evaluate_many", "best_run", "band_stretch", "proposed",
            "suppress_overlaps", "band_polygon"]
@@ -342,6 +344,22 @@ def _per_set(starts, rows, sample, maps):
     return np.concatenate(parts)
 
 
+def _map_part(B, X, Y):
+    """(X, Y, part): a region map B (h, w) as float32 where the points (X, Y) (float32) read
+    it: the bounding box of their bilinear neighbours (converting a whole map for a few
+    bands cost more than sampling it), the points shifted into it. The shift by whole pixels
+    is exact and every neighbour lies inside the box (or beyond the map's own border), so
+    the samples are those of the whole map's."""
+    h, w = B.shape[:2]
+    if X.size == 0 or not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
+        return X, Y, B.astype(np.float32)
+    x0 = min(max(math.floor(X.min()) - 1, 0), w - 1)
+    x1 = min(max(math.ceil(X.max()) + 2, x0 + 1), w)
+    y0 = min(max(math.floor(Y.min()) - 1, 0), h - 1)
+    y1 = min(max(math.ceil(Y.max()) + 2, y0 + 1), h)
+    return X - x0, Y - y0, np.ascontiguousarray(B[y0:y1, x0:x1], dtype=np.float32)
+
+
 def evaluate_many(sets, work, min_run):
     """`evaluate_bands` of several candidate sets at once: sets a list of (lines, pairs, Bm,
     Ball, level, kind); the list of each set's bands, the same values as one call per set.
@@ -354,10 +372,11 @@ def evaluate_many(sets, work, min_run):
     g = _geometry(lines, pairs, work.shape)
 
     def sample(rows, im):
-        return _sampler(g.X[rows], g.Y[rows])(im)
+        X, Y, part = _map_part(im, g.X[rows], g.Y[rows])
+        return _sampler(X, Y)(part)
 
     every = np.arange(len(pairs.i))
-    sB = _per_set(starts, every, sample, [x[2].astype(np.float32) for x in sets])
+    sB = _per_set(starts, every, sample, [x[2] for x in sets])
     sV = _sampler(g.X, g.Y)(work.dist)
     lab, obs, fin, okL, okR, shaft = _labels(g, lines, pairs, sB, sV)
     sel = [m for m in range(len(pairs.i)) if g.good[m]]
@@ -366,7 +385,7 @@ def evaluate_many(sets, work, min_run):
     out = [[] for _ in sets]
     if not sel:
         return out
-    sA = _per_set(starts, sel, sample, [x[3].astype(np.float32) for x in sets])
+    sA = _per_set(starts, sel, sample, [x[3] for x in sets])
     sub = _sampler(g.X[sel], g.Y[sel])
     sY = sub(work.luma)
     sC = sub(work.colours) if work.bgr.ndim == 3 else sY[..., None]
@@ -397,8 +416,8 @@ def _band(g, lines, pairs, m, run_ends, obs, fin, okL, okR, shaft, cc, ca, cy, l
         run_len=float((i1 - i0) * g.step[m]), shaft_len=float(np.count_nonzero(shaft[m, run]) * g.step[m]), fall=fall,
         ang=ang, y_in=float(np.mean(yy[:, _IN])), y_side=float(0.5 * (np.mean(yy[:, _SL]) + np.mean(yy[:, _SR]))),
         level=int(level), kind=kind,
-        side_contrast=(float(np.median(cL[run][okL[m, run]])) if np.any(okL[m, run]) else np.nan,
-                       float(np.median(cR[run][okR[m, run]])) if np.any(okR[m, run]) else np.nan))
+        side_contrast=(float(median(cL[run][okL[m, run]])) if np.any(okL[m, run]) else np.nan,
+                       float(median(cR[run][okR[m, run]])) if np.any(okR[m, run]) else np.nan))
 
 
 def proposed(band, min_len, ang_thr):

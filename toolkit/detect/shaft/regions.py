@@ -67,6 +67,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pencilcal.toolkit.detect.noise import estimate_noise
+from pencilcal.toolkit.geometry.quantiles import median
 
 __all__ = ["DARK_DAMPING", "Z_999", "LEVELS", "DARK_SPLITS", "MaterialMap", "material_map", "otsu_threshold",
            "region_levels", "BoundaryLines", "boundary_lines", "boundary_lines_many", "RegionPairs", "region_pairs",
@@ -164,7 +165,7 @@ def material_map(work):
     iv = np.flatnonzero(valid.ravel())
     iv = iv[::max(1, iv.size // _SAMPLES)]
     bright = (B + G + R) * (1.0 / 3.0)
-    y_med = max(float(np.median(bright.ravel()[iv])), 1.0)
+    y_med = max(float(median(bright.ravel()[iv])), 1.0)
     S = R + G + B + 3.0 * max(DARK_DAMPING * y_med, 1.0)
     x = (R - G) / S
     y = (R + G - 2.0 * B) / (np.sqrt(3.0) * S)
@@ -173,7 +174,7 @@ def material_map(work):
     u = mu / nm if nm > 1e-6 else np.array([1.0, 0.0])
     p = x * u[0] + y * u[1]
     pv = p.ravel()[iv]
-    pm = float(np.median(pv))
+    pm = float(median(pv))
     # the frame has a colour when the dominant one stands out of the noise of a projection
     # (a grey frame, or a colour frame of a grey scene, has none)
     # an 8-bit frame's luma holds whole levels: its noise from a histogram, exactly
@@ -182,7 +183,7 @@ def material_map(work):
     informative = bool(work.bgr.ndim == 3 and pm > Z_999 * max(noise, 1e-6))
     # a scene that is almost grey itself: the scale stays >= 3 x the robust spread of p, so
     # the likeness does not blow up
-    mad = 1.4826 * float(np.median(np.abs(pv - pm)))
+    mad = 1.4826 * float(median(np.abs(pv - pm)))
     scale = max(pm, 3.0 * mad, 1e-3)
     dark = np.clip(1.0 - bright * (1.0 / y_med), 0.0, 1.0)
     s = cv2.GaussianBlur(((pm - p) * (1.0 / scale) + dark).astype(np.float32), (0, 0), 1.0)
@@ -539,6 +540,6 @@ def scene_angle(bgr, valid, patch):
     A = np.concatenate(angs)
     if A.size < 10:
         return 5.0
-    med = float(np.median(A))
-    return med + 3 * 1.4826 * float(np.median(np.abs(A - med)))
+    med = float(median(A))
+    return med + 3 * 1.4826 * float(median(np.abs(A - med)))
 

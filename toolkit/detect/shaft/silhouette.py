@@ -40,6 +40,7 @@ Example
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,6 +57,7 @@ from pencilcal.toolkit.detect.edges import (
 )
 from pencilcal.toolkit.detect.shaft.regions import Z_999
 from pencilcal.toolkit.detect.working import raw_frame
+from pencilcal.toolkit.geometry.quantiles import median
 
 __all__ = ["SIGMA_PX", "MAX_STATIONS", "EdgeLine", "fit_edges"]
 
@@ -135,22 +137,67 @@ def _samples(image, camera, cx, cy, nx, ny, t):
     X = (rx[..., None] + jx[..., None] * t).astype(np.float32)
     Y = (ry[..., None] + jy[..., None] * t).astype(np.float32)
     ends = np.stack([np.stack([X[..., 0], Y[..., 0]], -1), np.stack([X[..., -1], Y[..., -1]], -1)], -2)
-    H, W = image.shape[:2]
     fin = np.isfinite(X) & np.isfinite(Y)
-    if image.dtype == np.float32 and image.flags.c_contiguous:
-        x0 = y0 = 0  # a float frame is sampled as it is
-        crop = image
-    else:  # only the part the samples need, as float32 (converting a whole frame costs more)
-        x0 = int(np.clip(np.floor(np.min(np.where(fin, X, np.inf))) - 1, 0, W - 1)) if fin.any() else 0
-        x1 = int(np.clip(np.ceil(np.max(np.where(fin, X, -np.inf))) + 2, x0 + 1, W)) if fin.any() else W
-        y0 = int(np.clip(np.floor(np.min(np.where(fin, Y, np.inf))) - 1, 0, H - 1)) if fin.any() else 0
-        y1 = int(np.clip(np.ceil(np.max(np.where(fin, Y, -np.inf))) + 2, y0 + 1, H)) if fin.any() else H
-        crop = np.ascontiguousarray(image[y0:y1, x0:x1], dtype=np.float32)
     M, S, T = X.shape
-    mx = np.where(fin, X - x0, -1e4).reshape(M * S, T)
-    my = np.where(fin, Y - y0, -1e4).reshape(M * S, T)
-    prof = cv2.remap(crop, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return prof.reshape(M, S, T, -1), ends
+    whole = image.dtype == np.float32 and image.flags.c_contiguous  # a float frame is sampled as it is
+    # else only the parts the samples need, as float32 (converting a whole frame costs more)
+    groups = [(0, M, (0, image.shape[1], 0, image.shape[0]))] if whole else _crop_groups(ends, image.shape[:2])
+    parts = []
+    for m0, m1, (x0, x1, y0, y1) in groups:
+        crop = image if whole else np.ascontiguousarray(image[y0:y1, x0:x1], dtype=np.float32)
+        # shifting by the crop's integer corner is exact in float32 (the coordinates are
+        # below 2^24), so each sample reads the same pixels with the same weights as on
+        # the whole frame, and the crop's border is the frame's wherever a sample leaves it
+        mx = np.where(fin[m0:m1], X[m0:m1] - x0, -1e4).reshape(-1, T)
+        my = np.where(fin[m0:m1], Y[m0:m1] - y0, -1e4).reshape(-1, T)
+        parts.append(cv2.remap(crop, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
+    prof = (parts[0] if len(parts) == 1 else np.concatenate(parts)).reshape(M, S, T, -1)
+    return prof, ends
+
+
+#: A crop's fixed cost in pixels converted (`_crop_groups`): a remap call and its crop cost
+#: about as much as converting this many more pixels of a larger crop.
+_CALL_PX = 12000
+
+
+def _crop_groups(ends, shape):
+    """The edges sampled together, [m0, m1) each, and its crop (x0, x1, y0, y1) of a frame (H, W):
+    the bounding box of its finite samples with their bilinear neighbours, from the
+    profiles' ends (M, S, 2, 2) (a profile's samples lie on a segment, in float32 too:
+    rounding is monotonic). Consecutive edges share a crop where converting the union costs
+    less than a crop of their own (`_CALL_PX`): the two edges of a band do, edges across the
+    frame do not (their common box would be most of it)."""
+    H, W = shape
+    M = ends.shape[0]
+    big = np.float32(np.inf)
+    fin = np.all(np.isfinite(ends), -1).reshape(M, -1)
+    E = ends.reshape(M, -1, 2)
+    # per edge, in Python floats (a few edges: numpy's scalar overheads would be the cost)
+    lo_x, hi_x = np.where(fin, E[..., 0], big).min(1).tolist(), np.where(fin, E[..., 0], -big).max(1).tolist()
+    lo_y, hi_y = np.where(fin, E[..., 1], big).min(1).tolist(), np.where(fin, E[..., 1], -big).max(1).tolist()
+    seen = fin.any(1).tolist()
+
+    def box(m0, m1):
+        if not any(seen[m0:m1]):
+            return 0, W, 0, H
+        x0 = min(max(math.floor(min(lo_x[m0:m1])) - 1, 0), W - 1)
+        x1 = min(max(math.ceil(max(hi_x[m0:m1])) + 2, x0 + 1), W)
+        y0 = min(max(math.floor(min(lo_y[m0:m1])) - 1, 0), H - 1)
+        y1 = min(max(math.ceil(max(hi_y[m0:m1])) + 2, y0 + 1), H)
+        return x0, x1, y0, y1
+
+    def area(b):
+        return (b[1] - b[0]) * (b[3] - b[2])
+
+    starts, boxes = [0], [box(0, 1)]
+    for m in range(1, M):
+        own, both = box(m, m + 1), box(starts[-1], m + 1)
+        if area(both) <= area(boxes[-1]) + area(own) + _CALL_PX:
+            boxes[-1] = both
+        else:
+            starts.append(m)
+            boxes.append(own)
+    return list(zip(starts, starts[1:] + [M], boxes))
 
 
 def _peaks(g, thr, inside, allowed):
@@ -376,7 +423,7 @@ def fit_edges(image, camera, validity, noise, specs, corridor, max_gap=None, gam
         found &= top
     # an edge goes on where its contrast does: a station's peak at least _REL_STRENGTH of the
     # edge's median (texture beside a shaft's end gives weaker peaks)
-    med = np.array([np.median(strength[m][found[m]]) if found[m].any() else 0.0 for m in range(len(specs))])
+    med = np.array([median(strength[m][found[m]]) if found[m].any() else 0.0 for m in range(len(specs))])
     found &= strength >= _REL_STRENGTH * med[:, None]
     tt = (j - nw) * DT
     with np.errstate(over="ignore"):  # an edge without a found station has no median

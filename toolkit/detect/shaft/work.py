@@ -117,6 +117,18 @@ class Validity:
                       borderMode=cv2.BORDER_REPLICATE).reshape(-1)[:n]
         return np.minimum(d, g.reshape(d.shape))
 
+    def grid_distance(self, xs, ys):
+        """`distance` (len(ys), len(xs)) of the grid of raw points (xs[j], ys[i]): the same
+        values; without a region the image border's part taken separably (what a work frame
+        without a lens needs: its pixels' raw points are such a grid)."""
+        xs, ys = np.asarray(xs, float), np.asarray(ys, float)
+        if self._grid is not None:
+            return self.distance(np.stack(np.broadcast_arrays(xs[None, :], ys[:, None]), -1))
+        H, W = self.shape
+        with np.errstate(invalid="ignore"):
+            d = np.minimum(np.minimum(xs, W - 1.0 - xs)[None, :], np.minimum(ys, H - 1.0 - ys)[:, None])
+        return np.where(np.isfinite(d), d, -np.inf)
+
     def ok(self, pts, margin_px=0.0):
         """(...) bool: raw points (..., 2) at least margin_px [px] inside."""
         return self.distance(pts) >= margin_px
@@ -243,11 +255,10 @@ class WorkFrame:
         self.shape = (h, w)
         self.scale = np.array([w / (x1 - x0), h / (y1 - y0)])
         self.origin = np.array([x0, y0], float)
-        if camera is None:
+        if camera is None:  # the work pixels' raw points are a grid
             self.bgr = reductions.to(w, h)
-            raw = np.empty((h, w, 2))
-            raw[..., 0] = self.to_ideal(np.stack([np.arange(w), np.zeros(w)], -1))[:, 0][None, :]
-            raw[..., 1] = self.to_ideal(np.stack([np.zeros(h), np.arange(h)], -1))[:, 1][:, None]
+            d = validity.grid_distance(self.to_ideal(np.stack([np.arange(w), np.zeros(w)], -1))[:, 0],
+                                       self.to_ideal(np.stack([np.zeros(h), np.arange(h)], -1))[:, 1])
         else:
             raw = self._raw_of_grid(camera, h, w)
             sr = min(1.0, 1.25 * s)  # reduce first (no aliasing), then remap
@@ -256,11 +267,12 @@ class WorkFrame:
             mx = np.nan_to_num((raw[..., 0] + 0.5) * (rw / W) - 0.5, nan=-1e4).astype(np.float32)
             my = np.nan_to_num((raw[..., 1] + 0.5) * (rh / H) - 0.5, nan=-1e4).astype(np.float32)
             self.bgr = cv2.remap(small, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            d = validity.distance(raw)
         if self.bgr.ndim == 3:
             self.luma = cv2.cvtColor(self.bgr, cv2.COLOR_BGR2GRAY).astype(np.float32)
         else:
             self.luma = self.bgr.astype(np.float32)
-        d = validity.distance(raw) * float(np.mean(self.scale))
+        d = d * float(np.mean(self.scale))
         self.dist = np.where(np.isfinite(d), d, -1.0).astype(np.float32)
         self.valid = self.dist >= 0
 

@@ -1,14 +1,16 @@
 """The far edge of a band found from one edge (`shaft.partner`): on renders with exact truth,
 a dark shaft on dark tissue, blurred and noisy, with inner streaks, the far edge is the
 silhouette (the outermost edge), not a streak; a seed on tissue with nothing beyond gives
-no band."""
+no band; from a boundary of the shaft's own region turned round (`turned_round`), the far
+silhouette of a close shaft converging under perspective by more than a region pair may,
+with a shadow inside along its far side."""
 from __future__ import annotations
 
 import cv2
 import numpy as np
 import pytest
 
-from pencilcal.toolkit.detect.shaft.partner import partner_bands
+from pencilcal.toolkit.detect.shaft.partner import partner_bands, turned_round
 from pencilcal.toolkit.detect.shaft.regions import BoundaryLines
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
 
@@ -79,3 +81,45 @@ def test_no_band_beyond_a_lone_edge():
     seeds = _seed(np.array([1.0, 0.0]), np.array([0.0, 1.0]), np.array([159.5, 119.5]), 0.0)
     _, pairs, _ = partner_bands(wf, seeds, 10.0, 100.0, 15.0, 1.5)
     assert len(pairs.i) == 0
+
+
+@pytest.mark.parametrize("conv_deg, blur", [(18.0, 1.5), (22.0, 2.5)])
+def test_inward_far_edge_of_a_converging_shaft(conv_deg, blur):
+    """A dark shaft close to the lens, its edges converging by conv_deg (more than the material
+    cue's region pairs, 15 deg), a darker shadow strip inside along its far edge, on dark
+    tissue; the seed is its near edge as a boundary of the shaft's own region (n into the
+    shaft). Turned round, the far edge found is the silhouette, at its convergence, not the
+    shadow's inner edge."""
+    rng = np.random.default_rng(5)
+    H, W = 240, 320
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    # the near edge y = 60 (the shaft below it); the far edge through (160, 160), turned by conv_deg
+    b = np.tan(np.radians(conv_deg))
+    far_y = 160.0 - b * (xx - 160.0)
+    img = np.empty((H, W, 3))
+    img[:] = (40, 48, 88)
+    img += cv2.GaussianBlur(rng.normal(0, 4, (H, W, 1)) * np.array([1, 1, 1.5]), (0, 0), 3.0)
+    inside = (yy >= 60.0) & (yy <= far_y)
+    img[inside] = (34, 36, 40)
+    img[inside & (yy >= far_y - 12.0)] = (22, 23, 26)  # its shadowed far side
+    img = np.clip(cv2.GaussianBlur(img, (0, 0), blur) + rng.normal(0, 1.5, (H, W, 3)), 0, 255).astype(np.uint8)
+    _, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
+    img = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+    wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=320)
+    # the boundary of the shaft's region along its near edge, n = (-u_y, u_x) = (0, 1) into it
+    seed = BoundaryLines(p=np.array([[10.0, 59.5]]), u=np.array([[1.0, 0.0]]), n=np.array([[0.0, 1.0]]),
+                         lo=np.array([0.0]), hi=np.array([180.0]), support=np.array([180.0]))
+    lines, pairs, _ = partner_bands(wf, turned_round(seed), 10.0, 150.0, 25.0, 1.5)
+    assert len(pairs.i) == 1
+    j = pairs.j[0]
+    q = lines.p[j] + 0.5 * (lines.lo[j] + lines.hi[j]) * lines.u[j]
+    assert abs(q[1] - (160.0 - b * (q[0] - 160.0))) <= 1.5          # on the silhouette (1.5 work px)
+    turn = np.degrees(np.arctan2(abs(lines.u[j][1]), abs(lines.u[j][0])))
+    assert abs(turn - conv_deg) <= 1.0
+    # its region's boundary turned round is not searched at 15 deg of convergence: no far edge
+    # at the silhouette
+    lines, pairs, _ = partner_bands(wf, turned_round(seed), 10.0, 150.0, 15.0, 1.5)
+    for j in pairs.j:
+        q = lines.p[j] + 0.5 * (lines.lo[j] + lines.hi[j]) * lines.u[j]
+        turn = np.degrees(np.arctan2(abs(lines.u[j][1]), abs(lines.u[j][0])))
+        assert abs(turn - conv_deg) > 1.0

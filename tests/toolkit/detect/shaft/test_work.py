@@ -41,3 +41,15 @@ def test_work_frames_sharing_reductions_are_the_same():
     b = WorkFrame(img, None, v, 320, reductions=a.reductions)
     c = WorkFrame(img, None, v, 320)
     assert np.array_equal(b.bgr, c.bgr) and np.array_equal(b.dist, c.dist) and b.reductions is a.reductions
+
+
+def test_grid_distance_is_the_points_distance():
+    # a work frame without a lens takes its distances from the grid, separably where there
+    # is no region: the same values as of every point
+    from pencilcal.toolkit.detect.region.valid import ValidRegion
+
+    xs, ys = np.linspace(-3.0, 643.0, 57), np.linspace(-2.0, 361.0, 31)
+    pts = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None]), -1)
+    for region in (None, ValidRegion.from_circle(320.0, 180.0, 170.0, 640, 360)):
+        v = Validity(region, (360, 640))
+        assert np.array_equal(v.grid_distance(xs, ys), v.distance(pts))

@@ -1,0 +1,79 @@
+"""The axes of instrument regions with no shaft (`toolkit.detect.shaft.parts`)."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from pencilcal.toolkit.detect.shaft.detector import Shaft
+from pencilcal.toolkit.detect.shaft.parts import MIN_PART_AREA, PART_CUE, detect_parts, part_regions
+from pencilcal.toolkit.detect.shaft.pixels import WORK_PX
+from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
+
+
+def _frame(poly, seed=0):
+    """A tissue-coloured 480 x 640 frame with textured noise and a grey metal polygon."""
+    rng = np.random.default_rng(seed)
+    img = np.zeros((480, 640, 3), np.float32)
+    img[:] = (60, 80, 170)
+    img += cv2.GaussianBlur(rng.normal(0, 12, img.shape).astype(np.float32), (0, 0), 3.0)
+    cv2.fillConvexPoly(img, np.array(poly, np.int32), (150, 150, 152))
+    img = cv2.GaussianBlur(img, (0, 0), 1.2) + rng.normal(0, 2, img.shape)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+JAW = [[0, 180], [200, 200], [200, 290], [0, 280]]  # 100 px wide, 200 long, from the left border
+
+
+def test_a_jaw_from_the_border_gets_an_axis():
+    parts = detect_parts(_frame(JAW), [])
+    assert len(parts) == 1
+    p = parts[0]
+    assert p.cue == PART_CUE and p.kind in ("shaft", "part")
+    # the axis along the jaw: the line from (0, 230) to (200, 245)
+    m = np.asarray(p.midline, float)
+    ang = np.degrees(np.arctan2(m[3] - m[1], m[2] - m[0]))
+    assert abs(((ang - np.degrees(np.arctan2(15, 200))) + 90) % 180 - 90) < 4.0, ang
+    # the line passes within a few px of the jaw's middle
+    d = np.array([m[2] - m[0], m[3] - m[1]]) / np.hypot(m[2] - m[0], m[3] - m[1])
+    r = np.array([100.0, 237.5]) - m[:2]
+    off = abs(float(d[0] * r[1] - d[1] * r[0]))
+    assert off < 8.0
+    if p.kind == "part":  # a part's sigmas are its own half-angle and half its width
+        assert p.angle_sigma == pytest.approx(np.arctan2(p.width_px, np.hypot(*(m[2:] - m[:2]))), rel=0.3)
+    rec = p.to_dict()
+    assert rec["cue"] == PART_CUE and rec["kind"] == p.kind
+
+
+def test_a_region_inside_the_view_is_no_part():
+    # the same jaw, clear of the border: an instrument enters the view from outside
+    assert detect_parts(_frame([[p[0] + 150, p[1]] for p in JAW]), []) == []
+
+
+def test_the_instrument_of_a_found_shaft_is_left_out():
+    img = _frame(JAW)
+    shaft = Shaft(midline=np.array([0.0, 230, 200, 245]), width_px=100.0, angle_sigma=0.01, offset_sigma=1.0,
+                  edges=np.array([[0.0, 180, 200, 200], [0.0, 280, 200, 290]]), score=200.0,
+                  ideal_midline=np.array([0.0, 230, 200, 245]), convergence_deg=1.0, polarity="bright")
+    assert detect_parts(img, [shaft]) == []
+
+
+def test_grey_frames_and_specks():
+    img = _frame(JAW)
+    assert detect_parts(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), []) == []
+    # a region smaller than the least area is a speck
+    work = WorkFrame(img, None, Validity(None, img.shape[:2]), WORK_PX)
+    p = np.zeros(work.shape, np.float32)
+    p[:3, :3] = 1.0   # 9 work px in the corner: far below MIN_PART_AREA of the view
+    assert 9 < MIN_PART_AREA * p.size
+    lab, n = part_regions(work, p)
+    assert n == 0 and not lab.any()
+    p[:, :40] = 1.0   # a band from the left border
+    lab, n = part_regions(work, p)
+    assert n == 1 and lab[5, 10] == 1
+
+
+def test_shaft_records_carry_kind():
+    s = Shaft(midline=np.zeros(4), width_px=1.0, angle_sigma=0.0, offset_sigma=0.0, edges=np.zeros((2, 4)),
+              score=1.0, ideal_midline=np.zeros(4), convergence_deg=0.0, polarity="dark")
+    assert s.to_dict()["kind"] == "shaft"

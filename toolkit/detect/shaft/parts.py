@@ -1,0 +1,175 @@
+"""The instrument, not only its shaft: the axis of an instrument region the shaft cues gave
+no shaft, a distal part alone (jaws, a hook, a clip applier whose shaft the border cuts off)
+included (`detect_parts`).
+
+The cues of `shaft.detector` find a shaft by its two long edges. A distal part alone has no
+long edge pair: its jaws are short, its slots show the tissue through them, its metal mirrors
+the tissue's colour. What it has is instrument-like pixels, which the learned pixel map
+(`shaft.pixels`) tells from tissue everywhere it was measured. Here:
+
+1. *regions*: the work frame's pixels (`shaft.pixels.WORK_PX`) whose instrument probability
+   exceeds `PART_PROBABILITY` (the map's own even odds: no tuned level), off the view's rim
+   (`RIM_FRACTION`: a field stop's glare, a strip along the border, lights the map up but
+   enters nothing), opened by 3 x 3, as connected components; a component is kept when it covers at least `MIN_PART_AREA` of
+   the view (a speck of specular tissue is no instrument), touches the border of the view
+   (an instrument enters from outside; its shaft, cut off by the border, is out of view) and
+   touches none of the shafts already found (widened by half their width: the jaws or wrist
+   beyond a found shaft belong to that instrument, which has its axis);
+2. *axis*: each region, carried to raw pixels, read as an instrument mask is
+   (`shaft.from_mask.shafts_from_masks`): where its outline has two straight silhouette
+   stretches, their axis refitted on the image's edges (kind "shaft", the edge fits'
+   covariance); else its principal axis, kind "part", whose sigmas are the part's own
+   ambiguity: the angle's sd its half-angle atan(width / length), the offset's half its width
+   (`shaft.from_mask.PART_OFFSET_SIGMA_FRAC`). Measured against the masked sources' axes
+   (docs/method.md, "distal parts") the angle errors of the parts found stay within that sd.
+
+Each is a `shaft.from_mask.MaskShaft` with cue ``"pixels"``; its score is its length along
+its axis [raw px]. The regions come from a learned model: in the leave-one-source-out table
+(`validation.shaft_protocol`) each source's parts come from a model that never saw it, and
+the least score a part must reach (none: no parts) is chosen on the other sources.
+
+Example
+-------
+>>> import numpy as np, cv2
+>>> img = np.zeros((240, 320, 3), np.uint8); img[:] = (60, 80, 170)                 # tissue
+>>> _ = cv2.fillConvexPoly(img, np.array([[0, 90], [120, 95], [120, 145], [0, 140]], np.int32), (150, 150, 152))
+>>> parts = detect_parts(cv2.GaussianBlur(img, (0, 0), 1.0), [])          # grey jaws from the left border
+>>> len(parts), parts[0].cue, parts[0].kind in ("shaft", "part")
+(1, 'pixels', True)
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
+from pencilcal.toolkit.detect.shaft.from_mask import shafts_from_masks
+from pencilcal.toolkit.detect.shaft.pixels import WORK_PX, instrument_probability
+from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
+
+__all__ = ["detect_parts", "part_regions", "PART_PROBABILITY", "MIN_PART_AREA", "PART_CUE", "RIM_FRACTION"]
+
+#: A work pixel is instrument where the learned map's probability exceeds this.
+PART_PROBABILITY = 0.5
+#: The least area of an instrument region, as a fraction of the view's (the valid region's
+#: work pixels): 1 %, a jaw 5 x 20 % of a 640 x 360 view.
+MIN_PART_AREA = 0.01
+#: The cue of the axes found here (`shaft.detector.Shaft.cue`).
+PART_CUE = "pixels"
+#: The rim of the view left out, as a fraction of the work frame's longer side (5 work px of
+#: 320): not tuned, the width of a field stop's glare on the frames looked at.
+RIM_FRACTION = 0.015
+_BORDER_WORK_PX = 2.0  # a region touches the border of the view within this beyond the rim [work px]
+
+
+def _ideal_points(camera, pts):
+    """Raw points (N, 2) [px] in ideal pixels (a copy without a camera)."""
+    pts = np.asarray(pts, float).reshape(-1, 2)
+    return pts.copy() if camera is None else np.asarray(camera.undistort_pixels(pts), float).reshape(-1, 2)
+
+
+def _shaft_quads(work, camera, shafts):
+    """Per shaft with edges, its band widened by half its width either side, as a convex
+    polygon (4, 2) int32 [work px]."""
+    out = []
+    for s in shafts:
+        e = np.asarray(s.edges, float).reshape(-1, 4)
+        if e.shape[0] != 2:
+            continue
+        ideal = _ideal_points(camera, e.reshape(-1, 2)).reshape(2, 2, 2)
+        c = ideal.reshape(-1, 2).mean(0)
+        pts = np.concatenate([c + 1.5 * (p - c) for p in ideal])   # half a width beyond each edge
+        out.append(np.rint(work.to_work(pts)).astype(np.int32))
+    return out
+
+
+def part_regions(work, p, shafts=(), camera=None, min_area=MIN_PART_AREA, probability=PART_PROBABILITY):
+    """The instrument regions of a work frame (module docstring, step 1): (h, w) int32 labels
+    (0: none) and their count.
+
+    work: `shaft.work.WorkFrame`; p: (h, w) its instrument probability
+    (`shaft.pixels.instrument_probability`); shafts: the shafts found (`shaft.detector.Shaft`,
+    raw pixels), whose instruments have their axes.
+    """
+    import cv2
+
+    # the view's rim (a field stop's glare and vignetting, a letterbox's edge) is left out:
+    # a strip along the border lights the map up but enters nothing
+    rim = RIM_FRACTION * max(work.shape)
+    B = ((p > probability) & (work.dist > rim)).astype(np.uint8)
+    B = cv2.morphologyEx(B, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(B, connectivity=8)
+    if n <= 1:
+        return np.zeros(work.shape, np.int32), 0
+    keep = stats[:, cv2.CC_STAT_AREA] >= min_area * max(int(np.count_nonzero(work.valid)), 1)
+    keep[0] = False
+    border = np.zeros(n, bool)
+    near = lab[(work.dist <= rim + _BORDER_WORK_PX) & work.valid]
+    border[np.unique(near)] = True
+    taken = np.zeros(work.shape, np.uint8)
+    for q in _shaft_quads(work, camera, shafts):
+        cv2.fillConvexPoly(taken, cv2.convexHull(q), 1)
+    touched = np.zeros(n, bool)
+    touched[np.unique(lab[taken > 0])] = True
+    ok = keep & border & ~touched
+    remap = np.zeros(n, np.int32)
+    remap[ok] = np.arange(1, int(ok.sum()) + 1)
+    return remap[lab], int(ok.sum())
+
+
+def _raw_masks(work, camera, lab, count, shape):
+    """The regions' labels (h, w) [work px] carried to the raw frame of `shape` (H, W): one
+    (H, W) bool mask per region (the work frame's grid mapped on a 4 px raw grid, nearest
+    label)."""
+    import cv2
+
+    H, W = shape
+    step = 4
+    ys, xs = np.arange(0, H + step, step, dtype=float), np.arange(0, W + step, step, dtype=float)
+    g = np.stack(np.meshgrid(np.minimum(xs, W - 1), np.minimum(ys, H - 1)), -1)
+    q = work.to_work(_ideal_points(camera, g.reshape(-1, 2))).reshape(g.shape).astype(np.float32)
+    mx = cv2.resize(q[..., 0], (len(xs) * step, len(ys) * step), interpolation=cv2.INTER_LINEAR)[:H, :W]
+    my = cv2.resize(q[..., 1], (len(xs) * step, len(ys) * step), interpolation=cv2.INTER_LINEAR)[:H, :W]
+    raw = cv2.remap(lab.astype(np.float32), mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return [raw == k for k in range(1, count + 1)]
+
+
+def detect_parts(image, shafts, camera=None, *, valid_region=None, model=None, gamma=DEFAULT_GAMMA,
+                 min_area=MIN_PART_AREA, probability=PART_PROBABILITY, max_parts=4):
+    """The axes of the instrument regions of a colour frame that have no shaft among `shafts`
+    (module docstring): a list of `shaft.from_mask.MaskShaft`, cue `PART_CUE`, kind "shaft"
+    or "part", the longest first; [] on a grey frame.
+
+    Parameters
+    ----------
+    image : (H, W, 3) array
+        The raw BGR frame.
+    shafts : list of Shaft
+        The shafts found on it (`shaft.detector.detect_shafts`): their instruments are left out.
+    camera : Camera, optional
+        Lens model (as `detect_shafts`).
+    valid_region : region.ValidRegion, optional
+        Where the scene is; its border is where an instrument enters.
+    model : shaft.pixels.PixelModel, optional
+        The pixel model (default the shipped one, `shaft.pixels.default_model`).
+    gamma : float
+        The frame's encoding gamma (the edges' refit, `shaft.from_mask.shafts_from_masks`).
+    min_area, probability : float
+        `MIN_PART_AREA`, `PART_PROBABILITY`.
+    max_parts : int
+        At most this many.
+    """
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] < 3:
+        return []
+    img = img[..., :3]
+    validity = Validity(valid_region, img.shape[:2])
+    work = WorkFrame(img, camera, validity, WORK_PX)
+    lab, count = part_regions(work, instrument_probability(work, model), shafts, camera, min_area, probability)
+    if count == 0:
+        return []
+    masks = _raw_masks(work, camera, lab, count, img.shape[:2])
+    found = shafts_from_masks(img, [m for m in masks if m.any()], camera, valid_region=valid_region, gamma=gamma)
+    found = [replace(s, cue=PART_CUE) for s in found]
+    return sorted(found, key=lambda s: -s.score)[:max_parts]
