@@ -66,7 +66,9 @@ def _frame_chromaticity(img, validity):
     keep = validity.distance(np.stack([xs, ys], -1).astype(float)) > 0
     if not keep.any():
         keep[:] = True
-    return np.median(_chromaticity(img[ys[keep], xs[keep]]), 0)
+    # the grid as a strided view, masked: the same pixels in the same order as indexing the
+    # frame at (ys, xs), without a gather over the whole frame (a third of the cost)
+    return np.median(_chromaticity(img[step // 2:H:step, step // 2:W:step][keep]), 0)
 
 
 def _inside(img, midline, width):
