@@ -168,6 +168,10 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     point closest to the camera centre), axis_direction (unit, away from the camera),
     axis_distance, and their covariance axis_cov in the axis chart of docs/formats.md, with
     axis_direction_sigma_deg and axis_distance_sigma; lengths in D's unit.
+    --shaft --parts also gives the instrument regions of the learned pixel map that
+    have no shaft (a distal part alone: jaws, a hook) an axis, kind part, with the
+    larger sigmas of its outline (docs/formats.md); off by default, as it has not
+    yet been shown to keep tissue out on frames it never saw.
     --shaft --no-segments writes the shafts alone (every frame's segments empty): on a
     textured scene the segments take most of the time, and a live video of an instrument
     does not need them.
