@@ -91,8 +91,6 @@ __all__ = ["MaterialShaft", "material_cue", "judge_band", "select", "robust_nois
 _MAX_PAIRS = 40  # candidate pairs per region map, the longest overlaps first
 _MAX_REFINE = 6  # bands of the region maps refitted at full resolution
 _MAX_PARTNER = 4  # ... and bands from a single edge (`shaft.partner`)
-#: Whether the bands from a single edge are also searched into its own region (`_inward_bands`).
-INWARD = True
 _MAX_PAIRED = 3  # ... and bands between two grey-level edges (`shaft.edge_pairs`)
 _TOUCH = 0.1  # ... unless it overlaps one of those by this fraction (`_touches`)
 _GROUP_TOL = (3.0, 3.0)  # one boundary at two levels: offset [work px], angle [deg]
@@ -184,8 +182,7 @@ def _bands(work, mm, o, wmin, wmax, min_len):
         seed = _unused_seeds(seeds, acc, min_len)
         got = partner_bands(work, seed, wmin, wmax, np.degrees(o.region_conv_max), mm.luma_noise)
         acc = acc + _more_bands(got, work, B0, min_len, ang_thr, acc, "partner")[:_MAX_PARTNER]
-        if INWARD:
-            acc = acc + _inward_bands(work, seed, wmin, wmax, o, mm, B0, min_len, ang_thr, acc)
+        acc = acc + _inward_bands(work, seed, wmin, wmax, o, mm, B0, min_len, ang_thr, acc)
     if o.edge_pairs:
         got = pair_bands(work, wmin, wmax, min(np.degrees(o.conv_max), PAIR_MAX_CONVERGENCE_DEG), mm.luma_noise,
                          min_len, mm.likeness)
