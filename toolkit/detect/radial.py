@@ -49,7 +49,7 @@ import numpy as np
 from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA, linearised
 from pencilcal.toolkit.detect.image import GrayImage
 from pencilcal.toolkit.detect.radial_circles import circle_points
-from pencilcal.toolkit.detect.radial_joint import END_WINDOWS, joint_refit
+from pencilcal.toolkit.detect.radial_joint import joint_refit
 from pencilcal.toolkit.detect.refit import EdgeRefit, RefitOptions
 from pencilcal.toolkit.detect.segments import Segments, detect_segments, in_valid_region
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
@@ -148,8 +148,7 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
     joint : {"crowded", "all"}
         Which edges are located jointly with their neighbours' blurred edges (`radial_joint`):
         "crowded", those nowhere clear of them (a dense star's far side at a steep tilt);
-        "all", every edge (where clear as before, the others from `JOINT_SIGMAS` sds apart),
-        each without its outer end (`radial_joint.END_WINDOWS`: a wedge ends on an arc).
+        "all", every edge (where clear as before, the others from `JOINT_SIGMAS` sds apart).
         "all" for printed wedges (a Siemens star): at the clearance a neighbour still pulls
         an edge, a little more from one side than the other under perspective and alike
         for neighbouring edges, an error the normal does not average away (docs/method.md;
@@ -198,12 +197,8 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         r_hi = 1.25 * seen[:, 1]
         r_lo = np.where(fit.ok, _clear_radius(phi, clear), _clear_radius(phi, JOINT_SIGMAS * blur))
         r_lo = np.minimum(np.maximum(r_lo, 0.5 * seen[:, 0]), 0.8 * r_hi)
-        # a wedge's edges end on its arc, which a tilt shows inside the profile's window: their
-        # outer ends are left out (`radial_joint.END_WINDOWS`); a dartboard's crowded
-        # boundaries keep theirs (on rendered dartboards the cut changed no frame's normal; on
-        # the photographs it left short boundaries too few stations)
         located, _ = joint_refit(lin, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi,
-                                 rows=rows, search=_SEARCH_PX[-1], end_windows=END_WINDOWS if joint == "all" else 0.0)
+                                 rows=rows, search=_SEARCH_PX[-1])
         fit = _merged(fit, rows, located)
         try:
             v, reach = _vertex_of(fit, reach)

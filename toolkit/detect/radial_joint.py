@@ -92,11 +92,7 @@ _CLUTTER = 3.0  # a station whose residual rms exceeds this many times the media
 #: wedge ends (a star's wedges end on an arc, seen obliquely under a tilt), the profile is no
 #: longer a straight edge's, and a light star's edges came 0.06-0.3 px towards the wedge in the
 #: last 4 % of its radius, every noise draw alike (seed 5, 128 wedges). One half-window, not
-#: two: as well covered on seed 5's 128-wedge stars, 1 % more of their spokes kept. Applied to a
-#: star's wedges (`radial.detect_radial_edges`, joint "all"), not to a dartboard's crowded
-#: boundaries: on seed 99's 40 rendered dartboards three frames had crowded edges, their
-#: normals' chi2 the same with and without it (4.35, 6.79, 2.53), and on the shared
-#: photographs it left short boundaries too few stations.
+#: two: as well covered on seed 5's 128-wedge stars, 1 % more of their spokes kept.
 END_WINDOWS = 1.0
 
 
@@ -125,8 +121,7 @@ def _edge_frames(lines, v):
     return foot, u
 
 
-def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, *, rows=None, search=1.0, rounds=2, fit_blur=True,
-                end_windows=END_WINDOWS):
+def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, *, rows=None, search=1.0, rounds=2, fit_blur=True):
     """The edges through a radial target's vertex, each located jointly with its neighbours'
     blurred edges (module docstring).
 
@@ -157,9 +152,6 @@ def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, *, rows=None, se
     fit_blur : bool
         Fit the blur too, one sd shared by every edge (`_solve_stations`), instead of holding
         it at sigma.
-    end_windows : float
-        Profile half-windows left out at each edge's outer end (`END_WINDOWS`, for wedges
-        that end on an arc); 0 keeps every station (a dartboard's sector boundaries).
 
     Returns
     -------
@@ -174,8 +166,7 @@ def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, *, rows=None, se
     rows = np.arange(lines.shape[0]) if rows is None else np.asarray(rows, int)
     fit, sigma0 = None, sigma
     for _ in range(rounds):
-        fit, sigma = _fit_round(img, camera, lines, v, sign, sigma, r_lo[rows], r_hi[rows], search, rows, fit_blur,
-                                end_windows)
+        fit, sigma = _fit_round(img, camera, lines, v, sign, sigma, r_lo[rows], r_hi[rows], search, rows, fit_blur)
         sigma = float(np.clip(sigma, 0.5 * sigma0, 2.0 * sigma0))  # a misfit (clutter) does not run away
         lines[rows] = np.where(fit.ok[:, None], fit.lines(), lines[rows])
     return fit, sigma
@@ -193,7 +184,7 @@ def _stations(foot, u, r_lo, r_hi, v):
     return lo[:, None] + j[None, :] * step[:, None], valid & (hi > lo)[:, None]
 
 
-def _fit_round(img, camera, lines, v, sign, sigma, r_lo, r_hi, search, rows, fit_blur, end_windows):
+def _fit_round(img, camera, lines, v, sign, sigma, r_lo, r_hi, search, rows, fit_blur):
     """One joint fit of the edges `rows` (`joint_refit`) with the neighbours at `lines`:
     (EdgeFit, the blur sd [raw px])."""
     E = lines.shape[0]
@@ -239,7 +230,7 @@ def _fit_round(img, camera, lines, v, sign, sigma, r_lo, r_hi, search, rows, fit
     t, c, info, ok, sigma = _solve_stations(y, tau, (fixed, dfixed), near,
                                             np.broadcast_to(sign[rows, None], s.shape), (sigma, scale),
                                             search, inside if fit_blur else None)
-    return _lines_from_stations(foot, u, e, s, t, c, info, inside & ok, sign[rows], end_windows * half), sigma
+    return _lines_from_stations(foot, u, e, s, t, c, info, inside & ok, sign[rows], END_WINDOWS * half), sigma
 
 
 def _blur_step(A, N, r, rhs, col, use):
