@@ -18,9 +18,11 @@ CHI2_3SIGMA = -2.0 * np.log(1.0 - 0.9973)
 
 # boundaries used, of 20: measured 16, 17 and 16 with k1 the minimum of the chi2 profile of a
 # fixed labelled set and each edge's outer half-window left out of its line (docs/method.md;
-# 17, 18 and 17 before that cut; 18, 17 and 16 when k1 was chosen among the counts of labelled
-# boundaries), the floors one below, as the labelling's margin on the rest moves with the
-# edges. No dart is on the board in any of the three: every boundary could be used.
+# 17, 18 and 17 before that cut on earlier code, 15, 17 and 17 without it on this one; 18, 17
+# and 16 when k1 was chosen among the counts of labelled boundaries), the floors one below, as
+# the labelling's margin on the rest moves with the edges (the focal length a few thousandths
+# of a px off gives 17 and 19 on the side views). No dart hides a boundary in any of the
+# three: every boundary could be used.
 @pytest.mark.parametrize("name,spokes,tilt", [("dartboard_side_left", 15, (45, 65)),
                                               ("dartboard_side_right", 16, (45, 65)),
                                               ("dartboard_far", 15, (5, 25))])
