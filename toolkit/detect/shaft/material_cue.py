@@ -200,10 +200,12 @@ def _inward_bands(work, seed, wmin, wmax, o, mm, B0, min_len, ang_thr, acc):
     tissue of its own grey, so the region's far boundary follows a shadow or a streak inside
     it, converging too much to be paired (the da Vinci frames' left shaft: its two boundaries
     17-19 deg apart, its silhouette edges 12-16 deg). Only boundaries from the border of
-    the view are searched (`_from_border`, within the least width), only bands darker than
-    their sides kept."""
+    the view are searched (`_from_border`, within the least width), with no band where the
+    far edge widens it away from the border (`partner_bands`' from_border: a fold's rim or a
+    shadow's edge beyond the silhouette), only bands darker than their sides kept."""
     conv = float(np.degrees(min(o.conv_max, np.radians(PAIR_MAX_CONVERGENCE_DEG))))
-    got = partner_bands(work, turned_round(_from_border(seed, work, wmin)), wmin, wmax, conv, mm.luma_noise)
+    got = partner_bands(work, turned_round(_from_border(seed, work, wmin)), wmin, wmax, conv, mm.luma_noise,
+                        from_border=True)
     # the case it is for: a dark instrument (a white band between two edges inside a region
     # is as often a strip of pale tissue beside an instrument)
     return [e for e in _more_bands(got, work, B0, min_len, ang_thr, acc, "inward") if e.y_in < e.y_side][:_MAX_PARTNER]

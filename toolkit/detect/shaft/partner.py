@@ -17,7 +17,11 @@ response there reaches `_REL_STRENGTH` of the seed's step (and `Z_999` noise sd)
 line is a candidate where `_MIN_SUPPORT` of the observable stations support it. Of the
 candidates the **outermost** is the far edge, whatever lies inside (streaks, slots, a
 sheen, a wrist's joint make inner edges of either sign): the band is the instrument's whole
-silhouette.
+silhouette. Searched from a seed that enters the view from its border (`partner_bands`'
+from_border), a far edge that widens the band away from the border gives no band: under
+perspective a shaft is the nearest the lens where it enters, the widest there, and the
+outermost line that widens it lies on the tissue beyond the silhouette (a fold's rim, a
+shadow's edge).
 
 Each (seed, far edge) pair is a candidate band with its own region map: the pixels whose
 colour is nearer the band's inside (median over the stations, between a quarter and three
@@ -87,8 +91,10 @@ def _median0(X):
     return Xs[(n - 1) // 2] if n % 2 else (Xs[n // 2 - 1] + Xs[n // 2]) / 2
 
 
-def _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise):
-    """(t0, b, supported (S,) bool) of the outermost far edge, or None (module docstring)."""
+def _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise, narrowing=0):
+    """(t0, b, supported (S,) bool) of the outermost far edge, or None (module docstring).
+    narrowing: +1 (-1) where the band must not widen with s increasing (decreasing): None
+    where the far edge does (`partner_bands`' from_border); 0 for no such rule."""
     import cv2
 
     S, T, C = col.shape
@@ -133,6 +139,13 @@ def _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise):
         return None
     far = max(c[0] for c in cands)
     t0, _, b, _, hit = max((c for c in cands if c[0] >= far - 2.0), key=lambda c: c[1])
+    # under perspective a band entering the view narrows away from the border (the part there
+    # is the nearest the lens) or keeps its width: an outermost line that widens it lies on
+    # the tissue beyond the silhouette (a fold's rim, a shadow's edge). The silhouette is then
+    # no sure candidate (against a shadow darker than the shaft its step has the other sign),
+    # and a line further in may cross from it to the fold: no far edge
+    if narrowing * b > 1e-12:
+        return None
     return t0, b, hit
 
 
@@ -220,6 +233,14 @@ def _band_map(work, img, col, obs, t, t0, b, s, s_mid):
     return cv2.morphologyEx(cv2.morphologyEx(B, cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
 
 
+def _narrowing(work, P):
+    """+1 where the first of a seed's stations P (S, 2) [work px] is nearer the border of the
+    view than its last (a band from there must narrow along the seed), else -1."""
+    ends = np.clip(np.rint(P[[0, -1]]).astype(int), 0, np.array(work.shape[::-1]) - 1)
+    d = work.dist[ends[:, 1], ends[:, 0]]
+    return 1 if d[0] <= d[1] else -1
+
+
 def turned_round(lines):
     """The same straight boundaries (`BoundaryLines`) with their normals turned round
     (n = (-u_y, u_x) into the other side: u, lo and hi reversed), so that `partner_bands`
@@ -234,7 +255,7 @@ def turned_round(lines):
     return BoundaryLines(p=lines.p, u=-lines.u, n=-lines.n, lo=-lines.hi, hi=-lines.lo, support=lines.support)
 
 
-def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SEEDS):
+def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SEEDS, from_border=False):
     """Candidate bands from single edges (module docstring).
 
     Parameters
@@ -249,6 +270,11 @@ def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SE
         The largest convergence of the two edges [deg].
     noise : float [grey levels]
         The work frame's noise sd per channel.
+    from_border : bool
+        The seeds enter the view from its border at their end nearer it (a shaft close to
+        the lens): where the far edge widens the band away from that end, no band (under
+        perspective the part at the border is the nearest the lens, the widest; a line that
+        widens it lies on the tissue beyond the silhouette).
 
     Returns
     -------
@@ -272,7 +298,7 @@ def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SE
     for k, s, P, (col, obs) in zip(order, st, Ps, prof):
         p, u, lo, hi = seeds.p[k], seeds.u[k], float(seeds.lo[k]), float(seeds.hi[k])
         m = -seeds.n[k]
-        got = _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise)
+        got = _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise, _narrowing(work, P) if from_border else 0)
         if got is None:
             continue
         t0, b, hit = got

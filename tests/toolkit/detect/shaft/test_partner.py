@@ -123,3 +123,48 @@ def test_inward_far_edge_of_a_converging_shaft(conv_deg, blur):
         q = lines.p[j] + 0.5 * (lines.lo[j] + lines.hi[j]) * lines.u[j]
         turn = np.degrees(np.arctan2(abs(lines.u[j][1]), abs(lines.u[j][0])))
         assert abs(turn - conv_deg) > 1.0
+
+
+@pytest.mark.parametrize("blur", [1.5, 2.5])
+def test_inward_far_edge_not_on_a_fold_beyond(blur):
+    """A dark shaft entering the view at the left, its edges converging by 10 deg away from the
+    border (perspective: it is nearest the lens there), on lit tissue with a fold beyond its
+    far silhouette: a dark crease as dark as the shaft, 8 px wide, along a line that widens the
+    band away from the border. Searched into the shaft's region from its near edge, the
+    outermost edge of the shaft's polarity with the shaft's colour inside it is the crease's
+    outer rim; with `from_border` that band is refused (a band entering the view does not widen
+    away from the border), and the same shaft without the crease keeps its silhouette."""
+    rng = np.random.default_rng(7)
+    H, W = 240, 320
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    b = np.tan(np.radians(10.0))
+    far_y = 150.0 - b * (xx - 100.0)           # the silhouette: 166 px at x = 10, 134 at x = 190
+    fold_y = 185.0 + 0.1 * (xx - 10.0)         # the crease's outer rim: 19 px beyond it at x = 10, 69 at x = 190
+    tissue = np.empty((H, W, 3))
+    tissue[:] = (90, 80, 150)                  # lit tissue
+    tissue += cv2.GaussianBlur(rng.normal(0, 4, (H, W, 1)) * np.array([1, 1, 1.5]), (0, 0), 3.0)
+    noise = rng.normal(0, 1.5, (H, W, 3))
+    # the boundary of the shaft's region along its near edge from the border (x = 10), n into it
+    seed = BoundaryLines(p=np.array([[10.0, 59.5]]), u=np.array([[1.0, 0.0]]), n=np.array([[0.0, 1.0]]),
+                         lo=np.array([0.0]), hi=np.array([180.0]), support=np.array([180.0]))
+
+    def far_edges(crease, **kw):
+        img = tissue.copy()
+        if crease:
+            img[(yy > fold_y - 8.0) & (yy <= fold_y)] = (45, 42, 60)
+        img[(yy >= 60.0) & (yy <= far_y)] = (40, 40, 50)           # the shaft
+        img = np.clip(cv2.GaussianBlur(img, (0, 0), blur) + noise, 0, 255).astype(np.uint8)
+        _, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
+        wf = WorkFrame(cv2.imdecode(buf, cv2.IMREAD_COLOR), None, Validity(None, (H, W)), target_px=320)
+        lines, pairs, _ = partner_bands(wf, turned_round(seed), 10.0, 150.0, 25.0, 1.5, **kw)
+        return [(lines.p[j] + 0.5 * (lines.lo[j] + lines.hi[j]) * lines.u[j], lines.u[j]) for j in pairs.j]
+
+    # without the rule the far edge is the crease's rim
+    (q, _), = far_edges(True)
+    assert abs(q[1] - (185.0 + 0.1 * (q[0] - 10.0))) <= 1.5
+    # with it, no band
+    assert far_edges(True, from_border=True) == []
+    # the shaft alone, from the border: its silhouette, converging by 10 deg
+    (q, u), = far_edges(False, from_border=True)
+    assert abs(q[1] - (150.0 - b * (q[0] - 100.0))) <= 1.5          # on the silhouette (1.5 work px)
+    assert abs(np.degrees(np.arctan2(abs(u[1]), abs(u[0]))) - 10.0) <= 1.0
