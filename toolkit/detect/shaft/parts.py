@@ -47,6 +47,7 @@ from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.shaft.from_mask import shafts_from_masks
 from pencilcal.toolkit.detect.shaft.pixels import WORK_PX, instrument_probability
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
+from pencilcal.toolkit.detect.working import to_working, to_working_points
 
 __all__ = ["detect_parts", "part_regions", "PART_PROBABILITY", "MIN_PART_AREA", "PART_CUE", "RIM_FRACTION"]
 
@@ -63,12 +64,6 @@ RIM_FRACTION = 0.015
 _BORDER_WORK_PX = 2.0  # a region touches the border of the view within this beyond the rim [work px]
 
 
-def _ideal_points(camera, pts):
-    """Raw points (N, 2) [px] in ideal pixels (a copy without a camera)."""
-    pts = np.asarray(pts, float).reshape(-1, 2)
-    return pts.copy() if camera is None else np.asarray(camera.undistort_pixels(pts), float).reshape(-1, 2)
-
-
 def _shaft_quads(work, camera, shafts):
     """Per shaft with edges, its band widened by half its width either side, as a convex
     polygon (4, 2) int32 [work px]."""
@@ -77,7 +72,7 @@ def _shaft_quads(work, camera, shafts):
         e = np.asarray(s.edges, float).reshape(-1, 4)
         if e.shape[0] != 2:
             continue
-        ideal = _ideal_points(camera, e.reshape(-1, 2)).reshape(2, 2, 2)
+        ideal = to_working(camera, e).reshape(2, 2, 2)
         c = ideal.reshape(-1, 2).mean(0)
         pts = np.concatenate([c + 1.5 * (p - c) for p in ideal])   # half a width beyond each edge
         out.append(np.rint(work.to_work(pts)).astype(np.int32))
@@ -128,7 +123,7 @@ def _raw_masks(work, camera, lab, count, shape):
     step = 4
     ys, xs = np.arange(0, H + step, step, dtype=float), np.arange(0, W + step, step, dtype=float)
     g = np.stack(np.meshgrid(np.minimum(xs, W - 1), np.minimum(ys, H - 1)), -1)
-    q = work.to_work(_ideal_points(camera, g.reshape(-1, 2))).reshape(g.shape).astype(np.float32)
+    q = work.to_work(to_working_points(camera, g)).astype(np.float32)
     mx = cv2.resize(q[..., 0], (len(xs) * step, len(ys) * step), interpolation=cv2.INTER_LINEAR)[:H, :W]
     my = cv2.resize(q[..., 1], (len(xs) * step, len(ys) * step), interpolation=cv2.INTER_LINEAR)[:H, :W]
     raw = cv2.remap(lab.astype(np.float32), mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
