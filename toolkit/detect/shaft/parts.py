@@ -46,7 +46,7 @@ import numpy as np
 from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.shaft.from_mask import shafts_from_masks
 from pencilcal.toolkit.detect.shaft.pixels import WORK_PX, instrument_probability
-from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
+from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame, grid_map
 from pencilcal.toolkit.detect.working import to_working, to_working_points
 
 __all__ = ["detect_parts", "part_regions", "PART_PROBABILITY", "MIN_PART_AREA", "PART_CUE", "RIM_FRACTION"]
@@ -61,6 +61,7 @@ PART_CUE = "pixels"
 #: The rim of the view left out, as a fraction of the work frame's longer side (5 work px of
 #: 320): not tuned, the width of a field stop's glare on the frames looked at.
 RIM_FRACTION = 0.015
+_RAW_STEP = 4.0  # the raw-to-work map is evaluated every this many raw px and interpolated [px]
 _BORDER_WORK_PX = 2.0  # a region touches the border of the view within this beyond the rim [work px]
 
 
@@ -115,18 +116,15 @@ def part_regions(work, p, shafts=(), camera=None, min_area=MIN_PART_AREA, probab
 
 def _raw_masks(work, camera, lab, count, shape):
     """The regions' labels (h, w) [work px] carried to the raw frame of `shape` (H, W): one
-    (H, W) bool mask per region (the work frame's grid mapped on a 4 px raw grid, nearest
-    label)."""
+    (H, W) bool mask per region, each raw pixel the label of the work pixel nearest to its
+    own work point (the raw-to-work map evaluated on a 4 px raw grid, `work.grid_map`); 0
+    beyond the work frame and the lens model's reach."""
     import cv2
 
-    H, W = shape
-    step = 4
-    ys, xs = np.arange(0, H + step, step, dtype=float), np.arange(0, W + step, step, dtype=float)
-    g = np.stack(np.meshgrid(np.minimum(xs, W - 1), np.minimum(ys, H - 1)), -1)
-    q = work.to_work(to_working_points(camera, g)).astype(np.float32)
-    mx = cv2.resize(q[..., 0], (len(xs) * step, len(ys) * step), interpolation=cv2.INTER_LINEAR)[:H, :W]
-    my = cv2.resize(q[..., 1], (len(xs) * step, len(ys) * step), interpolation=cv2.INTER_LINEAR)[:H, :W]
-    raw = cv2.remap(lab.astype(np.float32), mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    q = grid_map(lambda g: work.to_work(to_working_points(camera, g)), shape, _RAW_STEP)
+    q = np.nan_to_num(q, nan=-1.0).astype(np.float32)
+    raw = cv2.remap(lab.astype(np.float32), q[..., 0], q[..., 1], cv2.INTER_NEAREST,
+                    borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     return [raw == k for k in range(1, count + 1)]
 
 
