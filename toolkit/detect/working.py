@@ -18,7 +18,7 @@ import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["check_camera_image", "to_working", "to_raw", "to_raw_points", "to_raw_smooth", "raw_frame", "blur_scale"]
+__all__ = ["check_camera_image", "to_working", "to_working_points", "to_raw", "to_raw_points", "to_raw_smooth", "raw_frame", "blur_scale"]
 
 
 def check_camera_image(camera, img):
@@ -55,6 +55,18 @@ def to_working(camera, raw):
     if camera is None:
         return raw.copy()
     return _undistort(camera, raw.reshape(-1, 2)).reshape(-1, 4)
+
+
+def to_working_points(camera, raw):
+    """Points (..., 2) [raw px] in working pixels (a copy without a camera).
+
+    >>> to_working_points(None, [[3.0, 4.0]]).tolist()
+    [[3.0, 4.0]]
+    """
+    raw = np.asarray(raw, float)
+    if camera is None:
+        return raw.copy()
+    return _undistort(camera, raw).reshape(raw.shape)
 
 
 def to_raw(camera, ideal):

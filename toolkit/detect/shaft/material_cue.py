@@ -220,8 +220,7 @@ def _from_border(seeds, work, reach):
     y = np.clip(np.rint(ends[:, 1]).astype(int), 0, work.shape[0] - 1)
     near = (work.dist[y, x] <= reach).reshape(2, -1).any(0)
     k = np.flatnonzero(near)
-    return BoundaryLines(p=seeds.p[k], u=seeds.u[k], n=seeds.n[k], lo=seeds.lo[k], hi=seeds.hi[k],
-                         support=seeds.support[k])
+    return seeds.take(k)
 
 
 def _more_bands(got, work, B0, min_len, ang_thr, acc, kind):

@@ -21,7 +21,9 @@ the tissue's colour. What it has is instrument-like pixels, which the learned pi
    covariance); else its principal axis, kind "part", whose sigmas are the part's own
    ambiguity: the angle's sd its half-angle atan(width / length), the offset's half its width
    (`shaft.from_mask.PART_OFFSET_SIGMA_FRAC`). Measured against the masked sources' axes
-   (docs/method.md, "distal parts") the angle errors of the parts found stay within that sd.
+   (docs/method.md): endovis17's distal part labels' principal axes lie within 2.1 of that
+   sd; of cholec's two distal parts alone one is found, read as two stretches, its angle 2.3
+   of its sd off ("distal parts").
 
 Each is a `shaft.from_mask.MaskShaft` with cue ``"pixels"``; its score is its length along
 its axis [raw px]. The regions come from a learned model: in the leave-one-source-out table
@@ -46,7 +48,8 @@ import numpy as np
 from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.shaft.from_mask import shafts_from_masks
 from pencilcal.toolkit.detect.shaft.pixels import WORK_PX, instrument_probability
-from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
+from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame, grid_map
+from pencilcal.toolkit.detect.working import to_working, to_working_points
 
 __all__ = ["detect_parts", "part_regions", "PART_PROBABILITY", "MIN_PART_AREA", "PART_CUE", "RIM_FRACTION"]
 
@@ -60,13 +63,8 @@ PART_CUE = "pixels"
 #: The rim of the view left out, as a fraction of the work frame's longer side (5 work px of
 #: 320): not tuned, the width of a field stop's glare on the frames looked at.
 RIM_FRACTION = 0.015
+_RAW_STEP = 4.0  # the raw-to-work map is evaluated every this many raw px and interpolated [px]
 _BORDER_WORK_PX = 2.0  # a region touches the border of the view within this beyond the rim [work px]
-
-
-def _ideal_points(camera, pts):
-    """Raw points (N, 2) [px] in ideal pixels (a copy without a camera)."""
-    pts = np.asarray(pts, float).reshape(-1, 2)
-    return pts.copy() if camera is None else np.asarray(camera.undistort_pixels(pts), float).reshape(-1, 2)
 
 
 def _shaft_quads(work, camera, shafts):
@@ -77,7 +75,7 @@ def _shaft_quads(work, camera, shafts):
         e = np.asarray(s.edges, float).reshape(-1, 4)
         if e.shape[0] != 2:
             continue
-        ideal = _ideal_points(camera, e.reshape(-1, 2)).reshape(2, 2, 2)
+        ideal = to_working(camera, e).reshape(2, 2, 2)
         c = ideal.reshape(-1, 2).mean(0)
         pts = np.concatenate([c + 1.5 * (p - c) for p in ideal])   # half a width beyond each edge
         out.append(np.rint(work.to_work(pts)).astype(np.int32))
@@ -120,18 +118,15 @@ def part_regions(work, p, shafts=(), camera=None, min_area=MIN_PART_AREA, probab
 
 def _raw_masks(work, camera, lab, count, shape):
     """The regions' labels (h, w) [work px] carried to the raw frame of `shape` (H, W): one
-    (H, W) bool mask per region (the work frame's grid mapped on a 4 px raw grid, nearest
-    label)."""
+    (H, W) bool mask per region, each raw pixel the label of the work pixel nearest to its
+    own work point (the raw-to-work map evaluated on a 4 px raw grid, `work.grid_map`); 0
+    beyond the work frame and the lens model's reach."""
     import cv2
 
-    H, W = shape
-    step = 4
-    ys, xs = np.arange(0, H + step, step, dtype=float), np.arange(0, W + step, step, dtype=float)
-    g = np.stack(np.meshgrid(np.minimum(xs, W - 1), np.minimum(ys, H - 1)), -1)
-    q = work.to_work(_ideal_points(camera, g.reshape(-1, 2))).reshape(g.shape).astype(np.float32)
-    mx = cv2.resize(q[..., 0], (len(xs) * step, len(ys) * step), interpolation=cv2.INTER_LINEAR)[:H, :W]
-    my = cv2.resize(q[..., 1], (len(xs) * step, len(ys) * step), interpolation=cv2.INTER_LINEAR)[:H, :W]
-    raw = cv2.remap(lab.astype(np.float32), mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    q = grid_map(lambda g: work.to_work(to_working_points(camera, g)), shape, _RAW_STEP)
+    q = np.nan_to_num(q, nan=-1.0).astype(np.float32)
+    raw = cv2.remap(lab.astype(np.float32), q[..., 0], q[..., 1], cv2.INTER_NEAREST,
+                    borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     return [raw == k for k in range(1, count + 1)]
 
 

@@ -360,6 +360,17 @@ class BoundaryLines:
     hi: np.ndarray
     support: np.ndarray
 
+    def take(self, index):
+        """The lines at index (integer indices or a (G,) bool mask), as `BoundaryLines`.
+
+        >>> L = BoundaryLines(p=np.zeros((3, 2)), u=np.tile([1.0, 0.0], (3, 1)), n=np.tile([0.0, 1.0], (3, 1)),
+        ...                   lo=np.zeros(3), hi=np.array([5.0, 9.0, 7.0]), support=np.array([5.0, 9.0, 7.0]))
+        >>> L.take([2, 0]).hi.tolist(), L.take(L.hi > 6).support.tolist()
+        ([7.0, 5.0], [9.0, 7.0])
+        """
+        return BoundaryLines(p=self.p[index], u=self.u[index], n=self.n[index], lo=self.lo[index], hi=self.hi[index],
+                             support=self.support[index])
+
 
 def _tls_one(m):
     """Centre (2,) and unit direction (2,) of the total-least-squares line of one moment

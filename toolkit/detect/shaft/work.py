@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["Validity", "WorkFrame", "Reductions", "axis_matrix"]
+__all__ = ["Validity", "WorkFrame", "Reductions", "axis_matrix", "grid_map"]
 
 _GRID_PX = 16.0  # spacing of the coarse grid the region's distance is interpolated from [raw px]
 _MAP_STEP = 8.0  # the lens map is evaluated every this many work px and interpolated [px]
@@ -292,26 +292,10 @@ class WorkFrame:
 
     def _raw_of_grid(self, camera, h, w):
         """Raw pixels (h, w, 2) of every work pixel: the lens map evaluated every
-        `_MAP_STEP` work px and interpolated bilinearly in between (it bends by far less
-        than a work pixel over that span); NaN where a node is beyond the lens model's
-        reach."""
-        import cv2
-
-        gx = np.arange(0.0, w - 1 + _MAP_STEP, _MAP_STEP)
-        gy = np.arange(0.0, h - 1 + _MAP_STEP, _MAP_STEP)
-        X, Y = np.meshgrid(gx, gy)
-        nodes = camera.distort_pixels(self.to_ideal(np.stack([X, Y], -1)))
-        bad = ~np.all(np.isfinite(nodes), -1)
-        nodes = np.where(bad[..., None], 0.0, nodes).astype(np.float32)
-        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-        mx, my = xx / np.float32(_MAP_STEP), yy / np.float32(_MAP_STEP)
-        out = np.stack([cv2.remap(np.ascontiguousarray(nodes[..., k]), mx, my, cv2.INTER_LINEAR,
-                                  borderMode=cv2.BORDER_REPLICATE) for k in range(2)], -1).astype(np.float64)
-        if np.any(bad):
-            near = cv2.dilate(bad.astype(np.uint8), np.ones((2, 2), np.uint8), anchor=(1, 1))
-            lost = cv2.remap(near, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE) > 0
-            out[lost] = np.nan
-        return out
+        `_MAP_STEP` work px and interpolated bilinearly in between (`grid_map`: it bends by
+        far less than a work pixel over that span); NaN where a node is beyond the lens
+        model's reach."""
+        return grid_map(lambda p: camera.distort_pixels(self.to_ideal(p)), (h, w), _MAP_STEP)
 
     def to_ideal(self, p):
         """Ideal pixels (..., 2) of work pixels p (..., 2)."""
@@ -320,3 +304,42 @@ class WorkFrame:
     def to_work(self, q):
         """Work pixels (..., 2) of ideal pixels q (..., 2)."""
         return (np.asarray(q, float) - self.origin) * self.scale - 0.5
+
+
+def grid_map(f, shape, step):
+    """A smooth map's values (h, w, C) at every pixel of a frame of `shape` (h, w), from its
+    values on a coarse grid: f maps pixels (..., 2) [x, y] to values (..., C) and is evaluated
+    at the nodes (step * i, step * j) only, the last node of a row or column at or past the
+    last pixel; pixel (x, y) takes the bilinear interpolation at grid position (x / step,
+    y / step), so that a node's pixel takes the node's value exactly (a resize of the node
+    grid would read pixel x at (x + 0.5) / step - 0.5: the map half a step less one half pixel
+    off). NaN where a non-finite node has weight.
+
+    The grid is the speed: a map that bends by far less than a pixel over a step (a lens's,
+    an affine one) costs its evaluation at 1 / step**2 of the pixels.
+
+    >>> m = grid_map(lambda p: 2.0 * p + 1.0, (5, 7), 4.0)     # affine: exact at every pixel
+    >>> m.shape, m[3, 6].tolist(), m[4, 5].tolist()
+    ((5, 7, 2), [13.0, 7.0], [11.0, 9.0])
+    >>> m = grid_map(lambda p: np.where(p[..., :1] > 6, np.nan, p), (2, 12), 4.0)   # nodes x = 8, 12 lost
+    >>> np.isnan(m[0, :, 0]).nonzero()[0].tolist()                   # every pixel they weigh on
+    [5, 6, 7, 8, 9, 10, 11]
+    """
+    import cv2
+
+    h, w = shape
+    gx = np.arange(0.0, w - 1 + step, step)
+    gy = np.arange(0.0, h - 1 + step, step)
+    nodes = np.asarray(f(np.stack(np.meshgrid(gx, gy), -1)), float)
+    bad = ~np.all(np.isfinite(nodes), -1)
+    nodes = np.where(bad[..., None], 0.0, nodes).astype(np.float32)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    mx, my = xx / np.float32(step), yy / np.float32(step)
+
+    def at_pixels(grid):
+        return cv2.remap(np.ascontiguousarray(grid), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+    out = np.stack([at_pixels(nodes[..., k]) for k in range(nodes.shape[-1])], -1).astype(np.float64)
+    if np.any(bad):
+        out[at_pixels(bad.astype(np.float32)) > 0] = np.nan
+    return out

@@ -77,3 +77,38 @@ def test_shaft_records_carry_kind():
     s = Shaft(midline=np.zeros(4), width_px=1.0, angle_sigma=0.0, offset_sigma=0.0, edges=np.zeros((2, 4)),
               score=1.0, ideal_midline=np.zeros(4), convergence_deg=0.0, polarity="dark")
     assert s.to_dict()["kind"] == "shaft"
+
+
+@pytest.mark.parametrize("lens", [False, True])
+def test_raw_masks_are_the_regions_where_they_are(lens):
+    """A region of the work frame carried to raw pixels covers the raw pixels whose own work
+    point falls in it, each evaluated exactly: the same pixels without a lens (where a resize
+    of the 4 px raw grid shifted every mask 1.5 px right and down), to within a pixel of its
+    outline and a centroid 0.02 px off with a barrel lens."""
+    from pencilcal.toolkit.camera.model import Camera
+    from pencilcal.toolkit.detect.shaft.parts import _raw_masks
+    from pencilcal.toolkit.detect.working import to_working_points
+
+    H, W = 480, 854
+    cam = Camera("opencv", W, H, [[770.0, 0, 426.5], [0, 770.0, 239.5], [0, 0, 1]],
+                 [-0.25, 0.08, 0.001, -0.001, 0.0]) if lens else None
+    work = WorkFrame(np.zeros((H, W, 3), np.uint8), cam, Validity(None, (H, W)), WORK_PX)
+    lab = np.zeros(work.shape, np.int32)
+    lab[30:110, 50:200] = 1
+    lab[140:, :40] = 2                                                 # one at the frame's corner
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    q = np.rint(work.to_work(to_working_points(cam, np.stack([xx, yy], -1)))).astype(int)
+    inside = (q[..., 0] >= 0) & (q[..., 0] < lab.shape[1]) & (q[..., 1] >= 0) & (q[..., 1] < lab.shape[0])
+    exact = np.where(inside, lab[np.clip(q[..., 1], 0, lab.shape[0] - 1), np.clip(q[..., 0], 0, lab.shape[1] - 1)], 0)
+    for k, got in enumerate(_raw_masks(work, cam, lab, 2, (H, W)), 1):
+        want = exact == k
+        assert got.sum() > 2000
+        if not lens:
+            assert np.array_equal(got, want), k
+        ys, xs = np.nonzero(got)
+        ey, ex = np.nonzero(want)
+        assert abs(xs.mean() - ex.mean()) < 0.02 and abs(ys.mean() - ey.mean()) < 0.02, k
+        off = got != want                                              # only on the outline
+        assert cv2.dilate(want.astype(np.uint8), np.ones((3, 3), np.uint8))[off].all()
+        assert not cv2.erode(want.astype(np.uint8), np.ones((3, 3), np.uint8))[off].any()
+
