@@ -34,6 +34,7 @@ from pencilcal.toolkit.geometry.angles import wrap_angle, wrap_line
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.pencil.defaults import CHI2_1_99, CHI2_2_DETECTION, DETECTION_LEVEL
 from pencilcal.toolkit.pencil.estimator import fit_pencil, pencil_jacobian, PencilFit
+from pencilcal.toolkit.pencil.sequence_noise import inflation
 
 __all__ = ["Assignment", "assign_spokes"]
 
@@ -621,7 +622,7 @@ def _best_and_rivals(candidates):
     # one squared residual: a spurious line that falls on a shifted labelling's prediction
     # otherwise wins just by being used. Residuals are judged against the best fit's own
     # scatter (real lines often scatter more than their stated sigmas).
-    scale = max(1.0, chi2_best / max(n_best - 3, 1))
+    scale = inflation(chi2_best, max(n_best - 3, 1))
     fewer = [(lab, f) for n, chi2, lab, f in candidates[1:]
              if n < n_best and _conflict(lab, labels)
              and (chi2 - chi2_best) / scale + CHI2_1_99 * (n_best - n) < CHI2_2_DETECTION]

@@ -62,6 +62,7 @@ import numpy as np
 
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
+from pencilcal.toolkit.pencil.sequence_noise import inflation
 from pencilcal.toolkit.pencil.vertex import intersect_lines
 
 __all__ = ["ALPHA", "MIN_FRAMES", "MAX_POSITIONS", "ChangePoint", "Epochs", "split_epochs", "frame_epochs", "distinct_lines",
@@ -331,7 +332,7 @@ def _stat(runs, a, b, h, D, chi2, n_in, positions):
     `ChangePoint` list)."""
     k = runs.params
     nu = max(runs.residuals(n_in) - 2 * k, 1)
-    scale = max(1.0, chi2 / nu)
+    scale = inflation(chi2, nu)
     (rl, rr) = _runs_of(h, a, b)
     if scale > 1.0:
         # the costs again with the sigmas the residuals show: their truncation at T must be

@@ -49,6 +49,7 @@ import numpy as np
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.geometry.frames import normalize, rotation_from_rotvec
 from pencilcal.toolkit.pencil.cylinder import Fulcrum3D, axis_chart, axis_frame, fulcrum_3d
+from pencilcal.toolkit.pencil.sequence_noise import inflation
 
 __all__ = ["MovingFulcrum", "carry_axes", "fulcrum_moving"]
 
@@ -205,5 +206,4 @@ def _variance_factor(fit, params):
     axes' chi2 over their residuals' degrees of freedom (two an axis, less `params`), 1
     where there are none."""
     used = np.asarray(fit.inliers, bool)
-    dof = 2 * int(used.sum()) - params
-    return max(1.0, float(np.sum(np.asarray(fit.chi2)[used])) / dof) if dof > 0 else 1.0
+    return inflation(np.sum(np.asarray(fit.chi2)[used]), 2 * int(used.sum()) - params)

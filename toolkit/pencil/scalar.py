@@ -22,6 +22,8 @@ import math
 
 import numpy as np
 
+from pencilcal.toolkit.pencil.sequence_noise import inflation
+
 _HALF_PI = 0.5 * math.pi
 
 
@@ -119,7 +121,7 @@ def fit_one(a, th, x, sigma, oriented, max_iter, tol, vertex_cov, min_cos, chi2_
     cov, var_tilt, var_normal = _covariance(R, J, Jx, w, v, nrm, vertex_cov)
     chi2_0 = _frontal(a, th, bx, by, Q, x0, x1, ct, st, w, sw)
     dof = N - 3
-    inflate = max(1.0, cost / dof) if dof > 0 else 1.0
+    inflate = inflation(cost, dof)
     detectable = (chi2_0 - cost) / inflate > chi2_2
     vx, vy, cq = v
     tilt = math.acos(min(max(R[0][2] * vx + R[1][2] * vy + R[2][2] * cq, -1.0), 1.0))

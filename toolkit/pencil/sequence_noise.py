@@ -56,7 +56,7 @@ import numpy as np
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.pencil.defaults import MIN_ENDPOINT_SIGMA_PX
 
-__all__ = ["NoiseEstimate", "variance_factor", "sequence_noise", "estimate_sequence_noise", "rescale",
+__all__ = ["NoiseEstimate", "inflation", "variance_factor", "sequence_noise", "estimate_sequence_noise", "rescale",
            "fulcrum_noise", "rescale_fulcrum", "estimate_fulcrum_noise", "orientations_with_noise",
            "fulcrum_with_noise", "MIN_DOF", "MAX_RUNS"]
 
@@ -95,6 +95,18 @@ class NoiseEstimate:
         """The orientation.json header record ``noise``."""
         return {"estimated": True, "variance_factor": self.variance_factor, "sigma_scale": self.scale,
                 "dof": self.dof, "frames": self.frames, "rejected_frames": self.rejected}
+
+
+def inflation(chi2, dof=1):
+    """The a-posteriori variance factor ``chi2 / dof`` taken only to inflate: at least 1,
+    and 1 where there is no redundancy (dof <= 0). dof=1 takes `chi2` as a factor already.
+    The one home of the inflate-only factor every fit here takes where its inputs carry
+    their own sigmas (a fit that scatters less than its inputs say keeps them).
+
+    >>> inflation(30.0, 10), inflation(5.0, 10), inflation(5.0, 0), inflation(0.8)
+    (3.0, 1.0, 1.0, 1.0)
+    """
+    return max(1.0, float(chi2) / dof) if dof > 0 else 1.0
 
 
 def variance_factor(chi2, dof):
@@ -220,7 +232,7 @@ def _steady_runs(run, sigma, estimate, first=None, floor=None):
 def _inflate_only(est, inflate_only):
     if est is None or not inflate_only or est.variance_factor >= 1.0:
         return est
-    return NoiseEstimate(1.0, est.dof, est.frames, est.rejected)
+    return NoiseEstimate(inflation(est.variance_factor), est.dof, est.frames, est.rejected)
 
 
 def rescale_fulcrum(fulcrum, factor, pivot_factor=None):
