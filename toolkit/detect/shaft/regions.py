@@ -88,6 +88,8 @@ LEVELS = 3
 DARK_SPLITS = ("dark", "darker")
 _SAME_MAP = 0.02  # two level maps differing in fewer pixels than this fraction are one
 _MODE_RADIUS = 0.03  # the dominant colour: mean of the chromaticities this close to the mode
+_GREY_RADIUS = 2 * _MODE_RADIUS  # a mode this close to grey is an instrument's (its mean takes in grey pixels)
+_MIN_COLOURED = 0.05  # the tissue's colour is sought among the coloured pixels where this fraction is
 _HIST_BINS = 200  # chromaticity histogram bins over [-1, 1] per axis
 _SAMPLES = 20000  # pixels the colour statistics are taken from
 _DP_EPS_PX = 1.5  # Douglas-Peucker tolerance of the region boundaries [work px]
@@ -147,6 +149,16 @@ def _dominant(xv, yv):
     return mu
 
 
+def _projected(x, y, iv, mu):
+    """(p, its samples p[iv], their median) of the chromaticities x, y (h, w) projected on the
+    direction of the dominant colour mu (2,); iv: the flat indices sampled."""
+    nm = float(np.hypot(*mu))
+    u = mu / nm if nm > 1e-6 else np.array([1.0, 0.0])
+    p = x * u[0] + y * u[1]
+    pv = p.ravel()[iv]
+    return p, pv, float(median(pv))
+
+
 def material_map(work):
     """The instrument-likeness of each work pixel (module docstring, step 1).
 
@@ -169,18 +181,23 @@ def material_map(work):
     S = R + G + B + 3.0 * max(DARK_DAMPING * y_med, 1.0)
     x = (R - G) / S
     y = (R + G - 2.0 * B) / (np.sqrt(3.0) * S)
-    mu = _dominant(x.ravel()[iv], y.ravel()[iv])
-    nm = float(np.hypot(*mu))
-    u = mu / nm if nm > 1e-6 else np.array([1.0, 0.0])
-    p = x * u[0] + y * u[1]
-    pv = p.ravel()[iv]
-    pm = float(median(pv))
-    # the frame has a colour when the dominant one stands out of the noise of a projection
-    # (a grey frame, or a colour frame of a grey scene, has none)
+    xs, ys = x.ravel()[iv], y.ravel()[iv]
     # an 8-bit frame's luma holds whole levels: its noise from a histogram, exactly
     luma_noise = estimate_noise(work.luma.astype(np.uint8) if work.bgr.dtype == np.uint8 else work.luma)
     noise = np.sqrt(2.0) * luma_noise / (3.0 * (1.0 + DARK_DAMPING) * y_med)
+    # the frame has a colour when the dominant one stands out of the noise of a projection
+    # (a grey frame, or a colour frame of a grey scene, has none)
+    mu = _dominant(xs, ys)
+    p, pv, pm = _projected(x, y, iv, mu)
     informative = bool(work.bgr.ndim == 3 and pm > Z_999 * max(noise, 1e-6))
+    coloured = xs * xs + ys * ys >= _GREY_RADIUS**2
+    if not informative and np.hypot(*mu) < _GREY_RADIUS and np.count_nonzero(coloured) >= _MIN_COLOURED * xs.size:
+        # the dominant colour is grey: a white or metal shaft close to the lens, one sharp
+        # peak where the tissue spreads over many hues, whose faint sheen gave the projection
+        # no sign; the tissue's colour is then the mode of the coloured pixels
+        mu = _dominant(xs[coloured], ys[coloured])
+        p, pv, pm = _projected(x, y, iv, mu)
+        informative = bool(work.bgr.ndim == 3 and pm > Z_999 * max(noise, 1e-6))
     # a scene that is almost grey itself: the scale stays >= 3 x the robust spread of p, so
     # the likeness does not blow up
     mad = 1.4826 * float(median(np.abs(pv - pm)))
