@@ -89,7 +89,8 @@ DARK_SPLITS = ("dark", "darker")
 _SAME_MAP = 0.02  # two level maps differing in fewer pixels than this fraction are one
 _MODE_RADIUS = 0.03  # the dominant colour: mean of the chromaticities this close to the mode
 _GREY_RADIUS = 2 * _MODE_RADIUS  # a mode this close to grey is an instrument's (its mean takes in grey pixels)
-_MIN_COLOURED = 0.05  # the tissue's colour is sought among the coloured pixels where this fraction is
+_MIN_COLOURED = 0.5  # ... and the tissue's colour sought among the coloured pixels where most are (a grey scene
+# with a coloured object in it, paper, a table or a box trainer's floor, stays without colour)
 _HIST_BINS = 200  # chromaticity histogram bins over [-1, 1] per axis
 _SAMPLES = 20000  # pixels the colour statistics are taken from
 _DP_EPS_PX = 1.5  # Douglas-Peucker tolerance of the region boundaries [work px]
@@ -192,9 +193,10 @@ def material_map(work):
     informative = bool(work.bgr.ndim == 3 and pm > Z_999 * max(noise, 1e-6))
     coloured = xs * xs + ys * ys >= _GREY_RADIUS**2
     if not informative and np.hypot(*mu) < _GREY_RADIUS and np.count_nonzero(coloured) >= _MIN_COLOURED * xs.size:
-        # the dominant colour is grey: a white or metal shaft close to the lens, one sharp
-        # peak where the tissue spreads over many hues, whose faint sheen gave the projection
-        # no sign; the tissue's colour is then the mode of the coloured pixels
+        # the dominant colour is grey but most of the view is coloured: a white or metal
+        # shaft close to the lens, one sharp peak where the tissue spreads over many hues,
+        # whose faint sheen gave the projection no sign; the tissue's colour is then the
+        # mode of the coloured pixels
         mu = _dominant(xs[coloured], ys[coloured])
         p, pv, pm = _projected(x, y, iv, mu)
         informative = bool(work.bgr.ndim == 3 and pm > Z_999 * max(noise, 1e-6))

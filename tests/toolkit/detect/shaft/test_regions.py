@@ -67,9 +67,13 @@ def test_tissue_colour_under_a_close_white_shaft(half_width):
     assert abs(m[0] - m[2]) > 400
 
 
-def test_grey_frame_stays_without_colour():
-    """A frame whose pixels are all grey has no tissue colour to find: the map stays
-    uninformative (its mode is grey and no coloured pixels are left to seek one among)."""
+def test_grey_scene_stays_without_colour():
+    """A grey scene has no tissue colour to find, with or without a coloured object in it (a
+    lab's paper, table or box trainer's floor; here a fifth of the view a pink patch): the map
+    stays uninformative, and the shaft is left to the edge cue."""
     img, _ = _frame(80)
     grey = np.repeat(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)[..., None], 3, -1)
     assert not material_map(WorkFrame(grey, None, Validity(None, grey.shape[:2]), 480.0)).informative
+    patch = grey.copy()
+    patch[:, :128] = np.clip(patch[:, :128] * np.array([0.7, 0.75, 1.3]), 0, 255).astype(np.uint8)
+    assert not material_map(WorkFrame(patch, None, Validity(None, patch.shape[:2]), 480.0)).informative
