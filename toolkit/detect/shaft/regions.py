@@ -7,9 +7,11 @@ boundaries: the proposals of the shaft detector's material cue (`shaft.detector`
    eps``; grey (black, white, metal) sits at (0, 0). eps = `DARK_DAMPING` x the median
    brightness: a pixel ten times darker than the scene keeps half of its colour, so black
    (whose colour is only noise) reads as grey. The dominant (tissue) colour is the mode of
-   the 2-D chromaticity histogram, refined by the mean within `_MODE_RADIUS`; u is its
-   direction and p = c . u each pixel's projection on it. The likeness is ``(p_med - p) /
-   p_med`` (0: typical tissue, 1: grey, > 1: a colour opposite to tissue such as a
+   the 2-D chromaticity histogram, refined by the mean within `_MODE_RADIUS` (where that mode
+   is grey and leaves the frame without colour while most of the view is coloured, a white
+   or metal shaft close to the lens is the sharpest peak: the mode of the coloured pixels,
+   `_GREY_RADIUS` or more from grey); u is its direction and p = c . u each pixel's
+   projection on it. The likeness is ``(p_med - p) / p_med`` (0: typical tissue, 1: grey, > 1: a colour opposite to tissue such as a
    grey-blue drape) plus the darkness ``clip(1 - Y / Y_med, 0, 1)`` on the same 0..1 scale
    (a black shaft whose sheen reflects the tissue's colour is still dark). Hue changes at
    the tissue's saturation (fat, blood) and shadows, which keep their colour direction,
