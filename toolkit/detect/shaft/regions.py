@@ -14,8 +14,8 @@ boundaries: the proposals of the shaft detector's material cue (`shaft.detector`
    projection on it. The likeness is ``(p_med - p) / p_med`` (0: typical tissue, 1: grey,
    > 1: a colour opposite to tissue such as a grey-blue drape) plus the darkness ``clip(1 -
    Y / Y_med, 0, 1)`` on the same 0..1 scale (a black shaft whose sheen reflects the tissue's
-   colour is still dark). Hue changes at the tissue's saturation (fat, blood) and shadows, which keep their colour direction,
-   stay near 0. The map is *informative* when the frame has a colour: p_med exceeds `Z_999`
+   colour is still dark). Hue changes at the tissue's saturation (fat, blood) and shadows,
+   which keep their colour direction, stay near 0. The map is *informative* when the frame has a colour: p_med exceeds `Z_999`
    noise sd of one pixel's projection (from the image noise and brightness). A grey frame,
    or a colour frame of a grey scene, has no material cue, and the shaft detector judges its
    bands by their edges alone (`shaft.detector`).
