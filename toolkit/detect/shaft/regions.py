@@ -15,10 +15,10 @@ boundaries: the proposals of the shaft detector's material cue (`shaft.detector`
    > 1: a colour opposite to tissue such as a grey-blue drape) plus the darkness ``clip(1 -
    Y / Y_med, 0, 1)`` on the same 0..1 scale (a black shaft whose sheen reflects the tissue's
    colour is still dark). Hue changes at the tissue's saturation (fat, blood) and shadows,
-   which keep their colour direction, stay near 0. The map is *informative* when the frame has a colour: p_med exceeds `Z_999`
-   noise sd of one pixel's projection (from the image noise and brightness). A grey frame,
-   or a colour frame of a grey scene, has no material cue, and the shaft detector judges its
-   bands by their edges alone (`shaft.detector`).
+   which keep their colour direction, stay near 0. The map is *informative* when the frame
+   has a colour: p_med exceeds `Z_999` noise sd of one pixel's projection (from the image
+   noise and brightness). A grey frame, or a colour frame of a grey scene, has no material
+   cue, and the shaft detector judges its bands by their edges alone (`shaft.detector`).
 2. *levels* (`region_levels`): `LEVELS` recursive two-class Otsu splits of the likeness
    over the valid region. The instruments are its upper tail and may cover only a few
    percent of the view, so each split isolates a more extreme part. At each level the
