@@ -7,18 +7,16 @@ boundaries: the proposals of the shaft detector's material cue (`shaft.detector`
    eps``; grey (black, white, metal) sits at (0, 0). eps = `DARK_DAMPING` x the median
    brightness: a pixel ten times darker than the scene keeps half of its colour, so black
    (whose colour is only noise) reads as grey. The dominant (tissue) colour is the mode of
-   the 2-D chromaticity histogram, refined by the mean within `_MODE_RADIUS` (where that mode
-   is grey and leaves the frame without colour while most of the view is coloured, a white
-   or metal shaft close to the lens is the sharpest peak: the mode of the coloured pixels,
-   `_GREY_RADIUS` or more from grey); u is its direction and p = c . u each pixel's
-   projection on it. The likeness is ``(p_med - p) / p_med`` (0: typical tissue, 1: grey,
-   > 1: a colour opposite to tissue such as a grey-blue drape) plus the darkness ``clip(1 -
-   Y / Y_med, 0, 1)`` on the same 0..1 scale (a black shaft whose sheen reflects the tissue's
-   colour is still dark). Hue changes at the tissue's saturation (fat, blood) and shadows,
-   which keep their colour direction, stay near 0. The map is *informative* when the frame
-   has a colour: p_med exceeds `Z_999` noise sd of one pixel's projection (from the image
-   noise and brightness). A grey frame, or a colour frame of a grey scene, has no material
-   cue, and the shaft detector judges its bands by their edges alone (`shaft.detector`).
+   the 2-D chromaticity histogram, refined by the mean within `_MODE_RADIUS`; u is its
+   direction and p = c . u each pixel's projection on it. The likeness is ``(p_med - p) /
+   p_med`` (0: typical tissue, 1: grey, > 1: a colour opposite to tissue such as a
+   grey-blue drape) plus the darkness ``clip(1 - Y / Y_med, 0, 1)`` on the same 0..1 scale
+   (a black shaft whose sheen reflects the tissue's colour is still dark). Hue changes at
+   the tissue's saturation (fat, blood) and shadows, which keep their colour direction,
+   stay near 0. The map is *informative* when the frame has a colour: p_med exceeds `Z_999`
+   noise sd of one pixel's projection (from the image noise and brightness). A grey frame,
+   or a colour frame of a grey scene, has no material cue, and the shaft detector judges its
+   bands by their edges alone (`shaft.detector`).
 2. *levels* (`region_levels`): `LEVELS` recursive two-class Otsu splits of the likeness
    over the valid region. The instruments are its upper tail and may cover only a few
    percent of the view, so each split isolates a more extreme part. At each level the
@@ -90,9 +88,6 @@ LEVELS = 3
 DARK_SPLITS = ("dark", "darker")
 _SAME_MAP = 0.02  # two level maps differing in fewer pixels than this fraction are one
 _MODE_RADIUS = 0.03  # the dominant colour: mean of the chromaticities this close to the mode
-_GREY_RADIUS = 2 * _MODE_RADIUS  # a mode this close to grey is an instrument's (its mean takes in grey pixels)
-_MIN_COLOURED = 0.5  # ... and the tissue's colour sought among the coloured pixels where most are (a grey scene
-# with a coloured object in it, paper, a table or a box trainer's floor, stays without colour)
 _HIST_BINS = 200  # chromaticity histogram bins over [-1, 1] per axis
 _SAMPLES = 20000  # pixels the colour statistics are taken from
 _DP_EPS_PX = 1.5  # Douglas-Peucker tolerance of the region boundaries [work px]
@@ -152,16 +147,6 @@ def _dominant(xv, yv):
     return mu
 
 
-def _projected(x, y, iv, mu):
-    """(p, its samples p[iv], their median) of the chromaticities x, y (h, w) projected on the
-    direction of the dominant colour mu (2,); iv: the flat indices sampled."""
-    nm = float(np.hypot(*mu))
-    u = mu / nm if nm > 1e-6 else np.array([1.0, 0.0])
-    p = x * u[0] + y * u[1]
-    pv = p.ravel()[iv]
-    return p, pv, float(median(pv))
-
-
 def material_map(work):
     """The instrument-likeness of each work pixel (module docstring, step 1).
 
@@ -184,24 +169,18 @@ def material_map(work):
     S = R + G + B + 3.0 * max(DARK_DAMPING * y_med, 1.0)
     x = (R - G) / S
     y = (R + G - 2.0 * B) / (np.sqrt(3.0) * S)
-    xs, ys = x.ravel()[iv], y.ravel()[iv]
+    mu = _dominant(x.ravel()[iv], y.ravel()[iv])
+    nm = float(np.hypot(*mu))
+    u = mu / nm if nm > 1e-6 else np.array([1.0, 0.0])
+    p = x * u[0] + y * u[1]
+    pv = p.ravel()[iv]
+    pm = float(median(pv))
+    # the frame has a colour when the dominant one stands out of the noise of a projection
+    # (a grey frame, or a colour frame of a grey scene, has none)
     # an 8-bit frame's luma holds whole levels: its noise from a histogram, exactly
     luma_noise = estimate_noise(work.luma.astype(np.uint8) if work.bgr.dtype == np.uint8 else work.luma)
     noise = np.sqrt(2.0) * luma_noise / (3.0 * (1.0 + DARK_DAMPING) * y_med)
-    # the frame has a colour when the dominant one stands out of the noise of a projection
-    # (a grey frame, or a colour frame of a grey scene, has none)
-    mu = _dominant(xs, ys)
-    p, pv, pm = _projected(x, y, iv, mu)
     informative = bool(work.bgr.ndim == 3 and pm > Z_999 * max(noise, 1e-6))
-    coloured = xs * xs + ys * ys >= _GREY_RADIUS**2
-    if not informative and np.hypot(*mu) < _GREY_RADIUS and np.count_nonzero(coloured) >= _MIN_COLOURED * xs.size:
-        # the dominant colour is grey but most of the view is coloured: a white or metal
-        # shaft close to the lens, one sharp peak where the tissue spreads over many hues,
-        # whose faint sheen gave the projection no sign; the tissue's colour is then the
-        # mode of the coloured pixels
-        mu = _dominant(xs[coloured], ys[coloured])
-        p, pv, pm = _projected(x, y, iv, mu)
-        informative = bool(work.bgr.ndim == 3 and pm > Z_999 * max(noise, 1e-6))
     # a scene that is almost grey itself: the scale stays >= 3 x the robust spread of p, so
     # the likeness does not blow up
     mad = 1.4826 * float(median(np.abs(pv - pm)))
