@@ -5,6 +5,8 @@ Per instrument of every frame (tests/validation/masked_sources.py) the material 
 are traced (the detector is run once per frame with its stages wrapped) and the first one
 that loses it is named:
 
+- ``no material cue``: the frame was judged to have no colour (`shaft.regions.material_map`)
+  and only the edge cue searched it;
 - ``no segment``: no straight region boundary (`shaft.regions.boundary_lines`, any level)
   runs along the mask's outline (`SEGMENT_ON_OUTLINE` of it within `OUTLINE_PX`);
 - ``no band``: segments, but no band between two of them evaluated along the axis;
@@ -177,6 +179,8 @@ def stage_of(ref, mask, rec, work, dets, kept, min_len, ang_thr):
 
         ok = [e for e in ev if proposed(e, min_len, ang_thr)]
         return "not refined" if ok else "not proposed: " + _why_not_proposed(ev[0], min_len, ang_thr)
+    if "segments" not in rec:
+        return "no material cue"
     dist = _outline_dist(mask)
     segs = [work.to_ideal(np.asarray(s).reshape(2, 2)).reshape(4) for s in rec.get("segments", [])
             + [q for pr in rec.get("pairs", []) for q in np.asarray(pr).reshape(2, 4)]]
