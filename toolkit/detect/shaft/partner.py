@@ -120,7 +120,8 @@ def _far_edges(col, obs, cut, t, st, wmin, wmax, tan_max, noise):
         step = float(np.linalg.norm(d0))
         if step < Z_999 * noise * np.sqrt(2.0):
             continue
-        # (S, T): the response of a step back to the seed's outside colour, per work px
+        # (S, T): the response of a step back to the seed's outside colour, per work px (on a
+        # fresh copy of the seed's rows, aligned as its own array was: BLAS's path may depend on it)
         proj[a:e] = sm[a:e].copy() @ (-d0 / step)
         # a step of height `step` blurred by the smoothing (sd >= _SMOOTH_PX) peaks at most at
         # step / (sqrt(2 pi) sd)
