@@ -54,6 +54,7 @@ from __future__ import annotations
 import numpy as np
 
 from pencilcal.toolkit.detect.shaft.regions import Z_999, BoundaryLines, RegionPairs
+from pencilcal.toolkit.geometry.quantiles import median
 
 __all__ = ["partner_bands", "turned_round", "MAX_SEEDS"]
 
@@ -68,10 +69,10 @@ _SLOPES = 21  # slopes tried, over +-tan(largest convergence) (1.5 deg apart at 
 
 
 def _profiles(work, img, P, m, t):
-    """Per seed, colours (S, T, C) float32 and observability (S, T) bool at P (S, 2) + t (T,)
-    m (2,) (P and m: lists, one per seed); img: the work frame's colours (h, w, C) float32.
-    All seeds' samples in one remap (each sample is its own bilinear read: the same values
-    as seed by seed)."""
+    """All seeds' colours (N, T, C) float32 and observability (N, T) bool at P (S, 2) + t
+    (T,) m (2,) (P and m: lists, one per seed; their stations stacked, N in all); img: the
+    work frame's colours (h, w, C) float32. All seeds' samples in one remap (each sample is
+    its own bilinear read: the same values as seed by seed)."""
     import cv2
 
     X = np.concatenate([(q[:, None, 0] + t[None, :] * d[0]).astype(np.float32) for q, d in zip(P, m)])
@@ -79,8 +80,7 @@ def _profiles(work, img, P, m, t):
     col = cv2.remap(img, X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     col = col.reshape(X.shape + (-1,))
     obs = cv2.remap(work.dist, X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1) > 1.0
-    cut = np.cumsum([len(q) for q in P])[:-1]
-    return list(zip(np.split(col, cut), np.split(obs, cut)))
+    return col, obs
 
 
 def _median0(X):
@@ -91,48 +91,80 @@ def _median0(X):
     return Xs[(n - 1) // 2] if n % 2 else (Xs[n // 2 - 1] + Xs[n // 2]) / 2
 
 
-def _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise, narrowing=0):
-    """(t0, b, supported (S,) bool) of the outermost far edge, or None (module docstring).
-    narrowing: +1 (-1) where the band must not widen with s increasing (decreasing): None
-    where the far edge does (`partner_bands`' from_border); 0 for no such rule."""
+def _far_edges(col, obs, cut, t, st, wmin, wmax, tan_max, noise, narrowing):
+    """Per seed, (t0, b, supported (S,) bool) of its outermost far edge, or None (module
+    docstring). col (N, T, C), obs (N, T): all seeds' profiles stacked, seed i's rows
+    cut[i]:cut[i + 1]; st: each seed's stations (S,); narrowing: per seed, `_far_edge`'s.
+    The smoothing, responses, support and its bound are formed for all seeds at once (each
+    profile on its own: the same values as seed by seed); the candidates and the choice
+    seed by seed (`_far_edge`)."""
     import cv2
 
-    S, T, C = col.shape
+    n = len(st)
+    out = [None] * n
+    N, T, C = col.shape
+    jT = np.flatnonzero((t >= wmin) & (t <= wmax))  # the widths searched, as profile indices
+    if N == 0 or jT.size == 0:
+        return out
     j0 = int(np.searchsorted(t, 0.0))
     k = max(1, int(round(2.0 / _STEP_PX)))
     ok_seed = obs[:, j0 - k] & obs[:, j0 + k]
-    if np.count_nonzero(ok_seed) < 0.5 * S:
-        return None
     r = int(np.ceil(3.0 * _SMOOTH_PX / _STEP_PX))
-    sm = cv2.GaussianBlur(col.reshape(S, T * C) if C == 1 else col, (2 * r + 1, 1), _SMOOTH_PX / _STEP_PX,
-                          sigmaY=1e-6, borderType=cv2.BORDER_REPLICATE).reshape(S, T, C)
-    c_in, c_out = _median0(sm[ok_seed, j0 + k]), _median0(sm[ok_seed, j0 - k])
-    d0 = c_in - c_out
-    step = float(np.linalg.norm(d0))
-    if step < Z_999 * noise * np.sqrt(2.0):
-        return None
-    # (S, T): the response of a step back to the seed's outside colour, per work px
-    g = np.gradient(sm @ (-d0 / step), _STEP_PX, axis=1)
-    # a step of height `step` blurred by the smoothing (sd >= _SMOOTH_PX) peaks at most at
-    # step / (sqrt(2 pi) sd)
-    thr = max(_REL_STRENGTH * step / (np.sqrt(2 * np.pi) * _SMOOTH_PX), Z_999 * noise / _SMOOTH_PX)
-    sup = (g >= thr) & obs
-    s_mid = 0.5 * (s[0] + s[-1])
-    jT = np.flatnonzero((t >= wmin) & (t <= wmax))  # the widths searched, as profile indices
-    if jT.size == 0:
-        return None
+    # along each profile only (a kernel one row high): a row's values do not depend on its neighbours
+    sm = cv2.GaussianBlur(col.reshape(N, T * C) if C == 1 else col, (2 * r + 1, 1), _SMOOTH_PX / _STEP_PX,
+                          sigmaY=1e-6, borderType=cv2.BORDER_REPLICATE).reshape(N, T, C)
+    proj = np.zeros((N, T), np.float32)
+    thr, colours = [None] * n, [None] * n
+    for i in range(n):
+        a, e = cut[i], cut[i + 1]
+        ok = ok_seed[a:e]
+        if np.count_nonzero(ok) < 0.5 * (e - a):
+            continue
+        c_in, c_out = _median0(sm[a:e][ok, j0 + k]), _median0(sm[a:e][ok, j0 - k])
+        d0 = c_in - c_out
+        step = float(np.linalg.norm(d0))
+        if step < Z_999 * noise * np.sqrt(2.0):
+            continue
+        # (S, T): the response of a step back to the seed's outside colour, per work px (on a
+        # fresh copy of the seed's rows, aligned as its own array was: BLAS's path may depend on it)
+        proj[a:e] = sm[a:e].copy() @ (-d0 / step)
+        # a step of height `step` blurred by the smoothing (sd >= _SMOOTH_PX) peaks at most at
+        # step / (sqrt(2 pi) sd)
+        thr[i] = max(_REL_STRENGTH * step / (np.sqrt(2 * np.pi) * _SMOOTH_PX), Z_999 * noise / _SMOOTH_PX)
+        colours[i] = (c_in, c_out)
+    live = [i for i in range(n) if colours[i] is not None]
+    if not live:
+        return out
+    g = np.gradient(proj, _STEP_PX, axis=1)
+    sup = np.zeros((N, T), bool)
+    for i in live:  # each seed's threshold compared as a scalar, as seed by seed
+        sup[cut[i]:cut[i + 1]] = (g[cut[i]:cut[i + 1]] >= thr[i]) & obs[cut[i]:cut[i + 1]]
     # each slope's line through width index j at station s lies at profile index j + off
     bs = np.linspace(-tan_max, tan_max, _SLOPES)
-    off = np.rint(bs[:, None] * (s - s_mid)[None, :] / _STEP_PX).astype(np.intp)  # (slopes, S)
-    span = _supported_span(sup, jT, np.abs(off).max(0), S)
-    if span is None:  # no line can have the support a candidate needs
-        return None
-    q_lo, q_hi = span
-    cands = _candidates(obs, sup, g, off, jT[q_lo:q_hi], S, T)
+    ds = np.concatenate([s - 0.5 * (s[0] + s[-1]) for s in st])
+    off = np.rint(bs[:, None] * ds[None, :] / _STEP_PX).astype(np.intp)  # (slopes, N)
+    spans = _supported_spans(sup, jT, np.abs(off).max(0), cut)
+    for i in live:
+        a, e = cut[i], cut[i + 1]
+        if spans[i] is None:  # no line can have the support a candidate needs
+            continue
+        q_lo, q_hi = spans[i]
+        out[i] = _far_edge(sm[a:e], obs[a:e], sup[a:e], g[a:e], off[:, a:e], jT[q_lo:q_hi], t, bs, k, *colours[i],
+                           narrowing[i])
+    return out
+
+
+def _far_edge(sm, obs, sup, g, off, jT, t, bs, k, c_in, c_out, narrowing=0):
+    """(t0, b, supported (S,) bool) of one seed's outermost far edge, or None: of its
+    candidate lines (`_candidates`) at the widths jT, the outermost whose band is of the
+    seed's inside material at its far rim; of the slopes that find it (within 2 px), the
+    strongest. narrowing: +1 (-1) where the band must not widen with s increasing
+    (decreasing): None where the far edge does (`partner_bands`' from_border); 0 for no
+    such rule."""
+    S, T = sup.shape
+    cands = _candidates(obs, sup, g, off, jT, S, T)
     if not cands:
         return None
-    # the outermost whose band is of the seed's inside material at its far rim; of the
-    # slopes that find it (within 2 px), the strongest
     same = _same_inside(sm, obs, np.array([c[3] for c in cands]), k, c_in, c_out)
     cands = [(t[j], resp, bs[a], jf, hit) for (j, resp, a, jf, hit), ok in zip(cands, same) if ok]
     if not cands:
@@ -149,21 +181,25 @@ def _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise, narrowing=0):
     return t0, b, hit
 
 
-def _supported_span(sup, jT, reach, S):
-    """The range [q_lo, q_hi) of the width indices jT (Q,) where a line can be a candidate, or
-    None: a candidate has support at `_MIN_SUPPORT` of at least half the stations, and a line
-    through jT[q] meets station s within reach[s] (its largest slope offset) of jT[q], so at
-    most as many stations support it as have support there (an exact bound, from one
-    cumulative sum)."""
-    T = sup.shape[1]
-    cs = np.zeros((S, T + 1), np.int32)
+def _supported_spans(sup, jT, reach, cut):
+    """Per seed (rows cut[i]:cut[i + 1] of sup (N, T)), the range [q_lo, q_hi) of the width
+    indices jT (Q,) where a line can be a candidate, or None: a candidate has support at
+    `_MIN_SUPPORT` of at least half the seed's S stations, and a line through jT[q] meets
+    station s within reach[s] (its largest slope offset) of jT[q], so at most as many
+    stations support it as have support there (an exact bound, from one cumulative sum)."""
+    N, T = sup.shape
+    cs = np.zeros((N, T + 1), np.int32)
     np.cumsum(sup, axis=1, out=cs[:, 1:])
     hi = np.minimum(jT[None, :] + reach[:, None] + 1, T)
     lo = np.clip(jT[None, :] - reach[:, None], 0, T)
-    rows = np.arange(S)[:, None]
-    bound = np.count_nonzero(cs[rows, hi] > cs[rows, lo], axis=0)  # (Q,)
-    can = np.flatnonzero(bound >= _MIN_SUPPORT * 0.5 * S)
-    return None if can.size == 0 else (int(can[0]), int(can[-1]) + 1)
+    rows = np.arange(N)[:, None]
+    there = (cs[rows, hi] > cs[rows, lo]).astype(np.int32)
+    bound = np.add.reduceat(there, np.asarray(cut[:-1]), axis=0)  # (seeds, Q)
+    out = []
+    for i in range(len(cut) - 1):
+        can = np.flatnonzero(bound[i] >= _MIN_SUPPORT * 0.5 * (cut[i + 1] - cut[i]))
+        out.append(None if can.size == 0 else (int(can[0]), int(can[-1]) + 1))
+    return out
 
 
 def _candidates(obs, sup, g, off, jT, S, T):
@@ -224,7 +260,9 @@ def _band_map(work, img, col, obs, t, t0, b, s, s_mid):
     side2 = (tt >= w[:, None] + 2.0) & (tt <= 1.5 * w[:, None]) & obs
     if min(np.count_nonzero(inner), np.count_nonzero(side1), np.count_nonzero(side2)) < 10:
         return None
-    c_in, c1, c2 = (np.median(np.ascontiguousarray(col[k].T), axis=1) for k in (inner, side1, side2))
+    # each channel's median as np.median's (`geometry.quantiles.median`: the same values, without
+    # np.median's overheads, most of its cost on these few hundred samples)
+    c_in, c1, c2 = (np.array([median(v[:, j]) for j in range(v.shape[1])]) for v in (col[k] for k in (inner, side1, side2)))
     # |x - c|^2 = |x|^2 - 2 x.c + |c|^2: the |x|^2 common to all three drops out
     d = [cv2.transform(img, (-2.0 * c).reshape(1, -1).astype(np.float32)).reshape(work.shape) + float(c @ c)
          for c in (c_in, c1, c2)]
@@ -294,13 +332,16 @@ def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SE
         st.append(lo + (np.arange(S) + 0.5) * (hi - lo) / S)
         Ps.append(seeds.p[k][None, :] + st[-1][:, None] * seeds.u[k][None, :])
     # across each seed, away from its region: into the band
-    prof = _profiles(work, img, Ps, [-seeds.n[k] for k in order], t) if len(order) else []
-    for k, s, P, (col, obs) in zip(order, st, Ps, prof):
+    col_all, obs_all = _profiles(work, img, Ps, [-seeds.n[k] for k in order], t) if len(order) else (None, None)
+    cut = np.r_[0, np.cumsum([len(q) for q in Ps])].tolist()
+    narrowing = [_narrowing(work, P) if from_border else 0 for P in Ps]
+    far = _far_edges(col_all, obs_all, cut, t, st, wmin, wmax, tan_max, noise, narrowing) if len(order) else []
+    for i, (k, s, P, got) in enumerate(zip(order, st, Ps, far)):
         p, u, lo, hi = seeds.p[k], seeds.u[k], float(seeds.lo[k]), float(seeds.hi[k])
         m = -seeds.n[k]
-        got = _far_edge(col, obs, t, s, wmin, wmax, tan_max, noise, _narrowing(work, P) if from_border else 0)
         if got is None:
             continue
+        col, obs = col_all[cut[i]:cut[i + 1]], obs_all[cut[i]:cut[i + 1]]
         t0, b, hit = got
         s_mid = 0.5 * (s[0] + s[-1])
         B = _band_map(work, img, col, obs, t, t0, b, s, s_mid)

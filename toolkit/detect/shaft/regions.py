@@ -193,17 +193,31 @@ def material_map(work):
 
 def otsu_threshold(v, bins=128):
     """Otsu's two-class threshold of the samples v (N,) (histogram of `bins` over their
-    range).
+    range). 8-bit samples are counted per level first (the same histogram, from one pass).
 
     >>> t = otsu_threshold(np.r_[np.zeros(50), np.ones(50)]); 0.0 < t < 1.0
     True
+    >>> y = np.random.default_rng(0).integers(3, 250, 999).astype(np.uint8)
+    >>> otsu_threshold(y) == otsu_threshold(y.astype(np.float32))
+    True
     """
+    v = np.asarray(v)
+    if v.dtype == np.uint8:  # each level's bin from its count: the same bins as of every sample
+        cnt = np.bincount(v.reshape(-1), minlength=256)
+        lev = np.flatnonzero(cnt)
+        if lev.size == 0:
+            return float(np.max(v))  # (an empty v: np.max's error, as below)
+        v, weights = lev, cnt[lev]
+    else:
+        weights = None
     lo, hi = float(np.min(v)), float(np.max(v))
     if hi - lo < 1e-6:
         return hi
     # np.histogram's bins (the last one closed), by one bincount: several times faster
-    idx = ((np.asarray(v, np.float64) - lo) * (bins / (hi - lo))).astype(np.intp)
-    h = np.bincount(np.minimum(idx, bins - 1), minlength=bins)
+    idx = np.subtract(v, lo, dtype=np.float64)
+    idx = (np.multiply(idx, bins / (hi - lo), out=idx)).astype(np.intp)
+    h = np.bincount(np.minimum(idx, bins - 1, out=idx), weights, minlength=bins)
+    h = h if weights is None else h.astype(np.int64)
     e = np.linspace(lo, hi, bins + 1)
     p = h / max(h.sum(), 1)
     x = 0.5 * (e[:-1] + e[1:])
@@ -225,7 +239,9 @@ def region_levels(mm, work, n_levels=LEVELS):
     vin = work.valid & (work.dist > 1.0)
     v = np.clip(mm.likeness[vin], -0.5, 2.0)
     k3 = np.ones((3, 3), np.uint8)
-    out = []
+    # an 8-bit frame's luma holds whole levels: thresholded from their counts (`otsu_threshold`)
+    luma = work.luma.astype(np.uint8) if work.bgr.dtype == np.uint8 else work.luma
+    out, counts = [], []
     for lev in range(n_levels):
         if v.size < 50:
             break
@@ -238,16 +254,21 @@ def region_levels(mm, work, n_levels=LEVELS):
         # still holds tissue and drape, whose shading it would split into more bands (a shaft
         # read together with its shadow)
         for kind in DARK_SPLITS if lev == n_levels - 1 else DARK_SPLITS[:1]:
-            yv = work.luma[M]
+            yv = luma[M]
             if yv.size <= 50:
                 break
             M = M & (work.luma < otsu_threshold(yv))
             maps.append((kind, M))
         for kind, B in maps:
             Bm = cv2.morphologyEx(cv2.morphologyEx(B.astype(np.uint8), cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
-            n = max(int(np.count_nonzero(Bm)), 1)
-            repeat = any(np.count_nonzero(Bm != o[2]) < _SAME_MAP * n for o in out)
+            nb = int(np.count_nonzero(Bm))
+            n = max(nb, 1)
+            # two maps whose counts differ by at least the tolerance differ in at least as
+            # many pixels: compared only where they might not
+            repeat = any(abs(nb - no) < _SAME_MAP * n and np.count_nonzero(Bm != o[2]) < _SAME_MAP * n
+                         for o, no in zip(out, counts))
             out.append((lev, kind, Bm, repeat))
+            counts.append(nb)
     return out
 
 
@@ -444,7 +465,7 @@ def boundary_lines_many(maps, dist, seg_min):
     then grouped map by map."""
     import cv2
 
-    maps = [np.asarray(Bm).astype(np.uint8) for Bm in maps]
+    maps = [np.asarray(Bm, np.uint8) for Bm in maps]  # no copy of a uint8 map (findContours leaves it)
     contours = [cv2.findContours(Bm, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)[0] for Bm in maps]
     out = []
     for got in _sides(contours, maps, dist, seg_min):

@@ -129,6 +129,16 @@ class Validity:
             d = np.minimum(np.minimum(xs, W - 1.0 - xs)[None, :], np.minimum(ys, H - 1.0 - ys)[:, None])
         return np.where(np.isfinite(d), d, -np.inf)
 
+    def border_distances(self, xs, ys):
+        """(dx (len(xs),), dy (len(ys),)): `grid_distance` = min(dx[None, :], dy[:, None])
+        where it is the image border's distance alone (no region) and every point is
+        finite; else None."""
+        xs, ys = np.asarray(xs, float), np.asarray(ys, float)
+        if self._grid is not None or not (np.all(np.isfinite(xs)) and np.all(np.isfinite(ys))):
+            return None
+        H, W = self.shape
+        return np.minimum(xs, W - 1.0 - xs), np.minimum(ys, H - 1.0 - ys)
+
     def ok(self, pts, margin_px=0.0):
         """(...) bool: raw points (..., 2) at least margin_px [px] inside."""
         return self.distance(pts) >= margin_px
@@ -257,8 +267,10 @@ class WorkFrame:
         self.origin = np.array([x0, y0], float)
         if camera is None:  # the work pixels' raw points are a grid
             self.bgr = reductions.to(w, h)
-            d = validity.grid_distance(self.to_ideal(np.stack([np.arange(w), np.zeros(w)], -1))[:, 0],
-                                       self.to_ideal(np.stack([np.zeros(h), np.arange(h)], -1))[:, 1])
+            xs = self.to_ideal(np.stack([np.arange(w), np.zeros(w)], -1))[:, 0]
+            ys = self.to_ideal(np.stack([np.zeros(h), np.arange(h)], -1))[:, 1]
+            sep = validity.border_distances(xs, ys)
+            d = validity.grid_distance(xs, ys) if sep is None else None
         else:
             raw = self._raw_of_grid(camera, h, w)
             sr = min(1.0, 1.25 * s)  # reduce first (no aliasing), then remap
@@ -272,8 +284,15 @@ class WorkFrame:
             self.luma = cv2.cvtColor(self.bgr, cv2.COLOR_BGR2GRAY).astype(np.float32)
         else:
             self.luma = self.bgr.astype(np.float32)
-        d = d * float(np.mean(self.scale))
-        self.dist = np.where(np.isfinite(d), d, -1.0).astype(np.float32)
+        sc = float(np.mean(self.scale))
+        if d is None:
+            # the border's distance, separable: min(dx, dy) x sc in float32 is min(dx x sc,
+            # dy x sc) in float32 (both roundings are monotonic), one pass over the frame
+            # instead of six, the same values
+            self.dist = np.minimum((sep[0] * sc).astype(np.float32)[None, :], (sep[1] * sc).astype(np.float32)[:, None])
+        else:
+            d = d * sc
+            self.dist = np.where(np.isfinite(d), d, -1.0).astype(np.float32)
         self.valid = self.dist >= 0
 
     @property

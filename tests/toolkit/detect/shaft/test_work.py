@@ -76,3 +76,21 @@ def test_grid_map_reads_each_pixel_at_its_own_point():
     nan = np.isnan(grid_map(lost, (H, W), 4.0)[..., 0])
     assert np.array_equal(nan, (np.abs(xx - 40) < 4) & (np.abs(yy - 20) < 4))
 
+
+@pytest.mark.parametrize("size", [(1080, 1920), (360, 640), (481, 853), (100, 37)])
+@pytest.mark.parametrize("target", [480.0, 320.0, 97.0])
+def test_work_frame_distance_from_the_border_factors(size, target):
+    """Without a lens or a region a work frame's distance map is formed from the border's two
+    factors (`Validity.border_distances`) in one pass: the same float32 values as the grid's
+    distance scaled and converted (what it was formed from before)."""
+    img = np.zeros(size + (3,), np.uint8)
+    v = Validity(None, size)
+    wf = WorkFrame(img, None, v, target)
+    h, w = wf.shape
+    xs = wf.to_ideal(np.stack([np.arange(w), np.zeros(w)], -1))[:, 0]
+    ys = wf.to_ideal(np.stack([np.zeros(h), np.arange(h)], -1))[:, 1]
+    dx, dy = v.border_distances(xs, ys)
+    assert np.array_equal(np.minimum(dx[None, :], dy[:, None]), v.grid_distance(xs, ys))
+    d = v.grid_distance(xs, ys) * float(np.mean(wf.scale))
+    assert wf.dist.dtype == np.float32 and np.array_equal(wf.dist, np.where(np.isfinite(d), d, -1.0).astype(np.float32))
+    assert v.border_distances(np.r_[xs, np.nan], ys) is None
