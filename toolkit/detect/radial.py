@@ -210,8 +210,9 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
             v, reach = _vertex_of(fit, reach)
         except EstimationError:
             return RadialEdges.empty()
-    if outer is not None:
-        fit = _trimmed(lin, camera, fit, v, np.asarray(outer, float), clear, min_length)
+    if outer is not None:  # the edges located jointly keep their own model of their ends
+        joint_rows = np.isin(np.arange(phi.size), rows)
+        fit = _trimmed(lin, camera, fit, v, np.asarray(outer, float), clear, min_length, joint_rows)
     out = Segments.from_fit(fit, camera, min_length)
     keep = in_valid_region(img, out.segments)
     _, through = lines_through(v, out.ideal, np.maximum(out.angle_sigma, np.radians(_VERTEX_FLOOR_DEG)),
@@ -263,19 +264,20 @@ def _ray_conic(v, u, C):
     return np.where(rho > 0, rho, np.nan)
 
 
-def _trimmed(img, camera, fit, v, outer, margin, min_length):
+def _trimmed(img, camera, fit, v, outer, margin, min_length, joint):
     """`fit` (EdgeFit) with every edge that runs on past the conic `outer` (3, 3) [working px]
     (the circle where the spokes end) refitted from its inner end to `margin` [px] short of
     it, in the rounds of `_SEARCH_PX` (the line beyond turned the fit by more than the last
     round's search); those whose part inside is shorter than min_length [px], or whose refit
-    fails or leaves less than min_length, are kept as they were."""
+    fails or leaves less than min_length, are kept as they were, and so are those located
+    jointly with their neighbours (joint (E,) bool: `radial_joint`, which models their ends)."""
     p1, p2 = fit.p1, fit.p2
     d1, d2 = np.hypot(*(p1 - v).T), np.hypot(*(p2 - v).T)
     out2 = d2 >= d1
     far = np.where(out2[:, None], p2, p1)
     u = (far - v) / np.maximum(np.maximum(d1, d2), 1e-12)[:, None]
     cut = _ray_conic(v, u, outer) - margin
-    rows = np.flatnonzero(fit.ok & np.isfinite(cut) & (np.maximum(d1, d2) > cut)
+    rows = np.flatnonzero(fit.ok & ~joint & np.isfinite(cut) & (np.maximum(d1, d2) > cut)
                           & (cut - np.minimum(d1, d2) >= min_length))
     if rows.size == 0:
         return fit
