@@ -232,7 +232,8 @@ def orient_radial_edges(image, camera, pencil, **detect):
     double ring) and the first orientation finds that ring (`circle.spokes_end_conic`), the
     edges are detected again, each trimmed where it runs on past the ring (``outer``), and
     oriented again: beyond it a ring of numbers or a maker's print runs on along some
-    boundaries and turns their lines, which the labelling then rejects.
+    boundaries and turns their lines, which the labelling then rejects. Not with
+    ``joint="all"`` (a star's wedges): every edge is then located jointly, none trimmed.
     """
     from pencilcal.toolkit.pencil.circle import spokes_end_conic
     from pencilcal.toolkit.pencil.orient import orient_segments
@@ -244,8 +245,8 @@ def orient_radial_edges(image, camera, pencil, **detect):
         return found, rec
 
     found, rec = run()
-    if camera is None or not len(found.circle_points):
-        return found, rec
+    if camera is None or not len(found.circle_points) or detect.get("joint") == "all":
+        return found, rec  # (with joint="all" every edge is located jointly: none is trimmed)
     outer = spokes_end_conic(camera, rec, found.segments, found.circle_points, pencil)
     return (found, rec) if outer is None else run(outer=outer)
 
