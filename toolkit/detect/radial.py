@@ -56,7 +56,8 @@ from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
 
-__all__ = ["RadialEdges", "detect_radial_edges", "orient_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "JOINT_SIGMAS", "OFFSET_FLOOR_PX"]
+__all__ = ["RadialEdges", "detect_radial_edges", "orient_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "JOINT_SIGMAS",
+           "OFFSET_FLOOR_PX"]
 
 #: Two neighbouring edges are measured only where they lie at least this many sds of their
 #: blurred profile apart (`_edge_blur`: the sd of an edge's gradient across it as sampled,

@@ -389,9 +389,9 @@ def spokes_end_conic(camera, orientation, segments, circle_points, pencil):
     among the circle points' rings (`circle_estimate`, grouped under the orientation's
     rotation) nearest the median outer end of the labelled edges on the plane, within
     `_END_RATIO`, or the outermost ring beyond it within the listed ratio of the spokes' end
-    to the circle inside it (the edges may end at that circle). Not from the listed radii's depth: a dartboard's surround and board edge
-    stand about as the treble and double rings do (on the shared far view the depth so
-    matched was 0.63 of the true one). orientation: an `Orientation` with ``lines``
+    to the circle inside it (the edges may end at that circle). Not from the listed radii's
+    depth: a dartboard's surround and board edge stand about as the treble and double rings
+    do (on the shared far view the depth so matched was 0.63 of the true one). orientation: an `Orientation` with ``lines``
     (``keep_lines``); segments (M, 4) [raw px] those it was fitted to; circle_points (K, 2)
     [raw px] (`detect.radial`'s); used by `detect.radial.detect_radial_edges`' ``outer``.
     """
