@@ -149,16 +149,14 @@ def focal_from_circles(estimate, vertex, f0):
 
 
 def _orient(image, camera, pencil, edges, circles=True):
-    """Detected edges, their orientation and the circles' estimate for one camera (any
-    circle about the vertex, listed in the pencil file or not: under a camera still to be
-    found, the circles' radii on the plane are not yet in the file's ratios)."""
-    from pencilcal.toolkit.detect.radial import detect_radial_edges
+    """Detected edges, their orientation (`orient_radial_edges`: each edge trimmed at the ring
+    where the spokes end) and the circles' estimate for one camera (any circle about the
+    vertex, listed in the pencil file or not: under a camera still to be found, the circles'
+    radii on the plane are not yet in the file's ratios)."""
+    from pencilcal.toolkit.detect.radial import orient_radial_edges
     from pencilcal.toolkit.pencil.circle import circle_estimate
-    from pencilcal.toolkit.pencil.orient import orient_segments
 
-    found = detect_radial_edges(image, camera, edges=edges, circles=circles)
-    rec = orient_segments(camera, found.segments, pencil, angle_sigma=found.angle_sigma,
-                          offset_sigma=found.offset_sigma, circle_points=found.circle_points, keep_lines=True)
+    found, rec = orient_radial_edges(image, camera, pencil, edges=edges, circles=circles)
     est = None
     if rec.ok and len(found.circle_points):
         xn = camera.normalized_from_pixels(found.circle_points)

@@ -101,8 +101,7 @@ def _target(kind, polarity, seed):
 def _render_and_orient(cond):
     """Render `cond`, detect its edges and orient it: (camera, pencil, R, t, found, rec)."""
     from pencilcal.toolkit.detect.lines import radial_joint_mode
-    from pencilcal.toolkit.detect.radial import detect_radial_edges
-    from pencilcal.toolkit.pencil.orient import orient_segments
+    from pencilcal.toolkit.detect.radial import orient_radial_edges
     from pencilcal.toolkit.synth.radial import radial_pose, render_layers
 
     cam = _camera(cond["k1"])
@@ -111,9 +110,7 @@ def _render_and_orient(cond):
                        roll_deg=cond["roll_deg"])
     img = render_layers(cam, R, t, layers, blur_px=cond["blur_px"], noise=cond["noise"], gamma=2.2, lighting=0.3,
                         jpeg_quality=cond["jpeg"], rng=cond["seed"])
-    found = detect_radial_edges(img, cam, edges=edges, joint=radial_joint_mode(pen))
-    rec = orient_segments(cam, found.segments, pen, angle_sigma=found.angle_sigma, offset_sigma=found.offset_sigma,
-                          circle_points=found.circle_points, keep_lines=True)
+    found, rec = orient_radial_edges(img, cam, pen, edges=edges, joint=radial_joint_mode(pen))
     return cam, pen, R, t, found, rec
 
 

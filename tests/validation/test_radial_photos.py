@@ -22,10 +22,13 @@ CHI2_3SIGMA = -2.0 * np.log(1.0 - 0.9973)
 # and 16 when k1 was chosen among the counts of labelled boundaries), the floors one below, as
 # the labelling's margin on the rest moves with the edges (the focal length a few thousandths
 # of a px off gives 17 and 19 on the side views). No dart hides a boundary in any of the
-# three: every boundary could be used.
+# three: every boundary could be used. With each edge trimmed at the ring where the sectors
+# end (`orient_radial_edges`): 16, 17 and 19; the far view's floor raised to one below (its
+# three edges that ran into the numbers' ring now labelled), the others kept (at the cameras
+# chosen before the trim, it gives 16, 16 and 19: the count's fragility on the side views).
 @pytest.mark.parametrize("name,spokes,tilt", [("dartboard_side_left", 15, (45, 65)),
                                               ("dartboard_side_right", 16, (45, 65)),
-                                              ("dartboard_far", 15, (5, 25))])
+                                              ("dartboard_far", 18, (5, 25))])
 def test_boundaries_and_rings_agree(name, spokes, tilt):
     img = cv2.imread(str(data_dir("real-radial-targets") / f"{name}.jpg"))
     r = check_photo(img, dartboard_pencil())

@@ -56,7 +56,8 @@ from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
 
-__all__ = ["RadialEdges", "detect_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "JOINT_SIGMAS", "OFFSET_FLOOR_PX"]
+__all__ = ["RadialEdges", "detect_radial_edges", "orient_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "JOINT_SIGMAS",
+           "OFFSET_FLOOR_PX"]
 
 #: Two neighbouring edges are measured only where they lie at least this many sds of their
 #: blurred profile apart (`_edge_blur`: the sd of an edge's gradient across it as sampled,
@@ -123,7 +124,7 @@ class RadialEdges(Segments):
 
 
 def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, min_length=20.0, circles=True,
-                        gamma=DEFAULT_GAMMA, joint="crowded"):
+                        gamma=DEFAULT_GAMMA, joint="crowded", outer=None):
     """The edges through the vertex of a radial target, and the closed curves about it.
 
     Parameters
@@ -155,6 +156,12 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         `lines.radial_joint_mode` chooses by the pencil's shape).
         "crowded" where the target has what the model lacks beside its edges (a
         dartboard's raised wires).
+    outer : (3, 3) array, optional
+        The image conic [working px] of the circle where the spokes end (a dartboard's
+        double ring: `pencil.circle.spokes_end_conic`, from a first orientation). An edge
+        that runs on past it (into a ring of numbers, a maker's print) is refitted only
+        inside it, `CLEAR_SIGMAS` blur sds short of it (where the ring's own edge is no
+        longer in its profiles): beyond, other print turns the fitted line.
 
     Returns
     -------
@@ -204,6 +211,9 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
             v, reach = _vertex_of(fit, reach)
         except EstimationError:
             return RadialEdges.empty()
+    if outer is not None:  # the edges located jointly keep their own model of their ends
+        joint_rows = np.isin(np.arange(phi.size), rows)
+        fit = _trimmed(lin, camera, fit, v, np.asarray(outer, float), clear, min_length, joint_rows)
     out = Segments.from_fit(fit, camera, min_length)
     keep = in_valid_region(img, out.segments)
     _, through = lines_through(v, out.ideal, np.maximum(out.angle_sigma, np.radians(_VERTEX_FLOOR_DEG)),
@@ -212,6 +222,82 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
     out = replace(out, offset_sigma=np.hypot(out.offset_sigma, max(OFFSET_FLOOR_PX, _common_offset(out, v))))
     pts = circle_points(lin, camera, v, out.ideal, reach, 1.0) if circles else np.zeros((0, 2))
     return RadialEdges(**{f: getattr(out, f) for f in out.__dataclass_fields__}, vertex=v, circle_points=pts)
+
+
+def orient_radial_edges(image, camera, pencil, **detect):
+    """The edges of a radial target (`detect_radial_edges`, keywords `detect`) and the
+    pencil's orientation from them (`pencil.orient.orient_segments`, with their circle
+    points and ``lines`` kept): (RadialEdges, Orientation).
+
+    Where the pencil's spokes end on one of its circles (a dartboard's boundaries at the
+    double ring) and the first orientation finds that ring (`circle.spokes_end_conic`), the
+    edges are detected again, each trimmed where it runs on past the ring (``outer``), and
+    oriented again: beyond it a ring of numbers or a maker's print runs on along some
+    boundaries and turns their lines, which the labelling then rejects. Not with
+    ``joint="all"`` (a star's wedges): every edge is then located jointly, none trimmed.
+    """
+    from pencilcal.toolkit.pencil.circle import spokes_end_conic
+    from pencilcal.toolkit.pencil.orient import orient_segments
+
+    def run(**extra):
+        found = detect_radial_edges(image, camera, **detect, **extra)
+        rec = orient_segments(camera, found.segments, pencil, angle_sigma=found.angle_sigma,
+                              offset_sigma=found.offset_sigma, circle_points=found.circle_points, keep_lines=True)
+        return found, rec
+
+    found, rec = run()
+    if camera is None or not len(found.circle_points) or detect.get("joint") == "all":
+        return found, rec  # (with joint="all" every edge is located jointly: none is trimmed)
+    outer = spokes_end_conic(camera, rec, found.segments, found.circle_points, pencil)
+    return (found, rec) if outer is None else run(outer=outer)
+
+
+def _ray_conic(v, u, C):
+    """Distance (E,) [px] from v (2,) along the unit directions u (E, 2) to the conic C (3, 3)
+    (the larger root: v inside the ellipse), NaN where the ray misses it."""
+    vh = np.r_[v, 1.0]
+    uh = np.concatenate([u, np.zeros((len(u), 1))], -1)
+    a = np.einsum("ei,ij,ej->e", uh, C, uh)
+    b = uh @ (C @ vh)
+    c = vh @ C @ vh
+    disc = b * b - a * c
+    with np.errstate(all="ignore"):
+        rho = np.where((disc >= 0) & (a != 0), (-b + np.sign(a) * np.sqrt(np.maximum(disc, 0.0))) / a, np.nan)
+    return np.where(rho > 0, rho, np.nan)
+
+
+def _trimmed(img, camera, fit, v, outer, margin, min_length, joint):
+    """`fit` (EdgeFit) with every edge that runs on past the conic `outer` (3, 3) [working px]
+    (the circle where the spokes end) refitted from its inner end to `margin` [px] short of
+    it, in the rounds of `_SEARCH_PX` (the line beyond turned the fit by more than the last
+    round's search); those whose part inside is shorter than min_length [px], or whose refit
+    fails or leaves less than min_length, are kept as they were, and so are those located
+    jointly with their neighbours (joint (E,) bool: `radial_joint`, which models their ends)."""
+    p1, p2 = fit.p1, fit.p2
+    d1, d2 = np.hypot(*(p1 - v).T), np.hypot(*(p2 - v).T)
+    out2 = d2 >= d1
+    far = np.where(out2[:, None], p2, p1)
+    u = (far - v) / np.maximum(np.maximum(d1, d2), 1e-12)[:, None]
+    cut = _ray_conic(v, u, outer) - margin
+    rows = np.flatnonzero(fit.ok & ~joint & np.isfinite(cut) & (np.maximum(d1, d2) > cut)
+                          & (cut - np.minimum(d1, d2) >= min_length))
+    if rows.size == 0:
+        return fit
+    end = v + cut[rows, None] * u[rows]
+    q1 = np.where(out2[rows, None], p1[rows], end)
+    q2 = np.where(out2[rows, None], end, p2[rows])
+    for search in _SEARCH_PX:
+        new = EdgeRefit(img, np.concatenate([q1, q2], -1), camera,
+                        RefitOptions(search=search, extend=0.0, sigma_px=_KERNEL_PX)).fit()
+        good = new.ok
+        if not good.any():
+            return fit
+        # the next round about the refitted line, over the same stretch (the ends projected on it)
+        rows, new = rows[good], new.take(np.flatnonzero(good))
+        d = (new.p2 - new.p1) / np.maximum(np.hypot(*(new.p2 - new.p1).T), 1e-12)[:, None]
+        q1, q2 = (new.p1 + np.sum((q[good] - new.p1) * d, -1)[:, None] * d for q in (q1, q2))
+    long = np.hypot(*(new.p2 - new.p1).T) >= min_length  # a shorter piece stands for nothing: as it was
+    return _merged(fit, rows[long], new.take(np.flatnonzero(long)))
 
 
 def _merged(fit, rows, other):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pencilcal.toolkit.camera.model import Camera
-from pencilcal.toolkit.detect.radial import detect_radial_edges
+from pencilcal.toolkit.detect.radial import detect_radial_edges, orient_radial_edges
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.pencil.spec import image_angles, pencil_from_dict
 from pencilcal.toolkit.synth.radial import dartboard_layers, dartboard_pencil, radial_pose, render_layers, star_layers
@@ -91,6 +91,42 @@ def test_dartboard_in_its_clutter():
     assert np.unique(k[on_boundary]).size >= 17
     assert len(found.circle_points) > 200
 
+
+
+def test_edges_trimmed_at_the_double_ring():
+    """The same cluttered dartboard oriented with its edges trimmed where the sectors end:
+    the ring found for it (`spokes_end_conic`) is the double ring's outer edge (170 mm: the
+    true ring's image within 3 px all round), no edge runs on more than a pixel or two past
+    it, and no boundary is lost by the trim."""
+    from pencilcal.toolkit.pencil.circle import spokes_end_conic
+    from pencilcal.toolkit.pencil.orient import orient_segments
+
+    pen = dartboard_pencil()
+    R, t = radial_pose(CAM, (620, 500), 45.0, 225.0, fill=0.85, axis_deg=70, roll_deg=5)
+    img = render_layers(CAM, R, t, dartboard_layers(wires=True, numbers=True, darts=3, rng=4), blur_px=1.0,
+                        noise=2.0, gamma=2.2, lighting=0.3, jpeg_quality=85, rng=4)
+    plain = detect_radial_edges(img, CAM, edges=20)
+    rec0 = orient_segments(CAM, plain.segments, pen, angle_sigma=plain.angle_sigma, offset_sigma=plain.offset_sigma,
+                           circle_points=plain.circle_points, keep_lines=True)
+    C = spokes_end_conic(CAM, rec0, plain.segments, plain.circle_points, pen)
+    a = np.linspace(0, 2 * np.pi, 360, endpoint=False)
+    ring = CAM.undistort_pixels(CAM.project((R @ np.stack([170 * np.cos(a), 170 * np.sin(a), 0 * a])).T + t))
+    vpx = CAM.undistort_pixels(CAM.project(t))
+    u = (ring - vpx) / np.hypot(*(ring - vpx).T)[:, None]
+    # the conic's distance along each ray from the vertex against the true ring's
+    vh, uh = np.r_[vpx, 1.0], np.c_[u, np.zeros(len(u))]
+    qa, qb, qc = np.einsum("ei,ij,ej->e", uh, C, uh), uh @ C @ vh, vh @ C @ vh
+    rho = (-qb + np.sign(qa) * np.sqrt(qb * qb - qa * qc)) / qa
+    assert np.max(np.abs(rho - np.hypot(*(ring - vpx).T))) < 3.0
+    found, rec = orient_radial_edges(img, CAM, pen, edges=20)
+    far = np.maximum(*(np.hypot(*(CAM.undistort_pixels(found.segments[:, 2 * i:2 * i + 2]) - vpx).T) for i in (0, 1)))
+    # of the edges that cross the ring's radius at their direction: none beyond it by over 2 px
+    d = 0.5 * (found.ideal[:, :2] + found.ideal[:, 2:]) - vpx
+    r_ring = np.interp(np.arctan2(d[:, 1], d[:, 0]), np.arctan2(u[:, 1], u[:, 0]), np.hypot(*(ring - vpx).T),
+                       period=2 * np.pi)
+    inside = np.hypot(*d.T) < r_ring
+    assert np.all(far[inside] < r_ring[inside] + 2.0)
+    assert rec.spokes_used >= rec0.spokes_used
 
 def test_circle_points_hold_the_outline():
     """Of the edge points across rays, those of the star's outline lie on the image of the
