@@ -101,6 +101,9 @@ _LONG_FRACTION = 0.25  # a run this fraction of the work frame's diagonal need n
 _ELONGATED_WIDTHS = 2.5  # a shaft is seen along this many widths (a jaw is not) ...
 _SHORT_WIDTHS = 1.25  # ... or along this many, cut by the border of the view (nested protocol, docs/method.md)
 _DISTAL_RUN = 2.0  # a short band whose material runs on over this many times its length is a distal part
+_NESTED = 0.8  # a band with this fraction of its area inside another's ...
+_INNER_WIDTH = 0.6  # ... and at most this fraction of its width lies inside it (`_outermost_first`)
+_RIM = 0.15  # the rims of a band: this fraction of its width inside each edge
 _ONE_SIDED = 0.25  # a band whose inside differs from one side by less than this of the other's is background
 # E[|z| : |z| below its 90th percentile q] / E[|z|] for z normal: (1 - exp(-q^2 / 2)) / 0.9
 _TRUNCATED_MEAN = (1.0 - np.exp(-0.5 * 1.6448536269514722**2)) / 0.9
@@ -177,7 +180,7 @@ def _bands(work, mm, o, wmin, wmax, min_len):
     ang_thr = 2.0 * scene_angle(work.bgr, vin, 0.5 * wmin)
     acc = [e for e in bands if proposed(e, min_len, ang_thr)]
     acc.sort(key=lambda e: -e.shaft_len)
-    acc = suppress_overlaps(acc)[:_MAX_REFINE]
+    acc = suppress_overlaps(_outermost_first(acc, work, ang_thr))[:_MAX_REFINE]
     if o.single_edge:
         seed = _unused_seeds(seeds, acc, min_len)
         got = partner_bands(work, seed, wmin, wmax, np.degrees(o.region_conv_max), mm.luma_noise)
@@ -188,6 +191,71 @@ def _bands(work, mm, o, wmin, wmax, min_len):
                          min_len, mm.likeness)
         acc = acc + _more_bands(got, work, B0, min_len, ang_thr, acc, "pairs")[:_MAX_PAIRED]
     return acc
+
+
+def _outermost_first(bands, work, ang_thr):
+    """The bands (best first) with each outer band moved ahead of the better bands nested
+    inside it (`_nested`) where its rims hold (`_rims_alike`): of an instrument the outermost
+    edge pair is its silhouette, whatever lies inside (a shaded limb, a streak, a slot between
+    a grasper's jaws is a band of its own, often of more region evidence); the overlap
+    suppression then keeps the outer band. ang_thr [deg]: the scene's colour variability
+    (`shaft.regions.scene_angle`, twice)."""
+    import cv2
+
+    runs = [cv2.convexHull(band_polygon(e))[:, 0, :] for e in bands]
+    exts = [cv2.convexHull(band_polygon(e, e.ext))[:, 0, :] for e in bands]
+    areas = [abs(cv2.contourArea(h)) for h in runs]
+    order = list(range(len(bands)))
+    for k in range(len(bands)):
+        inner = [j for j in range(k) if _nested(bands[j], runs[j], areas[j], bands[k], exts[k])]
+        if inner and _rims_alike(bands[k], work, ang_thr):
+            order.remove(k)
+            order.insert(min(order.index(j) for j in inner), k)
+    return [bands[k] for k in order]
+
+
+def _nested(inner, h_in, a_in, outer, h_out):
+    """Whether a band (the hull of its run h_in (N, 2), area a_in) lies inside another (the
+    hull of its extension h_out): `_NESTED` of its area within it, and at most
+    `_INNER_WIDTH` of its width."""
+    import cv2
+
+    if a_in <= 0 or inner.width_run > _INNER_WIDTH * outer.width_run:
+        return False
+    return cv2.intersectConvexConvex(h_in, h_out)[0] >= _NESTED * a_in
+
+
+def _inner_rims(band, work):
+    """The median colours (2, C) of a band's run just inside each of its two edges (at `_RIM`
+    of its width from the edge), from the valid work pixels; NaN where fewer than 3 are
+    valid."""
+    i0, i1 = band.run
+    C, oi, oj = band.C[i0:i1], band.oi[i0:i1, None], band.oj[i0:i1, None]
+    img = work.colours
+    h, w = work.shape
+    out = []
+    for t in (_RIM, 1.0 - _RIM):
+        P = C + (oi + t * (oj - oi)) * band.na
+        x, y = np.rint(P[:, 0]).astype(int), np.rint(P[:, 1]).astype(int)
+        ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+        ok[ok] = work.valid[y[ok], x[ok]]
+        out.append(np.median(img[y[ok], x[ok]], axis=0) if np.count_nonzero(ok) >= 3
+                   else np.full(img.shape[-1], np.nan))
+    return np.array(out)
+
+
+def _rims_alike(band, work, ang_thr):
+    """The rim test of an outer band: the material just inside its two edges is one, their
+    median colours' spectral angle at most ang_thr [deg] (the shading of a cylinder darkens
+    one limb more than the other but keeps its colour). A band that takes in an instrument
+    and its shadow, or a strip of tissue beside it, has another material inside one rim;
+    that the inside is unlike the outside beside both edges the band was proposed for
+    (`shaft.region_bands.proposed`). Colour frames only."""
+    a, b = _inner_rims(band, work)
+    if a.size < 3 or not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        return False
+    c = float(a @ b) / (float(np.linalg.norm(a) * np.linalg.norm(b)) + 1e-9)
+    return bool(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))) <= ang_thr)
 
 
 def _inward_bands(work, seed, wmin, wmax, o, mm, B0, min_len, ang_thr, acc):
