@@ -6,7 +6,10 @@ frames whose colour tells the materials apart (`shaft.detector`).
    regions and the pairs of them with region between;
 2. *bands* (`shaft.region_bands`): each pair judged along its chord through the work frame;
    proposed when its run of region is at least the least length and differs in material
-   from both sides, the better of overlapping ones; then, from each long boundary on no
+   from both sides, the better of overlapping ones, but an outer band before the better
+   ones nested inside it, along one of its edges or its axis, where the material just
+   inside both its rims is one (`_outermost_first`: the outermost edge pair, whatever lies
+   inside: a shaded limb, a streak, a slot); then, from each long boundary on no
    side of these, the band on the side away from its region (a white or metal shaft
    beside a dark region: the maps give one side) to the outermost far edge a gradient
    model finds across it, with its own region map (`shaft.partner`), judged alike, where
@@ -55,8 +58,8 @@ frames whose colour tells the materials apart (`shaft.detector`).
    better one's axis (within `_COAXIAL_DEG`, its centre within half that one's width: a
    wrist, the far part of a shaft split by a highlight), is another reading of the same
    instrument; a short band (its run under two widths) whose extension runs into another
-   shaft's band is a wrist or jaw part continuing into that instrument's shaft. Both are
-   dropped.
+   shaft's band is a wrist or jaw part continuing into that instrument's shaft; a band
+   nested inside one that held is structure inside that instrument. All are dropped.
 
 Work pixels in the region steps, ideal pixels from the edges on.
 
@@ -101,6 +104,9 @@ _LONG_FRACTION = 0.25  # a run this fraction of the work frame's diagonal need n
 _ELONGATED_WIDTHS = 2.5  # a shaft is seen along this many widths (a jaw is not) ...
 _SHORT_WIDTHS = 1.25  # ... or along this many, cut by the border of the view (nested protocol, docs/method.md)
 _DISTAL_RUN = 2.0  # a short band whose material runs on over this many times its length is a distal part
+_NESTED = 0.8  # a band with this fraction of its area inside another's ...
+_INNER_WIDTH = 0.6  # ... and at most this fraction of its width lies inside it (`_outermost_first`)
+_RIM = 0.15  # the rims of a band: this fraction of its width inside each edge
 _ONE_SIDED = 0.25  # a band whose inside differs from one side by less than this of the other's is background
 # E[|z| : |z| below its 90th percentile q] / E[|z|] for z normal: (1 - exp(-q^2 / 2)) / 0.9
 _TRUNCATED_MEAN = (1.0 - np.exp(-0.5 * 1.6448536269514722**2)) / 0.9
@@ -141,7 +147,8 @@ def robust_noise(channel):
 class MaterialShaft:
     """A shaft of the material cue (`material_cue`): its `shaft.axis.Midline`, score [raw
     px], polarity, the band that proposed it (`shaft.region_bands.RegionBand`) and its
-    outline over the run and over the extension (work px), for the selection."""
+    outline over the run and over the extension (work px), for the selection; outer: the
+    band it lies inside, read before it (`_outermost_first`), or None."""
 
     midline: object
     score: float
@@ -149,11 +156,14 @@ class MaterialShaft:
     band: object
     poly_run: np.ndarray
     poly_ext: np.ndarray
+    outer: object = None
 
 
 def _bands(work, mm, o, wmin, wmax, min_len):
-    """The proposed bands (module docstring, steps 1-2): those of every region level, the
-    most region evidence first, the better of overlapping ones, at most `_MAX_REFINE`; then
+    """(bands, inside): the proposed bands (module docstring, steps 1-2): those of every
+    region level, the most region evidence first, an outer band ahead of those nested inside
+    it (`_outermost_first`: inside maps id(inner band) to its outer), the better of
+    overlapping ones, at most `_MAX_REFINE`; then
     those from a single edge (`shaft.partner`) that overlap none of them, at most
     `_MAX_PARTNER`; then those between two grey-level edges (`shaft.edge_pairs`) that overlap
     none of these, at most `_MAX_PAIRED`."""
@@ -166,7 +176,7 @@ def _bands(work, mm, o, wmin, wmax, min_len):
         if not repeat:
             maps.append((lev, kind, Bm, Ball))
     if Ball is None:
-        return []
+        return [], {}
     # every level's boundaries, their pairs and the candidates found and judged in one batch
     # each (the same lines, pairs and bands as level by level)
     seeds = boundary_lines_many([m[2] for m in maps], work.dist, 0.5 * min_len)
@@ -177,7 +187,8 @@ def _bands(work, mm, o, wmin, wmax, min_len):
     ang_thr = 2.0 * scene_angle(work.bgr, vin, 0.5 * wmin)
     acc = [e for e in bands if proposed(e, min_len, ang_thr)]
     acc.sort(key=lambda e: -e.shaft_len)
-    acc = suppress_overlaps(acc)[:_MAX_REFINE]
+    acc, inside = _outermost_first(acc, work, ang_thr)
+    acc = _suppressed(acc, inside)[:_MAX_REFINE]
     if o.single_edge:
         seed = _unused_seeds(seeds, acc, min_len)
         got = partner_bands(work, seed, wmin, wmax, np.degrees(o.region_conv_max), mm.luma_noise)
@@ -187,7 +198,108 @@ def _bands(work, mm, o, wmin, wmax, min_len):
         got = pair_bands(work, wmin, wmax, min(np.degrees(o.conv_max), PAIR_MAX_CONVERGENCE_DEG), mm.luma_noise,
                          min_len, mm.likeness)
         acc = acc + _more_bands(got, work, B0, min_len, ang_thr, acc, "pairs")[:_MAX_PAIRED]
-    return acc
+    return acc, inside
+
+
+def _outermost_first(bands, work, ang_thr):
+    """(bands, inside): the bands (best first) with each outer band moved ahead of the better
+    bands nested inside it (`_nested`) where its rims hold (`_rims_alike`), and {id(inner
+    band): its outer band} for those: of an instrument the outermost edge pair is its
+    silhouette, whatever lies inside (a shaded limb, a streak, a slot between a grasper's
+    jaws is a band of its own, often of more region evidence). ang_thr [deg]: the scene's
+    colour variability (`shaft.regions.scene_angle`, twice)."""
+    import cv2
+
+    runs = [cv2.convexHull(band_polygon(e))[:, 0, :] for e in bands]
+    exts = [cv2.convexHull(band_polygon(e, e.ext))[:, 0, :] for e in bands]
+    areas = [abs(cv2.contourArea(h)) for h in runs]
+    order, inside = list(range(len(bands))), {}
+    for k in range(len(bands)):
+        inner = [j for j in range(k) if id(bands[j]) not in inside
+                 and _nested(bands[j], runs[j], areas[j], bands[k], exts[k])]
+        if inner and _rims_alike(bands[k], work, ang_thr):
+            order.remove(k)
+            order.insert(min(order.index(j) for j in inner), k)
+            inside.update({id(bands[j]): bands[k] for j in inner})
+    return [bands[k] for k in order], inside
+
+
+def _suppressed(bands, inside):
+    """The bands (best first) that overlap no better one (`shaft.region_bands.
+    suppress_overlaps`), but for an inner band its own outer band (inside: {id(inner):
+    outer}, `_outermost_first`): the inner one stays, after the outer, in case the outer is
+    judged no shaft (`select` drops it where the outer is held)."""
+    kept = suppress_overlaps([e for e in bands if id(e) not in inside])
+    for e in bands:
+        outer = inside.get(id(e))
+        if outer is None or not any(x is outer for x in kept):
+            continue
+        others = [x for x in kept if x is not outer]
+        if suppress_overlaps(others + [e])[-1] is e:
+            kept.insert(next(q for q, x in enumerate(kept) if x is outer) + 1, e)
+    return kept
+
+
+def _nested(inner, h_in, a_in, outer, h_out):
+    """Whether a band (the hull of its run h_in (N, 2), area a_in) is structure inside
+    another (the hull of its extension h_out), as the edge cue has it (`shaft.bands.
+    nested_bands`): `_NESTED` of its area within it, at most `_INNER_WIDTH` of its width,
+    along one of its edges or its axis (`_along_edge_or_axis`), and the outer band's region
+    evidence at least half its own (a strip of tissue around an instrument's short band
+    is no reading of it)."""
+    import cv2
+
+    if a_in <= 0 or inner.width_run > _INNER_WIDTH * outer.width_run or outer.shaft_len < 0.5 * inner.shaft_len:
+        return False
+    return cv2.intersectConvexConvex(h_in, h_out)[0] >= _NESTED * a_in and _along_edge_or_axis(inner, outer)
+
+
+def _along_edge_or_axis(inner, outer):
+    """Whether a band runs along an edge of another or along its axis: at the middle of its
+    run, one of its edges within a tenth of the other's width of one of the other's edges
+    (a shaded limb, a highlight along it), or its centre within a quarter of that width of
+    the other's axis (a streak, a slot between two jaws) [work px]."""
+    m = (inner.run[0] + inner.run[1]) // 2
+    pts = inner.C[m] + np.array([inner.oi[m], inner.oj[m], 0.5 * (inner.oi[m] + inner.oj[m])])[:, None] * inner.na
+    # the outer band's edges at the station nearest to that point, across its chord
+    k = int(np.argmin(np.linalg.norm(outer.C - pts[2], axis=1)))
+    across = (pts - outer.C[k]) @ outer.na
+    w = abs(outer.oj[k] - outer.oi[k])
+    on_edge = np.min(np.abs(across[:2, None] - np.array([outer.oi[k], outer.oj[k]])[None, :])) <= 0.1 * w
+    return bool(on_edge or abs(across[2] - 0.5 * (outer.oi[k] + outer.oj[k])) <= 0.25 * w)
+
+
+def _inner_rims(band, work):
+    """The median colours (2, C) of a band's run just inside each of its two edges (at `_RIM`
+    of its width from the edge), from the valid work pixels; NaN where fewer than 3 are
+    valid."""
+    i0, i1 = band.run
+    C, oi, oj = band.C[i0:i1], band.oi[i0:i1, None], band.oj[i0:i1, None]
+    img = work.colours
+    h, w = work.shape
+    out = []
+    for t in (_RIM, 1.0 - _RIM):
+        P = C + (oi + t * (oj - oi)) * band.na
+        x, y = np.rint(P[:, 0]).astype(int), np.rint(P[:, 1]).astype(int)
+        ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+        ok[ok] = work.valid[y[ok], x[ok]]
+        out.append(np.median(img[y[ok], x[ok]], axis=0) if np.count_nonzero(ok) >= 3
+                   else np.full(img.shape[-1], np.nan))
+    return np.array(out)
+
+
+def _rims_alike(band, work, ang_thr):
+    """The rim test of an outer band: the material just inside its two edges is one, their
+    median colours' spectral angle at most ang_thr [deg] (the shading of a cylinder darkens
+    one limb more than the other but keeps its colour). A band that takes in an instrument
+    and its shadow, or a strip of tissue beside it, has another material inside one rim;
+    that the inside is unlike the outside beside both edges the band was proposed for
+    (`shaft.region_bands.proposed`). Colour frames only."""
+    a, b = _inner_rims(band, work)
+    if a.size < 3 or not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        return False
+    c = float(a @ b) / (float(np.linalg.norm(a) * np.linalg.norm(b)) + 1e-9)
+    return bool(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))) <= ang_thr)
 
 
 def _inward_bands(work, seed, wmin, wmax, o, mm, B0, min_len, ang_thr, acc):
@@ -412,13 +524,16 @@ def material_cue(image, camera, validity, work, mm, o, K, noise):
     min_len = o.region_min_length * s
     long_len = _LONG_FRACTION * float(np.hypot(*work.shape)) / s
     corridor = max(o.corridor_px, 1.5 / s)
-    bands = _bands(work, mm, o, wmin, wmax, min_len)
+    bands, inside = _bands(work, mm, o, wmin, wmax, min_len)
     stretches = [band_stretch(e, mm.luma_noise) for e in bands]
     # the frame as it is: each pass converts only the part its samples need (a third of a
     # 1080p frame over all passes, the median pass a tenth), not the whole frame once
     fitted = _band_edges(image, camera, validity, noise, bands, work, corridor, stretches, _MATERIAL_GAMMA)
     judged = [judge_band(e, st, f, camera, validity, o, K, s, corridor, long_len)
               for e, st, f in zip(bands, stretches, fitted)]
+    for e, (sh, _) in zip(bands, judged):
+        if sh is not None:
+            sh.outer = inside.get(id(e))
     return [sh for sh, _ in judged if sh is not None]
 
 
@@ -540,7 +655,14 @@ def _short_extensions(shafts):
     return out
 
 
+def _inside_held(shafts):
+    """Without those inside another's band that held (`MaterialShaft.outer`): of an
+    instrument the outermost edge pair, whatever lies inside."""
+    held = {id(sh.band) for sh in shafts}
+    return [sh for sh in shafts if sh.outer is None or id(sh.outer) not in held]
+
+
 def select(shafts, max_shafts):
     """The shafts that are not other readings of a better one (module docstring, step 4),
     best score first, at most max_shafts."""
-    return _short_extensions(_coaxial(_overlapping(shafts)))[:max_shafts]
+    return _short_extensions(_coaxial(_overlapping(_inside_held(shafts))))[:max_shafts]
