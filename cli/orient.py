@@ -283,7 +283,9 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     (dark bars when the pencil file gives their width; else dark or light, whichever the
     frame shows); for wedges and sector boundaries (the pencil file's shape: a Siemens
     star, a dartboard) their edges all round the vertex, as `pencilcal lines --radial`
-    finds them, with the edge points of the circles about it; or with --edges plain edge
+    finds them, with the edge points of the circles about it (a dartboard's boundaries,
+    which end on one of the pencil file's circles, found again with each edge trimmed at
+    that ring's image, from a first orientation); or with --edges plain edge
     segments (as `pencilcal lines`), never on the boundary of the frames' valid region
     (--mask, or detected once from up to 16 frames); or they come from a lines file
     (--lines). Segments are undistorted, the vertex found, the segments labelled with
