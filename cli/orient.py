@@ -35,7 +35,8 @@ def _orient_record(camera, pencil, fr, opts):
     kw = dict(model=opts["model"], endpoint_sigma_px=opts["endpoint_sigma"],
               angle_sigma=None if sig is None else np.radians(sig), prior=opts["priors"].get(fr["image"]),
               image=fr["image"], offset_sigma=fr.get("offset_sigma_px"), max_segments=cap,
-              bar_width_px=fr.get("width_px"), circle_points=fr.get("circle_points"))
+              bar_width_px=fr.get("width_px"), circle_points=fr.get("circle_points"),
+              keep_lines=opts.get("keep_lines", False))
     state = opts.get("tracking")
     if state is None:
         return orient_segments(camera, fr["segments"], pencil, **kw)
@@ -83,16 +84,47 @@ def _orient_image_task(frame, ctx):
         radial = None if edges else radial_edge_count(pencil)
         state = opts.get("tracking")
         tracker = state["bars"] if state is not None and bars and radial is None else None
+        lines_kw = dict(bars=bars, valid_region=region, bar_polarity=polarity, bar_tracker=tracker, radial=radial,
+                        radial_joint=radial_joint_mode(pencil))
 
         def detected():
-            fr = lines_record(frame.name, frame.image, camera, detector, bars=bars, valid_region=region,
-                              bar_polarity=polarity, bar_tracker=tracker, radial=radial,
-                              radial_joint=radial_joint_mode(pencil))
+            fr = lines_record(frame.name, frame.image, camera, detector, **lines_kw)
             return fr, _orient_record(camera, pencil, fr, opts)
 
-        fr, rec = detected() if tracker is None else _tracked_bars_frame(detected, tracker, state)
+        if radial is not None:
+            fr, rec = _radial_frame(frame, camera, pencil, detector, lines_kw, opts)
+        else:
+            fr, rec = detected() if tracker is None else _tracked_bars_frame(detected, tracker, state)
     # drawn by the overlay's own thread (`FrameOutputs`), or in the worker process
     return rec, partial(_drawn, frame, rec, fr["segments"], camera, drawing) if drawing else None
+
+
+def _radial_frame(frame, camera, pencil, detector, lines_kw, opts):
+    """A radial target's edges in one frame and their orientation, each edge trimmed where it
+    runs on past the ring the spokes end on (a dartboard's double ring), as
+    `toolkit.detect.radial.trimmed_at_spokes_end` detects and orients them (the validation
+    of the photographs the same way): (lines record, orientation). Both passes start from
+    the orientation tracking's state as the previous frame left it."""
+    from pencilcal.toolkit.detect.lines import detect_frame_lines
+    from pencilcal.toolkit.detect.radial import trimmed_at_spokes_end
+
+    state = opts.get("tracking")
+    before = None if state is None else (state["previous"], state["tracked"])
+    kept = dict(opts, keep_lines=True)  # the ring's estimate needs the labelled lines
+
+    def detect(outer):
+        return detect_frame_lines(frame.name, frame.image, camera, detector, radial_outer=outer, **lines_kw)
+
+    def oriented(found):
+        if state is not None:
+            state.update(previous=before[0], tracked=before[1])
+        rec = _orient_record(camera, pencil, found.to_dict(), kept)
+        if state is not None and state["previous"] is not None:
+            state["previous"] = state["previous"].replace(lines=None)
+        return rec
+
+    found, rec = trimmed_at_spokes_end(detect, oriented, camera, pencil, lines_kw["radial_joint"])
+    return found.to_dict(), rec.replace(lines=None)
 
 
 def _tracked_bars_frame(detected, tracker, state):
@@ -251,7 +283,9 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     (dark bars when the pencil file gives their width; else dark or light, whichever the
     frame shows); for wedges and sector boundaries (the pencil file's shape: a Siemens
     star, a dartboard) their edges all round the vertex, as `pencilcal lines --radial`
-    finds them, with the edge points of the circles about it; or with --edges plain edge
+    finds them, with the edge points of the circles about it (a dartboard's boundaries,
+    which end on one of the pencil file's circles, found again with each edge trimmed at
+    that ring's image, from a first orientation); or with --edges plain edge
     segments (as `pencilcal lines`), never on the boundary of the frames' valid region
     (--mask, or detected once from up to 16 frames); or they come from a lines file
     (--lines). Segments are undistorted, the vertex found, the segments labelled with

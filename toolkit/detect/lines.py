@@ -91,7 +91,8 @@ def radial_joint_mode(pencil):
 def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None,
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
                        gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None, radial=None, axis_prior=None,
-                       shaft_tracker=None, edge_model="step", radial_joint="crowded", segments=True, parts=False):
+                       shaft_tracker=None, edge_model="step", radial_joint="crowded", segments=True, parts=False,
+                       radial_outer=None):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -146,6 +147,10 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
     radial_joint : {"crowded", "all"}
         With `radial`: which edges are located jointly with their neighbours
         (`radial.detect_radial_edges`' ``joint``; `radial_joint_mode` by the pencil's shape).
+    radial_outer : (3, 3) array, optional
+        With `radial`: the image conic [working px] of the circle where the spokes end, each
+        edge trimmed at it (`radial.detect_radial_edges`' ``outer``; `orient IMAGES` finds it
+        from a first orientation: `radial.trimmed_at_spokes_end`).
     segments : bool
         Edge segments (`detect_segments`) where neither `bars` nor `radial` is asked for;
         False with `shaft`: the shafts alone (the segments of a textured frame cost most of
@@ -161,7 +166,7 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         from pencilcal.toolkit.detect.radial import detect_radial_edges
 
         segs = detect_radial_edges(image, camera, edges=radial or None, valid_region=valid_region,
-                                   min_length=min_length, gamma=gamma, joint=radial_joint)
+                                   min_length=min_length, gamma=gamma, joint=radial_joint, outer=radial_outer)
         circle_points = segs.circle_points
     elif bars:
         kw = dict(camera=camera, min_length=min_length, width_px_range=bar_width, proposal_scale=proposal_scale,

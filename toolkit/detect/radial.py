@@ -56,8 +56,8 @@ from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
 
-__all__ = ["RadialEdges", "detect_radial_edges", "orient_radial_edges", "CLEAR_SIGMAS", "CLEAR_PX", "JOINT_SIGMAS",
-           "OFFSET_FLOOR_PX"]
+__all__ = ["RadialEdges", "detect_radial_edges", "orient_radial_edges", "trimmed_at_spokes_end", "CLEAR_SIGMAS",
+           "CLEAR_PX", "JOINT_SIGMAS", "OFFSET_FLOOR_PX"]
 
 #: Two neighbouring edges are measured only where they lie at least this many sds of their
 #: blurred profile apart (`_edge_blur`: the sd of an edge's gradient across it as sampled,
@@ -227,29 +227,51 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
 def orient_radial_edges(image, camera, pencil, **detect):
     """The edges of a radial target (`detect_radial_edges`, keywords `detect`) and the
     pencil's orientation from them (`pencil.orient.orient_segments`, with their circle
-    points and ``lines`` kept): (RadialEdges, Orientation).
-
-    Where the pencil's spokes end on one of its circles (a dartboard's boundaries at the
-    double ring) and the first orientation finds that ring (`circle.spokes_end_conic`), the
-    edges are detected again, each trimmed where it runs on past the ring (``outer``), and
-    oriented again: beyond it a ring of numbers or a maker's print runs on along some
-    boundaries and turns their lines, which the labelling then rejects. Not with
-    ``joint="all"`` (a star's wedges): every edge is then located jointly, none trimmed.
+    points and ``lines`` kept), each edge trimmed at the ring the spokes end on
+    (`trimmed_at_spokes_end`): (RadialEdges, Orientation).
     """
-    from pencilcal.toolkit.pencil.circle import spokes_end_conic
     from pencilcal.toolkit.pencil.orient import orient_segments
 
-    def run(**extra):
-        found = detect_radial_edges(image, camera, **detect, **extra)
-        rec = orient_segments(camera, found.segments, pencil, angle_sigma=found.angle_sigma,
-                              offset_sigma=found.offset_sigma, circle_points=found.circle_points, keep_lines=True)
-        return found, rec
+    def oriented(found):
+        return orient_segments(camera, found.segments, pencil, angle_sigma=found.angle_sigma,
+                               offset_sigma=found.offset_sigma, circle_points=found.circle_points, keep_lines=True)
 
-    found, rec = run()
-    if camera is None or not len(found.circle_points) or detect.get("joint") == "all":
+    return trimmed_at_spokes_end(lambda outer: detect_radial_edges(image, camera, **detect, outer=outer), oriented,
+                                 camera, pencil, detect.get("joint", "crowded"))
+
+
+def trimmed_at_spokes_end(detect, orient, camera, pencil, joint="crowded"):
+    """A radial target's edges and their orientation, each edge trimmed where it runs on past
+    the ring the spokes end on: (found, orientation), the one way `orient IMAGES` and
+    `orient_radial_edges` detect and orient a radial target.
+
+    The edges are detected (``detect(None)``) and oriented (``orient(found)``); where the
+    pencil's spokes end on one of its circles (a dartboard's boundaries at the double ring)
+    and that orientation finds the ring (`pencil.circle.spokes_end_conic`), they are
+    detected again, each trimmed where it runs on past the ring (``detect(outer)``:
+    `detect_radial_edges`' ``outer``), and oriented again: beyond it a ring of numbers or a
+    maker's print runs on along some boundaries and turns their lines, which the labelling
+    then rejects. Not with ``joint="all"`` (a star's wedges): every edge is then located
+    jointly, none trimmed, and the first pass is the result.
+
+    detect : callable
+        outer ((3, 3) [working px] or None) -> found, with ``segments`` (M, 4) [raw px] and
+        ``circle_points`` (K, 2) [raw px] or None (a `RadialEdges`, an `io.lines_file.LineFrame`).
+    orient : callable
+        found -> `Orientation` with ``lines`` (``keep_lines``), the ring's estimate needs them.
+    camera : Camera or None (None: no trim); pencil : Pencil; joint : `detect_radial_edges`' joint.
+    """
+    from pencilcal.toolkit.pencil.circle import spokes_end_conic
+
+    found = detect(None)
+    rec = orient(found)
+    if camera is None or found.circle_points is None or not len(found.circle_points) or joint == "all":
         return found, rec  # (with joint="all" every edge is located jointly: none is trimmed)
     outer = spokes_end_conic(camera, rec, found.segments, found.circle_points, pencil)
-    return (found, rec) if outer is None else run(outer=outer)
+    if outer is None:
+        return found, rec
+    found = detect(outer)
+    return found, orient(found)
 
 
 def _ray_conic(v, u, C):

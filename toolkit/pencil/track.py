@@ -85,18 +85,19 @@ def prior_labels(camera, segments, pencil, previous, gate_deg=GATE_DEG):
     return lab
 
 
-def orient_tracked(camera, segments, pencil, previous, gate_deg=GATE_DEG, **orient_kwargs):
+def orient_tracked(camera, segments, pencil, previous, gate_deg=GATE_DEG, keep_lines=False, **orient_kwargs):
     """This frame's `Orientation` with the previous frame's as a prior: (orientation,
     tracked), tracked False when the full search was used (module docstring). Bars'
     midlines (``bar_width_px``) are moved onto their centre lines under the previous
     frame's plane and fitted once (`orient_segments`' plane_normal).
 
     segments: (M, 4) raw px; previous: the previous frame's `Orientation` or None;
-    orient_kwargs: `orient_segments`' (model, endpoint_sigma_px, angle_sigma, offset_sigma,
-    max_segments, image, ...; not labels or keep_lines).
+    keep_lines: the orientation's ``lines`` kept (`orient_segments`); orient_kwargs:
+    `orient_segments`' (model, endpoint_sigma_px, angle_sigma, offset_sigma, max_segments,
+    image, ...; not labels).
     """
     if previous is None or not previous.ok or previous.ray is None:
-        return orient_segments(camera, segments, pencil, **orient_kwargs), False
+        return orient_segments(camera, segments, pencil, keep_lines=keep_lines, **orient_kwargs), False
     lab = prior_labels(camera, segments, pencil, previous, gate_deg)
     need = max(3, int(previous.lines_used or 0) - 1)
     rec = None
@@ -108,8 +109,8 @@ def orient_tracked(camera, segments, pencil, previous, gate_deg=GATE_DEG, **orie
         if not (rec.ok and rec.lines_used >= need and _fits_its_labels(rec, pencil)):
             rec = None
     if rec is None:
-        return orient_segments(camera, segments, pencil, **orient_kwargs), False
-    rec = rec.replace(lines=None)
+        return orient_segments(camera, segments, pencil, keep_lines=keep_lines, **orient_kwargs), False
+    rec = rec if keep_lines else rec.replace(lines=None)
     if rec.ambiguous and not previous.ambiguous:
         rec = resolve_twins_by_continuity([previous, rec])[1]
     return rec, True
