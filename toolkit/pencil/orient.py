@@ -232,7 +232,8 @@ def _orient_once(camera, segments, pencil, *, model, endpoint_sigma_px, angle_si
     try:
         idx, ideal, st, sc, sig_e = _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma,
                                                   max_segments)
-        v_ideal, cov_ideal, through = _vertex(camera, ideal, st, sc, pencil, vertex_px, vertex_cov_px2)
+        known = None if labels is None else np.asarray(labels, int).reshape(-1)[idx] >= 0
+        v_ideal, cov_ideal, through = _vertex(camera, ideal, st, sc, pencil, vertex_px, vertex_cov_px2, known)
         idx, ideal, st = idx[through], ideal[through], st[through]
         if idx.size < 3:
             raise EstimationError(f"only {idx.size} segments pass through the vertex; three are needed")
@@ -324,11 +325,13 @@ def _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma, max
     return idx, ideal, st, sc, sig_e
 
 
-def _vertex(camera, ideal, st, sc, pencil, vertex_px, vertex_cov_px2):
+def _vertex(camera, ideal, st, sc, pencil, vertex_px, vertex_cov_px2, known=None):
     """The vertex in ideal px, its covariance, and which lines (K,) pass through it: the
-    given vertex (raw px) when there is one, else the lines' robust intersection."""
+    given vertex (raw px) when there is one, else the lines' robust intersection (refined
+    from the lines `known` (K,) bool to be spokes, where three or more are: labelled)."""
     if vertex_px is None:
-        return _find_vertex(ideal, st, sc, _spoke_radius(pencil))
+        start = known if known is not None and np.count_nonzero(known) >= 3 else None
+        return _find_vertex(ideal, st, sc, _spoke_radius(pencil), start=start)
     K = np.asarray(camera.K, float)
     v_ideal = camera.undistort_pixels(np.asarray(vertex_px, float))
     J = np.linalg.inv(camera.jacobian_pixels_from_normalized(camera.normalized_from_pixels(vertex_px)))
@@ -530,15 +533,18 @@ def _radius_consistent(ideal, radius):
     return consistent
 
 
-def _find_vertex(ideal, st, sc, radius):
+def _find_vertex(ideal, st, sc, radius, start=None):
     """Robust vertex of the segments (ideal px): (vertex, cov, inlier mask).
 
     With spoke radii, only lines that can be spokes of a candidate vertex count for it:
     spurious lines that happen to share a point (edges of a textured background meeting at
-    the horizon) would otherwise outvote the spokes.
+    the horizon) would otherwise outvote the spokes. start: (K,) bool, the lines labelled
+    as spokes already (a video's tracked frame, the refit after the centre lines): the
+    vertex refined from them, every line classified again, without the search over pairs
+    (`vertex.intersect_lines`' start).
     """
     cons = None if radius is None else _radius_consistent(ideal, radius)
-    vf = intersect_lines(ideal, angle_sigma=st, offset_sigma=sc, robust=True, consistent=cons)
+    vf = intersect_lines(ideal, angle_sigma=st, offset_sigma=sc, robust=True, consistent=cons, start=start)
     if vf.rival_vertex is not None and vf.gain - vf.rival_gain < VERTEX_RIVAL_CHI2:
         # clutter: random segments meet everywhere, and this vertex is one of many
         far = float(np.hypot(*(vf.rival_vertex - vf.vertex)))
