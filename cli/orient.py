@@ -35,7 +35,7 @@ def _orient_record(camera, pencil, fr, opts):
     kw = dict(model=opts["model"], endpoint_sigma_px=opts["endpoint_sigma"],
               angle_sigma=None if sig is None else np.radians(sig), prior=opts["priors"].get(fr["image"]),
               image=fr["image"], offset_sigma=fr.get("offset_sigma_px"), max_segments=cap,
-              bar_width_px=fr.get("width_px"), circle_points=fr.get("circle_points"))
+              bar_width_px=fr.get("width_px"), circle_points=fr.get("circle_points"), ideal=fr.get("ideal"))
     state = opts.get("tracking")
     if state is None:
         return orient_segments(camera, fr["segments"], pencil, **kw)
@@ -87,7 +87,7 @@ def _orient_image_task(frame, ctx):
         def detected():
             fr = lines_record(frame.name, frame.image, camera, detector, bars=bars, valid_region=region,
                               bar_polarity=polarity, bar_tracker=tracker, radial=radial,
-                              radial_joint=radial_joint_mode(pencil))
+                              radial_joint=radial_joint_mode(pencil), ideal=True)
             return fr, _orient_record(camera, pencil, fr, opts)
 
         fr, rec = detected() if tracker is None else _tracked_bars_frame(detected, tracker, state)
