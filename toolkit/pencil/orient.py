@@ -45,6 +45,7 @@ from pencilcal.toolkit.pencil.estimator import (
     choose_by_prior,
 )
 from pencilcal.toolkit.geometry.frames import normalize, rotation_angle, rotation_from_rotvec
+from pencilcal.toolkit.geometry.quantiles import nanmedian_rows
 from pencilcal.toolkit.pencil.defaults import DETECTION_LEVEL, ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.lens_uncertainty import orientation_totals, resolve_intrinsics_cov
 from pencilcal.toolkit.pencil.orientation import Orientation
@@ -105,7 +106,7 @@ def metric_depth(R_cam_from_target, vertex, spoke_angles, inner, outer, radius):
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # no positive distance: NaN, caught below
         # per-point depth estimates, then Gauss-Newton on the image distances
-        z = np.nanmedian(np.where(ok, r * (cc / np.where(ok, t, 1.0) - dz), np.nan), -1)
+        z = nanmedian_rows(np.where(ok, r * (cc / np.where(ok, t, 1.0) - dz), np.nan))  # np.nanmedian's, bit for bit
         for _ in range(8):
             den = z[..., None] + r * dz
             pred = r * cc / den
