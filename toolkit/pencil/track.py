@@ -10,7 +10,9 @@ frame alone cannot choose (`orient.resolve_twins_by_continuity` over the two fra
 The prior is checked, never trusted: the frame falls back to the full search when the
 previous frame has no estimate, when fewer spokes are labelled than the previous frame
 used (less one), or when a labelled line misses the spoke it was given by more than
-`GATE_SIGMA` of its angle sd. The vertex is always found from this frame's lines.
+`GATE_SIGMA` of its angle sd. The vertex is always found from this frame's lines: refined
+from the lines the prior labels (`vertex.intersect_lines`' start; the search over all
+pairs where one of them does not pass through it).
 
 Labelling by the prior: each segment (undistorted, normalised) is oriented away from the
 previous vertex and given the spoke whose predicted image angle (`spec.image_angles` of
