@@ -299,10 +299,10 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
 def _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma, max_segments=MAX_SEGMENTS, ideal=None):
     """The segments worth fitting, undistorted, with their noise.
 
-    seg: (M, 4) raw px (ideal: the same in ideal px, or None). Returns idx (K,) indices into seg, ideal (K, 4) ideal px, angle sd
-    st (K,) [rad] and offset sd sc (K,) [ideal px] of each, and sig_e (K,) the end point
-    noise in ideal px; K <= max_segments, the longest. EstimationError when fewer than
-    three remain.
+    seg: (M, 4) raw px (ideal: the same in ideal px, or None). Returns idx (K,) indices
+    into seg, ideal (K, 4) ideal px, angle sd st (K,) [rad] and offset sd sc (K,) [ideal
+    px] of each, and sig_e (K,) the end point noise in ideal px; K <= max_segments, the
+    longest. EstimationError when fewer than three remain.
     """
     M = seg.shape[0]
     finite = np.all(np.isfinite(seg), -1)

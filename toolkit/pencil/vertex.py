@@ -379,12 +379,14 @@ def _refine_inliers(p, fit, classify, inliers, t2, start=None):
 #: fraction of the inlier gate is also tried left out (the lower MSAC cost is kept).
 NEAR_GATE = 0.25
 
+
 def _refine_given(given, fit, refine, classify, t2):
     """`intersect_lines`' start: the vertex refined from the lines `given` (M,) bool, as
     `_refine_inliers` returns it, or None where they give none (fewer than two agreeing) or
-    one that leaves a given line out (a wrong one among them pulled it): the search decides. A line it keeps near the gate (squared
-    normalised residual over `NEAR_GATE` of it) is also tried left out, and the lower MSAC
-    cost kept: the search, choosing by that cost, would leave it out."""
+    one that leaves a given line out (a wrong one among them pulled it): the search decides.
+    A line it keeps near the gate (squared normalised residual over `NEAR_GATE` of it) is
+    also tried left out, and the lower MSAC cost kept: the search, choosing by that cost,
+    would leave it out."""
     m = given.size
     try:
         # from the offset-only solution of the given lines, as without a search
@@ -524,8 +526,9 @@ def intersect_lines(
         video's spokes, labelled by the previous frame's orientation). The vertex is then
         refined from their weighted LS, re-classifying every line as the search does, instead
         of searching all pairs (no rival vertex is looked for; the search where the given
-        lines agree on no point or one of them is left out): where the search would find the same inliers, the same
-        vertex to the reweighting's tolerance at a fraction of its cost.
+        lines agree on no point or one of them is left out): where the search would find
+        the same inliers, the same vertex to the reweighting's tolerance at a fraction of
+        its cost.
 
     Returns a `VertexFit`. Raises InputError for bad shapes, NaN/inf or zero-length
     segments, bad sigmas; EstimationError for fewer than two lines, parallel lines and a
@@ -583,8 +586,8 @@ def intersect_lines(
             _, sig = classify(p)
             return 6.0 * float(np.sqrt(np.mean(sig[mask] ** 2) / max(np.count_nonzero(mask), 1)))
 
-        found = None if start is None else _refine_given(np.asarray(start, bool).reshape(m), fit, refine, classify,
-                                                             t2)
+        given = None if start is None else np.asarray(start, bool).reshape(m)
+        found = None if given is None else _refine_given(given, fit, refine, classify, t2)
         if found is not None:
             (p, mask, it, _), rival = found, None
         else:  # no lines given, or no vertex from them: the search

@@ -289,9 +289,10 @@ def test_many_lines_with_outliers():
 def test_start_from_known_lines_gives_the_search_s_vertex():
     """`start` (the lines a video's previous frame labelled): over 300 fans of 8 lines with 2
     outliers, the vertex refined from the pencil's lines (an outlier among the given ones in
-    a third of the trials: classified again, it is left out, and the search decides) has the search's inliers and its vertex to 1e-9 px in every
-    trial where the search found the pencil; a line given that the search leaves out (near
-    the gate) is left out too where that costs less."""
+    a third of the trials: classified again, it is left out, and the search decides) has
+    the search's inliers and its vertex to 1e-9 px in every trial where the search found
+    the pencil; a line given that the search leaves out (near the gate) is left out too
+    where that costs less."""
     rng = np.random.default_rng(11)
     v = np.array([640.3, 360.7])
     _, noisy, _ = _fans(rng, 300, 90.0)
