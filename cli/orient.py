@@ -35,7 +35,7 @@ def _orient_record(camera, pencil, fr, opts):
     kw = dict(model=opts["model"], endpoint_sigma_px=opts["endpoint_sigma"],
               angle_sigma=None if sig is None else np.radians(sig), prior=opts["priors"].get(fr["image"]),
               image=fr["image"], offset_sigma=fr.get("offset_sigma_px"), max_segments=cap,
-              bar_width_px=fr.get("width_px"), circle_points=fr.get("circle_points"),
+              bar_width_px=fr.get("width_px"), circle_points=fr.get("circle_points"), ideal=fr.get("ideal"),
               keep_lines=opts.get("keep_lines", False))
     state = opts.get("tracking")
     if state is None:
@@ -85,7 +85,7 @@ def _orient_image_task(frame, ctx):
         state = opts.get("tracking")
         tracker = state["bars"] if state is not None and bars and radial is None else None
         lines_kw = dict(bars=bars, valid_region=region, bar_polarity=polarity, bar_tracker=tracker, radial=radial,
-                        radial_joint=radial_joint_mode(pencil))
+                        radial_joint=radial_joint_mode(pencil), ideal=True)
 
         def detected():
             fr = lines_record(frame.name, frame.image, camera, detector, **lines_kw)

@@ -92,7 +92,7 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
                        gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None, radial=None, axis_prior=None,
                        shaft_tracker=None, edge_model="step", radial_joint="crowded", segments=True, parts=False,
-                       radial_outer=None):
+                       radial_outer=None, ideal=False):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -158,6 +158,9 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
     parts : bool
         With `shaft`: also the axes of the instrument regions with no shaft, distal parts
         alone among them (`shaft.parts.detect_parts`, cue "pixels").
+    ideal : bool
+        With a camera: the segments in undistorted pixels too, as the detector measured
+        them, in ``extra["ideal"]`` (M, 4) (`lines_record`).
     """
     if min_length is None:
         min_length = default_min_length(np.shape(image), bars)
@@ -185,6 +188,7 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         shafts=shaft_records(image, camera, valid_region, gamma, instrument_mask, tracker=shaft_tracker,
                              axis_prior=axis_prior, edge_model=edge_model, parts=parts) if shaft else None,
         circle_points=circle_points,
+        extra={"ideal": segs.ideal} if ideal and camera is not None else {},
     )
 
 
@@ -221,10 +225,12 @@ def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, in
 def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None, bar_width=None,
                  proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA, bar_tracker=None,
                  instrument_mask=None, radial=None, axis_prior=None, shaft_tracker=None, edge_model="step",
-                 radial_joint="crowded", segments=True, parts=False):
+                 radial_joint="crowded", segments=True, parts=False, ideal=False):
     """One lines.json frame record from one decoded image: ``detect_frame_lines(...).to_dict()``
-    (the same arguments)."""
+    (the same arguments); ideal: with a camera, also the segments in undistorted pixels as the
+    detector measured them, ``ideal`` (M, 4), for `orient_segments`' ideal (a record used in
+    memory: no lines file holds them)."""
     return detect_frame_lines(name, image, camera, detector, bars, shaft, min_length, bar_width,
                               proposal_scale, valid_region, bar_polarity, gamma, bar_tracker,
                               instrument_mask, radial, axis_prior, shaft_tracker, edge_model, radial_joint,
-                              segments, parts).to_dict()
+                              segments, parts, ideal=ideal).to_dict()

@@ -210,7 +210,12 @@ def _normal_line(img, s, orientation, camera):
         return
     length_px = 0.12 * min(img.shape[0] / s[1], img.shape[1] / s[0])
     K = np.asarray(camera.K, float)
-    ideal_v = camera.undistort_pixels(np.asarray(v, float))
+    ray = getattr(orientation, "ray", None)
+    if ray is not None and float(ray[2]) > 0:
+        # the vertex's ideal pixel from its ray: no inversion of the lens model per frame
+        ideal_v = K[:2, :2] @ (np.asarray(ray[:2], float) / float(ray[2])) + K[:2, 2]
+    else:
+        ideal_v = camera.undistort_pixels(np.asarray(v, float))
     if abs(n[2]) > 1e-9:
         vp = (K @ (n / n[2]))[:2]
         d = (vp - ideal_v) * (1 if n[2] > 0 else -1)

@@ -99,15 +99,19 @@ def centre_offsets(K, ideal, width_px, normal):
     return np.where(good[:, None, None], shift, 0.0)
 
 
-def centre_lines(camera, segments, width_px, normal):
+def centre_lines(camera, segments, width_px, normal, ideal=None):
     """The midlines `segments` (M, 4) [raw px] of bars `width_px` (M,) [undistorted px] wide
     moved onto the images of their printed centre lines on the plane with unit `normal`
     (camera frame), in raw pixels (`centre_offsets`; rows it cannot move are returned as
-    they are). camera: a `camera.model.Camera`."""
+    they are). camera: a `camera.model.Camera`; ideal: (M, 4) the same midlines in
+    undistorted pixels when known (a detector's), else undistorted here. With `ideal` given
+    returns (raw, ideal): the moved lines in both (the second for `orient_segments`' ideal)."""
     seg = np.asarray(segments, float).reshape(-1, 4)
-    ideal = camera.undistort_pixels(seg.reshape(-1, 2)).reshape(-1, 4)
+    given = ideal is not None
+    ideal = camera.undistort_pixels(seg.reshape(-1, 2)).reshape(-1, 4) if ideal is None else \
+        np.asarray(ideal, float).reshape(-1, 4)
     off = centre_offsets(camera.K, ideal, width_px, normal)
     moved = ideal + off.reshape(-1, 4)
     raw = camera.distort_pixels(moved.reshape(-1, 2)).reshape(-1, 4)
-    same = ~np.any(off.reshape(-1, 4) != 0.0, -1) | ~np.all(np.isfinite(raw), -1)
-    return np.where(same[:, None], seg, raw)
+    same = (~np.any(off.reshape(-1, 4) != 0.0, -1) | ~np.all(np.isfinite(raw), -1))[:, None]
+    return (np.where(same, seg, raw), np.where(same, ideal, moved)) if given else np.where(same, seg, raw)

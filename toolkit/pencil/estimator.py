@@ -558,10 +558,14 @@ def detection_threshold(sigma):
     s = np.asarray(sigma, float)
     g = 2.0 * np.sqrt(s)
     for _ in range(30):  # Newton on f(g) = max_angular_change(g) - sigma
-        h = 1e-7
-        f = max_angular_change(g) - s
-        df = (max_angular_change(g + h) - max_angular_change(g - h)) / (2 * h)
-        g = np.clip(g - f / df, 1e-9, np.pi / 2 - 1e-9)
+        c = np.sqrt(np.cos(g))
+        # f'(g) = sin g / (c (1 + c^2)), c = sqrt(cos g): quadratic convergence, a few steps
+        step = (np.arctan(1.0 / c) - np.arctan(c) - s) * c * (1.0 + c * c) / np.sin(g)
+        new = np.clip(g - step, 1e-9, np.pi / 2 - 1e-9)
+        done = np.all(np.abs(new - g) <= 1e-12 * new)  # f itself is known to ~1e-10 of sigma
+        g = new
+        if done:
+            break
     return g
 
 

@@ -45,6 +45,7 @@ from pencilcal.toolkit.pencil.estimator import (
     choose_by_prior,
 )
 from pencilcal.toolkit.geometry.frames import normalize, rotation_angle, rotation_from_rotvec
+from pencilcal.toolkit.geometry.quantiles import nanmedian_rows
 from pencilcal.toolkit.pencil.defaults import DETECTION_LEVEL, ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.lens_uncertainty import orientation_totals, resolve_intrinsics_cov
 from pencilcal.toolkit.pencil.orientation import Orientation
@@ -105,7 +106,7 @@ def metric_depth(R_cam_from_target, vertex, spoke_angles, inner, outer, radius):
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # no positive distance: NaN, caught below
         # per-point depth estimates, then Gauss-Newton on the image distances
-        z = np.nanmedian(np.where(ok, r * (cc / np.where(ok, t, 1.0) - dz), np.nan), -1)
+        z = nanmedian_rows(np.where(ok, r * (cc / np.where(ok, t, 1.0) - dz), np.nan))  # np.nanmedian's, bit for bit
         for _ in range(8):
             den = z[..., None] + r * dz
             pred = r * cc / den
@@ -121,17 +122,22 @@ def metric_depth(R_cam_from_target, vertex, spoke_angles, inner, outer, radius):
     return z, res
 
 
-def _segment_geometry(camera, segments, endpoint_sigma_px):
-    """Ideal-pixel segments, their length, and the local scale raw -> ideal."""
+def _segment_geometry(camera, segments, endpoint_sigma_px, ideal=None):
+    """Ideal-pixel segments and the local scale raw -> ideal at each; `ideal` (M, 4): the
+    segments in ideal pixels where known already (then the scale at their centres)."""
     seg = np.asarray(segments, float)
     # the local linear scale of the undistortion at each segment centre: end point noise
     # in raw pixels becomes noise in ideal pixels scaled by it (the ends and the centres
     # undistorted together: one inversion of the lens model instead of two)
     M = seg.shape[0]
-    centre = 0.5 * (seg[:, :2] + seg[:, 2:])
-    xy_all, ideal_all = camera.normalized_and_ideal(np.concatenate([seg.reshape(-1, 2), centre]))
-    ideal, xy = ideal_all[:2 * M].reshape(-1, 4), xy_all[2 * M:]
     K2 = np.asarray(camera.K, float)[:2, :2]
+    if ideal is None:
+        centre = 0.5 * (seg[:, :2] + seg[:, 2:])
+        xy_all, ideal_all = camera.normalized_and_ideal(np.concatenate([seg.reshape(-1, 2), centre]))
+        ideal, xy = ideal_all[:2 * M].reshape(-1, 4), xy_all[2 * M:]
+    else:  # no inversion of the lens model: the centre's ray from its ideal pixel
+        ideal = np.asarray(ideal, float).reshape(-1, 4)
+        xy = np.linalg.solve(K2, (0.5 * (ideal[:, :2] + ideal[:, 2:]) - np.asarray(camera.K, float)[:2, 2]).T).T
     with np.errstate(invalid="ignore"):  # NaN beyond the lens model's reach: dropped by the caller
         Jpn = camera.jacobian_pixels_from_normalized(xy)  # d raw / d normalised
         J_ideal_from_raw = K2 @ np.linalg.inv(Jpn)
@@ -142,7 +148,7 @@ def _segment_geometry(camera, segments, endpoint_sigma_px):
 def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_px=ENDPOINT_SIGMA_PX, angle_sigma=None,
                     prior=None, vertex_px=None, vertex_cov_px2=None, image=None, labels=None, keep_lines=False,
                     offset_sigma=None, spoke_radii=None, max_segments=MAX_SEGMENTS, intrinsics_cov="camera",
-                    bar_width_px=None, circle_points=None, plane_normal=None):
+                    bar_width_px=None, circle_points=None, plane_normal=None, ideal=None):
     """Orientation of a pencil seen in one frame.
 
     camera: a Camera; segments: (M, 4) raw pixels [x1, y1, x2, y2]; pencil: a Pencil.
@@ -190,6 +196,10 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         is fitted once, kept if its normal lies within `PLANE_PRIOR_DEG` of the one given
         (the move is w^2 / (4 V), a few hundredths of a pixel: a degree off changes it by
         far less than its noise); else the two fits above.
+    ideal: (M, 4) the segments in undistorted pixels where the detector has them already
+        (`detect.lines`' record with ideal): not undistorted again (each segment's noise
+        scale then taken at its ideal centre rather than at its raw centre's image, which
+        lies off the straight segment by its curvature's sagitta).
 
     Returns an `Orientation` (its ``to_dict()`` is the orientation.json record) with
     ``spokes`` (label per input segment, -1 rejected; the wedge or boundary an edge belongs
@@ -202,16 +212,20 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
               vertex_px=vertex_px, vertex_cov_px2=vertex_cov_px2, image=image, labels=labels, keep_lines=keep_lines,
               offset_sigma=offset_sigma, spoke_radii=spoke_radii, max_segments=max_segments,
               intrinsics_cov=intrinsics_cov, circle_points=circle_points)
+
+    def centred(normal):  # (raw, ideal) moved onto the centre lines
+        moved = centre_lines(camera, segments, bar_width_px, normal, ideal=ideal)
+        return moved if ideal is not None else (moved, None)
+
     if bar_width_px is not None and plane_normal is not None:
         n = np.asarray(plane_normal, float)
-        rec = _orient_once(camera, centre_lines(camera, segments, bar_width_px, n), pencil, **kw)
+        rec = _orient_once(camera, *centred(n), pencil, **kw)
         if rec.ok and not rec.ambiguous and np.dot(rec.normal, n) >= np.cos(np.radians(PLANE_PRIOR_DEG)):
             return rec
-    rec = _orient_once(camera, segments, pencil, **kw)
+    rec = _orient_once(camera, segments, ideal, pencil, **kw)
     if bar_width_px is None or not rec.ok or rec.ambiguous:
         return rec
-    moved = centre_lines(camera, segments, bar_width_px, rec.normal)
-    again = _orient_once(camera, moved, pencil, **dict(kw, labels=rec.spokes))
+    again = _orient_once(camera, *centred(rec.normal), pencil, **dict(kw, labels=rec.spokes))
     if not again.ok:
         return rec
     # the labelling's own ambiguities are the first fit's (the second one is given the labels)
@@ -219,10 +233,10 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
                          normal_alternatives=rec.normal_alternatives)
 
 
-def _orient_once(camera, segments, pencil, *, model, endpoint_sigma_px, angle_sigma, prior, vertex_px,
+def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, angle_sigma, prior, vertex_px,
                  vertex_cov_px2, image, labels, keep_lines, offset_sigma, spoke_radii, max_segments, intrinsics_cov,
                  circle_points):
-    """One fit of `orient_segments` (its arguments but bar_width_px)."""
+    """One fit of `orient_segments` (its arguments but bar_width_px; ideal may be None)."""
     if model not in MODELS:
         raise InputError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}")
     if isinstance(max_segments, bool) or not isinstance(max_segments, (int, np.integer)) or max_segments < 3:
@@ -231,8 +245,9 @@ def _orient_once(camera, segments, pencil, *, model, endpoint_sigma_px, angle_si
     labels_out = np.full(seg.shape[0], -1)
     try:
         idx, ideal, st, sc, sig_e = _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma,
-                                                  max_segments)
-        v_ideal, cov_ideal, through = _vertex(camera, ideal, st, sc, pencil, vertex_px, vertex_cov_px2)
+                                                  max_segments, ideal)
+        known = None if labels is None else np.asarray(labels, int).reshape(-1)[idx] >= 0
+        v_ideal, cov_ideal, through = _vertex(camera, ideal, st, sc, pencil, vertex_px, vertex_cov_px2, known)
         idx, ideal, st = idx[through], ideal[through], st[through]
         if idx.size < 3:
             raise EstimationError(f"only {idx.size} segments pass through the vertex; three are needed")
@@ -281,13 +296,13 @@ def _orient_once(camera, segments, pencil, *, model, endpoint_sigma_px, angle_si
         return Orientation(image=image, ok=False, error=str(e), model=model, spokes=labels_out)
 
 
-def _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma, max_segments=MAX_SEGMENTS):
+def _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma, max_segments=MAX_SEGMENTS, ideal=None):
     """The segments worth fitting, undistorted, with their noise.
 
-    seg: (M, 4) raw px. Returns idx (K,) indices into seg, ideal (K, 4) ideal px, angle sd
-    st (K,) [rad] and offset sd sc (K,) [ideal px] of each, and sig_e (K,) the end point
-    noise in ideal px; K <= max_segments, the longest. EstimationError when fewer than
-    three remain.
+    seg: (M, 4) raw px (ideal: the same in ideal px, or None). Returns idx (K,) indices
+    into seg, ideal (K, 4) ideal px, angle sd st (K,) [rad] and offset sd sc (K,) [ideal
+    px] of each, and sig_e (K,) the end point noise in ideal px; K <= max_segments, the
+    longest. EstimationError when fewer than three remain.
     """
     M = seg.shape[0]
     finite = np.all(np.isfinite(seg), -1)
@@ -302,7 +317,8 @@ def _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma, max
     if idx.size > max_segments:
         # the longest, in their input order (a stable sort keeps ties in order)
         idx = np.sort(idx[np.argsort(-length[idx], kind="stable")[:max_segments]])
-    ideal, scale = _segment_geometry(camera, seg[idx], endpoint_sigma_px)
+    ideal, scale = _segment_geometry(camera, seg[idx], endpoint_sigma_px,
+                                     None if ideal is None else np.asarray(ideal, float).reshape(-1, 4)[idx])
     ok = np.all(np.isfinite(ideal), -1)
     idx, ideal, scale = idx[ok], ideal[ok], scale[ok]
     if idx.size < 3:
@@ -324,11 +340,13 @@ def _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma, max
     return idx, ideal, st, sc, sig_e
 
 
-def _vertex(camera, ideal, st, sc, pencil, vertex_px, vertex_cov_px2):
+def _vertex(camera, ideal, st, sc, pencil, vertex_px, vertex_cov_px2, known=None):
     """The vertex in ideal px, its covariance, and which lines (K,) pass through it: the
-    given vertex (raw px) when there is one, else the lines' robust intersection."""
+    given vertex (raw px) when there is one, else the lines' robust intersection (refined
+    from the lines `known` (K,) bool to be spokes, where three or more are: labelled)."""
     if vertex_px is None:
-        return _find_vertex(ideal, st, sc, _spoke_radius(pencil))
+        start = known if known is not None and np.count_nonzero(known) >= 3 else None
+        return _find_vertex(ideal, st, sc, _spoke_radius(pencil), start=start)
     K = np.asarray(camera.K, float)
     v_ideal = camera.undistort_pixels(np.asarray(vertex_px, float))
     J = np.linalg.inv(camera.jacobian_pixels_from_normalized(camera.normalized_from_pixels(vertex_px)))
@@ -530,15 +548,18 @@ def _radius_consistent(ideal, radius):
     return consistent
 
 
-def _find_vertex(ideal, st, sc, radius):
+def _find_vertex(ideal, st, sc, radius, start=None):
     """Robust vertex of the segments (ideal px): (vertex, cov, inlier mask).
 
     With spoke radii, only lines that can be spokes of a candidate vertex count for it:
     spurious lines that happen to share a point (edges of a textured background meeting at
-    the horizon) would otherwise outvote the spokes.
+    the horizon) would otherwise outvote the spokes. start: (K,) bool, the lines labelled
+    as spokes already (a video's tracked frame, the refit after the centre lines): the
+    vertex refined from them, every line classified again, without the search over pairs
+    (`vertex.intersect_lines`' start).
     """
     cons = None if radius is None else _radius_consistent(ideal, radius)
-    vf = intersect_lines(ideal, angle_sigma=st, offset_sigma=sc, robust=True, consistent=cons)
+    vf = intersect_lines(ideal, angle_sigma=st, offset_sigma=sc, robust=True, consistent=cons, start=start)
     if vf.rival_vertex is not None and vf.gain - vf.rival_gain < VERTEX_RIVAL_CHI2:
         # clutter: random segments meet everywhere, and this vertex is one of many
         far = float(np.hypot(*(vf.rival_vertex - vf.vertex)))

@@ -10,7 +10,9 @@ frame alone cannot choose (`orient.resolve_twins_by_continuity` over the two fra
 The prior is checked, never trusted: the frame falls back to the full search when the
 previous frame has no estimate, when fewer spokes are labelled than the previous frame
 used (less one), or when a labelled line misses the spoke it was given by more than
-`GATE_SIGMA` of its angle sd. The vertex is always found from this frame's lines.
+`GATE_SIGMA` of its angle sd. The vertex is always found from this frame's lines: refined
+from the lines the prior labels (`vertex.intersect_lines`' start; the search over all
+pairs where one of them does not pass through it).
 
 Labelling by the prior: each segment (undistorted, normalised) is oriented away from the
 previous vertex and given the spoke whose predicted image angle (`spec.image_angles` of
@@ -51,12 +53,13 @@ GATE_SIGMA = 5.0
 VERTEX_GATE = 0.25
 
 
-def prior_labels(camera, segments, pencil, previous, gate_deg=GATE_DEG):
+def prior_labels(camera, segments, pencil, previous, gate_deg=GATE_DEG, ideal=None):
     """Spoke label (M,) of each segment by the previous frame's orientation (-1: none); for
     wedges and sector boundaries the edge's index in the pencil's `edge_angles`.
 
     segments: (M, 4) raw px; previous: an `Orientation` with an estimate (``ok``);
-    gate_deg [deg]: see the module docstring.
+    gate_deg [deg]: see the module docstring; ideal: (M, 4) the segments in undistorted
+    pixels where known already (then not undistorted again).
     """
     seg = np.asarray(segments, float).reshape(-1, 4)
     lab = np.full(len(seg), -1)
@@ -68,8 +71,12 @@ def prior_labels(camera, segments, pencil, previous, gate_deg=GATE_DEG):
     gap = np.abs(wrap_angle(pred[:, None] - pred[None, :]))
     gap[np.diag_indices_from(gap)] = np.inf
     gate = min(np.radians(gate_deg), 0.4 * float(np.min(gap))) if len(pred) > 1 else np.radians(gate_deg)
-    with np.errstate(invalid="ignore"):
-        p = camera.normalized_from_pixels(seg.reshape(-1, 2)).reshape(-1, 2, 2)
+    if ideal is None:
+        with np.errstate(invalid="ignore"):
+            p = camera.normalized_from_pixels(seg.reshape(-1, 2)).reshape(-1, 2, 2)
+    else:
+        K = np.asarray(camera.K, float)
+        p = np.linalg.solve(K[:2, :2], (np.asarray(ideal, float).reshape(-1, 2) - K[:2, 2]).T).T.reshape(-1, 2, 2)
     d1, d2 = np.linalg.norm(p[:, 0] - x0, axis=-1), np.linalg.norm(p[:, 1] - x0, axis=-1)
     near, far = np.where((d1 <= d2)[:, None], p[:, 0], p[:, 1]), np.where((d1 <= d2)[:, None], p[:, 1], p[:, 0])
     t = far - near
@@ -94,11 +101,11 @@ def orient_tracked(camera, segments, pencil, previous, gate_deg=GATE_DEG, keep_l
     segments: (M, 4) raw px; previous: the previous frame's `Orientation` or None;
     keep_lines: the orientation's ``lines`` kept (`orient_segments`); orient_kwargs:
     `orient_segments`' (model, endpoint_sigma_px, angle_sigma, offset_sigma, max_segments,
-    image, ...; not labels).
+    image, ideal, ...; not labels).
     """
     if previous is None or not previous.ok or previous.ray is None:
         return orient_segments(camera, segments, pencil, keep_lines=keep_lines, **orient_kwargs), False
-    lab = prior_labels(camera, segments, pencil, previous, gate_deg)
+    lab = prior_labels(camera, segments, pencil, previous, gate_deg, orient_kwargs.get("ideal"))
     need = max(3, int(previous.lines_used or 0) - 1)
     rec = None
     if np.unique(lab[lab >= 0]).size >= need:

@@ -375,6 +375,37 @@ def _refine_inliers(p, fit, classify, inliers, t2, start=None):
     return p, mask, it, float(np.sum(np.where(inliers(p, e), np.minimum(e * e, t2), t2)))
 
 
+#: With `intersect_lines`' start: a line whose squared normalised residual is over this
+#: fraction of the inlier gate is also tried left out (the lower MSAC cost is kept).
+NEAR_GATE = 0.25
+
+
+def _refine_given(given, fit, refine, classify, t2):
+    """`intersect_lines`' start: the vertex refined from the lines `given` (M,) bool, as
+    `_refine_inliers` returns it, or None where they give none (fewer than two agreeing) or
+    one that leaves a given line out (a wrong one among them pulled it): the search decides.
+    A line it keeps near the gate (squared normalised residual over `NEAR_GATE` of it) is
+    also tried left out, and the lower MSAC cost kept: the search, choosing by that cost,
+    would leave it out."""
+    m = given.size
+    try:
+        # from the offset-only solution of the given lines, as without a search
+        best = refine(fit(np.zeros(2), given, 1, np.zeros(m))[0], given)
+    except EstimationError:
+        return None
+    if np.any(given & ~best[1]):
+        return None  # a given line is not through it: a wrong one among them, which the search finds
+    e = classify(best[0])[0]
+    for k in np.flatnonzero(best[1] & (e * e > NEAR_GATE * t2)):
+        try:
+            other = refine(best[0], best[1] & (np.arange(m) != k))
+        except EstimationError:
+            continue
+        if other[3] < best[3] - 1e-9 * max(1.0, abs(best[3])):
+            best = other
+    return best
+
+
 #: Hypotheses (best first) refined before the vertex is chosen (local optimisation); the
 #: rival vertex (VertexFit.rival_gain) is the best of them.
 LOCAL_CANDIDATES = 16
@@ -462,6 +493,7 @@ def intersect_lines(
     tol=1e-12,
     max_iter=50,
     consistent=None,
+    start=None,
 ):
     """Weighted least-squares intersection of image lines, optionally robust to outliers.
 
@@ -490,6 +522,13 @@ def intersect_lines(
         ``consistent(points (P, 2)) -> (P, M) bool``; a line counts as an inlier of a point
         only where it is true (e.g. spokes of known radii must reach close to their vertex,
         which a stray line that merely points at it does not). Robust mode only.
+    start: optional (M,) bool, robust mode: lines known to pass through the vertex (a
+        video's spokes, labelled by the previous frame's orientation). The vertex is then
+        refined from their weighted LS, re-classifying every line as the search does, instead
+        of searching all pairs (no rival vertex is looked for; the search where the given
+        lines agree on no point or one of them is left out): where the search would find
+        the same inliers, the same vertex to the reweighting's tolerance at a fraction of
+        its cost.
 
     Returns a `VertexFit`. Raises InputError for bad shapes, NaN/inf or zero-length
     segments, bad sigmas; EstimationError for fewer than two lines, parallel lines and a
@@ -530,11 +569,6 @@ def intersect_lines(
         return _normalised_residuals(p, lines, dm, st2, sc2)
 
     if robust and m > 2:
-        hyp = _pair_hypotheses(lines, max_pairs, seed, min_sin=1e-9)
-        if hyp.shape[0] == 0:
-            raise EstimationError("vertex: the lines are parallel, they meet only at infinity")
-        cost = _msac_costs(hyp, lines, dm, st2, sc2, t2, consistent)
-
         def inliers(p, e):
             ok = e * e < t2
             return ok if consistent is None else ok & consistent(p[None])[0]
@@ -552,7 +586,16 @@ def intersect_lines(
             _, sig = classify(p)
             return 6.0 * float(np.sqrt(np.mean(sig[mask] ** 2) / max(np.count_nonzero(mask), 1)))
 
-        p, mask, it, rival = _local_optimisation(hyp, cost, refine, start_inliers, m * t2, spread)
+        given = None if start is None else np.asarray(start, bool).reshape(m)
+        found = None if given is None else _refine_given(given, fit, refine, classify, t2)
+        if found is not None:
+            (p, mask, it, _), rival = found, None
+        else:  # no lines given, or no vertex from them: the search
+            hyp = _pair_hypotheses(lines, max_pairs, seed, min_sin=1e-9)
+            if hyp.shape[0] == 0:
+                raise EstimationError("vertex: the lines are parallel, they meet only at infinity")
+            cost = _msac_costs(hyp, lines, dm, st2, sc2, t2, consistent)
+            p, mask, it, rival = _local_optimisation(hyp, cost, refine, start_inliers, m * t2, spread)
     else:
         mask, rival = np.ones(m, dtype=bool), None
         # start from the offset-only solution (lever arms unknown yet)

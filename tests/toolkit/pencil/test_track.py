@@ -56,3 +56,25 @@ def test_no_previous_estimate_means_the_full_search():
     failed = orient_segments(CAM, np.zeros((0, 4)), PEN)
     rec, tracked = orient_tracked(CAM, _segments(25), PEN, failed)
     assert not tracked and rec.ok
+
+
+def test_bars_handed_over_undistorted_give_the_same_frames():
+    # a lens with k1: the bars' midlines given in undistorted pixels as well (the detector's,
+    # `orient_segments`' ideal) are not undistorted again; the same labels and the same
+    # estimates to far below their sigmas (the noise scale is taken at the ideal centres)
+    cam = Camera("opencv", 1280, 720, CAM.K, [-0.2, 0.05, 0.0, 0.0, 0.0])
+    prev = prev_ideal = None
+    for k, tilt in enumerate(np.linspace(20, 40, 6)):
+        ideal = _segments(tilt, extra=2, seed=k)
+        raw = cam.distort_pixels(ideal.reshape(-1, 2)).reshape(-1, 4)
+        width = np.full(len(raw), 3.0)
+        assert np.array_equal(prior_labels(cam, raw, PEN, prev, ideal=ideal), prior_labels(cam, raw, PEN, prev)) \
+            if prev is not None else True
+        rec, tracked = orient_tracked(cam, raw, PEN, prev, bar_width_px=width)
+        rec_i, tracked_i = orient_tracked(cam, raw, PEN, prev_ideal, bar_width_px=width, ideal=ideal)
+        assert rec.ok and tracked == tracked_i == (k > 0)
+        assert np.array_equal(rec.spokes, rec_i.spokes)
+        assert abs(rec.tilt_deg - rec_i.tilt_deg) < 1e-3 * rec.tilt_sigma_deg
+        assert abs(rec.tilt_sigma_deg - rec_i.tilt_sigma_deg) < 1e-3 * rec.tilt_sigma_deg
+        assert np.max(np.abs(rec.vertex_px - rec_i.vertex_px)) < 1e-3
+        prev, prev_ideal = rec, rec_i
