@@ -96,6 +96,11 @@ _TOUCH = 0.1  # ... unless it overlaps one of those by this fraction (`_touches`
 _GROUP_TOL = (3.0, 3.0)  # one boundary at two levels: offset [work px], angle [deg]
 _GROW_PASSES = 3  # passes growing a band's edges along its chord
 _MIN_CORRIDOR_PX = 1.5  # the narrowest corridor of a growing edge [px]
+# The first fit's corridor [work px]: a region boundary lies up to ~1.5 work px inside a
+# blurred silhouette (where the likeness map's level cuts it) on top of its own resolution
+# (1.5 work px); measured on renders of grey shafts (tests/toolkit/detect/shaft/test_collar.py)
+_FIRST_CORRIDOR_WORK_PX = 3.0
+_FIRST_CORRIDOR_WIDTH = 0.2  # ... at most this fraction of the band's width (the colour strips stay on their sides)
 _COAXIAL_DEG = 3.0  # two readings of one instrument: axes this close ...
 _LONG_FRACTION = 0.25  # a run this fraction of the work frame's diagonal need not reach the border
 _ELONGATED_WIDTHS = 2.5  # a shaft is seen along this many widths (a jaw is not) ...
@@ -333,9 +338,20 @@ def _grown(fit, spec):
 _MATERIAL_GAMMA = 1.0
 
 
+def _first_corridors(bands, work, corridor):
+    """The first fit's corridor (2 N,) [px] of each band's two edges: `_FIRST_CORRIDOR_WORK_PX`
+    work px (the region boundary's offset from a blurred silhouette and its resolution), at
+    most `_FIRST_CORRIDOR_WIDTH` of the band's width (the colour strips beyond the corridor
+    must stay on their sides of the edge), at least the fixed corridor."""
+    s = work.mean_scale
+    c = [max(corridor, min(_FIRST_CORRIDOR_WORK_PX, _FIRST_CORRIDOR_WIDTH * e.width_run) / s) for e in bands]
+    return np.repeat(np.asarray(c, float), 2)
+
+
 def _band_edges(image, camera, validity, noise, bands, work, corridor, stretches, gamma):
     """The two edges (`shaft.silhouette.EdgeLine`) of each band, or None: fitted over its region
-    run, then grown along their own lines over the stretch of chord where its
+    run in a corridor wide enough for the region boundary's offset from the silhouette
+    (`_first_corridors`), then grown along their own lines over the stretch of chord where its
     cross-section goes on looking like the run's (stretches: [b0, b1) each,
     `shaft.region_bands.band_stretch`), `_GROW_PASSES` passes each at most doubling them in
     a corridor holding 3 sd of the line's prediction (a line extrapolated from a short
@@ -345,7 +361,8 @@ def _band_edges(image, camera, validity, noise, bands, work, corridor, stretches
     gamma (the edges located on linear light, `shaft.silhouette.fit_edges`)."""
     gaps = np.repeat([e.width_run / work.mean_scale for e in bands], 2)
     specs = [sp for e in bands for sp in _edge_specs(e, work, e.run)]
-    fits = fit_edges(image, camera, validity, noise, specs, corridor, max_gap=gaps, gamma=gamma)
+    fits = fit_edges(image, camera, validity, noise, specs, _first_corridors(bands, work, corridor), max_gap=gaps,
+                     gamma=gamma)
     targets = [sp for e, st in zip(bands, stretches) for sp in _edge_specs(e, work, st)]
     alive = [k for k in range(len(bands)) if fits[2 * k] is not None and fits[2 * k + 1] is not None]
     for _ in range(_GROW_PASSES):
