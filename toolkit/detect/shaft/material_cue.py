@@ -21,9 +21,9 @@ frames whose colour tells the materials apart (`shaft.detector`).
    others;
 3. *edges* (`shaft.silhouette`, `_band_edges`): each proposed band's two boundaries refitted at
    full resolution in a corridor (`corridor_px`) over its run; an edge found there along less
-   than half of it searched again in one of 3 work px (the region boundary's own resolution,
+   than a quarter of it searched again in one of 3 work px (the region boundary's own resolution,
    1.5 work px, and its offset inside a blurred silhouette; at most a fifth of the band's
-   width); then grown along their own lines over the stretch where
+   width), kept where found along half of it on the side the first fit leant to; then grown along their own lines over the stretch where
    the band's cross-section goes on looking like the run's (`shaft.region_bands.
    band_stretch`: a shaft running into a drape of its own material, or a white shaft
    merging with white tissue, is a short band of region whose edges go on), each edge the
@@ -103,7 +103,8 @@ _MIN_CORRIDOR_PX = 1.5  # the narrowest corridor of a growing edge [px]
 # (1.5 work px); measured on renders of grey shafts (tests/toolkit/detect/shaft/test_collar.py)
 _FIRST_CORRIDOR_WORK_PX = 3.0
 _FIRST_CORRIDOR_WIDTH = 0.2  # ... at most this fraction of the band's width (the colour strips stay on their sides)
-_FIRST_FRAC = 0.5  # ... for an edge found along less than this fraction of its run in the fixed corridor
+_WEAK_FRAC = 0.25  # ... searched for an edge the fixed corridor finds along less than this fraction of its run
+_FIRST_FRAC = 0.5  # ... and kept where found there along at least this fraction
 _COAXIAL_DEG = 3.0  # two readings of one instrument: axes this close ...
 _LONG_FRACTION = 0.25  # a run this fraction of the work frame's diagonal need not reach the border
 _ELONGATED_WIDTHS = 2.5  # a shaft is seen along this many widths (a jaw is not) ...
@@ -353,8 +354,9 @@ def _first_corridors(bands, work, corridor):
 
 def _band_edges(image, camera, validity, noise, bands, work, corridor, stretches, gamma):
     """The two edges (`shaft.silhouette.EdgeLine`) of each band, or None: fitted over its region
-    run (an edge found along less than `_FIRST_FRAC` of it, again in a corridor wide enough
-    for the region boundary's offset from the silhouette: `_first_corridors`), then grown
+    run (an edge found along less than `_WEAK_FRAC` of it, again in a corridor wide enough
+    for the region boundary's offset from the silhouette, `_first_corridors`, kept where
+    found along `_FIRST_FRAC` of it on the side the first fit leant to), then grown
     along their own lines over the stretch of chord where its cross-section goes on looking
     like the run's (stretches: [b0, b1) each, `shaft.region_bands.band_stretch`),
     `_GROW_PASSES` passes each at most doubling them in
@@ -366,16 +368,17 @@ def _band_edges(image, camera, validity, noise, bands, work, corridor, stretches
     gaps = np.repeat([e.width_run / work.mean_scale for e in bands], 2)
     specs = [sp for e in bands for sp in _edge_specs(e, work, e.run)]
     fits = fit_edges(image, camera, validity, noise, specs, corridor, max_gap=gaps, gamma=gamma)
-    # an edge found along less than `_FIRST_FRAC` of its run, or not at all, searched again in
-    # the wider corridor (the region boundary off the silhouette by more than the fixed one);
-    # the fit with more stations kept
+    # an edge found along less than `_WEAK_FRAC` of its run, or not at all, searched again in
+    # the wider corridor (the region boundary off the silhouette by more than the fixed one),
+    # kept where found there along `_FIRST_FRAC` of it on the side the first fit leant to (an
+    # edge across the proposed line from it is another structure's: the phantom's cavity rim)
     wide = _first_corridors(bands, work, corridor)
-    weak = [m for m, f in enumerate(fits) if (f is None or f.frac < _FIRST_FRAC) and wide[m] > corridor]
+    weak = [m for m, f in enumerate(fits) if (f is None or f.frac < _WEAK_FRAC) and wide[m] > corridor]
     if weak:
         again = fit_edges(image, camera, validity, noise, [specs[m] for m in weak], wide[weak],
                           max_gap=gaps[weak], gamma=gamma)
         for m, f in zip(weak, again):
-            if f is not None and (fits[m] is None or f.count > fits[m].count):
+            if f is not None and f.frac >= _FIRST_FRAC and (fits[m] is None or f.tm * fits[m].tm > 0):
                 fits[m] = f
     targets = [sp for e, st in zip(bands, stretches) for sp in _edge_specs(e, work, st)]
     alive = [k for k in range(len(bands)) if fits[2 * k] is not None and fits[2 * k + 1] is not None]

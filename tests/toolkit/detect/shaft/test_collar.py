@@ -1,17 +1,18 @@
 """A shaft meeting a wider wrist, rendered as hard as the real frames, through the whole
 detector (`shaft.detector.detect_shafts`).
 
-Each frame (960x540, a pinhole of focal length 700 px, so the work frame is about half the
-raw one) holds one shaded shaft (`synth.shaded`: exact ray hits, the endoscope's light at
-the camera) entering from the left border and converging under perspective, ending at a
-collar where a wrist of the same material, 0-4 px wider than the shaft's end and 60 or
-120 px long, carries on to the tip; over a tissue backdrop (`synth.tissue`), under uneven
-lighting (`synth.render.sensor_image`), blurred (sd 1.2-1.8 px), with noise, JPEG at
-quality 70-85. The truth is the image of the axis.
+Each frame (1280x720, a pinhole of focal length 930 px, so the work frame is 0.375 of the
+raw one) holds one shaded grey shaft (`synth.shaded`, matte or glossy: exact ray hits, the
+endoscope's light at the camera) entering from the left border and converging under
+perspective, ending at a collar where a wrist of the same material, 0-4 px wider than the
+shaft's end and 60 or 120 px long, carries on to the tip; over a tissue backdrop
+(`synth.tissue`), under uneven lighting (`synth.render.sensor_image`), blurred (sd 1.8-2.4
+px), with noise (sd 1.5-3), JPEG at quality 70-85. The truth is the image of the axis.
 
-The region boundaries the material cue proposes lie some 2 work px inside a blurred
-silhouette; the first full-resolution fit must find the edges from there even where the
-wrist takes part of the band's run (docs/method.md, the collar).
+The region boundaries the material cue proposes lie up to ~1.5 work px inside a blurred
+grey silhouette, beyond the fixed 4 px corridor at this scale; the first full-resolution fit
+must find the edges from there even where the wrist takes part of the band's run
+(`shaft.material_cue._band_edges`, docs/method.md: the collar).
 
 Run as a script for the per-render table: ``python -m tests.toolkit.detect.shaft.test_collar``.
 """
@@ -52,8 +53,8 @@ def render_collar(wider_px, wrist_px, seed):
     wrist_px long (module docstring), and the true axis image (4,) [px]."""
     rng = np.random.default_rng([seed, int(wider_px), int(wrist_px), 23])
     z = rng.uniform(80.0, 110.0)
-    u = rng.uniform(560.0, 680.0) - 120.0 * (wrist_px > 60)
-    A = np.array([(u * CAM.width / 960.0 - CAM.K[0, 2]) / CAM.K[0, 0] * z, rng.uniform(-0.15, 0.15) * z, z])  # the collar
+    u = (rng.uniform(560.0, 680.0) - 120.0 * (wrist_px > 60)) / 960.0 * CAM.width  # the collar's column [px]
+    A = np.array([(u - CAM.K[0, 2]) / CAM.K[0, 0] * z, rng.uniform(-0.15, 0.15) * z, z])  # the collar
     back = np.array([-1.0, rng.uniform(-0.25, 0.25), -rng.uniform(0.25, 0.45)])  # towards the lens
     back /= np.linalg.norm(back)
     ppm = CAM.K[0, 0] / z  # image px per mm at the collar
@@ -67,7 +68,7 @@ def render_collar(wider_px, wrist_px, seed):
     scene = scene * (1.0 - cover)[..., None] + shaft[0] + wrist[0]
     img = sensor_image(np.array(scene), rng.uniform(0.3, 0.8), rng.uniform(0.8, 1.2), rng.uniform(1.8, 2.4), 2.2,
                        rng.uniform(1.5, 3.0), rng)
-    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(70, 86))])
+    _, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(70, 86))])
     P = np.stack([A, A + 40.0 * back])
     truth = (P[:, :2] / P[:, 2:] * CAM.K[0, 0] + CAM.K[:2, 2]).reshape(-1)
     return cv2.imdecode(buf, cv2.IMREAD_COLOR), truth
@@ -94,8 +95,9 @@ def score(img, truth):
 @pytest.mark.slow
 def test_shaft_meeting_a_wider_wrist():
     """Every render's shaft found and nothing else read on the instrument, whatever the
-    wrist's width (the first fit's corridor holds the region boundary's offset from the
-    silhouette; with the fixed 4 px corridor 4 of the 20 were lost). The backdrop's pale
+    wrist's width (an edge the fixed 4 px corridor finds along under half its run is searched
+    again in 3 work px, the region boundary's offset from the silhouette and its resolution;
+    without that second search 4 of the 20 were lost). The backdrop's pale
     bands are the tissue's false shafts, not the collar's: at most one over the 20."""
     got = {(w, L, seed): score(*render_collar(w, L, seed)) for w in WIDER_PX for L in WRIST_PX for seed in SEEDS}
     assert all(f for f, _, _ in got.values()), got
