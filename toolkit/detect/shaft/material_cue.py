@@ -23,8 +23,10 @@ frames whose colour tells the materials apart (`shaft.detector`).
    own colour map (`shaft.edge_pairs`), judged alike, where they overlap none of the
    others;
 3. *edges* (`shaft.silhouette`, `_band_edges`): each proposed band's two boundaries refitted at
-   full resolution in a corridor (`corridor_px`, at least 1.5 work px: the region boundary's
-   own resolution) over its run, then grown along their own lines over the stretch where
+   full resolution in a corridor (`corridor_px`) over its run; an edge found there along less
+   than a quarter of it searched again in one of 3 work px (the region boundary's own resolution,
+   1.5 work px, and its offset inside a blurred silhouette; at most a fifth of the band's
+   width), kept where found along half of it on the side the first fit leant to; then grown along their own lines over the stretch where
    the band's cross-section goes on looking like the run's (`shaft.region_bands.
    band_stretch`: a shaft running into a drape of its own material, or a white shaft
    merging with white tissue, is a short band of region whose edges go on), each edge the
@@ -99,6 +101,13 @@ _TOUCH = 0.1  # ... unless it overlaps one of those by this fraction (`_touches`
 _GROUP_TOL = (3.0, 3.0)  # one boundary at two levels: offset [work px], angle [deg]
 _GROW_PASSES = 3  # passes growing a band's edges along its chord
 _MIN_CORRIDOR_PX = 1.5  # the narrowest corridor of a growing edge [px]
+# The first fit's corridor [work px]: a region boundary lies up to ~1.5 work px inside a
+# blurred silhouette (where the likeness map's level cuts it) on top of its own resolution
+# (1.5 work px); measured on renders of grey shafts (tests/toolkit/detect/shaft/test_collar.py)
+_FIRST_CORRIDOR_WORK_PX = 3.0
+_FIRST_CORRIDOR_WIDTH = 0.2  # ... at most this fraction of the band's width (the colour strips stay on their sides)
+_WEAK_FRAC = 0.25  # ... searched for an edge the fixed corridor finds along less than this fraction of its run
+_FIRST_FRAC = 0.5  # ... and kept where found there along at least this fraction
 _COAXIAL_DEG = 3.0  # two readings of one instrument: axes this close ...
 _LONG_FRACTION = 0.25  # a run this fraction of the work frame's diagonal need not reach the border
 _ELONGATED_WIDTHS = 2.5  # a shaft is seen along this many widths (a jaw is not) ...
@@ -444,11 +453,24 @@ def _grown(fit, spec):
 _MATERIAL_GAMMA = 1.0
 
 
+def _first_corridors(bands, work, corridor):
+    """The first fit's corridor (2 N,) [px] of each band's two edges: `_FIRST_CORRIDOR_WORK_PX`
+    work px (the region boundary's offset from a blurred silhouette and its resolution), at
+    most `_FIRST_CORRIDOR_WIDTH` of the band's width (the colour strips beyond the corridor
+    must stay on their sides of the edge), at least the fixed corridor."""
+    s = work.mean_scale
+    c = [max(corridor, min(_FIRST_CORRIDOR_WORK_PX, _FIRST_CORRIDOR_WIDTH * e.width_run) / s) for e in bands]
+    return np.repeat(np.asarray(c, float), 2)
+
+
 def _band_edges(image, camera, validity, noise, bands, work, corridor, stretches, gamma):
     """The two edges (`shaft.silhouette.EdgeLine`) of each band, or None: fitted over its region
-    run, then grown along their own lines over the stretch of chord where its
-    cross-section goes on looking like the run's (stretches: [b0, b1) each,
-    `shaft.region_bands.band_stretch`), `_GROW_PASSES` passes each at most doubling them in
+    run (an edge found along less than `_WEAK_FRAC` of it, again in a corridor wide enough
+    for the region boundary's offset from the silhouette, `_first_corridors`, kept where
+    found along `_FIRST_FRAC` of it on the side the first fit leant to), then grown
+    along their own lines over the stretch of chord where its cross-section goes on looking
+    like the run's (stretches: [b0, b1) each, `shaft.region_bands.band_stretch`),
+    `_GROW_PASSES` passes each at most doubling them in
     a corridor holding 3 sd of the line's prediction (a line extrapolated from a short
     region boundary would leave the fixed corridor), each the best run of stations with
     gaps up to the band's width, cut where it bends away: the edges tell how far the shaft
@@ -457,6 +479,18 @@ def _band_edges(image, camera, validity, noise, bands, work, corridor, stretches
     gaps = np.repeat([e.width_run / work.mean_scale for e in bands], 2)
     specs = [sp for e in bands for sp in _edge_specs(e, work, e.run)]
     fits = fit_edges(image, camera, validity, noise, specs, corridor, max_gap=gaps, gamma=gamma)
+    # an edge found along less than `_WEAK_FRAC` of its run, or not at all, searched again in
+    # the wider corridor (the region boundary off the silhouette by more than the fixed one),
+    # kept where found there along `_FIRST_FRAC` of it on the side the first fit leant to (an
+    # edge across the proposed line from it is another structure's: the phantom's cavity rim)
+    wide = _first_corridors(bands, work, corridor)
+    weak = [m for m, f in enumerate(fits) if (f is None or f.frac < _WEAK_FRAC) and wide[m] > corridor]
+    if weak:
+        again = fit_edges(image, camera, validity, noise, [specs[m] for m in weak], wide[weak],
+                          max_gap=gaps[weak], gamma=gamma)
+        for m, f in zip(weak, again):
+            if f is not None and f.frac >= _FIRST_FRAC and (fits[m] is None or f.tm * fits[m].tm > 0):
+                fits[m] = f
     targets = [sp for e, st in zip(bands, stretches) for sp in _edge_specs(e, work, st)]
     alive = [k for k in range(len(bands)) if fits[2 * k] is not None and fits[2 * k + 1] is not None]
     for _ in range(_GROW_PASSES):
