@@ -28,8 +28,9 @@ frames whose colour tells the materials apart (`shaft.detector`).
    1.5 work px, and its offset inside a blurred silhouette; at most a fifth of the band's
    width), kept where found along half of it on the side the first fit leant to; then grown
    along their own lines over the stretch where the band's cross-section goes on looking like
-   the run's (`shaft.region_bands.band_stretch`: a shaft running into a drape of its own material, or a white shaft
-   merging with white tissue, is a short band of region whose edges go on), each edge the
+   the run's (`shaft.region_bands.band_stretch`: a shaft running into a drape of its own
+   material, or a white shaft merging with white tissue, is a short band of region whose edges
+   go on), each edge the
    best run of stations with gaps up to a width (a thread, a highlight); the midline is the
    plane bisector of the two (`shaft.axis`). It is a shaft when both edges are seen
    together along at least the least length, or 1.25 widths where that is shorter (a thin
