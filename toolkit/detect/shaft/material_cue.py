@@ -31,8 +31,8 @@ frames whose colour tells the materials apart (`shaft.detector`).
    the run's (`shaft.region_bands.band_stretch`: a shaft running into a drape of its own
    material, or a white shaft merging with white tissue, is a short band of region whose edges
    go on), each edge the best run of stations with gaps up to a width (a thread, a
-   highlight); the midline is the plane bisector of the two (`shaft.axis`). It is a shaft when both edges are seen
-   together along at least the least length, or 1.25 widths where that is shorter (a thin
+   highlight); the midline is the plane bisector of the two (`shaft.axis`). It is a shaft
+   when both edges are seen together along at least the least length, or 1.25 widths where that is shorter (a thin
    shaft: the length is relative to the width, `_least_seen`), and a third of the region's
    run; when they,
    its band or its region's extension (the instrument's material, its wrist included) run
