@@ -24,38 +24,35 @@ frames whose colour tells the materials apart (`shaft.detector`).
    others;
 3. *edges* (`shaft.silhouette`, `_band_edges`): each proposed band's two boundaries refitted at
    full resolution in a corridor (`corridor_px`) over its run; an edge found there along less
-   than a quarter of it searched again in one of 3 work px (the region boundary's own resolution,
-   1.5 work px, and its offset inside a blurred silhouette; at most a fifth of the band's
-   width), kept where found along half of it on the side the first fit leant to; then grown
-   along their own lines over the stretch where the band's cross-section goes on looking like
-   the run's (`shaft.region_bands.band_stretch`: a shaft running into a drape of its own
+   than a quarter of it searched again in one of 3 work px (the region boundary's own
+   resolution, 1.5 work px, and its offset inside a blurred silhouette; at most a fifth of the
+   band's width), kept where found along half of it on the side the first fit leant to; then
+   grown along their own lines over the stretch where the band's cross-section goes on looking
+   like the run's (`shaft.region_bands.band_stretch`: a shaft running into a drape of its own
    material, or a white shaft merging with white tissue, is a short band of region whose edges
-   go on), each edge the best run of stations with gaps up to a width (a thread, a
-   highlight); the midline is the plane bisector of the two (`shaft.axis`). It is a shaft
-   when both edges are seen together along at least the least length, or 1.25 widths where that is shorter (a thin
-   shaft: the length is relative to the width, `_least_seen`), and a third of the region's
-   run; when they,
-   its band or its region's extension (the instrument's material, its wrist included) run
-   along 2.5 widths (a jaw is not elongated), or they run along 1.25 widths and the border
-   of the view cuts them (a wide shaft close to the lens, entering at a corner; a wrist or
-   jaw ends inside the view); when they converge by at most the largest
-   convergence (a band of edge pairs or one found into its own region: up to
-   `shaft.edge_pairs.PAIR_MAX_CONVERGENCE_DEG`)
-   and meet outside the stretch (by half a width); and when the band's
-   extension reaches the border of the view or the stretch ends within a width of it (an
-   instrument enters from outside; its edges may fade into a dark, vignetted surround
-   before the border), or it is very long (`_LONG_FRACTION` of the diagonal). It is no
-   shaft when its inside differs from one side by less than `_ONE_SIDED` of its difference
-   from the other (the background beside a bright instrument's edge), or when it is seen
-   along fewer than `_ELONGATED_WIDTHS` widths, ends inside the view and its instrument's
-   material runs on beyond it for over `_DISTAL_RUN` times its length (a distal part,
-   open jaws or a wrist, of an instrument whose shaft is in view). The score is
-   the length of the band's run of region seen as a shaft [raw px] (of two readings of one
-   instrument, the band of instrument-like material is the shaft, the band that takes in
-   its shadow too is not), at most the length along which both edges are seen together
-   (a long run whose edges are found together along a short part of it, one of them
-   drifting onto a jaw or a shadow, claims no more), times the least fraction of stations
-   where an edge was found;
+   go on), each edge the best run of stations with gaps up to a width (a thread, a highlight);
+   the midline is the plane bisector of the two (`shaft.axis`). It is a shaft when both edges
+   are seen together along at least the least length, or 1.25 widths where that is shorter (a
+   thin shaft: the length is relative to the width, `_least_seen`), and a third of the region's
+   run; when they, its band or its region's extension (the instrument's material, its wrist
+   included) run along 2.5 widths (a jaw is not elongated), or they run along 1.25 widths and
+   the border of the view cuts them (a wide shaft close to the lens, entering at a corner; a
+   wrist or jaw ends inside the view); when they converge by at most the largest convergence (a
+   band of edge pairs or one found into its own region: up to
+   `shaft.edge_pairs.PAIR_MAX_CONVERGENCE_DEG`) and meet outside the stretch (by half a width);
+   and when the band's extension reaches the border of the view or the stretch ends within a
+   width of it (an instrument enters from outside; its edges may fade into a dark, vignetted
+   surround before the border), or it is very long (`_LONG_FRACTION` of the diagonal). It is no
+   shaft when its inside differs from one side by less than `_ONE_SIDED` of its difference from
+   the other (the background beside a bright instrument's edge), or when it is seen along fewer
+   than `_ELONGATED_WIDTHS` widths, ends inside the view and its instrument's material runs on
+   beyond it for over `_DISTAL_RUN` times its length (a distal part, open jaws or a wrist, of
+   an instrument whose shaft is in view). The score is the length of the band's run of region
+   seen as a shaft [raw px] (of two readings of one instrument, the band of instrument-like
+   material is the shaft, the band that takes in its shadow too is not), at most the length
+   along which both edges are seen together (a long run whose edges are found together along a
+   short part of it, one of them drifting onto a jaw or a shadow, claims no more), times the
+   least fraction of stations where an edge was found;
 4. *selection* (`select`): a shaft whose band overlaps a better one's, or that runs along a
    better one's axis (within `_COAXIAL_DEG`, its centre within half that one's width: a
    wrist, the far part of a shaft split by a highlight), is another reading of the same
