@@ -67,7 +67,7 @@ from pencilcal.toolkit.detect.shaft.mask import instruments_in_mask, mask_axis
 from pencilcal.toolkit.detect.shaft.regions import Z_999
 from pencilcal.toolkit.detect.shaft.silhouette import EdgeLine, fit_edges
 from pencilcal.toolkit.detect.shaft.work import Validity, axis_matrix
-from pencilcal.toolkit.detect.working import check_camera_image
+from pencilcal.toolkit.detect.working import check_camera_image, to_working
 from pencilcal.toolkit.errors import InputError
 
 __all__ = ["MaskShaft", "shafts_from_masks", "MASK_CORRIDOR_PX", "CORRIDOR_WIDTH_FRAC", "MASK_EDGE_SIGMA_PX",
@@ -200,8 +200,7 @@ def _edge_specs(camera, edges_raw):
     """(specs for `fit_edges`, mask edges as `EdgeLine`) of a mask's two edges (2, 4) [raw
     px]: each from its first end along the mask's edge in ideal px, its normal pointing out
     of the shaft (away from the other edge)."""
-    ideal = edges_raw.reshape(2, 2, 2) if camera is None else camera.undistort_pixels(
-        edges_raw.reshape(-1, 2)).reshape(2, 2, 2)
+    ideal = to_working(camera, edges_raw).reshape(2, 2, 2)
     centre = ideal.reshape(-1, 2).mean(0)
     specs, masked = [], []
     for A, B in ideal:
@@ -298,7 +297,7 @@ def _part(ax, m, camera, index, polarity):
     d = np.array([ax.line[1], -ax.line[0]])
     along = (np.c_[xs, ys] - ax.point) @ d
     seg = np.r_[ax.point + along.min() * d, ax.point + along.max() * d]
-    ideal = seg if camera is None else camera.undistort_pixels(seg.reshape(2, 2)).reshape(-1)
+    ideal = to_working(camera, seg).reshape(-1)
     sa = float(np.arctan2(ax.width_px, ax.length_px))
     so = PART_OFFSET_SIGMA_FRAC * ax.width_px
     cov = np.diag([sa**2, so**2])
