@@ -42,6 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pencilcal.toolkit.detect.working import to_working_points
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 
@@ -314,9 +315,9 @@ def _prior_of(rec, camera, where):
                                       np.asarray(cov, float))
         if rec.get("vertex_px") is not None and rec.get("vertex_cov_px2") is not None:
             v = np.asarray(rec["vertex_px"], float).reshape(2)
-            ideal = camera.undistort_pixels(v[None])[0]
+            ideal = to_working_points(camera, v)
             # the lens map's Jacobian at the vertex, by central differences of +-0.5 px
-            u = camera.undistort_pixels(np.stack([v + [0.5, 0], v - [0.5, 0], v + [0, 0.5], v - [0, 0.5]]))
+            u = to_working_points(camera, np.stack([v + [0.5, 0], v - [0.5, 0], v + [0, 0.5], v - [0, 0.5]]))
             J = np.stack([u[0] - u[1], u[2] - u[3]], -1)
             if not np.all(np.isfinite(ideal)) or not np.all(np.isfinite(J)):
                 raise InputError(f"{where}: vertex_px lies beyond the lens model's reach; give ray and ray_cov")
