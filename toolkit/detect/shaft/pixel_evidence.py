@@ -35,6 +35,7 @@ import numpy as np
 
 from pencilcal.toolkit.detect.shaft.pixels import WORK_PX, instrument_probability_at
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
+from pencilcal.toolkit.detect.working import to_working_points
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.quantiles import median
 
@@ -58,7 +59,7 @@ def _sample_points(work, camera, midlines, widths):
     h, w = work.shape
     out = []
     for m, wd in zip(mids, np.asarray(widths, float).reshape(-1)):
-        ends = m.reshape(2, 2) if camera is None else camera.undistort_pixels(m.reshape(2, 2))
+        ends = to_working_points(camera, m.reshape(2, 2))
         a, b = work.to_work(ends)
         L = float(np.hypot(*(b - a)))
         if not np.isfinite(L) or L <= 0:
