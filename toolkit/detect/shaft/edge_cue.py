@@ -68,7 +68,7 @@ from pencilcal.toolkit.detect.pairs import antiparallel_pairs, pair_geometry
 from pencilcal.toolkit.detect.segments import detect_fragments, in_valid_region, merge_collinear
 from pencilcal.toolkit.detect.shaft.axis import measure_edge_pair
 from pencilcal.toolkit.detect.shaft.bands import assess_bands, assess_chords, border_polygon, nested_bands
-from pencilcal.toolkit.detect.working import to_raw
+from pencilcal.toolkit.detect.working import to_raw, to_working_points
 from pencilcal.toolkit.geometry.neighbours import pairs_within
 
 __all__ = ["edge_cue", "bands_from_edges", "refit_edges", "unsigned_lines", "drop_repeated"]
@@ -411,7 +411,7 @@ def _view_polygon(camera, img):
     raw = np.asarray(img.region.outline((H, W)), float)
     q = np.linspace(0.0, 1.0, 16, endpoint=False)[None, :, None]
     dense = (raw[:-1, None, :] + q * (raw[1:] - raw[:-1])[:, None, :]).reshape(-1, 2)
-    work = dense if camera is None else camera.undistort_pixels(dense)
+    work = to_working_points(camera, dense)
     work = work[np.all(np.isfinite(work), -1)]
     return np.concatenate([work, work[:1]]) if len(work) >= 3 else border_polygon(camera, W, H)
 
