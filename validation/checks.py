@@ -223,7 +223,7 @@ def fulcrum_jackknife(camera, frames, angles=None, full=None, **options):
         try:
             f = fulcrum_from_frames(camera, [frames[i] for i in keep],
                                     None if angles is None else np.asarray(angles)[keep],
-                                    lines=without_frame(lines, frames, k), **options)
+                                    lines=without_frame(lines, frames, k), raw_px=False, **options)
         except EstimationError:
             continue
         rays.append(f.ray)

@@ -467,7 +467,7 @@ def without_frame(lines, frames, k):
 
 
 def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_SIGMA_PX, intrinsics_cov="camera",
-                        shaft_diameter=None, lines=None):
+                        shaft_diameter=None, lines=None, raw_px=True):
     """The fulcrum (and with `angles` the pivot plane) from the lines of a sequence.
 
     camera: Camera; frames: lines.json frame dicts (io.lines_file.read_lines); angles: (F,)
@@ -477,7 +477,9 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
     `orient.orient_segments` ("camera": the camera file's, if it carries one).
     shaft_diameter: the shafts' diameter; then also the 3-D fulcrum (`fulcrum_point`).
     lines: the frames' `sequence_lines` (with this endpoint_sigma_px) when the caller has
-    them (a jackknife: `without_frame`), else None.
+    them (a jackknife: `without_frame`), else None. raw_px: False leaves the raw pixel
+    (vertex_px, vertex_cov_px2) None, not mapped through the lens: fits of which only the
+    ray and the pivot plane are used (a jackknife's).
 
     Returns a `Fulcrum` (its ``to_dict()`` is the fulcrum.json record). Raises
     EstimationError when there is no fulcrum.
@@ -506,7 +508,7 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
     P = (np.eye(3) - np.outer(v, v) / (v @ v))[:, :2] / np.linalg.norm(v)
     ray_cov = P @ cov_x @ P.T
     ray_sigma = np.sqrt(max(np.trace(ray_cov), 0.0))
-    v_raw, cov_raw = raw_vertex(camera, x, vf.vertex, vf.cov)
+    v_raw, cov_raw = raw_vertex(camera, x, vf.vertex, vf.cov) if raw_px else (None, None)
     out = Fulcrum(
         vertex_px=v_raw, vertex_cov_px2=cov_raw, ray=ray, ray_sigma_deg=float(np.degrees(ray_sigma)),
         lines_used=int(vf.lines_used),

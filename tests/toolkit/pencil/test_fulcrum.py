@@ -149,6 +149,8 @@ def test_without_frame_is_the_fit_of_the_other_frames(rng):
         b = fulcrum_from_frames(cam, rest, np.delete(angles, k), lines=without_frame(lines, frames, k))
         assert np.array_equal(a.ray, b.ray) and np.array_equal(a.vertex_cov_px2, b.vertex_cov_px2)
         assert np.array_equal(a.pivot.normal, b.pivot.normal) and a.outliers == b.outliers
+        c = fulcrum_from_frames(cam, rest, np.delete(angles, k), raw_px=False)  # the ray alone: no raw pixel
+        assert np.array_equal(a.ray, c.ray) and c.vertex_px is None and a.vertex_px is not None
     frames[4]["shafts"] = [{"midline": frames[4]["segments"][0], "angle_sigma_deg": 0.05}]
     assert without_frame(sequence_lines(cam, frames), frames, 4) is None
     assert without_frame(sequence_lines(cam, frames), frames, 3) is not None
