@@ -208,18 +208,22 @@ def fulcrum_jackknife(camera, frames, angles=None, full=None, **options):
     ``normal_sigma_deg`` and ``normal_sigma_jackknife_deg``. full: the fit of all frames
     when the caller has it (not fitted again).
     """
-    from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames
+    from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, sequence_lines, without_frame
 
     if full is None:
         full = fulcrum_from_frames(camera, frames, angles, **options)
     rays, normals = [], []
+    # the lines undistorted once, each fit taking all but one frame's (the same numbers)
+    sig = {"endpoint_sigma_px": options["endpoint_sigma_px"]} if "endpoint_sigma_px" in options else {}
+    lines = sequence_lines(camera, frames, **sig)
     # a frame without a line leaves the fit as it is: it is not a leave-one-out estimate
     with_lines = [k for k, f in enumerate(frames) if len(f.get("segments", ())) or f.get("shafts")]
     for k in with_lines:
         keep = [i for i in range(len(frames)) if i != k]
         try:
             f = fulcrum_from_frames(camera, [frames[i] for i in keep],
-                                    None if angles is None else np.asarray(angles)[keep], **options)
+                                    None if angles is None else np.asarray(angles)[keep],
+                                    lines=without_frame(lines, frames, k), raw_px=False, **options)
         except EstimationError:
             continue
         rays.append(f.ray)

@@ -452,8 +452,22 @@ def sequence_lines(camera, frames, endpoint_sigma_px=ENDPOINT_SIGMA_PX):
     return SequenceLines(seg, ideal, good, L, st, sc, owner, lines_from, warnings)
 
 
+def without_frame(lines, frames, k):
+    """`sequence_lines` of `frames` with frame k left out, from those of all frames
+    (`lines`) without undistorting them again (each point is undistorted on its own, so the
+    numbers are the same); None where leaving it out changes which lines are used (the only
+    frame with shaft midlines). Its ``warnings`` are those of all frames."""
+    if lines.lines_from == "shafts" and not any(fr.get("shafts") for i, fr in enumerate(frames)
+                                                if i != k and fr.get("ok", True)):
+        return None
+    keep = np.array([o[0] != k for o in lines.owner], bool)
+    owner = [(f - (f > k), j) for f, j in lines.owner if f != k]
+    return SequenceLines(lines.raw[keep], lines.ideal[keep], lines.good[keep], lines.length[keep],
+                         lines.angle_sigma[keep], lines.offset_sigma[keep], owner, lines.lines_from, lines.warnings)
+
+
 def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_SIGMA_PX, intrinsics_cov="camera",
-                        shaft_diameter=None):
+                        shaft_diameter=None, lines=None, raw_px=True):
     """The fulcrum (and with `angles` the pivot plane) from the lines of a sequence.
 
     camera: Camera; frames: lines.json frame dicts (io.lines_file.read_lines); angles: (F,)
@@ -462,11 +476,17 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
     when any frame of the sequence has them, else the segments. intrinsics_cov: as
     `orient.orient_segments` ("camera": the camera file's, if it carries one).
     shaft_diameter: the shafts' diameter; then also the 3-D fulcrum (`fulcrum_point`).
+    lines: the frames' `sequence_lines` (with this endpoint_sigma_px) when the caller has
+    them (a jackknife: `without_frame`), else None. raw_px: False leaves the raw pixel
+    (vertex_px, vertex_cov_px2) None, not mapped through the lens: fits of which only the
+    ray and the pivot plane are used (a jackknife's).
 
     Returns a `Fulcrum` (its ``to_dict()`` is the fulcrum.json record). Raises
     EstimationError when there is no fulcrum.
     """
-    seg, ideal, good, L, st, sc, owner, lines_from, warnings = sequence_lines(camera, frames, endpoint_sigma_px)
+    if lines is None:
+        lines = sequence_lines(camera, frames, endpoint_sigma_px)
+    seg, ideal, good, L, st, sc, owner, lines_from, warnings = lines
     if len(seg) < 2:
         raise EstimationError(f"fewer than two instrument lines in the sequence ({len(seg)})")
     if good.sum() < 2:
@@ -488,7 +508,7 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
     P = (np.eye(3) - np.outer(v, v) / (v @ v))[:, :2] / np.linalg.norm(v)
     ray_cov = P @ cov_x @ P.T
     ray_sigma = np.sqrt(max(np.trace(ray_cov), 0.0))
-    v_raw, cov_raw = raw_vertex(camera, x, vf.vertex, vf.cov)
+    v_raw, cov_raw = raw_vertex(camera, x, vf.vertex, vf.cov) if raw_px else (None, None)
     out = Fulcrum(
         vertex_px=v_raw, vertex_cov_px2=cov_raw, ray=ray, ray_sigma_deg=float(np.degrees(ray_sigma)),
         lines_used=int(vf.lines_used),

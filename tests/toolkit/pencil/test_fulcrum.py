@@ -6,7 +6,7 @@ import pytest
 
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.geometry.frames import angle_between, rotation_about_axis, rotation_angle
-from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles
+from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles, sequence_lines, without_frame
 from tests.helpers import hd_camera
 
 
@@ -134,3 +134,23 @@ def test_a_frame_without_a_shaft_does_not_hand_its_edges_to_the_fulcrum(rng):
     assert any("without a shaft" in w for w in out.warnings)
     assert any("non-finite" in w for w in out.warnings)
     assert out.to_dict()["lines_from"] == "shafts"
+
+
+def test_without_frame_is_the_fit_of_the_other_frames(rng):
+    """The jackknife's shortcut: a fit from all frames' lines less one frame's is the fit of
+    the other frames, number for number (outliers named by their frame in the subset); None
+    where the frame left out is the only one with shaft midlines."""
+    cam = hd_camera()
+    frames, angles, R, P = pivot_sequence(cam, rng, n=12, noise_px=0.5, outliers=3)
+    lines = sequence_lines(cam, frames)
+    for k in (0, 5, 11):
+        rest = frames[:k] + frames[k + 1:]
+        a = fulcrum_from_frames(cam, rest, np.delete(angles, k))
+        b = fulcrum_from_frames(cam, rest, np.delete(angles, k), lines=without_frame(lines, frames, k))
+        assert np.array_equal(a.ray, b.ray) and np.array_equal(a.vertex_cov_px2, b.vertex_cov_px2)
+        assert np.array_equal(a.pivot.normal, b.pivot.normal) and a.outliers == b.outliers
+        c = fulcrum_from_frames(cam, rest, np.delete(angles, k), raw_px=False)  # the ray alone: no raw pixel
+        assert np.array_equal(a.ray, c.ray) and c.vertex_px is None and a.vertex_px is not None
+    frames[4]["shafts"] = [{"midline": frames[4]["segments"][0], "angle_sigma_deg": 0.05}]
+    assert without_frame(sequence_lines(cam, frames), frames, 4) is None
+    assert without_frame(sequence_lines(cam, frames), frames, 3) is not None
