@@ -26,8 +26,7 @@ import numpy as np
 
 from pencilcal.toolkit.errors import EstimationError
 
-__all__ = ["EllipseFit", "fit_ellipse", "conic_vector", "conic_matrix", "sampson_distances", "ellipse_parameters",
-           "circle_image"]
+__all__ = ["EllipseFit", "fit_ellipse", "conic_vector", "conic_matrix", "sampson_distances", "ellipse_parameters"]
 
 
 class EllipseFit(NamedTuple):
@@ -56,18 +55,6 @@ def conic_matrix(q):
     a, b, c, d, e, f = (q[..., i] for i in range(6))
     return np.stack([np.stack([a, b / 2, d / 2], -1), np.stack([b / 2, c, e / 2], -1),
                      np.stack([d / 2, e / 2, f], -1)], -2)
-
-
-def circle_image(H, radius):
-    """(3, 3) the image conic of the circle of `radius` about the origin of a plane whose
-    points (x, y, 1) a homography H (3, 3) maps to the image (the conic's scale is arbitrary).
-
-    >>> C = circle_image(np.diag([2.0, 2.0, 1.0]), 3.0)     # a plane seen at twice its scale
-    >>> float(np.array([6.0, 0.0, 1.0]) @ C @ np.array([6.0, 0.0, 1.0]))
-    0.0
-    """
-    Hinv = np.linalg.inv(np.asarray(H, float))
-    return Hinv.T @ np.diag([1.0, 1.0, -float(radius) ** 2]) @ Hinv
 
 
 def _design(p):

@@ -391,8 +391,8 @@ def spokes_end_conic(camera, orientation, segments, circle_points, pencil):
     `_END_RATIO`, or the outermost ring beyond it within the listed ratio of the spokes' end
     to the circle inside it (the edges may end at that circle). Not from the listed radii's
     depth: a dartboard's surround and board edge stand about as the treble and double rings
-    do (on the shared far view the depth so matched was 0.63 of the true one). orientation: an `Orientation` with ``lines``
-    (``keep_lines``); segments (M, 4) [raw px] those it was fitted to; circle_points (K, 2)
+    do (on the shared far view the depth so matched was 0.63 of the true one).
+    orientation: an `Orientation` with ``lines`` (``keep_lines``); segments (M, 4) [raw px] those it was fitted to; circle_points (K, 2)
     [raw px] (`detect.radial`'s); used by `detect.radial.detect_radial_edges`' ``outer``.
     """
     if (pencil.radius is None or pencil.circles is None or not orientation.ok or orientation.lines is None
