@@ -84,3 +84,33 @@ def test_nothing_found():
     det = detect_board(np.full((240, 320), 255, np.uint8), BOARD)
     assert det.count == 0 and det.marker_ids.size == 0 and det.marker_corners.shape == (0, 4, 2)
     assert det.image_size == (320, 240)
+
+
+DAVINCI = board_from_dict({"type": "charuco", "squares": [19, 26], "square": 5.0, "marker": 4.0,
+                           "dictionary": "DICT_4X4_250", "legacy": True})
+
+
+def test_charuco_corners_on_endoscope_like_renders():
+    """ChArUco corners as CharucoDetector refines them, on rendered PAL endoscope views of
+    the da Vinci board (720 x 576, fy / fx 1.09, barrel distortion, squares of 25-35 px with
+    3 px of white between marker and square, blur 1.4 px, noise 5, JPEG 75): measured 0.21
+    px RMS per axis, each view's mean error under 0.06 px. No systematic error to remove
+    by refining them again (the chessboard's fitted window measured worse on such views,
+    docs/calibration.md)."""
+    cam = Camera("opencv", 720, 576, [[833.0, 0, 300.0], [0, 909.0, 276.0], [0, 0, 1]], [-0.31, 0.4, 0, 0, 0])
+    sheet = layout_sheet(DAVINCI, paper="a4")
+    X = DAVINCI.object_points()
+    rng = np.random.default_rng(3)
+    errors = []
+    for k, (axis, deg) in enumerate([([1, 0.3, 0], 30), ([0.2, 1, 0], -35), ([1, -0.5, 0], -40), ([-0.4, 1, 0], 25)]):
+        R = rotation_about_axis(np.array(axis, float), np.radians(deg))
+        t = np.array([5.0 * (k - 1.5), 4.0, 130.0]) - R @ X.mean(0)
+        img = render_frame(cam, R, t, sheet, background="plain", blur_px=1.4, noise=5.0, rng=rng)
+        img = cv2.imdecode(cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 75])[1], cv2.IMREAD_GRAYSCALE)
+        det = detect_board(img, DAVINCI)
+        assert det.count > 100
+        e = det.corners - cam.project(X @ R.T + t)[det.ids]
+        assert np.all(np.abs(e.mean(0)) < 0.1), e.mean(0)
+        errors.append(e)
+    e = np.concatenate(errors)
+    assert np.sqrt(np.mean(e ** 2)) < 0.3
