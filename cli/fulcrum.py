@@ -476,9 +476,11 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     Unless --endpoint-sigma is given, the sigmas hold the noise the lines show: the
     intersection's chi-square per degree of freedom scales them (segments without their
     own sigmas: estimated; shaft midlines: only ever inflated); `noise` says what was
-    found. With 8 frames or more each is left out once (`jackknife`): where the fulcrum
-    moves between frames far more than its sigmas say, they are raised to the jackknife's,
-    with a warning. --source reads a camera or a growing video; --jsonl streams each
+    found; the 3-D point's covariance likewise takes its axes' chi2 per degree of freedom
+    (``point_variance_factor``). With 8 frames or more each is left out once
+    (`jackknife`): where the fulcrum moves between frames far more than its sigmas say,
+    they are raised to the jackknife's, with a warning (not judged for a 3-D point that
+    uses the axes of fewer than 4 frames). --source reads a camera or a growing video; --jsonl streams each
     frame's shafts as they are found and --overlay draws them (the fulcrum is known at the
     end only).
 

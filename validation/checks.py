@@ -44,8 +44,12 @@ from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.geometry.frames import rotation_from_rotvec, rotvec_from_rotation
 
-__all__ = ["REGION", "binomial_band", "rig_check", "jackknife",
-           "fulcrum_jackknife", "jackknife_inflation", "point_jackknife", "board_poses", "pair_by_name", "stereo_inputs"]
+__all__ = ["REGION", "binomial_band", "rig_check", "jackknife", "fulcrum_jackknife", "jackknife_inflation",
+           "point_jackknife", "POINT_JACKKNIFE_AXES", "board_poses", "pair_by_name", "stereo_inputs"]
+
+#: The fewest frames whose axes a 3-D fulcrum must use for its jackknife to be judged
+#: (`point_jackknife`): four axes leave 5 degrees of freedom over the point's 3.
+POINT_JACKKNIFE_AXES = 4
 
 #: The probability of the region whose coverage the checks count (one sigma in 1-D).
 REGION = 0.683
@@ -361,7 +365,7 @@ def jackknife_inflation(fulcrum, jk, level=0.99):
     return rescale_fulcrum(fulcrum, max(ratio**2, 1.0) if ratio**2 > limit else 1.0, pivot_factor), rec
 
 
-def point_jackknife(camera, frames, diameter, point, level=0.99):
+def point_jackknife(camera, frames, diameter, point, level=0.99, min_axes=None):
     """(FulcrumPoint, record): the 3-D fulcrum's covariance against its jackknife over frames,
     raised to it where the frames scatter the point significantly more than it says.
 
@@ -372,11 +376,22 @@ def point_jackknife(camera, frames, diameter, point, level=0.99):
     taken in its place when the ratio exceeds chi2(3 (n - 1)) / (3 (n - 1)) at `level`. The
     record: ``frames``, ``point_sigma_jackknife`` [unit of the diameter], ``ratio``
     (jackknife / reported RMS), ``inflated``.
+
+    A point that uses the axes of fewer than `min_axes` frames (`POINT_JACKKNIFE_AXES`) is
+    not judged: leaving out an axis it does not use leaves it where it is, and leaving out
+    one it uses leaves too few to fix it, so the leave-one-out points measure the gate, not
+    the noise. The record then has ``ratio`` None, ``inflated`` false and ``reason``.
     """
     import dataclasses
 
     from pencilcal.toolkit.pencil.fulcrum import fulcrum_point
 
+    min_axes = POINT_JACKKNIFE_AXES if min_axes is None else int(min_axes)
+    used = {im for (im, _), u in zip(point.owners, np.asarray(point.fit.inliers)) if u}
+    if len(used) < min_axes:
+        return point, {"frames": 0, "point_sigma_jackknife": None, "ratio": None, "inflated": False,
+                       "reason": f"the point uses the axes of {len(used)} frame(s), fewer than {min_axes}: "
+                                 "its jackknife would measure the gate, not the noise"}
     pts = []
     for k, f in enumerate(frames):
         if not f.get("shafts"):

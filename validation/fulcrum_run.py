@@ -88,6 +88,8 @@ def jackknife_sigmas(res, camera, frames, angles=None, endpoint_sigma_px=ENDPOIN
     if out.point is not None:
         point, prec = point_jackknife(camera, frames, out.point.diameter, out.point)
         rec["point"] = prec
+        if prec.get("reason"):
+            messages.append(f"the 3-D fulcrum's jackknife is not judged: {prec['reason']}")
         if prec["inflated"]:
             messages.append(f"leaving one frame out at a time moves the 3-D fulcrum by "
                             f"{prec['point_sigma_jackknife']:.3g} (RMS), {prec['ratio']:.2g} times its sigma: its "

@@ -52,12 +52,17 @@ from pencilcal.toolkit.pencil.orient import orientation_record, raw_vertex
 from pencilcal.toolkit.pencil.orientation import Orientation
 from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, Fusion, RayTriangulation, combine_estimates,
                                                fulcrum_3d, shaft_axis_record, triangulate_rays)
+from pencilcal.toolkit.pencil.sequence_noise import MAX_RUNS, inflation
 from pencilcal.toolkit.pencil.vertex import intersect_lines
 
 __all__ = ["Fulcrum", "FulcrumPoint", "StereoFulcrum", "SequenceLines", "fulcrum_from_frames", "fulcrum_point",
            "frame_axes", "pose_arrays", "point_lens_cov", "sequence_lines",
            "stereo_fulcrum",
            "triangulation_lens_cov", "read_angles"]
+
+# a run's own variance factor above this (a sigma scale of 1.1) fits the axes again with the
+# scaled covariances: the gate of that run was set for a smaller noise
+_RERUN_FACTOR = 1.1**2
 
 
 def read_angles(path, images):
@@ -205,6 +210,9 @@ class FulcrumPoint:
     variance_factor (what the point's covariance was multiplied by: its axes' chi2 per
     degree of freedom, at least 1)}; every 3-D
     quantity is then in the reference frame's camera, and the axes' points are carried.
+    variance_factor: what point_cov was multiplied by, the still camera's and the moving
+    camera's alike: the used axes' chi2 per degree of freedom (2N - 3, or 2N - 4 with the
+    map unit) where above 1, else 1.
     """
 
     fit: Fulcrum3D
@@ -215,13 +223,14 @@ class FulcrumPoint:
     axis_directions: np.ndarray | None = None
     lens_cov: np.ndarray | None = None
     camera_motion: dict | None = None
+    variance_factor: float = 1.0
 
     def to_dict(self) -> dict:
         """point, point_cov, point_sigma, point_axes_used, point_outliers ({image, shaft,
         distance, chi2} of each axis left out), point_axes ({image, shaft, distance, chi2,
-        used, and axis_point, axis_direction where known} of every axis), point_chi2_dof and
-        shaft_diameter; with `lens_cov` (the intrinsics' term) also point_cov_total =
-        point_cov + lens_cov and point_sigma_total (docs/formats.md)."""
+        used, and axis_point, axis_direction where known} of every axis), point_chi2_dof,
+        point_variance_factor and shaft_diameter; with `lens_cov` (the intrinsics' term)
+        also point_cov_total = point_cov + lens_cov and point_sigma_total (docs/formats.md)."""
         f = self.fit
         used = np.asarray(f.inliers)
         axes = [{"image": im, "shaft": j, "distance": float(f.distances[k]), "chi2": float(f.chi2[k]),
@@ -235,6 +244,7 @@ class FulcrumPoint:
                "point_outliers": [{k: a[k] for k in ("image", "shaft", "distance", "chi2")} for a in axes
                                   if not a["used"]],
                "point_chi2_dof": float(np.sum(np.asarray(f.chi2)[used]) / dof),
+               "point_variance_factor": float(self.variance_factor),
                "point_axes": axes, "shaft_diameter": self.diameter}
         if self.camera_motion is not None:
             out["point_camera_motion"] = dict(self.camera_motion)
@@ -254,10 +264,12 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None):
     from its edges and their covariance (`cylinder.shaft_axis_record`); the point is their
     robust weighted least-squares intersection (`cylinder.fulcrum_3d`: an MSAC start from
     pairs of axes, then a chi2 gate at 99 % on each axis's offset), its covariance the
-    inverse of the normal equations. intrinsics_cov: (P, P) the covariance of the camera's
-    intrinsics (`camera.intrinsics`), or None: then also the point's ``lens_cov``
-    (`point_lens_cov`). Returns a `FulcrumPoint`; EstimationError when fewer than two
-    crossing axes remain.
+    inverse of the normal equations times the used axes' chi2 per degree of freedom where
+    that is above 1 (the a-posteriori variance factor: on real frames the short shafts'
+    edge covariances are small, `sequence_noise.inflation`). intrinsics_cov: (P, P) the
+    covariance of the camera's intrinsics (`camera.intrinsics`), or None: then also the
+    point's ``lens_cov`` (`point_lens_cov`). Returns a `FulcrumPoint`; EstimationError when
+    fewer than two crossing axes remain.
 
     A moving camera (`pencilcal fulcrum --stabilize`): frames whose ``camera_pose`` gives
     their camera from the reference frame's (R_frame_from_ref, t_frame_from_ref in the
@@ -273,13 +285,35 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None):
                               + (f" ({skipped} shaft(s) without edge_cov or a valid axis)" if skipped else ""))
     if any(p is not None for p in poses):
         return _moving_point(points, dirs, covs, poses, owners, diameter, skipped, robust)
-    fit = fulcrum_3d(np.array(points), np.array(dirs), np.array(covs), robust=robust)
+    fit, factor = _point_with_noise(np.array(points), np.array(dirs), np.array(covs), robust)
     lens = None
     if intrinsics_cov is not None:
         used = [measured[k] for k in np.flatnonzero(np.asarray(fit.inliers))]
         lens = point_lens_cov(camera, intrinsics_cov, used, diameter)
     return FulcrumPoint(fit=fit, owners=owners, diameter=float(diameter), skipped=skipped,
-                        axis_points=np.array(points), axis_directions=normalize(np.array(dirs)), lens_cov=lens)
+                        axis_points=np.array(points), axis_directions=normalize(np.array(dirs)), lens_cov=lens,
+                        variance_factor=factor)
+
+
+def _point_with_noise(points, dirs, covs, robust):
+    """(Fulcrum3D, variance factor) of `fulcrum_point`'s still camera (points, dirs (N, 3),
+    covs (N, 4, 4) as `cylinder.fulcrum_3d` takes them): the axes' own
+    scatter taken in, as the image lines' fulcrum takes its lines' (`sequence_noise`), only
+    ever inflating. The factor is the used axes' chi2 over 2N - 3; while a run's own factor
+    is above 1.1^2 the axes are fitted again with their covariances times the factor so far
+    (at most `sequence_noise.MAX_RUNS` runs), because the 99 % gate of a run whose
+    covariances are too small leaves out the larger residuals and would bias the factor
+    low. The last run's covariance times its own factor; the factor returned is the total."""
+    total = 1.0
+    for i in range(MAX_RUNS):
+        fit = fulcrum_3d(points, dirs, covs * total, robust=robust)
+        used = np.asarray(fit.inliers, bool)
+        own = inflation(np.sum(np.asarray(fit.chi2)[used]), 2 * int(used.sum()) - 3)
+        if own <= _RERUN_FACTOR or i == MAX_RUNS - 1:
+            break
+        total *= own
+    fit = dataclasses.replace(fit, point_cov=fit.point_cov * own, point_sigma=fit.point_sigma * np.sqrt(own))
+    return fit, total * own
 
 
 def frame_axes(camera, frames, diameter):
@@ -327,12 +361,21 @@ def _moving_point(points, dirs, covs, poses, owners, diameter, skipped, robust):
     from pencilcal.toolkit.pencil.moving_fulcrum import fulcrum_moving
 
     R, t, S = pose_arrays(poses)
-    mv = fulcrum_moving(np.array(points), np.array(dirs), np.array(covs), R, t, S, robust=robust)
+    # as the still camera's (`_point_with_noise`): fitted again with the axes' and the poses'
+    # covariances times the factor so far while a run's own factor is above 1.1^2
+    total = 1.0
+    for i in range(MAX_RUNS):
+        mv = fulcrum_moving(np.array(points), np.array(dirs), np.array(covs) * total, R, t, S * total, robust=robust)
+        if mv.variance_factor <= _RERUN_FACTOR or i == MAX_RUNS - 1:
+            break
+        total *= mv.variance_factor
+    mv = dataclasses.replace(mv, variance_factor=mv.variance_factor * total)
     moved = int(np.sum(np.any(t != 0, axis=-1) | np.any(R != np.eye(3), axis=(-2, -1))))
     motion = {"frames_moved": moved, "scale": mv.scale, "scale_sigma": mv.scale_sigma,
               "variance_factor": mv.variance_factor}
     return FulcrumPoint(fit=mv.fit, owners=owners, diameter=float(diameter), skipped=skipped,
-                        axis_points=mv.points, axis_directions=mv.directions, camera_motion=motion)
+                        axis_points=mv.points, axis_directions=mv.directions, camera_motion=motion,
+                        variance_factor=mv.variance_factor)
 
 
 def point_lens_cov(camera, intrinsics_cov, shafts, diameter):

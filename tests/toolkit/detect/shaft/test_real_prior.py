@@ -90,11 +90,13 @@ def test_the_epochs_of_the_phantom(runs):
     after frame 14 (F 24.7, p 0.002 corrected; frames 1-14 tested again, p 0.46), so the
     epochs are frames 1-14 and 15-20 (before the tissue colour the test first set frames 8-14
     apart, F 24.0, p 0.003, and merged the change after 7, p 0.34) (the hand-made axes alone, at their 1 deg, split after 13).
-    Without the prior's lines the best split has p 0.017 (not significant at 0.01). Frames
-    1-14's fulcrum moves 3.0 times its sigma when one frame is left out (significant: its
-    sigmas are the jackknife's); 15-20's lines are too close to parallel for a finite
-    fulcrum. The issue's target (each epoch's jackknife within 1.5 of its fit's sigma) is not
-    reached: the camera moves in every frame."""
+    Without the prior's lines the best split has p 0.042 (not significant at 0.01). Frames
+    1-14's fulcrum image moves 2.97 times its sigma when one frame is left out (significant:
+    its sigmas are the jackknife's; frame 3, after the camera's largest move, alone moves it
+    4.9 deg), its 3-D point 1.07 times (8 of 13 axes, their variance factor 1.57; 1.38
+    without it); 15-20's six lines turn by 3.1 deg and fix no finite fulcrum (nor do their
+    hand-made axes). The target (each epoch's jackknife within 1.5 of its fit's sigma) is
+    reached for the first epoch's 3-D point only: the camera moves in every frame."""
     doc = runs["prior"][0]
     test = doc["epoch_test"]
     print(json.dumps(test, indent=1))
@@ -103,6 +105,9 @@ def test_the_epochs_of_the_phantom(runs):
         print(e["first"], e["last"], e.get("ok"), e.get("error"), e.get("vertex_px"), jk)
     assert test["epochs"] >= 2 and all(c["p_corrected"] < test["alpha"] for c in test["change_points"])
     assert len(doc["epochs"]) == test["epochs"]
+    first, last = doc["epochs"][0], doc["epochs"][-1]
+    assert first["jackknife"]["point"]["ratio"] <= 1.5 and first["point_variance_factor"] > 1.0
+    assert not last["ok"] and "infinity" in last["error"]
     assert runs["plain"][0]["epoch_test"]["epochs"] == 1
 
 
@@ -116,12 +121,14 @@ def test_the_phantom_stabilized(runs):
     frame 9's short shaft by the angle search). The 3-D axes are carried by the background's
     3-D poses (19 frames posed, anchor frame 5): the 3-D fulcrum, (26.2, -1.5, 76.0) mm in
     frame 11's camera, the map unit 30.8 +- 0.8 mm, its covariance times its axes' chi2 per
-    degree of freedom (1.35), moves 2.09 times its sigma when one frame is left out (2.43
-    without that factor, 1.71 on the detections before the tissue colour; 21 with the axes
-    carried by the homographies; docs/method.md, "The camera's 3-D motion"): not reached
-    over the whole sequence, which holds two 3-D fulcrums. The change-point test on the
-    carried 3-D axes (``point_epoch_test``) keeps it whole (best alternative p 0.021
-    corrected, alpha 0.01)."""
+    degree of freedom (1.66, the axes fitted again at that noise: 11 of 18 kept), moves 1.62
+    times its sigma when one frame is left out (2.09 with the factor of a fit gated at the
+    stated noise, 2.43 without it, 1.71 on the detections before the tissue colour; 21 with
+    the axes carried by the homographies; docs/method.md, "The camera's 3-D motion"): not
+    reached over the whole sequence, which holds two 3-D fulcrums (leaving out frame 1, 5,
+    6, 7 or 14 moves it to the other). The change-point test on the carried 3-D axes
+    (``point_epoch_test``) keeps it whole (best alternative p 0.013 corrected, alpha
+    0.01)."""
     doc = runs["stabilized"][0]
     st = doc["stabilize"]
     ratios = [(e.get("jackknife") or {}).get("ratio") for e in doc.get("epochs", [doc])]
@@ -133,7 +140,7 @@ def test_the_phantom_stabilized(runs):
     assert all(r is not None and r <= 2.1 for r in ratios)
     assert st["pose_model"] == "map" and st["frames_posed"] >= 18
     assert doc["point_camera_motion"]["frames_moved"] >= 15 and doc["point_camera_motion"]["scale"] > 0
-    assert doc["jackknife"]["point"]["ratio"] < 2.3
+    assert doc["jackknife"]["point"]["ratio"] < 1.8
     pt = doc["point_epoch_test"]
     print(pt["epochs"], pt["kept"], doc["point_camera_motion"]["variance_factor"])
     assert pt["epochs"] == 1 and "point_epochs" not in doc and doc["point_camera_motion"]["variance_factor"] > 1.0
@@ -171,15 +178,17 @@ def test_the_hand_made_axes_stabilized(runs):
 def test_the_phantom_3d_epochs(runs):
     """The 3-D axes of the stabilised run carried by its poses, fitted by parts: frames 1-14
     give the 3-D fulcrum (27.3, -1.5, 77.1) +- 4.5 mm (RMS) in frame 11's camera from 9 of
-    12 axes, their chi2 1.62 times its degrees of freedom (the variance factor the
-    covariance takes: 3.5 mm without it), and it moves 1.30 times its sigma when one frame
-    is left out (1.66 without the factor; 0.79 on the detections before the tissue colour,
-    which added frames 1 and 9): the issue's target (<= 1.5) is met for this epoch. Frames
-    15-20 fix the point more loosely (sigma 8.9 mm, 2 of 6 axes kept): in 3-D the fulcrum
+    12 axes, their chi2 1.63 times its degrees of freedom (the variance factor the
+    covariance takes: 3.5 mm without it), and it moves 1.38 times its sigma when one frame
+    is left out (1.30 before the axes were fitted again at that factor, 1.66 without the
+    factor; 0.79 on the detections before the tissue colour, which added frames 1 and 9):
+    the target (<= 1.5) is met for this epoch. Frames 15-20 fix the point more loosely
+    (sigma 8.9 mm, 2 of 6 axes kept: its jackknife, 7.8, is not judged, fewer than 4 frames'
+    axes): in 3-D the fulcrum
     moved after frame 14, where the plain lines' change-point test split (the image lines
     of the stabilised frames do not show it). The change-point test
     on the 3-D axes (`axis_epochs.point_epochs`) keeps the sequence whole: its best alternative,
-    frames 11-15 against the rest, has p 0.021 corrected (alpha 0.01), its split after 14 a
+    frames 11-15 against the rest, has p 0.013 corrected (alpha 0.01), its split after 14 a
     drop of 9.6 only: the robust fit of frames 15-20 keeps 2 of 6 axes, and short runs' fits
     stop in local minima (some splits' drops are negative). What moves the jackknife of
     frames 1-14: leaving out frame 7 moves the point 3.1 mm (10.7 in the fit's chi2(3)),
@@ -205,6 +214,8 @@ def test_the_phantom_3d_epochs(runs):
     assert jk["ratio"] is not None and jk["ratio"] <= 1.5
     assert int(np.sum(first.fit.inliers)) >= 7 and float(first.fit.point_sigma) < 8.0
     assert float(rest.fit.point_sigma) > 1.5 * float(first.fit.point_sigma)
+    _, rest_jk = point_jackknife(cam, frames[14:], 8.0, rest)
+    assert rest_jk["ratio"] is None and "fewer than 4" in rest_jk["reason"]
     assert first.camera_motion["variance_factor"] > 1.0
     from pencilcal.toolkit.pencil.axis_epochs import point_epochs
 
