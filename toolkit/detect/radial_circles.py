@@ -142,8 +142,7 @@ _RING_LOG_STEP = 0.002  # radial sampling [log radius on the plane]
 _RING_ARC_DEG = 0.5  # angular sampling on the plane
 _RING_WIRE_DEG = 2.0  # samples this close to a sector boundary (its wire, a label a little off) are not used
 _RING_SMOOTH = 2.0  # sd [samples] of the derivative kernel along the radius
-_RING_INSIDE = np.log(1.05)  # the sectors must show within this inside the ring's inner edge
-_RING_FROM = 0.75  # and outwards from this fraction of it (a dartboard's treble lies at 0.63 of its double)
+_RING_FROM = 0.75  # searched outwards from this fraction of the spokes' median end (a dartboard's treble lies at 0.63 of its double)
 _RING_REJECT = 3.0  # ellipse points beyond this many robust sds of its Sampson distances are left out
 
 
@@ -161,8 +160,8 @@ def spokes_end_ring(img, camera, R, x, boundaries, rho_end, ratio, gamma=1.0):
     orientation's errors do not change, where they bend the plane's radii by a few per cent
     over a turn); along a light sector's both fall, the inner the more, so only the dark
     directions are searched. The rise must lie where the shades still differ (by half their
-    most, within `_RING_INSIDE` inside it): the ring of numbers beyond is one shade, and its
-    digits are lighter bands of about the ring's width. Each dark direction gives the fall
+    most) within one ring's width (`ratio`) inside it: the ring of numbers beyond is one
+    shade, and its digits are lighter bands of about the ring's width. Each dark direction gives the fall
     where the pair is steepest (the smaller of the two slopes), from `_RING_FROM` of rho_end
     out; an ellipse is fitted to those points in working pixels, robustly
     (`_robust_ellipse`): the ring's own image.
@@ -205,9 +204,9 @@ def spokes_end_ring(img, camera, R, x, boundaries, rho_end, ratio, gamma=1.0):
     if not np.all(np.isfinite(level)):
         return None
     dark = shade == int(np.argmin(level))
-    # where the sectors still show just inside a ring's inner edge (the shades' medians
-    # apart by half their most): the ring of numbers beyond the double ring is one shade,
-    # and its white digits and outline are lighter bands of about the same width
+    # where the sectors still show (the shades' medians apart by half their most), within a
+    # ring's width inside its inner edge: the ring of numbers beyond the double ring is one
+    # shade, and its white digits and outline are lighter bands of about the same width
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         med = np.stack([np.nanmedian(prof[shade == s], 0) for s in (0, 1)])
@@ -217,12 +216,11 @@ def spokes_end_ring(img, camera, R, x, boundaries, rho_end, ratio, gamma=1.0):
     # outer edge falls at `ratio` times the inner's radius (a ratio the first orientation's
     # errors do not change); the outer edge where both are steepest together
     i_in = int(round(np.log(ratio) / _RING_LOG_STEP))
-    lo = int(round((_RING_LOG_SPAN - np.log(1 / _RING_FROM)) / _RING_LOG_STEP))
+    lo = max(int(round((_RING_LOG_SPAN - np.log(1 / _RING_FROM)) / _RING_LOG_STEP)), i_in)
     both = np.full_like(g, -np.inf)
     both[:, lo:] = np.minimum(g[:, lo - i_in:g.shape[1] - i_in], -g[:, lo:])
     both[~dark] = -np.inf
-    n_in = int(round(_RING_INSIDE / _RING_LOG_STEP))
-    lit = np.array([sectors[max(i - i_in - n_in, 0):max(i - i_in + 1, 0)].any() for i in range(lr.size)])
+    lit = np.array([sectors[max(i - 2 * i_in, 0):max(i - i_in + 1, 0)].any() for i in range(lr.size)])
     both[:, ~lit] = -np.inf
     both = np.where(np.isfinite(both), both, -np.inf)
     j = np.argmax(both, 1)
