@@ -228,8 +228,14 @@ def spokes_end_ring(img, camera, R, x, boundaries, rho_end, ratio, gamma=1.0):
     if has.sum() < 12:
         return None
     rows = np.flatnonzero(has)
-    pts = wp[rows, j[rows]]
-    return _robust_ellipse(pts)
+    got = _robust_ellipse(wp[rows, j[rows]])
+    if got is None:
+        return None
+    C, use = got
+    # the points lie on one circle of the first orientation's plane, within the ring's own
+    # width (a first orientation far off finds some lighter band, on no circle of its plane)
+    spread = 1.4826 * np.median(np.abs(lr[j[rows[use]]] - np.median(lr[j[rows[use]]])))
+    return C if spread <= np.log(ratio) else None
 
 
 def _smooth_derivative(prof):
@@ -249,12 +255,13 @@ def _smooth_derivative(prof):
 
 
 def _robust_ellipse(pts):
-    """(3, 3) the conic of the ellipse fitted to points (K, 2), those beyond `_RING_REJECT`
-    robust sds of its Sampson distances left out (three rounds); None when none fits."""
+    """(the conic (3, 3) of the ellipse fitted to points (K, 2), the points kept (K,) bool),
+    those beyond `_RING_REJECT` robust sds of its Sampson distances left out (three rounds);
+    None when none fits or it keeps under half of the points."""
     use = np.ones(len(pts), bool)
     C = None
     for _ in range(3):
-        if use.sum() < 12:
+        if use.sum() < max(12, 0.5 * len(pts)):
             return None
         try:
             fit = fit_ellipse(pts[use])
@@ -264,4 +271,4 @@ def _robust_ellipse(pts):
         r = np.abs(sampson_distances(C, pts))
         s = 1.4826 * np.median(r[use])
         use = r <= max(_RING_REJECT * s, 0.25)
-    return C
+    return (C, use) if use.sum() >= 0.5 * len(pts) else None
