@@ -156,8 +156,8 @@ def focal_from_circles(estimate, vertex, f0):
 
 
 def _orient(image, camera, pencil, edges):
-    """Detected edges, their orientation (`orient_radial_edges`: each edge trimmed at the ring
-    where the spokes end) and the circles' estimate for one camera (any circle about the
+    """Detected edges, their orientation (`orient_radial_edges`: each edge that the print
+    beyond the ring where the spokes end turns trimmed at it) and the circles' estimate for one camera (any circle about the
     vertex, listed in the pencil file or not: under a camera still to be found, the circles'
     radii on the plane are not yet in the file's ratios)."""
     from pencilcal.toolkit.detect.radial import orient_radial_edges
