@@ -106,6 +106,8 @@ def _radial_frame(frame, camera, pencil, detector, lines_kw, opts):
     of the photographs the same way): (lines record, orientation). Both passes start from
     the orientation tracking's state as the previous frame left it."""
     from pencilcal.toolkit.detect.lines import detect_frame_lines
+    from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
+    from pencilcal.toolkit.detect.image import GrayImage
     from pencilcal.toolkit.detect.radial import trimmed_at_spokes_end
 
     state = opts.get("tracking")
@@ -123,7 +125,9 @@ def _radial_frame(frame, camera, pencil, detector, lines_kw, opts):
             state["previous"] = state["previous"].replace(lines=None)
         return rec
 
-    found, rec = trimmed_at_spokes_end(detect, oriented, camera, pencil, lines_kw["radial_joint"])
+    img = GrayImage(frame.image, lines_kw.get("valid_region"))
+    found, rec = trimmed_at_spokes_end(detect, oriented, camera, pencil, img, lines_kw["radial_joint"],
+                                       lines_kw.get("gamma", DEFAULT_GAMMA))
     return found.to_dict(), rec.replace(lines=None)
 
 

@@ -149,8 +149,9 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         (`radial.detect_radial_edges`' ``joint``; `radial_joint_mode` by the pencil's shape).
     radial_outer : (3, 3) array, optional
         With `radial`: the image conic [working px] of the circle where the spokes end, each
-        edge trimmed at it (`radial.detect_radial_edges`' ``outer``; `orient IMAGES` finds it
-        from a first orientation: `radial.trimmed_at_spokes_end`).
+        edge that the print beyond it turns trimmed at it (`radial.detect_radial_edges`'
+        ``outer``; `orient IMAGES` finds it about a first orientation:
+        `radial.trimmed_at_spokes_end`).
     segments : bool
         Edge segments (`detect_segments`) where neither `bars` nor `radial` is asked for;
         False with `shaft`: the shafts alone (the segments of a textured frame cost most of

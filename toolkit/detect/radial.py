@@ -48,7 +48,7 @@ import numpy as np
 
 from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA, linearised
 from pencilcal.toolkit.detect.image import GrayImage
-from pencilcal.toolkit.detect.radial_circles import circle_points
+from pencilcal.toolkit.detect.radial_circles import circle_points, spokes_end_ring
 from pencilcal.toolkit.detect.radial_joint import joint_refit
 from pencilcal.toolkit.detect.refit import EdgeRefit, RefitOptions
 from pencilcal.toolkit.detect.segments import Segments, detect_segments, in_valid_region
@@ -101,6 +101,10 @@ _KERNEL_PX = 1.0  # sd of the derivative kernel across an edge
 #: towards their bright side, the sharper the more; chosen on renders, seed 7); more where
 #: the edges' own distances from their vertex say so (`_common_offset`).
 OFFSET_FLOOR_PX = 0.02
+#: An edge is trimmed at the ring where the spokes end only where its part beyond turned its
+#: line by more than this many sds of the two lines' offsets (`_trimmed`; the project's test
+#: level, not tuned).
+TURN_SIGMAS = 3.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -158,10 +162,11 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         dartboard's raised wires).
     outer : (3, 3) array, optional
         The image conic [working px] of the circle where the spokes end (a dartboard's
-        double ring: `pencil.circle.spokes_end_conic`, from a first orientation). An edge
+        double ring: `radial_circles.spokes_end_ring`, about a first orientation). An edge
         that runs on past it (into a ring of numbers, a maker's print) is refitted only
         inside it, `CLEAR_SIGMAS` blur sds short of it (where the ring's own edge is no
-        longer in its profiles): beyond, other print turns the fitted line.
+        longer in its profiles), where what lies beyond turned its line (`TURN_SIGMAS`):
+        other print does, a boundary's wire running on into the numbers' ring does not.
 
     Returns
     -------
@@ -237,41 +242,64 @@ def orient_radial_edges(image, camera, pencil, **detect):
                                offset_sigma=found.offset_sigma, circle_points=found.circle_points, keep_lines=True)
 
     return trimmed_at_spokes_end(lambda outer: detect_radial_edges(image, camera, **detect, outer=outer), oriented,
-                                 camera, pencil, detect.get("joint", "crowded"))
+                                 camera, pencil, GrayImage(image, detect.get("valid_region")),
+                                 detect.get("joint", "crowded"), detect.get("gamma", DEFAULT_GAMMA))
 
 
-def trimmed_at_spokes_end(detect, orient, camera, pencil, joint="crowded"):
+def trimmed_at_spokes_end(detect, orient, camera, pencil, img, joint="crowded", gamma=DEFAULT_GAMMA):
     """A radial target's edges and their orientation, each edge trimmed where it runs on past
     the ring the spokes end on: (found, orientation), the one way `orient IMAGES` and
     `orient_radial_edges` detect and orient a radial target.
 
     The edges are detected (``detect(None)``) and oriented (``orient(found)``); where the
-    pencil's spokes end on one of its circles (a dartboard's boundaries at the double ring)
-    and that orientation finds the ring (`pencil.circle.spokes_end_conic`), they are
-    detected again, each trimmed where it runs on past the ring (``detect(outer)``:
-    `detect_radial_edges`' ``outer``), and oriented again: beyond it a ring of numbers or a
-    maker's print runs on along some boundaries and turns their lines, which the labelling
-    then rejects. Not with ``joint="all"`` (a star's wedges): every edge is then located
-    jointly, none trimmed, and the first pass is the result.
+    pencil's spokes end on one of its circles (a dartboard's boundaries at the double ring:
+    `pencil.circle.spokes_end`) and the image shows that ring about the orientation's
+    plane (`radial_circles.spokes_end_ring`: its outer edge, told from its inner edge by
+    their polarities), they are detected again, each trimmed where it runs on past the ring
+    (``detect(outer)``: `detect_radial_edges`' ``outer``), and oriented again: beyond it a
+    ring of numbers or a maker's print runs on along some boundaries and turns their lines,
+    which the labelling then rejects. Not with ``joint="all"`` (a star's wedges): every
+    edge is then located jointly, none trimmed, and the first pass is the result.
 
     detect : callable
-        outer ((3, 3) [working px] or None) -> found, with ``segments`` (M, 4) [raw px] and
-        ``circle_points`` (K, 2) [raw px] or None (a `RadialEdges`, an `io.lines_file.LineFrame`).
+        outer ((3, 3) [working px] or None) -> found, with ``segments`` (M, 4) [raw px] (a
+        `RadialEdges`, an `io.lines_file.LineFrame`).
     orient : callable
-        found -> `Orientation` with ``lines`` (``keep_lines``), the ring's estimate needs them.
-    camera : Camera or None (None: no trim); pencil : Pencil; joint : `detect_radial_edges`' joint.
+        found -> `Orientation` with ``lines`` (``keep_lines``), the ring's search needs them.
+    camera : Camera or None (None: no trim); pencil : Pencil; img : `GrayImage` of the frame;
+    joint : `detect_radial_edges`' joint; gamma : the frame's encoding gamma.
     """
-    from pencilcal.toolkit.pencil.circle import spokes_end_conic
+    from pencilcal.toolkit.pencil.circle import spokes_end
 
     found = detect(None)
     rec = orient(found)
-    if camera is None or found.circle_points is None or not len(found.circle_points) or joint == "all":
+    if camera is None or joint == "all":
         return found, rec  # (with joint="all" every edge is located jointly: none is trimmed)
-    outer = spokes_end_conic(camera, rec, found.segments, found.circle_points, pencil)
+    end = spokes_end(camera, rec, found.segments, pencil)
+    if end is None:
+        return found, rec
+    boundaries = _sector_boundaries(pencil)
+    outer = spokes_end_ring(img, camera, np.asarray(rec.R_cam_from_target, float), np.asarray(rec.lines["vertex"], float),
+                            boundaries, end[0], end[1], gamma)
     if outer is None:
         return found, rec
     found = detect(outer)
     return found, orient(found)
+
+
+def _sector_boundaries(pencil):
+    """(B,) [rad] the directions of a sector target's boundaries all round the vertex in the
+    target frame, ascending: the spokes, and where they do not go all round (lines listed
+    over half a turn) each one's opposite ray too.
+
+    >>> from pencilcal.toolkit.pencil.spec import pencil_from_dict
+    >>> np.degrees(_sector_boundaries(pencil_from_dict({"start_deg": 0, "step_deg": 45, "count": 3}))).round(6).tolist()
+    [0.0, 45.0, 90.0, 180.0, 225.0, 270.0]
+    """
+    a = np.asarray(pencil.angles, float)
+    if not pencil.full_circle:
+        a = np.r_[a, a + np.pi]
+    return np.unique(np.round(np.remainder(a, 2 * np.pi), 12))
 
 
 def _ray_conic(v, u, C):
@@ -293,7 +321,9 @@ def _trimmed(img, camera, fit, v, outer, margin, min_length, joint):
     (the circle where the spokes end) refitted from its inner end to `margin` [px] short of
     it, in the rounds of `_SEARCH_PX` (the line beyond turned the fit by more than the last
     round's search); those whose part inside is shorter than min_length [px], or whose refit
-    fails or leaves less than min_length, are kept as they were, and so are those located
+    fails or leaves less than min_length, are kept as they were, and so are those whose
+    whole line lies within `TURN_SIGMAS` of the inside part's (what runs on beyond continues
+    the edge: a dartboard's boundary wire into the ring of numbers) and those located
     jointly with their neighbours (joint (E,) bool: `radial_joint`, which models their ends)."""
     p1, p2 = fit.p1, fit.p2
     d1, d2 = np.hypot(*(p1 - v).T), np.hypot(*(p2 - v).T)
@@ -319,6 +349,17 @@ def _trimmed(img, camera, fit, v, outer, margin, min_length, joint):
         d = (new.p2 - new.p1) / np.maximum(np.hypot(*(new.p2 - new.p1).T), 1e-12)[:, None]
         q1, q2 = (new.p1 + np.sum((q[good] - new.p1) * d, -1)[:, None] * d for q in (q1, q2))
     long = np.hypot(*(new.p2 - new.p1).T) >= min_length  # a shorter piece stands for nothing: as it was
+    # and only where the part beyond turned the line: the whole edge's line lies off the
+    # inside part's, at its ends, by over TURN_SIGMAS sds of the two (a dartboard's boundary
+    # wires run on into the ring of numbers along the same line, numbers' print does not)
+    whole = fit.take(rows)
+    n = np.stack([-(whole.p2 - whole.p1)[:, 1], (whole.p2 - whole.p1)[:, 0]], -1)
+    n /= np.maximum(np.hypot(*n.T), 1e-12)[:, None]
+    turned = np.zeros(rows.size, bool)
+    for q in (new.p1, new.p2):
+        off = np.abs(np.sum((q - whole.p1) * n, -1))
+        turned |= off > TURN_SIGMAS * np.hypot(new.offset_sigma_at(q), whole.offset_sigma_at(q))
+    long &= turned
     return _merged(fit, rows[long], new.take(np.flatnonzero(long)))
 
 

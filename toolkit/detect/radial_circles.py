@@ -11,6 +11,10 @@ a black sector and darker than a cream one) and keeps those that continue on the
 orientation (`pencil.circle`): nested rings a few pixels apart, whose edges change sign at
 every sector, are told apart there by their radius on the plane.
 
+`spokes_end_ring` finds one ring on the image instead, about a first orientation: the ring a
+sector target's boundaries end on (a dartboard's double ring), its outer edge told from its
+inner edge by their polarities in the dark sectors.
+
 Working (undistorted) pixels throughout, raw pixels out.
 """
 from __future__ import annotations
@@ -20,9 +24,11 @@ import warnings
 import numpy as np
 
 from pencilcal.toolkit.detect.edges import derivative_kernel, linearised
+from pencilcal.toolkit.errors import EstimationError
+from pencilcal.toolkit.geometry.conic import fit_ellipse, sampson_distances
 from pencilcal.toolkit.detect.working import to_raw_points
 
-__all__ = ["circle_points"]
+__all__ = ["circle_points", "spokes_end_ring"]
 
 _RAY_STEP_DEG = 1.0  # rays at most this far apart
 _SAMPLE_PX = 0.5  # along a ray
@@ -129,3 +135,140 @@ def _runs(psi, ray, rad):
                     linked[i] = True
     roots = np.array([find(i) for i in range(ray.size)], int)
     return np.bincount(roots, minlength=ray.size)[roots] if ray.size else np.zeros(0, int)
+
+
+_RING_LOG_SPAN = np.log(1.6)  # the ring is looked for within this factor of the spokes' median outer end
+_RING_LOG_STEP = 0.002  # radial sampling [log radius on the plane]
+_RING_ARC_DEG = 0.5  # angular sampling on the plane
+_RING_WIRE_DEG = 2.0  # samples this close to a sector boundary (its wire, a label a little off) are not used
+_RING_SMOOTH = 2.0  # sd [samples] of the derivative kernel along the radius
+_RING_FROM = 0.75  # searched outwards from this fraction of the spokes' median end (a dartboard's treble lies at 0.63 of its double)
+_RING_REJECT = 3.0  # ellipse points beyond this many robust sds of its Sampson distances are left out
+
+
+def spokes_end_ring(img, camera, R, x, boundaries, rho_end, ratio, gamma=1.0):
+    """(3, 3) the image conic [working px] of the outer edge of the ring where a sector
+    target's boundaries end (a dartboard's double ring, 162-170 mm), or None.
+
+    The image is resampled on polar coordinates of the plane under the rotation R (3, 3)
+    (R_cam_from_target) about the vertex's image x (2,) [normalised], radii within
+    `_RING_LOG_SPAN` of rho_end (the labelled edges' median outer end, in units of the
+    vertex's depth), and linearised with gamma. The sectors of the two shades lie between
+    the boundaries' directions `boundaries` (B,) [rad] in the target frame (alternating; B
+    even); along a dark sector's direction the ring is a lighter band whose inner edge rises
+    and whose outer edge falls at `ratio` times its radius (170 / 162: a ratio the first
+    orientation's errors do not change, where they bend the plane's radii by a few per cent
+    over a turn); along a light sector's both fall, the inner the more, so only the dark
+    directions are searched. The rise must lie where the shades still differ (by half their
+    most) within one ring's width (`ratio`) inside it: the ring of numbers beyond is one
+    shade, and its digits are lighter bands of about the ring's width. Each dark direction gives the fall
+    where the pair is steepest (the smaller of the two slopes), from `_RING_FROM` of rho_end
+    out; an ellipse is fitted to those points in working pixels, robustly
+    (`_robust_ellipse`): the ring's own image.
+    img: a `GrayImage`; camera: the working pixels' camera (None: x in pixels).
+
+    >>> from pencilcal.toolkit.detect.image import GrayImage
+    >>> yy, xx = np.mgrid[0:200, 0:200] - 100.0
+    >>> r, a = np.hypot(xx, yy), np.arctan2(yy, xx)
+    >>> dark = (np.floor(np.remainder(a, 2 * np.pi) / (np.pi / 4)) % 2) == 0
+    >>> frame = np.where(r < 60, np.where(dark, 20.0, 230.0), np.where(r < 63, np.where(dark, 120.0, 90.0), 20.0))
+    >>> C = spokes_end_ring(GrayImage(frame), None, np.eye(3), [100.0, 100.0], np.arange(8) * np.pi / 4, 60.0, 63 / 60)
+    >>> bool(abs(np.sqrt(-np.linalg.det(C) / (C[0, 0] * np.linalg.det(C[:2, :2]))) - 63.0) < 1.0)
+    True
+    """
+    b = np.sort(np.remainder(np.asarray(boundaries, float), 2 * np.pi))
+    if b.size < 4 or b.size % 2 or not np.isfinite(rho_end) or rho_end <= 0:
+        return None
+    lr = np.log(rho_end) + np.arange(-_RING_LOG_SPAN, _RING_LOG_SPAN, _RING_LOG_STEP)
+    a = np.radians(np.arange(0.0, 360.0, _RING_ARC_DEG))
+    k = np.searchsorted(b, a) % b.size  # the sector each direction lies in, by its boundary
+    near = np.degrees(np.min(np.abs(np.angle(np.exp(1j * (a[:, None] - b[None, :])))), 1))
+    keep = near >= _RING_WIRE_DEG
+    a, shade = a[keep], k[keep] % 2
+    u = np.exp(lr)[None, :, None] * np.stack([np.cos(a), np.sin(a)], -1)[:, None, :]  # (P, S, 2) on the plane
+    X = np.r_[np.asarray(x, float), 1.0] + u @ np.asarray(R, float)[:, :2].T
+    with np.errstate(all="ignore"):
+        xn = X[..., :2] / X[..., 2:]
+    K = np.eye(3) if camera is None else np.asarray(camera.K, float)
+    wp = xn @ K[:2, :2].T + K[:2, 2]
+    ok = (X[..., 2] > 0) & np.all(np.isfinite(wp), -1)
+    raw = to_raw_points(camera, np.where(ok[..., None], wp, 0.0))
+    ok &= np.all(np.isfinite(raw), -1) & img.in_region(raw[..., 0], raw[..., 1])
+    prof = linearised(img.sample(np.where(ok, raw[..., 0], 0), np.where(ok, raw[..., 1], 0)), gamma).astype(float)
+    prof[~ok] = np.nan
+    g = _smooth_derivative(prof)
+    # the dark shade: the sectors darker inside the ring (its first half of the radii)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a shade seen nowhere: NaN
+        level = [np.nanmedian(prof[shade == s, :lr.size // 2]) for s in (0, 1)]
+    if not np.all(np.isfinite(level)):
+        return None
+    dark = shade == int(np.argmin(level))
+    # where the sectors still show (the shades' medians apart by half their most), within a
+    # ring's width inside its inner edge: the ring of numbers beyond the double ring is one
+    # shade, and its white digits and outline are lighter bands of about the same width
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.stack([np.nanmedian(prof[shade == s], 0) for s in (0, 1)])
+    contrast = np.nan_to_num(np.abs(med[0] - med[1]))
+    sectors = contrast >= 0.5 * contrast.max()
+    # in a dark sector's direction the ring is a lighter band: its inner edge rises, its
+    # outer edge falls at `ratio` times the inner's radius (a ratio the first orientation's
+    # errors do not change); the outer edge where both are steepest together
+    i_in = int(round(np.log(ratio) / _RING_LOG_STEP))
+    lo = max(int(round((_RING_LOG_SPAN - np.log(1 / _RING_FROM)) / _RING_LOG_STEP)), i_in)
+    both = np.full_like(g, -np.inf)
+    both[:, lo:] = np.minimum(g[:, lo - i_in:g.shape[1] - i_in], -g[:, lo:])
+    both[~dark] = -np.inf
+    lit = np.array([sectors[max(i - 2 * i_in, 0):max(i - i_in + 1, 0)].any() for i in range(lr.size)])
+    both[:, ~lit] = -np.inf
+    both = np.where(np.isfinite(both), both, -np.inf)
+    j = np.argmax(both, 1)
+    has = both[np.arange(a.size), j] > 0
+    if has.sum() < 12:
+        return None
+    rows = np.flatnonzero(has)
+    got = _robust_ellipse(wp[rows, j[rows]])
+    if got is None:
+        return None
+    C, use = got
+    # the points lie on one circle of the first orientation's plane, within the ring's own
+    # width (a first orientation far off finds some lighter band, on no circle of its plane)
+    spread = 1.4826 * np.median(np.abs(lr[j[rows[use]]] - np.median(lr[j[rows[use]]])))
+    return C if spread <= np.log(ratio) else None
+
+
+def _smooth_derivative(prof):
+    """d prof / d sample (P, S) along each row with a Gaussian derivative of sd `_RING_SMOOTH`
+    samples; NaN where the kernel reaches a NaN."""
+    kr = int(np.ceil(3 * _RING_SMOOTH))
+    t = np.arange(-kr, kr + 1, dtype=float)
+    kern = t * np.exp(-0.5 * (t / _RING_SMOOTH) ** 2)
+    kern /= np.sum(t * kern)  # a ramp of slope 1 gives 1
+    out = np.full_like(prof, np.nan)
+    S = prof.shape[1]
+    acc = np.zeros((prof.shape[0], S - 2 * kr))
+    for q in range(kern.size):  # sum over t of kern(t) prof(i + t)
+        acc += kern[q] * prof[:, q:S - 2 * kr + q]
+    out[:, kr:S - kr] = acc
+    return out
+
+
+def _robust_ellipse(pts):
+    """(the conic (3, 3) of the ellipse fitted to points (K, 2), the points kept (K,) bool),
+    those beyond `_RING_REJECT` robust sds of its Sampson distances left out (three rounds);
+    None when none fits or it keeps under half of the points."""
+    use = np.ones(len(pts), bool)
+    C = None
+    for _ in range(3):
+        if use.sum() < max(12, 0.5 * len(pts)):
+            return None
+        try:
+            fit = fit_ellipse(pts[use])
+        except EstimationError:
+            return None
+        C = fit.conic
+        r = np.abs(sampson_distances(C, pts))
+        s = 1.4826 * np.median(r[use])
+        use = r <= max(_RING_REJECT * s, 0.25)
+    return (C, use) if use.sum() >= 0.5 * len(pts) else None

@@ -47,7 +47,7 @@ from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.geometry.conic import conic_matrix, fit_ellipse, sampson_distances
 
 __all__ = ["CircleEstimate", "circle_estimate", "conic_normal", "plane_radii", "normal_agreement", "circle_choice",
-           "circle_record", "line_normal_cov", "circular_points", "DECISIVE_CHI2", "spokes_end_conic"]
+           "circle_record", "line_normal_cov", "circular_points", "DECISIVE_CHI2", "spokes_end"]
 
 #: Points of one circle lie within this of each other in log radius on the plane (under the
 #: right rotation): 1 px of scatter at 100 px is 1 %; rings of a dartboard differ by 5 %.
@@ -373,58 +373,30 @@ def circular_points(C, x):
 
 
 
-#: The spokes' end is the ring nearest the labelled edges' median outer end, if within this
-#: ratio of it (most of a dartboard's boundaries end at the double ring; the next ring in,
-#: the treble, lies 1.6 times nearer the vertex, the number ring's outer edge 1.3 times farther).
-_END_RATIO = 1.15
-
-
-def spokes_end_conic(camera, orientation, segments, circle_points, pencil):
-    """(3, 3) the image conic [working px: undistorted pixels] of the circle where the
-    pencil's spokes end, or None.
-
-    Where the pencil file says its spokes end on a printed circle (the outer ``radius`` is
-    one of its ``circles``: a dartboard's boundaries end at the double ring, beyond it lies
-    the ring of numbers, whose print runs on along some of them), that circle is the one
-    among the circle points' rings (`circle_estimate`, grouped under the orientation's
-    rotation) nearest the median outer end of the labelled edges on the plane, within
-    `_END_RATIO`, or the outermost ring beyond it within the listed ratio of the spokes' end
-    to the circle inside it (the edges may end at that circle). Not from the listed radii's
-    depth: a dartboard's surround and board edge stand about as the treble and double rings
-    do (on the shared far view the depth so matched was 0.63 of the true one).
-    orientation: an `Orientation` with ``lines`` (``keep_lines``); segments (M, 4) [raw px] those it was fitted to; circle_points (K, 2)
-    [raw px] (`detect.radial`'s); used by `detect.radial.detect_radial_edges`' ``outer``.
+def spokes_end(camera, orientation, segments, pencil):
+    """(rho_end, ratio) where the pencil's spokes end on a printed circle (the outer
+    ``radius`` is one of its ``circles``: a dartboard's boundaries end at the double ring's
+    outer edge, beyond it the ring of numbers, whose print runs on along some of them), or
+    None: rho_end the labelled edges' median outer end on the plane under the orientation
+    [units of the vertex's depth], where to look for that ring, and ratio the spokes' end
+    over the listed circle just inside it (170 / 162 mm: the ring's own width), or None
+    where none is listed. The ring itself is found on the image
+    (`detect.radial_circles.spokes_end_ring`).
+    orientation: an `Orientation` with ``lines`` (``keep_lines``); segments (M, 4) [raw px]
+    those it was fitted to.
     """
     if (pencil.radius is None or pencil.circles is None or not orientation.ok or orientation.lines is None
             or not np.any(np.abs(np.asarray(pencil.circles) / pencil.radius[1] - 1.0) <= _RADIUS_MATCH)):
         return None
     lines = orientation.lines
     R = np.asarray(orientation.R_cam_from_target, float)
-    x = np.asarray(lines["vertex"], float)
     seg = np.asarray(segments, float)[np.asarray(lines["segment"], int)]
-    ends = camera.normalized_from_pixels(seg.reshape(-1, 2))
-    rho, _ = plane_radii(ends, x, R)
+    rho, _ = plane_radii(camera.normalized_from_pixels(seg.reshape(-1, 2)), np.asarray(lines["vertex"], float), R)
     outer_end = np.nanmax(rho.reshape(-1, 2), 1)
-    pts = camera.normalized_from_pixels(np.asarray(circle_points, float).reshape(-1, 2))
-    pts = pts[np.all(np.isfinite(pts), -1)]
-    if not np.isfinite(outer_end).any() or len(pts) < MIN_POINTS:
+    if not np.isfinite(outer_end).any():
         return None
-    est = circle_estimate(pts, x, np.asarray(lines["vertex_cov"], float), R,
-                          np.asarray(orientation.R_cam_from_target_twin, float), scale=float(camera.K[0, 0]))
-    if est is None:
-        return None
-    ratio = np.abs(np.log(est.radii / np.nanmedian(outer_end)))
-    j = int(np.argmin(ratio))
-    if ratio[j] > np.log(_END_RATIO):
-        return None
-    # an edge ends anywhere within its ring's width (the refit stops where the wire or the
-    # ring's own edge takes its profile): the ring nearest its end may be the inner edge of
-    # a ring (the double's at 162 mm): the outermost ring out to the listed ratio of the
-    # spokes' end to the circle inside it is taken
     listed = np.sort(np.asarray(pencil.circles, float))
     inner = listed[listed < pencil.radius[1] * (1 - _RADIUS_MATCH)]
-    step = (pencil.radius[1] / inner[-1] if inner.size else 1.0) * (1 + _RADIUS_MATCH)
-    near = np.flatnonzero((est.radii >= est.radii[j]) & (est.radii <= est.radii[j] * step))
-    j = int(near[np.argmax(est.radii[near])])
-    Kinv = np.linalg.inv(np.asarray(camera.K, float))
-    return Kinv.T @ est.conics[j] @ Kinv
+    if not inner.size:
+        return None
+    return float(np.nanmedian(outer_end)), float(pencil.radius[1] / inner[-1])

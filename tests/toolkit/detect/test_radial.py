@@ -95,10 +95,12 @@ def test_dartboard_in_its_clutter():
 
 def test_edges_trimmed_at_the_double_ring():
     """The same cluttered dartboard oriented with its edges trimmed where the sectors end:
-    the ring found for it (`spokes_end_conic`) is the double ring's outer edge (170 mm: the
+    the ring found for it (`spokes_end_ring`) is the double ring's outer edge (170 mm: the
     true ring's image within 3 px all round), no edge runs on more than a pixel or two past
     it, and no boundary is lost by the trim."""
-    from pencilcal.toolkit.pencil.circle import spokes_end_conic
+    from pencilcal.toolkit.detect.image import GrayImage
+    from pencilcal.toolkit.detect.radial_circles import spokes_end_ring
+    from pencilcal.toolkit.pencil.circle import spokes_end
     from pencilcal.toolkit.pencil.orient import orient_segments
 
     pen = dartboard_pencil()
@@ -108,7 +110,9 @@ def test_edges_trimmed_at_the_double_ring():
     plain = detect_radial_edges(img, CAM, edges=20)
     rec0 = orient_segments(CAM, plain.segments, pen, angle_sigma=plain.angle_sigma, offset_sigma=plain.offset_sigma,
                            circle_points=plain.circle_points, keep_lines=True)
-    C = spokes_end_conic(CAM, rec0, plain.segments, plain.circle_points, pen)
+    rho_end, ratio = spokes_end(CAM, rec0, plain.segments, pen)
+    C = spokes_end_ring(GrayImage(img), CAM, np.asarray(rec0.R_cam_from_target), np.asarray(rec0.lines["vertex"]),
+                        pen.angles, rho_end, ratio, 2.2)
     a = np.linspace(0, 2 * np.pi, 360, endpoint=False)
     ring = CAM.undistort_pixels(CAM.project((R @ np.stack([170 * np.cos(a), 170 * np.sin(a), 0 * a])).T + t))
     vpx = CAM.undistort_pixels(CAM.project(t))
