@@ -92,7 +92,7 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
                        gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None, radial=None, axis_prior=None,
                        shaft_tracker=None, edge_model="step", radial_joint="crowded", segments=True, parts=False,
-                       radial_outer=None, ideal=False):
+                       radial_outer=None, ideal=False, radial_memo=None):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -151,6 +151,9 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         With `radial`: the image conic [working px] of the circle where the spokes end, each
         edge trimmed at it (`radial.detect_radial_edges`' ``outer``; `orient IMAGES` finds it
         from a first orientation: `radial.trimmed_at_spokes_end`).
+    radial_memo : dict, optional
+        With `radial`: kept between the calls on one frame, the edges located by the first
+        reused by the next (`radial.detect_radial_edges`' ``memo``: a trim's second pass).
     segments : bool
         Edge segments (`detect_segments`) where neither `bars` nor `radial` is asked for;
         False with `shaft`: the shafts alone (the segments of a textured frame cost most of
@@ -169,7 +172,8 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         from pencilcal.toolkit.detect.radial import detect_radial_edges
 
         segs = detect_radial_edges(image, camera, edges=radial or None, valid_region=valid_region,
-                                   min_length=min_length, gamma=gamma, joint=radial_joint, outer=radial_outer)
+                                   min_length=min_length, gamma=gamma, joint=radial_joint, outer=radial_outer,
+                                   memo=radial_memo)
         circle_points = segs.circle_points
     elif bars:
         kw = dict(camera=camera, min_length=min_length, width_px_range=bar_width, proposal_scale=proposal_scale,

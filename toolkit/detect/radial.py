@@ -124,7 +124,7 @@ class RadialEdges(Segments):
 
 
 def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, min_length=20.0, circles=True,
-                        gamma=DEFAULT_GAMMA, joint="crowded", outer=None):
+                        gamma=DEFAULT_GAMMA, joint="crowded", outer=None, memo=None):
     """The edges through the vertex of a radial target, and the closed curves about it.
 
     Parameters
@@ -162,6 +162,12 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         that runs on past it (into a ring of numbers, a maker's print) is refitted only
         inside it, `CLEAR_SIGMAS` blur sds short of it (where the ring's own edge is no
         longer in its profiles): beyond, other print turns the fitted line.
+    memo : dict, optional
+        Kept by the caller between calls on one frame (the two passes of
+        `trimmed_at_spokes_end`): the edges as steps 1-3 located them, which do not depend on
+        `outer`, are kept in it and reused by a call with the same image, camera and options
+        (the same objects); only the trim and what follows it run again, the result the same
+        as without it.
 
     Returns
     -------
@@ -170,6 +176,22 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
     """
     if joint not in ("crowded", "all"):
         raise InputError(f"joint must be 'crowded' or 'all', got {joint!r}")
+    of, key = (image, camera, valid_region), (edges, min_length, gamma, joint)
+    if memo is not None and memo.get("key") == key and all(a is b for a, b in zip(memo.get("of", ()), of)):
+        located = memo["located"]
+    else:
+        located = _located(image, camera, edges, valid_region, min_length, gamma, joint)
+        if memo is not None:
+            memo.update(of=of, key=key, located=located)
+    if located is None:
+        return RadialEdges.empty()
+    return _finished(camera, outer, min_length, circles, *located)
+
+
+def _located(image, camera, edges, valid_region, min_length, gamma, joint):
+    """Steps 1-3 of `detect_radial_edges` (its arguments), all that does not depend on
+    `outer`: (img, lin, fit, v, reach, phi, rows, clear) for `_finished`, None where no
+    vertex or too few edges were found."""
     img = GrayImage(image, valid_region)
     check_camera_image(camera, img)
     # edges are located on linear light, the pixels linearised before they are interpolated:
@@ -181,20 +203,20 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
     try:
         v, reach = _rough_vertex(segs)
     except EstimationError:
-        return RadialEdges.empty()
+        return None
     fit = None
     blur = 1.16  # a 1 px blur, until the edges say
     for search in _SEARCH_PX:
         clear = max(CLEAR_PX, CLEAR_SIGMAS * blur)
         phi, sign, seen = _edge_directions(img, camera, v, reach, edges, clear)
         if phi.size < 3:
-            return RadialEdges.empty()
+            return None
         fit = _refit_edges(lin, camera, v, phi, sign, seen, search, clear)
         blur = max(CLEAR_PX / CLEAR_SIGMAS, _edge_blur(lin, camera, fit, clear))
         try:
             v, reach = _vertex_of(fit, reach)
         except EstimationError:
-            return RadialEdges.empty()
+            return None
     # the edges located with their neighbours (their blurred edges modelled): those that are
     # nowhere clear of them from where they lie JOINT_SIGMAS blur sds apart; with joint="all"
     # the others too, from where they are clear as before
@@ -210,7 +232,13 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         try:
             v, reach = _vertex_of(fit, reach)
         except EstimationError:
-            return RadialEdges.empty()
+            return None
+    return img, lin, fit, v, reach, phi, rows, clear
+
+
+def _finished(camera, outer, min_length, circles, img, lin, fit, v, reach, phi, rows, clear):
+    """The rest of `detect_radial_edges` from the edges `_located` found: the trim at
+    `outer`, the edges through the vertex with their sigmas, the circle points."""
     if outer is not None:  # the edges located jointly keep their own model of their ends
         joint_rows = np.isin(np.arange(phi.size), rows)
         fit = _trimmed(lin, camera, fit, v, np.asarray(outer, float), clear, min_length, joint_rows)
@@ -236,8 +264,9 @@ def orient_radial_edges(image, camera, pencil, **detect):
         return orient_segments(camera, found.segments, pencil, angle_sigma=found.angle_sigma,
                                offset_sigma=found.offset_sigma, circle_points=found.circle_points, keep_lines=True)
 
-    return trimmed_at_spokes_end(lambda outer: detect_radial_edges(image, camera, **detect, outer=outer), oriented,
-                                 camera, pencil, detect.get("joint", "crowded"))
+    memo = {}  # the second pass reuses the first's located edges
+    return trimmed_at_spokes_end(lambda outer: detect_radial_edges(image, camera, **detect, outer=outer, memo=memo),
+                                 oriented, camera, pencil, detect.get("joint", "crowded"))
 
 
 def trimmed_at_spokes_end(detect, orient, camera, pencil, joint="crowded"):
@@ -252,11 +281,13 @@ def trimmed_at_spokes_end(detect, orient, camera, pencil, joint="crowded"):
     `detect_radial_edges`' ``outer``), and oriented again: beyond it a ring of numbers or a
     maker's print runs on along some boundaries and turns their lines, which the labelling
     then rejects. Not with ``joint="all"`` (a star's wedges): every edge is then located
-    jointly, none trimmed, and the first pass is the result.
+    jointly, none trimmed, and the first pass is the result; nor where no edge runs on past
+    the ring (the second detection the same as the first, bit for bit: its orientation is too).
 
     detect : callable
         outer ((3, 3) [working px] or None) -> found, with ``segments`` (M, 4) [raw px] and
-        ``circle_points`` (K, 2) [raw px] or None (a `RadialEdges`, an `io.lines_file.LineFrame`).
+        ``circle_points`` (K, 2) [raw px] or None (a `RadialEdges`, an `io.lines_file.LineFrame`);
+        the second call may reuse the first's work (`detect_radial_edges`' ``memo``).
     orient : callable
         found -> `Orientation` with ``lines`` (``keep_lines``), the ring's estimate needs them.
     camera : Camera or None (None: no trim); pencil : Pencil; joint : `detect_radial_edges`' joint.
@@ -270,8 +301,27 @@ def trimmed_at_spokes_end(detect, orient, camera, pencil, joint="crowded"):
     outer = spokes_end_conic(camera, rec, found.segments, found.circle_points, pencil)
     if outer is None:
         return found, rec
-    found = detect(outer)
-    return found, orient(found)
+    trimmed = detect(outer)
+    if _same(trimmed, found):  # no edge ran on past the ring: the orientation would be the same
+        return found, rec
+    return trimmed, orient(trimmed)
+
+
+def _same(a, b):
+    """Whether two detections (dataclasses: `RadialEdges`, `io.lines_file.LineFrame`) are
+    the same bit for bit, every field (arrays, dicts of them) compared."""
+    def equal(x, y):
+        if isinstance(x, dict) or isinstance(y, dict):
+            return isinstance(x, dict) and isinstance(y, dict) and x.keys() == y.keys() and all(
+                equal(x[k], y[k]) for k in x)
+        if isinstance(x, (np.ndarray, list, tuple)) or isinstance(y, (np.ndarray, list, tuple)):
+            try:
+                return bool(np.array_equal(np.asarray(x), np.asarray(y)))  # NaN never equal: orient again
+            except (TypeError, ValueError):
+                return False
+        return x is y or x == y
+
+    return type(a) is type(b) and all(equal(getattr(a, f), getattr(b, f)) for f in a.__dataclass_fields__)
 
 
 def _ray_conic(v, u, C):
