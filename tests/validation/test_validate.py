@@ -93,22 +93,13 @@ def test_fan_lines_trim_a_dartboards_boundaries_at_the_double_ring():
     light sectors, turned 2 deg from the boundaries, runs on along them. Every boundary is
     found within 0.1 deg of its true image angle (measured: 0.070 deg at most; untrimmed,
     three of them were turned by the print, by 0.11, 0.20 and 0.36 deg)."""
-    from pencilcal.toolkit.camera.model import Camera
     from pencilcal.toolkit.detect.lines import default_min_length
     from pencilcal.toolkit.detect.radial import orient_radial_edges
     from pencilcal.toolkit.pencil.spec import image_angles
-    from pencilcal.toolkit.synth.polygons import annular_sector
-    from pencilcal.toolkit.synth.radial import (DARTBOARD, dartboard_layers, dartboard_pencil, radial_pose,
-                                                render_layers)
     from pencilcal.validation.validate import FanLines
+    from tests.helpers import dartboard_with_print
 
-    cam = Camera("opencv", 1280, 960, [[1000.0, 0, 643.1], [0, 1000.5, 477.4], [0, 0, 1]], [-0.2, 0.0, 0.0, 0.0])
-    pen = dartboard_pencil()
-    R, t = radial_pose(cam, (620, 500), 45.0, 225.0, fill=0.85, axis_deg=70, roll_deg=5)
-    a0 = np.radians(-97.0 + 36.0 * np.arange(10))  # every other sector's boundaries, turned 2 deg
-    print_ring = [annular_sector(176.0, 200.0, a, a + np.radians(18.0)) for a in a0]
-    img = render_layers(cam, R, t, dartboard_layers(wires=True) + [(print_ring, DARTBOARD["cream"])], blur_px=1.0,
-                        noise=2.0, gamma=2.2, lighting=0.3, jpeg_quality=85, rng=4)
+    img, cam, pen, R, t = dartboard_with_print()
     lines = FanLines(pen)(img, cam, None)
     found, _ = orient_radial_edges(img, cam, pen, edges=20, min_length=default_min_length(img.shape, bars=True))
     assert np.array_equal(lines["segments"], found.segments)  # the lines orient IMAGES measures
