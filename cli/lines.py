@@ -10,6 +10,7 @@ from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.io.images import check_image_size
 from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.lines import lines_record
+from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.lines_file import write_lines
 
 from .common import (detector_option, edge_model_option, gamma_option, command, FiniteFloat, FrameOutputs, camera_options, check_output, force_option,
@@ -36,7 +37,7 @@ def _lines_task(frame, ctx):
     """One frame's lines.json record, and the frame drawn with them when the overlay is
     asked for (module level: runs in worker processes too)."""
     (camera, detector, bars, shaft, min_length, bar_width, region, drawing, diameter, gamma, masks, radial, priors,
-     tracker, edge_model, radial_joint, segments, parts) = ctx
+     tracker, edge_model, radial_joint, segments, parts, pencil) = ctx
     if frame.image is None:
         return {"image": frame.name, "ok": False, "error": frame.error, "segments": [], "angle_sigma_deg": []}, None
     check_image_size(frame, camera)
@@ -44,7 +45,7 @@ def _lines_task(frame, ctx):
                        valid_region=region, gamma=gamma, instrument_mask=None if masks is None else masks.of(frame),
                        radial=radial, axis_prior=None if priors is None else priors[1].get(frame.name, priors[0]),
                        shaft_tracker=tracker, edge_model=edge_model, radial_joint=radial_joint, segments=segments,
-                       parts=parts)
+                       parts=parts, radial_pencil=pencil)
     if diameter is not None:
         rec["shafts"] = [with_axis(camera, s, diameter) for s in rec.get("shafts") or []]
     if not drawing:
@@ -83,7 +84,9 @@ def _summary(records):
 @click.option("--radial", type=click.IntRange(min=0), default=None, metavar="EDGES",
               help="Edges of a radial target (star, dartboard) round its vertex; 0: any count.")
 @click.option("--radial-joint", type=click.Choice(["crowded", "all"]), default="crowded", show_default=True,
-              help="Edges fitted with their neighbours' blur.")
+              help="Edges located jointly.")
+@click.option("--pencil", "pencil_path", type=click.Path(dir_okay=False), default=None, metavar="PENCIL",
+              help="With --radial: trimmed at its spokes' ring.")
 @click.option("--shaft", is_flag=True,
               help="Also instrument shafts, with sigmas.")
 @click.option("--shaft-diameter", type=FiniteFloat(), default=None, metavar="D",
@@ -109,9 +112,10 @@ def _summary(records):
 @force_option
 @quiet_option
 @run
-def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, radial, radial_joint, shaft,
-          shaft_diameter, segments, track, gamma, edge_model, parts, prior_path, min_length, instrument_mask, mask_labels,
-          mask_instances, mask_path, jsonl_path, overlay_path, overlay_scale, max_pixels, workers, force, quiet):
+def lines(images, source_spec, camera_path, camera_id, output, detector, bars, bar_width, radial, radial_joint,
+          pencil_path, shaft, shaft_diameter, segments, track, gamma, edge_model, parts, prior_path, min_length,
+          instrument_mask, mask_labels, mask_instances, mask_path, jsonl_path, overlay_path, overlay_scale, max_pixels,
+          workers, force, quiet):
     """Line segments in every frame, refined to subpixel, with angle uncertainty.
 
     \b
@@ -152,7 +156,11 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     star's edges feel their neighbours' pull, alike for neighbouring edges);
     `circle_points` holds the edge points across rays between them, among them the images
     of circles about the vertex (a star's outline, a dartboard's rings), which `orient`
-    fits.
+    fits. With --pencil PENCIL (the pencil file `orient` reads) each edge that runs on past
+    the ring where the spokes end (a dartboard's double ring, found from a first
+    orientation of the edges) is trimmed there, as `pencilcal orient IMAGES` trims them:
+    beyond it a ring of numbers or a maker's print turns the fitted line; not with
+    --radial-joint all, whose edges are all located jointly and none is trimmed.
 
     --shaft also finds instrument shafts (pairs of long converging edges) and writes them
     as `shafts`: midline (image of the axis), width_px, angle_sigma_deg, edge_cov. From
@@ -184,6 +192,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
 
         pencilcal lines left/*.png --camera camera.yaml -o lines.json
         pencilcal lines star.png --camera camera.yaml --radial 128 --radial-joint all -o lines.json
+        pencilcal lines board.jpg --camera camera.yaml --radial 20 --pencil dartboard.yaml -o lines.json
         pencilcal orient --lines lines.json --camera camera.yaml --pencil pencil.yaml -o orientation.json
     """
     if min_length is not None and min_length <= 0:
@@ -202,6 +211,12 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         raise click.BadParameter("only with --radial", param_hint="--radial-joint")
     if radial is not None and bars:
         raise click.UsageError("--radial and --bars find different spokes: give one of them")
+    if pencil_path is not None and radial is None:
+        raise click.BadParameter("only with --radial (the ring a radial target's edges end on)",
+                                 param_hint="--pencil")
+    if pencil_path is not None and radial_joint == "all":
+        raise click.UsageError("--radial-joint all locates every edge jointly and none is trimmed: --pencil "
+                               "would change nothing")
     if shaft_diameter is not None and not shaft_diameter > 0:
         raise click.BadParameter("must be positive", param_hint="--shaft-diameter")
     if not segments and (not shaft or bars or radial is not None):
@@ -219,6 +234,14 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         raise click.UsageError("--instrument-mask gives the shafts: --fulcrum-prior is for detecting them")
     check_output(output, force)
     camera = read_camera(camera_path, camera_id=camera_id)
+    pencil = None
+    if pencil_path is not None:
+        from pencilcal.toolkit.pencil.spec import read_pencil
+
+        pencil = read_pencil(pencil_path)
+        if pencil.shape == "line":
+            raise InputError(f"{pencil_path}: a pencil of lines (bars); --radial measures the edges of wedges or "
+                             "sectors (shape wedge or edge, docs/formats.md)")
     priors = None
     if prior_path is not None:
         from pencilcal.toolkit.detect.shaft.prior import read_priors
@@ -226,7 +249,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         priors = read_priors(prior_path, camera)
     source = open_input(images, source_spec, max_pixels)
     masks = instrument_masks(source, instrument_mask, mask_labels, mask_instances)
-    check_output(output, force, [*source.paths, camera_path, mask_path, prior_path,
+    check_output(output, force, [*source.paths, camera_path, mask_path, prior_path, pencil_path,
                                  *(masks.paths.values() if masks else ())])
     region = frames_region(source, mask_path, shape=(camera.height, camera.width))
     records = []
@@ -237,7 +260,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         tracker = ShaftTracker(gamma=gamma, edge_model=edge_model)
     with FrameOutputs(jsonl_path, overlay_path, force, source=source, scale=overlay_scale) as live:
         ctx = (camera, detector, bars, shaft, min_length, bar_width, region, live.drawing, shaft_diameter, gamma, masks,
-               radial, priors, tracker, edge_model, radial_joint, segments, parts)
+               radial, priors, tracker, edge_model, radial_joint, segments, parts, pencil)
         for rec, drawn in run_frames(source, _lines_task, ctx, workers, "lines", quiet):
             if not rec["ok"]:
                 warn(f"{rec['image']}: {rec['error']}")
@@ -253,6 +276,8 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
         meta["gamma"] = gamma
     if radial is not None:
         meta["radial_joint"] = radial_joint
+    if pencil_path is not None:
+        meta["pencil"] = str(pencil_path)
     if shaft:
         meta["edge_model"] = edge_model
         meta["segments"] = segments

@@ -113,9 +113,11 @@ def _radial_frame(frame, camera, pencil, detector, lines_kw, opts):
     state = opts.get("tracking")
     before = None if state is None else (state["previous"], state["tracked"])
     kept = dict(opts, keep_lines=True)  # the ring's estimate needs the labelled lines
+    memo = {}  # the second pass reuses the edges the first located
 
     def detect(outer):
-        return detect_frame_lines(frame.name, frame.image, camera, detector, radial_outer=outer, **lines_kw)
+        return detect_frame_lines(frame.name, frame.image, camera, detector, radial_outer=outer, radial_memo=memo,
+                                  **lines_kw)
 
     def oriented(found):
         if state is not None:

@@ -89,3 +89,21 @@ def star_sheet_view(wedges, tilt_deg, distance, rng=0):
                    0.3 * sheet.content_center + 0.7 * v3)
     img = render_frame(cam, R, t, sheet, blur_px=1.0, noise=2.0, gamma=2.2, lighting=0.3, rng=rng)
     return img, cam, sheet, R, t
+
+
+def dartboard_with_print():
+    """A dartboard with its wires and, beyond the double ring, a maker's print of light
+    sectors turned 2 deg from the boundaries (every other sector's), running on along them,
+    as a 1280x960 webcam (k1 -0.2) sees it tilted 45 deg through blur, noise, uneven light,
+    gamma 2.2 and JPEG 85: (image, camera, pencil, R_cam_from_target, t_cam_from_target)."""
+    from pencilcal.toolkit.synth.polygons import annular_sector
+    from pencilcal.toolkit.synth.radial import (DARTBOARD, dartboard_layers, dartboard_pencil, radial_pose,
+                                                render_layers)
+
+    cam = Camera("opencv", 1280, 960, [[1000.0, 0, 643.1], [0, 1000.5, 477.4], [0, 0, 1]], [-0.2, 0.0, 0.0, 0.0])
+    R, t = radial_pose(cam, (620, 500), 45.0, 225.0, fill=0.85, axis_deg=70, roll_deg=5)
+    a0 = np.radians(-97.0 + 36.0 * np.arange(10))
+    print_ring = [annular_sector(176.0, 200.0, a, a + np.radians(18.0)) for a in a0]
+    img = render_layers(cam, R, t, dartboard_layers(wires=True) + [(print_ring, DARTBOARD["cream"])], blur_px=1.0,
+                        noise=2.0, gamma=2.2, lighting=0.3, jpeg_quality=85, rng=4)
+    return img, cam, dartboard_pencil(), R, t

@@ -49,9 +49,10 @@ __all__ = ["validate_sequence", "validate_path", "validate_many", "find_sequence
 class FanLines:
     """Lines of a printed fan as `orient IMAGES` finds them (`toolkit.detect.lines.fan_line_options`):
     the midlines of its bars (`toolkit.detect.bars.detect_bars`), a star's edges all round and
-    its circle points (`toolkit.detect.radial.detect_radial_edges`, for wedge and edge
-    pencils), or plain edge segments with `edges`; within `valid_region` (a
-    `toolkit.detect.region.ValidRegion`) when one is set."""
+    its circle points (for wedge and edge pencils: `toolkit.detect.radial.orient_radial_edges`,
+    each edge trimmed at the ring the spokes end on, a dartboard's double ring), or plain
+    edge segments with `edges`; within `valid_region` (a `toolkit.detect.region.ValidRegion`)
+    when one is set."""
 
     def __init__(self, pencil, detector="auto", edges=False, valid_region=None):
         self.pencil = pencil
@@ -68,10 +69,13 @@ class FanLines:
         bars, polarity = fan_line_options(self.pencil.width, self.edges)
         radial = None if self.edges else radial_edge_count(self.pencil)
         if radial is not None:
-            from pencilcal.toolkit.detect.radial import detect_radial_edges
+            from pencilcal.toolkit.detect.radial import orient_radial_edges
 
-            found = detect_radial_edges(image, camera, edges=radial, valid_region=self.valid_region,
-                                        joint=radial_joint_mode(self.pencil))
+            # trimmed as orient IMAGES trims them (beyond the ring other print turns an edge),
+            # and with its shortest edge (1/30 of the frame's smaller side)
+            found, _ = orient_radial_edges(image, camera, self.pencil, edges=radial, valid_region=self.valid_region,
+                                           joint=radial_joint_mode(self.pencil),
+                                           min_length=default_min_length(np.shape(image), bars=bars))
         elif bars:
             # the bars `orient IMAGES` would find (lines_record's default shortest bar)
             found = detect_bars(image, self.detector, camera=camera, polarity=polarity, valid_region=self.valid_region,

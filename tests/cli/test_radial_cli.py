@@ -168,27 +168,37 @@ def _makers_print(boundaries, turn_deg, length=45.0, width=25.0):
     return [(polys, 0.7)]
 
 
-def test_orient_trims_a_dartboards_edges_at_the_double_ring(tmp_path):
-    """`orient IMAGES` on a cluttered dartboard (wires, numbers, darts, and print beyond the
-    double ring running on from every third boundary, turned 2 deg) orients the edges trimmed
-    at the double ring, as `orient_radial_edges` does (`trimmed_at_spokes_end`: one code
-    path): the same spokes and normal, not the untrimmed edges' normal (0.0044 deg from it
-    here: 0.025 deg from the truth against 0.030)."""
+@pytest.fixture(scope="module")
+def cluttered_dartboard(tmp_path_factory):
+    """A cluttered dartboard (wires, numbers, darts, and print beyond the double ring running
+    on from every third boundary, turned 2 deg), written losslessly as board.png with its
+    camera.json and pencil.yaml: (folder, image, camera, pencil)."""
     from pencilcal.toolkit.camera.model import Camera
-    from pencilcal.toolkit.detect.lines import default_min_length
-    from pencilcal.toolkit.detect.radial import detect_radial_edges, orient_radial_edges
-    from pencilcal.toolkit.pencil.orient import orient_segments
     from pencilcal.toolkit.pencil.spec import write_pencil
     from pencilcal.toolkit.synth.radial import dartboard_layers, dartboard_pencil, radial_pose, render_layers
 
+    d = tmp_path_factory.mktemp("dartboard")
     cam = Camera("opencv", 1280, 960, [[1000.0, 0, 643.1], [0, 1000.5, 477.4], [0, 0, 1]], [-0.2, 0.0, 0.0, 0.0])
     pen = dartboard_pencil()
     R, t = radial_pose(cam, (620, 500), 45.0, 225.0, fill=0.85, axis_deg=70, roll_deg=5)
     layers = dartboard_layers(wires=True, numbers=True, darts=3, rng=4) + _makers_print(range(0, 20, 3), 2.0)
     img = render_layers(cam, R, t, layers, blur_px=1.0, noise=2.0, gamma=2.2, lighting=0.3, jpeg_quality=85, rng=4)
-    cv2.imwrite(str(tmp_path / "board.png"), img)  # lossless: the frame orient reads is img
-    write_camera(tmp_path / "camera.json", cam)
-    write_pencil(tmp_path / "pencil.yaml", pen)
+    cv2.imwrite(str(d / "board.png"), img)  # lossless: the frame the commands read is img
+    write_camera(d / "camera.json", cam)
+    write_pencil(d / "pencil.yaml", pen)
+    return d, img, cam, pen
+
+
+def test_orient_trims_a_dartboards_edges_at_the_double_ring(cluttered_dartboard):
+    """`orient IMAGES` on the cluttered dartboard orients the edges trimmed at the double
+    ring, as `orient_radial_edges` does (`trimmed_at_spokes_end`: one code path): the same
+    spokes and normal, not the untrimmed edges' normal (0.0044 deg from it here: 0.025 deg
+    from the truth against 0.030)."""
+    from pencilcal.toolkit.detect.lines import default_min_length
+    from pencilcal.toolkit.detect.radial import detect_radial_edges, orient_radial_edges
+    from pencilcal.toolkit.pencil.orient import orient_segments
+
+    tmp_path, img, cam, pen = cluttered_dartboard
     r = _invoke(orient, tmp_path / "board.png", "--camera", tmp_path / "camera.json", "--pencil",
                 tmp_path / "pencil.yaml", "-o", tmp_path / "o.json", "-q")
     assert r.exit_code == 0, r.output
@@ -207,3 +217,38 @@ def test_orient_trims_a_dartboards_edges_at_the_double_ring(tmp_path):
 
     # the same to the sigmas' round trip through the lines record's degrees; the trim moves it 40 times as far
     assert deg(got["normal"], trimmed.normal) < 1e-4 < 1e-3 < deg(trimmed.normal, untrimmed.normal)
+
+
+def test_lines_radial_pencil_trims_the_edges(cluttered_dartboard, tmp_path):
+    """`lines --radial 20 --pencil PENCIL` writes the edges trimmed at the double ring
+    (`orient_radial_edges`' own), which `orient --lines` then labels as `orient IMAGES` does
+    the trimmed edges; without --pencil the untrimmed ones; the pencil file is recorded."""
+    from pencilcal.toolkit.detect.radial import detect_radial_edges, orient_radial_edges
+
+    d, img, cam, pen = cluttered_dartboard
+    r = _invoke(lines, d / "board.png", "--camera", d / "camera.json", "--radial", 20, "--pencil", d / "pencil.yaml",
+                "-o", tmp_path / "trimmed.json", "-q")
+    assert r.exit_code == 0, r.output
+    doc = json.loads((tmp_path / "trimmed.json").read_text())
+    assert doc["mode"] == "radial" and doc["pencil"] == str(d / "pencil.yaml")
+    found, rec = orient_radial_edges(img, cam, pen, edges=20)
+    plain = detect_radial_edges(img, cam, edges=20)
+    got = np.asarray(doc["frames"][0]["segments"], float)
+    assert np.allclose(got, found.segments, atol=1e-6) and not (got.shape == plain.segments.shape
+                                                                 and np.allclose(got, plain.segments, atol=1e-3))
+    r = _invoke(orient, "--lines", tmp_path / "trimmed.json", "--camera", d / "camera.json", "--pencil",
+                d / "pencil.yaml", "-o", tmp_path / "o.json", "-q")
+    assert r.exit_code == 0, r.output
+    assert json.loads((tmp_path / "o.json").read_text())["frames"][0]["spokes_used"] == rec.spokes_used
+
+
+@pytest.mark.parametrize("args,code,hint", [(("--pencil", "P"), 2, "only with --radial"),
+                                            (("--radial", 20, "--radial-joint", "all", "--pencil", "P"), 2,
+                                             "none is trimmed"),
+                                            (("--radial", 20, "--pencil", "LINES"), 1, "a pencil of lines")])
+def test_lines_pencil_usage(cluttered_dartboard, tmp_path, args, code, hint):
+    d = cluttered_dartboard[0]
+    (tmp_path / "lines.yaml").write_text("start_deg: 0\nstep_deg: 18\ncount: 20\n")
+    args = [{"P": d / "pencil.yaml", "LINES": tmp_path / "lines.yaml"}.get(a, a) for a in args]
+    r = _invoke(lines, d / "board.png", "--camera", d / "camera.json", *args, "-o", tmp_path / "x.json")
+    assert r.exit_code == code and hint in r.output, r.output

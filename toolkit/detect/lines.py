@@ -24,6 +24,7 @@ import numpy as np
 from pencilcal.toolkit.detect.bars import detect_bars
 from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.segments import MIN_LENGTH_PX, Segments, detect_segments
+from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.lines_file import LineFrame
 
 __all__ = ["default_min_length", "detect_frame_lines", "lines_record", "fan_line_options", "shaft_records",
@@ -92,7 +93,7 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
                        gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None, radial=None, axis_prior=None,
                        shaft_tracker=None, edge_model="step", radial_joint="crowded", segments=True, parts=False,
-                       radial_outer=None, ideal=False):
+                       radial_outer=None, ideal=False, radial_memo=None, radial_pencil=None):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -152,6 +153,13 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         edge that the print beyond it turns trimmed at it (`radial.detect_radial_edges`'
         ``outer``; `orient IMAGES` finds it about a first orientation:
         `radial.trimmed_at_spokes_end`).
+    radial_memo : dict, optional
+        With `radial`: kept between the calls on one frame, the edges located by the first
+        reused by the next (`radial.detect_radial_edges`' ``memo``: a trim's second pass).
+    radial_pencil : Pencil, optional
+        With `radial` (and a camera): each edge trimmed at the ring where the pencil's spokes
+        end, found from a first orientation, as `orient IMAGES` trims them
+        (`radial.orient_radial_edges`); instead of `radial_outer`.
     segments : bool
         Edge segments (`detect_segments`) where neither `bars` nor `radial` is asked for;
         False with `shaft`: the shafts alone (the segments of a textured frame cost most of
@@ -167,10 +175,16 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         min_length = default_min_length(np.shape(image), bars)
     circle_points = None
     if radial is not None:
-        from pencilcal.toolkit.detect.radial import detect_radial_edges
+        from pencilcal.toolkit.detect.radial import detect_radial_edges, orient_radial_edges
 
-        segs = detect_radial_edges(image, camera, edges=radial or None, valid_region=valid_region,
-                                   min_length=min_length, gamma=gamma, joint=radial_joint, outer=radial_outer)
+        kw = dict(edges=radial or None, valid_region=valid_region, min_length=min_length, gamma=gamma,
+                  joint=radial_joint)
+        if radial_pencil is not None:
+            if camera is None:
+                raise InputError("radial_pencil needs a camera: the ring is found from an orientation")
+            segs, _ = orient_radial_edges(image, camera, radial_pencil, **kw)
+        else:
+            segs = detect_radial_edges(image, camera, **kw, outer=radial_outer, memo=radial_memo)
         circle_points = segs.circle_points
     elif bars:
         kw = dict(camera=camera, min_length=min_length, width_px_range=bar_width, proposal_scale=proposal_scale,
@@ -226,7 +240,7 @@ def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, in
 def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=False, min_length=None, bar_width=None,
                  proposal_scale=None, valid_region=None, bar_polarity="dark", gamma=DEFAULT_GAMMA, bar_tracker=None,
                  instrument_mask=None, radial=None, axis_prior=None, shaft_tracker=None, edge_model="step",
-                 radial_joint="crowded", segments=True, parts=False, ideal=False):
+                 radial_joint="crowded", segments=True, parts=False, ideal=False, radial_pencil=None):
     """One lines.json frame record from one decoded image: ``detect_frame_lines(...).to_dict()``
     (the same arguments); ideal: with a camera, also the segments in undistorted pixels as the
     detector measured them, ``ideal`` (M, 4), for `orient_segments`' ideal (a record used in
@@ -234,4 +248,4 @@ def lines_record(name, image, camera=None, detector="auto", bars=False, shaft=Fa
     return detect_frame_lines(name, image, camera, detector, bars, shaft, min_length, bar_width,
                               proposal_scale, valid_region, bar_polarity, gamma, bar_tracker,
                               instrument_mask, radial, axis_prior, shaft_tracker, edge_model, radial_joint,
-                              segments, parts, ideal=ideal).to_dict()
+                              segments, parts, ideal=ideal, radial_pencil=radial_pencil).to_dict()

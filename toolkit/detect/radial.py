@@ -128,7 +128,7 @@ class RadialEdges(Segments):
 
 
 def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, min_length=20.0, circles=True,
-                        gamma=DEFAULT_GAMMA, joint="crowded", outer=None):
+                        gamma=DEFAULT_GAMMA, joint="crowded", outer=None, memo=None):
     """The edges through the vertex of a radial target, and the closed curves about it.
 
     Parameters
@@ -167,6 +167,12 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         inside it, `CLEAR_SIGMAS` blur sds short of it (where the ring's own edge is no
         longer in its profiles), where what lies beyond turned its line (`TURN_SIGMAS`):
         other print does, a boundary's wire running on into the numbers' ring does not.
+    memo : dict, optional
+        Kept by the caller between calls on one frame (the two passes of
+        `trimmed_at_spokes_end`): the edges as steps 1-3 located them, which do not depend on
+        `outer`, are kept in it and reused by a call with the same image, camera and options
+        (the same objects); only the trim and what follows it run again, the result the same
+        as without it.
 
     Returns
     -------
@@ -175,6 +181,22 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
     """
     if joint not in ("crowded", "all"):
         raise InputError(f"joint must be 'crowded' or 'all', got {joint!r}")
+    of, key = (image, camera, valid_region), (edges, min_length, gamma, joint)
+    if memo is not None and memo.get("key") == key and all(a is b for a, b in zip(memo.get("of", ()), of)):
+        located = memo["located"]
+    else:
+        located = _located(image, camera, edges, valid_region, min_length, gamma, joint)
+        if memo is not None:
+            memo.update(of=of, key=key, located=located)
+    if located is None:
+        return RadialEdges.empty()
+    return _finished(camera, outer, min_length, circles, *located)
+
+
+def _located(image, camera, edges, valid_region, min_length, gamma, joint):
+    """Steps 1-3 of `detect_radial_edges` (its arguments), all that does not depend on
+    `outer`: (img, lin, fit, v, reach, phi, rows, clear) for `_finished`, None where no
+    vertex or too few edges were found."""
     img = GrayImage(image, valid_region)
     check_camera_image(camera, img)
     # edges are located on linear light, the pixels linearised before they are interpolated:
@@ -186,20 +208,20 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
     try:
         v, reach = _rough_vertex(segs)
     except EstimationError:
-        return RadialEdges.empty()
+        return None
     fit = None
     blur = 1.16  # a 1 px blur, until the edges say
     for search in _SEARCH_PX:
         clear = max(CLEAR_PX, CLEAR_SIGMAS * blur)
         phi, sign, seen = _edge_directions(img, camera, v, reach, edges, clear)
         if phi.size < 3:
-            return RadialEdges.empty()
+            return None
         fit = _refit_edges(lin, camera, v, phi, sign, seen, search, clear)
         blur = max(CLEAR_PX / CLEAR_SIGMAS, _edge_blur(lin, camera, fit, clear))
         try:
             v, reach = _vertex_of(fit, reach)
         except EstimationError:
-            return RadialEdges.empty()
+            return None
     # the edges located with their neighbours (their blurred edges modelled): those that are
     # nowhere clear of them from where they lie JOINT_SIGMAS blur sds apart; with joint="all"
     # the others too, from where they are clear as before
@@ -215,7 +237,13 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         try:
             v, reach = _vertex_of(fit, reach)
         except EstimationError:
-            return RadialEdges.empty()
+            return None
+    return img, lin, fit, v, reach, phi, rows, clear
+
+
+def _finished(camera, outer, min_length, circles, img, lin, fit, v, reach, phi, rows, clear):
+    """The rest of `detect_radial_edges` from the edges `_located` found: the trim at
+    `outer`, the edges through the vertex with their sigmas, the circle points."""
     if outer is not None:  # the edges located jointly keep their own model of their ends
         joint_rows = np.isin(np.arange(phi.size), rows)
         fit = _trimmed(lin, camera, fit, v, np.asarray(outer, float), clear, min_length, joint_rows)
@@ -241,8 +269,9 @@ def orient_radial_edges(image, camera, pencil, **detect):
         return orient_segments(camera, found.segments, pencil, angle_sigma=found.angle_sigma,
                                offset_sigma=found.offset_sigma, circle_points=found.circle_points, keep_lines=True)
 
-    return trimmed_at_spokes_end(lambda outer: detect_radial_edges(image, camera, **detect, outer=outer), oriented,
-                                 camera, pencil, GrayImage(image, detect.get("valid_region")),
+    memo = {}  # the second pass reuses the first's located edges
+    return trimmed_at_spokes_end(lambda outer: detect_radial_edges(image, camera, **detect, outer=outer, memo=memo),
+                                 oriented, camera, pencil, GrayImage(image, detect.get("valid_region")),
                                  detect.get("joint", "crowded"), detect.get("gamma", DEFAULT_GAMMA))
 
 
@@ -263,7 +292,8 @@ def trimmed_at_spokes_end(detect, orient, camera, pencil, img, joint="crowded", 
 
     detect : callable
         outer ((3, 3) [working px] or None) -> found, with ``segments`` (M, 4) [raw px] (a
-        `RadialEdges`, an `io.lines_file.LineFrame`).
+        `RadialEdges`, an `io.lines_file.LineFrame`); the second call may reuse the first's
+        work (`detect_radial_edges`' ``memo``).
     orient : callable
         found -> `Orientation` with ``lines`` (``keep_lines``), the ring's search needs them.
     camera : Camera or None (None: no trim); pencil : Pencil; img : `GrayImage` of the frame;
@@ -283,8 +313,27 @@ def trimmed_at_spokes_end(detect, orient, camera, pencil, img, joint="crowded", 
                             boundaries, end[0], end[1], gamma)
     if outer is None:
         return found, rec
-    found = detect(outer)
-    return found, orient(found)
+    trimmed = detect(outer)
+    if _same(trimmed, found):  # no edge ran on past the ring: the orientation would be the same
+        return found, rec
+    return trimmed, orient(trimmed)
+
+
+def _same(a, b):
+    """Whether two detections (dataclasses: `RadialEdges`, `io.lines_file.LineFrame`) are
+    the same bit for bit, every field (arrays, dicts of them) compared."""
+    def equal(x, y):
+        if isinstance(x, dict) or isinstance(y, dict):
+            return isinstance(x, dict) and isinstance(y, dict) and x.keys() == y.keys() and all(
+                equal(x[k], y[k]) for k in x)
+        if isinstance(x, (np.ndarray, list, tuple)) or isinstance(y, (np.ndarray, list, tuple)):
+            try:
+                return bool(np.array_equal(np.asarray(x), np.asarray(y)))  # NaN never equal: orient again
+            except (TypeError, ValueError):
+                return False
+        return x is y or x == y
+
+    return type(a) is type(b) and all(equal(getattr(a, f), getattr(b, f)) for f in a.__dataclass_fields__)
 
 
 def _sector_boundaries(pencil):

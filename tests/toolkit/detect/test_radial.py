@@ -200,3 +200,32 @@ def test_blur_scale_follows_the_lens():
     # k1 -0.2 at r = 0.4: tangential scale 1 + k1 r^2 = 0.968, radial 1 + 3 k1 r^2 = 0.904 (their inverses)
     r2 = (400 / 1000.0) ** 2
     assert np.isclose(across[0, 1], 1 / (1 - 0.2 * r2), rtol=2e-3) and np.isclose(radial[0, 1], 1 / (1 - 0.6 * r2), rtol=2e-3)
+
+
+def test_the_trims_second_pass_reuses_the_first():
+    """With a memo the second pass (`outer`) starts from the edges the first located and
+    gives what a detection from scratch gives, bit for bit; the memo is not used for other
+    options. On a dartboard whose print beyond the double ring runs on along its boundaries,
+    where the trim changes edges."""
+    from dataclasses import fields
+
+    from pencilcal.toolkit.pencil.circle import spokes_end_conic
+    from pencilcal.toolkit.pencil.orient import orient_segments
+    from tests.helpers import dartboard_with_print
+
+    img, cam, pen, _, _ = dartboard_with_print()
+    memo = {}
+    first = detect_radial_edges(img, cam, edges=20, memo=memo)
+    rec = orient_segments(cam, first.segments, pen, angle_sigma=first.angle_sigma, offset_sigma=first.offset_sigma,
+                          circle_points=first.circle_points, keep_lines=True)
+    C = spokes_end_conic(cam, rec, first.segments, first.circle_points, pen)
+    assert C is not None and set(memo) == {"of", "key", "located"}
+
+    def same(a, b):
+        return all(np.array_equal(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
+
+    trimmed = detect_radial_edges(img, cam, edges=20, outer=C, memo=memo)
+    assert same(trimmed, detect_radial_edges(img, cam, edges=20, outer=C)) and not same(trimmed, first)
+    other = detect_radial_edges(img, cam, edges=20, outer=C, memo=memo, min_length=40.0)
+    assert same(other, detect_radial_edges(img, cam, edges=20, outer=C, min_length=40.0))
+    assert memo["key"][1] == 40.0  # the memo now holds those options' edges
