@@ -612,11 +612,12 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
         return None, "edges meet inside the stretch"
     seen = float(np.hypot(*(m.ends[1] - m.ends[0])))
     along = max(stretch[1] - stretch[0], e.ext[1] - e.ext[0]) * e.step / s
-    # a run the border of the view cuts is seen up to it (`_to_border`)
+    # a run the border of the view cuts is seen up to it (`_to_border`), but the edges must
+    # confirm a good part of the run where they were looked for
     seen_b = seen + _to_border(m, camera, validity, corridor) if e.reach_run else seen
     # elongated (`_elongated`), along a good part of the region's run, entering from the
     # border of the view or very long
-    if seen_b < _least_seen(m.width_px, o) or seen_b < 0.3 * e.run_len / s:
+    if seen_b < _least_seen(m.width_px, o) or seen < 0.3 * e.run_len / s:
         return None, "edges seen too short"
     if not _elongated(m, seen_b, along, camera, validity, corridor, e.reach_run):
         return None, "not elongated"
