@@ -34,11 +34,13 @@ frames whose colour tells the materials apart (`shaft.detector`).
    the midline is the plane bisector of the two (`shaft.axis`). It is a shaft when both edges
    are seen together along at least the least length, or 1.25 widths where that is shorter (a
    thin shaft: the length is relative to the width, `_least_seen`), and a third of the region's
-   run; when they, its band or its region's extension (the instrument's material, its wrist
-   included) run along 2.5 widths (a jaw is not elongated), or they run along 1.25 widths and
-   the border of the view cuts them (a wide shaft close to the lens, entering at a corner; a
-   wrist or jaw ends inside the view); when they converge by at most the largest convergence (a
-   band of edge pairs or one found into its own region: up to
+   run (a run the border of the view cuts is seen up to the border, `_to_border`); when they,
+   its band or its region's extension (the instrument's material, its wrist included) run along
+   2.5 widths (a jaw is not elongated), or they run along 1.25 widths and the border of the view
+   cuts them (a wide shaft close to the lens, entering at a corner; a wrist or jaw ends inside
+   the view), its band or extension too where the border cuts its run (a shaft close to the
+   lens seen from the border to its collar, its wrist beyond); when they converge by at most
+   the largest convergence (a band of edge pairs or one found into its own region: up to
    `shaft.edge_pairs.PAIR_MAX_CONVERGENCE_DEG`) and meet outside the stretch (by half a width);
    and when the band's extension reaches the border of the view or the stretch ends within a
    width of it (an instrument enters from outside; its edges may fade into a dark, vignetted
@@ -519,6 +521,19 @@ def _reaches_border(m, camera, validity, corridor):
     return bool(np.min(d) <= m.width_px + corridor)
 
 
+def _to_border(m, camera, validity, corridor):
+    """The distance [px] from a midline's nearer end to the border of the view, where it
+    ends within a width and a corridor of it (`_reaches_border`), else 0. The edges of a band
+    the border cuts are fitted on samples inside the view and fade into a dark, vignetted
+    surround before it, so this stretch of a shaft entering there is the view's, not one
+    where its edges were looked for and missed (the raw distance stands for the ideal one:
+    the lens scales it by a few per cent at most over a width)."""
+    from pencilcal.toolkit.detect.working import to_raw_points
+
+    d = float(np.min(validity.distance(to_raw_points(camera, m.ends))))
+    return max(d, 0.0) if d <= m.width_px + corridor else 0.0
+
+
 def _least_seen(width, o):
     """The least length [ideal px] along which a band's edges must be seen together: the
     least length (`ShaftOptions.region_min_length`), or where a band is narrow enough that
@@ -528,17 +543,21 @@ def _least_seen(width, o):
     return min(o.region_min_length, _SHORT_WIDTHS * max(width, o.region_wmin))
 
 
-def _elongated(m, seen, along, camera, validity, corridor):
+def _elongated(m, seen, along, camera, validity, corridor, cut=False):
     """Whether a band is elongated like a shaft (a jaw, a blob between two short straight
     boundaries is not): its edges, its band or its instrument-like material run along
     `_ELONGATED_WIDTHS` widths; or its edges are seen together along `_SHORT_WIDTHS` widths
     and the border of the view cuts them (a shaft close to the lens, entering the view
-    obliquely at a corner, is seen over fewer widths; a wrist or jaw ends inside the view).
+    obliquely at a corner, is seen over fewer widths; a wrist or jaw ends inside the view);
+    or, where the border cuts the band's run itself (cut), its band or material does (a shaft
+    close to the lens seen from the border to its collar, its wrist beyond: the instrument runs
+    on along its axis; a blob at the border between two short edges does not).
     seen, along [ideal px]."""
     w = m.width_px
     if max(seen, along) >= _ELONGATED_WIDTHS * w:
         return True
-    return seen >= _SHORT_WIDTHS * w and _reaches_border(m, camera, validity, corridor)
+    short = max(seen, along) if cut else seen
+    return short >= _SHORT_WIDTHS * w and _reaches_border(m, camera, validity, corridor)
 
 
 def material_cue(image, camera, validity, work, mm, o, K, noise):
@@ -593,11 +612,14 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
         return None, "edges meet inside the stretch"
     seen = float(np.hypot(*(m.ends[1] - m.ends[0])))
     along = max(stretch[1] - stretch[0], e.ext[1] - e.ext[0]) * e.step / s
+    # a run the border of the view cuts is seen up to it (`_to_border`), but the edges must
+    # confirm a good part of the run where they were looked for
+    seen_b = seen + _to_border(m, camera, validity, corridor) if e.reach_run else seen
     # elongated (`_elongated`), along a good part of the region's run, entering from the
     # border of the view or very long
-    if seen < _least_seen(m.width_px, o) or seen < 0.3 * e.run_len / s:
+    if seen_b < _least_seen(m.width_px, o) or seen < 0.3 * e.run_len / s:
         return None, "edges seen too short"
-    if not _elongated(m, seen, along, camera, validity, corridor):
+    if not _elongated(m, seen_b, along, camera, validity, corridor, e.reach_run):
         return None, "not elongated"
     if seen < long_len and not (any(e.reach) or _reaches_border(m, camera, validity, corridor)):
         return None, "not from the border"
