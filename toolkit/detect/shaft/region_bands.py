@@ -55,6 +55,24 @@ _NU_IN, _NU_SIDE = 0.75, 1.3
 _IN = np.abs(_NU) <= _NU_IN
 _SL = (_NU >= -2.0) & (_NU <= -_NU_SIDE)
 _SR = (_NU >= _NU_SIDE) & (_NU <= 2.0)
+
+
+def _run(mask):
+    """The slice of a mask (U,) bool whose True entries are one run (the offsets `_NU` are
+    sorted, so each of their sets is).
+
+    >>> _run(np.array([False, True, True, False]))
+    slice(1, 3, None)
+    """
+    idx = np.flatnonzero(mask)
+    if not (idx.size and idx[-1] - idx[0] + 1 == idx.size):
+        raise ValueError("not one run")
+    return slice(int(idx[0]), int(idx[-1]) + 1)
+
+
+# the same sets as slices, for selections that copy what they select anyway (a boolean index of
+# the stations): one gather fewer, the same elements in the same order
+_IN_S, _SL_S, _SR_S = _run(_IN), _run(_SL), _run(_SR)
 _REACH_STATIONS = 2  # a run "reaches the border" when it ends this close to the first unobservable station
 _RECENT = 8  # the extension's band test compares with the last this many stations of the band
 _BAND_GAP = 2  # ... bridging gaps of up to this many stations
@@ -263,11 +281,12 @@ def _side_colours(cc, oL, oR, ba):
     """(fall, ang) of one band's run: the instrument-like fraction beside each side (ba:
     the "all" map's samples (S', U)) and the spectral angle [deg] between the inside's mean
     colour and each side's (cc: (S', U, 3) colours; oL, oR (S',) the sides observable)."""
-    aL = float(np.mean(ba[:, _SL][oL])) if np.any(oL) else 1.0
-    aR = float(np.mean(ba[:, _SR][oR])) if np.any(oR) else 1.0
-    cin = cc[:, _IN].reshape(-1, cc.shape[-1]).mean(0)
+    # each selection a contiguous copy, as a gather of the masked offsets was: the same sums
+    aL = float(np.mean(ba[:, _SL_S][oL])) if np.any(oL) else 1.0
+    aR = float(np.mean(ba[:, _SR_S][oR])) if np.any(oR) else 1.0
+    cin = cc[:, _IN_S].reshape(-1, cc.shape[-1]).mean(0)
     angs = []
-    for okS, msk in ((oL, _SL), (oR, _SR)):
+    for okS, msk in ((oL, _SL_S), (oR, _SR_S)):
         qq = cc[:, msk][okS].reshape(-1, cc.shape[-1])
         if qq.shape[0] < 5:
             angs.append(np.nan)

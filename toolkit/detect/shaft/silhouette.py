@@ -40,6 +40,7 @@ Example
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -136,7 +137,7 @@ def _samples(image, camera, cx, cy, nx, ny, t):
     rx, ry, jx, jy = raw_frame(camera, cx, cy, nx, ny)
     X = (rx[..., None] + jx[..., None] * t).astype(np.float32)
     Y = (ry[..., None] + jy[..., None] * t).astype(np.float32)
-    ends = np.stack([np.stack([X[..., 0], Y[..., 0]], -1), np.stack([X[..., -1], Y[..., -1]], -1)], -2)
+    ends = np.stack([X[..., ::X.shape[-1] - 1], Y[..., ::X.shape[-1] - 1]], -1)  # (M, S, 2 ends, x y)
     fin = np.isfinite(X) & np.isfinite(Y)
     M, S, T = X.shape
     whole = image.dtype == np.float32 and image.flags.c_contiguous  # a float frame is sampled as it is
@@ -241,6 +242,16 @@ def _linear_peaks(prof, e, kern, j, gamma):
     return (jm + np.clip(off, -0.5, 0.5)).reshape(j.shape), top.reshape(j.shape)
 
 
+@functools.lru_cache(maxsize=1024)
+def _window_index(n):
+    """The indices (n, `_BEND_WIN`) of each of n stations' window, the ends repeated: made once
+    per n (read-only; a frame's edges have a few station counts)."""
+    h = _BEND_WIN // 2
+    idx = np.clip(np.arange(n)[:, None] + np.arange(-h, h + 1)[None, :], 0, n - 1)
+    idx.flags.writeable = False
+    return idx
+
+
 def _running_median(x, axis):
     """The median of every `_BEND_WIN` (odd) neighbours along `axis`, the ends repeated:
     scipy.ndimage.median_filter's with mode "nearest", in numpy (the same values, without
@@ -252,12 +263,10 @@ def _running_median(x, axis):
     True
     """
     h = _BEND_WIN // 2
-    n = x.shape[axis]
     # the windows gathered with the ends repeated (np.pad's "edge"), the window axis after
     # `axis`; of an odd count the median is the middle order statistic (np.median's value,
     # without its mean and NaN checks)
-    idx = np.clip(np.arange(n)[:, None] + np.arange(-h, h + 1)[None, :], 0, n - 1)
-    win = np.take(x, idx, axis=axis)
+    win = np.take(x, _window_index(x.shape[axis]), axis=axis)
     return np.take(np.partition(win, h, axis=axis + 1), h, axis=axis + 1)
 
 

@@ -52,9 +52,13 @@ _EPS = 1.0  # added to each channel [DN]: a black pixel has no colour, not an un
 
 def _chromaticity(bgr):
     """(..., 2) opponent chromaticity of (..., 3) BGR values (module docstring)."""
-    b, g, r = (bgr[..., k].astype(float) for k in range(3))
+    f = np.asarray(bgr, float)  # one conversion, the channels read as views
+    b, g, r = f[..., 0], f[..., 1], f[..., 2]
     S = r + g + b + 3.0 * _EPS
-    return np.stack([(r - g) / S, (r + g - 2.0 * b) / (np.sqrt(3.0) * S)], -1)
+    out = np.empty(S.shape + (2,))
+    np.divide(r - g, S, out=out[..., 0])
+    np.divide(r + g - 2.0 * b, np.sqrt(3.0) * S, out=out[..., 1])
+    return out
 
 
 def _frame_chromaticity(img, validity):
@@ -62,13 +66,17 @@ def _frame_chromaticity(img, validity):
     `_FRAME_SAMPLES` of them."""
     H, W = img.shape[:2]
     step = max(1, int(np.sqrt(H * W / _FRAME_SAMPLES)))
-    ys, xs = np.mgrid[step // 2:H:step, step // 2:W:step]
-    keep = validity.distance(np.stack([xs, ys], -1).astype(float)) > 0
+    # the grid's distances as `Validity.distance` gives them (without a region, from its
+    # rows' and columns')
+    xs, ys = np.arange(step // 2, W, step, dtype=float), np.arange(step // 2, H, step, dtype=float)
+    keep = validity.grid_distance(xs, ys) > 0
     if not keep.any():
         keep[:] = True
-    # the grid as a strided view, masked: the same pixels in the same order as indexing the
-    # frame at (ys, xs), without a gather over the whole frame (a third of the cost)
-    return np.median(_chromaticity(img[step // 2:H:step, step // 2:W:step][keep]), 0)
+    # the grid as a strided view, masked (or whole, where every pixel is kept): the same
+    # pixels in the same order as indexing the frame at the grid's points, without a gather
+    # over the whole frame
+    grid = img[step // 2:H:step, step // 2:W:step]
+    return np.median(_chromaticity(grid.reshape(-1, 3) if keep.all() else grid[keep]), 0)
 
 
 def _inside(img, midline, width):
