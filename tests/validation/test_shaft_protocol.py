@@ -53,7 +53,9 @@ pytestmark = pytest.mark.slow
 #: A band whose run the border of the view cuts, seen up to the border and elongated by its
 #: instrument's material beyond its collar (`material_cue._to_border`, `_elongated`; no new
 #: constant) finds endovis17's left shaft in frame000 too.
-REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (10, 0.1),
+#: A strip of tissue lit beside a better shaft, its inside between its sides in lightness, is that
+#: shaft's halo (`material_cue.select`): cholec's one false detection goes.
+REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (10, 0.0),
            "endovis17": (9, 0.0)}
 
 
@@ -120,15 +122,18 @@ def test_leave_one_source_out(detected):
 #: With the instrument regions' axes (`shaft.parts`, `lines --shaft --parts`) offered too, the
 #: least part score chosen on the others (none among the choices): what each source reaches
 #: (found, most false per frame). Chosen on the others, parts are taken only where they add a
-#: find there without passing 0.25 false a frame: with dvrk-suturing left out (0.1 of the
-#: diagonal) and box-trainer left out (0.3), where they add nothing. Box-trainer's large grey
+#: find there without passing 0.25 false a frame: with dvrk-suturing left out (0.05 of the
+#: diagonal, below) and box-trainer left out (0.3), where they add nothing. Box-trainer's large grey
 #: false region (20 deg sigma, 1.0 a frame) went when the regions' raw masks were put where
 #: their work regions are (they lay 1.5 raw px right and down), and greenscreen, which took
 #: 0.3, takes none since. One of cholec's two distal parts alone (VID03_000180: a white hook's
 #: tip, not a grasper's jaws; references of kind part) is found by them, but the other sources gain
 #: nothing from parts, so none is chosen for cholec: the parts stay off by default
 #: (docs/method.md, distal parts).
-PARTS_REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (10, 0.1),
+#: Since cholec's lit strip went (above), with dvrk-suturing left out the others take 0.05: 25 found
+#: at 4 false in their 17 frames (0.235 a frame; with the strip 5, over the bound, and 0.1 was
+#: taken: 23 at 2), and dvrk-suturing gets a false part in one of its 3 frames.
+PARTS_REACHED = {"dvrk-suturing": (6, 0.34), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (10, 0.0),
                  "endovis17": (9, 0.0)}
 
 

@@ -58,7 +58,10 @@ frames whose colour tells the materials apart (`shaft.detector`).
 4. *selection* (`select`): a shaft whose band overlaps a better one's, or that runs along a
    better one's axis (within `_COAXIAL_DEG`, its centre within half that one's width: a
    wrist, the far part of a shaft split by a highlight), is another reading of the same
-   instrument; a short band (its run under two widths) whose extension runs into another
+   instrument; a band whose inside lies between its two sides in lightness, wholly beyond
+   one edge of a better shaft and its nearer edge within its own width of that edge, is the
+   tissue lit from that instrument between it and a shadow (dark | mid | white: its halo);
+   a short band (its run under two widths) whose extension runs into another
    shaft's band is a wrist or jaw part continuing into that instrument's shaft; a band
    nested inside one that held is structure inside that instrument. All are dropped.
 
@@ -691,6 +694,42 @@ def _coaxial(shafts):
     return out
 
 
+def _between_sides(band):
+    """Whether a band's inside lies between its two sides in lightness (a ramp from a shadow
+    up to a bright edge; a shaft is darker or brighter than both)."""
+    lo, hi = sorted(band.y_sides)
+    return bool(lo < band.y_in < hi)
+
+
+def _beside(sh, t):
+    """Whether shaft sh lies beside the better shaft t (both `MaterialShaft`, ideal px):
+    wholly beyond one of t's edges, its nearer edge within its own width of that edge at both
+    ends, its centre alongside t's stretch."""
+    mt, m = t.midline, sh.midline
+    a = mt.ends[1] - mt.ends[0]
+    if not 0.0 <= (m.centre - mt.ends[0]) @ a <= a @ a:
+        return False
+    own = m.edges.reshape(2, 2, 2)  # (edge, end, xy)
+    for e in mt.edges.reshape(2, 2, 2):
+        l = np.cross(np.r_[e[0], 1.0], np.r_[e[1], 1.0])
+        l = l / np.hypot(l[0], l[1])
+        d = (own @ l[:2] + l[2]) * np.sign(l[:2] @ mt.centre + l[2])  # (edge, end) [px], > 0 on t's side
+        if np.all(d < 0) and -d[np.argmax(d.mean(1))].min() <= m.width_px:
+            return True
+    return False
+
+
+def _ramps_beside(shafts):
+    """Without those whose inside lies between their sides (`_between_sides`) beside a
+    better one (`_beside`): the strip of tissue lit from an instrument's edge, between it and a
+    shadow, is its halo, not a second instrument (module docstring, step 4)."""
+    out = []
+    for sh in shafts:
+        if not (_between_sides(sh.band) and any(_beside(sh, t) for t in out)):
+            out.append(sh)
+    return out
+
+
 def _short_extensions(shafts):
     """Without the short bands whose extension runs into another's band (module docstring,
     step 4)."""
@@ -718,4 +757,4 @@ def _inside_held(shafts):
 def select(shafts, max_shafts):
     """The shafts that are not other readings of a better one (module docstring, step 4),
     best score first, at most max_shafts."""
-    return _short_extensions(_coaxial(_overlapping(_inside_held(shafts))))[:max_shafts]
+    return _short_extensions(_ramps_beside(_coaxial(_overlapping(_inside_held(shafts)))))[:max_shafts]

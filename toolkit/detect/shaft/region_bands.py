@@ -112,7 +112,7 @@ class RegionBand:
         Fraction of instrument-like pixels ("all" map) beside each side; spectral angle
         between the inside's and that side's mean colour [deg] (NaN: too few pixels).
     y_in, y_side : float [grey levels]
-        Mean luma inside and beside the run.
+        Mean luma inside and beside the run; y_sides (2,): beside each side.
     level, kind : int, str
         The region level and map ("all", "dark" or "darker": `shaft.regions.DARK_SPLITS`)
         it came from.
@@ -145,6 +145,7 @@ class RegionBand:
     level: int = 0
     kind: str = "all"
     side_contrast: tuple = (np.nan, np.nan)
+    y_sides: tuple = (np.nan, np.nan)
 
     @property
     def width_run(self):
@@ -427,13 +428,14 @@ def _band(g, lines, pairs, m, run_ends, obs, fin, okL, okR, shaft, cc, ca, cy, l
     run = slice(i0, i1)
     fall, ang = _side_colours(cc[run], okL[m, run], okR[m, run], ca[run])
     yy = cy[run]
+    ySL, ySR = float(np.mean(yy[:, _SL])), float(np.mean(yy[:, _SR]))
     li, lj = pairs.i[m], pairs.j[m]
     return RegionBand(
         lines=tuple((lines.p[k], lines.u[k], lines.n[k], float(lines.lo[k]), float(lines.hi[k])) for k in (li, lj)),
         C=g.C[m], ua=g.ua[m], na=g.na[m], oi=g.oi[m], oj=g.oj[m], run=(i0, i1), ext=ext, reach=reach,
         reach_run=reach_run, view=view, obs=obs[m], inside_colour=cin, contrast=con, step=float(g.step[m]),
         run_len=float((i1 - i0) * g.step[m]), shaft_len=float(np.count_nonzero(shaft[m, run]) * g.step[m]), fall=fall,
-        ang=ang, y_in=float(np.mean(yy[:, _IN])), y_side=float(0.5 * (np.mean(yy[:, _SL]) + np.mean(yy[:, _SR]))),
+        ang=ang, y_in=float(np.mean(yy[:, _IN])), y_side=float(0.5 * (ySL + ySR)), y_sides=(ySL, ySR),
         level=int(level), kind=kind,
         side_contrast=(float(median(cL[run][okL[m, run]])) if np.any(okL[m, run]) else np.nan,
                        float(median(cR[run][okR[m, run]])) if np.any(okR[m, run]) else np.nan))
