@@ -225,6 +225,15 @@ def spokes_end_ring(img, camera, R, x, boundaries, rho_end, ratio, gamma=1.0):
     both = np.where(np.isfinite(both), both, -np.inf)
     j = np.argmax(both, 1)
     has = both[np.arange(a.size), j] > 0
+    # the ring is one circle of the plane: a direction's pair of steps farther from the
+    # directions' median log radius than `_RING_REJECT` robust sds of them (never nearer than
+    # the ring's own width, `ratio`: the first orientation bends the plane's radii) is
+    # something else, left out before the fit, which would bend towards such points taken
+    # together (a maker's print in the numbers' ring: in a dark sector's linear light its
+    # steps are far stronger than the ring's)
+    if has.any():
+        dev = np.abs(lr[j] - np.median(lr[j[has]]))
+        has &= dev <= max(_RING_REJECT * 1.4826 * np.median(dev[has]), np.log(ratio))
     if has.sum() < 12:
         return None
     rows = np.flatnonzero(has)

@@ -209,7 +209,11 @@ def test_the_trims_second_pass_reuses_the_first():
     where the trim changes edges."""
     from dataclasses import fields
 
-    from pencilcal.toolkit.pencil.circle import spokes_end_conic
+    from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
+    from pencilcal.toolkit.detect.image import GrayImage
+    from pencilcal.toolkit.detect.radial import _sector_boundaries
+    from pencilcal.toolkit.detect.radial_circles import spokes_end_ring
+    from pencilcal.toolkit.pencil.circle import spokes_end
     from pencilcal.toolkit.pencil.orient import orient_segments
     from tests.helpers import dartboard_with_print
 
@@ -218,8 +222,12 @@ def test_the_trims_second_pass_reuses_the_first():
     first = detect_radial_edges(img, cam, edges=20, memo=memo)
     rec = orient_segments(cam, first.segments, pen, angle_sigma=first.angle_sigma, offset_sigma=first.offset_sigma,
                           circle_points=first.circle_points, keep_lines=True)
-    C = spokes_end_conic(cam, rec, first.segments, first.circle_points, pen)
-    assert C is not None and set(memo) == {"of", "key", "located"}
+    # the ring where the spokes end, found on the image as `trimmed_at_spokes_end` finds it
+    end = spokes_end(cam, rec, first.segments, pen)
+    assert end is not None and set(memo) == {"of", "key", "located"}
+    C = spokes_end_ring(GrayImage(img), cam, np.asarray(rec.R_cam_from_target, float),
+                        np.asarray(rec.lines["vertex"], float), _sector_boundaries(pen), end[0], end[1], DEFAULT_GAMMA)
+    assert C is not None
 
     def same(a, b):
         return all(np.array_equal(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
