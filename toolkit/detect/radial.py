@@ -288,7 +288,9 @@ def trimmed_at_spokes_end(detect, orient, camera, pencil, img, joint="crowded", 
     (``detect(outer)``: `detect_radial_edges`' ``outer``), and oriented again: beyond it a
     ring of numbers or a maker's print runs on along some boundaries and turns their lines,
     which the labelling then rejects. Not with ``joint="all"`` (a star's wedges): every
-    edge is then located jointly, none trimmed, and the first pass is the result.
+    edge is then located jointly, none trimmed, and the first pass is the result; nor where
+    no edge runs on past the ring (the second detection the same as the first, bit for bit:
+    its orientation is too).
 
     detect : callable
         outer ((3, 3) [working px] or None) -> found, with ``segments`` (M, 4) [raw px] (a

@@ -304,16 +304,29 @@ def _point_with_noise(points, dirs, covs, robust):
     (at most `sequence_noise.MAX_RUNS` runs), because the 99 % gate of a run whose
     covariances are too small leaves out the larger residuals and would bias the factor
     low. The last run's covariance times its own factor; the factor returned is the total."""
+    def own_factor(fit):
+        used = np.asarray(fit.inliers, bool)
+        return inflation(np.sum(np.asarray(fit.chi2)[used]), 2 * int(used.sum()) - 3)
+
+    fit, own, total = _runs_at_noise(lambda f: fulcrum_3d(points, dirs, covs * f, robust=robust), own_factor)
+    fit = dataclasses.replace(fit, point_cov=fit.point_cov * own, point_sigma=fit.point_sigma * np.sqrt(own))
+    return fit, total * own
+
+
+def _runs_at_noise(fit_at, own_factor):
+    """The one rule of the 3-D point's runs (`_point_with_noise`, `_moving_point`): fit_at(f)
+    fits with the covariances times f, own_factor(fit) its variance factor; while a run's
+    own factor is above `_RERUN_FACTOR` the fit runs again at the factor so far (at most
+    `sequence_noise.MAX_RUNS` runs). Returns (the last fit, its own factor, the factor it
+    ran at)."""
     total = 1.0
     for i in range(MAX_RUNS):
-        fit = fulcrum_3d(points, dirs, covs * total, robust=robust)
-        used = np.asarray(fit.inliers, bool)
-        own = inflation(np.sum(np.asarray(fit.chi2)[used]), 2 * int(used.sum()) - 3)
+        fit = fit_at(total)
+        own = own_factor(fit)
         if own <= _RERUN_FACTOR or i == MAX_RUNS - 1:
             break
         total *= own
-    fit = dataclasses.replace(fit, point_cov=fit.point_cov * own, point_sigma=fit.point_sigma * np.sqrt(own))
-    return fit, total * own
+    return fit, own, total
 
 
 def frame_axes(camera, frames, diameter):
@@ -363,13 +376,10 @@ def _moving_point(points, dirs, covs, poses, owners, diameter, skipped, robust):
     R, t, S = pose_arrays(poses)
     # as the still camera's (`_point_with_noise`): fitted again with the axes' and the poses'
     # covariances times the factor so far while a run's own factor is above 1.1^2
-    total = 1.0
-    for i in range(MAX_RUNS):
-        mv = fulcrum_moving(np.array(points), np.array(dirs), np.array(covs) * total, R, t, S * total, robust=robust)
-        if mv.variance_factor <= _RERUN_FACTOR or i == MAX_RUNS - 1:
-            break
-        total *= mv.variance_factor
-    mv = dataclasses.replace(mv, variance_factor=mv.variance_factor * total)
+    mv, own, total = _runs_at_noise(
+        lambda f: fulcrum_moving(np.array(points), np.array(dirs), np.array(covs) * f, R, t, S * f, robust=robust),
+        lambda run: run.variance_factor)
+    mv = dataclasses.replace(mv, variance_factor=own * total)
     moved = int(np.sum(np.any(t != 0, axis=-1) | np.any(R != np.eye(3), axis=(-2, -1))))
     motion = {"frames_moved": moved, "scale": mv.scale, "scale_sigma": mv.scale_sigma,
               "variance_factor": mv.variance_factor}

@@ -515,13 +515,17 @@ def _band_edges(image, camera, validity, noise, bands, work, corridor, stretches
     return [(fits[2 * k], fits[2 * k + 1]) if k in alive else None for k in range(len(bands))]
 
 
+def _border_distance(m, camera, validity):
+    """The distance [raw px] from a midline's (ideal px) nearer end to the border of the view."""
+    from pencilcal.toolkit.detect.working import to_raw_points
+
+    return float(np.min(validity.distance(to_raw_points(camera, m.ends))))
+
+
 def _reaches_border(m, camera, validity, corridor):
     """Whether a midline (ideal px) ends within a width and a corridor of the border of the
     view (an instrument enters from outside)."""
-    from pencilcal.toolkit.detect.working import to_raw_points
-
-    d = validity.distance(to_raw_points(camera, m.ends))
-    return bool(np.min(d) <= m.width_px + corridor)
+    return _border_distance(m, camera, validity) <= m.width_px + corridor
 
 
 def _to_border(m, camera, validity, corridor):
@@ -531,9 +535,7 @@ def _to_border(m, camera, validity, corridor):
     surround before it, so this stretch of a shaft entering there is the view's, not one
     where its edges were looked for and missed (the raw distance stands for the ideal one:
     the lens scales it by a few per cent at most over a width)."""
-    from pencilcal.toolkit.detect.working import to_raw_points
-
-    d = float(np.min(validity.distance(to_raw_points(camera, m.ends))))
+    d = _border_distance(m, camera, validity)
     return max(d, 0.0) if d <= m.width_px + corridor else 0.0
 
 

@@ -111,8 +111,8 @@ class RegionBand:
     fall, ang : (2,)
         Fraction of instrument-like pixels ("all" map) beside each side; spectral angle
         between the inside's and that side's mean colour [deg] (NaN: too few pixels).
-    y_in, y_side : float [grey levels]
-        Mean luma inside and beside the run; y_sides (2,): beside each side.
+    y_in : float, y_sides : (2,) [grey levels]
+        Mean luma inside the run and beside each of its sides (`y_side`: their mean).
     level, kind : int, str
         The region level and map ("all", "dark" or "darker": `shaft.regions.DARK_SPLITS`)
         it came from.
@@ -141,11 +141,15 @@ class RegionBand:
     fall: tuple
     ang: tuple
     y_in: float
-    y_side: float
+    y_sides: tuple
     level: int = 0
     kind: str = "all"
     side_contrast: tuple = (np.nan, np.nan)
-    y_sides: tuple = (np.nan, np.nan)
+
+    @property
+    def y_side(self):
+        """Mean luma beside the run [grey levels]: the mean of its two sides'."""
+        return float(0.5 * (self.y_sides[0] + self.y_sides[1]))
 
     @property
     def width_run(self):
@@ -435,7 +439,7 @@ def _band(g, lines, pairs, m, run_ends, obs, fin, okL, okR, shaft, cc, ca, cy, l
         C=g.C[m], ua=g.ua[m], na=g.na[m], oi=g.oi[m], oj=g.oj[m], run=(i0, i1), ext=ext, reach=reach,
         reach_run=reach_run, view=view, obs=obs[m], inside_colour=cin, contrast=con, step=float(g.step[m]),
         run_len=float((i1 - i0) * g.step[m]), shaft_len=float(np.count_nonzero(shaft[m, run]) * g.step[m]), fall=fall,
-        ang=ang, y_in=float(np.mean(yy[:, _IN])), y_side=float(0.5 * (ySL + ySR)), y_sides=(ySL, ySR),
+        ang=ang, y_in=float(np.mean(yy[:, _IN])), y_sides=(ySL, ySR),
         level=int(level), kind=kind,
         side_contrast=(float(median(cL[run][okL[m, run]])) if np.any(okL[m, run]) else np.nan,
                        float(median(cR[run][okR[m, run]])) if np.any(okR[m, run]) else np.nan))
