@@ -364,7 +364,8 @@ def _stabilized(source, camera, frames, mask_path, shaft_diameter):
     rec = {"model": "homography", "reference": names[ref], "frames_measured": len(ok),
            "median_rms_px": float(np.median([m.rms_px for m in ok if m is not motions[ref]] or [0.0])),
            "max_shift_px": float(max([m.shift_px for m in ok] or [0.0])),
-           "frames": [{**m.to_dict(), "image": n} for n, m in zip(names, motions)]}
+           "frames": [{**m.to_dict(), "image": n, **({} if m.via is None else {"via": names[m.via]})}
+                      for n, m in zip(names, motions)]}
     if model is not None:
         rec.update(pose_model=model, pose_anchor=None if anchor is None else names[anchor],
                    frames_posed=sum(1 for m in ok if m.pose is not None))

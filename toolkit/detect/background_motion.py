@@ -13,7 +13,9 @@ lines are taken into the reference frame's image first:
 3. *homography* ``H_ref_from_frame`` by RANSAC (`RANSAC_PX`), then Gauss-Newton on its
    inliers' transfer errors, ``H[2, 2] = 1``: its 8 x 8 covariance is ``s^2 (J^T J)^-1``
    with ``s^2`` the inliers' residual variance, so what the background does beyond a
-   homography (tissue that deforms, parallax) widens it;
+   homography (tissue that deforms, parallax) widens it; a frame whose own matches give
+   none (too little background shared with the reference) is measured through the nearest
+   frame that has one (`_through_neighbour`, `chain_homography`);
 4. *lines*: a line's two end points map by H (its homogeneous vector by ``H^-T``), and its
    (angle, offset) covariance about its centre is carried by the Jacobian of the mapped
    line's (angle, offset) about its new centre in the line's own two parameters and in
@@ -45,7 +47,7 @@ from pencilcal.toolkit.detect.background_pose import FramePose, background_poses
 from pencilcal.toolkit.errors import EstimationError
 
 __all__ = ["FrameMotion", "background_motion", "background_motion_3d", "instrument_exclusion", "map_segment", "stabilize_frames",
-           "homography_cov", "MIN_INLIERS", "MAX_NON_ROTATION"]
+           "homography_cov", "chain_homography", "MIN_INLIERS", "MAX_NON_ROTATION"]
 
 #: Lowe's ratio test of a feature's best match against its second best.
 RATIO = 0.8
@@ -62,6 +64,9 @@ TIP_WIDTHS = 4.0
 #: a tenth of the scene's depth gives about 0.1-0.3): beyond it the matches that carried
 #: RANSAC are a coincidence (the phantom's frame 3: 3.3, from 23 of 103 matches).
 MAX_NON_ROTATION = 0.5
+#: Frames measured directly, nearest first, through which a frame whose own matches to the
+#: reference give no motion is tried (`_through_neighbour`).
+NEIGHBOURS = 2
 #: SIFT features per frame.
 FEATURES = 4000
 #: SIFT's contrast threshold (its default 0.04 finds ~200 features on a bowel phantom's
@@ -77,7 +82,10 @@ class FrameMotion:
     shift_px the median displacement of the inliers [px], non_rotation its departure from
     a turn of the camera (`MAX_NON_ROTATION`); ok False (H None) with error
     saying why where it is not measured; pose: its 3-D pose in the reference's camera
-    (`background_pose.FramePose`) where measured (`background_motion` with ``poses``)."""
+    (`background_pose.FramePose`) where measured (`background_motion` with ``poses``); via:
+    the index of the frame it was measured through where its own matches to the reference
+    gave no motion (H the two steps' product; rms_px, inliers and matches the step's to that
+    frame), else None."""
 
     image: str
     ok: bool
@@ -90,10 +98,12 @@ class FrameMotion:
     non_rotation: float = float("nan")
     error: str | None = None
     pose: FramePose | None = None
+    via: int | None = None
 
     @classmethod
     def from_dict(cls, d):
-        """The motion of a `to_dict` record (fulcrum.json's ``stabilize.frames`` entries)."""
+        """The motion of a `to_dict` record (fulcrum.json's ``stabilize.frames`` entries; its
+        ``via``, a frame's name there, is not read back)."""
         if not d["ok"]:
             return cls(str(d["image"]), False, matches=int(d["matches"]), inliers=int(d["inliers"]), error=d["error"])
         pose = None if d.get("pose") is None else FramePose.from_dict(d["pose"])
@@ -108,6 +118,8 @@ class FrameMotion:
             out.update({"H_ref_from_frame": self.H.tolist(), "H_cov": self.cov.tolist(),
                         "rms_px": float(self.rms_px), "shift_px": float(self.shift_px),
                         "non_rotation": float(self.non_rotation)})
+            if self.via is not None:
+                out["via"] = int(self.via)
             if self.pose is not None:
                 out["pose"] = self.pose.to_dict()
         else:
@@ -239,14 +251,19 @@ def _frame_motion(name, ref, cur, camera, matches=None):
     keep = inl.ravel().astype(bool)
     H, cov, rms = homography_cov(H, src[keep], dst[keep])
     shift = float(np.median(np.hypot(*(dst[keep] - src[keep]).T)))
-    K = np.asarray(camera.K, float)
-    sv = np.linalg.svd(np.linalg.solve(K, H @ K), compute_uv=False)
-    nr = float(sv[0] / sv[2] - 1.0)
+    nr = _non_rotation(H, camera)
     if not nr <= MAX_NON_ROTATION:
         return FrameMotion(name, False, matches=len(src), inliers=k, non_rotation=nr, error=(
             f"the background's homography is no camera motion ({k} inliers of {len(src)} matches, departs "
             f"{nr:.2f} from a turn)"))
     return FrameMotion(name, True, H, cov, rms, k, len(src), shift, nr)
+
+
+def _non_rotation(H, camera):
+    """The departure of a homography H (3, 3) from a turn of the camera (`MAX_NON_ROTATION`)."""
+    K = np.asarray(camera.K, float)
+    sv = np.linalg.svd(np.linalg.solve(K, H @ K), compute_uv=False)
+    return float(sv[0] / sv[2] - 1.0)
 
 
 def _measure(images, shafts, camera, valid, reference):
@@ -274,7 +291,64 @@ def _measure(images, shafts, camera, valid, reference):
             got = []
             out.append(_frame_motion(name, feats[ref], f, camera, got))
             matches.append(got[0] if out[-1].ok else None)
+    direct = [m.ok for m in out]
+    for i, f in enumerate(feats):
+        if f is not None and not direct[i]:
+            out[i] = _through_neighbour(i, feats, out, direct, camera)
     return ref, out, matches
+
+
+def _through_neighbour(i, feats, out, direct, camera):
+    """Frame i's `FrameMotion` through the nearest frame j measured directly whose features
+    it matches (`NEIGHBOURS` tried, nearest first): H_ref_from_i = H_ref_from_j H_j_from_i, its
+    covariance the two homographies' carried by the product's Jacobian (independent: j's
+    matches are to the reference, i's to j). A frame after the camera's largest move may
+    share too little background with the reference (the phantom's frame 3: 23 RANSAC
+    inliers of 103 matches, a coincidence) yet hundreds of matches with the frame beside
+    it. Its matches are not the reference's, so it gets no 3-D pose. Returns out[i] where
+    no neighbour measures it."""
+    near = sorted((j for j in range(len(feats)) if direct[j] and j != i), key=lambda j: (abs(j - i), j))
+    for j in near[:NEIGHBOURS]:
+        got = []
+        step = _frame_motion(str(i), feats[j], feats[i], camera, got)
+        if not step.ok:
+            continue
+        H, cov = chain_homography(out[j].H, out[j].cov, step.H, step.cov)
+        nr = _non_rotation(H, camera)
+        if nr <= MAX_NON_ROTATION:
+            src = got[0][0]  # the background's displacement to the reference, as H carries it
+            shift = float(np.median(np.hypot(*(_apply(H, src) - src).T)))
+            return FrameMotion(str(i), True, H, cov, step.rms_px, step.inliers, step.matches, shift, nr, via=j)
+    return out[i]
+
+
+def chain_homography(H_a, cov_a, H_b, cov_b, step=1e-7):
+    """(H_a H_b normalised to H[2, 2] = 1, its (8, 8) covariance) of two homographies with
+    independent (8, 8) covariances of their first eight entries (H[2, 2] = 1), carried by the
+    product's Jacobian in each (central differences, steps relative to each entry).
+
+    >>> H, cov = chain_homography(np.eye(3), np.eye(8) * 1e-6, np.eye(3), np.zeros((8, 8)))
+    >>> np.allclose(H, np.eye(3)), np.allclose(cov, np.eye(8) * 1e-6)
+    (True, True)
+    """
+    ha = (np.asarray(H_a, float) / H_a[2, 2]).ravel()[:8]
+    hb = (np.asarray(H_b, float) / H_b[2, 2]).ravel()[:8]
+
+    def prod(x, y):
+        P = np.append(x, 1.0).reshape(3, 3) @ np.append(y, 1.0).reshape(3, 3)
+        return (P / P[2, 2]).ravel()[:8]
+
+    def jac(f, x):
+        J = np.empty((8, 8))
+        for k in range(8):
+            e = np.zeros(8)
+            e[k] = step * max(1.0, abs(x[k]))
+            J[:, k] = (f(x + e) - f(x - e)) / (2.0 * e[k])
+        return J
+
+    Ja, Jb = jac(lambda x: prod(x, hb), ha), jac(lambda y: prod(ha, y), hb)
+    cov = Ja @ np.asarray(cov_a, float) @ Ja.T + Jb @ np.asarray(cov_b, float) @ Jb.T
+    return np.append(prod(ha, hb), 1.0).reshape(3, 3), cov
 
 
 def background_motion(images, shafts, camera, valid=None, reference=None):

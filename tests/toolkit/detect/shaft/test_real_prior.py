@@ -113,17 +113,20 @@ def test_the_epochs_of_the_phantom(runs):
 
 def test_the_phantom_stabilized(runs):
     """Reached (--stabilize: each frame's background homography to frame 11, SIFT off the
-    instrument): 19 of 20 frames measured (frame 3 not), the background 18-173 px from frame
-    11's; the homographies scale the image by 0.86-1.14 (the endoscope moves along its axis:
-    more than a turn). On the stabilised lines the change-point test finds one epoch and its
-    fulcrum image moves 2.0 times its sigma when one frame is left out (the issue's target
-    <= 1.5 not met: it was 1.13 before the tissue colour let the prior find frame 1 and read
-    frame 9's short shaft by the angle search). The 3-D axes are carried by the background's
+    instrument): all 20 frames measured, frame 3 through frame 2 (its own matches to frame 11
+    a coincidence, 23 RANSAC inliers of 103; before, it was not measured and gave no line),
+    the background 18-179 px from frame 11's; the homographies scale the image by 0.86-1.14
+    (the endoscope moves along its axis: more than a turn). On the stabilised lines the
+    change-point test finds one epoch and its fulcrum image moves 1.54 times its sigma when
+    one frame is left out (2.01 without frame 3; the issue's target <= 1.5 just missed: it
+    was 1.13 before the tissue colour let the prior find frame 1 and read frame 9's short
+    shaft by the angle search). The 3-D axes are carried by the background's
     3-D poses (19 frames posed, anchor frame 5): the 3-D fulcrum, (26.2, -1.5, 76.0) mm in
     frame 11's camera, the map unit 30.8 +- 0.8 mm, its covariance times its axes' chi2 per
-    degree of freedom (1.66, the axes fitted again at that noise: 11 of 18 kept), moves 1.62
-    times its sigma when one frame is left out (2.09 with the factor of a fit gated at the
-    stated noise, 2.43 without it, 1.71 on the detections before the tissue colour; 21 with
+    degree of freedom (1.66, the axes fitted again at that noise: 11 of 18 kept; frame 3 has no
+    pose), moves 1.64 times its sigma when one frame is left out (1.62 over one frame fewer,
+    2.09 with the factor of a fit gated at the stated noise, 2.43 without it, 1.71 on the
+    detections before the tissue colour; 21 with
     the axes carried by the homographies; docs/method.md, "The camera's 3-D motion"): not
     reached over the whole sequence, which holds two 3-D fulcrums (leaving out frame 1, 5,
     6, 7 or 14 moves it to the other). The change-point test on the carried 3-D axes
@@ -134,10 +137,12 @@ def test_the_phantom_stabilized(runs):
     ratios = [(e.get("jackknife") or {}).get("ratio") for e in doc.get("epochs", [doc])]
     print(st["reference"], st["frames_measured"], st.get("frames_posed"), doc["epoch_test"], ratios, doc["vertex_px"],
           doc.get("point"), doc.get("point_sigma"), doc.get("point_camera_motion"), doc["jackknife"].get("point"))
-    assert st["frames_measured"] >= 18 and st["reference"] == "11.png"
+    assert st["frames_measured"] >= 19 and st["reference"] == "11.png"
     assert all(f["rms_px"] < 2.0 for f in st["frames"] if f["ok"])
-    assert doc["epoch_test"]["epochs"] == 1 and doc["lines_used"] >= 15
-    assert all(r is not None and r <= 2.1 for r in ratios)
+    three = next(f for f in st["frames"] if f["image"] == "3.png")
+    assert three["ok"] and three["via"] in ("2.png", "4.png") and "pose" not in three
+    assert doc["epoch_test"]["epochs"] == 1 and doc["lines_used"] >= 17
+    assert all(r is not None and r <= 1.7 for r in ratios)
     assert st["pose_model"] == "map" and st["frames_posed"] >= 18
     assert doc["point_camera_motion"]["frames_moved"] >= 15 and doc["point_camera_motion"]["scale"] > 0
     assert doc["jackknife"]["point"]["ratio"] < 1.8
@@ -148,10 +153,11 @@ def test_the_phantom_stabilized(runs):
 
 def test_the_hand_made_axes_stabilized(runs):
     """The hand-made axes (1 deg, 2 px) carried by the run's homographies: unstabilised their
-    fulcrum moves 1.92 times its sigma when one frame is left out, stabilised 0.78, and their
-    fulcrum image, (-287, 331) +- (142, 5) px in frame 11, is the detected shafts' (-331, 329)
-    +- (322, 12) within their sigmas (chi2 0.09): the homographies, measured on the background alone, make
-    the hand-made lines of all 18 frames agree."""
+    fulcrum moves 1.92 times its sigma when one frame is left out, stabilised 0.81 (0.78
+    before frame 3 was measured through frame 2), and their fulcrum image, (-335, 331) +-
+    (148, 5) px in frame 11, is the detected shafts' (-397, 329) +- (232, 9) within their
+    sigmas (chi2 0.19): the homographies, measured on the background alone, make the
+    hand-made lines of every measured frame agree."""
     import numpy as np
 
     from pencilcal.toolkit.detect.background_motion import FrameMotion, stabilize_frames
@@ -179,8 +185,9 @@ def test_the_phantom_3d_epochs(runs):
     """The 3-D axes of the stabilised run carried by its poses, fitted by parts: frames 1-14
     give the 3-D fulcrum (27.3, -1.5, 77.1) +- 4.5 mm (RMS) in frame 11's camera from 9 of
     12 axes, their chi2 1.63 times its degrees of freedom (the variance factor the
-    covariance takes: 3.5 mm without it), and it moves 1.38 times its sigma when one frame
-    is left out (1.30 before the axes were fitted again at that factor, 1.66 without the
+    covariance takes: 3.5 mm without it), and it moves 1.39 times its sigma when one frame
+    is left out (13 frames, frame 3 without a pose; 1.38 over 12 before frame 3 was
+    measured, 1.30 before the axes were fitted again at that factor, 1.66 without the
     factor; 0.79 on the detections before the tissue colour, which added frames 1 and 9):
     the target (<= 1.5) is met for this epoch. Frames 15-20 fix the point more loosely
     (sigma 8.9 mm, 2 of 6 axes kept: its jackknife, 7.8, is not judged, fewer than 4 frames'
