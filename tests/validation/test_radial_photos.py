@@ -31,8 +31,13 @@ CHI2_3SIGMA = -2.0 * np.log(1.0 - 0.9973)
 # 0.05 and 0.20 deg apart (0.11, 0.11 and 0.31 before). With the turn tested against the
 # inside part's sd alone (a print turned past the ring is trimmed, test_validate): 15, 17 and
 # 19, the planes 0.08, 0.48 and 0.19 deg apart; the left view's floor one below again (14).
-@pytest.mark.parametrize("name,spokes,tilt", [("dartboard_side_left", 14, (45, 65)),
-                                              ("dartboard_side_right", 16, (45, 65)),
+# With the vertex test allowing the offset the edges share (`radial._through_vertex`): 19, 19
+# and 19, the planes 0.105, 0.085 and 0.135 deg apart; the side views' floors one below (18).
+# Still missing, each lost in the detection (crowded directions, docs/method.md), none hidden
+# by a dart: the left view's boundary straight up, the right view's level with the bull on
+# its left, the far view's down and to the right (a 17 px piece).
+@pytest.mark.parametrize("name,spokes,tilt", [("dartboard_side_left", 18, (45, 65)),
+                                              ("dartboard_side_right", 18, (45, 65)),
                                               ("dartboard_far", 18, (5, 25))])
 def test_boundaries_and_rings_agree(name, spokes, tilt):
     img = cv2.imread(str(data_dir("real-radial-targets") / f"{name}.jpg"))
