@@ -55,7 +55,9 @@ pytestmark = pytest.mark.slow
 #: constant) finds endovis17's left shaft in frame000 too.
 #: A strip of tissue lit beside a better shaft, its inside between its sides in lightness, is that
 #: shaft's halo (`material_cue.select`): cholec's one false detection goes.
-REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (10, 0.0),
+#: A band nearer the border where its material enters the view than its material's far end is no
+#: distal part (`material_cue._near_entry`; no constant): cholec's thin instrument in VID03_000150.
+REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (11, 0.0),
            "endovis17": (9, 0.0)}
 
 
@@ -133,7 +135,7 @@ def test_leave_one_source_out(detected):
 #: Since cholec's lit strip went (above), with dvrk-suturing left out the others take 0.05: 25 found
 #: at 4 false in their 17 frames (0.235 a frame; with the strip 5, over the bound, and 0.1 was
 #: taken: 23 at 2), and dvrk-suturing gets a false part in one of its 3 frames.
-PARTS_REACHED = {"dvrk-suturing": (6, 0.34), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (10, 0.0),
+PARTS_REACHED = {"dvrk-suturing": (6, 0.34), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (11, 0.0),
                  "endovis17": (9, 0.0)}
 
 

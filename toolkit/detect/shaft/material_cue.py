@@ -49,7 +49,9 @@ frames whose colour tells the materials apart (`shaft.detector`).
    the other (the background beside a bright instrument's edge), or when it is seen along fewer
    than `_ELONGATED_WIDTHS` widths, ends inside the view and its instrument's material runs on
    beyond it for over `_DISTAL_RUN` times its length (a distal part, open jaws or a wrist, of
-   an instrument whose shaft is in view). The score is the length of the band's run of region
+   an instrument whose shaft is in view), unless its material reaches the border at one end
+   only and the band lies nearer that end than the other (`_near_entry`: the shaft seen as it
+   enters the view, its distal part beyond it). The score is the length of the band's run of region
    seen as a shaft [raw px] (of two readings of one instrument, the band of instrument-like
    material is the shaft, the band that takes in its shadow too is not), at most the length
    along which both edges are seen together (a long run whose edges are found together along a
@@ -633,13 +635,34 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
     # not the shaft's
     ext = (e.ext[1] - e.ext[0]) * e.step / s
     if (seen < _ELONGATED_WIDTHS * m.width_px and ext > _DISTAL_RUN * seen
-            and not _reaches_border(m, camera, validity, corridor)):
+            and not _reaches_border(m, camera, validity, corridor) and not _near_entry(e)):
         return None, "a distal part"
     # the evidence is what both edges confirm: a long run of region whose edges are found
     # together along a short part of it (one edge drifting onto a jaw, a shadow) claims no more
     return MaterialShaft(midline=m, score=min(e.shaft_len / s, seen) * min(f.frac for f in fits),
                          polarity="dark" if e.y_in < e.y_side else "bright",
                          band=e, poly_run=band_polygon(e), poly_ext=band_polygon(e, e.ext)), ""
+
+
+def _near_entry(e):
+    """Whether a band (`shaft.region_bands.RegionBand`) lies nearer the end of its material
+    where the instrument enters the view than the other end: where the extension reaches the
+    border at one end only, the instrument enters there; a band nearer that end than the
+    other is the part seen as it enters (its shaft), and the material running on beyond it,
+    away from the border, is its own distal part or tissue of its colour; a distal part lies
+    at the far end, its shaft between it and the border. Stations of the band's chord.
+
+    >>> from types import SimpleNamespace as Band
+    >>> _near_entry(Band(run=(7, 15), ext=(4, 21), reach=(True, False)))    # 3 to the border, 6 beyond
+    True
+    >>> _near_entry(Band(run=(30, 40), ext=(4, 42), reach=(True, False)))   # jaws at the far end
+    False
+    """
+    if e.reach[0] == e.reach[1]:
+        return False
+    gaps = (e.run[0] - e.ext[0], e.ext[1] - e.run[1])  # stations before and after the run
+    entry = 0 if e.reach[0] else 1
+    return gaps[entry] < gaps[1 - entry]
 
 
 def _meet_outside(m):

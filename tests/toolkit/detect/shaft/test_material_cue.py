@@ -112,3 +112,24 @@ def test_shaft_cut_by_the_border_seen_short_of_its_collar(seed):
     img, axis = border_stub(seed)
     assert_read_once(detect_shafts(img), axis, STUB_WIDTH)
     assert detect_shafts(border_stub(seed, wrist=False)[0]) == []
+
+
+def test_distal_part_not_near_where_the_instrument_enters():
+    """A short band lies near where its instrument enters the view when its material reaches
+    the border at one end only and the band is nearer that end than the other: the shaft
+    seen as it enters (000150's thin instrument: 3 stations from the border, 6 to the far
+    end), not a distal part at the far end of its material (open jaws, a wrist: the border
+    stub's wrist above, 14 stations from the border, 1 to the far end)."""
+    from types import SimpleNamespace
+
+    from pencilcal.toolkit.detect.shaft.material_cue import _near_entry
+
+    def band(run, ext, reach):
+        return SimpleNamespace(run=run, ext=ext, reach=reach)
+
+    assert _near_entry(band((7, 15), (4, 21), (True, False)))
+    assert _near_entry(band((10, 18), (4, 21), (False, True)))  # mirrored
+    assert not _near_entry(band((64, 81), (63, 95), (False, True)))  # the wrist at the far end
+    assert not _near_entry(band((14, 18), (4, 21), (True, False)))  # nearer the far end
+    assert not _near_entry(band((7, 15), (4, 21), (False, False)))  # no end at the border
+    assert not _near_entry(band((7, 15), (4, 21), (True, True)))  # both
