@@ -57,6 +57,9 @@ pytestmark = pytest.mark.slow
 #: shaft's halo (`material_cue.select`): cholec's one false detection goes.
 #: A band nearer the border where its material enters the view than its material's far end is no
 #: distal part (`material_cue._near_entry`; no constant): cholec's thin instrument in VID03_000150.
+#: A pair of grey-level edges whose inside is not one material but whose rims are, an instrument's
+#: outline (`shaft.edge_pairs._outline`: a clip applier's two limbs and the slot between them),
+#: finds cholec's clip applier in VID03_000120 (no protocol result: no other source has one).
 REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (11, 0.0),
            "endovis17": (9, 0.0)}
 

@@ -436,7 +436,9 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         The material cue also proposes bands between two long straight grey-level edges of
         the work frame whose inside is one material, unlike both outsides and more
         instrument-like than they are (`shaft.edge_pairs`: a dark grasper in the dark
-        periphery, a grey shaft the region maps do not tell from the tissue); the proposals
+        periphery, a grey shaft the region maps do not tell from the tissue), or whose rims
+        are one material unlike the outsides, whatever lies inside (an instrument's outline:
+        a clip applier's limbs and the slot between them); the proposals
         cost about 7-8 ms per 1080p frame (docs/method.md). False: not proposed.
     pixel_evidence : float or None
         On a colour frame, a shaft of the cues is kept only where the learned instrument map

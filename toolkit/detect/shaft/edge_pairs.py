@@ -32,12 +32,27 @@ edges are taken from the grey levels themselves:
    score is the overlap times the fraction of good stations, times the overlap in
    `_SHORT_WIDTHS` widths where it is seen along fewer (the material cue takes no shorter
    band for a shaft); the best `MAX_PAIRS`, none covering most of a better one;
+   *outlines*: a pair whose inside is not one material (a clip applier's or a grasper's
+   metal limbs with the tissue seen through the slot between them, jaw edges inside) is an
+   instrument's outline where its *rims* are one: at a station the colour just inside each
+   edge (`_RIM_PX` work px: past the edge's blur and FLD's location error, inside the thinnest
+   limb) differs from the outside beyond that edge as a good station's inside does, the two
+   rims lie within half that of each other, and their mean differs from the inside as much
+   (structure inside: the rims of a band of one material, tissue where the likeness says so,
+   are its inside); a pair failing the material test is an outline where `_MIN_GOOD` of its
+   observable stations are so, scored as above with that fraction.
+   The best `MAX_OUTLINES` of them lying inside none of the pairs kept get a place of their
+   own (an outline displaces no band of one material, and a limb's band inside it does not
+   stop it: `_outlines`);
 4. each candidate gets its own region map, as a band from a single edge does
    (`shaft.partner`): the pixels whose colour is nearer the band's median inside colour than
    either outside's (in `_FEATURE`: luma, half-weighted, and chroma, so that a grey shaft's
    streaks and sheen stay inside it), so that the band test
    (`shaft.region_bands.evaluate_bands`) and everything after it judge it as they judge a
-   band of the region maps.
+   band of the region maps. An outline's map is the quadrilateral between its two segments
+   (whatever lies inside is the instrument's): the band test then judges its sides (the
+   material beside it, on the frame's own likeness map) and the judge its edges, fitted again
+   at full resolution, its elongation, its pixel evidence and its colour, as every band's.
 
 Work pixels throughout (as `shaft.regions`). The proposals cost 6-7 ms of process time
 per 1080p frame (the 16 hysterectomy frames, one thread, on a loaded machine), FLD on the
@@ -70,6 +85,10 @@ __all__ = ["pair_bands", "edge_segments", "MAX_PAIRS", "MAX_SEGMENTS", "PAIR_MAX
 #: of the masked sources, the hysterectomy and the dVRK phantom, a false band on the phantom,
 #: at 0.6 ms of CPU a 1080p frame for the fourth colour map and its band's judging).
 MAX_PAIRS = 3
+#: Outlines per frame besides them (a pair whose rims are an instrument's, its inside not one
+#: material: module docstring, step 3); their map is a fill of a quadrilateral, the cost one
+#: more band judged where a frame has one.
+MAX_OUTLINES = 1
 #: Segments paired per frame, the longest first.
 MAX_SEGMENTS = 48
 #: The largest convergence of a pair's edges [deg]: a cylinder close to the lens, its axis
@@ -90,6 +109,7 @@ _REL_CONTRAST = 0.5
 _MIN_GOOD = 0.6
 _LUMA_WEIGHT = 0.5
 _SHORT_WIDTHS = 1.5
+_RIM_PX = np.array([1.5, 2.5])  # rim samples inside each edge [work px] (module docstring, step 3)
 _LIKENESS_MARGIN = 0.0  # the inside's instrument-likeness above the outsides' by more than this
 _SAME_BAND = 0.8  # a candidate covering this fraction of a better one's area is that band again
 
@@ -210,7 +230,8 @@ def _trend(c, mask):
 
 def _material(work, img, lines, pairs, noise, likeness):
     """Per pair (module docstring, steps 3-4): (score (K,), inside, side1, side2 colours (3,
-    K, 3)); img (h, w, 3) BGR float32, likeness (h, w) float32 the instrument-likeness."""
+    K, 3), outline score (K,): 0 but for an outline, `_outline`); img (h, w, 3) BGR float32,
+    likeness (h, w) float32 the instrument-likeness."""
     Pi, Pj = _cross_sections(lines, pairs)
     across = Pj - Pi
     w = np.maximum(np.linalg.norm(across, axis=-1, keepdims=True), 1e-9)
@@ -218,14 +239,17 @@ def _material(work, img, lines, pairs, noise, likeness):
     inside = Pi[:, :, None, :] + _INSIDE[None, None, :, None] * across[:, :, None, :]
     out_i = Pi[:, :, None, :] - _SIDE_PX[None, None, :, None] * e[:, :, None, :]
     out_j = Pj[:, :, None, :] + _SIDE_PX[None, None, :, None] * e[:, :, None, :]
-    X = np.concatenate([inside, out_i, out_j], 2)
+    # and the rims just inside each edge (`_outline`), in the same pass
+    rim_i = Pi[:, :, None, :] + _RIM_PX[None, None, :, None] * e[:, :, None, :]
+    rim_j = Pj[:, :, None, :] - _RIM_PX[None, None, :, None] * e[:, :, None, :]
+    X = np.concatenate([inside, out_i, out_j, rim_i, rim_j], 2)
     (col, lik), obs = _sample(work, (img, likeness), X)
     lik = lik[..., 0]
-    ni, ns = _INSIDE.size, _SIDE_PX.size
-    seen = np.all(obs, 2)  # (K, S)
+    ni, ns, nr = _INSIDE.size, _SIDE_PX.size, _RIM_PX.size
+    seen = np.all(obs[:, :, :ni + 2 * ns], 2)  # (K, S)
     cin = col[:, :, :ni].mean(2)
     c1 = col[:, :, ni:ni + ns].mean(2)
-    c2 = col[:, :, ni + ns:].mean(2)
+    c2 = col[:, :, ni + ns:ni + 2 * ns].mean(2)
     con = np.minimum(np.linalg.norm(cin - c1, axis=-1), np.linalg.norm(cin - c2, axis=-1))  # (K, S)
     n_seen = np.count_nonzero(seen, 1)
     med_con = _median_where(con, seen)
@@ -234,13 +258,39 @@ def _material(work, img, lines, pairs, noise, likeness):
     frac = np.count_nonzero(good, 1) / np.maximum(n_seen, 1)
     ok = (n_seen >= 0.5 * _STATIONS) & (frac >= _MIN_GOOD)
     # more instrument-like than both outsides (median over the good stations)
-    more = lik[:, :, :ni].mean(2) - np.maximum(lik[:, :, ni:ni + ns].mean(2), lik[:, :, ni + ns:].mean(2))
+    more = lik[:, :, :ni].mean(2) - np.maximum(lik[:, :, ni:ni + ns].mean(2),
+                                               lik[:, :, ni + ns:ni + 2 * ns].mean(2))
     ok &= _median_where(more, good) > _LIKENESS_MARGIN
     # a band seen along fewer than `_SHORT_WIDTHS` widths is no shaft (`shaft.material_cue`
     # judges so): such a pair ranks after the elongated ones
-    score = np.where(ok, pairs.overlap * frac * np.minimum(1.0, pairs.overlap / (_SHORT_WIDTHS * pairs.width)), 0.0)
+    short = np.minimum(1.0, pairs.overlap / (_SHORT_WIDTHS * pairs.width))
+    score = np.where(ok, pairs.overlap * frac * short, 0.0)
     ref = np.stack([_median_where(c, good) for c in (cin, c1, c2)])  # (3, K, C)
-    return score, ref
+    # the pairs failing it whose rims are an instrument's outline, their score apart
+    rims = col[:, :, ni + 2 * ns:ni + 2 * ns + nr].mean(2), col[:, :, ni + 2 * ns + nr:].mean(2)
+    outline, ofrac = _outline(rims, cin, c1, c2, seen, noise)
+    outline &= ~ok
+    return score, ref, np.where(outline, pairs.overlap * ofrac * short, 0.0)
+
+
+def _outline(rims, cin, c1, c2, seen, noise):
+    """(ok (K,), frac (K,)): the pairs whose rims are an instrument's outline (module
+    docstring, step 3): at each station the colour just inside each edge (rims: two (K, S, 3),
+    at `_RIM_PX`) differs from the outside beyond it (c1, c2 (K, S, 3)) as a good station's
+    inside does, the two rims are alike within half that and their mean differs from the
+    inside (cin (K, S, 3)) as much; ok where `_MIN_GOOD` of the observable stations (seen (K,
+    S)) are so, frac their fraction. noise: one work pixel's sd [grey levels]."""
+    ri, rj = rims
+    con = np.minimum(np.linalg.norm(ri - c1, axis=-1), np.linalg.norm(rj - c2, axis=-1))
+    med = _median_where(con, seen)
+    least = np.maximum(_MIN_CONTRAST_SD * noise, _REL_CONTRAST * med)[:, None]
+    good = seen & (con >= least) & (np.linalg.norm(ri - rj, axis=-1) <= 0.5 * con)
+    # and unlike the inside between them: structure inside (a band of one colour whose rims
+    # are its inside is a band of one material, tissue where the likeness says so)
+    good &= np.linalg.norm(0.5 * (ri + rj) - cin, axis=-1) >= least
+    n_seen = np.count_nonzero(seen, 1)
+    frac = np.count_nonzero(good, 1) / np.maximum(n_seen, 1)
+    return (n_seen >= 0.5 * _STATIONS) & (frac >= _MIN_GOOD), frac
 
 
 def _quad(lines, i, j):
@@ -269,6 +319,37 @@ def _distinct(lines, pairs, order):
         if len(kept) == MAX_PAIRS:
             break
     return kept
+
+
+def _outlines(lines, pairs, kept, order):
+    """Of the outlines in order (best first), the best `MAX_OUTLINES` that lie inside none of
+    the kept pairs nor of each other (`_SAME_BAND` of their own area), in places of their own
+    (an outline displaces no band of one material); a kept pair inside an outline, one of its
+    limbs, does not stop it: of an instrument the outermost edge pair, whatever lies inside."""
+    import cv2
+
+    polys = [_quad(lines, pairs.i[k], pairs.j[k]) for k in kept]
+    out = []
+    for k in order:
+        if len(out) == MAX_OUTLINES:
+            break
+        Q = _quad(lines, pairs.i[k], pairs.j[k])
+        a = abs(cv2.contourArea(Q))
+        if a <= 0 or any(cv2.intersectConvexConvex(Q, P)[0] > _SAME_BAND * a for P in polys):
+            continue
+        out.append(k)
+        polys.append(Q)
+    return out
+
+
+def _quad_map(lines, pairs, k, valid):
+    """The region map (h, w) uint8 of an outline's pair k: the quadrilateral between its two
+    segments, in valid ((h, w) uint8 0/1): whatever lies inside is the instrument's."""
+    import cv2
+
+    B = np.zeros_like(valid)
+    cv2.fillConvexPoly(B, np.rint(_quad(lines, pairs.i[k], pairs.j[k])).astype(np.int32), 1)
+    return cv2.bitwise_and(B, valid)
 
 
 #: BGR to the features the band's map compares: luma (weighted by `_LUMA_WEIGHT`: a grey
@@ -328,13 +409,15 @@ def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segment
     if len(pairs.i) == 0:
         return lines, empty, []
     img = work.colours  # read-only float32, made once for all stages
-    score, ref = _material(work, img, lines, pairs, noise, np.asarray(likeness, np.float32))
+    score, ref, outline = _material(work, img, lines, pairs, noise, np.asarray(likeness, np.float32))
     order = [k for k in np.argsort(-score, kind="stable") if score[k] > 0]
     keep = _distinct(lines, pairs, order)
+    keep += _outlines(lines, pairs, keep, [k for k in np.argsort(-outline, kind="stable") if outline[k] > 0])
+    outline = outline > 0
     if not keep:
         return lines, empty, []
     valid = work.valid.view(np.uint8)
-    maps = [_colour_map(img, valid, *ref[:, k]) for k in keep]
+    maps = [_quad_map(lines, pairs, k, valid) if outline[k] else _colour_map(img, valid, *ref[:, k]) for k in keep]
     keep = np.array(keep, int)
     return lines, RegionPairs(i=pairs.i[keep], j=pairs.j[keep], width=pairs.width[keep],
                               overlap=pairs.overlap[keep]), maps

@@ -20,7 +20,9 @@ frames whose colour tells the materials apart (`shaft.detector`).
    whose inside is one material unlike both outsides (a dark grasper in the dark periphery,
    a grey shaft the maps do not tell from the tissue, a close shaft whose edges converge
    under perspective by up to `shaft.edge_pairs.PAIR_MAX_CONVERGENCE_DEG`), each with its
-   own colour map (`shaft.edge_pairs`), judged alike, where they overlap none of the
+   own colour map (`shaft.edge_pairs`), and the outline of an instrument whose inside is
+   not one material (its rims are: a clip applier's limbs, the slot between them), with the
+   band between its edges as its map, judged alike, where they overlap none of the
    others;
 3. *edges* (`shaft.silhouette`, `_band_edges`): each proposed band's two boundaries refitted at
    full resolution in a corridor (`corridor_px`) over its run; an edge found there along less

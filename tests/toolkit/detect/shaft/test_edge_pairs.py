@@ -1,8 +1,9 @@
 """Bands between two grey-level edges (`shaft.edge_pairs`): on renders, a dark grey shaft on
 dark reddish tissue, blurred, noisy and JPEG-compressed, its edges converging as a close
-cylinder's do, is proposed with both edges on its silhouette; a band of tissue between two
-edges (redder inside than its sides: no instrument) and a band whose far side is outside the
-view are not."""
+cylinder's do, is proposed with both edges on its silhouette, and so is a clip applier's outline
+(two thin metal limbs, the tissue seen between them: its inside is not one material), its map
+the whole band; a band of tissue between two edges (redder inside than its sides: no
+instrument) and a band whose far side is outside the view are not."""
 from __future__ import annotations
 
 import cv2
@@ -90,3 +91,30 @@ def test_band_beside_the_field_stop_is_not_proposed():
     img[stop.distance_to_boundary(np.stack(np.mgrid[0:240, 0:320][::-1], -1).astype(float)) < 0] = 0
     _, pairs = _pairs(img, stop)
     assert len(pairs.i) == 0
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_outline_of_two_limbs_is_proposed(seed):
+    # a clip applier: two bright metal limbs 7 px wide, 44 px apart outside, the tissue seen
+    # through the slot between them; the inside is tissue, the rims metal
+    img, truth = _render(0.0, 44.0, inside=(200, 205, 210), seed=seed)
+    slot, _ = _render(0.0, 30.0, inside=(38, 45, 85), seed=seed)  # the tissue alone
+    H, W = img.shape[:2]
+    yy = np.mgrid[0:H, 0:W][0]
+    middle = np.abs(yy - (H / 2 - 0.5)) <= 12
+    img[middle] = slot[middle]
+    wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=320)
+    mm = material_map(wf)
+    lines, pairs, maps = pair_bands(wf, 10.0, 120.0, PAIR_MAX_CONVERGENCE_DEG, mm.luma_noise, 60.0, mm.likeness)
+
+    def on(k, ln):
+        ends = [lines.p[k] + t * lines.u[k] for t in (lines.lo[k], lines.hi[k])]
+        return all(abs(ln[:2] @ e + ln[2]) <= 2.0 for e in ends)
+
+    outer = [q for q in range(len(pairs.i)) if (on(pairs.i[q], truth[0]) and on(pairs.j[q], truth[1]))
+             or (on(pairs.i[q], truth[1]) and on(pairs.j[q], truth[0]))]
+    assert outer, "no pair on the outline"
+    # its map is the band between the outer edges, the slot included, nothing beyond
+    B = maps[outer[0]]
+    assert B[H // 2, W // 2] and B[H // 2 - 18, W // 2] and B[H // 2 + 18, W // 2]
+    assert not B[H // 2 - 30, W // 2] and not B[H // 2 + 30, W // 2]
