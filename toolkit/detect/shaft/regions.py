@@ -61,12 +61,12 @@ Example
 """
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from pencilcal.toolkit.detect.edges import upper_pairs
 from pencilcal.toolkit.detect.noise import estimate_noise
 from pencilcal.toolkit.geometry.quantiles import median
 
@@ -215,10 +215,21 @@ def otsu_threshold(v, bins=128):
     if hi - lo < 1e-6:
         return hi
     # np.histogram's bins (the last one closed), by one bincount: several times faster
-    idx = np.subtract(v, lo, dtype=np.float64)
-    idx = (np.multiply(idx, bins / (hi - lo), out=idx)).astype(np.intp)
-    h = np.bincount(np.minimum(idx, bins - 1, out=idx), weights, minlength=bins)
-    h = h if weights is None else h.astype(np.int64)
+    if weights is None and bins < 256 and math.isfinite(hi - lo):
+        # the bin indices (0..bins) stored as bytes as they are computed (the same
+        # truncation of the same float64 products) and counted by OpenCV (whole counts,
+        # exact in float32): no frame-sized float64 and integer copies
+        import cv2
+
+        idx = np.empty(v.shape, np.uint8)
+        np.multiply(np.subtract(v, lo, dtype=np.float64), bins / (hi - lo), out=idx, casting="unsafe")
+        np.minimum(idx, bins - 1, out=idx)
+        h = cv2.calcHist([idx.reshape(-1, 1)], [0], None, [bins], [0, bins]).reshape(-1).astype(np.int64)
+    else:
+        idx = np.subtract(v, lo, dtype=np.float64)
+        idx = (np.multiply(idx, bins / (hi - lo), out=idx)).astype(np.intp)
+        h = np.bincount(np.minimum(idx, bins - 1, out=idx), weights, minlength=bins)
+        h = h if weights is None else h.astype(np.int64)
     e = np.linspace(lo, hi, bins + 1)
     p = h / max(h.sum(), 1)
     x = 0.5 * (e[:-1] + e[1:])
@@ -517,15 +528,6 @@ def region_pairs(lines, wmin, wmax, max_conv_deg, min_overlap, max_pairs):
     return region_pairs_many([lines], wmin, wmax, max_conv_deg, min_overlap, max_pairs)[0]
 
 
-@functools.lru_cache(maxsize=256)
-def _upper_pairs(G):
-    """np.triu_indices(G, 1), made once per G (read-only; a frame's maps have a few dozen
-    lines each, and the indices cost more to make than to use)."""
-    I, J = np.triu_indices(G, 1)
-    I.flags.writeable = J.flags.writeable = False
-    return I, J
-
-
 def region_pairs_many(sets, wmin, wmax, max_conv_deg, min_overlap, max_pairs):
     """`region_pairs` of each of several `BoundaryLines` (a frame's region maps), the pairs
     of all tested together (each set's lines paired only among themselves; the same pairs as
@@ -534,7 +536,7 @@ def region_pairs_many(sets, wmin, wmax, max_conv_deg, min_overlap, max_pairs):
         return []
     sizes = [len(L.p) for L in sets]
     off = np.cumsum([0] + sizes)
-    I, J = (np.concatenate(x) for x in zip(*[_upper_pairs(G) for G in sizes]))
+    I, J = (np.concatenate(x) for x in zip(*[upper_pairs(G) for G in sizes]))
     shift = np.repeat(off[:-1], [G * (G - 1) // 2 for G in sizes])
     I, J = I + shift, J + shift
     P, U, N = (np.concatenate([getattr(L, f) for L in sets]).reshape(-1, 2) for f in ("p", "u", "n"))
