@@ -54,6 +54,7 @@ __all__ = [
     "weighted_line",
     "best_run",
     "reject_outliers",
+    "upper_pairs",
     "theil_sen",
     "robust_line_fit",
     "fit_variances",
@@ -434,8 +435,8 @@ def reject_outliers(s, t, w, base, inl, floor_px, max_gap=None, iters=5):
 
 
 @functools.lru_cache(maxsize=None)
-def _pairs(n):
-    """np.triu_indices(n, 1), made once per n (read-only)."""
+def upper_pairs(n):
+    """np.triu_indices(n, 1), made once per n (read-only): the pairs (i < j) of n items."""
     i, j = np.triu_indices(n, 1)
     i.flags.writeable = False
     j.flags.writeable = False
@@ -462,7 +463,7 @@ def theil_sen(s, t, mask, n_max=160):
         if idx.size > n_max:
             idx = idx[np.linspace(0, idx.size - 1, n_max).astype(int)]
         sv, tv = s[m, idx], t[m, idx]
-        i, j = _pairs(idx.size)
+        i, j = upper_pairs(idx.size)
         ds = sv[j] - sv[i]
         good = np.abs(ds) > 1e-9
         if not np.any(good):

@@ -66,6 +66,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pencilcal.toolkit.detect.edges import upper_pairs
 from pencilcal.toolkit.detect.noise import estimate_noise
 from pencilcal.toolkit.geometry.quantiles import median
 
@@ -201,9 +202,14 @@ def otsu_threshold(v, bins=128):
     >>> otsu_threshold(y) == otsu_threshold(y.astype(np.float32))
     True
     """
+    import cv2
+
     v = np.asarray(v)
     if v.dtype == np.uint8:  # each level's bin from its count: the same bins as of every sample
-        cnt = np.bincount(v.reshape(-1), minlength=256)
+        if 0 < v.size < 1 << 24:  # counted by OpenCV (whole counts, exact in float32): a third of bincount's cost
+            cnt = cv2.calcHist([v.reshape(-1, 1)], [0], None, [256], [0, 256]).reshape(-1).astype(np.int64)
+        else:
+            cnt = np.bincount(v.reshape(-1), minlength=256)
         lev = np.flatnonzero(cnt)
         if lev.size == 0:
             return float(np.max(v))  # (an empty v: np.max's error, as below)
@@ -214,10 +220,19 @@ def otsu_threshold(v, bins=128):
     if hi - lo < 1e-6:
         return hi
     # np.histogram's bins (the last one closed), by one bincount: several times faster
-    idx = np.subtract(v, lo, dtype=np.float64)
-    idx = (np.multiply(idx, bins / (hi - lo), out=idx)).astype(np.intp)
-    h = np.bincount(np.minimum(idx, bins - 1, out=idx), weights, minlength=bins)
-    h = h if weights is None else h.astype(np.int64)
+    if weights is None and bins < 256 and v.size < 1 << 24 and math.isfinite(hi - lo):
+        # the bin indices (0..bins) stored as bytes as they are computed (the same
+        # truncation of the same float64 products) and counted by OpenCV (whole counts,
+        # exact in float32): no frame-sized float64 and integer copies
+        idx = np.empty(v.shape, np.uint8)
+        np.multiply(np.subtract(v, lo, dtype=np.float64), bins / (hi - lo), out=idx, casting="unsafe")
+        np.minimum(idx, bins - 1, out=idx)
+        h = cv2.calcHist([idx.reshape(-1, 1)], [0], None, [bins], [0, bins]).reshape(-1).astype(np.int64)
+    else:
+        idx = np.subtract(v, lo, dtype=np.float64)
+        idx = (np.multiply(idx, bins / (hi - lo), out=idx)).astype(np.intp)
+        h = np.bincount(np.minimum(idx, bins - 1, out=idx), weights, minlength=bins)
+        h = h if weights is None else h.astype(np.int64)
     e = np.linspace(lo, hi, bins + 1)
     p = h / max(h.sum(), 1)
     x = 0.5 * (e[:-1] + e[1:])
@@ -270,6 +285,18 @@ def region_levels(mm, work, n_levels=LEVELS):
             out.append((lev, kind, Bm, repeat))
             counts.append(nb)
     return out
+
+
+def _dot2(a, b):
+    """np.sum(a * b, -1) of two (..., 2) arrays: the same values (a sum of two terms is one
+    addition in any order), without a reduction over an axis of two (ten times the cost
+    for a few thousand rows).
+
+    >>> a, b = np.random.default_rng(0).normal(size=(2, 50, 2))
+    >>> bool(np.array_equal(_dot2(a, b), np.sum(a * b, -1)))
+    True
+    """
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]
 
 
 def _tls(M):
@@ -341,12 +368,19 @@ def _sides(contours, maps, dist, seg_min):
     side_map = owner[src]
     P2 = np.concatenate(Ps).astype(np.float64)
     x, y = P2[:, 0], P2[:, 1]
-    cum = np.concatenate([np.zeros((1, 6)), np.cumsum(np.stack([np.ones_like(x), x, y, x * x, y * y, x * y], -1), 0)])
+    # one contiguous cumulative sum per moment (a cumulative sum down the columns of an
+    # (N, 6) stack strides through memory: four times the cost); whole numbers, so exact
+    cum = np.empty((6, P2.shape[0] + 1))
+    cum[:, 0] = 0.0
+    cum[0, 1:] = np.arange(1, P2.shape[0] + 1)
+    for k, v in enumerate((x, y, x * x, y * y, x * y), 1):
+        np.cumsum(v, out=cum[k, 1:])
+    cum = cum.T
     M = cum[b + 1] - cum[a]
     cen, u = _tls(M)
-    u[np.sum(u * (P2[b] - P2[a]), 1) < 0] *= -1
-    ta = np.sum((P2[a] - cen) * u, 1)
-    tb = np.sum((P2[b] - cen) * u, 1)
+    u[_dot2(u, P2[b] - P2[a]) < 0] *= -1
+    ta = _dot2(P2[a] - cen, u)
+    tb = _dot2(P2[b] - cen, u)
     A, B = cen + ta[:, None] * u, cen + tb[:, None] * u
     mi = np.clip(np.round(0.5 * (A + B)).astype(int), 0, [w - 1, h - 1])
     ok = (tb - ta >= seg_min) & (dist[mi[:, 1], mi[:, 0]] >= _OFF_BOUNDARY_PX)
@@ -413,7 +447,7 @@ def _group(seg, mom):
     A, B = seg[:, :2], seg[:, 2:]
     n = np.stack([-u[:, 1], u[:, 0]], -1)
     cos_tol = np.cos(np.maximum(np.radians(_GROUP_TOL_DEG), np.arctan2(2 * _GROUP_TOL_PX, L)))
-    c = np.sum(n * 0.5 * (A + B), -1)
+    c = _dot2(n * 0.5, A + B)
     # [i, j]: side j lies on side i's line
     near = (u @ u.T > cos_tol[None, :]) & (np.abs(A @ n.T - c[None, :]).T < _GROUP_TOL_PX) \
         & (np.abs(B @ n.T - c[None, :]).T < _GROUP_TOL_PX)
@@ -421,8 +455,8 @@ def _group(seg, mom):
     used = alone.copy()
     # their own lines, as they are: (p, u, lo, hi, support) arrays
     cen, dirs = _tls(mom[alone])
-    dirs *= np.where(np.sum(dirs * u[alone], -1) < 0, -1.0, 1.0)[:, None]
-    ta, tb = np.sum((A[alone] - cen) * dirs, -1), np.sum((B[alone] - cen) * dirs, -1)
+    dirs *= np.where(_dot2(dirs, u[alone]) < 0, -1.0, 1.0)[:, None]
+    ta, tb = _dot2(A[alone] - cen, dirs), _dot2(B[alone] - cen, dirs)
     lone = (cen, dirs, np.minimum(ta, tb), np.maximum(ta, tb), L[alone])
     out = []
     order = np.argsort(-L)
@@ -505,19 +539,17 @@ def region_pairs_many(sets, wmin, wmax, max_conv_deg, min_overlap, max_pairs):
         return []
     sizes = [len(L.p) for L in sets]
     off = np.cumsum([0] + sizes)
-    I, J = (np.concatenate(x) for x in zip(*[np.triu_indices(G, 1) for G in sizes]))
+    I, J = (np.concatenate(x) for x in zip(*[upper_pairs(G) for G in sizes]))
     shift = np.repeat(off[:-1], [G * (G - 1) // 2 for G in sizes])
     I, J = I + shift, J + shift
     P, U, N = (np.concatenate([getattr(L, f) for L in sets]).reshape(-1, 2) for f in ("p", "u", "n"))
     LO, HI = (np.concatenate([getattr(L, f) for L in sets]) for f in ("lo", "hi"))
-    ok = np.sum(U[I] * U[J], 1) < -np.cos(np.radians(max_conv_deg))
+    ok = _dot2(U[I], U[J]) < -np.cos(np.radians(max_conv_deg))
     I, J = I[ok], J[ok]
     ua = U[I] - U[J]
-    ua /= np.maximum(np.linalg.norm(ua, axis=1, keepdims=True), 1e-12)
-    na = np.c_[-ua[:, 1], ua[:, 0]]
-
-    def dot(a, b):
-        return np.sum(a * b, 1)
+    ua /= np.maximum(np.sqrt(_dot2(ua, ua)), 1e-12)[:, None]  # np.linalg.norm's value
+    na = np.stack([-ua[:, 1], ua[:, 0]], -1)
+    dot = _dot2
 
     def ext(K):
         a, b = dot(P[K] + LO[K, None] * U[K], ua), dot(P[K] + HI[K, None] * U[K], ua)
