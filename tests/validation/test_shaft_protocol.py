@@ -87,7 +87,7 @@ def detected():
         for (_, img, refs, _), ds, ss in zip(frames, dets[name], found[name]):
             ev = pixel_evidence(img, ds, valid_region=region, model=model)
             # the instrument regions without a shaft, from the same model (`shaft.parts`)
-            parts = detect_parts(img, ss, valid_region=region, model=model)
+            parts = detect_parts(img, ss, valid_region=region, model=model, tissue_colour=None)
             tc = shaft_tissue_colour(img, parts, region) if parts else []
             out.append((refs, [dict(d, pixel_evidence=float(e)) for d, e in zip(ds, ev)]
                         + [dict(q.to_dict(), tissue_colour=float(t)) for q, t in zip(parts, tc)]))
