@@ -179,7 +179,7 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     --shaft --parts also gives the instrument regions of the learned pixel map that
     have no shaft (a distal part alone: jaws, a hook) an axis, kind part, with the
     larger sigmas of its outline (docs/formats.md); off by default: on the masked
-    sources left out it adds no instrument, and it costs about 0.4 s of CPU a 1080p
+    sources left out it adds no instrument, and it costs 0.4-0.6 s of CPU a 1080p
     frame (docs/method.md).
     --shaft --no-segments writes the shafts alone (every frame's segments empty): on a
     textured scene the segments take most of the time, and a live video of an instrument
