@@ -178,8 +178,9 @@ def lines(images, source_spec, camera_path, camera_id, output, detector, bars, b
     axis_direction_sigma_deg and axis_distance_sigma; lengths in D's unit.
     --shaft --parts also gives the instrument regions of the learned pixel map that
     have no shaft (a distal part alone: jaws, a hook) an axis, kind part, with the
-    larger sigmas of its outline (docs/formats.md); off by default, as it has not
-    yet been shown to keep tissue out on frames it never saw.
+    larger sigmas of its outline (docs/formats.md); off by default: on the masked
+    sources left out it adds no instrument, and it costs 0.4-0.6 s of CPU a 1080p
+    frame (docs/method.md).
     --shaft --no-segments writes the shafts alone (every frame's segments empty): on a
     textured scene the segments take most of the time, and a live video of an instrument
     does not need them.

@@ -175,13 +175,14 @@ def test_lines_shaft_edge_model_limb(tmp_path):
 
 
 def test_lines_shaft_parts(tmp_path):
-    """--parts: a stubby grey jaw entering from the border (110 px wide, as long: no shaft
-    for the cues) gets an axis (cue pixels, its kind written); only with --shaft."""
+    """--parts: a stubby grey jaw entering from the border (110 px wide, 140 long: under the
+    cues' 1.25 widths at the border, no shaft for them; over a region's least length of one
+    width) gets an axis (cue pixels, its kind written); only with --shaft."""
     from tests.toolkit.detect.shaft.test_parts import _frame
 
     write_camera(tmp_path / "camera.json", Camera("pinhole", 640, 480, [[640.0, 0, 319.5], [0, 640.0, 239.5], [0, 0, 1]]))
     (tmp_path / "frames").mkdir()
-    cv2.imwrite(str(tmp_path / "frames" / "0.png"), _frame([[0, 170], [110, 185], [110, 295], [0, 290]]))
+    cv2.imwrite(str(tmp_path / "frames" / "0.png"), _frame([[0, 170], [140, 185], [140, 295], [0, 290]]))
     r = invoke(tmp_path / "frames", "--camera", tmp_path / "camera.json", "--shaft", "--parts", "-o",
                tmp_path / "l.json", "-q")
     assert r.exit_code == 0, r.output

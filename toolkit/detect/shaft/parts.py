@@ -14,16 +14,22 @@ the tissue's colour. What it has is instrument-like pixels, which the learned pi
    the view (a speck of specular tissue is no instrument), touches the border of the view
    (an instrument enters from outside; its shaft, cut off by the border, is out of view) and
    touches none of the shafts already found (widened by half their width: the jaws or wrist
-   beyond a found shaft belong to that instrument, which has its axis);
+   beyond a found shaft belong to that instrument, which has its axis), and is not glare
+   (at most `MAX_CLIPPED` of its pixels at the 8-bit ceiling: a clipped patch shows the
+   light, not a material); each kept region is then grown back into the rim where the map
+   holds, so that its outline there is the view's border, which the axis reading ignores
+   (cut at the rim, the cut read as a straight silhouette);
 2. *axis*: each region, carried to raw pixels, read as an instrument mask is
    (`shaft.from_mask.shafts_from_masks`): where its outline has two straight silhouette
    stretches, their axis refitted on the image's edges (kind "shaft", the edge fits'
    covariance); else its principal axis, kind "part", whose sigmas are the part's own
    ambiguity: the angle's sd its half-angle atan(width / length), the offset's half its width
-   (`shaft.from_mask.PART_OFFSET_SIGMA_FRAC`). Measured against the masked sources' axes
-   (docs/method.md): endovis17's distal part labels' principal axes lie within 2.1 of that
-   sd; of cholec's two distal parts alone one is found, read as two stretches, its angle 2.3
-   of its sd off ("distal parts").
+   (`shaft.from_mask.PART_OFFSET_SIGMA_FRAC`);
+3. *judged*: an axis is kept when it runs along at least `MIN_ELONGATION` of its widths
+   (`MIN_PART_ELONGATION` for a principal axis: a rounder region has no direction to speak
+   of) and its band keeps less of the tissue's hue than a shadow does (`shaft.tissue_colour`,
+   the shafts' own `MAX_TISSUE_COLOUR`: a dark gap between tissues is as coloured as they are).
+   Measured on the masked sources and the unmasked frames: docs/method.md ("distal parts").
 
 Each is a `shaft.from_mask.MaskShaft` with cue ``"pixels"``; its score is its length along
 its axis [raw px]. The regions come from a learned model: in the leave-one-source-out table
@@ -48,10 +54,12 @@ import numpy as np
 from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.shaft.from_mask import shafts_from_masks
 from pencilcal.toolkit.detect.shaft.pixels import WORK_PX, instrument_probability
+from pencilcal.toolkit.detect.shaft.tissue_colour import MAX_TISSUE_COLOUR, shaft_tissue_colour
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame, grid_map
 from pencilcal.toolkit.detect.working import to_working, to_working_points
 
-__all__ = ["detect_parts", "part_regions", "PART_PROBABILITY", "MIN_PART_AREA", "PART_CUE", "RIM_FRACTION"]
+__all__ = ["detect_parts", "part_regions", "PART_PROBABILITY", "MIN_PART_AREA", "PART_CUE", "RIM_FRACTION",
+           "MIN_ELONGATION", "MIN_PART_ELONGATION", "CLIPPED_LEVEL", "MAX_CLIPPED"]
 
 #: A work pixel is instrument where the learned map's probability exceeds this.
 PART_PROBABILITY = 0.5
@@ -63,6 +71,20 @@ PART_CUE = "pixels"
 #: The rim of the view left out, as a fraction of the work frame's longer side (5 work px of
 #: 320): not tuned, the width of a field stop's glare on the frames looked at.
 RIM_FRACTION = 0.015
+#: The least length of an axis read from a region, in its widths: a band shorter than wide
+#: has no direction to speak of (two straight stretches shorter than the gap between them, a
+#: blob's principal axis); not tuned.
+MIN_ELONGATION = 1.0
+#: ... and of a region read by its principal axis (kind "part"): twice its width, an angle sd
+#: (atan(width / length)) of at most 27 deg; a rounder region's principal axis turns with a few
+#: pixels of its outline. Set after looking at every source's regions (docs/method.md).
+MIN_PART_ELONGATION = 2.0
+#: A work pixel is clipped where a channel reaches this 8-bit level (2 % below the ceiling: the
+#: work frame's area averaging leaves a clipped patch's inside at 255, its rim a little lower).
+CLIPPED_LEVEL = 250
+#: A region is glare when more than this fraction of its pixels are clipped (most of it): not
+#: tuned.
+MAX_CLIPPED = 0.5
 _RAW_STEP = 4.0  # the raw-to-work map is evaluated every this many raw px and interpolated [px]
 _BORDER_WORK_PX = 2.0  # a region touches the border of the view within this beyond the rim [work px]
 
@@ -110,10 +132,33 @@ def part_regions(work, p, shafts=(), camera=None, min_area=MIN_PART_AREA, probab
         cv2.fillConvexPoly(taken, cv2.convexHull(q), 1)
     touched = np.zeros(n, bool)
     touched[np.unique(lab[taken > 0])] = True
-    ok = keep & border & ~touched
+    # glare: a region mostly at the 8-bit ceiling shows the light, not a material; the map's
+    # colour and texture features read nothing there
+    clipped = np.zeros(n, bool)
+    if work.bgr.dtype == np.uint8:
+        hot = (work.bgr.max(-1) >= CLIPPED_LEVEL) & (lab > 0)
+        clipped = np.bincount(lab[hot], minlength=n) > MAX_CLIPPED * np.maximum(stats[:, cv2.CC_STAT_AREA], 1)
+    ok = keep & border & ~touched & ~clipped
     remap = np.zeros(n, np.int32)
     remap[ok] = np.arange(1, int(ok.sum()) + 1)
-    return remap[lab], int(ok.sum())
+    return _into_rim(remap[lab], (p > probability) & work.valid & (work.dist <= rim + 1.0), rim), int(ok.sum())
+
+
+def _into_rim(lab, allowed, rim):
+    """The labels lab (h, w) int32 grown into the rim where allowed (h, w) bool: the rim was
+    left out to keep a border strip from joining regions, but a region cut there has an
+    outline along the cut, a straight stretch that is no silhouette; grown back to the view's
+    border, its outline there is the border's, which the axis reading ignores."""
+    import cv2
+
+    out = lab.copy()
+    for _ in range(int(np.ceil(rim)) + 1):
+        grown = cv2.dilate(out.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int32)
+        add = allowed & (out == 0) & (grown > 0)
+        if not add.any():
+            break
+        out[add] = grown[add]
+    return out
 
 
 def _raw_masks(work, camera, lab, count, shape):
@@ -131,7 +176,7 @@ def _raw_masks(work, camera, lab, count, shape):
 
 
 def detect_parts(image, shafts, camera=None, *, valid_region=None, model=None, gamma=DEFAULT_GAMMA,
-                 min_area=MIN_PART_AREA, probability=PART_PROBABILITY, max_parts=4):
+                 min_area=MIN_PART_AREA, probability=PART_PROBABILITY, max_parts=4, tissue_colour=MAX_TISSUE_COLOUR):
     """The axes of the instrument regions of a colour frame that have no shaft among `shafts`
     (module docstring): a list of `shaft.from_mask.MaskShaft`, cue `PART_CUE`, kind "shaft"
     or "part", the longest first; [] on a grey frame.
@@ -154,6 +199,9 @@ def detect_parts(image, shafts, camera=None, *, valid_region=None, model=None, g
         `MIN_PART_AREA`, `PART_PROBABILITY`.
     max_parts : int
         At most this many.
+    tissue_colour : float or None
+        The most tissue colour a part's band may have (`shaft.tissue_colour`; None: not
+        judged, as the leave-one-source-out protocol does, which chooses it).
     """
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] < 3:
@@ -166,5 +214,8 @@ def detect_parts(image, shafts, camera=None, *, valid_region=None, model=None, g
         return []
     masks = _raw_masks(work, camera, lab, count, img.shape[:2])
     found = shafts_from_masks(img, [m for m in masks if m.any()], camera, valid_region=valid_region, gamma=gamma)
-    found = [replace(s, cue=PART_CUE) for s in found]
+    found = [replace(s, cue=PART_CUE) for s in found
+             if s.score >= (MIN_PART_ELONGATION if s.kind == "part" else MIN_ELONGATION) * s.width_px]
+    if found and tissue_colour is not None:
+        found = [s for s, c in zip(found, shaft_tissue_colour(img, found, valid_region, validity)) if c <= tissue_colour]
     return sorted(found, key=lambda s: -s.score)[:max_parts]

@@ -112,3 +112,55 @@ def test_raw_masks_are_the_regions_where_they_are(lens):
         assert cv2.dilate(want.astype(np.uint8), np.ones((3, 3), np.uint8))[off].all()
         assert not cv2.erode(want.astype(np.uint8), np.ones((3, 3), np.uint8))[off].any()
 
+
+
+def test_a_region_reaches_the_border_of_the_view():
+    """The rim is left out when regions are formed (a strip along the border joins nothing)
+    but a region is grown back into it: its outline there is the view's border, which the
+    axis reading ignores, not a cut 5 work px inside that would read as a straight silhouette."""
+    img = _frame(JAW)
+    work = WorkFrame(img, None, Validity(None, img.shape[:2]), WORK_PX)
+    p = np.zeros(work.shape, np.float32)
+    p[60:100, :120] = 1.0                                               # a band from the left border
+    lab, n = part_regions(work, p)
+    assert n == 1
+    assert (lab[60:100, 0] == 1).all() and (lab[60:100, :120] == 1).all()
+    assert not lab[:58].any() and not lab[102:].any()                   # grown only where the map is
+
+
+def test_glare_is_no_part():
+    """A region mostly clipped (a field of glare at the border, as bright a white as the
+    sensor gives) shows the light, not a material: no part, where the same region in grey
+    metal gets its axis."""
+    img = _frame(JAW)
+    assert len(detect_parts(img, [])) == 1
+    glare = img.copy()
+    cv2.fillConvexPoly(glare, np.array(JAW, np.int32), (255, 255, 255))
+    glare = cv2.GaussianBlur(glare, (0, 0), 1.2)
+    work = WorkFrame(glare, None, Validity(None, glare.shape[:2]), WORK_PX)
+    p = np.zeros(work.shape, np.float32)
+    p[:, :] = 0.0
+    jaw = np.zeros(glare.shape[:2], np.uint8)
+    cv2.fillConvexPoly(jaw, np.array(JAW, np.int32), 1)
+    p[cv2.resize(jaw, (work.shape[1], work.shape[0]), interpolation=cv2.INTER_NEAREST) > 0] = 1.0
+    assert part_regions(work, p)[1] == 0
+    # the same map over the grey jaw gives the region
+    work = WorkFrame(img, None, Validity(None, img.shape[:2]), WORK_PX)
+    assert part_regions(work, p)[1] == 1
+
+
+def test_a_blob_and_a_shadow_are_no_part():
+    """A grey region as long as wide (no direction to speak of), and a dark band that keeps
+    the tissue's hue (a shadow, `shaft.tissue_colour`), give no axis; the grey jaw does."""
+    blob = [[0, 150], [150, 150], [150, 330], [0, 330]]                 # 150 long, 180 wide
+    assert detect_parts(_frame(blob), []) == []
+    rng = np.random.default_rng(1)
+    img = np.zeros((480, 640, 3), np.float32)
+    img[:] = (60, 80, 170)
+    img += cv2.GaussianBlur(rng.normal(0, 12, img.shape).astype(np.float32), (0, 0), 3.0)
+    cv2.fillConvexPoly(img, np.array(JAW, np.int32), (2, 4, 24))     # dark, deeper in the tissue's hue (a cavity)
+    img = np.clip(cv2.GaussianBlur(img, (0, 0), 1.2) + rng.normal(0, 2, img.shape), 0, 255).astype(np.uint8)
+    from pencilcal.toolkit.detect.shaft.tissue_colour import shaft_tissue_colour
+    loose = detect_parts(img, [], tissue_colour=None)                   # the map takes it for metal
+    assert len(loose) == 1 and shaft_tissue_colour(img, loose)[0] > 1.25
+    assert detect_parts(img, []) == []
