@@ -86,6 +86,10 @@ _PRIOR = 0.01  # holds a free neighbour near its line where the window barely sh
 _REL_STEP = 0.4  # a station's fitted step must reach this fraction of the edge's median
 _BLUR_STEP = 0.1  # the shared blur's Gauss-Newton step: at most this fraction of it
 _MIN_BLUR_STATIONS = 50  # fewer stations: the blur is held as given
+#: the lowest lag-1 correlation of an edge's station errors its sigmas believe (`edges.fit_variances`):
+#: a star's stations alternate slightly (rho -0.05 to -0.12 on 16-wedge renders), and clipped
+#: at 0 their sigmas were 8-9 % too large; the batch means still bound them from below
+_MIN_RHO = -0.9
 _CLUTTER = 3.0  # a station whose residual rms exceeds this many times the median's fits no blur
 #: Stations within this many profile half-windows of an edge's outer end (its outermost station
 #: whose step reaches half the edge's median) are left out: there the window reaches where the
@@ -333,7 +337,7 @@ def _lines_from_stations(foot, u, e, s, t, c, info, base, sign, end_px=0.0):
     res = t - tm[:, None] - b[:, None] * (s - sm[:, None])
     count = inl.sum(-1)
     ok = count >= MIN_STATIONS
-    var_b, var_a = fit_variances(res, w, inl, Sss, Wt)
+    var_b, var_a = fit_variances(res, w, inl, Sss, Wt, min_rho=_MIN_RHO)
     s_first = np.where(ok, np.min(np.where(inl, s, np.inf), -1), 0.0)
     s_last = np.where(ok, np.max(np.where(inl, s, -np.inf), -1), 0.0)
 
