@@ -55,8 +55,11 @@ pytestmark = pytest.mark.slow
 #: constant) finds endovis17's left shaft in frame000 too.
 #: A strip of tissue lit beside a better shaft, its inside between its sides in lightness, is that
 #: shaft's halo (`material_cue.select`): cholec's one false detection goes.
+#: The bands into their own region kept bright or dark, on the edge pairs' colour map and only
+#: along their seed, their edges not grown beyond (`material_cue._inward_bands`; no new constant)
+#: find endovis17's lit grey left shaft in frame002.
 REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (10, 0.0),
-           "endovis17": (9, 0.0)}
+           "endovis17": (10, 0.0)}
 
 
 @pytest.fixture(scope="module")
@@ -134,7 +137,7 @@ def test_leave_one_source_out(detected):
 #: at 4 false in their 17 frames (0.235 a frame; with the strip 5, over the bound, and 0.1 was
 #: taken: 23 at 2), and dvrk-suturing gets a false part in one of its 3 frames.
 PARTS_REACHED = {"dvrk-suturing": (6, 0.34), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (10, 0.0),
-                 "endovis17": (9, 0.0)}
+                 "endovis17": (10, 0.0)}
 
 
 def test_leave_one_source_out_with_parts(detected):
