@@ -61,8 +61,11 @@ pytestmark = pytest.mark.slow
 #: outline (`shaft.edge_pairs._outline`: a clip applier's two limbs and the slot between them),
 #: finds cholec's clip applier in VID03_000120 (no protocol result: no other source has one).
 #: With both, cholec 12/23 at 0 false a frame.
+#: The bands into their own region kept bright or dark, on the edge pairs' colour map and only
+#: along their seed, their edges not grown beyond (`material_cue._inward_bands`; no new constant)
+#: find endovis17's lit grey left shaft in frame002.
 REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (12, 0.0),
-           "endovis17": (9, 0.0)}
+           "endovis17": (10, 0.0)}
 
 
 @pytest.fixture(scope="module")
@@ -136,7 +139,7 @@ def test_leave_one_source_out(detected):
 #: its 3 frames); cholec's white hook (VID03_000180), found before by a pair of stretches
 #: 86 px long across its 154 px, 4.5 deg off, is no longer read.
 PARTS_REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (12, 0.0),
-                 "endovis17": (9, 0.0)}
+                 "endovis17": (10, 0.0)}
 
 
 def test_leave_one_source_out_with_parts(detected):

@@ -427,7 +427,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         The material cue also proposes bands from a single straight boundary, to the far
         edge a gradient model finds across it (`shaft.partner`: a white or metal shaft the
         colour does not tell from tissue, beside a dark region; and, from a boundary at the
-        border of the view, into its own region: a close dark shaft converging under
+        border of the view, into its own region: a close shaft converging under
         perspective, `shaft.material_cue`): more instruments found on
         in-vivo frames (docs/method.md), at about 8 ms more CPU per 1080p frame (39 ms
         against 31 on the hysterectomy frames, docs/performance.md).

@@ -79,7 +79,7 @@ import numpy as np
 
 from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs, region_pairs
 
-__all__ = ["pair_bands", "edge_segments", "MAX_PAIRS", "MAX_SEGMENTS", "PAIR_MAX_CONVERGENCE_DEG"]
+__all__ = ["pair_bands", "edge_segments", "colour_map", "MAX_PAIRS", "MAX_SEGMENTS", "PAIR_MAX_CONVERGENCE_DEG"]
 
 #: Candidate bands per frame, the best first (4 gave one detection more on the 64 real frames
 #: of the masked sources, the hysterectomy and the dVRK phantom, a false band on the phantom,
@@ -360,7 +360,7 @@ _FEATURE = np.array([_LUMA_WEIGHT * _Y, 0.713 * (np.array([0.0, 0.0, 1.0]) - _Y)
                      0.564 * (np.array([1.0, 0.0, 0.0]) - _Y)])
 
 
-def _colour_map(img, valid, c_in, c1, c2):
+def colour_map(img, valid, c_in, c1, c2):
     """The pixels (h, w) uint8 whose features (`_FEATURE` of img (h, w, 3) BGR) are nearer
     c_in's than c1's and c2's (BGR colours), in valid ((h, w) uint8 0/1), closed and opened
     by 3 x 3."""
@@ -417,7 +417,7 @@ def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segment
     if not keep:
         return lines, empty, []
     valid = work.valid.view(np.uint8)
-    maps = [_quad_map(lines, pairs, k, valid) if outline[k] else _colour_map(img, valid, *ref[:, k]) for k in keep]
+    maps = [_quad_map(lines, pairs, k, valid) if outline[k] else colour_map(img, valid, *ref[:, k]) for k in keep]
     keep = np.array(keep, int)
     return lines, RegionPairs(i=pairs.i[keep], j=pairs.j[keep], width=pairs.width[keep],
                               overlap=pairs.overlap[keep]), maps

@@ -14,8 +14,9 @@ frames whose colour tells the materials apart (`shaft.detector`).
    beside a dark region: the maps give one side) to the outermost far edge a gradient
    model finds across it, with its own region map (`shaft.partner`), judged alike, where
    it overlaps none of them, and the same into its own region, converging by up to a close
-   shaft's under perspective, where that band is darker than its sides (`_inward_bands`: a
-   dark shaft close to the lens whose far region boundary follows a shadow inside it); then
+   shaft's under perspective, dark or lit, with the edge pairs' colour map and only along its
+   seed (`_inward_bands`: a shaft close to the lens whose far region boundary follows a
+   shadow inside it); then
    the bands between two long straight grey-level edges
    whose inside is one material unlike both outsides (a dark grasper in the dark periphery,
    a grey shaft the maps do not tell from the tissue, a close shaft whose edges converge
@@ -29,7 +30,7 @@ frames whose colour tells the materials apart (`shaft.detector`).
    than a quarter of it searched again in one of 3 work px (the region boundary's own
    resolution, 1.5 work px, and its offset inside a blurred silhouette; at most a fifth of the
    band's width), kept where found along half of it on the side the first fit leant to; then
-   grown along their own lines over the stretch where the band's cross-section goes on looking
+   (but a band into its own region, seen along its seed alone) grown along their own lines over the stretch where the band's cross-section goes on looking
    like the run's (`shaft.region_bands.band_stretch`: a shaft running into a drape of its own
    material, or a white shaft merging with white tissue, is a short band of region whose edges
    go on), each edge the best run of stations with gaps up to a width (a thread, a highlight);
@@ -92,7 +93,7 @@ from pencilcal.toolkit.detect.shaft.region_bands import (
     proposed,
     suppress_overlaps,
 )
-from pencilcal.toolkit.detect.shaft.edge_pairs import PAIR_MAX_CONVERGENCE_DEG, pair_bands
+from pencilcal.toolkit.detect.shaft.edge_pairs import PAIR_MAX_CONVERGENCE_DEG, colour_map, pair_bands
 from pencilcal.toolkit.detect.shaft.partner import MAX_SEEDS, partner_bands, turned_round
 from pencilcal.toolkit.detect.shaft.regions import (BoundaryLines, RegionPairs, boundary_lines_many, region_levels,
                                                     region_pairs_many, scene_angle)
@@ -329,13 +330,18 @@ def _inward_bands(work, seed, wmin, wmax, o, mm, B0, min_len, ang_thr, acc):
     17-19 deg apart, its silhouette edges 12-16 deg). Only boundaries from the border of
     the view are searched (`_from_border`, within the least width), with no band where the
     far edge widens it away from the border (`partner_bands`' from_border: a fold's rim or a
-    shadow's edge beyond the silhouette), only bands darker than their sides kept."""
+    shadow's edge beyond the silhouette). Each band's own map is the edge pairs' (`shaft.
+    edge_pairs.colour_map`: lightness half-weighted, as a grey shaft's streaks and sheen change
+    it; the map of colours alone left half of a streaked grey shaft on a side), kept only
+    across its seed's stretch (`partner_bands`' along_seed: the far edge was searched there
+    alone, and beyond the seed's end, at the collar, the outline steps); its edges are fitted
+    over its run and not grown beyond it (`material_cue`). Bands darker or brighter than their
+    sides alike: a close grey shaft lit by the endoscope is brighter than the shadowed tissue
+    beside it."""
     conv = float(np.degrees(min(o.conv_max, np.radians(PAIR_MAX_CONVERGENCE_DEG))))
     got = partner_bands(work, turned_round(_from_border(seed, work, wmin)), wmin, wmax, conv, mm.luma_noise,
-                        from_border=True)
-    # the case it is for: a dark instrument (a white band between two edges inside a region
-    # is as often a strip of pale tissue beside an instrument)
-    return [e for e in _more_bands(got, work, B0, min_len, ang_thr, acc, "inward") if e.y_in < e.y_side][:_MAX_PARTNER]
+                        from_border=True, colour_map=colour_map, along_seed=True)
+    return _more_bands(got, work, B0, min_len, ang_thr, acc, "inward")[:_MAX_PARTNER]
 
 
 def _from_border(seeds, work, reach):
@@ -584,7 +590,9 @@ def material_cue(image, camera, validity, work, mm, o, K, noise):
     long_len = _LONG_FRACTION * float(np.hypot(*work.shape)) / s
     corridor = max(o.corridor_px, 1.5 / s)
     bands, inside = _bands(work, mm, o, wmin, wmax, min_len)
-    stretches = [band_stretch(e, mm.luma_noise) for e in bands]
+    # a band from one edge into its region is seen along its seed alone (`_inward_bands`):
+    # its edges are fitted over its run and not grown beyond it
+    stretches = [e.run if e.kind == "inward" else band_stretch(e, mm.luma_noise) for e in bands]
     # the frame as it is: each pass converts only the part its samples need (a third of a
     # 1080p frame over all passes, the median pass a tenth), not the whole frame once
     fitted = _band_edges(image, camera, validity, noise, bands, work, corridor, stretches, _MATERIAL_GAMMA)

@@ -28,6 +28,9 @@ colour is nearer the band's inside (median over the stations, between a quarter 
 quarters of the width) than either side's (beyond each edge, out to half a width), so that
 the band test (`shaft.region_bands.evaluate_bands`: the inside the same all along, the
 sides different) and everything after it judge it as they judge a band of the region maps.
+A caller may make that map otherwise (`partner_bands`' colour_map, e.g. the edge pairs' with
+lightness half-weighted) and keep it only across the seed's stretch (along_seed: the far edge
+was searched there alone).
 
 Work pixels throughout (as `shaft.regions`).
 
@@ -248,9 +251,11 @@ def _same_inside(sm, obs, jf, k, c_in, c_out):
     return ok & (np.sum((c - c_in) ** 2, axis=1) < np.sum((c - c_out) ** 2, axis=1))
 
 
-def _band_map(work, img, col, obs, t, t0, b, s, s_mid):
+def _band_map(work, img, col, obs, t, t0, b, s, s_mid, colour_map=None):
     """The band's own region map (h, w) uint8 (module docstring); img: the work frame's
-    colours (h, w, C) float32."""
+    colours (h, w, C) float32; colour_map: None, or the map of the pixels nearer the
+    inside's colour than either side's, as `shaft.edge_pairs.colour_map` makes it from
+    (img, valid (h, w) uint8, c_in, c1, c2)."""
     import cv2
 
     w = t0 + b * (s - s_mid)  # (S,)
@@ -263,6 +268,8 @@ def _band_map(work, img, col, obs, t, t0, b, s, s_mid):
     # each channel's median as np.median's (`geometry.quantiles.median`: the same values, without
     # np.median's overheads, most of its cost on these few hundred samples)
     c_in, c1, c2 = (np.array([median(v[:, j]) for j in range(v.shape[1])]) for v in (col[k] for k in (inner, side1, side2)))
+    if colour_map is not None:
+        return colour_map(img, work.valid.view(np.uint8), c_in, c1, c2)
     # |x - c|^2 = |x|^2 - 2 x.c + |c|^2: the |x|^2 common to all three drops out
     d = [cv2.transform(img, (-2.0 * c).reshape(1, -1).astype(np.float32)).reshape(work.shape) + float(c @ c)
          for c in (c_in, c1, c2)]
@@ -293,7 +300,21 @@ def turned_round(lines):
     return BoundaryLines(p=lines.p, u=-lines.u, n=-lines.n, lo=-lines.hi, hi=-lines.lo, support=lines.support)
 
 
-def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SEEDS, from_border=False):
+def _within_stretch(B, p, u, lo, hi):
+    """The map B (h, w) uint8 kept between the normals to a seed (p + s u, s in [lo, hi],
+    work px) at its two ends, zero beyond them (in place)."""
+    import cv2
+
+    n = np.array([-u[1], u[0]])
+    far = 2.0 * float(np.hypot(*B.shape))
+    quad = np.array([p + lo * u - far * n, p + hi * u - far * n, p + hi * u + far * n, p + lo * u + far * n])
+    keep = np.zeros_like(B)
+    cv2.fillConvexPoly(keep, np.rint(quad).astype(np.int32), 1)
+    return cv2.bitwise_and(B, keep, dst=B)
+
+
+def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SEEDS, from_border=False,
+                  colour_map=None, along_seed=False):
     """Candidate bands from single edges (module docstring).
 
     Parameters
@@ -313,6 +334,12 @@ def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SE
         the lens): where the far edge widens the band away from that end, no band (under
         perspective the part at the border is the nearest the lens, the widest; a line that
         widens it lies on the tissue beyond the silhouette).
+    colour_map : callable, optional
+        The band's region map from its three colours (`_band_map`), e.g.
+        `shaft.edge_pairs.colour_map`; default the nearest colour in BGR.
+    along_seed : bool
+        Each band's map kept only across its seed's stretch (between the normals at its
+        ends): the far edge was searched there alone, so the band is evidence there alone.
 
     Returns
     -------
@@ -344,9 +371,11 @@ def partner_bands(work, seeds, wmin, wmax, conv_max_deg, noise, max_seeds=MAX_SE
         col, obs = col_all[cut[i]:cut[i + 1]], obs_all[cut[i]:cut[i + 1]]
         t0, b, hit = got
         s_mid = 0.5 * (s[0] + s[-1])
-        B = _band_map(work, img, col, obs, t, t0, b, s, s_mid)
+        B = _band_map(work, img, col, obs, t, t0, b, s, s_mid, colour_map)
         if B is None:
             continue
+        if along_seed:
+            B = _within_stretch(B, p, u, lo, hi)
         # the seed reversed: the band on its left (n = (-u_y, u_x) into it)
         us, ls, hs = -u, -hi, -lo
         q0 = p + s_mid * u + t0 * m

@@ -168,3 +168,32 @@ def test_inward_far_edge_not_on_a_fold_beyond(blur):
     (q, u), = far_edges(False, from_border=True)
     assert abs(q[1] - (150.0 - b * (q[0] - 100.0))) <= 1.5          # on the silhouette (1.5 work px)
     assert abs(np.degrees(np.arctan2(abs(u[1]), abs(u[0]))) - 10.0) <= 1.0
+
+
+def test_band_map_along_the_seed_and_its_colour_map():
+    """A band searched from a seed over part of a shaft's edge (along_seed) has its own map
+    only across that stretch (the far edge was searched there alone), zero beyond it; the
+    given colour map (`shaft.edge_pairs.colour_map`, a grey shaft's lightness half-weighted)
+    is the one the map is made with."""
+    from pencilcal.toolkit.detect.shaft.edge_pairs import colour_map
+
+    img = np.zeros((240, 320, 3), np.uint8)
+    img[:] = (40, 50, 90)
+    img[100:130, :] = (35, 38, 42)
+    img = cv2.GaussianBlur(img, (0, 0), 2.0)
+    wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=320)
+    # the boundary above the shaft from x = 100 to 220 (n into the region above)
+    seed = BoundaryLines(p=np.array([[220.0, 99.5]]), u=np.array([[-1.0, 0.0]]), n=np.array([[0.0, -1.0]]),
+                         lo=np.array([0.0]), hi=np.array([120.0]), support=np.array([120.0]))
+    calls = []
+
+    def recorded(*args):
+        calls.append(args)
+        return colour_map(*args)
+
+    _, whole, maps = partner_bands(wf, seed, 10.0, 80.0, 15.0, 1.0)
+    _, pairs, along = partner_bands(wf, seed, 10.0, 80.0, 15.0, 1.0, colour_map=recorded, along_seed=True)
+    assert len(whole.i) == len(pairs.i) == 1 and len(calls) == 1
+    assert maps[0][115, 40] and maps[0][115, 280]  # the whole band without the restriction
+    assert along[0][115, 160] and along[0][115, 105] and along[0][115, 215]
+    assert not along[0][115, 40] and not along[0][115, 280] and not along[0][60, 160]
