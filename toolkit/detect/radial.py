@@ -154,7 +154,8 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
     joint : {"crowded", "all"}
         Which edges are located jointly with their neighbours' blurred edges (`radial_joint`):
         "crowded", those nowhere clear of them (a dense star's far side at a steep tilt);
-        "all", every edge (where clear as before, the others from `JOINT_SIGMAS` sds apart).
+        "all", every edge (where clear over at least `min_length` as before, the others
+        from `JOINT_SIGMAS` sds apart).
         "all" for printed wedges (a Siemens star): at the clearance a neighbour still pulls
         an edge, a little more from one side than the other under perspective and alike
         for neighbouring edges, an error the normal does not average away (docs/method.md;
@@ -230,7 +231,12 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
     if rows.size:
         ray = np.concatenate([v + 0 * phi[:, None], v + np.stack([np.cos(phi), np.sin(phi)], -1)], -1)
         r_hi = 1.25 * seen[:, 1]
-        r_lo = np.where(fit.ok, _clear_radius(phi, clear), _clear_radius(phi, JOINT_SIGMAS * blur))
+        # an edge clear of its neighbours over less than min_length (a dense star's squeezed
+        # side under blur) is located from JOINT_SIGMAS apart too: from where it is clear it
+        # was too short to keep, and both edges of a wedge lost its spoke (128-wedge stars,
+        # seed 8181: spokes used 95.7 -> 96.7 %, 64 wedges unchanged)
+        clear_ok = fit.ok & (np.hypot(*(fit.p2 - fit.p1).T) >= min_length)
+        r_lo = np.where(clear_ok, _clear_radius(phi, clear), _clear_radius(phi, JOINT_SIGMAS * blur))
         r_lo = np.minimum(np.maximum(r_lo, 0.5 * seen[:, 0]), 0.8 * r_hi)
         located, _ = joint_refit(lin, camera, np.where(fit.ok[:, None], fit.lines(), ray), v, sign, blur, r_lo, r_hi,
                                  rows=rows, search=_SEARCH_PX[-1])
