@@ -30,10 +30,11 @@ frames whose colour tells the materials apart (`shaft.detector`).
    than a quarter of it searched again in one of 3 work px (the region boundary's own
    resolution, 1.5 work px, and its offset inside a blurred silhouette; at most a fifth of the
    band's width), kept where found along half of it on the side the first fit leant to; then
-   (but a band into its own region, seen along its seed alone) grown along their own lines over the stretch where the band's cross-section goes on looking
-   like the run's (`shaft.region_bands.band_stretch`: a shaft running into a drape of its own
-   material, or a white shaft merging with white tissue, is a short band of region whose edges
-   go on), each edge the best run of stations with gaps up to a width (a thread, a highlight);
+   (but for a band into its own region, seen along its seed alone) grown along their own
+   lines over the stretch where the band's cross-section goes on looking like the run's
+   (`shaft.region_bands.band_stretch`: a shaft running into a drape of its own material, or a
+   white shaft merging with white tissue, is a short band of region whose edges go on), each
+   edge the best run of stations with gaps up to a width (a thread, a highlight);
    the midline is the plane bisector of the two (`shaft.axis`). It is a shaft when both edges
    are seen together along at least the least length, or 1.25 widths where that is shorter (a
    thin shaft: the length is relative to the width, `_least_seen`), and a third of the region's
@@ -54,8 +55,8 @@ frames whose colour tells the materials apart (`shaft.detector`).
    beyond it for over `_DISTAL_RUN` times its length (a distal part, open jaws or a wrist, of
    an instrument whose shaft is in view), unless its material reaches the border at one end
    only and the band lies nearer that end than the other (`_near_entry`: the shaft seen as it
-   enters the view, its distal part beyond it). The score is the length of the band's run of region
-   seen as a shaft [raw px] (of two readings of one instrument, the band of instrument-like
+   enters the view, its distal part beyond it). The score is the length of the band's run
+   of region seen as a shaft [raw px] (of two readings of one instrument, the band of instrument-like
    material is the shaft, the band that takes in its shadow too is not), at most the length
    along which both edges are seen together (a long run whose edges are found together along a
    short part of it, one of them drifting onto a jaw or a shadow, claims no more), times the
