@@ -19,15 +19,19 @@ lines are taken into the reference frame's image first:
 4. *lines*: a line's two end points map by H (its homogeneous vector by ``H^-T``), and its
    (angle, offset) covariance about its centre is carried by the Jacobian of the mapped
    line's (angle, offset) about its new centre in the line's own two parameters and in
-   the homography's eight: ``J_l C_l J_l^T + J_h C_h J_h^T`` (numeric central differences).
+   the homography's eight: ``J_l C_l J_l^T + J_h C_h J_h^T`` (numeric central differences);
+   each mapped shaft carries its frame's parallax scale, ``parallax_scale_px = f *
+   non_rotation`` [px]: what the homography does not carry (below) grows with it, and the
+   fulcrum fit takes that in (`pencil.parallax`).
 
 The assumption: the background's image motion is a homography. That is exact for a camera
 that turns about its centre (``H = K R K^-1``, any scene: the fulcrum's image moves with
 it) and for a planar background; an endoscope moved about its port also translates, and a
 homography fitted to the tissue then carries points off the tissue's depth (the fulcrum)
-with a parallax error of the translation times the difference of inverse depths. The
-homography's uncertainty is carried into each line, but its error is shared by all lines
-of the frame and the reference's feature noise by all frames: neither correlation is
+with a parallax error of the translation times the difference of inverse depths (the
+term `pencil.parallax` adds to each line, one factor for the sequence fitted from the lines).
+The homography's uncertainty is carried into each line, but its error is shared by all
+lines of the frame and the reference's feature noise by all frames: neither correlation is
 modelled.
 
 >>> import numpy as np
@@ -457,6 +461,11 @@ def _map_shaft(camera, s, motion, keep_own=False):
     if m is None:
         return None
     s["midline"] = m[0].tolist()
+    # the parallax of a point off the background's depth, per unit of its relative inverse
+    # depth (`pencil.parallax`): f |t| / d, |t| / d the homography's departure from a turn
+    K = np.asarray(camera.K, float)
+    nr = float(motion.non_rotation)
+    s["parallax_scale_px"] = float(np.sqrt(K[0, 0] * K[1, 1]) * nr) if np.isfinite(nr) else 0.0
     if s.get("angle_sigma_deg") is not None:
         s["angle_sigma_deg"] = float(np.degrees(np.sqrt(m[1][0, 0])))
     if s.get("offset_sigma_px") is not None:
@@ -474,8 +483,9 @@ def _map_shaft(camera, s, motion, keep_own=False):
 
 def stabilize_frames(camera, frames, motions):
     """lines.json `frames` with every shaft (midline, edges and their sigmas) and segment
-    mapped into the reference frame by its frame's `FrameMotion` (module docstring): a frame
-    whose motion is not measured keeps no line (its error says why). Where the motions
+    mapped into the reference frame by its frame's `FrameMotion` (module docstring), each
+    shaft with its frame's ``parallax_scale_px``: a frame whose motion is not measured keeps
+    no line (its error says why). Where the motions
     carry 3-D poses (`background_motion_3d`), every frame keeps its camera's pose
     (``camera_pose``) and each shaft its own edges (``edges_frame``, ``edge_cov_frame``):
     `pencil.fulcrum.fulcrum_point` carries the 3-D axes with the poses. Returns new frames."""

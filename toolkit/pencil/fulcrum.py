@@ -5,6 +5,8 @@ through the fulcrum's image. Over the sequence those lines form a pencil:
 
 1. its vertex is the fulcrum's image: the robust weighted intersection of all the lines
    (vertex.intersect_lines), rejecting lines that miss it (other edges, bad detections);
+   lines stabilised from a moving camera (``parallax_scale_px``) take the parallax their
+   frame's homography leaves, one factor fitted for the sequence (`parallax`);
 2. with the pivot angle of every frame known (``angles``), the lines are a pencil with
    labelled spokes, and the exact estimator gives the orientation of the pivot plane (the
    plane the shaft sweeps) with its twin, exactly as for a printed fan.
@@ -53,7 +55,7 @@ from pencilcal.toolkit.pencil.orientation import Orientation
 from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, Fusion, RayTriangulation, combine_estimates,
                                                fulcrum_3d, shaft_axis_record, triangulate_rays)
 from pencilcal.toolkit.pencil.sequence_noise import MAX_RUNS, inflation
-from pencilcal.toolkit.pencil.vertex import intersect_lines
+from pencilcal.toolkit.pencil.parallax import vertex_with_parallax
 
 __all__ = ["Fulcrum", "FulcrumPoint", "StereoFulcrum", "SequenceLines", "fulcrum_from_frames", "fulcrum_point",
            "frame_axes", "pose_arrays", "point_lens_cov", "sequence_lines",
@@ -130,6 +132,8 @@ class Fulcrum:
     a rescaled noise leaves it as it is), ``ray_cov_total`` in the record their sum.
     noise, jackknife: the fulcrum.json records of the noise its sigmas hold and of the
     leave-one-out check, where they were decided (`validation.fulcrum_run`); None otherwise.
+    parallax: where the lines carry parallax scales (stabilised shafts), the record of the
+    parallax term their covariances took (`vertex_with_parallax`); None otherwise.
     """
 
     vertex_px: np.ndarray | None
@@ -152,6 +156,7 @@ class Fulcrum:
     ray_cov_lens: np.ndarray | None = None
     noise: dict | None = None
     jackknife: dict | None = None
+    parallax: dict | None = None
 
     def ray_covariance(self):
         """(3, 3) covariance of the unit `ray` (camera frame), singular along it, with the
@@ -192,6 +197,8 @@ class Fulcrum:
         if self.point is not None:
             out.update(self.point.to_dict())
         out["lines_from"] = self.lines_from
+        if self.parallax is not None:
+            out["parallax"] = self.parallax
         return out
 
 
@@ -423,23 +430,25 @@ def point_lens_cov(camera, intrinsics_cov, shafts, diameter):
 
 
 def _frame_lines(fr, endpoint_sigma_px, shafts_only):
-    """Raw lines (K, 4) and their angle sigma (K,) [rad] (NaN: from the end points) for one
+    """Raw lines (K, 4), their angle sigma (K,) [rad] (NaN: from the end points) and
+    parallax scale (K,) [px] (a stabilised shaft's ``parallax_scale_px``, else 0) for one
     frame: its shaft midlines when `shafts_only`, else its segments."""
     if shafts_only:
         shafts = fr.get("shafts") or []
         seg = np.array([np.asarray(s["midline"], float) for s in shafts]).reshape(-1, 4)
         sig = np.array([np.radians(float(s["angle_sigma_deg"])) if s.get("angle_sigma_deg") is not None else np.nan
                         for s in shafts])
-        return seg, sig
+        par = np.array([float(s.get("parallax_scale_px") or 0.0) for s in shafts])
+        return seg, sig, par
     seg = np.asarray(fr.get("segments", np.zeros((0, 4))), float).reshape(-1, 4)
     sig = fr.get("angle_sigma_deg")
     sig = np.full(len(seg), np.nan) if sig is None else np.radians(np.asarray(sig, float))
-    return seg, sig
+    return seg, sig, np.zeros(len(seg))
 
 
 def _sequence_lines(frames, endpoint_sigma_px):
-    """Every usable line of the sequence: (segments (N, 4), sigmas (N,), owner [(frame,
-    index)], lines_from, warnings).
+    """Every usable line of the sequence: (segments (N, 4), sigmas (N,), parallax scales (N,),
+    owner [(frame, index)], lines_from, warnings).
 
     When any frame has shaft midlines only midlines are used: a frame without a shaft
     has only its edge segments (hundreds, mostly not the instrument's), which would
@@ -448,15 +457,16 @@ def _sequence_lines(frames, endpoint_sigma_px):
     ok_frames = [(i, fr) for i, fr in enumerate(frames) if fr.get("ok", True)]
     shafts_only = any(fr.get("shafts") for _, fr in ok_frames)
     warnings = []
-    segs, sigs, owner, bad = [], [], [], 0
+    segs, sigs, pars, owner, bad = [], [], [], [], 0
     for i, fr in ok_frames:
-        s, g = _frame_lines(fr, endpoint_sigma_px, shafts_only)
+        s, g, q = _frame_lines(fr, endpoint_sigma_px, shafts_only)
         finite = np.all(np.isfinite(s), -1)
         bad += int((~finite).sum())
         keep = finite & (np.hypot(s[:, 2] - s[:, 0], s[:, 3] - s[:, 1]) > 1.0)
         for j in np.flatnonzero(keep):
             segs.append(s[j])
             sigs.append(g[j])
+            pars.append(q[j])
             owner.append((i, int(j)))
     if shafts_only:
         without = sum(1 for _, fr in ok_frames if not fr.get("shafts"))
@@ -465,8 +475,8 @@ def _sequence_lines(frames, endpoint_sigma_px):
                             "are not used when other frames have shafts)")
     if bad:
         warnings.append(f"{bad} {'shaft midline' if shafts_only else 'segment'}(s) with non-finite coordinates dropped")
-    return np.array(segs).reshape(-1, 4), np.asarray(sigs, float), owner, ("shafts" if shafts_only else "segments"), \
-        warnings
+    return np.array(segs).reshape(-1, 4), np.asarray(sigs, float), np.asarray(pars, float), owner, \
+        ("shafts" if shafts_only else "segments"), warnings
 
 
 class SequenceLines(NamedTuple):
@@ -476,7 +486,9 @@ class SequenceLines(NamedTuple):
     reach); good: (N,) bool, undistorted; length: (N,) [ideal px]; angle_sigma (N,) [rad]
     (the line's own, else from the end point noise) and offset_sigma (N,) [px] at the
     line's centre; owner: [(frame index, line index in the frame)]; lines_from: "shafts"
-    or "segments"; warnings: what the caller should tell the user.
+    or "segments"; warnings: what the caller should tell the user; parallax: (N,) [px] each
+    line's parallax scale (a stabilised shaft's ``parallax_scale_px``, 0 where its frame's
+    motion is a turn or it was not stabilised; `fulcrum_from_frames`).
     """
 
     raw: np.ndarray
@@ -488,6 +500,7 @@ class SequenceLines(NamedTuple):
     owner: list
     lines_from: str
     warnings: list
+    parallax: np.ndarray | None = None
 
 
 def sequence_lines(camera, frames, endpoint_sigma_px=ENDPOINT_SIGMA_PX):
@@ -496,13 +509,13 @@ def sequence_lines(camera, frames, endpoint_sigma_px=ENDPOINT_SIGMA_PX):
     has them, else its segments; a line without its own angle sigma has the end point
     noise's, ``sqrt(2) endpoint_sigma_px / L``, and every line the offset sigma
     ``endpoint_sigma_px / sqrt(2)`` (`vertex.segment_angle_sigma`)."""
-    seg, sig, owner, lines_from, warnings = _sequence_lines(frames, endpoint_sigma_px)
+    seg, sig, par, owner, lines_from, warnings = _sequence_lines(frames, endpoint_sigma_px)
     ideal = camera.undistort_pixels(seg.reshape(-1, 2)).reshape(-1, 4)
     good = np.all(np.isfinite(ideal), -1)
     L = np.hypot(ideal[:, 2] - ideal[:, 0], ideal[:, 3] - ideal[:, 1])
     st = np.where(np.isfinite(sig), sig, np.sqrt(2.0) * endpoint_sigma_px / np.maximum(np.nan_to_num(L), 1e-9))
     sc = np.full(len(seg), endpoint_sigma_px / np.sqrt(2.0))
-    return SequenceLines(seg, ideal, good, L, st, sc, owner, lines_from, warnings)
+    return SequenceLines(seg, ideal, good, L, st, sc, owner, lines_from, warnings, par)
 
 
 def without_frame(lines, frames, k):
@@ -516,7 +529,8 @@ def without_frame(lines, frames, k):
     keep = np.array([o[0] != k for o in lines.owner], bool)
     owner = [(f - (f > k), j) for f, j in lines.owner if f != k]
     return SequenceLines(lines.raw[keep], lines.ideal[keep], lines.good[keep], lines.length[keep],
-                         lines.angle_sigma[keep], lines.offset_sigma[keep], owner, lines.lines_from, lines.warnings)
+                         lines.angle_sigma[keep], lines.offset_sigma[keep], owner, lines.lines_from, lines.warnings,
+                         None if lines.parallax is None else lines.parallax[keep])
 
 
 def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_SIGMA_PX, intrinsics_cov="camera",
@@ -539,13 +553,15 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
     """
     if lines is None:
         lines = sequence_lines(camera, frames, endpoint_sigma_px)
-    seg, ideal, good, L, st, sc, owner, lines_from, warnings = lines
+    seg, ideal, good, L, st, sc, owner, lines_from, warnings, par = lines
     if len(seg) < 2:
         raise EstimationError(f"fewer than two instrument lines in the sequence ({len(seg)})")
     if good.sum() < 2:
         raise EstimationError("fewer than two lines could be undistorted")
     idx = np.flatnonzero(good)
-    vf = intersect_lines(ideal[idx], angle_sigma=st[idx], offset_sigma=sc[idx], robust=True)
+    vf, parallax, sc_used = vertex_with_parallax(ideal[idx], st[idx], sc[idx], None if par is None else par[idx])
+    sc = sc.copy()
+    sc[idx] = sc_used
     inl = np.zeros(len(seg), bool)
     inl[idx[vf.inliers]] = True
     K = np.asarray(camera.K, float)
@@ -567,7 +583,7 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
         lines_used=int(vf.lines_used),
         outliers=[{"image": frames[owner[k][0]].get("image"), "segment": owner[k][1]} for k in np.flatnonzero(~inl)],
         frames_used=int(len({owner[k][0] for k in np.flatnonzero(inl)})), rms=vf.rms, lines_from=lines_from,
-        warnings=tuple(warnings), ray_cov=ray_cov)
+        warnings=tuple(warnings), ray_cov=ray_cov, parallax=parallax)
     C = resolve_intrinsics_cov(camera, intrinsics_cov)
     if C is not None:
         k_in = idx[vf.inliers]
