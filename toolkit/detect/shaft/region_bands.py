@@ -73,6 +73,7 @@ def _run(mask):
 # the same sets as slices, for selections that copy what they select anyway (a boolean index of
 # the stations): one gather fewer, the same elements in the same order
 _IN_S, _SL_S, _SR_S = _run(_IN), _run(_SL), _run(_SR)
+_OBS_S = _run(np.abs(_NU) <= 1.0)  # the cross-section between the two boundaries
 _REACH_STATIONS = 2  # a run "reaches the border" when it ends this close to the first unobservable station
 _RECENT = 8  # the extension's band test compares with the last this many stations of the band
 _BAND_GAP = 2  # ... bridging gaps of up to this many stations
@@ -250,9 +251,11 @@ def _labels(g, lines, pairs, sB, sV):
     """Per-station labels (K, S) (module docstring), obs and fin (K, S), okL, okR (K, S):
     the side strips observable, shaft (K, S)."""
     I, J = pairs.i, pairs.j
-    obs = np.all(sV[:, :, np.abs(_NU) <= 1.0] > 1.0, 2)
-    okL = (sV[:, :, _SL] > 1.0).mean(2) >= 0.5
-    okR = (sV[:, :, _SR] > 1.0).mean(2) >= 0.5
+    obs = np.all(sV[:, :, _OBS_S] > 1.0, 2)
+    # a side observable where half its samples are: counted (a mean of booleans converts them
+    # to float64 first; count / n >= 0.5 is 2 count >= n, the division correctly rounded)
+    okL = 2 * np.count_nonzero(sV[:, :, _SL_S] > 1.0, 2) >= _SL_S.stop - _SL_S.start
+    okR = 2 * np.count_nonzero(sV[:, :, _SR_S] > 1.0, 2) >= _SR_S.stop - _SR_S.start
     fin = sB[:, :, _IN].mean(2)
     fL = np.where(okL, sB[:, :, _SL].mean(2), 0.0)
     fR = np.where(okR, sB[:, :, _SR].mean(2), 0.0)
