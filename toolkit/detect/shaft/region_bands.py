@@ -40,6 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pencilcal.toolkit.detect.edges import mean_over
 from pencilcal.toolkit.detect.shaft.bands import best_segment
 from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs
 from pencilcal.toolkit.geometry.quantiles import median
@@ -428,9 +429,10 @@ def _band(g, lines, pairs, m, run_ends, obs, fin, okL, okR, shaft, cc, ca, cy, l
     (S, U, C), "all" map ca (S, U) and luma cy (S, U) samples."""
     i0, i1 = run_ends
     ext, reach, reach_run, view = _extension(obs[m], fin[m], i0, i1)
-    cin = cc[:, _IN].mean(1)
-    cL = np.linalg.norm(cin - cc[:, _SL].mean(1), axis=-1)
-    cR = np.linalg.norm(cin - cc[:, _SR].mean(1), axis=-1)
+    # the strips' means over slices (`edges.mean_over`: the same values as of the masks' copies)
+    cin = mean_over(cc, 1, _IN_S.start, _IN_S.stop)
+    cL = np.linalg.norm(cin - mean_over(cc, 1, _SL_S.start, _SL_S.stop), axis=-1)
+    cR = np.linalg.norm(cin - mean_over(cc, 1, _SR_S.start, _SR_S.stop), axis=-1)
     con = np.minimum(cL, cR)
     run = slice(i0, i1)
     fall, ang = _side_colours(cc[run], okL[m, run], okR[m, run], ca[run])

@@ -52,6 +52,7 @@ from pencilcal.toolkit.detect.edges import (
     derivative_kernel,
     fit_variances,
     linearised,
+    mean_over,
     peak_near,
     robust_line_fit,
     stations,
@@ -370,29 +371,12 @@ def _projected(prof, e):
     return out
 
 
-def _strip_mean(prof, start, stop=None):
-    """``prof[:, :, start:stop].mean(2)`` of profiles (M, S, T, C) float32: the same values (a
-    mean over that axis adds its samples one after the other, then divides by their count),
-    as whole-array additions of the strided samples, without a reduction over a middle axis
-    of a few samples (several times the cost).
-
-    >>> p = np.random.default_rng(0).normal(size=(3, 5, 20, 3)).astype(np.float32)
-    >>> bool(np.array_equal(_strip_mean(p, -6), p[:, :, -6:].mean(2)))
-    True
-    """
-    idx = range(prof.shape[2])[start:stop]
-    out = prof[:, :, idx[0]].copy()
-    for k in idx[1:]:
-        out += prof[:, :, k]
-    return out / len(idx)
-
-
 def _colour_difference(prof, inside, mc):
     """The unit colour difference (M, S, C) of each station's edge: outside minus inside
     (means of the `_STRIP_PX` strips beyond the corridor), the running median over
     `_BEND_WIN` stations (what lies beside a shaft changes along it: tissue, then a drape),
     the edge's median where a station has none."""
-    d = _strip_mean(prof, -mc) - _strip_mean(prof, 0, mc)  # (M, S, C)
+    d = mean_over(prof, 2, -mc) - mean_over(prof, 2, 0, mc)  # (M, S, C), `edges.mean_over`
     glob = _inside_median(d, inside)  # (M, C)
     d = np.where(inside[..., None], d, glob[:, None, :])
     out = _running_median(d, 1)
