@@ -78,7 +78,7 @@ from __future__ import annotations
 import numpy as np
 
 from pencilcal.toolkit.detect.edges import mean_over
-from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs, region_pairs
+from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs, close_open, region_pairs
 
 __all__ = ["pair_bands", "edge_segments", "colour_map", "MAX_PAIRS", "MAX_SEGMENTS", "PAIR_MAX_CONVERGENCE_DEG"]
 
@@ -375,8 +375,7 @@ def colour_map(img, valid, c_in, c1, c2):
     # each outside's less the inside's (three rows: OpenCV's fast path)
     d1, d2, _ = cv2.split(cv2.transform(img, (M - M[0])[[1, 2, 0]].astype(np.float32)))
     B = cv2.bitwise_and((cv2.min(d1, d2) > 0).view(np.uint8), valid)
-    k3 = np.ones((3, 3), np.uint8)
-    return cv2.morphologyEx(cv2.morphologyEx(B, cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
+    return close_open(B)  # `shaft.regions.close_open`
 
 
 def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segments=None):
