@@ -77,7 +77,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs, region_pairs
+from pencilcal.toolkit.detect.edges import mean_over
+from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs, close_open, region_pairs
 
 __all__ = ["pair_bands", "edge_segments", "colour_map", "MAX_PAIRS", "MAX_SEGMENTS", "PAIR_MAX_CONVERGENCE_DEG"]
 
@@ -247,9 +248,9 @@ def _material(work, img, lines, pairs, noise, likeness):
     lik = lik[..., 0]
     ni, ns, nr = _INSIDE.size, _SIDE_PX.size, _RIM_PX.size
     seen = np.all(obs[:, :, :ni + 2 * ns], 2)  # (K, S)
-    cin = col[:, :, :ni].mean(2)
-    c1 = col[:, :, ni:ni + ns].mean(2)
-    c2 = col[:, :, ni + ns:ni + 2 * ns].mean(2)
+    cin = mean_over(col, 2, 0, ni)  # col[:, :, :ni].mean(2), `edges.mean_over`
+    c1 = mean_over(col, 2, ni, ni + ns)
+    c2 = mean_over(col, 2, ni + ns, ni + 2 * ns)
     con = np.minimum(np.linalg.norm(cin - c1, axis=-1), np.linalg.norm(cin - c2, axis=-1))  # (K, S)
     n_seen = np.count_nonzero(seen, 1)
     med_con = _median_where(con, seen)
@@ -267,7 +268,7 @@ def _material(work, img, lines, pairs, noise, likeness):
     score = np.where(ok, pairs.overlap * frac * short, 0.0)
     ref = np.stack([_median_where(c, good) for c in (cin, c1, c2)])  # (3, K, C)
     # the pairs failing it whose rims are an instrument's outline, their score apart
-    rims = col[:, :, ni + 2 * ns:ni + 2 * ns + nr].mean(2), col[:, :, ni + 2 * ns + nr:].mean(2)
+    rims = mean_over(col, 2, ni + 2 * ns, ni + 2 * ns + nr), mean_over(col, 2, ni + 2 * ns + nr)
     outline, ofrac = _outline(rims, cin, c1, c2, seen, noise)
     outline &= ~ok
     return score, ref, np.where(outline, pairs.overlap * ofrac * short, 0.0)
@@ -374,8 +375,7 @@ def colour_map(img, valid, c_in, c1, c2):
     # each outside's less the inside's (three rows: OpenCV's fast path)
     d1, d2, _ = cv2.split(cv2.transform(img, (M - M[0])[[1, 2, 0]].astype(np.float32)))
     B = cv2.bitwise_and((cv2.min(d1, d2) > 0).view(np.uint8), valid)
-    k3 = np.ones((3, 3), np.uint8)
-    return cv2.morphologyEx(cv2.morphologyEx(B, cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
+    return close_open(B)  # `shaft.regions.close_open`
 
 
 def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segments=None):

@@ -56,7 +56,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pencilcal.toolkit.detect.shaft.regions import Z_999, BoundaryLines, RegionPairs
+from pencilcal.toolkit.detect.shaft.regions import Z_999, BoundaryLines, RegionPairs, close_open
 from pencilcal.toolkit.geometry.quantiles import median
 
 __all__ = ["partner_bands", "turned_round", "MAX_SEEDS"]
@@ -274,8 +274,7 @@ def _band_map(work, img, col, obs, t, t0, b, s, s_mid, colour_map=None):
     d = [cv2.transform(img, (-2.0 * c).reshape(1, -1).astype(np.float32)).reshape(work.shape) + float(c @ c)
          for c in (c_in, c1, c2)]
     B = ((d[0] < np.minimum(d[1], d[2])) & work.valid).astype(np.uint8)
-    k3 = np.ones((3, 3), np.uint8)
-    return cv2.morphologyEx(cv2.morphologyEx(B, cv2.MORPH_CLOSE, k3), cv2.MORPH_OPEN, k3)
+    return close_open(B)  # `shaft.regions.close_open`
 
 
 def _narrowing(work, P):

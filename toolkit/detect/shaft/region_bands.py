@@ -40,6 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pencilcal.toolkit.detect.edges import mean_over
 from pencilcal.toolkit.detect.shaft.bands import best_segment
 from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs
 from pencilcal.toolkit.geometry.quantiles import median
@@ -73,6 +74,7 @@ def _run(mask):
 # the same sets as slices, for selections that copy what they select anyway (a boolean index of
 # the stations): one gather fewer, the same elements in the same order
 _IN_S, _SL_S, _SR_S = _run(_IN), _run(_SL), _run(_SR)
+_OBS_S = _run(np.abs(_NU) <= 1.0)  # the cross-section between the two boundaries
 _REACH_STATIONS = 2  # a run "reaches the border" when it ends this close to the first unobservable station
 _RECENT = 8  # the extension's band test compares with the last this many stations of the band
 _BAND_GAP = 2  # ... bridging gaps of up to this many stations
@@ -250,9 +252,11 @@ def _labels(g, lines, pairs, sB, sV):
     """Per-station labels (K, S) (module docstring), obs and fin (K, S), okL, okR (K, S):
     the side strips observable, shaft (K, S)."""
     I, J = pairs.i, pairs.j
-    obs = np.all(sV[:, :, np.abs(_NU) <= 1.0] > 1.0, 2)
-    okL = (sV[:, :, _SL] > 1.0).mean(2) >= 0.5
-    okR = (sV[:, :, _SR] > 1.0).mean(2) >= 0.5
+    obs = np.all(sV[:, :, _OBS_S] > 1.0, 2)
+    # a side observable where half its samples are: counted (a mean of booleans converts them
+    # to float64 first; count / n >= 0.5 is 2 count >= n, the division correctly rounded)
+    okL = 2 * np.count_nonzero(sV[:, :, _SL_S] > 1.0, 2) >= _SL_S.stop - _SL_S.start
+    okR = 2 * np.count_nonzero(sV[:, :, _SR_S] > 1.0, 2) >= _SR_S.stop - _SR_S.start
     fin = sB[:, :, _IN].mean(2)
     fL = np.where(okL, sB[:, :, _SL].mean(2), 0.0)
     fR = np.where(okR, sB[:, :, _SR].mean(2), 0.0)
@@ -425,9 +429,10 @@ def _band(g, lines, pairs, m, run_ends, obs, fin, okL, okR, shaft, cc, ca, cy, l
     (S, U, C), "all" map ca (S, U) and luma cy (S, U) samples."""
     i0, i1 = run_ends
     ext, reach, reach_run, view = _extension(obs[m], fin[m], i0, i1)
-    cin = cc[:, _IN].mean(1)
-    cL = np.linalg.norm(cin - cc[:, _SL].mean(1), axis=-1)
-    cR = np.linalg.norm(cin - cc[:, _SR].mean(1), axis=-1)
+    # the strips' means over slices (`edges.mean_over`: the same values as of the masks' copies)
+    cin = mean_over(cc, 1, _IN_S.start, _IN_S.stop)
+    cL = np.linalg.norm(cin - mean_over(cc, 1, _SL_S.start, _SL_S.stop), axis=-1)
+    cR = np.linalg.norm(cin - mean_over(cc, 1, _SR_S.start, _SR_S.stop), axis=-1)
     con = np.minimum(cL, cR)
     run = slice(i0, i1)
     fall, ang = _side_colours(cc[run], okL[m, run], okR[m, run], ca[run])

@@ -52,6 +52,7 @@ from pencilcal.toolkit.detect.edges import (
     derivative_kernel,
     fit_variances,
     linearised,
+    mean_over,
     peak_near,
     robust_line_fit,
     stations,
@@ -354,12 +355,28 @@ def _inside_median(d, inside):
     return np.where(n[:, 0] > 0, (pair[:, 0] + pair[:, 1]) / 2, 0)
 
 
+def _projected(prof, e):
+    """``np.einsum("mstc,msc->mst", prof, e)`` of profiles (M, S, T, C) and colour directions
+    (M, S, C), both float32: the same values (the channels' products added in their order, in
+    float32), as C whole-array products, a third of einsum's cost.
+
+    >>> rng = np.random.default_rng(0)
+    >>> p, e = rng.random((4, 9, 30, 3)).astype(np.float32), rng.normal(size=(4, 9, 3)).astype(np.float32)
+    >>> bool(np.array_equal(_projected(p, e), np.einsum("mstc,msc->mst", p, e)))
+    True
+    """
+    out = prof[..., 0] * e[:, :, None, 0]
+    for c in range(1, prof.shape[-1]):
+        out += prof[..., c] * e[:, :, None, c]
+    return out
+
+
 def _colour_difference(prof, inside, mc):
     """The unit colour difference (M, S, C) of each station's edge: outside minus inside
     (means of the `_STRIP_PX` strips beyond the corridor), the running median over
     `_BEND_WIN` stations (what lies beside a shaft changes along it: tissue, then a drape),
     the edge's median where a station has none."""
-    d = prof[:, :, -mc:].mean(2) - prof[:, :, :mc].mean(2)  # (M, S, C)
+    d = mean_over(prof, 2, -mc) - mean_over(prof, 2, 0, mc)  # (M, S, C), `edges.mean_over`
     glob = _inside_median(d, inside)  # (M, C)
     d = np.where(inside[..., None], d, glob[:, None, :])
     out = _running_median(d, 1)
@@ -419,7 +436,7 @@ def fit_edges(image, camera, validity, noise, specs, corridor, max_gap=None, gam
     prof, ends = _samples(image, camera, cx, cy, Nn[:, 0, None], Nn[:, 1, None], t)
     inside = st_valid & np.all(validity.ok(ends, _MARGIN_PX), -1)
     e = _colour_difference(prof, inside, mc)
-    pe = np.einsum("mstc,msc->mst", prof, e.astype(np.float32))
+    pe = _projected(prof, e.astype(np.float32))
     nwin = 2 * nw + 1
     g = kern[0] * pe[..., mc:mc + nwin]
     for q in range(1, kern.size):

@@ -150,13 +150,16 @@ class Reductions:
     ``reductions``: the shaft detector's at 480 px, the pixel evidence's at 320).
 
     An 8-bit image reduced by an even factor f = 2 m >= 4 along both axes (1080p to 480 or 320
-    px: 4 and 6) is reduced through the exact sums of its 2 x 2 blocks, made once (uint16, by
-    OpenCV's fast halving of the image times 4: (4 a + 4 b + 4 c + 4 d + 2) >> 2 = a + b + c +
-    d), then the sums of m x m of those (for m = 2 the halving of them times 4; else whole rows
-    of them added, `_block_sums`: integers below 2^16 for m <= 8, exact), rounded as INTER_AREA
-    rounds (the nearest level, ties to even): the same values as `cv2.resize`
-    (tests/toolkit/detect/shaft/test_work.py), at about half the CPU of the two reductions at
-    once. Any other image or factor: `cv2.resize` itself.
+    px: 4 and 6) is reduced through the exact sums of its 2 x 2 blocks times 4, made once
+    (uint16, by OpenCV's fast halving of the image times 16: (16 a + 16 b + 16 c + 16 d + 2) >> 2
+    = 4 (a + b + c + d)), then the sums of m x m of those (for m = 2 their halving: (4 p + 4 q +
+    4 r + 4 s + 2) >> 2 = p + q + r + s, the block's sum itself; for m = 3 or 4 whole rows of
+    them added, `_block_sums`: integers below 2^16, exact; larger m from the sums themselves),
+    scaled and rounded as INTER_AREA rounds (float32 product, the nearest level, ties to even:
+    one `cv2.convertScaleAbs`; a sum times 4 over 4 f^2 is the same float32 product, powers of
+    two being exact): the same values as `cv2.resize` (tests/toolkit/detect/shaft/test_work.py),
+    at about half the CPU of the two reductions at once. Any other image or factor:
+    `cv2.resize` itself.
 
     >>> import numpy as np, cv2
     >>> img = np.random.default_rng(0).integers(0, 256, (24, 36, 3), dtype=np.uint8)
@@ -184,21 +187,28 @@ class Reductions:
         if self._pairs is None:
             # by stripes of rows: the uint16 copy stays in the cache, and no frame-sized
             # buffer is allocated (its page faults cost more than the conversion)
-            self._pairs = np.empty((H // 2, W // 2) + img.shape[2:], np.uint16)
+            self._pairs = np.empty((H // 2, W // 2) + img.shape[2:], np.uint16)  # the 2 x 2 sums times 4
             u = np.empty((min(H, _STRIPE_ROWS), W) + img.shape[2:], np.uint16)
             for r in range(0, H, _STRIPE_ROWS):
                 n = min(_STRIPE_ROWS, H - r)
-                np.left_shift(img[r:r + n], 2, out=u[:n], dtype=np.uint16)
+                np.left_shift(img[r:r + n], 4, out=u[:n], dtype=np.uint16)
                 cv2.resize(u[:n], (W // 2, n // 2), dst=self._pairs[r // 2:(r + n) // 2], interpolation=cv2.INTER_AREA)
         m = f // 2
+        times = 4  # the sums below are the blocks' sums times this
         if m == 2 or (img.ndim == 3 and img.shape[2] > 4):
-            # OpenCV's fast halving (SIMD) of the sums times 4
-            sums = cv2.resize(self._pairs * np.uint16(m * m), (w, h), interpolation=cv2.INTER_AREA)
+            # OpenCV's fast halving (SIMD) of the pairs' sums times 4: the blocks' sums (no
+            # multiplication of the pairs by 4 first)
+            p = self._pairs if m == 2 else (self._pairs >> 2) * np.uint16(m * m)
+            sums, times = cv2.resize(p, (w, h), interpolation=cv2.INTER_AREA), 1
         else:
             # the m x m sums by whole-row additions: INTER_AREA's generic path of the sums times
-            # m^2 costs three times more (0.73 against 0.26 ms for a 1080p frame's 320 px copy)
-            sums = _block_sums(self._pairs, m)
-        return np.rint(sums.astype(np.float32) * np.float32(1.0 / (f * f))).astype(np.uint8)
+            # m^2 costs three times more (0.73 against 0.26 ms for a 1080p frame's 320 px copy);
+            # the sums times 4 stay below 2^16 up to m = 4
+            sums = _block_sums(self._pairs if m <= 4 else self._pairs >> 2, m)
+            times = 4 if m <= 4 else 1
+        # rint(sum x float32(1 / f^2)) in float32, as one pass (the scale a power of two apart
+        # for the sums times 4: the same product)
+        return cv2.convertScaleAbs(sums, alpha=float(np.float32(1.0 / (times * f * f))))
 
 
 def _block_sums(a, m):
