@@ -629,12 +629,19 @@ def _companions(ang, r0, r1, height, clear):
     """(E,) bool: the directions ang (E,) [rad], seen from r0 to r1 (E,) [px], that are a
     stronger direction's companions: weak (their peaks under half the typical edge's,
     heights (E,) relative to it, and under half that direction's), beginning to show where
-    that direction runs (it was seen from farther in), within `clear` [px] of it. A raised wire beside a dartboard's boundary, its far side
-    or its highlight seen obliquely, is a faint line 2-4 px beside the edge, parallel to it,
-    not a second edge through the vertex: counted as a neighbour, it left the edge nowhere
-    clear (`_clear_radius`) and its joint location (`radial_joint`, which models every
-    neighbour as an edge of the same step) failed. A star's edges, and a sector target's,
-    are alike in strength."""
+    that direction runs (it was seen from farther in), within `clear` [px] of it. A raised
+    wire beside a dartboard's boundary, its far side or its highlight seen obliquely, is a
+    faint line 2-4 px beside the edge, parallel to it, not a second edge through the vertex:
+    counted as a neighbour, it left the edge nowhere clear (`_clear_radius`) and its joint
+    location (`radial_joint`, which models every neighbour as an edge of the same step)
+    failed. A star's edges, and a sector target's, are alike in strength.
+
+    >>> ang, r1, height = np.radians([10.0, 11.0, 40.0]), np.full(3, 200.0), np.array([1.0, 0.2, 1.0])
+    >>> _companions(ang, np.array([20.0, 80.0, 20.0]), r1, height, 4.0).tolist()   # 1.4 px beside
+    [False, True, False]
+    >>> _companions(ang, np.array([80.0, 80.0, 20.0]), r1, height, 4.0).tolist()   # seen from the same band
+    [False, False, False]
+    """
     d = np.abs(np.angle(np.exp(1j * (ang[:, None] - ang[None]))))
     beside = ((d < np.pi / 2) & (r0[:, None] * np.sin(d) < clear) & (height[None] >= 2.0 * height[:, None])
               & (r0[None] < r0[:, None]) & (r0[:, None] <= r1[None]))
