@@ -33,12 +33,17 @@ CHI2_3SIGMA = -2.0 * np.log(1.0 - 0.9973)
 # 19, the planes 0.08, 0.48 and 0.19 deg apart; the left view's floor one below again (14).
 # With the vertex test allowing the offset the edges share (`radial._through_vertex`): 19, 19
 # and 19, the planes 0.105, 0.085 and 0.135 deg apart; the side views' floors one below (18).
-# Still missing, each lost in the detection (crowded directions, docs/method.md), none hidden
-# by a dart: the left view's boundary straight up, the right view's level with the bull on
-# its left, the far view's down and to the right (a 17 px piece).
-@pytest.mark.parametrize("name,spokes,tilt", [("dartboard_side_left", 18, (45, 65)),
+# Then still missing, each lost in the detection (crowded directions, docs/method.md), none
+# hidden by a dart: the left view's boundary straight up, the right view's level with the bull
+# on its left, the far view's down and to the right (a 17 px piece); 19, 18 and 19 measured
+# later on the same code. With a faint direction beside a stronger one taken as its companion
+# (a wire's side, `radial._companions`) and the bands chained closest pair first: 20, 19 and
+# 20, the planes 0.163, 0.135 and 0.442 deg apart (chi2 0.17, 0.09 and 0.72); the floors one
+# below. Still missing: one of the right view's, an edge 2.5-4.9 px off the vertex beside its
+# wire (which one depends on the camera).
+@pytest.mark.parametrize("name,spokes,tilt", [("dartboard_side_left", 19, (45, 65)),
                                               ("dartboard_side_right", 18, (45, 65)),
-                                              ("dartboard_far", 18, (5, 25))])
+                                              ("dartboard_far", 19, (5, 25))])
 def test_boundaries_and_rings_agree(name, spokes, tilt):
     img = cv2.imread(str(data_dir("real-radial-targets") / f"{name}.jpg"))
     r = check_photo(img, dartboard_pencil())

@@ -586,7 +586,8 @@ def _edge_directions(img, camera, v, reach, edges, clear):
     chained from band to band; other print (a ring of numbers, a dart) shows in one. A
     tilted target's image reaches much farther from the vertex on its near side than on its
     far side: each edge's direction is taken from the outermost band of its chain (there the
-    edges lie farthest apart, and an error of the vertex turns them least).
+    edges lie farthest apart, and an error of the vertex turns them least). A faint direction
+    beside a stronger one is its companion (`_companions`: a raised wire's side), not an edge.
     """
     H, W = img.shape
     # no farther than the image's farthest corner from the vertex
@@ -617,31 +618,60 @@ def _edge_directions(img, camera, v, reach, edges, clear):
             continue  # one band, and weak: other print
         if any(sgn == o[1] and abs(np.angle(np.exp(1j * (ang - o[0])))) < 2.0 / min(r_out, o[3]) for o in out):
             continue
-        out.append((ang, sgn, bands[c[0][0]], r_out))
+        out.append((ang, sgn, bands[c[0][0]], r_out, max(peaks[bb][2][ii] for bb, ii in c)))
     out.sort()
-    ang, sgn, r0, r1 = (np.array(x, float) for x in zip(*out))
-    return ang, sgn, np.stack([r0, r1], -1)
+    ang, sgn, r0, r1, height = (np.array(x, float) for x in zip(*out))
+    keep = ~_companions(ang, r0, r1, height, clear)
+    return ang[keep], sgn[keep], np.stack([r0, r1], -1)[keep]
+
+
+def _companions(ang, r0, r1, height, clear):
+    """(E,) bool: the directions ang (E,) [rad], seen from r0 to r1 (E,) [px], that are a
+    stronger direction's companions: weak (their peaks under half the typical edge's,
+    heights (E,) relative to it, and under half that direction's), beginning to show where
+    that direction runs (it was seen from farther in), within `clear` [px] of it. A raised
+    wire beside a dartboard's boundary, its far side or its highlight seen obliquely, is a
+    faint line 2-4 px beside the edge, parallel to it, not a second edge through the vertex:
+    counted as a neighbour, it left the edge nowhere clear (`_clear_radius`) and its joint
+    location (`radial_joint`, which models every neighbour as an edge of the same step)
+    failed. A star's edges, and a sector target's, are alike in strength.
+
+    >>> ang, r1, height = np.radians([10.0, 11.0, 40.0]), np.full(3, 200.0), np.array([1.0, 0.2, 1.0])
+    >>> _companions(ang, np.array([20.0, 80.0, 20.0]), r1, height, 4.0).tolist()   # 1.4 px beside
+    [False, True, False]
+    >>> _companions(ang, np.array([80.0, 80.0, 20.0]), r1, height, 4.0).tolist()   # seen from the same band
+    [False, False, False]
+    """
+    d = np.abs(np.angle(np.exp(1j * (ang[:, None] - ang[None]))))
+    beside = ((d < np.pi / 2) & (r0[:, None] * np.sin(d) < clear) & (height[None] >= 2.0 * height[:, None])
+              & (r0[None] < r0[:, None]) & (r0[:, None] <= r1[None]))
+    return (height < 0.5) & np.any(beside, 1)
 
 
 def _chain_bands(peaks, bands):
     """Chains of peaks [(band, index), ...], inner band first: a peak of band b continues the
-    chain of the nearest peak of band b - 1 of its sign within 3 px at that band's radius
-    (the vertex's error turns an edge's direction by about its size over the radius)."""
+    chain of a peak of band b - 1 of its sign within 3 px at that band's radius (the vertex's
+    error turns an edge's direction by about its size over the radius), the closest pairs
+    first, each peak in one chain."""
     chains, last = [], {}
     for b, (ang, sgn, _) in enumerate(peaks):
         prev = peaks[b - 1] if b else (np.zeros(0), np.zeros(0), np.zeros(0))
         here = {}
+        d = np.abs(np.angle(np.exp(1j * (ang[:, None] - prev[0][None]))))
+        d = np.where((sgn[:, None] == prev[1][None]) & (d <= 3.0 / bands[b - 1] if b else False), d, np.inf)
+        # the closest pairs first: taken in angle order, a weak peak beside an edge (a wire's
+        # side) took the edge's chain whenever it came first, and the edge began a new one
+        for k in np.argsort(d, axis=None, kind="stable"):
+            i, j = divmod(int(k), max(prev[0].size, 1))
+            if not np.isfinite(d[i, j]):
+                break
+            if i not in here and j in last:
+                here[i] = last.pop(j)
         for i in range(ang.size):
-            d = np.abs(np.angle(np.exp(1j * (ang[i] - prev[0]))))
-            d = np.where(prev[1] == sgn[i], d, np.inf)
-            j = int(np.argmin(d)) if d.size else -1
-            if j >= 0 and d[j] <= 3.0 / bands[b - 1] and j in last:
-                chain = last.pop(j)
-            else:
-                chain = []
-                chains.append(chain)
-            chain.append((b, i))
-            here[i] = chain
+            if i not in here:
+                here[i] = []
+                chains.append(here[i])
+            here[i].append((b, i))
         last = here
     return chains
 
