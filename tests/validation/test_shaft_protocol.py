@@ -132,7 +132,7 @@ def test_leave_one_source_out(detected):
 #: least part score chosen on the others (none among the choices): what each source reaches
 #: (found, most false per frame). Chosen on the others, parts are taken only where they add a
 #: find there without passing 0.25 false a frame; they add none on any source, so where a
-#: score is chosen (0.3 with dvrk-suturing or cholec left out, 0.1 with greenscreen) it adds nothing there, and the parts stay
+#: score is chosen (0.3 with dvrk-suturing, greenscreen or cholec left out) it adds nothing there, and the parts stay
 #: off by default (docs/method.md, distal parts). Since a region is grown back into the view's
 #: rim, glare is no region, and an axis shorter than its width (a principal axis: two widths)
 #: or with the tissue's hue is dropped, dvrk-suturing gets no false part (it got one in one of

@@ -17,8 +17,12 @@ mask-guided detection starts.
    silhouette edge is one contiguous stretch of the boundary;
 3. each with its partner, the longest stretch within `MAX_EDGE_ANGLE_DEG` of it on the
    mask's side, the mask between them; of these pairs, the one whose straight band (overlap
-   along the axis times the width) is largest: where the shaft is in view, its two edges (a
-   clip applier's or a jaw's single edge may be longer, a prong's pair longer but narrow);
+   along the axis times the width) is largest among the bands that no other band separates
+   from where the instrument enters the view (the outline's points on the image border or
+   the valid region's boundary; cut across at a band's middle, the mask's pieces that hold
+   no entry point hold the bands beyond it, past its end): where the shaft is in view, its
+   two edges (a clip applier's or a jaw's single edge may be longer, a prong's pair longer
+   but narrow, and two open jaws' outer edges a wider band, but beyond the shaft);
    where it shares an edge with the pair of the longest stretch and runs within
    `SAME_AXIS_DEG` of it, that pair stands (a straight instrument: one axis);
 4. each edge refitted by total least squares to its run; the straight part is where both
@@ -318,14 +322,18 @@ def _two_edges(C, m, usable, rng, tol, gap, min_len):
     The straight stretches of the outline, longest first (up to `_MAX_STRETCHES`), each with
     its partner: the longest stretch within `MAX_EDGE_ANGLE_DEG` of it on the mask's side, with
     the mask between the two. Of these pairs, the one whose straight band (where both
-    stretches overlap along the axis, times the width between them) covers most of the mask.
-    An instrument with its shaft in view is read by its shaft: the jaws or a clip applier
-    beyond the wrist may have a longer single straight edge, and a jaw's prong two long edges
-    close together, but the shaft's band is the largest straight part. Where that band shares
-    an edge with the first pair (the longest stretch's) and runs within `SAME_AXIS_DEG` of it,
-    the first stands: a straight instrument, one axis.
+    stretches overlap along the axis, times the width between them) covers most of the mask,
+    among the bands that no other band separates from where the instrument enters the view
+    (`_beyond`: the contour on the image border or the valid region's boundary). An
+    instrument with its shaft in view is read by its shaft: the jaws or a clip applier beyond
+    the wrist may have a longer single straight edge, a jaw's prong two long edges close
+    together, and two open jaws a wider band between their outer edges, but the shaft is the
+    part that reaches the entry and the jaws lie beyond it. Where that band shares an edge
+    with the first pair (the longest stretch's) and runs within `SAME_AXIS_DEG` of it, the
+    first stands: a straight instrument, one axis.
     """
     best, best_area, first = None, 0.0, None
+    bands = []   # every pair with the mask between its edges: (pair, area, middle line (9, 2), across (2,), width)
     us = usable.copy()
     for _ in range(_MAX_STRETCHES):
         run1 = _best_stretch(C, us, rng, tol, gap, min_len)
@@ -341,24 +349,92 @@ def _two_edges(C, m, usable, rng, tol, gap, min_len):
         s1, s2 = C[run1] @ u1, C[run2] @ u1
         lo, hi = max(s1.min(), s2.min()), min(s1.max(), s2.max())
         off = float(np.median((C[run2] - c1) @ n1))
-        if (hi - lo) * abs(off) <= best_area:
+        if hi <= lo:
             continue
         # the band between them is the mask's (not the background between two prongs)
         s = np.linspace(lo, hi, 9)
         q = np.rint(c1 + (s - c1 @ u1)[:, None] * u1 + 0.5 * off * n1).astype(int)
         inside = (q[:, 0] >= 0) & (q[:, 0] < m.shape[1]) & (q[:, 1] >= 0) & (q[:, 1] < m.shape[0])
-        if inside.all() and m[q[:, 1], q[:, 0]].mean() >= 0.75:
-            best, best_area = (run1, run2), (hi - lo) * abs(off)
+        if not (inside.all() and m[q[:, 1], q[:, 0]].mean() >= 0.75):
+            continue
+        pair = (run1, run2)
+        bands.append((pair, (hi - lo) * abs(off), q, n1 * np.sign(off), abs(off)))
+        if (hi - lo) * abs(off) > best_area:
+            best, best_area = pair, (hi - lo) * abs(off)
             first = best if first is None else first
-    if best is not None and first is not best:
+    if best is None:
+        return None
+    entry = C[~usable]
+    if entry.size and len(bands) > 1:
+        beyond = _beyond(C, m, entry, bands)
+        near = [b for b, far in zip(bands, beyond) if not far]
+        if near:
+            best = max(near, key=lambda b: b[1])[0]
+    if first is not best:
         # a straight instrument whose one silhouette edge runs on from its shaft to its tip:
         # one axis, and the pair of the longest edges stands; another part (a bend, a clip
         # applier, a jaw beside the axis) shares no edge with the shaft
-        u_b, u_f = (_pair_direction(C, pair) for pair in (best, first))
-        shared = any(np.intersect1d(a, b).size > 0.5 * min(a.size, b.size) for a in best for b in first)
-        if shared and abs(u_b @ u_f) >= np.cos(np.radians(SAME_AXIS_DEG)):
+        if _one_axis(C, best, first):
             return first
     return best
+
+
+def _one_axis(C, pair, other):
+    """Whether two pairs of stretches of contour C read one straight part: they share a
+    stretch (more than half the shorter one) and run within `SAME_AXIS_DEG`."""
+    shared = any(np.intersect1d(a, b).size > 0.5 * min(a.size, b.size) for a in pair for b in other)
+    u, v = (_pair_direction(C, p) for p in (pair, other))
+    return shared and abs(u @ v) >= np.cos(np.radians(SAME_AXIS_DEG))
+
+
+def _beyond(C, m, entry, bands):
+    """Per band, whether another band separates it from the instrument's entry (list of bool).
+
+    C (N, 2) the contour; m (H, W) bool the instrument; entry (E, 2) its contour points where
+    it enters the view; bands as `_two_edges` collects them: (pair, area, q (9, 2) points
+    along the band's middle line, n (2,) across it, width). Band A is cut across at its middle
+    (the mask's run along the cross line through that point, 3 px thick); band B lies beyond
+    A when all of B's middle-line points left are in pieces of the mask that hold no entry
+    point and B's middle is past A's end along A's axis: the instrument reaches B only
+    through A (jaws beyond the shaft). A band overlapping A's middle, one across A centred on
+    its cut, or one reading one axis with A (`_one_axis`: a straight instrument's shaft and
+    closed tip, a converging shaft read in two sections) is not beyond it. Only a band seen
+    along at least its width cuts: a shorter one has no direction to speak of (the reason of
+    `parts.MIN_ELONGATION`), such as a stub of outline at the border paired with the shaft's
+    long edge.
+    """
+    import cv2
+
+    H, W = m.shape
+    m8 = m.astype(np.uint8)
+    far = [False] * len(bands)
+    for a, (_, area, qa, na, wa) in enumerate(bands):
+        if area < wa * wa:
+            continue   # seen along less than its width: no straight part to speak of (a corner's stub)
+        p = qa[4].astype(float)
+        if not m[int(p[1]), int(p[0])]:
+            continue   # the band's middle is not the mask's: no cut through it
+        line = np.zeros_like(m8)
+        h = 2.0 * wa + 10.0
+        cv2.line(line, tuple(np.rint(p - h * na).astype(int)), tuple(np.rint(p + h * na).astype(int)), 1, 3)
+        _, lab = cv2.connectedComponents(line & m8, connectivity=8)
+        cut = lab == lab[int(p[1]), int(p[0])]
+        _, rest = cv2.connectedComponents((m & ~cut).astype(np.uint8), connectivity=8)
+        reached = set(np.unique(rest[entry[:, 1], entry[:, 0]]).tolist()) - {0}
+        if not reached:
+            continue
+        ua = (qa[-1] - qa[0]).astype(float)
+        half = 0.5 * np.hypot(*ua)
+        ua /= max(2.0 * half, 1e-9)
+        for b, (pb, _, qb, _, _) in enumerate(bands):
+            if b == a or _one_axis(C, pb, bands[a][0]) or abs((qb[4] - qa[4]) @ ua) < half:
+                continue   # the same part, or a band whose middle is not past A's end
+            ok = (qb[:, 0] >= 0) & (qb[:, 0] < W) & (qb[:, 1] >= 0) & (qb[:, 1] < H)
+            lb = rest[qb[ok, 1], qb[ok, 0]]
+            lb = lb[lb > 0]
+            if lb.size and not any(v in reached for v in lb.tolist()):
+                far[b] = True
+    return far
 
 
 def _pair_direction(C, pair):

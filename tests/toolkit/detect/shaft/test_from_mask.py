@@ -159,3 +159,33 @@ def test_an_instrument_with_its_shaft_in_view_is_read_by_its_shaft():
     assert ax.kind == "shaft"
     assert abs(ax.line[0]) < np.sin(np.radians(0.5))            # horizontal: the shaft's direction
     assert abs(ax.point[1] - 119.5) < 1.0 and ax.width_px == pytest.approx(40.0, abs=1.5)
+
+
+def test_open_jaws_wider_than_the_shaft_are_beyond_it_and_the_shaft_is_read():
+    """A shaft entering the view (40 px wide, 150 long) and beyond it two open jaws, the upper
+    one running on from the shaft's upper edge, the lower one's outer edge opened by 8 deg (a
+    band 45 to 73 px wide, 200 long: the largest straight band of the outline, as cholec's
+    grasper in VID03_000210): the shaft is the part that reaches the entry and the jaws lie
+    beyond it, so the axis is the shaft's. The entry is the image border, or the valid
+    region's boundary (an instrument entering from a field stop's dark periphery)."""
+    import cv2
+
+    from pencilcal.toolkit.detect.shaft.mask import mask_axis
+
+    def instrument(x0):
+        m = np.zeros((300, 600), np.uint8)
+        m[100:140, x0:x0 + 150] = 1
+        xw, L = x0 + 148, 200.0
+        jaws = [[xw, 100], [xw + L, 100], [xw + L, 145 + L * np.tan(np.radians(8.0))], [xw, 145]]
+        cv2.fillPoly(m, [np.rint(jaws).astype(np.int32)], 1)
+        return m.astype(bool)
+
+    ax = mask_axis(instrument(0))
+    assert ax.kind == "shaft" and abs(ax.line[0]) < np.sin(np.radians(0.5))     # horizontal: the shaft
+    assert ax.point[0] < 150 and ax.width_px == pytest.approx(40.0, abs=1.5)   # on the shaft, not the jaws
+    valid = np.ones((300, 600), bool)
+    valid[:, :60] = False                                    # a field stop: the view begins at x = 60
+    ax = mask_axis(instrument(30) & valid, valid)
+    assert ax.kind == "shaft" and ax.point[0] < 180 and ax.width_px == pytest.approx(40.0, abs=1.5)
+    # the same instrument wholly in view: nothing tells its shaft from its jaws, the largest band stands
+    assert mask_axis(instrument(30)).width_px > 50.0
