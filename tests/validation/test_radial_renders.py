@@ -57,3 +57,16 @@ def test_the_estimator_covers_independent_lines():
     cover = float(np.mean(r["chi2"] <= -2.0 * np.log(1.0 - 0.6827)))
     assert 0.58 <= cover <= 0.78, cover
     assert 1.6 <= float(np.mean(r["chi2"])) <= 2.5
+
+
+@pytest.mark.parametrize("seed, polarity, least", [(9332, "dark", 124), (9340, "dark", 120)])
+def test_an_edge_the_joint_fit_left_short_is_located_again(seed, polarity, least):
+    """128-wedge stars whose edges were clear over 20-30 px: the joint fit from there dropped
+    the outer end's stations and weak steps and kept under 20 px, and the edge was lost, with
+    its spoke where both of a wedge's edges were (spokes used 114 and 96 of 128). Located
+    again from JOINT_SIGMAS apart, as the crowded edges are: 127 and 123."""
+    cond = radial_conditions(1, seed=seed, kinds=("star128",))[0]
+    cond["polarity"] = polarity
+    t = radial_trial(cond)
+    assert t.ok and t.twin_right
+    assert t.spokes_used >= least, t.spokes_used
