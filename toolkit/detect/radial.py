@@ -236,21 +236,25 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
         # was too short to keep, and both edges of a wedge lost its spoke (128-wedge stars,
         # seed 8181: spokes used 95.7 -> 96.7 %, 64 wedges unchanged)
         clear_ok = fit.ok & (np.hypot(*(fit.p2 - fit.p1).T) >= min_length)
-        r_lo = np.where(clear_ok, _clear_radius(phi, clear), _clear_radius(phi, JOINT_SIGMAS * blur))
-        r_lo = np.minimum(np.maximum(r_lo, 0.5 * seen[:, 0]), 0.8 * r_hi)
+
+        def within(r):  # where an edge is measured from: inside what was seen, short of its end
+            return np.minimum(np.maximum(r, 0.5 * seen[:, 0]), 0.8 * r_hi)
+
+        r_joint = within(_clear_radius(phi, JOINT_SIGMAS * blur))
+        r_lo = np.where(clear_ok, within(_clear_radius(phi, clear)), r_joint)
         lines = np.where(fit.ok[:, None], fit.lines(), ray)
         located, _ = joint_refit(lin, camera, lines, v, sign, blur, r_lo, r_hi, rows=rows, search=_SEARCH_PX[-1])
         # the same for an edge whose clear stretch was long enough but whose joint fit kept
         # less than min_length of it (the fit drops the outer end's stations and weak steps):
         # located again from JOINT_SIGMAS apart, its neighbours at their new lines (128-wedge
         # stars, seeds 9200-9279: 84 % of the spokes lost were lost so)
-        r_joint = np.minimum(np.maximum(_clear_radius(phi, JOINT_SIGMAS * blur), 0.5 * seen[:, 0]), 0.8 * r_hi)
         kept = located.ok & (np.hypot(*(located.p2 - located.p1).T) >= min_length)
         again = ~kept & (r_joint[rows] < r_lo[rows])
         if again.any():
             lines[rows] = np.where(located.ok[:, None], located.lines(), lines[rows])
-            redo, _ = joint_refit(lin, camera, lines, v, sign, blur, np.where(np.isin(np.arange(phi.size), rows[again]),
-                                  r_joint, r_lo), r_hi, rows=rows[again], search=_SEARCH_PX[-1])
+            r_again = r_lo.copy()
+            r_again[rows[again]] = r_joint[rows[again]]
+            redo, _ = joint_refit(lin, camera, lines, v, sign, blur, r_again, r_hi, rows=rows[again], search=_SEARCH_PX[-1])
             located = _merged(located, np.flatnonzero(again), redo)
         fit = _merged(fit, rows, located)
         try:
