@@ -262,7 +262,7 @@ def _noise(rep):
                  f"-{num(cn['scale_power'])} +- {num(cn['scale_power_std'])} and as exp({num(cn['edge'])} +- "
                  f"{num(cn['edge_std'])} rho^2) towards the image's edge (rho: the distance from the principal "
                  f"point over {num(cn['radius_px'])} px; log-likelihood gain {num(cn['shape_gain'])})"
-                 + ("; each corner weighs in the fit by the inverse of its variance."
+                 + ("; each corner weighs in the fit by the inverse of this factor."
                     if rep.get("fit_weights") == "corner_noise" else "."))
     return [Para(f"Corner errors: white per view plus a smooth part {num(cn['ratio'])} x its variance, correlated "
                  f"over {num(cn['length_px'])} px (fitted to {cn['corners']} corners of {cn['views']} views; "
