@@ -89,8 +89,10 @@ def _solve_half(result, views, subset):
     _, objs, imgs, bases = views
     sol = result.solution
     o, p, b = [objs[j] for j in subset], [imgs[j] for j in subset], [bases[j] for j in subset]
-    half = refine(result.layout, sol.theta, sol.poses[subset], o, p, b if result.layout.warp else None, warp=sol.warp)
-    cov = covariance(result.layout, half, o, p, b if result.layout.warp else None, _noise_of(result))
+    w = None if result.weights is None else [result.weights[j] for j in subset]
+    half = refine(result.layout, sol.theta, sol.poses[subset], o, p, b if result.layout.warp else None, warp=sol.warp,
+                  weights=w)
+    cov = covariance(result.layout, half, o, p, b if result.layout.warp else None, _noise_of(result), w)
     return half, cov
 
 

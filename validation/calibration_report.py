@@ -256,10 +256,18 @@ def _noise(rep):
     cn = rep.get("corner_noise")
     if not cn:
         return []
+    shape = ""
+    if cn.get("scale_power") or cn.get("edge"):
+        shape = (f" The white level varies within a view as (local px per board unit / the view's median)^"
+                 f"-{num(cn['scale_power'])} +- {num(cn['scale_power_std'])} and as exp({num(cn['edge'])} +- "
+                 f"{num(cn['edge_std'])} rho^2) towards the image's edge (rho: the distance from the principal "
+                 f"point over {num(cn['radius_px'])} px; log-likelihood gain {num(cn['shape_gain'])})"
+                 + ("; each corner weighs in the fit by the inverse of this factor."
+                    if rep.get("fit_weights") == "corner_noise" else "."))
     return [Para(f"Corner errors: white per view plus a smooth part {num(cn['ratio'])} x its variance, correlated "
                  f"over {num(cn['length_px'])} px (fitted to {cn['corners']} corners of {cn['views']} views; "
-                 f"log-likelihood gain {num(cn['log_likelihood_gain'])}). The sigmas hold both "
-                 f"({rep.get('covariance_model')}).")]
+                 f"log-likelihood gain {num(cn['log_likelihood_gain'])}).{shape} The sigmas hold "
+                 f"{'all of it' if shape else 'both'} ({rep.get('covariance_model')}).")]
 
 
 def build_calibration_report(rep, title=None):

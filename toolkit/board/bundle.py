@@ -54,7 +54,7 @@ from pencilcal.toolkit.camera.intrinsics import model_intrinsic_names
 from pencilcal.toolkit.errors import EstimationError
 
 __all__ = ["Layout", "Solution", "Covariance", "warp_basis", "theta_of", "camera_parts", "refine", "covariance",
-           "fit_pose", "view_residuals", "WARP_NAMES"]
+           "fit_pose", "view_residuals", "board_scale", "WARP_NAMES"]
 
 #: Names of the board's warp parameters [board unit].
 WARP_NAMES = ("warp_x", "warp_y")
@@ -268,15 +268,35 @@ def _view(layout, theta, T, pose, obj, img, basis, warp):
     return (np.asarray(img, float) - px).reshape(-1), Jg, Jp
 
 
-def _normal(layout, theta, T, poses, warp, objs, imgs, bases):
+def _weighted(r, Jg, Jp, w):
+    """A view's rows times the square root of its corners' weights w (K,) (None: as they are)."""
+    if w is None:
+        return r, Jg, Jp
+    sw = np.repeat(np.sqrt(np.asarray(w, float)), 2)
+    return r * sw, Jg * sw[:, None], Jp * sw[:, None]
+
+
+def board_scale(pose, Jp):
+    """(K,) the board's local scale at each corner [px per board unit]: sqrt |det| of
+    d pixel / d board (x, y), from the pose Jacobian Jp (2K, 6) (its tvec columns: a board
+    point moved along board x moves as tvec moved along R's first column)."""
+    import cv2
+
+    R = cv2.Rodrigues(np.asarray(pose[0], float).reshape(3))[0]
+    A = Jp.reshape(-1, 2, 6)[:, :, 3:6] @ R[:, :2]                                # (K, 2, 2)
+    return np.sqrt(np.abs(np.linalg.det(A)))
+
+
+def _normal(layout, theta, T, poses, warp, objs, imgs, bases, weights=None):
     """The normal equations' blocks: A (G, G), g (G,), per view B (G, 6), C (6, 6), q (6,),
-    and the cost."""
+    and the cost (weighted with `weights`)."""
     G = T.shape[1] + (2 if layout.warp else 0)
     A, g = np.zeros((G, G)), np.zeros(G)
     Bs, Cs, qs = [], [], []
     sse = 0.0
-    for pose, obj, img, basis in zip(poses, objs, imgs, bases):
-        r, Jg, Jp = _view(layout, theta, T, pose, obj, img, basis, warp)
+    weights = [None] * len(objs) if weights is None else weights
+    for pose, obj, img, basis, w in zip(poses, objs, imgs, bases, weights):
+        r, Jg, Jp = _weighted(*_view(layout, theta, T, pose, obj, img, basis, warp), w)
         A += Jg.T @ Jg
         g += Jg.T @ r
         Bs.append(Jg.T @ Jp)
@@ -306,7 +326,7 @@ def _step(A, g, Bs, Cs, qs, lam):
     return dg, [Ci @ (q - B.T @ dg) for B, Ci, q in zip(Bs, Cinv, qs)]
 
 
-def refine(layout, theta, poses, objs, imgs, bases=None, warp=None, max_iterations=100):
+def refine(layout, theta, poses, objs, imgs, bases=None, warp=None, max_iterations=100, weights=None):
     """Levenberg-Marquardt over the free intrinsics, the poses and the warp.
 
     Parameters
@@ -317,6 +337,9 @@ def refine(layout, theta, poses, objs, imgs, bases=None, warp=None, max_iteratio
     objs, imgs : per view the board points (N_v, 3) [board unit] and their corners (N_v, 2) [px].
     bases : per view `warp_basis` (N_v, 2); needed with ``layout.warp``.
     warp : (2,) to start from (zeros).
+    weights : per view (N_v,) each corner's weight (the inverse of its variance relative
+        to the rest; `corner_noise`), or None: ordinary least squares. The solution's sse
+        is then the weighted one.
 
     Returns
     -------
@@ -331,7 +354,8 @@ def refine(layout, theta, poses, objs, imgs, bases=None, warp=None, max_iteratio
         raise ValueError("the warp needs every view's warp_basis")
     T = layout.transform(theta)
     F = T.shape[1]
-    blocks = _normal(layout, theta, T, poses, warp, objs, imgs, bases)
+    weights = None if weights is None else list(weights)
+    blocks = _normal(layout, theta, T, poses, warp, objs, imgs, bases, weights)
     lam = _LAMBDA0
     it = 0
     for it in range(1, int(max_iterations) + 1):
@@ -346,7 +370,7 @@ def refine(layout, theta, poses, objs, imgs, bases=None, warp=None, max_iteratio
         if not (np.all(np.isfinite(theta2)) and theta2[0] > 0 and theta2[1] > 0):
             lam *= 10.0
         else:
-            new = _normal(layout, theta2, T, poses2, warp2, objs, imgs, bases)
+            new = _normal(layout, theta2, T, poses2, warp2, objs, imgs, bases, weights)
             if new[5] <= blocks[5]:
                 done = blocks[5] - new[5] <= _REL_TOL * max(blocks[5], 1e-300)
                 theta, warp, poses, blocks = theta2, warp2, poses2, new
@@ -407,32 +431,44 @@ def fit_pose(layout, theta, warp, pose, obj, img, basis=None, max_iterations=30)
     return (rvec, tvec), r.reshape(-1, 2)
 
 
-def covariance(layout, solution, objs, imgs, bases=None, noise=None):
+def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=None):
     """The covariance of `refine`'s estimate.
 
     noise : None for white corner errors of one level, estimated from all residuals
         (``sum r^2 / (2M - P)``, OpenCV's figure); or a `CornerNoise`: each view's white
-        level by REML (`corner_noise.white_variance`) and the correlated part, through the
-        sandwich (the module's docstring). `corner_noise.WHITE` gives each view its own
-        white level only.
+        level by REML (`corner_noise.white_variance`), its heteroscedastic shape within the
+        view and the correlated part, through the sandwich (the module's docstring).
+        `corner_noise.WHITE` gives each view its own white level only.
+    weights : the corner weights `refine` was given (None: ordinary least squares); the
+        sandwich is that of the weighted estimate, so weights that are not the inverse
+        variances still give its true covariance under `noise`.
 
     Returns a `Covariance`; its intrinsics and warp blocks are inf where the problem is
     singular.
     """
-    from pencilcal.toolkit.board.corner_noise import CornerView, kernel, white_variance
+    from pencilcal.toolkit.board.corner_noise import CornerView, kernel, variance_factor, white_variance
 
     bases = list(bases) if bases is not None else [None] * len(objs)
+    weights = [None] * len(objs) if weights is None else list(weights)
     T = layout.transform(solution.theta)
     F = T.shape[1]
     views = []
     S = None
-    for pose, obj, img, basis in zip(solution.poses, objs, imgs, bases):
+    sse = 0.0
+    for pose, obj, img, basis, w in zip(solution.poses, objs, imgs, bases, weights):
         r, Jg, Jp = _view(layout, solution.theta, T, pose, obj, img, basis, solution.warp)
+        img = np.asarray(img, float)
+        d = np.ones(img.shape[0]) if noise is None else \
+            variance_factor(noise, img, board_scale(pose, Jp), solution.theta[2:4])
+        # the weighted errors' covariance is s2 G (I + c k) G per axis, G = diag(sqrt(w d))
+        g = np.sqrt(d if w is None else np.asarray(w, float) * d)
+        r, Jg, Jp = _weighted(r, Jg, Jp, w)
+        sse += float(np.sum((r / np.repeat(g, 2)) ** 2))
         C = Jp.T @ Jp
         Ci = np.linalg.pinv(C)
         PJ = Jg - Jp @ (Ci @ (Jp.T @ Jg))               # the pose projected out
         S = Jg.T @ PJ if S is None else S + Jg.T @ PJ
-        views.append((r, Jg, Jp, Ci, PJ, np.asarray(img, float)))
+        views.append((r, Jg, Jp, Ci, PJ, img, np.repeat(g, 2)))
     G = S.shape[0]
     reg = _regularization(layout, solution.theta, T)
     if reg is not None:
@@ -447,16 +483,17 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None):
     except np.linalg.LinAlgError:
         Si = np.full((G, G), np.inf)
     s2, mids, sig_e = [], [], []
-    for r, Jg, Jp, Ci, PJ, img in views:
+    for r, Jg, Jp, Ci, PJ, img, g in views:
         K = img.shape[0]
         k = kernel(img, noise.length_px) if noise is not None and noise.ratio > 0 else None
         if noise is None:
-            s2.append(solution.sse / dof)
+            s2.append(sse / dof)
         else:
-            s2.append(white_variance(CornerView(img, -r.reshape(-1, 2), Jp), noise, k))
-        M = PJ.T @ PJ
+            s2.append(white_variance(CornerView(img, -(r / g).reshape(-1, 2), Jp / g[:, None]), noise, k))
+        GP = PJ * g[:, None]
+        M = GP.T @ GP
         if k is not None:
-            P3 = PJ.reshape(K, 2, -1)
+            P3 = GP.reshape(K, 2, -1)
             M = M + noise.ratio * np.einsum("kbp,kbq->pq", P3, np.einsum("kl,lbq->kbq", k, P3))
         mids.append(M)
         sig_e.append(None if k is None else noise.ratio * k)
@@ -464,28 +501,29 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None):
         meat = sum(v * M for v, M in zip(s2, mids))
         if reg is not None:
             # the penalty read as a prior: its residuals [px] weigh like a corner's, so
-            # they carry the corners' mean white variance; where no corner sees a
+            # they carry the corners' mean (weighted) variance; where no corner sees a
             # control point its sigma is then the prior's, and the halves' different
             # pulls towards zero are inside it (without this the sandwich is the
             # penalised estimate's scatter alone, its bias left out)
-            w = np.array([Jp.shape[0] for _, _, Jp, _, _, _ in views], float)
+            var = np.concatenate([v * view[6] ** 2 for v, view in zip(s2, views)])
             meat = meat.copy()
-            meat[:F, :F] += float(np.sum(w * np.array(s2)) / np.sum(w)) * (reg[1].T @ reg[1])
+            meat[:F, :F] += float(np.mean(var)) * (reg[1].T @ reg[1])
         Cg = Si @ meat @ Si
         Cg = 0.5 * (Cg + Cg.T)
     else:
         Cg = Si
     cov_poses = []
-    for (r, Jg, Jp, Ci, PJ, img), v, Sigma in zip(views, s2, sig_e):
+    for (r, Jg, Jp, Ci, PJ, img, g), v, Sigma in zip(views, s2, sig_e):
         B = Jg.T @ Jp
         if not np.all(np.isfinite(Cg)):
             cov_poses.append(np.full((6, 6), np.inf))
             continue
-        # dpose = Ci Jp^T e - Ci B^T dg, dg = Si sum PJ^T e; Sigma: the view's correlated
-        # part per axis (K, K), so (I + Sigma (x) I_2) Jp
-        Jp_S = Jp if Sigma is None else Jp + np.einsum("kl,lbq->kbq", Sigma, Jp.reshape(-1, 2, 6)).reshape(-1, 6)
-        own = v * Ci @ (Jp.T @ Jp_S) @ Ci
-        cross = v * Ci @ (Jp_S.T @ PJ) @ Si @ B @ Ci
+        # dpose = Ci Jp^T e - Ci B^T dg, dg = Si sum PJ^T e; the errors e are G (I + Sigma
+        # (x) I_2) G s2 with Sigma the view's correlated part per axis (K, K)
+        GJ = Jp * g[:, None]
+        GJ_S = GJ if Sigma is None else GJ + np.einsum("kl,lbq->kbq", Sigma, GJ.reshape(-1, 2, 6)).reshape(-1, 6)
+        own = v * Ci @ (GJ.T @ GJ_S) @ Ci
+        cross = v * Ci @ (GJ_S.T @ (PJ * g[:, None])) @ Si @ B @ Ci
         cp = own - cross - cross.T + Ci @ B.T @ Cg @ B @ Ci
         cov_poses.append(0.5 * (cp + cp.T))
     Ti = np.zeros((T.shape[0] + 2, G))
@@ -499,8 +537,9 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None):
 
 
 def corner_views(layout, solution, objs, imgs, bases=None):
-    """Each view's corners, residuals (projected - observed) and pose Jacobian at the
-    solution, as `corner_noise.CornerView`s (for `corner_noise.fit_corner_noise`)."""
+    """Each view's corners, residuals (projected - observed), pose Jacobian, the board's
+    local scale at each corner (`board_scale`) and the principal point at the solution, as
+    `corner_noise.CornerView`s (for `corner_noise.fit_corner_noise`)."""
     from pencilcal.toolkit.board.corner_noise import CornerView
 
     bases = list(bases) if bases is not None else [None] * len(objs)
@@ -508,5 +547,6 @@ def corner_views(layout, solution, objs, imgs, bases=None):
     out = []
     for pose, obj, img, basis in zip(solution.poses, objs, imgs, bases):
         r, _, Jp = _view(layout, solution.theta, T, pose, obj, img, basis, solution.warp)
-        out.append(CornerView(np.asarray(img, float), -r.reshape(-1, 2), Jp))
+        out.append(CornerView(np.asarray(img, float), -r.reshape(-1, 2), Jp, board_scale(pose, Jp),
+                              np.asarray(solution.theta[2:4], float)))
     return out

@@ -18,8 +18,23 @@ A least-squares pose with Jacobian J then has the covariance (the sandwich)
 ``sigma_w^2 (J^T J)^-1 J^T S J (J^T J)^-1`` with ``S = (I + c k) (x) I_2``
 (`correlated_covariance`), instead of ``sigma^2 (J^T J)^-1``.
 
+The white level also varies within a view (heteroscedastic errors): a corner seen on
+smaller or foreshortened squares, or nearer the image's edge, is noisier. Each corner's
+white variance is ``sigma_w^2 d`` with::
+
+    log d = -a log(s / s_view) + b rho^2
+
+s the board's local scale at the corner [px per board unit] (the square root of the
+determinant of d pixel / d board (x, y)), s_view its median over the view, rho the corner's
+distance from the principal point over ``radius_px`` (half the image's diagonal). The
+covariance is then ``sigma_w^2 D^1/2 (I + c k) D^1/2`` per axis, D = diag(d). The fit
+alternates: (a, b) with white errors, (c, l) on the residuals whitened by D, (a, b) again
+under (c, l), each by REML; (a, b) are kept only when they explain the residuals better
+at the 1 % level, and carry their sigmas (the restricted likelihood's curvature).
+`variance_factor` gives d, the weights of a weighted fit are ``1 / (sigma_w^2 d)``.
+
 Measured (docs/method.md): on the da Vinci frames c = 0.2-0.25 at l = 200-210 px, left and
-right alike.
+right alike; docs/calibration.md gives (a, b) on every shared set.
 
 Example
 -------
@@ -43,7 +58,7 @@ from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 
 __all__ = ["CornerNoise", "WHITE", "CornerView", "fit_corner_noise", "correlated_covariance", "kernel",
-           "restricted_nll", "white_variance"]
+           "restricted_nll", "white_variance", "variance_factor", "corner_features"]
 
 # views with fewer corners do not enter the fit (their residuals say little about the
 # correlation and their white level is poorly known)
@@ -64,6 +79,11 @@ _GOLDEN_STEPS = 6
 _EVIDENCE_LEVEL = 0.01
 _MIN_GAIN = 0.5 * chi2_isf(_EVIDENCE_LEVEL, 2)
 _KERNEL = "squared_exponential"
+# the heteroscedastic shape's search box (a: the power of the local scale, b: the growth
+# towards the edge) and the step of the curvature that gives their sigmas
+_SHAPE_BOUNDS = ((-6.0, 6.0), (-6.0, 6.0))
+_SHAPE_STEP = 0.05
+_SHAPE_ITERATIONS = 8
 
 
 @dataclass(frozen=True)
@@ -77,7 +97,17 @@ class CornerNoise:
     views, corners : int
         What it was fitted on (0 when given).
     log_likelihood_gain : float
-        REML log-likelihood of the fit minus that of white errors (evidence; 0 when given).
+        REML log-likelihood of the correlated part minus that of white errors at the same
+        heteroscedastic shape (evidence; 0 when given).
+    scale_power, edge : float
+        a and b of the heteroscedastic shape (the module's docstring): the white variance
+        goes as (local scale / view median)^-a and as exp(b rho^2). 0, 0: one level per view.
+    scale_power_std, edge_std : float
+        Their sigmas (REML curvature; 0 when given or not fitted).
+    radius_px : float
+        rho's unit [px]: half the image's diagonal where fitted.
+    shape_gain : float
+        REML log-likelihood of the shape minus that of one level per view (evidence).
     """
 
     ratio: float
@@ -85,18 +115,36 @@ class CornerNoise:
     views: int = 0
     corners: int = 0
     log_likelihood_gain: float = 0.0
+    scale_power: float = 0.0
+    edge: float = 0.0
+    scale_power_std: float = 0.0
+    edge_std: float = 0.0
+    radius_px: float = 1.0
+    shape_gain: float = 0.0
 
     def __post_init__(self):
         if not (math.isfinite(self.ratio) and self.ratio >= 0):
             raise InputError(f"corner noise ratio must be a finite number >= 0, got {self.ratio!r}")
         if not (math.isfinite(self.length_px) and self.length_px > 0):
             raise InputError(f"corner noise length must be a positive number of pixels, got {self.length_px!r}")
+        if not (math.isfinite(self.scale_power) and math.isfinite(self.edge)):
+            raise InputError("corner noise scale_power and edge must be finite numbers")
+        if not (math.isfinite(self.radius_px) and self.radius_px > 0):
+            raise InputError(f"corner noise radius must be a positive number of pixels, got {self.radius_px!r}")
+
+    @property
+    def heteroscedastic(self):
+        """Whether the white level varies within a view (a or b not 0)."""
+        return bool(self.scale_power or self.edge)
 
     def to_dict(self):
         """The record of the camera file's statistics and the calibration report."""
         return {"kernel": _KERNEL, "ratio": float(self.ratio), "length_px": float(self.length_px),
                 "views": int(self.views), "corners": int(self.corners),
-                "log_likelihood_gain": float(self.log_likelihood_gain)}
+                "log_likelihood_gain": float(self.log_likelihood_gain),
+                "scale_power": float(self.scale_power), "scale_power_std": float(self.scale_power_std),
+                "edge": float(self.edge), "edge_std": float(self.edge_std), "radius_px": float(self.radius_px),
+                "shape_gain": float(self.shape_gain)}
 
     @classmethod
     def from_dict(cls, d, source="camera"):
@@ -105,7 +153,10 @@ class CornerNoise:
             raise InputError(f"{source}: 'corner_noise' must be an object with kernel {_KERNEL!r}")
         try:
             return cls(float(d["ratio"]), float(d["length_px"]), int(d.get("views", 0)), int(d.get("corners", 0)),
-                       float(d.get("log_likelihood_gain", 0.0)))
+                       float(d.get("log_likelihood_gain", 0.0)), float(d.get("scale_power", 0.0)),
+                       float(d.get("edge", 0.0)), float(d.get("scale_power_std", 0.0)),
+                       float(d.get("edge_std", 0.0)), float(d.get("radius_px", 1.0)),
+                       float(d.get("shape_gain", 0.0)))
         except (KeyError, TypeError, ValueError):
             raise InputError(f"{source}: 'corner_noise' needs numbers 'ratio' and 'length_px'") from None
 
@@ -118,11 +169,46 @@ WHITE = CornerNoise(0.0, 1.0)
 class CornerView:
     """One view's data for the fit: raw pixels u (K, 2) [px], residuals r (K, 2) [px] and
     the Jacobian J (2K, P) of the residuals (rows u, v per corner) in the parameters the
-    view's fit estimated (its pose)."""
+    view's fit estimated (its pose); for the heteroscedastic shape also the board's local
+    scale at each corner (K,) [px per board unit] and the principal point (2,) [px]."""
 
     points: np.ndarray
     residuals: np.ndarray
     jacobian: np.ndarray
+    scale: np.ndarray | None = None
+    centre: np.ndarray | None = None
+
+
+def corner_features(points, scale, centre, radius_px):
+    """(K, 2): log(scale / its median) and rho^2 (distance from `centre` over `radius_px`,
+    squared) of one view's corners; points (K, 2) [px], scale (K,) [px per board unit]."""
+    s = np.asarray(scale, float)
+    u = (np.asarray(points, float) - np.asarray(centre, float)) / float(radius_px)
+    return np.stack([np.log(s / np.median(s)), np.sum(u * u, -1)], -1)
+
+
+def variance_factor(noise, points, scale, centre):
+    """d (K,): each corner's white variance relative to its view's level under `noise`
+    (ones for a model without a heteroscedastic shape).
+
+    >>> n = CornerNoise(0.0, 1.0, scale_power=2.0, radius_px=100.0)
+    >>> variance_factor(n, np.zeros((3, 2)), np.array([1.0, 2.0, 4.0]), np.zeros(2)).tolist()
+    [4.0, 1.0, 0.25]
+    """
+    K = np.asarray(points).shape[0]
+    if not noise.heteroscedastic or scale is None:
+        return np.ones(K)
+    f = corner_features(points, scale, centre, noise.radius_px)
+    return np.exp(-noise.scale_power * f[:, 0] + noise.edge * f[:, 1])
+
+
+def _whitened(view, d):
+    """The view with residuals and Jacobian divided by sqrt(d) (its corners' relative
+    variances): errors of one level per view, as the correlated model takes them."""
+    g = 1.0 / np.sqrt(np.asarray(d, float))
+    K = view.points.shape[0]
+    J = (view.jacobian.reshape(K, 2, -1) * g[:, None, None]).reshape(2 * K, -1)
+    return CornerView(view.points, np.asarray(view.residuals, float) * g[:, None], J, view.scale, view.centre)
 
 
 def kernel(points, length_px):
@@ -240,34 +326,13 @@ def _subset(view):
         return view
     keep = np.unique(np.round(np.linspace(0, K - 1, _MAX_FIT_CORNERS)).astype(int))
     rows = np.stack([2 * keep, 2 * keep + 1], 1).ravel()
-    return CornerView(view.points[keep], view.residuals[keep], view.jacobian[rows])
+    return CornerView(view.points[keep], view.residuals[keep], view.jacobian[rows],
+                      None if view.scale is None else np.asarray(view.scale)[keep], view.centre)
 
 
-def fit_corner_noise(views, image_size):
-    """Fit the correlated corner-error model to the residuals of many views (REML).
-
-    Parameters
-    ----------
-    views : sequence of CornerView
-        Each view's raw corners, residuals and Jacobian of its own parameters (its pose);
-        views with fewer than 8 corners are left out, and of a view with more than 128
-        only 128, spread evenly over its corner list, enter (the restricted likelihood of the
-        subset is exact for it; the corners counted are those used).
-    image_size : (width, height)
-        [px]; the lengths searched are 0.01-2 times the larger side.
-
-    Returns
-    -------
-    CornerNoise
-        The (ratio, length) of highest restricted likelihood, with the views and corners
-        used and the log-likelihood gain over white errors. Ratio 0 (white errors) when no
-        view has enough corners or the gain is not significant at the 1 % level (twice the
-        gain under chi-square(2): 4.6).
-    """
-    views = [_subset(v) for v in views if v.points.shape[0] >= _MIN_FIT_CORNERS]
-    if not views:
-        return WHITE
-    side = float(max(image_size))
+def _fit_correlation(views, side):
+    """(ratio, length [px], views, corners, gain) of the correlated part on views whose
+    residuals have one level per view (REML; the module's docstring)."""
     corners = int(sum(v.points.shape[0] for v in views))
     white = float(sum(_Spectral(v, side).nll(0.0)[0][0] for v in views))
     cache = {}
@@ -284,13 +349,151 @@ def fit_corner_noise(views, image_size):
     vals = [profile(g) for g in grid]
     i = int(np.argmin(vals))
     a, b = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-    x, _ = _golden(profile, a, b)
+    _golden(profile, a, b)
     best = min(cache, key=lambda k: cache[k][0])
     nll, ratio = cache[best]
     gain = white - nll
     if ratio <= 0 or gain < _MIN_GAIN:
-        return CornerNoise(0.0, math.exp(best), len(views), corners, float(max(gain, 0.0)))
-    return CornerNoise(float(ratio), float(math.exp(best)), len(views), corners, float(gain))
+        return 0.0, math.exp(best), len(views), corners, float(max(gain, 0.0))
+    return float(ratio), float(math.exp(best)), len(views), corners, float(gain)
+
+
+def _shape_nll(views, feats, whiten, ab):
+    """The restricted negative log-likelihood (constants dropped, each view's level
+    profiled) of the heteroscedastic shape ab = (a, b) under the correlation whose inverse
+    Cholesky factors (K, K) are `whiten` (None: white)."""
+    tot = 0.0
+    for v, f, W in zip(views, feats, whiten):
+        logd = -ab[0] * f[:, 0] + ab[1] * f[:, 1]
+        g = np.exp(-0.5 * logd)
+        K = v.points.shape[0]
+        r = np.asarray(v.residuals, float) * g[:, None]
+        J = v.jacobian.reshape(K, 2, -1) * g[:, None, None]
+        P = J.shape[-1]
+        if W is not None:
+            r = W @ r
+            J = (W @ J.reshape(K, 2 * P)).reshape(K, 2, P)
+        J2, r2 = J.reshape(2 * K, P), r.reshape(-1)
+        H = J2.T @ J2
+        Jr = J2.T @ r2
+        q = float(r2 @ r2 - Jr @ np.linalg.solve(H, Jr))
+        n = 2 * K - P
+        tot += 0.5 * (n * math.log(max(q, 1e-300) / n) + 2.0 * float(np.sum(logd)) + np.linalg.slogdet(H)[1])
+    return tot
+
+
+def _fit_shape(views, feats, whiten, start):
+    """((a, b), nll, (sigma_a, sigma_b)): the shape of least `_shape_nll` in the search box,
+    by damped Newton steps from `start` on central differences (the likelihood is smooth
+    and nearly quadratic in (a, b): 2-4 steps), its sigmas from the curvature there."""
+    lo = np.array([b[0] for b in _SHAPE_BOUNDS])
+    hi = np.array([b[1] for b in _SHAPE_BOUNDS])
+
+    def f(x):
+        return _shape_nll(views, feats, whiten, np.clip(x, lo, hi))
+
+    x = np.clip(np.asarray(start, float), lo, hi)
+    fx = f(x)
+    grad, H = _derivatives(f, x, fx)
+    for _ in range(_SHAPE_ITERATIONS):
+        w, V = np.linalg.eigh(H)
+        # a Newton step on the curvature made positive (the step stays downhill)
+        step = -V @ ((V.T @ grad) / np.maximum(np.abs(w), 1e-6))
+        t = 1.0
+        while t > 1e-3:
+            x2 = np.clip(x + t * step, lo, hi)
+            f2 = f(x2)
+            if f2 < fx:
+                break
+            t *= 0.5
+        else:
+            break
+        done = np.max(np.abs(x2 - x)) < 1e-3
+        x, fx = x2, f2
+        grad, H = _derivatives(f, x, fx)
+        if done:
+            break
+    try:
+        C = np.linalg.inv(H)
+        sd = np.where(np.diag(C) > 0, np.sqrt(np.abs(np.diag(C))), np.inf)
+    except np.linalg.LinAlgError:
+        sd = np.full(2, np.inf)
+    return x, float(fx), sd
+
+
+def _derivatives(f, x, f0, h=_SHAPE_STEP):
+    """(gradient (2,), Hessian (2, 2)) of f at x by central differences (f0 = f(x))."""
+    e = np.eye(2) * h
+    fp = [f(x + e[i]) for i in range(2)]
+    fm = [f(x - e[i]) for i in range(2)]
+    g = np.array([(fp[i] - fm[i]) / (2 * h) for i in range(2)])
+    H = np.diag([(fp[i] - 2 * f0 + fm[i]) / h ** 2 for i in range(2)])
+    H[0, 1] = H[1, 0] = (f(x + e[0] + e[1]) - f(x + e[0] - e[1]) - f(x - e[0] + e[1]) + f(x - e[0] - e[1])) / (4 * h * h)
+    return g, H
+
+
+def _whiteners(views, ratio, length_px):
+    """Per view the inverse Cholesky factor of I + c k (None for white errors)."""
+    if ratio <= 0:
+        return [None] * len(views)
+    out = []
+    for v in views:
+        L = np.linalg.cholesky(np.eye(v.points.shape[0]) + ratio * kernel(v.points, length_px))
+        out.append(np.linalg.solve(L, np.eye(L.shape[0])))
+    return out
+
+
+def fit_corner_noise(views, image_size, heteroscedastic=True):
+    """Fit the corner-error model to the residuals of many views (REML).
+
+    Parameters
+    ----------
+    views : sequence of CornerView
+        Each view's raw corners, residuals and Jacobian of its own parameters (its pose);
+        views with fewer than 8 corners are left out, and of a view with more than 128
+        only 128, spread evenly over its corner list, enter (the restricted likelihood of the
+        subset is exact for it; the corners counted are those used).
+    image_size : (width, height)
+        [px]; the lengths searched are 0.01-2 times the larger side, rho's unit is half the
+        diagonal.
+    heteroscedastic : bool
+        Also fit the white level's shape within a view (the module's docstring); needs
+        every view's ``scale`` and ``centre``.
+
+    Returns
+    -------
+    CornerNoise
+        The (ratio, length) of highest restricted likelihood, with the views and corners
+        used and the log-likelihood gain over white errors; (a, b) with their sigmas and
+        gain over one level per view. Ratio 0 (white errors) when no view has enough
+        corners or the gain is not significant at the 1 % level (twice the gain under
+        chi-square(2): 4.6); a = b = 0 likewise.
+
+    Example
+    -------
+    >>> fit_corner_noise([], (640, 480)) == WHITE
+    True
+    """
+    views = [_subset(v) for v in views if v.points.shape[0] >= _MIN_FIT_CORNERS]
+    if not views:
+        return WHITE
+    side = float(max(image_size))
+    radius = 0.5 * math.hypot(float(image_size[0]), float(image_size[1]))
+    if not heteroscedastic or any(v.scale is None or v.centre is None for v in views):
+        return CornerNoise(*_fit_correlation(views, side), radius_px=radius)
+    feats = [corner_features(v.points, v.scale, v.centre, radius) for v in views]
+    # alternate: the shape under white errors, the correlation on the views whitened by
+    # it, the shape again under that correlation
+    ab, _, _ = _fit_shape(views, feats, [None] * len(views), (0.0, 0.0))
+    corr = _fit_correlation([_whitened(v, np.exp(-ab[0] * f[:, 0] + ab[1] * f[:, 1])) for v, f in zip(views, feats)],
+                            side)
+    whiten = _whiteners(views, corr[0], corr[1])
+    ab, nll, sd = _fit_shape(views, feats, whiten, ab)
+    gain = _shape_nll(views, feats, whiten, (0.0, 0.0)) - nll
+    if gain < _MIN_GAIN:
+        return CornerNoise(*_fit_correlation(views, side), radius_px=radius, shape_gain=float(max(gain, 0.0)))
+    return CornerNoise(*corr, scale_power=float(ab[0]), edge=float(ab[1]), scale_power_std=float(sd[0]),
+                       edge_std=float(sd[1]), radius_px=radius, shape_gain=float(gain))
 
 
 def correlated_covariance(J, residuals, points, noise):
