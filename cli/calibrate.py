@@ -21,6 +21,7 @@ from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import atomic_paths
 from pencilcal.toolkit.io.images import open_images
 from pencilcal.validation.calibration_report import write_calibration_report
+from pencilcal.validation.calibration_checks import RANDOM_HALVES
 from pencilcal.validation.calibration_run import calibrate_checked
 
 from .common import (command, check_output, done, force_option, images_argument, max_pixels_option, quiet_option, run,
@@ -180,13 +181,15 @@ def _report(result, frames, decoded_index, source, board_path, image_size, fix_a
               help="Also a report: .json, or an .html page.")
 @click.option("--corners", "corners_path", type=click.Path(dir_okay=False), default=None,
               help="Also mrcal's corner cache (corners.vnl).")
+@click.option("--halves", type=click.IntRange(0, 1000), default=RANDOM_HALVES, show_default=True,
+              help="Random halves of the views calibrated apart as a check, besides odd/even.")
 @max_pixels_option
 @workers_option
 @force_option
 @quiet_option
 @run
 def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_corners, report_path, corners_path,
-              max_pixels, workers, force, quiet):
+              halves, max_pixels, workers, force, quiet):
     """Calibrate a camera from views of a board, and say whether it is good enough.
 
     \b
@@ -200,7 +203,8 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
     Views without a usable board are skipped, outlier views and corners rejected (with
     their reasons in --report); the board's warp is estimated and the sigmas hold the
     corner errors seen, correlated ones too. Two halves of the views are calibrated apart
-    as a check. --report writes .json (everything measured) or .html (the verdict, the
+    as a check (odd/even and --halves random ones, pooled; on a small set more halves read
+    the pooled figures more precisely). --report writes .json (everything measured) or .html (the verdict, the
     projection-uncertainty and cross-validation maps, advice on what views to add).
     --model splined fits mrcal's splined stereographic model (a B-spline correction on a
     grid of knots covering the image; .cameramodel holds it as mrcal's, COLMAP cannot);
@@ -233,7 +237,7 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
     candidates = _candidates(output, fix_aspect) if model == AUTO else CANDIDATES
     result = calibrate_checked(detections, board, image_size, model=model,
                                coefficients=None if model == AUTO else n_coef, fix_aspect=fix_aspect,
-                               min_corners=min_corners, candidates=candidates)
+                               min_corners=min_corners, candidates=candidates, repeats=halves)
     camera = result.camera
     report = _report(result, frames, decoded_index, source, board_path, image_size, fix_aspect, output,
                      corners_path)

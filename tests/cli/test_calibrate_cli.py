@@ -155,6 +155,15 @@ def test_quiet_and_other_formats(tmp_path, rendered):
         np.testing.assert_allclose(cam.K, TRUTH.K, atol=3.0)
 
 
+def test_halves_sets_the_random_splits(tmp_path, rendered):
+    images = scratch(tmp_path, rendered)
+    r = invoke(images, "--board", rendered / "board.yaml", "-o", tmp_path / "cam.json", "--report",
+               tmp_path / "rep.json", "--halves", "3", "--quiet")
+    assert r.exit_code == 0, r.output
+    cv = json.loads((tmp_path / "rep.json").read_text())["cross_validation"]
+    assert cv["random"]["repeats"] == 3 and cv["pooled"]["splits"] == 4
+
+
 # -------------------------------------------------------------------- no clobbering
 def test_existing_outputs_need_force(tmp_path, rendered):
     images = scratch(tmp_path, rendered)
@@ -227,6 +236,7 @@ def test_mixed_image_sizes(tmp_path, rendered):
     (["-o", "cam.json", "--model", "fisheye", "--coefficients", "5"], 2, "applies to --model opencv only"),
     (["-o", "cam.json", "--model", "fisheye", "--fix-aspect"], 2, "not available with --model fisheye"),
     (["-o", "cam.json", "--coefficients", "6"], 2, "'6' is not one of"),
+    (["-o", "cam.json", "--halves", "-1"], 2, "is not in the range 0<=x<=1000"),
     (["-o", "nofolder/cam.json"], 1, "does not exist"),
 ])
 def test_option_errors_before_any_work(tmp_path, rendered, monkeypatch, args, code, message):

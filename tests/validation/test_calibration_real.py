@@ -3,7 +3,7 @@
 What `pencilcal calibrate` does (`calibrate_checked`, the default opencv model with 5
 coefficients, the board's warp, the corner-noise sigmas) must pass its own two-halves check
 on every real calibration set of ../shared/data: pooled over the odd/even split and 16 random
-halves, chi-square per dof <= 1.5 and projection differences <= 1.3 x the predicted over the
+halves (48 on the small OpenCV sets), chi-square per dof <= 1.5 and projection differences <= 1.3 x the predicted over the
 region the views cover; the odd/even chi-square per dof alone <= 1.5 too. The modelling
 choices were made on the da Vinci left and the OpenCV chessboard left views; the right views
 of both and the RealSense set check them (docs/calibration.md has every figure).
@@ -44,6 +44,10 @@ SETS = {
     "realsense": ("realsense-charuco-7x5-calibio", "intrinsics_images/*.png", REALSENSE, (1280, 720)),
 }
 _CACHE = {}
+# random halves besides odd/even. The OpenCV sets have 13 and 14 views: over seeds, 17 splits
+# pool to a projection ratio of 1.01-1.30 on the right views (mean 1.24), 49 splits to
+# 0.98-1.18; they are cheap (4 s a check), the da Vinci sets (22 s) scatter less (0.83-1.14)
+REPEATS = {"opencv_left": 48, "opencv_right": 48}
 
 
 def detections(name):
@@ -63,7 +67,7 @@ def checked():
     def get(name):
         if name not in out:
             board, dets, size, _ = detections(name)
-            out[name] = calibrate_checked(dets, board, size)
+            out[name] = calibrate_checked(dets, board, size, repeats=REPEATS.get(name, 16))
         return out[name]
 
     return get
@@ -73,7 +77,7 @@ def checked():
 def test_the_calibration_passes_its_own_cross_validation(checked, name):
     res = checked(name)
     cv = res.checks.halves
-    assert cv["pooled"]["splits"] == 17
+    assert cv["pooled"]["splits"] == REPEATS.get(name, 16) + 1
     assert cv["pooled"]["chi2_per_dof"] <= 1.5, cv["pooled"]
     assert cv["pooled"]["projection_ratio"] <= 1.3, cv["pooled"]
     assert cv["odd_even"]["chi2_per_dof"] <= 1.5, cv["odd_even"]
