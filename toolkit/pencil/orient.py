@@ -425,11 +425,13 @@ def _printed_wedge(ln, pencil, lab, fit):
     itself where they say nothing different.
 
     Ink spreads on paper (dot gain) or is eaten away: a printed star's dark wedges are wider
-    or narrower than the light ones by the same distance along every edge, so each edge is
-    turned about the vertex by about that distance over its radius, the same way for every
-    wedge: seen from the vertex, a wider or narrower wedge (0.2 deg of a 2.8 deg wedge for
-    0.06 mm at 35 mm). A fit at the file's width turns the rotation to absorb what it can;
-    the labelling then leaves out the sectors where it cannot, and a width fitted to the
+    or narrower than the light ones by the same distance along every edge, and its edges, as
+    measured, come out turned the same way for every wedge, as a wider or narrower wedge
+    would (on a photograph-like render with 0.06 mm eaten away, 2.72 deg fitted for the
+    file's 2.81; exact lines of a wider or narrower wedge the rotation absorbs, so what turns
+    them is in their measurement: unequal dark and light widths change how neighbouring
+    blurred edges overlap). A fit at the file's width turns the rotation to absorb what it
+    can; the labelling then leaves out the sectors where it cannot, and a width fitted to the
     lines it kept is the file's again. So every line through the vertex is read as the edge
     the first fit predicts nearest to it (within a quarter of the gap to the next), and the
     pencil fitted with those labels at each width of WEDGE_RANGE times the file's at once
