@@ -129,9 +129,12 @@ def test_photographs_of_a_printed_star(photos):
     defocus and motion blur, noise, JPEG 60-85, k1 down to -0.3, markers and text beside the
     star, tilted 15-60 deg: the star's spokes used, the twin, the normal within its sigma,
     where the star spans 30 % of the frame's height or more (6 of these 8). Smaller (down to
-    20 %: its 128 edges 5 px apart at its rim) it is found or not (docs/method.md)."""
+    20 %: its 128 edges 5 px apart at its rim) it is found or not (docs/method.md).
+    Measured: 375 of 384 spokes, 6 twins right, errors 0.3-1.5 sigmas; without the wedges'
+    printed width fitted (`orient._printed_wedge`) one normal was 5.3 sigmas off (0.033 deg,
+    sigma 0.0062; now 0.0087 deg)."""
     big = [t for t in photos if t.conditions["fill"] >= 0.3]
     s = radial_summary(big)
-    assert len(big) == 6 and s["ok"] == 6 and s["spokes_used"] >= 0.9 and s["twin_right"] == 1.0
+    assert len(big) == 6 and s["ok"] == 6 and s["spokes_used"] >= 0.95 and s["twin_right"] == 1.0
     for t in big:
-        assert t.err_deg < 0.6 and t.err_deg < 4 * t.sigma_deg + 0.01, t.conditions
+        assert t.err_deg < 0.6 and t.err_deg < 3 * t.sigma_deg + 0.002, t.conditions
