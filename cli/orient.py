@@ -74,6 +74,8 @@ def _orient_image_task(frame, ctx):
     from pencilcal.toolkit.io.images import check_image_size
     from pencilcal.toolkit.detect.lines import fan_line_options, lines_record, radial_edge_count, radial_joint_mode
 
+    from pencilcal.toolkit.pencil.spec import may_be_star
+
     camera, pencil, detector, opts, edges, region, drawing = ctx
     if frame.image is None:
         fr = {"image": frame.name, "ok": False, "segments": np.zeros((0, 4)), "error": frame.error}
@@ -94,9 +96,54 @@ def _orient_image_task(frame, ctx):
         if radial is not None:
             fr, rec = _radial_frame(frame, camera, pencil, detector, lines_kw, opts)
         else:
+            before = None if state is None else dict(state)
             fr, rec = detected() if tracker is None else _tracked_bars_frame(detected, tracker, state)
+            if not edges and may_be_star(pencil) and _star_key(rec, pencil)[:3] != (True, True, True):
+                fr, rec = _as_star_frame(frame, camera, pencil, detector, lines_kw, opts, (fr, rec), before)
     # drawn by the overlay's own thread (`FrameOutputs`), or in the worker process
     return rec, partial(_drawn, frame, rec, fr["segments"], camera, drawing) if drawing else None
+
+
+#: A pencil of lines all round its vertex without a bar width (`spec.may_be_star`) whose bars
+#: fit fewer of its spokes than this fraction, or leave the twin unresolved, is measured
+#: again as a Siemens star's wedges along them: the fraction `_warn_frame` warns at.
+STAR_FALLBACK = 0.9
+
+
+def _star_key(rec, pencil):
+    """How good one measurement of a `may_be_star` frame is, compared as a tuple: an
+    estimate, most spokes used (STAR_FALLBACK of them), the twin resolved, the spokes used."""
+    used = int(rec.spokes_used or 0) if rec.ok else 0
+    return bool(rec.ok), used >= STAR_FALLBACK * pencil.count, bool(rec.ok and not rec.ambiguous), used
+
+
+def _as_star_frame(frame, camera, pencil, detector, lines_kw, opts, bars, before):
+    """A frame whose plain pencil file's lines (`spec.may_be_star`) the bars fitted poorly,
+    measured as the wedges of a star along them (`spec.as_star`): dark on light, then light
+    on dark unless the first used most spokes and resolved the twin. The best measurement
+    (`_star_key`; on a tie the bars', `bars`: (lines record, orientation)) is kept, its
+    orientation that of the file's pencil (the same spokes and target frame). Each
+    measurement starts from the tracking state `before` the bars' (a dict, None without
+    tracking), which is left as the kept measurement left it."""
+    from pencilcal.toolkit.detect.lines import radial_edge_count, radial_joint_mode
+    from pencilcal.toolkit.pencil.spec import as_star
+
+    state = opts.get("tracking")
+    best, best_state = bars, None if state is None else dict(state)
+    for polarity in ("dark", "light"):
+        if state is not None:
+            state.update(before)
+        star = as_star(pencil, polarity)
+        kw = dict(lines_kw, bars=False, bar_tracker=None, radial=radial_edge_count(star),
+                  radial_joint=radial_joint_mode(star))
+        fr, rec = _radial_frame(frame, camera, star, detector, kw, opts)
+        if _star_key(rec, pencil) > _star_key(best[1], pencil):
+            best, best_state = (fr, rec), None if state is None else dict(state)
+        if _star_key(rec, pencil)[:3] == (True, True, True):
+            break  # the other polarity's edges are at the same angles: it measures them again
+    if state is not None:
+        state.update(best_state)
+    return best
 
 
 def _radial_frame(frame, camera, pencil, detector, lines_kw, opts):

@@ -24,7 +24,8 @@ from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.pencil.estimator import pencil_covariance
 from pencilcal.toolkit.pencil.spec import Pencil, pencil_from_dict
 
-__all__ = ["RadialTrial", "radial_conditions", "radial_trial", "ideal_lines_trial", "radial_summary", "KINDS"]
+__all__ = ["RadialTrial", "radial_conditions", "radial_trial", "ideal_lines_trial", "radial_summary", "KINDS",
+           "photo_conditions", "photo_pencils", "photo_frame", "photo_trial"]
 
 #: What is rendered: Siemens stars of so many wedges, and a dartboard.
 KINDS = ("star16", "star32", "star64", "star128", "dartboard")
@@ -62,11 +63,21 @@ class RadialTrial:
 
 def radial_conditions(n, seed=0, kinds=KINDS):
     """n conditions drawn with `seed`, cycling through `kinds`: dicts with kind, polarity,
-    tilt_deg, blur_px, noise, jpeg, k1, vertex_px, axis_deg, roll_deg, fill, seed."""
+    tilt_deg, blur_px, noise, jpeg, k1, vertex_px, axis_deg, roll_deg, fill, seed.
+
+    The polarity alternates from one cycle of the kinds to the next (as many dark targets as
+    light), the first cycle's drawn from the seed on a stream of its own (the other draws are
+    the seed's as before): a draw of one frame, or of one of each kind, is dark for some seeds
+    and light for others (it was dark for every seed).
+
+    >>> sorted({radial_conditions(1, s)[0]["polarity"] for s in range(8)})
+    ['dark', 'light']
+    """
     rng = np.random.default_rng(seed)
+    first = int(np.random.default_rng([seed, 1]).integers(2))
     out = []
     for i in range(n):
-        out.append(dict(kind=kinds[i % len(kinds)], polarity=("dark", "light")[(i // len(kinds)) % 2],
+        out.append(dict(kind=kinds[i % len(kinds)], polarity=("dark", "light")[(first + i // len(kinds)) % 2],
                         tilt_deg=float(rng.uniform(15, 60)), blur_px=float(rng.uniform(0.6, 1.5)),
                         noise=float(rng.uniform(1.0, 3.0)), jpeg=int(rng.integers(70, 96)),
                         k1=float(rng.uniform(-0.3, 0.0)), vertex_px=rng.uniform([540, 400], [740, 560]).tolist(),
@@ -116,10 +127,26 @@ def _render_and_orient(cond):
 
 def radial_trial(cond):
     """Render, detect and orient one frame of `cond` (`radial_conditions`); a `RadialTrial`."""
-    cam, pen, R, t, found, rec = _render_and_orient(cond)
+    return _compared(cond["kind"], cond, *_render_and_orient(cond))
+
+
+def photo_trial(cond):
+    """Photograph (`photo_frame`), detect and orient one frame of `cond` (`photo_conditions`)
+    with the pencil file that gives the star's shape, as `orient IMAGES` does
+    (`orient_radial_edges`); a `RadialTrial` of kind "photo<wedges>"."""
+    from pencilcal.toolkit.detect.lines import radial_edge_count, radial_joint_mode
+    from pencilcal.toolkit.detect.radial import orient_radial_edges
+
+    img, cam, R, t = photo_frame(cond)
+    pen = photo_pencils(cond)[1]
+    found, rec = orient_radial_edges(img, cam, pen, edges=radial_edge_count(pen), joint=radial_joint_mode(pen))
+    return _compared(f"photo{cond['wedges']}", cond, cam, pen, R, t, found, rec)
+
+
+def _compared(kind, cond, cam, pen, R, t, found, rec):
+    """The `RadialTrial` of one oriented frame against its truth R, t."""
     if not rec.ok:
-        return RadialTrial(cond["kind"], pen.count, 0, False, False, False, np.inf, np.nan, np.nan, np.inf, None, None,
-                           cond)
+        return RadialTrial(kind, pen.count, 0, False, False, False, np.inf, np.nan, np.nan, np.inf, None, None, cond)
     n_true = R[:, 2]
     err = np.degrees(np.arccos(np.clip(np.asarray(rec.normal) @ n_true, -1, 1)))
     err_twin = np.degrees(np.arccos(np.clip(np.asarray(rec.normal_twin) @ n_true, -1, 1)))
@@ -127,7 +154,7 @@ def radial_trial(cond):
     twin_right = resolved and err < err_twin
     n_est = np.asarray(rec.normal if (twin_right or not resolved and err <= err_twin) else rec.normal_twin)
     ln = rec.lines
-    th = pen.edge_angles()[0][np.asarray(ln["spoke"], int)]
+    th = np.asarray(ln["theta"], float)  # the edges' target angles as fitted (a star's wedges as wide as printed)
     R_est = np.asarray(rec.R_cam_from_target if n_est is rec.normal else rec.R_cam_from_target_twin, float)
     cov_est = _normal_cov(R_est, ln, th)
     x_true = t[:2] / t[2]
@@ -136,7 +163,7 @@ def radial_trial(cond):
     circ_err = None
     if rec.circle_normal is not None:
         circ_err = float(np.degrees(np.arccos(np.clip(np.asarray(rec.circle_normal) @ n_true, -1, 1))))
-    return RadialTrial(cond["kind"], pen.count, int(rec.spokes_used), True, resolved, bool(twin_right),
+    return RadialTrial(kind, pen.count, int(rec.spokes_used), True, resolved, bool(twin_right),
                        float(min(err, err_twin) if not resolved else (err if twin_right else err_twin)),
                        float(rec.normal_sigma_deg), float(np.degrees(np.sqrt(np.trace(cov_true)))), chi2, circ_err,
                        rec.circle_normal_sigma_deg, cond)
@@ -235,3 +262,69 @@ def radial_summary(trials):
             "rmse_deg": rmse, "bound_deg": rb, "ratio": rmse / rb if ok else np.nan,
             "coverage": float(np.mean(chi2 <= _CHI2_2_68)) if ok else np.nan,
             "circle_rmse_deg": float(np.sqrt(np.mean(circ**2))) if circ.size else None}
+
+
+#: The photographed star's pencil: 64 wedges, as the check's printed star.
+PHOTO_WEDGES = 64
+
+
+def photo_conditions(n, seed=0, wedges=(PHOTO_WEDGES,)):
+    """n conditions of a webcam's photograph of a printed star (`toolkit.synth.radial_photo`)
+    drawn with `seed`: dicts with wedges, polarity, tilt_deg, k1, vertex_px, axis_deg,
+    roll_deg, fill (the star's diameter over the frame's height, 0.2-0.6), gain_mm (dot
+    gain, -0.1..0.15 mm), centre_mm and centre_grey (a grey disc where the print filled in,
+    half the frames), sheet_deg, sheet_shift, desk, clutter, paper, exposure, shading,
+    shading_deg, vignette, specular (half the frames) and specular_px, blur_px, defocus_px,
+    motion_px, motion_deg, noise, jpeg (60-85), seed. Polarity is drawn, not set by index."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        fill = float(rng.uniform(0.2, 0.6))
+        r = fill * 480.0 * 1.15  # the star's radius in px, and room for the tilt's stretch
+        c = dict(wedges=int(wedges[i % len(wedges)]), polarity=str(rng.choice(["dark", "light"], p=[0.75, 0.25])),
+                 tilt_deg=float(rng.uniform(15, 60)), k1=float(rng.uniform(-0.3, 0.0)),
+                 vertex_px=[float(rng.uniform(min(640, r + 60), max(640, 1220 - r))),
+                            float(rng.uniform(min(480, r + 40), max(480, 920 - r)))],
+                 axis_deg=float(rng.uniform(0, 360)), roll_deg=float(rng.uniform(0, 360)), fill=fill,
+                 gain_mm=float(rng.uniform(-0.1, 0.15)),
+                 centre_mm=float(rng.uniform(2, 9)) if rng.random() < 0.5 else 0.0,
+                 centre_grey=float(rng.uniform(0.15, 0.5)), sheet_deg=float(rng.uniform(-20, 20)),
+                 sheet_shift=[float(rng.uniform(-8, 8)), float(rng.uniform(-15, 15))],
+                 desk=float(rng.uniform(0.06, 0.5)), clutter=int(rng.integers(6, 20)),
+                 paper=float(rng.uniform(0.7, 0.9)), exposure=float(rng.uniform(0.8, 1.1)),
+                 shading=float(rng.uniform(0.1, 0.6)), shading_deg=float(rng.uniform(0, 360)),
+                 vignette=float(rng.uniform(0.1, 0.5)), specular=float(rng.uniform(0.1, 0.6)) * (rng.random() < 0.5),
+                 blur_px=float(rng.uniform(0.5, 1.0)), defocus_px=float(rng.uniform(0.0, 2.0)),
+                 motion_px=float(rng.uniform(0.0, 2.5)), motion_deg=float(rng.uniform(0, 180)),
+                 noise=float(rng.uniform(1.0, 4.0)), jpeg=int(rng.integers(60, 86)), seed=int(rng.integers(1 << 30)))
+        x, y = c["vertex_px"]
+        c["specular_px"] = [x + float(rng.uniform(-r, r)), y + float(rng.uniform(-r, r)), float(rng.uniform(40, 160))]
+        out.append(c)
+    return out
+
+
+def photo_pencils(cond):
+    """(the star as printed: shape wedge from the vertex, the pencil file with its shape:
+    radius [12, 70] mm, the plain pencil file: rays along the wedges' centre lines, radius
+    [12, 70] mm, no shape) of a `photo_conditions` condition."""
+    n = cond["wedges"]
+    base = {"start_deg": 0.0, "step_deg": 360.0 / n, "count": n}
+    printed = pencil_from_dict(dict(base, shape="wedge", radius=[0.0, _STAR_RADIUS], polarity=cond["polarity"]))
+    shaped = pencil_from_dict(dict(base, shape="wedge", radius=[12.0, _STAR_RADIUS], polarity=cond["polarity"]))
+    return printed, shaped, pencil_from_dict(dict(base, radius=[12.0, _STAR_RADIUS]))
+
+
+def photo_frame(cond):
+    """The photograph of `cond` (`photo_conditions`): (image (960, 1280) uint8, camera, R,
+    t), the star's vertex at the target frame's origin."""
+    from pencilcal.toolkit.synth.radial import linear_layers, radial_pose
+    from pencilcal.toolkit.synth.radial_photo import photo_layers, photo_sensor
+
+    cam = _camera(cond["k1"])
+    printed, _, _ = photo_pencils(cond)
+    R, t = radial_pose(cam, cond["vertex_px"], cond["tilt_deg"], _STAR_RADIUS, fill=cond["fill"],
+                       axis_deg=cond["axis_deg"], roll_deg=cond["roll_deg"])
+    rng = np.random.default_rng(cond["seed"])
+    layers = photo_layers(printed, cond, rng)
+    img = photo_sensor(linear_layers(cam, R, t, layers, 0.25), cond, rng)
+    return img, cam, R, t

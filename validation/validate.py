@@ -72,10 +72,10 @@ class FanLines:
             from pencilcal.toolkit.detect.radial import orient_radial_edges
 
             # trimmed as orient IMAGES trims them (beyond the ring other print turns an edge),
-            # and with its shortest edge (1/30 of the frame's smaller side)
+            # and with its shortest edge (an edge segment's, 20 px)
             found, _ = orient_radial_edges(image, camera, self.pencil, edges=radial, valid_region=self.valid_region,
                                            joint=radial_joint_mode(self.pencil),
-                                           min_length=default_min_length(np.shape(image), bars=bars))
+                                           min_length=default_min_length(np.shape(image), bars=False))
         elif bars:
             # the bars `orient IMAGES` would find (lines_record's default shortest bar)
             found = detect_bars(image, self.detector, camera=camera, polarity=polarity, valid_region=self.valid_region,

@@ -140,14 +140,52 @@ def test_lines_radial_writes_the_edges_and_circle_points(star_photo):
     assert r.exit_code != 0 and "only with --radial" in r.output
 
 
-def test_a_star_described_as_lines_is_told_so(star_photo):
-    """The star's pencil file without its shape (32 rays, as for a fan of bars): its wedges
-    are taken for bars, few fit, and the warning says what the file lacks."""
-    d, _ = star_photo
+def test_a_star_described_as_lines_is_measured_as_its_wedges(star_photo):
+    """The star's pencil file without its shape (32 rays along the wedges' centre lines, as
+    for a fan of bars): the bars found use few of its spokes, so the frame is measured again
+    as a star's wedges along them (`spec.as_star`): every spoke used, the normal as with the
+    file that says so. Before, the wedges were taken for bars and the warning said what the
+    file lacks."""
+    d, R = star_photo
     (d / "plain.yaml").write_text("start_deg: 0\nstep_deg: 11.25\ncount: 32\n")
     r = _invoke(orient, d / "frame.jpg", "--camera", d / "camera.json", "--pencil", d / "plain.yaml", "-o",
                 d / "o3.json")
-    assert "shape: wedge or edge" in r.output or "no frame gave an orientation" in r.output
+    assert r.exit_code == 0, r.output
+    assert "shape: wedge or edge" not in r.output
+    rec = json.loads((d / "o3.json").read_text())["frames"][0]
+    assert rec["spokes_used"] == 32 and rec["lines_used"] >= 60
+    err = min(np.degrees(np.arccos(np.clip(np.dot(rec[k], R[:, 2]), -1, 1))) for k in ("normal", "normal_twin"))
+    assert err < 3 * rec["normal_sigma_deg"] + 0.005
+
+
+def test_a_fan_of_bars_is_not_taken_for_a_star(tmp_path):
+    """Bars all round the vertex, described by a plain pencil file, are measured as bars
+    (their centre lines are the spokes): the star's measurement is only tried where the
+    bars fit poorly."""
+    from pencilcal.toolkit.camera.model import Camera
+    from pencilcal.toolkit.pencil.spec import pencil_from_dict, write_pencil
+    from pencilcal.toolkit.synth.radial import radial_pose, render_layers
+    from pencilcal.toolkit.synth.polygons import rect
+
+    cam = Camera("opencv", 1280, 960, [[1000.0, 0, 643.1], [0, 1000.5, 477.4], [0, 0, 1]], [-0.1, 0.0, 0.0, 0.0])
+    pen = pencil_from_dict({"start_deg": 0, "step_deg": 30, "count": 12, "radius": [15, 70]})
+    bars = []
+    for a in pen.angles:
+        u, n = np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])
+        bars.append(np.array([15 * u - n, 70 * u - n, 70 * u + n, 15 * u + n]))
+    R, t = radial_pose(cam, (640, 480), 35.0, 70.0, fill=0.8, axis_deg=20)
+    img = render_layers(cam, R, t, [([rect(-90, -90, 90, 90)], 0.85), (bars, 0.045)], blur_px=1.0, noise=1.5,
+                        gamma=2.2, rng=3)
+    cv2.imwrite(str(tmp_path / "fan.png"), img)
+    write_camera(tmp_path / "camera.json", cam)
+    write_pencil(tmp_path / "pencil.yaml", pen)
+    r = _invoke(orient, tmp_path / "fan.png", "--camera", tmp_path / "camera.json", "--pencil",
+                tmp_path / "pencil.yaml", "-o", tmp_path / "o.json", "-q")
+    assert r.exit_code == 0, r.output
+    rec = json.loads((tmp_path / "o.json").read_text())["frames"][0]
+    assert rec["spokes_used"] == 12 and rec["lines_used"] == 12  # one centre line a bar, not two edges
+    err = min(np.degrees(np.arccos(np.clip(np.dot(rec[k], R[:, 2]), -1, 1))) for k in ("normal", "normal_twin"))
+    assert err < 3 * rec["normal_sigma_deg"] + 0.01
 
 
 def _makers_print(boundaries, turn_deg, length=45.0, width=25.0):
@@ -204,7 +242,7 @@ def test_orient_trims_a_dartboards_edges_at_the_double_ring(cluttered_dartboard)
     assert r.exit_code == 0, r.output
     got = json.loads((tmp_path / "o.json").read_text())["frames"][0]
     assert "lines" not in got  # the first pass's labelled lines are not written
-    ml = default_min_length(img.shape, bars=True)  # the shortest edge orient IMAGES keeps
+    ml = default_min_length(img.shape, bars=False)  # the shortest edge orient IMAGES keeps
     _, trimmed = orient_radial_edges(img, cam, pen, edges=20, min_length=ml)
     plain = detect_radial_edges(img, cam, edges=20, min_length=ml)
     untrimmed = orient_segments(cam, plain.segments, pen, angle_sigma=plain.angle_sigma,

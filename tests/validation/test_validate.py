@@ -101,7 +101,7 @@ def test_fan_lines_trim_a_dartboards_boundaries_at_the_double_ring():
 
     img, cam, pen, R, t = dartboard_with_print()
     lines = FanLines(pen)(img, cam, None)
-    found, _ = orient_radial_edges(img, cam, pen, edges=20, min_length=default_min_length(img.shape, bars=True))
+    found, _ = orient_radial_edges(img, cam, pen, edges=20, min_length=default_min_length(img.shape, bars=False))
     assert np.array_equal(lines["segments"], found.segments)  # the lines orient IMAGES measures
     # each line's image angle (normalised coordinates, outwards) against the nearest boundary's
     ideal = cam.undistort_pixels(lines["segments"].reshape(-1, 2)).reshape(-1, 4)

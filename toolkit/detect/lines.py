@@ -34,8 +34,10 @@ __all__ = ["default_min_length", "detect_frame_lines", "lines_record", "fan_line
 def default_min_length(shape, bars):
     """Shortest line [px] written by default for a frame of `shape` (H, W[, C]).
 
-    20 px for edge segments. For bars 20 px or 1/30 of the frame's smaller side, whichever
-    is longer (36 px at 1080p): relative to the frame as OpenCV's ArUco
+    20 px for edge segments, a radial target's edges among them (`detect_frame_lines` with
+    ``radial``: only edges through the vertex are looked for there, and a small star's are
+    short). For bars 20 px or 1/30 of the frame's smaller side, whichever is longer (36 px
+    at 1080p): relative to the frame as OpenCV's ArUco
     ``minMarkerPerimeterRate``, since a spoke that short carries ~1/100 of the weight of
     one across a sixth of the frame (angle variance ~ 1 / length^3) and, on a busy frame,
     the shorter fragments are mostly texture.
@@ -172,7 +174,7 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         them, in ``extra["ideal"]`` (M, 4) (`lines_record`).
     """
     if min_length is None:
-        min_length = default_min_length(np.shape(image), bars)
+        min_length = default_min_length(np.shape(image), bars and radial is None)  # a radial target's are edges
     circle_points = None
     if radial is not None:
         from pencilcal.toolkit.detect.radial import detect_radial_edges, orient_radial_edges

@@ -46,6 +46,8 @@ __all__ = [
     "POLARITIES",
     "Pencil",
     "pencil_from_dict",
+    "may_be_star",
+    "as_star",
     "read_pencil",
     "write_pencil",
     "spoke_directions",
@@ -150,6 +152,35 @@ class Pencil:
         if self.circles is not None:
             d["circles"] = [float(c) for c in self.circles]
         return d
+
+
+def may_be_star(pencil):
+    """True for a pencil file that may describe a Siemens star without saying so: lines all
+    round the vertex (`Pencil.full_circle`), no bar width, at least 8 of them. Such a file's
+    spokes may be a star's wedges' centre lines (`as_star`), which the wedges' edges measure.
+
+    >>> may_be_star(pencil_from_dict({"start_deg": 0, "step_deg": 5.625, "count": 64}))
+    True
+    """
+    return pencil.shape == "line" and pencil.width is None and pencil.count >= 8 and pencil.full_circle
+
+
+def as_star(pencil, polarity="dark"):
+    """The Siemens star a pencil of lines (`may_be_star`) describes when its spokes are the
+    centre lines of its wedges (dark ones on a light ground for `polarity` "dark", light on
+    dark for "light"), each wedge half the smallest gap wide: the same spokes, vertex, radius
+    and circles, shape "wedge". A printed star's wedges are rarely exactly that wide (the
+    ink spreads); the orientation, fitted to their edges, tolerates it (docs/method.md).
+
+    >>> s = as_star(pencil_from_dict({"start_deg": 0, "step_deg": 5.625, "count": 64, "radius": [12, 70]}))
+    >>> s.shape, round(float(np.degrees(s.wedge)), 4), s.polarity, s.radius.tolist()
+    ('wedge', 2.8125, 'dark', [12.0, 70.0])
+    """
+    if polarity not in POLARITIES:
+        raise InputError(f"polarity must be one of {', '.join(POLARITIES)}, got {polarity!r}")
+    a = np.sort(np.remainder(pencil.angles, 2 * np.pi))
+    gap = float(np.min(np.diff(np.r_[a, a[0] + 2 * np.pi])))
+    return Pencil(pencil.angles, pencil.vertex, pencil.radius, None, "wedge", 0.5 * gap, polarity, pencil.circles)
 
 
 #: Most spokes a pencil file may give. A printed fan has a few dozen; past a few hundred the

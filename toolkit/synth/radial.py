@@ -39,7 +39,8 @@ from pencilcal.toolkit.synth.polygons import annular_sector
 from pencilcal.toolkit.synth.raster import target_coverage
 from pencilcal.toolkit.synth.render import REFLECTANCE, sensor_image
 
-__all__ = ["DARTBOARD", "star_layers", "dartboard_pencil", "dartboard_layers", "render_layers", "radial_pose"]
+__all__ = ["DARTBOARD", "star_layers", "dartboard_pencil", "dartboard_layers", "render_layers", "linear_layers",
+           "radial_pose"]
 
 #: A regulation steel-tip dartboard [mm] and its shades (linear reflectance of its colours'
 #: luminance): 20 sectors of 18 deg, their boundaries on lines through the centre at
@@ -151,15 +152,25 @@ def render_layers(camera, R_cam_from_target, t_cam_from_target, layers, *, backg
     if (-R.T @ t)[2] >= 0:
         raise InputError("the camera is behind the target (it must see the printed face, z < 0 side)")
     rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
-    img = np.full((camera.height, camera.width), float(background))
-    for polys, refl in layers:
-        c = np.clip(target_coverage(camera, R, t, [(p, 1) for p in polys]), 0.0, 1.0)
-        img = img * (1.0 - c) + float(refl) * c
+    img = linear_layers(camera, R, t, layers, background)
     out = sensor_image(img[..., None], float(lighting), float(exposure), blur_px, float(gamma), noise, rng)
     if jpeg_quality is not None:
         ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
         out = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
     return out
+
+
+def linear_layers(camera, R_cam_from_target, t_cam_from_target, layers, background=0.3):
+    """The linear scene (H, W) of target layers as `camera` sees them, before any sensor:
+    each layer's polygons painted with exact area coverage over what is already there, on a
+    uniform `background` reflectance (`render_layers`' first step)."""
+    R = np.asarray(R_cam_from_target, float)
+    t = np.asarray(t_cam_from_target, float).reshape(3)
+    img = np.full((camera.height, camera.width), float(background))
+    for polys, refl in layers:
+        c = np.clip(target_coverage(camera, R, t, [(p, 1) for p in polys]), 0.0, 1.0)
+        img = img * (1.0 - c) + float(refl) * c
+    return img
 
 
 def radial_pose(camera, vertex_px, tilt_deg, radius, *, fill=0.6, axis_deg=0.0, roll_deg=0.0):
