@@ -444,7 +444,10 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
     pixel_evidence : float or None
         On a colour frame, a shaft of the cues is kept only where the learned instrument map
         inside its band reaches this (`shaft.pixel_evidence.MIN_PIXEL_EVIDENCE`, 0.1: a
-        tissue band with two long edges is not instrument-like inside); None: not judged.
+        tissue band with two long edges is not instrument-like inside), or, with
+        tissue_colour, where it is darker than its sides and its tissue colour at most
+        `shaft.grey_material.GREY_TISSUE_COLOUR` (a grey material the map does not know: a
+        shaft in haze, a black one on shadowed tissue); None: not judged.
     tissue_colour : float or None
         On a colour frame, a shaft of the cues is kept only where its inside's colour along
         the tissue's hue stays under this fraction of the frame's median
