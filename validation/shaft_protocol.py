@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pencilcal.toolkit.detect.shaft.grey_material import kept
 from pencilcal.toolkit.detect.shaft.parts import PART_CUE
 from pencilcal.validation.shaft_score import Tolerance, score_frame, summarize
 
@@ -106,10 +107,13 @@ def filtered(detections, setting, diagonal, evidence=0.0, colour=float("inf"), p
     """The detections (list of dict, lines.json shaft records) whose score reaches setting x
     diagonal [px] (an instrument region's, cue `PART_CUE`: part x diagonal), whose
     ``pixel_evidence`` (where they carry one) reaches evidence and whose ``tissue_colour``
-    (where they carry one) stays within colour."""
-    return [d for d in detections
-            if float(d.get("score", 0.0)) >= (part if d.get("cue") == PART_CUE else setting) * diagonal
-            and float(d.get("pixel_evidence", 1.0)) >= evidence and float(d.get("tissue_colour", 0.0)) <= colour]
+    (where they carry one) stays within colour; one darker than its sides and greyer than
+    the tissue is kept whatever its evidence (`toolkit.detect.shaft.grey_material.kept`)."""
+    keep = kept([float(d.get("pixel_evidence", 1.0)) for d in detections],
+                [float(d.get("tissue_colour", 0.0)) for d in detections], evidence, colour,
+                dark=np.array([d.get("polarity") == "dark" for d in detections], bool))
+    return [d for d, k in zip(detections, keep)
+            if k and float(d.get("score", 0.0)) >= (part if d.get("cue") == PART_CUE else setting) * diagonal]
 
 
 def _scores(frames, setting, diagonal, tol, evidence=0.0, colour=float("inf"), part=float("inf")):

@@ -68,6 +68,7 @@ from pencilcal.toolkit.detect.shaft.axis import midline_from_edges
 from pencilcal.toolkit.detect.shaft.silhouette import EdgeLine
 from pencilcal.toolkit.detect.shaft.edge_cue import bands_from_edges, drop_repeated, edge_cue, refit_edges, unsigned_lines
 from pencilcal.toolkit.detect.shaft.material_cue import material_cue, robust_noise, select
+from pencilcal.toolkit.detect.shaft.grey_material import GREY_TISSUE_COLOUR, kept
 from pencilcal.toolkit.detect.shaft.pencil_search import pencil_search
 from pencilcal.toolkit.detect.shaft.pixel_evidence import MIN_PIXEL_EVIDENCE
 from pencilcal.toolkit.detect.shaft.pixel_evidence import pixel_evidence as shaft_pixel_evidence
@@ -443,7 +444,10 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
     pixel_evidence : float or None
         On a colour frame, a shaft of the cues is kept only where the learned instrument map
         inside its band reaches this (`shaft.pixel_evidence.MIN_PIXEL_EVIDENCE`, 0.1: a
-        tissue band with two long edges is not instrument-like inside); None: not judged.
+        tissue band with two long edges is not instrument-like inside), or, with
+        tissue_colour, where it is darker than its sides and its tissue colour at most
+        `shaft.grey_material.GREY_TISSUE_COLOUR` (a grey material the map does not know: a
+        shaft in haze, a black one on shadowed tissue); None: not judged.
     tissue_colour : float or None
         On a colour frame, a shaft of the cues is kept only where its inside's colour along
         the tissue's hue stays under this fraction of the frame's median
@@ -492,10 +496,12 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
 
 
 def judged(image, camera, shafts, validity, work=None, pixel_evidence=MIN_PIXEL_EVIDENCE,
-           tissue_colour=MAX_TISSUE_COLOUR):
+           tissue_colour=MAX_TISSUE_COLOUR, grey=GREY_TISSUE_COLOUR):
     """The shafts (list of `Shaft`) of a colour frame that are instrument-like: those whose
-    pixel evidence (`shaft.pixel_evidence`) reaches pixel_evidence and whose tissue colour
-    (`shaft.tissue_colour`) stays within tissue_colour (either None: not judged); a grey
+    pixel evidence (`shaft.pixel_evidence`) reaches pixel_evidence, or whose tissue colour is
+    at most grey where it is darker than its sides (a band greyer than the tissue,
+    `shaft.grey_material`; None: the evidence alone), and whose tissue colour (`shaft.tissue_colour`) stays within tissue_colour
+    (either None: not judged); a grey
     frame's all. Every shaft the detector returns passes here, whichever path found it (the
     cues, the fulcrum prior's angle search, tracking): each is judged on its own, so the
     order and the others kept do not change a verdict.
@@ -505,14 +511,22 @@ def judged(image, camera, shafts, validity, work=None, pixel_evidence=MIN_PIXEL_
     """
     if np.ndim(image) != 3 or not shafts:
         return list(shafts)
+    ev = np.ones(len(shafts))
     if pixel_evidence is not None:
-        ev = shaft_pixel_evidence(image, shafts, camera, validity=validity,
-                                  reductions=None if work is None else work.reductions)
-        shafts = [s for s, e in zip(shafts, ev) if e >= pixel_evidence]
-    if tissue_colour is not None and shafts:
-        tc = shaft_tissue_colour(image, shafts, validity=validity)
-        shafts = [s for s, t in zip(shafts, tc) if t <= tissue_colour]
-    return list(shafts)
+        ev = np.asarray(shaft_pixel_evidence(image, shafts, camera, validity=validity,
+                                             reductions=None if work is None else work.reductions), float)
+    tc = np.zeros(len(shafts))
+    if tissue_colour is not None:
+        # the colour of those the evidence keeps, and of the dark others where it may keep
+        # them (a band greyer than the tissue: `shaft.grey_material`); the rest not measured
+        k = np.arange(len(shafts)) if pixel_evidence is None else np.flatnonzero(
+            (ev >= pixel_evidence) | ((grey is not None) & np.array([s.polarity == "dark" for s in shafts])))
+        tc = np.full(len(shafts), np.nan)
+        if k.size:
+            tc[k] = shaft_tissue_colour(image, [shafts[i] for i in k], validity=validity)
+    keep = kept(ev, tc, pixel_evidence, tissue_colour, np.nan if grey is None else grey,
+                np.array([s.polarity == "dark" for s in shafts]))
+    return [s for s, k in zip(shafts, keep) if k]
 
 
 def detect_through(image, camera, alternatives, **options):

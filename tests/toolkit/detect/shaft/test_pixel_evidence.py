@@ -45,7 +45,10 @@ def test_detect_shafts_hook():
     img = _frame()
     kept = detect_shafts(img)                                    # the shipped least evidence
     assert len(kept) == len(detect_shafts(img, pixel_evidence=None)) >= 1
-    assert detect_shafts(img, pixel_evidence=1.01) == []        # none can reach it
+    # none can reach it: without the tissue colour, the evidence alone decides; with it, a
+    # dark band greyer than the tissue is kept whatever its evidence (`shaft.grey_material`)
+    assert detect_shafts(img, pixel_evidence=1.01, tissue_colour=None) == []
+    assert len(detect_shafts(img, pixel_evidence=1.01)) == sum(s.polarity == "dark" for s in kept)
     grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)                  # a grey frame is not judged
     assert len(detect_shafts(grey, pixel_evidence=1.01)) == len(detect_shafts(grey, pixel_evidence=None))
 
