@@ -6,12 +6,14 @@ wrist and jaws lie beyond the shaft's far end, along its axis. A shaft close to 
 wide and seen along few of its widths before its collar, while a jaw beyond it is narrow and
 can be seen along many of its own widths, with two straight edges: as a band of the material
 cue it looks more like a shaft than the shaft does. So where a band's run is cut by the
-border of the view (`shaft.region_bands.RegionBand.reach_run`), a band that ends inside the
-view at both ends and lies beyond that band's far end, within its width of its axis, with
-its extension running into it (the instrument's material continues from one into the other),
-is that instrument's distal part (`beyond_entry`): not a shaft of its own. No constant: the
-far end, the band's own width and the extension's overlap (`_TOUCH` of the smaller area) say
-it.
+border of the view (`shaft.region_bands.RegionBand.reach_run`), a narrower band that lies
+beyond that band's far end, within half its width of its axis, with its extension running into
+it (the instrument's material continues from one into the other), is that instrument's distal
+part (`beyond_entry`), not a shaft of its own, whether it ends inside the view or the border
+cuts it too (an instrument that runs on out of the view past its jaws). No constant: the far
+end, the band's own width and the extension's overlap (a tenth of the smaller area, as the
+material cue's `_TOUCH`) say it; the narrower band (the wrist and jaws are narrower than the
+shaft) is the part, so of two bands the border cuts the shaft is never dropped for its jaw.
 
 Work pixels (the bands' own).
 
@@ -93,7 +95,7 @@ def _beyond(sh, t):
 def beyond_entry(shafts):
     """The material cue's shafts (`shaft.material_cue.MaterialShaft`, best first) without
     those that are the distal part of an instrument whose shaft the border cuts (module
-    docstring): a band whose own run the border does not cut, beyond the far end of one whose
-    run it cuts."""
+    docstring): a band beyond the far end of a wider one whose run the border cuts."""
     cut = [t for t in shafts if t.band.reach_run]
-    return [sh for sh in shafts if sh.band.reach_run or not any(_beyond(sh, t) for t in cut)]
+    return [sh for sh in shafts
+            if not any(t is not sh and t.band.width_run > sh.band.width_run and _beyond(sh, t) for t in cut)]

@@ -70,9 +70,8 @@ frames whose colour tells the materials apart (`shaft.detector`).
    a short band (its run under two widths) whose extension runs into another
    shaft's band is a wrist or jaw part continuing into that instrument's shaft, unless the
    border of the view cuts its run (a close shaft seen to its collar: what it runs into is its
-   own wrist or jaws); a band that ends inside the view beyond the far end of one whose run the
-   border cuts, along its axis and running into it, is that instrument's distal part
-   (`shaft.distal`); a band nested inside one that held is structure inside that instrument.
+   own wrist or jaws); a narrower band beyond the far end of one whose run the border cuts,
+   along its axis and running into it, is that instrument's distal part (`shaft.distal`); a band nested inside one that held is structure inside that instrument.
    All are dropped.
 
 Work pixels in the region steps, ideal pixels from the edges on.

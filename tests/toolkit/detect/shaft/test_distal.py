@@ -114,17 +114,19 @@ def _band(x0, x1, y, w, cut, ext_from=None):
 
 
 def test_beyond_entry_drops_only_a_part_beyond_the_far_end():
-    """A band beyond the far end of a band the border cuts, within half its width of its axis and
-    running into it, goes; off its axis (another instrument), before its far end, or not running
-    into it, it stays; a band whose own run the border cuts always stays."""
+    """A narrower band beyond the far end of a band the border cuts, within half its width of
+    its axis and running into it, goes, its own run cut by the border or not (a jaw running out
+    of the view); off that axis (another instrument), not running into it, or as wide, it stays;
+    the band the border cuts stays, whatever comes first."""
     sh = _band(0, 30, 50.0, 30, True)
     assert [p.tolist() for p in entry_and_far_end(sh.band)] == [[0.0, 50.0], [29.0, 50.0]]
     jaw = _band(40, 70, 54.0, 6, False, ext_from=20)
-    assert beyond_entry([sh, jaw]) == [sh]
+    out_of_view = _band(40, 100, 54.0, 6, True, ext_from=20)
+    for part in (jaw, out_of_view):
+        assert beyond_entry([sh, part]) == [sh]
+        assert beyond_entry([part, sh]) == [sh]
     off_axis = _band(40, 70, 70.0, 6, False, ext_from=20)  # 20 px off the axis: over half of 30
     apart = _band(40, 70, 54.0, 6, False)  # its extension stops short of the shaft's run
-    cut_too = _band(40, 70, 54.0, 6, True, ext_from=20)
-    for other in (off_axis, apart, cut_too):
+    as_wide = _band(40, 100, 54.0, 30, True, ext_from=20)
+    for other in (off_axis, apart, as_wide):
         assert beyond_entry([sh, other]) == [sh, other]
-    # the shaft itself is never dropped, whatever comes first
-    assert beyond_entry([jaw, sh]) == [sh]
