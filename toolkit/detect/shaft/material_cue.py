@@ -68,8 +68,11 @@ frames whose colour tells the materials apart (`shaft.detector`).
    one edge of a better shaft and its nearer edge within its own width of that edge, is the
    tissue lit from that instrument between it and a shadow (dark | mid | white: its halo);
    a short band (its run under two widths) whose extension runs into another
-   shaft's band is a wrist or jaw part continuing into that instrument's shaft; a band
-   nested inside one that held is structure inside that instrument. All are dropped.
+   shaft's band is a wrist or jaw part continuing into that instrument's shaft, unless the
+   border of the view cuts its run (a close shaft seen to its collar: what it runs into is its
+   own wrist or jaws); a narrower band beyond the far end of one whose run the border cuts,
+   along its axis and running into it, is that instrument's distal part (`shaft.distal`); a band nested inside one that held is structure inside that instrument.
+   All are dropped.
 
 Work pixels in the region steps, ideal pixels from the edges on.
 
@@ -86,6 +89,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pencilcal.toolkit.detect.shaft.axis import midline_from_edges
+from pencilcal.toolkit.detect.shaft.distal import beyond_entry
 from pencilcal.toolkit.detect.shaft.silhouette import fit_edges
 from pencilcal.toolkit.detect.shaft.region_bands import (
     band_polygon,
@@ -768,13 +772,15 @@ def _ramps_beside(shafts):
 
 def _short_extensions(shafts):
     """Without the short bands whose extension runs into another's band (module docstring,
-    step 4)."""
+    step 4), but for a band whose run the border of the view cuts: the instrument enters
+    there, so the band is its shaft seen to the collar (a close shaft, short for its width)
+    and what its extension runs into beyond is its own wrist or jaws."""
     import cv2
 
     out = []
     for sh in shafts:
         e = sh.band
-        if e.run_len < 2.0 * e.width_run:
+        if e.run_len < 2.0 * e.width_run and not e.reach_run:
             P = cv2.convexHull(sh.poly_ext)[:, 0, :]
             if any(cv2.intersectConvexConvex(P, Q)[0] > 0.1 * abs(cv2.contourArea(Q))
                    for Q in (cv2.convexHull(t.poly_run)[:, 0, :] for t in shafts if t is not sh)):
@@ -793,4 +799,4 @@ def _inside_held(shafts):
 def select(shafts, max_shafts):
     """The shafts that are not other readings of a better one (module docstring, step 4),
     best score first, at most max_shafts."""
-    return _short_extensions(_ramps_beside(_coaxial(_overlapping(_inside_held(shafts)))))[:max_shafts]
+    return beyond_entry(_short_extensions(_ramps_beside(_coaxial(_overlapping(_inside_held(shafts))))))[:max_shafts]

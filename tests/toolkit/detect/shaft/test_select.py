@@ -34,7 +34,8 @@ def edge(y0, y1, out):
 def shaft(top, bottom, score, y_in, y_sides):
     """A `MaterialShaft` between edges at heights top and bottom (y at x = 100 and 600)."""
     m = midline_from_edges(K, edge(*top, -1.0), edge(*bottom, 1.0))
-    band = SimpleNamespace(y_in=y_in, y_sides=y_sides, run_len=500.0, width_run=40.0)
+    # its run inside the view (the border cuts none: `shaft.distal` has no band to read beyond)
+    band = SimpleNamespace(y_in=y_in, y_sides=y_sides, run_len=500.0, width_run=40.0, reach_run=False)
     poly = np.array([[100, top[0]], [600, top[1]], [600, bottom[1]], [100, bottom[0]]], np.float32)
     return MaterialShaft(midline=m, score=score, polarity="bright", band=band, poly_run=poly, poly_ext=poly)
 
