@@ -52,8 +52,9 @@ import numpy as np
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.geometry.frames import normalize, rotation_from_rotvec
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
-from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, axis_frame, fulcrum_3d, project_cylinder,
-                                               silhouette_planes)
+from pencilcal.toolkit.pencil.sequence_noise import MAX_RUNS
+from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, _chi2, _perpendicular, axis_frame, fulcrum_3d,
+                                               project_cylinder,                                                silhouette_planes)
 
 __all__ = ["StereoAxis", "AxesFulcrum", "stereo_axis", "match_shafts", "stereo_fulcrum_axes", "stereo_axes_from_frames",
            "matched_axes"]
@@ -279,33 +280,38 @@ class AxesFulcrum:
     """The fulcrum of stereo axes (`stereo_fulcrum_axes`), left camera frame: point (3,)
     [length] and point_cov (3, 3) (the edges' noise and, with its covariance, the rig's),
     point_sigma sqrt(trace); fit: the `cylinder.Fulcrum3D` of the axes alone (which axes
-    were used, their chi2); rig_used: whether the rig's covariance was in the fit."""
+    were used, their chi2); rig_used: whether the rig's covariance was in the fit;
+    play: the variance [length^2] per direction of the axes' offsets from one point beyond
+    their covariances (`_axes_with_noise`), in point_cov; 0 where they scatter no more."""
 
     point: np.ndarray
     point_cov: np.ndarray
     point_sigma: float
     fit: Fulcrum3D
     rig_used: bool
+    play: float = 0.0
 
 
-def _with_rig(x, axes, use, rig_cov, iterations=10):
+def _with_rig(x, axes, use, rig_cov, covs=None, iterations=10):
     """(point (3,), covariance (3, 3)) of the fulcrum with the rig's error as an unknown
     common to every axis, under its prior: each used axis moves by its rig Jacobian times
     the rig's error delta (6,), and x and delta minimise the axes' weighted offsets, their
     own fits' residuals as delta changes them (`StereoAxis.rig_information`) and
     ``delta^T C_rig^-1 delta`` (a rig error that one axis would take for its own noise is
-    seen in all of them together)."""
+    seen in all of them together). covs: (N, 4, 4) the axes' chart covariances with the
+    play in them (`_axes_with_noise`), default their own."""
     Cinv = np.linalg.pinv(rig_cov)
+    covs = [a.axis_cov for a in axes] if covs is None else covs
     for _ in range(iterations):
         H = np.zeros((9, 9))
         g = np.zeros(9)
-        for a, u in zip(axes, use):
+        for a, u, ac in zip(axes, use, covs):
             if not u:
                 continue
             E = a.axis_frame
             t = float(a.axis_direction @ (x - a.axis_point))
             M = np.array([[t, 0.0, 1.0, 0.0], [0.0, t, 0.0, 1.0]])
-            Sinv = np.linalg.inv(M @ a.axis_cov @ M.T)
+            Sinv = np.linalg.inv(M @ ac @ M.T)
             B = np.hstack([E, -M @ a.rig_jacobian[:4]])  # d offset / d (x, delta)
             H += B.T @ Sinv @ B
             g += B.T @ Sinv @ (E @ a.axis_point)
@@ -322,16 +328,73 @@ def _with_rig(x, axes, use, rig_cov, iterations=10):
     return x, 0.5 * (cov + cov.T)
 
 
+def _play(P, D, C, E, x, used, robust_start=False):
+    """The variance s2 [length^2] (>= 0) per direction of an isotropic offset of each axis
+    from the point x that brings the used axes' chi2 to its degrees of freedom (2N - 3):
+    ``sum r^T (S + s2 I)^-1 r = 2N - 3`` (r, S the offset and its covariance,
+    `cylinder._perpendicular`), by bisection; 0 where the axes scatter no more than their
+    covariances say. robust_start: instead the median of every axis's chi2 at its own (2
+    dof) median, outliers and all (a first guess the gate of too small a noise cannot bias)."""
+    r, S, _ = _perpendicular(x, P, D, E, C)
+    if robust_start:
+        def over(s2):
+            return np.median(_chi2(r, S + s2 * np.eye(2))) > 2.0 * np.log(2.0)
+    else:
+        r, S = r[used], S[used]
+        dof = 2 * len(r) - 3
+        if dof <= 0:
+            return 0.0
+
+        def over(s2):
+            return np.sum(_chi2(r, S + s2 * np.eye(2))) > dof
+    if not over(0.0):
+        return 0.0
+    lo, hi = 0.0, float(np.max(np.sum(r * r, -1))) + 1e-12
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if over(mid) else (lo, mid)
+    return hi
+
+
+def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS):
+    """(Fulcrum3D, chart covariances (N, 4, 4) with the play in them, play s2 [length^2]) of
+    the stereo axes: where the axes scatter about the point more than their covariances say
+    (an instrument that does not pivot about one point exactly: the port's play; edges
+    noisier than their covariances), each axis's position takes an isotropic variance s2
+    (`_play`) and the fit runs again with it, its 99 % gate then set for that scatter. The
+    first s2 is the median's of all the axes (a gate set for too small a noise keeps only
+    the few axes that happen to pass close, and their scatter would say there is no play),
+    then that of the fit's inliers, until it changes by less than 10 % (at most `runs`
+    runs). The axes' precise directions keep their weight, where a factor on every
+    covariance (the monocular point's, `fulcrum._point_with_noise`) would shrink the
+    precise ones' share of the play."""
+    lift = np.zeros((4, 4))
+    lift[2, 2] = lift[3, 3] = 1.0
+    fit = fulcrum_3d(P, D, C, robust, axis_frames=E)
+    s2 = _play(P, D, C, E, np.asarray(fit.point, float), None, robust_start=True)
+    for _ in range(runs):
+        if s2 == 0.0:
+            break
+        fit = fulcrum_3d(P, D, C + s2 * lift, robust, axis_frames=E)
+        new = _play(P, D, C, E, np.asarray(fit.point, float), np.asarray(fit.inliers, bool))
+        if abs(new - s2) <= 0.1 * s2:
+            break
+        s2 = new
+    return fit, C + s2 * lift, s2
+
+
 def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
     """The fulcrum (`AxesFulcrum`, left camera frame) of stereo axes (`StereoAxis`, at least
     two), with the rig's covariance if given.
 
-    The axes are gated and weighted as `cylinder.fulcrum_3d` does. rig_cov: (6, 6) the
-    rig's covariance (rotation vector [rad], translation [length]; ``R = exp(w) R0``,
-    ``t = t0 + dt``) or None. The rig is one for every axis, so its error moves them all
-    at once: with its covariance the point is solved together with that error, under its
-    prior (`_with_rig`), and its covariance is the point's marginal, the edges' noise and
-    the rig's both in it.
+    The axes are gated and weighted as `cylinder.fulcrum_3d` does, and their covariances
+    take the fit's a-posteriori variance factor (`_axes_with_noise`, as the monocular 3-D
+    fulcrum's: only inflating). rig_cov: (6, 6) the rig's covariance (rotation vector
+    [rad], translation [length]; ``R = exp(w) R0``, ``t = t0 + dt``) or None. The rig is one
+    for every axis, so its error moves them all at once: with its covariance the point is
+    solved together with that error, under its prior (`_with_rig`, the gate's axes, their
+    covariances times the factor), and its covariance is the point's marginal, the edges'
+    noise and the rig's both in it.
     """
     if len(axes) < 2:
         raise EstimationError(f"the stereo fulcrum needs two axes, got {len(axes)}")
@@ -339,15 +402,15 @@ def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
     D = np.stack([a.axis_direction for a in axes])
     C = np.stack([a.axis_cov for a in axes])
     E = np.stack([a.axis_frame for a in axes])
-    fit = fulcrum_3d(P, D, C, robust, axis_frames=E)
+    fit, C, play = _axes_with_noise(P, D, C, E, robust)
     if rig_cov is None:
-        return AxesFulcrum(fit.point, fit.point_cov, float(fit.point_sigma), fit, False)
+        return AxesFulcrum(fit.point, fit.point_cov, float(fit.point_sigma), fit, False, play)
     rig_cov = np.asarray(rig_cov, float)
     if rig_cov.shape != (6, 6) or not np.all(np.isfinite(rig_cov)):
         raise InputError(f"the rig's covariance must be a finite 6x6 matrix (rotation vector, translation), "
                          f"got shape {rig_cov.shape}")
-    x, cov = _with_rig(np.asarray(fit.point, float), axes, np.ones(len(axes), bool), rig_cov)
-    return AxesFulcrum(x, cov, float(np.sqrt(np.trace(cov))), fit, True)
+    x, cov = _with_rig(np.asarray(fit.point, float), axes, np.asarray(fit.inliers, bool), rig_cov, C)
+    return AxesFulcrum(x, cov, float(np.sqrt(np.trace(cov))), fit, True, play)
 
 
 def _frame_pairs(frames_left, frames_right):
@@ -390,7 +453,9 @@ def stereo_axes_from_frames(camera_left, frames_left, camera_right, frames_right
     frames whose shafts carry ``edges`` [raw px] and ``edge_cov`` (`pencilcal lines
     --shaft`), paired by image name or order; rig: the `camera.stereo.StereoRig`;
     diameter: the shafts' diameter in the rig's unit, or None (the radius from the
-    baseline). Returns a dict: point, point_cov, point_sigma [rig unit], rig_used, frames
+    baseline). Returns a dict: point, point_cov, point_sigma [rig unit], play_sigma (the
+    sd [rig unit] per direction of the axes' offsets from one point beyond their
+    covariances, in point_cov: `stereo_fulcrum_axes`), rig_used, frames
     (paired), axes (matched), axes_used, outliers ([{"image", "left", "right"}]), radius
     and radius_sigma (the matched axes' weighted mean). EstimationError with fewer than two
     matched axes.
@@ -405,7 +470,8 @@ def stereo_axes_from_frames(camera_left, frames_left, camera_right, frames_right
     w = 1.0 / np.maximum(np.array([a.radius_sigma for a in axes]) ** 2, 1e-300)
     inl = np.asarray(res.fit.inliers, bool)
     return {"point": np.asarray(res.point, float).tolist(), "point_cov": np.asarray(res.point_cov, float).tolist(),
-            "point_sigma": float(res.point_sigma), "rig_used": bool(res.rig_used), "frames": pairs,
+            "point_sigma": float(res.point_sigma), "play_sigma": float(np.sqrt(res.play)),
+            "rig_used": bool(res.rig_used), "frames": pairs,
             "axes": len(axes), "axes_used": int(inl.sum()),
             "outliers": [o for o, k in zip(owners, inl) if not k],
             "radius": float(np.sum(w * r) / np.sum(w)), "radius_sigma": float(np.sqrt(1.0 / np.sum(w)))}
