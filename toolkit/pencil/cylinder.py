@@ -86,6 +86,8 @@ __all__ = [
     "axis_image_line",
     "axis_frame",
     "axis_chart",
+    "axis_offsets",
+    "offset_chi2",
     "shaft_axis",
     "shaft_axis_record",
     "fulcrum_3d",
@@ -501,7 +503,7 @@ def shaft_axis_record(camera, edges_raw, edge_cov, diameter):
 # ------------------------------------------------------------------ weighted line intersection
 
 
-def _perpendicular(x, points, directions, frames, covs):
+def axis_offsets(x, points, directions, frames, covs):
     """Offsets of the point x (..., 3) from lines (..., N, .) in their charts.
 
     Returns r (..., N, 2) = (u, w) . (x - point) [length], S (..., N, 2, 2) the covariance of
@@ -524,7 +526,7 @@ def _inv2(S):
     return np.stack([np.stack([c, -b], -1), np.stack([-b, a], -1)], -2) / det[..., None, None]
 
 
-def _chi2(r, S):
+def offset_chi2(r, S):
     """r^T S^-1 r over the last axis: (..., N, 2), (..., N, 2, 2) -> (..., N)."""
     a, b, c = S[..., 0, 0], 0.5 * (S[..., 0, 1] + S[..., 1, 0]), S[..., 1, 1]
     x, y = r[..., 0], r[..., 1]
@@ -545,7 +547,7 @@ def _plain_point(points, directions, use):
 
 def _information(x, points, directions, frames, covs, use):
     """Normal equations (H (..., 3, 3), g (..., 3)) of the weighted fit at the point x."""
-    _, S, _ = _perpendicular(x, points, directions, frames, covs)
+    _, S, _ = axis_offsets(x, points, directions, frames, covs)
     W = np.where(use[..., None, None], _inv2(S), 0.0)
     M = np.einsum("...nki,...nkl,...nlj->...nij", frames, W, frames)
     return M.sum(-3), np.einsum("...nij,...nj->...i", M, points)
@@ -598,8 +600,8 @@ def _robust_start(points, directions, frames, covs, gate, max_pairs, seed):
     """MSAC over pair midpoints: the candidate with the least sum of min(chi2, gate)."""
     cand, valid = _pair_candidates(points, directions, max_pairs, seed)
     lines = [a[..., None, :, :] for a in (points, directions)] + [a[..., None, :, :, :] for a in (frames, covs)]
-    r, S, _ = _perpendicular(cand, *lines)
-    score = np.minimum(_chi2(r, S), gate).sum(-1)
+    r, S, _ = axis_offsets(cand, *lines)
+    score = np.minimum(offset_chi2(r, S), gate).sum(-1)
     score = np.where(valid, score, np.inf)
     best = np.argmin(score, axis=-1)
     return np.take_along_axis(cand, best[..., None, None], axis=-2)[..., 0, :]
@@ -695,7 +697,7 @@ def fulcrum_3d(axis_points, axis_directions, axis_covs, robust=True, *, axis_fra
     use = np.ones(P.shape[:-1], bool)
     if robust:
         x = _robust_start(P, D, E, C, gate, max_pairs, seed)
-        use = _chi2(*_perpendicular(x, P, D, E, C)[:2]) < gate
+        use = offset_chi2(*axis_offsets(x, P, D, E, C)[:2]) < gate
     else:
         x = _plain_point(P, D, use)
     rounds = _GATE_ROUNDS if robust else 1
@@ -703,8 +705,8 @@ def fulcrum_3d(axis_points, axis_directions, axis_covs, robust=True, *, axis_fra
         if np.any(use.sum(-1) < 2):
             raise EstimationError("fulcrum_3d: fewer than two axes pass the chi2 gate")
         x, cov, it = _weighted_point(x, P, D, E, C, use, max_iter, tol)
-        r, S, t = _perpendicular(x, P, D, E, C)
-        c2 = _chi2(r, S)
+        r, S, t = axis_offsets(x, P, D, E, C)
+        c2 = offset_chi2(r, S)
         gated = c2 < gate
         if np.array_equal(gated, use) or k == rounds - 1:
             break
@@ -816,10 +818,10 @@ def triangulate_rays(ray_left, cov_left, ray_right, cov_right, R_right_from_left
         raise EstimationError("triangulate_rays: the rays are parallel")
     use = np.ones(points.shape[:-1], bool)
     x, cov, _ = _weighted_point(x0[..., 0, :], points, dirs, frames, covs, use, max_iter, tol)
-    r, S, along = _perpendicular(x, points, dirs, frames, covs)
+    r, S, along = axis_offsets(x, points, dirs, frames, covs)
     info = np.swapaxes(frames, -1, -2) @ _inv2(S) @ frames
     return RayTriangulation(point=x, point_cov=cov, point_sigma=np.sqrt(np.trace(cov, axis1=-2, axis2=-1)),
-                            ranges=along, distances=np.linalg.norm(r, axis=-1), chi2=_chi2(r, S).sum(-1),
+                            ranges=along, distances=np.linalg.norm(r, axis=-1), chi2=offset_chi2(r, S).sum(-1),
                             ray_information=info, ray_information_vector=np.einsum("...ij,...j->...i", info, points))
 
 

@@ -52,9 +52,9 @@ import numpy as np
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.geometry.frames import normalize, rotation_from_rotvec
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
+from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, axis_frame, axis_offsets, fulcrum_3d,
+                                               offset_chi2, project_cylinder, silhouette_planes)
 from pencilcal.toolkit.pencil.sequence_noise import MAX_RUNS
-from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, _chi2, _perpendicular, axis_frame, fulcrum_3d,
-                                               project_cylinder,                                                silhouette_planes)
 
 __all__ = ["StereoAxis", "AxesFulcrum", "stereo_axis", "match_shafts", "stereo_fulcrum_axes", "stereo_axes_from_frames",
            "matched_axes"]
@@ -332,13 +332,13 @@ def _play(P, D, C, E, x, used, robust_start=False):
     """The variance s2 [length^2] (>= 0) per direction of an isotropic offset of each axis
     from the point x that brings the used axes' chi2 to its degrees of freedom (2N - 3):
     ``sum r^T (S + s2 I)^-1 r = 2N - 3`` (r, S the offset and its covariance,
-    `cylinder._perpendicular`), by bisection; 0 where the axes scatter no more than their
+    `cylinder.axis_offsets`), by bisection; 0 where the axes scatter no more than their
     covariances say. robust_start: instead the median of every axis's chi2 at its own (2
     dof) median, outliers and all (a first guess the gate of too small a noise cannot bias)."""
-    r, S, _ = _perpendicular(x, P, D, E, C)
+    r, S, _ = axis_offsets(x, P, D, E, C)
     if robust_start:
         def over(s2):
-            return np.median(_chi2(r, S + s2 * np.eye(2))) > 2.0 * np.log(2.0)
+            return np.median(offset_chi2(r, S + s2 * np.eye(2))) > 2.0 * np.log(2.0)
     else:
         r, S = r[used], S[used]
         dof = 2 * len(r) - 3
@@ -346,7 +346,7 @@ def _play(P, D, C, E, x, used, robust_start=False):
             return 0.0
 
         def over(s2):
-            return np.sum(_chi2(r, S + s2 * np.eye(2))) > dof
+            return np.sum(offset_chi2(r, S + s2 * np.eye(2))) > dof
     if not over(0.0):
         return 0.0
     lo, hi = 0.0, float(np.max(np.sum(r * r, -1))) + 1e-12
@@ -387,13 +387,14 @@ def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
     """The fulcrum (`AxesFulcrum`, left camera frame) of stereo axes (`StereoAxis`, at least
     two), with the rig's covariance if given.
 
-    The axes are gated and weighted as `cylinder.fulcrum_3d` does, and their covariances
-    take the fit's a-posteriori variance factor (`_axes_with_noise`, as the monocular 3-D
-    fulcrum's: only inflating). rig_cov: (6, 6) the rig's covariance (rotation vector
+    The axes are gated and weighted as `cylinder.fulcrum_3d` does, and where they scatter
+    about the point more than their covariances say, each axis's position takes an
+    isotropic play variance fitted from that scatter (`_axes_with_noise`: only inflating,
+    as the monocular 3-D fulcrum's variance factor). rig_cov: (6, 6) the rig's covariance (rotation vector
     [rad], translation [length]; ``R = exp(w) R0``, ``t = t0 + dt``) or None. The rig is one
     for every axis, so its error moves them all at once: with its covariance the point is
     solved together with that error, under its prior (`_with_rig`, the gate's axes, their
-    covariances times the factor), and its covariance is the point's marginal, the edges'
+    covariances with the play), and its covariance is the point's marginal, the edges'
     noise and the rig's both in it.
     """
     if len(axes) < 2:
