@@ -27,6 +27,7 @@ Example
 >>> ev, tc = np.array([0.5, 0.03, 0.03, 0.0, 0.03]), np.array([1.0, 0.4, 0.9, -0.5, 0.4])
 >>> kept(ev, tc, 0.1, 1.25, dark=np.array([True, True, True, True, False])).tolist()
 [True, True, False, True, False]
+
 Measured in docs/method.md (grey material): on fresh synthetic seeds 106 -> 130 of 333
 hard shafts found, no false detection more; on the real sources nothing changes.
 """
