@@ -465,8 +465,8 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     (each edge's plane touches the cylinder: axis and radius by least squares, the radius
     held to --shaft-diameter where given): `stereo.axes` is the fulcrum of those axes
     (point, point_cov, point_sigma, the axes used of those matched, the radius), its
-    covariance widened by play_sigma where the axes miss one point by more than their
-    sigmas say (the port's play), with the rig's error in it where the stereo file gives
+    covariance widened by noise_factor and play_sigma where the axes miss one point by more
+    than their sigmas say (edges noisier than said, the port's play), with the rig's error in it where the stereo file gives
     cov_right_from_left (6x6: the rotation vector's error [rad], then the translation's).
 
     --edge-model limb locates each shaft's two edges by a profile model of a cylinder lit

@@ -30,7 +30,9 @@ K; edge segments ``[x1, y1, x2, y2]``.
 
 Example
 -------
->>> import numpy as np
+>>> import math
+
+import numpy as np
 >>> from pencilcal.toolkit.pencil.cylinder import project_cylinder
 >>> K = np.array([[600.0, 0, 320], [0, 600, 240], [0, 0, 1]])
 >>> R, t = np.eye(3), np.array([-5.0, 0, 0])                 # right eye 5 mm to the right
@@ -45,6 +47,7 @@ Example
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -282,7 +285,8 @@ class AxesFulcrum:
     point_sigma sqrt(trace); fit: the `cylinder.Fulcrum3D` of the axes alone (which axes
     were used, their chi2); rig_used: whether the rig's covariance was in the fit;
     play: the variance [length^2] per direction of the axes' offsets from one point beyond
-    their covariances (`_axes_with_noise`), in point_cov; 0 where they scatter no more."""
+    their covariances (`_axes_with_noise`), in point_cov; 0 where they scatter no more;
+    factor: the factor (>= 1) on the axes' own covariances, in point_cov."""
 
     point: np.ndarray
     point_cov: np.ndarray
@@ -290,6 +294,7 @@ class AxesFulcrum:
     fit: Fulcrum3D
     rig_used: bool
     play: float = 0.0
+    factor: float = 1.0
 
 
 def _with_rig(x, axes, use, rig_cov, covs=None, iterations=10):
@@ -356,31 +361,70 @@ def _play(P, D, C, E, x, used, robust_start=False):
     return hi
 
 
+def _factor_and_play(r, S, start):
+    """(k >= 1, s2 >= 0) maximising the likelihood of the offsets r (N, 2) under covariances
+    ``k S + s2 I`` (S: (N, 2, 2)): a factor on the axes' own covariances (edges noisier than
+    said: mostly along each axis's depth, where a stereo axis is least precise) and an
+    isotropic play; start: the first s2."""
+    from scipy.optimize import minimize
+
+    eye = np.eye(2)
+
+    def nll(p):
+        M = (1.0 + p[0] ** 2) * S + p[1] ** 2 * eye
+        det = M[:, 0, 0] * M[:, 1, 1] - M[:, 0, 1] * M[:, 1, 0]
+        return 0.5 * float(np.sum(np.log(det) + offset_chi2(r, M)))
+
+    res = minimize(nll, [0.5, math.sqrt(start) + 1e-6], method="Nelder-Mead",
+                   options={"xatol": 1e-6, "fatol": 1e-9})
+    return 1.0 + float(res.x[0]) ** 2, float(res.x[1]) ** 2
+
+
+#: The mean chi-square (2 dof) of an axis the 99 % gate keeps: ``(2 - (c + 2) e^(-c/2)) / 0.99``
+#: at its threshold c; the kept axes' chi-square sum is held to this per axis, less 3.
+_KEPT_CHI2 = 1.907
+
+
 def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS):
-    """(Fulcrum3D, chart covariances (N, 4, 4) with the play in them, play s2 [length^2]) of
-    the stereo axes: where the axes scatter about the point more than their covariances say
-    (an instrument that does not pivot about one point exactly: the port's play; edges
-    noisier than their covariances), each axis's position takes an isotropic variance s2
-    (`_play`) and the fit runs again with it, its 99 % gate then set for that scatter. The
-    first s2 is the median's of all the axes (a gate set for too small a noise keeps only
-    the few axes that happen to pass close, and their scatter would say there is no play),
-    then that of the fit's inliers, until it changes by less than 10 % (at most `runs`
-    runs). The axes' precise directions keep their weight, where a factor on every
-    covariance (the monocular point's, `fulcrum._point_with_noise`) would shrink the
-    precise ones' share of the play."""
+    """(Fulcrum3D, chart covariances (N, 4, 4) with the noise in them, play s2 [length^2],
+    factor k) of the stereo axes: where the axes scatter about the point more than their
+    covariances say, their covariances become ``k C + s2 I`` (on the position): k >= 1 a
+    factor on their own (edges noisier than said), s2 an isotropic play (an instrument that
+    does not pivot about one point exactly: the port's play). s2 starts from the median of
+    every axis's chi2 (`_play`: a gate set for too small a noise keeps only the few axes that
+    happen to pass close, and their scatter would say there is none; where it is 0 the axes
+    keep their covariances), then k and s2 by
+    maximum likelihood on the gate's inliers (`_factor_and_play`), the fit again with them,
+    until they change by less than 10 % (at most `runs` runs); last, both scaled up so the
+    inliers' chi2 is that of a gated sample (`_KEPT_CHI2` per axis, less 3: likelihood alone
+    reads a truncated scatter too small). Only inflating, as the monocular point's variance
+    factor (`fulcrum._point_with_noise`)."""
     lift = np.zeros((4, 4))
     lift[2, 2] = lift[3, 3] = 1.0
     fit = fulcrum_3d(P, D, C, robust, axis_frames=E)
     s2 = _play(P, D, C, E, np.asarray(fit.point, float), None, robust_start=True)
+    k = 1.0
+    if s2 == 0.0:  # the axes' median meets its own: no scatter beyond their covariances
+        return fit, C, 0.0, 1.0
+    fit = fulcrum_3d(P, D, C + s2 * lift, robust, axis_frames=E)
     for _ in range(runs):
-        if s2 == 0.0:
+        used = np.asarray(fit.inliers, bool)
+        if 2 * used.sum() <= 3:
             break
-        fit = fulcrum_3d(P, D, C + s2 * lift, robust, axis_frames=E)
-        new = _play(P, D, C, E, np.asarray(fit.point, float), np.asarray(fit.inliers, bool))
-        if abs(new - s2) <= 0.1 * s2:
+        r, S, _ = axis_offsets(np.asarray(fit.point, float), P, D, E, C)
+        k_new, s2_new = _factor_and_play(r[used], S[used], s2)
+        done = abs(k_new - k) <= 0.1 * k and abs(s2_new - s2) <= 0.1 * max(s2, 1e-12)
+        k, s2 = k_new, s2_new
+        fit = fulcrum_3d(P, D, k * C + s2 * lift, robust, axis_frames=E)
+        if done:
             break
-        s2 = new
-    return fit, C + s2 * lift, s2
+    used = np.asarray(fit.inliers, bool)
+    r, S, _ = axis_offsets(np.asarray(fit.point, float), P, D, E, C)
+    chi2 = float(np.sum(offset_chi2(r[used], k * S[used] + s2 * np.eye(2))))
+    c = max(1.0, chi2 / max(_KEPT_CHI2 * used.sum() - 3.0, 1.0))
+    k, s2 = k * c, s2 * c
+    fit = fulcrum_3d(P, D, k * C + s2 * lift, robust, axis_frames=E)
+    return fit, k * C + s2 * lift, s2, k
 
 
 def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
@@ -388,9 +432,9 @@ def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
     two), with the rig's covariance if given.
 
     The axes are gated and weighted as `cylinder.fulcrum_3d` does, and where they scatter
-    about the point more than their covariances say, each axis's position takes an
-    isotropic play variance fitted from that scatter (`_axes_with_noise`: only inflating,
-    as the monocular 3-D fulcrum's variance factor). rig_cov: (6, 6) the rig's covariance (rotation vector
+    about the point more than their covariances say, their covariances take a factor and
+    each axis's position an isotropic play variance, both fitted from that scatter
+    (`_axes_with_noise`: only inflating, as the monocular 3-D fulcrum's variance factor). rig_cov: (6, 6) the rig's covariance (rotation vector
     [rad], translation [length]; ``R = exp(w) R0``, ``t = t0 + dt``) or None. The rig is one
     for every axis, so its error moves them all at once: with its covariance the point is
     solved together with that error, under its prior (`_with_rig`, the gate's axes, their
@@ -403,15 +447,15 @@ def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
     D = np.stack([a.axis_direction for a in axes])
     C = np.stack([a.axis_cov for a in axes])
     E = np.stack([a.axis_frame for a in axes])
-    fit, C, play = _axes_with_noise(P, D, C, E, robust)
+    fit, C, play, factor = _axes_with_noise(P, D, C, E, robust)
     if rig_cov is None:
-        return AxesFulcrum(fit.point, fit.point_cov, float(fit.point_sigma), fit, False, play)
+        return AxesFulcrum(fit.point, fit.point_cov, float(fit.point_sigma), fit, False, play, factor)
     rig_cov = np.asarray(rig_cov, float)
     if rig_cov.shape != (6, 6) or not np.all(np.isfinite(rig_cov)):
         raise InputError(f"the rig's covariance must be a finite 6x6 matrix (rotation vector, translation), "
                          f"got shape {rig_cov.shape}")
     x, cov = _with_rig(np.asarray(fit.point, float), axes, np.asarray(fit.inliers, bool), rig_cov, C)
-    return AxesFulcrum(x, cov, float(np.sqrt(np.trace(cov))), fit, True, play)
+    return AxesFulcrum(x, cov, float(np.sqrt(np.trace(cov))), fit, True, play, factor)
 
 
 def _frame_pairs(frames_left, frames_right):
@@ -456,7 +500,8 @@ def stereo_axes_from_frames(camera_left, frames_left, camera_right, frames_right
     diameter: the shafts' diameter in the rig's unit, or None (the radius from the
     baseline). Returns a dict: point, point_cov, point_sigma [rig unit], play_sigma (the
     sd [rig unit] per direction of the axes' offsets from one point beyond their
-    covariances, in point_cov: `stereo_fulcrum_axes`), rig_used, frames
+    covariances, in point_cov: `stereo_fulcrum_axes`), noise_factor (the factor on the axes'
+    own covariances, in point_cov), rig_used, frames
     (paired), axes (matched), axes_used, outliers ([{"image", "left", "right"}]), radius
     and radius_sigma (the matched axes' weighted mean). EstimationError with fewer than two
     matched axes.
@@ -472,6 +517,7 @@ def stereo_axes_from_frames(camera_left, frames_left, camera_right, frames_right
     inl = np.asarray(res.fit.inliers, bool)
     return {"point": np.asarray(res.point, float).tolist(), "point_cov": np.asarray(res.point_cov, float).tolist(),
             "point_sigma": float(res.point_sigma), "play_sigma": float(np.sqrt(res.play)),
+            "noise_factor": float(res.factor),
             "rig_used": bool(res.rig_used), "frames": pairs,
             "axes": len(axes), "axes_used": int(inl.sum()),
             "outliers": [o for o, k in zip(owners, inl) if not k],
