@@ -54,7 +54,7 @@ from pencilcal.toolkit.errors import InputError
 
 from . import splined as _spl
 
-__all__ = ["Camera", "MODELS", "OPENCV_COEFFICIENT_COUNTS", "tilt_matrices", "K_RATIO_LIMIT"]
+__all__ = ["Camera", "mean_focal", "MODELS", "OPENCV_COEFFICIENT_COUNTS", "tilt_matrices", "K_RATIO_LIMIT"]
 
 #: Lens models and the coefficient counts each accepts.
 MODELS = {"pinhole": (0,), "opencv": (4, 5, 8, 12, 14), "fisheye": (4,)}
@@ -77,6 +77,20 @@ _ACCEPT_TOL = 1e-11
 # Samples along the segment from the principal point to a solution on which the lens
 # model must stay locally invertible; a root beyond a fold of the model is rejected.
 _FOLD_SAMPLES = np.linspace(0.0, 1.0, 9)[1:]
+
+
+def mean_focal(K) -> float:
+    """The geometric mean focal length sqrt(fx fy) of a camera matrix [px].
+
+    The one scale between pixels and radians (a pixel near the centre subtends about 1 / f
+    rad) where x and y differ: a square pixel's focal length, the area-preserving mean.
+
+    K: (3, 3) camera matrix (or anything indexable as one).
+
+    >>> mean_focal([[400.0, 0, 0], [0, 900.0, 0], [0, 0, 1]])
+    600.0
+    """
+    return float(np.sqrt(float(K[0][0]) * float(K[1][1])))
 
 
 def _check_k_scale(K, side):
@@ -266,6 +280,11 @@ class Camera:
     def fy(self) -> float:
         """Focal length along y [pixels]."""
         return float(self.K[1, 1])
+
+    @property
+    def f_mean(self) -> float:
+        """Geometric mean focal length sqrt(fx fy) [pixels] (`mean_focal`)."""
+        return mean_focal(self.K)
 
     @property
     def cx(self) -> float:

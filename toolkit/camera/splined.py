@@ -258,7 +258,7 @@ def config_covering(camera, Nx=None, spacing_px=None, margin=1.05):
     fov = int(math.ceil(math.degrees(4.0 * math.atan(ux / 2.0))))
     fov = min(max(fov, 1), 359)
     if Nx is None:
-        f = math.sqrt(camera.fx * camera.fy)
+        f = camera.f_mean
         spacing = (w / 6.0) if spacing_px is None else float(spacing_px)
         width_u = 4.0 * math.tan(math.radians(fov) / 4.0)
         Nx = max(_MIN_KNOTS, int(math.ceil(width_u * f / spacing)) + 1)
@@ -285,7 +285,7 @@ def fit_correction(cfg, camera, samples=60):
     rows = np.arange(len(u))
     for a in range(2):
         np.add.at(A, (2 * rows[:, None] + a, idx[..., a]), wts)
-    f = math.sqrt(camera.fx * camera.fy)
+    f = camera.f_mean
     # the data's rows in pixels, the penalty's as in a calibration
     A *= f
     b = target.reshape(-1) * f

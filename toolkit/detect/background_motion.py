@@ -47,6 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pencilcal.toolkit.camera.model import mean_focal
 from pencilcal.toolkit.detect.background_pose import FramePose, background_poses
 from pencilcal.toolkit.errors import EstimationError
 
@@ -465,7 +466,7 @@ def _map_shaft(camera, s, motion, keep_own=False):
     # depth (`pencil.parallax`): f |t| / d, |t| / d the homography's departure from a turn
     K = np.asarray(camera.K, float)
     nr = float(motion.non_rotation)
-    s["parallax_scale_px"] = float(np.sqrt(K[0, 0] * K[1, 1]) * nr) if np.isfinite(nr) else 0.0
+    s["parallax_scale_px"] = mean_focal(K) * nr if np.isfinite(nr) else 0.0
     if s.get("angle_sigma_deg") is not None:
         s["angle_sigma_deg"] = float(np.degrees(np.sqrt(m[1][0, 0])))
     if s.get("offset_sigma_px") is not None:

@@ -558,7 +558,7 @@ def _resolve_by_circles(camera, fit, ln, th_used, s_used, resolved_by, circle_po
         xn = camera.normalized_from_pixels(pts)
     xn = xn[np.all(np.isfinite(xn), -1)]
     est = circle_estimate(xn, ln.vertex, ln.vertex_cov, fit.R_cam_from_target, fit.R_twin,
-                          scale=float(np.sqrt(camera.K[0, 0] * camera.K[1, 1])), radii=pencil.circles)
+                          scale=camera.f_mean, radii=pencil.circles)
     if est is None:
         return fit, resolved_by, None
     which, decisive, _, _ = circle_choice(fit, est)

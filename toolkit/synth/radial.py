@@ -183,7 +183,7 @@ def radial_pose(camera, vertex_px, tilt_deg, radius, *, fill=0.6, axis_deg=0.0, 
     its origin.
     """
     ray = camera.rays_from_pixels(np.asarray(vertex_px, float))
-    f = float(np.sqrt(camera.K[0, 0] * camera.K[1, 1]))
+    f = camera.f_mean
     depth = f * float(radius) / (float(fill) * 0.5 * min(camera.width, camera.height))
     # a frame facing the camera along the ray, then tilted and rolled
     up = np.array([0.0, 1.0, 0.0])

@@ -326,7 +326,7 @@ def sensor_image(img, lighting, exposure, blur_px, gamma, noise, rng):
 
 def _pixel_angle(camera):
     """Angle one pixel subtends near the image centre [rad]."""
-    return 1.0 / math.sqrt(camera.K[0, 0] * camera.K[1, 1])
+    return 1.0 / camera.f_mean
 
 
 def _draw_boxes(img, camera, R, t, C_t, rays, backdrop, color):

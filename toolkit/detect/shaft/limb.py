@@ -59,6 +59,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from pencilcal.toolkit.camera.model import mean_focal
 from pencilcal.toolkit.detect.edges import linearised
 from pencilcal.toolkit.detect.working import raw_frame
 
@@ -280,7 +281,7 @@ def limb_edges(image, camera, K, e1, e2, gamma=1.0):
     ``K^T l``."""
     K = np.asarray(K, float)
     Kinv = np.linalg.inv(K)
-    f = float(np.sqrt(K[0, 0] * K[1, 1]))
+    f = mean_focal(K)
     nrm = [K.T @ e.line() for e in (e1, e2)]
     d = np.cross(nrm[0], nrm[1])
     d = d / max(np.linalg.norm(d), 1e-300)
