@@ -8,7 +8,9 @@ can be seen along many of its own widths, with two straight edges: as a band of 
 cue it looks more like a shaft than the shaft does. So where a band's run is cut by the
 border of the view (`shaft.region_bands.RegionBand.reach_run`), a narrower band that lies
 beyond that band's far end, within half its width of its axis, with its extension running into
-it (the instrument's material continues from one into the other), is that instrument's distal
+that band's extension (the instrument's material continues from one into the other, over a
+wrist between them too: where the far border cuts the jaw, its band reaches back to the wrist,
+not to the shaft), is that instrument's distal
 part (`beyond_entry`), not a shaft of its own, whether it ends inside the view or the border
 cuts it too (an instrument that runs on out of the view past its jaws). No constant: the far
 end, the band's own width and the extension's overlap (a tenth of the smaller area, as the
@@ -38,7 +40,7 @@ import numpy as np
 
 __all__ = ["beyond_entry", "entry_and_far_end"]
 
-#: A band's extension runs into another's run where their hulls overlap by this fraction of
+#: A band's extension runs into another's where their hulls overlap by this fraction of
 #: the smaller area (the material cue's `_TOUCH`, the same overlap).
 _OVERLAP = 0.1
 
@@ -74,7 +76,7 @@ def _hull(poly):
 def _beyond(sh, t):
     """Whether the band of sh (a `shaft.material_cue.MaterialShaft`) lies beyond the far end
     of t's, whose run the border cuts, within half t's width of its axis, its extension running
-    into t's run (module docstring)."""
+    into t's extension (module docstring)."""
     import cv2
 
     entry, far = entry_and_far_end(t.band)
@@ -87,7 +89,7 @@ def _beyond(sh, t):
     c = _centre(sh.band, (i0 + i1 - 1) // 2) - far
     if float(c @ d) <= 0 or abs(float(c[0] * d[1] - c[1] * d[0])) > 0.5 * t.band.width_run:
         return False
-    P, Q = _hull(sh.poly_ext), _hull(t.poly_run)
+    P, Q = _hull(sh.poly_ext), _hull(t.poly_ext)
     area = min(abs(cv2.contourArea(P)), abs(cv2.contourArea(Q)))
     return area > 0 and cv2.intersectConvexConvex(P, Q)[0] > _OVERLAP * area
 

@@ -12,8 +12,9 @@ composited with its exact area coverage, then blur (1-2 px), gamma, noise and JP
 detection finds it within the masked sources' tolerance for a shaft (1.5 deg, 15 px:
 `validation.shaft_score.Tolerance`).
 
-Run: ``python -m tests.toolkit.detect.shaft.close_instruments FIRST LAST [KINDS]`` prints
-the found and false detections over seeds [FIRST, LAST) of each kind (dark, grey, bright).
+Run: ``python -m tests.toolkit.detect.shaft.close_instruments FIRST LAST [KINDS] [near]``
+prints the found and false detections over seeds [FIRST, LAST) of each kind (dark, grey,
+bright); near: the nearer instruments of `NEAR`.
 """
 from __future__ import annotations
 
@@ -39,9 +40,11 @@ def line_through(p, d):
     return np.r_[n, -n @ p]
 
 
-def scene(seed, kind):
+def scene(seed, kind, conv_deg=(2.0, 14.0), seen_widths=(1.2, 3.0)):
     """(frame (H, W, 3) uint8 BGR, reference (kind, line, point, width_px as `mask.MaskAxis`),
-    parameters) of one close instrument of kind "dark", "grey" or "bright" (module docstring)."""
+    parameters) of one close instrument of kind "dark", "grey" or "bright" (module docstring);
+    conv_deg, seen_widths: the ranges its convergence [deg] and its length seen to the collar
+    [widths at the border] are drawn from (`NEAR`: nearer still)."""
     rng = np.random.default_rng(seed)
     back = np.array(tissue_image((H, W), seed=seed), float)
     side = rng.integers(4)
@@ -58,8 +61,8 @@ def scene(seed, kind):
     u = np.array([c * u[0] - s_ * u[1], s_ * u[0] + c * u[1]])
     n = np.array([-u[1], u[0]])
     w0 = rng.uniform(80, 180)
-    conv = np.radians(rng.uniform(2, 14))
-    seen = rng.uniform(1.2, 3.0) * w0
+    conv = np.radians(rng.uniform(*conv_deg))
+    seen = rng.uniform(*seen_widths) * w0
     yy, xx = np.mgrid[0:H, 0:W].astype(float)
     along = (xx - P0[0]) * u[0] + (yy - P0[1]) * u[1]
     across = (xx - P0[0]) * n[0] + (yy - P0[1]) * n[1]
@@ -116,12 +119,53 @@ def scene(seed, kind):
     return img, ref, dict(side=int(side), w0=w0, conv=np.degrees(conv), seen=seen / w0, kind=kind, e1=e1, e2=e2, P0=P0, u=u)
 
 
-def sweep(seeds, kinds=("dark", "grey", "bright")):
-    """(found, frames, false detections) of `detect_shafts` over the scenes of seeds and kinds."""
+# nearer still: converging by 14-24 deg, seen along 0.6-1.5 of its widths to the collar (the
+# da Vinci frames' close shafts: 12-19 deg, 0.7-1.5 widths)
+NEAR = dict(conv_deg=(14.0, 24.0), seen_widths=(0.6, 1.5))
+
+
+def wedge(seed, kind):
+    """(frame (H, W, 3) uint8 BGR, parameters) of a wedge of tissue entering at a random
+    border as `scene`'s instrument does, 80-180 px wide there, its straight sides converging by
+    14-30 deg and running on to 0.7-1.0 of the way to their apex, of kind "pale" (the tissue
+    paled, as fascia or a fold lit) or "shadow" (the tissue darkened, keeping its hue): no
+    instrument, so every detection is false."""
+    rng = np.random.default_rng(seed)
+    back = np.array(tissue_image((H, W), seed=seed), float)
+    side = rng.integers(4)
+    tilt = np.radians(rng.uniform(-35, 35))
+    P0, u = [(np.array([0.0, rng.uniform(140, 340)]), np.array([1.0, 0.0])),
+             (np.array([W - 1.0, rng.uniform(140, 340)]), np.array([-1.0, 0.0])),
+             (np.array([rng.uniform(180, 460), 0.0]), np.array([0.0, 1.0])),
+             (np.array([rng.uniform(180, 460), H - 1.0]), np.array([0.0, -1.0]))][side]
+    c, s_ = np.cos(tilt), np.sin(tilt)
+    u = np.array([c * u[0] - s_ * u[1], s_ * u[0] + c * u[1]])
+    n = np.array([-u[1], u[0]])
+    w0 = rng.uniform(80, 180)
+    conv = np.radians(rng.uniform(14, 30))
+    seen = rng.uniform(0.7, 1.0) * 0.5 * w0 / np.tan(0.5 * conv)
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    along = (xx - P0[0]) * u[0] + (yy - P0[1]) * u[1]
+    across = (xx - P0[0]) * n[0] + (yy - P0[1]) * n[1]
+    half = 0.5 * w0 - along * np.tan(0.5 * conv)
+    cover = np.clip(half - np.abs(across) + 0.5, 0, 1) * np.clip(seen - along + 0.5, 0, 1) * np.clip(along + 40, 0, 1)
+    if kind == "pale":
+        inside = 0.45 * back + 0.55 * np.array([0.55, 0.58, 0.72]) * rng.uniform(0.8, 1.1)
+    else:  # shadow: the tissue's own hue, darker
+        inside = back * rng.uniform(0.15, 0.35)
+    lin = back * (1 - cover)[..., None] + inside * cover[..., None]
+    frame = sensor_image(lin, 0.0, 1.0, rng.uniform(1.0, 2.0), 2.2, 2.0, rng)
+    _, buf = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, 85])
+    return cv2.imdecode(buf, cv2.IMREAD_COLOR), dict(side=int(side), w0=w0, conv=np.degrees(conv), kind=kind)
+
+
+def sweep(seeds, kinds=("dark", "grey", "bright"), **ranges):
+    """(found, frames, false detections) of `detect_shafts` over the scenes of seeds and kinds
+    (ranges: those of `scene`)."""
     found = total = false = 0
     for kind in kinds:
         for seed in seeds:
-            img, ref, _ = scene(seed, kind)
+            img, ref, _ = scene(seed, kind, **ranges)
             fs = score_frame([s.to_dict() for s in detect_shafts(img)], [ref])
             found, total, false = found + fs.found, total + 1, false + fs.false
     return found, total, false
@@ -129,7 +173,7 @@ def sweep(seeds, kinds=("dark", "grey", "bright")):
 
 if __name__ == "__main__":
     first, last = int(sys.argv[1]), int(sys.argv[2])
-    kinds = sys.argv[3].split(",") if len(sys.argv) > 3 else ("dark", "grey", "bright")
+    kinds = sys.argv[3].split(",") if len(sys.argv) > 3 and sys.argv[3] != "near" else ("dark", "grey", "bright")
     t0 = time.process_time()
-    f, n, fa = sweep(range(first, last), kinds)
+    f, n, fa = sweep(range(first, last), kinds, **(NEAR if "near" in sys.argv[3:] else {}))
     print(f"seeds {first}-{last - 1}: found {f}/{n}, false {fa} ({time.process_time() - t0:.1f} s CPU)")

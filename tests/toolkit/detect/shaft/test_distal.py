@@ -130,3 +130,26 @@ def test_beyond_entry_drops_only_a_part_beyond_the_far_end():
     as_wide = _band(40, 100, 54.0, 30, True, ext_from=20)
     for other in (off_axis, apart, as_wide):
         assert beyond_entry([sh, other]) == [sh, other]
+
+
+def test_beyond_entry_a_jaw_reaching_the_wrist():
+    """A jaw the far border cuts, whose extension reaches back to the wrist beyond the shaft's
+    collar (the shaft's extension, its material) but not to the shaft's run, goes too."""
+    sh = _band(0, 30, 50.0, 30, True)
+    sh.band.ext = (0, 52)  # the shaft's material runs on over its wrist to station 52
+    sh.poly_ext = band_polygon(sh.band, sh.band.ext)
+    jaw = _band(60, 100, 54.0, 6, True, ext_from=40)  # reaches station 40: the wrist, not the run
+    assert beyond_entry([sh, jaw]) == [sh]
+    assert beyond_entry([jaw, sh]) == [sh]
+
+
+def test_close_instrument_render_jaw_cut_by_the_far_border():
+    """A render of `tests.toolkit.detect.shaft.close_instruments` (bright metal, seed 14: a shaft
+    166 px wide at the left border converging by 9.7 deg, seen along 2.2 widths, its wrist and a
+    jaw running out of the view): the shaft is found, the jaw is no detection."""
+    from pencilcal.validation.shaft_score import score_frame
+    from tests.toolkit.detect.shaft.close_instruments import scene
+
+    img, ref, _ = scene(14, "bright")
+    fs = score_frame([s.to_dict() for s in detect_shafts(img)], [ref])
+    assert fs.found == 1 and fs.false == 0
