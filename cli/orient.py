@@ -14,6 +14,7 @@ from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.sequence_noise import orientations_with_noise
 from pencilcal.toolkit.pencil.spec import read_pencil
 from pencilcal.toolkit.pencil.track import orient_tracked
+from pencilcal.validation.radial_run import STAR_FALLBACK
 
 from .common import (detector_option, endpoint_sigma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, images_argument,
                      frames_region, jsonl_option, mask_option, max_pixels_option, open_input, output_option,
@@ -73,8 +74,7 @@ def _orient_image_task(frame, ctx):
     runs in worker processes too."""
     from pencilcal.toolkit.io.images import check_image_size
     from pencilcal.toolkit.detect.lines import fan_line_options, lines_record, radial_edge_count, radial_joint_mode
-
-    from pencilcal.toolkit.pencil.spec import may_be_star
+    from pencilcal.validation.radial_run import as_star_frame, radial_frame, wants_star
 
     camera, pencil, detector, opts, edges, region, drawing = ctx
     if frame.image is None:
@@ -93,91 +93,19 @@ def _orient_image_task(frame, ctx):
             fr = lines_record(frame.name, frame.image, camera, detector, **lines_kw)
             return fr, _orient_record(camera, pencil, fr, opts)
 
+        def orient(pen, fr, keep_lines):
+            return _orient_record(camera, pen, fr, dict(opts, keep_lines=keep_lines))
+
         if radial is not None:
-            fr, rec = _radial_frame(frame, camera, pencil, detector, lines_kw, opts)
+            fr, rec = radial_frame(frame.name, frame.image, camera, pencil, detector, lines_kw, orient, state)
         else:
             before = None if state is None else dict(state)
             fr, rec = detected() if tracker is None else _tracked_bars_frame(detected, tracker, state)
-            if not edges and may_be_star(pencil) and _star_key(rec, pencil)[:3] != (True, True, True):
-                fr, rec = _as_star_frame(frame, camera, pencil, detector, lines_kw, opts, (fr, rec), before)
+            if not edges and wants_star(rec, pencil):
+                fr, rec = as_star_frame(frame.name, frame.image, camera, pencil, detector, lines_kw, orient,
+                                        (fr, rec), state, before)
     # drawn by the overlay's own thread (`FrameOutputs`), or in the worker process
     return rec, partial(_drawn, frame, rec, fr["segments"], camera, drawing) if drawing else None
-
-
-#: A pencil of lines all round its vertex without a bar width (`spec.may_be_star`) whose bars
-#: fit fewer of its spokes than this fraction, or leave the twin unresolved, is measured
-#: again as a Siemens star's wedges along them: the fraction `_warn_frame` warns at.
-STAR_FALLBACK = 0.9
-
-
-def _star_key(rec, pencil):
-    """How good one measurement of a `may_be_star` frame is, compared as a tuple: an
-    estimate, most spokes used (STAR_FALLBACK of them), the twin resolved, the spokes used."""
-    used = int(rec.spokes_used or 0) if rec.ok else 0
-    return bool(rec.ok), used >= STAR_FALLBACK * pencil.count, bool(rec.ok and not rec.ambiguous), used
-
-
-def _as_star_frame(frame, camera, pencil, detector, lines_kw, opts, bars, before):
-    """A frame whose plain pencil file's lines (`spec.may_be_star`) the bars fitted poorly,
-    measured as the wedges of a star along them (`spec.as_star`): dark on light, then light
-    on dark unless the first used most spokes and resolved the twin. The best measurement
-    (`_star_key`; on a tie the bars', `bars`: (lines record, orientation)) is kept, its
-    orientation that of the file's pencil (the same spokes and target frame). Each
-    measurement starts from the tracking state `before` the bars' (a dict, None without
-    tracking), which is left as the kept measurement left it."""
-    from pencilcal.toolkit.detect.lines import radial_edge_count, radial_joint_mode
-    from pencilcal.toolkit.pencil.spec import as_star
-
-    state = opts.get("tracking")
-    best, best_state = bars, None if state is None else dict(state)
-    for polarity in ("dark", "light"):
-        if state is not None:
-            state.update(before)
-        star = as_star(pencil, polarity)
-        kw = dict(lines_kw, bars=False, bar_tracker=None, radial=radial_edge_count(star),
-                  radial_joint=radial_joint_mode(star))
-        fr, rec = _radial_frame(frame, camera, star, detector, kw, opts)
-        if _star_key(rec, pencil) > _star_key(best[1], pencil):
-            best, best_state = (fr, rec), None if state is None else dict(state)
-        if _star_key(rec, pencil)[:3] == (True, True, True):
-            break  # the other polarity's edges are at the same angles: it measures them again
-    if state is not None:
-        state.update(best_state)
-    return best
-
-
-def _radial_frame(frame, camera, pencil, detector, lines_kw, opts):
-    """A radial target's edges in one frame and their orientation, each edge trimmed where it
-    runs on past the ring the spokes end on (a dartboard's double ring), as
-    `toolkit.detect.radial.trimmed_at_spokes_end` detects and orients them (the validation
-    of the photographs the same way): (lines record, orientation). Both passes start from
-    the orientation tracking's state as the previous frame left it."""
-    from pencilcal.toolkit.detect.lines import detect_frame_lines
-    from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
-    from pencilcal.toolkit.detect.image import GrayImage
-    from pencilcal.toolkit.detect.radial import trimmed_at_spokes_end
-
-    state = opts.get("tracking")
-    before = None if state is None else (state["previous"], state["tracked"])
-    kept = dict(opts, keep_lines=True)  # the ring's estimate needs the labelled lines
-    memo = {}  # the second pass reuses the edges the first located
-
-    def detect(outer):
-        return detect_frame_lines(frame.name, frame.image, camera, detector, radial_outer=outer, radial_memo=memo,
-                                  **lines_kw)
-
-    def oriented(found):
-        if state is not None:
-            state.update(previous=before[0], tracked=before[1])
-        rec = _orient_record(camera, pencil, found.to_dict(), kept)
-        if state is not None and state["previous"] is not None:
-            state["previous"] = state["previous"].replace(lines=None)
-        return rec
-
-    img = GrayImage(frame.image, lines_kw.get("valid_region"))
-    found, rec = trimmed_at_spokes_end(detect, oriented, camera, pencil, img, lines_kw["radial_joint"],
-                                       lines_kw.get("gamma", DEFAULT_GAMMA))
-    return found.to_dict(), rec.replace(lines=None)
 
 
 def _tracked_bars_frame(detected, tracker, state):
@@ -226,7 +154,7 @@ def _warn_frame(rec, pencil=None):
         warn(f"{rec.image}: the normal is ambiguous: other labellings of its {rec.lines_used} lines fit "
              "about as well and put it elsewhere (normal_alternatives)")
     elif (pencil is not None and pencil.shape == "line" and pencil.width is None and pencil.full_circle
-          and rec.spokes_used is not None and rec.spokes_used < 0.9 * pencil.count):
+          and rec.spokes_used is not None and rec.spokes_used < STAR_FALLBACK * pencil.count):
         # a star's wedges or a dartboard's sectors measured as bars: their edges are the lines
         warn(f"{rec.image}: {rec.spokes_used} of the {pencil.count} spokes all round the vertex used; if they are "
              "a star's wedges or the boundaries between sectors, the pencil file says so (shape: wedge or edge, "

@@ -257,8 +257,10 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
         A = np.linalg.inv(np.asarray(camera.K, float))[:2, :2]
         sigma_metric = np.sqrt(np.mean(sig_e[through] ** 2)) * np.sqrt(abs(np.linalg.det(A)))
         lab, fit, rivals, labels_ambiguous = _label_and_fit(ln, pencil, labels, idx, sigma_metric)
-        if labels is None and pencil.shape == "wedge":
-            for _ in range(WEDGE_ROUNDS):  # the wedges as wide as printed, and labelled again
+        if pencil.shape == "wedge":
+            # the wedges as wide as printed, and labelled again (given labels: fitted again),
+            # tracked frames too (their labels the previous frame's)
+            for _ in range(WEDGE_ROUNDS):
                 wider = _printed_wedge(ln, pencil, lab, fit)
                 if wider is pencil:
                     break

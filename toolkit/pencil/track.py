@@ -113,7 +113,7 @@ def orient_tracked(camera, segments, pencil, previous, gate_deg=GATE_DEG, keep_l
         plane = None if previous.ambiguous else previous.normal
         rec = orient_segments(camera, segments, pencil, labels=lab, keep_lines=True, plane_normal=plane,
                               **orient_kwargs)
-        if not (rec.ok and rec.lines_used >= need and _fits_its_labels(rec, pencil)):
+        if not (rec.ok and rec.lines_used >= need and _fits_its_labels(rec)):
             rec = None
     if rec is None:
         return orient_segments(camera, segments, pencil, keep_lines=keep_lines, **orient_kwargs), False
@@ -123,12 +123,13 @@ def orient_tracked(camera, segments, pencil, previous, gate_deg=GATE_DEG, keep_l
     return rec, True
 
 
-def _fits_its_labels(rec, pencil):
+def _fits_its_labels(rec):
     """Whether every labelled line lies within GATE_SIGMA sd of its spoke's image angle
     under the fitted orientation (a wrong label misses by far more)."""
     ln = rec.lines
+    # the lines' target angles as fitted (a star's wedges as wide as printed), not the file's
     pred = image_angles(np.asarray(rec.R_cam_from_target, float), np.asarray(ln["vertex"], float),
-                        pencil.edge_angles()[0][np.asarray(ln["spoke"], int)])
+                        np.asarray(ln["theta"], float))
     res = wrap_angle(np.asarray(ln["angle"], float) - pred)
     # lines, not directions: a straddling segment's angle is known modulo pi
     res = np.minimum(np.abs(res), np.abs(wrap_angle(res + np.pi)))

@@ -78,3 +78,30 @@ def test_bars_handed_over_undistorted_give_the_same_frames():
         assert abs(rec.tilt_sigma_deg - rec_i.tilt_sigma_deg) < 1e-3 * rec.tilt_sigma_deg
         assert np.max(np.abs(rec.vertex_px - rec_i.vertex_px)) < 1e-3
         prev, prev_ideal = rec, rec_i
+
+
+def test_a_star_printed_wider_than_its_file_is_tracked_at_its_printed_width():
+    # ink spread: every wedge 1.2 times the file's width; the full search fits the printed
+    # width (`orient._printed_wedge`), and tracked frames must too, or their labelled edges
+    # miss the file's edges by many sigmas and every frame falls back to the full search
+    from pencilcal.toolkit.pencil.spec import pencil_from_dict
+
+    base = {"start_deg": 0, "step_deg": 22.5, "count": 16, "shape": "wedge", "polarity": "dark"}
+    star = pencil_from_dict(base)
+    printed = pencil_from_dict(dict(base, wedge_deg=1.2 * 11.25))
+    prev = None
+    for k, tilt in enumerate(np.linspace(30, 35, 4)):
+        rng = np.random.default_rng(k)
+        R = rotation_about_axis([1.0, 0, 0], np.radians(tilt)) @ rotation_about_axis([0, 0, 1.0], 0.3)
+        a = image_angles(R, np.zeros(2), printed.edge_angles()[0])
+        u = np.stack([np.cos(a), np.sin(a)], -1)
+        c = np.array([639.5, 359.5])
+        seg = np.concatenate([c + 60 * u, c + 320 * u], -1) + rng.normal(0, 0.1, (a.size, 4))
+        full = orient_segments(CAM, seg, star, endpoint_sigma_px=0.1)
+        rec, tracked = orient_tracked(CAM, seg, star, prev, endpoint_sigma_px=0.1)
+        assert full.spokes_used == 16
+        assert tracked == (k > 0) and rec.spokes_used == 16
+        normals = [rec.normal] if not rec.ambiguous else [rec.normal, rec.normal_twin]
+        err = min(np.degrees(np.arccos(np.clip(np.asarray(n) @ R[:, 2], -1, 1))) for n in normals)
+        assert err < 4 * rec.normal_sigma_deg
+        prev = rec
