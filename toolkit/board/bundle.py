@@ -54,7 +54,8 @@ from pencilcal.toolkit.camera.intrinsics import model_intrinsic_names
 from pencilcal.toolkit.errors import EstimationError
 
 __all__ = ["Layout", "Solution", "Covariance", "warp_basis", "theta_of", "camera_parts", "refine", "covariance",
-           "fit_pose", "view_residuals", "board_scale", "WARP_NAMES"]
+           "fit_pose", "view_residuals", "board_scale", "board_jacobian", "view_jacobians", "penalty_normal",
+           "WARP_NAMES"]
 
 #: Names of the board's warp parameters [board unit].
 WARP_NAMES = ("warp_x", "warp_y")
@@ -194,6 +195,13 @@ def _regularization(layout, theta, T):
     return -layout.spline_weight * np.asarray(theta[4:], float), Jfull @ T
 
 
+def penalty_normal(layout, theta):
+    """The splined model's penalty in the normal equations over the free intrinsics (F, F),
+    ``J^T J`` of `_regularization`; None for a lean model."""
+    reg = _regularization(layout, theta, layout.transform(theta))
+    return None if reg is None else reg[1].T @ reg[1]
+
+
 def camera_parts(theta, layout):
     """(K (3, 3), dist (n_coef,)) of a full intrinsic vector."""
     K = np.array([[theta[0], 0.0, theta[2]], [0.0, theta[1], theta[3]], [0.0, 0.0, 1.0]])
@@ -276,15 +284,33 @@ def _weighted(r, Jg, Jp, w):
     return r * sw, Jg * sw[:, None], Jp * sw[:, None]
 
 
-def board_scale(pose, Jp):
-    """(K,) the board's local scale at each corner [px per board unit]: sqrt |det| of
-    d pixel / d board (x, y), from the pose Jacobian Jp (2K, 6) (its tvec columns: a board
-    point moved along board x moves as tvec moved along R's first column)."""
+def board_jacobian(pose, Jp):
+    """(K, 2, 2) d pixel / d board (x, y) at each corner, from the pose Jacobian Jp (2K, 6)
+    (its tvec columns: a board point moved along board x moves as tvec moved along R's
+    first column)."""
     import cv2
 
     R = cv2.Rodrigues(np.asarray(pose[0], float).reshape(3))[0]
-    A = Jp.reshape(-1, 2, 6)[:, :, 3:6] @ R[:, :2]                                # (K, 2, 2)
-    return np.sqrt(np.abs(np.linalg.det(A)))
+    return Jp.reshape(-1, 2, 6)[:, :, 3:6] @ R[:, :2]
+
+
+def board_scale(pose, Jp):
+    """(K,) the board's local scale at each corner [px per board unit]: sqrt |det| of
+    d pixel / d board (x, y) (`board_jacobian`)."""
+    return np.sqrt(np.abs(np.linalg.det(board_jacobian(pose, Jp))))
+
+
+def view_jacobians(layout, solution, objs, imgs, bases=None):
+    """Per view at the solution: (residuals observed - projected (K, 2) [px], the
+    predictions' Jacobian in the global parameters Jg (2K, G) and in the pose Jp (2K, 6),
+    d pixel / d board (x, y) (K, 2, 2)), unweighted."""
+    bases = list(bases) if bases is not None else [None] * len(objs)
+    T = layout.transform(solution.theta)
+    out = []
+    for pose, obj, img, basis in zip(solution.poses, objs, imgs, bases):
+        r, Jg, Jp = _view(layout, solution.theta, T, pose, obj, img, basis, solution.warp)
+        out.append((r.reshape(-1, 2), Jg, Jp, board_jacobian(pose, Jp)))
+    return out
 
 
 def _normal(layout, theta, T, poses, warp, objs, imgs, bases, weights=None):
@@ -398,15 +424,18 @@ def view_residuals(layout, solution, objs, imgs, bases=None):
     return out
 
 
-def fit_pose(layout, theta, warp, pose, obj, img, basis=None, max_iterations=30):
-    """One view's pose with the intrinsics and warp held: ((rvec, tvec), residuals (N, 2)).
-    For held-out views (`toolkit.board.model_choice`)."""
+def fit_pose(layout, theta, warp, pose, obj, img, basis=None, max_iterations=30, weights=None):
+    """One view's pose with the intrinsics and warp held: ((rvec, tvec), residuals (N, 2)
+    [px], unweighted). For held-out views (`toolkit.board.model_choice`); weights (N,):
+    each corner's weight in the fit (None: 1)."""
     lay = Layout(layout.model, layout.n_coef, warp=False)
     o = _warped(obj, basis, np.asarray(warp, float))
     rvec, tvec = np.array(pose[0], float).ravel(), np.array(pose[1], float).ravel()
     lam = _LAMBDA0
+    sw = 1.0 if weights is None else np.repeat(np.sqrt(np.asarray(weights, float)), 2)
     px, _, Jp = _project(lay, theta, rvec, tvec, o)
-    r = (np.asarray(img, float) - px).reshape(-1)
+    r = (np.asarray(img, float) - px).reshape(-1) * sw
+    Jp = Jp * (sw if weights is None else sw[:, None])
     cost = float(r @ r)
     for _ in range(int(max_iterations)):
         H = Jp.T @ Jp
@@ -416,7 +445,8 @@ def fit_pose(layout, theta, warp, pose, obj, img, basis=None, max_iterations=30)
             break
         rv2, tv2 = rvec + d[:3], tvec + d[3:]
         px2, _, Jp2 = _project(lay, theta, rv2, tv2, o)
-        r2 = (np.asarray(img, float) - px2).reshape(-1)
+        r2 = (np.asarray(img, float) - px2).reshape(-1) * sw
+        Jp2 = Jp2 * (sw if weights is None else sw[:, None])
         c2 = float(r2 @ r2)
         if np.isfinite(c2) and c2 <= cost:
             done = cost - c2 <= _REL_TOL * max(cost, 1e-300)
@@ -428,6 +458,9 @@ def fit_pose(layout, theta, warp, pose, obj, img, basis=None, max_iterations=30)
             lam *= 10.0
             if lam > _LAMBDA_MAX:
                 break
+    if weights is not None:
+        # the residuals unweighted (a corner of weight 0 included)
+        r = (np.asarray(img, float) - _project(lay, theta, rvec, tvec, o)[0]).reshape(-1)
     return (rvec, tvec), r.reshape(-1, 2)
 
 
