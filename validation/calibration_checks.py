@@ -96,7 +96,9 @@ def _solve_half(result, views, subset):
     w = None if result.weights is None else [result.weights[j] for j in subset]
     half = refine(result.layout, sol.theta, sol.poses[subset], o, p, b if result.layout.warp else None, warp=sol.warp,
                   weights=w)
-    cov = covariance(result.layout, half, o, p, b if result.layout.warp else None, _noise_of(result), w)
+    pr = result.print_errors
+    cov = covariance(result.layout, half, o, p, b if result.layout.warp else None, _noise_of(result), w,
+                     shared=pr if pr is not None and pr.kept else None)
     return half, cov
 
 

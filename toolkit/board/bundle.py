@@ -64,6 +64,9 @@ WARP_NAMES = ("warp_x", "warp_y")
 _LAMBDA0 = 1e-4
 _LAMBDA_MAX = 1e10
 _REL_TOL = 1e-12
+# the least share of a view's white level left to it when the printed board's offsets are
+# taken out of it (`covariance`'s shared)
+_MIN_OWN_SHARE = 0.1
 
 
 @dataclass(frozen=True)
@@ -464,7 +467,7 @@ def fit_pose(layout, theta, warp, pose, obj, img, basis=None, max_iterations=30,
     return (rvec, tvec), r.reshape(-1, 2)
 
 
-def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=None):
+def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=None, shared=None):
     """The covariance of `refine`'s estimate.
 
     noise : None for white corner errors of one level, estimated from all residuals
@@ -475,6 +478,13 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=Non
     weights : the corner weights `refine` was given (None: ordinary least squares); the
         sandwich is that of the weighted estimate, so weights that are not the inverse
         variances still give its true covariance under `noise`.
+    shared : the printed board's corner offsets (`print_errors.PrintErrors`) or None. Their
+        share of each view's residuals (``A diag(var) A^T`` per corner, A = d pixel / d
+        board (x, y)) is taken out of the view's white part in the intrinsics' and warp's
+        covariance: the residuals show them as if they were the view's own white noise,
+        but they are common to every view and enter that covariance as their own term
+        (`print_errors.covariance_term`), not here. The poses' covariance and sigma_w keep
+        the whole level (each pose sees the offsets once, as noise of its own).
 
     Returns a `Covariance`; its intrinsics and warp blocks are inf where the problem is
     singular.
@@ -493,6 +503,10 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=Non
         img = np.asarray(img, float)
         d = np.ones(img.shape[0]) if noise is None else \
             variance_factor(noise, img, board_scale(pose, Jp), solution.theta[2:4])
+        # the offsets' variance per corner and image axis, relative to the corner's factor
+        share = 0.0 if shared is None else float(np.mean(
+            np.einsum("kab,b,kab->ka", board_jacobian(pose, Jp), np.asarray(shared.variance, float),
+                      board_jacobian(pose, Jp)) / d[:, None]))
         # the weighted errors' covariance is s2 G (I + c k) G per axis, G = diag(sqrt(w d))
         g = np.sqrt(d if w is None else np.asarray(w, float) * d)
         r, Jg, Jp = _weighted(r, Jg, Jp, w)
@@ -501,7 +515,7 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=Non
         Ci = np.linalg.pinv(C)
         PJ = Jg - Jp @ (Ci @ (Jp.T @ Jg))               # the pose projected out
         S = Jg.T @ PJ if S is None else S + Jg.T @ PJ
-        views.append((r, Jg, Jp, Ci, PJ, img, np.repeat(g, 2)))
+        views.append((r, Jg, Jp, Ci, PJ, img, np.repeat(g, 2), share))
     G = S.shape[0]
     reg = _regularization(layout, solution.theta, T)
     if reg is not None:
@@ -516,15 +530,19 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=Non
     except np.linalg.LinAlgError:
         Si = np.full((G, G), np.inf)
     s2, mids, sig_e = [], [], []
-    for r, Jg, Jp, Ci, PJ, img, g in views:
+    for r, Jg, Jp, Ci, PJ, img, g, share in views:
         K = img.shape[0]
         k = kernel(img, noise.length_px) if noise is not None and noise.ratio > 0 else None
         if noise is None:
-            s2.append(sse / dof)
+            level = sse / dof
         else:
-            s2.append(white_variance(CornerView(img, -(r / g).reshape(-1, 2), Jp / g[:, None]), noise, k))
+            level = white_variance(CornerView(img, -(r / g).reshape(-1, 2), Jp / g[:, None]), noise, k)
+        s2.append(level)
         GP = PJ * g[:, None]
-        M = GP.T @ GP
+        # the offsets show in the residuals as white errors: they come out of the white
+        # part only (a floor: a view they would explain whole keeps a tenth of it), the
+        # correlated part stays the level's
+        M = max(1.0 - share / level, _MIN_OWN_SHARE) * (GP.T @ GP) if share else GP.T @ GP
         if k is not None:
             P3 = GP.reshape(K, 2, -1)
             M = M + noise.ratio * np.einsum("kbp,kbq->pq", P3, np.einsum("kl,lbq->kbq", k, P3))
@@ -546,7 +564,7 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=Non
     else:
         Cg = Si
     cov_poses = []
-    for (r, Jg, Jp, Ci, PJ, img, g), v, Sigma in zip(views, s2, sig_e):
+    for (r, Jg, Jp, Ci, PJ, img, g, _), v, Sigma in zip(views, s2, sig_e):
         B = Jg.T @ Jp
         if not np.all(np.isfinite(Cg)):
             cov_poses.append(np.full((6, 6), np.inf))

@@ -687,8 +687,11 @@ def _final(layout, board, detections, objs, imgs, used, masks, theta, poses, ima
     if corner_noise:
         sol, noise, weights = _reweighted(layout, sol, o, p, bases, image_size)
     cov = covariance(layout, sol, o, p, bases, noise, weights)
-    prints = _with_print_errors(layout, sol, cov, o, p, bases, [_ids(detections[i], masks[i]) for i in used],
-                                obj_all.shape[0], noise, weights) if corner_noise else None
+    prints = None
+    if corner_noise:
+        cov, prints = _with_print_errors(layout, sol, cov, o, p, bases,
+                                         [_ids(detections[i], masks[i]) for i in used], obj_all.shape[0], noise,
+                                         weights)
     K, dist = camera_parts(sol.theta, layout)
     names = model_intrinsic_names(layout.model, layout.n_coef)
     sd = np.sqrt(np.clip(np.diag(cov.intrinsics), 0, None))
@@ -743,10 +746,13 @@ def _ids(det, mask):
 
 def _with_print_errors(layout, sol, cov, o, p, bases, ids, n_corners, noise, weights):
     """The printed board's corner offsets (`print_errors`) measured on the calibration's
-    residuals; where kept, their share ``G diag(var) G^T`` added to `cov`'s intrinsics,
-    warp and cross blocks in place. Returns the `PrintErrors`."""
+    residuals (weighted by the views' levels in `cov`); where kept, the covariance again
+    with their share taken out of the views' white levels (`bundle.covariance`'s shared)
+    and ``G diag(var) G^T`` added to its intrinsics, warp and cross blocks. Returns (the
+    covariance, the `PrintErrors`)."""
     prints, jac = fit_print_errors(layout, sol, o, p, bases, ids, n_corners, cov.sigma_w, noise)
     if prints.kept and np.all(np.isfinite(cov.intrinsics)):
+        cov = covariance(layout, sol, o, p, bases, noise, weights, shared=prints)
         G = intrinsic_gain(view_gains(jac, ids, n_corners, weights), range(len(o)), layout.transform(sol.theta),
                            penalty_normal(layout, sol.theta))
         extra = covariance_term(G, G, prints)
@@ -755,7 +761,7 @@ def _with_print_errors(layout, sol, cov, o, p, bases, ids, n_corners, noise, wei
         if layout.warp:
             cov.warp = cov.warp + extra[P:, P:]
             cov.cross = cov.cross + extra[:P, P:]
-    return prints
+    return cov, prints
 
 
 def noise_weights(noise, views):

@@ -22,10 +22,12 @@ sigma.
 `gains` gives, per view, what the offsets do to a weighted least-squares estimate: its
 Schur block and d (normal equations' right side) / d offsets; `intrinsic_gain` sums them
 over a subset of views into d intrinsics / d offsets (P, 2 J), linearised at one solution.
-`calibrate` adds ``G diag(var) G^T`` to the intrinsics' covariance; the two-halves check
-(`validation.calibration_checks`) adds each half's own term and their covariance
-``G_a diag(var) G_b^T``: the difference of two halves holds only ``(G_a - G_b) diag(var)
-(G_a - G_b)^T``.
+`calibrate` adds ``G diag(var) G^T`` to the intrinsics' covariance, and takes the offsets'
+share out of each view's white level there (`bundle.covariance`'s ``shared``: the residuals
+show them as each view's own white noise; counted twice, simulated halves came out at
+chi-square per dof 0.75); the two-halves check (`validation.calibration_checks`) adds each
+half's own term and their covariance ``G_a diag(var) G_b^T``: the difference of two halves
+holds only ``(G_a - G_b) diag(var) (G_a - G_b)^T``.
 
 Example
 -------
