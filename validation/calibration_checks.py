@@ -3,8 +3,11 @@
 `calibration_halves` splits the views a calibration kept in two (the odd and the even ones,
 then `RANDOM_HALVES` random halves) and solves each half alone: the same corners, lens
 model and board warp as the full calibration, started from its solution, each half's
-covariance from the same corner-noise model (`toolkit.board.bundle.covariance`). Two
-independent calibrations of one camera must agree within their covariances:
+covariance from the same corner-noise model (`toolkit.board.bundle.covariance`). Where
+the calibration keeps the printed board's own corner offsets (`toolkit.board.
+print_errors`), both halves saw them: each half's covariance gains its share and the two
+halves' errors their covariance, so the difference holds only what differs between their
+views' gains. Two calibrations of one camera must agree within their covariances:
 
 - on the parameters: the chi-square of the intrinsics' difference over the sum of the two
   covariances, with its degrees of freedom and p-value (mrcal's cross-validation idea);
@@ -41,9 +44,10 @@ import math
 
 import numpy as np
 
-from pencilcal.toolkit.board.bundle import camera_parts, covariance, refine, warp_basis
+from pencilcal.toolkit.board.bundle import camera_parts, covariance, penalty_normal, refine, warp_basis
 from pencilcal.toolkit.board.corner_noise import WHITE
 from pencilcal.toolkit.board.coverage import covered_grid
+from pencilcal.toolkit.board.print_errors import covariance_term, intrinsic_gain, view_gains
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.camera.projection_uncertainty import projection_difference, projection_sensitivity, \
     projection_uncertainty
@@ -92,7 +96,9 @@ def _solve_half(result, views, subset):
     w = None if result.weights is None else [result.weights[j] for j in subset]
     half = refine(result.layout, sol.theta, sol.poses[subset], o, p, b if result.layout.warp else None, warp=sol.warp,
                   weights=w)
-    cov = covariance(result.layout, half, o, p, b if result.layout.warp else None, _noise_of(result), w)
+    pr = result.print_errors
+    cov = covariance(result.layout, half, o, p, b if result.layout.warp else None, _noise_of(result), w,
+                     shared=pr if pr is not None and pr.kept else None)
     return half, cov
 
 
@@ -107,12 +113,17 @@ def _region_summary(diff, pred2):
             "ratio": rms / pred if pred > 0 else None}
 
 
-def _pred(camera_a, cov_a, camera_b, cov_b, pixels, region):
-    """(N, 2, 2) the covariance of the difference of two independent calibrations'
-    projections at `pixels`, each linearised at its own intrinsics."""
+def _pred(camera_a, cov_a, camera_b, cov_b, pixels, region, cross=None):
+    """(N, 2, 2) the covariance of the difference of two calibrations' projections at
+    `pixels`, each linearised at its own intrinsics; cross (P, P): the covariance between
+    their errors (the printed board's corners both saw), None: independent."""
     Aa = projection_sensitivity(camera_a, pixels, region)
     Ab = projection_sensitivity(camera_b, pixels, region)
-    return Aa @ cov_a @ np.swapaxes(Aa, -1, -2) + Ab @ cov_b @ np.swapaxes(Ab, -1, -2)
+    out = Aa @ cov_a @ np.swapaxes(Aa, -1, -2) + Ab @ cov_b @ np.swapaxes(Ab, -1, -2)
+    if cross is not None:
+        ab = Aa @ cross @ np.swapaxes(Ab, -1, -2)
+        out = out - ab - np.swapaxes(ab, -1, -2)
+    return out
 
 
 def _root(C):
@@ -121,13 +132,14 @@ def _root(C):
     return V * np.sqrt(np.clip(w, 0.0, None))
 
 
-def ratio_chance(camera_a, cov_a, camera_b, cov_b, region, observed, draws=RATIO_DRAWS, seed=0):
+def ratio_chance(camera_a, cov_a, camera_b, cov_b, region, observed, draws=RATIO_DRAWS, seed=0, cross=None):
     """The probability that two calibrations whose errors are as their covariances say
     differ over `region` (M, 2) by a projection ratio of `observed` or more: the share of
     `draws` pairs of errors drawn from them (through each one's linearised projection, up
     to the aligning rotation) whose RMS difference is at least `observed` x the predicted
     RMS. A one-split figure's p-value: when the difference lies along one direction (a
-    focal length, say) the ratio scatters like |z|, and 1.9 happens once in 20 splits."""
+    focal length, say) the ratio scatters like |z|, and 1.9 happens once in 20 splits.
+    cross (P, P): the covariance between the two calibrations' errors (None: independent)."""
     Aa = projection_sensitivity(camera_a, region, region)
     Ab = projection_sensitivity(camera_b, region, region)
     ok = np.all(np.isfinite(Aa), (-1, -2)) & np.all(np.isfinite(Ab), (-1, -2))
@@ -135,9 +147,12 @@ def ratio_chance(camera_a, cov_a, camera_b, cov_b, region, observed, draws=RATIO
     if not Aa.size or observed is None:
         return None
     rng = np.random.default_rng(seed)
-    # each draw's pixel differences are linear in standard normals: D = G z, G (2M, 2P)
-    G = np.concatenate([(Aa @ _root(cov_a)).reshape(-1, Aa.shape[-1]),
-                        -(Ab @ _root(cov_b)).reshape(-1, Ab.shape[-1])], 1)
+    # each draw's pixel differences are linear in standard normals: D = G z, G (2M, 2P),
+    # z through the root of the two errors' joint covariance
+    P = cov_a.shape[0]
+    X = np.zeros((P, P)) if cross is None else cross
+    L = _root(np.block([[cov_a, X], [X.T, cov_b]]))
+    G = (Aa @ L[:P]).reshape(-1, 2 * P) - (Ab @ L[P:]).reshape(-1, 2 * P)
     pred2 = float(np.sum(G * G)) / Aa.shape[0]
     if pred2 <= 0:
         return None
@@ -149,15 +164,17 @@ def ratio_chance(camera_a, cov_a, camera_b, cov_b, region, observed, draws=RATIO
     return float(np.mean(ratios >= observed))
 
 
-def halves_agreement(camera_a, cov_a, camera_b, cov_b, grid):
+def halves_agreement(camera_a, cov_a, camera_b, cov_b, grid, cross=None):
     """Do two calibrations of one camera agree within their covariances (P, P)? grid : the
-    `CoveredGrid` of the views. Returns the chi-square record and the projection
-    differences over the covered region (up to rotation, and in the camera frame), plus
-    the maps of both over the whole grid."""
+    `CoveredGrid` of the views; cross (P, P): the covariance between their errors (the
+    printed board's corner offsets both halves saw, `toolkit.board.print_errors`), None:
+    independent. Returns the chi-square record and the projection differences over the
+    covered region (up to rotation, and in the camera frame), plus the maps of both over
+    the whole grid."""
     names = camera_a.dist.size + 4
     d = np.r_[camera_a.fx - camera_b.fx, camera_a.fy - camera_b.fy, camera_a.cx - camera_b.cx,
               camera_a.cy - camera_b.cy, camera_a.dist - camera_b.dist]
-    C = cov_a + cov_b
+    C = cov_a + cov_b if cross is None else cov_a + cov_b - cross - cross.T
     free = np.diag(C) > 0
     w, V = np.linalg.eigh(C[np.ix_(free, free)])
     keep = w > 1e-12 * w.max()
@@ -171,22 +188,51 @@ def halves_agreement(camera_a, cov_a, camera_b, cov_b, grid):
     # is the sum of the two projection covariances (not C_a + C_b through one Jacobian,
     # which a lens model with nearly degenerate coefficients turns into nonsense)
     covered = _region_summary(projection_difference(camera_a, camera_b, region, region),
-                              _pred(camera_a, cov_a, camera_b, cov_b, region, region))
+                              _pred(camera_a, cov_a, camera_b, cov_b, region, region, cross))
     frame = _region_summary(projection_difference(camera_a, camera_b, region),
-                            _pred(camera_a, cov_a, camera_b, cov_b, region, None))
+                            _pred(camera_a, cov_a, camera_b, cov_b, region, None, cross))
     rec.update(projection_rms_px=covered["rms_px"], projection_max_px=covered["max_px"],
                projection_predicted_rms_px=covered["predicted_rms_px"], projection_ratio=covered["ratio"],
-               projection_ratio_p=ratio_chance(camera_a, cov_a, camera_b, cov_b, region, covered["ratio"]),
+               projection_ratio_p=ratio_chance(camera_a, cov_a, camera_b, cov_b, region, covered["ratio"],
+                                                            cross=cross),
                camera_frame=frame)
     centres = grid.centres().reshape(-1, 2)
     full = projection_difference(camera_a, camera_b, centres, region)
-    pred = np.sqrt(np.maximum(np.trace(_pred(camera_a, cov_a, camera_b, cov_b, centres, region), axis1=-2,
-                                       axis2=-1), 0.0))
+    pred = np.sqrt(np.maximum(np.trace(_pred(camera_a, cov_a, camera_b, cov_b, centres, region, cross),
+                                       axis1=-2, axis2=-1), 0.0))
     rec["_maps"] = (np.linalg.norm(full, axis=-1).reshape(grid.shape), pred.reshape(grid.shape))
     return rec
 
 
-def _split(result, views, grid, first, size):
+def _print_gains(result, views, detections):
+    """Each used view's `print_errors.gains` at the calibration's solution, or None when the
+    printed board's corner offsets are not in its model."""
+    from pencilcal.toolkit.board.bundle import view_jacobians
+
+    pr = result.print_errors
+    if pr is None or not pr.kept or result.solution is None:
+        return None
+    idx, objs, imgs, bases = views
+    ids = [np.asarray(detections[i].ids, int).ravel()[np.asarray(result.corner_used[i], bool)] for i in idx]
+    n = int(max(int(i.max()) for i in ids if i.size) + 1)
+    jac = view_jacobians(result.layout, result.solution, objs, imgs, bases if result.layout.warp else None)
+    return view_gains(jac, ids, n, result.weights)
+
+
+def _shared(result, gains, first, second):
+    """(the printed corners' share of each half's covariance (P, P) x 2, their cross
+    covariance (P, P)), linearised at the full calibration; None without them."""
+    if gains is None:
+        return None
+    T = result.layout.transform(result.solution.theta)
+    P = T.shape[0]
+    prior = penalty_normal(result.layout, result.solution.theta)
+    Ga, Gb = intrinsic_gain(gains, first, T, prior)[:P], intrinsic_gain(gains, second, T, prior)[:P]
+    pr = result.print_errors
+    return covariance_term(Ga, Ga, pr), covariance_term(Gb, Gb, pr), covariance_term(Ga, Gb, pr)
+
+
+def _split(result, views, grid, first, size, gains=None):
     idx = views[0]
     second = [j for j in range(len(idx)) if j not in set(first)]
     if min(len(first), len(second)) < _MIN_HALF_VIEWS:
@@ -194,8 +240,12 @@ def _split(result, views, grid, first, size):
     (sa, ca), (sb, cb) = _solve_half(result, views, list(first)), _solve_half(result, views, second)
     if not (np.all(np.isfinite(ca.intrinsics)) and np.all(np.isfinite(cb.intrinsics))):
         raise EstimationError("a half's intrinsics are not determined (no covariance)")
-    rec = halves_agreement(_camera(result.layout, sa.theta, size), ca.intrinsics,
-                           _camera(result.layout, sb.theta, size), cb.intrinsics, grid)
+    Ca, Cb, cross = ca.intrinsics, cb.intrinsics, None
+    shared = _shared(result, gains, list(first), second)
+    if shared is not None:
+        Ca, Cb, cross = Ca + shared[0], Cb + shared[1], shared[2]
+    rec = halves_agreement(_camera(result.layout, sa.theta, size), Ca, _camera(result.layout, sb.theta, size), Cb,
+                           grid, cross)
     rec["z"] = dict(zip(result.layout.names, rec.pop("z_values")))
     rec["views"] = [len(first), len(second)]
     return rec
@@ -226,16 +276,18 @@ def calibration_halves(result, detections, board, repeats=RANDOM_HALVES, seed=0)
     size = result.camera.size
     grid = covered_grid(views[2], size)
     n = len(views[0])
-    odd_even = _split(result, views, grid, list(range(0, n, 2)), size)
+    gains = _print_gains(result, views, detections)
+    odd_even = _split(result, views, grid, list(range(0, n, 2)), size, gains)
     maps = odd_even.pop("_maps")
     out = {"method": "halves solved apart with the calibration's corners, lens model, board warp and corner-noise "
-                     "model; projection differences over the covered region, up to the rotation that aligns them",
+                     "model, the printed board's corner offsets shared by both; projection differences over the "
+                     "covered region, up to the rotation that aligns them",
            "odd_even": odd_even}
     recs = []
     if repeats:
         rng = np.random.default_rng(seed)
         for _ in range(int(repeats)):
-            r = _split(result, views, grid, sorted(rng.choice(n, n // 2, replace=False).tolist()), size)
+            r = _split(result, views, grid, sorted(rng.choice(n, n // 2, replace=False).tolist()), size, gains)
             r.pop("_maps")
             recs.append(r)
         inside = float(np.mean([r["chi2"] < chi2_isf(1.0 - REGION, r["dof"]) for r in recs]))

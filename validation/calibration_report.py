@@ -228,7 +228,8 @@ def _model_name(rep):
 
 def _model(rep):
     blocks = [Para(_model_name(rep)
-                   + (f", board warp {_warp_text(rep['board_warp'])}" if rep.get("board_warp") else "") + ".")]
+                   + (f", board warp {_warp_text(rep['board_warp'])}" if rep.get("board_warp") else "")
+                   + _corners_text(rep.get("board_corners")) + ".")]
     mc = rep.get("model_choice")
     if mc:
         blocks.append(Para(mc["reason"]))
@@ -250,6 +251,16 @@ def _model(rep):
 def _warp_text(w):
     return ", ".join(f"{n} {num(v)} +- {num(s)}" for n, v, s in zip(w["names"], w["value"], w["std"])) + \
         " (board units, at the board's middle)"
+
+
+def _corners_text(bc):
+    """The printed board's corner offsets in words (empty when not measured)."""
+    if not bc:
+        return ""
+    if not bc.get("kept"):
+        return ", the printed corners' own offsets not significant"
+    return (f", the printed corners off their nominal places by {num(bc['sigma'][0])} (x) and "
+            f"{num(bc['sigma'][1])} (y) board units RMS, the same in every view (in the sigmas)")
 
 
 def _noise(rep):

@@ -54,7 +54,8 @@ from pencilcal.toolkit.camera.intrinsics import model_intrinsic_names
 from pencilcal.toolkit.errors import EstimationError
 
 __all__ = ["Layout", "Solution", "Covariance", "warp_basis", "theta_of", "camera_parts", "refine", "covariance",
-           "fit_pose", "view_residuals", "board_scale", "WARP_NAMES"]
+           "fit_pose", "view_residuals", "board_scale", "board_jacobian", "view_jacobians", "penalty_normal",
+           "WARP_NAMES"]
 
 #: Names of the board's warp parameters [board unit].
 WARP_NAMES = ("warp_x", "warp_y")
@@ -63,6 +64,9 @@ WARP_NAMES = ("warp_x", "warp_y")
 _LAMBDA0 = 1e-4
 _LAMBDA_MAX = 1e10
 _REL_TOL = 1e-12
+# the least share of a view's white level left to it when the printed board's offsets are
+# taken out of it (`covariance`'s shared)
+_MIN_OWN_SHARE = 0.1
 
 
 @dataclass(frozen=True)
@@ -194,6 +198,13 @@ def _regularization(layout, theta, T):
     return -layout.spline_weight * np.asarray(theta[4:], float), Jfull @ T
 
 
+def penalty_normal(layout, theta):
+    """The splined model's penalty in the normal equations over the free intrinsics (F, F),
+    ``J^T J`` of `_regularization`; None for a lean model."""
+    reg = _regularization(layout, theta, layout.transform(theta))
+    return None if reg is None else reg[1].T @ reg[1]
+
+
 def camera_parts(theta, layout):
     """(K (3, 3), dist (n_coef,)) of a full intrinsic vector."""
     K = np.array([[theta[0], 0.0, theta[2]], [0.0, theta[1], theta[3]], [0.0, 0.0, 1.0]])
@@ -276,15 +287,33 @@ def _weighted(r, Jg, Jp, w):
     return r * sw, Jg * sw[:, None], Jp * sw[:, None]
 
 
-def board_scale(pose, Jp):
-    """(K,) the board's local scale at each corner [px per board unit]: sqrt |det| of
-    d pixel / d board (x, y), from the pose Jacobian Jp (2K, 6) (its tvec columns: a board
-    point moved along board x moves as tvec moved along R's first column)."""
+def board_jacobian(pose, Jp):
+    """(K, 2, 2) d pixel / d board (x, y) at each corner, from the pose Jacobian Jp (2K, 6)
+    (its tvec columns: a board point moved along board x moves as tvec moved along R's
+    first column)."""
     import cv2
 
     R = cv2.Rodrigues(np.asarray(pose[0], float).reshape(3))[0]
-    A = Jp.reshape(-1, 2, 6)[:, :, 3:6] @ R[:, :2]                                # (K, 2, 2)
-    return np.sqrt(np.abs(np.linalg.det(A)))
+    return Jp.reshape(-1, 2, 6)[:, :, 3:6] @ R[:, :2]
+
+
+def board_scale(pose, Jp):
+    """(K,) the board's local scale at each corner [px per board unit]: sqrt |det| of
+    d pixel / d board (x, y) (`board_jacobian`)."""
+    return np.sqrt(np.abs(np.linalg.det(board_jacobian(pose, Jp))))
+
+
+def view_jacobians(layout, solution, objs, imgs, bases=None):
+    """Per view at the solution: (residuals observed - projected (K, 2) [px], the
+    predictions' Jacobian in the global parameters Jg (2K, G) and in the pose Jp (2K, 6),
+    d pixel / d board (x, y) (K, 2, 2)), unweighted."""
+    bases = list(bases) if bases is not None else [None] * len(objs)
+    T = layout.transform(solution.theta)
+    out = []
+    for pose, obj, img, basis in zip(solution.poses, objs, imgs, bases):
+        r, Jg, Jp = _view(layout, solution.theta, T, pose, obj, img, basis, solution.warp)
+        out.append((r.reshape(-1, 2), Jg, Jp, board_jacobian(pose, Jp)))
+    return out
 
 
 def _normal(layout, theta, T, poses, warp, objs, imgs, bases, weights=None):
@@ -398,15 +427,18 @@ def view_residuals(layout, solution, objs, imgs, bases=None):
     return out
 
 
-def fit_pose(layout, theta, warp, pose, obj, img, basis=None, max_iterations=30):
-    """One view's pose with the intrinsics and warp held: ((rvec, tvec), residuals (N, 2)).
-    For held-out views (`toolkit.board.model_choice`)."""
+def fit_pose(layout, theta, warp, pose, obj, img, basis=None, max_iterations=30, weights=None):
+    """One view's pose with the intrinsics and warp held: ((rvec, tvec), residuals (N, 2)
+    [px], unweighted). For held-out views (`toolkit.board.model_choice`); weights (N,):
+    each corner's weight in the fit (None: 1)."""
     lay = Layout(layout.model, layout.n_coef, warp=False)
     o = _warped(obj, basis, np.asarray(warp, float))
     rvec, tvec = np.array(pose[0], float).ravel(), np.array(pose[1], float).ravel()
     lam = _LAMBDA0
+    sw = 1.0 if weights is None else np.repeat(np.sqrt(np.asarray(weights, float)), 2)
     px, _, Jp = _project(lay, theta, rvec, tvec, o)
-    r = (np.asarray(img, float) - px).reshape(-1)
+    r = (np.asarray(img, float) - px).reshape(-1) * sw
+    Jp = Jp * (sw if weights is None else sw[:, None])
     cost = float(r @ r)
     for _ in range(int(max_iterations)):
         H = Jp.T @ Jp
@@ -416,7 +448,8 @@ def fit_pose(layout, theta, warp, pose, obj, img, basis=None, max_iterations=30)
             break
         rv2, tv2 = rvec + d[:3], tvec + d[3:]
         px2, _, Jp2 = _project(lay, theta, rv2, tv2, o)
-        r2 = (np.asarray(img, float) - px2).reshape(-1)
+        r2 = (np.asarray(img, float) - px2).reshape(-1) * sw
+        Jp2 = Jp2 * (sw if weights is None else sw[:, None])
         c2 = float(r2 @ r2)
         if np.isfinite(c2) and c2 <= cost:
             done = cost - c2 <= _REL_TOL * max(cost, 1e-300)
@@ -428,10 +461,13 @@ def fit_pose(layout, theta, warp, pose, obj, img, basis=None, max_iterations=30)
             lam *= 10.0
             if lam > _LAMBDA_MAX:
                 break
+    if weights is not None:
+        # the residuals unweighted (a corner of weight 0 included)
+        r = (np.asarray(img, float) - _project(lay, theta, rvec, tvec, o)[0]).reshape(-1)
     return (rvec, tvec), r.reshape(-1, 2)
 
 
-def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=None):
+def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=None, shared=None):
     """The covariance of `refine`'s estimate.
 
     noise : None for white corner errors of one level, estimated from all residuals
@@ -442,6 +478,13 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=Non
     weights : the corner weights `refine` was given (None: ordinary least squares); the
         sandwich is that of the weighted estimate, so weights that are not the inverse
         variances still give its true covariance under `noise`.
+    shared : the printed board's corner offsets (`print_errors.PrintErrors`) or None. Their
+        share of each view's residuals (``A diag(var) A^T`` per corner, A = d pixel / d
+        board (x, y)) is taken out of the view's white part in the intrinsics' and warp's
+        covariance: the residuals show them as if they were the view's own white noise,
+        but they are common to every view and enter that covariance as their own term
+        (`print_errors.covariance_term`), not here. The poses' covariance and sigma_w keep
+        the whole level (each pose sees the offsets once, as noise of its own).
 
     Returns a `Covariance`; its intrinsics and warp blocks are inf where the problem is
     singular.
@@ -460,6 +503,10 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=Non
         img = np.asarray(img, float)
         d = np.ones(img.shape[0]) if noise is None else \
             variance_factor(noise, img, board_scale(pose, Jp), solution.theta[2:4])
+        # the offsets' variance per corner and image axis, relative to the corner's factor
+        share = 0.0 if shared is None else float(np.mean(
+            np.einsum("kab,b,kab->ka", board_jacobian(pose, Jp), np.asarray(shared.variance, float),
+                      board_jacobian(pose, Jp)) / d[:, None]))
         # the weighted errors' covariance is s2 G (I + c k) G per axis, G = diag(sqrt(w d))
         g = np.sqrt(d if w is None else np.asarray(w, float) * d)
         r, Jg, Jp = _weighted(r, Jg, Jp, w)
@@ -468,7 +515,7 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=Non
         Ci = np.linalg.pinv(C)
         PJ = Jg - Jp @ (Ci @ (Jp.T @ Jg))               # the pose projected out
         S = Jg.T @ PJ if S is None else S + Jg.T @ PJ
-        views.append((r, Jg, Jp, Ci, PJ, img, np.repeat(g, 2)))
+        views.append((r, Jg, Jp, Ci, PJ, img, np.repeat(g, 2), share))
     G = S.shape[0]
     reg = _regularization(layout, solution.theta, T)
     if reg is not None:
@@ -483,15 +530,19 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=Non
     except np.linalg.LinAlgError:
         Si = np.full((G, G), np.inf)
     s2, mids, sig_e = [], [], []
-    for r, Jg, Jp, Ci, PJ, img, g in views:
+    for r, Jg, Jp, Ci, PJ, img, g, share in views:
         K = img.shape[0]
         k = kernel(img, noise.length_px) if noise is not None and noise.ratio > 0 else None
         if noise is None:
-            s2.append(sse / dof)
+            level = sse / dof
         else:
-            s2.append(white_variance(CornerView(img, -(r / g).reshape(-1, 2), Jp / g[:, None]), noise, k))
+            level = white_variance(CornerView(img, -(r / g).reshape(-1, 2), Jp / g[:, None]), noise, k)
+        s2.append(level)
         GP = PJ * g[:, None]
-        M = GP.T @ GP
+        # the offsets show in the residuals as white errors: they come out of the white
+        # part only (a floor: a view they would explain whole keeps a tenth of it), the
+        # correlated part stays the level's
+        M = max(1.0 - share / level, _MIN_OWN_SHARE) * (GP.T @ GP) if share else GP.T @ GP
         if k is not None:
             P3 = GP.reshape(K, 2, -1)
             M = M + noise.ratio * np.einsum("kbp,kbq->pq", P3, np.einsum("kl,lbq->kbq", k, P3))
@@ -513,7 +564,7 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=Non
     else:
         Cg = Si
     cov_poses = []
-    for (r, Jg, Jp, Ci, PJ, img, g), v, Sigma in zip(views, s2, sig_e):
+    for (r, Jg, Jp, Ci, PJ, img, g, _), v, Sigma in zip(views, s2, sig_e):
         B = Jg.T @ Jp
         if not np.all(np.isfinite(Cg)):
             cov_poses.append(np.full((6, 6), np.inf))

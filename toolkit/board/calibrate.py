@@ -61,9 +61,10 @@ import numpy as np
 from pencilcal.toolkit.camera.intrinsics import META_KEY as COV_META_KEY, IntrinsicsCovariance, \
     model_intrinsic_names
 from pencilcal.toolkit.camera.model import Camera
-from pencilcal.toolkit.board.bundle import WARP_NAMES, Layout, camera_parts, corner_views, covariance, refine, \
-    theta_of, view_residuals, warp_basis
+from pencilcal.toolkit.board.bundle import WARP_NAMES, Layout, camera_parts, corner_views, covariance, \
+    penalty_normal, refine, theta_of, view_residuals, warp_basis
 from pencilcal.toolkit.board.corner_noise import fit_corner_noise, variance_factor
+from pencilcal.toolkit.board.print_errors import covariance_term, fit_print_errors, intrinsic_gain, view_gains
 from pencilcal.toolkit.board.detect import BoardDetection
 from pencilcal.toolkit.board.model_choice import CANDIDATES, SPLINED, choose_model, chosen_score, splined_start
 from pencilcal.toolkit.camera.splined import is_splined, splined_config
@@ -169,6 +170,10 @@ class CalibrationResult:
         With ``corner_noise=True``: each used corner's weight in the final fit (solution
         order), the inverse of its heteroscedastic factor under the corner-noise model
         (`noise_weights`), scaled to a mean of 1 over the corners.
+    print_errors : PrintErrors or None
+        With ``corner_noise=True``: the printed board's own corner offsets, shared by all
+        views (`toolkit.board.print_errors`), measured on the residuals; where kept, their
+        share is in ``covariance``'s intrinsics and warp blocks (not in the poses').
     """
 
     camera: Camera
@@ -194,6 +199,7 @@ class CalibrationResult:
     covariance: object = None
     checks: object = None
     weights: list | None = None
+    print_errors: object = None
 
     @property
     def views_used(self) -> int:
@@ -220,6 +226,7 @@ class CalibrationResult:
                "covariance_model": None if self.covariance is None else self.covariance.model,
                "fit_weights": "uniform" if self.weights is None else "corner_noise",
                "board_warp": self.warp,
+               "board_corners": None if self.print_errors is None else self.print_errors.to_dict(),
                "model_choice": None if self.model_choice is None else self.model_choice.to_dict(),
                "camera": camera_to_dict(self.camera),
                "counts": {"views": n, "views_skipped": sum(1 for r in self.rejected if r["stage"] == "skipped"),
@@ -543,7 +550,7 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
     choice, warp0 = None, None
     if auto:
         choice, layout, theta, poses, warp0 = _auto(layout, board, objs, imgs, used, masks, theta, poses,
-                                                    candidates, image_size)
+                                                    candidates, image_size, corner_noise)
         flag_names = _flag_names(layout)
     elif spline is not None:
         K, dist = camera_parts(theta, layout)
@@ -563,17 +570,25 @@ def _flag_names(layout):
                          layout.zero_tangent)[1]
 
 
-def _auto(layout, board, objs, imgs, used, masks, theta, poses, candidates, image_size):
+def _auto(layout, board, objs, imgs, used, masks, theta, poses, candidates, image_size, corner_noise=False):
     """`model_choice.choose_model` on the views and corners kept: (the choice, its layout,
-    and its fit to start the final solve from: theta, {view: pose}, warp)."""
+    and its fit to start the final solve from: theta, {view: pose}, warp). With
+    `corner_noise` the candidates are compared under the weights the final fit will use:
+    the corner-noise model fitted to the lean model's residuals (`_reweighted`)."""
     obj_all = board.object_points()
     o = [objs[i][masks[i]] for i in used]
     p = [imgs[i][masks[i]] for i in used]
+    bases = [warp_basis(obj_all, x) for x in o]
+    start = [poses[i] for i in used]
+    weights = None
+    if corner_noise:
+        lean = refine(layout, theta, start, o, p, bases if layout.warp else None)
+        weights = _reweighted(layout, lean, o, p, bases if layout.warp else None, image_size)[2]
     K, dist = camera_parts(theta, layout)
-    choice = choose_model(o, p, [warp_basis(obj_all, x) for x in o], K, dist, [poses[i] for i in used],
+    choice = choose_model(o, p, bases, K, dist, start,
                           candidates=candidates, warp=layout.warp, fix_aspect=layout.fix_aspect,
                           fix_principal_point=layout.fix_principal_point, zero_tangent=layout.zero_tangent,
-                          image_size=image_size, lean=(layout.model, layout.n_coef))
+                          image_size=image_size, lean=(layout.model, layout.n_coef), weights=weights)
     score = chosen_score(choice)
     sol = score.solution
     chosen = score.layout if score.layout is not None else \
@@ -672,6 +687,11 @@ def _final(layout, board, detections, objs, imgs, used, masks, theta, poses, ima
     if corner_noise:
         sol, noise, weights = _reweighted(layout, sol, o, p, bases, image_size)
     cov = covariance(layout, sol, o, p, bases, noise, weights)
+    prints = None
+    if corner_noise:
+        cov, prints = _with_print_errors(layout, sol, cov, o, p, bases,
+                                         [_ids(detections[i], masks[i]) for i in used], obj_all.shape[0], noise,
+                                         weights)
     K, dist = camera_parts(sol.theta, layout)
     names = model_intrinsic_names(layout.model, layout.n_coef)
     sd = np.sqrt(np.clip(np.diag(cov.intrinsics), 0, None))
@@ -706,6 +726,8 @@ def _final(layout, board, detections, objs, imgs, used, masks, theta, poses, ima
         meta["corner_noise"] = noise.to_dict()
     if warp_rec is not None:
         meta["board_warp"] = warp_rec
+    if prints is not None:
+        meta["board_corners"] = prints.to_dict()
     camera = Camera(layout.model, image_size[0], image_size[1], K, dist, meta=meta)
     used_set = set(used)
     return CalibrationResult(camera=camera, rms_px=rms, per_view_rms=per_view_rms, std_intrinsics=std_intr,
@@ -713,7 +735,33 @@ def _final(layout, board, detections, objs, imgs, used, masks, theta, poses, ima
                              used=[i in used_set for i in range(n_views)], rejected=rejected, residuals=residuals,
                              corner_used=corner_used, model=layout.model, coefficients=layout.n_coef,
                              flags=flag_names, rounds=rounds, cov_intrinsics=cov_full, corner_noise=noise,
-                             warp=warp_rec, layout=layout, solution=sol, covariance=cov, weights=weights)
+                             warp=warp_rec, layout=layout, solution=sol, covariance=cov, weights=weights,
+                             print_errors=prints)
+
+
+def _ids(det, mask):
+    """A view's used corners' ids (K,)."""
+    return np.asarray(det.ids, int).ravel()[np.asarray(mask, bool)]
+
+
+def _with_print_errors(layout, sol, cov, o, p, bases, ids, n_corners, noise, weights):
+    """The printed board's corner offsets (`print_errors`) measured on the calibration's
+    residuals (weighted by the views' levels in `cov`); where kept, the covariance again
+    with their share taken out of the views' white levels (`bundle.covariance`'s shared)
+    and ``G diag(var) G^T`` added to its intrinsics, warp and cross blocks. Returns (the
+    covariance, the `PrintErrors`)."""
+    prints, jac = fit_print_errors(layout, sol, o, p, bases, ids, n_corners, cov.sigma_w, noise)
+    if prints.kept and np.all(np.isfinite(cov.intrinsics)):
+        cov = covariance(layout, sol, o, p, bases, noise, weights, shared=prints)
+        G = intrinsic_gain(view_gains(jac, ids, n_corners, weights), range(len(o)), layout.transform(sol.theta),
+                           penalty_normal(layout, sol.theta))
+        extra = covariance_term(G, G, prints)
+        P = cov.intrinsics.shape[0]
+        cov.intrinsics = cov.intrinsics + extra[:P, :P]
+        if layout.warp:
+            cov.warp = cov.warp + extra[P:, P:]
+            cov.cross = cov.cross + extra[:P, P:]
+    return cov, prints
 
 
 def noise_weights(noise, views):

@@ -8,7 +8,9 @@ the views: the views are dealt into `folds` groups (view i into group i mod k), 
 is left out in turn, the intrinsics (and the board's warp) are fitted to the others, and
 each left-out view's pose alone is fitted to its corners through them. A view's score is
 its held-out residual variance, ``sum |r|^2 / (2 K - 6)`` [px^2 per axis]: what is left when
-only its pose could adapt.
+only its pose could adapt. With the corner-noise model's weights (`calibrate` passes them
+when it fits that model) every fit, held-out pose and score is weighted as the final
+calibration is: ``sum w |r|^2 / (2 K - 6)``, the weights of mean 1.
 
 The choice follows the one-standard-error rule: among the candidates whose mean held-out
 score is within one standard error of the best one's (the standard error of the views'
@@ -38,7 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pencilcal.toolkit.board.bundle import Layout, fit_pose, refine, splined_layout, theta_of
+from pencilcal.toolkit.board.bundle import Layout, fit_pose, refine, splined_layout, theta_of, view_residuals
 from pencilcal.toolkit.camera import splined as _spl
 from pencilcal.toolkit.errors import EstimationError
 
@@ -127,25 +129,29 @@ def splined_start(layout, K, dist, image_size, Nx=None, config=None):
     return splined_layout(layout, cfg, theta), theta
 
 
-def _score(layout, theta0, poses, objs, imgs, bases, folds):
+def _score(layout, theta0, poses, objs, imgs, bases, folds, weights=None):
     """(the fit to all views (`bundle.Solution`), per-view held-out scores (V,)) of one
-    candidate."""
-    full = refine(layout, theta0, poses, objs, imgs, bases if layout.warp else None)
+    candidate; weights : per view each corner's weight (None: 1), in every fit and score."""
+    w = [None] * len(objs) if weights is None else list(weights)
+    full = refine(layout, theta0, poses, objs, imgs, bases if layout.warp else None, weights=weights)
     scores = np.zeros(len(objs))
     for f in range(folds):
         train = [i for i in range(len(objs)) if i % folds != f]
         test = [i for i in range(len(objs)) if i % folds == f]
         sol = refine(layout, full.theta, full.poses[train], [objs[i] for i in train], [imgs[i] for i in train],
-                     [bases[i] for i in train] if layout.warp else None, warp=full.warp)
+                     [bases[i] for i in train] if layout.warp else None, warp=full.warp,
+                     weights=None if weights is None else [w[i] for i in train])
         for i in test:
             _, r = fit_pose(layout, sol.theta, sol.warp, full.poses[i], objs[i], imgs[i],
-                            bases[i] if layout.warp else None)
-            scores[i] = float(np.sum(r * r)) / max(r.size - 6, 1)
+                            bases[i] if layout.warp else None, weights=w[i])
+            r2 = np.sum(r * r, -1) if w[i] is None else np.asarray(w[i], float) * np.sum(r * r, -1)
+            scores[i] = float(np.sum(r2)) / max(r.size - 6, 1)
     return full, scores
 
 
 def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds=FOLDS, warp=True,
-                 fix_aspect=False, fix_principal_point=False, zero_tangent=False, image_size=None, lean=None):
+                 fix_aspect=False, fix_principal_point=False, zero_tangent=False, image_size=None, lean=None,
+                 weights=None):
     """Compare lens models on held-out views and pick one (the module's docstring).
 
     Parameters
@@ -159,6 +165,10 @@ def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds
         candidate (fisheye is skipped with fix_aspect).
     image_size : (w, h) [px], for the splined candidate's grid (skipped without it);
         lean : the (model, coefficients) of K and dist (default opencv with dist's count).
+    weights : per view (N_v,) each corner's weight (the inverse of its relative variance
+        under the corner-noise model, as the final fit weighs it), None: 1. Every fit,
+        held-out pose and held-out score is then weighted: a held-out corner counts as
+        much as its noise allows, as in the final calibration.
 
     Returns
     -------
@@ -190,8 +200,8 @@ def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds
             theta0 = theta_of(K, np.zeros(n) if model == "fisheye" else dist, layout)
         try:
             rec.layout = layout
-            rec.solution, rec.scores = _score(layout, theta0, poses, objs, imgs, bases, folds)
-            rec.fit_rms_px = math.sqrt(rec.solution.sse / rec.solution.corners)
+            rec.solution, rec.scores = _score(layout, theta0, poses, objs, imgs, bases, folds, weights)
+            rec.fit_rms_px = _fit_rms(layout, rec.solution, objs, imgs, bases)
         except (EstimationError, np.linalg.LinAlgError) as e:
             rec.status = f"failed: {e}"
         if rec.scores is not None and not np.all(np.isfinite(rec.scores)):
@@ -204,6 +214,12 @@ def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds
     for s in ok:
         s.heldout_rms_px = math.sqrt(float(np.mean(s.scores)))
     return ModelChoice(pick.model, pick.coefficients, scores, folds, _reason(pick, best, V, folds))
+
+
+def _fit_rms(layout, solution, objs, imgs, bases):
+    """The fit's unweighted RMS residual [px] (OpenCV's definition)."""
+    res = view_residuals(layout, solution, objs, imgs, bases if layout.warp else None)
+    return math.sqrt(float(sum(np.sum(r * r) for r in res)) / solution.corners)
 
 
 def _pick(scored):

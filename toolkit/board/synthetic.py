@@ -21,7 +21,7 @@ __all__ = ["synthetic_detections", "DetectionList"]
 
 
 def synthetic_detections(camera, board, views=10, noise_px=0.2, seed=0, distance=None, tilt_deg=40.0,
-                         margin_px=10.0, warp=(0.0, 0.0), min_tilt=0.3):
+                         margin_px=10.0, warp=(0.0, 0.0), min_tilt=0.3, print_sigma=(0.0, 0.0)):
     """Detections of `board` seen by `camera` from random poses, with Gaussian corner noise.
 
     For tests and examples. Each view sees the whole board, tilted up to `tilt_deg` about a
@@ -31,6 +31,10 @@ def synthetic_detections(camera, board, views=10, noise_px=0.2, seed=0, distance
     axis. Also attaches the true poses as ``.truth`` = list of (rvec, tvec) on the
     returned list. `warp` (2,) [board unit] bends the board as `bundle.warp_basis` says
     (mrcal's calobject_warp); each view's tilt is drawn from [min_tilt, 1] x `tilt_deg`.
+    `print_sigma` (2,) [board unit]: each corner printed off its nominal place by
+    N(0, print_sigma^2) along board x and y, the same offset in every view (the printed
+    board's own errors, `print_errors`); drawn from a generator of its own, so a seed's
+    views are otherwise unchanged. The offsets are ``.offsets`` (M, 2).
 
     Example
     -------
@@ -48,12 +52,15 @@ def synthetic_detections(camera, board, views=10, noise_px=0.2, seed=0, distance
     flat = board.object_points()
     obj = np.array(flat, float)
     obj[:, 2] += warp_basis(flat, flat) @ np.asarray(warp, float)
+    offsets = np.random.default_rng([int(seed), 7]).normal(size=(obj.shape[0], 2)) * np.asarray(print_sigma, float)
+    obj[:, :2] += offsets
     centre = obj.mean(0)
     span = float(np.ptp(obj[:, 0]) + 1e-9)
     if distance is None:
         distance = 2.0 * camera.fx * span / camera.width
     out = DetectionList()
     out.truth = []
+    out.offsets = offsets
     for _ in range(int(views)):
         for _try in range(500):
             axis = rng.normal(size=3)
@@ -84,4 +91,5 @@ def synthetic_detections(camera, board, views=10, noise_px=0.2, seed=0, distance
 
 
 class DetectionList(list):
-    """A list that can carry the true poses of synthetic views (``.truth``)."""
+    """A list that can carry the true poses of synthetic views (``.truth``) and the printed
+    corners' offsets (``.offsets``)."""

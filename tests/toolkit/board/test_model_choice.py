@@ -76,3 +76,34 @@ def test_auto_takes_the_splined_model_for_a_lens_no_opencv_model_holds():
     assert "splined stereographic" in r.model_choice.reason
     lean = next(s for s in r.model_choice.scores if s.model == "opencv" and s.coefficients == 5)
     assert lean.excess > 3 * lean.excess_se
+
+
+def test_the_choice_is_weighted_as_the_final_fit():
+    """With the corner-noise model the candidates are scored under its weights: unit
+    weights give the unweighted scores exactly, a corner weighted 0 leaves every fit and
+    score, and `calibrate(model="auto", corner_noise=True)` compares under the weights."""
+    from pencilcal.toolkit.board.bundle import warp_basis
+    from pencilcal.toolkit.board.model_choice import choose_model
+
+    truth = Camera("opencv", 960, 540, K, [-0.3, 0.12, 0.0, 0.0, 0.0])
+    dets = synthetic_detections(truth, BOARD, views=10, noise_px=0.2, seed=8, tilt_deg=50)
+    objs = [BOARD.object_points()] * 10
+    imgs = [np.array(d.corners, float) for d in dets]
+    bases = [warp_basis(objs[0], o) for o in objs]
+    cands = (("opencv", 4), ("opencv", 5))
+
+    def scores(w, im=imgs):
+        ch = choose_model(objs, im, bases, truth.K, truth.dist, dets.truth, candidates=cands, weights=w)
+        return np.array([s.scores for s in ch.scores])
+
+    plain = scores(None)
+    assert np.allclose(scores([np.ones(54)] * 10), plain, rtol=1e-9, atol=1e-15)
+    # one corner of one view thrown 40 px off: weighted 0 it moves nothing
+    bad = [im.copy() for im in imgs]
+    bad[3][10] += 40.0
+    w = [np.ones(54) for _ in range(10)]
+    w[3][10] = 0.0
+    assert not np.allclose(scores(None, bad), plain, rtol=1e-3)
+    assert np.allclose(scores(w, bad)[:, [0, 1, 2, 4]], plain[:, [0, 1, 2, 4]], rtol=0.05)
+    r = calibrate(dets, BOARD, truth.size, model="auto", warp=True, corner_noise=True, candidates=cands)
+    assert r.model_choice is not None and r.weights is not None
