@@ -118,8 +118,8 @@ def test_stereo_fulcrum_beats_either_eye_and_covers(n_trials=40):
 
 def test_a_rig_error_left_out_of_the_fit_shows():
     # the same rig error without its covariance: the fused fulcrum is off by more, and only
-    # the axes' scatter beyond their covariances (the play term, 0.15 mm here) keeps it
-    # within a few sigma (m2 6.1; 0.27 with the rig's covariance)
+    # the axes' scatter beyond their covariances (here all of it a factor on them, 4.1, the
+    # play's maximum likelihood at 0) keeps it within a few sigma (0.12 with the rig's covariance)
     rng = np.random.default_rng(3)
     F = np.array([3.0, -2.0, 90.0])
     dq = np.array([1e-3, -1e-3, 1e-3, 0.05, -0.05, 0.05])
@@ -132,7 +132,7 @@ def test_a_rig_error_left_out_of_the_fit_shows():
     told = stereo_fulcrum_axes(Ss, rig_cov=np.diag([1e-3**2] * 3 + [0.05**2] * 3))
     m2 = [(f.point - F) @ np.linalg.solve(f.point_cov, f.point - F) for f in (blind, told)]
     assert np.linalg.norm(blind.point - F) > 2 * np.linalg.norm(told.point - F)
-    assert m2[0] > chi2_isf(0.2, 3) > m2[1] and blind.play > 0
+    assert m2[0] > chi2_isf(0.2, 3) > m2[1] and (blind.play > 0 or blind.factor > 1.5)
 
 
 def test_stereo_file_with_the_rigs_covariance(tmp_path):
