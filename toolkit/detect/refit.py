@@ -155,7 +155,7 @@ def _by_length(img, camera, P1, P2, opts, kernel, grow_frac, cnt, measure=True):
     padding every line to the longest would waste most of the work."""
     M = P1.shape[0]
     group = np.digitize(cnt, [24, 96])
-    outs = [(idx, _refit_pass(img, camera, P1[idx], P2[idx], opts, kernel, grow_frac, measure))
+    outs = [(idx, _refit_pass(img, camera, P1[idx], P2[idx], opts, kernel, grow_frac, measure, split=idx.size < M))
             for idx in (np.flatnonzero(group == g_) for g_ in np.unique(group))]
     first = outs[0][1]
     res = _PassFit(**{f.name: np.zeros((M,) + getattr(first, f.name).shape[1:], getattr(first, f.name).dtype)
@@ -203,12 +203,14 @@ def _half_response_ends(s, g0, gv, inl, k1, k2, cnt, ok):
     return ends
 
 
-def _refit_pass(img, camera, P1, P2, opts, kernel, grow_frac=0.0, measure=True):
+def _refit_pass(img, camera, P1, P2, opts, kernel, grow_frac=0.0, measure=True, split=True):
     """One pass of the refit over lines P1 -> P2 (M, 2) [working px]; returns a `_PassFit`.
     With grow_frac > 0 the stations reach max(extend, grow_frac L) beyond the ends. With
     measure False only the lines (ok, ends, centroid, count and what decides on a further
     pass): their sigmas, contrast and residual NaN (a coarse search whose lines are refitted
-    again skips their cost)."""
+    again skips their cost). With split False the lines are not grouped by length (`_by_length`:
+    all of them in one group already; grouped again, a group of over 350 similar lines
+    recursed without end)."""
     M = P1.shape[0]
     d = P2 - P1
     L = np.hypot(d[:, 0], d[:, 1])
@@ -218,7 +220,7 @@ def _refit_pass(img, camera, P1, P2, opts, kernel, grow_frac=0.0, measure=True):
     e = np.minimum(np.maximum(opts.extend, grow_frac * L), 0.5 * L + 2.0)
     lo, hi = -e, L + e
     cnt = station_counts(lo, hi, opts.step_px, _MAX_STATIONS)
-    if M >= 32 and M * int(cnt.max()) > 3 * int(cnt.sum()) + 8000:
+    if split and M >= 32 and M * int(cnt.max()) > 3 * int(cnt.sum()) + 8000:
         return _by_length(img, camera, P1, P2, opts, kernel, grow_frac, cnt, measure)
     s, st_valid = stations(lo, hi, cnt)
     p = edge_profiles(img, camera, P1, u, s, opts.search, kernel, opts.sigma_px, gamma=opts.gamma)
