@@ -154,3 +154,19 @@ def test_a_small_star_keeps_the_vertex_its_segments_found():
     t = photo_trial(cond)
     assert t.ok and t.spokes_used >= 60 and t.twin_right
     assert t.err_deg < 3 * t.sigma_deg
+
+
+def test_a_small_star_labelled_wrongly_is_not_reported():
+    """A 64-wedge star 23 % of the frame's height tilted 58 deg (`photo_conditions(80, 420)`,
+    frame 10): its 7 edges found were labelled with the wrong spokes (6 of 64, their angles'
+    chi2 10.8 on 4 dof, the twin open, the normal 72 deg off) and reported as ok. The circle
+    points (563) fit no circle about that plane, where they confirm every right labelling
+    (`orient.UNCONFIRMED_SPOKES`): now "ambiguous labelling", not ok. Frame 14 (23 %, 53 deg):
+    8 spokes rightly labelled, the circles resolve the twin: still ok, 0.13 deg off."""
+    from pencilcal.validation.radial_renders import photo_conditions, photo_trial
+
+    conds = photo_conditions(80, 420)
+    wrong = photo_trial(conds[10])
+    assert not wrong.ok
+    right = photo_trial(conds[14])
+    assert right.ok and right.twin_right and right.err_deg < 0.6

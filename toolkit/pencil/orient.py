@@ -277,6 +277,8 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
         fit, resolved_by, metric = _resolve_twins(fit, ln, used, th_used, s_used, prior, radius, sigma_metric)
         fit, resolved_by, circ = _resolve_by_circles(camera, fit, ln, th_used, s_used, resolved_by, circle_points,
                                                      pencil)
+        if labels is None:  # (given labels, a tracked frame's, passed the previous frame's tests)
+            _unconfirmed_labelling(pencil, edge_spoke[lab[used]], resolved_by, circle_points, circ)
         own = None if circ is None else _lines_own(fit, ln, a_used, th_used, s_used)
         labels_out[idx] = np.where(used, edge_spoke[np.maximum(lab, 0)], -1)
         s_mean = float(np.sqrt(np.mean(s_used**2)))
@@ -568,6 +570,30 @@ def _resolve_by_circles(camera, fit, ln, th_used, s_used, resolved_by, circle_po
         fit = swap_twins(fit, which, th_used, ln.vertex, s_used, ln.vertex_cov, resolved_by="circle")
         resolved_by = "circle"
     return fit, resolved_by, est
+
+
+#: A labelling of fewer than this share of a pencil's spokes that neither a prior, the radii nor
+#: the circles confirm is not reported (`_unconfirmed_labelling`).
+UNCONFIRMED_SPOKES = 0.5
+
+
+def _unconfirmed_labelling(pencil, spokes, resolved_by, circle_points, circ):
+    """Raise EstimationError where a labelling nothing confirms may be wrong: the twin left
+    open, circle points given (at least `circle.MIN_POINTS`) that fit no circle about the
+    fitted plane, and under `UNCONFIRMED_SPOKES` of the pencil's spokes (spokes: (K,) the used
+    lines' spokes). A small, steeply tilted star's few edges labelled with the wrong spokes
+    fit their angles (chi2 within its dof), and only the rings, found about the right plane
+    and about no wrong one, show it. Example: 6 of 64 spokes, twin open, 40 circle points
+    and no circle -> "ambiguous labelling: ...".
+    """
+    from pencilcal.toolkit.pencil.circle import MIN_POINTS
+
+    n_pts = 0 if circle_points is None else np.asarray(circle_points, float).reshape(-1, 2).shape[0]
+    n_spokes = int(np.unique(spokes).size)
+    if resolved_by is None and circ is None and n_pts >= MIN_POINTS and n_spokes < UNCONFIRMED_SPOKES * pencil.count:
+        raise EstimationError(
+            f"ambiguous labelling: {n_spokes} of {pencil.count} spokes labelled, the twin open, and the "
+            f"{n_pts} circle points fit no circle about that plane: not a measurement")
 
 
 def _lines_own(fit, ln, a_used, th_used, s_used, h=1e-6):
