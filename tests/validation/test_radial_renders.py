@@ -170,3 +170,17 @@ def test_a_small_star_labelled_wrongly_is_not_reported():
     assert not wrong.ok
     right = photo_trial(conds[14])
     assert right.ok and right.twin_right and right.err_deg < 0.6
+
+
+def test_circles_of_a_few_short_arcs_do_not_choose_the_twin():
+    """A 64-wedge star 22 % of the frame's height tilted 37 deg (`photo_conditions(80, 420)`,
+    frame 78): every spoke used, but the circle points made 5 circles of 14-21 points (0.5-0.9
+    px rms) about the wrong twin's plane, consistent among themselves, and chose it (74 deg
+    off). The circles now choose only with a circle of `circle.DECISIVE_POINTS` points: the
+    twin is left open, the closer one 0.057 deg from the truth."""
+    from pencilcal.validation.radial_renders import photo_conditions, photo_trial
+
+    t = photo_trial(photo_conditions(80, 420)[78])
+    assert t.ok and t.spokes_used == 64
+    assert not t.resolved or t.twin_right
+    assert t.err_deg < 0.2

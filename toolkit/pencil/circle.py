@@ -53,6 +53,7 @@ __all__ = ["CircleEstimate", "circle_estimate", "conic_normal", "plane_radii", "
 #: right rotation): 1 px of scatter at 100 px is 1 %; rings of a dartboard differ by 5 %.
 GROUP_LOG_RADIUS = 0.01
 MIN_POINTS = 12  # a circle needs at least this many points
+DECISIVE_POINTS = 2 * MIN_POINTS  # the circles choose a twin only with one circle this well sampled
 MAX_RMS_PX = 1.5  # and its ellipse must fit them this well [px]
 #: And they lie round the vertex: no gap between their directions wider [deg] (an arc of 240 deg
 #: fixes an ellipse; a circle near the image's border is cut by it).
@@ -309,13 +310,16 @@ def circle_choice(fit, est):
     """How the circles' normal `est` (a `CircleEstimate`) judges the lines' twins: (which,
     decisive, chi2 of the normal, chi2 of the twin); which is True when the twin agrees
     better. Decisive when the other's chi2 exceeds it by `DECISIVE_CHI2` and the chosen one
-    lies nearer the circles' normal than half the twins' separation."""
+    lies nearer the circles' normal than half the twins' separation, and one of the circles
+    holds `DECISIVE_POINTS` points or more: a small star's few short noisy arcs (4-5 groups of
+    14-21 points, 0.5-0.9 px rms) made circles about the wrong twin's plane, consistent among
+    themselves, where every right choice had a circle of 40 points or more."""
     c, ct = line_normal_cov(fit)
     a, chi = normal_agreement(fit.normal, c, est.normal, est.cov)
     at, chit = normal_agreement(fit.normal_twin, ct, est.normal, est.cov)
     which = chit < chi
     sep = float(np.degrees(np.arccos(np.clip(np.asarray(fit.normal) @ np.asarray(fit.normal_twin), -1, 1))))
-    decisive = abs(chit - chi) > DECISIVE_CHI2 and min(a, at) < 0.5 * sep
+    decisive = abs(chit - chi) > DECISIVE_CHI2 and min(a, at) < 0.5 * sep and int(np.max(est.points)) >= DECISIVE_POINTS
     return bool(which), bool(decisive), chi, chit
 
 
