@@ -330,25 +330,16 @@ def _with_rig(x, axes, use, rig_cov, covs=None, iterations=10):
     return x, 0.5 * (cov + cov.T)
 
 
-def _play(P, D, C, E, x, used, robust_start=False):
-    """The variance s2 [length^2] (>= 0) per direction of an isotropic offset of each axis
-    from the point x that brings the used axes' chi2 to its degrees of freedom (2N - 3):
-    ``sum r^T (S + s2 I)^-1 r = 2N - 3`` (r, S the offset and its covariance,
-    `cylinder.axis_offsets`), by bisection; 0 where the axes scatter no more than their
-    covariances say. robust_start: instead the median of every axis's chi2 at its own (2
-    dof) median, outliers and all (a first guess the gate of too small a noise cannot bias)."""
+def _play(P, D, C, E, x):
+    """A first variance s2 [length^2] (>= 0) per direction of an isotropic offset of each axis
+    from the point x: the one that brings the median of every axis's chi2 (2 dof) to its own
+    median, outliers and all (r, S the offset and its covariance, `cylinder.axis_offsets`),
+    by bisection; 0 where the axes scatter no more than their covariances say. A start the
+    gate of too small a noise cannot bias (`_axes_with_noise`)."""
     r, S, _ = axis_offsets(x, P, D, E, C)
-    if robust_start:
-        def over(s2):
-            return np.median(offset_chi2(r, S + s2 * np.eye(2))) > 2.0 * np.log(2.0)
-    else:
-        r, S = r[used], S[used]
-        dof = 2 * len(r) - 3
-        if dof <= 0:
-            return 0.0
 
-        def over(s2):
-            return np.sum(offset_chi2(r, S + s2 * np.eye(2))) > dof
+    def over(s2):
+        return np.median(offset_chi2(r, S + s2 * np.eye(2))) > 2.0 * np.log(2.0)
     if not over(0.0):
         return 0.0
     lo, hi = 0.0, float(np.max(np.sum(r * r, -1))) + 1e-12
@@ -419,7 +410,7 @@ def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS):
     lift = np.zeros((4, 4))
     lift[2, 2] = lift[3, 3] = 1.0
     fit = fulcrum_3d(P, D, C, robust, axis_frames=E)
-    s2 = _play(P, D, C, E, np.asarray(fit.point, float), None, robust_start=True)
+    s2 = _play(P, D, C, E, np.asarray(fit.point, float))
     k = 1.0
     if s2 == 0.0:  # the axes' median meets its own: no scatter beyond their covariances
         return fit, C, 0.0, 1.0
