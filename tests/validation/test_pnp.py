@@ -664,3 +664,5 @@ def test_board_poses_use_the_calibrated_warp_and_its_sigma():
     # another board (or none recorded) gives the nominal points
     other = board_from_dict({"type": "chessboard", "squares": [9, 6], "square": 24.0})
     assert board_points(other, cam, ids[:5])[1] is None
+    with pytest.raises(InputError, match="warp's basis"):
+        estimate_pose(X, views[0], cam, board_warp=(warp[0][:5], warp[1]))
