@@ -16,6 +16,7 @@ from pencilcal.validation.pnp import (
     DEFAULT_METHOD,
     METHODS,
     best_method,
+    board_points,
     empty_frame_record,
     estimate_all,
     estimate_pose,
@@ -60,11 +61,11 @@ def _pnp_frame(frame, camera, board, method, refine, corner_sigma, max_rms, min_
             f"only {det.count} board corners found (--min-corners {min_corners})"
         return (empty_frame_record(frame.name, err, method=label, corners=det.count, ids=det.ids),
                 [f"{frame.name}: {err}"], det)
-    X = board.object_points()[det.ids]
+    X, warp = board_points(board, camera, det.ids)
     warnings = []
     if method == "all":
         results = estimate_all(X, det.corners, camera, refine=refine, corner_sigma_px=corner_sigma,
-                               max_rms_px=max_rms)
+                               max_rms_px=max_rms, board_warp=warp)
         best = best_method(results)
         rec = frame_record(frame.name, results[best or DEFAULT_METHOD], ids=det.ids, methods=results)
         if best is None:
@@ -73,7 +74,7 @@ def _pnp_frame(frame, camera, board, method, refine, corner_sigma, max_rms, min_
             warnings += [f"{frame.name}: {r.error}" for r in results.values() if not r.ok]
     else:
         res = estimate_pose(X, det.corners, camera, method, refine=refine, corner_sigma_px=corner_sigma,
-                            max_rms_px=max_rms)
+                            max_rms_px=max_rms, board_warp=warp)
         rec = frame_record(frame.name, res, ids=det.ids)
     if not rec["ok"]:
         warnings.append(f"{frame.name}: {rec['error']}")
@@ -130,7 +131,9 @@ def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma
     lower RMS). The covariance holds the corner noise (--corner-sigma, or estimated from
     each frame's residuals); with --calibration (calib.json of `pencilcal calibrate
     --report`; default: what the camera file carries, if anything) also the intrinsics'
-    covariance and the correlated corner-noise model, in cov_total. A pose whose RMS
+    covariance and the correlated corner-noise model, in cov_total. Where the camera
+    file records the warp its calibration measured on this same board, the poses are of
+    the warped board and cov_total holds the warp's sigma. A pose whose RMS
     exceeds --max-rms (a wrong local minimum or a wrong camera) is rejected. Frames that
     cannot be decoded or show too little of the board (fewer than --min-corners corners)
     are written with ok: false and a warning.

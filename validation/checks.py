@@ -252,10 +252,9 @@ def board_poses(images, camera, board, methods=("sqpnp",)):
     from pencilcal.toolkit.board.detect import detect_board
     from pencilcal.toolkit.io.images import open_images
 
-    from .pnp import best_method, estimate_all
+    from .pnp import best_method, board_points, estimate_all
 
     out = {}
-    X = board.object_points()
     for frame in open_images(images):
         if frame.image is None:
             out[frame.name] = None
@@ -264,7 +263,8 @@ def board_poses(images, camera, board, methods=("sqpnp",)):
         if det.count < 4:
             out[frame.name] = None
             continue
-        res = estimate_all(X[det.ids], det.corners, camera, methods=methods)
+        X, warp = board_points(board, camera, det.ids)
+        res = estimate_all(X, det.corners, camera, methods=methods, board_warp=warp)
         best = best_method(res)
         out[frame.name] = res[best] if best else None
     return out

@@ -39,7 +39,7 @@ from pencilcal.toolkit.io.parallel import Sized, map_frames
 
 from .align import align_rotations
 from .metrics import coverage, normal_error_deg, rotation_error_deg, summary
-from .pnp import METHODS, best_method, estimate_all, frame_record
+from .pnp import METHODS, best_method, board_points, estimate_all, frame_record
 
 __all__ = ["validate_sequence", "validate_path", "validate_many", "find_sequences", "sequence_files", "frame_errors",
            "twins_by_continuity",
@@ -273,11 +273,12 @@ def _process(frame, camera, board, lines_source, models, methods, truth, keep_pi
         return rec, None, None
     check_image_size(frame, camera)
     det = detect_board(frame.image, board)
-    obj = board.object_points()
     pnp = {}
     best = None
     if det.count >= 4:
-        res = estimate_all(obj[det.ids], det.corners, camera, methods=methods)
+        # the board as the camera's calibration measured it (its warp), when it was this board
+        X, warp = board_points(board, camera, det.ids)
+        res = estimate_all(X, det.corners, camera, methods=methods, board_warp=warp)
         name = best_method(res)
         best = res.get(name) if name else None
         rec["pnp"] = {m: frame_record(frame.name, r) for m, r in res.items()}

@@ -613,3 +613,56 @@ def test_stereo_pairs_agree_on_one_relative_rotation(tmp_path):
     assert s["frames"] >= 45
     assert lo <= s["tilt_coverage"]["fraction"] <= hi, s["tilt_coverage"]
     assert abs(s["normal_coverage"]["fraction"] - s["normal_coverage"]["expected"]) <= 0.08, s["normal_coverage"]
+
+# ------------------------------------------------------------ the board as calibrated
+def _warped_views(warp, draws, noise_px, seed):
+    """A 9 x 6 chessboard of 25 mm whose corners bow by `warp` (2,) [mm] at the middle, seen
+    tilted 30 deg at 500 mm: (board, truth camera, R, t, noisy views (draws, K, 2))."""
+    from pencilcal.toolkit.board.bundle import warp_basis
+
+    board = board_from_dict({"type": "chessboard", "squares": [9, 6], "square": 25.0})
+    cam = Camera("opencv", 640, 480, [[530.0, 0, 322.0], [0, 531.0, 238.0], [0, 0, 1]], [-0.2, 0.05, 0, 0, 0])
+    X = board.object_points()
+    Xw = X.copy()
+    Xw[:, 2] += warp_basis(X, X) @ np.asarray(warp, float)
+    R = rotation_about_axis([1.0, 0.3, 0.0], np.radians(30.0))
+    t = np.array([-100.0, -60.0, 500.0]) - R @ X.mean(0)
+    u = cam.project(Xw @ R.T + t)
+    rng = np.random.default_rng(seed)
+    return board, cam, R, t, u + rng.normal(0, noise_px, (draws,) + u.shape)
+
+
+def _pose_chi2(res, R, t, cov):
+    d = np.r_[rotvec_from_rotation(R @ res.R_cam_from_target.T), t - res.t_cam_from_target]
+    return float(d @ np.linalg.solve(cov, d))
+
+
+def test_board_poses_use_the_calibrated_warp_and_its_sigma():
+    # the camera's calibration of this board measured a bow of -0.4 +- 0.05 mm along y: its
+    # poses are those of the bowed board, and cov_total holds the bow's sigma; the nominal
+    # flat board puts the pose off by many of its sigmas
+    from pencilcal.validation.pnp import board_points
+
+    board, truth, R, t, views = _warped_views([0.0, -0.4], 40, 0.05, 3)
+    meta = {"calibration": {"board": json.loads(json.dumps(board.to_dict()))},
+            "board_warp": {"value": [0.0, -0.4], "cov": [[0.05 ** 2, 0.0], [0.0, 0.05 ** 2]]}}
+    cam = Camera(truth.model, 640, 480, truth.K, truth.dist, meta=meta)
+    ids = np.arange(board.object_points().shape[0])
+    X, warp = board_points(board, cam, ids)
+    assert warp is not None and np.isclose(X[:, 2].min(), -0.4 * 0.96)  # rows at 0.4 and 0.6 of the grid
+    flat, nominal = [], []
+    for u in views:
+        res = estimate_pose(X, u, cam, board_warp=warp, corner_noise=None, intrinsics_cov=None)
+        assert res.ok and res.cov_total is not None
+        # the warp's share: the total exceeds the corner term alone
+        assert np.trace(res.cov_total) > np.trace(res.cov)
+        flat.append(_pose_chi2(res, R, t, res.cov_total))
+        plain = estimate_pose(board.object_points(), u, truth)
+        nominal.append(_pose_chi2(plain, R, t, plain.cov))
+    assert np.mean(flat) / 6 < 1.6
+    assert np.mean(nominal) / 6 > 10.0
+    # another board (or none recorded) gives the nominal points
+    other = board_from_dict({"type": "chessboard", "squares": [9, 6], "square": 24.0})
+    assert board_points(other, cam, ids[:5])[1] is None
+    with pytest.raises(InputError, match="warp's basis"):
+        estimate_pose(X, views[0], cam, board_warp=(warp[0][:5], warp[1]))

@@ -10,7 +10,8 @@ verdict and the maps of `pencilcal calibrate` (docs/calibration.md).
 
 `read_calibration_file` returns a typed `CalibrationFile`; `uncertainty_of` gives a
 camera's intrinsics covariance and corner-noise model from a report or, without one, from
-the camera file's own statistics.
+the camera file's own statistics. `board_model` gives a board's corners as the camera's
+calibration measured them (its warp), for the board poses later estimated with that camera.
 
 Example
 -------
@@ -36,7 +37,7 @@ from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import load_structured, write_json
 
 __all__ = ["CalibrationFile", "write_calibration_file", "read_calibration_file", "uncertainty_of",
-           "camera_with_report", "uncertainty_record", "CORNER_NOISE_KEY"]
+           "camera_with_report", "uncertainty_record", "board_model", "CORNER_NOISE_KEY"]
 
 #: The camera meta and report key of the corner-noise model.
 CORNER_NOISE_KEY = "corner_noise"
@@ -120,3 +121,60 @@ def uncertainty_record(camera, source):
     cov, noise = uncertainty_of(camera, camera_source=source)
     return {"intrinsics_covariance": None if cov is None else str(source),
             "corner_noise": None if noise is None else noise.to_dict()}
+
+
+def board_model(board, camera):
+    """The board's corners as the camera's calibration measured them.
+
+    When the camera's statistics (``meta``, written by `pencilcal calibrate`) record a
+    calibration of this same board (``calibration.board``) with its warp (``board_warp``),
+    each corner is lifted off the board's plane by the warp (`bundle.warp_basis`: zero on
+    the corner grid's border, ``warp_x`` / ``warp_y`` [board unit] at its middle); the
+    poses of that board are then those of the board the calibration saw. The printed
+    board's corner offsets (``board_corners``) are a variance, not per-corner values: in one
+    view they are white errors its residuals already hold (`print_errors`), nothing to add.
+
+    board : Board; camera : Camera. Returns (points (M, 3) [board unit], basis (M, 2): d
+    point z / d warp, warp covariance (2, 2) [board unit^2] or None): the nominal
+    `Board.object_points` with basis and covariance None for another board, no warp, or a
+    camera without the record.
+
+    >>> from pencilcal.toolkit.board.spec import board_from_dict
+    >>> from pencilcal.toolkit.camera.model import Camera
+    >>> b = board_from_dict({"type": "chessboard", "squares": [3, 2], "square": 10.0})
+    >>> meta = {"calibration": {"board": b.to_dict()}, "board_warp": {"value": [0.2, 0.0], "cov": [[0.01, 0], [0, 0.01]]}}
+    >>> cam = Camera("pinhole", 640, 480, [[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]], meta=meta)
+    >>> X, basis, cov = board_model(b, cam)
+    >>> X[:, 2].round(3).tolist()
+    [0.0, 0.2, 0.0, 0.0, 0.2, 0.0]
+    >>> board_model(b, Camera("pinhole", 640, 480, cam.K))[1] is None
+    True
+    """
+    import numpy as np
+
+    from pencilcal.toolkit.board.bundle import warp_basis
+
+    X = np.asarray(board.object_points(), float)
+    meta = camera.meta or {}
+    calib, warp = meta.get("calibration"), meta.get("board_warp")
+    if not isinstance(calib, dict) or not isinstance(warp, dict) or not _same_board(calib.get("board"), board):
+        return X, None, None
+    try:
+        value = np.asarray(warp["value"], float).reshape(2)
+        cov = np.asarray(warp["cov"], float).reshape(2, 2) if warp.get("cov") is not None else None
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(f"the camera's board_warp record is malformed: {e}") from None
+    basis = warp_basis(X, X)
+    out = X.copy()
+    out[:, 2] += basis @ value
+    return out, basis, cov
+
+
+def _same_board(rec, board):
+    """Whether a calibration's board record (``Board.to_dict``, maybe read back from JSON)
+    describes `board`."""
+    if not isinstance(rec, dict):
+        return False
+    want = board.to_dict()
+    norm = lambda v: [float(x) for x in v] if isinstance(v, (list, tuple)) else v  # noqa: E731
+    return set(rec) == set(want) and all(norm(rec[k]) == norm(want[k]) for k in want)

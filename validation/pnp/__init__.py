@@ -111,7 +111,8 @@ True
 from __future__ import annotations
 
 from .covariance import colmap_covariance_to_pencilcal, pose_covariance
-from .estimate import DEFAULT_MAX_RMS_PX, MIN_POINTS, best_method, board_pose, estimate_all, estimate_pose
+from .estimate import DEFAULT_MAX_RMS_PX, MIN_POINTS, best_method, board_points, board_pose, estimate_all, \
+    estimate_pose
 from .poses_file import (
     COV_CONVENTION,
     POSE_KEYS,

@@ -31,7 +31,7 @@ from pencilcal.toolkit.errors import EstimationError
 from .refine import residuals
 
 __all__ = ["covariance_from_jacobian", "pose_covariance", "colmap_covariance_to_pencilcal",
-           "pose_intrinsics_sensitivity", "total_covariance"]
+           "pose_intrinsics_sensitivity", "pose_warp_sensitivity", "total_covariance"]
 
 # smallest eigenvalue of the Jacobi-scaled normal matrix, relative to the largest, below
 # which the pose is numerically undetermined
@@ -140,7 +140,27 @@ def pose_intrinsics_sensitivity(camera, object_points, R, t, J):
     return -np.linalg.solve(J.T @ J, J.T @ Jt)
 
 
-def total_covariance(camera, object_points, image_points, R, t, J, r, corner_noise=None, intrinsics_cov=None):
+def pose_warp_sensitivity(camera, object_points, image_points, R, t, J, basis):
+    """G (6, 2) = d(pose) / d(board warp) at a least-squares optimum, as
+    `pose_intrinsics_sensitivity`: each corner lifted off the board's plane by ``basis``
+    (K, 2) [d z / d warp, `toolkit.board.bundle.warp_basis`], the residuals' change by
+    central differences (the projection is smooth; the warp moves corners by a fraction of
+    a millimetre). Rows (d_rot [rad], d_t [length]), columns (warp_x, warp_y)."""
+    X = np.asarray(object_points, float)
+    basis = np.asarray(basis, float)
+    h = 1e-3 * max(float(np.ptp(X[:, :2])), 1e-9)
+    cols = []
+    for k in range(basis.shape[1]):
+        dz = np.zeros_like(X)
+        dz[:, 2] = h * basis[:, k]
+        rp = residuals(camera, X + dz, image_points, R, t)[0].reshape(-1)
+        rm = residuals(camera, X - dz, image_points, R, t)[0].reshape(-1)
+        cols.append((rp - rm) / (2.0 * h))
+    return -np.linalg.solve(J.T @ J, J.T @ np.stack(cols, 1))
+
+
+def total_covariance(camera, object_points, image_points, R, t, J, r, corner_noise=None, intrinsics_cov=None,
+                     board_warp=None):
     """The pose's covariance with every term this package models, and what it holds.
 
     Parameters
@@ -156,6 +176,9 @@ def total_covariance(camera, object_points, image_points, R, t, J, r, corner_noi
     intrinsics_cov : (P, P) array_like, optional
         Covariance of the camera's intrinsics (`intrinsic_names` order): adds
         ``G C G^T`` (`pose_intrinsics_sensitivity`).
+    board_warp : (basis (K, 2), cov (2, 2)), optional
+        The board's warp the object points carry (`toolkit.board.calibration_file.
+        board_model`) and its covariance: adds its term (`pose_warp_sensitivity`).
 
     Returns
     -------
@@ -175,4 +198,7 @@ def total_covariance(camera, object_points, image_points, R, t, J, r, corner_noi
     if intrinsics_cov is not None:
         G = pose_intrinsics_sensitivity(camera, object_points, R, t, J)
         cov = cov + propagate(G, intrinsics_cov)
+    if board_warp is not None and board_warp[1] is not None:
+        Gw = pose_warp_sensitivity(camera, object_points, image_points, R, t, J, board_warp[0])
+        cov = cov + Gw @ np.asarray(board_warp[1], float) @ Gw.T
     return cov, correlated, G

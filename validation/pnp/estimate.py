@@ -25,7 +25,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from pencilcal.toolkit.board.calibration_file import uncertainty_of
+from pencilcal.toolkit.board.calibration_file import board_model, uncertainty_of
 from pencilcal.toolkit.errors import InputError
 
 from .covariance import covariance_from_jacobian, total_covariance
@@ -33,7 +33,8 @@ from .refine import levenberg_marquardt, normalized_points, orthonormal, project
     rotation_from_rotvec
 from .result import DEFAULT_METHOD, METHODS, PoseResult
 
-__all__ = ["DEFAULT_MAX_RMS_PX", "MIN_POINTS", "estimate_pose", "estimate_all", "best_method", "board_pose"]
+__all__ = ["DEFAULT_MAX_RMS_PX", "MIN_POINTS", "estimate_pose", "estimate_all", "best_method", "board_pose",
+           "board_points"]
 
 #: Reprojection RMS [px] above which a pose is rejected as a wrong local minimum.
 DEFAULT_MAX_RMS_PX = 5.0
@@ -197,7 +198,7 @@ def _geometry_problem(X, method, s=None):
 
 def estimate_pose(object_points, image_points, camera, method=DEFAULT_METHOD, refine=True,
                   corner_sigma_px=None, max_rms_px=DEFAULT_MAX_RMS_PX, seed=0, *, corner_noise="camera",
-                  intrinsics_cov="camera"):
+                  intrinsics_cov="camera", board_warp=None):
     """Pose of a target from K point correspondences, refined in raw pixels, with covariance.
 
     Parameters
@@ -235,6 +236,10 @@ def estimate_pose(object_points, image_points, camera, method=DEFAULT_METHOD, re
         (``cov_intrinsics``), if any. With either, ``cov_total`` (6, 6) holds the corner term
         of that model and the intrinsics' (`covariance.total_covariance`); ``cov`` stays
         the white corner-noise covariance.
+    board_warp : (basis (K, 2), cov (2, 2)), optional
+        The board's warp the object points carry, per point, and its covariance
+        (`toolkit.board.calibration_file.board_model`, which `board_pose` uses): ``cov_total``
+        then holds the warp's term too.
 
     Returns
     -------
@@ -263,6 +268,8 @@ def estimate_pose(object_points, image_points, camera, method=DEFAULT_METHOD, re
     """
     t0 = time.perf_counter()
     X, u = _check_arrays(object_points, image_points, method, corner_sigma_px)
+    if board_warp is not None and np.shape(board_warp[0]) != (X.shape[0], 2):
+        raise InputError(f"the board warp's basis must be ({X.shape[0]}, 2), got {np.shape(board_warp[0])}")
     if max_rms_px is not None and not (np.isfinite(max_rms_px) and max_rms_px > 0):
         raise InputError(f"the RMS limit must be a positive number of pixels, got {max_rms_px!r}")
     n = X.shape[0]
@@ -290,7 +297,7 @@ def estimate_pose(object_points, image_points, camera, method=DEFAULT_METHOD, re
                      n, t0)
     try:
         cov, sigma, r = _covariance_at(project, chosen, R, t, corner_sigma_px)
-        total = _total_at(project, chosen, R, t, camera, X, u, cov, corner_noise, intrinsics_cov)
+        total = _total_at(project, chosen, R, t, camera, X, u, cov, corner_noise, intrinsics_cov, board_warp)
     except ArithmeticError as e:
         return _fail(method, str(e), n, t0)
     return PoseResult(
@@ -316,7 +323,28 @@ def board_pose(image, camera, board, method=DEFAULT_METHOD, **options):
     from pencilcal.toolkit.board.detect import detect_board
 
     det = detect_board(image, board)
-    return estimate_pose(board.object_points()[det.ids], det.corners, camera, method=method, **options)
+    X, warp = board_points(board, camera, det.ids)
+    return estimate_pose(X, det.corners, camera, method=method, board_warp=warp, **options)
+
+
+def board_points(board, camera, ids):
+    """The corners `ids` (K,) of `board` as `camera`'s calibration measured them, for
+    `estimate_pose`: (object points (K, 3) [board unit], its ``board_warp`` keyword: (basis
+    (K, 2), cov (2, 2)) or None). With the warp of this board in the camera's statistics
+    (`toolkit.board.calibration_file.board_model`) the points carry it and the pose's
+    ``cov_total`` its sigma; otherwise the nominal points and None.
+
+    >>> from pencilcal.toolkit.board.spec import board_from_dict
+    >>> from pencilcal.toolkit.camera.model import Camera
+    >>> b = board_from_dict({"type": "chessboard", "squares": [3, 2], "square": 10.0})
+    >>> cam = Camera("pinhole", 640, 480, [[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+    >>> X, warp = board_points(b, cam, [1, 4])
+    >>> X.tolist(), warp
+    ([[10.0, 0.0, 0.0], [10.0, 10.0, 0.0]], None)
+    """
+    X, basis, cov = board_model(board, camera)
+    ids = np.asarray(ids, int).ravel()
+    return X[ids], (None if basis is None or cov is None else (basis[ids], cov))
 
 
 # ------------------------------------------------------------------ estimate_pose's steps
@@ -473,17 +501,19 @@ def _resolve_total(camera, corner_noise, intrinsics_cov):
     return corner_noise, intrinsics_cov
 
 
-def _total_at(project, chosen, R, t, camera, X, u, cov, corner_noise, intrinsics_cov):
+def _total_at(project, chosen, R, t, camera, X, u, cov, corner_noise, intrinsics_cov, board_warp=None):
     """The `PoseResult` keywords of the total covariance (`covariance.total_covariance`):
-    none without a corner-noise model or intrinsics' covariance, or without `cov`."""
+    none without a corner-noise model, intrinsics' covariance or warp covariance, or
+    without `cov`."""
     corner_noise, intrinsics_cov = _resolve_total(camera, corner_noise, intrinsics_cov)
-    if cov is None or (corner_noise is None and intrinsics_cov is None):
+    warp_cov = None if board_warp is None else board_warp[1]
+    if cov is None or (corner_noise is None and intrinsics_cov is None and warp_cov is None):
         return {}
     r, J = chosen.r, chosen.J
     if J is None:
         with np.errstate(all="ignore"):
             r, J, _ = project(R, t)
-    total, correlated, G = total_covariance(camera, X, u, R, t, J, r, corner_noise, intrinsics_cov)
+    total, correlated, G = total_covariance(camera, X, u, R, t, J, r, corner_noise, intrinsics_cov, board_warp)
     return {"cov_total": total, "correlated_corners_used": correlated, "intrinsics_used": G is not None,
             "intrinsics_sensitivity": G}
 
