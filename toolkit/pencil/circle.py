@@ -19,10 +19,13 @@ under the right rotation, the points of one circle all lie at one radius on the 
 units of the vertex depth), nested rings a few pixels apart at different radii. The points
 are grouped by that radius under each twin, an ellipse fitted to each group (points beyond
 3 sd of it left out), its normal taken from the vertex's polar, and the normals of all the
-circles combined by their covariances (their consistency a chi2); the twin whose grouping
-holds more of the points is the one grouped by (the other smears every circle over a range
-of radii). With the circles' radii given (the pencil file's ``circles``), only groups whose
-radii stand in the ratios of the listed ones are used, and the vertex's depth follows.
+circles combined by their covariances (their consistency a chi2). With the circles' radii
+given (the pencil file's ``circles``), only groups whose radii stand in the ratios of the
+listed ones are used, and the vertex's depth follows. The twin whose circles fix the normal
+better (the smaller trace of its covariance from the conics) is the one grouped by: the
+other smears every circle over a range of radii, while points on no circle (lines of print,
+a sheet's edge) still fill loose groups about it, at times more points than the one tight
+ring about the right plane.
 
 Example
 -------
@@ -239,23 +242,21 @@ def circle_estimate(points, x, x_cov, R, R_twin, *, scale, radii=None):
             got = _circle(points, g, scale)
             if got is not None:
                 fits.append((got[0], got[1], float(np.median(rho[got[1]]))))
-        count = sum(f[1].size for f in fits)
-        if fits and (best is None or count > best[0]):
-            best = (count, which, fits)
+        mask, depth = _matched_radii(np.array([f[2] for f in fits]), radii)
+        fits = [f for f, m in zip(fits, mask) if m]
+        if not fits:
+            continue
+        normals, covs = _normals(fits, x)
+        n, cov_c, chi2, dof = _combine(normals, covs)
+        # the twin whose circles fix the plane better: under the wrong one, points off any
+        # circle (a printed line of text, the sheet's edge, a star's outline smeared over a
+        # range of radii) still fill loose groups, more points in all than the one tight ring
+        info = 1.0 / max(float(np.trace(cov_c)), 1e-300)
+        if best is None or info > best[0]:
+            best = (info, which, fits, depth, normals, covs, n, cov_c, chi2, dof)
     if best is None:
         return None
-    _, which, fits = best
-    rad = np.array([f[2] for f in fits])
-    mask, depth = _matched_radii(rad, radii)
-    fits = [f for f, m in zip(fits, mask) if m]
-    if not fits:
-        return None
-    normals, covs, jxs = [], [], []
-    for fit, _, _ in fits:
-        n, Jq, Jx = conic_normal(fit.conic, x)
-        normals.append(n), covs.append(Jq @ fit.cov @ Jq.T), jxs.append(Jx)
-    normals, covs = np.array(normals), np.array(covs)
-    n, cov_c, chi2, dof = _combine(normals, covs)
+    _, which, fits, depth, normals, covs, n, cov_c, chi2, dof = best
     # the vertex moves every circle's normal together: its term on the combination
     Jx = _combined_jacobian(fits, x, covs)
     cov = cov_c + Jx @ np.asarray(x_cov, float) @ Jx.T
@@ -264,6 +265,15 @@ def circle_estimate(points, x, x_cov, R, R_twin, *, scale, radii=None):
                           np.array([f[2] for f in fits]), np.array([f[1].size for f in fits]),
                           np.array([f[0].rms * scale for f in fits]), depth, np.array([f[0].conic for f in fits]),
                           0.5 * (cov_c + cov_c.T), Jx)
+
+
+def _normals(fits, x):
+    """The circles' normals (C, 3) and their covariances (C, 3, 3) from their conics' fits."""
+    normals, covs = [], []
+    for fit, _, _ in fits:
+        n, Jq, _ = conic_normal(fit.conic, x)
+        normals.append(n), covs.append(Jq @ fit.cov @ Jq.T)
+    return np.array(normals), np.array(covs)
 
 
 def _combined_jacobian(fits, x, covs, h=1e-7):

@@ -162,6 +162,23 @@ class TestCircles:
         assert np.degrees(angle_between(est.normal, R[:, 2])) < 1e-7
         assert np.degrees(angle_between(est.normal, Rt[:, 2])) > 10.0
 
+    def test_the_tighter_circles_choose_the_grouping(self):
+        """One ring sampled tightly (64 points, 0.1 px) about the true plane, and four loose
+        arcs (30 points each, 1 px) that make circles about the twin's plane (as a printed
+        line of text and a sheet's edge do): the twin whose circles fix the plane better
+        groups the points, not the one whose groups hold more of them."""
+        rng = np.random.default_rng(5)
+        R = rotation_from_rotvec([0.7, -0.2, 0.1])
+        x = np.array([0.05, -0.03])
+        ray = np.r_[x, 1.0] / np.linalg.norm(np.r_[x, 1.0])
+        Rt = (2 * np.outer(ray, ray) - np.eye(3)) @ R @ np.diag([-1.0, -1.0, 1.0])
+        tight = _circle_points(R, x, (0.17,), n=64, noise=0.1e-3, rng=rng)
+        loose = _circle_points(Rt, x, (0.25, 0.26, 0.27, 0.28), n=30, noise=1.0e-3, rng=rng)
+        for first, second, true in ((R, Rt, 0), (Rt, R, 1)):
+            est = circle_estimate(np.concatenate([tight, loose]), x, np.zeros((2, 2)), first, second, scale=1000.0)
+            assert est.grouped_by == true and int(np.max(est.points)) >= 60
+            assert np.degrees(angle_between(est.normal, R[:, 2])) < 0.2
+
     def test_its_sigma_holds_the_error(self):
         """Noisy points (0.3 px at f = 1000 px) on two rings: the normal's error within its
         reported covariance 68 % of the time (chi2, 2 dof), over 200 trials."""
