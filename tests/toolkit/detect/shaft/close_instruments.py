@@ -12,9 +12,10 @@ composited with its exact area coverage, then blur (1-2 px), gamma, noise and JP
 detection finds it within the masked sources' tolerance for a shaft (1.5 deg, 15 px:
 `validation.shaft_score.Tolerance`).
 
-Run: ``python -m tests.toolkit.detect.shaft.close_instruments FIRST LAST [KINDS] [near]``
+Run: ``python -m tests.toolkit.detect.shaft.close_instruments FIRST LAST [KINDS] [near|shaded]``
 prints the found and false detections over seeds [FIRST, LAST) of each kind (dark, grey,
-bright); near: the nearer instruments of `NEAR`.
+bright); near: the nearer instruments of `NEAR`; shaded: those with shaded, mirroring limbs and
+a shadow beside (`SHADED`).
 """
 from __future__ import annotations
 
@@ -40,11 +41,16 @@ def line_through(p, d):
     return np.r_[n, -n @ p]
 
 
-def scene(seed, kind, conv_deg=(2.0, 14.0), seen_widths=(1.2, 3.0)):
+def scene(seed, kind, conv_deg=(2.0, 14.0), seen_widths=(1.2, 3.0), shaded=False):
     """(frame (H, W, 3) uint8 BGR, reference (kind, line, point, width_px as `mask.MaskAxis`),
     parameters) of one close instrument of kind "dark", "grey" or "bright" (module docstring);
     conv_deg, seen_widths: the ranges its convergence [deg] and its length seen to the collar
-    [widths at the border] are drawn from (`NEAR`: nearer still)."""
+    [widths at the border] are drawn from (`NEAR`: nearer still). shaded (`SHADED`): each limb
+    a strip of 5-12 % of the local width mirroring the tissue at grazing incidence (its colour
+    blurred, 0.4-0.9 of its level, over a darker limb), and a shadow beside one silhouette,
+    10-35 % of the width wide, the tissue at 0.2-0.5 of its level, its outer side soft: the
+    silhouette is where the background begins, not the limb strip's inner side nor the
+    shadow's outer one. The same seed draws the same instrument either way."""
     rng = np.random.default_rng(seed)
     back = np.array(tissue_image((H, W), seed=seed), float)
     side = rng.integers(4)
@@ -96,6 +102,20 @@ def scene(seed, kind, conv_deg=(2.0, 14.0), seen_widths=(1.2, 3.0)):
         jaws = np.maximum(jaws, np.clip(0.15 * ww - np.abs(c2) + 0.5, 0, 1) * np.clip(a2 + 0.5, 0, 1) * np.clip(jl - a2 + 0.5, 0, 1))
     metal = np.clip(wrist + jaws, 0, 1) * (1 - cover)
     mcol = np.array([0.45, 0.46, 0.48]) * (0.8 + 0.4 * rng.random())
+    if shaded:
+        # the limbs mirror the tissue (a blurred copy, dimmed), over the darker limb shading
+        fl = rng.uniform(0.05, 0.12)
+        mirror = cv2.GaussianBlur(back, (0, 0), 6.0) * rng.uniform(0.4, 0.9)
+        strip = np.clip(np.minimum(q, 1 - q) / fl, 0, 1)[..., None]
+        shaft_rgb = shaft_rgb * strip + mirror * (1 - strip)
+        # a shadow beside one silhouette: the tissue darkened, fading out on its far side
+        side_s = rng.choice([-1.0, 1.0])
+        ws = rng.uniform(0.1, 0.35) * w0
+        beyond = side_s * across - half
+        dark = rng.uniform(0.2, 0.5)
+        fall = np.clip((ws - beyond) / 4.0 + 0.5, 0, 1) * (beyond > -1) * np.clip(seen - along + 0.5, 0, 1)
+        fall = cv2.GaussianBlur(fall, (0, 0), 1.5)
+        back = back * (1 - (1 - dark) * fall)[..., None]
     lin = back * (1 - np.clip(cover + metal, 0, 1))[..., None] + shaft_rgb * cover[..., None] + mcol * metal[..., None]
     frame = sensor_image(lin, 0.0, 1.0, rng.uniform(1.0, 2.0), 2.2, 2.0, rng)
     _, buf = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, 85])
@@ -122,6 +142,9 @@ def scene(seed, kind, conv_deg=(2.0, 14.0), seen_widths=(1.2, 3.0)):
 # nearer still: converging by 14-24 deg, seen along 0.6-1.5 of its widths to the collar (the
 # da Vinci frames' close shafts: 12-19 deg, 0.7-1.5 widths)
 NEAR = dict(conv_deg=(14.0, 24.0), seen_widths=(0.6, 1.5))
+# ... with limbs mirroring the tissue and a shadow beside the shaft (the da Vinci frames' close
+# shafts: a brownish limb strip 10-18 px wide inside the silhouette, a shadow beside it)
+SHADED = dict(NEAR, shaded=True)
 
 
 def wedge(seed, kind):
@@ -173,7 +196,8 @@ def sweep(seeds, kinds=("dark", "grey", "bright"), **ranges):
 
 if __name__ == "__main__":
     first, last = int(sys.argv[1]), int(sys.argv[2])
-    kinds = sys.argv[3].split(",") if len(sys.argv) > 3 and sys.argv[3] != "near" else ("dark", "grey", "bright")
+    kinds = sys.argv[3].split(",") if len(sys.argv) > 3 and sys.argv[3] not in ("near", "shaded") else ("dark", "grey", "bright")
     t0 = time.process_time()
-    f, n, fa = sweep(range(first, last), kinds, **(NEAR if "near" in sys.argv[3:] else {}))
+    ranges = SHADED if "shaded" in sys.argv[3:] else NEAR if "near" in sys.argv[3:] else {}
+    f, n, fa = sweep(range(first, last), kinds, **ranges)
     print(f"seeds {first}-{last - 1}: found {f}/{n}, false {fa} ({time.process_time() - t0:.1f} s CPU)")
