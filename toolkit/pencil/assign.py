@@ -31,12 +31,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from pencilcal.toolkit.geometry.angles import wrap_angle, wrap_line
+from pencilcal.toolkit.geometry.frames import rotvec_from_rotation
+from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.pencil.defaults import CHI2_1_99, CHI2_2_DETECTION, DETECTION_LEVEL
 from pencilcal.toolkit.pencil.estimator import fit_pencil, pencil_jacobian, PencilFit
 from pencilcal.toolkit.pencil.sequence_noise import inflation
 
-__all__ = ["Assignment", "assign_spokes"]
+__all__ = ["Assignment", "assign_spokes", "grow_labels", "GROWTH_EVIDENCE", "GROWTH_AGREE"]
 
 # distinct labellings refitted after the MSAC screen
 _TOP = 4
@@ -53,6 +55,13 @@ _EXHAUSTIVE_MAX_FITS = 5000
 # beyond that, a seeded sample of the hypotheses (as vertex.intersect_lines samples pairs).
 _SCORE_BLOCK = 1 << 21
 _MAX_SCORE_WORK = 1 << 26
+#: `grow_labels` gives a line its nearest predicted spoke only where that spoke explains it
+#: better than the next predicted spoke of its kind by this much chi2 (odds of 1000 to 1),
+#: the line's sd and the prediction's (from the fit's covariance) together
+GROWTH_EVIDENCE = 2.0 * np.log(1000.0)
+#: and keeps a grown labelling only while its refit's rotation lies within this chi2(3)
+#: quantile (99.73 %, three sigmas) of the last fit's, by that fit's covariance
+GROWTH_AGREE = chi2_isf(1.0 - 0.9973, 3)
 
 
 @dataclass(frozen=True)
@@ -583,6 +592,113 @@ class _LabelFitter:
             return labels, None
         fit = self.fit(used, labels[used])
         return labels, fit
+
+
+    def sure(self, fit, scale=1.0):
+        """Each line's nearest predicted spoke of its kind where the evidence tells it from
+        the next one, else -1: (M,). With the line's sd and its prediction's together (sd^2 =
+        scale (s^2 + var_pred)) and the next predicted spoke g away, the nearer spoke
+        explains the line better by GROWTH_EVIDENCE in chi2 or more where its residual r
+        has |r| <= (g - GROWTH_EVIDENCE sd^2 / g) / 2; and the line is that spoke's only
+        within `tolerance_sigmas` sds, and only where `tolerance_sigmas` sds of the
+        prediction alone lie within g / 2. A prediction uncertain against the spacing of the
+        spokes' images labels nothing (the shared error is estimated from the lines labelled
+        so far, which their tolerance trimmed: without this gate a right labelling grew
+        wrong on lines scattering 4 times their sigmas); a sure one labels the lines near
+        it, however close its neighbours are in the target (a star's image is compressed on
+        one side and stretched on the other)."""
+        wrap = wrap_angle if self.oriented else wrap_line
+        pred, J, Jx = pencil_jacobian(fit.R_cam_from_target, self.vertex, self.th)
+        var_pred = np.einsum("ni,ij,nj->n", J, fit.cov, J)
+        if self.vertex_cov is not None:
+            var_pred = var_pred + np.einsum("ni,ij,nj->n", Jx, self.vertex_cov, Jx)
+        res = wrap(self.a[:, None] - pred[None, :])  # (M, N)
+        if self.kinds is not None:
+            res = np.where(self.kinds[0][:, None] == self.kinds[1][None, :], res, np.pi)
+        rows = np.arange(self.a.size)
+        order = np.argsort(np.abs(res), -1)
+        k = order[:, 0]
+        # the next spoke of another direction (lines: spokes pi apart are one)
+        other = np.abs(wrap(pred[order[:, 1:]] - pred[k][:, None])) > 1e-9
+        k2 = order[rows, 1 + np.argmax(other, -1)]
+        g = np.where(other.any(-1), np.abs(wrap(pred[k2] - pred[k])), np.pi)
+        var_k = scale * np.maximum(var_pred[k], 0.0)
+        sd2 = scale * self.s**2 + var_k
+        window = np.minimum(self.tolerance_sigmas * np.sqrt(sd2), 0.5 * (g - GROWTH_EVIDENCE * sd2 / g))
+        sure = self.tolerance_sigmas * np.sqrt(var_k) <= 0.5 * g
+        return np.where(sure & (np.abs(res[rows, k]) < window), k, -1)
+
+    def grow(self, labels):
+        """The labelling grown from `labels` (M,) (a searched one: its lines are taken to be
+        right): each round fits the labelled lines (their sigmas widened by the model error
+        they share, `floored`), labels every line its prediction is `sure` of, and fits
+        those; the new labelling is kept while its fit's rotation agrees with the last one
+        within GROWTH_AGREE (by the last one's covariance), until nothing changes.
+        Returns (labels, PencilFit on the lines' own sigmas)."""
+        for _ in range(_MAX_GROWTH):
+            used = labels >= 0
+            wide = self.floored(self.fit(used, labels[used]), labels)
+            fit = wide.fit(used, labels[used])
+            # the labelled lines stand; a line is added only on a spoke none of them holds
+            add = wide.sure(fit, wide.scatter(fit, labels))
+            add = _one_per_spoke(np.where((labels < 0) & ~np.isin(add, labels[labels >= 0]), add, -1), self.s)
+            new = np.where(labels >= 0, labels, add)
+            if np.array_equal(new, labels) or np.unique(new[new >= 0]).size < 3:
+                break
+            moved = rotvec_from_rotation(wide.fit(new >= 0, new[new >= 0]).R_cam_from_target
+                                         @ fit.R_cam_from_target.T)
+            try:
+                agree = float(moved @ np.linalg.solve(np.asarray(fit.cov, float), moved)) <= GROWTH_AGREE
+            except np.linalg.LinAlgError:
+                agree = False
+            if not agree:
+                break
+            labels = new
+        used = labels >= 0
+        return labels, self.fit(used, labels[used])
+
+
+def grow_labels(line_angles, spoke_angles, vertex, sigma, labels, vertex_cov=None, oriented=True,
+                line_kind=None, spoke_kind=None, tolerance_sigmas=4.0):
+    """A labelling grown to every line whose spoke its fit predicts surely enough.
+
+    `assign_spokes` labels a line only where its prediction is within 0.45 of the smallest
+    gap between the pencil's spokes by 4 sds: on a small tilted star, whose lines miss the
+    model by more than their sigmas, that leaves most lines out. Here a line is given the
+    spoke predicted nearest to it where the evidence for that spoke over the next predicted
+    one (in the image, of the line's kind) is GROWTH_EVIDENCE in chi2 or more and the
+    prediction itself is sure against that spacing (`_LabelFitter.sure`), and each round's
+    refit must agree with the last within GROWTH_AGREE (`_LabelFitter.grow`). The labels
+    given stand: a line is added only on a spoke none of them holds.
+
+    line_angles (M,), spoke_angles (N,), vertex, sigma, vertex_cov, oriented, line_kind,
+    spoke_kind: as `assign_spokes`; labels: (M,) a labelling of them (-1: none), three
+    spokes or more. Returns (labels (M,), PencilFit of the labelled lines).
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
+    >>> from pencilcal.toolkit.pencil.spec import image_angles
+    >>> R = rotation_from_rotvec([0.6, 0.3, 0.2]); x = np.array([0.05, 0.1])
+    >>> spokes = np.radians(np.arange(36) * 10.0)
+    >>> seen = image_angles(R, x, spokes) + np.radians(0.3) * np.random.default_rng(1).standard_normal(36)
+    >>> start = np.full(36, -1); start[:4] = np.arange(4)          # four neighbours labelled
+    >>> lab, fit = grow_labels(seen, spokes, x, np.radians(0.3), start)
+    >>> int(np.sum(lab == np.arange(36)))
+    36
+    """
+    a = np.asarray(line_angles, float).reshape(-1)
+    th = np.asarray(spoke_angles, float).reshape(-1)
+    lab = np.asarray(labels, int).reshape(a.size)
+    if np.unique(lab[lab >= 0]).size < 3:
+        raise EstimationError("fewer than three labelled spokes to grow from")
+    kinds = None
+    if line_kind is not None and spoke_kind is not None:
+        kinds = (np.asarray(line_kind, int).reshape(a.size), np.asarray(spoke_kind, int).reshape(th.size))
+    s = np.broadcast_to(np.asarray(sigma, float), a.shape).copy()
+    fitter = _LabelFitter(a, th, s, vertex, vertex_cov, oriented, tolerance_sigmas, np.pi, kinds)
+    return fitter.grow(lab)
 
 
 def _candidates(nearest, resid, tol, s, fitter):

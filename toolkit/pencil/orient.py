@@ -33,7 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pencilcal.toolkit.geometry.angles import wrap_angle
-from pencilcal.toolkit.pencil.assign import assign_spokes
+from pencilcal.toolkit.pencil.assign import assign_spokes, grow_labels
 from pencilcal.toolkit.pencil.bar_centre import centre_lines
 from pencilcal.toolkit.pencil.circle import circle_record
 from pencilcal.toolkit.errors import EstimationError, InputError
@@ -258,14 +258,21 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
         sigma_metric = np.sqrt(np.mean(sig_e[through] ** 2)) * np.sqrt(abs(np.linalg.det(A)))
         lab, fit, rivals, labels_ambiguous = _label_and_fit(ln, pencil, labels, idx, sigma_metric)
         if pencil.shape == "wedge":
-            # the wedges as wide as printed, and labelled again (given labels: fitted again),
+            # a star's edges lie closer than its lines' model error allows the search to label
+            # them: the labelling grows (`_grown`); then the wedges as wide as printed, and
+            # labelled again (grown from the labels as they are; given labels: fitted again),
             # tracked frames too (their labels the previous frame's)
+            if labels is None:
+                lab, fit = _grown(ln, pencil, lab)
             for _ in range(WEDGE_ROUNDS):
                 wider = _printed_wedge(ln, pencil, lab, fit)
                 if wider is pencil:
                     break
                 pencil = wider
-                lab, fit, rivals, labels_ambiguous = _label_and_fit(ln, pencil, labels, idx, sigma_metric)
+                if labels is None:
+                    lab, fit = _grown(ln, pencil, lab)
+                else:
+                    lab, fit, rivals, labels_ambiguous = _label_and_fit(ln, pencil, labels, idx, sigma_metric)
         used = lab >= 0
         edge_angles, edge_spoke, _ = pencil.edge_angles()
         th_used, a_used, s_used = edge_angles[lab[used]], ln.angle[used], ln.sigma[used]
@@ -504,6 +511,16 @@ def _label_and_fit(ln, pencil, labels, idx, sigma_metric):
     fit = fit_pencil(ln.angle[used], edge_angles[lab[used]], ln.vertex, sigma=ln.sigma[used],
                      vertex_cov=ln.vertex_cov, oriented=oriented)
     return lab, fit, [], False
+
+
+def _grown(ln, pencil, lab):
+    """The searched labelling `lab` (K,) grown to every line its fit predicts surely enough
+    (`assign.grow_labels`), with its fit: (labels, fit)."""
+    oriented = not np.any(ln.straddle)
+    edge_angles, _, edge_kind = pencil.edge_angles()
+    kinds = dict(line_kind=ln.kind, spoke_kind=edge_kind) if edge_kind is not None and oriented else {}
+    return grow_labels(ln.angle, edge_angles, ln.vertex, ln.sigma, lab, vertex_cov=ln.vertex_cov, oriented=oriented,
+                       **kinds)
 
 
 def _point_spokes_outwards(fit, ln, used, th_used, a_used):

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.geometry.conic import conic_vector, fit_ellipse
 from pencilcal.toolkit.geometry.frames import angle_between, rotation_from_rotvec
-from pencilcal.toolkit.pencil.assign import assign_spokes
+from pencilcal.toolkit.pencil.assign import assign_spokes, grow_labels
 from pencilcal.toolkit.pencil.circle import circle_estimate, circular_points, normal_agreement
 from pencilcal.toolkit.pencil.spec import image_angles, pencil_from_dict
 from pencilcal.toolkit.pencil.vertex import intersect_lines
@@ -107,6 +107,59 @@ class TestFullCircle:
         pred = image_angles(res.fit.R_cam_from_target, x, star.edge_angles()[0][res.spoke[96:][res.spoke[96:] >= 0]])
         # a random line labelled only where it happens to fall on an edge
         assert np.all(np.abs(np.angle(np.exp(1j * (junk[res.spoke[96:] >= 0] - pred)))) < np.radians(0.1))
+
+
+def _right_up_to_a_wedge(lab, truth, n=64):
+    """A star's labels (M,) right up to a whole wedge, as the search's (`TestFullCircle`):
+    one shift for every labelled edge, each on its own side of its wedge."""
+    used = lab >= 0
+    return (np.unique((lab[used] % n - truth[used] % n) % n).size == 1
+            and np.array_equal(lab[used] // n, truth[used] // n))
+
+
+class TestGrowth:
+    """A small tilted star's edges miss the model by more than their sigmas (0.5 deg against
+    0.15 on the photographs): the search labels the lines whose prediction it can tell from
+    the neighbours by 0.45 of the smallest gap between edges (2.8 deg), a few dozen of 128;
+    the growth labels every line whose predicted edge it tells from the next one in the
+    image, and labels them right."""
+
+    @pytest.mark.parametrize("noise_deg", [0.3, 0.45])
+    def test_lines_scattering_beyond_their_sigmas_are_all_labelled(self, rng, noise_deg):
+        """Wherever the search's labels are right (two or three frames of three here; the
+        growth confirms nothing: a wrong search, one frame at 0.45 deg, grows wrong)."""
+        grown = []
+        for _ in range(3):
+            a, k, truth, star, R, x = _star_lines(rng, 64, tilt=50.0, sigma_deg=noise_deg)
+            edges, _, kinds = star.edge_angles()
+            s = np.radians(0.15)  # what the lines say of themselves
+            res = assign_spokes(a, edges, x, s, line_kind=k, spoke_kind=kinds)
+            lab, fit = grow_labels(a, edges, x, s, res.spoke, line_kind=k, spoke_kind=kinds)
+            searched = res.spoke >= 0
+            assert np.all(lab[searched] == res.spoke[searched])  # the searched labels stand
+            if not _right_up_to_a_wedge(res.spoke, truth):
+                continue
+            assert _right_up_to_a_wedge(lab, truth)
+            grown.append((searched.sum(), (lab >= 0).sum()))
+        assert len(grown) >= 2
+        assert all(n >= 0.95 * 128 for _, n in grown)
+        assert min(m for m, _ in grown) < 0.5 * 128  # the search alone left most out in some frame
+
+    def test_a_prediction_unsure_against_the_spacing_labels_nothing(self, rng):
+        """Three neighbouring edges labelled with lines 1 deg off: the far side's predictions
+        are uncertain by more than the 5.6 deg between edges of a kind; the labelling grows
+        round from the three only as far as its refits predict surely, and rightly. From one
+        labelled spoke there is nothing to fit."""
+        a, k, truth, star, R, x = _star_lines(rng, 64, tilt=50.0, sigma_deg=1.0)
+        edges, _, kinds = star.edge_angles()
+        start = np.full(a.size, -1)
+        near = np.argsort(np.abs(np.angle(np.exp(1j * (a - a[0])))))[:3]
+        start[near] = truth[near]
+        with pytest.raises(EstimationError):
+            grow_labels(a, edges, x, np.radians(1.0), np.where(np.arange(a.size) == near[0], truth, -1),
+                        line_kind=k, spoke_kind=kinds)
+        lab, fit = grow_labels(a, edges, x, np.radians(1.0), start, line_kind=k, spoke_kind=kinds)
+        assert _right_up_to_a_wedge(lab, truth) and np.all(lab[near] == truth[near])
 
 
 def test_coincident_vertex_candidates_are_one():
