@@ -257,6 +257,9 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
         A = np.linalg.inv(np.asarray(camera.K, float))[:2, :2]
         sigma_metric = np.sqrt(np.mean(sig_e[through] ** 2)) * np.sqrt(abs(np.linalg.det(A)))
         lab, fit, rivals, labels_ambiguous = _label_and_fit(ln, pencil, labels, idx, sigma_metric)
+        # what the search itself labelled: growing confirms nothing, so the refusal of an
+        # unconfirmed labelling counts these spokes, not the grown ones
+        searched = pencil.edge_angles()[1][lab[lab >= 0]]
         if pencil.shape == "wedge":
             # a star's edges lie closer than its lines' model error allows the search to label
             # them: the labelling grows (`_grown`); then the wedges as wide as printed, and
@@ -285,7 +288,7 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
         fit, resolved_by, circ = _resolve_by_circles(camera, fit, ln, th_used, s_used, resolved_by, circle_points,
                                                      pencil)
         if labels is None:  # (given labels, a tracked frame's, passed the previous frame's tests)
-            _unconfirmed_labelling(pencil, edge_spoke[lab[used]], resolved_by, circle_points, circ)
+            _unconfirmed_labelling(pencil, searched, resolved_by, circle_points, circ)
         own = None if circ is None else _lines_own(fit, ln, a_used, th_used, s_used)
         labels_out[idx] = np.where(used, edge_spoke[np.maximum(lab, 0)], -1)
         s_mean = float(np.sqrt(np.mean(s_used**2)))
@@ -597,8 +600,8 @@ UNCONFIRMED_SPOKES = 0.5
 def _unconfirmed_labelling(pencil, spokes, resolved_by, circle_points, circ):
     """Raise EstimationError where a labelling nothing confirms may be wrong: the twin left
     open, circle points given (at least `circle.MIN_POINTS`) that fit no circle about the
-    fitted plane, and under `UNCONFIRMED_SPOKES` of the pencil's spokes (spokes: (K,) the used
-    lines' spokes). A small, steeply tilted star's few edges labelled with the wrong spokes
+    fitted plane, and under `UNCONFIRMED_SPOKES` of the pencil's spokes (spokes: (K,) the spokes
+    of the lines the search labelled; lines the labelling grew to confirm nothing). A small, steeply tilted star's few edges labelled with the wrong spokes
     fit their angles (chi2 within its dof), and only the rings, found about the right plane
     and about no wrong one, show it. Example: 6 of 64 spokes, twin open, 40 circle points
     and no circle -> "ambiguous labelling: ...".
