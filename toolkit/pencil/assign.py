@@ -593,7 +593,6 @@ class _LabelFitter:
         fit = self.fit(used, labels[used])
         return labels, fit
 
-
     def sure(self, fit, scale=1.0):
         """Each line's nearest predicted spoke of its kind where the evidence tells it from
         the next one, else -1: (M,). With the line's sd and its prediction's together (sd^2 =
