@@ -31,6 +31,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from pencilcal.toolkit.board.corner_noise import CornerNoise
 from pencilcal.toolkit.camera.intrinsics import META_KEY, IntrinsicsCovariance, camera_intrinsics_covariance
 from pencilcal.toolkit.errors import InputError
@@ -150,8 +152,7 @@ def board_model(board, camera):
     >>> board_model(b, Camera("pinhole", 640, 480, cam.K))[1] is None
     True
     """
-    import numpy as np
-
+    # bundle takes ~0.2 s to import and only this function of the module needs it
     from pencilcal.toolkit.board.bundle import warp_basis
 
     X = np.asarray(board.object_points(), float)
