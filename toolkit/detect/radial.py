@@ -369,9 +369,10 @@ def trimmed_at_spokes_end(detect, orient, camera, pencil, img, joint="crowded", 
 def _with_predicted(detect, orient, camera, pencil, found, rec, rounds=PREDICTED_ROUNDS):
     """(found, rec) with the edges `rec` left without a line searched for where it predicts
     them (`radial_predicted`), and oriented again where some were found, kept where it uses
-    more spokes (the last kept where not, or where it fails); again from the new orientation,
-    at most `rounds` times (each round's prediction is closer where the last added spokes
-    beside the missing ones)."""
+    more spokes (the last kept where not, or where it fails, oriented again so that the last
+    call of `orient` is the kept one's); again from the new orientation, at most `rounds`
+    times (each round's prediction is closer where the last added spokes beside the missing
+    ones)."""
     for _ in range(rounds):
         predicted = predicted_edges(camera, pencil, rec, found.segments)
         if predicted is None:
@@ -381,7 +382,9 @@ def _with_predicted(detect, orient, camera, pencil, found, rec, rounds=PREDICTED
             break
         again = orient(more)
         if not (again.ok and (again.spokes_used or 0) > (rec.spokes_used or 0)):
-            break
+            # oriented once more as kept: `orient` may keep state (a video's tracking, the
+            # previous frame's orientation: `radial_run.radial_frame`), which the last call sets
+            return found, orient(found)
         found, rec = more, again
     return found, rec
 
