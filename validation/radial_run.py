@@ -72,8 +72,9 @@ def radial_frame(name, image, camera, pencil, detector, lines_kw, orient, state=
     before = None if state is None else (state["previous"], state["tracked"])
     memo = {}  # the second pass reuses the edges the first located
 
-    def detect(outer):
-        return detect_frame_lines(name, image, camera, detector, radial_outer=outer, radial_memo=memo, **lines_kw)
+    def detect(outer, predicted=None):
+        return detect_frame_lines(name, image, camera, detector, radial_outer=outer, radial_memo=memo,
+                                  radial_predicted=predicted, **lines_kw)
 
     def oriented(found):
         if state is not None:

@@ -95,7 +95,7 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
                        bar_width=None, proposal_scale=None, valid_region=None, bar_polarity="dark",
                        gamma=DEFAULT_GAMMA, bar_tracker=None, instrument_mask=None, radial=None, axis_prior=None,
                        shaft_tracker=None, edge_model="step", radial_joint="crowded", segments=True, parts=False,
-                       radial_outer=None, ideal=False, radial_memo=None, radial_pencil=None):
+                       radial_outer=None, ideal=False, radial_memo=None, radial_pencil=None, radial_predicted=None):
     """The lines of one decoded image, as a `LineFrame`.
 
     Parameters
@@ -162,6 +162,9 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         With `radial` (and a camera): each edge trimmed at the ring where the pencil's spokes
         end, found from a first orientation, as `orient IMAGES` trims them
         (`radial.orient_radial_edges`); instead of `radial_outer`.
+    radial_predicted : dict, optional
+        With `radial`: the edges a first orientation left without a line, each searched for
+        where it predicts them (`radial.detect_radial_edges`' ``predicted``).
     segments : bool
         Edge segments (`detect_segments`) where neither `bars` nor `radial` is asked for;
         False with `shaft`: the shafts alone (the segments of a textured frame cost most of
@@ -186,7 +189,8 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
                 raise InputError("radial_pencil needs a camera: the ring is found from an orientation")
             segs, _ = orient_radial_edges(image, camera, radial_pencil, **kw)
         else:
-            segs = detect_radial_edges(image, camera, **kw, outer=radial_outer, memo=radial_memo)
+            segs = detect_radial_edges(image, camera, **kw, outer=radial_outer, memo=radial_memo,
+                                       predicted=radial_predicted)
         circle_points = segs.circle_points
     elif bars:
         kw = dict(camera=camera, min_length=min_length, width_px_range=bar_width, proposal_scale=proposal_scale,

@@ -48,8 +48,10 @@ import numpy as np
 
 from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA, linearised
 from pencilcal.toolkit.detect.image import GrayImage
+from pencilcal.toolkit.detect.noise import noise_of
 from pencilcal.toolkit.detect.radial_circles import circle_points, spokes_end_ring
 from pencilcal.toolkit.detect.radial_joint import joint_refit
+from pencilcal.toolkit.detect.radial_predicted import predicted_edges, searched_edges
 from pencilcal.toolkit.detect.refit import EdgeRefit, RefitOptions
 from pencilcal.toolkit.detect.segments import Segments, detect_segments, in_valid_region
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
@@ -105,6 +107,9 @@ OFFSET_FLOOR_PX = 0.02
 #: line by more than this many sds of the inside part's offset (`_trimmed`; the project's test
 #: level, not tuned).
 TURN_SIGMAS = 3.0
+#: Rounds of the search for the edges a first orientation left without a line, each from the
+#: orientation the last gave (`trimmed_at_spokes_end`; they stop where one adds no spoke).
+PREDICTED_ROUNDS = 3
 _GATE_ROUNDS = 5  # the through-vertex gate's rounds of its shared offset (`_through_vertex`)
 
 
@@ -129,7 +134,7 @@ class RadialEdges(Segments):
 
 
 def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, min_length=20.0, circles=True,
-                        gamma=DEFAULT_GAMMA, joint="crowded", outer=None, memo=None):
+                        gamma=DEFAULT_GAMMA, joint="crowded", outer=None, memo=None, predicted=None):
     """The edges through the vertex of a radial target, and the closed curves about it.
 
     Parameters
@@ -175,6 +180,10 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
         `outer`, are kept in it and reused by a call with the same image, camera and options
         (the same objects); only the trim and what follows it run again, the result the same
         as without it.
+    predicted : dict, optional
+        The edges a first orientation left without a line, where it predicts them
+        (`radial_predicted.predicted_edges`): each searched for along its ray and added where
+        its step stands out of the noise (`radial_predicted.searched_edges`).
 
     Returns
     -------
@@ -192,7 +201,7 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
             memo.update(of=of, key=key, located=located)
     if located is None:
         return RadialEdges.empty()
-    return _finished(camera, outer, min_length, circles, *located)
+    return _finished(camera, outer, min_length, circles, *located, predicted=predicted, gamma=gamma)
 
 
 def _located(image, camera, edges, valid_region, min_length, gamma, joint):
@@ -260,12 +269,24 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
     return img, lin, fit, v, reach, phi, rows, clear
 
 
-def _finished(camera, outer, min_length, circles, img, lin, fit, v, reach, phi, rows, clear):
+def _finished(camera, outer, min_length, circles, img, lin, fit, v, reach, phi, rows, clear, predicted=None,
+              gamma=DEFAULT_GAMMA):
     """The rest of `detect_radial_edges` from the edges `_located` found: the trim at
-    `outer`, the edges through the vertex with their sigmas, the circle points."""
+    `outer`, the edges searched for where `predicted` says, the edges through the vertex
+    with their sigmas, the circle points."""
     if outer is not None:  # the edges located jointly keep their own model of their ends
         joint_rows = np.isin(np.arange(phi.size), rows)
         fit = _trimmed(lin, camera, fit, v, np.asarray(outer, float), clear, min_length, joint_rows)
+    if predicted is not None and len(predicted["edge"]):
+        # (clear is CLEAR_SIGMAS blur sds, never under CLEAR_PX: `_located`)
+        # the noise in linear light where it is largest, at white (v^gamma scaled as
+        # `edges.linearised` has slope gamma there), never under 8 bits' rounding (a blurred
+        # JPEG's smooth areas measure 0)
+        noise = gamma * max(noise_of(img), 1.0 / np.sqrt(12.0))
+        new, replaced = searched_edges(lin, camera, fit, v, clear / CLEAR_SIGMAS, predicted, min_length,
+                                       JOINT_SIGMAS, noise)
+        kept = fit.take(np.flatnonzero(~replaced))
+        fit = type(fit)(**{f: np.concatenate([getattr(kept, f), getattr(new, f)]) for f in fit.__dataclass_fields__})
     out = Segments.from_fit(fit, camera, min_length)
     out = out.select(in_valid_region(img, out.segments))
     out = out.select(_through_vertex(out, v))
@@ -287,7 +308,8 @@ def orient_radial_edges(image, camera, pencil, **detect):
                                offset_sigma=found.offset_sigma, circle_points=found.circle_points, keep_lines=True)
 
     memo = {}  # the second pass reuses the first's located edges
-    return trimmed_at_spokes_end(lambda outer: detect_radial_edges(image, camera, **detect, outer=outer, memo=memo),
+    return trimmed_at_spokes_end(lambda outer, predicted=None: detect_radial_edges(image, camera, **detect, outer=outer,
+                                                                                  memo=memo, predicted=predicted),
                                  oriented, camera, pencil, GrayImage(image, detect.get("valid_region")),
                                  detect.get("joint", "crowded"), detect.get("gamma", DEFAULT_GAMMA))
 
@@ -297,22 +319,26 @@ def trimmed_at_spokes_end(detect, orient, camera, pencil, img, joint="crowded", 
     the ring the spokes end on: (found, orientation), the one way `orient IMAGES` and
     `orient_radial_edges` detect and orient a radial target.
 
-    The edges are detected (``detect(None)``) and oriented (``orient(found)``); where the
+    The edges are detected (``detect(None)``) and oriented (``orient(found)``); with
+    ``joint="all"`` (a star's wedges) the edges that orientation left without a line are
+    searched for where it predicts them (``detect(None, predicted)``: `radial_predicted`)
+    and the frame oriented again, kept where it uses more spokes. Where the
     pencil's spokes end on one of its circles (a dartboard's boundaries at the double ring:
     `pencil.circle.spokes_end`) and the image shows that ring about the orientation's
     plane (`radial_circles.spokes_end_ring`: its outer edge, told from its inner edge by
     their polarities), they are detected again, each trimmed where it runs on past the ring
     (``detect(outer)``: `detect_radial_edges`' ``outer``), and oriented again: beyond it a
     ring of numbers or a maker's print runs on along some boundaries and turns their lines,
-    which the labelling then rejects. Not with ``joint="all"`` (a star's wedges): every
-    edge is then located jointly, none trimmed, and the first pass is the result; nor where
+    which the labelling then rejects. Not with ``joint="all"``: every edge is then located
+    jointly, none trimmed; nor where
     no edge runs on past the ring (the second detection the same as the first, bit for bit:
     its orientation is too).
 
     detect : callable
-        outer ((3, 3) [working px] or None) -> found, with ``segments`` (M, 4) [raw px] (a
-        `RadialEdges`, an `io.lines_file.LineFrame`); the second call may reuse the first's
-        work (`detect_radial_edges`' ``memo``).
+        (outer ((3, 3) [working px] or None), predicted (dict, keyword, default None:
+        `detect_radial_edges`' ``predicted``)) -> found, with ``segments`` (M, 4) [raw px]
+        (a `RadialEdges`, an `io.lines_file.LineFrame`); the second call may reuse the
+        first's work (`detect_radial_edges`' ``memo``).
     orient : callable
         found -> `Orientation` with ``lines`` (``keep_lines``), the ring's search needs them.
     camera : Camera or None (None: no trim); pencil : Pencil; img : `GrayImage` of the frame;
@@ -322,8 +348,10 @@ def trimmed_at_spokes_end(detect, orient, camera, pencil, img, joint="crowded", 
 
     found = detect(None)
     rec = orient(found)
-    if camera is None or joint == "all":
-        return found, rec  # (with joint="all" every edge is located jointly: none is trimmed)
+    if camera is None:
+        return found, rec
+    if joint == "all":  # (every edge is located jointly: none is trimmed)
+        return _with_predicted(detect, orient, camera, pencil, found, rec)
     end = spokes_end(camera, rec, found.segments, pencil)
     if end is None:
         return found, rec
@@ -336,6 +364,29 @@ def trimmed_at_spokes_end(detect, orient, camera, pencil, img, joint="crowded", 
     if _same(trimmed, found):  # no edge ran on past the ring: the orientation would be the same
         return found, rec
     return trimmed, orient(trimmed)
+
+
+def _with_predicted(detect, orient, camera, pencil, found, rec, rounds=PREDICTED_ROUNDS):
+    """(found, rec) with the edges `rec` left without a line searched for where it predicts
+    them (`radial_predicted`), and oriented again where some were found, kept where it uses
+    more spokes (the last kept where not, or where it fails, oriented again so that the last
+    call of `orient` is the kept one's); again from the new orientation, at most `rounds`
+    times (each round's prediction is closer where the last added spokes beside the missing
+    ones)."""
+    for _ in range(rounds):
+        predicted = predicted_edges(camera, pencil, rec, found.segments)
+        if predicted is None:
+            break
+        more = detect(None, predicted)
+        if len(more.segments) == len(found.segments) and _same(more, found):
+            break
+        again = orient(more)
+        if not (again.ok and (again.spokes_used or 0) > (rec.spokes_used or 0)):
+            # oriented once more as kept: `orient` may keep state (a video's tracking, the
+            # previous frame's orientation: `radial_run.radial_frame`), which the last call sets
+            return found, orient(found)
+        found, rec = more, again
+    return found, rec
 
 
 def _same(a, b):

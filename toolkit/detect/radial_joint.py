@@ -125,7 +125,8 @@ def _edge_frames(lines, v):
     return foot, u
 
 
-def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, *, rows=None, search=1.0, rounds=2, fit_blur=True):
+def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, *, rows=None, search=1.0, rounds=2, fit_blur=True,
+                significance=False):
     """The edges through a radial target's vertex, each located jointly with its neighbours'
     blurred edges (module docstring).
 
@@ -156,6 +157,9 @@ def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, *, rows=None, se
     fit_blur : bool
         Fit the blur too, one sd shared by every edge (`_solve_stations`), instead of holding
         it at sigma.
+    significance : bool
+        Also return each edge's step over its sd per unit of image noise (`_step_strength`):
+        divided by the noise of `img` [linear grey levels], the z of its step.
 
     Returns
     -------
@@ -164,16 +168,19 @@ def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, *, rows=None, se
         ``contrast`` the median fitted step in linear grey levels.
     sigma : float [raw px]
         The blur the edges were located with (fitted with fit_blur).
+    strength : (K,) [1 / noise], with significance only
+        The step's weighted mean over the edge's stations over its sd for a unit noise.
     """
     lines = np.array(lines, float)
     sign = np.asarray(sign, float)
     rows = np.arange(lines.shape[0]) if rows is None else np.asarray(rows, int)
-    fit, sigma0 = None, sigma
+    fit, sigma0, strength = None, sigma, None
     for _ in range(rounds):
-        fit, sigma = _fit_round(img, camera, lines, v, sign, sigma, r_lo[rows], r_hi[rows], search, rows, fit_blur)
+        fit, sigma, strength = _fit_round(img, camera, lines, v, sign, sigma, r_lo[rows], r_hi[rows], search, rows,
+                                          fit_blur)
         sigma = float(np.clip(sigma, 0.5 * sigma0, 2.0 * sigma0))  # a misfit (clutter) does not run away
         lines[rows] = np.where(fit.ok[:, None], fit.lines(), lines[rows])
-    return fit, sigma
+    return (fit, sigma, strength) if significance else (fit, sigma)
 
 
 def _stations(foot, u, r_lo, r_hi, v):
@@ -190,7 +197,7 @@ def _stations(foot, u, r_lo, r_hi, v):
 
 def _fit_round(img, camera, lines, v, sign, sigma, r_lo, r_hi, search, rows, fit_blur):
     """One joint fit of the edges `rows` (`joint_refit`) with the neighbours at `lines`:
-    (EdgeFit, the blur sd [raw px])."""
+    (EdgeFit, the blur sd [raw px], the steps' strength (`_step_strength`))."""
     E = lines.shape[0]
     foot_all, u_all = _edge_frames(lines, v)
     foot, u = foot_all[rows], u_all[rows]
@@ -231,10 +238,23 @@ def _fit_round(img, camera, lines, v, sign, sigma, r_lo, r_hi, search, rows, fit
             fixed += np.where(held[..., None], sk[..., None] * _phi(zk), 0.0)
             if fit_blur:
                 dfixed -= np.where(held[..., None], sk[..., None] * _pdf(zk) * zk / sigma, 0.0)
-    t, c, info, ok, sigma = _solve_stations(y, tau, (fixed, dfixed), near,
-                                            np.broadcast_to(sign[rows, None], s.shape), (sigma, scale),
-                                            search, inside if fit_blur else None)
-    return _lines_from_stations(foot, u, e, s, t, c, info, inside & ok, sign[rows], END_WINDOWS * half), sigma
+    t, c, info, ok, sigma, c_var = _solve_stations(y, tau, (fixed, dfixed), near,
+                                                   np.broadcast_to(sign[rows, None], s.shape), (sigma, scale),
+                                                   search, inside if fit_blur else None)
+    fit = _lines_from_stations(foot, u, e, s, t, c, info, inside & ok, sign[rows], END_WINDOWS * half)
+    return fit, sigma, _step_strength(c, c_var, inside & ok)
+
+
+def _step_strength(c, c_var, use):
+    """Each edge's step, the inverse-variance mean of its stations' steps c (E, S) over
+    `use` (E, S), over that mean's sd for a unit noise (c_var (E, S): each station's step
+    variance per unit noise, the model's other parameters projected out): (E,) [1 / noise],
+    0 where no station is used. Divided by the image noise, the z of the step: whether an
+    edge is there at all, where its neighbours crowd it or the blur merges it with them."""
+    w = np.where(use & (c_var > 0) & np.isfinite(c_var), 1.0 / np.where(c_var > 0, c_var, 1.0), 0.0)
+    W = w.sum(-1)
+    with np.errstate(all="ignore"):
+        return np.where(W > 0, np.sum(w * np.nan_to_num(c), -1) / np.sqrt(np.maximum(W, 1e-300)), 0.0)
 
 
 def _blur_step(A, N, r, rhs, col, use):
@@ -265,11 +285,12 @@ def _solve_stations(y, tau, fixed, near, sgn, blur, search, fit_blur):
     steps, their positions fitted too: a weak prior, `_PRIOR` of the edge's own information,
     holds each near its line where the window barely shows it); returns t, c, the
     information about t per unit noise (the other parameters projected out), ok
-    (converged, c > 0) and the blur sd [raw px]. near: per neighbour, (tau_k, g_k, s_k,
-    free), each (E, S); fixed: the held neighbours' steps (E, S, T) and their derivative in
-    the blur sd; blur: (sd [raw px], its scale to working px at each station (E, S));
-    fit_blur: None, or the stations (E, S) whose profiles also fit one blur sd shared by
-    all (`_blur_step`; the held neighbours' steps follow it to first order)."""
+    (converged, c > 0), the blur sd [raw px] and the variance of c per unit noise (E, S).
+    near: per neighbour, (tau_k, g_k, s_k, free), each (E, S); fixed: the held neighbours'
+    steps (E, S, T) and their derivative in the blur sd; blur: (sd [raw px], its scale to
+    working px at each station (E, S)); fit_blur: None, or the stations (E, S) whose
+    profiles also fit one blur sd shared by all (`_blur_step`; the held neighbours' steps
+    follow it to first order)."""
     shape = y.shape[:2]
     P = 4 + len(near)
     p = np.zeros(shape + (P,))  # a, b, c, t, and the neighbours' shifts
@@ -319,9 +340,10 @@ def _solve_stations(y, tau, fixed, near, sgn, blur, search, fit_blur):
         p[..., 3] = np.clip(p[..., 3], -search - 0.5, search + 0.5)
     t, c = p[..., 3], p[..., 2]
     with np.errstate(all="ignore"):
-        info = 1.0 / np.linalg.inv(N)[..., 3, 3]
+        Ni = np.linalg.inv(N)
+        info = 1.0 / Ni[..., 3, 3]
     ok = (c > 0) & (np.abs(t) <= search) & (info > 0) & np.isfinite(t) & np.all(np.abs(p[..., 4:]) < 1.0, -1)
-    return t, c, info, ok, sigma
+    return t, c, info, ok, sigma, Ni[..., 2, 2]
 
 
 def _lines_from_stations(foot, u, e, s, t, c, info, base, sign, end_px=0.0):
