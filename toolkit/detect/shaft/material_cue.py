@@ -34,7 +34,15 @@ frames whose colour tells the materials apart (`shaft.detector`).
    lines over the stretch where the band's cross-section goes on looking like the run's
    (`shaft.region_bands.band_stretch`: a shaft running into a drape of its own material, or a
    white shaft merging with white tissue, is a short band of region whose edges go on), each
-   edge the best run of stations with gaps up to a width (a thread, a highlight);
+   edge the best run of stations with gaps up to a width (a thread, a highlight); a band
+   whose edges this fit does not find (a dark shaft fading into a vignetted periphery, its
+   run the part in light; a thin one of a few grey levels) has each edge fitted along its
+   whole line in the work frame by a step averaged along it, with a threshold from the
+   frame's measured noise (`shaft.averaged_edges`), taken where the edges run along
+   `_AVERAGED_BEYOND` times the run (a jaw's or wrist's band ends with its run) and not
+   narrower than a shaft fitted per station beyond whose far end it lies, along its axis
+   (its distal part, `_beyond_far_end`), its score `_AVERAGED_SCORE` of a band fitted per
+   station;
    the midline is the plane bisector of the two (`shaft.axis`). It is a shaft when both edges
    are seen together along at least the least length, or 1.25 widths where that is shorter (a
    thin shaft: the length is relative to the width, `_least_seen`), and a third of the region's
@@ -88,6 +96,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pencilcal.toolkit.detect.shaft.averaged_edges import band_ends, edge_line, tracked_edges
 from pencilcal.toolkit.detect.shaft.axis import midline_from_edges
 from pencilcal.toolkit.detect.shaft.distal import beyond_entry
 from pencilcal.toolkit.detect.shaft.silhouette import fit_edges
@@ -109,6 +118,11 @@ _MAX_PAIRS = 40  # candidate pairs per region map, the longest overlaps first
 _MAX_REFINE = 6  # bands of the region maps refitted at full resolution
 _MAX_PARTNER = 4  # ... and bands from a single edge (`shaft.partner`)
 _MAX_PAIRED = 3  # ... and bands between two grey-level edges (`shaft.edge_pairs`)
+# A band whose edges only the averaged step finds (`shaft.averaged_edges`) scores this
+# fraction: its edges are an average along them, not seen station by station (on dvrk-suturing
+# such a reading of a shaft, 1-2 deg off, outranked the one fitted per station: 180 against 145)
+_AVERAGED_SCORE = 0.5
+_AVERAGED_BEYOND = 1.5  # ... and is taken where its edges run along this many times its region's run
 _TOUCH = 0.1  # ... unless it overlaps one of those by this fraction (`_touches`)
 _GROUP_TOL = (3.0, 3.0)  # one boundary at two levels: offset [work px], angle [deg]
 _GROW_PASSES = 3  # passes growing a band's edges along its chord
@@ -537,6 +551,30 @@ def _border_distance(m, camera, validity):
     return float(np.min(validity.distance(to_raw_points(camera, m.ends))))
 
 
+def _beyond_far_end(m, t, camera, validity):
+    """Whether midline m (ideal px) is narrower than midline t and lies beyond t's far end
+    (the end farther from the border of the view, where an instrument enters), its centre
+    within half t's width of t's axis: the distal part of t's instrument (`shaft.distal`).
+
+    >>> import numpy as np
+    >>> from types import SimpleNamespace as Mid
+    >>> view = Mid(distance=lambda p: 960.0 - np.asarray(p)[:, 0])        # the border at x = 960
+    >>> shaft = Mid(ends=np.array([[955.0, 420.0], [785.0, 432.0]]), width_px=100.0)
+    >>> jaw = Mid(ends=np.array([[715.0, 435.0], [590.0, 420.0]]), width_px=29.0, centre=np.array([652.0, 428.0]))
+    >>> other = Mid(ends=np.array([[700.0, 300.0], [560.0, 280.0]]), width_px=29.0, centre=np.array([630.0, 290.0]))
+    >>> _beyond_far_end(jaw, shaft, None, view), _beyond_far_end(other, shaft, None, view)
+    (True, False)
+    """
+    from pencilcal.toolkit.detect.working import to_raw_points
+
+    if m.width_px >= t.width_px:
+        return False
+    near, far = (t.ends if np.argmin(validity.distance(to_raw_points(camera, t.ends))) == 0 else t.ends[::-1])
+    d = (far - near) / max(float(np.linalg.norm(far - near)), 1e-9)
+    c = np.asarray(m.centre, float) - far
+    return float(c @ d) > 0 and abs(float(c[0] * d[1] - c[1] * d[0])) <= 0.5 * t.width_px
+
+
 def _reaches_border(m, camera, validity, corridor):
     """Whether a midline (ideal px) ends within a width and a corridor of the border of the
     view (an instrument enters from outside)."""
@@ -601,12 +639,37 @@ def material_cue(image, camera, validity, work, mm, o, K, noise):
     # the frame as it is: each pass converts only the part its samples need (a third of a
     # 1080p frame over all passes, the median pass a tenth), not the whole frame once
     fitted = _band_edges(image, camera, validity, noise, bands, work, corridor, stretches, _MATERIAL_GAMMA)
+    # a band whose edges the fit per station does not find (a shaft fading into a vignetted
+    # periphery, its run the part in light; a thin one stepping by a few grey levels): each
+    # edge fitted along its whole line by a step averaged along it (`shaft.averaged_edges`)
+    averaged = set()
+    for k, e in enumerate(bands):
+        if fitted[k] is None:
+            got = tracked_edges(work, band_ends(e))
+            fits = None if got is None else (edge_line(work, got[0]), edge_line(work, got[1]))
+            # the run is the part of the shaft in light, or under a few grey levels its region's
+            # piece: the edges go on well beyond it (a jaw's or a wrist's band ends with its run)
+            if fits is not None and min(f.s_hi - f.s_lo for f in fits) >= _AVERAGED_BEYOND * e.run_len / s:
+                fitted[k] = fits
+                averaged.add(k)
     judged = [judge_band(e, st, f, camera, validity, o, K, s, corridor, long_len)
               for e, st, f in zip(bands, stretches, fitted)]
-    for e, (sh, _) in zip(bands, judged):
-        if sh is not None:
-            sh.outer = inside.get(id(e))
-    return [sh for sh, _ in judged if sh is not None]
+    fitted_shafts = [sh for k, (sh, _) in enumerate(judged) if sh is not None and k not in averaged]
+    out = []
+    for k, (e, (sh, _)) in enumerate(zip(bands, judged)):
+        if sh is None:
+            continue
+        if k in averaged:
+            # averaged edges follow whatever edges lie along the line: a jaw's run on into its
+            # wrist, another edge from its tip (on the dVRK phantom's frame 17 such a band, 10
+            # deg off the shaft): a narrower band beyond the far end of a shaft fitted per
+            # station, along its axis, is that instrument's distal part (`shaft.distal`)
+            if any(_beyond_far_end(sh.midline, t.midline, camera, validity) for t in fitted_shafts):
+                continue
+            sh.score *= _AVERAGED_SCORE  # of two readings of one instrument the one fitted per station is kept
+        sh.outer = inside.get(id(e))
+        out.append(sh)
+    return out
 
 
 def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
