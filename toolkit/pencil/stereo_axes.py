@@ -252,7 +252,7 @@ def covariance_at(axis, point, direction):
         cov = np.linalg.inv(J.T @ J)[:4, :4]
     except (EstimationError, np.linalg.LinAlgError):
         return None
-    G = axis.axis_frame @ axis_frame(A, d).T  # (2, 2): the line's (u, w) in the axis's own
+    G = axis.axis_frame @ axis_frame(A, d).T  # (2, 2): the line's (u, w) in the axis's (u, w)
     T = np.zeros((4, 4))
     T[:2, :2] = T[2:, 2:] = G
     return T @ cov @ T.T
@@ -506,8 +506,9 @@ def _constrained_covariances(axes, x, C):
     weighted point moves with that correlation (on edge-level pivots like a da Vinci
     endoscope's 0.27 mm towards the camera, about half its sigma there), by an amount that
     more axes do not average down while the sigma falls as 1/sqrt(N). Evaluated on the line
-    through the fulcrum instead, the weights no longer follow each axis's own error. The nearest line through x: ``p = C M^T (M C M^T)^-1 r`` in the axis's
-    chart, r the offset of x from the axis and ``M = [t I, I]`` (t along the axis to x)."""
+    through the fulcrum instead, the weights no longer follow each axis's own error. The
+    nearest line through x: ``p = C M^T (M C M^T)^-1 r`` in the axis's chart, r the offset of
+    x from the axis and ``M = [t I, I]`` (t along the axis to x)."""
     out = np.array(C, float, copy=True)
     for i, a in enumerate(axes):
         if a.problem is None:
