@@ -22,7 +22,10 @@ together with the rig's error, under its prior, not axis by axis (where its effe
 count as independent and average away).
 
 `match_shafts` pairs the shafts of the two eyes of a frame by the chi2 of their joint fit;
-`stereo_fulcrum_axes` is the fulcrum of the stereo axes (`cylinder.fulcrum_3d`).
+`stereo_fulcrum_axes` is the fulcrum of the stereo axes (`cylinder.fulcrum_3d`), each axis
+weighed by its covariance evaluated at the line through the fulcrum nearest to it
+(`covariance_at`): evaluated at its own estimate, an axis's weight would follow its own error
+and pull the point (towards the camera, on pivots like a da Vinci endoscope's).
 
 Conventions as `pencil.cylinder`: OpenCV camera frames, lengths in the rig's unit (mm),
 ``p_right = R_right_from_left p_left + t_right_from_left``, undistorted pixels of each eye's
@@ -73,7 +76,9 @@ class StereoAxis:
     cov (5, 5): the chart's and r's covariance; rig_jacobian (5, 6): d (chart, r) / d (rig
     rotation vector [rad], translation [length]), for the rig's covariance; chi2: the
     whitened residuals' sum of squares, dof its degrees of freedom (8 - 5, plus 1 with a
-    radius prior).
+    radius prior); problem: the fit's residual function (`_Problem`, its edges, their
+    covariances, the cameras and the rig), for its covariance at another line
+    (`covariance_at`), or None.
     """
 
     axis_point: np.ndarray
@@ -88,6 +93,7 @@ class StereoAxis:
     rig_vector: np.ndarray
     chi2: float
     dof: int
+    problem: "_Problem | None" = None
 
 
 def _canon(d):
@@ -176,6 +182,82 @@ def _start(K_l, edges_l, K_r, edges_r, R, t, radius):
     return sol[:3], d, float(sol[3])
 
 
+@dataclass(frozen=True, eq=False)
+class _Problem:
+    """One shaft's stereo measurements, as `stereo_axis` whitens them: each eye's camera
+    matrix, edge centres (2, 2) [px], angles (2,) [rad], whiteners (2, 2, 2) and which
+    silhouette line each edge is (2,); the rig; the radius prior (value, sd) or None."""
+
+    K_l: np.ndarray
+    K_r: np.ndarray
+    centre_l: np.ndarray
+    angle_l: np.ndarray
+    white_l: np.ndarray
+    order_l: tuple
+    centre_r: np.ndarray
+    angle_r: np.ndarray
+    white_r: np.ndarray
+    order_r: tuple
+    R: np.ndarray
+    t: np.ndarray
+    prior: tuple | None
+
+
+def _residuals(prob, p, A, d, frame, R=None, t=None):
+    """Whitened residuals (8,) or (9,) of a `_Problem` for the line at chart coordinates p[:4]
+    about (A, d, frame) with radius p[4], under the rig (R, t) (default the problem's)."""
+    R = prob.R if R is None else R
+    t = prob.t if t is None else t
+    P, D = _line_of(p[:4], A, d, frame)
+    r = p[4]
+    if not r > 0:
+        raise EstimationError("stereo_axis: the fit left the cylinder (radius <= 0)")
+    try:
+        res = [_residuals_eye(prob.K_l, P, D, r, prob.centre_l, prob.angle_l, prob.white_l, prob.order_l),
+               _residuals_eye(prob.K_r, R @ P + t, R @ D, r, prob.centre_r, prob.angle_r, prob.white_r, prob.order_r)]
+    except InputError:  # a camera centre inside the cylinder: these edges bound none
+        raise EstimationError("stereo_axis: the edges bound no cylinder clear of both cameras") from None
+    if prob.prior is not None:
+        res.append([(r - prob.prior[0]) / prob.prior[1]])
+    return np.concatenate(res)
+
+
+def _jacobian(prob, A, d, r):
+    """(f0, J (n, 5)) of a `_Problem`: its residuals at the line (A, d) with radius r and
+    their Jacobian in the line's chart (`axis_frame(A, d)`) and r, by central differences."""
+    frame = axis_frame(A, d)
+    p0 = np.r_[np.zeros(4), r]
+    return _residuals(prob, p0, A, d, frame), _jac(lambda p: _residuals(prob, p, A, d, frame), p0, 5)
+
+
+def _jac(f, p, n):
+    return np.stack([(f(p + h) - f(p - h)) / (2 * _STEP) for h in np.eye(n) * _STEP], -1)
+
+
+def covariance_at(axis, point, direction):
+    """The chart covariance (4, 4) of a stereo axis's fit, its Jacobian evaluated at another
+    line (point (3,), direction (3,), left frame; the axis's radius) and carried into the
+    axis's own chart frame: what the same edges' noise gives a shaft lying there. None
+    where the axis has no `problem` or the line bounds no cylinder clear of both cameras.
+
+    Used by `stereo_fulcrum_axes` to weigh each axis by a covariance that does not follow
+    its own error (`_constrained_covariances`)."""
+    if axis.problem is None:
+        return None
+    d = _canon(direction)
+    A = np.asarray(point, float)
+    A = A - (A @ d) * d
+    try:
+        _, J = _jacobian(axis.problem, A, d, axis.radius)
+        cov = np.linalg.inv(J.T @ J)[:4, :4]
+    except (EstimationError, np.linalg.LinAlgError):
+        return None
+    G = axis.axis_frame @ axis_frame(A, d).T  # (2, 2): the line's (u, w) in the axis's (u, w)
+    T = np.zeros((4, 4))
+    T[:2, :2] = T[2:, 2:] = G
+    return T @ cov @ T.T
+
+
 def stereo_axis(K_left, edges_left, cov_left, K_right, edges_right, cov_right, R_right_from_left, t_right_from_left,
                 *, radius=None, radius_sigma=None, iterations=20):
     """A shaft's 3-D axis and radius from its silhouette edges in both eyes (module docstring).
@@ -202,51 +284,31 @@ def stereo_axis(K_left, edges_left, cov_left, K_right, edges_right, cov_right, R
         ord_l, ord_r = _order(K_l, A0, d0, r0, cl), _order(K_r, R @ A0 + t, R @ d0, r0, cr)
     except InputError:
         raise EstimationError("stereo_axis: the edges bound no cylinder clear of both cameras") from None
-
-    def residuals(p, A, d, frame, R=R, t=t):
-        P, D = _line_of(p[:4], A, d, frame)
-        r = p[4]
-        if not r > 0:
-            raise EstimationError("stereo_axis: the fit left the cylinder (radius <= 0)")
-        try:
-            res = [_residuals_eye(K_l, P, D, r, cl, al, Wl, ord_l),
-                   _residuals_eye(K_r, R @ P + t, R @ D, r, cr, ar, Wr, ord_r)]
-        except InputError:  # a camera centre inside the cylinder: these edges bound none
-            raise EstimationError("stereo_axis: the edges bound no cylinder clear of both cameras") from None
-        if prior is not None:
-            res.append([(r - prior[0]) / prior[1]])
-        return np.concatenate(res)
-
-    def jac(f, p, n):
-        return np.stack([(f(p + h) - f(p - h)) / (2 * _STEP) for h in np.eye(n) * _STEP], -1)
+    prob = _Problem(K_l, K_r, cl, al, Wl, ord_l, cr, ar, Wr, ord_r, R, t, prior)
 
     A, d, r = A0, d0, r0
     for _ in range(iterations):  # Gauss-Newton, the chart re-centred on the estimate each step
-        frame = axis_frame(A, d)
-        p0 = np.r_[np.zeros(4), r]
-        f0 = residuals(p0, A, d, frame)
-        J = jac(lambda p: residuals(p, A, d, frame), p0, 5)
+        f0, J = _jacobian(prob, A, d, r)
         step = np.linalg.lstsq(J, -f0, rcond=None)[0]
-        P, D = _line_of(step[:4], A, d, frame)
+        P, D = _line_of(step[:4], A, d, axis_frame(A, d))
         A, d, r = P - (P @ D) * D, _canon(D), r + step[4]
         if np.max(np.abs(step)) < 1e-10:
             break
     frame = axis_frame(A, d)
     p0 = np.r_[np.zeros(4), r]
-    f0 = residuals(p0, A, d, frame)
-    J = jac(lambda p: residuals(p, A, d, frame), p0, 5)
+    f0, J = _jacobian(prob, A, d, r)
     cov = np.linalg.inv(J.T @ J)
 
     def rig_res(q):
         Rq = rotation_from_rotvec(q[:3]) @ R
-        return residuals(p0, A, d, frame, Rq, t + q[3:])
+        return _residuals(prob, p0, A, d, frame, Rq, t + q[3:])
 
-    J_rig = jac(rig_res, np.zeros(6), 6)
+    J_rig = _jac(rig_res, np.zeros(6), 6)
     A_rig = J_rig - J @ (cov @ (J.T @ J_rig))
     return StereoAxis(axis_point=A, axis_direction=d, axis_cov=cov[:4, :4], axis_frame=frame, radius=float(r),
                       radius_sigma=float(np.sqrt(cov[4, 4])), cov=cov, rig_jacobian=-cov @ J.T @ J_rig,
                       rig_information=A_rig.T @ A_rig, rig_vector=A_rig.T @ f0, chi2=float(f0 @ f0),
-                      dof=3 + (prior is not None))
+                      dof=3 + (prior is not None), problem=prob)
 
 
 def match_shafts(K_left, left, K_right, right, R_right_from_left, t_right_from_left, *, confidence=GATE_CONFIDENCE,
@@ -435,11 +497,41 @@ def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS):
     return fit, k * C + s2 * lift, s2, k
 
 
+def _constrained_covariances(axes, x, C):
+    """(N, 4, 4) each axis's chart covariance evaluated at the line through the point x (3,)
+    nearest to it in its own covariance's metric (`covariance_at`); C (N, 4, 4) where an
+    axis has no `problem`.
+
+    An axis's covariance evaluated at its own estimate follows its own error, so the
+    weighted point moves with that correlation (on edge-level pivots like a da Vinci
+    endoscope's 0.27 mm towards the camera, about half its sigma there), by an amount that
+    more axes do not average down while the sigma falls as 1/sqrt(N). Evaluated on the line
+    through the fulcrum instead, the weights no longer follow each axis's own error. The
+    nearest line through x: ``p = C M^T (M C M^T)^-1 r`` in the axis's chart, r the offset of
+    x from the axis and ``M = [t I, I]`` (t along the axis to x)."""
+    out = np.array(C, float, copy=True)
+    for i, a in enumerate(axes):
+        if a.problem is None:
+            continue
+        v = np.asarray(x, float) - a.axis_point
+        tt = float(a.axis_direction @ v)
+        M = np.array([[tt, 0.0, 1.0, 0.0], [0.0, tt, 0.0, 1.0]])
+        p = a.axis_cov @ M.T @ np.linalg.solve(M @ a.axis_cov @ M.T, a.axis_frame @ v)
+        P, D = _line_of(p, a.axis_point, a.axis_direction, a.axis_frame)
+        c = covariance_at(a, P, D)
+        if c is not None:
+            out[i] = c
+    return out
+
+
 def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
     """The fulcrum (`AxesFulcrum`, left camera frame) of stereo axes (`StereoAxis`, at least
     two), with the rig's covariance if given.
 
-    The axes are gated and weighted as `cylinder.fulcrum_3d` does, and where they scatter
+    The axes are gated and weighted as `cylinder.fulcrum_3d` does, each with its covariance
+    evaluated at the line through the fulcrum nearest to it where it carries its fit's
+    `problem` (`_constrained_covariances`: weights that do not follow its own error; twice,
+    the fit's noise terms refitted each time), and where they scatter
     about the point more than their covariances say, their covariances take a factor and
     each axis's position an isotropic play variance, both fitted from that scatter
     (`_axes_with_noise`: only inflating, as the monocular 3-D fulcrum's variance factor). rig_cov: (6, 6) the rig's covariance (rotation vector
@@ -455,7 +547,13 @@ def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
     D = np.stack([a.axis_direction for a in axes])
     C = np.stack([a.axis_cov for a in axes])
     E = np.stack([a.axis_frame for a in axes])
-    fit, C, play, factor = _axes_with_noise(P, D, C, E, robust)
+    fit, C_noise, play, factor = _axes_with_noise(P, D, C, E, robust)
+    if any(a.problem is not None for a in axes):
+        # the weights from covariances at the lines through the fulcrum (`_constrained_covariances`)
+        for _ in range(2):
+            fit, C_noise, play, factor = _axes_with_noise(P, D, _constrained_covariances(axes, fit.point, C), E,
+                                                           robust)
+    C = C_noise
     if rig_cov is None:
         return AxesFulcrum(fit.point, fit.point_cov, float(fit.point_sigma), fit, False, play, factor)
     rig_cov = np.asarray(rig_cov, float)
