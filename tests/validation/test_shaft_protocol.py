@@ -64,8 +64,12 @@ pytestmark = pytest.mark.slow
 #: The bands into their own region kept bright or dark, on the edge pairs' colour map and only
 #: along their seed, their edges not grown beyond (`material_cue._inward_bands`; no new constant)
 #: find endovis17's lit grey left shaft in frame002.
+#: A region band at least the least length wide whose run the border of the view cuts, counted
+#: from 0.75 of its width and proposed after every other proposer (`material_cue._cut_bands`,
+#: `region_bands.CUT_RUN_WIDTHS`) finds endovis17's close left shaft in frame001 (0.95 deg the
+#: median angle error, 0.83 before); the other rows, the hysterectomy and the phantom unchanged.
 REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (12, 0.0),
-           "endovis17": (10, 0.0)}
+           "endovis17": (11, 0.0)}
 
 
 @pytest.fixture(scope="module")

@@ -92,7 +92,7 @@ Example
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -233,7 +233,22 @@ def _bands(work, mm, o, wmin, wmax, min_len):
         got = pair_bands(work, wmin, wmax, min(np.degrees(o.conv_max), PAIR_MAX_CONVERGENCE_DEG), mm.luma_noise,
                          min_len, mm.likeness)
         acc = acc + _more_bands(got, work, B0, min_len, ang_thr, acc, "pairs")[:_MAX_PAIRED]
-    return acc, inside
+    return acc + _cut_bands(bands, min_len, ang_thr, acc), inside
+
+
+def _cut_bands(bands, min_len, ang_thr, acc):
+    """The region bands at least the least length wide whose run the border of the view cuts
+    after `shaft.region_bands.CUT_RUN_WIDTHS` to under `_SHORT_WIDTHS` of their width
+    (`shaft.region_bands.proposed`'s cut), as kind "cut", at most `_MAX_PAIRED`, where they
+    overlap none of acc: a shaft close to the lens seen from the border to its collar is
+    about as long in view as it is wide. Proposed last, so that they take no other
+    proposer's place (proposed among the region bands, a short one took a partner band's);
+    judged with a close shaft's convergence, without the least length and, as they reach the
+    border, without the least elongation (`judge_band`)."""
+    cut = [e for e in bands if e.run_len < _SHORT_WIDTHS * e.width_run and proposed(e, min_len, ang_thr, cut=True)
+           and not _touches(e, acc)]
+    cut.sort(key=lambda e: -e.shaft_len)
+    return [replace(e, kind="cut") for e in suppress_overlaps(cut)[:_MAX_PAIRED]]
 
 
 def _outermost_first(bands, work, ang_thr):
@@ -690,7 +705,7 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
     m = midline_from_edges(K, fits[0], fits[1])
     if m is None:
         return None, "no midline from the edges"
-    conv_max = min(o.conv_max, np.radians(PAIR_MAX_CONVERGENCE_DEG)) if e.kind in ("pairs", "inward") else o.region_conv_max
+    conv_max = min(o.conv_max, np.radians(PAIR_MAX_CONVERGENCE_DEG)) if e.kind in ("pairs", "inward", "cut") else o.region_conv_max
     if m.convergence_deg > np.degrees(conv_max):
         return None, "edges converge"
     if not _meet_outside(m):
@@ -702,9 +717,13 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
     seen_b = seen + _to_border(m, camera, validity, corridor) if e.reach_run else seen
     # elongated (`_elongated`), along a good part of the region's run, entering from the
     # border of the view or very long
-    if seen_b < _least_seen(m.width_px, o) or seen < 0.3 * e.run_len / s:
+    # a band the border cuts short (kind "cut") was proposed from `CUT_RUN_WIDTHS` widths of
+    # run: its edges need only confirm a good part of it, and reach the border
+    cut = e.kind == "cut"
+    if (not cut and seen_b < _least_seen(m.width_px, o)) or seen < 0.3 * e.run_len / s:
         return None, "edges seen too short"
-    if not _elongated(m, seen_b, along, camera, validity, corridor, e.reach_run):
+    if not (_elongated(m, seen_b, along, camera, validity, corridor, e.reach_run)
+            or (cut and _reaches_border(m, camera, validity, corridor))):
         return None, "not elongated"
     if seen < long_len and not (any(e.reach) or _reaches_border(m, camera, validity, corridor)):
         return None, "not from the border"

@@ -80,6 +80,11 @@ _RECENT = 8  # the extension's band test compares with the last this many statio
 _BAND_GAP = 2  # ... bridging gaps of up to this many stations
 _MIN_CONTRAST_SD = 4.0  # ... where the inside differs from both sides by this many noise sd at least
 _NMS_OVERLAP = 0.3  # bands overlapping by more than this fraction of the smaller one are one
+# The least run of a band at least the least length wide that the border of the view cuts,
+# in widths: a shaft close to the lens seen from the border to its collar along 1.25 widths
+# (`shaft.material_cue._SHORT_WIDTHS`) has its cross-section whole in the view only from
+# about half a width in (`_OBS_S`), a run of 0.75 widths, under the least length
+CUT_RUN_WIDTHS = 0.75
 
 
 @dataclass(eq=False)
@@ -409,7 +414,10 @@ def evaluate_many(sets, work, min_run):
     lab, obs, fin, okL, okR, shaft = _labels(g, lines, pairs, sB, sV)
     sel = [m for m in range(len(pairs.i)) if g.good[m]]
     runs = {m: best_run(lab[m]) for m in sel}
-    sel = [m for m in sel if (runs[m][1] - runs[m][0]) * g.step[m] >= min_run]
+    # a band the least length wide whose run the border may cut is kept from `CUT_RUN_WIDTHS`
+    # widths (`proposed`'s cut says whether it is one)
+    least = np.where(pairs.width >= min_run, np.minimum(min_run, CUT_RUN_WIDTHS * pairs.width), min_run)
+    sel = [m for m in sel if (runs[m][1] - runs[m][0]) * g.step[m] >= least[m]]
     out = [[] for _ in sets]
     if not sel:
         return out
@@ -450,15 +458,19 @@ def _band(g, lines, pairs, m, run_ends, obs, fin, okL, okR, shaft, cc, ca, cy, l
                        float(median(cR[run][okR[m, run]])) if np.any(okR[m, run]) else np.nan))
 
 
-def proposed(band, min_len, ang_thr):
+def proposed(band, min_len, ang_thr, cut=False):
     """Whether a band is a shaft candidate by its region evidence (all [work px]): a
     material difference from both sides (not instrument-like there, or a colour direction
     more than ang_thr [deg] away), a run of at least min_len, shaft stations along min_len /
     2. Whether it is long and reaches the border is judged on its edges
     (`shaft.material_cue`): a shaft running into a drape of its own material is a short
-    region band whose edges go on."""
+    region band whose edges go on. cut: instead, whether it is a candidate of a shaft close to
+    the lens seen to its collar, wider than it is long in view: at least min_len wide, its run
+    cut by the border of the view and at least `CUT_RUN_WIDTHS` of its width."""
     side_ok = all((f <= FILL_SIDE) or (np.isfinite(a) and a > ang_thr) for f, a in zip(band.fall, band.ang))
-    return bool(side_ok and band.run_len >= min_len and band.shaft_len >= 0.5 * min_len)
+    w = band.width_run
+    long = (band.reach_run and w >= min_len and band.run_len >= CUT_RUN_WIDTHS * w) if cut else band.run_len >= min_len
+    return bool(side_ok and long and band.shaft_len >= 0.5 * min_len)
 
 
 def band_polygon(band, ends=None):

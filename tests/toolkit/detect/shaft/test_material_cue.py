@@ -133,3 +133,27 @@ def test_distal_part_not_near_where_the_instrument_enters():
     assert not _near_entry(band((14, 18), (4, 21), (True, False)))  # nearer the far end
     assert not _near_entry(band((7, 15), (4, 21), (False, False)))  # no end at the border
     assert not _near_entry(band((7, 15), (4, 21), (True, True)))  # both
+
+
+def test_band_cut_short_by_the_border_proposed_as_a_close_shaft():
+    """A region band at least the least length wide whose run the border of the view cuts is
+    a close shaft's candidate from 0.75 of its width (`region_bands.proposed`'s cut: endovis17's
+    left shaft in frame001, 132 px wide, a run of 101 px under the least length of 115 px);
+    a narrower band, one whose run ends inside the view, or a shorter run is not. Without cut,
+    the least length alone."""
+    from types import SimpleNamespace
+
+    from pencilcal.toolkit.detect.shaft.region_bands import CUT_RUN_WIDTHS, proposed
+
+    def band(run, width, reach_run=True):
+        return SimpleNamespace(fall=(0.0, 0.0), ang=(20.0, 20.0), run_len=run, shaft_len=run, reach_run=reach_run,
+                               width_run=width)
+
+    min_len, ang = 115.0, 10.0
+    assert CUT_RUN_WIDTHS == 0.75
+    assert proposed(band(101.0, 132.0), min_len, ang, cut=True)
+    assert not proposed(band(101.0, 132.0), min_len, ang)  # under the least length
+    assert not proposed(band(101.0, 132.0, reach_run=False), min_len, ang, cut=True)  # ends inside the view
+    assert not proposed(band(90.0, 132.0), min_len, ang, cut=True)  # 0.68 widths
+    assert not proposed(band(101.0, 110.0), min_len, ang, cut=True)  # narrower than the least length
+    assert proposed(band(120.0, 60.0), min_len, ang) and not proposed(band(120.0, 60.0), min_len, ang, cut=True)
