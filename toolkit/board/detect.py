@@ -172,6 +172,7 @@ def refine_chessboard_corners(gray, corners, cols, rows):
     w = np.clip(np.floor(_WINDOW_SHARE * d), _WINDOW_MIN, _WINDOW_MAX).astype(int)
     out = c.reshape(-1, 2).copy()
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 0.001)
+    prepared = _with_gradient(gray)
     for win in np.unique(w):
         sel = np.flatnonzero(w == win)
         r = cv2.cornerSubPix(gray, out[sel].astype(np.float32).reshape(-1, 1, 2), (int(win), int(win)), (-1, -1),
@@ -179,7 +180,7 @@ def refine_chessboard_corners(gray, corners, cols, rows):
         ok = np.all(np.isfinite(r), 1) & (np.linalg.norm(r - out[sel], axis=1) <= _MAX_MOVE * d[sel])
         # then the point about which the window is symmetric, under a brightness that varies
         # linearly across it (what cornerSubPix's gradient balance follows, `symmetric_corners`)
-        s, s_ok = symmetric_corners(gray, r, int(win))
+        s, s_ok = symmetric_corners(gray, r, int(win), prepared=prepared)
         s_ok &= np.linalg.norm(s - out[sel], axis=1) <= _MAX_MOVE * d[sel]
         r[s_ok] = s[s_ok]
         out[sel[ok]] = r[ok]
@@ -220,26 +221,47 @@ def refine_charuco_corners(gray, corners, ids, cols, share=_CHARUCO_SHARE):
         return out, done
     d = np.where(np.isfinite(d), d, np.median(d[np.isfinite(d)]))
     w = np.maximum(np.round(share * d), 2).astype(int)
+    # the image about the corners only (a board may fill a small part of a large frame): the
+    # windows and the moves a corner may make stay inside, as the image's own border does
+    img = np.asarray(gray)
+    pad = int(np.max(w) + np.ceil(_MAX_MOVE * np.max(d))) + 3
+    x0, y0 = np.maximum(np.floor(c.min(0)).astype(int) - pad, 0)
+    x1, y1 = np.minimum(np.ceil(c.max(0)).astype(int) + pad + 1, [img.shape[1], img.shape[0]])
+    crop = img[y0:y1, x0:x1]
+    prepared = _with_gradient(crop)
     for win in np.unique(w):
         sel = np.flatnonzero(w == win)
-        s, ok = symmetric_corners(gray, c[sel], int(win))
+        s, ok = symmetric_corners(crop, c[sel] - [x0, y0], int(win), prepared=prepared)
+        s = s + [x0, y0]
         ok &= np.linalg.norm(s - c[sel], axis=1) <= _MAX_MOVE * d[sel]
         out[sel[ok]], done[sel[ok]] = s[ok], True
     return out, done
 
 
 def _bilinear(img, x, y):
-    """img (H, W) sampled at (x, y) (...) [px], bilinearly; x, y within the image."""
-    h, w = img.shape
+    """img (H, W) or (H, W, C) sampled at (x, y) (...) [px], bilinearly: (...) or (..., C);
+    x, y within the image."""
+    h, w = img.shape[:2]
     x0 = np.clip(np.floor(x).astype(int), 0, w - 2)
     y0 = np.clip(np.floor(y).astype(int), 0, h - 2)
     fx, fy = x - x0, y - y0
+    if img.ndim == 3:
+        fx, fy = fx[..., None], fy[..., None]
     top = img[y0, x0] * (1 - fx) + img[y0, x0 + 1] * fx
     bottom = img[y0 + 1, x0] * (1 - fx) + img[y0 + 1, x0 + 1] * fx
     return top * (1 - fy) + bottom * fy
 
 
-def symmetric_corners(gray, corners, half_window, iterations=_SYM_ITERATIONS):
+def _with_gradient(gray):
+    """The image, its d/dx and its d/dy, (H, W, 3) float64: what `symmetric_corners` samples,
+    all three at each point at once; computed once per image by the callers that refine at
+    several window sizes."""
+    img = np.asarray(gray, np.float64)
+    gy, gx = np.gradient(img)
+    return np.stack([img, gx, gy], -1)
+
+
+def symmetric_corners(gray, corners, half_window, iterations=_SYM_ITERATIONS, prepared=None):
     """X-junctions (N, 2) [px] refined to the point q about which each window is point
     symmetric, under an illumination whose gain and offset vary linearly across the window.
 
@@ -252,7 +274,8 @@ def symmetric_corners(gray, corners, half_window, iterations=_SYM_ITERATIONS):
     gradients a vignetting's falloff shifts towards the brighter side: on a rendered corner
     at 1.5 px of blur, +0.05 px at a falloff of 0.4 % per px; this refinement, 0.001 px).
 
-    gray: (H, W) image; corners: (N, 2) starts [px]; half_window: h [px].
+    gray: (H, W) image; corners: (N, 2) starts [px]; half_window: h [px]; prepared: the
+    image with its gradient (`_with_gradient(gray)`) where the caller has it already.
     Returns (refined (N, 2), ok (N,)): ok is False where the window leaves the image, the
     normal equations are singular or the fit did not settle (those rows keep their start).
 
@@ -269,10 +292,9 @@ def symmetric_corners(gray, corners, half_window, iterations=_SYM_ITERATIONS):
     >>> np.round(q[0], 2).tolist(), bool(ok[0])
     ([19.5, 20.5], True)
     """
-    img = np.asarray(gray, np.float64)
+    stack = prepared if prepared is not None else _with_gradient(gray)
     q0 = np.asarray(corners, float).reshape(-1, 2)
-    h, w = img.shape
-    gy, gx = np.gradient(img)
+    h, w = stack.shape[:2]
     r = np.arange(-half_window, half_window + 1, dtype=float)
     dx, dy = (a.ravel() for a in np.meshgrid(r, r))
     half = (dy > 0) | ((dy == 0) & (dx > 0))  # d and -d give the same equation
@@ -286,10 +308,11 @@ def symmetric_corners(gray, corners, half_window, iterations=_SYM_ITERATIONS):
         qs = np.where(ok[:, None], q, half_window + 1.0)
         xp, yp = qs[:, :1] + dx, qs[:, 1:] + dy
         xm, ym = qs[:, :1] - dx, qs[:, 1:] - dy
-        p, m = _bilinear(img, xp, yp), _bilinear(img, xm, ym)
+        sp, sm = _bilinear(stack, xp, yp), _bilinear(stack, xm, ym)
+        p, m = sp[..., 0], sm[..., 0]
         s = p + m
         # columns: the difference's change with q, then the illumination's four terms
-        jac = np.stack([_bilinear(gx, xp, yp) - _bilinear(gx, xm, ym), _bilinear(gy, xp, yp) - _bilinear(gy, xm, ym),
+        jac = np.stack([sp[..., 1] - sm[..., 1], sp[..., 2] - sm[..., 2],
                         dx * s, dy * s, np.broadcast_to(dx, s.shape), np.broadcast_to(dy, s.shape)], -1)
         jw = jac * wgt[:, None]
         a = np.einsum("nkp,nkq->npq", jw, jac)
