@@ -374,14 +374,16 @@ def test_chessboard_with_pencilcal_detection(chessboard_left):
 
 
 def test_davinci_charuco_rms(davinci_images):
-    """da Vinci left views (legacy 19x26 board): RMS below 0.6 px with at least 30 views.
+    """da Vinci left views (legacy 19x26 board): RMS below 0.3 px with at least 45 views.
 
     Reference (SOURCE.txt, OpenCV's CharucoDetector with default parameters, views with >= 30
     corners): 38 views, RMS 0.555 px, fx 833.3, fy 909.1 (non-square PAL pixels). pencilcal's
-    detector also re-finds missed markers, which adds usable views."""
+    detector also re-finds missed markers, which adds usable views, and refines the corners to
+    their point of symmetry (measured 50 views, RMS 0.247 px; CharucoDetector's corners 49
+    views, 0.56 px)."""
     board, images = davinci_images
     res = calibrate([detect_board(g, board) for g in images], board, (720, 576))
-    assert res.views_used >= 30 and res.rms_px < 0.6
+    assert res.views_used >= 45 and res.rms_px < 0.3
     assert res.camera.fx == pytest.approx(833.3, rel=0.005) and res.camera.fy == pytest.approx(909.1, rel=0.005)
     # grazing, blurred late frames are skipped or rejected, not fitted
     assert any(r["stage"] == "skipped" for r in res.rejected)
