@@ -379,7 +379,7 @@ def test_davinci_charuco_rms(davinci_images):
     Reference (SOURCE.txt, OpenCV's CharucoDetector with default parameters, views with >= 30
     corners): 38 views, RMS 0.555 px, fx 833.3, fy 909.1 (non-square PAL pixels). pencilcal's
     detector also re-finds missed markers, which adds usable views, and refines the corners to
-    their point of symmetry (measured 50 views, RMS 0.247 px; CharucoDetector's corners 49
+    their point of symmetry (measured 50 views, RMS 0.25 px; CharucoDetector's corners 49
     views, 0.56 px)."""
     board, images = davinci_images
     res = calibrate([detect_board(g, board) for g in images], board, (720, 576))
