@@ -6,11 +6,14 @@ row-major index of a chessboard's inner corner), in raw pixels (OpenCV conventio
 
 - ChArUco: markers are detected, completed against the board layout (refineDetectedMarkers
   recovers markers the first pass missed), and the chessboard corners between them are
-  interpolated and refined by cornerSubPix inside CharucoDetector; then each corner is
-  refined to its point of symmetry (`refine_charuco_corners`, `symmetric_corners` below) in
-  a half-window of a fifth of the corner spacing, 2-10 px (the markers, centred in their
-  squares, are point symmetric about the corner too; their inner bits fall where the weights
-  are small).
+  interpolated and refined by cornerSubPix inside CharucoDetector, and kept so by default.
+  With ``symmetric=True`` each corner is then refined to its point of symmetry
+  (`refine_charuco_corners`, `symmetric_corners` below) in a half-window of a fifth of the
+  corner spacing, 2-10 px (the markers, centred in their squares, are point symmetric about
+  the corner too; their inner bits fall where the weights are small). It is opt-in: the
+  refined corners leave an error shared by the views that the corner-noise model counts as
+  each view's own (a stereo rig's PnP sigmas about 1.5 x too large, its coverage 83 % for
+  68 +- 8 %), and a view's detection costs 2.5-3 x CharucoDetector's (docs/calibration.md).
   On rendered views of the da Vinci and RealSense boards (blur 0.7-2.5 px, vignetting,
   noise, JPEG) CharucoDetector's corners err by 0.06-0.56 px RMS per axis, the refined ones
   by 0.015-0.04 px, each view's mean error along the radius within 0.01 px; on the real da
@@ -73,7 +76,9 @@ class BoardDetection:
 
     ids: (K,) int corner ids (Board.object_points() rows); corners: (K, 2) raw pixels;
     image_size: (width, height); marker_ids: (L,) ArUco ids seen (charuco; empty otherwise);
-    marker_corners: (L, 4, 2) their corners in raw pixels.
+    marker_corners: (L, 4, 2) their corners in raw pixels; symmetric: the corners were
+    refined to their point of symmetry (`detect_board`: a chessboard's always, a ChArUco
+    board's when asked).
     """
 
     ids: np.ndarray
@@ -81,6 +86,7 @@ class BoardDetection:
     image_size: tuple
     marker_ids: np.ndarray
     marker_corners: np.ndarray
+    symmetric: bool = False
 
     @property
     def count(self) -> int:
@@ -331,10 +337,14 @@ def symmetric_corners(gray, corners, half_window, iterations=_SYM_ITERATIONS, pr
     return np.where(ok[:, None], q, q0), ok
 
 
-def detect_board(image, board):
+def detect_board(image, board, symmetric=False):
     """Detect a board's corners in one image (BGR or gray, 8 or 16 bit).
 
-    Returns a BoardDetection; when nothing is found, ``ids`` is empty (not an error).
+    symmetric : refine a ChArUco board's corners to their point of symmetry after
+        CharucoDetector (`refine_charuco_corners`); off by default (the module's docstring
+        says why). A chessboard's corners always are, whatever it says.
+    Returns a BoardDetection (its ``symmetric`` says whether the corners were refined so);
+    when nothing is found, ``ids`` is empty (not an error).
     """
     import cv2
 
@@ -346,12 +356,13 @@ def detect_board(image, board):
         m_ids = np.zeros(0, int) if mi is None else np.asarray(mi, int).ravel()
         m_corners = np.zeros((0, 4, 2)) if mc is None or len(mc) == 0 else np.asarray(mc, float).reshape(-1, 4, 2)
         if ci is None or cc is None or len(ci) == 0:
-            return BoardDetection(np.zeros(0, int), np.zeros((0, 2)), (w, h), m_ids, m_corners)
+            return BoardDetection(np.zeros(0, int), np.zeros((0, 2)), (w, h), m_ids, m_corners, bool(symmetric))
         ids = np.asarray(ci, int).ravel()
         corners = np.asarray(cc, float).reshape(-1, 2)
-        corners, _ = refine_charuco_corners(gray, corners, ids, board.inner_corners[0])
+        if symmetric:
+            corners, _ = refine_charuco_corners(gray, corners, ids, board.inner_corners[0])
         order = np.argsort(ids)
-        return BoardDetection(ids[order], corners[order], (w, h), m_ids, m_corners)
+        return BoardDetection(ids[order], corners[order], (w, h), m_ids, m_corners, bool(symmetric))
     cols, rows = board.inner_corners
     flags = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
     found, corners = cv2.findChessboardCornersSB(gray, (cols, rows), flags=flags)
@@ -359,6 +370,6 @@ def detect_board(image, board):
         found, corners = cv2.findChessboardCorners(gray, (cols, rows),
                                                    flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
     if not found or corners is None:
-        return BoardDetection(np.zeros(0, int), np.zeros((0, 2)), (w, h), *empty_m)
+        return BoardDetection(np.zeros(0, int), np.zeros((0, 2)), (w, h), *empty_m, True)
     corners = refine_chessboard_corners(gray, np.asarray(corners, float).reshape(-1, 2), cols, rows)
-    return BoardDetection(np.arange(cols * rows), corners, (w, h), *empty_m)
+    return BoardDetection(np.arange(cols * rows), corners, (w, h), *empty_m, True)

@@ -382,7 +382,7 @@ def test_davinci_charuco_rms(davinci_images):
     their point of symmetry (measured 50 views, RMS 0.25 px; CharucoDetector's corners 49
     views, 0.56 px)."""
     board, images = davinci_images
-    res = calibrate([detect_board(g, board) for g in images], board, (720, 576))
+    res = calibrate([detect_board(g, board, symmetric=True) for g in images], board, (720, 576))
     assert res.views_used >= 45 and res.rms_px < 0.3
     assert res.camera.fx == pytest.approx(833.3, rel=0.005) and res.camera.fy == pytest.approx(909.1, rel=0.005)
     # grazing, blurred late frames are skipped or rejected, not fitted

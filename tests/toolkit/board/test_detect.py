@@ -40,14 +40,15 @@ def _damaged(img, marker_id):
     return out
 
 
-def _reference(img, refine=True):
-    """CharucoDetector.detectBoard, markers refined inside it (tryRefineMarkers), its corners
-    then refined to their point of symmetry (`refine_charuco_corners`)."""
+def _reference(img, refine=True, symmetric=False):
+    """CharucoDetector.detectBoard, markers refined inside it (tryRefineMarkers); with
+    `symmetric`, its corners then refined to their point of symmetry (`refine_charuco_corners`)."""
     cp = cv2.aruco.CharucoParameters()
     cp.tryRefineMarkers = refine
     cc, ci, mc, mi = cv2.aruco.CharucoDetector(BOARD.cv2_board(), cp, cv2.aruco.DetectorParameters()).detectBoard(img)
     ids, corners = ci.ravel(), cc.reshape(-1, 2).astype(float)
-    corners = refine_charuco_corners(img, corners, ids, BOARD.inner_corners[0])[0]
+    if symmetric:
+        corners = refine_charuco_corners(img, corners, ids, BOARD.inner_corners[0])[0]
     order = np.argsort(ids)
     return ids[order], corners[order], mi.ravel(), np.asarray(mc, float).reshape(-1, 4, 2)
 
@@ -60,14 +61,18 @@ def _same(det, ref):
 
 def test_all_markers_found_needs_no_refinement(frame):
     """Every marker of the board found in the first pass: the marker refinement is skipped and
-    the result is CharucoDetector's with tryRefineMarkers, exactly (its corners refined)."""
+    the result is CharucoDetector's with tryRefineMarkers, exactly; asked, its corners refined
+    to their point of symmetry."""
     aruco = detect_module._charuco_detectors(BOARD)[0]
     assert len(aruco.detectMarkers(frame)[1]) == 17
     det = detect_board(frame, BOARD)
     assert det.count == 24 and det.marker_ids.size == 17
-    assert _same(det, _reference(frame))
+    assert _same(det, _reference(frame)) and not det.symmetric
     # BGR input: the same
     assert _same(detect_board(cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR), BOARD), _reference(frame))
+    sym = detect_board(frame, BOARD, symmetric=True)
+    assert sym.symmetric and _same(sym, _reference(frame, symmetric=True))
+    assert 0 < np.max(np.abs(sym.corners - det.corners)) < 1.0
 
 
 def test_missed_marker_is_refound(frame):
@@ -81,6 +86,7 @@ def test_missed_marker_is_refound(frame):
     det = detect_board(img, BOARD)
     assert det.count == 24 and 2 in det.marker_ids
     assert _same(det, _reference(img))
+    assert _same(detect_board(img, BOARD, symmetric=True), _reference(img, symmetric=True))
 
 
 def test_nothing_found():
@@ -117,7 +123,7 @@ def test_charuco_corners_on_endoscope_like_renders():
         img = np.clip(np.round(img + rng.normal(0, 5.0, img.shape)), 0, 255).astype(np.uint8)
         img = cv2.imdecode(cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 75])[1], cv2.IMREAD_GRAYSCALE)
         cc, ci, _, _ = detect_module._detect_charuco(img, DAVINCI)
-        det = detect_board(img, DAVINCI)
+        det = detect_board(img, DAVINCI, symmetric=True)
         assert det.count > 100 and np.array_equal(det.ids, np.sort(ci.ravel()))
         truth = cam.project(X @ R.T + t)[det.ids]
         radial = (truth - [cam.cx, cam.cy]) / np.linalg.norm(truth - [cam.cx, cam.cy], axis=1, keepdims=True)
