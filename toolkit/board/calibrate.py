@@ -66,6 +66,7 @@ from pencilcal.toolkit.board.bundle import WARP_NAMES, Layout, camera_parts, cor
 from pencilcal.toolkit.board.corner_noise import fit_corner_noise, variance_factor
 from pencilcal.toolkit.board.print_errors import covariance_term, fit_print_errors, intrinsic_gain, view_gains
 from pencilcal.toolkit.board.detect import BoardDetection
+from pencilcal.toolkit.board.calibration_file import SYMMETRIC_KEY
 from pencilcal.toolkit.board.model_choice import CANDIDATES, SPLINED, choose_model, chosen_score, splined_start
 from pencilcal.toolkit.camera.splined import is_splined, splined_config
 from pencilcal.toolkit.board.synthetic import synthetic_detections
@@ -720,7 +721,10 @@ def _final(layout, board, detections, objs, imgs, used, masks, theta, poses, ima
     meta = {"rms_px": rms, "std_intrinsics": std_intr, "views_used": len(used), "views_total": n_views,
             "corners_used": m,
             "calibration": {"model": layout.model, "coefficients": layout.n_coef, "fix_aspect": layout.fix_aspect,
-                            "flags": flag_names, "board": board.to_dict()}}
+                            "flags": flag_names, "board": board.to_dict(),
+                            # how the corners were found: the camera's later poses of the board
+                            # detect them so (the corner-noise model was measured on them)
+                            SYMMETRIC_KEY: all(detections[i].symmetric for i in used)}}
     if cov_full is not None:
         meta[COV_META_KEY] = cov_full.to_dict()
     if noise is not None:
@@ -908,11 +912,12 @@ def _reject_corners(used, masks, norms, k, sigma, min_corners, rejected):
     return changed
 
 
-def detect_views(images, board):
+def detect_views(images, board, symmetric=False):
     """The board's detections in images: (Board, [BoardDetection or None per image], (w, h)).
 
     images : IMAGES (a path, folder, glob or video, or a list of them) or a sequence of
-        (H, W[, 3]) arrays, all the same size; board : Board, or the path of a board file.
+        (H, W[, 3]) arrays, all the same size; board : Board, or the path of a board file;
+        symmetric : ChArUco corners refined to their point of symmetry (`detect_board`).
     Images that cannot be decoded give None.
     """
     from pencilcal.toolkit.board.detect import detect_board
@@ -930,15 +935,16 @@ def detect_views(images, board):
     sizes = {(im.shape[1], im.shape[0]) for im in decoded}
     if len(sizes) > 1:
         raise InputError(f"the images differ in size ({sorted(sizes)}); calibrate one camera at one size")
-    return board, [None if im is None else detect_board(im, board) for im in frames], sizes.pop()
+    return board, [None if im is None else detect_board(im, board, symmetric) for im in frames], sizes.pop()
 
 
-def calibrate_images(images, board, model="opencv", coefficients=None, **options):
+def calibrate_images(images, board, model="opencv", coefficients=None, *, symmetric_corners=False, **options):
     """Calibrate from images: detect the board in each (`detect_views`), then `calibrate`.
 
-    model, coefficients, options : as `calibrate`. Returns the `CalibrationResult`; its
+    model, coefficients, options : as `calibrate`; symmetric_corners : ChArUco corners
+    refined to their point of symmetry (`detect_board`'s ``symmetric``). Returns the `CalibrationResult`; its
     ``camera`` is the calibrated Camera. Views that cannot be decoded are skipped like
     views without the board. (`pencilcal.calibrate` adds the checks and the verdict.)
     """
-    board, detections, size = detect_views(images, board)
+    board, detections, size = detect_views(images, board, symmetric_corners)
     return calibrate(detections, board, size, model=model, coefficients=coefficients, **options)

@@ -384,6 +384,8 @@ def test_davinci_charuco_rms(davinci_images):
     board, images = davinci_images
     res = calibrate([detect_board(g, board, symmetric=True) for g in images], board, (720, 576))
     assert res.views_used >= 45 and res.rms_px < 0.3
+    # recorded, for the camera's later poses of the board (`calibration_file.symmetric_corners_of`)
+    assert res.camera.meta["calibration"]["symmetric_corners"] is True
     assert res.camera.fx == pytest.approx(833.3, rel=0.005) and res.camera.fy == pytest.approx(909.1, rel=0.005)
     # grazing, blurred late frames are skipped or rejected, not fitted
     assert any(r["stage"] == "skipped" for r in res.rejected)
