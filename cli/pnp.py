@@ -5,7 +5,7 @@ import click
 import numpy as np
 
 from pencilcal.toolkit.board.calibration_file import camera_with_report, read_calibration_file, \
-    uncertainty_record
+    symmetric_corners_of, uncertainty_record
 from pencilcal.toolkit.board.spec import read_board
 from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.board.detect import detect_board
@@ -55,7 +55,8 @@ def _pnp_frame(frame, camera, board, method, refine, corner_sigma, max_rms, min_
     if frame.image is None:
         return empty_frame_record(frame.name, frame.error, method=label), [f"{frame.name}: {frame.error}"], None
     check_image_size(frame, camera)
-    det = detect_board(frame.image, board)
+    # the corners found as the camera's calibration found them (its corner-noise model's)
+    det = detect_board(frame.image, board, symmetric_corners_of(camera))
     if det.count < min_corners:
         err = "no board corners found" if det.count == 0 else \
             f"only {det.count} board corners found (--min-corners {min_corners})"
@@ -122,8 +123,10 @@ def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma
     \f
     IMAGES is one or more image files, folders or glob patterns, in the order given, or
     one video; or --source: a camera, a URL, a video file being written. Detects the
-    board's corners (ChArUco or chessboard), estimates R_cam_from_target and
-    t_cam_from_target (length unit of the board file) with the chosen method, refines it
+    board's corners (ChArUco or chessboard; ChArUco corners refined to their point of
+    symmetry where the camera file records a calibration made so, `calibrate
+    --symmetric-corners`), estimates R_cam_from_target and t_cam_from_target (length unit
+    of the board file) with the chosen method, refines it
     (Levenberg-Marquardt, unless --no-refine) on the reprojection error in raw pixels under
     the full lens model, and writes the 6x6 covariance (rotation first: rad about the
     camera axes, left perturbation; then translation). --method all runs every method and
@@ -170,6 +173,7 @@ def pnp(images, camera_path, camera_id, board_path, output, method, corner_sigma
         "image_size": [camera.width, camera.height],
         "board": str(board_path),
         "board_spec": board.to_dict(),
+        "symmetric_corners": symmetric_corners_of(camera),
         "corner_sigma_px": corner_sigma,
         "min_corners": min_corners,
         "max_rms_px": max_rms,

@@ -107,7 +107,7 @@ def __dir__():
     return sorted(set(globals()) | set(__all__))
 
 
-def calibrate(images, board, model="opencv", coefficients=None, **options):
+def calibrate(images, board, model="opencv", coefficients=None, *, symmetric_corners=False, **options):
     """Calibrate a camera from views of a board, as `pencilcal calibrate` does: a
     `CalibrationResult` (``.camera`` is the Camera) with the board's warp, sigmas from the
     corner errors seen, and ``.checks``: the two-halves cross-validation, the projection
@@ -116,12 +116,15 @@ def calibrate(images, board, model="opencv", coefficients=None, **options):
 
     images: IMAGES (paths, folders, globs or a video) or a list of arrays; board: a Board or
     a board file; model: "opencv", "pinhole", "fisheye" or "auto" (chosen on held-out
-    views); options as `pencilcal.validation.calibration_run.calibrate_checked`
-    (fix_aspect, min_corners, usable_px, ...)."""
+    views); symmetric_corners: a ChArUco board's corners refined to their point of symmetry
+    after CharucoDetector (a chessboard's always are; recorded in the camera's statistics so
+    that its board poses detect them so: docs/calibration.md); options as
+    `pencilcal.validation.calibration_run.calibrate_checked` (fix_aspect, min_corners,
+    usable_px, ...)."""
     from pencilcal.toolkit.board.calibrate import detect_views
     from pencilcal.validation.calibration_run import calibrate_checked
 
-    board, detections, size = detect_views(images, board)
+    board, detections, size = detect_views(images, board, symmetric_corners)
     return calibrate_checked(detections, board, size, model=model, coefficients=coefficients, **options)
 
 

@@ -248,7 +248,9 @@ def fulcrum_jackknife(camera, frames, angles=None, full=None, **options):
 def board_poses(images, camera, board, methods=("sqpnp",)):
     """The board's pose in every frame of IMAGES: image name -> PoseResult of the best of
     `methods` (`pnp.best_method`), None where the board is not found (fewer than 4 corners)
-    or no method gives a pose. The camera's statistics give the totals (`pnp.estimate_pose`)."""
+    or no method gives a pose. The camera's statistics give the totals (`pnp.estimate_pose`)
+    and how the corners are found (`calibration_file.symmetric_corners_of`)."""
+    from pencilcal.toolkit.board.calibration_file import symmetric_corners_of
     from pencilcal.toolkit.board.detect import detect_board
     from pencilcal.toolkit.io.images import open_images
 
@@ -259,7 +261,7 @@ def board_poses(images, camera, board, methods=("sqpnp",)):
         if frame.image is None:
             out[frame.name] = None
             continue
-        det = detect_board(frame.image, board)
+        det = detect_board(frame.image, board, symmetric_corners_of(camera))
         if det.count < 4:
             out[frame.name] = None
             continue

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pencilcal.toolkit.board.calibration_file import symmetric_corners_of
 from pencilcal.toolkit.board.detect import detect_board
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.estimator import crlb
@@ -272,7 +273,7 @@ def _process(frame, camera, board, lines_source, models, methods, truth, keep_pi
         rec["error"] = frame.error
         return rec, None, None
     check_image_size(frame, camera)
-    det = detect_board(frame.image, board)
+    det = detect_board(frame.image, board, symmetric_corners_of(camera))
     pnp = {}
     best = None
     if det.count >= 4:

@@ -39,10 +39,14 @@ from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.io.files import load_structured, write_json
 
 __all__ = ["CalibrationFile", "write_calibration_file", "read_calibration_file", "uncertainty_of",
-           "camera_with_report", "uncertainty_record", "board_model", "CORNER_NOISE_KEY"]
+           "camera_with_report", "uncertainty_record", "board_model", "symmetric_corners_of", "CORNER_NOISE_KEY",
+           "SYMMETRIC_KEY"]
 
 #: The camera meta and report key of the corner-noise model.
 CORNER_NOISE_KEY = "corner_noise"
+#: The key, in the camera meta's ``calibration`` record, of whether the calibration's
+#: ChArUco corners were refined to their point of symmetry (`detect.detect_board`).
+SYMMETRIC_KEY = "symmetric_corners"
 
 
 @dataclass(frozen=True, eq=False)
@@ -114,6 +118,10 @@ def camera_with_report(camera, report, camera_source="camera"):
         meta[META_KEY] = cov.to_dict()
     if noise is not None:
         meta[CORNER_NOISE_KEY] = noise.to_dict()
+    calib = (report.camera.meta or {}).get("calibration")
+    if isinstance(calib, dict) and SYMMETRIC_KEY in calib:
+        # how its corners were found, for a camera file that could not hold it (COLMAP, mrcal)
+        meta["calibration"] = {**(meta.get("calibration") or {}), SYMMETRIC_KEY: calib[SYMMETRIC_KEY]}
     return Camera(camera.model, camera.width, camera.height, camera.K, camera.dist, meta=meta)
 
 
@@ -123,6 +131,24 @@ def uncertainty_record(camera, source):
     cov, noise = uncertainty_of(camera, camera_source=source)
     return {"intrinsics_covariance": None if cov is None else str(source),
             "corner_noise": None if noise is None else noise.to_dict()}
+
+
+def symmetric_corners_of(camera):
+    """Whether the camera's calibration refined ChArUco corners to their point of symmetry
+    (its statistics' ``calibration.symmetric_corners``, `pencilcal calibrate
+    --symmetric-corners`): the board's later detections with this camera (`pencilcal pnp`,
+    `validate`) refine them the same way, the corner-noise model having been measured on
+    those corners. False for a camera without the record (CharucoDetector's corners, the
+    default). Chessboard corners are refined so whatever it says.
+
+    >>> from pencilcal.toolkit.camera.model import Camera
+    >>> K = [[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]]
+    >>> meta = {"calibration": {"symmetric_corners": True}}
+    >>> symmetric_corners_of(Camera("pinhole", 640, 480, K, meta=meta)), symmetric_corners_of(Camera("pinhole", 640, 480, K))
+    (True, False)
+    """
+    calib = (camera.meta or {}).get("calibration")
+    return bool(calib.get(SYMMETRIC_KEY, False)) if isinstance(calib, dict) else False
 
 
 def board_model(board, camera):

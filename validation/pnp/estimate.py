@@ -25,7 +25,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from pencilcal.toolkit.board.calibration_file import board_model, uncertainty_of
+from pencilcal.toolkit.board.calibration_file import board_model, symmetric_corners_of, uncertainty_of
 from pencilcal.toolkit.errors import InputError
 
 from .covariance import covariance_from_jacobian, total_covariance
@@ -316,13 +316,15 @@ def board_pose(image, camera, board, method=DEFAULT_METHOD, **options):
     """The pose of a calibration board in one image: detect its corners, then `estimate_pose`.
 
     image : (H, W[, 3]) array (raw, as the camera took it); camera : Camera;
-    board : Board (toolkit.board.spec); method and options : as `estimate_pose`.
+    board : Board (toolkit.board.spec); method and options : as `estimate_pose`. ChArUco
+    corners are refined to their point of symmetry where the camera's calibration refined
+    them so (`calibration_file.symmetric_corners_of`).
     Returns a PoseResult (R_cam_from_target, t_cam_from_target in the board's length unit,
     cov 6x6); ``ok`` is false with `error` when too few corners are found.
     """
     from pencilcal.toolkit.board.detect import detect_board
 
-    det = detect_board(image, board)
+    det = detect_board(image, board, symmetric_corners_of(camera))
     X, warp = board_points(board, camera, det.ids)
     return estimate_pose(X, det.corners, camera, method=method, board_warp=warp, **options)
 
