@@ -11,8 +11,8 @@ from pencilcal.validation.radial_renders import photo_conditions, photo_frame, p
 
 def test_a_small_stars_far_side_found_where_predicted():
     """Seed 420's frame 41 (a small 64-wedge star, blurred and JPEG'd): the first pass's
-    edges label 19 spokes; searched for where their fit predicts
-    the others, every spoke is used, the twin right, the normal within 0.3 deg."""
+    edges label 51 spokes (19 with the 20 px edges alone); searched for where their fit
+    predicts the others, every spoke is used, the twin right, the normal within 0.3 deg."""
     cond = photo_conditions(42, 420)[41]
     img, cam, _, _ = photo_frame(cond)
     pen = photo_pencils(cond)[1]
@@ -21,6 +21,6 @@ def test_a_small_stars_far_side_found_where_predicted():
     rec0 = orient_segments(cam, first.segments, pen, angle_sigma=first.angle_sigma, offset_sigma=first.offset_sigma,
                            circle_points=first.circle_points, keep_lines=True)
     trial = photo_trial(cond)  # as `orient IMAGES`: the search where the first fit predicts
-    assert rec0.ok and rec0.spokes_used < 32
+    assert rec0.ok and rec0.spokes_used < 60
     assert trial.spokes_used >= 60 and trial.twin_right
     assert trial.err_deg < 0.3  # (a small star's sigmas are too small: docs/method.md)

@@ -110,6 +110,10 @@ TURN_SIGMAS = 3.0
 #: Rounds of the search for the edges a first orientation left without a line, each from the
 #: orientation the last gave (`trimmed_at_spokes_end`; they stop where one adds no spoke).
 PREDICTED_ROUNDS = 3
+#: An edge shorter than the least length is used where this many of its angle sds lie within
+#: half the angle to its nearest neighbour about the vertex (`_usable`; the project's test
+#: level, not tuned).
+SEPARATION_SIGMAS = 3.0
 _GATE_ROUNDS = 5  # the through-vertex gate's rounds of its shared offset (`_through_vertex`)
 
 
@@ -148,7 +152,8 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
     valid_region : region.ValidRegion, optional
         Where the scene is; see `detect_segments`.
     min_length : float
-        Shortest edge returned [px].
+        Shortest edge returned [px]; with ``joint="all"`` a shorter one too where its angle
+        sd tells it from its neighbours (`SEPARATION_SIGMAS`: a small star's edges under blur).
     circles : bool
         Also gather the edge points of circles about the vertex (`RadialEdges.circle_points`).
     gamma : float
@@ -201,7 +206,7 @@ def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, mi
             memo.update(of=of, key=key, located=located)
     if located is None:
         return RadialEdges.empty()
-    return _finished(camera, outer, min_length, circles, *located, predicted=predicted, gamma=gamma)
+    return _finished(camera, outer, min_length, circles, *located, predicted=predicted, gamma=gamma, joint=joint)
 
 
 def _located(image, camera, edges, valid_region, min_length, gamma, joint):
@@ -270,7 +275,7 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
 
 
 def _finished(camera, outer, min_length, circles, img, lin, fit, v, reach, phi, rows, clear, predicted=None,
-              gamma=DEFAULT_GAMMA):
+              gamma=DEFAULT_GAMMA, joint="crowded"):
     """The rest of `detect_radial_edges` from the edges `_located` found: the trim at
     `outer`, the edges searched for where `predicted` says, the edges through the vertex
     with their sigmas, the circle points."""
@@ -287,12 +292,47 @@ def _finished(camera, outer, min_length, circles, img, lin, fit, v, reach, phi, 
                                        JOINT_SIGMAS, noise)
         kept = fit.take(np.flatnonzero(~replaced))
         fit = type(fit)(**{f: np.concatenate([getattr(kept, f), getattr(new, f)]) for f in fit.__dataclass_fields__})
-    out = Segments.from_fit(fit, camera, min_length)
+    shortest = min_length
+    if joint == "all":
+        # every edge located jointly (a star's wedges): the shortest kept is the one its sigma
+        # tells from its neighbours, not a pixel count: a small star's edges under blur are
+        # clear over 10-20 px and known to 0.1-0.3 deg. Not a dartboard's: beside its wires
+        # and numbers a short piece turned the right view's sector edges' plane 0.1 deg
+        fit = fit.take(np.flatnonzero(_usable(fit.p1, fit.p2, fit.ok, fit.angle_sigma, v, min_length)))
+        shortest = 0.0  # (the usable ones chosen)
+    out = Segments.from_fit(fit, camera, shortest)
     out = out.select(in_valid_region(img, out.segments))
     out = out.select(_through_vertex(out, v))
     out = replace(out, offset_sigma=np.hypot(out.offset_sigma, max(OFFSET_FLOOR_PX, _common_offset(out, v))))
     pts = circle_points(lin, camera, v, out.ideal, reach, 1.0) if circles else np.zeros((0, 2))
     return RadialEdges(**{f: getattr(out, f) for f in out.__dataclass_fields__}, vertex=v, circle_points=pts)
+
+
+def _usable(p1, p2, ok, angle_sigma, v, min_length):
+    """(E,) bool: the fitted edges (ends p1, p2: (E, 2) [working px], ok, angle_sigma (E,)
+    [rad]) an orientation can use: ok and at least `min_length` [px] long, or shorter (a
+    small star's edges under blur, clear of their neighbours over 10-20 px) where their
+    direction is known surely enough to tell them from their neighbours: `SEPARATION_SIGMAS`
+    angle sds within half the angle, about the vertex v (2,), to the nearest other ok edge.
+
+    >>> a = np.radians([0.0, 4.0, 8.0]); u = np.stack([np.cos(a), np.sin(a)], -1)
+    >>> p1, p2 = 60 * u, np.array([90.0, 72.0, 72.0])[:, None] * u     # 30, 12 and 12 px long
+    >>> _usable(p1, p2, np.ones(3, bool), np.radians([0.2, 0.5, 0.9]), np.zeros(2), 20.0).tolist()
+    [True, True, False]
+    """
+    L = np.hypot(*(p2 - p1).T)
+    long = ok & (L >= min_length)
+    ok = ok & np.isfinite(angle_sigma)
+    idx = np.flatnonzero(ok)
+    if idx.size < 2:
+        return long
+    mid = 0.5 * (p1[idx] + p2[idx]) - v
+    ang = np.arctan2(mid[:, 1], mid[:, 0])
+    apart = np.abs(np.angle(np.exp(1j * (ang[:, None] - ang[None]))))  # (K, K) [rad]
+    np.fill_diagonal(apart, np.inf)
+    sure = np.zeros_like(long)
+    sure[idx] = SEPARATION_SIGMAS * angle_sigma[idx] < 0.5 * apart.min(1)
+    return long | sure
 
 
 def orient_radial_edges(image, camera, pencil, **detect):
