@@ -56,6 +56,7 @@ from pencilcal.toolkit.detect.refit import EdgeRefit, RefitOptions
 from pencilcal.toolkit.detect.segments import Segments, detect_segments, in_valid_region
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
 from pencilcal.toolkit.errors import EstimationError, InputError
+from pencilcal.toolkit.geometry.angles import angle_diff
 from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
 
 __all__ = ["RadialEdges", "detect_radial_edges", "orient_radial_edges", "trimmed_at_spokes_end", "CLEAR_SIGMAS",
@@ -328,7 +329,7 @@ def _usable(p1, p2, ok, angle_sigma, v, min_length):
         return long
     mid = 0.5 * (p1[idx] + p2[idx]) - v
     ang = np.arctan2(mid[:, 1], mid[:, 0])
-    apart = np.abs(np.angle(np.exp(1j * (ang[:, None] - ang[None]))))  # (K, K) [rad]
+    apart = np.abs(angle_diff(ang[:, None], ang[None]))  # (K, K) [rad]
     np.fill_diagonal(apart, np.inf)
     sure = np.zeros_like(long)
     sure[idx] = SEPARATION_SIGMAS * angle_sigma[idx] < 0.5 * apart.min(1)
@@ -774,7 +775,7 @@ def _companions(ang, r0, r1, height, clear):
     >>> _companions(ang, np.array([80.0, 80.0, 20.0]), r1, height, 4.0).tolist()   # seen from the same band
     [False, False, False]
     """
-    d = np.abs(np.angle(np.exp(1j * (ang[:, None] - ang[None]))))
+    d = np.abs(angle_diff(ang[:, None], ang[None]))
     beside = ((d < np.pi / 2) & (r0[:, None] * np.sin(d) < clear) & (height[None] >= 2.0 * height[:, None])
               & (r0[None] < r0[:, None]) & (r0[:, None] <= r1[None]))
     return (height < 0.5) & np.any(beside, 1)

@@ -46,6 +46,7 @@ from scipy.special import ndtri
 from pencilcal.toolkit.detect.edges import SAMPLE_STEP_PX
 from pencilcal.toolkit.detect.radial_joint import joint_refit
 from pencilcal.toolkit.detect.working import to_working
+from pencilcal.toolkit.geometry.angles import angle_diff, segment_angle
 from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
 from pencilcal.toolkit.pencil.defaults import DETECTION_LEVEL
 from pencilcal.toolkit.pencil.spec import image_angles, image_directions
@@ -108,7 +109,7 @@ def predicted_edges(camera, pencil, rec, segments):
     u_all = (K[:2, :2] @ image_directions(R, m, th_pred).T).T
     phi_all = np.arctan2(u_all[:, 1], u_all[:, 0])
     u = u_all[missing] / np.maximum(np.hypot(*u_all[missing].T), 1e-12)[:, None]
-    d = np.abs(np.angle(np.exp(1j * (phi_all[missing, None] - phi_all[None]))))
+    d = np.abs(angle_diff(phi_all[missing, None], phi_all[None]))
     d[np.arange(missing.size), missing] = np.inf
     sign = _signs(camera, segments, lines, kind, v_px, missing)
     rho = _rim(camera, R, m, np.asarray(segments, float)[np.asarray(lines["segment"], int)])
@@ -210,7 +211,7 @@ def searched_edges(lin, camera, fit, v, blur, predicted, min_length, joint_sigma
     K = len(predicted["edge"])
     ok = np.flatnonzero(fit.ok)
     pred = predicted["lines"]
-    phi_p = np.arctan2(pred[:, 3] - pred[:, 1], pred[:, 2] - pred[:, 0])
+    phi_p = segment_angle(pred)
     found = fit.lines()[ok]
     mid = 0.5 * (found[:, :2] + found[:, 2:])
     phi_f = np.arctan2(mid[:, 1] - v[1], mid[:, 0] - v[0])
@@ -219,11 +220,11 @@ def searched_edges(lin, camera, fit, v, blur, predicted, min_length, joint_sigma
     # one the fit labelled (a neighbour as found), one it left without a line (searched
     # for again as predicted), or none (other print: no neighbour)
     phi_e = predicted["phi"]
-    d = np.abs(np.angle(np.exp(1j * (phi_f[:, None] - phi_e[None]))))
+    d = np.abs(angle_diff(phi_f[:, None], phi_e[None]))
     near = np.argmin(d, -1) if phi_e.size else np.zeros(phi_f.size, int)
-    gaps = np.sort(np.abs(np.angle(np.exp(1j * (phi_e[:, None] - phi_e[None])))), -1)[:, 1]
+    gaps = np.sort(np.abs(angle_diff(phi_e[:, None], phi_e[None])), -1)[:, 1]
     close = d[np.arange(phi_f.size), near] < gaps[near] / 3.0
-    missing_phi = np.abs(np.angle(np.exp(1j * (phi_e[near][:, None] - phi_p[None])))).min(-1) < 1e-9
+    missing_phi = np.abs(angle_diff(phi_e[near][:, None], phi_p[None])).min(-1) < 1e-9
     dup = close & missing_phi
     keep_f = close & ~missing_phi
     lines = np.concatenate([found[keep_f], pred])
@@ -257,7 +258,7 @@ def searched_edges(lin, camera, fit, v, blur, predicted, min_length, joint_sigma
     kept = np.flatnonzero(long_enough)[good]
     # the found edges a kept one stands for
     replaced = np.zeros(fit.ok.size, bool)
-    hit = np.abs(np.angle(np.exp(1j * (phi_e[near][:, None] - phi_p[kept][None])))).min(-1) < 1e-9 if kept.size \
+    hit = np.abs(angle_diff(phi_e[near][:, None], phi_p[kept][None])).min(-1) < 1e-9 if kept.size \
         else np.zeros(phi_f.size, bool)
     gone = ok[dup & hit]
     replaced[gone] = True
