@@ -149,3 +149,30 @@ def test_rig_check_and_calibration_report_go_under_checks(tmp_path):
     assert "another camera" in checks["notes"][0]
     r = CliRunner().invoke(cli, ["validate", str(d), "--right", str(d / "images"), "-o", str(tmp_path / "w.json")])
     assert r.exit_code == 2 and "--right-camera" in r.output
+
+
+def test_board_corners_found_as_the_calibration_found_them(tmp_path):
+    """A camera whose calibration refined its ChArUco corners to their point of symmetry
+    (`calibrate --symmetric-corners`, recorded in its statistics) has the reference board's
+    corners refined so in validate too: the record travels with the camera into v.json and
+    on the renders the reference poses' reprojection RMS falls."""
+    from pencilcal.toolkit.camera.formats import read_camera, write_camera
+
+    seq = tmp_path / "seq"
+    r = CliRunner().invoke(cli, ["simulate", str(seq), "--scenario", "orbit", "--frames", "3", "--seed", "5",
+                                 "--size", "960x540", "-q"])
+    assert r.exit_code == 0, r.output
+    plain = read_camera(seq / "camera.json")
+    sym = type(plain)(plain.model, plain.width, plain.height, plain.K, plain.dist,
+                      meta={"calibration": {"symmetric_corners": True}})
+    write_camera(tmp_path / "sym.json", sym)
+    rms = {}
+    for name, cam in (("plain", seq / "camera.json"), ("sym", tmp_path / "sym.json")):
+        out = tmp_path / f"v_{name}.json"
+        r = CliRunner().invoke(cli, ["validate", str(seq), "--camera", str(cam), "--models", "exact",
+                                     "--methods", "sqpnp", "-o", str(out), "-q"])
+        assert r.exit_code == 0, r.output
+        v = json.loads(out.read_text())
+        assert bool(v["camera"].get("calibration", {}).get("symmetric_corners")) is (name == "sym")
+        rms[name] = np.median([f["pnp"]["sqpnp"]["reproj_rms_px"] for f in v["frames"] if f["pnp"]])
+    assert rms["sym"] < 0.7 * rms["plain"], rms
