@@ -62,3 +62,29 @@ def test_nothing_kept_where_nothing_is_printed():
     hit = np.argmin(res, 1)
     assert not np.any(np.isin(spoke[hit], gone) & (np.min(res, 1) < 0.5 * np.radians(2.8125)))
     assert np.isin(spoke[hit], np.setdiff1d(np.arange(64), gone)).sum() > len(first) - 3
+
+
+def test_a_missing_edge_predicted_at_a_frontal_view():
+    """Face on, the tilt moves no image angle to first order: the rotation's tilt columns are
+    the finite differences' remainder, and at this roll they are parallel. The missing edge
+    is still predicted, its sd the roll's alone (the lines' sd over the root of their count,
+    at the search's outer end), not dropped for an sd of NaN."""
+    cam = Camera("pinhole", 640, 480, [[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+    pen = pencil_from_dict({"start_deg": 0, "step_deg": 90, "count": 4, "shape": "wedge", "radius": [0, 50]})
+    th, _, kind = pen.edge_angles()
+    roll = np.radians(305.0)
+    R = np.array([[np.cos(roll), -np.sin(roll), 0], [np.sin(roll), np.cos(roll), 0], [0, 0, 1]])
+    used = np.delete(np.arange(8), 1)
+    a = image_angles(R, np.zeros(2), th[used])
+    u = np.stack([np.cos(a), np.sin(a)], -1)
+    seg = np.concatenate([np.full((7, 2), [320.0, 240.0]), [320, 240] + 100 * u], -1)
+    seg = np.where((kind[used] > 0)[:, None], seg, seg[:, [2, 3, 0, 1]])  # brighter along n
+    rec = SimpleNamespace(ok=True, R_cam_from_target=R, lines={
+        "angle": a, "sigma": np.full(7, 1e-3), "spoke": used, "segment": np.arange(7), "theta": th[used],
+        "vertex": np.zeros(2)})
+    p = predicted_edges(cam, pen, rec, seg)
+    assert p is not None and p["edge"].tolist() == [1]
+    d = p["lines"][0, 2:] - p["lines"][0, :2]
+    assert abs(np.angle(np.exp(1j * (np.arctan2(d[1], d[0]) - image_angles(R, np.zeros(2), th[1:2])[0])))) < 1e-9
+    r = np.hypot(*d)
+    assert np.isclose(p["sd"][0], r * 1e-3 / np.sqrt(7), rtol=1e-3), (p["sd"][0], r)
