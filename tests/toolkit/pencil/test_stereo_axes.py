@@ -162,7 +162,8 @@ def test_port_play_widens_the_sigma_and_keeps_the_fusion_ahead(n_trials=30):
     # rig off by a draw of its covariance: the axes' offsets from one point take the play's
     # variance (`_axes_with_noise`). Measured here: rms 0.210 mm against 0.559 (left eye) and
     # 0.695 (right), 68 % region coverage 18 of 30 (0.209 mm and 16 of 30 with the axes weighed
-    # at their own estimates), 23.9 of 24 axes used. Before, with the
+    # at their own estimates; 0.212 mm and 17 of 30, the play's sd 0.40 mm, with the noise
+    # factor read from the axes' own fits), 23.9 of 24 axes used. Before, with the
     # edges' covariances alone, the 99 % gate kept 4.8 of the 24 axes: rms 0.809 mm, worse
     # than either eye, coverage 0 of 30
     rms, inside, play = _monte_carlo(np.random.default_rng(5), np.diag([0.5e-3**2] * 3 + [0.02**2] * 3), n_trials,
