@@ -356,14 +356,15 @@ class AxesFulcrum:
     factor: float = 1.0
 
 
-def _with_rig(x, axes, use, rig_cov, covs=None, iterations=10):
+def _with_rig(x, axes, use, rig_cov, covs=None, iterations=10, factor=1.0):
     """(point (3,), covariance (3, 3)) of the fulcrum with the rig's error as an unknown
     common to every axis, under its prior: each used axis moves by its rig Jacobian times
     the rig's error delta (6,), and x and delta minimise the axes' weighted offsets, their
     own fits' residuals as delta changes them (`StereoAxis.rig_information`) and
     ``delta^T C_rig^-1 delta`` (a rig error that one axis would take for its own noise is
     seen in all of them together). covs: (N, 4, 4) the axes' chart covariances with the
-    play in them (`_axes_with_noise`), default their own."""
+    play in them (`_axes_with_noise`), default their own; factor: the factor k on the
+    edges' covariances (`_axes_with_noise`), which whitens the fits' residuals by it too."""
     Cinv = np.linalg.pinv(rig_cov)
     covs = [a.axis_cov for a in axes] if covs is None else covs
     for _ in range(iterations):
@@ -380,8 +381,8 @@ def _with_rig(x, axes, use, rig_cov, covs=None, iterations=10):
             H += B.T @ Sinv @ B
             g += B.T @ Sinv @ (E @ a.axis_point)
             # the axis's own residuals: where the eyes disagree, the rig is off
-            H[3:, 3:] += a.rig_information
-            g[3:] -= a.rig_vector
+            H[3:, 3:] += a.rig_information / factor
+            g[3:] -= a.rig_vector / factor
         H[3:, 3:] += Cinv
         z = np.linalg.solve(H, g)
         done = np.max(np.abs(z[:3] - x)) < 1e-9
@@ -411,11 +412,12 @@ def _play(P, D, C, E, x):
     return hi
 
 
-def _factor_and_play(r, S, start, iterations=100):
+def _factor_and_play(r, S, start, iterations=100, factor=None):
     """(k >= 1, s2 >= 0) maximising the likelihood of the offsets r (N, 2) under covariances
     ``M = k S + s2 I`` (S: (N, 2, 2)): a factor on the axes' own covariances (edges noisier
     than said: mostly along each axis's depth, where a stereo axis is least precise) and an
-    isotropic play; start: the first s2. Fisher scoring on (k, s2), the linear variance
+    isotropic play; start: the first s2; factor: k where it is known (the axes' own fits,
+    `_fits_factor`), only s2 fitted then. Fisher scoring on (k, s2), the linear variance
     components of M: the score ``g_j = 1/2 sum (r^T M^-1 A_j M^-1 r - tr(M^-1 A_j))`` and the
     expected information ``F_ij = 1/2 sum tr(M^-1 A_i M^-1 A_j)`` with A = (S, I), a
     component held at its bound while its score points past it.
@@ -424,8 +426,10 @@ def _factor_and_play(r, S, start, iterations=100):
     >>> r = np.array([[0.2, 0.4], [-0.2, -0.4], [0.2, -0.4], [-0.2, 0.4]])   # twice the sd: k = 4
     >>> [round(float(v), 6) for v in _factor_and_play(r, S, 0.0)]
     [4.0, 0.0]
+    >>> [round(float(v), 6) for v in _factor_and_play(r, S, 0.0, factor=1.0)]   # k held: play
+    [1.0, 0.059514]
     """
-    k, s2 = 1.0, max(float(start), 0.0)
+    k, s2 = (1.0 if factor is None else float(factor)), max(float(start), 0.0)
     eye = np.eye(2)
     for _ in range(iterations):
         Mi = np.linalg.inv(k * S + s2 * eye)
@@ -436,8 +440,8 @@ def _factor_and_play(r, S, start, iterations=100):
         F = 0.5 * np.array([[np.sum(MS * np.swapaxes(MS, 1, 2)), np.sum(MS * np.swapaxes(Mi, 1, 2))],
                             [0.0, np.sum(Mi * np.swapaxes(Mi, 1, 2))]])
         F[1, 0] = F[0, 1]
-        # a component at its bound whose score points past it stays there
-        free = [not (k <= 1.0 and g[0] < 0.0), not (s2 <= 0.0 and g[1] < 0.0)]
+        # a component at its bound whose score points past it stays there; a given k stays
+        free = [factor is None and not (k <= 1.0 and g[0] < 0.0), not (s2 <= 0.0 and g[1] < 0.0)]
         step = np.zeros(2)
         idx = [j for j in range(2) if free[j]]
         if idx:
@@ -450,12 +454,35 @@ def _factor_and_play(r, S, start, iterations=100):
     return k, s2
 
 
+def _fits_factor(fits, used):
+    """The factor k >= 1 on the edges' covariances that the used axes' own fits read: their
+    whitened residuals' chi2 over its degrees of freedom (each fit's 8 edge terms, less the
+    4 of its axis; the radius prior's term with its own), the part that one error of the
+    rig common to them all explains taken out first (its least squares over them, its rank
+    taken from the dof). fits: (chi2 (N,), dof (N,), rig_information (N, 6, 6), rig_vector
+    (N, 6)) of the axes (`StereoAxis`); used: (N,) bool.
+
+    The residuals are the edges' noise alone: the port's play moves an axis, not its edges'
+    fit, and the gate on the axes' offsets does not truncate them, so k is read without the
+    play and without the gate's bias (the offsets alone read k = 3.3-3.4 for a true 4 on
+    edge-level pivots, these 3.9-4.0).
+
+    >>> fits = (np.array([8.0, 8.0]), np.array([4.0, 4.0]), np.zeros((2, 6, 6)), np.zeros((2, 6)))
+    >>> _fits_factor(fits, np.array([True, True]))
+    2.0
+    """
+    c2, dof, info, vec = fits
+    v = np.sum(vec[used], 0)
+    z, _, rank, _ = np.linalg.lstsq(np.sum(info[used], 0), v, rcond=1e-10)
+    return max(1.0, float(np.sum(c2[used]) - v @ z) / max(float(np.sum(dof[used])) - float(rank), 1.0))
+
+
 #: The mean chi-square (2 dof) of an axis the 99 % gate keeps: ``(2 - (c + 2) e^(-c/2)) / 0.99``
 #: at its threshold c; the kept axes' chi-square sum is held to this per axis, less 3.
 _KEPT_CHI2 = 1.907
 
 
-def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS):
+def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS, fits=None):
     """(Fulcrum3D, chart covariances (N, 4, 4) with the noise in them, play s2 [length^2],
     factor k) of the stereo axes: where the axes scatter about the point more than their
     covariances say, their covariances become ``k C + s2 I`` (on the position): k >= 1 a
@@ -463,12 +490,14 @@ def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS):
     does not pivot about one point exactly: the port's play). s2 starts from the median of
     every axis's chi2 (`_play`: a gate set for too small a noise keeps only the few axes that
     happen to pass close, and their scatter would say there is none; where it is 0 the axes
-    keep their covariances), then k and s2 by
-    maximum likelihood on the gate's inliers (`_factor_and_play`), the fit again with them,
-    until they change by less than 10 % (at most `runs` runs); last, both scaled up so the
-    inliers' chi2 is that of a gated sample (`_KEPT_CHI2` per axis, less 3: likelihood alone
-    reads a truncated scatter too small). Only inflating, as the monocular point's variance
-    factor (`fulcrum._point_with_noise`)."""
+    keep their covariances), then k and s2 on the gate's inliers, the fit again with them,
+    until they change by less than 10 % (at most `runs` runs). With the axes' own fits
+    (fits: `_fits_factor`'s) k is what their residuals read and s2 alone is fitted to the
+    offsets, by maximum likelihood, then raised until the inliers' chi2 is that of a gated
+    sample (`_KEPT_CHI2` per axis, less 3: likelihood alone reads a truncated scatter too
+    small); without them k and s2 both by maximum likelihood on the offsets
+    (`_factor_and_play`), both scaled up to that chi2. Only inflating, as the monocular
+    point's variance factor (`fulcrum._point_with_noise`)."""
     lift = np.zeros((4, 4))
     lift[2, 2] = lift[3, 3] = 1.0
     fit = fulcrum_3d(P, D, C, robust, axis_frames=E)
@@ -482,7 +511,8 @@ def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS):
         if 2 * used.sum() <= 3:
             break
         r, S, _ = axis_offsets(np.asarray(fit.point, float), P, D, E, C)
-        k_new, s2_new = _factor_and_play(r[used], S[used], s2)
+        k_new, s2_new = _factor_and_play(r[used], S[used], s2,
+                                         factor=None if fits is None else _fits_factor(fits, used))
         done = abs(k_new - k) <= 0.1 * k and abs(s2_new - s2) <= 0.1 * max(s2, 1e-12)
         k, s2 = k_new, s2_new
         fit = fulcrum_3d(P, D, k * C + s2 * lift, robust, axis_frames=E)
@@ -490,9 +520,19 @@ def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS):
             break
     used = np.asarray(fit.inliers, bool)
     r, S, _ = axis_offsets(np.asarray(fit.point, float), P, D, E, C)
-    chi2 = float(np.sum(offset_chi2(r[used], k * S[used] + s2 * np.eye(2))))
-    c = max(1.0, chi2 / max(_KEPT_CHI2 * used.sum() - 3.0, 1.0))
-    k, s2 = k * c, s2 * c
+    target = max(_KEPT_CHI2 * used.sum() - 3.0, 1.0)
+
+    def chi2(k, s2):
+        return float(np.sum(offset_chi2(r[used], k * S[used] + s2 * np.eye(2))))
+    c = max(1.0, chi2(k, s2) / target)
+    if fits is None:
+        k, s2 = k * c, s2 * c
+    elif c > 1.0:  # k is the fits'; the play alone takes the rest (bisection: chi2 falls with s2)
+        lo, hi = s2, s2 + float(np.max(np.sum(r[used] ** 2, -1))) + 1e-12
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if chi2(k, mid) > target else (lo, mid)
+        s2 = hi
     fit = fulcrum_3d(P, D, k * C + s2 * lift, robust, axis_frames=E)
     return fit, k * C + s2 * lift, s2, k
 
@@ -534,12 +574,13 @@ def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
     the fit's noise terms refitted each time), and where they scatter
     about the point more than their covariances say, their covariances take a factor and
     each axis's position an isotropic play variance, both fitted from that scatter
-    (`_axes_with_noise`: only inflating, as the monocular 3-D fulcrum's variance factor). rig_cov: (6, 6) the rig's covariance (rotation vector
+    (`_axes_with_noise`: only inflating, as the monocular 3-D fulcrum's variance factor;
+    the factor is the one the axes' own fits' residuals read, `_fits_factor`). rig_cov: (6, 6) the rig's covariance (rotation vector
     [rad], translation [length]; ``R = exp(w) R0``, ``t = t0 + dt``) or None. The rig is one
     for every axis, so its error moves them all at once: with its covariance the point is
     solved together with that error, under its prior (`_with_rig`, the gate's axes, their
-    covariances with the play), and its covariance is the point's marginal, the edges'
-    noise and the rig's both in it.
+    covariances with the factor and the play, their fits' residuals with the factor), and
+    its covariance is the point's marginal, the edges' noise and the rig's both in it.
     """
     if len(axes) < 2:
         raise EstimationError(f"the stereo fulcrum needs two axes, got {len(axes)}")
@@ -547,12 +588,14 @@ def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
     D = np.stack([a.axis_direction for a in axes])
     C = np.stack([a.axis_cov for a in axes])
     E = np.stack([a.axis_frame for a in axes])
-    fit, C_noise, play, factor = _axes_with_noise(P, D, C, E, robust)
+    fits = (np.array([a.chi2 for a in axes], float), np.array([a.dof for a in axes], float),
+            np.stack([a.rig_information for a in axes]), np.stack([a.rig_vector for a in axes]))
+    fit, C_noise, play, factor = _axes_with_noise(P, D, C, E, robust, fits=fits)
     if any(a.problem is not None for a in axes):
         # the weights from covariances at the lines through the fulcrum (`_constrained_covariances`)
         for _ in range(2):
             fit, C_noise, play, factor = _axes_with_noise(P, D, _constrained_covariances(axes, fit.point, C), E,
-                                                           robust)
+                                                           robust, fits=fits)
     C = C_noise
     if rig_cov is None:
         return AxesFulcrum(fit.point, fit.point_cov, float(fit.point_sigma), fit, False, play, factor)
@@ -560,7 +603,7 @@ def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
     if rig_cov.shape != (6, 6) or not np.all(np.isfinite(rig_cov)):
         raise InputError(f"the rig's covariance must be a finite 6x6 matrix (rotation vector, translation), "
                          f"got shape {rig_cov.shape}")
-    x, cov = _with_rig(np.asarray(fit.point, float), axes, np.asarray(fit.inliers, bool), rig_cov, C)
+    x, cov = _with_rig(np.asarray(fit.point, float), axes, np.asarray(fit.inliers, bool), rig_cov, C, factor=factor)
     return AxesFulcrum(x, cov, float(np.sqrt(np.trace(cov))), fit, True, play, factor)
 
 

@@ -162,7 +162,8 @@ def test_port_play_widens_the_sigma_and_keeps_the_fusion_ahead(n_trials=30):
     # rig off by a draw of its covariance: the axes' offsets from one point take the play's
     # variance (`_axes_with_noise`). Measured here: rms 0.210 mm against 0.559 (left eye) and
     # 0.695 (right), 68 % region coverage 18 of 30 (0.209 mm and 16 of 30 with the axes weighed
-    # at their own estimates), 23.9 of 24 axes used. Before, with the
+    # at their own estimates; 0.212 mm and 17 of 30, the play's sd 0.40 mm, with the noise
+    # factor read from the axes' own fits), 23.9 of 24 axes used. Before, with the
     # edges' covariances alone, the 99 % gate kept 4.8 of the 24 axes: rms 0.809 mm, worse
     # than either eye, coverage 0 of 30
     rms, inside, play = _monte_carlo(np.random.default_rng(5), np.diag([0.5e-3**2] * 3 + [0.02**2] * 3), n_trials,
@@ -199,3 +200,28 @@ def test_covariance_at_the_axis_itself_is_its_own():
         assert np.allclose(c, ax.axis_cov, rtol=1e-4, atol=1e-12), (np.diag(c), np.diag(ax.axis_cov))
     import dataclasses
     assert covariance_at(dataclasses.replace(ax, problem=None), A, d) is None
+
+
+def test_the_noise_factor_is_read_from_the_axes_own_fits(n_trials=4):
+    # edges twice as noisy as their covariances say (k = 4) and 0-1 mm port play: the factor
+    # on the axes' covariances is their own fits' chi2 over its dof (the gate's axes), not a
+    # share of the offsets' scatter the play competes for (the offsets alone read k = 3.3-3.4
+    # on the edge-level pivots of docs/method.md). Measured here: k 3.56, 2.77, 4.30, 5.17
+    # (the offsets alone, as before: 4.77, 3.58, 3.30, 4.26)
+    from pencilcal.toolkit.pencil.stereo_axes import _fits_factor
+
+    rng = np.random.default_rng(9)
+    F = np.array([3.0, -2.0, 90.0])
+    ks = []
+    for _ in range(n_trials):
+        Ss = []
+        for A, d in _played(rng, F, R0, T0, 24, 1.0):
+            (el, cl), (er, cr) = _edges(A, d, rng, 0.3), _edges(R0 @ A + T0, R0 @ d, rng, 0.3)
+            Ss.append(stereo_axis(K, el, cl / 4, K, er, cr / 4, R0, T0, radius=4.0))
+        f = stereo_fulcrum_axes(Ss)
+        fits = (np.array([a.chi2 for a in Ss]), np.array([a.dof for a in Ss], float),
+                np.stack([a.rig_information for a in Ss]), np.stack([a.rig_vector for a in Ss]))
+        assert f.factor == _fits_factor(fits, np.asarray(f.fit.inliers, bool)), f.factor
+        assert f.play > 0.0
+        ks.append(f.factor)
+    assert 3.4 < np.mean(ks) < 4.6, ks
