@@ -257,3 +257,14 @@ def test_photographs_as_hard_as_real_ones(hard_photos):
     assert len(big) == 7 and s["ok"] == 7 and s["spokes_used"] >= 0.95 and s["twin_right"] == 1.0
     assert max(t.err_deg for t in big) < 0.2
 
+
+def test_a_small_star_no_edge_of_which_is_clear_is_still_a_star():
+    """A 64-wedge star 21 % of the frame's height under 1.2 px of defocus and 1.8 px of
+    motion blur (`photographic_conditions(6, 800)[5]`): its edges were seen in 128
+    directions about a vertex 0.04 px from the truth, but none clear of its neighbours, and
+    the frame was dropped as no radial target (`radial._CROWDED_DIRECTIONS`). Located with
+    their neighbours: 64 spokes, the twin right, 0.15 deg off."""
+    from pencilcal.validation.radial_renders import photo_trial, photographic_conditions
+
+    t = photo_trial(photographic_conditions(6, 800)[5])
+    assert t.ok and t.spokes_used >= 60 and t.twin_right and t.err_deg < 0.6
