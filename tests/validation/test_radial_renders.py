@@ -15,7 +15,8 @@ Since the seed sets the first cycle's polarity (`radial_conditions`; this sample
 all turned) and a star's wedges are fitted as wide as the lines say (`orient._printed_wedge`):
 every spoke used, 25 of 25, RMSE / bound 0.81, coverage 72 %, circles 0.0078 deg.
 
-And webcam photographs of a printed star (`photo_conditions`), harder than the renders."""
+And webcam photographs of a printed star (`photo_conditions`), harder than the renders, and as
+hard as real ones (`photographic_conditions`)."""
 from __future__ import annotations
 
 import numpy as np
