@@ -25,7 +25,7 @@ from pencilcal.toolkit.pencil.estimator import pencil_covariance
 from pencilcal.toolkit.pencil.spec import Pencil, pencil_from_dict
 
 __all__ = ["RadialTrial", "radial_conditions", "radial_trial", "ideal_lines_trial", "radial_summary", "KINDS",
-           "photo_conditions", "photo_pencils", "photo_frame", "photo_trial"]
+           "photo_conditions", "photographic_conditions", "photo_pencils", "photo_frame", "photo_trial"]
 
 #: What is rendered: Siemens stars of so many wedges, and a dartboard.
 KINDS = ("star16", "star32", "star64", "star128", "dartboard")
@@ -137,7 +137,10 @@ def photo_trial(cond):
     from pencilcal.toolkit.detect.lines import radial_edge_count, radial_joint_mode
     from pencilcal.toolkit.detect.radial import orient_radial_edges
 
+    from pencilcal.toolkit.io.images import with_grey
+
     img, cam, R, t = photo_frame(cond)
+    img = with_grey(img)[0]  # a colour photograph read as `orient IMAGES` reads it
     pen = photo_pencils(cond)[1]
     found, rec = orient_radial_edges(img, cam, pen, edges=radial_edge_count(pen), joint=radial_joint_mode(pen))
     return _compared(f"photo{cond['wedges']}", cond, cam, pen, R, t, found, rec)
@@ -303,6 +306,34 @@ def photo_conditions(n, seed=0, wedges=(PHOTO_WEDGES,)):
     return out
 
 
+def photographic_conditions(n, seed=0):
+    """n conditions of `photo_conditions(n, seed)`, each made as hard as a real photograph
+    with draws of a stream of their own (`photo_conditions`' draws unchanged): the print's
+    contrast (Michelson, of the grey levels recorded) 0.5-0.8 (0.59 in `photo_conditions`), the paper's texture (1-4 %), chromatic
+    aberration (the red and blue channels 0.5-1 px from the green at the corners, either
+    way; a colour JPEG), the camera's sharpening (an unsharp mask of 0.3-1.2 over 0.8-2 px:
+    halos), the sheet curled (-0.5..0.5 mm off the plane at the sheet's end, 148.5 mm from
+    the vertex along a direction drawn; 0.11 mm at the star's rim), and a shadow's soft edge (depth 0.3-0.6, 10-80 px wide) across the star
+    in half the frames. Keys added: contrast, texture, ca_px, sharpen, sharpen_px, curl_mm,
+    curl_deg, shadow, shadow_px, shadow_deg, shadow_soft.
+
+    >>> c = photographic_conditions(2, 5)
+    >>> [k for k in c[0] if k not in photo_conditions(1, 5)[0]][:3], c[1]["tilt_deg"] == photo_conditions(2, 5)[1]["tilt_deg"]
+    (['contrast', 'texture', 'ca_px'], True)
+    """
+    rng = np.random.default_rng([seed, 29])
+    out = photo_conditions(n, seed)
+    for c in out:
+        x, y = c["vertex_px"]
+        c.update(contrast=float(rng.uniform(0.5, 0.8)), texture=float(rng.uniform(0.01, 0.04)),
+                 ca_px=float(rng.uniform(0.5, 1.0) * rng.choice([-1, 1])), sharpen=float(rng.uniform(0.3, 1.2)),
+                 sharpen_px=float(rng.uniform(0.8, 2.0)), curl_mm=float(rng.uniform(-0.5, 0.5)),
+                 curl_deg=float(rng.uniform(0, 180)), shadow=float(rng.uniform(0.3, 0.6)) * (rng.random() < 0.5),
+                 shadow_px=[x + float(rng.uniform(-100, 100)), y + float(rng.uniform(-100, 100))],
+                 shadow_deg=float(rng.uniform(0, 360)), shadow_soft=float(rng.uniform(10, 80)))
+    return out
+
+
 def photo_pencils(cond):
     """(the star as printed: shape wedge from the vertex, the pencil file with its shape:
     radius [12, 70] mm, the plain pencil file: rays along the wedges' centre lines, radius
@@ -315,10 +346,11 @@ def photo_pencils(cond):
 
 
 def photo_frame(cond):
-    """The photograph of `cond` (`photo_conditions`): (image (960, 1280) uint8, camera, R,
-    t), the star's vertex at the target frame's origin."""
+    """The photograph of `cond` (`photo_conditions`, `photographic_conditions`): (image
+    (960, 1280) uint8, or (960, 1280, 3) BGR with chromatic aberration, camera, R, t), the
+    star's vertex at the target frame's origin (where a curled sheet touches the plane)."""
     from pencilcal.toolkit.synth.radial import linear_layers, radial_pose
-    from pencilcal.toolkit.synth.radial_photo import photo_layers, photo_sensor
+    from pencilcal.toolkit.synth.radial_photo import colour_photo, curled, paper_texture, photo_layers, photo_sensor
 
     cam = _camera(cond["k1"])
     printed, _, _ = photo_pencils(cond)
@@ -326,5 +358,12 @@ def photo_frame(cond):
                        axis_deg=cond["axis_deg"], roll_deg=cond["roll_deg"])
     rng = np.random.default_rng(cond["seed"])
     layers = photo_layers(printed, cond, rng)
-    img = photo_sensor(linear_layers(cam, R, t, layers, 0.25), cond, rng)
-    return img, cam, R, t
+    if cond.get("curl_mm"):  # the sheet bent, the desk and its clutter (the first layers) flat
+        k = 1 + int(cond.get("clutter", 12))
+        layers = layers[:k] + curled(layers[k:], R, t, cond["curl_mm"], cond["curl_deg"])
+    lin = linear_layers(cam, R, t, layers, 0.25)
+    if cond.get("texture"):
+        lin = lin * paper_texture(cam, R, t, cond["texture"], np.random.default_rng([cond["seed"], 3]))
+    if "ca_px" in cond:
+        return colour_photo(lin, cond, rng, np.asarray(cam.K, float)[:2, 2]), cam, R, t
+    return photo_sensor(lin, cond, rng), cam, R, t

@@ -96,6 +96,10 @@ _DIRECTION_BIN_DEG = 6.0  # the rough vertex counts the directions crossing it i
 _ROUGH_LINES = 96  # the longest segments it looks at
 _PEAK_REL = 0.15  # an angular-profile peak: at least this fraction of the typical edge's
 _BAND_RATIO = 1.3  # the angular profiles' bands of radii: from r to 1.3 r
+#: A star's edges seen in at least this many directions about the segments' vertex are
+#: located with their neighbours (``joint="all"``) even where none is clear of them: a
+#: small star's 128 edges lie under 5 px apart at its rim
+_CROWDED_DIRECTIONS = 16
 _SEARCH_PX = (4.0, 2.0, 1.0)  # edge search half-width [px], round by round (the vertex sharpens)
 _KERNEL_PX = 1.0  # sd of the derivative kernel across an edge
 #: The least sd [px] of an edge's position across it: what the stations' scatter cannot show,
@@ -235,8 +239,11 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
             return None
         fit = _refit_edges(lin, camera, v, phi, sign, seen, search, clear)
         blur = max(CLEAR_PX / CLEAR_SIGMAS, _edge_blur(lin, camera, fit, clear))
-        if k == 0 and np.count_nonzero(fit.ok) < 3:
-            return None  # no edge through the segments' vertex: no radial target
+        # no edge through the segments' vertex: no radial target; but a star's edges seen in
+        # many directions and clear of their neighbours nowhere (a small star under blur) are
+        # a star's, located jointly below
+        if k == 0 and np.count_nonzero(fit.ok) < 3 and (joint != "all" or phi.size < _CROWDED_DIRECTIONS):
+            return None
         v, reach, v_sd = _better_vertex(fit, v, reach, v_sd, joint == "all")
     # the edges located with their neighbours (their blurred edges modelled): those that are
     # nowhere clear of them from where they lie JOINT_SIGMAS blur sds apart; with joint="all"

@@ -29,7 +29,8 @@ import numpy as np
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.synth.polygons import arc, rect
 
-__all__ = ["gained_wedges", "photo_layers", "photo_sensor", "aruco_cells", "A4"]
+__all__ = ["gained_wedges", "photo_layers", "photo_sensor", "aruco_cells", "A4", "curled", "paper_texture",
+           "colour_photo"]
 
 A4 = (210.0, 297.0)  # [mm]
 _MARKER_MM = 30.0
@@ -82,8 +83,13 @@ def _turned(poly, turn, shift):
 def photo_layers(pencil, cond, rng):
     """The layers (`radial.render_layers`) of the photographed scene in the star's frame:
     desk, clutter, sheet, text, markers, star (gained by cond["gain_mm"]) and its grey centre
-    (cond["centre_mm"] radius, 0 for none). rng: a numpy Generator (the clutter and text)."""
-    ink, paper = 0.045, float(cond.get("paper", 0.85))
+    (cond["centre_mm"] radius, 0 for none); the ink's reflectance 0.045, or the paper's times
+    ((1 - c) / (1 + c))**2.2 for a print's contrast c = cond["contrast"] (Michelson, of the
+    grey levels a gamma of 2.2 records).
+    rng: a numpy Generator (the clutter and text)."""
+    paper = float(cond.get("paper", 0.85))
+    # the print's contrast as the photograph records it (gamma 2.2): grey levels (1 - c) / (1 + c) apart
+    ink = paper * ((1 - cond["contrast"]) / (1 + cond["contrast"])) ** 2.2 if "contrast" in cond else 0.045
     turn = np.radians(float(cond.get("sheet_deg", 0.0)))
     w, hgt = A4
     off = np.asarray(cond.get("sheet_shift", (0.0, 0.0)), float)  # the star's place on the sheet
@@ -152,11 +158,52 @@ def _motion_kernel(length, angle):
 def photo_sensor(img, cond, rng):
     """What a webcam records of the linear scene img (H, W): the light's gradient across the
     frame (cond["shading"]: its gain's range, 0.3 = +-30 %), vignetting (cond["vignette"]:
-    the fall-off at the corners), a specular patch (cond["specular"]: its peak over the
-    paper's white, at cond["specular_px"] (x, y, sd)), defocus (a disc of cond["defocus_px"])
-    and motion blur (cond["motion_px"] along cond["motion_deg"]) over the optics' Gaussian
+    the fall-off at the corners), a shadow's soft edge across it (cond["shadow"]: its depth,
+    at cond["shadow_px"] (x, y) along cond["shadow_deg"], cond["shadow_soft"] px wide), a
+    specular patch (cond["specular"]: its peak over the paper's white, at
+    cond["specular_px"] (x, y, sd)), defocus (a disc of cond["defocus_px"]) and motion blur
+    (cond["motion_px"] along cond["motion_deg"]) over the optics' Gaussian
     (cond["blur_px"]), gamma 2.2, noise (cond["noise"] grey levels at mid grey, shot plus
-    read) and JPEG at cond["jpeg"]; (H, W) uint8."""
+    read), the pipeline's unsharp mask (cond["sharpen"] times the detail above a Gaussian of
+    cond["sharpen_px"]: halos beside every edge) and JPEG at cond["jpeg"]; (H, W) uint8."""
+    out = _recorded(_optics(img, cond), cond, rng)
+    if cond.get("jpeg") is not None:
+        import cv2
+
+        ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(cond["jpeg"])])
+        out = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
+    return out
+
+
+def colour_photo(img, cond, rng, centre):
+    """`photo_sensor` in colour with lateral chromatic aberration: the linear scene img (H, W)
+    seen by the red channel magnified, and by the blue one shrunk, about `centre` (x, y) [px]
+    so each lies cond["ca_px"] px from the green one at the frame's corners (bilinear
+    resampling), each channel through the sensor with noise of its own, stored as a colour
+    JPEG (chroma halved, as webcams store it). Returns (H, W, 3) uint8, BGR."""
+    import cv2
+
+    H, W = img.shape
+    corner = np.hypot(max(centre[0], W - 1 - centre[0]), max(centre[1], H - 1 - centre[1]))
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
+    chans = []
+    for sign in (-1.0, 0.0, 1.0):  # blue, green, red
+        m = 1.0 + sign * float(cond.get("ca_px", 0.0)) / corner  # this channel's magnification
+        ch = img.astype(np.float32)
+        if sign:
+            ch = cv2.remap(ch, (centre[0] + (xx - centre[0]) / m).astype(np.float32),
+                           (centre[1] + (yy - centre[1]) / m).astype(np.float32), cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_REFLECT)
+        chans.append(_recorded(_optics(ch.astype(np.float64), cond), cond, rng))
+    out = np.stack(chans, -1)
+    if cond.get("jpeg") is not None:
+        ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(cond["jpeg"])])
+        out = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+    return out
+
+
+def _optics(img, cond):
+    """The linear scene img (H, W) lit and blurred as `photo_sensor` says: float32."""
     import cv2
 
     H, W = img.shape
@@ -166,6 +213,10 @@ def photo_sensor(img, cond, rng):
     a = np.radians(float(cond.get("shading_deg", 0.0)))
     gain = 1.0 + float(cond.get("shading", 0.0)) * (np.cos(a) * uu + np.sin(a) * vv) / np.sqrt(2)
     gain *= 1.0 - float(cond.get("vignette", 0.0)) * (uu * uu + vv * vv) / 2.0
+    if cond.get("shadow", 0) > 0:  # an object's shadow, its edge a soft line across the frame
+        b = np.radians(float(cond["shadow_deg"]))
+        d = (np.arange(W)[None] - cond["shadow_px"][0]) * np.cos(b) + (np.arange(H)[:, None] - cond["shadow_px"][1]) * np.sin(b)
+        gain *= 1.0 - float(cond["shadow"]) / (1.0 + np.exp(-4.0 * d / float(cond["shadow_soft"])))
     out = img * np.maximum(gain, 0.05) * float(cond.get("exposure", 1.0))
     spec = float(cond.get("specular", 0.0))
     if spec > 0:
@@ -182,12 +233,77 @@ def photo_sensor(img, cond, rng):
     if cond.get("motion_px", 0) > 0.3:
         k = _motion_kernel(float(cond["motion_px"]), np.radians(float(cond.get("motion_deg", 0.0))))
         out = cv2.filter2D(out, -1, k.astype(np.float32), borderType=cv2.BORDER_REFLECT)
+    return out
+
+
+def _recorded(out, cond, rng):
+    """The blurred linear scene `out` (H, W) as grey levels: gamma 2.2, noise, the unsharp
+    mask (`photo_sensor`); (H, W) uint8."""
+    import cv2
+
     out = 255.0 * np.clip(out.astype(np.float64), 0.0, 1.0) ** (1.0 / 2.2)
     noise = float(cond.get("noise", 0.0))
     if noise > 0:
         out = out + noise * np.sqrt(0.25 + 0.75 * out / 128.0) * rng.standard_normal(out.shape)
-    out = np.clip(np.rint(out), 0, 255).astype(np.uint8)
-    if cond.get("jpeg") is not None:
-        ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(cond["jpeg"])])
-        out = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
-    return out
+    if cond.get("sharpen", 0) > 0:  # the camera's sharpening: a halo on either side of every edge
+        out = out + float(cond["sharpen"]) * (out - cv2.GaussianBlur(out, (0, 0), float(cond["sharpen_px"])))
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def curled(layers, R_cam_from_target, t_cam_from_target, curl_mm, curl_deg, radius=A4[1] / 2, step_mm=1.0):
+    """Layers of a sheet that is not flat, as the camera sees them, drawn on the plane: the
+    sheet bent into a cylinder about the vertex, z = curl_mm * (u / radius)**2 [mm] along the
+    target's normal (away from the camera for curl_mm > 0), u the distance along the in-plane
+    direction `curl_deg` [deg]; so at the vertex the sheet is tangent to the target plane and
+    `radius` from it (half an A4 sheet's length) `curl_mm` off it. Every polygon's sides cut to `step_mm` or less, and
+    each vertex moved to where its ray from the camera meets the plane: drawn flat, the
+    polygons image where the bent sheet's would. Returns the layers."""
+    R = np.asarray(R_cam_from_target, float)
+    C = -R.T @ np.asarray(t_cam_from_target, float).reshape(3)  # the camera in the target frame
+    d = np.array([np.cos(np.radians(curl_deg)), np.sin(np.radians(curl_deg))])
+
+    def warped(poly):
+        p = np.asarray(poly, float)
+        q = np.roll(p, -1, 0)
+        k = np.maximum(np.ceil(np.hypot(*(q - p).T) / step_mm), 1).astype(int)
+        dense = np.concatenate([p[i] + np.linspace(0, 1, k[i], endpoint=False)[:, None] * (q[i] - p[i])
+                                for i in range(len(p))])
+        z = curl_mm * (dense @ d / radius) ** 2
+        s = C[2] / (C[2] - z)  # along the ray from the camera, to the plane z = 0
+        return C[:2] + (dense - C[:2]) * s[:, None]
+
+    return [([warped(p) for p in polys], refl) for polys, refl in layers]
+
+
+def paper_texture(camera, R_cam_from_target, t_cam_from_target, amplitude, rng, cell_mm=0.25, extent_mm=400.0):
+    """The paper's (and desk's) texture as the camera sees it: a multiplicative gain (H, W),
+    1 + amplitude * a field of unit sd on the target plane, its fibres (a noise smoothed over
+    0.5 mm) and its mottle (over 4 mm) in equal parts, sampled where each pixel's ray meets
+    the plane (on a grid of 8 px, interpolated)."""
+    import cv2
+
+    n = int(extent_mm / cell_mm)
+    fib = cv2.GaussianBlur(rng.standard_normal((n, n)).astype(np.float32), (0, 0), 0.5 / cell_mm)
+    mot = cv2.GaussianBlur(rng.standard_normal((n, n)).astype(np.float32), (0, 0), 4.0 / cell_mm)
+    field = fib / fib.std() + mot / mot.std()
+    field /= field.std()
+    H, W = camera.height, camera.width
+    gy, gx = np.mgrid[0:H + 8:8, 0:W + 8:8].astype(float)
+    rays = camera.rays_from_pixels(np.stack([gx, gy], -1).reshape(-1, 2))
+    R = np.asarray(R_cam_from_target, float)
+    t = np.asarray(t_cam_from_target, float).reshape(3)
+    rt = rays @ R  # the rays in the target frame, from the camera at -R^T t
+    C = -R.T @ t
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = -C[2] / rt[:, 2]
+    s = np.where(np.isfinite(s) & (s > 0), s, 1e9)  # beyond the plane's horizon: far away on it
+    P = C[None, :2] + s[:, None] * rt[:, :2]
+    P = np.clip(np.where(np.isfinite(P), P, 1e5), -1e5, 1e5).reshape(gx.shape + (2,))  # rays the lens model lacks too
+    gxs = (np.arange(W) / 8.0).astype(np.float32)
+    gys = (np.arange(H) / 8.0).astype(np.float32)
+    mapx, mapy = np.meshgrid(gxs, gys)
+    mx = cv2.remap(P[..., 0].astype(np.float32), mapx, mapy, cv2.INTER_LINEAR)
+    my = cv2.remap(P[..., 1].astype(np.float32), mapx, mapy, cv2.INTER_LINEAR)
+    g = cv2.remap(field, np.clip(mx / cell_mm + n / 2, -1, n).astype(np.float32),
+                  np.clip(my / cell_mm + n / 2, -1, n).astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    return 1.0 + float(amplitude) * g.astype(np.float64)
