@@ -600,20 +600,25 @@ UNCONFIRMED_SPOKES = 0.5
 def _unconfirmed_labelling(pencil, spokes, resolved_by, circle_points, circ):
     """Raise EstimationError where a labelling nothing confirms may be wrong: the twin left
     open, circle points given (at least `circle.MIN_POINTS`) that fit no circle about the
-    fitted plane, and under `UNCONFIRMED_SPOKES` of the pencil's spokes (spokes: (K,) the spokes
-    of the lines the search labelled; lines the labelling grew to confirm nothing). A small, steeply tilted star's few edges labelled with the wrong spokes
-    fit their angles (chi2 within its dof), and only the rings, found about the right plane
-    and about no wrong one, show it. Example: 6 of 64 spokes, twin open, 40 circle points
-    and no circle -> "ambiguous labelling: ...".
+    fitted plane or one that chooses neither twin, and under `UNCONFIRMED_SPOKES` of the
+    pencil's spokes (spokes: (K,) the spokes of the lines the search labelled; lines the
+    labelling grew to confirm nothing). A small, steeply tilted star's few edges labelled
+    with the wrong spokes fit their angles (chi2 within its dof), and only the rings show
+    it: about a right labelling they choose its twin (circ: the circles' `CircleEstimate`
+    or None; chosen, resolved_by is "circle"). Example: 6 of 64 spokes, twin open, 40
+    circle points and no circle -> "ambiguous labelling: ...".
     """
     from pencilcal.toolkit.pencil.circle import MIN_POINTS
 
     n_pts = 0 if circle_points is None else np.asarray(circle_points, float).reshape(-1, 2).shape[0]
     n_spokes = int(np.unique(spokes).size)
-    if resolved_by is None and circ is None and n_pts >= MIN_POINTS and n_spokes < UNCONFIRMED_SPOKES * pencil.count:
+    # a circle that chooses neither twin confirms nothing either: a 64-wedge star's 8 edges
+    # labelled as 6 wrong spokes (the normal 72 deg off) had one about that plane
+    if resolved_by is None and n_pts >= MIN_POINTS and n_spokes < UNCONFIRMED_SPOKES * pencil.count:
+        what = "fit no circle about that plane" if circ is None else "fit a circle that chooses neither twin"
         raise EstimationError(
             f"ambiguous labelling: {n_spokes} of {pencil.count} spokes labelled, the twin open, and the "
-            f"{n_pts} circle points fit no circle about that plane: not a measurement")
+            f"{n_pts} circle points {what}: not a measurement")
 
 
 def _lines_own(fit, ln, a_used, th_used, s_used, h=1e-6):

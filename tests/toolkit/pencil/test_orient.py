@@ -288,3 +288,25 @@ def test_max_segments_keeps_the_longest(rng):
     assert np.degrees(closer(rec, R)) < 1e-6
     with pytest.raises(InputError, match="max_segments"):
         orient_segments(cam, seg, pen, max_segments=2)
+
+
+def test_a_circle_that_chooses_neither_twin_confirms_no_labelling():
+    """A labelling of under half a pencil's spokes, its twin open, is refused where the circle
+    points fit no circle about its plane (`orient._unconfirmed_labelling`), and also where
+    they fit one that chooses neither twin: about a right labelling the circles choose its
+    twin. A 64-wedge star's 8 short edges labelled as 6 wrong spokes (the normal 72 deg off)
+    had such a circle and were reported as ok."""
+    from pencilcal.toolkit.errors import EstimationError
+    from pencilcal.toolkit.pencil.circle import MIN_POINTS
+    from pencilcal.toolkit.pencil.orient import _unconfirmed_labelling
+    from pencilcal.toolkit.pencil.spec import pencil_from_dict
+
+    star = pencil_from_dict({"start_deg": 0, "step_deg": 5.625, "count": 64, "shape": "wedge", "radius": [12, 70]})
+    pts, few, many = np.zeros((MIN_POINTS + 30, 2)), np.arange(6), np.arange(40)
+    circle = object()  # a circle estimate that chose neither twin (resolved_by stays None)
+    for circ in (None, circle):
+        with pytest.raises(EstimationError, match="ambiguous labelling"):
+            _unconfirmed_labelling(star, few, None, pts, circ)
+        _unconfirmed_labelling(star, many, None, pts, circ)       # half the spokes or more: reported
+    _unconfirmed_labelling(star, few, "circle", pts, circle)      # the circles chose the twin
+    _unconfirmed_labelling(star, few, None, pts[:MIN_POINTS - 1], None)  # too few points to judge
