@@ -46,15 +46,14 @@ from pencilcal.toolkit.detect.working import to_working_points
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 
-__all__ = ["AxisPrior", "AXIS_GATE", "CHI2_1_MEDIAN", "WIDTH_RANGE", "line_chi2", "select_through", "as_priors", "fulcrum_prior",
-           "drift_variance", "prior_chi2", "EPOCH_ALPHA", "epoch_priors", "prior_record",
+__all__ = ["AxisPrior", "AXIS_GATE", "JACKKNIFE_GROUPS", "WIDTH_RANGE", "line_chi2", "select_through", "as_priors", "fulcrum_prior",
+           "prior_chi2", "EPOCH_ALPHA", "epoch_priors", "prior_record",
            "read_priors"]
 
 #: A midline passes through a prior when its chi-square (1 dof) is below this (0.999).
 AXIS_GATE = chi2_isf(0.001, 1)
-#: The median of chi-square with 1 degree of freedom: `drift_variance` brings the frames'
-#: lines' median chi-square about the point to it.
-CHI2_1_MEDIAN = 0.45493642311957283
+#: `fulcrum_prior`'s jackknife leaves out at most this many runs of frames in turn.
+JACKKNIFE_GROUPS = 32
 #: An epoch's own prior replaces the whole sequence's only where the two points differ at
 #: this significance (`prior_chi2`; the change-point test's own level, `pencil.epochs.ALPHA`).
 EPOCH_ALPHA = 0.01
@@ -265,69 +264,6 @@ def _point_fit(ideal, st, sc):
     return p.point, p.cov, v.inliers
 
 
-def _line_residuals(X, lines, angle_sigma, offset_sigma):
-    """(r (N,), var r (N,), l (N, 3)) of lines (N, 4) [ideal px] at the unit homogeneous point X
-    (3,): ``r = l . X`` with their noise's variance (`line_chi2`, the point exact)."""
-    a, b = lines[:, :2], lines[:, 2:]
-    c = 0.5 * (a + b)
-    d = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
-    n = np.stack([-d[:, 1], d[:, 0]], -1)
-    l = np.concatenate([n, -np.sum(n * c, 1, keepdims=True)], 1)
-    J0 = -np.sum(d * (X[:2] - X[2] * c), 1)
-    return l @ X, J0**2 * np.asarray(angle_sigma) ** 2 + X[2] ** 2 * np.asarray(offset_sigma) ** 2, l
-
-
-def _drift_cov(camera, X):
-    """(3, 3): the covariance of the unit point X ~ K r when its ray r turns by an isotropic
-    angle of variance 1 [rad^2] (`AxisPrior.from_ray`)."""
-    K = np.asarray(camera.K, float)
-    r = np.linalg.solve(K, X)
-    r = r / np.linalg.norm(r)
-    return AxisPrior.from_ray(K, r, np.eye(3) - np.outer(r, r)).cov
-
-
-def drift_variance(camera, X, C, lines, angle_sigma, offset_sigma):
-    """The variance [rad^2] of the fulcrum's ray from frame to frame that the lines (N, 4)
-    [ideal px] with their sds (angle [rad], offset at the centre [px]) show about the unit
-    point X (3,) with covariance C (3, 3): the least s >= 0 at which the median of their
-    chi-squares ``r^2 / (var r + l^T (C + s D) l)`` (`_line_residuals`, D `_drift_cov`) is
-    chi-square(1)'s (`CHI2_1_MEDIAN`); 0 where it already is below. A median, not a
-    mean or a jackknife: up to half the lines may be another band or a misdetection, and a
-    line moved a little moves it a little.
-
-    >>> import numpy as np
-    >>> from pencilcal.toolkit.camera.model import Camera
-    >>> cam = Camera("pinhole", 960, 540, [[800.0, 0, 480], [0, 800.0, 270], [0, 0, 1]])
-    >>> X = np.array([480.0, -400.0, 1.0]); X /= np.linalg.norm(X)
-    >>> ang = np.radians(np.linspace(60, 120, 9))
-    >>> seg = np.stack([480 + 400 * np.cos(ang), -400 + 400 * np.sin(ang), 480 + 800 * np.cos(ang),
-    ...                 -400 + 800 * np.sin(ang)], 1)
-    >>> float(drift_variance(cam, X, np.zeros((3, 3)), seg, np.full(9, 0.005), np.full(9, 1.0)))  # through X
-    0.0
-    """
-    r, v, l = _line_residuals(X, np.asarray(lines, float), angle_sigma, offset_sigma)
-    v = v + np.einsum("ni,ij,nj->n", l, C, l)
-    g = np.einsum("ni,ij,nj->n", l, _drift_cov(camera, X), l)
-
-    def med(s):
-        return float(np.median(r * r / np.maximum(v + s * g, 1e-300)))
-
-    if r.size == 0 or med(0.0) <= CHI2_1_MEDIAN:
-        return 0.0
-    hi = float(np.median(r * r / np.maximum(g, 1e-300)))  # s at which the drift alone explains the median
-    for _ in range(60):
-        if med(hi) <= CHI2_1_MEDIAN:
-            break
-        hi *= 4.0
-    else:
-        return 0.0  # the lines' spread is not along any turn of the ray
-    lo = 0.0
-    for _ in range(60):  # bisection: the median is continuous and decreasing in s
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if med(mid) > CHI2_1_MEDIAN else (lo, mid)
-    return hi
-
-
 def fulcrum_prior(camera, frames, endpoint_sigma_px=None):
     """The `AxisPrior` of a still camera's frames (one pivot epoch) from their instrument
     lines (lines.json frame dicts, the lines `pencil.fulcrum` fits: shaft midlines where
@@ -336,12 +272,11 @@ def fulcrum_prior(camera, frames, endpoint_sigma_px=None):
     The point is the robust common point (`pencil.vertex.intersect_lines`, allowed as far
     as infinity) of the lines that do not repeat from frame to frame (`pencil.epochs.
     distinct_lines`: a band of tissue detected in every frame would pull it onto itself),
-    its covariance the fit's, scaled by the
-    residuals' chi2 / dof when above 1, plus the frames' own spread about it: the
-    fulcrum's ray turning from frame to frame by an isotropic angle of variance
-    `drift_variance` (a camera that drifted: the prior must hold the frames' spread, or it
-    rejects the instrument it is for), estimated from the median of the lines' chi-squares,
-    so that no one frame or run of frames decides it. widths: the inlier shafts' widths (undistorted px, as
+    its covariance the larger (by trace) of the fit's, scaled by the
+    residuals' chi2 / dof when above 1, and the jackknife's leaving out one frame (one run
+    of consecutive frames, `JACKKNIFE_GROUPS` runs at most) at a time (a camera that
+    drifted, a misdetected frame: the prior must hold the frames' spread, or it rejects
+    the instrument it is for). widths: the inlier shafts' widths (undistorted px, as
     detected; their 20th to 80th percentile from five on) when the lines are shafts.
     """
     from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
@@ -358,8 +293,24 @@ def fulcrum_prior(camera, frames, endpoint_sigma_px=None):
     if fit is None:
         return None
     X, C, inl = fit
-    C = C + drift_variance(camera, X, C, sl.ideal[idx], sl.angle_sigma[idx], sl.offset_sigma[idx]) * \
-        _drift_cov(camera, X)
+    owners = np.array([sl.owner[k][0] for k in idx])
+    # delete-a-group jackknife over at most JACKKNIFE_GROUPS runs of consecutive frames
+    frames_used = np.unique(owners)
+    groups = np.array_split(frames_used, min(frames_used.size, JACKKNIFE_GROUPS))
+    loo = []
+    for g in groups:
+        keep = ~np.isin(owners, g)
+        if keep.sum() >= 3:
+            f = _point_fit(sl.ideal[idx[keep]], sl.angle_sigma[idx[keep]], sl.offset_sigma[idx[keep]])
+            if f is not None:
+                loo.append(f[0] if f[0] @ X >= 0 else -f[0])
+    if len(loo) >= 3:
+        Y = np.asarray(loo)
+        n = Y.shape[0]
+        D = Y - Y.mean(0)
+        J = (n - 1) / n * D.T @ D
+        if np.trace(J) > np.trace(C):
+            C = J
     widths = None
     if sl.lines_from == "shafts":
         w = [float(frames[sl.owner[k][0]]["shafts"][sl.owner[k][1]].get("width_px", np.nan)) for k in idx[inl]]
@@ -390,18 +341,20 @@ def epoch_priors(camera, frames, bounds, endpoint_sigma_px=None):
     (bounds [(start, stop)], `pencil.epochs.frame_epochs`): each frame its epoch's prior
     (`fulcrum_prior` of the epoch's frames); a frame without a shaft after its epoch's last
     one, where the fulcrum may already have moved (a change is placed at the first frame
-    with a line after it), also the next epoch's; and last the whole sequence's, where the
-    sequence has more than one epoch (tried in turn, `shaft.detector.detect_through`: a
-    frame after a large move of the camera lies off its epoch's point, whose lines agree
-    without it, but within the whole sequence's spread); [None] where there is none.
+    with a line after it), also the next epoch's; and, where the sequence has more than one
+    epoch, the whole sequence's first (tried in turn, `shaft.detector.detect_through`); [None]
+    where there is none.
 
-    An epoch keeps its own prior only where its point differs from the whole sequence's
-    (`fulcrum_prior` of all the frames) at `EPOCH_ALPHA` (`prior_chi2`, chi-square of 2
-    dof): the change-point test splits where two points fit the lines better than one,
-    which a camera drifting in every frame also makes true, and an epoch's prior from fewer
-    lines, its spread from fewer frames, then leaves out the frames at its ends that the
-    whole sequence's holds. An epoch without a prior of its own (fewer than three lines, no
-    common point) takes the whole sequence's, not none."""
+    The whole sequence's prior (`fulcrum_prior` of all the frames) comes first: the
+    change-point test splits where two points fit the lines better than one, which a camera
+    drifting in every frame also makes true, and an epoch's prior, from fewer lines and its
+    spread from fewer frames, then leaves out the frames at its ends (after a large move of
+    the camera) that the whole sequence's spread holds, and passes a band beside the shaft
+    there. An epoch's own prior is tried where the whole sequence's finds nothing (a fulcrum
+    that really moved: its frames lie off the whole sequence's point), and only where its
+    point differs from the whole sequence's at `EPOCH_ALPHA` (`prior_chi2`, chi-square of 2
+    dof); an epoch without a prior of its own (fewer than three lines, no common point)
+    takes the whole sequence's, not none."""
     priors = [fulcrum_prior(camera, frames[a:b], endpoint_sigma_px) for a, b in bounds]
     whole = None
     if len(bounds) > 1:
@@ -413,7 +366,7 @@ def epoch_priors(camera, frames, bounds, endpoint_sigma_px=None):
         with_shaft = [k for k in range(a, b) if frames[k].get("shafts")]
         last = with_shaft[-1] if with_shaft else a - 1
         for k in range(a, b):
-            alts = [priors[e]] + ([priors[e + 1]] if k > last and e + 1 < len(priors) else []) + [whole]
+            alts = [whole, priors[e]] + ([priors[e + 1]] if k > last and e + 1 < len(priors) else [])
             alts = [p for i, p in enumerate(alts) if p is not None and all(p is not q for q in alts[:i])]
             out[frames[k]["image"]] = alts or [None]
     return out
