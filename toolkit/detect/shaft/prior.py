@@ -47,13 +47,16 @@ from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 
 __all__ = ["AxisPrior", "AXIS_GATE", "JACKKNIFE_GROUPS", "WIDTH_RANGE", "line_chi2", "select_through", "as_priors", "fulcrum_prior",
-           "epoch_priors", "prior_record",
+           "prior_chi2", "EPOCH_ALPHA", "epoch_priors", "prior_record",
            "read_priors"]
 
 #: A midline passes through a prior when its chi-square (1 dof) is below this (0.999).
 AXIS_GATE = chi2_isf(0.001, 1)
 #: `fulcrum_prior`'s jackknife leaves out at most this many runs of frames in turn.
 JACKKNIFE_GROUPS = 32
+#: An epoch's own prior replaces the whole sequence's only where the two points differ at
+#: this significance (`prior_chi2`; the change-point test's own level, `pencil.epochs.ALPHA`).
+EPOCH_ALPHA = 0.01
 #: A shaft through a prior that knows the instrument's widths (lo, hi) is WIDTH_RANGE[0] lo
 #: to WIDTH_RANGE[1] hi wide (its distance changes as it pivots; the angle search looks
 #: for 0.8 lo to 1.25 hi).
@@ -200,10 +203,53 @@ def select_through(shafts, priors, gate=AXIS_GATE):
     return out
 
 
+def _direction_fit(ideal, st):
+    """(unit point at infinity (3,), its covariance (3, 3), inliers (N,)) of lines (N, 4)
+    [ideal px] with angle sds st (N,) [rad], or None (fewer than three agree): their robust
+    common direction. Each line's direction is a hypothesis, scored by the MSAC cost of the
+    lines' normalised angle residuals (truncated at `AXIS_GATE`, the point fit's inlier
+    level too); the best one's inliers refitted by their weighted mean doubled angle until
+    they stay the same. Its variance [rad^2] is 1 / sum(1 / st^2) over the inliers, times
+    their chi2 / dof when above 1, along the direction's turn (the unit point's tangent).
+
+    >>> import numpy as np
+    >>> seg = np.array([[0, y, 100, y + 0.01 * y] for y in (0.0, 50.0, 90.0, 120.0)] + [[0, 0, 50, 50.0]])
+    >>> X, C, inl = _direction_fit(seg, np.full(5, 0.01))
+    >>> np.round(X, 3).tolist(), inl.tolist()
+    ([1.0, 0.006, 0.0], [True, True, True, True, False])
+    """
+    ideal = np.asarray(ideal, float)
+    phi = np.arctan2(ideal[:, 3] - ideal[:, 1], ideal[:, 2] - ideal[:, 0])
+    st = np.broadcast_to(np.asarray(st, float), phi.shape)
+    w = 1.0 / st**2
+
+    def wrap(a):  # line directions differ modulo pi
+        return np.angle(np.exp(2j * a)) / 2
+
+    E = (wrap(phi[None, :] - phi[:, None]) / st[None, :]) ** 2
+    mask = E[int(np.argmin(np.minimum(E, AXIS_GATE).sum(1)))] < AXIS_GATE
+    for _ in range(20):
+        u = 0.5 * np.angle(np.sum(w[mask] * np.exp(2j * phi[mask])))
+        e2 = (wrap(phi - u) / st) ** 2
+        new = e2 < AXIS_GATE
+        if np.array_equal(new, mask) or new.sum() < 3:
+            break
+        mask = new
+    if mask.sum() < 3:
+        return None
+    dof = int(mask.sum()) - 1
+    var = max(1.0, float(np.sum(e2[mask])) / dof) / float(np.sum(w[mask]))
+    t = np.array([-np.sin(u), np.cos(u), 0.0])
+    return np.array([np.cos(u), np.sin(u), 0.0]), var * np.outer(t, t), mask
+
+
 def _point_fit(ideal, st, sc):
     """(unit homogeneous point (3,), its covariance (3, 3), inliers (N,)) of the robust
     common point of lines (N, 4) [ideal px] with their noise model (`pencil.vertex`), the
-    covariance scaled by the residuals' chi2 / dof when above 1; None without one."""
+    covariance scaled by the residuals' chi2 / dof when above 1; where the lines meet at
+    infinity (a point at infinity fits them as well as any finite one, or they are
+    parallel: `intersect_lines` refuses), their common direction (`_direction_fit`); None
+    without either."""
     from pencilcal.toolkit.errors import EstimationError
     from pencilcal.toolkit.pencil.vertex import intersect_lines
 
@@ -211,7 +257,7 @@ def _point_fit(ideal, st, sc):
         v = intersect_lines(ideal, angle_sigma=st, offset_sigma=sc, robust=True, infinity_confidence=1e-12,
                             max_condition=np.inf)
     except EstimationError:
-        return None
+        return _direction_fit(ideal, st)
     dof = v.lines_used - 2
     scale = max(1.0, v.chi2 / dof) if dof > 0 else 1.0
     p = AxisPrior.from_point(v.vertex, v.cov * scale)
@@ -276,21 +322,53 @@ def fulcrum_prior(camera, frames, endpoint_sigma_px=None):
     return AxisPrior(X, C, widths)
 
 
+def prior_chi2(p, q):
+    """The chi-square (2 dof) of two priors' points differing, against the sum of their
+    covariances, in the tangent plane of the unit sphere at q's point (the sign of p's
+    point taken to agree with q's: a homogeneous point and its negative are one)."""
+    X, Y = p.point if p.point @ q.point >= 0 else -p.point, q.point
+    T = np.linalg.svd((np.eye(3) - np.outer(Y, Y)))[0][:, :2]
+    d = T.T @ (X - Y)
+    S = T.T @ (p.cov + q.cov) @ T
+    try:
+        return float(d @ np.linalg.solve(S, d))
+    except np.linalg.LinAlgError:
+        return np.inf
+
+
 def epoch_priors(camera, frames, bounds, endpoint_sigma_px=None):
     """{image name: [priors to try in turn]} for lines.json `frames` split into pivot epochs
     (bounds [(start, stop)], `pencil.epochs.frame_epochs`): each frame its epoch's prior
-    (`fulcrum_prior` of the epoch's frames; [None] where it has none); a frame without a
-    shaft after its epoch's last one, where the fulcrum may already have moved (a change is
-    placed at the first frame with a line after it), also the next epoch's
-    (`shaft.detector.detect_through`)."""
+    (`fulcrum_prior` of the epoch's frames); a frame without a shaft after its epoch's last
+    one, where the fulcrum may already have moved (a change is placed at the first frame
+    with a line after it), also the next epoch's; and, where the sequence has more than one
+    epoch, the whole sequence's first (tried in turn, `shaft.detector.detect_through`); [None]
+    where there is none.
+
+    The whole sequence's prior (`fulcrum_prior` of all the frames) comes first: the
+    change-point test splits where two points fit the lines better than one, which a camera
+    drifting in every frame also makes true, and an epoch's prior, from fewer lines and its
+    spread from fewer frames, then leaves out the frames at its ends (after a large move of
+    the camera) that the whole sequence's spread holds, and passes a band beside the shaft
+    there. An epoch's own prior is tried where the whole sequence's finds nothing (a fulcrum
+    that really moved: its frames lie off the whole sequence's point), and only where its
+    point differs from the whole sequence's at `EPOCH_ALPHA` (`prior_chi2`, chi-square of 2
+    dof); an epoch without a prior of its own (fewer than three lines, no common point)
+    takes the whole sequence's, not none."""
     priors = [fulcrum_prior(camera, frames[a:b], endpoint_sigma_px) for a, b in bounds]
+    whole = None
+    if len(bounds) > 1:
+        whole = fulcrum_prior(camera, frames, endpoint_sigma_px)
+        if whole is not None:
+            priors = [whole if p is None or prior_chi2(p, whole) < chi2_isf(EPOCH_ALPHA, 2) else p for p in priors]
     out = {}
     for e, (a, b) in enumerate(bounds):
         with_shaft = [k for k in range(a, b) if frames[k].get("shafts")]
         last = with_shaft[-1] if with_shaft else a - 1
         for k in range(a, b):
-            alts = [priors[e]] + ([priors[e + 1]] if k > last and e + 1 < len(priors) else [])
-            out[frames[k]["image"]] = [p for p in alts if p is not None] or [None]
+            alts = [whole, priors[e]] + ([priors[e + 1]] if k > last and e + 1 < len(priors) else [])
+            alts = [p for i, p in enumerate(alts) if p is not None and all(p is not q for q in alts[:i])]
+            out[frames[k]["image"]] = alts or [None]
     return out
 
 

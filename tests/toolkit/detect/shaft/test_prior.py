@@ -176,10 +176,12 @@ def test_rendered_pivots_epochs_and_the_prior():
     (`pencil.epochs.frame_epochs`) and their priors (`shaft.prior.epoch_priors`), then every
     frame through its prior. Measured: without the prior 120 of 120 shafts found, 4 false
     (87 before an edge the fixed corridor misses was searched again in a wider one,
-    `shaft.material_cue._band_edges`); with the prior 116 of 120 (97 %), none false (120
-    before; with every frame's line in, seed 2's first epoch ends at frame 9 and seed 3's
-    second at 17, 1 and 3 frames off the camera's moves, and those seeds lose 1 and 3 frames
-    through the prior: not traced frame by frame). The epochs, from the first detection and
+    `shaft.material_cue._band_edges`); with the prior 119 of 120, none false, every frame
+    searched through the whole sequence's prior first and its epoch's where that finds
+    nothing (seed 2 loses one; 116, none false, through each frame's epoch's prior alone,
+    seeds 2 and 3 losing 2 frames each; 120 before the wider corridor; with every frame's line in, seed 2's first
+    epoch ended at frame 9 and seed 3's second at 17, 1 and 3 frames off the camera's
+    moves, and those seeds lost 1 and 3 frames through the prior). The epochs, from the first detection and
     from the shafts found through the prior: as many as the camera's, each change within 5
     frames of its move in all four (exact in 2 and 3 of 4: where the frames' lines run along
     the fulcrum's move, they pass near either point, and the change may fall anywhere among
@@ -214,3 +216,69 @@ def test_rendered_pivots_epochs_and_the_prior():
     assert false <= 0.05 * total
     assert found0 >= 0.95 * total
     assert close >= 7
+
+
+def _parallel_frames(rng, n, angle_deg=30.0, at=(480.0, 270.0)):
+    """n frames of a shaft sliding across the view at one angle (its sd 0.3 deg, as the
+    lines' `_lines_frames` state): lines that meet at no finite point better than at
+    infinity."""
+    per = []
+    for k in range(n):
+        a = np.radians(angle_deg + 0.3 * rng.standard_normal())
+        d = np.array([np.cos(a), np.sin(a)])
+        c = np.asarray(at) + np.array([-d[1], d[0]]) * (30.0 * k - 15.0 * n)
+        per.append([np.r_[c - 250 * d, c + 250 * d]])
+    return per
+
+
+def test_fulcrum_prior_at_infinity():
+    """Lines that a point at infinity fits better than the robust finite fit (a shaft sliding
+    across the view at one angle) give a prior at infinity, their common direction, not None:
+    the next frame's line along that direction passes its gate, one 10 deg off does not."""
+    rng = np.random.default_rng(0)
+    cam = Camera("pinhole", 960, 540, [[800.0, 0, 480], [0, 800.0, 270], [0, 0, 1]])
+    per = _parallel_frames(rng, 6)
+    p = fulcrum_prior(cam, _lines_frames(per))
+    assert p is not None and abs(p.point[2]) < 1e-12
+    u = np.degrees(np.arctan2(p.point[1], p.point[0])) % 180.0
+    assert abs(u - 30.0) < 1.5
+    cov = np.diag([np.radians(0.3) ** 2, 1.0])
+    assert line_chi2(p, _line_through([480.0, 270.0], np.radians(30.5)), [480.0, 270.0], cov) < AXIS_GATE
+    assert line_chi2(p, _line_through([480.0, 270.0], np.radians(40.0)), [480.0, 270.0], cov) > AXIS_GATE
+
+
+def test_every_epoch_gets_a_prior():
+    """Two epochs: a shaft pivoting about (-400, 200), then one that fixes no finite point
+    (it slides across the view: its prior is at infinity), each frame searched through the
+    whole sequence's prior, then its epoch's; and an epoch with too few lines for a point of
+    its own (two frames with a shaft): it searches through the sequence's prior, not
+    without any."""
+    rng = np.random.default_rng(2)
+    cam = Camera("pinhole", 960, 540, [[800.0, 0, 480], [0, 800.0, 270], [0, 0, 1]])
+    v = np.array([-400.0, 200.0])
+    a = np.radians(-10 + 3 * np.arange(8) + 0.3 * rng.standard_normal(8))
+    d = np.stack([np.cos(a), np.sin(a)], -1)
+    pivot = [[seg] for seg in np.concatenate([v + 800 * d, v + 1300 * d], -1)]
+    frames = _lines_frames(pivot + _parallel_frames(np.random.default_rng(0), 6))
+    pri = epoch_priors(cam, frames, [(0, 8), (8, 14)])
+    assert all(len(pri[f["image"]]) >= 1 and pri[f["image"]][0] is not None for f in frames)
+    assert any(abs(p.point[2]) > 1e-6 for p in pri[frames[0]["image"]])
+    assert any(abs(p.point[2]) < 1e-12 for p in pri[frames[-1]["image"]])
+    few = _lines_frames(pivot + [[] for _ in range(4)] + [pivot[2], pivot[5]])
+    pri = epoch_priors(cam, few, [(0, 8), (8, 14)])
+    whole = fulcrum_prior(cam, few)
+    last = pri[few[-1]["image"]]
+    assert whole is not None and len(last) == 1 and last[0] is not None
+    assert np.allclose(last[0].point, whole.point) and np.allclose(last[0].cov, whole.cov)
+
+
+def test_prior_chi2():
+    """Two priors' points differ by their chi-square (2 dof): 0 for one point (and for its
+    negative, the same homogeneous point), about (d / sigma)^2 for a finite point moved d."""
+    from pencilcal.toolkit.detect.shaft.prior import prior_chi2
+
+    p = AxisPrior.from_point([300.0, -800.0], np.diag([100.0, 400.0]))
+    assert prior_chi2(p, p) < 1e-9
+    assert prior_chi2(AxisPrior(-p.point, p.cov), p) < 1e-9
+    q = AxisPrior.from_point([300.0 + 5 * np.sqrt(200.0), -800.0], np.diag([100.0, 400.0]))
+    assert abs(prior_chi2(q, p) - 25.0) < 0.5
