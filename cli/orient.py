@@ -38,6 +38,8 @@ def _orient_record(camera, pencil, fr, opts):
               image=fr["image"], offset_sigma=fr.get("offset_sigma_px"), max_segments=cap,
               bar_width_px=fr.get("width_px"), circle_points=fr.get("circle_points"), ideal=fr.get("ideal"),
               keep_lines=opts.get("keep_lines", False))
+    if fr.get("angle_sigma_error_deg") is not None and sig is not None:  # (the covariance's: a star's edges)
+        kw["angle_sigma_error"] = np.radians(np.asarray(fr["angle_sigma_error_deg"], float))
     state = opts.get("tracking")
     if state is None:
         return orient_segments(camera, fr["segments"], pencil, **kw)

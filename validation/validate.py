@@ -86,7 +86,8 @@ class FanLines:
         return {"segments": found.segments, "angle_sigma": found.angle_sigma, "offset_sigma": found.offset_sigma,
                 "labels": None, "vertex_px": None, "vertex_cov_px2": None, "pencil": self.pencil,
                 "width_px": found.width_px if bars and radial is None else None,
-                "circle_points": getattr(found, "circle_points", None)}
+                "circle_points": getattr(found, "circle_points", None),
+                "angle_sigma_error": getattr(found, "angle_sigma_error", None)}
 
 
 class GridLines:
@@ -301,7 +302,8 @@ def _process(frame, camera, board, lines_source, models, methods, truth, keep_pi
                 vertex_px=src["vertex_px"], vertex_cov_px2=src["vertex_cov_px2"], labels=src["labels"],
                 image=frame.name, keep_lines=(m == "exact"), offset_sigma=src.get("offset_sigma"),
                 spoke_radii=src.get("radii"), endpoint_sigma_px=src.get("corner_sigma_px") or ENDPOINT_SIGMA_PX,
-                bar_width_px=src.get("width_px"), circle_points=src.get("circle_points"))
+                bar_width_px=src.get("width_px"), circle_points=src.get("circle_points"),
+                angle_sigma_error=src.get("angle_sigma_error"))
         rec["orient"] = {m: o.to_dict() for m, o in orients.items()}
         if keep_pixels:
             rec["segments"] = src["segments"]

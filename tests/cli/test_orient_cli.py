@@ -181,3 +181,22 @@ def test_the_noise_is_estimated_from_the_sequence(tmp_path, rng):
     assert given["noise"] == {"estimated": False, "endpoint_sigma_px": 0.5, "angle_sigma_deg": None}
     a, b = out["frames"][0], given["frames"][0]
     assert a["tilt_sigma_deg"] == pytest.approx(b["tilt_sigma_deg"] * out["noise"]["sigma_scale"], rel=0.2)
+
+
+def test_a_lines_records_error_sds_widen_the_sigmas_only(scene):
+    """A lines record's `angle_sigma_error_deg` (a star's edges: docs/formats.md) is the
+    covariance's: the orientation is the same as without it, bit for bit, its sigma wider."""
+    d, _ = scene
+    frames = json.loads((d / "lines.json").read_text())["frames"][:1]
+    n = len(frames[0]["segments"])
+    frames[0]["angle_sigma_deg"] = [0.05] * n
+    wide = dict(frames[0], angle_sigma_error_deg=[0.05, 0.4] * (n // 2) + [0.05] * (n % 2))
+    out = {}
+    for name, fr in (("plain", frames[0]), ("wide", wide)):
+        (d / f"{name}.json").write_text(json.dumps({"frames": [fr]}))
+        r = invoke("orient", "--lines", d / f"{name}.json", "--camera", d / "camera.yaml", "--pencil",
+                   d / "pencil.yaml", "-o", d / f"o_{name}.json", "--quiet")
+        assert r.exit_code == 0, r.output
+        out[name] = json.loads((d / f"o_{name}.json").read_text())["frames"][0]
+    assert out["wide"]["normal"] == out["plain"]["normal"] and out["wide"]["spokes"] == out["plain"]["spokes"]
+    assert out["wide"]["normal_sigma_deg"] > 1.2 * out["plain"]["normal_sigma_deg"]

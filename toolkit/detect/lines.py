@@ -209,8 +209,19 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
         shafts=shaft_records(image, camera, valid_region, gamma, instrument_mask, tracker=shaft_tracker,
                              axis_prior=axis_prior, edge_model=edge_model, parts=parts) if shaft else None,
         circle_points=circle_points,
-        extra={"ideal": segs.ideal} if ideal and camera is not None else {},
+        extra=_radial_extra(segs, ideal and camera is not None),
     )
+
+
+def _radial_extra(segs, ideal):
+    """The lines record's extra keys of `segs`: ``ideal`` (M, 4) where asked for, and a star's
+    edges' ``angle_sigma_error_deg`` (M,) where wider than their ``angle_sigma_deg``
+    (`radial.RadialEdges`' angle_sigma_error: the orientation's covariance takes them)."""
+    out = {"ideal": segs.ideal} if ideal else {}
+    err = getattr(segs, "angle_sigma_error", None)
+    if err is not None and np.any(err > segs.angle_sigma):
+        out["angle_sigma_error_deg"] = np.degrees(err)
+    return out
 
 
 def shaft_records(image, camera=None, valid_region=None, gamma=DEFAULT_GAMMA, instrument_mask=None, tracker=None,

@@ -119,6 +119,10 @@ PREDICTED_ROUNDS = 3
 #: half the angle to its nearest neighbour about the vertex (`_usable`; the project's test
 #: level, not tuned).
 SEPARATION_SIGMAS = 3.0
+#: The share of the frame's common offset (`_common_offset`) taken as each star edge's turn
+#: about its middle (`_turned_sigma`): its variance half turn, half shift (the root of 1/2;
+#: not tuned).
+TURN_SHARE = float(np.sqrt(0.5))
 _GATE_ROUNDS = 5  # the through-vertex gate's rounds of its shared offset (`_through_vertex`)
 
 
@@ -131,15 +135,19 @@ class RadialEdges(Segments):
     point they were found about (the orientation intersects them again, with their own
     sigmas); ``circle_points`` (K, 2)
     [raw px]: edge points across rays between the spokes that run on from ray to ray, the
-    candidates for the images of circles centred on the vertex.
+    candidates for the images of circles centred on the vertex; ``angle_sigma_error`` (M,)
+    [rad]: each edge's angle sd with the error its stations' scatter does not show (a star's
+    edges: `_turned_sigma`; else ``angle_sigma``), for the orientation's covariance only.
     """
 
     vertex: np.ndarray
     circle_points: np.ndarray
+    angle_sigma_error: np.ndarray
 
     @classmethod
     def empty(cls, **extra):
-        return super().empty(vertex=np.full(2, np.nan), circle_points=np.zeros((0, 2)), **extra)
+        return super().empty(vertex=np.full(2, np.nan), circle_points=np.zeros((0, 2)),
+                             angle_sigma_error=np.zeros(0), **extra)
 
 
 def detect_radial_edges(image, camera=None, *, edges=None, valid_region=None, min_length=20.0, circles=True,
@@ -311,9 +319,40 @@ def _finished(camera, outer, min_length, circles, img, lin, fit, v, reach, phi, 
     out = Segments.from_fit(fit, camera, shortest)
     out = out.select(in_valid_region(img, out.segments))
     out = out.select(_through_vertex(out, v))
-    out = replace(out, offset_sigma=np.hypot(out.offset_sigma, max(OFFSET_FLOOR_PX, _common_offset(out, v))))
+    common = _common_offset(out, v)
+    out = replace(out, offset_sigma=np.hypot(out.offset_sigma, max(OFFSET_FLOOR_PX, common)))
+    # a star's edges: what they share beyond their sigmas turns them about the vertex, which
+    # their stations' scatter does not show; for the covariance only (`_turned_sigma`)
+    err = _turned_sigma(out, v, common) if joint == "all" else out.angle_sigma
     pts = circle_points(lin, camera, v, out.ideal, reach, 1.0) if circles else np.zeros((0, 2))
-    return RadialEdges(**{f: getattr(out, f) for f in out.__dataclass_fields__}, vertex=v, circle_points=pts)
+    return RadialEdges(**{f: getattr(out, f) for f in out.__dataclass_fields__}, vertex=v, circle_points=pts,
+                       angle_sigma_error=err)
+
+
+def _turned_sigma(segs, v, common):
+    """(M,) [rad] the angle sds of a star's edges `segs` (`Segments`) with the turn their
+    common offset common [px] shows (`_common_offset`: how far the edges pass from their
+    vertex v (2,) [working px] beyond their sigmas): `TURN_SHARE` of it taken as each edge's
+    miss at the vertex from a turn about its middle, over its lever (the middle's distance
+    from the vertex [px]), added in quadrature. An edge turned by d misses the vertex by d
+    times its lever; on a small star (under 30 % of the frame's height) the edges miss it
+    by 0.1-0.9 px beyond their sigmas, turned by their blurred neighbours alike along
+    neighbouring edges, an error their stations' scatter does not show. The labelling and
+    the fit keep the stations' sds (seen by the labelling, these wider ones lost frames'
+    labels): the orientation's covariance takes these (`orient_segments`'
+    ``angle_sigma_error``).
+
+    >>> from pencilcal.toolkit.detect.segments import Segments
+    >>> ideal = np.array([[10.0, 0, 30, 0], [0, 100, 0, 300]])                  # levers 20 and 200 px
+    >>> z = np.zeros(2)
+    >>> segs = Segments(segments=ideal, ideal=ideal, angle_sigma=z + 1e-3, offset_sigma=z + 0.1, length=z + 20,
+    ...                 contrast=z + 50, residual_px=z, stations=z.astype(int) + 10)
+    >>> (_turned_sigma(segs, np.zeros(2), 0.2 * np.sqrt(2)) * 1e3).round(3).tolist()   # hypot(1e-3, 0.2 / lever)
+    [10.05, 1.414]
+    """
+    mid = 0.5 * (segs.ideal[:, :2] + segs.ideal[:, 2:])
+    lever = np.maximum(np.hypot(*(mid - v).T), 1.0)
+    return np.hypot(segs.angle_sigma, TURN_SHARE * common / lever)
 
 
 def _usable(p1, p2, ok, angle_sigma, v, min_length):
@@ -353,7 +392,8 @@ def orient_radial_edges(image, camera, pencil, **detect):
 
     def oriented(found):
         return orient_segments(camera, found.segments, pencil, angle_sigma=found.angle_sigma,
-                               offset_sigma=found.offset_sigma, circle_points=found.circle_points, keep_lines=True)
+                               offset_sigma=found.offset_sigma, circle_points=found.circle_points, keep_lines=True,
+                               angle_sigma_error=found.angle_sigma_error)
 
     memo = {}  # the second pass reuses the first's located edges
     return trimmed_at_spokes_end(lambda outer, predicted=None: detect_radial_edges(image, camera, **detect, outer=outer,

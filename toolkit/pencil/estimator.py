@@ -406,14 +406,19 @@ def refine_pencil(R0, line_angles, spoke_angles, vertex, weights, max_iter=30, t
 # uncertainty
 
 
-def _covariance(R, x, J, Jx, w, vertex_cov):
-    """Covariance, tilt sigma and normal sigma from the Jacobians at R (see pencil_covariance)."""
+def _covariance(R, x, J, Jx, w, vertex_cov, w_error=None):
+    """Covariance, tilt sigma and normal sigma from the Jacobians at R (see pencil_covariance;
+    w_error: the inverse variances of the angles' errors where not the weights w)."""
     JT = np.swapaxes(J, -1, -2)
     H = JT @ (J * w[..., None])
     # At zero tilt the tilt directions are unobservable to first order: a tiny ridge keeps
     # the inverse finite (and huge) instead of singular.
     ridge = (1e-14 * np.trace(H, axis1=-2, axis2=-1))[..., None, None] * np.eye(3)
     Hinv = np.linalg.inv(H + ridge)
+    if w_error is not None:
+        # the fit weighted by w, its angles' errors of variance 1 / w_error: the solution
+        # moves by H^-1 J^T W r, whose covariance is H^-1 J^T W C W J H^-1 (H^-1 where C = W^-1)
+        Hinv = Hinv @ (JT @ (J * (w * w / w_error)[..., None])) @ Hinv
     n = R[..., :, 2]
     nv = np.sqrt(1.0 + x[..., 0] ** 2 + x[..., 1] ** 2)
     v = np.concatenate([x, np.ones(x.shape[:-1] + (1,))], -1) / nv[..., None]
@@ -443,13 +448,18 @@ def _covariance(R, x, J, Jx, w, vertex_cov):
     return cov, np.sqrt(np.maximum(var_tilt, 0.0)), np.sqrt(np.maximum(var_normal, 0.0))
 
 
-def pencil_covariance(R_cam_from_target, vertex, spoke_angles, sigma, vertex_cov=None, weights_mask=None):
+def pencil_covariance(R_cam_from_target, vertex, spoke_angles, sigma, vertex_cov=None, weights_mask=None,
+                      sigma_error=None):
     """First-order covariance of the orientation at R, given angle noise and vertex noise.
 
     R_cam_from_target: (..., 3, 3); vertex: (..., 2) normalised; spoke_angles: (..., N);
     sigma: (..., N) or scalar [rad], the standard deviation of each image line angle in
     normalised coordinates; vertex_cov: (..., 2, 2) covariance of the normalised vertex or
-    None (vertex exact); weights_mask: (..., N) bool of lines used (default all).
+    None (vertex exact); weights_mask: (..., N) bool of lines used (default all);
+    sigma_error: None or like sigma [rad], the sd of each angle's error where it is not the
+    sigma the fit weighted it by (errors the weights leave out): the covariance of the fit
+    weighted by 1 / sigma^2 under errors of these sds (H^-1 J^T W C W J H^-1), the same as
+    without it where sigma_error equals sigma.
 
     Returns (cov, tilt_sigma, normal_sigma): cov (..., 3, 3) [rad^2] of the left rotation
     perturbation; tilt_sigma (...) [rad]; normal_sigma (...) [rad], the RMS angle of the
@@ -463,7 +473,8 @@ def pencil_covariance(R_cam_from_target, vertex, spoke_angles, sigma, vertex_cov
     w = 1.0 / np.broadcast_to(np.asarray(sigma, float), J.shape[:-1]) ** 2
     if weights_mask is not None:
         w = np.where(weights_mask, w, 0.0)
-    return _covariance(R, np.broadcast_to(x, J.shape[:-2] + (2,)), J, Jx, w, vertex_cov)
+    w_err = None if sigma_error is None else 1.0 / np.broadcast_to(np.asarray(sigma_error, float), J.shape[:-1]) ** 2
+    return _covariance(R, np.broadcast_to(x, J.shape[:-2] + (2,)), J, Jx, w, vertex_cov, w_err)
 
 
 def crlb(R_cam_from_target, vertex, spoke_angles, sigma, vertex_cov=None):

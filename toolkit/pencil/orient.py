@@ -148,7 +148,7 @@ def _segment_geometry(camera, segments, endpoint_sigma_px, ideal=None):
 def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_px=ENDPOINT_SIGMA_PX, angle_sigma=None,
                     prior=None, vertex_px=None, vertex_cov_px2=None, image=None, labels=None, keep_lines=False,
                     offset_sigma=None, spoke_radii=None, max_segments=MAX_SEGMENTS, intrinsics_cov="camera",
-                    bar_width_px=None, circle_points=None, plane_normal=None, ideal=None):
+                    bar_width_px=None, circle_points=None, plane_normal=None, ideal=None, angle_sigma_error=None):
     """Orientation of a pencil seen in one frame.
 
     camera: a Camera; segments: (M, 4) raw pixels [x1, y1, x2, y2]; pencil: a Pencil.
@@ -158,6 +158,12 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         a line fit to edge pixels; overrides the end point model for the angle).
     offset_sigma: None, scalar or (M,) [px] sd of each segment's perpendicular position at
         its midpoint (overrides the end point model for the offset).
+    angle_sigma_error: None, scalar or (M,) [rad] with angle_sigma, each segment's angle sd
+        with errors its angle_sigma leaves out (a star's edges turned by what they share:
+        `detect.radial`'s ``angle_sigma_error``), never under angle_sigma: for the
+        covariance only. The labelling, the twin and the fit keep angle_sigma's weights; the
+        sigmas reported are those of that fit under errors of these sds
+        (`estimator.pencil_covariance`'s sigma_error), and ``lines`` keeps them (``sigma_error``).
     spoke_radii: (M, 2) distances from the vertex [length unit] of each segment's inner and
         outer end, when known per segment (board corners); else the pencil's radius.
     prior: (3, 3) R_cam_from_target known roughly (board pose, previous frame): picks the twin.
@@ -171,7 +177,8 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         (``angle`` and ``sigma`` [rad], ``spoke`` index, ``segment`` index), for experiments;
         for wedges and sector boundaries ``spoke`` is the index of the edge in the pencil's
         `edge_angles` (as `labels` is); ``theta`` [rad] each line's target angle in the fit
-        (a star's wedges as wide as the lines say they were printed: `_printed_wedge`).
+        (a star's wedges as wide as the lines say they were printed: `_printed_wedge`);
+        ``sigma_error`` [rad] with angle_sigma_error, the sds the covariance takes.
     intrinsics_cov: the intrinsics' covariance to propagate into the totals
         (``tilt_sigma_total_deg``, ``normal_sigma_total_deg``, ``vertex_cov_total_px2``;
         `lens_uncertainty`): "camera" (default) the one the camera file carries, if any;
@@ -212,7 +219,7 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
     kw = dict(model=model, endpoint_sigma_px=endpoint_sigma_px, angle_sigma=angle_sigma, prior=prior,
               vertex_px=vertex_px, vertex_cov_px2=vertex_cov_px2, image=image, labels=labels, keep_lines=keep_lines,
               offset_sigma=offset_sigma, spoke_radii=spoke_radii, max_segments=max_segments,
-              intrinsics_cov=intrinsics_cov, circle_points=circle_points)
+              intrinsics_cov=intrinsics_cov, circle_points=circle_points, angle_sigma_error=angle_sigma_error)
 
     def centred(normal):  # (raw, ideal) moved onto the centre lines
         moved = centre_lines(camera, segments, bar_width_px, normal, ideal=ideal)
@@ -236,7 +243,7 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
 
 def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, angle_sigma, prior, vertex_px,
                  vertex_cov_px2, image, labels, keep_lines, offset_sigma, spoke_radii, max_segments, intrinsics_cov,
-                 circle_points):
+                 circle_points, angle_sigma_error=None):
     """One fit of `orient_segments` (its arguments but bar_width_px; ideal may be None)."""
     if model not in MODELS:
         raise InputError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}")
@@ -247,9 +254,11 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
     try:
         idx, ideal, st, sc, sig_e = _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma,
                                                   max_segments, ideal)
+        widen = _error_ratio(angle_sigma_error, seg.shape[0], idx, st)
         known = None if labels is None else np.asarray(labels, int).reshape(-1)[idx] >= 0
         v_ideal, cov_ideal, through = _vertex(camera, ideal, st, sc, pencil, vertex_px, vertex_cov_px2, known)
         idx, ideal, st = idx[through], ideal[through], st[through]
+        widen = None if widen is None else widen[through]
         if idx.size < 3:
             raise EstimationError(f"only {idx.size} segments pass through the vertex; three are needed")
         ln = _normalised_lines(camera, ideal, st, v_ideal, cov_ideal)
@@ -289,7 +298,15 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
                                                      pencil)
         if labels is None:  # (given labels, a tracked frame's, passed the previous frame's tests)
             _unconfirmed_labelling(pencil, searched, resolved_by, circle_points, circ)
-        own = None if circ is None else _lines_own(fit, ln, a_used, th_used, s_used)
+        # rival labellings that put the normal elsewhere make the normal itself ambiguous
+        # (within the weighted fit's sigmas, as the labelling saw them)
+        alt = _rival_normals(fit, rivals)
+        s_err = None if widen is None else s_used * widen[used]
+        if s_err is not None:  # every decision taken: the covariance under the wider errors
+            cov, s_tilt, s_norm = pencil_covariance(fit.R_cam_from_target, ln.vertex, th_used, s_used, ln.vertex_cov,
+                                                    sigma_error=s_err)
+            fit = replace(fit, cov=cov, tilt_sigma=s_tilt, normal_sigma=s_norm)
+        own = None if circ is None else _lines_own(fit, ln, a_used, th_used, s_used, s_err)
         labels_out[idx] = np.where(used, edge_spoke[np.maximum(lab, 0)], -1)
         s_mean = float(np.sqrt(np.mean(s_used**2)))
         rec = orientation_record(camera, fit, ln.vertex, v_ideal, cov_ideal, model=model, image=image,
@@ -299,8 +316,6 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
             rec = rec.replace(**orientation_totals(
                 camera, C, fit.R_cam_from_target, ln.vertex, fit.cov, rec.tilt_sigma_deg, rec.vertex_cov_px2,
                 seg[idx[used]], a_used, th_used, s_used, seg[idx], st, sc[through], vertex_px))
-        # rival labellings that put the normal elsewhere make the normal itself ambiguous
-        alt = _rival_normals(fit, rivals)
         extra = dict(labels_ambiguous=bool(labels_ambiguous), normal_ambiguous=bool(alt),
                      normal_alternatives=alt or None, spokes=labels_out,
                      spokes_used=int(np.unique(edge_spoke[lab[used]]).size))
@@ -308,6 +323,8 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
             extra["lines"] = {"angle": a_used, "sigma": s_used, "spoke": lab[used], "segment": idx[used],
                               "theta": th_used,
                               "vertex": ln.vertex, "vertex_cov": ln.vertex_cov}
+            if s_err is not None:
+                extra["lines"]["sigma_error"] = s_err
         if metric is not None and resolved_by is not None:
             extra.update(_metric_position(fit, metric, resolved_by, ln.vertex, pencil))
         if circ is not None:
@@ -361,6 +378,22 @@ def _usable_lines(camera, seg, endpoint_sigma_px, angle_sigma, offset_sigma, max
         if np.any(~np.isfinite(sc) | (sc <= 0)):
             raise InputError("offset sigma must be positive and finite")
     return idx, ideal, st, sc, sig_e
+
+
+def _error_ratio(angle_sigma_error, M, idx, st):
+    """(K,) each used segment's angle_sigma_error (None, scalar or (M,) [rad]) over its angle
+    sd st (K,) [rad], at least 1; None without them or where none is wider (the covariance
+    then the fit's own, bit for bit)."""
+    if angle_sigma_error is None:
+        return None
+    err = np.asarray(angle_sigma_error, float)
+    if err.ndim > 1 or err.size not in (1, M):
+        raise InputError(f"angle sigma error: one per segment ({M}) or one for all, got {err.size}")
+    err = np.broadcast_to(err.reshape(-1), (M,))[idx]
+    if np.any(~np.isfinite(err) | (err <= 0)):
+        raise InputError("angle sigma error must be positive and finite")
+    ratio = np.maximum(err / st, 1.0)
+    return ratio if np.any(ratio > 1.0) else None
 
 
 def _vertex(camera, ideal, st, sc, pencil, vertex_px, vertex_cov_px2, known=None):
@@ -621,15 +654,17 @@ def _unconfirmed_labelling(pencil, spokes, resolved_by, circle_points, circ):
             f"{n_pts} circle points {what}: not a measurement")
 
 
-def _lines_own(fit, ln, a_used, th_used, s_used, h=1e-6):
-    """The lines' normal's covariance with the vertex held (3, 3), and how their fitted
+def _lines_own(fit, ln, a_used, th_used, s_used, s_err=None, h=1e-6):
+    """The lines' normal's covariance with the vertex held (3, 3) (their errors' sds s_err
+    where given: `orient_segments`' angle_sigma_error), and how their fitted
     normal moves with the vertex's image (3, 2) (central differences, refitted from the
     solution; normalised coordinates): what `circle.circle_record` compares the circles'
     normal with, the vertex being both's."""
     from pencilcal.toolkit.pencil.circle import line_normal_cov
 
     n0 = np.asarray(fit.normal, float)
-    own = line_normal_cov(replace(fit, cov=pencil_covariance(fit.R_cam_from_target, ln.vertex, th_used, s_used)[0]))[0]
+    own = line_normal_cov(replace(fit, cov=pencil_covariance(fit.R_cam_from_target, ln.vertex, th_used, s_used,
+                                                             sigma_error=s_err)[0]))[0]
     oriented = not np.any(ln.straddle)
     cols = []
     for e in np.eye(2):

@@ -310,3 +310,25 @@ def test_a_circle_that_chooses_neither_twin_confirms_no_labelling():
         _unconfirmed_labelling(star, many, None, pts, circ)       # half the spokes or more: reported
     _unconfirmed_labelling(star, few, "circle", pts, circle)      # the circles chose the twin
     _unconfirmed_labelling(star, few, None, pts[:MIN_POINTS - 1], None)  # too few points to judge
+
+
+def test_angle_sigma_error_widens_the_covariance_only(rng):
+    """Errors wider than the weights (`angle_sigma_error`): the labels, the twin and the fit
+    are angle_sigma's, bit for bit; the sigmas grow, ``lines`` keeps the wider sds, and a
+    wrong count is a one-line error."""
+    cam = hd_camera()
+    pen = fan()
+    seg, R, _ = frame(cam, pen, 35.0, 200.0, rng, noise_px=0.3)
+    seg = np.r_[seg, [[100.0, 100, 400, 180]]]
+    sig = np.full(len(seg), np.radians(0.05))
+    wide = sig * np.where(np.arange(len(seg)) % 3 == 0, 5.0, 1.0)
+    base = orient_segments(cam, seg, pen, angle_sigma=sig, keep_lines=True)
+    rec = orient_segments(cam, seg, pen, angle_sigma=sig, angle_sigma_error=wide, keep_lines=True)
+    assert base.ok and rec.ok and rec.spokes[-1] == -1
+    for k in ("spokes", "normal", "R_cam_from_target", "resolved_by", "tilt_deg", "vertex_px"):
+        assert np.array_equal(np.asarray(getattr(rec, k)), np.asarray(getattr(base, k))), k
+    assert rec.normal_sigma_deg > 1.2 * base.normal_sigma_deg and rec.tilt_sigma_deg > base.tilt_sigma_deg
+    assert "sigma_error" not in base.lines
+    np.testing.assert_allclose(rec.lines["sigma_error"] / rec.lines["sigma"], (wide / sig)[rec.lines["segment"]])
+    with pytest.raises(InputError, match="one per segment"):
+        orient_segments(cam, seg, pen, angle_sigma=sig, angle_sigma_error=wide[:3])
