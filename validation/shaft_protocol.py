@@ -108,10 +108,12 @@ def filtered(detections, setting, diagonal, evidence=0.0, colour=float("inf"), p
     diagonal [px] (an instrument region's, cue `PART_CUE`: part x diagonal), whose
     ``pixel_evidence`` (where they carry one) reaches evidence and whose ``tissue_colour``
     (where they carry one) stays within colour; one darker than its sides and greyer than
-    the tissue is kept whatever its evidence (`toolkit.detect.shaft.grey_material.kept`)."""
+    the tissue, or than the tissue beside it (its ``flank_colour``, where it carries one), is
+    kept whatever its evidence (`toolkit.detect.shaft.grey_material.kept`)."""
     keep = kept([float(d.get("pixel_evidence", 1.0)) for d in detections],
                 [float(d.get("tissue_colour", 0.0)) for d in detections], evidence, colour,
-                dark=np.array([d.get("polarity") == "dark" for d in detections], bool))
+                dark=np.array([d.get("polarity") == "dark" for d in detections], bool),
+                flank=[float(d.get("flank_colour", np.nan)) for d in detections])
     return [d for d, k in zip(detections, keep)
             if k and float(d.get("score", 0.0)) >= (part if d.get("cue") == PART_CUE else setting) * diagonal]
 

@@ -23,7 +23,7 @@ import pytest
 
 from pencilcal.toolkit.detect.shaft.detector import detect_shafts
 from pencilcal.toolkit.detect.shaft.pixel_evidence import MIN_PIXEL_EVIDENCE, pixel_evidence
-from pencilcal.toolkit.detect.shaft.tissue_colour import MAX_TISSUE_COLOUR, shaft_tissue_colour
+from pencilcal.toolkit.detect.shaft.tissue_colour import MAX_TISSUE_COLOUR, shaft_flank_colour, shaft_tissue_colour
 from pencilcal.toolkit.detect.shaft.parts import detect_parts
 from pencilcal.validation.shaft_protocol import (EVIDENCES, PART_SETTINGS, TISSUE_COLOURS, choose_setting,
                                                 leave_one_source_out, table_markdown, view_diagonal)
@@ -88,7 +88,8 @@ def detected():
     models = fold_models(samples)
     dets, diag = {}, {}
     for name, (frames, region) in loaded.items():
-        dets[name] = [[dict(s.to_dict(), tissue_colour=float(t)) for s, t in zip(ss, shaft_tissue_colour(img, ss, region))]
+        dets[name] = [[dict(s.to_dict(), tissue_colour=float(t), flank_colour=float(f))
+                       for s, t, f in zip(ss, shaft_tissue_colour(img, ss, region), shaft_flank_colour(img, ss, region))]
                       for (_, img, _, _), ss in zip(frames, found[name])]
         shape = frames[0][1].shape[:2]
         diag[name] = view_diagonal(shape, region.mask(shape))

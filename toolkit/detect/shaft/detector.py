@@ -74,7 +74,7 @@ from pencilcal.toolkit.detect.shaft.pixel_evidence import MIN_PIXEL_EVIDENCE
 from pencilcal.toolkit.detect.shaft.pixel_evidence import pixel_evidence as shaft_pixel_evidence
 from pencilcal.toolkit.detect.shaft.prior import as_priors, select_through
 from pencilcal.toolkit.detect.shaft.regions import material_map
-from pencilcal.toolkit.detect.shaft.tissue_colour import MAX_TISSUE_COLOUR, shaft_tissue_colour
+from pencilcal.toolkit.detect.shaft.tissue_colour import MAX_TISSUE_COLOUR, shaft_flank_colour, shaft_tissue_colour
 from pencilcal.toolkit.detect.shaft.track import REACH, band_colours, corridor_edges, material_edges
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame, axis_matrix
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw
@@ -446,8 +446,10 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         inside its band reaches this (`shaft.pixel_evidence.MIN_PIXEL_EVIDENCE`, 0.1: a
         tissue band with two long edges is not instrument-like inside), or, with
         tissue_colour, where it is darker than its sides and its tissue colour at most
-        `shaft.grey_material.GREY_TISSUE_COLOUR` (a grey material the map does not know: a
-        shaft in haze, a black one on shadowed tissue); None: not judged.
+        `shaft.grey_material.GREY_TISSUE_COLOUR`, or at most
+        `shaft.grey_material.GREY_FLANK_RATIO` of the tissue's right beside it (a grey
+        material the map does not know: a shaft in haze, a black one on shadowed tissue);
+        None: not judged.
     tissue_colour : float or None
         On a colour frame, a shaft of the cues is kept only where its inside's colour along
         the tissue's hue stays under this fraction of the frame's median
@@ -499,8 +501,9 @@ def judged(image, camera, shafts, validity, work=None, pixel_evidence=MIN_PIXEL_
            tissue_colour=MAX_TISSUE_COLOUR, grey=GREY_TISSUE_COLOUR):
     """The shafts (list of `Shaft`) of a colour frame that are instrument-like: those whose
     pixel evidence (`shaft.pixel_evidence`) reaches pixel_evidence, or whose tissue colour is
-    at most grey where it is darker than its sides (a band greyer than the tissue,
-    `shaft.grey_material`; None: the evidence alone), and whose tissue colour (`shaft.tissue_colour`) stays within tissue_colour
+    at most grey, or at most `shaft.grey_material.GREY_FLANK_RATIO` of its flanks', where it
+    is darker than its sides (a band greyer than the tissue, `shaft.grey_material`; None: the
+    evidence alone), and whose tissue colour (`shaft.tissue_colour`) stays within tissue_colour
     (either None: not judged); a grey
     frame's all. Every shaft the detector returns passes here, whichever path found it (the
     cues, the fulcrum prior's angle search, tracking): each is judged on its own, so the
@@ -524,8 +527,16 @@ def judged(image, camera, shafts, validity, work=None, pixel_evidence=MIN_PIXEL_
         tc = np.full(len(shafts), np.nan)
         if k.size:
             tc[k] = shaft_tissue_colour(image, [shafts[i] for i in k], validity=validity)
-    keep = kept(ev, tc, pixel_evidence, tissue_colour, np.nan if grey is None else grey,
-                np.array([s.polarity == "dark" for s in shafts]))
+    dark = np.array([s.polarity == "dark" for s in shafts])
+    fl = None
+    if pixel_evidence is not None and tissue_colour is not None and grey is not None:
+        # the flanks of the dark bands only the tissue beside them may keep (`shaft.grey_material`)
+        with np.errstate(invalid="ignore"):
+            k = np.flatnonzero(dark & (ev < pixel_evidence) & (tc > grey) & (tc <= tissue_colour))
+        fl = np.full(len(shafts), np.nan)
+        if k.size:
+            fl[k] = shaft_flank_colour(image, [shafts[i] for i in k], validity=validity)
+    keep = kept(ev, tc, pixel_evidence, tissue_colour, np.nan if grey is None else grey, dark, fl)
     return [s for s, k in zip(shafts, keep) if k]
 
 

@@ -18,7 +18,9 @@ instrument has at most about 1 (bright shafts between saturated tissue: 1.04 at 
 masked real sources; black and grey ones 0.0-0.4; one off the tissue's hue negative);
 a detection over `MAX_TISSUE_COLOUR` is dropped (`detector.detect_shafts`' ``tissue_colour``).
 How it was chosen (leave one source out on the masked sources) and what it gives on the
-unmasked ones: docs/method.md, tissue colour.
+unmasked ones: docs/method.md, tissue colour. The same measure of a band's two flanks, the
+tissue right beside it (`flank_colour`), is what a dark band's colour is compared with in
+`shaft.grey_material`.
 
 Example
 -------
@@ -37,7 +39,8 @@ import numpy as np
 from pencilcal.toolkit.detect.shaft.work import Validity
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["tissue_colour", "shaft_tissue_colour", "MAX_TISSUE_COLOUR", "STATIONS", "ACROSS", "INNER"]
+__all__ = ["tissue_colour", "shaft_tissue_colour", "flank_colour", "shaft_flank_colour", "MAX_TISSUE_COLOUR",
+           "STATIONS", "ACROSS", "INNER", "FLANK"]
 
 #: The most tissue colour a detection may have (module docstring); chosen on the masked real
 #: sources (docs/method.md).
@@ -46,6 +49,10 @@ MAX_TISSUE_COLOUR = 1.25
 STATIONS, ACROSS = 24, 7
 #: The fraction of the band's width sampled, about its midline (its outline mixes both sides).
 INNER = 0.6
+#: The flanks beside a band (`flank_colour`): from and to these distances from its midline, in
+#: widths (0.1 to 0.5 of a width outside each edge: the tissue right beside it, off its blurred
+#: outline).
+FLANK = (0.6, 1.0)
 _FRAME_SAMPLES = 20000  # about as many pixels of the frame for its median chromaticity
 _EPS = 1.0  # added to each channel [DN]: a black pixel has no colour, not an undefined one
 
@@ -79,8 +86,10 @@ def _frame_chromaticity(img, validity):
     return np.median(_chromaticity(grid.reshape(-1, 3) if keep.all() else grid[keep]), 0)
 
 
-def _inside(img, midline, width):
-    """(K, 3) BGR samples of the inner part of one band (raw px), those off the image left out."""
+def _inside(img, midline, width, across=None):
+    """(K, 3) BGR samples of the inner part of one band (raw px), those off the image left out;
+    across: (lo, hi) the offsets from its midline sampled, in widths (default the middle
+    `INNER` of it)."""
     import cv2
 
     a, b = np.asarray(midline, float).reshape(2, 2)
@@ -88,9 +97,9 @@ def _inside(img, midline, width):
     if not np.isfinite(L) or L <= 0:
         return np.zeros((0, 3))
     n = np.array([a[1] - b[1], b[0] - a[0]]) / L
-    half = 0.5 * INNER * float(width)
+    lo, hi = (-0.5 * INNER, 0.5 * INNER) if across is None else across
     s = np.linspace(0.0, 1.0, STATIONS)[:, None, None]
-    t = np.linspace(-half, half, ACROSS)[None, :, None]
+    t = float(width) * np.linspace(lo, hi, ACROSS)[None, :, None]
     P = (a + s * (b - a) + t * n).reshape(-1, 2)
     H, W = img.shape[:2]
     P = P[(P[:, 0] >= 0) & (P[:, 1] >= 0) & (P[:, 0] <= W - 1) & (P[:, 1] <= H - 1)].astype(np.float32)
@@ -129,6 +138,55 @@ def tissue_colour(image, midlines, widths, valid_region=None, validity=None):
         if len(v):
             out[k] = float(np.median(_chromaticity(v), 0) @ c) / cc
     return out
+
+
+def flank_colour(image, midlines, widths, valid_region=None, validity=None):
+    """The tissue colour (N,) of the tissue right beside bands: of their two flanks (`FLANK`:
+    0.1 to 0.5 of a width outside each edge, `STATIONS` x `ACROSS` samples each, the median
+    chromaticity along the tissue's hue as in `tissue_colour`), the lesser.
+
+    A shadow keeps the colour of the tissue it falls on, so a dark band of tissue (a gap, a
+    fold's shadow) is as coloured as its flanks or more; an instrument in the same shadow
+    mirrors part of it only (`shaft.grey_material`). Arguments as `tissue_colour`'s; NaN
+    for a band with a flank off the image, 0 for every band of a frame without colour.
+
+    >>> img = np.zeros((180, 320, 3), np.uint8); img[:] = (90, 110, 190)
+    >>> img[:90] = (40, 50, 95)                                       # a shadow over the top half
+    >>> img[60:80] = (30, 33, 45)                                     # a black shaft in it
+    >>> mids, wds = np.array([[0.0, 69.5, 319.0, 69.5]]), np.array([20.0])
+    >>> tissue_colour(img, mids, wds).round(2).tolist(), flank_colour(img, mids, wds).round(2).tolist()
+    ([0.53], [1.16])
+    """
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise InputError(f"flank colour needs a colour (BGR) frame, got shape {img.shape}")
+    mids = np.asarray(midlines, float).reshape(-1, 4)
+    wds = np.asarray(widths, float).reshape(-1)
+    if len(mids) != len(wds):
+        raise InputError(f"flank colour: {len(mids)} midlines but {len(wds)} widths")
+    validity = Validity(valid_region, img.shape[:2]) if validity is None else validity
+    c = _frame_chromaticity(img, validity) if len(mids) else np.zeros(2)
+    cc = float(c @ c)
+    out = np.zeros(len(mids))
+    if cc < 1e-6:  # a grey scene: no tissue hue to compare with
+        return out
+    full = STATIONS * ACROSS
+    for k, (m, w) in enumerate(zip(mids, wds)):
+        sides = [_inside(img, m, w, across) for across in (FLANK, (-FLANK[1], -FLANK[0]))]
+        # a flank cut by the image's edge is not the tissue beside the band along its run
+        out[k] = np.nan if min(len(v) for v in sides) < full // 2 else min(
+            float(np.median(_chromaticity(v), 0) @ c) / cc for v in sides)
+    return out
+
+
+def shaft_flank_colour(image, shafts, valid_region=None, validity=None):
+    """`flank_colour` of detected shafts (`detector.Shaft`, or lines.json records with
+    ``midline`` and ``width_px``)."""
+    if not len(shafts):
+        return np.zeros(0)
+    get = (lambda s, k: s[k]) if isinstance(shafts[0], dict) else getattr
+    return flank_colour(image, [np.asarray(get(s, "midline"), float) for s in shafts],
+                        [float(get(s, "width_px")) for s in shafts], valid_region, validity)
 
 
 def shaft_tissue_colour(image, shafts, valid_region=None, validity=None):

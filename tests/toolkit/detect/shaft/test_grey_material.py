@@ -8,7 +8,7 @@ import pytest
 
 from pencilcal.toolkit.detect.region.valid import ValidRegion
 from pencilcal.toolkit.detect.shaft.detector import detect_shafts
-from pencilcal.toolkit.detect.shaft.grey_material import GREY_TISSUE_COLOUR, kept
+from pencilcal.toolkit.detect.shaft.grey_material import GREY_FLANK_RATIO, GREY_TISSUE_COLOUR, kept
 from pencilcal.toolkit.synth.hard_shafts import HARD_CLASSES, hard_shaft_frame
 from pencilcal.validation.shaft_score import score_frame
 
@@ -68,6 +68,13 @@ def test_kept():
     assert kept(ev, np.full(6, np.nan), 0.1, 1.25, dark=dark).tolist() == [False] * 6
     assert kept(ev, tc, 0.1, 1.25, grey=np.nan, dark=dark).tolist() == [True, False, False, False, False, False]
     assert 0.0 < GREY_TISSUE_COLOUR < 0.68  # under every real false band's (module docstring)
+    # beside tissue as coloured as the frame's or more, a dark band at most GREY_FLANK_RATIO of
+    # its flanks' colour is kept; a flank without the tissue's hue (<= 0, NaN) says nothing
+    tc, fl = np.array([0.55, 0.55, 0.55, 0.55, 0.55, 0.3]), np.array([1.0, 0.9, -0.2, np.nan, 1.0, 2.0])
+    dark = np.array([True, True, True, True, False, True])
+    assert kept(np.zeros(6), tc, 0.1, 1.25, dark=dark, flank=fl).tolist() == [True, False, False, False, False, True]
+    assert kept(np.zeros(6), tc, 0.1, 1.25, dark=dark).tolist() == [False] * 5 + [True]
+    assert 0.5 < GREY_FLANK_RATIO < 0.84  # under every dark false band's ratio, real or synthetic (module docstring)
 
 
 def test_hazy_shafts_found_by_their_grey():
@@ -78,6 +85,16 @@ def test_hazy_shafts_found_by_their_grey():
     deg)."""
     found, n, false = _found("faint", range(12))
     assert n == 18 and found >= 10 and false <= 1
+
+
+def test_black_shafts_on_shadow_kept_by_their_flanks():
+    """Black shafts on shadowed tissue mirroring 30-80 % of its colour: those over half the
+    frame's tissue colour but at most `GREY_FLANK_RATIO` of the tissue's right beside them are
+    kept (a shadow keeps its tissue's colour: a dark band of tissue is as coloured as its
+    flanks). Seeds 0-15: 10 of the 21 shafts found (7 by the frame's tissue colour alone),
+    no false detection."""
+    found, n, false = _found("dark", range(16))
+    assert n == 21 and found >= 10 and false == 0
 
 
 def test_no_shaft_in_tissue_alone():
