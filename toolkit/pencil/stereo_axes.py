@@ -21,7 +21,8 @@ The rig is one for all the shafts of a sequence: `stereo_fulcrum_axes` solves th
 together with the rig's error, under its prior, not axis by axis (where its effect would
 count as independent and average away).
 
-`match_shafts` pairs the shafts of the two eyes of a frame by the chi2 of their joint fit;
+`match_shafts` pairs the shafts of the two eyes of a frame by the chi2 of their joint fit,
+gated at the edges' own noise over a sequence (`match_factor`, in `matched_axes`);
 `stereo_fulcrum_axes` is the fulcrum of the stereo axes (`cylinder.fulcrum_3d`), each axis
 weighed by its covariance evaluated at the line through the fulcrum nearest to it
 (`covariance_at`): evaluated at its own estimate, an axis's weight would follow its own error
@@ -57,7 +58,7 @@ from pencilcal.toolkit.geometry.frames import normalize, rotation_from_rotvec
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, axis_frame, axis_offsets, fulcrum_3d,
                                                offset_chi2, project_cylinder, silhouette_planes)
-from pencilcal.toolkit.pencil.sequence_noise import MAX_RUNS
+from pencilcal.toolkit.pencil.sequence_noise import MAX_RUNS, MIN_DOF
 
 __all__ = ["StereoAxis", "AxesFulcrum", "stereo_axis", "match_shafts", "stereo_fulcrum_axes", "stereo_axes_from_frames",
            "matched_axes"]
@@ -311,14 +312,9 @@ def stereo_axis(K_left, edges_left, cov_left, K_right, edges_right, cov_right, R
                       dof=3 + (prior is not None), problem=prob)
 
 
-def match_shafts(K_left, left, K_right, right, R_right_from_left, t_right_from_left, *, confidence=GATE_CONFIDENCE,
-                 **kw):
-    """Pairs of one frame's shafts seen by the two eyes: [(i, j, StereoAxis)], each left
-    shaft i with at most one right shaft j, by the least chi2 of their joint fit
-    (`stereo_axis`) under its gate (``chi2.ppf(confidence, dof)``), greedily.
-
-    left, right: lists of (edges (2, 4) [px], edge covariance (2, 2, 2)); kw: the radius
-    prior of `stereo_axis`."""
+def _candidates(K_left, left, K_right, right, R_right_from_left, t_right_from_left, **kw):
+    """[(chi2, i, j, StereoAxis)] of every left shaft i with every right shaft j whose joint
+    fit (`stereo_axis`) converges; arguments as `match_shafts`'s."""
     cands = []
     for i, (el, cl) in enumerate(left):
         for j, (er, cr) in enumerate(right):
@@ -326,15 +322,58 @@ def match_shafts(K_left, left, K_right, right, R_right_from_left, t_right_from_l
                 ax = stereo_axis(K_left, el, cl, K_right, er, cr, R_right_from_left, t_right_from_left, **kw)
             except (EstimationError, np.linalg.LinAlgError):
                 continue
-            if ax.chi2 <= chi2_isf(1.0 - confidence, ax.dof):
-                cands.append((ax.chi2, i, j, ax))
+            cands.append((ax.chi2, i, j, ax))
+    return cands
+
+
+def _greedy(cands, confidence=None, factor=1.0):
+    """[(i, j, StereoAxis)]: the candidates by increasing chi2, each shaft in at most one
+    pair, those beyond ``factor * chi2.ppf(confidence, dof)`` left out (none with
+    confidence None)."""
     out, used_l, used_r = [], set(), set()
-    for _, i, j, ax in sorted(cands, key=lambda c: c[0]):
+    for c2, i, j, ax in sorted(cands, key=lambda c: c[0]):
+        if confidence is not None and c2 > factor * chi2_isf(1.0 - confidence, ax.dof):
+            continue
         if i not in used_l and j not in used_r:
             out.append((i, j, ax))
             used_l.add(i)
             used_r.add(j)
     return out
+
+
+def match_shafts(K_left, left, K_right, right, R_right_from_left, t_right_from_left, *, confidence=GATE_CONFIDENCE,
+                 factor=1.0, **kw):
+    """Pairs of one frame's shafts seen by the two eyes: [(i, j, StereoAxis)], each left
+    shaft i with at most one right shaft j, by the least chi2 of their joint fit
+    (`stereo_axis`) under its gate (``factor * chi2.ppf(confidence, dof)``), greedily.
+
+    left, right: lists of (edges (2, 4) [px], edge covariance (2, 2, 2)); factor: the
+    edges' variance over their stated covariances (>= 1; a sequence's: `match_factor`);
+    kw: the radius prior of `stereo_axis`."""
+    return _greedy(_candidates(K_left, left, K_right, right, R_right_from_left, t_right_from_left, **kw),
+                   confidence, factor)
+
+
+def match_factor(frame_candidates):
+    """The factor k >= 1 by which a sequence's edges are noisier than their covariances
+    state, read from its frames' most consistent pairs: per frame the pairs of least chi2
+    (`_greedy` without a gate), then the median over them of their joint fit's chi2 over the
+    median of chi2(dof). The median, not the mean, so that a minority of wrong pairs (a shaft
+    that one eye alone sees, paired with another) does not move it; the pairs' chi2 also
+    holds the rig's calibration error, which every pair shares. 1 where the pairs pool
+    fewer than `MIN_DOF` degrees of freedom, as `sequence_noise`.
+
+    frame_candidates: per frame `_candidates`' list.
+
+    >>> class Ax: dof, chi2 = 4, 4 * float(chi2_isf(0.5, 4))
+    >>> class Bad: dof, chi2 = 4, 1e4
+    >>> round(match_factor([[(Ax.chi2, 0, 0, Ax())]] * 3 + [[(Bad.chi2, 0, 0, Bad())]] * 2), 6)
+    4.0
+    """
+    pairs = [ax for cands in frame_candidates for _, _, ax in _greedy(cands)]
+    if sum(ax.dof for ax in pairs) < MIN_DOF:
+        return 1.0
+    return max(1.0, float(np.median([ax.chi2 / chi2_isf(0.5, ax.dof) for ax in pairs])))
 
 
 @dataclass(frozen=True, eq=False)
@@ -686,9 +725,16 @@ def matched_axes(camera_left, frames_left, camera_right, frames_right, rig, diam
     prior = {} if diameter is None else {"radius": 0.5 * float(diameter)}
     axes, owners = [], []
     pairs = _frame_pairs(frames_left, frames_right)
+    cands, ats = [], []
     for i, j in pairs:
         (left, at), (right, _) = _measured(camera_left, frames_left[i]), _measured(camera_right, frames_right[j])
-        for a, b, ax in match_shafts(Kl, left, Kr, right, R, t, **prior):
+        cands.append(_candidates(Kl, left, Kr, right, R, t, **prior))
+        ats.append(at)
+    # the gate at the edges' own noise (`match_factor`): at their stated covariances alone it
+    # drops the true pairs of edges noisier than said (half of them at twice the sd)
+    k = match_factor(cands)
+    for (i, _), c, at in zip(pairs, cands, ats):
+        for a, b, ax in _greedy(c, GATE_CONFIDENCE, k):
             axes.append(ax)
             owners.append({"image": frames_left[i].get("image"), "frame": i, "left": a, "right": b,
                            "left_shaft": at[a]})

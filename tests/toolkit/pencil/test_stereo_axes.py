@@ -225,3 +225,55 @@ def test_the_noise_factor_is_read_from_the_axes_own_fits(n_trials=4):
         assert f.play > 0.0
         ks.append(f.factor)
     assert 3.4 < np.mean(ks) < 4.6, ks
+
+
+def _frames(rng, F, n, sd_px, seen_right=None):
+    """(left frames, right frames) of lines.json records: per frame one shaft of each
+    fulcrum in F, edges sd_px noisy but stated at half that (edges twice as noisy as said);
+    the right eye lists them in the reverse order and, where seen_right(k, m) is false, does
+    not see shaft m of frame k."""
+    left, right = [], []
+    for k in range(n):
+        ls, rs = [], []
+        for m, Fm in enumerate(F):
+            (A, d), = _pivot(rng, Fm, R0, T0, n=1)
+            (el, cl), (er, cr) = _edges(A, d, rng, sd_px), _edges(R0 @ A + T0, R0 @ d, rng, sd_px)
+            ls.append({"edges": el.tolist(), "edge_cov": (cl / 4).tolist()})
+            if seen_right is None or seen_right(k, m):
+                rs.append({"edges": er.tolist(), "edge_cov": (cr / 4).tolist(), "m": m})
+        left.append({"image": f"{k}.png", "shafts": ls})
+        right.append({"image": f"{k}.png", "shafts": rs[::-1]})
+    return left, right
+
+
+def test_true_pairs_kept_where_the_edges_are_noisier_than_said():
+    # at the stated covariances alone the 99 % gate kept 17 of the 40 true pairs of edges twice
+    # as noisy as said (k = 4, the real-like edges' measured factor); at the sequence's own
+    # factor, read from its frames' best pairs (`match_factor`: 5.1 here), 36 or more
+    from pencilcal.toolkit.camera.model import Camera
+    from pencilcal.toolkit.camera.stereo import StereoRig
+    from pencilcal.toolkit.pencil.stereo_axes import matched_axes
+
+    rng = np.random.default_rng(3)
+    cam = Camera("pinhole", 640, 480, K)
+    left, right = _frames(rng, [np.array([3.0, -2.0, 90.0])], 40, 0.3)
+    axes, owners, pairs = matched_axes(cam, left, cam, right, StereoRig(R0, T0), diameter=8.0)
+    assert pairs == 40 and len(axes) >= 36, len(axes)
+
+
+def test_a_shaft_one_eye_alone_sees_stays_unpaired():
+    # two instruments, the right eye missing the first in every third frame: its left shaft
+    # has only the other instrument's to pair with, which the gate at the sequence's factor
+    # still rejects, and no pair joins two instruments (the stated gate alone kept 22 pairs)
+    from pencilcal.toolkit.camera.model import Camera
+    from pencilcal.toolkit.camera.stereo import StereoRig
+    from pencilcal.toolkit.pencil.stereo_axes import matched_axes
+
+    rng = np.random.default_rng(4)
+    cam = Camera("pinhole", 640, 480, K)
+    F = [np.array([15.0, -2.0, 90.0]), np.array([-15.0, 2.0, 90.0])]
+    left, right = _frames(rng, F, 30, 0.3, seen_right=lambda k, m: not (m == 0 and k % 3 == 0))
+    axes, owners, _ = matched_axes(cam, left, cam, right, StereoRig(R0, T0), diameter=8.0)
+    for o in owners:
+        assert right[o["frame"]]["shafts"][o["right"]]["m"] == o["left"], o
+    assert len(axes) >= 0.9 * (2 * 30 - 10), len(axes)
