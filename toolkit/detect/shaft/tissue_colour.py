@@ -109,6 +109,19 @@ def _inside(img, midline, width, across=None):
                      cv2.INTER_LINEAR)[0].reshape(-1, 3)
 
 
+def _bands(image, midlines, widths, what):
+    """(image (H, W, 3), midlines (N, 4), widths (N,)) as arrays, checked (`what` names the
+    measure in the one-line error)."""
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise InputError(f"{what} needs a colour (BGR) frame, got shape {img.shape}")
+    mids = np.asarray(midlines, float).reshape(-1, 4)
+    wds = np.asarray(widths, float).reshape(-1)
+    if len(mids) != len(wds):
+        raise InputError(f"{what}: {len(mids)} midlines but {len(wds)} widths")
+    return img, mids, wds
+
+
 def tissue_colour(image, midlines, widths, valid_region=None, validity=None):
     """The tissue colour (N,) of bands in a BGR frame (module docstring).
 
@@ -118,13 +131,7 @@ def tissue_colour(image, midlines, widths, valid_region=None, validity=None):
     validity: its `work.Validity`. A band without samples in the image has 0 (no evidence
     either way). A frame without colour (the median grey) gives 0 for every band.
     """
-    img = np.asarray(image)
-    if img.ndim != 3 or img.shape[2] != 3:
-        raise InputError(f"tissue colour needs a colour (BGR) frame, got shape {img.shape}")
-    mids = np.asarray(midlines, float).reshape(-1, 4)
-    wds = np.asarray(widths, float).reshape(-1)
-    if len(mids) != len(wds):
-        raise InputError(f"tissue colour: {len(mids)} midlines but {len(wds)} widths")
+    img, mids, wds = _bands(image, midlines, widths, "tissue colour")
     if not len(mids):
         return np.zeros(0)
     validity = Validity(valid_region, img.shape[:2]) if validity is None else validity
@@ -157,13 +164,7 @@ def flank_colour(image, midlines, widths, valid_region=None, validity=None):
     >>> tissue_colour(img, mids, wds).round(2).tolist(), flank_colour(img, mids, wds).round(2).tolist()
     ([0.53], [1.16])
     """
-    img = np.asarray(image)
-    if img.ndim != 3 or img.shape[2] != 3:
-        raise InputError(f"flank colour needs a colour (BGR) frame, got shape {img.shape}")
-    mids = np.asarray(midlines, float).reshape(-1, 4)
-    wds = np.asarray(widths, float).reshape(-1)
-    if len(mids) != len(wds):
-        raise InputError(f"flank colour: {len(mids)} midlines but {len(wds)} widths")
+    img, mids, wds = _bands(image, midlines, widths, "flank colour")
     validity = Validity(valid_region, img.shape[:2]) if validity is None else validity
     c = _frame_chromaticity(img, validity) if len(mids) else np.zeros(2)
     cc = float(c @ c)
@@ -179,21 +180,23 @@ def flank_colour(image, midlines, widths, valid_region=None, validity=None):
     return out
 
 
-def shaft_flank_colour(image, shafts, valid_region=None, validity=None):
-    """`flank_colour` of detected shafts (`detector.Shaft`, or lines.json records with
-    ``midline`` and ``width_px``)."""
+def _of_shafts(measure, image, shafts, valid_region, validity):
+    """`measure` (`tissue_colour` or `flank_colour`) of detected shafts (`detector.Shaft`, or
+    lines.json records with ``midline`` and ``width_px``)."""
     if not len(shafts):
         return np.zeros(0)
     get = (lambda s, k: s[k]) if isinstance(shafts[0], dict) else getattr
-    return flank_colour(image, [np.asarray(get(s, "midline"), float) for s in shafts],
-                        [float(get(s, "width_px")) for s in shafts], valid_region, validity)
+    return measure(image, [np.asarray(get(s, "midline"), float) for s in shafts],
+                   [float(get(s, "width_px")) for s in shafts], valid_region, validity)
+
+
+def shaft_flank_colour(image, shafts, valid_region=None, validity=None):
+    """`flank_colour` of detected shafts (`detector.Shaft`, or lines.json records with
+    ``midline`` and ``width_px``)."""
+    return _of_shafts(flank_colour, image, shafts, valid_region, validity)
 
 
 def shaft_tissue_colour(image, shafts, valid_region=None, validity=None):
     """`tissue_colour` of detected shafts (`detector.Shaft`, or lines.json records with
     ``midline`` and ``width_px``)."""
-    if not len(shafts):
-        return np.zeros(0)
-    get = (lambda s, k: s[k]) if isinstance(shafts[0], dict) else getattr
-    return tissue_colour(image, [np.asarray(get(s, "midline"), float) for s in shafts],
-                         [float(get(s, "width_px")) for s in shafts], valid_region, validity)
+    return _of_shafts(tissue_colour, image, shafts, valid_region, validity)
