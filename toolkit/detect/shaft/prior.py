@@ -44,6 +44,7 @@ import numpy as np
 
 from pencilcal.toolkit.detect.working import to_working_points
 from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.geometry.angles import circular_mean, line_diff, segment_angle
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 
 __all__ = ["AxisPrior", "AXIS_GATE", "JACKKNIFE_GROUPS", "WIDTH_RANGE", "line_chi2", "select_through", "as_priors", "fulcrum_prior",
@@ -218,19 +219,15 @@ def _direction_fit(ideal, st):
     >>> np.round(X, 3).tolist(), inl.tolist()
     ([1.0, 0.006, 0.0], [True, True, True, True, False])
     """
-    ideal = np.asarray(ideal, float)
-    phi = np.arctan2(ideal[:, 3] - ideal[:, 1], ideal[:, 2] - ideal[:, 0])
+    phi = segment_angle(ideal)
     st = np.broadcast_to(np.asarray(st, float), phi.shape)
     w = 1.0 / st**2
-
-    def wrap(a):  # line directions differ modulo pi
-        return np.angle(np.exp(2j * a)) / 2
-
-    E = (wrap(phi[None, :] - phi[:, None]) / st[None, :]) ** 2
+    # line directions differ modulo pi
+    E = (line_diff(phi[None, :], phi[:, None]) / st[None, :]) ** 2
     mask = E[int(np.argmin(np.minimum(E, AXIS_GATE).sum(1)))] < AXIS_GATE
     for _ in range(20):
-        u = 0.5 * np.angle(np.sum(w[mask] * np.exp(2j * phi[mask])))
-        e2 = (wrap(phi - u) / st) ** 2
+        u = circular_mean(phi[mask], w[mask], period=np.pi)
+        e2 = (line_diff(phi, u) / st) ** 2
         new = e2 < AXIS_GATE
         if np.array_equal(new, mask) or new.sum() < 3:
             break
