@@ -9,6 +9,7 @@ Format (docs/formats.md)::
                  "offset_sigma_px": [...],            # optional, one per segment
                  "width_px": [...],                   # optional, bars: one per segment
                  "circle_points": [[x, y], ...],      # optional, radial targets
+                 "angle_sigma_error_deg": [...],      # optional, a star's edges: one per segment
                  "shafts": [{"midline": [x1, y1, x2, y2], "width_px": 84.0,
                              "angle_sigma_deg": 0.2}]}]}
 
@@ -159,8 +160,8 @@ def frame_record(d, where):
 
     `where` names the file and frame in the InputError raised for a wrong field: `segments`
     must be numbers ([x1, y1, x2, y2] each; NaN/inf kept: the estimators drop such
-    segments and say so), `angle_sigma_deg`, `offset_sigma_px`, `width_px` one finite
-    number > 0 per segment, `circle_points` finite [x, y] pairs, `ok` a boolean; each shaft
+    segments and say so), `angle_sigma_deg`, `offset_sigma_px`, `width_px`,
+    `angle_sigma_error_deg` one finite number > 0 per segment, `circle_points` finite [x, y] pairs, `ok` a boolean; each shaft
     as `_shaft_record` checks it.
 
     >>> frame_record({"segments": [[0, 0, 10, 0]], "angle_sigma_deg": ["0.1"]}, "l.json: frame 0")
@@ -177,7 +178,7 @@ def frame_record(d, where):
         raise InputError(f"{where}: 'ok' must be true or false, got {ok!r}")
     rec["ok"] = bool(ok)
     rec["segments"] = _segments(d.get("segments"), where)
-    for key in ("angle_sigma_deg", "offset_sigma_px", "width_px"):
+    for key in ("angle_sigma_deg", "offset_sigma_px", "width_px", "angle_sigma_error_deg"):
         if d.get(key) is not None:
             rec[key] = _per_segment(d[key], key, rec["segments"].shape[0], where)
     if d.get("circle_points") is not None:

@@ -44,6 +44,8 @@ BAD_FRAMES = [
     ({"segments": SEG, "offset_sigma_px": [float("inf"), 0.1]}, "'offset_sigma_px' must be finite and > 0"),
     ({"segments": SEG, "width_px": [1.0, "2"]}, "'width_px' must be a list of numbers"),
     ({"segments": SEG, "width_px": [1.0, float("nan")]}, "'width_px' must be finite and > 0"),
+    ({"segments": SEG, "angle_sigma_error_deg": [0.1]}, "'angle_sigma_error_deg' has 1 values for 2 segments"),
+    ({"segments": SEG, "angle_sigma_error_deg": [0.1, -0.2]}, "'angle_sigma_error_deg' must be finite and > 0"),
     ({"segments": SEG, "ok": "false"}, "'ok' must be true or false"),
     ({"segments": SEG, "shafts": {"midline": [0, 0, 1, 1]}}, "'shafts' must be a list"),
 ]
