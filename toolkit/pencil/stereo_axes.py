@@ -647,7 +647,7 @@ def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
                 fit, C_noise, play, factor = _axes_with_noise(P, D, _constrained_covariances(axes, fit.point, C),
                                                                E, robust, fits=fits)
     except EstimationError as e:
-        raise EstimationError(f"no stereo fulcrum: fewer than two of the {len(axes)} stereo axes meet near one "
+        raise EstimationError(f"fewer than two of the {len(axes)} stereo axes meet near one "
                               f"point, even with their scatter taken into their covariances ({e})") from None
     C = C_noise
     if rig_cov is None:
