@@ -539,10 +539,18 @@ def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS, fits=None):
     point's variance factor (`fulcrum._point_with_noise`)."""
     lift = np.zeros((4, 4))
     lift[2, 2] = lift[3, 3] = 1.0
-    fit = fulcrum_3d(P, D, C, robust, axis_frames=E)
-    s2 = _play(P, D, C, E, np.asarray(fit.point, float))
+    try:
+        fit = fulcrum_3d(P, D, C, robust, axis_frames=E)
+    except EstimationError:
+        # the gate at the stated covariances keeps fewer than two axes where they scatter far
+        # beyond them (edges three times noisier than stated and the port's play: 4 in 40
+        # pivots of 8 axes): the first point is then only the start of the play, so every axis
+        # is taken, and the gate is applied once the noise is in the covariances
+        fit = None
+    x = np.asarray((fulcrum_3d(P, D, C, False, axis_frames=E) if fit is None else fit).point, float)
+    s2 = _play(P, D, C, E, x)
     k = 1.0
-    if s2 == 0.0:  # the axes' median meets its own: no scatter beyond their covariances
+    if s2 == 0.0 and fit is not None:  # the axes' median meets its own: no scatter beyond their covariances
         return fit, C, 0.0, 1.0
     fit = fulcrum_3d(P, D, C + s2 * lift, robust, axis_frames=E)
     for _ in range(runs):
@@ -620,6 +628,8 @@ def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
     solved together with that error, under its prior (`_with_rig`, the gate's axes, their
     covariances with the factor and the play, their fits' residuals with the factor), and
     its covariance is the point's marginal, the edges' noise and the rig's both in it.
+    EstimationError (one line, saying so) where fewer than two axes meet near one point even
+    with their scatter in their covariances.
     """
     if len(axes) < 2:
         raise EstimationError(f"the stereo fulcrum needs two axes, got {len(axes)}")
@@ -629,12 +639,16 @@ def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
     E = np.stack([a.axis_frame for a in axes])
     fits = (np.array([a.chi2 for a in axes], float), np.array([a.dof for a in axes], float),
             np.stack([a.rig_information for a in axes]), np.stack([a.rig_vector for a in axes]))
-    fit, C_noise, play, factor = _axes_with_noise(P, D, C, E, robust, fits=fits)
-    if any(a.problem is not None for a in axes):
-        # the weights from covariances at the lines through the fulcrum (`_constrained_covariances`)
-        for _ in range(2):
-            fit, C_noise, play, factor = _axes_with_noise(P, D, _constrained_covariances(axes, fit.point, C), E,
-                                                           robust, fits=fits)
+    try:
+        fit, C_noise, play, factor = _axes_with_noise(P, D, C, E, robust, fits=fits)
+        if any(a.problem is not None for a in axes):
+            # the weights from covariances at the lines through the fulcrum (`_constrained_covariances`)
+            for _ in range(2):
+                fit, C_noise, play, factor = _axes_with_noise(P, D, _constrained_covariances(axes, fit.point, C),
+                                                               E, robust, fits=fits)
+    except EstimationError as e:
+        raise EstimationError(f"fewer than two of the {len(axes)} stereo axes meet near one "
+                              f"point, even with their scatter taken into their covariances ({e})") from None
     C = C_noise
     if rig_cov is None:
         return AxesFulcrum(fit.point, fit.point_cov, float(fit.point_sigma), fit, False, play, factor)
