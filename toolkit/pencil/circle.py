@@ -27,9 +27,10 @@ other smears every circle over a range of radii, while points on no circle (line
 a sheet's edge) still fill loose groups about it, at times more points than the one tight
 ring about the right plane. That grouping is free to pick, from rings smeared over a range of
 radii (by the wrong twin's plane, or by the vertex's error), the points that make circles about
-the twin it groups by; so the points are also chained on the image alone (`_chains`), and where
-the chains that go all round (whole rings) lie nearer the other twin, their estimate is taken
-(`circle_estimate`).
+the twin it groups by; so the points are also chained on the image alone (`_chains`): a group's
+circle counts only where it lies along the chains it takes points from, not across them
+(`_takes_chains_whole`), and where the chains that go all round (whole rings) lie nearer the
+other twin, their estimate is taken (`circle_estimate`).
 
 Example
 -------
@@ -327,15 +328,19 @@ def _nearer_twin(n, R, R_twin):
 
 
 def _grouped(points, x, x_cov, R, R_twin, scale, radii):
-    """`circle_estimate` of the points grouped by their radius on each twin's plane, the
-    twin whose circles fix the plane better kept; or None."""
+    """`circle_estimate` of the points grouped by their radius on each twin's plane, each
+    group's circle kept where it lies along the chains it takes points from
+    (`_takes_chains_whole`), the twin whose circles fix the plane better kept; or None."""
     best = None
+    chain = np.empty(points.shape[0], int)
+    for k, g in enumerate(_chains(points, x, scale)):
+        chain[g] = k
     for which, Rk in enumerate((R, R_twin)):
         rho, ang = plane_radii(points, x, Rk)
         fits = []
         for g in _groups(rho, ang):
             got = _circle(points, g, scale)
-            if got is not None:
+            if got is not None and _takes_chains_whole(points, got, chain, scale):
                 fits.append((got[0], got[1], float(np.median(rho[got[1]]))))
         mask, depth = _matched_radii(np.array([f[2] for f in fits]), radii)
         fits = [f for f, m in zip(fits, mask) if m]
@@ -353,6 +358,27 @@ def _grouped(points, x, x_cov, R, R_twin, scale, radii):
     if best is None:
         return None
     return _estimate(x, x_cov, scale, *best[1:])
+
+
+#: A circle grouped by a twin's radii has at least this share of the points of the chains it
+#: takes points from on its ellipse (`_takes_chains_whole`): a fifth, the least that left every
+#: circle of the shared dartboard photos as it was (a half dropped some of their rings).
+WHOLE_CHAINS = 0.2
+
+
+def _takes_chains_whole(points, got, chain, scale):
+    """Whether the circle got = (ellipse fit, indices kept) of points grouped by a twin's
+    radii lies along the chains (`_chains`; chain (K,) each point's) it takes three points or
+    more from: `WHOLE_CHAINS` of their points or more within max(3 sd, 0.3 px) of its
+    ellipse. A group cut out of rings that the twin's plane smears over its radius crosses
+    them, and most of their points lie off it."""
+    fit, keep = got
+    ids, n = np.unique(chain[keep], return_counts=True)
+    touched = np.isin(chain, ids[n >= 3])
+    if not touched.any():
+        return True
+    d = np.abs(sampson_distances(fit.conic, points[touched])) * scale
+    return bool(np.count_nonzero(d <= max(3.0 * fit.rms * scale, 0.3)) >= WHOLE_CHAINS * touched.sum())
 
 
 def _rings(points, x, x_cov, R, R_twin, scale, radii):
