@@ -189,6 +189,35 @@ def test_circles_of_a_few_short_arcs_do_not_choose_the_twin():
     assert t.err_deg < 0.2
 
 
+def test_nested_rings_grouped_by_the_wrong_twin_do_not_choose_it():
+    """A 64-wedge star 25 % of the frame's height tilted 17 deg (`photo_conditions(80, 760)`,
+    frame 78), the vertex 2.1 px off (its sd 0.2 px): the circle points of the two edges of its
+    outline, grouped at the wrong twin's radii, made 7 loose circles about that twin's plane
+    and chose it (34 deg off, chi2 0.5 against 8736). Chained on the image they are two whole
+    rings nearer the right twin, which overrule them (`circle.circle_estimate`): the twin is
+    not the wrong one. Measured: ok, 44 spokes, the twin open (the lines' normal's sigma 14.6
+    deg), the nearer twin 0.57 deg off."""
+    from pencilcal.validation.radial_renders import photo_conditions, photo_trial
+
+    t = photo_trial(photo_conditions(80, 760)[78])
+    assert t.ok and t.spokes_used >= 40
+    assert not t.resolved or t.twin_right
+    assert t.err_deg < 1.0
+
+
+def test_circles_cut_across_chains_do_not_choose_the_twin():
+    """A 64-wedge star 27 % of the frame's height tilted 51 deg
+    (`photographic_conditions(40, 1200)`, frame 30): 4 circles of 12-32 points, grouped at
+    one radius of the wrong twin from pieces of the points' chains, chose it (78 deg off);
+    its outline is a chain of 98 points that does not go all round. A grouped circle now
+    counts only where it lies along the chains it takes points from (`circle.WHOLE_CHAINS`).
+    Measured: not ok ("ambiguous labelling": 31 of 64 spokes, the twin open)."""
+    from pencilcal.validation.radial_renders import photo_trial, photographic_conditions
+
+    t = photo_trial(photographic_conditions(40, 1200)[30])
+    assert not t.ok or not t.resolved or t.twin_right
+
+
 def test_photographic_effects_are_exact():
     """`photographic_conditions`' effects keep the truth: a curled sheet's polygons drawn flat
     image where the bent sheet's points do (each vertex on the camera's ray through the bent

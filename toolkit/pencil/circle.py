@@ -25,7 +25,12 @@ listed ones are used, and the vertex's depth follows. The twin whose circles fix
 better (the smaller trace of its covariance from the conics) is the one grouped by: the
 other smears every circle over a range of radii, while points on no circle (lines of print,
 a sheet's edge) still fill loose groups about it, at times more points than the one tight
-ring about the right plane.
+ring about the right plane. That grouping is free to pick, from rings smeared over a range of
+radii (by the wrong twin's plane, or by the vertex's error), the points that make circles about
+the twin it groups by; so the points are also chained on the image alone (`_chains`): a group's
+circle counts only where it lies along the chains it takes points from, not across them
+(`_takes_chains_whole`), and where the chains that go all round (whole rings) lie nearer the
+other twin, their estimate is taken (`circle_estimate`).
 
 Example
 -------
@@ -42,7 +47,7 @@ Example
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -52,6 +57,12 @@ from pencilcal.toolkit.geometry.conic import conic_matrix, fit_ellipse, sampson_
 __all__ = ["CircleEstimate", "circle_estimate", "conic_normal", "plane_radii", "normal_agreement", "circle_choice",
            "circle_record", "line_normal_cov", "circular_points", "DECISIVE_CHI2", "spokes_end"]
 
+#: Points of one circle's image follow one another round the vertex (`_chains`): the next one
+#: within LINK_DEG of direction (a 64-wedge star's outline shows on every other ray, a
+#: dartboard's rings across its wires) and LINK_PX plus LINK_REL of the radius per degree of
+#: it (an ellipse of axes 2:1 about its centre changes its radius by at most 0.6 % per degree);
+#: a dartboard's nested rings lie 5 % apart.
+LINK_DEG, LINK_PX, LINK_REL = 12.0, 1.5, 0.01
 #: Points of one circle lie within this of each other in log radius on the plane (under the
 #: right rotation): 1 px of scatter at 100 px is 1 %; rings of a dartboard differ by 5 %.
 GROUP_LOG_RADIUS = 0.01
@@ -76,7 +87,8 @@ class CircleEstimate:
     their scatter about it [px]; depth: the vertex depth from the listed radii, or None;
     conics: (C, 3, 3) the circles' images (normalised coordinates, unit norm);
     cov_conics: (3, 3) the normal's covariance from the conics alone (the vertex held);
-    jac_vertex: (3, 2) how the normal moves with the vertex's image (normalised).
+    jac_vertex: (3, 2) how the normal moves with the vertex's image (normalised);
+    rings: (3,) the normal of the whole rings alone (`circle_estimate`), or None.
     """
 
     normal: np.ndarray
@@ -93,6 +105,7 @@ class CircleEstimate:
     conics: np.ndarray | None = None
     cov_conics: np.ndarray | None = None
     jac_vertex: np.ndarray | None = None
+    rings: np.ndarray | None = None
 
 
 def conic_normal(C, x):
@@ -123,6 +136,57 @@ def plane_radii(points, x, R):
         u = (d * t[:, None] - P0) @ R
         rho = np.where(t > 0, np.hypot(u[:, 0], u[:, 1]), np.nan)
     return rho, np.arctan2(u[:, 1], u[:, 0])
+
+
+def _chains(points, x, scale):
+    """Index arrays of the points (K, 2) (normalised) that follow one another round the
+    vertex's image x (2,) as one curve, whatever the plane: each point is linked to the point
+    after it in direction about x (within `LINK_DEG`) whose distance from x is nearest its
+    own (within `LINK_PX` plus `LINK_REL` of it per degree, scale: pixels per normalised
+    unit), where that point's nearest before it is this one; the linked points are one chain.
+    Nested rings a few pixels apart are separate chains; a line of print is a chain that does
+    not go round."""
+    d = np.asarray(points, float) - np.asarray(x, float)
+    r = np.hypot(d[:, 0], d[:, 1]) * scale
+    phi = np.arctan2(d[:, 1], d[:, 0])
+    K = r.size
+    order = np.argsort(phi, kind="stable")
+    ph, rr = phi[order], r[order]
+    ph2 = np.r_[ph, ph + 2 * np.pi]  # once more round: the last links to the first
+    rr2 = np.r_[rr, rr]
+    after = np.full(K, -1)
+    cost = np.full(K, np.inf)
+    for i in range(K):
+        hi = min(int(np.searchsorted(ph2, ph[i] + np.radians(LINK_DEG), side="right")), i + K)
+        if hi <= i + 1:
+            continue
+        step = np.degrees(ph2[i + 1:hi] - ph[i])
+        tol = LINK_PX + LINK_REL * rr[i] * step
+        dr = np.abs(rr2[i + 1:hi] - rr[i])
+        # the nearest in radius for its step, the next direction preferred among equals
+        c = np.where((step > 0) & (dr <= tol), dr / tol + step / LINK_DEG, np.inf)
+        j = int(np.argmin(c))
+        if np.isfinite(c[j]):
+            after[i], cost[i] = (i + 1 + j) % K, c[j]
+    before = np.full(K, -1)
+    best = np.full(K, np.inf)
+    for i in np.argsort(cost, kind="stable"):
+        j = after[i]
+        if j >= 0 and cost[i] < best[j]:
+            before[j], best[j] = i, cost[i]
+    nxt = np.where((after >= 0) & (before[np.maximum(after, 0)] == np.arange(K)), after, -1)
+    # every point has one link out at most and one in: the chains are paths, or rings closed
+    # on themselves, each walked from its first point (any of a ring's)
+    has_in = np.zeros(K, bool)
+    has_in[nxt[nxt >= 0]] = True
+    roots = np.full(K, -1)
+    for start in np.r_[np.flatnonzero(~has_in), np.arange(K)]:
+        i = start
+        while i >= 0 and roots[i] < 0:
+            roots[i] = start
+            i = nxt[i]
+    roots = roots[np.argsort(order)]  # back to the points' order
+    return [np.flatnonzero(roots == k) for k in np.unique(roots)]
 
 
 def _groups(rho, ang):
@@ -231,16 +295,52 @@ def circle_estimate(points, x, x_cov, R, R_twin, *, scale, radii=None):
         (the camera's focal length), for the thresholds in pixels; radii: (L,) the circles'
         radii when known (the pencil file's ``circles``): only groups in their ratios count.
 
-    Returns a `CircleEstimate`, None when no group of points makes a circle.
+    The points are grouped by their radius on each twin's plane, and the twin whose circles
+    fix the plane better kept (module docstring); the points are also grouped on the image
+    alone (`_chains`), and the chains that go round the vertex and fit an ellipse (whole
+    rings) give the circles' normal without reference to either twin. Where that normal lies
+    nearer the other twin than the grouped one does, the rings' estimate is returned: grouped
+    by a twin's radii, points of two nested rings that the twin's plane and the vertex's
+    error smear over one radius make loose circles about that twin's plane, which then chose
+    it (a small star tilted 17 deg, the vertex 2 px off: 7 such circles of 15-42 points, 34
+    deg from the truth, where its two rings are chains of 148 and 102 points 0.1 px about
+    their ellipses, 7 deg from it). Elsewhere the grouped estimate: a dartboard's rings,
+    broken at every sector boundary where their edges change sign, are arcs on the image
+    that only their radii group.
+
+    Returns a `CircleEstimate` (``rings`` the whole rings' normal (3,) or None), None when no
+    group of points makes a circle.
     """
     points = np.asarray(points, float).reshape(-1, 2)
+    x = np.asarray(x, float)
+    grouped = _grouped(points, x, x_cov, R, R_twin, scale, radii)
+    rings = _rings(points, x, x_cov, R, R_twin, scale, radii)
+    if rings is None:
+        return grouped
+    if grouped is None or _nearer_twin(grouped.normal, R, R_twin) != _nearer_twin(rings.normal, R, R_twin):
+        return replace(rings, rings=rings.normal)
+    return replace(grouped, rings=rings.normal)
+
+
+def _nearer_twin(n, R, R_twin):
+    """0 or 1: the rotation of R, R_twin (3, 3) whose normal lies nearer the unit normal n (3,)."""
+    return int(abs(n @ np.asarray(R_twin, float)[:, 2]) > abs(n @ np.asarray(R, float)[:, 2]))
+
+
+def _grouped(points, x, x_cov, R, R_twin, scale, radii):
+    """`circle_estimate` of the points grouped by their radius on each twin's plane, each
+    group's circle kept where it lies along the chains it takes points from
+    (`_takes_chains_whole`), the twin whose circles fix the plane better kept; or None."""
     best = None
+    chain = np.empty(points.shape[0], int)
+    for k, g in enumerate(_chains(points, x, scale)):
+        chain[g] = k
     for which, Rk in enumerate((R, R_twin)):
         rho, ang = plane_radii(points, x, Rk)
         fits = []
         for g in _groups(rho, ang):
             got = _circle(points, g, scale)
-            if got is not None:
+            if got is not None and _takes_chains_whole(points, got, chain, scale):
                 fits.append((got[0], got[1], float(np.median(rho[got[1]]))))
         mask, depth = _matched_radii(np.array([f[2] for f in fits]), radii)
         fits = [f for f, m in zip(fits, mask) if m]
@@ -250,13 +350,70 @@ def circle_estimate(points, x, x_cov, R, R_twin, *, scale, radii=None):
         n, cov_c, chi2, dof = _combine(normals, covs)
         # the twin whose circles fix the plane better: under the wrong one, points off any
         # circle (a printed line of text, the sheet's edge, a star's outline smeared over a
-        # range of radii) still fill loose groups, more points in all than the one tight ring
+        # range of radii) still fill loose groups, more points in all than the one tight
+        # ring
         info = 1.0 / max(float(np.trace(cov_c)), 1e-300)
         if best is None or info > best[0]:
-            best = (info, which, fits, depth, normals, covs, n, cov_c, chi2, dof)
+            best = (info, which, fits, depth, covs, n, cov_c, chi2, dof)
     if best is None:
         return None
-    _, which, fits, depth, normals, covs, n, cov_c, chi2, dof = best
+    return _estimate(x, x_cov, scale, *best[1:])
+
+
+#: A circle grouped by a twin's radii has at least this share of the points of the chains it
+#: takes points from on its ellipse (`_takes_chains_whole`): a fifth, the least that left every
+#: circle of the shared dartboard photos as it was (a half dropped some of their rings).
+WHOLE_CHAINS = 0.2
+
+
+def _takes_chains_whole(points, got, chain, scale):
+    """Whether the circle got = (ellipse fit, indices kept) of points grouped by a twin's
+    radii lies along the chains (`_chains`; chain (K,) each point's) it takes three points or
+    more from: `WHOLE_CHAINS` of their points or more within max(3 sd, 0.3 px) of its
+    ellipse. A group cut out of rings that the twin's plane smears over its radius crosses
+    them, and most of their points lie off it."""
+    fit, keep = got
+    ids, n = np.unique(chain[keep], return_counts=True)
+    touched = np.isin(chain, ids[n >= 3])
+    if not touched.any():
+        return True
+    d = np.abs(sampson_distances(fit.conic, points[touched])) * scale
+    return bool(np.count_nonzero(d <= max(3.0 * fit.rms * scale, 0.3)) >= WHOLE_CHAINS * touched.sum())
+
+
+def _rings(points, x, x_cov, R, R_twin, scale, radii):
+    """`circle_estimate` of the chains of points that go round the vertex and fit an
+    ellipse (`_chains`: grouped on the image alone), their radii and the vertex's depth
+    given on the plane of the twin their normal lies nearer; or None."""
+    fits = []
+    for g in _chains(points, x, scale):
+        d = points[g] - x
+        if g.size >= MIN_POINTS and _around(np.arctan2(d[:, 1], d[:, 0])):
+            got = _circle(points, g, scale)
+            if got is not None:
+                fits.append(got)
+    if not fits:
+        return None
+    # listed radii's ratios hold on either twin's plane alike (in each direction the twins'
+    # radii differ by one factor for every circle about the vertex): the twin that matches
+    # more of them says which count
+    rho = [np.array([np.median(plane_radii(points[keep], x, Rk)[0]) for _, keep in fits]) for Rk in (R, R_twin)]
+    matched = [_matched_radii(r, radii)[0] for r in rho]
+    mask = matched[0] if matched[0].sum() >= matched[1].sum() else matched[1]
+    if not mask.any():
+        return None
+    normals, covs = _normals([f for f, m in zip(fits, mask) if m], x)
+    n, cov_c, chi2, dof = _combine(normals, covs)
+    which = _nearer_twin(n, R, R_twin)
+    fits = [(f, keep, r) for (f, keep), r, m in zip(fits, rho[which], mask) if m]
+    depth = _matched_radii(np.array([f[2] for f in fits]), radii)[1]
+    return _estimate(x, x_cov, scale, which, fits, depth, covs, n, cov_c, chi2, dof)
+
+
+def _estimate(x, x_cov, scale, which, fits, depth, covs, n, cov_c, chi2, dof):
+    """The `CircleEstimate` of circles fits [(ellipse fit, indices kept, radius on the plane)]
+    grouped by (or lying about) the twin `which`, their combined normal n (3,) and its
+    covariance from the conics cov_c (3, 3)."""
     # the vertex moves every circle's normal together: its term on the combination
     Jx = _combined_jacobian(fits, x, covs)
     cov = cov_c + Jx @ np.asarray(x_cov, float) @ Jx.T
@@ -270,7 +427,7 @@ def circle_estimate(points, x, x_cov, R, R_twin, *, scale, radii=None):
 def _normals(fits, x):
     """The circles' normals (C, 3) and their covariances (C, 3, 3) from their conics' fits."""
     normals, covs = [], []
-    for fit, _, _ in fits:
+    for fit, *_ in fits:
         n, Jq, _ = conic_normal(fit.conic, x)
         normals.append(n), covs.append(Jq @ fit.cov @ Jq.T)
     return np.array(normals), np.array(covs)
