@@ -52,8 +52,9 @@ from pencilcal.toolkit.pencil.lens_uncertainty import (orientation_totals, ray_s
                                                        resolve_intrinsics_cov, vertex_cov_total_px2)
 from pencilcal.toolkit.pencil.orient import orientation_record, raw_vertex
 from pencilcal.toolkit.pencil.orientation import Orientation
-from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, Fusion, RayTriangulation, combine_estimates,
-                                               fulcrum_3d, shaft_axis_record, triangulate_rays)
+from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, Fusion, RayTriangulation, axis_frame,
+                                               combine_estimates, fulcrum_3d, project_cylinder, shaft_axis,
+                                               shaft_axis_record, triangulate_rays)
 from pencilcal.toolkit.pencil.sequence_noise import MAX_RUNS, inflation
 from pencilcal.toolkit.pencil.parallax import vertex_with_parallax
 
@@ -219,7 +220,9 @@ class FulcrumPoint:
     quantity is then in the reference frame's camera, and the axes' points are carried.
     variance_factor: what point_cov was multiplied by, the still camera's and the moving
     camera's alike: the used axes' chi2 per degree of freedom (2N - 3, or 2N - 4 with the
-    map unit) where above 1, else 1.
+    map unit) where above 1, else 1; where the still camera's axes took the port's play
+    (`_point_with_play`), the factor on the axes' covariances that went with it. play: that
+    play's variance [length^2] per direction (0: none taken).
     """
 
     fit: Fulcrum3D
@@ -231,12 +234,13 @@ class FulcrumPoint:
     lens_cov: np.ndarray | None = None
     camera_motion: dict | None = None
     variance_factor: float = 1.0
+    play: float = 0.0
 
     def to_dict(self) -> dict:
         """point, point_cov, point_sigma, point_axes_used, point_outliers ({image, shaft,
         distance, chi2} of each axis left out), point_axes ({image, shaft, distance, chi2,
         used, and axis_point, axis_direction where known} of every axis), point_chi2_dof,
-        point_variance_factor and shaft_diameter; with `lens_cov` (the intrinsics' term)
+        point_variance_factor, point_play_sigma and shaft_diameter; with `lens_cov` (the intrinsics' term)
         also point_cov_total = point_cov + lens_cov and point_sigma_total (docs/formats.md)."""
         f = self.fit
         used = np.asarray(f.inliers)
@@ -252,6 +256,7 @@ class FulcrumPoint:
                                   if not a["used"]],
                "point_chi2_dof": float(np.sum(np.asarray(f.chi2)[used]) / dof),
                "point_variance_factor": float(self.variance_factor),
+               "point_play_sigma": float(np.sqrt(self.play)),
                "point_axes": axes, "shaft_diameter": self.diameter}
         if self.camera_motion is not None:
             out["point_camera_motion"] = dict(self.camera_motion)
@@ -292,32 +297,137 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None):
                               + (f" ({skipped} shaft(s) without edge_cov or a valid axis)" if skipped else ""))
     if any(p is not None for p in poses):
         return _moving_point(points, dirs, covs, poses, owners, diameter, skipped, robust)
-    fit, factor = _point_with_noise(np.array(points), np.array(dirs), np.array(covs), robust)
+    ideal = [(camera.undistort_pixels(np.asarray(e, float).reshape(-1, 2)), c) for e, c in measured]
+    fit, factor, play = _point_with_noise(np.array(points), np.array(dirs), np.array(covs), robust,
+                                          (np.asarray(camera.K, float), ideal, 0.5 * float(diameter)))
     lens = None
     if intrinsics_cov is not None:
         used = [measured[k] for k in np.flatnonzero(np.asarray(fit.inliers))]
         lens = point_lens_cov(camera, intrinsics_cov, used, diameter)
     return FulcrumPoint(fit=fit, owners=owners, diameter=float(diameter), skipped=skipped,
                         axis_points=np.array(points), axis_directions=normalize(np.array(dirs)), lens_cov=lens,
-                        variance_factor=factor)
+                        variance_factor=factor, play=play)
 
 
-def _point_with_noise(points, dirs, covs, robust):
-    """(Fulcrum3D, variance factor) of `fulcrum_point`'s still camera (points, dirs (N, 3),
+def _point_with_noise(points, dirs, covs, robust, edges=None):
+    """(Fulcrum3D, variance factor, play) of `fulcrum_point`'s still camera (points, dirs (N, 3),
     covs (N, 4, 4) as `cylinder.fulcrum_3d` takes them): the axes' own
     scatter taken in, as the image lines' fulcrum takes its lines' (`sequence_noise`), only
-    ever inflating. The factor is the used axes' chi2 over 2N - 3; while a run's own factor
+    ever inflating.
+
+    With the axes' edges (edges: (K (3, 3), [(edges (2, 4) [undistorted px], edge_cov (2,
+    2, 2))] per axis, radius)) the scatter is first read as the stereo axes' is
+    (`_point_with_play`: a factor on the axes' covariances and the port's play, each axis
+    weighed at the line through the point); that fit is kept where the play it reads is one
+    a port can have (`_PLAY_OF_DIAMETER`). Otherwise, and without the edges, a factor alone:
+    the used axes' chi2 over 2N - 3; while a run's own factor
     is above 1.1^2 the axes are fitted again with their covariances times the factor so far
     (at most `sequence_noise.MAX_RUNS` runs), because the 99 % gate of a run whose
     covariances are too small leaves out the larger residuals and would bias the factor
-    low. The last run's covariance times its own factor; the factor returned is the total."""
+    low. The last run's covariance times its own factor; the factor returned is the total
+    (with the play: the factor on the axes' covariances). play: the play's variance
+    [length^2] per direction, 0 without it."""
+    if edges is not None:
+        played = _point_with_play(points, dirs, covs, robust, *edges)
+        if played is not None:
+            return played
+
     def own_factor(fit):
         used = np.asarray(fit.inliers, bool)
         return inflation(np.sum(np.asarray(fit.chi2)[used]), 2 * int(used.sum()) - 3)
 
     fit, own, total = _runs_at_noise(lambda f: fulcrum_3d(points, dirs, covs * f, robust=robust), own_factor)
     fit = dataclasses.replace(fit, point_cov=fit.point_cov * own, point_sigma=fit.point_sigma * np.sqrt(own))
-    return fit, total * own
+    return fit, total * own, 0.0
+
+
+#: The largest play (sd per direction, as a fraction of the shaft's diameter) read as the
+#: port's: an instrument's shaft fits its port within a fraction of its width (a millimetre
+#: or so for an 8 mm shaft). A scatter that needs more is not one pivot with play (a fulcrum
+#: or camera that moved, misread shafts), and an isotropic play would hide it: the factor
+#: alone then, whose jackknife (`validation.checks.point_jackknife`) judges it.
+_PLAY_OF_DIAMETER = 1.0 / 8.0
+
+
+def _point_with_play(points, dirs, covs, robust, K, edges, radius):
+    """(Fulcrum3D, factor, play) of the still camera's axes with a factor k on their covariances
+    and an isotropic play s2 on their positions, as the stereo axes' (`stereo_axes.
+    axes_with_noise`: k and s2 by maximum likelihood on the gate's offsets), each axis
+    weighed by its covariance evaluated at the line through the point nearest to it
+    (`_covariances_at_point`; twice, the noise terms refitted each time). None where the
+    play's sd exceeds `_PLAY_OF_DIAMETER` of the diameter (2 radius), or where too few axes
+    meet with the play in.
+
+    An axis's covariance evaluated at its own estimate follows its own error: its depth's
+    sd grows as the square of its depth, so an axis read too near weighs more and the
+    point leans towards the camera; and a factor alone, one scale on every axis, leaves
+    the precise axes' share of the port's play too small."""
+    from pencilcal.toolkit.pencil.stereo_axes import axes_with_noise
+
+    E = axis_frame(points, dirs)
+    try:
+        fit, _, play, k = axes_with_noise(points, dirs, covs, E, robust)
+        for _ in range(2):
+            at = _covariances_at_point(K, edges, radius, points, dirs, covs, E, np.asarray(fit.point, float))
+            fit, _, play, k = axes_with_noise(points, dirs, at, E, robust)
+    except EstimationError:  # too few axes meet with the play in: the factor's own gate decides
+        return None
+    if np.sqrt(play) > _PLAY_OF_DIAMETER * 2.0 * radius:
+        return None
+    return fit, float(k), float(play)
+
+
+def _covariances_at_point(K, edges, radius, points, dirs, covs, frames, x):
+    """(N, 4, 4) each axis's chart covariance evaluated at the line through the point x (3,)
+    nearest to it in its own covariance's metric (``p = C M^T (M C M^T)^-1 r`` in its chart,
+    r the offset of x from the axis, ``M = [t I, I]``, t along the axis to x): what its
+    edges' noise gives a shaft lying there (`_axis_cov_at`); covs where it cannot be had."""
+    out = np.array(covs, float, copy=True)
+    for i, (e, c) in enumerate(edges):
+        v = x - points[i]
+        t = float(dirs[i] @ v)
+        M = np.array([[t, 0.0, 1.0, 0.0], [0.0, t, 0.0, 1.0]])
+        try:
+            p = covs[i] @ M.T @ np.linalg.solve(M @ covs[i] @ M.T, frames[i] @ v)
+        except np.linalg.LinAlgError:
+            continue
+        u, w = frames[i]
+        A, d = points[i] + p[2] * u + p[3] * w, normalize(dirs[i] + p[0] * u + p[1] * w)
+        at = _axis_cov_at(K, e, c, radius, points[i], dirs[i], frames[i], A - (A @ d) * d, d)
+        if at is not None:
+            out[i] = at
+    return out
+
+
+def _axis_cov_at(K, edges, edge_cov, radius, point, direction, frame, at_point, at_direction):
+    """(4, 4) the chart covariance (about point, direction, frame (2, 3): the axis's own) of
+    the axis a shaft on the line (at_point, at_direction) would give from edges over the
+    same stretch as `edges` (2, 4) [undistorted px] with their covariance edge_cov (2, 2, 2):
+    each edge moved onto that cylinder's silhouette line nearest it (`cylinder.shaft_axis`).
+    None where that line bounds no cylinder clear of the camera."""
+    try:
+        lines = project_cylinder(K, at_point, at_direction, radius).lines
+        e = np.asarray(edges, float).reshape(2, 4)
+        centre = 0.5 * (e[:, :2] + e[:, 2:])
+        dist = np.abs(lines[:, :2] @ centre.T + lines[:, 2:3])  # (line, edge)
+        order = (0, 1) if dist[0, 0] + dist[1, 1] <= dist[1, 0] + dist[0, 1] else (1, 0)
+        moved = np.array([np.concatenate([q - (lines[j, :2] @ q + lines[j, 2]) * lines[j, :2]
+                                          for q in (e[k, :2], e[k, 2:])]) for k, j in enumerate(order)])
+        ax = shaft_axis(K, moved, radius, edge_cov=np.asarray(edge_cov, float).reshape(2, 2, 2))
+    except (EstimationError, InputError):
+        return None
+    # the chart about the line's own point into the axis's: its reference point moved along
+    # the line to the axis's (s + tau theta), then both (u, w) pairs turned into the axis's
+    tau = float((np.asarray(point, float) - ax.axis_point) @ ax.axis_direction)
+    shift = np.eye(4)
+    shift[2:, :2] = tau * np.eye(2)
+    G = np.asarray(frame, float) @ np.asarray(ax.axis_frame, float).T
+    turn = np.zeros((4, 4))
+    turn[:2, :2] = np.sign(ax.axis_direction @ direction or 1.0) * G
+    turn[2:, 2:] = G
+    T = turn @ shift
+    C = T @ np.asarray(ax.axis_cov, float) @ T.T
+    return C if np.all(np.isfinite(C)) else None
 
 
 def _runs_at_noise(fit_at, own_factor):

@@ -753,3 +753,12 @@ def matched_axes(camera_left, frames_left, camera_right, frames_right, rig, diam
             owners.append({"image": frames_left[i].get("image"), "frame": i, "left": a, "right": b,
                            "left_shaft": at[a]})
     return axes, owners, len(pairs)
+
+
+def axes_with_noise(points, directions, covs, frames, robust=True):
+    """(Fulcrum3D, chart covariances (N, 4, 4) with the noise in them, play s2 [length^2],
+    factor k) of 3-D axes with no fits of their own (one eye's: `fulcrum._point_with_noise`):
+    points, directions (N, 3), covs (N, 4, 4), frames (N, 2, 3) as `cylinder.fulcrum_3d`
+    takes them; k and s2 both by maximum likelihood on the gate's offsets, as
+    `_axes_with_noise` without the fits."""
+    return _axes_with_noise(points, directions, covs, frames, robust)
