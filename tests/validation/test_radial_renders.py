@@ -218,6 +218,29 @@ def test_circles_cut_across_chains_do_not_choose_the_twin():
     assert not t.ok or not t.resolved or t.twin_right
 
 
+def test_circles_that_disagree_with_the_twin_they_chose_confirm_no_labelling():
+    """A 64-wedge star 22 % of the frame's height tilted 26 deg (`photographic_conditions(40,
+    900)`, frame 2, without its defocus): only 11 short edges at the rim found, labelled a
+    quarter turn off (7 of 64 spokes, the normal 21.7 deg off), and the twin chosen by 5
+    circles of 13-25 points whose normal was 10 deg from the twin chosen (circle_chi2 112)
+    and 65 deg from the truth: reported ok (the rings chained on the image change nothing
+    here). Circles that disagree with the normal they chose confirm no labelling that holds
+    under half the spokes even grown (`orient._unconfirmed_labelling`): "ambiguous
+    labelling", not ok."""
+    from pencilcal.toolkit.detect.lines import radial_edge_count, radial_joint_mode
+    from pencilcal.toolkit.detect.radial import orient_radial_edges
+    from pencilcal.toolkit.io.images import with_grey
+    from pencilcal.validation.radial_renders import photo_frame, photo_pencils, photographic_conditions
+
+    cond = dict(photographic_conditions(40, 900)[2], defocus_px=0.0)
+    img, cam, R, t = photo_frame(cond)
+    pen = photo_pencils(cond)[1]
+    _, rec = orient_radial_edges(with_grey(img)[0], cam, pen, edges=radial_edge_count(pen),
+                                 joint=radial_joint_mode(pen))
+    assert not rec.ok and "ambiguous labelling" in rec.error
+    assert "disagree" in rec.error
+
+
 def test_photographic_effects_are_exact():
     """`photographic_conditions`' effects keep the truth: a curled sheet's polygons drawn flat
     image where the bent sheet's points do (each vertex on the camera's ray through the bent

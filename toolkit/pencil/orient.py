@@ -296,17 +296,20 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
         fit, resolved_by, metric = _resolve_twins(fit, ln, used, th_used, s_used, prior, radius, sigma_metric)
         fit, resolved_by, circ = _resolve_by_circles(camera, fit, ln, th_used, s_used, resolved_by, circle_points,
                                                      pencil)
+        s_err = None if widen is None else s_used * widen[used]
+        own = None if circ is None else _lines_own(fit, ln, a_used, th_used, s_used, s_err)
+        circles = None if circ is None else circle_record(fit, circ, own, ln.vertex_cov)
         if labels is None:  # (given labels, a tracked frame's, passed the previous frame's tests)
-            _unconfirmed_labelling(pencil, searched, resolved_by, circle_points, circ)
+            _unconfirmed_labelling(pencil, searched, resolved_by, circle_points, circ,
+                                   None if circles is None else circles["circle_consistent"],
+                                   edge_spoke[lab[used]])
         # rival labellings that put the normal elsewhere make the normal itself ambiguous
         # (within the weighted fit's sigmas, as the labelling saw them)
         alt = _rival_normals(fit, rivals)
-        s_err = None if widen is None else s_used * widen[used]
         if s_err is not None:  # every decision taken: the covariance under the wider errors
             cov, s_tilt, s_norm = pencil_covariance(fit.R_cam_from_target, ln.vertex, th_used, s_used, ln.vertex_cov,
                                                     sigma_error=s_err)
             fit = replace(fit, cov=cov, tilt_sigma=s_tilt, normal_sigma=s_norm)
-        own = None if circ is None else _lines_own(fit, ln, a_used, th_used, s_used, s_err)
         labels_out[idx] = np.where(used, edge_spoke[np.maximum(lab, 0)], -1)
         s_mean = float(np.sqrt(np.mean(s_used**2)))
         rec = orientation_record(camera, fit, ln.vertex, v_ideal, cov_ideal, model=model, image=image,
@@ -327,8 +330,8 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
                 extra["lines"]["sigma_error"] = s_err
         if metric is not None and resolved_by is not None:
             extra.update(_metric_position(fit, metric, resolved_by, ln.vertex, pencil))
-        if circ is not None:
-            extra.update(circle_record(fit, circ, own, ln.vertex_cov))
+        if circles is not None:
+            extra.update(circles)
             if circ.depth is not None and resolved_by is not None and "vertex_cam" not in extra:
                 extra.update(_vertex_position(fit, circ.depth, ln.vertex, pencil))
         return rec.replace(**extra)
@@ -630,28 +633,45 @@ def _resolve_by_circles(camera, fit, ln, th_used, s_used, resolved_by, circle_po
 UNCONFIRMED_SPOKES = 0.5
 
 
-def _unconfirmed_labelling(pencil, spokes, resolved_by, circle_points, circ):
-    """Raise EstimationError where a labelling nothing confirms may be wrong: the twin left
-    open, circle points given (at least `circle.MIN_POINTS`) that fit no circle about the
-    fitted plane or one that chooses neither twin, and under `UNCONFIRMED_SPOKES` of the
-    pencil's spokes (spokes: (K,) the spokes of the lines the search labelled; lines the
-    labelling grew to confirm nothing). A small, steeply tilted star's few edges labelled
-    with the wrong spokes fit their angles (chi2 within its dof), and only the rings show
-    it: about a right labelling they choose its twin (circ: the circles' `CircleEstimate`
-    or None; chosen, resolved_by is "circle"). Example: 6 of 64 spokes, twin open, 40
-    circle points and no circle -> "ambiguous labelling: ...".
+def _unconfirmed_labelling(pencil, spokes, resolved_by, circle_points, circ, circle_consistent=None, grown=None):
+    """Raise EstimationError where a labelling nothing confirms may be wrong: under
+    `UNCONFIRMED_SPOKES` of the pencil's spokes (spokes: (K,) the spokes of the lines the
+    search labelled; lines the labelling grew to confirm nothing), circle points given (at
+    least `circle.MIN_POINTS`), and either the twin left open with the points fitting no
+    circle about the fitted plane or one that chooses neither twin, or the twin chosen by
+    circles whose normal disagrees with the chosen one (circle_consistent False: the
+    circle_chi2 of the record beyond its detection quantile) where the labelling grown
+    (grown: (L,) the spokes of every line used) also holds under `UNCONFIRMED_SPOKES`. A
+    small, steeply tilted star's few edges labelled with the wrong spokes fit their angles
+    (chi2 within its dof), and only the rings show it: about a right labelling they choose
+    its twin (circ: the circles' `CircleEstimate` or None; chosen, resolved_by is "circle").
+    Example: 6 of 64 spokes, twin open, 40 circle points and no circle -> "ambiguous
+    labelling: ...".
     """
     from pencilcal.toolkit.pencil.circle import MIN_POINTS
 
     n_pts = 0 if circle_points is None else np.asarray(circle_points, float).reshape(-1, 2).shape[0]
     n_spokes = int(np.unique(spokes).size)
+    if n_pts < MIN_POINTS or n_spokes >= UNCONFIRMED_SPOKES * pencil.count:
+        return
     # a circle that chooses neither twin confirms nothing either: a 64-wedge star's 8 edges
     # labelled as 6 wrong spokes (the normal 72 deg off) had one about that plane
-    if resolved_by is None and n_pts >= MIN_POINTS and n_spokes < UNCONFIRMED_SPOKES * pencil.count:
+    if resolved_by is None:
         what = "fit no circle about that plane" if circ is None else "fit a circle that chooses neither twin"
-        raise EstimationError(
-            f"ambiguous labelling: {n_spokes} of {pencil.count} spokes labelled, the twin open, and the "
-            f"{n_pts} circle points {what}: not a measurement")
+    # nor do circles that choose the twin nearer their normal but agree with neither: a
+    # 64-wedge star's 11 rim edges labelled a quarter turn off (7 spokes, the normal 22 deg
+    # off) had circles 10 deg from the twin chosen, their chi2 112. The circles' chi2 alone
+    # says too little: right labellings of every spoke exceed it too, and so did a right one
+    # grown from 7 searched spokes to 52; a wrong one found nothing to grow to
+    elif resolved_by == "circle" and circle_consistent is False and grown is not None \
+            and np.unique(grown).size < UNCONFIRMED_SPOKES * pencil.count:
+        what = "choose a twin whose normal they disagree with"
+    else:
+        return
+    raise EstimationError(
+        f"ambiguous labelling: {n_spokes} of {pencil.count} spokes labelled, "
+        f"{'the twin open' if resolved_by is None else 'the twin chosen by the circles'}, and the "
+        f"{n_pts} circle points {what}: not a measurement")
 
 
 def _lines_own(fit, ln, a_used, th_used, s_used, s_err=None, h=1e-6):

@@ -295,7 +295,9 @@ def test_a_circle_that_chooses_neither_twin_confirms_no_labelling():
     points fit no circle about its plane (`orient._unconfirmed_labelling`), and also where
     they fit one that chooses neither twin: about a right labelling the circles choose its
     twin. A 64-wedge star's 8 short edges labelled as 6 wrong spokes (the normal 72 deg off)
-    had such a circle and were reported as ok."""
+    had such a circle and were reported as ok. Circles that chose the twin but disagree with
+    its normal (circle_consistent False) confirm nothing either where the grown labelling
+    too holds under half the spokes."""
     from pencilcal.toolkit.errors import EstimationError
     from pencilcal.toolkit.pencil.circle import MIN_POINTS
     from pencilcal.toolkit.pencil.orient import _unconfirmed_labelling
@@ -309,6 +311,11 @@ def test_a_circle_that_chooses_neither_twin_confirms_no_labelling():
             _unconfirmed_labelling(star, few, None, pts, circ)
         _unconfirmed_labelling(star, many, None, pts, circ)       # half the spokes or more: reported
     _unconfirmed_labelling(star, few, "circle", pts, circle)      # the circles chose the twin
+    _unconfirmed_labelling(star, few, "circle", pts, circle, True, few)  # ... and agree with it
+    with pytest.raises(EstimationError, match="disagree"):  # ... but agree with neither twin
+        _unconfirmed_labelling(star, few, "circle", pts, circle, False, few)
+    _unconfirmed_labelling(star, few, "circle", pts, circle, False, many)  # grown to half or more
+    _unconfirmed_labelling(star, many, "circle", pts, circle, False, many)  # searched half or more
     _unconfirmed_labelling(star, few, None, pts[:MIN_POINTS - 1], None)  # too few points to judge
 
 
