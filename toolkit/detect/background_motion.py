@@ -15,7 +15,9 @@ lines are taken into the reference frame's image first:
    with ``s^2`` the inliers' residual variance, so what the background does beyond a
    homography (tissue that deforms, parallax) widens it; a frame whose own matches give
    none (too little background shared with the reference) is measured through the nearest
-   frame that has one (`_through_neighbour`, `chain_homography`);
+   frame that has one (`_through_neighbour`, `chain_homography`), and so is a frame whose
+   own homography no chain through another frame confirms and a stronger one refutes
+   (`CHAIN_PX`: a coincidence of a few matches);
 4. *lines*: a line's two end points map by H (its homogeneous vector by ``H^-T``), and its
    (angle, offset) covariance about its centre is carried by the Jacobian of the mapped
    line's (angle, offset) about its new centre in the line's own two parameters and in
@@ -52,7 +54,7 @@ from pencilcal.toolkit.detect.background_pose import FramePose, background_poses
 from pencilcal.toolkit.errors import EstimationError
 
 __all__ = ["FrameMotion", "background_motion", "background_motion_3d", "instrument_exclusion", "map_segment", "stabilize_frames",
-           "homography_cov", "chain_homography", "MIN_INLIERS", "MAX_NON_ROTATION"]
+           "homography_cov", "chain_homography", "MIN_INLIERS", "MAX_NON_ROTATION", "CHAIN_PX"]
 
 #: Lowe's ratio test of a feature's best match against its second best.
 RATIO = 0.8
@@ -73,6 +75,15 @@ MAX_NON_ROTATION = 0.5
 #: Frames measured directly, nearest first, through which a frame whose own matches to the
 #: reference give no motion is tried (`_through_neighbour`).
 NEIGHBOURS = 2
+#: The most a frame's own homography to the reference may depart from a chain through
+#: another measured frame (``H_ref_from_j H_j_from_i``) that confirms it, as the median
+#: transfer difference at the background the two frames share [undistorted px]: twice
+#: RANSAC's inlier threshold, as each of the two paths holds its matches only to within it.
+#: One that no chain confirms and a chain of more inliers refutes is refused. On the phantom the frames
+#: measured directly agree with the nearest agreeing chain to 1-2 px; frame 3's coincidental
+#: matches to frame 11 (28 inliers of 109 where frame 11's band runs on over the wrist, a
+#: homography 0.35 from a turn) depart 10-18 px from every chain (`_chain_agreement`).
+CHAIN_PX = 2.0 * RANSAC_PX
 #: SIFT features per frame.
 FEATURES = 4000
 #: SIFT's contrast threshold (its default 0.04 finds ~200 features on a bowel phantom's
@@ -298,14 +309,56 @@ def _measure(images, shafts, camera, valid, reference):
             out.append(_frame_motion(name, feats[ref], f, camera, got))
             matches.append(got[0] if out[-1].ok else None)
     direct = [m.ok for m in out]
+    # a direct homography that no chain through another measured frame confirms is a
+    # coincidence of a few matches: the frame is measured through its neighbour instead
+    refused = {}
+    for i, f in enumerate(feats):
+        if f is not None and direct[i] and i != ref:
+            least, refuting = _chain_agreement(i, ref, feats, out, direct, camera)
+            if refuting:
+                m = out[i]
+                refused[i] = FrameMotion(m.image, False, matches=m.matches, inliers=m.inliers, non_rotation=m.non_rotation,
+                                         error=(f"the background's homography ({m.inliers} inliers of {m.matches} matches) "
+                                                f"departs {least:.1f} px or more from {refuting} stronger chain(s) through "
+                                                f"other frames (> {CHAIN_PX:g}) and none confirms it"))
+    for i, m in refused.items():
+        out[i], matches[i], direct[i] = m, None, False
     for i, f in enumerate(feats):
         if f is not None and not direct[i]:
-            out[i] = _through_neighbour(i, feats, out, direct, camera)
+            out[i] = _through_neighbour(i, ref, feats, out, direct, camera)
     return ref, out, matches
 
 
-def _through_neighbour(i, feats, out, direct, camera):
-    """Frame i's `FrameMotion` through the nearest frame j measured directly whose features
+def _chain_agreement(i, ref, feats, out, direct, camera):
+    """(the departure [undistorted px] of frame i's direct homography from the chains
+    ``H_ref_from_j H_j_from_i`` through other frames j measured directly, the chains that
+    refute it). The departure of a chain is the median transfer difference of the two at
+    frame i's background matched to frame j (the step's RANSAC inliers): the region both
+    paths are measured on. Frames j are tried nearest first (never the reference `ref`: its
+    chain is the direct homography); the first chain within `CHAIN_PX` confirms it and ends
+    the search: (its departure, 0). A chain beyond it refutes the direct homography only
+    where both its links hold more inliers than the direct one (a weaker chain may be the
+    coincidence): (the least departure of those, their count); (inf, 0) where none does."""
+    best, refuting = float("inf"), 0
+    near = sorted((j for j in range(len(feats)) if direct[j] and j not in (i, ref)), key=lambda j: (abs(j - i), j))
+    for j in near:
+        got = []
+        step = _frame_motion(str(i), feats[j], feats[i], camera, got)
+        if not step.ok:
+            continue
+        src, dst, _ = got[0]
+        shared = src[np.hypot(*(_apply(step.H, src) - dst).T) <= RANSAC_PX]
+        d = float(np.median(np.hypot(*(_apply(out[j].H @ step.H, shared) - _apply(out[i].H, shared)).T)))
+        if d <= CHAIN_PX:
+            return d, 0
+        if min(out[j].inliers, step.inliers) > out[i].inliers:
+            best, refuting = min(best, d), refuting + 1
+    return best, refuting
+
+
+def _through_neighbour(i, ref, feats, out, direct, camera):
+    """Frame i's `FrameMotion` through the nearest frame j measured directly (not the reference
+    `ref`: its step is the frame's own homography) whose features
     it matches (`NEIGHBOURS` tried, nearest first): H_ref_from_i = H_ref_from_j H_j_from_i, its
     covariance the two homographies' carried by the product's Jacobian (independent: j's
     matches are to the reference, i's to j). A frame after the camera's largest move may
@@ -313,7 +366,7 @@ def _through_neighbour(i, feats, out, direct, camera):
     inliers of 103 matches, a coincidence) yet hundreds of matches with the frame beside
     it. Its matches are not the reference's, so it gets no 3-D pose. Returns out[i] where
     no neighbour measures it."""
-    near = sorted((j for j in range(len(feats)) if direct[j] and j != i), key=lambda j: (abs(j - i), j))
+    near = sorted((j for j in range(len(feats)) if direct[j] and j not in (i, ref)), key=lambda j: (abs(j - i), j))
     for j in near[:NEIGHBOURS]:
         got = []
         step = _frame_motion(str(i), feats[j], feats[i], camera, got)
