@@ -84,6 +84,10 @@ NEIGHBOURS = 2
 #: matches to frame 11 (28 inliers of 109 where frame 11's band runs on over the wrist, a
 #: homography 0.35 from a turn) depart 10-18 px from every chain (`_chain_agreement`).
 CHAIN_PX = 2.0 * RANSAC_PX
+#: Chains tried per directly measured frame (`_chain_agreement`), nearest first: a genuine
+#: homography is confirmed by its nearest neighbour's chain (1-2 px on the phantom), and a
+#: bound keeps a long video from matching every frame with every other.
+CHAIN_TRIES = 4
 #: SIFT features per frame.
 FEATURES = 4000
 #: SIFT's contrast threshold (its default 0.04 finds ~200 features on a bowel phantom's
@@ -334,14 +338,15 @@ def _chain_agreement(i, ref, feats, out, direct, camera):
     ``H_ref_from_j H_j_from_i`` through other frames j measured directly, the chains that
     refute it). The departure of a chain is the median transfer difference of the two at
     frame i's background matched to frame j (the step's RANSAC inliers): the region both
-    paths are measured on. Frames j are tried nearest first (never the reference `ref`: its
-    chain is the direct homography); the first chain within `CHAIN_PX` confirms it and ends
-    the search: (its departure, 0). A chain beyond it refutes the direct homography only
-    where both its links hold more inliers than the direct one (a weaker chain may be the
-    coincidence): (the least departure of those, their count); (inf, 0) where none does."""
+    paths are measured on. The `CHAIN_TRIES` nearest frames j are tried, nearest first
+    (never the reference `ref`: its chain is the direct homography); the first chain within
+    `CHAIN_PX` confirms it and ends the search: (its departure, 0). A chain beyond it refutes
+    the direct homography only where both its links hold more inliers than the direct one (a
+    weaker chain may be the coincidence): (the least departure of those, their count); (inf,
+    0) where none does."""
     best, refuting = float("inf"), 0
     near = sorted((j for j in range(len(feats)) if direct[j] and j not in (i, ref)), key=lambda j: (abs(j - i), j))
-    for j in near:
+    for j in near[:CHAIN_TRIES]:
         got = []
         step = _frame_motion(str(i), feats[j], feats[i], camera, got)
         if not step.ok:
