@@ -272,7 +272,13 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
         r_joint = within(_clear_radius(phi, JOINT_SIGMAS * blur))
         r_lo = np.where(clear_ok, within(_clear_radius(phi, clear)), r_joint)
         lines = np.where(fit.ok[:, None], fit.lines(), ray)
-        located, _ = joint_refit(lin, camera, lines, v, sign, blur, r_lo, r_hi, rows=rows, search=_SEARCH_PX[-1])
+        # the blur's direction (where `radial_joint.DIRECTIONAL_BLUR` is set) fitted on a
+        # star's wedges (every edge modelled), never on a dartboard's crowded boundaries (raised
+        # wires beside them; a few edges): there it cost the left shared photo 2 of its 20 sector
+        # edges and the right one's planes went 0.135 -> 0.283 deg apart
+        directional = joint == "all"
+        located, _ = joint_refit(lin, camera, lines, v, sign, blur, r_lo, r_hi, rows=rows, search=_SEARCH_PX[-1],
+                                 directional=directional)
         # the same for an edge whose clear stretch was long enough but whose joint fit kept
         # less than min_length of it (the fit drops the outer end's stations and weak steps):
         # located again from JOINT_SIGMAS apart, its neighbours at their new lines (128-wedge
@@ -283,7 +289,8 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
             lines[rows] = np.where(located.ok[:, None], located.lines(), lines[rows])
             r_again = r_lo.copy()
             r_again[rows[again]] = r_joint[rows[again]]
-            redo, _ = joint_refit(lin, camera, lines, v, sign, blur, r_again, r_hi, rows=rows[again], search=_SEARCH_PX[-1])
+            redo, _ = joint_refit(lin, camera, lines, v, sign, blur, r_again, r_hi, rows=rows[again], search=_SEARCH_PX[-1],
+                                  directional=directional)
             located = _merged(located, np.flatnonzero(again), redo)
         fit = _merged(fit, rows, located)
         v, reach, v_sd = _better_vertex(fit, v, reach, v_sd, joint == "all")

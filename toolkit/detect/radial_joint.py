@@ -22,6 +22,12 @@ edge of a dense star the same way about the vertex. Measured on the image instea
 (`radial._edge_blur`, the second moment of the edges' derivative), it was 3-26 % off the sd
 this model fits on 128-wedge renders; fitted, it is within 1-2 % of the render's blur,
 pixel and bilinear sampling together (sqrt(blur^2 + 1/4)).
+Where every edge of a star is modelled and `DIRECTIONAL_BLUR` is set (it is not by
+default), the blur is a Gaussian of any covariance C instead
+(`_blur_model`): across an edge whose normal n lies at phi in the raw image its variance is
+n^T C n = q0 + q1 cos 2 phi + q2 sin 2 phi, each neighbour with its own; a motion of length m
+along phi_m adds about m^2 / 12 cos^2(phi - phi_m), most where the edge's normal lies along
+the motion. q0, q1, q2 are fitted as the one sd is (their step from all stations).
 Each station's weight is its information about t (the model's derivative in t after
 projecting out a, b, c): low where the neighbours crowd it. The stations give a line as in
 the edge-profile engine (`edges.reject_outliers`, `edges.weighted_line`,
@@ -86,11 +92,18 @@ _PRIOR = 0.01  # holds a free neighbour near its line where the window barely sh
 _REL_STEP = 0.4  # a station's fitted step must reach this fraction of the edge's median
 _BLUR_STEP = 0.1  # the shared blur's Gauss-Newton step: at most this fraction of it
 _MIN_BLUR_STATIONS = 50  # fewer stations: the blur is held as given
+_DIR_RIDGE = 1e-3  # the directional blur terms' ridge, relative to the mean variance's information
 #: the lowest lag-1 correlation of an edge's station errors its sigmas believe (`edges.fit_variances`):
 #: a star's stations alternate slightly (rho -0.05 to -0.12 on 16-wedge renders), and clipped
 #: at 0 their sigmas were 8-9 % too large; the batch means still bound them from below
 _MIN_RHO = -0.9
 _CLUTTER = 3.0  # a station whose residual rms exceeds this many times the median's fits no blur
+#: Fit the blur as a Gaussian of any covariance (its sd across an edge depends on the edge's
+#: direction: motion blur, astigmatism) instead of one sd for every edge (`_blur_model`).
+#: Off: on photographed stars under 30 % of the frame's height it oriented as many frames,
+#: rescued two with 1.8-2 px of motion blur and lost one with none, and its normals were no
+#: closer nor its sigmas truer (docs/method.md, "A directional blur").
+DIRECTIONAL_BLUR = False
 #: Stations within this many profile half-windows of an edge's outer end (its outermost station
 #: whose step reaches half the edge's median) are left out: there the window reaches where the
 #: wedge ends (a star's wedges end on an arc, seen obliquely under a tilt), the profile is no
@@ -126,7 +139,7 @@ def _edge_frames(lines, v):
 
 
 def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, *, rows=None, search=1.0, rounds=2, fit_blur=True,
-                significance=False):
+                significance=False, directional=True):
     """The edges through a radial target's vertex, each located jointly with its neighbours'
     blurred edges (module docstring).
 
@@ -157,6 +170,10 @@ def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, *, rows=None, se
     fit_blur : bool
         Fit the blur too, one sd shared by every edge (`_solve_stations`), instead of holding
         it at sigma.
+    directional : bool
+        With fit_blur, fit the blur as a Gaussian of any covariance, its sd across an edge
+        depending on the edge's direction (`_blur_model`: motion blur), where
+        `DIRECTIONAL_BLUR` allows; otherwise one sd for every direction.
     significance : bool
         Also return each edge's step over its sd per unit of image noise (`_step_strength`):
         divided by the noise of `img` [linear grey levels], the z of its step.
@@ -167,7 +184,8 @@ def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, *, rows=None, se
         K rows (the edges `rows`, in that order), oriented brighter along n = (-d_y, d_x);
         ``contrast`` the median fitted step in linear grey levels.
     sigma : float [raw px]
-        The blur the edges were located with (fitted with fit_blur).
+        The blur the edges were located with (fitted with fit_blur; a directional blur's
+        sd averaged in variance over the directions, sqrt(q0)).
     strength : (K,) [1 / noise], with significance only
         The step's weighted mean over the edge's stations over its sd for a unit noise.
     """
@@ -175,12 +193,41 @@ def joint_refit(img, camera, lines, v, sign, sigma, r_lo, r_hi, *, rows=None, se
     sign = np.asarray(sign, float)
     rows = np.arange(lines.shape[0]) if rows is None else np.asarray(rows, int)
     fit, sigma0, strength = None, sigma, None
+    blur = np.array([sigma * sigma, 0.0, 0.0]) if directional and fit_blur and DIRECTIONAL_BLUR else np.array([sigma])
     for _ in range(rounds):
-        fit, sigma, strength = _fit_round(img, camera, lines, v, sign, sigma, r_lo[rows], r_hi[rows], search, rows,
-                                          fit_blur)
-        sigma = float(np.clip(sigma, 0.5 * sigma0, 2.0 * sigma0))  # a misfit (clutter) does not run away
+        fit, blur, strength = _fit_round(img, camera, lines, v, sign, blur, r_lo[rows], r_hi[rows], search, rows,
+                                         fit_blur)
+        blur = _bounded_blur(blur, sigma0)  # a misfit (clutter) does not run away
         lines[rows] = np.where(fit.ok[:, None], fit.lines(), lines[rows])
+    sigma = float(np.sqrt(blur[0]) if blur.size == 3 else blur[0])
     return (fit, sigma, strength) if significance else (fit, sigma)
+
+
+def _bounded_blur(blur, sigma0):
+    """The blur parameters (`_blur_model`) with its sd in every direction within 0.5-2 times
+    sigma0 [raw px]."""
+    if blur.size == 1:
+        return np.clip(blur, 0.5 * sigma0, 2.0 * sigma0)
+    lo, hi = (0.5 * sigma0) ** 2, (2.0 * sigma0) ** 2
+    r = np.hypot(blur[1], blur[2])
+    q0 = np.clip(blur[0], lo, hi)
+    r_max = min(q0 - lo, hi - q0)
+    return np.array([q0, *(blur[1:] * (min(r, r_max) / r if r > 0 else 0.0))])
+
+
+def _blur_model(blur, basis):
+    """The blur's sd [raw px] across each station's edge and its derivative in the blur's
+    parameters: (sd (E, S), d sd / d blur (E, S, Q)). blur (1,): one sd shared by every
+    direction; (3,): q0, q1, q2 [raw px^2], the variance across an edge whose normal lies at
+    phi in the raw image q0 + q1 cos 2 phi + q2 sin 2 phi, i.e. n^T C n of a Gaussian blur of
+    covariance C (motion blur's variance grows along the motion). basis (E, S, 3):
+    (1, cos 2 phi, sin 2 phi)."""
+    if blur.size == 1:
+        sd = np.full(basis.shape[:-1], float(blur[0]))
+        return sd, np.ones(basis.shape[:-1] + (1,))
+    var = np.maximum(basis @ blur, 1e-4)
+    sd = np.sqrt(var)
+    return sd, basis / (2.0 * sd[..., None])
 
 
 def _stations(foot, u, r_lo, r_hi, v):
@@ -195,9 +242,9 @@ def _stations(foot, u, r_lo, r_hi, v):
     return lo[:, None] + j[None, :] * step[:, None], valid & (hi > lo)[:, None]
 
 
-def _fit_round(img, camera, lines, v, sign, sigma, r_lo, r_hi, search, rows, fit_blur):
+def _fit_round(img, camera, lines, v, sign, blur, r_lo, r_hi, search, rows, fit_blur):
     """One joint fit of the edges `rows` (`joint_refit`) with the neighbours at `lines`:
-    (EdgeFit, the blur sd [raw px], the steps' strength (`_step_strength`))."""
+    (EdgeFit, the blur's parameters (`_blur_model`), the steps' strength (`_step_strength`))."""
     E = lines.shape[0]
     foot_all, u_all = _edge_frames(lines, v)
     foot, u = foot_all[rows], u_all[rows]
@@ -206,11 +253,14 @@ def _fit_round(img, camera, lines, v, sign, sigma, r_lo, r_hi, search, rows, fit
     x = foot[:, None, :] + s[..., None] * u[:, None, :]  # (E, S, 2)
     # (E, S); bounded where a lens model is far outside what it holds (its map folds back)
     scale = np.clip(blur_scale(camera, x[..., 0], x[..., 1], e[:, 0, None], e[:, 1, None]), 0.5, 2.0)
-    sig = sigma * scale  # the blur [working px] at each station, across its edge
+    rx, ry, jx, jy = raw_frame(camera, x[..., 0], x[..., 1], e[:, 0, None], e[:, 1, None])
+    jn = np.maximum(jx * jx + jy * jy, 1e-12)  # the profile's direction in the raw image: the blur's
+    basis = np.stack([np.ones(jn.shape), (jx * jx - jy * jy) / jn, 2.0 * jx * jy / jn], -1)
+    sig_raw, _ = _blur_model(blur, basis)
+    sig = sig_raw * scale  # the blur [working px] at each station, across its edge
     half = search + 3.0 * float(np.max(np.where(valid, sig, 0.0))) * (1.1 if fit_blur else 1.0)
     nt = int(np.ceil(half / SAMPLE_STEP_PX))
     tau = np.arange(-nt, nt + 1) * SAMPLE_STEP_PX  # (T,)
-    rx, ry, jx, jy = raw_frame(camera, x[..., 0], x[..., 1], e[:, 0, None], e[:, 1, None])
     X = rx[..., None] + jx[..., None] * tau
     Y = ry[..., None] + jy[..., None] * tau
     H, W = img.shape
@@ -222,27 +272,36 @@ def _fit_round(img, camera, lines, v, sign, sigma, r_lo, r_hi, search, rows, fit
     # the neighbours' blurred edges, where they cross each station's profile: those within
     # reach of the window fitted with the edge (their positions free), the others fixed
     # (their steps, and the steps' derivative in the blur sd, summed)
-    fixed, dfixed = np.zeros(y.shape), np.zeros(y.shape)
+    fixed, dfixed = np.zeros(y.shape), np.zeros(y.shape + (blur.size,))
     near = []
     for k in range(1, NEIGHBOURS + 1):
         for j in (rows - k) % E, (rows + k) % E:
             den = _cross(e, u_all[j])  # (K,): the profile's direction against edge j's
             tk = _cross(foot_all[j][:, None, :] - x, u_all[j][:, None, :]) / np.where(np.abs(den) > 1e-6, den, 1e-6)[:, None]
             g = np.broadcast_to(np.maximum(np.abs(den), 0.2)[:, None], tk.shape)
-            free = (np.abs(tk) < half + FREE_SIGMAS * sig) & (np.abs(den) > 0.2)[:, None]
+            # edge j's own blur, across its own normal: the profile's direction turned by the
+            # angle between the two edges (the lens map's shear over it neglected)
+            dphi = np.arctan2(_cross(u, u_all[j]), np.sum(u * u_all[j], -1))[:, None]
+            c2, s2 = np.cos(2 * dphi), np.sin(2 * dphi)
+            basis_k = np.stack([basis[..., 0], basis[..., 1] * c2 - basis[..., 2] * s2,
+                                basis[..., 2] * c2 + basis[..., 1] * s2], -1)
+            sd_k, jac_k = _blur_model(blur, basis_k)
+            sig_k = sd_k * scale
+            free = (np.abs(tk) < half + FREE_SIGMAS * sig_k) & (np.abs(den) > 0.2)[:, None]
             sk = np.broadcast_to(sign[j][:, None], tk.shape)
             if free.any():
-                near.append((tk, g, sk, free))
+                near.append((tk, g, sk, free, basis_k))
             held = ~(free | (np.abs(den) <= 0.2)[:, None])
-            zk = (tau - tk[..., None]) * g[..., None] / sig[..., None]
+            zk = (tau - tk[..., None]) * g[..., None] / sig_k[..., None]
             fixed += np.where(held[..., None], sk[..., None] * _phi(zk), 0.0)
-            if fit_blur:
-                dfixed -= np.where(held[..., None], sk[..., None] * _pdf(zk) * zk / sigma, 0.0)
-    t, c, info, ok, sigma, c_var = _solve_stations(y, tau, (fixed, dfixed), near,
-                                                   np.broadcast_to(sign[rows, None], s.shape), (sigma, scale),
-                                                   search, inside if fit_blur else None)
+            if fit_blur:  # the held steps' derivative in the blur's parameters
+                dfixed -= np.where(held[..., None, None], (sk[..., None] * _pdf(zk) * zk / sd_k[..., None])[..., None]
+                                   * jac_k[..., None, :], 0.0)
+    t, c, info, ok, blur, c_var = _solve_stations(y, tau, (fixed, dfixed), near,
+                                                  np.broadcast_to(sign[rows, None], s.shape), (blur, basis, scale),
+                                                  search, inside if fit_blur else None)
     fit = _lines_from_stations(foot, u, e, s, t, c, info, inside & ok, sign[rows], END_WINDOWS * half)
-    return fit, sigma, _step_strength(c, c_var, inside & ok)
+    return fit, blur, _step_strength(c, c_var, inside & ok)
 
 
 def _step_strength(c, c_var, use):
@@ -258,25 +317,30 @@ def _step_strength(c, c_var, use):
 
 
 def _blur_step(A, N, r, rhs, col, use):
-    """The Gauss-Newton step of the blur sd shared by all stations, each station's own
-    parameters projected out (its normal equations N (E, S, P, P) and right-hand side rhs
-    (E, S, P), its model's columns A (E, S, T, P), residuals r (E, S, T), the blur's column
-    col (E, S, T)), summed over the stations `use` (E, S): the Schur complement of the joint
-    normal equations. Returns the step d and the stations' own steps with it (E, S, P),
-    N^-1 (rhs - A^T col d). Stations whose residuals are far above the typical (clutter)
-    are left out of d."""
-    b = (np.swapaxes(A, -1, -2) @ col[..., None])[..., 0]  # (E, S, P)
-    X = np.linalg.solve(N, np.stack([rhs, b], -1))  # one factorisation for both
-    Nrhs, Nb = X[..., 0], X[..., 1]
+    """The Gauss-Newton step of the blur's Q parameters shared by all stations, each
+    station's own parameters projected out (its normal equations N (E, S, P, P) and
+    right-hand side rhs (E, S, P), its model's columns A (E, S, T, P), residuals r (E, S, T),
+    the blur's columns col (E, S, T, Q)), summed over the stations `use` (E, S): the Schur
+    complement of the joint normal equations. Returns the step d (Q,) and the stations' own
+    steps with it (E, S, P), N^-1 (rhs - A^T col d). Stations whose residuals are far above
+    the typical (clutter) are left out of d."""
+    Q = col.shape[-1]
+    b = np.swapaxes(A, -1, -2) @ col  # (E, S, P, Q)
+    X = np.linalg.solve(N, np.concatenate([rhs[..., None], b], -1))  # one factorisation for all
+    Nrhs, Nb = X[..., 0], X[..., 1:]
     rr = np.sqrt(np.mean(r * r, -1))
     if use.any():
         use = use & (rr <= _CLUTTER * np.median(rr[use]))
-    m = np.sum(np.where(use, np.sum(col * col, -1) - np.sum(b * Nb, -1), 0.0))
-    g = np.sum(np.where(use, np.sum(col * r, -1) - np.sum(Nb * rhs, -1), 0.0))
-    if use.sum() < _MIN_BLUR_STATIONS or not m > 0:
-        return 0.0, Nrhs
-    d = g / m
-    return d, Nrhs - Nb * d
+    w = use[..., None, None]
+    m = np.sum(np.where(w, np.swapaxes(col, -1, -2) @ col - np.swapaxes(b, -1, -2) @ Nb, 0.0), (0, 1))
+    g = np.sum(np.where(use[..., None], np.einsum("estq,est->esq", col, r) - np.einsum("espq,esp->esq", Nb, rhs),
+                        0.0), (0, 1))
+    if use.sum() < _MIN_BLUR_STATIONS or not m[0, 0] > 0:
+        return np.zeros(Q), Nrhs
+    # the direction's terms weakly held at 0: a few edges all one way do not tell them from q0
+    m = m + np.diag(np.r_[0.0, np.full(Q - 1, _DIR_RIDGE * m[0, 0])])
+    d = np.linalg.solve(m, g)
+    return d, Nrhs - Nb @ d
 
 
 def _solve_stations(y, tau, fixed, near, sgn, blur, search, fit_blur):
@@ -297,25 +361,28 @@ def _solve_stations(y, tau, fixed, near, sgn, blur, search, fit_blur):
     tt = np.broadcast_to(tau, y.shape)
     pin = np.stack([np.zeros(shape)] * 4 + [~nb[3] for nb in near], -1)  # held at 0
     prior = np.stack([np.zeros(shape)] * 4 + [nb[3].astype(float) for nb in near], -1)
-    sigma0, scale = blur
-    sigma = sigma0
+    theta, basis, scale = blur
+    theta0 = theta
     for it in range(_ITERATIONS + 1):
         a, b, c, t = (p[..., i] for i in range(4))
-        sig = (sigma * scale)[..., None]
+        sd, jac = _blur_model(theta, basis)
+        sig = (sd * scale)[..., None]
         z = (tau - t[..., None]) / sig
-        bracket = fixed[0] + (sigma - sigma0) * fixed[1] + sgn[..., None] * _phi(z)
-        dsig = fixed[1] - sgn[..., None] * _pdf(z) * z / sigma  # the bracket's derivative in the blur sd
+        bracket = fixed[0] + fixed[1] @ (theta - theta0) + sgn[..., None] * _phi(z)
+        # the bracket's derivative in the blur's parameters (E, S, T, Q)
+        dsig = fixed[1] - (sgn[..., None] * _pdf(z) * z / sd[..., None])[..., None] * jac[..., None, :]
         cols = [np.ones_like(y), tt, None, -c[..., None] * sgn[..., None] * _pdf(z) / sig]
-        for i, (tk, g, sk, free) in enumerate(near):
+        for i, (tk, g, sk, free, basis_k) in enumerate(near):
             # evaluated only where the neighbour is free (elsewhere its step and column are 0):
-            # most of a dense star's stations have few free neighbours
-            sf = sig[free]
+            # most of a dense star's stations have few free neighbours; its blur its own
+            sd_k, jac_k = _blur_model(theta, basis_k[free])
+            sf = (sd_k * scale[free])[:, None]
             zk = (tau - tk[free][:, None] - p[..., 4 + i][free][:, None]) * g[free][:, None] / sf
             step_k, col_k = np.zeros(y.shape), np.zeros(y.shape)
             step_k[free] = sk[free][:, None] * _phi(zk)
             col_k[free] = -c[free][:, None] * sk[free][:, None] * _pdf(zk) * g[free][:, None] / sf
             if fit_blur is not None:
-                dsig[free] -= sk[free][:, None] * _pdf(zk) * zk / sigma
+                dsig[free] -= (sk[free][:, None] * _pdf(zk) * zk / sd_k[:, None])[..., None] * jac_k[:, None, :]
             bracket = bracket + step_k
             cols.append(col_k)
         cols[2] = bracket
@@ -331,8 +398,8 @@ def _solve_stations(y, tau, fixed, near, sgn, blur, search, fit_blur):
             N = N + np.eye(P) * (np.arange(P) >= 3) * 1e12
         if it > 0 and fit_blur is not None:
             # the stations take their full joint step; the blur's is bounded (a far start)
-            d, step = _blur_step(A, N, r, rhs, c[..., None] * dsig, fit_blur)
-            sigma += float(np.clip(d, -_BLUR_STEP * sigma, _BLUR_STEP * sigma))
+            d, step = _blur_step(A, N, r, rhs, c[..., None, None] * dsig, fit_blur)
+            theta = _blur_update(theta, d)
         else:
             step = np.linalg.solve(N, rhs[..., None])[..., 0]
         step[..., 3:] = np.clip(step[..., 3:], -0.5, 0.5)
@@ -343,7 +410,22 @@ def _solve_stations(y, tau, fixed, near, sgn, blur, search, fit_blur):
         Ni = np.linalg.inv(N)
         info = 1.0 / Ni[..., 3, 3]
     ok = (c > 0) & (np.abs(t) <= search) & (info > 0) & np.isfinite(t) & np.all(np.abs(p[..., 4:]) < 1.0, -1)
-    return t, c, info, ok, sigma, Ni[..., 2, 2]
+    return t, c, info, ok, theta, Ni[..., 2, 2]
+
+
+def _blur_update(theta, d):
+    """The blur's parameters (`_blur_model`) after the Gauss-Newton step d, bounded (a far
+    start): the sd by `_BLUR_STEP` of itself, the variances by twice that of the mean one,
+    and no direction's variance below a tenth of the mean."""
+    if theta.size == 1:
+        return theta + np.clip(d, -_BLUR_STEP * theta, _BLUR_STEP * theta)
+    lim = 2.0 * _BLUR_STEP * theta[0]
+    d = d * min(1.0, lim / max(abs(d[0]), np.hypot(d[1], d[2]), 1e-300))
+    q = theta + d
+    r = np.hypot(q[1], q[2])
+    if r > 0.9 * q[0]:
+        q[1:] *= 0.9 * q[0] / r
+    return q
 
 
 def _lines_from_stations(foot, u, e, s, t, c, info, base, sign, end_px=0.0):
