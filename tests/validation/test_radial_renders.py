@@ -241,6 +241,28 @@ def test_circles_that_disagree_with_the_twin_they_chose_confirm_no_labelling():
     assert "disagree" in rec.error
 
 
+def test_circles_that_points_on_the_spokes_make_about_any_plane_choose_no_twin():
+    """A 64-wedge star 12 % of the frame's width, blurred and tilted 35 deg
+    (`photographic_conditions(40, 1500)`, frame 0): 16 edges found, the vertex 19 px off,
+    14 spokes labelled with the normal 12.6 deg off, and the twin chosen by 29 "circles"
+    (14-31 points each, 0.2-0.6 px about their ellipses) whose normal agreed with it
+    (circle_chi2 1.3): reported ok. Those points are the rays' crossings of the wedges' edges,
+    which fill a ring at any radius on any plane: grouped by the other twin's radii they made
+    27 circles about that twin as tightly (`circle._about_any_plane`). They choose nothing,
+    and the labelling, confirmed by nothing, is refused: "ambiguous labelling", not ok."""
+    from pencilcal.toolkit.detect.lines import radial_edge_count, radial_joint_mode
+    from pencilcal.toolkit.detect.radial import orient_radial_edges
+    from pencilcal.toolkit.io.images import with_grey
+    from pencilcal.validation.radial_renders import photo_frame, photo_pencils, photographic_conditions
+
+    cond = photographic_conditions(40, 1500)[0]
+    img, cam, R, t = photo_frame(cond)
+    pen = photo_pencils(cond)[1]
+    _, rec = orient_radial_edges(with_grey(img)[0], cam, pen, edges=radial_edge_count(pen),
+                                 joint=radial_joint_mode(pen))
+    assert not rec.ok and "ambiguous labelling" in rec.error
+
+
 def test_photographic_effects_are_exact():
     """`photographic_conditions`' effects keep the truth: a curled sheet's polygons drawn flat
     image where the bent sheet's points do (each vertex on the camera's ray through the bent

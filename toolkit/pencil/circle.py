@@ -30,7 +30,10 @@ radii (by the wrong twin's plane, or by the vertex's error), the points that mak
 the twin it groups by; so the points are also chained on the image alone (`_chains`): a group's
 circle counts only where it lies along the chains it takes points from, not across them
 (`_takes_chains_whole`), and where the chains that go all round (whole rings) lie nearer the
-other twin, their estimate is taken (`circle_estimate`).
+other twin, their estimate is taken (`circle_estimate`). Points that fill rings about any plane
+(edge points on the spokes, one per edge at every radius) make circles about either twin, each
+grouped by its own: where the twin grouped by fixes its plane hardly better than the other fixes
+its own, the groups choose no twin (`_about_any_plane`, `circle_choice`).
 
 Example
 -------
@@ -88,7 +91,9 @@ class CircleEstimate:
     conics: (C, 3, 3) the circles' images (normalised coordinates, unit norm);
     cov_conics: (3, 3) the normal's covariance from the conics alone (the vertex held);
     jac_vertex: (3, 2) how the normal moves with the vertex's image (normalised);
-    rings: (3,) the normal of the whole rings alone (`circle_estimate`), or None.
+    rings: (3,) the normal of the whole rings alone (`circle_estimate`), or None;
+    any_plane: whether the points made circles as tight about the other twin's plane, grouped
+    by its radii (`_about_any_plane`): then they choose no twin (`circle_choice`).
     """
 
     normal: np.ndarray
@@ -106,6 +111,7 @@ class CircleEstimate:
     cov_conics: np.ndarray | None = None
     jac_vertex: np.ndarray | None = None
     rings: np.ndarray | None = None
+    any_plane: bool = False
 
 
 def conic_normal(C, x):
@@ -319,7 +325,8 @@ def circle_estimate(points, x, x_cov, R, R_twin, *, scale, radii=None):
         return grouped
     if grouped is None or _nearer_twin(grouped.normal, R, R_twin) != _nearer_twin(rings.normal, R, R_twin):
         return replace(rings, rings=rings.normal)
-    return replace(grouped, rings=rings.normal)
+    # whole rings chained on the image alone lie nearer the twin grouped by: they choose it
+    return replace(grouped, rings=rings.normal, any_plane=False)
 
 
 def _nearer_twin(n, R, R_twin):
@@ -331,7 +338,7 @@ def _grouped(points, x, x_cov, R, R_twin, scale, radii):
     """`circle_estimate` of the points grouped by their radius on each twin's plane, each
     group's circle kept where it lies along the chains it takes points from
     (`_takes_chains_whole`), the twin whose circles fix the plane better kept; or None."""
-    best = None
+    per_twin = []
     chain = np.empty(points.shape[0], int)
     for k, g in enumerate(_chains(points, x, scale)):
         chain[g] = k
@@ -353,11 +360,31 @@ def _grouped(points, x, x_cov, R, R_twin, scale, radii):
         # range of radii) still fill loose groups, more points in all than the one tight
         # ring
         info = 1.0 / max(float(np.trace(cov_c)), 1e-300)
-        if best is None or info > best[0]:
-            best = (info, which, fits, depth, covs, n, cov_c, chi2, dof)
-    if best is None:
+        own = _nearer_twin(n, R, R_twin) == which
+        per_twin.append((info, which, fits, depth, covs, n, cov_c, chi2, dof, own))
+    if not per_twin:
         return None
-    return _estimate(x, x_cov, scale, *best[1:])
+    per_twin.sort(key=lambda b: -b[0])
+    best = per_twin[0]
+    return replace(_estimate(x, x_cov, scale, *best[1:-1]), any_plane=_about_any_plane(per_twin))
+
+
+#: The circles grouped by one twin's radii choose it only where they fix the plane at least
+#: this many times better (information: 1 / trace of the normal's covariance) than the
+#: circles grouped by the other twin's radii fix that other twin's plane.
+GROUPING_INFO_RATIO = 4.0
+
+
+def _about_any_plane(per_twin):
+    """Whether the points make circles about whichever plane groups them: each twin's groups
+    (per_twin: [(information, twin, ..., their normal nearer that twin)], most informative
+    first) give circles about that twin's own plane, about as tightly (within
+    `GROUPING_INFO_RATIO`). Points that lie on the spokes' edges (rays from a misplaced
+    vertex cross a star's wedges at every radius) fill a ring at any radius on any plane,
+    one point per edge: grouped by a plane they confirm it, and so choose no twin."""
+    if len(per_twin) < 2 or not (per_twin[0][-1] and per_twin[1][-1]):
+        return False
+    return per_twin[0][0] < GROUPING_INFO_RATIO * per_twin[1][0]
 
 
 #: A circle grouped by a twin's radii has at least this share of the points of the chains it
@@ -480,13 +507,15 @@ def circle_choice(fit, est):
     lies nearer the circles' normal than half the twins' separation, and one of the circles
     holds `DECISIVE_POINTS` points or more: a small star's few short noisy arcs (4-5 groups of
     14-21 points, 0.5-0.9 px rms) made circles about the wrong twin's plane, consistent among
-    themselves, where every right choice had a circle of 40 points or more."""
+    themselves, where every right choice had a circle of 40 points or more. Never decisive
+    where the points make circles about either twin's plane alike (``est.any_plane``)."""
     c, ct = line_normal_cov(fit)
     a, chi = normal_agreement(fit.normal, c, est.normal, est.cov)
     at, chit = normal_agreement(fit.normal_twin, ct, est.normal, est.cov)
     which = chit < chi
     sep = float(np.degrees(np.arccos(np.clip(np.asarray(fit.normal) @ np.asarray(fit.normal_twin), -1, 1))))
-    decisive = abs(chit - chi) > DECISIVE_CHI2 and min(a, at) < 0.5 * sep and int(np.max(est.points)) >= DECISIVE_POINTS
+    decisive = abs(chit - chi) > DECISIVE_CHI2 and min(a, at) < 0.5 * sep and \
+        int(np.max(est.points)) >= DECISIVE_POINTS and not est.any_plane
     return bool(which), bool(decisive), chi, chit
 
 

@@ -2,6 +2,8 @@
 labelling, edges' polarity, coincident vertex candidates, the circles' normal and the twin."""
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -9,7 +11,7 @@ from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.geometry.conic import conic_vector, fit_ellipse
 from pencilcal.toolkit.geometry.frames import angle_between, rotation_from_rotvec
 from pencilcal.toolkit.pencil.assign import assign_spokes, grow_labels
-from pencilcal.toolkit.pencil.circle import circle_estimate, circular_points, normal_agreement
+from pencilcal.toolkit.pencil.circle import circle_choice, circle_estimate, circular_points, normal_agreement
 from pencilcal.toolkit.pencil.spec import image_angles, pencil_from_dict
 from pencilcal.toolkit.pencil.vertex import intersect_lines
 from tests.toolkit.pencil.test_assign import random_pose
@@ -214,6 +216,25 @@ class TestCircles:
         assert est.circles == 2 and est.grouped_by == 1
         assert np.degrees(angle_between(est.normal, R[:, 2])) < 1e-7
         assert np.degrees(angle_between(est.normal, Rt[:, 2])) > 10.0
+
+    def test_points_on_the_spokes_make_circles_about_any_plane_and_choose_nothing(self):
+        """Edge points on a star's 128 edges at random radii (12 to each edge, 0.2 px): grouped
+        by either twin's radii they fill 49 rings about that twin's plane, one point per edge,
+        as tight about one twin as about the other. They choose neither twin."""
+        rng = np.random.default_rng(3)
+        R = rotation_from_rotvec([0.5, -0.3, 0.2])
+        x = np.array([0.08, -0.05])
+        ray = np.r_[x, 1.0] / np.linalg.norm(np.r_[x, 1.0])
+        Rt = (2 * np.outer(ray, ray) - np.eye(3)) @ R @ np.diag([-1.0, -1.0, 1.0])
+        a = np.repeat(np.arange(128) * 2 * np.pi / 128, 12)
+        rho = rng.uniform(0.03, 0.1, a.size)
+        X = R @ np.stack([rho * np.cos(a), rho * np.sin(a), 0 * a]) + np.r_[x, 1.0][:, None]
+        pts = (X[:2] / X[2]).T + 0.2e-3 * rng.normal(size=(a.size, 2))
+        for first, second in ((R, Rt), (Rt, R)):
+            est = circle_estimate(pts, x, np.zeros((2, 2)), first, second, scale=1000.0)
+            assert est.any_plane
+            fit = SimpleNamespace(normal=first[:, 2], normal_twin=second[:, 2], ray=ray, cov=1e-8 * np.eye(3))
+            assert not circle_choice(fit, est)[1]
 
     def test_the_tighter_circles_choose_the_grouping(self):
         """One ring sampled tightly (64 points, 0.1 px) about the true plane, and four loose
