@@ -315,10 +315,10 @@ def _measure(images, shafts, camera, valid, reference):
     direct = [m.ok for m in out]
     # a direct homography that no chain through another measured frame confirms is a
     # coincidence of a few matches: the frame is measured through its neighbour instead
-    refused = {}
+    refused, steps = {}, {}
     for i, f in enumerate(feats):
         if f is not None and direct[i] and i != ref:
-            least, refuting = _chain_agreement(i, ref, feats, out, direct, camera)
+            least, refuting = _chain_agreement(i, ref, feats, out, direct, camera, steps)
             if refuting:
                 m = out[i]
                 refused[i] = FrameMotion(m.image, False, matches=m.matches, inliers=m.inliers, non_rotation=m.non_rotation,
@@ -329,11 +329,28 @@ def _measure(images, shafts, camera, valid, reference):
         out[i], matches[i], direct[i] = m, None, False
     for i, f in enumerate(feats):
         if f is not None and not direct[i]:
-            out[i] = _through_neighbour(i, ref, feats, out, direct, camera)
+            out[i] = _through_neighbour(i, ref, feats, out, direct, camera, steps)
     return ref, out, matches
 
 
-def _chain_agreement(i, ref, feats, out, direct, camera):
+def _nearest_steps(i, ref, feats, direct, camera, count, steps):
+    """(j, the `FrameMotion` of frame i's features to frame j's, its matches (src, dst,
+    indices)) for the `count` nearest frames j measured directly (never i, nor the reference
+    `ref`: that step is the frame's own homography), nearest first, where the step is
+    measured. steps: {(i, j): (step, matches)}, shared by one sequence's searches (the chain
+    check and the route through a neighbour try the same pairs; matching and RANSAC are
+    deterministic, so a step is the same whichever asks first)."""
+    near = sorted((j for j in range(len(feats)) if direct[j] and j not in (i, ref)), key=lambda j: (abs(j - i), j))
+    for j in near[:count]:
+        if (i, j) not in steps:
+            got = []
+            steps[(i, j)] = (_frame_motion(str(i), feats[j], feats[i], camera, got), got[0])
+        step, got = steps[(i, j)]
+        if step.ok:
+            yield j, step, got
+
+
+def _chain_agreement(i, ref, feats, out, direct, camera, steps):
     """(the departure [undistorted px] of frame i's direct homography from the chains
     ``H_ref_from_j H_j_from_i`` through other frames j measured directly, the chains that
     refute it). The departure of a chain is the median transfer difference of the two at
@@ -343,15 +360,9 @@ def _chain_agreement(i, ref, feats, out, direct, camera):
     `CHAIN_PX` confirms it and ends the search: (its departure, 0). A chain beyond it refutes
     the direct homography only where both its links hold more inliers than the direct one (a
     weaker chain may be the coincidence): (the least departure of those, their count); (inf,
-    0) where none does."""
+    0) where none does. steps: `_nearest_steps`' cache."""
     best, refuting = float("inf"), 0
-    near = sorted((j for j in range(len(feats)) if direct[j] and j not in (i, ref)), key=lambda j: (abs(j - i), j))
-    for j in near[:CHAIN_TRIES]:
-        got = []
-        step = _frame_motion(str(i), feats[j], feats[i], camera, got)
-        if not step.ok:
-            continue
-        src, dst, _ = got[0]
+    for j, step, (src, dst, _) in _nearest_steps(i, ref, feats, direct, camera, CHAIN_TRIES, steps):
         shared = src[np.hypot(*(_apply(step.H, src) - dst).T) <= RANSAC_PX]
         d = float(np.median(np.hypot(*(_apply(out[j].H @ step.H, shared) - _apply(out[i].H, shared)).T)))
         if d <= CHAIN_PX:
@@ -361,7 +372,7 @@ def _chain_agreement(i, ref, feats, out, direct, camera):
     return best, refuting
 
 
-def _through_neighbour(i, ref, feats, out, direct, camera):
+def _through_neighbour(i, ref, feats, out, direct, camera, steps):
     """Frame i's `FrameMotion` through the nearest frame j measured directly (not the reference
     `ref`: its step is the frame's own homography) whose features
     it matches (`NEIGHBOURS` tried, nearest first): H_ref_from_i = H_ref_from_j H_j_from_i, its
@@ -370,17 +381,12 @@ def _through_neighbour(i, ref, feats, out, direct, camera):
     share too little background with the reference (the phantom's frame 3: 23 RANSAC
     inliers of 103 matches, a coincidence) yet hundreds of matches with the frame beside
     it. Its matches are not the reference's, so it gets no 3-D pose. Returns out[i] where
-    no neighbour measures it."""
-    near = sorted((j for j in range(len(feats)) if direct[j] and j not in (i, ref)), key=lambda j: (abs(j - i), j))
-    for j in near[:NEIGHBOURS]:
-        got = []
-        step = _frame_motion(str(i), feats[j], feats[i], camera, got)
-        if not step.ok:
-            continue
+    no neighbour measures it. steps: `_nearest_steps`' cache."""
+    for j, step, got in _nearest_steps(i, ref, feats, direct, camera, NEIGHBOURS, steps):
         H, cov = chain_homography(out[j].H, out[j].cov, step.H, step.cov)
         nr = _non_rotation(H, camera)
         if nr <= MAX_NON_ROTATION:
-            src = got[0][0]  # the background's displacement to the reference, as H carries it
+            src = got[0]  # the background's displacement to the reference, as H carries it
             shift = float(np.median(np.hypot(*(_apply(H, src) - src).T)))
             return FrameMotion(str(i), True, H, cov, step.rms_px, step.inliers, step.matches, shift, nr, via=j)
     return out[i]
