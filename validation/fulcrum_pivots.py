@@ -20,7 +20,9 @@ left or right, 70-110 mm deep, -20..20 mm in y (left camera frame); in each of `
 frames its tip is seen 40-150 mm away anywhere in the image but a 60 px border, its axis
 passes within the port's play of the fulcrum (an offset orthogonal to the axis, 0-1 mm,
 uniform in length: 0.41 mm sd per direction), and each eye sees the shaft from the tip back
-towards the port over 100-300 px (a pose that either eye cannot see so is drawn again).
+towards the port, its axis's image 100-300 px long and 5 px inside the image (a pose that
+either eye cannot see so is drawn again; the edges, the axis image's ends moved out onto
+the two silhouette lines, may end a few pixels beyond the image).
 Each edge is a segment whose angle and centre offset are drawn with `noise` times the
 stated sd (`STATED_EDGE_SD_PX` at the centre, sqrt(12) sd / length [rad] in angle, as for
 a line fitted to points spread evenly along the segment) while its ``edge_cov`` says the
@@ -36,8 +38,11 @@ Reproduce the tables of docs/uncertainty.md and docs/method.md::
 
 Example
 -------
->>> t = pivot_table(range(1), noise=(1.0,), frames=12)                 # doctest: +SKIP
->>> t["rows"][0]["stereo"]["rms_mm"], t["rows"][0]["eyes"]["in_region"]  # doctest: +SKIP
+>>> p = draw_pivot(1040, 2.0, frames=4)          # pivot_table(seeds, noise) runs the estimators
+>>> len(p.frames_left), np.round(p.fulcrum, 1).tolist()
+(4, [60.0, -4.0, 90.2])
+>>> np.round(p.frames_left[0]["shafts"][0]["edges"], 1).tolist()      # its two edges [px]
+[[448.7, 296.1, 640.4, 246.6], [436.6, 247.2, 629.4, 202.3]]
 """
 from __future__ import annotations
 
