@@ -370,3 +370,19 @@ def test_real_photographs_effects_are_exact():
     assert [c["wedges"] for c in a] == list(STAR_COUNTS) * 2
     assert all(c[k] == d[k] for c, d in zip(a, b) for k in d if k not in ("shading", "vignette"))
     assert all(d["shading"] <= c["shading"] <= 1.5 * d["shading"] for c, d in zip(a, b))
+
+
+def test_photographs_as_hard_as_the_shared_ones():
+    """`real_photo_conditions(8, 3500)` (a defocus growing across the star, a printer's
+    banding, stronger shading; 16, 36, 64 and 128 wedges, twice): what is reported is right
+    (every twin, every normal within 0.6 deg of the truth) and the coarse stars (16, 36
+    wedges) use every spoke. Measured: 16 and 36 wedges every spoke, 0.011-0.053 deg; 64
+    wedges 64 spokes (45 % of the height, 0.079 deg) and a star of 23 % refused; 128 wedges
+    every spoke at 54 % (0.017 deg) and a star of 24 % refused (docs/method.md)."""
+    from pencilcal.validation.radial_renders import photo_trial, real_photo_conditions
+
+    trials = [photo_trial(c) for c in real_photo_conditions(8, 3500)]
+    assert all(t.twin_right and t.err_deg < 0.6 for t in trials if t.ok)
+    coarse = [t for t in trials if t.spokes <= 36]
+    assert len(coarse) == 4 and all(t.ok and t.spokes_used == t.spokes for t in coarse)
+    assert sum(t.ok for t in trials) >= 6
