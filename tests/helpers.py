@@ -78,6 +78,14 @@ def star_sheet_view(wedges, tilt_deg, distance, rng=0):
     it from `distance` mm, `tilt_deg` from the star's axis, through a webcam's blur, noise,
     uneven light and gamma 2.2: (image, camera, sheet, R_cam_from_target, t_cam_from_target)."""
     from pencilcal.toolkit.synth.render import render_frame
+
+    cam, sheet, R, t = _star_sheet_pose(wedges, tilt_deg, distance)
+    img = render_frame(cam, R, t, sheet, blur_px=1.0, noise=2.0, gamma=2.2, lighting=0.3, rng=rng)
+    return img, cam, sheet, R, t
+
+
+def _star_sheet_pose(wedges, tilt_deg, distance):
+    """(camera, sheet, R_cam_from_target, t_cam_from_target) of `star_sheet_view`."""
     from pencilcal.toolkit.synth.scenarios import default_camera, look_at
     from pencilcal.toolkit.synth.sheet import layout_sheet
 
@@ -87,8 +95,28 @@ def star_sheet_view(wedges, tilt_deg, distance, rng=0):
     tilt = np.radians(tilt_deg)
     R, t = look_at(v3 + distance * np.array([0.6 * np.sin(tilt), -0.8 * np.sin(tilt), -np.cos(tilt)]),
                    0.3 * sheet.content_center + 0.7 * v3)
-    img = render_frame(cam, R, t, sheet, blur_px=1.0, noise=2.0, gamma=2.2, lighting=0.3, rng=rng)
-    return img, cam, sheet, R, t
+    return cam, sheet, R, t
+
+
+def star_sheet_photo(wedges, tilt_deg, distance, rng=0):
+    """`star_sheet_view`'s sheet photographed as a webcam does (`synth.radial_photo`): paper
+    texture (3 %) and a printer's banding (3 %, 6 mm), the light's gradient (+-35 %) and
+    vignetting, a Gaussian blur of 0.8 px, a defocus growing from 0.6 to 2.5 px across the
+    star, 1 px of motion blur, noise, the camera's sharpening halos and JPEG 75:
+    (image, camera, sheet, R_cam_from_target, t_cam_from_target)."""
+    from pencilcal.toolkit.synth.radial_photo import banding, paper_texture, photo_sensor
+    from pencilcal.toolkit.synth.render import render_scene
+
+    cam, sheet, R, t = _star_sheet_pose(wedges, tilt_deg, distance)
+    rng = np.random.default_rng(rng)
+    lin = render_scene(cam, R, t, sheet)[..., 0] * paper_texture(cam, R, t, 0.03, rng) * banding(cam, R, t, 0.03, 6.0,
+                                                                                                  0.0, 1.0)
+    v = R @ np.r_[sheet.pencil.vertex, 0.0] + t
+    x, y = cam.distort_pixels((np.asarray(cam.K, float)[:2, :2] @ (v[:2] / v[2]) + np.asarray(cam.K, float)[:2, 2])[None])[0]
+    cond = dict(shading=0.5, shading_deg=30.0, vignette=0.4, blur_px=0.8, defocus_px=0.6, defocus_far_px=2.5,
+                focus_px=[x - 200.0, y, 0.0, 400.0], motion_px=1.0, motion_deg=20.0, noise=2.5, sharpen=0.8,
+                sharpen_px=1.2, jpeg=75)
+    return photo_sensor(lin, cond, rng), cam, sheet, R, t
 
 
 def dartboard_with_print():

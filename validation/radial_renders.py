@@ -25,7 +25,8 @@ from pencilcal.toolkit.pencil.estimator import pencil_covariance
 from pencilcal.toolkit.pencil.spec import Pencil, pencil_from_dict
 
 __all__ = ["RadialTrial", "radial_conditions", "radial_trial", "ideal_lines_trial", "radial_summary", "KINDS",
-           "photo_conditions", "photographic_conditions", "photo_pencils", "photo_frame", "photo_trial"]
+           "photo_conditions", "photographic_conditions", "real_photo_conditions", "photo_pencils", "photo_frame",
+           "photo_trial", "STAR_COUNTS"]
 
 #: What is rendered: Siemens stars of so many wedges, and a dartboard.
 KINDS = ("star16", "star32", "star64", "star128", "dartboard")
@@ -308,7 +309,7 @@ def photo_conditions(n, seed=0, wedges=(PHOTO_WEDGES,)):
     return out
 
 
-def photographic_conditions(n, seed=0):
+def photographic_conditions(n, seed=0, wedges=(PHOTO_WEDGES,)):
     """n conditions of `photo_conditions(n, seed)`, each made as hard as a real photograph
     with draws of a stream of their own (`photo_conditions`' draws unchanged): the print's
     contrast (Michelson, of the grey levels recorded) 0.5-0.8 (0.59 in `photo_conditions`), the paper's texture (1-4 %), chromatic
@@ -317,14 +318,14 @@ def photographic_conditions(n, seed=0):
     halos), the sheet curled (-0.5..0.5 mm off the plane at the sheet's end, 148.5 mm from
     the vertex along a direction drawn; 0.11 mm at the star's rim), and a shadow's soft edge (depth 0.3-0.6, 10-80 px wide) across the star
     in half the frames. Keys added: contrast, texture, ca_px, sharpen, sharpen_px, curl_mm,
-    curl_deg, shadow, shadow_px, shadow_deg, shadow_soft.
+    curl_deg, shadow, shadow_px, shadow_deg, shadow_soft. wedges: as `photo_conditions`'.
 
     >>> c = photographic_conditions(2, 5)
     >>> [k for k in c[0] if k not in photo_conditions(1, 5)[0]][:3], c[1]["tilt_deg"] == photo_conditions(2, 5)[1]["tilt_deg"]
     (['contrast', 'texture', 'ca_px'], True)
     """
     rng = np.random.default_rng([seed, 29])
-    out = photo_conditions(n, seed)
+    out = photo_conditions(n, seed, wedges)
     for c in out:
         x, y = c["vertex_px"]
         c.update(contrast=float(rng.uniform(0.5, 0.8)), texture=float(rng.uniform(0.01, 0.04)),
@@ -333,6 +334,39 @@ def photographic_conditions(n, seed=0):
                  curl_deg=float(rng.uniform(0, 180)), shadow=float(rng.uniform(0.3, 0.6)) * (rng.random() < 0.5),
                  shadow_px=[x + float(rng.uniform(-100, 100)), y + float(rng.uniform(-100, 100))],
                  shadow_deg=float(rng.uniform(0, 360)), shadow_soft=float(rng.uniform(10, 80)))
+    return out
+
+
+#: The star counts of `real_photo_conditions`: a lab's stars, coarse to fine.
+STAR_COUNTS = (16, 36, 64, 128)
+
+
+def real_photo_conditions(n, seed=0, wedges=STAR_COUNTS):
+    """n conditions of `photographic_conditions(n, seed, wedges)` with what the shared real
+    photographs of radial targets show beyond them (their edges' blur measured as a Gaussian's
+    sd: medians 1.7-2.0 px, a quarter of the edges over 4 px; the blur not the same across the
+    target), drawn on a stream of their own: a defocus that grows across the star as a tilted
+    sheet's does (the disc's radius from defocus_px on a line through the star to 1-3.5 px
+    more one star diameter along a direction drawn: defocus_far_px, focus_px), and a
+    printer's banding (stripes of 1-5 % in ink and paper, 2-12 mm apart, along the sheet's
+    feed: banding, banding_mm, banding_deg, banding_phase), and the light's gradient and
+    vignetting of `photo_conditions` drawn up to half again as strong.
+
+    >>> c = real_photo_conditions(4, 5)
+    >>> [x["wedges"] for x in c], c[0]["tilt_deg"] == photographic_conditions(4, 5, STAR_COUNTS)[0]["tilt_deg"]
+    ([16, 36, 64, 128], True)
+    """
+    rng = np.random.default_rng([seed, 2929])
+    out = photographic_conditions(n, seed, wedges)
+    for c in out:
+        x, y = c["vertex_px"]
+        r = c["fill"] * 480.0  # the star's radius [px]
+        ang = float(rng.uniform(0, 360))
+        c.update(defocus_far_px=c["defocus_px"] + float(rng.uniform(1.0, 3.5)),
+                 focus_px=[x - r * np.cos(np.radians(ang)), y - r * np.sin(np.radians(ang)), ang, 2 * r],
+                 banding=float(rng.uniform(0.01, 0.05)), banding_mm=float(rng.uniform(2, 12)),
+                 banding_deg=c["sheet_deg"] + 90.0 * int(rng.integers(2)), banding_phase=float(rng.uniform(0, 2 * np.pi)),
+                 shading=c["shading"] * float(rng.uniform(1.0, 1.5)), vignette=c["vignette"] * float(rng.uniform(1.0, 1.5)))
     return out
 
 
@@ -348,11 +382,12 @@ def photo_pencils(cond):
 
 
 def photo_frame(cond):
-    """The photograph of `cond` (`photo_conditions`, `photographic_conditions`): (image
+    """The photograph of `cond` (`photo_conditions`, `photographic_conditions`,
+    `real_photo_conditions`): (image
     (960, 1280) uint8, or (960, 1280, 3) BGR with chromatic aberration, camera, R, t), the
     star's vertex at the target frame's origin (where a curled sheet touches the plane)."""
     from pencilcal.toolkit.synth.radial import linear_layers, radial_pose
-    from pencilcal.toolkit.synth.radial_photo import colour_photo, curled, paper_texture, photo_layers, photo_sensor
+    from pencilcal.toolkit.synth.radial_photo import banding, colour_photo, curled, paper_texture, photo_layers, photo_sensor
 
     cam = _camera(cond["k1"])
     printed, _, _ = photo_pencils(cond)
@@ -366,6 +401,8 @@ def photo_frame(cond):
     lin = linear_layers(cam, R, t, layers, 0.25)
     if cond.get("texture"):
         lin = lin * paper_texture(cam, R, t, cond["texture"], np.random.default_rng([cond["seed"], 3]))
+    if cond.get("banding"):
+        lin = lin * banding(cam, R, t, cond["banding"], cond["banding_mm"], cond["banding_deg"], cond["banding_phase"])
     if "ca_px" in cond:
         return colour_photo(lin, cond, rng, np.asarray(cam.K, float)[:2, 2]), cam, R, t
     return photo_sensor(lin, cond, rng), cam, R, t

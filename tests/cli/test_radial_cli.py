@@ -111,6 +111,30 @@ def test_orient_finds_every_spoke_of_the_printed_star(star_photo):
     assert err < 3 * rec["normal_sigma_deg"] + 0.005
 
 
+@pytest.mark.parametrize("wedges,tilt,distance", [(16, 30.0, 350.0), (64, 25.0, 300.0)])
+def test_orient_finds_every_spoke_of_the_printed_star_photographed(tmp_path, wedges, tilt, distance):
+    """`target --star N` (A4, radius 46 mm) photographed as a webcam does
+    (`tests.helpers.star_sheet_photo`: paper texture, banding, uneven light and vignetting,
+    a defocus growing across the star, motion blur, sharpening halos, JPEG 75), the star
+    about 160 px in radius: every spoke, the twin resolved by the outline, the normal well
+    within 0.6 deg. Measured (other draws of the noise): 16 and 64 spokes, 0.027 and 0.031
+    deg off. (Seen from 420 mm at 40 deg, 110 px in radius, the 64 wedges are not measured:
+    docs/method.md.)"""
+    from tests.helpers import star_sheet_photo
+
+    r = _invoke(target, "-o", tmp_path / "star.pdf", "--star", wedges, "-q")
+    assert r.exit_code == 0, r.output
+    img, cam, _, R, _ = star_sheet_photo(wedges, tilt, distance, rng=wedges)
+    cv2.imwrite(str(tmp_path / "frame.png"), img)
+    write_camera(tmp_path / "camera.json", cam)
+    r = _invoke(orient, tmp_path / "frame.png", "--camera", tmp_path / "camera.json", "--pencil",
+                tmp_path / "pencil.yaml", "-o", tmp_path / "o.json", "-q")
+    assert r.exit_code == 0, r.output
+    rec = json.loads((tmp_path / "o.json").read_text())["frames"][0]
+    assert rec["spokes_used"] == wedges and not rec["ambiguous"] and rec["resolved_by"] == "circle"
+    assert np.degrees(np.arccos(np.clip(np.dot(rec["normal"], R[:, 2]), -1, 1))) < 0.2
+
+
 def test_lines_radial_writes_the_edges_and_circle_points(star_photo):
     d, _ = star_photo
     r = _invoke(lines, d / "frame.jpg", "--camera", d / "camera.json", "--radial", 64, "-o", d / "lines.json", "-q")

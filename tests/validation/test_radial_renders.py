@@ -343,3 +343,46 @@ def test_a_small_star_no_edge_of_which_is_clear_is_still_a_star():
 
     t = photo_trial(photographic_conditions(6, 800)[5])
     assert t.ok and t.spokes_used >= 60 and t.twin_right and t.err_deg < 0.6
+
+
+def test_real_photographs_effects_are_exact():
+    """`real_photo_conditions`' effects keep the truth: a printer's banding is a gain of the
+    drawn amplitude and period along the drawn direction on the target plane (a frontal view:
+    the plane's point under each pixel known exactly); the defocus grows across the frame
+    from its near radius to its far one along the drawn direction, the light kept; the set's
+    other draws are `photographic_conditions`' own, every star count in turn."""
+    from pencilcal.toolkit.camera.model import Camera
+    from pencilcal.toolkit.synth.radial_photo import _varying_defocus, banding
+    from pencilcal.validation.radial_renders import STAR_COUNTS, photographic_conditions, real_photo_conditions
+
+    cam = Camera("pinhole", 320, 240, [[400.0, 0, 160.0], [0, 400.0, 120.0], [0, 0, 1]])
+    g = banding(cam, np.eye(3), np.array([0.0, 0.0, 200.0]), 0.04, 3.0, 30.0, 0.5)
+    yy, xx = np.mgrid[0:240, 0:320]
+    u = ((xx - 160.0) * np.cos(np.radians(30)) + (yy - 120.0) * np.sin(np.radians(30))) * 200.0 / 400.0  # [mm]
+    assert np.allclose(g, 1.0 + 0.04 * np.sin(2 * np.pi * u / 3.0 + 0.5), atol=1e-4)
+    step = np.zeros((60, 200), np.float32)
+    step[30:] = 1.0  # a level edge; the defocus grows along x from 0.5 px at x = 20 to 4 px at x = 180
+    out = _varying_defocus(step, dict(defocus_px=0.5, defocus_far_px=4.0, focus_px=[20.0, 0.0, 0.0, 160.0]))
+    width = [np.count_nonzero((out[:, x] > 0.05) & (out[:, x] < 0.95)) for x in (10, 100, 190)]
+    assert width[0] < width[1] < width[2] and width[0] <= 2 and width[2] >= 6
+    assert np.allclose(out[:, 10:190].sum(0), step[:, 10:190].sum(0), atol=1e-3)  # the light kept
+    a, b = real_photo_conditions(8, 11), photographic_conditions(8, 11, STAR_COUNTS)
+    assert [c["wedges"] for c in a] == list(STAR_COUNTS) * 2
+    assert all(c[k] == d[k] for c, d in zip(a, b) for k in d if k not in ("shading", "vignette"))
+    assert all(d["shading"] <= c["shading"] <= 1.5 * d["shading"] for c, d in zip(a, b))
+
+
+def test_photographs_as_hard_as_the_shared_ones():
+    """`real_photo_conditions(8, 3500)` (a defocus growing across the star, a printer's
+    banding, stronger shading; 16, 36, 64 and 128 wedges, twice): what is reported is right
+    (every twin, every normal within 0.6 deg of the truth) and the coarse stars (16, 36
+    wedges) use every spoke. Measured: 16 and 36 wedges every spoke, 0.011-0.053 deg; 64
+    wedges 64 spokes (45 % of the height, 0.079 deg) and a star of 23 % refused; 128 wedges
+    every spoke at 54 % (0.017 deg) and a star of 24 % refused (docs/method.md)."""
+    from pencilcal.validation.radial_renders import photo_trial, real_photo_conditions
+
+    trials = [photo_trial(c) for c in real_photo_conditions(8, 3500)]
+    assert all(t.twin_right and t.err_deg < 0.6 for t in trials if t.ok)
+    coarse = [t for t in trials if t.spokes <= 36]
+    assert len(coarse) == 4 and all(t.ok and t.spokes_used == t.spokes for t in coarse)
+    assert sum(t.ok for t in trials) >= 6

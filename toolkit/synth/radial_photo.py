@@ -30,7 +30,7 @@ from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.synth.polygons import arc, rect
 
 __all__ = ["gained_wedges", "photo_layers", "photo_sensor", "aruco_cells", "A4", "curled", "paper_texture",
-           "colour_photo"]
+           "colour_photo", "banding"]
 
 A4 = (210.0, 297.0)  # [mm]
 _MARKER_MM = 30.0
@@ -161,7 +161,8 @@ def photo_sensor(img, cond, rng):
     the fall-off at the corners), a shadow's soft edge across it (cond["shadow"]: its depth,
     at cond["shadow_px"] (x, y) along cond["shadow_deg"], cond["shadow_soft"] px wide), a
     specular patch (cond["specular"]: its peak over the paper's white, at
-    cond["specular_px"] (x, y, sd)), defocus (a disc of cond["defocus_px"]) and motion blur
+    cond["specular_px"] (x, y, sd)), defocus (a disc of cond["defocus_px"], growing across the
+    frame to cond["defocus_far_px"] where given: `_varying_defocus`) and motion blur
     (cond["motion_px"] along cond["motion_deg"]) over the optics' Gaussian
     (cond["blur_px"]), gamma 2.2, noise (cond["noise"] grey levels at mid grey, shot plus
     read), the pipeline's unsharp mask (cond["sharpen"] times the detail above a Gaussian of
@@ -227,12 +228,43 @@ def _optics(img, cond):
     out = out.astype(np.float32)
     if cond.get("blur_px", 0) > 0:
         out = cv2.GaussianBlur(out, (0, 0), float(cond["blur_px"]), borderType=cv2.BORDER_REFLECT)
-    if cond.get("defocus_px", 0) > 0.3:
-        out = cv2.filter2D(out, -1, _disc_kernel(float(cond["defocus_px"])).astype(np.float32),
-                           borderType=cv2.BORDER_REFLECT)
+    if "defocus_far_px" in cond:  # a tilted sheet: the focus plane's distance varies across it
+        out = _varying_defocus(out, cond)
+    elif cond.get("defocus_px", 0) > 0.3:
+        out = _defocused(out, float(cond["defocus_px"]))
     if cond.get("motion_px", 0) > 0.3:
         k = _motion_kernel(float(cond["motion_px"]), np.radians(float(cond.get("motion_deg", 0.0))))
         out = cv2.filter2D(out, -1, k.astype(np.float32), borderType=cv2.BORDER_REFLECT)
+    return out
+
+
+def _defocused(img, r):
+    """img (H, W) float32 through a defocus disc of radius r [px] (none under 0.3 px)."""
+    import cv2
+
+    if r <= 0.3:
+        return img
+    return cv2.filter2D(img, -1, _disc_kernel(r).astype(np.float32), borderType=cv2.BORDER_REFLECT)
+
+
+def _varying_defocus(img, cond):
+    """img (H, W) float32 through a defocus that varies across the frame, as a tilted sheet's
+    does: the disc's radius cond["defocus_px"] on the line through cond["focus_px"] (x, y, angle
+    [deg], span [px]) across that angle, growing linearly to cond["defocus_far_px"] span px
+    along it (held beyond, and before it); the images at 5 radii interpolated per pixel."""
+    H, W = img.shape
+    x0, y0, ang, span = (float(v) for v in cond["focus_px"])
+    a = np.radians(ang)
+    d = (np.arange(W)[None] - x0) * np.cos(a) + (np.arange(H)[:, None] - y0) * np.sin(a)
+    f = np.clip(d / span, 0.0, 1.0) * 4.0  # the place between the 5 radii
+    radii = np.linspace(float(cond.get("defocus_px", 0.0)), float(cond["defocus_far_px"]), 5)
+    levels = [_defocused(img, r) for r in radii]
+    k = np.minimum(np.floor(f).astype(int), 3)
+    w = (f - k).astype(np.float32)
+    out = np.zeros_like(img)
+    for i in range(4):
+        m = k == i
+        out[m] = (1 - w[m]) * levels[i][m] + w[m] * levels[i + 1][m]
     return out
 
 
@@ -287,6 +319,17 @@ def paper_texture(camera, R_cam_from_target, t_cam_from_target, amplitude, rng, 
     mot = cv2.GaussianBlur(rng.standard_normal((n, n)).astype(np.float32), (0, 0), 4.0 / cell_mm)
     field = fib / fib.std() + mot / mot.std()
     field /= field.std()
+    mx, my = _plane_points(camera, R_cam_from_target, t_cam_from_target)
+    g = cv2.remap(field, np.clip(mx / cell_mm + n / 2, -1, n).astype(np.float32),
+                  np.clip(my / cell_mm + n / 2, -1, n).astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    return 1.0 + float(amplitude) * g.astype(np.float64)
+
+
+def _plane_points(camera, R_cam_from_target, t_cam_from_target):
+    """Where each pixel's ray meets the target plane: (x, y) [mm], each (H, W) float32, on a
+    grid of 8 px, interpolated; rays beyond the plane's horizon far away on it."""
+    import cv2
+
     H, W = camera.height, camera.width
     gy, gx = np.mgrid[0:H + 8:8, 0:W + 8:8].astype(float)
     rays = camera.rays_from_pixels(np.stack([gx, gy], -1).reshape(-1, 2))
@@ -299,11 +342,17 @@ def paper_texture(camera, R_cam_from_target, t_cam_from_target, amplitude, rng, 
     s = np.where(np.isfinite(s) & (s > 0), s, 1e9)  # beyond the plane's horizon: far away on it
     P = C[None, :2] + s[:, None] * rt[:, :2]
     P = np.clip(np.where(np.isfinite(P), P, 1e5), -1e5, 1e5).reshape(gx.shape + (2,))  # rays the lens model lacks too
-    gxs = (np.arange(W) / 8.0).astype(np.float32)
-    gys = (np.arange(H) / 8.0).astype(np.float32)
-    mapx, mapy = np.meshgrid(gxs, gys)
-    mx = cv2.remap(P[..., 0].astype(np.float32), mapx, mapy, cv2.INTER_LINEAR)
-    my = cv2.remap(P[..., 1].astype(np.float32), mapx, mapy, cv2.INTER_LINEAR)
-    g = cv2.remap(field, np.clip(mx / cell_mm + n / 2, -1, n).astype(np.float32),
-                  np.clip(my / cell_mm + n / 2, -1, n).astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-    return 1.0 + float(amplitude) * g.astype(np.float64)
+    mapx, mapy = np.meshgrid((np.arange(W) / 8.0).astype(np.float32), (np.arange(H) / 8.0).astype(np.float32))
+    return (cv2.remap(P[..., 0].astype(np.float32), mapx, mapy, cv2.INTER_LINEAR),
+            cv2.remap(P[..., 1].astype(np.float32), mapx, mapy, cv2.INTER_LINEAR))
+
+
+def banding(camera, R_cam_from_target, t_cam_from_target, amplitude, period_mm, angle_deg, phase=0.0):
+    """A printer's banding as the camera sees it: a multiplicative gain (H, W),
+    1 + amplitude * sin(2 pi u / period_mm + phase), u [mm] the distance on the target plane
+    along the direction `angle_deg` (the paper's feed): stripes across the sheet, on ink and
+    paper alike."""
+    mx, my = _plane_points(camera, R_cam_from_target, t_cam_from_target)
+    a = np.radians(float(angle_deg))
+    u = mx.astype(np.float64) * np.cos(a) + my.astype(np.float64) * np.sin(a)
+    return 1.0 + float(amplitude) * np.sin(2 * np.pi * u / float(period_mm) + float(phase))
