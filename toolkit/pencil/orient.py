@@ -675,33 +675,19 @@ def _unconfirmed_labelling(pencil, spokes, resolved_by, circle_points, circ, cir
 
 
 def unconfirmed_final(rec, pencil):
-    """The `Orientation` rec of a radial target's final labelling (every edge searched for:
-    `detect.radial.trimmed_at_spokes_end`), or a refused one where that labelling holds under
-    `UNCONFIRMED_SPOKES` of the pencil's spokes and only circles that agree with it confirm it
-    while the lines fix the plane more loosely than they do (``normal_sigma_deg`` over
-    ``circle_normal_sigma_deg``). Their agreement then allows the lines their own wide
-    scatter: a 64-wedge star's 14 rim edges in two opposite arcs (9 spokes) fixed the normal
-    to 2.0 deg on one axis, the circles to 0.8; 4.8 deg apart at a circle_chi2 of 6.9, and the
-    normal 4.4 deg off. A first orientation of few spokes is not judged so: the edges it
-    predicts are searched for from it, and it is often looser than the circles.
-
-    >>> from pencilcal.toolkit.pencil.orientation import Orientation
-    >>> from pencilcal.toolkit.pencil.spec import pencil_from_dict
-    >>> star = pencil_from_dict({"start_deg": 0, "step_deg": 5.625, "count": 64, "shape": "wedge"})
-    >>> rec = Orientation(ok=True, spokes_used=9, resolved_by="circle", circle_consistent=True,
-    ...                   normal_sigma_deg=2.05, circle_normal_sigma_deg=0.83, spokes=np.zeros(3, int))
-    >>> unconfirmed_final(rec, star).ok, unconfirmed_final(rec.replace(spokes_used=40), star).ok
-    (False, True)
-    """
+    """rec, a radial target's final `Orientation` (`detect.radial.trimmed_at_spokes_end`), or a
+    refused one where under `UNCONFIRMED_SPOKES` of the spokes are used, their twin chosen by
+    circles that agree only within the lines' looser sigma (9 of 64 at 2.05 deg, the circles'
+    0.83 deg, 4.8 deg away: the normal 4.4 deg off); never a first one, whose gaps are searched."""
     if not (rec.ok and rec.resolved_by == "circle" and rec.circle_consistent
             and rec.spokes_used is not None and rec.spokes_used < UNCONFIRMED_SPOKES * pencil.count
             and rec.circle_normal_sigma_deg is not None and rec.normal_sigma_deg > rec.circle_normal_sigma_deg):
         return rec
-    spokes = None if rec.spokes is None else np.full(np.shape(rec.spokes), -1)
-    return Orientation(image=rec.image, ok=False, model=rec.model, spokes=spokes, error=(
-        f"ambiguous labelling: {rec.spokes_used} of {pencil.count} spokes labelled, the twin chosen by the "
-        f"circles, which agree with the lines' normal only within its sigma of {rec.normal_sigma_deg:.2f} deg, "
-        f"looser than theirs ({rec.circle_normal_sigma_deg:.2f} deg): that confirms no labelling; not a measurement"))
+    return Orientation(image=rec.image, ok=False, model=rec.model,
+                       spokes=None if rec.spokes is None else np.full(np.shape(rec.spokes), -1), error=(
+        f"ambiguous labelling: {rec.spokes_used} of {pencil.count} spokes labelled, the twin chosen by the circles, "
+        f"which agree with the lines' normal only within its sigma of {rec.normal_sigma_deg:.2f} deg, looser than "
+        f"theirs ({rec.circle_normal_sigma_deg:.2f} deg): that confirms no labelling; not a measurement"))
 
 
 def _lines_own(fit, ln, a_used, th_used, s_used, s_err=None, h=1e-6):
