@@ -431,7 +431,18 @@ def trimmed_at_spokes_end(detect, orient, camera, pencil, img, joint="crowded", 
         found -> `Orientation` with ``lines`` (``keep_lines``), the ring's search needs them.
     camera : Camera or None (None: no trim); pencil : Pencil; img : `GrayImage` of the frame;
     joint : `detect_radial_edges`' joint; gamma : the frame's encoding gamma.
+
+    The orientation kept is refused where its final labelling, once every edge was searched
+    for, is still one that nothing confirms (`pencil.orient.unconfirmed_final`).
     """
+    from pencilcal.toolkit.pencil.orient import unconfirmed_final
+
+    found, rec = _at_spokes_end(detect, orient, camera, pencil, img, joint, gamma)
+    return found, unconfirmed_final(rec, pencil)
+
+
+def _at_spokes_end(detect, orient, camera, pencil, img, joint, gamma):
+    """`trimmed_at_spokes_end` before its final labelling is judged (`orient.unconfirmed_final`)."""
     from pencilcal.toolkit.pencil.circle import spokes_end
 
     found = detect(None)

@@ -53,7 +53,7 @@ from pencilcal.toolkit.pencil.spec import image_angles
 from pencilcal.toolkit.pencil.vertex import LOCAL_CANDIDATES, intersect_lines, lines_through
 
 __all__ = ["orient_segments", "orientation_record", "raw_vertex", "MODELS", "MAX_SEGMENTS", "PLANE_PRIOR_DEG",
-           "metric_depth", "resolve_twins_by_continuity"]
+           "metric_depth", "resolve_twins_by_continuity", "unconfirmed_final"]
 
 MODELS = ("exact", "general", "aligned")
 
@@ -672,6 +672,22 @@ def _unconfirmed_labelling(pencil, spokes, resolved_by, circle_points, circ, cir
         f"ambiguous labelling: {n_spokes} of {pencil.count} spokes labelled, "
         f"{'the twin open' if resolved_by is None else 'the twin chosen by the circles'}, and the "
         f"{n_pts} circle points {what}: not a measurement")
+
+
+def unconfirmed_final(rec, pencil):
+    """rec, a radial target's final `Orientation` (`detect.radial.trimmed_at_spokes_end`), or a
+    refused one where under `UNCONFIRMED_SPOKES` of the spokes are used, their twin chosen by
+    circles that agree only within the lines' looser sigma (9 of 64 at 2.05 deg, the circles'
+    0.83 deg, 4.8 deg away: the normal 4.4 deg off); never a first one, whose gaps are searched."""
+    if not (rec.ok and rec.resolved_by == "circle" and rec.circle_consistent
+            and rec.spokes_used is not None and rec.spokes_used < UNCONFIRMED_SPOKES * pencil.count
+            and rec.circle_normal_sigma_deg is not None and rec.normal_sigma_deg > rec.circle_normal_sigma_deg):
+        return rec
+    return Orientation(image=rec.image, ok=False, model=rec.model,
+                       spokes=None if rec.spokes is None else np.full(np.shape(rec.spokes), -1), error=(
+        f"ambiguous labelling: {rec.spokes_used} of {pencil.count} spokes labelled, the twin chosen by the circles, "
+        f"which agree with the lines' normal only within its sigma of {rec.normal_sigma_deg:.2f} deg, looser than "
+        f"theirs ({rec.circle_normal_sigma_deg:.2f} deg): that confirms no labelling; not a measurement"))
 
 
 def _lines_own(fit, ln, a_used, th_used, s_used, s_err=None, h=1e-6):

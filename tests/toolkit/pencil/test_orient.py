@@ -319,6 +319,24 @@ def test_a_circle_that_chooses_neither_twin_confirms_no_labelling():
     _unconfirmed_labelling(star, few, None, pts[:MIN_POINTS - 1], None)  # too few points to judge
 
 
+def test_circles_that_agree_within_the_lines_looser_sigma_confirm_no_final_labelling():
+    """A final labelling of under half a star's spokes whose twin the circles chose and agree
+    with is refused where the lines' normal is looser than the circles' (`unconfirmed_final`);
+    kept with half the spokes or more, with lines as tight, or with the twin chosen otherwise."""
+    from pencilcal.toolkit.pencil.orient import unconfirmed_final
+    from pencilcal.toolkit.pencil.orientation import Orientation
+    from pencilcal.toolkit.pencil.spec import pencil_from_dict
+
+    star = pencil_from_dict({"start_deg": 0, "step_deg": 5.625, "count": 64, "shape": "wedge", "radius": [12, 70]})
+    rec = Orientation(ok=True, spokes_used=9, resolved_by="circle", circle_consistent=True, normal_sigma_deg=2.05,
+                      circle_normal_sigma_deg=0.83, spokes=np.array([3, -1, 4]))
+    out = unconfirmed_final(rec, star)
+    assert not out.ok and "ambiguous labelling: 9 of 64" in out.error and np.all(out.spokes == -1)
+    for kept in (rec.replace(spokes_used=32), rec.replace(normal_sigma_deg=0.5), rec.replace(resolved_by=None),
+                 rec.replace(circle_consistent=False), rec.replace(circle_normal_sigma_deg=None)):
+        assert unconfirmed_final(kept, star) is kept
+
+
 def test_angle_sigma_error_widens_the_covariance_only(rng):
     """Errors wider than the weights (`angle_sigma_error`): the labels, the twin and the fit
     are angle_sigma's, bit for bit; the sigmas grow, ``lines`` keeps the wider sds, and a
