@@ -87,6 +87,8 @@ def radial_frame(name, image, camera, pencil, detector, lines_kw, orient, state=
     img = GrayImage(image, lines_kw.get("valid_region"))
     found, rec = trimmed_at_spokes_end(detect, oriented, camera, pencil, img, lines_kw["radial_joint"],
                                        lines_kw.get("gamma", DEFAULT_GAMMA))
+    if state is not None and not rec.ok:
+        state["previous"] = None  # a final labelling refused after `orient` kept it is no frame to track from
     return found.to_dict(), rec.replace(lines=None)
 
 
