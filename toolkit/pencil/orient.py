@@ -50,7 +50,7 @@ from pencilcal.toolkit.pencil.defaults import DETECTION_LEVEL, ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.lens_uncertainty import orientation_totals, resolve_intrinsics_cov
 from pencilcal.toolkit.pencil.orientation import Orientation
 from pencilcal.toolkit.pencil.spec import image_angles
-from pencilcal.toolkit.pencil.vertex import LOCAL_CANDIDATES, intersect_lines, lines_through
+from pencilcal.toolkit.pencil.vertex import LOCAL_CANDIDATES, floored_vertex_cov, intersect_lines, lines_through
 
 __all__ = ["orient_segments", "orientation_record", "raw_vertex", "MODELS", "MAX_SEGMENTS", "PLANE_PRIOR_DEG",
            "metric_depth", "resolve_twins_by_continuity"]
@@ -313,10 +313,9 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
         # rival labellings that put the normal elsewhere make the normal itself ambiguous
         # (within the weighted fit's sigmas, as the labelling saw them)
         alt = _rival_normals(fit, rivals)
-        floored = _floored_vertex_cov(cov_ideal, vertex_floor_px)
+        floored = floored_vertex_cov(cov_ideal, vertex_floor_px)
         if floored is not None:  # every decision taken: the vertex no surer than the point it was found about
-            cov_ideal = floored
-            ln = ln._replace(vertex_cov=_normalised_cov(camera, cov_ideal))
+            cov_ideal, ln = floored, ln._replace(vertex_cov=_normalised_cov(camera, floored))
         if s_err is not None or floored is not None:  # and the covariance under the wider errors
             cov, s_tilt, s_norm = pencil_covariance(fit.R_cam_from_target, ln.vertex, th_used, s_used, ln.vertex_cov,
                                                     sigma_error=s_err)
@@ -448,24 +447,6 @@ class _Lines(NamedTuple):
     sigma: np.ndarray       # (K,) [rad] angle sd
     straddle: np.ndarray    # (K,) bool: the segment runs over the vertex (no direction)
     kind: np.ndarray        # (K,) +1 / -1: an edge segment brighter towards larger / smaller angles
-
-
-def _floored_vertex_cov(cov_ideal, floor_px):
-    """The vertex's covariance (2, 2) [undistorted px^2] with no variance under floor_px^2 / 2
-    along any direction (floor_px: an sd of the vertex's distance [px], None or 0: none);
-    None where it is already no narrower.
-
-    >>> _floored_vertex_cov(np.diag([0.01, 4.0]), 2.0).round(3).tolist()
-    [[2.0, 0.0], [0.0, 4.0]]
-    >>> _floored_vertex_cov(np.diag([3.0, 4.0]), 2.0) is None
-    True
-    """
-    if floor_px is None or not np.isfinite(floor_px) or floor_px <= 0:
-        return None
-    w, V = np.linalg.eigh(np.asarray(cov_ideal, float))
-    if np.all(w >= 0.5 * floor_px**2):
-        return None
-    return (V * np.maximum(w, 0.5 * floor_px**2)) @ V.T
 
 
 def _normalised_cov(camera, cov_ideal):
