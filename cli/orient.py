@@ -40,6 +40,8 @@ def _orient_record(camera, pencil, fr, opts):
               keep_lines=opts.get("keep_lines", False))
     if fr.get("angle_sigma_error_deg") is not None and sig is not None:  # (the covariance's: a star's edges)
         kw["angle_sigma_error"] = np.radians(np.asarray(fr["angle_sigma_error_deg"], float))
+    if fr.get("vertex_sd_px") is not None:  # (the covariance's: the point radial edges were located about)
+        kw["vertex_floor_px"] = float(fr["vertex_sd_px"])
     state = opts.get("tracking")
     if state is None:
         return orient_segments(camera, fr["segments"], pencil, **kw)

@@ -31,10 +31,10 @@ def test_a_small_stars_far_side_found_where_predicted():
 @pytest.mark.parametrize("frame, chi2_before", [(10, 136.0), (14, 29.6)])
 def test_a_small_stars_normal_within_its_sigma(frame, chi2_before):
     """Seed 420's frames 10 and 14 (small 64-wedge stars, 64 and 57 spokes used): their
-    edges miss the vertex by 0.2-0.5 px beyond their sigmas (`radial._common_offset`), turned
+    edges miss the vertex by 0.2-0.5 px beyond their sigmas (`radial_scatter.common_offset`), turned
     by their blurred neighbours, which the stations' scatter does not show; the normals were
     0.19 and 0.20 deg off with chi2 136 and 30 under the stations' sds. The covariance taken
-    under each edge's angle sd widened by that offset over its lever (`radial._turned_sigma`,
+    under each edge's angle sd widened by that offset over its lever (`radial_scatter.turned_sigma`,
     `orient_segments`' angle_sigma_error; the fit and its labels the stations'): the normal's
     error within the 99 % region of its covariance (chi2 with 2 dof under 9.21)."""
     trial = photo_trial(photo_conditions(80, 420)[frame])

@@ -216,11 +216,15 @@ def detect_frame_lines(name, image, camera=None, detector="auto", bars=False, sh
 def _radial_extra(segs, ideal):
     """The lines record's extra keys of `segs`: ``ideal`` (M, 4) where asked for, and a star's
     edges' ``angle_sigma_error_deg`` (M,) where wider than their ``angle_sigma_deg``
-    (`radial.RadialEdges`' angle_sigma_error: the orientation's covariance takes them)."""
+    (`radial.RadialEdges`' angle_sigma_error: the orientation's covariance takes them) and
+    ``vertex_sd_px``, the sd of the point a radial target's edges were located about
+    (`radial.RadialEdges`' vertex_sd: the least the orientation reports its vertex's sd)."""
     out = {"ideal": segs.ideal} if ideal else {}
     err = getattr(segs, "angle_sigma_error", None)
     if err is not None and np.any(err > segs.angle_sigma):
         out["angle_sigma_error_deg"] = np.degrees(err)
+    if getattr(segs, "vertex_sd", 0.0) > 0:
+        out["vertex_sd_px"] = float(segs.vertex_sd)
     return out
 
 

@@ -52,6 +52,7 @@ from pencilcal.toolkit.detect.noise import noise_of
 from pencilcal.toolkit.detect.radial_circles import circle_points, spokes_end_ring
 from pencilcal.toolkit.detect.radial_joint import joint_refit
 from pencilcal.toolkit.detect.radial_predicted import predicted_edges, searched_edges
+from pencilcal.toolkit.detect.radial_scatter import common_offset, turned_sigma
 from pencilcal.toolkit.detect.refit import EdgeRefit, RefitOptions
 from pencilcal.toolkit.detect.segments import Segments, detect_segments, in_valid_region
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
@@ -106,7 +107,7 @@ _KERNEL_PX = 1.0  # sd of the derivative kernel across an edge
 #: a gamma not quite the camera's tone curve, JPEG's blocks, bilinear interpolation across a
 #: sharp edge (on renders located on linear light, a star's edges still sit 0.00-0.02 px
 #: towards their bright side, the sharper the more; chosen on renders, seed 7); more where
-#: the edges' own distances from their vertex say so (`_common_offset`).
+#: the edges' own distances from their vertex say so (`radial_scatter.common_offset`).
 OFFSET_FLOOR_PX = 0.02
 #: An edge is trimmed at the ring where the spokes end only where its part beyond turned its
 #: line by more than this many sds of the inside part's offset (`_trimmed`; the project's test
@@ -119,10 +120,6 @@ PREDICTED_ROUNDS = 3
 #: half the angle to its nearest neighbour about the vertex (`_usable`; the project's test
 #: level, not tuned).
 SEPARATION_SIGMAS = 3.0
-#: The share of the frame's common offset (`_common_offset`) taken as each star edge's turn
-#: about its middle (`_turned_sigma`): its variance half turn, half shift (the root of 1/2;
-#: not tuned).
-TURN_SHARE = float(np.sqrt(0.5))
 _GATE_ROUNDS = 5  # the through-vertex gate's rounds of its shared offset (`_through_vertex`)
 
 
@@ -137,12 +134,18 @@ class RadialEdges(Segments):
     [raw px]: edge points across rays between the spokes that run on from ray to ray, the
     candidates for the images of circles centred on the vertex; ``angle_sigma_error`` (M,)
     [rad]: each edge's angle sd with the error its stations' scatter does not show (a star's
-    edges: `_turned_sigma`; else ``angle_sigma``), for the orientation's covariance only.
+    edges: `radial_scatter.turned_sigma`; else ``angle_sigma``), for the orientation's covariance only;
+    ``vertex_sd`` [working px]: the sd of the point the edges were located about (the last
+    round's vertex before the edges crowded by their neighbours were located with them, or
+    after it where wider): edges located about a point lean towards it and meet there more
+    surely than it was known, so the orientation reports the vertex no surer than this
+    (`orient_segments`' vertex_floor_px).
     """
 
     vertex: np.ndarray
     circle_points: np.ndarray
     angle_sigma_error: np.ndarray
+    vertex_sd: float = 0.0
 
     @classmethod
     def empty(cls, **extra):
@@ -257,6 +260,7 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
     # nowhere clear of them from where they lie JOINT_SIGMAS blur sds apart; with joint="all"
     # the others too, from where they are clear as before
     rows = np.flatnonzero(~fit.ok) if joint == "crowded" else np.arange(phi.size)
+    about_sd = v_sd  # the sd of the point the edges are located about (`RadialEdges.vertex_sd`)
     if rows.size:
         ray = np.concatenate([v + 0 * phi[:, None], v + np.stack([np.cos(phi), np.sin(phi)], -1)], -1)
         r_hi = 1.25 * seen[:, 1]
@@ -287,10 +291,10 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
             located = _merged(located, np.flatnonzero(again), redo)
         fit = _merged(fit, rows, located)
         v, reach, v_sd = _better_vertex(fit, v, reach, v_sd, joint == "all")
-    return img, lin, fit, v, reach, phi, rows, clear
+    return img, lin, fit, v, max(v_sd, about_sd), reach, phi, rows, clear
 
 
-def _finished(camera, outer, min_length, circles, img, lin, fit, v, reach, phi, rows, clear, predicted=None,
+def _finished(camera, outer, min_length, circles, img, lin, fit, v, v_sd, reach, phi, rows, clear, predicted=None,
               gamma=DEFAULT_GAMMA, joint="crowded"):
     """The rest of `detect_radial_edges` from the edges `_located` found: the trim at
     `outer`, the edges searched for where `predicted` says, the edges through the vertex
@@ -319,40 +323,16 @@ def _finished(camera, outer, min_length, circles, img, lin, fit, v, reach, phi, 
     out = Segments.from_fit(fit, camera, shortest)
     out = out.select(in_valid_region(img, out.segments))
     out = out.select(_through_vertex(out, v))
-    common = _common_offset(out, v)
+    common = common_offset(out, v)
+    # a star's edges: what they do not share beyond their sigmas (a dot gain and the vertex's
+    # offset taken out) turns them about the vertex, which their stations' scatter does not
+    # show; for the covariance only (`radial_scatter.turned_sigma`)
+    turn = common_offset(out, v, shared=False) if joint == "all" else 0.0
     out = replace(out, offset_sigma=np.hypot(out.offset_sigma, max(OFFSET_FLOOR_PX, common)))
-    # a star's edges: what they share beyond their sigmas turns them about the vertex, which
-    # their stations' scatter does not show; for the covariance only (`_turned_sigma`)
-    err = _turned_sigma(out, v, common) if joint == "all" else out.angle_sigma
+    err = turned_sigma(out, v, turn) if joint == "all" else out.angle_sigma
     pts = circle_points(lin, camera, v, out.ideal, reach, 1.0) if circles else np.zeros((0, 2))
     return RadialEdges(**{f: getattr(out, f) for f in out.__dataclass_fields__}, vertex=v, circle_points=pts,
-                       angle_sigma_error=err)
-
-
-def _turned_sigma(segs, v, common):
-    """(M,) [rad] the angle sds of a star's edges `segs` (`Segments`) with the turn their
-    common offset common [px] shows (`_common_offset`: how far the edges pass from their
-    vertex v (2,) [working px] beyond their sigmas): `TURN_SHARE` of it taken as each edge's
-    miss at the vertex from a turn about its middle, over its lever (the middle's distance
-    from the vertex [px]), added in quadrature. An edge turned by d misses the vertex by d
-    times its lever; on a small star (under 30 % of the frame's height) the edges miss it
-    by 0.1-0.9 px beyond their sigmas, turned by their blurred neighbours alike along
-    neighbouring edges, an error their stations' scatter does not show. The labelling and
-    the fit keep the stations' sds (seen by the labelling, these wider ones lost frames'
-    labels): the orientation's covariance takes these (`orient_segments`'
-    ``angle_sigma_error``).
-
-    >>> from pencilcal.toolkit.detect.segments import Segments
-    >>> ideal = np.array([[10.0, 0, 30, 0], [0, 100, 0, 300]])                  # levers 20 and 200 px
-    >>> z = np.zeros(2)
-    >>> segs = Segments(segments=ideal, ideal=ideal, angle_sigma=z + 1e-3, offset_sigma=z + 0.1, length=z + 20,
-    ...                 contrast=z + 50, residual_px=z, stations=z.astype(int) + 10)
-    >>> (_turned_sigma(segs, np.zeros(2), 0.2 * np.sqrt(2)) * 1e3).round(3).tolist()   # hypot(1e-3, 0.2 / lever)
-    [10.05, 1.414]
-    """
-    mid = 0.5 * (segs.ideal[:, :2] + segs.ideal[:, 2:])
-    lever = np.maximum(np.hypot(*(mid - v).T), 1.0)
-    return np.hypot(segs.angle_sigma, TURN_SHARE * common / lever)
+                       angle_sigma_error=err, vertex_sd=v_sd)
 
 
 def _usable(p1, p2, ok, angle_sigma, v, min_length):
@@ -393,7 +373,7 @@ def orient_radial_edges(image, camera, pencil, **detect):
     def oriented(found):
         return orient_segments(camera, found.segments, pencil, angle_sigma=found.angle_sigma,
                                offset_sigma=found.offset_sigma, circle_points=found.circle_points, keep_lines=True,
-                               angle_sigma_error=found.angle_sigma_error)
+                               angle_sigma_error=found.angle_sigma_error, vertex_floor_px=found.vertex_sd)
 
     memo = {}  # the second pass reuses the first's located edges
     return trimmed_at_spokes_end(lambda outer, predicted=None: detect_radial_edges(image, camera, **detect, outer=outer,
@@ -586,7 +566,7 @@ def _trimmed(img, camera, fit, v, outer, margin, min_length, joint):
 
 def _through_vertex(segs, v, rounds=_GATE_ROUNDS):
     """(M,) bool: the edges `segs` (`Segments`) that pass through the vertex v (2,) within
-    their sigmas (floored) and the offset they all share (`_common_offset`, of the edges
+    their sigmas (floored) and the offset they all share (`radial_scatter.common_offset`, of the edges
     passing so far: a raised wire beside a dartboard's boundary, seen obliquely, moves its
     edges 1-3 px off the vertex): from the edges passing on their own sigmas, the shared
     offset taken again from those passing with it, until the set stops changing (at most
@@ -610,7 +590,7 @@ def _through_vertex(segs, v, rounds=_GATE_ROUNDS):
     off = np.maximum(segs.offset_sigma, _VERTEX_FLOOR_PX)
     _, through = lines_through(v, segs.ideal, ang, off)
     for _ in range(rounds):
-        _, again = lines_through(v, segs.ideal, ang, np.hypot(off, _common_offset(segs.select(through), v)))
+        _, again = lines_through(v, segs.ideal, ang, np.hypot(off, common_offset(segs.select(through), v)))
         if np.array_equal(again, through):
             break
         through = again
@@ -623,26 +603,6 @@ def _merged(fit, rows, other):
     for f, a in merged.items():
         a[rows] = getattr(other, f)
     return replace(fit, **merged)
-
-
-def _common_offset(segs, v):
-    """The sd [px] of the edges' distances from the vertex v (2,) they share beyond what
-    their own sigmas allow (robust: from the medians of the squared distances and of their
-    predicted variances, the median of chi-square(1) being 0.455): what the stations' scatter
-    cannot show and every edge has, a gamma not quite the camera's, a raised wire beside a
-    dartboard's boundary (seen obliquely, its side shows on one side of the line). 0 where
-    the edges meet as their sigmas say."""
-    if len(segs) < 4:
-        return 0.0
-    p1, p2 = segs.ideal[:, :2], segs.ideal[:, 2:]
-    d = p2 - p1
-    L = np.hypot(d[:, 0], d[:, 1])
-    u = d / np.maximum(L, 1e-12)[:, None]
-    c = 0.5 * (p1 + p2)
-    dist = u[:, 0] * (v[1] - c[:, 1]) - u[:, 1] * (v[0] - c[:, 0])
-    lever = np.sum((v - c) * u, -1)
-    var = segs.offset_sigma**2 + (lever * segs.angle_sigma) ** 2
-    return float(np.sqrt(max(0.0, np.median(dist**2) / 0.455 - np.median(var))))
 
 
 def _rough_vertex(segs):

@@ -10,6 +10,7 @@ Format (docs/formats.md)::
                  "width_px": [...],                   # optional, bars: one per segment
                  "circle_points": [[x, y], ...],      # optional, radial targets
                  "angle_sigma_error_deg": [...],      # optional, a star's edges: one per segment
+                 "vertex_sd_px": 0.4,                 # optional, radial targets: one number
                  "shafts": [{"midline": [x1, y1, x2, y2], "width_px": 84.0,
                              "angle_sigma_deg": 0.2}]}]}
 
@@ -161,7 +162,8 @@ def frame_record(d, where):
     `where` names the file and frame in the InputError raised for a wrong field: `segments`
     must be numbers ([x1, y1, x2, y2] each; NaN/inf kept: the estimators drop such
     segments and say so), `angle_sigma_deg`, `offset_sigma_px`, `width_px`,
-    `angle_sigma_error_deg` one finite number > 0 per segment, `circle_points` finite [x, y] pairs, `ok` a boolean; each shaft
+    `angle_sigma_error_deg` one finite number > 0 per segment, `vertex_sd_px` one finite
+    number >= 0, `circle_points` finite [x, y] pairs, `ok` a boolean; each shaft
     as `_shaft_record` checks it.
 
     >>> frame_record({"segments": [[0, 0, 10, 0]], "angle_sigma_deg": ["0.1"]}, "l.json: frame 0")
@@ -183,6 +185,11 @@ def frame_record(d, where):
             rec[key] = _per_segment(d[key], key, rec["segments"].shape[0], where)
     if d.get("circle_points") is not None:
         rec["circle_points"] = _points(d["circle_points"], where)
+    if d.get("vertex_sd_px") is not None:
+        v = d["vertex_sd_px"]
+        if not is_number(v) or not np.isfinite(float(v)) or float(v) < 0:
+            raise InputError(f"{where}: 'vertex_sd_px' must be one finite number >= 0, got {v!r}")
+        rec["vertex_sd_px"] = float(v)
     shafts = d.get("shafts")
     if shafts is not None:
         if not isinstance(shafts, list):

@@ -50,7 +50,7 @@ from pencilcal.toolkit.pencil.defaults import DETECTION_LEVEL, ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.lens_uncertainty import orientation_totals, resolve_intrinsics_cov
 from pencilcal.toolkit.pencil.orientation import Orientation
 from pencilcal.toolkit.pencil.spec import image_angles
-from pencilcal.toolkit.pencil.vertex import LOCAL_CANDIDATES, intersect_lines, lines_through
+from pencilcal.toolkit.pencil.vertex import LOCAL_CANDIDATES, floored_vertex_cov, intersect_lines, lines_through
 
 __all__ = ["orient_segments", "orientation_record", "raw_vertex", "MODELS", "MAX_SEGMENTS", "PLANE_PRIOR_DEG",
            "metric_depth", "resolve_twins_by_continuity", "unconfirmed_final"]
@@ -148,7 +148,8 @@ def _segment_geometry(camera, segments, endpoint_sigma_px, ideal=None):
 def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_px=ENDPOINT_SIGMA_PX, angle_sigma=None,
                     prior=None, vertex_px=None, vertex_cov_px2=None, image=None, labels=None, keep_lines=False,
                     offset_sigma=None, spoke_radii=None, max_segments=MAX_SEGMENTS, intrinsics_cov="camera",
-                    bar_width_px=None, circle_points=None, plane_normal=None, ideal=None, angle_sigma_error=None):
+                    bar_width_px=None, circle_points=None, plane_normal=None, ideal=None, angle_sigma_error=None,
+                    vertex_floor_px=None):
     """Orientation of a pencil seen in one frame.
 
     camera: a Camera; segments: (M, 4) raw pixels [x1, y1, x2, y2]; pencil: a Pencil.
@@ -164,6 +165,11 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
         covariance only. The labelling, the twin and the fit keep angle_sigma's weights; the
         sigmas reported are those of that fit under errors of these sds
         (`estimator.pencil_covariance`'s sigma_error), and ``lines`` keeps them (``sigma_error``).
+    vertex_floor_px: None or the sd [undistorted px] of the point the segments were located
+        about (`detect.radial`'s ``vertex_sd``): edges located about a point lean towards it,
+        and meet there more surely than the point was known; the vertex's covariance is
+        reported no narrower than this sd (per axis, its variance halved), and the sigmas
+        with it. For the covariance only: the fit and its decisions keep the intersection's.
     spoke_radii: (M, 2) distances from the vertex [length unit] of each segment's inner and
         outer end, when known per segment (board corners); else the pencil's radius.
     prior: (3, 3) R_cam_from_target known roughly (board pose, previous frame): picks the twin.
@@ -219,7 +225,8 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
     kw = dict(model=model, endpoint_sigma_px=endpoint_sigma_px, angle_sigma=angle_sigma, prior=prior,
               vertex_px=vertex_px, vertex_cov_px2=vertex_cov_px2, image=image, labels=labels, keep_lines=keep_lines,
               offset_sigma=offset_sigma, spoke_radii=spoke_radii, max_segments=max_segments,
-              intrinsics_cov=intrinsics_cov, circle_points=circle_points, angle_sigma_error=angle_sigma_error)
+              intrinsics_cov=intrinsics_cov, circle_points=circle_points, angle_sigma_error=angle_sigma_error,
+              vertex_floor_px=vertex_floor_px)
 
     def centred(normal):  # (raw, ideal) moved onto the centre lines
         moved = centre_lines(camera, segments, bar_width_px, normal, ideal=ideal)
@@ -243,7 +250,7 @@ def orient_segments(camera, segments, pencil, *, model="exact", endpoint_sigma_p
 
 def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, angle_sigma, prior, vertex_px,
                  vertex_cov_px2, image, labels, keep_lines, offset_sigma, spoke_radii, max_segments, intrinsics_cov,
-                 circle_points, angle_sigma_error=None):
+                 circle_points, angle_sigma_error=None, vertex_floor_px=None):
     """One fit of `orient_segments` (its arguments but bar_width_px; ideal may be None)."""
     if model not in MODELS:
         raise InputError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}")
@@ -306,7 +313,10 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
         # rival labellings that put the normal elsewhere make the normal itself ambiguous
         # (within the weighted fit's sigmas, as the labelling saw them)
         alt = _rival_normals(fit, rivals)
-        if s_err is not None:  # every decision taken: the covariance under the wider errors
+        floored = floored_vertex_cov(cov_ideal, vertex_floor_px)
+        if floored is not None:  # every decision taken: the vertex no surer than the point it was found about
+            cov_ideal, ln = floored, ln._replace(vertex_cov=_normalised_cov(camera, floored))
+        if s_err is not None or floored is not None:  # and the covariance under the wider errors
             cov, s_tilt, s_norm = pencil_covariance(fit.R_cam_from_target, ln.vertex, th_used, s_used, ln.vertex_cov,
                                                     sigma_error=s_err)
             fit = replace(fit, cov=cov, tilt_sigma=s_tilt, normal_sigma=s_norm)
@@ -439,13 +449,19 @@ class _Lines(NamedTuple):
     kind: np.ndarray        # (K,) +1 / -1: an edge segment brighter towards larger / smaller angles
 
 
+def _normalised_cov(camera, cov_ideal):
+    """A covariance (2, 2) of a point in undistorted px^2 -> normalised coordinates."""
+    A = np.linalg.inv(np.asarray(camera.K, float))[:2, :2]
+    return A @ cov_ideal @ A.T
+
+
 def _normalised_lines(camera, ideal, st, v_ideal, cov_ideal):
     """Ideal-pixel lines (K, 4) with angle sd st (K,) [rad] and the vertex (2,) with its
     covariance (2, 2) [px^2] -> `_Lines` in normalised coordinates."""
     Kinv = np.linalg.inv(np.asarray(camera.K, float))
     A = Kinv[:2, :2]
     x = Kinv[:2, :2] @ v_ideal + Kinv[:2, 2]
-    cov_x = A @ cov_ideal @ A.T
+    cov_x = _normalised_cov(camera, cov_ideal)
     p1 = ideal[:, :2] @ A.T + Kinv[:2, 2]
     p2 = ideal[:, 2:] @ A.T + Kinv[:2, 2]
     t = normalize(np.concatenate([p2 - p1, np.zeros((len(p1), 1))], -1))[:, :2]

@@ -53,6 +53,7 @@ from pencilcal.toolkit.errors import EstimationError, InputError
 
 __all__ = [
     "SegmentLines",
+    "floored_vertex_cov",
     "segment_lines",
     "segment_angle_sigma",
     "VertexFit",
@@ -703,3 +704,21 @@ def propagate_cov(cov, jacobian):
     """
     J = np.asarray(jacobian, dtype=float)
     return J @ np.asarray(cov, dtype=float) @ np.swapaxes(J, -1, -2)
+
+
+def floored_vertex_cov(cov_ideal, floor_px):
+    """The vertex's covariance (2, 2) [undistorted px^2] with no variance under floor_px^2 / 2
+    along any direction (floor_px: an sd of the vertex's distance [px], None or 0: none);
+    None where it is already no narrower.
+
+    >>> floored_vertex_cov(np.diag([0.01, 4.0]), 2.0).round(3).tolist()
+    [[2.0, 0.0], [0.0, 4.0]]
+    >>> floored_vertex_cov(np.diag([3.0, 4.0]), 2.0) is None
+    True
+    """
+    if floor_px is None or not np.isfinite(floor_px) or floor_px <= 0:
+        return None
+    w, V = np.linalg.eigh(np.asarray(cov_ideal, float))
+    if np.all(w >= 0.5 * floor_px**2):
+        return None
+    return (V * np.maximum(w, 0.5 * floor_px**2)) @ V.T

@@ -357,3 +357,26 @@ def test_angle_sigma_error_widens_the_covariance_only(rng):
     np.testing.assert_allclose(rec.lines["sigma_error"] / rec.lines["sigma"], (wide / sig)[rec.lines["segment"]])
     with pytest.raises(InputError, match="one per segment"):
         orient_segments(cam, seg, pen, angle_sigma=sig, angle_sigma_error=wide[:3])
+
+
+def test_vertex_floor_widens_the_covariance_only(rng):
+    """The sd of the point a radial target's edges were located about (`vertex_floor_px`):
+    the vertex is reported no surer than it, and the sigmas with it; the labels, the twin, the
+    fit and the vertex itself are the intersection's, bit for bit; a floor under the vertex's
+    own sd changes nothing."""
+    cam = hd_camera()
+    pen = fan()
+    seg, R, _ = frame(cam, pen, 35.0, 200.0, rng, noise_px=0.3)
+    base = orient_segments(cam, seg, pen, keep_lines=True)
+    rec = orient_segments(cam, seg, pen, keep_lines=True, vertex_floor_px=2.0)
+    assert base.ok and rec.ok
+    for k in ("spokes", "normal", "R_cam_from_target", "resolved_by", "tilt_deg", "vertex_px"):
+        assert np.array_equal(np.asarray(getattr(rec, k)), np.asarray(getattr(base, k))), k
+    # at least 2 px / sqrt(2) along every direction (in raw px: the lens barely scales it here)
+    assert np.linalg.eigvalsh(np.asarray(rec.vertex_cov_px2)).min() > 0.9 * 2.0
+    assert np.linalg.eigvalsh(np.asarray(base.vertex_cov_px2)).max() < 0.5
+    assert rec.normal_sigma_deg > base.normal_sigma_deg and rec.tilt_sigma_deg > base.tilt_sigma_deg
+    assert np.linalg.det(rec.lines["vertex_cov"]) > np.linalg.det(base.lines["vertex_cov"])
+    tiny = orient_segments(cam, seg, pen, keep_lines=True, vertex_floor_px=1e-6)
+    assert tiny.normal_sigma_deg == base.normal_sigma_deg
+    np.testing.assert_array_equal(tiny.vertex_cov_px2, base.vertex_cov_px2)
