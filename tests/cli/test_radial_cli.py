@@ -189,7 +189,7 @@ def test_a_plain_file_never_reports_a_star_labelled_wrongly(tmp_path):
     edges were labelled from 9 spokes the search found, grown to 42 (49 with the other
     polarity), the twin open, both normals 64 deg from the truth (sigma 0.56 deg), and
     reported ok. The circle points (409) chose neither twin: a labelling whose search found
-    under half the spokes that nothing confirms is refused (`orient._unconfirmed_labelling`
+    under half the spokes that nothing confirms is refused (`orient.unconfirmed_labelling`
     counts the searched spokes, not the grown ones); the frame then keeps the bars' few
     spokes or none. Whatever it reports, no normal far from the truth."""
     from pencilcal.validation.radial_renders import photo_frame, photographic_conditions

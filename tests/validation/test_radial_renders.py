@@ -175,7 +175,7 @@ def test_a_small_star_labelled_wrongly_is_not_reported():
     frame 10): its 7 edges found were labelled with the wrong spokes (6 of 64, their angles'
     chi2 10.8 on 4 dof, the twin open, the normal 72 deg off) and reported as ok. The circle
     points (563) fit no circle about that plane, where they confirm every right labelling
-    (`orient.UNCONFIRMED_SPOKES`): "ambiguous labelling", not ok; with its short edges kept by
+    (`confirm.UNCONFIRMED_SPOKES`): "ambiguous labelling", not ok; with its short edges kept by
     their sigma (`detect.radial._usable`) it is now oriented rightly. Frame 4 (20 %, 41 deg):
     its 8 short edges label 6 spokes, the twin open, the 500 circle points fit no circle: not
     ok. Frame 14 (23 %, 53 deg): the circles resolve the twin: still ok."""
@@ -252,7 +252,7 @@ def test_circles_that_disagree_with_the_twin_they_chose_confirm_no_labelling():
     circles of 13-25 points whose normal was 10 deg from the twin chosen (circle_chi2 112)
     and 65 deg from the truth: reported ok (the rings chained on the image change nothing
     here). Circles that disagree with the normal they chose confirm no labelling that holds
-    under half the spokes even grown (`orient._unconfirmed_labelling`): "ambiguous
+    under half the spokes even grown (`orient.unconfirmed_labelling`): "ambiguous
     labelling", not ok."""
     from pencilcal.validation.radial_renders import photographic_conditions
 
@@ -268,7 +268,7 @@ def test_circles_that_agree_only_within_the_lines_wide_scatter_confirm_no_labell
     4.8 deg from the normal chosen, yet within the sigmas (circle_chi2 6.9): the lines fixed
     the normal to 2.05 deg, the circles to 0.83. Reported ok 4.4 deg from the truth. Agreement
     within the lines' own wider scatter confirms no final labelling of under half the spokes
-    (`orient.unconfirmed_final`): "ambiguous labelling", not ok."""
+    (`confirm.unconfirmed_final`): "ambiguous labelling", not ok."""
     from pencilcal.validation.radial_renders import photo_conditions
 
     rec = _oriented(photo_conditions(80, 2200)[46])

@@ -413,16 +413,16 @@ def trimmed_at_spokes_end(detect, orient, camera, pencil, img, joint="crowded", 
     joint : `detect_radial_edges`' joint; gamma : the frame's encoding gamma.
 
     The orientation kept is refused where its final labelling, once every edge was searched
-    for, is still one that nothing confirms (`pencil.orient.unconfirmed_final`).
+    for, is still one that nothing confirms (`pencil.confirm.unconfirmed_final`).
     """
-    from pencilcal.toolkit.pencil.orient import unconfirmed_final
+    from pencilcal.toolkit.pencil.confirm import unconfirmed_final
 
     found, rec = _at_spokes_end(detect, orient, camera, pencil, img, joint, gamma)
     return found, unconfirmed_final(rec, pencil)
 
 
 def _at_spokes_end(detect, orient, camera, pencil, img, joint, gamma):
-    """`trimmed_at_spokes_end` before its final labelling is judged (`orient.unconfirmed_final`)."""
+    """`trimmed_at_spokes_end` before its final labelling is judged (`confirm.unconfirmed_final`)."""
     from pencilcal.toolkit.pencil.circle import spokes_end
 
     found = detect(None)

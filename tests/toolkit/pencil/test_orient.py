@@ -292,7 +292,7 @@ def test_max_segments_keeps_the_longest(rng):
 
 def test_a_circle_that_chooses_neither_twin_confirms_no_labelling():
     """A labelling of under half a pencil's spokes, its twin open, is refused where the circle
-    points fit no circle about its plane (`orient._unconfirmed_labelling`), and also where
+    points fit no circle about its plane (`confirm.unconfirmed_labelling`), and also where
     they fit one that chooses neither twin: about a right labelling the circles choose its
     twin. A 64-wedge star's 8 short edges labelled as 6 wrong spokes (the normal 72 deg off)
     had such a circle and were reported as ok. Circles that chose the twin but disagree with
@@ -300,7 +300,7 @@ def test_a_circle_that_chooses_neither_twin_confirms_no_labelling():
     too holds under half the spokes."""
     from pencilcal.toolkit.errors import EstimationError
     from pencilcal.toolkit.pencil.circle import MIN_POINTS
-    from pencilcal.toolkit.pencil.orient import _unconfirmed_labelling
+    from pencilcal.toolkit.pencil.confirm import unconfirmed_labelling
     from pencilcal.toolkit.pencil.spec import pencil_from_dict
 
     star = pencil_from_dict({"start_deg": 0, "step_deg": 5.625, "count": 64, "shape": "wedge", "radius": [12, 70]})
@@ -308,22 +308,22 @@ def test_a_circle_that_chooses_neither_twin_confirms_no_labelling():
     circle = object()  # a circle estimate that chose neither twin (resolved_by stays None)
     for circ in (None, circle):
         with pytest.raises(EstimationError, match="ambiguous labelling"):
-            _unconfirmed_labelling(star, few, None, pts, circ)
-        _unconfirmed_labelling(star, many, None, pts, circ)       # half the spokes or more: reported
-    _unconfirmed_labelling(star, few, "circle", pts, circle)      # the circles chose the twin
-    _unconfirmed_labelling(star, few, "circle", pts, circle, True, few)  # ... and agree with it
+            unconfirmed_labelling(star, few, None, pts, circ)
+        unconfirmed_labelling(star, many, None, pts, circ)       # half the spokes or more: reported
+    unconfirmed_labelling(star, few, "circle", pts, circle)      # the circles chose the twin
+    unconfirmed_labelling(star, few, "circle", pts, circle, True, few)  # ... and agree with it
     with pytest.raises(EstimationError, match="disagree"):  # ... but agree with neither twin
-        _unconfirmed_labelling(star, few, "circle", pts, circle, False, few)
-    _unconfirmed_labelling(star, few, "circle", pts, circle, False, many)  # grown to half or more
-    _unconfirmed_labelling(star, many, "circle", pts, circle, False, many)  # searched half or more
-    _unconfirmed_labelling(star, few, None, pts[:MIN_POINTS - 1], None)  # too few points to judge
+        unconfirmed_labelling(star, few, "circle", pts, circle, False, few)
+    unconfirmed_labelling(star, few, "circle", pts, circle, False, many)  # grown to half or more
+    unconfirmed_labelling(star, many, "circle", pts, circle, False, many)  # searched half or more
+    unconfirmed_labelling(star, few, None, pts[:MIN_POINTS - 1], None)  # too few points to judge
 
 
 def test_circles_that_agree_within_the_lines_looser_sigma_confirm_no_final_labelling():
     """A final labelling of under half a star's spokes whose twin the circles chose and agree
-    with is refused where the lines' normal is looser than the circles' (`unconfirmed_final`);
+    with is refused where the lines' normal is looser than the circles' (`confirm.unconfirmed_final`);
     kept with half the spokes or more, with lines as tight, or with the twin chosen otherwise."""
-    from pencilcal.toolkit.pencil.orient import unconfirmed_final
+    from pencilcal.toolkit.pencil.confirm import unconfirmed_final
     from pencilcal.toolkit.pencil.orientation import Orientation
     from pencilcal.toolkit.pencil.spec import pencil_from_dict
 
