@@ -9,7 +9,10 @@ video and running OpenCV's FLD on every frame.
   forwards and back), as a hand-held target moves between frames at 30 fps.
 - ``shafts_video_vs_decode_fld_1080p``: the same for ``pencilcal fulcrum VIDEO`` (instrument
   shafts in every frame, the fulcrum at the end) on a rendered 1080p pivot sequence.
-  Target <= 2.0.
+  Target <= 2.0. ``shafts_video_point_vs_decode_fld_1080p``: the same process with
+  ``--shaft-diameter`` (every shaft's 3-D axis, the 3-D fulcrum and its jackknife over
+  frames, one 3-D point per frame left out, on top; ``shafts_video_point_found`` says
+  whether it found the point), no target.
 
 Beside each ratio: the process's seconds, the floor's, and from the --jsonl stream of the
 orient process its start-up (until the first frame's record) and its per-frame time after
@@ -187,16 +190,30 @@ def bench_shafts_video(frames=48, repeats=2, seed=0, workdir=None):
         write_camera(d / "camera.json", sc.camera)
         args = ["fulcrum", str(d / "pivot.mp4"), "--camera", str(d / "camera.json"), "-o", str(d / "f.json"),
                 "--force", "-q"]
-        t = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            r = subprocess.run([sys.executable, "-m", "pencilcal.cli.main", *args], capture_output=True)
-            t.append(time.perf_counter() - t0)
-            if r.returncode != 0:
-                raise RuntimeError(f"bench: `pencilcal fulcrum` failed: {r.stderr.decode(errors='replace')[-200:]}")
+        t = _process_wall(args, repeats)
+        # the same with the shafts' diameter: every shaft's 3-D axis, the 3-D fulcrum and its
+        # jackknife over frames (one 3-D point per frame left out) on top
+        t_point = _process_wall(args + ["--shaft-diameter", str(sc.options["shaft_diameter"])], repeats)
+        import json
+
+        has_point = json.loads((d / "f.json").read_text()).get("point") is not None
         floor, n = _floor(d / "pivot.mp4", repeats)
-    return {"shafts_video_vs_decode_fld_1080p": float(min(t) / floor), "shafts_video_s": float(min(t)),
-            "shafts_decode_fld_video_s": float(floor), "shafts_video_frames": n}
+    return {"shafts_video_vs_decode_fld_1080p": float(t / floor), "shafts_video_s": float(t),
+            "shafts_decode_fld_video_s": float(floor), "shafts_video_frames": n,
+            "shafts_video_point_vs_decode_fld_1080p": float(t_point / floor), "shafts_video_point_s": float(t_point),
+            "shafts_video_point_found": bool(has_point)}
+
+
+def _process_wall(args, repeats):
+    """Best wall seconds of a `pencilcal` process with `args` over `repeats` runs."""
+    t = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        r = subprocess.run([sys.executable, "-m", "pencilcal.cli.main", *args], capture_output=True)
+        t.append(time.perf_counter() - t0)
+        if r.returncode != 0:
+            raise RuntimeError(f"bench: `pencilcal {args[0]}` failed: {r.stderr.decode(errors='replace')[-200:]}")
+    return min(t)
 
 
 def _floor_process(video, repeats, cpu=None):

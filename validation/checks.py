@@ -373,7 +373,7 @@ def point_jackknife(camera, frames, diameter, point, level=0.99, min_axes=None):
 
     camera; frames: lines.json frame dicts with shafts (their ``edges``, ``edge_cov``);
     diameter: the shafts' diameter; point: the `toolkit.pencil.fulcrum.FulcrumPoint` of all
-    frames. Each frame with a shaft is left out once (`fulcrum.fulcrum_point`); the
+    frames. Each frame with a shaft is left out once (`fulcrum.leave_one_out_points`); the
     jackknife covariance of the point is compared with ``point_cov`` by their traces, and
     taken in its place when the ratio exceeds chi2(3 (n - 1)) / (3 (n - 1)) at `level`. The
     record: ``frames``, ``point_sigma_jackknife`` [unit of the diameter], ``ratio``
@@ -386,7 +386,7 @@ def point_jackknife(camera, frames, diameter, point, level=0.99, min_axes=None):
     """
     import dataclasses
 
-    from pencilcal.toolkit.pencil.fulcrum import fulcrum_point
+    from pencilcal.toolkit.pencil.fulcrum import leave_one_out_points
 
     min_axes = POINT_JACKKNIFE_AXES if min_axes is None else int(min_axes)
     used = {im for (im, _), u in zip(point.owners, np.asarray(point.fit.inliers)) if u}
@@ -394,14 +394,7 @@ def point_jackknife(camera, frames, diameter, point, level=0.99, min_axes=None):
         return point, {"frames": 0, "point_sigma_jackknife": None, "ratio": None, "inflated": False,
                        "reason": f"the point uses the axes of {len(used)} frame(s), fewer than {min_axes}: "
                                  "its jackknife would measure the gate, not the noise"}
-    pts = []
-    for k, f in enumerate(frames):
-        if not f.get("shafts"):
-            continue
-        try:
-            pts.append(fulcrum_point(camera, frames[:k] + frames[k + 1:], diameter).fit.point)
-        except EstimationError:
-            continue
+    pts = [x for _, x in leave_one_out_points(camera, frames, diameter) if x is not None]
     if len(pts) < 3:
         return point, {"frames": len(pts), "point_sigma_jackknife": None, "ratio": None, "inflated": False}
     jk = jackknife(np.asarray(pts, float))

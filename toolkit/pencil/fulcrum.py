@@ -59,7 +59,7 @@ from pencilcal.toolkit.pencil.sequence_noise import MAX_RUNS, inflation
 from pencilcal.toolkit.pencil.parallax import vertex_with_parallax
 
 __all__ = ["Fulcrum", "FulcrumPoint", "StereoFulcrum", "SequenceLines", "fulcrum_from_frames", "fulcrum_point",
-           "frame_axes", "pose_arrays", "point_lens_cov", "sequence_lines",
+           "frame_axes", "leave_one_out_points", "pose_arrays", "point_lens_cov", "sequence_lines",
            "stereo_fulcrum",
            "triangulation_lens_cov", "read_angles"]
 
@@ -291,15 +291,44 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None):
     (`moving_fulcrum.fulcrum_moving`); no ``lens_cov`` then (the poses hold the lens too).
     A frame whose ``camera_pose`` is None (its pose not measured) gives no axis.
     """
-    points, dirs, covs, owners, measured, poses, _, skipped = frame_axes(camera, frames, diameter)
+    return _point_of_axes(camera, frame_axes(camera, frames, diameter), diameter, robust, intrinsics_cov)
+
+
+def leave_one_out_points(camera, frames, diameter, robust=True):
+    """[(k, point (3,) or None)]: for each frame k with shafts, the 3-D fulcrum of the others
+    (`fulcrum_point` of ``frames[:k] + frames[k + 1:]``; None where that has no point), as a
+    jackknife over frames takes them (`validation.checks.point_jackknife`). Each shaft's
+    axis comes from its own edges alone, so the axes are found once for all the frames and
+    every point is the one `fulcrum_point` gives (the same numbers), at a fraction of the
+    cost."""
+    axes = frame_axes(camera, frames, diameter)
+    out = []
+    for k, f in enumerate(frames):
+        if not f.get("shafts"):
+            continue
+        keep = [a for a, i in enumerate(axes[6]) if i != k]
+        rest = tuple([v[a] for a in keep] for v in axes[:7]) + (axes[7],)
+        try:
+            out.append((k, _point_of_axes(camera, rest, diameter, robust).fit.point))
+        except EstimationError:
+            out.append((k, None))
+    return out
+
+
+def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None):
+    """`fulcrum_point` of the axes `frame_axes` gave (axes: its tuple)."""
+    points, dirs, covs, owners, measured, poses, _, skipped = axes
     if len(points) < 2:
         raise EstimationError(f"the 3-D fulcrum needs the 3-D axes of two shafts at least, got {len(points)}"
                               + (f" ({skipped} shaft(s) without edge_cov or a valid axis)" if skipped else ""))
     if any(p is not None for p in poses):
         return _moving_point(points, dirs, covs, poses, owners, diameter, skipped, robust)
-    ideal = [(camera.undistort_pixels(np.asarray(e, float).reshape(-1, 2)), c) for e, c in measured]
+    # every point undistorted on its own: one call for all the edges gives each shaft's numbers
+    ideal = np.asarray(camera.undistort_pixels(np.array([np.asarray(e, float).reshape(2, 4) for e, _ in measured])
+                                               .reshape(-1, 2)), float).reshape(-1, 2, 4)
+    edge_cov = np.array([np.asarray(c, float).reshape(2, 2, 2) for _, c in measured])
     fit, factor, play = _point_with_noise(np.array(points), np.array(dirs), np.array(covs), robust,
-                                          (np.asarray(camera.K, float), ideal, 0.5 * float(diameter)))
+                                          (np.asarray(camera.K, float), (ideal, edge_cov), 0.5 * float(diameter)))
     lens = None
     if intrinsics_cov is not None:
         used = [measured[k] for k in np.flatnonzero(np.asarray(fit.inliers))]
@@ -315,8 +344,8 @@ def _point_with_noise(points, dirs, covs, robust, edges=None):
     scatter taken in, as the image lines' fulcrum takes its lines' (`sequence_noise`), only
     ever inflating.
 
-    With the axes' edges (edges: (K (3, 3), [(edges (2, 4) [undistorted px], edge_cov (2,
-    2, 2))] per axis, radius)) the scatter is first read as the stereo axes' is
+    With the axes' edges (edges: (K (3, 3), (edges (N, 2, 4) [undistorted px], edge_cov (N,
+    2, 2, 2)), radius)) the scatter is first read as the stereo axes' is
     (`_point_with_play`: a factor on the axes' covariances and the port's play, each axis
     weighed at the line through the point); that fit is kept where the play it reads is one
     a port can have (`_PLAY_OF_DIAMETER`). Otherwise, and without the edges, a factor alone:
@@ -377,57 +406,87 @@ def _point_with_play(points, dirs, covs, robust, K, edges, radius):
     return fit, float(k), float(play)
 
 
+def _rowdot(a, b):
+    """(...) the dot products of a, b (..., k) along their last axis, rounded as ``a[i] @ b[i]``
+    rounds them one at a time (a sum of products can round otherwise): the batched axes give
+    the numbers the axes one by one gave."""
+    return (a[..., None, :] @ b[..., :, None])[..., 0, 0]
+
+
 def _covariances_at_point(K, edges, radius, points, dirs, covs, frames, x):
     """(N, 4, 4) each axis's chart covariance evaluated at the line through the point x (3,)
     nearest to it in its own covariance's metric (``p = C M^T (M C M^T)^-1 r`` in its chart,
     r the offset of x from the axis, ``M = [t I, I]``, t along the axis to x): what its
-    edges' noise gives a shaft lying there (`_axis_cov_at`); covs where it cannot be had."""
+    edges' noise gives a shaft lying there (`_axis_covs_at`); covs where it cannot be had.
+
+    edges: (edges (N, 2, 4) [undistorted px], edge_cov (N, 2, 2, 2)) of the axes; points,
+    dirs (N, 3), covs (N, 4, 4), frames (N, 2, 3) as `cylinder.fulcrum_3d` takes them.
+    All the axes at once; an axis whose line cannot be had (a singular M C M^T, no cylinder
+    clear of the camera, edges that bound none) keeps its covariance, found one by one
+    only where the whole set fails, so that one such axis leaves the others' unchanged."""
+    e, c = edges
     out = np.array(covs, float, copy=True)
-    for i, (e, c) in enumerate(edges):
-        v = x - points[i]
-        t = float(dirs[i] @ v)
-        M = np.array([[t, 0.0, 1.0, 0.0], [0.0, t, 0.0, 1.0]])
-        try:
-            p = covs[i] @ M.T @ np.linalg.solve(M @ covs[i] @ M.T, frames[i] @ v)
-        except np.linalg.LinAlgError:
-            continue
-        u, w = frames[i]
-        A, d = points[i] + p[2] * u + p[3] * w, normalize(dirs[i] + p[0] * u + p[1] * w)
-        at = _axis_cov_at(K, e, c, radius, points[i], dirs[i], frames[i], A - (A @ d) * d, d)
-        if at is not None:
-            out[i] = at
+    v = x - points                                                  # (N, 3)
+    t = _rowdot(dirs, v)
+    M = np.zeros((len(t), 2, 4))
+    M[:, 0, 0] = M[:, 1, 1] = t
+    M[:, 0, 2] = M[:, 1, 3] = 1.0
+    Mt = np.swapaxes(M, -1, -2)
+    r = (frames @ v[..., None])[..., 0]
+    A = M @ covs @ Mt                                               # (N, 2, 2)
+    ok = np.abs(np.linalg.det(A)) > 0.0
+    p = np.zeros((len(t), 4))
+    if np.any(ok):
+        p[ok] = (covs[ok] @ Mt[ok] @ np.linalg.solve(A[ok], r[ok][..., None]))[..., 0]
+    u, w = frames[:, 0], frames[:, 1]
+    at = points + p[:, 2:3] * u + p[:, 3:4] * w
+    d = normalize(dirs + p[:, 0:1] * u + p[:, 1:2] * w)
+    at = at - _rowdot(at, d)[:, None] * d
+    idx = np.flatnonzero(ok)
+    try:
+        C, good = _axis_covs_at(K, e[idx], c[idx], radius, points[idx], dirs[idx], frames[idx], at[idx], d[idx])
+    except (EstimationError, InputError):  # one axis's line bounds no cylinder: each on its own
+        C, good = np.zeros((len(idx), 4, 4)), np.zeros(len(idx), bool)
+        for j, i in enumerate(idx):
+            try:
+                one = _axis_covs_at(K, e[i:i + 1], c[i:i + 1], radius, points[i:i + 1], dirs[i:i + 1],
+                                    frames[i:i + 1], at[i:i + 1], d[i:i + 1])
+            except (EstimationError, InputError):
+                continue
+            C[j], good[j] = one[0][0], one[1][0]
+    out[idx[good]] = C[good]
     return out
 
 
-def _axis_cov_at(K, edges, edge_cov, radius, point, direction, frame, at_point, at_direction):
-    """(4, 4) the chart covariance (about point, direction, frame (2, 3): the axis's own) of
-    the axis a shaft on the line (at_point, at_direction) would give from edges over the
-    same stretch as `edges` (2, 4) [undistorted px] with their covariance edge_cov (2, 2, 2):
-    each edge moved onto that cylinder's silhouette line nearest it (`cylinder.shaft_axis`).
-    None where that line bounds no cylinder clear of the camera."""
-    try:
-        lines = project_cylinder(K, at_point, at_direction, radius).lines
-        e = np.asarray(edges, float).reshape(2, 4)
-        centre = 0.5 * (e[:, :2] + e[:, 2:])
-        dist = np.abs(lines[:, :2] @ centre.T + lines[:, 2:3])  # (line, edge)
-        order = (0, 1) if dist[0, 0] + dist[1, 1] <= dist[1, 0] + dist[0, 1] else (1, 0)
-        moved = np.array([np.concatenate([q - (lines[j, :2] @ q + lines[j, 2]) * lines[j, :2]
-                                          for q in (e[k, :2], e[k, 2:])]) for k, j in enumerate(order)])
-        ax = shaft_axis(K, moved, radius, edge_cov=np.asarray(edge_cov, float).reshape(2, 2, 2))
-    except (EstimationError, InputError):
-        return None
+def _axis_covs_at(K, edges, edge_cov, radius, point, direction, frame, at_point, at_direction):
+    """((N, 4, 4), (N,) bool) the chart covariances (about point, direction (N, 3), frame
+    (N, 2, 3): each axis's own) of the axes shafts on the lines (at_point, at_direction (N,
+    3)) would give from edges over the same stretch as `edges` (N, 2, 4) [undistorted px]
+    with their covariance edge_cov (N, 2, 2, 2): each edge moved onto that cylinder's
+    silhouette line nearest it (`cylinder.shaft_axis`), and whether each is finite.
+    InputError or EstimationError where any line bounds no cylinder clear of the camera."""
+    n = len(edges)
+    lines = project_cylinder(K, at_point, at_direction, radius).lines       # (N, 2, 3)
+    e = np.asarray(edges, float).reshape(n, 2, 4)
+    centre = 0.5 * (e[..., :2] + e[..., 2:])
+    dist = np.abs(lines[..., :2] @ np.swapaxes(centre, -1, -2) + lines[..., 2:3])   # (N, line, edge)
+    swap = dist[:, 0, 0] + dist[:, 1, 1] > dist[:, 1, 0] + dist[:, 0, 1]   # (N,) edge k on line 1 - k
+    onto = lines[np.arange(n)[:, None], np.where(swap[:, None], [1, 0], [0, 1])]    # (N, 2 edges, 3)
+    ends = e.reshape(n, 2, 2, 2)                                             # (N, edge, end, xy)
+    off = _rowdot(onto[:, :, None, :2], ends) + onto[:, :, None, 2]
+    moved = (ends - off[..., None] * onto[:, :, None, :2]).reshape(n, 2, 4)
+    ax = shaft_axis(K, moved, radius, edge_cov=np.asarray(edge_cov, float).reshape(n, 2, 2, 2))
     # the chart about the line's own point into the axis's: its reference point moved along
     # the line to the axis's (s + tau theta), then both (u, w) pairs turned into the axis's
-    tau = float((np.asarray(point, float) - ax.axis_point) @ ax.axis_direction)
-    shift = np.eye(4)
-    shift[2:, :2] = tau * np.eye(2)
-    G = np.asarray(frame, float) @ np.asarray(ax.axis_frame, float).T
-    turn = np.zeros((4, 4))
-    turn[:2, :2] = np.sign(ax.axis_direction @ direction or 1.0) * G
-    turn[2:, 2:] = G
-    T = turn @ shift
-    C = T @ np.asarray(ax.axis_cov, float) @ T.T
-    return C if np.all(np.isfinite(C)) else None
+    tau = _rowdot(np.asarray(point, float) - ax.axis_point, ax.axis_direction)
+    T = np.zeros((n, 4, 4))
+    G = np.asarray(frame, float) @ np.swapaxes(np.asarray(ax.axis_frame, float), -1, -2)
+    along = _rowdot(ax.axis_direction, direction)
+    T[:, :2, :2] = np.where(along == 0.0, 1.0, np.sign(along))[:, None, None] * G
+    T[:, 2:, 2:] = G
+    T[:, 2:, :2] = tau[:, None, None] * G
+    C = T @ np.asarray(ax.axis_cov, float) @ np.swapaxes(T, -1, -2)
+    return C, np.all(np.isfinite(C), axis=(-2, -1))
 
 
 def _runs_at_noise(fit_at, own_factor):
@@ -451,29 +510,56 @@ def frame_axes(camera, frames, diameter):
     edge_cov)], poses [``camera_pose`` or None], frame indices, skipped) of every shaft's
     3-D axis in lines.json `frames` (`fulcrum_point`: in its own frame's camera where the
     frame carries its ``camera_pose``); lists, one entry an axis."""
-    points, dirs, covs, owners, measured, poses, index, skipped = [], [], [], [], [], [], [], 0
+    found = []  # (frame index, shaft index, frame, its keys) of every shaft with edges and their covariance
+    skipped = 0
     for i, fr in enumerate(frames):
         if not fr.get("ok", True):
             continue
-        pose = fr.get("camera_pose")
         keys = ("edges", "edge_cov") if "camera_pose" not in fr else ("edges_frame", "edge_cov_frame")
         for j, sh in enumerate(fr.get("shafts") or []):
-            if ("camera_pose" in fr and pose is None) or sh.get(keys[0]) is None or sh.get(keys[1]) is None:
+            if ("camera_pose" in fr and fr["camera_pose"] is None) or sh.get(keys[0]) is None or sh.get(keys[1]) is None:
                 skipped += 1
                 continue
-            try:
-                ax = shaft_axis_record(camera, sh[keys[0]], sh[keys[1]], diameter)
-            except (EstimationError, InputError):
-                skipped += 1
-                continue
-            points.append(ax["axis_point"])
-            dirs.append(ax["axis_direction"])
-            covs.append(ax["axis_cov"])
-            owners.append((fr.get("image"), j))
-            measured.append((sh[keys[0]], sh[keys[1]]))
-            poses.append(pose)
-            index.append(i)
+            found.append((i, j, fr, (sh[keys[0]], sh[keys[1]])))
+    points, dirs, covs, owners, measured, poses, index = [], [], [], [], [], [], []
+    for (i, j, fr, m), ax in zip(found, _shaft_axes(camera, [m for *_, m in found], diameter)):
+        if ax is None:
+            skipped += 1
+            continue
+        points.append(ax["axis_point"])
+        dirs.append(ax["axis_direction"])
+        covs.append(ax["axis_cov"])
+        owners.append((fr.get("image"), j))
+        measured.append(m)
+        poses.append(fr.get("camera_pose"))
+        index.append(i)
     return points, dirs, covs, owners, measured, poses, index, skipped
+
+
+def _shaft_axes(camera, measured, diameter):
+    """[`cylinder.shaft_axis_record` or None where it has no axis] of each shaft of measured
+    [(edges (2, 4) [raw px], edge_cov (2, 2, 2))]: every shaft at once (each edge point is
+    undistorted on its own and each axis found from its own edges, so the numbers are each
+    shaft's own), one by one only where a shaft of the set gives no axis."""
+    if measured and np.isfinite(diameter) and diameter > 0:
+        raw = np.array([np.asarray(e, float).reshape(2, 4) for e, _ in measured])
+        ideal = np.asarray(camera.undistort_pixels(raw.reshape(-1, 2)), float).reshape(-1, 2, 4)
+        if np.all(np.isfinite(ideal)):
+            try:
+                ax = shaft_axis(np.asarray(camera.K, float), ideal, 0.5 * float(diameter),
+                                edge_cov=np.array([np.asarray(c, float).reshape(2, 2, 2) for _, c in measured]))
+            except (EstimationError, InputError):
+                ax = None
+            if ax is not None:
+                return [{k: getattr(ax, k)[n].tolist() for k in ("axis_point", "axis_direction", "axis_cov")}
+                        for n in range(len(measured))]
+    out = []
+    for e, c in measured:
+        try:
+            out.append(shaft_axis_record(camera, e, c, diameter))
+        except (EstimationError, InputError):
+            out.append(None)
+    return out
 
 
 def pose_arrays(poses):

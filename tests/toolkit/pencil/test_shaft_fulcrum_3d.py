@@ -349,3 +349,38 @@ def test_fulcrum_point_keeps_the_factor_where_the_play_is_beyond_a_port():
     plain, factor, play = _point_with_noise(P, D, C, True)
     assert np.allclose(pt.fit.point, plain.point) and np.allclose(pt.fit.point_cov, plain.point_cov)
     assert pt.variance_factor == factor > 1.0 and pt.play == play == 0.0
+
+
+def test_leave_one_out_points_are_the_points_of_the_other_frames():
+    """The jackknife's points from the axes found once (`leave_one_out_points`) are, number
+    for number, `fulcrum_point` of the frames without each one, with a frame without a
+    shaft, a shaft without edge_cov and one whose edge has no length (no axis) among them;
+    every shaft's axis found with the others is the one it has on its own, and every axis's
+    covariance at the point the one it has alone."""
+    from pencilcal.toolkit.pencil.cylinder import axis_frame
+    from pencilcal.toolkit.pencil.fulcrum import _covariances_at_point, frame_axes, leave_one_out_points
+
+    rng = np.random.default_rng(11)
+    cam = Camera("opencv", 640, 480, _KE, [-0.1, 0.02, 0.0, 0.0, 0.0])
+    frames = _edge_level_frames(rng, np.array([60.0, 0.0, 90.0]), n=10, play=0.5)
+    P, D, C, _, measured, *_ = frame_axes(cam, frames, 8.0)
+    alone = [shaft_axis_record(cam, e, c, 8.0) for e, c in measured]
+    assert P == [a["axis_point"] for a in alone] and D == [a["axis_direction"] for a in alone]
+    assert C == [a["axis_cov"] for a in alone]
+    P, D, C = np.array(P), np.array(D), np.array(C)
+    E = axis_frame(P, D)
+    ideal = np.array([cam.undistort_pixels(np.reshape(e, (-1, 2))).reshape(2, 4) for e, _ in measured])
+    cov = np.array([np.reshape(c, (2, 2, 2)) for _, c in measured])
+    x = np.array([61.0, 1.0, 92.0])
+    together = _covariances_at_point(_KE, (ideal, cov), 4.0, P, D, C, E, x)
+    one = [_covariances_at_point(_KE, (ideal[i:i + 1], cov[i:i + 1]), 4.0, P[i:i + 1], D[i:i + 1], C[i:i + 1],
+                                 E[i:i + 1], x)[0] for i in range(len(P))]
+    assert np.array_equal(together, np.array(one)) and not np.array_equal(together, C)
+
+    frames[2]["shafts"][0]["edge_cov"] = None
+    frames[4]["shafts"].append({**frames[4]["shafts"][0], "edges": [[100.0, 100, 100, 100], [110, 100, 200, 120]]})
+    frames.insert(6, {"image": "none.png", "ok": True, "segments": np.zeros((0, 4)), "shafts": []})
+    loo = leave_one_out_points(cam, frames, 8.0)
+    assert [k for k, _ in loo] == [k for k, f in enumerate(frames) if f["shafts"]]
+    for k, x in loo:
+        assert np.array_equal(x, fulcrum_point(cam, frames[:k] + frames[k + 1:], 8.0).fit.point)
