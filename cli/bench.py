@@ -45,7 +45,8 @@ def bench(as_json, quick, sections, seed, output, force, quiet):
     Cramer-Rao bound at 20 deg of tilt (crlb_ratio_tilt20); a whole `pencilcal orient` /
     `fulcrum` process on a 1080p video over decoding it plus FLD on every frame
     (orient_video_vs_decode_fld_1080p, shafts_video_vs_decode_fld_1080p, with the start-up
-    and the per-frame time beside them); on a moving camera (a hand-held fan at the speeds
+    and the per-frame time beside them; shafts_video_point_vs_decode_fld_1080p: `fulcrum` with
+    --shaft-diameter, the 3-D point and its jackknife too); on a moving camera (a hand-held fan at the speeds
     of a hand and twice them, with and without --overlay, at its default half size and at
     full size; a moving instrument over a tissue-like texture) both sides as whole
     processes, with the fraction of frames tracked and, for the fan, of tilts within 0.5

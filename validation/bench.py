@@ -29,6 +29,8 @@ from somewhere else, so it means the same on a laptop and on a 2-core CI machine
 - ``orient_video_vs_decode_fld_1080p``, ``shafts_video_vs_decode_fld_1080p``: a whole
   ``pencilcal orient`` / ``pencilcal fulcrum`` process on a 1080p video over decoding it and
   FLD on every frame (`bench_video`). Targets <= 1.5 and <= 2.0.
+- ``shafts_video_point_vs_decode_fld_1080p``: the same ``fulcrum`` process with
+  ``--shaft-diameter`` (the 3-D point and its jackknife too), no target.
 - ``calibrate_vs_opencv_960x540``: `pencilcal calibrate`'s work (calibration, two halves,
   uncertainty map, verdict) on 50 rendered 960x540 chessboard views over the same decoding
   and detection plus cv2.calibrateCamera (`bench_calibrate`). Target <= 2.0.
