@@ -309,8 +309,8 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
         circles = None if circ is None else circle_record(fit, circ, own, ln.vertex_cov)
         if labels is None:  # (given labels, a tracked frame's, passed the previous frame's tests)
             unconfirmed_labelling(pencil, searched, resolved_by, circle_points, circ,
-                                   None if circles is None else circles["circle_consistent"],
-                                   edge_spoke[lab[used]])
+                                  None if circles is None else circles["circle_consistent"],
+                                  edge_spoke[lab[used]])
         # rival labellings that put the normal elsewhere make the normal itself ambiguous
         # (within the weighted fit's sigmas, as the labelling saw them)
         alt = _rival_normals(fit, rivals)
