@@ -24,9 +24,9 @@ count as independent and average away).
 `match_shafts` pairs the shafts of the two eyes of a frame by the chi2 of their joint fit,
 gated at the edges' own noise over a sequence (`match_factor`, in `matched_axes`);
 `stereo_fulcrum_axes` is the fulcrum of the stereo axes (`cylinder.fulcrum_3d`), each axis
-weighed by its covariance evaluated at the line through the fulcrum nearest to it
-(`covariance_at`): evaluated at its own estimate, an axis's weight would follow its own error
-and pull the point (towards the camera, on pivots like a da Vinci endoscope's).
+weighed by its covariance at its own estimate (on pivots like a da Vinci endoscope's the
+point leans less towards the camera than with each covariance evaluated at the line through
+the point, `covariance_at`).
 
 Conventions as `pencil.cylinder`: OpenCV camera frames, lengths in the rig's unit (mm),
 ``p_right = R_right_from_left p_left + t_right_from_left``, undistorted pixels of each eye's
@@ -241,8 +241,8 @@ def covariance_at(axis, point, direction):
     axis's own chart frame: what the same edges' noise gives a shaft lying there. None
     where the axis has no `problem` or the line bounds no cylinder clear of both cameras.
 
-    Used by `stereo_fulcrum_axes` to weigh each axis by a covariance that does not follow
-    its own error (`_constrained_covariances`)."""
+    What the same edges would say of a shaft through another point (a weight that does not
+    follow the axis's own error; measured against the axis's own, docs/method.md)."""
     if axis.problem is None:
         return None
     d = _canon(direction)
@@ -584,41 +584,12 @@ def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS, fits=None):
     return fit, k * C + s2 * lift, s2, k
 
 
-def _constrained_covariances(axes, x, C):
-    """(N, 4, 4) each axis's chart covariance evaluated at the line through the point x (3,)
-    nearest to it in its own covariance's metric (`covariance_at`); C (N, 4, 4) where an
-    axis has no `problem`.
-
-    An axis's covariance evaluated at its own estimate follows its own error, so the
-    weighted point moves with that correlation (on edge-level pivots like a da Vinci
-    endoscope's 0.27 mm towards the camera, about half its sigma there), by an amount that
-    more axes do not average down while the sigma falls as 1/sqrt(N). Evaluated on the line
-    through the fulcrum instead, the weights no longer follow each axis's own error. The
-    nearest line through x: ``p = C M^T (M C M^T)^-1 r`` in the axis's chart, r the offset of
-    x from the axis and ``M = [t I, I]`` (t along the axis to x)."""
-    out = np.array(C, float, copy=True)
-    for i, a in enumerate(axes):
-        if a.problem is None:
-            continue
-        v = np.asarray(x, float) - a.axis_point
-        tt = float(a.axis_direction @ v)
-        M = np.array([[tt, 0.0, 1.0, 0.0], [0.0, tt, 0.0, 1.0]])
-        p = a.axis_cov @ M.T @ np.linalg.solve(M @ a.axis_cov @ M.T, a.axis_frame @ v)
-        P, D = _line_of(p, a.axis_point, a.axis_direction, a.axis_frame)
-        c = covariance_at(a, P, D)
-        if c is not None:
-            out[i] = c
-    return out
-
-
 def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
     """The fulcrum (`AxesFulcrum`, left camera frame) of stereo axes (`StereoAxis`, at least
     two), with the rig's covariance if given.
 
-    The axes are gated and weighted as `cylinder.fulcrum_3d` does, each with its covariance
-    evaluated at the line through the fulcrum nearest to it where it carries its fit's
-    `problem` (`_constrained_covariances`: weights that do not follow its own error; twice,
-    the fit's noise terms refitted each time), and where they scatter
+    The axes are gated and weighted as `cylinder.fulcrum_3d` does, each by its own
+    covariance (at its own estimate), and where they scatter
     about the point more than their covariances say, their covariances take a factor and
     each axis's position an isotropic play variance, both fitted from that scatter
     (`_axes_with_noise`: only inflating, as the monocular 3-D fulcrum's variance factor;
@@ -640,12 +611,9 @@ def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
     fits = (np.array([a.chi2 for a in axes], float), np.array([a.dof for a in axes], float),
             np.stack([a.rig_information for a in axes]), np.stack([a.rig_vector for a in axes]))
     try:
+        # each axis weighed at its own estimate: evaluated at the lines through the point
+        # instead, the point leant further towards the camera (docs/method.md)
         fit, C_noise, play, factor = _axes_with_noise(P, D, C, E, robust, fits=fits)
-        if any(a.problem is not None for a in axes):
-            # the weights from covariances at the lines through the fulcrum (`_constrained_covariances`)
-            for _ in range(2):
-                fit, C_noise, play, factor = _axes_with_noise(P, D, _constrained_covariances(axes, fit.point, C),
-                                                               E, robust, fits=fits)
     except EstimationError as e:
         raise EstimationError(f"fewer than two of the {len(axes)} stereo axes meet near one "
                               f"point, even with their scatter taken into their covariances ({e})") from None

@@ -106,9 +106,9 @@ def _played(rng, F, R, t, n, play):
 def test_stereo_fulcrum_beats_either_eye_and_covers(n_trials=40):
     # measured (docs/method.md, stereo axes): 40 pivots of 8 axes at ~90 mm, edges 0.1 px,
     # the rig off by a draw of its covariance (1 mrad, 0.05 mm sd) in every pivot and that
-    # covariance given to the fit: rms 0.084 mm against 0.100 (left) and 0.109 (right), the
-    # sigma's coverage 80 % (32 of 40; the axes weighed at the lines through the point; 0.082 mm
-    # and 78 % weighed at their own; the play term takes some of the rig's error;
+    # covariance given to the fit: rms 0.085 mm against 0.100 (left) and 0.109 (right), the
+    # sigma's coverage 80 % (32 of 40; the axes weighed at their own estimates; 0.084 mm and
+    # 80 % weighed at the lines through the point; the play term takes some of the rig's error;
     # before it 0.074 mm and 72 %; seeds 0, 1: 52 % of 25, 82 % of 40: the rig's one draw per
     # pivot makes the coverage of a few dozen pivots vary this much)
     rms, inside, _ = _monte_carlo(np.random.default_rng(2), np.diag([1e-3**2] * 3 + [0.05**2] * 3), n_trials, 8,
@@ -188,7 +188,7 @@ def test_no_play_where_the_axes_meet():
 
 def test_covariance_at_the_axis_itself_is_its_own():
     # the fit's covariance re-evaluated at its own line (either sign of its direction) is the
-    # fit's: the frame carried right; the fulcrum weighs axes by it at the lines through the point
+    # fit's: the frame carried right (what weighs an axis at another line, as measured in docs/method.md)
     from pencilcal.toolkit.pencil.stereo_axes import covariance_at
 
     rng = np.random.default_rng(7)
