@@ -26,7 +26,7 @@ gated at the edges' own noise over a sequence (`match_factor`, in `matched_axes`
 `stereo_fulcrum_axes` is the fulcrum of the stereo axes (`cylinder.fulcrum_3d`), each axis
 weighed by its covariance at its own estimate (on pivots like a da Vinci endoscope's the
 point leans less towards the camera than with each covariance evaluated at the line through
-the point, `covariance_at`).
+the point: docs/method.md).
 
 Conventions as `pencil.cylinder`: OpenCV camera frames, lengths in the rig's unit (mm),
 ``p_right = R_right_from_left p_left + t_right_from_left``, undistorted pixels of each eye's
@@ -77,9 +77,7 @@ class StereoAxis:
     cov (5, 5): the chart's and r's covariance; rig_jacobian (5, 6): d (chart, r) / d (rig
     rotation vector [rad], translation [length]), for the rig's covariance; chi2: the
     whitened residuals' sum of squares, dof its degrees of freedom (8 - 5, plus 1 with a
-    radius prior); problem: the fit's residual function (`_Problem`, its edges, their
-    covariances, the cameras and the rig), for its covariance at another line
-    (`covariance_at`), or None.
+    radius prior).
     """
 
     axis_point: np.ndarray
@@ -94,7 +92,6 @@ class StereoAxis:
     rig_vector: np.ndarray
     chi2: float
     dof: int
-    problem: "_Problem | None" = None
 
 
 def _canon(d):
@@ -235,30 +232,6 @@ def _jac(f, p, n):
     return np.stack([(f(p + h) - f(p - h)) / (2 * _STEP) for h in np.eye(n) * _STEP], -1)
 
 
-def covariance_at(axis, point, direction):
-    """The chart covariance (4, 4) of a stereo axis's fit, its Jacobian evaluated at another
-    line (point (3,), direction (3,), left frame; the axis's radius) and carried into the
-    axis's own chart frame: what the same edges' noise gives a shaft lying there. None
-    where the axis has no `problem` or the line bounds no cylinder clear of both cameras.
-
-    What the same edges would say of a shaft through another point (a weight that does not
-    follow the axis's own error; measured against the axis's own, docs/method.md)."""
-    if axis.problem is None:
-        return None
-    d = _canon(direction)
-    A = np.asarray(point, float)
-    A = A - (A @ d) * d
-    try:
-        _, J = _jacobian(axis.problem, A, d, axis.radius)
-        cov = np.linalg.inv(J.T @ J)[:4, :4]
-    except (EstimationError, np.linalg.LinAlgError):
-        return None
-    G = axis.axis_frame @ axis_frame(A, d).T  # (2, 2): the line's (u, w) in the axis's (u, w)
-    T = np.zeros((4, 4))
-    T[:2, :2] = T[2:, 2:] = G
-    return T @ cov @ T.T
-
-
 def stereo_axis(K_left, edges_left, cov_left, K_right, edges_right, cov_right, R_right_from_left, t_right_from_left,
                 *, radius=None, radius_sigma=None, iterations=20):
     """A shaft's 3-D axis and radius from its silhouette edges in both eyes (module docstring).
@@ -309,7 +282,7 @@ def stereo_axis(K_left, edges_left, cov_left, K_right, edges_right, cov_right, R
     return StereoAxis(axis_point=A, axis_direction=d, axis_cov=cov[:4, :4], axis_frame=frame, radius=float(r),
                       radius_sigma=float(np.sqrt(cov[4, 4])), cov=cov, rig_jacobian=-cov @ J.T @ J_rig,
                       rig_information=A_rig.T @ A_rig, rig_vector=A_rig.T @ f0, chi2=float(f0 @ f0),
-                      dof=3 + (prior is not None), problem=prob)
+                      dof=3 + (prior is not None))
 
 
 def _candidates(K_left, left, K_right, right, R_right_from_left, t_right_from_left, **kw):

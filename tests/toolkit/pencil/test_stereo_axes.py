@@ -186,22 +186,6 @@ def test_no_play_where_the_axes_meet():
     assert f.play == 0.0 and np.allclose(f.point_cov, f.fit.point_cov)
 
 
-def test_covariance_at_the_axis_itself_is_its_own():
-    # the fit's covariance re-evaluated at its own line (either sign of its direction) is the
-    # fit's: the frame carried right (what weighs an axis at another line, as measured in docs/method.md)
-    from pencilcal.toolkit.pencil.stereo_axes import covariance_at
-
-    rng = np.random.default_rng(7)
-    A, d = np.array([10.0, -5, 120]), np.array([0.6, 0.2, -0.77]) / np.linalg.norm([0.6, 0.2, -0.77])
-    (el, cl), (er, cr) = _edges(A, d, rng, 0.2), _edges(R0 @ A + T0, R0 @ d, rng, 0.2)
-    ax = stereo_axis(K, el, cl, K, er, cr, R0, T0, radius=4.0)
-    for s in (1.0, -1.0):
-        c = covariance_at(ax, ax.axis_point + 30 * ax.axis_direction, s * ax.axis_direction)
-        assert np.allclose(c, ax.axis_cov, rtol=1e-4, atol=1e-12), (np.diag(c), np.diag(ax.axis_cov))
-    import dataclasses
-    assert covariance_at(dataclasses.replace(ax, problem=None), A, d) is None
-
-
 def test_the_noise_factor_is_read_from_the_axes_own_fits(n_trials=4):
     # edges twice as noisy as their covariances say (k = 4) and 0-1 mm port play: the factor
     # on the axes' covariances is their own fits' chi2 over its dof (the gate's axes), not a
@@ -315,7 +299,7 @@ def test_no_fulcrum_of_parallel_axes_says_why():
         (el, cl), (er, cr) = _edges(A, d, rng, 0.1), _edges(R0 @ A + T0, R0 @ d, rng, 0.1)
         Ss.append(stereo_axis(K, el, cl, K, er, cr, R0, T0, radius=4.0))
     # exactly parallel: one direction for all, the fits' own covariances
-    Ss = [dataclasses.replace(a, axis_direction=Ss[0].axis_direction, axis_frame=Ss[0].axis_frame, problem=None)
+    Ss = [dataclasses.replace(a, axis_direction=Ss[0].axis_direction, axis_frame=Ss[0].axis_frame)
           for a in Ss]
     with pytest.raises(EstimationError, match=r"^fewer than two of the 3 stereo axes meet near one point") as e:
         stereo_fulcrum_axes(Ss)
