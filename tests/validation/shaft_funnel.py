@@ -9,13 +9,18 @@ that loses it is named:
   and only the edge cue searched it;
 - ``no segment``: no straight region boundary (`shaft.regions.boundary_lines`, any level)
   runs along the mask's outline (`SEGMENT_ON_OUTLINE` of it within `OUTLINE_PX`);
-- ``no band``: segments, but no band between two of them evaluated along the axis;
+- ``no band``: segments, but no band between two of them evaluated along the axis (for a
+  mask with two straight stretches: whether the segments lie on one or both of them);
 - ``not proposed: ...``: a band along it, but `shaft.region_bands.proposed` said no (which
   part: the material of a side, the run's length, its shaft stations);
 - ``not refined``: proposed but suppressed by a better overlapping band, or past the
   refinement cap;
-- ``rejected: ...``: refined, and `shaft.material_cue.judge_band` names the test it failed;
-- ``not selected``: held, and dropped as another reading of a better one (or over the cap);
+- ``rejected: ...``: refined, and `shaft.material_cue.judge_band` names the test it failed,
+  with the band's values that test reads (its edges seen together and width [px], their
+  convergence [deg], its instrument's material along it [px], the length that needs no border
+  [px], the two sides' contrasts);
+- ``not selected: ...``: held, and dropped by the named step of `shaft.material_cue.select`
+  as another reading of a better one (or over the cap);
 - ``below setting``: detected, but under the setting the leave-one-source-out protocol
   chose on the other sources;
 - ``found``.
@@ -82,7 +87,7 @@ def traced():
 
     def judge_band(*a, **k):
         sh, why = saved["judge_band"](*a, **k)
-        rec.setdefault("judged", []).append((a[0], sh, why))
+        rec.setdefault("judged", []).append((a[0], sh, why, _judged_values(*a)))
         return sh, why
 
     def select(shafts, n):
@@ -99,6 +104,34 @@ def traced():
         for n, f in saved.items():
             setattr(mc, n, f)
         det.select = saved_sel
+
+
+def _judged_values(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
+    """The values `material_cue.judge_band`'s tests read, as text (module docstring)."""
+    from pencilcal.toolkit.detect.shaft.material_cue import midline_from_edges
+
+    m = None if fits is None else midline_from_edges(K, fits[0], fits[1])
+    if m is None:
+        return ""
+    seen = float(np.hypot(*(m.ends[1] - m.ends[0])))
+    ext = (e.ext[1] - e.ext[0]) * e.step / s
+    cs = ", ".join(f"{c:.0f}" for c in np.asarray(e.side_contrast, float))
+    return (f"seen {seen:.0f} px, width {m.width_px:.0f}, converging {m.convergence_deg:.1f} deg, material "
+            f"{ext:.0f} px, no border needed from {long_len:.0f} px, side contrasts {cs}")
+
+
+def _dropped_by(band, held):
+    """The step of `material_cue.select` that drops a held shaft (`MaterialShaft`) from held."""
+    from pencilcal.toolkit.detect.shaft import material_cue as mc
+
+    left = list(held)
+    for name, step in (("inside a held one", mc._inside_held), ("overlapping a better one", mc._overlapping),
+                       ("along a better one's axis", mc._coaxial), ("a ramp beside a better one", mc._ramps_beside),
+                       ("a short extension", mc._short_extensions), ("beyond an entry", mc.beyond_entry)):
+        left = step(left)
+        if not any(sh is band for sh in left):
+            return name
+    return "over the cap"
 
 
 def _line_of(P):
@@ -166,11 +199,12 @@ def stage_of(ref, mask, rec, work, dets, kept, min_len, ang_thr):
     if any(hits(d) for d in dets):
         return "below setting"
     held = rec.get("held", [])
-    if any(along(sh.midline.line, ref) for sh in held):
-        return "not selected"
-    judged = [(e, why) for e, sh, why in rec.get("judged", []) if along(_band_line(e, work), ref)]
+    on = [sh for sh in held if along(sh.midline.line, ref)]
+    if on:
+        return "not selected: " + _dropped_by(on[0], held)
+    judged = [(e, why, v) for e, sh, why, v in rec.get("judged", []) if along(_band_line(e, work), ref)]
     if judged:
-        return "rejected: " + (judged[0][1] or "scored off tolerance")
+        return "rejected: " + (judged[0][1] or "scored off tolerance") + (f" ({judged[0][2]})" if judged[0][2] else "")
     ev = [e for e in rec.get("evaluated", []) if along(_band_line(e, work), ref)]
     if any(e in rec.get("proposed", []) for e in ev):
         return "not refined"
@@ -184,9 +218,24 @@ def stage_of(ref, mask, rec, work, dets, kept, min_len, ang_thr):
     dist = _outline_dist(mask)
     segs = [work.to_ideal(np.asarray(s).reshape(2, 2)).reshape(4) for s in rec.get("segments", [])
             + [q for pr in rec.get("pairs", []) for q in np.asarray(pr).reshape(2, 4)]]
-    if any(_on_outline(s, dist) for s in segs):
+    on = [s for s in segs if _on_outline(s, dist)]
+    if not on:
+        return "no segment"
+    if ref.edges is None:
         return "no band"
-    return "no segment"
+    n = sum(any(_on_stretch(s, E) for s in on) for E in ref.edges)
+    return "no band (segments on " + ("neither", "one", "both")[n] + " of its straight stretches)"
+
+
+def _on_stretch(seg, E):
+    """Whether a segment (4,) lies along a straight outline stretch E (4,): within
+    `ALONG_DEG` of it, its middle within `OUTLINE_PX` of its line and alongside it."""
+    d = (E[2:] - E[:2]) / np.linalg.norm(E[2:] - E[:2])
+    u = (seg[2:] - seg[:2]) / max(np.linalg.norm(seg[2:] - seg[:2]), 1e-9)
+    c = 0.5 * (seg[:2] + seg[2:]) - E[:2]
+    return (abs(float(d[0] * u[1] - d[1] * u[0])) <= np.sin(np.radians(ALONG_DEG))
+            and abs(float(d[0] * c[1] - d[1] * c[0])) <= OUTLINE_PX
+            and 0.0 <= float(c @ d) <= float(np.linalg.norm(E[2:] - E[:2])))
 
 
 def _cache_path(out, name):
@@ -219,7 +268,7 @@ def run_source(name, out=None):
         rows.append({"frame": path.name, "detections": dets,
                      "trace": {"segments": len(rec.get("segments", [])), "evaluated": len(rec.get("evaluated", [])),
                                "proposed": len(rec.get("proposed", [])),
-                               "judged": [why for _, _, why in rec.get("judged", [])]},
+                               "judged": [why for _, _, why, _ in rec.get("judged", [])]},
                      "_rec": rec, "_work": work, "_refs": refs, "_insts": insts, "_img": img,
                      "_min_len": min_len, "_ang_thr": ang_thr})
     return rows, view_diagonal(shape, region.mask(shape))
