@@ -390,7 +390,9 @@ def _point_with_play(points, dirs, covs, robust, K, edges, radius):
     An axis's covariance evaluated at its own estimate follows its own error: its depth's
     sd grows as the square of its depth, so an axis read too near weighs more and the
     point leans towards the camera; and a factor alone, one scale on every axis, leaves
-    the precise axes' share of the port's play too small."""
+    the precise axes' share of the port's play too small. (The fused two-eye point weighs
+    its axes at their own estimates; for one eye that leant further on fresh pivots:
+    docs/method.md, "One eye's axes weighed at their own estimates again".)"""
     from pencilcal.toolkit.pencil.stereo_axes import axes_with_noise
 
     E = axis_frame(points, dirs)
