@@ -9,6 +9,7 @@ import click
 from pencilcal.toolkit.camera.formats import read_camera
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.io.lines_file import read_lines
+from pencilcal.toolkit.pencil.defaults import CHI2_2_DETECTION
 from pencilcal.toolkit.pencil.orient import MAX_SEGMENTS, MODELS, orient_segments, resolve_twins_by_continuity
 from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.sequence_noise import orientations_with_noise
@@ -163,6 +164,12 @@ def _warn_frame(rec, pencil=None):
         warn(f"{rec.image}: {rec.spokes_used} of the {pencil.count} spokes all round the vertex used; if they are "
              "a star's wedges or the boundaries between sectors, the pencil file says so (shape: wedge or edge, "
              "docs/formats.md) and their edges are measured")
+    if rec.ok and rec.circle_consistent is False:
+        # kept, not refused: on renders right frames of every spoke disagree as much (the
+        # circles' sigma, or the lines', too small there), and their normals still hold
+        warn(f"{rec.image}: the lines' normal and the circles' (circle_normal) lie {rec.circle_angle_deg:.2f} deg "
+             f"apart, beyond their sigmas (circle_chi2 {rec.circle_chi2:.1f} > {CHI2_2_DETECTION:.2f}): one of the two "
+             "is further off than its sigma says; the lines' normal is reported")
 
 
 def _summary(records):
