@@ -34,7 +34,9 @@ the tissue's colour. What it has is instrument-like pixels, which the learned pi
 Each is a `shaft.from_mask.MaskShaft` with cue ``"pixels"``; its score is its length along
 its axis [raw px]. The regions come from a learned model: in the leave-one-source-out table
 (`validation.shaft_protocol`) each source's parts come from a model that never saw it, and
-the least score a part must reach (none: no parts) is chosen on the other sources.
+the least score a part must reach (none: no parts) is chosen on the other sources; there the
+detections are judged after the regions are formed, so each region is read whatever touches
+it, with the detections that do (`part_axes`), and kept only where none of them is.
 
 Example
 -------
