@@ -64,7 +64,7 @@ from pencilcal.toolkit.detect.shaft.grey_material import kept
 from pencilcal.toolkit.detect.shaft.parts import PART_CUE
 from pencilcal.validation.shaft_score import Tolerance, score_frame, summarize
 
-__all__ = ["SETTINGS", "EVIDENCES", "TISSUE_COLOURS", "PART_SETTINGS", "PART_CUE", "MAX_FALSE_PER_FRAME", "view_diagonal", "filtered", "choose_setting", "leave_one_source_out", "table_markdown"]
+__all__ = ["SETTINGS", "EVIDENCES", "TISSUE_COLOURS", "PART_SETTINGS", "PART_CUE", "MAX_FALSE_PER_FRAME", "view_diagonal", "filtered", "part_records", "choose_setting", "leave_one_source_out", "table_markdown"]
 
 #: The settings tried: the least evidence (`Shaft.score`: the length along which the band is
 #: seen as a shaft) as a fraction of the view's diagonal (`view_diagonal`).
@@ -109,13 +109,35 @@ def filtered(detections, setting, diagonal, evidence=0.0, colour=float("inf"), p
     ``pixel_evidence`` (where they carry one) reaches evidence and whose ``tissue_colour``
     (where they carry one) stays within colour; one darker than its sides and greyer than
     the tissue, or than the tissue beside it (its ``flank_colour``, where it carries one), is
-    kept whatever its evidence (`toolkit.detect.shaft.grey_material.kept`)."""
+    kept whatever its evidence (`toolkit.detect.shaft.grey_material.kept`). An instrument
+    region's axis that carries ``touches`` (`part_records`: the positions in detections of the
+    shafts touching its region) is kept only where none of them is: the jaws beyond a shaft
+    found are that instrument's, a shaft dropped here found nothing."""
     keep = kept([float(d.get("pixel_evidence", 1.0)) for d in detections],
                 [float(d.get("tissue_colour", 0.0)) for d in detections], evidence, colour,
                 dark=np.array([d.get("polarity") == "dark" for d in detections], bool),
                 flank=[float(d.get("flank_colour", np.nan)) for d in detections])
+    keep = [bool(k) and float(d.get("score", 0.0)) >= (part if d.get("cue") == PART_CUE else setting) * diagonal
+            for d, k in zip(detections, keep)]
+    shaft = [k and d.get("cue") != PART_CUE for d, k in zip(detections, keep)]
     return [d for d, k in zip(detections, keep)
-            if k and float(d.get("score", 0.0)) >= (part if d.get("cue") == PART_CUE else setting) * diagonal]
+            if k and not (d.get("cue") == PART_CUE and any(shaft[j] for j in d.get("touches", ())))]
+
+
+def part_records(image, shafts, first=0, *, valid_region=None, model=None):
+    """The instrument regions' axes of one frame as the protocol judges them: lines.json
+    records (`toolkit.detect.shaft.parts.part_axes`, the band's ``tissue_colour`` not yet
+    judged), each with ``touches``, the positions of the shafts touching its region in the
+    frame's detections, where shafts (`Shaft`, not yet judged) lie from position first on.
+    Formed against the shafts before they are judged and judged with them (`filtered`): which
+    regions are an instrument's turns on the shafts kept, not on those proposed."""
+    from pencilcal.toolkit.detect.shaft.parts import part_axes
+    from pencilcal.toolkit.detect.shaft.tissue_colour import shaft_tissue_colour
+
+    axes = part_axes(image, shafts, valid_region=valid_region, model=model)
+    colours = shaft_tissue_colour(image, [a for a, _ in axes], valid_region) if axes else []
+    return [dict(a.to_dict(), tissue_colour=float(c), touches=[first + j for j in t])
+            for (a, t), c in zip(axes, colours)]
 
 
 def _scores(frames, setting, diagonal, tol, evidence=0.0, colour=float("inf"), part=float("inf")):

@@ -34,7 +34,9 @@ the tissue's colour. What it has is instrument-like pixels, which the learned pi
 Each is a `shaft.from_mask.MaskShaft` with cue ``"pixels"``; its score is its length along
 its axis [raw px]. The regions come from a learned model: in the leave-one-source-out table
 (`validation.shaft_protocol`) each source's parts come from a model that never saw it, and
-the least score a part must reach (none: no parts) is chosen on the other sources.
+the least score a part must reach (none: no parts) is chosen on the other sources; there the
+detections are judged after the regions are formed, so each region is read whatever touches
+it, with the detections that do (`part_axes`), and kept only where none of them is.
 
 Example
 -------
@@ -58,7 +60,7 @@ from pencilcal.toolkit.detect.shaft.tissue_colour import MAX_TISSUE_COLOUR, shaf
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame, grid_map
 from pencilcal.toolkit.detect.working import to_working, to_working_points
 
-__all__ = ["detect_parts", "part_regions", "PART_PROBABILITY", "MIN_PART_AREA", "PART_CUE", "RIM_FRACTION",
+__all__ = ["detect_parts", "part_axes", "part_regions", "PART_PROBABILITY", "MIN_PART_AREA", "PART_CUE", "RIM_FRACTION",
            "MIN_ELONGATION", "MIN_PART_ELONGATION", "CLIPPED_LEVEL", "MAX_CLIPPED"]
 
 #: A work pixel is instrument where the learned map's probability exceeds this.
@@ -90,17 +92,17 @@ _BORDER_WORK_PX = 2.0  # a region touches the border of the view within this bey
 
 
 def _shaft_quads(work, camera, shafts):
-    """Per shaft with edges, its band widened by half its width either side, as a convex
-    polygon (4, 2) int32 [work px]."""
+    """Per shaft with edges, its index in shafts and its band widened by half its width
+    either side, as a convex polygon (4, 2) int32 [work px]."""
     out = []
-    for s in shafts:
+    for i, s in enumerate(shafts):
         e = np.asarray(s.edges, float).reshape(-1, 4)
         if e.shape[0] != 2:
             continue
         ideal = to_working(camera, e).reshape(2, 2, 2)
         c = ideal.reshape(-1, 2).mean(0)
         pts = np.concatenate([c + 1.5 * (p - c) for p in ideal])   # half a width beyond each edge
-        out.append(np.rint(work.to_work(pts)).astype(np.int32))
+        out.append((i, np.rint(work.to_work(pts)).astype(np.int32)))
     return out
 
 
@@ -112,6 +114,14 @@ def part_regions(work, p, shafts=(), camera=None, min_area=MIN_PART_AREA, probab
     (`shaft.pixels.instrument_probability`); shafts: the shafts found (`shaft.detector.Shaft`,
     raw pixels), whose instruments have their axes.
     """
+    lab, touches = _regions(work, p, shafts, camera, min_area, probability)
+    return _numbered(lab, [not t for t in touches])
+
+
+def _regions(work, p, shafts, camera, min_area, probability):
+    """Every instrument region of step 1 before the shafts are asked: (h, w) int32 labels
+    1..K (0: none) and, per region, the indices into shafts (a tuple) of those whose widened
+    band touches it."""
     import cv2
 
     # the view's rim (a field stop's glare and vignetting, a letterbox's edge) is left out:
@@ -121,27 +131,38 @@ def part_regions(work, p, shafts=(), camera=None, min_area=MIN_PART_AREA, probab
     B = cv2.morphologyEx(B, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     n, lab, stats, _ = cv2.connectedComponentsWithStats(B, connectivity=8)
     if n <= 1:
-        return np.zeros(work.shape, np.int32), 0
+        return np.zeros(work.shape, np.int32), []
     keep = stats[:, cv2.CC_STAT_AREA] >= min_area * max(int(np.count_nonzero(work.valid)), 1)
     keep[0] = False
     border = np.zeros(n, bool)
     near = lab[(work.dist <= rim + _BORDER_WORK_PX) & work.valid]
     border[np.unique(near)] = True
-    taken = np.zeros(work.shape, np.uint8)
-    for q in _shaft_quads(work, camera, shafts):
-        cv2.fillConvexPoly(taken, cv2.convexHull(q), 1)
-    touched = np.zeros(n, bool)
-    touched[np.unique(lab[taken > 0])] = True
     # glare: a region mostly at the 8-bit ceiling shows the light, not a material; the map's
     # colour and texture features read nothing there
     clipped = np.zeros(n, bool)
     if work.bgr.dtype == np.uint8:
         hot = (work.bgr.max(-1) >= CLIPPED_LEVEL) & (lab > 0)
         clipped = np.bincount(lab[hot], minlength=n) > MAX_CLIPPED * np.maximum(stats[:, cv2.CC_STAT_AREA], 1)
-    ok = keep & border & ~touched & ~clipped
+    ok = keep & border & ~clipped
+    touches = [[] for _ in range(n)]
+    for i, q in _shaft_quads(work, camera, shafts):
+        taken = np.zeros(work.shape, np.uint8)
+        cv2.fillConvexPoly(taken, cv2.convexHull(q), 1)
+        for k in np.unique(lab[taken > 0]):
+            touches[k].append(i)
     remap = np.zeros(n, np.int32)
     remap[ok] = np.arange(1, int(ok.sum()) + 1)
-    return _into_rim(remap[lab], (p > probability) & work.valid & (work.dist <= rim + 1.0), rim), int(ok.sum())
+    grown = _into_rim(remap[lab], (p > probability) & work.valid & (work.dist <= rim + 1.0), rim)
+    return grown, [tuple(touches[k]) for k in np.flatnonzero(ok)]
+
+
+def _numbered(lab, keep):
+    """The labels lab (h, w) int32 1..K of the regions keep (K bool) renumbered 1..count
+    (the others 0), and count."""
+    remap = np.zeros(len(keep) + 1, np.int32)
+    k = np.flatnonzero(np.asarray(keep, bool)) + 1
+    remap[k] = np.arange(1, k.size + 1)
+    return remap[lab], int(k.size)
 
 
 def _into_rim(lab, allowed, rim):
@@ -186,7 +207,9 @@ def detect_parts(image, shafts, camera=None, *, valid_region=None, model=None, g
     image : (H, W, 3) array
         The raw BGR frame.
     shafts : list of Shaft
-        The shafts found on it (`shaft.detector.detect_shafts`): their instruments are left out.
+        The shafts found on it and kept (`shaft.detector.detect_shafts`): their instruments
+        are left out. A detection not yet judged is no shaft found: a region it touches is
+        that of its instrument only if the detection is kept (`part_axes`).
     camera : Camera, optional
         Lens model (as `detect_shafts`).
     valid_region : region.ValidRegion, optional
@@ -203,19 +226,52 @@ def detect_parts(image, shafts, camera=None, *, valid_region=None, model=None, g
         The most tissue colour a part's band may have (`shaft.tissue_colour`; None: not
         judged, as the leave-one-source-out protocol does, which chooses it).
     """
+    found = _axes(image, shafts, camera, valid_region, model, gamma, min_area, probability, tissue_colour, True)
+    return sorted((s for s, _ in found), key=lambda s: -s.score)[:max_parts]
+
+
+def part_axes(image, detections, camera=None, *, valid_region=None, model=None, gamma=DEFAULT_GAMMA,
+              min_area=MIN_PART_AREA, probability=PART_PROBABILITY, tissue_colour=None):
+    """Every instrument region's axis, whatever shafts touch it, each with the detections
+    that do: a list of (`shaft.from_mask.MaskShaft`, tuple of indices into detections),
+    the longest first; [] on a grey frame.
+
+    Where the detections are judged later (the leave-one-source-out protocol detects once
+    and chooses its setting per source, `validation.shaft_protocol.filtered`), a region is
+    that of a found shaft's instrument only if a detection touching it is kept: judged
+    against the detections before they are, a region under a detection the setting drops
+    would be lost, and what the protocol chose would turn on what was proposed, not on what
+    was found. Parameters as `detect_parts` (detections: the shafts not yet judged; no most
+    parts: which are kept depends on the judgement); tissue_colour None: not judged.
+    """
+    found = _axes(image, detections, camera, valid_region, model, gamma, min_area, probability, tissue_colour,
+                  False)
+    return sorted(found, key=lambda a: -a[0].score)
+
+
+def _axes(image, shafts, camera, valid_region, model, gamma, min_area, probability, tissue_colour, untouched):
+    """(axis, indices of the shafts touching its region) per kept region's axis (module
+    docstring, steps 2-3); untouched: only the regions no shaft touches are read."""
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] < 3:
         return []
     img = img[..., :3]
     validity = Validity(valid_region, img.shape[:2])
     work = WorkFrame(img, camera, validity, WORK_PX)
-    lab, count = part_regions(work, instrument_probability(work, model), shafts, camera, min_area, probability)
-    if count == 0:
+    lab, touches = _regions(work, instrument_probability(work, model), shafts, camera, min_area, probability)
+    if untouched:
+        lab, count = _numbered(lab, [not t for t in touches])
+        touches = [()] * count
+    if not touches:
         return []
-    masks = _raw_masks(work, camera, lab, count, img.shape[:2])
-    found = shafts_from_masks(img, [m for m in masks if m.any()], camera, valid_region=valid_region, gamma=gamma)
-    found = [replace(s, cue=PART_CUE) for s in found
+    masks = _raw_masks(work, camera, lab, len(touches), img.shape[:2])
+    read = [(m, t) for m, t in zip(masks, touches) if m.any()]
+    # each axis names its region by its index among the masks read (`MaskShaft.instrument`)
+    found = [(replace(a, cue=PART_CUE), read[a.instrument][1])
+             for a in shafts_from_masks(img, [m for m, _ in read], camera, valid_region=valid_region, gamma=gamma)]
+    found = [(s, t) for s, t in found
              if s.score >= (MIN_PART_ELONGATION if s.kind == "part" else MIN_ELONGATION) * s.width_px]
     if found and tissue_colour is not None:
-        found = [s for s, c in zip(found, shaft_tissue_colour(img, found, valid_region, validity)) if c <= tissue_colour]
-    return sorted(found, key=lambda s: -s.score)[:max_parts]
+        colours = shaft_tissue_colour(img, [s for s, _ in found], valid_region, validity)
+        found = [a for a, c in zip(found, colours) if c <= tissue_colour]
+    return found

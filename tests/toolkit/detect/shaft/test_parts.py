@@ -164,3 +164,29 @@ def test_a_blob_and_a_shadow_are_no_part():
     loose = detect_parts(img, [], tissue_colour=None)                   # the map takes it for metal
     assert len(loose) == 1 and shaft_tissue_colour(img, loose)[0] > 1.25
     assert detect_parts(img, []) == []
+
+
+def test_a_region_is_judged_with_the_detections_touching_it():
+    """Where the detections are judged after the regions are formed (the leave-one-source-out
+    protocol detects once and chooses its setting per source), a region is its shaft's
+    instrument only where a detection touching it is kept: a weak band over the jaw, which
+    the setting drops, takes nothing from it, whatever else was proposed; kept, the jaw is that
+    shaft's instrument. Formed against the detections before they were judged, the jaw was lost
+    with the weak band proposed and found without it."""
+    from pencilcal.validation.shaft_protocol import filtered, part_records
+
+    img = _frame(JAW)
+    weak = Shaft(midline=np.array([0.0, 230, 120, 239]), width_px=60.0, angle_sigma=0.01, offset_sigma=1.0,
+                 edges=np.array([[0.0, 200, 120, 209], [0.0, 260, 120, 269]]), score=60.0,
+                 ideal_midline=np.array([0.0, 230, 120, 239]), convergence_deg=1.0, polarity="bright")
+    diagonal = float(np.hypot(*img.shape[:2]))                          # 800 px: 0.1 of it is 80 > 60
+    alone = part_records(img, [])
+    proposed = [weak.to_dict()] + part_records(img, [weak])
+    assert len(alone) == 1 and [r["touches"] for r in proposed[1:]] == [[0]]
+    for setting in (0.1, 0.2):                                          # the weak band dropped
+        got = filtered(proposed, setting, diagonal, part=0.0)
+        assert [d["cue"] for d in got] == [PART_CUE]
+        assert [d["midline"] for d in got] == [d["midline"] for d in filtered(alone, setting, diagonal, part=0.0)]
+    assert filtered(proposed, 0.05, diagonal, part=0.0) == [proposed[0]]          # kept: the jaw is its instrument
+    # the product's, which gets the shafts found (judged): the same
+    assert detect_parts(img, [weak]) == [] and len(detect_parts(img, [])) == 1
