@@ -11,7 +11,7 @@ JPEG compression. The rig the right eye is rendered with is off its calibration 
 and 0.02 mm sd (`RIG_SD`); the stereo file states the calibration and that covariance.
 
 Per sequence (`draw_sequence(seed)`, everything from ``numpy.random.default_rng(seed)``):
-the port 40-120 mm from the camera, in view (anywhere 40 px inside the image) or out of it
+the port 40-120 mm deep, in view (anywhere 40 px inside the image) or out of it
 (60-400 px beyond an edge), the material one of `synth.shaded.MATERIALS`; per frame the
 instrument 30-100 mm inside the port, its tip seen by both eyes 30 px inside the image, its
 axis passing the port at the play (an offset across the axis, `PLAY_SD_MM` per direction),
@@ -89,7 +89,7 @@ def _seen_length(K, size, A, B, steps=200):
 
 
 def _port(rng, K, size):
-    """The fulcrum (3,) [mm, left frame]: 40-120 mm away, in view or 60-400 px beyond an edge."""
+    """The fulcrum (3,) [mm, left frame]: 40-120 mm deep, in view or 60-400 px beyond an edge."""
     w, h = size
     z = rng.uniform(40.0, 120.0)
     if rng.uniform() < 0.5:
