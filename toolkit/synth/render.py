@@ -45,7 +45,7 @@ from pencilcal.toolkit.synth.polygons import rect
 from pencilcal.toolkit.synth.raster import pixel_rays, render_coverage, to_camera
 from pencilcal.toolkit.synth.texture import plane_texture, sample_texture
 
-__all__ = ["render_frame", "render_scene", "REFLECTANCE", "sensor_image"]
+__all__ = ["render_frame", "render_scene", "REFLECTANCE", "sensor_image", "lighting_gain"]
 
 
 def _readonly(values):
@@ -77,7 +77,7 @@ def _as_rng(rng):
     return np.random.default_rng(rng)
 
 
-def _lighting_gain(W, H, strength, rng):
+def lighting_gain(W, H, strength, rng):
     """A smooth multiplicative gain (H, W), or None for `strength` <= 0: vignetting plus a
     random tilted, slightly curved field drawn from `rng`."""
     if strength <= 0:
@@ -307,7 +307,7 @@ def sensor_image(img, lighting, exposure, blur_px, gamma, noise, rng):
     optical blur, gamma encoding and sensor noise (arguments as `render_frame`'s), in that
     order; (H, W) or (H, W, 3) uint8."""
     H, W, nch = img.shape
-    gain = _lighting_gain(W, H, lighting, rng)
+    gain = lighting_gain(W, H, lighting, rng)
     if gain is not None:
         img *= gain[..., None]
     img *= exposure

@@ -47,7 +47,7 @@ from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.pencil.cylinder import project_cylinder
 from pencilcal.toolkit.synth.render import sensor_image
 
-__all__ = ["Material", "MATERIALS", "ShadedTruth", "shaft_radiance", "render_shaded_shaft"]
+__all__ = ["Material", "MATERIALS", "ShadedTruth", "shaft_radiance", "shaft_light", "render_shaded_shaft"]
 
 _LIMB_PX = 2.5  # pixels this close to a silhouette line are supersampled [px]
 
@@ -140,23 +140,13 @@ def _line_distance(camera, px, lines):
     return np.nan_to_num(dist.min(-1), nan=np.inf)
 
 
-def render_shaded_shaft(camera, axis_point, axis_direction, radius, material, *, extent=(-1e4, 1e4),
-                        background=(0.10, 0.12, 0.22), gradient=0.0, shaft_level=0.3, power=2500.0, blur_px=0.8,
-                        noise=1.0, gamma=2.2, supersample=8, rng=None):
-    """A frame (H, W, 3) uint8 BGR of one shaded shaft over a flat background, and its
-    `ShadedTruth` (module docstring).
-
-    camera: the `Camera` (any lens model); axis_point (3,) [mm], axis_direction (3,): the
-    axis in the camera frame; radius [mm]; material: a `Material`; extent (2,) [mm]: the
-    shaft's stretch along the axis from axis_point; background (3,): its linear BGR;
-    gradient: a linear ramp across the image of that fraction of it (0: flat); shaft_level:
-    the exposure that puts the shaft's median radiance at this linear level (None: the raw
-    radiance, ``power`` at 1 mm); blur_px: optical blur sd [px]; noise: sensor noise sd
-    [grey levels] at mid-grey (`render.sensor_image`); gamma: the encoding gamma;
-    supersample: rays per pixel side near the outline; rng: a numpy Generator or seed.
-    InputError when the camera lies inside the cylinder.
-    """
-    rng = np.random.default_rng(rng)
+def shaft_light(camera, axis_point, axis_direction, radius, material, *, extent=(-1e4, 1e4), power=2500.0,
+                supersample=8):
+    """One shaded shaft's linear light before any background or sensor (module docstring):
+    (radiance (H, W), cover (H, W) the share of each pixel the shaft covers, hit (H, W) bool
+    the pixels whose centre it covers, full (H, W) bool those of them away from its outline,
+    outline: `project_cylinder`'s).
+    Arguments as `render_shaded_shaft`'s. InputError when the shaft is not in view."""
     A = np.asarray(axis_point, float)
     d = np.asarray(axis_direction, float) / np.linalg.norm(axis_direction)
     outline = project_cylinder(camera.K, A, d, radius)
@@ -187,10 +177,38 @@ def render_shaded_shaft(camera, axis_point, axis_direction, radius, material, *,
     cover[iy, ix] = sh.mean(-1)
     if not hit.any() and not cover.any():
         raise InputError("render_shaded_shaft: the shaft is not in view")
+    return rad, cover, hit, hit & ~edge, outline
+
+
+def render_shaded_shaft(camera, axis_point, axis_direction, radius, material, *, extent=(-1e4, 1e4),
+                        background=(0.10, 0.12, 0.22), gradient=0.0, shaft_level=0.3, power=2500.0, blur_px=0.8,
+                        noise=1.0, gamma=2.2, supersample=8, rng=None):
+    """A frame (H, W, 3) uint8 BGR of one shaded shaft over a flat background, and its
+    `ShadedTruth` (module docstring).
+
+    camera: the `Camera` (any lens model); axis_point (3,) [mm], axis_direction (3,): the
+    axis in the camera frame; radius [mm]; material: a `Material`; extent (2,) [mm]: the
+    shaft's stretch along the axis from axis_point; background (3,): its linear BGR, or an
+    (H, W, 3) linear image (a tissue backdrop); gradient: a linear ramp across the image of
+    that fraction of it (0: flat); shaft_level: the exposure that puts the shaft's median
+    radiance at this linear level (None: the raw radiance, ``power`` at 1 mm); blur_px:
+    optical blur sd [px]; noise: sensor noise sd [grey levels] at mid-grey
+    (`render.sensor_image`); gamma: the encoding gamma; supersample: rays per pixel side
+    near the outline; rng: a numpy Generator or seed. InputError when the camera lies
+    inside the cylinder.
+    """
+    rng = np.random.default_rng(rng)
+    A = np.asarray(axis_point, float)
+    d = np.asarray(axis_direction, float) / np.linalg.norm(axis_direction)
+    rad, cover, hit, full, outline = shaft_light(camera, A, d, radius, material, extent=extent, power=power,
+                                            supersample=supersample)
     if shaft_level is not None:
-        full = hit & ~edge
         rad = rad * (float(shaft_level) / max(float(np.median(rad[full if full.any() else hit])), 1e-300))
-    bg = np.asarray(background, float) * (1.0 + gradient * ((uu / max(W - 1, 1)) - 0.5))[..., None]
+    W, H = camera.width, camera.height
+    uu = np.arange(W, dtype=float)[None, :]
+    bg = np.asarray(background, float)
+    if bg.ndim == 1:
+        bg = bg * (1.0 + gradient * ((uu / max(W - 1, 1)) - 0.5))[..., None]
     img = bg * (1.0 - cover)[..., None] + rad[..., None] * np.asarray(material.colour, float)
     return sensor_image(img, 0.0, 1.0, blur_px, gamma, noise, rng), ShadedTruth(
         outline.lines, outline.normals, A, d, float(radius), np.asarray(camera.K, float))
