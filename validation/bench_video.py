@@ -56,7 +56,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["bench_orient_video", "bench_shafts_video", "bench_orient_motion", "bench_shafts_motion", "VIDEO_TARGETS",
-           "handheld_frames", "moving_shaft_frames"]
+           "handheld_frames", "hard_handheld_frames", "moving_shaft_frames"]
 
 VIDEO_TARGETS = {"orient_video_vs_decode_fld_1080p": ("<=", 1.5), "shafts_video_vs_decode_fld_1080p": ("<=", 2.0),
                  "orient_motion_overlay_vs_decode_fld_1080p": ("<=", 1.5), "orient_motion_tracked": (">=", 0.9),
@@ -346,3 +346,150 @@ def bench_shafts_motion(frames=90, repeats=2, seed=0, workdir=None):
             "shafts_motion_lines_vs_decode_fld_1080p": float(lines_wall / floor),
             "shafts_motion_lines_s": float(lines_wall),
             "shafts_motion_lines_tracked": lines_data.get("frames_tracked", 0) / n}
+
+
+
+def _plane_map(camera, R_to, t_to, R_from, t_from, step=16):
+    """(map_x, map_y), (H, W) float32 each: for every pixel of the image at pose `to`, where
+    the point of the target plane (z = 0) seen there was in the image at pose `from`
+    [pixels] (-1e4 where the ray misses the plane); computed on a grid of `step` px and
+    interpolated (the field is smooth). Poses R_cam_from_target (3, 3), t (3,) [mm]."""
+    import cv2
+
+    W, H = camera.width, camera.height
+    gx, gy = np.meshgrid(np.arange(0, W + step, step, dtype=float), np.arange(0, H + step, step, dtype=float))
+    ray = camera.rays_from_pixels(np.stack([gx, gy], -1).reshape(-1, 2))
+    # the ray's point l * ray on the plane z_target = 0 at pose `to`: (R^T (l ray - t))_z = 0
+    lam = (R_to[:, 2] @ t_to) / (ray @ R_to[:, 2])
+    X_target = (lam[:, None] * ray - t_to) @ R_to
+    src = camera.project(X_target @ R_from.T + t_from)
+    bad = ~np.all(np.isfinite(src), -1) | (lam <= 0)
+    src = np.where(bad[:, None], -1e4, src).astype(np.float32).reshape(gy.shape + (2,))
+    ux, uy = np.meshgrid(np.arange(W, dtype=np.float32) / step, np.arange(H, dtype=np.float32) / step)
+    up = cv2.remap(src, ux, uy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return up[..., 0].copy(), up[..., 1].copy()
+
+
+def hard_handheld_frames(frames, seed=0, size=(1920, 1080), quality=None, readout=0.6, exposure_time=None, only=None):
+    """(camera, pencil, images, tilts, info): `frames` frames of the printed fan seen by a
+    hand-held camera as a phone or webcam films it, harder than `handheld_frames` in every
+    way the world is: the fan 150-400 mm away and tilted 10-60 deg (drawn per seed), a
+    textured table with boxes around it, occasional fast swings (the hand's path run 2-3x
+    as fast for 4-8 frames), motion blur over each row's exposure (1/60-1/30 s) and a
+    rolling shutter (rows read out over 0.6 of a frame), the exposure stepping by up to
+    +-35 % (auto exposure) every 15-40 frames, defocus drifting between 1 and 2.5 px,
+    sensor noise 3-6 grey levels, each frame JPEG-compressed at quality 50-75, and now and
+    then a hand (a dark blob) over part of the fan for 4-8 frames. Lens k1 -0.2, 30 fps.
+
+    The truth of a frame is the pose at the middle of the exposure of the row through the
+    fan's vertex (the rows above and below it were exposed earlier and later: a rolling
+    shutter bends the fan itself). Seeded: a seed gives the same video.
+
+    `readout`: the rows' readout over the frame interval (0: a global shutter);
+    `exposure_time`: over the frame interval (default drawn in 0.5-1); `only`: the frame
+    indices to render (the others None; the same video otherwise).
+
+    Returns the camera, the pencil, the images ((H, W) uint8 each), the true tilt of each
+    frame [deg], and `info`: per frame dicts (speed, exposure, blur_px, hand, jpeg quality).
+    """
+    import cv2
+
+    from pencilcal.toolkit.camera.model import Camera
+    from pencilcal.toolkit.synth.render import render_frame, render_scene
+    from pencilcal.toolkit.synth.scenarios import default_camera, make_scenario
+
+    rng = np.random.default_rng([int(seed), 2406])
+    c = default_camera("opencv", size)
+    cam = Camera("opencv", c.width, c.height, c.K, [-0.2, 0.05, 0.0, 0.0, 0.0])
+    W, H = cam.width, cam.height
+    dist = float(rng.uniform(150.0, 400.0))
+    tilt0 = float(rng.uniform(20.0, 50.0))  # the hand's tilt channel swings it ~ +-10 deg
+    noise = float(rng.uniform(3.0, 6.0))
+    expo = float(rng.uniform(0.5, 1.0))  # exposure time over the frame interval (1/60-1/30 s at 30 fps)
+    expo = expo if exposure_time is None else float(exposure_time)
+    # the hand's speed along its path: 1, with 2-3x swings of 4-8 frames every 20-45 frames
+    speed = np.ones(frames + 2)
+    k = int(rng.integers(8, 25))
+    while k < frames:
+        n = int(rng.integers(4, 9))
+        speed[k:k + n] = rng.uniform(2.0, 3.0)
+        k += n + int(rng.integers(20, 46))
+    s_at = np.concatenate([[0.0], np.cumsum(speed)])  # path position at the start of each frame
+    fine = 16  # poses per unit of path: the exposure is sampled between them
+    # (the hand's channels take their peak rates over the whole path: never a short one)
+    sc = make_scenario("handheld", frames=int(np.ceil(max(s_at[frames + 1], 120.0) * fine)) + 2, seed=seed, camera=cam,
+                       distance=dist, tilt_deg=tilt0, speed=1.0 / fine)
+
+    def pose(tau):
+        """The pose at time tau [frames] (the path position interpolated from the fine grid)."""
+        i = int(np.floor(tau))
+        s = s_at[i] + (tau - i) * speed[i]
+        f = sc.frames[min(int(round(s * fine)), len(sc.frames) - 1)]
+        return f, np.asarray(f["R_cam_from_target"]), np.asarray(f["t_cam_from_target"])
+
+    # auto exposure: steps of up to +-35 % every 15-40 frames, each settling over 3 frames
+    gain = np.ones(frames)
+    level, k = 1.0, int(rng.integers(15, 41))
+    target = np.ones(frames)
+    while k < frames:
+        level = float(np.clip(level * rng.uniform(0.65, 1.35), 0.6, 1.5))
+        target[k:] = level
+        k += int(rng.integers(15, 41))
+    g = 1.0
+    for i in range(frames):
+        g += 0.5 * (target[i] - g)
+        gain[i] = g
+    blur = 1.75 + 0.75 * np.sin(2 * np.pi * np.arange(frames) / rng.uniform(40, 90) + rng.uniform(0, 2 * np.pi))
+    # hands: episodes of 4-8 frames, a dark ellipse entering from a side over the fan
+    hand = np.zeros(frames, bool)
+    k = int(rng.integers(10, 40))
+    while k < frames:
+        hand[k:k + int(rng.integers(4, 9))] = True
+        k += int(rng.integers(30, 60))
+    quality = [int(rng.integers(50, 76)) for _ in range(frames)] if quality is None else [int(quality)] * frames
+    nsub = 8
+    images, tilts, info = [], [], []
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
+    for i in range(frames):
+        f0, _, _ = pose(i)
+        vy = float(np.clip(f0["vertex_px"][1], 0, H - 1))
+        t_ref = i + readout * vy / H + expo / 2  # the vertex row's mid exposure
+        fr, R0, t0 = pose(t_ref)
+        hand_box = None
+        if hand[i]:
+            # a hand over part of the fan: an ellipse around one spoke's end, dark skin
+            sp = np.asarray(fr["spokes_px"], float).reshape(-1, 2)
+            sp = sp[np.all(np.isfinite(sp), -1)]
+            cx, cy = sp[rng.integers(len(sp))] if len(sp) else (W / 2, H / 2)
+            hand_box = [float(cx), float(cy), rng.uniform(0.06, 0.12) * W, rng.uniform(0.05, 0.09) * W,
+                        rng.uniform(0, np.pi)]  # centre, half axes [px], angle [rad]
+        tilts.append(float(fr["tilt_deg"]))
+        info.append({"speed": float(speed[i]), "exposure": float(gain[i]), "blur_px": float(blur[i]),
+                     "hand": hand_box, "jpeg_quality": quality[i], "distance_mm": dist, "noise": noise,
+                     "exposure_time": expo})
+        if only is not None and i not in only:
+            images.append(None)
+            continue
+        scene = render_scene(cam, R0, t0, sc.sheet, background=sc.backdrop)[..., 0].astype(np.float32)
+        acc = np.zeros((H, W), np.float32)
+        w_row = (np.arange(H, dtype=np.float32) / (H - 1))[:, None]
+        for j in range(nsub):
+            # row y exposed over [i + readout y / (H - 1), + expo]: the maps at the first and
+            # the last row, interpolated between (the pose changes smoothly over a frame)
+            u = expo * (j + 0.5) / nsub
+            (ax, ay), (bx, by) = (_plane_map(cam, *pose(i + u + readout * r)[1:], R0, t0) for r in (0.0, 1.0))
+            mx, my = ax + (bx - ax) * w_row, ay + (by - ay) * w_row
+            acc += cv2.remap(scene, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        lin = acc / nsub
+        if hand_box is not None:
+            cx, cy, ax_, ay_, ang = hand_box
+            dx, dy = xx - cx, yy - cy
+            r2 = ((dx * np.cos(ang) + dy * np.sin(ang)) / ax_) ** 2 + ((-dx * np.sin(ang) + dy * np.cos(ang)) / ay_) ** 2
+            m = cv2.GaussianBlur(np.clip(1.5 - r2, 0, 1).astype(np.float32), (0, 0), 6)
+            lin = lin * (1 - m) + 0.06 * m
+        rs = np.random.default_rng([int(seed), 2407, i])
+        img = render_frame(cam, R0, t0, sc.sheet, scene=lin[..., None].astype(np.float64), noise=noise,
+                           blur_px=float(blur[i]), lighting=0.25, gamma=2.2, exposure=float(gain[i]), rng=rs)
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality[i]])
+        images.append(cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE))
+    return cam, sc.sheet.pencil, images, tilts, info
