@@ -56,11 +56,12 @@ from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, Fusio
                                                combine_estimates, fulcrum_3d, project_cylinder, shaft_axis,
                                                shaft_axis_record, triangulate_rays)
 from pencilcal.toolkit.pencil.sequence_noise import MAX_RUNS, inflation
+from pencilcal.toolkit.pencil.stereo_play import play_covariance, shared_offset_term, shared_ray_cov
 from pencilcal.toolkit.pencil.parallax import vertex_with_parallax
 
 __all__ = ["Fulcrum", "FulcrumPoint", "StereoFulcrum", "SequenceLines", "fulcrum_from_frames", "fulcrum_point",
            "frame_axes", "leave_one_out_points", "pose_arrays", "point_lens_cov", "sequence_lines",
-           "stereo_fulcrum", "play_covariance",
+           "stereo_fulcrum",
            "triangulation_lens_cov", "read_angles"]
 
 # a run's own variance factor above this (a sigma scale of 1.1) fits the axes again with the
@@ -736,10 +737,9 @@ def without_frame(lines, frames, k):
 
 
 def _offset_cov(vf, segments, extra):
-    """(2, 2) [px^2] the part of the vertex's covariance (`vertex.VertexFit.cov`) that the
-    lines' added offset variance `extra` (N,) [px^2] gives (the parallax term), or None
-    where none was added: ``cov (sum n n^T extra / sigma^4) cov`` over the inliers, n each
-    line's unit normal, sigma its sd at the vertex; segments (N, 4) the lines fitted."""
+    """(2, 2) [px^2] the part of the vertex's covariance (`vertex.VertexFit.cov`) that the lines'
+    added offset variance extra (N,) [px^2] gives (the parallax term; None where none):
+    ``cov (sum n n^T extra / sigma^4) cov`` over the inliers (n the normal, sigma the sd)."""
     inl = np.asarray(vf.inliers, bool) & (np.asarray(extra) > 0)
     if not np.any(inl):
         return None
@@ -777,7 +777,6 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
         raise EstimationError("fewer than two lines could be undistorted")
     idx = np.flatnonzero(good)
     vf, parallax, sc_used = vertex_with_parallax(ideal[idx], st[idx], sc[idx], None if par is None else par[idx])
-    # the part of each line's offset variance the parallax term added (the scene's, not the line's)
     extra = sc_used ** 2 - sc[idx] ** 2
     sc = sc.copy()
     sc[idx] = sc_used
@@ -975,7 +974,7 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
         raise EstimationError("the stereo fulcrum needs each view's ray covariance")
     R, t = rig.R_right_from_left, rig.t_right_from_left
     tri = triangulate_rays(left.ray, Cl, right.ray, Cr, R, t)
-    common = play_covariance(tri, _shared_ray_cov(left), R.T @ _shared_ray_cov(right) @ R)
+    common = play_covariance(tri, shared_ray_cov(left), R.T @ shared_ray_cov(right) @ R)
     cov = tri.point_cov + shared_offset_term(tri, common)
     tri = dataclasses.replace(tri, point_cov=cov, point_sigma=np.sqrt(np.trace(cov)))
     if np.any(~(np.asarray(tri.ranges) > 0)):
@@ -998,61 +997,3 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
         fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence, common=common)
     return StereoFulcrum(rig, right, tri, fused, shared, confidence, common_cov=common, **lens)
 
-
-def _shared_ray_cov(fulcrum):
-    """(3, 3) the part of the fulcrum ray's covariance (`Fulcrum.ray_covariance`) that its
-    lines' own sigmas do not give: what the noise its lines' scatter showed and the
-    jackknife added (they raise ray_sigma_deg and leave ray_cov, the fit's, as it was) and
-    the lines' offset term (`Fulcrum.ray_cov_offset`), all of it read as the scene's."""
-    C = fulcrum.ray_covariance()
-    own = np.asarray(fulcrum.ray_cov, float)
-    if fulcrum.ray_cov_offset is not None:
-        own = own - np.asarray(fulcrum.ray_cov_offset, float)
-    out = C - own
-    lam, V = np.linalg.eigh(0.5 * (out + out.T))
-    return (V * np.maximum(lam, 0.0)) @ V.T
-
-
-def play_covariance(tri, shared_left, shared_right):
-    """(3, 3) [length^2] the 3-D offset of the fulcrum that both views' fulcrum rays share
-    (left camera frame), across the line of sight.
-
-    tri: the `cylinder.RayTriangulation` of the rays (its ranges, its point); shared_left,
-    shared_right: (3, 3) the shared part of each unit ray's covariance (`_shared_ray_cov`;
-    the right one in the left camera frame, ``R^T C R``). An instrument's shaft wanders
-    about its fulcrum in its port (the play): each frame's shaft passes the fulcrum off by
-    a 3-D offset, and both views see that one offset, so their fulcrum images move together
-    (a rectified pair's alike); their lines scatter beyond their own sigmas by it. That
-    part of each ray's covariance, times the squared range, is the offset across the line
-    of sight; the two views' are two readings of it and are averaged. Scatter from edges
-    noisier than their sigmas is counted as shared too: across the line of sight a
-    triangulated point's sigma is then that of one view, not of two independent ones."""
-    ranges = np.asarray(tri.ranges, float)
-    out = 0.5 * (ranges[0] ** 2 * np.asarray(shared_left, float) + ranges[1] ** 2 * np.asarray(shared_right, float))
-    out = _across(tri.point) @ out @ _across(tri.point)
-    return 0.5 * (out + out.T)
-
-
-def _across(x):
-    """(3, 3) the projection across the line of sight of the point x (3,) (left camera frame)."""
-    u = normalize(np.asarray(x, float))
-    return np.eye(3) - np.outer(u, u)
-
-
-def shared_offset_term(tri, common):
-    """(3, 3) what a 3-D offset both rays carry (`play_covariance`, covariance `common`, a
-    part of each ray's covariance) adds to the covariance of their meeting point
-    (`cylinder.triangulate_rays`, which takes the rays as independent): the cross terms
-    ``H^-1 (I_l S I_r + I_r S I_l) H^-1`` (I_k each ray's information at the point, H their
-    sum), kept across the line of sight only. Across it the two rays then no longer halve
-    what they share; along it (the depth, from the rays' disparity) the point keeps the
-    covariance of independent rays: on rendered pivots the disparity's errors exceed what
-    the rays' own parts alone would give (edges noisier than their sigmas count in the
-    shared excess too), so the shared term is not taken out of the depth."""
-    info = np.asarray(tri.ray_information, float)
-    H_inv = np.linalg.inv(info[0] + info[1])
-    S = np.asarray(common, float)
-    cross = H_inv @ (info[0] @ S @ info[1] + info[1] @ S @ info[0]) @ H_inv
-    P = _across(tri.point)
-    out = P @ cross @ P
-    return 0.5 * (out + out.T)
