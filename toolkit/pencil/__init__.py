@@ -6,7 +6,8 @@
 - `assign`: labelling unlabelled lines with spokes; `vertex`: their common point;
 - `orient`: one frame from raw segments to an `Orientation` (`orientation`: the record
   and its file); `fulcrum`: a pivoting instrument's fulcrum over a sequence;
-- `cylinder`: a shaft's 3-D axis from its silhouette and the 3-D fulcrum;
+- `cylinder`: a shaft's 3-D axis from its silhouette and the 3-D fulcrum; `stereo_play`: the
+  play two views of a pivot share, in their stereo fulcrum's covariance;
 - `grid`: a pencil of a board's own grid lines; `chapter`, `single_angle`: the book
   chapter's models and its single-angle test;
 - `defaults`: the defaults and thresholds shared by the estimators and detectors.

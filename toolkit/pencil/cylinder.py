@@ -94,6 +94,7 @@ __all__ = [
     "ray_from_image_point",
     "triangulate_rays",
     "combine_estimates",
+    "common_part",
 ]
 
 # Confidence of the chi2 gates (outlier axes in fulcrum_3d, the consistency test of
@@ -845,7 +846,7 @@ class Fusion(_Record):
     p_value: np.ndarray
 
 
-def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None):
+def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None, common=None):
     """Information-weighted fusion of two estimates, and their consistency test.
 
     x1, x2: (..., n) the estimates; C1, C2: (..., n, n) their covariances. shared: None when
@@ -866,6 +867,17 @@ def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None):
     `Fusion`; EstimationError when the shared information exceeds what both estimates hold
     together (the fused covariance is not positive definite).
 
+    common: None, or (..., n, n) the covariance of one error that both estimates carry alike
+    (an offset of the point itself, e.g. a pivoting instrument's play in its port: not
+    data that both hold, which `shared` counts once, but an error no second estimate
+    averages). The point is the one without it (the same weights W_k = cov C_k^-1), and its
+    covariance gains the cross terms ``W1 S W2^T + W2 S W1^T`` (S counted whole where both
+    weigh it, not averaged); S cancels in the difference, so the test is that of C1 - S
+    and C2 - S. S is `common` scaled down where needed (by the largest factor up to 1 that
+    leaves C1 - S and C2 - S positive definite, with a margin of 10 %), so that neither
+    estimate is said to hold less than nothing of its own. EstimationError also where the
+    fused covariance with the cross terms is not positive definite.
+
     >>> f = combine_estimates([0.0, 0, 100], np.eye(3), [0.0, 0, 102], np.eye(3))
     >>> f.point.tolist(), float(f.chi2), bool(f.consistent), f.dof
     ([0.0, 0.0, 101.0], 2.0, True, 3)
@@ -880,6 +892,18 @@ def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None):
     """
     x1, x2 = np.asarray(x1, float), np.asarray(x2, float)
     C1, C2 = np.asarray(C1, float), np.asarray(C2, float)
+    if common is not None:
+        S = common_part(common, C1, C2)
+        f = combine_estimates(x1, C1, x2, C2, confidence, shared)
+        # the same weights, W_k = cov I_k; the error both carry adds W1 S W2^T + W2 S W1^T
+        W1, W2 = f.cov @ np.linalg.inv(C1), f.cov @ np.linalg.inv(C2)
+        cross = W1 @ S @ np.swapaxes(W2, -1, -2)
+        cov = f.cov + cross + np.swapaxes(cross, -1, -2)
+        if np.any(np.linalg.eigvalsh(cov)[..., 0] <= 0):
+            raise EstimationError("combine_estimates: the common error exceeds what the estimates hold")
+        test = combine_estimates(x1, C1 - S, x2, C2 - S, confidence, shared)
+        return Fusion(point=f.point, cov=cov, sigma=np.sqrt(np.trace(cov, axis1=-2, axis2=-1)), chi2=test.chi2,
+                      dof=test.dof, threshold=test.threshold, consistent=test.consistent, p_value=test.p_value)
     I1, I2 = np.linalg.inv(C1), np.linalg.inv(C2)
     if shared is None:
         I_s, h_s = np.zeros_like(I1), np.zeros_like(x1)
@@ -910,3 +934,24 @@ def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None):
     threshold = chi2_isf(1.0 - confidence, dof)
     return Fusion(point=point, cov=cov, sigma=np.sqrt(np.trace(cov, axis1=-2, axis2=-1)), chi2=c2, dof=dof,
                   threshold=threshold, consistent=c2 <= threshold, p_value=chi2_sf(c2, dof))
+
+
+def common_part(common, *covs, margin=0.9):
+    """(..., n, n) the covariance `common` scaled by the largest factor up to 1 that leaves
+    every one of `covs` (..., n, n) less it positive definite, with `margin` of what it
+    could take: the largest generalised eigenvalue of (common, C) is at most `margin`
+    after scaling (`combine_estimates`'s ``common``).
+
+    >>> common_part(np.eye(2), np.eye(2) * 4.0).tolist()
+    [[1.0, 0.0], [0.0, 1.0]]
+    >>> np.round(common_part(np.eye(2), np.diag([4.0, 0.5])), 6).tolist()
+    [[0.45, 0.0], [0.0, 0.45]]
+    """
+    S = np.asarray(common, float)
+    S = 0.5 * (S + np.swapaxes(S, -1, -2))
+    scale = np.ones(S.shape[:-2])
+    for C in covs:
+        W = np.linalg.inv(np.linalg.cholesky(np.asarray(C, float)))
+        top = np.linalg.eigvalsh(W @ S @ np.swapaxes(W, -1, -2))[..., -1]
+        scale = np.minimum(scale, np.where(top > margin, margin / np.maximum(top, 1e-300), 1.0))
+    return S * scale[..., None, None]

@@ -56,6 +56,7 @@ from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, Fusio
                                                combine_estimates, fulcrum_3d, project_cylinder, shaft_axis,
                                                shaft_axis_record, triangulate_rays)
 from pencilcal.toolkit.pencil.sequence_noise import MAX_RUNS, inflation
+from pencilcal.toolkit.pencil.stereo_play import play_covariance, shared_offset_term, shared_ray_cov
 from pencilcal.toolkit.pencil.parallax import vertex_with_parallax
 
 __all__ = ["Fulcrum", "FulcrumPoint", "StereoFulcrum", "SequenceLines", "fulcrum_from_frames", "fulcrum_point",
@@ -135,6 +136,9 @@ class Fulcrum:
     leave-one-out check, where they were decided (`validation.fulcrum_run`); None otherwise.
     parallax: where the lines carry parallax scales (stabilised shafts), the record of the
     parallax term their covariances took (`vertex_with_parallax`); None otherwise.
+    ray_cov_offset (3, 3): the part of ray_cov that term gave (an offset of every line at
+    the vertex, the scene's rather than each line's own: `stereo_fulcrum` takes it as
+    shared by two views); None where the lines took none.
     """
 
     vertex_px: np.ndarray | None
@@ -158,6 +162,7 @@ class Fulcrum:
     noise: dict | None = None
     jackknife: dict | None = None
     parallax: dict | None = None
+    ray_cov_offset: np.ndarray | None = None
 
     def ray_covariance(self):
         """(3, 3) covariance of the unit `ray` (camera frame), singular along it, with the
@@ -731,6 +736,20 @@ def without_frame(lines, frames, k):
                          None if lines.parallax is None else lines.parallax[keep])
 
 
+def _offset_cov(vf, segments, extra):
+    """(2, 2) [px^2] the part of the vertex's covariance (`vertex.VertexFit.cov`) that the lines'
+    added offset variance extra (N,) [px^2] gives (the parallax term; None where none):
+    ``cov (sum n n^T extra / sigma^4) cov`` over the inliers (n the normal, sigma the sd)."""
+    inl = np.asarray(vf.inliers, bool) & (np.asarray(extra) > 0)
+    if not np.any(inl):
+        return None
+    d = segments[inl, 2:] - segments[inl, :2]
+    n = np.stack([-d[:, 1], d[:, 0]], -1) / np.linalg.norm(d, axis=-1, keepdims=True)
+    w = np.asarray(extra)[inl] / np.asarray(vf.sigmas, float)[inl] ** 4
+    M = np.einsum("k,ki,kj->ij", w, n, n)
+    return vf.cov @ M @ vf.cov
+
+
 def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_SIGMA_PX, intrinsics_cov="camera",
                         shaft_diameter=None, lines=None, raw_px=True):
     """The fulcrum (and with `angles` the pivot plane) from the lines of a sequence.
@@ -758,6 +777,7 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
         raise EstimationError("fewer than two lines could be undistorted")
     idx = np.flatnonzero(good)
     vf, parallax, sc_used = vertex_with_parallax(ideal[idx], st[idx], sc[idx], None if par is None else par[idx])
+    extra = sc_used ** 2 - sc[idx] ** 2
     sc = sc.copy()
     sc[idx] = sc_used
     inl = np.zeros(len(seg), bool)
@@ -775,13 +795,15 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
     P = (np.eye(3) - np.outer(v, v) / (v @ v))[:, :2] / np.linalg.norm(v)
     ray_cov = P @ cov_x @ P.T
     ray_sigma = np.sqrt(max(np.trace(ray_cov), 0.0))
+    off = _offset_cov(vf, ideal[idx], extra)
     v_raw, cov_raw = raw_vertex(camera, x, vf.vertex, vf.cov) if raw_px else (None, None)
     out = Fulcrum(
         vertex_px=v_raw, vertex_cov_px2=cov_raw, ray=ray, ray_sigma_deg=float(np.degrees(ray_sigma)),
         lines_used=int(vf.lines_used),
         outliers=[{"image": frames[owner[k][0]].get("image"), "segment": owner[k][1]} for k in np.flatnonzero(~inl)],
         frames_used=int(len({owner[k][0] for k in np.flatnonzero(inl)})), rms=vf.rms, lines_from=lines_from,
-        warnings=tuple(warnings), ray_cov=ray_cov, parallax=parallax)
+        warnings=tuple(warnings), ray_cov=ray_cov, parallax=parallax,
+        ray_cov_offset=None if off is None else P @ (A @ off @ A.T) @ P.T)
     C = resolve_intrinsics_cov(camera, intrinsics_cov)
     if C is not None:
         k_in = idx[vf.inliers]
@@ -844,7 +866,9 @@ class StereoFulcrum:
     the diameter point's, the two were fused as independent). lens_cov (3, 3): the
     intrinsics' term of the triangulated point's covariance (`triangulation_lens_cov`)
     from the views in lens_views ("left", "right": those whose camera carried an
-    intrinsics covariance), None when neither did.
+    intrinsics covariance), None when neither did. common_cov (3, 3): the 3-D offset both
+    views' rays share (`play_covariance`), in the triangulated and the combined point's
+    covariances whole.
     """
 
     rig: object
@@ -855,6 +879,7 @@ class StereoFulcrum:
     confidence: float = GATE_CONFIDENCE
     lens_cov: np.ndarray | None = None
     lens_views: tuple = ()
+    common_cov: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         """fulcrum.json's ``stereo`` record: the rig (``file``, ``R_right_from_left``,
@@ -873,6 +898,8 @@ class StereoFulcrum:
                                "point_sigma": float(t.point_sigma), "ranges": np.asarray(t.ranges, float).tolist(),
                                "ray_distances": np.asarray(t.distances, float).tolist(), "chi2": float(t.chi2),
                                "dof": 1, "p_value": chi2_sf(float(t.chi2), 1)}
+        if self.common_cov is not None:
+            out["triangulated"]["point_cov_shared"] = np.asarray(self.common_cov, float).tolist()
         if self.lens_cov is not None:
             total = np.asarray(t.point_cov, float) + np.asarray(self.lens_cov, float)
             out["triangulated"].update({"point_cov_total": total.tolist(),
@@ -901,7 +928,8 @@ def triangulation_lens_cov(tri, lens_left, lens_right):
     ``H^-1 (sum_k rho_k^2 I_k C_k I_k) H^-1``; with a ray's noise covariance in place of
     C_k the same sum is H^-1, the noise-only covariance.
     """
-    H_inv = np.asarray(tri.point_cov, float)
+    # the rays' own information: point_cov may hold an offset both rays share (`stereo_fulcrum`)
+    H_inv = np.linalg.inv(np.sum(np.asarray(tri.ray_information, float), axis=0))
     M = np.zeros((3, 3))
     for k, C in enumerate((lens_left, lens_right)):
         if C is not None:
@@ -920,7 +948,10 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     R_right_from_left p_left + t_right_from_left``). The point is the weighted least-squares
     meeting of the two rays (`cylinder.triangulate_rays`: each ray's angular covariance
     times its range, iterated), in the left camera frame and the rig's length unit, with
-    its covariance and the chi2 (1 dof) of the rays' miss.
+    its covariance and the chi2 (1 dof) of the rays' miss. The rays meet with their own
+    parts (what their lines' sigmas give) and the point's covariance gains the 3-D offset
+    both rays share (`play_covariance`: the scatter beyond the lines' sigmas, which the
+    instrument's play in its port gives both views alike), whole.
 
     When `left` has its diameter-based point (`FulcrumPoint`, lengths in the diameter's
     unit, which must be the rig's), the two are compared and fused
@@ -929,7 +960,9 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     so the left ray's information (`RayTriangulation.ray_information`) is passed as
     shared: the agreement chi2 (3 dof) then tests the depth from the shaft's width against
     the depth from the baseline and the right view, and the fusion counts the left ray
-    once. confidence: of the agreement test. With either view's intrinsics' term
+    once; the shared offset is passed as ``common`` (an error both carry: the port's play
+    moves the diameter-based point as it moves the rays), so the fused covariance does not
+    average it. confidence: of the agreement test. With either view's intrinsics' term
     (`Fulcrum.ray_cov_lens`, the camera file's intrinsics covariance) the triangulated
     point's covariance gains it too (`triangulation_lens_cov`, ``StereoFulcrum.lens_cov``);
     the agreement and the fusion keep the noise-only covariances (the diameter-based point
@@ -941,6 +974,9 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
         raise EstimationError("the stereo fulcrum needs each view's ray covariance")
     R, t = rig.R_right_from_left, rig.t_right_from_left
     tri = triangulate_rays(left.ray, Cl, right.ray, Cr, R, t)
+    common = play_covariance(tri, shared_ray_cov(left), R.T @ shared_ray_cov(right) @ R)
+    cov = tri.point_cov + shared_offset_term(tri, common)
+    tri = dataclasses.replace(tri, point_cov=cov, point_sigma=np.sqrt(np.trace(cov)))
     if np.any(~(np.asarray(tri.ranges) > 0)):
         raise EstimationError("the two views' fulcrum rays meet behind a camera (ranges {:.3g}, {:.3g}): check the "
                               "stereo file's R and T (right from left)".format(*np.asarray(tri.ranges, float)))
@@ -950,13 +986,14 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
         lens["lens_cov"] = triangulation_lens_cov(tri, left.ray_cov_lens, None if right.ray_cov_lens is None
                                                   else R.T @ np.asarray(right.ray_cov_lens, float) @ R)
     if left.point is None:
-        return StereoFulcrum(rig, right, tri, confidence=confidence, **lens)
+        return StereoFulcrum(rig, right, tri, confidence=confidence, common_cov=common, **lens)
     fit = left.point.fit
     shared = True
     try:
         fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence,
-                                  shared=(tri.ray_information[0], tri.ray_information_vector[0]))
+                                  shared=(tri.ray_information[0], tri.ray_information_vector[0]), common=common)
     except EstimationError:
         shared = False
-        fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence)
-    return StereoFulcrum(rig, right, tri, fused, shared, confidence, **lens)
+        fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence, common=common)
+    return StereoFulcrum(rig, right, tri, fused, shared, confidence, common_cov=common, **lens)
+
