@@ -5,7 +5,8 @@ then `RANDOM_HALVES` random halves) and solves each half alone: the same corners
 model and board warp as the full calibration, started from its solution, each half's
 covariance from the same corner-noise model (`toolkit.board.bundle.covariance`). Where
 the calibration keeps the printed board's own corner offsets (`toolkit.board.
-print_errors`), both halves saw them: each half's covariance gains its share and the two
+print_errors`) or a correlated corner error fixed in the image (`toolkit.board.
+image_field`), both halves saw them: each half's covariance gains its share and the two
 halves' errors their covariance, so the difference holds only what differs between their
 views' gains. Two calibrations of one camera must agree within their covariances:
 
@@ -44,6 +45,7 @@ import math
 
 import numpy as np
 
+from pencilcal.toolkit.board import image_field
 from pencilcal.toolkit.board.bundle import camera_parts, covariance, penalty_normal, refine, warp_basis
 from pencilcal.toolkit.board.corner_noise import WHITE
 from pencilcal.toolkit.board.coverage import covered_grid
@@ -96,9 +98,9 @@ def _solve_half(result, views, subset):
     w = None if result.weights is None else [result.weights[j] for j in subset]
     half = refine(result.layout, sol.theta, sol.poses[subset], o, p, b if result.layout.warp else None, warp=sol.warp,
                   weights=w)
-    pr = result.print_errors
+    pr, fd = result.print_errors, getattr(result, "image_field", None)
     cov = covariance(result.layout, half, o, p, b if result.layout.warp else None, _noise_of(result), w,
-                     shared=pr if pr is not None and pr.kept else None)
+                     shared=pr if pr is not None and pr.kept else None, field=fd if fd is not None and fd.kept else None)
     return half, cov
 
 
@@ -204,32 +206,46 @@ def halves_agreement(camera_a, cov_a, camera_b, cov_b, grid, cross=None):
     return rec
 
 
-def _print_gains(result, views, detections):
-    """Each used view's `print_errors.gains` at the calibration's solution, or None when the
-    printed board's corner offsets are not in its model."""
+def _shared_gains(result, views, detections):
+    """Each used view's gains at the calibration's solution of the errors all views share:
+    (`print_errors.gains` or None when the printed board's corner offsets are not in its
+    model, `image_field.gains` or None without an image-fixed field)."""
     from pencilcal.toolkit.board.bundle import view_jacobians
 
-    pr = result.print_errors
-    if pr is None or not pr.kept or result.solution is None:
-        return None
+    pr, fd = result.print_errors, getattr(result, "image_field", None)
+    prints, field = pr is not None and pr.kept, fd is not None and fd.kept
+    if not (prints or field) or result.solution is None:
+        return None, None
     idx, objs, imgs, bases = views
-    ids = [np.asarray(detections[i].ids, int).ravel()[np.asarray(result.corner_used[i], bool)] for i in idx]
-    n = int(max(int(i.max()) for i in ids if i.size) + 1)
     jac = view_jacobians(result.layout, result.solution, objs, imgs, bases if result.layout.warp else None)
-    return view_gains(jac, ids, n, result.weights)
+    pg = fg = None
+    if prints:
+        ids = [np.asarray(detections[i].ids, int).ravel()[np.asarray(result.corner_used[i], bool)] for i in idx]
+        n = int(max(int(i.max()) for i in ids if i.size) + 1)
+        pg = view_gains(jac, ids, n, result.weights)
+    if field:
+        fg = image_field.view_gains(jac, imgs, result.camera.size, fd.length_px, result.weights)
+    return pg, fg
 
 
 def _shared(result, gains, first, second):
-    """(the printed corners' share of each half's covariance (P, P) x 2, their cross
-    covariance (P, P)), linearised at the full calibration; None without them."""
-    if gains is None:
+    """(the shared errors' part of each half's covariance (P, P) x 2, their cross
+    covariance (P, P)): the printed corners' and the image-fixed field's, linearised at
+    the full calibration; None without them."""
+    if gains is None or all(g is None for g in gains):
         return None
     T = result.layout.transform(result.solution.theta)
     P = T.shape[0]
     prior = penalty_normal(result.layout, result.solution.theta)
-    Ga, Gb = intrinsic_gain(gains, first, T, prior)[:P], intrinsic_gain(gains, second, T, prior)[:P]
-    pr = result.print_errors
-    return covariance_term(Ga, Ga, pr), covariance_term(Gb, Gb, pr), covariance_term(Ga, Gb, pr)
+    out = np.zeros((3, P, P))
+    for g, term in zip(gains, (lambda a, b: covariance_term(a, b, result.print_errors),
+                               lambda a, b: image_field.covariance_term(a, b, result.image_field,
+                                                                        result.camera.size))):
+        if g is None:
+            continue
+        Ga, Gb = intrinsic_gain(g, first, T, prior)[:P], intrinsic_gain(g, second, T, prior)[:P]
+        out += [term(Ga, Ga), term(Gb, Gb), term(Ga, Gb)]
+    return out[0], out[1], out[2]
 
 
 def _split(result, views, grid, first, size, gains=None):
@@ -276,12 +292,12 @@ def calibration_halves(result, detections, board, repeats=RANDOM_HALVES, seed=0)
     size = result.camera.size
     grid = covered_grid(views[2], size)
     n = len(views[0])
-    gains = _print_gains(result, views, detections)
+    gains = _shared_gains(result, views, detections)
     odd_even = _split(result, views, grid, list(range(0, n, 2)), size, gains)
     maps = odd_even.pop("_maps")
     out = {"method": "halves solved apart with the calibration's corners, lens model, board warp and corner-noise "
-                     "model, the printed board's corner offsets shared by both; projection differences over the "
-                     "covered region, up to the rotation that aligns them",
+                     "model, the printed board's corner offsets and the corners' image-fixed error shared by "
+                     "both; projection differences over the covered region, up to the rotation that aligns them",
            "odd_even": odd_even}
     recs = []
     if repeats:

@@ -467,7 +467,7 @@ def fit_pose(layout, theta, warp, pose, obj, img, basis=None, max_iterations=30,
     return (rvec, tvec), r.reshape(-1, 2)
 
 
-def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=None, shared=None):
+def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=None, shared=None, field=None):
     """The covariance of `refine`'s estimate.
 
     noise : None for white corner errors of one level, estimated from all residuals
@@ -485,6 +485,11 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=Non
         but they are common to every view and enter that covariance as their own term
         (`print_errors.covariance_term`), not here. The poses' covariance and sigma_w keep
         the whole level (each pose sees the offsets once, as noise of its own).
+    field : the correlated error fixed in the image (`image_field.ImageField`) or None.
+        Where kept, its share of the correlated part leaves each view's own in the
+        intrinsics' and warp's covariance (``c (1 - share)``): it is one error every view
+        sees, carried as its own term (`image_field.covariance_term`). The poses' keep the
+        whole correlated part.
 
     Returns a `Covariance`; its intrinsics and warp blocks are inf where the problem is
     singular.
@@ -530,6 +535,8 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=Non
     except np.linalg.LinAlgError:
         Si = np.full((G, G), np.inf)
     s2, mids, sig_e = [], [], []
+    own_ratio = 0.0 if noise is None else noise.ratio * (1.0 - (field.share if field is not None and field.kept
+                                                                 else 0.0))
     for r, Jg, Jp, Ci, PJ, img, g, share in views:
         K = img.shape[0]
         k = kernel(img, noise.length_px) if noise is not None and noise.ratio > 0 else None
@@ -545,7 +552,7 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=Non
         M = max(1.0 - share / level, _MIN_OWN_SHARE) * (GP.T @ GP) if share else GP.T @ GP
         if k is not None:
             P3 = GP.reshape(K, 2, -1)
-            M = M + noise.ratio * np.einsum("kbp,kbq->pq", P3, np.einsum("kl,lbq->kbq", k, P3))
+            M = M + own_ratio * np.einsum("kbp,kbq->pq", P3, np.einsum("kl,lbq->kbq", k, P3))
         mids.append(M)
         sig_e.append(None if k is None else noise.ratio * k)
     if np.all(np.isfinite(Si)):

@@ -64,7 +64,9 @@ from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.board.bundle import WARP_NAMES, Layout, camera_parts, corner_views, covariance, \
     fit_pose, penalty_normal, refine, theta_of, view_residuals, warp_basis
 from pencilcal.toolkit.board.corner_noise import fit_corner_noise, variance_factor
-from pencilcal.toolkit.board.print_errors import covariance_term, fit_print_errors, intrinsic_gain, view_gains
+from pencilcal.toolkit.board import image_field
+from pencilcal.toolkit.board.print_errors import covariance_term, fit_print_errors, intrinsic_gain, view_gains, \
+    white_variances
 from pencilcal.toolkit.board.detect import BoardDetection
 from pencilcal.toolkit.board.calibration_file import SYMMETRIC_KEY
 from pencilcal.toolkit.board.model_choice import CANDIDATES, SPLINED, choose_model, chosen_score, splined_start
@@ -175,6 +177,11 @@ class CalibrationResult:
         With ``corner_noise=True``: the printed board's own corner offsets, shared by all
         views (`toolkit.board.print_errors`), measured on the residuals; where kept, their
         share is in ``covariance``'s intrinsics and warp blocks (not in the poses').
+    image_field : ImageField or None
+        With ``corner_noise=True``: the part of the correlated corner error that is fixed in
+        the image, the same in every view (`toolkit.board.image_field`), measured on the
+        residuals; where kept, it is one term of ``covariance``'s intrinsics and warp
+        blocks instead of each view's own noise.
     """
 
     camera: Camera
@@ -201,6 +208,7 @@ class CalibrationResult:
     checks: object = None
     weights: list | None = None
     print_errors: object = None
+    image_field: object = None
 
     @property
     def views_used(self) -> int:
@@ -228,6 +236,7 @@ class CalibrationResult:
                "fit_weights": "uniform" if self.weights is None else "corner_noise",
                "board_warp": self.warp,
                "board_corners": None if self.print_errors is None else self.print_errors.to_dict(),
+               "image_field": None if self.image_field is None else self.image_field.to_dict(),
                "model_choice": None if self.model_choice is None else self.model_choice.to_dict(),
                "camera": camera_to_dict(self.camera),
                "counts": {"views": n, "views_skipped": sum(1 for r in self.rejected if r["stage"] == "skipped"),
@@ -689,11 +698,11 @@ def _final(layout, board, detections, objs, imgs, used, masks, theta, poses, ima
     if corner_noise:
         sol, noise, weights = _reweighted(layout, sol, o, p, bases, image_size)
     cov = covariance(layout, sol, o, p, bases, noise, weights)
-    prints = None
+    prints, field = None, None
     if corner_noise:
-        cov, prints = _with_print_errors(layout, sol, cov, o, p, bases,
-                                         [_ids(detections[i], masks[i]) for i in used], obj_all.shape[0], noise,
-                                         weights)
+        cov, prints, field = _with_shared_errors(layout, sol, cov, o, p, bases,
+                                                 [_ids(detections[i], masks[i]) for i in used], obj_all.shape[0],
+                                                 noise, weights, image_size)
     K, dist = camera_parts(sol.theta, layout)
     names = model_intrinsic_names(layout.model, layout.n_coef)
     sd = np.sqrt(np.clip(np.diag(cov.intrinsics), 0, None))
@@ -733,6 +742,8 @@ def _final(layout, board, detections, objs, imgs, used, masks, theta, poses, ima
         meta["board_warp"] = warp_rec
     if prints is not None:
         meta["board_corners"] = prints.to_dict()
+    if field is not None:
+        meta["image_field"] = field.to_dict()
     camera = Camera(layout.model, image_size[0], image_size[1], K, dist, meta=meta)
     used_set = set(used)
     return CalibrationResult(camera=camera, rms_px=rms, per_view_rms=per_view_rms, std_intrinsics=std_intr,
@@ -741,7 +752,7 @@ def _final(layout, board, detections, objs, imgs, used, masks, theta, poses, ima
                              corner_used=corner_used, model=layout.model, coefficients=layout.n_coef,
                              flags=flag_names, rounds=rounds, cov_intrinsics=cov_full, corner_noise=noise,
                              warp=warp_rec, layout=layout, solution=sol, covariance=cov, weights=weights,
-                             print_errors=prints)
+                             print_errors=prints, image_field=field)
 
 
 def _ids(det, mask):
@@ -749,24 +760,36 @@ def _ids(det, mask):
     return np.asarray(det.ids, int).ravel()[np.asarray(mask, bool)]
 
 
-def _with_print_errors(layout, sol, cov, o, p, bases, ids, n_corners, noise, weights):
-    """The printed board's corner offsets (`print_errors`) measured on the calibration's
-    residuals (weighted by the views' levels in `cov`); where kept, the covariance again
-    with their share taken out of the views' white levels (`bundle.covariance`'s shared)
-    and ``G diag(var) G^T`` added to its intrinsics, warp and cross blocks. Returns (the
-    covariance, the `PrintErrors`)."""
+def _with_shared_errors(layout, sol, cov, o, p, bases, ids, n_corners, noise, weights, image_size):
+    """The errors every view shares, measured on the calibration's residuals (weighted by
+    the views' levels in `cov`): the printed board's corner offsets (`print_errors`) and the
+    correlated error fixed in the image (`image_field`). Where either is kept, the
+    covariance again with its share taken out of the views' own noise (`bundle.covariance`'s
+    shared and field) and its term (``G diag(var) G^T``, ``G K G^T tau^2``) added to the
+    intrinsics, warp and cross blocks. Returns (the covariance, the `PrintErrors`, the
+    `ImageField`)."""
     prints, jac = fit_print_errors(layout, sol, o, p, bases, ids, n_corners, cov.sigma_w, noise)
-    if prints.kept and np.all(np.isfinite(cov.intrinsics)):
-        cov = covariance(layout, sol, o, p, bases, noise, weights, shared=prints)
-        G = intrinsic_gain(view_gains(jac, ids, n_corners, weights), range(len(o)), layout.transform(sol.theta),
-                           penalty_normal(layout, sol.theta))
-        extra = covariance_term(G, G, prints)
+    white = [white_variances(noise, np.asarray(img, float), A, sol.theta, s)
+             for (_, _, _, A), img, s in zip(jac, p, cov.sigma_w)]
+    field = image_field.fit_image_field(noise, p, [j[0] for j in jac], white)
+    if (prints.kept or field.kept) and np.all(np.isfinite(cov.intrinsics)):
+        cov = covariance(layout, sol, o, p, bases, noise, weights, shared=prints if prints.kept else None,
+                         field=field if field.kept else None)
+        T, prior = layout.transform(sol.theta), penalty_normal(layout, sol.theta)
+        extra = 0.0
+        if prints.kept:
+            G = intrinsic_gain(view_gains(jac, ids, n_corners, weights), range(len(o)), T, prior)
+            extra = extra + covariance_term(G, G, prints)
+        if field.kept:
+            G = intrinsic_gain(image_field.view_gains(jac, p, image_size, field.length_px, weights), range(len(o)),
+                               T, prior)
+            extra = extra + image_field.covariance_term(G, G, field, image_size)
         P = cov.intrinsics.shape[0]
         cov.intrinsics = cov.intrinsics + extra[:P, :P]
         if layout.warp:
             cov.warp = cov.warp + extra[P:, P:]
             cov.cross = cov.cross + extra[:P, P:]
-    return cov, prints
+    return cov, prints, field
 
 
 def noise_weights(noise, views):

@@ -48,7 +48,8 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["PrintErrors", "NONE", "estimate", "board_residuals", "gains", "intrinsic_gain", "covariance_term",
-           "fit_print_errors", "view_gains"]
+           "fit_print_errors", "view_gains", "projected",
+           "white_variances"]
 
 # an axis's variance is kept when it exceeds this many of its sigmas (a one-sided 2.3 % test)
 _KEEP_Z = 2.0
@@ -134,14 +135,24 @@ def gains(Jg, Jp, A, ids, n_corners, w=None):
     = d pixel / d board (x, y), the corners' ids (K,) and weights w (K,) (None: 1). The pose
     is projected out as in `bundle.covariance`."""
     K = A.shape[0]
-    sw = np.ones(2 * K) if w is None else np.repeat(np.sqrt(np.asarray(w, float)), 2)
-    Jg, Jp = Jg * sw[:, None], Jp * sw[:, None]
-    PJ = Jg - Jp @ (np.linalg.pinv(Jp.T @ Jp) @ (Jp.T @ Jg))
+    S, PJw = projected(Jg, Jp, w)
     # the residual moves by A e: the right side by PJ^T (sw A e), corner by corner
-    h = np.einsum("kag,kab->gkb", (PJ * sw[:, None]).reshape(K, 2, -1), np.asarray(A, float))
+    h = np.einsum("kag,kab->gkb", PJw.reshape(K, 2, -1), np.asarray(A, float))
     H = np.zeros((Jg.shape[1], int(n_corners), 2))
     np.add.at(H, (slice(None), np.asarray(ids, int)), h)
-    return Jg.T @ PJ, H.reshape(Jg.shape[1], -1)
+    return S, H.reshape(Jg.shape[1], -1)
+
+
+def projected(Jg, Jp, w=None):
+    """(the view's Schur block Jg^T P Jg (G, G), d (the normal equations' right side) / d
+    (the corners' pixel errors) transposed (2K, G)) of a weighted least-squares fit with
+    the pose projected out: Jg (2K, G), Jp (2K, 6) the predictions' Jacobians, w (K,) the
+    corners' weights (None: 1)."""
+    K2 = Jg.shape[0]
+    sw = np.ones(K2) if w is None else np.repeat(np.sqrt(np.asarray(w, float)), 2)
+    Jg, Jp = Jg * sw[:, None], Jp * sw[:, None]
+    PJ = Jg - Jp @ (np.linalg.pinv(Jp.T @ Jp) @ (Jp.T @ Jg))
+    return Jg.T @ PJ, PJ * sw[:, None]
 
 
 def intrinsic_gain(parts, subset, T, prior=None):
@@ -166,7 +177,7 @@ def covariance_term(Ga, Gb, errors):
     return (Ga * var) @ Gb.T
 
 
-def _white(noise, img, A, theta, sigma_w):
+def white_variances(noise, img, A, theta, sigma_w):
     """(K,) each corner's white variance per image axis [px^2] under the corner-noise model."""
     from pencilcal.toolkit.board.corner_noise import variance_factor
 
@@ -186,7 +197,7 @@ def fit_print_errors(layout, solution, objs, imgs, bases, ids, n_corners, sigma_
     jac = view_jacobians(layout, solution, objs, imgs, bases if layout.warp else None)
     views = []
     for (r, _, _, A), img, i, s in zip(jac, imgs, ids, sigma_w):
-        e, v = board_residuals(r, A, _white(noise, np.asarray(img, float), A, solution.theta, s))
+        e, v = board_residuals(r, A, white_variances(noise, np.asarray(img, float), A, solution.theta, s))
         # each view's pose absorbs 6 of its 2K residual dimensions: the offsets' share of a
         # residual is (1 - 6 / 2K) of theirs on average (the leverage); the Monte Carlo of
         # tests/toolkit/board/test_print_errors.py measured the variance 6 % low without this

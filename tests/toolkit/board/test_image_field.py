@@ -1,0 +1,76 @@
+"""A correlated corner error fixed in the image: measured between the views, kept only where
+resolved, and carried as one error in the intrinsics' covariance and shared by two halves.
+
+Synthetic views (`synthetic_detections` of a 12 x 9 chessboard of 4.77 mm through a 960x540
+endoscope-like lens, white detector noise of 0.25 px) plus one smooth error field over the
+image (squared-exponential, 0.3 px at 100 px), the same in every view.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pencilcal.toolkit.board import image_field as imf
+from pencilcal.toolkit.board.calibrate import calibrate
+from pencilcal.toolkit.board.corner_noise import kernel
+from pencilcal.toolkit.board.detect import BoardDetection
+from pencilcal.toolkit.board.spec import board_from_dict
+from pencilcal.toolkit.board.synthetic import synthetic_detections
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.validation.calibration_checks import calibration_halves
+
+BOARD = board_from_dict({"type": "chessboard", "squares": [12, 9], "square": 4.77})
+LENS = Camera("opencv", 960, 540, [[560.0, 0, 482.0], [0, 560.0, 268.0], [0, 0, 1]],
+              [-0.32, 0.12, 0.0005, -0.0003, -0.02])
+
+
+def _field(seed, sigma=0.3, length=100.0):
+    """A smooth field over the image [px] (random Fourier features of a squared exponential)."""
+    rng = np.random.default_rng([seed, 11])
+    W = rng.normal(size=(300, 2)) / length
+    b = rng.uniform(0, 2 * np.pi, 300)
+    a = rng.normal(size=(300, 2)) * sigma * math.sqrt(2.0 / 300)
+    return lambda u: np.cos(u @ W.T + b) @ a
+
+
+def _calibrate(seed, sigma=0.3, views=24):
+    dets = synthetic_detections(LENS, BOARD, views=views, noise_px=0.25, seed=seed, tilt_deg=50, warp=(0.0, 0.05))
+    f = _field(seed, sigma)
+    sim = [BoardDetection(d.ids, d.corners + f(np.asarray(d.corners, float)), d.image_size, d.marker_ids,
+                          d.marker_corners) for d in dets]
+    return sim, calibrate(sim, BOARD, LENS.size, warp=True, corner_noise=True, outlier_view_sigma=0,
+                          outlier_corner_sigma=0)
+
+
+def test_the_share_is_measured_between_views():
+    """One field every view sees: share 1; each view a field of its own: none kept."""
+    rng = np.random.default_rng(0)
+    pts = [rng.uniform(0, 400, (60, 2)) for _ in range(20)]
+    grid = rng.uniform(0, 400, (400, 2))
+    L = np.linalg.cholesky(kernel(grid, 80.0) + 1e-9 * np.eye(400))
+    near = [np.argmin(((grid[None] - p[:, None]) ** 2).sum(-1), 1) for p in pts]
+    f = L @ rng.normal(size=(400, 2))
+    shared = imf.estimate(pts, [f[i] + rng.normal(0, 1.0, (60, 2)) for i in near], 80.0)
+    assert shared.share > 0.7 and shared.between > 2 * shared.between_std, shared
+    own = imf.estimate(pts, [L[i] @ rng.normal(size=(400, 2)) + rng.normal(0, 1.0, (60, 2)) for i in near], 80.0)
+    assert own.share == 0.0 and abs(own.between) < 3 * own.between_std, own
+
+
+def test_a_shared_field_widens_the_sigmas_and_the_halves_share_it():
+    """The field is measured on the residuals and is one term of the intrinsics' covariance:
+    the sigmas cover the truth (the per-view model reads it as each view's own noise, which
+    averages out over the views), and two halves' difference does not hold it."""
+    dets, res = _calibrate(3)
+    fd = res.image_field
+    assert fd.kept and fd.share > 0.5, fd
+    assert res.to_dict()["image_field"]["kept"] and "image_field" in res.camera.meta
+    est = np.r_[res.camera.fx, res.camera.fy, res.camera.cx, res.camera.cy]
+    z = (est - np.r_[LENS.fx, LENS.fy, LENS.cx, LENS.cy]) / np.array([res.std_intrinsics[n]
+                                                                      for n in ("fx", "fy", "cx", "cy")])
+    assert np.all(np.abs(z) < 3.0), z
+    cv = calibration_halves(res, dets, BOARD, repeats=3)
+    assert 0.3 < cv["pooled"]["chi2_per_dof"] < 2.0, cv["pooled"]
+    # white noise alone: nothing shared is kept
+    _, flat = _calibrate(4, sigma=0.0)
+    assert not (flat.image_field is not None and flat.image_field.kept)
