@@ -443,9 +443,10 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     unit, mm as the board and pencil files have them) every shaft's two silhouette edges
     give its 3-D axis (the band's width fixes its depth), and the fulcrum is also the
     robust weighted least-squares point closest to all the axes: point [x, y, z] (camera
-    frame), point_cov, point_sigma (the RMS 3-D error its covariance predicts; with the
-    intrinsics' covariance in the camera file also point_cov_total and point_sigma_total),
-    and the axes that pass far from it named in point_outliers. Its lines must be shafts
+    frame), point_cov, point_sigma (the RMS 3-D error its covariance predicts, the edges'
+    width error that one sequence shares included: point_width_sd, its relative sd of the
+    depth; with the intrinsics' covariance in the camera file also point_cov_total and
+    point_sigma_total), and the axes that pass far from it named in point_outliers. Its lines must be shafts
     with their edges' covariance (lines --shaft).
 
     With --right IMAGES (frames of a second camera rigidly fixed to the first: a stereo

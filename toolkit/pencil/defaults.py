@@ -8,7 +8,7 @@ from statistics import NormalDist
 
 import numpy as np
 
-__all__ = ["ENDPOINT_SIGMA_PX", "MIN_ENDPOINT_SIGMA_PX", "DETECTION_LEVEL", "CHI2_2_DETECTION", "CHI2_1_99", "MAX_VERTEX", "MIN_COS"]
+__all__ = ["ENDPOINT_SIGMA_PX", "MIN_ENDPOINT_SIGMA_PX", "EDGE_WIDTH_SD_PX", "DETECTION_LEVEL", "CHI2_2_DETECTION", "CHI2_1_99", "MAX_VERTEX", "MIN_COS"]
 
 # Noise of a line segment's end point, per coordinate [px], when nothing better is known:
 # the default of orient, fulcrum and the plain segment detector. A segment of length L then
@@ -18,6 +18,15 @@ ENDPOINT_SIGMA_PX = 0.5
 #: line detectors do not localise better, and exact (synthetic) lines would otherwise get
 #: sigmas of zero (`sequence_noise`).
 MIN_ENDPOINT_SIGMA_PX = 0.01
+#: The sd [px] of a shaft band's width error that the edges' own covariances do not hold: the
+#: silhouette's place on a shaded limb depends on the shaft's material, its light and the
+#: background beside it, which one sequence shares, so the error is one for all its frames and
+#: does not average out. The RMS of the step edges' width error on shaded renders of an 8 mm
+#: shaft (matte, glossy, dark and bright metal over a bright and a dark background, 20, 40,
+#: 80, 120 and 150 mm away, blur 0.7-1.5 px, two renders each: 80 bands of 28-208 px; from
+#: +2 % to -15 %, in pixels +0.6 to -4.7). The 3-D fulcrum's depth scales with it
+#: (`band_width.point_width_cov`).
+EDGE_WIDTH_SD_PX = 1.8
 
 # --------------------------------------------------------------- the exact estimator's tests
 #: Level of the frontal likelihood-ratio test: a pencil's tilt is declared detectable when

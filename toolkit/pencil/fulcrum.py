@@ -46,7 +46,8 @@ from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.estimator import check_vertex, fit_pencil
 from pencilcal.toolkit.geometry.frames import normalize
 from pencilcal.toolkit.geometry.quantiles import chi2_sf
-from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
+from pencilcal.toolkit.pencil.band_width import point_width_cov
+from pencilcal.toolkit.pencil.defaults import EDGE_WIDTH_SD_PX, ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.camera.intrinsics import propagate
 from pencilcal.toolkit.pencil.lens_uncertainty import (orientation_totals, ray_sigma_total_deg,
                                                        resolve_intrinsics_cov, vertex_cov_total_px2)
@@ -227,7 +228,9 @@ class FulcrumPoint:
     camera's alike: the used axes' chi2 per degree of freedom (2N - 3, or 2N - 4 with the
     map unit) where above 1, else 1; where the still camera's axes took the port's play
     (`_point_with_play`), the factor on the axes' covariances that went with it. play: that
-    play's variance [length^2] per direction (0: none taken).
+    play's variance [length^2] per direction (0: none taken). width_cov (3, 3): the term of
+    the bands' width error shared by the sequence (`point_width_cov`), added to the fit's
+    covariance in ``point_cov`` (None: none); width_sd: that relative width sd.
     """
 
     fit: Fulcrum3D
@@ -240,13 +243,23 @@ class FulcrumPoint:
     camera_motion: dict | None = None
     variance_factor: float = 1.0
     play: float = 0.0
+    width_cov: np.ndarray | None = None
+    width_sd: float = 0.0
+
+    @property
+    def cov(self) -> np.ndarray:
+        """(3, 3) the point's covariance: the fit's (noise, play) plus the shared width term."""
+        C = np.asarray(self.fit.point_cov, float)
+        return C if self.width_cov is None else C + np.asarray(self.width_cov, float)
 
     def to_dict(self) -> dict:
         """point, point_cov, point_sigma, point_axes_used, point_outliers ({image, shaft,
         distance, chi2} of each axis left out), point_axes ({image, shaft, distance, chi2,
         used, and axis_point, axis_direction where known} of every axis), point_chi2_dof,
-        point_variance_factor, point_play_sigma and shaft_diameter; with `lens_cov` (the intrinsics' term)
-        also point_cov_total = point_cov + lens_cov and point_sigma_total (docs/formats.md)."""
+        point_variance_factor, point_play_sigma, point_width_sd, point_cov_width and
+        shaft_diameter; point_cov is the fit's plus the width term (`cov`); with `lens_cov` (the
+        intrinsics' term) also point_cov_total = point_cov + lens_cov and point_sigma_total
+        (docs/formats.md)."""
         f = self.fit
         used = np.asarray(f.inliers)
         axes = [{"image": im, "shaft": j, "distance": float(f.distances[k]), "chi2": float(f.chi2[k]),
@@ -255,24 +268,26 @@ class FulcrumPoint:
             for a, p, d in zip(axes, self.axis_points, self.axis_directions):
                 a.update(axis_point=np.asarray(p, float).tolist(), axis_direction=np.asarray(d, float).tolist())
         dof = max(2 * int(used.sum()) - 3, 1)
-        out = {"point": np.asarray(f.point, float).tolist(), "point_cov": np.asarray(f.point_cov, float).tolist(),
-               "point_sigma": float(f.point_sigma), "point_axes_used": int(used.sum()),
+        cov = self.cov
+        out = {"point": np.asarray(f.point, float).tolist(), "point_cov": cov.tolist(),
+               "point_sigma": float(np.sqrt(max(np.trace(cov), 0.0))), "point_axes_used": int(used.sum()),
                "point_outliers": [{k: a[k] for k in ("image", "shaft", "distance", "chi2")} for a in axes
                                   if not a["used"]],
                "point_chi2_dof": float(np.sum(np.asarray(f.chi2)[used]) / dof),
                "point_variance_factor": float(self.variance_factor),
-               "point_play_sigma": float(np.sqrt(self.play)),
+               "point_play_sigma": float(np.sqrt(self.play)), "point_width_sd": float(self.width_sd),
+               "point_cov_width": None if self.width_cov is None else np.asarray(self.width_cov, float).tolist(),
                "point_axes": axes, "shaft_diameter": self.diameter}
         if self.camera_motion is not None:
             out["point_camera_motion"] = dict(self.camera_motion)
         if self.lens_cov is not None:
-            # the jackknife may have replaced point_cov: the intrinsics' term adds to whichever
-            total = np.asarray(f.point_cov, float) + np.asarray(self.lens_cov, float)
+            # the jackknife may have replaced the fit's covariance: the intrinsics' term adds to whichever
+            total = cov + np.asarray(self.lens_cov, float)
             out.update(point_cov_total=total.tolist(), point_sigma_total=float(np.sqrt(max(np.trace(total), 0.0))))
         return out
 
 
-def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None):
+def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, width_sd_px=EDGE_WIDTH_SD_PX):
     """The 3-D fulcrum: the point closest to every shaft's 3-D axis over a sequence.
 
     camera: Camera; frames: lines.json frame dicts whose shafts carry ``edges`` [raw px]
@@ -285,8 +300,10 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None):
     that is above 1 (the a-posteriori variance factor: on real frames the short shafts'
     edge covariances are small, `sequence_noise.inflation`). intrinsics_cov: (P, P) the
     covariance of the camera's intrinsics (`camera.intrinsics`), or None: then also the
-    point's ``lens_cov`` (`point_lens_cov`). Returns a `FulcrumPoint`; EstimationError when
-    fewer than two crossing axes remain.
+    point's ``lens_cov`` (`point_lens_cov`). width_sd_px: the sd [px] of the bands' width
+    error shared by the sequence (`defaults.EDGE_WIDTH_SD_PX`; 0: none), whose term
+    (`point_width_cov`) joins the point's covariance. Returns a `FulcrumPoint`;
+    EstimationError when fewer than two crossing axes remain.
 
     A moving camera (`pencilcal fulcrum --stabilize`): frames whose ``camera_pose`` gives
     their camera from the reference frame's (R_frame_from_ref, t_frame_from_ref in the
@@ -296,7 +313,8 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None):
     (`moving_fulcrum.fulcrum_moving`); no ``lens_cov`` then (the poses hold the lens too).
     A frame whose ``camera_pose`` is None (its pose not measured) gives no axis.
     """
-    return _point_of_axes(camera, frame_axes(camera, frames, diameter), diameter, robust, intrinsics_cov)
+    return _point_of_axes(camera, frame_axes(camera, frames, diameter), diameter, robust, intrinsics_cov,
+                          width_sd_px)
 
 
 def leave_one_out_points(camera, frames, diameter, robust=True):
@@ -320,7 +338,7 @@ def leave_one_out_points(camera, frames, diameter, robust=True):
     return out
 
 
-def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None):
+def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None, width_sd_px=0.0):
     """`fulcrum_point` of the axes `frame_axes` gave (axes: its tuple)."""
     points, dirs, covs, owners, measured, poses, _, skipped = axes
     if len(points) < 2:
@@ -338,9 +356,13 @@ def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None):
     if intrinsics_cov is not None:
         used = [measured[k] for k in np.flatnonzero(np.asarray(fit.inliers))]
         lens = point_lens_cov(camera, intrinsics_cov, used, diameter)
+    width_cov, width_sd = None, 0.0
+    if width_sd_px > 0:
+        used = np.asarray(fit.inliers, bool)
+        width_cov, width_sd = point_width_cov(camera.K, ideal[used], edge_cov[used], 0.5 * float(diameter), width_sd_px)
     return FulcrumPoint(fit=fit, owners=owners, diameter=float(diameter), skipped=skipped,
                         axis_points=np.array(points), axis_directions=normalize(np.array(dirs)), lens_cov=lens,
-                        variance_factor=factor, play=play)
+                        variance_factor=factor, play=play, width_cov=width_cov, width_sd=width_sd)
 
 
 def _point_with_noise(points, dirs, covs, robust, edges=None):
@@ -966,8 +988,9 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     (`Fulcrum.ray_cov_lens`, the camera file's intrinsics covariance) the triangulated
     point's covariance gains it too (`triangulation_lens_cov`, ``StereoFulcrum.lens_cov``);
     the agreement and the fusion keep the noise-only covariances (the diameter-based point
-    has no intrinsics term). Returns a `StereoFulcrum`; EstimationError when a ray has no
-    covariance, the rays are parallel or meet behind a camera.
+    has no intrinsics term, nor its width term: `FulcrumPoint.width_cov`). Returns a
+    `StereoFulcrum`; EstimationError when a ray has no covariance, the rays are parallel or
+    meet behind a camera.
     """
     Cl, Cr = left.ray_covariance(), right.ray_covariance()
     if Cl is None or Cr is None:
