@@ -10,7 +10,8 @@ from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.io.files import write_json
 from pencilcal.toolkit.detect.shaft.prior import epoch_priors
 from pencilcal.toolkit.pencil.epochs import frame_epochs
-from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles, stereo_fulcrum
+from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles
+from pencilcal.toolkit.pencil.stereo_fulcrum import stereo_fulcrum
 from pencilcal.toolkit.io.lines_file import read_lines
 from pencilcal.toolkit.pencil.sequence_noise import fulcrum_with_noise
 from pencilcal.validation.fulcrum_run import fulcrum_with_sigmas
@@ -137,7 +138,7 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
             workers, quiet, force, left_view, poses=None):
     """fulcrum.json's ``stereo`` record: the right view's fulcrum from its own shafts (a lines
     file's, or detected in its frames), the noise as for the left view, then
-    `fulcrum.stereo_fulcrum` with the left's; and ``axes``, the fulcrum of the shafts' axes
+    `stereo_fulcrum.stereo_fulcrum` with the left's; and ``axes``, the fulcrum of the shafts' axes
     triangulated from both eyes' silhouettes (`stereo_axes.stereo_axes_from_frames`; left_view:
     (camera, frames, shaft diameter) of the left view); with `poses` (--kinematics) also
     ``robot``, the hand-eye from those axes (`hand_eye.robot_from_frames`)."""

@@ -4,7 +4,7 @@ An instrument pivoting in its port wanders about its fulcrum within the port's p
 frame's shaft passes the fulcrum off by a 3-D offset, and both views of a stereo endoscope
 see that one offset, so their fulcrum images move together. The two fulcrum rays' errors
 are then not independent, and a point where they meet, or a fusion of it with the
-diameter-based point, does not average that part (`fulcrum.stereo_fulcrum`):
+diameter-based point, does not average that part (`stereo_fulcrum.stereo_fulcrum`):
 
 - `shared_ray_cov`: the part of a view's fulcrum ray covariance beyond its lines' own sigmas;
 - `play_covariance`: the two views' parts as one 3-D offset of the point, across the line of

@@ -1,4 +1,4 @@
-"""The 3-D fulcrum from two views (fulcrum.stereo_fulcrum) and the stereo file (camera.stereo).
+"""The 3-D fulcrum from two views (stereo_fulcrum.stereo_fulcrum) and the stereo file (camera.stereo).
 
 Setting: two 1080p pinhole cameras (f = 900 px), the right one 20 mm to the right of the left
 and turned 4 deg towards it; an 8 mm shaft pivots 12.5 deg about a port 100 mm from the left
@@ -29,7 +29,8 @@ from pencilcal.toolkit.detect.shaft.axis import plane_bisector
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.frames import normalize, rotation_about_axis
 from pencilcal.toolkit.pencil.cylinder import combine_estimates, project_cylinder
-from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, stereo_fulcrum
+from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames
+from pencilcal.toolkit.pencil.stereo_fulcrum import stereo_fulcrum
 from pencilcal.toolkit.pencil.vertex import segment_lines
 from tests.toolkit.pencil.test_cylinder import FULCRUM, HEIGHT, K, RADIUS, WIDTH
 

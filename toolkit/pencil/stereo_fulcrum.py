@@ -1,0 +1,176 @@
+"""The 3-D fulcrum from two calibrated views of one pivot (a stereo endoscope).
+
+Each view's fulcrum ray comes from its own frames (`fulcrum.fulcrum_from_frames`); with the
+rig (`camera.stereo.StereoRig`, the right camera's pose from the left's) the two rays meet at
+the 3-D fulcrum (`stereo_fulcrum`: `cylinder.triangulate_rays`), in the left camera frame.
+Where the left view has its diameter-based point, the two are fused and tested for agreement
+(`cylinder.combine_estimates`); the port's play that both views see alike is carried as a
+shared term (`stereo_play`), and the intrinsics' error as `triangulation_lens_cov`.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from pencilcal.toolkit.errors import EstimationError
+from pencilcal.toolkit.geometry.quantiles import chi2_sf
+from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fusion, RayTriangulation, combine_estimates,
+                                               triangulate_rays)
+from pencilcal.toolkit.pencil.fulcrum import Fulcrum
+from pencilcal.toolkit.pencil.stereo_play import play_covariance, shared_offset_term, shared_ray_cov
+
+__all__ = ["StereoFulcrum", "stereo_fulcrum", "triangulation_lens_cov"]
+
+
+_RIGHT_KEYS = ("vertex_px", "vertex_cov_px2", "ray", "ray_cov", "ray_sigma_deg", "lines_used", "outliers",
+               "frames_used", "rms", "lines_from", "ray_cov_total", "ray_sigma_total_deg", "vertex_cov_total_px2",
+               "intrinsics_used")
+
+
+@dataclass(frozen=True, eq=False)
+class StereoFulcrum:
+    """The 3-D fulcrum from two views (`stereo_fulcrum`), in the left camera frame, lengths in
+    the unit of the rig's translation.
+
+    rig: the `camera.stereo.StereoRig`; right: the right view's `Fulcrum` (its ray in the
+    right camera frame); triangulated: the `cylinder.RayTriangulation` of the two fulcrum
+    rays; combined: with the left view's diameter-based point, the `cylinder.Fusion` of it
+    and the triangulated point (its chi2 the agreement test, 3 dof), else None; shared:
+    whether the fusion counted the left ray once (False: the shared information exceeded
+    the diameter point's, the two were fused as independent). lens_cov (3, 3): the
+    intrinsics' term of the triangulated point's covariance (`triangulation_lens_cov`)
+    from the views in lens_views ("left", "right": those whose camera carried an
+    intrinsics covariance), None when neither did. common_cov (3, 3): the 3-D offset both
+    views' rays share (`play_covariance`), in the triangulated and the combined point's
+    covariances whole.
+    """
+
+    rig: object
+    right: Fulcrum
+    triangulated: RayTriangulation
+    combined: Fusion | None = None
+    shared: bool = True
+    confidence: float = GATE_CONFIDENCE
+    lens_cov: np.ndarray | None = None
+    lens_views: tuple = ()
+    common_cov: np.ndarray | None = None
+
+    def to_dict(self) -> dict:
+        """fulcrum.json's ``stereo`` record: the rig (``file``, ``R_right_from_left``,
+        ``t_right_from_left``, ``baseline``), ``right`` (the right view's fulcrum keys),
+        ``triangulated`` (``point``, ``point_cov``, ``point_sigma``, ``ranges``,
+        ``ray_distances``, ``chi2``, ``dof``, ``p_value``; with the intrinsics' covariance
+        of either camera also ``point_cov_total``, ``point_sigma_total``, ``intrinsics_used``
+        and ``intrinsics_views``) and with the diameter ``agreement``
+        (``chi2``, ``dof``, ``p_value``, ``threshold``, ``confidence``, ``consistent``,
+        ``shared_left_ray``) and ``combined`` (``point``, ``point_cov``, ``point_sigma``)."""
+        rec = self.right.to_dict()
+        t = self.triangulated
+        out = {**self.rig.to_dict(), "right": {k: rec[k] for k in _RIGHT_KEYS if k in rec}}
+        out["triangulated"] = {"point": np.asarray(t.point, float).tolist(),
+                               "point_cov": np.asarray(t.point_cov, float).tolist(),
+                               "point_sigma": float(t.point_sigma), "ranges": np.asarray(t.ranges, float).tolist(),
+                               "ray_distances": np.asarray(t.distances, float).tolist(), "chi2": float(t.chi2),
+                               "dof": 1, "p_value": chi2_sf(float(t.chi2), 1)}
+        if self.common_cov is not None:
+            out["triangulated"]["point_cov_shared"] = np.asarray(self.common_cov, float).tolist()
+        if self.lens_cov is not None:
+            total = np.asarray(t.point_cov, float) + np.asarray(self.lens_cov, float)
+            out["triangulated"].update({"point_cov_total": total.tolist(),
+                                        "point_sigma_total": float(np.sqrt(max(np.trace(total), 0.0))),
+                                        "intrinsics_used": True, "intrinsics_views": list(self.lens_views)})
+        c = self.combined
+        if c is not None:
+            out["agreement"] = {"chi2": float(c.chi2), "dof": int(c.dof), "p_value": float(c.p_value),
+                                "threshold": float(c.threshold), "confidence": float(self.confidence),
+                                "consistent": bool(c.consistent), "shared_left_ray": bool(self.shared)}
+            out["combined"] = {"point": np.asarray(c.point, float).tolist(),
+                               "point_cov": np.asarray(c.cov, float).tolist(), "point_sigma": float(c.sigma)}
+        return out
+
+
+def triangulation_lens_cov(tri, lens_left, lens_right):
+    """(3, 3) the intrinsics' term of a triangulated point's covariance (left camera frame).
+
+    tri: the `cylinder.RayTriangulation` of two rays; lens_left, lens_right: (3, 3) the
+    intrinsics' term of each unit ray's covariance (`Fulcrum.ray_cov_lens`; the right one
+    in the left camera frame, ``R^T C R``), or None where that camera has none. The point
+    is the weighted least-squares meeting of the rays, ``x = H^-1 sum_k I_k c_k`` with I_k
+    the ray's information (`RayTriangulation.ray_information`) and H their sum; turning
+    ray k by d moves its offset from x by its range rho_k times d, and x by
+    ``H^-1 I_k rho_k d``. The rays' lens errors (independent cameras) then add
+    ``H^-1 (sum_k rho_k^2 I_k C_k I_k) H^-1``; with a ray's noise covariance in place of
+    C_k the same sum is H^-1, the noise-only covariance.
+    """
+    # the rays' own information: point_cov may hold an offset both rays share (`stereo_fulcrum`)
+    H_inv = np.linalg.inv(np.sum(np.asarray(tri.ray_information, float), axis=0))
+    M = np.zeros((3, 3))
+    for k, C in enumerate((lens_left, lens_right)):
+        if C is not None:
+            I_k = np.asarray(tri.ray_information, float)[k]
+            M += float(tri.ranges[k]) ** 2 * I_k @ np.asarray(C, float) @ I_k
+    out = H_inv @ M @ H_inv
+    return 0.5 * (out + out.T)
+
+
+def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
+    """The 3-D fulcrum from the fulcrum rays of two calibrated views of one pivot.
+
+    left, right: the `Fulcrum` of each view (`fulcrum_from_frames` on its own frames; the
+    right's ray in the right camera frame), each with its ray covariance
+    (`Fulcrum.ray_covariance`); rig: the `camera.stereo.StereoRig` (``p_right =
+    R_right_from_left p_left + t_right_from_left``). The point is the weighted least-squares
+    meeting of the two rays (`cylinder.triangulate_rays`: each ray's angular covariance
+    times its range, iterated), in the left camera frame and the rig's length unit, with
+    its covariance and the chi2 (1 dof) of the rays' miss. The rays meet with their own
+    parts (what their lines' sigmas give) and the point's covariance gains the 3-D offset
+    both rays share (`play_covariance`: the scatter beyond the lines' sigmas, which the
+    instrument's play in its port gives both views alike), whole.
+
+    When `left` has its diameter-based point (`FulcrumPoint`, lengths in the diameter's
+    unit, which must be the rig's), the two are compared and fused
+    (`cylinder.combine_estimates`): both hold the left view's midlines (the diameter-based
+    axes lie in their planes; the triangulation holds their intersection, the left ray),
+    so the left ray's information (`RayTriangulation.ray_information`) is passed as
+    shared: the agreement chi2 (3 dof) then tests the depth from the shaft's width against
+    the depth from the baseline and the right view, and the fusion counts the left ray
+    once; the shared offset is passed as ``common`` (an error both carry: the port's play
+    moves the diameter-based point as it moves the rays), so the fused covariance does not
+    average it. confidence: of the agreement test. With either view's intrinsics' term
+    (`Fulcrum.ray_cov_lens`, the camera file's intrinsics covariance) the triangulated
+    point's covariance gains it too (`triangulation_lens_cov`, ``StereoFulcrum.lens_cov``);
+    the agreement and the fusion keep the noise-only covariances (the diameter-based point
+    has no intrinsics term, nor its width term: `FulcrumPoint.width_cov`). Returns a
+    `StereoFulcrum`; EstimationError when a ray has no covariance, the rays are parallel or
+    meet behind a camera.
+    """
+    Cl, Cr = left.ray_covariance(), right.ray_covariance()
+    if Cl is None or Cr is None:
+        raise EstimationError("the stereo fulcrum needs each view's ray covariance")
+    R, t = rig.R_right_from_left, rig.t_right_from_left
+    tri = triangulate_rays(left.ray, Cl, right.ray, Cr, R, t)
+    common = play_covariance(tri, shared_ray_cov(left), R.T @ shared_ray_cov(right) @ R)
+    cov = tri.point_cov + shared_offset_term(tri, common)
+    tri = dataclasses.replace(tri, point_cov=cov, point_sigma=np.sqrt(np.trace(cov)))
+    if np.any(~(np.asarray(tri.ranges) > 0)):
+        raise EstimationError("the two views' fulcrum rays meet behind a camera (ranges {:.3g}, {:.3g}): check the "
+                              "stereo file's R and T (right from left)".format(*np.asarray(tri.ranges, float)))
+    lens = {"lens_cov": None, "lens_views": tuple(v for v, f in (("left", left), ("right", right))
+                                                  if f.ray_cov_lens is not None)}
+    if lens["lens_views"]:
+        lens["lens_cov"] = triangulation_lens_cov(tri, left.ray_cov_lens, None if right.ray_cov_lens is None
+                                                  else R.T @ np.asarray(right.ray_cov_lens, float) @ R)
+    if left.point is None:
+        return StereoFulcrum(rig, right, tri, confidence=confidence, common_cov=common, **lens)
+    fit = left.point.fit
+    shared = True
+    try:
+        fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence,
+                                  shared=(tri.ray_information[0], tri.ray_information_vector[0]), common=common)
+    except EstimationError:
+        shared = False
+        fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence, common=common)
+    return StereoFulcrum(rig, right, tri, fused, shared, confidence, common_cov=common, **lens)
+
