@@ -98,7 +98,7 @@ def _solve_half(result, views, subset):
     w = None if result.weights is None else [result.weights[j] for j in subset]
     half = refine(result.layout, sol.theta, sol.poses[subset], o, p, b if result.layout.warp else None, warp=sol.warp,
                   weights=w)
-    pr, fd = result.print_errors, getattr(result, "image_field", None)
+    pr, fd = result.print_errors, result.image_field
     cov = covariance(result.layout, half, o, p, b if result.layout.warp else None, _noise_of(result), w,
                      shared=pr if pr is not None and pr.kept else None, field=fd if fd is not None and fd.kept else None)
     return half, cov
@@ -212,7 +212,7 @@ def _shared_gains(result, views, detections):
     model, `image_field.gains` or None without an image-fixed field)."""
     from pencilcal.toolkit.board.bundle import view_jacobians
 
-    pr, fd = result.print_errors, getattr(result, "image_field", None)
+    pr, fd = result.print_errors, result.image_field
     prints, field = pr is not None and pr.kept, fd is not None and fd.kept
     if not (prints or field) or result.solution is None:
         return None, None

@@ -65,8 +65,7 @@ from pencilcal.toolkit.board.bundle import WARP_NAMES, Layout, camera_parts, cor
     fit_pose, penalty_normal, refine, theta_of, view_residuals, warp_basis
 from pencilcal.toolkit.board.corner_noise import fit_corner_noise, variance_factor
 from pencilcal.toolkit.board import image_field
-from pencilcal.toolkit.board.print_errors import covariance_term, fit_print_errors, intrinsic_gain, view_gains, \
-    white_variances
+from pencilcal.toolkit.board.print_errors import covariance_term, fit_print_errors, intrinsic_gain, view_gains
 from pencilcal.toolkit.board.detect import BoardDetection
 from pencilcal.toolkit.board.calibration_file import SYMMETRIC_KEY
 from pencilcal.toolkit.board.model_choice import CANDIDATES, SPLINED, choose_model, chosen_score, splined_start
@@ -768,9 +767,7 @@ def _with_shared_errors(layout, sol, cov, o, p, bases, ids, n_corners, noise, we
     shared and field) and its term (``G diag(var) G^T``, ``G K G^T tau^2``) added to the
     intrinsics, warp and cross blocks. Returns (the covariance, the `PrintErrors`, the
     `ImageField`)."""
-    prints, jac = fit_print_errors(layout, sol, o, p, bases, ids, n_corners, cov.sigma_w, noise)
-    white = [white_variances(noise, np.asarray(img, float), A, sol.theta, s)
-             for (_, _, _, A), img, s in zip(jac, p, cov.sigma_w)]
+    prints, jac, white = fit_print_errors(layout, sol, o, p, bases, ids, n_corners, cov.sigma_w, noise)
     field = image_field.fit_image_field(noise, p, [j[0] for j in jac], white)
     if (prints.kept or field.kept) and np.all(np.isfinite(cov.intrinsics)):
         cov = covariance(layout, sol, o, p, bases, noise, weights, shared=prints if prints.kept else None,

@@ -48,8 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["PrintErrors", "NONE", "estimate", "board_residuals", "gains", "intrinsic_gain", "covariance_term",
-           "fit_print_errors", "view_gains", "projected",
-           "white_variances"]
+           "fit_print_errors", "view_gains", "projected"]
 
 # an axis's variance is kept when it exceeds this many of its sigmas (a one-sided 2.3 % test)
 _KEEP_Z = 2.0
@@ -177,7 +176,7 @@ def covariance_term(Ga, Gb, errors):
     return (Ga * var) @ Gb.T
 
 
-def white_variances(noise, img, A, theta, sigma_w):
+def _white(noise, img, A, theta, sigma_w):
     """(K,) each corner's white variance per image axis [px^2] under the corner-noise model."""
     from pencilcal.toolkit.board.corner_noise import variance_factor
 
@@ -191,18 +190,21 @@ def fit_print_errors(layout, solution, objs, imgs, bases, ids, n_corners, sigma_
     """`estimate` on a calibration: the views' residuals at `solution` (`bundle.Solution`),
     each corner's white variance from the views' levels sigma_w (V,) [px] and the
     corner-noise model's shape (`noise`, None: one level per view); ids : per view the
-    corners' ids (K_v,). Returns (PrintErrors, the views' `bundle.view_jacobians`)."""
+    corners' ids (K_v,). Returns (PrintErrors, the views' `bundle.view_jacobians`, per view
+    each corner's white variance (K_v,) [px^2])."""
     from pencilcal.toolkit.board.bundle import view_jacobians
 
     jac = view_jacobians(layout, solution, objs, imgs, bases if layout.warp else None)
+    white = [_white(noise, np.asarray(img, float), A, solution.theta, s)
+             for (_, _, _, A), img, s in zip(jac, imgs, sigma_w)]
     views = []
-    for (r, _, _, A), img, i, s in zip(jac, imgs, ids, sigma_w):
-        e, v = board_residuals(r, A, white_variances(noise, np.asarray(img, float), A, solution.theta, s))
+    for (r, _, _, A), i, w in zip(jac, ids, white):
+        e, v = board_residuals(r, A, w)
         # each view's pose absorbs 6 of its 2K residual dimensions: the offsets' share of a
         # residual is (1 - 6 / 2K) of theirs on average (the leverage); the Monte Carlo of
         # tests/toolkit/board/test_print_errors.py measured the variance 6 % low without this
         views.append((i, e / (1.0 - _POSE_DOF / max(r.size, _POSE_DOF + 1)), v))
-    return estimate(views, n_corners), jac
+    return estimate(views, n_corners), jac, white
 
 
 def view_gains(jac, ids, n_corners, weights=None):

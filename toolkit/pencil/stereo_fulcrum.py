@@ -125,9 +125,10 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     meeting of the two rays (`cylinder.triangulate_rays`: each ray's angular covariance
     times its range, iterated), in the left camera frame and the rig's length unit, with
     its covariance and the chi2 (1 dof) of the rays' miss. The rays meet with their own
-    parts (what their lines' sigmas give) and the point's covariance gains the 3-D offset
-    both rays share (`play_covariance`: the scatter beyond the lines' sigmas, which the
-    instrument's play in its port gives both views alike), whole.
+    parts (what their lines' sigmas give) and the point's covariance gains what the 3-D
+    offset both rays share adds across the line of sight (`play_covariance`: the scatter
+    beyond the lines' sigmas, which the instrument's play in its port gives both views
+    alike; `shared_offset_term`: the two rays do not halve it).
 
     When `left` has its diameter-based point (`FulcrumPoint`, lengths in the diameter's
     unit, which must be the rig's), the two are compared and fused
