@@ -17,8 +17,8 @@ instrument 30-100 mm inside the port, its tip seen by both eyes 30 px inside the
 axis passing the port at the play (an offset across the axis, `PLAY_SD_MM` per direction),
 its visible image at least 80 px long in both eyes. `write_sequence` writes what the
 command takes: ``left/`` and ``right/`` (``frame_000.jpg`` ...), ``left.yaml`` and
-``right.yaml`` (OpenCV camera files), ``stereo.yaml`` (R_right_from_left,
-t_right_from_left, cov_right_from_left) and ``truth.json``.
+``right.yaml`` (OpenCV camera files), ``stereo.yaml`` (OpenCV FileStorage: ``R``, ``T``
+and ``cov_right_from_left``, `write_stereo`) and ``truth.json``.
 
 `run_sequence` runs the three commands a user runs (`pencilcal fulcrum LEFT
 --shaft-diameter 8`, the same on the right, and the stereo one with ``--right RIGHT
@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from pencilcal.toolkit.camera.formats import write_camera
+from pencilcal.toolkit.camera.stereo import StereoRig, write_stereo
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
 from pencilcal.toolkit.synth.render import lighting_gain, sensor_image
@@ -67,20 +68,14 @@ _WRIST = (2.6, 9.0)  # the wrist beyond the shaft: radius, length [mm]
 _TIP_MARGIN_PX, _PORT_MARGIN_PX, _MIN_SEEN_PX = 30.0, 40.0, 80.0
 
 
-def _pixel(K, X):
-    x = K @ X
-    return x[:2] / x[2]
-
-
 def _inside(p, size, margin):
     return margin <= p[0] <= size[0] - 1 - margin and margin <= p[1] <= size[1] - 1 - margin
 
 
-def _seen_length(K, size, A, B, steps=200):
+def _seen_length(cam, size, A, B, steps=200):
     """The image length [px] of the stretch A-B (3,) [mm] that lies in the image."""
     X = A + np.linspace(0, 1, steps)[:, None] * (B - A)
-    p = X @ K.T
-    p = p[:, :2] / p[:, 2:]
+    p = cam.project(X)
     ok = (X[:, 2] > 5) & np.array([_inside(q, size, 2.0) for q in p])
     if ok.sum() < 2:
         return 0.0
@@ -135,8 +130,8 @@ def draw_sequence(seed, frames=50):
         ok = True
         for Re, te in ((np.eye(3), np.zeros(3)), (R, t)):
             Ae, tipe = Re @ A + te, Re @ tip + te
-            if tipe[2] < 20.0 or not _inside(_pixel(K, tipe), size, _TIP_MARGIN_PX) or \
-                    _seen_length(K, size, Ae, tipe) < _MIN_SEEN_PX:
+            if tipe[2] < 20.0 or not _inside(cam.project(tipe), size, _TIP_MARGIN_PX) or \
+                    _seen_length(cam, size, Ae, tipe) < _MIN_SEEN_PX:
                 ok = False
         if ok:
             out.append({"A": A, "d": d, "L": L})
@@ -193,14 +188,8 @@ def render_pair(scene, i, rng):
     return tuple(out)
 
 
-def _yaml_matrix(M):
-    return [[float(v) for v in row] for row in np.atleast_2d(M)]
-
-
 def write_sequence(scene, out):
     """Write the scene's images and files under the folder out (module docstring); returns out."""
-    import yaml
-
     out = Path(out)
     for eye in ("left", "right"):
         (out / eye).mkdir(parents=True, exist_ok=True)
@@ -209,13 +198,11 @@ def write_sequence(scene, out):
     for i in range(len(scene["frames"])):
         for eye, data in zip(("left", "right"), render_pair(scene, i, rng)):
             (out / eye / f"frame_{i:03d}.jpg").write_bytes(data)
-    (out / "stereo.yaml").write_text(yaml.safe_dump({
-        "R_right_from_left": _yaml_matrix(scene["R_cal"]), "t_right_from_left": [float(v) for v in scene["t_cal"]],
-        "cov_right_from_left": _yaml_matrix(scene["cov_cal"])}))
+    write_stereo(out / "stereo.yaml", StereoRig(scene["R_cal"], scene["t_cal"], cov=scene["cov_cal"]), force=True)
     R, t, F = scene["R_right_from_left"], scene["t_right_from_left"], scene["fulcrum"]
     truth = {"seed": scene["seed"], "fulcrum_left_mm": F.tolist(), "fulcrum_right_mm": (R @ F + t).tolist(),
              "R_right_from_left": R.tolist(), "t_right_from_left": t.tolist(), "material": scene["material"],
-             "sensor": scene["sensor"], "fulcrum_px": _pixel(pivot_camera().K, F).tolist()}
+             "sensor": scene["sensor"], "fulcrum_px": pivot_camera().project(F).tolist()}
     (out / "truth.json").write_text(json.dumps(truth, indent=1))
     return out
 

@@ -19,6 +19,10 @@ uncertainty, ``cov_right_from_left``: the 6x6 covariance of the rotation's error
 rotation vector [rad] (``R = exp(w) R_right_from_left``) and of the translation [length],
 in that order, symmetric and positive semi-definite.
 
+`write_stereo` writes a rig back: OpenCV FileStorage (``R``, ``T``, as stereoCalibrate's
+samples do) for ``.yml``, ``.yaml`` and ``.xml``; the JSON mapping for ``.json``; the
+covariance, where the rig has one, as ``cov_right_from_left`` in both.
+
 >>> import tempfile, os, json
 >>> d = tempfile.mkdtemp()
 >>> p = os.path.join(d, "rig.json")
@@ -26,6 +30,9 @@ in that order, symmetric and positive semi-definite.
 >>> rig = read_stereo(p)
 >>> rig.t_right_from_left.tolist(), round(rig.baseline, 6)
 ([-5.0, 0.0, 0.0], 5.0)
+>>> write_stereo(os.path.join(d, "extrinsics.yml"), rig)
+>>> read_stereo(os.path.join(d, "extrinsics.yml")).t_right_from_left.tolist()
+[-5.0, 0.0, 0.0]
 """
 from __future__ import annotations
 
@@ -36,9 +43,9 @@ import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.frames import project_to_rotation, rotation_from_rotvec
-from pencilcal.toolkit.io.files import load_structured, read_input_text
+from pencilcal.toolkit.io.files import atomic_path, load_structured, read_input_text, write_json
 
-__all__ = ["StereoRig", "read_stereo", "ORTHONORMAL_TOLERANCE"]
+__all__ = ["StereoRig", "read_stereo", "write_stereo", "ORTHONORMAL_TOLERANCE"]
 
 # Largest |R^T R - I| (any entry) of a rotation read from a file; below it R is projected
 # onto the nearest rotation, above it refused.
@@ -200,3 +207,43 @@ def read_stereo(path) -> StereoRig:
             raise InputError(f"{p}: 'cov_right_from_left' is not a covariance (symmetric, positive semi-definite)")
         cov = 0.5 * (cov + cov.T)
     return StereoRig(R, t, str(p), cov)
+
+
+_FILESTORAGE_SUFFIXES = (".yml", ".yaml", ".xml")
+
+
+def write_stereo(path, rig: StereoRig, force=False) -> None:
+    """Write a stereo calibration that `read_stereo` (and OpenCV) reads back.
+
+    path: ``.yml``, ``.yaml`` or ``.xml`` for an OpenCV FileStorage file with ``R`` (3x3)
+    and ``T`` (3x1), exactly as ``cv2.stereoCalibrate``'s samples write them; ``.json`` for
+    the mapping ``{R_right_from_left, t_right_from_left}``. The rig's covariance, if any,
+    goes with it as ``cov_right_from_left`` (6x6). Written atomically; an existing file is
+    an InputError unless ``force``; so is any other suffix.
+    """
+    import cv2
+
+    p = Path(path)
+    suffix = p.suffix.lower()
+    R = np.asarray(rig.R_right_from_left, float).reshape(3, 3)
+    t = np.asarray(rig.t_right_from_left, float).reshape(3)
+    cov = None if rig.cov is None else np.asarray(rig.cov, float).reshape(6, 6)
+    if suffix == ".json":
+        out = {"R_right_from_left": R, "t_right_from_left": t}
+        if cov is not None:
+            out["cov_right_from_left"] = cov
+        write_json(p, out, force=force)
+        return
+    if suffix not in _FILESTORAGE_SUFFIXES:
+        raise InputError(f"{p}: a stereo file is written as .yml, .yaml, .xml (OpenCV FileStorage) or .json")
+    with atomic_path(p, force) as tmp:  # same suffix: FileStorage picks its format from it
+        fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
+        if not fs.isOpened():
+            raise InputError(f"{p}: cannot write an OpenCV FileStorage file")
+        try:
+            fs.write("R", R)
+            fs.write("T", t.reshape(3, 1))
+            if cov is not None:
+                fs.write("cov_right_from_left", cov)
+        finally:
+            fs.release()
