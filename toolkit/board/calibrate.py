@@ -768,11 +768,11 @@ def _with_shared_errors(layout, sol, cov, o, p, bases, ids, n_corners, noise, we
     intrinsics, warp and cross blocks. Returns (the covariance, the `PrintErrors`, the
     `ImageField`)."""
     prints, jac, white = fit_print_errors(layout, sol, o, p, bases, ids, n_corners, cov.sigma_w, noise)
-    field = image_field.fit_image_field(noise, p, [j[0] for j in jac], white)
+    T, prior = layout.transform(sol.theta), penalty_normal(layout, sol.theta)
+    field = image_field.fit_image_field(noise, p, jac, white, weights, prior)
     if (prints.kept or field.kept) and np.all(np.isfinite(cov.intrinsics)):
         cov = covariance(layout, sol, o, p, bases, noise, weights, shared=prints if prints.kept else None,
                          field=field if field.kept else None)
-        T, prior = layout.transform(sol.theta), penalty_normal(layout, sol.theta)
         extra = 0.0
         if prints.kept:
             G = intrinsic_gain(view_gains(jac, ids, n_corners, weights), range(len(o)), T, prior)
