@@ -337,6 +337,24 @@ def test_circles_that_agree_within_the_lines_looser_sigma_confirm_no_final_label
         assert unconfirmed_final(kept, star) is kept
 
 
+def test_a_final_orientation_of_few_spokes_is_refused():
+    """A final orientation of under a quarter of a pencil's spokes is refused, whatever chose its
+    twin (`confirm.few_spokes_final`: a 64-wedge star's 6 spokes gave a normal 4.8 deg off at a
+    sigma of 3.0 deg); a quarter or more, or a refused one, is kept as it is."""
+    from pencilcal.toolkit.pencil.confirm import few_spokes_final
+    from pencilcal.toolkit.pencil.orientation import Orientation
+    from pencilcal.toolkit.pencil.spec import pencil_from_dict
+
+    star = pencil_from_dict({"start_deg": 0, "step_deg": 5.625, "count": 64, "shape": "wedge", "radius": [12, 70]})
+    rec = Orientation(ok=True, spokes_used=6, resolved_by="circle", circle_consistent=True, normal_sigma_deg=2.99,
+                      circle_normal_sigma_deg=3.58, spokes=np.array([3, -1, 4]))
+    out = few_spokes_final(rec, star)
+    assert not out.ok and "too few spokes: 6 of 64" in out.error and np.all(out.spokes == -1)
+    for kept in (rec.replace(spokes_used=16), rec.replace(spokes_used=64), rec.replace(ok=False),
+                 rec.replace(spokes_used=None)):
+        assert few_spokes_final(kept, star) is kept
+
+
 def test_angle_sigma_error_widens_the_covariance_only(rng):
     """Errors wider than the weights (`angle_sigma_error`): the labels, the twin and the fit
     are angle_sigma's, bit for bit; the sigmas grow, ``lines`` keeps the wider sds, and a
