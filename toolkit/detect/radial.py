@@ -413,12 +413,13 @@ def trimmed_at_spokes_end(detect, orient, camera, pencil, img, joint="crowded", 
     joint : `detect_radial_edges`' joint; gamma : the frame's encoding gamma.
 
     The orientation kept is refused where its final labelling, once every edge was searched
-    for, is still one that nothing confirms (`pencil.confirm.unconfirmed_final`).
+    for, is still one that nothing confirms (`pencil.confirm.unconfirmed_final`), or uses too few
+    of the pencil's spokes to be trusted (`pencil.confirm.few_spokes_final`).
     """
-    from pencilcal.toolkit.pencil.confirm import unconfirmed_final
+    from pencilcal.toolkit.pencil.confirm import few_spokes_final, unconfirmed_final
 
     found, rec = _at_spokes_end(detect, orient, camera, pencil, img, joint, gamma)
-    return found, unconfirmed_final(rec, pencil)
+    return found, few_spokes_final(unconfirmed_final(rec, pencil), pencil)
 
 
 def _at_spokes_end(detect, orient, camera, pencil, img, joint, gamma):

@@ -319,22 +319,42 @@ def test_a_circle_that_chooses_neither_twin_confirms_no_labelling():
     unconfirmed_labelling(star, few, None, pts[:MIN_POINTS - 1], None)  # too few points to judge
 
 
+def _star_final(**kw):
+    """A 64-wedge star's pencil and a final `Orientation` of it, its twin chosen by circles
+    that agree with it (kw: the fields set besides)."""
+    from pencilcal.toolkit.pencil.orientation import Orientation
+    from pencilcal.toolkit.pencil.spec import pencil_from_dict
+
+    star = pencil_from_dict({"start_deg": 0, "step_deg": 5.625, "count": 64, "shape": "wedge", "radius": [12, 70]})
+    return star, Orientation(ok=True, resolved_by="circle", circle_consistent=True, spokes=np.array([3, -1, 4]), **kw)
+
+
 def test_circles_that_agree_within_the_lines_looser_sigma_confirm_no_final_labelling():
     """A final labelling of under half a star's spokes whose twin the circles chose and agree
     with is refused where the lines' normal is looser than the circles' (`confirm.unconfirmed_final`);
     kept with half the spokes or more, with lines as tight, or with the twin chosen otherwise."""
     from pencilcal.toolkit.pencil.confirm import unconfirmed_final
-    from pencilcal.toolkit.pencil.orientation import Orientation
-    from pencilcal.toolkit.pencil.spec import pencil_from_dict
 
-    star = pencil_from_dict({"start_deg": 0, "step_deg": 5.625, "count": 64, "shape": "wedge", "radius": [12, 70]})
-    rec = Orientation(ok=True, spokes_used=9, resolved_by="circle", circle_consistent=True, normal_sigma_deg=2.05,
-                      circle_normal_sigma_deg=0.83, spokes=np.array([3, -1, 4]))
+    star, rec = _star_final(spokes_used=9, normal_sigma_deg=2.05, circle_normal_sigma_deg=0.83)
     out = unconfirmed_final(rec, star)
     assert not out.ok and "ambiguous labelling: 9 of 64" in out.error and np.all(out.spokes == -1)
     for kept in (rec.replace(spokes_used=32), rec.replace(normal_sigma_deg=0.5), rec.replace(resolved_by=None),
                  rec.replace(circle_consistent=False), rec.replace(circle_normal_sigma_deg=None)):
         assert unconfirmed_final(kept, star) is kept
+
+
+def test_a_final_orientation_of_few_spokes_is_refused():
+    """A final orientation of under a quarter of a pencil's spokes is refused, whatever chose its
+    twin (`confirm.few_spokes_final`: a 64-wedge star's 6 spokes gave a normal 4.8 deg off at a
+    sigma of 3.0 deg); a quarter or more, or a refused one, is kept as it is."""
+    from pencilcal.toolkit.pencil.confirm import few_spokes_final
+
+    star, rec = _star_final(spokes_used=6, normal_sigma_deg=2.99, circle_normal_sigma_deg=3.58)
+    out = few_spokes_final(rec, star)
+    assert not out.ok and "too few spokes: 6 of 64" in out.error and np.all(out.spokes == -1)
+    for kept in (rec.replace(spokes_used=16), rec.replace(spokes_used=64), rec.replace(ok=False),
+                 rec.replace(spokes_used=None)):
+        assert few_spokes_final(kept, star) is kept
 
 
 def test_angle_sigma_error_widens_the_covariance_only(rng):
