@@ -8,7 +8,7 @@ from statistics import NormalDist
 
 import numpy as np
 
-__all__ = ["ENDPOINT_SIGMA_PX", "MIN_ENDPOINT_SIGMA_PX", "EDGE_WIDTH_SD_PX", "DETECTION_LEVEL", "CHI2_2_DETECTION", "CHI2_1_99", "MAX_VERTEX", "MIN_COS"]
+__all__ = ["ENDPOINT_SIGMA_PX", "MIN_ENDPOINT_SIGMA_PX", "EDGE_WIDTH_SD_PX", "NARROW_BAND_PX", "DETECTION_LEVEL", "CHI2_2_DETECTION", "CHI2_1_99", "MAX_VERTEX", "MIN_COS"]
 
 # Noise of a line segment's end point, per coordinate [px], when nothing better is known:
 # the default of orient, fulcrum and the plain segment detector. A segment of length L then
@@ -18,15 +18,23 @@ ENDPOINT_SIGMA_PX = 0.5
 #: line detectors do not localise better, and exact (synthetic) lines would otherwise get
 #: sigmas of zero (`sequence_noise`).
 MIN_ENDPOINT_SIGMA_PX = 0.01
-#: The sd [px] of a shaft band's width error that the edges' own covariances do not hold: the
-#: silhouette's place on a shaded limb depends on the shaft's material, its light and the
-#: background beside it, which one sequence shares, so the error is one for all its frames and
-#: does not average out. The RMS of the step edges' width error on shaded renders of an 8 mm
-#: shaft (matte, glossy, dark and bright metal over a bright and a dark background, 20, 40,
-#: 80, 120 and 150 mm away, blur 0.7-1.5 px, two renders each: 80 bands of 28-208 px; from
-#: +2 % to -15 %, in pixels +0.6 to -4.7). The 3-D fulcrum's depth scales with it
-#: (`band_width.point_width_cov`).
-EDGE_WIDTH_SD_PX = 1.8
+#: The sd [px] of a shaft band's width error that the edges' own covariances do not hold, per
+#: band class (`band_width.band_class`: edge model, polarity, size): the silhouette's place on
+#: a shaded limb depends on the shaft's material, its light and the background beside it,
+#: which one sequence shares, so the error is one for all its frames and does not average
+#: out. Each is its class's RMS width error on shaded single-shaft renders (four materials,
+#: lights 0.15-0.5, bright, dark and tissue backgrounds, 40, 80 and 150 mm: 36 renders of
+#: `validation.band_width_grid` seed 1, rounded up to 0.05 px), a band read more than 25 %
+#: off left out (a detection failure, not a limb's shift); checked on fresh seeds
+#: (docs/uncertainty.md). Step edges of a shaft brighter than its surround land on the shading
+#: inside its darkened rim (-2 to -5 px); the limb model finds the rim itself. The 3-D
+#: fulcrum's depth scales with it (`band_width.point_width_cov`).
+EDGE_WIDTH_SD_PX = {
+    "step-dark-narrow": 0.70, "step-dark-wide": 0.35, "step-bright-narrow": 2.85, "step-bright-wide": 2.55,
+    "limb-dark-narrow": 0.10, "limb-dark-wide": 0.10, "limb-bright-narrow": 0.35, "limb-bright-wide": 0.10,
+}
+#: The width [px] below which a band is narrow (`band_width.band_class`).
+NARROW_BAND_PX = 60.0
 
 # --------------------------------------------------------------- the exact estimator's tests
 #: Level of the frontal likelihood-ratio test: a pencil's tilt is declared detectable when

@@ -45,8 +45,8 @@ import numpy as np
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.pencil.estimator import check_vertex, fit_pencil
 from pencilcal.toolkit.geometry.frames import normalize
-from pencilcal.toolkit.pencil.band_width import point_width_cov
-from pencilcal.toolkit.pencil.defaults import EDGE_WIDTH_SD_PX, ENDPOINT_SIGMA_PX
+from pencilcal.toolkit.pencil.band_width import band_width_sd, point_width_cov
+from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.camera.intrinsics import propagate
 from pencilcal.toolkit.pencil.lens_uncertainty import (orientation_totals, ray_sigma_total_deg,
                                                        resolve_intrinsics_cov, vertex_cov_total_px2)
@@ -283,7 +283,7 @@ class FulcrumPoint:
         return out
 
 
-def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, width_sd_px=EDGE_WIDTH_SD_PX):
+def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, width_sd_px=None):
     """The 3-D fulcrum: the point closest to every shaft's 3-D axis over a sequence.
 
     camera: Camera; frames: lines.json frame dicts whose shafts carry ``edges`` [raw px]
@@ -297,8 +297,10 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, wi
     edge covariances are small, `sequence_noise.inflation`). intrinsics_cov: (P, P) the
     covariance of the camera's intrinsics (`camera.intrinsics`), or None: then also the
     point's ``lens_cov`` (`point_lens_cov`). width_sd_px: the sd [px] of the bands' width
-    error shared by the sequence (`defaults.EDGE_WIDTH_SD_PX`; 0: none), whose term
-    (`point_width_cov`) joins the point's covariance. Returns a `FulcrumPoint`;
+    error shared by the sequence, whose term (`point_width_cov`) joins the point's
+    covariance: None for each band's own from what the detector measured on it
+    (`band_width.band_width_sd`: its edge model, polarity and width), a number for every
+    band (0: none). Returns a `FulcrumPoint`;
     EstimationError when fewer than two crossing axes remain.
 
     A moving camera (`pencilcal fulcrum --stabilize`): frames whose ``camera_pose`` gives
@@ -309,8 +311,10 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, wi
     (`moving_fulcrum.fulcrum_moving`); no ``lens_cov`` then (the poses hold the lens too).
     A frame whose ``camera_pose`` is None (its pose not measured) gives no axis.
     """
-    return _point_of_axes(camera, frame_axes(camera, frames, diameter), diameter, robust, intrinsics_cov,
-                          width_sd_px)
+    axes = frame_axes(camera, frames, diameter)
+    if width_sd_px is None:
+        width_sd_px = [band_width_sd(frames[i]["shafts"][j]) for i, (_, j) in zip(axes[6], axes[3])]
+    return _point_of_axes(camera, axes, diameter, robust, intrinsics_cov, width_sd_px)
 
 
 def leave_one_out_points(camera, frames, diameter, robust=True):
@@ -335,7 +339,8 @@ def leave_one_out_points(camera, frames, diameter, robust=True):
 
 
 def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None, width_sd_px=0.0):
-    """`fulcrum_point` of the axes `frame_axes` gave (axes: its tuple)."""
+    """`fulcrum_point` of the axes `frame_axes` gave (axes: its tuple); width_sd_px: one or
+    (N,) per axis."""
     points, dirs, covs, owners, measured, poses, _, skipped = axes
     if len(points) < 2:
         raise EstimationError(f"the 3-D fulcrum needs the 3-D axes of two shafts at least, got {len(points)}"
@@ -353,9 +358,10 @@ def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None, wid
         used = [measured[k] for k in np.flatnonzero(np.asarray(fit.inliers))]
         lens = point_lens_cov(camera, intrinsics_cov, used, diameter)
     width_cov, width_sd = None, 0.0
-    if width_sd_px > 0:
+    sd = np.broadcast_to(np.asarray(width_sd_px, float), (len(points),))
+    if np.any(sd > 0):
         used = np.asarray(fit.inliers, bool)
-        width_cov, width_sd = point_width_cov(camera.K, ideal[used], edge_cov[used], 0.5 * float(diameter), width_sd_px)
+        width_cov, width_sd = point_width_cov(camera.K, ideal[used], edge_cov[used], 0.5 * float(diameter), sd[used])
     return FulcrumPoint(fit=fit, owners=owners, diameter=float(diameter), skipped=skipped,
                         axis_points=np.array(points), axis_directions=normalize(np.array(dirs)), lens_cov=lens,
                         variance_factor=factor, play=play, width_cov=width_cov, width_sd=width_sd)

@@ -171,33 +171,63 @@ def test_fulcrum_point_lens_cov_is_the_spread_the_intrinsics_cause():
 
 def test_fulcrum_point_width_term_is_the_spread_a_shared_width_error_causes():
     """The 3-D point's term of a band-width error shared by the sequence (`point_width_cov`):
-    exact edges with every band widened by the same pixels (up to 2 EDGE_WIDTH_SD_PX) move
-    the point as the term says (the relative move per EDGE_WIDTH_SD_PX within 5 % of its
-    relative sd), the term joins point_cov, and none is added at width_sd_px 0."""
-    from pencilcal.toolkit.pencil.defaults import EDGE_WIDTH_SD_PX
+    exact edges with every band widened by the same pixels (up to 2 SD) move the point as
+    the term says (the relative move per SD within 5 % of its relative sd), the term joins
+    point_cov, and none is added at width_sd_px 0."""
     from pencilcal.toolkit.pencil.band_width import widen_bands
 
+    SD = 1.8
     segs, _ = pivot_frames()
     length = np.linalg.norm(segs[..., 2:] - segs[..., :2], axis=-1)
     covs = np.zeros(segs.shape[:2] + (2, 2))
     covs[..., 0, 0], covs[..., 1, 1] = (0.3 * np.sqrt(12.0 / 40.0) / length) ** 2, 0.3**2 / 40.0
     cam = _pinhole()
-    pt = fulcrum_point(cam, _frames(segs, covs), 2 * RADIUS)
+    pt = fulcrum_point(cam, _frames(segs, covs), 2 * RADIUS, width_sd_px=SD)
     rec = pt.to_dict()
     X = np.asarray(pt.fit.point, float)
     assert np.allclose(rec["point_cov"], np.asarray(pt.fit.point_cov) + np.asarray(rec["point_cov_width"]))
     assert rec["point_sigma"] > float(pt.fit.point_sigma)
     bare = fulcrum_point(cam, _frames(segs, covs), 2 * RADIUS, width_sd_px=0.0).to_dict()
     assert bare["point_cov_width"] is None and np.allclose(bare["point_cov"], pt.fit.point_cov)
-    eps = np.array([-2.0, -1.0, 1.0, 2.0]) * EDGE_WIDTH_SD_PX
+    eps = np.array([-2.0, -1.0, 1.0, 2.0]) * SD
     moved = [fulcrum_point(cam, _frames(widen_bands(segs, e), covs), 2 * RADIUS, robust=False).fit.point for e in eps]
     rel = [(q - X) @ X / (X @ X) for q in moved]
     # a band read wider puts the point nearer: its relative move per px of width, times the sd
     slope = np.polyfit(eps, rel, 1)[0]
-    assert slope < 0 and abs(-slope * EDGE_WIDTH_SD_PX / rec["point_width_sd"] - 1.0) < 0.05, slope
+    assert slope < 0 and abs(-slope * SD / rec["point_width_sd"] - 1.0) < 0.05, slope
     # the term lies along the move: what is left of the move off its direction is small
     g = np.asarray(rec["point_cov_width"])
     assert np.linalg.eigvalsh(g)[-1] == pytest.approx(np.trace(g))
+
+
+def test_fulcrum_point_gives_each_band_the_width_sd_of_its_class():
+    """By default each band's width sd is its class's (`band_width.band_width_sd`: edge
+    model, polarity, width): the term is the move of the point when every band widens by its
+    own sd, and limb-located bands give a smaller term than step bands."""
+    from pencilcal.toolkit.pencil.band_width import band_width_sd, widen_bands
+
+    segs, _ = pivot_frames()
+    length = np.linalg.norm(segs[..., 2:] - segs[..., :2], axis=-1)
+    covs = np.zeros(segs.shape[:2] + (2, 2))
+    covs[..., 0, 0], covs[..., 1, 1] = (0.3 * np.sqrt(12.0 / 40.0) / length) ** 2, 0.3**2 / 40.0
+    cam = _pinhole()
+
+    def frames(model, e=None):
+        out = _frames(segs if e is None else e, covs)
+        for k, f in enumerate(out):
+            f["shafts"][0].update(polarity=("dark", "bright")[k % 2], width_px=40.0 + 3.0 * k, edge_model=model)
+        return out
+
+    step = fulcrum_point(cam, frames("step"), 2 * RADIUS).to_dict()
+    limb = fulcrum_point(cam, frames("limb"), 2 * RADIUS).to_dict()
+    assert 0 < limb["point_width_sd"] < step["point_width_sd"]
+    sd = np.array([band_width_sd(f["shafts"][0]) for f in frames("step")])
+    assert len(set(sd.round(6))) > 1  # the classes differ
+    X = np.asarray(step["point"])
+    moved = [fulcrum_point(cam, frames("step", np.array([widen_bands(b, t * s)[0] for b, s in zip(segs, sd)])),
+                           2 * RADIUS, robust=False).fit.point for t in (-1.0, 1.0)]
+    rel = 0.5 * (moved[0] - moved[1]) @ X / (X @ X)
+    assert abs(rel / step["point_width_sd"] - 1.0) < 0.05, rel
 
 
 def test_fulcrum_point_names_an_outlier_frame_and_needs_two_axes():

@@ -140,6 +140,10 @@ class Shaft:
     kind : str
         "shaft": the axis of two silhouette edges; "part": the principal axis of a distal
         part alone, with its larger sigmas (`shaft.parts`, `shaft.from_mask`).
+    edge_model : str
+        How its two edges were located: "step" (the gradient peak) or "limb" (the lit
+        cylinder's profile, `with_limbs`); the 3-D fulcrum gives each its own width error
+        (`pencil.band_width.band_width_sd`).
     """
 
     midline: np.ndarray
@@ -158,11 +162,12 @@ class Shaft:
     ideal_edges: np.ndarray | None = None
     edge_cov: np.ndarray | None = None
     kind: str = "shaft"
+    edge_model: str = "step"
 
     def to_dict(self) -> dict:
         """The shaft's record in a lines.json frame (docs/formats.md): midline, width_px,
         angle_sigma_deg, offset_sigma_px, edges, edge_cov (when known), convergence_deg,
-        polarity, score, cue, kind."""
+        polarity, score, cue, kind, edge_model."""
         out = {
             "midline": [float(v) for v in self.midline],
             "width_px": float(self.width_px),
@@ -174,6 +179,7 @@ class Shaft:
             "score": float(self.score),
             "cue": self.cue,
             "kind": self.kind,
+            "edge_model": self.edge_model,
         }
         if self.edge_cov is not None:
             out["edge_cov"] = np.asarray(self.edge_cov, float).tolist()
@@ -299,7 +305,7 @@ def with_limbs(image, camera, shafts, edge_model="limb", gamma=DEFAULT_GAMMA, K=
             m = None if got is None else midline_from_edges(K, got[0], got[1])
             new = None if m is None else shaft_of_midline(camera, m, s.score, s.polarity, s.cue)
         # the measured fields replaced, the rest kept (a mask's shaft keeps its mask's)
-        out.append(s if new is None else replace(s, **{k: getattr(new, k) for k in _MEASURED}))
+        out.append(s if new is None else replace(s, edge_model="limb", **{k: getattr(new, k) for k in _MEASURED}))
     return out
 
 

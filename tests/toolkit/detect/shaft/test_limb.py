@@ -81,6 +81,8 @@ def test_detect_shafts_with_the_limb_model():
         sh = detect_shafts(img, CAM, edge_model=model)
         c = 0.5 * (sh[0].ideal_midline[:2] + sh[0].ideal_midline[2:])
         bias = sh[0].width_px / truth.width_at(c) - 1
+        # the record says which model located the edges: the 3-D fulcrum's width term is its own
+        assert sh[0].edge_model == model and sh[0].to_dict()["edge_model"] == model
         if tol is None:
             assert bias > 0.005  # the material cue's step edges, on encoded levels: narrow far bands come out wide
         else:

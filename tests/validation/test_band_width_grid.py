@@ -1,0 +1,27 @@
+"""The band-width grid (`validation.band_width_grid`) on a few of its renders: the detector's
+bands classed as it measured them, the step edge's error where the limb darkens over a dark
+background, the limb model's without it, and the class sds that cover them."""
+import numpy as np
+
+from pencilcal.toolkit.pencil.band_width import band_width_sd
+from pencilcal.validation.band_width_grid import format_summary, render_band, summary
+
+
+def test_grid_renders_classed_as_the_detector_measures_them():
+    rows = [render_band(7, k, mat, bg, z) for k, (mat, bg, z) in
+            enumerate((("matte", "dark", 150.0), ("glossy", "bright", 80.0), ("dark_metal", "tissue", 80.0)))]
+    dark = rows[0]
+    # a lit shaft over a dark background: brighter than its surround; the step edge lands on
+    # the shading inside the rim (several px narrow), the limb model on the silhouette
+    assert dark["step"]["band_class"] == "step-bright-narrow" and dark["limb"]["band_class"] == "limb-bright-narrow"
+    assert dark["step"]["error_px"] < -1.5 and abs(dark["limb"]["error_rel"]) < 0.01, dark
+    assert rows[1]["step"]["polarity"] == "dark"
+    for r in rows:
+        for m in ("step", "limb"):
+            b = r[m]
+            assert abs(b["width_px"] - b["true_width_px"] - b["error_px"]) < 1e-9
+            assert b["sd_px"] == band_width_sd(b) and abs(b["error_px"]) < 3.0 * b["sd_px"], (r["material"], m, b)
+    s = summary(rows)
+    assert s["step"]["all"]["n"] == 3 and s["limb"]["all"]["missed"] == 0
+    assert s["limb"]["all"]["rms_px"] < s["step"]["all"]["rms_px"]
+    assert "step-bright-narrow" in format_summary(s)
