@@ -14,7 +14,7 @@ from pencilcal.toolkit.pencil.orient import MAX_SEGMENTS, MODELS, orient_segment
 from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.sequence_noise import orientations_with_noise
 from pencilcal.toolkit.pencil.spec import read_pencil
-from pencilcal.toolkit.pencil.shutter import camera_readout, deskewed_segments
+from pencilcal.toolkit.pencil.shutter import camera_readout, deskewed_segments, seen_lines
 from pencilcal.toolkit.pencil.track import orient_tracked
 from pencilcal.validation.radial_run import STAR_FALLBACK
 
@@ -47,22 +47,31 @@ def _orient_record(camera, pencil, fr, opts):
     state = opts.get("tracking")
     if state is None:
         return orient_segments(camera, fr["segments"], pencil, **kw)
-    segments = fr["segments"]
+    segments, raw_ideal = fr["segments"], kw.get("ideal")
     if opts.get("readout") and state["previous"] is not None and len(segments):
-        segments, kw = _deskewed(camera, pencil, fr, kw, state["previous"], opts["readout"], opts["endpoint_sigma"])
+        seen = state.setdefault("seen", {}).get(state["previous"].image)
+        segments, kw = _deskewed(camera, pencil, fr, kw, state["previous"], opts["readout"], opts["endpoint_sigma"],
+                                 seen)
     # frames in order in this process: the previous frame's estimate is the prior
     rec, tracked = orient_tracked(camera, segments, pencil, state["previous"], **kw)
+    if opts.get("readout") and rec.ok and rec.spokes is not None:
+        # this frame's lines as seen, for the next frame's velocities (by name: a frame tried
+        # again replaces its own, never its predecessor's)
+        seen = state.setdefault("seen", {})
+        seen[fr["image"]] = seen_lines(camera, fr["segments"], rec.spokes, raw_ideal)
+        for k in list(seen)[:-2]:
+            del seen[k]
     state["previous"] = rec if rec.ok else None
     state["tracked"] += bool(tracked)
     return rec
 
 
-def _deskewed(camera, pencil, fr, kw, previous, readout, endpoint_sigma):
+def _deskewed(camera, pencil, fr, kw, previous, readout, endpoint_sigma, seen=None):
     """(segments, kw): a frame's segments moved back to the time of its vertex's row by their
     motion since the previous frame (`shutter.deskewed_segments`), the moves' sds added to
     the segments' offset and angle sds (from the end point noise where the lines have none)."""
     seg = np.asarray(fr["segments"], float).reshape(-1, 4)
-    moved, ideal, off_sd, ang_sd = deskewed_segments(camera, seg, pencil, previous, readout, ideal=kw.get("ideal"))
+    moved, ideal, off_sd, ang_sd = deskewed_segments(camera, seg, pencil, previous, readout, ideal=kw.get("ideal"), seen=seen)
     kw = dict(kw, ideal=ideal)
     ideal_px = seg if ideal is None else ideal
     L = np.linalg.norm(ideal_px[:, 2:] - ideal_px[:, :2], axis=-1)

@@ -39,7 +39,7 @@ from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.pencil.spec import image_angles
 from pencilcal.toolkit.pencil.track import prior_labels
 
-__all__ = ["deskewed_segments", "camera_readout", "VELOCITY_REL_SD", "VELOCITY_FLOOR_PX"]
+__all__ = ["deskewed_segments", "camera_readout", "seen_lines", "VELOCITY_REL_SD", "VELOCITY_FLOOR_PX"]
 
 #: The sd of a point's velocity across its spoke, relative to it (the motion changes from
 #: one frame to the next: a hand's swing starts and stops).
@@ -48,7 +48,26 @@ VELOCITY_REL_SD = 0.5
 VELOCITY_FLOOR_PX = 0.3
 
 
-def deskewed_segments(camera, segments, pencil, previous, readout, ideal=None):
+def seen_lines(camera, segments, spokes, ideal=None):
+    """{spoke label: (2, 2) normalised end points} of a frame's segments as seen (before any
+    move), the longest of each label; spokes: (M,) the fit's labels (-1: none)."""
+    seg = np.asarray(segments, float).reshape(-1, 4)
+    lab = np.asarray(spokes, int).reshape(-1)[:len(seg)]
+    if ideal is None:
+        with np.errstate(invalid="ignore"):
+            p = camera.normalized_from_pixels(seg.reshape(-1, 2)).reshape(-1, 2, 2)
+    else:
+        K = np.asarray(camera.K, float)
+        p = np.linalg.solve(K[:2, :2], (np.asarray(ideal, float).reshape(-1, 2) - K[:2, 2]).T).T.reshape(-1, 2, 2)
+    L = np.linalg.norm(p[:, 1] - p[:, 0], axis=-1)
+    out = {}
+    for m in np.argsort(-np.nan_to_num(L)):
+        if m < len(lab) and lab[m] >= 0 and int(lab[m]) not in out and np.all(np.isfinite(p[m])) and L[m] > 0:
+            out[int(lab[m])] = p[m]
+    return out
+
+
+def deskewed_segments(camera, segments, pencil, previous, readout, ideal=None, seen=None):
     """(segments, ideal, offset_sd, angle_sd): the segments moved back to the time of the
     row through the vertex (module docstring).
 
@@ -89,6 +108,18 @@ def deskewed_segments(camera, segments, pencil, previous, readout, ideal=None):
     # seen 1 + a frames after the previous estimate's time: velocity d / (1 + a), moved back by a
     a = np.clip(a, -0.9, 0.9)
     v = d / (1.0 + a)  # (M, 2) [normalised per frame]
+    if seen is not None:
+        # against the previous frame's lines as seen (not as corrected): a point on one and the
+        # same row was seen one frame apart in both, and an error of the previous estimate
+        # cannot carry on into this one
+        has = np.array([int(k) in seen for k in lab]) & use
+        for m in np.where(has)[0]:
+            q = seen[int(lab[m])]
+            t = (q[1] - q[0]) / np.linalg.norm(q[1] - q[0])
+            nm = np.array([-t[1], t[0]])
+            n[m] = nm
+            v[m] = (p[m] - q[0]) @ nm
+        use = has
     move = np.where(use[:, None], -v * a, 0.0)
     p2 = p + move[..., None] * n[:, None, :]
     moved = use[:, None] & np.ones((1, 2), bool)
