@@ -108,15 +108,15 @@ def orient_tracked(camera, segments, pencil, previous, gate_deg=GATE_DEG, keep_l
     lab = prior_labels(camera, segments, pencil, previous, gate_deg, orient_kwargs.get("ideal"))
     need = max(3, int(previous.lines_used or 0) - 1)
     rec, short = None, None
-    if np.unique(lab[lab >= 0]).size >= need:
+    if np.unique(lab[lab >= 0]).size >= 3:
         # bars' midlines moved onto their centre lines under the previous frame's plane: one fit
         plane = None if previous.ambiguous else previous.normal
         rec = orient_segments(camera, segments, pencil, labels=lab, keep_lines=True, plane_normal=plane,
                               **orient_kwargs)
         if not (rec.ok and rec.lines_used >= need and _fits_its_labels(rec)):
-            # a fit true to its labels that kept fewer lines than the previous frame's: the
-            # full search decides, unless it explains no more lines (then its labelling is one
-            # of several that fit a few lines alike, and the prior's is the one to keep)
+            # a fit true to its labels on fewer lines than the previous frame's: the full
+            # search decides, unless it explains no more lines (then its labelling is one of
+            # several that fit a few lines alike, often shifted by a spoke: the prior's is kept)
             short = rec if rec.ok and _fits_its_labels(rec) else None
             rec = None
     if rec is None:
