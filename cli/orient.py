@@ -14,7 +14,7 @@ from pencilcal.toolkit.pencil.orient import MAX_SEGMENTS, MODELS, orient_segment
 from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.sequence_noise import orientations_with_noise
 from pencilcal.toolkit.pencil.spec import read_pencil
-from pencilcal.toolkit.pencil.shutter import UNKNOWN_READOUT_SD, camera_readout, deskewed_segments, seen_lines, shear_sds
+from pencilcal.toolkit.pencil.shutter import camera_readout, deskewed_segments, seen_lines
 from pencilcal.toolkit.pencil.track import orient_tracked
 from pencilcal.validation.radial_run import STAR_FALLBACK
 
@@ -48,13 +48,13 @@ def _orient_record(camera, pencil, fr, opts):
     if state is None:
         return orient_segments(camera, fr["segments"], pencil, **kw)
     segments, raw_ideal = fr["segments"], kw.get("ideal")
-    readout = opts.get("readout", 0.0)  # None: a rolling shutter of unknown readout
-    if readout != 0.0 and state["previous"] is not None and len(segments):
+    if opts.get("readout") and state["previous"] is not None and len(segments):
         seen = state.setdefault("seen", {}).get(state["previous"].image)
-        segments, kw = _deskewed(camera, pencil, fr, kw, state["previous"], readout, opts["endpoint_sigma"], seen)
+        segments, kw = _deskewed(camera, pencil, fr, kw, state["previous"], opts["readout"], opts["endpoint_sigma"],
+                                 seen)
     # frames in order in this process: the previous frame's estimate is the prior
     rec, tracked = orient_tracked(camera, segments, pencil, state["previous"], **kw)
-    if readout != 0.0 and rec.ok and rec.spokes is not None:
+    if opts.get("readout") and rec.ok and rec.spokes is not None:
         # this frame's lines as seen, for the next frame's velocities (by name: a frame tried
         # again replaces its own, never its predecessor's)
         seen = state.setdefault("seen", {})
@@ -69,16 +69,9 @@ def _orient_record(camera, pencil, fr, opts):
 def _deskewed(camera, pencil, fr, kw, previous, readout, endpoint_sigma, seen=None):
     """(segments, kw): a frame's segments moved back to the time of its vertex's row by their
     motion since the previous frame (`shutter.deskewed_segments`), the moves' sds added to
-    the segments' offset and angle sds (from the end point noise where the lines have none).
-    readout None (not known): nothing moved, the moves an sd of the readout would make
-    added as sds instead (`shutter.shear_sds`)."""
+    the segments' offset and angle sds (from the end point noise where the lines have none)."""
     seg = np.asarray(fr["segments"], float).reshape(-1, 4)
-    if readout is None:
-        moved, ideal = seg, kw.get("ideal")
-        off_sd, ang_sd = shear_sds(camera, seg, pencil, previous, UNKNOWN_READOUT_SD, ideal=ideal, seen=seen)
-    else:
-        moved, ideal, off_sd, ang_sd = deskewed_segments(camera, seg, pencil, previous, readout, ideal=kw.get("ideal"),
-                                                         seen=seen)
+    moved, ideal, off_sd, ang_sd = deskewed_segments(camera, seg, pencil, previous, readout, ideal=kw.get("ideal"), seen=seen)
     kw = dict(kw, ideal=ideal)
     ideal_px = seg if ideal is None else ideal
     L = np.linalg.norm(ideal_px[:, 2:] - ideal_px[:, :2], axis=-1)
@@ -286,9 +279,8 @@ def _check_priors_match(priors, names, path):
 @click.option("--track/--no-track", default=True, show_default=True,
               help="Find the spokes where the previous frames predict them (--workers 1).")
 @click.option("--readout", type=click.FloatRange(0.0, 1.0), default=None,
-              help="Rolling shutter: the rows' readout time over the frame interval, undone from the frames' "
-                   "motion (0: a global shutter); default: the camera file's readout, else not known: the shear "
-                   "it may make is carried in the moving frames' sigmas, not undone.")
+              help="Rolling shutter: the rows' readout time over the frame interval (0: a global shutter); "
+                   "default: the camera file's readout, else 0.")
 @detector_option("Line detector, with IMAGES.")
 @click.option("--edges", is_flag=True, help="With IMAGES: plain edge segments, not the spokes' midlines.")
 @mask_option
@@ -380,8 +372,6 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
         if readout and not (track and workers == 1):
             warn(f"{camera_path}: the rolling shutter's readout is not undone without --track and --workers 1")
             readout = 0.0
-        elif readout is None and not (track and workers == 1):
-            readout = 0.0  # (the unknown shutter's sds need the previous frame)
     opts = dict(model=model, endpoint_sigma=endpoint_sigma, angle_sigma=angle_sigma, priors=priors,
                 max_segments=max_segments, readout=readout,
                 tracking={"previous": None, "tracked": 0} if track and workers == 1 else None)

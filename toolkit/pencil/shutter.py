@@ -39,18 +39,13 @@ from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.pencil.spec import image_angles
 from pencilcal.toolkit.pencil.track import prior_labels
 
-__all__ = ["deskewed_segments", "shear_sds", "UNKNOWN_READOUT_SD", "camera_readout", "seen_lines", "VELOCITY_REL_SD", "VELOCITY_FLOOR_PX"]
+__all__ = ["deskewed_segments", "camera_readout", "seen_lines", "VELOCITY_REL_SD", "VELOCITY_FLOOR_PX"]
 
 #: The sd of a point's velocity across its spoke, relative to it (the motion changes from
 #: one frame to the next: a hand's swing starts and stops).
 VELOCITY_REL_SD = 0.5
 #: ... and its floor [px per frame] (the previous frame's lines' own noise).
 VELOCITY_FLOOR_PX = 0.3
-#: A camera's readout where it is not known, as an sd: the shear a whole frame's readout would
-#: make is carried as sds of the segments, not undone (chosen on three hard hand-held videos:
-#: the rms of a readout anywhere in 0-1, 0.58, left twice as many frames beyond 3 sigma; the
-#: segments' sds are taken as independent, the shear is not).
-UNKNOWN_READOUT_SD = 1.0
 
 
 def seen_lines(camera, segments, spokes, ideal=None):
@@ -88,63 +83,11 @@ def deskewed_segments(camera, segments, pencil, previous, readout, ideal=None, s
     M = len(seg)
     zero = np.zeros(M)
     out_ideal = None if ideal is None else np.asarray(ideal, float).reshape(-1, 4).copy()
-    mo = _motion(camera, seg, pencil, previous, readout, out_ideal, seen)
-    if mo is None:
-        return seg.copy(), out_ideal, zero, zero
-    use, n, v, a, p, f = mo
-    K = np.asarray(camera.K, float)
-    move = np.where(use[:, None], -v * a, 0.0)
-    p2 = p + move[..., None] * n[:, None, :]
-    moved = use[:, None] & np.ones((1, 2), bool)
-    new_raw = camera.pixels_from_normalized(p2.reshape(-1, 2)).reshape(-1, 4)
-    out = np.where(np.repeat(moved, 2, -1), new_raw, seg)
-    if out_ideal is not None:
-        new_ideal = (p2.reshape(-1, 2) @ K[:2, :2].T + K[:2, 2]).reshape(-1, 4)
-        out_ideal = np.where(np.repeat(moved, 2, -1), new_ideal, out_ideal)
-    # one velocity error across the spoke for both ends: it shifts the midpoint by its mean
-    # time and turns the segment by the difference over the length
-    sv = VELOCITY_REL_SD * np.mean(np.abs(v), -1) * f + VELOCITY_FLOOR_PX  # (M,) [px per frame]
-    L = np.linalg.norm(p[:, 1] - p[:, 0], axis=-1) * f
-    off_sd = np.where(use, np.abs(a.mean(-1)) * sv, 0.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ang_sd = np.where(use & (L > 0), np.abs(a[:, 1] - a[:, 0]) * sv / L, 0.0)
-    return out, out_ideal, off_sd, ang_sd
-
-
-
-def shear_sds(camera, segments, pencil, previous, readout, ideal=None, seen=None):
-    """(offset_sd, angle_sd): for a camera whose readout is not known, the shift of each
-    segment's midpoint (M,) [px] and turn (M,) [rad] that `deskewed_segments` would undo for
-    a readout of `readout` (an sd of the unknown readout, not a readout), as sds. Nothing is
-    moved; 0 where nothing would move (unlabelled segments, no previous frame).
-
-    segments: (M, 4) raw px; the other arguments as `deskewed_segments`'.
-    """
-    seg = np.asarray(segments, float).reshape(-1, 4)
-    zero = np.zeros(len(seg))
-    mo = _motion(camera, seg, pencil, previous, readout,
-                 None if ideal is None else np.asarray(ideal, float).reshape(-1, 4), seen)
-    if mo is None:
-        return zero, zero
-    use, n, v, a, p, f = mo
-    move = v * a * f  # (M, 2) each end's move across its spoke [px]
-    L = np.linalg.norm(p[:, 1] - p[:, 0], axis=-1) * f
-    off_sd = np.where(use, np.abs(move.mean(-1)), 0.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ang_sd = np.where(use & (L > 0), np.abs(move[:, 1] - move[:, 0]) / L, 0.0)
-    return off_sd, ang_sd
-
-def _motion(camera, seg, pencil, previous, readout, ideal=None, seen=None):
-    """(use (M,), n (M, 2), v (M, 2), a (M, 2), p (M, 2, 2), f) of `deskewed_segments`: which
-    segments move, across which direction, each end's velocity across it [normalised per
-    frame], each end's time after the vertex row [frames], the ends normalised and the focal
-    length [px]; None where nothing moves (no readout, no previous frame)."""
-    M = len(seg)
     if M == 0 or not readout or previous is None or not previous.ok or previous.ray is None:
-        return None
+        return seg.copy(), out_ideal, zero, zero
     ray = np.asarray(previous.ray, float)
     if not ray[2] > 0:
-        return None
+        return seg.copy(), out_ideal, zero, zero
     K = np.asarray(camera.K, float)
     f = float(np.sqrt(abs(K[0, 0] * K[1, 1])))
     lab = prior_labels(camera, seg, pencil, previous, ideal=ideal)
@@ -154,7 +97,7 @@ def _motion(camera, seg, pencil, previous, readout, ideal=None, seen=None):
         with np.errstate(invalid="ignore"):
             p = camera.normalized_from_pixels(seg.reshape(-1, 2)).reshape(-1, 2, 2)
     else:
-        p = np.linalg.solve(K[:2, :2], (ideal.reshape(-1, 2) - K[:2, 2]).T).T.reshape(-1, 2, 2)
+        p = np.linalg.solve(K[:2, :2], (out_ideal.reshape(-1, 2) - K[:2, 2]).T).T.reshape(-1, 2, 2)
     yv = float(camera.pixels_from_normalized(x0)[1])  # the vertex's row (it moves a few px a frame)
     H = float(camera.height)
     use = (lab >= 0) & np.all(np.isfinite(p.reshape(-1, 4)), -1)
@@ -177,16 +120,31 @@ def _motion(camera, seg, pencil, previous, readout, ideal=None, seen=None):
             n[m] = nm
             v[m] = (p[m] - q[0]) @ nm
         use = has
-    return use, n, v, a, p, f
+    move = np.where(use[:, None], -v * a, 0.0)
+    p2 = p + move[..., None] * n[:, None, :]
+    moved = use[:, None] & np.ones((1, 2), bool)
+    new_raw = camera.pixels_from_normalized(p2.reshape(-1, 2)).reshape(-1, 4)
+    out = np.where(np.repeat(moved, 2, -1), new_raw, seg)
+    if out_ideal is not None:
+        new_ideal = (p2.reshape(-1, 2) @ K[:2, :2].T + K[:2, 2]).reshape(-1, 4)
+        out_ideal = np.where(np.repeat(moved, 2, -1), new_ideal, out_ideal)
+    # one velocity error across the spoke for both ends: it shifts the midpoint by its mean
+    # time and turns the segment by the difference over the length
+    sv = VELOCITY_REL_SD * np.mean(np.abs(v), -1) * f + VELOCITY_FLOOR_PX  # (M,) [px per frame]
+    L = np.linalg.norm(p[:, 1] - p[:, 0], axis=-1) * f
+    off_sd = np.where(use, np.abs(a.mean(-1)) * sv, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ang_sd = np.where(use & (L > 0), np.abs(a[:, 1] - a[:, 0]) * sv / L, 0.0)
+    return out, out_ideal, off_sd, ang_sd
 
 
 def camera_readout(camera, source="camera"):
     """The camera file's rolling-shutter readout (its ``readout`` key: the time from the first
-    row's exposure to the last row's over the frame interval, 0-1), None without one (not known).
+    row's exposure to the last row's over the frame interval, 0-1), 0.0 without one.
     Raises InputError naming `source` for a value that is no number in [0, 1]."""
     r = (camera.meta or {}).get("readout")
     if r is None:
-        return None
+        return 0.0
     if isinstance(r, bool) or not isinstance(r, (int, float)) or not 0.0 <= float(r) <= 1.0:
         raise InputError(f"{source}: 'readout' must be a number from 0 to 1 (the rows' readout over the frame "
                          f"interval), got {r!r}")
