@@ -14,6 +14,7 @@ from pencilcal.toolkit.pencil.orient import MAX_SEGMENTS, MODELS, orient_segment
 from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.sequence_noise import orientations_with_noise
 from pencilcal.toolkit.pencil.spec import read_pencil
+from pencilcal.toolkit.pencil.shutter import camera_readout, deskewed_segments, seen_lines
 from pencilcal.toolkit.pencil.track import orient_tracked
 from pencilcal.validation.radial_run import STAR_FALLBACK
 
@@ -46,11 +47,45 @@ def _orient_record(camera, pencil, fr, opts):
     state = opts.get("tracking")
     if state is None:
         return orient_segments(camera, fr["segments"], pencil, **kw)
+    segments, raw_ideal = fr["segments"], kw.get("ideal")
+    if opts.get("readout") and state["previous"] is not None and len(segments):
+        seen = state.setdefault("seen", {}).get(state["previous"].image)
+        segments, kw = _deskewed(camera, pencil, fr, kw, state["previous"], opts["readout"], opts["endpoint_sigma"],
+                                 seen)
     # frames in order in this process: the previous frame's estimate is the prior
-    rec, tracked = orient_tracked(camera, fr["segments"], pencil, state["previous"], **kw)
+    rec, tracked = orient_tracked(camera, segments, pencil, state["previous"], **kw)
+    if opts.get("readout") and rec.ok and rec.spokes is not None:
+        # this frame's lines as seen, for the next frame's velocities (by name: a frame tried
+        # again replaces its own, never its predecessor's)
+        seen = state.setdefault("seen", {})
+        seen[fr["image"]] = seen_lines(camera, fr["segments"], rec.spokes, raw_ideal)
+        for k in list(seen)[:-2]:
+            del seen[k]
     state["previous"] = rec if rec.ok else None
     state["tracked"] += bool(tracked)
     return rec
+
+
+def _deskewed(camera, pencil, fr, kw, previous, readout, endpoint_sigma, seen=None):
+    """(segments, kw): a frame's segments moved back to the time of its vertex's row by their
+    motion since the previous frame (`shutter.deskewed_segments`), the moves' sds added to
+    the segments' offset and angle sds (from the end point noise where the lines have none)."""
+    seg = np.asarray(fr["segments"], float).reshape(-1, 4)
+    moved, ideal, off_sd, ang_sd = deskewed_segments(camera, seg, pencil, previous, readout, ideal=kw.get("ideal"), seen=seen)
+    kw = dict(kw, ideal=ideal)
+    ideal_px = seg if ideal is None else ideal
+    L = np.linalg.norm(ideal_px[:, 2:] - ideal_px[:, :2], axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # the end point model's sds of a segment: offset sigma / sqrt(2), angle sigma sqrt(2) / L
+        off0 = np.broadcast_to(kw["offset_sigma"] if kw.get("offset_sigma") is not None
+                               else endpoint_sigma / np.sqrt(2.0), L.shape)
+        ang0 = np.broadcast_to(kw["angle_sigma"] if kw.get("angle_sigma") is not None
+                               else np.sqrt(2.0) * endpoint_sigma / L, L.shape)
+    kw["offset_sigma"] = np.hypot(np.asarray(off0, float), off_sd)
+    kw["angle_sigma"] = np.hypot(np.asarray(ang0, float), ang_sd)
+    if kw.get("angle_sigma_error") is not None:
+        kw["angle_sigma_error"] = np.hypot(np.broadcast_to(kw["angle_sigma_error"], L.shape), ang_sd)
+    return moved, kw
 
 
 def _sequence_noise(records, frames, camera, pencil, opts, given):
@@ -243,6 +278,9 @@ def _check_priors_match(priors, names, path):
               help="Carry twin choices along the sequence to ambiguous frames.")
 @click.option("--track/--no-track", default=True, show_default=True,
               help="Find the spokes where the previous frames predict them (--workers 1).")
+@click.option("--readout", type=click.FloatRange(0.0, 1.0), default=None,
+              help="Rolling shutter: the rows' readout time over the frame interval (0: a global shutter); "
+                   "default: the camera file's readout, else 0.")
 @detector_option("Line detector, with IMAGES.")
 @click.option("--edges", is_flag=True, help="With IMAGES: plain edge segments, not the spokes' midlines.")
 @mask_option
@@ -257,7 +295,7 @@ def _check_priors_match(priors, names, path):
 @quiet_option
 @run
 def orient(images, lines_path, camera_path, camera_id, pencil_path, output, model, endpoint_sigma, angle_sigma,
-           prior_path, continuity, track, detector, edges, mask_path, max_segments, source_spec, jsonl_path, overlay_path,
+           prior_path, continuity, track, readout, detector, edges, mask_path, max_segments, source_spec, jsonl_path, overlay_path,
            overlay_scale, max_pixels, workers, force, quiet):
     """Orientation of the pencil in every frame, from its image angles alone.
 
@@ -327,8 +365,15 @@ def orient(images, lines_path, camera_path, camera_id, pencil_path, output, mode
     camera = read_camera(camera_path, camera_id=camera_id)
     pencil = read_pencil(pencil_path)
     priors = _prior_rotations(prior_path) if prior_path else {}
+    if readout and not (track and workers == 1):
+        raise click.UsageError("--readout needs the frames tracked in order: --track and --workers 1")
+    if readout is None:
+        readout = camera_readout(camera, camera_path)
+        if readout and not (track and workers == 1):
+            warn(f"{camera_path}: the rolling shutter's readout is not undone without --track and --workers 1")
+            readout = 0.0
     opts = dict(model=model, endpoint_sigma=endpoint_sigma, angle_sigma=angle_sigma, priors=priors,
-                max_segments=max_segments,
+                max_segments=max_segments, readout=readout,
                 tracking={"previous": None, "tracked": 0} if track and workers == 1 else None)
     records, source = [], None
     if lines_path is not None:

@@ -200,3 +200,32 @@ def test_a_lines_records_error_sds_widen_the_sigmas_only(scene):
         out[name] = json.loads((d / f"o_{name}.json").read_text())["frames"][0]
     assert out["wide"]["normal"] == out["plain"]["normal"] and out["wide"]["spokes"] == out["plain"]["spokes"]
     assert out["wide"]["normal_sigma_deg"] > 1.2 * out["plain"]["normal_sigma_deg"]
+
+
+def test_the_camera_files_readout_is_used_and_checked(scene, rng):
+    # frames that move: the camera file's readout moves their lines as --readout does, and
+    # one that is no fraction of the frame interval is a one-line error naming the file
+    d, _ = scene
+    frames = json.loads((d / "lines.json").read_text())["frames"][:4]
+    for i, fr in enumerate(frames):
+        # one pose turning a little a frame (the scene's own frames jump 10 deg of tilt: no
+        # label would follow them, and nothing could be moved)
+        fr["segments"] = (np.asarray(frames[0]["segments"] if i else fr["segments"])
+                          + [3.0 * i, 0, 3.0 * i + 6.0 * i, 0]).tolist()
+    (d / "lines.json").write_text(json.dumps({"frames": frames}))
+    run = ("orient", "--lines", d / "lines.json", "--camera", d / "camera.yaml", "--pencil", d / "pencil.yaml",
+           "--endpoint-sigma", "0.3", "-q", "--force", "-o")
+    assert invoke(*run, d / "plain.json").exit_code == 0
+    assert invoke(*run, d / "given.json", "--readout", "0.5").exit_code == 0
+    with open(d / "camera.yaml", "a") as f:
+        f.write("readout: 0.5\n")
+    assert invoke(*run, d / "file.json").exit_code == 0
+    tilt = {k: [f["tilt_deg"] for f in json.loads((d / f"{k}.json").read_text())["frames"]]
+            for k in ("plain", "given", "file")}
+    assert tilt["file"] == tilt["given"] and tilt["given"][0] == tilt["plain"][0]
+    assert tilt["given"][1:] != tilt["plain"][1:]
+    r = invoke(*run, d / "w.json", "--workers", "2", "--readout", "0.5")
+    assert r.exit_code == 2 and "--readout" in r.output
+    (d / "camera.yaml").write_text((d / "camera.yaml").read_text().replace("readout: 0.5", "readout: 1.5"))
+    r = invoke(*run, d / "bad.json")
+    assert r.exit_code == 1 and "camera.yaml" in r.output and "readout" in r.output

@@ -1,6 +1,8 @@
 """The hard hand-held video (`bench_video.hard_handheld_frames`): seeded, and as hard as promised."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from pencilcal.validation.bench_video import hard_handheld_frames
@@ -32,3 +34,40 @@ def test_hard_video_has_what_it_promises():
     assert np.all((q >= 50) & (q <= 75)) and 150.0 <= info[0]["distance_mm"] <= 400.0
     assert 3.0 <= info[0]["noise"] <= 6.0 and 0.5 <= info[0]["exposure_time"] <= 1.0
     assert 5.0 < min(tilts) and max(tilts) < 65.0
+
+
+def test_a_known_readout_undoes_the_rolling_shutter(tmp_path):
+    # three frames of a steady turn (seed 1, 53-55): the rows read out over 0.6 of a frame
+    # shear the fan by ~2 deg of tilt at a sigma of 0.1-0.2 deg; told the readout, the
+    # later frames' edges are moved back by their motion since the previous frame
+    import cv2
+    from click.testing import CliRunner
+
+    from pencilcal.cli.main import cli
+    from pencilcal.toolkit.camera.formats import write_camera
+    from pencilcal.toolkit.pencil.spec import write_pencil
+
+    idx = [53, 54, 55]
+    cam, pencil, images, tilts, _ = hard_handheld_frames(56, seed=1, only=set(idx))
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in idx:
+        cv2.imwrite(str(frames / f"f{i:03d}.png"), images[i])
+    write_camera(tmp_path / "camera.json", cam)
+    write_pencil(tmp_path / "pencil.yaml", pencil)
+
+    def errors(*extra):
+        out = tmp_path / f"o{len(extra)}.json"
+        r = CliRunner().invoke(cli, ["orient", str(frames), "--camera", str(tmp_path / "camera.json"), "--pencil",
+                                     str(tmp_path / "pencil.yaml"), "-o", str(out), "--endpoint-sigma", "0.5",
+                                     "-q", *extra])
+        assert r.exit_code == 0, r.output
+        recs = json.loads(out.read_text())["frames"]
+        return np.array([abs(f["tilt_deg"] - tilts[i]) for f, i in zip(recs, idx)]), \
+            np.array([f["tilt_sigma_deg"] for f in recs])
+
+    e0, s0 = errors()
+    e1, s1 = errors("--readout", "0.6")
+    assert np.all(e0[1:] > 1.0) and np.all(e0[1:] > 3 * s0[1:])  # the shear: wrong far beyond the sigmas
+    assert np.all(e1[1:] < 0.5) and np.all(e1[1:] < 3 * s1[1:])
+    assert e1[0] == e0[0]  # the first frame has no motion to go by

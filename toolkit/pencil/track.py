@@ -107,16 +107,23 @@ def orient_tracked(camera, segments, pencil, previous, gate_deg=GATE_DEG, keep_l
         return orient_segments(camera, segments, pencil, keep_lines=keep_lines, **orient_kwargs), False
     lab = prior_labels(camera, segments, pencil, previous, gate_deg, orient_kwargs.get("ideal"))
     need = max(3, int(previous.lines_used or 0) - 1)
-    rec = None
-    if np.unique(lab[lab >= 0]).size >= need:
+    rec, short = None, None
+    if np.unique(lab[lab >= 0]).size >= 3:
         # bars' midlines moved onto their centre lines under the previous frame's plane: one fit
         plane = None if previous.ambiguous else previous.normal
         rec = orient_segments(camera, segments, pencil, labels=lab, keep_lines=True, plane_normal=plane,
                               **orient_kwargs)
         if not (rec.ok and rec.lines_used >= need and _fits_its_labels(rec)):
+            # a fit true to its labels on fewer lines than the previous frame's: the full
+            # search decides, unless it explains no more lines (then its labelling is one of
+            # several that fit a few lines alike, often shifted by a spoke: the prior's is kept)
+            short = rec if rec.ok and _fits_its_labels(rec) else None
             rec = None
     if rec is None:
-        return orient_segments(camera, segments, pencil, keep_lines=keep_lines, **orient_kwargs), False
+        full = orient_segments(camera, segments, pencil, keep_lines=keep_lines, **orient_kwargs)
+        if short is None or (full.ok and full.lines_used > short.lines_used):
+            return full, False
+        rec = short
     rec = rec if keep_lines else rec.replace(lines=None)
     if rec.ambiguous and not previous.ambiguous:
         rec = resolve_twins_by_continuity([previous, rec])[1]

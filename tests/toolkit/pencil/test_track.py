@@ -105,3 +105,21 @@ def test_a_star_printed_wider_than_its_file_is_tracked_at_its_printed_width():
         err = min(np.degrees(np.arccos(np.clip(np.asarray(n) @ R[:, 2], -1, 1))) for n in normals)
         assert err < 4 * rec.normal_sigma_deg
         prev = rec
+
+
+def test_a_fit_that_keeps_fewer_lines_stays_tracked_unless_the_full_search_explains_more():
+    # two of eight spokes seen off the vertex (a hand's edge, a bent bar): the tracked fit
+    # keeps six lines, fewer than the previous frame's eight less one; the full search
+    # explains no more of them, so the labels the previous frame predicts are kept (a full
+    # search on a few lines can pick a labelling shifted by one spoke about as well)
+    prev = orient_segments(CAM, _segments(30.0), PEN, endpoint_sigma_px=0.3)
+    assert prev.ok and prev.lines_used == 8
+    seg = _segments(31.0, seed=1)
+    n = np.array([-(seg[:2, 3] - seg[:2, 1]), seg[:2, 2] - seg[:2, 0]]).T
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    seg[:2] += np.tile(25.0 * n, 2)  # 25 px beside their spokes
+    full = orient_segments(CAM, seg, PEN, endpoint_sigma_px=0.3)
+    rec, tracked = orient_tracked(CAM, seg, PEN, prev, endpoint_sigma_px=0.3)
+    assert full.ok and full.lines_used <= 6
+    assert tracked and rec.ok and rec.lines_used == 6
+    assert np.array_equal(rec.spokes[2:], np.arange(2, 8)) and np.all(rec.spokes[:2] == -1)

@@ -1,0 +1,151 @@
+"""A rolling shutter's shear, undone with the previous frame's estimate.
+
+A rolling-shutter camera reads its rows out one after the other: row y of a frame is
+exposed `readout` * y / H frame intervals after row 0. While the camera moves, each
+segment's end points were therefore seen at different times, and the fan's image is bent
+by the image motion times the readout; a fit takes that bend for perspective (tilts off
+by degrees at a few hundredths of a degree's sigma). An even shear is not enough: a
+camera that turns moves the spokes' far ends many times faster than the vertex.
+
+`deskewed_segments` moves each end point of a segment the previous frame's orientation
+labels back to the time of the row through the vertex (the time the estimate refers to),
+by its own image velocity across its spoke: its distance from the spoke's line as the
+previous frame fitted it, over the time between the two (1 frame plus the rows' offset).
+Only the motion across a spoke matters (along it, a point stays on its line), and that is
+what two frames' lines measure, at every point along the spoke. The velocity's error
+(the motion changing from frame to frame) is carried into each segment's offset and
+angle sds (`VELOCITY_REL_SD`, `VELOCITY_FLOOR_PX`).
+
+Example
+-------
+>>> import numpy as np
+>>> from pencilcal.toolkit.camera.model import Camera
+>>> from pencilcal.toolkit.pencil.spec import Pencil
+>>> from pencilcal.toolkit.pencil.orient import orient_segments
+>>> cam = Camera("pinhole", 640, 480, [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
+>>> pen = Pencil(np.radians(np.arange(6) * 30.0))
+>>> th = np.radians(np.arange(6) * 30.0 + 3.0)
+>>> seg = np.c_[319.5 + 40 * np.cos(th), 239.5 + 40 * np.sin(th), 319.5 + 200 * np.cos(th), 239.5 + 200 * np.sin(th)]
+>>> prev = orient_segments(cam, seg, pen)
+>>> out = deskewed_segments(cam, seg, pen, prev, 0.0)
+>>> bool(np.allclose(out[0], seg)), bool(np.all(out[2] == 0))
+(True, True)
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.pencil.spec import image_angles
+from pencilcal.toolkit.pencil.track import prior_labels
+
+__all__ = ["deskewed_segments", "camera_readout", "seen_lines", "VELOCITY_REL_SD", "VELOCITY_FLOOR_PX"]
+
+#: The sd of a point's velocity across its spoke, relative to it (the motion changes from
+#: one frame to the next: a hand's swing starts and stops).
+VELOCITY_REL_SD = 0.5
+#: ... and its floor [px per frame] (the previous frame's lines' own noise).
+VELOCITY_FLOOR_PX = 0.3
+
+
+def seen_lines(camera, segments, spokes, ideal=None):
+    """{spoke label: (2, 2) normalised end points} of a frame's segments as seen (before any
+    move), the longest of each label; spokes: (M,) the fit's labels (-1: none)."""
+    seg = np.asarray(segments, float).reshape(-1, 4)
+    lab = np.asarray(spokes, int).reshape(-1)[:len(seg)]
+    if ideal is None:
+        with np.errstate(invalid="ignore"):
+            p = camera.normalized_from_pixels(seg.reshape(-1, 2)).reshape(-1, 2, 2)
+    else:
+        K = np.asarray(camera.K, float)
+        p = np.linalg.solve(K[:2, :2], (np.asarray(ideal, float).reshape(-1, 2) - K[:2, 2]).T).T.reshape(-1, 2, 2)
+    L = np.linalg.norm(p[:, 1] - p[:, 0], axis=-1)
+    out = {}
+    for m in np.argsort(-np.nan_to_num(L)):
+        if m < len(lab) and lab[m] >= 0 and int(lab[m]) not in out and np.all(np.isfinite(p[m])) and L[m] > 0:
+            out[int(lab[m])] = p[m]
+    return out
+
+
+def deskewed_segments(camera, segments, pencil, previous, readout, ideal=None, seen=None):
+    """(segments, ideal, offset_sd, angle_sd): the segments moved back to the time of the
+    row through the vertex (module docstring).
+
+    segments: (M, 4) raw px; previous: the previous frame's `Orientation` (``ok``) or None
+    (then nothing moves); readout: the time from the first row's exposure to the last
+    row's over the frame interval (0: a global shutter); ideal: (M, 4) the segments in
+    undistorted px where known. Returns the moved segments (M, 4) raw px, the moved ideal
+    segments (M, 4) undistorted px (None where ideal was None), and the sd each move adds
+    to a segment's perpendicular offset at its midpoint (M,) [px] and to its angle (M,)
+    [rad] (0 for segments not moved: unlabelled ones, or without a previous frame).
+    """
+    seg = np.asarray(segments, float).reshape(-1, 4)
+    M = len(seg)
+    zero = np.zeros(M)
+    out_ideal = None if ideal is None else np.asarray(ideal, float).reshape(-1, 4).copy()
+    if M == 0 or not readout or previous is None or not previous.ok or previous.ray is None:
+        return seg.copy(), out_ideal, zero, zero
+    ray = np.asarray(previous.ray, float)
+    if not ray[2] > 0:
+        return seg.copy(), out_ideal, zero, zero
+    K = np.asarray(camera.K, float)
+    f = float(np.sqrt(abs(K[0, 0] * K[1, 1])))
+    lab = prior_labels(camera, seg, pencil, previous, ideal=ideal)
+    x0 = ray[:2] / ray[2]
+    pred = image_angles(np.asarray(previous.R_cam_from_target, float), x0, pencil.edge_angles()[0])  # (N,)
+    if ideal is None:
+        with np.errstate(invalid="ignore"):
+            p = camera.normalized_from_pixels(seg.reshape(-1, 2)).reshape(-1, 2, 2)
+    else:
+        p = np.linalg.solve(K[:2, :2], (out_ideal.reshape(-1, 2) - K[:2, 2]).T).T.reshape(-1, 2, 2)
+    yv = float(camera.pixels_from_normalized(x0)[1])  # the vertex's row (it moves a few px a frame)
+    H = float(camera.height)
+    use = (lab >= 0) & np.all(np.isfinite(p.reshape(-1, 4)), -1)
+    ang = pred[np.where(use, lab, 0)]
+    n = np.stack([-np.sin(ang), np.cos(ang)], -1)  # (M, 2) across the spoke, normalised
+    d = np.einsum("mjk,mk->mj", p - x0, n)  # (M, 2) each end's distance from last frame's line
+    a = readout * (seg[:, [1, 3]] - yv) / H  # (M, 2) each end's time after the vertex row [frames]
+    # seen 1 + a frames after the previous estimate's time: velocity d / (1 + a), moved back by a
+    a = np.clip(a, -0.9, 0.9)
+    v = d / (1.0 + a)  # (M, 2) [normalised per frame]
+    if seen is not None:
+        # against the previous frame's lines as seen (not as corrected): a point on one and the
+        # same row was seen one frame apart in both, and an error of the previous estimate
+        # cannot carry on into this one
+        has = np.array([int(k) in seen for k in lab]) & use
+        for m in np.where(has)[0]:
+            q = seen[int(lab[m])]
+            t = (q[1] - q[0]) / np.linalg.norm(q[1] - q[0])
+            nm = np.array([-t[1], t[0]])
+            n[m] = nm
+            v[m] = (p[m] - q[0]) @ nm
+        use = has
+    move = np.where(use[:, None], -v * a, 0.0)
+    p2 = p + move[..., None] * n[:, None, :]
+    moved = use[:, None] & np.ones((1, 2), bool)
+    new_raw = camera.pixels_from_normalized(p2.reshape(-1, 2)).reshape(-1, 4)
+    out = np.where(np.repeat(moved, 2, -1), new_raw, seg)
+    if out_ideal is not None:
+        new_ideal = (p2.reshape(-1, 2) @ K[:2, :2].T + K[:2, 2]).reshape(-1, 4)
+        out_ideal = np.where(np.repeat(moved, 2, -1), new_ideal, out_ideal)
+    # one velocity error across the spoke for both ends: it shifts the midpoint by its mean
+    # time and turns the segment by the difference over the length
+    sv = VELOCITY_REL_SD * np.mean(np.abs(v), -1) * f + VELOCITY_FLOOR_PX  # (M,) [px per frame]
+    L = np.linalg.norm(p[:, 1] - p[:, 0], axis=-1) * f
+    off_sd = np.where(use, np.abs(a.mean(-1)) * sv, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ang_sd = np.where(use & (L > 0), np.abs(a[:, 1] - a[:, 0]) * sv / L, 0.0)
+    return out, out_ideal, off_sd, ang_sd
+
+
+def camera_readout(camera, source="camera"):
+    """The camera file's rolling-shutter readout (its ``readout`` key: the time from the first
+    row's exposure to the last row's over the frame interval, 0-1), 0.0 without one.
+    Raises InputError naming `source` for a value that is no number in [0, 1]."""
+    r = (camera.meta or {}).get("readout")
+    if r is None:
+        return 0.0
+    if isinstance(r, bool) or not isinstance(r, (int, float)) or not 0.0 <= float(r) <= 1.0:
+        raise InputError(f"{source}: 'readout' must be a number from 0 to 1 (the rows' readout over the frame "
+                         f"interval), got {r!r}")
+    return float(r)
