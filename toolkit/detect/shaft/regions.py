@@ -16,11 +16,7 @@ boundaries: the proposals of the shaft detector's material cue (`shaft.detector`
    stay near 0. The map is *informative* when the frame has a colour: p_med exceeds `Z_999`
    noise sd of one pixel's projection (from the image noise and brightness). A grey frame,
    or a colour frame of a grey scene, has no material cue, and the shaft detector judges its
-   bands by their edges alone (`shaft.detector`). A mode within `_MODE_RADIUS` of grey is no
-   tissue's colour (a bright instrument close to the lens, a third of a red frame, in one
-   narrow peak, the tissue's pixels spread over several hues; its direction is noise): where
-   it leaves the frame without a colour, the mode of the pixels at least that far from grey
-   is taken instead, and the frame has a colour if p_med along it stands out of the noise.
+   bands by their edges alone (`shaft.detector`).
 2. *levels* (`region_levels`): `LEVELS` recursive two-class Otsu splits of the likeness
    over the valid region. The instruments are its upper tail and may cover only a few
    percent of the view, so each split isolates a more extreme part. At each level the
@@ -152,17 +148,6 @@ def _dominant(xv, yv):
     return mu
 
 
-def _along_tissue(x, y, xs, ys, mu):
-    """(mu, u, p, pv, pm): the tissue's chromaticity mu (2,), its direction u, the projection
-    p (h, w) of the chromaticities x, y (h, w) on it, that pv of the samples xs, ys (N,) and
-    its median pm (module docstring, step 1)."""
-    nm = float(np.hypot(*mu))
-    u = mu / nm if nm > 1e-6 else np.array([1.0, 0.0])
-    p = x * u[0] + y * u[1]
-    pv = xs * u[0] + ys * u[1]
-    return mu, u, p, pv, float(median(pv))
-
-
 def material_map(work):
     """The instrument-likeness of each work pixel (module docstring, step 1).
 
@@ -185,25 +170,18 @@ def material_map(work):
     S = R + G + B + 3.0 * max(DARK_DAMPING * y_med, 1.0)
     x = (R - G) / S
     y = (R + G - 2.0 * B) / (np.sqrt(3.0) * S)
-    xs, ys = x.ravel()[iv], y.ravel()[iv]
+    mu = _dominant(x.ravel()[iv], y.ravel()[iv])
+    nm = float(np.hypot(*mu))
+    u = mu / nm if nm > 1e-6 else np.array([1.0, 0.0])
+    p = x * u[0] + y * u[1]
+    pv = p.ravel()[iv]
+    pm = float(median(pv))
     # the frame has a colour when the dominant one stands out of the noise of a projection
     # (a grey frame, or a colour frame of a grey scene, has none)
     # an 8-bit frame's luma holds whole levels: its noise from a histogram, exactly
     luma_noise = estimate_noise(work.luma.astype(np.uint8) if work.bgr.dtype == np.uint8 else work.luma)
     noise = np.sqrt(2.0) * luma_noise / (3.0 * (1.0 + DARK_DAMPING) * y_med)
-    mu, u, p, pv, pm = _along_tissue(x, y, xs, ys, _dominant(xs, ys))
     informative = bool(work.bgr.ndim == 3 and pm > Z_999 * max(noise, 1e-6))
-    if not informative and work.bgr.ndim == 3 and np.hypot(*mu) < _MODE_RADIUS:
-        # the mode is grey: a bright instrument close to the lens (a third of a red frame) or
-        # the dark rim outnumbers any one tissue hue, whose pixels spread over several, and
-        # the direction of a grey mode is noise. The tissue's colour is then the mode of the
-        # coloured pixels; the frame has a colour when the median stands out along it. (Only
-        # here: where a grey mode's direction still gave a colour, the maps are kept.)
-        coloured = np.hypot(xs, ys) >= _MODE_RADIUS
-        if np.count_nonzero(coloured) >= 100:
-            got = _along_tissue(x, y, xs, ys, _dominant(xs[coloured], ys[coloured]))
-            if got[4] > Z_999 * max(noise, 1e-6):
-                (mu, u, p, pv, pm), informative = got, True
     # a scene that is almost grey itself: the scale stays >= 3 x the robust spread of p, so
     # the likeness does not blow up
     mad = 1.4826 * float(median(np.abs(pv - pm)))
