@@ -796,7 +796,8 @@ def _vertex_fit(segments, angle_sigma, offset_sigma, parallax, lines_from):
     if lines_from != "shafts" or (par is not None and np.any(par > 0)):
         vf, rec, used = vertex_with_parallax(segments, angle_sigma, offset_sigma, par)
         return vf, rec, used, None
-    vf, rec, used = vertex_with_parallax(segments, angle_sigma, offset_sigma, np.ones(len(segments)))
+    vf, rec, used = vertex_with_parallax(segments, angle_sigma, offset_sigma, np.ones(len(segments)),
+                                        median_start=True)
     play = {"sigma_px": rec["kappa"], "chi2_without": rec["chi2_without"], "dof": rec["dof"],
             "p_value": rec["p_value"]}
     return vf, None, used, play

@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pencilcal.toolkit.geometry.quantiles import chi2_sf
+from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
 from pencilcal.toolkit.pencil.vertex import intersect_lines
 
 __all__ = ["vertex_with_parallax", "ROUNDS"]
@@ -83,7 +83,29 @@ def _kappa2(e2, own, p2, dof):
     return hi
 
 
-def vertex_with_parallax(segments, angle_sigma, offset_sigma, parallax):
+def _median_start(fit, own, p2):
+    """A first kappa^2 >= 0 that brings the median of every line's chi2 (1 dof) at the fit's
+    vertex to its own median (0.455), outliers and all (e2 from `fit` (N,), own (N,) the
+    lines' own variances at the vertex, p2 (N,) squared scales), by bisection; 0 where the
+    median is within it. A start that the gate of too small a noise cannot bias: that gate
+    keeps only the lines that happen to pass close, whose scatter says there is none."""
+    e2 = (np.asarray(fit.residuals) * np.asarray(fit.sigmas)) ** 2
+    med = float(chi2_isf(0.5, 1))  # chi2(1)'s median
+
+    def over(k):
+        return float(np.median(e2 / (own + k * p2))) > med
+    if not over(0.0) or not np.any(p2 > 0):
+        return 0.0
+    lo, hi = 0.0, float(np.max(e2 / np.maximum(p2, 1e-300))) + 1e-12
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if over(mid) else (lo, mid)
+        if hi - lo <= _TOL * hi:
+            break
+    return hi
+
+
+def vertex_with_parallax(segments, angle_sigma, offset_sigma, parallax, median_start=False):
     """(VertexFit, the ``parallax`` record or None, offset sigmas used (N,) [px]): the robust
     common point of N lines (`vertex.intersect_lines`) with the parallax term (module
     docstring) where the lines carry parallax scales and scatter significantly more than
@@ -94,7 +116,9 @@ def vertex_with_parallax(segments, angle_sigma, offset_sigma, parallax):
     one: the plain fit, record None). The record: ``kappa`` (the parallax per px of scale;
     0 where not called for), ``chi2_without`` and ``dof`` (the plain fit's), its
     ``p_value``, ``lines`` (lines with a scale > 0) and ``sigma_px`` (the term's largest sd
-    over the inliers).
+    over the inliers). median_start: the term starts from the median of every line's
+    chi2 (`_median_start`) rather than 0, where every line carries it alike (the port's
+    play, `fulcrum._vertex_fit`).
     """
     sc = np.asarray(offset_sigma, float)
     fit = intersect_lines(segments, angle_sigma=angle_sigma, offset_sigma=sc, robust=True)
@@ -105,9 +129,15 @@ def vertex_with_parallax(segments, angle_sigma, offset_sigma, parallax):
     rec = {"kappa": 0.0, "chi2_without": float(fit.chi2), "dof": int(dof),
            "p_value": float(chi2_sf(fit.chi2, dof)) if dof > 0 else None, "lines": int(np.sum(p2 > 0)),
            "sigma_px": 0.0}
-    if dof <= 0 or fit.chi2 <= dof:
+    # the median start looks past the gate: its kept lines can be within their chi2 while
+    # the lines it dropped carry the term
+    k2 = _median_start(fit, np.asarray(fit.sigmas, float) ** 2, p2) if median_start and dof > 0 else 0.0
+    if dof <= 0 or (fit.chi2 <= dof and k2 == 0.0):
         return fit, rec, sc
-    k2, used = 0.0, sc
+    used = sc
+    if k2 > 0:
+        used = np.sqrt(sc**2 + k2 * p2)
+        fit = intersect_lines(segments, angle_sigma=angle_sigma, offset_sigma=used, robust=True)
     for _ in range(ROUNDS):
         inl = fit.inliers
         e2 = (fit.residuals * fit.sigmas)[inl] ** 2

@@ -75,3 +75,22 @@ def test_the_term_is_found_and_the_sigmas_cover():
     assert found >= 0.95 and abs(k - 0.15) < 0.15 * 0.15
     assert 0.60 <= inside <= 0.76 and plain < inside - 0.1
     assert 0.60 <= out[0.0][2] <= 0.76
+
+
+def test_the_play_starts_from_every_lines_median():
+    """20 of 50 lines through the point within their tiny sigmas, the other 30 off it by the
+    port's play (3 px sd): the gate at the lines' own sigmas keeps the 20 and reads no play;
+    started from the median of every line's chi2 the term reads the play and keeps them
+    all."""
+    rng = np.random.default_rng(3)
+    ang = rng.uniform(0, np.pi, 50)
+    d = np.stack([np.cos(ang), np.sin(ang)], -1)
+    n = np.stack([-d[:, 1], d[:, 0]], -1)
+    off = np.where(np.arange(50) < 20, 0.0, rng.normal(0.0, 3.0, 50))
+    c = np.array([320.0, 240.0]) + off[:, None] * n
+    segs = np.concatenate([c + 40 * d, c + 200 * d], -1)
+    sig, sc = np.full(50, 1e-4), np.full(50, 0.05)
+    fit, rec, used = vertex_with_parallax(segs, sig, sc, np.ones(50), median_start=True)
+    plain, prec, _ = vertex_with_parallax(segs, sig, sc, np.ones(50))
+    print(f"play {rec['kappa']:.2f} px, {fit.lines_used} lines; from 0: {prec['kappa']:.2f} px, {plain.lines_used}")
+    assert rec["kappa"] > 1.0 and fit.lines_used == 50
