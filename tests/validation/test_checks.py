@@ -46,12 +46,12 @@ def test_a_fulcrum_that_moved_gets_the_jackknife_sigma(rng):
 
 
 def test_real_phantom_fulcrum_gets_its_jackknife_sigma():
-    """The real phantom sequence (docs/uncertainty.md): its frames point to two fulcrums, and
-    leaving one frame out moves the ray by 4.3 deg (frame 10's false bands in the dark gaps
-    between fat and bowel included). The lines' offset term (the port's play, ``play``:
-    48 px at the fulcrum's image, far off the image) takes that scatter into the fit's own
-    sigma, 4.0 deg, so the jackknife agrees with it; a factor on the lines' own sigmas alone
-    gave 2.8 deg against the jackknife's 4.7, and the reported sigma was the jackknife's."""
+    """The real phantom sequence (docs/uncertainty.md): its frames point to two fulcrums
+    (frame 10's false bands in the dark gaps between fat and bowel included). The lines'
+    offset term (the port's play, ``play``: 48 px at the fulcrum's image, far off the image)
+    takes their scatter into the fit's own sigma, 4.0 deg (a factor on the lines' own sigmas
+    alone gave 2.8); leaving one frame out, each fit reading its own play, moves the ray by
+    8.9 deg (4.7 with the factor), and the reported sigma is never below the fit's."""
     from pencilcal.toolkit.detect.region.detect import detect_valid_region
     from pencilcal.toolkit.detect.shaft.detector import detect_shafts
     from pencilcal.toolkit.pencil.sequence_noise import fulcrum_noise
@@ -69,6 +69,5 @@ def test_real_phantom_fulcrum_gets_its_jackknife_sigma():
     jk = fulcrum_jackknife(cam, frames, full=full)
     out, rec = jackknife_inflation(full, jk)
     print(f"phantom: ray sigma {full.ray_sigma_deg:.2f} deg, jackknife {jk['ray_sigma_jackknife_deg']:.2f} deg")
-    assert jk["frames"] >= 19 and full.play["sigma_px"] > 10.0
-    assert jk["ray_sigma_jackknife_deg"] > 3.5 and full.ray_sigma_deg > 0.8 * jk["ray_sigma_jackknife_deg"]
-    assert out.ray_sigma_deg >= full.ray_sigma_deg
+    assert jk["frames"] >= 19 and full.play["sigma_px"] > 10.0 and full.ray_sigma_deg > 3.5
+    assert out.ray_sigma_deg >= full.ray_sigma_deg and out.ray_sigma_deg >= 0.99 * jk["ray_sigma_jackknife_deg"]
