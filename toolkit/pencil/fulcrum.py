@@ -799,7 +799,7 @@ def _vertex_fit(segments, angle_sigma, offset_sigma, parallax, lines_from):
     vf, rec, used = vertex_with_parallax(segments, angle_sigma, offset_sigma, np.ones(len(segments)),
                                         median_start=True)
     play = {"sigma_px": rec["kappa"], "chi2_without": rec["chi2_without"], "dof": rec["dof"],
-            "p_value": rec["p_value"]}
+            "p_value": rec["p_value"], "start": rec["start"]}
     return vf, None, used, play
 
 
