@@ -46,10 +46,15 @@ def test_a_fulcrum_that_moved_gets_the_jackknife_sigma(rng):
 
 
 def test_real_phantom_fulcrum_gets_its_jackknife_sigma():
-    """The real phantom sequence (docs/uncertainty.md): its frames point to two fulcrums and
-    leaving one frame out moves the ray by 4.7 deg against a sigma of 2.8 (frame 10's false
-    bands in the dark gaps between fat and bowel included; 7.4 without the edge-pair
-    proposer): the reported sigma becomes the jackknife's."""
+    """The real phantom sequence (docs/uncertainty.md): its frames point to two fulcrums
+    (frame 10's false bands in the dark gaps between fat and bowel included). The lines'
+    offset term (the port's play, ``play``: 48 px at the fulcrum's image, far off the image)
+    takes their scatter into the fit's own sigma, 4.0 deg (a factor on the lines' own sigmas
+    alone gave 2.8), and leaving one frame out, each fit reading its own play, moves the ray
+    by 4.3 deg (4.7 with the factor): within 1.5 times the fit's sigma. The play starts from
+    0 and again from the median only where it keeps under half the lines: started from the
+    median every time, half the leave-one-out fits took frame 1's stray line in (the play
+    69 px, the ray moved 2-5.5 deg) and the jackknife was 8.9 deg, 2.2 times."""
     from pencilcal.toolkit.detect.region.detect import detect_valid_region
     from pencilcal.toolkit.detect.shaft.detector import detect_shafts
     from pencilcal.toolkit.pencil.sequence_noise import fulcrum_noise
@@ -67,5 +72,5 @@ def test_real_phantom_fulcrum_gets_its_jackknife_sigma():
     jk = fulcrum_jackknife(cam, frames, full=full)
     out, rec = jackknife_inflation(full, jk)
     print(f"phantom: ray sigma {full.ray_sigma_deg:.2f} deg, jackknife {jk['ray_sigma_jackknife_deg']:.2f} deg")
-    assert jk["frames"] >= 19 and rec["inflated"] and rec["ratio"] > 1.5
-    assert out.ray_sigma_deg == jk["ray_sigma_jackknife_deg"] > 4.0
+    assert jk["frames"] >= 19 and full.play["sigma_px"] > 10.0 and full.ray_sigma_deg > 3.5
+    assert jk["ratio"] <= 1.5 and not rec["inflated"] and out.ray_sigma_deg == full.ray_sigma_deg

@@ -133,9 +133,13 @@ class Fulcrum:
     leave-one-out check, where they were decided (`validation.fulcrum_run`); None otherwise.
     parallax: where the lines carry parallax scales (stabilised shafts), the record of the
     parallax term their covariances took (`vertex_with_parallax`); None otherwise.
-    ray_cov_offset (3, 3): the part of ray_cov that term gave (an offset of every line at
-    the vertex, the scene's rather than each line's own: `stereo_fulcrum.stereo_fulcrum` takes it as
-    shared by two views); None where the lines took none.
+    play: where the lines are a still camera's shaft midlines, the record of the port's
+    play their offsets took (`_vertex_fit`: ``sigma_px``, 0 where the lines scatter no more
+    than their sigmas say); None otherwise.
+    ray_cov_offset (3, 3): the part of ray_cov that the parallax or the play term gave (an
+    offset of every line at the vertex, the scene's rather than each line's own:
+    `stereo_fulcrum.stereo_fulcrum` takes it as shared by two views); None where the lines
+    took none.
     """
 
     vertex_px: np.ndarray | None
@@ -160,6 +164,7 @@ class Fulcrum:
     jackknife: dict | None = None
     parallax: dict | None = None
     ray_cov_offset: np.ndarray | None = None
+    play: dict | None = None
 
     def ray_covariance(self):
         """(3, 3) covariance of the unit `ray` (camera frame), singular along it, with the
@@ -202,6 +207,8 @@ class Fulcrum:
         out["lines_from"] = self.lines_from
         if self.parallax is not None:
             out["parallax"] = self.parallax
+        if self.play is not None:
+            out["play"] = self.play
         return out
 
 
@@ -774,6 +781,34 @@ def _offset_cov(vf, segments, extra):
     return vf.cov @ M @ vf.cov
 
 
+def _vertex_fit(segments, angle_sigma, offset_sigma, parallax, lines_from):
+    """(VertexFit, parallax record or None, offset sigmas used (N,) [px], play record or None):
+    the fulcrum's image from its N lines (segments (N, 4) undistorted px, angle_sigma (N,)
+    [rad], offset_sigma (N,) [px], parallax (N,) [px] or None as `vertex_with_parallax`
+    takes them).
+
+    Lines stabilised from a moving camera take their parallax term. A still camera's shaft
+    midlines take the port's play instead: every frame's shaft passes the fulcrum off by
+    the play, whose image is an offset of the line at the vertex of about the same size in
+    every frame (one fulcrum depth), whatever the line's own precision. So each line's
+    offset variance takes one sd for the sequence, ``tau^2`` [px^2] (the parallax term with
+    a scale of 1 px on every line: tau brings the inliers' chi2 to its degrees of freedom,
+    the gate run again with it until it holds). A factor on the lines' own sigmas instead
+    (`sequence_noise.fulcrum_noise`) leaves the long, precise lines' share of the play far
+    too small, and the gate set for their sigmas leaves out the frames the play moved
+    most: the factor read on what passes is too small (docs/uncertainty.md). play: {sigma_px
+    (tau), chi2_without, dof, p_value (the fit without it)}; None for segments."""
+    par = None if parallax is None else np.asarray(parallax, float)
+    if lines_from != "shafts" or (par is not None and np.any(par > 0)):
+        vf, rec, used = vertex_with_parallax(segments, angle_sigma, offset_sigma, par)
+        return vf, rec, used, None
+    vf, rec, used = vertex_with_parallax(segments, angle_sigma, offset_sigma, np.ones(len(segments)),
+                                        median_start=True)
+    play = {"sigma_px": rec["kappa"], "chi2_without": rec["chi2_without"], "dof": rec["dof"],
+            "p_value": rec["p_value"], "start": rec["start"]}
+    return vf, None, used, play
+
+
 def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_SIGMA_PX, intrinsics_cov="camera",
                         shaft_diameter=None, lines=None, raw_px=True):
     """The fulcrum (and with `angles` the pivot plane) from the lines of a sequence.
@@ -800,7 +835,8 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
     if good.sum() < 2:
         raise EstimationError("fewer than two lines could be undistorted")
     idx = np.flatnonzero(good)
-    vf, parallax, sc_used = vertex_with_parallax(ideal[idx], st[idx], sc[idx], None if par is None else par[idx])
+    vf, parallax, sc_used, play = _vertex_fit(ideal[idx], st[idx], sc[idx], None if par is None else par[idx],
+                                              lines_from)
     extra = sc_used ** 2 - sc[idx] ** 2
     sc = sc.copy()
     sc[idx] = sc_used
@@ -826,7 +862,7 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
         lines_used=int(vf.lines_used),
         outliers=[{"image": frames[owner[k][0]].get("image"), "segment": owner[k][1]} for k in np.flatnonzero(~inl)],
         frames_used=int(len({owner[k][0] for k in np.flatnonzero(inl)})), rms=vf.rms, lines_from=lines_from,
-        warnings=tuple(warnings), ray_cov=ray_cov, parallax=parallax,
+        warnings=tuple(warnings), ray_cov=ray_cov, parallax=parallax, play=play,
         ray_cov_offset=None if off is None else P @ (A @ off @ A.T) @ P.T)
     C = resolve_intrinsics_cov(camera, intrinsics_cov)
     if C is not None:

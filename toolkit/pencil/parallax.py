@@ -49,13 +49,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from pencilcal.toolkit.geometry.quantiles import chi2_sf
+from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
 from pencilcal.toolkit.pencil.vertex import intersect_lines
 
-__all__ = ["vertex_with_parallax", "ROUNDS"]
+__all__ = ["vertex_with_parallax", "ROUNDS", "MAJORITY"]
 
 #: Robust fits at most while kappa settles.
 ROUNDS = 20
+#: The least share of the lines the term settled from 0 keeps before it starts again from
+#: the median (`vertex_with_parallax`'s median_start); a robust fit's breakdown point.
+MAJORITY = 0.5
 # kappa^2 has settled when it changes by less than this, relatively
 _TOL = 1e-6
 
@@ -83,31 +86,32 @@ def _kappa2(e2, own, p2, dof):
     return hi
 
 
-def vertex_with_parallax(segments, angle_sigma, offset_sigma, parallax):
-    """(VertexFit, the ``parallax`` record or None, offset sigmas used (N,) [px]): the robust
-    common point of N lines (`vertex.intersect_lines`) with the parallax term (module
-    docstring) where the lines carry parallax scales and scatter significantly more than
-    their own sigmas say.
+def _median_start(fit, own, p2):
+    """A first kappa^2 >= 0 that brings the median of every line's chi2 (1 dof) at the fit's
+    vertex to its own median (0.455), outliers and all (e2 from `fit` (N,), own (N,) the
+    lines' own variances at the vertex, p2 (N,) squared scales), by bisection; 0 where the
+    median is within it. A start that the gate of too small a noise cannot bias: that gate
+    keeps only the lines that happen to pass close, whose scatter says there is none."""
+    e2 = (np.asarray(fit.residuals) * np.asarray(fit.sigmas)) ** 2
+    med = float(chi2_isf(0.5, 1))  # chi2(1)'s median
 
-    segments: (N, 4) undistorted px; angle_sigma, offset_sigma: (N,) [rad], [px] each
-    line's own; parallax: (N,) [px] each line's parallax scale, or None (no line carries
-    one: the plain fit, record None). The record: ``kappa`` (the parallax per px of scale;
-    0 where not called for), ``chi2_without`` and ``dof`` (the plain fit's), its
-    ``p_value``, ``lines`` (lines with a scale > 0) and ``sigma_px`` (the term's largest sd
-    over the inliers).
-    """
-    sc = np.asarray(offset_sigma, float)
-    fit = intersect_lines(segments, angle_sigma=angle_sigma, offset_sigma=sc, robust=True)
-    if parallax is None or not np.any(np.asarray(parallax) > 0):
-        return fit, None, sc
-    p2 = np.asarray(parallax, float) ** 2
-    dof = fit.lines_used - 2
-    rec = {"kappa": 0.0, "chi2_without": float(fit.chi2), "dof": int(dof),
-           "p_value": float(chi2_sf(fit.chi2, dof)) if dof > 0 else None, "lines": int(np.sum(p2 > 0)),
-           "sigma_px": 0.0}
-    if dof <= 0 or fit.chi2 <= dof:
-        return fit, rec, sc
-    k2, used = 0.0, sc
+    def over(k):
+        return float(np.median(e2 / (own + k * p2))) > med
+    if not over(0.0) or not np.any(p2 > 0):
+        return 0.0
+    lo, hi = 0.0, float(np.max(e2 / np.maximum(p2, 1e-300))) + 1e-12
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if over(mid) else (lo, mid)
+        if hi - lo <= _TOL * hi:
+            break
+    return hi
+
+
+def _settle(segments, angle_sigma, sc, p2, fit, k2):
+    """(VertexFit, kappa^2, offset sigmas used (N,)): the robust fit run again with kappa^2
+    until kappa^2 holds (`ROUNDS` at most), from `fit` made with the start `k2`."""
+    used = np.sqrt(sc**2 + k2 * p2)
     for _ in range(ROUNDS):
         inl = fit.inliers
         e2 = (fit.residuals * fit.sigmas)[inl] ** 2
@@ -119,5 +123,55 @@ def vertex_with_parallax(segments, angle_sigma, offset_sigma, parallax):
         fit = intersect_lines(segments, angle_sigma=angle_sigma, offset_sigma=used, robust=True)
         if done:
             break
+    return fit, k2, used
+
+
+def vertex_with_parallax(segments, angle_sigma, offset_sigma, parallax, median_start=False):
+    """(VertexFit, the ``parallax`` record or None, offset sigmas used (N,) [px]): the robust
+    common point of N lines (`vertex.intersect_lines`) with the parallax term (module
+    docstring) where the lines carry parallax scales and scatter significantly more than
+    their own sigmas say.
+
+    segments: (N, 4) undistorted px; angle_sigma, offset_sigma: (N,) [rad], [px] each
+    line's own; parallax: (N,) [px] each line's parallax scale, or None (no line carries
+    one: the plain fit, record None). The record: ``kappa`` (the parallax per px of scale;
+    0 where not called for), ``chi2_without`` and ``dof`` (the plain fit's), its
+    ``p_value``, ``lines`` (lines with a scale > 0), ``sigma_px`` (the term's largest sd
+    over the inliers); with median_start also ``start`` ("zero", or "median" where the term
+    started again).
+    median_start: where every line carries the term alike (the port's play,
+    `fulcrum._vertex_fit`) and the term settled from 0 keeps fewer than `MAJORITY` of the
+    lines, it starts again from the median of every line's chi2 (`_median_start`): a term
+    that calls most lines outliers is one the gate of too small a noise chose (it keeps
+    only the lines that happen to pass close, whose scatter then says there is little),
+    not one a robust fit can claim. Started from the median every time instead, the leave-
+    one-out fits of a sequence with a stray line settle some with it and some without, and
+    the jackknife doubles (docs/method.md).
+    """
+    sc = np.asarray(offset_sigma, float)
+    fit = intersect_lines(segments, angle_sigma=angle_sigma, offset_sigma=sc, robust=True)
+    if parallax is None or not np.any(np.asarray(parallax) > 0):
+        return fit, None, sc
+    p2 = np.asarray(parallax, float) ** 2
+    dof = fit.lines_used - 2
+    rec = {"kappa": 0.0, "chi2_without": float(fit.chi2), "dof": int(dof),
+           "p_value": float(chi2_sf(fit.chi2, dof)) if dof > 0 else None, "lines": int(np.sum(p2 > 0)),
+           "sigma_px": 0.0}
+    if median_start:
+        rec["start"] = "zero"
+    plain, k2, used = fit, 0.0, sc
+    if dof > 0 and fit.chi2 > dof:
+        fit, k2, used = _settle(segments, angle_sigma, sc, p2, plain, 0.0)
+    # the gate's kept lines can be within their chi2 while the lines it dropped carry the
+    # term: a minority kept is the sign, whether the term settled or was never called for
+    if median_start and dof > 0 and fit.lines_used < MAJORITY * len(sc):
+        start = _median_start(plain, np.asarray(plain.sigmas, float) ** 2, p2)
+        if start > 0:
+            used = np.sqrt(sc**2 + start * p2)
+            first = intersect_lines(segments, angle_sigma=angle_sigma, offset_sigma=used, robust=True)
+            fit, k2, used = _settle(segments, angle_sigma, sc, p2, first, start)
+            rec["start"] = "median"
+    if k2 == 0.0:
+        return fit, rec, used
     rec.update(kappa=float(np.sqrt(k2)), sigma_px=float(np.sqrt(k2 * p2[fit.inliers].max(initial=0.0))))
     return fit, rec, used

@@ -26,7 +26,7 @@ __all__ = ["StereoFulcrum", "stereo_fulcrum", "triangulation_lens_cov"]
 
 _RIGHT_KEYS = ("vertex_px", "vertex_cov_px2", "ray", "ray_cov", "ray_sigma_deg", "lines_used", "outliers",
                "frames_used", "rms", "lines_from", "ray_cov_total", "ray_sigma_total_deg", "vertex_cov_total_px2",
-               "intrinsics_used")
+               "intrinsics_used", "play")
 
 
 @dataclass(frozen=True, eq=False)

@@ -154,3 +154,46 @@ def test_without_frame_is_the_fit_of_the_other_frames(rng):
     frames[4]["shafts"] = [{"midline": frames[4]["segments"][0], "angle_sigma_deg": 0.05}]
     assert without_frame(sequence_lines(cam, frames), frames, 4) is None
     assert without_frame(sequence_lines(cam, frames), frames, 3) is not None
+
+
+def played_shafts(cam, rng, play_mm, n=50, angle_sigma_deg=0.02):
+    """Shaft midlines of an instrument pivoting about a port 150 mm deep whose axis passes
+    the fulcrum off by the port's play (play_mm sd per direction across the axis), each
+    with a precise angle sigma of its own: the lines miss the fulcrum's image by the play's
+    image, ~f play / depth px, whatever their own sigmas say."""
+    fulcrum = np.array([-20.0, 10.0, 150.0])
+    frames = []
+    for k in range(n):
+        d = np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.4, 0.4), -1.0])
+        d /= np.linalg.norm(d)
+        off = rng.normal(0.0, play_mm, 3)
+        off -= (off @ d) * d
+        seg = cam.project(np.stack([fulcrum + off + 20 * d, fulcrum + off + 70 * d])).ravel()
+        frames.append({"image": f"{k:03d}.png", "ok": True, "segments": np.zeros((0, 4)),
+                       "shafts": [{"midline": seg, "angle_sigma_deg": angle_sigma_deg}]})
+    return frames, fulcrum
+
+
+def test_the_ports_play_is_in_the_fulcrums_sigmas(rng):
+    """Shafts with precise midlines whose axes miss the fulcrum by the port's play: the
+    fulcrum's image takes the play as an offset every line shares (``play``: its sd [px]
+    about f play / depth), and its covariance holds the error, as the command writes it
+    (with the noise step). A factor on the lines' own sigmas alone, its gate set for them,
+    leaves the error far beyond its sigma (mean chi2 189 for 2 expected, 29 of 30 beyond 3.7 sigma)."""
+    from pencilcal.toolkit.pencil.sequence_noise import fulcrum_noise
+
+    cam = hd_camera()
+    chi2, taus = [], []
+    for _ in range(30):
+        frames, P = played_shafts(cam, rng, 0.35)
+        out, _ = fulcrum_noise(fulcrum_from_frames(cam, frames), inflate_only=True)
+        e = np.asarray(out.vertex_px) - cam.project(P)
+        chi2.append(e @ np.linalg.solve(np.asarray(out.vertex_cov_px2), e))
+        taus.append(out.play["sigma_px"])
+    expected = cam.K[0, 0] * 0.35 / 150.0
+    print(f"mean chi2 {np.mean(chi2):.2f}, play {np.median(taus):.2f} px for {expected:.2f}")
+    assert np.mean(chi2) < 3.0 and np.mean(np.array(chi2) > 13.8) < 0.05
+    assert 0.6 * expected < np.median(taus) < 1.4 * expected
+    # lines as precise as their sigmas say take no play
+    frames, P = played_shafts(cam, rng, 0.0)
+    assert fulcrum_from_frames(cam, frames).play["sigma_px"] == 0.0
