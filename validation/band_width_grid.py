@@ -11,6 +11,14 @@ render (``numpy.random.default_rng([seed, k])``) the axis's direction and place,
 exposure (light level 0.15-0.5, linear), a lighting ramp across the image (0-30 %), the
 background's level, optical blur (0.7-1.5 px) and sensor noise (1-3 grey levels) are drawn.
 
+``realism="endoscope"`` renders each frame as `validation.pivot_renders` renders an
+endoscope's (what a user's frames look like): the shaft's light falls off with its distance
+(one exposure puts its face 60 mm away at a linear level of 0.15-0.5; nearer shafts may clip),
+it ends 10-40 mm beyond the axis point with a bright metal wrist (2.6 mm radius, 9 mm long)
+beyond it, the lighting is uneven (`render.lighting_gain`, 0.1-0.4), the sensor noise is
+1.5-3 grey levels and each frame is JPEG-compressed (quality 80-95). The default
+(``"plain"``) is the grid as the class sds were first measured on (`defaults.EDGE_WIDTH_SD_PX`).
+
 Each band is classed as the detector measures it: its ``polarity`` (the shaft darker or
 brighter than its surround) and its width in pixels (`band_class`); the width error is the
 detected band width minus the true silhouette's width at the band's centre [px], and
@@ -19,7 +27,7 @@ class is given in the 3-D fulcrum's covariance (`pencil.band_width.band_width_sd
 share of bands whose error lies within 1, 2 and 3 of those sds (a normal error: 68, 95,
 99.7 %).
 
-    python -m pencilcal.validation.band_width_grid --seeds 1:3 [--out rows.json]
+    python -m pencilcal.validation.band_width_grid --seeds 1:3 [--realism endoscope] [--out rows.json]
 
 Example
 -------
@@ -38,18 +46,23 @@ from pathlib import Path
 import numpy as np
 
 from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.detect.shaft.detector import EDGE_MODELS, detect_shafts
 from pencilcal.toolkit.pencil.band_width import band_class, band_width_sd
-from pencilcal.toolkit.synth.shaded import MATERIALS, render_shaded_shaft
+from pencilcal.toolkit.synth.render import sensor_image
+from pencilcal.toolkit.synth.shaded import MATERIALS, ShadedTruth, render_shaded_shaft, shaft_light, shaft_radiance
 from pencilcal.toolkit.synth.tissue import tissue_image
 
-__all__ = ["BACKGROUNDS", "DISTANCES_MM", "GROSS_REL", "RADIUS_MM", "grid_camera", "render_band", "run_grid", "summary",
+__all__ = ["BACKGROUNDS", "DISTANCES_MM", "REALISMS", "GROSS_REL", "RADIUS_MM", "grid_camera", "render_band", "run_grid", "summary",
            "format_summary", "main"]
 
 #: The backgrounds: flat bright (a grey-blue drape), flat dark (an unlit cavity) and tissue.
 BACKGROUNDS = ("bright", "dark", "tissue")
 DISTANCES_MM = (20.0, 40.0, 80.0, 120.0, 150.0)
 RADIUS_MM = 4.0
+#: How a frame is rendered (module docstring): "plain" or "endoscope".
+REALISMS = ("plain", "endoscope")
+_WRIST = (2.6, 9.0)  # the wrist beyond the shaft's end: radius, length [mm] (as `pivot_renders`)
 
 
 def grid_camera():
@@ -68,21 +81,58 @@ def _background(name, rng, shape):
     raise ValueError(f"background must be one of {', '.join(BACKGROUNDS)}, got {name!r}")
 
 
-def render_band(seed, k, material, background, z_mm, edge_models=EDGE_MODELS):
-    """One render's bands: {seed, k, material, background, z_mm, true_width_px, and per edge
-    model in edge_models a dict (polarity, width_px, error_px, error_rel, class, sd_px) or
-    None where the detector found no band on the shaft}; k: the render's index within the
-    seed (its random settings come from default_rng([seed, k]))."""
+def _endoscope_frame(cam, A, d, material, background, rng):
+    """One endoscope-like frame (module docstring, ``realism="endoscope"``): (H, W, 3) uint8
+    BGR decoded from its JPEG, and the shaft's `ShadedTruth`."""
+    import cv2
+
+    mat, wrist = MATERIALS[material], MATERIALS["bright_metal"]
+    bg = np.asarray(_background(background, rng, (cam.height, cam.width)), float)
+    img = np.array(np.broadcast_to(bg, (cam.height, cam.width, 3)))
+    end = rng.uniform(10.0, 40.0)
+    level = rng.uniform(0.15, 0.5)
+    outline = None
+    for m, radius, extent, lev in ((wrist, _WRIST[0], (end, end + _WRIST[1]), 0.5), (mat, RADIUS_MM, (-1e4, end), level)):
+        try:
+            rad, cover, _, _, seen = shaft_light(cam, A, d, radius, m, extent=extent)
+        except InputError:
+            if m is mat:
+                raise
+            continue  # the wrist out of view
+        if m is mat:
+            outline = seen
+        # one exposure for the sequence: the face 60 mm away at the level, fall-off kept
+        rad = rad * (lev / float(shaft_radiance(0.8, 60.0, m)))
+        img = img * (1.0 - cover)[..., None] + rad[..., None] * np.asarray(m.colour, float)
+    enc = sensor_image(img, rng.uniform(0.1, 0.4), 1.0, rng.uniform(0.7, 1.5), 2.2, rng.uniform(1.5, 3.0), rng)
+    ok, buf = cv2.imencode(".jpg", enc, [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(80, 96))])
+    truth = ShadedTruth(outline.lines, outline.normals, np.asarray(A, float), np.asarray(d, float) / np.linalg.norm(d),
+                        RADIUS_MM, np.asarray(cam.K, float))
+    return cv2.imdecode(buf, cv2.IMREAD_COLOR), truth
+
+
+def render_band(seed, k, material, background, z_mm, edge_models=EDGE_MODELS, realism="plain"):
+    """One render's bands: {seed, k, material, background, z_mm, realism, and per edge model
+    in edge_models a dict (polarity, width_px, error_px, error_rel, true_width_px, class,
+    sd_px) or None where the detector found no band on the shaft}; k: the render's index
+    within the seed (its random settings come from default_rng([seed, k])); realism: one of
+    `REALISMS` (module docstring)."""
+    if realism not in REALISMS:
+        raise ValueError(f"realism must be one of {', '.join(REALISMS)}, got {realism!r}")
     cam = grid_camera()
     rng = np.random.default_rng([int(seed), int(k)])
     ang = rng.uniform(0, np.pi)
     d = np.array([np.cos(ang), np.sin(ang), rng.uniform(0.2, 0.6)])
     A = [rng.uniform(-3, 3) * z_mm / 40.0, rng.uniform(-3, 3) * z_mm / 40.0, float(z_mm)]
-    img, truth = render_shaded_shaft(cam, A, d, RADIUS_MM, MATERIALS[material],
-                                     background=_background(background, rng, (cam.height, cam.width)),
-                                     gradient=rng.uniform(0.0, 0.3), shaft_level=rng.uniform(0.15, 0.5),
-                                     blur_px=rng.uniform(0.7, 1.5), noise=rng.uniform(1.0, 3.0), rng=rng)
-    out = {"seed": int(seed), "k": int(k), "material": material, "background": background, "z_mm": float(z_mm)}
+    if realism == "endoscope":
+        img, truth = _endoscope_frame(cam, A, d, material, background, rng)
+    else:
+        img, truth = render_shaded_shaft(cam, A, d, RADIUS_MM, MATERIALS[material],
+                                         background=_background(background, rng, (cam.height, cam.width)),
+                                         gradient=rng.uniform(0.0, 0.3), shaft_level=rng.uniform(0.15, 0.5),
+                                         blur_px=rng.uniform(0.7, 1.5), noise=rng.uniform(1.0, 3.0), rng=rng)
+    out = {"seed": int(seed), "k": int(k), "material": material, "background": background, "z_mm": float(z_mm),
+           "realism": realism}
     for model in edge_models:
         best = None
         for s in detect_shafts(img, cam, edge_model=model):
@@ -105,7 +155,7 @@ def render_band(seed, k, material, background, z_mm, edge_models=EDGE_MODELS):
 
 
 def run_grid(seeds, materials=tuple(MATERIALS), backgrounds=BACKGROUNDS, distances=DISTANCES_MM,
-             edge_models=EDGE_MODELS, log=None):
+             edge_models=EDGE_MODELS, log=None, realism="plain"):
     """[`render_band` row] of every seed x material x background x distance."""
     rows = []
     for seed in seeds:
@@ -113,7 +163,7 @@ def run_grid(seeds, materials=tuple(MATERIALS), backgrounds=BACKGROUNDS, distanc
         for mat in materials:
             for bg in backgrounds:
                 for z in distances:
-                    rows.append(render_band(seed, k, mat, bg, z, edge_models))
+                    rows.append(render_band(seed, k, mat, bg, z, edge_models, realism))
                     k += 1
                     if log:
                         log(_row_line(rows[-1], edge_models))
@@ -192,11 +242,14 @@ def main(argv=None):
     ap.add_argument("--backgrounds", default=",".join(BACKGROUNDS))
     ap.add_argument("--distances", default=",".join(f"{z:g}" for z in DISTANCES_MM), help="mm, comma separated")
     ap.add_argument("--edge-models", default=",".join(EDGE_MODELS))
+    ap.add_argument("--realism", default="plain", choices=REALISMS,
+                    help="plain: flat light, no JPEG; endoscope: light fall-off, a wrist, uneven light, JPEG")
     ap.add_argument("--out", default=None, help="a JSON file for the rows")
     a = ap.parse_args(argv)
     models = tuple(a.edge_models.split(","))
     rows = run_grid(_seeds(a.seeds), tuple(a.materials.split(",")), tuple(a.backgrounds.split(",")),
-                    tuple(float(v) for v in a.distances.split(",")), models, log=lambda m: print(m, flush=True))
+                    tuple(float(v) for v in a.distances.split(",")), models, log=lambda m: print(m, flush=True),
+                    realism=a.realism)
     if a.out:
         Path(a.out).write_text(json.dumps(rows, indent=1))
     print(format_summary(summary(rows, models)))

@@ -25,3 +25,20 @@ def test_grid_renders_classed_as_the_detector_measures_them():
     assert s["step"]["all"]["n"] == 3 and s["limb"]["all"]["missed"] == 0
     assert s["limb"]["all"]["rms_px"] < s["step"]["all"]["rms_px"]
     assert "step-bright-narrow" in format_summary(s)
+
+
+def test_endoscope_frames_are_compressed_and_the_class_sds_cover_them():
+    """With ``realism="endoscope"`` (light falling off with distance, a wrist beyond the
+    shaft's end, uneven light, JPEG) a lit shaft over a dark cavity still reads narrow with
+    step edges, and each edge model's error lies within 2 of its class's sd (the limb's,
+    -0.25 px, is 2.5 sd of the 0.10 px that renders without compression or fall-off gave)."""
+    import pytest
+
+    r = render_band(7, 1, "matte", "dark", 40.0, realism="endoscope")
+    assert r["realism"] == "endoscope"
+    assert r["step"]["band_class"] == "step-bright-wide" and r["step"]["error_px"] < -2.0, r
+    for m in ("step", "limb"):
+        b = r[m]
+        assert abs(b["error_px"]) < 2.0 * b["sd_px"], (m, b)
+    with pytest.raises(ValueError, match="realism"):
+        render_band(7, 1, "matte", "dark", 40.0, realism="cinema")
