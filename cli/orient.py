@@ -83,7 +83,10 @@ def _shear_widened(camera, pencil, fr, kw, state, rec):
                                            still_px=VELOCITY_FLOOR_PX)
     if np.array_equal(moved, seg):
         return rec
-    sheared, _ = orient_tracked(camera, moved, pencil, previous, **dict(kw, ideal=ideal))
+    # the fit's own labels (no search: the same lines, only the shear differs), bars' midlines
+    # under the previous frame's plane as the tracked fit puts them
+    plane = None if previous.ambiguous else previous.normal
+    sheared = orient_segments(camera, moved, pencil, labels=rec.spokes, plane_normal=plane, **dict(kw, ideal=ideal))
     return shear_widened(rec, sheared)
 
 
