@@ -14,7 +14,8 @@ from pencilcal.toolkit.pencil.orient import MAX_SEGMENTS, MODELS, orient_segment
 from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.sequence_noise import orientations_with_noise
 from pencilcal.toolkit.pencil.spec import read_pencil
-from pencilcal.toolkit.pencil.shutter import camera_readout, deskewed_segments, seen_lines
+from pencilcal.toolkit.pencil.shutter import (VELOCITY_FLOOR_PX, camera_readout, deskewed_segments, seen_lines,
+                                              shear_widened)
 from pencilcal.toolkit.pencil.track import orient_tracked
 from pencilcal.validation.radial_run import STAR_FALLBACK
 
@@ -54,7 +55,10 @@ def _orient_record(camera, pencil, fr, opts):
                                  seen)
     # frames in order in this process: the previous frame's estimate is the prior
     rec, tracked = orient_tracked(camera, segments, pencil, state["previous"], **kw)
-    if opts.get("readout") and rec.ok and rec.spokes is not None:
+    if opts.get("readout") is None and rec.ok and state["previous"] is not None and len(segments):
+        # the readout not known (none given, none in the camera file; 0 is a global shutter)
+        rec = _shear_widened(camera, pencil, fr, kw, state, rec)
+    if rec.ok and rec.spokes is not None:
         # this frame's lines as seen, for the next frame's velocities (by name: a frame tried
         # again replaces its own, never its predecessor's)
         seen = state.setdefault("seen", {})
@@ -64,6 +68,26 @@ def _orient_record(camera, pencil, fr, opts):
     state["previous"] = rec if rec.ok else None
     state["tracked"] += bool(tracked)
     return rec
+
+
+def _shear_widened(camera, pencil, fr, kw, state, rec):
+    """A frame's orientation (fitted from its lines as seen) with its sigmas widened by a
+    rolling shutter of unknown readout (`shutter.shear_widened`): the frame fitted once more
+    from its lines moved by a whole frame's readout, by their motion across their spokes
+    since the previous frame beyond the lines' noise. The estimate is left as it is; a
+    frame whose lines did not move keeps its sigmas."""
+    previous = state["previous"]
+    seg = np.asarray(fr["segments"], float).reshape(-1, 4)
+    seen = state.get("seen", {}).get(previous.image)
+    moved, ideal, _, _ = deskewed_segments(camera, seg, pencil, previous, 1.0, ideal=kw.get("ideal"), seen=seen,
+                                           still_px=VELOCITY_FLOOR_PX)
+    if np.array_equal(moved, seg):
+        return rec
+    # the fit's own labels (no search: the same lines, only the shear differs), bars' midlines
+    # under the previous frame's plane as the tracked fit puts them
+    plane = None if previous.ambiguous else previous.normal
+    sheared = orient_segments(camera, moved, pencil, labels=rec.spokes, plane_normal=plane, **dict(kw, ideal=ideal))
+    return shear_widened(rec, sheared)
 
 
 def _deskewed(camera, pencil, fr, kw, previous, readout, endpoint_sigma, seen=None):
@@ -280,7 +304,8 @@ def _check_priors_match(priors, names, path):
               help="Find the spokes where the previous frames predict them (--workers 1).")
 @click.option("--readout", type=click.FloatRange(0.0, 1.0), default=None,
               help="Rolling shutter: the rows' readout time over the frame interval (0: a global shutter); "
-                   "default: the camera file's readout, else 0.")
+                   "default: the camera file's readout, else not known: nothing is moved, and each tracked "
+                   "frame's sigmas are widened by the shear a readout of up to a frame could give its motion.")
 @detector_option("Line detector, with IMAGES.")
 @click.option("--edges", is_flag=True, help="With IMAGES: plain edge segments, not the spokes' midlines.")
 @mask_option

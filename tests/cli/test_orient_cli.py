@@ -12,8 +12,9 @@ from click.testing import CliRunner
 
 from pencilcal.cli.main import cli
 from pencilcal.toolkit.camera.formats import write_camera
+from pencilcal.toolkit.pencil.spec import project_spokes
 from tests.conftest import REPO
-from tests.helpers import fan, frame, hd_camera, two_spokes_and_a_stray
+from tests.helpers import fan, frame, hd_camera, pose_facing, two_spokes_and_a_stray
 
 KEYS = ["image", "ok", "error", "vertex_px", "vertex_cov_px2", "lines_used", "rms_residual_deg",
         "tilt_deg", "tilt_sigma_deg", "detectable", "normal", "normal_sigma_deg", "normal_twin",
@@ -229,3 +230,54 @@ def test_the_camera_files_readout_is_used_and_checked(scene, rng):
     (d / "camera.yaml").write_text((d / "camera.yaml").read_text().replace("readout: 0.5", "readout: 1.5"))
     r = invoke(*run, d / "bad.json")
     assert r.exit_code == 1 and "camera.yaml" in r.output and "readout" in r.output
+
+
+def _rolling_fan(d, rng, roll_deg, noise_px, frames=4, readout=0.6, tilt=12.0):
+    """A lines file of a fan (tilt `tilt` deg, its vertex at the principal point) seen by a
+    camera rolling `roll_deg` a frame about its axis through a rolling shutter: each end
+    point at its row's time (`readout` of a frame from the first row to the last)."""
+    cam = hd_camera("pinhole")
+    write_camera(d / "camera.yaml", cam)
+    (d / "pencil.yaml").write_text("start_deg: 0\nstep_deg: 20\ncount: 8\n")
+    c = np.asarray(cam.K, float)[:2, 2]
+    R, t = pose_facing(cam, c, tilt, 200.0, rng)
+    p = project_spokes(cam, R, t, fan(radius=None), (10.0, 50.0)).reshape(-1, 2) - c
+    out = []
+    for i in range(frames):
+        q = p
+        for _ in range(8):  # a point's row sets its time, its time where it is: the fixed point
+            a = np.radians(roll_deg) * (i + readout * q[:, 1] / cam.height)  # (each row's time after the vertex's)
+            q = np.stack([np.cos(a) * p[:, 0] - np.sin(a) * p[:, 1], np.sin(a) * p[:, 0] + np.cos(a) * p[:, 1]], -1)
+        seg = (q + c).reshape(-1, 4) + noise_px * rng.normal(size=(8, 4))
+        out.append({"image": f"{i:03d}.png", "ok": True, "segments": seg.tolist()})
+    (d / "lines.json").write_text(json.dumps({"frames": out}))
+    run = ("orient", "--lines", d / "lines.json", "--camera", d / "camera.yaml", "--pencil", d / "pencil.yaml",
+           "--endpoint-sigma", "0.3", "-q", "--force", "-o")
+    res = {}
+    for name, extra in (("global", ("--readout", "0")), ("unknown", ())):
+        r = invoke(*run, d / f"{name}.json", *extra)
+        assert r.exit_code == 0, r.output
+        res[name] = json.loads((d / f"{name}.json").read_text())["frames"]
+    return res
+
+
+def test_an_unknown_readout_widens_a_sheared_fans_sigma_and_leaves_its_estimate(tmp_path, rng):
+    # a camera rolling 5 deg a frame: the shear tilts the fit by far more than its sigma;
+    # with the readout not known the sigma covers it, the estimate the same to the bit
+    res = _rolling_fan(tmp_path, rng, 5.0, 0.2)
+    for g, u in zip(res["global"], res["unknown"]):
+        assert g["ok"] and u["ok"]
+        assert u["normal"] == g["normal"] and u["tilt_deg"] == g["tilt_deg"]
+    assert "tilt_sigma_shutter_deg" not in res["global"][0] and "tilt_sigma_shutter_deg" not in res["unknown"][0]
+    for g, u in zip(res["global"][1:], res["unknown"][1:]):
+        err = abs(g["tilt_deg"] - 12.0)
+        assert err > 3 * g["tilt_sigma_deg"]  # the lines' sigma knows nothing of the shear
+        assert err < 3 * u["tilt_sigma_deg"] < 10 * err
+        assert u["tilt_sigma_deg"] == pytest.approx(np.hypot(g["tilt_sigma_deg"], u["tilt_sigma_shutter_deg"]))
+        assert u["normal_sigma_deg"] == pytest.approx(np.hypot(g["normal_sigma_deg"], u["normal_sigma_shutter_deg"]))
+
+
+def test_a_still_camera_keeps_its_sigmas_with_the_readout_not_known(tmp_path, rng):
+    # lines that only jitter (0.05 px): no motion, no shear, the same record to the bit
+    res = _rolling_fan(tmp_path, rng, 0.0, 0.05)
+    assert res["unknown"] == res["global"]

@@ -57,7 +57,7 @@ def test_a_known_readout_undoes_the_rolling_shutter(tmp_path):
     write_pencil(tmp_path / "pencil.yaml", pencil)
 
     def errors(*extra):
-        out = tmp_path / f"o{len(extra)}.json"
+        out = tmp_path / f"o{'_'.join(extra)}.json"
         r = CliRunner().invoke(cli, ["orient", str(frames), "--camera", str(tmp_path / "camera.json"), "--pencil",
                                      str(tmp_path / "pencil.yaml"), "-o", str(out), "--endpoint-sigma", "0.5",
                                      "-q", *extra])
@@ -66,8 +66,13 @@ def test_a_known_readout_undoes_the_rolling_shutter(tmp_path):
         return np.array([abs(f["tilt_deg"] - tilts[i]) for f, i in zip(recs, idx)]), \
             np.array([f["tilt_sigma_deg"] for f in recs])
 
-    e0, s0 = errors()
+    e0, s0 = errors("--readout", "0")
     e1, s1 = errors("--readout", "0.6")
     assert np.all(e0[1:] > 1.0) and np.all(e0[1:] > 3 * s0[1:])  # the shear: wrong far beyond the sigmas
     assert np.all(e1[1:] < 0.5) and np.all(e1[1:] < 3 * s1[1:])
     assert e1[0] == e0[0]  # the first frame has no motion to go by
+    # told nothing: the same estimates as a global shutter's, the later frames' sigmas
+    # widened to cover the shear, the first frame's kept
+    e2, s2 = errors()
+    assert np.array_equal(e2, e0) and s2[0] == s0[0]
+    assert np.all(e2[1:] < 3 * s2[1:]) and np.all(s2[1:] < 5 * e2[1:])

@@ -47,7 +47,7 @@ _ESTIMATE = ("resolved_by", "ray")
 _OPTIONAL = ("tilt_threshold_deg", "labels_ambiguous", "normal_ambiguous", "normal_alternatives", "spokes",
              "spokes_used",
              "lines", "vertex_cam", "t_cam_from_target", "tilt_sigma_total_deg", "normal_sigma_total_deg",
-             "vertex_cov_total_px2", "intrinsics_used", "chi2", "circle_normal", "circle_normal_sigma_deg",
+             "vertex_cov_total_px2", "intrinsics_used", "tilt_sigma_shutter_deg", "normal_sigma_shutter_deg", "chi2", "circle_normal", "circle_normal_sigma_deg",
              "circle_tilt_deg", "circles_used", "circle_angle_deg", "circle_chi2", "circle_consistent")
 _ARRAYS = {"vertex_px": (2,), "vertex_cov_px2": (2, 2), "normal": (3,), "normal_twin": (3,),
            "R_cam_from_target": (3, 3), "R_cam_from_target_twin": (3, 3), "ray": (3,), "vertex_cam": (3,),
@@ -67,6 +67,8 @@ class Orientation:
     radii fix the depth; tilt_sigma_total_deg, normal_sigma_total_deg [deg] and
     vertex_cov_total_px2 (2, 2) [px^2]: the sigmas with the intrinsics' uncertainty too
     (`lens_uncertainty`), only when the intrinsics' covariance was known (intrinsics_used);
+    tilt_sigma_shutter_deg, normal_sigma_shutter_deg [deg]: the part of the sigmas (added in
+    quadrature) for a rolling shutter of unknown readout, on tracked video (`shutter`);
     chi2: the fit's sum of squared weighted angle residuals (lines_used - 3 degrees of
     freedom; `sequence_noise` pools it); circle_*: the plane's normal from the images of
     circles about the vertex (`circle`), its sigma [deg] and tilt [deg], how many circles,
@@ -106,6 +108,8 @@ class Orientation:
     normal_sigma_total_deg: float | None = None
     vertex_cov_total_px2: np.ndarray | None = None
     intrinsics_used: bool | None = None
+    tilt_sigma_shutter_deg: float | None = None
+    normal_sigma_shutter_deg: float | None = None
     chi2: float | None = None
     circle_normal: np.ndarray | None = None
     circle_normal_sigma_deg: float | None = None

@@ -144,7 +144,15 @@ def rescale(record, factor):
     if not record.ok:
         return record
     s = float(np.sqrt(factor))
-    ch = {"tilt_sigma_deg": record.tilt_sigma_deg * s, "normal_sigma_deg": record.normal_sigma_deg * s}
+
+    def scaled(sigma, shutter):
+        # a rolling shutter's part (`shutter.shear_widened`) is no line noise: it stays
+        if not shutter:
+            return sigma * s
+        return float(np.hypot(np.sqrt(max(sigma**2 - shutter**2, 0.0)) * s, shutter))
+
+    ch = {"tilt_sigma_deg": scaled(record.tilt_sigma_deg, record.tilt_sigma_shutter_deg),
+          "normal_sigma_deg": scaled(record.normal_sigma_deg, record.normal_sigma_shutter_deg)}
     if record.vertex_cov_px2 is not None:
         ch["vertex_cov_px2"] = np.asarray(record.vertex_cov_px2) * factor
     if record.tilt_threshold_deg is not None:

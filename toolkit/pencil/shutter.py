@@ -16,6 +16,11 @@ what two frames' lines measure, at every point along the spoke. The velocity's e
 (the motion changing from frame to frame) is carried into each segment's offset and
 angle sds (`VELOCITY_REL_SD`, `VELOCITY_FLOOR_PX`).
 
+Where the readout is not known, nothing is moved: `shear_widened` widens the fit's tilt and
+normal sigmas by how far the same moves for a readout anywhere from 0 to a whole frame would
+take its estimate (the frame fitted once more from its lines moved by a whole frame's
+readout), and leaves the estimate as it is.
+
 Example
 -------
 >>> import numpy as np
@@ -36,16 +41,21 @@ from __future__ import annotations
 import numpy as np
 
 from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.geometry.frames import angle_between
 from pencilcal.toolkit.pencil.spec import image_angles
 from pencilcal.toolkit.pencil.track import prior_labels
 
-__all__ = ["deskewed_segments", "camera_readout", "seen_lines", "VELOCITY_REL_SD", "VELOCITY_FLOOR_PX"]
+__all__ = ["deskewed_segments", "camera_readout", "seen_lines", "shear_widened", "VELOCITY_REL_SD",
+           "VELOCITY_FLOOR_PX", "UNKNOWN_READOUTS"]
 
 #: The sd of a point's velocity across its spoke, relative to it (the motion changes from
 #: one frame to the next: a hand's swing starts and stops).
 VELOCITY_REL_SD = 0.5
 #: ... and its floor [px per frame] (the previous frame's lines' own noise).
 VELOCITY_FLOOR_PX = 0.3
+#: A readout not known: the readouts [frames] thought equally likely (0: a global shutter,
+#: 1: rows read out over the whole frame interval).
+UNKNOWN_READOUTS = np.linspace(0.0, 1.0, 21)
 
 
 def seen_lines(camera, segments, spokes, ideal=None):
@@ -67,7 +77,7 @@ def seen_lines(camera, segments, spokes, ideal=None):
     return out
 
 
-def deskewed_segments(camera, segments, pencil, previous, readout, ideal=None, seen=None):
+def deskewed_segments(camera, segments, pencil, previous, readout, ideal=None, seen=None, still_px=0.0):
     """(segments, ideal, offset_sd, angle_sd): the segments moved back to the time of the
     row through the vertex (module docstring).
 
@@ -78,6 +88,8 @@ def deskewed_segments(camera, segments, pencil, previous, readout, ideal=None, s
     segments (M, 4) undistorted px (None where ideal was None), and the sd each move adds
     to a segment's perpendicular offset at its midpoint (M,) [px] and to its angle (M,)
     [rad] (0 for segments not moved: unlabelled ones, or without a previous frame).
+    still_px: a motion across the spoke up to this [px per frame] is taken for the lines'
+    noise, not motion (each velocity shrunk towards 0 by it): a still camera moves nothing.
     """
     seg = np.asarray(segments, float).reshape(-1, 4)
     M = len(seg)
@@ -120,9 +132,11 @@ def deskewed_segments(camera, segments, pencil, previous, readout, ideal=None, s
             n[m] = nm
             v[m] = (p[m] - q[0]) @ nm
         use = has
+    if still_px > 0:
+        v = np.sign(v) * np.maximum(np.abs(v) - still_px / f, 0.0)
     move = np.where(use[:, None], -v * a, 0.0)
     p2 = p + move[..., None] * n[:, None, :]
-    moved = use[:, None] & np.ones((1, 2), bool)
+    moved = use[:, None] & (move != 0)  # (a point not moved keeps its pixels to the bit)
     new_raw = camera.pixels_from_normalized(p2.reshape(-1, 2)).reshape(-1, 4)
     out = np.where(np.repeat(moved, 2, -1), new_raw, seg)
     if out_ideal is not None:
@@ -138,13 +152,51 @@ def deskewed_segments(camera, segments, pencil, previous, readout, ideal=None, s
     return out, out_ideal, off_sd, ang_sd
 
 
+def shear_widened(record, sheared, readouts=UNKNOWN_READOUTS):
+    """The `Orientation` `record` (a fit of a frame's lines as seen) with its tilt and normal
+    sigmas widened by what a rolling shutter of unknown readout could have done to it; the
+    estimate itself is left as it is.
+
+    sheared: the same frame fitted once more from its lines moved back by a whole frame's
+    readout (`deskewed_segments` with readout 1); None or not ok where that fit failed (then
+    nothing is added). The normal and the vertex ray move with the shear, from the record's
+    (readout 0) to the sheared fit's (readout 1): a readout r puts them r of the way along.
+    The rms over `readouts` (K,) (the readouts thought equally likely) of the change of the
+    tilt and of the normal from the record's is the sd added in quadrature to
+    ``tilt_sigma_deg`` and ``normal_sigma_deg`` (and the totals); the added sds [deg] are
+    kept as ``tilt_sigma_shutter_deg``, ``normal_sigma_shutter_deg``. Along that path the
+    tilt may change less at readout 1 than between (the shear turning the normal about the
+    ray): its rms is taken along the path, not from the ends.
+    """
+    if not record.ok or sheared is None or not sheared.ok or record.ray is None or sheared.ray is None:
+        return record
+    n0, v0 = np.asarray(record.normal, float), np.asarray(record.ray, float)
+    # the sheared fit may have chosen the other of the twin normals: its change is the smaller
+    n1 = min((np.asarray(n, float) for n in (sheared.normal, sheared.normal_twin) if n is not None),
+             key=lambda n: float(angle_between(n0, n)))
+    r = np.asarray(readouts, float)[:, None]
+    n = n0 + r * (n1 - n0)
+    v = v0 + r * (np.asarray(sheared.ray, float) - v0)
+    tilt = angle_between(n, v)  # (K,) [rad]: the tilt is the normal's angle from the vertex's ray
+    dt = float(np.degrees(np.sqrt(np.mean((tilt - angle_between(n0, v0)) ** 2))))
+    dn = float(np.degrees(np.sqrt(np.mean(angle_between(n, n0) ** 2))))
+    ch = {"tilt_sigma_deg": float(np.hypot(record.tilt_sigma_deg, dt)),
+          "normal_sigma_deg": float(np.hypot(record.normal_sigma_deg, dn)),
+          "tilt_sigma_shutter_deg": dt, "normal_sigma_shutter_deg": dn}
+    if record.tilt_sigma_total_deg is not None:
+        ch["tilt_sigma_total_deg"] = float(np.hypot(record.tilt_sigma_total_deg, dt))
+    if record.normal_sigma_total_deg is not None:
+        ch["normal_sigma_total_deg"] = float(np.hypot(record.normal_sigma_total_deg, dn))
+    return record.replace(**ch)
+
+
 def camera_readout(camera, source="camera"):
     """The camera file's rolling-shutter readout (its ``readout`` key: the time from the first
-    row's exposure to the last row's over the frame interval, 0-1), 0.0 without one.
+    row's exposure to the last row's over the frame interval, 0-1), None without one (not known).
     Raises InputError naming `source` for a value that is no number in [0, 1]."""
     r = (camera.meta or {}).get("readout")
     if r is None:
-        return 0.0
+        return None
     if isinstance(r, bool) or not isinstance(r, (int, float)) or not 0.0 <= float(r) <= 1.0:
         raise InputError(f"{source}: 'readout' must be a number from 0 to 1 (the rows' readout over the frame "
                          f"interval), got {r!r}")
