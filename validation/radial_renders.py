@@ -22,7 +22,6 @@ import numpy as np
 
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.pencil.estimator import pencil_covariance
-from pencilcal.toolkit.pencil.orient import PLANE_FLOOR_DEG, plane_floored
 from pencilcal.toolkit.pencil.spec import Pencil, pencil_from_dict
 
 __all__ = ["RadialTrial", "radial_conditions", "radial_trial", "ideal_lines_trial", "radial_summary", "KINDS",
@@ -161,7 +160,7 @@ def _compared(kind, cond, cam, pen, R, t, found, rec):
     ln = rec.lines
     th = np.asarray(ln["theta"], float)  # the edges' target angles as fitted (a star's wedges as wide as printed)
     R_est = np.asarray(rec.R_cam_from_target if n_est is rec.normal else rec.R_cam_from_target_twin, float)
-    cov_est = _normal_cov(R_est, ln, th, PLANE_FLOOR_DEG if pen.shape in ("wedge", "edge") else 0.0)
+    cov_est = _normal_cov(R_est, ln, th)
     x_true = t[:2] / t[2]
     cov_true = _normal_cov(R, dict(ln, vertex=x_true, sigma_error=None), th)  # the bound: the lines' own sds
     chi2 = _normal_chi2(n_est, cov_est, n_true)
@@ -239,16 +238,13 @@ def ideal_lines_trial(cond, draws, rng=0):
     return {"chi2": chi2, "detected_chi2": det, "lines": int(used.size)}
 
 
-def _normal_cov(R, ln, th, floor_deg=0.0):
+def _normal_cov(R, ln, th):
     """(3, 3) covariance of the normal R[:, 2] for the lines ln (orient's ``lines``) of edge
-    angles th: the rotation's (left perturbation) turned into the normal's; with floor_deg,
-    the plane's floor as `orient_segments` adds it to a printed target's (`plane_floored`)."""
+    angles th: the rotation's (left perturbation) turned into the normal's."""
     err = ln.get("sigma_error")  # the sds of the lines' errors where wider than their weights'
-    cov, s_tilt, s_norm = pencil_covariance(R, np.asarray(ln["vertex"], float), th, np.asarray(ln["sigma"], float),
-                                            np.asarray(ln["vertex_cov"], float),
-                                            sigma_error=None if err is None else np.asarray(err, float))
-    if floor_deg > 0:
-        cov = plane_floored(cov, R[:, 2], s_tilt, s_norm, floor_deg)["cov"]
+    cov, _, _ = pencil_covariance(R, np.asarray(ln["vertex"], float), th, np.asarray(ln["sigma"], float),
+                                  np.asarray(ln["vertex_cov"], float),
+                                  sigma_error=None if err is None else np.asarray(err, float))
     n = R[:, 2]
     K = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
     return K @ cov @ K.T

@@ -54,7 +54,6 @@ from pencilcal.toolkit.pencil.spec import image_angles
 from pencilcal.toolkit.pencil.vertex import LOCAL_CANDIDATES, floored_vertex_cov, intersect_lines, lines_through
 
 __all__ = ["orient_segments", "orientation_record", "raw_vertex", "MODELS", "MAX_SEGMENTS", "PLANE_PRIOR_DEG",
-           "PLANE_FLOOR_DEG", "plane_floored",
            "metric_depth", "resolve_twins_by_continuity"]
 
 MODELS = ("exact", "general", "aligned")
@@ -73,31 +72,6 @@ VERTEX_RIVAL_CHI2 = -2.0 * np.log(DETECTION_LEVEL / LOCAL_CANDIDATES)
 MAX_SEGMENTS = 20000
 #: `orient_segments`' plane_normal is kept when the fit's normal lies within this of it [deg].
 PLANE_PRIOR_DEG = 5.0
-#: A printed radial target's plane is known no better than this, per axis of its normal
-#: [deg], whatever its spokes say: a sheet is not flat (curled at its end, it is 0.06 mm off
-#: its plane at a 70 mm star's rim) and every spoke sees the same bend, so the error does
-#: not average out over spokes as their noise does. Added to the covariance of stars and
-#: sector boundaries (pencil shapes "wedge" and "edge") only, never to the fit. Chosen on
-#: renders of photographed stars (docs/method.md, "A printed sheet's flatness").
-PLANE_FLOOR_DEG = 0.015
-
-
-def plane_floored(cov, normal, tilt_sigma, normal_sigma, floor_deg):
-    """The covariance widened by an error of the plane's normal of sd floor_deg [deg] per axis
-    (`PLANE_FLOOR_DEG`), independent of the lines: cov (3, 3) [rad^2] of the left rotation
-    perturbation, normal (3,), tilt_sigma and normal_sigma [rad] -> a dict of the three
-    widened. A turn about the normal leaves it where it is: the floor is c^2 (I - n n^T), which
-    moves the normal by c per axis and the tilt by c (its gradient is a unit vector normal to n).
-
-    >>> import numpy as np
-    >>> out = plane_floored(np.zeros((3, 3)), np.array([0.0, 0, 1]), 0.0, 0.0, 1.0)
-    >>> np.degrees(np.sqrt(np.diag(out["cov"]))).round(6).tolist(), round(float(np.degrees(out["tilt_sigma"])), 6)
-    ([1.0, 1.0, 0.0], 1.0)
-    """
-    c2 = np.radians(floor_deg) ** 2
-    n = np.asarray(normal, float)
-    return {"cov": np.asarray(cov, float) + c2 * (np.eye(3) - np.outer(n, n)),
-            "tilt_sigma": float(np.sqrt(tilt_sigma**2 + c2)), "normal_sigma": float(np.sqrt(normal_sigma**2 + 2 * c2))}
 
 
 def metric_depth(R_cam_from_target, vertex, spoke_angles, inner, outer, radius):
@@ -347,9 +321,6 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
             cov, s_tilt, s_norm = pencil_covariance(fit.R_cam_from_target, ln.vertex, th_used, s_used, ln.vertex_cov,
                                                     sigma_error=s_err)
             fit = replace(fit, cov=cov, tilt_sigma=s_tilt, normal_sigma=s_norm)
-        if pencil.shape in ("wedge", "edge"):  # a printed sheet's bend, which every spoke shares
-            fit = replace(fit, **plane_floored(fit.cov, fit.R_cam_from_target[:, 2], fit.tilt_sigma, fit.normal_sigma,
-                                               PLANE_FLOOR_DEG))
         labels_out[idx] = np.where(used, edge_spoke[np.maximum(lab, 0)], -1)
         s_mean = float(np.sqrt(np.mean(s_used**2)))
         rec = orientation_record(camera, fit, ln.vertex, v_ideal, cov_ideal, model=model, image=image,
@@ -372,11 +343,6 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
             extra.update(_metric_position(fit, metric, resolved_by, ln.vertex, pencil))
         if circles is not None:
             extra.update(circles)
-            if pencil.shape in ("wedge", "edge") and circles.get("circle_normal_sigma_deg") is not None:
-                # the circles lie on the same sheet: its bend is theirs too (and the lines' sigma
-                # against theirs, `confirm.unconfirmed_final`, compares as without it)
-                extra["circle_normal_sigma_deg"] = float(np.hypot(circles["circle_normal_sigma_deg"],
-                                                                  np.sqrt(2.0) * PLANE_FLOOR_DEG))
             if circ.depth is not None and resolved_by is not None and "vertex_cam" not in extra:
                 extra.update(_vertex_position(fit, circ.depth, ln.vertex, pencil))
         return rec.replace(**extra)

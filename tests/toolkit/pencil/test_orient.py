@@ -400,33 +400,3 @@ def test_vertex_floor_widens_the_covariance_only(rng):
     tiny = orient_segments(cam, seg, pen, keep_lines=True, vertex_floor_px=1e-6)
     assert tiny.normal_sigma_deg == base.normal_sigma_deg
     np.testing.assert_array_equal(tiny.vertex_cov_px2, base.vertex_cov_px2)
-
-
-def test_a_printed_targets_plane_floor_widens_the_covariance_only(rng, monkeypatch):
-    """A star's spokes share its sheet's bend, which does not average out over them
-    (`orient.PLANE_FLOOR_DEG`): a 128-wedge star's edges to 0.02 px say its normal to under
-    the floor, and the sigmas reported are no narrower than it (the normal's sqrt(2) times it,
-    the tilt's once); the labels, the twin and the fit are those without it, bit for bit, and a
-    plain pencil's sigmas are its lines' alone."""
-    from pencilcal.toolkit.pencil import orient
-    from pencilcal.toolkit.pencil.spec import pencil_from_dict
-
-    cam = hd_camera()
-    star = pencil_from_dict({"start_deg": 0, "step_deg": 2.8125, "count": 128, "shape": "wedge", "radius": [12, 70]})
-    seg, R, _ = frame(cam, star, 40.0, 250.0, rng, noise_px=0.02)
-    rec = orient_segments(cam, seg, star, keep_lines=True, endpoint_sigma_px=0.02)
-    monkeypatch.setattr(orient, "PLANE_FLOOR_DEG", 0.0)
-    bare = orient_segments(cam, seg, star, keep_lines=True, endpoint_sigma_px=0.02)
-    assert rec.ok and bare.ok and rec.spokes_used == 128
-    for k in ("spokes", "normal", "R_cam_from_target", "resolved_by", "tilt_deg", "vertex_px"):
-        assert np.array_equal(np.asarray(getattr(rec, k)), np.asarray(getattr(bare, k))), k
-    floor = orient.plane_floored(np.zeros((3, 3)), rec.normal, 0.0, 0.0, 0.015)
-    assert bare.normal_sigma_deg < np.degrees(floor["normal_sigma"]) < rec.normal_sigma_deg
-    np.testing.assert_allclose(rec.normal_sigma_deg, np.hypot(bare.normal_sigma_deg, np.sqrt(2) * 0.015))
-    np.testing.assert_allclose(rec.tilt_sigma_deg, np.hypot(bare.tilt_sigma_deg, 0.015))
-    monkeypatch.setattr(orient, "PLANE_FLOOR_DEG", 0.015)
-    pen = fan()
-    seg, _, _ = frame(cam, pen, 35.0, 200.0, rng, noise_px=0.02)
-    plain = orient_segments(cam, seg, pen)
-    monkeypatch.setattr(orient, "PLANE_FLOOR_DEG", 0.0)
-    assert plain.ok and orient_segments(cam, seg, pen).normal_sigma_deg == plain.normal_sigma_deg
