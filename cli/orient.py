@@ -83,10 +83,13 @@ def _shear_widened(camera, pencil, fr, kw, state, rec):
                                            still_px=VELOCITY_FLOOR_PX)
     if np.array_equal(moved, seg):
         return rec
-    # the fit's own labels (no search: the same lines, only the shear differs), bars' midlines
-    # under the previous frame's plane as the tracked fit puts them
+    # the fit's own labels (no labelling search: the same lines, only the shear differs; the
+    # vertex is searched where the moved lines no longer meet within their sds), bars'
+    # midlines under the previous frame's plane as the tracked fit puts them
     plane = None if previous.ambiguous else previous.normal
-    sheared = orient_segments(camera, moved, pencil, labels=rec.spokes, plane_normal=plane, **dict(kw, ideal=ideal))
+    # only its normals and ray are used: no lens-uncertainty totals, no lines kept
+    sheared = orient_segments(camera, moved, pencil, labels=rec.spokes, plane_normal=plane,
+                              **dict(kw, ideal=ideal, intrinsics_cov=None, keep_lines=False))
     return shear_widened(rec, sheared)
 
 

@@ -689,10 +689,15 @@ def _radius_consistent(ideal, radius):
     L = np.hypot(*(ideal[:, 2:] - ideal[:, :2]).T)
     limit = np.maximum(3.0 * radius[0] / (radius[1] - radius[0]), 0.5) * L
 
+    a, b = ideal[None, :, :2], ideal[None, :, 2:]
+
+    def dist(q, p):  # np.linalg.norm's own sum, without its overhead (called per hypothesis)
+        d = q - p
+        return np.sqrt(np.add.reduce(d * d, axis=-1))
+
     def consistent(points):
         p = np.asarray(points, float)[:, None, :]
-        near = np.minimum(np.linalg.norm(ideal[None, :, :2] - p, axis=-1), np.linalg.norm(ideal[None, :, 2:] - p, axis=-1))
-        return near <= limit
+        return np.minimum(dist(a, p), dist(b, p)) <= limit
 
     return consistent
 

@@ -429,8 +429,10 @@ def _local_optimisation(hyp, cost, refine, start_inliers, no_vertex, spread):
     order = np.argsort(cost, kind="stable")[:LOCAL_CANDIDATES]
     found, first_error = [], None
     for h in order:
-        if found and any(np.all(f[1][start_inliers(hyp[h])]) for f in found):
-            continue  # its lines are all a found vertex's: it would refine to that one
+        if found:
+            own = start_inliers(hyp[h])  # (once, not once per found vertex)
+            if any(np.all(f[1][own]) for f in found):
+                continue  # its lines are all a found vertex's: it would refine to that one
         try:
             p, mask, it, c = refine(hyp[h])
         except EstimationError as e:
