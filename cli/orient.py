@@ -304,11 +304,10 @@ def _check_priors_match(priors, names, path):
 @click.option("--continuity/--no-continuity", default=True, show_default=True,
               help="Carry twin choices along the sequence to ambiguous frames.")
 @click.option("--track/--no-track", default=True, show_default=True,
-              help="Find the spokes where the previous frames predict them (--workers 1).")
+              help="Find the spokes where the last frame has them (--workers 1).")
 @click.option("--readout", type=click.FloatRange(0.0, 1.0), default=None,
-              help="Rolling shutter: the rows' readout time over the frame interval (0: a global shutter); "
-                   "default: the camera file's readout, else not known: nothing is moved, and each tracked "
-                   "frame's sigmas are widened by the shear a readout of up to a frame could give its motion.")
+              help="Rolling shutter's readout / frame interval (0: global); default: "
+                   "the camera file's, else sigmas widened.")
 @detector_option("Line detector, with IMAGES.")
 @click.option("--edges", is_flag=True, help="With IMAGES: plain edge segments, not the spokes' midlines.")
 @mask_option
