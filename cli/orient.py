@@ -17,6 +17,7 @@ from pencilcal.toolkit.pencil.spec import read_pencil
 from pencilcal.toolkit.pencil.shutter import (VELOCITY_FLOOR_PX, camera_readout, deskewed_segments, seen_lines,
                                               shear_widened)
 from pencilcal.toolkit.pencil.track import orient_tracked
+from pencilcal.toolkit.pencil.vertex import segment_angle_sigma
 from pencilcal.validation.radial_run import STAR_FALLBACK
 
 from .common import (detector_option, endpoint_sigma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, images_argument,
@@ -101,17 +102,17 @@ def _deskewed(camera, pencil, fr, kw, previous, readout, endpoint_sigma, seen=No
     moved, ideal, off_sd, ang_sd = deskewed_segments(camera, seg, pencil, previous, readout, ideal=kw.get("ideal"), seen=seen)
     kw = dict(kw, ideal=ideal)
     ideal_px = seg if ideal is None else ideal
-    L = np.linalg.norm(ideal_px[:, 2:] - ideal_px[:, :2], axis=-1)
+    n = (len(ideal_px),)
     with np.errstate(invalid="ignore", divide="ignore"):
         # the end point model's sds of a segment: offset sigma / sqrt(2), angle sigma sqrt(2) / L
         off0 = np.broadcast_to(kw["offset_sigma"] if kw.get("offset_sigma") is not None
-                               else endpoint_sigma / np.sqrt(2.0), L.shape)
+                               else endpoint_sigma / np.sqrt(2.0), n)
         ang0 = np.broadcast_to(kw["angle_sigma"] if kw.get("angle_sigma") is not None
-                               else np.sqrt(2.0) * endpoint_sigma / L, L.shape)
+                               else segment_angle_sigma(ideal_px, endpoint_sigma), n)
     kw["offset_sigma"] = np.hypot(np.asarray(off0, float), off_sd)
     kw["angle_sigma"] = np.hypot(np.asarray(ang0, float), ang_sd)
     if kw.get("angle_sigma_error") is not None:
-        kw["angle_sigma_error"] = np.hypot(np.broadcast_to(kw["angle_sigma_error"], L.shape), ang_sd)
+        kw["angle_sigma_error"] = np.hypot(np.broadcast_to(kw["angle_sigma_error"], n), ang_sd)
     return moved, kw
 
 
