@@ -14,10 +14,7 @@ from pencilcal.toolkit.pencil.orient import MAX_SEGMENTS, MODELS, orient_segment
 from pencilcal.toolkit.pencil.orientation import write_orientations
 from pencilcal.toolkit.pencil.sequence_noise import orientations_with_noise
 from pencilcal.toolkit.pencil.spec import read_pencil
-from pencilcal.toolkit.pencil.shutter import (VELOCITY_FLOOR_PX, camera_readout, deskewed_segments, seen_lines,
-                                              shear_widened)
-from pencilcal.toolkit.pencil.track import orient_tracked
-from pencilcal.toolkit.pencil.vertex import segment_angle_sigma
+from pencilcal.toolkit.pencil.shutter import camera_readout, orient_video_frame, seen_lines
 from pencilcal.validation.radial_run import STAR_FALLBACK
 
 from .common import (detector_option, endpoint_sigma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, images_argument,
@@ -49,16 +46,13 @@ def _orient_record(camera, pencil, fr, opts):
     state = opts.get("tracking")
     if state is None:
         return orient_segments(camera, fr["segments"], pencil, **kw)
-    segments, raw_ideal = fr["segments"], kw.get("ideal")
-    if opts.get("readout") and state["previous"] is not None and len(segments):
-        seen = state.setdefault("seen", {}).get(state["previous"].image)
-        segments, kw = _deskewed(camera, pencil, fr, kw, state["previous"], opts["readout"], opts["endpoint_sigma"],
-                                 seen)
-    # frames in order in this process: the previous frame's estimate is the prior
-    rec, tracked = orient_tracked(camera, segments, pencil, state["previous"], **kw)
-    if opts.get("readout") is None and rec.ok and state["previous"] is not None and len(segments):
-        # the readout not known (none given, none in the camera file; 0 is a global shutter)
-        rec = _shear_widened(camera, pencil, fr, kw, state, rec)
+    raw_ideal = kw.get("ideal")
+    previous = state["previous"]
+    seen = None if previous is None else state.get("seen", {}).get(previous.image)
+    # frames in order in this process: the previous frame's estimate is the prior; a known
+    # readout deskews the lines, an unknown one (None) widens the sigmas
+    rec, tracked = orient_video_frame(camera, fr["segments"], pencil, previous, readout=opts.get("readout"),
+                                      seen=seen, **kw)
     if rec.ok and rec.spokes is not None:
         # this frame's lines as seen, for the next frame's velocities (by name: a frame tried
         # again replaces its own, never its predecessor's)
@@ -69,51 +63,6 @@ def _orient_record(camera, pencil, fr, opts):
     state["previous"] = rec if rec.ok else None
     state["tracked"] += bool(tracked)
     return rec
-
-
-def _shear_widened(camera, pencil, fr, kw, state, rec):
-    """A frame's orientation (fitted from its lines as seen) with its sigmas widened by a
-    rolling shutter of unknown readout (`shutter.shear_widened`): the frame fitted once more
-    from its lines moved by a whole frame's readout, by their motion across their spokes
-    since the previous frame beyond the lines' noise. The estimate is left as it is; a
-    frame whose lines did not move keeps its sigmas."""
-    previous = state["previous"]
-    seg = np.asarray(fr["segments"], float).reshape(-1, 4)
-    seen = state.get("seen", {}).get(previous.image)
-    moved, ideal, _, _ = deskewed_segments(camera, seg, pencil, previous, 1.0, ideal=kw.get("ideal"), seen=seen,
-                                           still_px=VELOCITY_FLOOR_PX)
-    if np.array_equal(moved, seg):
-        return rec
-    # the fit's own labels (no labelling search: the same lines, only the shear differs; the
-    # vertex is searched where the moved lines no longer meet within their sds), bars'
-    # midlines under the previous frame's plane as the tracked fit puts them
-    plane = None if previous.ambiguous else previous.normal
-    # only its normals and ray are used: no lens-uncertainty totals, no lines kept
-    sheared = orient_segments(camera, moved, pencil, labels=rec.spokes, plane_normal=plane,
-                              **dict(kw, ideal=ideal, intrinsics_cov=None, keep_lines=False))
-    return shear_widened(rec, sheared)
-
-
-def _deskewed(camera, pencil, fr, kw, previous, readout, endpoint_sigma, seen=None):
-    """(segments, kw): a frame's segments moved back to the time of its vertex's row by their
-    motion since the previous frame (`shutter.deskewed_segments`), the moves' sds added to
-    the segments' offset and angle sds (from the end point noise where the lines have none)."""
-    seg = np.asarray(fr["segments"], float).reshape(-1, 4)
-    moved, ideal, off_sd, ang_sd = deskewed_segments(camera, seg, pencil, previous, readout, ideal=kw.get("ideal"), seen=seen)
-    kw = dict(kw, ideal=ideal)
-    ideal_px = seg if ideal is None else ideal
-    n = (len(ideal_px),)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        # the end point model's sds of a segment: offset sigma / sqrt(2), angle sigma sqrt(2) / L
-        off0 = np.broadcast_to(kw["offset_sigma"] if kw.get("offset_sigma") is not None
-                               else endpoint_sigma / np.sqrt(2.0), n)
-        ang0 = np.broadcast_to(kw["angle_sigma"] if kw.get("angle_sigma") is not None
-                               else segment_angle_sigma(ideal_px, endpoint_sigma), n)
-    kw["offset_sigma"] = np.hypot(np.asarray(off0, float), off_sd)
-    kw["angle_sigma"] = np.hypot(np.asarray(ang0, float), ang_sd)
-    if kw.get("angle_sigma_error") is not None:
-        kw["angle_sigma_error"] = np.hypot(np.broadcast_to(kw["angle_sigma_error"], n), ang_sd)
-    return moved, kw
 
 
 def _sequence_noise(records, frames, camera, pencil, opts, given):

@@ -42,10 +42,13 @@ import numpy as np
 
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.frames import angle_between
+from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
+from pencilcal.toolkit.pencil.orient import orient_segments
 from pencilcal.toolkit.pencil.spec import image_angles
-from pencilcal.toolkit.pencil.track import prior_labels
+from pencilcal.toolkit.pencil.track import orient_tracked, prior_labels
+from pencilcal.toolkit.pencil.vertex import segment_angle_sigma
 
-__all__ = ["deskewed_segments", "camera_readout", "seen_lines", "shear_widened", "VELOCITY_REL_SD",
+__all__ = ["orient_video_frame", "deskewed_segments", "camera_readout", "seen_lines", "shear_widened", "VELOCITY_REL_SD",
            "VELOCITY_FLOOR_PX", "UNKNOWN_READOUTS"]
 
 #: The sd of a point's velocity across its spoke, relative to it (the motion changes from
@@ -188,6 +191,87 @@ def shear_widened(record, sheared, readouts=UNKNOWN_READOUTS):
     if record.normal_sigma_total_deg is not None:
         ch["normal_sigma_total_deg"] = float(np.hypot(record.normal_sigma_total_deg, dn))
     return record.replace(**ch)
+
+
+def orient_video_frame(camera, segments, pencil, previous, readout=None, seen=None, **orient_kwargs):
+    """(orientation, tracked): one frame of a video fitted with the previous frame's
+    `Orientation` as a prior (`track.orient_tracked`), its rolling shutter handled:
+
+    - readout > 0 (known; frames, 0-1): the segments moved back to the time of the row through
+      the vertex (`deskewed_segments`), the moves' sds added to each segment's offset and
+      angle sds (from the end point noise where the frame's lines have none);
+    - readout None (not known): fitted as seen, the tilt and normal sigmas widened by what a
+      readout from 0 to a whole frame could have done (`shear_widened`: the frame fitted once
+      more from its lines moved by a whole frame's readout; the estimate itself unchanged);
+    - readout 0: a global shutter, fitted as seen.
+
+    segments: (M, 4) raw px; previous: the previous frame's `Orientation` or None (the first
+    frame, or after a frame with no orientation: nothing moved or widened); seen: the
+    previous frame's lines as seen (`seen_lines`), for the velocities (None: the previous
+    fit's spokes); orient_kwargs: `orient_segments`' (endpoint_sigma_px, angle_sigma,
+    offset_sigma, angle_sigma_error, ideal, image, keep_lines, ...).
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> from pencilcal.toolkit.camera.model import Camera
+    >>> from pencilcal.toolkit.pencil.spec import Pencil
+    >>> cam = Camera("pinhole", 640, 480, [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
+    >>> pen = Pencil(np.radians(np.arange(6) * 30.0))
+    >>> th = np.radians(np.arange(6) * 30.0 + 3.0)
+    >>> seg = np.c_[319.5 + 40 * np.cos(th), 239.5 + 40 * np.sin(th), 319.5 + 200 * np.cos(th), 239.5 + 200 * np.sin(th)]
+    >>> first, _ = orient_video_frame(cam, seg, pen, None)
+    >>> rec, tracked = orient_video_frame(cam, seg, pen, first, readout=0.0)
+    >>> bool(rec.ok), bool(tracked)
+    (True, True)
+    """
+    seg = np.asarray(segments, float).reshape(-1, 4)
+    kw = dict(orient_kwargs)
+    moving = previous is not None and len(seg) > 0
+    if readout and moving:
+        seg, kw = _deskewed_inputs(camera, seg, pencil, previous, readout, kw, seen)
+    rec, tracked = orient_tracked(camera, seg, pencil, previous, **kw)
+    if readout is None and rec.ok and moving:
+        rec = _widened_by_unknown_readout(camera, seg, pencil, previous, rec, kw, seen)
+    return rec, tracked
+
+
+def _deskewed_inputs(camera, seg, pencil, previous, readout, kw, seen):
+    """(segments, orient kwargs) of a known readout (`orient_video_frame`)."""
+    moved, ideal, off_sd, ang_sd = deskewed_segments(camera, seg, pencil, previous, readout, ideal=kw.get("ideal"),
+                                                     seen=seen)
+    kw = dict(kw, ideal=ideal)
+    ideal_px = seg if ideal is None else ideal
+    n = (len(ideal_px),)
+    endpoint_sigma = kw.get("endpoint_sigma_px", ENDPOINT_SIGMA_PX)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # the end point model's sds of a segment: offset sigma / sqrt(2), angle sigma sqrt(2) / L
+        off0 = np.broadcast_to(kw["offset_sigma"] if kw.get("offset_sigma") is not None
+                               else endpoint_sigma / np.sqrt(2.0), n)
+        ang0 = np.broadcast_to(kw["angle_sigma"] if kw.get("angle_sigma") is not None
+                               else segment_angle_sigma(ideal_px, endpoint_sigma), n)
+    kw["offset_sigma"] = np.hypot(np.asarray(off0, float), off_sd)
+    kw["angle_sigma"] = np.hypot(np.asarray(ang0, float), ang_sd)
+    if kw.get("angle_sigma_error") is not None:
+        kw["angle_sigma_error"] = np.hypot(np.broadcast_to(kw["angle_sigma_error"], n), ang_sd)
+    return moved, kw
+
+
+def _widened_by_unknown_readout(camera, seg, pencil, previous, rec, kw, seen):
+    """`rec` with its sigmas widened by a readout not known (`orient_video_frame`); a frame
+    whose lines did not move beyond their noise keeps its sigmas."""
+    moved, ideal, _, _ = deskewed_segments(camera, seg, pencil, previous, 1.0, ideal=kw.get("ideal"), seen=seen,
+                                           still_px=VELOCITY_FLOOR_PX)
+    if np.array_equal(moved, seg):
+        return rec
+    # the fit's own labels (no labelling search: the same lines, only the shear differs; the
+    # vertex is searched where the moved lines no longer meet within their sds), bars'
+    # midlines under the previous frame's plane as the tracked fit puts them
+    plane = None if previous.ambiguous else previous.normal
+    # only its normals and ray are used: no lens-uncertainty totals, no lines kept
+    sheared = orient_segments(camera, moved, pencil, labels=rec.spokes, plane_normal=plane,
+                              **dict(kw, ideal=ideal, intrinsics_cov=None, keep_lines=False))
+    return shear_widened(rec, sheared)
 
 
 def camera_readout(camera, source="camera"):

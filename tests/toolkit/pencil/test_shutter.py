@@ -1,0 +1,41 @@
+"""orient_video_frame: a video frame's fit with its rolling shutter handled, as orient's CLI does it."""
+import numpy as np
+
+from pencilcal.toolkit.camera.model import Camera
+from pencilcal.toolkit.pencil.shutter import orient_video_frame
+from pencilcal.toolkit.pencil.spec import Pencil
+
+CAM = Camera("pinhole", 640, 480, [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
+PEN = Pencil(np.radians(np.arange(6) * 30.0))
+
+
+def _fan(turn_deg, squash=0.8):
+    # a tilted fan (squashed along y) turning about its vertex: its lines move across their spokes
+    th = np.radians(np.arange(6) * 30.0 + turn_deg)
+    c, s = np.cos(th), squash * np.sin(th)
+    n = np.hypot(c, s)
+    c, s = c / n, s / n
+    return np.c_[319.5 + 40 * c, 239.5 + 40 * s, 319.5 + 200 * c, 239.5 + 200 * s]
+
+
+def test_the_readout_decides_what_is_done_to_a_moving_frame():
+    first, _ = orient_video_frame(CAM, _fan(3.0), PEN, None, readout=None)
+    assert first.ok and first.tilt_sigma_shutter_deg is None  # no previous frame: nothing widened
+    seg = _fan(7.0)
+    still, _ = orient_video_frame(CAM, seg, PEN, first, readout=0.0)
+    unknown, _ = orient_video_frame(CAM, seg, PEN, first, readout=None)
+    known, _ = orient_video_frame(CAM, seg, PEN, first, readout=0.6)
+    assert still.ok and unknown.ok and known.ok
+    # not known: the global shutter's estimate, its sigmas widened by the shear's rms
+    np.testing.assert_array_equal(unknown.normal, still.normal)
+    assert unknown.tilt_sigma_shutter_deg > 0
+    assert unknown.tilt_sigma_deg > still.tilt_sigma_deg
+    # known: the lines moved back to the vertex's row, so the estimate itself changes
+    assert not np.allclose(known.normal, still.normal, atol=1e-9, rtol=0)
+
+
+def test_a_frame_that_did_not_move_keeps_its_sigmas():
+    first, _ = orient_video_frame(CAM, _fan(3.0), PEN, None)
+    again, _ = orient_video_frame(CAM, _fan(3.0), PEN, first, readout=None)
+    still, _ = orient_video_frame(CAM, _fan(3.0), PEN, first, readout=0.0)
+    assert again.tilt_sigma_deg == still.tilt_sigma_deg
