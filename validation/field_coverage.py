@@ -39,6 +39,7 @@ from pencilcal.toolkit.board.spec import board_from_dict
 from pencilcal.toolkit.board.synthetic import synthetic_detections
 from pencilcal.toolkit.camera.model import Camera
 from pencilcal.validation.calibration_checks import used_views
+from pencilcal.validation.metrics import seed_list
 
 __all__ = ["BOARD", "LENS", "KINDS", "smooth_field", "simulated_views", "run", "summary", "format_summary", "main"]
 
@@ -134,13 +135,6 @@ def format_summary(table):
     return "\n".join(lines)
 
 
-def _seeds(text):
-    if ":" in text:
-        lo, hi = (int(v) for v in text.split(":"))
-        return list(range(lo, hi))
-    return [int(v) for v in text.split(",")]
-
-
 def main(argv=None):
     """Run the seeds and tabulate (module docstring)."""
     import argparse
@@ -155,7 +149,7 @@ def main(argv=None):
     ap.add_argument("--out", default=None, help="a JSON lines file the runs are appended to")
     a = ap.parse_args(argv)
     rows = []
-    for seed in _seeds(a.seeds):
+    for seed in seed_list(a.seeds):
         rows.append(run(seed, a.kind, a.sigma, a.length))
         print(json.dumps({k: rows[-1][k] for k in ("seed", "kept", "score", "field_sigma_px")}), flush=True)
         if a.out:
