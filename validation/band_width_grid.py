@@ -52,6 +52,7 @@ from pencilcal.toolkit.pencil.band_width import band_class, band_width_sd
 from pencilcal.toolkit.synth.render import sensor_image
 from pencilcal.toolkit.synth.shaded import MATERIALS, ShadedTruth, render_shaded_shaft, shaft_light, shaft_radiance
 from pencilcal.toolkit.synth.tissue import tissue_image
+from pencilcal.validation.metrics import seed_list
 
 __all__ = ["BACKGROUNDS", "DISTANCES_MM", "REALISMS", "GROSS_REL", "RADIUS_MM", "grid_camera", "render_band", "run_grid", "summary",
            "format_summary", "main"]
@@ -224,13 +225,6 @@ def format_summary(summ):
     return "\n".join(lines)
 
 
-def _seeds(text):
-    if ":" in text:
-        lo, hi = (int(v) for v in text.split(":"))
-        return list(range(lo, hi))
-    return [int(v) for v in text.split(",")]
-
-
 def main(argv=None):
     """Render, detect and tabulate (module docstring)."""
     import argparse
@@ -247,7 +241,7 @@ def main(argv=None):
     ap.add_argument("--out", default=None, help="a JSON file for the rows")
     a = ap.parse_args(argv)
     models = tuple(a.edge_models.split(","))
-    rows = run_grid(_seeds(a.seeds), tuple(a.materials.split(",")), tuple(a.backgrounds.split(",")),
+    rows = run_grid(seed_list(a.seeds), tuple(a.materials.split(",")), tuple(a.backgrounds.split(",")),
                     tuple(float(v) for v in a.distances.split(",")), models, log=lambda m: print(m, flush=True),
                     realism=a.realism)
     if a.out:

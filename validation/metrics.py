@@ -14,7 +14,7 @@ import numpy as np
 
 from pencilcal.toolkit.geometry.frames import angle_between, rotation_angle
 
-__all__ = ["rotation_error_deg", "normal_error_deg", "summary", "coverage", "EXPECTED_COVERAGE"]
+__all__ = ["rotation_error_deg", "normal_error_deg", "summary", "coverage", "EXPECTED_COVERAGE", "seed_list"]
 
 EXPECTED_COVERAGE = {"tilt": 0.6827, "normal": 1.0 - np.exp(-1.0)}
 
@@ -47,3 +47,15 @@ def coverage(errors, sigmas, kind="tilt"):
     if not ok.any():
         return {"fraction": None, "expected": EXPECTED_COVERAGE[kind], "count": 0}
     return {"fraction": float(np.mean(e[ok] <= s[ok])), "expected": float(EXPECTED_COVERAGE[kind]), "count": int(ok.sum())}
+
+
+def seed_list(text):
+    """The seeds a runner's ``--seeds`` names: ``"A:B"`` (A to B-1) or ``"a,b,c"``.
+
+    >>> seed_list("3:6"), seed_list("7,9")
+    ([3, 4, 5], [7, 9])
+    """
+    if ":" in text:
+        lo, hi = (int(v) for v in text.split(":"))
+        return list(range(lo, hi))
+    return [int(v) for v in text.split(",")]

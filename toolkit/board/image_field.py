@@ -20,13 +20,18 @@ with tau^2 [px^2] and l [px] the field's variance and length; its share of the p
 correlated part (c, the per-view ratio, of each corner's white variance sigma_w^2 d) leaves
 each view's own part.
 
-`estimate` decides whether the field is there, on the residuals: each residual in its view's
-white level and shape, the mean product of two corners of *different* views (between) and
-of two corners of *one* view (within), both at image distances of l/2 to l (l the per-view
-model's length); their ratio is the share read off directly, clipped to [0, 1]. Its sigma
-is a jackknife over the views; the field is kept only where ``between`` exceeds twice its
-sigma (a one-sided 2.3 % test): corners whose smooth error is each view's own keep the
-per-view model as it is.
+`estimate` measures the field on the residuals: each residual in its view's white level and
+shape, the mean product of two corners of *different* views (between) and of two corners of
+*one* view (within), both at image distances of l/2 to l (l the per-view model's length);
+their ratio is the share read off directly, clipped to [0, 1] (0 where ``within`` is not
+above zero). Its sigma is a jackknife over the views. The field is kept only where two tests
+of "no field" fail (each one-sided at about 2.3 %): ``between`` exceeds twice its jackknife
+sigma, which needs no model of the views' own errors, and the score test of the field's
+variance (below) exceeds 2, whose null distribution is simulated through the fit from the
+per-view model. Corners whose smooth error is each view's own keep the per-view model as it
+is. A field the fit absorbs within each view can leave ``within`` at zero or below while
+``between`` is resolved (weak fields, about one in six at 0.12 px against 0.25 px white
+noise): it is kept, at a share of 0 (on top of each view's own part).
 
 `fit_image_field` then fits tau^2 and l to the between-view products at several distances
 (up to 0.3 of the image), each product's expectation taken through the fit: the views'
@@ -39,6 +44,10 @@ length of a grid (random Fourier features of the kernel) and the views' own erro
 the per-view model go through it; tau^2 is the least-squares scale of the field's
 predicted products to the measured ones less the own errors' (which the shared global
 parameters leave slightly anticorrelated between views), the length that of least misfit.
+The score test of tau^2 = 0 weighs the bins' products by their covariance with no field
+(64 draws of the views' own errors through the fit, on the same pairs), at the per-view
+model's length. A fitted length at the longest tried (twice the per-view model's) is a
+field the fit absorbs almost whole, whose variance the products do not determine: not kept.
 
 `gains` gives each view's part of d estimate / d field, with the field sampled on cells of
 l/4 (a corner takes its cell's value: the kernel moves by at most 1.6 % over half a cell's
@@ -94,6 +103,10 @@ _FIT_EDGES = (0.0, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3)
 _FIT_LENGTHS = tuple(np.geomspace(0.5, 2.0, 7))
 _FEATURES = 64
 _OWN_DRAWS = 16
+# the draws of the views' own errors that the keep test's null distribution is read from
+_NULL_DRAWS = 64
+# the ridge on the simulated covariance of the bins' products (relative to its mean variance)
+_NULL_RIDGE = 1e-3
 _PREDICTED_PAIRS = 3000
 
 
@@ -111,17 +124,18 @@ class ImageField:
     within: float = 0.0
     variance_px2: float = 0.0
     length_px: float = 0.0
+    score: float = 0.0
 
     @property
     def kept(self):
         """Whether the field is in the model."""
-        return self.share > 0 and self.variance_px2 > 0
+        return self.variance_px2 > 0
 
     def to_dict(self):
         """calib.json's ``image_field`` record (docs/formats.md)."""
         return {"share": self.share, "share_std": self.share_std, "between": self.between,
                 "between_std": self.between_std, "within": self.within, "sigma_px": math.sqrt(self.variance_px2),
-                "length_px": self.length_px, "kept": self.kept}
+                "length_px": self.length_px, "score": self.score, "kept": self.kept}
 
 
 #: No image-fixed field in the model.
@@ -184,24 +198,32 @@ def fit_image_field(noise, points, jac, white, weights=None, prior=None):
     model's penalty in the normal equations, None: none. No field where the model has no
     correlated part.
 
-    `estimate` decides whether the field is kept (between-view products resolved at the
-    per-view model's length) and gives its share of each view's correlated part (the ratio
-    of two products the fit shrinks alike); the field's variance and length are then fitted
-    to the between-view products at several distances as the fit leaves them
-    (`_fitted_field`): the poses and the intrinsics absorb part of a field fixed in the
-    image, so the products read off directly are short of its variance and length."""
+    The field's variance and length are fitted to the between-view products at several
+    distances as the fit leaves them (`_fitted_field`: the poses and the intrinsics absorb
+    part of a field fixed in the image, so the products read off directly are short of its
+    variance and length). It is kept where the between-view product at l/2 to l exceeds
+    `_KEEP_Z` of its jackknife sigmas, the variance's score test (`_fitted_field`, its null
+    distribution simulated on the calibration itself) exceeds `_KEEP_Z` too, and the fitted
+    length is short of the longest tried. Its share of each view's correlated part is the
+    ratio of the products between and within views at l/2 to l (`estimate`; the fit shrinks
+    both alike), 0 where the one within a view is not above zero (the field's term then
+    comes on top of each view's own)."""
     if noise is None or noise.ratio <= 0:
         return NONE
     residuals = [j[0] for j in jac]
     z = [np.asarray(r, float) / np.sqrt(np.asarray(w, float))[:, None] for r, w in zip(residuals, white)]
     est = estimate(points, z, noise.length_px)
-    if est.share <= 0:
-        return est
-    tau2, length = _fitted_field(noise, points, jac, white, weights, prior)
-    if not tau2 > 0:
-        tau2 = est.share * noise.ratio * float(np.mean(np.concatenate([np.asarray(w, float) for w in white])))
-        length = est.length_px
-    return ImageField(est.share, est.share_std, est.between, est.between_std, est.within, tau2, length)
+    if est == NONE:
+        return NONE
+    tau2, length, score = _fitted_field(noise, points, jac, white, weights, prior)
+    share = min(max(est.between / est.within, 0.0), 1.0) if est.within > 0 else 0.0
+    # both tests: the jackknife needs no model of the views' own errors, the score is the
+    # more sensitive where that model holds (module docstring); and a length at the longest
+    # tried is a field the fit absorbs almost whole, whose variance the products do not fix
+    determined = length < 0.999 * _FIT_LENGTHS[-1] * float(noise.length_px)
+    if not (est.between > _KEEP_Z * est.between_std and score > _KEEP_Z and tau2 > 0 and determined):
+        return ImageField(0.0, est.share_std, est.between, est.between_std, est.within, 0.0, est.length_px, score)
+    return ImageField(share, est.share_std, est.between, est.between_std, est.within, tau2, length, score)
 
 
 def _between_bins(points, z, edges):
@@ -253,51 +275,51 @@ def _fit_response(points, jac, weights, prior):
 
 
 def _fitted_field(noise, points, jac, white, weights, prior):
-    """(tau^2 [px^2 per axis], length [px]) of the field that best predicts the between-view
-    products of the residuals in their white levels over the distance bins `_FIT_EDGES`,
-    each product's expectation taken through the fit (`_fit_response`): a field of unit
-    variance at each length of `_FIT_LENGTHS` times the per-view model's (random Fourier
-    features of the kernel) and
-    the views' own errors under `noise` (white plus each view's correlated part), which the
-    global parameters leave slightly anticorrelated between views. tau^2 by least squares
-    per length (weighted by the bins' counts), the length of least misfit. (0, 0) where
-    nothing is resolved."""
-    from pencilcal.toolkit.board.corner_noise import kernel
-
+    """(tau^2 [px^2 per axis], length [px], score) of the field that best predicts the
+    between-view products of the residuals in their white levels over the distance bins
+    `_FIT_EDGES`, each product's expectation taken through the fit (`_fit_response`): a field
+    of unit variance at each length of `_FIT_LENGTHS` times the per-view model's (random
+    Fourier features of the kernel) and the views' own errors under `noise` (white plus each
+    view's correlated part), which the global parameters leave slightly anticorrelated between
+    views. tau^2 by least squares per length (weighted by the bins' counts), the length of
+    least misfit. score: the score test of tau^2 = 0 at the per-view model's length, its null
+    distribution simulated on the calibration itself: the products per bin (B,) y on a sample
+    of each bin's pairs, the field's predicted ones u at unit variance, their covariance S
+    with no field from `_NULL_DRAWS` draws of the views' own errors through the fit on the same
+    pairs; ``u^T S^-1 y / sqrt(u^T S^-1 u)``, a standard normal with no field. (0, 0, 0)
+    where nothing is resolved."""
     side = max(float(np.max(np.concatenate([np.asarray(p, float) for p in points]))), 1.0)
     edges = np.asarray(_FIT_EDGES) * side
     sw = [np.sqrt(np.asarray(w, float)) for w in white]
     z = [np.asarray(j[0], float) / s[:, None] for j, s in zip(jac, sw)]
     pr, b, m, n = _between_bins(points, z, edges)
     if np.count_nonzero(n) < 3:
-        return 0.0, 0.0
+        return 0.0, 0.0, 0.0
     rng = np.random.default_rng(0)
     # the predicted products on a sample of each bin's pairs (their mean is smooth in them)
     pick = np.concatenate([rng.permutation(np.flatnonzero(b == i))[:_PREDICTED_PAIRS] for i in range(len(n))])
     pa, pb, bb = pr[pick, 0], pr[pick, 1], b[pick]
+    n_pick = np.maximum(np.bincount(bb, minlength=len(n)), 1)
     sw_all = np.concatenate(sw)
     U = np.concatenate([np.asarray(p, float) for p in points])
+    Z = np.concatenate(z)
     starts = np.cumsum([0] + [np.asarray(p).shape[0] for p in points])
     response = _fit_response(points, jac, weights, prior)
 
-    def predicted(E):
-        # mean product per bin of the fit's residuals of the error columns E (N, 2, M)
+    def column_products(E):
+        # mean product per bin and column of the fit's residuals of the error columns E (N, 2, M): (B, M)
         R = response([E[starts[v]:starts[v + 1]].reshape(-1, E.shape[-1]) for v in range(len(points))])
         R = np.concatenate([r.reshape(-1, 2, E.shape[-1]) for r in R]) / sw_all[:, None, None]
-        prod = np.einsum("pam,pam->p", R[pa], R[pb]) / (2.0 * E.shape[-1])
-        return np.bincount(bb, prod, len(n)) / np.maximum(np.bincount(bb, minlength=len(n)), 1)
+        prod = np.einsum("pam,pam->pm", R[pa], R[pb]) / 2.0
+        return np.stack([np.bincount(bb, prod[:, c], len(n)) for c in range(E.shape[-1])], 1) / n_pick[:, None]
 
-    # the views' own errors: white and correlated per view, independent between views
-    own = np.zeros((U.shape[0], 2, _OWN_DRAWS))
-    for v, p in enumerate(points):
-        u = np.asarray(p, float)
-        C = np.eye(u.shape[0]) + noise.ratio * kernel(u, noise.length_px)
-        L = np.linalg.cholesky(C + 1e-9 * np.eye(u.shape[0]))
-        own[starts[v]:starts[v + 1]] = sw[v][:, None, None] * np.einsum(
-            "kl,lam->kam", L, rng.normal(size=(u.shape[0], 2, _OWN_DRAWS)))
-    base = predicted(own)
+    own_prod = column_products(_own_errors(noise, points, sw, _OWN_DRAWS, rng))
+    base = own_prod.mean(1)
     y = m - base
-    best = None
+    # the observed products on the sampled pairs, as the null draws see them
+    y_pick = np.bincount(bb, np.sum(Z[pa] * Z[pb], 1) / 2.0, len(n)) / n_pick - base
+    w = n.astype(float)
+    best, score = None, 0.0
     for frac in _FIT_LENGTHS:
         length = frac * float(noise.length_px)
         M = _FEATURES
@@ -307,13 +329,39 @@ def _fitted_field(noise, points, jac, white, weights, prior):
         E = np.zeros((U.shape[0], 2, 2 * M))
         E[:, 0, :M], E[:, 1, M:] = phi, phi
         # each column moves one axis: the mean over both axes of a field on both is twice it
-        unit = predicted(E) * 2.0
-        w = n.astype(float)
-        tau2 = max(float(np.sum(w * unit * y) / max(np.sum(w * unit * unit), 1e-300)), 0.0)
+        unit = column_products(E).mean(1) * 2.0
+        norm = max(float(np.sum(w * unit * unit)), 1e-300)
+        tau2 = max(float(np.sum(w * unit * y) / norm), 0.0)
         miss = float(np.sum(w * (y - tau2 * unit) ** 2))
         if best is None or miss < best[0]:
             best = (miss, tau2, length)
-    return best[1], best[2]
+        if frac == 1.0:
+            unit_l = unit
+    # the score of tau^2 = 0 against tau^2 > 0 at the per-view model's length: the bins'
+    # products with no field scatter together (one draw's errors move every bin), so their
+    # covariance, simulated, weighs them (a count-weighted scale missed 3 of 23 fields of
+    # 0.12 px at z 2 whose between-view products the jackknife resolved)
+    extra = _own_errors(noise, points, sw, _NULL_DRAWS - _OWN_DRAWS, rng)
+    null = np.cov(np.concatenate([own_prod, column_products(extra)], 1))
+    null = null + _NULL_RIDGE * np.trace(null) / null.shape[0] * np.eye(null.shape[0])
+    a = np.linalg.solve(null, unit_l)
+    score = float(a @ y_pick) / math.sqrt(max(float(a @ unit_l), 1e-300))
+    return best[1], best[2], score
+
+
+def _own_errors(noise, points, sw, draws, rng):
+    """Draws (N, 2, draws) [px] of the views' own errors under `noise` (white and each view's
+    correlated part, independent between views) at the corners `points` (K_v, 2) [px] of white
+    sigmas sw (K_v,) [px]."""
+    from pencilcal.toolkit.board.corner_noise import kernel
+
+    out = []
+    for p, s in zip(points, sw):
+        u = np.asarray(p, float)
+        L = np.linalg.cholesky(np.eye(u.shape[0]) + noise.ratio * kernel(u, noise.length_px)
+                               + 1e-9 * np.eye(u.shape[0]))
+        out.append(s[:, None, None] * np.einsum("kl,lam->kam", L, rng.normal(size=(u.shape[0], 2, draws))))
+    return np.concatenate(out)
 
 
 def cell_grid(image_size, length_px, points=None):
