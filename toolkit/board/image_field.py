@@ -335,7 +335,7 @@ def _fitted_field(noise, points, jac, white, weights, prior):
         miss = float(np.sum(w * (y - tau2 * unit) ** 2))
         if best is None or miss < best[0]:
             best = (miss, tau2, length)
-        if frac == 1.0:
+        if np.isclose(frac, 1.0):  # the per-view model's length: the score's
             unit_l = unit
     # the score of tau^2 = 0 against tau^2 > 0 at the per-view model's length: the bins'
     # products with no field scatter together (one draw's errors move every bin), so their
