@@ -239,11 +239,16 @@ def sheared_linear(camera, record, pencil, segments, moved, ideal=None, moved_id
     use = (lab >= 0) & np.all(np.isfinite(p.reshape(-1, 4)), -1) & np.all(np.isfinite(q.reshape(-1, 4)), -1) & (L > 0)
     if use.sum() < 3 or record.ray is None or not record.ray[2] > 0:
         return None
-    p, q, t, L, lab = p[use], q[use], t[use], L[use], lab[use]
     if angle_sigma is None:
-        s = segment_angle_sigma(p.reshape(-1, 4), endpoint_sigma_px)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s = segment_angle_sigma(p.reshape(-1, 4), endpoint_sigma_px)
     else:
-        s = np.broadcast_to(np.asarray(angle_sigma, float), (len(seg),))[use]
+        s = np.broadcast_to(np.asarray(angle_sigma, float), (len(seg),))
+    with np.errstate(invalid="ignore"):
+        use &= np.isfinite(s) & (s > 0)  # (a line without a weight has no say)
+    if use.sum() < 3:
+        return None
+    p, q, t, L, lab, s = p[use], q[use], t[use], L[use], lab[use], s[use]
     R0 = np.asarray(record.R_cam_from_target, float)
     ray = np.asarray(record.ray, float)
     x0 = ray[:2] / ray[2]
