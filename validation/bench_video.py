@@ -56,7 +56,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["bench_orient_video", "bench_shafts_video", "bench_orient_motion", "bench_shafts_motion", "VIDEO_TARGETS",
-           "handheld_frames", "hard_handheld_frames", "moving_shaft_frames"]
+           "write_video", "handheld_frames", "hard_handheld_frames", "moving_shaft_frames"]
 
 VIDEO_TARGETS = {"orient_video_vs_decode_fld_1080p": ("<=", 1.5), "shafts_video_vs_decode_fld_1080p": ("<=", 2.0),
                  "orient_motion_overlay_vs_decode_fld_1080p": ("<=", 1.5), "orient_motion_tracked": (">=", 0.9),
@@ -78,7 +78,9 @@ while True:
 """
 
 
-def _write_video(path, images, fps=30.0, fourcc="mp4v"):
+def write_video(path, images, fps=30.0, fourcc="mp4v"):
+    """Write `images` ((H, W) grey or (H, W, 3) BGR uint8 each) to `path` as a video of `fps`
+    frames a second in the `fourcc` codec ("MJPG": motion JPEG, as a webcam stores it)."""
     import cv2
 
     h, w = images[0].shape[:2]
@@ -157,7 +159,7 @@ def bench_orient_video(frames=64, repeats=2, seed=0, workdir=None):
     images = [sc.render(i) for i in range(12, 20)]  # 30-40 deg, 2 deg a frame
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         d = Path(tmp)
-        _write_video(d / "sweep.mp4", _ping_pong(images, frames))
+        write_video(d / "sweep.mp4", _ping_pong(images, frames))
         write_camera(d / "camera.json", sc.camera)
         write_pencil(d / "pencil.yaml", sc.sheet.pencil)
         args = ["orient", str(d / "sweep.mp4"), "--camera", str(d / "camera.json"), "--pencil",
@@ -186,7 +188,7 @@ def bench_shafts_video(frames=48, repeats=2, seed=0, workdir=None):
     images = [sc.render(i) for i in range(8)]
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         d = Path(tmp)
-        _write_video(d / "pivot.mp4", _ping_pong(images, frames))
+        write_video(d / "pivot.mp4", _ping_pong(images, frames))
         write_camera(d / "camera.json", sc.camera)
         args = ["fulcrum", str(d / "pivot.mp4"), "--camera", str(d / "camera.json"), "-o", str(d / "f.json"),
                 "--force", "-q"]
@@ -286,7 +288,7 @@ def bench_orient_motion(frames=120, repeats=2, seed=0, workdir=None):
         for name, images, truth, runs in (("orient_motion", slow, tilt, (False, "full", True)),
                                           ("orient_motion2x", fast, tilt2, (True,))):
             video = d / f"{name}.avi"
-            _write_video(video, images, fourcc="MJPG")
+            write_video(video, images, fourcc="MJPG")
             cpu = []
             floor = _floor_process(video, repeats, cpu)
             out[f"{name}_decode_fld_s"] = float(floor)
@@ -329,7 +331,7 @@ def bench_shafts_motion(frames=90, repeats=2, seed=0, workdir=None):
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         d = Path(tmp)
         video = d / "instrument.avi"
-        _write_video(video, images, fourcc="MJPG")
+        write_video(video, images, fourcc="MJPG")
         write_camera(d / "camera.json", cam)
         args = ["fulcrum", str(video), "--camera", str(d / "camera.json"), "-o", str(d / "f.json"), "--force", "-q"]
         wall, startup, per = _process(args, repeats)

@@ -76,3 +76,36 @@ def test_a_known_readout_undoes_the_rolling_shutter(tmp_path):
     e2, s2 = errors()
     assert np.array_equal(e2, e0) and s2[0] == s0[0]
     assert np.all(e2[1:] < 3 * s2[1:]) and np.all(s2[1:] < 5 * e2[1:])
+
+
+def test_the_scores_count_wrong_frames_by_degrees_and_sigmas():
+    from pencilcal.validation.hard_video import score
+
+    recs = [{"ok": True, "tilt_deg": 20.05, "tilt_sigma_deg": 0.1},  # 0.5 sigma: right
+            {"ok": True, "tilt_deg": 20.5, "tilt_sigma_deg": 0.1},  # 5 sigma: wrong
+            {"ok": True, "tilt_deg": 22.0, "tilt_sigma_deg": 1.0},  # 2 deg off, 2 sigma: wrong
+            {"ok": True, "tilt_deg": 19.75, "tilt_sigma_deg": 0.1},  # 2.5 sigma: right
+            {"ok": False}]
+    s = score(recs, [20.0] * 5)
+    assert (s["frames"], s["oriented"], s["right"], s["wrong"]) == (5, 4, 2, 2)
+    assert s["wrong_frames"] == [1, 2] and s["beyond_3_sigma"] == 1 and s["over_1_deg"] == 1
+    assert s["within_sigma"] == [0.25, 0.5, 0.75] and s["within_0p5_deg"] == 3
+    assert abs(s["largest_error_deg"] - 2.0) < 1e-9
+
+
+def test_the_runner_renders_orients_and_scores_a_short_video(tmp_path, capsys):
+    # four small frames of seed 3, rendered once into the videos folder and used again
+    from pencilcal.validation.hard_video import main
+
+    args = ["--seeds", "3", "--frames", "4", "--size", "960x540", "--videos", str(tmp_path), "--out",
+            str(tmp_path / "rows.json")]
+    assert main(args) == 0
+    d = tmp_path / "hard3"
+    assert all((d / n).exists() for n in ("v.avi", "camera.json", "pencil.yaml", "truth.json"))
+    rows = json.loads((tmp_path / "rows.json").read_text())
+    assert rows[0]["seed"] == 3 and rows[0]["frames"] == 4
+    assert rows[0]["right"] + rows[0]["wrong"] == rows[0]["oriented"]
+    assert "seed 3:" in capsys.readouterr().out
+    stamp = (d / "v.avi").stat().st_mtime_ns
+    assert main(args + ["--readout", "0"]) == 0
+    assert (d / "v.avi").stat().st_mtime_ns == stamp

@@ -16,10 +16,13 @@ what two frames' lines measure, at every point along the spoke. The velocity's e
 (the motion changing from frame to frame) is carried into each segment's offset and
 angle sds (`VELOCITY_REL_SD`, `VELOCITY_FLOOR_PX`).
 
-Where the readout is not known, nothing is moved: `shear_widened` widens the fit's tilt and
-normal sigmas by how far the same moves for a readout anywhere from 0 to a whole frame would
-take its estimate (the frame fitted once more from its lines moved by a whole frame's
-readout), and leaves the estimate as it is.
+Where the readout is not known, nothing is moved: the fit's tilt and normal sigmas are widened
+by how far the same moves for a readout anywhere from 0 to a whole frame would take its
+estimate, and the estimate is left as it is. Where the moves take it is found by one linear
+step of the fit from its own solution (`sheared_linear`: every labelled line's angle and the
+lines' intersection moved as a whole frame's readout moves them; `WIDENING` "linear", the
+default) or by fitting the frame once more from the moved lines (`shear_widened`; "refit":
+a second vertex search, several times slower, no better against the truth).
 
 Example
 -------
@@ -41,15 +44,17 @@ from __future__ import annotations
 import numpy as np
 
 from pencilcal.toolkit.errors import InputError
-from pencilcal.toolkit.geometry.frames import angle_between
+from pencilcal.toolkit.geometry.angles import wrap_line
+from pencilcal.toolkit.geometry.frames import angle_between, rotation_from_rotvec
 from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
+from pencilcal.toolkit.pencil.estimator import pencil_jacobian
 from pencilcal.toolkit.pencil.orient import orient_segments
 from pencilcal.toolkit.pencil.spec import image_angles
 from pencilcal.toolkit.pencil.track import orient_tracked, prior_labels
 from pencilcal.toolkit.pencil.vertex import segment_angle_sigma
 
-__all__ = ["orient_video_frame", "deskewed_segments", "camera_readout", "seen_lines", "shear_widened", "VELOCITY_REL_SD",
-           "VELOCITY_FLOOR_PX", "UNKNOWN_READOUTS"]
+__all__ = ["orient_video_frame", "deskewed_segments", "camera_readout", "seen_lines", "shear_widened", "sheared_linear",
+           "VELOCITY_REL_SD", "VELOCITY_FLOOR_PX", "UNKNOWN_READOUTS", "WIDENING"]
 
 #: The sd of a point's velocity across its spoke, relative to it (the motion changes from
 #: one frame to the next: a hand's swing starts and stops).
@@ -59,6 +64,10 @@ VELOCITY_FLOOR_PX = 0.3
 #: A readout not known: the readouts [frames] thought equally likely (0: a global shutter,
 #: 1: rows read out over the whole frame interval).
 UNKNOWN_READOUTS = np.linspace(0.0, 1.0, 21)
+#: How a readout not known widens the sigmas: "linear" (`sheared_linear`: one linear step of
+#: the first fit, the default) or "refit" (the frame fitted again from its
+#: sheared lines: a second vertex search, slower, no better against the truth).
+WIDENING = "linear"
 
 
 def seen_lines(camera, segments, spokes, ideal=None):
@@ -173,13 +182,20 @@ def shear_widened(record, sheared, readouts=UNKNOWN_READOUTS):
     """
     if not record.ok or sheared is None or not sheared.ok or record.ray is None or sheared.ray is None:
         return record
-    n0, v0 = np.asarray(record.normal, float), np.asarray(record.ray, float)
+    n0 = np.asarray(record.normal, float)
     # the sheared fit may have chosen the other of the twin normals: its change is the smaller
     n1 = min((np.asarray(n, float) for n in (sheared.normal, sheared.normal_twin) if n is not None),
              key=lambda n: float(angle_between(n0, n)))
+    return _widened_along(record, n1, np.asarray(sheared.ray, float), readouts)
+
+
+def _widened_along(record, n1, v1, readouts=UNKNOWN_READOUTS):
+    """`record` widened by the path of its normal and ray to n1, v1 (3,) at readout 1
+    (`shear_widened`)."""
+    n0, v0 = np.asarray(record.normal, float), np.asarray(record.ray, float)
     r = np.asarray(readouts, float)[:, None]
     n = n0 + r * (n1 - n0)
-    v = v0 + r * (np.asarray(sheared.ray, float) - v0)
+    v = v0 + r * (v1 - v0)
     tilt = angle_between(n, v)  # (K,) [rad]: the tilt is the normal's angle from the vertex's ray
     dt = float(np.degrees(np.sqrt(np.mean((tilt - angle_between(n0, v0)) ** 2))))
     dn = float(np.degrees(np.sqrt(np.mean(angle_between(n, n0) ** 2))))
@@ -193,6 +209,81 @@ def shear_widened(record, sheared, readouts=UNKNOWN_READOUTS):
     return record.replace(**ch)
 
 
+def sheared_linear(camera, record, pencil, segments, moved, ideal=None, moved_ideal=None, angle_sigma=None,
+                   endpoint_sigma_px=ENDPOINT_SIGMA_PX):
+    """(normal (3,), ray (3,)) where the fit `record` goes when its lines are moved from
+    `segments` to `moved` (M, 4) raw px (`ideal`, `moved_ideal`: the same in undistorted px
+    where known), to first order: one Gauss-Newton step of the fit's line angle residuals
+    from the record's rotation, each labelled line's angle changed by its move and the
+    vertex by the moved lines' weighted intersection's move (every labelled line kept, no
+    vertex search, no labelling). None where fewer than three labelled lines remain.
+
+    angle_sigma: None, scalar or (M,) [rad] the lines' angle sds (the fit's weights; None:
+    the end point model's, `vertex.segment_angle_sigma`).
+    """
+    seg = np.asarray(segments, float).reshape(-1, 4)
+    K = np.asarray(camera.K, float)
+    A = K[:2, :2]
+
+    def px(raw, ide):  # (M, 2, 2) undistorted px
+        if ide is not None:
+            return np.asarray(ide, float).reshape(-1, 2, 2)
+        with np.errstate(invalid="ignore"):
+            nrm = camera.normalized_from_pixels(np.asarray(raw, float).reshape(-1, 2))
+        return (nrm @ A.T + K[:2, 2]).reshape(-1, 2, 2)
+
+    p, q = px(seg, ideal), px(moved, moved_ideal)
+    t = p[:, 1] - p[:, 0]
+    L = np.linalg.norm(t, axis=-1)
+    lab = np.asarray(record.spokes, int).reshape(-1)[:len(seg)]
+    use = (lab >= 0) & np.all(np.isfinite(p.reshape(-1, 4)), -1) & np.all(np.isfinite(q.reshape(-1, 4)), -1) & (L > 0)
+    if use.sum() < 3 or record.ray is None or not record.ray[2] > 0:
+        return None
+    if angle_sigma is None:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s = segment_angle_sigma(p.reshape(-1, 4), endpoint_sigma_px)
+    else:
+        s = np.broadcast_to(np.asarray(angle_sigma, float), (len(seg),))
+    with np.errstate(invalid="ignore"):
+        use &= np.isfinite(s) & (s > 0)  # (a line without a weight has no say)
+    if use.sum() < 3:
+        return None
+    p, q, t, L, lab, s = p[use], q[use], t[use], L[use], lab[use], s[use]
+    R0 = np.asarray(record.R_cam_from_target, float)
+    ray = np.asarray(record.ray, float)
+    x0 = ray[:2] / ray[2]
+    # each line's angle as the fit labelled it: of its spoke's edges, the one the fit puts nearest
+    edges, edge_spoke, _ = pencil.edge_angles()
+    pred = image_angles(R0, x0, edges)  # (E,)
+    a_p = np.arctan2(t[:, 1], t[:, 0])
+    gap = np.abs(wrap_line(a_p[:, None] - pred[None, :]))
+    gap = np.where(edge_spoke[None, :] == lab[:, None], gap, np.inf)
+    th = edges[np.argmin(gap, -1)]
+    tq = q[:, 1] - q[:, 0]
+    da = wrap_line(np.arctan2(tq[:, 1], tq[:, 0]) - a_p)  # (N,) [rad] (px angles: square pixels)
+    # the vertex: the lines' intersection, each weighted by its sd at the vertex (offset and
+    # angle over the distance there); the same weights before and after the move
+    nrm = np.stack([-t[:, 1], t[:, 0]], -1) / L[:, None]
+    v_px = x0 @ A.T + K[:2, 2]
+    dist = np.linalg.norm(0.5 * (p[:, 0] + p[:, 1]) - v_px, axis=-1)
+    w_off = 1.0 / (0.5 * endpoint_sigma_px ** 2 + (dist * s) ** 2)
+    Hx = np.einsum("n,ni,nj->ij", w_off, nrm, nrm)
+    if not np.linalg.det(Hx) > 1e-12 * np.trace(Hx) ** 2:  # (lines all parallel: no vertex)
+        return None
+    nq = np.stack([-tq[:, 1], tq[:, 0]], -1) / np.linalg.norm(tq, axis=-1)[:, None]
+    xp = np.linalg.solve(Hx, np.einsum("n,ni,n->i", w_off, nrm, np.einsum("ni,ni->n", nrm, p[:, 0])))
+    Hq = np.einsum("n,ni,nj->ij", w_off, nq, nq)
+    xq = np.linalg.solve(Hq, np.einsum("n,ni,n->i", w_off, nq, np.einsum("ni,ni->n", nq, q[:, 0])))
+    dx = np.linalg.solve(A, xq - xp)  # (2,) normalised
+    _, J, Jx = pencil_jacobian(R0, x0, th)  # (N, 3), (N, 2)
+    w = 1.0 / s ** 2
+    H = J.T @ (J * w[:, None])
+    H += 1e-14 * np.trace(H) * np.eye(3)  # (zero tilt: the tilt's directions unobservable)
+    delta = np.linalg.solve(H, J.T @ (w * (da - Jx @ dx)))
+    v1 = np.append(x0 + dx, 1.0)
+    return rotation_from_rotvec(delta) @ np.asarray(record.normal, float), v1 / np.linalg.norm(v1)
+
+
 def orient_video_frame(camera, segments, pencil, previous, readout=None, seen=None, **orient_kwargs):
     """(orientation, tracked): one frame of a video fitted with the previous frame's
     `Orientation` as a prior (`track.orient_tracked`), its rolling shutter handled:
@@ -201,8 +292,9 @@ def orient_video_frame(camera, segments, pencil, previous, readout=None, seen=No
       the vertex (`deskewed_segments`), the moves' sds added to each segment's offset and
       angle sds (from the end point noise where the frame's lines have none);
     - readout None (not known): fitted as seen, the tilt and normal sigmas widened by what a
-      readout from 0 to a whole frame could have done (`shear_widened`: the frame fitted once
-      more from its lines moved by a whole frame's readout; the estimate itself unchanged);
+      readout from 0 to a whole frame could have done (where the fit goes from its lines moved
+      by a whole frame's readout: `sheared_linear`, or `shear_widened` with `WIDENING`
+      "refit"; the estimate itself unchanged);
     - readout 0: a global shutter, fitted as seen.
 
     segments: (M, 4) raw px; previous: the previous frame's `Orientation` or None (the first
@@ -267,6 +359,10 @@ def _widened_by_unknown_readout(camera, seg, pencil, previous, rec, kw, seen):
     # the fit's own labels (no labelling search: the same lines, only the shear differs; the
     # vertex is searched where the moved lines no longer meet within their sds), bars'
     # midlines under the previous frame's plane as the tracked fit puts them
+    if WIDENING == "linear":  # (the fit's first-order move: no second vertex search, no labelling)
+        out = sheared_linear(camera, rec, pencil, seg, moved, kw.get("ideal"), ideal, kw.get("angle_sigma"),
+                             kw.get("endpoint_sigma_px", ENDPOINT_SIGMA_PX))
+        return rec if out is None else _widened_along(rec, *out)
     plane = None if previous.ambiguous else previous.normal
     # only its normals and ray are used: no lens-uncertainty totals, no lines kept
     sheared = orient_segments(camera, moved, pencil, labels=rec.spokes, plane_normal=plane,
