@@ -356,13 +356,13 @@ def _widened_by_unknown_readout(camera, seg, pencil, previous, rec, kw, seen):
                                            still_px=VELOCITY_FLOOR_PX)
     if np.array_equal(moved, seg):
         return rec
-    # the fit's own labels (no labelling search: the same lines, only the shear differs; the
-    # vertex is searched where the moved lines no longer meet within their sds), bars'
-    # midlines under the previous frame's plane as the tracked fit puts them
     if WIDENING == "linear":  # (the fit's first-order move: no second vertex search, no labelling)
         out = sheared_linear(camera, rec, pencil, seg, moved, kw.get("ideal"), ideal, kw.get("angle_sigma"),
                              kw.get("endpoint_sigma_px", ENDPOINT_SIGMA_PX))
         return rec if out is None else _widened_along(rec, *out)
+    # the fit's own labels (no labelling search: the same lines, only the shear differs; the
+    # vertex is searched where the moved lines no longer meet within their sds), bars'
+    # midlines under the previous frame's plane as the tracked fit puts them
     plane = None if previous.ambiguous else previous.normal
     # only its normals and ray are used: no lens-uncertainty totals, no lines kept
     sheared = orient_segments(camera, moved, pencil, labels=rec.spokes, plane_normal=plane,
