@@ -846,7 +846,7 @@ class Fusion(_Record):
     p_value: np.ndarray
 
 
-def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None, common=None):
+def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None, common=None, shared_own=None):
     """Information-weighted fusion of two estimates, and their consistency test.
 
     x1, x2: (..., n) the estimates; C1, C2: (..., n, n) their covariances. shared: None when
@@ -878,6 +878,14 @@ def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None, c
     estimate is said to hold less than nothing of its own. EstimationError also where the
     fused covariance with the cross terms is not positive definite.
 
+    shared_own: None (``shared``), or ``(I_s, h_s)`` as ``shared`` but of the shared data's
+    own noise, the common error taken out (its information is then larger): the test's
+    covariances C1 - S and C2 - S hold the shared data with that information, and the part
+    of the difference they cancel is read with it (with ``shared``, whose information holds
+    the common error, the shared data's component of the difference keeps a variance it
+    does not have and counts as a dof it is not). Where the own information exceeds what
+    C1 - S and C2 - S hold together, the test is read with ``shared``.
+
     >>> f = combine_estimates([0.0, 0, 100], np.eye(3), [0.0, 0, 102], np.eye(3))
     >>> f.point.tolist(), float(f.chi2), bool(f.consistent), f.dof
     ([0.0, 0.0, 101.0], 2.0, True, 3)
@@ -901,7 +909,12 @@ def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None, c
         cov = f.cov + cross + np.swapaxes(cross, -1, -2)
         if np.any(np.linalg.eigvalsh(cov)[..., 0] <= 0):
             raise EstimationError("combine_estimates: the common error exceeds what the estimates hold")
-        test = combine_estimates(x1, C1 - S, x2, C2 - S, confidence, shared)
+        try:
+            test = combine_estimates(x1, C1 - S, x2, C2 - S, confidence, shared if shared_own is None else shared_own)
+        except EstimationError:
+            # the own information exceeds what the noise parts hold together (their fusion,
+            # not used here, is not positive definite): the test as with `shared`
+            test = combine_estimates(x1, C1 - S, x2, C2 - S, confidence, shared)
         return Fusion(point=f.point, cov=cov, sigma=np.sqrt(np.trace(cov, axis1=-2, axis2=-1)), chi2=test.chi2,
                       dof=test.dof, threshold=test.threshold, consistent=test.consistent, p_value=test.p_value)
     I1, I2 = np.linalg.inv(C1), np.linalg.inv(C2)

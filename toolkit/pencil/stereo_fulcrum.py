@@ -135,11 +135,14 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     (`cylinder.combine_estimates`): both hold the left view's midlines (the diameter-based
     axes lie in their planes; the triangulation holds their intersection, the left ray),
     so the left ray's information (`RayTriangulation.ray_information`) is passed as
-    shared: the agreement chi2 (3 dof) then tests the depth from the shaft's width against
-    the depth from the baseline and the right view, and the fusion counts the left ray
-    once; the shared offset is passed as ``common`` (an error both carry: the port's play
-    moves the diameter-based point as it moves the rays), so the fused covariance does not
-    average it. confidence: of the agreement test. With either view's intrinsics' term
+    shared: the agreement chi2 (2 dof where the component that only the left ray holds
+    drops out, else 3) then tests the depth from the shaft's width against the depth from
+    the baseline and the right view, and the fusion counts the left ray once; the shared
+    offset is passed as ``common`` (an error both carry: the port's play moves the
+    diameter-based point as it moves the rays), so the fused covariance does not average
+    it. The test takes that offset out of both covariances, so the left ray it counts once
+    there is the one of its lines' own sigmas (``shared_own``). confidence: of the
+    agreement test. With either view's intrinsics' term
     (`Fulcrum.ray_cov_lens`, the camera file's intrinsics covariance) the triangulated
     point's covariance gains it too (`triangulation_lens_cov`, ``StereoFulcrum.lens_cov``);
     the agreement and the fusion keep the noise-only covariances (the diameter-based point
@@ -167,9 +170,13 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
         return StereoFulcrum(rig, right, tri, confidence=confidence, common_cov=common, **lens)
     fit = left.point.fit
     shared = True
+    # the test takes the common offset out of both covariances: the left ray it cancels is
+    # then the one of its lines' own sigmas, more informative than the ray with the offset
+    own = triangulate_rays(left.ray, Cl - shared_ray_cov(left), right.ray, Cr - shared_ray_cov(right), R, t)
     try:
         fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence,
-                                  shared=(tri.ray_information[0], tri.ray_information_vector[0]), common=common)
+                                  shared=(tri.ray_information[0], tri.ray_information_vector[0]), common=common,
+                                  shared_own=(own.ray_information[0], own.ray_information_vector[0]))
     except EstimationError:
         shared = False
         fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence, common=common)

@@ -423,6 +423,30 @@ def test_five_sigma_offset_is_inconsistent():
         assert g.consistent
 
 
+def test_common_error_test_reads_shared_data_with_its_own_information():
+    """Two fits that share data and carry one common error S: the difference's covariance is
+    that of the noise parts C - S, which hold the shared data with its own information (no S
+    in it). Each estimate is the information sum of its own data (A1, A2) and the shared
+    data (I_own); with the shared data read with S in it (its information smaller) the
+    component only the shared data make up keeps a variance and counts as a dof."""
+    I_own = np.diag([100.0, 100.0, 0.0])                     # x: the shared data alone
+    A1, A2 = np.diag([1e-6, 1e-6, 4.0]), np.diag([1e-6, 50.0, 1.0])
+    N1, N2 = np.linalg.inv(A1 + I_own), np.linalg.inv(A2 + I_own)
+    S = np.diag([0.01, 0.01, 0.0])                           # as large as the shared data's noise
+    I_with_s = np.diag([50.0, 50.0, 0.0])                    # (1 / 100 + 0.01)^-1
+    x = np.array([1.0, 2.0, 50.0])
+    own = combine_estimates(x, N1 + S, x + 0.01, N2 + S, shared=(I_with_s, np.zeros(3)), common=S,
+                            shared_own=(I_own, np.zeros(3)))
+    with_s = combine_estimates(x, N1 + S, x + 0.01, N2 + S, shared=(I_with_s, np.zeros(3)), common=S)
+    assert own.dof == 2 and with_s.dof == 3
+    # the fused point and covariance do not depend on how the test reads the shared data
+    assert np.allclose(own.point, with_s.point) and np.allclose(own.cov, with_s.cov)
+    # own information beyond what the noise parts hold together: the test as with `shared`
+    big = combine_estimates(x, N1 + S, x + 0.01, N2 + S, shared=(I_with_s, np.zeros(3)), common=S,
+                            shared_own=(10.0 * I_own, np.zeros(3)))
+    assert big.dof == with_s.dof and big.chi2 == pytest.approx(float(with_s.chi2))
+
+
 def test_triangulation_exact_with_3x3_covariances_and_rays_from_points():
     X, R, t, cov_l, cov_r = _stereo()
     ray_l, c3_l = ray_from_image_point(X[:2] / X[2], cov_l)

@@ -201,11 +201,13 @@ def test_stereo_monte_carlo():
                                              st.triangulated.point_cov).chi2))
     tri_m2, agree = np.array(tri_m2), np.array(agree)
     assert 0.58 <= np.mean(tri_m2 <= Q68_3) <= 0.78, np.mean(tri_m2 <= Q68_3)
-    # the component along which the right ray adds nothing is left out: 2 dof. Where the
-    # left lines scatter beyond their sigmas by chance their play term (an offset both
-    # views share) leaves the left ray's information above the diameter point's share of
-    # it and the two are fused as independent, 3 dof (56 of these 120)
-    assert set(dof) <= {2, 3} and dof.count(2) >= 40, dof
+    # the component along which the right ray adds nothing is left out: 2 dof (the
+    # difference's variance there is 1.3 % of C1 + C2 over 300 draws, under SHARED_FLOOR).
+    # Where the lines scatter beyond their sigmas by chance, their play term (an offset both
+    # views share) is taken out of both covariances for the test, and the left ray that
+    # cancels is the one of its lines' own sigmas: read with the ray holding the play, that
+    # component kept 5.7 % and counted as a third dof in 56 of these 120 (now 20)
+    assert set(dof) <= {2, 3} and dof.count(2) >= 90, dof
     assert 0.75 <= np.mean(agree / np.array(dof)) <= 1.3, np.mean(agree / np.array(dof))
     assert 0.58 <= np.mean(np.array(p) >= 0.32) <= 0.78, np.mean(np.array(p) >= 0.32)
     # as independent estimates (3 dof) the two would look far too alike
