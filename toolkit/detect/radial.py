@@ -249,18 +249,13 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
         if phi.size < 3:
             return None
         fit = _refit_edges(lin, camera, v, phi, sign, seen, search, clear)
+        blur = max(CLEAR_PX / CLEAR_SIGMAS, _edge_blur(lin, camera, fit, clear))
         # no edge through the segments' vertex: no radial target; but a star's edges seen in
         # many directions and clear of their neighbours nowhere (a small star under blur) are
         # a star's, located jointly below
         if k == 0 and np.count_nonzero(fit.ok) < 3 and (joint != "all" or phi.size < _CROWDED_DIRECTIONS):
             return None
-        v, reach, v_sd, believed = _better_vertex(fit, v, reach, v_sd, joint == "all")
-        # the blur only from edges that are the target's: a small dense star's stretches
-        # refitted where no edge is clear (fitted across two neighbours, meeting 5-30 px off
-        # the vertex) measured it 1.95 px where the edges that meet there gave 0.93, and the
-        # joint location from 2.6 such sds apart found none of the 256 edges
-        if believed:
-            blur = max(CLEAR_PX / CLEAR_SIGMAS, _edge_blur(lin, camera, fit, clear))
+        v, reach, v_sd = _better_vertex(fit, v, reach, v_sd, joint == "all")
     # the edges located with their neighbours (their blurred edges modelled): those that are
     # nowhere clear of them from where they lie JOINT_SIGMAS blur sds apart; with joint="all"
     # the others too, from where they are clear as before
@@ -281,14 +276,7 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
         r_joint = within(_clear_radius(phi, JOINT_SIGMAS * blur))
         r_lo = np.where(clear_ok, within(_clear_radius(phi, clear)), r_joint)
         lines = np.where(fit.ok[:, None], fit.lines(), ray)
-        located, fitted = joint_refit(lin, camera, lines, v, sign, blur, r_lo, r_hi, rows=rows, search=_SEARCH_PX[-1])
-        # a star's edges short of min_length are located again from JOINT_SIGMAS of the blur
-        # the joint fit measured, where smaller than the one they were placed by: no round's
-        # edges were believed (`_better_vertex`) and the blur was still the 1 px one's (a
-        # 128-wedge star blurred by 0.91 px: 4 edges of 256 long enough, 226 from there)
-        if joint == "all" and fitted < blur:
-            blur = fitted
-            r_joint = within(_clear_radius(phi, JOINT_SIGMAS * blur))
+        located, _ = joint_refit(lin, camera, lines, v, sign, blur, r_lo, r_hi, rows=rows, search=_SEARCH_PX[-1])
         # the same for an edge whose clear stretch was long enough but whose joint fit kept
         # less than min_length of it (the fit drops the outer end's stations and weak steps):
         # located again from JOINT_SIGMAS apart, its neighbours at their new lines (128-wedge
@@ -302,7 +290,7 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
             redo, _ = joint_refit(lin, camera, lines, v, sign, blur, r_again, r_hi, rows=rows[again], search=_SEARCH_PX[-1])
             located = _merged(located, np.flatnonzero(again), redo)
         fit = _merged(fit, rows, located)
-        v, reach, v_sd, _ = _better_vertex(fit, v, reach, v_sd, joint == "all")
+        v, reach, v_sd = _better_vertex(fit, v, reach, v_sd, joint == "all")
     return img, lin, fit, v, max(v_sd, about_sd), reach, phi, rows, clear
 
 
@@ -699,25 +687,24 @@ def _vertex_of(fit, reach):
 
 
 def _better_vertex(fit, v, reach, sd, compare=True):
-    """(vertex, reach, sd, believed): the refitted edges' (`_vertex_of`) where they fix the
-    vertex at least as well as the v (2,) [px] they were refitted about (sd [px],
-    `_vertex_sd`), else v with its reach (also where they give none); believed: the
-    edges' were taken (always, without `compare`). A small star's edges are clear of their
-    neighbours only near its rim, if at all (128 edges 5 px apart there): stretches refitted
-    there across two neighbours intersected 3-30 px from the vertex the frame's segments had
-    found to 0.02-0.1 px, at sds of 1-13 px, and the next round, about that point, found
-    fewer than three edges (photographs of stars under 30 % of the frame's height). Taken as well where they lay
-    within 3 sds of the last, the sds of the two added, such a loose fit passed (a 128-wedge
-    star: 5.7 px off at an sd of 5.1 px; the vertex had been 0.007 px off). Without
-    `compare` theirs wherever there is one (a dartboard's, whose segments hold its raised
-    wires' sides too: compared, the shared photographs' boundaries' planes moved from the
-    rings' by +0.15 and -0.05 deg, which nothing here tells right or wrong).
+    """(vertex, reach, sd): the refitted edges' (`_vertex_of`) where they lie within 3 sds of
+    the vertex v (2,) [px] they were refitted about (sd [px], `_vertex_sd`) or fix it at
+    least as well, else v with its reach (also where they give none). A small star's edges are clear of their
+    neighbours only near its rim, if at all (128 edges 5 px apart there): a few short
+    stretches intersected 3-15 px from the vertex the frame's segments had found to 0.02 px,
+    and the next round, about that point, found fewer than three edges (photographs of stars
+    under 30 % of the frame's height). Without `compare` theirs wherever there is one (a
+    dartboard's, whose segments hold its raised wires' sides too: compared, the shared
+    photographs' boundaries' planes moved from the rings' by +0.15 and -0.05 deg, which
+    nothing here tells right or wrong).
     """
     try:
         v1, reach1, sd1 = _vertex_of(fit, reach)
     except EstimationError:
-        return v, reach, sd, not compare
-    return (v1, reach1, sd1, True) if sd1 <= sd or not compare else (v, reach, sd, False)
+        return v, reach, sd
+    # within 3 sds of the last it is the same vertex, measured on the refitted edges
+    same = np.hypot(*(v1 - v)) <= 3.0 * np.hypot(sd, sd1)
+    return (v1, reach1, sd1) if same or sd1 <= sd or not compare else (v, reach, sd)
 
 
 def _angular_profile(img, camera, v, r_a, r_b, n_phi):
