@@ -294,7 +294,8 @@ def _edge_line(seg, other):
 def with_limbs(image, camera, shafts, edge_model="limb", gamma=DEFAULT_GAMMA, K=None):
     """The shafts with their edges located by the limb model (`shaft.limb.limb_edges`) when
     edge_model is "limb" (else as they are): each a new `Shaft` from the refitted edges'
-    midline, its score, polarity and cue kept; one whose edges give no limb as it was.
+    midline, its score, polarity and cue kept, with the width sd its fit shows
+    (``width_sd_px``, `shaft.limb.width_spread`); one whose edges give no limb as it was.
     gamma: the frame's encoding gamma; K: the camera matrix of the ideal pixels (default
     `shaft.work.axis_matrix`'s)."""
     if edge_model not in EDGE_MODELS:
