@@ -93,14 +93,16 @@ def _endoscope_frame(cam, A, d, material, background, rng):
     end = rng.uniform(10.0, 40.0)
     level = rng.uniform(0.15, 0.5)
     outline = None
-    for m, radius, extent, lev in ((wrist, _WRIST[0], (end, end + _WRIST[1]), 0.5), (mat, RADIUS_MM, (-1e4, end), level)):
+    # (a bright metal shaft's wrist is its own material: the part, not the material, says which)
+    for part, m, radius, extent, lev in (("wrist", wrist, _WRIST[0], (end, end + _WRIST[1]), 0.5),
+                                         ("shaft", mat, RADIUS_MM, (-1e4, end), level)):
         try:
             rad, cover, _, _, seen = shaft_light(cam, A, d, radius, m, extent=extent)
         except InputError:
-            if m is mat:
+            if part == "shaft":
                 raise
             continue  # the wrist out of view
-        if m is mat:
+        if part == "shaft":
             outline = seen
         # one exposure for the sequence: the face 60 mm away at the level, fall-off kept
         rad = rad * (lev / float(shaft_radiance(0.8, 60.0, m)))
@@ -149,6 +151,8 @@ def render_band(seed, k, material, background, z_mm, edge_models=EDGE_MODELS, re
         s, c = best
         true = float(truth.width_at(c))
         rec = {"polarity": s.polarity, "width_px": float(s.width_px), "edge_model": s.edge_model}
+        if s.width_sd_px is not None:
+            rec["width_sd_px"] = float(s.width_sd_px)  # what the band's own fit shows (`band_width_sd`)
         rec.update(error_px=float(s.width_px - true), error_rel=float(s.width_px / true - 1.0),
                    true_width_px=true, band_class=band_class(rec), sd_px=float(band_width_sd(rec)))
         out[model] = rec

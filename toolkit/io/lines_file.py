@@ -148,6 +148,9 @@ def _shaft_record(sh, where):
         v = sh.get(key)
         if v is not None and not (is_number(v) and np.isfinite(v)):
             raise InputError(f"{where}: '{key}' must be a finite number, got {v!r}")
+    v = sh.get("width_sd_px")  # the limb fit's own width sd (`band_width.band_width_sd`)
+    if v is not None and not (is_number(v) and np.isfinite(v) and v >= 0):
+        raise InputError(f"{where}: 'width_sd_px' must be a finite number >= 0, got {v!r}")
     if sh.get("edges") is not None:
         _segments(sh["edges"], where, "edges", finite=True)
     for key, shape in _SHAFT_ARRAYS.items():

@@ -6,7 +6,8 @@ error for the sequence, and the 3-D fulcrum's depth (fixed by the widths) carrie
 `point_width_cov` is its covariance term (docs/uncertainty.md); `band_width_sd` its size in
 pixels for each band, from what the detector measured on it (`band_class`: its edge model,
 its polarity and its width; the sds `defaults.EDGE_WIDTH_SD_PX`, measured on shaded renders:
-`validation.band_width_grid`).
+`validation.band_width_grid`) and, for a band the limb model located, what its own fit
+shows (``width_sd_px``: a limb the profiles do not pin down scatters along the edge).
 """
 from __future__ import annotations
 
@@ -34,12 +35,25 @@ def band_class(shaft):
 def band_width_sd(shaft):
     """The sd [px] of a band's width error shared by its sequence (`defaults.EDGE_WIDTH_SD_PX`
     of its `band_class`; a class not there (an unknown polarity) takes the largest of its
-    edge model's and size's). shaft: a lines.json shaft record."""
+    edge model's and size's), and with the band's own ``width_sd_px`` (what its limb fit
+    shows: `detect.shaft.limb.width_spread`) the root sum of squares of the two. shaft: a
+    lines.json shaft record.
+
+    >>> band_width_sd({"edge_model": "limb", "polarity": "bright", "width_px": 100.0})
+    0.2
+    >>> round(band_width_sd({"edge_model": "limb", "polarity": "bright", "width_px": 100.0, "width_sd_px": 0.6}), 3)
+    0.632
+    """
     cls = band_class(shaft)
     if cls in EDGE_WIDTH_SD_PX:
-        return float(EDGE_WIDTH_SD_PX[cls])
-    model, _, size = cls.split("-")
-    return float(max(EDGE_WIDTH_SD_PX[f"{model}-{p}-{size}"] for p in ("dark", "bright")))
+        sd = float(EDGE_WIDTH_SD_PX[cls])
+    else:
+        model, _, size = cls.split("-")
+        sd = float(max(EDGE_WIDTH_SD_PX[f"{model}-{p}-{size}"] for p in ("dark", "bright")))
+    own = shaft.get("width_sd_px")
+    if own is not None and np.isfinite(own):
+        sd = float(np.hypot(sd, own))
+    return sd
 
 
 def widen_bands(edges, px):

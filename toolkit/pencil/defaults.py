@@ -31,8 +31,9 @@ MIN_ENDPOINT_SIGMA_PX = 0.01
 #: 2.85/2.55 -> 4.30/4.10 px, limb 0.35/0.10 -> 0.85/0.20 px) and the darker wide limb's
 #: (0.10 -> 0.25 px); checked on fresh seeds (docs/uncertainty.md). Step edges of a shaft
 #: brighter than its surround land on the shading inside its darkened rim (-2 to -10 px); the
-#: limb model finds the rim itself. The 3-D fulcrum's depth scales with it
-#: (`band_width.point_width_cov`).
+#: limb model finds the rim itself. A band the limb model located adds its own sd, what its
+#: fit shows (``width_sd_px``, `band_width.band_width_sd`). The 3-D fulcrum's depth scales
+#: with it (`band_width.point_width_cov`).
 EDGE_WIDTH_SD_PX = {
     "step-dark-narrow": 0.70, "step-dark-wide": 0.35, "step-bright-narrow": 4.30, "step-bright-wide": 4.10,
     "limb-dark-narrow": 0.10, "limb-dark-wide": 0.25, "limb-bright-narrow": 0.85, "limb-bright-wide": 0.20,

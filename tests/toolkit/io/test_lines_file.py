@@ -62,6 +62,9 @@ for key in ("width_px", "angle_sigma_deg", "offset_sigma_px"):
                    ({**SHAFT, key: float("nan")}, f"'{key}' must be a finite number > 0, got nan"),
                    ({**SHAFT, key: float("inf")}, f"'{key}' must be a finite number > 0, got inf"),
                    ({**SHAFT, key: 0}, f"'{key}' must be a finite number > 0, got 0")]
+# a limb band's own width sd (`band_width.band_width_sd` adds it): a number >= 0
+BAD_SHAFTS += [({**SHAFT, "width_sd_px": v}, f"'width_sd_px' must be a finite number >= 0, got {v!r}")
+               for v in ("0.2", float("nan"), -0.1)]
 for key in ("convergence_deg", "score"):
     BAD_SHAFTS += [({**SHAFT, key: "1"}, f"'{key}' must be a finite number"),
                    ({**SHAFT, key: float("nan")}, f"'{key}' must be a finite number")]

@@ -144,6 +144,11 @@ class Shaft:
         How its two edges were located: "step" (the gradient peak) or "limb" (the lit
         cylinder's profile, `with_limbs`); the 3-D fulcrum gives each its own width error
         (`pencil.band_width.band_width_sd`).
+    width_sd_px : float or None
+        The sd [px] of the band's width error that its own edge fits show (the limb model:
+        `shaft.limb.width_spread`, the scatter of its bins' limbs about each edge's line),
+        added to its class's in the 3-D fulcrum's covariance; None where not measured (step
+        edges).
     """
 
     midline: np.ndarray
@@ -163,11 +168,12 @@ class Shaft:
     edge_cov: np.ndarray | None = None
     kind: str = "shaft"
     edge_model: str = "step"
+    width_sd_px: float | None = None
 
     def to_dict(self) -> dict:
         """The shaft's record in a lines.json frame (docs/formats.md): midline, width_px,
         angle_sigma_deg, offset_sigma_px, edges, edge_cov (when known), convergence_deg,
-        polarity, score, cue, kind, edge_model."""
+        polarity, score, cue, kind, edge_model, width_sd_px (when measured)."""
         out = {
             "midline": [float(v) for v in self.midline],
             "width_px": float(self.width_px),
@@ -183,6 +189,8 @@ class Shaft:
         }
         if self.edge_cov is not None:
             out["edge_cov"] = np.asarray(self.edge_cov, float).tolist()
+        if self.width_sd_px is not None:
+            out["width_sd_px"] = float(self.width_sd_px)
         return out
 
 
@@ -286,14 +294,15 @@ def _edge_line(seg, other):
 def with_limbs(image, camera, shafts, edge_model="limb", gamma=DEFAULT_GAMMA, K=None):
     """The shafts with their edges located by the limb model (`shaft.limb.limb_edges`) when
     edge_model is "limb" (else as they are): each a new `Shaft` from the refitted edges'
-    midline, its score, polarity and cue kept; one whose edges give no limb as it was.
+    midline, its score, polarity and cue kept, with the width sd its fit shows
+    (``width_sd_px``, `shaft.limb.width_spread`); one whose edges give no limb as it was.
     gamma: the frame's encoding gamma; K: the camera matrix of the ideal pixels (default
     `shaft.work.axis_matrix`'s)."""
     if edge_model not in EDGE_MODELS:
         raise InputError(f"edge_model must be one of {', '.join(EDGE_MODELS)}, got {edge_model!r}")
     if edge_model != "limb" or not shafts:
         return shafts
-    from pencilcal.toolkit.detect.shaft.limb import limb_edges
+    from pencilcal.toolkit.detect.shaft.limb import limb_edges, width_spread
 
     K = axis_matrix(camera, np.asarray(image).shape[:2])[0] if K is None else K
     out = []
@@ -305,7 +314,8 @@ def with_limbs(image, camera, shafts, edge_model="limb", gamma=DEFAULT_GAMMA, K=
             m = None if got is None else midline_from_edges(K, got[0], got[1])
             new = None if m is None else shaft_of_midline(camera, m, s.score, s.polarity, s.cue)
         # the measured fields replaced, the rest kept (a mask's shaft keeps its mask's)
-        out.append(s if new is None else replace(s, edge_model="limb", **{k: getattr(new, k) for k in _MEASURED}))
+        out.append(s if new is None else replace(s, edge_model="limb", width_sd_px=width_spread(*got),
+                                                 **{k: getattr(new, k) for k in _MEASURED}))
     return out
 
 
