@@ -964,7 +964,10 @@ def common_part(common, *covs, margin=0.9):
     S = 0.5 * (S + np.swapaxes(S, -1, -2))
     scale = np.ones(S.shape[:-2])
     for C in covs:
-        W = np.linalg.inv(np.linalg.cholesky(np.asarray(C, float)))
+        try:
+            W = np.linalg.inv(np.linalg.cholesky(np.asarray(C, float)))
+        except np.linalg.LinAlgError:
+            raise EstimationError("a covariance to fuse is not positive definite") from None
         top = np.linalg.eigvalsh(W @ S @ np.swapaxes(W, -1, -2))[..., -1]
         scale = np.minimum(scale, np.where(top > margin, margin / np.maximum(top, 1e-300), 1.0))
     return S * scale[..., None, None]

@@ -60,7 +60,7 @@ def _across(x):
     return np.eye(3) - np.outer(u, u)
 
 
-def shared_offset_term(tri, common):
+def shared_offset_term(tri, common, margin=0.9):
     """(3, 3) what a 3-D offset both rays carry (`play_covariance`, covariance `common`, a
     part of each ray's covariance) adds to the covariance of their meeting point
     (`cylinder.triangulate_rays`, which takes the rays as independent): the cross terms
@@ -69,11 +69,25 @@ def shared_offset_term(tri, common):
     what they share; along it (the depth, from the rays' disparity) the point keeps the
     covariance of independent rays: on rendered pivots the disparity's errors exceed what
     the rays' own parts alone would give (edges noisier than their sigmas count in the
-    shared excess too), so the shared term is not taken out of the depth."""
+    shared excess too), so the shared term is not taken out of the depth.
+
+    The term holds each ray's own part (C_k - S), which is negative where the offset read
+    exceeds what a ray holds: where the term would take more than `margin` of the point's
+    covariance ``tri.point_cov`` away along some direction (the sum no longer a covariance),
+    its negative part is dropped (in the point's own sds), so the point keeps at least the
+    covariance of independent rays there."""
     info = np.asarray(tri.ray_information, float)
     H_inv = np.linalg.inv(info[0] + info[1])
     S = np.asarray(common, float)
     cross = H_inv @ (info[0] @ S @ info[1] + info[1] @ S @ info[0]) @ H_inv
     P = _across(tri.point)
     out = P @ cross @ P
-    return 0.5 * (out + out.T)
+    out = 0.5 * (out + out.T)
+    L = np.linalg.cholesky(np.asarray(tri.point_cov, float))
+    W = np.linalg.inv(L)
+    lam, V = np.linalg.eigh(W @ out @ W.T)  # the term in the point's own sds
+    if lam[0] > -margin:
+        return out
+    # an offset read larger than a ray holds: the term would take (nearly) all of the point's
+    # covariance away along some direction; there it takes nothing (the rays as independent)
+    return L @ (V * np.maximum(lam, 0.0)) @ V.T @ L.T

@@ -364,3 +364,30 @@ def test_stereo_shared_play_not_averaged():
         y = normalize(np.cross(u, [1.0, 0.0, 0.0]))  # across the sight line and the baseline
         z2.append(float(y @ (tri.point - scene["fulcrum"])) ** 2 / float(y @ tri.point_cov @ y))
     assert 0.7 <= np.mean(z2) <= 1.4, np.mean(z2)
+
+
+def test_an_offset_larger_than_a_ray_holds_leaves_the_point_a_covariance():
+    # a fresh pivot render's rays (the left's far less certain than the right's) and the play
+    # read from them: the shared term took the triangulated point's covariance below zero
+    # across the line of sight and the stereo command stopped; the point keeps at least the
+    # independent rays' covariance there, and the term where it widens
+    from types import SimpleNamespace
+
+    from pencilcal.toolkit.pencil.stereo_play import shared_offset_term
+
+    info = np.array([[[0.410403, -0.675826, -0.237881], [-0.675826, 3.394207, -0.061948],
+                      [-0.237881, -0.061948, 0.228104]],
+                     [[39.48492, -62.035732, -19.182838], [-62.035732, 270.087979, -4.848072],
+                      [-19.182838, -4.848072, 16.410574]]])
+    common = np.array([[0.521937, 0.081013, -0.493484], [0.081013, 0.15836, -0.106136],
+                       [-0.493484, -0.106136, 0.472568]])
+    tri = SimpleNamespace(ray_information=info, point=np.array([41.6, 9.222, 45.512]),
+                          point_cov=np.linalg.inv(info[0] + info[1]))
+    term = shared_offset_term(tri, common)
+    assert np.linalg.eigvalsh(tri.point_cov + term)[0] > 0
+    W = np.linalg.inv(np.linalg.cholesky(tri.point_cov))
+    lam = np.linalg.eigvalsh(W @ term @ W.T)
+    assert lam[0] >= -1e-6 and lam[-1] > 0.1
+    # a small offset's term is left as it was (it takes under 90 % of the covariance anywhere)
+    small = shared_offset_term(tri, common * 1e-3)
+    assert np.linalg.eigvalsh(W @ small @ W.T)[0] < 0
