@@ -162,7 +162,7 @@ def _compared(kind, cond, cam, pen, R, t, found, rec):
     R_est = np.asarray(rec.R_cam_from_target if n_est is rec.normal else rec.R_cam_from_target_twin, float)
     cov_est = _normal_cov(R_est, ln, th)
     x_true = t[:2] / t[2]
-    cov_true = _normal_cov(R, dict(ln, vertex=x_true, sigma_error=None), th)  # the bound: the lines' own sds
+    cov_true = _normal_cov(R, dict(ln, vertex=x_true, sigma_error=None, bend_cov=None), th)  # the bound: the lines' own sds
     chi2 = _normal_chi2(n_est, cov_est, n_true)
     circ_err = None
     if rec.circle_normal is not None:
@@ -242,9 +242,11 @@ def _normal_cov(R, ln, th):
     """(3, 3) covariance of the normal R[:, 2] for the lines ln (orient's ``lines``) of edge
     angles th: the rotation's (left perturbation) turned into the normal's."""
     err = ln.get("sigma_error")  # the sds of the lines' errors where wider than their weights'
+    bend = ln.get("bend_cov")  # the sheet's bend (at the fit's rotation)
     cov, _, _ = pencil_covariance(R, np.asarray(ln["vertex"], float), th, np.asarray(ln["sigma"], float),
                                   np.asarray(ln["vertex_cov"], float),
-                                  sigma_error=None if err is None else np.asarray(err, float))
+                                  sigma_error=None if err is None else np.asarray(err, float),
+                                  shared_cov=None if bend is None else np.asarray(bend, float))
     n = R[:, 2]
     K = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
     return K @ cov @ K.T

@@ -406,9 +406,10 @@ def refine_pencil(R0, line_angles, spoke_angles, vertex, weights, max_iter=30, t
 # uncertainty
 
 
-def _covariance(R, x, J, Jx, w, vertex_cov, w_error=None):
+def _covariance(R, x, J, Jx, w, vertex_cov, w_error=None, shared_cov=None):
     """Covariance, tilt sigma and normal sigma from the Jacobians at R (see pencil_covariance;
-    w_error: the inverse variances of the angles' errors where not the weights w)."""
+    w_error: the inverse variances of the angles' errors where not the weights w; shared_cov:
+    the rotation's covariance from errors all lines share, added)."""
     JT = np.swapaxes(J, -1, -2)
     H = JT @ (J * w[..., None])
     # At zero tilt the tilt directions are unobservable to first order: a tiny ridge keeps
@@ -442,6 +443,10 @@ def _covariance(R, x, J, Jx, w, vertex_cov, w_error=None):
         P = (np.eye(3) - v[..., :, None] * v[..., None, :])[..., :, :2] / nv[..., None, None]
         g_x = np.einsum("...i,...ij->...j", g_rot, G) - np.einsum("...i,...ij->...j", n, P) / sin_g[..., None]
         var_tilt = var_tilt + np.einsum("...i,...ij,...j->...", g_x, Cx, g_x)
+    if shared_cov is not None:  # an error the lines share, whatever the vertex
+        S = np.asarray(shared_cov, float)
+        cov = cov + S
+        var_tilt = var_tilt + np.einsum("...i,...ij,...j->...", g_rot, S, g_rot)
     # the normal moves by delta x n: covariance P cov P with P = I - n n^T
     Pn = np.eye(3) - n[..., :, None] * n[..., None, :]
     var_normal = np.trace(Pn @ cov @ Pn, axis1=-2, axis2=-1)
@@ -449,7 +454,7 @@ def _covariance(R, x, J, Jx, w, vertex_cov, w_error=None):
 
 
 def pencil_covariance(R_cam_from_target, vertex, spoke_angles, sigma, vertex_cov=None, weights_mask=None,
-                      sigma_error=None):
+                      sigma_error=None, shared_cov=None):
     """First-order covariance of the orientation at R, given angle noise and vertex noise.
 
     R_cam_from_target: (..., 3, 3); vertex: (..., 2) normalised; spoke_angles: (..., N);
@@ -460,6 +465,9 @@ def pencil_covariance(R_cam_from_target, vertex, spoke_angles, sigma, vertex_cov
     sigma the fit weighted it by (errors the weights leave out): the covariance of the fit
     weighted by 1 / sigma^2 under errors of these sds (H^-1 J^T W C W J H^-1), the same as
     without it where sigma_error equals sigma.
+    shared_cov: None or (..., 3, 3) [rad^2] the rotation's covariance (left perturbation)
+    from an error all the lines share, which their own sds leave out (a printed sheet's
+    bend: `bend.bend_covariance`), added before the tilt and normal are taken from it.
 
     Returns (cov, tilt_sigma, normal_sigma): cov (..., 3, 3) [rad^2] of the left rotation
     perturbation; tilt_sigma (...) [rad]; normal_sigma (...) [rad], the RMS angle of the
@@ -474,7 +482,7 @@ def pencil_covariance(R_cam_from_target, vertex, spoke_angles, sigma, vertex_cov
     if weights_mask is not None:
         w = np.where(weights_mask, w, 0.0)
     w_err = None if sigma_error is None else 1.0 / np.broadcast_to(np.asarray(sigma_error, float), J.shape[:-1]) ** 2
-    return _covariance(R, np.broadcast_to(x, J.shape[:-2] + (2,)), J, Jx, w, vertex_cov, w_err)
+    return _covariance(R, np.broadcast_to(x, J.shape[:-2] + (2,)), J, Jx, w, vertex_cov, w_err, shared_cov)
 
 
 def crlb(R_cam_from_target, vertex, spoke_angles, sigma, vertex_cov=None):

@@ -35,6 +35,7 @@ import numpy as np
 from pencilcal.toolkit.geometry.angles import wrap_angle
 from pencilcal.toolkit.pencil.assign import assign_spokes, grow_labels
 from pencilcal.toolkit.pencil.bar_centre import centre_lines
+from pencilcal.toolkit.pencil.bend import bend_covariance
 from pencilcal.toolkit.pencil.circle import circle_record
 from pencilcal.toolkit.pencil.confirm import unconfirmed_labelling
 from pencilcal.toolkit.errors import EstimationError, InputError
@@ -317,9 +318,14 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
         floored = floored_vertex_cov(cov_ideal, vertex_floor_px)
         if floored is not None:  # every decision taken: the vertex no surer than the point it was found about
             cov_ideal, ln = floored, ln._replace(vertex_cov=_normalised_cov(camera, floored))
-        if s_err is not None or floored is not None:  # and the covariance under the wider errors
+        bend = None
+        if pencil.shape != "line":  # a printed radial target: its sheet's bend turns every spoke alike
+            bend = bend_covariance(fit.R_cam_from_target, ln.vertex, th_used, a_used, s_used, ln.p1[used],
+                                   ln.p2[used], sc[through][used] * np.sqrt(abs(np.linalg.det(A))), s_err)[0]
+            bend = bend if np.any(bend) else None
+        if s_err is not None or floored is not None or bend is not None:  # the covariance under the wider errors
             cov, s_tilt, s_norm = pencil_covariance(fit.R_cam_from_target, ln.vertex, th_used, s_used, ln.vertex_cov,
-                                                    sigma_error=s_err)
+                                                    sigma_error=s_err, shared_cov=bend)
             fit = replace(fit, cov=cov, tilt_sigma=s_tilt, normal_sigma=s_norm)
         labels_out[idx] = np.where(used, edge_spoke[np.maximum(lab, 0)], -1)
         s_mean = float(np.sqrt(np.mean(s_used**2)))
@@ -339,6 +345,8 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
                               "vertex": ln.vertex, "vertex_cov": ln.vertex_cov}
             if s_err is not None:
                 extra["lines"]["sigma_error"] = s_err
+            if bend is not None:
+                extra["lines"]["bend_cov"] = bend
         if metric is not None and resolved_by is not None:
             extra.update(_metric_position(fit, metric, resolved_by, ln.vertex, pencil))
         if circles is not None:
