@@ -82,7 +82,8 @@ def test_the_calibration_passes_its_own_cross_validation(checked, name):
     assert cv["pooled"]["projection_ratio"] <= 1.3, cv["pooled"]
     assert cv["odd_even"]["chi2_per_dof"] <= 1.5, cv["odd_even"]
     # the odd/even split's projection ratio is one draw: chance gives it at least once in a
-    # hundred (measured p: 0.054 da Vinci left at ratio 1.90, 0.20-1.0 on the others)
+    # hundred (measured p: 0.161 da Vinci left at ratio 1.383, which 13 of 80 calibrations of
+    # those views simulated under their own noise model reach or pass; 0.20-1.0 on the others)
     assert cv["odd_even"]["projection_ratio_p"] > 0.01, cv["odd_even"]
     # the halves' difference is judged where the views are, and that is most of what they cover
     assert res.checks.uncertainty["covered_fraction"] > 0.3
