@@ -391,3 +391,28 @@ def test_an_offset_larger_than_a_ray_holds_leaves_the_point_a_covariance():
     # a small offset's term is left as it was (it takes under 90 % of the covariance anywhere)
     small = shared_offset_term(tri, common * 1e-3)
     assert np.linalg.eigvalsh(W @ small @ W.T)[0] < 0
+
+
+def test_the_width_term_joins_the_combined_covariance_as_the_point_took_it():
+    # a band width error the whole sequence shares moves the diameter-based point along its
+    # depth; the combined point took part of that depth from it, and its covariance says so
+    # (the point itself, weighted without the term, stays where it was)
+    import dataclasses
+
+    left, right = _views()
+    fr = fulcrum_from_frames(CAM, right.frames(), endpoint_sigma_px=MIDLINE_ENDPOINT_PX)
+    run = lambda d: fulcrum_from_frames(CAM, left.frames(), endpoint_sigma_px=MIDLINE_ENDPOINT_PX, shaft_diameter=d)
+    fl, wide = run(2 * RADIUS), run(2 * RADIUS * 1.02)   # the diameter read 2 % off: the width's error
+    delta = wide.point.fit.point - fl.point.fit.point
+    assert np.linalg.norm(delta) > 0.01 * np.linalg.norm(FULCRUM)
+    term = lambda f, C: dataclasses.replace(f, point=dataclasses.replace(f.point, width_cov=C))
+    base = stereo_fulcrum(term(fl, None), fr, Rig()).combined
+    moved = stereo_fulcrum(term(wide, None), fr, Rig()).combined.point - base.point
+    with_term = term(fl, np.outer(delta, delta))
+    st = stereo_fulcrum(with_term, fr, Rig())
+    assert np.allclose(st.combined.point, base.point, atol=1e-9)
+    added = st.combined.cov - base.cov
+    # what the point moves with that error, to first order (2 % of the depth)
+    assert np.allclose(added, np.outer(moved, moved), atol=0.05 * float(moved @ moved)), (added, np.outer(moved, moved))
+    assert np.linalg.norm(moved) < np.linalg.norm(delta)
+    assert float(st.to_dict()["combined"]["point_sigma"]) > float(base.sigma)
