@@ -171,11 +171,20 @@ def test_stereo_exact():
     assert rec["agreement"]["dof"] == 2 and rec["agreement"]["consistent"] and rec["agreement"]["chi2"] < 1e-6
     assert rec["triangulated"]["dof"] == 1 and np.asarray(rec["triangulated"]["point_cov"]).shape == (3, 3)
     assert rec["right"]["lines_used"] == 30 and np.asarray(rec["right"]["ray_cov"]).shape == (3, 3)
-    # the fusion counts the left ray once: smaller than either, larger than naive fusion
+    # the fusion counts the left ray once: smaller than either, larger than naive fusion (the
+    # width term, which joins the combined covariance after the fusion, left out)
+    import dataclasses
+
+    fused = stereo_fulcrum(dataclasses.replace(fl, point=dataclasses.replace(fl.point, width_cov=None)), fr,
+                           Rig()).combined
     naive = combine_estimates(fl.point.fit.point, fl.point.fit.point_cov, st.triangulated.point,
                               st.triangulated.point_cov)
-    assert st.combined.sigma < min(fl.point.fit.point_sigma, st.triangulated.point_sigma)
-    assert st.combined.sigma > naive.sigma
+    assert fused.sigma < min(fl.point.fit.point_sigma, st.triangulated.point_sigma)
+    assert fused.sigma > naive.sigma
+    # the width term (the band width's sd, 3 % here, the depth's from the diameter) joins it:
+    # the weights do not know it, so here, where it dwarfs the triangulation's, the combined
+    # covariance exceeds the triangulated point's (docs/method.md)
+    assert fl.point.width_cov is not None and st.combined.sigma > st.triangulated.point_sigma > fused.sigma
     # without the diameter: the triangulation alone
     fl2 = fulcrum_from_frames(CAM, left.frames(), endpoint_sigma_px=MIDLINE_ENDPOINT_PX)
     rec2 = stereo_fulcrum(fl2, fr, Rig()).to_dict()
