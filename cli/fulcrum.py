@@ -162,7 +162,8 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
     from pencilcal.toolkit.pencil.stereo_axes import stereo_axes_from_frames
 
     try:
-        rec["axes"] = stereo_axes_from_frames(left_view[0], left_view[1], camera_right, frames, rig, left_view[2])
+        rec["axes"] = stereo_axes_from_frames(left_view[0], left_view[1], camera_right, frames, rig, left_view[2],
+                                              0.0 if left.point is None else left.point.width_sd)
     except EstimationError as e:
         warn(f"no fulcrum from the stereo axes: {e}")
     if poses is not None:

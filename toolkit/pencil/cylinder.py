@@ -58,7 +58,7 @@ Example
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -846,7 +846,8 @@ class Fusion(_Record):
     p_value: np.ndarray
 
 
-def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None, common=None, shared_own=None):
+def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None, common=None, shared_own=None,
+                      unweighted1=None):
     """Information-weighted fusion of two estimates, and their consistency test.
 
     x1, x2: (..., n) the estimates; C1, C2: (..., n, n) their covariances. shared: None when
@@ -886,6 +887,12 @@ def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None, c
     does not have and counts as a dof it is not). Where the own information exceeds what
     C1 - S and C2 - S hold together, the test is read with ``shared``.
 
+    unweighted1: None, or (..., n, n) the covariance of an error of x1 alone that C1 leaves
+    out and the fusion does not weigh (e.g. the depth a diameter-based point takes from the
+    band width, whose error the sequence shares): the point and the test are those without
+    it, and the fused covariance gains ``W1 E W1^T`` (W1 = cov C1^-1, the weight x1 had), the
+    part of that error the point took.
+
     >>> f = combine_estimates([0.0, 0, 100], np.eye(3), [0.0, 0, 102], np.eye(3))
     >>> f.point.tolist(), float(f.chi2), bool(f.consistent), f.dof
     ([0.0, 0.0, 101.0], 2.0, True, 3)
@@ -900,6 +907,14 @@ def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None, c
     """
     x1, x2 = np.asarray(x1, float), np.asarray(x2, float)
     C1, C2 = np.asarray(C1, float), np.asarray(C2, float)
+    if unweighted1 is not None:
+        f = combine_estimates(x1, C1, x2, C2, confidence, shared, common, shared_own)
+        # the weights as without it: x1's error E moves the point by W1 E
+        base = f if common is None else combine_estimates(x1, C1, x2, C2, confidence, shared)
+        W1 = base.cov @ np.linalg.inv(C1)
+        cov = f.cov + W1 @ np.asarray(unweighted1, float) @ np.swapaxes(W1, -1, -2)
+        cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+        return replace(f, cov=cov, sigma=np.sqrt(np.trace(cov, axis1=-2, axis2=-1)))
     if common is not None:
         S = common_part(common, C1, C2)
         f = combine_estimates(x1, C1, x2, C2, confidence, shared)

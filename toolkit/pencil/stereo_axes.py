@@ -49,6 +49,7 @@ Example
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -631,7 +632,7 @@ def _measured(camera, frame):
     return out, index
 
 
-def stereo_axes_from_frames(camera_left, frames_left, camera_right, frames_right, rig, diameter=None):
+def stereo_axes_from_frames(camera_left, frames_left, camera_right, frames_right, rig, diameter=None, width_sd=0.0):
     """fulcrum.json's ``stereo.axes`` record: each frame's shafts matched between the eyes
     (`match_shafts`), their stereo axes (`stereo_axis`; with the diameter a prior on the
     radius, 1e-3 of it) and the fulcrum of those (`stereo_fulcrum_axes`, with the rig's
@@ -641,7 +642,13 @@ def stereo_axes_from_frames(camera_left, frames_left, camera_right, frames_right
     frames whose shafts carry ``edges`` [raw px] and ``edge_cov`` (`pencilcal lines
     --shaft`), paired by image name or order; rig: the `camera.stereo.StereoRig`;
     diameter: the shafts' diameter in the rig's unit, or None (the radius from the
-    baseline). Returns a dict: point, point_cov, point_sigma [rig unit], play_sigma (the
+    baseline); width_sd: with the diameter, the relative sd of the band width's error that
+    the sequence shares (`fulcrum.FulcrumPoint.width_sd`, the left view's): the radius's
+    prior sets the axes' depth partly by the diameter (on an endoscope's 5 mm baseline
+    almost wholly), and a width error reads every shaft that much wider or narrower at once,
+    as a diameter off by it would; point_cov gains ``width_sd^2 s s^T`` (``point_cov_width``),
+    s the point's derivative by the diameter's relative error (`_diameter_sensitivity`).
+    Returns a dict: point, point_cov, point_sigma [rig unit], play_sigma (the
     sd [rig unit] per direction of the axes' offsets from one point beyond their
     covariances, in point_cov: `stereo_fulcrum_axes`), noise_factor (the factor on the axes'
     own covariances, in point_cov), rig_used, frames
@@ -658,13 +665,37 @@ def stereo_axes_from_frames(camera_left, frames_left, camera_right, frames_right
     r = np.array([a.radius for a in axes])
     w = 1.0 / np.maximum(np.array([a.radius_sigma for a in axes]) ** 2, 1e-300)
     inl = np.asarray(res.fit.inliers, bool)
-    return {"point": np.asarray(res.point, float).tolist(), "point_cov": np.asarray(res.point_cov, float).tolist(),
-            "point_sigma": float(res.point_sigma), "play_sigma": float(np.sqrt(res.play)),
+    x = np.asarray(res.point, float)
+    width_cov = np.zeros((3, 3))
+    if diameter is not None and width_sd > 0:
+        sens = _diameter_sensitivity(axes, 0.5 * float(diameter), rig.cov, x)
+        width_cov = float(width_sd) ** 2 * np.outer(sens, sens)
+    cov = np.asarray(res.point_cov, float) + width_cov
+    return {"point": x.tolist(), "point_cov": cov.tolist(), "point_sigma": float(np.sqrt(np.trace(cov))),
+            "point_cov_width": width_cov.tolist(), "play_sigma": float(np.sqrt(res.play)),
             "noise_factor": float(res.factor),
             "rig_used": bool(res.rig_used), "frames": pairs,
             "axes": len(axes), "axes_used": int(inl.sum()),
             "outliers": [o for o, k in zip(owners, inl) if not k],
             "radius": float(np.sum(w * r) / np.sum(w)), "radius_sigma": float(np.sqrt(1.0 / np.sum(w)))}
+
+
+def _diameter_sensitivity(axes, radius, rig_cov, point, step=1e-3):
+    """(3,) [length] the axes' fulcrum's derivative by a relative error of the diameter their
+    radius's prior holds (each axis fitted with it, `stereo_axis`): per axis the linearised
+    fit moves its chart by ``cov[:4, 4] / sd^2`` per unit of the prior's radius (the
+    posterior mean's response to a Gaussian prior's mean), every axis at once by `step` of
+    of the prior's radius [length]; the fulcrum of the moved axes (`stereo_fulcrum_axes`), less `point`, over
+    `step`."""
+    moved = []
+    for a in axes:
+        prior_sd = 1e-3 * radius  # `matched_axes`'s prior: 1e-3 of the radius
+        chart = np.asarray(a.cov, float)[:4, 4] / prior_sd**2 * (step * radius)
+        P, D = _line_of(chart, a.axis_point, a.axis_direction, a.axis_frame)
+        D = _canon(D)
+        P = P - (P @ D) * D
+        moved.append(dataclasses.replace(a, axis_point=P, axis_direction=D, axis_frame=axis_frame(P, D)))
+    return (np.asarray(stereo_fulcrum_axes(moved, rig_cov).point, float) - np.asarray(point, float)) / step
 
 
 def matched_axes(camera_left, frames_left, camera_right, frames_right, rig, diameter=None):

@@ -145,8 +145,12 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     agreement test. With either view's intrinsics' term
     (`Fulcrum.ray_cov_lens`, the camera file's intrinsics covariance) the triangulated
     point's covariance gains it too (`triangulation_lens_cov`, ``StereoFulcrum.lens_cov``);
-    the agreement and the fusion keep the noise-only covariances (the diameter-based point
-    has no intrinsics term, nor its width term: `FulcrumPoint.width_cov`). Returns a
+    the agreement and the fusion's weights keep the noise-only covariances (the
+    diameter-based point has no intrinsics term, nor its width term). The width term
+    (`FulcrumPoint.width_cov`: the band width's error the sequence shares, which sets the
+    depth the diameter gives) joins the combined point's covariance after the fusion, as
+    much of it as the point took from the diameter (``unweighted1``: ``W1 width_cov W1^T``);
+    the point stays the one the weights give. Returns a
     `StereoFulcrum`; EstimationError when a ray has no covariance, the rays are parallel or
     meet behind a camera.
     """
@@ -176,9 +180,11 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     try:
         fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence,
                                   shared=(tri.ray_information[0], tri.ray_information_vector[0]), common=common,
-                                  shared_own=(own.ray_information[0], own.ray_information_vector[0]))
+                                  shared_own=(own.ray_information[0], own.ray_information_vector[0]),
+                                  unweighted1=left.point.width_cov)
     except EstimationError:
         shared = False
-        fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence, common=common)
+        fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence, common=common,
+                                  unweighted1=left.point.width_cov)
     return StereoFulcrum(rig, right, tri, fused, shared, confidence, common_cov=common, **lens)
 

@@ -338,3 +338,26 @@ def test_two_instruments_along_one_epipolar_line_keep_their_own_pairs():
     axes, owners, _ = matched_axes(cam, left, cam, right, StereoRig(R, t), diameter=8.0)
     wrong = [o for o in owners if right[o["frame"]]["shafts"][o["right"]]["m"] != o["left"]]
     assert not wrong and len(axes) >= 54, (len(wrong), len(axes))
+
+
+def test_the_width_error_scales_the_axes_point_and_its_covariance_says_so():
+    # with the diameter the radius's prior sets the axes' depth (with the 5 mm baseline): a
+    # shaft read 0.5 % wide moves the point 0.25 mm here, about half what it would if the
+    # diameter alone set the depth (the baseline holds the rest), an error the whole
+    # sequence shares, which point_cov carries as width_sd^2 s s^T
+    from pencilcal.toolkit.camera.model import Camera
+    from pencilcal.toolkit.camera.stereo import StereoRig
+    from pencilcal.toolkit.pencil.stereo_axes import stereo_axes_from_frames
+
+    cam, rig = Camera("pinhole", 640, 480, K), StereoRig(R0, T0)
+    left, right = _frames(np.random.default_rng(4), [np.array([3.0, -2.0, 90.0])], 20, 0.05)
+    base = stereo_axes_from_frames(cam, left, cam, right, rig, 8.0)
+    wide = stereo_axes_from_frames(cam, left, cam, right, rig, 8.0 * 1.005)
+    x, moved = np.asarray(base["point"]), np.asarray(wide["point"]) - np.asarray(base["point"])
+    assert wide["axes_used"] == base["axes_used"] and 0.002 * x[2] < moved[2] < 0.004 * x[2]
+    assert np.linalg.norm(moved) > base["point_sigma"]                # beyond the edges' noise
+    rec = stereo_axes_from_frames(cam, left, cam, right, rig, 8.0, width_sd=0.005)
+    assert np.allclose(rec["point"], x)
+    added = np.asarray(rec["point_cov"]) - np.asarray(base["point_cov"])
+    assert np.allclose(added, np.outer(moved, moved), atol=0.1 * moved @ moved), (added, np.outer(moved, moved))
+    assert np.allclose(rec["point_cov_width"], added)

@@ -171,11 +171,20 @@ def test_stereo_exact():
     assert rec["agreement"]["dof"] == 2 and rec["agreement"]["consistent"] and rec["agreement"]["chi2"] < 1e-6
     assert rec["triangulated"]["dof"] == 1 and np.asarray(rec["triangulated"]["point_cov"]).shape == (3, 3)
     assert rec["right"]["lines_used"] == 30 and np.asarray(rec["right"]["ray_cov"]).shape == (3, 3)
-    # the fusion counts the left ray once: smaller than either, larger than naive fusion
+    # the fusion counts the left ray once: smaller than either, larger than naive fusion (the
+    # width term, which joins the combined covariance after the fusion, left out)
+    import dataclasses
+
+    fused = stereo_fulcrum(dataclasses.replace(fl, point=dataclasses.replace(fl.point, width_cov=None)), fr,
+                           Rig()).combined
     naive = combine_estimates(fl.point.fit.point, fl.point.fit.point_cov, st.triangulated.point,
                               st.triangulated.point_cov)
-    assert st.combined.sigma < min(fl.point.fit.point_sigma, st.triangulated.point_sigma)
-    assert st.combined.sigma > naive.sigma
+    assert fused.sigma < min(fl.point.fit.point_sigma, st.triangulated.point_sigma)
+    assert fused.sigma > naive.sigma
+    # the width term (the band width's sd, 3 % here, the depth's from the diameter) joins it:
+    # the weights do not know it, so here, where it dwarfs the triangulation's, the combined
+    # covariance exceeds the triangulated point's (docs/method.md)
+    assert fl.point.width_cov is not None and st.combined.sigma > st.triangulated.point_sigma > fused.sigma
     # without the diameter: the triangulation alone
     fl2 = fulcrum_from_frames(CAM, left.frames(), endpoint_sigma_px=MIDLINE_ENDPOINT_PX)
     rec2 = stereo_fulcrum(fl2, fr, Rig()).to_dict()
@@ -391,3 +400,28 @@ def test_an_offset_larger_than_a_ray_holds_leaves_the_point_a_covariance():
     # a small offset's term is left as it was (it takes under 90 % of the covariance anywhere)
     small = shared_offset_term(tri, common * 1e-3)
     assert np.linalg.eigvalsh(W @ small @ W.T)[0] < 0
+
+
+def test_the_width_term_joins_the_combined_covariance_as_the_point_took_it():
+    # a band width error the whole sequence shares moves the diameter-based point along its
+    # depth; the combined point took part of that depth from it, and its covariance says so
+    # (the point itself, weighted without the term, stays where it was)
+    import dataclasses
+
+    left, right = _views()
+    fr = fulcrum_from_frames(CAM, right.frames(), endpoint_sigma_px=MIDLINE_ENDPOINT_PX)
+    run = lambda d: fulcrum_from_frames(CAM, left.frames(), endpoint_sigma_px=MIDLINE_ENDPOINT_PX, shaft_diameter=d)
+    fl, wide = run(2 * RADIUS), run(2 * RADIUS * 1.02)   # the diameter read 2 % off: the width's error
+    delta = wide.point.fit.point - fl.point.fit.point
+    assert np.linalg.norm(delta) > 0.01 * np.linalg.norm(FULCRUM)
+    term = lambda f, C: dataclasses.replace(f, point=dataclasses.replace(f.point, width_cov=C))
+    base = stereo_fulcrum(term(fl, None), fr, Rig()).combined
+    moved = stereo_fulcrum(term(wide, None), fr, Rig()).combined.point - base.point
+    with_term = term(fl, np.outer(delta, delta))
+    st = stereo_fulcrum(with_term, fr, Rig())
+    assert np.allclose(st.combined.point, base.point, atol=1e-9)
+    added = st.combined.cov - base.cov
+    # what the point moves with that error, to first order (2 % of the depth)
+    assert np.allclose(added, np.outer(moved, moved), atol=0.05 * float(moved @ moved)), (added, np.outer(moved, moved))
+    assert np.linalg.norm(moved) < np.linalg.norm(delta)
+    assert float(st.to_dict()["combined"]["point_sigma"]) > float(base.sigma)
