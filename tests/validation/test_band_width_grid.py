@@ -58,3 +58,15 @@ def test_a_limb_its_profiles_do_not_pin_down_widens_its_own_sd():
     assert b["band_class"] == "limb-bright-wide" and abs(b["error_px"]) > 2.0 * cls, b
     assert b["width_sd_px"] > cls and b["sd_px"] == band_width_sd(b) > b["width_sd_px"], b
     assert abs(b["error_px"]) < 2.0 * b["sd_px"], b
+
+
+def test_a_close_shaft_whose_face_clips_reads_its_limb_within_its_sd():
+    """A matte shaft 20 mm away over the dark drape, endoscope-like (seed 10): its face
+    clips under the one exposure and the step edge follows the shading several pixels
+    inside the silhouette, beyond the profile window's outer reach. A window still falling
+    at its outer end is followed outwards until the profile levels (on the background) and
+    moved there: the band reads within its sd, where a window holding no background put the
+    limbs on the face (15 px narrow, 18 sd)."""
+    b = render_band(10, 1, "matte", "dark", 20.0, edge_models=("limb",), realism="endoscope")["limb"]
+    assert b["band_class"] == "limb-bright-wide", b
+    assert abs(b["error_px"]) <= b["sd_px"] == band_width_sd(b), b

@@ -20,7 +20,10 @@ vector is the view, and the lobe rises from the limb as c / pi over c < a, a thi
 rim on polished metal, then peaks along the axis), both times the light's fall-off E
 (the middle of the shaft is nearer the light than its limb, `limb_design`). The fit sees
 0.7 W inside the edge (kept within 4-12 px), short of the central highlight, saturated
-samples left out.
+samples left out. Where the face clips the step edge may follow the shading pixels inside
+the silhouette, beyond the window's outer reach: a profile still moving at the window's
+outer end is followed out until it levels off on the background and the window moved
+there (`_window`).
 Beside the edge the background is ``b0 + b1 (t - e)`` (a level and a slope), and the
 optics' blur a Gaussian of sd sigma (pixel area and sampling included). The profile, on
 linear light (the frame's encoding gamma undone, `edges.linearised`), is
@@ -82,6 +85,9 @@ _ROUGH_RANGE = (0.03, 1.0)  # the specular lobe's roughness's bounds
 _SIGMA_RANGE = (0.3, 6.0)  # the blur sd's bounds [px]
 _MIN_BINS = 3
 _STARTS_PX = (0.0, 1.5)  # the limb fit's starts from the step edge, outwards [px]
+_REACH_PX = 32.0  # how far beyond the window a profile still moving at its outer end is followed [px]
+_FLAT_FRAC = 0.03  # a profile still moves at its outer end where its slope there exceeds this share of its range per px
+_BACK_PX = 1.5  # a moved window ends this much short of `_OUT_PX` beyond where its profile levels off [px]
 
 
 class LimbFit(NamedTuple):
@@ -194,8 +200,8 @@ _SATURATED = 250.0  # an encoded level at least this is clipped, not measured [g
 def _profiles(image, camera, pts, n, t):
     """Grey profiles (M, T) float32 of the image (mean of its channels) at the points pts
     (M, 2) [ideal px] along the ideal unit normal n (2,) at offsets t (T,) [px]; whether
-    each sample is saturated in any channel (M, T); whether each profile lies in the
-    image (M,)."""
+    each sample is saturated in any channel (M, T); whether each sample lies in the
+    image (M, T)."""
     import cv2
 
     nx = np.full((1, 1), n[0])
@@ -207,7 +213,7 @@ def _profiles(image, camera, pts, n, t):
     top = img.max(-1) if img.ndim == 3 else img
     grey = img.mean(-1) if img.ndim == 3 else img
     H, W = grey.shape
-    inside = np.all((X >= 0) & (X <= W - 1) & (Y >= 0) & (Y <= H - 1), -1)
+    inside = (X >= 0) & (X <= W - 1) & (Y >= 0) & (Y <= H - 1)
     prof = cv2.remap(np.ascontiguousarray(grey), X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     sat = cv2.remap(np.ascontiguousarray(top), X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return prof, sat >= _SATURATED, inside
@@ -237,20 +243,26 @@ def refine_edge(image, camera, edge, geometry, gamma=1.0, sigma0=1.2):
     if not (np.isfinite(Wm) and Wm > 1.0):
         return None
     inner = float(np.clip(_IN_FRAC * Wm, _IN_MIN, _IN_MAX))
-    t = np.arange(-inner, _OUT_PX + 1e-9, _STEP_PX)
-    prof, sat, inside = _profiles(image, camera, pts, edge.n, t)
-    prof = linearised(prof, gamma)
+    t_all = np.arange(-inner, _OUT_PX + _REACH_PX + 1e-9, _STEP_PX)
+    n_win = int(np.sum(t_all <= _OUT_PX + 1e-9))
+    prof_all, sat_all, in_all = _profiles(image, camera, pts, edge.n, t_all)
+    prof_all = linearised(prof_all, gamma)
+    inside = in_all[:, :n_win].all(-1)
+    clips = bool(sat_all[inside, :n_win].any())
     sb, tb, vb = [], [], []
     for k in range(nb):
         sel = inside & (s_st >= edges_s[k]) & (s_st < edges_s[k + 1] + (k == nb - 1))
-        use = ~sat[sel].any(0)
-        if sel.sum() < 3 or use.sum() < 0.6 * t.size:
+        if sel.sum() < 3:
+            continue
+        t, y, use, starts = _window(t_all, prof_all[sel].mean(0), ~sat_all[sel].any(0) & in_all[sel].all(0), n_win,
+                                    clips)
+        if t is None or use.sum() < 0.6 * t.size:
             continue
         # from the step edge and from beyond it (the step edge lies inside the limb; where
         # the shaft's rim meets the background at one level the step edge may be pixels in)
-        fits = [fit_limb_profile(t, prof[sel].mean(0), float(np.median(W_st[sel])), e0, sigma0,
+        fits = [fit_limb_profile(t, y, float(np.median(W_st[sel])), e0, sigma0,
                                  sin_view=float(np.median(k_st[sel])), q=float(np.median(q_st[sel])), use=use)
-                for e0 in _STARTS_PX]
+                for e0 in starts]
         fits = [f for f in fits if f.ok]
         if not fits:
             continue
@@ -262,6 +274,56 @@ def refine_edge(image, camera, edge, geometry, gamma=1.0, sigma0=1.2):
     if len(sb) < _MIN_BINS:
         return None
     return _line_through(edge, np.array(sb), np.array(tb), np.array(vb), nb)
+
+
+def _window(t_all, y_all, use_all, n_win, clips=True):
+    """A bin's profile window: offsets t (T,) [px], its mean profile y (T,) [linear light],
+    the samples fitted use (T,) and the fit's starts [px]; Nones where the profile holds no
+    background within reach. t_all (N,), y_all (N,), use_all (N,): the profile sampled from
+    the window's inner end out to `_REACH_PX` beyond its outer end (use: neither saturated
+    nor off the image); n_win: the window's samples; clips: whether the edge's windows hold
+    saturated samples (only then is a window moved: beside a face that does not clip, a
+    window moved out reached into sloping backgrounds on the renders).
+
+    Where the face clips under the exposure the step edge may follow the shading pixels
+    inside the silhouette, and a window ending `_OUT_PX` beyond it holds no background: the
+    model, its background free to slope, then fits the shading and puts a limb on the face.
+    So a profile still moving at the window's outer end (saturated there, or over its last
+    2 px sloping by more than `_FLAT_FRAC` of its range per px) is followed outwards until it
+    levels off (past the last unmeasured sample), and the window moved out to end `_OUT_PX`
+    less `_BACK_PX` beyond that."""
+    t, y, use = t_all[:n_win], y_all[:n_win], use_all[:n_win]
+    m = int(round(2.0 / _STEP_PX))
+    span = float(np.ptp(y[use])) if use.sum() > m else 0.0
+    thr = _FLAT_FRAC * span
+    if not clips:
+        return t, y, use, _STARTS_PX
+    if use[-m:].all():
+        slope = float(np.polyfit(t[-m:], y[-m:], 1)[0])
+        if span <= 0 or abs(slope) <= thr:
+            return t, y, use, _STARTS_PX
+    # levelled off: past the window's end and the last saturated sample, the local slope
+    # (over a 1 px box, its samples all measured) small for 1 px on end (a rim darker than
+    # the background on either side turns without levelling: the background lies beyond)
+    box = np.ones(4) / 4
+    g = np.abs(np.gradient(np.convolve(y_all, box, mode="same"), _STEP_PX))
+    whole = np.convolve(use_all.astype(float), box, mode="same") > 1 - 1e-9
+    flat = (g <= thr) & whole
+    run = np.convolve(flat.astype(float), np.ones(4), mode="full")[3:] > 4 - 1e-9  # flat[i:i + 4] all
+    clipped = np.nonzero(~use_all)[0]
+    clipped = clipped[clipped < t_all.size - 2]
+    first = max(n_win, int(clipped.max()) + 1 if clipped.size else 0)
+    level = np.nonzero(run & (np.arange(t_all.size) >= first))[0]
+    if level.size == 0:
+        return None, None, None, None
+    stop = float(t_all[level[0]])
+    if stop + 3.0 > t_all[-1]:
+        return None, None, None, None
+    shift = max(stop - _BACK_PX, 0.0)
+    keep = (t_all >= t[0] + shift - 1e-9) & (t_all <= t[-1] + shift + 1e-9)
+    # started from the window's shift and 1.5 and 3 px beyond it (starts 2.5 px further in,
+    # where a blurred limb would lie, read worse on the renders the shift was chosen on)
+    return t_all[keep], y_all[keep], use_all[keep], tuple(shift + e for e in _STARTS_PX + (3.0,))
 
 
 def _line_through(edge, s, t, v, nb):
