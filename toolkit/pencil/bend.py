@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pencilcal.toolkit.geometry.angles import wrap_line
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.pencil.estimator import pencil_jacobian
 
@@ -102,7 +103,7 @@ def bend_covariance(R_cam_from_target, vertex, spoke_angles, angles, sigma, p1, 
     if a.size < 7:  # 3 for the turn, 3 for the bend, one to tell them from noise
         return np.zeros((3, 3)), 0.0, 0.0
     alpha, J, Jx = pencil_jacobian(R, x, np.asarray(spoke_angles, float))
-    r = np.angle(np.exp(2j * (a - alpha))) / 2  # residuals, the line's direction either way
+    r = wrap_line(a - alpha)  # residuals, the line's direction either way
     G, X = bend_response(R, x, p1, p2, s, offset_sigma)
     G = G - Jx @ X  # the residual's change: the line turned, the prediction moved with the vertex
     w = 1.0 / s**2

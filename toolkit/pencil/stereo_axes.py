@@ -65,6 +65,7 @@ __all__ = ["StereoAxis", "AxesFulcrum", "stereo_axis", "match_shafts", "stereo_f
            "matched_axes"]
 
 _STEP = 1e-6  # central-difference step of the Jacobians (chart units, mm, rad)
+_RADIUS_PRIOR_REL = 1e-3  # a known diameter's radius prior: its sd relative to the radius
 
 
 @dataclass(frozen=True, eq=False)
@@ -254,7 +255,7 @@ def stereo_axis(K_left, edges_left, cov_left, K_right, edges_right, cov_right, R
     A0, d0, r0 = _start(K_l, el, K_r, er, R, t, radius)
     prior = None
     if radius is not None:
-        prior = (float(radius), float(1e-3 * radius if radius_sigma is None else radius_sigma))
+        prior = (float(radius), float(_RADIUS_PRIOR_REL * radius if radius_sigma is None else radius_sigma))
     try:
         ord_l, ord_r = _order(K_l, A0, d0, r0, cl), _order(K_r, R @ A0 + t, R @ d0, r0, cr)
     except InputError:
@@ -685,11 +686,11 @@ def _diameter_sensitivity(axes, radius, rig_cov, point, step=1e-3):
     radius's prior holds (each axis fitted with it, `stereo_axis`): per axis the linearised
     fit moves its chart by ``cov[:4, 4] / sd^2`` per unit of the prior's radius (the
     posterior mean's response to a Gaussian prior's mean), every axis at once by `step` of
-    of the prior's radius [length]; the fulcrum of the moved axes (`stereo_fulcrum_axes`), less `point`, over
+    the prior's radius [length]; the fulcrum of the moved axes (`stereo_fulcrum_axes`), less `point`, over
     `step`."""
     moved = []
     for a in axes:
-        prior_sd = 1e-3 * radius  # `matched_axes`'s prior: 1e-3 of the radius
+        prior_sd = _RADIUS_PRIOR_REL * radius  # the prior `stereo_axis` gave it
         chart = np.asarray(a.cov, float)[:4, 4] / prior_sd**2 * (step * radius)
         P, D = _line_of(chart, a.axis_point, a.axis_direction, a.axis_frame)
         D = _canon(D)
