@@ -374,8 +374,10 @@ def point_jackknife(camera, frames, diameter, point, level=0.99, min_axes=None):
     camera; frames: lines.json frame dicts with shafts (their ``edges``, ``edge_cov``);
     diameter: the shafts' diameter; point: the `toolkit.pencil.fulcrum.FulcrumPoint` of all
     frames. Each frame with a shaft is left out once (`fulcrum.leave_one_out_points`); the
-    jackknife covariance of the point is compared with ``point_cov`` by their traces, and
-    taken in its place when the ratio exceeds chi2(3 (n - 1)) / (3 (n - 1)) at `level`. The
+    jackknife covariance of the point is compared with the fit's covariance and the lines'
+    play term (``play_cov``: an offset of each frame's own, which leaving frames out shows) by
+    their traces, and taken in place of both when the ratio exceeds chi2(3 (n - 1)) / (3 (n - 1))
+    at `level` (the width term, which every frame shares, stays). The
     record: ``frames``, ``point_sigma_jackknife`` [unit of the diameter], ``ratio``
     (jackknife / reported RMS), ``inflated``.
 
@@ -400,11 +402,15 @@ def point_jackknife(camera, frames, diameter, point, level=0.99, min_axes=None):
     jk = jackknife(np.asarray(pts, float))
     n = jk["n"]
     sigma_jk = float(np.sqrt(max(np.trace(jk["cov"]), 0.0)))
-    ratio = sigma_jk / float(point.fit.point_sigma) if point.fit.point_sigma > 0 else None
+    said = np.asarray(point.fit.point_cov, float)
+    if point.play_cov is not None:
+        said = said + np.asarray(point.play_cov, float)
+    said = float(np.sqrt(max(np.trace(said), 0.0)))
+    ratio = sigma_jk / said if said > 0 else None
     rec = {"frames": n, "point_sigma_jackknife": sigma_jk, "ratio": ratio, "inflated": False}
     dof = 3 * (n - 1)
     if ratio is None or ratio**2 <= chi2_isf(1.0 - level, dof) / dof:
         return point, rec
     rec["inflated"] = True
     fit = dataclasses.replace(point.fit, point_cov=jk["cov"], point_sigma=np.asarray(sigma_jk))
-    return dataclasses.replace(point, fit=fit), rec
+    return dataclasses.replace(point, fit=fit, play_cov=None), rec

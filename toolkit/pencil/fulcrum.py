@@ -52,8 +52,8 @@ from pencilcal.toolkit.pencil.lens_uncertainty import (orientation_totals, ray_s
                                                        resolve_intrinsics_cov, vertex_cov_total_px2)
 from pencilcal.toolkit.pencil.orient import orientation_record, raw_vertex
 from pencilcal.toolkit.pencil.orientation import Orientation
-from pencilcal.toolkit.pencil.cylinder import (Fulcrum3D, axis_frame, fulcrum_3d, project_cylinder, shaft_axis,
-                                               shaft_axis_record)
+from pencilcal.toolkit.pencil.cylinder import (Fulcrum3D, axis_frame, axis_offsets, fulcrum_3d,
+                                               project_cylinder, shaft_axis, shaft_axis_record)
 from pencilcal.toolkit.pencil.sequence_noise import MAX_RUNS, inflation
 from pencilcal.toolkit.pencil.parallax import vertex_with_parallax
 
@@ -233,7 +233,9 @@ class FulcrumPoint:
     (`_point_with_play`), the factor on the axes' covariances that went with it. play: that
     play's variance [length^2] per direction (0: none taken). width_cov (3, 3): the term of
     the bands' width error shared by the sequence (`point_width_cov`), added to the fit's
-    covariance in ``point_cov`` (None: none); width_sd: that relative width sd.
+    covariance in ``point_cov`` (None: none); width_sd: that relative width sd. play_cov
+    (3, 3): the term of the port's play the image lines read beyond the axes' own
+    (`_play_term`), added to ``point_cov`` as well (None: none).
     """
 
     fit: Fulcrum3D
@@ -248,12 +250,17 @@ class FulcrumPoint:
     play: float = 0.0
     width_cov: np.ndarray | None = None
     width_sd: float = 0.0
+    play_cov: np.ndarray | None = None
 
     @property
     def cov(self) -> np.ndarray:
-        """(3, 3) the point's covariance: the fit's (noise, play) plus the shared width term."""
+        """(3, 3) the point's covariance: the fit's (noise, play) plus the shared width term and
+        the lines' play term."""
         C = np.asarray(self.fit.point_cov, float)
-        return C if self.width_cov is None else C + np.asarray(self.width_cov, float)
+        for term in (self.width_cov, self.play_cov):
+            if term is not None:
+                C = C + np.asarray(term, float)
+        return C
 
     def to_dict(self) -> dict:
         """point, point_cov, point_sigma, point_axes_used, point_outliers ({image, shaft,
@@ -280,6 +287,7 @@ class FulcrumPoint:
                "point_variance_factor": float(self.variance_factor),
                "point_play_sigma": float(np.sqrt(self.play)), "point_width_sd": float(self.width_sd),
                "point_cov_width": None if self.width_cov is None else np.asarray(self.width_cov, float).tolist(),
+               "point_cov_play": None if self.play_cov is None else np.asarray(self.play_cov, float).tolist(),
                "point_axes": axes, "shaft_diameter": self.diameter}
         if self.camera_motion is not None:
             out["point_camera_motion"] = dict(self.camera_motion)
@@ -290,7 +298,7 @@ class FulcrumPoint:
         return out
 
 
-def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, width_sd_px=None):
+def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, width_sd_px=None, lines_play=None):
     """The 3-D fulcrum: the point closest to every shaft's 3-D axis over a sequence.
 
     camera: Camera; frames: lines.json frame dicts whose shafts carry ``edges`` [raw px]
@@ -307,8 +315,11 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, wi
     error shared by the sequence, whose term (`point_width_cov`) joins the point's
     covariance: None for each band's own from what the detector measured on it
     (`band_width.band_width_sd`: its edge model, polarity and width), a number for every
-    band (0: none). Returns a `FulcrumPoint`;
-    EstimationError when fewer than two crossing axes remain.
+    band (0: none). lines_play: the port's play the sequence's image lines read at their
+    vertex (`lines_play_rad`: its sd as an angle [rad] seen from the camera), or None: where
+    that angle times the point's distance exceeds the play the axes read, the rest joins
+    the point's covariance (`_play_term`, ``play_cov``); the point is the same.
+    Returns a `FulcrumPoint`; EstimationError when fewer than two crossing axes remain.
 
     A moving camera (`pencilcal fulcrum --stabilize`): frames whose ``camera_pose`` gives
     their camera from the reference frame's (R_frame_from_ref, t_frame_from_ref in the
@@ -321,7 +332,26 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, wi
     axes = frame_axes(camera, frames, diameter)
     if width_sd_px is None:
         width_sd_px = [band_width_sd(frames[i]["shafts"][j]) for i, (_, j) in zip(axes[6], axes[3])]
-    return _point_of_axes(camera, axes, diameter, robust, intrinsics_cov, width_sd_px)
+    return _point_of_axes(camera, axes, diameter, robust, intrinsics_cov, width_sd_px, lines_play)
+
+
+def lines_play_rad(play, K, x_n):
+    """The port's play the image lines read (`_vertex_fit`'s record ``play``: ``sigma_px``, the
+    sd of every line's offset at the vertex beyond its own [undistorted px]; or None) as an
+    angle [rad] seen from the camera: ``sigma_px`` times the unit ray's move per pixel at the
+    vertex x_n (2,) (normalised image coordinates; K (3, 3) the intrinsics [px]), the root
+    mean square of its two directions. None where the lines read none.
+
+    >>> K = np.array([[520.0, 0, 319.5], [0, 520, 239.5], [0, 0, 1]])
+    >>> round(lines_play_rad({"sigma_px": 2.6}, K, [0.0, 0.0]), 6)
+    0.005
+    """
+    if not play or not play.get("sigma_px"):
+        return None
+    v = np.r_[np.asarray(x_n, float), 1.0]
+    P = (np.eye(3) - np.outer(v, v) / (v @ v))[:, :2] / np.linalg.norm(v)
+    M = P @ np.linalg.inv(np.asarray(K, float))[:2, :2]
+    return float(play["sigma_px"]) * float(np.sqrt(0.5 * np.trace(M @ M.T)))
 
 
 def leave_one_out_points(camera, frames, diameter, robust=True):
@@ -345,9 +375,9 @@ def leave_one_out_points(camera, frames, diameter, robust=True):
     return out
 
 
-def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None, width_sd_px=0.0):
+def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None, width_sd_px=0.0, lines_play=None):
     """`fulcrum_point` of the axes `frame_axes` gave (axes: its tuple); width_sd_px: one or
-    (N,) per axis."""
+    (N,) per axis; lines_play: as `fulcrum_point`'s."""
     points, dirs, covs, owners, measured, poses, _, skipped = axes
     if len(points) < 2:
         raise EstimationError(f"the 3-D fulcrum needs the 3-D axes of two shafts at least, got {len(points)}"
@@ -358,8 +388,9 @@ def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None, wid
     ideal = np.asarray(camera.undistort_pixels(np.array([np.asarray(e, float).reshape(2, 4) for e, _ in measured])
                                                .reshape(-1, 2)), float).reshape(-1, 2, 4)
     edge_cov = np.array([np.asarray(c, float).reshape(2, 2, 2) for _, c in measured])
-    fit, factor, play = _point_with_noise(np.array(points), np.array(dirs), np.array(covs), robust,
-                                          (np.asarray(camera.K, float), (ideal, edge_cov), 0.5 * float(diameter)))
+    fit, factor, play, play_cov = _point_with_noise(
+        np.array(points), np.array(dirs), np.array(covs), robust,
+        (np.asarray(camera.K, float), (ideal, edge_cov), 0.5 * float(diameter)), lines_play)
     lens = None
     if intrinsics_cov is not None:
         used = [measured[k] for k in np.flatnonzero(np.asarray(fit.inliers))]
@@ -371,12 +402,12 @@ def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None, wid
         width_cov, width_sd = point_width_cov(camera.K, ideal[used], edge_cov[used], 0.5 * float(diameter), sd[used])
     return FulcrumPoint(fit=fit, owners=owners, diameter=float(diameter), skipped=skipped,
                         axis_points=np.array(points), axis_directions=normalize(np.array(dirs)), lens_cov=lens,
-                        variance_factor=factor, play=play, width_cov=width_cov, width_sd=width_sd)
+                        variance_factor=factor, play=play, width_cov=width_cov, width_sd=width_sd, play_cov=play_cov)
 
 
-def _point_with_noise(points, dirs, covs, robust, edges=None):
-    """(Fulcrum3D, variance factor, play) of `fulcrum_point`'s still camera (points, dirs (N, 3),
-    covs (N, 4, 4) as `cylinder.fulcrum_3d` takes them): the axes' own
+def _point_with_noise(points, dirs, covs, robust, edges=None, lines_play=None):
+    """(Fulcrum3D, variance factor, play, play term or None) of `fulcrum_point`'s still camera
+    (points, dirs (N, 3), covs (N, 4, 4) as `cylinder.fulcrum_3d` takes them): the axes' own
     scatter taken in, as the image lines' fulcrum takes its lines' (`sequence_noise`), only
     ever inflating.
 
@@ -391,9 +422,11 @@ def _point_with_noise(points, dirs, covs, robust, edges=None):
     covariances are too small leaves out the larger residuals and would bias the factor
     low. The last run's covariance times its own factor; the factor returned is the total
     (with the play: the factor on the axes' covariances). play: the play's variance
-    [length^2] per direction, 0 without it."""
+    [length^2] per direction, 0 without it. lines_play: the play the image lines read [rad]
+    (`fulcrum_point`), or None; the play term (3, 3) is `_play_term`'s, None with the factor
+    alone."""
     if edges is not None:
-        played = _point_with_play(points, dirs, covs, robust, *edges)
+        played = _point_with_play(points, dirs, covs, robust, *edges, lines_play=lines_play)
         if played is not None:
             return played
 
@@ -403,7 +436,7 @@ def _point_with_noise(points, dirs, covs, robust, edges=None):
 
     fit, own, total = _runs_at_noise(lambda f: fulcrum_3d(points, dirs, covs * f, robust=robust), own_factor)
     fit = dataclasses.replace(fit, point_cov=fit.point_cov * own, point_sigma=fit.point_sigma * np.sqrt(own))
-    return fit, total * own, 0.0
+    return fit, total * own, 0.0, None
 
 
 #: The largest play (sd per direction, as a fraction of the shaft's diameter) read as the
@@ -414,9 +447,9 @@ def _point_with_noise(points, dirs, covs, robust, edges=None):
 _PLAY_OF_DIAMETER = 1.0 / 8.0
 
 
-def _point_with_play(points, dirs, covs, robust, K, edges, radius):
-    """(Fulcrum3D, factor, play) of the still camera's axes with a factor k on their covariances
-    and an isotropic play s2 on their positions, as the stereo axes' (`stereo_axes.
+def _point_with_play(points, dirs, covs, robust, K, edges, radius, lines_play=None):
+    """(Fulcrum3D, factor, play, play term) of the still camera's axes with a factor k on their
+    covariances and an isotropic play s2 on their positions, as the stereo axes' (`stereo_axes.
     axes_with_noise`: k and s2 by maximum likelihood on the gate's offsets), each axis
     weighed by its covariance evaluated at the line through the point nearest to it
     (`_covariances_at_point`; twice, the noise terms refitted each time). None where the
@@ -428,20 +461,51 @@ def _point_with_play(points, dirs, covs, robust, K, edges, radius):
     point leans towards the camera; and a factor alone, one scale on every axis, leaves
     the precise axes' share of the port's play too small. (The fused two-eye point weighs
     its axes at their own estimates; for one eye that leant further on fresh pivots:
-    docs/method.md, "One eye's axes weighed at their own estimates again".)"""
+    docs/method.md, "One eye's axes weighed at their own estimates again".)
+
+    lines_play [rad]: the play the image lines read at their vertex (`lines_play_rad`), or
+    None. The axes' offsets at the point seldom show the play: each axis's offset there is
+    extrapolated from its edges over the shaft, its stated sd as large as the play or larger,
+    so their chi2 reads none (on rendered pivots with 0.35 mm of play, none on 22 of 32
+    views), while across the line of sight the point, a weighted mean of the axes' offsets,
+    moves with it. The lines' offsets at the vertex show it: where the angle they read times
+    the point's distance exceeds the axes' play, the rest is the play term (`_play_term`;
+    None otherwise), the point the same (docs/uncertainty.md, "The port's play in the 3-D
+    point")."""
     from pencilcal.toolkit.pencil.stereo_axes import axes_with_noise
 
     E = axis_frame(points, dirs)
     try:
-        fit, _, play, k = axes_with_noise(points, dirs, covs, E, robust)
+        fit, used, play, k = axes_with_noise(points, dirs, covs, E, robust)
         for _ in range(2):
             at = _covariances_at_point(K, edges, radius, points, dirs, covs, E, np.asarray(fit.point, float))
-            fit, _, play, k = axes_with_noise(points, dirs, at, E, robust)
+            fit, used, play, k = axes_with_noise(points, dirs, at, E, robust)
     except EstimationError:  # too few axes meet with the play in: the factor's own gate decides
         return None
     if np.sqrt(play) > _PLAY_OF_DIAMETER * 2.0 * radius:
         return None
-    return fit, float(k), float(play)
+    term = None
+    if lines_play is not None:
+        seen = (float(lines_play) * float(np.linalg.norm(fit.point))) ** 2
+        if seen > play:
+            term = _play_term(fit, points, dirs, used, E, seen - play)
+    return fit, float(k), float(play), term
+
+
+def _play_term(fit, points, dirs, covs, frames, s2):
+    """(3, 3) what an offset of every used axis, independent between frames, of variance s2
+    [length^2] per direction across it (the port's play) adds to the covariance of the point
+    the axes give with the covariances covs (N, 4, 4) they were weighed with: the point is
+    ``H^-1 sum E_i^T W_i E_i a_i`` (W_i the inverse of the axis's offset covariance at the
+    point, E_i (2, 3) its chart frame, H the sum of ``E_i^T W_i E_i``), so the offsets add
+    ``s2 H^-1 (sum E_i^T W_i W_i E_i) H^-1``. points, dirs (N, 3), frames (N, 2, 3) as
+    `cylinder.fulcrum_3d` takes them."""
+    use = np.asarray(fit.inliers, bool)
+    _, S, _ = axis_offsets(np.asarray(fit.point, float), points[use], dirs[use], frames[use], covs[use])
+    G = np.swapaxes(frames[use], -1, -2) @ np.linalg.inv(S)                   # (n, 3, 2): E^T W
+    H_inv = np.linalg.inv(np.sum(G @ frames[use], 0))
+    T = s2 * H_inv @ np.sum(G @ np.swapaxes(G, -1, -2), 0) @ H_inv
+    return 0.5 * (T + T.T)
 
 
 def _rowdot(a, b):
@@ -872,7 +936,7 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
             None if cov_raw is None else vertex_cov_total_px2(camera, C, x, X, cov_raw)),
             ray_cov_lens=P @ propagate(X, C) @ P.T)
     if shaft_diameter is not None:
-        pt = fulcrum_point(camera, frames, shaft_diameter, intrinsics_cov=C)
+        pt = fulcrum_point(camera, frames, shaft_diameter, intrinsics_cov=C, lines_play=lines_play_rad(play, K, x))
         more = [f"{pt.skipped} shaft(s) without edge_cov or a valid 3-D axis left out of the 3-D fulcrum"] \
             if pt.skipped else []
         out = dataclasses.replace(out, point=pt, warnings=out.warnings + tuple(more))
