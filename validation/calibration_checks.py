@@ -51,8 +51,8 @@ from pencilcal.toolkit.board.corner_noise import WHITE
 from pencilcal.toolkit.board.coverage import covered_grid
 from pencilcal.toolkit.board.print_errors import covariance_term, intrinsic_gain, view_gains
 from pencilcal.toolkit.camera.model import Camera
-from pencilcal.toolkit.camera.projection_uncertainty import projection_difference, projection_sensitivity, \
-    projection_uncertainty
+from pencilcal.toolkit.camera.projection_uncertainty import linearity, projection_difference, \
+    projection_sensitivity, projection_uncertainty
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
 
@@ -345,9 +345,12 @@ def uncertainty_map(result, detections, board):
     sigma = sigma.reshape(grid.shape)
     inside = sigma[grid.mask & np.isfinite(sigma)]
     allv = sigma[np.isfinite(sigma)]
+    region = grid.pixels()
+    dep = linearity(result.camera, result.cov_intrinsics.cov, region)["departure_share"] if len(region) else None
     return {"step_px": grid.step_px, "grid": [grid.shape[1], grid.shape[0]], "sigma_px": _map_list(sigma),
             "covered": grid.mask.astype(int).tolist(), "covered_fraction": grid.fraction,
             "median_covered_px": float(np.median(inside)) if inside.size else None,
             "max_covered_px": float(inside.max()) if inside.size else None,
             "median_image_px": float(np.median(allv)) if allv.size else None,
-            "max_image_px": float(allv.max()) if allv.size else None}
+            "max_image_px": float(allv.max()) if allv.size else None,
+            "linear_departure": None if dep is None else (float(dep) if math.isfinite(dep) else "inf")}
