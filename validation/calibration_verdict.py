@@ -232,9 +232,8 @@ def judge(views_used, halves, umap, geometry, usable_px=USABLE_PX, noise=None):
     if dep is not None and not float(dep) <= LINEAR_DEPARTURE:
         warnings.append(f"the lens model's coefficients are not determined by these views: a one-sigma change of them "
                         f"moves the projection {float(dep):.2g} x as far from its linear response as that response, so "
-                        "the projection uncertainty and the halves' predicted difference are not to be read as they "
-                        "stand; a model with fewer coefficients (or --model auto, which refuses such a model) gives "
-                        "figures that hold")
+                        "their sigmas (and the halves' chi-square on them) are not to be read as they stand; a model "
+                        "with fewer coefficients (--model auto refuses such a model) gives sigmas that hold")
     med, worst = umap.get("median_covered_px"), umap.get("max_covered_px")
     figures = {"usable_share": share, "covered_share": umap.get("covered_fraction"), "median_covered_px": med,
                "max_covered_px": worst, "halves_chi2_per_dof": chi2, "halves_projection_ratio": ratio,
