@@ -8,7 +8,9 @@ the calibration keeps the printed board's own corner offsets (`toolkit.board.
 print_errors`) or a correlated corner error fixed in the image (`toolkit.board.
 image_field`), both halves saw them: each half's covariance gains its share and the two
 halves' errors their covariance, so the difference holds only what differs between their
-views' gains. Two calibrations of one camera must agree within their covariances:
+views' gains; that part goes through the projection at the full calibration, where the
+gains are linearised, and each half's own errors through its own. Two calibrations of one
+camera must agree within their covariances:
 
 - on the parameters: the chi-square of the intrinsics' difference over the sum of the two
   covariances, with its degrees of freedom and p-value (mrcal's cross-validation idea);
@@ -51,8 +53,8 @@ from pencilcal.toolkit.board.corner_noise import WHITE
 from pencilcal.toolkit.board.coverage import covered_grid
 from pencilcal.toolkit.board.print_errors import covariance_term, intrinsic_gain, view_gains
 from pencilcal.toolkit.camera.model import Camera
-from pencilcal.toolkit.camera.projection_uncertainty import projection_difference, projection_sensitivity, \
-    projection_uncertainty
+from pencilcal.toolkit.camera.projection_uncertainty import linearity, projection_difference, \
+    projection_sensitivity, projection_uncertainty
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
 
@@ -115,16 +117,18 @@ def _region_summary(diff, pred2):
             "ratio": rms / pred if pred > 0 else None}
 
 
-def _pred(camera_a, cov_a, camera_b, cov_b, pixels, region, cross=None):
+def _pred(camera_a, cov_a, camera_b, cov_b, pixels, region, shared=None):
     """(N, 2, 2) the covariance of the difference of two calibrations' projections at
-    `pixels`, each linearised at its own intrinsics; cross (P, P): the covariance between
-    their errors (the printed board's corners both saw), None: independent."""
+    `pixels`, each one's own errors linearised at its own intrinsics; shared : (D (P, P), the
+    camera it is linearised at) for the errors both saw (the printed board's corners, the
+    image-fixed field): D is their part of the difference of the intrinsics, taken through
+    the projection at that one camera, None: none."""
     Aa = projection_sensitivity(camera_a, pixels, region)
     Ab = projection_sensitivity(camera_b, pixels, region)
     out = Aa @ cov_a @ np.swapaxes(Aa, -1, -2) + Ab @ cov_b @ np.swapaxes(Ab, -1, -2)
-    if cross is not None:
-        ab = Aa @ cross @ np.swapaxes(Ab, -1, -2)
-        out = out - ab - np.swapaxes(ab, -1, -2)
+    if shared is not None:
+        As = projection_sensitivity(shared[1], pixels, region)
+        out = out + As @ shared[0] @ np.swapaxes(As, -1, -2)
     return out
 
 
@@ -134,27 +138,29 @@ def _root(C):
     return V * np.sqrt(np.clip(w, 0.0, None))
 
 
-def ratio_chance(camera_a, cov_a, camera_b, cov_b, region, observed, draws=RATIO_DRAWS, seed=0, cross=None):
+def ratio_chance(camera_a, cov_a, camera_b, cov_b, region, observed, draws=RATIO_DRAWS, seed=0, shared=None):
     """The probability that two calibrations whose errors are as their covariances say
     differ over `region` (M, 2) by a projection ratio of `observed` or more: the share of
     `draws` pairs of errors drawn from them (through each one's linearised projection, up
     to the aligning rotation) whose RMS difference is at least `observed` x the predicted
     RMS. A one-split figure's p-value: when the difference lies along one direction (a
     focal length, say) the ratio scatters like |z|, and 1.9 happens once in 20 splits.
-    cross (P, P): the covariance between the two calibrations' errors (None: independent)."""
+    shared : as `_pred` (the errors both calibrations saw), None: independent."""
     Aa = projection_sensitivity(camera_a, region, region)
     Ab = projection_sensitivity(camera_b, region, region)
-    ok = np.all(np.isfinite(Aa), (-1, -2)) & np.all(np.isfinite(Ab), (-1, -2))
-    Aa, Ab = Aa[ok], Ab[ok]
+    As = projection_sensitivity(shared[1], region, region) if shared is not None else np.zeros_like(Aa)
+    ok = np.all(np.isfinite(Aa), (-1, -2)) & np.all(np.isfinite(Ab), (-1, -2)) & np.all(np.isfinite(As), (-1, -2))
+    Aa, Ab, As = Aa[ok], Ab[ok], As[ok]
     if not Aa.size or observed is None:
         return None
     rng = np.random.default_rng(seed)
-    # each draw's pixel differences are linear in standard normals: D = G z, G (2M, 2P),
-    # z through the root of the two errors' joint covariance
+    # each draw's pixel differences are linear in standard normals: D = G z, G (2M, 3P):
+    # each half's own errors through its own projection, the shared ones through theirs
     P = cov_a.shape[0]
-    X = np.zeros((P, P)) if cross is None else cross
-    L = _root(np.block([[cov_a, X], [X.T, cov_b]]))
-    G = (Aa @ L[:P]).reshape(-1, 2 * P) - (Ab @ L[P:]).reshape(-1, 2 * P)
+    parts = [Aa @ _root(cov_a), -(Ab @ _root(cov_b))]
+    if shared is not None:
+        parts.append(As @ _root(shared[0]))
+    G = np.concatenate([g.reshape(-1, P) for g in parts], -1)
     pred2 = float(np.sum(G * G)) / Aa.shape[0]
     if pred2 <= 0:
         return None
@@ -166,17 +172,18 @@ def ratio_chance(camera_a, cov_a, camera_b, cov_b, region, observed, draws=RATIO
     return float(np.mean(ratios >= observed))
 
 
-def halves_agreement(camera_a, cov_a, camera_b, cov_b, grid, cross=None):
-    """Do two calibrations of one camera agree within their covariances (P, P)? grid : the
-    `CoveredGrid` of the views; cross (P, P): the covariance between their errors (the
-    printed board's corner offsets both halves saw, `toolkit.board.print_errors`), None:
-    independent. Returns the chi-square record and the projection differences over the
-    covered region (up to rotation, and in the camera frame), plus the maps of both over
-    the whole grid."""
+def halves_agreement(camera_a, cov_a, camera_b, cov_b, grid, shared=None):
+    """Do two calibrations of one camera agree within their covariances (P, P) of their own
+    errors? grid : the `CoveredGrid` of the views; shared : (D (P, P), camera) the part of
+    their difference due to the errors both saw (the printed board's corner offsets,
+    `toolkit.board.print_errors`, the image-fixed field) and the camera that part is
+    linearised at (`_pred`), None: none. Returns the chi-square record and the projection
+    differences over the covered region (up to rotation, and in the camera frame), plus the
+    maps of both over the whole grid."""
     names = camera_a.dist.size + 4
     d = np.r_[camera_a.fx - camera_b.fx, camera_a.fy - camera_b.fy, camera_a.cx - camera_b.cx,
               camera_a.cy - camera_b.cy, camera_a.dist - camera_b.dist]
-    C = cov_a + cov_b if cross is None else cov_a + cov_b - cross - cross.T
+    C = cov_a + cov_b if shared is None else cov_a + cov_b + shared[0]
     free = np.diag(C) > 0
     w, V = np.linalg.eigh(C[np.ix_(free, free)])
     keep = w > 1e-12 * w.max()
@@ -186,21 +193,23 @@ def halves_agreement(camera_a, cov_a, camera_b, cov_b, grid, cross=None):
     region = grid.pixels()
     rec = {"chi2": chi2, "dof": dof, "p_value": float(chi2_sf(chi2, dof)) if dof else None,
            "chi2_per_dof": chi2 / dof if dof else None, "z_values": z}
-    # each calibration's error linearised at its own estimate: the difference's covariance
-    # is the sum of the two projection covariances (not C_a + C_b through one Jacobian,
-    # which a lens model with nearly degenerate coefficients turns into nonsense)
+    # each calibration's own error linearised at its own estimate: the difference's
+    # covariance is the sum of the two projection covariances (not C_a + C_b through one
+    # Jacobian, which a lens model with nearly degenerate coefficients turns into
+    # nonsense); the shared errors' part through the projection at the camera its gains
+    # were linearised at, for the same reason
     covered = _region_summary(projection_difference(camera_a, camera_b, region, region),
-                              _pred(camera_a, cov_a, camera_b, cov_b, region, region, cross))
+                              _pred(camera_a, cov_a, camera_b, cov_b, region, region, shared))
     frame = _region_summary(projection_difference(camera_a, camera_b, region),
-                            _pred(camera_a, cov_a, camera_b, cov_b, region, None, cross))
+                            _pred(camera_a, cov_a, camera_b, cov_b, region, None, shared))
     rec.update(projection_rms_px=covered["rms_px"], projection_max_px=covered["max_px"],
                projection_predicted_rms_px=covered["predicted_rms_px"], projection_ratio=covered["ratio"],
                projection_ratio_p=ratio_chance(camera_a, cov_a, camera_b, cov_b, region, covered["ratio"],
-                                                            cross=cross),
+                                                            shared=shared),
                camera_frame=frame)
     centres = grid.centres().reshape(-1, 2)
     full = projection_difference(camera_a, camera_b, centres, region)
-    pred = np.sqrt(np.maximum(np.trace(_pred(camera_a, cov_a, camera_b, cov_b, centres, region, cross),
+    pred = np.sqrt(np.maximum(np.trace(_pred(camera_a, cov_a, camera_b, cov_b, centres, region, shared),
                                        axis1=-2, axis2=-1), 0.0))
     rec["_maps"] = (np.linalg.norm(full, axis=-1).reshape(grid.shape), pred.reshape(grid.shape))
     return rec
@@ -256,12 +265,16 @@ def _split(result, views, grid, first, size, gains=None):
     (sa, ca), (sb, cb) = _solve_half(result, views, list(first)), _solve_half(result, views, second)
     if not (np.all(np.isfinite(ca.intrinsics)) and np.all(np.isfinite(cb.intrinsics))):
         raise EstimationError("a half's intrinsics are not determined (no covariance)")
-    Ca, Cb, cross = ca.intrinsics, cb.intrinsics, None
     shared = _shared(result, gains, list(first), second)
     if shared is not None:
-        Ca, Cb, cross = Ca + shared[0], Cb + shared[1], shared[2]
-    rec = halves_agreement(_camera(result.layout, sa.theta, size), Ca, _camera(result.layout, sb.theta, size), Cb,
-                           grid, cross)
+        # the shared errors' gains are linearised at the full calibration: their part of
+        # the difference, (G_a - G_b) e, goes through the projection there. Taken through
+        # each half's own projection instead, a lens model whose coefficients the views do
+        # not determine (OpenCV's rational terms, each half thousands apart) turned it into
+        # a predicted difference 11 x the real one (opencv 14, da Vinci left views)
+        shared = (shared[0] + shared[1] - shared[2] - shared[2].T, result.camera)
+    rec = halves_agreement(_camera(result.layout, sa.theta, size), ca.intrinsics,
+                           _camera(result.layout, sb.theta, size), cb.intrinsics, grid, shared)
     rec["z"] = dict(zip(result.layout.names, rec.pop("z_values")))
     rec["views"] = [len(first), len(second)]
     return rec
@@ -345,9 +358,12 @@ def uncertainty_map(result, detections, board):
     sigma = sigma.reshape(grid.shape)
     inside = sigma[grid.mask & np.isfinite(sigma)]
     allv = sigma[np.isfinite(sigma)]
+    region = grid.pixels()
+    dep = linearity(result.camera, result.cov_intrinsics.cov, region)["departure_share"] if len(region) else None
     return {"step_px": grid.step_px, "grid": [grid.shape[1], grid.shape[0]], "sigma_px": _map_list(sigma),
             "covered": grid.mask.astype(int).tolist(), "covered_fraction": grid.fraction,
             "median_covered_px": float(np.median(inside)) if inside.size else None,
             "max_covered_px": float(inside.max()) if inside.size else None,
             "median_image_px": float(np.median(allv)) if allv.size else None,
-            "max_image_px": float(allv.max()) if allv.size else None}
+            "max_image_px": float(allv.max()) if allv.size else None,
+            "linear_departure": None if dep is None else (float(dep) if math.isfinite(dep) else "inf")}

@@ -38,6 +38,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pencilcal.toolkit.camera.projection_uncertainty import LINEAR_DEPARTURE
+
 __all__ = ["Verdict", "judge", "USABLE_PX", "USABLE_SHARE", "MIN_REGION_SHARE", "MIN_VIEWS", "TILTED_DEG",
            "MIN_TILTED_VIEWS", "CONSISTENT_CHI2", "CONSISTENT_RATIO", "DISAGREE", "DISAGREE_P", "coverage_regions",
            "halves_state", "STATUSES"]
@@ -226,10 +228,17 @@ def judge(views_used, halves, umap, geometry, usable_px=USABLE_PX, noise=None):
                         "too small")
     elif state == "unchecked" and not reasons:
         reasons.append(f"the calibration could not be checked against itself ({why})")
+    dep = umap.get("linear_departure")
+    if dep is not None and not float(dep) <= LINEAR_DEPARTURE:
+        warnings.append(f"the lens model's coefficients are not determined by these views: a one-sigma change of them "
+                        f"moves the projection {float(dep):.2g} x as far from its linear response as that response, so "
+                        "their sigmas (and the halves' chi-square on them) are not to be read as they stand; a model "
+                        "with fewer coefficients (--model auto refuses such a model) gives sigmas that hold")
     med, worst = umap.get("median_covered_px"), umap.get("max_covered_px")
     figures = {"usable_share": share, "covered_share": umap.get("covered_fraction"), "median_covered_px": med,
                "max_covered_px": worst, "halves_chi2_per_dof": chi2, "halves_projection_ratio": ratio,
-               "halves_odd_even_p": p, "views_used": int(views_used)}
+               "halves_odd_even_p": p, "views_used": int(views_used),
+               "linear_departure": dep}
     region = {"share": share, "bbox_px": bbox, "threshold_px": usable_px}
     fig = (f"projection uncertainty {med:.2f} px (median, worst {worst:.2f} px) over the covered "
            f"{100 * (umap.get('covered_fraction') or 0):.0f}% of the image") if med is not None else \

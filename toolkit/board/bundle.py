@@ -515,7 +515,9 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=Non
         # the weighted errors' covariance is s2 G (I + c k) G per axis, G = diag(sqrt(w d))
         g = np.sqrt(d if w is None else np.asarray(w, float) * d)
         r, Jg, Jp = _weighted(r, Jg, Jp, w)
-        sse += float(np.sum((r / np.repeat(g, 2)) ** 2))
+        # a corner weighted 0 (set aside) adds nothing: its weighted residual is 0 / 0
+        gg = np.repeat(g, 2)
+        sse += float(np.sum(np.where(gg > 0, r / np.where(gg > 0, gg, 1.0), 0.0) ** 2))
         C = Jp.T @ Jp
         Ci = np.linalg.pinv(C)
         PJ = Jg - Jp @ (Ci @ (Jp.T @ Jg))               # the pose projected out

@@ -583,21 +583,23 @@ def _auto(layout, board, objs, imgs, used, masks, theta, poses, candidates, imag
     """`model_choice.choose_model` on the views and corners kept: (the choice, its layout,
     and its fit to start the final solve from: theta, {view: pose}, warp). With
     `corner_noise` the candidates are compared under the weights the final fit will use:
-    the corner-noise model fitted to the lean model's residuals (`_reweighted`)."""
+    the corner-noise model fitted to the lean model's residuals (`_reweighted`), and each
+    candidate's coefficients are judged determined or not under its covariance with that
+    model."""
     obj_all = board.object_points()
     o = [objs[i][masks[i]] for i in used]
     p = [imgs[i][masks[i]] for i in used]
     bases = [warp_basis(obj_all, x) for x in o]
     start = [poses[i] for i in used]
-    weights = None
+    weights = noise = None
     if corner_noise:
         lean = refine(layout, theta, start, o, p, bases if layout.warp else None)
-        weights = _reweighted(layout, lean, o, p, bases if layout.warp else None, image_size)[2]
+        _, noise, weights = _reweighted(layout, lean, o, p, bases if layout.warp else None, image_size)
     K, dist = camera_parts(theta, layout)
     choice = choose_model(o, p, bases, K, dist, start,
                           candidates=candidates, warp=layout.warp, fix_aspect=layout.fix_aspect,
                           fix_principal_point=layout.fix_principal_point, zero_tangent=layout.zero_tangent,
-                          image_size=image_size, lean=(layout.model, layout.n_coef), weights=weights)
+                          image_size=image_size, lean=(layout.model, layout.n_coef), weights=weights, noise=noise)
     score = chosen_score(choice)
     sol = score.solution
     chosen = score.layout if score.layout is not None else \

@@ -17,6 +17,15 @@ score is within one standard error of the best one's (the standard error of the 
 paired differences to the best), the one with the fewest parameters. A model that wins
 by less than the noise of the comparison does not earn its extra coefficients.
 
+Only a model whose coefficients the views determine competes. A model's projection
+uncertainty, and the two halves' predicted difference that checks it, are the first-order
+response of the projection to its coefficients' covariance; where a one-sigma change of
+them moves the projection over the covered region far from that linear response
+(`projection_uncertainty.linearity`, more than `LINEAR_DEPARTURE` of it, under the fit's
+covariance with the corner-noise model `calibrate` fitted, or white errors), the views do not hold those coefficients (OpenCV's rational model,
+whose numerator and denominator can grow together into the thousands, is the usual case):
+its held-out score is shown, with the status saying so, but it is not chosen.
+
 Example
 -------
 >>> import numpy as np
@@ -30,8 +39,8 @@ Example
 >>> objs = [board.object_points()] * 10
 >>> choice = choose_model(objs, [d.corners for d in dets], [warp_basis(objs[0], o) for o in objs],
 ...                       cam.K, cam.dist, dets.truth, candidates=(("pinhole", 0), ("opencv", 4), ("opencv", 8)))
->>> (choice.model, choice.coefficients), [s.status for s in choice.scores]
-(('opencv', 4), ['ok', 'ok', 'ok'])
+>>> (choice.model, choice.coefficients), [s.status[:14] for s in choice.scores]
+(('opencv', 4), ['ok', 'ok', 'not determined'])
 """
 from __future__ import annotations
 
@@ -40,11 +49,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pencilcal.toolkit.board.bundle import Layout, fit_pose, refine, splined_layout, theta_of, view_residuals
+from pencilcal.toolkit.board.bundle import Layout, camera_parts, covariance, fit_pose, refine, splined_layout, \
+    theta_of, view_residuals
 from pencilcal.toolkit.camera import splined as _spl
+from pencilcal.toolkit.camera.projection_uncertainty import LINEAR_DEPARTURE, linearity
 from pencilcal.toolkit.errors import EstimationError
 
-__all__ = ["CANDIDATES", "SPLINED", "FOLDS", "ModelScore", "ModelChoice", "choose_model", "chosen_score",
+__all__ = ["CANDIDATES", "SPLINED", "FOLDS", "LINEAR_DEPARTURE", "ModelScore", "ModelChoice", "choose_model", "chosen_score",
            "simpler_choice", "splined_start"]
 
 #: The candidate name of the splined model on the grid `splined_start` places.
@@ -71,7 +82,10 @@ class ModelScore:
     fit_rms_px : RMS residual of the fit to all views [px] (OpenCV's definition);
     heldout_rms_px : sqrt of the mean held-out score [px per axis]; excess, excess_se :
     its mean score minus the best candidate's and that difference's standard error
-    [px^2 per axis]; status : "ok" or why it could not be scored.
+    [px^2 per axis]; linear_departure : how far a one-sigma change of its coefficients
+    moves the projection from its linear response, as a share of that response
+    (`projection_uncertainty.linearity`); status : "ok", or why it could not be scored or
+    is not chosen.
     """
 
     model: str
@@ -81,6 +95,7 @@ class ModelScore:
     heldout_rms_px: float | None = None
     excess: float | None = None
     excess_se: float | None = None
+    linear_departure: float | None = None
     status: str = "ok"
     scores: np.ndarray | None = field(default=None, repr=False)
     solution: object = field(default=None, repr=False)
@@ -89,7 +104,8 @@ class ModelScore:
     def to_dict(self):
         return {"model": self.model, "coefficients": self.coefficients, "parameters": self.parameters,
                 "fit_rms_px": self.fit_rms_px, "heldout_rms_px": self.heldout_rms_px, "excess_px2": self.excess,
-                "excess_se_px2": self.excess_se, "status": self.status}
+                "excess_se_px2": self.excess_se,
+                "linear_departure": _finite(self.linear_departure), "status": self.status}
 
 
 @dataclass
@@ -105,7 +121,8 @@ class ModelChoice:
 
     def to_dict(self):
         return {"model": self.model, "coefficients": self.coefficients, "folds": self.folds, "reason": self.reason,
-                "rule": "fewest parameters within one standard error of the best held-out score",
+                "rule": "fewest parameters within one standard error of the best held-out score, among the models "
+                        "whose coefficients the views determine",
                 "candidates": [s.to_dict() for s in self.scores]}
 
 
@@ -151,7 +168,7 @@ def _score(layout, theta0, poses, objs, imgs, bases, folds, weights=None):
 
 def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds=FOLDS, warp=True,
                  fix_aspect=False, fix_principal_point=False, zero_tangent=False, image_size=None, lean=None,
-                 weights=None):
+                 weights=None, noise=None):
     """Compare lens models on held-out views and pick one (the module's docstring).
 
     Parameters
@@ -169,6 +186,8 @@ def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds
         under the corner-noise model, as the final fit weighs it), None: 1. Every fit,
         held-out pose and held-out score is then weighted: a held-out corner counts as
         much as its noise allows, as in the final calibration.
+    noise : the `corner_noise.CornerNoise` under which each candidate's covariance is taken
+        for the test of whether the views determine its coefficients (None: white errors).
 
     Returns
     -------
@@ -206,14 +225,50 @@ def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds
             rec.status = f"failed: {e}"
         if rec.scores is not None and not np.all(np.isfinite(rec.scores)):
             rec.status, rec.scores = "failed: a held-out view did not converge", None
+        if rec.scores is not None:
+            rec.linear_departure = _departure(layout, rec.solution, objs, imgs, bases, weights, image_size, noise)
+            if not rec.linear_departure <= LINEAR_DEPARTURE:
+                rec.status = (f"not determined by the views: a one-sigma change of its coefficients moves the "
+                              f"projection {rec.linear_departure:.2g} x as far from its linear response as that "
+                              "response itself")
         scores.append(rec)
-    ok = [s for s in scores if s.scores is not None]
-    if not ok:
+    scored = [s for s in scores if s.scores is not None]
+    if not scored:
         raise EstimationError("no lens model could be scored on held-out views")
-    pick, best = _pick(ok)
-    for s in ok:
+    for s in scored:
         s.heldout_rms_px = math.sqrt(float(np.mean(s.scores)))
-    return ModelChoice(pick.model, pick.coefficients, scores, folds, _reason(pick, best, V, folds))
+    # every candidate undetermined (not seen on real views): the comparison alone decides
+    pick, best = _pick(_determined(scored) or scored)
+    refused = [s for s in scored if s.status != "ok"]
+    return ModelChoice(pick.model, pick.coefficients, scores, folds, _reason(pick, best, V, folds, refused))
+
+
+def _determined(scored):
+    return [s for s in scored if s.status == "ok"]
+
+
+def _finite(x):
+    return None if x is None else (float(x) if math.isfinite(x) else "inf")
+
+
+def _departure(layout, solution, objs, imgs, bases, weights, image_size, noise=None):
+    """`projection_uncertainty.linearity`'s departure share of a candidate's fit to all
+    views under its covariance with the corner-noise model `noise` (None: white; inf where
+    it is singular), over the region the views cover (the corners themselves without the
+    image size)."""
+    from pencilcal.toolkit.board.coverage import covered_grid
+    from pencilcal.toolkit.camera.model import Camera
+
+    cov = covariance(layout, solution, objs, imgs, bases if layout.warp else None, noise, weights).intrinsics
+    if not np.all(np.isfinite(cov)):
+        return math.inf
+    K, dist = camera_parts(solution.theta, layout)
+    if image_size is not None:
+        size, region = image_size, covered_grid(imgs, image_size).pixels()
+    else:
+        region = np.concatenate([np.asarray(p, float).reshape(-1, 2) for p in imgs])
+        size = tuple(int(v) + 1 for v in region.max(0))
+    return linearity(Camera(layout.model, int(size[0]), int(size[1]), K, dist), cov, region)["departure_share"]
 
 
 def _fit_rms(layout, solution, objs, imgs, bases):
@@ -240,7 +295,7 @@ def simpler_choice(choice, rejected, why):
     whose held-out RMS is within 10 % of the best candidate's: a new ModelChoice, or None
     when no candidate is left. The scores are kept."""
     fewest = min(s.parameters for s in choice.scores if (s.model, s.coefficients) in set(rejected))
-    scored = [s for s in choice.scores if s.scores is not None]
+    scored = _determined([s for s in choice.scores if s.scores is not None])
     best = min(s.heldout_rms_px for s in scored)
     left = [s for s in scored if s.parameters < fewest and s.heldout_rms_px <= (1.0 + _FALLBACK_RMS) * best]
     if not left:
@@ -257,13 +312,22 @@ def chosen_score(choice):
     return next(s for s in choice.scores if (s.model, s.coefficients) == (choice.model, choice.coefficients))
 
 
-def _reason(pick, best, views, folds):
+def _reason(pick, best, views, folds, refused=()):
     name = _name(pick)
     head = f"{folds}-fold cross-validation over {views} views: "
+    better = [s for s in refused if s.heldout_rms_px < best.heldout_rms_px]
+    if better and best.status == "ok":
+        head += (f"{', '.join(_name(s) for s in better)} predict{'s' if len(better) == 1 else ''} the held-out views "
+                 f"better ({', '.join(f'{s.heldout_rms_px:.3f}' for s in better)} px per axis) but "
+                 f"{'is' if len(better) == 1 else 'are'} not determined by them (the projection departs from its "
+                 f"linear response to the coefficients' sigmas by "
+                 f"{', '.join(f'{s.linear_departure:.2g}' for s in better)} x that response); ")
+    among = " of the models they determine" if better and best.status == "ok" else ""
     if pick is best:
-        return head + f"{name} predicts the held-out views best (held-out RMS {pick.heldout_rms_px:.3f} px per axis)."
+        return head + (f"{name} predicts the held-out views best{among} (held-out RMS {pick.heldout_rms_px:.3f} px "
+                       "per axis).")
     fewer = best.parameters - pick.parameters
-    return (head + f"{_name(best)} predicts the held-out views best ({best.heldout_rms_px:.3f} px per axis), but "
+    return (head + f"{_name(best)} predicts the held-out views best{among} ({best.heldout_rms_px:.3f} px per axis), but "
             f"{name}, with {fewer} parameter{'s' if fewer != 1 else ''} fewer, is within one standard error of it "
             f"({pick.heldout_rms_px:.3f} px; excess {pick.excess:.2g} +- {pick.excess_se:.2g} px^2).")
 

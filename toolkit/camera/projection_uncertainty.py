@@ -32,15 +32,27 @@ Example
 >>> other = Camera("opencv", 640, 480, [[500.0, 0, 321.5], [0, 500.0, 239.5], [0, 0, 1]], [-0.1, 0.01, 0, 0])
 >>> float(np.abs(projection_difference(cam, other, q)).max()), round(float(np.abs(projection_difference(cam, other, q, q)).max()), 2)
 (2.0, 0.19)
+>>> lin = linearity(cam, C, q)          # the pixel is linear in fx, fy, cx, cy: the sigmas hold
+>>> round(lin["predicted_rms_px"], 2), bool(lin["departure_share"] < 0.01)
+(0.34, True)
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from pencilcal.toolkit.camera.intrinsics import jacobian_pixels_wrt_intrinsics
+from pencilcal.toolkit.camera.intrinsics import jacobian_pixels_wrt_intrinsics, with_intrinsics, intrinsics_vector
 
 __all__ = ["rotation_jacobian", "projection_sensitivity", "projection_uncertainty", "projection_difference",
-           "worst_sigma"]
+           "worst_sigma", "linearity", "LINEAR_DEPARTURE"]
+
+#: The most the projection may depart from its linearisation over the intrinsics' one-sigma
+#: ellipsoid, as a share of the projection uncertainty that linearisation predicts
+#: (`linearity`), for that uncertainty to be read as the calibration's: a one-sigma step
+#: then moves the projection by at most sqrt(1 + 0.83^2) = 1.3 x the linear figure, the
+#: factor by which two calibrations' difference may exceed its prediction and still agree.
+LINEAR_DEPARTURE = math.sqrt(1.3 ** 2 - 1.0)
 
 
 def rotation_jacobian(camera, xy):
@@ -102,15 +114,24 @@ def projection_difference(camera_a, camera_b, pixels, region=None, iterations=3)
     those pixels; with `region` (M, 2) the rays are first turned by the rotation that best
     aligns the two cameras over the region's pixels (Gauss-Newton, least squares). NaN
     where a ray is not found."""
-    import cv2
-
     xy, ok = _rays(camera_a, pixels)
-    v = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], -1)
-    R = np.eye(3)
+    ref = None
     if region is not None:
         xr, okr = _rays(camera_a, region)
-        vr = np.concatenate([xr[okr], np.ones((int(okr.sum()), 1))], -1)
-        target = np.asarray(region, float).reshape(-1, 2)[okr]
+        ref = (xr[okr], np.asarray(region, float).reshape(-1, 2)[okr])
+    return _aligned_difference(camera_b, xy, ok, np.asarray(pixels, float).reshape(-1, 2), ref, iterations)
+
+
+def _aligned_difference(camera_b, xy, ok, pixels, ref, iterations=3):
+    """`projection_difference` from the rays xy (N, 2) (ok (N,): found) of `pixels` (N, 2);
+    ref : (the region's rays (M, 2), its pixels (M, 2)) or None for no rotation."""
+    import cv2
+
+    v = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], -1)
+    R = np.eye(3)
+    if ref is not None:
+        vr = np.concatenate([ref[0], np.ones((ref[0].shape[0], 1))], -1)
+        target = ref[1]
         for _ in range(int(iterations)):
             p = vr @ R.T
             d = camera_b.project(p) - target
@@ -119,5 +140,54 @@ def projection_difference(camera_a, camera_b, pixels, region=None, iterations=3)
             w = np.linalg.lstsq(J[good].reshape(-1, 3), -d[good].reshape(-1), rcond=None)[0]
             R = cv2.Rodrigues(w)[0] @ R
     out = np.full(xy.shape, np.nan)
-    out[ok] = camera_b.project(v[ok] @ R.T) - np.asarray(pixels, float).reshape(-1, 2)[ok]
+    out[ok] = camera_b.project(v[ok] @ R.T) - pixels[ok]
     return out
+
+def linearity(camera, cov, region):
+    """Does the projection stay linear in the intrinsics over their uncertainty? Every
+    projection uncertainty here (and the two halves' predicted difference) is the first-order
+    response ``A_q C A_q^T``; it describes the calibration only while a one-sigma change of
+    the intrinsics moves the projection as ``A_q`` says. A lens model whose coefficients the
+    views do not determine (OpenCV's rational model, whose numerator and denominator can
+    grow together by thousands) has sigmas that reach far past that range, and its
+    linearised uncertainty is then meaningless, large or small.
+
+    The intrinsics are stepped by +-1 sigma along each principal axis of the projection's
+    response (the right singular vectors of ``A L`` over `region`, ``L L^T = cov``); at each
+    step the camera's projection of the region's rays, up to the aligning rotation
+    (`projection_difference`), is compared with the linear ``A L z``.
+
+    camera : the calibrated `Camera`; cov : (P, P) its intrinsics' covariance; region :
+    (M, 2) the pixels the views cover [px].
+
+    Returns ``{"predicted_rms_px": sqrt(mean tr A C A^T) over the region, "departure_rms_px":
+    the RMS over the region and the 2 P steps of exact minus linear, summed over the axes
+    like the prediction, "departure_share": their ratio (inf where a step's rays are
+    lost)}``.
+    """
+    region = np.asarray(region, float).reshape(-1, 2)
+    A = projection_sensitivity(camera, region, region)
+    xy, found = _rays(camera, region)
+    ok = found & np.all(np.isfinite(A), (-1, -2))
+    A, region, xy = A[ok], region[ok], xy[ok]
+    ref = (xy, region)
+    w, V = np.linalg.eigh(0.5 * (np.asarray(cov, float) + np.asarray(cov, float).T))
+    L = V * np.sqrt(np.clip(w, 0.0, None))
+    M = (A @ L).reshape(-1, L.shape[1])
+    Z = np.linalg.svd(M, full_matrices=False)[2]                      # (P, P) whitened axes
+    theta = intrinsics_vector(camera)
+    pred2 = float(np.sum(M * M)) / max(region.shape[0], 1)
+    dep2 = 0.0
+    for z in Z:
+        step = L @ z
+        lin = (A @ step).reshape(-1, 2)
+        for sign in (1.0, -1.0):
+            exact = _aligned_difference(with_intrinsics(camera, theta + sign * step), xy, np.ones(len(xy), bool),
+                                        region, ref)
+            if not np.all(np.isfinite(exact)):
+                return {"predicted_rms_px": float(np.sqrt(pred2)), "departure_rms_px": float("inf"),
+                        "departure_share": float("inf")}
+            dep2 += 0.5 * float(np.sum((exact - sign * lin) ** 2)) / region.shape[0]
+    pred = float(np.sqrt(pred2))
+    return {"predicted_rms_px": pred, "departure_rms_px": float(np.sqrt(dep2)),
+            "departure_share": float(np.sqrt(dep2)) / pred if pred > 0 else float("inf")}
