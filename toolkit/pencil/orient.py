@@ -46,7 +46,7 @@ from pencilcal.toolkit.pencil.estimator import (
     swap_twins,
     choose_by_prior,
 )
-from pencilcal.toolkit.geometry.frames import normalize, rotation_angle, rotation_from_rotvec
+from pencilcal.toolkit.geometry.frames import normalize, rotation_angle, rotation_from_rotvec, skew
 from pencilcal.toolkit.geometry.quantiles import nanmedian_rows
 from pencilcal.toolkit.pencil.defaults import DETECTION_LEVEL, ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.lens_uncertainty import orientation_totals, resolve_intrinsics_cov
@@ -665,11 +665,9 @@ def _bend_on_circles(fit, circ, vertex, tau2, M_bend):
     squared, as its normal's precision grows); b of covariance tau2 S. Returns (the
     difference's covariance, the circles' own share) (3, 3) [rad^2], `circle.circle_record`'s
     shared."""
-    n = np.asarray(fit.normal, float)
-    K = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
     M_c = circle_bend_response(fit.R_cam_from_target, vertex, circ.radii,
                                np.asarray(circ.points, float) * np.asarray(circ.radii, float) ** 2)
-    D = -K @ M_bend - M_c
+    D = -skew(np.asarray(fit.normal, float)) @ M_bend - M_c
     S = tau2 * CYLINDER_SHAPE
     return D @ S @ D.T, M_c @ S @ M_c.T
 
