@@ -44,7 +44,8 @@ class RadialTrial:
     normal sigma; bound_deg: the normal's bound at the truth (module docstring); chi2: the
     normal error's chi2 (2 dof) with the reported covariance; circle_err_deg,
     circle_sigma_deg: the circles' normal's error and sigma (None without circles);
-    conditions: the rendering's conditions.
+    conditions: the rendering's conditions; misfit_scale: the factor the lines' misfit widened
+    their error variances by (the record's, `pencil.bend`; None where not measured).
     """
 
     kind: str
@@ -60,6 +61,7 @@ class RadialTrial:
     circle_err_deg: float | None
     circle_sigma_deg: float | None
     conditions: dict
+    misfit_scale: float | None = None
 
 
 def radial_conditions(n, seed=0, kinds=KINDS):
@@ -170,7 +172,7 @@ def _compared(kind, cond, cam, pen, R, t, found, rec):
     return RadialTrial(kind, pen.count, int(rec.spokes_used), True, resolved, bool(twin_right),
                        float(min(err, err_twin) if not resolved else (err if twin_right else err_twin)),
                        float(rec.normal_sigma_deg), float(np.degrees(np.sqrt(np.trace(cov_true)))), chi2, circ_err,
-                       rec.circle_normal_sigma_deg, cond)
+                       rec.circle_normal_sigma_deg, cond, rec.misfit_scale)
 
 
 def _normal_chi2(n_est, cov, n_true):

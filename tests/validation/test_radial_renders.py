@@ -148,9 +148,11 @@ def test_photographs_sigmas_are_not_many_times_their_errors(photos):
     vertex as turns: a print's dot gain (every edge moved towards the paper) and the vertex's
     offset from the edges' own intersection (a wedge's two edges moved apart) are none, and the
     sigmas were 10-110 times the bound on frames 0, 4, 5, 6 and 7 (0.25 and 1.07 deg on 0 and
-    4, errors 0.004 and 0.009 deg). Measured now: 1.2-2.9 times, chi2 0.14-1.5."""
+    4, errors 0.004 and 0.009 deg). Measured: 1.2-2.9 times, chi2 0.14-1.5; with the lines'
+    misfit scaling their error variances (`pencil.bend`) 1.3-5.1 times, the bound then widened
+    by the square root of the misfit's scale (the lines' own scatter) as the sigma is."""
     big = [t for t in photos if t.conditions["fill"] >= 0.3]
-    ratios = [t.sigma_deg / t.bound_deg for t in big]
+    ratios = [t.sigma_deg / (t.bound_deg * np.sqrt(t.misfit_scale or 1.0)) for t in big]
     assert len(big) == 6 and max(ratios) < 4.0, ratios
 
 

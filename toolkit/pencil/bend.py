@@ -16,6 +16,12 @@ b ~ N(0, tau^2 S) with S the shape of a cylinder's bend in a direction drawn uni
 explains beyond what their noise does: `bend_covariance`). The fit itself is unchanged; its
 rotation's covariance gains the bend's share, tau^2 M S M^T (M: the fit's response to b).
 On a flat sheet the estimate is 0 (95 % of the time) and the sigmas stay as they were.
+
+What misfit is left once the bend's fit is taken out is the lines' own errors being larger
+than their sds say: its chi2 per degree of freedom (the lines less the turn's 3 and the
+bend's 3), where over one, scales the lines' error variances (`bend_covariance`'s scale), and
+the bend is told from the noise so widened (lines that scatter twice their sds show a bend's
+chi2 four times chance on a flat sheet).
 """
 from __future__ import annotations
 
@@ -25,7 +31,8 @@ from pencilcal.toolkit.geometry.angles import wrap_line
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.pencil.estimator import pencil_jacobian
 
-__all__ = ["CYLINDER_SHAPE", "BEND_SAMPLES", "BEND_CHANCE", "bend_response", "bend_covariance"]
+__all__ = ["CYLINDER_SHAPE", "BEND_SAMPLES", "BEND_CHANCE", "bend_response", "bend_covariance",
+           "circle_bend_response"]
 
 #: E[b b^T] of a cylindrical bend of unit curvature about an axis in a direction drawn
 #: uniformly in the plane: b = (c^2, c s, s^2) with (c, s) the bend's direction.
@@ -92,8 +99,17 @@ def bend_covariance(R_cam_from_target, vertex, spoke_angles, angles, sigma, p1, 
     the fit's response to b, M = H^-1 J^T W G: the normal's spread over bends of that size
     in any direction.
 
+    The misfit the bend leaves, the residuals less the bend's fit to them (G_p b_hat), has
+    chi2 on K - 6 degrees of freedom: per degree of freedom it is the factor by which the
+    lines' errors exceed their sds, every line alike (scale, at least 1; to multiply the
+    variances of sigma_error). The bend is told from that noise: q / scale against the
+    chance quantile, and V scale times wider (tau^2 = max(0, q / scale - BEND_CHANCE) scale /
+    tr(V^-1 S)); q itself is reported against the lines' own sds.
+
     Returns (cov (3, 3) [rad^2] to add to the rotation's covariance (left perturbation),
-    q, tau2). Zeros where the lines cannot tell a bend (fewer than 7 lines).
+    q, tau2, scale, M (3, 3): the rotation's move per unit b, cov = tau2 M S M^T). Zeros, q
+    None and scale 1 where the lines cannot tell a bend (fewer than 7 lines, or a bend no
+    turn of theirs tells from a tilt).
     """
     R = np.asarray(R_cam_from_target, float)
     x = np.asarray(vertex, float)
@@ -101,7 +117,7 @@ def bend_covariance(R_cam_from_target, vertex, spoke_angles, angles, sigma, p1, 
     s = np.asarray(sigma, float)
     se = s if sigma_error is None else np.asarray(sigma_error, float)
     if a.size < 7:  # 3 for the turn, 3 for the bend, one to tell them from noise
-        return np.zeros((3, 3)), 0.0, 0.0
+        return np.zeros((3, 3)), None, 0.0, 1.0, np.zeros((3, 3))
     alpha, J, Jx = pencil_jacobian(R, x, np.asarray(spoke_angles, float))
     r = wrap_line(a - alpha)  # residuals, the line's direction either way
     G, X = bend_response(R, x, p1, p2, s, offset_sigma)
@@ -112,12 +128,51 @@ def bend_covariance(R_cam_from_target, vertex, spoke_angles, angles, sigma, p1, 
     we = 1.0 / se**2
     F = Gp.T @ (Gp * we[:, None])
     if np.linalg.cond(F) > 1e12:
-        return np.zeros((3, 3)), 0.0, 0.0
+        return np.zeros((3, 3)), None, 0.0, 1.0, np.zeros((3, 3))
     A = np.linalg.solve(F, Gp.T * we)  # b_hat = A r
     AP = A - (A @ J) @ HiJW  # the residual maker applied first: the noise b_hat sees
     V = (AP * se**2) @ AP.T
     b = A @ r
+    # the misfit the bend's fit leaves: the lines' errors wider than their sds (every line
+    # alike), the noise the bend is then told from
+    scale = max(1.0, float(np.sum(((r - Gp @ b) / se) ** 2)) / (a.size - 6))
     q = float(b @ np.linalg.solve(V, b))
-    tau2 = max(0.0, q - BEND_CHANCE) / float(np.trace(np.linalg.solve(V, CYLINDER_SHAPE)))
+    tau2 = max(0.0, q / scale - BEND_CHANCE) * scale / float(np.trace(np.linalg.solve(V, CYLINDER_SHAPE)))
     M = HiJW @ G
-    return tau2 * M @ CYLINDER_SHAPE @ M.T, q, tau2
+    return tau2 * M @ CYLINDER_SHAPE @ M.T, q, tau2, scale, M
+
+
+def circle_bend_response(R_cam_from_target, vertex, radii, weights=None, samples=72, h=1e-3):
+    """How a bend of the sheet moves the circles' normal (the poles' polars of their images,
+    `circle.conic_normal`): a bend lifts a circle about the vertex by rho^2 / 2 (b1 c^2 +
+    2 b2 c s + b3 s^2), a lift that varies twice round it, and its image is the ellipse of a
+    circle on a plane tilted otherwise, where the lines' normal, spokes all round, hardly moves.
+
+    R_cam_from_target: (3, 3) the fitted plane; vertex: (2,) normalised; radii: (C,) the
+    circles' radii on the plane [units of the vertex's depth]; weights: (C,) or None, how
+    much each circle counts in their normal (equal without). Each circle's image is fitted
+    flat and lifted by +-h per component of b (`samples` points, no noise).
+
+    Returns (3, 3): the circles' normal's change (camera frame) per unit b.
+    """
+    from pencilcal.toolkit.geometry.conic import fit_ellipse
+    from pencilcal.toolkit.pencil.circle import conic_normal
+
+    R = np.asarray(R_cam_from_target, float)
+    x = np.asarray(vertex, float)
+    n = R[:, 2]
+    rho = np.asarray(radii, float).reshape(-1)
+    w = np.ones(rho.size) if weights is None else np.asarray(weights, float).reshape(-1)
+    phi = np.linspace(0.0, 2 * np.pi, samples, endpoint=False)
+    out = np.zeros((3, 3))
+    for r, wc in zip(rho, w / w.sum()):
+        u, v = r * np.cos(phi), r * np.sin(phi)
+        flat = np.append(x, 1.0)[:, None] + R[:, :2] @ np.stack([u, v])  # (3, S)
+        for j, lift in enumerate((0.5 * u * u, u * v, 0.5 * v * v)):
+            moved = []
+            for sgn in (1.0, -1.0):
+                P = flat + np.outer(n, sgn * h * lift)
+                m = conic_normal(fit_ellipse((P[:2] / P[2]).T).conic, x)[0]
+                moved.append(m if m @ n > 0 else -m)
+            out[:, j] += wc * (moved[0] - moved[1]) / (2 * h)
+    return out

@@ -519,7 +519,7 @@ def circle_choice(fit, est):
     return bool(which), bool(decisive), chi, chit
 
 
-def circle_record(fit, est, lines_own=None, vertex_cov=None):
+def circle_record(fit, est, lines_own=None, vertex_cov=None, shared=None):
     """The orientation record's circle keys for the chosen rotation of `fit` (a PencilFit)
     and the circles' estimate `est`: circle_normal, circle_normal_sigma_deg, circle_tilt_deg,
     circles_used, circle_angle_deg, circle_chi2 and circle_consistent (the chi2 of the two
@@ -529,7 +529,10 @@ def circle_record(fit, est, lines_own=None, vertex_cov=None):
     normal's covariance with the vertex held (3, 3), how their normal moves with the vertex
     (3, 2)) and the vertex's covariance vertex_cov (2, 2) (normalised), the difference's
     covariance is their own parts plus the vertex's term on the difference; without, the
-    two covariances are added as if independent."""
+    two covariances are added as if independent. shared: None or (the difference's
+    covariance (3, 3), the circles' normal's share (3, 3)) [rad^2] from an error both see
+    (a printed sheet's bend: `orient._bend_on_circles`), added to the difference's and to the
+    circles' sigma."""
     from pencilcal.toolkit.pencil.defaults import CHI2_2_DETECTION
 
     if lines_own is None or vertex_cov is None:
@@ -538,9 +541,12 @@ def circle_record(fit, est, lines_own=None, vertex_cov=None):
     else:
         dJ = est.jac_vertex - lines_own[1]
         ang, chi2 = normal_agreement(fit.normal, lines_own[0], est.normal,
-                                     est.cov_conics + dJ @ np.asarray(vertex_cov, float) @ dJ.T)
+                                     est.cov_conics + dJ @ np.asarray(vertex_cov, float) @ dJ.T
+                                     + (0.0 if shared is None else np.asarray(shared[0], float)))
     tilt = float(np.degrees(np.arccos(np.clip(est.normal @ np.asarray(fit.ray, float), -1.0, 1.0))))
-    return dict(circle_normal=est.normal, circle_normal_sigma_deg=est.sigma_deg, circle_tilt_deg=tilt,
+    sigma = est.sigma_deg if shared is None else \
+        float(np.sqrt(est.sigma_deg**2 + np.degrees(np.sqrt(max(np.trace(shared[1]), 0.0))) ** 2))
+    return dict(circle_normal=est.normal, circle_normal_sigma_deg=sigma, circle_tilt_deg=tilt,
                 circles_used=int(est.circles), circle_angle_deg=ang, circle_chi2=chi2,
                 circle_consistent=bool(chi2 <= CHI2_2_DETECTION))
 

@@ -415,11 +415,11 @@ def _covariance(R, x, J, Jx, w, vertex_cov, w_error=None, shared_cov=None):
     # At zero tilt the tilt directions are unobservable to first order: a tiny ridge keeps
     # the inverse finite (and huge) instead of singular.
     ridge = (1e-14 * np.trace(H, axis1=-2, axis2=-1))[..., None, None] * np.eye(3)
-    Hinv = np.linalg.inv(H + ridge)
+    Hinv = H_inv = np.linalg.inv(H + ridge)
     if w_error is not None:
         # the fit weighted by w, its angles' errors of variance 1 / w_error: the solution
         # moves by H^-1 J^T W r, whose covariance is H^-1 J^T W C W J H^-1 (H^-1 where C = W^-1)
-        Hinv = Hinv @ (JT @ (J * (w * w / w_error)[..., None])) @ Hinv
+        Hinv = H_inv @ (JT @ (J * (w * w / w_error)[..., None])) @ H_inv
     n = R[..., :, 2]
     nv = np.sqrt(1.0 + x[..., 0] ** 2 + x[..., 1] ** 2)
     v = np.concatenate([x, np.ones(x.shape[:-1] + (1,))], -1) / nv[..., None]
@@ -437,7 +437,7 @@ def _covariance(R, x, J, Jx, w, vertex_cov, w_error=None, shared_cov=None):
         Cx = np.asarray(vertex_cov, float)
         # sensitivity of the solution to the vertex: with r = a - alpha, d r/d delta = -J and
         # d r/d x = -Jx, the solution moves by G dx with G = -H^-1 J^T W Jx
-        G = -Hinv @ (JT @ (Jx * w[..., None]))
+        G = -H_inv @ (JT @ (Jx * w[..., None]))  # the fit's own response, whatever its angles' errors
         cov = cov + G @ Cx @ np.swapaxes(G, -1, -2)
         # the tilt also moves with the ray itself: d v_hat / d x = (I - v v^T)[:, :2] / |v|
         P = (np.eye(3) - v[..., :, None] * v[..., None, :])[..., :, :2] / nv[..., None, None]

@@ -35,7 +35,7 @@ import numpy as np
 from pencilcal.toolkit.geometry.angles import wrap_angle
 from pencilcal.toolkit.pencil.assign import assign_spokes, grow_labels
 from pencilcal.toolkit.pencil.bar_centre import centre_lines
-from pencilcal.toolkit.pencil.bend import bend_covariance
+from pencilcal.toolkit.pencil.bend import CYLINDER_SHAPE, bend_covariance, circle_bend_response
 from pencilcal.toolkit.pencil.circle import circle_record
 from pencilcal.toolkit.pencil.confirm import unconfirmed_labelling
 from pencilcal.toolkit.errors import EstimationError, InputError
@@ -46,7 +46,7 @@ from pencilcal.toolkit.pencil.estimator import (
     swap_twins,
     choose_by_prior,
 )
-from pencilcal.toolkit.geometry.frames import normalize, rotation_angle, rotation_from_rotvec
+from pencilcal.toolkit.geometry.frames import normalize, rotation_angle, rotation_from_rotvec, skew
 from pencilcal.toolkit.geometry.quantiles import nanmedian_rows
 from pencilcal.toolkit.pencil.defaults import DETECTION_LEVEL, ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.lens_uncertainty import orientation_totals, resolve_intrinsics_cov
@@ -306,8 +306,18 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
         fit, resolved_by, circ = _resolve_by_circles(camera, fit, ln, th_used, s_used, resolved_by, circle_points,
                                                      pencil)
         s_err = None if widen is None else s_used * widen[used]
+        bend, sheet = None, {}
+        if pencil.shape != "line":  # a printed radial target: its sheet's bend turns every spoke alike
+            bend, q, tau2, scale, M_bend = bend_covariance(fit.R_cam_from_target, ln.vertex, th_used, a_used,
+                                                           s_used, ln.p1[used], ln.p2[used],
+                                                           sc[through][used] * np.sqrt(abs(np.linalg.det(A))), s_err)
+            bend = bend if tau2 > 0 else None
+            if scale > 1.0:  # the misfit the bend leaves: the lines' errors wider than their sds
+                s_err = (s_used if s_err is None else s_err) * np.sqrt(scale)
+            sheet = dict(bend_chi2=q, bend_taken=tau2 > 0, misfit_scale=scale)
         own = None if circ is None else _lines_own(fit, ln, a_used, th_used, s_used, s_err)
-        circles = None if circ is None else circle_record(fit, circ, own, ln.vertex_cov)
+        shared = None if circ is None or bend is None else _bend_on_circles(fit, circ, ln.vertex, tau2, M_bend)
+        circles = None if circ is None else circle_record(fit, circ, own, ln.vertex_cov, shared)
         if labels is None:  # (given labels, a tracked frame's, passed the previous frame's tests)
             unconfirmed_labelling(pencil, searched, resolved_by, circle_points, circ,
                                   None if circles is None else circles["circle_consistent"],
@@ -318,11 +328,6 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
         floored = floored_vertex_cov(cov_ideal, vertex_floor_px)
         if floored is not None:  # every decision taken: the vertex no surer than the point it was found about
             cov_ideal, ln = floored, ln._replace(vertex_cov=_normalised_cov(camera, floored))
-        bend = None
-        if pencil.shape != "line":  # a printed radial target: its sheet's bend turns every spoke alike
-            bend = bend_covariance(fit.R_cam_from_target, ln.vertex, th_used, a_used, s_used, ln.p1[used],
-                                   ln.p2[used], sc[through][used] * np.sqrt(abs(np.linalg.det(A))), s_err)[0]
-            bend = bend if np.any(bend) else None
         if s_err is not None or floored is not None or bend is not None:  # the covariance under the wider errors
             cov, s_tilt, s_norm = pencil_covariance(fit.R_cam_from_target, ln.vertex, th_used, s_used, ln.vertex_cov,
                                                     sigma_error=s_err, shared_cov=bend)
@@ -336,7 +341,7 @@ def _orient_once(camera, segments, ideal, pencil, *, model, endpoint_sigma_px, a
             rec = rec.replace(**orientation_totals(
                 camera, C, fit.R_cam_from_target, ln.vertex, fit.cov, rec.tilt_sigma_deg, rec.vertex_cov_px2,
                 seg[idx[used]], a_used, th_used, s_used, seg[idx], st, sc[through], vertex_px))
-        extra = dict(labels_ambiguous=bool(labels_ambiguous), normal_ambiguous=bool(alt),
+        extra = dict(sheet, labels_ambiguous=bool(labels_ambiguous), normal_ambiguous=bool(alt),
                      normal_alternatives=alt or None, spokes=labels_out,
                      spokes_used=int(np.unique(edge_spoke[lab[used]]).size))
         if keep_lines:
@@ -651,6 +656,20 @@ def _resolve_by_circles(camera, fit, ln, th_used, s_used, resolved_by, circle_po
         fit = swap_twins(fit, which, th_used, ln.vertex, s_used, ln.vertex_cov, resolved_by="circle")
         resolved_by = "circle"
     return fit, resolved_by, est
+
+
+def _bend_on_circles(fit, circ, vertex, tau2, M_bend):
+    """The sheet's bend on the circles' agreement with the lines: one bend moves both normals,
+    the lines' by -[n]x M_bend b (`bend.bend_covariance`) and the circles' as their images
+    move (`bend.circle_bend_response`, each circle weighted by its points times its radius
+    squared, as its normal's precision grows); b of covariance tau2 S. Returns (the
+    difference's covariance, the circles' own share) (3, 3) [rad^2], `circle.circle_record`'s
+    shared."""
+    M_c = circle_bend_response(fit.R_cam_from_target, vertex, circ.radii,
+                               np.asarray(circ.points, float) * np.asarray(circ.radii, float) ** 2)
+    D = -skew(np.asarray(fit.normal, float)) @ M_bend - M_c
+    S = tau2 * CYLINDER_SHAPE
+    return D @ S @ D.T, M_c @ S @ M_c.T
 
 
 def _lines_own(fit, ln, a_used, th_used, s_used, s_err=None, h=1e-6):

@@ -48,7 +48,8 @@ _OPTIONAL = ("tilt_threshold_deg", "labels_ambiguous", "normal_ambiguous", "norm
              "spokes_used",
              "lines", "vertex_cam", "t_cam_from_target", "tilt_sigma_total_deg", "normal_sigma_total_deg",
              "vertex_cov_total_px2", "intrinsics_used", "tilt_sigma_shutter_deg", "normal_sigma_shutter_deg", "chi2", "circle_normal", "circle_normal_sigma_deg",
-             "circle_tilt_deg", "circles_used", "circle_angle_deg", "circle_chi2", "circle_consistent")
+             "circle_tilt_deg", "circles_used", "circle_angle_deg", "circle_chi2", "circle_consistent", "bend_chi2",
+             "bend_taken", "misfit_scale")
 _ARRAYS = {"vertex_px": (2,), "vertex_cov_px2": (2, 2), "normal": (3,), "normal_twin": (3,),
            "R_cam_from_target": (3, 3), "R_cam_from_target_twin": (3, 3), "ray": (3,), "vertex_cam": (3,),
            "t_cam_from_target": (3,), "vertex_cov_total_px2": (2, 2), "circle_normal": (3,)}
@@ -73,7 +74,10 @@ class Orientation:
     freedom; `sequence_noise` pools it); circle_*: the plane's normal from the images of
     circles about the vertex (`circle`), its sigma [deg] and tilt [deg], how many circles,
     its angle [deg] from ``normal`` and their difference's chi2 (2 dof), and whether that is
-    within the 99 % quantile (circle_consistent).
+    within the 99 % quantile (circle_consistent); bend_chi2, bend_taken, misfit_scale
+    (printed radial targets): the chi2 (3 dof) of the sheet's bend the lines show, whether
+    its term is in the covariance, and the factor (at least 1) by which the misfit it leaves
+    widens the lines' error variances (`bend`).
     """
 
     image: str | None = None
@@ -118,6 +122,9 @@ class Orientation:
     circle_angle_deg: float | None = None
     circle_chi2: float | None = None
     circle_consistent: bool | None = None
+    bend_chi2: float | None = None
+    bend_taken: bool | None = None
+    misfit_scale: float | None = None
 
     def replace(self, **changes) -> "Orientation":
         """A copy with `changes` (dataclasses.replace)."""
