@@ -39,7 +39,8 @@ the step edge may be pixels inside). The limb e is where the band ends.
 Per edge (`refine_edge`): the profiles across the step fit's line at stations 1 px apart,
 linearised, averaged over bins of `BIN_PX` along the edge (a bin's mean profile has the
 noise down by the square root of its stations), the model fitted to each bin's, and the
-edge line refitted through the bins' limbs (weighted least squares), with the a-posteriori
+edge line refitted through the bins' limbs (weighted least squares, a bin far off the
+others' line left out: `_gross_bins`), with the a-posteriori
 variances of its offset and slope (the scatter of the bins about the line, at least the
 fits' own). `limb_edges` refines both edges of a shaft, each bin's W from the other edge.
 Where the profiles do not pin the limb down (the diffuse and specular terms trading off
@@ -373,12 +374,8 @@ def _line_through(edge, s, t, v, nb):
     s, t, v = s[keep], t[keep], v[keep]
     w = 1.0 / np.maximum(v, 1e-8)
     W = w.sum()
-    sm = float(np.sum(w * s) / W)
-    ds = s - sm
-    Sss = max(float(np.sum(w * ds * ds)), 1e-12)
-    b = float(np.sum(w * ds * (t - np.sum(w * t) / W)) / Sss)
-    tm = float(np.sum(w * t) / W)
-    r = t - tm - b * ds
+    sm, tm, b, r = _wls_line(s, t, w)
+    Sss = max(float(np.sum(w * (s - sm) ** 2)), 1e-12)
     chi2 = float(np.sum(w * r * r)) / max(len(s) - 2, 1)
     scale = max(chi2, 1.0)
     return replace(edge, sm=sm, tm=tm, b=b, var_t=scale / W, var_b=scale / Sss, s_lo=float(s.min()),
