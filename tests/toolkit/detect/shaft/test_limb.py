@@ -242,5 +242,6 @@ def test_greenscreen_limb_edges_follow_the_silhouette():
     c = 0.5 * (limb[0].ideal_midline[:2] + limb[0].ideal_midline[2:])
     e = np.asarray(step[0].ideal_edges, float)
     u = e[:, 2:] - e[:, :2]
-    dist = np.abs(np.cross(u, c - e[:, :2])) / np.linalg.norm(u, axis=1)
+    v = c - e[:, :2]
+    dist = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]) / np.linalg.norm(u, axis=1)
     assert -0.5 < limb[0].width_px - dist.sum() < 2.0, (limb[0].width_px, dist.sum())
