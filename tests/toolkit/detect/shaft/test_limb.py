@@ -201,3 +201,47 @@ def test_stereo_pivots_rendered(n_pivots=10):
     rms = {k: np.sqrt(np.mean(np.square(v))) for k, v in err.items()}
     assert rms["stereo"] <= min(rms["left"], rms["right"]) and max(err["stereo"]) < 1.0, rms
     assert 0.5 <= np.mean(inside) <= 0.9
+
+
+def test_a_gross_bin_does_not_tilt_the_edge():
+    """One bin's limb pixels off the others' line (a window moved out past a clipping part
+    onto the background) is left out of the edge's line; bins that merely scatter stay."""
+    from pencilcal.toolkit.detect.shaft.limb import _gross_bins
+
+    s = np.arange(8) * 12.0 + 6.0
+    t = np.array([0.58, -0.29, 0.11, 0.06, -0.01, 0.01, 0.04, 31.9])
+    v = np.full(8, 0.01)
+    assert _gross_bins(s, t, v).tolist() == [True] * 7 + [False]
+    scatter = np.random.default_rng(3).normal(0, 1.0, 8)
+    assert _gross_bins(s, scatter, v).all()
+
+
+def test_greenscreen_limb_edges_follow_the_silhouette():
+    """The EndoWrist over the green screen (box-trainer-and-greenscreen, 540x405, gamma 2.2):
+    a glossy grey shaft whose wrist clips. One bin of an edge read its limb 32 px out, where
+    its moved window levelled on the bright drape, and tilted that edge by 10 deg into the
+    drape. Left out, both limb edges lie along the step edges (within 0.5 deg) and the band
+    reads at most 2 px wider than the step edges where it is measured (the shading's direction)."""
+    import cv2
+
+    from tests.conftest import data_dir
+
+    img = cv2.imread(str(data_dir("real-instruments") / "box-trainer-and-greenscreen" / "greenscreen.png"))
+    cam = Camera("pinhole", 540, 405, [[432.0, 0, 269.5], [0, 432.0, 202.0], [0, 0, 1]])
+    step = detect_shafts(img, cam, edge_model="step")
+    limb = detect_shafts(img, cam, edge_model="limb")
+    assert len(step) == len(limb) == 1 and limb[0].edge_model == "limb"
+
+    def angles(sh):
+        e = np.asarray(sh.ideal_edges, float)
+        return np.degrees(np.arctan2(e[:, 3] - e[:, 1], e[:, 2] - e[:, 0]))
+
+    d = (angles(limb[0]) - angles(step[0]) + 90.0) % 180.0 - 90.0
+    assert np.all(np.abs(d) < 0.5), d
+    # the step band's width where the limb band is measured (the step edges converge)
+    c = 0.5 * (limb[0].ideal_midline[:2] + limb[0].ideal_midline[2:])
+    e = np.asarray(step[0].ideal_edges, float)
+    u = e[:, 2:] - e[:, :2]
+    v = c - e[:, :2]
+    dist = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]) / np.linalg.norm(u, axis=1)
+    assert -0.5 < limb[0].width_px - dist.sum() < 2.0, (limb[0].width_px, dist.sum())
