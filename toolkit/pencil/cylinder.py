@@ -907,17 +907,22 @@ def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None, c
     """
     x1, x2 = np.asarray(x1, float), np.asarray(x2, float)
     C1, C2 = np.asarray(C1, float), np.asarray(C2, float)
-    if unweighted1 is not None:
-        f = combine_estimates(x1, C1, x2, C2, confidence, shared, common, shared_own)
-        # the weights as without it: x1's error E moves the point by W1 E
-        base = f if common is None else combine_estimates(x1, C1, x2, C2, confidence, shared)
-        W1 = base.cov @ np.linalg.inv(C1)
-        cov = f.cov + W1 @ np.asarray(unweighted1, float) @ np.swapaxes(W1, -1, -2)
-        cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
-        return replace(f, cov=cov, sigma=np.sqrt(np.trace(cov, axis1=-2, axis2=-1)))
+    f, W1 = _fused(x1, C1, x2, C2, confidence, shared, common, shared_own)
+    if unweighted1 is None:
+        return f
+    # the weights as without it: x1's error E moves the point by W1 E
+    cov = f.cov + W1 @ np.asarray(unweighted1, float) @ np.swapaxes(W1, -1, -2)
+    cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    return replace(f, cov=cov, sigma=np.sqrt(np.trace(cov, axis1=-2, axis2=-1)))
+
+
+def _fused(x1, C1, x2, C2, confidence, shared, common, shared_own):
+    """`combine_estimates` without ``unweighted1``: (the `Fusion`, W1 (..., n, n) the weight
+    x1 has in its point, ``cov C1^-1`` of the fusion without ``common``), in one pass of the
+    shared-only fusion."""
     if common is not None:
         S = common_part(common, C1, C2)
-        f = combine_estimates(x1, C1, x2, C2, confidence, shared)
+        f, _ = _fused(x1, C1, x2, C2, confidence, shared, None, None)
         # the same weights, W_k = cov I_k; the error both carry adds W1 S W2^T + W2 S W1^T
         W1, W2 = f.cov @ np.linalg.inv(C1), f.cov @ np.linalg.inv(C2)
         cross = W1 @ S @ np.swapaxes(W2, -1, -2)
@@ -925,13 +930,15 @@ def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None, c
         if np.any(np.linalg.eigvalsh(cov)[..., 0] <= 0):
             raise EstimationError("combine_estimates: the common error exceeds what the estimates hold")
         try:
-            test = combine_estimates(x1, C1 - S, x2, C2 - S, confidence, shared if shared_own is None else shared_own)
+            test, _ = _fused(x1, C1 - S, x2, C2 - S, confidence, shared if shared_own is None else shared_own,
+                             None, None)
         except EstimationError:
             # the own information exceeds what the noise parts hold together (their fusion,
             # not used here, is not positive definite): the test as with `shared`
-            test = combine_estimates(x1, C1 - S, x2, C2 - S, confidence, shared)
+            test, _ = _fused(x1, C1 - S, x2, C2 - S, confidence, shared, None, None)
         return Fusion(point=f.point, cov=cov, sigma=np.sqrt(np.trace(cov, axis1=-2, axis2=-1)), chi2=test.chi2,
-                      dof=test.dof, threshold=test.threshold, consistent=test.consistent, p_value=test.p_value)
+                      dof=test.dof, threshold=test.threshold, consistent=test.consistent,
+                      p_value=test.p_value), W1
     I1, I2 = np.linalg.inv(C1), np.linalg.inv(C2)
     if shared is None:
         I_s, h_s = np.zeros_like(I1), np.zeros_like(x1)
@@ -961,7 +968,7 @@ def combine_estimates(x1, C1, x2, C2, confidence=GATE_CONFIDENCE, shared=None, c
     dof = int(np.min(dof)) if np.ndim(dof) else int(dof)
     threshold = chi2_isf(1.0 - confidence, dof)
     return Fusion(point=point, cov=cov, sigma=np.sqrt(np.trace(cov, axis1=-2, axis2=-1)), chi2=c2, dof=dof,
-                  threshold=threshold, consistent=c2 <= threshold, p_value=chi2_sf(c2, dof))
+                  threshold=threshold, consistent=c2 <= threshold, p_value=chi2_sf(c2, dof)), cov @ I1
 
 
 def common_part(common, *covs, margin=0.9):

@@ -15,13 +15,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from pencilcal.toolkit.errors import EstimationError
+from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
 from pencilcal.toolkit.geometry.quantiles import chi2_sf
 from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fusion, RayTriangulation, combine_estimates,
                                                triangulate_rays)
 from pencilcal.toolkit.pencil.fulcrum import Fulcrum
 from pencilcal.toolkit.pencil.stereo_play import play_covariance, shared_offset_term, shared_ray_cov
 
-__all__ = ["StereoFulcrum", "stereo_fulcrum", "triangulation_lens_cov"]
+__all__ = ["StereoFulcrum", "stereo_fulcrum", "triangulation_lens_cov", "triangulation_rig_cov"]
 
 
 _RIGHT_KEYS = ("vertex_px", "vertex_cov_px2", "ray", "ray_cov", "ray_sigma_deg", "lines_used", "outliers",
@@ -44,7 +45,10 @@ class StereoFulcrum:
     from the views in lens_views ("left", "right": those whose camera carried an
     intrinsics covariance), None when neither did. common_cov (3, 3): the 3-D offset both
     views' rays share (`play_covariance`), in the triangulated and the combined point's
-    covariances whole.
+    covariances whole. rig_cov (3, 3): the rig calibration's term of the triangulated
+    point's covariance (`triangulation_rig_cov`), in it and in the combined point's as
+    much as the fusion took from the triangulated point; None when the rig has no
+    covariance.
     """
 
     rig: object
@@ -56,12 +60,14 @@ class StereoFulcrum:
     lens_cov: np.ndarray | None = None
     lens_views: tuple = ()
     common_cov: np.ndarray | None = None
+    rig_cov: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         """fulcrum.json's ``stereo`` record: the rig (``file``, ``R_right_from_left``,
         ``t_right_from_left``, ``baseline``), ``right`` (the right view's fulcrum keys),
         ``triangulated`` (``point``, ``point_cov``, ``point_sigma``, ``ranges``,
-        ``ray_distances``, ``chi2``, ``dof``, ``p_value``; with the intrinsics' covariance
+        ``ray_distances``, ``chi2``, ``dof``, ``p_value``; ``point_cov_shared``; with the rig's
+        covariance ``point_cov_rig``; with the intrinsics' covariance
         of either camera also ``point_cov_total``, ``point_sigma_total``, ``intrinsics_used``
         and ``intrinsics_views``) and with the diameter ``agreement``
         (``chi2``, ``dof``, ``p_value``, ``threshold``, ``confidence``, ``consistent``,
@@ -76,6 +82,8 @@ class StereoFulcrum:
                                "dof": 1, "p_value": chi2_sf(float(t.chi2), 1)}
         if self.common_cov is not None:
             out["triangulated"]["point_cov_shared"] = np.asarray(self.common_cov, float).tolist()
+        if self.rig_cov is not None:
+            out["triangulated"]["point_cov_rig"] = np.asarray(self.rig_cov, float).tolist()
         if self.lens_cov is not None:
             total = np.asarray(t.point_cov, float) + np.asarray(self.lens_cov, float)
             out["triangulated"].update({"point_cov_total": total.tolist(),
@@ -115,6 +123,36 @@ def triangulation_lens_cov(tri, lens_left, lens_right):
     return 0.5 * (out + out.T)
 
 
+def triangulation_rig_cov(ray_left, cov_left, ray_right, cov_right, rig, step=1e-6):
+    """(3, 3) [length^2] the rig calibration's term of a triangulated point's covariance
+    (left camera frame), or None where the rig has no covariance.
+
+    ray_left, cov_left, ray_right, cov_right: as `cylinder.triangulate_rays` takes them (the
+    right ray in the right camera frame); rig: the `camera.stereo.StereoRig`, its ``cov``
+    (6, 6) that of the rotation vector w [rad] (``R = exp(w) R_right_from_left``) and the
+    translation [length]. A rig error moves the right ray in the left frame: it shifts the
+    point's depth (the disparity) and its across-sight position by ``J cov J^T``, J (3, 6)
+    the point's derivative by (w, t), here by central differences of `triangulate_rays`
+    (steps of `step` rad and `step` times the baseline). The left view's diameter-based
+    point holds none of it: in a fusion it is the triangulated point's own error.
+    """
+    if getattr(rig, "cov", None) is None:
+        return None
+    R, t = np.asarray(rig.R_right_from_left, float), np.asarray(rig.t_right_from_left, float)
+    J = np.zeros((3, 6))
+    for k in range(6):
+        h = step if k < 3 else step * max(rig.baseline, 1e-12)
+        moved = []
+        for sign in (1.0, -1.0):
+            e = np.zeros(3)
+            e[k % 3] = sign * h
+            Rk, tk = (rotation_from_rotvec(e) @ R, t) if k < 3 else (R, t + e)
+            moved.append(np.asarray(triangulate_rays(ray_left, cov_left, ray_right, cov_right, Rk, tk).point, float))
+        J[:, k] = (moved[0] - moved[1]) / (2.0 * h)
+    out = J @ np.asarray(rig.cov, float) @ J.T
+    return 0.5 * (out + out.T)
+
+
 def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     """The 3-D fulcrum from the fulcrum rays of two calibrated views of one pivot.
 
@@ -128,7 +166,9 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     parts (what their lines' sigmas give) and the point's covariance gains what the 3-D
     offset both rays share adds across the line of sight (`play_covariance`: the scatter
     beyond the lines' sigmas, which the instrument's play in its port gives both views
-    alike; `shared_offset_term`: the two rays do not halve it).
+    alike; `shared_offset_term`: the two rays do not halve it), and, where the rig carries
+    its calibration's covariance, what that error moves the point by
+    (`triangulation_rig_cov`: mostly its depth, through the disparity).
 
     When `left` has its diameter-based point (`FulcrumPoint`, lengths in the diameter's
     unit, which must be the rig's), the two are compared and fused
@@ -145,8 +185,9 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     agreement test. With either view's intrinsics' term
     (`Fulcrum.ray_cov_lens`, the camera file's intrinsics covariance) the triangulated
     point's covariance gains it too (`triangulation_lens_cov`, ``StereoFulcrum.lens_cov``);
-    the agreement and the fusion's weights keep the noise-only covariances (the
-    diameter-based point has no intrinsics term, nor its width term). The width term
+    the agreement and the fusion's weights leave it out (the diameter-based point has no
+    intrinsics term, nor its width term); they take the rig's term, which is the
+    triangulated point's alone. The width term
     (`FulcrumPoint.width_cov`: the band width's error the sequence shares, which sets the
     depth the diameter gives) joins the combined point's covariance after the fusion, as
     much of it as the point took from the diameter (``unweighted1``: ``W1 width_cov W1^T``);
@@ -161,6 +202,11 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     tri = triangulate_rays(left.ray, Cl, right.ray, Cr, R, t)
     common = play_covariance(tri, shared_ray_cov(left), R.T @ shared_ray_cov(right) @ R)
     cov = tri.point_cov + shared_offset_term(tri, common)
+    # the rig's calibration error is the triangulated point's own (the diameter-based point
+    # holds none of it): in its covariance, the fusion's weights and the agreement test
+    rig_cov = triangulation_rig_cov(left.ray, Cl, right.ray, Cr, rig)
+    if rig_cov is not None:
+        cov = cov + rig_cov
     tri = dataclasses.replace(tri, point_cov=cov, point_sigma=np.sqrt(np.trace(cov)))
     if np.any(~(np.asarray(tri.ranges) > 0)):
         raise EstimationError("the two views' fulcrum rays meet behind a camera (ranges {:.3g}, {:.3g}): check the "
@@ -171,7 +217,7 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
         lens["lens_cov"] = triangulation_lens_cov(tri, left.ray_cov_lens, None if right.ray_cov_lens is None
                                                   else R.T @ np.asarray(right.ray_cov_lens, float) @ R)
     if left.point is None:
-        return StereoFulcrum(rig, right, tri, confidence=confidence, common_cov=common, **lens)
+        return StereoFulcrum(rig, right, tri, confidence=confidence, common_cov=common, rig_cov=rig_cov, **lens)
     fit = left.point.fit
     shared = True
     # the test takes the common offset out of both covariances: the left ray it cancels is
@@ -186,5 +232,5 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
         shared = False
         fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence, common=common,
                                   unweighted1=left.point.width_cov)
-    return StereoFulcrum(rig, right, tri, fused, shared, confidence, common_cov=common, **lens)
+    return StereoFulcrum(rig, right, tri, fused, shared, confidence, common_cov=common, rig_cov=rig_cov, **lens)
 

@@ -425,3 +425,43 @@ def test_the_width_term_joins_the_combined_covariance_as_the_point_took_it():
     assert np.allclose(added, np.outer(moved, moved), atol=0.05 * float(moved @ moved)), (added, np.outer(moved, moved))
     assert np.linalg.norm(moved) < np.linalg.norm(delta)
     assert float(st.to_dict()["combined"]["point_sigma"]) > float(base.sigma)
+
+
+def test_the_rig_calibration_error_joins_the_triangulated_covariance():
+    # a calibrated rig's rotation and translation carry their error: it moves the right ray in
+    # the left frame, so mostly the triangulated point's depth (the disparity); the
+    # triangulated point's covariance holds it, and it is the point's spread over rigs drawn
+    # from that covariance
+    import dataclasses
+
+    from pencilcal.toolkit.camera.stereo import StereoRig
+    from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
+    from pencilcal.toolkit.pencil.cylinder import triangulate_rays
+    from pencilcal.toolkit.pencil.stereo_fulcrum import triangulation_rig_cov
+
+    left, right = _views()
+    fl = fulcrum_from_frames(CAM, left.frames(), endpoint_sigma_px=MIDLINE_ENDPOINT_PX, shaft_diameter=2 * RADIUS)
+    fr = fulcrum_from_frames(CAM, right.frames(), endpoint_sigma_px=MIDLINE_ENDPOINT_PX)
+    cov6 = np.diag([1e-6, 4e-6, 1e-6, 1e-3, 1e-3, 1e-3])
+    rig = StereoRig(R_RL, T_RL, "rig", cov6)
+    bare = stereo_fulcrum(fl, fr, dataclasses.replace(rig, cov=None))
+    st = stereo_fulcrum(fl, fr, rig)
+    term = triangulation_rig_cov(fl.ray, fl.ray_covariance(), fr.ray, fr.ray_covariance(), rig)
+    assert bare.rig_cov is None and "point_cov_rig" not in bare.to_dict()["triangulated"]
+    assert np.allclose(st.triangulated.point_cov - bare.triangulated.point_cov, term, atol=1e-12)
+    assert np.allclose(st.to_dict()["triangulated"]["point_cov_rig"], term)
+    assert np.allclose(st.triangulated.point, bare.triangulated.point, atol=1e-12)
+    # the spread over rigs drawn from cov6 (the file's rig off by that error)
+    rng = np.random.default_rng(11)
+    moved = []
+    for d in rng.multivariate_normal(np.zeros(6), cov6, 400):
+        moved.append(triangulate_rays(fl.ray, fl.ray_covariance(), fr.ray, fr.ray_covariance(),
+                                      rotation_from_rotvec(d[:3]) @ R_RL, T_RL + d[3:]).point)
+    spread = np.cov(np.array(moved).T)
+    u = normalize(FULCRUM)
+    assert 0.85 < float(u @ spread @ u) / float(u @ term @ u) < 1.15, (u @ spread @ u, u @ term @ u)
+    assert 0.85 < np.trace(spread) / np.trace(term) < 1.15
+    # the fusion weighs it as the triangulated point's own error: the combined covariance
+    # grows, and the agreement test reads the difference with it
+    assert st.combined.sigma > bare.combined.sigma
+    assert float(st.combined.chi2) < float(bare.combined.chi2) + 1e-12
