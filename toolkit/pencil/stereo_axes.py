@@ -485,9 +485,9 @@ def _fits_factor(fits, used):
     detector's error floor (`shaft.axis.EDGE_FLOOR_PX`), which on clean edges is far above
     their scatter (rendered pivots: k 0.003-0.25, their axes' errors against the truth
     0.003-0.09 of their covariances, median), and covariances that large hide the port's
-    play from the offsets (`_axes_with_noise`). Where the fits pool fewer than `MIN_DOF`
-    degrees of freedom, at least 1 (too few to read a smaller noise); else at least
-    `_MIN_FACTOR`.
+    play from the offsets (`_axes_with_noise`). At least 1 unless the fits pool `MIN_DOF`
+    degrees of freedom or more and their chi2 lies below its lower 1 % point (the stated
+    noise rejected); then at least `_MIN_FACTOR`.
 
     >>> fits = (np.array([8.0, 8.0]), np.array([4.0, 4.0]), np.zeros((2, 6, 6)), np.zeros((2, 6)))
     >>> _fits_factor(fits, np.array([True, True]))
@@ -497,9 +497,14 @@ def _fits_factor(fits, used):
     v = np.sum(vec[used], 0)
     z, _, rank, _ = np.linalg.lstsq(np.sum(info[used], 0), v, rcond=1e-10)
     left = float(np.sum(dof[used])) - float(rank)
-    k = float(np.sum(c2[used]) - v @ z) / max(left, 1.0)
-    # too few degrees of freedom to tell a small noise from luck: only inflating, as before
-    return max(1.0, k) if left < MIN_DOF else max(_MIN_FACTOR, k)
+    c2_left = float(np.sum(c2[used]) - v @ z)
+    k = c2_left / max(left, 1.0)
+    # below 1 only where the fits reject the stated noise (their chi2 under its lower 1 %
+    # point, at least `MIN_DOF` dof): a k a little below 1 by chance would read a play where
+    # the axes meet
+    if left < MIN_DOF or c2_left >= chi2_isf(GATE_CONFIDENCE, left):
+        return max(1.0, k)
+    return max(_MIN_FACTOR, k)
 
 
 #: The mean chi-square (2 dof) of an axis the 99 % gate keeps: ``(2 - (c + 2) e^(-c/2)) / 0.99``
@@ -522,10 +527,10 @@ def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS, fits=None):
     sample (`_KEPT_CHI2` per axis, less 3: likelihood alone reads a truncated scatter too
     small); without them k and s2 both by maximum likelihood on the offsets
     (`_factor_and_play`), both scaled up to that chi2, only inflating, as the monocular
-    point's variance factor (`fulcrum._point_with_noise`). With the fits, k is theirs from
-    the start (the play's first s2 read at ``k C``); where they read k below 1 (edges whose
-    covariances hold the detector's error floor scatter far less than it says) it serves
-    only to read the play, which at the stated covariances hid in them (rendered pivots:
+    point's variance factor (`fulcrum._point_with_noise`). Where the fits read k below 1
+    (edges whose covariances hold the detector's error floor scatter far less than it
+    says), k is theirs from the start (the play's first s2 read at ``k C``) and serves only
+    to read the play, which at the stated covariances hid in them (rendered pivots:
     the play read 0 on 11 of 16, its true sd 0.35 mm; docs/method.md), and the axes keep
     their stated covariances plus the play, ``C + s2 I``."""
     lift = np.zeros((4, 4))
@@ -543,10 +548,11 @@ def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS, fits=None):
     if fits is not None:
         # the edges' noise as their own fits read it, before the play is read: covariances that
         # hold the detector's error floor (far above clean edges' scatter) would take the play in
-        k = _fits_factor(fits, np.ones(len(P), bool) if fit is None else np.asarray(fit.inliers, bool))
+        # (above 1 the factor is read on the gate's inliers below, as it was)
+        k = min(1.0, _fits_factor(fits, np.ones(len(P), bool) if fit is None else np.asarray(fit.inliers, bool)))
     s2 = _play(P, D, k * C, E, x)
-    if s2 == 0.0 and fit is not None and k >= 1.0:  # the axes' median meets its own: no scatter beyond them
-        return fit, C, 0.0, 1.0
+    if s2 == 0.0 and fit is not None:  # the axes' median meets its own: no scatter beyond them
+        return fit, C, 0.0, 1.0  # (a k below 1 only reads the play: none here)
     fit = fulcrum_3d(P, D, k * C + s2 * lift, robust, axis_frames=E)
     for _ in range(runs):
         used = np.asarray(fit.inliers, bool)
