@@ -66,6 +66,7 @@ __all__ = ["StereoAxis", "AxesFulcrum", "stereo_axis", "match_shafts", "stereo_f
 
 _STEP = 1e-6  # central-difference step of the Jacobians (chart units, mm, rad)
 _RADIUS_PRIOR_REL = 1e-3  # a known diameter's radius prior: its sd relative to the radius
+_MIN_FACTOR = 1e-6  # the least factor on the edges' covariances (their fits' chi2 of exact edges is ~0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -431,7 +432,7 @@ def _factor_and_play(r, S, start, iterations=100, factor=None):
     ``M = k S + s2 I`` (S: (N, 2, 2)): a factor on the axes' own covariances (edges noisier
     than said: mostly along each axis's depth, where a stereo axis is least precise) and an
     isotropic play; start: the first s2; factor: k where it is known (the axes' own fits,
-    `_fits_factor`), only s2 fitted then. Fisher scoring on (k, s2), the linear variance
+    `_fits_factor`; below 1 too), only s2 fitted then. Fisher scoring on (k, s2), the linear variance
     components of M: the score ``g_j = 1/2 sum (r^T M^-1 A_j M^-1 r - tr(M^-1 A_j))`` and the
     expected information ``F_ij = 1/2 sum tr(M^-1 A_i M^-1 A_j)`` with A = (S, I), a
     component held at its bound while its score points past it.
@@ -460,7 +461,8 @@ def _factor_and_play(r, S, start, iterations=100, factor=None):
         idx = [j for j in range(2) if free[j]]
         if idx:
             step[idx] = np.linalg.solve(F[np.ix_(idx, idx)], g[idx])
-        new_k, new_s2 = max(1.0, k + step[0]), max(0.0, s2 + step[1])
+        new_k = k if factor is not None else max(1.0, k + step[0])
+        new_s2 = max(0.0, s2 + step[1])
         done = abs(new_k - k) <= 1e-9 * k and abs(new_s2 - s2) <= 1e-9 * max(s2, 1e-12)
         k, s2 = new_k, new_s2
         if done:
@@ -469,7 +471,7 @@ def _factor_and_play(r, S, start, iterations=100, factor=None):
 
 
 def _fits_factor(fits, used):
-    """The factor k >= 1 on the edges' covariances that the used axes' own fits read: their
+    """The factor k on the edges' covariances that the used axes' own fits read: their
     whitened residuals' chi2 over its degrees of freedom (each fit's 8 edge terms, less the
     4 of its axis; the radius prior's term with its own), the part that one error of the
     rig common to them all explains taken out first (its least squares over them, its rank
@@ -479,7 +481,13 @@ def _fits_factor(fits, used):
     The residuals are the edges' noise alone: the port's play moves an axis, not its edges'
     fit, and the gate on the axes' offsets does not truncate them, so k is read without the
     play and without the gate's bias (the offsets alone read k = 3.3-3.4 for a true 4 on
-    edge-level pivots, these 3.9-4.0).
+    edge-level pivots, these 3.9-4.0). k below 1 is kept: the edges' covariances hold the
+    detector's error floor (`shaft.axis.EDGE_FLOOR_PX`), which on clean edges is far above
+    their scatter (rendered pivots: k 0.003-0.25, their axes' errors against the truth
+    0.003-0.09 of their covariances, median), and covariances that large hide the port's
+    play from the offsets (`_axes_with_noise`). At least 1 unless the fits pool `MIN_DOF`
+    degrees of freedom or more and their chi2 lies below its lower 1 % point (the stated
+    noise rejected); then at least `_MIN_FACTOR`.
 
     >>> fits = (np.array([8.0, 8.0]), np.array([4.0, 4.0]), np.zeros((2, 6, 6)), np.zeros((2, 6)))
     >>> _fits_factor(fits, np.array([True, True]))
@@ -488,7 +496,15 @@ def _fits_factor(fits, used):
     c2, dof, info, vec = fits
     v = np.sum(vec[used], 0)
     z, _, rank, _ = np.linalg.lstsq(np.sum(info[used], 0), v, rcond=1e-10)
-    return max(1.0, float(np.sum(c2[used]) - v @ z) / max(float(np.sum(dof[used])) - float(rank), 1.0))
+    left = float(np.sum(dof[used])) - float(rank)
+    c2_left = float(np.sum(c2[used]) - v @ z)
+    k = c2_left / max(left, 1.0)
+    # below 1 only where the fits reject the stated noise (their chi2 under its lower 1 %
+    # point, at least `MIN_DOF` dof): a k a little below 1 by chance would read a play where
+    # the axes meet
+    if left < MIN_DOF or c2_left >= chi2_isf(GATE_CONFIDENCE, left):
+        return max(1.0, k)
+    return max(_MIN_FACTOR, k)
 
 
 #: The mean chi-square (2 dof) of an axis the 99 % gate keeps: ``(2 - (c + 2) e^(-c/2)) / 0.99``
@@ -510,8 +526,13 @@ def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS, fits=None):
     offsets, by maximum likelihood, then raised until the inliers' chi2 is that of a gated
     sample (`_KEPT_CHI2` per axis, less 3: likelihood alone reads a truncated scatter too
     small); without them k and s2 both by maximum likelihood on the offsets
-    (`_factor_and_play`), both scaled up to that chi2. Only inflating, as the monocular
-    point's variance factor (`fulcrum._point_with_noise`)."""
+    (`_factor_and_play`), both scaled up to that chi2, only inflating, as the monocular
+    point's variance factor (`fulcrum._point_with_noise`). Where the fits read k below 1
+    (edges whose covariances hold the detector's error floor scatter far less than it
+    says), k is theirs from the start (the play's first s2 read at ``k C``) and serves only
+    to read the play, which at the stated covariances hid in them (rendered pivots:
+    the play read 0 on 11 of 16, its true sd 0.35 mm; docs/method.md), and the axes keep
+    their stated covariances plus the play, ``C + s2 I``."""
     lift = np.zeros((4, 4))
     lift[2, 2] = lift[3, 3] = 1.0
     try:
@@ -523,11 +544,16 @@ def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS, fits=None):
         # is taken, and the gate is applied once the noise is in the covariances
         fit = None
     x = np.asarray((fulcrum_3d(P, D, C, False, axis_frames=E) if fit is None else fit).point, float)
-    s2 = _play(P, D, C, E, x)
     k = 1.0
-    if s2 == 0.0 and fit is not None:  # the axes' median meets its own: no scatter beyond their covariances
-        return fit, C, 0.0, 1.0
-    fit = fulcrum_3d(P, D, C + s2 * lift, robust, axis_frames=E)
+    if fits is not None:
+        # the edges' noise as their own fits read it, before the play is read: covariances that
+        # hold the detector's error floor (far above clean edges' scatter) would take the play in
+        # (above 1 the factor is read on the gate's inliers below, as it was)
+        k = min(1.0, _fits_factor(fits, np.ones(len(P), bool) if fit is None else np.asarray(fit.inliers, bool)))
+    s2 = _play(P, D, k * C, E, x)
+    if s2 == 0.0 and fit is not None:  # the axes' median meets its own: no scatter beyond them
+        return fit, C, 0.0, 1.0  # (a k below 1 only reads the play: none here)
+    fit = fulcrum_3d(P, D, k * C + s2 * lift, robust, axis_frames=E)
     for _ in range(runs):
         used = np.asarray(fit.inliers, bool)
         if 2 * used.sum() <= 3:
@@ -555,6 +581,11 @@ def _axes_with_noise(P, D, C, E, robust, runs=MAX_RUNS, fits=None):
             mid = 0.5 * (lo + hi)
             lo, hi = (mid, hi) if chi2(k, mid) > target else (lo, mid)
         s2 = hi
+    # below 1 the fits' factor only reads the play: the axes keep their stated covariances,
+    # since the fits do not see an error that moves an axis's four edges together (a shaded
+    # limb's bias: on the rendered pivots the axes' errors against the truth are 3-10 times
+    # the variance their fits read)
+    k = max(k, 1.0)
     fit = fulcrum_3d(P, D, k * C + s2 * lift, robust, axis_frames=E)
     return fit, k * C + s2 * lift, s2, k
 

@@ -183,7 +183,9 @@ def test_no_play_where_the_axes_meet():
         (el, cl), (er, cr) = _edges(A, d, rng, 1e-4), _edges(R0 @ A + T0, R0 @ d, rng, 1e-4)
         Ss.append(stereo_axis(K, el, cl, K, er, cr, R0, T0, radius=4.0))
     f = stereo_fulcrum_axes(Ss)
-    assert f.play == 0.0 and np.allclose(f.point_cov, f.fit.point_cov)
+    # (the axes' fits read these edges at 0.35 of their stated variance, so the play is read
+    # at that noise: 1e-6 mm, a thousandth of the edges' 1e-4 px at 90 mm; 0 before)
+    assert np.sqrt(f.play) < 1e-5 and np.allclose(f.point_cov, f.fit.point_cov)
 
 
 def test_the_noise_factor_is_read_from_the_axes_own_fits(n_trials=4):
@@ -361,3 +363,29 @@ def test_the_width_error_scales_the_axes_point_and_its_covariance_says_so():
     added = np.asarray(rec["point_cov"]) - np.asarray(base["point_cov"])
     assert np.allclose(added, np.outer(moved, moved), atol=0.1 * moved @ moved), (added, np.outer(moved, moved))
     assert np.allclose(rec["point_cov_width"], added)
+
+
+
+def test_play_read_where_the_edges_are_quieter_than_said(n_trials=6):
+    # detected edges' covariances hold the detector's error floor, far above a clean edge's
+    # scatter (rendered pivots: their fits read 0.003-0.25 of it); at such covariances the
+    # port's play hid in them (read 0 on 24 of 30 rendered pivots). The play is read at the
+    # edges' noise as the axes' own fits give it, so it is the same whether the covariances
+    # overstate the noise 100 or 3000 times (here edges of 0.05 px, 0-1 mm of play: sd 0.41 mm
+    # per direction). Measured here: play 0.38-0.51 mm either way, the point within 0.2-2.2
+    # sigma; before, at 3000 times, 0-0.41 mm (0 on the third pivot, the point 3.1 sigma off)
+    rng = np.random.default_rng(11)
+    F = np.array([3.0, -2.0, 90.0])
+    for _ in range(n_trials):
+        edges = []
+        for A, d in _played(rng, F, R0, T0, 24, 1.0):
+            edges.append((_edges(A, d, rng, 0.05), _edges(R0 @ A + T0, R0 @ d, rng, 0.05)))
+        fits = []
+        for over in (100.0, 3000.0):
+            Ss = [stereo_axis(K, el, cl * over, K, er, cr * over, R0, T0, radius=4.0) for (el, cl), (er, cr) in edges]
+            fits.append(stereo_fulcrum_axes(Ss))
+        f = fits[1]
+        assert f.factor == 1.0  # a factor below 1 only reads the play
+        assert 0.25 < np.sqrt(f.play) < 0.7 and np.isclose(f.play, fits[0].play, rtol=1e-3), (fits[0].play, f.play)
+        e = f.point - F
+        assert e @ np.linalg.solve(f.point_cov, e) < chi2_isf(0.001, 3)
