@@ -179,12 +179,15 @@ def test_a_small_star_labelled_wrongly_is_not_reported():
     points (563) fit no circle about that plane, where they confirm every right labelling
     (`confirm.UNCONFIRMED_SPOKES`): "ambiguous labelling", not ok; with its short edges kept by
     their sigma (`detect.radial._usable`) it is now oriented rightly. Frame 4 (20 %, 41 deg):
-    its 8 short edges label 6 spokes, the twin open, the 500 circle points fit no circle: not
-    ok. Frame 14 (23 %, 53 deg): the circles resolve the twin: still ok."""
+    its 8 short edges labelled 6 spokes, the twin open, the 500 circle points fit no circle:
+    not ok; with the short edges located again from the joint fit's blur it is oriented
+    rightly (26 spokes, 0.05 deg off): either way never reported wrong. Frame 14 (23 %, 53
+    deg): the circles resolve the twin: still ok."""
     from pencilcal.validation.radial_renders import photo_conditions, photo_trial
 
     conds = photo_conditions(80, 420)
-    assert not photo_trial(conds[4]).ok
+    small = photo_trial(conds[4])
+    assert not small.ok or (small.twin_right and small.err_deg < 0.6)
     for k in (10, 14):
         right = photo_trial(conds[k])
         assert right.ok and right.twin_right and right.err_deg < 0.6
@@ -195,11 +198,12 @@ def test_a_small_star_oriented_from_a_few_spokes_is_not_reported():
     frame 70): 6 spokes within 146 deg used, every edge searched for, the twin chosen by circles
     looser than the lines (3.6 deg against 3.0): reported ok, the normal 4.8 deg off. Under a
     quarter of the spokes the sigma does not hold a vertex walked off or a labelling a wedge
-    off (`confirm.few_spokes_final`): "too few spokes", not ok."""
+    off (`confirm.few_spokes_final`): "too few spokes", not ok (with the short edges located
+    again from the joint fit's blur, 4 spokes labelled: "ambiguous labelling", not ok)."""
     from pencilcal.validation.radial_renders import photo_conditions
 
     rec = _oriented(photo_conditions(80, 3000)[70])
-    assert not rec.ok and "too few spokes" in rec.error
+    assert not rec.ok and ("too few spokes" in rec.error or "ambiguous labelling" in rec.error)
 
 
 def test_circles_of_a_few_short_arcs_do_not_choose_the_twin():

@@ -17,7 +17,9 @@ the vertex, in working (undistorted) pixels:
    a star's wedges merge into grey, which is no edge) out to where it ends; the vertex is then
    intersected again from the refitted edges, and steps 2-3 repeated about it; an edge
    that is nowhere clear of its neighbours (a dense star's far side at a steep tilt) is
-   then located jointly with their blurred edges (`radial_joint`, the blur fitted with them);
+   then located jointly with their blurred edges (`radial_joint`, the blur fitted with them;
+   where that blur is below the one the rounds read, an edge left short is located once
+   more from where its neighbours lie as far apart in sds of the fitted blur);
 4. *circles*: along rays between the edges, the edges across them (`radial_circles`): the
    points of closed curves about the vertex (the images of circles centred on it: a star's
    outline, a dartboard's rings), returned in raw pixels for the orientation to group by
@@ -276,19 +278,28 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
         r_joint = within(_clear_radius(phi, JOINT_SIGMAS * blur))
         r_lo = np.where(clear_ok, within(_clear_radius(phi, clear)), r_joint)
         lines = np.where(fit.ok[:, None], fit.lines(), ray)
-        located, _ = joint_refit(lin, camera, lines, v, sign, blur, r_lo, r_hi, rows=rows, search=_SEARCH_PX[-1])
+        located, fitted = joint_refit(lin, camera, lines, v, sign, blur, r_lo, r_hi, rows=rows, search=_SEARCH_PX[-1])
         # the same for an edge whose clear stretch was long enough but whose joint fit kept
         # less than min_length of it (the fit drops the outer end's stations and weak steps):
         # located again from JOINT_SIGMAS apart, its neighbours at their new lines (128-wedge
         # stars, seeds 9200-9279: 84 % of the spokes lost were lost so)
-        kept = located.ok & (np.hypot(*(located.p2 - located.p1).T) >= min_length)
-        again = ~kept & (r_joint[rows] < r_lo[rows])
+        again = ~_long(located, min_length) & (r_joint[rows] < r_lo[rows])
         if again.any():
-            lines[rows] = np.where(located.ok[:, None], located.lines(), lines[rows])
-            r_again = r_lo.copy()
-            r_again[rows[again]] = r_joint[rows[again]]
-            redo, _ = joint_refit(lin, camera, lines, v, sign, blur, r_again, r_hi, rows=rows[again], search=_SEARCH_PX[-1])
-            located = _merged(located, np.flatnonzero(again), redo)
+            located = _located_again(lin, camera, lines, v, sign, blur, np.where(_at(rows[again], phi.size), r_joint, r_lo),
+                                     r_hi, rows, located, again)
+        # a dense star's rounds read the blur with a neighbour's edge inside each profile and
+        # about a vertex that may have walked: 1.5-1.95 px where the joint fit, its
+        # neighbours modelled, measures 0.9, and JOINT_SIGMAS of that put the edges' joint
+        # stretch at the rim, too short to keep. Where the joint fit's blur is the smaller,
+        # an edge left short is located once more from JOINT_SIGMAS of it, kept where longer
+        # (docs/method.md: seed 420's frame 10, a small 64-wedge star, 0.19 -> 0.03 deg off)
+        if joint == "all" and fitted < blur:
+            r_fitted = within(_clear_radius(phi, JOINT_SIGMAS * fitted))
+            short = ~_long(located, min_length) & (r_fitted[rows] < np.minimum(r_lo, r_joint)[rows])
+            if short.any():
+                located = _located_again(lin, camera, lines, v, sign, fitted,
+                                         np.where(_at(rows[short], phi.size), r_fitted, r_lo), r_hi, rows, located, short,
+                                         longer=True)
         fit = _merged(fit, rows, located)
         v, reach, v_sd = _better_vertex(fit, v, reach, v_sd, joint == "all")
     return img, lin, fit, v, max(v_sd, about_sd), reach, phi, rows, clear
@@ -596,6 +607,31 @@ def _through_vertex(segs, v, rounds=_GATE_ROUNDS):
             break
         through = again
     return through
+
+
+def _long(fit, min_length):
+    """(E,) bool: the rows of `fit` (EdgeFit) located and at least min_length [px] long."""
+    return fit.ok & (np.hypot(*(fit.p2 - fit.p1).T) >= min_length)
+
+
+def _at(rows, n):
+    """(n,) bool: True at the indices rows."""
+    return np.isin(np.arange(n), rows)
+
+
+def _located_again(lin, camera, lines, v, sign, blur, r_lo, r_hi, rows, located, again, longer=False):
+    """`located` (EdgeFit, one row per edge of `rows` (K,)) with the edges `again` (K,) bool
+    located once more (`joint_refit` from blur sd [px], between r_lo and r_hi (E,) [px]),
+    their neighbours at the lines `located` gave them (`lines` (E, 4) [working px] updated
+    in place); with `longer`, each kept only where longer than before."""
+    lines[rows] = np.where(located.ok[:, None], located.lines(), lines[rows])
+    redo, _ = joint_refit(lin, camera, lines, v, sign, blur, r_lo, r_hi, rows=rows[again], search=_SEARCH_PX[-1])
+    idx = np.flatnonzero(again)
+    if longer:
+        before = np.where(located.ok[idx], np.hypot(*(located.p2 - located.p1)[idx].T), 0.0)
+        keep = np.flatnonzero(redo.ok & (np.hypot(*(redo.p2 - redo.p1).T) > before))
+        idx, redo = idx[keep], redo.take(keep)
+    return _merged(located, idx, redo)
 
 
 def _merged(fit, rows, other):
