@@ -28,8 +28,12 @@ and drapes cross the columns obliquely. So:
    resolution in a corridor of 2 work px (`shaft.silhouette.fit_edges`, as the material
    cue's edges) and the midline their plane bisector (`shaft.axis`). Kept where
    both edges are seen together along 1.5 widths at least and the band reaches the border
-   of the view (an instrument enters from outside); the score is that length [raw px]
-   times the least fraction of stations with an edge.
+   of the view (an instrument enters from outside), or along one width where it runs from
+   X itself (`_ends_at`: a port in view, where the instrument enters; close to the camera
+   its visible part is short and wide); the score is that length [raw px] times the least
+   fraction of stations with an edge. Each vote peak suppresses its neighbouring columns at
+   its own widths only (a wrist beyond the shaft lies on the same line through X, narrower),
+   and of the bands the peaks give, one per set of pairs is measured.
 
 The thresholds are looser than the cues' (one pair of edges over a short run is enough):
 the prior does what the cues' elongation and material tests do, and every result is then
@@ -71,7 +75,9 @@ _MAX_COLS = 2048  # columns at most
 _MIN_ROWS = 6  # a band seen at fewer rows is none
 _GAP_ROWS = 4  # a band's run bridges gaps of up to this many rows
 _INSIDE_FRACTION = 0.7  # a band's inside lies on its side of the halfway level at least so much
-_MIN_WIDTHS = 1.5  # a band seen along fewer widths is none
+_MIN_WIDTHS = 1.5  # a band seen along fewer widths is none ...
+_MIN_WIDTHS_AT_PORT = 1.0  # ... or, running from the prior's point (`_ends_at`), fewer than this
+_MAX_CONVERGENCE_AT_PORT_DEG = 45.0  # a band from the prior's point narrowing towards it converges at most so much
 _PEAK_CANDIDATES = 16  # vote peaks looked at
 _CANDIDATES = 3  # bands measured at full resolution at most
 _FAR = 1e4  # beyond this many work-frame diagonals a point is at infinity
@@ -187,18 +193,31 @@ def _votes(grid, pairs, shifts, wmin, ncols):
 
 def _peaks(A, wmin):
     """The best (shift index, column, width bin) of the accumulators, up to
-    `_PEAK_CANDIDATES`, each suppressing the columns within half its width."""
+    `_PEAK_CANDIDATES`, each suppressing the columns within half its width at the widths its
+    band collects (`_band_points`): another width on the same column is another band (an
+    instrument's wrist beyond its shaft, both on the line through the fulcrum)."""
     out = []
     A = A.copy()
     mean_w = np.exp(np.arange(A.shape[2]) * np.log1p(_WIDTH_STEP)) * wmin
+    tol = int(round(_WIDTH_TOL / _WIDTH_STEP))
     for _ in range(_PEAK_CANDIDATES):
         q, c, b = np.unravel_index(int(np.argmax(A)), A.shape)
         if A[q, c, b] <= 0:
             break
         out.append((int(q), int(c), int(b)))
         half = int(np.ceil(0.5 * mean_w[b])) + 1
-        A[:, max(c - half, 0):c + half + 1, :] = 0
+        A[:, max(c - half, 0):c + half + 1, max(b - tol, 0):b + tol + 1] = 0
     return out
+
+
+def _same_band(t, u):
+    """Whether two bands of `_band_points` (rows, left cols, right cols, ...) are one: on
+    half the rows of the shorter both sides within 2 columns (two peaks that gathered the
+    same pairs)."""
+    rows, ia, ib = np.intersect1d(t[0], u[0], return_indices=True)
+    if rows.size < 0.5 * min(t[0].size, u[0].size):
+        return False
+    return bool(np.mean((np.abs(t[1][ia] - u[1][ib]) <= 2) & (np.abs(t[2][ia] - u[2][ib]) <= 2)) >= 0.5)
 
 
 def _line_fit(P):
@@ -361,6 +380,33 @@ def _reaches_border(m, camera, validity, margin):
     return bool(np.min(validity.distance(to_raw_points(camera, m.ends))) <= m.width_px + margin)
 
 
+def _ends_at(m, prior, margin):
+    """Whether a midline (ideal px) ends at a finite prior's point (ideal px): within its
+    width, a margin [px] and 3 sd of the point along it. An instrument whose port is in view
+    enters the view there, not at its border: its band runs from the port's image."""
+    X = prior.point
+    if abs(X[2]) < 1e-12:
+        return False
+    x = X[:2] / X[2]
+    u = (m.ends[1] - m.ends[0]) / max(float(np.linalg.norm(m.ends[1] - m.ends[0])), 1e-12)
+    sd = float(prior.offset_sigma(np.array([-u[1], u[0]])))  # the point's sd along the midline
+    return bool(np.min(np.linalg.norm(m.ends - x, axis=1)) <= m.width_px + margin + 3.0 * sd)
+
+
+def _narrows_to(m, prior):
+    """Whether a midline's edges (ideal px) meet on the side of its band where the prior's
+    (finite) point lies: a shaft narrows towards its port."""
+    X = prior.point
+    if abs(X[2]) < 1e-12:
+        return False
+    e = np.asarray(m.edges, float).reshape(2, 2, 2)
+    v = np.cross(np.cross(np.r_[e[0, 0], 1.0], np.r_[e[0, 1], 1.0]), np.cross(np.r_[e[1, 0], 1.0], np.r_[e[1, 1], 1.0]))
+    if abs(v[2]) < 1e-12:
+        return False
+    c = 0.5 * (m.ends[0] + m.ends[1])
+    return bool((v[:2] / v[2] - c) @ (X[:2] / X[2] - c) > 0)
+
+
 def _shifts(grid, pw):
     """The shifts of the line beside X tried (module docstring, step 2), in the grid's unit:
     within 3 sd of the prior, at most one column apart, at most `_MAX_SHIFTS`."""
@@ -410,7 +456,11 @@ def _bands(work, pw, wmin, wmax):
         if band is not None:
             found.append(band)
     found.sort(key=lambda t: -t[4])
-    return [(grid, *t[:4]) for t in found[:_CANDIDATES]]
+    kept = []
+    for t in found:  # the candidates' slots for distinct bands
+        if not any(_same_band(t, k) for k in kept):
+            kept.append(t)
+    return [(grid, *t[:4]) for t in kept[:_CANDIDATES]]
 
 
 def pencil_search(image, camera, validity, work, prior, o, K, noise, gamma=1.0):
@@ -440,10 +490,18 @@ def pencil_search(image, camera, validity, work, prior, o, K, noise, gamma=1.0):
         if e[0] is None or e[1] is None:
             continue
         m = midline_from_edges(K, e[0], e[1])
-        if m is None or m.convergence_deg > np.degrees(o.conv_max):
+        if m is None:
             continue
         seen = float(np.hypot(*(m.ends[1] - m.ends[0])))
-        if seen < _MIN_WIDTHS * m.width_px or not _reaches_border(m, camera, validity, corridor):
+        # a band from the fulcrum's image is the instrument entering through its port: seen
+        # along a width is enough (close to the camera its visible part is short and wide),
+        # and pointing towards the camera its edges converge steeply, towards the port
+        at_port = _ends_at(m, prior, corridor)
+        if m.convergence_deg > np.degrees(o.conv_max) and not (
+                at_port and m.convergence_deg <= _MAX_CONVERGENCE_AT_PORT_DEG and _narrows_to(m, prior)):
+            continue
+        least = _MIN_WIDTHS_AT_PORT if at_port else _MIN_WIDTHS
+        if seen < least * m.width_px or not (at_port or _reaches_border(m, camera, validity, corridor)):
             continue
         out.append((m, seen * min(e[0].frac, e[1].frac), "dark" if dark else "bright"))
     kept = []
