@@ -31,9 +31,7 @@ and drapes cross the columns obliquely. So:
    of the view (an instrument enters from outside), or along one width where it runs from
    X itself (`_ends_at`: a port in view, where the instrument enters; close to the camera
    its visible part is short and wide); the score is that length [raw px] times the least
-   fraction of stations with an edge. Each vote peak suppresses its neighbouring columns at
-   its own widths only (a wrist beyond the shaft lies on the same line through X, narrower),
-   and of the bands the peaks give, one per set of pairs is measured.
+   fraction of stations with an edge.
 
 The thresholds are looser than the cues' (one pair of edges over a short run is enough):
 the prior does what the cues' elongation and material tests do, and every result is then
@@ -193,31 +191,18 @@ def _votes(grid, pairs, shifts, wmin, ncols):
 
 def _peaks(A, wmin):
     """The best (shift index, column, width bin) of the accumulators, up to
-    `_PEAK_CANDIDATES`, each suppressing the columns within half its width at the widths its
-    band collects (`_band_points`): another width on the same column is another band (an
-    instrument's wrist beyond its shaft, both on the line through the fulcrum)."""
+    `_PEAK_CANDIDATES`, each suppressing the columns within half its width."""
     out = []
     A = A.copy()
     mean_w = np.exp(np.arange(A.shape[2]) * np.log1p(_WIDTH_STEP)) * wmin
-    tol = int(round(_WIDTH_TOL / _WIDTH_STEP))
     for _ in range(_PEAK_CANDIDATES):
         q, c, b = np.unravel_index(int(np.argmax(A)), A.shape)
         if A[q, c, b] <= 0:
             break
         out.append((int(q), int(c), int(b)))
         half = int(np.ceil(0.5 * mean_w[b])) + 1
-        A[:, max(c - half, 0):c + half + 1, max(b - tol, 0):b + tol + 1] = 0
+        A[:, max(c - half, 0):c + half + 1, :] = 0
     return out
-
-
-def _same_band(t, u):
-    """Whether two bands of `_band_points` (rows, left cols, right cols, ...) are one: on
-    half the rows of the shorter both sides within 2 columns (two peaks that gathered the
-    same pairs)."""
-    rows, ia, ib = np.intersect1d(t[0], u[0], return_indices=True)
-    if rows.size < 0.5 * min(t[0].size, u[0].size):
-        return False
-    return bool(np.mean((np.abs(t[1][ia] - u[1][ib]) <= 2) & (np.abs(t[2][ia] - u[2][ib]) <= 2)) >= 0.5)
 
 
 def _line_fit(P):
@@ -380,14 +365,17 @@ def _reaches_border(m, camera, validity, margin):
     return bool(np.min(validity.distance(to_raw_points(camera, m.ends))) <= m.width_px + margin)
 
 
-def _ends_at(m, prior, margin):
-    """Whether a midline (ideal px) ends at a finite prior's point (ideal px): within its
-    width, a margin [px] and 3 sd of the point along it. An instrument whose port is in view
+def _ends_at(m, prior, margin, image_size):
+    """Whether a midline (ideal px) ends at a finite prior's point (ideal px) inside the
+    image (image_size (W, H) [px]): within its width, a margin [px] and 3 sd of the point
+    along it. An instrument whose port is in view
     enters the view there, not at its border: its band runs from the port's image."""
     X = prior.point
     if abs(X[2]) < 1e-12:
         return False
     x = X[:2] / X[2]
+    if not (0.0 <= x[0] < image_size[0] and 0.0 <= x[1] < image_size[1]):
+        return False  # a port beyond the view: the instrument enters at the border
     u = (m.ends[1] - m.ends[0]) / max(float(np.linalg.norm(m.ends[1] - m.ends[0])), 1e-12)
     sd = float(prior.offset_sigma(np.array([-u[1], u[0]])))  # the point's sd along the midline
     return bool(np.min(np.linalg.norm(m.ends - x, axis=1)) <= m.width_px + margin + 3.0 * sd)
@@ -456,11 +444,7 @@ def _bands(work, pw, wmin, wmax):
         if band is not None:
             found.append(band)
     found.sort(key=lambda t: -t[4])
-    kept = []
-    for t in found:  # the candidates' slots for distinct bands
-        if not any(_same_band(t, k) for k in kept):
-            kept.append(t)
-    return [(grid, *t[:4]) for t in kept[:_CANDIDATES]]
+    return [(grid, *t[:4]) for t in found[:_CANDIDATES]]
 
 
 def pencil_search(image, camera, validity, work, prior, o, K, noise, gamma=1.0):
@@ -496,7 +480,7 @@ def pencil_search(image, camera, validity, work, prior, o, K, noise, gamma=1.0):
         # a band from the fulcrum's image is the instrument entering through its port: seen
         # along a width is enough (close to the camera its visible part is short and wide),
         # and pointing towards the camera its edges converge steeply, towards the port
-        at_port = _ends_at(m, prior, corridor)
+        at_port = _ends_at(m, prior, corridor, np.asarray(image).shape[1::-1])
         if m.convergence_deg > np.degrees(o.conv_max) and not (
                 at_port and m.convergence_deg <= _MAX_CONVERGENCE_AT_PORT_DEG and _narrows_to(m, prior)):
             continue
