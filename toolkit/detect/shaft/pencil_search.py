@@ -28,8 +28,10 @@ and drapes cross the columns obliquely. So:
    resolution in a corridor of 2 work px (`shaft.silhouette.fit_edges`, as the material
    cue's edges) and the midline their plane bisector (`shaft.axis`). Kept where
    both edges are seen together along 1.5 widths at least and the band reaches the border
-   of the view (an instrument enters from outside); the score is that length [raw px]
-   times the least fraction of stations with an edge.
+   of the view (an instrument enters from outside), or along one width where it runs from
+   X itself (`_ends_at`: a port in view, where the instrument enters; close to the camera
+   its visible part is short and wide); the score is that length [raw px] times the least
+   fraction of stations with an edge.
 
 The thresholds are looser than the cues' (one pair of edges over a short run is enough):
 the prior does what the cues' elongation and material tests do, and every result is then
@@ -71,7 +73,9 @@ _MAX_COLS = 2048  # columns at most
 _MIN_ROWS = 6  # a band seen at fewer rows is none
 _GAP_ROWS = 4  # a band's run bridges gaps of up to this many rows
 _INSIDE_FRACTION = 0.7  # a band's inside lies on its side of the halfway level at least so much
-_MIN_WIDTHS = 1.5  # a band seen along fewer widths is none
+_MIN_WIDTHS = 1.5  # a band seen along fewer widths is none ...
+_MIN_WIDTHS_AT_PORT = 1.0  # ... or, running from the prior's point (`_ends_at`), fewer than this
+_MAX_CONVERGENCE_AT_PORT_DEG = 45.0  # a band from the prior's point narrowing towards it converges at most so much
 _PEAK_CANDIDATES = 16  # vote peaks looked at
 _CANDIDATES = 3  # bands measured at full resolution at most
 _FAR = 1e4  # beyond this many work-frame diagonals a point is at infinity
@@ -361,6 +365,36 @@ def _reaches_border(m, camera, validity, margin):
     return bool(np.min(validity.distance(to_raw_points(camera, m.ends))) <= m.width_px + margin)
 
 
+def _ends_at(m, prior, margin, image_size):
+    """Whether a midline (ideal px) ends at a finite prior's point (ideal px) inside the
+    image (image_size (W, H) [px]): within its width, a margin [px] and 3 sd of the point
+    along it. An instrument whose port is in view
+    enters the view there, not at its border: its band runs from the port's image."""
+    X = prior.point
+    if abs(X[2]) < 1e-12:
+        return False
+    x = X[:2] / X[2]
+    if not (0.0 <= x[0] < image_size[0] and 0.0 <= x[1] < image_size[1]):
+        return False  # a port beyond the view: the instrument enters at the border
+    u = (m.ends[1] - m.ends[0]) / max(float(np.linalg.norm(m.ends[1] - m.ends[0])), 1e-12)
+    sd = float(prior.offset_sigma(np.array([-u[1], u[0]])))  # the point's sd along the midline
+    return bool(np.min(np.linalg.norm(m.ends - x, axis=1)) <= m.width_px + margin + 3.0 * sd)
+
+
+def _narrows_to(m, prior):
+    """Whether a midline's edges (ideal px) meet on the side of its band where the prior's
+    (finite) point lies: a shaft narrows towards its port."""
+    X = prior.point
+    if abs(X[2]) < 1e-12:
+        return False
+    e = np.asarray(m.edges, float).reshape(2, 2, 2)
+    v = np.cross(np.cross(np.r_[e[0, 0], 1.0], np.r_[e[0, 1], 1.0]), np.cross(np.r_[e[1, 0], 1.0], np.r_[e[1, 1], 1.0]))
+    if abs(v[2]) < 1e-12:
+        return False
+    c = 0.5 * (m.ends[0] + m.ends[1])
+    return bool((v[:2] / v[2] - c) @ (X[:2] / X[2] - c) > 0)
+
+
 def _shifts(grid, pw):
     """The shifts of the line beside X tried (module docstring, step 2), in the grid's unit:
     within 3 sd of the prior, at most one column apart, at most `_MAX_SHIFTS`."""
@@ -440,10 +474,18 @@ def pencil_search(image, camera, validity, work, prior, o, K, noise, gamma=1.0):
         if e[0] is None or e[1] is None:
             continue
         m = midline_from_edges(K, e[0], e[1])
-        if m is None or m.convergence_deg > np.degrees(o.conv_max):
+        if m is None:
             continue
         seen = float(np.hypot(*(m.ends[1] - m.ends[0])))
-        if seen < _MIN_WIDTHS * m.width_px or not _reaches_border(m, camera, validity, corridor):
+        # a band from the fulcrum's image is the instrument entering through its port: seen
+        # along a width is enough (close to the camera its visible part is short and wide),
+        # and pointing towards the camera its edges converge steeply, towards the port
+        at_port = _ends_at(m, prior, corridor, np.asarray(image).shape[1::-1])
+        if m.convergence_deg > np.degrees(o.conv_max) and not (
+                at_port and m.convergence_deg <= _MAX_CONVERGENCE_AT_PORT_DEG and _narrows_to(m, prior)):
+            continue
+        least = _MIN_WIDTHS_AT_PORT if at_port else _MIN_WIDTHS
+        if seen < least * m.width_px or not (at_port or _reaches_border(m, camera, validity, corridor)):
             continue
         out.append((m, seen * min(e[0].frac, e[1].frac), "dark" if dark else "bright"))
     kept = []
