@@ -183,9 +183,28 @@ def test_no_play_where_the_axes_meet():
         (el, cl), (er, cr) = _edges(A, d, rng, 1e-4), _edges(R0 @ A + T0, R0 @ d, rng, 1e-4)
         Ss.append(stereo_axis(K, el, cl, K, er, cr, R0, T0, radius=4.0))
     f = stereo_fulcrum_axes(Ss)
-    # (the axes' fits read these edges at 0.35 of their stated variance, so the play is read
-    # at that noise: 1e-6 mm, a thousandth of the edges' 1e-4 px at 90 mm; 0 before)
-    assert np.sqrt(f.play) < 1e-5 and np.allclose(f.point_cov, f.fit.point_cov)
+    # (with a whole degree of freedom for each radius prior, whose leverage is ~0 at edges
+    # this precise, the fits read these edges at 0.35 of their stated variance and a play of
+    # 1e-6 mm; at the prior's leverage 0.50, and no play)
+    assert f.play == 0.0 and f.factor == 1.0 and np.allclose(f.point_cov, f.fit.point_cov)
+
+
+def test_the_axes_fits_chi2_is_their_dof_at_the_stated_noise(n=40):
+    # edges drawn exactly at their covariances, the known radius as a prior: the fit's mean
+    # chi2 over its dof is 1 whether the edges fix the radius far better than the prior
+    # (0.0001 px: the prior's leverage ~0, dof ~3) or the prior fixes it (0.1 px: ~4).
+    # Measured on 300 axes each: 3.08 / 3.00 and 4.08 / 3.97 (with a whole dof for the
+    # prior, 4: 0.77 and 1.02); here, 40 axes each (sd of the ratio ~0.12): 1.20 and 0.92
+    rng = np.random.default_rng(12)
+    F = np.array([3.0, -2.0, 90.0])
+    for sd, dof in ((1e-4, 3.0), (0.1, 4.0)):
+        Ss = []
+        for A, d in _pivot(rng, F, R0, T0, n=n):
+            (el, cl), (er, cr) = _edges(A, d, rng, sd), _edges(R0 @ A + T0, R0 @ d, rng, sd)
+            Ss.append(stereo_axis(K, el, cl, K, er, cr, R0, T0, radius=4.0))
+        c2, dofs = np.array([a.chi2 for a in Ss]), np.array([a.dof for a in Ss])
+        assert np.all(np.abs(dofs - dof) < 0.1), (sd, dofs.min(), dofs.max())
+        assert 0.7 < c2.sum() / dofs.sum() < 1.35, (sd, c2.sum() / dofs.sum())
 
 
 def test_the_noise_factor_is_read_from_the_axes_own_fits(n_trials=4):
