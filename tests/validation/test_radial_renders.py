@@ -271,12 +271,15 @@ def test_circles_that_disagree_with_the_twin_they_chose_confirm_no_labelling():
     and 65 deg from the truth: reported ok (the rings chained on the image change nothing
     here). Circles that disagree with the normal they chose confirm no labelling that holds
     under half the spokes even grown (`orient.unconfirmed_labelling`): "ambiguous
-    labelling", not ok."""
+    labelling", not ok. With the short edges located again from the joint fit's blur, 8 of 64
+    spokes are labelled and the circles agree with them only within the lines' wider sigma
+    (6.0 deg against 2.9): refused as unconfirmed by that agreement instead (the circles that
+    disagree are tested on their own in tests/toolkit/pencil/test_orient.py)."""
     from pencilcal.validation.radial_renders import photographic_conditions
 
     rec = _oriented(dict(photographic_conditions(40, 900)[2], defocus_px=0.0))
     assert not rec.ok and "ambiguous labelling" in rec.error
-    assert "disagree" in rec.error
+    assert "disagree" in rec.error or "looser than theirs" in rec.error
 
 
 def test_circles_that_agree_only_within_the_lines_wide_scatter_confirm_no_labelling():
@@ -286,12 +289,15 @@ def test_circles_that_agree_only_within_the_lines_wide_scatter_confirm_no_labell
     4.8 deg from the normal chosen, yet within the sigmas (circle_chi2 6.9): the lines fixed
     the normal to 2.05 deg, the circles to 0.83. Reported ok 4.4 deg from the truth. Agreement
     within the lines' own wider scatter confirms no final labelling of under half the spokes
-    (`confirm.unconfirmed_final`): "ambiguous labelling", not ok."""
+    (`confirm.unconfirmed_final`): "ambiguous labelling", not ok. With the short edges located
+    again from the joint fit's blur, 12 of 64 spokes are used: refused as "too few spokes"
+    (under a quarter) instead; the looser agreement is met by
+    `photographic_conditions(40, 900)` frame 2 above."""
     from pencilcal.validation.radial_renders import photo_conditions
 
     rec = _oriented(photo_conditions(80, 2200)[46])
-    assert not rec.ok and "ambiguous labelling" in rec.error
-    assert "looser than theirs" in rec.error
+    assert not rec.ok
+    assert ("ambiguous labelling" in rec.error and "looser than theirs" in rec.error) or "too few spokes" in rec.error
 
 
 def test_circles_that_points_on_the_spokes_make_about_any_plane_choose_no_twin():
