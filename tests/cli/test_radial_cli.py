@@ -348,14 +348,16 @@ def test_lines_pencil_usage(cluttered_dartboard, tmp_path, args, code, hint):
 
 def test_orient_warns_where_the_lines_and_the_circles_disagree(tmp_path):
     """A 64-wedge star photographed as hard as a real photograph
-    (`photographic_conditions(40, 1500)[33]`): every spoke used, the normal 0.04 deg from the
-    truth, yet 0.18 deg from the circles' at a circle_chi2 of 82 (the circles 0.14 deg off at
-    a sigma of 0.02, the lines' sigma 0.006). Right frames disagree as much as a wrong one
+    (`photographic_conditions(40, 1500)[12]`): every spoke used, the normal 0.05 deg from the
+    truth at a sigma of 0.03 (the bend's term and the misfit's scale 1.2 in it), yet 0.16 deg
+    from the circles' at a circle_chi2 of 12.6. Right frames disagree as much as a wrong one
     (docs/method.md): the frame is kept, circle_consistent false in its record, and `orient`
-    says on stderr that one of the two normals is further off than its sigma."""
+    says on stderr that one of the two normals is further off than its sigma. (Frame 33, the
+    frame first used here, read circle_chi2 82 with the lines' sigma at 0.006 deg; with the
+    misfit left after the bend's fit in the lines' sigma, 0.097 deg, its circles agree.)"""
     from pencilcal.validation.radial_renders import photo_frame, photographic_conditions
 
-    cond = photographic_conditions(40, 1500)[33]
+    cond = photographic_conditions(40, 1500)[12]
     img, cam, R, _ = photo_frame(cond)
     cv2.imwrite(str(tmp_path / "f.png"), img)
     write_camera(tmp_path / "camera.json", cam)
