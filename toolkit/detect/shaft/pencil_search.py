@@ -370,11 +370,8 @@ def _ends_at(m, prior, margin, image_size):
     image (image_size (W, H) [px]): within its width, a margin [px] and 3 sd of the point
     along it. An instrument whose port is in view
     enters the view there, not at its border: its band runs from the port's image."""
-    X = prior.point
-    if abs(X[2]) < 1e-12:
-        return False
-    x = X[:2] / X[2]
-    if not (0.0 <= x[0] < image_size[0] and 0.0 <= x[1] < image_size[1]):
+    x = _finite_point(prior)
+    if x is None or not (0.0 <= x[0] < image_size[0] and 0.0 <= x[1] < image_size[1]):
         return False  # a port beyond the view: the instrument enters at the border
     u = (m.ends[1] - m.ends[0]) / max(float(np.linalg.norm(m.ends[1] - m.ends[0])), 1e-12)
     sd = float(prior.offset_sigma(np.array([-u[1], u[0]])))  # the point's sd along the midline
@@ -384,15 +381,22 @@ def _ends_at(m, prior, margin, image_size):
 def _narrows_to(m, prior):
     """Whether a midline's edges (ideal px) meet on the side of its band where the prior's
     (finite) point lies: a shaft narrows towards its port."""
-    X = prior.point
-    if abs(X[2]) < 1e-12:
+    x = _finite_point(prior)
+    if x is None:
         return False
     e = np.asarray(m.edges, float).reshape(2, 2, 2)
     v = np.cross(np.cross(np.r_[e[0, 0], 1.0], np.r_[e[0, 1], 1.0]), np.cross(np.r_[e[1, 0], 1.0], np.r_[e[1, 1], 1.0]))
     if abs(v[2]) < 1e-12:
         return False
     c = 0.5 * (m.ends[0] + m.ends[1])
-    return bool((v[:2] / v[2] - c) @ (X[:2] / X[2] - c) > 0)
+    return bool((v[:2] / v[2] - c) @ (x - c) > 0)
+
+
+def _finite_point(prior):
+    """The prior's point (ideal px) (2,), or None where it lies at infinity (a fulcrum known
+    only as a direction)."""
+    X = prior.point
+    return None if abs(X[2]) < 1e-12 else X[:2] / X[2]
 
 
 def _shifts(grid, pw):
