@@ -20,9 +20,10 @@ Where the readout is not known, nothing is moved: the fit's tilt and normal sigm
 by how far the same moves for a readout anywhere from 0 to a whole frame would take its
 estimate, and the estimate is left as it is. Where the moves take it is found by one linear
 step of the fit from its own solution (`sheared_linear`: every labelled line's angle and the
-lines' intersection moved as a whole frame's readout moves them; `WIDENING` "linear", the
-default) or by fitting the frame once more from the moved lines (`shear_widened`; "refit":
-a second vertex search, several times slower, no better against the truth).
+lines' intersection moved as a whole frame's readout moves them; `orient_video_frame`'s
+widening "linear", the default) or by fitting the frame once more from the moved lines
+(`shear_widened`; widening "refit": a second vertex search, several times slower, no better
+against the truth).
 
 Example
 -------
@@ -54,7 +55,7 @@ from pencilcal.toolkit.pencil.track import orient_tracked, prior_labels
 from pencilcal.toolkit.pencil.vertex import segment_angle_sigma
 
 __all__ = ["orient_video_frame", "deskewed_segments", "camera_readout", "seen_lines", "shear_widened", "sheared_linear",
-           "VELOCITY_REL_SD", "VELOCITY_FLOOR_PX", "UNKNOWN_READOUTS", "WIDENING"]
+           "VELOCITY_REL_SD", "VELOCITY_FLOOR_PX", "UNKNOWN_READOUTS", "WIDENINGS"]
 
 #: The sd of a point's velocity across its spoke, relative to it (the motion changes from
 #: one frame to the next: a hand's swing starts and stops).
@@ -64,10 +65,11 @@ VELOCITY_FLOOR_PX = 0.3
 #: A readout not known: the readouts [frames] thought equally likely (0: a global shutter,
 #: 1: rows read out over the whole frame interval).
 UNKNOWN_READOUTS = np.linspace(0.0, 1.0, 21)
-#: How a readout not known widens the sigmas: "linear" (`sheared_linear`: one linear step of
-#: the first fit, the default) or "refit" (the frame fitted again from its
-#: sheared lines: a second vertex search, slower, no better against the truth).
-WIDENING = "linear"
+#: How a readout not known widens the sigmas (`orient_video_frame`'s widening): "linear"
+#: (`sheared_linear`: one linear step of the first fit, the default) or "refit" (the frame
+#: fitted again from its sheared lines: a second vertex search, slower, no better against
+#: the truth).
+WIDENINGS = ("linear", "refit")
 
 
 def seen_lines(camera, segments, spokes, ideal=None):
@@ -284,7 +286,8 @@ def sheared_linear(camera, record, pencil, segments, moved, ideal=None, moved_id
     return rotation_from_rotvec(delta) @ np.asarray(record.normal, float), v1 / np.linalg.norm(v1)
 
 
-def orient_video_frame(camera, segments, pencil, previous, readout=None, seen=None, **orient_kwargs):
+def orient_video_frame(camera, segments, pencil, previous, readout=None, seen=None, widening="linear",
+                       **orient_kwargs):
     """(orientation, tracked): one frame of a video fitted with the previous frame's
     `Orientation` as a prior (`track.orient_tracked`), its rolling shutter handled:
 
@@ -293,8 +296,8 @@ def orient_video_frame(camera, segments, pencil, previous, readout=None, seen=No
       angle sds (from the end point noise where the frame's lines have none);
     - readout None (not known): fitted as seen, the tilt and normal sigmas widened by what a
       readout from 0 to a whole frame could have done (where the fit goes from its lines moved
-      by a whole frame's readout: `sheared_linear`, or `shear_widened` with `WIDENING`
-      "refit"; the estimate itself unchanged);
+      by a whole frame's readout: `sheared_linear` with widening "linear", or `shear_widened`
+      with "refit" (`WIDENINGS`); the estimate itself unchanged);
     - readout 0: a global shutter, fitted as seen.
 
     segments: (M, 4) raw px; previous: the previous frame's `Orientation` or None (the first
@@ -324,7 +327,7 @@ def orient_video_frame(camera, segments, pencil, previous, readout=None, seen=No
         seg, kw = _deskewed_inputs(camera, seg, pencil, previous, readout, kw, seen)
     rec, tracked = orient_tracked(camera, seg, pencil, previous, **kw)
     if readout is None and rec.ok and moving:
-        rec = _widened_by_unknown_readout(camera, seg, pencil, previous, rec, kw, seen)
+        rec = _widened_by_unknown_readout(camera, seg, pencil, previous, rec, kw, seen, widening)
     return rec, tracked
 
 
@@ -349,14 +352,14 @@ def _deskewed_inputs(camera, seg, pencil, previous, readout, kw, seen):
     return moved, kw
 
 
-def _widened_by_unknown_readout(camera, seg, pencil, previous, rec, kw, seen):
+def _widened_by_unknown_readout(camera, seg, pencil, previous, rec, kw, seen, widening):
     """`rec` with its sigmas widened by a readout not known (`orient_video_frame`); a frame
     whose lines did not move beyond their noise keeps its sigmas."""
     moved, ideal, _, _ = deskewed_segments(camera, seg, pencil, previous, 1.0, ideal=kw.get("ideal"), seen=seen,
                                            still_px=VELOCITY_FLOOR_PX)
     if np.array_equal(moved, seg):
         return rec
-    if WIDENING == "linear":  # (the fit's first-order move: no second vertex search, no labelling)
+    if widening == "linear":  # (the fit's first-order move: no second vertex search, no labelling)
         out = sheared_linear(camera, rec, pencil, seg, moved, kw.get("ideal"), ideal, kw.get("angle_sigma"),
                              kw.get("endpoint_sigma_px", ENDPOINT_SIGMA_PX))
         return rec if out is None else _widened_along(rec, *out)

@@ -41,16 +41,13 @@ def test_a_frame_that_did_not_move_keeps_its_sigmas():
     assert again.tilt_sigma_deg == still.tilt_sigma_deg
 
 
-def test_the_linear_step_widens_as_the_second_fit_where_the_lines_agree(monkeypatch):
+def test_the_linear_step_widens_as_the_second_fit_where_the_lines_agree():
     # a clean turning fan: every moved line still meets the others, so one linear step of the
     # first fit goes where the second fit goes; the estimate is the plain fit's either way
-    from pencilcal.toolkit.pencil import shutter
-
     first, _ = orient_video_frame(CAM, _fan(3.0), PEN, None)
     out = {}
     for mode in ("refit", "linear"):
-        monkeypatch.setattr(shutter, "WIDENING", mode)
-        out[mode], _ = orient_video_frame(CAM, _fan(7.0), PEN, first, readout=None)
+        out[mode], _ = orient_video_frame(CAM, _fan(7.0), PEN, first, readout=None, widening=mode)
     refit, linear = out["refit"], out["linear"]
     np.testing.assert_array_equal(linear.normal, refit.normal)
     assert linear.tilt_deg == refit.tilt_deg
