@@ -235,7 +235,7 @@ def main(argv=None):
 
     ap = argparse.ArgumentParser(prog="python -m pencilcal.validation.band_width_grid",
                                  description=__doc__.split("\n")[0])
-    ap.add_argument("--seeds", default="1:2", help="A:B (seeds A to B-1) or a,b,c")
+    ap.add_argument("--seeds", type=seed_list, default="1:2", help="A:B (seeds A to B-1) or a,b,c")
     ap.add_argument("--materials", default=",".join(MATERIALS))
     ap.add_argument("--backgrounds", default=",".join(BACKGROUNDS))
     ap.add_argument("--distances", default=",".join(f"{z:g}" for z in DISTANCES_MM), help="mm, comma separated")
@@ -245,7 +245,7 @@ def main(argv=None):
     ap.add_argument("--out", default=None, help="a JSON file for the rows")
     a = ap.parse_args(argv)
     models = tuple(a.edge_models.split(","))
-    rows = run_grid(seed_list(a.seeds), tuple(a.materials.split(",")), tuple(a.backgrounds.split(",")),
+    rows = run_grid(a.seeds, tuple(a.materials.split(",")), tuple(a.backgrounds.split(",")),
                     tuple(float(v) for v in a.distances.split(",")), models, log=lambda m: print(m, flush=True),
                     realism=a.realism)
     if a.out:

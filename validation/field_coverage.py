@@ -141,7 +141,7 @@ def main(argv=None):
 
     ap = argparse.ArgumentParser(prog="python -m pencilcal.validation.field_coverage",
                                  description=__doc__.split("\n")[0])
-    ap.add_argument("--seeds", default="1400:1402", help="A:B (seeds A to B-1) or a,b,c")
+    ap.add_argument("--seeds", type=seed_list, default="1400:1402", help="A:B (seeds A to B-1) or a,b,c")
     ap.add_argument("--kind", default="field", choices=KINDS,
                     help="field: one field every view sees; own: each view its own; white: none")
     ap.add_argument("--sigma", type=float, default=0.2, help="the field's sigma per axis [px]")
@@ -149,7 +149,7 @@ def main(argv=None):
     ap.add_argument("--out", default=None, help="a JSON lines file the runs are appended to")
     a = ap.parse_args(argv)
     rows = []
-    for seed in seed_list(a.seeds):
+    for seed in a.seeds:
         rows.append(run(seed, a.kind, a.sigma, a.length))
         print(json.dumps({k: rows[-1][k] for k in ("seed", "kept", "score", "field_sigma_px")}), flush=True)
         if a.out:

@@ -58,6 +58,7 @@ from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.pencil.cylinder import project_cylinder
 from pencilcal.toolkit.pencil.fulcrum import fulcrum_point
 from pencilcal.toolkit.pencil.stereo_axes import stereo_axes_from_frames
+from pencilcal.validation.metrics import seed_list
 
 __all__ = ["SETUP", "RIG_COV", "STATED_EDGE_SD_PX", "REGION", "Pivot", "pivot_camera", "draw_pivot",
            "pivot_errors", "pivot_table", "format_table", "main"]
@@ -379,14 +380,6 @@ def format_table(table) -> str:
     return "\n".join(lines)
 
 
-def _seed_range(text):
-    """'A:B' (A..B-1) or 'a,b,c' -> list of ints."""
-    if ":" in text:
-        a, b = (int(v) for v in text.split(":"))
-        return list(range(a, b))
-    return [int(v) for v in text.split(",") if v.strip()]
-
-
 def main(argv=None):
     """The table of `pivot_table` on the command line (module docstring)."""
     import argparse
@@ -396,14 +389,15 @@ def main(argv=None):
 
     ap = argparse.ArgumentParser(prog="python -m pencilcal.validation.fulcrum_pivots",
                                  description=__doc__.split("\n")[0])
-    ap.add_argument("--seeds", default="1040:1080", help="A:B (seeds A to B-1) or a,b,c [default 1040:1080]")
+    ap.add_argument("--seeds", type=seed_list, default="1040:1080",
+                    help="A:B (seeds A to B-1) or a,b,c [default 1040:1080]")
     ap.add_argument("--noise", default="1,2,3", help="the edges' sd as multiples of the stated, comma-separated")
     ap.add_argument("--frames", type=int, default=50, help="frames per pivot [default 50]")
     ap.add_argument("--eyes-only", action="store_true", help="one eye's points only (no fused point: faster)")
     ap.add_argument("-o", "--output", help="also write the table and every pivot's figures as JSON here")
     ap.add_argument("-q", "--quiet", action="store_true", help="no line per pivot on stderr")
     a = ap.parse_args(argv)
-    table = pivot_table(_seed_range(a.seeds), tuple(float(v) for v in a.noise.split(",")), a.frames,
+    table = pivot_table(a.seeds, tuple(float(v) for v in a.noise.split(",")), a.frames,
                         stereo=not a.eyes_only, log=None if a.quiet else (lambda m: print(m, file=sys.stderr, flush=True)))
     if a.output:
         write_json(a.output, table, force=True)

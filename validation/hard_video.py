@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from pencilcal.toolkit.errors import InputError
+from pencilcal.validation.metrics import seed_list
 
 __all__ = ["score", "render_seed", "run_seed", "format_row", "main", "WRONG_DEG", "WRONG_SIGMAS"]
 
@@ -124,13 +125,6 @@ def format_row(seed, s):
             f"{s['within_0p5_deg']}, largest error {s['largest_error_deg']:.2f} deg")
 
 
-def _seeds(text):
-    if ":" in text:
-        lo, hi = (int(v) for v in text.split(":"))
-        return list(range(lo, hi))
-    return [int(v) for v in text.split(",")]
-
-
 def _readout(text):
     if text == "unknown":
         return None
@@ -148,7 +142,7 @@ def main(argv=None):
     import argparse
 
     ap = argparse.ArgumentParser(prog="python -m pencilcal.validation.hard_video", description=__doc__.split("\n")[0])
-    ap.add_argument("--seeds", default="1:2", help="A:B (seeds A to B-1) or a,b,c")
+    ap.add_argument("--seeds", type=seed_list, default="1:2", help="A:B (seeds A to B-1) or a,b,c")
     ap.add_argument("--readout", default="unknown", help="the readout orient is told (0-1), or 'unknown' (default)")
     ap.add_argument("--videos", default=None, help="a folder keeping each seed's video (hard<seed>/), reused")
     ap.add_argument("--frames", type=int, default=120)
@@ -160,7 +154,7 @@ def main(argv=None):
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         base = Path(a.videos) if a.videos else Path(tmp)
-        for seed in _seeds(a.seeds):
+        for seed in a.seeds:
             d = render_seed(seed, base / f"hard{seed}", a.frames, size)
             s = run_seed(d, readout)
             rows.append(dict(s, seed=seed, readout=a.readout))

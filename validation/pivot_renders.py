@@ -53,6 +53,7 @@ from pencilcal.toolkit.synth.render import lighting_gain, sensor_image
 from pencilcal.toolkit.synth.shaded import MATERIALS, shaft_light, shaft_radiance
 from pencilcal.toolkit.synth.tissue import tissue_image
 from pencilcal.validation.fulcrum_pivots import pivot_camera
+from pencilcal.validation.metrics import seed_list
 
 __all__ = ["RIG_SD", "PLAY_SD_MM", "DIAMETER_MM", "draw_sequence", "render_pair", "write_sequence",
            "run_sequence", "format_table", "main"]
@@ -287,19 +288,14 @@ def main(argv=None):
 
     ap = argparse.ArgumentParser(prog="python -m pencilcal.validation.pivot_renders",
                                  description=__doc__.split("\n")[0])
-    ap.add_argument("--seeds", default="2600:2610", help="A:B (seeds A to B-1) or a,b,c")
+    ap.add_argument("--seeds", type=seed_list, default="2600:2610", help="A:B (seeds A to B-1) or a,b,c")
     ap.add_argument("--frames", type=int, default=50)
     ap.add_argument("--out", required=True, help="folder for the sequences and results")
     ap.add_argument("--edge-model", default="step", choices=("step", "limb"))
     a = ap.parse_args(argv)
-    if ":" in a.seeds:
-        lo, hi = (int(v) for v in a.seeds.split(":"))
-        seeds = range(lo, hi)
-    else:
-        seeds = [int(v) for v in a.seeds.split(",")]
     rows = []
     out = Path(a.out)
-    for seed in seeds:
+    for seed in a.seeds:
         folder = out / f"seq{seed}"
         if not (folder / "truth.json").exists():
             write_sequence(draw_sequence(seed, a.frames), folder)

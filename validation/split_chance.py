@@ -137,7 +137,7 @@ def main(argv=None):
                                  description=__doc__.split("\n")[0])
     ap.add_argument("images", nargs="+", help="the calibration's views (files, folders or globs)")
     ap.add_argument("--board", required=True, help="board file (.yaml/.json)")
-    ap.add_argument("--seeds", default="100:110", help="A:B (seeds A to B-1) or a,b,c")
+    ap.add_argument("--seeds", type=seed_list, default="100:110", help="A:B (seeds A to B-1) or a,b,c")
     ap.add_argument("--halves", type=int, default=4, help="random halves per run besides odd/even")
     ap.add_argument("--out", default=None, help="a JSON lines file the runs are appended to")
     a = ap.parse_args(argv)
@@ -146,7 +146,7 @@ def main(argv=None):
     observed = halves(res, dets, board, repeats=0)["odd_even"]["projection_ratio"]
     print(json.dumps({"views": int(sum(res.used)), "odd_even_ratio": observed}), flush=True)
     rows = []
-    for seed in seed_list(a.seeds):
+    for seed in a.seeds:
         rows.append(run(res, dets, board, seed, a.halves))
         print(json.dumps({k: rows[-1][k] for k in ("seed", "chi2_per_dof", "ratio", "ratio_p")}), flush=True)
         if a.out:
