@@ -10,10 +10,9 @@ from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.io.files import write_json
 from pencilcal.toolkit.detect.shaft.prior import epoch_priors
 from pencilcal.toolkit.pencil.epochs import frame_epochs
-from pencilcal.toolkit.pencil.fulcrum import fulcrum_from_frames, read_angles
+from pencilcal.toolkit.pencil.fulcrum import read_angles
 from pencilcal.toolkit.pencil.stereo_fulcrum import stereo_fulcrum
 from pencilcal.toolkit.io.lines_file import read_lines
-from pencilcal.toolkit.pencil.sequence_noise import fulcrum_with_noise
 from pencilcal.validation.fulcrum_run import fulcrum_with_sigmas
 
 from .common import (detector_option, edge_model_option, endpoint_sigma_option, gamma_option, command, camera_options, check_output, FiniteFloat, force_option, FrameOutputs, frames_region,
@@ -84,17 +83,6 @@ def _shafts(source, camera, options, quiet, workers, mask_path, live, tracker=No
     return frames
 
 
-def _with_noise(res, run, frames, sigma, given):
-    """(Fulcrum, the fulcrum.json ``noise`` record): the sigmas with the noise the lines'
-    residuals show (`sequence_noise.fulcrum_with_noise`) unless the user gave it; segments
-    without their own sigmas are estimated (the fit run again with the estimate), the
-    detector's sigmas (shaft midlines, a lines file's angle sigmas) only inflated."""
-    out, noise, message = fulcrum_with_noise(res, run, sigma, frames, given=given)
-    if message:
-        warn(message)
-    return out, noise
-
-
 def _is_lines_file(path):
     """Whether --right names a lines file (a .json file: `pencilcal lines`'s output) rather
     than frames (image files, folders, patterns, a video)."""
@@ -137,20 +125,16 @@ def _summary(out, off_axis, shaft_diameter, n_frames):
 def _stereo(left, right_images, camera_right, camera_right_path, rig, options, endpoint_sigma, given, max_pixels,
             workers, quiet, force, left_view, poses=None):
     """fulcrum.json's ``stereo`` record: the right view's fulcrum from its own shafts (a lines
-    file's, or detected in its frames), the noise as for the left view, then
+    file's, or detected in its frames), its sigmas as the left view's (the noise, the jackknife), then
     `stereo_fulcrum.stereo_fulcrum` with the left's; and ``axes``, the fulcrum of the shafts' axes
     triangulated from both eyes' silhouettes (`stereo_axes.stereo_axes_from_frames`; left_view:
     (camera, frames, shaft diameter) of the left view); with `poses` (--kinematics) also
     ``robot``, the hand-eye from those axes (`hand_eye.robot_from_frames`)."""
     frames, (key, where) = _right_frames(right_images, camera_right, options, max_pixels, workers, quiet, force)
 
-    def run(sigma):
-        try:
-            return fulcrum_from_frames(camera_right, frames, endpoint_sigma_px=sigma)
-        except EstimationError as e:
-            raise EstimationError(f"{right_images} (right view): {e}") from None
-
-    right, noise = _with_noise(run(endpoint_sigma), run, frames, endpoint_sigma, given)
+    # the right view's sigmas as the left's (the noise, the jackknife): the stereo points read both
+    right = fulcrum_with_sigmas(camera_right, frames, endpoint_sigma_px=endpoint_sigma if given else None,
+                                where=f"{right_images} (right view)")
     for w in right.warnings:
         warn(f"right view: {w}")
     try:
@@ -158,7 +142,8 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
     except EstimationError as e:
         raise EstimationError(f"{rig.source}: {e}") from None
     rec = st.to_dict()
-    rec["right"] = {key: where, "camera": str(camera_right_path), "noise": noise, **rec["right"]}
+    rec["right"] = {key: where, "camera": str(camera_right_path), "noise": right.noise, "jackknife": right.jackknife,
+                    **rec["right"]}
     from pencilcal.toolkit.pencil.stereo_axes import stereo_axes_from_frames
 
     try:

@@ -139,7 +139,13 @@ class Fulcrum:
     ray_cov_offset (3, 3): the part of ray_cov that the parallax or the play term gave (an
     offset of every line at the vertex, the scene's rather than each line's own:
     `stereo_fulcrum.stereo_fulcrum` takes it as shared by two views); None where the lines
-    took none.
+    took none. vertex_lines: where the lines are shaft midlines, the inlier lines as a
+    second view of the same frames needs them to count what the two share line by line
+    (`stereo_play.play_cross_cov`): (frames (N,) int, each line's frame index in the frames
+    given; gains (N, 3) [1/px], how far the unit ray turns per px the line moves along its
+    normal at the vertex; normals (N, 2), those unit normals in undistorted px; residuals
+    (N,) [px], the vertex's signed distance from the line along its normal; sigmas (N,)
+    [px], the sd the fit gave the line there); None otherwise.
     """
 
     vertex_px: np.ndarray | None
@@ -165,6 +171,7 @@ class Fulcrum:
     parallax: dict | None = None
     ray_cov_offset: np.ndarray | None = None
     play: dict | None = None
+    vertex_lines: tuple | None = None
 
     def ray_covariance(self):
         """(3, 3) covariance of the unit `ray` (camera frame), singular along it, with the
@@ -920,13 +927,24 @@ def fulcrum_from_frames(camera, frames, angles=None, endpoint_sigma_px=ENDPOINT_
     ray_cov = P @ cov_x @ P.T
     ray_sigma = np.sqrt(max(np.trace(ray_cov), 0.0))
     off = _offset_cov(vf, ideal[idx], extra)
+    vertex_lines = None
+    if lines_from == "shafts":
+        k_in = np.flatnonzero(vf.inliers)
+        a = ideal[idx[k_in], :2]
+        dv = ideal[idx[k_in], 2:] - a
+        n = np.stack([-dv[:, 1], dv[:, 0]], -1) / np.linalg.norm(dv, axis=-1, keepdims=True)
+        sd = np.asarray(vf.sigmas, float)[k_in]
+        # the vertex moves by cov n / sigma^2 per px the line moves along n (least squares)
+        g = (n @ vf.cov) / sd[:, None] ** 2
+        vertex_lines = (np.array([owner[idx[k]][0] for k in k_in], int), g @ (P @ A).T, n,
+                        np.sum(n * (vf.vertex - a), -1), sd)
     v_raw, cov_raw = raw_vertex(camera, x, vf.vertex, vf.cov) if raw_px else (None, None)
     out = Fulcrum(
         vertex_px=v_raw, vertex_cov_px2=cov_raw, ray=ray, ray_sigma_deg=float(np.degrees(ray_sigma)),
         lines_used=int(vf.lines_used),
         outliers=[{"image": frames[owner[k][0]].get("image"), "segment": owner[k][1]} for k in np.flatnonzero(~inl)],
         frames_used=int(len({owner[k][0] for k in np.flatnonzero(inl)})), rms=vf.rms, lines_from=lines_from,
-        warnings=tuple(warnings), ray_cov=ray_cov, parallax=parallax, play=play,
+        warnings=tuple(warnings), ray_cov=ray_cov, parallax=parallax, play=play, vertex_lines=vertex_lines,
         ray_cov_offset=None if off is None else P @ (A @ off @ A.T) @ P.T)
     C = resolve_intrinsics_cov(camera, intrinsics_cov)
     if C is not None:

@@ -20,7 +20,8 @@ from pencilcal.toolkit.geometry.quantiles import chi2_sf
 from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fusion, RayTriangulation, combine_estimates,
                                                triangulate_rays)
 from pencilcal.toolkit.pencil.fulcrum import Fulcrum
-from pencilcal.toolkit.pencil.stereo_play import play_covariance, shared_offset_term, shared_ray_cov
+from pencilcal.toolkit.pencil.stereo_play import (cross_term, play_covariance, play_cross_cov, shared_offset_term,
+                                                   shared_ray_cov)
 
 __all__ = ["StereoFulcrum", "stereo_fulcrum", "triangulation_lens_cov", "triangulation_rig_cov"]
 
@@ -48,7 +49,8 @@ class StereoFulcrum:
     covariances whole. rig_cov (3, 3): the rig calibration's term of the triangulated
     point's covariance (`triangulation_rig_cov`), in it and in the combined point's as
     much as the fusion took from the triangulated point; None when the rig has no
-    covariance.
+    covariance. paired: `stereo_play.play_cross_cov`'s record (``pairs``, ``sigma_px``) of
+    the lines both views fitted in the same frames.
     """
 
     rig: object
@@ -61,12 +63,14 @@ class StereoFulcrum:
     lens_views: tuple = ()
     common_cov: np.ndarray | None = None
     rig_cov: np.ndarray | None = None
+    paired: dict | None = None
 
     def to_dict(self) -> dict:
         """fulcrum.json's ``stereo`` record: the rig (``file``, ``R_right_from_left``,
         ``t_right_from_left``, ``baseline``), ``right`` (the right view's fulcrum keys),
         ``triangulated`` (``point``, ``point_cov``, ``point_sigma``, ``ranges``,
-        ``ray_distances``, ``chi2``, ``dof``, ``p_value``; ``point_cov_shared``; with the rig's
+        ``ray_distances``, ``chi2``, ``dof``, ``p_value``; ``point_cov_shared``; ``paired_lines`` and
+        ``shared_offset_px`` (`stereo_play.play_cross_cov`); with the rig's
         covariance ``point_cov_rig``; with the intrinsics' covariance
         of either camera also ``point_cov_total``, ``point_sigma_total``, ``intrinsics_used``
         and ``intrinsics_views``) and with the diameter ``agreement``
@@ -82,6 +86,9 @@ class StereoFulcrum:
                                "dof": 1, "p_value": chi2_sf(float(t.chi2), 1)}
         if self.common_cov is not None:
             out["triangulated"]["point_cov_shared"] = np.asarray(self.common_cov, float).tolist()
+        if self.paired is not None:
+            out["triangulated"]["paired_lines"] = int(self.paired["pairs"])
+            out["triangulated"]["shared_offset_px"] = self.paired["sigma_px"]
         if self.rig_cov is not None:
             out["triangulated"]["point_cov_rig"] = np.asarray(self.rig_cov, float).tolist()
         if self.lens_cov is not None:
@@ -162,7 +169,10 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     R_right_from_left p_left + t_right_from_left``). The point is the weighted least-squares
     meeting of the two rays (`cylinder.triangulate_rays`: each ray's angular covariance
     times its range, iterated), in the left camera frame and the rig's length unit, with
-    its covariance and the chi2 (1 dof) of the rays' miss. The rays meet with their own
+    its covariance and the chi2 (1 dof) of the rays' miss. Where both views' lines are
+    shaft midlines of the same frames the point's covariance gains the rays' cross terms
+    read from those pairs (`play_cross_cov`, `cross_term`: the offset a frame's shaft has in
+    both views, along the line of sight and across it). Otherwise the rays meet with their own
     parts (what their lines' sigmas give) and the point's covariance gains what the 3-D
     offset both rays share adds across the line of sight (`play_covariance`: the scatter
     beyond the lines' sigmas, which the instrument's play in its port gives both views
@@ -201,7 +211,10 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     R, t = rig.R_right_from_left, rig.t_right_from_left
     tri = triangulate_rays(left.ray, Cl, right.ray, Cr, R, t)
     common = play_covariance(tri, shared_ray_cov(left), R.T @ shared_ray_cov(right) @ R)
-    cov = tri.point_cov + shared_offset_term(tri, common)
+    # the frames both views fitted give the rays' cross-covariance line by line; without
+    # them, the excess each view's lines read is taken as shared, across the line of sight
+    X, paired = play_cross_cov(left, right, R)
+    cov = tri.point_cov + (shared_offset_term(tri, common) if X is None else cross_term(tri, X))
     # the rig's calibration error is the triangulated point's own (the diameter-based point
     # holds none of it): in its covariance, the fusion's weights and the agreement test
     rig_cov = triangulation_rig_cov(left.ray, Cl, right.ray, Cr, rig)
@@ -217,7 +230,8 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
         lens["lens_cov"] = triangulation_lens_cov(tri, left.ray_cov_lens, None if right.ray_cov_lens is None
                                                   else R.T @ np.asarray(right.ray_cov_lens, float) @ R)
     if left.point is None:
-        return StereoFulcrum(rig, right, tri, confidence=confidence, common_cov=common, rig_cov=rig_cov, **lens)
+        return StereoFulcrum(rig, right, tri, confidence=confidence, common_cov=common, rig_cov=rig_cov, paired=paired,
+                             **lens)
     fit = left.point.fit
     shared = True
     # the test takes the common offset out of both covariances: the left ray it cancels is
@@ -232,5 +246,6 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
         shared = False
         fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence, common=common,
                                   unweighted1=left.point.width_cov)
-    return StereoFulcrum(rig, right, tri, fused, shared, confidence, common_cov=common, rig_cov=rig_cov, **lens)
+    return StereoFulcrum(rig, right, tri, fused, shared, confidence, common_cov=common, rig_cov=rig_cov, paired=paired,
+                         **lens)
 

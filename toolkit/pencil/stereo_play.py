@@ -9,7 +9,10 @@ diameter-based point, does not average that part (`stereo_fulcrum.stereo_fulcrum
 - `shared_ray_cov`: the part of a view's fulcrum ray covariance beyond its lines' own sigmas;
 - `play_covariance`: the two views' parts as one 3-D offset of the point, across the line of
   sight;
-- `shared_offset_term`: what that offset adds to the covariance of the rays' meeting point.
+- `shared_offset_term`: what that offset adds to the covariance of the rays' meeting point;
+- `play_cross_cov`: the two rays' cross-covariance read line by line from the frames both
+  views fitted: the shaft's offset in a frame is one for both views, its edges' noise each
+  view's own.
 """
 from __future__ import annotations
 
@@ -17,7 +20,10 @@ import numpy as np
 
 from pencilcal.toolkit.geometry.frames import normalize
 
-__all__ = ["shared_ray_cov", "play_covariance", "shared_offset_term"]
+__all__ = ["shared_ray_cov", "play_covariance", "shared_offset_term", "play_cross_cov", "cross_term", "MIN_PAIRED_LINES"]
+
+#: The fewest frames with one line in each view for `play_cross_cov` to read the shared offset.
+MIN_PAIRED_LINES = 5
 
 
 def shared_ray_cov(fulcrum):
@@ -91,3 +97,70 @@ def shared_offset_term(tri, common, margin=0.9):
     # an offset read larger than a ray holds: the term would take (nearly) all of the point's
     # covariance away along some direction; there it takes nothing (the rays as independent)
     return L @ (V * np.maximum(lam, 0.0)) @ V.T @ L.T
+
+
+def play_cross_cov(left, right, R_right_from_left):
+    """(X (3, 3), record) the cross-covariance ``E[dr_l (R^T dr_r)^T]`` of the two views'
+    unit fulcrum rays' errors (left camera frame), from the lines both fitted in the same
+    frames; (None, record) where it cannot be read.
+
+    left, right: each view's `fulcrum.Fulcrum` with its ``vertex_lines`` (the inlier shaft
+    midlines: frame, the ray's gain per px of the line's offset, normal, residual, sd);
+    frames are paired by their index (the two views' frames given in the same order), and
+    only frames with one line in each view are pairs (at least `MIN_PAIRED_LINES`). A
+    frame's shaft passes the fulcrum off by one 3-D offset (the port's play), which both
+    views see as about the same image offset u (two cameras a few millimetres apart, at
+    one depth): the offsets of its line along the two normals, ``n_l.u`` and ``n_r.u``,
+    covary by ``tau^2 c`` (c = n_l . n_r), while the edges' noise is each view's own and
+    drops out. So tau^2 [px^2], the shared offset's variance per direction, is read from
+    the pairs' residuals at their vertices, ``sum r_l r_r c / sum c^2``, times N / (N - 2)
+    (each vertex took two of the N residuals' degrees of freedom), held at 0 or above;
+    each pair's covariance ``tau^2 c`` at most the product of the two lines' sds (no line
+    shares more than it holds). Then ``X = sqrt(s_l s_r) sum_pairs tau^2 c g_l (R^T
+    g_r)^T``, g each line's gain and s each view's factor from its fit's ray covariance to
+    the one it reports (`Fulcrum.ray_covariance`: the noise or the jackknife). Unlike the
+    excess each view's lines read (`shared_ray_cov`), tau holds the play where a
+    detector's sds already covered it (its play term then reads little or none), and X
+    counts only the frames both views used. record: ``pairs``, ``sigma_px`` (tau)."""
+    rec = {"pairs": 0, "sigma_px": None}
+    if left.vertex_lines is None or right.vertex_lines is None:
+        return None, rec
+    fl, gl, nl, rl, sl = left.vertex_lines
+    fr, gr, nr, rr, sr = right.vertex_lines
+    one_l = {f for f in fl if np.count_nonzero(fl == f) == 1}
+    one_r = {f for f in fr if np.count_nonzero(fr == f) == 1}
+    both = sorted(one_l & one_r)
+    rec["pairs"] = len(both)
+    if len(both) < MIN_PAIRED_LINES:
+        return None, rec
+    a = np.array([np.flatnonzero(fl == f)[0] for f in both])
+    b = np.array([np.flatnonzero(fr == f)[0] for f in both])
+    c = np.sum(nl[a] * nr[b], -1)
+    n = len(both)
+    tau2 = max(float(np.sum(rl[a] * rr[b] * c) / max(np.sum(c * c), 1e-12)) * n / (n - 2), 0.0)
+    rec["sigma_px"] = float(np.sqrt(tau2))
+    k = np.clip(tau2 * c, -sl[a] * sr[b], sl[a] * sr[b])
+    R = np.asarray(R_right_from_left, float)
+    X = np.einsum("k,ki,kj->ij", k, gl[a], gr[b] @ R)
+    return X * np.sqrt(_reported_factor(left) * _reported_factor(right)), rec
+
+
+def _reported_factor(fulcrum):
+    """The factor from the fit's ray covariance to the reported one (`Fulcrum.ray_covariance`)."""
+    fit = float(np.trace(np.asarray(fulcrum.ray_cov, float)))
+    return float(np.trace(fulcrum.ray_covariance())) / fit if fit > 0 else 1.0
+
+
+def cross_term(tri, X):
+    """(3, 3) [length^2] what the rays' cross-covariance X (3, 3) (`play_cross_cov`, unit
+    rays, left camera frame) adds to the covariance of their meeting point
+    (`cylinder.triangulate_rays`, which takes the rays as independent): turning ray k by d
+    moves the point by ``H^-1 I_k rho_k d`` (`stereo_fulcrum.triangulation_lens_cov`), so
+    the term is ``rho_l rho_r H^-1 (I_l X I_r + I_r X^T I_l) H^-1``, along the line of sight
+    and across it: an offset both rays share cancels in their disparity (the depth) and
+    is not halved across it."""
+    info = np.asarray(tri.ray_information, float)
+    H_inv = np.linalg.inv(info[0] + info[1])
+    S = float(tri.ranges[0]) * float(tri.ranges[1]) * np.asarray(X, float)
+    out = H_inv @ (info[0] @ S @ info[1] + info[1] @ S.T @ info[0]) @ H_inv
+    return 0.5 * (out + out.T)
