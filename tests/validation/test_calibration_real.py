@@ -8,6 +8,10 @@ region the views cover; the odd/even chi-square per dof alone <= 1.5 too. The mo
 choices were made on the da Vinci left and the OpenCV chessboard left views; the right views
 of both and the RealSense set check them (docs/calibration.md has every figure).
 
+`--model auto`, run as a user runs it on the smallest set where the choice refuses models and
+applies its one-standard-error rule (the OpenCV right views), must pass the same check with
+the model it keeps (docs/calibration.md has its figures on every set).
+
 Bad calibrations are called not usable with their reason: too few views (the OpenCV ChArUco
 tutorial's 4), all nearly fronto-parallel (the RealSense set's 6 least tilted views), a
 board too small (the da Vinci views cut to a patch of 4 x 4 corners), and the same three on
