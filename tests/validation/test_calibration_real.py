@@ -8,6 +8,10 @@ region the views cover; the odd/even chi-square per dof alone <= 1.5 too. The mo
 choices were made on the da Vinci left and the OpenCV chessboard left views; the right views
 of both and the RealSense set check them (docs/calibration.md has every figure).
 
+`--model auto`, run as a user runs it on the smallest set where the choice refuses models and
+applies its one-standard-error rule (the OpenCV right views), must pass the same check with
+the model it keeps (docs/calibration.md has its figures on every set).
+
 Bad calibrations are called not usable with their reason: too few views (the OpenCV ChArUco
 tutorial's 4), all nearly fronto-parallel (the RealSense set's 6 least tilted views), a
 board too small (the da Vinci views cut to a patch of 4 x 4 corners), and the same three on
@@ -263,3 +267,63 @@ def test_a_model_the_views_do_not_determine_is_predicted_as_its_halves_differ_an
     assert 1 / 1.3 <= pooled["projection_ratio"] <= 1.3, pooled
     assert float(res.checks.uncertainty["linear_departure"]) > 10
     assert any("not determined by these views" in w for w in res.checks.verdict.warnings)
+
+
+@pytest.mark.slow
+def test_model_auto_as_a_user_runs_it_passes_its_own_cross_validation(tmp_path):
+    """`pencilcal calibrate --model auto --report calib.json` on the OpenCV chessboard's 13
+    right views, the smallest shared set on which the choice does all it can: three rational
+    models are refused as not determined by the views (opencv 8, 12, 14: their projection
+    departs 0.97-4.7 x from its linear response), the splined model predicts the held-out
+    views best and opencv 4, 108 parameters fewer, is taken within one standard error of it.
+    The calibration it keeps must then pass its own two-halves check as the default one
+    does, with the 48 random halves these small sets need (REPEATS; measured: odd/even
+    chi2/dof 0.22, ratio 1.10 (p 0.27); pooled over 49 splits 1.05, 1.04; over the command's
+    default 17 splits 1.00, 1.21). These views publish no focal length of their own
+    (intrinsics.yml's stereo fit gives both eyes one focal length with k1 +0.30 on the
+    left), so the lean model's focal length is held to the default model's instead
+    (measured fx 537.45 against 537.68, fy 537.04 against 537.25: -0.04 % each)."""
+    import json
+
+    from click.testing import CliRunner
+
+    from pencilcal.cli.main import cli
+    from pencilcal.toolkit.board.calibrate import calibrate
+    from pencilcal.toolkit.board.model_choice import LINEAR_DEPARTURE
+
+    files = sorted(glob.glob(str(data_dir("opencv-stereo-chessboard") / "right*.jpg")))
+    (tmp_path / "board.yaml").write_text("type: chessboard\nsquares: [9, 6]\nsquare: 25.0\n")
+    r = CliRunner().invoke(cli, ["calibrate", *files, "--board", str(tmp_path / "board.yaml"), "--model", "auto",
+                                 "--halves", str(REPEATS["opencv_right"]), "-o", str(tmp_path / "cam.json"),
+                                 "--report", str(tmp_path / "calib.json"), "-q"])
+    assert r.exit_code == 0, r.output
+    rec = json.loads((tmp_path / "calib.json").read_text())
+    assert rec["cross_validation"]["pooled"]["splits"] == REPEATS["opencv_right"] + 1
+    choice = rec["model_choice"]
+    # what was picked, and why, is in the report
+    assert (rec["model"], rec["coefficients"]) == (choice["model"], choice["coefficients"])
+    assert choice["reason"].startswith("5-fold cross-validation over 13 views") and "within one standard error" in \
+        choice["reason"], choice["reason"]
+    cands = {(c["model"], c["coefficients"]): c for c in choice["candidates"]}
+    picked = cands[(choice["model"], choice["coefficients"])]
+    # the one-standard-error rule among the models the views determine, and only among them
+    ok = [c for c in choice["candidates"] if c["status"] == "ok"]
+    assert picked["status"] == "ok" and picked["excess_px2"] <= picked["excess_se_px2"]
+    assert not [c for c in ok if c["parameters"] < picked["parameters"] and c["excess_px2"] <= c["excess_se_px2"]]
+    refused = [c for c in choice["candidates"] if c["status"].startswith("not determined")]
+    assert all(c["linear_departure"] > LINEAR_DEPARTURE for c in refused)
+    assert all(c["linear_departure"] <= LINEAR_DEPARTURE for c in ok)
+    assert {("opencv", 8), ("opencv", 12), ("opencv", 14)} <= {(c["model"], c["coefficients"]) for c in refused}
+    assert min(c["heldout_rms_px"] for c in ok) < picked["heldout_rms_px"]      # the rule did choose
+    # the model kept passes its own cross-validation
+    cv = rec["cross_validation"]
+    assert cv["odd_even"]["chi2_per_dof"] <= 1.5, cv["odd_even"]
+    assert cv["odd_even"]["projection_ratio_p"] > 0.01, cv["odd_even"]
+    assert cv["pooled"]["chi2_per_dof"] <= 1.5 and cv["pooled"]["projection_ratio"] <= 1.3, cv["pooled"]
+    assert rec["verdict"]["status"] in ("usable", "usable within this region"), rec["verdict"]["headline"]
+    assert not rec["verdict"]["reasons"] and not rec["verdict"]["warnings"]
+    # a lean model's focal length is the default model's, within a thousandth
+    board, dets, size, _ = detections("opencv_right")
+    default = calibrate(dets, board, size, corner_noise=True, warp=True)
+    assert rec["camera"]["K"][0][0] == pytest.approx(default.camera.fx, rel=1e-3)
+    assert rec["camera"]["K"][1][1] == pytest.approx(default.camera.fy, rel=1e-3)
