@@ -88,7 +88,6 @@ _MIN_WIDTHS_AT_PORT = 1.0  # ... or, running from the prior's point (`_ends_at`)
 _MIN_WIDTHS_CLOSE = 0.5  # ... or, where no band is that long (`_entering_close`), fewer than this
 _MAX_CONVERGENCE_AT_PORT_DEG = 45.0  # a band from the prior's point converges at most so much (either way)
 _JOIN_FRACTION = 0.8  # a band joins the border through instrument material along this much of the way
-_CONES = True  # the pairs also vote by their angle about X (`_bands`)
 _PEAK_CANDIDATES = 16  # vote peaks looked at
 _CANDIDATES = 3  # bands measured at full resolution at most
 _FAR = 1e4  # beyond this many work-frame diagonals a point is at infinity
@@ -537,7 +536,7 @@ def _bands(work, pw, wmin, wmax):
     shifts = _shifts(grid, pw)
     found = []
     votes = [(pairs, wmin, False)]
-    if not grid.far and _CONES:
+    if not grid.far:
         # a shaft pointing at (or away from) the camera from a port near the view images as a
         # cone whose apex lies near X: its width grows with the radius, its angle about X
         # stays; its pairs also vote by their width in columns
