@@ -21,7 +21,11 @@ and drapes cross the columns obliquely. So:
    along the shaft in perspective) is the shaft's. Where X itself is uncertain (the
    prior's sd across the lines, `AxisPrior.offset_sigma`), a line through a point delta
    beside X moves by delta / rho in angle: the votes are also counted for shifts delta
-   within 3 sd (`_MAX_SHIFTS` of them), the best kept;
+   within 3 sd (`_MAX_SHIFTS` of them), the best kept. A shaft pointing at or away from
+   the camera from a port near the view images as a cone whose width grows with rho while
+   its angle about X stays: the pairs vote a second time by their width in columns, each
+   peak of that vote suppressing its neighbouring columns at its own widths only (a bright
+   tip beyond the cone, on the same line through X, must not take the column from it);
 3. *band*: the pairs near the winning centre and width, the best per row, over the heaviest
    run of rows with gaps up to `_GAP_ROWS`; each side's points fitted by a line, extended along
    it while the band's cross-section goes on looking like its run's, refitted at full
@@ -29,9 +33,15 @@ and drapes cross the columns obliquely. So:
    cue's edges) and the midline their plane bisector (`shaft.axis`). Kept where
    both edges are seen together along 1.5 widths at least and the band reaches the border
    of the view (an instrument enters from outside), or along one width where it runs from
-   X itself (`_ends_at`: a port in view, where the instrument enters; close to the camera
-   its visible part is short and wide); the score is that length [raw px] times the least
-   fraction of stations with an edge.
+   X itself (`_ends_at`: a port in view, where the instrument enters), `_entering`. Only
+   where no band of the vote by widths is kept so, a band of either vote is kept that is
+   seen along half a width (close to the camera a shaft's visible part is short and wide)
+   and reaches the border, or runs from X, or is joined to the border by instrument
+   material along its line towards X (`_joins_border`: a distal part whose band stops at
+   its collar, the shaft running on), `_entering_close`: these looser rules find shafts
+   close to the camera or along its line of sight without changing a frame where a long
+   band enters the view. The score is the length seen [raw px] times the least fraction
+   of stations with an edge.
 
 The thresholds are looser than the cues' (one pair of edges over a short run is enough):
 the prior does what the cues' elongation and material tests do, and every result is then
@@ -74,8 +84,10 @@ _MIN_ROWS = 6  # a band seen at fewer rows is none
 _GAP_ROWS = 4  # a band's run bridges gaps of up to this many rows
 _INSIDE_FRACTION = 0.7  # a band's inside lies on its side of the halfway level at least so much
 _MIN_WIDTHS = 1.5  # a band seen along fewer widths is none ...
-_MIN_WIDTHS_AT_PORT = 1.0  # ... or, running from the prior's point (`_ends_at`), fewer than this
-_MAX_CONVERGENCE_AT_PORT_DEG = 45.0  # a band from the prior's point narrowing towards it converges at most so much
+_MIN_WIDTHS_AT_PORT = 1.0  # ... or, running from the prior's point (`_ends_at`), fewer than this ...
+_MIN_WIDTHS_CLOSE = 0.5  # ... or, where no band is that long (`_entering_close`), fewer than this
+_MAX_CONVERGENCE_AT_PORT_DEG = 45.0  # a band from the prior's point converges at most so much (either way)
+_JOIN_FRACTION = 0.8  # a band joins the border through instrument material along this much of the way
 _PEAK_CANDIDATES = 16  # vote peaks looked at
 _CANDIDATES = 3  # bands measured at full resolution at most
 _FAR = 1e4  # beyond this many work-frame diagonals a point is at infinity
@@ -189,19 +201,21 @@ def _votes(grid, pairs, shifts, wmin, ncols):
     return A, b
 
 
-def _peaks(A, wmin):
+def _peaks(A, wmin, own_widths=False):
     """The best (shift index, column, width bin) of the accumulators, up to
-    `_PEAK_CANDIDATES`, each suppressing the columns within half its width."""
+    `_PEAK_CANDIDATES`, each suppressing the columns within half its width (at every width;
+    own_widths: at its own widths only)."""
     out = []
     A = A.copy()
     mean_w = np.exp(np.arange(A.shape[2]) * np.log1p(_WIDTH_STEP)) * wmin
+    tol = int(round(_WIDTH_TOL / _WIDTH_STEP))
     for _ in range(_PEAK_CANDIDATES):
         q, c, b = np.unravel_index(int(np.argmax(A)), A.shape)
         if A[q, c, b] <= 0:
             break
         out.append((int(q), int(c), int(b)))
         half = int(np.ceil(0.5 * mean_w[b])) + 1
-        A[:, max(c - half, 0):c + half + 1, :] = 0
+        A[:, max(c - half, 0):c + half + 1, max(b - tol, 0) if own_widths else 0:b + tol + 1 if own_widths else None] = 0
     return out
 
 
@@ -277,6 +291,17 @@ def _band_points(grid, P, D, pairs, b_of, c, b, shift):
     if sel.size < _MIN_ROWS:
         return None
     return R[sel], ci[sel], cj[sel], bool(np.mean(dark[sel]) > 0.5), float(np.sum(wt[sel]))
+
+
+def _same_band(a, b):
+    """Whether two bands' points (`_band_points`) are one band found by both votes: their
+    centres within 2 columns of each other on the rows they share, half the rows at least."""
+    ra, rb = a[0], b[0]
+    common, ia, ib = np.intersect1d(ra, rb, return_indices=True)
+    if common.size < 0.5 * min(ra.size, rb.size):
+        return False
+    ca, cb = 0.5 * (a[1][ia] + a[2][ia]), 0.5 * (b[1][ib] + b[2][ib])
+    return bool(np.median(np.abs(ca - cb)) <= 2.0)
 
 
 def _chord(work, p, u):
@@ -365,7 +390,7 @@ def _reaches_border(m, camera, validity, margin):
     return bool(np.min(validity.distance(to_raw_points(camera, m.ends))) <= m.width_px + margin)
 
 
-def _ends_at(m, prior, margin, image_size):
+def _ends_at(m, prior, margin, image_size, width=None):
     """Whether a midline (ideal px) ends at a finite prior's point (ideal px) inside the
     image (image_size (W, H) [px]): within its width, a margin [px] and 3 sd of the point
     along it. An instrument whose port is in view
@@ -375,7 +400,74 @@ def _ends_at(m, prior, margin, image_size):
         return False  # a port beyond the view: the instrument enters at the border
     u = (m.ends[1] - m.ends[0]) / max(float(np.linalg.norm(m.ends[1] - m.ends[0])), 1e-12)
     sd = float(prior.offset_sigma(np.array([-u[1], u[0]])))  # the point's sd along the midline
-    return bool(np.min(np.linalg.norm(m.ends - x, axis=1)) <= m.width_px + margin + 3.0 * sd)
+    d = np.linalg.norm(m.ends - x, axis=1)
+    k = int(np.argmin(d))
+    # the band's width at its end towards the point: a shaft pointing away from the camera
+    # is widest at its port, and its edges stop short of the port by that width's half
+    w = max(m.width_px, _width_at(m, m.ends[k])) if width is None else width
+    return bool(d[k] <= w + margin + 3.0 * sd)
+
+
+def _width_at(m, p):
+    """The distance [px] between a midline's two edge lines (ideal px) across the point p (2,)
+    between them."""
+    e = np.asarray(m.edges, float).reshape(2, 2, 2)
+    out = 0.0
+    for a, b in e:
+        t = (b - a) / max(float(np.linalg.norm(b - a)), 1e-12)
+        out += abs(float((p - a) @ np.array([-t[1], t[0]])))
+    return out
+
+
+def _joins_border(work, chan, m, prior):
+    """Whether, on the instrument-likeness chan (work frame), a midline (ideal px) is joined to
+    the view's border by instrument material along its line on the prior's point's side: a
+    shaft's distal part (a wrist, jaws, a bright tip narrower or wider than the shaft) whose
+    band stops at a collar, the shaft itself running on to the border. From the midline's end
+    nearer the point (either end where the point lies at infinity) outwards to the border (not
+    beyond the point), at stations 2 work px apart, the likeness across the middle half of
+    that end's width lies above halfway between the band's own (across its centre) and the
+    surround's (the higher of its two sides 0.8 widths from the axis) at `_JOIN_FRACTION` of
+    them."""
+    import cv2
+
+    def at(P):
+        q = work.to_work(P.reshape(-1, 2)).reshape(P.shape).astype(np.float32)
+        return q[..., 0], q[..., 1]
+
+    c = np.ascontiguousarray(chan, np.float32)
+    u = (m.ends[1] - m.ends[0]) / max(float(np.linalg.norm(m.ends[1] - m.ends[0])), 1e-12)
+    n = np.array([-u[1], u[0]])
+    mid = 0.5 * (m.ends[0] + m.ends[1])
+    lv = cv2.remap(c, *at(np.array([[mid + f * m.width_px * n for f in (-0.15, 0.0, 0.15, -0.8, 0.8)]])),
+                   cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0]
+    band, surround = float(np.median(lv[:3])), float(np.max(lv[3:]))
+    if band <= surround:
+        return False
+    x = _finite_point(prior)
+    if x is None:
+        ways = [(0, -u), (1, u)]
+    else:
+        k = int(np.argmin(np.linalg.norm(m.ends - x, axis=1)))
+        ways = [(k, u if (x - m.ends[k]) @ u > 0 else -u)]
+    for k, d in ways:
+        st = np.arange(1.0, float(np.hypot(*work.shape)) / work.mean_scale, _ROW_STEP / work.mean_scale)
+        if x is not None:
+            st = st[st < float(np.linalg.norm(x - m.ends[k]))]  # not beyond the port
+        w = _width_at(m, m.ends[k])
+        pts = m.ends[k] + st[:, None, None] * d + (np.linspace(-0.25, 0.25, 5) * w)[None, :, None] * n
+        if st.size < 2:
+            continue
+        xs, ys = at(pts)
+        seen = cv2.remap(work.dist, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                         borderValue=-1.0).min(1) >= 0
+        out = int(np.argmin(seen)) if not seen.all() else 0
+        if out <= 0:
+            continue  # the line never leaves the view towards the point, or starts outside it
+        val = np.median(cv2.remap(c, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), 1)[:out]
+        if np.mean(val > 0.5 * (band + surround)) >= _JOIN_FRACTION:
+            return True
+    return False
 
 
 def _narrows_to(m, prior):
@@ -431,7 +523,8 @@ def _channel(work):
 
 def _bands(work, pw, wmin, wmax):
     """Steps 1-3 in the work frame: up to `_CANDIDATES` (grid, rows, left cols, right cols,
-    dark), the heaviest first."""
+    dark, False) of the vote by widths, the heaviest first, then up to as many others of
+    the vote by angles (..., True)."""
     from pencilcal.toolkit.detect.shaft.material_cue import robust_noise
 
     grid = _Grid(pw.point, work.shape, float(np.hypot(*work.shape)))
@@ -441,14 +534,25 @@ def _bands(work, pw, wmin, wmax):
     if pairs[0].size == 0:
         return []
     shifts = _shifts(grid, pw)
-    A, b_of = _votes(grid, pairs, shifts, wmin, grid.pts.shape[1])
     found = []
-    for q, c, b in _peaks(A, wmin):
-        band = _band_points(grid, P, D, pairs, b_of, c, b, shifts[q])
-        if band is not None:
-            found.append(band)
-    found.sort(key=lambda t: -t[4])
-    return [(grid, *t[:4]) for t in found[:_CANDIDATES]]
+    votes = [(pairs, wmin, False)]
+    if not grid.far:
+        # a shaft pointing at (or away from) the camera from a port near the view images as a
+        # cone whose apex lies near X: its width grows with the radius, its angle about X
+        # stays; its pairs also vote by their width in columns
+        cols = pairs[2] - pairs[1]
+        votes.append(((*pairs[:4], cols, *pairs[5:]), max(float(cols.min()), 1.0), True))
+    out = []
+    for cone, (pr, lo, own) in enumerate(votes):
+        A, b_of = _votes(grid, pr, shifts, lo, grid.pts.shape[1])
+        found = []
+        for q, c, b in _peaks(A, lo, own):
+            band = _band_points(grid, P, D, pr, b_of, c, b, shifts[q])
+            if band is not None and not any(_same_band(band, f[1:]) for f in out):
+                found.append(band)
+        found.sort(key=lambda t: -t[4])
+        out += [(grid, *t[:4], bool(cone)) for t in found[:_CANDIDATES]]
+    return out
 
 
 def pencil_search(image, camera, validity, work, prior, o, K, noise, gamma=1.0):
@@ -467,11 +571,12 @@ def pencil_search(image, camera, validity, work, prior, o, K, noise, gamma=1.0):
                                                                              1.25 * prior.widths[1])
     out = []
     corridor = max(o.corridor_px, _CORRIDOR_WORK / s)
-    chan, _ = _channel(work)
+    chan, bright_only = _channel(work)
     from pencilcal.toolkit.detect.shaft.material_cue import robust_noise
 
     chan_noise = max(robust_noise(chan), 0.5)
-    for grid, rows, cl, cr, dark in _bands(work, prior.affine(A_w), max(lo * s, 3.0), hi * s):
+    size = np.asarray(image).shape[1::-1]
+    for grid, rows, cl, cr, dark, cone in _bands(work, prior.affine(A_w), max(lo * s, 3.0), hi * s):
         specs = _extended(work, chan, chan_noise, _edge_specs(work, grid, rows, cl, cr), dark)
         width = float(np.median(np.abs(cr - cl) * grid.spacing[rows])) / s
         e = fit_edges(image, camera, validity, noise, specs, corridor, max_gap=max(width, 10.0), gamma=gamma)
@@ -481,19 +586,47 @@ def pencil_search(image, camera, validity, work, prior, o, K, noise, gamma=1.0):
         if m is None:
             continue
         seen = float(np.hypot(*(m.ends[1] - m.ends[0])))
-        # a band from the fulcrum's image is the instrument entering through its port: seen
-        # along a width is enough (close to the camera its visible part is short and wide),
-        # and pointing towards the camera its edges converge steeply, towards the port
-        at_port = _ends_at(m, prior, corridor, np.asarray(image).shape[1::-1])
-        if m.convergence_deg > np.degrees(o.conv_max) and not (
-                at_port and m.convergence_deg <= _MAX_CONVERGENCE_AT_PORT_DEG and _narrows_to(m, prior)):
-            continue
-        least = _MIN_WIDTHS_AT_PORT if at_port else _MIN_WIDTHS
-        if seen < least * m.width_px or not (at_port or _reaches_border(m, camera, validity, corridor)):
-            continue
-        out.append((m, seen * min(e[0].frac, e[1].frac), "dark" if dark else "bright"))
+        score = seen * min(e[0].frac, e[1].frac)
+        if not cone and _entering(m, seen, prior, o, camera, validity, corridor, size):
+            out.append((m, score, "dark" if dark else "bright", 0))
+        elif _entering_close(m, seen, prior, o, camera, validity, corridor, size, work, chan, bright_only):
+            out.append((m, score, "dark" if dark else "bright", 1))
+    if any(t[3] == 0 for t in out):
+        out = [t for t in out if t[3] == 0]  # a long band entering the view is the shaft
     kept = []
     for t in sorted(out, key=lambda t: -t[1]):
         if not any(np.allclose(t[0].edges, k[0].edges, atol=0.5) for k in kept):  # two vote peaks, one band
-            kept.append(t)
+            kept.append(t[:3])
     return kept
+
+
+def _entering(m, seen, prior, o, camera, validity, corridor, size):
+    """Whether a band (midline m, seen along seen [px]) is a shaft entering the view: seen
+    along 1.5 widths and reaching the view's border, or along one width running from the
+    prior's point inside the view (`_ends_at`: a port in view, where the instrument enters);
+    its edges converging by at most the edge cue's limit, or, from the point, up to
+    `_MAX_CONVERGENCE_AT_PORT_DEG` narrowing towards it (pointing at the camera its edges
+    converge steeply towards the port)."""
+    at_port = _ends_at(m, prior, corridor, size, m.width_px)
+    if m.convergence_deg > np.degrees(o.conv_max) and not (
+            at_port and m.convergence_deg <= _MAX_CONVERGENCE_AT_PORT_DEG and _narrows_to(m, prior)):
+        return False
+    least = _MIN_WIDTHS_AT_PORT if at_port else _MIN_WIDTHS
+    return seen >= least * m.width_px and (at_port or _reaches_border(m, camera, validity, corridor))
+
+
+def _entering_close(m, seen, prior, o, camera, validity, corridor, size, work, chan, bright_only):
+    """Where no band passes `_entering`: whether a band is a shaft close to the camera or
+    along its line of sight entering the view: seen along `_MIN_WIDTHS_CLOSE` widths (close
+    to the camera its visible part is short and wide) and reaching the border, or running
+    from the prior's point (its width there, `_ends_at`: pointing away from the camera a
+    shaft is widest at its port), or joined to the border by instrument material along its
+    line towards the point (`_joins_border`, colour frames); converging by at most the edge
+    cue's limit, or from the point up to `_MAX_CONVERGENCE_AT_PORT_DEG` either way."""
+    at_port = _ends_at(m, prior, corridor, size)
+    if m.convergence_deg > np.degrees(o.conv_max) and not (at_port and m.convergence_deg <=
+                                                          _MAX_CONVERGENCE_AT_PORT_DEG):
+        return False
+    return seen >= _MIN_WIDTHS_CLOSE * m.width_px and (
+        at_port or _reaches_border(m, camera, validity, corridor) or
+        (bright_only and _joins_border(work, chan, m, prior)))
