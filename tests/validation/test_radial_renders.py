@@ -162,7 +162,7 @@ def test_a_small_star_keeps_the_vertex_its_segments_found():
     their neighbours only near the rim, and the short stretches there intersected 8 px from
     the vertex the frame's segments found to 0.001 px; about that point the next round found
     no edge and the frame had no orientation. A round's vertex now replaces the last only
-    within 3 sds of it or where it is fixed at least as well (`radial._better_vertex`).
+    within 3 sds of it or where it is fixed at least as well (`radial_vertex.better_vertex`).
     Measured: 64 spokes, the twin right, 0.059 deg off (sigma 0.07)."""
     from pencilcal.validation.radial_renders import photo_conditions, photo_trial
 
