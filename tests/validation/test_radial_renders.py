@@ -162,7 +162,7 @@ def test_a_small_star_keeps_the_vertex_its_segments_found():
     their neighbours only near the rim, and the short stretches there intersected 8 px from
     the vertex the frame's segments found to 0.001 px; about that point the next round found
     no edge and the frame had no orientation. A round's vertex now replaces the last only
-    within 3 sds of it or where it is fixed at least as well (`radial._better_vertex`).
+    within 3 sds of it or where it is fixed at least as well (`radial_vertex.better_vertex`).
     Measured: 64 spokes, the twin right, 0.059 deg off (sigma 0.07)."""
     from pencilcal.validation.radial_renders import photo_conditions, photo_trial
 
@@ -199,11 +199,14 @@ def test_a_small_star_oriented_from_a_few_spokes_is_not_reported():
     looser than the lines (3.6 deg against 3.0): reported ok, the normal 4.8 deg off. Under a
     quarter of the spokes the sigma does not hold a vertex walked off or a labelling a wedge
     off (`confirm.few_spokes_final`): "too few spokes", not ok (with the short edges located
-    again from the joint fit's blur, 4 spokes labelled: "ambiguous labelling", not ok)."""
-    from pencilcal.validation.radial_renders import photo_conditions
+    again from the joint fit's blur, 4 spokes labelled: "ambiguous labelling", not ok). The
+    rounds had walked its vertex 6.4 px off; with the edges located again about where the
+    jointly located ones meet (0.2 px off) it is oriented rightly: 45 spokes, the twin right,
+    0.24 deg off at a sigma of 0.25 deg. Either way never reported wrong."""
+    from pencilcal.validation.radial_renders import photo_conditions, photo_trial
 
-    rec = _oriented(photo_conditions(80, 3000)[70])
-    assert not rec.ok and ("too few spokes" in rec.error or "ambiguous labelling" in rec.error)
+    t = photo_trial(photo_conditions(80, 3000)[70])
+    assert not t.ok or (t.twin_right and t.spokes_used >= 16 and t.err_deg < min(0.5, 3 * t.sigma_deg))
 
 
 def test_circles_of_a_few_short_arcs_do_not_choose_the_twin():
@@ -292,12 +295,14 @@ def test_circles_that_agree_only_within_the_lines_wide_scatter_confirm_no_labell
     (`confirm.unconfirmed_final`): "ambiguous labelling", not ok. With the short edges located
     again from the joint fit's blur, 12 of 64 spokes are used: refused as "too few spokes"
     (under a quarter) instead; the looser agreement is met by
-    `photographic_conditions(40, 900)` frame 2 above."""
-    from pencilcal.validation.radial_renders import photo_conditions
+    `photographic_conditions(40, 900)` frame 2 above. The rounds had walked its vertex 4.5 px
+    off; with the edges located again about where the jointly located ones meet (0.07 px off)
+    it is oriented rightly: 63 spokes, the twin right, 0.16 deg off at a sigma of 0.13 deg.
+    Either way never reported wrong."""
+    from pencilcal.validation.radial_renders import photo_conditions, photo_trial
 
-    rec = _oriented(photo_conditions(80, 2200)[46])
-    assert not rec.ok
-    assert ("ambiguous labelling" in rec.error and "looser than theirs" in rec.error) or "too few spokes" in rec.error
+    t = photo_trial(photo_conditions(80, 2200)[46])
+    assert not t.ok or (t.twin_right and t.spokes_used >= 16 and t.err_deg < min(0.5, 3 * t.sigma_deg))
 
 
 def test_circles_that_points_on_the_spokes_make_about_any_plane_choose_no_twin():

@@ -55,12 +55,13 @@ from pencilcal.toolkit.detect.radial_circles import circle_points, spokes_end_ri
 from pencilcal.toolkit.detect.radial_joint import joint_refit
 from pencilcal.toolkit.detect.radial_predicted import predicted_edges, searched_edges
 from pencilcal.toolkit.detect.radial_scatter import common_offset, turned_sigma
+from pencilcal.toolkit.detect.radial_vertex import VERTEX_FLOOR_DEG, VERTEX_FLOOR_PX, better_vertex, rough_vertex, walked
 from pencilcal.toolkit.detect.refit import EdgeRefit, RefitOptions
 from pencilcal.toolkit.detect.segments import Segments, detect_segments, in_valid_region
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.geometry.angles import angle_diff
-from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
+from pencilcal.toolkit.pencil.vertex import lines_through
 
 __all__ = ["RadialEdges", "detect_radial_edges", "orient_radial_edges", "trimmed_at_spokes_end", "CLEAR_SIGMAS",
            "CLEAR_PX", "JOINT_SIGMAS", "OFFSET_FLOOR_PX"]
@@ -76,12 +77,12 @@ __all__ = ["RadialEdges", "detect_radial_edges", "orient_radial_edges", "trimmed
 #: 4.0 of the unbiased one (seed 7: 3.9 and 4.1 both held the normals' errors within their
 #: bounds; 4.5 with JOINT_SIGMAS 3 doubled a 128-wedge star's error; at 4.1 a rendered
 #: dartboard with wires, numbers and darts kept 8 of its 20 boundaries, at 4.0 all 20). That
-#: cliff is not the clearance's own: the refitted edges' robust vertex (`_vertex_of`) keeps
-#: 7-13 of that dartboard's 26 directions as inliers, and their reach (far ends' 90th
+#: cliff is not the clearance's own: the refitted edges' robust vertex
+#: (`radial_vertex.vertex_of`) keeps 7-13 of that dartboard's 26 directions as inliers, and their reach (far ends' 90th
 #: percentile) fell from 348 to 297 px at 4.1; the angular profile's bands, placed by the
 #: reach, moved inwards and chained the numbers' edges into 9 more directions, which pulled
-#: the vertex 3 px off. The reach is now taken over every refitted edge (`_vertex_of`:
-#: 356-360 px there), and that frame keeps all 20 at 4.0, 4.1 and 4.3.
+#: the vertex 3 px off. The reach is now taken over every refitted edge
+#: (`radial_vertex.vertex_of`: 356-360 px there), and that frame keeps all 20 at 4.0, 4.1 and 4.3.
 CLEAR_SIGMAS = 4.0
 CLEAR_PX = 3.0  # and never closer than this [px]
 #: Located jointly with their neighbours' blurred edges (`radial_joint`), the edges that are
@@ -94,9 +95,6 @@ JOINT_SIGMAS = 2.6
 _ARC_SAMPLE_PX = 0.5  # sampling along the circles of the angular profile, at its outer radius
 _RADIUS_STEP_PX = 2.0  # spacing of those circles, and at most _BAND_CIRCLES of them in a band
 _BAND_CIRCLES = 12
-_VERTEX_FLOOR_DEG, _VERTEX_FLOOR_PX = 0.05, 0.5  # the rough vertex: a floor under the segments' noise
-_DIRECTION_BIN_DEG = 6.0  # the rough vertex counts the directions crossing it in bins this wide
-_ROUGH_LINES = 96  # the longest segments it looks at
 _PEAK_REL = 0.15  # an angular-profile peak: at least this fraction of the typical edge's
 _BAND_RATIO = 1.3  # the angular profiles' bands of radii: from r to 1.3 r
 #: A star's edges seen in at least this many directions about the segments' vertex are
@@ -139,7 +137,8 @@ class RadialEdges(Segments):
     edges: `radial_scatter.turned_sigma`; else ``angle_sigma``), for the orientation's covariance only;
     ``vertex_sd`` [working px]: the sd of the point the edges were located about (the last
     round's vertex before the edges crowded by their neighbours were located with them, or
-    after it where wider): edges located about a point lean towards it and meet there more
+    after it where wider; where they were located once more about the point the jointly
+    located edges met at, that point's): edges located about a point lean towards it and meet there more
     surely than it was known, so the orientation reports the vertex no surer than this
     (`orient_segments`' vertex_floor_px).
     """
@@ -240,7 +239,7 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
     lin = img if gamma == 1.0 else GrayImage(linearised(img.src, gamma), valid_region)
     segs = detect_segments(image, "lsd", camera=camera, min_length=min_length, valid_region=valid_region)
     try:
-        v, reach, v_sd = _rough_vertex(segs)
+        v, reach, v_sd = rough_vertex(segs)
     except EstimationError:
         return None
     fit = None
@@ -257,12 +256,38 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
         # a star's, located jointly below
         if k == 0 and np.count_nonzero(fit.ok) < 3 and (joint != "all" or phi.size < _CROWDED_DIRECTIONS):
             return None
-        v, reach, v_sd = _better_vertex(fit, v, reach, v_sd, joint == "all")
+        v, reach, v_sd = better_vertex(fit, v, reach, v_sd, joint == "all")
+    about_sd = v_sd  # the sd of the point the edges are located about (`RadialEdges.vertex_sd`)
+    rows, fit, v1, reach1, sd1 = _jointly(lin, camera, fit, v, reach, v_sd, phi, sign, seen, blur, clear, min_length,
+                                          joint)
+    # a dense star's rounds each take the last round's loose intersection (within 3 of the two
+    # sds added: `radial_vertex.better_vertex`) and may walk the vertex 4-5 px from the
+    # segments'; the edges are then located about that point, and those the joint fit does
+    # locate meet elsewhere, and more surely (a 128-wedge star 41 % high: 90 edges 0.22 px from
+    # the truth at an sd of 0.07 px, the point they were located about 5.2 px off at 0.95 px).
+    # Where they meet beyond 3 sds of the point they were located about and fix it better
+    # (`radial_vertex.walked`), the edges are located once more about where they meet (one
+    # more round, its vertex held, and the joint location), kept where that locates more
+    # edges at least min_length long
+    if joint == "all" and walked(v1, sd1, v, about_sd):
+        again = _relocated(img, lin, camera, v1, reach1, sd1, edges, blur, min_length, joint)
+        if again is not None and np.count_nonzero(_long(again[5], min_length)) > np.count_nonzero(_long(fit, min_length)):
+            about_sd = sd1  # now located about the point the joint edges met at
+            phi, sign, seen, clear, rows, fit, v1, reach1, sd1 = again
+    v, reach, v_sd = v1, reach1, sd1
+    return img, lin, fit, v, max(v_sd, about_sd), reach, phi, rows, clear
+
+
+def _jointly(lin, camera, fit, v, reach, v_sd, phi, sign, seen, blur, clear, min_length, joint):
+    """The edges of `fit` (EdgeFit, one row per direction phi (E,) [rad] about the vertex v
+    (2,) [working px] of sd v_sd [px], sign (E,) and seen (E, 2) [px] as `_edge_directions`
+    gives them) located with their neighbours (`joint_refit` from the blur sd [raw px]) as
+    `_located` says: (the rows located (K,) int, the fit with them merged, and the vertex,
+    reach and sd that `radial_vertex.better_vertex` takes from it)."""
     # the edges located with their neighbours (their blurred edges modelled): those that are
     # nowhere clear of them from where they lie JOINT_SIGMAS blur sds apart; with joint="all"
     # the others too, from where they are clear as before
     rows = np.flatnonzero(~fit.ok) if joint == "crowded" else np.arange(phi.size)
-    about_sd = v_sd  # the sd of the point the edges are located about (`RadialEdges.vertex_sd`)
     if rows.size:
         ray = np.concatenate([v + 0 * phi[:, None], v + np.stack([np.cos(phi), np.sin(phi)], -1)], -1)
         r_hi = 1.25 * seen[:, 1]
@@ -301,8 +326,22 @@ def _located(image, camera, edges, valid_region, min_length, gamma, joint):
                                          np.where(_at(rows[short], phi.size), r_fitted, r_lo), r_hi, rows, located, short,
                                          longer=True)
         fit = _merged(fit, rows, located)
-        v, reach, v_sd = _better_vertex(fit, v, reach, v_sd, joint == "all")
-    return img, lin, fit, v, max(v_sd, about_sd), reach, phi, rows, clear
+        v, reach, v_sd = better_vertex(fit, v, reach, v_sd, joint == "all")
+    return rows, fit, v, reach, v_sd
+
+
+def _relocated(img, lin, camera, v, reach, v_sd, edges, blur, min_length, joint):
+    """The edges located once more about v (2,) [working px] of sd v_sd [px] (`_located`'s
+    last round, its vertex held, then `_jointly`): (phi, sign, seen, clear, rows, fit,
+    vertex, reach, sd), None where fewer than three directions are seen."""
+    clear = max(CLEAR_PX, CLEAR_SIGMAS * blur)
+    phi, sign, seen = _edge_directions(img, camera, v, reach, edges, clear)
+    if phi.size < 3:
+        return None
+    fit = _refit_edges(lin, camera, v, phi, sign, seen, _SEARCH_PX[-1], clear)
+    blur = max(CLEAR_PX / CLEAR_SIGMAS, _edge_blur(lin, camera, fit, clear))
+    return (phi, sign, seen, clear) + _jointly(lin, camera, fit, v, reach, v_sd, phi, sign, seen, blur, clear, min_length,
+                                               joint)
 
 
 def _finished(camera, outer, min_length, circles, img, lin, fit, v, v_sd, reach, phi, rows, clear, predicted=None,
@@ -598,8 +637,8 @@ def _through_vertex(segs, v, rounds=_GATE_ROUNDS):
     >>> int(plain.sum()), int(_through_vertex(segs, np.zeros(2)).sum())      # the shared offset allowed
     (4, 11)
     """
-    ang = np.maximum(segs.angle_sigma, np.radians(_VERTEX_FLOOR_DEG))
-    off = np.maximum(segs.offset_sigma, _VERTEX_FLOOR_PX)
+    ang = np.maximum(segs.angle_sigma, np.radians(VERTEX_FLOOR_DEG))
+    off = np.maximum(segs.offset_sigma, VERTEX_FLOOR_PX)
     _, through = lines_through(v, segs.ideal, ang, off)
     for _ in range(rounds):
         _, again = lines_through(v, segs.ideal, ang, np.hypot(off, common_offset(segs.select(through), v)))
@@ -640,107 +679,6 @@ def _merged(fit, rows, other):
     for f, a in merged.items():
         a[rows] = getattr(other, f)
     return replace(fit, **merged)
-
-
-def _rough_vertex(segs):
-    """(vertex (2,) [working px], reach [px], its sd [px]): the point crossed by edge
-    segments of the most directions (`_DIRECTION_BIN_DEG` bins; ties: the most length),
-    refined as their robust intersection, how far from it they reach (their far ends' 90th
-    percentile) and its sd (`_vertex_sd`).
-
-    A radial target's vertex is crossed by edges from every direction; a chessboard's
-    corner beside it by whole rows of collinear square edges, from two.
-    """
-    if len(segs) < 3:
-        raise EstimationError("fewer than three edge segments")
-    L = segs.length
-    top = np.argsort(-L, kind="stable")[:_ROUGH_LINES]
-    lines = segs.ideal[top]
-    p, d = lines[:, :2], lines[:, 2:] - lines[:, :2]
-    u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
-    n = np.stack([-u[:, 1], u[:, 0]], -1)
-    c = -np.sum(n * p, -1)
-    i, j = np.triu_indices(len(lines), 1)
-    cross = u[i, 0] * u[j, 1] - u[i, 1] * u[j, 0]
-    ok = np.abs(cross) > np.sin(np.radians(_DIRECTION_BIN_DEG))
-    i, j, cross = i[ok], j[ok], cross[ok]
-    if i.size == 0:
-        raise EstimationError("the edge segments are parallel")
-    cand = np.stack([(n[i, 1] * c[j] - n[j, 1] * c[i]), (n[j, 0] * c[i] - n[i, 0] * c[j])], -1) / cross[:, None]
-    mid = 0.5 * (lines[:, :2] + lines[:, 2:])
-    bins = np.floor(np.degrees(np.arctan2(u[:, 1], u[:, 0])) % 180.0 / _DIRECTION_BIN_DEG).astype(int)
-    onehot = np.zeros((len(lines), int(180 / _DIRECTION_BIN_DEG) + 1), np.int32)
-    onehot[np.arange(len(lines)), bins] = 1
-    best, score = None, (-1, -1.0)
-    for k in range(0, cand.shape[0], 4096):  # blocks of candidates x lines
-        q = cand[k:k + 4096]
-        dist = np.abs(q @ n.T + c)
-        reach = np.linalg.norm(q[:, None, :] - mid[None], axis=-1)
-        through = dist <= 2.0 + 0.005 * reach
-        ndir = ((through.astype(np.int32) @ onehot) > 0).sum(-1)
-        total = through @ L[top]
-        b = int(np.lexsort((total, ndir))[-1])
-        if (int(ndir[b]), float(total[b])) > score:
-            best, score = q[b], (int(ndir[b]), float(total[b]))
-    # the lines through it, intersected with their noise (and floors)
-    ang = np.maximum(segs.angle_sigma, np.radians(_VERTEX_FLOOR_DEG))
-    off = np.maximum(segs.offset_sigma, _VERTEX_FLOOR_PX)
-    _, through = lines_through(best, segs.ideal, ang, np.maximum(off, 1.0))
-    if through.sum() < 3:
-        raise EstimationError("fewer than three edge segments meet")
-    vf = intersect_lines(segs.ideal[through], angle_sigma=ang[through], offset_sigma=off[through], robust=True)
-    return vf.vertex, _reach(segs.ideal[through][vf.inliers], vf.vertex), _vertex_sd(vf)
-
-
-def _vertex_sd(vf):
-    """A vertex fit's (`intersect_lines`) sd [px]: its covariance's, scaled by the residuals'
-    rms where they exceed their sigmas (edges measured where their neighbours pull them)."""
-    return float(np.sqrt(np.trace(vf.cov)) * max(1.0, vf.rms))
-
-
-def _reach(lines, v):
-    """How far from v (2,) the lines (K, 4) reach: their far ends' 90th percentile [px]."""
-    far = np.maximum(np.hypot(*(lines[:, :2] - v).T), np.hypot(*(lines[:, 2:] - v).T))
-    return float(np.percentile(far, 90))
-
-
-def _vertex_of(fit, reach):
-    """The vertex of refitted edges (`EdgeFit`), their reach and the vertex's sd
-    (`_vertex_sd`), from their own sigmas.
-
-    The reach is that of every refitted edge, not only the intersection's inliers: with a
-    dartboard's raised wires the robust intersection keeps a third of the edges or fewer,
-    which ones changing with the clearance, and the reach of those few, which places the
-    next angular bands, jumped by 15 % (`CLEAR_SIGMAS`)."""
-    ok = np.flatnonzero(fit.ok)
-    if ok.size < 3:
-        raise EstimationError("fewer than three edges were refitted")
-    lines = fit.lines()[ok]
-    mid = 0.5 * (fit.p1[ok] + fit.p2[ok])
-    vf = intersect_lines(lines, angle_sigma=np.maximum(fit.angle_sigma[ok], 1e-6),
-                         offset_sigma=np.maximum(fit.take(ok).offset_sigma_at(mid), 0.02), robust=True)
-    return vf.vertex, max(_reach(lines, vf.vertex), 0.5 * reach), _vertex_sd(vf)
-
-
-def _better_vertex(fit, v, reach, sd, compare=True):
-    """(vertex, reach, sd): the refitted edges' (`_vertex_of`) where they lie within 3 sds of
-    the vertex v (2,) [px] they were refitted about (sd [px], `_vertex_sd`) or fix it at
-    least as well, else v with its reach (also where they give none). A small star's edges are clear of their
-    neighbours only near its rim, if at all (128 edges 5 px apart there): a few short
-    stretches intersected 3-15 px from the vertex the frame's segments had found to 0.02 px,
-    and the next round, about that point, found fewer than three edges (photographs of stars
-    under 30 % of the frame's height). Without `compare` theirs wherever there is one (a
-    dartboard's, whose segments hold its raised wires' sides too: compared, the shared
-    photographs' boundaries' planes moved from the rings' by +0.15 and -0.05 deg, which
-    nothing here tells right or wrong).
-    """
-    try:
-        v1, reach1, sd1 = _vertex_of(fit, reach)
-    except EstimationError:
-        return v, reach, sd
-    # within 3 sds of the last it is the same vertex, measured on the refitted edges
-    same = np.hypot(*(v1 - v)) <= 3.0 * np.hypot(sd, sd1)
-    return (v1, reach1, sd1) if same or sd1 <= sd or not compare else (v, reach, sd)
 
 
 def _angular_profile(img, camera, v, r_a, r_b, n_phi):
