@@ -91,7 +91,7 @@ def seen_lines(camera, segments, spokes, ideal=None):
     return out
 
 
-def deskewed_segments(camera, segments, pencil, previous, readout, ideal=None, seen=None, still_px=0.0):
+def deskewed_segments(camera, segments, pencil, previous, readout, ideal=None, seen=None, still_px=0.0, labels=None):
     """(segments, ideal, offset_sd, angle_sd): the segments moved back to the time of the
     row through the vertex (module docstring).
 
@@ -104,6 +104,8 @@ def deskewed_segments(camera, segments, pencil, previous, readout, ideal=None, s
     [rad] (0 for segments not moved: unlabelled ones, or without a previous frame).
     still_px: a motion across the spoke up to this [px per frame] is taken for the lines'
     noise, not motion (each velocity shrunk towards 0 by it): a still camera moves nothing.
+    labels: (M,) the segments' labels by the previous frame (`track.prior_labels` at its
+    default gate) where known already (then not labelled again).
     """
     seg = np.asarray(segments, float).reshape(-1, 4)
     M = len(seg)
@@ -116,7 +118,7 @@ def deskewed_segments(camera, segments, pencil, previous, readout, ideal=None, s
         return seg.copy(), out_ideal, zero, zero
     K = np.asarray(camera.K, float)
     f = float(np.sqrt(abs(K[0, 0] * K[1, 1])))
-    lab = prior_labels(camera, seg, pencil, previous, ideal=ideal)
+    lab = prior_labels(camera, seg, pencil, previous, ideal=ideal) if labels is None else np.asarray(labels)
     x0 = ray[:2] / ray[2]
     pred = image_angles(np.asarray(previous.R_cam_from_target, float), x0, pencil.edge_angles()[0])  # (N,)
     if ideal is None:
@@ -138,13 +140,16 @@ def deskewed_segments(camera, segments, pencil, previous, readout, ideal=None, s
         # against the previous frame's lines as seen (not as corrected): a point on one and the
         # same row was seen one frame apart in both, and an error of the previous estimate
         # cannot carry on into this one
-        has = np.array([int(k) in seen for k in lab]) & use
-        for m in np.where(has)[0]:
-            q = seen[int(lab[m])]
-            t = (q[1] - q[0]) / np.linalg.norm(q[1] - q[0])
-            nm = np.array([-t[1], t[0]])
+        has = np.array([int(k) in seen for k in lab.tolist()], bool).reshape(-1) & use
+        m = np.flatnonzero(has)
+        if len(m):
+            # all at once; stacked matmuls sum as the one-line products did (the same to the bit)
+            q = np.array([seen[k] for k in lab[m].tolist()], float)  # (K, 2, 2)
+            dq = q[:, 1] - q[:, 0]
+            t = dq / np.sqrt(np.matmul(dq[:, None, :], dq[:, :, None])[:, 0])
+            nm = np.stack([-t[:, 1], t[:, 0]], -1)
             n[m] = nm
-            v[m] = (p[m] - q[0]) @ nm
+            v[m] = np.matmul(p[m] - q[:, :1], nm[:, :, None])[..., 0]
         use = has
     if still_px > 0:
         v = np.sign(v) * np.maximum(np.abs(v) - still_px / f, 0.0)
@@ -325,9 +330,13 @@ def orient_video_frame(camera, segments, pencil, previous, readout=None, seen=No
     moving = previous is not None and len(seg) > 0
     if readout and moving:
         seg, kw = _deskewed_inputs(camera, seg, pencil, previous, readout, kw, seen)
-    rec, tracked = orient_tracked(camera, seg, pencil, previous, **kw)
+    lab = None
+    if readout is None and moving and "gate_deg" not in kw and previous.ok and previous.ray is not None:
+        # the labels by the previous frame, once for the tracked fit and the widening's moves
+        lab = prior_labels(camera, seg, pencil, previous, ideal=kw.get("ideal"))
+    rec, tracked = orient_tracked(camera, seg, pencil, previous, prior_lab=lab, **kw)
     if readout is None and rec.ok and moving:
-        rec = _widened_by_unknown_readout(camera, seg, pencil, previous, rec, kw, seen, widening)
+        rec = _widened_by_unknown_readout(camera, seg, pencil, previous, rec, kw, seen, widening, lab)
     return rec, tracked
 
 
@@ -352,11 +361,12 @@ def _deskewed_inputs(camera, seg, pencil, previous, readout, kw, seen):
     return moved, kw
 
 
-def _widened_by_unknown_readout(camera, seg, pencil, previous, rec, kw, seen, widening):
+def _widened_by_unknown_readout(camera, seg, pencil, previous, rec, kw, seen, widening, labels=None):
     """`rec` with its sigmas widened by a readout not known (`orient_video_frame`); a frame
-    whose lines did not move beyond their noise keeps its sigmas."""
+    whose lines did not move beyond their noise keeps its sigmas. labels: the segments'
+    labels by the previous frame where known (`deskewed_segments`)."""
     moved, ideal, _, _ = deskewed_segments(camera, seg, pencil, previous, 1.0, ideal=kw.get("ideal"), seen=seen,
-                                           still_px=VELOCITY_FLOOR_PX)
+                                           still_px=VELOCITY_FLOOR_PX, labels=labels)
     if np.array_equal(moved, seg):
         return rec
     if widening == "linear":  # (the fit's first-order move: no second vertex search, no labelling)

@@ -92,20 +92,23 @@ def prior_labels(camera, segments, pencil, previous, gate_deg=GATE_DEG, ideal=No
     return lab
 
 
-def orient_tracked(camera, segments, pencil, previous, gate_deg=GATE_DEG, keep_lines=False, **orient_kwargs):
+def orient_tracked(camera, segments, pencil, previous, gate_deg=GATE_DEG, keep_lines=False, prior_lab=None,
+                   **orient_kwargs):
     """This frame's `Orientation` with the previous frame's as a prior: (orientation,
     tracked), tracked False when the full search was used (module docstring). Bars'
     midlines (``bar_width_px``) are moved onto their centre lines under the previous
     frame's plane and fitted once (`orient_segments`' plane_normal).
 
     segments: (M, 4) raw px; previous: the previous frame's `Orientation` or None;
-    keep_lines: the orientation's ``lines`` kept (`orient_segments`); orient_kwargs:
+    keep_lines: the orientation's ``lines`` kept (`orient_segments`); prior_lab: (M,) the
+    segments' `prior_labels` at `gate_deg` where known already (not labelled again); orient_kwargs:
     `orient_segments`' (model, endpoint_sigma_px, angle_sigma, offset_sigma, max_segments,
     image, ideal, ...; not labels).
     """
     if previous is None or not previous.ok or previous.ray is None:
         return orient_segments(camera, segments, pencil, keep_lines=keep_lines, **orient_kwargs), False
-    lab = prior_labels(camera, segments, pencil, previous, gate_deg, orient_kwargs.get("ideal"))
+    lab = prior_labels(camera, segments, pencil, previous, gate_deg, orient_kwargs.get("ideal")) if prior_lab is None \
+        else np.array(prior_lab)  # (a copy: the fit may keep it)
     need = max(3, int(previous.lines_used or 0) - 1)
     rec, short = None, None
     if np.unique(lab[lab >= 0]).size >= 3:

@@ -2,8 +2,9 @@
 import numpy as np
 
 from pencilcal.toolkit.camera.model import Camera
-from pencilcal.toolkit.pencil.shutter import orient_video_frame
+from pencilcal.toolkit.pencil.shutter import deskewed_segments, orient_video_frame, seen_lines
 from pencilcal.toolkit.pencil.spec import Pencil
+from pencilcal.toolkit.pencil.track import orient_tracked, prior_labels
 
 CAM = Camera("pinhole", 640, 480, [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
 PEN = Pencil(np.radians(np.arange(6) * 30.0))
@@ -56,3 +57,23 @@ def test_the_linear_step_widens_as_the_second_fit_where_the_lines_agree():
     # a frame whose lines did not move keeps its sigmas
     again, _ = orient_video_frame(CAM, _fan(3.0), PEN, first, readout=None)
     assert again.tilt_sigma_shutter_deg is None
+
+
+def test_labels_given_move_and_fit_as_labels_found():
+    # a video frame labels its segments by the previous frame once, for the tracked fit and
+    # for the widening's moves: the same moves and the same fit to the bit as labelling twice
+    first, _ = orient_video_frame(CAM, _fan(3.0), PEN, None)
+    seg = _fan(7.0)
+    lab = prior_labels(CAM, seg, PEN, first)
+    assert np.count_nonzero(lab >= 0) == 6
+    seen = seen_lines(CAM, _fan(3.0), first.spokes)
+    for kw in ({}, {"seen": seen}):
+        found = deskewed_segments(CAM, seg, PEN, first, 0.6, **kw)
+        given = deskewed_segments(CAM, seg, PEN, first, 0.6, labels=lab.copy(), **kw)
+        for a, b in zip(found, given):
+            np.testing.assert_array_equal(a, b)
+        assert np.all(found[2] > 0)  # (every labelled line moved, its offset sd widened)
+    rec, tracked = orient_tracked(CAM, seg, PEN, first)
+    rec2, tracked2 = orient_tracked(CAM, seg, PEN, first, prior_lab=lab)
+    assert tracked and tracked2
+    np.testing.assert_equal(rec.to_dict(), rec2.to_dict())
