@@ -415,11 +415,12 @@ def _covariance(R, x, J, Jx, w, vertex_cov, w_error=None, shared_cov=None):
     # At zero tilt the tilt directions are unobservable to first order: a tiny ridge keeps
     # the inverse finite (and huge) instead of singular.
     ridge = (1e-14 * np.trace(H, axis1=-2, axis2=-1))[..., None, None] * np.eye(3)
-    Hinv = H_inv = np.linalg.inv(H + ridge)
+    H_inv = np.linalg.inv(H + ridge)
+    cov_rot = H_inv  # the rotation's covariance where the weights w are the inverse variances ...
     if w_error is not None:
-        # the fit weighted by w, its angles' errors of variance 1 / w_error: the solution
+        # ... else the fit weighted by w, its angles' errors of variance 1 / w_error: the solution
         # moves by H^-1 J^T W r, whose covariance is H^-1 J^T W C W J H^-1 (H^-1 where C = W^-1)
-        Hinv = H_inv @ (JT @ (J * (w * w / w_error)[..., None])) @ H_inv
+        cov_rot = H_inv @ (JT @ (J * (w * w / w_error)[..., None])) @ H_inv
     n = R[..., :, 2]
     nv = np.sqrt(1.0 + x[..., 0] ** 2 + x[..., 1] ** 2)
     v = np.concatenate([x, np.ones(x.shape[:-1] + (1,))], -1) / nv[..., None]
@@ -428,11 +429,11 @@ def _covariance(R, x, J, Jx, w, vertex_cov, w_error=None, shared_cov=None):
     sin_raw = np.sqrt(np.sum(nxv * nxv, -1))
     sin_g = np.maximum(sin_raw, 1e-12)
     g_rot = -nxv / sin_g[..., None]
-    var_tilt = np.einsum("...i,...ij,...j->...", g_rot, Hinv, g_rot)
+    var_tilt = np.einsum("...i,...ij,...j->...", g_rot, cov_rot, g_rot)
     # at exactly zero tilt the tilt's direction is undefined and, to first order, the
     # angles do not see it at all: the bound is infinite, not the zero the gradient gives
     var_tilt = np.where(sin_raw < 1e-9, np.inf, var_tilt)
-    cov = Hinv
+    cov = cov_rot
     if vertex_cov is not None:
         Cx = np.asarray(vertex_cov, float)
         # sensitivity of the solution to the vertex: with r = a - alpha, d r/d delta = -J and
