@@ -55,7 +55,7 @@ from pencilcal.toolkit.detect.radial_circles import circle_points, spokes_end_ri
 from pencilcal.toolkit.detect.radial_joint import joint_refit
 from pencilcal.toolkit.detect.radial_predicted import predicted_edges, searched_edges
 from pencilcal.toolkit.detect.radial_scatter import common_offset, turned_sigma
-from pencilcal.toolkit.detect.radial_vertex import VERTEX_FLOOR_DEG, VERTEX_FLOOR_PX, better_vertex, rough_vertex, walked
+from pencilcal.toolkit.detect.radial_vertex import better_vertex, floored_sigmas, rough_vertex, walked
 from pencilcal.toolkit.detect.refit import EdgeRefit, RefitOptions
 from pencilcal.toolkit.detect.segments import Segments, detect_segments, in_valid_region
 from pencilcal.toolkit.detect.working import check_camera_image, to_raw_points
@@ -637,8 +637,7 @@ def _through_vertex(segs, v, rounds=_GATE_ROUNDS):
     >>> int(plain.sum()), int(_through_vertex(segs, np.zeros(2)).sum())      # the shared offset allowed
     (4, 11)
     """
-    ang = np.maximum(segs.angle_sigma, np.radians(VERTEX_FLOOR_DEG))
-    off = np.maximum(segs.offset_sigma, VERTEX_FLOOR_PX)
+    ang, off = floored_sigmas(segs)
     _, through = lines_through(v, segs.ideal, ang, off)
     for _ in range(rounds):
         _, again = lines_through(v, segs.ideal, ang, np.hypot(off, common_offset(segs.select(through), v)))

@@ -10,7 +10,8 @@ import numpy as np
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.pencil.vertex import intersect_lines, lines_through
 
-__all__ = ["rough_vertex", "vertex_of", "better_vertex", "walked", "VERTEX_FLOOR_DEG", "VERTEX_FLOOR_PX"]
+__all__ = ["rough_vertex", "vertex_of", "better_vertex", "walked", "floored_sigmas", "VERTEX_FLOOR_DEG",
+           "VERTEX_FLOOR_PX"]
 
 VERTEX_FLOOR_DEG, VERTEX_FLOOR_PX = 0.05, 0.5  # the rough vertex: a floor under the segments' noise
 _DIRECTION_BIN_DEG = 6.0  # the rough vertex counts the directions crossing it in bins this wide
@@ -58,13 +59,19 @@ def rough_vertex(segs):
         if (int(ndir[b]), float(total[b])) > score:
             best, score = q[b], (int(ndir[b]), float(total[b]))
     # the lines through it, intersected with their noise (and floors)
-    ang = np.maximum(segs.angle_sigma, np.radians(VERTEX_FLOOR_DEG))
-    off = np.maximum(segs.offset_sigma, VERTEX_FLOOR_PX)
+    ang, off = floored_sigmas(segs)
     _, through = lines_through(best, segs.ideal, ang, np.maximum(off, 1.0))
     if through.sum() < 3:
         raise EstimationError("fewer than three edge segments meet")
     vf = intersect_lines(segs.ideal[through], angle_sigma=ang[through], offset_sigma=off[through], robust=True)
     return vf.vertex, reach_of(segs.ideal[through][vf.inliers], vf.vertex), vertex_sd(vf)
+
+
+def floored_sigmas(segs):
+    """(angle sds (M,) [rad], offset sds (M,) [px]) of edge segments (`Segments`) for their
+    vertex: their own, floored at `VERTEX_FLOOR_DEG` and `VERTEX_FLOOR_PX`."""
+    return (np.maximum(segs.angle_sigma, np.radians(VERTEX_FLOOR_DEG)),
+            np.maximum(segs.offset_sigma, VERTEX_FLOOR_PX))
 
 
 def vertex_sd(vf):
@@ -114,7 +121,7 @@ def better_vertex(fit, v, reach, sd, compare=True):
     except EstimationError:
         return v, reach, sd
     # within 3 sds of the last it is the same vertex, measured on the refitted edges
-    same = np.hypot(*(v1 - v)) <= 3.0 * np.hypot(sd, sd1)
+    same = _beyond(v1, sd1, v, sd) <= 0.0
     return (v1, reach1, sd1) if same or sd1 <= sd or not compare else (v, reach, sd)
 
 
@@ -122,4 +129,10 @@ def walked(v1, sd1, v, sd):
     """Whether the vertex v1 (2,) [px] of sd1 [px] where jointly located edges meet is
     another point than v (2,) of sd [px] they were located about and fixes it better:
     beyond 3 of the two sds added (`better_vertex`'s same vertex) and sd1 < sd."""
-    return bool(sd1 < sd and np.hypot(*(np.asarray(v1) - v)) > 3.0 * np.hypot(sd, sd1))
+    return bool(sd1 < sd and _beyond(v1, sd1, v, sd) > 0.0)
+
+
+def _beyond(v1, sd1, v, sd):
+    """How far [px] two vertices (2,) of sds sd1, sd [px] lie apart beyond 3 of their sds
+    added: at most 0 where they are one vertex."""
+    return float(np.hypot(*(np.asarray(v1) - v)) - 3.0 * np.hypot(sd, sd1))

@@ -82,10 +82,7 @@ def shared_offset_term(tri, common, margin=0.9):
     covariance ``tri.point_cov`` away along some direction (the sum no longer a covariance),
     its negative part is dropped (in the point's own sds), so the point keeps at least the
     covariance of independent rays there."""
-    info = np.asarray(tri.ray_information, float)
-    H_inv = np.linalg.inv(info[0] + info[1])
-    S = np.asarray(common, float)
-    cross = H_inv @ (info[0] @ S @ info[1] + info[1] @ S @ info[0]) @ H_inv
+    cross = _meeting_cross(tri, np.asarray(common, float))
     P = _across(tri.point)
     out = P @ cross @ P
     out = 0.5 * (out + out.T)
@@ -127,14 +124,12 @@ def play_cross_cov(left, right, R_right_from_left):
         return None, rec
     fl, gl, nl, rl, sl = left.vertex_lines
     fr, gr, nr, rr, sr = right.vertex_lines
-    one_l = {f for f in fl if np.count_nonzero(fl == f) == 1}
-    one_r = {f for f in fr if np.count_nonzero(fr == f) == 1}
-    both = sorted(one_l & one_r)
-    rec["pairs"] = len(both)
-    if len(both) < MIN_PAIRED_LINES:
+    both = np.intersect1d(_single(fl), _single(fr))
+    rec["pairs"] = int(both.size)
+    if both.size < MIN_PAIRED_LINES:
         return None, rec
-    a = np.array([np.flatnonzero(fl == f)[0] for f in both])
-    b = np.array([np.flatnonzero(fr == f)[0] for f in both])
+    a = np.intersect1d(fl, both, return_indices=True)[1]  # each pair's line in either view
+    b = np.intersect1d(fr, both, return_indices=True)[1]
     c = np.sum(nl[a] * nr[b], -1)
     n = len(both)
     tau2 = max(float(np.sum(rl[a] * rr[b] * c) / max(np.sum(c * c), 1e-12)) * n / (n - 2), 0.0)
@@ -143,6 +138,12 @@ def play_cross_cov(left, right, R_right_from_left):
     R = np.asarray(R_right_from_left, float)
     X = np.einsum("k,ki,kj->ij", k, gl[a], gr[b] @ R)
     return X * np.sqrt(_reported_factor(left) * _reported_factor(right)), rec
+
+
+def _single(frames):
+    """The frame indices that hold one line only, of the lines' frame indices (N,) int."""
+    u, count = np.unique(frames, return_counts=True)
+    return u[count == 1]
 
 
 def _reported_factor(fulcrum):
@@ -159,8 +160,14 @@ def cross_term(tri, X):
     the term is ``rho_l rho_r H^-1 (I_l X I_r + I_r X^T I_l) H^-1``, along the line of sight
     and across it: an offset both rays share cancels in their disparity (the depth) and
     is not halved across it."""
+    out = _meeting_cross(tri, float(tri.ranges[0]) * float(tri.ranges[1]) * np.asarray(X, float))
+    return 0.5 * (out + out.T)
+
+
+def _meeting_cross(tri, S):
+    """(3, 3) ``H^-1 (I_l S I_r + I_r S^T I_l) H^-1``: what a cross-covariance S (3, 3) of the
+    two rays' offsets at the point adds to the covariance of their meeting point (I_k each
+    ray's information there, `RayTriangulation.ray_information`, H their sum)."""
     info = np.asarray(tri.ray_information, float)
     H_inv = np.linalg.inv(info[0] + info[1])
-    S = float(tri.ranges[0]) * float(tri.ranges[1]) * np.asarray(X, float)
-    out = H_inv @ (info[0] @ S @ info[1] + info[1] @ S.T @ info[0]) @ H_inv
-    return 0.5 * (out + out.T)
+    return H_inv @ (info[0] @ S @ info[1] + info[1] @ S.T @ info[0]) @ H_inv
