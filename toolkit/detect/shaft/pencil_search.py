@@ -27,7 +27,10 @@ and drapes cross the columns obliquely. So:
    peak of that vote suppressing its neighbouring columns at its own widths only (a bright
    tip beyond the cone, on the same line through X, must not take the column from it);
 3. *band*: the pairs near the winning centre and width, the best per row, over the heaviest
-   run of rows with gaps up to `_GAP_ROWS`; each side's points fitted by a line, extended along
+   run of rows with gaps up to `_GAP_ROWS`. On the instrument-likeness a band gives way to the
+   outermost pair of edges around it whose inside beside it is instrument too (`_outermost`:
+   a highlight stripe along a matte shaft, or the matte part beside it, is a band of its own
+   that the vote may prefer to the shaft's). Each side's points fitted by a line, extended along
    it while the band's cross-section goes on looking like its run's, refitted at full
    resolution in a corridor of 2 work px (`shaft.silhouette.fit_edges`, as the material
    cue's edges) and the midline their plane bisector (`shaft.axis`). Kept where
