@@ -27,7 +27,10 @@ and drapes cross the columns obliquely. So:
    peak of that vote suppressing its neighbouring columns at its own widths only (a bright
    tip beyond the cone, on the same line through X, must not take the column from it);
 3. *band*: the pairs near the winning centre and width, the best per row, over the heaviest
-   run of rows with gaps up to `_GAP_ROWS`; each side's points fitted by a line, extended along
+   run of rows with gaps up to `_GAP_ROWS`. On the instrument-likeness a band gives way to the
+   outermost pair of edges around it whose inside beside it is instrument too (`_outermost`:
+   a highlight stripe along a matte shaft, or the matte part beside it, is a band of its own
+   that the vote may prefer to the shaft's). Each side's points fitted by a line, extended along
    it while the band's cross-section goes on looking like its run's, refitted at full
    resolution in a corridor of 2 work px (`shaft.silhouette.fit_edges`, as the material
    cue's edges) and the midline their plane bisector (`shaft.axis`). Kept where
@@ -88,6 +91,10 @@ _MIN_WIDTHS_AT_PORT = 1.0  # ... or, running from the prior's point (`_ends_at`)
 _MIN_WIDTHS_CLOSE = 0.5  # ... or, where no band is that long (`_entering_close`), fewer than this
 _MAX_CONVERGENCE_AT_PORT_DEG = 45.0  # a band from the prior's point converges at most so much (either way)
 _JOIN_FRACTION = 0.8  # a band joins the border through instrument material along this much of the way
+_WIDER = 1.15  # an enclosing pair is at least this much wider than the band it encloses ...
+_ENCLOSE_COLS = 1.0  # ... and reaches to within this many columns of the band's edges at least
+_ONE_INSTRUMENT = 0.5  # the inside beside an enclosed band lies this far from the sides towards its level at least
+_OUTWARD_STEPS = 3  # enclosing bands looked for in turn at most
 _PEAK_CANDIDATES = 16  # vote peaks looked at
 _CANDIDATES = 3  # bands measured at full resolution at most
 _FAR = 1e4  # beyond this many work-frame diagonals a point is at infinity
@@ -291,6 +298,73 @@ def _band_points(grid, P, D, pairs, b_of, c, b, shift):
     if sel.size < _MIN_ROWS:
         return None
     return R[sel], ci[sel], cj[sel], bool(np.mean(dark[sel]) > 0.5), float(np.sum(wt[sel]))
+
+
+def _one_instrument(P, D, pairs, idx, lo, hi):
+    """(idx.size,) bool: whether the inside of each enclosing pair `idx` is one instrument with
+    the band it encloses (columns lo to hi on its row): beside the band, each part of its
+    inside (median) lies `_ONE_INSTRUMENT` of the way from the nearer of its own two sides
+    (a fifth to a third of its width beyond its edges, as `_inside_ok`) to the band's level
+    at least (a shaft's matte part beside a highlight along it, a collar beside a
+    highlight; not a fold of tissue or a shadow beside the shaft)."""
+    R, ci, cj, _, _, _, dark = pairs
+    out = np.zeros(idx.size, bool)
+    for q, k in enumerate(idx):
+        row, seen = P[R[k]], D[R[k]] >= 0
+        a, b, w = ci[k], cj[k], cj[k] - ci[k]
+        sgn = -1.0 if dark[k] else 1.0  # the band above its sides in sgn * P
+
+        def level(i0, i1):
+            i0, i1 = max(int(i0), 0), min(int(i1), row.size)
+            v = row[i0:i1][seen[i0:i1]]
+            return float(np.median(sgn * v)) if v.size >= 2 else None
+
+        side = max(2, int(0.3 * w))
+        sides = [level(a - 1 - side, a - 1), level(b + 2, b + 2 + side)]
+        band = level(np.ceil(lo[q]) + 1, np.floor(hi[q]))
+        if None in sides or band is None or band <= max(sides):
+            continue
+        near = max(sides)
+        parts = [level(np.ceil(a) + 2, np.floor(lo[q]) - 1), level(np.ceil(hi[q]) + 2, np.floor(b) - 1)]
+        parts = [v for v in parts if v is not None]
+        out[q] = bool(parts) and all(v - near >= _ONE_INSTRUMENT * (band - near) for v in parts)
+    return out
+
+
+def _outermost(grid, P, D, pairs, band, lo, shift):
+    """The outermost band whose inside is one instrument with a band (`_band_points`) or the
+    band itself: pairs at least `_WIDER` wider, reaching past its edges (within
+    `_ENCLOSE_COLS`) on its rows, whose inside beside it is instrument too
+    (`_one_instrument`), voted on and measured as a band of their own (`_band_points`, at
+    the band's shift) sharing half its rows at least; again from that one, up to
+    `_OUTWARD_STEPS` times. A highlight along a matte shaft, a dark stripe along a metal
+    one, a collar: the band the vote finds may be a stripe of the shaft; the shaft is
+    the outermost pair of edges around it that encloses instrument only."""
+    R, ci, cj = pairs[:3]
+    for _ in range(_OUTWARD_STEPS):
+        rows, cl, cr = band[:3]
+        L, H = np.full(P.shape[0], np.nan), np.full(P.shape[0], np.nan)
+        L[rows], H[rows] = cl, cr
+        l_, h_ = L[R], H[R]
+        with np.errstate(invalid="ignore"):
+            idx = np.flatnonzero((ci <= l_ + _ENCLOSE_COLS) & (cj >= h_ - _ENCLOSE_COLS) & (cj - ci >= _WIDER * (h_ - l_)))
+        if idx.size < _MIN_ROWS:
+            break
+        idx = idx[_one_instrument(P, D, pairs, idx, l_[idx], h_[idx])]
+        if np.unique(R[idx]).size < _MIN_ROWS:
+            break
+        sub = tuple(v[idx] for v in pairs)
+        A, b_of = _votes(grid, sub, np.zeros(1) + shift, lo, grid.pts.shape[1])
+        wider = None
+        for _q, c, b in _peaks(A, lo)[:_CANDIDATES]:
+            got = _band_points(grid, P, D, sub, b_of, c, b, shift)
+            if got is not None and np.intersect1d(got[0], rows).size >= 0.5 * rows.size:
+                wider = got
+                break
+        if wider is None:
+            break
+        band = wider
+    return band
 
 
 def _same_band(a, b):
@@ -548,8 +622,13 @@ def _bands(work, pw, wmin, wmax):
         found = []
         for q, c, b in _peaks(A, lo, own):
             band = _band_points(grid, P, D, pr, b_of, c, b, shifts[q])
-            if band is not None and not any(_same_band(band, f[1:]) for f in out):
-                found.append(band)
+            if band is None:
+                continue
+            wide = _outermost(grid, P, D, pr, band, lo, shifts[q]) if bright_only else band
+            if wide is not band and any(_same_band(wide, f) for f in found):
+                continue  # the enclosing band is one already found
+            if not any(_same_band(wide, f[1:]) for f in out):
+                found.append(wide)
         found.sort(key=lambda t: -t[4])
         out += [(grid, *t[:4], bool(cone)) for t in found[:_CANDIDATES]]
     return out

@@ -416,3 +416,34 @@ def test_a_cone_from_a_port_in_view_with_a_long_bright_tip():
     img = sensor_image(img, 0.2, 1.0, 1.2, 2.2, 2.5, np.random.default_rng(8))
     got = detect_shafts(img, axis_prior=AxisPrior.from_point(port, np.eye(2) * 4.0))
     assert _found_through(got, port, u)
+
+
+@pytest.mark.parametrize("case", [
+    # tissue seed, port (beyond the view), direction [deg], tip, width, stripe's offset and width, grey
+    (3, (-273.0, -59.0), 30.8, (339.0, 306.0), 47.0, 11.0, 21.0, 0.14),
+    (17, (-46.0, 725.0), 304.2, (312.0, 198.0), 49.0, -11.0, 23.0, 0.12),
+])
+def test_the_outermost_pair_of_a_striped_shaft(case):
+    """A dark grey shaft with a bright highlight stripe along it (a fifth of its width off its
+    axis, reaching to 2 px of one edge), a bright tip beyond, its port beyond the view, over
+    rendered tissue: through the port's image the shaft is found, not the grey part beside the
+    stripe (a band between the tissue and the stripe, darker than both), its axis within 1 deg
+    and 3 px. Measured: the grey part (23-24 px wide) was taken before the search preferred
+    the outermost pair whose inside is one instrument (`pencil_search._outermost`)."""
+    import cv2
+
+    from pencilcal.toolkit.detect.shaft.detector import detect_shafts
+    from pencilcal.toolkit.synth.render import sensor_image
+
+    seed, port, deg, tip, w, off, sw, grey = case
+    port, tip = np.array(port), np.array(tip)
+    u = np.array([np.cos(np.radians(deg)), np.sin(np.radians(deg))])
+    n = np.array([-u[1], u[0]])
+    img = _tissue_frame(seed)
+    cv2.fillConvexPoly(img, _quad(port, tip, w, w, n), (grey, grey, 1.05 * grey))
+    cv2.fillConvexPoly(img, _quad(port + off * n, tip + off * n, sw, sw, n), (0.85, 0.85, 0.88))
+    cv2.fillConvexPoly(img, _quad(tip, tip + 60 * u, 0.7 * w, 0.7 * w, n), (0.6, 0.6, 0.62))
+    img = sensor_image(img, 0.2, 1.0, 1.2, 2.2, 2.5, np.random.default_rng(seed + 100))
+    got = detect_shafts(img, axis_prior=AxisPrior.from_point(port, np.eye(2) * 4.0))
+    assert _found_through(got, port, u)
+    assert abs(got[0].width_px - w) < 4.0
