@@ -38,7 +38,7 @@ from pencilcal.toolkit.pencil.defaults import CHI2_1_99, CHI2_2_DETECTION, DETEC
 from pencilcal.toolkit.pencil.estimator import fit_pencil, pencil_jacobian, PencilFit
 from pencilcal.toolkit.pencil.sequence_noise import inflation
 
-__all__ = ["Assignment", "assign_spokes", "grow_labels", "GROWTH_EVIDENCE", "GROWTH_AGREE"]
+__all__ = ["Assignment", "assign_spokes", "grow_labels", "GROWTH_EVIDENCE", "GROWTH_AGREE", "GROWTH_LIKELIHOOD_LINES"]
 
 # distinct labellings refitted after the MSAC screen
 _TOP = 4
@@ -59,9 +59,15 @@ _MAX_SCORE_WORK = 1 << 26
 #: better than the next predicted spoke of its kind by this much chi2 (odds of 1000 to 1),
 #: the line's sd and the prediction's (from the fit's covariance) together
 GROWTH_EVIDENCE = 2.0 * np.log(1000.0)
-#: and keeps a grown labelling only while its refit's rotation lies within this chi2(3)
-#: quantile (99.73 %, three sigmas) of the last fit's, by that fit's covariance
+#: and keeps a grown labelling only while its refit explains the lines labelled before
+#: within this rise of their chi2 (the chi2(3) quantile of 99.73 %, three sigmas), and, from
+#: fewer than `GROWTH_LIKELIHOOD_LINES` lines, while its rotation also lies within it of
+#: the last fit's by that fit's covariance (`_still_explained`)
 GROWTH_AGREE = chi2_isf(1.0 - 0.9973, 3)
+#: from this many labelled lines a grown labelling's refit is judged by how well it explains
+#: them alone (fewer fit any rotation near theirs: three of them exactly), as `floored` and
+#: `scatter` estimate the lines' shared error from 8 lines
+GROWTH_LIKELIHOOD_LINES = 8
 
 
 @dataclass(frozen=True)
@@ -631,8 +637,8 @@ class _LabelFitter:
         """The labelling grown from `labels` (M,) (a searched one: its lines are taken to be
         right): each round fits the labelled lines (their sigmas widened by the model error
         they share, `floored`), labels every line its prediction is `sure` of, and fits
-        those; the new labelling is kept while its fit's rotation agrees with the last one
-        within GROWTH_AGREE (by the last one's covariance), until nothing changes.
+        those; the new labelling is kept while its refit explains the lines labelled before
+        (`_still_explained`), until nothing changes.
         Returns (labels, PencilFit on the lines' own sigmas)."""
         for _ in range(_MAX_GROWTH):
             used = labels >= 0
@@ -644,13 +650,7 @@ class _LabelFitter:
             new = np.where(labels >= 0, labels, add)
             if np.array_equal(new, labels) or np.unique(new[new >= 0]).size < 3:
                 break
-            moved = rotvec_from_rotation(wide.fit(new >= 0, new[new >= 0]).R_cam_from_target
-                                         @ fit.R_cam_from_target.T)
-            try:
-                agree = float(moved @ np.linalg.solve(np.asarray(fit.cov, float), moved)) <= GROWTH_AGREE
-            except np.linalg.LinAlgError:
-                agree = False
-            if not agree:
+            if not _still_explained(wide.s, labels, fit, new, wide.fit(new >= 0, new[new >= 0])):
                 break
             labels = new
         used = labels >= 0
@@ -667,7 +667,7 @@ def grow_labels(line_angles, spoke_angles, vertex, sigma, labels, vertex_cov=Non
     spoke predicted nearest to it where the evidence for that spoke over the next predicted
     one (in the image, of the line's kind) is GROWTH_EVIDENCE in chi2 or more and the
     prediction itself is sure against that spacing (`_LabelFitter.sure`), and each round's
-    refit must agree with the last within GROWTH_AGREE (`_LabelFitter.grow`). The labels
+    refit must still explain the lines labelled before (`_LabelFitter.grow`). The labels
     given stand: a line is added only on a spoke none of them holds.
 
     line_angles (M,), spoke_angles (N,), vertex, sigma, vertex_cov, oriented, line_kind,
@@ -699,6 +699,32 @@ def grow_labels(line_angles, spoke_angles, vertex, sigma, labels, vertex_cov=Non
     fitter = _LabelFitter(a, th, s, vertex, vertex_cov, oriented, tolerance_sigmas, np.pi, kinds)
     return fitter.grow(lab)
 
+
+def _still_explained(s, labels, fit, new, refit):
+    """Whether a grown labelling is kept: `refit`, the PencilFit of the lines `new` (M,)
+    labels, explains the lines `labels` (M,) labelled before (a subset of them, with the same
+    labels) about as well as their own `fit`: their chi2 (sigmas s (M,) [rad]) rises by
+    GROWTH_AGREE at most; and, from fewer than GROWTH_LIKELIHOOD_LINES lines, the refit's
+    rotation lies within GROWTH_AGREE of `fit`'s by `fit`'s covariance (a few lines fit any
+    rotation near theirs: a wrong search's 5 lines grew to 23 on chi2 alone).
+
+    The chi2 and not the rotation's move alone: the covariance of an arc's lines is
+    linearised far from where it holds, and a right growth moves the rotation by many of its
+    sds (a 128-wedge star tilted 54 deg, its edges found on four arcs: grown to 24 lines on
+    the first, the rotation 13.9 deg off at a sigma of 4.5 deg, the next round was refused
+    and so was the frame; let on, it labels 100 lines on all four arcs, 0.047 deg off)."""
+    old = labels >= 0
+    r_old = np.asarray(fit.residuals, float) / s[old]
+    r_new = np.asarray(refit.residuals, float)[old[new >= 0]] / s[old]
+    if float(r_new @ r_new - r_old @ r_old) > GROWTH_AGREE:
+        return False
+    if np.count_nonzero(old) >= GROWTH_LIKELIHOOD_LINES:
+        return True
+    moved = rotvec_from_rotation(refit.R_cam_from_target @ fit.R_cam_from_target.T)
+    try:
+        return float(moved @ np.linalg.solve(np.asarray(fit.cov, float), moved)) <= GROWTH_AGREE
+    except np.linalg.LinAlgError:
+        return False
 
 def _candidates(nearest, resid, tol, s, fitter):
     """Refit the few best distinct labellings of the MSAC screen (nearest, resid (k, M) of
