@@ -63,8 +63,6 @@ Example
 """
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from pencilcal.toolkit.detect.shaft.mask import mask_axis
