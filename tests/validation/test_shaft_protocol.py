@@ -68,8 +68,12 @@ pytestmark = pytest.mark.slow
 #: from 0.75 of its width and proposed after every other proposer (`material_cue._cut_bands`,
 #: `region_bands.CUT_RUN_WIDTHS`) finds endovis17's close left shaft in frame001 (0.95 deg the
 #: median angle error, 0.83 before); the other rows, the hysterectomy and the phantom unchanged.
+#: A shaft the border of the view cuts lengthwise, one edge in view (`shaft.border_band`: the
+#: region between that edge and the border read as a mask's is, kind part) finds endovis17's
+#: top-right shaft across the frame's corner in frames 002-004 (its masks' principal axes, 0.2,
+#: 4.0 and 2.4 deg off); the other rows, the hysterectomy and the phantom unchanged.
 REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (12, 0.0),
-           "endovis17": (11, 0.0)}
+           "endovis17": (14, 0.0)}
 
 
 @pytest.fixture(scope="module")
@@ -121,8 +125,10 @@ def test_leave_one_source_out(detected):
         assert r["found"] >= found, r
         assert r["false_per_frame"] <= false + 1e-9, r
     assert sum(r["found"] for r in rows) >= sum(f for f, _ in REACHED.values())
-    # where found, as accurate as the detector is (median <= 0.5 deg on the masked sources)
-    errs = [e for r in rows if r["angle_err_deg_median"] is not None for e in [r["angle_err_deg_median"]]]
+    # where found, as accurate as the detector is (median <= 0.5 deg on the masked sources),
+    # on the shafts' references (a part's principal axis is its mask's own reading, its sd
+    # atan(width / length): `test_border_axes_within_their_sigmas`)
+    errs = [np.median([e for e, _ in v]) for v in _shaft_errors(scored, diag, rows).values() if v]
     assert max(errs) <= 1.0
     # the shipped least evidence is the protocol's choice over all five sources, each judged
     # by a model that never saw it
@@ -130,6 +136,36 @@ def test_leave_one_source_out(detected):
     assert evidence == pytest.approx(MIN_PIXEL_EVIDENCE)
     # and so is the most tissue colour
     assert colour == pytest.approx(MAX_TISSUE_COLOUR)
+
+
+def _shaft_errors(scored, diag, rows, kind="shaft", cue=None):
+    """{source: [(angle error [deg], detection)] of the instruments of `kind` found (by
+    detections of `cue`, any where None)}, each source with its setting chosen on the others
+    (rows)."""
+    from pencilcal.validation.shaft_protocol import filtered
+
+    out = {}
+    for r in rows:
+        name = r["source"]
+        out[name] = []
+        for refs, dets in scored[name]:
+            kept = filtered(dets, r["setting"], diag[name], r["evidence"], r["colour"], r.get("part", float("inf")))
+            fs = score_frame(kept, refs)
+            out[name] += [(m[2], kept[m[0]]) for m in fs.matches if refs[m[1]].kind == kind
+                          and (cue is None or kept[m[0]].get("cue") == cue)]
+    return out
+
+
+def test_border_axes_within_their_sigmas(detected):
+    """The axes of shafts cut lengthwise by the border (cue "border") that find a part's
+    reference lie within 2.5 of their own angle sd (atan(width / length)) of its axis: endovis17's
+    top-right shaft across the frame's corner in frames 002-004."""
+    scored, diag, choice = detected
+    rows = leave_one_source_out(scored, diag, evidences=EVIDENCES, choice_frames=choice, colours=TISSUE_COLOURS)
+    got = [(e, d["angle_sigma_deg"]) for v in _shaft_errors(scored, diag, rows, "part", "border").values()
+           for e, d in v]
+    print("border axes on parts (angle error, sd) [deg]:", [(round(e, 2), round(sd, 1)) for e, sd in got])
+    assert len(got) >= 3 and all(e <= 2.5 * sd for e, sd in got), got
 
 
 #: With the instrument regions' axes (`shaft.parts`, `lines --shaft --parts`) offered too, the
@@ -145,8 +181,11 @@ def test_leave_one_source_out(detected):
 #: detections touching it (`part_records`, `filtered`): a band the setting drops takes no region
 #: away, so a band proposed and dropped cannot make a part score look free on the others (the
 #: table unchanged; with a dull grey band proposed on cholec, box-trainer stays at 0 false).
+#: With the axes of shafts cut lengthwise by the border (`shaft.border_band`) endovis17 reaches
+#: 14 here too (its top-right shaft's regions are then read by the border cue: the least part
+#: score chosen on the others adds nothing).
 PARTS_REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (12, 0.0),
-                 "endovis17": (10, 0.0)}
+                 "endovis17": (14, 0.0)}
 
 
 def test_leave_one_source_out_with_parts(detected):

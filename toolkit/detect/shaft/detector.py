@@ -65,6 +65,7 @@ from pencilcal.toolkit.detect.image import GrayImage
 from pencilcal.toolkit.detect.motion import EdgeMotion, match_pairs
 from pencilcal.toolkit.detect.noise import noise_of
 from pencilcal.toolkit.detect.shaft.axis import midline_from_edges
+from pencilcal.toolkit.detect.shaft.border_band import border_shafts
 from pencilcal.toolkit.detect.shaft.silhouette import EdgeLine
 from pencilcal.toolkit.detect.shaft.edge_cue import bands_from_edges, drop_repeated, edge_cue, refit_edges, unsigned_lines
 from pencilcal.toolkit.detect.shaft.material_cue import material_cue, robust_noise, select
@@ -83,9 +84,10 @@ from pencilcal.toolkit.errors import InputError
 __all__ = ["Shaft", "ShaftOptions", "detect_shafts", "detect_through", "track_shafts", "ShaftTracker", "CUES",
            "REDETECT_FRAMES", "shaft_of_midline", "EDGE_MODELS", "with_limbs"]
 
-#: What a shaft can be found by (`Shaft.cue`): the two cues, and the angle search about a
-#: fulcrum's image (`detect_shafts(..., axis_prior=...)`).
-CUES = ("material", "edges", "prior")
+#: What a shaft can be found by (`Shaft.cue`): the two cues, the angle search about a
+#: fulcrum's image (`detect_shafts(..., axis_prior=...)`) and a shaft the border of the view
+#: cuts lengthwise (`shaft.border_band`).
+CUES = ("material", "edges", "prior", "border")
 #: The material cue's widths when none are given, as fractions of the image's longer side
 #: (1.5 % gave many 30 px tissue bands on the in-vivo frames; the closest shafts of the real
 #: sets are a quarter of the side wide).
@@ -124,7 +126,7 @@ class Shaft:
     polarity : str
         "dark" (shaft darker than its surroundings along most of its length) or "bright".
     cue : str
-        What found it: "material", "edges" or "prior" (`CUES`).
+        What found it: "material", "edges", "prior" or "border" (`CUES`).
     cov : (2, 2)
         Covariance of the midline's (angle [rad], offset [px] at its centre), floor
         included: ``cov_stat + EDGE_FLOOR_PX**2 * cov_floor`` (`shaft.axis.Midline`).
@@ -227,6 +229,7 @@ class ShaftOptions:
     single_edge: bool = True
     edge_model: str = "step"
     edge_pairs: bool = True
+    border_bands: bool = True
 
     @classmethod
     def resolve(cls, shape, *, min_length, width_px_range, max_convergence_deg, scale, max_gap_px, border_px, **kw):
@@ -336,7 +339,12 @@ def _by_material(image, camera, validity, o, K, work):
     img = np.asarray(image)
     noise = max(robust_noise(img[..., 1]), 0.5)
     found = select(material_cue(img, camera, validity, work, mm, o, K, noise), o.max_shafts)
-    return [shaft_of_midline(camera, f.midline, f.score, f.polarity, "material") for f in found]
+    found = [shaft_of_midline(camera, f.midline, f.score, f.polarity, "material") for f in found]
+    if o.border_bands:
+        # a shaft the border cuts lengthwise has one edge in view: no band of two edges
+        found = [s for s in found if s is not None]
+        found += [Shaft(**f) for f in border_shafts(img, camera, validity, work, mm, o, found)]
+    return found
 
 
 def _edge_shafts(found, camera, o, K):
@@ -360,7 +368,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
                   max_convergence_deg=30.0, max_shafts=4, scale=None, max_gap_px=None, search_px=3.0,
                   sigma_px=1.5, min_support=0.3, max_background=0.1, slope_correction=True, from_border=True,
                   border_px=None, min_score_ratio=0.25, corridor_px=4.0, detector_params=None, gamma=DEFAULT_GAMMA,
-                  axis_prior=None, single_edge=True, edge_pairs=True, edge_model="step",
+                  axis_prior=None, single_edge=True, edge_pairs=True, border_bands=True, edge_model="step",
                   pixel_evidence=MIN_PIXEL_EVIDENCE, tissue_colour=MAX_TISSUE_COLOUR):
     """Instrument shafts in one image: midline (the axis image), width, angle uncertainty.
 
@@ -457,6 +465,12 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         are one material unlike the outsides, whatever lies inside (an instrument's outline:
         a clip applier's limbs and the slot between them); the proposals
         cost about 7-8 ms per 1080p frame (docs/method.md). False: not proposed.
+    border_bands : bool
+        On a colour frame, also the axis of a shaft the border of the view cuts lengthwise,
+        one silhouette edge in view and the other beyond the border: a region of one material
+        from a straight boundary entering from the border out to the border, read as a mask
+        (`shaft.border_band`, cue "border", kind "part" with a part's sigmas where only one
+        straight silhouette stretch is seen). False: not looked for.
     pixel_evidence : float or None
         On a colour frame, a shaft of the cues is kept only where the learned instrument map
         inside its band reaches this (`shaft.pixel_evidence.MIN_PIXEL_EVIDENCE`, 0.1: a
@@ -489,7 +503,7 @@ def detect_shafts(image, camera=None, *, valid_region=None, detector="lsd", min_
         search_px=search_px, sigma_px=sigma_px, min_support=min_support, max_background=max_background,
         slope_correction=slope_correction, from_border=from_border, border_px=border_px,
         min_score_ratio=min_score_ratio, corridor_px=corridor_px, gamma=gamma, single_edge=bool(single_edge),
-        edge_pairs=bool(edge_pairs), edge_model=edge_model))
+        edge_pairs=bool(edge_pairs), border_bands=bool(border_bands), edge_model=edge_model))
     priors = as_priors(axis_prior)
     work = WorkFrame(image, camera, validity, _WORK_PX) if priors or np.ndim(image) == 3 else None
     found = _by_material(image, camera, validity, o, K, work)

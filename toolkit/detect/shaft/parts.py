@@ -57,8 +57,8 @@ from pencilcal.toolkit.detect.edges import DEFAULT_GAMMA
 from pencilcal.toolkit.detect.shaft.from_mask import shafts_from_masks
 from pencilcal.toolkit.detect.shaft.pixels import WORK_PX, instrument_probability
 from pencilcal.toolkit.detect.shaft.tissue_colour import MAX_TISSUE_COLOUR, shaft_tissue_colour
-from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame, grid_map
-from pencilcal.toolkit.detect.working import to_working, to_working_points
+from pencilcal.toolkit.detect.shaft.work import CLIPPED_LEVEL, MAX_CLIPPED, Validity, WorkFrame, raw_masks
+from pencilcal.toolkit.detect.working import to_working
 
 __all__ = ["detect_parts", "part_axes", "part_regions", "PART_PROBABILITY", "MIN_PART_AREA", "PART_CUE", "RIM_FRACTION",
            "MIN_ELONGATION", "MIN_PART_ELONGATION", "CLIPPED_LEVEL", "MAX_CLIPPED"]
@@ -81,13 +81,6 @@ MIN_ELONGATION = 1.0
 #: (atan(width / length)) of at most 27 deg; a rounder region's principal axis turns with a few
 #: pixels of its outline. Set after looking at every source's regions (docs/method.md).
 MIN_PART_ELONGATION = 2.0
-#: A work pixel is clipped where a channel reaches this 8-bit level (2 % below the ceiling: the
-#: work frame's area averaging leaves a clipped patch's inside at 255, its rim a little lower).
-CLIPPED_LEVEL = 250
-#: A region is glare when more than this fraction of its pixels are clipped (most of it): not
-#: tuned.
-MAX_CLIPPED = 0.5
-_RAW_STEP = 4.0  # the raw-to-work map is evaluated every this many raw px and interpolated [px]
 _BORDER_WORK_PX = 2.0  # a region touches the border of the view within this beyond the rim [work px]
 
 
@@ -182,20 +175,6 @@ def _into_rim(lab, allowed, rim):
     return out
 
 
-def _raw_masks(work, camera, lab, count, shape):
-    """The regions' labels (h, w) [work px] carried to the raw frame of `shape` (H, W): one
-    (H, W) bool mask per region, each raw pixel the label of the work pixel nearest to its
-    own work point (the raw-to-work map evaluated on a 4 px raw grid, `work.grid_map`); 0
-    beyond the work frame and the lens model's reach."""
-    import cv2
-
-    q = grid_map(lambda g: work.to_work(to_working_points(camera, g)), shape, _RAW_STEP)
-    q = np.nan_to_num(q, nan=-1.0).astype(np.float32)
-    raw = cv2.remap(lab.astype(np.float32), q[..., 0], q[..., 1], cv2.INTER_NEAREST,
-                    borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return [raw == k for k in range(1, count + 1)]
-
-
 def detect_parts(image, shafts, camera=None, *, valid_region=None, model=None, gamma=DEFAULT_GAMMA,
                  min_area=MIN_PART_AREA, probability=PART_PROBABILITY, max_parts=4, tissue_colour=MAX_TISSUE_COLOUR):
     """The axes of the instrument regions of a colour frame that have no shaft among `shafts`
@@ -264,7 +243,7 @@ def _axes(image, shafts, camera, valid_region, model, gamma, min_area, probabili
         touches = [()] * count
     if not touches:
         return []
-    masks = _raw_masks(work, camera, lab, len(touches), img.shape[:2])
+    masks = raw_masks(work, camera, lab, len(touches), img.shape[:2])
     read = [(m, t) for m, t in zip(masks, touches) if m.any()]
     # each axis names its region by its index among the masks read (`MaskShaft.instrument`)
     found = [(replace(a, cue=PART_CUE), read[a.instrument][1])

@@ -36,7 +36,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["Validity", "WorkFrame", "Reductions", "axis_matrix", "grid_map"]
+__all__ = ["Validity", "WorkFrame", "Reductions", "axis_matrix", "grid_map", "raw_masks", "RAW_STEP_PX",
+           "CLIPPED_LEVEL", "MAX_CLIPPED"]
 
 _GRID_PX = 16.0  # spacing of the coarse grid the region's distance is interpolated from [raw px]
 _MAP_STEP = 8.0  # the lens map is evaluated every this many work px and interpolated [px]
@@ -405,3 +406,29 @@ def grid_map(f, shape, step):
     if np.any(bad):
         out[at_pixels(bad.astype(np.float32)) > 0] = np.nan
     return out
+
+
+#: A work pixel is clipped where a channel reaches this 8-bit level (2 % below the ceiling: the
+#: work frame's area averaging leaves a clipped patch's inside at 255, its rim a little lower).
+CLIPPED_LEVEL = 250
+#: A region (`shaft.parts`, `shaft.border_band`) is glare when more than this fraction of its pixels are clipped (most of it): not
+#: tuned.
+MAX_CLIPPED = 0.5
+#: The raw-to-work map of `raw_masks` is evaluated every this many raw px and interpolated.
+RAW_STEP_PX = 4.0
+
+
+def raw_masks(work, camera, lab, count, shape):
+    """The regions' labels (h, w) [work px] carried to the raw frame of `shape` (H, W): one
+    (H, W) bool mask per region, each raw pixel the label of the work pixel nearest to its
+    own work point (the raw-to-work map evaluated on a `RAW_STEP_PX` raw grid, `grid_map`); 0
+    beyond the work frame and the lens model's reach."""
+    import cv2
+
+    from pencilcal.toolkit.detect.working import to_working_points
+
+    q = grid_map(lambda g: work.to_work(to_working_points(camera, g)), shape, RAW_STEP_PX)
+    q = np.nan_to_num(q, nan=-1.0).astype(np.float32)
+    raw = cv2.remap(lab.astype(np.float32), q[..., 0], q[..., 1], cv2.INTER_NEAREST,
+                    borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return [raw == k for k in range(1, count + 1)]

@@ -86,7 +86,7 @@ def test_raw_masks_are_the_regions_where_they_are(lens):
     of the 4 px raw grid shifted every mask 1.5 px right and down), to within a pixel of its
     outline and a centroid 0.02 px off with a barrel lens."""
     from pencilcal.toolkit.camera.model import Camera
-    from pencilcal.toolkit.detect.shaft.parts import _raw_masks
+    from pencilcal.toolkit.detect.shaft.work import raw_masks
     from pencilcal.toolkit.detect.working import to_working_points
 
     H, W = 480, 854
@@ -100,7 +100,7 @@ def test_raw_masks_are_the_regions_where_they_are(lens):
     q = np.rint(work.to_work(to_working_points(cam, np.stack([xx, yy], -1)))).astype(int)
     inside = (q[..., 0] >= 0) & (q[..., 0] < lab.shape[1]) & (q[..., 1] >= 0) & (q[..., 1] < lab.shape[0])
     exact = np.where(inside, lab[np.clip(q[..., 1], 0, lab.shape[0] - 1), np.clip(q[..., 0], 0, lab.shape[1] - 1)], 0)
-    for k, got in enumerate(_raw_masks(work, cam, lab, 2, (H, W)), 1):
+    for k, got in enumerate(raw_masks(work, cam, lab, 2, (H, W)), 1):
         want = exact == k
         assert got.sum() > 2000
         if not lens:
