@@ -120,9 +120,10 @@ def play_cross_cov(left, right, R_right_from_left, pairs=None):
     ones; then of a line's variance as its view reports it, ``s sd^2`` (s the view's factor
     from its fit's ray covariance to the one it reports, `Fulcrum.ray_covariance`: the noise
     or the jackknife), the view's own part is ``beta sd^2`` and the rest, ``(s - beta)
-    sd^2``, is shared: a pair's covariance is ``c sqrt((s_l - beta) (s_r - beta)) sd_l sd_r``
-    (0 where a view's own part is all it reports), and ``X = sum_pairs that g_l (R^T
-    g_r)^T``, g each line's gain. The own part is read directly, not as what is left of a
+    sd^2``, is shared, and where the stated sds exceed what the lines scatter, the part
+    neither reading finds is split as the scatter is: a pair's covariance is ``c sqrt(s_l
+    s_r) sd_l sd_r tau^2 / (tau^2 + own^2)`` (own^2 = beta times the pairs' mean sd^2),
+    and ``X = sum_pairs that g_l (R^T g_r)^T``, g each line's gain. The own part is read directly, not as what is left of a
     line's stated variance once tau^2 is taken from it: where the play is most of a line's
     variance (a detector's sds that hold it), that difference of two near numbers would
     keep noise the views do not have in the rays' disparity, the point's depth (rendered
@@ -153,7 +154,11 @@ def play_cross_cov(left, right, R_right_from_left, pairs=None):
     diff = np.sum((rl[a] - c * rr[b]) ** 2 - tau2 * (1.0 - c * c))
     beta = max(float(diff) * n / (n - 2), 0.0) / float(np.sum(sl[a] ** 2 + c * c * sr[b] ** 2))
     rec["own_sd_px"] = float(np.sqrt(beta * np.mean(0.5 * (sl[a] ** 2 + sr[b] ** 2))))
-    shared = np.sqrt(max(_reported_factor(left) - beta, 0.0) * max(_reported_factor(right) - beta, 0.0))
+    # what the lines' reported variance holds beyond what either reading finds (stated sds
+    # above the scatter) is split between shared and own as the scatter splits
+    own2 = float(rec["own_sd_px"]) ** 2
+    share = tau2 / (tau2 + own2) if tau2 + own2 > 0 else 0.0
+    shared = share * np.sqrt(_reported_factor(left) * _reported_factor(right))
     R = np.asarray(R_right_from_left, float)
     return np.einsum("k,ki,kj->ij", shared * c * sl[a] * sr[b], gl[a], gr[b] @ R), rec
 
