@@ -5,7 +5,7 @@ import click
 import numpy as np
 
 from pencilcal.toolkit.camera.formats import read_camera
-from pencilcal.toolkit.camera.stereo import read_stereo
+from pencilcal.toolkit.camera.stereo import pair_frames, read_stereo
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.io.files import write_json
 from pencilcal.toolkit.detect.shaft.prior import epoch_priors
@@ -137,8 +137,12 @@ def _stereo(left, right_images, camera_right, camera_right_path, rig, options, e
                                 where=f"{right_images} (right view)")
     for w in right.warnings:
         warn(f"right view: {w}")
+    try:  # the frames each eye took together, by their names (in order where the names say nothing)
+        pairs = pair_frames([f.get("image") for f in left_view[1]], [f.get("image") for f in frames])
+    except InputError as e:
+        raise InputError(f"{right_images}: {e}") from None
     try:
-        st = stereo_fulcrum(left, right, rig)
+        st = stereo_fulcrum(left, right, rig, pairs=pairs)
     except EstimationError as e:
         raise EstimationError(f"{rig.source}: {e}") from None
     rec = st.to_dict()

@@ -138,3 +138,34 @@ def test_fulcrum_stereo_from_lines_files_with_the_intrinsics(tmp_path):
     r = invoke(*base[:5], "--right", tmp_path / "bad.json", "--camera-right", tmp_path / "plain.json",
                "--right-from-left", tmp_path / "rig.json", "-o", tmp_path / "h.json")
     assert r.exit_code == 1 and "bad.json" in r.output and len(r.output.strip().splitlines()) == 1, r.output
+
+
+@pytest.mark.slow
+def test_fulcrum_stereo_pairs_frames_by_name(tmp_path):
+    """The right view's frames pair with the left's by their names, whatever their order
+    (the same stereo record as in order); names that pair some frames but not all (a frame
+    dropped in one eye, which in order would pair every later frame wrongly) are a one-line
+    error naming the right view and the frame (the exact lines of test_stereo_fulcrum)."""
+    from pencilcal.toolkit.io.lines_file import write_lines
+    from tests.toolkit.pencil.test_stereo_fulcrum import CAM, R_RL as R2, T_RL as T2, _views
+
+    left, right = _views()
+    rf = right.frames(np.random.default_rng(1))
+    write_lines(tmp_path / "left.json", left.frames(np.random.default_rng(0)))
+    write_lines(tmp_path / "right.json", rf)
+    write_lines(tmp_path / "shuffled.json", rf[::-1])
+    write_lines(tmp_path / "dropped.json", [f for k, f in enumerate(rf) if k != 3])
+    write_camera(tmp_path / "cam.json", CAM)
+    (tmp_path / "rig.json").write_text(json.dumps({"R_right_from_left": R2.tolist(), "t_right_from_left": T2.tolist()}))
+    base = ["fulcrum", "--lines", tmp_path / "left.json", "--camera", tmp_path / "cam.json", "--camera-right",
+            tmp_path / "cam.json", "--right-from-left", tmp_path / "rig.json", "-q"]
+    st = {}
+    for name in ("right", "shuffled"):
+        r = invoke(*base, "--right", tmp_path / f"{name}.json", "-o", tmp_path / f"{name}-f.json")
+        assert r.exit_code == 0, r.output
+        st[name] = json.loads((tmp_path / f"{name}-f.json").read_text())["stereo"]["triangulated"]
+    assert st["right"]["paired_lines"] == st["shuffled"]["paired_lines"] >= 5
+    assert np.allclose(st["right"]["point_cov"], st["shuffled"]["point_cov"], rtol=1e-6)
+    r = invoke(*base, "--right", tmp_path / "dropped.json", "-o", tmp_path / "dropped-f.json")
+    assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1, r.output
+    assert "dropped.json" in r.output and "003.png" in r.output and "do not pair" in r.output

@@ -19,6 +19,10 @@ uncertainty, ``cov_right_from_left``: the 6x6 covariance of the rotation's error
 rotation vector [rad] (``R = exp(w) R_right_from_left``) and of the translation [length],
 in that order, symmetric and positive semi-definite.
 
+`pair_frames` pairs the two eyes' frames by their file names (``left/0001.png`` with
+``right/0001.png``, ``img_L_0001.png`` with ``img_R_0001.png``), in order only where the
+names say nothing.
+
 `write_stereo` writes a rig back: OpenCV FileStorage (``R``, ``T``, as stereoCalibrate's
 samples do) for ``.yml``, ``.yaml`` and ``.xml``; the JSON mapping for ``.json``; the
 covariance, where the rig has one, as ``cov_right_from_left`` in both.
@@ -37,7 +41,8 @@ covariance, where the rig has one, as ``cov_right_from_left`` in both.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
+import re
+from pathlib import Path, PurePath
 
 import numpy as np
 
@@ -45,7 +50,7 @@ from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.frames import project_to_rotation, rotation_from_rotvec
 from pencilcal.toolkit.io.files import atomic_path, load_structured, read_input_text, write_json
 
-__all__ = ["StereoRig", "read_stereo", "write_stereo", "ORTHONORMAL_TOLERANCE"]
+__all__ = ["StereoRig", "read_stereo", "write_stereo", "pair_frames", "ORTHONORMAL_TOLERANCE"]
 
 # Largest |R^T R - I| (any entry) of a rotation read from a file; below it R is projected
 # onto the nearest rotation, above it refused.
@@ -247,3 +252,66 @@ def write_stereo(path, rig: StereoRig, force=False) -> None:
                 fs.write("cov_right_from_left", cov)
         finally:
             fs.release()
+
+
+# a side's token in a file name: left/right, l/r, as a word of its own or next to digits
+_SIDE = re.compile(r"(?i)(?<![a-z])(left|right|l|r)(?![a-z])")
+
+
+def _stem(name):
+    """A frame's name without folder and extension (a video's frame names have none)."""
+    return PurePath(str(name)).stem
+
+
+def _sideless(name):
+    """The stem with the eye's token taken out (``img_L_0001`` -> ``img_0001``)."""
+    words = [w for w in re.split(r"[_\-. ]+", _SIDE.sub(" ", _stem(name))) if w]
+    return "_".join(words)
+
+
+def pair_frames(names_left, names_right):
+    """[(i, j)]: which frame j of the right view was taken with frame i of the left one.
+
+    names_left, names_right: each view's frame names (image file names or paths, a video's
+    ``frame_000012``; None or "" where a frame has none). Frames pair by their stems, the
+    names without folder and extension (``left/0001.png`` with ``right/0001.jpg``); where
+    the stems differ in every frame, by the stems without the eye's token (``left``,
+    ``right``, ``L``, ``R`` as a word or beside digits: ``L_0001`` with ``R_0001``,
+    ``frame3_left`` with ``frame3_right``). When the names pair some frames but not all,
+    InputError says which left frame has no partner (a frame dropped in one eye pairs
+    every later one wrongly in order). Only where the names say nothing (a frame without
+    a name, names repeated in a view, or no stem shared by the two views) are the frames
+    paired in order, which needs as many in each view (InputError otherwise).
+
+    >>> pair_frames(["a/0002.png", "a/0001.png"], ["b/0001.png", "b/0002.png"])
+    [(0, 1), (1, 0)]
+    >>> pair_frames(["img_L_7.png", "img_L_8.png"], ["img_R_8.png", "img_R_7.png"])
+    [(0, 1), (1, 0)]
+    >>> pair_frames(["x.png", "y.png"], ["p.png", "q.png"])      # the names say nothing
+    [(0, 0), (1, 1)]
+    """
+    names_left, names_right = list(names_left), list(names_right)
+    if all(names_left) and all(names_right):
+        best = None
+        for key in (_stem, _sideless):
+            kl, kr = [key(n) for n in names_left], [key(n) for n in names_right]
+            if len(set(kl)) < len(kl) or len(set(kr)) < len(kr):
+                continue  # a view's names repeat under this key: they do not tell frames apart
+            by_key = {k: j for j, k in enumerate(kr)}
+            shared = [k for k in kl if k in by_key]
+            if shared and len(shared) == len(kl) == len(kr):
+                return [(i, by_key[k]) for i, k in enumerate(kl)]
+            if shared and (best is None or len(shared) > best[0]):
+                lone = [n for n, k in zip(names_left, kl) if k not in by_key]
+                lone_r = [n for n, k in zip(names_right, kr) if k not in set(kl)]
+                best = (len(shared), lone, lone_r)
+        if best is not None:
+            n, lone, lone_r = best
+            which = (f"left frame {lone[0]} has no right frame of its name" if lone
+                     else f"right frame {lone_r[0]} has no left frame of its name")
+            raise InputError(f"the stereo pair's frames do not pair by name: {which} ({n} of {len(names_left)} left "
+                             f"and {len(names_right)} right frames pair); give both views the same frames")
+    if len(names_left) != len(names_right):
+        raise InputError(f"the stereo pair's views have {len(names_left)} and {len(names_right)} frames and their "
+                         "names do not pair them")
+    return [(i, i) for i in range(len(names_left))]

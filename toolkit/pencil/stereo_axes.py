@@ -54,6 +54,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pencilcal.toolkit.camera.stereo import pair_frames
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.geometry.frames import normalize, rotation_from_rotvec
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
@@ -640,19 +641,9 @@ def stereo_fulcrum_axes(axes, rig_cov=None, robust=True):
 
 
 def _frame_pairs(frames_left, frames_right):
-    """Index pairs of the two eyes' lines.json frames: by image base name when every left
-    name has a right one, else in order (InputError when the counts differ)."""
-    from pathlib import PurePath
-
-    names = [PurePath(str(f.get("image", ""))).name for f in frames_right]
-    by_name = {n: j for j, n in enumerate(names)}
-    left = [PurePath(str(f.get("image", ""))).name for f in frames_left]
-    if len(by_name) == len(names) and all(n in by_name for n in left):
-        return [(i, by_name[n]) for i, n in enumerate(left)]
-    if len(frames_left) != len(frames_right):
-        raise InputError(f"the stereo pair's views have {len(frames_left)} and {len(frames_right)} frames and their "
-                         "image names do not pair them")
-    return [(i, i) for i in range(len(frames_left))]
+    """Index pairs of the two eyes' lines.json frames by their image names
+    (`camera.stereo.pair_frames`: by stem, in order only where the names say nothing)."""
+    return pair_frames([f.get("image") for f in frames_left], [f.get("image") for f in frames_right])
 
 
 def _measured(camera, frame):

@@ -69,8 +69,8 @@ class StereoFulcrum:
         """fulcrum.json's ``stereo`` record: the rig (``file``, ``R_right_from_left``,
         ``t_right_from_left``, ``baseline``), ``right`` (the right view's fulcrum keys),
         ``triangulated`` (``point``, ``point_cov``, ``point_sigma``, ``ranges``,
-        ``ray_distances``, ``chi2``, ``dof``, ``p_value``; ``point_cov_shared``; ``paired_lines`` and
-        ``shared_offset_px`` (`stereo_play.play_cross_cov`); with the rig's
+        ``ray_distances``, ``chi2``, ``dof``, ``p_value``; ``point_cov_shared``; ``paired_lines``,
+        ``shared_offset_px`` and ``own_offset_px`` (`stereo_play.play_cross_cov`); with the rig's
         covariance ``point_cov_rig``; with the intrinsics' covariance
         of either camera also ``point_cov_total``, ``point_sigma_total``, ``intrinsics_used``
         and ``intrinsics_views``) and with the diameter ``agreement``
@@ -89,6 +89,7 @@ class StereoFulcrum:
         if self.paired is not None:
             out["triangulated"]["paired_lines"] = int(self.paired["pairs"])
             out["triangulated"]["shared_offset_px"] = self.paired["sigma_px"]
+            out["triangulated"]["own_offset_px"] = self.paired.get("own_sd_px")
         if self.rig_cov is not None:
             out["triangulated"]["point_cov_rig"] = np.asarray(self.rig_cov, float).tolist()
         if self.lens_cov is not None:
@@ -160,7 +161,7 @@ def triangulation_rig_cov(ray_left, cov_left, ray_right, cov_right, rig, step=1e
     return 0.5 * (out + out.T)
 
 
-def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
+def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE, pairs=None):
     """The 3-D fulcrum from the fulcrum rays of two calibrated views of one pivot.
 
     left, right: the `Fulcrum` of each view (`fulcrum_from_frames` on its own frames; the
@@ -192,7 +193,9 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     diameter-based point as it moves the rays), so the fused covariance does not average
     it. The test takes that offset out of both covariances, so the left ray it counts once
     there is the one of its lines' own sigmas (``shared_own``). confidence: of the
-    agreement test. With either view's intrinsics' term
+    agreement test. pairs: [(i, j)] the left frame i taken with the right frame j
+    (`camera.stereo.pair_frames`), None: the same index in both. With either view's
+    intrinsics' term
     (`Fulcrum.ray_cov_lens`, the camera file's intrinsics covariance) the triangulated
     point's covariance gains it too (`triangulation_lens_cov`, ``StereoFulcrum.lens_cov``);
     the agreement and the fusion's weights leave it out (the diameter-based point has no
@@ -213,7 +216,7 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE):
     common = play_covariance(tri, shared_ray_cov(left), R.T @ shared_ray_cov(right) @ R)
     # the frames both views fitted give the rays' cross-covariance line by line; without
     # them, the excess each view's lines read is taken as shared, across the line of sight
-    X, paired = play_cross_cov(left, right, R)
+    X, paired = play_cross_cov(left, right, R, pairs)
     cov = tri.point_cov + (shared_offset_term(tri, common) if X is None else cross_term(tri, X))
     # the rig's calibration error is the triangulated point's own (the diameter-based point
     # holds none of it): in its covariance, the fusion's weights and the agreement test

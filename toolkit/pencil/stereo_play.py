@@ -96,34 +96,50 @@ def shared_offset_term(tri, common, margin=0.9):
     return L @ (V * np.maximum(lam, 0.0)) @ V.T @ L.T
 
 
-def play_cross_cov(left, right, R_right_from_left):
+def play_cross_cov(left, right, R_right_from_left, pairs=None):
     """(X (3, 3), record) the cross-covariance ``E[dr_l (R^T dr_r)^T]`` of the two views'
     unit fulcrum rays' errors (left camera frame), from the lines both fitted in the same
     frames; (None, record) where it cannot be read.
 
     left, right: each view's `fulcrum.Fulcrum` with its ``vertex_lines`` (the inlier shaft
     midlines: frame, the ray's gain per px of the line's offset, normal, residual, sd);
-    frames are paired by their index (the two views' frames given in the same order), and
-    only frames with one line in each view are pairs (at least `MIN_PAIRED_LINES`). A
+    pairs: [(i, j)] the left frame i taken with the right frame j (`camera.stereo.pair_frames`),
+    None: by index (the two views' frames given in the same order); only frames with one
+    line in each view are pairs (at least `MIN_PAIRED_LINES`). A
     frame's shaft passes the fulcrum off by one 3-D offset (the port's play), which both
     views see as about the same image offset u (two cameras a few millimetres apart, at
     one depth): the offsets of its line along the two normals, ``n_l.u`` and ``n_r.u``,
     covary by ``tau^2 c`` (c = n_l . n_r), while the edges' noise is each view's own and
     drops out. So tau^2 [px^2], the shared offset's variance per direction, is read from
     the pairs' residuals at their vertices, ``sum r_l r_r c / sum c^2``, times N / (N - 2)
-    (each vertex took two of the N residuals' degrees of freedom), held at 0 or above;
-    each pair's covariance ``tau^2 c`` at most the product of the two lines' sds (no line
-    shares more than it holds). Then ``X = sqrt(s_l s_r) sum_pairs tau^2 c g_l (R^T
-    g_r)^T``, g each line's gain and s each view's factor from its fit's ray covariance to
-    the one it reports (`Fulcrum.ray_covariance`: the noise or the jackknife). Unlike the
-    excess each view's lines read (`shared_ray_cov`), tau holds the play where a
-    detector's sds already covered it (its play term then reads little or none), and X
-    counts only the frames both views used. record: ``pairs``, ``sigma_px`` (tau)."""
-    rec = {"pairs": 0, "sigma_px": None}
+    (each vertex took two of the N residuals' degrees of freedom), held at 0 or above
+    (record ``sigma_px``). What each view has alone is read from the pairs' differences,
+    in which the shared offset cancels: ``beta = sum (r_l - c r_r)^2 / sum (sd_l^2 + c^2
+    sd_r^2)`` times N / (N - 2) (less the little of the offset a turn between the normals
+    leaves, ``tau^2 (1 - c^2)``), the edges' own variance as a share of the lines' stated
+    ones; then of a line's variance as its view reports it, ``s sd^2`` (s the view's factor
+    from its fit's ray covariance to the one it reports, `Fulcrum.ray_covariance`: the noise
+    or the jackknife), the view's own part is ``beta sd^2`` and the rest, ``(s - beta)
+    sd^2``, is shared, and where the stated sds exceed what the lines scatter, the part
+    neither reading finds is split as the scatter is: a pair's covariance is ``c sqrt(s_l
+    s_r) sd_l sd_r tau^2 / (tau^2 + own^2)`` (own^2 = beta times the pairs' mean sd^2),
+    and ``X = sum_pairs that g_l (R^T g_r)^T``, g each line's gain. The own part is read directly, not as what is left of a
+    line's stated variance once tau^2 is taken from it: where the play is most of a line's
+    variance (a detector's sds that hold it), that difference of two near numbers would
+    keep noise the views do not have in the rays' disparity, the point's depth (rendered
+    pivots: residuals of 2.0 px in each view that differ by 0.16 px). Unlike the excess
+    each view's lines read (`shared_ray_cov`), this holds the play where a detector's sds
+    already covered it (its play term then reads little or none), and X counts only the
+    frames both views used. record: ``pairs``, ``sigma_px`` (tau), ``own_sd_px`` (the
+    edges' own sd of a paired line, ``sqrt(beta)`` times the lines' RMS sd)."""
+    rec = {"pairs": 0, "sigma_px": None, "own_sd_px": None}
     if left.vertex_lines is None or right.vertex_lines is None:
         return None, rec
     fl, gl, nl, rl, sl = left.vertex_lines
     fr, gr, nr, rr, sr = right.vertex_lines
+    if pairs is not None:  # the right lines' frames as their left partners' (-1: none)
+        to_left = {int(j): int(i) for i, j in pairs}
+        fr = np.array([to_left.get(int(j), -1) for j in fr], int)
     both = np.intersect1d(_single(fl), _single(fr))
     rec["pairs"] = int(both.size)
     if both.size < MIN_PAIRED_LINES:
@@ -134,10 +150,17 @@ def play_cross_cov(left, right, R_right_from_left):
     n = len(both)
     tau2 = max(float(np.sum(rl[a] * rr[b] * c) / max(np.sum(c * c), 1e-12)) * n / (n - 2), 0.0)
     rec["sigma_px"] = float(np.sqrt(tau2))
-    k = np.clip(tau2 * c, -sl[a] * sr[b], sl[a] * sr[b])
+    # the views' own noise from the pairs' differences, where the shared offset cancels
+    diff = np.sum((rl[a] - c * rr[b]) ** 2 - tau2 * (1.0 - c * c))
+    beta = max(float(diff) * n / (n - 2), 0.0) / float(np.sum(sl[a] ** 2 + c * c * sr[b] ** 2))
+    rec["own_sd_px"] = float(np.sqrt(beta * np.mean(0.5 * (sl[a] ** 2 + sr[b] ** 2))))
+    # what the lines' reported variance holds beyond what either reading finds (stated sds
+    # above the scatter) is split between shared and own as the scatter splits
+    own2 = float(rec["own_sd_px"]) ** 2
+    share = tau2 / (tau2 + own2) if tau2 + own2 > 0 else 0.0
+    shared = share * np.sqrt(_reported_factor(left) * _reported_factor(right))
     R = np.asarray(R_right_from_left, float)
-    X = np.einsum("k,ki,kj->ij", k, gl[a], gr[b] @ R)
-    return X * np.sqrt(_reported_factor(left) * _reported_factor(right)), rec
+    return np.einsum("k,ki,kj->ij", shared * c * sl[a] * sr[b], gl[a], gr[b] @ R), rec
 
 
 def _single(frames):

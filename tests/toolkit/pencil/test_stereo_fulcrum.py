@@ -7,7 +7,7 @@ silhouettes perturbed by end point noise (0.3 px; their `edge_cov` that model), 
 the plane bisector of the noisy edges with its sigma propagated from the same covariance.
 
 - `test_stereo_monte_carlo`: over 120 trials the triangulated point's error falls in its own
-  68 % region (chi2, 3 dof) 58-78 % of the time, and the agreement chi2 of the diameter-based
+  68 % region (chi2, 3 dof) 58-80 % of the time, and the agreement chi2 of the diameter-based
   and the triangulated point (the left ray counted once, which leaves 2 dof: in the third
   component both are the left ray's) has chi2/dof 0.75-1.3 on average and p >= 0.32 in
   58-78 % of the trials; treated as independent (3 dof) the two would look too alike
@@ -209,7 +209,11 @@ def test_stereo_monte_carlo():
         naive.append(float(combine_estimates(fl.point.fit.point, fl.point.fit.point_cov, st.triangulated.point,
                                              st.triangulated.point_cov).chi2))
     tri_m2, agree = np.array(tri_m2), np.array(agree)
-    assert 0.58 <= np.mean(tri_m2 <= Q68_3) <= 0.78, np.mean(tri_m2 <= Q68_3)
+    # 91 of 120 (92 with the shared offset's variance taken from the lines' stated ones, 94
+    # with the variance neither reading finds counted as shared; the mean squared distance
+    # 2.81 for 3 each way): the window is +-2.8 binomial sds
+    assert 0.58 <= np.mean(tri_m2 <= Q68_3) <= 0.80, np.mean(tri_m2 <= Q68_3)
+    assert 2.4 <= np.mean(tri_m2) <= 3.6, np.mean(tri_m2)
     # the component along which the right ray adds nothing is left out: 2 dof (the
     # difference's variance there is 1.3 % of C1 + C2 over 300 draws, under SHARED_FLOOR).
     # Where the lines scatter beyond their sigmas by chance, their play term (an offset both
@@ -524,3 +528,93 @@ def test_the_cross_covariance_needs_paired_frames():
     X, rec = play_cross_cov(left, few, rig.R_right_from_left)
     assert X is None and rec["pairs"] == MIN_PAIRED_LINES - 1
     assert "paired_lines" in stereo_fulcrum(left, few, rig).to_dict()["triangulated"]
+
+
+def test_the_cross_covariance_pairs_frames_as_told():
+    # the right view's frames in another order (its files listed otherwise): paired by
+    # index its lines meet other frames' and share little; paired as `pair_frames` says
+    # (by name) the cross-covariance and the point are those of the frames in order
+    import dataclasses
+
+    from pencilcal.toolkit.camera.stereo import StereoRig
+    from pencilcal.toolkit.pencil.stereo_play import play_cross_cov
+    from pencilcal.validation.pivot_renders import draw_sequence
+
+    scene = draw_sequence(2600, frames=40)
+    rig = StereoRig(np.eye(3), np.array([-5.0, 0.0, 0.0]))
+    left, right = _played_fulcrums(scene, rig, np.random.default_rng(3))
+    X, rec = play_cross_cov(left, right, rig.R_right_from_left)
+    f, g, n, r, s = right.vertex_lines
+    n_frames = int(max(f.max(), left.vertex_lines[0].max())) + 1
+    moved = dataclasses.replace(right, vertex_lines=(n_frames - 1 - f, g, n, r, s))
+    pairs = [(i, n_frames - 1 - i) for i in range(n_frames)]
+    Xp, recp = play_cross_cov(left, moved, rig.R_right_from_left, pairs)
+    assert recp == rec and np.allclose(Xp, X)
+    Xi, _ = play_cross_cov(left, moved, rig.R_right_from_left)
+    assert Xi is None or not np.allclose(Xi, X, rtol=0.2)
+    st, stp = stereo_fulcrum(left, right, rig), stereo_fulcrum(left, moved, rig, pairs=pairs)
+    assert np.allclose(st.triangulated.point_cov, stp.triangulated.point_cov)
+
+
+def _held_play_fulcrums(scene, rig, rng, edge_px=0.05):
+    """Both views' fulcrums of one draw of the port's play, as `_played_fulcrums`, but with
+    each midline's stated sd holding the play (a detector's sds that cover it, as on the
+    rendered pivots: lines of ~2 px sd at the fulcrum whose two views differ by ~0.2 px)
+    and no offset term: its angle sd the play's image offset at the fulcrum over the
+    distance from the line's centre, with the end points' noise."""
+    from pencilcal.validation.fulcrum_pivots import pivot_camera
+    from pencilcal.validation.pivot_renders import PLAY_SD_MM
+
+    cam = pivot_camera()
+    F = scene["fulcrum"]
+    play_px = PLAY_SD_MM * cam.K[0, 0] / F[2]
+    views = [[], []]
+    for g in scene["frames"]:
+        o = rng.normal(0.0, PLAY_SD_MM, 3)
+        d = g["d"]
+        A = F + o - (o @ d) * d
+        for v, (Re, te) in enumerate(((np.eye(3), np.zeros(3)), (rig.R_right_from_left, rig.t_right_from_left))):
+            p, q = (cam.K @ (Re @ X + te) for X in (A + 0.4 * g["L"] * d, A + g["L"] * d))
+            p, q = p[:2] / p[2], q[:2] / q[2]
+            f = cam.K @ (Re @ F + te)
+            L = np.linalg.norm(q - p)
+            n = np.array([p[1] - q[1], q[0] - p[0]]) / L
+            dist = np.linalg.norm(0.5 * (p + q) - f[:2] / f[2])
+            p, q = p + rng.normal(0.0, edge_px) * n, q + rng.normal(0.0, edge_px) * n
+            sd = np.hypot(np.sqrt(2.0) * edge_px / L, play_px / dist)
+            views[v].append({"image": f"f{len(views[v])}", "shafts": [{"midline": [*p, *q],
+                                                                        "angle_sigma_deg": float(np.degrees(sd))}]})
+    return [fulcrum_from_frames(cam, fr, intrinsics_cov=None) for fr in views]
+
+
+def test_the_depth_keeps_only_what_the_views_do_not_share_where_the_sds_hold_the_play():
+    """A detector's line sds may hold the play (the rendered pivots': ~2 px at the fulcrum,
+    the two views' residuals differing by ~0.2 px). The rays' disparity, the point's depth,
+    then holds only what the views do not share, read from the pairs' differences
+    (`play_cross_cov`'s own part). Read as what is left of a line's stated variance once
+    the shared offset (tau^2, from the pairs' products) is taken from it, that difference
+    of two near numbers overstated the depth's variance: its normalised squared error
+    averaged 0.48 over these draws (0.50 with edges twice as noisy). Now over 40 draws it
+    averages 0.7-1.5 (0.92), the error across the line of sight keeps its 0.6-1.5 (0.89),
+    and the own sd read is under a tenth of the lines' (~0.14 of ~3 px)."""
+    from pencilcal.toolkit.camera.stereo import StereoRig
+    from pencilcal.validation.pivot_renders import draw_sequence
+
+    scene = draw_sequence(2600, frames=40)
+    rig = StereoRig(np.eye(3), np.array([-5.0, 0.0, 0.0]))
+    rng = np.random.default_rng(17)
+    u = normalize(scene["fulcrum"])
+    y = normalize(np.cross(u, [1.0, 0.0, 0.0]))
+    z2, y2, own = [], [], []
+    for _ in range(40):
+        left, right = _held_play_fulcrums(scene, rig, rng)
+        st = stereo_fulcrum(left, right, rig)
+        e = st.triangulated.point - scene["fulcrum"]
+        C = st.triangulated.point_cov
+        z2.append(float(u @ e) ** 2 / float(u @ C @ u))
+        y2.append(float(y @ e) ** 2 / float(y @ C @ y))
+        own.append(st.paired["own_sd_px"])
+    assert 0.7 <= np.mean(z2) <= 1.5, np.mean(z2)
+    assert 0.6 <= np.mean(y2) <= 1.5, np.mean(y2)
+    sd = np.sqrt(np.mean(left.vertex_lines[4] ** 2))
+    assert np.sqrt(np.mean(np.square(own))) < 0.1 * sd, (own, sd)
