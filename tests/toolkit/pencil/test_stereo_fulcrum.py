@@ -212,7 +212,7 @@ def test_stereo_monte_carlo():
     # 91 of 120 (92 with the shared offset's variance taken from the lines' stated ones, 94
     # with the variance neither reading finds counted as shared; the mean squared distance
     # 2.81 for 3 each way): the window is +-2.8 binomial sds
-    assert 0.58 <= np.mean(tri_m2 <= Q68_3) <= 0.80, np.mean(tri_m2 <= Q68_3)
+    assert 0.58 <= np.mean(tri_m2 <= Q68_3) <= 0.78, np.mean(tri_m2 <= Q68_3)
     assert 2.4 <= np.mean(tri_m2) <= 3.6, np.mean(tri_m2)
     # the component along which the right ray adds nothing is left out: 2 dof (the
     # difference's variance there is 1.3 % of C1 + C2 over 300 draws, under SHARED_FLOOR).
