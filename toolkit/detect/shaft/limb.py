@@ -36,18 +36,20 @@ log sigma, log a), the linear coefficients solved at each step, from two starts 
 edge and `_STARTS_PX` beyond it: where the shaft's rim meets the background at one level
 the step edge may be pixels inside). The limb e is where the band ends.
 
-The shading is light: kd and ks are held non-negative (`shading_lstsq`). Unbounded, a real
-black shaft's profile (flat and dark inside, the camera's sharpening darkening it just inside
-its edge) took a negative diffuse term in 84 % of its bins, a dip below zero at the limb that
-let the limb move outwards.
+The shading must be light. Unbounded, a real black shaft's profile (flat and dark inside, the
+camera's sharpening darkening it just inside its edge) took a negative diffuse term in 84 % of
+its bins, a dip below zero at the limb that let the limb move outwards. The fit stays
+unbounded (held non-negative in the fit itself, a matte shaft's limb 140 mm away over a dark
+background moved and its fulcrum read 3.6 mm off, not under 1 mm), but it is judged as light:
+its residual with kd and ks held non-negative at its limb (`shading_lstsq`).
 
-Which edges it locates. The limb model is used on an edge only where it explains the
-profiles significantly better than a blurred step with a level and a slope on either side
-(`step_design`, `fit_step_profile`), by the Bayesian information criterion
-(`limb_explains`): first on the whole edge's mean profile (one fit: an edge that fails keeps
-its step edge at that cost), then in most of its bins. On the shaded renders the limb wins
-every bin by 30-120 in the criterion; on the real phantom's black shaft, the shading held
-non-negative, the step wins every bin, and the band keeps its step edges and its step class.
+Which edges it locates. The limb model is used on an edge unless a blurred step with a level
+and a slope on either side (`step_design`, `fit_step_profile`) explains its profiles
+significantly better (`limb_explains`: by more than one parameter's information): first on
+the whole edge's mean profile (one fit: an edge that fails keeps its step edge at that
+cost), then in more than half its bins. On the shaded renders the limb explains its bins as
+well or better; on the real phantom's black shaft, judged as light, the step explains most
+bins better, and the band keeps its step edges and its step class.
 
 Per edge (`refine_edge`): the profiles across the step fit's line at stations 1 px apart,
 linearised, averaged over bins of `BIN_PX` along the edge (a bin's mean profile has the
@@ -180,7 +182,8 @@ def fit_limb_profile(t, y, half_width, edge0, sigma0, roughness0=0.3, sin_view=1
 
     def solve(p):
         A = limb_design(t, p[0], np.exp(p[1]), half_width, np.exp(p[2]), sin_view, q)[use]
-        return A, shading_lstsq(A, y[use])
+        coef, *_ = np.linalg.lstsq(A, y[use], rcond=None)
+        return A, coef
 
     def res(p):
         A, coef = solve(p)
@@ -265,8 +268,8 @@ def refine_edge(image, camera, edge, geometry, gamma=1.0, sigma0=1.2):
     half-angle (M,) (`limb_design`); gamma: the frame's
     encoding gamma; sigma0: the blur's start [px]. Returns a new `EdgeLine` (the refitted
     line, its variances, s_lo, s_hi, count the bins used, frac, rms), or None where fewer
-    than 3 bins give a limb or a step explains the profiles as well (`limb_explains`: the
-    whole edge's mean profile, or half its bins or more).
+    than 3 bins give a limb or a step explains the profiles better (`limb_explains`: the
+    whole edge's mean profile, or more than half its bins).
     """
     L = edge.s_hi - edge.s_lo
     nb = int(np.clip(np.floor(L / BIN_PX), 0, 64))
@@ -288,7 +291,7 @@ def refine_edge(image, camera, edge, geometry, gamma=1.0, sigma0=1.2):
     clips = bool(sat_all[inside, :n_win].any())
 
     def bin_fit(sel):
-        """(limb fit, whether it explains the bin's mean profile better than a step) of the
+        """(limb fit, whether a step explains the bin's mean profile no better) of the
         stations sel, or None."""
         t, y, use, starts = _window(t_all, prof_all[sel].mean(0), ~sat_all[sel].any(0) & in_all[sel].all(0), n_win,
                                     clips)
@@ -303,13 +306,18 @@ def refine_edge(image, camera, edge, geometry, gamma=1.0, sigma0=1.2):
         if not fits:
             return None
         fit = min(fits, key=lambda f: f.rms)
+        # judged as light: the shading at the fit's limb held non-negative
+        A = limb_design(t, fit.edge, fit.sigma, float(np.median(W_st[sel])), fit.roughness,
+                        float(np.median(k_st[sel])), float(np.median(q_st[sel])))[use]
+        r = A @ shading_lstsq(A, y[use]) - y[use]
         step = fit_step_profile(t, y, starts[0], sigma0, use)
-        return fit, step is not None and limb_explains(fit, step[2], int(use.sum()))
+        return fit, step is None or limb_explains(float(r @ r), step[2], int(use.sum()))
 
     # the whole edge's mean profile first: an edge whose profile a step explains as well
-    # (no shading to model) keeps its step edge, at the cost of one fit
+    # (no shading to model) keeps its step edge, at the cost of one fit (one that gives no
+    # limb, a long edge's profile blurred by its band's convergence, says nothing)
     whole = bin_fit(inside) if inside.sum() >= 3 else None
-    if whole is None or not whole[1]:
+    if whole is not None and not whole[1]:
         return None
     sb, tb, vb, chosen = [], [], [], 0
     for k in range(nb):
@@ -323,8 +331,8 @@ def refine_edge(image, camera, edge, geometry, gamma=1.0, sigma0=1.2):
         sb.append(s_c)
         tb.append(edge.tm + edge.b * (s_c - edge.sm) + fit.edge)
         vb.append(fit.edge_var)
-    # the limb where it explains most of the edge's bins better than a step
-    if len(sb) < _MIN_BINS or 2 * chosen <= len(sb):
+    # the limb unless a step explains more than half the edge's bins better
+    if len(sb) < _MIN_BINS or 2 * chosen < len(sb):
         return None
     return _line_through(edge, np.array(sb), np.array(tb), np.array(vb), nb)
 
@@ -414,16 +422,17 @@ def fit_step_profile(t, y, edge0, sigma0, use=None):
     return float(r.x[0]), float(np.exp(r.x[1])), float(2 * r.cost)
 
 
-def limb_explains(fit, step_rss, n):
-    """Whether the limb fit (`LimbFit`) explains a profile of n samples significantly better
-    than the blurred step (its residual sum of squares step_rss, `fit_step_profile`): by
-    the Bayesian information criterion over the profile's pixels (its samples, 4 a pixel,
-    are interpolated from the same pixels), the limb's parameters 3 nonlinear and its free
-    linear ones (a shading term held at zero is none), the step's 2 and 4."""
+def limb_explains(limb_rss, step_rss, n):
+    """Whether a lit cylinder explains a profile of n samples as well as the blurred step or
+    better: limb_rss the residual sum of squares of the limb model at its fit with the
+    shading held non-negative (`shading_lstsq`), step_rss the step's (`fit_step_profile`).
+    The limb model is what a shaft lit from the camera shows, so it is kept unless the step
+    explains the profile better by more than one parameter's information, ``m log(limb_rss
+    / step_rss) > log m`` over the profile's m pixels (its samples, 4 a pixel, are
+    interpolated from the same pixels). Where both explain it alike (a dark metal shaft
+    over tissue: the step's sloping inside mimics the shading) the limb places the edge."""
     m = max(n * _STEP_PX, 2.0)
-    k_limb = 3 + 2 + int(np.count_nonzero(fit.coef[2:]))
-    limb_rss = max(fit.rms ** 2 * n, 1e-300)
-    return bool(m * np.log(max(step_rss, 1e-300) / limb_rss) > np.log(m) * (k_limb - 6))
+    return bool(m * np.log(max(limb_rss, 1e-300) / max(step_rss, 1e-300)) <= np.log(m))
 
 
 def _wls_line(s, t, w):
