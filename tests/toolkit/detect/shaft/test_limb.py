@@ -216,12 +216,12 @@ def test_a_gross_bin_does_not_tilt_the_edge():
     assert _gross_bins(s, scatter, v).all()
 
 
-def test_greenscreen_limb_edges_follow_the_silhouette():
+def test_greenscreen_band_keeps_its_step_edges():
     """The EndoWrist over the green screen (box-trainer-and-greenscreen, 540x405, gamma 2.2):
-    a glossy grey shaft whose wrist clips. One bin of an edge read its limb 32 px out, where
-    its moved window levelled on the bright drape, and tilted that edge by 10 deg into the
-    drape. Left out, both limb edges lie along the step edges (within 0.5 deg) and the band
-    reads at most 2 px wider than the step edges where it is measured (the shading's direction)."""
+    a glossy grey shaft whose wrist clips. Its profiles are explained better by a blurred
+    step than by the lit cylinder (`limb.limb_explains`), so the band keeps its step edges
+    and its step class; the limb model, used on it before the choice, read it up to 2 px
+    wider, and one bin of an edge 32 px out on the bright drape before the gross-bin rule."""
     import cv2
 
     from tests.conftest import data_dir
@@ -230,18 +230,5 @@ def test_greenscreen_limb_edges_follow_the_silhouette():
     cam = Camera("pinhole", 540, 405, [[432.0, 0, 269.5], [0, 432.0, 202.0], [0, 0, 1]])
     step = detect_shafts(img, cam, edge_model="step")
     limb = detect_shafts(img, cam, edge_model="limb")
-    assert len(step) == len(limb) == 1 and limb[0].edge_model == "limb"
-
-    def angles(sh):
-        e = np.asarray(sh.ideal_edges, float)
-        return np.degrees(np.arctan2(e[:, 3] - e[:, 1], e[:, 2] - e[:, 0]))
-
-    d = (angles(limb[0]) - angles(step[0]) + 90.0) % 180.0 - 90.0
-    assert np.all(np.abs(d) < 0.5), d
-    # the step band's width where the limb band is measured (the step edges converge)
-    c = 0.5 * (limb[0].ideal_midline[:2] + limb[0].ideal_midline[2:])
-    e = np.asarray(step[0].ideal_edges, float)
-    u = e[:, 2:] - e[:, :2]
-    v = c - e[:, :2]
-    dist = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]) / np.linalg.norm(u, axis=1)
-    assert -0.5 < limb[0].width_px - dist.sum() < 2.0, (limb[0].width_px, dist.sum())
+    assert len(step) == len(limb) == 1 and limb[0].edge_model == "step"
+    assert np.array_equal(limb[0].ideal_edges, step[0].ideal_edges)
