@@ -193,15 +193,33 @@ def _line_tls(P):
 
 def _runs(flag, gap):
     """Runs of True in a cyclic bool array, bridging gaps of up to `gap` False: index arrays."""
+    order, breaks = _run_order(flag, gap)
+    return [] if order is None else [r % flag.size for r in np.split(order, breaks)]
+
+
+def _run_order(flag, gap):
+    """The True indices of a cyclic bool array in run order (starting after the widest gap,
+    unwrapped past the end) and where its runs break (`_runs`), or (None, None)."""
     N = flag.size
     idx = np.flatnonzero(flag)
     if idx.size == 0:
-        return []
+        return None, None
     d = np.diff(np.r_[idx, idx[0] + N])
     start = (np.argmax(d) + 1) % idx.size
     order = np.r_[idx[start:], idx[:start] + N]
-    breaks = np.flatnonzero(np.diff(order) > gap + 1) + 1
-    return [r % N for r in np.split(order, breaks)]
+    return order, np.flatnonzero(np.diff(order) > gap + 1) + 1
+
+
+def _longest_run(flag, gap):
+    """The first of the longest runs of `_runs(flag, gap)` (index array), or None: the one a
+    scan of the runs that keeps only a strictly longer one ends with, without splitting them
+    all."""
+    order, breaks = _run_order(flag, gap)
+    if order is None:
+        return None
+    edges = np.r_[0, breaks, order.size]
+    k = int(np.argmax(np.diff(edges)))
+    return order[edges[k]:edges[k + 1]] % flag.size
 
 
 def _best_stretch(P, usable, rng, tol, gap, min_len, constraint=None):
@@ -210,6 +228,7 @@ def _best_stretch(P, usable, rng, tol, gap, min_len, constraint=None):
     if cand.size < 10:
         return None
     best = None
+    Pf = P.astype(float)  # the same differences as the int contour's, converted once
     for _ in range(_RANSAC_ITERS):
         i, j = rng.choice(cand, 2, replace=False)
         d = P[j] - P[i]
@@ -220,9 +239,13 @@ def _best_stretch(P, usable, rng, tol, gap, min_len, constraint=None):
         n = np.array([-u[1], u[0]])
         if constraint is not None and not constraint(u, P[i]):
             continue
-        for run in _runs((np.abs((P - P[i]) @ n) < tol) & usable, gap):
-            if best is None or run.size > best.size:
-                best = run
+        flag = (np.abs((Pf - Pf[i]) @ n) < tol) & usable
+        # a run holds only inliers: with no more of them than the best run has, none is longer
+        if best is not None and np.count_nonzero(flag) <= best.size:
+            continue
+        run = _longest_run(flag, gap)
+        if run is not None and (best is None or run.size > best.size):
+            best = run
     if best is None:
         return None
     for _ in range(2):  # refit to the run and take the run again
