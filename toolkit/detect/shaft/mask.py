@@ -76,6 +76,7 @@ MAX_EDGE_ANGLE_DEG = 12.0
 #: one instrument).
 SAME_AXIS_DEG = 3.0
 _RANSAC_ITERS = 600
+_BATCH = 64  # lines whose inliers are counted together (memory: _BATCH x contour length)
 #: The straight stretches of an outline paired into silhouette edges (`_two_edges`): a shaft's
 #: two, its wrist's and jaws' a few more.
 _MAX_STRETCHES = 8
@@ -223,29 +224,39 @@ def _longest_run(flag, gap):
 
 
 def _best_stretch(P, usable, rng, tol, gap, min_len, constraint=None):
-    """The longest run of contour points P (N, 2) on one line (index array), or None."""
+    """The longest run of contour points P (N, 2) on one line (index array), or None.
+
+    `_RANSAC_ITERS` lines through two usable points drawn from rng, in turn: each line's run
+    of inliers (`_longest_run`) replaces the best so far where it is longer. The draws are
+    made first and the inliers of a batch of lines counted together: the same draws and runs
+    as one line at a time; a line with no more inliers than the best run has is passed by (a
+    run holds only inliers: none of its runs is longer)."""
     cand = np.flatnonzero(usable)
     if cand.size < 10:
         return None
+    ij = np.array([rng.choice(cand, 2, replace=False) for _ in range(_RANSAC_ITERS)])
+    D = P[ij[:, 1]] - P[ij[:, 0]]
+    L = np.hypot(D[:, 0], D[:, 1])
+    ok = L >= 0.5 * min_len
+    U = D / np.where(ok, L, 1.0)[:, None]
+    if constraint is not None:
+        ok[ok] = [constraint(U[k], P[ij[k, 0]]) for k in np.flatnonzero(ok)]
+    keep = np.flatnonzero(ok)
+    X, Y = P[:, 0].astype(float), P[:, 1].astype(float)
     best = None
-    Pf = P.astype(float)  # the same differences as the int contour's, converted once
-    for _ in range(_RANSAC_ITERS):
-        i, j = rng.choice(cand, 2, replace=False)
-        d = P[j] - P[i]
-        L = np.hypot(*d)
-        if L < 0.5 * min_len:
-            continue
-        u = d / L
-        n = np.array([-u[1], u[0]])
-        if constraint is not None and not constraint(u, P[i]):
-            continue
-        flag = (np.abs((Pf - Pf[i]) @ n) < tol) & usable
-        # a run holds only inliers: with no more of them than the best run has, none is longer
-        if best is not None and np.count_nonzero(flag) <= best.size:
-            continue
-        run = _longest_run(flag, gap)
-        if run is not None and (best is None or run.size > best.size):
-            best = run
+    for b in range(0, keep.size, _BATCH):
+        k = keep[b:b + _BATCH]
+        i = ij[k, 0]
+        # distances (lines, N) to the lines through P[i] across n = (-u_y, u_x)
+        flags = (np.abs((X[None, :] - X[i, None]) * -U[k, 1, None] + (Y[None, :] - Y[i, None]) * U[k, 0, None]) < tol)
+        flags &= usable
+        counts = np.count_nonzero(flags, axis=1)
+        for r in range(k.size):
+            if best is not None and counts[r] <= best.size:
+                continue
+            run = _longest_run(flags[r], gap)
+            if run is not None and (best is None or run.size > best.size):
+                best = run
     if best is None:
         return None
     for _ in range(2):  # refit to the run and take the run again
