@@ -223,14 +223,40 @@ def _longest_run(flag, gap):
     return order[edges[k]:edges[k + 1]] % flag.size
 
 
+def _max_run_sizes(flags, gap):
+    """The size of the longest run of `_runs(flag, gap)` of each row of flags (B, N) bool
+    (0 where none), all rows at once: the True entries in row order, a run broken where the
+    next one is over gap + 1 on, the row's first and last runs one where the gap round the end
+    is not."""
+    B, N = flags.shape
+    out = np.zeros(B, int)
+    r, c = np.nonzero(flags)
+    if r.size == 0:
+        return out
+    new = np.r_[True, (r[1:] != r[:-1]) | (np.diff(c) > gap + 1)]
+    gid = np.cumsum(new) - 1
+    size = np.bincount(gid)
+    first = np.flatnonzero(new)                     # each run's first entry
+    row = r[first]
+    head = np.r_[True, row[1:] != row[:-1]]         # a row's first run
+    tail = np.r_[row[1:] != row[:-1], True]         # a row's last run
+    hi, ti = np.flatnonzero(head), np.flatnonzero(tail)
+    c_first, c_last = c[first[hi]], c[np.r_[first[1:], r.size][ti] - 1]
+    wrap = (hi != ti) & (c_first + N - c_last <= gap + 1)
+    joined = size[hi[wrap]] + size[ti[wrap]]
+    size[hi[wrap]], size[ti[wrap]] = joined, joined
+    np.maximum.at(out, row, size)
+    return out
+
+
 def _best_stretch(P, usable, rng, tol, gap, min_len, constraint=None):
     """The longest run of contour points P (N, 2) on one line (index array), or None.
 
     `_RANSAC_ITERS` lines through two usable points drawn from rng, in turn: each line's run
     of inliers (`_longest_run`) replaces the best so far where it is longer. The draws are
-    made first and the inliers of a batch of lines counted together: the same draws and runs
-    as one line at a time; a line with no more inliers than the best run has is passed by (a
-    run holds only inliers: none of its runs is longer)."""
+    made first and the longest run of each of a batch of lines measured together
+    (`_max_run_sizes`): the same draws and runs as one line at a time; a line whose longest
+    run is no longer than the best is passed by, the others' runs taken (`_longest_run`)."""
     cand = np.flatnonzero(usable)
     if cand.size < 10:
         return None
@@ -250,9 +276,9 @@ def _best_stretch(P, usable, rng, tol, gap, min_len, constraint=None):
         # distances (lines, N) to the lines through P[i] across n = (-u_y, u_x)
         flags = (np.abs((X[None, :] - X[i, None]) * -U[k, 1, None] + (Y[None, :] - Y[i, None]) * U[k, 0, None]) < tol)
         flags &= usable
-        counts = np.count_nonzero(flags, axis=1)
+        longest = _max_run_sizes(flags, gap)
         for r in range(k.size):
-            if best is not None and counts[r] <= best.size:
+            if best is not None and longest[r] <= best.size:
                 continue
             run = _longest_run(flags[r], gap)
             if run is not None and (best is None or run.size > best.size):

@@ -84,6 +84,16 @@ def test_longest_run_is_the_first_longest_of_the_runs():
         assert np.array_equal(got, first)
 
 
+def test_max_run_sizes_are_the_runs_longest_row_by_row():
+    rng = np.random.default_rng(2)
+    for _ in range(60):
+        N, gap = int(rng.integers(1, 60)), int(rng.integers(0, 4))
+        flags = rng.random((int(rng.integers(1, 12)), N)) < rng.uniform(0.05, 0.95)
+        flags[0] = False                                                   # a row with no run
+        want = [max((r.size for r in mask_mod._runs(f, gap)), default=0) for f in flags]
+        assert mask_mod._max_run_sizes(flags, gap).tolist() == want
+
+
 def test_boundary_lines_read_again_are_the_same_and_follow_a_changed_map():
     maps = [np.zeros((120, 160), np.uint8) for _ in range(2)]
     maps[0][20:70, 10:150] = 1
