@@ -76,6 +76,7 @@ MAX_EDGE_ANGLE_DEG = 12.0
 #: one instrument).
 SAME_AXIS_DEG = 3.0
 _RANSAC_ITERS = 600
+_BATCH = 64  # lines whose inliers are counted together (memory: _BATCH x contour length)
 #: The straight stretches of an outline paired into silhouette edges (`_two_edges`): a shaft's
 #: two, its wrist's and jaws' a few more.
 _MAX_STRETCHES = 8
@@ -193,35 +194,94 @@ def _line_tls(P):
 
 def _runs(flag, gap):
     """Runs of True in a cyclic bool array, bridging gaps of up to `gap` False: index arrays."""
+    order, breaks = _run_order(flag, gap)
+    return [] if order is None else [r % flag.size for r in np.split(order, breaks)]
+
+
+def _run_order(flag, gap):
+    """The True indices of a cyclic bool array in run order (starting after the widest gap,
+    unwrapped past the end) and where its runs break (`_runs`), or (None, None)."""
     N = flag.size
     idx = np.flatnonzero(flag)
     if idx.size == 0:
-        return []
+        return None, None
     d = np.diff(np.r_[idx, idx[0] + N])
     start = (np.argmax(d) + 1) % idx.size
     order = np.r_[idx[start:], idx[:start] + N]
-    breaks = np.flatnonzero(np.diff(order) > gap + 1) + 1
-    return [r % N for r in np.split(order, breaks)]
+    return order, np.flatnonzero(np.diff(order) > gap + 1) + 1
+
+
+def _longest_run(flag, gap):
+    """The first of the longest runs of `_runs(flag, gap)` (index array), or None: the one a
+    scan of the runs that keeps only a strictly longer one ends with, without splitting them
+    all."""
+    order, breaks = _run_order(flag, gap)
+    if order is None:
+        return None
+    edges = np.r_[0, breaks, order.size]
+    k = int(np.argmax(np.diff(edges)))
+    return order[edges[k]:edges[k + 1]] % flag.size
+
+
+def _max_run_sizes(flags, gap):
+    """The size of the longest run of `_runs(flag, gap)` of each row of flags (B, N) bool
+    (0 where none), all rows at once: the True entries in row order, a run broken where the
+    next one is over gap + 1 on, the row's first and last runs one where the gap round the end
+    is not."""
+    B, N = flags.shape
+    out = np.zeros(B, int)
+    r, c = np.nonzero(flags)
+    if r.size == 0:
+        return out
+    new = np.r_[True, (r[1:] != r[:-1]) | (np.diff(c) > gap + 1)]
+    gid = np.cumsum(new) - 1
+    size = np.bincount(gid)
+    first = np.flatnonzero(new)                     # each run's first entry
+    row = r[first]
+    head = np.r_[True, row[1:] != row[:-1]]         # a row's first run
+    tail = np.r_[row[1:] != row[:-1], True]         # a row's last run
+    hi, ti = np.flatnonzero(head), np.flatnonzero(tail)
+    c_first, c_last = c[first[hi]], c[np.r_[first[1:], r.size][ti] - 1]
+    wrap = (hi != ti) & (c_first + N - c_last <= gap + 1)
+    joined = size[hi[wrap]] + size[ti[wrap]]
+    size[hi[wrap]], size[ti[wrap]] = joined, joined
+    np.maximum.at(out, row, size)
+    return out
 
 
 def _best_stretch(P, usable, rng, tol, gap, min_len, constraint=None):
-    """The longest run of contour points P (N, 2) on one line (index array), or None."""
+    """The longest run of contour points P (N, 2) on one line (index array), or None.
+
+    `_RANSAC_ITERS` lines through two usable points drawn from rng, in turn: each line's run
+    of inliers (`_longest_run`) replaces the best so far where it is longer. The draws are
+    made first and the longest run of each of a batch of lines measured together
+    (`_max_run_sizes`): the same draws and runs as one line at a time; a line whose longest
+    run is no longer than the best is passed by, the others' runs taken (`_longest_run`)."""
     cand = np.flatnonzero(usable)
     if cand.size < 10:
         return None
+    ij = np.array([rng.choice(cand, 2, replace=False) for _ in range(_RANSAC_ITERS)])
+    D = P[ij[:, 1]] - P[ij[:, 0]]
+    L = np.hypot(D[:, 0], D[:, 1])
+    ok = L >= 0.5 * min_len
+    U = D / np.where(ok, L, 1.0)[:, None]
+    if constraint is not None:
+        ok[ok] = [constraint(U[k], P[ij[k, 0]]) for k in np.flatnonzero(ok)]
+    keep = np.flatnonzero(ok)
+    X, Y = P[:, 0].astype(float), P[:, 1].astype(float)
     best = None
-    for _ in range(_RANSAC_ITERS):
-        i, j = rng.choice(cand, 2, replace=False)
-        d = P[j] - P[i]
-        L = np.hypot(*d)
-        if L < 0.5 * min_len:
-            continue
-        u = d / L
-        n = np.array([-u[1], u[0]])
-        if constraint is not None and not constraint(u, P[i]):
-            continue
-        for run in _runs((np.abs((P - P[i]) @ n) < tol) & usable, gap):
-            if best is None or run.size > best.size:
+    for b in range(0, keep.size, _BATCH):
+        k = keep[b:b + _BATCH]
+        i = ij[k, 0]
+        # distances (lines, N) to the lines through P[i] across n = (-u_y, u_x)
+        flags = (np.abs((X[None, :] - X[i, None]) * -U[k, 1, None] + (Y[None, :] - Y[i, None]) * U[k, 0, None]) < tol)
+        flags &= usable
+        longest = _max_run_sizes(flags, gap)
+        for r in range(k.size):
+            if best is not None and longest[r] <= best.size:
+                continue
+            run = _longest_run(flags[r], gap)
+            if run is not None and (best is None or run.size > best.size):
                 best = run
     if best is None:
         return None

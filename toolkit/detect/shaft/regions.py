@@ -62,6 +62,7 @@ Example
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -262,11 +263,29 @@ def close_open(B):
     return cv2.dilate(cv2.erode(cv2.dilate(B, _K3), _K5), _K3)
 
 
+#: The levels of each material map (`region_levels`), kept while the map lives: the material
+#: cue and the border cue read the same levels of one frame.
+_LEVELS = weakref.WeakKeyDictionary()
+#: The boundary lines of the last few sets of region maps (`boundary_lines_many`), with copies
+#: of their inputs: the border cue's seeds are the material cue's lines, read again.
+_LINES = []
+_LINES_KEPT = 2
+
+
 def region_levels(mm, work, n_levels=LEVELS):
     """The binary maps of the levels (module docstring, step 2): a list of (level index,
     kind "all" or one of `DARK_SPLITS`, (h, w) uint8 map after a 3 x 3 close and open,
     repeat), "all" first at each level; repeat: the map differs from an earlier one in under
     `_SAME_MAP` of its pixels (its boundaries, and bands, are that one's)."""
+    got = _LEVELS.get(mm)
+    if got is None or got[0]() is not work or got[1] != n_levels:
+        got = (weakref.ref(work), n_levels, _region_levels(mm, work, n_levels))
+        _LEVELS[mm] = got
+    return list(got[2])
+
+
+def _region_levels(mm, work, n_levels):
+    """`region_levels`, computed."""
     vin = work.valid & (work.dist > 1.0)
     v = np.clip(mm.likeness[vin], -0.5, 2.0)
     # an 8-bit frame's luma holds whole levels: thresholded from their counts (`otsu_threshold`)
@@ -512,9 +531,23 @@ def boundary_lines_many(maps, dist, seg_min):
     """`boundary_lines` of each of several region maps of one work frame (the same lines as
     one map at a time): their contours' sides found and measured in one batch (`_sides`),
     then grouped map by map."""
+    maps = [np.asarray(Bm, np.uint8) for Bm in maps]  # no copy of a uint8 map (findContours leaves it)
+    for key, got in _LINES:
+        # the same maps, distances and least side give the same lines (compared by content:
+        # cheap beside the contours, and right however the arrays were made)
+        if key[0] == seg_min and len(key[1]) == len(maps) and np.array_equal(key[2], dist) \
+                and all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(key[1], maps)):
+            return list(got)
+    out = _boundary_lines_many(maps, dist, seg_min)
+    _LINES.insert(0, ((seg_min, [Bm.copy() for Bm in maps], np.array(dist, copy=True)), out))
+    del _LINES[_LINES_KEPT:]
+    return list(out)
+
+
+def _boundary_lines_many(maps, dist, seg_min):
+    """`boundary_lines_many`, computed (maps: uint8)."""
     import cv2
 
-    maps = [np.asarray(Bm, np.uint8) for Bm in maps]  # no copy of a uint8 map (findContours leaves it)
     contours = [cv2.findContours(Bm, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)[0] for Bm in maps]
     out = []
     for got in _sides(contours, maps, dist, seg_min):

@@ -388,15 +388,28 @@ def grid_map(f, shape, step):
     >>> np.isnan(m[0, :, 0]).nonzero()[0].tolist()                   # every pixel they weigh on
     [5, 6, 7, 8, 9, 10, 11]
     """
-    import cv2
+    h, w = shape
+    return _grid_pixels(*_grid_nodes(f, shape, step), step, (0, 0, w, h))
 
+
+def _grid_nodes(f, shape, step):
+    """The nodes of `grid_map`: (values (gh, gw, C) float32, 0 where not finite; not finite
+    (gh, gw) bool)."""
     h, w = shape
     gx = np.arange(0.0, w - 1 + step, step)
     gy = np.arange(0.0, h - 1 + step, step)
     nodes = np.asarray(f(np.stack(np.meshgrid(gx, gy), -1)), float)
     bad = ~np.all(np.isfinite(nodes), -1)
-    nodes = np.where(bad[..., None], 0.0, nodes).astype(np.float32)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    return np.where(bad[..., None], 0.0, nodes).astype(np.float32), bad
+
+
+def _grid_pixels(nodes, bad, step, box):
+    """`grid_map`'s values (y1 - y0, x1 - x0, C) at the pixels of box (x0, y0, x1, y1) (end
+    exclusive): each pixel's own interpolation, the same as in the whole frame's."""
+    import cv2
+
+    x0, y0, x1, y1 = box
+    yy, xx = np.mgrid[y0:y1, x0:x1].astype(np.float32)
     mx, my = xx / np.float32(step), yy / np.float32(step)
 
     def at_pixels(grid):
@@ -427,8 +440,29 @@ def raw_masks(work, camera, lab, count, shape):
 
     from pencilcal.toolkit.detect.working import to_working_points
 
-    q = grid_map(lambda g: work.to_work(to_working_points(camera, g)), shape, RAW_STEP_PX)
-    q = np.nan_to_num(q, nan=-1.0).astype(np.float32)
+    H, W = shape
+    masks = [np.zeros((H, W), bool) for _ in range(count)]
+    rows, cols = np.nonzero(lab > 0)
+    if rows.size == 0:
+        return masks
+    step = RAW_STEP_PX
+    nodes, bad = _grid_nodes(lambda g: work.to_work(to_working_points(camera, g)), shape, step)
+    # only the raw pixels whose work point may fall on a label: a pixel's point lies in the box
+    # of its cell's finite nodes (a convex combination of them), so the cells whose box meets
+    # the labels' (one pixel wider: the nearest pixel) hold every such pixel
+    v = np.where(bad[..., None], np.nan, nodes.astype(np.float64))
+    corners = np.stack([v[:-1, :-1], v[:-1, 1:], v[1:, :-1], v[1:, 1:]])
+    lo, hi = np.fmin.reduce(corners, 0), np.fmax.reduce(corners, 0)  # (gh - 1, gw - 1, 2); NaN: all lost
+    near = ((hi[..., 0] >= cols.min() - 1.0) & (lo[..., 0] <= cols.max() + 1.0)
+            & (hi[..., 1] >= rows.min() - 1.0) & (lo[..., 1] <= rows.max() + 1.0))
+    if not near.any():
+        return masks
+    ci, cj = np.nonzero(near)
+    x0, y0 = int(cj.min() * step), int(ci.min() * step)
+    x1, y1 = min(int((cj.max() + 1) * step) + 1, W), min(int((ci.max() + 1) * step) + 1, H)
+    q = np.nan_to_num(_grid_pixels(nodes, bad, step, (x0, y0, x1, y1)), nan=-1.0).astype(np.float32)
     raw = cv2.remap(lab.astype(np.float32), q[..., 0], q[..., 1], cv2.INTER_NEAREST,
                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return [raw == k for k in range(1, count + 1)]
+    for k, m in enumerate(masks, 1):
+        m[y0:y1, x0:x1] = raw == k
+    return masks

@@ -80,6 +80,36 @@ def test_shaft_records_carry_kind():
 
 
 @pytest.mark.parametrize("lens", [False, True])
+def test_raw_masks_window_is_the_whole_frame_map(lens):
+    """Only the raw pixels near the regions are mapped, and each is mapped as in the whole
+    frame: the masks are those of the whole frame's map (`grid_map`) bit for bit, for small
+    regions anywhere (a corner, the edge, a speck), with and without a strong barrel lens."""
+    from pencilcal.toolkit.camera.model import Camera
+    from pencilcal.toolkit.detect.shaft.work import RAW_STEP_PX, grid_map, raw_masks
+    from pencilcal.toolkit.detect.working import to_working_points
+
+    H, W = 270, 481
+    cam = Camera("opencv", W, H, [[300.0, 0, 240.0], [0, 300.0, 134.5], [0, 0, 1]],
+                 [-0.45, 0.2, 0.001, -0.001, 0.0]) if lens else None
+    work = WorkFrame(np.zeros((H, W, 3), np.uint8), cam, Validity(None, (H, W)), 200)
+    q = grid_map(lambda g: work.to_work(to_working_points(cam, g)), (H, W), RAW_STEP_PX)
+    q = np.nan_to_num(q, nan=-1.0).astype(np.float32)
+    rng = np.random.default_rng(3)
+    h, w = work.shape
+    for trial in range(12):
+        lab = np.zeros(work.shape, np.int32)
+        for k in (1, 2, 3):
+            r, c = int(rng.integers(0, h)), int(rng.integers(0, w))
+            lab[r:r + int(rng.integers(1, 30)), c:c + int(rng.integers(1, 30))] = k
+        lab[0:5, 0:4] = 2 if trial % 2 else lab[0:5, 0:4]
+        want = cv2.remap(lab.astype(np.float32), q[..., 0], q[..., 1], cv2.INTER_NEAREST,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        for k, got in enumerate(raw_masks(work, cam, lab, 3, (H, W)), 1):
+            assert got.shape == (H, W) and np.array_equal(got, want == k), (trial, k)
+    assert not any(m.any() for m in raw_masks(work, cam, np.zeros(work.shape, np.int32), 2, (H, W)))
+
+
+@pytest.mark.parametrize("lens", [False, True])
 def test_raw_masks_are_the_regions_where_they_are(lens):
     """A region of the work frame carried to raw pixels covers the raw pixels whose own work
     point falls in it, each evaluated exactly: the same pixels without a lens (where a resize
