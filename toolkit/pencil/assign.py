@@ -38,7 +38,8 @@ from pencilcal.toolkit.pencil.defaults import CHI2_1_99, CHI2_2_DETECTION, DETEC
 from pencilcal.toolkit.pencil.estimator import fit_pencil, pencil_jacobian, PencilFit
 from pencilcal.toolkit.pencil.sequence_noise import inflation
 
-__all__ = ["Assignment", "assign_spokes", "grow_labels", "GROWTH_EVIDENCE", "GROWTH_AGREE", "GROWTH_LIKELIHOOD_LINES"]
+__all__ = ["Assignment", "assign_spokes", "grow_labels", "GROWTH_EVIDENCE", "GROWTH_AGREE", "GROWTH_LIKELIHOOD_LINES",
+           "SCREEN_KEEP_LINES"]
 
 # distinct labellings refitted after the MSAC screen
 _TOP = 4
@@ -68,6 +69,10 @@ GROWTH_AGREE = chi2_isf(1.0 - 0.9973, 3)
 #: them alone (fewer fit any rotation near theirs: three of them exactly), as `floored` and
 #: `scatter` estimate the lines' shared error from 8 lines
 GROWTH_LIKELIHOOD_LINES = 8
+#: the local screen's labelling of a dense pencil's window stands, where its refinement
+#: would label fewer lines, from this many lines (a right window labels 12-13 of the 13 it
+#: looks at; wrong ones on small stars' sparse, noisy lines 5-8) that its fit explains
+SCREEN_KEEP_LINES = 10
 
 
 @dataclass(frozen=True)
@@ -740,6 +745,8 @@ def _candidates(nearest, resid, tol, s, fitter):
             continue
         seen_labels.add(key)
         lab, f = fitter.refine(lab0)
+        if not np.all(np.isfinite(resid[h])):
+            lab, f = _kept_screen_labels(fitter, lab0, lab, f)
         if f is not None:
             candidates.append(((lab >= 0).sum(), float(f.chi2), lab, f))
         if len(seen_labels) >= _TOP:
@@ -747,6 +754,25 @@ def _candidates(nearest, resid, tol, s, fitter):
     if not candidates:
         raise EstimationError("fewer than three spokes could be matched to the lines")
     return candidates
+
+
+def _kept_screen_labels(fitter, lab0, lab, f):
+    """The local screen's labelling `lab0` (M,) in place of its refinement (`lab`, fit `f`)
+    where the refinement labels fewer than GROWTH_LIKELIHOOD_LINES lines (too few to grow
+    from surely) and `lab0` labels `SCREEN_KEEP_LINES` or more
+    that its own fit explains (chi2 within its 1 - DETECTION_LEVEL quantile): (labels,
+    fit). On a small dense star the lines scatter so much (0.17-0.27 deg against edges
+    1.4 deg apart) that the refinement's tolerance, 4 sds within 0.45 of the gap, labels only
+    the few sharpest lines of a right window, and a fit of 3-5 neighbours grew wrong;
+    the whole window grows right (`grow_labels`)."""
+    used = lab0 >= 0
+    n = int(np.count_nonzero(used))
+    if n < SCREEN_KEEP_LINES or (f is not None and np.count_nonzero(lab >= 0) >= GROWTH_LIKELIHOOD_LINES):
+        return lab, f
+    f0 = fitter.fit(used, lab0[used])
+    if float(f0.chi2) > chi2_isf(DETECTION_LEVEL, n - 3):
+        return lab, f
+    return lab0, f0
 
 
 def _best_and_rivals(candidates):

@@ -1,6 +1,8 @@
 """Assignment of unlabelled lines to spokes: shuffled, missing, spurious, self-similar."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -164,3 +166,72 @@ def test_shared_model_error_keeps_sharp_lines(rng):
         first = np.flatnonzero(lab >= 0)[0]
         used.append(int(((lab >= 0) & (np.mod(lab - lab[first] - (np.arange(20) - first), 20) == 0)).sum()))
     assert np.mean(used) >= 18, used
+
+
+def _small_star(seed, lines=160, sigma_deg=0.2):
+    """A 128-wedge star's edges (256, two kinds) seen tilted 25 deg, `lines` of them found,
+    each with its own sigma (0.3-1.5 times `sigma_deg`: a small star's short, blurred edges
+    beside sharp ones) and noise of that sigma: (angles, sigmas, edges, line kinds, edge
+    kinds, the lines' true edges, R, vertex)."""
+    rng = np.random.default_rng(seed)
+    n = 128
+    c = np.radians(np.arange(n) * 360.0 / n)
+    w = np.radians(360.0 / n / 2)
+    edges, kind = np.r_[c - w / 2, c + w / 2], np.r_[np.zeros(n, int), np.ones(n, int)]
+    x = rng.uniform(-0.1, 0.1, 2)
+    R = random_pose(rng, x, 25.0)
+    keep = np.sort(rng.choice(2 * n, lines, replace=False))
+    sig = np.radians(sigma_deg) * rng.uniform(0.3, 1.5, keep.size)
+    a = image_angles(R, x, edges[keep]) + sig * rng.standard_normal(keep.size)
+    return a, sig, edges, kind[keep], kind, keep, R, x
+
+
+@pytest.mark.parametrize("seed", [0, 3, 7])
+def test_small_dense_star_keeps_the_screens_window(seed):
+    """A small dense star's lines with mixed sigmas: the local screen's window labels 13
+    lines rightly, and its refinement kept only the few sharpest (6-7 on these seeds: 4 sds
+    of the others exceed 0.45 of the edges' gap) to grow from. The window stands: at least
+    SCREEN_KEEP_LINES lines, every one its true edge up to the star's symmetry (a whole
+    wedge's shift, each edge's side kept), and the labelling grows to every line, the
+    normal within 0.5 deg."""
+    from pencilcal.toolkit.pencil.assign import SCREEN_KEEP_LINES, grow_labels
+
+    a, sig, edges, lk, sk, keep, R, x = _small_star(seed)
+    res = assign_spokes(a, edges, x, sig, line_kind=lk, spoke_kind=sk)
+    used = res.spoke >= 0
+    assert used.sum() >= SCREEN_KEEP_LINES
+    lab, truth = res.spoke[used], keep[used]
+    assert np.all(lab // 128 == truth // 128)
+    assert np.unique((lab - truth) % 128).size == 1
+    grown, fit = grow_labels(a, edges, x, sig, res.spoke, line_kind=lk, spoke_kind=sk)
+    assert np.all(grown >= 0)
+    err = min(angle_between(fit.normal, R[:, 2]), angle_between(fit.normal_twin, R[:, 2]))
+    assert np.degrees(err) < 0.5
+
+
+def test_screen_window_that_its_fit_does_not_explain_is_not_kept(rng):
+    """The window stands only where its own fit explains it: one of its lines moved by
+    half an edge gap (a line of the clutter on the wrong edge) leaves the refinement's
+    labelling; a refinement of GROWTH_LIKELIHOOD_LINES lines or more stands whatever the
+    window."""
+    from pencilcal.toolkit.pencil.assign import GROWTH_LIKELIHOOD_LINES, _kept_screen_labels, _LabelFitter
+
+    a, sig, edges, lk, sk, keep, R, x = _small_star(0)
+    sig = np.full_like(sig, np.radians(0.05))
+    a = image_angles(R, x, edges[keep]) + sig * rng.standard_normal(keep.size)
+    fitter = _LabelFitter(a, edges, sig, x, None, True, 4.0, np.radians(0.63), (lk, sk))
+    window = np.full(a.size, -1)
+    window[40:53] = keep[40:53]
+    few = np.full(a.size, -1)
+    few[[40, 45, 50]] = keep[[40, 45, 50]]
+    f_few = fitter.fit(few >= 0, few[few >= 0])
+    lab, _ = _kept_screen_labels(fitter, window, few, f_few)
+    assert np.array_equal(lab, window)
+    bad = a.copy()
+    bad[46] += np.radians(0.7)
+    lab, _ = _kept_screen_labels(replace(fitter, a=bad), window, few, f_few)
+    assert np.array_equal(lab, few)
+    many = np.full(a.size, -1)
+    many[40:40 + GROWTH_LIKELIHOOD_LINES] = keep[40:40 + GROWTH_LIKELIHOOD_LINES]
+    lab, _ = _kept_screen_labels(fitter, window, many, fitter.fit(many >= 0, many[many >= 0]))
+    assert np.array_equal(lab, many)
