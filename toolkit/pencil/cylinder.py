@@ -87,6 +87,9 @@ GATE_CONFIDENCE = 0.99
 # per cent in what they hold (an axis gated out of one, weights at a different point).
 SHARED_FLOOR = 0.05
 
+# The least scale of scatter_scale: exact axes (chi2 ~ 1e-20) would gate on rounding.
+SCATTER_FLOOR = 0.01
+
 # Most refits of the inlier set in fulcrum_3d (it is stable after two or three).
 _GATE_ROUNDS = 10
 
@@ -646,12 +649,13 @@ def _check_lines(points, directions, covs, frames):
 
 def scatter_scale(chi2):
     """(..., 1) the axes' own scale of their covariances: median chi2 (..., N) over chi2(2)'s
-    median (2 ln 2), at most 1, so never widening a gate (`fulcrum_3d`).
+    median (2 ln 2), at most 1 (never widening a gate, `fulcrum_3d`), at least `SCATTER_FLOOR`.
 
     >>> scatter_scale(np.array([0.0, 2 * np.log(2) / 4, 9.0])).round(6).tolist()
     [0.25]
     """
-    return np.minimum(1.0, np.median(np.asarray(chi2, float), axis=-1, keepdims=True) / (2.0 * np.log(2.0)))
+    s = np.median(np.asarray(chi2, float), axis=-1, keepdims=True) / (2.0 * np.log(2.0))
+    return np.clip(s, SCATTER_FLOOR, 1.0)
 
 
 def fulcrum_3d(axis_points, axis_directions, axis_covs, robust=True, *, axis_frames=None,

@@ -465,12 +465,12 @@ def _near_frame_axes():
     """Axes of rendered pivot 2663's left frame 2 geometry (an 8 mm shaft 36 mm away, the
     port off the view): 30 exact views of axes through the fulcrum, 8 of them near ones whose
     far edge ends lean 5-8 px inwards onto the narrower wrist, as the detector read them;
-    every axis with the edge floor's covariance (offset sd 2.4 px), far above its scatter."""
+    every axis with a floor's covariance (offset sd 0.7 px), far above its scatter."""
     from pencilcal.toolkit.pencil.cylinder import shaft_axis
     K = np.array([[520.0, 0, 319.5], [0, 520, 239.5], [0, 0, 1]])
     F = np.array([-30.0, -60.0, 70.0])
     rng = np.random.default_rng(3)
-    cov = np.array([[[1.5e-4, 0.0], [0.0, 5.8]]] * 2)
+    cov = np.array([[[1.5e-5, 0.0], [0.0, 0.5]]] * 2)
     axes = []
     for k in range(30):
         d = normalize(np.array([rng.uniform(0.2, 0.8), rng.uniform(0.6, 1.0), rng.uniform(-0.6, -0.1)]))
