@@ -433,7 +433,7 @@ def _point_with_noise(points, dirs, covs, robust, edges=None, lines_play=None):
     [length^2] per direction, 0 without it. lines_play: the play the image lines read [rad]
     (`fulcrum_point`), or None; the play term (3, 3) is `_play_term`'s, None with the factor
     alone."""
-    keep = scatter_inliers(points, dirs, covs) if robust else np.ones(len(points), bool)
+    keep = scatter_inliers(points, dirs, covs) if robust and SCATTER_GATE else np.ones(len(points), bool)
     if not np.all(keep):  # the rest fitted as before, the axes left out marked outliers
         K, (e, c), radius = edges if edges is not None else (None, (None, None), None)
         sub = None if edges is None else (K, (e[keep], c[keep]), radius)
@@ -452,6 +452,9 @@ def _point_with_noise(points, dirs, covs, robust, edges=None, lines_play=None):
     fit = dataclasses.replace(fit, point_cov=fit.point_cov * own, point_sigma=fit.point_sigma * np.sqrt(own))
     return fit, total * own, 0.0, None
 
+
+#: Gate the axes at their own scatter first (`scatter_gate`; off: the phantom, docs/method.md).
+SCATTER_GATE = False
 
 #: The largest play (sd per direction, as a fraction of the shaft's diameter) read as the
 #: port's: an instrument's shaft fits its port within a fraction of its width (a millimetre

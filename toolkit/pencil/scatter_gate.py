@@ -6,8 +6,9 @@ chi2(2)'s 1.39). At that size a near shaft whose edges run on along its narrower
 edge's far end 5-9 px inside the silhouette; its axis tilted by 4-15 deg and read a few mm
 too far) passes the 99 % gate, and several such, misread alike, pull the point by 5-12 mm.
 `scatter_inliers` gates the axes at their own scatter (`cylinder.fulcrum_3d`'s
-``scatter_gate``); `fulcrum._point_with_noise` fits the kept ones and `over_all_axes` puts
-the left-out ones back as outliers (docs/method.md, "The gate at the axes' own scatter").
+``scatter_gate``); with `fulcrum.SCATTER_GATE` on (off: it breaks the phantom's jackknife)
+`fulcrum._point_with_noise` fits the kept ones and `over_all_axes` puts the left-out ones
+back as outliers (docs/method.md, "The gate at the axes' own scatter").
 
 >>> import numpy as np
 >>> d = np.array([[1.0, 0, 0], [0, 1, 0], [0.6, 0.8, 0], [0.8, 0, 0.6], [0, 0.6, 0.8], [0.6, 0, 0.8]])
