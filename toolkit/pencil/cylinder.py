@@ -70,31 +70,11 @@ from pencilcal.toolkit.pencil.defaults import ENDPOINT_SIGMA_PX
 from pencilcal.toolkit.pencil.vertex import propagate_cov, segment_angle_sigma, segment_lines
 
 __all__ = [
-    "GATE_CONFIDENCE",
-    "SHARED_FLOOR",
-    "AXIS_KEYS",
-    "CylinderOutline",
-    "CylinderAxis",
-    "ShaftAxis",
-    "Fulcrum3D",
-    "RayTriangulation",
-    "Fusion",
-    "project_cylinder",
-    "edge_lines",
-    "silhouette_planes",
-    "cylinder_axis",
-    "axis_image_line",
-    "axis_frame",
-    "axis_chart",
-    "axis_offsets",
-    "offset_chi2",
-    "shaft_axis",
-    "shaft_axis_record",
-    "fulcrum_3d",
-    "ray_from_image_point",
-    "triangulate_rays",
-    "combine_estimates",
-    "common_part",
+    "GATE_CONFIDENCE", "SHARED_FLOOR", "AXIS_KEYS", "CylinderOutline", "CylinderAxis", "ShaftAxis",
+    "Fulcrum3D", "RayTriangulation", "Fusion", "project_cylinder", "edge_lines",
+    "silhouette_planes", "cylinder_axis", "axis_image_line", "axis_frame", "axis_chart",
+    "axis_offsets", "offset_chi2", "shaft_axis", "shaft_axis_record", "fulcrum_3d", "scatter_scale",
+    "ray_from_image_point", "triangulate_rays", "combine_estimates", "common_part",
 ]
 
 # Confidence of the chi2 gates (outlier axes in fulcrum_3d, the consistency test of
@@ -106,6 +86,9 @@ GATE_CONFIDENCE = 0.99
 # (left out of the consistency test). Not smaller: two fits of one view's data differ a few
 # per cent in what they hold (an axis gated out of one, weights at a different point).
 SHARED_FLOOR = 0.05
+
+# The least scale of scatter_scale: exact axes (chi2 ~ 1e-20) would gate on rounding.
+SCATTER_FLOOR = 0.01
 
 # Most refits of the inlier set in fulcrum_3d (it is stable after two or three).
 _GATE_ROUNDS = 10
@@ -664,8 +647,19 @@ def _check_lines(points, directions, covs, frames):
             np.broadcast_to(covs, shape + (4, 4)), np.broadcast_to(frames, shape + (2, 3)))
 
 
+def scatter_scale(chi2):
+    """(..., 1) the axes' own scale of their covariances: median chi2 (..., N) over chi2(2)'s
+    median (2 ln 2), at most 1 (never widening a gate, `fulcrum_3d`), at least `SCATTER_FLOOR`.
+
+    >>> scatter_scale(np.array([0.0, 2 * np.log(2) / 4, 9.0])).round(6).tolist()
+    [0.25]
+    """
+    s = np.median(np.asarray(chi2, float), axis=-1, keepdims=True) / (2.0 * np.log(2.0))
+    return np.clip(s, SCATTER_FLOOR, 1.0)
+
+
 def fulcrum_3d(axis_points, axis_directions, axis_covs, robust=True, *, axis_frames=None,
-               confidence=GATE_CONFIDENCE, max_pairs=200, seed=0, max_iter=50, tol=1e-10):
+               confidence=GATE_CONFIDENCE, max_pairs=200, seed=0, max_iter=50, tol=1e-10, scatter_gate=False):
     """The fulcrum: the point closest to N 3-D axes, each weighted by its covariance.
 
     Minimises ``sum_k r_k^T S_k^-1 r_k`` with r_k the point's perpendicular offset from axis
@@ -681,6 +675,9 @@ def fulcrum_3d(axis_points, axis_directions, axis_covs, robust=True, *, axis_fra
     robust: start from the best pair of axes by MSAC and keep iterating a chi2 gate (2 dof,
         ``chi2.ppf(confidence, 2)``) on the axes until the inlier set is stable; else use all.
     max_pairs, seed: the pairs tried for the robust start (all when fewer).
+    scatter_gate: the gate on chi2 over `scatter_scale` (axes scattering less than their
+        covariances say: an edge floor), so that a few axes misread alike (near shafts' edges
+        leaning onto the wrist) do not pass it; weights and covariance stay the stated ones.
     Returns a `Fulcrum3D`; EstimationError when fewer than two non-parallel axes remain.
 
     >>> d = normalize([[1.0, 0, 0], [0, 1, 0], [1, 1, 1]])
@@ -698,7 +695,8 @@ def fulcrum_3d(axis_points, axis_directions, axis_covs, robust=True, *, axis_fra
     use = np.ones(P.shape[:-1], bool)
     if robust:
         x = _robust_start(P, D, E, C, gate, max_pairs, seed)
-        use = offset_chi2(*axis_offsets(x, P, D, E, C)[:2]) < gate
+        c2 = offset_chi2(*axis_offsets(x, P, D, E, C)[:2])
+        use = c2 < gate * (scatter_scale(c2) if scatter_gate else 1.0)
     else:
         x = _plain_point(P, D, use)
     rounds = _GATE_ROUNDS if robust else 1
@@ -708,7 +706,7 @@ def fulcrum_3d(axis_points, axis_directions, axis_covs, robust=True, *, axis_fra
         x, cov, it = _weighted_point(x, P, D, E, C, use, max_iter, tol)
         r, S, t = axis_offsets(x, P, D, E, C)
         c2 = offset_chi2(r, S)
-        gated = c2 < gate
+        gated = c2 < gate * (scatter_scale(c2) if scatter_gate else 1.0)
         if np.array_equal(gated, use) or k == rounds - 1:
             break
         use = gated

@@ -55,6 +55,7 @@ from pencilcal.toolkit.pencil.orientation import Orientation
 from pencilcal.toolkit.pencil.cylinder import (Fulcrum3D, axis_frame, axis_offsets, fulcrum_3d,
                                                project_cylinder, shaft_axis, shaft_axis_record)
 from pencilcal.toolkit.pencil.sequence_noise import MAX_RUNS, inflation
+from pencilcal.toolkit.pencil.scatter_gate import over_all_axes, scatter_inliers
 from pencilcal.toolkit.pencil.parallax import vertex_with_parallax
 
 __all__ = ["Fulcrum", "FulcrumPoint", "SequenceLines", "fulcrum_from_frames", "fulcrum_point",
@@ -432,6 +433,12 @@ def _point_with_noise(points, dirs, covs, robust, edges=None, lines_play=None):
     [length^2] per direction, 0 without it. lines_play: the play the image lines read [rad]
     (`fulcrum_point`), or None; the play term (3, 3) is `_play_term`'s, None with the factor
     alone."""
+    keep = scatter_inliers(points, dirs, covs) if robust and SCATTER_GATE else np.ones(len(points), bool)
+    if not np.all(keep):  # the rest fitted as before, the axes left out marked outliers
+        K, (e, c), radius = edges if edges is not None else (None, (None, None), None)
+        sub = None if edges is None else (K, (e[keep], c[keep]), radius)
+        fit, factor, play, term = _point_with_noise(points[keep], dirs[keep], covs[keep], robust, sub, lines_play)
+        return over_all_axes(fit, keep, points, dirs, covs), factor, play, term
     if edges is not None:
         played = _point_with_play(points, dirs, covs, robust, *edges, lines_play=lines_play)
         if played is not None:
@@ -445,6 +452,9 @@ def _point_with_noise(points, dirs, covs, robust, edges=None, lines_play=None):
     fit = dataclasses.replace(fit, point_cov=fit.point_cov * own, point_sigma=fit.point_sigma * np.sqrt(own))
     return fit, total * own, 0.0, None
 
+
+#: Gate the axes at their own scatter first (`scatter_gate`; off: the phantom, docs/method.md).
+SCATTER_GATE = False
 
 #: The largest play (sd per direction, as a fraction of the shaft's diameter) read as the
 #: port's: an instrument's shaft fits its port within a fraction of its width (a millimetre
