@@ -306,7 +306,7 @@ class FulcrumPoint:
         return out
 
 
-def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, width_sd_px=None, lines_play=None):
+def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, width_sd_px=None, lines_play=None, scatter_gate=False):
     """The 3-D fulcrum: the point closest to every shaft's 3-D axis over a sequence.
 
     camera: Camera; frames: lines.json frame dicts whose shafts carry ``edges`` [raw px]
@@ -327,6 +327,8 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, wi
     vertex (`lines_play_rad`: its sd as an angle [rad] seen from the camera), or None: where
     that angle times the point's distance exceeds the play the axes read, the rest joins
     the point's covariance (`_play_term`, ``play_cov``); the point is the same.
+    scatter_gate: True gates the axes at their own scatter first (`scatter_gate`); off by
+    default (on the real phantom it scatters the epochs' jackknife: docs/method.md).
     Returns a `FulcrumPoint`; EstimationError when fewer than two crossing axes remain.
 
     A moving camera (`pencilcal fulcrum --stabilize`): frames whose ``camera_pose`` gives
@@ -340,7 +342,7 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, wi
     axes = frame_axes(camera, frames, diameter)
     if width_sd_px is None:
         width_sd_px = [band_width_sd(frames[i]["shafts"][j]) for i, (_, j) in zip(axes[6], axes[3])]
-    return _point_of_axes(camera, axes, diameter, robust, intrinsics_cov, width_sd_px, lines_play)
+    return _point_of_axes(camera, axes, diameter, robust, intrinsics_cov, width_sd_px, lines_play, scatter_gate)
 
 
 def lines_play_rad(play, K, x_n):
@@ -383,7 +385,7 @@ def leave_one_out_points(camera, frames, diameter, robust=True):
     return out
 
 
-def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None, width_sd_px=0.0, lines_play=None):
+def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None, width_sd_px=0.0, lines_play=None, scatter_gate=False):
     """`fulcrum_point` of the axes `frame_axes` gave (axes: its tuple); width_sd_px: one or
     (N,) per axis; lines_play: as `fulcrum_point`'s."""
     points, dirs, covs, owners, measured, poses, _, skipped = axes
@@ -398,7 +400,7 @@ def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None, wid
     edge_cov = np.array([np.asarray(c, float).reshape(2, 2, 2) for _, c in measured])
     fit, factor, play, play_cov = _point_with_noise(
         np.array(points), np.array(dirs), np.array(covs), robust,
-        (np.asarray(camera.K, float), (ideal, edge_cov), 0.5 * float(diameter)), lines_play)
+        (np.asarray(camera.K, float), (ideal, edge_cov), 0.5 * float(diameter)), lines_play, scatter_gate)
     lens = None
     if intrinsics_cov is not None:
         used = [measured[k] for k in np.flatnonzero(np.asarray(fit.inliers))]
@@ -413,7 +415,7 @@ def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None, wid
                         variance_factor=factor, play=play, width_cov=width_cov, width_sd=width_sd, play_cov=play_cov)
 
 
-def _point_with_noise(points, dirs, covs, robust, edges=None, lines_play=None):
+def _point_with_noise(points, dirs, covs, robust, edges=None, lines_play=None, scatter_gate=False):
     """(Fulcrum3D, variance factor, play, play term or None) of `fulcrum_point`'s still camera
     (points, dirs (N, 3), covs (N, 4, 4) as `cylinder.fulcrum_3d` takes them): the axes' own
     scatter taken in, as the image lines' fulcrum takes its lines' (`sequence_noise`), only
@@ -432,8 +434,8 @@ def _point_with_noise(points, dirs, covs, robust, edges=None, lines_play=None):
     (with the play: the factor on the axes' covariances). play: the play's variance
     [length^2] per direction, 0 without it. lines_play: the play the image lines read [rad]
     (`fulcrum_point`), or None; the play term (3, 3) is `_play_term`'s, None with the factor
-    alone."""
-    keep = scatter_inliers(points, dirs, covs) if robust and SCATTER_GATE else np.ones(len(points), bool)
+    alone. scatter_gate: the axes gated at their own scatter first (`fulcrum_point`)."""
+    keep = scatter_inliers(points, dirs, covs) if robust and scatter_gate else np.ones(len(points), bool)
     if not np.all(keep):  # the rest fitted as before, the axes left out marked outliers
         K, (e, c), radius = edges if edges is not None else (None, (None, None), None)
         sub = None if edges is None else (K, (e[keep], c[keep]), radius)
@@ -452,9 +454,6 @@ def _point_with_noise(points, dirs, covs, robust, edges=None, lines_play=None):
     fit = dataclasses.replace(fit, point_cov=fit.point_cov * own, point_sigma=fit.point_sigma * np.sqrt(own))
     return fit, total * own, 0.0, None
 
-
-#: Gate the axes at their own scatter first (`scatter_gate`; off: the phantom, docs/method.md).
-SCATTER_GATE = False
 
 #: The largest play (sd per direction, as a fraction of the shaft's diameter) read as the
 #: port's: an instrument's shaft fits its port within a fraction of its width (a millimetre

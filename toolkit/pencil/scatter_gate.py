@@ -6,7 +6,7 @@ chi2(2)'s 1.39). At that size a near shaft whose edges run on along its narrower
 edge's far end 5-9 px inside the silhouette; its axis tilted by 4-15 deg and read a few mm
 too far) passes the 99 % gate, and several such, misread alike, pull the point by 5-12 mm.
 `scatter_inliers` gates the axes at their own scatter (`cylinder.fulcrum_3d`'s
-``scatter_gate``); with `fulcrum.SCATTER_GATE` on (off: it breaks the phantom's jackknife)
+``scatter_gate``); with `fulcrum.fulcrum_point(..., scatter_gate=True)` (off by default: it breaks the phantom's jackknife)
 `fulcrum._point_with_noise` fits the kept ones and `over_all_axes` puts the left-out ones
 back as outliers (docs/method.md, "The gate at the axes' own scatter").
 

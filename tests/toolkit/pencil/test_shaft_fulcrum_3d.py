@@ -499,22 +499,21 @@ def _leaning(frames, which, px):
 
 
 def test_fulcrum_point_leaves_out_the_axes_misread_alike(monkeypatch):
-    """With `fulcrum.SCATTER_GATE` on: clean edges (0.05 px) stated at a floor (0.5 px) and a
+    """With ``scatter_gate=True``: clean edges (0.05 px) stated at a floor (0.5 px) and a
     fifth of the frames with both edges' tip ends 5 px inside the band: at the stated size
     those axes pass the 99 % gate and pull the point (1.37 mm off); gated at the axes' own
     scatter they are left out (0.06 mm; docs/method.md, "The gate at the axes' own scatter";
     rendered pivots 2663 left 11.97 -> 0.65 mm)."""
     import pencilcal.toolkit.pencil.fulcrum as fulcrum_module
 
-    monkeypatch.setattr(fulcrum_module, "SCATTER_GATE", True)
     rng = np.random.default_rng(11)
     cam = Camera("pinhole", 640, 480, _KE, [])
     F = np.array([60.0, 0.0, 90.0])
     frames = _leaning(_edge_level_frames(rng, F, n=40, sd=0.05, stated=0.5, play=0.2), range(8), 5.0)
-    pt = fulcrum_point(cam, frames, 8.0)
+    pt = fulcrum_point(cam, frames, 8.0, scatter_gate=True)
     assert not np.any(np.asarray(pt.fit.inliers)[:8])
     gated = np.linalg.norm(pt.fit.point - F)
     monkeypatch.setattr(fulcrum_module, "scatter_inliers", lambda P, D, C: np.ones(len(P), bool))
-    plain = fulcrum_point(cam, frames, 8.0)
+    plain = fulcrum_point(cam, frames, 8.0, scatter_gate=True)
     assert np.all(np.asarray(plain.fit.inliers)[:8])
     assert gated < 0.5 < np.linalg.norm(plain.fit.point - F), (gated, np.linalg.norm(plain.fit.point - F))
