@@ -89,7 +89,7 @@ from pencilcal.toolkit.detect.edges import linearised
 from pencilcal.toolkit.detect.working import raw_frame
 
 __all__ = ["BIN_PX", "SPREAD_SHARE", "LimbFit", "specular_lobe", "limb_design", "fit_limb_profile", "shading_lstsq",
-           "step_design", "fit_step_profile", "limb_explains", "refine_edge", "limb_edges", "width_spread"]
+           "step_design", "fit_step_profile", "limb_explains", "is_light", "refine_edge", "limb_edges", "width_spread"]
 
 #: Stations averaged per bin along an edge [px].
 BIN_PX = 12.0
@@ -233,6 +233,16 @@ def shading_lstsq(A, y):
     return out
 
 
+def is_light(A, coef):
+    """Whether the shading of a limb fit is light: its radiance ``kd c + ks S_a(c)``, blurred,
+    not negative at any of the samples, A (T, 4) the fit's columns (`limb_design`), coef (4,)
+    its (b0, b1, kd, ks). One term may be negative where the sum is not: a matte face under
+    an endoscope's tone curve, compressed towards its clipping level, takes a negative
+    specular lobe (the lobe flattens the shading's rise) and stays light; a black shaft's
+    negative diffuse term (`shading_lstsq`) dips below zero at its limb and is not."""
+    return bool(np.min(A[:, 2:] @ np.asarray(coef, float)[2:]) >= 0.0)
+
+
 _SATURATED = 250.0  # an encoded level at least this is clipped, not measured [grey levels]
 
 
@@ -306,10 +316,12 @@ def refine_edge(image, camera, edge, geometry, gamma=1.0, sigma0=1.2):
         if not fits:
             return None
         fit = min(fits, key=lambda f: f.rms)
-        # judged as light: the shading at the fit's limb held non-negative
+        # judged as light: the fit as it stands where its shading is light at every sample,
+        # else the shading at the fit's limb held non-negative term by term
         A = limb_design(t, fit.edge, fit.sigma, float(np.median(W_st[sel])), fit.roughness,
                         float(np.median(k_st[sel])), float(np.median(q_st[sel])))[use]
-        r = A @ shading_lstsq(A, y[use]) - y[use]
+        c = fit.coef if is_light(A, fit.coef) else shading_lstsq(A, y[use])
+        r = A @ c - y[use]
         step = fit_step_profile(t, y, starts[0], sigma0, use)
         return fit, step is None or limb_explains(float(r @ r), step[2], int(use.sum()))
 
