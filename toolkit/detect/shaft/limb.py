@@ -41,6 +41,8 @@ camera's sharpening darkening it just inside its edge) took a negative diffuse t
 its bins, a dip below zero at the limb that let the limb move outwards. The fit stays
 unbounded (held non-negative in the fit itself, a matte shaft's limb 140 mm away over a dark
 background moved and its fulcrum read 3.6 mm off, not under 1 mm), but it is judged as light:
+by its own residual where its shading is light as it stands (`is_light`: kd not negative, the
+sum not negative anywhere; a clipping matte face's tone curve takes a negative lobe), else by
 its residual with kd and ks held non-negative at its limb (`shading_lstsq`).
 
 Which edges it locates. The limb model is used on an edge unless a blurred step with a level
@@ -234,13 +236,20 @@ def shading_lstsq(A, y):
 
 
 def is_light(A, coef):
-    """Whether the shading of a limb fit is light: its radiance ``kd c + ks S_a(c)``, blurred,
-    not negative at any of the samples, A (T, 4) the fit's columns (`limb_design`), coef (4,)
-    its (b0, b1, kd, ks). One term may be negative where the sum is not: a matte face under
-    an endoscope's tone curve, compressed towards its clipping level, takes a negative
-    specular lobe (the lobe flattens the shading's rise) and stays light; a black shaft's
-    negative diffuse term (`shading_lstsq`) dips below zero at its limb and is not."""
-    return bool(np.min(A[:, 2:] @ np.asarray(coef, float)[2:]) >= 0.0)
+    """Whether the shading of a limb fit is light as it stands: its diffuse term kd not
+    negative and its radiance ``kd c + ks S_a(c)``, blurred, not negative at any of the
+    samples; A (T, 4) the fit's columns (`limb_design`), coef (4,) its (b0, b1, kd, ks). A
+    matte face under an endoscope's tone curve, compressed towards its clipping level, takes
+    a negative specular lobe (it flattens the diffuse rise) and stays light; a black shaft's
+    negative diffuse term (the camera's sharpening, `shading_lstsq`) is not, whatever its
+    lobe makes of the sum: the limb moves out on that dip.
+
+    >>> A = np.column_stack([np.ones(3), np.zeros(3), [0.1, 0.5, 0.9], [0.05, 0.2, 0.3]])
+    >>> is_light(A, [10, 0, 400, -300]), is_light(A, [10, 0, -40, 300])
+    (True, False)
+    """
+    coef = np.asarray(coef, float)
+    return bool(coef[2] >= 0.0 and np.min(A[:, 2:] @ coef[2:]) >= 0.0)
 
 
 _SATURATED = 250.0  # an encoded level at least this is clipped, not measured [grey levels]
