@@ -190,23 +190,34 @@ def _region(work, p, u, m, lo, hi, t_b, c_in, c_out, ceiling):
 
     a, b = p + lo * u, p + hi * u
     reach = float(np.max(t_b)) + 3.0  # beyond the border: the view's own bound cuts it there
-    poly = np.array([a, b, b + reach * m, a + reach * m], np.float32)
-    strip = np.zeros(work.shape, np.uint8)
-    cv2.fillConvexPoly(strip, np.rint(poly).astype(np.int32), 1)
-    C = work.colours
+    poly = np.rint(np.array([a, b, b + reach * m, a + reach * m], np.float32)).astype(np.int32)
+    # the strip's bounding box with a margin of 2 px (the opening's reach, so that it sees the
+    # zeros around the strip as over the whole frame): every reading below bit for bit the
+    # whole frame's, at the cost of the strip's pixels only
+    h, w = work.shape
+    x0, y0 = max(int(poly[:, 0].min()) - 2, 0), max(int(poly[:, 1].min()) - 2, 0)
+    x1, y1 = min(int(poly[:, 0].max()) + 3, w), min(int(poly[:, 1].max()) + 3, h)
+    if x1 <= x0 or y1 <= y0:
+        return None
+    box = (slice(y0, y1), slice(x0, x1))
+    strip = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.fillConvexPoly(strip, poly - np.array([x0, y0], np.int32), 1)
+    C = work.colours[box]
     near = np.linalg.norm(C - c_in, axis=-1) < np.linalg.norm(C - c_out, axis=-1)
-    B = (strip > 0) & near & work.valid
+    B = (strip > 0) & near & work.valid[box]
     B = cv2.morphologyEx(B.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     n, lab, stats, _ = cv2.connectedComponentsWithStats(B, connectivity=8)
     if n <= 1:
         return None
     k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    R = lab == k
+    Rb = lab == k
     # glare: a region mostly at the 8-bit ceiling shows the light, not a material; a void at
     # the floor shows none
-    if work.bgr.dtype == np.uint8 and (np.count_nonzero(work.bgr.max(-1)[R] >= ceiling) > MAX_CLIPPED * R.sum()
-                                       or np.median(work.luma[R]) <= VOID_LEVEL):
+    if work.bgr.dtype == np.uint8 and (np.count_nonzero(work.bgr[box].max(-1)[Rb] >= ceiling) > MAX_CLIPPED * Rb.sum()
+                                       or np.median(work.luma[box][Rb]) <= VOID_LEVEL):
         return None
+    R = np.zeros(work.shape, bool)
+    R[box] = Rb
     return R
 
 
