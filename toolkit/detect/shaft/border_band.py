@@ -104,13 +104,13 @@ MIN_OBLIQUE = 1.5
 #: A vignetted rim: the most angle [deg] between the strip's median colour and the outside's
 #: (BGR vectors): vignetting scales the light, so the ring it darkens keeps the tissue's
 #: chromaticity (0.3-6 deg measured on synthetic vignetted fields), where a shaft's material
-#: differs from the tissue beside it (19.7-21.3 deg on the real shafts this cue finds); in
+#: differs from the tissue beside it (19.7-21.4 deg on the real shafts this cue finds); in
 #: the gap, near its middle in ratio, not fitted.
 RIM_MAX_HUE_DEG = 10.0
 #: A vignetted rim: the least correlation of the strip's luma with its distance to the border
 #: of the view (its samples between the seed and the border): the light falls towards the
 #: field stop (0.67-0.99 measured on the rims), where a shaft's luma follows its own shading
-#: (0.23-0.27 on the real shafts this cue finds; a grey shaft vignetted with the tissue rises
+#: (-0.60 to 0.27 on the real shafts this cue finds; a grey shaft vignetted with the tissue rises
 #: too, 0.83-0.90, and is told by its colour); near the middle of the gap, not fitted.
 RIM_MIN_FALL = 0.5
 _STATIONS = 24
