@@ -83,3 +83,41 @@ def test_a_void_beyond_an_edge_is_no_shaft():
     rng = np.random.default_rng(4)
     img, _ = _frame(SHAFT, (4, 4, 5), rng)
     assert not [s for s in detect_shafts(img) if s.cue == BORDER_CUE]
+
+
+def _vignetted(img, falloff=0.45):
+    """img darkened towards the corners as a lens' vignetting does: the light scaled by a gain
+    falling from 1 at the middle to 1 - falloff at the corners (every channel alike)."""
+    H, W = img.shape[:2]
+    yy, xx = np.mgrid[0:H, 0:W]
+    rr = np.hypot(xx - W / 2, yy - H / 2) / np.hypot(W / 2, H / 2)
+    return np.clip(img * (1.0 - falloff * rr**2)[..., None], 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("seed", [701, 719])
+def test_a_vignetted_rim_along_the_field_stop_is_no_shaft(seed):
+    # a circular field whose light falls off to black at the stop: the ring of tissue the
+    # vignetting darkens reads, from its inner edge, as a strip cut by the border; it keeps the
+    # tissue's colour and falls towards the stop, where an instrument's material differs
+    from pencilcal.toolkit.detect.region.valid import ValidRegion
+    from pencilcal.toolkit.synth.hard_shafts import hard_shaft_frame
+    from pencilcal.validation.shaft_score import score_frame
+
+    img, circle, truth = hard_shaft_frame("vignette", seed)
+    region = ValidRegion.from_circle(*circle, img.shape[1], img.shape[0])
+    dets = detect_shafts(img, valid_region=region)
+    fs = score_frame([d.to_dict() for d in dets], truth)
+    assert not [dets[i].midline for i in fs.false_dets if dets[i].cue == BORDER_CUE]
+
+
+def test_a_vignetted_shaft_cut_by_the_border_is_still_found():
+    # the shaft darkens towards the corner with the tissue, but its grey is not the tissue's
+    rng = np.random.default_rng(5)
+    img, truth = _frame(SHAFT, (120, 118, 122), rng)
+    img = _vignetted(img.astype(np.float32))
+    found = [s for s in detect_shafts(img) if s.cue == BORDER_CUE]
+    ref = mask_axis(truth)
+    assert len(found) == 1
+    ln = np.cross(np.r_[found[0].midline[:2], 1.0], np.r_[found[0].midline[2:], 1.0])
+    ln /= np.hypot(ln[0], ln[1])
+    assert np.degrees(np.arccos(min(1.0, abs(float(ln[:2] @ ref.line[:2]))))) <= 3.0
