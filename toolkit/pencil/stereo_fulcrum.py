@@ -200,7 +200,9 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE, pairs=None):
     point's covariance gains it too (`triangulation_lens_cov`, ``StereoFulcrum.lens_cov``);
     the agreement and the fusion's weights leave it out (the diameter-based point has no
     intrinsics term, nor its width term); they take the rig's term, which is the
-    triangulated point's alone. The width term
+    triangulated point's alone. The diameter-based point is weighed by the covariance it
+    reports but the width term: its fit's with the port's play its image lines read beyond
+    its axes' (`FulcrumPoint.play_cov`, across the line of sight). The width term
     (`FulcrumPoint.width_cov`: the band width's error the sequence shares, which sets the
     depth the diameter gives) joins the combined point's covariance after the fusion, as
     much of it as the point took from the diameter (``unweighted1``: ``W1 width_cov W1^T``);
@@ -236,18 +238,24 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE, pairs=None):
         return StereoFulcrum(rig, right, tri, confidence=confidence, common_cov=common, rig_cov=rig_cov, paired=paired,
                              **lens)
     fit = left.point.fit
+    # the diameter-based point's covariance as it reports it but the width term (unweighted
+    # below): the fit's with the play its image lines read beyond the axes' (`play_cov`);
+    # the fit's alone made it up to 3 times surer across the line of sight than it says
+    C1 = np.asarray(fit.point_cov, float)
+    if left.point.play_cov is not None:
+        C1 = C1 + np.asarray(left.point.play_cov, float)
     shared = True
     # the test takes the common offset out of both covariances: the left ray it cancels is
     # then the one of its lines' own sigmas, more informative than the ray with the offset
     own = triangulate_rays(left.ray, Cl - shared_ray_cov(left), right.ray, Cr - shared_ray_cov(right), R, t)
     try:
-        fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence,
+        fused = combine_estimates(fit.point, C1, tri.point, tri.point_cov, confidence,
                                   shared=(tri.ray_information[0], tri.ray_information_vector[0]), common=common,
                                   shared_own=(own.ray_information[0], own.ray_information_vector[0]),
                                   unweighted1=left.point.width_cov)
     except EstimationError:
         shared = False
-        fused = combine_estimates(fit.point, fit.point_cov, tri.point, tri.point_cov, confidence, common=common,
+        fused = combine_estimates(fit.point, C1, tri.point, tri.point_cov, confidence, common=common,
                                   unweighted1=left.point.width_cov)
     return StereoFulcrum(rig, right, tri, fused, shared, confidence, common_cov=common, rig_cov=rig_cov, paired=paired,
                          **lens)
