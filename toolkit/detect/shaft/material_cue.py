@@ -195,7 +195,8 @@ class MaterialShaft:
 
 def _bands(work, mm, regions, o, wmin, wmax, min_len):
     """(bands, inside): the proposed bands (module docstring, steps 1-2): those of every
-    region level (regions: the frame's `shaft.regions.FrameRegions`), the most region evidence first, an outer band ahead of those nested inside
+    region level (regions: the frame's `shaft.regions.FrameRegions`), the most region
+    evidence first, an outer band ahead of those nested inside
     it (`_outermost_first`: inside maps id(inner band) to its outer), the better of
     overlapping ones, at most `_MAX_REFINE`; then
     those from a single edge (`shaft.partner`) that overlap none of them, at most

@@ -42,6 +42,9 @@ boundaries: the proposals of the shaft detector's material cue (`shaft.detector`
 Steps 3 and 4 of all a frame's levels run in one batch each (`boundary_lines_many`,
 `region_pairs_many`: the same lines and pairs as map by map, without numpy's per-call
 overheads for each of the 5-7 maps).
+A frame's levels and their boundaries are computed once (`frame_regions`, by the shaft
+detector) and handed to each cue that reads them: the material cue's bands and the border
+cue's seeds (`shaft.border_band`) are the same lines.
 
 Coordinates are work pixels; widths and lengths too.
 
@@ -71,8 +74,8 @@ from pencilcal.toolkit.detect.noise import estimate_noise
 from pencilcal.toolkit.geometry.quantiles import median
 
 __all__ = ["DARK_DAMPING", "Z_999", "LEVELS", "DARK_SPLITS", "MaterialMap", "material_map", "otsu_threshold",
-           "region_levels", "FrameRegions", "frame_regions", "BoundaryLines", "boundary_lines", "boundary_lines_many", "RegionPairs", "region_pairs",
-           "region_pairs_many", "scene_angle", "close_open"]
+           "region_levels", "FrameRegions", "frame_regions", "BoundaryLines", "boundary_lines", "boundary_lines_many",
+           "RegionPairs", "region_pairs", "region_pairs_many", "scene_angle", "close_open"]
 
 #: eps of the chromaticity, as a fraction of the median brightness: a pixel this much darker
 #: than the scene keeps half of its colour (0.01-0.1 give the same maps on the real sets).
