@@ -49,13 +49,13 @@ OFFSET_PX = 15.0
 
 def truth_axis(scene, i, eye=0):
     """(line (3,) with a^2 + b^2 = 1, its point (2,), the shaft's width there [px]) of frame i's
-    axis image in one eye (ideal px = raw px: the camera is a pinhole), projected as the
-    renders project it (`pivot_renders.eye_axis`, `pivot_renders.in_view`): the point the
-    middle of the shaft's visible stretch, port to tip."""
+    axis image in one eye (ideal px = raw px: the camera is a pinhole; the axis and what the
+    eye sees of it as the renders have them, `pivot_renders.eye_axis`, `pivot_renders.in_view`):
+    the point the middle of the shaft's visible stretch, port to tip."""
     cam = pivot_camera()
     A, d = eye_axis(scene, i, eye)
     X = A + np.linspace(0.0, scene["frames"][i]["L"], 400)[:, None] * d
-    p = cam.project(X)
+    p = _pixels(cam, X)
     k = np.flatnonzero(in_view(X, p, (cam.width, cam.height), 0.0))
     if k.size == 0:
         k = np.arange(X.shape[0])
@@ -66,14 +66,22 @@ def truth_axis(scene, i, eye=0):
 
 
 def prior_of(scene, eye=0):
-    """The `AxisPrior` of the true fulcrum's image in one eye (projected as the renders
-    project it, `pivot_renders.eye_pose`): its sd the port's play (`PLAY_SD_MM`) at the
-    port's depth [px] per axis."""
+    """The `AxisPrior` of the true fulcrum's image in one eye (`pivot_renders.eye_pose`): its sd
+    the port's play (`PLAY_SD_MM`) at the port's depth [px] per axis."""
     cam = pivot_camera()
     R, t = eye_pose(scene, eye)
     F = R @ scene["fulcrum"] + t
     sd = cam.K[0, 0] * PLAY_SD_MM / F[2]
-    return AxisPrior.from_point(cam.project(F), np.eye(2) * sd**2)
+    return AxisPrior.from_point(_pixels(cam, F[None])[0], np.eye(2) * sd**2)
+
+
+def _pixels(cam, X):
+    """(N, 2) pixels of the points X (N, 3) [mm, an eye's frame] by the pinhole's K, (K X) / z:
+    the form these scores were measured with. `Camera.project` (x / z through K, as the renders
+    project) differs from it in the last bits (up to 4e-13 px), which moves the prior's point
+    and so the detections' own last bits; kept so that the figures stay those measured."""
+    p = (cam.K @ X.T).T
+    return p[:, :2] / p[:, 2:]
 
 
 def score_sequence(folder, scene, eye=0, frames=None, detect=None):
