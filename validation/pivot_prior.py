@@ -35,7 +35,8 @@ from pencilcal.toolkit.detect.shaft.mask import MaskAxis
 from pencilcal.toolkit.detect.shaft.prior import AxisPrior
 from pencilcal.validation.fulcrum_pivots import pivot_camera
 from pencilcal.validation.metrics import seed_list
-from pencilcal.validation.pivot_renders import DIAMETER_MM, PLAY_SD_MM, draw_sequence, write_sequence
+from pencilcal.validation.pivot_renders import (DIAMETER_MM, PLAY_SD_MM, draw_sequence, eye_axis, eye_pose, in_view,
+                                                write_sequence)
 from pencilcal.validation.shaft_score import Tolerance, detection_line, score_frame
 
 __all__ = ["ANGLE_DEG", "OFFSET_PX", "OFF_AXIS_PX", "truth_axis", "prior_of", "score_sequence", "main"]
@@ -46,24 +47,16 @@ ANGLE_DEG = 4.0
 OFFSET_PX = 15.0
 
 
-def _eye(scene, eye):
-    """(R, t) of eye 0 (left) or 1 (right) from the left frame."""
-    return (np.eye(3), np.zeros(3)) if eye == 0 else (scene["R_right_from_left"], scene["t_right_from_left"])
-
-
 def truth_axis(scene, i, eye=0):
     """(line (3,) with a^2 + b^2 = 1, its point (2,), the shaft's width there [px]) of frame i's
-    axis image in one eye (ideal px = raw px: the camera is a pinhole): the point the middle of
-    the shaft's visible stretch, port to tip."""
+    axis image in one eye (ideal px = raw px: the camera is a pinhole; the axis and what the
+    eye sees of it as the renders have them, `pivot_renders.eye_axis`, `pivot_renders.in_view`):
+    the point the middle of the shaft's visible stretch, port to tip."""
     cam = pivot_camera()
-    R, t = _eye(scene, eye)
-    f = scene["frames"][i]
-    A, d = R @ f["A"] + t, R @ f["d"]
-    X = A + np.linspace(0.0, f["L"], 400)[:, None] * d
-    p = (cam.K @ X.T).T
-    p = p[:, :2] / p[:, 2:]
-    seen = (X[:, 2] > 5.0) & (p[:, 0] >= 0) & (p[:, 0] <= cam.width - 1) & (p[:, 1] >= 0) & (p[:, 1] <= cam.height - 1)
-    k = np.flatnonzero(seen)
+    A, d = eye_axis(scene, i, eye)
+    X = A + np.linspace(0.0, scene["frames"][i]["L"], 400)[:, None] * d
+    p = _pixels(cam, X)
+    k = np.flatnonzero(in_view(X, p, (cam.width, cam.height), 0.0))
     if k.size == 0:
         k = np.arange(X.shape[0])
     mid = k[k.size // 2]
@@ -73,14 +66,22 @@ def truth_axis(scene, i, eye=0):
 
 
 def prior_of(scene, eye=0):
-    """The `AxisPrior` of the true fulcrum's image in one eye: its sd the port's play
-    (`PLAY_SD_MM`) at the port's depth [px] per axis."""
+    """The `AxisPrior` of the true fulcrum's image in one eye (`pivot_renders.eye_pose`): its sd
+    the port's play (`PLAY_SD_MM`) at the port's depth [px] per axis."""
     cam = pivot_camera()
-    R, t = _eye(scene, eye)
+    R, t = eye_pose(scene, eye)
     F = R @ scene["fulcrum"] + t
-    x = cam.K @ F
     sd = cam.K[0, 0] * PLAY_SD_MM / F[2]
-    return AxisPrior.from_point(x[:2] / x[2], np.eye(2) * sd**2)
+    return AxisPrior.from_point(_pixels(cam, F[None])[0], np.eye(2) * sd**2)
+
+
+def _pixels(cam, X):
+    """(N, 2) pixels of the points X (N, 3) [mm, an eye's frame] by the pinhole's K, (K X) / z:
+    the form these scores were measured with. `Camera.project` (x / z through K, as the renders
+    project) differs from it in the last bits (up to 4e-13 px), which moves the prior's point
+    and so the detections' own last bits; kept so that the figures stay those measured."""
+    p = (cam.K @ X.T).T
+    return p[:, :2] / p[:, 2:]
 
 
 def score_sequence(folder, scene, eye=0, frames=None, detect=None):

@@ -55,8 +55,8 @@ from pencilcal.toolkit.synth.tissue import tissue_image
 from pencilcal.validation.fulcrum_pivots import pivot_camera
 from pencilcal.validation.metrics import seed_list
 
-__all__ = ["RIG_SD", "PLAY_SD_MM", "DIAMETER_MM", "draw_sequence", "render_pair", "write_sequence",
-           "run_sequence", "format_table", "main"]
+__all__ = ["RIG_SD", "PLAY_SD_MM", "DIAMETER_MM", "draw_sequence", "eye_pose", "eye_axis", "in_view", "render_pair",
+           "write_sequence", "run_sequence", "format_table", "main"]
 
 #: The rig's calibration error: rotation vector sd [rad], translation sd [mm] per axis.
 RIG_SD = (0.5e-3, 0.02)
@@ -69,15 +69,18 @@ _WRIST = (2.6, 9.0)  # the wrist beyond the shaft: radius, length [mm]
 _TIP_MARGIN_PX, _PORT_MARGIN_PX, _MIN_SEEN_PX = 30.0, 40.0, 80.0
 
 
-def _inside(p, size, margin):
-    return margin <= p[0] <= size[0] - 1 - margin and margin <= p[1] <= size[1] - 1 - margin
+def in_view(X, p, size, margin):
+    """Which points X (N, 3) [mm, an eye's frame] with pixels p (N, 2) that eye sees: in front
+    of it (over 5 mm deep) and at least margin [px] inside the image of size (W, H)."""
+    return (X[:, 2] > 5) & (p[:, 0] >= margin) & (p[:, 0] <= size[0] - 1 - margin) & (p[:, 1] >= margin) & \
+        (p[:, 1] <= size[1] - 1 - margin)
 
 
 def _seen_length(cam, size, A, B, steps=200):
     """The image length [px] of the stretch A-B (3,) [mm] that lies in the image."""
     X = A + np.linspace(0, 1, steps)[:, None] * (B - A)
     p = cam.project(X)
-    ok = (X[:, 2] > 5) & np.array([_inside(q, size, 2.0) for q in p])
+    ok = in_view(X, p, size, 2.0)
     if ok.sum() < 2:
         return 0.0
     q = p[ok]
@@ -129,9 +132,10 @@ def draw_sequence(seed, frames=50):
         A = F + off - (off @ d) * d
         tip = A + L * d
         ok = True
-        for Re, te in ((np.eye(3), np.zeros(3)), (R, t)):
+        for eye in (0, 1):
+            Re, te = eye_pose({"R_right_from_left": R, "t_right_from_left": t}, eye)
             Ae, tipe = Re @ A + te, Re @ tip + te
-            if tipe[2] < 20.0 or not _inside(cam.project(tipe), size, _TIP_MARGIN_PX) or \
+            if tipe[2] < 20.0 or not in_view(tipe[None], cam.project(tipe)[None], size, _TIP_MARGIN_PX)[0] or \
                     _seen_length(cam, size, Ae, tipe) < _MIN_SEEN_PX:
                 ok = False
         if ok:
@@ -142,6 +146,20 @@ def draw_sequence(seed, frames=50):
             "R_cal": np.eye(3), "t_cal": np.array([-BASELINE_MM, 0.0, 0.0]),
             "cov_cal": np.diag([RIG_SD[0] ** 2] * 3 + [RIG_SD[1] ** 2] * 3),
             "material": list(MATERIALS)[int(rng.integers(len(MATERIALS)))], "sensor": sensor, "frames": out}
+
+
+def eye_pose(scene, eye):
+    """(R (3, 3), t (3,)) of eye 0 (left: the identity) or 1 (right: the true rig,
+    ``R_right_from_left``, ``t_right_from_left``) from the scene's left frame (`draw_sequence`)."""
+    return (np.eye(3), np.zeros(3)) if eye == 0 else (scene["R_right_from_left"], scene["t_right_from_left"])
+
+
+def eye_axis(scene, i, eye):
+    """Frame i's axis in one eye's frame (`eye_pose`): its point A (3,) [mm] (the port plus its
+    play) and unit direction d (3,) from the port to the tip."""
+    R, t = eye_pose(scene, eye)
+    f = scene["frames"][i]
+    return R @ f["A"] + t, R @ f["d"]
 
 
 def _over(img, light, colour):
@@ -170,9 +188,8 @@ def render_pair(scene, i, rng):
     f = scene["frames"][i]
     mat, wrist = MATERIALS[scene["material"]], MATERIALS["bright_metal"]
     out = []
-    for eye, (Re, te) in enumerate(((np.eye(3), np.zeros(3)),
-                                    (scene["R_right_from_left"], scene["t_right_from_left"]))):
-        A, d = Re @ f["A"] + te, Re @ f["d"]
+    for eye in (0, 1):
+        A, d = eye_axis(scene, i, eye)
         # the right eye sees the far backdrop `disp` px further left
         img = np.array(backdrop[:, disp:] if eye == 0 else backdrop[:, :W])
         img = img * gain[..., None]

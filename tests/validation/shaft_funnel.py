@@ -57,12 +57,12 @@ def traced():
     from pencilcal.toolkit.detect.shaft import material_cue as mc
 
     rec = {}
-    saved = {n: getattr(mc, n) for n in ("boundary_lines_many", "evaluate_many", "_bands", "judge_band", "pair_bands")}
-    saved_sel = det.select
+    saved = {n: getattr(mc, n) for n in ("evaluate_many", "_bands", "judge_band", "pair_bands")}
+    saved_sel, saved_regions = det.select, det.frame_regions
 
-    def boundary_lines_many(maps, dist, seg_min):
-        out = saved["boundary_lines_many"](maps, dist, seg_min)
-        for L in out:
+    def frame_regions(mm, work, seg_min):
+        out = saved_regions(mm, work, seg_min)
+        for L in out.lines:
             rec.setdefault("segments", []).extend(
                 np.c_[L.p + L.lo[:, None] * L.u, L.p + L.hi[:, None] * L.u].tolist())
         return out
@@ -94,16 +94,16 @@ def traced():
         rec["held"] = list(shafts)
         return saved_sel(shafts, n)
 
-    for n, f in (("boundary_lines_many", boundary_lines_many), ("evaluate_many", evaluate_many), ("_bands", bands),
-                 ("judge_band", judge_band), ("pair_bands", pair_bands)):
+    for n, f in (("evaluate_many", evaluate_many), ("_bands", bands), ("judge_band", judge_band),
+                 ("pair_bands", pair_bands)):
         setattr(mc, n, f)
-    det.select = select
+    det.select, det.frame_regions = select, frame_regions
     try:
         yield rec
     finally:
         for n, f in saved.items():
             setattr(mc, n, f)
-        det.select = saved_sel
+        det.select, det.frame_regions = saved_sel, saved_regions
 
 
 def _judged_values(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):

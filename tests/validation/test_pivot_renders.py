@@ -6,7 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from pencilcal.validation.pivot_renders import draw_sequence, run_sequence, write_sequence
+from pencilcal.validation.fulcrum_pivots import pivot_camera
+from pencilcal.validation.pivot_renders import draw_sequence, eye_axis, in_view, run_sequence, write_sequence
 
 
 def test_sequence_is_seeded_and_seen_by_both_eyes():
@@ -19,6 +20,24 @@ def test_sequence_is_seeded_and_seen_by_both_eyes():
         assert np.linalg.norm(off - (off @ f["d"]) * f["d"]) < 3.0 and 30.0 <= f["L"] <= 100.0
     # the rendered rig is off the stated calibration, by about its stated sd
     assert 0 < np.abs(a["R_right_from_left"] - a["R_cal"]).max() < 5e-3
+
+
+
+def test_each_eye_sees_the_axis_the_rig_carries_and_its_tip_in_view():
+    s, cam = draw_sequence(2690, frames=3), pivot_camera()
+    for i, f in enumerate(s["frames"]):
+        A, d = eye_axis(s, i, 0)
+        assert np.array_equal(A, f["A"]) and np.array_equal(d, f["d"])   # the left eye is the reference
+        Ar, dr = eye_axis(s, i, 1)
+        R, t = s["R_right_from_left"], s["t_right_from_left"]
+        assert np.allclose(Ar, R @ f["A"] + t) and np.allclose(dr, R @ f["d"])
+        for Ae, de in ((A, d), (Ar, dr)):   # draw_sequence keeps frames whose tip both eyes see 30 px inside
+            tip = (Ae + f["L"] * de)[None]
+            assert in_view(tip, cam.project(tip), (cam.width, cam.height), 30.0)[0]
+    # in view: in front (over 5 mm deep) and the margin inside the image, its edges included
+    X = np.array([[0.0, 0.0, 50.0], [0.0, 0.0, 4.0], [0.0, 0.0, 50.0], [0.0, 0.0, 50.0]])
+    p = np.array([[2.0, 2.0], [100.0, 100.0], [1.9, 100.0], [637.0, 477.0]])
+    assert in_view(X, p, (640, 480), 2.0).tolist() == [True, False, False, True]
 
 
 @pytest.mark.slow

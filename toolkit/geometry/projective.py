@@ -17,6 +17,9 @@ map is ``K[:2, :2] @ H`` (any fx, fy, skew): still a 1-D homography. Hence
   for the four 3D spokes, their image in normalised coordinates and their image in raw
   (undistorted) pixels.
 
+The line through two image points and the point where two lines meet, in homogeneous
+coordinates, have their one home here too (`line_through`, `line_meet`).
+
 Angles are radians; image angles are ``atan2(dv, du)`` (angles.py). Line angles have
 period pi and every function here accepts them that way; directions (period 2*pi) are
 reproduced when the inputs are oriented (the sign of H is fixed by them).
@@ -48,6 +51,8 @@ __all__ = [
     "cross_ratio",
     "predict_line_angles",
     "homography_from_pose",
+    "line_through",
+    "line_meet",
 ]
 
 # A (..., N, 4) DLT system whose third singular value falls below this fraction of the
@@ -168,6 +173,29 @@ def homography_from_pose(R_cam_from_target, vertex):
     R = np.asarray(R_cam_from_target, dtype=float)
     x = np.asarray(vertex, dtype=float)
     return R[..., :2, :2] - x[..., :, None] * R[..., 2:3, :2]
+
+
+def line_through(p, q):
+    """The homogeneous line (..., 3) ``a x + b y + c = 0`` through the points p, q (..., 2)
+    (unnormalised: ``(a, b)`` has the length of q - p), their join ``(p, 1) x (q, 1)``.
+
+    >>> line_through([0.0, 1.0], [2.0, 1.0]).tolist()                 # y = 1
+    [0.0, 2.0, -2.0]
+    """
+    p, q = np.asarray(p, float), np.asarray(q, float)
+    return np.cross(np.concatenate([p, np.ones(p.shape[:-1] + (1,))], -1),
+                    np.concatenate([q, np.ones(q.shape[:-1] + (1,))], -1))
+
+
+def line_meet(l1, l2):
+    """The homogeneous point (..., 3) where the homogeneous lines l1, l2 (..., 3) meet, their
+    cross product: its third coordinate 0 where they are parallel (a point at infinity),
+    the point (x, y) = its first two over it otherwise.
+
+    >>> line_meet([1.0, 0.0, -2.0], [0.0, 1.0, -3.0]).tolist()        # x = 2 and y = 3
+    [2.0, 3.0, 1.0]
+    """
+    return np.cross(np.asarray(l1, float), np.asarray(l2, float))
 
 
 def cross_ratio(a1, a2, a3, a4):

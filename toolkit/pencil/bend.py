@@ -28,7 +28,9 @@ from __future__ import annotations
 import numpy as np
 
 from pencilcal.toolkit.geometry.angles import wrap_line
+from pencilcal.toolkit.geometry.conic import fit_ellipse
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
+from pencilcal.toolkit.pencil.circle import conic_normal
 from pencilcal.toolkit.pencil.estimator import pencil_jacobian
 
 __all__ = ["CYLINDER_SHAPE", "BEND_SAMPLES", "BEND_CHANCE", "bend_response", "bend_covariance",
@@ -155,9 +157,6 @@ def circle_bend_response(R_cam_from_target, vertex, radii, weights=None, samples
 
     Returns (3, 3): the circles' normal's change (camera frame) per unit b.
     """
-    from pencilcal.toolkit.geometry.conic import fit_ellipse
-    from pencilcal.toolkit.pencil.circle import conic_normal
-
     R = np.asarray(R_cam_from_target, float)
     x = np.asarray(vertex, float)
     n = R[:, 2]

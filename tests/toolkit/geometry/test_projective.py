@@ -183,3 +183,21 @@ def test_degenerate_input_raises():
         P.pencil_homography(a, th[:2])
     with pytest.raises(InputError, match="weights"):
         P.pencil_homography(a, th, weights=[1.0, -1.0, 1.0])
+
+
+def test_line_through_and_line_meet_give_the_crossing_of_two_segments_lines():
+    rng = np.random.default_rng(4)
+    for _ in range(50):
+        a0, a1, b0, b1 = rng.uniform(-100.0, 100.0, (4, 2))
+        v = P.line_meet(P.line_through(a0, a1), P.line_through(b0, b1))
+        x = v[:2] / v[2]
+        # the point lies on both lines: x = a0 + s (a1 - a0) = b0 + r (b1 - b0)
+        s, r = np.linalg.solve(np.c_[a1 - a0, b0 - b1], b0 - a0)
+        assert np.allclose(x, a0 + s * (a1 - a0), atol=1e-8 * (1 + np.abs(x).max()))
+    # parallel lines meet at infinity, in their direction
+    v = P.line_meet(P.line_through([0.0, 0.0], [2.0, 1.0]), P.line_through([0.0, 3.0], [4.0, 5.0]))
+    assert v[2] == 0.0 and abs(v[0] * 1.0 - v[1] * 2.0) < 1e-12
+    # batched: (..., 2) points give (..., 3) lines, the same as one at a time
+    p, q = rng.normal(size=(2, 5, 3, 2))
+    L = P.line_through(p, q)
+    assert L.shape == (5, 3, 3) and np.array_equal(L[2, 1], P.line_through(p[2, 1], q[2, 1]))

@@ -70,7 +70,7 @@ from __future__ import annotations
 import numpy as np
 
 from pencilcal.toolkit.detect.shaft.mask import mask_axis
-from pencilcal.toolkit.detect.shaft.regions import Z_999, BoundaryLines, boundary_lines_many, region_levels
+from pencilcal.toolkit.detect.shaft.regions import Z_999, BoundaryLines
 from pencilcal.toolkit.detect.shaft.work import CLIPPED_LEVEL, MAX_CLIPPED, axis_matrix, raw_masks
 from pencilcal.toolkit.detect.working import to_working
 
@@ -118,14 +118,13 @@ _EDGE_PX = 1.5  # samples this close to the seed or the border belong to neither
 _TOUCH = 0.2  # a region overlapping a found shaft's band by this fraction of the smaller is its instrument's
 
 
-def _seeds(work, mm, o):
-    """The straight boundaries of every region level (`shaft.regions`), as one BoundaryLines,
-    those entering the view from its border, the longest first (module docstring, step 1)."""
-    s = work.mean_scale
-    maps = [Bm for _, _, Bm, repeat in region_levels(mm, work) if not repeat]
-    if not maps:
+def _seeds(regions):
+    """The straight boundaries of every region level (`shaft.regions`; regions: the frame's
+    `FrameRegions`), as one BoundaryLines, those entering the view from its border, the
+    longest first (module docstring, step 1)."""
+    got = regions.lines
+    if not got:
         return None
-    got = boundary_lines_many(maps, work.dist, 0.5 * o.region_min_length * s)
     P = np.concatenate([L.p for L in got]).reshape(-1, 2)
     U = np.concatenate([L.u for L in got]).reshape(-1, 2)
     N = np.concatenate([L.n for L in got]).reshape(-1, 2)
@@ -318,17 +317,18 @@ def _fields(camera, ax, polarity):
                 cov_floor=np.zeros((2, 2)), kind=ax.kind)
 
 
-def border_shafts(image, camera, validity, work, mm, o, found):
+def border_shafts(image, camera, validity, work, mm, regions, o, found):
     """The axes of the shafts cut lengthwise by the border of the view (module docstring): a
     list of dicts of `shaft.detector.Shaft` fields, cue `BORDER_CUE`, the longest first.
 
     image: (H, W, 3) the raw frame; validity: `shaft.work.Validity`; work: its
-    `shaft.work.WorkFrame`; mm: its `shaft.regions.MaterialMap`; o: `detector.ShaftOptions`;
+    `shaft.work.WorkFrame`; mm: its `shaft.regions.MaterialMap`; regions: its
+    `shaft.regions.FrameRegions` (the material cue's); o: `detector.ShaftOptions`;
     found: the shafts found already (`shaft.detector.Shaft`): a region overlapping one of
     their bands is that instrument's.
     """
     s = work.mean_scale
-    got = border_regions(work, _seeds(work, mm, o), o.region_wmin * s, o.region_wmax * s, mm.luma_noise)
+    got = border_regions(work, _seeds(regions), o.region_wmin * s, o.region_wmax * s, mm.luma_noise)
     bands = _band_quads(work, camera, found)
     got = [(R, dark) for R, dark in got
            if not any(np.count_nonzero(R & Q) > _TOUCH * min(R.sum(), Q.sum()) for Q in bands)]

@@ -74,7 +74,7 @@ from pencilcal.toolkit.detect.shaft.pencil_search import pencil_search
 from pencilcal.toolkit.detect.shaft.pixel_evidence import MIN_PIXEL_EVIDENCE
 from pencilcal.toolkit.detect.shaft.pixel_evidence import pixel_evidence as shaft_pixel_evidence
 from pencilcal.toolkit.detect.shaft.prior import as_priors, select_through
-from pencilcal.toolkit.detect.shaft.regions import material_map
+from pencilcal.toolkit.detect.shaft.regions import frame_regions, material_map
 from pencilcal.toolkit.detect.shaft.tissue_colour import MAX_TISSUE_COLOUR, shaft_flank_colour, shaft_tissue_colour
 from pencilcal.toolkit.detect.shaft.track import REACH, band_colours, corridor_edges, material_edges
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame, axis_matrix
@@ -338,12 +338,15 @@ def _by_material(image, camera, validity, o, K, work):
         return None
     img = np.asarray(image)
     noise = max(robust_noise(img[..., 1]), 0.5)
-    found = select(material_cue(img, camera, validity, work, mm, o, K, noise), o.max_shafts)
+    # the frame's region levels and their boundaries, once: the material cue's bands and the
+    # border cue's seeds read the same ones (sides at least half the least length)
+    regions = frame_regions(mm, work, 0.5 * (o.region_min_length * work.mean_scale))
+    found = select(material_cue(img, camera, validity, work, mm, regions, o, K, noise), o.max_shafts)
     found = [shaft_of_midline(camera, f.midline, f.score, f.polarity, "material") for f in found]
     if o.border_bands:
         # a shaft the border cuts lengthwise has one edge in view: no band of two edges
         found = [s for s in found if s is not None]
-        found += [Shaft(**f) for f in border_shafts(img, camera, validity, work, mm, o, found)]
+        found += [Shaft(**f) for f in border_shafts(img, camera, validity, work, mm, regions, o, found)]
     return found
 
 

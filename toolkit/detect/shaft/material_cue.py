@@ -109,8 +109,7 @@ from pencilcal.toolkit.detect.shaft.region_bands import (
 )
 from pencilcal.toolkit.detect.shaft.edge_pairs import PAIR_MAX_CONVERGENCE_DEG, colour_map, pair_bands
 from pencilcal.toolkit.detect.shaft.partner import MAX_SEEDS, partner_bands, turned_round
-from pencilcal.toolkit.detect.shaft.regions import (BoundaryLines, RegionPairs, boundary_lines_many, region_levels,
-                                                    region_pairs_many, scene_angle)
+from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs, region_pairs_many, scene_angle
 
 __all__ = ["MaterialShaft", "material_cue", "judge_band", "select", "robust_noise"]
 
@@ -194,9 +193,10 @@ class MaterialShaft:
     outer: object = None
 
 
-def _bands(work, mm, o, wmin, wmax, min_len):
+def _bands(work, mm, regions, o, wmin, wmax, min_len):
     """(bands, inside): the proposed bands (module docstring, steps 1-2): those of every
-    region level, the most region evidence first, an outer band ahead of those nested inside
+    region level (regions: the frame's `shaft.regions.FrameRegions`), the most region
+    evidence first, an outer band ahead of those nested inside
     it (`_outermost_first`: inside maps id(inner band) to its outer), the better of
     overlapping ones, at most `_MAX_REFINE`; then
     those from a single edge (`shaft.partner`) that overlap none of them, at most
@@ -204,7 +204,7 @@ def _bands(work, mm, o, wmin, wmax, min_len):
     none of these, at most `_MAX_PAIRED`."""
     maps = []
     Ball = B0 = None
-    for lev, kind, Bm, repeat in region_levels(mm, work):
+    for lev, kind, Bm, repeat in regions.levels:
         if kind == "all":
             Ball = Bm
             B0 = Bm if B0 is None else B0
@@ -214,7 +214,7 @@ def _bands(work, mm, o, wmin, wmax, min_len):
         return [], {}
     # every level's boundaries, their pairs and the candidates found and judged in one batch
     # each (the same lines, pairs and bands as level by level)
-    seeds = boundary_lines_many([m[2] for m in maps], work.dist, 0.5 * min_len)
+    seeds = regions.lines  # each map's that is no repeat, sides at least half the least length
     pairs = region_pairs_many(seeds, wmin, wmax, np.degrees(o.region_conv_max), 0.5 * min_len, _MAX_PAIRS)
     sets = [(lines, pr, Bm, Ba, lev, kind) for lines, pr, (lev, kind, Bm, Ba) in zip(seeds, pairs, maps)]
     bands = [e for got in evaluate_many(sets, work, min_len) for e in got]
@@ -633,12 +633,13 @@ def _elongated(m, seen, along, camera, validity, corridor, cut=False):
     return short >= _SHORT_WIDTHS * w and _reaches_border(m, camera, validity, corridor)
 
 
-def material_cue(image, camera, validity, work, mm, o, K, noise):
+def material_cue(image, camera, validity, work, mm, regions, o, K, noise):
     """Shafts by the material cue (module docstring, steps 1-3): `MaterialShaft` per band
     that held up, before the selection.
 
     image: (H, W, 3) the raw frame; validity: `shaft.work.Validity`; work:
-    `shaft.work.WorkFrame`; mm: its `shaft.regions.MaterialMap`; o: the options of
+    `shaft.work.WorkFrame`; mm: its `shaft.regions.MaterialMap`; regions: its
+    `shaft.regions.FrameRegions` (sides at least half the least length); o: the options of
     `shaft.detector.detect_shafts` (`shaft.detector.ShaftOptions`); K: (3, 3) the axis camera
     (`shaft.work.axis_matrix`); noise: the image noise sd [grey levels].
     """
@@ -647,7 +648,7 @@ def material_cue(image, camera, validity, work, mm, o, K, noise):
     min_len = o.region_min_length * s
     long_len = _LONG_FRACTION * float(np.hypot(*work.shape)) / s
     corridor = max(o.corridor_px, 1.5 / s)
-    bands, inside = _bands(work, mm, o, wmin, wmax, min_len)
+    bands, inside = _bands(work, mm, regions, o, wmin, wmax, min_len)
     # a band from one edge into its region is seen along its seed alone (`_inward_bands`):
     # its edges are fitted over its run and not grown beyond it
     stretches = [e.run if e.kind == "inward" else band_stretch(e, mm.luma_noise) for e in bands]

@@ -71,6 +71,7 @@ import numpy as np
 
 from pencilcal.toolkit.detect.shaft.axis import midline_from_edges
 from pencilcal.toolkit.detect.shaft.silhouette import fit_edges
+from pencilcal.toolkit.geometry.projective import line_meet, line_through
 
 __all__ = ["pencil_search"]
 
@@ -551,7 +552,7 @@ def _narrows_to(m, prior):
     if x is None:
         return False
     e = np.asarray(m.edges, float).reshape(2, 2, 2)
-    v = np.cross(np.cross(np.r_[e[0, 0], 1.0], np.r_[e[0, 1], 1.0]), np.cross(np.r_[e[1, 0], 1.0], np.r_[e[1, 1], 1.0]))
+    v = line_meet(line_through(e[0, 0], e[0, 1]), line_through(e[1, 0], e[1, 1]))
     if abs(v[2]) < 1e-12:
         return False
     c = 0.5 * (m.ends[0] + m.ends[1])

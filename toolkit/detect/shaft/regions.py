@@ -42,6 +42,9 @@ boundaries: the proposals of the shaft detector's material cue (`shaft.detector`
 Steps 3 and 4 of all a frame's levels run in one batch each (`boundary_lines_many`,
 `region_pairs_many`: the same lines and pairs as map by map, without numpy's per-call
 overheads for each of the 5-7 maps).
+A frame's levels and their boundaries are computed once (`frame_regions`, by the shaft
+detector) and handed to each cue that reads them: the material cue's bands and the border
+cue's seeds (`shaft.border_band`) are the same lines.
 
 Coordinates are work pixels; widths and lengths too.
 
@@ -62,7 +65,6 @@ Example
 from __future__ import annotations
 
 import math
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,8 +74,8 @@ from pencilcal.toolkit.detect.noise import estimate_noise
 from pencilcal.toolkit.geometry.quantiles import median
 
 __all__ = ["DARK_DAMPING", "Z_999", "LEVELS", "DARK_SPLITS", "MaterialMap", "material_map", "otsu_threshold",
-           "region_levels", "BoundaryLines", "boundary_lines", "boundary_lines_many", "RegionPairs", "region_pairs",
-           "region_pairs_many", "scene_angle", "close_open"]
+           "region_levels", "FrameRegions", "frame_regions", "BoundaryLines", "boundary_lines", "boundary_lines_many",
+           "RegionPairs", "region_pairs", "region_pairs_many", "scene_angle", "close_open"]
 
 #: eps of the chromaticity, as a fraction of the median brightness: a pixel this much darker
 #: than the scene keeps half of its colour (0.01-0.1 give the same maps on the real sets).
@@ -263,29 +265,15 @@ def close_open(B):
     return cv2.dilate(cv2.erode(cv2.dilate(B, _K3), _K5), _K3)
 
 
-#: The levels of each material map (`region_levels`), kept while the map lives: the material
-#: cue and the border cue read the same levels of one frame.
-_LEVELS = weakref.WeakKeyDictionary()
-#: The boundary lines of the last few sets of region maps (`boundary_lines_many`), with copies
-#: of their inputs: the border cue's seeds are the material cue's lines, read again.
-_LINES = []
-_LINES_KEPT = 2
-
-
 def region_levels(mm, work, n_levels=LEVELS):
     """The binary maps of the levels (module docstring, step 2): a list of (level index,
     kind "all" or one of `DARK_SPLITS`, (h, w) uint8 map after a 3 x 3 close and open,
     repeat), "all" first at each level; repeat: the map differs from an earlier one in under
-    `_SAME_MAP` of its pixels (its boundaries, and bands, are that one's)."""
-    got = _LEVELS.get(mm)
-    if got is None or got[0]() is not work or got[1] != n_levels:
-        got = (weakref.ref(work), n_levels, _region_levels(mm, work, n_levels))
-        _LEVELS[mm] = got
-    return list(got[2])
+    `_SAME_MAP` of its pixels (its boundaries, and bands, are that one's).
 
-
-def _region_levels(mm, work, n_levels):
-    """`region_levels`, computed."""
+    mm: the frame's `MaterialMap`; work: its `shaft.work.WorkFrame`. A frame's levels are
+    read by the material cue and the border cue alike: the detector computes them once per
+    frame (`frame_regions`) and hands them to both."""
     vin = work.valid & (work.dist > 1.0)
     v = np.clip(mm.likeness[vin], -0.5, 2.0)
     # an 8-bit frame's luma holds whole levels: thresholded from their counts (`otsu_threshold`)
@@ -530,24 +518,10 @@ def boundary_lines(Bm, dist, seg_min):
 def boundary_lines_many(maps, dist, seg_min):
     """`boundary_lines` of each of several region maps of one work frame (the same lines as
     one map at a time): their contours' sides found and measured in one batch (`_sides`),
-    then grouped map by map."""
-    maps = [np.asarray(Bm, np.uint8) for Bm in maps]  # no copy of a uint8 map (findContours leaves it)
-    for key, got in _LINES:
-        # the same maps, distances and least side give the same lines (compared by content:
-        # cheap beside the contours, and right however the arrays were made)
-        if key[0] == seg_min and len(key[1]) == len(maps) and np.array_equal(key[2], dist) \
-                and all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(key[1], maps)):
-            return list(got)
-    out = _boundary_lines_many(maps, dist, seg_min)
-    _LINES.insert(0, ((seg_min, [Bm.copy() for Bm in maps], np.array(dist, copy=True)), out))
-    del _LINES[_LINES_KEPT:]
-    return list(out)
-
-
-def _boundary_lines_many(maps, dist, seg_min):
-    """`boundary_lines_many`, computed (maps: uint8)."""
+    then grouped map by map. maps: (h, w) bool or uint8 each."""
     import cv2
 
+    maps = [np.asarray(Bm, np.uint8) for Bm in maps]  # no copy of a uint8 map (findContours leaves it)
     contours = [cv2.findContours(Bm, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)[0] for Bm in maps]
     out = []
     for got in _sides(contours, maps, dist, seg_min):
@@ -557,6 +531,37 @@ def _boundary_lines_many(maps, dist, seg_min):
         else:
             out.append(_group(*got))
     return out
+
+
+@dataclass(frozen=True, eq=False)
+class FrameRegions:
+    """One frame's region levels and their straight boundaries (`frame_regions`), computed
+    once per frame and read by the material cue and the border cue alike.
+
+    levels: `region_levels`' list of (level, kind, (h, w) uint8 map, repeat); lines: the
+    `BoundaryLines` of each map that is no repeat, in the same order (empty with no level)."""
+
+    levels: list
+    lines: list
+
+
+def frame_regions(mm, work, seg_min):
+    """`FrameRegions` of one frame: its levels (`region_levels`) and the boundaries of each
+    level's map that is no repeat (`boundary_lines_many`, sides at least seg_min [work px]).
+
+    mm: the frame's `MaterialMap`; work: its `shaft.work.WorkFrame`.
+
+    >>> from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
+    >>> img = np.zeros((240, 320, 3), np.uint8); img[:] = (90, 110, 200)
+    >>> img[100:140, :] = (60, 60, 60)
+    >>> wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=320)
+    >>> fr = frame_regions(material_map(wf), wf, 20.0)
+    >>> len(fr.lines) == sum(not repeat for *_, repeat in fr.levels), [len(L.p) for L in fr.lines][0]
+    (True, 2)
+    """
+    levels = region_levels(mm, work)
+    maps = [Bm for _, _, Bm, repeat in levels if not repeat]
+    return FrameRegions(levels=levels, lines=boundary_lines_many(maps, work.dist, seg_min) if maps else [])
 
 
 @dataclass(frozen=True, eq=False)

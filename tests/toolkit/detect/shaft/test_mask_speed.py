@@ -106,8 +106,55 @@ def test_boundary_lines_read_again_are_the_same_and_follow_a_changed_map():
     maps[0][:] = 0                                           # the same array, changed in place
     maps[0][60:100, 20:60] = 1
     changed = boundary_lines_many(maps, dist, 10.0)
-    fresh = regions._boundary_lines_many([m.copy() for m in maps], dist, 10.0)
+    alone = [regions.boundary_lines(m.copy(), dist, 10.0) for m in maps]
     assert len(changed[0].p) != len(first[0].p) or not np.array_equal(changed[0].p, first[0].p)
-    assert all(np.array_equal(a.p, b.p) and np.array_equal(a.lo, b.lo) for a, b in zip(changed, fresh))
+    assert all(np.array_equal(a.p, b.p) and np.array_equal(a.lo, b.lo) for a, b in zip(changed, alone))
     # another least side is another reading
     assert sum(len(L.p) for L in boundary_lines_many(maps, dist, 1000.0)) == 0
+
+
+def _grey_shafts_on_tissue():
+    """A colour frame (480, 640, 3): pink tissue with a grey shaft from the left border and a
+    dark one cut lengthwise by the bottom border."""
+    img = np.zeros((480, 640, 3), np.uint8)
+    img[:] = (90, 110, 200)
+    img += np.random.default_rng(3).integers(0, 6, img.shape).astype(np.uint8)
+    cv2.fillConvexPoly(img, np.array([[0, 150], [0, 200], [420, 260], [420, 215]], np.int32), (70, 70, 72))
+    cv2.fillConvexPoly(img, np.array([[200, 479], [640, 400], [640, 479]], np.int32), (40, 40, 42))
+    return img
+
+
+def test_a_frame_s_regions_are_computed_once_and_read_by_both_cues(monkeypatch):
+    from pencilcal.toolkit.detect.shaft import border_band, detector, material_cue
+
+    calls, seen = {"levels": 0, "lines": 0}, {}
+    levels, lines = regions.region_levels, regions.boundary_lines_many
+
+    def counted_levels(*a, **k):
+        calls["levels"] += 1
+        return levels(*a, **k)
+
+    def counted_lines(*a, **k):
+        calls["lines"] += 1
+        return lines(*a, **k)
+
+    bands, seeds = material_cue._bands, border_band._seeds
+
+    def material_bands(work, mm, frame_regions, *a):
+        seen["material"] = frame_regions
+        return bands(work, mm, frame_regions, *a)
+
+    def border_seeds(frame_regions):
+        seen["border"] = frame_regions
+        return seeds(frame_regions)
+
+    monkeypatch.setattr(regions, "region_levels", counted_levels)
+    monkeypatch.setattr(regions, "boundary_lines_many", counted_lines)
+    monkeypatch.setattr(material_cue, "_bands", material_bands)
+    monkeypatch.setattr(border_band, "_seeds", border_seeds)
+    detector.detect_shafts(_grey_shafts_on_tissue())
+    assert calls == {"levels": 1, "lines": 1}
+    assert seen["material"] is seen["border"] and len(seen["material"].lines) >= 1
+    # the lines read are the boundaries of each level's map that is no repeat
+    maps = [Bm for _, _, Bm, repeat in seen["material"].levels if not repeat]
+    assert len(maps) == len(seen["material"].lines)
