@@ -68,6 +68,34 @@ def test_batched_ransac_reads_the_plain_one_s_stretch(seed):
     assert r1.integers(1 << 30) == r2.integers(1 << 30)
 
 
+@pytest.mark.parametrize("K", [2, 3, 10, 57, 1000, 70000])
+def test_pairs_drawn_at_once_are_rng_choice_s_one_by_one(K):
+    """The RANSAC's pairs drawn together are numpy's rng.choice(cand, 2, replace=False) in turn,
+    and leave the generator where those calls leave it."""
+    cand = np.sort(np.random.default_rng(K).choice(10 * K, K, replace=False))
+    for seed in range(3):
+        r1, r2 = np.random.default_rng(seed), np.random.default_rng(seed)
+        got = mask_mod._pairs_drawn(r1, cand, 600)
+        want = np.array([r2.choice(cand, 2, replace=False) for _ in range(600)])
+        assert np.array_equal(got, want)
+        assert r1.bit_generator.state == r2.bit_generator.state
+
+
+def test_pairs_drawn_where_lemire_rejects_a_word_fall_back_to_the_calls():
+    """Where a word fails Lemire's bias test (of 99991 candidates, seed 13 draws one among its
+    first 3000 pairs) the draws are made one by one: the pairs and the generator's state are
+    rng.choice's."""
+    K = 99991
+    ex = np.array([K - 1, K, 2], np.uint64)
+    m = np.random.default_rng(13).integers(0, 2**32, size=(3000, 3), dtype=np.uint32).astype(np.uint64) * ex
+    assert np.any((m & np.uint64(0xFFFFFFFF)) < np.uint64(2**32) % ex)  # the case is the fallback's
+    cand = np.arange(K) * 3
+    r1, r2 = np.random.default_rng(13), np.random.default_rng(13)
+    got = mask_mod._pairs_drawn(r1, cand, 3000)
+    want = np.array([r2.choice(cand, 2, replace=False) for _ in range(3000)])
+    assert np.array_equal(got, want) and r1.bit_generator.state == r2.bit_generator.state
+
+
 def test_longest_run_is_the_first_longest_of_the_runs():
     rng = np.random.default_rng(1)
     for _ in range(300):
