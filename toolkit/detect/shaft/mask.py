@@ -320,10 +320,8 @@ def _best_stretch(P, usable, rng, tol, gap, min_len, constraint=None):
     return best
 
 
-def _principal(mask):
-    """(centroid, direction, extent along, extent across) of a mask's pixels."""
-    ys, xs = np.nonzero(mask)
-    P = np.c_[xs, ys].astype(float)
+def _principal(P):
+    """(centroid, direction, extent along, extent across) of a mask's pixels P (N, 2) [x, y]."""
     c, u, n = _line_tls(P)
     s, t = (P - c) @ u, (P - c) @ n
     return c, u, float(s.max() - s.min() + 1), float(t.max() - t.min() + 1)
@@ -362,8 +360,10 @@ def mask_axis(mask, valid=None, K=None, *, tol=2.5, gap=10, min_edge_px=40.0, se
     H, W = m.shape
     if K is None:
         K = np.array([[W, 0.0, 0.5 * (W - 1)], [0.0, W, 0.5 * (H - 1)], [0, 0, 1]])
-    area = int(m.sum())
-    c0, u0, along, across = _principal(m)
+    ys, xs = np.nonzero(m)
+    P = np.c_[xs, ys].astype(float)  # the mask's pixels, found once (a full-frame scan each time)
+    area = len(P)
+    c0, u0, along, across = _principal(P)
     l0 = np.r_[-u0[1], u0[0], u0[1] * c0[0] - u0[0] * c0[1]]
     part = MaskAxis(line=l0 if l0[1] > 0 or (l0[1] == 0 and l0[0] > 0) else -l0, point=c0, kind="part",
                     width_px=across, length_px=along, elongation=along / across, edges=None, area=area)
@@ -373,7 +373,7 @@ def mask_axis(mask, valid=None, K=None, *, tol=2.5, gap=10, min_edge_px=40.0, se
     if valid is not None:
         vb = cv2.erode(np.asarray(valid, np.uint8), np.ones((7, 7), np.uint8))
         usable &= vb[C[:, 1], C[:, 0]] > 0
-    got = _two_edges(C, m, usable, np.random.default_rng(seed), tol, gap, min_edge_px)
+    got = _two_edges(C, m, P, usable, np.random.default_rng(seed), tol, gap, min_edge_px)
     if got is None:
         return part
     (c1, u1, _), (c2, u2, _) = (_line_tls(C[r].astype(float)) for r in got)
@@ -402,8 +402,9 @@ def mask_axis(mask, valid=None, K=None, *, tol=2.5, gap=10, min_edge_px=40.0, se
                     elongation=float(hi - lo) / max(width, 1.0), edges=edges, area=area)
 
 
-def _two_edges(C, m, usable, rng, tol, gap, min_len):
-    """The two silhouette stretches (index arrays) of a contour C (N, 2), or None.
+def _two_edges(C, m, P, usable, rng, tol, gap, min_len):
+    """The two silhouette stretches (index arrays) of a contour C (N, 2) of the mask m (H, W)
+    whose pixels are P (M, 2) [x, y], or None.
 
     The straight stretches of the outline, longest first (up to `_MAX_STRETCHES`), each with
     its partner: the longest stretch within `MAX_EDGE_ANGLE_DEG` of it on the mask's side, with
@@ -428,7 +429,7 @@ def _two_edges(C, m, usable, rng, tol, gap, min_len):
         us[run1] = False
         if best is not None and any(np.intersect1d(run1, r).size > 0.5 * run1.size for r in best):
             continue  # an edge of the pair held, read again: the pair found first stands
-        run2 = _partner(C, m, usable, rng, tol, gap, min_len, run1)
+        run2 = _partner(C, P, usable, rng, tol, gap, min_len, run1)
         if run2 is None:
             continue
         c1, u1, n1 = _line_tls(C[run1].astype(float))
@@ -530,12 +531,11 @@ def _pair_direction(C, pair):
     return u / np.linalg.norm(u)
 
 
-def _partner(C, m, usable, rng, tol, gap, min_len, run1):
-    """The longest stretch within `MAX_EDGE_ANGLE_DEG` of run1's line, on the mask's side of
-    it (index array), or None."""
+def _partner(C, P, usable, rng, tol, gap, min_len, run1):
+    """The longest stretch within `MAX_EDGE_ANGLE_DEG` of run1's line, on the side of it of
+    the mask's pixels P (M, 2) [x, y] (index array), or None."""
     c1, u1, n1 = _line_tls(C[run1].astype(float))
-    ys, xs = np.nonzero(m)
-    side = np.sign(np.median((np.c_[xs, ys] - c1) @ n1))
+    side = np.sign(np.median((P - c1) @ n1))
     us2 = usable.copy()
     us2[run1] = False
     cos_max = np.cos(np.radians(MAX_EDGE_ANGLE_DEG))
