@@ -306,7 +306,7 @@ class FulcrumPoint:
         return out
 
 
-def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, width_sd_px=None, lines_play=None, scatter_gate=False):
+def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, width_sd_px=None, lines_play=None, scatter_gate=True):
     """The 3-D fulcrum: the point closest to every shaft's 3-D axis over a sequence.
 
     camera: Camera; frames: lines.json frame dicts whose shafts carry ``edges`` [raw px]
@@ -327,8 +327,8 @@ def fulcrum_point(camera, frames, diameter, robust=True, intrinsics_cov=None, wi
     vertex (`lines_play_rad`: its sd as an angle [rad] seen from the camera), or None: where
     that angle times the point's distance exceeds the play the axes read, the rest joins
     the point's covariance (`_play_term`, ``play_cov``); the point is the same.
-    scatter_gate: True gates the axes at their own scatter first (`scatter_gate`); off by
-    default (on the real phantom it scatters the epochs' jackknife: docs/method.md).
+    scatter_gate: True (default) gates the axes at their own scatter first where they all
+    scatter well inside their covariances (`scatter_gate.scatter_inliers`; docs/method.md).
     Returns a `FulcrumPoint`; EstimationError when fewer than two crossing axes remain.
 
     A moving camera (`pencilcal fulcrum --stabilize`): frames whose ``camera_pose`` gives
@@ -385,7 +385,7 @@ def leave_one_out_points(camera, frames, diameter, robust=True):
     return out
 
 
-def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None, width_sd_px=0.0, lines_play=None, scatter_gate=False):
+def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None, width_sd_px=0.0, lines_play=None, scatter_gate=True):
     """`fulcrum_point` of the axes `frame_axes` gave (axes: its tuple); width_sd_px: one or
     (N,) per axis; lines_play: as `fulcrum_point`'s."""
     points, dirs, covs, owners, measured, poses, _, skipped = axes
@@ -415,7 +415,7 @@ def _point_of_axes(camera, axes, diameter, robust=True, intrinsics_cov=None, wid
                         variance_factor=factor, play=play, width_cov=width_cov, width_sd=width_sd, play_cov=play_cov)
 
 
-def _point_with_noise(points, dirs, covs, robust, edges=None, lines_play=None, scatter_gate=False):
+def _point_with_noise(points, dirs, covs, robust, edges=None, lines_play=None, scatter_gate=True):
     """(Fulcrum3D, variance factor, play, play term or None) of `fulcrum_point`'s still camera
     (points, dirs (N, 3), covs (N, 4, 4) as `cylinder.fulcrum_3d` takes them): the axes' own
     scatter taken in, as the image lines' fulcrum takes its lines' (`sequence_noise`), only
