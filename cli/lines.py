@@ -27,6 +27,9 @@ def with_axis(camera, shaft, diameter):
 
     if shaft.get("edges") is None:
         return {**shaft, "axis_error": "no silhouette edges (a distal part alone)"}
+    if shaft.get("edge_cov") is None:
+        # as the 3-D fulcrum does: an axis needs its edges' covariance
+        return {**shaft, "axis_error": "silhouette edges without their covariance"}
     try:
         return {**shaft, **shaft_axis_record(camera, shaft["edges"], shaft["edge_cov"], diameter)}
     except (EstimationError, InputError) as e:

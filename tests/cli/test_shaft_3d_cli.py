@@ -86,3 +86,13 @@ def test_simulate_pivot_truth_has_the_3d_axes(tmp_path):
         A, d = np.asarray(fr["axis_point_cam"]), np.asarray(fr["axis_direction_cam"])
         assert abs(A @ d) < 1e-9 and d[2] >= 0                            # the closest point, away from C
         assert np.linalg.norm(np.cross(F - A, d)) < 1e-9                   # the axis passes the fulcrum
+
+
+def test_a_shaft_whose_edges_carry_no_covariance_says_why_it_has_no_3d_axis():
+    """`lines --shaft-diameter` on a shaft record with edges but no edge_cov (as the 3-D
+    fulcrum skips it): axis_error says so, no KeyError."""
+    from pencilcal.cli.lines import with_axis
+
+    cam = Camera("opencv", 640, 480, [[420.0, 0, 319.5], [0, 420.0, 239.5], [0, 0, 1]], [0, 0, 0, 0, 0])
+    rec = with_axis(cam, {"edges": [[10.0, 10.0, 300.0, 200.0], [40.0, 10.0, 330.0, 200.0]]}, 8.0)
+    assert rec["axis_error"] == "silhouette edges without their covariance" and "axis_point" not in rec
