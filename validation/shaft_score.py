@@ -34,6 +34,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pencilcal.toolkit.geometry.projective import line_through
+
 __all__ = ["Tolerance", "FrameScore", "score_frame", "summarize", "detection_line", "frame_references", "score_record"]
 
 
@@ -120,7 +122,7 @@ class FrameScore:
 def detection_line(midline):
     """(line (3,) with a^2 + b^2 = 1, centre (2,)) of a midline [x1, y1, x2, y2] [px]."""
     p, q = np.asarray(midline[:2], float), np.asarray(midline[2:4], float)
-    ln = np.cross(np.r_[p, 1.0], np.r_[q, 1.0])
+    ln = line_through(p, q)
     return ln / np.hypot(ln[0], ln[1]), 0.5 * (p + q)
 
 

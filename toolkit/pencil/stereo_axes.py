@@ -57,6 +57,7 @@ import numpy as np
 from pencilcal.toolkit.camera.stereo import pair_frames
 from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.geometry.frames import normalize, rotation_from_rotvec
+from pencilcal.toolkit.geometry.projective import line_through
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fulcrum3D, axis_frame, axis_offsets, fulcrum_3d,
                                                offset_chi2, project_cylinder, silhouette_planes)
@@ -157,7 +158,7 @@ def _planes(K, edges, R=None, t=None):
     """The oriented tangent planes (2, 3) normals and (2,) offsets of one eye's edges, in
     the left frame: ``n . X = n . C`` (C the eye's centre)."""
     e = np.asarray(edges, float)
-    h = np.stack([np.cross(np.r_[s[:2], 1.0], np.r_[s[2:], 1.0]) for s in e])
+    h = line_through(e[:, :2], e[:, 2:])
     inside = np.linalg.inv(K) @ np.r_[0.25 * (e[0, :2] + e[0, 2:] + e[1, :2] + e[1, 2:]), 1.0]
     n = silhouette_planes(h @ K, inside[:2] / inside[2])
     if R is None:

@@ -40,6 +40,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pencilcal.toolkit.geometry.projective import line_through
+
 __all__ = ["HARD_CLASSES", "HardShaft", "hard_shaft_frame"]
 
 #: The classes of `hard_shaft_frame`.
@@ -136,7 +138,7 @@ def _bisector(edges):
     """(line (3,), point (2,), width [px]) of the 2-D bisector of two edges over their span."""
     a, b = edges[:, :2], edges[:, 2:]
     mid0, mid1 = 0.5 * (a[0] + a[1]), 0.5 * (b[0] + b[1])
-    ln = np.cross(np.r_[mid0, 1.0], np.r_[mid1, 1.0])
+    ln = line_through(mid0, mid1)
     ln = ln / np.hypot(ln[0], ln[1])
     c = 0.5 * (mid0 + mid1)
     w = float(np.linalg.norm(0.5 * (a[0] + b[0]) - 0.5 * (a[1] + b[1])))

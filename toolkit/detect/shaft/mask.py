@@ -58,6 +58,7 @@ import numpy as np
 
 from pencilcal.toolkit.detect.shaft.axis import plane_bisector
 from pencilcal.toolkit.errors import InputError
+from pencilcal.toolkit.geometry.projective import line_through
 
 __all__ = ["MaskAxis", "mask_axis", "instruments_in_mask", "MIN_INSTRUMENT_AREA", "MERGE_GAP_PX", "MAX_EDGE_ANGLE_DEG",
            "SAME_AXIS_DEG"]
@@ -391,7 +392,7 @@ def mask_axis(mask, valid=None, K=None, *, tol=2.5, gap=10, min_edge_px=40.0, se
     p1 = c1 + (s_mid - c1 @ u1) * u1
     p2 = c2 + (s_mid - c2 @ u1) / (u2 @ u1) * u2
     mid = 0.5 * (p1 + p2)
-    lines = [np.cross(np.r_[c, 1.0], np.r_[c + u, 1.0]) for c, u in ((c1, u1), (c2, u2))]
+    lines = [line_through(c, c + u) for c, u in ((c1, u1), (c2, u2))]
     la = plane_bisector(K, lines[0], lines[1], mid)
     la = la if la[1] > 0 or (la[1] == 0 and la[0] > 0) else -la   # one sign for one line
     point = mid - (la[:2] @ mid + la[2]) * la[:2]

@@ -110,6 +110,7 @@ from pencilcal.toolkit.detect.shaft.region_bands import (
 from pencilcal.toolkit.detect.shaft.edge_pairs import PAIR_MAX_CONVERGENCE_DEG, colour_map, pair_bands
 from pencilcal.toolkit.detect.shaft.partner import MAX_SEEDS, partner_bands, turned_round
 from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs, region_pairs_many, scene_angle
+from pencilcal.toolkit.geometry.projective import line_meet, line_through
 
 __all__ = ["MaterialShaft", "material_cue", "judge_band", "select", "robust_noise"]
 
@@ -766,9 +767,7 @@ def _near_entry(e):
 def _meet_outside(m):
     """The edges of a midline meet outside its stretch by half a width at least."""
     e = m.edges.reshape(2, 2, 2)
-    l1 = np.cross(np.r_[e[0, 0], 1.0], np.r_[e[0, 1], 1.0])
-    l2 = np.cross(np.r_[e[1, 0], 1.0], np.r_[e[1, 1], 1.0])
-    vp = np.cross(l1, l2)
+    vp = line_meet(line_through(e[0, 0], e[0, 1]), line_through(e[1, 0], e[1, 1]))
     if abs(vp[2]) < 1e-12:
         return True
     ua = (m.ends[1] - m.ends[0]) / max(np.linalg.norm(m.ends[1] - m.ends[0]), 1e-12)
@@ -783,7 +782,7 @@ def _edge_band(m):
     pts = []
     for P in m.ends:
         for e in m.edges.reshape(2, 2, 2):
-            l = np.cross(np.r_[e[0], 1.0], np.r_[e[1], 1.0])
+            l = line_through(e[0], e[1])
             l = l / np.hypot(l[0], l[1])
             pts.append(P - ((l[:2] @ P + l[2]) / (l[:2] @ na)) * na)
     return np.array([pts[0], pts[2], pts[3], pts[1]], np.float32)
@@ -834,7 +833,7 @@ def _beside(sh, t):
         return False
     own = m.edges.reshape(2, 2, 2)  # (edge, end, xy)
     for e in mt.edges.reshape(2, 2, 2):
-        l = np.cross(np.r_[e[0], 1.0], np.r_[e[1], 1.0])
+        l = line_through(e[0], e[1])
         l = l / np.hypot(l[0], l[1])
         d = (own @ l[:2] + l[2]) * np.sign(l[:2] @ mt.centre + l[2])  # (edge, end) [px], > 0 on t's side
         if np.all(d < 0) and -d[np.argmax(d.mean(1))].min() <= m.width_px:

@@ -45,6 +45,7 @@ import numpy as np
 from pencilcal.toolkit.detect.working import to_working_points
 from pencilcal.toolkit.errors import InputError
 from pencilcal.toolkit.geometry.angles import circular_mean, line_diff, segment_angle
+from pencilcal.toolkit.geometry.projective import line_through
 from pencilcal.toolkit.geometry.quantiles import chi2_isf
 
 __all__ = ["AxisPrior", "AXIS_GATE", "JACKKNIFE_GROUPS", "WIDTH_RANGE", "line_chi2", "select_through", "as_priors", "fulcrum_prior",
@@ -194,7 +195,7 @@ def select_through(shafts, priors, gate=AXIS_GATE):
                                              <= WIDTH_RANGE[1] * p.widths[1]):
                 continue
             m = np.asarray(s.ideal_midline, float).reshape(2, 2)
-            ln = np.cross(np.r_[m[0], 1.0], np.r_[m[1], 1.0])
+            ln = line_through(m[0], m[1])
             ln = ln / np.hypot(ln[0], ln[1])
             if line_chi2(p, ln, m.mean(0), s.cov) < gate and (best is None or s.score > shafts[best].score):
                 best = k
