@@ -647,15 +647,16 @@ def _check_lines(points, directions, covs, frames):
             np.broadcast_to(covs, shape + (4, 4)), np.broadcast_to(frames, shape + (2, 3)))
 
 
-def scatter_scale(chi2):
+def scatter_scale(chi2, clip=True):
     """(..., 1) the axes' own scale of their covariances: median chi2 (..., N) over chi2(2)'s
-    median (2 ln 2), at most 1 (never widening a gate, `fulcrum_3d`), at least `SCATTER_FLOOR`.
+    median (2 ln 2), a robust (MAD-like) variance factor; clipped (the default) at most 1
+    (never widening a gate, `fulcrum_3d`) and at least `SCATTER_FLOOR`.
 
     >>> scatter_scale(np.array([0.0, 2 * np.log(2) / 4, 9.0])).round(6).tolist()
     [0.25]
     """
     s = np.median(np.asarray(chi2, float), axis=-1, keepdims=True) / (2.0 * np.log(2.0))
-    return np.clip(s, SCATTER_FLOOR, 1.0)
+    return np.clip(s, SCATTER_FLOOR, 1.0) if clip else s
 
 
 def fulcrum_3d(axis_points, axis_directions, axis_covs, robust=True, *, axis_frames=None,

@@ -41,13 +41,14 @@ SCATTER_LIMIT = 0.5
 def own_scale(fit):
     """The axes' own scale of their covariances at a `cylinder.Fulcrum3D` fit of all of them:
     the median chi2 (N,) of every axis at its point over chi2(2)'s median (2 ln 2), a robust
-    (MAD-like) variance factor that fewer than half of the axes misread cannot move.
+    (MAD-like) variance factor that fewer than half of the axes misread cannot move
+    (`cylinder.scatter_scale`, unclipped).
 
     >>> import types
     >>> round(own_scale(types.SimpleNamespace(chi2=np.array([0.1, 2 * np.log(2), 40.0]))), 6)
     1.0
     """
-    return float(np.median(np.asarray(fit.chi2, float)) / (2.0 * np.log(2.0)))
+    return float(scatter_scale(fit.chi2, clip=False)[0])
 
 
 def scatter_inliers(points, dirs, covs, limit=SCATTER_LIMIT):
