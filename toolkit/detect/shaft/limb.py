@@ -445,8 +445,9 @@ def fit_step_profile(t, y, edge0, sigma0, use=None):
 
 def limb_explains(limb_rss, step_rss, n):
     """Whether a lit cylinder explains a profile of n samples as well as the blurred step or
-    better: limb_rss the residual sum of squares of the limb model at its fit with the
-    shading held non-negative (`shading_lstsq`), step_rss the step's (`fit_step_profile`).
+    better: limb_rss the residual sum of squares of the limb model judged as light (its fit's
+    own where its shading is light, `is_light`, else with the shading held non-negative,
+    `shading_lstsq`), step_rss the step's (`fit_step_profile`).
     The limb model is what a shaft lit from the camera shows, so it is kept unless the step
     explains the profile better by more than one parameter's information, ``m log(limb_rss
     / step_rss) > log m`` over the profile's m pixels (its samples, 4 a pixel, are
