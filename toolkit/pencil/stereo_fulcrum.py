@@ -50,8 +50,8 @@ class StereoFulcrum:
     shared: the share of the error both points carry across the line of sight
     (`shared_across`) that the fusion took as their cross-covariance (1: whole; less where
     it would make the two correlated beyond `CROSS_MARGIN`); inflation: what the fused
-    covariance was multiplied by because the two disagree (chi2 / dof; 1: they agree). lens_cov (3, 3): the
-    intrinsics' term of the triangulated point's covariance (`triangulation_lens_cov`)
+    covariance was multiplied by because the two disagree (chi2 / dof; 1: they agree).
+    lens_cov (3, 3): the intrinsics' term of the triangulated point's covariance (`triangulation_lens_cov`)
     from the views in lens_views ("left", "right": those whose camera carried an
     intrinsics covariance), None when neither did. common_cov (3, 3): the 3-D offset both
     views' rays share (`play_covariance`), in the triangulated and the combined point's
@@ -210,9 +210,9 @@ def gls_fusion(x1, C1, x2, C2, C12, confidence=GATE_CONFIDENCE, margin=None):
     ``C1^-1/2 C12 C2^-T/2`` has singular values at most `margin` (`CROSS_MARGIN` when None):
     near 1, the mean would lean on the model's correlation and reach beyond both estimates.
     The test: ``d = x1 - x2``, ``cov_d = C1 + C2 - C12 - C12^T`` (the model's C12 whole: the
-    margin guards the mean, and a scaled C12 would give d a variance it has not); the components whose share
-    of their variance in C1 + C2 is under `cylinder.SHARED_FLOOR` (the two the same there) are
-    left out, dof counts the others; chi2 = d^T cov_d^-1 d on them. Where chi2 exceeds its
+    margin guards the mean, and a scaled C12 would give d a variance it has not); the
+    components whose share of their variance in C1 + C2 is under `cylinder.SHARED_FLOOR` (the
+    two the same there) are left out, dof counts the others; chi2 = d^T cov_d^-1 d on them. Where chi2 exceeds its
     quantile at `confidence` the two disagree beyond their covariances and F is scaled by
     inflation = chi2 / dof (else 1): only then is it larger than an input's.
 
