@@ -67,6 +67,13 @@ RANDOM_HALVES = 16
 RATIO_DRAWS = 2000
 # a half needs at least this many views
 _MIN_HALF_VIEWS = 3
+# Levenberg-Marquardt iterations of a half, started from the full calibration's solution. A
+# lean model's halves converge in fewer; a splined model's ran to the solver's 100 on 3 of 8
+# halves of the da Vinci left views (ill-conditioned, the cost still falling by 1e-7 of
+# itself a step): at 25 the halves' figures moved by less than that unfinished convergence
+# does (odd/even ratio 1.754 -> 1.752, chi2/dof 0.911 -> 0.908, pooled 1.0676 -> 1.0674; run
+# on to convergence 1.749) for half the time (docs/calibration.md, Speed)
+_HALF_ITERATIONS = 25
 
 
 def used_views(result, detections, board):
@@ -99,7 +106,7 @@ def _solve_half(result, views, subset):
     o, p, b = [objs[j] for j in subset], [imgs[j] for j in subset], [bases[j] for j in subset]
     w = None if result.weights is None else [result.weights[j] for j in subset]
     half = refine(result.layout, sol.theta, sol.poses[subset], o, p, b if result.layout.warp else None, warp=sol.warp,
-                  weights=w)
+                  weights=w, max_iterations=_HALF_ITERATIONS)
     pr, fd = result.print_errors, result.image_field
     cov = covariance(result.layout, half, o, p, b if result.layout.warp else None, _noise_of(result), w,
                      shared=pr if pr is not None and pr.kept else None, field=fd if fd is not None and fd.kept else None)
@@ -117,17 +124,24 @@ def _region_summary(diff, pred2):
             "ratio": rms / pred if pred > 0 else None}
 
 
-def _pred(camera_a, cov_a, camera_b, cov_b, pixels, region, shared=None):
+def _sensitivities(camera_a, camera_b, pixels, region, shared=None):
+    """`projection_sensitivity` at `pixels` of both calibrations and, with `shared`, of the
+    camera the shared errors are linearised at (else zeros): (Aa, Ab, As), each (N, 2, P)."""
+    Aa = projection_sensitivity(camera_a, pixels, region)
+    Ab = projection_sensitivity(camera_b, pixels, region)
+    return Aa, Ab, projection_sensitivity(shared[1], pixels, region) if shared is not None else np.zeros_like(Aa)
+
+
+def _pred(camera_a, cov_a, camera_b, cov_b, pixels, region, shared=None, sens=None):
     """(N, 2, 2) the covariance of the difference of two calibrations' projections at
     `pixels`, each one's own errors linearised at its own intrinsics; shared : (D (P, P), the
     camera it is linearised at) for the errors both saw (the printed board's corners, the
     image-fixed field): D is their part of the difference of the intrinsics, taken through
-    the projection at that one camera, None: none."""
-    Aa = projection_sensitivity(camera_a, pixels, region)
-    Ab = projection_sensitivity(camera_b, pixels, region)
+    the projection at that one camera, None: none. sens : `_sensitivities` at these pixels
+    (None: computed)."""
+    Aa, Ab, As = sens if sens is not None else _sensitivities(camera_a, camera_b, pixels, region, shared)
     out = Aa @ cov_a @ np.swapaxes(Aa, -1, -2) + Ab @ cov_b @ np.swapaxes(Ab, -1, -2)
     if shared is not None:
-        As = projection_sensitivity(shared[1], pixels, region)
         out = out + As @ shared[0] @ np.swapaxes(As, -1, -2)
     return out
 
@@ -138,15 +152,13 @@ def _root(C):
     return V * np.sqrt(np.clip(w, 0.0, None))
 
 
-def _difference_factor(camera_a, cov_a, camera_b, cov_b, region, shared=None, ok=None):
+def _difference_factor(camera_a, cov_a, camera_b, cov_b, region, shared=None, ok=None, sens=None):
     """(G (2M, 3P), the region's pixels used (M_all,) bool): the halves' pixel differences
     over `region` under their covariances are ``G z`` with z standard normal, each half's own
     errors through its own linearised projection, the shared ones (`_pred`'s `shared`)
     through theirs, up to the aligning rotation; G None where no pixel projects. ok : a mask
-    of the pixels to keep besides (None: all)."""
-    Aa = projection_sensitivity(camera_a, region, region)
-    Ab = projection_sensitivity(camera_b, region, region)
-    As = projection_sensitivity(shared[1], region, region) if shared is not None else np.zeros_like(Aa)
+    of the pixels to keep besides (None: all); sens : `_sensitivities` over the region."""
+    Aa, Ab, As = sens if sens is not None else _sensitivities(camera_a, camera_b, region, region, shared)
     good = np.all(np.isfinite(Aa), (-1, -2)) & np.all(np.isfinite(Ab), (-1, -2)) & np.all(np.isfinite(As), (-1, -2))
     if ok is not None:
         good &= ok
@@ -159,15 +171,17 @@ def _difference_factor(camera_a, cov_a, camera_b, cov_b, region, shared=None, ok
     return np.concatenate([g.reshape(-1, P) for g in parts], -1), good
 
 
-def ratio_chance(camera_a, cov_a, camera_b, cov_b, region, observed, draws=RATIO_DRAWS, seed=0, shared=None):
+def ratio_chance(camera_a, cov_a, camera_b, cov_b, region, observed, draws=RATIO_DRAWS, seed=0, shared=None,
+                 sens=None):
     """The probability that two calibrations whose errors are as their covariances say
     differ over `region` (M, 2) by a projection ratio of `observed` or more: the share of
     `draws` pairs of errors drawn from them (through each one's linearised projection, up
     to the aligning rotation) whose RMS difference is at least `observed` x the predicted
     RMS. A one-split figure's p-value: when the difference lies along one direction (a
     focal length, say) the ratio scatters like |z|, and 1.9 happens once in 20 splits.
-    shared : as `_pred` (the errors both calibrations saw), None: independent."""
-    G, ok = _difference_factor(camera_a, cov_a, camera_b, cov_b, region, shared)
+    shared : as `_pred` (the errors both calibrations saw), None: independent; sens : the
+    projections' sensitivities over the region, as `_pred` takes them (None: computed)."""
+    G, ok = _difference_factor(camera_a, cov_a, camera_b, cov_b, region, shared, sens=sens)
     if G is None or observed is None:
         return None
     M = int(ok.sum())
@@ -183,16 +197,16 @@ def ratio_chance(camera_a, cov_a, camera_b, cov_b, region, observed, draws=RATIO
     return float(np.mean(ratios >= observed))
 
 
-def difference_modes(camera_a, cov_a, camera_b, cov_b, region, shared=None, modes=3):
+def difference_modes(camera_a, cov_a, camera_b, cov_b, region, shared=None, modes=3, sens=None):
     """The halves' projection difference over `region` (M, 2) split along the directions of
     its predicted covariance (as `ratio_chance` draws it): per mode, largest first, its share
     of the predicted mean square and the observed difference's z along it. The projection
     ratio squared is ``sum share_k z_k^2`` (up to the part outside the modes' span, which the
     covariance says cannot occur): one mode holding most of the prediction makes the ratio
     scatter like |z| of one normal. Returns ``{"share": [...], "z": [...], "outside_px2"}``
-    or None where no projection is found."""
+    or None where no projection is found. sens : as `ratio_chance`."""
     diff = projection_difference(camera_a, camera_b, region, region)
-    G, ok = _difference_factor(camera_a, cov_a, camera_b, cov_b, region, shared, np.all(np.isfinite(diff), -1))
+    G, ok = _difference_factor(camera_a, cov_a, camera_b, cov_b, region, shared, np.all(np.isfinite(diff), -1), sens)
     if G is None:
         return None
     U, s, _ = np.linalg.svd(G, full_matrices=False)
@@ -235,19 +249,24 @@ def halves_agreement(camera_a, cov_a, camera_b, cov_b, grid, shared=None, modes=
     # Jacobian, which a lens model with nearly degenerate coefficients turns into
     # nonsense); the shared errors' part through the projection at the camera its gains
     # were linearised at, for the same reason
+    # the sensitivities once, over every cell (the covered ones are the region's)
+    centres = grid.centres().reshape(-1, 2)
+    every = _sensitivities(camera_a, camera_b, centres, region, shared)
+    inside = grid.mask.reshape(-1)
+    sens = tuple(A[inside] for A in every)
     covered = _region_summary(projection_difference(camera_a, camera_b, region, region),
-                              _pred(camera_a, cov_a, camera_b, cov_b, region, region, shared))
+                              _pred(camera_a, cov_a, camera_b, cov_b, region, region, shared, sens))
     frame = _region_summary(projection_difference(camera_a, camera_b, region),
                             _pred(camera_a, cov_a, camera_b, cov_b, region, None, shared))
     rec.update(projection_rms_px=covered["rms_px"], projection_max_px=covered["max_px"],
                projection_predicted_rms_px=covered["predicted_rms_px"], projection_ratio=covered["ratio"],
                projection_ratio_p=ratio_chance(camera_a, cov_a, camera_b, cov_b, region, covered["ratio"],
-                                                            shared=shared),
-               projection_modes=difference_modes(camera_a, cov_a, camera_b, cov_b, region, shared) if modes else None,
+                                               shared=shared, sens=sens),
+               projection_modes=difference_modes(camera_a, cov_a, camera_b, cov_b, region, shared, sens=sens)
+               if modes else None,
                camera_frame=frame)
-    centres = grid.centres().reshape(-1, 2)
     full = projection_difference(camera_a, camera_b, centres, region)
-    pred = np.sqrt(np.maximum(np.trace(_pred(camera_a, cov_a, camera_b, cov_b, centres, region, shared),
+    pred = np.sqrt(np.maximum(np.trace(_pred(camera_a, cov_a, camera_b, cov_b, centres, region, shared, every),
                                        axis1=-2, axis2=-1), 0.0))
     rec["_maps"] = (np.linalg.norm(full, axis=-1).reshape(grid.shape), pred.reshape(grid.shape))
     return rec

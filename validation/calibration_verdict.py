@@ -234,9 +234,9 @@ def judge(views_used, halves, umap, geometry, usable_px=USABLE_PX, noise=None):
     if scales.get("p_value") is not None and scales["p_value"] < DISAGREE_P:
         warnings.append(f"the views disagree on the focal scale beyond their corner noise (scatter "
                         f"{scales['chi2_per_dof']:.2f} x the expected over {scales['views']} views, p "
-                        f"{scales['p_value']:.1g}; {100 * scales['tau']:.2g} % per view beyond it): a focus or zoom "
-                        "changed between the views, or the board bent differently in each; the focal length's sigma "
-                        "leaves that scatter out")
+                        f"{scales['p_value']:.1g}; {100 * scales['tau']:.2g} % per view beyond it), as when a focus "
+                        "or zoom changed between the views or the board bent differently in each; the focal length's "
+                        "sigma leaves that scatter out")
     dep = umap.get("linear_departure")
     if dep is not None and not float(dep) <= LINEAR_DEPARTURE:
         warnings.append(f"the lens model's coefficients are not determined by these views: a one-sigma change of them "
