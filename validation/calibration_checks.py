@@ -67,13 +67,6 @@ RANDOM_HALVES = 16
 RATIO_DRAWS = 2000
 # a half needs at least this many views
 _MIN_HALF_VIEWS = 3
-# Levenberg-Marquardt iterations of a half, started from the full calibration's solution. A
-# lean model's halves converge in fewer; a splined model's ran to the solver's 100 on 3 of 8
-# halves of the da Vinci left views (ill-conditioned, the cost still falling by 1e-7 of
-# itself a step): at 25 the halves' figures moved by less than that unfinished convergence
-# does (odd/even ratio 1.754 -> 1.752, chi2/dof 0.911 -> 0.908, pooled 1.0676 -> 1.0674; run
-# on to convergence 1.749) for half the time (docs/calibration.md, Speed)
-_HALF_ITERATIONS = 25
 
 
 def used_views(result, detections, board):
@@ -106,7 +99,7 @@ def _solve_half(result, views, subset):
     o, p, b = [objs[j] for j in subset], [imgs[j] for j in subset], [bases[j] for j in subset]
     w = None if result.weights is None else [result.weights[j] for j in subset]
     half = refine(result.layout, sol.theta, sol.poses[subset], o, p, b if result.layout.warp else None, warp=sol.warp,
-                  weights=w, max_iterations=_HALF_ITERATIONS)
+                  weights=w)
     pr, fd = result.print_errors, result.image_field
     cov = covariance(result.layout, half, o, p, b if result.layout.warp else None, _noise_of(result), w,
                      shared=pr if pr is not None and pr.kept else None, field=fd if fd is not None and fd.kept else None)
