@@ -122,12 +122,13 @@ def _edge_channel(work):
     return 0.5 * (work.luma + work.colours[..., 2]) if work.bgr.ndim == 3 else work.luma
 
 
-def edge_segments(work, min_len):
+def edge_segments(work, min_len, channel=None):
     """The straight grey-level edges of the work frame (module docstring, step 1): (N, 4)
-    [work px], the longest first."""
+    [work px], the longest first; in channel ((h, w) grey levels 0-255) where given, else in
+    `_edge_channel`'s."""
     import cv2
 
-    g = np.clip(_edge_channel(work), 0, 255).astype(np.uint8)
+    g = np.clip(_edge_channel(work) if channel is None else channel, 0, 255).astype(np.uint8)
     f = _FLD_SCALE
     g = cv2.resize(g, (max(8, round(g.shape[1] * f)), max(8, round(g.shape[0] * f))), interpolation=cv2.INTER_AREA)
     fld = cv2.ximgproc.createFastLineDetector(length_threshold=max(int(_FRAGMENT_PX), int(0.5 * min_len * f)),
