@@ -379,7 +379,7 @@ def colour_map(img, valid, c_in, c1, c2):
     return close_open(B)  # `shaft.regions.close_open`
 
 
-def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segments=None):
+def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segments=None, with_maps=True):
     """Candidate bands between pairs of grey-level edges (module docstring).
 
     Parameters
@@ -396,6 +396,8 @@ def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segment
         The work frame's instrument-likeness (`shaft.regions.MaterialMap.likeness`).
     segments : (N, 4), optional
         The edges to pair [work px]; default `edge_segments`.
+    with_maps : bool
+        False: each pair's region map is None (the caller makes its own).
 
     Returns
     -------
@@ -418,7 +420,8 @@ def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segment
     if not keep:
         return lines, empty, []
     valid = work.valid.view(np.uint8)
-    maps = [_quad_map(lines, pairs, k, valid) if outline[k] else colour_map(img, valid, *ref[:, k]) for k in keep]
+    maps = ([_quad_map(lines, pairs, k, valid) if outline[k] else colour_map(img, valid, *ref[:, k]) for k in keep]
+            if with_maps else [None] * len(keep))
     keep = np.array(keep, int)
     return lines, RegionPairs(i=pairs.i[keep], j=pairs.j[keep], width=pairs.width[keep],
                               overlap=pairs.overlap[keep]), maps

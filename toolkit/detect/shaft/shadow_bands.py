@@ -116,7 +116,8 @@ def shadow_bands(work, wmin, wmax, conv_max_deg, noise, min_len):
     """
     t, channel = shadow_channel(work)
     seg = edge_segments(work, min_len, channel)
-    lines, pairs, maps = pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, 1.0 - t, segments=seg)
+    lines, pairs, maps = pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, 1.0 - t, segments=seg,
+                                    with_maps=False)
     if not maps:
         return lines, pairs, maps
     # in shadow: darker inside than the frame's median (step 3)
