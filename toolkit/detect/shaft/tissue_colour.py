@@ -105,7 +105,8 @@ def tissue_colour_map(colours, valid=None):
     # the chromaticity's projection is linear in B, G, R over their sum: two weighted sums of
     # the channels in one pass (float32), not the chromaticity of every pixel
     r3 = 1.0 / np.sqrt(3.0)
-    W = np.array([[-2.0 * my * r3, my * r3 - mx, mx + my * r3], [1.0, 1.0, 1.0]]) / [[max(mx * mx + my * my, 1e-12)], [1.0]]
+    W = np.array([[-2.0 * my * r3, my * r3 - mx, mx + my * r3], [1.0, 1.0, 1.0]])
+    W[0] /= max(mx * mx + my * my, 1e-12)
     num, S = cv2.split(cv2.transform(np.ascontiguousarray(c, np.float32), W.astype(np.float32)))
     return num / (S + 3.0 * _EPS)
 
