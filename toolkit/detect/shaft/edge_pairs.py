@@ -21,7 +21,7 @@ edges are taken from the grey levels themselves:
 3. *material*: at `_STATIONS` stations along the overlap, the mean colour of the band's
    inside (the middle `_INSIDE` of its width) and of each outside (strips `_SIDE_PX` work px
    beyond each edge). A station is *good* where the inside differs from both outsides by
-   `_MIN_CONTRAST_SD` noise sd (and `_REL_CONTRAST` of the band's median contrast) and its
+   `MIN_CONTRAST_SD` noise sd (and `_REL_CONTRAST` of the band's median contrast) and its
    colour lies within half the median contrast of the inside colours' straight-line trend
    along the band (one material, its shading changing slowly along it). A pair is a
    candidate where `_MIN_GOOD` of its observable stations are good, half of them are
@@ -80,7 +80,8 @@ import numpy as np
 from pencilcal.toolkit.detect.edges import mean_over
 from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs, close_open, region_pairs
 
-__all__ = ["pair_bands", "edge_segments", "colour_map", "MAX_PAIRS", "MAX_SEGMENTS", "PAIR_MAX_CONVERGENCE_DEG"]
+__all__ = ["pair_bands", "edge_segments", "colour_map", "MAX_PAIRS", "MAX_SEGMENTS", "PAIR_MAX_CONVERGENCE_DEG",
+           "MIN_CONTRAST_SD"]
 
 #: Candidate bands per frame, the best first (4 gave one detection more on the 64 real frames
 #: of the masked sources, the hysterectomy and the dVRK phantom, a false band on the phantom,
@@ -105,7 +106,9 @@ _MAX_CANDIDATES = 60  # pairs judged by their material, the longest overlaps fir
 _STATIONS = 16
 _INSIDE = np.linspace(0.25, 0.75, 5)  # across the band, 0 and 1 its edges
 _SIDE_PX = np.array([2.0, 3.5, 5.0])  # outside samples beyond each edge [work px]
-_MIN_CONTRAST_SD = 6.0
+#: The least contrast of a band's inside with each outside [noise sd] (step 2); the bands in
+#: shadow (`shaft.shadow_bands`) ask it of their lightness.
+MIN_CONTRAST_SD = 6.0
 _REL_CONTRAST = 0.5
 _MIN_GOOD = 0.6
 _LUMA_WEIGHT = 0.5
@@ -255,7 +258,7 @@ def _material(work, img, lines, pairs, noise, likeness):
     con = np.minimum(np.linalg.norm(cin - c1, axis=-1), np.linalg.norm(cin - c2, axis=-1))  # (K, S)
     n_seen = np.count_nonzero(seen, 1)
     med_con = _median_where(con, seen)
-    good = seen & (con >= np.maximum(_MIN_CONTRAST_SD * noise, _REL_CONTRAST * med_con)[:, None])
+    good = seen & (con >= np.maximum(MIN_CONTRAST_SD * noise, _REL_CONTRAST * med_con)[:, None])
     good &= np.linalg.norm(cin - _trend(cin, seen), axis=-1) <= 0.5 * med_con[:, None]
     frac = np.count_nonzero(good, 1) / np.maximum(n_seen, 1)
     ok = (n_seen >= 0.5 * _STATIONS) & (frac >= _MIN_GOOD)
@@ -285,7 +288,7 @@ def _outline(rims, cin, c1, c2, seen, noise):
     ri, rj = rims
     con = np.minimum(np.linalg.norm(ri - c1, axis=-1), np.linalg.norm(rj - c2, axis=-1))
     med = _median_where(con, seen)
-    least = np.maximum(_MIN_CONTRAST_SD * noise, _REL_CONTRAST * med)[:, None]
+    least = np.maximum(MIN_CONTRAST_SD * noise, _REL_CONTRAST * med)[:, None]
     good = seen & (con >= least) & (np.linalg.norm(ri - rj, axis=-1) <= 0.5 * con)
     # and unlike the inside between them: structure inside (a band of one colour whose rims
     # are its inside is a band of one material, tissue where the likeness says so)

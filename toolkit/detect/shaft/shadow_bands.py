@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pencilcal.toolkit.detect.shaft.edge_pairs import edge_segments, pair_bands
+from pencilcal.toolkit.detect.shaft.edge_pairs import MIN_CONTRAST_SD, edge_segments, pair_bands
 from pencilcal.toolkit.detect.shaft.regions import RegionPairs, close_open
 from pencilcal.toolkit.detect.shaft.tissue_colour import tissue_colour_map
 
@@ -124,10 +124,15 @@ def shadow_bands(work, wmin, wmax, conv_max_deg, noise, min_len):
     median = float(np.median(work.luma[work.valid])) if work.valid.any() else float(np.median(work.luma))
     keep, out = [], []
     for k, (i, j) in enumerate(zip(pairs.i, pairs.j)):
-        (l_in, _, _), (t_in, t_i, t_j) = _cross_samples(work, lines, i, j, (work.luma, t))
+        (l_in, l_i, l_j), (t_in, t_i, t_j) = _cross_samples(work, lines, i, j, (work.luma, t))
         if not l_in < median or not t_in < min(t_i, t_j):
             continue
-        # its map: the pixels nearer its inside's tissue colour than its outsides' (step 4)
+        # its edges step in lightness too, both by the edge pairs' least contrast (step 4): a
+        # band of the tissue's lightness, greyer only, is a shadow on it or a blurred thing
+        # behind (the hysterectomy frames' one false band), not an instrument in front
+        if not min(abs(l_in - l_i), abs(l_in - l_j)) >= MIN_CONTRAST_SD * noise:
+            continue
+        # its map: the pixels nearer its inside's tissue colour than its outsides' (step 5)
         keep.append(k)
         out.append(close_open(((t < 0.5 * (t_in + min(t_i, t_j))) & work.valid).view(np.uint8)))
         if len(keep) == MAX_SHADOW:
