@@ -235,7 +235,7 @@ def _matches(det, inst, angle_deg=6.0):
 #: does) or several videos' (each its own). The phantom's 13 false bands in the dark gap between
 #: the fat and the bowel (0.65 a frame) go by their tissue colour (`shaft.tissue_colour`,
 #: docs/method.md): none is left.
-UNMASKED_REACHED = {"laparoscopy-hysterectomy-frames": (0.25, 14, False),
+UNMASKED_REACHED = {"laparoscopy-hysterectomy-frames": (0.0, 14, False),
                     "dvrk-lnd-phantom-sequence": (0.0, 19, True)}
 
 
@@ -243,10 +243,11 @@ UNMASKED_REACHED = {"laparoscopy-hysterectomy-frames": (0.25, 14, False),
 def test_unmasked_false_per_frame(source):
     """The false detections per frame on the unmasked real frames against the hand-made list
     (target <= 0.25); detections on an uncertain entry count neither way. The frames are in no
-    pixel model's training: a check of the shipped least pixel evidence. Hysterectomy: 1 false
+    pixel model's training: a check of the shipped least pixel evidence. Hysterectomy: 0 false
     in 24 frames (T_1_P13_0008's grey band left of the instrument, which the list calls a
-    shadow band, proposed in shadow by `shaft.shadow_bands`; 0 without it), 14 of 20 listed
-    found; the dVRK phantom (no lens model given, the valid
+    shadow band, was proposed in shadow by `shaft.shadow_bands` until a band in shadow had to
+    step in lightness from both sides too), 14 of 20 listed found; the dVRK phantom (no lens
+    model given, the valid
     region from all 20 frames): the instrument in 19 of 20 frames, no false band (the 13 in
     the dark gap between fat and bowel, 0.65 a frame, pass the pixel evidence but not the
     tissue colour: 1.72-2.39 against at most 0.72 for the instrument)."""
