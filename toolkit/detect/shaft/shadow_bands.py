@@ -111,17 +111,19 @@ def _cross_samples(work, lines, I, J, maps):
     sets = [A[:, :, None, :] + np.array([0.25, 0.375, 0.5, 0.625, 0.75])[None, None, :, None] * d[:, :, None, :],
             A[:, :, None, :] - _SIDE_PX[None, None, :, None] * e[:, :, None, :],
             B[:, :, None, :] + _SIDE_PX[None, None, :, None] * e[:, :, None, :]]
+    # the three sets' points in one array, their pixels looked up in one pass
+    xy = np.rint(np.concatenate([X.reshape(K, -1, 2) for X in sets], 1)).astype(np.intp)
+    x, y = xy[..., 0], xy[..., 1]
+    ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+    # flat indices (a take, not a 2-d gather), clipped where out of the frame
+    at = np.clip(y, 0, h - 1) * w + np.clip(x, 0, w - 1)
+    ok &= work.valid.ravel().take(at)
+    ends = np.cumsum([0] + [X.shape[1] * X.shape[2] for X in sets])
     out = np.full((K, len(maps), 3), np.nan)
-    valid = work.valid.ravel()
-    for c, X in enumerate(sets):
-        xy = np.rint(X).astype(np.intp).reshape(K, -1, 2)
-        x, y = xy[..., 0], xy[..., 1]
-        ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
-        # flat indices (a take, not a 2-d gather), clipped where out of the frame
-        at = np.clip(y, 0, h - 1) * w + np.clip(x, 0, w - 1)
-        ok &= valid.take(at)
-        for m, M in enumerate(maps):
-            out[:, m, c] = _medians(np.ravel(M).take(at), ok)
+    for m, M in enumerate(maps):
+        V = np.ravel(M).take(at)
+        for c in range(3):
+            out[:, m, c] = _medians(V[:, ends[c]:ends[c + 1]], ok[:, ends[c]:ends[c + 1]])
     return out
 
 
@@ -134,7 +136,8 @@ def _luma_median(work):
     if work.bgr.dtype != np.uint8:
         return float(np.median(work.luma[work.valid])) if work.valid.any() else float(np.median(work.luma))
     mask = work.valid.view(np.uint8) if work.valid.any() else None
-    cum = np.cumsum(cv2.calcHist([work.luma], [0], mask, [256], [0, 256]).ravel().astype(np.int64))
+    # whole grey levels 0-255: as uint8 the same values, and a faster histogram
+    cum = np.cumsum(cv2.calcHist([work.luma.astype(np.uint8)], [0], mask, [256], [0, 256]).ravel().astype(np.int64))
     n = int(cum[-1])
     lo, hi = np.searchsorted(cum, [(n - 1) // 2, n // 2], side="right")
     return float((np.float32(lo) + np.float32(hi)) / np.float32(2.0))
