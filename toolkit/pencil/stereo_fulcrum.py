@@ -19,7 +19,8 @@ import numpy as np
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
 from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
-from pencilcal.toolkit.pencil.cylinder import GATE_CONFIDENCE, SHARED_FLOOR, Fusion, RayTriangulation, triangulate_rays
+from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fusion, RayTriangulation, shared_difference_chi2,
+                                               triangulate_rays)
 from pencilcal.toolkit.pencil.fulcrum import Fulcrum
 from pencilcal.toolkit.pencil.stereo_play import (cross_term, play_covariance, play_cross_cov, shared_offset_term,
                                                    shared_ray_cov)
@@ -237,13 +238,8 @@ def gls_fusion(x1, C1, x2, C2, C12, confidence=GATE_CONFIDENCE, margin=None):
     F = 0.5 * (F + F.T)
     W = F @ SiA.T                                               # (n, 2n): the weights of x1, x2
     point = W @ np.concatenate([x1, x2])
-    D = C1 + C2 - C12 - C12.T
-    Wt = np.linalg.inv(np.linalg.cholesky(C1 + C2))
-    lam, V = np.linalg.eigh(Wt @ (0.5 * (D + D.T)) @ Wt.T)
-    keep = lam > SHARED_FLOOR
-    z = V.T @ (Wt @ (x1 - x2))
-    c2 = float(np.sum(z[keep] ** 2 / lam[keep]))
-    dof = int(keep.sum())
+    c2, dof = shared_difference_chi2(x1 - x2, C1 + C2 - C12 - C12.T, C1 + C2)
+    c2, dof = float(c2), int(dof)
     threshold = chi2_isf(1.0 - confidence, dof) if dof else 0.0
     consistent = c2 <= threshold
     inflation = 1.0 if consistent or not dof else c2 / dof
