@@ -134,7 +134,7 @@ class Layout:
 @dataclass
 class Solution:
     """The optimum: theta (P,) full intrinsics, poses (V, 2, 3) (rvec, tvec) per view, warp
-    (2,) [board unit] (zeros when not estimated), the sum of squared residuals [px^2] over
+    (2,) [board unit] ((3,) with the twist; zeros (2,) when not estimated), the sum of squared residuals [px^2] over
     ``corners`` corners (a splined model's penalty not included), and the iterations run."""
 
     theta: np.ndarray
@@ -382,7 +382,7 @@ def refine(layout, theta, poses, objs, imgs, bases=None, warp=None, max_iteratio
     poses : (V, 2, 3) or sequence of (rvec, tvec): each view's pose to start from.
     objs, imgs : per view the board points (N_v, 3) [board unit] and their corners (N_v, 2) [px].
     bases : per view `warp_basis` (N_v, 2), (N_v, 3) with ``layout.twist``; needed with ``layout.warp``.
-    warp : (2,) to start from (zeros).
+    warp : (2,) or (3,) to start from (zeros; a missing twist starts at 0).
     weights : per view (N_v,) each corner's weight (the inverse of its variance relative
         to the rest; `corner_noise`), or None: ordinary least squares. The solution's sse
         is then the weighted one.
