@@ -541,6 +541,8 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
         model, coefficients = "opencv", None
     n_coef = _coefficient_count(model, coefficients)
     image_size = _check_options(model, fix_aspect, zero_tangent, image_size, min_corners, min_views)
+    if not (twist is True or twist is False or twist == "auto"):
+        raise InputError(f"twist must be True, False or 'auto', got {twist!r}")
     detections = list(detections)
     for d in detections:
         if d is not None and not isinstance(d, BoardDetection):

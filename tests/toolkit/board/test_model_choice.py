@@ -145,3 +145,11 @@ def test_the_boards_twist_is_kept_where_held_out_views_want_it(twist, kept):
         assert abs(r.warp["value"][2] - twist) < 3 * r.warp["std"][2]
     # without the warp there is nothing to choose
     assert choose_twist(r.layout.__class__("opencv", 5, warp=False), r.solution.theta, [], [], [], None) is None
+
+
+def test_twist_is_true_false_or_auto():
+    from pencilcal.toolkit.errors import InputError
+
+    dets = synthetic_detections(Camera("pinhole", 960, 540, K), BOARD, views=6, noise_px=0.2, seed=1)
+    with pytest.raises(InputError, match="twist must be True, False or 'auto'"):
+        calibrate(dets, BOARD, (960, 540), warp=True, twist="yes")
