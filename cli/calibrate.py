@@ -205,8 +205,8 @@ def calibrate(images, board_path, output, model, coefficients, fix_aspect, min_c
     usable, usable within a region, or not usable and why. In detail: docs/calibration.md.
     \f
     Views without a usable board are skipped, outlier views and corners rejected (with
-    their reasons in --report); the board's warp is estimated and the sigmas hold the
-    corner errors seen, correlated ones too. Two halves of the views are calibrated apart
+    their reasons in --report); the board's warp is estimated (its twist too, where
+    held-out views keep it) and the sigmas hold the corner errors seen, correlated ones too. Two halves of the views are calibrated apart
     as a check (odd/even and --halves random ones, pooled; on a small set more halves read
     the pooled figures more precisely). --report writes .json (everything measured) or .html (the verdict, the
     projection-uncertainty and cross-validation maps, advice on what views to add).

@@ -79,7 +79,8 @@ def used_views(result, detections, board):
         d, m = detections[i], np.asarray(result.corner_used[i], bool)
         objs.append(obj_all[np.asarray(d.ids, int)][m])
         imgs.append(np.asarray(d.corners, float).reshape(-1, 2)[m])
-    return idx, objs, imgs, [warp_basis(obj_all, o) for o in objs]
+    twist = result.layout is not None and result.layout.twist
+    return idx, objs, imgs, [warp_basis(obj_all, o, twist) for o in objs]
 
 
 def _camera(layout, theta, size):

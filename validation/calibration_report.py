@@ -262,8 +262,11 @@ def _model(rep):
 
 
 def _warp_text(w):
+    tw = w.get("twist_choice") or {}
+    why = "" if not tw else (f"; the twist {'kept' if tw['kept'] else 'left out'}: held-out views "
+                             f"{num(tw['heldout_without'])} -> {num(tw['heldout_with'])} px^2 with it")
     return ", ".join(f"{n} {num(v)} +- {num(s)}" for n, v, s in zip(w["names"], w["value"], w["std"])) + \
-        " (board units, at the board's middle)"
+        " (board units: the bows at the board's middle, the twist at its corners" + why + ")"
 
 
 def _corners_text(bc):

@@ -1,7 +1,8 @@
 """A calibration with its checks and its verdict, as `pencilcal calibrate` makes it.
 
 `calibrate_checked` is what the command and `pencilcal.calibrate` run: the calibration with
-the board's warp and the corner-noise model (`toolkit.board.calibrate`), then its checks
+the board's warp (and its twist where held-out views keep it: `model_choice.choose_twist`)
+and the corner-noise model (`toolkit.board.calibrate`), then its checks
 (`validation.calibration_checks`: two halves of the views, the projection uncertainty over
 the image, how the views saw the board) and the verdict (`validation.calibration_verdict`).
 
@@ -91,12 +92,14 @@ def _summary(result, halves):
 
 
 def calibrate_checked(detections, board, image_size, model="opencv", coefficients=None, *, checks=True,
-                      repeats=RANDOM_HALVES, usable_px=USABLE_PX, candidates=CANDIDATES, warp=True, **options):
+                      repeats=RANDOM_HALVES, usable_px=USABLE_PX, candidates=CANDIDATES, warp=True, twist="auto",
+                      **options):
     """Calibrate (`toolkit.board.calibrate.calibrate` with the board's warp and the corner-noise
     model), check and judge; the module's docstring.
 
     detections, board, image_size, model ("opencv", "pinhole", "fisheye" or "auto"),
-    coefficients, candidates, warp and options (fix_aspect, min_corners, ...) as `calibrate`;
+    coefficients, candidates, warp, twist (by default where held-out views keep it) and options
+    (fix_aspect, min_corners, ...) as `calibrate`;
     checks : run the checks and the verdict (``result.checks``); repeats : random halves
     besides odd and even; usable_px : the verdict's threshold [px].
     """
@@ -104,7 +107,7 @@ def calibrate_checked(detections, board, image_size, model="opencv", coefficient
 
     def fit(m, n):
         return calibrate(detections, board, image_size, model=m, coefficients=n, corner_noise=True, warp=warp,
-                         candidates=candidates, **options)
+                         twist=twist, candidates=candidates, **options)
 
     result = fit(model, coefficients)
     if not checks:

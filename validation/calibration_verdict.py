@@ -20,7 +20,8 @@ and `CONSISTENT_RATIO` (pooled projection difference over its prediction) for th
 be trusted as they are; between those bounds and `DISAGREE` the verdict stands with a
 warning that says by how much the sigmas look small. Each view's own focal scale must
 scatter as its corner noise says (`calibration_checks.view_focal_scales`): a p-value under
-`DISAGREE_P` warns that the focus, zoom or board changed between the views.
+`DISAGREE_P` warns that the focus, zoom or board changed between the views (a board's
+fixed shape, its warp and twist, is in the calibration's model: it does not scatter them).
 
 The advice names what to add: views where the image is thin (`coverage_regions`), tilted
 views, views at other distances, more views, a board that fills more of the image.
@@ -235,8 +236,9 @@ def judge(views_used, halves, umap, geometry, usable_px=USABLE_PX, noise=None):
         warnings.append(f"the views disagree on the focal scale beyond their corner noise (scatter "
                         f"{scales['chi2_per_dof']:.2f} x the expected over {scales['views']} views, p "
                         f"{scales['p_value']:.1g}; {100 * scales['tau']:.2g} % per view beyond it), as when a focus "
-                        "or zoom changed between the views or the board bent differently in each; the focal length's "
-                        "sigma leaves that scatter out")
+                        "or zoom changed between the views or the board bent differently in each (its fixed warp "
+                        "and twist are in the model); the focal length's sigma leaves that scatter out: fix the "
+                        "focus and zoom, mount the board flat on a rigid backing, and calibrate again")
     dep = umap.get("linear_departure")
     if dep is not None and not float(dep) <= LINEAR_DEPARTURE:
         warnings.append(f"the lens model's coefficients are not determined by these views: a one-sigma change of them "

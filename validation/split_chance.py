@@ -99,7 +99,7 @@ def run(result, detections, board, seed, repeats=4):
     sim, truth = simulated_views(result, detections, board, seed)
     size = result.camera.size
     res = calibrate(sim, board, size, model=result.model, coefficients=result.coefficients, warp=result.layout.warp,
-                    corner_noise=result.corner_noise is not None, outlier_view_sigma=None)
+                    twist=result.layout.twist, corner_noise=result.corner_noise is not None, outlier_view_sigma=None)
     h = calibration_halves(res, sim, board, repeats=repeats, seed=int(seed))
     oe = h["odd_even"]
     n = min(9, truth.size)

@@ -97,17 +97,46 @@ def test_the_calibration_passes_its_own_cross_validation(checked, name):
 def test_each_views_focal_scale_scatters_as_its_noise_says(checked, name):
     """A focus, zoom or board that changed between the views scatters each view's own focal
     scale beyond its corner noise. Measured chi-square per dof: da Vinci left 0.98 (p 0.52),
-    right 1.07, OpenCV left 0.38, right 0.52; RealSense 2.09 (p 0.0008), which the verdict
-    warns about (docs/calibration.md)."""
+    right 1.07, OpenCV left 0.38, right 0.52; RealSense 1.55 (p 0.035) with its board's twist
+    in the model, 2.09 (p 0.0008) without it (the next test): a twisted board, not the lens
+    (docs/calibration.md)."""
     res = checked(name)
     vs = res.checks.halves["view_focal_scale"]
     assert vs["views"] == res.views_used
     warned = any("focal scale beyond their corner noise" in w for w in res.checks.verdict.warnings)
     assert warned == (vs["p_value"] < 1e-3), (vs, res.checks.verdict.warnings)
+    assert not warned, vs
     if name == "realsense":
-        assert vs["chi2_per_dof"] > 1.5 and vs["p_value"] < 0.01, vs
+        assert vs["chi2_per_dof"] < 1.8 and vs["p_value"] > 0.01, vs
     else:
-        assert vs["chi2_per_dof"] < 1.3 and vs["p_value"] > 0.05 and not warned, vs
+        assert vs["chi2_per_dof"] < 1.3 and vs["p_value"] > 0.05, vs
+
+
+@pytest.mark.parametrize("name", list(SETS))
+def test_the_boards_twist_is_kept_only_where_held_out_views_want_it(checked, name):
+    """The RealSense board is twisted: -0.49 +- 0.03 mm at its corners, and the twist lowers
+    the held-out views' score by 41 % (0.232 -> 0.136 px^2, 4.4 standard errors); on the
+    other sets it changes nothing (+0.00004 to +0.00017 px^2) and is left out."""
+    res = checked(name)
+    rec = res.warp["twist_choice"]
+    assert rec["kept"] is (name == "realsense"), rec
+    assert len(res.warp["value"]) == (3 if rec["kept"] else 2)
+    if rec["kept"]:
+        assert abs(res.warp["value"][2]) > 10 * res.warp["std"][2]
+        assert rec["heldout_with"] < 0.8 * rec["heldout_without"], rec
+
+
+def test_without_the_twist_the_realsense_views_scatter_in_focal_scale():
+    """The same RealSense calibration with the board's two parabolas only: each view's focal
+    scale scatters beyond its noise (2.09 x, p 0.0008) and the verdict warns of it: the
+    per-view focal effect was the board's twist seen from different directions."""
+    board, dets, size, _ = detections("realsense")
+    res = calibrate_checked(dets, board, size, repeats=0, twist=False)
+    vs = res.checks.halves["view_focal_scale"]
+    assert "twist_choice" not in res.warp and len(res.warp["value"]) == 2
+    assert vs["chi2_per_dof"] > 1.8 and vs["p_value"] < 0.005, vs
+    assert any("focal scale beyond their corner noise" in w and "rigid backing" in w
+               for w in res.checks.verdict.warnings) == (vs["p_value"] < 1e-3)
 
 
 def test_the_da_vinci_left_split_is_one_direction(checked):
@@ -127,14 +156,19 @@ def test_focal_lengths_within_a_thousandth_of_the_reference(checked, name, fx, f
     assert cam.fx == pytest.approx(fx, rel=1e-3) and cam.fy == pytest.approx(fy, rel=1e-3)
 
 
-def test_realsense_published_focal_within_the_sigma(checked):
-    """Published (calibrateCameraCharuco, no warp): fx 898.29, fy 901.07. The board's warp
-    (significant here) moves the focal length by 0.5 %, within its 0.6 % sigma."""
+def test_realsense_published_focal_is_a_flat_boards(checked):
+    """Published (calibrateCameraCharuco, a flat board): fx 898.29, fy 901.07. The same flat
+    board here gives them within 0.1 % (897.55, 900.29); the board's bow and twist (both
+    significant) move the focal length by +0.7 % (903.71 +- 2.84): 1.9 of its sigmas from the
+    published one, which the flat board's shape errors carry."""
     res = checked("realsense")
     warp = np.array(res.warp["value"]) / np.array(res.warp["std"])
-    assert np.sum(warp ** 2) > 9.2                    # chi-square(2) at 1 %: the warp is there
-    assert abs(res.camera.fx - 898.2901) < 1.5 * res.std_intrinsics["fx"]
-    assert abs(res.camera.fy - 901.0698) < 1.5 * res.std_intrinsics["fy"]
+    assert np.sum(warp ** 2) > 11.3                   # chi-square(3) at 1 %: the warp is there
+    board, dets, size, _ = detections("realsense")
+    flat = calibrate_checked(dets, board, size, checks=False, warp=False)
+    assert flat.camera.fx == pytest.approx(898.2901, rel=1e-3) and flat.camera.fy == pytest.approx(901.0698, rel=1e-3)
+    assert abs(res.camera.fx - 898.2901) < 2.5 * res.std_intrinsics["fx"]
+    assert abs(res.camera.fy - 901.0698) < 2.5 * res.std_intrinsics["fy"]
 
 
 def _corner_offsets(res, dets, board):
@@ -179,8 +213,10 @@ def test_the_printed_corner_offsets_are_the_boards(checked):
         assert np.corrcoef(ml[ok, a], mr[ok, a])[0, 1] > 0.3
 
 
-@pytest.mark.parametrize("name", ["davinci_left", "davinci_right", "opencv_left", "opencv_right"])
+@pytest.mark.parametrize("name", ["davinci_left", "davinci_right", "opencv_left", "opencv_right", "realsense"])
 def test_the_verdict_on_good_sets(checked, name):
+    """The RealSense views too, since their board's twist is in the model (its projection
+    known to 0.73 px over the region they cover; without the twist 1.42 px: not usable)."""
     v = checked(name).checks.verdict
     assert v.status in ("usable", "usable within this region"), v.headline
     assert " px" in v.headline and not v.reasons

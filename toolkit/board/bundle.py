@@ -6,11 +6,14 @@ every view and, with ``Layout.warp``, two warp parameters of the board, as mrcal
 fraction of a millimetre moves the corners of a tilted view by more than their noise. The
 board's points are displaced along its normal (board frame z, into the sheet) by::
 
-    dz = warp_x * 4 s (1 - s) + warp_y * 4 t (1 - t)
+    dz = warp_x * 4 s (1 - s) + warp_y * 4 t (1 - t)  [+ warp_twist * 4 (s - 1/2) (t - 1/2)]
 
 with s, t in [0, 1] the corner's position across the board's corner grid (`warp_basis`):
 two parabolas, zero along the grid's border, ``warp_x`` and ``warp_y`` [board unit] at its
-middle. The solver is Levenberg-Marquardt on the normal equations with the poses eliminated
+middle; with ``Layout.twist`` a third shape, the saddle of a board twisted about its axes
+(zero along the grid's middle lines, ``+-warp_twist`` at its corners), which mrcal's two
+parabolas lack: a twisted board seen from different directions looks like a focal length
+that changes from view to view. The solver is Levenberg-Marquardt on the normal equations with the poses eliminated
 by a Schur complement (one small solve per view), the projection and its Jacobian from
 ``cv2.projectPoints`` / ``cv2.fisheye.projectPoints``.
 
@@ -58,7 +61,7 @@ __all__ = ["Layout", "Solution", "Covariance", "warp_basis", "theta_of", "camera
            "WARP_NAMES"]
 
 #: Names of the board's warp parameters [board unit].
-WARP_NAMES = ("warp_x", "warp_y")
+WARP_NAMES = ("warp_x", "warp_y", "warp_twist")
 # Levenberg-Marquardt: the first damping (relative to the normal matrix's diagonal), the
 # largest before giving up, and the relative decrease of the cost that ends the iteration
 _LAMBDA0 = 1e-4
@@ -76,7 +79,8 @@ class Layout:
     model : "opencv" | "pinhole" | "fisheye" | a splined model's name; n_coef : its
     distortion coefficient count (0 for pinhole, 2 Nx Ny control points for splined);
     fix_aspect : fx = a fy with a held; fix_principal_point : cx, cy held; zero_tangent :
-    opencv p1 = p2 = 0 held; warp : the board's two warp parameters estimated;
+    opencv p1 = p2 = 0 held; warp : the board's two warp parameters estimated; twist : and
+    the board's twist as a third (with ``warp``);
     spline_weight : a splined model's penalty on each control point [px per unit of u]
     (`splined.REGULARIZATION` times the focal length: `splined_layout`).
     """
@@ -88,6 +92,12 @@ class Layout:
     zero_tangent: bool = False
     warp: bool = True
     spline_weight: float = 0.0
+    twist: bool = False
+
+    @property
+    def n_warp(self):
+        """The board's shape parameters estimated: 0, 2 (the parabolas) or 3 (and the twist)."""
+        return (3 if self.twist else 2) if self.warp else 0
 
     @property
     def names(self):
@@ -118,13 +128,13 @@ class Layout:
         free = (1 if self.fix_aspect else 2) + (0 if self.fix_principal_point else 2) + self.n_coef
         if self.model == "opencv" and self.zero_tangent:
             free -= 2
-        return free + (2 if self.warp else 0)
+        return free + self.n_warp
 
 
 @dataclass
 class Solution:
     """The optimum: theta (P,) full intrinsics, poses (V, 2, 3) (rvec, tvec) per view, warp
-    (2,) [board unit] (zeros when not estimated), the sum of squared residuals [px^2] over
+    (2,) [board unit] ((3,) with the twist; zeros (2,) when not estimated), the sum of squared residuals [px^2] over
     ``corners`` corners (a splined model's penalty not included), and the iterations run."""
 
     theta: np.ndarray
@@ -140,7 +150,7 @@ class Covariance:
     """The estimate's covariance under a corner-error model.
 
     intrinsics : (P, P) over the full intrinsic vector (held parameters zero rows);
-    warp : (2, 2) [board unit^2] (zeros when not estimated); cross : (P, 2) between them;
+    warp : (W, 2) [board unit^2] (W = 3 with the twist; zeros (2, 2) when not estimated); cross : (P, W) between them;
     poses : (V, 6, 6) each view's (rvec, tvec); sigma_w : (V,) each view's white corner
     noise [px per axis]; model : "white" (one level, OpenCV's) or "views" (each view's level
     and the correlated part).
@@ -155,19 +165,25 @@ class Covariance:
     extra: dict = field(default_factory=dict)
 
 
-def warp_basis(board_points, points):
+def warp_basis(board_points, points, twist=False):
     """(N, 2) the warp's two shapes at `points` (N, 3) of a board whose corners are
     `board_points` (M, 3): ``4 s (1 - s)`` and ``4 t (1 - t)``, s and t the position across
-    the corner grid's extent along x and y (0 at the first corner, 1 at the last).
+    the corner grid's extent along x and y (0 at the first corner, 1 at the last); with
+    `twist` (N, 3), the twist's ``4 (s - 1/2) (t - 1/2)`` as the third.
 
     >>> b = np.array([[0.0, 0, 0], [10, 0, 0], [0, 20, 0], [10, 20, 0]])
     >>> warp_basis(b, np.array([[5.0, 10, 0], [0, 0, 0]])).tolist()
     [[1.0, 1.0], [0.0, 0.0]]
+    >>> warp_basis(b, np.array([[5.0, 10, 0], [0, 0, 0], [10, 0, 0]]), twist=True)[:, 2].tolist()
+    [0.0, 1.0, -1.0]
     """
     lo = np.min(board_points[:, :2], 0)
     span = np.maximum(np.ptp(board_points[:, :2], 0), 1e-12)
     s = (np.asarray(points, float)[:, :2] - lo) / span
-    return 4.0 * s * (1.0 - s)
+    out = 4.0 * s * (1.0 - s)
+    if twist:
+        out = np.c_[out, 4.0 * (s[:, 0] - 0.5) * (s[:, 1] - 0.5)]
+    return out
 
 
 def theta_of(K, dist, layout):
@@ -184,7 +200,8 @@ def splined_layout(layout, cfg, theta):
     its control points penalised with the weight `splined.REGULARIZATION` x sqrt(fx fy) of
     the intrinsics `theta` to start from."""
     w = _spl.REGULARIZATION * math.sqrt(abs(theta[0] * theta[1]))
-    return Layout(cfg.name, cfg.parameters, layout.fix_aspect, layout.fix_principal_point, False, layout.warp, w)
+    return Layout(cfg.name, cfg.parameters, layout.fix_aspect, layout.fix_principal_point, False, layout.warp, w,
+                  layout.twist)
 
 
 def _regularization(layout, theta, T):
@@ -319,7 +336,7 @@ def view_jacobians(layout, solution, objs, imgs, bases=None):
 def _normal(layout, theta, T, poses, warp, objs, imgs, bases, weights=None):
     """The normal equations' blocks: A (G, G), g (G,), per view B (G, 6), C (6, 6), q (6,),
     and the cost (weighted with `weights`)."""
-    G = T.shape[1] + (2 if layout.warp else 0)
+    G = T.shape[1] + layout.n_warp
     A, g = np.zeros((G, G)), np.zeros(G)
     Bs, Cs, qs = [], [], []
     sse = 0.0
@@ -364,8 +381,8 @@ def refine(layout, theta, poses, objs, imgs, bases=None, warp=None, max_iteratio
     theta : (P,) the full intrinsics to start from (held ones stay).
     poses : (V, 2, 3) or sequence of (rvec, tvec): each view's pose to start from.
     objs, imgs : per view the board points (N_v, 3) [board unit] and their corners (N_v, 2) [px].
-    bases : per view `warp_basis` (N_v, 2); needed with ``layout.warp``.
-    warp : (2,) to start from (zeros).
+    bases : per view `warp_basis` (N_v, 2), (N_v, 3) with ``layout.twist``; needed with ``layout.warp``.
+    warp : (2,) or (3,) to start from (zeros; a missing twist starts at 0).
     weights : per view (N_v,) each corner's weight (the inverse of its variance relative
         to the rest; `corner_noise`), or None: ordinary least squares. The solution's sse
         is then the weighted one.
@@ -377,7 +394,7 @@ def refine(layout, theta, poses, objs, imgs, bases=None, warp=None, max_iteratio
     """
     theta = np.array(theta, float)
     poses = np.array([np.r_[np.ravel(r), np.ravel(t)] for r, t in poses], float).reshape(-1, 2, 3)
-    warp = np.zeros(2) if warp is None else np.array(warp, float)
+    warp = _warp_start(layout, warp)
     bases = list(bases) if bases is not None else [None] * len(objs)
     if layout.warp and any(b is None for b in bases):
         raise ValueError("the warp needs every view's warp_basis")
@@ -415,6 +432,17 @@ def refine(layout, theta, poses, objs, imgs, bases=None, warp=None, max_iteratio
     # the solution's sse is the corners' alone (the penalty is not a residual of the data)
     sse = float(blocks[5]) - (float(reg[0] @ reg[0]) if reg is not None else 0.0)
     return Solution(theta, poses, warp if layout.warp else np.zeros(2), sse, corners, it)
+
+
+def _warp_start(layout, warp):
+    """The warp to start from: zeros, or `warp` padded with a zero twist where the layout
+    estimates one (a start from a fit without it)."""
+    n = max(layout.n_warp, 2)
+    out = np.zeros(n)
+    if warp is not None:
+        w = np.asarray(warp, float).reshape(-1)[:n]
+        out[:w.size] = w
+    return out
 
 
 def view_residuals(layout, solution, objs, imgs, bases=None):
@@ -586,10 +614,11 @@ def covariance(layout, solution, objs, imgs, bases=None, noise=None, weights=Non
         cross = v * Ci @ (GJ_S.T @ (PJ * g[:, None])) @ Si @ B @ Ci
         cp = own - cross - cross.T + Ci @ B.T @ Cg @ B @ Ci
         cov_poses.append(0.5 * (cp + cp.T))
-    Ti = np.zeros((T.shape[0] + 2, G))
+    nw = max(layout.n_warp, 2)
+    Ti = np.zeros((T.shape[0] + nw, G))
     Ti[:T.shape[0], :F] = T
     if layout.warp:
-        Ti[T.shape[0]:, F:] = np.eye(2)
+        Ti[T.shape[0]:, F:] = np.eye(nw)
     full = Ti @ Cg @ Ti.T if np.all(np.isfinite(Cg)) else np.full((Ti.shape[0],) * 2, np.inf)
     P = T.shape[0]
     return Covariance(0.5 * (full[:P, :P] + full[:P, :P].T), full[P:, P:], full[:P, P:], np.array(cov_poses),

@@ -68,7 +68,8 @@ from pencilcal.toolkit.board import image_field
 from pencilcal.toolkit.board.print_errors import covariance_term, fit_print_errors, intrinsic_gain, view_gains
 from pencilcal.toolkit.board.detect import BoardDetection
 from pencilcal.toolkit.board.calibration_file import SYMMETRIC_KEY
-from pencilcal.toolkit.board.model_choice import CANDIDATES, SPLINED, choose_model, chosen_score, splined_start
+from pencilcal.toolkit.board.model_choice import CANDIDATES, SPLINED, choose_model, choose_twist, chosen_score, \
+    splined_start
 from pencilcal.toolkit.camera.splined import is_splined, splined_config
 from pencilcal.toolkit.board.synthetic import synthetic_detections
 from pencilcal.toolkit.errors import EstimationError, InputError
@@ -449,7 +450,7 @@ def _single_threaded(fn):
 def calibrate(detections, board, image_size, model="opencv", coefficients=None, *, fix_aspect=False,
               fix_principal_point=False, zero_tangent=False, min_corners=6, min_views=3,
               outlier_view_sigma=4.0, outlier_corner_sigma=5.0, max_rounds=20, corner_noise=False, warp=False,
-              candidates=CANDIDATES):
+              candidates=CANDIDATES, twist=False):
     """Calibrate one camera's intrinsics from board detections in several views.
 
     Parameters
@@ -501,6 +502,11 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
         Also estimate the board's warp (`bundle`: two parabolas along the board, mrcal's
         calobject_warp), in the final solve; ``warp`` on the result and ``board_warp`` in
         the camera's statistics.
+    twist : bool or "auto"
+        With `warp`, the board's twist as a third shape (`bundle.warp_basis`: a saddle,
+        +-warp_twist at the grid's corners), which two parabolas do not hold; ``"auto"``:
+        where held-out views say so (`model_choice.choose_twist`, its record in
+        ``warp["twist_choice"]``).
 
     Returns
     -------
@@ -535,6 +541,8 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
         model, coefficients = "opencv", None
     n_coef = _coefficient_count(model, coefficients)
     image_size = _check_options(model, fix_aspect, zero_tangent, image_size, min_corners, min_views)
+    if not (twist is True or twist is False or twist == "auto"):
+        raise InputError(f"twist must be True, False or 'auto', got {twist!r}")
     detections = list(detections)
     for d in detections:
         if d is not None and not isinstance(d, BoardDetection):
@@ -555,7 +563,14 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
     rejection = (outlier_view_sigma, outlier_corner_sigma, int(min_corners), int(min_views), int(max_rounds))
     used, masks, theta, poses, rounds, flag_names = _fit_with_rejection(layout, objs, imgs, usable, image_size,
                                                                         rejection, rejected)
-    layout = Layout(model, n_coef, bool(fix_aspect), bool(fix_principal_point), bool(zero_tangent), warp=bool(warp))
+    twist_rec = None
+    if warp and twist == "auto":
+        lean = Layout(model, n_coef, bool(fix_aspect), bool(fix_principal_point), bool(zero_tangent), warp=True)
+        twist_rec = choose_twist(lean, theta, [poses[i] for i in used], [objs[i][masks[i]] for i in used],
+                                 [imgs[i][masks[i]] for i in used], board.object_points())
+        twist = twist_rec is not None and twist_rec["kept"]
+    layout = Layout(model, n_coef, bool(fix_aspect), bool(fix_principal_point), bool(zero_tangent), warp=bool(warp),
+                    twist=bool(warp and twist))
     choice, warp0 = None, None
     if auto:
         choice, layout, theta, poses, warp0 = _auto(layout, board, objs, imgs, used, masks, theta, poses,
@@ -568,6 +583,8 @@ def calibrate(detections, board, image_size, model="opencv", coefficients=None, 
     result = _final(layout, board, detections, objs, imgs, used, masks, theta, poses, image_size, corner_noise,
                     rejected, rounds, flag_names, warp0)
     result.model_choice = choice
+    if twist_rec is not None and result.warp is not None:
+        result.warp["twist_choice"] = twist_rec
     return result
 
 
@@ -589,7 +606,7 @@ def _auto(layout, board, objs, imgs, used, masks, theta, poses, candidates, imag
     obj_all = board.object_points()
     o = [objs[i][masks[i]] for i in used]
     p = [imgs[i][masks[i]] for i in used]
-    bases = [warp_basis(obj_all, x) for x in o]
+    bases = [warp_basis(obj_all, x, layout.twist) for x in o]
     start = [poses[i] for i in used]
     weights = noise = None
     if corner_noise:
@@ -604,7 +621,7 @@ def _auto(layout, board, objs, imgs, used, masks, theta, poses, candidates, imag
     sol = score.solution
     chosen = score.layout if score.layout is not None else \
         Layout(choice.model, choice.coefficients, layout.fix_aspect, layout.fix_principal_point,
-               layout.zero_tangent and choice.model == "opencv", layout.warp)
+               layout.zero_tangent and choice.model == "opencv", layout.warp, twist=layout.twist)
     return choice, chosen, sol.theta, {i: (sol.poses[j][0], sol.poses[j][1]) for j, i in enumerate(used)}, sol.warp
 
 
@@ -693,7 +710,7 @@ def _final(layout, board, detections, objs, imgs, used, masks, theta, poses, ima
     n_views = len(detections)
     o = [objs[i][masks[i]] for i in used]
     p = [imgs[i][masks[i]] for i in used]
-    bases = [warp_basis(obj_all, x) for x in o]
+    bases = [warp_basis(obj_all, x, layout.twist) for x in o]
     sol = refine(layout, theta, [poses[i] for i in used], o, p, bases, warp=warp0)
     noise, weights = None, None
     if corner_noise:
@@ -711,7 +728,7 @@ def _final(layout, board, detections, objs, imgs, used, masks, theta, poses, ima
     cov_full = IntrinsicsCovariance(tuple(names), cov.intrinsics) if np.all(np.isfinite(cov.intrinsics)) else None
     per_view_rms, residuals, corner_used, std_ext, view_poses = ([None] * n_views for _ in range(5))
     full_res = view_residuals(layout, sol, [objs[i] for i in used], [imgs[i] for i in used],
-                              [warp_basis(obj_all, objs[i]) for i in used])
+                              [warp_basis(obj_all, objs[i], layout.twist) for i in used])
     sse, m = 0.0, 0
     for j, i in enumerate(used):
         residuals[i] = full_res[j]
@@ -726,7 +743,7 @@ def _final(layout, board, detections, objs, imgs, used, masks, theta, poses, ima
     rms = math.sqrt(sse / m)
     warp_rec = None
     if layout.warp:
-        warp_rec = {"names": list(WARP_NAMES), "value": sol.warp.tolist(),
+        warp_rec = {"names": list(WARP_NAMES[:layout.n_warp]), "value": sol.warp.tolist(),
                     "std": np.sqrt(np.clip(np.diag(cov.warp), 0, None)).tolist(), "cov": cov.warp.tolist()}
     meta = {"rms_px": rms, "std_intrinsics": std_intr, "views_used": len(used), "views_total": n_views,
             "corners_used": m,

@@ -157,13 +157,15 @@ def board_model(board, camera):
     When the camera's statistics (``meta``, written by `pencilcal calibrate`) record a
     calibration of this same board (``calibration.board``) with its warp (``board_warp``),
     each corner is lifted off the board's plane by the warp (`bundle.warp_basis`: zero on
-    the corner grid's border, ``warp_x`` / ``warp_y`` [board unit] at its middle); the
+    the corner grid's border, ``warp_x`` / ``warp_y`` [board unit] at its middle, and
+    ``warp_twist`` at its corners where the calibration estimated the board's twist); the
     poses of that board are then those of the board the calibration saw. The printed
     board's corner offsets (``board_corners``) are a variance, not per-corner values: in one
     view they are white errors its residuals already hold (`print_errors`), nothing to add.
 
-    board : Board; camera : Camera. Returns (points (M, 3) [board unit], basis (M, 2): d
-    point z / d warp, warp covariance (2, 2) [board unit^2] or None): the nominal
+    board : Board; camera : Camera. Returns (points (M, 3) [board unit], basis (M, W): d
+    point z / d warp, warp covariance (W, W) [board unit^2] or None; W = 2, or 3 with the
+    twist): the nominal
     `Board.object_points` with basis and covariance None for another board, no warp, or a
     camera without the record.
 
@@ -187,11 +189,13 @@ def board_model(board, camera):
     if not isinstance(calib, dict) or not isinstance(warp, dict) or not _same_board(calib.get("board"), board):
         return X, None, None
     try:
-        value = np.asarray(warp["value"], float).reshape(2)
-        cov = np.asarray(warp["cov"], float).reshape(2, 2) if warp.get("cov") is not None else None
+        value = np.asarray(warp["value"], float).reshape(-1)
+        if value.size not in (2, 3):
+            raise ValueError(f"{value.size} values (2: the parabolas, 3: and the twist)")
+        cov = np.asarray(warp["cov"], float).reshape(value.size, value.size) if warp.get("cov") is not None else None
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(f"the camera's board_warp record is malformed: {e}") from None
-    basis = warp_basis(X, X)
+    basis = warp_basis(X, X, twist=value.size == 3)
     out = X.copy()
     out[:, 2] += basis @ value
     return out, basis, cov

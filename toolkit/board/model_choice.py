@@ -50,13 +50,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pencilcal.toolkit.board.bundle import Layout, camera_parts, covariance, fit_pose, refine, splined_layout, \
-    theta_of, view_residuals
+    theta_of, view_residuals, warp_basis
 from pencilcal.toolkit.camera import splined as _spl
 from pencilcal.toolkit.camera.projection_uncertainty import LINEAR_DEPARTURE, linearity
 from pencilcal.toolkit.errors import EstimationError
 
 __all__ = ["CANDIDATES", "SPLINED", "FOLDS", "LINEAR_DEPARTURE", "ModelScore", "ModelChoice", "choose_model", "chosen_score",
-           "simpler_choice", "splined_start"]
+           "simpler_choice", "splined_start", "choose_twist"]
 
 #: The candidate name of the splined model on the grid `splined_start` places.
 SPLINED = "splined"
@@ -126,9 +126,9 @@ class ModelChoice:
                 "candidates": [s.to_dict() for s in self.scores]}
 
 
-def _layout(model, n, warp, fix_aspect, fix_principal_point, zero_tangent):
+def _layout(model, n, warp, fix_aspect, fix_principal_point, zero_tangent, twist=False):
     return Layout(model, n, bool(fix_aspect), bool(fix_principal_point), bool(zero_tangent and model == "opencv"),
-                  warp=bool(warp))
+                  warp=bool(warp), twist=bool(warp and twist))
 
 
 def splined_start(layout, K, dist, image_size, Nx=None, config=None):
@@ -166,6 +166,55 @@ def _score(layout, theta0, poses, objs, imgs, bases, folds, weights=None):
     return full, scores
 
 
+def choose_twist(layout, theta, poses, objs, imgs, board_points, folds=FOLDS):
+    """Whether the board's twist (`bundle.warp_basis`'s third shape) predicts held-out views
+    better than the warp's two parabolas alone, by the rule `choose_model` applies to lens
+    models: the same k-fold views, each view's held-out score with and without the twist,
+    and the twist kept only where its mean score is lower by more than one standard error
+    of the views' paired differences (one parameter earns its place on views it was not
+    fitted to). A board twisted about its axes, seen from different directions, looks like
+    a focal length that changes from view to view.
+
+    layout : the calibration's `bundle.Layout` (with the warp; its twist ignored); theta,
+    poses : a fit of these views to start from; objs, imgs : per view the board points
+    (N_v, 3) and corners (N_v, 2) [px]; board_points (M, 3) : the board's corners.
+
+    Returns ``{"kept", "views", "folds", "heldout_without", "heldout_with" (mean scores,
+    px^2 per axis), "difference", "difference_se", "twist" (the fit to all views [board
+    unit], its sign: +corner (first, first) up), "rule"}``; None with fewer than 6 views or
+    no warp.
+
+    >>> import numpy as np
+    >>> from pencilcal.toolkit.board.spec import board_from_dict
+    >>> from pencilcal.toolkit.board.calibrate import synthetic_detections
+    >>> from pencilcal.toolkit.board.bundle import Layout, theta_of
+    >>> from pencilcal.toolkit.camera.model import Camera
+    >>> board = board_from_dict({"type": "chessboard", "squares": [9, 6], "square": 25.0})
+    >>> cam = Camera("opencv", 640, 480, [[530.0, 0, 320.0], [0, 530.0, 240.0], [0, 0, 1]], [-0.2, 0.05, 0, 0, 0])
+    >>> dets = synthetic_detections(cam, board, views=12, noise_px=0.1, seed=3, warp=(0.0, 0.0, 0.6))
+    >>> objs = [board.object_points()] * 12
+    >>> lay = Layout("opencv", 5)
+    >>> rec = choose_twist(lay, theta_of(cam.K, cam.dist, lay), dets.truth, objs, [d.corners for d in dets], objs[0])
+    >>> rec["kept"], bool(abs(rec["twist"] - 0.6) < 0.1)
+    (True, True)
+    """
+    from dataclasses import replace
+
+    if not layout.warp or len(objs) < _MIN_VIEWS:
+        return None
+    folds = int(min(max(2, folds), len(objs)))
+    got = {}
+    for tw in (False, True):
+        lay = replace(layout, twist=tw)
+        got[tw] = _score(lay, theta, poses, objs, imgs, [warp_basis(board_points, o, tw) for o in objs], folds)
+    d = got[True][1] - got[False][1]
+    se = float(np.std(d, ddof=1) / math.sqrt(d.size))
+    return {"kept": bool(np.mean(d) < -se), "views": int(d.size), "folds": folds,
+            "heldout_without": float(np.mean(got[False][1])), "heldout_with": float(np.mean(got[True][1])),
+            "difference": float(np.mean(d)), "difference_se": se, "twist": float(got[True][0].warp[2]),
+            "rule": "the twist kept where it lowers the views' mean held-out score by more than one standard error"}
+
+
 def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds=FOLDS, warp=True,
                  fix_aspect=False, fix_principal_point=False, zero_tangent=False, image_size=None, lean=None,
                  weights=None, noise=None):
@@ -174,7 +223,8 @@ def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds
     Parameters
     ----------
     objs, imgs, bases : per view the board points (N_v, 3), their corners (N_v, 2) [px]
-        and `bundle.warp_basis` (N_v, 2): the views and corners a calibration kept.
+        and `bundle.warp_basis` (N_v, 2): the views and corners a calibration kept (bases of
+        three columns: the board's twist estimated with its warp).
     K, dist, poses : a calibration of these views to start every candidate from (3, 3),
         its coefficients (OpenCV's order), per view (rvec, tvec).
     candidates : (model, coefficients) pairs; folds : groups of views (at most the views).
@@ -200,8 +250,9 @@ def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds
     folds = int(min(max(2, folds), V))
     scores = []
     lean = lean or ("opencv" if np.size(dist) else "pinhole", int(np.size(dist)))
+    twist = bool(warp) and np.shape(bases[0])[-1] == 3
     for model, n in candidates:
-        layout = _layout(model, n, warp, fix_aspect, fix_principal_point, zero_tangent)
+        layout = _layout(model, n, warp, fix_aspect, fix_principal_point, zero_tangent, twist)
         rec = ModelScore(model, n, 4 + n)
         if model == "fisheye" and fix_aspect:
             rec.status = "not with a fixed aspect ratio"
@@ -212,7 +263,7 @@ def choose_model(objs, imgs, bases, K, dist, poses, candidates=CANDIDATES, folds
                 rec.status = "not without the image size" if image_size is None else "not with a fixed aspect ratio"
                 scores.append(rec)
                 continue
-            layout, theta0 = splined_start(_layout(lean[0], lean[1], warp, False, fix_principal_point, False), K,
+            layout, theta0 = splined_start(_layout(lean[0], lean[1], warp, False, fix_principal_point, False, twist), K,
                                            dist, image_size)
             rec.model, rec.coefficients, rec.parameters = layout.model, layout.n_coef, 4 + layout.n_coef
         else:

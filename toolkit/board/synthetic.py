@@ -30,7 +30,7 @@ def synthetic_detections(camera, board, views=10, noise_px=0.2, seed=0, distance
     image. ``ids`` are the board's corner ids; `corners` raw pixels + N(0, noise_px^2) per
     axis. Also attaches the true poses as ``.truth`` = list of (rvec, tvec) on the
     returned list. `warp` (2,) [board unit] bends the board as `bundle.warp_basis` says
-    (mrcal's calobject_warp); each view's tilt is drawn from [min_tilt, 1] x `tilt_deg`.
+    (mrcal's calobject_warp), (3,) twists it too; each view's tilt is drawn from [min_tilt, 1] x `tilt_deg`.
     `print_sigma` (2,) [board unit]: each corner printed off its nominal place by
     N(0, print_sigma^2) along board x and y, the same offset in every view (the printed
     board's own errors, `print_errors`); drawn from a generator of its own, so a seed's
@@ -51,7 +51,8 @@ def synthetic_detections(camera, board, views=10, noise_px=0.2, seed=0, distance
     rng = np.random.default_rng(seed)
     flat = board.object_points()
     obj = np.array(flat, float)
-    obj[:, 2] += warp_basis(flat, flat) @ np.asarray(warp, float)
+    w = np.asarray(warp, float).reshape(-1)
+    obj[:, 2] += warp_basis(flat, flat, twist=w.size == 3) @ w
     offsets = np.random.default_rng([int(seed), 7]).normal(size=(obj.shape[0], 2)) * np.asarray(print_sigma, float)
     obj[:, :2] += offsets
     centre = obj.mean(0)

@@ -141,11 +141,11 @@ def pose_intrinsics_sensitivity(camera, object_points, R, t, J):
 
 
 def pose_warp_sensitivity(camera, object_points, image_points, R, t, J, basis):
-    """G (6, 2) = d(pose) / d(board warp) at a least-squares optimum, as
+    """G (6, W) = d(pose) / d(board warp) at a least-squares optimum, as
     `pose_intrinsics_sensitivity`: each corner lifted off the board's plane by ``basis``
-    (K, 2) [d z / d warp, `toolkit.board.bundle.warp_basis`], the residuals' change by
+    (K, W) [d z / d warp, `toolkit.board.bundle.warp_basis`; W = 3 with the twist], the residuals' change by
     central differences (the projection is smooth; the warp moves corners by a fraction of
-    a millimetre). Rows (d_rot [rad], d_t [length]), columns (warp_x, warp_y)."""
+    a millimetre). Rows (d_rot [rad], d_t [length]), columns (warp_x, warp_y[, warp_twist])."""
     X = np.asarray(object_points, float)
     basis = np.asarray(basis, float)
     h = 1e-3 * max(float(np.ptp(X[:, :2])), 1e-9)

@@ -236,8 +236,8 @@ def estimate_pose(object_points, image_points, camera, method=DEFAULT_METHOD, re
         (``cov_intrinsics``), if any. With either, ``cov_total`` (6, 6) holds the corner term
         of that model and the intrinsics' (`covariance.total_covariance`); ``cov`` stays
         the white corner-noise covariance.
-    board_warp : (basis (K, 2), cov (2, 2)), optional
-        The board's warp the object points carry, per point, and its covariance
+    board_warp : (basis (K, W), cov (W, W)), optional
+        The board's warp the object points carry (W = 2, or 3 with the board's twist), per point, and its covariance
         (`toolkit.board.calibration_file.board_model`, which `board_pose` uses): ``cov_total``
         then holds the warp's term too.
 
@@ -268,8 +268,10 @@ def estimate_pose(object_points, image_points, camera, method=DEFAULT_METHOD, re
     """
     t0 = time.perf_counter()
     X, u = _check_arrays(object_points, image_points, method, corner_sigma_px)
-    if board_warp is not None and np.shape(board_warp[0]) != (X.shape[0], 2):
-        raise InputError(f"the board warp's basis must be ({X.shape[0]}, 2), got {np.shape(board_warp[0])}")
+    if board_warp is not None and (np.ndim(board_warp[0]) != 2 or np.shape(board_warp[0])[0] != X.shape[0]
+                                   or np.shape(board_warp[0])[1] not in (2, 3)):
+        raise InputError(f"the board warp's basis must be ({X.shape[0]}, 2), or ({X.shape[0]}, 3) with the twist, "
+                         f"got {np.shape(board_warp[0])}")
     if max_rms_px is not None and not (np.isfinite(max_rms_px) and max_rms_px > 0):
         raise InputError(f"the RMS limit must be a positive number of pixels, got {max_rms_px!r}")
     n = X.shape[0]

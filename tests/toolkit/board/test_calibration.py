@@ -401,3 +401,22 @@ def test_charuco_tutorial_views():
     res = calibrate([det for _, det in dets], board, (640, 480))
     # published: avg_reprojection_error 0.182 from the same 4 views (K itself is ill-conditioned)
     assert res.views_used == 4 and res.rms_px == pytest.approx(0.18, abs=0.03)
+
+
+def test_the_board_as_calibrated_carries_its_twist():
+    """A camera whose calibration measured the board's twist: the board's corners are lifted
+    by it (+-twist at the grid's corners, 0 along its middle lines), the basis has its third
+    column; a record of another length is refused in one line."""
+    from pencilcal.toolkit.board.calibration_file import board_model
+
+    b = board_from_dict({"type": "chessboard", "squares": [3, 3], "square": 10.0})
+    meta = {"calibration": {"board": b.to_dict()},
+            "board_warp": {"value": [0.0, 0.0, 0.3], "cov": np.diag([1e-4, 1e-4, 4e-4]).tolist()}}
+    cam = Camera("pinhole", 640, 480, [[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]], meta=meta)
+    X, basis, cov = board_model(b, cam)
+    assert basis.shape == (X.shape[0], 3) and cov.shape == (3, 3)
+    # 3 x 3 corners: the grid's four corners at +-0.3, the twist's sign alternating, the rest on its middle lines
+    assert sorted(X[:, 2].round(6).tolist()) == [-0.3, -0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.3, 0.3]
+    meta["board_warp"]["value"] = [0.0, 0.1, 0.2, 0.3]
+    with pytest.raises(InputError, match="board_warp record is malformed"):
+        board_model(b, cam)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pencilcal.toolkit.board.calibrate import calibrate
-from pencilcal.toolkit.board.model_choice import CANDIDATES, SPLINED, simpler_choice
+from pencilcal.toolkit.board.model_choice import CANDIDATES, SPLINED, choose_twist, simpler_choice
 from pencilcal.toolkit.board.spec import board_from_dict
 from pencilcal.toolkit.board.synthetic import synthetic_detections
 from pencilcal.toolkit.camera.model import Camera
@@ -126,3 +126,30 @@ def test_a_model_the_views_do_not_determine_is_scored_but_not_chosen():
     assert scores[4].linear_departure < 0.1 * LINEAR_DEPARTURE and scores[5].linear_departure < 0.1 * LINEAR_DEPARTURE
     assert r.coefficients in (4, 5), r.model_choice.reason
     assert scores[14].heldout_rms_px is not None and scores[14].to_dict()["linear_departure"] > LINEAR_DEPARTURE
+
+
+@pytest.mark.parametrize("twist, kept", [(0.8, True), (0.0, False)])
+def test_the_boards_twist_is_kept_where_held_out_views_want_it(twist, kept):
+    """A board twisted by 0.8 mm at its corners: the twist predicts held-out views better and
+    is kept; a board only bowed: not kept (one-standard-error rule), and `calibrate`'s
+    ``twist="auto"`` follows the choice and records it."""
+    truth = Camera("opencv", 960, 540, K, [-0.3, 0.12, 0.0, 0.0, 0.0])
+    dets = synthetic_detections(truth, BOARD, views=16, noise_px=0.2, seed=21, tilt_deg=50,
+                                warp=(0.3, -0.2, twist))
+    r = calibrate(dets, BOARD, truth.size, warp=True, twist="auto")
+    rec = r.warp["twist_choice"]
+    assert rec["kept"] is kept and rec["views"] == 16 and rec["folds"] == 5, rec
+    assert (rec["difference"] < -rec["difference_se"]) is kept
+    assert r.layout.twist is kept and len(r.warp["value"]) == (3 if kept else 2)
+    if kept:
+        assert abs(r.warp["value"][2] - twist) < 3 * r.warp["std"][2]
+    # without the warp there is nothing to choose
+    assert choose_twist(r.layout.__class__("opencv", 5, warp=False), r.solution.theta, [], [], [], None) is None
+
+
+def test_twist_is_true_false_or_auto():
+    from pencilcal.toolkit.errors import InputError
+
+    dets = synthetic_detections(Camera("pinhole", 960, 540, K), BOARD, views=6, noise_px=0.2, seed=1)
+    with pytest.raises(InputError, match="twist must be True, False or 'auto'"):
+        calibrate(dets, BOARD, (960, 540), warp=True, twist="yes")
