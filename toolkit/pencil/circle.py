@@ -652,40 +652,43 @@ FREE_CONTRAST = 2.0
 
 def _normals_about(ray, tilt, az):
     """Unit normals (N, 3) at tilts (N,) [rad] from the unit ray (3,), about it at azimuths (N,) [rad]."""
-    a = np.cross(ray, [1.0, 0.0, 0.0] if abs(ray[0]) < 0.9 else [0.0, 1.0, 0.0])
-    a /= np.linalg.norm(a)
-    b = np.cross(ray, a)
+    a, b = _plane_rotation(ray)[:, :2].T
     return (np.cos(tilt)[:, None] * ray + np.sin(tilt)[:, None] * (np.cos(az)[:, None] * a + np.sin(az)[:, None] * b))
 
 
 def _ring_scores(points, x, normals, width, weights):
     """(N,) for each candidate normal (N, 3): the largest summed weight (weights (K,)) of the
     points (K, 2) whose log radius on that plane about the vertex's image x (2,) lies within
-    one window `width` wide: one circle about the vertex on that plane."""
+    one window `width` wide: one circle about the vertex on that plane. Points beyond the
+    plane's horizon count nowhere."""
     P0 = np.r_[x, 1.0]
     d = np.concatenate([points, np.ones((points.shape[0], 1))], -1)
-    out = np.empty(len(normals))
+    K = d.shape[0]
+    out = np.zeros(len(normals))
     for lo in range(0, len(normals), 512):
         n = normals[lo:lo + 512]
         with np.errstate(all="ignore"):
             t = (n @ P0)[:, None] / (n @ d.T)  # (Nc, K)
             rho = np.linalg.norm(t[..., None] * d[None] - P0, axis=-1)
-            lr = np.where(t > 0, np.log(rho), np.inf)
+            lr = np.where((t > 0) & (rho > 0), np.log(rho), np.inf)
         order = np.argsort(lr, 1)
         lr = np.take_along_axis(lr, order, 1)
-        cw = np.concatenate([np.zeros((len(n), 1)), np.cumsum(weights[order], 1)], 1)
-        span = np.nanmax(np.where(np.isfinite(lr), lr, np.nan)) - np.nanmin(lr) + 10 * width + 1.0
-        off = np.arange(len(n))[:, None] * span
-        flat = np.where(np.isfinite(lr), lr - np.nanmin(lr) + off, off + span - 1e-9 * 0)
-        end = np.searchsorted(flat.ravel(), (flat + width).ravel(), side="right").reshape(flat.shape)
-        end -= np.arange(len(n))[:, None] * lr.shape[1]
         ok = np.isfinite(lr)
-        sums = np.take_along_axis(cw, np.clip(end, 0, lr.shape[1]), 1) - cw[:, :-1]
+        if not ok.any():
+            continue
+        cw = np.concatenate([np.zeros((len(n), 1)), np.cumsum(weights[order], 1)], 1)
+        # every row's radii shifted into a range of its own, one searchsorted for all rows
+        base = np.min(lr[ok])
+        span = np.max(lr[ok]) - base + 2 * width + 1.0
+        flat = np.where(ok, lr - base, span - width) + np.arange(len(n))[:, None] * span
+        end = np.searchsorted(flat.ravel(), (flat + width).ravel(), side="right").reshape(flat.shape)
+        end -= np.arange(len(n))[:, None] * K
+        sums = np.take_along_axis(cw, np.clip(end, 0, K), 1) - cw[:, :-1]
         out[lo:lo + len(n)] = np.max(np.where(ok, sums, 0.0), 1)
     return out
 
 
-def _free_normal(points, x, scale):
+def _free_normal(points, x):
     """(the plane's unit normal (3,) under which the most directions about the vertex's image
     x (2,) have a point (points (K, 2), normalised) at one radius on the plane: a circle about
     the vertex, found on the image alone (no line's orientation); how far its score stands out
@@ -693,8 +696,7 @@ def _free_normal(points, x, scale):
     vertex's ray on a grid `FREE_STEP_DEG` apart with windows of 3 `GROUP_LOG_RADIUS` in log
     radius, then about the best `FREE_REFINE` on a grid a quarter as fine (windows 1.5
     `GROUP_LOG_RADIUS`), then about the best two a third finer again (windows of
-    `GROUP_LOG_RADIUS`, 1 px at 100 px). scale: pixels per normalised unit (unused but for
-    the docstring's units)."""
+    `GROUP_LOG_RADIUS`, 1 px at 100 px)."""
     if points.shape[0] < MIN_POINTS:
         return None
     dd = points - x
@@ -726,9 +728,7 @@ def _free_normal(points, x, scale):
 
 def _patch(n, step):
     """Unit normals (81, 3) on a 9 x 9 grid `step` [rad] apart about the unit normal n (3,)."""
-    a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-    a /= np.linalg.norm(a)
-    b = np.cross(n, a)
+    a, b = _plane_rotation(n)[:, :2].T
     du, dv = np.meshgrid(np.arange(-4, 5) * step, np.arange(-4, 5) * step)
     cand = n + du.ravel()[:, None] * a + dv.ravel()[:, None] * b
     return cand / np.linalg.norm(cand, axis=1, keepdims=True)
@@ -746,7 +746,7 @@ def _free(points, x, x_cov, R, R_twin, scale, radii):
     radius on the plane of `_free_normal` (then once more on the plane their circles give),
     each group's ellipse fitted with its own covariance and its normal the vertex's polar;
     ``grouped_by`` the lines' twin (R, R_twin) that normal lies nearer. None without a circle."""
-    got = _free_normal(points, x, scale)
+    got = _free_normal(points, x)
     if got is None:
         return None
     n, contrast = got
