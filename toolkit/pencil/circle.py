@@ -759,7 +759,8 @@ def _free(points, x, x_cov, R, R_twin, scale, radii):
         fits = []
         for g in _groups(rho, ang):
             got = _circle(points, g, scale)
-            if got is not None and _takes_chains_whole(points, got, chain, scale):
+            if got is not None and np.all(np.isfinite(rho[got[1]])) and \
+                    _takes_chains_whole(points, got, chain, scale):
                 fits.append((got[0], got[1], float(np.median(rho[got[1]]))))
         mask, depth = _matched_radii(np.array([f[2] for f in fits]), radii)
         fits = [f for f, m in zip(fits, mask) if m]
@@ -767,11 +768,9 @@ def _free(points, x, x_cov, R, R_twin, scale, radii):
             return out
         normals, covs = _normals(fits, x)
         n, cov_c, chi2, dof = _combine(normals, covs)
-        # the radii on the plane of the twin it lies nearer (the listed radii's depth there)
+        # the radii are the circles' own, on the plane that grouped them (on a twin's plane
+        # a point may lie beyond its horizon)
         which = _nearer_twin(n, R, R_twin)
-        rho_k = plane_radii(points, x, (R, R_twin)[which])[0]
-        fits = [(f, keep, float(np.median(rho_k[keep]))) for f, keep, _ in fits]
-        depth = _matched_radii(np.array([f[2] for f in fits]), radii)[1] if radii is not None else None
         out = replace(_estimate(x, x_cov, scale, which, fits, depth, covs, n, cov_c, chi2, dof),
                       any_plane=contrast < FREE_CONTRAST)
     return out
