@@ -511,9 +511,11 @@ DECISIVE_CHI2 = 25.0
 
 #: And only where the chosen twin's normal matches the circles' (found on the image alone) in
 #: the two-sample test of their difference against both covariances: chi2 with 2 dof within
-#: its 99.9 % quantile. Circles about another plane (a labelling wrong by tens of degrees)
-#: choose neither twin.
-CHOICE_CHI2 = float(-2.0 * np.log(1e-3))
+#: `DECISIVE_CHI2` (the lines' covariance here is the fit's own, before any widening for their
+#: misfit: a 128-wedge star's right twin lay 0.13 deg from its circles at chi2 14.9, the lines'
+#: sigma 0.015 deg there and 0.063 deg once widened). Circles about another plane (a labelling
+#: wrong by tens of degrees) choose neither twin.
+CHOICE_CHI2 = DECISIVE_CHI2
 
 
 def line_normal_cov(fit):
@@ -644,9 +646,9 @@ FREE_TILT_DEG, FREE_STEP_DEG, FREE_REFINE = 80.0, 3.0, 6
 #: by the directions it covers, not by a clump of points at one place (a line of print).
 FREE_BIN_DEG = 3.0
 #: Points that fill a ring about any plane (edge points on the spokes, one per edge at every
-#: radius) score about as well under every normal: where the best normal's score is under this
-#: many times the grid's median, the circles choose no twin (``any_plane``). Points on 128
-#: spokes at random radii scored 1.6; the rings of photographed stars 4.7-7.4.
+#: radius) score about as well under every normal: where the circles' plane scores under this
+#: many times the other twin's plane (the one the circles' normal lies farther from), the
+#: circles choose no twin (``any_plane``).
 FREE_CONTRAST = 2.0
 
 
@@ -699,9 +701,7 @@ def _free_normal(points, x):
     `GROUP_LOG_RADIUS`, 1 px at 100 px)."""
     if points.shape[0] < MIN_POINTS:
         return None
-    dd = points - x
-    k = np.floor(np.degrees(np.remainder(np.arctan2(dd[:, 1], dd[:, 0]), 2 * np.pi)) / FREE_BIN_DEG).astype(int)
-    w = 1.0 / np.bincount(k)[k]
+    w = _direction_weights(points, x)
     ray = np.r_[x, 1.0] / np.linalg.norm(np.r_[x, 1.0])
     step = np.radians(FREE_STEP_DEG)
     tilts, azs = [0.0], [0.0]
@@ -723,7 +723,15 @@ def _free_normal(points, x):
         s = _ring_scores(points, x, N, width * GROUP_LOG_RADIUS, w)
         step = step * 4 / fine
     n = N[int(np.argmax(s))]
-    return (n if n @ np.r_[x, 1.0] > 0 else -n), contrast
+    return (n if n @ np.r_[x, 1.0] > 0 else -n), contrast  # contrast: the score's over the grid's median
+
+
+def _direction_weights(points, x):
+    """(K,) each point's weight: one over the number of points (K, 2) within its `FREE_BIN_DEG`
+    of direction about the vertex's image x (2,)."""
+    dd = points - x
+    k = np.floor(np.degrees(np.remainder(np.arctan2(dd[:, 1], dd[:, 0]), 2 * np.pi)) / FREE_BIN_DEG).astype(int)
+    return 1.0 / np.bincount(k)[k]
 
 
 def _patch(n, step):
@@ -749,7 +757,7 @@ def _free(points, x, x_cov, R, R_twin, scale, radii):
     got = _free_normal(points, x)
     if got is None:
         return None
-    n, contrast = got
+    n = got[0]
     chain = np.empty(points.shape[0], int)
     for k, g in enumerate(_chains(points, x, scale)):
         chain[g] = k
@@ -771,6 +779,10 @@ def _free(points, x, x_cov, R, R_twin, scale, radii):
         # the radii are the circles' own, on the plane that grouped them (on a twin's plane
         # a point may lie beyond its horizon)
         which = _nearer_twin(n, R, R_twin)
+        # points that fill rings about any plane (edge points on the spokes) make one about
+        # the other twin's plane as well: then they choose neither
+        w = _direction_weights(points, x)
+        score = _ring_scores(points, x, np.stack([n, (R, R_twin)[1 - which][:, 2]]), GROUP_LOG_RADIUS, w)
         out = replace(_estimate(x, x_cov, scale, which, fits, depth, covs, n, cov_c, chi2, dof),
-                      any_plane=contrast < FREE_CONTRAST)
+                      any_plane=bool(score[0] < FREE_CONTRAST * score[1]))
     return out
