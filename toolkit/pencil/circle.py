@@ -461,7 +461,8 @@ def _rings(points, x, x_cov, R, R_twin, scale, radii):
 def _estimate(x, x_cov, scale, which, fits, depth, covs, n, cov_c, chi2, dof):
     """The `CircleEstimate` of circles fits [(ellipse fit, indices kept, radius on the plane)]
     grouped by (or lying about) the twin `which`, their combined normal n (3,) and its
-    covariance from the conics cov_c (3, 3)."""
+    covariance from the conics cov_c (3, 3), widened by the circles' own scatter (`_scatter_scale`)."""
+    cov_c = cov_c * _scatter_scale(chi2, dof)
     # the vertex moves every circle's normal together: its term on the combination
     Jx = _combined_jacobian(fits, x, covs)
     cov = cov_c + Jx @ np.asarray(x_cov, float) @ Jx.T
@@ -470,6 +471,25 @@ def _estimate(x, x_cov, scale, which, fits, depth, covs, n, cov_c, chi2, dof):
                           np.array([f[2] for f in fits]), np.array([f[1].size for f in fits]),
                           np.array([f[0].rms * scale for f in fits]), depth, np.array([f[0].conic for f in fits]),
                           0.5 * (cov_c + cov_c.T), Jx)
+
+
+def _scatter_scale(chi2, dof):
+    """How much wider the circles' combined covariance is than their conics' fits say: their
+    normals' chi2 per degree of freedom about their mean, where that chi2 lies beyond its
+    99 % quantile (each conic's covariance assumes independent edge points; a ring's edge is
+    biased along whole arcs, by its wires and by the colours on either side, which the fit's
+    residuals do not show but the rings' scatter about one another does), else 1: below it
+    the scatter is what the sigmas allow (widening there would cover more than 68 %). One
+    circle has no scatter to show: 1.
+
+    >>> round(_scatter_scale(30.0, 6), 3), _scatter_scale(12.9, 6), _scatter_scale(0.0, 0)
+    (5.0, 1.0, 1.0)
+    """
+    from scipy.special import gammaincinv
+
+    if dof <= 0 or chi2 <= 2.0 * gammaincinv(0.5 * dof, 0.99):
+        return 1.0
+    return float(chi2 / dof)
 
 
 def _normals(fits, x):

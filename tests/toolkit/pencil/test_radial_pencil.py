@@ -401,6 +401,23 @@ class TestCircles:
         cover = np.mean(np.array(chi2) <= -2 * np.log(1 - 0.6827))
         assert 0.6 <= cover <= 0.76
 
+    def test_rings_that_disagree_widen_their_sigma(self):
+        """Three rings whose images were made about planes 1 deg apart (edges biased along whole
+        arcs, as a real ring's are) with 0.05 px of noise: each conic's own covariance says a
+        few hundredths of a degree; their scatter about one another says more, and the
+        combined sigma holds it (the normals' chi2 per degree of freedom widens it)."""
+        rng = np.random.default_rng(7)
+        R = rotation_from_rotvec([0.5, 0.2, 0.1])
+        x = np.array([0.02, -0.03])
+        tilts = [rotation_from_rotvec(v) @ R for v in ([0.0, 0.0, 0.0], [0.0175, 0.0, 0.0], [0.0, 0.0175, 0.0])]
+        pts = np.concatenate([_circle_points(Rk, x, (rho,), n=180, noise=0.05e-3, rng=rng)
+                              for Rk, rho in zip(tilts, (0.12, 0.18, 0.24))])
+        est = circle_estimate(pts, x, np.zeros((2, 2)), R, R, scale=1000.0)
+        assert est.circles == 3 and est.chi2 / est.dof > 20
+        spread = max(np.degrees(angle_between(est.normal, Rk[:, 2])) for Rk in tilts)
+        assert est.sigma_deg > 0.3 * spread
+        assert np.degrees(np.sqrt(np.trace(est.cov_conics))) * np.sqrt(est.dof / est.chi2) < 0.1 * spread
+
     def test_listed_radii_give_the_depth(self):
         R = rotation_from_rotvec([0.4, 0.2, 0.0])
         x = np.array([0.0, 0.02])
