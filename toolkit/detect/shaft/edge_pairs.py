@@ -80,8 +80,8 @@ import numpy as np
 from pencilcal.toolkit.detect.edges import mean_over
 from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs, close_open, region_pairs
 
-__all__ = ["pair_bands", "edge_segments", "colour_map", "MAX_PAIRS", "MAX_SEGMENTS", "PAIR_MAX_CONVERGENCE_DEG",
-           "MIN_CONTRAST_SD"]
+__all__ = ["pair_bands", "candidate_pairs", "edge_segments", "colour_map", "MAX_PAIRS", "MAX_SEGMENTS",
+           "PAIR_MAX_CONVERGENCE_DEG", "MIN_CONTRAST_SD"]
 
 #: Candidate bands per frame, the best first (4 gave one detection more on the 64 real frames
 #: of the masked sources, the hysterectomy and the dVRK phantom, a false band on the phantom,
@@ -382,7 +382,17 @@ def colour_map(img, valid, c_in, c1, c2):
     return close_open(B)  # `shaft.regions.close_open`
 
 
-def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segments=None, with_maps=True):
+def candidate_pairs(segments, wmin, wmax, conv_max_deg, min_len):
+    """(BoundaryLines, RegionPairs): segments (N, 4) [work px] as lines, each both ways, and
+    the pairs among them that may bound a band (`shaft.regions.region_pairs`, the longest
+    overlaps first, at most `_MAX_CANDIDATES`): the candidates whose material `pair_bands`
+    judges. Arguments as `pair_bands` takes them."""
+    lines = _both_ways(np.asarray(segments, float).reshape(-1, 4))
+    return lines, region_pairs(lines, wmin, wmax, conv_max_deg, 0.5 * min_len, _MAX_CANDIDATES)
+
+
+def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segments=None, with_maps=True,
+               candidates=None):
     """Candidate bands between pairs of grey-level edges (module docstring).
 
     Parameters
@@ -401,6 +411,8 @@ def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segment
         The edges to pair [work px]; default `edge_segments`.
     with_maps : bool
         False: each pair's region map is None (the caller makes its own).
+    candidates : (BoundaryLines, RegionPairs), optional
+        `candidate_pairs` of the segments, where the caller has them already.
 
     Returns
     -------
@@ -408,9 +420,10 @@ def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segment
         The lines, the pairs between them (at most `MAX_PAIRS`, the best first) and each
         pair's region map, as `shaft.partner.partner_bands` returns them.
     """
-    seg = edge_segments(work, min_len) if segments is None else np.asarray(segments, float).reshape(-1, 4)
-    lines = _both_ways(seg)
-    pairs = region_pairs(lines, wmin, wmax, conv_max_deg, 0.5 * min_len, _MAX_CANDIDATES)
+    if candidates is None:
+        seg = edge_segments(work, min_len) if segments is None else segments
+        candidates = candidate_pairs(seg, wmin, wmax, conv_max_deg, min_len)
+    lines, pairs = candidates
     empty = RegionPairs(i=np.zeros(0, int), j=np.zeros(0, int), width=np.zeros(0), overlap=np.zeros(0))
     if len(pairs.i) == 0:
         return lines, empty, []

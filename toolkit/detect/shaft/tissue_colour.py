@@ -107,8 +107,8 @@ def tissue_colour_map(colours, valid=None):
     r3 = 1.0 / np.sqrt(3.0)
     W = np.array([[-2.0 * my * r3, my * r3 - mx, mx + my * r3], [1.0, 1.0, 1.0]])
     W[0] /= max(mx * mx + my * my, 1e-12)
-    num, S = cv2.split(cv2.transform(np.ascontiguousarray(c, np.float32), W.astype(np.float32)))
-    return num / (S + 3.0 * _EPS)
+    out = cv2.transform(np.ascontiguousarray(c, np.float32), W.astype(np.float32))
+    return out[..., 0] / (out[..., 1] + 3.0 * _EPS)  # the two channels as views, not split
 
 
 def _inside(img, midline, width, across=None):

@@ -126,3 +126,56 @@ def test_hysterectomy_grey_band_of_the_tissues_lightness_not_read():
     listed = load_real_frames_truth()[src]["T_1_P13_0008.jpg"]["instruments"]
     dets = [s.to_dict() for s in detect_shafts(img, valid_region=detect_valid_region([img]))]
     assert all(any(_matches(d, i) for i in listed) for d in dets), [d["midline"] for d in dets]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_medians_as_numpy_gives_them(seed):
+    """The batched medians and the luma's median from its histogram are np.median's values
+    bit for bit: odd and even counts, rows with no sample, a frame with no valid pixel."""
+    from pencilcal.toolkit.detect.shaft import shadow_bands as sb
+
+    rng = np.random.default_rng(seed)
+    V = rng.normal(0, 50, (40, 15)).astype(np.float32)
+    ok = rng.random((40, 15)) < rng.random((40, 1))
+    ok[0] = False
+    got = sb._medians(V, ok)
+    want = [float(np.median(v[o])) if o.any() else np.nan for v, o in zip(V, ok)]
+    assert np.array_equal(got, want, equal_nan=True)
+    img = rng.integers(0, 256, (61 + seed, 80, 3), dtype=np.uint8)
+    mask = np.zeros(img.shape[:2], bool) if seed == 3 else rng.random(img.shape[:2]) < 0.5
+    wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=80)
+    wf.valid = mask
+    luma = wf.luma[mask] if mask.any() else wf.luma
+    assert sb._luma_median(wf) == float(np.median(luma))
+
+
+def _judged_first(wf, wmin, wmax, conv, noise, min_len):
+    """The bands as the cue first judged them: every pair `pair_bands` keeps, then the
+    shadow and lightness tests pair by pair (the pre-check's reference)."""
+    from pencilcal.toolkit.detect.shaft import shadow_bands as sb
+    from pencilcal.toolkit.detect.shaft.edge_pairs import MIN_CONTRAST_SD, edge_segments, pair_bands
+
+    t, channel = shadow_channel(wf)
+    seg = edge_segments(wf, min_len, channel)
+    lines, pairs, _ = pair_bands(wf, wmin, wmax, conv, noise, min_len, 1.0 - t, segments=seg, with_maps=False)
+    med = float(np.median(wf.luma[wf.valid]))
+    keep = []
+    for k, (i, j) in enumerate(zip(pairs.i, pairs.j)):
+        (l_in, l_i, l_j), (t_in, t_i, t_j) = sb._cross_samples(wf, lines, [i], [j], (wf.luma, t))[0]
+        if l_in < med and t_in < min(t_i, t_j) and min(abs(l_in - l_i), abs(l_in - l_j)) >= MIN_CONTRAST_SD * noise:
+            keep.append(k)
+    return pairs.i[keep[:MAX_SHADOW]], pairs.j[keep[:MAX_SHADOW]]
+
+
+@pytest.mark.parametrize("inside, shadow", [((24, 26, 30), True), ((14, 15, 18), True), ((3, 4, 30), True),
+                                            ((170, 175, 185), False)])
+def test_tested_before_judged_gives_the_same_bands(inside, shadow):
+    """The shadow and lightness tests on every candidate before the material test (which is
+    skipped where none passes) keep the bands that judging every pair first keeps."""
+    img = _frame(inside, shadow=shadow)
+    wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=480)
+    s = wf.mean_scale
+    args = (wf, 8.0 * s, 150.0 * s, 25.0, material_map(wf).luma_noise, 120.0 * s)
+    _, pairs, _ = shadow_bands(*args)
+    i, j = _judged_first(*args)
+    assert np.array_equal(pairs.i, i) and np.array_equal(pairs.j, j)
