@@ -15,14 +15,20 @@ valley with two clean straight sides.
 1. *edges*: the straight edges of the tissue colour map, mapped to grey levels (0 for no
    colour, 255 for `_SPAN` times the frame's median: a step from tissue to grey metal is
    about 100 levels whatever the light), found as `shaft.edge_pairs.edge_segments` finds
-   grey-level edges;
+   grey-level edges; the map made at the reduced size that the line detector reads (the
+   colours area-averaged to it), not at the work frame's and then reduced;
 2. *pairs*: `shaft.edge_pairs.pair_bands` on them, its material test as it is (the inside
    one material, unlike both outsides in colour by its noise) with the instrument-likeness
    replaced by the greyness ``1 - tissue colour``: the inside less tissue-coloured than both
    outsides;
 3. *in shadow*: a pair is kept where its inside is darker than the frame's median luma (a
    pale band greyer than the tissue beside it, a gallbladder's wall or a fold in light, is
-   the other cues' to judge, `shaft.edge_pairs`), at most `MAX_SHADOW`.
+   the other cues' to judge, `shaft.edge_pairs`), steps in lightness from both outsides by
+   the edge pairs' least contrast, and is not darker than both: a dark band on lighter
+   tissue both sides (a matte black shaft on lit tissue) has the grey-level outline that
+   the grey-level proposals pair and judge, and its greyness alone does not overrule them;
+   what this proposal adds is lit metal in the shadow, lighter than a shadowed side. At
+   most `MAX_SHADOW`.
 
 The bands then go through the material cue as every proposal does: the band test on the
 work frame, the edges refitted at full resolution (`shaft.material_cue`), the pixel
@@ -36,9 +42,9 @@ Example
 >>> import numpy as np, cv2
 >>> from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
 >>> img = np.zeros((240, 320, 3), np.uint8); img[:] = (120, 140, 200)          # lit tissue
->>> img[:150] = (4, 6, 36)                                                      # in shadow
->>> _ = cv2.fillConvexPoly(img, np.array([[0, 60], [319, 70], [319, 92], [0, 82]], np.int32), (9, 10, 12))
->>> img = cv2.GaussianBlur(img, (0, 0), 1.0)                    # a grey shaft in the shadow
+>>> img[:115] = (4, 6, 36)                                                      # in shadow
+>>> _ = cv2.fillConvexPoly(img, np.array([[0, 60], [319, 70], [319, 92], [0, 82]], np.int32), (24, 26, 30))
+>>> img = cv2.GaussianBlur(img, (0, 0), 1.0)                    # grey metal lit in the shadow
 >>> wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=320)
 >>> lines, pairs, maps = shadow_bands(wf, 10.0, 80.0, 20.0, 0.5, 60.0)
 >>> len(pairs.i), abs(float(pairs.width[0]) - 22.0) < 2.0
@@ -50,30 +56,50 @@ from __future__ import annotations
 
 import numpy as np
 
-from pencilcal.toolkit.detect.shaft.edge_pairs import MIN_CONTRAST_SD, candidate_pairs, edge_segments, pair_bands
+from pencilcal.toolkit.detect.shaft.edge_pairs import MIN_CONTRAST_SD, candidate_pairs, edge_segments, fld_size, pair_bands
 from pencilcal.toolkit.detect.shaft.regions import RegionPairs, close_open
 from pencilcal.toolkit.detect.shaft.tissue_colour import tissue_colour_map
 
-__all__ = ["shadow_bands", "shadow_channel", "MAX_SHADOW"]
+__all__ = ["shadow_bands", "shadow_channel", "work_map", "MAX_SHADOW"]
 
 #: Bands in shadow per frame, the best first (the material cue judges each as it judges
 #: a band between two grey-level edges).
 MAX_SHADOW = 2
 _SPAN = 3.0  # the tissue colour mapped to 255 grey levels (0: no colour)
 _BLUR_PX = 1.5  # the colours' smoothing before their chromaticity [work px]
+_MEDIAN_SAMPLES = 5000  # pixels for the frame's median colour (`shadow_channel`)
 _STATIONS = 24  # samples along a pair, for its inside's and outsides' medians
 _SIDE_PX = np.array([2.0, 3.5, 5.0])  # outside samples beyond each edge [work px] (as `shaft.edge_pairs`)
 
 
 def shadow_channel(work):
-    """((h, w) tissue colour, (h, w) float32 grey levels): the work frame's tissue colour map
-    (`shaft.tissue_colour.tissue_colour_map`, its median over the valid region) and it
-    mapped to grey levels (module docstring, step 1)."""
+    """((h, w) tissue colour, (h', w') uint8 grey levels): the work frame's tissue colour map
+    (`shaft.tissue_colour.tissue_colour_map`, its median over the valid region) at the size
+    the line detector reads (`shaft.edge_pairs.fld_size`, half the work frame's), and it
+    mapped to grey levels (module docstring, step 1).
+
+    The colours are area-averaged to that size first, then smoothed by `_BLUR_PX` work px (a
+    dark pixel's colour is a few grey levels each); the map at the work frame's size, for the
+    samples across a band and its region map, is this one's interpolated (`work_map`)."""
     import cv2
 
-    # a dark pixel's colour is a few grey levels each: averaged over a few pixels first
-    t = tissue_colour_map(cv2.GaussianBlur(work.colours, (0, 0), _BLUR_PX), work.valid).astype(np.float32, copy=False)
-    return t, np.clip(t * (255.0 / _SPAN), 0.0, 255.0)
+    h, w = work.shape
+    size = fld_size(h, w)
+    c = cv2.resize(work.colours, size, interpolation=cv2.INTER_AREA)
+    c = cv2.GaussianBlur(c, (0, 0), _BLUR_PX * size[0] / w)
+    valid = cv2.resize(work.valid.view(np.uint8), size, interpolation=cv2.INTER_NEAREST).view(bool)
+    # the frame's median colour from a quarter of the usual samples (about 5000: its
+    # sampling error a few thousandths of the map's span, a quarter of the cost)
+    t = tissue_colour_map(c, valid, _MEDIAN_SAMPLES).astype(np.float32, copy=False)
+    return t, np.clip(t * (255.0 / _SPAN), 0.0, 255.0).astype(np.uint8)
+
+
+def work_map(t, work):
+    """(h, w) float32: the reduced tissue colour map t (`shadow_channel`) at the work frame's
+    size, bilinear (the pixel centres aligned as `cv2.resize` aligns them)."""
+    import cv2
+
+    return cv2.resize(t, (work.shape[1], work.shape[0]), interpolation=cv2.INTER_LINEAR)
 
 
 def _medians(V, ok):
@@ -144,15 +170,21 @@ def _luma_median(work):
 
 
 def _in_shadow(luma, median, noise):
-    """(K,) bool: the pairs in shadow whose edges step in lightness (module docstring, steps
-    3-4), of their luma samples ((K, 3) `_cross_samples`); nan fails, min as Python's min
+    """(K,) bool: the pairs in shadow whose edges step in lightness (module docstring, step
+    3), of their luma samples ((K, 3) `_cross_samples`); nan fails, min as Python's min
     takes it (the second where it is less)."""
     l_in, l_i, l_j = luma.T
     # its edges step in lightness, both by the edge pairs' least contrast: a band of the
     # tissue's lightness, greyer only, is a shadow on it or a blurred thing behind (the
     # hysterectomy frames' one false band), not an instrument in front
     dl_i, dl_j = np.abs(l_in - l_i), np.abs(l_in - l_j)
-    return (l_in < median) & (np.where(dl_j < dl_i, dl_j, dl_i) >= MIN_CONTRAST_SD * noise)
+    # and not darker than both: a dark band stepping down from both sides has the grey-level
+    # outline that the grey-level proposals pair and judge (`shaft.edge_pairs`, the region
+    # maps); what the tissue colour adds is the band the lightness does not outline so, metal
+    # lit in the shadow (lighter than a shadowed side). Its greyness alone does not make a
+    # dark band an instrument that those proposals refused
+    return ((l_in < median) & (np.where(dl_j < dl_i, dl_j, dl_i) >= MIN_CONTRAST_SD * noise)
+            & ~((l_in < l_i) & (l_in < l_j)))
 
 
 def shadow_bands(work, wmin, wmax, conv_max_deg, noise, min_len):
@@ -167,9 +199,9 @@ def shadow_bands(work, wmin, wmax, conv_max_deg, noise, min_len):
         As `shaft.edge_pairs.pair_bands` returns them, at most `MAX_SHADOW` pairs.
     """
     t, channel = shadow_channel(work)
-    cand = candidate_pairs(edge_segments(work, min_len, channel), wmin, wmax, conv_max_deg, min_len)
+    cand = candidate_pairs(edge_segments(work, min_len, channel, reduced=True), wmin, wmax, conv_max_deg, min_len)
     lines = cand[0]
-    # steps 3-4 first, on every candidate: they depend on a pair's edges only, so where no
+    # step 3 first, on every candidate: they depend on a pair's edges only, so where no
     # candidate passes them no band is kept, and the material test (the most of the cost)
     # is skipped; the same bands as judging first. The lightness first, the tissue colour
     # on the pairs in shadow only.
@@ -179,6 +211,7 @@ def shadow_bands(work, wmin, wmax, conv_max_deg, noise, min_len):
         shadow = _in_shadow(_cross_samples(work, lines, I, J, (work.luma,))[:, 0], _luma_median(work), noise)
     tc = np.full((len(I), 3), np.nan)  # [inside, beyond i, beyond j] tissue colour
     if shadow.any():
+        t = work_map(t, work)  # only where a pair passed: the map at the work frame's size
         tc[shadow] = _cross_samples(work, lines, I[shadow], J[shadow], (t,))[:, 0]
         t_in, t_i, t_j = tc[shadow].T
         shadow[shadow] = t_in < np.where(t_j < t_i, t_j, t_i)  # greyer than both sides
@@ -193,7 +226,7 @@ def shadow_bands(work, wmin, wmax, conv_max_deg, noise, min_len):
         q = at[int(i), int(j)]
         if not shadow[q]:
             continue
-        # its map: the pixels nearer its inside's tissue colour than its outsides' (step 5)
+        # its map: the pixels nearer its inside's tissue colour than its outsides' (step 3)
         t_in, t_i, t_j = tc[q]
         keep.append(k)
         out.append(close_open(((t < 0.5 * (t_in + min(t_i, t_j))) & work.valid).view(np.uint8)))

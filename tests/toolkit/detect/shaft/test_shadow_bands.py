@@ -1,14 +1,14 @@
 """Grey shafts in shadow proposed from the edges of the tissue colour map
 (`shaft.shadow_bands`): a grey band in shadow of the same lightness as the tissue beside it
-is proposed, a band of the tissue's own colour in shadow and a pale band in the light are
-not; on a real frame the cue finds an instrument the other proposals miss."""
+is proposed; a band of the tissue's own colour in shadow, a pale band in the light and a
+dark grey band on lit tissue are not; on a real frame the cue finds an instrument the other proposals miss."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from pencilcal.toolkit.detect.shaft.regions import RegionPairs, material_map
-from pencilcal.toolkit.detect.shaft.shadow_bands import MAX_SHADOW, shadow_bands, shadow_channel
+from pencilcal.toolkit.detect.shaft.shadow_bands import MAX_SHADOW, shadow_bands, shadow_channel, work_map
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
 
 _POLY = np.array([[0, 60], [420, 110], [420, 134], [0, 84]], np.int32)  # a 24 px band from the left border
@@ -54,6 +54,7 @@ def test_grey_band_in_shadow_proposed(seed):
     assert maps[0][int(round((y - 30) * s)), int(round(x * s))] == 0
     # the tissue colour map: the shaft grey, the shadowed tissue as red as the lit
     t, channel = shadow_channel(wf)
+    t = work_map(t, wf)
     assert t[int(round(y * s)), int(round(x * s))] < 0.5 < 0.8 < t[int(round((y - 30) * s)), int(round(x * s))]
     assert channel.min() >= 0 and channel.max() <= 255
 
@@ -79,6 +80,16 @@ def test_pale_band_in_light_not_proposed():
     the other cues' to judge, not proposed in shadow."""
     _, (_, pairs, _) = _proposed(_frame((170, 175, 185), shadow=False))
     assert len(pairs.i) == 0
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_dark_grey_band_on_lit_tissue_not_proposed(seed):
+    """A dark grey matte shaft on lit pink tissue (luma 46 against 140 on both sides, as a
+    rendered pivot's shaft): greyer than the tissue and darker than the frame's median, but
+    darker than both sides, a band the grey levels outline: the grey-level proposals' to
+    pair and judge, not proposed from the tissue colour."""
+    _, (_, pairs, maps) = _proposed(_frame((45, 46, 50), seed, shadow=False))
+    assert len(pairs.i) == 0 and maps == []
 
 
 def test_cholec_grasper_found_by_its_colour(monkeypatch):
@@ -156,13 +167,14 @@ def _judged_first(wf, wmin, wmax, conv, noise, min_len):
     from pencilcal.toolkit.detect.shaft.edge_pairs import MIN_CONTRAST_SD, edge_segments, pair_bands
 
     t, channel = shadow_channel(wf)
-    seg = edge_segments(wf, min_len, channel)
+    seg, t = edge_segments(wf, min_len, channel, reduced=True), work_map(t, wf)
     lines, pairs, _ = pair_bands(wf, wmin, wmax, conv, noise, min_len, 1.0 - t, segments=seg, with_maps=False)
     med = float(np.median(wf.luma[wf.valid]))
     keep = []
     for k, (i, j) in enumerate(zip(pairs.i, pairs.j)):
         (l_in, l_i, l_j), (t_in, t_i, t_j) = sb._cross_samples(wf, lines, [i], [j], (wf.luma, t))[0]
-        if l_in < med and t_in < min(t_i, t_j) and min(abs(l_in - l_i), abs(l_in - l_j)) >= MIN_CONTRAST_SD * noise:
+        if (l_in < med and t_in < min(t_i, t_j) and min(abs(l_in - l_i), abs(l_in - l_j)) >= MIN_CONTRAST_SD * noise
+                and not l_in < min(l_i, l_j)):
             keep.append(k)
     return pairs.i[keep[:MAX_SHADOW]], pairs.j[keep[:MAX_SHADOW]]
 
