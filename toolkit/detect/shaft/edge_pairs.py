@@ -80,7 +80,7 @@ import numpy as np
 from pencilcal.toolkit.detect.edges import mean_over
 from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs, close_open, region_pairs
 
-__all__ = ["pair_bands", "candidate_pairs", "edge_segments", "fld_size", "colour_map", "MAX_PAIRS", "MAX_SEGMENTS",
+__all__ = ["pair_bands", "candidate_pairs", "edge_segments", "colour_map", "MAX_PAIRS", "MAX_SEGMENTS",
            "PAIR_MAX_CONVERGENCE_DEG", "MIN_CONTRAST_SD"]
 
 #: Candidate bands per frame, the best first (4 gave one detection more on the 64 real frames
@@ -125,22 +125,15 @@ def _edge_channel(work):
     return 0.5 * (work.luma + work.colours[..., 2]) if work.bgr.ndim == 3 else work.luma
 
 
-def fld_size(h, w):
-    """(w', h'): the size of the reduced frame the line detector reads for a work frame of h
-    x w (`_FLD_SCALE`)."""
-    return max(8, round(w * _FLD_SCALE)), max(8, round(h * _FLD_SCALE))
-
-
-def edge_segments(work, min_len, channel=None, reduced=False):
+def edge_segments(work, min_len, channel=None):
     """The straight grey-level edges of the work frame (module docstring, step 1): (N, 4)
     [work px], the longest first; in channel ((h, w) grey levels 0-255) where given, else in
-    `_edge_channel`'s; reduced: channel is at `fld_size` already (not reduced again)."""
+    `_edge_channel`'s."""
     import cv2
 
     g = np.clip(_edge_channel(work) if channel is None else channel, 0, 255).astype(np.uint8)
     f = _FLD_SCALE
-    if not reduced:
-        g = cv2.resize(g, fld_size(*g.shape[:2]), interpolation=cv2.INTER_AREA)
+    g = cv2.resize(g, (max(8, round(g.shape[1] * f)), max(8, round(g.shape[0] * f))), interpolation=cv2.INTER_AREA)
     fld = cv2.ximgproc.createFastLineDetector(length_threshold=max(int(_FRAGMENT_PX), int(0.5 * min_len * f)),
                                               canny_th1=_CANNY[0], canny_th2=_CANNY[1])
     raw = fld.detect(g)

@@ -15,8 +15,7 @@ valley with two clean straight sides.
 1. *edges*: the straight edges of the tissue colour map, mapped to grey levels (0 for no
    colour, 255 for `_SPAN` times the frame's median: a step from tissue to grey metal is
    about 100 levels whatever the light), found as `shaft.edge_pairs.edge_segments` finds
-   grey-level edges; the map made at the reduced size that the line detector reads (the
-   colours area-averaged to it), not at the work frame's and then reduced;
+   grey-level edges;
 2. *pairs*: `shaft.edge_pairs.pair_bands` on them, its material test as it is (the inside
    one material, unlike both outsides in colour by its noise) with the instrument-likeness
    replaced by the greyness ``1 - tissue colour``: the inside less tissue-coloured than both
@@ -56,50 +55,30 @@ from __future__ import annotations
 
 import numpy as np
 
-from pencilcal.toolkit.detect.shaft.edge_pairs import MIN_CONTRAST_SD, candidate_pairs, edge_segments, fld_size, pair_bands
+from pencilcal.toolkit.detect.shaft.edge_pairs import MIN_CONTRAST_SD, candidate_pairs, edge_segments, pair_bands
 from pencilcal.toolkit.detect.shaft.regions import RegionPairs, close_open
 from pencilcal.toolkit.detect.shaft.tissue_colour import tissue_colour_map
 
-__all__ = ["shadow_bands", "shadow_channel", "work_map", "MAX_SHADOW"]
+__all__ = ["shadow_bands", "shadow_channel", "MAX_SHADOW"]
 
 #: Bands in shadow per frame, the best first (the material cue judges each as it judges
 #: a band between two grey-level edges).
 MAX_SHADOW = 2
 _SPAN = 3.0  # the tissue colour mapped to 255 grey levels (0: no colour)
 _BLUR_PX = 1.5  # the colours' smoothing before their chromaticity [work px]
-_MEDIAN_SAMPLES = 5000  # pixels for the frame's median colour (`shadow_channel`)
 _STATIONS = 24  # samples along a pair, for its inside's and outsides' medians
 _SIDE_PX = np.array([2.0, 3.5, 5.0])  # outside samples beyond each edge [work px] (as `shaft.edge_pairs`)
 
 
 def shadow_channel(work):
-    """((h, w) tissue colour, (h', w') uint8 grey levels): the work frame's tissue colour map
-    (`shaft.tissue_colour.tissue_colour_map`, its median over the valid region) at the size
-    the line detector reads (`shaft.edge_pairs.fld_size`, half the work frame's), and it
-    mapped to grey levels (module docstring, step 1).
-
-    The colours are area-averaged to that size first, then smoothed by `_BLUR_PX` work px (a
-    dark pixel's colour is a few grey levels each); the map at the work frame's size, for the
-    samples across a band and its region map, is this one's interpolated (`work_map`)."""
+    """((h, w) tissue colour, (h, w) float32 grey levels): the work frame's tissue colour map
+    (`shaft.tissue_colour.tissue_colour_map`, its median over the valid region) and it
+    mapped to grey levels (module docstring, step 1)."""
     import cv2
 
-    h, w = work.shape
-    size = fld_size(h, w)
-    c = cv2.resize(work.colours, size, interpolation=cv2.INTER_AREA)
-    c = cv2.GaussianBlur(c, (0, 0), _BLUR_PX * size[0] / w)
-    valid = cv2.resize(work.valid.view(np.uint8), size, interpolation=cv2.INTER_NEAREST).view(bool)
-    # the frame's median colour from a quarter of the usual samples (about 5000: its
-    # sampling error a few thousandths of the map's span, a quarter of the cost)
-    t = tissue_colour_map(c, valid, _MEDIAN_SAMPLES).astype(np.float32, copy=False)
-    return t, np.clip(t * (255.0 / _SPAN), 0.0, 255.0).astype(np.uint8)
-
-
-def work_map(t, work):
-    """(h, w) float32: the reduced tissue colour map t (`shadow_channel`) at the work frame's
-    size, bilinear (the pixel centres aligned as `cv2.resize` aligns them)."""
-    import cv2
-
-    return cv2.resize(t, (work.shape[1], work.shape[0]), interpolation=cv2.INTER_LINEAR)
+    # a dark pixel's colour is a few grey levels each: averaged over a few pixels first
+    t = tissue_colour_map(cv2.GaussianBlur(work.colours, (0, 0), _BLUR_PX), work.valid).astype(np.float32, copy=False)
+    return t, np.clip(t * (255.0 / _SPAN), 0.0, 255.0)
 
 
 def _medians(V, ok):
@@ -199,7 +178,7 @@ def shadow_bands(work, wmin, wmax, conv_max_deg, noise, min_len):
         As `shaft.edge_pairs.pair_bands` returns them, at most `MAX_SHADOW` pairs.
     """
     t, channel = shadow_channel(work)
-    cand = candidate_pairs(edge_segments(work, min_len, channel, reduced=True), wmin, wmax, conv_max_deg, min_len)
+    cand = candidate_pairs(edge_segments(work, min_len, channel), wmin, wmax, conv_max_deg, min_len)
     lines = cand[0]
     # step 3 first, on every candidate: they depend on a pair's edges only, so where no
     # candidate passes them no band is kept, and the material test (the most of the cost)
@@ -211,7 +190,6 @@ def shadow_bands(work, wmin, wmax, conv_max_deg, noise, min_len):
         shadow = _in_shadow(_cross_samples(work, lines, I, J, (work.luma,))[:, 0], _luma_median(work), noise)
     tc = np.full((len(I), 3), np.nan)  # [inside, beyond i, beyond j] tissue colour
     if shadow.any():
-        t = work_map(t, work)  # only where a pair passed: the map at the work frame's size
         tc[shadow] = _cross_samples(work, lines, I[shadow], J[shadow], (t,))[:, 0]
         t_in, t_i, t_j = tc[shadow].T
         shadow[shadow] = t_in < np.where(t_j < t_i, t_j, t_i)  # greyer than both sides

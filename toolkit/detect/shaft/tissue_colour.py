@@ -86,10 +86,10 @@ def _frame_chromaticity(img, validity):
     return np.median(_chromaticity(grid.reshape(-1, 3) if keep.all() else grid[keep]), 0)
 
 
-def tissue_colour_map(colours, valid=None, samples=_FRAME_SAMPLES):
+def tissue_colour_map(colours, valid=None):
     """(h, w) each pixel's tissue colour (module docstring): the chromaticity of colours (h,
     w, 3) BGR projected on the median chromaticity of the pixels where valid ((h, w) bool;
-    None: all), on a grid of about samples of them, as a fraction of it.
+    None: all), about `_FRAME_SAMPLES` of them, as a fraction of it.
 
     >>> img = np.zeros((40, 60, 3), np.uint8); img[:] = (90, 110, 190); img[:, :10] = (40, 40, 42)
     >>> [round(float(v), 2) for v in tissue_colour_map(img)[0, [0, 30]]]
@@ -98,7 +98,7 @@ def tissue_colour_map(colours, valid=None, samples=_FRAME_SAMPLES):
     import cv2
 
     c = np.asarray(colours)
-    step = max(1, int(np.sqrt(c.shape[0] * c.shape[1] / samples)))
+    step = max(1, int(np.sqrt(c.shape[0] * c.shape[1] / _FRAME_SAMPLES)))
     grid = c[step // 2::step, step // 2::step]
     keep = None if valid is None else np.asarray(valid, bool)[step // 2::step, step // 2::step]
     mx, my = np.median(_chromaticity(grid.reshape(-1, 3) if keep is None or not keep.any() else grid[keep]), 0)

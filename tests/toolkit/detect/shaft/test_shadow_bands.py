@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pencilcal.toolkit.detect.shaft.regions import RegionPairs, material_map
-from pencilcal.toolkit.detect.shaft.shadow_bands import MAX_SHADOW, shadow_bands, shadow_channel, work_map
+from pencilcal.toolkit.detect.shaft.shadow_bands import MAX_SHADOW, shadow_bands, shadow_channel
 from pencilcal.toolkit.detect.shaft.work import Validity, WorkFrame
 
 _POLY = np.array([[0, 60], [420, 110], [420, 134], [0, 84]], np.int32)  # a 24 px band from the left border
@@ -54,7 +54,6 @@ def test_grey_band_in_shadow_proposed(seed):
     assert maps[0][int(round((y - 30) * s)), int(round(x * s))] == 0
     # the tissue colour map: the shaft grey, the shadowed tissue as red as the lit
     t, channel = shadow_channel(wf)
-    t = work_map(t, wf)
     assert t[int(round(y * s)), int(round(x * s))] < 0.5 < 0.8 < t[int(round((y - 30) * s)), int(round(x * s))]
     assert channel.min() >= 0 and channel.max() <= 255
 
@@ -167,7 +166,7 @@ def _judged_first(wf, wmin, wmax, conv, noise, min_len):
     from pencilcal.toolkit.detect.shaft.edge_pairs import MIN_CONTRAST_SD, edge_segments, pair_bands
 
     t, channel = shadow_channel(wf)
-    seg, t = edge_segments(wf, min_len, channel, reduced=True), work_map(t, wf)
+    seg = edge_segments(wf, min_len, channel)
     lines, pairs, _ = pair_bands(wf, wmin, wmax, conv, noise, min_len, 1.0 - t, segments=seg, with_maps=False)
     med = float(np.median(wf.luma[wf.valid]))
     keep = []
