@@ -72,7 +72,13 @@ pytestmark = pytest.mark.slow
 #: region between that edge and the border read as a mask's is, kind part) finds endovis17's
 #: top-right shaft across the frame's corner in frames 002-004 (its masks' principal axes, 0.2,
 #: 4.0 and 2.4 deg off); the other rows, the hysterectomy and the phantom unchanged.
-REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (12, 0.0),
+#: A grey band in shadow between two edges of the tissue colour map (`shaft.shadow_bands`; no
+#: constant chosen on cholec by the protocol) finds the metal clip applier in VID03_000090 and the
+#: grasper at the top left of 000210, and reads the grey grasper at the very top left of 000120
+#: along its lit upper half (half its width off: false): cholec 14/23 at 0.10 false a frame (the
+#: other rows unchanged; box-trainer's evidence chosen 0.4, its row the same). With the band's
+#: step in lightness from both sides asked too, the same (the hysterectomy 0 false, was 1).
+REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (14, 0.1),
            "endovis17": (14, 0.0)}
 
 
@@ -172,7 +178,8 @@ def test_border_axes_within_their_sigmas(detected):
 #: least part score chosen on the others (none among the choices): what each source reaches
 #: (found, most false per frame). Chosen on the others, parts are taken only where they add a
 #: find there without passing 0.25 false a frame; they add none on any source, so where a
-#: score is chosen (0.3 with dvrk-suturing, greenscreen or cholec left out) it adds nothing there, and the parts stay
+#: score is chosen (0.3 with greenscreen left out; with dvrk-suturing too before the grey bands
+#: in shadow) it adds nothing there, and the parts stay
 #: off by default (docs/method.md, distal parts). Since a region is grown back into the view's
 #: rim, glare is no region, and an axis shorter than its width (a principal axis: two widths)
 #: or with the tissue's hue is dropped, dvrk-suturing gets no false part (it got one in one of
@@ -184,7 +191,7 @@ def test_border_axes_within_their_sigmas(detected):
 #: With the axes of shafts cut lengthwise by the border (`shaft.border_band`) endovis17 reaches
 #: 14 here too (its top-right shaft's regions are then read by the border cue: the least part
 #: score chosen on the others adds nothing).
-PARTS_REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (12, 0.0),
+PARTS_REACHED = {"dvrk-suturing": (6, 0.0), "box-trainer": (2, 0.0), "greenscreen": (1, 0.0), "cholec": (14, 0.1),
                  "endovis17": (14, 0.0)}
 
 
@@ -229,7 +236,7 @@ def _matches(det, inst, angle_deg=6.0):
 #: does) or several videos' (each its own). The phantom's 13 false bands in the dark gap between
 #: the fat and the bowel (0.65 a frame) go by their tissue colour (`shaft.tissue_colour`,
 #: docs/method.md): none is left.
-UNMASKED_REACHED = {"laparoscopy-hysterectomy-frames": (0.25, 14, False),
+UNMASKED_REACHED = {"laparoscopy-hysterectomy-frames": (0.0, 14, False),
                     "dvrk-lnd-phantom-sequence": (0.0, 19, True)}
 
 
@@ -238,7 +245,10 @@ def test_unmasked_false_per_frame(source):
     """The false detections per frame on the unmasked real frames against the hand-made list
     (target <= 0.25); detections on an uncertain entry count neither way. The frames are in no
     pixel model's training: a check of the shipped least pixel evidence. Hysterectomy: 0 false
-    in 24 frames, 14 of 20 listed found; the dVRK phantom (no lens model given, the valid
+    in 24 frames (T_1_P13_0008's grey band left of the instrument, which the list calls a
+    shadow band, was proposed in shadow by `shaft.shadow_bands` until a band in shadow had to
+    step in lightness from both sides too), 14 of 20 listed found; the dVRK phantom (no lens
+    model given, the valid
     region from all 20 frames): the instrument in 19 of 20 frames, no false band (the 13 in
     the dark gap between fat and bowel, 0.65 a frame, pass the pixel evidence but not the
     tissue colour: 1.72-2.39 against at most 0.72 for the instrument)."""

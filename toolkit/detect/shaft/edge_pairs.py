@@ -21,7 +21,7 @@ edges are taken from the grey levels themselves:
 3. *material*: at `_STATIONS` stations along the overlap, the mean colour of the band's
    inside (the middle `_INSIDE` of its width) and of each outside (strips `_SIDE_PX` work px
    beyond each edge). A station is *good* where the inside differs from both outsides by
-   `_MIN_CONTRAST_SD` noise sd (and `_REL_CONTRAST` of the band's median contrast) and its
+   `MIN_CONTRAST_SD` noise sd (and `_REL_CONTRAST` of the band's median contrast) and its
    colour lies within half the median contrast of the inside colours' straight-line trend
    along the band (one material, its shading changing slowly along it). A pair is a
    candidate where `_MIN_GOOD` of its observable stations are good, half of them are
@@ -80,7 +80,8 @@ import numpy as np
 from pencilcal.toolkit.detect.edges import mean_over
 from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs, close_open, region_pairs
 
-__all__ = ["pair_bands", "edge_segments", "colour_map", "MAX_PAIRS", "MAX_SEGMENTS", "PAIR_MAX_CONVERGENCE_DEG"]
+__all__ = ["pair_bands", "candidate_pairs", "edge_segments", "colour_map", "MAX_PAIRS", "MAX_SEGMENTS",
+           "PAIR_MAX_CONVERGENCE_DEG", "MIN_CONTRAST_SD"]
 
 #: Candidate bands per frame, the best first (4 gave one detection more on the 64 real frames
 #: of the masked sources, the hysterectomy and the dVRK phantom, a false band on the phantom,
@@ -105,7 +106,9 @@ _MAX_CANDIDATES = 60  # pairs judged by their material, the longest overlaps fir
 _STATIONS = 16
 _INSIDE = np.linspace(0.25, 0.75, 5)  # across the band, 0 and 1 its edges
 _SIDE_PX = np.array([2.0, 3.5, 5.0])  # outside samples beyond each edge [work px]
-_MIN_CONTRAST_SD = 6.0
+#: The least contrast of a band's inside with each outside [noise sd] (step 2); the bands in
+#: shadow (`shaft.shadow_bands`) ask it of their lightness.
+MIN_CONTRAST_SD = 6.0
 _REL_CONTRAST = 0.5
 _MIN_GOOD = 0.6
 _LUMA_WEIGHT = 0.5
@@ -122,12 +125,13 @@ def _edge_channel(work):
     return 0.5 * (work.luma + work.colours[..., 2]) if work.bgr.ndim == 3 else work.luma
 
 
-def edge_segments(work, min_len):
+def edge_segments(work, min_len, channel=None):
     """The straight grey-level edges of the work frame (module docstring, step 1): (N, 4)
-    [work px], the longest first."""
+    [work px], the longest first; in channel ((h, w) grey levels 0-255) where given, else in
+    `_edge_channel`'s."""
     import cv2
 
-    g = np.clip(_edge_channel(work), 0, 255).astype(np.uint8)
+    g = np.clip(_edge_channel(work) if channel is None else channel, 0, 255).astype(np.uint8)
     f = _FLD_SCALE
     g = cv2.resize(g, (max(8, round(g.shape[1] * f)), max(8, round(g.shape[0] * f))), interpolation=cv2.INTER_AREA)
     fld = cv2.ximgproc.createFastLineDetector(length_threshold=max(int(_FRAGMENT_PX), int(0.5 * min_len * f)),
@@ -254,7 +258,7 @@ def _material(work, img, lines, pairs, noise, likeness):
     con = np.minimum(np.linalg.norm(cin - c1, axis=-1), np.linalg.norm(cin - c2, axis=-1))  # (K, S)
     n_seen = np.count_nonzero(seen, 1)
     med_con = _median_where(con, seen)
-    good = seen & (con >= np.maximum(_MIN_CONTRAST_SD * noise, _REL_CONTRAST * med_con)[:, None])
+    good = seen & (con >= np.maximum(MIN_CONTRAST_SD * noise, _REL_CONTRAST * med_con)[:, None])
     good &= np.linalg.norm(cin - _trend(cin, seen), axis=-1) <= 0.5 * med_con[:, None]
     frac = np.count_nonzero(good, 1) / np.maximum(n_seen, 1)
     ok = (n_seen >= 0.5 * _STATIONS) & (frac >= _MIN_GOOD)
@@ -284,7 +288,7 @@ def _outline(rims, cin, c1, c2, seen, noise):
     ri, rj = rims
     con = np.minimum(np.linalg.norm(ri - c1, axis=-1), np.linalg.norm(rj - c2, axis=-1))
     med = _median_where(con, seen)
-    least = np.maximum(_MIN_CONTRAST_SD * noise, _REL_CONTRAST * med)[:, None]
+    least = np.maximum(MIN_CONTRAST_SD * noise, _REL_CONTRAST * med)[:, None]
     good = seen & (con >= least) & (np.linalg.norm(ri - rj, axis=-1) <= 0.5 * con)
     # and unlike the inside between them: structure inside (a band of one colour whose rims
     # are its inside is a band of one material, tissue where the likeness says so)
@@ -378,7 +382,17 @@ def colour_map(img, valid, c_in, c1, c2):
     return close_open(B)  # `shaft.regions.close_open`
 
 
-def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segments=None):
+def candidate_pairs(segments, wmin, wmax, conv_max_deg, min_len):
+    """(BoundaryLines, RegionPairs): segments (N, 4) [work px] as lines, each both ways, and
+    the pairs among them that may bound a band (`shaft.regions.region_pairs`, the longest
+    overlaps first, at most `_MAX_CANDIDATES`): the candidates whose material `pair_bands`
+    judges. Arguments as `pair_bands` takes them."""
+    lines = _both_ways(np.asarray(segments, float).reshape(-1, 4))
+    return lines, region_pairs(lines, wmin, wmax, conv_max_deg, 0.5 * min_len, _MAX_CANDIDATES)
+
+
+def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segments=None, with_maps=True,
+               candidates=None):
     """Candidate bands between pairs of grey-level edges (module docstring).
 
     Parameters
@@ -395,6 +409,10 @@ def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segment
         The work frame's instrument-likeness (`shaft.regions.MaterialMap.likeness`).
     segments : (N, 4), optional
         The edges to pair [work px]; default `edge_segments`.
+    with_maps : bool
+        False: each pair's region map is None (the caller makes its own).
+    candidates : (BoundaryLines, RegionPairs), optional
+        `candidate_pairs` of the segments, where the caller has them already.
 
     Returns
     -------
@@ -402,9 +420,10 @@ def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segment
         The lines, the pairs between them (at most `MAX_PAIRS`, the best first) and each
         pair's region map, as `shaft.partner.partner_bands` returns them.
     """
-    seg = edge_segments(work, min_len) if segments is None else np.asarray(segments, float).reshape(-1, 4)
-    lines = _both_ways(seg)
-    pairs = region_pairs(lines, wmin, wmax, conv_max_deg, 0.5 * min_len, _MAX_CANDIDATES)
+    if candidates is None:
+        seg = edge_segments(work, min_len) if segments is None else segments
+        candidates = candidate_pairs(seg, wmin, wmax, conv_max_deg, min_len)
+    lines, pairs = candidates
     empty = RegionPairs(i=np.zeros(0, int), j=np.zeros(0, int), width=np.zeros(0), overlap=np.zeros(0))
     if len(pairs.i) == 0:
         return lines, empty, []
@@ -417,7 +436,8 @@ def pair_bands(work, wmin, wmax, conv_max_deg, noise, min_len, likeness, segment
     if not keep:
         return lines, empty, []
     valid = work.valid.view(np.uint8)
-    maps = [_quad_map(lines, pairs, k, valid) if outline[k] else colour_map(img, valid, *ref[:, k]) for k in keep]
+    maps = ([_quad_map(lines, pairs, k, valid) if outline[k] else colour_map(img, valid, *ref[:, k]) for k in keep]
+            if with_maps else [None] * len(keep))
     keep = np.array(keep, int)
     return lines, RegionPairs(i=pairs.i[keep], j=pairs.j[keep], width=pairs.width[keep],
                               overlap=pairs.overlap[keep]), maps

@@ -109,6 +109,7 @@ from pencilcal.toolkit.detect.shaft.region_bands import (
 )
 from pencilcal.toolkit.detect.shaft.edge_pairs import PAIR_MAX_CONVERGENCE_DEG, colour_map, pair_bands
 from pencilcal.toolkit.detect.shaft.partner import MAX_SEEDS, partner_bands, turned_round
+from pencilcal.toolkit.detect.shaft.shadow_bands import MAX_SHADOW, shadow_bands
 from pencilcal.toolkit.detect.shaft.regions import BoundaryLines, RegionPairs, region_pairs_many, scene_angle
 from pencilcal.toolkit.geometry.projective import line_meet, line_through
 
@@ -234,6 +235,13 @@ def _bands(work, mm, regions, o, wmin, wmax, min_len):
         got = pair_bands(work, wmin, wmax, min(np.degrees(o.conv_max), PAIR_MAX_CONVERGENCE_DEG), mm.luma_noise,
                          min_len, mm.likeness)
         acc = acc + _more_bands(got, work, B0, min_len, ang_thr, acc, "pairs")[:_MAX_PAIRED]
+        if work.bgr.ndim == 3:
+            # a grey shaft in shadow: edges of the tissue's colour, not of its lightness; its
+            # band may overlap the others' (a reading where theirs fails the judge:
+            # `material_cue` keeps it only where none of the bands it touches held up)
+            got = shadow_bands(work, wmin, wmax, min(np.degrees(o.conv_max), PAIR_MAX_CONVERGENCE_DEG),
+                               mm.luma_noise, min_len)
+            acc = acc + _more_bands(got, work, B0, min_len, ang_thr, [], "shadow")[:MAX_SHADOW]
     return acc + _cut_bands(bands, min_len, ang_thr, acc), inside
 
 
@@ -672,9 +680,10 @@ def material_cue(image, camera, validity, work, mm, regions, o, K, noise):
     judged = [judge_band(e, st, f, camera, validity, o, K, s, corridor, long_len)
               for e, st, f in zip(bands, stretches, fitted)]
     fitted_shafts = [sh for k, (sh, _) in enumerate(judged) if sh is not None and k not in averaged]
+    held = [e for e, (sh, _) in zip(bands, judged) if sh is not None and e.kind != "shadow"]
     out = []
     for k, (e, (sh, _)) in enumerate(zip(bands, judged)):
-        if sh is None:
+        if sh is None or (e.kind == "shadow" and _touches(e, held)):
             continue
         if k in averaged:
             # averaged edges follow whatever edges lie along the line: a jaw's run on into its
@@ -707,7 +716,7 @@ def judge_band(e, stretch, fits, camera, validity, o, K, s, corridor, long_len):
     m = midline_from_edges(K, fits[0], fits[1])
     if m is None:
         return None, "no midline from the edges"
-    conv_max = min(o.conv_max, np.radians(PAIR_MAX_CONVERGENCE_DEG)) if e.kind in ("pairs", "inward", "cut") else o.region_conv_max
+    conv_max = min(o.conv_max, np.radians(PAIR_MAX_CONVERGENCE_DEG)) if e.kind in ("pairs", "shadow", "inward", "cut") else o.region_conv_max
     if m.convergence_deg > np.degrees(conv_max):
         return None, "edges converge"
     if not _meet_outside(m):

@@ -39,7 +39,7 @@ import numpy as np
 from pencilcal.toolkit.detect.shaft.work import Validity
 from pencilcal.toolkit.errors import InputError
 
-__all__ = ["tissue_colour", "shaft_tissue_colour", "flank_colour", "shaft_flank_colour", "MAX_TISSUE_COLOUR",
+__all__ = ["tissue_colour", "tissue_colour_map", "shaft_tissue_colour", "flank_colour", "shaft_flank_colour", "MAX_TISSUE_COLOUR",
            "STATIONS", "ACROSS", "INNER", "FLANK"]
 
 #: The most tissue colour a detection may have (module docstring); chosen on the masked real
@@ -84,6 +84,31 @@ def _frame_chromaticity(img, validity):
     # over the whole frame
     grid = img[step // 2:H:step, step // 2:W:step]
     return np.median(_chromaticity(grid.reshape(-1, 3) if keep.all() else grid[keep]), 0)
+
+
+def tissue_colour_map(colours, valid=None):
+    """(h, w) each pixel's tissue colour (module docstring): the chromaticity of colours (h,
+    w, 3) BGR projected on the median chromaticity of the pixels where valid ((h, w) bool;
+    None: all), about `_FRAME_SAMPLES` of them, as a fraction of it.
+
+    >>> img = np.zeros((40, 60, 3), np.uint8); img[:] = (90, 110, 190); img[:, :10] = (40, 40, 42)
+    >>> [round(float(v), 2) for v in tissue_colour_map(img)[0, [0, 30]]]
+    [0.07, 1.0]
+    """
+    import cv2
+
+    c = np.asarray(colours)
+    step = max(1, int(np.sqrt(c.shape[0] * c.shape[1] / _FRAME_SAMPLES)))
+    grid = c[step // 2::step, step // 2::step]
+    keep = None if valid is None else np.asarray(valid, bool)[step // 2::step, step // 2::step]
+    mx, my = np.median(_chromaticity(grid.reshape(-1, 3) if keep is None or not keep.any() else grid[keep]), 0)
+    # the chromaticity's projection is linear in B, G, R over their sum: two weighted sums of
+    # the channels in one pass (float32), not the chromaticity of every pixel
+    r3 = 1.0 / np.sqrt(3.0)
+    W = np.array([[-2.0 * my * r3, my * r3 - mx, mx + my * r3], [1.0, 1.0, 1.0]])
+    W[0] /= max(mx * mx + my * my, 1e-12)
+    out = cv2.transform(np.ascontiguousarray(c, np.float32), W.astype(np.float32))
+    return out[..., 0] / (out[..., 1] + 3.0 * _EPS)  # the two channels as views, not split
 
 
 def _inside(img, midline, width, across=None):

@@ -118,3 +118,23 @@ def test_outline_of_two_limbs_is_proposed(seed):
     B = maps[outer[0]]
     assert B[H // 2, W // 2] and B[H // 2 - 18, W // 2] and B[H // 2 + 18, W // 2]
     assert not B[H // 2 - 30, W // 2] and not B[H // 2 + 30, W // 2]
+
+
+def test_given_candidates_give_the_same_bands():
+    """pair_bands on the candidates the caller made (`candidate_pairs` of the same segments)
+    returns what it returns from the segments: the same lines, pairs and maps."""
+    from pencilcal.toolkit.detect.shaft.edge_pairs import candidate_pairs, edge_segments
+
+    img, _ = _render(18.0, 80.0, seed=1)
+    wf = WorkFrame(img, None, Validity(None, img.shape[:2]), target_px=320)
+    mm = material_map(wf)
+    args = (wf, 10.0, 120.0, PAIR_MAX_CONVERGENCE_DEG, mm.luma_noise, 60.0, mm.likeness)
+    seg = edge_segments(wf, 60.0)
+    a = pair_bands(*args, segments=seg)
+    b = pair_bands(*args, candidates=candidate_pairs(seg, 10.0, 120.0, PAIR_MAX_CONVERGENCE_DEG, 60.0))
+    assert len(a[1].i) >= 1
+    for f in ("p", "u", "lo", "hi"):
+        assert np.array_equal(getattr(a[0], f), getattr(b[0], f))
+    for f in ("i", "j", "width", "overlap"):
+        assert np.array_equal(getattr(a[1], f), getattr(b[1], f))
+    assert all(np.array_equal(x, y) for x, y in zip(a[2], b[2])) and len(a[2]) == len(b[2])
