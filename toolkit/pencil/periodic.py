@@ -30,12 +30,16 @@ import numpy as np
 
 from pencilcal.toolkit.pencil.defaults import DETECTION_LEVEL
 
-__all__ = ["regular_kinds", "periodic_labels", "PERIODIC_LEAST_EDGES", "PHASE_WINDOW"]
+__all__ = ["regular_kinds", "periodic_labels", "PERIODIC_LEAST_EDGES", "PERIODIC_MOST_EDGES", "PHASE_WINDOW"]
 
 #: Only pencils with at least this many edges of each kind all round the vertex are labelled
 #: by their phase (a Siemens star of 16 wedges or more); fewer are labelled as well by
 #: `assign`'s screen.
 PERIODIC_LEAST_EDGES = 16
+#: nor more than this many: the grid of hypotheses grows as the square of the count (70 000
+#: for a star of 128 wedges, a third of a second); a pencil file of more spokes is left to
+#: `assign`'s screen, whose work is bounded
+PERIODIC_MOST_EDGES = 256
 #: A line is given its edge where its phase, N (theta - c_kind), lies within this of a
 #: multiple of 2 pi [rad]: a fifth of the period, so a line is never given the edge of the
 #: other polarity between (half the period away) nor a neighbour of its own.
@@ -92,8 +96,8 @@ def _scores(a, off, n, alpha, q):
 
 def periodic_labels(line_angles, spoke_angles, line_kind=None, spoke_kind=None, level=DETECTION_LEVEL):
     """Every line labelled with its edge from the phase of all lines together (module
-    docstring), or None where the pencil is not dense and regular (`PERIODIC_LEAST_EDGES`
-    of each kind) or no hypothesis's phases agree beyond chance.
+    docstring), or None where the pencil is not dense and regular (`PERIODIC_LEAST_EDGES` to
+    `PERIODIC_MOST_EDGES` of each kind) or no hypothesis's phases agree beyond chance.
 
     line_angles: (M,) [rad] oriented image angles; spoke_angles: (E,) [rad] the edges in the
     target plane; line_kind (M,), spoke_kind (E,): polarities, or None. level: the chance
@@ -115,7 +119,7 @@ def periodic_labels(line_angles, spoke_angles, line_kind=None, spoke_kind=None, 
     a = np.asarray(line_angles, float).reshape(-1)
     M = a.size
     reg = regular_kinds(spoke_angles, spoke_kind)
-    if reg is None or reg[0] < PERIODIC_LEAST_EDGES or M < 3:
+    if reg is None or not PERIODIC_LEAST_EDGES <= reg[0] <= PERIODIC_MOST_EDGES or M < 3:
         return None
     n, offsets = reg
     lk = np.zeros(M, int) if line_kind is None or spoke_kind is None else np.asarray(line_kind, int).reshape(-1)

@@ -69,3 +69,11 @@ def test_only_dense_regular_pencils():
     assert periodic_labels(th, th, kind, kind) is None
     uneven = np.radians(np.r_[np.arange(40) * 9.0, 1.0])
     assert regular_kinds(uneven, None) is None
+
+
+def test_a_pencil_of_very_many_spokes_is_left_to_the_screen():
+    """1000 spokes: the grid would hold millions of hypotheses; left to `assign`'s bounded
+    screen (tests/toolkit/pencil/test_assign.py's memory test)."""
+    th = np.radians(np.arange(1000) * 0.36)
+    assert regular_kinds(th, None)[0] == 1000
+    assert periodic_labels(th[::40], th) is None
