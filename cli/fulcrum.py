@@ -450,8 +450,9 @@ def fulcrum(images, source_spec, lines_path, camera_path, camera_id, angles_path
     camera files carry the intrinsics' covariance it holds their term too, in
     point_cov_total and point_sigma_total (point_cov: the noise alone). With
     --shaft-diameter too, `stereo.agreement` says whether the diameter-based point and the
-    triangulated one agree within their sigmas (chi2, its dof and p; the left view's ray,
-    which both hold, counted once) and `stereo.combined` is their fusion. And every frame's
+    triangulated one agree within their sigmas (chi2, its dof and p; across the line of
+    sight both hold the left view's ray: one error) and `stereo.combined` is their
+    fusion, as sure as either point or surer unless they disagree. And every frame's
     shafts are matched between the two views (frames paired by image name, else in order)
     and each shaft's 3-D axis triangulated from its four silhouette edges, two per view
     (each edge's plane touches the cylinder: axis and radius by least squares, the radius

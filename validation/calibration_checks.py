@@ -59,7 +59,7 @@ from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
 
 __all__ = ["RANDOM_HALVES", "RATIO_DRAWS", "used_views", "calibration_halves", "uncertainty_map", "halves_agreement",
-           "ratio_chance"]
+           "ratio_chance", "difference_modes", "view_focal_scales"]
 
 #: Random halves solved besides the odd and even views.
 RANDOM_HALVES = 16
@@ -117,17 +117,24 @@ def _region_summary(diff, pred2):
             "ratio": rms / pred if pred > 0 else None}
 
 
-def _pred(camera_a, cov_a, camera_b, cov_b, pixels, region, shared=None):
+def _sensitivities(camera_a, camera_b, pixels, region, shared=None):
+    """`projection_sensitivity` at `pixels` of both calibrations and, with `shared`, of the
+    camera the shared errors are linearised at (else zeros): (Aa, Ab, As), each (N, 2, P)."""
+    Aa = projection_sensitivity(camera_a, pixels, region)
+    Ab = projection_sensitivity(camera_b, pixels, region)
+    return Aa, Ab, projection_sensitivity(shared[1], pixels, region) if shared is not None else np.zeros_like(Aa)
+
+
+def _pred(camera_a, cov_a, camera_b, cov_b, pixels, region, shared=None, sens=None):
     """(N, 2, 2) the covariance of the difference of two calibrations' projections at
     `pixels`, each one's own errors linearised at its own intrinsics; shared : (D (P, P), the
     camera it is linearised at) for the errors both saw (the printed board's corners, the
     image-fixed field): D is their part of the difference of the intrinsics, taken through
-    the projection at that one camera, None: none."""
-    Aa = projection_sensitivity(camera_a, pixels, region)
-    Ab = projection_sensitivity(camera_b, pixels, region)
+    the projection at that one camera, None: none. sens : `_sensitivities` at these pixels
+    (None: computed)."""
+    Aa, Ab, As = sens if sens is not None else _sensitivities(camera_a, camera_b, pixels, region, shared)
     out = Aa @ cov_a @ np.swapaxes(Aa, -1, -2) + Ab @ cov_b @ np.swapaxes(Ab, -1, -2)
     if shared is not None:
-        As = projection_sensitivity(shared[1], pixels, region)
         out = out + As @ shared[0] @ np.swapaxes(As, -1, -2)
     return out
 
@@ -138,48 +145,85 @@ def _root(C):
     return V * np.sqrt(np.clip(w, 0.0, None))
 
 
-def ratio_chance(camera_a, cov_a, camera_b, cov_b, region, observed, draws=RATIO_DRAWS, seed=0, shared=None):
+def _difference_factor(camera_a, cov_a, camera_b, cov_b, region, shared=None, ok=None, sens=None):
+    """(G (2M, 3P), the region's pixels used (M_all,) bool): the halves' pixel differences
+    over `region` under their covariances are ``G z`` with z standard normal, each half's own
+    errors through its own linearised projection, the shared ones (`_pred`'s `shared`)
+    through theirs, up to the aligning rotation; G None where no pixel projects. ok : a mask
+    of the pixels to keep besides (None: all); sens : `_sensitivities` over the region."""
+    Aa, Ab, As = sens if sens is not None else _sensitivities(camera_a, camera_b, region, region, shared)
+    good = np.all(np.isfinite(Aa), (-1, -2)) & np.all(np.isfinite(Ab), (-1, -2)) & np.all(np.isfinite(As), (-1, -2))
+    if ok is not None:
+        good &= ok
+    if not np.any(good):
+        return None, good
+    P = cov_a.shape[0]
+    parts = [Aa[good] @ _root(cov_a), -(Ab[good] @ _root(cov_b))]
+    if shared is not None:
+        parts.append(As[good] @ _root(shared[0]))
+    return np.concatenate([g.reshape(-1, P) for g in parts], -1), good
+
+
+def ratio_chance(camera_a, cov_a, camera_b, cov_b, region, observed, draws=RATIO_DRAWS, seed=0, shared=None,
+                 sens=None):
     """The probability that two calibrations whose errors are as their covariances say
     differ over `region` (M, 2) by a projection ratio of `observed` or more: the share of
     `draws` pairs of errors drawn from them (through each one's linearised projection, up
     to the aligning rotation) whose RMS difference is at least `observed` x the predicted
     RMS. A one-split figure's p-value: when the difference lies along one direction (a
     focal length, say) the ratio scatters like |z|, and 1.9 happens once in 20 splits.
-    shared : as `_pred` (the errors both calibrations saw), None: independent."""
-    Aa = projection_sensitivity(camera_a, region, region)
-    Ab = projection_sensitivity(camera_b, region, region)
-    As = projection_sensitivity(shared[1], region, region) if shared is not None else np.zeros_like(Aa)
-    ok = np.all(np.isfinite(Aa), (-1, -2)) & np.all(np.isfinite(Ab), (-1, -2)) & np.all(np.isfinite(As), (-1, -2))
-    Aa, Ab, As = Aa[ok], Ab[ok], As[ok]
-    if not Aa.size or observed is None:
+    shared : as `_pred` (the errors both calibrations saw), None: independent; sens : the
+    projections' sensitivities over the region, as `_pred` takes them (None: computed)."""
+    G, ok = _difference_factor(camera_a, cov_a, camera_b, cov_b, region, shared, sens=sens)
+    if G is None or observed is None:
         return None
+    M = int(ok.sum())
     rng = np.random.default_rng(seed)
-    # each draw's pixel differences are linear in standard normals: D = G z, G (2M, 3P):
-    # each half's own errors through its own projection, the shared ones through theirs
-    P = cov_a.shape[0]
-    parts = [Aa @ _root(cov_a), -(Ab @ _root(cov_b))]
-    if shared is not None:
-        parts.append(As @ _root(shared[0]))
-    G = np.concatenate([g.reshape(-1, P) for g in parts], -1)
-    pred2 = float(np.sum(G * G)) / Aa.shape[0]
+    pred2 = float(np.sum(G * G)) / M
     if pred2 <= 0:
         return None
     # the RMS difference squared of a draw is z^T (G^T G / M) z: only G's singular values matter
-    lam = np.linalg.eigvalsh(G.T @ G) / Aa.shape[0]
+    lam = np.linalg.eigvalsh(G.T @ G) / M
     lam = lam[lam > 1e-12 * lam.max()]
     z2 = rng.standard_normal((int(draws), lam.size)) ** 2
     ratios = np.sqrt(z2 @ lam / pred2)
     return float(np.mean(ratios >= observed))
 
 
-def halves_agreement(camera_a, cov_a, camera_b, cov_b, grid, shared=None):
+def difference_modes(camera_a, cov_a, camera_b, cov_b, region, shared=None, modes=3, sens=None):
+    """The halves' projection difference over `region` (M, 2) split along the directions of
+    its predicted covariance (as `ratio_chance` draws it): per mode, largest first, its share
+    of the predicted mean square and the observed difference's z along it. The projection
+    ratio squared is ``sum share_k z_k^2`` (up to the part outside the modes' span, which the
+    covariance says cannot occur): one mode holding most of the prediction makes the ratio
+    scatter like |z| of one normal. Returns ``{"share": [...], "z": [...], "outside_px2"}``
+    or None where no projection is found. sens : as `ratio_chance`."""
+    diff = projection_difference(camera_a, camera_b, region, region)
+    G, ok = _difference_factor(camera_a, cov_a, camera_b, cov_b, region, shared, np.all(np.isfinite(diff), -1), sens)
+    if G is None:
+        return None
+    U, s, _ = np.linalg.svd(G, full_matrices=False)
+    keep = s > 1e-9 * s.max()
+    U, s = U[:, keep], s[keep]
+    d = diff[ok].reshape(-1)
+    proj = U.T @ d
+    M = int(ok.sum())
+    lam = s * s / M
+    rest = d - U @ proj
+    k = min(int(modes), s.size)
+    return {"share": [float(x) for x in lam[:k] / lam.sum()], "z": [float(x) for x in (proj / s)[:k]],
+            "outside_px2": float(rest @ rest / M)}
+
+
+def halves_agreement(camera_a, cov_a, camera_b, cov_b, grid, shared=None, modes=False):
     """Do two calibrations of one camera agree within their covariances (P, P) of their own
     errors? grid : the `CoveredGrid` of the views; shared : (D (P, P), camera) the part of
     their difference due to the errors both saw (the printed board's corner offsets,
     `toolkit.board.print_errors`, the image-fixed field) and the camera that part is
     linearised at (`_pred`), None: none. Returns the chi-square record and the projection
     differences over the covered region (up to rotation, and in the camera frame), plus the
-    maps of both over the whole grid."""
+    maps of both over the whole grid; with `modes` the difference along its predicted
+    modes (`difference_modes`, ``projection_modes``)."""
     names = camera_a.dist.size + 4
     d = np.r_[camera_a.fx - camera_b.fx, camera_a.fy - camera_b.fy, camera_a.cx - camera_b.cx,
               camera_a.cy - camera_b.cy, camera_a.dist - camera_b.dist]
@@ -198,18 +242,24 @@ def halves_agreement(camera_a, cov_a, camera_b, cov_b, grid, shared=None):
     # Jacobian, which a lens model with nearly degenerate coefficients turns into
     # nonsense); the shared errors' part through the projection at the camera its gains
     # were linearised at, for the same reason
+    # the sensitivities once, over every cell (the covered ones are the region's)
+    centres = grid.centres().reshape(-1, 2)
+    every = _sensitivities(camera_a, camera_b, centres, region, shared)
+    inside = grid.mask.reshape(-1)
+    sens = tuple(A[inside] for A in every)
     covered = _region_summary(projection_difference(camera_a, camera_b, region, region),
-                              _pred(camera_a, cov_a, camera_b, cov_b, region, region, shared))
+                              _pred(camera_a, cov_a, camera_b, cov_b, region, region, shared, sens))
     frame = _region_summary(projection_difference(camera_a, camera_b, region),
                             _pred(camera_a, cov_a, camera_b, cov_b, region, None, shared))
     rec.update(projection_rms_px=covered["rms_px"], projection_max_px=covered["max_px"],
                projection_predicted_rms_px=covered["predicted_rms_px"], projection_ratio=covered["ratio"],
                projection_ratio_p=ratio_chance(camera_a, cov_a, camera_b, cov_b, region, covered["ratio"],
-                                                            shared=shared),
+                                               shared=shared, sens=sens),
+               projection_modes=difference_modes(camera_a, cov_a, camera_b, cov_b, region, shared, sens=sens)
+               if modes else None,
                camera_frame=frame)
-    centres = grid.centres().reshape(-1, 2)
     full = projection_difference(camera_a, camera_b, centres, region)
-    pred = np.sqrt(np.maximum(np.trace(_pred(camera_a, cov_a, camera_b, cov_b, centres, region, shared),
+    pred = np.sqrt(np.maximum(np.trace(_pred(camera_a, cov_a, camera_b, cov_b, centres, region, shared, every),
                                        axis1=-2, axis2=-1), 0.0))
     rec["_maps"] = (np.linalg.norm(full, axis=-1).reshape(grid.shape), pred.reshape(grid.shape))
     return rec
@@ -257,7 +307,7 @@ def _shared(result, gains, first, second):
     return out[0], out[1], out[2]
 
 
-def _split(result, views, grid, first, size, gains=None):
+def _split(result, views, grid, first, size, gains=None, modes=False):
     idx = views[0]
     second = [j for j in range(len(idx)) if j not in set(first)]
     if min(len(first), len(second)) < _MIN_HALF_VIEWS:
@@ -274,7 +324,7 @@ def _split(result, views, grid, first, size, gains=None):
         # a predicted difference 11 x the real one (opencv 14, da Vinci left views)
         shared = (shared[0] + shared[1] - shared[2] - shared[2].T, result.camera)
     rec = halves_agreement(_camera(result.layout, sa.theta, size), ca.intrinsics,
-                           _camera(result.layout, sb.theta, size), cb.intrinsics, grid, shared)
+                           _camera(result.layout, sb.theta, size), cb.intrinsics, grid, shared, modes)
     rec["z"] = dict(zip(result.layout.names, rec.pop("z_values")))
     rec["views"] = [len(first), len(second)]
     return rec
@@ -306,7 +356,7 @@ def calibration_halves(result, detections, board, repeats=RANDOM_HALVES, seed=0)
     grid = covered_grid(views[2], size)
     n = len(views[0])
     gains = _shared_gains(result, views, detections)
-    odd_even = _split(result, views, grid, list(range(0, n, 2)), size, gains)
+    odd_even = _split(result, views, grid, list(range(0, n, 2)), size, gains, modes=True)
     maps = odd_even.pop("_maps")
     out = {"method": "halves solved apart with the calibration's corners, lens model, board warp and corner-noise "
                      "model, the printed board's corner offsets and the corners' image-fixed error shared by "
@@ -339,6 +389,68 @@ def calibration_halves(result, detections, board, repeats=RANDOM_HALVES, seed=0)
                   "difference_px": _map_list(maps[0]), "predicted_px": _map_list(maps[1]),
                   "covered": grid.mask.astype(int).tolist()}
     return out
+
+
+def view_focal_scales(result, detections, board, largest=3):
+    """Does each view see the camera's focal scale, within its noise? Each used view's pose
+    and one focal scale (fx and fy by one factor, the rest held at the calibration) fitted
+    to its corners, linearised at the solution, as the final fit weighs them; its variance
+    the sandwich under the calibration's corner-noise model (the view's level, its shape and
+    correlated part). A focus or zoom that changed between the views, or a board that
+    bends differently in each, scatters these scales beyond their sigmas and shows in the
+    halves' focal difference without any corner noise to carry it.
+
+    Returns ``{"views", "chi2_per_dof", "p_value" (of the weighted scatter about the
+    weighted mean, V - 1 dof), "tau" (the scatter's part beyond the noise, a relative
+    scale: DerSimonian-Laird), "sigma_median" (a view's relative sigma), "largest": [[view
+    index, z], ...]}``, or None for a model without a noise model or fewer than 3 views.
+    """
+    from pencilcal.toolkit.board.bundle import board_scale, view_jacobians
+    from pencilcal.toolkit.board.corner_noise import CornerView, kernel, variance_factor, white_variance
+
+    noise = _noise_of(result)
+    if noise is None or result.solution is None:
+        return None
+    idx, objs, imgs, bases = used_views(result, detections, board)
+    if len(idx) < 3:
+        return None
+    lay, sol = result.layout, result.solution
+    T = lay.transform(sol.theta)
+    e = np.zeros(T.shape[0])
+    e[:2] = sol.theta[:2]
+    # the focal scale in the free parameters (fx follows fy where the aspect is held)
+    ef = np.linalg.lstsq(T, e, rcond=None)[0]
+    weights = result.weights if result.weights is not None else [None] * len(objs)
+    est, var = [], []
+    for (r, Jg, Jp, _), pose, img, w in zip(view_jacobians(lay, sol, objs, imgs, bases if lay.warp else None),
+                                            sol.poses, imgs, weights):
+        img = np.asarray(img, float)
+        d = variance_factor(noise, img, board_scale(pose, Jp), sol.theta[2:4])
+        sw = np.ones(img.shape[0]) if w is None else np.sqrt(np.asarray(w, float))
+        g = np.repeat(np.sqrt(d) * sw, 2)
+        X = np.hstack([Jp, (Jg[:, :ef.size] @ ef)[:, None]]) * np.repeat(sw, 2)[:, None]
+        rw = r.reshape(-1) * np.repeat(sw, 2)
+        H = np.linalg.inv(X.T @ X)
+        k = kernel(img, noise.length_px) if noise.ratio > 0 else None
+        level = white_variance(CornerView(img, -(rw / g).reshape(-1, 2), (Jp * np.repeat(sw, 2)[:, None]) / g[:, None]),
+                               noise, k)
+        GX = X * g[:, None]
+        meat = GX.T @ GX
+        if k is not None:
+            X3 = GX.reshape(img.shape[0], 2, -1)
+            meat = meat + noise.ratio * np.einsum("kbp,kbq->pq", X3, np.einsum("kl,lbq->kbq", k, X3))
+        est.append(float((H @ (X.T @ rw))[-1]))
+        var.append(float(level * (H @ meat @ H)[-1, -1]))
+    s, v = np.array(est), np.array(var)
+    w = 1.0 / v
+    m = float(np.sum(w * s) / w.sum())
+    Q, dof = float(np.sum(w * (s - m) ** 2)), s.size - 1
+    tau2 = max(0.0, (Q - dof) / (w.sum() - np.sum(w * w) / w.sum()))
+    z = (s - m) / np.sqrt(v)
+    top = np.argsort(-np.abs(z))[:int(largest)]
+    return {"views": int(s.size), "chi2_per_dof": Q / dof, "p_value": float(chi2_sf(Q, dof)), "tau": math.sqrt(tau2),
+            "sigma_median": float(np.median(np.sqrt(v))),
+            "largest": [[int(idx[i]), round(float(z[i]), 2)] for i in top]}
 
 
 def uncertainty_map(result, detections, board):

@@ -38,7 +38,7 @@ from pencilcal.toolkit.camera.model import Camera
 from pencilcal.toolkit.errors import EstimationError
 
 from .calibration_report import coverage_grid
-from .calibration_checks import RANDOM_HALVES, calibration_halves, uncertainty_map, used_views
+from .calibration_checks import RANDOM_HALVES, calibration_halves, uncertainty_map, used_views, view_focal_scales
 from .calibration_verdict import USABLE_PX, halves_state, judge
 
 __all__ = ["CalibrationChecks", "calibrate_checked", "run_checks"]
@@ -71,6 +71,9 @@ def run_checks(result, detections, board, repeats=RANDOM_HALVES, seed=0):
         halves = calibration_halves(result, detections, board, repeats=repeats, seed=seed)
     except EstimationError as e:
         halves = {"error": str(e)}
+    if not halves.get("error"):
+        # each view's own focal scale against its noise: a focus that changed between views
+        halves["view_focal_scale"] = view_focal_scales(result, detections, board)
     try:
         umap = uncertainty_map(result, detections, board)
     except EstimationError as e:

@@ -18,7 +18,9 @@
 The halves must agree within `CONSISTENT_CHI2` (pooled chi-square per degree of freedom)
 and `CONSISTENT_RATIO` (pooled projection difference over its prediction) for the sigmas to
 be trusted as they are; between those bounds and `DISAGREE` the verdict stands with a
-warning that says by how much the sigmas look small.
+warning that says by how much the sigmas look small. Each view's own focal scale must
+scatter as its corner noise says (`calibration_checks.view_focal_scales`): a p-value under
+`DISAGREE_P` warns that the focus, zoom or board changed between the views.
 
 The advice names what to add: views where the image is thin (`coverage_regions`), tilted
 views, views at other distances, more views, a board that fills more of the image.
@@ -228,6 +230,13 @@ def judge(views_used, halves, umap, geometry, usable_px=USABLE_PX, noise=None):
                         "too small")
     elif state == "unchecked" and not reasons:
         reasons.append(f"the calibration could not be checked against itself ({why})")
+    scales = (halves or {}).get("view_focal_scale") or {}
+    if scales.get("p_value") is not None and scales["p_value"] < DISAGREE_P:
+        warnings.append(f"the views disagree on the focal scale beyond their corner noise (scatter "
+                        f"{scales['chi2_per_dof']:.2f} x the expected over {scales['views']} views, p "
+                        f"{scales['p_value']:.1g}; {100 * scales['tau']:.2g} % per view beyond it), as when a focus "
+                        "or zoom changed between the views or the board bent differently in each; the focal length's "
+                        "sigma leaves that scatter out")
     dep = umap.get("linear_departure")
     if dep is not None and not float(dep) <= LINEAR_DEPARTURE:
         warnings.append(f"the lens model's coefficients are not determined by these views: a one-sigma change of them "
@@ -238,7 +247,7 @@ def judge(views_used, halves, umap, geometry, usable_px=USABLE_PX, noise=None):
     figures = {"usable_share": share, "covered_share": umap.get("covered_fraction"), "median_covered_px": med,
                "max_covered_px": worst, "halves_chi2_per_dof": chi2, "halves_projection_ratio": ratio,
                "halves_odd_even_p": p, "views_used": int(views_used),
-               "linear_departure": dep}
+               "linear_departure": dep, "view_focal_scale_p": scales.get("p_value")}
     region = {"share": share, "bbox_px": bbox, "threshold_px": usable_px}
     fig = (f"projection uncertainty {med:.2f} px (median, worst {worst:.2f} px) over the covered "
            f"{100 * (umap.get('covered_fraction') or 0):.0f}% of the image") if med is not None else \

@@ -74,17 +74,16 @@ __all__ = [
     "Fulcrum3D", "RayTriangulation", "Fusion", "project_cylinder", "edge_lines",
     "silhouette_planes", "cylinder_axis", "axis_image_line", "axis_frame", "axis_chart",
     "axis_offsets", "offset_chi2", "shaft_axis", "shaft_axis_record", "fulcrum_3d", "scatter_scale",
-    "ray_from_image_point", "triangulate_rays", "combine_estimates", "common_part",
+    "ray_from_image_point", "triangulate_rays", "combine_estimates", "shared_difference_chi2", "common_part",
 ]
 
 # Confidence of the chi2 gates (outlier axes in fulcrum_3d, the consistency test of
 # combine_estimates); the thresholds are its chi2 quantiles, never literals.
 GATE_CONFIDENCE = 0.99
 
-# combine_estimates with shared data: a component of the difference whose variance is under
-# this fraction of its variance for independent estimates is one the shared data make up
-# (left out of the consistency test). Not smaller: two fits of one view's data differ a few
-# per cent in what they hold (an axis gated out of one, weights at a different point).
+# A component of two estimates' difference under this fraction of its independent variance is
+# one their shared data make up (out of the test, `shared_difference_chi2`). Not smaller: two fits
+# of one view's data differ a few per cent (an axis gated out of one, weights elsewhere).
 SHARED_FLOOR = 0.05
 
 # The least scale of scatter_scale: exact axes (chi2 ~ 1e-20) would gate on rounding.
@@ -955,19 +954,26 @@ def _fused(x1, C1, x2, C2, confidence, shared, common, shared_own):
         dof = np.full(c2.shape, n)
     else:
         cross = C1 @ I_s @ C2
-        D = C1 + C2 - cross - np.swapaxes(cross, -1, -2)
-        # whitened by C1 + C2, D's eigenvalues are the fractions of each component's
-        # variance the shared data leave in the difference (1: independent, 0: the same)
-        W = np.linalg.inv(np.linalg.cholesky(C1 + C2))
-        lam, V = np.linalg.eigh(W @ (0.5 * (D + np.swapaxes(D, -1, -2))) @ np.swapaxes(W, -1, -2))
-        keep = lam > SHARED_FLOOR
-        z = np.einsum("...ji,...j->...i", V, np.einsum("...ij,...j->...i", W, diff))
-        c2 = np.sum(np.where(keep, z * z / np.where(keep, lam, 1.0), 0.0), -1)
-        dof = keep.sum(-1)
+        c2, dof = shared_difference_chi2(diff, C1 + C2 - cross - np.swapaxes(cross, -1, -2), C1 + C2)
     dof = int(np.min(dof)) if np.ndim(dof) else int(dof)
     threshold = chi2_isf(1.0 - confidence, dof)
     return Fusion(point=point, cov=cov, sigma=np.sqrt(np.trace(cov, axis1=-2, axis2=-1)), chi2=c2, dof=dof,
                   threshold=threshold, consistent=c2 <= threshold, p_value=chi2_sf(c2, dof)), cov @ I1
+
+
+def shared_difference_chi2(diff, cov_diff, cov_independent):
+    """(chi2 (...), dof (...)): the test of two estimates' difference diff (..., n), its
+    covariance cov_diff (..., n, n) made smaller by shared data than cov_independent: whitened
+    by it, cov_diff's eigenvalues are the share each component keeps (1: independent, 0: the
+    same in both); those under `SHARED_FLOOR` are left out, dof counts the others.
+
+    >>> [float(v) for v in shared_difference_chi2(np.array([1.0, 2.0]), np.diag([0.5, 1e-6]), np.eye(2))]
+    [2.0, 1.0]"""
+    W, D = np.linalg.inv(np.linalg.cholesky(cov_independent)), np.asarray(cov_diff, float)
+    lam, V = np.linalg.eigh(W @ (0.5 * (D + np.swapaxes(D, -1, -2))) @ np.swapaxes(W, -1, -2))
+    keep = lam > SHARED_FLOOR
+    z = np.einsum("...ji,...j->...i", V, np.einsum("...ij,...j->...i", W, diff))
+    return np.sum(np.where(keep, z * z / np.where(keep, lam, 1.0), 0.0), -1), keep.sum(-1)
 
 
 def common_part(common, *covs, margin=0.9):

@@ -59,7 +59,8 @@ from pencilcal.toolkit.errors import EstimationError, InputError
 from pencilcal.toolkit.geometry.frames import (normalize, project_to_rotation, rotation_from_rotvec, rotvec_from_rotation,
                                               skew)
 from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
-from pencilcal.toolkit.pencil.cylinder import GATE_CONFIDENCE, SHARED_FLOOR, axis_chart, axis_frame, fulcrum_3d, shaft_axis_record
+from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, axis_chart, axis_frame, fulcrum_3d, shaft_axis_record,
+                                               shared_difference_chi2)
 
 __all__ = ["MIN_FRAMES", "MIN_AXIS_SPREAD_DEG", "HandEye", "RobotCalibration", "hand_eye_from_axes", "robot_fulcrum",
            "fulcrum_agreement", "invert_transform", "robot_from_frames"]
@@ -441,16 +442,10 @@ def fulcrum_agreement(he, cam_points, cam_directions, cam_covs, base_points, bas
         cov = cov + R @ Fb_cov @ R.T
     diff = F - Fr
     robot_cov = D @ he.cov @ D.T + R @ Fb_cov @ R.T
-    # whitened by the covariance the difference would have were the estimates independent,
-    # the components the shared axes leave under SHARED_FLOOR of it are the same in both
-    # (for a pivot the transform's translation is fixed by the fulcrum itself): left out
-    # of the test, as `cylinder.combine_estimates` does
-    W = np.linalg.inv(np.linalg.cholesky(F_cov + robot_cov))
-    lam, V = np.linalg.eigh(W @ (0.5 * (cov + cov.T)) @ W.T)
-    keep = lam > SHARED_FLOOR
-    z = V.T @ (W @ diff)
-    c2 = float(np.sum(np.where(keep, z * z / np.where(keep, lam, 1.0), 0.0)))
-    dof = int(keep.sum())
+    # the components the shared axes make the same in both (for a pivot the transform's
+    # translation is fixed by the fulcrum itself) are left out of the test
+    c2, dof = shared_difference_chi2(diff, cov, F_cov + robot_cov)
+    c2, dof = float(c2), int(dof)
     thr = chi2_isf(1.0 - confidence, dof) if dof else 0.0
     return {"camera_point": F.tolist(), "camera_cov": F_cov.tolist(), "robot_point_cam": Fr.tolist(),
             "robot_cov_cam": robot_cov.tolist(), "difference": diff.tolist(), "distance": float(np.linalg.norm(diff)),

@@ -3,9 +3,11 @@
 Each view's fulcrum ray comes from its own frames (`fulcrum.fulcrum_from_frames`); with the
 rig (`camera.stereo.StereoRig`, the right camera's pose from the left's) the two rays meet at
 the 3-D fulcrum (`stereo_fulcrum`: `cylinder.triangulate_rays`), in the left camera frame.
-Where the left view has its diameter-based point, the two are fused and tested for agreement
-(`cylinder.combine_estimates`); the port's play that both views see alike is carried as a
-shared term (`stereo_play`), and the intrinsics' error as `triangulation_lens_cov`.
+Where the left view has its diameter-based point, the two are fused as correlated estimates
+(`gls_fusion`: the generalised least-squares mean, with the error they share across the line
+of sight, `shared_across`, as their cross-covariance) and tested for agreement; the port's
+play that both views see alike is carried as a shared term (`stereo_play`), and the
+intrinsics' error as `triangulation_lens_cov`.
 """
 from __future__ import annotations
 
@@ -16,14 +18,20 @@ import numpy as np
 
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
-from pencilcal.toolkit.geometry.quantiles import chi2_sf
-from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fusion, RayTriangulation, combine_estimates,
+from pencilcal.toolkit.geometry.quantiles import chi2_isf, chi2_sf
+from pencilcal.toolkit.pencil.cylinder import (GATE_CONFIDENCE, Fusion, RayTriangulation, shared_difference_chi2,
                                                triangulate_rays)
 from pencilcal.toolkit.pencil.fulcrum import Fulcrum
 from pencilcal.toolkit.pencil.stereo_play import (cross_term, play_covariance, play_cross_cov, shared_offset_term,
                                                    shared_ray_cov)
 
-__all__ = ["StereoFulcrum", "stereo_fulcrum", "triangulation_lens_cov", "triangulation_rig_cov"]
+__all__ = ["StereoFulcrum", "stereo_fulcrum", "triangulation_lens_cov", "triangulation_rig_cov",
+           "gls_fusion", "shared_across", "CROSS_MARGIN"]
+
+#: The largest correlation the fusion lets the two points' errors have along any pair of
+#: directions (`gls_fusion`): their cross-covariance is scaled down to it where the model's
+#: would make the pair's joint covariance singular or indefinite.
+CROSS_MARGIN = 0.8
 
 
 _RIGHT_KEYS = ("vertex_px", "vertex_cov_px2", "ray", "ray_cov", "ray_sigma_deg", "lines_used", "outliers",
@@ -39,16 +47,18 @@ class StereoFulcrum:
     rig: the `camera.stereo.StereoRig`; right: the right view's `Fulcrum` (its ray in the
     right camera frame); triangulated: the `cylinder.RayTriangulation` of the two fulcrum
     rays; combined: with the left view's diameter-based point, the `cylinder.Fusion` of it
-    and the triangulated point (its chi2 the agreement test, 3 dof), else None; shared:
-    whether the fusion counted the left ray once (False: the shared information exceeded
-    the diameter point's, the two were fused as independent). lens_cov (3, 3): the
-    intrinsics' term of the triangulated point's covariance (`triangulation_lens_cov`)
+    and the triangulated point (`gls_fusion`; its chi2 the agreement test), else None;
+    shared: the share of the error both points carry across the line of sight
+    (`shared_across`) that the fusion took as their cross-covariance (1: whole; less where
+    it would make the two correlated beyond `CROSS_MARGIN`); inflation: what the fused
+    covariance was multiplied by because the two disagree (chi2 / dof; 1: they agree).
+    lens_cov (3, 3): the intrinsics' term of the triangulated point's covariance (`triangulation_lens_cov`)
     from the views in lens_views ("left", "right": those whose camera carried an
     intrinsics covariance), None when neither did. common_cov (3, 3): the 3-D offset both
     views' rays share (`play_covariance`), in the triangulated and the combined point's
-    covariances whole. rig_cov (3, 3): the rig calibration's term of the triangulated
-    point's covariance (`triangulation_rig_cov`), in it and in the combined point's as
-    much as the fusion took from the triangulated point; None when the rig has no
+    covariance whole. rig_cov (3, 3): the rig calibration's term of the triangulated
+    point's covariance (`triangulation_rig_cov`), in it and so in the combined point's
+    weight and covariance; None when the rig has no
     covariance. paired: `stereo_play.play_cross_cov`'s record (``pairs``, ``sigma_px``) of
     the lines both views fitted in the same frames.
     """
@@ -57,13 +67,14 @@ class StereoFulcrum:
     right: Fulcrum
     triangulated: RayTriangulation
     combined: Fusion | None = None
-    shared: bool = True
+    shared: float = 1.0
     confidence: float = GATE_CONFIDENCE
     lens_cov: np.ndarray | None = None
     lens_views: tuple = ()
     common_cov: np.ndarray | None = None
     rig_cov: np.ndarray | None = None
     paired: dict | None = None
+    inflation: float = 1.0
 
     def to_dict(self) -> dict:
         """fulcrum.json's ``stereo`` record: the rig (``file``, ``R_right_from_left``,
@@ -75,7 +86,8 @@ class StereoFulcrum:
         of either camera also ``point_cov_total``, ``point_sigma_total``, ``intrinsics_used``
         and ``intrinsics_views``) and with the diameter ``agreement``
         (``chi2``, ``dof``, ``p_value``, ``threshold``, ``confidence``, ``consistent``,
-        ``shared_left_ray``) and ``combined`` (``point``, ``point_cov``, ``point_sigma``)."""
+        ``shared_left_ray``, ``left_ray_share``: `shared`, ``inflation``) and ``combined``
+        (``point``, ``point_cov``, ``point_sigma``)."""
         rec = self.right.to_dict()
         t = self.triangulated
         out = {**self.rig.to_dict(), "right": {k: rec[k] for k in _RIGHT_KEYS if k in rec}}
@@ -101,7 +113,8 @@ class StereoFulcrum:
         if c is not None:
             out["agreement"] = {"chi2": float(c.chi2), "dof": int(c.dof), "p_value": float(c.p_value),
                                 "threshold": float(c.threshold), "confidence": float(self.confidence),
-                                "consistent": bool(c.consistent), "shared_left_ray": bool(self.shared)}
+                                "consistent": bool(c.consistent), "shared_left_ray": bool(self.shared > 0),
+                                "left_ray_share": float(self.shared), "inflation": float(self.inflation)}
             out["combined"] = {"point": np.asarray(c.point, float).tolist(),
                                "point_cov": np.asarray(c.cov, float).tolist(), "point_sigma": float(c.sigma)}
         return out
@@ -161,6 +174,81 @@ def triangulation_rig_cov(ray_left, cov_left, ray_right, cov_right, rig, step=1e
     return 0.5 * (out + out.T)
 
 
+def shared_across(x, C1, C2):
+    """(3, 3) the cross-covariance of two estimates of the point x (3,) (left camera frame)
+    whose errors across its line of sight are one: the smaller of their covariances there.
+
+    Across the line of sight C1 and C2 (3, 3) are turned into their common eigenvectors
+    (those of C1 whitened by C2, ``C1 v = lam C2 v``); along each the shared error has the
+    smaller variance (min(lam, 1) in C2's units): the estimate that is surer there holds
+    that error and no more, the other holds it and its own besides. Along the line of
+    sight they share nothing.
+
+    >>> K = shared_across([0.0, 0, 100], np.diag([1.0, 4, 9]), np.diag([2.0, 3, 1]))
+    >>> np.round(K, 6).tolist()
+    [[1.0, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 0.0]]
+    """
+    u = np.asarray(x, float) / np.linalg.norm(x)
+    B = np.linalg.svd(np.eye(3) - np.outer(u, u))[0][:, :2]    # (3, 2) across the line of sight
+    A1, A2 = B.T @ np.asarray(C1, float) @ B, B.T @ np.asarray(C2, float) @ B
+    L = np.linalg.cholesky(A2)
+    W = np.linalg.inv(L)
+    lam, V = np.linalg.eigh(W @ A1 @ W.T)
+    M = L @ V
+    K = B @ (M * np.minimum(lam, 1.0)) @ M.T @ B.T
+    return 0.5 * (K + K.T)
+
+
+def gls_fusion(x1, C1, x2, C2, C12, confidence=GATE_CONFIDENCE, margin=None):
+    """(Fusion, share, inflation): the generalised least-squares mean of two correlated
+    estimates of one point, and their consistency test.
+
+    x1, x2: (n,) the estimates; C1, C2: (n, n) their covariances; C12: (n, n) ``E[e1 e2^T]``
+    (`shared_across`). The joint covariance ``S = [[C1, C12], [C12^T, C2]]`` gives the
+    point ``F A^T S^-1 [x1; x2]`` with ``F = (A^T S^-1 A)^-1`` (A = [1; 1]), its covariance F,
+    never larger than C1 or C2 along any direction (each alone is one of the means it
+    minimises over). C12 is scaled by share (up to 1) so that the whitened cross-covariance
+    ``C1^-1/2 C12 C2^-T/2`` has singular values at most `margin` (`CROSS_MARGIN` when None):
+    near 1, the mean would lean on the model's correlation and reach beyond both estimates.
+    The test: ``d = x1 - x2``, ``cov_d = C1 + C2 - C12 - C12^T`` (the model's C12 whole: the
+    margin guards the mean, and a scaled C12 would give d a variance it has not); the
+    components whose share of their variance in C1 + C2 is under `cylinder.SHARED_FLOOR` (the
+    two the same there) are left out, dof counts the others; chi2 = d^T cov_d^-1 d on them. Where chi2 exceeds its
+    quantile at `confidence` the two disagree beyond their covariances and F is scaled by
+    inflation = chi2 / dof (else 1): only then is it larger than an input's.
+
+    >>> f, share, k = gls_fusion([0.0, 0, 100], np.eye(3), [0.0, 0, 102], np.eye(3), np.zeros((3, 3)))
+    >>> f.point.tolist(), float(f.chi2), f.dof, share, k
+    ([0.0, 0.0, 101.0], 2.0, 3, 1.0, 1.0)
+    >>> f, _, _ = gls_fusion([0.0, 0, 100], np.eye(3), [0.0, 0, 102], 4 * np.eye(3), 0.5 * np.eye(3))
+    >>> np.round(np.diag(f.cov), 4).tolist()                 # correlated: less than (1/1 + 1/4)^-1 = 0.8
+    [0.9375, 0.9375, 0.9375]
+    """
+    margin = CROSS_MARGIN if margin is None else margin
+    x1, x2 = np.asarray(x1, float), np.asarray(x2, float)
+    C1, C2, C12 = (np.asarray(c, float) for c in (C1, C2, C12))
+    n = x1.shape[-1]
+    L1, L2 = np.linalg.cholesky(C1), np.linalg.cholesky(C2)
+    s = float(np.linalg.svd(np.linalg.solve(L1, np.linalg.solve(L2, C12.T).T), compute_uv=False)[0])
+    share = 1.0 if s <= margin else margin / s
+    S = np.block([[C1, share * C12], [share * C12.T, C2]])
+    A = np.vstack([np.eye(n), np.eye(n)])
+    SiA = np.linalg.solve(S, A)
+    F = np.linalg.inv(A.T @ SiA)
+    F = 0.5 * (F + F.T)
+    W = F @ SiA.T                                               # (n, 2n): the weights of x1, x2
+    point = W @ np.concatenate([x1, x2])
+    c2, dof = shared_difference_chi2(x1 - x2, C1 + C2 - C12 - C12.T, C1 + C2)
+    c2, dof = float(c2), int(dof)
+    threshold = chi2_isf(1.0 - confidence, dof) if dof else 0.0
+    consistent = c2 <= threshold
+    inflation = 1.0 if consistent or not dof else c2 / dof
+    cov = F * inflation
+    fused = Fusion(point=point, cov=cov, sigma=float(np.sqrt(np.trace(cov))), chi2=c2, dof=dof, threshold=threshold,
+                   consistent=consistent, p_value=chi2_sf(c2, dof) if dof else 1.0)
+    return fused, share, inflation
+
+
 def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE, pairs=None):
     """The 3-D fulcrum from the fulcrum rays of two calibrated views of one pivot.
 
@@ -182,31 +270,22 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE, pairs=None):
     (`triangulation_rig_cov`: mostly its depth, through the disparity).
 
     When `left` has its diameter-based point (`FulcrumPoint`, lengths in the diameter's
-    unit, which must be the rig's), the two are compared and fused
-    (`cylinder.combine_estimates`): both hold the left view's midlines (the diameter-based
-    axes lie in their planes; the triangulation holds their intersection, the left ray),
-    so the left ray's information (`RayTriangulation.ray_information`) is passed as
-    shared: the agreement chi2 (2 dof where the component that only the left ray holds
-    drops out, else 3) then tests the depth from the shaft's width against the depth from
-    the baseline and the right view, and the fusion counts the left ray once; the shared
-    offset is passed as ``common`` (an error both carry: the port's play moves the
-    diameter-based point as it moves the rays), so the fused covariance does not average
-    it. The test takes that offset out of both covariances, so the left ray it counts once
-    there is the one of its lines' own sigmas (``shared_own``). confidence: of the
-    agreement test. pairs: [(i, j)] the left frame i taken with the right frame j
-    (`camera.stereo.pair_frames`), None: the same index in both. With either view's
-    intrinsics' term
-    (`Fulcrum.ray_cov_lens`, the camera file's intrinsics covariance) the triangulated
-    point's covariance gains it too (`triangulation_lens_cov`, ``StereoFulcrum.lens_cov``);
-    the agreement and the fusion's weights leave it out (the diameter-based point has no
-    intrinsics term, nor its width term); they take the rig's term, which is the
-    triangulated point's alone. The diameter-based point is weighed by the covariance it
-    reports but the width term: its fit's with the port's play its image lines read beyond
-    its axes' (`FulcrumPoint.play_cov`, across the line of sight). The width term
-    (`FulcrumPoint.width_cov`: the band width's error the sequence shares, which sets the
-    depth the diameter gives) joins the combined point's covariance after the fusion, as
-    much of it as the point took from the diameter (``unweighted1``: ``W1 width_cov W1^T``);
-    the point stays the one the weights give. Returns a
+    unit, which must be the rig's), the two are compared and fused as correlated estimates
+    (`gls_fusion`), each weighed by the whole covariance it reports (the diameter-based
+    point's with its width and play terms, the triangulated point's with the rig's). Both
+    hold the left view's midlines (the diameter-based axes lie in their planes; the
+    triangulation holds their intersection, the left ray) and the port's play those lines
+    read: across the line of sight their errors are one, and their cross-covariance is that
+    error's, the smaller of their two covariances there (`shared_across`); along it the
+    diameter's depth and the disparity's are each one's own. The fused covariance is then
+    never larger than either point's along any direction, unless their agreement test
+    fails at `confidence` (its chi2, on the components in which they differ); then it is
+    scaled by chi2 / dof and says so (``StereoFulcrum.inflation``). pairs: [(i, j)] the
+    left frame i taken with the right frame j (`camera.stereo.pair_frames`), None: the same
+    index in both. With either view's intrinsics' term (`Fulcrum.ray_cov_lens`, the camera
+    file's intrinsics covariance) the triangulated point's covariance gains it too
+    (`triangulation_lens_cov`, ``StereoFulcrum.lens_cov``); the agreement and the fusion
+    leave it out (the diameter-based point has no intrinsics term). Returns a
     `StereoFulcrum`; EstimationError when a ray has no covariance, the rays are parallel or
     meet behind a camera.
     """
@@ -237,26 +316,12 @@ def stereo_fulcrum(left, right, rig, confidence=GATE_CONFIDENCE, pairs=None):
     if left.point is None:
         return StereoFulcrum(rig, right, tri, confidence=confidence, common_cov=common, rig_cov=rig_cov, paired=paired,
                              **lens)
-    fit = left.point.fit
-    # the diameter-based point's covariance as it reports it but the width term (unweighted
-    # below): the fit's with the play its image lines read beyond the axes' (`play_cov`);
-    # the fit's alone made it up to 3 times surer across the line of sight than it says
-    C1 = np.asarray(fit.point_cov, float)
-    if left.point.play_cov is not None:
-        C1 = C1 + np.asarray(left.point.play_cov, float)
-    shared = True
-    # the test takes the common offset out of both covariances: the left ray it cancels is
-    # then the one of its lines' own sigmas, more informative than the ray with the offset
-    own = triangulate_rays(left.ray, Cl - shared_ray_cov(left), right.ray, Cr - shared_ray_cov(right), R, t)
-    try:
-        fused = combine_estimates(fit.point, C1, tri.point, tri.point_cov, confidence,
-                                  shared=(tri.ray_information[0], tri.ray_information_vector[0]), common=common,
-                                  shared_own=(own.ray_information[0], own.ray_information_vector[0]),
-                                  unweighted1=left.point.width_cov)
-    except EstimationError:
-        shared = False
-        fused = combine_estimates(fit.point, C1, tri.point, tri.point_cov, confidence, common=common,
-                                  unweighted1=left.point.width_cov)
-    return StereoFulcrum(rig, right, tri, fused, shared, confidence, common_cov=common, rig_cov=rig_cov, paired=paired,
-                         **lens)
+    # across the line of sight both points hold the left ray and the port's play it reads:
+    # one error, which their mean does not average (`shared_across`); along it the diameter's
+    # depth and the disparity's are each one's own
+    C1, C2 = np.asarray(left.point.cov, float), np.asarray(tri.point_cov, float)
+    fused, share, inflation = gls_fusion(left.point.fit.point, C1, tri.point, C2, shared_across(tri.point, C1, C2),
+                                         confidence)
+    return StereoFulcrum(rig, right, tri, fused, share, confidence, common_cov=common, rig_cov=rig_cov, paired=paired,
+                         inflation=inflation, **lens)
 
