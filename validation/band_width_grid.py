@@ -22,6 +22,8 @@ beyond it, the lighting is uneven (`render.lighting_gain`, 0.1-0.4), the sensor 
 beside the camera (offset sideways by 0.15-0.5 of the viewing direction), with an ambient
 floor and a Phong highlight (`_side_lit_frame`), so one limb is lit and the other falls
 dark before the silhouette, and a dark shaft over a bright background brightens inwards.
+``--backgrounds green`` (not in the default grid) puts the shaft over a green screen whose
+green channel clips over part of the frame, as a box trainer's chroma-key drape does.
 
 Each band is classed as the detector measures it: its ``polarity`` (the shaft darker or
 brighter than its surround) and its width in pixels (`band_class`); the width error is the
@@ -58,11 +60,14 @@ from pencilcal.toolkit.synth.shaded import MATERIALS, ShadedTruth, render_shaded
 from pencilcal.toolkit.synth.tissue import tissue_image
 from pencilcal.validation.metrics import seed_list
 
-__all__ = ["BACKGROUNDS", "DISTANCES_MM", "REALISMS", "GROSS_REL", "RADIUS_MM", "grid_camera", "render_band", "run_grid", "summary",
+__all__ = ["BACKGROUNDS", "OTHER_BACKGROUNDS", "DISTANCES_MM", "REALISMS", "GROSS_REL", "RADIUS_MM", "grid_camera", "render_band", "run_grid", "summary",
            "format_summary", "main"]
 
 #: The backgrounds: flat bright (a grey-blue drape), flat dark (an unlit cavity) and tissue.
 BACKGROUNDS = ("bright", "dark", "tissue")
+#: Backgrounds rendered on request only (``--backgrounds green``): a green screen (a box
+#: trainer's chroma-key drape) whose green channel clips over part of the frame.
+OTHER_BACKGROUNDS = ("green",)
 DISTANCES_MM = (20.0, 40.0, 80.0, 120.0, 150.0)
 RADIUS_MM = 4.0
 #: How a frame is rendered (module docstring): "plain", "endoscope" or "side".
@@ -83,7 +88,10 @@ def _background(name, rng, shape):
         return np.array([0.10, 0.12, 0.22]) * rng.uniform(0.5, 1.5)
     if name == "tissue":
         return tissue_image(shape, seed=int(rng.integers(1 << 30))) * rng.uniform(0.4, 1.0)
-    raise ValueError(f"background must be one of {', '.join(BACKGROUNDS)}, got {name!r}")
+    if name == "green":
+        # green at 0.81-0.99 linear: with the lighting ramp (up to +-15 %) it clips over part of the frame
+        return np.array([0.3, 0.9, 0.45]) * rng.uniform(0.9, 1.1)
+    raise ValueError(f"background must be one of {', '.join(BACKGROUNDS + OTHER_BACKGROUNDS)}, got {name!r}")
 
 
 def _endoscope_frame(cam, A, d, material, background, rng):
@@ -288,7 +296,8 @@ def main(argv=None):
                                  description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=seed_list, default="1:2", help="A:B (seeds A to B-1) or a,b,c")
     ap.add_argument("--materials", default=",".join(MATERIALS))
-    ap.add_argument("--backgrounds", default=",".join(BACKGROUNDS))
+    ap.add_argument("--backgrounds", default=",".join(BACKGROUNDS),
+                    help=f"of {', '.join(BACKGROUNDS + OTHER_BACKGROUNDS)} (green: a green screen that clips)")
     ap.add_argument("--distances", default=",".join(f"{z:g}" for z in DISTANCES_MM), help="mm, comma separated")
     ap.add_argument("--edge-models", default=",".join(EDGE_MODELS))
     ap.add_argument("--realism", default="plain", choices=REALISMS,
