@@ -235,7 +235,7 @@ def test_greenscreen_band_takes_the_limb_outside_its_step_edges():
     At the same places along the shaft it reads 0.76-0.78 px (1.2 %) wider than the step
     edges: the direction the step edges err on side-lit glossy and polished shafts over a
     green screen that clips, with truth (`band_width_grid`'s ``green``: 0.4-1.0 % narrow,
-    the limb within 0.16 %). Neither edge tilts off its step edge (one bin 32 px out on the
+    the limb within 0.13 %). Neither edge tilts off its step edge (one bin 32 px out on the
     bright drape once tilted an edge by 10 deg: `limb._gross_bins`)."""
     import cv2
 
