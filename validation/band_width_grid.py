@@ -18,6 +18,12 @@ it ends 10-40 mm beyond the axis point with a bright metal wrist (2.6 mm radius,
 beyond it, the lighting is uneven (`render.lighting_gain`, 0.1-0.4), the sensor noise is
 1.5-3 grey levels and each frame is JPEG-compressed (quality 80-95). The default
 (``"plain"``) is the grid as the class sds were first measured on (`defaults.EDGE_WIDTH_SD_PX`).
+``realism="side"`` lights the shaft as `pencilcal demo`'s instrument is lit: by a lamp
+beside the camera (offset sideways by 0.15-0.5 of the viewing direction), with an ambient
+floor and a Phong highlight (`_side_lit_frame`), so one limb is lit and the other falls
+dark before the silhouette, and a dark shaft over a bright background brightens inwards.
+``--backgrounds green`` (not in the default grid) puts the shaft over a green screen whose
+green channel clips over part of the frame, as a box trainer's chroma-key drape does.
 
 Each band is classed as the detector measures it: its ``polarity`` (the shaft darker or
 brighter than its surround) and its width in pixels (`band_class`); the width error is the
@@ -54,15 +60,18 @@ from pencilcal.toolkit.synth.shaded import MATERIALS, ShadedTruth, render_shaded
 from pencilcal.toolkit.synth.tissue import tissue_image
 from pencilcal.validation.metrics import seed_list
 
-__all__ = ["BACKGROUNDS", "DISTANCES_MM", "REALISMS", "GROSS_REL", "RADIUS_MM", "grid_camera", "render_band", "run_grid", "summary",
+__all__ = ["BACKGROUNDS", "OTHER_BACKGROUNDS", "DISTANCES_MM", "REALISMS", "GROSS_REL", "RADIUS_MM", "grid_camera", "render_band", "run_grid", "summary",
            "format_summary", "main"]
 
 #: The backgrounds: flat bright (a grey-blue drape), flat dark (an unlit cavity) and tissue.
 BACKGROUNDS = ("bright", "dark", "tissue")
+#: Backgrounds rendered on request only (``--backgrounds green``): a green screen (a box
+#: trainer's chroma-key drape) whose green channel clips over part of the frame.
+OTHER_BACKGROUNDS = ("green",)
 DISTANCES_MM = (20.0, 40.0, 80.0, 120.0, 150.0)
 RADIUS_MM = 4.0
-#: How a frame is rendered (module docstring): "plain" or "endoscope".
-REALISMS = ("plain", "endoscope")
+#: How a frame is rendered (module docstring): "plain", "endoscope" or "side".
+REALISMS = ("plain", "endoscope", "side")
 _WRIST = (2.6, 9.0)  # the wrist beyond the shaft's end: radius, length [mm] (as `pivot_renders`)
 
 
@@ -79,7 +88,10 @@ def _background(name, rng, shape):
         return np.array([0.10, 0.12, 0.22]) * rng.uniform(0.5, 1.5)
     if name == "tissue":
         return tissue_image(shape, seed=int(rng.integers(1 << 30))) * rng.uniform(0.4, 1.0)
-    raise ValueError(f"background must be one of {', '.join(BACKGROUNDS)}, got {name!r}")
+    if name == "green":
+        # green at 0.81-0.99 linear: with the lighting ramp (up to +-15 %) it clips over part of the frame
+        return np.array([0.3, 0.9, 0.45]) * rng.uniform(0.9, 1.1)
+    raise ValueError(f"background must be one of {', '.join(BACKGROUNDS + OTHER_BACKGROUNDS)}, got {name!r}")
 
 
 def _endoscope_frame(cam, A, d, material, background, rng):
@@ -114,6 +126,51 @@ def _endoscope_frame(cam, A, d, material, background, rng):
     return cv2.imdecode(buf, cv2.IMREAD_COLOR), truth
 
 
+def _side_lit_frame(cam, A, d, material, background, rng):
+    """One frame of a shaft lit by a lamp beside the camera (module docstring,
+    ``realism="side"``): (H, W, 3) uint8 BGR and the shaft's `ShadedTruth`. The outline's
+    pixel coverage is exact (`synth.shaded.shaft_light`); each covered pixel is shaded at its
+    centre's ray (where that misses, at the ray's closest approach: the limb) as `pencilcal
+    demo`'s instrument is: ``albedo (ambient + max(0, n . l)) + f0 (p + 2) / (2 pi) max(0,
+    r . v)^p`` (Phong, p from the material's roughness), l the unit direction to a lamp
+    offset from the camera's by 0.15-0.5 sideways in a random direction, an ambient of
+    0.03-0.25."""
+    mat = MATERIALS[material]
+    _, cover, _, full, outline = shaft_light(cam, A, d, RADIUS_MM, mat)
+    iy, ix = np.nonzero(cover > 0)
+    v = np.asarray(cam.rays_from_pixels(np.stack([ix, iy], -1).astype(float)), float)
+    v = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    # the ray's first hit of the cylinder (or its closest approach to the axis)
+    A, d = np.asarray(A, float), np.asarray(d, float) / np.linalg.norm(d)
+    w = v - (v @ d)[:, None] * d
+    a0 = (A @ d) * d - A
+    qa, qb, qc = np.sum(w * w, -1), 2.0 * (w @ a0), a0 @ a0 - RADIUS_MM ** 2
+    disc = qb * qb - 4 * qa * qc
+    z = (-qb - np.sqrt(np.maximum(disc, 0.0))) / (2 * qa)
+    X = z[:, None] * v
+    n = X - A - ((X - A) @ d)[:, None] * d
+    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+    turn = rng.uniform(0, 2 * np.pi)
+    lamp = rng.uniform(0.15, 0.5) * np.array([np.cos(turn), np.sin(turn), 0.0])
+    light = lamp - v
+    light = light / np.linalg.norm(light, axis=-1, keepdims=True)
+    ndl = np.clip(np.sum(n * light, -1), 0.0, None)
+    refl = 2.0 * ndl[:, None] * n - light
+    p = max(2.0 / mat.roughness ** 2 - 2.0, 1.0)
+    spec = (p + 2) / (2 * np.pi) * np.clip(-np.sum(refl * v, -1), 0.0, None) ** p
+    lum = mat.albedo * (rng.uniform(0.03, 0.25) + ndl) + mat.f0 * spec
+    rad = np.zeros(cover.shape)
+    rad[iy, ix] = lum
+    rad *= rng.uniform(0.15, 0.5) / max(float(np.median(rad[full])), 1e-300)
+    bg = np.asarray(_background(background, rng, (cam.height, cam.width)), float)
+    if bg.ndim == 1:
+        bg = bg * (1.0 + rng.uniform(0.0, 0.3) * (np.arange(cam.width) / (cam.width - 1) - 0.5))[None, :, None]
+    img = bg * (1.0 - cover)[..., None] + (cover * rad)[..., None] * np.asarray(mat.colour, float)
+    enc = sensor_image(img, 0.0, 1.0, rng.uniform(0.7, 1.5), 2.2, rng.uniform(1.0, 3.0), rng)
+    truth = ShadedTruth(outline.lines, outline.normals, A, d, RADIUS_MM, np.asarray(cam.K, float))
+    return enc, truth
+
+
 def render_band(seed, k, material, background, z_mm, edge_models=EDGE_MODELS, realism="plain"):
     """One render's bands: {seed, k, material, background, z_mm, realism, and per edge model
     in edge_models a dict (polarity, width_px, error_px, error_rel, true_width_px, class,
@@ -129,6 +186,8 @@ def render_band(seed, k, material, background, z_mm, edge_models=EDGE_MODELS, re
     A = [rng.uniform(-3, 3) * z_mm / 40.0, rng.uniform(-3, 3) * z_mm / 40.0, float(z_mm)]
     if realism == "endoscope":
         img, truth = _endoscope_frame(cam, A, d, material, background, rng)
+    elif realism == "side":
+        img, truth = _side_lit_frame(cam, A, d, material, background, rng)
     else:
         img, truth = render_shaded_shaft(cam, A, d, RADIUS_MM, MATERIALS[material],
                                          background=_background(background, rng, (cam.height, cam.width)),
@@ -237,11 +296,13 @@ def main(argv=None):
                                  description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=seed_list, default="1:2", help="A:B (seeds A to B-1) or a,b,c")
     ap.add_argument("--materials", default=",".join(MATERIALS))
-    ap.add_argument("--backgrounds", default=",".join(BACKGROUNDS))
+    ap.add_argument("--backgrounds", default=",".join(BACKGROUNDS),
+                    help=f"of {', '.join(BACKGROUNDS + OTHER_BACKGROUNDS)} (green: a green screen that clips)")
     ap.add_argument("--distances", default=",".join(f"{z:g}" for z in DISTANCES_MM), help="mm, comma separated")
     ap.add_argument("--edge-models", default=",".join(EDGE_MODELS))
     ap.add_argument("--realism", default="plain", choices=REALISMS,
-                    help="plain: flat light, no JPEG; endoscope: light fall-off, a wrist, uneven light, JPEG")
+                    help="plain: flat light, no JPEG; endoscope: light fall-off, a wrist, uneven light, JPEG; "
+                         "side: a lamp beside the camera, an ambient floor, a Phong highlight")
     ap.add_argument("--out", default=None, help="a JSON file for the rows")
     a = ap.parse_args(argv)
     models = tuple(a.edge_models.split(","))

@@ -30,8 +30,26 @@ linear light (the frame's encoding gamma undone, `edges.linearised`), is
 
     y(t) = G_sigma * [ (b0 + b1 (t - e)) H(t - e) + E (kd c + ks S_a(c)) H(e - t) ]
 
-with t the offset along the edge's outward normal, e the limb, H the step. It is linear in
-(b0, b1, kd, ks) and fitted by variable projection: scipy's least squares over (e,
+with t the offset along the edge's outward normal, e the limb, H the step.
+
+A lamp beside the camera (`LATERAL`). An endoscope's light guides sit beside its lens, and a
+demo's or a lab's lamp further off: the light's direction then has a component across the
+shaft, and Lambert's ``n . l`` holds, besides ``c``, the normal's component along the edge's
+outward normal times that sideways part: ``cos psi`` (psi the surface's angle from the limb,
+``d = W (1 - cos psi)``), positive on the lamp's side (a lit limb) and negative on the other
+(the limb dark before the silhouette). The model takes it as a fifth linear term
+``E kl cos psi`` (kl of either sign), in a bin whose profile the light at the camera alone
+does not explain (`limb_explains`; where it does, the extra term moved narrow bands' limbs
+out by a few hundredths of a pixel on renders lit from the camera): with it a dark shaft over
+a brighter background whose shading rises inwards from a floor is fitted where the camera's
+light alone fitted it worse than a step (the step edge then lay 0.15-0.2 px outside the
+silhouette on such bands). The term stays where an edge's windows clip: the saturated
+samples are left out of every fit, and on glossy and polished shafts lit from the side over
+a green screen that clips (`validation.band_width_grid`'s ``green`` background), taking the
+term away where the band clipped returned 2 of 12 bands to their step edges (0.4 % narrow
+where the limb read within 0.1 %) and read none better.
+
+It is linear in (b0, b1, kd, ks, kl) and fitted by variable projection: scipy's least squares over (e,
 log sigma, log a), the linear coefficients solved at each step, from two starts (the step
 edge and `_STARTS_PX` beyond it: where the shaft's rim meets the background at one level
 the step edge may be pixels inside). The limb e is where the band ends.
@@ -49,7 +67,9 @@ Which edges it locates. The limb model is used on an edge unless a blurred step 
 and a slope on either side (`step_design`, `fit_step_profile`) explains its profiles
 significantly better (`limb_explains`: by more than one parameter's information): first on
 the whole edge's mean profile (one fit: an edge that fails keeps its step edge at that
-cost), then in more than half its bins. On the shaded renders the limb explains its bins as
+cost), then in more than half its bins. Only the bins the limb explains place the edge's
+line (`EXPLAINED_ONLY`): a bin over a printed square or clutter beside the shaft, which a
+step explains better, says nothing of the limb. On the shaded renders the limb explains its bins as
 well or better; on the real phantom's black shaft, judged as light, the step explains most
 bins better, and the band keeps its step edges and its step class.
 
@@ -93,6 +113,11 @@ from pencilcal.toolkit.detect.working import raw_frame
 __all__ = ["BIN_PX", "SPREAD_SHARE", "LimbFit", "specular_lobe", "limb_design", "fit_limb_profile", "shading_lstsq",
            "step_design", "fit_step_profile", "limb_explains", "is_light", "refine_edge", "limb_edges", "width_spread"]
 
+#: Whether the shading has a lamp's sideways term (module docstring, `limb_design`'s lateral
+#: column); chosen on `pencilcal demo`'s pivot frames (seed 1) and `band_width_grid` seed 3.
+LATERAL = True
+#: Whether only the bins the limb explains (`limb_explains`) place the edge's line.
+EXPLAINED_ONLY = True
 #: Stations averaged per bin along an edge [px].
 BIN_PX = 12.0
 _STEP_PX = 0.25  # profile sample spacing [px]
@@ -137,7 +162,7 @@ def specular_lobe(c, roughness):
     return np.where(c > 0, D * G1 * G1 / (4 * np.maximum(c, 1e-300)), 0.0)
 
 
-def limb_design(t, edge, sigma, half_width, roughness, sin_view=1.0, q=0.0):
+def limb_design(t, edge, sigma, half_width, roughness, sin_view=1.0, q=0.0, lateral=False):
     """(T, 4) the blurred model's columns at the offsets t (T,) [px] for the limb edge [px],
     the blur sd sigma [px], the band's half-width [px] and the specular lobe's roughness:
     sin_view: the sine of the angle between the viewing ray and the axis (c is that times
@@ -150,7 +175,8 @@ def limb_design(t, edge, sigma, half_width, roughness, sin_view=1.0, q=0.0):
     in closed form; the shaft's as sums over `_CELLS` cells even in the surface's angle psi
     from the limb (d = W (1 - cos psi), c = sin psi: fine where the shading changes fast),
     each cell's integral times the Gaussian at its centre (smooth in every parameter, as
-    the least squares need)."""
+    the least squares need). lateral: a fifth column, the diffuse light of a lamp off the
+    camera's axis (`LATERAL`): (T, 5)."""
     from scipy.special import ndtr
 
     t = np.asarray(t, float)
@@ -167,15 +193,21 @@ def limb_design(t, edge, sigma, half_width, roughness, sin_view=1.0, q=0.0):
     dd = dd * fall
     x = edge - half_width * (1.0 - np.cos(psi))
     g = np.exp(-0.5 * ((t[:, None] - x) / sigma) ** 2) / (np.sqrt(2 * np.pi) * sigma)
-    return np.column_stack([ndtr(z), sigma * (z * ndtr(z) + phi), g @ (c * dd), g @ (specular_lobe(c, roughness) * dd)])
+    cols = [ndtr(z), sigma * (z * ndtr(z) + phi), g @ (c * dd), g @ (specular_lobe(c, roughness) * dd)]
+    if lateral:
+        # a lamp beside the camera: the normal's component along the edge's outward normal
+        # (cos psi) times the lamp's sideways direction adds to Lambert's n . l (either sign)
+        cols.append(g @ (np.cos(psi) * dd))
+    return np.column_stack(cols)
 
 
-def fit_limb_profile(t, y, half_width, edge0, sigma0, roughness0=0.3, sin_view=1.0, q=0.0, use=None):
+def fit_limb_profile(t, y, half_width, edge0, sigma0, roughness0=0.3, sin_view=1.0, q=0.0, use=None, lateral=False):
     """The limb model fitted to one profile (`LimbFit`): samples y (T,) [linear light] at
     offsets t (T,) [px] along the outward normal, the band's half-width [px], starts for
     the edge [px], the blur sd [px] and the specular lobe's roughness; sin_view and q as
     `limb_design`; use (T,) bool: the samples fitted (default all; a saturated one is not
-    what the model predicts)."""
+    what the model predicts); lateral: with the lamp's sideways term (`limb_design`, coef
+    then (5,))."""
     from scipy.optimize import least_squares
 
     t = np.asarray(t, float)
@@ -183,7 +215,7 @@ def fit_limb_profile(t, y, half_width, edge0, sigma0, roughness0=0.3, sin_view=1
     use = np.ones(t.shape, bool) if use is None else np.asarray(use, bool)
 
     def solve(p):
-        A = limb_design(t, p[0], np.exp(p[1]), half_width, np.exp(p[2]), sin_view, q)[use]
+        A = limb_design(t, p[0], np.exp(p[1]), half_width, np.exp(p[2]), sin_view, q, lateral)[use]
         coef, *_ = np.linalg.lstsq(A, y[use], rcond=None)
         return A, coef
 
@@ -197,7 +229,7 @@ def fit_limb_profile(t, y, half_width, edge0, sigma0, roughness0=0.3, sin_view=1
     r = least_squares(res, x0, bounds=(lo, hi), x_scale=[0.1, 0.1, 0.3], diff_step=1e-4)
     A, coef = solve(r.x)
     resid = A @ coef - y[use]
-    s2 = float(resid @ resid) / max(resid.size - 7, 1)
+    s2 = float(resid @ resid) / max(resid.size - 3 - A.shape[1], 1)
     # the edge's variance with the parameters at a bound held there: a roughness at its
     # bound (a matte coat's lobe, a mirror's) leaves its column flat, and the full normal
     # matrix singular, which would reject a good fit
@@ -214,15 +246,18 @@ def fit_limb_profile(t, y, half_width, edge0, sigma0, roughness0=0.3, sin_view=1
 
 
 def shading_lstsq(A, y):
-    """(4,) the least squares (b0, b1, kd, ks) of y (T,) on the columns A (T, 4), the
-    shading's two (kd, ks) not negative: a surface reflects no negative light. Unbounded,
+    """(4,) the least squares (b0, b1, kd, ks) of y (T,) on the columns A (T, 4) (or (5,),
+    (b0, b1, kd, ks, kl), on A (T, 5) with the lamp's sideways term, `LATERAL`: kl of
+    either sign), the shading's two (kd, ks) not negative: a surface reflects no negative light. Unbounded,
     the diffuse term of a dark shaft's profile turns negative (the camera's sharpening
     darkens the shaft just inside its edge, below its own level) and its dip below zero at
     the limb lets the limb move outwards. Exact: each of the four sets of the two held at
     zero, the best feasible."""
     best, out = np.inf, None
+    rest = tuple(range(4, A.shape[1]))  # the lamp's sideways term (`LATERAL`), of either sign
     for free in ((0, 1, 2, 3), (0, 1, 2), (0, 1, 3), (0, 1)):
-        c = np.zeros(4)
+        free = free + rest
+        c = np.zeros(A.shape[1])
         c[list(free)] = np.linalg.lstsq(A[:, free], y, rcond=None)[0]
         if c[2] < 0 or c[3] < 0:
             continue
@@ -230,7 +265,7 @@ def shading_lstsq(A, y):
         rss = float(r @ r)
         if rss < best:
             best, out = rss, c
-        if len(free) == 4:
+        if len(free) == A.shape[1]:
             break  # the unbounded solution is feasible: it is the best
     return out
 
@@ -316,23 +351,28 @@ def refine_edge(image, camera, edge, geometry, gamma=1.0, sigma0=1.2):
                                     clips)
         if t is None or use.sum() < 0.6 * t.size:
             return None
-        # from the step edge and from beyond it (the step edge lies inside the limb; where
-        # the shaft's rim meets the background at one level the step edge may be pixels in)
-        fits = [fit_limb_profile(t, y, float(np.median(W_st[sel])), e0, sigma0,
-                                 sin_view=float(np.median(k_st[sel])), q=float(np.median(q_st[sel])), use=use)
-                for e0 in starts]
-        fits = [f for f in fits if f.ok]
-        if not fits:
-            return None
-        fit = min(fits, key=lambda f: f.rms)
-        # judged as light: the fit as it stands where its shading is light at every sample,
-        # else the shading at the fit's limb held non-negative term by term
-        A = limb_design(t, fit.edge, fit.sigma, float(np.median(W_st[sel])), fit.roughness,
-                        float(np.median(k_st[sel])), float(np.median(q_st[sel])))[use]
-        c = fit.coef if is_light(A, fit.coef) else shading_lstsq(A, y[use])
-        r = A @ c - y[use]
+        W, k, q = float(np.median(W_st[sel])), float(np.median(k_st[sel])), float(np.median(q_st[sel]))
         step = fit_step_profile(t, y, starts[0], sigma0, use)
-        return fit, step is None or limb_explains(float(r @ r), step[2], int(use.sum()))
+        got = None
+        # the light at the camera first; the lamp's sideways term only where that does not
+        # explain the bin (on renders lit from the camera it moved narrow bands' limbs out)
+        for lateral in (False, True) if LATERAL else (False,):
+            # from the step edge and from beyond it (the step edge lies inside the limb; where
+            # the shaft's rim meets the background at one level the step edge may be pixels in)
+            fits = [f for f in (fit_limb_profile(t, y, W, e0, sigma0, sin_view=k, q=q, use=use, lateral=lateral)
+                                for e0 in starts) if f.ok]
+            if not fits:
+                continue
+            fit = min(fits, key=lambda f: f.rms)
+            # judged as light: the fit as it stands where its shading is light at every sample,
+            # else the shading at the fit's limb held non-negative term by term
+            A = limb_design(t, fit.edge, fit.sigma, W, fit.roughness, k, q, lateral)[use]
+            c = fit.coef if is_light(A, fit.coef) else shading_lstsq(A, y[use])
+            r = A @ c - y[use]
+            got = fit, step is None or limb_explains(float(r @ r), step[2], int(use.sum()))
+            if got[1]:
+                break
+        return got
 
     # the whole edge's mean profile first: an edge whose profile a step explains as well
     # (no shading to model) keeps its step edge, at the cost of one fit (one that gives no
@@ -340,7 +380,7 @@ def refine_edge(image, camera, edge, geometry, gamma=1.0, sigma0=1.2):
     whole = bin_fit(inside) if inside.sum() >= 3 else None
     if whole is not None and not whole[1]:
         return None
-    sb, tb, vb, chosen = [], [], [], 0
+    sb, tb, vb, chosen, fitted = [], [], [], 0, 0
     for k in range(nb):
         sel = inside & (s_st >= edges_s[k]) & (s_st < edges_s[k + 1] + (k == nb - 1))
         got = bin_fit(sel) if sel.sum() >= 3 else None
@@ -348,12 +388,15 @@ def refine_edge(image, camera, edge, geometry, gamma=1.0, sigma0=1.2):
             continue
         fit, better = got
         chosen += better
+        fitted += 1
+        if not better and EXPLAINED_ONLY:
+            continue
         s_c = float(s_st[sel].mean())
         sb.append(s_c)
         tb.append(edge.tm + edge.b * (s_c - edge.sm) + fit.edge)
         vb.append(fit.edge_var)
     # the limb unless a step explains more than half the edge's bins better
-    if len(sb) < _MIN_BINS or 2 * chosen < len(sb):
+    if len(sb) < _MIN_BINS or 2 * chosen < fitted:
         return None
     return _line_through(edge, np.array(sb), np.array(tb), np.array(vb), nb)
 

@@ -216,12 +216,27 @@ def test_a_gross_bin_does_not_tilt_the_edge():
     assert _gross_bins(s, scatter, v).all()
 
 
-def test_greenscreen_band_keeps_its_step_edges():
+def _width_at(edges, c):
+    """The band's width [px] at the point c (2,): the sum of its distances from the edges
+    (2, 4) (each two points x1, y1, x2, y2 [ideal px])."""
+    out = 0.0
+    for e in np.asarray(edges, float):
+        u = (e[2:] - e[:2]) / np.linalg.norm(e[2:] - e[:2])
+        out += abs((c - e[:2]) @ [u[1], -u[0]])
+    return out
+
+
+def test_greenscreen_band_takes_the_limb_outside_its_step_edges():
     """The EndoWrist over the green screen (box-trainer-and-greenscreen, 540x405, gamma 2.2):
-    a glossy grey shaft whose wrist clips. Its profiles are explained better by a blurred
-    step than by the lit cylinder (`limb.limb_explains`), so the band keeps its step edges
-    and its step class; the limb model, used on it before the choice, read it up to 2 px
-    wider, and one bin of an edge 32 px out on the bright drape before the gross-bin rule."""
+    a glossy grey shaft lit from its left (its shadow falls right), the drape's green channel
+    saturated beside its lit edge. The bins that place its edges hold no saturated sample
+    (those beside the clipped drape give no window), and the light at the camera alone does
+    not explain its dark edge's bins; with the lamp's sideways term the band takes the limb.
+    At the same places along the shaft it reads 0.76-0.78 px (1.2 %) wider than the step
+    edges: the direction the step edges err on side-lit glossy and polished shafts over a
+    green screen that clips, with truth (`band_width_grid`'s ``green``: 0.4-1.0 % narrow,
+    the limb within 0.13 %). Neither edge tilts off its step edge (one bin 32 px out on the
+    bright drape once tilted an edge by 10 deg: `limb._gross_bins`)."""
     import cv2
 
     from tests.conftest import data_dir
@@ -230,5 +245,14 @@ def test_greenscreen_band_keeps_its_step_edges():
     cam = Camera("pinhole", 540, 405, [[432.0, 0, 269.5], [0, 432.0, 202.0], [0, 0, 1]])
     step = detect_shafts(img, cam, edge_model="step")
     limb = detect_shafts(img, cam, edge_model="limb")
-    assert len(step) == len(limb) == 1 and limb[0].edge_model == "step"
-    assert np.array_equal(limb[0].ideal_edges, step[0].ideal_edges)
+    assert len(step) == len(limb) == 1 and limb[0].edge_model == "limb"
+    m = step[0].ideal_midline
+    for frac in (0.25, 0.5, 0.75):
+        c = m[:2] + frac * (m[2:] - m[:2])
+        wider = _width_at(limb[0].ideal_edges, c) - _width_at(step[0].ideal_edges, c)
+        assert 0.3 < wider < 1.5, (frac, wider)
+    # each limb edge within 1.5 px of its step edge at the step edge's ends
+    for el, es in zip(np.asarray(limb[0].ideal_edges, float), np.asarray(step[0].ideal_edges, float)):
+        u = (el[2:] - el[:2]) / np.linalg.norm(el[2:] - el[:2])
+        off = [abs((p - el[:2]) @ [u[1], -u[0]]) for p in (es[:2], es[2:])]
+        assert max(off) < 1.5, off
