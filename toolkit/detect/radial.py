@@ -121,7 +121,6 @@ PREDICTED_ROUNDS = 3
 #: level, not tuned).
 SEPARATION_SIGMAS = 3.0
 _GATE_ROUNDS = 5  # the through-vertex gate's rounds of its shared offset (`_through_vertex`)
-_LEAST_ANGLE_SD = 1e-6  # [rad] an edge's angle sd below this is a degenerate fit's (`_finished`)
 
 
 @dataclass(frozen=True, eq=False)
@@ -363,10 +362,6 @@ def _finished(camera, outer, min_length, circles, img, lin, fit, v, v_sd, reach,
                                        JOINT_SIGMAS, noise)
         kept = fit.take(np.flatnonzero(~replaced))
         fit = type(fit)(**{f: np.concatenate([getattr(kept, f), getattr(new, f)]) for f in fit.__dataclass_fields__})
-    # an edge whose angle sd is nil was fitted to no scatter at all (two stations: seen on a
-    # 128-wedge star's ring, 1e-13 rad): its weight, 1e26, made every pencil fit with it
-    # degenerate
-    fit = fit.take(np.flatnonzero(~(fit.angle_sigma < _LEAST_ANGLE_SD)))
     shortest = min_length
     if joint == "all":
         # every edge located jointly (a star's wedges): the shortest kept is the one its sigma

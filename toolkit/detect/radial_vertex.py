@@ -120,17 +120,9 @@ def better_vertex(fit, v, reach, sd, compare=True):
         v1, reach1, sd1 = vertex_of(fit, reach)
     except EstimationError:
         return v, reach, sd
-    if sd1 <= sd or not compare:
-        return v1, reach1, sd1
-    if _beyond(v1, sd1, v, sd) > 0.0:
-        return v, reach, sd
-    # within 3 sds of the last it is the same vertex, measured again, less surely, on the
-    # refitted edges: the two weighted by their variances. Taken whole, a dense star's few
-    # clear stretches (36 of 256 edges, sd 12 px) walked a vertex the segments had to 0.07 px
-    # 25 px off, the next rounds, about it, 49 px (photograph-like 128-wedge star, 43 % of
-    # the frame's height), and nothing was labelled
-    w = sd**2 / (sd**2 + sd1**2)
-    return v + w * (v1 - v), max(reach, reach1), sd
+    # within 3 sds of the last it is the same vertex, measured on the refitted edges
+    same = _beyond(v1, sd1, v, sd) <= 0.0
+    return (v1, reach1, sd1) if same or sd1 <= sd or not compare else (v, reach, sd)
 
 
 def walked(v1, sd1, v, sd):

@@ -36,7 +36,6 @@ from pencilcal.toolkit.geometry.quantiles import chi2_isf
 from pencilcal.toolkit.errors import EstimationError
 from pencilcal.toolkit.pencil.defaults import CHI2_1_99, CHI2_2_DETECTION, DETECTION_LEVEL
 from pencilcal.toolkit.pencil.estimator import fit_pencil, pencil_jacobian, PencilFit
-from pencilcal.toolkit.pencil.periodic import periodic_labels
 from pencilcal.toolkit.pencil.sequence_noise import inflation
 
 __all__ = ["Assignment", "assign_spokes", "grow_labels", "GROWTH_EVIDENCE", "GROWTH_AGREE", "GROWTH_LIKELIHOOD_LINES",
@@ -74,9 +73,6 @@ GROWTH_LIKELIHOOD_LINES = 8
 #: would label fewer lines, from this many lines (a right window labels 12-13 of the 13 it
 #: looks at; wrong ones on small stars' sparse, noisy lines 5-8) that its fit explains
 SCREEN_KEEP_LINES = 10
-#: a line labelled by its phase (`periodic`) stays where its fit leaves it within this many
-#: sds (the project's test level, not tuned)
-PERIODIC_SIGMAS = 4.0
 
 
 @dataclass(frozen=True)
@@ -289,20 +285,9 @@ def assign_spokes(line_angles, spoke_angles, vertex, sigma, vertex_cov=None, ori
     gaps = np.diff(np.r_[np.sort(np.remainder(th, period)), np.sort(np.remainder(th, period))[0] + period])
     cap = 0.45 * max(np.min(gaps), 1e-6)
     tol = np.clip(5.0 * s, np.radians(0.25), cap)
+    nearest, resid, scored = _screen(a, th, oriented, period, max_gap, tol, 4 * _TOP, kinds)
     fitter = _LabelFitter(a, th, s, vertex, vertex_cov, oriented, tolerance_sigmas, cap, kinds)
-    # a dense regular pencil (a Siemens star) is also labelled from all its lines' phase at
-    # once (`periodic`): where its lines scatter too much for three neighbours to predict the
-    # next, the screen's windows label a few lines or none right
-    phased = _periodic_candidate(fitter, period) if oriented else None
-    try:
-        nearest, resid, scored = _screen(a, th, oriented, period, max_gap, tol, 4 * _TOP, kinds)
-        candidates = _candidates(nearest, resid, tol, s, fitter)
-    except EstimationError:
-        if phased is None:
-            raise
-        candidates, scored = [], 0
-    if phased is not None:
-        candidates.append(phased)
+    candidates = _candidates(nearest, resid, tol, s, fitter)
     labels, fit, rivals, fewer = _best_and_rivals(candidates)
     used = labels >= 0
     if _EXHAUSTIVE_MAX_LINES >= used.sum() >= 3:
@@ -769,32 +754,6 @@ def _candidates(nearest, resid, tol, s, fitter):
     if not candidates:
         raise EstimationError("fewer than three spokes could be matched to the lines")
     return candidates
-
-
-def _periodic_candidate(fitter, period):
-    """The labelling of a dense regular pencil's lines by their common phase
-    (`periodic.periodic_labels`), its lines that its own fit leaves beyond `PERIODIC_SIGMAS`
-    sds (the lines' shared error and scatter taken in, `_LabelFitter.floored`, `scatter`)
-    left out, refitted until none is: a candidate as `_candidates` gives them, or None where
-    the phase labels nothing surely or fewer than `GROWTH_LIKELIHOOD_LINES` lines stay."""
-    kinds = (None, None) if fitter.kinds is None else fitter.kinds
-    found = periodic_labels(fitter.a, fitter.th, *kinds) if period > np.pi else None
-    if found is None:
-        return None
-    lab = _one_per_spoke(found[0], fitter.s)
-    f = None
-    for _ in range(_MAX_GROWTH):
-        used = lab >= 0
-        if np.count_nonzero(used) < GROWTH_LIKELIHOOD_LINES:
-            return None
-        f = fitter.fit(used, lab[used])
-        wide = fitter.floored(f, lab)
-        z = np.asarray(f.residuals, float) / wide.s[used]
-        out = np.abs(z) > PERIODIC_SIGMAS * np.sqrt(wide.scatter(f, lab))
-        if not out.any():
-            break
-        lab[np.flatnonzero(used)[out]] = -1
-    return int(np.count_nonzero(lab >= 0)), float(f.chi2), lab, f
 
 
 def _kept_screen_labels(fitter, lab0, lab, f):

@@ -164,14 +164,7 @@ def circle_bend_response(R_cam_from_target, vertex, radii, weights=None, samples
     w = np.ones(rho.size) if weights is None else np.asarray(weights, float).reshape(-1)
     phi = np.linspace(0.0, 2 * np.pi, samples, endpoint=False)
     out = np.zeros((3, 3))
-    # a circle that reaches the camera's plane on this fitted plane has no ellipse for an
-    # image (a 128-wedge star's frame whose fit went astray: the ellipse fit met infinite
-    # points and raised): it tells nothing of the bend, and the others are weighted alone
-    depth = 1.0 - np.hypot(R[2, 0], R[2, 1]) * rho  # each circle's nearest point's depth (the vertex's: 1)
-    seen = np.isfinite(rho) & np.isfinite(w) & (w > 0) & (depth > 2 * h * rho * rho)
-    if not seen.any():
-        return out
-    for r, wc in zip(rho[seen], w[seen] / w[seen].sum()):
+    for r, wc in zip(rho, w / w.sum()):
         u, v = r * np.cos(phi), r * np.sin(phi)
         flat = np.append(x, 1.0)[:, None] + R[:, :2] @ np.stack([u, v])  # (3, S)
         for j, lift in enumerate((0.5 * u * u, u * v, 0.5 * v * v)):

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from pencilcal.toolkit.camera.model import Camera
-from pencilcal.toolkit.geometry.frames import rotation_from_rotvec
-from pencilcal.toolkit.pencil.bend import bend_response, circle_bend_response
+from pencilcal.toolkit.pencil.bend import bend_response
 from pencilcal.toolkit.pencil.orient import orient_segments
 from pencilcal.toolkit.pencil.spec import pencil_from_dict
 from pencilcal.toolkit.synth.radial import radial_pose
@@ -158,15 +157,3 @@ def test_the_circles_agree_with_the_lines_on_a_bent_sheet(curl_deg):
     assert 0.04 < err < 2.0 * rec.circle_normal_sigma_deg, (err, rec.circle_normal_sigma_deg)
     flat, _ = _full_star_with_circle(0.0, curl_deg)
     assert flat.bend_taken is False and flat.circle_normal_sigma_deg < 0.01
-
-
-def test_a_circle_reaching_the_cameras_plane_is_left_out_of_the_bend_response():
-    """On a fitted plane tilted 60 deg, a circle of radius 3 (the vertex's depth 1) reaches
-    behind the camera: its image is no ellipse (the fit raised). It is left out, the others
-    weighted alone: the response is that of the 0.3 circle by itself."""
-    R = rotation_from_rotvec(np.radians([60.0, 0.0, 0.0]))
-    alone = circle_bend_response(R, np.zeros(2), [0.3])
-    both = circle_bend_response(R, np.zeros(2), [0.3, 3.0], weights=[1.0, 5.0])
-    assert np.all(np.isfinite(both)) and np.abs(alone).max() > 0
-    np.testing.assert_allclose(both, alone, rtol=1e-9, atol=1e-12)
-    assert np.all(circle_bend_response(R, np.zeros(2), [3.0]) == 0)

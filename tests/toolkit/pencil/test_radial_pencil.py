@@ -119,24 +119,16 @@ def _right_up_to_a_wedge(lab, truth, n=64):
             and np.array_equal(lab[used] // n, truth[used] // n))
 
 
-@pytest.fixture
-def screen_only(monkeypatch):
-    """The search without the labelling by the lines' common phase (`pencil.periodic`), which
-    labels a dense star's lines all at once: what the growth starts from where the phase
-    finds nothing (a star seen in few arcs, lines scattering beyond its window)."""
-    monkeypatch.setattr("pencilcal.toolkit.pencil.assign.periodic_labels", lambda *a, **k: None)
-
-
 class TestGrowth:
     """A small tilted star's edges miss the model by more than their sigmas (0.5 deg against
-    0.15 on the photographs): the search's screen labels the lines whose prediction it can
-    tell from the neighbours by 0.45 of the smallest gap between edges (2.8 deg), a few dozen
-    of 128; the growth labels every line whose predicted edge it tells from the next one in
-    the image, and labels them right."""
+    0.15 on the photographs): the search labels the lines whose prediction it can tell from
+    the neighbours by 0.45 of the smallest gap between edges (2.8 deg), a few dozen of 128;
+    the growth labels every line whose predicted edge it tells from the next one in the
+    image, and labels them right."""
 
     @pytest.mark.parametrize("noise_deg", [0.3, 0.45])
-    def test_lines_scattering_beyond_their_sigmas_are_all_labelled(self, rng, noise_deg, screen_only):
-        """Wherever the screen's labels are right (two or three frames of three here; the
+    def test_lines_scattering_beyond_their_sigmas_are_all_labelled(self, rng, noise_deg):
+        """Wherever the search's labels are right (two or three frames of three here; the
         growth confirms nothing: a wrong search, one frame at 0.45 deg, grows wrong)."""
         grown = []
         for _ in range(3):
@@ -214,12 +206,11 @@ class TestGrowthAcrossArcs:
     its refit explains the lines labelled before (their chi2), the rotation's test kept only
     below 8 lines, where any refit explains them."""
 
-    def test_a_star_seen_in_four_arcs_is_labelled_on_every_arc(self, screen_only):
+    def test_a_star_seen_in_four_arcs_is_labelled_on_every_arc(self):
         """Four arcs of a 128-wedge star (23-57, 68-109, 196-255 and 296-358 deg: the arcs a
         photographed star's edges were found on), lines scattering as their sigmas say: from
-        the screen's 12-13 lines on one arc, every seen edge labelled, right up to a whole
-        wedge (on main two frames of these six stopped at 13). (The lines' common phase,
-        left out here, labelled the first frame's 138 lines at once, all right.)"""
+        the search's 12-13 lines on one arc, every seen edge labelled, right up to a whole
+        wedge (on main two frames of these six stopped at 13)."""
         rng = np.random.default_rng(0)
         for _ in range(6):
             a, k, truth, star, R, x = _star_lines(rng, 128, tilt=rng.uniform(20, 55), sigma_deg=0.15,
