@@ -173,55 +173,6 @@ def _orient(image, camera, pencil, edges):
     return found, rec, est
 
 
-def _tangent(n):
-    """(3, 2) a basis of the plane normal to the unit vector n (3,)."""
-    return np.linalg.svd(np.eye(3) - np.outer(n, n))[0][:, :2]
-
-
-def _nearer(n, pair):
-    """The unit normal of pair (2, 3) nearer the unit normal n (3,), and its index."""
-    i = int(np.argmax(np.asarray(pair, float) @ np.asarray(n, float)))
-    return np.asarray(pair, float)[i], i
-
-
-def _lens_spread(image, pencil, edges, camera, rec, k1_sigma):
-    """The circles' normal against the lines' twin nearer it, with the lens's k1 as uncertain
-    as the photograph leaves it: the two normals' difference measured again under k1 moved by
-    one sigma either way (edges detected, labelled and fitted anew), its change per sigma
-    added to the two normals' own covariances (each sigma as reported, the shared vertex
-    counted twice). Near frontal the rings' normal moves with k1 (distortion about the image
-    centre bends their images off the ellipses a circle makes) far more than the lines' do.
-
-    Returns a dict (empty where the orientation has no circles): circle_twin (the twin, (3,),
-    that the circles lie nearer), circle_chi2_lens and circle_chi2_lens_other (the chi2, 2
-    dof, of the circles' normal against that twin and against the other), lens_shift_deg
-    (how far one sigma of k1 moves their difference [deg]) and circle_twin_lens_decisive
-    (the circles choose that twin as `circle.circle_choice` does, by `DECISIVE_CHI2` and
-    with it within `CHOICE_CHI2`)."""
-    from pencilcal.toolkit.pencil.circle import CHOICE_CHI2, DECISIVE_CHI2
-
-    if not rec.ok or rec.circle_normal is None or not np.isfinite(k1_sigma):
-        return {}
-    pair = np.stack([rec.normal, rec.normal_twin])
-    near, i = _nearer(rec.circle_normal, pair)
-    B = _tangent(near)
-    moved = []
-    for s in (1.0, -1.0):
-        cam = _with_k1(camera, camera.dist[0] + s * k1_sigma)
-        _, r, _ = _orient(image, cam, pencil, edges)
-        if not r.ok or r.circle_normal is None:
-            return {}
-        moved.append(B.T @ (np.asarray(r.circle_normal) - _nearer(near, np.stack([r.normal, r.normal_twin]))[0]))
-    J = 0.5 * (moved[0] - moved[1])  # (2,) the difference's change per sigma of k1
-    var = 0.5 * np.radians(np.hypot(rec.normal_sigma_deg, rec.circle_normal_sigma_deg)) ** 2
-    C = var * np.eye(2) + np.outer(J, J)
-    chi2 = [float(d @ np.linalg.solve(C, d)) for d in
-            (B.T @ (np.asarray(rec.circle_normal) - n) for n in (near, pair[1 - i]))]
-    return {"circle_twin": near, "circle_chi2_lens": chi2[0], "circle_chi2_lens_other": chi2[1],
-            "lens_shift_deg": float(np.degrees(np.linalg.norm(J))),
-            "circle_twin_lens_decisive": bool(chi2[1] - chi2[0] > DECISIVE_CHI2 and chi2[0] <= CHOICE_CHI2)}
-
-
 def check_photo(image, pencil, f0=None):
     """The plane of a radial target in a photograph from its spokes' edges and from its
     circles, the camera estimated from the target (module docstring).
@@ -230,9 +181,7 @@ def check_photo(image, pencil, f0=None):
     scores of the values tried; focal_px (the circles' median) and each circle's; then, with that
     camera (k1 rescaled to keep the same pixel map), the `Orientation` (``orientation``),
     edges found and spokes used, and the agreement of the lines' normal with the circles'
-    (circle_angle_deg, circle_chi2, circle_consistent, circles_used); and the circles'
-    normal against the twin it lies nearer with the lens's k1 as uncertain as the profile
-    leaves it (`_lens_spread`: circle_twin, circle_chi2_lens, ...).
+    (circle_angle_deg, circle_chi2, circle_consistent, circles_used).
     """
     from pencilcal.toolkit.detect.lines import radial_edge_count
 
@@ -250,8 +199,7 @@ def check_photo(image, pencil, f0=None):
     f = float(np.nanmedian(per_circle))
     cam = nominal_camera(W, H, f, k1 * (f / f0) ** 2)
     found, rec, _ = _orient(img, cam, pencil, edges)
-    lens = _lens_spread(img, pencil, edges, cam, rec, prof["k1_sigma"] * (f / f0) ** 2)
-    return {**lens,"k1_nominal": k1, "k1_sigma_nominal": prof["k1_sigma"], "f0": f0,
+    return {"k1_nominal": k1, "k1_sigma_nominal": prof["k1_sigma"], "f0": f0,
             "k1_profile": prof, "focal_px": f,
             "focal_per_circle": per_circle, "camera": cam, "orientation": rec.replace(lines=None),
             "edges_found": len(found), "spokes_used": rec.spokes_used, "circles_used": rec.circles_used,

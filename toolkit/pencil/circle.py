@@ -14,19 +14,7 @@ normals equally (Rot(ray, 180 deg) turns one into the other), a circle about the
 only one of them. The circle's normal shares only the vertex with the lines' orientation:
 a second, nearly independent measurement of the plane.
 
-Which edge points are the circle's is told first on the image alone (`_free`): the plane's
-normal is searched for under which the most directions about the vertex have a point at one
-radius on the plane (`_free_normal`, a Hough search over the normals within 80 deg of the
-vertex's ray), the points grouped by their radius on that plane, each group's ellipse fitted
-with its own covariance (`geometry.conic.fit_ellipse`), its normal the vertex's polar. Only
-the vertex is shared with the lines: the circles' normal is a second, independent
-measurement, and the two-sample test of the two normals' difference (`circle_record`,
-`circle_choice`) confirms or refuses the lines' labelling and chooses their twin. Grouped by
-the lines' own plane instead, the points of rings smeared over a range of radii make circles
-about whatever plane groups them: a 128-wedge star's 13 spokes labelled wrongly (the normal
-67 deg off) had five such circles 0.1 deg from the lines' normal, where the image alone gives
-circles 1 deg from the truth. Where no circle is found that way, the points are grouped with
-the lines' orientation as follows (`circle_estimate`):
+Which edge points are the circle's is told with the lines' orientation (`circle_estimate`):
 under the right rotation, the points of one circle all lie at one radius on the plane (in
 units of the vertex depth), nested rings a few pixels apart at different radii. The points
 are grouped by that radius under each twin, an ellipse fitted to each group (points beyond
@@ -313,12 +301,7 @@ def circle_estimate(points, x, x_cov, R, R_twin, *, scale, radii=None):
         (the camera's focal length), for the thresholds in pixels; radii: (L,) the circles'
         radii when known (the pencil file's ``circles``): only groups in their ratios count.
 
-    First the circles are found on the image alone (`_free`: the plane under which the most
-    directions have a point at one radius, the points grouped by their radius on it, each
-    group's ellipse and its normal), ``grouped_by`` then the twin the normal lies nearer:
-    that estimate is returned where it finds a circle (``any_plane`` where its plane stands
-    out less than `FREE_CONTRAST` times from the others). Else the points are grouped by
-    their radius on each twin's plane, and the twin whose circles
+    The points are grouped by their radius on each twin's plane, and the twin whose circles
     fix the plane better kept (module docstring); the points are also grouped on the image
     alone (`_chains`), and the chains that go round the vertex and fit an ellipse (whole
     rings) give the circles' normal without reference to either twin. Where that normal lies
@@ -336,10 +319,6 @@ def circle_estimate(points, x, x_cov, R, R_twin, *, scale, radii=None):
     """
     points = np.asarray(points, float).reshape(-1, 2)
     x = np.asarray(x, float)
-    free = _free(points, x, x_cov, R, R_twin, scale, radii)
-    if free is not None:
-        rings = _rings(points, x, x_cov, R, R_twin, scale, radii)
-        return replace(free, rings=None if rings is None else rings.normal)
     grouped = _grouped(points, x, x_cov, R, R_twin, scale, radii)
     rings = _rings(points, x, x_cov, R, R_twin, scale, radii)
     if rings is None:
@@ -461,8 +440,7 @@ def _rings(points, x, x_cov, R, R_twin, scale, radii):
 def _estimate(x, x_cov, scale, which, fits, depth, covs, n, cov_c, chi2, dof):
     """The `CircleEstimate` of circles fits [(ellipse fit, indices kept, radius on the plane)]
     grouped by (or lying about) the twin `which`, their combined normal n (3,) and its
-    covariance from the conics cov_c (3, 3), widened by the circles' own scatter (`_scatter_scale`)."""
-    cov_c = cov_c * _scatter_scale(chi2, dof)
+    covariance from the conics cov_c (3, 3)."""
     # the vertex moves every circle's normal together: its term on the combination
     Jx = _combined_jacobian(fits, x, covs)
     cov = cov_c + Jx @ np.asarray(x_cov, float) @ Jx.T
@@ -471,25 +449,6 @@ def _estimate(x, x_cov, scale, which, fits, depth, covs, n, cov_c, chi2, dof):
                           np.array([f[2] for f in fits]), np.array([f[1].size for f in fits]),
                           np.array([f[0].rms * scale for f in fits]), depth, np.array([f[0].conic for f in fits]),
                           0.5 * (cov_c + cov_c.T), Jx)
-
-
-def _scatter_scale(chi2, dof):
-    """How much wider the circles' combined covariance is than their conics' fits say: their
-    normals' chi2 per degree of freedom about their mean, where that chi2 lies beyond its
-    99 % quantile (each conic's covariance assumes independent edge points; a ring's edge is
-    biased along whole arcs, by its wires and by the colours on either side, which the fit's
-    residuals do not show but the rings' scatter about one another does), else 1: below it
-    the scatter is what the sigmas allow (widening there would cover more than 68 %). One
-    circle has no scatter to show: 1.
-
-    >>> round(_scatter_scale(30.0, 6), 3), _scatter_scale(12.9, 6), _scatter_scale(0.0, 0)
-    (5.0, 1.0, 1.0)
-    """
-    from scipy.special import gammaincinv
-
-    if dof <= 0 or chi2 <= 2.0 * gammaincinv(0.5 * dof, 0.99):
-        return 1.0
-    return float(chi2 / dof)
 
 
 def _normals(fits, x):
@@ -529,15 +488,6 @@ def normal_agreement(n_a, cov_a, n_b, cov_b):
 DECISIVE_CHI2 = 25.0
 
 
-#: And only where the chosen twin's normal matches the circles' (found on the image alone) in
-#: the two-sample test of their difference against both covariances: chi2 with 2 dof within
-#: `DECISIVE_CHI2` (the lines' covariance here is the fit's own, before any widening for their
-#: misfit: a 128-wedge star's right twin lay 0.13 deg from its circles at chi2 14.9, the lines'
-#: sigma 0.015 deg there and 0.063 deg once widened). Circles about another plane (a labelling
-#: wrong by tens of degrees) choose neither twin.
-CHOICE_CHI2 = DECISIVE_CHI2
-
-
 def line_normal_cov(fit):
     """(3, 3) covariances of a PencilFit's normal and of its twin's: the rotation's left
     perturbation (cov, camera frame) moves the normal by delta x n; the twin is that turned
@@ -565,7 +515,7 @@ def circle_choice(fit, est):
     which = chit < chi
     sep = float(np.degrees(np.arccos(np.clip(np.asarray(fit.normal) @ np.asarray(fit.normal_twin), -1, 1))))
     decisive = abs(chit - chi) > DECISIVE_CHI2 and min(a, at) < 0.5 * sep and \
-        int(np.max(est.points)) >= DECISIVE_POINTS and not est.any_plane and min(chi, chit) <= CHOICE_CHI2
+        int(np.max(est.points)) >= DECISIVE_POINTS and not est.any_plane
     return bool(which), bool(decisive), chi, chit
 
 
@@ -656,153 +606,3 @@ def spokes_end(camera, orientation, segments, pencil):
     if not inner.size:
         return None
     return float(np.nanmedian(outer_end)), float(pencil.radius[1] / inner[-1])
-
-
-#: The plane's normal is searched for on the image alone (`_free_normal`): the normals within
-#: FREE_TILT_DEG of the vertex's ray, first on a grid FREE_STEP_DEG apart, then about its best
-#: FREE_REFINE candidates on one a quarter as fine.
-FREE_TILT_DEG, FREE_STEP_DEG, FREE_REFINE = 80.0, 3.0, 6
-#: Angular bins [deg] that weigh each point by the points sharing its direction: a ring scores
-#: by the directions it covers, not by a clump of points at one place (a line of print).
-FREE_BIN_DEG = 3.0
-#: Points that fill a ring about any plane (edge points on the spokes, one per edge at every
-#: radius) score about as well under every normal: where the circles' plane scores under this
-#: many times the other twin's plane (the one the circles' normal lies farther from), the
-#: circles choose no twin (``any_plane``).
-FREE_CONTRAST = 2.0
-
-
-def _normals_about(ray, tilt, az):
-    """Unit normals (N, 3) at tilts (N,) [rad] from the unit ray (3,), about it at azimuths (N,) [rad]."""
-    a, b = _plane_rotation(ray)[:, :2].T
-    return (np.cos(tilt)[:, None] * ray + np.sin(tilt)[:, None] * (np.cos(az)[:, None] * a + np.sin(az)[:, None] * b))
-
-
-def _ring_scores(points, x, normals, width, weights):
-    """(N,) for each candidate normal (N, 3): the largest summed weight (weights (K,)) of the
-    points (K, 2) whose log radius on that plane about the vertex's image x (2,) lies within
-    one window `width` wide: one circle about the vertex on that plane. Points beyond the
-    plane's horizon count nowhere."""
-    P0 = np.r_[x, 1.0]
-    d = np.concatenate([points, np.ones((points.shape[0], 1))], -1)
-    K = d.shape[0]
-    out = np.zeros(len(normals))
-    for lo in range(0, len(normals), 512):
-        n = normals[lo:lo + 512]
-        with np.errstate(all="ignore"):
-            t = (n @ P0)[:, None] / (n @ d.T)  # (Nc, K)
-            rho = np.linalg.norm(t[..., None] * d[None] - P0, axis=-1)
-            lr = np.where((t > 0) & (rho > 0), np.log(rho), np.inf)
-        order = np.argsort(lr, 1)
-        lr = np.take_along_axis(lr, order, 1)
-        ok = np.isfinite(lr)
-        if not ok.any():
-            continue
-        cw = np.concatenate([np.zeros((len(n), 1)), np.cumsum(weights[order], 1)], 1)
-        # every row's radii shifted into a range of its own, one searchsorted for all rows
-        base = np.min(lr[ok])
-        span = np.max(lr[ok]) - base + 2 * width + 1.0
-        flat = np.where(ok, lr - base, span - width) + np.arange(len(n))[:, None] * span
-        end = np.searchsorted(flat.ravel(), (flat + width).ravel(), side="right").reshape(flat.shape)
-        end -= np.arange(len(n))[:, None] * K
-        sums = np.take_along_axis(cw, np.clip(end, 0, K), 1) - cw[:, :-1]
-        out[lo:lo + len(n)] = np.max(np.where(ok, sums, 0.0), 1)
-    return out
-
-
-def _free_normal(points, x):
-    """(the plane's unit normal (3,) under which the most directions about the vertex's image
-    x (2,) have a point (points (K, 2), normalised) at one radius on the plane: a circle about
-    the vertex, found on the image alone (no line's orientation); how far its score stands out
-    of the grid's median), or None. Searched over the normals within `FREE_TILT_DEG` of the
-    vertex's ray on a grid `FREE_STEP_DEG` apart with windows of 3 `GROUP_LOG_RADIUS` in log
-    radius, then about the best `FREE_REFINE` on a grid a quarter as fine (windows 1.5
-    `GROUP_LOG_RADIUS`), then about the best two a third finer again (windows of
-    `GROUP_LOG_RADIUS`, 1 px at 100 px)."""
-    if points.shape[0] < MIN_POINTS:
-        return None
-    w = _direction_weights(points, x)
-    ray = np.r_[x, 1.0] / np.linalg.norm(np.r_[x, 1.0])
-    step = np.radians(FREE_STEP_DEG)
-    tilts, azs = [0.0], [0.0]
-    for g in np.arange(step, np.radians(FREE_TILT_DEG) + 1e-9, step):
-        m = int(np.ceil(2 * np.pi * np.sin(g) / step))
-        tilts += [g] * m
-        azs += list(np.arange(m) * 2 * np.pi / m)
-    N = _normals_about(ray, np.array(tilts), np.array(azs))
-    s = _ring_scores(points, x, N, 3 * GROUP_LOG_RADIUS, w)
-    contrast = float(np.max(s) / max(np.median(s), 1e-12))
-    for keep, fine, width in ((FREE_REFINE, 4.0, 1.5), (2, 12.0, 1.0)):
-        best = []
-        for i in np.argsort(-s):  # the best candidates a grid step or more apart
-            if all(N[i] @ N[j] < np.cos(1.5 * step) for j in best):
-                best.append(i)
-            if len(best) == keep:
-                break
-        N = np.concatenate([_patch(N[i], step / fine) for i in best])
-        s = _ring_scores(points, x, N, width * GROUP_LOG_RADIUS, w)
-        step = step * 4 / fine
-    n = N[int(np.argmax(s))]
-    return (n if n @ np.r_[x, 1.0] > 0 else -n), contrast  # contrast: the score's over the grid's median
-
-
-def _direction_weights(points, x):
-    """(K,) each point's weight: one over the number of points (K, 2) within its `FREE_BIN_DEG`
-    of direction about the vertex's image x (2,)."""
-    dd = points - x
-    k = np.floor(np.degrees(np.remainder(np.arctan2(dd[:, 1], dd[:, 0]), 2 * np.pi)) / FREE_BIN_DEG).astype(int)
-    return 1.0 / np.bincount(k)[k]
-
-
-def _patch(n, step):
-    """Unit normals (81, 3) on a 9 x 9 grid `step` [rad] apart about the unit normal n (3,)."""
-    a, b = _plane_rotation(n)[:, :2].T
-    du, dv = np.meshgrid(np.arange(-4, 5) * step, np.arange(-4, 5) * step)
-    cand = n + du.ravel()[:, None] * a + dv.ravel()[:, None] * b
-    return cand / np.linalg.norm(cand, axis=1, keepdims=True)
-
-
-def _plane_rotation(n):
-    """A rotation (3, 3) whose third column is the unit normal n (3,) (its in-plane axes arbitrary)."""
-    a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-    a /= np.linalg.norm(a)
-    return np.stack([a, np.cross(n, a), n], -1)
-
-
-def _free(points, x, x_cov, R, R_twin, scale, radii):
-    """`circle_estimate` of the circles found on the image alone: the points grouped by their
-    radius on the plane of `_free_normal` (then once more on the plane their circles give),
-    each group's ellipse fitted with its own covariance and its normal the vertex's polar;
-    ``grouped_by`` the lines' twin (R, R_twin) that normal lies nearer. None without a circle."""
-    got = _free_normal(points, x)
-    if got is None:
-        return None
-    n = got[0]
-    chain = np.empty(points.shape[0], int)
-    for k, g in enumerate(_chains(points, x, scale)):
-        chain[g] = k
-    out = None
-    for _ in range(2):
-        rho, ang = plane_radii(points, x, _plane_rotation(n))
-        fits = []
-        for g in _groups(rho, ang):
-            got = _circle(points, g, scale)
-            if got is not None and np.all(np.isfinite(rho[got[1]])) and \
-                    _takes_chains_whole(points, got, chain, scale):
-                fits.append((got[0], got[1], float(np.median(rho[got[1]]))))
-        mask, depth = _matched_radii(np.array([f[2] for f in fits]), radii)
-        fits = [f for f, m in zip(fits, mask) if m]
-        if not fits:
-            return out
-        normals, covs = _normals(fits, x)
-        n, cov_c, chi2, dof = _combine(normals, covs)
-        # the radii are the circles' own, on the plane that grouped them (on a twin's plane
-        # a point may lie beyond its horizon)
-        which = _nearer_twin(n, R, R_twin)
-        # points that fill rings about any plane (edge points on the spokes) make one about
-        # the other twin's plane as well: then they choose neither
-        w = _direction_weights(points, x)
-        score = _ring_scores(points, x, np.stack([n, (R, R_twin)[1 - which][:, 2]]), GROUP_LOG_RADIUS, w)
-        out = replace(_estimate(x, x_cov, scale, which, fits, depth, covs, n, cov_c, chi2, dof),
-                      any_plane=bool(score[0] < FREE_CONTRAST * score[1]))
-    return out
